@@ -1,0 +1,18 @@
+"""Hybrid renderer: Vulkan rasterized G-buffer + compute ray-traced shadows and ambient occlusion.
+
+Public API::
+
+    import engine
+    scene = engine.Scene.load("scenes/default.toml")
+    with engine.Renderer(1280, 720) as r:
+        frame = r.render(scene, shadows="hard", ao=True)
+        frame.save("out.png")
+"""
+from .errors import ConfigError, EngineError, SceneError, ShaderError, VulkanError
+from .renderer import Frame, Renderer
+from .scene import Camera, DirectionalLight, Material, PointLight, RectLight, Scene, SpotLight
+
+__all__ = [
+    "Scene", "Camera", "Material", "DirectionalLight", "PointLight", "SpotLight", "RectLight",
+    "Renderer", "Frame", "EngineError", "SceneError", "ConfigError", "VulkanError", "ShaderError",
+]

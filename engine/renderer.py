@@ -1,0 +1,372 @@
+"""The Renderer: owns the Vulkan context, the render targets and the passes, and orders them into a frame.
+
+    G-buffer raster -> shadow rays -> AO rays -> lighting + tonemap -> readback
+
+A frame's command buffer is recorded once per (scene, settings) and re-submitted; only the per-frame
+uniform block (camera, frame index) is rewritten before each submit.
+"""
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+import vulkan as vk
+
+from .errors import ConfigError, EngineError
+from .passes.frame_data import FRAME_BYTES, MAX_LIGHTS, pack_frame
+from .passes.gbuffer import ALBEDO_FORMAT, DEPTH_FORMAT, NORMAL_FORMAT, POSITION_FORMAT, GBufferPass, SceneGeometry
+from .passes.lighting import LightingPass
+from .shaders import ShaderLibrary
+from .vk import Buffer, Context, Image, Timestamps, image_barrier, memory_barrier
+from .vk.resources import STORAGE, TRANSFER_DST, TRANSFER_SRC, UNIFORM
+
+ONE_F32 = 0x3F800000  # bit pattern of 1.0f, for vkCmdFillBuffer
+WHOLE_SIZE = 0xFFFFFFFFFFFFFFFF
+
+DEFAULT_SETTINGS = {
+    "shadows": "hard",
+    "ao": True,
+    "ao_samples": 4,
+    "ao_radius": None,       # None: 10% of the scene's bounding-box diagonal
+    "exposure": 1.0,
+    "ambient": (0.20, 0.22, 0.26),
+}
+SHADOW_MODES = ("hard", "off")
+
+
+def _check_settings(settings: dict) -> dict:
+    out = dict(DEFAULT_SETTINGS)
+    for key, value in settings.items():
+        if key not in DEFAULT_SETTINGS:
+            raise ConfigError(f"unknown render setting {key!r} (known: {', '.join(sorted(DEFAULT_SETTINGS))})")
+        out[key] = value
+    if out["shadows"] not in SHADOW_MODES:
+        raise ConfigError(f"setting shadows={out['shadows']!r}: expected one of {', '.join(SHADOW_MODES)}")
+    if not isinstance(out["ao"], bool):
+        raise ConfigError(f"setting ao={out['ao']!r}: expected true or false")
+    if isinstance(out["ao_samples"], bool) or not isinstance(out["ao_samples"], int) or not 1 <= out["ao_samples"] <= 256:
+        raise ConfigError(f"setting ao_samples={out['ao_samples']!r}: expected an integer in 1..256")
+    for key in ("ao_radius", "exposure"):
+        v = out[key]
+        if v is None and key == "ao_radius":
+            continue
+        if isinstance(v, bool) or not isinstance(v, (int, float)) or not math.isfinite(v) or v <= 0:
+            raise ConfigError(f"setting {key}={v!r}: expected a positive number")
+    amb = np.asarray(out["ambient"], dtype=np.float64).reshape(-1) if not isinstance(out["ambient"], str) else None
+    if amb is None or amb.size not in (1, 3) or not np.all(np.isfinite(amb)) or np.any(amb < 0):
+        raise ConfigError(f"setting ambient={out['ambient']!r}: expected a non-negative number or 3 numbers")
+    out["ambient"] = tuple(np.broadcast_to(amb, (3,)).tolist())
+    return out
+
+
+def parse_size(text: str) -> tuple[int, int]:
+    """'1280x720' -> (1280, 720), with a clear error."""
+    try:
+        w, h = (int(v) for v in str(text).lower().split("x"))
+    except ValueError:
+        raise ConfigError(f"size {text!r}: expected WIDTHxHEIGHT, e.g. 1280x720") from None
+    check_size(w, h)
+    return w, h
+
+
+def check_size(width, height):
+    for name, v in (("width", width), ("height", height)):
+        if isinstance(v, bool) or not isinstance(v, (int, np.integer)):
+            raise ConfigError(f"size: {name} must be an integer, got {v!r}")
+        if not 1 <= v <= 16384:
+            raise ConfigError(f"size: {name} must be in 1..16384, got {v}")
+
+
+@dataclass
+class Frame:
+    """One rendered frame: `color` (H, W, 4) uint8 sRGB, `aov` float32 arrays, `timings` GPU ms per pass."""
+
+    color: np.ndarray
+    aov: dict = field(default_factory=dict)
+    timings: dict = field(default_factory=dict)
+    settings: dict = field(default_factory=dict)
+
+    def save(self, path, aov: str | None = None):
+        """Write the colour (or an AOV, normalized for viewing) as PNG."""
+        from PIL import Image as PILImage
+        img = self.color if aov is None else aov_to_rgba(self, aov)
+        try:
+            PILImage.fromarray(img, "RGBA").save(str(path))
+        except (OSError, ValueError) as exc:
+            raise EngineError(f"{path}: cannot write image: {exc}") from None
+
+
+def aov_to_rgba(frame: Frame, name: str) -> np.ndarray:
+    """A viewable 8-bit image of an AOV: normals mapped to [0, 1], depth and position normalized."""
+    if name == "color":
+        return frame.color
+    if name not in frame.aov:
+        raise ConfigError(f"aov {name!r}: not in this frame (have: {', '.join(sorted(frame.aov))})")
+    a = np.asarray(frame.aov[name], np.float32)
+    cover = frame.aov["depth"] < np.inf
+    if name == "normal":
+        rgb = np.where(cover[..., None], a * 0.5 + 0.5, 0.0)
+    elif name == "depth":
+        d = np.where(cover, a, np.nan)
+        lo, hi = (np.nanmin(d), np.nanmax(d)) if cover.any() else (0.0, 1.0)
+        rgb = np.repeat(np.where(cover, 1.0 - (a - lo) / max(hi - lo, 1e-12), 0.0)[..., None], 3, axis=2)
+    elif name == "position":
+        lo, hi = (a[cover].min(0), a[cover].max(0)) if cover.any() else (0.0, 1.0)
+        rgb = np.where(cover[..., None], (a - lo) / np.maximum(hi - lo, 1e-12), 0.0)
+    elif name == "albedo":
+        rgb = np.clip(a, 0, 1) ** (1 / 2.2)
+    elif a.ndim == 3 and a.shape[2] != 3:  # per-light masks: average over lights
+        rgb = np.repeat(a.mean(axis=2, keepdims=True), 3, axis=2) if a.shape[2] else np.ones(a.shape[:2] + (3,))
+    elif a.ndim == 2:
+        rgb = np.repeat(a[..., None], 3, axis=2)
+    else:
+        rgb = a
+    rgb = np.clip(np.nan_to_num(rgb), 0.0, 1.0)
+    out = np.empty(rgb.shape[:2] + (4,), np.uint8)
+    out[..., :3] = np.round(rgb * 255)
+    out[..., 3] = 255
+    return out
+
+
+class Targets:
+    """Every per-size image and buffer of a frame, plus the host buffer the frame is read back into."""
+
+    def __init__(self, ctx, width, height, light_capacity):
+        self.width, self.height, self.light_capacity = width, height, light_capacity
+        n = width * height
+        att = (vk.VK_IMAGE_USAGE_COLOR_ATTACHMENT_BIT | vk.VK_IMAGE_USAGE_STORAGE_BIT
+               | vk.VK_IMAGE_USAGE_TRANSFER_SRC_BIT)
+        self.position = Image(ctx, width, height, POSITION_FORMAT, att, name="position")
+        self.normal = Image(ctx, width, height, NORMAL_FORMAT, att, name="normal")
+        self.albedo = Image(ctx, width, height, ALBEDO_FORMAT, att, name="albedo")
+        self.gbuffer = [self.position, self.normal, self.albedo]
+        self.depth = Image(ctx, width, height, DEPTH_FORMAT, vk.VK_IMAGE_USAGE_DEPTH_STENCIL_ATTACHMENT_BIT)
+        out_usage = (vk.VK_IMAGE_USAGE_STORAGE_BIT | vk.VK_IMAGE_USAGE_TRANSFER_SRC_BIT)
+        self.color = Image(ctx, width, height, vk.VK_FORMAT_R8G8B8A8_UNORM, out_usage, name="color")
+        self.hdr = Image(ctx, width, height, vk.VK_FORMAT_R16G16B16A16_SFLOAT, out_usage, name="hdr")
+        buf_usage = STORAGE | TRANSFER_SRC | TRANSFER_DST
+        self.masks = Buffer(ctx, n * 4 * light_capacity, buf_usage, name="masks")
+        self.ao = Buffer(ctx, n * 4, buf_usage, name="ao")
+        # Readback layout: colour, position, normal, albedo, masks, ao.
+        self.offsets = {}
+        off = 0
+        for name, size in (("color", n * 4), ("position", n * 16), ("normal", n * 16), ("albedo", n * 8),
+                           ("masks", n * 4 * light_capacity), ("ao", n * 4)):
+            self.offsets[name] = off
+            off += size
+        self.readback = Buffer(ctx, off, TRANSFER_DST, host=True, name="readback")
+        self._objects = [self.position, self.normal, self.albedo, self.depth, self.color, self.hdr,
+                         self.masks, self.ao, self.readback]
+        with ctx.one_shot() as cmd:
+            for img in (self.color, self.hdr):
+                image_barrier(cmd, img, vk.VK_IMAGE_LAYOUT_UNDEFINED, vk.VK_IMAGE_LAYOUT_GENERAL,
+                              vk.VK_PIPELINE_STAGE_TOP_OF_PIPE_BIT, vk.VK_PIPELINE_STAGE_COMPUTE_SHADER_BIT,
+                              0, vk.VK_ACCESS_SHADER_WRITE_BIT)
+
+    def record_readback(self, cmd):
+        """Copy every target into the host buffer (after the lighting pass)."""
+        w, h = self.width, self.height
+        sub = vk.VkImageSubresourceLayers(vk.VK_IMAGE_ASPECT_COLOR_BIT, 0, 0, 1)
+        for name, img in (("color", self.color), ("position", self.position), ("normal", self.normal),
+                          ("albedo", self.albedo)):
+            region = vk.VkBufferImageCopy(bufferOffset=self.offsets[name], bufferRowLength=0, bufferImageHeight=0,
+                                          imageSubresource=sub, imageOffset=vk.VkOffset3D(0, 0, 0),
+                                          imageExtent=vk.VkExtent3D(w, h, 1))
+            vk.vkCmdCopyImageToBuffer(cmd, img.handle, vk.VK_IMAGE_LAYOUT_GENERAL, self.readback.handle, 1, [region])
+        for name, buf in (("masks", self.masks), ("ao", self.ao)):
+            vk.vkCmdCopyBuffer(cmd, buf.handle, self.readback.handle, 1,
+                               [vk.VkBufferCopy(0, self.offsets[name], buf.size)])
+        memory_barrier(cmd, vk.VK_PIPELINE_STAGE_TRANSFER_BIT, vk.VK_PIPELINE_STAGE_HOST_BIT,
+                       vk.VK_ACCESS_TRANSFER_WRITE_BIT, vk.VK_ACCESS_HOST_READ_BIT)
+
+    def read(self, n_lights) -> tuple[np.ndarray, dict]:
+        w, h = self.width, self.height
+        n = w * h
+        raw = self.readback.view(np.uint8)
+
+        def part(name, dtype, count, shape):
+            o = self.offsets[name]
+            return np.frombuffer(raw[o:o + count * np.dtype(dtype).itemsize].tobytes(), dtype).reshape(shape)
+
+        color = part("color", np.uint8, n * 4, (h, w, 4)).copy()
+        pos = part("position", np.float32, n * 4, (h, w, 4))
+        nrm = part("normal", np.float32, n * 4, (h, w, 4))
+        alb = part("albedo", np.float16, n * 4, (h, w, 4)).astype(np.float32)
+        cover = nrm[..., 3] > 0
+        depth = np.where(cover, pos[..., 3], np.inf).astype(np.float32)
+        masks = part("masks", np.float32, n * max(n_lights, 1), (max(n_lights, 1), h, w))[:n_lights]
+        aov = {
+            "position": np.ascontiguousarray(pos[..., :3]),
+            "normal": np.ascontiguousarray(nrm[..., :3]),
+            "albedo": np.ascontiguousarray(alb[..., :3]),
+            "depth": depth,
+            "shadow": np.ascontiguousarray(np.moveaxis(masks, 0, -1)),
+            "ao": part("ao", np.float32, n, (h, w)).copy(),
+        }
+        return color, aov
+
+    def destroy(self):
+        for obj in self._objects:
+            obj.destroy()
+
+
+class Renderer:
+    """Headless hybrid renderer. `with Renderer(640, 360) as r: frame = r.render(scene)`."""
+
+    def __init__(self, width: int, height: int, *, device=None, validation: bool = False,
+                 shader_dir=None, hot_reload: bool = False):
+        check_size(width, height)
+        self.width, self.height = int(width), int(height)
+        self.library = ShaderLibrary(shader_dir, hot_reload=hot_reload)
+        self.ctx = None
+        self._validation_errors: list[str] = []
+        try:
+            self.ctx = Context(device=device, validation=validation or None)
+            self._validation_errors = self.ctx.validation_errors  # the same list: still readable after close()
+            self._init_gpu()
+        except BaseException:
+            self.close()
+            raise
+
+    def _init_gpu(self):
+        ctx = self.ctx
+        self.frame_ubo = Buffer(ctx, FRAME_BYTES, UNIFORM, host=True, name="frame")
+        self.timestamps = Timestamps(ctx)
+        self.targets = Targets(ctx, self.width, self.height, light_capacity=1)
+        self.gbuffer = GBufferPass(ctx, self.library, self.frame_ubo)
+        self.lighting = LightingPass(ctx, self.library, self.frame_ubo, self.targets)
+        self.passes = [self.gbuffer, self.lighting]
+        self._scene = None
+        self._geometry = None
+        self._commands: dict = {}
+        self._frame_index = 0
+        self._prev_view_proj = None
+        self.uploads = 0  # scene uploads so far (a test reads it: the same scene is uploaded once)
+
+    # ---- public ---------------------------------------------------------------------------
+    @property
+    def validation_errors(self) -> list[str]:
+        """Error-severity validation messages so far (leaks found at close() included)."""
+        return self._validation_errors
+
+    @property
+    def shader_errors(self) -> dict[str, str]:
+        return dict(self.library.errors)
+
+    @property
+    def device_name(self) -> str:
+        return self.ctx.device_info["name"]
+
+    def render(self, scene, camera=None, **settings) -> Frame:
+        if self.ctx is None:
+            raise EngineError("render() on a closed Renderer")
+        merged = dict(getattr(scene, "settings", None) or {})
+        merged.update(settings)
+        cfg = _check_settings(merged)
+        camera = camera if camera is not None else scene.camera
+        self._poll_shaders()
+        self._use_scene(scene)
+        lights = list(scene.lights)
+        if len(lights) > MAX_LIGHTS:
+            raise ConfigError(f"{scene.name}: {len(lights)} lights, at most {MAX_LIGHTS} are supported")
+        if len(lights) > self.targets.light_capacity:
+            self._resize_targets(light_capacity=len(lights))
+
+        aspect = self.width / self.height
+        view_proj = camera.projection_matrix(aspect) @ camera.view_matrix()
+        diag = float(np.linalg.norm(scene.bounds[1] - scene.bounds[0])) or 1.0
+        self.frame_ubo.write(np.frombuffer(pack_frame(
+            view_proj=view_proj, prev_view_proj=self._prev_view_proj if self._prev_view_proj is not None else view_proj,
+            eye=camera.eye, forward=camera.forward, near=camera.near, width=self.width, height=self.height,
+            frame_index=self._frame_index, lights=lights,
+            ao_radius=cfg["ao_radius"] or 0.1 * diag, ao_samples=cfg["ao_samples"], shadow_samples=1,
+            exposure=cfg["exposure"], ambient=cfg["ambient"], scene_scale=diag, accum_alpha=1.0), np.uint8))
+        key = (cfg["shadows"], cfg["ao"], len(lights))
+        if key not in self._commands:
+            cmd = self._record(cfg, len(lights))
+            self._commands[key] = (cmd, list(self.timestamps.names))
+        cmd, marks = self._commands[key]
+        self.ctx.submit(cmd)
+        self._frame_index += 1
+        self._prev_view_proj = view_proj
+        color, aov = self.targets.read(len(lights))
+        return Frame(color=color, aov=aov, timings=self.timestamps.read(marks), settings=cfg)
+
+    def close(self):
+        if self.ctx is not None:
+            self.ctx.close()
+            self.ctx = None
+        if getattr(self, "library", None) is not None:
+            self.library.close()
+
+    def __enter__(self):
+        return self
+
+    def __exit__(self, *exc):
+        self.close()
+
+    # ---- internals ------------------------------------------------------------------------
+    def _poll_shaders(self):
+        updated = self.library.poll()
+        if not updated:
+            return
+        for p in self.passes:
+            if updated & set(p.shaders):
+                try:
+                    p.reload(self.library)
+                except EngineError as exc:
+                    self.library.errors[str(self.library.glsl_dir / p.shaders[-1])] = str(exc)
+        self._invalidate_commands()
+
+    def _invalidate_commands(self):
+        if self._commands:
+            self.ctx.wait_idle()
+            for cmd, _ in self._commands.values():
+                self.ctx.free_command_buffer(cmd)
+            self._commands.clear()
+
+    def _use_scene(self, scene):
+        if scene is self._scene:
+            return
+        self._invalidate_commands()
+        if self._geometry is not None:
+            self.ctx.wait_idle()
+            self._geometry.destroy()
+        self._geometry = SceneGeometry(self.ctx, scene, self.gbuffer.white, self.gbuffer.sampler)
+        self.gbuffer.bind_scene(self._geometry)
+        self._scene = scene
+        self._prev_view_proj = None
+        self.uploads += 1
+
+    def _resize_targets(self, light_capacity):
+        self._invalidate_commands()
+        self.ctx.wait_idle()
+        self.targets.destroy()
+        self.targets = Targets(self.ctx, self.width, self.height, light_capacity)
+        self.lighting.bind_targets(self.targets)
+
+    def _record(self, cfg, n_lights):
+        ctx, t = self.ctx, self.targets
+        cmd = ctx.allocate_command_buffer()
+        vk.vkBeginCommandBuffer(cmd, vk.VkCommandBufferBeginInfo())
+        ts = self.timestamps
+        ts.begin(cmd)
+        self.gbuffer.record(cmd, t, self._geometry)
+        ts.mark(cmd, "gbuffer")
+        vk.vkCmdFillBuffer(cmd, t.masks.handle, 0, WHOLE_SIZE, ONE_F32)
+        ts.mark(cmd, "shadows")
+        vk.vkCmdFillBuffer(cmd, t.ao.handle, 0, WHOLE_SIZE, ONE_F32)
+        ts.mark(cmd, "ao")
+        memory_barrier(cmd, vk.VK_PIPELINE_STAGE_TRANSFER_BIT | vk.VK_PIPELINE_STAGE_COMPUTE_SHADER_BIT,
+                       vk.VK_PIPELINE_STAGE_COMPUTE_SHADER_BIT,
+                       vk.VK_ACCESS_TRANSFER_WRITE_BIT | vk.VK_ACCESS_SHADER_WRITE_BIT, vk.VK_ACCESS_SHADER_READ_BIT)
+        self.lighting.record(cmd, t)
+        ts.mark(cmd, "lighting")
+        memory_barrier(cmd, vk.VK_PIPELINE_STAGE_COMPUTE_SHADER_BIT, vk.VK_PIPELINE_STAGE_TRANSFER_BIT,
+                       vk.VK_ACCESS_SHADER_WRITE_BIT, vk.VK_ACCESS_TRANSFER_READ_BIT)
+        t.record_readback(cmd)
+        ts.mark(cmd, "readback")
+        vk.vkEndCommandBuffer(cmd)
+        return cmd

@@ -1,0 +1,191 @@
+"""Shader sources, committed SPIR-V and its manifest, compilation with glslangValidator, hot reload.
+
+Rendering normally loads the committed SPIR-V in `shaders/spv/` and needs no compiler. The manifest
+(`shaders/spv/manifest.json`) records, per shader, a hash of its source and of every file it
+includes, so a test can tell when the committed SPIR-V is stale without comparing SPIR-V bytes.
+
+With hot reload, `ShaderLibrary.poll()` looks at the GLSL files' modification times, recompiles
+only the shaders whose source or includes changed (into a temporary folder, never into
+`shaders/spv/`), and reports which shaders have new SPIR-V and which failed, with the compiler's
+message.
+"""
+from __future__ import annotations
+
+import hashlib
+import json
+import os
+import re
+import shutil
+import subprocess
+import tempfile
+from pathlib import Path
+
+from .errors import ShaderError
+
+ROOT = Path(__file__).resolve().parent.parent / "shaders"
+GLSL_DIR = ROOT / "glsl"
+SPV_DIR = ROOT / "spv"
+MANIFEST = "manifest.json"
+STAGES = (".vert", ".frag", ".comp")
+TARGET_ENV = "vulkan1.2"
+_INCLUDE = re.compile(r'^\s*#\s*include\s+"([^"]+)"', re.M)
+
+
+def shader_sources(glsl_dir: Path = GLSL_DIR) -> list[Path]:
+    """Every compilable shader (by stage extension) in the folder, includes excluded."""
+    return sorted(p for p in Path(glsl_dir).iterdir() if p.suffix in STAGES)
+
+
+def includes_of(path: Path, glsl_dir: Path, _seen=None) -> list[Path]:
+    """Every file `path` includes, transitively (looked up next to the file, then in include/)."""
+    seen = _seen if _seen is not None else set()
+    out = []
+    for name in _INCLUDE.findall(Path(path).read_text()):
+        for base in (Path(path).parent, Path(glsl_dir) / "include"):
+            cand = (base / name).resolve()
+            if cand.exists():
+                break
+        else:
+            continue  # glslang will report the missing include with its own message
+        if cand not in seen:
+            seen.add(cand)
+            out.append(cand)
+            out.extend(includes_of(cand, glsl_dir, seen))
+    return out
+
+
+def source_hash(path: Path, glsl_dir: Path = GLSL_DIR) -> str:
+    """sha256 over the shader's source and its includes (by name relative to glsl_dir, then content)."""
+    h = hashlib.sha256()
+    glsl_dir = Path(glsl_dir).resolve()
+    for f in [Path(path).resolve()] + sorted(includes_of(path, glsl_dir)):
+        h.update(str(f.relative_to(glsl_dir)).encode() + b"\0" + f.read_bytes() + b"\0")
+    return h.hexdigest()
+
+
+def glslang() -> str:
+    exe = shutil.which("glslangValidator")
+    if exe is None:
+        raise ShaderError("glslangValidator not found (apt-get install glslang-tools)")
+    return exe
+
+
+def compile_shader(src: Path, out: Path, glsl_dir: Path = GLSL_DIR) -> None:
+    """Compile one GLSL file to SPIR-V; raise ShaderError with the compiler's message on failure."""
+    cmd = [glslang(), "-V", "--target-env", TARGET_ENV, "-I" + str(Path(glsl_dir) / "include"),
+           "-o", str(out), str(src)]
+    try:
+        res = subprocess.run(cmd, capture_output=True, text=True, timeout=120)
+    except subprocess.TimeoutExpired:
+        raise ShaderError(f"{src}: glslangValidator timed out") from None
+    if res.returncode != 0:
+        lines = [l for l in (res.stdout + res.stderr).splitlines()
+                 if l.strip() and not l.startswith(str(src)) or "ERROR" in l]
+        msg = "\n".join(l for l in lines if "ERROR" in l or "error" in l) or "\n".join(lines)
+        raise ShaderError(f"{src}: {msg.strip()}")
+
+
+def compile_all(glsl_dir: Path = GLSL_DIR, spv_dir: Path = SPV_DIR) -> dict:
+    """Compile every shader into spv_dir and write the manifest; returns the manifest."""
+    spv_dir.mkdir(parents=True, exist_ok=True)
+    manifest = {}
+    for src in shader_sources(glsl_dir):
+        compile_shader(src, spv_dir / (src.name + ".spv"), glsl_dir)
+        manifest[src.name] = {"source_sha256": source_hash(src, glsl_dir),
+                              "includes": sorted(str(p.relative_to(Path(glsl_dir).resolve()))
+                                                 for p in includes_of(src, glsl_dir))}
+    (spv_dir / MANIFEST).write_text(json.dumps(manifest, indent=2, sort_keys=True) + "\n")
+    return manifest
+
+
+def stale_shaders(glsl_dir: Path = GLSL_DIR, spv_dir: Path = SPV_DIR) -> list[str]:
+    """Names of shaders whose committed SPIR-V does not match their current sources (or is missing)."""
+    try:
+        manifest = json.loads((spv_dir / MANIFEST).read_text())
+    except (OSError, ValueError):
+        return ["<manifest missing or unreadable>"]
+    stale = []
+    names = {s.name for s in shader_sources(glsl_dir)}
+    for src in shader_sources(glsl_dir):
+        entry = manifest.get(src.name)
+        if (entry is None or entry.get("source_sha256") != source_hash(src, glsl_dir)
+                or not (spv_dir / (src.name + ".spv")).exists()):
+            stale.append(src.name)
+    stale += sorted(n + " (no source)" for n in manifest if n not in names)
+    return stale
+
+
+class ShaderLibrary:
+    """Where pipelines get their SPIR-V. Committed SPIR-V by default; compiled on change with hot reload."""
+
+    def __init__(self, glsl_dir=None, hot_reload: bool = False, spv_dir=None):
+        self.glsl_dir = Path(glsl_dir) if glsl_dir is not None else GLSL_DIR
+        self.spv_dir = Path(spv_dir) if spv_dir is not None else SPV_DIR
+        self.hot_reload = hot_reload
+        self.errors: dict[str, str] = {}
+        self._compiled: dict[str, bytes] = {}
+        self._tmp = None
+        self._stamps: dict[str, float] = {}
+        if not self.glsl_dir.is_dir() and hot_reload:
+            raise ShaderError(f"{self.glsl_dir}: shader folder not found")
+        if hot_reload:
+            self._tmp = tempfile.TemporaryDirectory(prefix="hybrid-spv-")
+            self._stamps = self._scan()
+            if glsl_dir is not None:  # a separate source folder: build it all now
+                for src in shader_sources(self.glsl_dir):
+                    self._try_compile(src)
+
+    def get(self, name: str) -> bytes:
+        """SPIR-V bytes for e.g. 'lighting.comp'."""
+        if name in self._compiled:
+            return self._compiled[name]
+        path = self.spv_dir / (name + ".spv")
+        try:
+            return path.read_bytes()
+        except OSError:
+            raise ShaderError(f"{path}: SPIR-V not found (run tools/compile_shaders.py)") from None
+
+    def _scan(self) -> dict[str, float]:
+        stamps = {}
+        for dirpath, _, files in os.walk(self.glsl_dir):
+            for f in files:
+                p = os.path.join(dirpath, f)
+                try:
+                    stamps[p] = os.stat(p).st_mtime_ns
+                except OSError:
+                    pass
+        return stamps
+
+    def _try_compile(self, src: Path) -> bool:
+        out = Path(self._tmp.name) / (src.name + ".spv")
+        try:
+            compile_shader(src, out, self.glsl_dir)
+        except ShaderError as exc:
+            self.errors[str(src)] = str(exc)
+            return False
+        self.errors.pop(str(src), None)
+        self._compiled[src.name] = out.read_bytes()
+        return True
+
+    def poll(self) -> set[str]:
+        """Recompile shaders affected by changed files; return the names that have new SPIR-V."""
+        if not self.hot_reload:
+            return set()
+        stamps = self._scan()
+        changed = {Path(p).resolve() for p, t in stamps.items() if self._stamps.get(p) != t}
+        changed |= {Path(p).resolve() for p in self._stamps if p not in stamps}
+        self._stamps = stamps
+        if not changed:
+            return set()
+        updated = set()
+        for src in shader_sources(self.glsl_dir):
+            deps = {src.resolve(), *includes_of(src, self.glsl_dir)}
+            if deps & changed or str(src) in self.errors:
+                if self._try_compile(src):
+                    updated.add(src.name)
+        return updated
+
+    def close(self):
+        if self._tmp is not None:
+            self._tmp.cleanup()
+            self._tmp = None

@@ -1,0 +1,302 @@
+"""Vulkan instance, device and queue: the one object every other vk helper hangs off.
+
+`Context` owns the instance, the (optional) validation messenger, the logical device, one
+queue that does graphics + compute (+ present when a surface is given), a command pool and a
+list of objects to destroy on `close()` in reverse order of creation.
+"""
+from __future__ import annotations
+
+import logging
+import os
+
+import vulkan as vk
+
+from ..errors import ConfigError, VulkanError
+
+log = logging.getLogger("engine.vk")
+
+_TYPE_RANK = {  # lower is better: discrete > integrated > virtual > CPU
+    vk.VK_PHYSICAL_DEVICE_TYPE_DISCRETE_GPU: 0,
+    vk.VK_PHYSICAL_DEVICE_TYPE_INTEGRATED_GPU: 1,
+    vk.VK_PHYSICAL_DEVICE_TYPE_VIRTUAL_GPU: 2,
+    vk.VK_PHYSICAL_DEVICE_TYPE_CPU: 3,
+    vk.VK_PHYSICAL_DEVICE_TYPE_OTHER: 4,
+}
+_TYPE_NAME = {
+    vk.VK_PHYSICAL_DEVICE_TYPE_DISCRETE_GPU: "discrete GPU",
+    vk.VK_PHYSICAL_DEVICE_TYPE_INTEGRATED_GPU: "integrated GPU",
+    vk.VK_PHYSICAL_DEVICE_TYPE_VIRTUAL_GPU: "virtual GPU",
+    vk.VK_PHYSICAL_DEVICE_TYPE_CPU: "CPU",
+    vk.VK_PHYSICAL_DEVICE_TYPE_OTHER: "other",
+}
+VALIDATION_LAYER = "VK_LAYER_KHRONOS_validation"
+DEVICE_ENV = "HYBRID_DEVICE"
+VALIDATION_ENV = "HYBRID_VALIDATION"
+
+
+def _env_flag(name: str) -> bool:
+    return os.environ.get(name, "").strip().lower() in ("1", "true", "yes", "on")
+
+
+def _create_instance(extensions: list[str], layers: list[str]):
+    app = vk.VkApplicationInfo(
+        pApplicationName="hybrid", applicationVersion=1, pEngineName="hybrid",
+        engineVersion=1, apiVersion=vk.VK_MAKE_VERSION(1, 3, 0))
+    info = vk.VkInstanceCreateInfo(
+        pApplicationInfo=app,
+        enabledLayerCount=len(layers), ppEnabledLayerNames=layers or None,
+        enabledExtensionCount=len(extensions), ppEnabledExtensionNames=extensions or None)
+    try:
+        return vk.vkCreateInstance(info, None)
+    except vk.VkErrorIncompatibleDriver:
+        raise VulkanError("no Vulkan driver found (install mesa-vulkan-drivers, or set VK_DRIVER_FILES)") from None
+    except (vk.VkError, OSError) as exc:  # OSError: no libvulkan at all
+        raise VulkanError(f"could not create a Vulkan instance: {type(exc).__name__} {exc}") from None
+
+
+def describe_devices() -> list[dict]:
+    """List every Vulkan physical device (no logical device is created)."""
+    try:
+        available = {e.extensionName for e in vk.vkEnumerateInstanceExtensionProperties(None)}
+    except (vk.VkError, OSError) as exc:
+        raise VulkanError(f"the Vulkan loader is not usable: {exc}") from None
+    del available
+    inst = _create_instance([], [])
+    try:
+        return [_describe(i, p) for i, p in enumerate(vk.vkEnumeratePhysicalDevices(inst))]
+    finally:
+        vk.vkDestroyInstance(inst, None)
+
+
+def _describe(index, phys) -> dict:
+    props = vk.vkGetPhysicalDeviceProperties(phys)
+    api = props.apiVersion
+    return {
+        "index": index,
+        "name": vk.ffi.string(props.deviceName).decode() if not isinstance(props.deviceName, str) else props.deviceName,
+        "type": _TYPE_NAME.get(props.deviceType, "other"),
+        "rank": _TYPE_RANK.get(props.deviceType, 9),
+        "api": f"{vk.VK_VERSION_MAJOR(api)}.{vk.VK_VERSION_MINOR(api)}.{vk.VK_VERSION_PATCH(api)}",
+    }
+
+
+def choose_device(descs: list[dict], selector=None) -> int:
+    """Pick a device index: explicit selector (index or name substring) > $HYBRID_DEVICE > best type."""
+    if not descs:
+        raise VulkanError("no Vulkan device found (install mesa-vulkan-drivers for the lavapipe CPU device)")
+    source = "device"
+    if selector is None and os.environ.get(DEVICE_ENV):
+        selector, source = os.environ[DEVICE_ENV], DEVICE_ENV
+    if selector is None:
+        return min(descs, key=lambda d: (d["rank"], d["index"]))["index"]
+    text = str(selector).strip()
+    if text.lstrip("-").isdigit():
+        idx = int(text)
+        if not 0 <= idx < len(descs):
+            raise ConfigError(f"{source}={selector!r}: no such device index (have 0..{len(descs) - 1})")
+        return idx
+    matches = [d for d in descs if text.lower() in d["name"].lower()]
+    if not matches:
+        names = ", ".join(d["name"] for d in descs)
+        raise ConfigError(f"{source}={selector!r}: no device name contains it (devices: {names})")
+    return matches[0]["index"]
+
+
+class Context:
+    """Instance + device + queue. Use as a context manager or call close()."""
+
+    def __init__(self, device=None, validation: bool | None = None, instance_extensions=(),
+                 device_extensions=(), surface_factory=None):
+        self.validation = _env_flag(VALIDATION_ENV) if validation is None else bool(validation)
+        self.validation_errors: list[str] = []
+        self.validation_messages: list[str] = []
+        self._destroy_stack = []
+        self.instance = None
+        self.device = None
+        self._messenger = None
+        self.surface = None
+        try:
+            self._init(device, list(instance_extensions), list(device_extensions), surface_factory)
+        except BaseException:
+            self.close()
+            raise
+
+    # ---- set-up -------------------------------------------------------------------------
+    def _init(self, selector, inst_exts, dev_exts, surface_factory):
+        layers = []
+        try:
+            available_layers = {l.layerName for l in vk.vkEnumerateInstanceLayerProperties()}
+        except (vk.VkError, OSError) as exc:
+            raise VulkanError(f"the Vulkan loader is not usable: {exc}") from None
+        if self.validation:
+            if VALIDATION_LAYER not in available_layers:
+                raise VulkanError(f"validation requested but {VALIDATION_LAYER} is not installed "
+                                  "(apt-get install vulkan-validationlayers)")
+            layers.append(VALIDATION_LAYER)
+            inst_exts.append(vk.VK_EXT_DEBUG_UTILS_EXTENSION_NAME)
+        self.instance = _create_instance(inst_exts, layers)
+        if self.validation:
+            self._install_messenger()
+        if surface_factory is not None:
+            self.surface = surface_factory(self.instance)
+
+        physicals = vk.vkEnumeratePhysicalDevices(self.instance)
+        descs = [_describe(i, p) for i, p in enumerate(physicals)]
+        index = choose_device(descs, selector)
+        self.physical = physicals[index]
+        self.device_info = descs[index]
+        self.properties = vk.vkGetPhysicalDeviceProperties(self.physical)
+        self.limits = self.properties.limits
+        self.memory_properties = vk.vkGetPhysicalDeviceMemoryProperties(self.physical)
+        self.timestamp_period_ns = float(self.limits.timestampPeriod)
+
+        families = vk.vkGetPhysicalDeviceQueueFamilyProperties(self.physical)
+        want = vk.VK_QUEUE_GRAPHICS_BIT | vk.VK_QUEUE_COMPUTE_BIT
+        self.queue_family = None
+        for i, fam in enumerate(families):
+            if fam.queueFlags & want != want:
+                continue
+            if self.surface is not None:
+                get_support = vk.vkGetInstanceProcAddr(self.instance, "vkGetPhysicalDeviceSurfaceSupportKHR")
+                if not get_support(self.physical, i, self.surface):
+                    continue
+            self.queue_family = i
+            self.timestamp_bits = fam.timestampValidBits
+            break
+        if self.queue_family is None:
+            raise VulkanError(f"device {self.device_info['name']!r} has no graphics+compute queue"
+                              + (" that can present" if self.surface is not None else ""))
+
+        f13 = vk.VkPhysicalDeviceVulkan13Features(dynamicRendering=vk.VK_TRUE)
+        f12 = vk.VkPhysicalDeviceVulkan12Features(pNext=f13, hostQueryReset=vk.VK_TRUE)
+        feats = vk.VkPhysicalDeviceFeatures2(pNext=f12)
+        prio = vk.ffi.new("float[]", [1.0])
+        qinfo = vk.VkDeviceQueueCreateInfo(queueFamilyIndex=self.queue_family, queueCount=1, pQueuePriorities=prio)
+        dinfo = vk.VkDeviceCreateInfo(
+            pNext=feats, queueCreateInfoCount=1, pQueueCreateInfos=[qinfo],
+            enabledExtensionCount=len(dev_exts), ppEnabledExtensionNames=dev_exts or None)
+        try:
+            self.device = vk.vkCreateDevice(self.physical, dinfo, None)
+        except vk.VkError as exc:
+            raise VulkanError(f"could not create a device on {self.device_info['name']!r}: {type(exc).__name__}") from None
+        self.queue = vk.vkGetDeviceQueue(self.device, self.queue_family, 0)
+        self.command_pool = vk.vkCreateCommandPool(self.device, vk.VkCommandPoolCreateInfo(
+            flags=vk.VK_COMMAND_POOL_CREATE_RESET_COMMAND_BUFFER_BIT, queueFamilyIndex=self.queue_family), None)
+        self.fence = vk.vkCreateFence(self.device, vk.VkFenceCreateInfo(), None)
+        self._one_shot = self.allocate_command_buffer()
+
+    def _install_messenger(self):
+        sev = vk.VK_DEBUG_UTILS_MESSAGE_SEVERITY_ERROR_BIT_EXT
+
+        def callback(severity, types, data, user):
+            msg = vk.ffi.string(data.pMessage).decode(errors="replace")
+            self.validation_messages.append(msg)
+            if severity & sev:
+                self.validation_errors.append(msg)
+                log.error("validation: %s", msg)
+            else:
+                log.debug("validation: %s", msg)
+            return 0
+
+        self._callback = callback  # keep alive
+        info = vk.VkDebugUtilsMessengerCreateInfoEXT(
+            messageSeverity=(vk.VK_DEBUG_UTILS_MESSAGE_SEVERITY_WARNING_BIT_EXT | sev),
+            messageType=(vk.VK_DEBUG_UTILS_MESSAGE_TYPE_GENERAL_BIT_EXT
+                         | vk.VK_DEBUG_UTILS_MESSAGE_TYPE_VALIDATION_BIT_EXT
+                         | vk.VK_DEBUG_UTILS_MESSAGE_TYPE_PERFORMANCE_BIT_EXT),
+            pfnUserCallback=callback)
+        create = vk.vkGetInstanceProcAddr(self.instance, "vkCreateDebugUtilsMessengerEXT")
+        self._messenger = create(self.instance, info, None)
+
+    # ---- lifetime -----------------------------------------------------------------------
+    def defer_destroy(self, fn, *args):
+        """Register a destructor to run on close(), newest first."""
+        self._destroy_stack.append((fn, args))
+
+    def wait_idle(self):
+        if self.device is not None:
+            vk.vkDeviceWaitIdle(self.device)
+
+    def close(self):
+        if self.device is not None:
+            vk.vkDeviceWaitIdle(self.device)
+            while self._destroy_stack:
+                fn, args = self._destroy_stack.pop()
+                fn(*args)
+            if getattr(self, "fence", None) is not None:
+                vk.vkDestroyFence(self.device, self.fence, None)
+            if getattr(self, "command_pool", None) is not None:
+                vk.vkDestroyCommandPool(self.device, self.command_pool, None)
+            vk.vkDestroyDevice(self.device, None)
+            self.device = None
+        if self.instance is not None:
+            if self.surface is not None:
+                vk.vkGetInstanceProcAddr(self.instance, "vkDestroySurfaceKHR")(self.instance, self.surface, None)
+                self.surface = None
+            if self._messenger is not None:
+                destroy = vk.vkGetInstanceProcAddr(self.instance, "vkDestroyDebugUtilsMessengerEXT")
+                destroy(self.instance, self._messenger, None)
+                self._messenger = None
+            vk.vkDestroyInstance(self.instance, None)
+            self.instance = None
+
+    def __enter__(self):
+        return self
+
+    def __exit__(self, *exc):
+        self.close()
+
+    # ---- commands -----------------------------------------------------------------------
+    def allocate_command_buffer(self):
+        return vk.vkAllocateCommandBuffers(self.device, vk.VkCommandBufferAllocateInfo(
+            commandPool=self.command_pool, level=vk.VK_COMMAND_BUFFER_LEVEL_PRIMARY, commandBufferCount=1))[0]
+
+    def free_command_buffer(self, cmd):
+        vk.vkFreeCommandBuffers(self.device, self.command_pool, 1, [cmd])
+
+    def submit(self, cmd, wait=True, wait_semaphores=(), wait_stages=(), signal_semaphores=(), fence=None):
+        """Submit one recorded command buffer; by default block until it finished."""
+        info = vk.VkSubmitInfo(
+            waitSemaphoreCount=len(wait_semaphores), pWaitSemaphores=list(wait_semaphores) or None,
+            pWaitDstStageMask=list(wait_stages) or None,
+            commandBufferCount=1, pCommandBuffers=[cmd],
+            signalSemaphoreCount=len(signal_semaphores), pSignalSemaphores=list(signal_semaphores) or None)
+        use_fence = fence if fence is not None else (self.fence if wait else None)
+        try:
+            vk.vkQueueSubmit(self.queue, 1, [info], use_fence or vk.VK_NULL_HANDLE)
+            if wait and fence is None:
+                vk.vkWaitForFences(self.device, 1, [self.fence], vk.VK_TRUE, 0xFFFFFFFFFFFFFFFF)
+                vk.vkResetFences(self.device, 1, [self.fence])
+        except vk.VkErrorDeviceLost:
+            raise VulkanError("the Vulkan device was lost while running a command buffer") from None
+
+    def one_shot(self):
+        """`with ctx.one_shot() as cmd:` records into a command buffer and runs it on exit."""
+        return _OneShot(self)
+
+    def memory_type(self, type_bits: int, want: int, avoid: int = 0) -> int:
+        mp = self.memory_properties
+        for i in range(mp.memoryTypeCount):
+            flags = mp.memoryTypes[i].propertyFlags
+            if type_bits & (1 << i) and flags & want == want and not flags & avoid:
+                return i
+        if avoid:
+            return self.memory_type(type_bits, want)
+        raise VulkanError(f"no memory type with flags {want:#x} for type bits {type_bits:#x}")
+
+
+class _OneShot:
+    def __init__(self, ctx):
+        self.ctx = ctx
+
+    def __enter__(self):
+        cmd = self.ctx._one_shot
+        vk.vkResetCommandBuffer(cmd, 0)
+        vk.vkBeginCommandBuffer(cmd, vk.VkCommandBufferBeginInfo(flags=vk.VK_COMMAND_BUFFER_USAGE_ONE_TIME_SUBMIT_BIT))
+        return cmd
+
+    def __exit__(self, exc_type, *rest):
+        cmd = self.ctx._one_shot
+        vk.vkEndCommandBuffer(cmd)
+        if exc_type is None:
+            self.ctx.submit(cmd)

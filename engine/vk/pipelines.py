@@ -1,0 +1,259 @@
+"""Descriptor sets, shader modules, compute and graphics pipelines, timestamp queries.
+
+Pipelines can be rebuilt in place from new SPIR-V (hot reload): the new pipeline is made first and
+only swapped in when that succeeded, so a bad shader leaves the last good pipeline running.
+"""
+from __future__ import annotations
+
+import struct
+
+import numpy as np
+import vulkan as vk
+
+from ..errors import ShaderError
+from .context import Context
+
+SB = vk.VK_DESCRIPTOR_TYPE_STORAGE_BUFFER
+UB = vk.VK_DESCRIPTOR_TYPE_UNIFORM_BUFFER
+SI = vk.VK_DESCRIPTOR_TYPE_STORAGE_IMAGE
+CIS = vk.VK_DESCRIPTOR_TYPE_COMBINED_IMAGE_SAMPLER
+ALL = vk.VK_SHADER_STAGE_ALL
+WHOLE_SIZE = 0xFFFFFFFFFFFFFFFF  # VK_WHOLE_SIZE (the binding exposes it as -1)
+
+
+class DescriptorSet:
+    """One set layout + its own pool + one set. `bindings`: list of (binding, type[, count])."""
+
+    def __init__(self, ctx: Context, bindings, stages=ALL):
+        self.ctx = ctx
+        self.types = {}
+        entries = []
+        sizes: dict[int, int] = {}
+        for b in bindings:
+            binding, dtype, count = (b + (1,))[:3]
+            self.types[binding] = dtype
+            entries.append(vk.VkDescriptorSetLayoutBinding(
+                binding=binding, descriptorType=dtype, descriptorCount=count, stageFlags=stages))
+            sizes[dtype] = sizes.get(dtype, 0) + count
+        dev = ctx.device
+        self.layout = vk.vkCreateDescriptorSetLayout(dev, vk.VkDescriptorSetLayoutCreateInfo(
+            bindingCount=len(entries), pBindings=entries), None)
+        pool_sizes = [vk.VkDescriptorPoolSize(type=t, descriptorCount=n) for t, n in sizes.items()]
+        self.pool = vk.vkCreateDescriptorPool(dev, vk.VkDescriptorPoolCreateInfo(
+            maxSets=1, poolSizeCount=len(pool_sizes), pPoolSizes=pool_sizes), None)
+        self.handle = vk.vkAllocateDescriptorSets(dev, vk.VkDescriptorSetAllocateInfo(
+            descriptorPool=self.pool, descriptorSetCount=1, pSetLayouts=[self.layout]))[0]
+        ctx.defer_destroy(vk.vkDestroyDescriptorSetLayout, dev, self.layout, None)
+        ctx.defer_destroy(vk.vkDestroyDescriptorPool, dev, self.pool, None)
+
+    def buffer(self, binding, buf, offset=0, size=None):
+        info = vk.VkDescriptorBufferInfo(buffer=buf.handle, offset=offset,
+                                         range=WHOLE_SIZE if size is None else size)
+        vk.vkUpdateDescriptorSets(self.ctx.device, 1, [vk.VkWriteDescriptorSet(
+            dstSet=self.handle, dstBinding=binding, descriptorCount=1, descriptorType=self.types[binding],
+            pBufferInfo=[info])], 0, None)
+        return self
+
+    def image(self, binding, image, layout=vk.VK_IMAGE_LAYOUT_GENERAL, sampler=None, element=0):
+        info = vk.VkDescriptorImageInfo(sampler=sampler.handle if sampler else vk.VK_NULL_HANDLE,
+                                        imageView=image.view, imageLayout=layout)
+        vk.vkUpdateDescriptorSets(self.ctx.device, 1, [vk.VkWriteDescriptorSet(
+            dstSet=self.handle, dstBinding=binding, dstArrayElement=element, descriptorCount=1,
+            descriptorType=self.types[binding], pImageInfo=[info])], 0, None)
+        return self
+
+
+def _shader_module(ctx, spirv: bytes, name: str):
+    if len(spirv) % 4 or spirv[:4] != b"\x03\x02\x23\x07":
+        raise ShaderError(f"{name}: not a SPIR-V binary")
+    try:
+        return vk.vkCreateShaderModule(ctx.device, vk.VkShaderModuleCreateInfo(
+            codeSize=len(spirv), pCode=spirv), None)
+    except vk.VkError as exc:
+        raise ShaderError(f"{name}: vkCreateShaderModule failed ({type(exc).__name__})") from None
+
+
+def _specialization(spec: dict | None):
+    """VkSpecializationInfo from {constant_id: int|float|bool}; returns (info, keepalive)."""
+    if not spec:
+        return None, None
+    entries, data = [], b""
+    for cid, value in sorted(spec.items()):
+        raw = struct.pack("<f", value) if isinstance(value, float) else struct.pack("<I", int(value) & 0xFFFFFFFF)
+        entries.append(vk.VkSpecializationMapEntry(constantID=cid, offset=len(data), size=4))
+        data += raw
+    buf = vk.ffi.new("char[]", data)
+    info = vk.VkSpecializationInfo(mapEntryCount=len(entries), pMapEntries=entries, dataSize=len(data), pData=buf)
+    return info, (entries, buf)
+
+
+class _Pipeline:
+    """Shared bits: a pipeline layout and a handle that can be swapped on rebuild."""
+
+    bind_point = vk.VK_PIPELINE_BIND_POINT_COMPUTE
+
+    def __init__(self, ctx: Context, set_layouts, push_size: int):
+        self.ctx = ctx
+        self.push_size = push_size
+        ranges = [vk.VkPushConstantRange(stageFlags=ALL, offset=0, size=push_size)] if push_size else []
+        self.layout = vk.vkCreatePipelineLayout(ctx.device, vk.VkPipelineLayoutCreateInfo(
+            setLayoutCount=len(set_layouts), pSetLayouts=[s.layout if hasattr(s, "layout") else s for s in set_layouts],
+            pushConstantRangeCount=len(ranges), pPushConstantRanges=ranges or None), None)
+        self.handle = None
+        ctx.defer_destroy(self.destroy)
+
+    def rebuild(self, *args, **kw):
+        """Make a new pipeline; swap it in only when that succeeded (raises ShaderError otherwise)."""
+        new = self._create(*args, **kw)
+        if self.handle is not None:
+            self.ctx.wait_idle()
+            vk.vkDestroyPipeline(self.ctx.device, self.handle, None)
+        self.handle = new
+
+    def bind(self, cmd, sets=(), push: bytes | np.ndarray | None = None):
+        vk.vkCmdBindPipeline(cmd, self.bind_point, self.handle)
+        if sets:
+            vk.vkCmdBindDescriptorSets(cmd, self.bind_point, self.layout, 0, len(sets),
+                                       [s.handle for s in sets], 0, None)
+        if push is not None:
+            raw = push.tobytes() if isinstance(push, np.ndarray) else bytes(push)
+            vk.vkCmdPushConstants(cmd, self.layout, ALL, 0, len(raw), vk.ffi.new("char[]", raw))
+
+    def destroy(self):
+        if self.handle is not None:
+            vk.vkDestroyPipeline(self.ctx.device, self.handle, None)
+            self.handle = None
+        if self.layout is not None:
+            vk.vkDestroyPipelineLayout(self.ctx.device, self.layout, None)
+            self.layout = None
+
+
+class ComputePipeline(_Pipeline):
+    def __init__(self, ctx: Context, spirv: bytes, set_layouts, push_size: int = 0, spec=None, name="compute"):
+        super().__init__(ctx, set_layouts, push_size)
+        self.name, self.spec = name, spec
+        self.rebuild(spirv)
+
+    def _create(self, spirv: bytes):
+        module = _shader_module(self.ctx, spirv, self.name)
+        try:
+            spec_info, keep = _specialization(self.spec)
+            stage = vk.VkPipelineShaderStageCreateInfo(
+                stage=vk.VK_SHADER_STAGE_COMPUTE_BIT, module=module, pName="main",
+                pSpecializationInfo=spec_info)
+            info = vk.VkComputePipelineCreateInfo(stage=stage, layout=self.layout)
+            try:
+                return vk.vkCreateComputePipelines(self.ctx.device, vk.VK_NULL_HANDLE, 1, [info], None)[0]
+            except vk.VkError as exc:
+                raise ShaderError(f"{self.name}: compute pipeline creation failed ({type(exc).__name__})") from None
+        finally:
+            vk.vkDestroyShaderModule(self.ctx.device, module, None)
+
+    def dispatch(self, cmd, sets, gx, gy=1, gz=1, push=None):
+        self.bind(cmd, sets, push)
+        vk.vkCmdDispatch(cmd, gx, gy, gz)
+
+
+class GraphicsPipeline(_Pipeline):
+    """A triangle-list pipeline for dynamic rendering (no render pass objects)."""
+
+    bind_point = vk.VK_PIPELINE_BIND_POINT_GRAPHICS
+
+    def __init__(self, ctx, vert: bytes, frag: bytes, set_layouts, *, color_formats, depth_format=None,
+                 vertex_stride=0, attributes=(), push_size=0, cull=vk.VK_CULL_MODE_NONE,
+                 depth_compare=vk.VK_COMPARE_OP_GREATER, name="graphics"):
+        super().__init__(ctx, set_layouts, push_size)
+        self.name = name
+        self.cfg = dict(color_formats=list(color_formats), depth_format=depth_format, vertex_stride=vertex_stride,
+                        attributes=list(attributes), cull=cull, depth_compare=depth_compare)
+        self.rebuild(vert, frag)
+
+    def _create(self, vert: bytes, frag: bytes):
+        c = self.cfg
+        dev = self.ctx.device
+        vmod = _shader_module(self.ctx, vert, self.name + ".vert")
+        try:
+            fmod = _shader_module(self.ctx, frag, self.name + ".frag")
+        except ShaderError:
+            vk.vkDestroyShaderModule(dev, vmod, None)
+            raise
+        try:
+            stages = [
+                vk.VkPipelineShaderStageCreateInfo(stage=vk.VK_SHADER_STAGE_VERTEX_BIT, module=vmod, pName="main"),
+                vk.VkPipelineShaderStageCreateInfo(stage=vk.VK_SHADER_STAGE_FRAGMENT_BIT, module=fmod, pName="main"),
+            ]
+            vbind = [vk.VkVertexInputBindingDescription(binding=0, stride=c["vertex_stride"],
+                                                        inputRate=vk.VK_VERTEX_INPUT_RATE_VERTEX)]
+            vattr = [vk.VkVertexInputAttributeDescription(location=loc, binding=0, format=fmt, offset=off)
+                     for loc, fmt, off in c["attributes"]]
+            vin = vk.VkPipelineVertexInputStateCreateInfo(
+                vertexBindingDescriptionCount=1 if vattr else 0, pVertexBindingDescriptions=vbind if vattr else None,
+                vertexAttributeDescriptionCount=len(vattr), pVertexAttributeDescriptions=vattr or None)
+            ia = vk.VkPipelineInputAssemblyStateCreateInfo(topology=vk.VK_PRIMITIVE_TOPOLOGY_TRIANGLE_LIST)
+            vp = vk.VkPipelineViewportStateCreateInfo(viewportCount=1, scissorCount=1)
+            rs = vk.VkPipelineRasterizationStateCreateInfo(
+                polygonMode=vk.VK_POLYGON_MODE_FILL, cullMode=c["cull"],
+                frontFace=vk.VK_FRONT_FACE_COUNTER_CLOCKWISE, lineWidth=1.0)
+            ms = vk.VkPipelineMultisampleStateCreateInfo(rasterizationSamples=vk.VK_SAMPLE_COUNT_1_BIT)
+            ds = vk.VkPipelineDepthStencilStateCreateInfo(
+                depthTestEnable=c["depth_format"] is not None, depthWriteEnable=c["depth_format"] is not None,
+                depthCompareOp=c["depth_compare"])
+            mask = (vk.VK_COLOR_COMPONENT_R_BIT | vk.VK_COLOR_COMPONENT_G_BIT | vk.VK_COLOR_COMPONENT_B_BIT
+                    | vk.VK_COLOR_COMPONENT_A_BIT)
+            blends = [vk.VkPipelineColorBlendAttachmentState(blendEnable=vk.VK_FALSE, colorWriteMask=mask)
+                      for _ in c["color_formats"]]
+            cb = vk.VkPipelineColorBlendStateCreateInfo(attachmentCount=len(blends), pAttachments=blends)
+            dyn_states = [vk.VK_DYNAMIC_STATE_VIEWPORT, vk.VK_DYNAMIC_STATE_SCISSOR]
+            dyn = vk.VkPipelineDynamicStateCreateInfo(dynamicStateCount=2, pDynamicStates=dyn_states)
+            rendering = vk.VkPipelineRenderingCreateInfo(
+                colorAttachmentCount=len(c["color_formats"]), pColorAttachmentFormats=c["color_formats"],
+                depthAttachmentFormat=c["depth_format"] or vk.VK_FORMAT_UNDEFINED)
+            info = vk.VkGraphicsPipelineCreateInfo(
+                pNext=rendering, stageCount=2, pStages=stages, pVertexInputState=vin, pInputAssemblyState=ia,
+                pViewportState=vp, pRasterizationState=rs, pMultisampleState=ms, pDepthStencilState=ds,
+                pColorBlendState=cb, pDynamicState=dyn, layout=self.layout)
+            try:
+                return vk.vkCreateGraphicsPipelines(dev, vk.VK_NULL_HANDLE, 1, [info], None)[0]
+            except vk.VkError as exc:
+                raise ShaderError(f"{self.name}: graphics pipeline creation failed ({type(exc).__name__})") from None
+        finally:
+            vk.vkDestroyShaderModule(dev, vmod, None)
+            vk.vkDestroyShaderModule(dev, fmod, None)
+
+
+class Timestamps:
+    """GPU timestamps around named passes: `begin(cmd)`, `mark(cmd, name)` after each pass, `read()`."""
+
+    def __init__(self, ctx: Context, capacity: int = 32):
+        self.ctx = ctx
+        self.capacity = capacity
+        self.names: list[str] = []
+        self.enabled = ctx.timestamp_bits > 0 and ctx.timestamp_period_ns > 0
+        self.pool = vk.vkCreateQueryPool(ctx.device, vk.VkQueryPoolCreateInfo(
+            queryType=vk.VK_QUERY_TYPE_TIMESTAMP, queryCount=capacity), None)
+        ctx.defer_destroy(vk.vkDestroyQueryPool, ctx.device, self.pool, None)
+
+    def begin(self, cmd):
+        self.names = []
+        vk.vkCmdResetQueryPool(cmd, self.pool, 0, self.capacity)
+        vk.vkCmdWriteTimestamp(cmd, vk.VK_PIPELINE_STAGE_TOP_OF_PIPE_BIT, self.pool, 0)
+
+    def mark(self, cmd, name: str):
+        self.names.append(name)
+        vk.vkCmdWriteTimestamp(cmd, vk.VK_PIPELINE_STAGE_BOTTOM_OF_PIPE_BIT, self.pool, len(self.names))
+
+    def read(self, names=None) -> dict[str, float]:
+        """GPU ms per pass of the last submitted recording whose marks were `names` (default: the latest)."""
+        names = self.names if names is None else names
+        n = len(names) + 1
+        if not self.enabled or n < 2:
+            return {}
+        data = vk.ffi.new("uint64_t[]", n)
+        vk.vkGetQueryPoolResults(self.ctx.device, self.pool, 0, n, n * 8, data, 8,
+                                 vk.VK_QUERY_RESULT_64_BIT | vk.VK_QUERY_RESULT_WAIT_BIT)
+        ticks = np.frombuffer(vk.ffi.buffer(data), dtype=np.uint64).astype(np.float64)
+        ms = np.diff(ticks) * self.ctx.timestamp_period_ns * 1e-6
+        out: dict[str, float] = {}
+        for name, value in zip(names, ms):
+            out[name] = out.get(name, 0.0) + float(value)
+        return out

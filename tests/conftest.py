@@ -1,0 +1,78 @@
+"""Shared fixtures: renderers with the validation layer on (any validation error fails the test that
+caused it), image regression against committed references, and an Xvfb display for window tests."""
+from __future__ import annotations
+
+import os
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+REPO = Path(__file__).resolve().parent.parent
+REFERENCE_DIR = Path(__file__).resolve().parent / "reference"
+
+
+def pytest_addoption(parser):
+    parser.addoption("--regen-refs", action="store_true",
+                     help="rewrite the reference images in tests/reference/ instead of comparing")
+
+
+@pytest.fixture
+def make_renderer():
+    """`make_renderer(w, h, **kw)`: a validated Renderer, closed after the test; validation errors fail it."""
+    from engine import Renderer
+
+    made = []
+
+    def make(width=64, height=48, **kw):
+        kw.setdefault("validation", True)
+        r = Renderer(width, height, **kw)
+        made.append(r)
+        return r
+
+    yield make
+    errors = []
+    for r in made:
+        r.close()  # leaked Vulkan objects are reported here, as validation errors
+        errors += r.validation_errors
+    assert not errors, "Vulkan validation errors:\n" + "\n".join(errors[:10])
+
+
+@pytest.fixture
+def renderer(make_renderer):
+    return make_renderer(64, 48)
+
+
+@pytest.fixture
+def image_regression(request):
+    """`image_regression(name, rgba, max_mean=.., max_bad_fraction=..)` against tests/reference/NAME.png.
+
+    The images are compared as a user would look at them: the mean absolute difference over all channels
+    (0..255) and the fraction of pixels whose difference exceeds 32 levels in some channel."""
+    from PIL import Image
+
+    regen = request.config.getoption("--regen-refs")
+
+    def check(name, rgba, max_mean=2.0, max_bad_fraction=0.01):
+        path = REFERENCE_DIR / f"{name}.png"
+        if regen or not path.exists():
+            if not regen and os.environ.get("CI"):
+                pytest.fail(f"reference image {path} is missing (run pytest --regen-refs and commit it)")
+            REFERENCE_DIR.mkdir(parents=True, exist_ok=True)
+            Image.fromarray(np.asarray(rgba, np.uint8), "RGBA").save(path)
+            if regen:
+                return
+        ref = np.asarray(Image.open(path).convert("RGBA"), np.int16)
+        got = np.asarray(rgba, np.int16)
+        assert ref.shape == got.shape, f"{path}: reference is {ref.shape}, render is {got.shape}"
+        diff = np.abs(ref - got)
+        mean = float(diff.mean())
+        bad = float((diff.max(axis=2) > 32).mean())
+        if mean > max_mean or bad > max_bad_fraction:
+            out = REPO / "out" / "test-failures"
+            out.mkdir(parents=True, exist_ok=True)
+            Image.fromarray(np.asarray(rgba, np.uint8), "RGBA").save(out / f"{name}.png")
+            pytest.fail(f"{name}: differs from {path}: mean |diff| {mean:.2f} (max {max_mean}), "
+                        f"{bad:.2%} pixels off by > 32 (max {max_bad_fraction:.2%}); render saved to {out}")
+
+    return check

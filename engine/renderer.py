@@ -216,14 +216,16 @@ class Renderer:
     """Headless hybrid renderer. `with Renderer(640, 360) as r: frame = r.render(scene)`."""
 
     def __init__(self, width: int, height: int, *, device=None, validation: bool = False,
-                 shader_dir=None, hot_reload: bool = False):
+                 shader_dir=None, hot_reload: bool = False, context: Context | None = None):
+        """`context`: render on an existing Context (the viewer's, which has a surface); it is not closed here."""
         check_size(width, height)
         self.width, self.height = int(width), int(height)
         self.library = ShaderLibrary(shader_dir, hot_reload=hot_reload)
         self.ctx = None
         self._validation_errors: list[str] = []
+        self._owns_ctx = context is None
         try:
-            self.ctx = Context(device=device, validation=validation or None)
+            self.ctx = context if context is not None else Context(device=device, validation=validation or None)
             self._validation_errors = self.ctx.validation_errors  # the same list: still readable after close()
             self._init_gpu()
         except BaseException:
@@ -260,6 +262,34 @@ class Renderer:
         return self.ctx.device_info["name"]
 
     def render(self, scene, camera=None, **settings) -> Frame:
+        """Render one frame and read everything back: colour, AOVs and GPU timings."""
+        cmd, marks, cfg, n_lights = self._prepare(scene, camera, settings, readback=True)
+        self.ctx.submit(cmd)
+        color, aov = self.targets.read(n_lights)
+        return Frame(color=color, aov=aov, timings=self.timestamps.read(marks), settings=cfg)
+
+    def submit(self, scene, camera=None, *, wait=True, signal_semaphores=(), fence=None, **settings):
+        """Render one frame into `self.targets.color` without reading it back (the viewer's path).
+
+        With wait=False the caller synchronizes through `signal_semaphores` / `fence`, and reads
+        `last_timings()` once that frame has finished."""
+        cmd, marks, cfg, _ = self._prepare(scene, camera, settings, readback=False)
+        self._last_marks = marks
+        self.ctx.submit(cmd, wait=wait, signal_semaphores=signal_semaphores, fence=fence)
+        return cfg
+
+    def last_timings(self) -> dict[str, float]:
+        """GPU ms per pass of the last submitted frame (blocks until its queries are available)."""
+        return self.timestamps.read(self._last_marks) if getattr(self, "_last_marks", None) else {}
+
+    def resize(self, width: int, height: int):
+        """New render size: targets are recreated and recorded command buffers dropped."""
+        check_size(width, height)
+        if (width, height) != (self.width, self.height):
+            self.width, self.height = int(width), int(height)
+            self._resize_targets(self.targets.light_capacity)
+
+    def _prepare(self, scene, camera, settings, readback):
         if self.ctx is None:
             raise EngineError("render() on a closed Renderer")
         merged = dict(getattr(scene, "settings", None) or {})
@@ -283,20 +313,23 @@ class Renderer:
             frame_index=self._frame_index, lights=lights,
             ao_radius=cfg["ao_radius"] or 0.1 * diag, ao_samples=cfg["ao_samples"], shadow_samples=1,
             exposure=cfg["exposure"], ambient=cfg["ambient"], scene_scale=diag, accum_alpha=1.0), np.uint8))
-        key = (cfg["shadows"], cfg["ao"], len(lights))
+        key = (cfg["shadows"], cfg["ao"], len(lights), readback)
         if key not in self._commands:
-            cmd = self._record(cfg, len(lights))
+            cmd = self._record(cfg, len(lights), readback)
             self._commands[key] = (cmd, list(self.timestamps.names))
         cmd, marks = self._commands[key]
-        self.ctx.submit(cmd)
         self._frame_index += 1
         self._prev_view_proj = view_proj
-        color, aov = self.targets.read(len(lights))
-        return Frame(color=color, aov=aov, timings=self.timestamps.read(marks), settings=cfg)
+        return cmd, marks, cfg, len(lights)
 
     def close(self):
         if self.ctx is not None:
-            self.ctx.close()
+            if self._owns_ctx:
+                self.ctx.close()
+            else:  # a shared context: free what this renderer made, leave the rest to its owner
+                self.ctx.wait_idle()
+                self._invalidate_commands()
+                self._release_owned()
             self.ctx = None
         if getattr(self, "library", None) is not None:
             self.library.close()
@@ -319,6 +352,13 @@ class Renderer:
                 except EngineError as exc:
                     self.library.errors[str(self.library.glsl_dir / p.shaders[-1])] = str(exc)
         self._invalidate_commands()
+
+    def _release_owned(self):
+        """Destroy this renderer's objects on a shared context (its defer list would hold them until the end)."""
+        if self._geometry is not None:
+            self._geometry.destroy()
+            self._geometry = None
+        self.targets.destroy()
 
     def _invalidate_commands(self):
         if self._commands:
@@ -347,7 +387,7 @@ class Renderer:
         self.targets = Targets(self.ctx, self.width, self.height, light_capacity)
         self.lighting.bind_targets(self.targets)
 
-    def _record(self, cfg, n_lights):
+    def _record(self, cfg, n_lights, readback=True):
         ctx, t = self.ctx, self.targets
         cmd = ctx.allocate_command_buffer()
         vk.vkBeginCommandBuffer(cmd, vk.VkCommandBufferBeginInfo())
@@ -366,7 +406,8 @@ class Renderer:
         ts.mark(cmd, "lighting")
         memory_barrier(cmd, vk.VK_PIPELINE_STAGE_COMPUTE_SHADER_BIT, vk.VK_PIPELINE_STAGE_TRANSFER_BIT,
                        vk.VK_ACCESS_SHADER_WRITE_BIT, vk.VK_ACCESS_TRANSFER_READ_BIT)
-        t.record_readback(cmd)
-        ts.mark(cmd, "readback")
+        if readback:
+            t.record_readback(cmd)
+            ts.mark(cmd, "readback")
         vk.vkEndCommandBuffer(cmd)
         return cmd

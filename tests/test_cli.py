@@ -1,0 +1,70 @@
+"""The `hybrid` command as a user runs it: output files, one-line errors, non-zero exit codes."""
+import subprocess
+import sys
+from pathlib import Path
+
+from PIL import Image
+
+REPO = Path(__file__).resolve().parent.parent
+
+
+def hybrid(*args, timeout=300):
+    return subprocess.run([sys.executable, "-m", "engine", *map(str, args)], capture_output=True, text=True,
+                          cwd=REPO, timeout=timeout)
+
+
+def test_render_writes_png_with_validation(tmp_path):
+    out = tmp_path / "s.png"
+    res = hybrid("render", "scenes/sphere.toml", "-o", out, "--size", "64x48", "--validation")
+    assert res.returncode == 0, res.stderr
+    assert Image.open(out).size == (64, 48)
+    assert "validation: no errors" in res.stdout
+
+
+def test_render_aov(tmp_path):
+    out = tmp_path / "n.png"
+    res = hybrid("render", "scenes/sphere.toml", "-o", out, "--size", "32x32", "--aov", "normal")
+    assert res.returncode == 0, res.stderr
+    img = Image.open(out).convert("RGB")
+    r, g, b = img.getpixel((16, 16))
+    assert b > 240 and 100 < r < 155 and 100 < g < 155  # +z normal maps to (0.5, 0.5, 1.0)
+
+
+def test_info_lists_lavapipe():
+    res = hybrid("info")
+    assert res.returncode == 0, res.stderr
+    assert "llvmpipe" in res.stdout and "would use" in res.stdout
+
+
+def one_line_error(res, *words):
+    assert res.returncode != 0
+    lines = res.stderr.strip().splitlines()
+    assert len(lines) == 1 and lines[0].startswith("error: "), res.stderr
+    for w in words:
+        assert w in lines[0], (w, lines[0])
+
+
+def test_missing_scene(tmp_path):
+    one_line_error(hybrid("render", tmp_path / "nope.obj", "-o", tmp_path / "x.png"), "nope.obj")
+
+
+def test_bad_size_option(tmp_path):
+    one_line_error(hybrid("render", "scenes/sphere.toml", "-o", tmp_path / "x.png", "--size", "0x10"), "size")
+    one_line_error(hybrid("render", "scenes/sphere.toml", "-o", tmp_path / "x.png", "--size", "big"), "size")
+
+
+def test_corrupt_mesh(tmp_path):
+    bad = tmp_path / "broken.glb"
+    bad.write_bytes(b"glTF\x02\x00\x00\x00garbage" * 10)
+    one_line_error(hybrid("render", bad, "-o", tmp_path / "x.png", "--size", "16x16"), "broken.glb")
+
+
+def test_toml_syntax_error(tmp_path):
+    bad = tmp_path / "bad.toml"
+    bad.write_text("[camera\neye = [0, 0, 5]\n")
+    one_line_error(hybrid("render", bad, "-o", tmp_path / "x.png", "--size", "16x16"), "bad.toml")
+
+
+def test_unwritable_output(tmp_path):
+    one_line_error(hybrid("render", "scenes/sphere.toml", "-o", tmp_path / "no" / "dir" / "x.png", "--size", "16x16"),
+                   "x.png")

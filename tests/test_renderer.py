@@ -1,0 +1,94 @@
+"""Renderer behaviour a user relies on: uploads once, settings and size errors, devices, timings."""
+import os
+import subprocess
+import sys
+
+import numpy as np
+import pytest
+import trimesh
+
+from engine import Camera, ConfigError, Renderer, Scene, VulkanError
+from engine.vk import choose_device
+
+
+def small_scene():
+    return Scene.from_trimesh(trimesh.creation.box(extents=(1, 1, 1)),
+                              camera=Camera.look_at((2, 2, 3), (0, 0, 0)))
+
+
+def test_same_scene_uploads_once_and_frames_repeat(make_renderer):
+    r = make_renderer(48, 32)
+    scene = small_scene()
+    a = r.render(scene, shadows="off", ao=False)
+    b = r.render(scene, shadows="off", ao=False)
+    assert r.uploads == 1
+    assert np.array_equal(a.color, b.color)
+    other = small_scene()
+    r.render(other, shadows="off", ao=False)
+    assert r.uploads == 2
+
+
+def test_frame_fields_and_timings(make_renderer):
+    f = make_renderer(40, 30).render(small_scene())
+    assert f.color.shape == (30, 40, 4) and f.color.dtype == np.uint8
+    for name, shape in [("position", (30, 40, 3)), ("normal", (30, 40, 3)), ("albedo", (30, 40, 3)),
+                        ("depth", (30, 40)), ("ao", (30, 40))]:
+        assert f.aov[name].shape == shape and f.aov[name].dtype == np.float32, name
+    assert f.aov["shadow"].shape[:2] == (30, 40)
+    assert {"gbuffer", "lighting"} <= set(f.timings)
+    assert all(v >= 0 for v in f.timings.values())
+
+
+def test_save_png(make_renderer, tmp_path):
+    from PIL import Image
+    f = make_renderer(40, 30).render(small_scene())
+    f.save(tmp_path / "x.png")
+    f.save(tmp_path / "d.png", aov="depth")
+    assert Image.open(tmp_path / "x.png").size == (40, 30)
+    assert Image.open(tmp_path / "d.png").size == (40, 30)
+
+
+@pytest.mark.parametrize("kw, word", [
+    (dict(shadows="sometimes"), "shadows"),
+    (dict(ao="yes"), "ao"),
+    (dict(ao_samples=0), "ao_samples"),
+    (dict(ao_radius=-1.0), "ao_radius"),
+    (dict(exposure=float("nan")), "exposure"),
+    (dict(shadow_sampels=4), "shadow_sampels"),
+])
+def test_bad_settings_name_the_field(make_renderer, kw, word):
+    r = make_renderer(16, 16)
+    with pytest.raises(ConfigError, match=word):
+        r.render(small_scene(), **kw)
+
+
+@pytest.mark.parametrize("size", [(0, 10), (10, -5), (1.5, 10), (100000, 10)])
+def test_bad_size(size):
+    with pytest.raises(ConfigError, match="size"):
+        Renderer(*size)
+
+
+def test_device_selection():
+    devs = [{"index": 0, "name": "llvmpipe", "rank": 3}, {"index": 1, "name": "NVIDIA H100", "rank": 0}]
+    assert choose_device(devs) == 1            # discrete before CPU
+    assert choose_device(devs, "llvm") == 0    # name substring
+    assert choose_device(devs, 0) == 0         # index
+    with pytest.raises(ConfigError, match="device='radeon'"):
+        choose_device(devs, "radeon")
+    with pytest.raises(ConfigError, match="no such device index"):
+        choose_device(devs, 7)
+    with pytest.raises(VulkanError, match="no Vulkan device"):
+        choose_device([])
+
+
+def test_bad_device_argument():
+    with pytest.raises(ConfigError, match="no device name contains"):
+        Renderer(8, 8, device="no-such-gpu")
+
+
+def test_no_vulkan_driver_is_a_clear_error(tmp_path):
+    env = dict(os.environ, VK_DRIVER_FILES=str(tmp_path / "none.json"), VK_ICD_FILENAMES=str(tmp_path / "none.json"))
+    res = subprocess.run([sys.executable, "-m", "engine", "info"], capture_output=True, text=True, env=env, timeout=60)
+    assert res.returncode == 1
+    lines = res.stderr.strip().splitlines()
+    assert len(lines) == 1 and lines[0].startswith("error: ") and "Vulkan" in lines[0], res.stderr

@@ -1,0 +1,12 @@
+"""Scenes: world-space geometry, materials, lights and a camera; loading through trimesh and TOML.
+
+Pure numpy / trimesh / pillow, no Vulkan. See docs/architecture.md (Scene contract) and docs/scenes.md (TOML format).
+"""
+
+from .camera import Camera
+from .lights import DirectionalLight, Light, PointLight, RectLight, SpotLight, default_sun
+from .material import Material
+from .scene import Scene, SubMesh
+
+__all__ = ["Scene", "SubMesh", "Camera", "Material", "Light", "DirectionalLight", "PointLight", "SpotLight",
+           "RectLight", "default_sun"]

@@ -1,0 +1,78 @@
+"""Small validators shared by the scene classes: each names the field it checks."""
+
+from __future__ import annotations
+
+import math
+from numbers import Real
+
+import numpy as np
+
+from engine.errors import ConfigError
+
+
+def _is_number(x) -> bool:
+    return isinstance(x, (Real, np.number)) and not isinstance(x, (bool, np.bool_))
+
+
+def number(value, field: str, *, min_value: float | None = None, max_value: float | None = None,
+           min_exclusive: bool = False, max_exclusive: bool = False, error=ConfigError) -> float:
+    """A finite real number within the given range."""
+    if not _is_number(value):
+        raise error(f"{field} must be a number, got {value!r}")
+    v = float(value)
+    if not math.isfinite(v):
+        raise error(f"{field} must be finite, got {v!r}")
+    if min_value is not None and (v < min_value or (min_exclusive and v == min_value)):
+        op = ">" if min_exclusive else ">="
+        raise error(f"{field} must be {op} {min_value:g}, got {v:g}")
+    if max_value is not None and (v > max_value or (max_exclusive and v == max_value)):
+        op = "<" if max_exclusive else "<="
+        raise error(f"{field} must be {op} {max_value:g}, got {v:g}")
+    return v
+
+
+def vector(value, n: int, field: str, *, error=ConfigError) -> np.ndarray:
+    """`n` finite numbers as a read-only float64 array."""
+    if isinstance(value, (str, bytes)) or not hasattr(value, "__len__"):
+        raise error(f"{field} must be {n} numbers, got {value!r}")
+    try:
+        items = list(value)
+    except TypeError:
+        raise error(f"{field} must be {n} numbers, got {value!r}") from None
+    if len(items) != n or not all(_is_number(x) for x in items):
+        raise error(f"{field} must be {n} numbers, got {value!r}")
+    arr = np.array([float(x) for x in items], dtype=np.float64)
+    if not np.all(np.isfinite(arr)):
+        raise error(f"{field} must be finite, got {value!r}")
+    arr.setflags(write=False)
+    return arr
+
+
+def direction(value, field: str, *, error=ConfigError) -> np.ndarray:
+    """A non-zero 3-vector, returned unit length."""
+    v = vector(value, 3, field, error=error)
+    length = float(np.linalg.norm(v))
+    if not (length > 1e-12) or not math.isfinite(length):
+        raise error(f"{field} must be a non-zero vector, got {tuple(v.tolist())}")
+    out = v / length
+    out.setflags(write=False)
+    return out
+
+
+def color(value, field: str, *, error=ConfigError) -> np.ndarray:
+    """An RGB colour: three finite non-negative numbers (linear)."""
+    c = vector(value, 3, field, error=error)
+    if np.any(c < 0):
+        raise error(f"{field} must be non-negative, got {tuple(c.tolist())}")
+    return c
+
+
+def srgb_to_linear(c):
+    """sRGB-encoded values in [0, 1] to linear (the exact piecewise curve)."""
+    c = np.asarray(c, dtype=np.float64)
+    return np.where(c <= 0.04045, c / 12.92, ((c + 0.055) / 1.055) ** 2.4)
+
+
+def linear_to_srgb(c):
+    c = np.clip(np.asarray(c, dtype=np.float64), 0.0, 1.0)
+    return np.where(c <= 0.0031308, c * 12.92, 1.055 * c ** (1 / 2.4) - 0.055)

@@ -1,0 +1,300 @@
+"""Mesh and glTF files through trimesh, flattened to world space; texture images through pillow."""
+
+from __future__ import annotations
+
+import contextlib
+import logging
+import os
+import warnings
+
+import numpy as np
+
+from engine.errors import SceneError
+
+from .geometry import crease_normals, transform_normals, transform_points, unitize
+from .material import Material, srgb8_to_linear
+
+MAX_TEXTURE_SIZE = 2048
+MESH_EXTENSIONS = (".obj", ".ply", ".stl", ".gltf", ".glb", ".off")
+DEFAULT_COLOR = (0.8, 0.8, 0.8, 1.0)
+
+
+@contextlib.contextmanager
+def _quiet():
+    """trimesh logs (and warns) about files it half-understands; our errors say it instead."""
+    logger = logging.getLogger("trimesh")
+    level = logger.level
+    logger.setLevel(logging.CRITICAL + 1)
+    try:
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore")
+            with np.errstate(all="ignore"):
+                yield
+    finally:
+        logger.setLevel(level)
+
+
+def _short(exc: BaseException) -> str:
+    text = str(exc).strip().splitlines()
+    text = text[0] if text else ""
+    if len(text) > 160:
+        text = text[:157] + "..."
+    return f"{type(exc).__name__}: {text}" if text else type(exc).__name__
+
+
+def image_to_texture(img, where: str) -> np.ndarray:
+    """A PIL image to (H, W, 4) uint8 RGBA, at most MAX_TEXTURE_SIZE on a side."""
+    from PIL import Image
+    try:
+        img.load()
+        if img.mode != "RGBA":
+            if img.mode in ("I;16", "I;16B", "I;16L", "I", "F"):
+                a = np.asarray(img, dtype=np.float64)
+                top = a.max() if a.size and a.max() > 255 else 255.0
+                img = Image.fromarray(np.clip(a / top * 255.0, 0, 255).astype(np.uint8), "L")
+            img = img.convert("RGBA")
+        if max(img.size) > MAX_TEXTURE_SIZE:
+            img = img.copy()
+            img.thumbnail((MAX_TEXTURE_SIZE, MAX_TEXTURE_SIZE), Image.Resampling.LANCZOS)
+        tex = np.array(img, dtype=np.uint8)
+    except SceneError:
+        raise
+    except Exception as exc:
+        raise SceneError(f"{where}: cannot read texture image ({_short(exc)})") from None
+    if tex.ndim != 3 or tex.shape[2] != 4 or tex.shape[0] == 0 or tex.shape[1] == 0:
+        raise SceneError(f"{where}: texture image has an unusable shape {tex.shape}")
+    return tex
+
+
+def load_texture_file(path: str, where: str) -> np.ndarray:
+    """An image file to a texture; `where` names what refers to it (e.g. 'scene.toml: [[mesh]] #2: texture')."""
+    from PIL import Image
+    if not os.path.isfile(path):
+        raise SceneError(f"{where}: texture file not found: {path}")
+    try:
+        with Image.open(path) as img:
+            return image_to_texture(img, f"{where} ({path})")
+    except SceneError:
+        raise
+    except Exception as exc:
+        raise SceneError(f"{where}: cannot read texture image {path} ({_short(exc)})") from None
+
+
+def load_trimesh_scene(path: str):
+    """trimesh.load_scene with our errors: missing file, unsupported type, unreadable or corrupt content."""
+    import trimesh
+    if not os.path.exists(path):
+        raise SceneError(f"{path}: file not found")
+    if os.path.isdir(path):
+        raise SceneError(f"{path}: is a directory, not a scene file")
+    ext = os.path.splitext(path)[1].lower()
+    if ext not in MESH_EXTENSIONS:
+        raise SceneError(f"{path}: unsupported file type '{ext or '(none)'}' "
+                         f"(supported: .toml, {', '.join(MESH_EXTENSIONS)})")
+    try:
+        if os.path.getsize(path) == 0:
+            raise SceneError(f"{path}: file is empty")
+        with _quiet():
+            # process=False: keep the file's vertices as they are (trimesh would silently drop NaN vertices and
+            # weld STL corners); we validate, and compute missing normals with creases ourselves
+            return trimesh.load_scene(path, process=False)
+    except SceneError:
+        raise
+    except MemoryError:
+        raise SceneError(f"{path}: corrupt {ext} file (asks for more memory than there is)") from None
+    except RecursionError:
+        raise SceneError(f"{path}: corrupt {ext} file (nested too deeply)") from None
+    except Exception as exc:
+        raise SceneError(f"{path}: cannot read {ext} file, it is corrupt or not a valid {ext[1:].upper()} file "
+                         f"({_short(exc)})") from None
+
+
+class SceneBuilder:
+    """Collects world-space mesh parts and materials, then makes a Scene."""
+
+    def __init__(self, name: str):
+        self.name = name
+        self.positions, self.normals, self.uvs, self.faces, self.mats = [], [], [], [], []
+        self.materials: list[Material] = []
+        self._material_keys: dict = {}
+        self.submeshes = []
+        self._vertex_count = 0
+        self._triangle_count = 0
+
+    # -------------------------------------------------------------- materials
+    def material_index(self, key, make) -> int:
+        """Index of the material for `key` (dedup), calling `make()` the first time."""
+        if key is not None and key in self._material_keys:
+            return self._material_keys[key]
+        self.materials.append(make())
+        idx = len(self.materials) - 1
+        if key is not None:
+            self._material_keys[key] = idx
+        return idx
+
+    # -------------------------------------------------------------- geometry
+    def add(self, name: str, positions, faces, normals, uvs, material: int, where: str):
+        """Add a part already in world space. `normals` None: computed with a crease angle."""
+        p = np.asarray(positions, dtype=np.float64)
+        f = np.asarray(faces, dtype=np.int64)
+        if p.ndim != 2 or p.shape[1] != 3 or f.ndim != 2 or f.shape[1] != 3:
+            raise SceneError(f"{where}: mesh '{name}' has malformed arrays (vertices {p.shape}, faces {f.shape})")
+        if len(f) == 0:
+            return
+        if not np.all(np.isfinite(p)):
+            bad = int(np.count_nonzero(~np.all(np.isfinite(p), axis=1)))
+            raise SceneError(f"{where}: mesh '{name}' has {bad} vertex position(s) that are NaN or infinite")
+        if f.min() < 0 or f.max() >= len(p):
+            raise SceneError(f"{where}: mesh '{name}' has face indices out of range")
+        if uvs is not None:
+            uvs = np.asarray(uvs, dtype=np.float64)
+            if uvs.shape != (len(p), 2) or not np.all(np.isfinite(uvs)):
+                uvs = None
+        if normals is not None:
+            normals = np.asarray(normals, dtype=np.float64)
+            if normals.shape != (len(p), 3) or not np.all(np.isfinite(normals)) or \
+                    np.any(np.linalg.norm(normals, axis=1) < 1e-12):
+                normals = None
+        if normals is None:
+            src, normals, f = crease_normals(p, f, uvs=uvs)
+            p = p[src]
+            uvs = None if uvs is None else uvs[src]
+        else:
+            normals = unitize(normals)
+        if uvs is None:
+            uvs = np.zeros((len(p), 2))
+        self.positions.append(p)
+        self.normals.append(normals)
+        self.uvs.append(uvs)
+        self.faces.append(f + self._vertex_count)
+        self.mats.append(np.full(len(p), material, dtype=np.uint32))
+        from .scene import SubMesh
+        self.submeshes.append(SubMesh(name, self._vertex_count, len(p), self._triangle_count, len(f), material))
+        self._vertex_count += len(p)
+        self._triangle_count += len(f)
+
+    def add_trimesh(self, obj, where: str, transform=None, color=None, texture=None, label: str | None = None,
+                    uv_scale=None):
+        """Add a trimesh.Trimesh or trimesh.Scene (node transforms applied, then `transform`).
+
+        `color` (linear RGBA) and `texture` override every material of `obj` (material overrides of the TOML format).
+        """
+        import trimesh
+        if isinstance(obj, trimesh.Trimesh):
+            items = [(np.eye(4), obj, label or getattr(obj.metadata, "get", lambda *_: None)("name") or "mesh")]
+        elif isinstance(obj, trimesh.Scene):
+            items = []
+            with _quiet():
+                for node in obj.graph.nodes_geometry:
+                    m, geom_name = obj.graph[node]
+                    geom = obj.geometry.get(geom_name)
+                    if isinstance(geom, trimesh.Trimesh):
+                        items.append((np.asarray(m, dtype=np.float64), geom, str(node)))
+        else:
+            raise SceneError(f"{where}: expected a trimesh.Trimesh or trimesh.Scene, got {type(obj).__name__}")
+        outer = np.eye(4) if transform is None else np.asarray(transform, dtype=np.float64)
+        before = self._triangle_count
+        for m, geom, node_name in items:
+            if label and isinstance(obj, trimesh.Scene):
+                node_name = label if len(items) == 1 else f"{label}/{node_name}"
+            self._add_geometry(geom, outer @ m, node_name, where, color, texture, uv_scale)
+        if self._triangle_count == before:
+            raise SceneError(f"{where}: contains no triangles")
+
+    def _add_geometry(self, geom, m, node_name, where, color, texture, uv_scale=None):
+        with _quiet():
+            vertices = np.asarray(geom.vertices, dtype=np.float64)
+            faces = np.asarray(geom.faces, dtype=np.int64)
+            normals = None
+            if "vertex_normals" in geom._cache.cache:
+                try:
+                    normals = np.asarray(geom._cache.cache["vertex_normals"], dtype=np.float64)
+                except Exception:
+                    normals = None
+            visual = geom.visual
+        if faces.ndim != 2 or len(faces) == 0:
+            return
+        if not np.all(np.isfinite(vertices)):
+            bad = int(np.count_nonzero(~np.all(np.isfinite(vertices), axis=1)))
+            raise SceneError(f"{where}: mesh '{node_name}' has {bad} vertex position(s) that are NaN or infinite")
+        if not np.all(np.isfinite(m)):
+            raise SceneError(f"{where}: node '{node_name}' has a transform with NaN or infinite values")
+        uvs = None
+        mat_key, make = _material_of(visual, where, len(vertices))
+        uv = getattr(visual, "uv", None) if getattr(visual, "material", None) is not None else None
+        if uv is not None:
+            uv = np.asarray(uv, dtype=np.float64)
+            if uv.shape == (len(vertices), 2) and np.all(np.isfinite(uv)):
+                uvs = np.column_stack([uv[:, 0], 1.0 - uv[:, 1]])  # trimesh: v up -> image rows top-down
+                if uv_scale is not None:
+                    uvs = uvs * np.asarray(uv_scale, dtype=np.float64)
+        if color is not None or texture is not None:
+            base = make
+
+            def make():
+                mat = base()
+                return Material(node_name if color is not None else mat.name,
+                                mat.base_color if color is None else color,
+                                mat.texture if texture is None else texture)
+            mat_key = (mat_key, None if color is None else tuple(np.asarray(color).tolist()),
+                       None if texture is None else id(texture))
+        material = self.material_index(mat_key, make)
+        # world space; a mirroring transform flips the winding back to counter-clockwise
+        p = transform_points(m, vertices)
+        n = None if normals is None else transform_normals(m, normals)
+        if np.linalg.det(m[:3, :3]) < 0:
+            faces = faces[:, ::-1]
+        self.add(node_name, p, faces, n, uvs, material, where)
+
+    # -------------------------------------------------------------- result
+    def build(self, lights=None, camera=None, settings=None):
+        from .scene import Scene
+        if not self.faces:
+            raise SceneError(f"{self.name}: the scene has no triangles")
+        return Scene(np.concatenate(self.positions), np.concatenate(self.faces),
+                     normals=np.concatenate(self.normals), uvs=np.concatenate(self.uvs),
+                     vertex_material=np.concatenate(self.mats), materials=self.materials, lights=lights,
+                     camera=camera, name=self.name, settings=settings, submeshes=self.submeshes)
+
+
+def _material_of(visual, where: str, vertex_count: int):
+    """(dedup key, factory) for the Material of a trimesh visual."""
+    kind = getattr(visual, "kind", None)
+    if getattr(visual, "material", None) is not None:
+        mat = visual.material
+        name = getattr(mat, "name", None) or "material"
+        from trimesh.visual.material import PBRMaterial, SimpleMaterial
+
+        def make():
+            if isinstance(mat, PBRMaterial):
+                factor = mat.baseColorFactor
+                base = (1.0, 1.0, 1.0, 1.0) if factor is None else np.asarray(factor, dtype=np.float64) / 255.0
+                image = mat.baseColorTexture
+            elif isinstance(mat, SimpleMaterial):
+                base = srgb8_to_linear(mat.diffuse) if mat.diffuse is not None else DEFAULT_COLOR
+                image = mat.image
+            else:
+                base, image = DEFAULT_COLOR, getattr(mat, "image", None)
+            tex = None
+            if image is not None and getattr(visual, "uv", None) is not None:
+                tex = image_to_texture(image, f"{where}: material '{name}'")
+            return Material(name, base, tex)
+        return ("trimesh-material", id(mat)), make
+    if kind in ("face", "vertex"):
+        try:
+            colors = np.asarray(visual.face_colors if kind == "face" else visual.vertex_colors, dtype=np.float64)
+            mean = colors.reshape(-1, 4).mean(axis=0)
+        except Exception:
+            mean = None
+        if mean is not None and np.all(np.isfinite(mean)):
+            rgba = np.round(mean).astype(np.uint8)
+            return ("color", tuple(rgba.tolist())), lambda: Material("vertex-colors", srgb8_to_linear(rgba))
+    return ("default",), lambda: Material("default", DEFAULT_COLOR)
+
+
+def load_mesh_scene(path: str, lights=None, camera=None):
+    """A Scene from one mesh / glTF file."""
+    obj = load_trimesh_scene(path)
+    builder = SceneBuilder(path)
+    builder.add_trimesh(obj, path)
+    return builder.build(lights=lights, camera=camera)

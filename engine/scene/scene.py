@@ -1,0 +1,242 @@
+"""The Scene: every mesh flattened into world-space arrays, plus materials, lights, a camera and settings."""
+
+from __future__ import annotations
+
+import hashlib
+import itertools
+import os
+from dataclasses import dataclass
+
+import numpy as np
+
+from engine.errors import ConfigError, SceneError
+
+from .camera import Camera
+from .geometry import crease_normals, unitize
+from .lights import Light, default_sun
+from .material import Material
+
+_ids = itertools.count(1)
+
+
+@dataclass(frozen=True)
+class SubMesh:
+    """One source mesh's range in the flattened arrays (informational; draw everything in one call if you like)."""
+    name: str
+    first_vertex: int
+    vertex_count: int
+    first_triangle: int
+    triangle_count: int
+    material: int
+
+
+class Scene:
+    """A static scene in world space (see docs/architecture.md, "Scene contract").
+
+    Geometry arrays (read-only numpy arrays):
+      positions (V, 3) float32, normals (V, 3) float32 unit, uvs (V, 2) float32 (UV (0, 0) = top-left of the texture
+      image), vertex_material (V,) uint32, indices (T, 3) uint32 (counter-clockwise front faces).
+    Also: materials (list of Material), lights (list), camera (Camera, never None), bounds ((2, 3) float32 min/max),
+    name (source path or "<trimesh>"/"<arrays>"), settings (dict of render settings from a TOML [settings] table,
+    unvalidated), submeshes (list of SubMesh), uid (a unique int per Scene object), content_hash (hex digest of the
+    geometry and materials, computed on first use).
+    """
+
+    def __init__(self, positions, indices, *, normals=None, uvs=None, vertex_material=None, materials=None,
+                 lights=None, camera=None, name: str = "<arrays>", settings=None, submeshes=None):
+        self.name = str(name)
+        where = self.name
+        p = _as_array(positions, "positions", where, (None, 3))
+        f = _as_array(indices, "indices", where, (None, 3))
+        if len(p) == 0 or len(f) == 0:
+            raise SceneError(f"{where}: the scene has no triangles")
+        if not np.issubdtype(p.dtype, np.number) or np.issubdtype(p.dtype, np.complexfloating):
+            raise SceneError(f"{where}: positions must be real numbers, got {p.dtype}")
+        if not np.all(np.isfinite(p)):
+            bad = int(np.count_nonzero(~np.all(np.isfinite(p), axis=1)))
+            raise SceneError(f"{where}: {bad} vertex position(s) are NaN or infinite")
+        if not np.issubdtype(f.dtype, np.integer):
+            if np.issubdtype(f.dtype, np.floating) and np.all(np.isfinite(f)) and np.all(f == np.round(f)):
+                f = f.astype(np.int64)
+            else:
+                raise SceneError(f"{where}: indices must be integers, got {f.dtype}")
+        if f.min() < 0 or f.max() >= len(p):
+            raise SceneError(f"{where}: indices out of range [0, {len(p)}): min {int(f.min())}, max {int(f.max())}")
+        if len(p) >= 2 ** 32:
+            raise SceneError(f"{where}: too many vertices ({len(p)}) for 32-bit indices")
+
+        if materials is None:
+            materials = [Material("default")]
+        materials = list(materials)
+        if not materials or not all(isinstance(m, Material) for m in materials):
+            raise SceneError(f"{where}: materials must be a non-empty list of Material")
+
+        if normals is None:
+            if uvs is not None:
+                uvs = _as_array(uvs, "uvs", where, (len(p), 2))
+            if vertex_material is not None:
+                vertex_material = np.asarray(vertex_material).reshape(-1)
+                if vertex_material.shape != (len(p),):
+                    raise SceneError(f"{where}: vertex_material must be ({len(p)},) integers")
+            src, n, f = crease_normals(p, f, uvs=uvs)
+            p = p[src]
+            uvs = None if uvs is None else uvs[src]
+            vertex_material = None if vertex_material is None else vertex_material[src]
+        else:
+            n = _as_array(normals, "normals", where, (len(p), 3)).astype(np.float64)
+            if not np.all(np.isfinite(n)):
+                raise SceneError(f"{where}: normals contain NaN or infinite values")
+            n = unitize(n)
+        if uvs is None:
+            uv = np.zeros((len(p), 2), dtype=np.float32)
+        else:
+            uv = _as_array(uvs, "uvs", where, (len(p), 2)).astype(np.float32)
+            if not np.all(np.isfinite(uv)):
+                raise SceneError(f"{where}: uvs contain NaN or infinite values")
+        if vertex_material is None:
+            vm = np.zeros(len(p), dtype=np.uint32)
+        else:
+            vm = np.asarray(vertex_material).reshape(-1)
+            if vm.shape != (len(p),) or not np.issubdtype(vm.dtype, np.integer):
+                raise SceneError(f"{where}: vertex_material must be ({len(p)},) integers")
+            if vm.min() < 0 or vm.max() >= len(materials):
+                raise SceneError(f"{where}: vertex_material out of range [0, {len(materials)})")
+            vm = vm.astype(np.uint32)
+
+        self.positions = _frozen(p, np.float32)
+        self.normals = _frozen(n, np.float32)
+        self.uvs = _frozen(uv, np.float32)
+        self.vertex_material = _frozen(vm, np.uint32)
+        self.indices = _frozen(f, np.uint32)
+        self.materials = materials
+        self.bounds = _frozen(np.stack([self.positions.min(axis=0), self.positions.max(axis=0)]), np.float32)
+        self.settings = dict(settings or {})
+        if submeshes is None:
+            submeshes = [SubMesh(self.name, 0, len(p), 0, len(f), 0)]
+        self.submeshes = list(submeshes)
+        self.uid = next(_ids)
+        self._content_hash = None
+
+        if lights is None or (isinstance(lights, (list, tuple)) and len(lights) == 0):
+            lights = [default_sun()]
+        elif isinstance(lights, Light):
+            lights = [lights]
+        lights = list(lights)
+        for i, light in enumerate(lights):
+            if not isinstance(light, Light):
+                raise SceneError(f"{where}: lights[{i}] is a {type(light).__name__}, not a light")
+        self.lights = lights
+        self._camera = None
+        self.camera = camera
+
+    # ------------------------------------------------------------------ camera
+    @property
+    def camera(self) -> Camera:
+        return self._camera
+
+    @camera.setter
+    def camera(self, camera):
+        if camera is None:
+            camera = self.framing_camera()
+        if not isinstance(camera, Camera):
+            raise ConfigError(f"{self.name}: camera must be a Camera, got {type(camera).__name__}")
+        self._camera = camera
+
+    def framing_camera(self, fov_y: float = 60.0, aspect: float = 1.0) -> Camera:
+        """A camera that sees the whole bounding sphere from a 3/4 view above."""
+        return Camera.frame_bounds(self.bounds, fov_y=fov_y, aspect=aspect)
+
+    # ------------------------------------------------------------------ info
+    @property
+    def triangle_count(self) -> int:
+        return int(len(self.indices))
+
+    @property
+    def vertex_count(self) -> int:
+        return int(len(self.positions))
+
+    @property
+    def center(self) -> np.ndarray:
+        return 0.5 * (self.bounds[0] + self.bounds[1])
+
+    @property
+    def radius(self) -> float:
+        return float(0.5 * np.linalg.norm(self.bounds[1] - self.bounds[0]))
+
+    @property
+    def content_hash(self) -> str:
+        """A stable digest of geometry, materials and textures (not lights/camera/settings)."""
+        if self._content_hash is None:
+            h = hashlib.blake2b(digest_size=16)
+            for a in (self.positions, self.normals, self.uvs, self.vertex_material, self.indices):
+                h.update(str(a.shape).encode())
+                h.update(a.tobytes())
+            for m in self.materials:
+                h.update(m.base_color.tobytes())
+                if m.texture is not None:
+                    h.update(str(m.texture.shape).encode())
+                    h.update(m.texture.tobytes())
+            self._content_hash = h.hexdigest()
+        return self._content_hash
+
+    def summary(self) -> str:
+        lo, hi = self.bounds
+        size = hi - lo
+        kinds = {}
+        for light in self.lights:
+            kinds[light.kind] = kinds.get(light.kind, 0) + 1
+        lights = ", ".join(f"{v} {k}" for k, v in kinds.items())
+        textures = sum(m.texture is not None for m in self.materials)
+        return (f"{os.path.basename(self.name) or self.name}: {self.triangle_count:,} triangles, "
+                f"{self.vertex_count:,} vertices, {len(self.submeshes)} meshes, {len(self.materials)} materials "
+                f"({textures} textured), lights: {lights}, size {size[0]:.3g} x {size[1]:.3g} x {size[2]:.3g}")
+
+    def __repr__(self):
+        return f"<Scene {self.summary()}>"
+
+    # ------------------------------------------------------------------ constructors
+    @classmethod
+    def load(cls, path) -> "Scene":
+        """A `.toml` scene or any mesh / glTF file trimesh reads (OBJ, PLY, STL, glTF, GLB, ...)."""
+        from . import loader, toml_format
+        path = os.fspath(path)
+        if path.lower().endswith(".toml"):
+            return toml_format.load_toml(path)
+        return loader.load_mesh_scene(path)
+
+    @classmethod
+    def from_trimesh(cls, obj, lights=None, camera=None, name: str = "<trimesh>") -> "Scene":
+        """A scene from a `trimesh.Trimesh` or `trimesh.Scene` (node transforms applied)."""
+        from . import loader
+        builder = loader.SceneBuilder(name)
+        builder.add_trimesh(obj, name)
+        return builder.build(lights=lights, camera=camera)
+
+    @classmethod
+    def from_arrays(cls, vertices, faces, *, normals=None, uvs=None, color=(0.8, 0.8, 0.8), texture=None,
+                    lights=None, camera=None, name: str = "<arrays>", settings=None) -> "Scene":
+        """One mesh with one material (`color` linear RGB(A)); normals computed (40 degree crease) when None."""
+        mat = Material("material", color, texture)
+        return cls(vertices, faces, normals=normals, uvs=uvs, materials=[mat], lights=lights, camera=camera,
+                   name=name, settings=settings)
+
+
+def _as_array(value, field, where, shape):
+    try:
+        a = np.asarray(value)
+    except Exception:
+        raise SceneError(f"{where}: {field} is not an array") from None
+    if a.ndim != len(shape) or any(s is not None and s != d for s, d in zip(shape, a.shape)):
+        want = "(" + ", ".join("N" if s is None else str(s) for s in shape) + ")"
+        raise SceneError(f"{where}: {field} must have shape {want}, got {a.shape}")
+    if a.dtype == object:
+        raise SceneError(f"{where}: {field} must be numeric")
+    return a
+
+
+def _frozen(a, dtype):
+    out = np.ascontiguousarray(a, dtype=dtype)
+    if out is a:
+        out = out.copy()
+    out.setflags(write=False)
+    return out

@@ -1,0 +1,326 @@
+"""The TOML scene format (documented in docs/scenes.md)."""
+
+from __future__ import annotations
+
+import math
+import os
+import tomllib
+
+import numpy as np
+
+from engine.errors import ConfigError, SceneError
+
+from . import _check, primitives
+from .camera import Camera
+from .geometry import transform_normals, transform_points
+from .lights import LIGHT_TYPES
+from .loader import SceneBuilder, load_texture_file, load_trimesh_scene
+
+TOP_LEVEL = ("camera", "mesh", "light", "settings")
+CAMERA_KEYS = ("eye", "target", "up", "fov", "near")
+MESH_COMMON = ("name", "file", "primitive", "translate", "rotate", "scale", "color", "texture", "uv_scale")
+PRIMITIVE_PARAMS = {
+    "box": ("size",),
+    "sphere": ("radius", "segments", "rings"),
+    "plane": ("size",),
+    "cylinder": ("radius", "height", "segments"),
+    "torus": ("radius", "tube", "segments", "sides"),
+}
+LIGHT_KEYS = {
+    "directional": ("type", "direction", "target", "color", "intensity", "angle"),
+    "point": ("type", "position", "color", "intensity", "radius"),
+    "spot": ("type", "position", "direction", "target", "color", "intensity", "radius", "cone_angle", "softness"),
+    "rect": ("type", "position", "u", "v", "color", "intensity"),
+}
+
+
+class _Ctx:
+    """Where we are, for messages: 'scenes/x.toml: [[mesh]] #2'."""
+
+    def __init__(self, path: str, table: str = ""):
+        self.path, self.table = path, table
+
+    def at(self, table: str) -> "_Ctx":
+        return _Ctx(self.path, table)
+
+    def prefix(self) -> str:
+        return f"{self.path}: {self.table}" if self.table else self.path
+
+    def error(self, msg: str) -> SceneError:
+        return SceneError(f"{self.prefix()}: {msg}")
+
+    def check(self, fn, *args, **kwargs):
+        """Run a validator from _check, turning its ConfigError into a SceneError with our location."""
+        try:
+            return fn(*args, **kwargs)
+        except ConfigError as exc:
+            raise self.error(str(exc)) from None
+
+
+def _unknown(ctx: _Ctx, table: dict, allowed) -> None:
+    for key in table:
+        if key not in allowed:
+            raise ctx.error(f"unknown key {key!r} (allowed: {', '.join(allowed)})")
+
+
+def load_toml(path: str):
+    path = os.fspath(path)
+    if not os.path.exists(path):
+        raise SceneError(f"{path}: file not found")
+    if os.path.isdir(path):
+        raise SceneError(f"{path}: is a directory, not a scene file")
+    try:
+        with open(path, "rb") as fh:
+            data = tomllib.load(fh)
+    except tomllib.TOMLDecodeError as exc:
+        msg = str(exc)
+        if "line" not in msg:  # "(at end of document)": name the last line
+            try:
+                with open(path, "rb") as fh:
+                    lines = fh.read().decode("utf-8", "replace").splitlines()
+                msg = f"{msg}, line {max(1, len(lines))}"
+            except OSError:
+                pass
+        raise SceneError(f"{path}: TOML syntax error: {msg}") from None
+    except UnicodeDecodeError:
+        raise SceneError(f"{path}: not a UTF-8 text file") from None
+    except OSError as exc:
+        raise SceneError(f"{path}: cannot read file ({exc.strerror or exc})") from None
+    return scene_from_dict(data, path)
+
+
+def scene_from_dict(data: dict, path: str = "<toml>"):
+    """Build a Scene from parsed TOML data; `path` names the file in messages and anchors relative paths."""
+    ctx = _Ctx(path)
+    base_dir = os.path.dirname(os.path.abspath(path)) if path != "<toml>" else os.getcwd()
+    for key, value in data.items():
+        if key not in TOP_LEVEL:
+            raise ctx.error(f"unknown key {key!r} at the top level (allowed: {', '.join(TOP_LEVEL)})")
+    for key, kind in (("camera", dict), ("settings", dict), ("mesh", list), ("light", list)):
+        if key in data and not isinstance(data[key], kind):
+            form = f"[{key}]" if kind is dict else f"[[{key}]]"
+            raise ctx.error(f"{key!r} must be a table written {form}")
+
+    meshes = data.get("mesh", [])
+    if not meshes:
+        raise ctx.error("no [[mesh]] tables: the scene has no geometry")
+    builder = SceneBuilder(path)
+    textures: dict[str, np.ndarray] = {}
+    for i, table in enumerate(meshes, 1):
+        mctx = ctx.at(f"[[mesh]] #{i}")
+        if not isinstance(table, dict):
+            raise mctx.error("must be a table")
+        _add_mesh(builder, table, mctx, base_dir, textures)
+
+    lights = []
+    for i, table in enumerate(data.get("light", []), 1):
+        lctx = ctx.at(f"[[light]] #{i}")
+        if not isinstance(table, dict):
+            raise lctx.error("must be a table")
+        lights.append(_light(table, lctx))
+
+    camera = _camera(data["camera"], ctx.at("[camera]")) if "camera" in data else None
+    return builder.build(lights=lights or None, camera=camera, settings=data.get("settings", {}))
+
+
+# ---------------------------------------------------------------------------------------------- camera
+def _camera(table: dict, ctx: _Ctx) -> Camera:
+    _unknown(ctx, table, CAMERA_KEYS)
+    for key in ("eye", "target"):
+        if key not in table:
+            raise ctx.error(f"missing key {key!r}")
+    eye = ctx.check(_check.vector, table["eye"], 3, "eye")
+    target = ctx.check(_check.vector, table["target"], 3, "target")
+    up = ctx.check(_check.vector, table.get("up", (0.0, 1.0, 0.0)), 3, "up")
+    fov = ctx.check(_check.number, table.get("fov", 60.0), "fov", min_value=0.0, max_value=180.0,
+                    min_exclusive=True, max_exclusive=True)
+    near = table.get("near")
+    if near is not None:
+        near = ctx.check(_check.number, near, "near", min_value=0.0, min_exclusive=True)
+    return ctx.check(Camera.look_at, eye, target, up, fov, near)
+
+
+# ---------------------------------------------------------------------------------------------- lights
+def _color(value, field: str, ctx: _Ctx, alpha: bool = False) -> np.ndarray:
+    """Numbers are linear RGB(A); a "#rrggbb" / "#rrggbbaa" string is sRGB (alpha linear)."""
+    if isinstance(value, str):
+        s = value.strip()
+        hexdigits = s[1:] if s.startswith("#") else ""
+        if len(hexdigits) not in (6, 8) or any(ch not in "0123456789abcdefABCDEF" for ch in hexdigits):
+            raise ctx.error(f"{field} must be 3 numbers (linear RGB) or a \"#rrggbb\" sRGB string, got {value!r}")
+        rgba = [int(hexdigits[k:k + 2], 16) / 255.0 for k in range(0, len(hexdigits), 2)]
+        rgb = _check.srgb_to_linear(rgba[:3])
+        out = np.append(rgb, rgba[3] if len(rgba) == 4 else 1.0)
+        return out if alpha else out[:3]
+    n = len(value) if isinstance(value, list) else 0
+    if alpha and n == 4:
+        c = ctx.check(_check.vector, value, 4, field)
+        if np.any(c < 0):
+            raise ctx.error(f"{field} must be non-negative, got {value!r}")
+        return c
+    c = ctx.check(_check.vector, value, 3, field) if n == 3 or not alpha else None
+    if c is None:
+        raise ctx.error(f"{field} must be 3 or 4 numbers (linear RGB(A)) or a \"#rrggbb\" sRGB string, "
+                        f"got {value!r}")
+    if np.any(c < 0):
+        raise ctx.error(f"{field} must be non-negative, got {value!r}")
+    return np.append(c, 1.0) if alpha else c
+
+
+def _light(table: dict, ctx: _Ctx):
+    if "type" not in table:
+        raise ctx.error(f"missing key 'type' (one of {', '.join(LIGHT_TYPES)})")
+    kind = table["type"]
+    if kind not in LIGHT_TYPES:
+        raise ctx.error(f"type must be one of {', '.join(LIGHT_TYPES)}, got {kind!r}")
+    ctx = ctx.at(f"{ctx.table} ({kind})")
+    _unknown(ctx, table, LIGHT_KEYS[kind])
+    args = {k: v for k, v in table.items() if k not in ("type", "target")}
+    if "color" in args:
+        args["color"] = _color(args["color"], "color", ctx)
+    if "target" in table:
+        if "direction" in table:
+            raise ctx.error("give either 'direction' or 'target', not both")
+        frm = table.get("position")
+        if frm is None:
+            raise ctx.error("'target' needs 'position' (or give 'direction')")
+        p = ctx.check(_check.vector, frm, 3, "position")
+        t = ctx.check(_check.vector, table["target"], 3, "target")
+        args["direction"] = t - p
+    cls = LIGHT_TYPES[kind]
+    required = {"directional": ("direction",), "point": ("position",), "spot": ("position", "direction"),
+                "rect": ("position", "u", "v")}[kind]
+    for key in required:
+        if key not in args:
+            raise ctx.error(f"missing key {key!r}")
+    try:
+        return cls(**args)
+    except ConfigError as exc:
+        raise ctx.error(str(exc)) from None
+
+
+# ---------------------------------------------------------------------------------------------- meshes
+def _rotation(value, ctx: _Ctx) -> np.ndarray:
+    """[x, y, z] Euler degrees (X first, then Y, then Z, about the world axes) or {axis = [...], angle = deg}."""
+    if isinstance(value, dict):
+        _unknown(ctx, value, ("axis", "angle"))
+        if "axis" not in value or "angle" not in value:
+            raise ctx.error("rotate as a table needs 'axis' (3 numbers) and 'angle' (degrees)")
+        axis = ctx.check(_check.direction, value["axis"], "rotate.axis")
+        angle = math.radians(ctx.check(_check.number, value["angle"], "rotate.angle"))
+        k = np.array([[0, -axis[2], axis[1]], [axis[2], 0, -axis[0]], [-axis[1], axis[0], 0]])
+        return np.eye(3) + math.sin(angle) * k + (1 - math.cos(angle)) * (k @ k)
+    if not isinstance(value, list):
+        raise ctx.error(f"rotate must be 3 numbers (degrees about x, y, z) or {{axis = [..], angle = ..}}, "
+                        f"got {value!r}")
+    ax, ay, az = np.radians(ctx.check(_check.vector, value, 3, "rotate"))
+    rx = np.array([[1, 0, 0], [0, math.cos(ax), -math.sin(ax)], [0, math.sin(ax), math.cos(ax)]])
+    ry = np.array([[math.cos(ay), 0, math.sin(ay)], [0, 1, 0], [-math.sin(ay), 0, math.cos(ay)]])
+    rz = np.array([[math.cos(az), -math.sin(az), 0], [math.sin(az), math.cos(az), 0], [0, 0, 1]])
+    return rz @ ry @ rx
+
+
+def _size(value, n: int, field: str, ctx: _Ctx) -> np.ndarray:
+    """A positive number or n positive numbers."""
+    if isinstance(value, list):
+        v = ctx.check(_check.vector, value, n, field)
+    else:
+        v = np.full(n, ctx.check(_check.number, value, field))
+    if np.any(v <= 0):
+        raise ctx.error(f"{field} must be > 0, got {value!r}")
+    return v
+
+
+def _positive(table, key, default, ctx):
+    return ctx.check(_check.number, table.get(key, default), key, min_value=0.0, min_exclusive=True)
+
+
+def _count(table, key, default, lo, ctx):
+    value = table.get(key, default)
+    if not isinstance(value, int) or isinstance(value, bool) or value < lo or value > 4096:
+        raise ctx.error(f"{key} must be an integer in [{lo}, 4096], got {value!r}")
+    return value
+
+
+def _primitive(kind: str, table: dict, ctx: _Ctx):
+    if kind == "box":
+        return primitives.box(_size(table.get("size", 1.0), 3, "size", ctx))
+    if kind == "plane":
+        return primitives.plane(_size(table.get("size", 1.0), 2, "size", ctx))
+    if kind == "sphere":
+        return primitives.sphere(_positive(table, "radius", 1.0, ctx), _count(table, "segments", 64, 3, ctx),
+                                 _count(table, "rings", 32, 2, ctx))
+    if kind == "cylinder":
+        return primitives.cylinder(_positive(table, "radius", 0.5, ctx), _positive(table, "height", 1.0, ctx),
+                                   _count(table, "segments", 48, 3, ctx))
+    if kind == "torus":
+        return primitives.torus(_positive(table, "radius", 1.0, ctx), _positive(table, "tube", 0.25, ctx),
+                                _count(table, "segments", 96, 3, ctx), _count(table, "sides", 32, 3, ctx))
+    raise ctx.error(f"primitive must be one of {', '.join(PRIMITIVE_PARAMS)}, got {kind!r}")
+
+
+def _add_mesh(builder: SceneBuilder, table: dict, ctx: _Ctx, base_dir: str, textures: dict) -> None:
+    has_file, has_prim = "file" in table, "primitive" in table
+    if has_file == has_prim:
+        raise ctx.error("needs exactly one of 'file' (a mesh file) or 'primitive' "
+                        f"({', '.join(PRIMITIVE_PARAMS)})")
+    if has_prim:
+        kind = table["primitive"]
+        if not isinstance(kind, str) or kind not in PRIMITIVE_PARAMS:
+            raise ctx.error(f"primitive must be one of {', '.join(PRIMITIVE_PARAMS)}, got {kind!r}")
+        _unknown(ctx, table, MESH_COMMON + PRIMITIVE_PARAMS[kind])
+    else:
+        _unknown(ctx, table, MESH_COMMON)
+        if not isinstance(table["file"], str) or not table["file"]:
+            raise ctx.error(f"file must be a path string, got {table['file']!r}")
+
+    name = table.get("name", table.get("primitive") or table.get("file"))
+    if not isinstance(name, str):
+        raise ctx.error(f"name must be a string, got {name!r}")
+
+    # transform: scale, then rotate, then translate
+    scale = _size(table["scale"], 3, "scale", ctx) if "scale" in table else np.ones(3)
+    rot = _rotation(table["rotate"], ctx) if "rotate" in table else np.eye(3)
+    translate = ctx.check(_check.vector, table.get("translate", [0.0, 0.0, 0.0]), 3, "translate")
+    m = np.eye(4)
+    m[:3, :3] = rot @ np.diag(scale)
+    m[:3, 3] = translate
+
+    color = _color(table["color"], "color", ctx, alpha=True) if "color" in table else None
+    texture = None
+    if "texture" in table:
+        tex_path = table["texture"]
+        if not isinstance(tex_path, str) or not tex_path:
+            raise ctx.error(f"texture must be a path string, got {tex_path!r}")
+        full = os.path.normpath(os.path.join(base_dir, tex_path))
+        if full not in textures:
+            textures[full] = load_texture_file(full, f"{ctx.prefix()}: texture")
+        texture = textures[full]
+    uv_scale = None
+    if "uv_scale" in table:
+        uv_scale = _size(table["uv_scale"], 2, "uv_scale", ctx)
+
+    if has_prim:
+        p, f, n, uv = _primitive(table["primitive"], table, ctx)
+        if uv_scale is not None:
+            uv = uv * uv_scale
+        if color is None:
+            color = np.array([1.0, 1.0, 1.0, 1.0]) if texture is not None else np.array([0.8, 0.8, 0.8, 1.0])
+        from .material import Material
+        key = ("primitive", tuple(color.tolist()), None if texture is None else id(texture))
+        mat = builder.material_index(key, lambda: Material(name, color, texture))
+        p, n = transform_points(m, p), transform_normals(m, n)
+        if np.linalg.det(m[:3, :3]) < 0:
+            f = f[:, ::-1]
+        builder.add(name, p, f, n, uv, mat, ctx.prefix())
+        return
+
+    mesh_path = os.path.normpath(os.path.join(base_dir, table["file"]))
+    if not os.path.isfile(mesh_path):
+        raise ctx.error(f"file not found: {mesh_path} (file = {table['file']!r}, relative to the scene file)")
+    try:
+        obj = load_trimesh_scene(mesh_path)
+        builder.add_trimesh(obj, mesh_path, transform=m, color=color, texture=texture, uv_scale=uv_scale,
+                            label=name)
+    except SceneError as exc:
+        raise ctx.error(f"file = {table['file']!r}: {exc}") from None

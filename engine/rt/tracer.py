@@ -1,0 +1,222 @@
+"""Tracer: batch ray queries against a triangle mesh on the GPU, the Radeon Rays stand-in.
+
+    tracer = engine.Tracer(vertices, faces)            # or Tracer.from_trimesh(mesh)
+    hit = tracer.occluded(origins, directions, tmax)   # (N,) bool
+    hits = tracer.intersect(origins, directions)       # Hits(t, prim, u, v)
+
+Directions are used as given, as Embree does: the hit point is origin + t * direction and tmax is in
+the same units. Batches larger than one dispatch's buffers are split.
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+import vulkan as vk
+
+from ..bvh import build_bvh
+from ..errors import ConfigError, SceneError
+from ..shaders import ShaderLibrary
+from ..vk import SB, Buffer, ComputePipeline, Context, DescriptorSet, Timestamps, memory_barrier, upload_buffer
+from ..vk.resources import STORAGE
+
+RAY_BYTES = 32
+GROUP = 64
+
+
+@dataclass
+class Hits:
+    """Closest hits: `t` (+inf on a miss), `prim` (-1 on a miss), barycentrics `u`, `v` of vertices 1, 2."""
+
+    t: np.ndarray
+    prim: np.ndarray
+    u: np.ndarray
+    v: np.ndarray
+
+    @property
+    def hit(self) -> np.ndarray:
+        return self.prim >= 0
+
+    def __len__(self):
+        return len(self.t)
+
+
+class SceneBVH:
+    """A BVH's two storage buffers on the GPU, bound as a descriptor set (BVH_SET in bvh.glsl)."""
+
+    def __init__(self, ctx: Context, bvh, dset: DescriptorSet):
+        self.bvh = bvh
+        self.nodes = upload_buffer(ctx, bvh.nodes, STORAGE, "bvh nodes")
+        self.tris = upload_buffer(ctx, bvh.tris, STORAGE, "bvh triangles")
+        dset.buffer(0, self.nodes).buffer(1, self.tris)
+
+    def destroy(self):
+        self.nodes.destroy()
+        self.tris.destroy()
+
+
+def bvh_descriptor_set(ctx: Context) -> DescriptorSet:
+    return DescriptorSet(ctx, [(0, SB), (1, SB)])
+
+
+def _check_mesh(vertices, faces):
+    try:
+        v = np.asarray(vertices, dtype=np.float64)
+        f = np.asarray(faces)
+    except (TypeError, ValueError) as exc:
+        raise SceneError(f"Tracer: vertices/faces are not numeric arrays ({exc})") from None
+    if v.ndim != 2 or v.shape[1] != 3:
+        raise SceneError(f"Tracer: vertices must have shape (V, 3), got {v.shape}")
+    if f.ndim != 2 or f.shape[1] != 3 or not np.issubdtype(f.dtype, np.integer):
+        raise SceneError(f"Tracer: faces must be integers of shape (T, 3), got {f.dtype} {f.shape}")
+    if len(f) == 0:
+        raise SceneError("Tracer: the mesh has no triangles")
+    if not np.all(np.isfinite(v)):
+        raise SceneError("Tracer: vertices contain NaN or infinite values")
+    if f.min() < 0 or f.max() >= len(v):
+        raise SceneError(f"Tracer: face indices must be in 0..{len(v) - 1}, found {f.min()}..{f.max()}")
+    return v.astype(np.float32), f.astype(np.int64)
+
+
+def _check_rays(origins, directions, tmax):
+    o = np.asarray(origins, dtype=np.float32)
+    d = np.asarray(directions, dtype=np.float32)
+    if o.ndim != 2 or o.shape[1] != 3:
+        raise ConfigError(f"origins must have shape (N, 3), got {o.shape}")
+    if d.shape != o.shape:
+        raise ConfigError(f"directions must have the shape of origins {o.shape}, got {d.shape}")
+    t = np.asarray(tmax, dtype=np.float32)
+    if t.ndim == 0:
+        t = np.full(len(o), t, np.float32)
+    elif t.shape != (len(o),):
+        raise ConfigError(f"tmax must be a number or have shape ({len(o)},), got {t.shape}")
+    return o, d, t
+
+
+class Tracer:
+    """Batch ray queries against one triangle mesh (BVH built on the host, traversed by GLSL compute)."""
+
+    def __init__(self, vertices, faces, *, device=None, validation: bool = False, batch_size: int = 1 << 20,
+                 context: Context | None = None):
+        v, f = _check_mesh(vertices, faces)
+        self.bvh = build_bvh(v, f)
+        self.stats = dict(self.bvh.stats)
+        self.batch = int(batch_size)
+        self._owns_ctx = context is None
+        self.ctx = None
+        try:
+            self.ctx = context if context is not None else Context(device=device, validation=validation or None)
+            self._init_gpu()
+        except BaseException:
+            self.close()
+            raise
+
+    @classmethod
+    def from_trimesh(cls, mesh, **kw) -> "Tracer":
+        """From a `trimesh.Trimesh` or a `trimesh.Scene` (its geometry in world space)."""
+        import trimesh
+        if isinstance(mesh, trimesh.Scene):
+            mesh = mesh.to_geometry() if hasattr(mesh, "to_geometry") else mesh.dump(concatenate=True)
+        return cls(mesh.vertices, mesh.faces, **kw)
+
+    def _init_gpu(self):
+        ctx = self.ctx
+        lib = ShaderLibrary()
+        self.bvh_set = bvh_descriptor_set(ctx)
+        self.scene = SceneBVH(ctx, self.bvh, self.bvh_set)
+        self.io_set = DescriptorSet(ctx, [(0, SB), (1, SB), (2, SB)])
+        self.rays = Buffer(ctx, self.batch * RAY_BYTES, STORAGE, host=True, name="rays")
+        self.results = Buffer(ctx, self.batch * 16, STORAGE, host=True, name="hits")
+        self.params = Buffer(ctx, 16, STORAGE | vk.VK_BUFFER_USAGE_INDIRECT_BUFFER_BIT, host=True, name="params")
+        self.io_set.buffer(0, self.rays).buffer(1, self.results).buffer(2, self.params)
+        self.timestamps = Timestamps(ctx, capacity=4)
+        self.pipelines, self._commands, self._marks = {}, {}, {}
+        for kind in ("occluded", "intersect"):
+            self.pipelines[kind] = ComputePipeline(ctx, lib.get(f"trace_{kind}.comp"), [self.io_set, self.bvh_set],
+                                                   name=f"trace_{kind}")
+            self._commands[kind] = self._record(kind)
+        self.last_gpu_ms = 0.0
+
+    def _record(self, kind):
+        """One command buffer per query kind, recorded once: the batch size comes from the params buffer."""
+        cmd = self.ctx.allocate_command_buffer()
+        vk.vkBeginCommandBuffer(cmd, vk.VkCommandBufferBeginInfo())
+        self.timestamps.begin(cmd)
+        self.pipelines[kind].bind(cmd, [self.io_set, self.bvh_set])
+        vk.vkCmdDispatchIndirect(cmd, self.params.handle, 0)
+        self.timestamps.mark(cmd, "trace")
+        memory_barrier(cmd, vk.VK_PIPELINE_STAGE_COMPUTE_SHADER_BIT, vk.VK_PIPELINE_STAGE_HOST_BIT,
+                       vk.VK_ACCESS_SHADER_WRITE_BIT, vk.VK_ACCESS_HOST_READ_BIT)
+        vk.vkEndCommandBuffer(cmd)
+        self._marks[kind] = list(self.timestamps.names)
+        return cmd
+
+    @property
+    def validation_errors(self) -> list[str]:
+        return self.ctx.validation_errors if self.ctx else []
+
+    # ---- queries ---------------------------------------------------------------------------
+    def occluded(self, origins, directions, tmax=np.inf) -> np.ndarray:
+        """(N,) bool: does any triangle lie along origin + t * direction for t in [0, tmax]?"""
+        o, d, t = _check_rays(origins, directions, tmax)
+        out = np.empty(len(o), bool)
+        self.last_gpu_ms = 0.0
+        for s in range(0, len(o), self.batch):
+            n = self._run("occluded", o[s:s + self.batch], d[s:s + self.batch], t[s:s + self.batch])
+            out[s:s + n] = self.results.view(np.uint32)[:n] != 0
+        return out
+
+    def intersect(self, origins, directions, tmax=np.inf) -> Hits:
+        """Closest hit per ray within [0, tmax]."""
+        o, d, t = _check_rays(origins, directions, tmax)
+        n_all = len(o)
+        hits = Hits(np.empty(n_all, np.float32), np.empty(n_all, np.int32), np.empty(n_all, np.float32),
+                    np.empty(n_all, np.float32))
+        self.last_gpu_ms = 0.0
+        for s in range(0, n_all, self.batch):
+            n = self._run("intersect", o[s:s + self.batch], d[s:s + self.batch], t[s:s + self.batch])
+            rec = self.results.view(np.float32)[:n * 4].reshape(n, 4)
+            hits.t[s:s + n] = rec[:, 0]
+            hits.prim[s:s + n] = rec[:, 1].view(np.int32)
+            hits.u[s:s + n] = rec[:, 2]
+            hits.v[s:s + n] = rec[:, 3]
+        return hits
+
+    def _run(self, kind, o, d, t) -> int:
+        n = len(o)
+        if n == 0:
+            return 0
+        rays = self.rays.view(np.float32)[:n * 8].reshape(n, 8)
+        rays[:, 0:3] = o
+        rays[:, 3] = 0.0
+        rays[:, 4:7] = d
+        rays[:, 7] = t
+        self.params.write(np.array([(n + GROUP - 1) // GROUP, 1, 1, n], np.uint32))
+        self.ctx.submit(self._commands[kind])
+        self.last_gpu_ms += self.timestamps.read(self._marks[kind]).get("trace", 0.0)
+        return n
+
+    # ---- lifetime --------------------------------------------------------------------------
+    def close(self):
+        if self.ctx is not None:
+            if self._owns_ctx:
+                self.ctx.close()
+            else:
+                self.ctx.wait_idle()
+                for obj in (getattr(self, "scene", None), getattr(self, "rays", None), getattr(self, "results", None),
+                            getattr(self, "params", None)):
+                    if obj is not None:
+                        obj.destroy()
+            self.ctx = None
+
+    def __enter__(self):
+        return self
+
+    def __exit__(self, *exc):
+        self.close()
+
+    def __del__(self):
+        try:
+            self.close()
+        except Exception:
+            pass

@@ -1,0 +1,89 @@
+"""Ray-traced shadows and AO in the renderer, checked against a CPU reference from the same G-buffer."""
+import numpy as np
+import trimesh
+
+from engine import Camera, DirectionalLight, PointLight, Scene
+from engine.rt.reference import reference_occluded
+
+
+def box_on_ground():
+    ground = trimesh.creation.box(extents=(10, 0.1, 10))
+    ground.apply_translation((0, -0.05, 0))
+    box = trimesh.creation.box(extents=(1, 1, 1))
+    box.apply_translation((0, 1.5, 0))
+    cube = trimesh.creation.box(extents=(1, 1, 1))
+    cube.apply_translation((2.5, 0.5, 0))  # sits on the ground: crevices for AO
+    mesh = trimesh.util.concatenate([ground, box, cube])
+    cam = Camera.look_at((0, 8, 6), (0.5, 0, 0), fov_y=50)
+    return mesh, Scene.from_trimesh(mesh, camera=cam, lights=[DirectionalLight((0.3, -1.0, 0.2), intensity=2.5)])
+
+
+def cpu_shadow_mask(mesh, frame, direction):
+    covered = np.isfinite(frame.aov["depth"])
+    p = frame.aov["position"][covered].astype(np.float64)
+    n = frame.aov["normal"][covered].astype(np.float64)
+    to_light = -np.asarray(direction, float) / np.linalg.norm(direction)
+    facing = n @ to_light > 0
+    origins = p + n * 1e-3
+    occ = reference_occluded(mesh.vertices, mesh.faces, origins, np.broadcast_to(to_light, p.shape),
+                             np.full(len(p), 100.0))
+    mask = np.ones(covered.shape, np.float32)
+    mask[covered] = np.where(facing & ~occ, 1.0, 0.0)
+    return mask
+
+
+def test_hard_shadow_mask_matches_cpu_reference(make_renderer):
+    mesh, scene = box_on_ground()
+    f = make_renderer(96, 72).render(scene, shadows="hard", ao=False)
+    got = f.aov["shadow"][..., 0]
+    assert f.aov["shadow"].shape == (72, 96, 1)
+    assert set(np.unique(got)) <= {0.0, 1.0}
+    ref = cpu_shadow_mask(mesh, f, scene.lights[0].direction)
+    assert 0.05 < (ref == 0).mean() < 0.6               # the scene really has shadows
+    assert (got != ref).mean() < 0.005, f"{(got != ref).sum()} pixels differ"
+    assert np.all(got[~np.isfinite(f.aov["depth"])] == 1.0)  # background is lit
+
+
+def test_shadows_off_and_ao_off_are_all_ones(make_renderer):
+    _, scene = box_on_ground()
+    f = make_renderer(48, 36).render(scene, shadows="off", ao=False)
+    assert np.all(f.aov["shadow"] == 1.0) and np.all(f.aov["ao"] == 1.0)
+
+
+def test_shadowed_ground_is_darker_in_colour(make_renderer):
+    mesh, scene = box_on_ground()
+    r = make_renderer(96, 72)
+    lit = r.render(scene, shadows="off", ao=False).color[..., :3].astype(int).sum(-1)
+    f = r.render(scene, shadows="hard", ao=False)
+    shadowed = f.color[..., :3].astype(int).sum(-1)
+    in_shadow = (f.aov["shadow"][..., 0] == 0) & np.isfinite(f.aov["depth"]) & (f.aov["normal"][..., 1] > 0.9)
+    assert in_shadow.sum() > 20
+    assert np.all(shadowed[in_shadow] < lit[in_shadow])
+
+
+def test_ao_darkens_crevices_not_open_ground(make_renderer):
+    mesh, scene = box_on_ground()
+    r = make_renderer(96, 72)
+    f = r.render(scene, shadows="off", ao=True, ao_samples=64, ao_radius=0.5)
+    ao, pos, nrm = f.aov["ao"], f.aov["position"], f.aov["normal"]
+    ground = np.isfinite(f.aov["depth"]) & (nrm[..., 1] > 0.99) & (np.abs(pos[..., 1]) < 1e-3)
+    # Ground right next to the cube's left face (x in [1.9, 2.0)) vs open ground far from everything.
+    near = ground & (pos[..., 0] > 1.85) & (pos[..., 0] < 2.0) & (np.abs(pos[..., 2]) < 0.4)
+    far = ground & (np.hypot(pos[..., 0] + 3.0, pos[..., 2]) < 1.0)
+    assert near.sum() >= 2 and far.sum() >= 10
+    assert ao[near].mean() < 0.8
+    assert ao[far].mean() > 0.97
+    assert np.all(ao[~np.isfinite(f.aov["depth"])] == 1.0)
+
+
+def test_point_light_shadow_and_several_lights(make_renderer):
+    mesh, scene = box_on_ground()
+    scene.lights = [PointLight((0, 4, 0), intensity=20.0), DirectionalLight((0, -1, 0), intensity=1.0)]
+    f = make_renderer(64, 48).render(scene, shadows="hard", ao=False)
+    m = f.aov["shadow"]
+    assert m.shape == (48, 64, 2)
+    # The ground right under the floating box is shadowed from both lights (both come from above).
+    pos = f.aov["position"]
+    under = np.isfinite(f.aov["depth"]) & (np.abs(pos[..., 0]) < 0.3) & (np.abs(pos[..., 2]) < 0.3) & (pos[..., 1] < 0.01)
+    assert under.any()
+    assert np.all(m[under] == 0.0)

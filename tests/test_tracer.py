@@ -1,0 +1,125 @@
+"""The batch Tracer against a brute-force numpy reference, on several meshes including thin and degenerate ones."""
+import numpy as np
+import pytest
+import trimesh
+
+from engine import ConfigError, SceneError, Tracer
+from engine.rt.reference import reference_intersect, reference_occluded
+
+
+def random_rays(rng, n, bounds, spread=1.5):
+    lo, hi = bounds
+    c, ext = (lo + hi) / 2, (hi - lo).max()
+    o = c + rng.uniform(-spread, spread, (n, 3)) * ext
+    target = c + rng.uniform(-0.5, 0.5, (n, 3)) * ext
+    d = target - o
+    d *= rng.uniform(0.3, 3.0, (n, 1)) / np.linalg.norm(d, axis=1, keepdims=True)  # not unit on purpose
+    return o.astype(np.float32), d.astype(np.float32)
+
+
+def meshes():
+    rng = np.random.default_rng(1)
+    soup_v = rng.uniform(-1, 1, (300, 3))
+    soup_f = np.arange(300).reshape(100, 3)
+    thin = trimesh.creation.box(extents=(2.0, 0.002, 1.0))
+    degen_v = np.vstack([soup_v, [[0, 0, 0], [1, 1, 1], [2, 2, 2], [0.5, 0.5, 0.5]]])
+    degen_f = np.vstack([soup_f, [[300, 301, 302], [300, 300, 303], [301, 301, 301]]])  # collinear / repeated
+    return {
+        "sphere": (trimesh.creation.icosphere(3).vertices, trimesh.creation.icosphere(3).faces),
+        "thin_box": (thin.vertices, thin.faces),
+        "soup": (soup_v, soup_f),
+        "degenerate": (degen_v, degen_f),
+        "one_triangle": (np.array([[0, 0, 0], [1, 0, 0], [0, 1, 0]], float), np.array([[0, 1, 2]])),
+    }
+
+
+@pytest.fixture(scope="module")
+def tracers():
+    made = {name: Tracer(v, f, validation=True) for name, (v, f) in meshes().items()}
+    yield made
+    errors = []
+    for t in made.values():
+        errors += t.validation_errors
+        t.close()
+    assert not errors, errors[:5]
+
+
+@pytest.mark.parametrize("name", list(meshes()))
+def test_intersect_matches_reference(tracers, name):
+    v, f = meshes()[name]
+    rng = np.random.default_rng(7)
+    o, d = random_rays(rng, 3000, (v.min(0), v.max(0)))
+    tmax = rng.uniform(0.5, 8.0, len(o)).astype(np.float32)
+    tmax[::5] = np.inf
+    got = tracers[name].intersect(o, d, tmax)
+    t_ref, prim_ref, u_ref, v_ref = reference_intersect(v, f, o, d, tmax)
+    hit_ref = prim_ref >= 0
+    # Hit or miss agrees except for rays grazing an edge or ending right at a surface (float noise).
+    disagree = got.hit != hit_ref
+    assert disagree.mean() < 0.002, f"{disagree.sum()} of {len(o)} rays disagree on hit/miss"
+    both = got.hit & hit_ref
+    rel = np.abs(got.t[both] - t_ref[both]) / np.maximum(np.abs(t_ref[both]), 1e-6)
+    assert np.percentile(rel, 99.5) < 1e-4 and rel.max() < 1e-2
+    assert np.all(np.isinf(got.t[~got.hit])) and np.all(got.prim[~got.hit] == -1)
+    # Primitive ids where the closest hit is unambiguous (the runner-up is clearly farther).
+    same = got.prim[both] == prim_ref[both]
+    assert same.mean() > 0.99
+    agree = both.copy()
+    agree[both] = same
+    assert np.allclose(got.u[agree], u_ref[agree], atol=1e-3) and np.allclose(got.v[agree], v_ref[agree], atol=1e-3)
+
+
+@pytest.mark.parametrize("name", list(meshes()))
+def test_occluded_matches_reference(tracers, name):
+    v, f = meshes()[name]
+    rng = np.random.default_rng(11)
+    o, d = random_rays(rng, 3000, (v.min(0), v.max(0)))
+    tmax = rng.uniform(0.1, 4.0, len(o)).astype(np.float32)
+    got = tracers[name].occluded(o, d, tmax)
+    ref = reference_occluded(v, f, o, d, tmax)
+    assert (got != ref).mean() < 0.002
+
+
+def test_float64_inputs_and_scalar_tmax(tracers):
+    o = np.array([[0.0, 0.0, 5.0], [0.0, 0.0, 5.0], [5.0, 5.0, 5.0]])
+    d = np.array([[0.0, 0.0, -2.0], [0.0, 0.0, 2.0], [0.0, 0.0, -1.0]])
+    hits = tracers["sphere"].intersect(o, d)
+    assert hits.prim[0] >= 0 and abs(hits.t[0] - 2.0) < 0.01      # t in units of the unnormalized direction
+    assert hits.prim[1] == -1 and hits.prim[2] == -1
+    occ = tracers["sphere"].occluded(o, d, 1.5)                     # the sphere starts at t = 2
+    assert not occ.any()
+
+
+def test_closed_mesh_does_not_leak(tracers):
+    """Rays from inside a closed sphere towards its vertices and edges must all hit it."""
+    v, f = meshes()["sphere"]
+    dirs = np.vstack([v, (v[f[:, 0]] + v[f[:, 1]]) / 2])            # through vertices and edge midpoints
+    origins = np.zeros_like(dirs)
+    hits = tracers["sphere"].intersect(origins, dirs)
+    assert hits.hit.all(), f"{(~hits.hit).sum()} rays leaked through shared vertices/edges"
+
+
+def test_batches_larger_than_the_buffer():
+    v, f = meshes()["sphere"]
+    with Tracer(v, f, batch_size=1000) as small:
+        rng = np.random.default_rng(3)
+        o, d = random_rays(rng, 2500, (v.min(0), v.max(0)))
+        got = small.occluded(o, d, 5.0)
+    assert (got != reference_occluded(v, f, o, d, np.full(len(o), 5.0, np.float32))).mean() < 0.002
+
+
+def test_stats_and_bad_input():
+    v, f = meshes()["sphere"]
+    with Tracer(v, f) as t:
+        for key in ("build_ms", "nodes", "depth", "sah_cost"):
+            assert key in t.stats
+        with pytest.raises(ConfigError, match="directions"):
+            t.occluded(np.zeros((4, 3)), np.zeros((3, 3)))
+        with pytest.raises(ConfigError, match="tmax"):
+            t.occluded(np.zeros((4, 3)), np.ones((4, 3)), tmax=np.ones(3))
+    with pytest.raises(SceneError, match="no triangles"):
+        Tracer(np.zeros((3, 3)), np.zeros((0, 3), int))
+    with pytest.raises(SceneError, match="NaN"):
+        Tracer(np.full((3, 3), np.nan), [[0, 1, 2]])
+    with pytest.raises(SceneError, match="face indices"):
+        Tracer(np.zeros((3, 3)), [[0, 1, 5]])

@@ -79,10 +79,40 @@ def compile_shader(src: Path, out: Path, glsl_dir: Path = GLSL_DIR) -> None:
     except subprocess.TimeoutExpired:
         raise ShaderError(f"{src}: glslangValidator timed out") from None
     if res.returncode != 0:
-        lines = [l for l in (res.stdout + res.stderr).splitlines()
-                 if l.strip() and not l.startswith(str(src)) or "ERROR" in l]
-        msg = "\n".join(l for l in lines if "ERROR" in l or "error" in l) or "\n".join(lines)
-        raise ShaderError(f"{src}: {msg.strip()}")
+        raise ShaderError(compiler_message(res.stdout + res.stderr, src))
+
+
+_LOCATED = re.compile(r"^(?:ERROR|error):\s*(.+?):(\d+):\s*(.*)$")
+_NOISE = ("compilation terminated", "compilation errors", "Missing entry point", "SPIR-V is not generated")
+
+
+def compiler_message(output: str, src, max_lines: int = 6) -> str:
+    """The useful part of glslangValidator's output: its located errors as `file:line: message`.
+
+    glslang prints the file name, then `ERROR: file:line: 'token' : message` lines, then a summary and, after
+    any compile error, a consequential link error ("Missing entry point"); only the located lines are kept (the
+    first few, the rest counted). Without any, every ERROR line is kept; without those, the whole output."""
+    located, other = [], []
+    for line in output.splitlines():
+        line = line.rstrip()
+        m = _LOCATED.match(line)
+        if m:
+            path, lineno, text = m.groups()
+            text = re.sub(r"^''\s*:\s*", "", text).strip()   # syntax errors carry an empty token
+            text = re.sub(r"^('[^']*')\s*:\s+", r"\1: ", text)
+            if text != "compilation terminated":
+                located.append(f"{path}:{lineno}: {text}")
+        elif "ERROR" in line and not any(n in line for n in _NOISE):
+            other.append(line.replace("ERROR: ", "", 1).strip())
+    lines = located or other
+    if not lines:
+        return f"{src}: glslangValidator failed: {output.strip() or 'no output'}"
+    if len(lines) > max_lines:
+        lines = lines[:max_lines] + [f"(+{len(lines) - max_lines} more)"]
+    msg = "\n".join(lines)
+    if not located:  # link errors name no file: say which shader
+        msg = f"{src}: {msg}"
+    return msg
 
 
 def compile_all(glsl_dir: Path = GLSL_DIR, spv_dir: Path = SPV_DIR) -> dict:
@@ -123,6 +153,7 @@ class ShaderLibrary:
         self.spv_dir = Path(spv_dir) if spv_dir is not None else SPV_DIR
         self.hot_reload = hot_reload
         self.errors: dict[str, str] = {}
+        self.versions: dict[str, int] = {}   # name -> how many times hot reload compiled it (new SPIR-V)
         self._compiled: dict[str, bytes] = {}
         self._tmp = None
         self._stamps: dict[str, float] = {}
@@ -165,6 +196,7 @@ class ShaderLibrary:
             return False
         self.errors.pop(str(src), None)
         self._compiled[src.name] = out.read_bytes()
+        self.versions[src.name] = self.versions.get(src.name, 0) + 1
         return True
 
     def poll(self) -> set[str]:

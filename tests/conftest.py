@@ -76,3 +76,55 @@ def image_regression(request):
                         f"{bad:.2%} pixels off by > 32 (max {max_bad_fraction:.2%}); render saved to {out}")
 
     return check
+
+
+@pytest.fixture(scope="session")
+def xvfb_display():
+    """A private Xvfb server for window tests: DISPLAY is set to it for the session (and for subprocesses).
+
+    Xvfb picks a free display number itself (-displayfd) and reports it once it accepts connections.
+    Skipped, with the reason, when Xvfb is not installed."""
+    import select
+    import shutil
+    import subprocess
+    import tempfile
+
+    exe = shutil.which("Xvfb")
+    if exe is None:
+        pytest.skip("Xvfb is not installed (apt-get install xvfb): window tests need an X display")
+    read_fd, write_fd = os.pipe()
+    log = tempfile.TemporaryFile()
+    proc = subprocess.Popen([exe, "-displayfd", str(write_fd), "-screen", "0", "1280x800x24", "-nolisten", "tcp"],
+                            pass_fds=(write_fd,), stdout=subprocess.DEVNULL, stderr=log)
+    os.close(write_fd)
+    number = b""
+    try:
+        while not number.endswith(b"\n"):
+            ready, _, _ = select.select([read_fd], [], [], 15.0)
+            chunk = os.read(read_fd, 16) if ready else b""
+            if not chunk:
+                proc.kill()
+                proc.wait()
+                log.seek(0)
+                err = log.read().decode(errors="replace").strip().splitlines()
+                pytest.fail(f"Xvfb did not start: {err[-1] if err else 'no display number reported'}")
+            number += chunk
+    finally:
+        os.close(read_fd)
+    display = f":{int(number)}"
+    old = os.environ.get("DISPLAY")
+    os.environ["DISPLAY"] = display
+    try:
+        yield display
+    finally:
+        if old is None:
+            os.environ.pop("DISPLAY", None)
+        else:
+            os.environ["DISPLAY"] = old
+        proc.terminate()
+        try:
+            proc.wait(timeout=10)
+        except subprocess.TimeoutExpired:
+            proc.kill()
+            proc.wait()
+        log.close()

@@ -1,0 +1,147 @@
+"""Shader hot reload on a copy of shaders/glsl: a changed lighting shader changes the next frame, a syntax error keeps
+the last good pipeline and names the file with the compiler's message, fixing it clears the error; only affected
+shaders are recompiled, and nothing is written into shaders/spv/."""
+import hashlib
+import os
+import re
+import shutil
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from engine import Camera, DirectionalLight, Scene
+from engine.errors import ShaderError
+from engine.shaders import GLSL_DIR, SPV_DIR, ShaderLibrary, compile_shader
+
+SETTINGS = dict(ao=False)   # deterministic frames: no per-frame sampling
+
+
+def spv_snapshot():
+    return {p.name: hashlib.sha256(p.read_bytes()).hexdigest() for p in sorted(SPV_DIR.iterdir())}
+
+
+def edit(path: Path, text: str):
+    """Write `text` and make sure the modification time moves (coarse file-system clocks)."""
+    before = path.stat().st_mtime_ns
+    path.write_text(text)
+    if path.stat().st_mtime_ns == before:
+        os.utime(path, ns=(before + 1_000_000, before + 1_000_000))
+
+
+def black_lighting(src: str) -> str:
+    """lighting.comp with the colour multiplied by 0: the original main() runs, then the rgba8 output is
+    overwritten with black (found by its format, so edits elsewhere in the shader do not break this test)."""
+    m = re.search(r"layout\([^)]*\brgba8\)\s*uniform\s+(?:writeonly\s+)?image2D\s+(\w+)\s*;", src)
+    assert m, "lighting.comp: no rgba8 output image found; update black_lighting() in this test"
+    out = m.group(1)
+    assert src.count("void main()") == 1
+    return (src.replace("void main()", "void original_main()") +
+            f"\nvoid main() {{\n    original_main();\n    ivec2 p = ivec2(gl_GlobalInvocationID.xy);\n"
+            f"    if (all(lessThan(p, imageSize({out})))) imageStore({out}, p, vec4(0.0, 0.0, 0.0, 1.0));\n}}\n")
+
+
+@pytest.fixture
+def glsl_copy(tmp_path):
+    dst = tmp_path / "glsl"
+    shutil.copytree(GLSL_DIR, dst)
+    return dst
+
+
+@pytest.fixture
+def scene():
+    import trimesh
+    m = trimesh.creation.icosphere(subdivisions=3)
+    return Scene.from_trimesh(m, camera=Camera.look_at((0, 0, 4), (0, 0, 0), fov_y=45.0),
+                              lights=[DirectionalLight((-0.3, -0.5, -1.0))])
+
+
+def test_lighting_edit_error_and_fix(make_renderer, glsl_copy, scene):
+    spv_before = spv_snapshot()
+    lighting = glsl_copy / "lighting.comp"
+    key = str(lighting)
+    original = lighting.read_text()
+    r = make_renderer(64, 48, shader_dir=glsl_copy, hot_reload=True)
+    baseline = dict(r.shader_errors)   # errors of shaders other than lighting.comp are not this test's business
+    assert key not in baseline, baseline[key] if key in baseline else ""
+    lit = r.render(scene, **SETTINGS).color
+    assert lit[24, 32, :3].max() > 40   # the sphere is lit
+
+    # A good edit: the next frame uses it.
+    edit(lighting, black_lighting(original))
+    black = r.render(scene, **SETTINGS).color
+    assert black[..., :3].max() == 0 and np.all(black[..., 3] == 255)
+    assert key not in r.shader_errors
+
+    # A syntax error: rendering goes on with the last good (black) pipeline; the error names file and line.
+    broken = original.replace("void main()", "void main() oops", 1)
+    edit(lighting, broken)
+    frame = r.render(scene, **SETTINGS)
+    assert np.array_equal(frame.color, black)
+    assert key in r.shader_errors, r.shader_errors
+    msg = r.shader_errors[key]
+    line = broken[:broken.index("oops")].count("\n") + 1
+    assert f"lighting.comp:{line}:" in msg and "syntax error" in msg, msg
+    assert "compilation errors" not in msg and "Missing entry point" not in msg, msg
+    # ... and stays reported while nothing changes.
+    r.render(scene, **SETTINGS)
+    assert key in r.shader_errors
+
+    # The fix: the error is gone and the original shading is back.
+    edit(lighting, original)
+    again = r.render(scene, **SETTINGS).color
+    assert key not in r.shader_errors and r.shader_errors == baseline
+    assert np.array_equal(again, lit)
+    assert spv_snapshot() == spv_before, "hot reload wrote into shaders/spv/"
+
+
+def test_include_edits_reach_their_users(make_renderer, glsl_copy, scene):
+    """An include is watched like its users: an error in it names the include's file and line, keeps the last
+    good pipeline, and only the shaders that include it are recompiled."""
+    r = make_renderer(64, 48, shader_dir=glsl_copy, hot_reload=True)
+    before = r.render(scene, **SETTINGS).color
+    lighting, probe = glsl_copy / "lighting.comp", glsl_copy / "include" / "probe.glsl"
+    original = lighting.read_text()
+    probe.write_text("// a new include, used by lighting.comp only\n")
+    edit(lighting, original.replace("void main()", '#include "probe.glsl"\nvoid main()', 1))
+    assert np.array_equal(r.render(scene, **SETTINGS).color, before)
+    assert str(lighting) not in r.shader_errors
+    versions = dict(r.library.versions)
+    edit(probe, "// a new include, used by lighting.comp only\nfloat broken( {\n")
+    frame = r.render(scene, **SETTINGS)
+    assert np.array_equal(frame.color, before)   # the last good pipeline
+    msg = r.shader_errors.get(str(lighting), "")
+    assert re.search(r"include/probe\.glsl:2:", msg), r.shader_errors
+    assert {n for n, v in r.library.versions.items() if versions.get(n) != v} == set()   # nothing else rebuilt
+    edit(probe, "// fixed\n")
+    r.render(scene, **SETTINGS)
+    assert str(lighting) not in r.shader_errors
+    assert {n for n, v in r.library.versions.items() if versions.get(n) != v} == {"lighting.comp"}
+
+
+def test_only_affected_shaders_are_recompiled(glsl_copy):
+    lib = ShaderLibrary(glsl_copy, hot_reload=True)
+    try:
+        start = dict(lib.versions)
+        assert lib.poll() == set()
+        edit(glsl_copy / "lighting.comp", (glsl_copy / "lighting.comp").read_text() + "\n// edit\n")
+        assert lib.poll() == {"lighting.comp"}
+        changed = {n for n, v in lib.versions.items() if start.get(n) != v}
+        assert changed == {"lighting.comp"}
+        tmp = Path(lib._tmp.name)
+        assert tmp.is_dir() and not tmp.is_relative_to(SPV_DIR)
+    finally:
+        lib.close()
+    assert not tmp.exists()
+
+
+def test_compiler_message_is_the_located_error(tmp_path):
+    src = tmp_path / "bad.comp"
+    src.write_text("#version 450\nlayout(local_size_x = 1) in;\nvoid main() {\n    float x = undefined_name;\n}\n")
+    with pytest.raises(ShaderError) as exc:
+        compile_shader(src, tmp_path / "bad.spv", tmp_path)
+    msg = str(exc.value)
+    assert msg.splitlines()[0] == f"{src}:4: 'undefined_name': undeclared identifier", msg
+    assert "compilation errors" not in msg and "compilation terminated" not in msg
+    assert not (tmp_path / "bad.spv").exists()
+

@@ -1,0 +1,165 @@
+"""The windowed viewer (`hybrid view`) under a private Xvfb: the frame in the window is the renderer's frame, resize and
+minimize work, keys toggle settings, no command buffer is recorded per frame and nothing leaks (validation on)."""
+import os
+import subprocess
+import sys
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+REPO = Path(__file__).resolve().parent.parent
+
+DEFAULT = REPO / "scenes" / "default.toml"
+SCENE = DEFAULT if DEFAULT.exists() else REPO / "scenes" / "sphere.toml"
+SPHERE = REPO / "scenes" / "sphere.toml"
+
+
+def assert_close(got, ref, max_mean=1.0, max_bad=0.005):
+    """The same image up to driver differences: mean |diff| (0..255) and the share of pixels off by > 32 levels."""
+    assert got.shape == ref.shape, f"{got.shape} != {ref.shape}"
+    diff = np.abs(got.astype(np.int16) - ref.astype(np.int16))
+    mean, bad = float(diff.mean()), float((diff.max(axis=2) > 32).mean())
+    assert mean <= max_mean and bad <= max_bad, f"mean |diff| {mean:.3f}, {bad:.2%} pixels off by > 32"
+
+
+@pytest.fixture
+def viewer(xvfb_display):
+    """`viewer(scene, w, h, **kw)`: an in-process Viewer with validation on, closed after the test."""
+    from engine.viewer import Viewer
+
+    made = []
+
+    def make(scene=SPHERE, width=160, height=90, **kw):
+        kw.setdefault("validation", True)
+        kw.setdefault("hot_reload", False)
+        kw.setdefault("quiet", True)
+        v = Viewer(scene, width, height, **kw)
+        made.append(v)
+        return v
+
+    yield make
+    errors = []
+    for v in made:
+        v.close()   # leaked Vulkan objects are reported here
+        errors += v.validation_errors
+    assert not errors, "Vulkan validation errors:\n" + "\n".join(errors[:10])
+
+
+def test_view_cli_screenshot_matches_headless_render(xvfb_display, tmp_path, make_renderer):
+    from PIL import Image
+
+    from engine import Scene
+
+    shot = tmp_path / "shot.png"
+    env = dict(os.environ, HYBRID_VALIDATION="1")
+    res = subprocess.run([sys.executable, "-m", "engine", "view", str(SCENE), "--size", "160x90", "--frames", "20",
+                          "--screenshot", str(shot)], cwd=REPO, env=env, capture_output=True, text=True, timeout=300)
+    assert res.returncode == 0, f"exit {res.returncode}\n{res.stdout[-2000:]}\n{res.stderr[-3000:]}"
+    assert "validation: no errors" in res.stdout
+    assert "20 frames at 160x90" in res.stdout   # the summary line
+    got = np.asarray(Image.open(shot).convert("RGBA"))
+    # The same view headless, after the same number of frames (temporal accumulation sees the same history).
+    r, scene = make_renderer(160, 90), Scene.load(SCENE)
+    for _ in range(20):
+        ref = r.render(scene).color
+    assert_close(got, ref)
+
+
+def test_view_cli_rejects_bad_arguments(tmp_path):
+    env = dict(os.environ, HYBRID_VALIDATION="0")
+    for args, expect in ((["--screenshot", str(tmp_path / "x.png")], "--screenshot needs --frames"),
+                         (["--frames", "0"], "--frames 0"),
+                         (["--size", "12by3"], "expected WIDTHxHEIGHT")):
+        res = subprocess.run([sys.executable, "-m", "engine", "view", str(SPHERE), *args], cwd=REPO, env=env,
+                             capture_output=True, text=True, timeout=60)
+        assert res.returncode == 1 and expect in res.stderr, (args, res.stderr)
+
+
+def test_resize_between_frames(viewer, make_renderer):
+    import glfw
+
+    from engine import Scene
+
+    v = viewer(SCENE, 160, 90, settings=dict(ao=False))   # no sampling: any frame of a view is the same
+    assert v.run(frames=3) == 3
+    assert v.read_color().shape == (90, 160, 4)
+    glfw.set_window_size(v.window, 128, 72)
+    for _ in range(50):   # the X server reports the new size a little later
+        v.step()
+        if (v.renderer.width, v.renderer.height) == (128, 72):
+            break
+    assert v.presenter.swapchain.extent == (128, 72)
+    assert v.run(frames=3) == 3
+    got = v.read_color()
+    assert got.shape == (72, 128, 4)
+    assert_close(got, make_renderer(128, 72).render(Scene.load(SCENE), ao=False).color)
+
+
+def test_minimize_waits_and_restore_continues(viewer):
+    """A minimized window has a 0x0 framebuffer: nothing is rendered or recreated until it comes back.
+    (Xvfb has no window manager to iconify a window, so the framebuffer-size callback is driven directly.)"""
+    import glfw
+
+    v = viewer()
+    v.run(frames=2)
+    gen, frames = v.presenter.swapchain.generation, v.frames
+    v._on_framebuffer_size(v.window, 0, 0)
+    assert v.step() is False and v.step() is False
+    assert v.presenter.swapchain.generation == gen and v.frames == frames
+    v._on_framebuffer_size(v.window, *glfw.get_framebuffer_size(v.window))
+    assert v.run(frames=2) == 2
+    assert v.read_color().shape == (90, 160, 4)
+
+
+def test_present_command_buffers_are_recorded_once(viewer):
+    v = viewer()
+    v.run(frames=12)
+    # once at the start, plus at most once when the overlay rectangle first gets its text
+    assert v.presenter.recordings <= 2, v.presenter.recordings
+    before = v.presenter.recordings
+    v.run(frames=8)
+    assert v.presenter.recordings == before
+
+
+def test_keys_toggle_settings_and_f12_saves_a_screenshot(viewer, tmp_path, monkeypatch):
+    import glfw
+
+    from engine.viewer import setting_choices
+
+    monkeypatch.chdir(tmp_path)
+    v = viewer()
+    v.run(frames=2)
+    press = lambda key, mods=0: v._on_key(v.window, key, 0, glfw.PRESS, mods)  # noqa: E731
+    shadows, ao = v.settings["shadows"], v.settings["ao"]
+    press(glfw.KEY_1)
+    press(glfw.KEY_2)
+    assert v.settings["shadows"] != shadows and v.settings["ao"] == (not ao)
+    press(glfw.KEY_3)
+    press(glfw.KEY_V)
+    for name in ("denoise", "view"):   # only there once the renderer has those settings
+        assert (name in v.settings) == (setting_choices(name) is not None)
+    press(glfw.KEY_H)
+    assert v.help_on
+    v.run(frames=2)   # renders with the toggled settings
+    assert any("F12" in line for line in v.overlay_lines)
+    press(glfw.KEY_F12)
+    v.run(frames=1)
+    shots = list(tmp_path.glob("screenshot-*.png"))
+    assert len(shots) == 1
+    press(glfw.KEY_ESCAPE)
+    assert v.run() == 0   # Esc closed the window
+
+
+def test_camera_moves_with_keys(viewer):
+    v = viewer()
+    v.run(frames=1)
+    home = v.fly.camera
+    before = v.read_color()
+    v.fly.move(0, 0, 1, dt=0.5)   # what holding W does for half a second
+    v.fly.look(40, 0)
+    assert v.fly.camera != home
+    v.run(frames=2)
+    assert np.abs(v.read_color().astype(int) - before).max() > 0
+    v.fly.reset()
+    assert v.fly.camera == home

@@ -10,9 +10,10 @@ Public API::
 """
 from .errors import ConfigError, EngineError, SceneError, ShaderError, VulkanError
 from .renderer import Frame, Renderer
+from .rt import Hits, Tracer
 from .scene import Camera, DirectionalLight, Material, PointLight, RectLight, Scene, SpotLight
 
 __all__ = [
     "Scene", "Camera", "Material", "DirectionalLight", "PointLight", "SpotLight", "RectLight",
-    "Renderer", "Frame", "EngineError", "SceneError", "ConfigError", "VulkanError", "ShaderError",
+    "Renderer", "Frame", "Tracer", "Hits", "EngineError", "SceneError", "ConfigError", "VulkanError", "ShaderError",
 ]

@@ -9,19 +9,22 @@ import logging
 import sys
 import time
 
-from .errors import EngineError
+from .errors import ConfigError, EngineError
 
-AOVS = ("color", "position", "normal", "albedo", "depth", "shadow", "ao")
+# What --aov can write: the lit colour or one AOV, drawn by the renderer's debug view on the GPU (setting `view`).
+# Kept equal to engine.passes.debug_view.VIEW_MODES (without importing the Vulkan layer here).
+AOVS = ("color", "position", "normal", "albedo", "depth", "shadow_raw", "shadow", "ao_raw", "ao", "history")
+SHADOW_CHOICES = ("hard", "soft", "seed-delta", "reference", "off")
 
 
 def _settings(args) -> dict:
     out = {}
-    if args.shadows is not None:
-        out["shadows"] = args.shadows
-    if args.ao is not None:
-        out["ao"] = args.ao
-    if args.ao_samples is not None:
-        out["ao_samples"] = args.ao_samples
+    for key in ("shadows", "shadow_samples", "reference_samples", "accumulate", "denoise", "ao", "ao_samples"):
+        value = getattr(args, key, None)
+        if value is not None:
+            out[key] = value
+    if getattr(args, "aov", "color") != "color":
+        out["view"] = args.aov
     return out
 
 
@@ -33,10 +36,13 @@ def cmd_render(args) -> int:
     t0 = time.perf_counter()
     scene = Scene.load(args.scene)
     t1 = time.perf_counter()
+    if args.frames < 1:
+        raise ConfigError(f"--frames {args.frames}: expected at least 1")
     with Renderer(width, height, device=args.device, validation=args.validation) as r:
-        frame = r.render(scene, **_settings(args))
+        for _ in range(args.frames):   # soft shadows and AO accumulate over the frames
+            frame = r.render(scene, **_settings(args))
         t2 = time.perf_counter()
-        frame.save(args.output, aov=None if args.aov == "color" else args.aov)
+        frame.save(args.output)       # the colour image: the lit frame or the --aov debug view
         errors = list(r.validation_errors)
         device = r.device_name
     gpu = ", ".join(f"{k} {v:.2f}" for k, v in frame.timings.items())
@@ -62,6 +68,16 @@ def cmd_info(args) -> int:
     return 0
 
 
+def cmd_view(args) -> int:
+    from .viewer import run_from_args
+    return run_from_args(args)
+
+
+def cmd_bench(args) -> int:
+    from .bench import run_cli
+    return run_cli(args)
+
+
 def build_parser() -> argparse.ArgumentParser:
     ap = argparse.ArgumentParser(prog="hybrid", description="Hybrid Vulkan renderer (raster G-buffer + ray-traced shadows/AO)")
     ap.add_argument("-v", "--verbose", action="store_true", help="log debug messages")
@@ -71,14 +87,33 @@ def build_parser() -> argparse.ArgumentParser:
     r.add_argument("scene", help="a .toml scene or a mesh/glTF file")
     r.add_argument("-o", "--output", default="out.png", help="PNG to write (default out.png)")
     r.add_argument("--size", default="1280x720", help="WIDTHxHEIGHT (default 1280x720)")
-    r.add_argument("--aov", default="color", choices=AOVS, help="what to write: the colour or an AOV")
+    r.add_argument("--aov", default="color", choices=AOVS,
+                   help="what to write: the colour or an AOV (raw / final light masks and AO, history length)")
     r.add_argument("--device", default=None, help="Vulkan device index or name substring")
     r.add_argument("--validation", action="store_true", help="enable the Khronos validation layer; fail on errors")
-    r.add_argument("--shadows", default=None, help="shadow mode (hard, off)")
+    r.add_argument("--shadows", default=None, help=f"shadow mode: {', '.join(SHADOW_CHOICES)} (default hard)")
+    r.add_argument("--shadow-samples", type=int, default=None, help="soft: rays per pixel per light per frame")
+    r.add_argument("--reference-samples", type=int, default=None,
+                   help="reference: rays per pixel per light (default 256)")
+    r.add_argument("--frames", type=int, default=1,
+                   help="render this many frames and write the last (soft shadows and AO accumulate)")
+    r.add_argument("--no-accumulate", dest="accumulate", action="store_false", default=None,
+                   help="no temporal accumulation")
+    r.add_argument("--no-denoise", dest="denoise", action="store_false", default=None, help="no a-trous denoiser")
     r.add_argument("--ao", dest="ao", action="store_true", default=None, help="ambient occlusion on")
     r.add_argument("--no-ao", dest="ao", action="store_false", help="ambient occlusion off")
     r.add_argument("--ao-samples", type=int, default=None, help="AO rays per pixel")
     r.set_defaults(func=cmd_render)
+
+    v = sub.add_parser("view", help="open a scene in a window (keys: H), shaders hot-reloaded")
+    from .viewer import add_arguments as add_view_arguments
+    add_view_arguments(v)
+    v.set_defaults(func=cmd_view)
+
+    b = sub.add_parser("bench", help="benchmarks: BVH build, trace throughput vs Embree/Open3D, frame passes")
+    from .bench import add_arguments as add_bench_arguments
+    add_bench_arguments(b)
+    b.set_defaults(func=cmd_bench)
 
     i = sub.add_parser("info", help="list Vulkan devices and the one that would be used")
     i.add_argument("--device", default=None, help="Vulkan device index or name substring")

@@ -1,9 +1,15 @@
 """The Renderer: owns the Vulkan context, the render targets and the passes, and orders them into a frame.
 
-    G-buffer raster -> shadow rays -> AO rays -> lighting + tonemap -> readback
+    G-buffer raster -> shadow rays -> AO rays -> temporal accumulation -> a-trous denoise
+        -> lighting + tonemap -> debug view -> readback
 
 A frame's command buffer is recorded once per (scene, settings) and re-submitted; only the per-frame
-uniform block (camera, frame index) is rewritten before each submit.
+uniform block (camera, previous camera, frame index, history reset flag) is rewritten before each submit.
+
+The light masks and AO each go through a `Signal`'s buffers: the ray pass writes `raw`; accumulation blends
+it with the reprojected `hist` into `cur` (then copied to `hist` for the next frame); the denoiser ping-pongs
+`cur`/`val_b` and writes `final`, which the lighting pass reads. A signal that is not filtered this frame
+(hard / seed-delta / reference shadows, AO off) has `raw` copied to `final`.
 """
 from __future__ import annotations
 
@@ -14,10 +20,17 @@ from pathlib import Path
 import numpy as np
 import vulkan as vk
 
+from .bvh import build_bvh
 from .errors import ConfigError, EngineError
-from .passes.frame_data import FRAME_BYTES, MAX_LIGHTS, pack_frame
+from .passes.frame_data import FRAME_BYTES, MAX_LIGHTS, pack_frame, pack_light
 from .passes.gbuffer import ALBEDO_FORMAT, DEPTH_FORMAT, NORMAL_FORMAT, POSITION_FORMAT, GBufferPass, SceneGeometry
+from .passes.accumulate import ALPHA_MIN, FILTER_AO, FILTER_MASKS, FILTER_TEMPORAL, AccumulatePass
+from .passes.ao import AOPass
+from .passes.debug_view import VIEW_MODES, DebugViewPass
+from .passes.denoise import DenoisePass
 from .passes.lighting import LightingPass
+from .passes.shadows import ShadowPass
+from .rt.tracer import SceneBVH, bvh_descriptor_set
 from .shaders import ShaderLibrary
 from .vk import Buffer, Context, Image, Timestamps, image_barrier, memory_barrier
 from .vk.resources import STORAGE, TRANSFER_DST, TRANSFER_SRC, UNIFORM
@@ -26,14 +39,22 @@ ONE_F32 = 0x3F800000  # bit pattern of 1.0f, for vkCmdFillBuffer
 WHOLE_SIZE = 0xFFFFFFFFFFFFFFFF
 
 DEFAULT_SETTINGS = {
-    "shadows": "hard",
+    "shadows": "hard",       # SHADOW_MODES
+    "shadow_samples": 1,     # soft: rays per pixel per light per frame
+    "reference_samples": 256,  # reference: rays per pixel per light (shadows and AO)
+    "accumulate": True,      # temporal accumulation of the soft light masks and AO
+    "denoise": True,         # a-trous filter of the soft light masks and AO
     "ao": True,
     "ao_samples": 4,
     "ao_radius": None,       # None: 10% of the scene's bounding-box diagonal
     "exposure": 1.0,
     "ambient": (0.20, 0.22, 0.26),
+    "view": "color",         # VIEW_MODES: the lit image or one AOV, drawn on the GPU
 }
-SHADOW_MODES = ("hard", "off")
+# hard: one ray to each light's centre. soft: `shadow_samples` rays over each light's area / solid angle (R2 points,
+# moving every frame), accumulated and denoised. seed-delta: the paper's occlusion-delta approximation (one ray).
+# reference: `reference_samples` rays per pixel per light, nothing accumulated or denoised (ground truth).
+SHADOW_MODES = ("hard", "soft", "seed-delta", "reference", "off")
 
 
 def _check_settings(settings: dict) -> dict:
@@ -44,10 +65,17 @@ def _check_settings(settings: dict) -> dict:
         out[key] = value
     if out["shadows"] not in SHADOW_MODES:
         raise ConfigError(f"setting shadows={out['shadows']!r}: expected one of {', '.join(SHADOW_MODES)}")
-    if not isinstance(out["ao"], bool):
-        raise ConfigError(f"setting ao={out['ao']!r}: expected true or false")
-    if isinstance(out["ao_samples"], bool) or not isinstance(out["ao_samples"], int) or not 1 <= out["ao_samples"] <= 256:
-        raise ConfigError(f"setting ao_samples={out['ao_samples']!r}: expected an integer in 1..256")
+    if out["view"] not in VIEW_MODES:
+        raise ConfigError(f"setting view={out['view']!r}: expected one of {', '.join(VIEW_MODES)}")
+    for key in ("ao", "accumulate", "denoise"):
+        if not isinstance(out[key], (bool, np.bool_)):
+            raise ConfigError(f"setting {key}={out[key]!r}: expected true or false")
+        out[key] = bool(out[key])
+    for key, hi in (("ao_samples", 256), ("shadow_samples", 256), ("reference_samples", 65536)):
+        v = out[key]
+        if isinstance(v, (bool, np.bool_)) or not isinstance(v, (int, np.integer)) or not 1 <= v <= hi:
+            raise ConfigError(f"setting {key}={v!r}: expected an integer in 1..{hi}")
+        out[key] = int(v)
     for key in ("ao_radius", "exposure"):
         v = out[key]
         if v is None and key == "ao_radius":
@@ -117,8 +145,10 @@ def aov_to_rgba(frame: Frame, name: str) -> np.ndarray:
         rgb = np.where(cover[..., None], (a - lo) / np.maximum(hi - lo, 1e-12), 0.0)
     elif name == "albedo":
         rgb = np.clip(a, 0, 1) ** (1 / 2.2)
-    elif a.ndim == 3 and a.shape[2] != 3:  # per-light masks: average over lights
+    elif name in ("shadow", "shadow_raw"):  # per-light masks: average over lights
         rgb = np.repeat(a.mean(axis=2, keepdims=True), 3, axis=2) if a.shape[2] else np.ones(a.shape[:2] + (3,))
+    elif name == "history":  # frames of history: white from 32 on
+        rgb = np.repeat(np.clip(a / 32.0, 0.0, 1.0)[..., None], 3, axis=2)
     elif a.ndim == 2:
         rgb = np.repeat(a[..., None], 3, axis=2)
     else:
@@ -130,12 +160,28 @@ def aov_to_rgba(frame: Frame, name: str) -> np.ndarray:
     return out
 
 
+class Signal:
+    """The buffers one filtered per-pixel signal goes through in a frame: the light masks (`channels` = lights,
+    light-major [channel][y][x] floats) or AO (1 channel). See the module docstring for the flow."""
+
+    NAMES = ("raw", "cur", "hist", "var_a", "val_b", "var_b", "final")
+
+    def __init__(self, ctx, name, n_pixels, channels):
+        usage = STORAGE | TRANSFER_SRC | TRANSFER_DST
+        for part in self.NAMES:
+            setattr(self, part, Buffer(ctx, n_pixels * 4 * channels, usage, name=f"{name} {part}"))
+
+    def buffers(self):
+        return [getattr(self, part) for part in self.NAMES]
+
+
 class Targets:
     """Every per-size image and buffer of a frame, plus the host buffer the frame is read back into."""
 
     def __init__(self, ctx, width, height, light_capacity):
         self.width, self.height, self.light_capacity = width, height, light_capacity
         n = width * height
+        self.check_capacity(ctx, width, height, light_capacity)
         att = (vk.VK_IMAGE_USAGE_COLOR_ATTACHMENT_BIT | vk.VK_IMAGE_USAGE_STORAGE_BIT
                | vk.VK_IMAGE_USAGE_TRANSFER_SRC_BIT)
         self.position = Image(ctx, width, height, POSITION_FORMAT, att, name="position")
@@ -146,24 +192,48 @@ class Targets:
         out_usage = (vk.VK_IMAGE_USAGE_STORAGE_BIT | vk.VK_IMAGE_USAGE_TRANSFER_SRC_BIT)
         self.color = Image(ctx, width, height, vk.VK_FORMAT_R8G8B8A8_UNORM, out_usage, name="color")
         self.hdr = Image(ctx, width, height, vk.VK_FORMAT_R16G16B16A16_SFLOAT, out_usage, name="hdr")
+        # The previous frame's G-buffer position and normal (temporal reprojection / disocclusion tests).
+        hist_usage = vk.VK_IMAGE_USAGE_STORAGE_BIT | vk.VK_IMAGE_USAGE_TRANSFER_DST_BIT
+        self.hist_position = Image(ctx, width, height, POSITION_FORMAT, hist_usage, name="history position")
+        self.hist_normal = Image(ctx, width, height, NORMAL_FORMAT, hist_usage, name="history normal")
+        self.signals = {"masks": Signal(ctx, "masks", n, light_capacity), "ao": Signal(ctx, "ao", n, 1)}
         buf_usage = STORAGE | TRANSFER_SRC | TRANSFER_DST
-        self.masks = Buffer(ctx, n * 4 * light_capacity, buf_usage, name="masks")
-        self.ao = Buffer(ctx, n * 4, buf_usage, name="ao")
-        # Readback layout: colour, position, normal, albedo, masks, ao.
+        self.len_cur = Buffer(ctx, n * 4, buf_usage, name="history length")
+        self.len_hist = Buffer(ctx, n * 4, buf_usage, name="previous history length")
+        # What the lighting pass reads, and what the ray passes write.
+        self.masks, self.ao = self.signals["masks"].final, self.signals["ao"].final
+        self.masks_raw, self.ao_raw = self.signals["masks"].raw, self.signals["ao"].raw
+        # Readback layout: colour, position, normal, albedo, masks, ao, raw masks, raw ao, history length.
         self.offsets = {}
         off = 0
         for name, size in (("color", n * 4), ("position", n * 16), ("normal", n * 16), ("albedo", n * 8),
-                           ("masks", n * 4 * light_capacity), ("ao", n * 4)):
+                           ("masks", n * 4 * light_capacity), ("ao", n * 4), ("masks_raw", n * 4 * light_capacity),
+                           ("ao_raw", n * 4), ("history", n * 4)):
             self.offsets[name] = off
             off += size
         self.readback = Buffer(ctx, off, TRANSFER_DST, host=True, name="readback")
         self._objects = [self.position, self.normal, self.albedo, self.depth, self.color, self.hdr,
-                         self.masks, self.ao, self.readback]
+                         self.hist_position, self.hist_normal, self.len_cur, self.len_hist, self.readback]
+        for sig in self.signals.values():
+            self._objects += sig.buffers()
         with ctx.one_shot() as cmd:
-            for img in (self.color, self.hdr):
+            for img in (self.color, self.hdr, self.hist_position, self.hist_normal):
                 image_barrier(cmd, img, vk.VK_IMAGE_LAYOUT_UNDEFINED, vk.VK_IMAGE_LAYOUT_GENERAL,
                               vk.VK_PIPELINE_STAGE_TOP_OF_PIPE_BIT, vk.VK_PIPELINE_STAGE_COMPUTE_SHADER_BIT,
                               0, vk.VK_ACCESS_SHADER_WRITE_BIT)
+            for buf in (self.len_cur, self.len_hist):   # defined contents for the history-length AOV
+                vk.vkCmdFillBuffer(cmd, buf.handle, 0, WHOLE_SIZE, 0)
+
+    @staticmethod
+    def check_capacity(ctx, width, height, lights):
+        """The light masks are one storage buffer per stage, light-major: it must fit the device's
+        maxStorageBufferRange (128 MiB on lavapipe: 16 lights at 1920x1080, 8 up to 2560x1600)."""
+        need, limit = width * height * 4 * max(lights, 1), int(ctx.limits.maxStorageBufferRange)
+        if need > limit:
+            raise ConfigError(
+                f"size {width}x{height} with {lights} lights: the light masks need {need / 2**20:.1f} MiB per "
+                f"buffer, over this device's maxStorageBufferRange of {limit / 2**20:.0f} MiB; use fewer lights "
+                f"or a smaller size")
 
     def record_readback(self, cmd):
         """Copy every target into the host buffer (after the lighting pass)."""
@@ -175,7 +245,8 @@ class Targets:
                                           imageSubresource=sub, imageOffset=vk.VkOffset3D(0, 0, 0),
                                           imageExtent=vk.VkExtent3D(w, h, 1))
             vk.vkCmdCopyImageToBuffer(cmd, img.handle, vk.VK_IMAGE_LAYOUT_GENERAL, self.readback.handle, 1, [region])
-        for name, buf in (("masks", self.masks), ("ao", self.ao)):
+        for name, buf in (("masks", self.masks), ("ao", self.ao), ("masks_raw", self.masks_raw),
+                          ("ao_raw", self.ao_raw), ("history", self.len_cur)):
             vk.vkCmdCopyBuffer(cmd, buf.handle, self.readback.handle, 1,
                                [vk.VkBufferCopy(0, self.offsets[name], buf.size)])
         memory_barrier(cmd, vk.VK_PIPELINE_STAGE_TRANSFER_BIT, vk.VK_PIPELINE_STAGE_HOST_BIT,
@@ -190,20 +261,26 @@ class Targets:
             o = self.offsets[name]
             return np.frombuffer(raw[o:o + count * np.dtype(dtype).itemsize].tobytes(), dtype).reshape(shape)
 
+        def masks(name):
+            m = part(name, np.float32, n * max(n_lights, 1), (max(n_lights, 1), h, w))[:n_lights]
+            return np.ascontiguousarray(np.moveaxis(m, 0, -1))
+
         color = part("color", np.uint8, n * 4, (h, w, 4)).copy()
         pos = part("position", np.float32, n * 4, (h, w, 4))
         nrm = part("normal", np.float32, n * 4, (h, w, 4))
         alb = part("albedo", np.float16, n * 4, (h, w, 4)).astype(np.float32)
         cover = nrm[..., 3] > 0
         depth = np.where(cover, pos[..., 3], np.inf).astype(np.float32)
-        masks = part("masks", np.float32, n * max(n_lights, 1), (max(n_lights, 1), h, w))[:n_lights]
         aov = {
             "position": np.ascontiguousarray(pos[..., :3]),
             "normal": np.ascontiguousarray(nrm[..., :3]),
             "albedo": np.ascontiguousarray(alb[..., :3]),
             "depth": depth,
-            "shadow": np.ascontiguousarray(np.moveaxis(masks, 0, -1)),
+            "shadow": masks("masks"),              # what the lighting used (accumulated + denoised for soft)
+            "shadow_raw": masks("masks_raw"),      # this frame's rays alone
             "ao": part("ao", np.float32, n, (h, w)).copy(),
+            "ao_raw": part("ao_raw", np.float32, n, (h, w)).copy(),
+            "history": part("history", np.float32, n, (h, w)).copy(),   # frames accumulated (0: none)
         }
         return color, aov
 
@@ -237,14 +314,24 @@ class Renderer:
         self.frame_ubo = Buffer(ctx, FRAME_BYTES, UNIFORM, host=True, name="frame")
         self.timestamps = Timestamps(ctx)
         self.targets = Targets(ctx, self.width, self.height, light_capacity=1)
+        self.bvh_set = bvh_descriptor_set(ctx)
         self.gbuffer = GBufferPass(ctx, self.library, self.frame_ubo)
+        self.shadows = ShadowPass(ctx, self.library, self.frame_ubo, self.bvh_set, self.targets)
+        self.ao = AOPass(ctx, self.library, self.frame_ubo, self.bvh_set, self.targets)
+        self.accumulate = AccumulatePass(ctx, self.library, self.frame_ubo, self.targets)
+        self.denoise = DenoisePass(ctx, self.library, self.frame_ubo, self.targets)
         self.lighting = LightingPass(ctx, self.library, self.frame_ubo, self.targets)
-        self.passes = [self.gbuffer, self.lighting]
+        self.debug_view = DebugViewPass(ctx, self.library, self.frame_ubo, self.targets)
+        self.passes = [self.gbuffer, self.shadows, self.ao, self.accumulate, self.denoise, self.lighting,
+                       self.debug_view]
         self._scene = None
         self._geometry = None
+        self._scene_bvh = None
+        self.bvh_stats = {}
         self._commands: dict = {}
         self._frame_index = 0
         self._prev_view_proj = None
+        self._history_key = None   # what the temporal history was accumulated under (None: no valid history)
         self.uploads = 0  # scene uploads so far (a test reads it: the same scene is uploaded once)
 
     # ---- public ---------------------------------------------------------------------------
@@ -286,6 +373,7 @@ class Renderer:
         """New render size: targets are recreated and recorded command buffers dropped."""
         check_size(width, height)
         if (width, height) != (self.width, self.height):
+            Targets.check_capacity(self.ctx, width, height, self.targets.light_capacity)
             self.width, self.height = int(width), int(height)
             self._resize_targets(self.targets.light_capacity)
 
@@ -307,19 +395,34 @@ class Renderer:
         aspect = self.width / self.height
         view_proj = camera.projection_matrix(aspect) @ camera.view_matrix()
         diag = float(np.linalg.norm(scene.bounds[1] - scene.bounds[0])) or 1.0
+        # The temporal history holds the light masks and AO as traced under these: when any of them changes
+        # (another scene, light, shadow mode or sample count, size), the next frame starts over.
+        history_key = (scene.uid if hasattr(scene, "uid") else id(scene), self.width, self.height,
+                       b"".join(pack_light(l).tobytes() for l in lights),
+                       tuple(cfg[k] for k in ("shadows", "shadow_samples", "ao", "ao_samples", "ao_radius",
+                                              "accumulate")))
+        reset = history_key != self._history_key
+        shadow_samples = cfg["reference_samples"] if cfg["shadows"] == "reference" else cfg["shadow_samples"]
+        ao_samples = cfg["reference_samples"] if cfg["shadows"] == "reference" else cfg["ao_samples"]
         self.frame_ubo.write(np.frombuffer(pack_frame(
-            view_proj=view_proj, prev_view_proj=self._prev_view_proj if self._prev_view_proj is not None else view_proj,
+            view_proj=view_proj,
+            prev_view_proj=self._prev_view_proj if self._prev_view_proj is not None and not reset else view_proj,
             eye=camera.eye, forward=camera.forward, near=camera.near, width=self.width, height=self.height,
             frame_index=self._frame_index, lights=lights,
-            ao_radius=cfg["ao_radius"] or 0.1 * diag, ao_samples=cfg["ao_samples"], shadow_samples=1,
-            exposure=cfg["exposure"], ambient=cfg["ambient"], scene_scale=diag, accum_alpha=1.0), np.uint8))
-        key = (cfg["shadows"], cfg["ao"], len(lights), readback)
+            ao_radius=cfg["ao_radius"] or 0.1 * diag, ao_samples=ao_samples, shadow_samples=shadow_samples,
+            exposure=cfg["exposure"], ambient=cfg["ambient"], scene_scale=diag, accum_alpha=ALPHA_MIN,
+            pixel_footprint=2.0 * math.tan(math.radians(camera.fov_y) / 2.0) / self.height,
+            history_reset=reset, bounds=scene.bounds), np.uint8))
+        key = (cfg["shadows"], cfg["ao"], cfg["accumulate"], cfg["denoise"], cfg["view"], len(lights), readback)
+        if cfg["shadows"] == "reference":
+            key += (cfg["reference_samples"],)
         if key not in self._commands:
             cmd = self._record(cfg, len(lights), readback)
             self._commands[key] = (cmd, list(self.timestamps.names))
         cmd, marks = self._commands[key]
         self._frame_index += 1
         self._prev_view_proj = view_proj
+        self._history_key = history_key
         return cmd, marks, cfg, len(lights)
 
     def close(self):
@@ -355,9 +458,10 @@ class Renderer:
 
     def _release_owned(self):
         """Destroy this renderer's objects on a shared context (its defer list would hold them until the end)."""
-        if self._geometry is not None:
-            self._geometry.destroy()
-            self._geometry = None
+        for obj in (self._geometry, self._scene_bvh):
+            if obj is not None:
+                obj.destroy()
+        self._geometry = self._scene_bvh = None
         self.targets.destroy()
 
     def _invalidate_commands(self):
@@ -371,21 +475,29 @@ class Renderer:
         if scene is self._scene:
             return
         self._invalidate_commands()
-        if self._geometry is not None:
-            self.ctx.wait_idle()
-            self._geometry.destroy()
+        self.ctx.wait_idle()
+        for old in (self._geometry, self._scene_bvh):
+            if old is not None:
+                old.destroy()
+        self._geometry = self._scene_bvh = None
         self._geometry = SceneGeometry(self.ctx, scene, self.gbuffer.white, self.gbuffer.sampler)
         self.gbuffer.bind_scene(self._geometry)
+        bvh = build_bvh(scene.positions, scene.indices)
+        self.bvh_stats = dict(bvh.stats)
+        self._scene_bvh = SceneBVH(self.ctx, bvh, self.bvh_set)
         self._scene = scene
         self._prev_view_proj = None
         self.uploads += 1
 
     def _resize_targets(self, light_capacity):
+        Targets.check_capacity(self.ctx, self.width, self.height, light_capacity)
         self._invalidate_commands()
         self.ctx.wait_idle()
         self.targets.destroy()
         self.targets = Targets(self.ctx, self.width, self.height, light_capacity)
-        self.lighting.bind_targets(self.targets)
+        for p in (self.shadows, self.ao, self.accumulate, self.denoise, self.lighting, self.debug_view):
+            p.bind_targets(self.targets)
+        self._history_key = None
 
     def _record(self, cfg, n_lights, readback=True):
         ctx, t = self.ctx, self.targets
@@ -395,15 +507,52 @@ class Renderer:
         ts.begin(cmd)
         self.gbuffer.record(cmd, t, self._geometry)
         ts.mark(cmd, "gbuffer")
-        vk.vkCmdFillBuffer(cmd, t.masks.handle, 0, WHOLE_SIZE, ONE_F32)
+        mode = cfg["shadows"]
+        reference = cfg["reference_samples"] if mode == "reference" else None
+        if mode == "off" or n_lights == 0:
+            vk.vkCmdFillBuffer(cmd, t.masks_raw.handle, 0, WHOLE_SIZE, ONE_F32)
+        else:
+            self.shadows.record(cmd, t, mode, n_lights=n_lights, reference_samples=reference)
         ts.mark(cmd, "shadows")
-        vk.vkCmdFillBuffer(cmd, t.ao.handle, 0, WHOLE_SIZE, ONE_F32)
+        if cfg["ao"]:
+            self.ao.record(cmd, t, reference_samples=reference)
+        else:
+            vk.vkCmdFillBuffer(cmd, t.ao_raw.handle, 0, WHOLE_SIZE, ONE_F32)
         ts.mark(cmd, "ao")
-        memory_barrier(cmd, vk.VK_PIPELINE_STAGE_TRANSFER_BIT | vk.VK_PIPELINE_STAGE_COMPUTE_SHADER_BIT,
-                       vk.VK_PIPELINE_STAGE_COMPUTE_SHADER_BIT,
-                       vk.VK_ACCESS_TRANSFER_WRITE_BIT | vk.VK_ACCESS_SHADER_WRITE_BIT, vk.VK_ACCESS_SHADER_READ_BIT)
+        _barrier(cmd)
+
+        # Which signals are filtered: soft light masks and (outside the reference mode) AO.
+        filtered = []
+        if mode == "soft" and n_lights and (cfg["accumulate"] or cfg["denoise"]):
+            filtered.append("masks")
+        if cfg["ao"] and mode != "reference" and (cfg["accumulate"] or cfg["denoise"]):
+            filtered.append("ao")
+        flags = (FILTER_MASKS if "masks" in filtered else 0) | (FILTER_AO if "ao" in filtered else 0)
+        if filtered:
+            self.accumulate.record(cmd, t, flags | (FILTER_TEMPORAL if cfg["accumulate"] else 0), n_lights)
+            _barrier(cmd)
+            if cfg["accumulate"]:
+                self.accumulate.record_history_copy(cmd, t, filtered)
+                _barrier(cmd)
+            ts.mark(cmd, "accumulate")
+            if cfg["denoise"]:
+                self.denoise.record(cmd, t, flags, n_lights)
+                ts.mark(cmd, "denoise")
+            else:
+                for name in filtered:
+                    _copy(cmd, t.signals[name].cur, t.signals[name].final)
+        else:
+            vk.vkCmdFillBuffer(cmd, t.len_cur.handle, 0, WHOLE_SIZE, 0)
+        for name in ("masks", "ao"):
+            if name not in filtered:
+                _copy(cmd, t.signals[name].raw, t.signals[name].final)
+        _barrier(cmd)
         self.lighting.record(cmd, t)
         ts.mark(cmd, "lighting")
+        if cfg["view"] != "color":
+            _barrier(cmd)
+            self.debug_view.record(cmd, t, cfg["view"])
+            ts.mark(cmd, "view")
         memory_barrier(cmd, vk.VK_PIPELINE_STAGE_COMPUTE_SHADER_BIT, vk.VK_PIPELINE_STAGE_TRANSFER_BIT,
                        vk.VK_ACCESS_SHADER_WRITE_BIT, vk.VK_ACCESS_TRANSFER_READ_BIT)
         if readback:
@@ -411,3 +560,17 @@ class Renderer:
             ts.mark(cmd, "readback")
         vk.vkEndCommandBuffer(cmd)
         return cmd
+
+
+_ALL_STAGES = vk.VK_PIPELINE_STAGE_TRANSFER_BIT | vk.VK_PIPELINE_STAGE_COMPUTE_SHADER_BIT
+_ALL_ACCESS = (vk.VK_ACCESS_TRANSFER_WRITE_BIT | vk.VK_ACCESS_TRANSFER_READ_BIT | vk.VK_ACCESS_SHADER_WRITE_BIT
+               | vk.VK_ACCESS_SHADER_READ_BIT)
+
+
+def _barrier(cmd):
+    """Compute and transfer work before it is done (and visible) before compute and transfer work after it."""
+    memory_barrier(cmd, _ALL_STAGES, _ALL_STAGES, _ALL_ACCESS, _ALL_ACCESS)
+
+
+def _copy(cmd, src, dst):
+    vk.vkCmdCopyBuffer(cmd, src.handle, dst.handle, 1, [vk.VkBufferCopy(0, 0, min(src.size, dst.size))])

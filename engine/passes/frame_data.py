@@ -10,7 +10,7 @@ from ..errors import ConfigError
 MAX_LIGHTS = 16
 LIGHT_TYPES = {"directional": 0, "point": 1, "spot": 2, "rect": 3}
 LIGHT_VEC4S = 5
-HEADER_BYTES = 64 * 2 + 16 * 6
+HEADER_BYTES = 64 * 2 + 16 * 8
 FRAME_BYTES = HEADER_BYTES + MAX_LIGHTS * LIGHT_VEC4S * 16
 
 
@@ -53,7 +53,11 @@ def pack_light(light) -> np.ndarray:
 
 
 def pack_frame(*, view_proj, prev_view_proj, eye, forward, near, width, height, frame_index, lights,
-               ao_radius, ao_samples, shadow_samples, exposure, ambient, scene_scale, accum_alpha) -> bytes:
+               ao_radius, ao_samples, shadow_samples, exposure, ambient, scene_scale, accum_alpha,
+               pixel_footprint=0.0, history_reset=False, bounds=None) -> bytes:
+    """The FRAME_BLOCK bytes. `accum_alpha`: the temporal blend's alpha_min; `pixel_footprint`: a pixel's size per
+    unit of view depth (2 tan(fov_y / 2) / height); `history_reset`: the temporal history is invalid this frame;
+    `bounds`: (2, 3) scene min/max (debug views)."""
     if len(lights) > MAX_LIGHTS:
         raise ConfigError(f"lights: {len(lights)} lights, at most {MAX_LIGHTS} are supported")
     buf = np.zeros(FRAME_BYTES // 4, np.float32)
@@ -65,7 +69,10 @@ def pack_frame(*, view_proj, prev_view_proj, eye, forward, near, width, height, 
     u32[40:44] = [width, height, frame_index, len(lights)]
     buf[44:48] = [ao_radius, ao_samples, shadow_samples, exposure]
     buf[48:51] = np.broadcast_to(np.asarray(ambient, np.float32), (3,))
-    buf[52:56] = [scene_scale, accum_alpha, 0.0, 0.0]
+    buf[52:56] = [scene_scale, accum_alpha, pixel_footprint, 1.0 if history_reset else 0.0]
+    if bounds is not None:
+        b = np.asarray(bounds, np.float32).reshape(2, 3)
+        buf[56:59], buf[60:63] = b[0], b[1]
     base = HEADER_BYTES // 4
     for i, light in enumerate(lights):
         buf[base + i * LIGHT_VEC4S * 4: base + (i + 1) * LIGHT_VEC4S * 4] = pack_light(light).reshape(-1)

@@ -1,55 +1,117 @@
 """Brute-force ray/triangle queries in numpy (float64): the ground truth the GPU tracer is tested against.
 
-Same semantics as `Tracer`: directions used as given, hit = origin + t * direction, t in [0, tmax];
-misses have t = +inf and prim = -1; u, v are the barycentrics of vertices 1 and 2.
+Same semantics as `Tracer` and bvh.glsl: directions are used as given, the hit point is origin + t * direction,
+a hit needs t in [tmin, tmax] (tmin = 0 unless given); misses have t = +inf, prim = -1 and u = v = 0; u, v are the
+barycentric weights of each triangle's vertices 1 and 2 (edges and vertices count as inside). Zero-area triangles
+are never hit.
+
+Every ray is tested against every triangle, a chunk of rays at a time. Per triangle we precompute its plane
+(n, n . p0) and two barycentric planes (a_u, a_v with u(p) = a_u . (p - p0), v(p) = a_v . (p - p0) for p in the
+triangle's plane); then all the ray-dependent dot products of a chunk are six matrix products, and the rest is a
+few elementwise operations per (ray, triangle) pair.
 """
+
 from __future__ import annotations
 
 import numpy as np
 
-
-def _chunks(n_rays, n_tris, budget=4_000_000):
-    step = max(1, budget // max(n_tris, 1))
-    return range(0, n_rays, step), step
+#: (ray, triangle) pairs per chunk: bounds the temporary arrays to a few tens of MB.
+PAIRS_PER_CHUNK = 1 << 20
 
 
-def reference_intersect(vertices, faces, origins, directions, tmax=np.inf):
-    """Closest hit per ray by testing every triangle (Moller-Trumbore, float64)."""
-    v = np.asarray(vertices, np.float64)
-    f = np.asarray(faces, np.int64)
-    o = np.asarray(origins, np.float64)
-    d = np.asarray(directions, np.float64)
-    tm = np.broadcast_to(np.asarray(tmax, np.float64), (len(o),))
-    v0, e1, e2 = v[f[:, 0]], v[f[:, 1]] - v[f[:, 0]], v[f[:, 2]] - v[f[:, 0]]
-    t_out = np.full(len(o), np.inf)
-    prim = np.full(len(o), -1, np.int64)
-    u_out = np.zeros(len(o))
-    v_out = np.zeros(len(o))
-    starts, step = _chunks(len(o), len(f))
-    for s in starts:
-        oo, dd = o[s:s + step, None, :], d[s:s + step, None, :]
-        p = np.cross(dd, e2[None])
-        det = np.einsum("rtk,tk->rt", p, e1)
-        with np.errstate(divide="ignore", invalid="ignore"):
-            inv = 1.0 / det
-            tv = oo - v0[None]
-            u = np.einsum("rtk,rtk->rt", tv, p) * inv
-            q = np.cross(tv, e1[None])
-            w = np.einsum("rtk,rtk->rt", dd, q) * inv
-            t = np.einsum("tk,rtk->rt", e2, q) * inv
-            ok = (det != 0) & (u >= 0) & (w >= 0) & (u + w <= 1) & (t >= 0) & (t <= tm[s:s + step, None])
-        t = np.where(ok, t, np.inf)
+class _Triangles:
+    """Per-triangle planes: rows of `m` are n, a_u, a_v (3T x 3); `off` holds n . p0, a_u . p0, a_v . p0."""
+
+    def __init__(self, vertices, faces):
+        v = np.asarray(vertices, dtype=np.float64).reshape(-1, 3)
+        f = np.asarray(faces, dtype=np.int64).reshape(-1, 3)
+        p0 = v[f[:, 0]]
+        e1 = v[f[:, 1]] - p0
+        e2 = v[f[:, 2]] - p0
+        n = np.cross(e1, e2)
+        nn = np.einsum("ij,ij->i", n, n)
+        live = nn > 0  # zero-area triangles get all-zero planes: n . d = 0 rejects them
+        scale = np.where(live, 1.0 / np.where(live, nn, 1.0), 0.0)[:, None]
+        n = np.where(live[:, None], n, 0.0)
+        a_u = np.cross(e2, n) * scale
+        a_v = np.cross(n, e1) * scale
+        self.count = len(f)
+        self.m = np.concatenate([n, a_u, a_v])  # (3T, 3)
+        self.off = np.einsum("ij,ij->i", self.m, np.concatenate([p0, p0, p0]))  # (3T,)
+
+
+def _chunks(n_rays: int, n_tris: int):
+    step = max(1, PAIRS_PER_CHUNK // max(n_tris, 1))
+    for s in range(0, n_rays, step):
+        yield slice(s, min(s + step, n_rays))
+
+
+def _pairs(tri: _Triangles, o, d, tmin, tmax):
+    """t, u, v and the hit mask of every (ray, triangle) pair of one chunk of rays."""
+    k = tri.count
+    po = o @ tri.m.T  # (R, 3T): n . o, a_u . o, a_v . o
+    pd = d @ tri.m.T  # n . d, a_u . d, a_v . d
+    with np.errstate(divide="ignore", invalid="ignore"):
+        t = tri.off[:k] - po[:, :k]
+        t /= pd[:, :k]
+        u = pd[:, k : 2 * k] * t
+        u += po[:, k : 2 * k]
+        u -= tri.off[k : 2 * k]
+        v = pd[:, 2 * k :] * t
+        v += po[:, 2 * k :]
+        v -= tri.off[2 * k :]
+        ok = np.isfinite(t)
+        ok &= t >= tmin[:, None]
+        ok &= t <= tmax[:, None]
+        ok &= u >= 0
+        ok &= v >= 0
+        ok &= (u + v) <= 1
+    return t, u, v, ok
+
+
+def _rays(origins, directions, tmax, tmin):
+    o = np.asarray(origins, dtype=np.float64).reshape(-1, 3)
+    d = np.asarray(directions, dtype=np.float64).reshape(-1, 3)
+    if o.shape != d.shape:
+        raise ValueError(f"origins {o.shape} and directions {d.shape} differ")
+    n = len(o)
+    tmax = np.broadcast_to(np.asarray(tmax, dtype=np.float64), (n,))
+    tmin = np.broadcast_to(np.asarray(tmin, dtype=np.float64), (n,))
+    return o, d, tmin, tmax
+
+
+def reference_intersect(vertices, faces, origins, directions, tmax=np.inf, *, tmin=0.0):
+    """Closest hit of every ray against every triangle: (t, prim, u, v) arrays (float64, int64, float64, float64)."""
+    o, d, tmin, tmax = _rays(origins, directions, tmax, tmin)
+    tri = _Triangles(vertices, faces)
+    n = len(o)
+    t_out = np.full(n, np.inf)
+    prim = np.full(n, -1, dtype=np.int64)
+    u_out = np.zeros(n)
+    v_out = np.zeros(n)
+    if tri.count == 0:
+        return t_out, prim, u_out, v_out
+    for s in _chunks(n, tri.count):
+        t, u, v, ok = _pairs(tri, o[s], d[s], tmin[s], tmax[s])
+        t[~ok] = np.inf
         best = np.argmin(t, axis=1)
         rows = np.arange(len(best))
         bt = t[rows, best]
         hit = np.isfinite(bt)
-        t_out[s:s + step] = bt
-        prim[s:s + step] = np.where(hit, best, -1)
-        u_out[s:s + step] = np.where(hit, u[rows, best], 0.0)
-        v_out[s:s + step] = np.where(hit, w[rows, best], 0.0)
+        t_out[s] = bt
+        prim[s] = np.where(hit, best, -1)
+        u_out[s] = np.where(hit, u[rows, best], 0.0)
+        v_out[s] = np.where(hit, v[rows, best], 0.0)
     return t_out, prim, u_out, v_out
 
 
-def reference_occluded(vertices, faces, origins, directions, tmax=np.inf):
-    """Whether any triangle lies along each ray within [0, tmax]."""
-    return reference_intersect(vertices, faces, origins, directions, tmax)[1] >= 0
+def reference_occluded(vertices, faces, origins, directions, tmax=np.inf, *, tmin=0.0):
+    """Whether any triangle lies along each ray with t in [tmin, tmax]: (N,) bool."""
+    o, d, tmin, tmax = _rays(origins, directions, tmax, tmin)
+    tri = _Triangles(vertices, faces)
+    out = np.zeros(len(o), dtype=bool)
+    if tri.count == 0:
+        return out
+    for s in _chunks(len(o), tri.count):
+        out[s] = _pairs(tri, o[s], d[s], tmin[s], tmax[s])[3].any(axis=1)
+    return out

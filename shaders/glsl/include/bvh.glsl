@@ -1,17 +1,35 @@
-// BVH traversal: the one include every tracing kernel shares (layout: engine/bvh/layout.py).
+// bvh.glsl: the one shared BVH traversal for every tracing kernel.
 //
-//   #define BVH_SET 1         // descriptor set of the two buffers (default 0)
-//   #define BVH_BINDING 0     // nodes at BVH_BINDING, triangles at BVH_BINDING + 1 (default 0)
-//   #include "bvh.glsl"
-//   bool   bvh_occluded(vec3 o, vec3 d, float tmin, float tmax);   // any hit: stops at the first
-//   BvhHit bvh_intersect(vec3 o, vec3 d, float tmin, float tmax);  // closest hit: t, prim (-1: miss), u, v
+// Use:
+//     #version 450
+//     #extension GL_GOOGLE_include_directive : require
+//     #define BVH_SET 0          // descriptor set of the two buffers (default 0)
+//     #define BVH_BINDING 2      // nodes at BVH_BINDING, triangles at BVH_BINDING + 1 (default 0)
+//     #define BVH_STACK_SIZE 32  // optional; must be >= the BVH's stats["depth"] - 1 (the builder's default
+//                                // max_depth of 32 guarantees that for the default 32)
+//     #include "bvh.glsl"
 //
-// Directions are used as given: the hit point is o + t * d. Triangles are tested with the watertight
-// algorithm of Woop, Benthin and Wald (JCGT 2013), so rays do not slip through edges shared by two
-// triangles; `precise` keeps the compiler from fusing the edge functions' products into FMAs, which
-// would break the exact sign symmetry between neighbours.
-#ifndef BVH_GLSL
-#define BVH_GLSL
+// Provides
+//     bool   bvh_occluded(vec3 o, vec3 d, float tmin, float tmax)   any hit with t in [tmin, tmax]; stops at the first
+//     BvhHit bvh_intersect(vec3 o, vec3 d, float tmin, float tmax)  closest hit with t in [tmin, tmax]
+//            BvhHit { float t; int prim; float u; float v; }: t = +inf and prim = -1 on a miss; prim is the original
+//            triangle index; u, v are the barycentric weights of the triangle's second and third vertices, so the
+//            hit point is (1 - u - v) * p0 + u * p1 + v * p2 = o + t * d.
+// Directions are used as given (not normalized); t is in units of d. Zero-area triangles are never hit.
+//
+// Buffer layout (documented in engine/bvh/layout.py, uploaded verbatim from BVH.nodes / BVH.tris):
+//   node, 64 bytes: vec4 (lmin, left word), vec4 (lmax, right word), vec4 (rmin, left count), vec4 (rmax, right count)
+//     child word: bit 31 set = leaf whose triangles are [word & 0x7fffffff, + count); clear = interior node index
+//   triangle, 48 bytes: vec4 (v0, original index as int bits), vec4 (v1, 0), vec4 (v2, 0)
+//
+// Intersection is watertight (Woop, Benthin and Wald, JCGT 2013): every vertex is moved into a ray-aligned frame
+// with exactly the same float operations whichever triangle it belongs to (the `precise` qualifiers forbid the
+// compiler from fusing or reordering them), and the 2D edge functions of a shared edge are exact negatives of each
+// other, so a ray cannot slip between two triangles that share an edge or a vertex. Box tests follow Ize's robust
+// BVH traversal (the far distance is scaled by 1 + 2 gamma(3)) so rounding cannot cull a box that holds a hit.
+
+#ifndef BVH_GLSL_INCLUDED
+#define BVH_GLSL_INCLUDED
 
 #ifndef BVH_SET
 #define BVH_SET 0
@@ -20,167 +38,209 @@
 #define BVH_BINDING 0
 #endif
 #ifndef BVH_STACK_SIZE
-#define BVH_STACK_SIZE 32   // the builder caps the depth so that the stack cannot overflow
+#define BVH_STACK_SIZE 32
 #endif
-#define BVH_LEAF 0x80000000u
-#define BVH_INF uintBitsToFloat(0x7f800000u)
 
-struct BvhNode { vec4 a, b, c, d; };   // (lmin, left) (lmax, right) (rmin, lcount) (rmax, rcount)
-struct BvhTri { vec4 v0, v1, v2; };    // v0.w = original triangle index (int bits)
-struct BvhHit { float t; int prim; float u; float v; };
-
-layout(std430, set = BVH_SET, binding = BVH_BINDING) readonly buffer BvhNodes { BvhNode bvh_nodes[]; };
-layout(std430, set = BVH_SET, binding = BVH_BINDING + 1) readonly buffer BvhTris { BvhTri bvh_tris[]; };
-
-// Per-ray constants of the watertight test: rows that permute + shear a vertex into ray space.
-struct BvhRay {
-    vec3 o, inv_d, o_inv_d;
-    vec3 rx, ry, rz;
+struct BvhNode {
+    vec4 a;  // xyz: left box min,  w: left child word (uint bits)
+    vec4 b;  // xyz: left box max,  w: right child word
+    vec4 c;  // xyz: right box min, w: left triangle count (0 for an interior child)
+    vec4 d;  // xyz: right box max, w: right triangle count
 };
 
-BvhRay bvh_ray(vec3 o, vec3 d) {
-    BvhRay r;
+struct BvhTri {
+    vec4 v0;  // w: original triangle index (int bits)
+    vec4 v1;
+    vec4 v2;
+};
+
+struct BvhHit {
+    float t;   // +inf on a miss
+    int prim;  // original triangle index, -1 on a miss
+    float u;   // barycentric weight of v1
+    float v;   // barycentric weight of v2
+};
+
+layout(std430, set = BVH_SET, binding = BVH_BINDING) readonly buffer BvhNodeBuffer {
+    BvhNode bvh_nodes[];
+};
+layout(std430, set = BVH_SET, binding = BVH_BINDING + 1) readonly buffer BvhTriBuffer {
+    BvhTri bvh_tris[];
+};
+
+const uint BVH_LEAF_BIT = 0x80000000u;
+#define BVH_INF uintBitsToFloat(0x7F800000u)
+// Ize, "Robust BVH Ray Traversal" (JCGT 2013): 1 + 2 gamma(3), gamma(n) = n eps / (1 - n eps), eps = 2^-24
+const float BVH_FAR_SCALE = 1.0000004;
+
+// Everything about a ray that traversal and the triangle test reuse.
+struct BvhRay_ {
+    vec3 o;
+    vec3 inv_d;    // 1 / d, with zero components replaced by +-1e-30 so that no 0 * inf appears
+    int kx, ky, kz;  // kz: the dominant axis of d; kx, ky: the other two (cyclic)
+    float sx, sy, sz;  // shear: x' = p[kx] - sx p[kz], y' = p[ky] - sy p[kz], z' = sz p[kz]
+};
+
+BvhRay_ bvh_make_ray_(vec3 o, vec3 d) {
+    BvhRay_ r;
     r.o = o;
-    // Zero direction components would give 0 * inf = NaN in the slab test: nudge them to a tiny value.
-    vec3 dd = mix(d, mix(vec3(1e-30), vec3(-1e-30), lessThan(d, vec3(0.0))), lessThan(abs(d), vec3(1e-30)));
-    r.inv_d = 1.0 / dd;
-    r.o_inv_d = o * r.inv_d;
+    const float tiny = 1e-30;
+    vec3 safe = mix(d, mix(vec3(tiny), vec3(-tiny), lessThan(d, vec3(0.0))), lessThan(abs(d), vec3(tiny)));
+    r.inv_d = 1.0 / safe;
     vec3 ad = abs(d);
-    int kz = ad.x > ad.y ? (ad.x > ad.z ? 0 : 2) : (ad.y > ad.z ? 1 : 2);
-    int kx = kz == 2 ? 0 : kz + 1;
-    int ky = kx == 2 ? 0 : kx + 1;
-    if (d[kz] < 0.0) { int t = kx; kx = ky; ky = t; }   // keep the winding
-    vec3 ex = vec3(0.0), ey = vec3(0.0), ez = vec3(0.0);
-    ex[kx] = 1.0; ey[ky] = 1.0; ez[kz] = 1.0;
-    float sz = 1.0 / d[kz];
-    r.rx = ex - (d[kx] * sz) * ez;
-    r.ry = ey - (d[ky] * sz) * ez;
-    r.rz = sz * ez;
+    r.kz = (ad.x > ad.y) ? ((ad.x > ad.z) ? 0 : 2) : ((ad.y > ad.z) ? 1 : 2);
+    r.kx = (r.kz == 2) ? 0 : r.kz + 1;
+    r.ky = (r.kx == 2) ? 0 : r.kx + 1;
+    float inv_dz = 1.0 / d[r.kz];
+    r.sx = d[r.kx] * inv_dz;
+    r.sy = d[r.ky] * inv_dz;
+    r.sz = inv_dz;
     return r;
 }
 
-// Entry distance of the ray into the box, or +inf when it misses [tmin, tmax].
-float bvh_box(vec3 bmin, vec3 bmax, BvhRay r, float tmin, float tmax) {
-    vec3 t0 = bmin * r.inv_d - r.o_inv_d;
-    vec3 t1 = bmax * r.inv_d - r.o_inv_d;
-    vec3 lo = min(t0, t1), hi = max(t0, t1);
-    float tn = max(max(lo.x, lo.y), max(lo.z, tmin));
-    float tf = min(min(hi.x, hi.y), min(hi.z, tmax)) * 1.0000004;   // conservative: 2 ulp-ish (Ize 2013)
-    return tn <= tf ? tn : BVH_INF;
+// Entry and exit distance of a box, clipped to [tmin, tmax]; the box is hit when .x <= .y.
+vec2 bvh_slab_(BvhRay_ r, vec3 bmin, vec3 bmax, float tmin, float tmax) {
+    vec3 t0 = (bmin - r.o) * r.inv_d;
+    vec3 t1 = (bmax - r.o) * r.inv_d;
+    vec3 tn = min(t0, t1);
+    vec3 tf = max(t0, t1);
+    float tnear = max(max(tn.x, tn.y), max(tn.z, tmin));
+    float tfar = min(min(tf.x, tf.y), min(tf.z, tmax)) * BVH_FAR_SCALE;
+    return vec2(tnear, tfar);
 }
 
-// Watertight ray/triangle test; on a hit in [tmin, tmax] returns true with t and barycentrics of v1, v2.
-bool bvh_triangle(BvhRay r, BvhTri tri, float tmin, float tmax, out float t, out float u, out float v) {
-    vec3 A = tri.v0.xyz - r.o, B = tri.v1.xyz - r.o, C = tri.v2.xyz - r.o;
-    float ax = dot(r.rx, A), ay = dot(r.ry, A);
-    float bx = dot(r.rx, B), by = dot(r.ry, B);
-    float cx = dot(r.rx, C), cy = dot(r.ry, C);
-    precise float U = cx * by - cy * bx;
-    precise float V = ax * cy - ay * cx;
-    precise float W = bx * ay - by * ax;
-    if ((U < 0.0 || V < 0.0 || W < 0.0) && (U > 0.0 || V > 0.0 || W > 0.0)) return false;
-    float det = U + V + W;
-    if (det == 0.0) return false;
-    float T = U * dot(r.rz, A) + V * dot(r.rz, B) + W * dot(r.rz, C);
+// Watertight ray-triangle test; on a hit with t in [tmin, tmax] returns true with t and the barycentrics of p1, p2.
+bool bvh_triangle_(BvhRay_ r, vec3 p0, vec3 p1, vec3 p2, float tmin, float tmax,
+                   out float t, out float b1, out float b2) {
+    t = 0.0;
+    b1 = 0.0;
+    b2 = 0.0;
+    precise vec3 a = p0 - r.o;
+    precise vec3 b = p1 - r.o;
+    precise vec3 c = p2 - r.o;
+    float az = a[r.kz], bz = b[r.kz], cz = c[r.kz];
+    precise float ax = a[r.kx] - r.sx * az;
+    precise float ay = a[r.ky] - r.sy * az;
+    precise float bx = b[r.kx] - r.sx * bz;
+    precise float by = b[r.ky] - r.sy * bz;
+    precise float cx = c[r.kx] - r.sx * cz;
+    precise float cy = c[r.ky] - r.sy * cz;
+    // 2D edge functions at the origin; a shared edge gives exact negatives in its two triangles
+    precise float e0 = cx * by - cy * bx;  // edge p1 p2: weight of p0
+    precise float e1 = ax * cy - ay * cx;  // edge p2 p0: weight of p1
+    precise float e2 = bx * ay - by * ax;  // edge p0 p1: weight of p2
+    if ((e0 < 0.0 || e1 < 0.0 || e2 < 0.0) && (e0 > 0.0 || e1 > 0.0 || e2 > 0.0)) {
+        return false;
+    }
+    float det = e0 + e1 + e2;
+    if (det == 0.0) {
+        return false;  // edge-on, or a zero-area triangle
+    }
+    float tt = (e0 * az + e1 * bz + e2 * cz) * r.sz;  // t * det
     float inv_det = 1.0 / det;
-    t = T * inv_det;
-    if (!(t >= tmin && t <= tmax)) return false;
-    u = V * inv_det;
-    v = W * inv_det;
+    t = tt * inv_det;
+    if (!(t >= tmin && t <= tmax)) {
+        return false;
+    }
+    b1 = e1 * inv_det;
+    b2 = e2 * inv_det;
     return true;
 }
 
-bool bvh_occluded(vec3 o, vec3 d, float tmin, float tmax) {
-    BvhRay r = bvh_ray(o, d);
-    uint stack[BVH_STACK_SIZE];
-    int sp = 0;
+// The traversal behind both queries. Ordered (nearer child first), leaves tested straight from their parent's slot.
+// any_hit: stop at the first hit (its t, prim, u, v are still reported).
+bool bvh_trace_(vec3 o, vec3 d, float tmin, float tmax, bool any_hit, inout BvhHit hit) {
+    BvhRay_ r = bvh_make_ray_(o, d);
+    float best = tmax;
+    bool found = false;
+    uint stack[BVH_STACK_SIZE];     // far children still to visit
+    float stack_t[BVH_STACK_SIZE];  // and their entry distances
+    uint sp = 0u;
     uint node = 0u;
-    while (true) {
+    for (;;) {
         BvhNode n = bvh_nodes[node];
-        uint lw = floatBitsToUint(n.a.w), rw = floatBitsToUint(n.b.w);
-        bool gl = bvh_box(n.a.xyz, n.b.xyz, r, tmin, tmax) < BVH_INF;
-        bool gr = bvh_box(n.c.xyz, n.d.xyz, r, tmin, tmax) < BVH_INF;
-        float t, u, v;
-        if (gl && (lw & BVH_LEAF) != 0u) {
-            uint first = lw & ~BVH_LEAF, count = floatBitsToUint(n.c.w);
-            for (uint i = first; i < first + count; ++i)
-                if (bvh_triangle(r, bvh_tris[i], tmin, tmax, t, u, v)) return true;
-            gl = false;
+        vec2 sl = bvh_slab_(r, n.a.xyz, n.b.xyz, tmin, best);
+        vec2 sr = bvh_slab_(r, n.c.xyz, n.d.xyz, tmin, best);
+        bool hl = sl.x <= sl.y;
+        bool hr = sr.x <= sr.y;
+        uint wl = floatBitsToUint(n.a.w);
+        uint wr = floatBitsToUint(n.b.w);
+        // leaf children are tested here, nearer one first
+        bool left_first = sl.x <= sr.x;
+        for (int k = 0; k < 2; ++k) {
+            bool take_left = (k == 0) == left_first;
+            uint w = take_left ? wl : wr;
+            bool h = take_left ? hl : hr;
+            float entry = take_left ? sl.x : sr.x;
+            if (!h || (w & BVH_LEAF_BIT) == 0u || entry > best) {
+                continue;
+            }
+            uint first = w & ~BVH_LEAF_BIT;
+            uint last = first + floatBitsToUint(take_left ? n.c.w : n.d.w);
+            for (uint i = first; i < last; ++i) {
+                BvhTri tri = bvh_tris[i];
+                float t, u, v;
+                if (bvh_triangle_(r, tri.v0.xyz, tri.v1.xyz, tri.v2.xyz, tmin, best, t, u, v)) {
+                    best = t;
+                    found = true;
+                    hit.t = t;
+                    hit.prim = floatBitsToInt(tri.v0.w);
+                    hit.u = u;
+                    hit.v = v;
+                    if (any_hit) {
+                        return true;
+                    }
+                }
+            }
         }
-        if (gr && (rw & BVH_LEAF) != 0u) {
-            uint first = rw & ~BVH_LEAF, count = floatBitsToUint(n.d.w);
-            for (uint i = first; i < first + count; ++i)
-                if (bvh_triangle(r, bvh_tris[i], tmin, tmax, t, u, v)) return true;
-            gr = false;
-        }
-        if (gl && gr) {
-            stack[sp++] = rw;
-            node = lw;
-        } else if (gl || gr) {
-            node = gl ? lw : rw;
+        bool il = hl && (wl & BVH_LEAF_BIT) == 0u && sl.x <= best;
+        bool ir = hr && (wr & BVH_LEAF_BIT) == 0u && sr.x <= best;
+        if (il && ir) {
+            bool swap = sr.x < sl.x;
+            stack[sp] = swap ? wl : wr;
+            stack_t[sp] = swap ? sl.x : sr.x;
+            sp += 1u;
+            node = swap ? wr : wl;
+        } else if (il) {
+            node = wl;
+        } else if (ir) {
+            node = wr;
         } else {
-            if (sp == 0) break;
-            node = stack[--sp];
+            // pop the next entry that can still hold a hit nearer than the best so far
+            bool more = false;
+            while (sp > 0u) {
+                sp -= 1u;
+                if (stack_t[sp] <= best) {
+                    node = stack[sp];
+                    more = true;
+                    break;
+                }
+            }
+            if (!more) {
+                break;
+            }
         }
     }
-    return false;
+    return found;
 }
 
 BvhHit bvh_intersect(vec3 o, vec3 d, float tmin, float tmax) {
-    BvhRay r = bvh_ray(o, d);
-    BvhHit best = BvhHit(BVH_INF, -1, 0.0, 0.0);
-    float tbest = tmax;
-    uint stack[BVH_STACK_SIZE];
-    float stack_t[BVH_STACK_SIZE];
-    int sp = 0;
-    uint node = 0u;
-    while (true) {
-        BvhNode n = bvh_nodes[node];
-        uint lw = floatBitsToUint(n.a.w), rw = floatBitsToUint(n.b.w);
-        float tl = bvh_box(n.a.xyz, n.b.xyz, r, tmin, tbest);
-        float tr = bvh_box(n.c.xyz, n.d.xyz, r, tmin, tbest);
-        float t, u, v;
-        if (tl < BVH_INF && (lw & BVH_LEAF) != 0u) {
-            uint first = lw & ~BVH_LEAF, count = floatBitsToUint(n.c.w);
-            for (uint i = first; i < first + count; ++i) {
-                BvhTri tri = bvh_tris[i];
-                if (bvh_triangle(r, tri, tmin, tbest, t, u, v) && t < tbest) {
-                    tbest = t;
-                    best = BvhHit(t, floatBitsToInt(tri.v0.w), u, v);
-                }
-            }
-            tl = BVH_INF;
-        }
-        if (tr < BVH_INF && (rw & BVH_LEAF) != 0u) {
-            uint first = rw & ~BVH_LEAF, count = floatBitsToUint(n.d.w);
-            for (uint i = first; i < first + count; ++i) {
-                BvhTri tri = bvh_tris[i];
-                if (bvh_triangle(r, tri, tmin, tbest, t, u, v) && t < tbest) {
-                    tbest = t;
-                    best = BvhHit(t, floatBitsToInt(tri.v0.w), u, v);
-                }
-            }
-            tr = BVH_INF;
-        }
-        tl = tl <= tbest ? tl : BVH_INF;
-        tr = tr <= tbest ? tr : BVH_INF;
-        if (tl < BVH_INF && tr < BVH_INF) {           // both: visit the nearer, keep the farther
-            bool left_first = tl <= tr;
-            stack[sp] = left_first ? rw : lw;
-            stack_t[sp++] = left_first ? tr : tl;
-            node = left_first ? lw : rw;
-        } else if (tl < BVH_INF || tr < BVH_INF) {
-            node = tl < BVH_INF ? lw : rw;
-        } else {
-            bool found = false;
-            while (sp > 0) {                           // skip entries now farther than the best hit
-                --sp;
-                if (stack_t[sp] <= tbest) { node = stack[sp]; found = true; break; }
-            }
-            if (!found) break;
-        }
-    }
-    return best;
+    BvhHit hit;
+    hit.t = BVH_INF;
+    hit.prim = -1;
+    hit.u = 0.0;
+    hit.v = 0.0;
+    bvh_trace_(o, d, tmin, tmax, false, hit);
+    return hit;
 }
 
-#endif
+bool bvh_occluded(vec3 o, vec3 d, float tmin, float tmax) {
+    BvhHit hit;
+    hit.t = BVH_INF;
+    hit.prim = -1;
+    hit.u = 0.0;
+    hit.v = 0.0;
+    return bvh_trace_(o, d, tmin, tmax, true, hit);
+}
+
+#endif  // BVH_GLSL_INCLUDED

@@ -28,7 +28,10 @@ struct Light {
         uvec4 size;        /* x: width, y: height, z: frame index, w: light count */                   \
         vec4 params;       /* x: ao radius, y: ao samples, z: shadow samples, w: exposure */           \
         vec4 ambient;      /* rgb: sky/ambient radiance */                                             \
-        vec4 params2;      /* x: scene scale, y: accumulation alpha, z,w: unused */                    \
+        vec4 params2;      /* x: scene scale, y: accumulation alpha_min, z: pixel footprint per unit  \
+                              depth (2 tan(fov/2) / height), w: 1 = temporal history is invalid */     \
+        vec4 bounds_min;   /* xyz: scene bounds (debug views), w: unused */                            \
+        vec4 bounds_max;   /* xyz: scene bounds, w: unused */                                          \
         Light lights[MAX_LIGHTS];                                                                      \
     } frame;
 

@@ -1,0 +1,1038 @@
+"""`hybrid bench [build|trace|frame|all]`: the benchmark suite (issue 6; issue 3 item 5).
+
+    build  BVH build at 100k, 1M and 4M generated triangles: ms, ms per million, SAH cost, bytes per triangle.
+    trace  Mrays/s of our Tracer (GPU timestamps and wall clock, upload + readback included) on three ray sets:
+           coherent shadow rays from a rendered G-buffer towards the scene's first light, incoherent AO rays
+           (cosine hemisphere, tmax = 10% of the scene diagonal) and closest hits of random rays; on a generated
+           scene of >= 1M triangles and on the default scene. The peers run the SAME rays in the same process:
+           embreex (trimesh's ray engine, one thread, as trimesh calls it) and Open3D's RaycastingScene (all
+           cores). Ratios ours / peer, and how often the answers agree (hit or miss).
+    frame  A full frame per pass (GPU ms from Frame.timings) at 640x360 on a CPU device (lavapipe) or 1920x1080 on a
+           GPU, plus the wall time of Renderer.render() and the host (Python) time of a Renderer.submit().
+
+Every figure is a median over `reps` runs after `warmup` runs. Output: a table on stdout, a progress bar on stderr,
+JSON (machine, date, command, every figure) and a PNG plot. The Python entry point is `run_bench(BenchConfig(...))`.
+"""
+from __future__ import annotations
+
+import datetime as _dt
+import json
+import os
+import platform
+import statistics
+import sys
+import time
+from dataclasses import asdict, dataclass, field
+from pathlib import Path
+
+import numpy as np
+
+from .errors import ConfigError
+
+REPO = Path(__file__).resolve().parent.parent
+DEFAULT_SCENE = REPO / "scenes" / "default.toml"
+SECTIONS = ("build", "trace", "frame")
+ENGINES = ("ours", "embreex", "open3d")
+PEERS = ("embreex", "open3d")
+RAYSETS = ("shadow", "ao", "random")
+RAYSET_TITLES = {"shadow": "shadow rays (occluded, G-buffer)", "ao": "AO rays (occluded, G-buffer)",
+                 "random": "random rays (closest hit)"}
+ORIGIN_OFFSET = 1e-4     # G-buffer ray origins: p + n * ORIGIN_OFFSET * scene diagonal
+AO_RADIUS = 0.1          # AO ray length: fraction of the scene diagonal
+
+
+# ---------------------------------------------------------------------------------------------------------------
+# configuration
+
+
+@dataclass
+class BenchConfig:
+    sections: tuple = SECTIONS
+    quick: bool = False
+    size: tuple | None = None                  # (w, h); None: 640x360 on a CPU device, 1920x1080 on a GPU
+    device: str | None = None
+    validation: bool = False
+    build_sizes: tuple = (100_000, 1_000_000, 4_000_000)
+    build_reps: int = 3                        # sizes above 2M triangles get one run less (at least one)
+    generated_tris: int = 1_200_000            # the trace benchmark's generated scene
+    real_scene: str | None = str(DEFAULT_SCENE)
+    frame_scenes: tuple = ("real", "generated")
+    peers: tuple = PEERS
+    reps: int = 5
+    warmup: int = 1
+    frame_reps: int = 5
+    frame_warmup: int = 2
+    random_rays: int | None = None             # None: as many as the G-buffer has pixels
+    seed: int = 1
+
+    @classmethod
+    def for_cli(cls, section: str = "all", quick: bool = False, size=None, device=None) -> "BenchConfig":
+        sections = SECTIONS if section == "all" else (section,)
+        if section not in SECTIONS + ("all",):
+            raise ConfigError(f"bench: unknown section {section!r} (known: {', '.join(SECTIONS)}, all)")
+        cfg = cls(sections=sections, quick=quick, size=size, device=device)
+        if quick:
+            cfg.build_sizes = (100_000, 1_000_000)
+            cfg.build_reps = 2
+            cfg.generated_tris = 1_000_000
+            cfg.reps = 3
+            cfg.frame_reps = 3
+            cfg.frame_warmup = 1
+        return cfg
+
+
+# ---------------------------------------------------------------------------------------------------------------
+# progress bar and small helpers
+
+
+class Progress:
+    """`[#####.....] 5/10 trace: AO rays (open3d)` on stderr: redrawn in place on a terminal, one line per step
+    otherwise."""
+
+    def __init__(self, total: int, stream=None, width: int = 24, enabled: bool = True):
+        self.total, self.done, self.width = max(total, 1), 0, width
+        self.stream = sys.stderr if stream is None else stream
+        self.enabled = enabled
+        self.tty = bool(getattr(self.stream, "isatty", lambda: False)())
+        self.t0 = time.perf_counter()
+
+    def step(self, label: str):
+        """Announce the step about to run (the bar shows the steps finished before it)."""
+        if not self.enabled:
+            return
+        filled = int(round(self.width * self.done / self.total))
+        line = (f"[{'#' * filled}{'.' * (self.width - filled)}] {self.done + 1}/{self.total} {label} "
+                f"({time.perf_counter() - self.t0:.0f} s)")
+        if self.tty:
+            self.stream.write("\r\x1b[2K" + line)
+        else:
+            self.stream.write(line + "\n")
+        self.stream.flush()
+
+    def advance(self):
+        self.done += 1
+
+    def finish(self):
+        if not self.enabled:
+            return
+        line = f"[{'#' * self.width}] {self.total}/{self.total} done in {time.perf_counter() - self.t0:.0f} s"
+        self.stream.write(("\r\x1b[2K" if self.tty else "") + line + "\n")
+        self.stream.flush()
+
+
+def _median(values):
+    return float(statistics.median(values)) if values else float("nan")
+
+
+def _timed(fn, reps, warmup):
+    """Run fn() warmup + reps times; the median wall seconds of the timed runs, every wall time, the last result."""
+    out = None
+    for _ in range(warmup):
+        out = fn()
+    walls = []
+    for _ in range(max(reps, 1)):
+        t0 = time.perf_counter()
+        out = fn()
+        walls.append(time.perf_counter() - t0)
+    return _median(walls), walls, out
+
+
+def _scene_diag(scene_or_bounds) -> float:
+    b = np.asarray(getattr(scene_or_bounds, "bounds", scene_or_bounds), np.float64)
+    return float(np.linalg.norm(b[1] - b[0])) or 1.0
+
+
+# ---------------------------------------------------------------------------------------------------------------
+# machine information
+
+
+def _cpu_model() -> str:
+    try:
+        for line in Path("/proc/cpuinfo").read_text().splitlines():
+            if line.lower().startswith("model name"):
+                return line.split(":", 1)[1].strip()
+    except OSError:
+        pass
+    return platform.processor() or platform.machine()
+
+
+def _version(module: str) -> str | None:
+    try:
+        from importlib.metadata import version
+        return version(module)
+    except Exception:
+        return None
+
+
+def device_details(ctx) -> dict:
+    """Name, type, API and driver of a Context's physical device (driver name/info through Vulkan 1.2 properties)."""
+    import vulkan as vk
+    info = dict(ctx.device_info)
+    info.pop("rank", None)
+    props = ctx.properties
+    info.update(vendor_id=hex(props.vendorID), device_id=hex(props.deviceID), driver_version=int(props.driverVersion),
+                timestamp_period_ns=ctx.timestamp_period_ns)
+    try:
+        drv = vk.VkPhysicalDeviceDriverProperties()
+        vk.vkGetPhysicalDeviceProperties2(ctx.physical, vk.VkPhysicalDeviceProperties2(pNext=drv))
+        info["driver"] = vk.ffi.string(drv.driverName).decode()
+        info["driver_info"] = vk.ffi.string(drv.driverInfo).decode()
+    except Exception:  # an older driver without VkPhysicalDeviceDriverProperties
+        pass
+    return info
+
+
+def machine_info() -> dict:
+    try:
+        mem = os.sysconf("SC_PAGE_SIZE") * os.sysconf("SC_PHYS_PAGES") / 2 ** 30
+    except (ValueError, OSError, AttributeError):
+        mem = None
+    try:
+        load = os.getloadavg()
+    except OSError:
+        load = None
+    return {
+        "cpu": _cpu_model(),
+        "cores": os.cpu_count(),
+        "memory_gib": round(mem, 1) if mem else None,
+        "load_average": [round(x, 2) for x in load] if load else None,
+        "os": platform.platform(),
+        "python": platform.python_version(),
+        "numpy": np.__version__,
+        "embreex": _version("embreex"),
+        "open3d": _version("open3d"),
+        "trimesh": _version("trimesh"),
+        "env": {k: os.environ[k] for k in ("LP_NUM_THREADS", "HYBRID_DEVICE", "OMP_NUM_THREADS") if k in os.environ},
+    }
+
+
+# ---------------------------------------------------------------------------------------------------------------
+# ray sets
+
+
+@dataclass
+class RaySet:
+    name: str
+    kind: str                 # "occluded" or "intersect"
+    origins: np.ndarray       # (N, 3) float32, contiguous
+    directions: np.ndarray    # (N, 3) float32, contiguous
+    tmax: float               # one tmax for all rays (what Open3D's test_occlusions takes)
+    note: str = ""
+
+    def __len__(self):
+        return len(self.origins)
+
+
+def cosine_hemisphere(n, rng):
+    """Cosine-weighted directions around unit normals n (N, 3) (the basis of sampling.glsl, Duff et al. 2017)."""
+    n = np.asarray(n, np.float64)
+    u1, u2 = rng.random(len(n)), rng.random(len(n))
+    r, phi = np.sqrt(u1), 2 * np.pi * u2
+    s = np.where(n[:, 2] >= 0, 1.0, -1.0)
+    a = -1.0 / (s + n[:, 2])
+    c = n[:, 0] * n[:, 1] * a
+    t = np.stack([1 + s * n[:, 0] ** 2 * a, s * c, -s * n[:, 0]], 1)
+    b = np.stack([c, s + n[:, 1] ** 2 * a, -n[:, 1]], 1)
+    d = t * (r * np.cos(phi))[:, None] + b * (r * np.sin(phi))[:, None] + n * np.sqrt(np.maximum(0, 1 - u1))[:, None]
+    return d / np.linalg.norm(d, axis=1, keepdims=True)
+
+
+def _f32(a):
+    return np.ascontiguousarray(a, dtype=np.float32)
+
+
+def gbuffer_raysets(scene, frame, rng) -> list[RaySet]:
+    """Shadow rays towards the scene's first light and one AO ray per covered pixel of a rendered G-buffer.
+
+    Origins: p + n * 1e-4 * diagonal. Shadow rays whose light direction is below the surface's horizon are dropped,
+    as the shadow pass skips them. A directional light: unit directions and tmax = inf; a point-like light: the
+    direction is the vector to the light (not unit) and tmax = 0.999, so one tmax serves all rays."""
+    from .scene import DirectionalLight
+
+    depth = frame.aov["depth"]
+    cover = np.isfinite(depth)
+    p = frame.aov["position"][cover].astype(np.float64)
+    n = frame.aov["normal"][cover].astype(np.float64)
+    n /= np.maximum(np.linalg.norm(n, axis=1, keepdims=True), 1e-30)
+    diag = _scene_diag(scene)
+    o = p + n * (ORIGIN_OFFSET * diag)
+    light = scene.lights[0]
+    if isinstance(light, DirectionalLight):
+        d = np.broadcast_to(-np.asarray(light.direction, np.float64), o.shape)
+        tmax, what = float("inf"), f"towards the sun {type(light).__name__}"
+    else:
+        d = np.asarray(light.position, np.float64) - o
+        tmax, what = 0.999, f"to the centre of a {type(light).__name__}"
+    up = np.einsum("ij,ij->i", d, n) > 0
+    pixels = int(cover.sum())
+    shadow = RaySet("shadow", "occluded", _f32(o[up]), _f32(d[up]), tmax,
+                    f"{int(up.sum())} of {pixels} covered pixels (light above the horizon), {what}")
+    ao = RaySet("ao", "occluded", _f32(o), _f32(cosine_hemisphere(n, rng)), AO_RADIUS * diag,
+                f"1 cosine-hemisphere ray per covered pixel ({pixels}), tmax = {AO_RADIUS:g} x diagonal")
+    return [shadow, ao]
+
+
+def random_rayset(scene, count, rng) -> RaySet:
+    """Closest-hit rays between two uniform random points of the scene's bounding box (incoherent, crossing it)."""
+    lo, hi = (np.asarray(b, np.float64) for b in scene.bounds)
+    ext = np.maximum(hi - lo, 1e-3 * _scene_diag(scene))
+    a = lo + rng.random((count, 3)) * ext
+    b = lo + rng.random((count, 3)) * ext
+    d = b - a
+    d /= np.maximum(np.linalg.norm(d, axis=1, keepdims=True), 1e-30)
+    return RaySet("random", "intersect", _f32(a), _f32(d), float("inf"),
+                  f"{count} rays between random points of the bounding box, unit directions, tmax = inf")
+
+
+# ---------------------------------------------------------------------------------------------------------------
+# engines: ours and the peers behind one interface
+
+
+class Engine:
+    name = ""
+    label = ""
+    threads = None
+
+    def occluded(self, rs: RaySet) -> np.ndarray:
+        raise NotImplementedError
+
+    def intersect(self, rs: RaySet) -> tuple[np.ndarray, np.ndarray]:
+        """(t with +inf on a miss, prim with -1 on a miss)"""
+        raise NotImplementedError
+
+    def query(self, rs: RaySet):
+        return self.occluded(rs) if rs.kind == "occluded" else self.intersect(rs)
+
+    def close(self):
+        pass
+
+
+class OursEngine(Engine):
+    name, label = "ours", "ours (Vulkan compute)"
+
+    def __init__(self, vertices, faces, ctx):
+        from .rt import Tracer
+        self.tracer = Tracer(vertices, faces, context=ctx)
+        self.stats = dict(self.tracer.stats)
+        self.threads = os.environ.get("LP_NUM_THREADS")
+        self.last_gpu_ms = 0.0
+
+    def occluded(self, rs):
+        out = self.tracer.occluded(rs.origins, rs.directions, rs.tmax)
+        self.last_gpu_ms = self.tracer.last_gpu_ms
+        return out
+
+    def intersect(self, rs):
+        h = self.tracer.intersect(rs.origins, rs.directions, rs.tmax)
+        self.last_gpu_ms = self.tracer.last_gpu_ms
+        return h.t, h.prim
+
+    def close(self):
+        self.tracer.close()
+
+
+class EmbreexEngine(Engine):
+    """embreex as trimesh's RayMeshIntersector drives it: one rtcIntersect1/rtcOccluded1 per ray, one thread."""
+
+    name, label, threads = "embreex", "embreex (Embree, 1 thread)", 1
+
+    def __init__(self, vertices, faces):
+        from embreex import mesh_construction, rtcore_scene
+        self.scene = rtcore_scene.EmbreeScene()
+        mesh_construction.TriangleMesh(self.scene, np.ascontiguousarray(vertices, np.float32),
+                                       np.ascontiguousarray(faces, np.int32))
+        one = np.zeros((1, 3), np.float32)
+        self.scene.run(one, one + np.float32(1.0))   # commits the scene: the BVH build
+
+    def _dists(self, rs):
+        return None if not np.isfinite(rs.tmax) else np.full(len(rs), rs.tmax, np.float32)
+
+    def occluded(self, rs):
+        return self.scene.run(rs.origins, rs.directions, dists=self._dists(rs), query="OCCLUDED") != -1
+
+    def intersect(self, rs):
+        r = self.scene.run(rs.origins, rs.directions, dists=self._dists(rs), output=1)
+        prim = r["primID"].astype(np.int64)
+        return np.where(prim >= 0, r["tfar"], np.inf).astype(np.float32), prim
+
+
+class Open3DEngine(Engine):
+    """Open3D's RaycastingScene (Embree inside, all cores): test_occlusions and cast_rays."""
+
+    name = "open3d"
+
+    def __init__(self, vertices, faces):
+        import open3d as o3d
+        self.o3d = o3d
+        self.threads = os.cpu_count()
+        self.label = f"Open3D (Embree, {self.threads} threads)"
+        self.scene = o3d.t.geometry.RaycastingScene()
+        self.scene.add_triangles(o3d.core.Tensor(np.ascontiguousarray(vertices, np.float32)),
+                                 o3d.core.Tensor(np.ascontiguousarray(faces, np.uint32)))
+        self.scene.test_occlusions(o3d.core.Tensor(np.array([[0, 0, 0, 1, 0, 0]], np.float32)))   # commits
+
+    def _rays(self, rs):
+        return self.o3d.core.Tensor(np.concatenate([rs.origins, rs.directions], axis=1))
+
+    def occluded(self, rs):
+        return self.scene.test_occlusions(self._rays(rs), tnear=0.0, tfar=rs.tmax).numpy().astype(bool)
+
+    def intersect(self, rs):
+        ans = self.scene.cast_rays(self._rays(rs))
+        t = ans["t_hit"].numpy()
+        prim = ans["primitive_ids"].numpy().astype(np.int64)
+        hit = np.isfinite(t) & (t <= rs.tmax)
+        return np.where(hit, t, np.inf).astype(np.float32), np.where(hit, prim, -1)
+
+
+def make_peer(name, vertices, faces):
+    """A peer engine, or (None, reason) when its package is missing or does not load."""
+    try:
+        cls = {"embreex": EmbreexEngine, "open3d": Open3DEngine}[name]
+    except KeyError:
+        raise ConfigError(f"bench: unknown peer {name!r} (known: {', '.join(PEERS)})") from None
+    try:
+        return cls(vertices, faces), None
+    except ImportError as exc:
+        return None, f"not installed or not loadable: {exc}"
+
+
+def agreement(kind, ours, peer, diag) -> dict:
+    """How often a peer's answer equals ours: hit/miss, and for closest hits the distance and the triangle."""
+    if kind == "occluded":
+        return {"hit_miss": float(np.mean(np.asarray(ours) == np.asarray(peer))),
+                "ours_hit_fraction": float(np.mean(ours)), "peer_hit_fraction": float(np.mean(peer))}
+    (t0, p0), (t1, p1) = ours, peer
+    h0, h1 = p0 >= 0, p1 >= 0
+    both = h0 & h1
+    out = {"hit_miss": float(np.mean(h0 == h1)), "ours_hit_fraction": float(h0.mean()),
+           "peer_hit_fraction": float(h1.mean())}
+    if both.any():
+        close = np.abs(t0[both] - t1[both]) <= 1e-4 * np.maximum(np.abs(t1[both]), 1.0) + 1e-6 * diag
+        out["t_close"] = float(close.mean())
+        out["same_prim"] = float(np.mean(p0[both] == p1[both]))
+    return out
+
+
+# ---------------------------------------------------------------------------------------------------------------
+# the runner
+
+
+class Bench:
+    """Runs the sections of a BenchConfig; `results` is what goes to the JSON."""
+
+    def __init__(self, cfg: BenchConfig, progress: Progress | None = None):
+        self.cfg = cfg
+        self.progress = progress
+        self.results: dict = {}
+        self._renderer = None
+        self._scenes: dict = {}
+        self._rng = np.random.default_rng(cfg.seed)
+
+    # ---- plumbing ----------------------------------------------------------------------------------------------
+    def _step(self, label, fn, *args):
+        if self.progress is not None:
+            self.progress.step(label)
+        try:
+            return fn(*args)
+        finally:
+            if self.progress is not None:
+                self.progress.advance()
+
+    def plan(self) -> int:
+        """How many progress steps the configured run takes."""
+        cfg, n = self.cfg, 0
+        if "build" in cfg.sections:
+            n += len(cfg.build_sizes)
+        if "trace" in cfg.sections:
+            per_scene = 2 + len(cfg.peers) + len(RAYSETS) * (1 + len(cfg.peers))
+            n += per_scene * (1 + (cfg.real_scene is not None))
+        if "frame" in cfg.sections:
+            n += 2 * len(self._frame_scene_keys())
+        return n
+
+    def _frame_scene_keys(self):
+        return [k for k in self.cfg.frame_scenes if k != "real" or self.cfg.real_scene is not None]
+
+    def device_choice(self):
+        from .vk import choose_device, describe_devices
+        devices = describe_devices()
+        return devices[choose_device(devices, self.cfg.device)]
+
+    def size(self) -> tuple[int, int]:
+        if self.cfg.size is not None:
+            return tuple(self.cfg.size)
+        return (640, 360) if self.device_choice()["type"] == "CPU" else (1920, 1080)
+
+    def renderer(self):
+        if self._renderer is None:
+            from .renderer import Renderer
+            w, h = self.size()
+            self._renderer = Renderer(w, h, device=self.cfg.device, validation=self.cfg.validation)
+        return self._renderer
+
+    def scene(self, key):
+        if key not in self._scenes:
+            if key == "generated":
+                from .bench_scenes import generated_scene
+                self._scenes[key] = generated_scene(self.cfg.generated_tris, seed=self.cfg.seed)
+            elif key == "real":
+                from .scene import Scene
+                self._scenes[key] = Scene.load(self.cfg.real_scene)
+            else:
+                raise ConfigError(f"bench: unknown scene {key!r}")
+        return self._scenes[key]
+
+    def close(self):
+        if self._renderer is not None:
+            self._renderer.close()
+            self.validation_errors = list(self._renderer.validation_errors)
+            self._renderer = None
+
+    # ---- sections ----------------------------------------------------------------------------------------------
+    def run(self) -> dict:
+        cfg = self.cfg
+        self.results["meta"] = {
+            "date": _dt.datetime.now().astimezone().isoformat(timespec="seconds"),
+            "command": " ".join(["hybrid"] + sys.argv[1:]) if Path(sys.argv[0]).name in ("hybrid", "__main__.py")
+            else " ".join(sys.argv),
+            "config": {k: (list(v) if isinstance(v, tuple) else v) for k, v in asdict(cfg).items()},
+            "machine": machine_info(),
+        }
+        try:
+            if "build" in cfg.sections:
+                self.results["build"] = self.run_build()
+            if "trace" in cfg.sections or "frame" in cfg.sections:
+                self.results["meta"]["device"] = device_details(self.renderer().ctx)
+                self.results["meta"]["size"] = list(self.size())
+            if "trace" in cfg.sections:
+                self.results["trace"] = self.run_trace()
+            if "frame" in cfg.sections:
+                self.results["frame"] = self.run_frame()
+        finally:
+            self.close()
+        self.results["meta"]["validation_errors"] = getattr(self, "validation_errors", [])[:20]
+        self.results["targets"] = evaluate_targets(self.results)
+        return self.results
+
+    def run_build(self) -> list[dict]:
+        from .bench_scenes import generated_mesh
+        from .bvh import build_bvh
+        out = []
+        for n in self.cfg.build_sizes:
+            reps = max(1, self.cfg.build_reps - (1 if n > 2_000_000 else 0))
+
+            def one(n=n, reps=reps):
+                v, f = generated_mesh(n, seed=self.cfg.seed)
+                runs, stats = [], None
+                for _ in range(reps):
+                    t0 = time.perf_counter()
+                    bvh = build_bvh(v, f)
+                    runs.append((time.perf_counter() - t0) * 1e3)
+                    stats = dict(bvh.stats)
+                    del bvh
+                ms = _median(runs)
+                tris = int(len(f))
+                return {"triangles": tris, "requested": n, "ms": ms, "runs_ms": runs,
+                        "ms_per_million": ms / (tris / 1e6), "s_per_million": ms / 1e3 / (tris / 1e6),
+                        "sah_cost": stats.get("sah_cost"), "bytes": stats.get("bytes"),
+                        "bytes_per_triangle": stats["bytes"] / tris if stats.get("bytes") else None,
+                        "nodes": stats.get("nodes"), "leaves": stats.get("leaves"), "depth": stats.get("depth"),
+                        "stats": stats}
+            out.append(self._step(f"build: BVH of {n / 1e6:g}M triangles x{reps}", one))
+        return out
+
+    def run_trace(self) -> dict:
+        keys = ["generated"] + (["real"] if self.cfg.real_scene is not None else [])
+        return {"scenes": [self._trace_scene(k) for k in keys]}
+
+    def _trace_scene(self, key) -> dict:
+        cfg = self.cfg
+        tag = "generated" if key == "generated" else "default"
+
+        def prepare():
+            scene = self.scene(key)
+            frame = self.renderer().render(scene)
+            rng = np.random.default_rng(cfg.seed)
+            sets = gbuffer_raysets(scene, frame, rng)
+            count = cfg.random_rays or self.renderer().width * self.renderer().height
+            sets.append(random_rayset(scene, count, rng))
+            return scene, frame, sets
+        scene, frame, sets = self._step(f"trace ({tag}): scene, G-buffer, rays", prepare)
+        diag = _scene_diag(scene)
+        v = np.asarray(scene.positions, np.float32)
+        f = np.asarray(scene.indices, np.int64)
+        res = {"scene": tag, "name": scene.name, "triangles": scene.triangle_count, "diagonal": diag,
+               "gbuffer_size": [self.renderer().width, self.renderer().height],
+               "frame_timings_ms": dict(frame.timings), "setup_ms": {}, "engines": {}, "raysets": []}
+        engines: dict = {}
+        try:
+            def build_ours():
+                t0 = time.perf_counter()
+                e = OursEngine(v, f, self.renderer().ctx)
+                res["setup_ms"]["ours"] = (time.perf_counter() - t0) * 1e3
+                res["bvh_stats"] = e.stats
+                return e
+            engines["ours"] = self._step(f"trace ({tag}): our BVH build + upload", build_ours)
+            res["engines"]["ours"] = {"label": engines["ours"].label, "threads": engines["ours"].threads}
+            for name in cfg.peers:
+                def build_peer(name=name):
+                    t0 = time.perf_counter()
+                    e, why = make_peer(name, v, f)
+                    if e is not None:
+                        res["setup_ms"][name] = (time.perf_counter() - t0) * 1e3
+                    return e, why
+                e, why = self._step(f"trace ({tag}): {name} scene build", build_peer)
+                if e is None:
+                    res["engines"][name] = {"skipped": why}
+                else:
+                    engines[name] = e
+                    res["engines"][name] = {"label": e.label, "threads": e.threads}
+            for rs in sets:
+                res["raysets"].append(self._trace_rayset(tag, rs, engines, diag))
+        finally:
+            for e in engines.values():
+                e.close()
+        return res
+
+    def _trace_rayset(self, tag, rs: RaySet, engines, diag) -> dict:
+        cfg = self.cfg
+        out = {"name": rs.name, "kind": rs.kind, "title": RAYSET_TITLES[rs.name], "rays": len(rs),
+               "tmax": rs.tmax if np.isfinite(rs.tmax) else "inf", "note": rs.note, "results": {}, "agreement": {},
+               "ratio": {}}
+        answers = {}
+        for name in ("ours",) + tuple(cfg.peers):
+            if name not in engines:
+                continue
+            e = engines[name]
+
+            def measure(e=e, name=name):
+                gpu = []
+
+                def once():
+                    r = e.query(rs)
+                    if name == "ours":
+                        gpu.append(e.last_gpu_ms)
+                    return r
+                wall, walls, answer = _timed(once, cfg.reps, cfg.warmup)
+                n = len(rs)
+                r = {"wall_ms": wall * 1e3, "runs_wall_ms": [w * 1e3 for w in walls],
+                     "mrays_wall": n / wall / 1e6 if wall > 0 else None}
+                if name == "ours":
+                    g = _median(gpu[cfg.warmup:])
+                    r.update(gpu_ms=g, runs_gpu_ms=gpu[cfg.warmup:], mrays_gpu=n / (g * 1e-3) / 1e6 if g > 0 else None,
+                             host_ms=wall * 1e3 - g, gpu_fraction_of_wall=g / (wall * 1e3))
+                return r, answer
+            r, answers[name] = self._step(f"trace ({tag}): {RAYSET_TITLES[rs.name]} ({name})", measure)
+            out["results"][name] = r
+        ours = out["results"].get("ours")
+        for name in cfg.peers:
+            if name in out["results"] and ours:
+                peer = out["results"][name]
+                out["ratio"][name] = {"gpu": ours["mrays_gpu"] / peer["mrays_wall"] if ours.get("mrays_gpu") else None,
+                                      "wall": ours["mrays_wall"] / peer["mrays_wall"]}
+                out["agreement"][name] = agreement(rs.kind, answers["ours"], answers[name], diag)
+        return out
+
+    def run_frame(self) -> list[dict]:
+        out = []
+        for key in self._frame_scene_keys():
+            tag = "generated" if key == "generated" else "default"
+            scene = self._step(f"frame ({tag}): load scene", self.scene, key)
+            out.append(self._step(f"frame ({tag}): render x{self.cfg.frame_reps}", self._frame, tag, scene))
+        return out
+
+    def _frame(self, tag, scene) -> dict:
+        cfg, r = self.cfg, self.renderer()
+        for _ in range(cfg.frame_warmup):
+            r.render(scene)
+        walls, timings = [], []
+        for _ in range(max(cfg.frame_reps, 1)):
+            t0 = time.perf_counter()
+            fr = r.render(scene)
+            walls.append((time.perf_counter() - t0) * 1e3)
+            timings.append(fr.timings)
+        passes = list(timings[-1])
+        per_pass = {p: _median([t.get(p, 0.0) for t in timings]) for p in passes}
+        totals = [sum(t.values()) for t in timings]
+        # The viewer's path: submit() without readback or waiting; the host (Python + vkQueueSubmit) time per frame.
+        r.submit(scene, wait=False)
+        r.ctx.wait_idle()
+        host, host_cpu, sub_gpu = [], [], []
+        for _ in range(max(cfg.frame_reps, 1) * 4):
+            c0, t0 = time.thread_time(), time.perf_counter()
+            r.submit(scene, wait=False)
+            host.append((time.perf_counter() - t0) * 1e3)
+            host_cpu.append((time.thread_time() - c0) * 1e3)
+            r.ctx.wait_idle()
+            sub_gpu.append(sum(r.last_timings().values()))
+        lights = len(scene.lights)
+        return {"scene": tag, "name": scene.name, "triangles": scene.triangle_count, "size": [r.width, r.height],
+                "lights": lights, "settings": dict(fr.settings), "passes_ms": per_pass,
+                "gpu_total_ms": _median(totals), "runs_gpu_total_ms": totals,
+                "render_wall_ms": _median(walls), "runs_render_wall_ms": walls,
+                "submit_host_ms": _median(host), "submit_host_cpu_ms": _median(host_cpu),
+                "submit_gpu_total_ms": _median(sub_gpu)}
+
+
+# ---------------------------------------------------------------------------------------------------------------
+# targets (issues 3 and 6)
+
+
+def _target(issue, what, measured, target, unit, higher_is_better, note=""):
+    if measured is None:
+        return {"issue": issue, "target": what, "measured": None, "unit": unit, "status": "not measured", "note": note}
+    ok = measured >= target if higher_is_better else measured <= target
+    # margin > 1: better than the goal by that factor; < 1: the goal needs 1 / margin times better
+    margin = measured / target if higher_is_better else target / measured if measured else float("inf")
+    by = f"{margin:.2f}x margin" if ok else f"needs {1 / margin:.2f}x"
+    return {"issue": issue, "target": what, "goal": target, "measured": measured, "unit": unit,
+            "status": "pass" if ok else "miss", "margin": margin, "summary": f"{'pass' if ok else 'miss'} ({by})",
+            "note": note}
+
+
+def evaluate_targets(results: dict) -> list[dict]:
+    out = []
+    for b in results.get("build", []):
+        if b["triangles"] >= 900_000:
+            m = f"{b['triangles'] / 1e6:.1f}M triangles"
+            out.append(_target(3, f"BVH build <= 1.0 s per million triangles ({m})", b["s_per_million"], 1.0, "s/M",
+                               False))
+            out.append(_target(6, f"BVH build <= 0.5 s per million triangles ({m})", b["s_per_million"], 0.5, "s/M",
+                               False))
+    device = results.get("meta", {}).get("device", {})
+    cpu_device = device.get("type") == "CPU"
+    for sc in results.get("trace", {}).get("scenes", []):
+        for rs in sc["raysets"]:
+            if rs["kind"] != "occluded" or "open3d" not in rs["ratio"]:
+                continue
+            ratio = rs["ratio"]["open3d"]
+            for basis in ("wall", "gpu"):
+                where = f"{sc['scene']} scene, {rs['name']} rays, {'wall clock' if basis == 'wall' else 'GPU time'}"
+                out.append(_target(3, f"occlusion >= 0.5x Open3D ({where})", ratio[basis], 0.5, "x", True))
+                if cpu_device:
+                    out.append(_target(6, f"lavapipe occlusion >= 1.0x Open3D ({where})", ratio[basis], 1.0, "x", True))
+    gpu_device = device and not cpu_device
+    size = results.get("meta", {}).get("size")
+    big = [sc for sc in results.get("trace", {}).get("scenes", []) if sc["triangles"] >= 300_000]
+    note_gpu = "" if gpu_device else ("needs a GPU; this run's device is a CPU" if device else
+                                      "needs a GPU and the trace/frame sections")
+    shadow = ao = None
+    if gpu_device and big and size == [1920, 1080]:
+        rs = {r["name"]: r for r in big[0]["raysets"]}
+        shadow = rs["shadow"]["results"]["ours"].get("mrays_gpu")
+        ao = rs["ao"]["results"]["ours"].get("mrays_gpu")
+    out.append(_target(6, "GPU: 1920x1080 shadow rays >= 4 Grays/s (>= 300k triangles)",
+                       shadow / 1e3 if shadow else None, 4.0, "Grays/s", True, note_gpu))
+    out.append(_target(6, "GPU: 1920x1080 AO rays >= 1.5 Grays/s", ao / 1e3 if ao else None, 1.5, "Grays/s", True,
+                       note_gpu))
+    frame_ms = None
+    for fr in results.get("frame", []):
+        if gpu_device and fr["size"] == [1920, 1080] and fr["scene"] == "default":
+            frame_ms = fr["gpu_total_ms"]
+    out.append(_target(6, "GPU: full 1920x1080 frame <= 2 ms GPU", frame_ms, 2.0, "ms", False,
+                       note_gpu + ("; " if note_gpu else "") + "frame as rendered: the scene's lights, AO 4 spp, "
+                       "no denoiser yet (issue 4)"))
+    for fr in results.get("frame", []):
+        if fr["scene"] == "default":
+            out.append(_target(6, "host (Python) CPU time per frame <= 0.3 ms (Renderer.submit, static scene)",
+                               fr["submit_host_cpu_ms"], 0.3, "ms", False,
+                               "submit() without readback; a viewer adds swapchain acquire/present"))
+    return out
+
+
+# ---------------------------------------------------------------------------------------------------------------
+# terminal tables
+
+
+def _fmt(v, spec=".2f", none="-"):
+    if v is None or (isinstance(v, float) and not np.isfinite(v)):
+        return none
+    return format(v, spec)
+
+
+def _table(rows, header, align=None) -> str:
+    cols = len(header)
+    width = [max(len(str(r[i])) for r in [header] + rows) for i in range(cols)]
+    align = align or ["<"] + [">"] * (cols - 1)
+    line = lambda r: "  ".join(f"{str(c):{a}{w}}" for c, a, w in zip(r, align, width))  # noqa: E731
+    return "\n".join([line(header), "  ".join("-" * w for w in width)] + [line(r) for r in rows])
+
+
+def format_report(results: dict) -> str:
+    meta = results.get("meta", {})
+    m, dev = meta.get("machine", {}), meta.get("device", {})
+    parts = [f"hybrid bench - {meta.get('date', '')}",
+             f"machine: {m.get('cpu')} ({m.get('cores')} cores), device: {dev.get('name', '-')} "
+             f"({dev.get('type', '-')}, {dev.get('driver_info', dev.get('driver', '-'))})"
+             + (f", env {m['env']}" if m.get("env") else "")]
+    if results.get("build"):
+        rows = [[f"{b['triangles']:,}", _fmt(b["ms"], ".0f"), _fmt(b["ms_per_million"], ".0f"),
+                 _fmt(b["sah_cost"], ".1f"), _fmt(b["bytes_per_triangle"], ".1f"), f"{b['nodes']:,}", b["depth"]]
+                for b in results["build"]]
+        parts += ["", "BVH build (generated meshes; median of runs)",
+                  _table(rows, ["triangles", "build ms", "ms / M tris", "SAH cost", "bytes / tri", "nodes", "depth"])]
+    for sc in results.get("trace", {}).get("scenes", []):
+        setup = ", ".join(f"{k} {v:.0f} ms" for k, v in sc["setup_ms"].items())
+        skipped = ", ".join(f"{k}: {v['skipped']}" for k, v in sc["engines"].items() if "skipped" in v)
+        parts += ["", f"Trace throughput, Mrays/s: {sc['scene']} scene ({sc['triangles']:,} triangles), "
+                      f"G-buffer {sc['gbuffer_size'][0]}x{sc['gbuffer_size'][1]}; setup (BVH build): {setup}"
+                  + (f"; skipped {skipped}" if skipped else "")]
+        rows = []
+        for rs in sc["raysets"]:
+            res = rs["results"]
+            o = res.get("ours", {})
+            row = [rs["title"], f"{rs['rays']:,}", _fmt(o.get("mrays_gpu")), _fmt(o.get("mrays_wall")),
+                   _fmt(o.get("gpu_fraction_of_wall"), ".0%")]
+            for p in PEERS:
+                pr = res.get(p)
+                row.append(_fmt(pr["mrays_wall"]) if pr else "-")
+            for p in PEERS:
+                ra = rs["ratio"].get(p)
+                row.append(f"{_fmt(ra['gpu'])} / {_fmt(ra['wall'])}" if ra else "-")
+            agree = [f"{p} {rs['agreement'][p]['hit_miss']:.2%}" for p in PEERS if p in rs["agreement"]]
+            row.append(", ".join(agree) or "-")
+            rows.append(row)
+        parts.append(_table(rows, ["ray set", "rays", "ours GPU", "ours wall", "GPU/wall", "embreex 1T",
+                                   "open3d", "x embreex (GPU/wall)", "x open3d (GPU/wall)", "hit/miss agree"]))
+    for fr in results.get("frame", []):
+        rows = [[k, _fmt(v, ".2f")] for k, v in fr["passes_ms"].items()]
+        rows += [["total GPU", _fmt(fr["gpu_total_ms"], ".2f")],
+                 ["render() wall (incl. readback to numpy)", _fmt(fr["render_wall_ms"], ".2f")],
+                 ["submit() host wall / CPU (viewer path)",
+                  f"{_fmt(fr['submit_host_ms'], '.3f')} / {_fmt(fr['submit_host_cpu_ms'], '.3f')}"]]
+        s = fr["settings"]
+        parts += ["", f"Frame: {fr['scene']} scene ({fr['triangles']:,} triangles) {fr['size'][0]}x{fr['size'][1]}, "
+                      f"{fr['lights']} light(s), shadows {s.get('shadows')}, AO {s.get('ao_samples')} spp "
+                      f"(median of runs)", _table(rows, ["pass", "ms"])]
+    if results.get("targets"):
+        rows = [[f"#{t['issue']}", t["target"], _fmt(t["measured"], ".3g") + (f" {t['unit']}" if t["measured"]
+                 is not None else ""), t.get("summary", t["status"])
+                 + (f"; {t['note']}" if t.get("note") else "")] for t in results["targets"]]
+        parts += ["", "Targets", _table(rows, ["issue", "target", "measured", "status"], ["<", "<", ">", "<"])]
+    return "\n".join(parts)
+
+
+# ---------------------------------------------------------------------------------------------------------------
+# plot (pillow)
+
+
+ENGINE_COLORS = {"ours GPU": (46, 117, 182), "ours wall": (143, 187, 227), "embreex": (230, 126, 34),
+                 "open3d": (68, 160, 80)}
+PASS_COLORS = [(46, 117, 182), (230, 126, 34), (68, 160, 80), (192, 57, 43), (142, 68, 173), (127, 140, 141),
+               (241, 196, 15), (22, 160, 133)]
+
+
+def _font(size, bold=False):
+    from PIL import ImageFont
+    for name in (("DejaVuSans-Bold.ttf" if bold else "DejaVuSans.ttf"),
+                 "/usr/share/fonts/truetype/dejavu/" + ("DejaVuSans-Bold.ttf" if bold else "DejaVuSans.ttf")):
+        try:
+            return ImageFont.truetype(name, size)
+        except OSError:
+            pass
+    try:
+        return ImageFont.load_default(size=size)
+    except TypeError:
+        return ImageFont.load_default()
+
+
+def _nice_max(v):
+    if v <= 0:
+        return 1.0
+    e = 10 ** np.floor(np.log10(v))
+    for m in (1, 1.5, 2, 2.5, 3, 4, 5, 6, 8, 10):
+        if m * e >= v:
+            return m * e
+    return 10 * e
+
+
+def _bar_panel(draw, box, title, groups, series, colors, unit, fonts, hlines=()):
+    """Grouped vertical bars. groups: [(label, {series: value})]; hlines: [(value, label)] goal lines."""
+    x0, y0, x1, y1 = box
+    f_title, f_label, f_small = fonts
+    draw.text((x0, y0), title, fill=(0, 0, 0), font=f_title)
+    lx = x0
+    for s in series:   # legend under the title
+        draw.rectangle([lx, y0 + 34, lx + 14, y0 + 48], fill=colors[s])
+        draw.text((lx + 20, y0 + 41), s, fill=(0, 0, 0), font=f_small, anchor="lm")
+        lx += 34 + draw.textlength(s, font=f_small)
+    top, bottom, left = y0 + 92, y1 - 50, x0 + 64
+    draw.text((x0, y0 + 62), unit, fill=(80, 80, 80), font=f_small)
+    values = [v for _, vals in groups for v in vals.values() if v] + [v for v, _ in hlines]
+    vmax = _nice_max(max(values + [1e-9]) * 1.12)
+    for i in range(6):
+        val = vmax * i / 5
+        y = bottom - (bottom - top) * i / 5
+        draw.line([(left, y), (x1, y)], fill=(225, 225, 225))
+        draw.text((left - 8, y), f"{val:g}", fill=(80, 80, 80), font=f_small, anchor="rm")
+    gw = (x1 - left) / max(len(groups), 1)
+    for gi, (label, vals) in enumerate(groups):
+        bw = min(70, (gw - 30) / max(len(series), 1))
+        gx = left + gi * gw + (gw - bw * len(series)) / 2
+        for si, s in enumerate(series):
+            v = vals.get(s)
+            if not v:
+                if s in vals:   # measured as nothing: say so
+                    draw.text((gx + si * bw + bw / 2, bottom - 3), "n/a", fill=(120, 120, 120), font=f_small,
+                              anchor="md")
+                continue
+            bx = gx + si * bw
+            by = bottom - (bottom - top) * v / vmax
+            draw.rectangle([bx + 2, by, bx + bw - 2, bottom], fill=colors[s])
+            draw.text((bx + bw / 2, by - 3), f"{v:.3g}", fill=(0, 0, 0), font=f_small, anchor="md")
+        for li, text in enumerate(label.split("\n")):
+            draw.text((left + gi * gw + gw / 2, bottom + 8 + li * 19), text, fill=(0, 0, 0), font=f_label, anchor="ma")
+    for v, text in hlines:
+        y = bottom - (bottom - top) * v / vmax
+        for xx in range(int(left), int(x1), 14):
+            draw.line([(xx, y), (min(xx + 8, x1), y)], fill=(192, 57, 43), width=2)
+        draw.text((x1 - 4, y - 3), text, fill=(192, 57, 43), font=f_small, anchor="rd")
+    draw.line([(left, bottom), (x1, bottom)], fill=(0, 0, 0))
+
+
+def _stack_panel(draw, box, title, rows, fonts):
+    """Horizontal stacked bars of GPU ms per pass. rows: [(label, {pass: ms})]."""
+    x0, y0, x1, y1 = box
+    f_title, f_label, f_small = fonts
+    draw.text((x0, y0), title, fill=(0, 0, 0), font=f_title)
+    passes = []
+    for _, d in rows:
+        passes += [p for p in d if p not in passes]
+    colors = {p: PASS_COLORS[i % len(PASS_COLORS)] for i, p in enumerate(passes)}
+    lx = x0 + 250
+    for p in passes:
+        draw.rectangle([lx, y0 + 34, lx + 14, y0 + 48], fill=colors[p])
+        draw.text((lx + 20, y0 + 41), p, fill=(0, 0, 0), font=f_small, anchor="lm")
+        lx += 30 + draw.textlength(p, font=f_small)
+    left, right = x0 + 250, x1 - 90
+    vmax = _nice_max(max([sum(d.values()) for _, d in rows] + [1e-9]))
+    top = y0 + 66
+    rh = min(56, (y1 - top - 30) / max(len(rows), 1))
+    for i in range(6):
+        x = left + (right - left) * i / 5
+        draw.line([(x, top), (x, top + rh * len(rows))], fill=(225, 225, 225))
+        draw.text((x, top + rh * len(rows) + 6), f"{vmax * i / 5:g}", fill=(80, 80, 80), font=f_small, anchor="ma")
+    draw.text((right + 10, top + rh * len(rows) + 6), "GPU ms", fill=(80, 80, 80), font=f_small)
+    for ri, (label, d) in enumerate(rows):
+        y = top + ri * rh
+        for li, text in enumerate(label.split("\n")):
+            draw.text((x0, y + 6 + li * 18), text, fill=(0, 0, 0), font=f_label)
+        x = left
+        for p in passes:
+            v = d.get(p, 0.0)
+            w = (right - left) * v / vmax
+            if w > 0:
+                draw.rectangle([x, y + 6, x + w, y + rh - 8], fill=colors[p])
+                if w > 44:
+                    draw.text((x + w / 2, y + rh / 2 - 1), f"{v:.1f}", fill=(255, 255, 255), font=f_small,
+                              anchor="mm")
+            x += w
+        draw.text((x + 6, y + rh / 2 - 1), f"{sum(d.values()):.1f} ms", fill=(0, 0, 0), font=f_small, anchor="lm")
+
+
+def plot(results: dict, path):
+    """A PNG: Mrays/s per ray set and engine for each trace scene, the per-pass frame breakdown, BVH build."""
+    from PIL import Image, ImageDraw
+    scenes = results.get("trace", {}).get("scenes", [])
+    frames = results.get("frame", [])
+    builds = results.get("build", [])
+    W = 1400
+    heights = [430] * len(scenes) + ([110 + 60 * len(frames)] if frames else []) + ([360] if builds else [])
+    H = 90 + sum(heights) + 30 * len(heights)
+    img = Image.new("RGB", (W, H), "white")
+    d = ImageDraw.Draw(img)
+    fonts = (_font(22, True), _font(16), _font(14))
+    meta = results.get("meta", {})
+    dev, m = meta.get("device", {}), meta.get("machine", {})
+    d.text((30, 18), "hybrid bench", fill=(0, 0, 0), font=_font(28, True))
+    d.text((30, 56), f"{meta.get('date', '')[:10]}   {m.get('cpu', '')} ({m.get('cores')} cores)   device: "
+                     f"{dev.get('name', '-')} {dev.get('driver_info', '')}", fill=(60, 60, 60), font=fonts[2])
+    y = 90
+    series = ["ours GPU", "ours wall", "embreex", "open3d"]
+    for sc, h in zip(scenes, heights):
+        groups = []
+        for rs in sc["raysets"]:
+            r = rs["results"]
+            vals = {"ours GPU": r.get("ours", {}).get("mrays_gpu"), "ours wall": r.get("ours", {}).get("mrays_wall"),
+                    "embreex": r.get("embreex", {}).get("mrays_wall"), "open3d": r.get("open3d", {}).get("mrays_wall")}
+            groups.append((f"{rs['title']}\n{rs['rays']:,} rays", vals))
+        eng = sc["engines"]
+        sub = ", ".join(f"{k}: {v.get('label', k)}" for k, v in eng.items() if "label" in v and k != "ours")
+        _bar_panel(d, (30, y, W - 30, y + h),
+                   f"Trace throughput, {sc['scene']} scene ({sc['triangles']:,} triangles)   [{sub}]",
+                   groups, series, ENGINE_COLORS, "Mrays/s (higher is better)", fonts)
+        y += h + 30
+    if frames:
+        h = heights[len(scenes)]
+        rows = [(f"{fr['scene']} ({fr['triangles']:,} tris)\n{fr['size'][0]}x{fr['size'][1]}, {fr['lights']} lights, "
+                 f"AO {fr['settings'].get('ao_samples')} spp", fr["passes_ms"]) for fr in frames]
+        _stack_panel(d, (30, y, W - 30, y + h), "Frame: GPU ms per pass", rows, fonts)
+        y += h + 30
+    if builds:
+        h = heights[-1]
+        groups = [(f"{b['triangles'] / 1e6:.2g}M triangles\nSAH {b['sah_cost']:.0f}, {b['bytes_per_triangle']:.0f} B/tri",
+                   {"s per M triangles": b["s_per_million"]}) for b in builds]
+        _bar_panel(d, (30, y, W - 30, y + h), "BVH build: seconds per million triangles (goal: <= 1.0 issue 3, "
+                   "<= 0.5 issue 6)", groups, ["s per M triangles"], {"s per M triangles": (46, 117, 182)},
+                   "s / M triangles (lower is better)", fonts,
+                   hlines=[(1.0, "issue 3 goal 1.0"), (0.5, "issue 6 goal 0.5")])
+    path = Path(path)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    img.save(path)
+    return path
+
+
+# ---------------------------------------------------------------------------------------------------------------
+# entry points
+
+
+def run_bench(cfg: BenchConfig, json_path=None, plot_path=None, progress: bool = True, stream=None) -> dict:
+    """Run the configured sections; write JSON and the plot when paths are given; return the results dict."""
+    bench = Bench(cfg)
+    bench.progress = Progress(bench.plan(), stream=stream, enabled=progress)
+    results = bench.run()
+    bench.progress.finish()
+    if json_path is not None:
+        p = Path(json_path)
+        p.parent.mkdir(parents=True, exist_ok=True)
+        p.write_text(json.dumps(results, indent=1, default=_json_default) + "\n")
+    if plot_path is not None:
+        plot(results, plot_path)
+    return results
+
+
+def _json_default(o):
+    if isinstance(o, (np.integer,)):
+        return int(o)
+    if isinstance(o, (np.floating,)):
+        return float(o)
+    if isinstance(o, np.ndarray):
+        return o.tolist()
+    return str(o)
+
+
+def add_arguments(p):
+    """The `hybrid bench` arguments (engine/cli.py adds the subparser)."""
+    p.add_argument("section", nargs="?", default="all", choices=SECTIONS + ("all",),
+                   help="what to run (default all)")
+    p.add_argument("--quick", action="store_true", help="smaller and fewer runs (no 4M build; ~3 minutes on 2 cores)")
+    p.add_argument("--json", default="bench-out/bench.json", help="JSON results (default bench-out/bench.json)")
+    p.add_argument("--plot", default="bench-out/bench.png", help="PNG plot (default bench-out/bench.png)")
+    p.add_argument("--device", default=None, help="Vulkan device index or name substring")
+    p.add_argument("--size", default=None,
+                   help="frame and G-buffer size WxH (default 640x360 on a CPU device, 1920x1080 on a GPU)")
+
+
+def run_cli(args) -> int:
+    from .renderer import parse_size
+    size = parse_size(args.size) if args.size else None
+    cfg = BenchConfig.for_cli(args.section, quick=args.quick, size=size, device=args.device)
+    results = run_bench(cfg, json_path=args.json, plot_path=args.plot)
+    print(format_report(results))
+    print(f"\nJSON: {args.json}   plot: {args.plot}")
+    errors = results["meta"].get("validation_errors") or []
+    if errors:
+        print(f"error: {len(errors)} validation errors; first: {errors[0]}", file=sys.stderr)
+        return 1
+    return 0

@@ -1,0 +1,119 @@
+"""The GPU byte layout of the BVH: two std430 storage buffers, uploaded verbatim.
+
+This module is the one place that documents the layout; `shaders/glsl/include/bvh.glsl` mirrors it.
+
+Nodes buffer (binding BVH_BINDING): an array of 64-byte nodes, node 0 is the root. A node holds the boxes of
+*both* its children, so one fetch tests two boxes (the BVH_GPU idea from tinybvh, and Aila & Laine's layout).
+Leaves are not nodes: a child slot that is a leaf points straight at its triangles, so leaves cost no fetch.
+
+    offset  type      field    meaning
+    0       vec3      lmin     left child box, min corner
+    12      uint      left     left child word (below)
+    16      vec3      lmax     left child box, max corner
+    28      uint      right    right child word
+    32      vec3      rmin     right child box, min corner
+    44      uint      lcount   left child: number of triangles if it is a leaf, 0 if it is a node
+    48      vec3      rmax     right child box, max corner
+    60      uint      rcount   right child: number of triangles if it is a leaf, 0 if it is a node
+
+    child word: bit 31 clear -> index of an interior node in this buffer;
+                bit 31 set   -> a leaf; bits 0..30 = index of its first triangle in the triangle buffer,
+                                its triangles are [first, first + count).
+    A leaf with count 0 is an empty slot (only for meshes of 0 or 1 triangle); its box is inverted (min = +inf,
+    max = -inf), and testing it is harmless: it holds no triangle.
+
+    In GLSL: struct BvhNode { vec4 a, b, c, d; } with a = (lmin, left), b = (lmax, right), c = (rmin, lcount),
+    d = (rmax, rcount); the uint fields are read with floatBitsToUint.
+
+Triangles buffer (binding BVH_BINDING + 1): 48 bytes per triangle, in leaf order (slot i is original triangle
+prim_ids[i]):
+
+    offset  type      field    meaning
+    0       vec3      v0       first vertex (float32, bitwise as given after the float32 cast)
+    12      int       prim     original triangle index (read with floatBitsToInt)
+    16      vec3      v1       second vertex
+    28      uint      pad      0
+    32      vec3      v2       third vertex
+    44      uint      pad      0
+
+    The raw vertices are stored, not (v0, e1, e2): the watertight test needs every shared vertex to be bitwise the
+    same in all the triangles that use it, which edges rebuilt as v0 + e1 would not be. Degenerate triangles
+    (zero area) are stored with v1 = v2 = v0, which the intersection test rejects exactly (its determinant is 0).
+
+Nodes are numbered level by level (breadth first); the tree's depth (leaves at depth <= max_depth, root at 0) is
+capped at build time so that the GLSL stack (BVH_STACK_SIZE entries) cannot overflow: the traversal pushes at most
+depth - 1 entries.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+#: Bit 31 of a child word marks a leaf.
+LEAF_BIT = np.uint32(0x80000000)
+
+NODE_DTYPE = np.dtype(
+    [
+        ("lmin", "<f4", (3,)),
+        ("left", "<u4"),
+        ("lmax", "<f4", (3,)),
+        ("right", "<u4"),
+        ("rmin", "<f4", (3,)),
+        ("lcount", "<u4"),
+        ("rmax", "<f4", (3,)),
+        ("rcount", "<u4"),
+    ]
+)
+assert NODE_DTYPE.itemsize == 64
+
+TRI_DTYPE = np.dtype(
+    [
+        ("v0", "<f4", (3,)),
+        ("prim", "<i4"),
+        ("v1", "<f4", (3,)),
+        ("pad1", "<u4"),
+        ("v2", "<f4", (3,)),
+        ("pad2", "<u4"),
+    ]
+)
+assert TRI_DTYPE.itemsize == 48
+
+NODE_BYTES = NODE_DTYPE.itemsize
+TRI_BYTES = TRI_DTYPE.itemsize
+
+
+def pack_nodes(words: np.ndarray, counts: np.ndarray, boxes: np.ndarray) -> np.ndarray:
+    """Pack interior nodes.
+
+    words:  (M, 2) uint32 child words (left, right), see the module doc.
+    counts: (M, 2) uint32 leaf triangle counts (0 for interior children).
+    boxes:  (M, 2, 2, 3) float32 child boxes: [node, child (0 left, 1 right), corner (0 min, 1 max), xyz].
+    """
+    m = len(words)
+    nodes = np.zeros(m, dtype=NODE_DTYPE)
+    nodes["lmin"] = boxes[:, 0, 0]
+    nodes["lmax"] = boxes[:, 0, 1]
+    nodes["rmin"] = boxes[:, 1, 0]
+    nodes["rmax"] = boxes[:, 1, 1]
+    nodes["left"] = words[:, 0]
+    nodes["right"] = words[:, 1]
+    nodes["lcount"] = counts[:, 0]
+    nodes["rcount"] = counts[:, 1]
+    return nodes
+
+
+def pack_tris(v0: np.ndarray, v1: np.ndarray, v2: np.ndarray, prim_ids: np.ndarray) -> np.ndarray:
+    """Pack triangles in leaf order: v0, v1, v2 are (T, 3) float32, prim_ids (T,) original indices."""
+    tris = np.zeros(len(prim_ids), dtype=TRI_DTYPE)
+    tris["v0"] = v0
+    tris["v1"] = v1
+    tris["v2"] = v2
+    tris["prim"] = prim_ids
+    return tris
+
+
+def unpack_child(word):
+    """(is_leaf, index) of child words: index is a node index, or the first triangle of a leaf."""
+    word = np.asarray(word, dtype=np.uint32)
+    is_leaf = (word & LEAF_BIT) != 0
+    return is_leaf, (word & ~LEAF_BIT).astype(np.int64)

@@ -1,0 +1,62 @@
+"""Edge-aware a-trous wavelet denoiser for the light masks and AO (shaders/glsl/denoise.comp).
+
+`STEPS` iterations of a 5x5 kernel with holes (1, 2, 4, 8 pixels: a 61-pixel footprint), ping-ponging
+between the signal's `cur`/`var_a` and `val_b`/`var_b` buffers; the last iteration writes `final`, which the
+lighting pass reads. One descriptor set per iteration, so the recorded command buffer is fixed.
+"""
+from __future__ import annotations
+
+import numpy as np
+import vulkan as vk
+
+from ..vk import SB, SI, UB, ComputePipeline, DescriptorSet, memory_barrier
+from .accumulate import FILTER_FIRST, channels
+
+STEPS = (1, 2, 4, 8)
+
+
+class DenoisePass:
+    name = "denoise"
+    shaders = ("denoise.comp",)
+
+    def __init__(self, ctx, library, frame_ubo, targets):
+        self.sets = []
+        for _ in STEPS:
+            s = DescriptorSet(ctx, [(0, UB), (1, SI), (2, SI)] + [(b, SB) for b in range(3, 12)])
+            s.buffer(0, frame_ubo)
+            self.sets.append(s)
+        self.pipeline = ComputePipeline(ctx, library.get(self.shaders[0]), [self.sets[0]], push_size=8,
+                                        name=self.name)
+        self.bind_targets(targets)
+
+    @staticmethod
+    def route(sig, i, last):
+        """(in value, in variance, out value, out variance) buffers of iteration i for one signal."""
+        src = (sig.cur, sig.var_a) if i % 2 == 0 else (sig.val_b, sig.var_b)
+        if i == last:
+            dst = (sig.final, sig.var_b if i % 2 == 0 else sig.var_a)
+        else:
+            dst = (sig.val_b, sig.var_b) if i % 2 == 0 else (sig.cur, sig.var_a)
+        return src + dst
+
+    def bind_targets(self, t):
+        last = len(STEPS) - 1
+        for i, s in enumerate(self.sets):
+            s.image(1, t.position).image(2, t.normal)
+            for base, name in ((3, "masks"), (7, "ao")):
+                for k, buf in enumerate(self.route(t.signals[name], i, last)):
+                    s.buffer(base + k, buf)
+            s.buffer(11, t.len_cur)
+
+    def reload(self, library):
+        self.pipeline.rebuild(library.get(self.shaders[0]))
+
+    def record(self, cmd, targets, flags: int, n_lights: int):
+        gx, gy = (targets.width + 7) // 8, (targets.height + 7) // 8
+        for i, (step, s) in enumerate(zip(STEPS, self.sets)):
+            if i:
+                memory_barrier(cmd, vk.VK_PIPELINE_STAGE_COMPUTE_SHADER_BIT, vk.VK_PIPELINE_STAGE_COMPUTE_SHADER_BIT,
+                               vk.VK_ACCESS_SHADER_WRITE_BIT | vk.VK_ACCESS_SHADER_READ_BIT,
+                               vk.VK_ACCESS_SHADER_READ_BIT | vk.VK_ACCESS_SHADER_WRITE_BIT)
+            push = np.array([flags | (FILTER_FIRST if i == 0 else 0), step], np.uint32)
+            self.pipeline.dispatch(cmd, [s], gx, gy, channels(flags, n_lights), push=push)

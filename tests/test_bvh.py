@@ -1,0 +1,424 @@
+"""Host BVH: build invariants, the GPU byte layout, edge cases, and traversal (a numpy emulation of bvh.glsl that walks
+the same buffers) against the brute-force reference."""
+import shutil
+import subprocess
+from pathlib import Path
+
+import numpy as np
+import pytest
+import trimesh
+
+from engine.bvh import LEAF_BIT, NODE_DTYPE, TRI_DTYPE, build_bvh
+from engine.bvh.traverse_py import traverse
+from engine.errors import ConfigError, SceneError
+from engine.rt.reference import _pairs, _Triangles, reference_intersect, reference_occluded
+
+ROOT = Path(__file__).resolve().parent.parent
+
+
+# ----------------------------------------------------------------------------------------------------------------
+# meshes
+
+
+def soup(n=2000, seed=3):
+    rng = np.random.default_rng(seed)
+    centre = rng.uniform(-1, 1, (n, 1, 3))
+    v = (centre + rng.normal(scale=0.08, size=(n, 3, 3))).reshape(-1, 3)
+    return v, np.arange(3 * n).reshape(n, 3)
+
+
+def with_degenerates():
+    v, f = soup(600, seed=5)
+    extra_v = np.array([[0, 0, 0], [1, 1, 1], [2, 2, 2], [0.25, 0.5, 0.75], [0.3, 0.3, 0.3]])
+    base = len(v)
+    extra_f = np.array([[0, 1, 2], [0, 0, 3], [1, 1, 1], [3, 4, 4], [2, 1, 0]]) + base  # collinear, repeated
+    v = np.vstack([v, extra_v])
+    f = np.vstack([f[:300], extra_f, f[300:], extra_f[::-1]])
+    return v, f
+
+
+def thin_box():
+    box = trimesh.creation.box(extents=(2.0, 0.002, 1.0)).subdivide().subdivide()
+    return box.vertices, box.faces
+
+
+def sphere(sub=3):
+    m = trimesh.creation.icosphere(subdivisions=sub)
+    return m.vertices, m.faces
+
+
+def ladder(n=150):
+    """Triangles shrinking geometrically towards the origin: every split can only peel off the few largest, so
+    without a cap the tree gets about as deep as there are size classes."""
+    i = np.arange(n, dtype=np.float64)
+    x = 0.9**i
+    s = 0.05 * x
+    z = np.zeros(n)
+    v = np.stack([np.stack([x, z, z], 1), np.stack([x + s, z, z], 1), np.stack([x, s, 0.3 * s], 1)], 1)
+    return v.reshape(-1, 3), np.arange(3 * n).reshape(n, 3)
+
+
+def coincident(n=300):
+    """Triangles that all share one centroid (identical ones, and rotated copies)."""
+    rng = np.random.default_rng(2)
+    base = np.array([[1.0, 0, 0], [-0.5, 0.8, 0.1], [-0.5, -0.8, -0.1]])
+    tris = [base] * (n // 2)
+    for _ in range(n - n // 2):
+        q, _r = np.linalg.qr(rng.normal(size=(3, 3)))
+        tris.append(base @ q.T)
+    v = np.concatenate(tris) + 5.0
+    return v, np.arange(len(v)).reshape(-1, 3)
+
+
+MESHES = {
+    "sphere": sphere,
+    "thin_box": thin_box,
+    "soup": soup,
+    "degenerate": with_degenerates,
+    "coincident": coincident,
+    "ladder": ladder,
+}
+
+
+# ----------------------------------------------------------------------------------------------------------------
+# walking the flattened tree
+
+
+def walk(bvh):
+    """All interior nodes and leaves reachable from the root, checking that each node is reached exactly once.
+
+    Returns (slots, leaves): slots = list of (parent, side, child node) edges; leaves = list of
+    (first, count, box_min, box_max, depth).
+    """
+    nodes = bvh.nodes
+    seen = np.zeros(len(nodes), dtype=np.int64)
+    leaves, edges = [], []
+    stack = [(0, 1)]
+    seen[0] = 1
+    while stack:
+        k, depth = stack.pop()
+        nd = nodes[k]
+        for side, (word, count, bmin, bmax) in enumerate(
+            [(nd["left"], nd["lcount"], nd["lmin"], nd["lmax"]), (nd["right"], nd["rcount"], nd["rmin"], nd["rmax"])]
+        ):
+            word, count = int(word), int(count)
+            if word & int(LEAF_BIT):
+                leaves.append((word & ~int(LEAF_BIT), count, bmin, bmax, depth))
+            else:
+                assert count == 0, f"interior child of node {k} has a triangle count"
+                assert 0 < word < len(nodes), f"node {k} points at {word}"
+                seen[word] += 1
+                edges.append((k, side, word))
+                stack.append((word, depth + 1))
+    assert (seen == 1).all(), "every node is reached exactly once (a tree, no orphans)"
+    return edges, leaves
+
+
+def check_invariants(bvh, vertices, faces, max_leaf=4, max_depth=32):
+    vertices = np.asarray(vertices, dtype=np.float32)
+    faces = np.asarray(faces)
+    n = len(faces)
+    edges, leaves = walk(bvh)
+
+    # every triangle in exactly one leaf; leaves not over max_leaf
+    covered = np.zeros(max(n, 1), dtype=np.int64)
+    for first, count, *_ in leaves:
+        assert count <= max_leaf
+        covered[first : first + count] += 1
+    assert (covered[:n] == 1).all(), "leaf ranges partition the triangle slots"
+    assert sorted(bvh.prim_ids.tolist()) == list(range(n)), "prim_ids is a permutation"
+
+    # triangle records: original vertices (zero-area ones collapsed), original ids
+    if n:
+        tri = vertices[faces[bvh.prim_ids]]
+        assert (bvh.tris["prim"] == bvh.prim_ids).all()
+        assert np.array_equal(bvh.tris["v0"], tri[:, 0])
+        e = np.cross(tri[:, 1].astype(np.float64) - tri[:, 0], tri[:, 2].astype(np.float64) - tri[:, 0])
+        degen = ~(e != 0).any(axis=1)
+        assert np.array_equal(bvh.tris["v1"][~degen], tri[~degen, 1])
+        assert np.array_equal(bvh.tris["v2"][~degen], tri[~degen, 2])
+        assert np.array_equal(bvh.tris["v1"][degen], tri[degen, 0])
+        assert int(degen.sum()) == bvh.stats["degenerate"]
+
+        # leaf boxes contain their triangles (original vertices)
+        for first, count, bmin, bmax, _ in leaves:
+            if count:
+                pts = tri[first : first + count].reshape(-1, 3)
+                assert (pts >= bmin).all() and (pts <= bmax).all()
+
+    # child boxes inside their parent's slot box (the slot box is exactly their union)
+    nodes = bvh.nodes
+    for parent, side, child in edges:
+        pmin = nodes[parent]["lmin" if side == 0 else "rmin"]
+        pmax = nodes[parent]["lmax" if side == 0 else "rmax"]
+        c = nodes[child]
+        cmin = np.minimum(c["lmin"], c["rmin"])
+        cmax = np.maximum(c["lmax"], c["rmax"])
+        assert (cmin >= pmin).all() and (cmax <= pmax).all()
+        assert np.array_equal(cmin, pmin) and np.array_equal(cmax, pmax)
+
+    depth = max(d for *_, d in leaves)
+    assert depth <= max_depth
+    st = bvh.stats
+    assert st["depth"] == depth
+    assert st["nodes"] == len(nodes)
+    assert st["leaves"] == sum(1 for _, c, *_ in leaves if c)
+    assert st["triangles"] == n
+    assert st["bytes"] == nodes.nbytes + bvh.tris.nbytes
+    assert st["build_ms"] > 0
+    assert np.isfinite(st["sah_cost"]) and st["sah_cost"] > 0 if n else True
+
+
+# ----------------------------------------------------------------------------------------------------------------
+# layout and invariants
+
+
+def test_byte_layout_matches_the_glsl_structs():
+    assert NODE_DTYPE.itemsize == 64 and TRI_DTYPE.itemsize == 48
+    off = {name: NODE_DTYPE.fields[name][1] for name in NODE_DTYPE.names}
+    assert off == {"lmin": 0, "left": 12, "lmax": 16, "right": 28, "rmin": 32, "lcount": 44, "rmax": 48, "rcount": 60}
+    toff = {name: TRI_DTYPE.fields[name][1] for name in TRI_DTYPE.names}
+    assert (toff["v0"], toff["prim"], toff["v1"], toff["v2"]) == (0, 12, 16, 32)
+    bvh = build_bvh(*sphere(2))
+    raw = np.frombuffer(bvh.nodes.tobytes(), dtype=np.uint32).reshape(-1, 16)
+    assert (raw[:, 3] == bvh.nodes["left"]).all() and (raw[:, 15] == bvh.nodes["rcount"]).all()
+    assert len(bvh.tris.tobytes()) == 48 * len(bvh.tris)
+
+
+@pytest.mark.parametrize("name", list(MESHES))
+def test_invariants(name):
+    v, f = MESHES[name]()
+    check_invariants(build_bvh(v, f), v, f)
+
+
+def test_invariants_larger_mesh_and_other_leaf_sizes():
+    v, f = sphere(6)  # 81920 triangles: several levels binned from samples
+    bvh = build_bvh(v, f)
+    check_invariants(bvh, v, f)
+    assert bvh.stats["depth"] <= 24
+    v, f = soup(3000)
+    for max_leaf in (1, 2, 8):
+        check_invariants(build_bvh(v, f, max_leaf=max_leaf), v, f, max_leaf=max_leaf)
+
+
+def test_float64_and_uint32_inputs_give_the_same_tree():
+    v, f = sphere(3)
+    a = build_bvh(v, f)
+    b = build_bvh(v.astype(np.float32), f.astype(np.uint32))
+    assert a.nodes.tobytes() == b.nodes.tobytes() and a.tris.tobytes() == b.tris.tobytes()
+
+
+def test_one_triangle():
+    v = np.array([[0, 0, 0], [1, 0, 0], [0, 1, 0]], dtype=np.float64)
+    bvh = build_bvh(v, [[0, 1, 2]])
+    check_invariants(bvh, v, [[0, 1, 2]])
+    assert bvh.stats["nodes"] == 1 and bvh.stats["leaves"] == 1 and bvh.stats["depth"] == 1
+    t, prim, u, w = traverse(bvh, [[0.2, 0.3, 1.0], [2, 2, 1]], [[0, 0, -2.0], [0, 0, -1]])
+    assert prim.tolist() == [0, -1]
+    assert t[0] == pytest.approx(0.5) and u[0] == pytest.approx(0.2) and w[0] == pytest.approx(0.3)
+    assert np.isinf(t[1])
+
+
+def test_two_triangles_and_no_triangles():
+    v = np.array([[0, 0, 0], [1, 0, 0], [0, 1, 0], [5, 0, 0], [6, 0, 0], [5, 1, 0]], dtype=np.float64)
+    f = [[0, 1, 2], [3, 4, 5]]
+    bvh = build_bvh(v, f)
+    check_invariants(bvh, v, f)
+    empty = build_bvh(np.zeros((0, 3)), np.zeros((0, 3), dtype=np.int64))
+    assert empty.stats["triangles"] == 0 and len(empty.prim_ids) == 0
+    assert len(empty.tris) == 1 and len(empty.nodes) == 1  # never an empty buffer
+    t, prim, _, _ = traverse(empty, [[0, 0, 1]], [[0, 0, -1]])
+    assert prim[0] == -1 and np.isinf(t[0])
+
+
+def test_degenerate_triangles_are_never_hit():
+    v, f = with_degenerates()
+    bvh = build_bvh(v, f)
+    assert bvh.stats["degenerate"] == 10
+    rng = np.random.default_rng(0)
+    degenerate = np.r_[300:305, len(f) - 5 : len(f)]
+    targets = v[f[degenerate]].mean(axis=1)  # aim straight at them (at the points they collapse to, too)
+    targets = np.concatenate([targets, v[f[degenerate, 0]]])
+    o = rng.uniform(-3, 3, (len(targets) * 20, 3))
+    d = np.repeat(targets, 20, axis=0) - o
+    _, prim, _, _ = traverse(bvh, o, d)
+    assert not np.isin(prim, degenerate).any()
+    assert np.array_equal(prim >= 0, reference_occluded(v, f, o, d))
+
+
+def test_coincident_centroids_split_by_count():
+    # 1000 triangles with the same box (duplicates and mirrored corners): no plane can separate them
+    lo, hi = np.array([0.0, 1.0, 2.0]), np.array([1.0, 3.0, 2.5])
+    a = [lo, [hi[0], lo[1], hi[2]], [lo[0], hi[1], hi[2]]]
+    b = [hi, [lo[0], hi[1], lo[2]], [hi[0], lo[1], lo[2]]]
+    v = np.array([a, b] * 500, dtype=np.float64).reshape(-1, 3)
+    f = np.arange(len(v)).reshape(-1, 3)
+    bvh = build_bvh(v, f)
+    check_invariants(bvh, v, f)
+    assert bvh.stats["depth"] == int(np.ceil(np.log2(1000 / 4)))  # median splits all the way down
+
+
+def test_depth_cap_holds_on_pathological_input():
+    v, f = ladder(150)
+    free = build_bvh(v, f, max_depth=60)
+    assert free.stats["depth"] > 10, "the ladder really is deep without a cap"
+    for cap in (32, 10, 6):
+        bvh = build_bvh(v, f, max_depth=cap)
+        check_invariants(bvh, v, f, max_depth=cap)
+        assert bvh.stats["depth"] <= cap
+    with pytest.raises(ConfigError):
+        build_bvh(v, f, max_depth=5)  # 150 triangles do not fit 4 * 2^5 leaf slots
+
+
+def test_bad_input_raises_scene_errors():
+    with pytest.raises(SceneError):
+        build_bvh(np.zeros((3, 2)), [[0, 1, 2]])
+    with pytest.raises(SceneError):
+        build_bvh(np.zeros((3, 3)), [[0, 1, 3]])
+    with pytest.raises(SceneError):
+        build_bvh(np.zeros((3, 3)), [[0.0, 1.0, 2.0]])
+    with pytest.raises(ConfigError):
+        build_bvh(np.zeros((3, 3)), [[0, 1, 2]], max_leaf=0)
+
+
+def test_sah_quality_is_sane():
+    bvh = build_bvh(*sphere(5))  # 20480 triangles
+    # A good binned SAH gives about 39 on this mesh; a median split on a space-filling curve about 60.
+    assert bvh.stats["sah_cost"] < 45
+
+
+# ----------------------------------------------------------------------------------------------------------------
+# traversal against the reference
+
+
+def random_rays(rng, n, v, spread=1.5):
+    lo, hi = v.min(0), v.max(0)
+    c, ext = (lo + hi) / 2, (hi - lo).max()
+    o = c + rng.uniform(-spread, spread, (n, 3)) * ext
+    d = c + rng.uniform(-0.5, 0.5, (n, 3)) * ext - o
+    d *= rng.uniform(0.3, 3.0, (n, 1)) / np.linalg.norm(d, axis=1, keepdims=True)  # not unit on purpose
+    return o.astype(np.float32), d.astype(np.float32)
+
+
+@pytest.mark.parametrize("name", ["sphere", "thin_box", "soup", "degenerate", "coincident", "ladder"])
+def test_traversal_matches_reference(name):
+    v, f = MESHES[name]()
+    bvh = build_bvh(v, f, max_depth=10 if name == "ladder" else 32)
+    rng = np.random.default_rng(11)
+    o, d = random_rays(rng, 1500, np.asarray(v))
+    if name == "ladder":  # aim at the triangles themselves: they span 14 orders of magnitude
+        vv = np.asarray(v)[np.asarray(f)]
+        pick = rng.integers(0, len(f), len(o))
+        target = vv[pick].mean(axis=1)
+        size = np.abs(vv[:, 1] - vv[:, 0]).max(axis=1)[pick]
+        o = (target + rng.normal(size=(len(o), 3)) * size[:, None] * 5).astype(np.float32)
+        d = ((target - o) * rng.uniform(0.3, 3, (len(o), 1))).astype(np.float32)
+    tmax = rng.uniform(0.5, 8.0, len(o)).astype(np.float32)
+    tmax[::4] = np.inf
+    t, prim, u, w = traverse(bvh, o, d, 0.0, tmax)
+    v = np.asarray(v, np.float32)  # the reference sees the vertices the GPU sees
+    t_ref, prim_ref, u_ref, w_ref = reference_intersect(v, f, o, d, tmax)
+    hit, hit_ref = prim >= 0, prim_ref >= 0
+    assert hit_ref.sum() > 100, "the rays do hit the mesh"
+    assert np.array_equal(hit, hit_ref)
+    np.testing.assert_allclose(t[hit], t_ref[hit], rtol=1e-4)
+    # prim ids where no other triangle is hit at (almost) the same t
+    tie = ties(v, f, o, d, t_ref, tmax)
+    sure = hit & ~tie
+    assert sure.sum() > 0.5 * hit.sum()
+    assert np.array_equal(prim[sure], prim_ref[sure])
+    np.testing.assert_allclose(u[sure], u_ref[sure], atol=1e-3)
+    np.testing.assert_allclose(w[sure], w_ref[sure], atol=1e-3)
+    # any-hit: the same set of occluded rays
+    _, prim_any, _, _ = traverse(bvh, o, d, 0.0, tmax, any_hit=True)
+    assert np.array_equal(prim_any >= 0, reference_occluded(v, f, o, d, tmax))
+
+
+def ties(v, f, o, d, t_ref, tmax, rel=1e-4):
+    """Rays whose closest hit t is matched within rel by a second triangle (shared edges, coplanar duplicates)."""
+    tri = _Triangles(v, f)
+    o64, d64 = np.asarray(o, np.float64), np.asarray(d, np.float64)
+    zero = np.zeros(len(o))
+    t, _, _, ok = _pairs(tri, o64, d64, zero, np.broadcast_to(np.asarray(tmax, np.float64), zero.shape))
+    near = ok & (np.abs(t - t_ref[:, None]) <= rel * np.abs(t_ref[:, None]))
+    return near.sum(axis=1) > 1
+
+
+def test_tmin_is_honoured():
+    v, f = sphere(3)
+    bvh = build_bvh(v, f)
+    o = np.zeros((4, 3), np.float32)
+    d = np.array([[1, 0, 0], [0, 2, 0], [0, 0, -1], [0.6, 0.8, 0]], np.float32)
+    t_near, *_ = traverse(bvh, o, d, 0.0, np.inf)
+    t_far, prim_far, *_ = traverse(bvh, o, d, 2.0, np.inf)  # the sphere is only crossed once from its centre
+    assert np.isfinite(t_near).all() and (prim_far == -1).all()
+
+
+# ----------------------------------------------------------------------------------------------------------------
+# watertightness: rays aimed exactly at shared edges and vertices of closed meshes
+
+
+def edge_and_vertex_targets(v, f, rng, per_edge=3):
+    v = np.asarray(v, np.float32).astype(np.float64)  # the GPU's vertices
+    edges = np.unique(np.sort(np.concatenate([f[:, [0, 1]], f[:, [1, 2]], f[:, [2, 0]]]), axis=1), axis=0)
+    s = rng.uniform(0, 1, (len(edges), per_edge, 1))
+    s[:, 0] = 0.5
+    pts = v[edges[:, :1]] * (1 - s) + v[edges[:, 1:]] * s
+    return np.concatenate([pts.reshape(-1, 3), v])
+
+
+@pytest.mark.parametrize("sub", [2, 3])
+def test_no_leaks_through_shared_edges_and_vertices(sub):
+    v, f = sphere(sub)
+    bvh = build_bvh(v, f)
+    rng = np.random.default_rng(sub)
+    targets = edge_and_vertex_targets(v, f, rng)
+    for origin in ([0.0, 0.0, 0.0], [0.13, -0.21, 0.07]):  # from inside: every ray must leave through the surface
+        o = np.broadcast_to(np.float32(origin), targets.shape)
+        d = (targets - origin).astype(np.float32)
+        _, prim, _, _ = traverse(bvh, o, d)
+        assert (prim >= 0).all(), f"{(prim < 0).sum()} of {len(d)} rays leaked out of the closed sphere"
+        _, prim_any, _, _ = traverse(bvh, o, d * 3, 0.0, 1.0, any_hit=True)
+        assert (prim_any >= 0).all()
+    # from outside, aimed at the same points: the sphere is convex, so every ray hits
+    far = targets * 4.0
+    _, prim, _, _ = traverse(bvh, far.astype(np.float32), (targets - far).astype(np.float32))
+    assert (prim >= 0).all()
+
+
+def test_no_leaks_through_a_thin_closed_box():
+    v, f = thin_box()
+    bvh = build_bvh(v, f)
+    rng = np.random.default_rng(4)
+    targets = edge_and_vertex_targets(v, f, rng, per_edge=2)
+    inside = np.array([0.1, 0.0, -0.05])  # inside the 2 mm slab
+    _, prim, _, _ = traverse(bvh, np.broadcast_to(inside, targets.shape), targets - inside)
+    assert (prim >= 0).all()
+
+
+# ----------------------------------------------------------------------------------------------------------------
+# the GLSL include compiles (where glslangValidator is installed)
+
+
+@pytest.mark.skipif(shutil.which("glslangValidator") is None, reason="glslangValidator not installed")
+@pytest.mark.parametrize("defines", ["", "#define BVH_SET 2\n#define BVH_BINDING 3\n#define BVH_STACK_SIZE 40\n"])
+def test_bvh_glsl_compiles(tmp_path, defines):
+    src = tmp_path / "probe.comp"
+    src.write_text(
+        "#version 450\n#extension GL_GOOGLE_include_directive : require\nlayout(local_size_x = 64) in;\n"
+        + defines
+        + '#include "bvh.glsl"\n#include "bvh.glsl"\n#include "rayutil.glsl"\n'
+        "layout(std430, set = 0, binding = 0) buffer Out { vec4 outv[]; };\n"
+        "void main() {\n"
+        "    vec3 o = offset_ray(vec3(1.0), vec3(0.0, 1.0, 0.0));\n"
+        "    BvhHit h = bvh_intersect(o, vec3(0.0, -1.0, 0.0), 0.0, 10.0);\n"
+        "    bool occ = bvh_occluded(o, vec3(0.0, -1.0, 0.0), 0.0, 10.0);\n"
+        "    outv[gl_GlobalInvocationID.x] = vec4(h.t, float(h.prim), h.u + h.v, occ ? 1.0 : 0.0);\n"
+        "}\n"
+    )
+    res = subprocess.run(
+        ["glslangValidator", "-V", "--target-env", "vulkan1.2", f"-I{ROOT / 'shaders/glsl/include'}", str(src),
+         "-o", str(tmp_path / "probe.spv")],
+        capture_output=True, text=True,
+    )
+    assert res.returncode == 0, res.stdout + res.stderr

@@ -318,3 +318,14 @@ def test_cli_soft_shadows_and_aov(tmp_path):
                          timeout=300)
     assert res.returncode == 1 and res.stderr.strip().splitlines() == [
         "error: setting shadows='blurry': expected one of hard, soft, seed-delta, reference, off"]
+
+
+def test_light_masks_must_fit_one_storage_buffer():
+    from types import SimpleNamespace
+
+    from engine.renderer import Targets
+    lavapipe = SimpleNamespace(limits=SimpleNamespace(maxStorageBufferRange=128 << 20))
+    Targets.check_capacity(lavapipe, 1920, 1080, 16)     # 126.6 MiB: fits
+    Targets.check_capacity(lavapipe, 2560, 1600, 8)
+    with pytest.raises(ConfigError, match=r"3840x2160 with 8 lights.*maxStorageBufferRange of 128 MiB"):
+        Targets.check_capacity(lavapipe, 3840, 2160, 8)

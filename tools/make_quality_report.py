@@ -123,7 +123,7 @@ def write_markdown(path, scene_path, size, frames, reference_samples, device_nam
         f"pixel per light per frame). Run it again to regenerate the images and this page.")
     add("")
     add("The scene: the terrace's pergola corner (scenes/penumbra.toml) under a sphere light of radius 0.5 above the "
-        "pergola's front edge and a sun of 1.5 degrees angular radius. The roof's slats are 6 cm wide, 18 cm apart "
+        "pergola's front edge and a sun of 1.5 degrees angular radius. The roof's slats are 6 cm wide, 21 cm apart "
         "and 2.3 m below the light: their penumbrae overlap into a grey ramp, while the crate, the ball and the posts "
         "cast contact shadows that stay sharp at their base.")
     add("")

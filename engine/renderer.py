@@ -301,6 +301,8 @@ class Renderer:
         self.ctx = None
         self._validation_errors: list[str] = []
         self._owns_ctx = context is None
+        self._commands: dict = {}          # set before anything can fail, so close() always works
+        self._geometry = self._scene_bvh = self.targets = None
         try:
             self.ctx = context if context is not None else Context(device=device, validation=validation or None)
             self._validation_errors = self.ctx.validation_errors  # the same list: still readable after close()
@@ -462,7 +464,8 @@ class Renderer:
             if obj is not None:
                 obj.destroy()
         self._geometry = self._scene_bvh = None
-        self.targets.destroy()
+        if self.targets is not None:
+            self.targets.destroy()
 
     def _invalidate_commands(self):
         if self._commands:
@@ -538,6 +541,7 @@ class Renderer:
             if cfg["denoise"]:
                 self.denoise.record(cmd, t, flags, n_lights)
                 ts.mark(cmd, "denoise")
+                _barrier(cmd)
             else:
                 for name in filtered:
                     _copy(cmd, t.signals[name].cur, t.signals[name].final)

@@ -1,0 +1,112 @@
+"""The benchmark machinery (engine/bench.py) on a tiny generated scene: the JSON has every section and figure, the
+throughputs are positive, and the peers (embreex, Open3D) answer the same rays as our Tracer does. Nothing here
+asserts a timing."""
+import io
+import json
+
+import numpy as np
+import pytest
+
+from engine.bench import PEERS, BenchConfig, Progress, agreement, format_report, run_bench
+from engine.bench_scenes import generated_mesh
+
+
+def _peer_available(name):
+    try:
+        __import__({"embreex": "embreex.rtcore_scene", "open3d": "open3d"}[name])
+        return True
+    except ImportError:
+        return False
+
+
+@pytest.fixture(scope="module")
+def results(tmp_path_factory):
+    out = tmp_path_factory.mktemp("bench")
+    cfg = BenchConfig(sections=("build", "trace", "frame"), size=(160, 96), validation=True,
+                      build_sizes=(5000,), build_reps=1, generated_tris=5000, real_scene=None,
+                      frame_scenes=("generated",), reps=1, warmup=0, frame_reps=1, frame_warmup=0, random_rays=4000,
+                      thread_probe=False)
+    res = run_bench(cfg, json_path=out / "bench.json", plot_path=out / "bench.png", progress=False)
+    return res, out
+
+
+def test_json_has_every_section_and_figure(results):
+    res, out = results
+    data = json.loads((out / "bench.json").read_text())
+    assert set(data) >= {"meta", "build", "trace", "frame", "targets"}
+    meta = data["meta"]
+    assert meta["date"] and meta["command"]
+    assert meta["machine"]["cpu"] and meta["machine"]["cores"] >= 1
+    assert meta["device"]["name"] and meta["device"]["type"]
+    assert meta["validation_errors"] == []
+
+    (b,) = data["build"]
+    assert b["triangles"] > 4000 and b["ms"] > 0 and b["ms_per_million"] > 0
+    assert b["sah_cost"] > 0 and b["bytes_per_triangle"] > 0
+
+    (sc,) = data["trace"]["scenes"]
+    assert sc["scene"] == "generated" and sc["triangles"] > 4000
+    assert [r["name"] for r in sc["raysets"]] == ["shadow", "ao", "random"]
+    for rs in sc["raysets"]:
+        assert rs["rays"] > 100, rs["note"]
+        ours = rs["results"]["ours"]
+        assert ours["mrays_gpu"] > 0 and ours["mrays_wall"] > 0 and ours["gpu_ms"] > 0
+        for peer in PEERS:
+            if peer in rs["results"]:
+                assert rs["results"][peer]["mrays_wall"] > 0
+                assert rs["ratio"][peer]["wall"] > 0 and rs["ratio"][peer]["gpu"] > 0
+            else:
+                assert "skipped" in sc["engines"][peer]
+
+    (fr,) = data["frame"]
+    assert fr["size"] == [160, 96]
+    assert {"gbuffer", "shadows", "ao"} <= set(fr["passes_ms"])
+    assert all(v >= 0 for v in fr["passes_ms"].values()) and fr["gpu_total_ms"] > 0
+    assert fr["render_wall_ms"] > 0 and fr["submit_host_ms"] > 0
+
+    assert data["targets"] and all(t["status"] in ("pass", "miss", "not measured") for t in data["targets"])
+    assert any("Open3D" in t["target"] for t in data["targets"]) or not _peer_available("open3d")
+    assert (out / "bench.png").stat().st_size > 10_000
+    report = format_report(res)
+    assert "Mrays/s" in report and "BVH build" in report and "total GPU" in report
+
+
+@pytest.mark.parametrize("peer", PEERS)
+def test_peers_agree_with_ours(results, peer):
+    if not _peer_available(peer):
+        pytest.skip(f"{peer} is not installed")
+    res, _ = results
+    for rs in res["trace"]["scenes"][0]["raysets"]:
+        agree = rs["agreement"][peer]
+        assert agree["hit_miss"] > 0.99, (rs["name"], agree)
+        if rs["kind"] == "intersect":
+            assert agree["t_close"] > 0.99 and agree["same_prim"] > 0.99, agree
+    # the ray sets are not trivial: some rays hit, some miss
+    hits = {rs["name"]: rs["agreement"][peer]["ours_hit_fraction"] for rs in res["trace"]["scenes"][0]["raysets"]}
+    assert 0 < hits["random"] < 1 and 0 < hits["ao"] < 1, hits
+
+
+def test_agreement_counts_mismatches():
+    ours = np.array([True, False, True, True])
+    assert agreement("occluded", ours, np.array([True, False, False, True]), 1.0)["hit_miss"] == 0.75
+    t = np.array([1.0, np.inf, 2.0], np.float32)
+    p = np.array([3, -1, 5])
+    a = agreement("intersect", (t, p), (np.array([1.0, 4.0, 2.5], np.float32), np.array([3, 7, 5])), 1.0)
+    assert a["hit_miss"] == pytest.approx(2 / 3) and a["t_close"] == 0.5 and a["same_prim"] == 1.0
+
+
+def test_progress_bar_and_generated_mesh():
+    buf = io.StringIO()
+    p = Progress(4, stream=buf, width=8)
+    for label in ("a", "b", "c", "d"):
+        p.step(f"trace: {label}")
+        p.advance()
+    p.finish()
+    lines = buf.getvalue().splitlines()
+    assert lines[0].startswith("[........] 1/4 trace: a")
+    assert lines[2].startswith("[####....] 3/4 trace: c")
+    assert lines[-1].startswith("[########] 4/4 done")
+    v, f = generated_mesh(20_000, seed=3)
+    assert abs(len(f) - 20_000) < 2_000 and f.max() < len(v) and np.isfinite(v).all()
+    v2, f2 = generated_mesh(20_000, seed=3)
+    assert np.array_equal(v, v2) and np.array_equal(f, f2)

@@ -4,15 +4,17 @@ How it works
 1. Triangle boxes and centres from the float32 vertices (the GPU's own values, so the final boxes are exact).
 2. The triangles are sorted along a 3D Morton curve of their centres (one np.sort of packed uint64 keys). The order
    gives memory locality to everything below and makes "every 2^j-th triangle" a spatially stratified sample.
-3. The tree grows one level at a time; every node of a level is handled by the same numpy calls, so Python loops
-   run over levels, never over nodes or triangles. Each active triangle carries the slot of its node.
-   a. Each node lays a G x G x G grid of cells over its box (G = 2, 4 or 8 as the node shrinks) and every
+3. The tree grows top-down in passes; every node of a pass is handled by the same numpy calls, so Python loops run
+   over passes, never over nodes or triangles. Each active triangle carries the slot of its node.
+   a. Each node lays a G x G x G grid of cells over its box (G = 8, 4, then 2 as the node shrinks) and every
       triangle goes to the cell of its centre. One bincount and six np.minimum.at calls give the count and box of
-      every cell; summing/unioning the grid over two axes gives G bins along each of the three axes at once.
-      Big nodes take these statistics from a Morton-stratified sample (every 2^j-th triangle) of a few thousand.
-   b. SAH over the G - 1 planes of each axis (C_trav = C_tri = 1; ties go to the most balanced split).
-   c. Every triangle of the node moves to the side of the chosen plane, computed with exactly the same float32
-      arithmetic as its cell, so the counts of nodes binned without sampling are exact.
+      every cell; unioning the grid over two axes gives G bins along each of the three axes at once. Big nodes
+      take these statistics from a Morton-stratified sample (every 2^j-th triangle).
+   b. SAH over the G - 1 planes of each axis (C_trav = C_tri = 1; ties go to the most balanced split). On 2^3
+      grids (nodes of at most GRID2_MAX triangles) the same statistics also give each child's best split along
+      the two other axes, so those triangles go down two levels in one pass.
+   c. Every triangle moves to the side of the chosen plane, computed with exactly the same float32 arithmetic as
+      its cell, so the counts of nodes binned without sampling are exact.
    d. Children with at most max_leaf triangles become leaves; their triangles leave the active set.
    A node with no usable plane (all centres in one cell, e.g. coincident centroids) is split at its median in
    Morton order.
@@ -20,8 +22,8 @@ How it works
    child above its cap are not used, and a node whose counts are only estimated and could break the cap is split
    at its median. So leaves are never deeper than max_depth, whatever the geometry, and the GPU traversal stack
    (BVH_STACK_SIZE) cannot overflow.
-5. Triangles are ordered by leaf; leaf boxes come from one reduceat, interior boxes from one union per node bottom
-   up, and everything is packed to the layout of engine/bvh/layout.py.
+5. Triangles are ordered by leaf; leaf boxes come from np.minimum.at keyed by leaf, interior boxes from one union
+   per node bottom up, and everything is packed to the layout of engine/bvh/layout.py.
 
 Boxes are carried as six float32 rows (min x, min y, min z, -max x, -max y, -max z) so that the union of boxes is a
 single elementwise minimum.
@@ -35,7 +37,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from ..errors import ConfigError, SceneError
-from .layout import LEAF_BIT, TRI_DTYPE, pack_nodes, pack_tris
+from .layout import LEAF_BIT, TRI_DTYPE, pack_nodes
 
 #: Default depth cap; equal to the default BVH_STACK_SIZE of bvh.glsl (the traversal needs depth - 1 entries).
 DEFAULT_MAX_DEPTH = 32
@@ -82,48 +84,53 @@ def build_bvh(vertices, faces, *, max_leaf: int = 4, max_depth: int = DEFAULT_MA
     if n_tri > max_leaf << max_depth:
         raise ConfigError(f"build_bvh: {n_tri} triangles do not fit max_leaf={max_leaf}, max_depth={max_depth}")
 
-    # corner[c][a]: coordinate a of corner c of every triangle, original order
-    corner = [[vt[a].take(ft[c]) for a in range(3)] for c in range(3)]
+    # Morton order of the box centres
+    corner = [[vt[a].take(ft[c]) for a in range(3)] for c in range(3)]  # corner[c][a], original order
     lo = [np.minimum(np.minimum(corner[0][a], corner[1][a]), corner[2][a]) for a in range(3)]
     hi = [np.maximum(np.maximum(corner[0][a], corner[1][a]), corner[2][a]) for a in range(3)]
     morton = _morton_order(lo, hi, n_tri)
+    del corner, lo, hi
 
-    # Morton-sorted boxes (six rows) and centres
-    box = np.empty((6, n_tri), dtype=np.float32)
+    # corners in Morton order; from here on every per-triangle array is in that order, so the leaf-order
+    # gathers at the end are nearly sequential
+    ft_sorted = ft.take(morton, axis=1)
+    corner = [[vt[a].take(ft_sorted[c]) for a in range(3)] for c in range(3)]
+    del ft_sorted
+    box = np.empty((6, n_tri), dtype=np.float32)  # min xyz, -max xyz
     cen = np.empty((3, n_tri), dtype=np.float32)
     for a in range(3):
-        lo[a].take(morton, out=box[a])
-        hi[a].take(morton, out=box[3 + a])
+        np.minimum(np.minimum(corner[0][a], corner[1][a]), corner[2][a], out=box[a])
+        np.maximum(np.maximum(corner[0][a], corner[1][a]), corner[2][a], out=box[3 + a])
         np.add(box[a], box[3 + a], out=cen[a])
         cen[a] *= np.float32(0.5)
         np.negative(box[3 + a], out=box[3 + a])
-    del lo, hi
 
     if n_tri >= 2:
-        levels, leaf_of, leaf_size = _grow(box, cen, max_leaf, max_depth)
+        records, leaf_of, leaf_size, leaf_depth = _grow(box, cen, max_leaf, max_depth)
     else:
-        levels, leaf_of, leaf_size = _trivial(n_tri)
+        records, leaf_of, leaf_size, leaf_depth = _trivial(n_tri)
     slot_tid, leaf_first = _leaf_order(leaf_of, leaf_size)
-    words, counts, child_box, node_box, leaf_box, depth = _finish(levels, box, slot_tid, leaf_first, leaf_size)
+    words, counts, child_box, node_box, leaf_box = _finish(records, box, leaf_of, leaf_first, leaf_size)
 
-    # triangles in leaf order
+    # triangles in leaf order: (v0, prim) (v1, 0) (v2, 0), zero-area ones collapsed onto v0
     prim_ids = morton.take(slot_tid).astype(np.int32)
-    v = [np.stack([corner[c][a].take(prim_ids) for a in range(3)], axis=1) for c in range(3)]
-    degenerate = _degenerate(v[0], v[1], v[2])
+    tris = np.zeros(max(n_tri, 1), dtype=TRI_DTYPE)  # never an empty buffer: a lone degenerate record
+    flat = tris.view(np.float32).reshape(-1, 12)[:n_tri]
+    for c in range(3):
+        for a in range(3):
+            flat[:, 4 * c + a] = corner[c][a].take(slot_tid)
+    tris["prim"][:n_tri] = prim_ids
+    degenerate = _degenerate(flat)
     if degenerate.any():
-        v[1][degenerate] = v[0][degenerate]
-        v[2][degenerate] = v[0][degenerate]
-    if n_tri:
-        tris = pack_tris(v[0], v[1], v[2], prim_ids)
-    else:  # never an empty buffer: one degenerate record that nothing can hit
-        tris = np.zeros(1, dtype=TRI_DTYPE)
+        flat[degenerate, 4:7] = flat[degenerate, 0:3]
+        flat[degenerate, 8:11] = flat[degenerate, 0:3]
     nodes = pack_nodes(words, counts, child_box)
 
     stats = {
         "build_ms": (time.perf_counter() - t0) * 1e3,
         "nodes": int(len(nodes)),
         "leaves": int((leaf_size > 0).sum()),
-        "depth": int(depth),
+        "depth": int(leaf_depth.max()),
         "sah_cost": _sah_cost(node_box, leaf_box, leaf_size, n_tri),
         "triangles": int(n_tri),
         "degenerate": int(degenerate.sum()),
@@ -206,48 +213,38 @@ def _half_area(b: np.ndarray) -> np.ndarray:
     return sx * sy + sz * (sx + sy)
 
 
-def _scan_min(x: np.ndarray, reverse: bool = False) -> np.ndarray:
-    """Inclusive running minimum along the last (short) axis."""
-    out = x.copy()
-    g = x.shape[-1]
-    if reverse:
-        for i in range(g - 2, -1, -1):
-            np.minimum(out[..., i], out[..., i + 1], out=out[..., i])
-    else:
-        for i in range(1, g):
-            np.minimum(out[..., i], out[..., i - 1], out=out[..., i])
-    return out
-
-
 @dataclass
-class _Level:
-    """Interior nodes of one depth, in slot order; child[k, side] is a next-level slot (kind 0) or a leaf (kind 1)."""
+class _Record:
+    """Interior nodes made together. child[k, side] indexes record rec[k, side], or is a leaf id where rec is -1."""
 
     child: np.ndarray  # (K, 2) int64
-    kind: np.ndarray  # (K, 2) int8
+    rec: np.ndarray  # (K, 2) int64
 
 
 def _grow(box: np.ndarray, cen: np.ndarray, max_leaf: int, max_depth: int):
-    """Build the topology. Returns the levels, the leaf of every (sorted) triangle and every leaf's size."""
+    """Build the topology: records of interior nodes (node 0 = record 0, row 0 is the root), the leaf of every
+    (sorted) triangle, and every leaf's size and depth."""
     n_tri = box.shape[1]
-    cen_flat = cen.reshape(-1)
+    cen_rows = np.ascontiguousarray(cen.T).reshape(-1)  # (x, y, z) of triangle i at 3 i .. 3 i + 2
 
     tid = np.arange(n_tri, dtype=np.intp)  # active triangles (sorted positions), always increasing
-    slot = np.zeros(n_tri, dtype=np.intp)  # their node's slot in the current level
-    count = np.array([n_tri], dtype=np.int64)  # triangles per node
+    slot = np.zeros(n_tri, dtype=np.intp)  # their node's slot among the active nodes
+    count = np.array([n_tri], dtype=np.int64)  # triangles per active node
+    depth = np.zeros(1, dtype=np.int64)  # depth per active node (the root is at 0)
     dom = np.concatenate([box[:3].min(axis=1), -box[3:].min(axis=1)]).reshape(6, 1)  # binning domain lo, hi
 
     leaf_of = np.empty(n_tri, dtype=np.int64)
     leaf_sizes: list[np.ndarray] = []
-    levels: list[_Level] = []
+    leaf_depths: list[np.ndarray] = []
+    records: list[_Record] = []
     n_leaves = 0
-    depth = 0
     while count.size:
-        if depth >= max_depth:  # the caps make this unreachable
+        if depth.max() >= max_depth:  # the caps make this unreachable
             raise AssertionError("BVH depth cap violated")
         k_nodes = count.size
-        cap = min(max_leaf << (max_depth - depth - 1), n_tri)
-        identity = tid.size == n_tri  # no triangle has left yet: tid is 0..n-1 and needs no gathers
+        room = np.minimum(max_depth - depth - 1, 40)  # levels left below the children (2^40 > any mesh)
+        cap = np.minimum(np.left_shift(max_leaf, room), n_tri)  # children's size limit
+        cap2 = np.where(room >= 1, np.minimum(np.left_shift(max_leaf, np.maximum(room - 1, 0)), n_tri), 0)
 
         # grid and sampling per node
         grid = np.where(count <= GRID2_MAX, 2, np.where(count <= GRID4_MAX, 4, 8)).astype(np.int64)
@@ -261,18 +258,26 @@ def _grow(box: np.ndarray, cen: np.ndarray, max_leaf: int, max_depth: int):
         off = (-dom[:3] * inv).astype(np.float32)  # cell coordinate = c * inv + off
         gmax = grid - 1
 
-        # cells of node k: cell_off[k] + (x * G + y) * G + z; nodes with the same grid size are adjacent, so
-        # each group's cells reshape to (group size, G, G, G)
+        # cell (x, y, z) of node k sits at cell_base[k] + ((x * G + y) * G + z) * cell_step[k]. Nodes with the
+        # same grid size form a group with adjacent cells: node-major (step 1) for 4^3 and 8^3 grids, which
+        # keeps the scatter below local; cell-major (step = group size) for the many small 2^3 grids, which the
+        # octant SAH reads without a transpose.
         by_grid = np.argsort(grid, kind="stable")
-        ncell = grid.take(by_grid) ** 3
-        cell_off = np.empty(k_nodes, dtype=np.int64)
-        cell_off[by_grid] = np.cumsum(ncell) - ncell
-        n_cells = int(ncell.sum())
+        cell_base = np.empty(k_nodes, dtype=np.int64)
+        cell_step = np.ones(k_nodes, dtype=np.int64)
         groups = []
+        n_cells = 0
         for gsize in (2, 4, 8):
             members = by_grid[grid.take(by_grid) == gsize]
             if members.size:
-                groups.append((gsize, members, int(cell_off[members[0]])))
+                local = np.arange(members.size)
+                if gsize == 2:
+                    cell_base[members] = n_cells + local
+                    cell_step[members] = members.size
+                else:
+                    cell_base[members] = n_cells + local * gsize**3
+                groups.append((gsize, members, n_cells))
+                n_cells += members.size * gsize**3
 
         # statistics: one cell per (sampled) triangle
         if exact.all():
@@ -291,84 +296,112 @@ def _grow(box: np.ndarray, cen: np.ndarray, max_leaf: int, max_depth: int):
         key += cells[1]
         key *= g
         key += cells[2]
-        key += cell_off.take(s_slot)
+        key *= cell_step.take(s_slot)
+        key += cell_base.take(s_slot)
         cell_count = np.bincount(key, minlength=n_cells)
         cell_box = np.full((6, n_cells), np.inf, dtype=np.float32)
         for r in range(6):
             np.minimum.at(cell_box[r], key, box[r] if s_ident else box[r].take(s_tid))
 
-        # SAH per group
+        # SAH per group. Nodes on 2^3 grids also choose their children's splits from the same statistics
+        # (each half is four cells: one plane along each of the two other axes), so that their triangles move
+        # down two levels in this pass.
         axis = np.zeros(k_nodes, dtype=np.int64)
         plane = np.zeros(k_nodes, dtype=np.int64)
         found = np.zeros(k_nodes, dtype=bool)
         child_dom = np.empty((2, 6, k_nodes), dtype=np.float32)
+        axis2 = np.zeros((2, k_nodes), dtype=np.int64)  # per side: the child's axis (plane: the middle)
+        found2 = np.zeros((2, k_nodes), dtype=bool)
+        grand_dom = np.empty((2, 2, 6, k_nodes), dtype=np.float32)  # [side, side of the child]
         for gsize, members, first in groups:
             stop = first + members.size * gsize**3
-            sah = _octant_sah if gsize == 2 else _grid_sah
-            res = sah(cell_count[first:stop], cell_box[:, first:stop], gsize, exact.take(members), cap)
-            axis[members], plane[members], found[members], child_dom[:, :, members] = res
+            cnt_g, box_g, ex_g = cell_count[first:stop], cell_box[:, first:stop], exact.take(members)
+            if gsize == 2:
+                res = _octant_sah(cnt_g, box_g, ex_g, cap.take(members), cap2.take(members), max_leaf)
+                axis[members], found[members], child_dom[:, :, members] = res[:3]
+                plane[members] = 1
+                axis2[:, members], found2[:, members], grand_dom[:, :, :, members] = res[3:]
+            else:
+                res = _grid_sah(cnt_g, box_g, gsize, ex_g, cap.take(members))
+                axis[members], plane[members], found[members], child_dom[:, :, members] = res
         # nodes whose counts are estimates and could break the depth cap are split at the median
         median = ~found | (~exact & (count > cap))
+        found2 &= ~median
 
-        # every active triangle goes left or right
+        # every active triangle goes left or right, and on 2^3 grids on into a grandchild
         a_t = axis.take(slot)
         if exact.all():  # the cells of all triangles are at hand
             a_t *= slot.size
             a_t += np.arange(slot.size)
             right = cells.reshape(-1).take(a_t) >= plane.take(slot)
         else:
-            a_t *= n_tri
-            a_t += tid
-            c_t = cen_flat.take(a_t)
-            a_t -= tid
-            a_t //= n_tri
+            found2[:] = False
+            at_node = slot * 3
+            at_node += a_t
+            a_t += tid * 3
+            c_t = cen_rows.take(a_t)  # each triangle's centre on its node's axis
             if not exact.any():  # estimates only: a plain plane test in world space is enough
                 with np.errstate(divide="ignore", invalid="ignore"):
-                    split = (plane - off) / np.where(inv > 0, inv, 1)
-                a_t *= k_nodes
-                a_t += slot
-                right = c_t >= split.reshape(-1).take(a_t)
+                    split = (plane - off) / np.where(inv > 0, inv, 1)  # (3, K)
+                right = c_t >= split.T.reshape(-1).take(at_node)
             else:  # the same arithmetic as the cells, so that exact counts stay exact
-                a_t *= k_nodes
-                a_t += slot
-                c_t = _cell_axis(c_t, inv.reshape(-1), off.reshape(-1), gmax.take(slot), a_t)
+                c_t = _cell_axis(c_t, inv.T.reshape(-1), off.T.reshape(-1), gmax.take(slot), at_node)
                 right = c_t >= plane.take(slot)
         if median.any():
             _median_sides(right, slot, count, median)
+        dest = 2 * slot + right  # outcome: child 2k + side, or grandchild 2K + 2 child + side
+        split2 = found2.T.reshape(-1)  # (2K,) the child is split in this pass too
+        if split2.any():
+            moving = np.flatnonzero(split2.take(dest))
+            child = dest.take(moving)
+            at = axis2.T.reshape(-1).take(child) * slot.size
+            at += moving
+            dest[moving] = 2 * k_nodes + 2 * child + cells.reshape(-1).take(at)  # grid 2: the plane is cell 1
+        n_out = 6 * k_nodes
+        ocount = np.bincount(dest, minlength=n_out)
 
-        child = 2 * slot + right
-        ccount = np.bincount(child, minlength=2 * k_nodes)
-        inner = ccount > max_leaf
-        n_inner = int(inner.sum())
-        relabel = np.full(2 * k_nodes, -1, dtype=np.intp)
-        relabel[inner] = np.arange(n_inner)
-        leaf_id = np.full(2 * k_nodes, -1, dtype=np.int64)
-        n_new = 2 * k_nodes - n_inner
-        leaf_id[~inner] = n_leaves + np.arange(n_new)
-        leaf_sizes.append(ccount[~inner])
-        n_leaves += n_new
-        levels.append(
-            _Level(
-                child=np.where(inner, relabel, leaf_id).reshape(k_nodes, 2),
-                kind=(~inner).astype(np.int8).reshape(k_nodes, 2),
-            )
-        )
+        # outcomes: intermediate nodes (children split here), new active nodes, leaves
+        is_grand = np.arange(n_out) >= 2 * k_nodes
+        used = np.concatenate([~split2, np.repeat(split2, 2)])
+        inner = used & (ocount > max_leaf)
+        leaf = used & ~inner
+        n_inner, n_leaf, n_mid = int(inner.sum()), int(leaf.sum()), int(split2.sum())
+        out_index = np.full(n_out, -1, dtype=np.int64)
+        out_index[inner] = np.arange(n_inner)
+        out_index[leaf] = n_leaves + np.arange(n_leaf)
+        out_index[: 2 * k_nodes][split2] = np.arange(n_mid)
+        rec_here = len(records)
+        rec_mid = rec_here + 1
+        rec_next = rec_here + (2 if n_mid else 1)
+        out_rec = np.where(inner, rec_next, -1)
+        out_rec[: 2 * k_nodes][split2] = rec_mid
+        records.append(_Record(child=out_index[: 2 * k_nodes].reshape(k_nodes, 2),
+                               rec=out_rec[: 2 * k_nodes].reshape(k_nodes, 2)))
+        if n_mid:
+            grand = 2 * k_nodes + 2 * np.flatnonzero(split2)
+            records.append(_Record(child=np.stack([out_index[grand], out_index[grand + 1]], axis=1),
+                                   rec=np.stack([out_rec[grand], out_rec[grand + 1]], axis=1)))
+        out_depth = np.concatenate([np.repeat(depth, 2), np.repeat(depth, 4)]) + 1 + is_grand
+        leaf_sizes.append(ocount[leaf])
+        leaf_depths.append(out_depth[leaf])
+        n_leaves += n_leaf
 
-        # the next level
-        if n_inner == 2 * k_nodes:
-            slot = relabel.take(child)
-        else:
-            new_slot = relabel.take(child)
-            stay = new_slot >= 0
+        # the next pass
+        new_slot = out_index.take(dest)
+        new_slot[~inner.take(dest)] = -1
+        stay = new_slot >= 0
+        if not stay.all():
             gone = ~stay
-            leaf_of[tid[gone]] = leaf_id.take(child[gone])
-            tid, slot = tid[stay], new_slot[stay]
-        count = ccount[inner]
-        # children of median splits keep the parent's domain
+            leaf_of[tid[gone]] = out_index.take(dest[gone])
+            tid, new_slot = tid[stay], new_slot[stay]
+        slot = new_slot
+        count = ocount[inner]
+        depth = out_depth[inner]
+        # domains: children of median splits keep the parent's
         cdom = np.where(median[None, None, :], dom[None].astype(np.float32), child_dom)  # (2, 6, K)
-        dom = cdom.transpose(1, 2, 0).reshape(6, 2 * k_nodes)[:, inner]
-        depth += 1
-    return levels, leaf_of, np.concatenate(leaf_sizes)
+        gdom = grand_dom.transpose(2, 3, 0, 1).reshape(6, 4 * k_nodes)  # grandchild 2 child + side order
+        dom = np.concatenate([cdom.transpose(1, 2, 0).reshape(6, 2 * k_nodes), gdom], axis=1)[:, inner]
+    return records, leaf_of, np.concatenate(leaf_sizes), np.concatenate(leaf_depths)
 
 
 def _cell_axis(c, inv, off, gmax_t, idx, out=None):
@@ -403,7 +436,7 @@ def _slabs(x: np.ndarray, op):
     return _fold(xy, lead + 1, op), _fold(xy, lead, op), _fold(yz, lead, op)
 
 
-def _grid_sah(cnt, cbox, g: int, exact: np.ndarray, cap: int):
+def _grid_sah(cnt, cbox, g: int, exact: np.ndarray, cap: np.ndarray):
     """Best plane of k nodes binned on g^3 grids (node-major cells, (k, g^3) and (6, k, g^3)).
 
     Returns axis, plane (first cell index on the right), found, and the two children's domains (2, 6, k) as boxes
@@ -432,7 +465,7 @@ def _grid_sah(cnt, cbox, g: int, exact: np.ndarray, cap: int):
             a_p = _half_area(pre[:, -1]).astype(np.float64)
             cost = a_l * n_l + a_r * n_r + (a_p + 1e-30) * 1e-6 * np.abs(n_l - n_r)
         ok = (n_l > 0) & (n_r > 0)
-        if not exact.all() or cap < n_l[-1].max(initial=0) + slab_n[-1].max(initial=0):
+        if not exact.all() or (cap < n_l[-1] + slab_n[-1]).any():
             ok &= ~exact | ((n_l <= cap) & (n_r <= cap))
         costs[a] = np.where(ok, cost, np.inf)
         pres.append(pre)
@@ -453,42 +486,88 @@ def _grid_sah(cnt, cbox, g: int, exact: np.ndarray, cap: int):
     return axis, j + 1, found, child
 
 
-def _octant_sah(cnt, cbox, g: int, exact: np.ndarray, cap: int):
-    """_grid_sah for g = 2, where each axis has one plane and its halves are fixed sets of four cells."""
+# The 2 x 2 x 2 grid of _octant_sah: cell = x * 4 + y * 2 + z. An "edge" is a pair of cells that differ along one
+# axis (12 of them); each half of a first split is two edges, each half of a second split is one edge.
+_BITS = (4, 2, 1)
+_EDGES = [(d, c) for d in range(3) for c in range(8) if not c & _BITS[d]]  # (direction, cell with its bit clear)
+_EDGE_ID = {e: i for i, e in enumerate(_EDGES)}
+_OTHERS = ((1, 2), (0, 2), (0, 1))
+# _FACE_EDGES[a][s]: the two edges (along the first other axis) whose union is the half of side s along axis a
+_FACE_EDGES = [[[_EDGE_ID[(_OTHERS[a][0], c)] for c in range(8)
+                 if bool(c & _BITS[a]) == bool(s) and not c & _BITS[_OTHERS[a][0]]] for s in (0, 1)] for a in range(3)]
+# _SPLIT_EDGES[a][s][j] = (left, right): halves of side s of axis a, split along axis _OTHERS[a][j]; each is an edge
+# along the remaining axis
+_SPLIT_EDGES = [[[tuple(_EDGE_ID[(3 - a - _OTHERS[a][j], (_BITS[a] if s else 0) | (_BITS[_OTHERS[a][j]] if t else 0))]
+                        for t in (0, 1)) for j in (0, 1)] for s in (0, 1)] for a in range(3)]
+
+
+def _octant_sah(cnt, cbox, exact: np.ndarray, cap: np.ndarray, cap2: np.ndarray, max_leaf: int):
+    """SAH of nodes binned on 2^3 grids (cell-major: (8, k) counts, (6, 8, k) boxes).
+
+    Each axis has one plane (the middle). Returns the node's axis, found, its children's boxes (2, 6, k), then for
+    each child (side 0, 1) the best split of its half along the two other axes: axis2 (2, k), found2 (2, k)
+    (false where the child is a leaf anyway or the grid cannot split it), and the grandchildren's boxes
+    (2, 2, 6, k).
+    """
     k = exact.size
-    cnt = np.ascontiguousarray(cnt.reshape(k, 8).T)  # (8, k), cell = x * 4 + y * 2 + z
-    cbox = np.ascontiguousarray(cbox.reshape(6, k, 8).transpose(0, 2, 1))  # (6, 8, k)
-    n_all = cnt.sum(axis=0)
-    best = np.full(k, np.inf)
-    axis = np.zeros(k, dtype=np.int64)
-    child = np.empty((2, 6, k), dtype=np.float32)
-    a_p = None
-    for a, bit in enumerate((4, 2, 1)):
-        lo_cells = [i for i in range(8) if not i & bit]
-        hi_cells = [i for i in range(8) if i & bit]
-        bl = np.minimum(np.minimum(cbox[:, lo_cells[0]], cbox[:, lo_cells[1]]),
-                        np.minimum(cbox[:, lo_cells[2]], cbox[:, lo_cells[3]]))
-        br = np.minimum(np.minimum(cbox[:, hi_cells[0]], cbox[:, hi_cells[1]]),
-                        np.minimum(cbox[:, hi_cells[2]], cbox[:, hi_cells[3]]))
-        n_l = cnt[lo_cells[0]] + cnt[lo_cells[1]] + cnt[lo_cells[2]] + cnt[lo_cells[3]]
-        n_r = n_all - n_l
-        if a == 0:
-            with np.errstate(invalid="ignore", over="ignore"):
-                a_p = _half_area(np.minimum(bl, br)).astype(np.float64)
-        with np.errstate(invalid="ignore", over="ignore"):
-            cost = (_half_area(bl).astype(np.float64) * n_l + _half_area(br).astype(np.float64) * n_r
-                    + (a_p + 1e-30) * 1e-6 * np.abs(n_l - n_r))
-        ok = (n_l > 0) & (n_r > 0)
-        if not exact.all() or cap < n_all.max(initial=0):
-            ok &= ~exact | ((n_l <= cap) & (n_r <= cap))
-        cost[~ok] = np.inf
-        better = cost < best
-        best[better] = cost[better]
-        axis[better] = a
-        child[0][:, better] = bl[:, better]
-        child[1][:, better] = br[:, better]
+    cnt = cnt.reshape(8, k)
+    cbox = cbox.reshape(6, 8, k)
+    ebox = np.empty((12, 6, k), dtype=np.float32)
+    ecnt = np.empty((12, k), dtype=np.int64)
+    for e, (d, c) in enumerate(_EDGES):
+        np.minimum(cbox[:, c], cbox[:, c | _BITS[d]], out=ebox[e])
+        np.add(cnt[c], cnt[c | _BITS[d]], out=ecnt[e])
+    with np.errstate(invalid="ignore", over="ignore"):
+        earea = _half_area(ebox.transpose(1, 0, 2)).astype(np.float64)  # (12, k)
+        fbox = np.empty((3, 2, 6, k), dtype=np.float32)
+        fcnt = np.empty((3, 2, k), dtype=np.int64)
+        for a in range(3):
+            for side in (0, 1):
+                e0, e1 = _FACE_EDGES[a][side]
+                np.minimum(ebox[e0], ebox[e1], out=fbox[a, side])
+                np.add(ecnt[e0], ecnt[e1], out=fcnt[a, side])
+        farea = _half_area(fbox.transpose(2, 0, 1, 3)).astype(np.float64)  # (3, 2, k)
+        tie = (_half_area(np.minimum(fbox[0, 0], fbox[0, 1])).astype(np.float64) + 1e-30) * 1e-6
+
+        # first split: one of three planes
+        n_l, n_r = fcnt[:, 0], fcnt[:, 1]
+        cost = farea[:, 0] * n_l + farea[:, 1] * n_r + tie * np.abs(n_l - n_r)
+    ok = (n_l > 0) & (n_r > 0)
+    if not exact.all() or (cap < n_l[0] + n_r[0]).any():
+        ok &= ~exact | ((n_l <= cap) & (n_r <= cap))
+    cost[~ok] = np.inf
+    axis = np.argmin(cost, axis=0)
+    cols = np.arange(k)
+    found = np.isfinite(cost[axis, cols])
+    child = np.take_along_axis(fbox, axis[None, None, None, :], axis=0)[0].copy()  # (2, 6, k)
+
+    # second split, per half of every axis: one of the two other axes' planes
+    cost2 = np.full((3, 2, 2, k), np.inf)
+    with np.errstate(invalid="ignore", over="ignore"):
+        for a in range(3):
+            for side in (0, 1):
+                big = fcnt[a, side] > max_leaf
+                for j in (0, 1):
+                    el, er = _SPLIT_EDGES[a][side][j]
+                    nl, nr = ecnt[el], ecnt[er]
+                    c = earea[el] * nl + earea[er] * nr + tie * np.abs(nl - nr)
+                    good = big & (nl > 0) & (nr > 0) & (nl <= cap2) & (nr <= cap2)
+                    cost2[a, side, j] = np.where(good, c, np.inf)
+    mine = np.take_along_axis(cost2, axis[None, None, None, :], axis=0)[0]  # (2 sides, 2 choices, k)
+    pick = np.argmin(mine, axis=1)  # (2, k)
+    found2 = np.isfinite(np.take_along_axis(mine, pick[:, None, :], axis=1)[:, 0]) & exact & found
+    table_axis = np.array([[_OTHERS[a][j] for j in (0, 1)] for a in range(3)])  # (3, 2)
+    axis2 = table_axis[axis[None, :], pick]  # (2, k)
+    table_edge = np.array(_SPLIT_EDGES)  # (3, 2, 2, 2): a, side, j, (left, right)
+    flat_box = ebox.transpose(1, 0, 2).reshape(6, 12 * k)
+    grand = np.empty((2, 2, 6, k), dtype=np.float32)
+    for side in (0, 1):
+        for t in (0, 1):
+            e = table_edge[axis, side, pick[side], t]
+            grand[side, t] = flat_box.take(e * k + cols, axis=1)
     child[:, 3:] = -child[:, 3:]
-    return axis, np.ones(k, dtype=np.int64), np.isfinite(best), child
+    grand[:, :, 3:] = -grand[:, :, 3:]
+    return axis, found, child, axis2, found2, grand
 
 
 def _median_sides(right, slot, count, median):
@@ -505,12 +584,8 @@ def _median_sides(right, slot, count, median):
 
 def _trivial(n_tri: int):
     """0 or 1 triangle: a root whose left child is a leaf with the mesh and whose right child is an empty leaf."""
-    lv = _Level(child=np.array([[0, 1]], dtype=np.int64), kind=np.ones((1, 2), dtype=np.int8))
-    return [lv], np.zeros(n_tri, dtype=np.int64), np.array([n_tri, 0], dtype=np.int64)
-
-
-# --------------------------------------------------------------------------------------------------------------
-# leaves, boxes, packing, stats
+    rec = _Record(child=np.array([[0, 1]], dtype=np.int64), rec=np.full((1, 2), -1, dtype=np.int64))
+    return [rec], np.zeros(n_tri, dtype=np.int64), np.array([n_tri, 0], dtype=np.int64), np.ones(2, np.int64)
 
 
 def _leaf_order(leaf_of: np.ndarray, leaf_size: np.ndarray):
@@ -525,56 +600,48 @@ def _leaf_order(leaf_of: np.ndarray, leaf_size: np.ndarray):
     return (key & np.uint64((1 << bits) - 1)).astype(np.intp), leaf_first
 
 
-def _finish(levels, box, slot_tid, leaf_first, leaf_size):
-    """Child words, counts and exact boxes of every interior node; node and leaf boxes; tree depth."""
+def _finish(records, box, leaf_of, leaf_first, leaf_size):
+    """Child words, counts and exact boxes of every interior node (records in order: node ids), node and leaf
+    boxes. Children always live in later records, so one pass over the records in reverse does the boxes."""
     n_leaf = leaf_size.size
     leaf_box = np.full((6, n_leaf), np.inf, dtype=np.float32)
-    filled = np.flatnonzero(leaf_size > 0)
-    if filled.size:
-        ordered = box.take(slot_tid, axis=1)
-        leaf_box[:, filled] = np.minimum.reduceat(ordered, leaf_first[filled], axis=1)
+    for r in range(6):
+        np.minimum.at(leaf_box[r], leaf_of, box[r])
 
-    base = np.concatenate([[0], np.cumsum([lv.child.shape[0] for lv in levels])]).astype(np.int64)
+    base = np.concatenate([[0], np.cumsum([rc.child.shape[0] for rc in records])]).astype(np.int64)
     n_nodes = int(base[-1])
     words = np.zeros((n_nodes, 2), dtype=np.uint32)
     counts = np.zeros((n_nodes, 2), dtype=np.uint32)
     child_box = np.empty((n_nodes, 2, 6), dtype=np.float32)
     node_box = np.empty((6, n_nodes), dtype=np.float32)
-    depth = 0
-    for d in range(len(levels) - 1, -1, -1):
-        lv = levels[d]
-        rows = slice(base[d], base[d + 1])
-        is_leaf = lv.kind == 1
-        if is_leaf.any():
-            depth = max(depth, d + 1)
-        lid = np.where(is_leaf, lv.child, 0)
-        nid = np.where(is_leaf, 0, lv.child + base[min(d + 1, len(levels))])
+    for r in range(len(records) - 1, -1, -1):
+        rc = records[r]
+        rows = slice(base[r], base[r + 1])
+        is_leaf = rc.rec < 0
+        lid = np.where(is_leaf, rc.child, 0)
+        nid = np.where(is_leaf, 0, base.take(np.maximum(rc.rec, 0)) + rc.child)
         words[rows] = np.where(is_leaf, LEAF_BIT | leaf_first.take(lid).astype(np.uint32), nid.astype(np.uint32))
         counts[rows] = np.where(is_leaf, leaf_size.take(lid), 0).astype(np.uint32)
         for side in (0, 1):
-            leaf_b = leaf_box.take(lid[:, side], axis=1)
-            if d + 1 < len(levels):
-                node_b = node_box.take(nid[:, side], axis=1)
-                b = np.where(is_leaf[:, side], leaf_b, node_b)
-            else:
-                b = leaf_b
+            b = np.where(is_leaf[:, side], leaf_box.take(lid[:, side], axis=1), node_box.take(nid[:, side], axis=1))
             child_box[rows, side] = b.T
         node_box[:, rows] = np.minimum(child_box[rows, 0], child_box[rows, 1]).T
 
     out_box = np.empty((n_nodes, 2, 2, 3), dtype=np.float32)
     out_box[:, :, 0] = child_box[:, :, 0:3]
     out_box[:, :, 1] = -child_box[:, :, 3:6]
-    return words, counts, out_box, node_box, leaf_box, depth
+    return words, counts, out_box, node_box, leaf_box
 
 
-def _degenerate(v0: np.ndarray, v1: np.ndarray, v2: np.ndarray) -> np.ndarray:
-    """Zero-area triangles: their edge cross product is exactly zero in float64."""
-    e1 = [v1[:, a].astype(np.float64) - v0[:, a] for a in range(3)]
-    e2 = [v2[:, a].astype(np.float64) - v0[:, a] for a in range(3)]
-    nx = e1[1] * e2[2] - e1[2] * e2[1]
-    ny = e1[2] * e2[0] - e1[0] * e2[2]
-    nz = e1[0] * e2[1] - e1[1] * e2[0]
-    return (nx == 0) & (ny == 0) & (nz == 0)
+def _degenerate(flat: np.ndarray) -> np.ndarray:
+    """Zero-area triangles of (T, 12) records: their edge cross product is exactly zero in float64."""
+    v0 = [flat[:, a].astype(np.float64) for a in range(3)]
+    e1 = [flat[:, 4 + a] - v0[a] for a in range(3)]
+    e2 = [flat[:, 8 + a] - v0[a] for a in range(3)]
+    nonzero = (e1[1] * e2[2]) != (e1[2] * e2[1])
+    nonzero |= (e1[2] * e2[0]) != (e1[0] * e2[2])
+    nonzero |= (e1[0] * e2[1]) != (e1[1] * e2[0])
+    return ~nonzero
 
 
 def _sah_cost(node_box: np.ndarray, leaf_box: np.ndarray, leaf_size: np.ndarray, n_tri: int) -> float:

@@ -40,9 +40,9 @@ prim_ids[i]):
     same in all the triangles that use it, which edges rebuilt as v0 + e1 would not be. Degenerate triangles
     (zero area) are stored with v1 = v2 = v0, which the intersection test rejects exactly (its determinant is 0).
 
-Nodes are numbered level by level (breadth first); the tree's depth (leaves at depth <= max_depth, root at 0) is
-capped at build time so that the GLSL stack (BVH_STACK_SIZE entries) cannot overflow: the traversal pushes at most
-depth - 1 entries.
+Nodes are numbered in the order the builder makes them (about breadth first). The tree's depth (leaves at depth
+<= max_depth, root at 0) is capped at build time so that the GLSL stack (BVH_STACK_SIZE entries) cannot overflow:
+the traversal pushes at most depth - 1 entries.
 """
 
 from __future__ import annotations
@@ -100,20 +100,3 @@ def pack_nodes(words: np.ndarray, counts: np.ndarray, boxes: np.ndarray) -> np.n
     nodes["lcount"] = counts[:, 0]
     nodes["rcount"] = counts[:, 1]
     return nodes
-
-
-def pack_tris(v0: np.ndarray, v1: np.ndarray, v2: np.ndarray, prim_ids: np.ndarray) -> np.ndarray:
-    """Pack triangles in leaf order: v0, v1, v2 are (T, 3) float32, prim_ids (T,) original indices."""
-    tris = np.zeros(len(prim_ids), dtype=TRI_DTYPE)
-    tris["v0"] = v0
-    tris["v1"] = v1
-    tris["v2"] = v2
-    tris["prim"] = prim_ids
-    return tris
-
-
-def unpack_child(word):
-    """(is_leaf, index) of child words: index is a node index, or the first triangle of a leaf."""
-    word = np.asarray(word, dtype=np.uint32)
-    is_leaf = (word & LEAF_BIT) != 0
-    return is_leaf, (word & ~LEAF_BIT).astype(np.int64)

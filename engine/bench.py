@@ -15,6 +15,8 @@ JSON (machine, date, command, every figure) and a PNG plot. The Python entry poi
 """
 from __future__ import annotations
 
+import abc
+
 import datetime as _dt
 import json
 import os
@@ -322,17 +324,18 @@ def random_rayset(scene, count, rng) -> RaySet:
 # engines: ours and the peers behind one interface
 
 
-class Engine:
+class Engine(abc.ABC):
     name = ""
     label = ""
     threads = None
 
+    @abc.abstractmethod
     def occluded(self, rs: RaySet) -> np.ndarray:
-        raise NotImplementedError
+        """(N,) bool: any hit within [0, tmax]."""
 
+    @abc.abstractmethod
     def intersect(self, rs: RaySet) -> tuple[np.ndarray, np.ndarray]:
         """(t with +inf on a miss, prim with -1 on a miss)"""
-        raise NotImplementedError
 
     def query(self, rs: RaySet):
         return self.occluded(rs) if rs.kind == "occluded" else self.intersect(rs)

@@ -123,3 +123,21 @@ def test_stats_and_bad_input():
         Tracer(np.full((3, 3), np.nan), [[0, 1, 2]])
     with pytest.raises(SceneError, match="face indices"):
         Tracer(np.zeros((3, 3)), [[0, 1, 5]])
+
+
+def test_mesh_over_the_device_buffer_limit_is_a_clear_error(monkeypatch):
+    """A BVH larger than maxStorageBufferRange (128 MiB on lavapipe) is refused with the sizes, not a Vulkan crash."""
+    from engine.rt import tracer as tracer_mod
+
+    real = tracer_mod.SceneBVH.__init__
+
+    def small_limit(self, ctx, bvh, dset):
+        class Limits:
+            maxStorageBufferRange = 1024
+        monkeypatch.setattr(ctx, "limits", Limits)
+        real(self, ctx, bvh, dset)
+
+    monkeypatch.setattr(tracer_mod.SceneBVH, "__init__", small_limit)
+    v, f = meshes()["sphere"]
+    with pytest.raises(SceneError, match="storage-buffer limit"):
+        Tracer(v, f)

@@ -45,6 +45,8 @@ DEFAULT_MAX_DEPTH = 32
 #: Grid resolution per node size: G = 2 up to GRID2_MAX triangles, 4 up to GRID4_MAX, else 8.
 GRID2_MAX = 64
 GRID4_MAX = 2048
+#: Once every node holds at most CHUNK triangles, groups of about CHUNK are finished separately (cache-sized data).
+CHUNK = 1 << 18
 #: Nodes binned on a 4^3 / 8^3 grid take their statistics from about this many sampled triangles (at most twice).
 SAMPLE4 = 128
 SAMPLE8 = 4096
@@ -114,13 +116,17 @@ def build_bvh(vertices, faces, *, max_leaf: int = 4, max_depth: int = DEFAULT_MA
 
     # triangles in leaf order: (v0, prim) (v1, 0) (v2, 0), zero-area ones collapsed onto v0
     prim_ids = morton.take(slot_tid).astype(np.int32)
-    tris = np.zeros(max(n_tri, 1), dtype=TRI_DTYPE)  # never an empty buffer: a lone degenerate record
-    flat = tris.view(np.float32).reshape(-1, 12)[:n_tri]
+    tris = np.empty(max(n_tri, 1), dtype=TRI_DTYPE)  # never an empty buffer: a lone degenerate record
+    flat = tris.view(np.float32).reshape(-1, 12)
+    flat[n_tri:] = 0
+    flat = flat[:n_tri]
     for c in range(3):
         for a in range(3):
             flat[:, 4 * c + a] = corner[c][a].take(slot_tid)
+    tris["pad1"] = 0
+    tris["pad2"] = 0
     tris["prim"][:n_tri] = prim_ids
-    degenerate = _degenerate(flat)
+    degenerate = _degenerate(corner).take(slot_tid)
     if degenerate.any():
         flat[degenerate, 4:7] = flat[degenerate, 0:3]
         flat[degenerate, 8:11] = flat[degenerate, 0:3]
@@ -225,20 +231,34 @@ def _grow(box: np.ndarray, cen: np.ndarray, max_leaf: int, max_depth: int):
     """Build the topology: records of interior nodes (node 0 = record 0, row 0 is the root), the leaf of every
     (sorted) triangle, and every leaf's size and depth."""
     n_tri = box.shape[1]
-    cen_rows = np.ascontiguousarray(cen.T).reshape(-1)  # (x, y, z) of triangle i at 3 i .. 3 i + 2
-
-    tid = np.arange(n_tri, dtype=np.intp)  # active triangles (sorted positions), always increasing
-    slot = np.zeros(n_tri, dtype=np.intp)  # their node's slot among the active nodes
-    count = np.array([n_tri], dtype=np.int64)  # triangles per active node
-    depth = np.zeros(1, dtype=np.int64)  # depth per active node (the root is at 0)
     dom = np.concatenate([box[:3].min(axis=1), -box[3:].min(axis=1)]).reshape(6, 1)  # binning domain lo, hi
+    return _grow_from(box, cen, np.arange(n_tri, dtype=np.intp), np.zeros(n_tri, dtype=np.intp),
+                      np.array([n_tri], dtype=np.int64), np.zeros(1, dtype=np.int64), dom, max_leaf, max_depth,
+                      CHUNK)
+
+
+def _grow_from(box, cen, tid, slot, count, depth, dom, max_leaf: int, max_depth: int, chunk):
+    """The pass loop, from a set of active nodes: tid (increasing indices into box / cen) and slot of every
+    active triangle; count, depth (the root is at 0) and binning domain (6, K) of every active node.
+
+    Once every node holds at most `chunk` triangles, the nodes are split into independent groups of about that
+    many triangles, and each group is finished by its own loop on compact copies of its data (cache-sized
+    arrays). Returns records (the first record's rows are the starting nodes), leaf_of, leaf sizes and depths.
+    """
+    n_tri = box.shape[1]
+    cen_rows = np.ascontiguousarray(cen.T).reshape(-1)  # (x, y, z) of triangle i at 3 i .. 3 i + 2
 
     leaf_of = np.empty(n_tri, dtype=np.int64)
     leaf_sizes: list[np.ndarray] = []
     leaf_depths: list[np.ndarray] = []
     records: list[_Record] = []
     n_leaves = 0
+    pending = None  # (record index the last pass's new nodes will live in, records that point at it)
     while count.size:
+        if chunk and pending and tid.size > chunk and count.max() <= chunk:
+            n_leaves = _grow_chunks(box, cen, tid, slot, count, depth, dom, max_leaf, max_depth, chunk, records,
+                                    pending, leaf_of, leaf_sizes, leaf_depths, n_leaves)
+            break
         if depth.max() >= max_depth:  # the caps make this unreachable
             raise AssertionError("BVH depth cap violated")
         k_nodes = count.size
@@ -381,6 +401,7 @@ def _grow(box: np.ndarray, cen: np.ndarray, max_leaf: int, max_depth: int):
             grand = 2 * k_nodes + 2 * np.flatnonzero(split2)
             records.append(_Record(child=np.stack([out_index[grand], out_index[grand + 1]], axis=1),
                                    rec=np.stack([out_rec[grand], out_rec[grand + 1]], axis=1)))
+        pending = (rec_next, [rec_here, rec_mid] if n_mid else [rec_here])
         out_depth = np.concatenate([np.repeat(depth, 2), np.repeat(depth, 4)]) + 1 + is_grand
         leaf_sizes.append(ocount[leaf])
         leaf_depths.append(out_depth[leaf])
@@ -402,6 +423,47 @@ def _grow(box: np.ndarray, cen: np.ndarray, max_leaf: int, max_depth: int):
         gdom = grand_dom.transpose(2, 3, 0, 1).reshape(6, 4 * k_nodes)  # grandchild 2 child + side order
         dom = np.concatenate([cdom.transpose(1, 2, 0).reshape(6, 2 * k_nodes), gdom], axis=1)[:, inner]
     return records, leaf_of, np.concatenate(leaf_sizes), np.concatenate(leaf_depths)
+
+
+def _grow_chunks(box, cen, tid, slot, count, depth, dom, max_leaf, max_depth, chunk, records, pending, leaf_of,
+                 leaf_sizes, leaf_depths, n_leaves):
+    """Finish the active nodes group by group (see _grow_from); appends to records and the leaf lists, points the
+    last pass's references at each group's first record, and returns the new leaf count."""
+    k_nodes = count.size
+    group = (np.cumsum(count) - 1) // chunk  # consecutive nodes, about `chunk` triangles a group
+    _, group = np.unique(group, return_inverse=True)
+    n_groups = int(group.max()) + 1
+    order = np.argsort(group.take(slot).astype(np.uint16 if n_groups < 1 << 16 else np.int64), kind="stable")
+    tid, slot = tid.take(order), slot.take(order)
+    ends = np.cumsum(np.bincount(group, weights=count, minlength=n_groups).astype(np.int64))
+    local = np.empty(k_nodes, dtype=np.int64)
+    node_rec = np.empty(k_nodes, dtype=np.int64)
+    for g, (lo, hi) in enumerate(zip(np.r_[0, ends[:-1]], ends)):
+        nodes = np.flatnonzero(group == g)
+        local[nodes] = np.arange(nodes.size)
+        t = tid[lo:hi]
+        sub = _grow_from(box.take(t, axis=1), cen.take(t, axis=1), np.arange(t.size, dtype=np.intp),
+                         local.take(slot[lo:hi]), count[nodes], depth[nodes], dom[:, nodes], max_leaf, max_depth,
+                         None)
+        sub_records, sub_leaf_of, sub_sizes, sub_depths = sub
+        node_rec[nodes] = len(records)
+        for rc in sub_records:
+            inner = rc.rec >= 0
+            records.append(_Record(child=np.where(inner, rc.child, rc.child + n_leaves),
+                                   rec=np.where(inner, rc.rec + node_rec[nodes[0]], -1)))
+        leaf_of[t] = sub_leaf_of + n_leaves
+        leaf_sizes.append(sub_sizes)
+        leaf_depths.append(sub_depths)
+        n_leaves += sub_sizes.size
+    # the last pass pointed its new nodes at (rec_next, slot): now (their group's first record, local row)
+    rec_next, referrers = pending
+    for r in referrers:
+        rc = records[r]
+        to_next = rc.rec == rec_next
+        slots = rc.child[to_next]
+        rc.rec[to_next] = node_rec.take(slots)
+        rc.child[to_next] = local.take(slots)
+    return n_leaves
 
 
 def _cell_axis(c, inv, off, gmax_t, idx, out=None):
@@ -633,15 +695,30 @@ def _finish(records, box, leaf_of, leaf_first, leaf_size):
     return words, counts, out_box, node_box, leaf_box
 
 
-def _degenerate(flat: np.ndarray) -> np.ndarray:
-    """Zero-area triangles of (T, 12) records: their edge cross product is exactly zero in float64."""
-    v0 = [flat[:, a].astype(np.float64) for a in range(3)]
-    e1 = [flat[:, 4 + a] - v0[a] for a in range(3)]
-    e2 = [flat[:, 8 + a] - v0[a] for a in range(3)]
-    nonzero = (e1[1] * e2[2]) != (e1[2] * e2[1])
-    nonzero |= (e1[2] * e2[0]) != (e1[0] * e2[2])
-    nonzero |= (e1[0] * e2[1]) != (e1[1] * e2[0])
-    return ~nonzero
+def _degenerate(corner) -> np.ndarray:
+    """Zero-area triangles (corner[c][a]: coordinate a of corner c): their edge cross product is exactly zero in
+    float64. A float32 pass keeps as candidates only triangles whose cross product is tiny against their edges
+    (float32 rounding is far below that margin); only those get the exact float64 test."""
+    e1 = [corner[1][a] - corner[0][a] for a in range(3)]
+    e2 = [corner[2][a] - corner[0][a] for a in range(3)]
+    big = np.zeros_like(e1[0])  # max |cross component|
+    for i, j in ((1, 2), (2, 0), (0, 1)):
+        comp = e1[i] * e2[j]
+        comp -= e1[j] * e2[i]
+        np.abs(comp, out=comp)
+        np.maximum(big, comp, out=big)
+    size = np.maximum(np.maximum(np.abs(e1[0]), np.abs(e1[1])), np.abs(e1[2]))
+    size *= np.maximum(np.maximum(np.abs(e2[0]), np.abs(e2[1])), np.abs(e2[2]))
+    size *= np.float32(1e-3)
+    cand = np.flatnonzero(big <= size)
+    out = np.zeros(big.size, dtype=bool)
+    if cand.size:
+        v = [[corner[c][a].take(cand).astype(np.float64) for a in range(3)] for c in range(3)]
+        f1 = [v[1][a] - v[0][a] for a in range(3)]
+        f2 = [v[2][a] - v[0][a] for a in range(3)]
+        zero = (f1[1] * f2[2] == f1[2] * f2[1]) & (f1[2] * f2[0] == f1[0] * f2[2]) & (f1[0] * f2[1] == f1[1] * f2[0])
+        out[cand] = zero
+    return out
 
 
 def _sah_cost(node_box: np.ndarray, leaf_box: np.ndarray, leaf_size: np.ndarray, n_tri: int) -> float:

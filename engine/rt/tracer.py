@@ -46,6 +46,12 @@ class SceneBVH:
 
     def __init__(self, ctx: Context, bvh, dset: DescriptorSet):
         self.bvh = bvh
+        limit = int(ctx.limits.maxStorageBufferRange)
+        for what, arr in (("triangles", bvh.tris), ("nodes", bvh.nodes)):
+            if arr.nbytes > limit:
+                raise SceneError(f"{bvh.stats['triangles']:,} triangles: the BVH {what} take {arr.nbytes / 2**20:.0f} MiB, "
+                                 f"more than this device's storage-buffer limit of {limit / 2**20:.0f} MiB "
+                                 f"({ctx.device_info['name']})")
         self.nodes = upload_buffer(ctx, bvh.nodes, STORAGE, "bvh nodes")
         self.tris = upload_buffer(ctx, bvh.tris, STORAGE, "bvh triangles")
         dset.buffer(0, self.nodes).buffer(1, self.tris)

@@ -126,18 +126,18 @@ def test_stats_and_bad_input():
 
 
 def test_mesh_over_the_device_buffer_limit_is_a_clear_error(monkeypatch):
-    """A BVH larger than maxStorageBufferRange (128 MiB on lavapipe) is refused with the sizes, not a Vulkan crash."""
+    """A BVH larger than maxTexelBufferElements (2 GiB of texels on lavapipe) is refused with the sizes, not a crash."""
     from engine.rt import tracer as tracer_mod
 
     real = tracer_mod.SceneBVH.__init__
 
     def small_limit(self, ctx, bvh, dset):
         class Limits:
-            maxStorageBufferRange = 1024
+            maxTexelBufferElements = 64
         monkeypatch.setattr(ctx, "limits", Limits)
         real(self, ctx, bvh, dset)
 
     monkeypatch.setattr(tracer_mod.SceneBVH, "__init__", small_limit)
     v, f = meshes()["sphere"]
-    with pytest.raises(SceneError, match="storage-buffer limit"):
+    with pytest.raises(SceneError, match="texel-buffer limit of 64 texels"):
         Tracer(v, f)

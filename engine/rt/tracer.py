@@ -17,8 +17,8 @@ import vulkan as vk
 from ..bvh import build_bvh
 from ..errors import ConfigError, SceneError
 from ..shaders import ShaderLibrary
-from ..vk import SB, Buffer, ComputePipeline, Context, DescriptorSet, Timestamps, memory_barrier, upload_buffer
-from ..vk.resources import STORAGE
+from ..vk import SB, UTB, Buffer, BufferView, ComputePipeline, Context, DescriptorSet, Timestamps, memory_barrier, upload_buffer
+from ..vk.resources import STORAGE, UNIFORM_TEXEL
 
 RAY_BYTES = 32
 GROUP = 64
@@ -46,23 +46,28 @@ class SceneBVH:
 
     def __init__(self, ctx: Context, bvh, dset: DescriptorSet):
         self.bvh = bvh
-        limit = int(ctx.limits.maxStorageBufferRange)
+        # Both buffers are read as uniform texel buffers of 16-byte texels (faster than storage buffers on lavapipe,
+        # whose storage-buffer loads run lane by lane), so the limit is maxTexelBufferElements texels each.
+        texels = int(ctx.limits.maxTexelBufferElements)
         for what, arr in (("triangles", bvh.tris), ("nodes", bvh.nodes)):
-            if arr.nbytes > limit:
+            if arr.nbytes // 16 > texels:
                 raise SceneError(f"{bvh.stats['triangles']:,} triangles: the BVH {what} take {arr.nbytes / 2**20:.0f} MiB, "
-                                 f"more than this device's storage-buffer limit of {limit / 2**20:.0f} MiB "
-                                 f"({ctx.device_info['name']})")
-        self.nodes = upload_buffer(ctx, bvh.nodes, STORAGE, "bvh nodes")
-        self.tris = upload_buffer(ctx, bvh.tris, STORAGE, "bvh triangles")
-        dset.buffer(0, self.nodes).buffer(1, self.tris)
+                                 f"more than this device's texel-buffer limit of {texels:,} texels "
+                                 f"({texels * 16 / 2**20:.0f} MiB, {ctx.device_info['name']})")
+        self.nodes = upload_buffer(ctx, bvh.nodes, UNIFORM_TEXEL, "bvh nodes")
+        self.tris = upload_buffer(ctx, bvh.tris, UNIFORM_TEXEL, "bvh triangles")
+        self.views = [BufferView(self.nodes), BufferView(self.tris)]
+        dset.texel_buffer(0, self.views[0]).texel_buffer(1, self.views[1])
 
     def destroy(self):
+        for view in self.views:
+            view.destroy()
         self.nodes.destroy()
         self.tris.destroy()
 
 
 def bvh_descriptor_set(ctx: Context) -> DescriptorSet:
-    return DescriptorSet(ctx, [(0, SB), (1, SB)])
+    return DescriptorSet(ctx, [(0, UTB), (1, UTB)])
 
 
 def _check_mesh(vertices, faces):

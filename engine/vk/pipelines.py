@@ -17,6 +17,7 @@ SB = vk.VK_DESCRIPTOR_TYPE_STORAGE_BUFFER
 UB = vk.VK_DESCRIPTOR_TYPE_UNIFORM_BUFFER
 SI = vk.VK_DESCRIPTOR_TYPE_STORAGE_IMAGE
 CIS = vk.VK_DESCRIPTOR_TYPE_COMBINED_IMAGE_SAMPLER
+UTB = vk.VK_DESCRIPTOR_TYPE_UNIFORM_TEXEL_BUFFER
 ALL = vk.VK_SHADER_STAGE_ALL
 WHOLE_SIZE = 0xFFFFFFFFFFFFFFFF  # VK_WHOLE_SIZE (the binding exposes it as -1)
 
@@ -52,6 +53,13 @@ class DescriptorSet:
         vk.vkUpdateDescriptorSets(self.ctx.device, 1, [vk.VkWriteDescriptorSet(
             dstSet=self.handle, dstBinding=binding, descriptorCount=1, descriptorType=self.types[binding],
             pBufferInfo=[info])], 0, None)
+        return self
+
+    def texel_buffer(self, binding, view):
+        """Bind a BufferView (a uniform texel buffer: `usamplerBuffer` / `samplerBuffer` in GLSL)."""
+        vk.vkUpdateDescriptorSets(self.ctx.device, 1, [vk.VkWriteDescriptorSet(
+            dstSet=self.handle, dstBinding=binding, descriptorCount=1, descriptorType=self.types[binding],
+            pTexelBufferView=[view.handle])], 0, None)
         return self
 
     def image(self, binding, image, layout=vk.VK_IMAGE_LAYOUT_GENERAL, sampler=None, element=0):

@@ -12,6 +12,7 @@ from .context import Context
 
 STORAGE = vk.VK_BUFFER_USAGE_STORAGE_BUFFER_BIT
 UNIFORM = vk.VK_BUFFER_USAGE_UNIFORM_BUFFER_BIT
+UNIFORM_TEXEL = vk.VK_BUFFER_USAGE_UNIFORM_TEXEL_BUFFER_BIT
 VERTEX = vk.VK_BUFFER_USAGE_VERTEX_BUFFER_BIT
 INDEX = vk.VK_BUFFER_USAGE_INDEX_BUFFER_BIT
 TRANSFER_SRC = vk.VK_BUFFER_USAGE_TRANSFER_SRC_BIT
@@ -58,6 +59,22 @@ class Buffer:
                 self._mapped = None
             vk.vkDestroyBuffer(self.ctx.device, self.handle, None)
             vk.vkFreeMemory(self.ctx.device, self.memory, None)
+
+
+class BufferView:
+    """A typed view of a buffer, for binding it as a texel buffer (the buffer needs UNIFORM_TEXEL usage)."""
+
+    def __init__(self, buf: Buffer, fmt: int = vk.VK_FORMAT_R32G32B32A32_UINT):
+        self.ctx, self.buffer = buf.ctx, buf
+        self.handle = vk.vkCreateBufferView(buf.ctx.device, vk.VkBufferViewCreateInfo(
+            buffer=buf.handle, format=fmt, offset=0, range=0xFFFFFFFFFFFFFFFF), None)
+        self._alive = True
+        buf.ctx.defer_destroy(self.destroy)
+
+    def destroy(self):
+        if self._alive:
+            self._alive = False
+            vk.vkDestroyBufferView(self.ctx.device, self.handle, None)
 
 
 def upload_buffer(ctx: Context, data: np.ndarray, usage: int, name: str = "") -> Buffer:

@@ -172,71 +172,56 @@ bool bvh_trace_(vec3 o, vec3 d, float tmin, float tmax, bool any_hit, inout BvhH
     float best = tmax;
     bool found = false;
     uint stack[BVH_STACK_SIZE];     // far children still to visit
-    float stack_t[BVH_STACK_SIZE];  // and their entry distances
     uint sp = 0u;
     uint node = 0u;
     for (;;) {
         BvhNode n = bvh_node_(node);
         vec2 sl = bvh_slab_(r, n.a.xyz, n.b.xyz, tmin, best);
         vec2 sr = bvh_slab_(r, n.c.xyz, n.d.xyz, tmin, best);
-        bool hl = sl.x <= sl.y;
-        bool hr = sr.x <= sr.y;
         uint wl = floatBitsToUint(n.a.w);
         uint wr = floatBitsToUint(n.b.w);
-        // leaf children are tested here, nearer one first
+        bool hl = sl.x <= sl.y;
+        bool hr = sr.x <= sr.y;
+        bool leaf_l = (wl & BVH_LEAF_BIT) != 0u;
+        bool leaf_r = (wr & BVH_LEAF_BIT) != 0u;
         bool left_first = sl.x <= sr.x;
-        for (int k = 0; k < 2; ++k) {
-            bool take_left = (k == 0) == left_first;
-            uint w = take_left ? wl : wr;
-            bool h = take_left ? hl : hr;
-            float entry = take_left ? sl.x : sr.x;
-            if (!h || (w & BVH_LEAF_BIT) == 0u || entry > best) {
-                continue;
-            }
-            uint first = w & ~BVH_LEAF_BIT;
-            uint last = first + floatBitsToUint(take_left ? n.c.w : n.d.w);
-            for (uint i = first; i < last; ++i) {
-                BvhTri tri = bvh_tri_(i);
-                float t, u, v;
-                if (bvh_triangle_(r, tri.v0.xyz, tri.v1.xyz, tri.v2.xyz, tmin, best, t, u, v)) {
-                    best = t;
-                    found = true;
-                    hit.t = t;
-                    hit.prim = floatBitsToInt(tri.v0.w);
-                    hit.u = u;
-                    hit.v = v;
-                    if (any_hit) {
-                        return true;
-                    }
+        // the triangles of both leaf children in one loop, the nearer leaf's first
+        uint cl = (hl && leaf_l) ? floatBitsToUint(n.c.w) : 0u;
+        uint cr = (hr && leaf_r) ? floatBitsToUint(n.d.w) : 0u;
+        uint f0 = (left_first ? wl : wr) & ~BVH_LEAF_BIT;
+        uint f1 = (left_first ? wr : wl) & ~BVH_LEAF_BIT;
+        uint c0 = left_first ? cl : cr;
+        uint total = cl + cr;
+        for (uint j = 0u; j < total; ++j) {
+            uint i = j < c0 ? f0 + j : f1 + (j - c0);
+            BvhTri tri = bvh_tri_(i);
+            float t, u, v;
+            if (bvh_triangle_(r, tri.v0.xyz, tri.v1.xyz, tri.v2.xyz, tmin, best, t, u, v)) {
+                best = t;
+                found = true;
+                hit.t = t;
+                hit.prim = floatBitsToInt(tri.v0.w);
+                hit.u = u;
+                hit.v = v;
+                if (any_hit) {
+                    return true;
                 }
             }
         }
-        bool il = hl && (wl & BVH_LEAF_BIT) == 0u && sl.x <= best;
-        bool ir = hr && (wr & BVH_LEAF_BIT) == 0u && sr.x <= best;
-        if (il && ir) {
-            bool swap = sr.x < sl.x;
-            stack[sp] = swap ? wl : wr;
-            stack_t[sp] = swap ? sl.x : sr.x;
-            sp += 1u;
-            node = swap ? wr : wl;
-        } else if (il) {
-            node = wl;
-        } else if (ir) {
-            node = wr;
+        bool il = hl && !leaf_l && sl.x <= best;
+        bool ir = hr && !leaf_r && sr.x <= best;
+        bool near_left = il && (!ir || left_first);
+        // unconditional store (a masked one is a branch per lane on lavapipe); only a push moves sp past it
+        stack[min(sp, uint(BVH_STACK_SIZE - 1))] = near_left ? wr : wl;
+        sp += (il && ir) ? 1u : 0u;
+        if (il || ir) {
+            node = near_left ? wl : wr;
         } else {
-            // pop the next entry that can still hold a hit nearer than the best so far
-            bool more = false;
-            while (sp > 0u) {
-                sp -= 1u;
-                if (stack_t[sp] <= best) {
-                    node = stack[sp];
-                    more = true;
-                    break;
-                }
-            }
-            if (!more) {
+            if (sp == 0u) {
                 break;
             }
+            sp -= 1u;
+            node = stack[sp];
         }
     }
     return found;

@@ -18,6 +18,9 @@ How it works
    d. Children with at most max_leaf triangles become leaves; their triangles leave the active set.
    A node with no usable plane (all centres in one cell, e.g. coincident centroids) is split at its median in
    Morton order.
+   The top levels, where every node is sampled, run on the sampled triangles alone (_grow_top); the rest wait in
+   pools by Morton-index stride and walk down the chosen planes once, in cache-sized blocks, when a node needs a
+   denser sample or the top is done. The top is checked against the depth cap with exact counts at the end.
 4. Depth cap: a node at depth d may hold at most max_leaf * 2^(max_depth - d) triangles. Planes that would leave a
    child above its cap are not used, and a node whose counts are only estimated and could break the cap is split
    at its median. So leaves are never deeper than max_depth, whatever the geometry, and the GPU traversal stack
@@ -50,6 +53,15 @@ CHUNK = 1 << 18
 #: Nodes binned on a 4^3 / 8^3 grid take their statistics from about this many sampled triangles (at most twice).
 SAMPLE4 = 128
 SAMPLE8 = 4096
+#: Meshes of more than TOP_MIN triangles build their sampled top levels on a subset (_grow_top); TOP_BLOCK
+#: triangles at a time walk down its planes.
+TOP_MIN = 1 << 14
+TOP_BLOCK = 1 << 15
+#: Triangles per block of the per-triangle set-up and output steps of build_bvh.
+PREP_BLOCK = 1 << 16
+#: Sample targets of the top levels (the same as below them).
+TOP_SAMPLE8 = SAMPLE8
+TOP_SAMPLE4 = SAMPLE4
 
 
 @dataclass
@@ -86,26 +98,37 @@ def build_bvh(vertices, faces, *, max_leaf: int = 4, max_depth: int = DEFAULT_MA
     if n_tri > max_leaf << max_depth:
         raise ConfigError(f"build_bvh: {n_tri} triangles do not fit max_leaf={max_leaf}, max_depth={max_depth}")
 
-    # Morton order of the box centres
-    corner = [[vt[a].take(ft[c]) for a in range(3)] for c in range(3)]  # corner[c][a], original order
-    lo = [np.minimum(np.minimum(corner[0][a], corner[1][a]), corner[2][a]) for a in range(3)]
-    hi = [np.maximum(np.maximum(corner[0][a], corner[1][a]), corner[2][a]) for a in range(3)]
-    morton = _morton_order(lo, hi, n_tri)
-    del corner, lo, hi
+    # Morton order of the box centres. Per-triangle work runs in blocks of PREP_BLOCK: small temporaries that the
+    # allocator reuses instead of fresh multi-megabyte pages for every step.
+    c2 = np.empty((3, n_tri), dtype=np.float32)  # twice the box centre, original order
+    for s in range(0, n_tri, PREP_BLOCK):
+        f = ft[:, s:s + PREP_BLOCK]
+        for a in range(3):
+            x0, x1, x2 = vt[a].take(f[0]), vt[a].take(f[1]), vt[a].take(f[2])
+            lo = np.minimum(x0, x1)
+            np.minimum(lo, x2, out=lo)
+            np.maximum(x0, x1, out=x0)
+            np.maximum(x0, x2, out=x0)
+            np.add(lo, x0, out=c2[a, s:s + PREP_BLOCK])
+    morton = _morton_order(c2, n_tri)
+    del c2
 
-    # corners in Morton order; from here on every per-triangle array is in that order, so the leaf-order
-    # gathers at the end are nearly sequential
-    ft_sorted = ft.take(morton, axis=1)
-    corner = [[vt[a].take(ft_sorted[c]) for a in range(3)] for c in range(3)]
-    del ft_sorted
+    # boxes, centres and zero-area flags in Morton order; from here on every per-triangle array is in that order,
+    # so the leaf-order gathers at the end are nearly sequential
     box = np.empty((6, n_tri), dtype=np.float32)  # min xyz, -max xyz
     cen = np.empty((3, n_tri), dtype=np.float32)
-    for a in range(3):
-        np.minimum(np.minimum(corner[0][a], corner[1][a]), corner[2][a], out=box[a])
-        np.maximum(np.maximum(corner[0][a], corner[1][a]), corner[2][a], out=box[3 + a])
-        np.add(box[a], box[3 + a], out=cen[a])
-        cen[a] *= np.float32(0.5)
-        np.negative(box[3 + a], out=box[3 + a])
+    degenerate_m = np.empty(n_tri, dtype=bool)
+    for s in range(0, n_tri, PREP_BLOCK):
+        e = min(s + PREP_BLOCK, n_tri)
+        f = ft.take(morton[s:e], axis=1)
+        corner = [[vt[a].take(f[c]) for a in range(3)] for c in range(3)]
+        for a in range(3):
+            np.minimum(np.minimum(corner[0][a], corner[1][a]), corner[2][a], out=box[a, s:e])
+            np.maximum(np.maximum(corner[0][a], corner[1][a]), corner[2][a], out=box[3 + a, s:e])
+            np.add(box[a, s:e], box[3 + a, s:e], out=cen[a, s:e])
+            cen[a, s:e] *= np.float32(0.5)
+            np.negative(box[3 + a, s:e], out=box[3 + a, s:e])
+        degenerate_m[s:e] = _degenerate(corner)
 
     if n_tri >= 2:
         records, leaf_of, leaf_size, leaf_depth = _grow(box, cen, max_leaf, max_depth)
@@ -120,13 +143,14 @@ def build_bvh(vertices, faces, *, max_leaf: int = 4, max_depth: int = DEFAULT_MA
     flat = tris.view(np.float32).reshape(-1, 12)
     flat[n_tri:] = 0
     flat = flat[:n_tri]
-    for c in range(3):
-        for a in range(3):
-            flat[:, 4 * c + a] = corner[c][a].take(slot_tid)
+    v_rows = np.ascontiguousarray(vt.T)  # (V, 3)
+    rows = flat.reshape(-1, 3, 4)
+    for s in range(0, n_tri, PREP_BLOCK):
+        rows[s:s + PREP_BLOCK, :, :3] = v_rows.take(ft.take(prim_ids[s:s + PREP_BLOCK], axis=1).T, axis=0)
     tris["pad1"] = 0
     tris["pad2"] = 0
     tris["prim"][:n_tri] = prim_ids
-    degenerate = _degenerate(corner).take(slot_tid)
+    degenerate = degenerate_m.take(slot_tid)
     if degenerate.any():
         flat[degenerate, 4:7] = flat[degenerate, 0:3]
         flat[degenerate, 8:11] = flat[degenerate, 0:3]
@@ -175,28 +199,33 @@ for _b in range(11):
 del _b
 
 
-def _morton_order(lo, hi, n: int) -> np.ndarray:
-    """Permutation sorting the triangles by the Morton code of their box centres (ties by index)."""
+def _morton_order(c2, n: int) -> np.ndarray:
+    """Permutation sorting the triangles by the Morton code of their box centres (ties by index); c2 (3, n): twice
+    the centres (overwritten)."""
     if n == 0:
         return np.zeros(0, dtype=np.intp)
     idx_bits = max(1, (n - 1).bit_length())
     bits = min(21, (64 - idx_bits) // 3)
     top = (1 << bits) - 1
-    code = np.zeros(n, dtype=np.uint64)
-    for a in range(3):
-        c = lo[a] + hi[a]  # twice the centre; the scale cancels
-        cmin, cmax = float(c.min()), float(c.max())
-        scale = top / (cmax - cmin) if cmax > cmin else 0.0
-        c -= np.float32(cmin)
-        c *= np.float32(scale)
-        q = c.astype(np.int64)
-        np.clip(q, 0, top, out=q)
-        spread = _SPREAD.take(q & 2047)
-        if bits > 11:
-            spread |= _SPREAD.take(q >> 11) << np.uint64(33)
-        code |= spread << np.uint64(a)
-    code <<= np.uint64(idx_bits)
-    code |= np.arange(n, dtype=np.uint64)
+    code = np.empty(n, dtype=np.uint64)
+    lo = [np.float32(c2[a].min()) for a in range(3)]
+    hi = [float(c2[a].max()) for a in range(3)]
+    scale = [np.float32(top / (hi[a] - float(lo[a])) if hi[a] > float(lo[a]) else 0.0) for a in range(3)]
+    for s in range(0, n, PREP_BLOCK):
+        e = min(s + PREP_BLOCK, n)
+        acc = np.arange(s, e, dtype=np.uint64)
+        for a in range(3):
+            c = c2[a, s:e]  # twice the centre; the scale cancels
+            c -= lo[a]
+            c *= scale[a]
+            q = c.astype(np.int64)
+            np.clip(q, 0, top, out=q)
+            spread = _SPREAD.take(q & 2047)
+            if bits > 11:
+                spread |= _SPREAD.take(q >> 11) << np.uint64(33)
+            spread <<= np.uint64(a + idx_bits)
+            acc |= spread
+        code[s:e] = acc
     code.sort()  # a value sort of packed keys is several times faster than argsort
     return (code & np.uint64((1 << idx_bits) - 1)).astype(np.intp)
 
@@ -231,13 +260,211 @@ def _grow(box: np.ndarray, cen: np.ndarray, max_leaf: int, max_depth: int):
     """Build the topology: records of interior nodes (node 0 = record 0, row 0 is the root), the leaf of every
     (sorted) triangle, and every leaf's size and depth."""
     n_tri = box.shape[1]
+    cen_rows = np.ascontiguousarray(cen.T).reshape(-1)  # (x, y, z) of triangle i at 3 i .. 3 i + 2
+    top = _grow_top(box, cen, cen_rows, max_leaf, max_depth) if n_tri > TOP_MIN else None
+    if top is not None:
+        records, slot, count, depth, dom = top
+        return _grow_from(box, cen, np.arange(n_tri, dtype=np.intp), slot, count, depth, dom, max_leaf, max_depth,
+                          CHUNK, records=records, pending=(len(records), list(range(len(records)))),
+                          cen_rows=cen_rows)
     dom = np.concatenate([box[:3].min(axis=1), -box[3:].min(axis=1)]).reshape(6, 1)  # binning domain lo, hi
     return _grow_from(box, cen, np.arange(n_tri, dtype=np.intp), np.zeros(n_tri, dtype=np.intp),
                       np.array([n_tri], dtype=np.int64), np.zeros(1, dtype=np.int64), dom, max_leaf, max_depth,
-                      CHUNK)
+                      CHUNK, cen_rows=cen_rows)
 
 
-def _grow_from(box, cen, tid, slot, count, depth, dom, max_leaf: int, max_depth: int, chunk):
+def _walk(tids: np.ndarray, node: np.ndarray | None, levels, cen_rows: np.ndarray) -> np.ndarray:
+    """Node of the last of `levels` that each triangle `tids` reaches from `node` (its node in the first of them;
+    None: the root), walking down their planes in cache-sized blocks with the same comparison as the top passes'
+    partition."""
+    out = np.zeros(tids.size, dtype=np.intp) if node is None else node.astype(np.intp, copy=True)
+    if not levels:
+        return out
+    for s in range(0, tids.size, TOP_BLOCK):
+        t3 = tids[s:s + TOP_BLOCK] * 3
+        nd = out[s:s + TOP_BLOCK]
+        for axis, split, nxt in levels:
+            a = axis.take(nd)
+            a += t3
+            right = cen_rows.take(a) >= split.take(nd)
+            nd *= 2
+            nd += right
+            nd = nxt.take(nd)
+        out[s:s + t3.size] = nd
+    return out
+
+
+def _grow_top(box, cen, cen_rows, max_leaf: int, max_depth: int):
+    """The top of the tree, where every node is binned on a sample: the passes see only the sampled triangles
+    (every 2^rate-th in Morton order, as in _grow_from), the others wait in pools by their number of trailing zero
+    bits (a pool walks down the levels made so far when a node needs a denser sample), and once the top is done all
+    of them walk down its planes (_walk). A node stops here (and goes on in _grow_from, with exact counts) once it
+    is too small to be sampled, it has no plane, a child could be a leaf, or the depth cap could bind below it
+    (max_leaf * 2^levels left < 4 x its estimated triangles). Returns None where the root stops, else (records of the top, the node
+    of every triangle, then count, depth and binning domain of every such node); also None where the exact counts
+    would break the depth cap (the top's estimates were off)."""
+    n = box.shape[1]
+    dom = np.concatenate([box[:3].min(axis=1), -box[3:].min(axis=1)]).reshape(6, 1).astype(np.float32)
+    count = np.array([n], dtype=np.int64)  # estimates below the root
+    depth = np.zeros(1, dtype=np.int64)
+    frozen = np.zeros(1, dtype=bool)
+    levels, splits, depth_at = [], [], []  # per level: (axis, split, nxt) for _walk; which nodes split; depths
+    sub_tid = sub_slot = have = None  # the subset; node k holds every triangle with >= have[k] trailing zeros
+    tiers = {}  # z -> [tids with exactly z trailing zeros not in the subset, their node, at level]
+    parked = []  # (tids, node, level) of stopped nodes
+    while True:
+        k = count.size
+        room = np.minimum(max_depth - depth - 1, 40)
+        grid = np.where(count <= GRID4_MAX, 4, 8).astype(np.int64)
+        target = np.where(grid == 8, TOP_SAMPLE8, TOP_SAMPLE4)
+        rate_log = np.maximum(_ceil_log2(count) - _ceil_log2(target), 1)
+        elig = ~frozen & (count > SAMPLE4) & (room >= 0) & (np.left_shift(max_leaf, np.maximum(room, 0)) >= 4 * count)
+        if not elig.any():
+            break
+        if sub_tid is None:
+            r0 = int(rate_log[0])
+            sub_tid = np.arange(0, n, 1 << r0, dtype=np.intp)
+            sub_slot = np.zeros(sub_tid.size, dtype=np.intp)
+            have = np.array([r0], dtype=np.int64)
+            for z in range(1, r0):
+                tiers[z] = [np.arange(1 << z, n, 2 << z, dtype=np.intp), None, 0]
+        needy = elig & (rate_log < have)
+        if needy.any():  # denser samples: the pools they need walk down to this level
+            lvl = len(levels)
+            add_t, add_s = [sub_tid], [sub_slot]
+            for z in range(int(rate_log[needy].min()), int(have[needy].max())):
+                want = needy & (rate_log <= z) & (have > z)
+                if not want.any() or z not in tiers:
+                    continue
+                t, nd, l0 = tiers[z]
+                nd = _walk(t, nd, levels[l0:], cen_rows)
+                take = want.take(nd)
+                add_t.append(t[take])
+                add_s.append(nd[take])
+                tiers[z] = [t[~take], nd[~take], lvl]
+            sub_tid, sub_slot = np.concatenate(add_t), np.concatenate(add_s)
+            order = np.argsort(sub_tid, kind="stable")  # sorted runs; in Morton order the gathers stay local
+            sub_tid, sub_slot = sub_tid.take(order), sub_slot.take(order)
+            have = np.where(needy, rate_log, have)
+
+        # statistics of the eligible nodes from their samples (every 2^rate_log-th triangle)
+        mask = np.where(elig, (np.int64(1) << rate_log) - 1, -1)
+        sel = np.flatnonzero((sub_tid & mask.take(sub_slot)) == 0)
+        s_tid, s_slot = sub_tid.take(sel), sub_slot.take(sel)
+        ext = dom[3:] - dom[:3]
+        inv = np.where(ext > 0, grid / np.where(ext > 0, ext, 1), 0).astype(np.float32)
+        off = (-dom[:3] * inv).astype(np.float32)
+        gmax = grid - 1
+        cell_base = np.zeros(k, dtype=np.int64)
+        groups, n_cells = [], 0
+        for gsize in (4, 8):
+            members = np.flatnonzero(elig & (grid == gsize))
+            if members.size:
+                cell_base[members] = n_cells + np.arange(members.size) * gsize**3
+                groups.append((gsize, members, n_cells))
+                n_cells += members.size * gsize**3
+        s_gmax = gmax.take(s_slot)
+        g = grid.take(s_slot)
+        key = _cell_axis(cen[0].take(s_tid), inv[0], off[0], s_gmax, s_slot)
+        key *= g
+        key += _cell_axis(cen[1].take(s_tid), inv[1], off[1], s_gmax, s_slot)
+        key *= g
+        key += _cell_axis(cen[2].take(s_tid), inv[2], off[2], s_gmax, s_slot)
+        key += cell_base.take(s_slot)
+        cell_count = np.bincount(key, minlength=n_cells)
+        cell_box = np.full((6, n_cells), np.inf, dtype=np.float32)
+        for r in range(6):
+            np.minimum.at(cell_box[r], key, box[r].take(s_tid))
+        axis = np.zeros(k, dtype=np.int64)
+        plane = np.zeros(k, dtype=np.int64)
+        found = np.zeros(k, dtype=bool)
+        child_dom = np.empty((2, 6, k), dtype=np.float32)
+        for gsize, members, first in groups:
+            stop = first + members.size * gsize**3
+            res = _grid_sah(cell_count[first:stop], cell_box[:, first:stop], gsize,
+                            np.zeros(members.size, dtype=bool), np.zeros(members.size, dtype=np.int64))
+            axis[members], plane[members], found[members], child_dom[:, :, members] = res
+        cols = np.arange(k)
+        with np.errstate(divide="ignore", invalid="ignore"):
+            split = (plane - off[axis, cols]) / np.where(inv[axis, cols] > 0, inv[axis, cols], 1)  # world space
+        split[~(elig & found)] = np.inf
+
+        # the subset goes down; a node splits only where both children keep more than max_leaf of it
+        a_t = axis.take(sub_slot)
+        a_t += sub_tid * 3
+        right = cen_rows.take(a_t) >= split.take(sub_slot)
+        dest = 2 * sub_slot
+        dest += right
+        sub_cnt = np.bincount(dest, minlength=2 * k).reshape(k, 2)
+        do = elig & found & (sub_cnt > max_leaf).all(axis=1)
+        if not do.any():
+            break
+        first_new = np.cumsum(1 + do) - (1 + do)
+        nxt = np.stack([first_new, first_new + do], axis=1)  # (k, 2): pass-through nodes keep one successor
+        levels.append((axis, split, nxt.reshape(-1)))
+        splits.append(do)
+        depth_at.append(depth)
+        n_next = int(first_new[-1] + 1 + do[-1])
+        new_count = np.empty(n_next, dtype=np.int64)
+        new_depth = np.empty(n_next, dtype=np.int64)
+        new_dom = np.empty((6, n_next), dtype=np.float32)
+        new_frozen = np.ones(n_next, dtype=bool)
+        stay = ~do
+        new_count[first_new[stay]] = count[stay]
+        new_depth[first_new[stay]] = depth[stay]
+        new_dom[:, first_new[stay]] = dom[:, stay]
+        for side in (0, 1):
+            at = nxt[do, side]
+            new_count[at] = sub_cnt[do, side] << have[do]
+            new_depth[at] = depth[do] + 1
+            new_dom[:, at] = child_dom[side][:, do]
+            new_frozen[at] = False
+        live = do.take(sub_slot)
+        if not live.all():
+            parked.append((sub_tid[~live], sub_slot[~live], len(levels) - 1))
+            sub_tid, dest = sub_tid[live], dest[live]
+        sub_slot = nxt.reshape(-1).take(dest)
+        new_have = np.empty(n_next, dtype=np.int64)
+        new_have[first_new] = have
+        new_have[first_new + do] = have
+        count, depth, dom, frozen, have = new_count, new_depth, new_dom, new_frozen, new_have
+    if not levels:
+        return None
+
+    slot = np.empty(n, dtype=np.intp)
+    slot[1::2] = _walk(np.arange(1, n, 2, dtype=np.intp), None, levels, cen_rows)
+    slot[sub_tid] = sub_slot
+    for t, nd, l0 in list(tiers.values()) + parked:
+        slot[t] = _walk(t, nd, levels[l0:], cen_rows)
+    count = np.bincount(slot, minlength=count.size).astype(np.int64)
+    # the depth cap, with the exact counts: every node of the top within its limit (else: build without the top)
+    sizes = count
+    for lv in range(len(levels) - 1, -1, -1):
+        nxt = levels[lv][2].reshape(-1, 2)
+        do = splits[lv]
+        kids = sizes.take(nxt)
+        if (kids[do] > max_leaf << np.minimum(max_depth - depth_at[lv][do, None] - 1, 40)).any():
+            return None
+        sizes = np.where(do, kids[:, 0] + kids[:, 1], kids[:, 0])
+    # records: a split node's children are its row in the next level's record, or (passing through the levels
+    # below) a starting node of _grow_from, whose first record will be number len(levels)
+    n_lv = len(levels)
+    res_rec = np.full(count.size, n_lv, dtype=np.int64)
+    res_child = np.arange(count.size, dtype=np.int64)
+    records = [None] * n_lv
+    for lv in range(n_lv - 1, -1, -1):
+        do = splits[lv]
+        nxt = levels[lv][2].reshape(-1, 2)
+        ch = nxt[do]
+        records[lv] = _Record(child=res_child.take(ch), rec=res_rec.take(ch))
+        here_rec = np.where(do, lv, res_rec.take(nxt[:, 0]))
+        here_child = np.where(do, np.cumsum(do) - 1, res_child.take(nxt[:, 0]))
+        res_rec, res_child = here_rec, here_child
+    return records, slot, count, depth, dom
+
+
+def _grow_from(box, cen, tid, slot, count, depth, dom, max_leaf: int, max_depth: int, chunk, records=None,
+               pending=None, cen_rows=None):
     """The pass loop, from a set of active nodes: tid (increasing indices into box / cen) and slot of every
     active triangle; count, depth (the root is at 0) and binning domain (6, K) of every active node.
 
@@ -246,14 +473,15 @@ def _grow_from(box, cen, tid, slot, count, depth, dom, max_leaf: int, max_depth:
     arrays). Returns records (the first record's rows are the starting nodes), leaf_of, leaf sizes and depths.
     """
     n_tri = box.shape[1]
-    cen_rows = np.ascontiguousarray(cen.T).reshape(-1)  # (x, y, z) of triangle i at 3 i .. 3 i + 2
+    if cen_rows is None:
+        cen_rows = np.ascontiguousarray(cen.T).reshape(-1)  # (x, y, z) of triangle i at 3 i .. 3 i + 2
 
     leaf_of = np.empty(n_tri, dtype=np.int64)
     leaf_sizes: list[np.ndarray] = []
     leaf_depths: list[np.ndarray] = []
-    records: list[_Record] = []
+    records: list[_Record] = [] if records is None else records
     n_leaves = 0
-    pending = None  # (record index the last pass's new nodes will live in, records that point at it)
+    # pending: (record index the last pass's new nodes will live in, records that point at it)
     while count.size:
         if chunk and pending and tid.size > chunk and count.max() <= chunk:
             n_leaves = _grow_chunks(box, cen, tid, slot, count, depth, dom, max_leaf, max_depth, chunk, records,

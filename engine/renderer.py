@@ -21,9 +21,10 @@ import numpy as np
 import vulkan as vk
 
 from .bvh import build_bvh
-from .errors import ConfigError, EngineError
+from .errors import ConfigError, EngineError, VulkanError
 from .passes.frame_data import FRAME_BYTES, MAX_LIGHTS, pack_frame, pack_light
-from .passes.gbuffer import ALBEDO_FORMAT, DEPTH_FORMAT, NORMAL_FORMAT, POSITION_FORMAT, GBufferPass, SceneGeometry
+from .passes.gbuffer import (ALBEDO_FORMAT, DEPTH_FORMAT, NORMAL_FORMAT, POSITION_FORMAT, VISIBILITY_FORMAT, GBufferPass,
+                             SceneGeometry)
 from .passes.accumulate import ALPHA_MIN, FILTER_AO, FILTER_MASKS, FILTER_TEMPORAL, AccumulatePass
 from .passes.ao import AOPass
 from .passes.debug_view import VIEW_MODES, DebugViewPass
@@ -182,8 +183,9 @@ class Targets:
         self.width, self.height, self.light_capacity = width, height, light_capacity
         n = width * height
         self.check_capacity(ctx, width, height, light_capacity)
-        att = (vk.VK_IMAGE_USAGE_COLOR_ATTACHMENT_BIT | vk.VK_IMAGE_USAGE_STORAGE_BIT
-               | vk.VK_IMAGE_USAGE_TRANSFER_SRC_BIT)
+        att = vk.VK_IMAGE_USAGE_STORAGE_BIT | vk.VK_IMAGE_USAGE_TRANSFER_SRC_BIT   # written by the G-buffer resolve
+        self.visibility = Image(ctx, width, height, VISIBILITY_FORMAT,
+                                vk.VK_IMAGE_USAGE_COLOR_ATTACHMENT_BIT | vk.VK_IMAGE_USAGE_STORAGE_BIT, name="visibility")
         self.position = Image(ctx, width, height, POSITION_FORMAT, att, name="position")
         self.normal = Image(ctx, width, height, NORMAL_FORMAT, att, name="normal")
         self.albedo = Image(ctx, width, height, ALBEDO_FORMAT, att, name="albedo")
@@ -212,7 +214,7 @@ class Targets:
             self.offsets[name] = off
             off += size
         self.readback = Buffer(ctx, off, TRANSFER_DST, host=True, name="readback")
-        self._objects = [self.position, self.normal, self.albedo, self.depth, self.color, self.hdr,
+        self._objects = [self.visibility, self.position, self.normal, self.albedo, self.depth, self.color, self.hdr,
                          self.hist_position, self.hist_normal, self.len_cur, self.len_hist, self.readback]
         for sig in self.signals.values():
             self._objects += sig.buffers()
@@ -313,11 +315,14 @@ class Renderer:
 
     def _init_gpu(self):
         ctx = self.ctx
+        if not ctx.geometry_shader:
+            raise VulkanError(f"device {ctx.device_info['name']!r} lacks the geometryShader feature, which the G-buffer's "
+                              "visibility pass needs (gl_PrimitiveID in a fragment shader); the Tracer works without it")
         self.frame_ubo = Buffer(ctx, FRAME_BYTES, UNIFORM, host=True, name="frame")
         self.timestamps = Timestamps(ctx)
         self.targets = Targets(ctx, self.width, self.height, light_capacity=1)
         self.bvh_set = bvh_descriptor_set(ctx)
-        self.gbuffer = GBufferPass(ctx, self.library, self.frame_ubo)
+        self.gbuffer = GBufferPass(ctx, self.library, self.frame_ubo, self.targets)
         self.shadows = ShadowPass(ctx, self.library, self.frame_ubo, self.bvh_set, self.targets)
         self.ao = AOPass(ctx, self.library, self.frame_ubo, self.bvh_set, self.targets)
         self.accumulate = AccumulatePass(ctx, self.library, self.frame_ubo, self.targets)
@@ -498,7 +503,7 @@ class Renderer:
         self.ctx.wait_idle()
         self.targets.destroy()
         self.targets = Targets(self.ctx, self.width, self.height, light_capacity)
-        for p in (self.shadows, self.ao, self.accumulate, self.denoise, self.lighting, self.debug_view):
+        for p in (self.gbuffer, self.shadows, self.ao, self.accumulate, self.denoise, self.lighting, self.debug_view):
             p.bind_targets(self.targets)
         self._history_key = None
 

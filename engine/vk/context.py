@@ -169,7 +169,10 @@ class Context:
 
         f13 = vk.VkPhysicalDeviceVulkan13Features(dynamicRendering=vk.VK_TRUE)
         f12 = vk.VkPhysicalDeviceVulkan12Features(pNext=f13, hostQueryReset=vk.VK_TRUE)
-        feats = vk.VkPhysicalDeviceFeatures2(pNext=f12)
+        # geometryShader: only for gl_PrimitiveID in the G-buffer's visibility fragment shader (the Renderer checks it)
+        self.geometry_shader = bool(vk.vkGetPhysicalDeviceFeatures(self.physical).geometryShader)
+        feats = vk.VkPhysicalDeviceFeatures2(pNext=f12, features=vk.VkPhysicalDeviceFeatures(
+            geometryShader=vk.VK_TRUE if self.geometry_shader else vk.VK_FALSE))
         prio = vk.ffi.new("float[]", [1.0])
         qinfo = vk.VkDeviceQueueCreateInfo(queueFamilyIndex=self.queue_family, queueCount=1, pQueuePriorities=prio)
         dinfo = vk.VkDeviceCreateInfo(

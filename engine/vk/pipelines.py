@@ -230,7 +230,13 @@ class GraphicsPipeline(_Pipeline):
 
 
 class Timestamps:
-    """GPU timestamps around named passes: `begin(cmd)`, `mark(cmd, name)` after each pass, `read()`."""
+    """GPU timestamps around named passes: `begin(cmd)`, `mark(cmd, name)` after each pass, `read()`.
+
+    Every timestamp is followed by a second one into a scratch query. lavapipe (llvmpipe) bins a timestamp into
+    its current render scene and only writes it when that scene is flushed, which a later BOTTOM_OF_PIPE timestamp
+    does; compute work, which llvmpipe runs at once, would otherwise land in the wrong pass. The scratch write
+    makes that flush happen right after each real timestamp. On other devices it is one more (ignored) query.
+    """
 
     def __init__(self, ctx: Context, capacity: int = 32):
         self.ctx = ctx
@@ -238,17 +244,21 @@ class Timestamps:
         self.names: list[str] = []
         self.enabled = ctx.timestamp_bits > 0 and ctx.timestamp_period_ns > 0
         self.pool = vk.vkCreateQueryPool(ctx.device, vk.VkQueryPoolCreateInfo(
-            queryType=vk.VK_QUERY_TYPE_TIMESTAMP, queryCount=capacity), None)
+            queryType=vk.VK_QUERY_TYPE_TIMESTAMP, queryCount=2 * capacity), None)
         ctx.defer_destroy(vk.vkDestroyQueryPool, ctx.device, self.pool, None)
+
+    def _write(self, cmd, stage, slot):
+        vk.vkCmdWriteTimestamp(cmd, stage, self.pool, slot)
+        vk.vkCmdWriteTimestamp(cmd, vk.VK_PIPELINE_STAGE_BOTTOM_OF_PIPE_BIT, self.pool, self.capacity + slot)
 
     def begin(self, cmd):
         self.names = []
-        vk.vkCmdResetQueryPool(cmd, self.pool, 0, self.capacity)
-        vk.vkCmdWriteTimestamp(cmd, vk.VK_PIPELINE_STAGE_TOP_OF_PIPE_BIT, self.pool, 0)
+        vk.vkCmdResetQueryPool(cmd, self.pool, 0, 2 * self.capacity)
+        self._write(cmd, vk.VK_PIPELINE_STAGE_TOP_OF_PIPE_BIT, 0)
 
     def mark(self, cmd, name: str):
         self.names.append(name)
-        vk.vkCmdWriteTimestamp(cmd, vk.VK_PIPELINE_STAGE_BOTTOM_OF_PIPE_BIT, self.pool, len(self.names))
+        self._write(cmd, vk.VK_PIPELINE_STAGE_BOTTOM_OF_PIPE_BIT, len(self.names))
 
     def read(self, names=None) -> dict[str, float]:
         """GPU ms per pass of the last submitted recording whose marks were `names` (default: the latest)."""

@@ -1,0 +1,104 @@
+#version 450
+#extension GL_GOOGLE_include_directive : require
+// G-buffer resolve: from the visibility image (triangle id + 1 per pixel) to world position + linear depth,
+// unit normal facing the viewer and albedo, the values the rasterizer would have interpolated at the pixel centre.
+//
+// Perspective-correct barycentrics come from the triangle's clip-space vertices with homogeneous edge functions
+// (Olano and Greer 1997): with the columns C_i = (x_i, y_i, w_i) and the pixel's NDC point P = (px, py, 1), the
+// weights are b_i ~ dot(cross(C_i+1, C_i+2), P), normalized to sum 1. No division by w, so triangles that cross
+// the camera plane need no clipping. The same weights one pixel to the right and one below give the UV
+// derivatives, and from them the texture's level of detail (what a fragment quad would have had).
+#include "common.glsl"
+FRAME_BLOCK
+
+#define MAX_TEXTURES 16
+
+layout(local_size_x = 8, local_size_y = 8) in;
+layout(set = 0, binding = 1, r32ui) uniform readonly uimage2D visibility;
+layout(set = 0, binding = 2, rgba32f) uniform writeonly image2D g_position;
+layout(set = 0, binding = 3, rgba32f) uniform writeonly image2D g_normal;
+layout(set = 0, binding = 4, rgba16f) uniform writeonly image2D g_albedo;
+// The scene's buffers as texel buffers (lavapipe gathers texels for 8 lanes at once, storage buffers lane by lane)
+layout(set = 0, binding = 5) uniform samplerBuffer vertices;       // 2 texels per vertex: (p, n.x), (n.yz, uv)
+layout(set = 0, binding = 6) uniform usamplerBuffer indices;       // material-sorted, 3 per triangle
+layout(set = 0, binding = 7) uniform usamplerBuffer tri_material;  // per triangle
+layout(set = 0, binding = 8) uniform samplerBuffer materials;      // 2 texels: base colour, (texture slot bits, ...)
+layout(set = 0, binding = 9) uniform sampler2D textures[MAX_TEXTURES];
+
+shared uint tile_slots;   // bit s: some pixel of this workgroup samples texture slot s
+
+vec3 weights(vec3 e0, vec3 e1, vec3 e2, vec3 p) {
+    vec3 b = vec3(dot(e0, p), dot(e1, p), dot(e2, p));
+    return b / (b.x + b.y + b.z);
+}
+
+void main() {
+    ivec2 px = ivec2(gl_GlobalInvocationID.xy);
+    uvec2 size = frame.size.xy;
+    bool inside = px.x < int(size.x) && px.y < int(size.y);
+    uint id = inside ? imageLoad(visibility, px).x : 0u;
+
+    vec3 pos = vec3(0.0), nrm = vec3(0.0);
+    vec2 uv = vec2(0.0), duv_dx = vec2(0.0), duv_dy = vec2(0.0);
+    vec4 albedo = vec4(0.0);
+    int slot = -1;
+    if (id != 0u) {
+        int tri = int(id - 1u);
+        int i0 = int(texelFetch(indices, 3 * tri).x), i1 = int(texelFetch(indices, 3 * tri + 1).x);
+        int i2 = int(texelFetch(indices, 3 * tri + 2).x);
+        vec4 a0 = texelFetch(vertices, 2 * i0), a1 = texelFetch(vertices, 2 * i1), a2 = texelFetch(vertices, 2 * i2);
+        vec4 b0 = texelFetch(vertices, 2 * i0 + 1), b1 = texelFetch(vertices, 2 * i1 + 1);
+        vec4 b2 = texelFetch(vertices, 2 * i2 + 1);
+        vec3 p0 = a0.xyz, p1 = a1.xyz, p2 = a2.xyz;
+        vec4 c0 = frame.view_proj * vec4(p0, 1.0);
+        vec4 c1 = frame.view_proj * vec4(p1, 1.0);
+        vec4 c2 = frame.view_proj * vec4(p2, 1.0);
+        vec3 C0 = c0.xyw, C1 = c1.xyw, C2 = c2.xyw;
+        vec3 e0 = cross(C1, C2), e1 = cross(C2, C0), e2 = cross(C0, C1);
+        vec2 step_ndc = 2.0 / vec2(size);
+        vec3 P = vec3((vec2(px) + 0.5) * step_ndc - 1.0, 1.0);
+        vec3 b = weights(e0, e1, e2, P);
+        vec3 bx = weights(e0, e1, e2, P + vec3(step_ndc.x, 0.0, 0.0));
+        vec3 by = weights(e0, e1, e2, P + vec3(0.0, step_ndc.y, 0.0));
+
+        pos = b.x * p0 + b.y * p1 + b.z * p2;
+        vec3 n = b.x * vec3(a0.w, b0.xy) + b.y * vec3(a1.w, b1.xy) + b.z * vec3(a2.w, b2.xy);
+        float len = length(n);
+        // a degenerate interpolated normal falls back to the facet normal
+        n = len > 1e-6 ? n / len : normalize(cross(p1 - p0, p2 - p0));
+        if (dot(n, frame.eye.xyz - pos) < 0.0) n = -n;   // two-sided surfaces: the side we see
+        nrm = n;
+
+        vec2 t0 = b0.zw, t1 = b1.zw, t2 = b2.zw;
+        uv = b.x * t0 + b.y * t1 + b.z * t2;
+        duv_dx = bx.x * t0 + bx.y * t1 + bx.z * t2 - uv;
+        duv_dy = by.x * t0 + by.y * t1 + by.z * t2 - uv;
+
+        int material = int(texelFetch(tri_material, tri).x);
+        albedo = vec4(texelFetch(materials, 2 * material).rgb, 1.0);
+        slot = floatBitsToInt(texelFetch(materials, 2 * material + 1).x);
+    }
+
+    // Texture sampling with an index that is uniform over the workgroup: loop over the slots this tile uses.
+    if (gl_LocalInvocationIndex == 0u) tile_slots = 0u;
+    barrier();
+    if (slot >= 0) atomicOr(tile_slots, 1u << uint(slot));
+    barrier();
+    uint todo = tile_slots;
+    while (todo != 0u) {
+        int s = findLSB(todo);
+        todo &= todo - 1u;
+        // The level of detail a fragment quad would have used (isotropic: the sampler has no anisotropy), given
+        // explicitly: lavapipe's LLVM fails to compile textureGrad with a non-constant sampler index.
+        vec2 texels = vec2(textureSize(textures[s], 0));
+        float rho = max(length(duv_dx * texels), length(duv_dy * texels));
+        vec4 texel = textureLod(textures[s], uv, log2(max(rho, 1e-30)));
+        if (s == slot) albedo.rgb *= texel.rgb;
+    }
+
+    if (!inside) return;
+    float depth = id != 0u ? dot(pos - frame.eye.xyz, frame.forward.xyz) : 0.0;
+    imageStore(g_position, px, vec4(pos, depth));
+    imageStore(g_normal, px, vec4(nrm, id != 0u ? 1.0 : 0.0));
+    imageStore(g_albedo, px, albedo);
+}

@@ -69,6 +69,27 @@ def test_tilted_plane(make_renderer):
     assert np.allclose(f.aov["albedo"], [0.5, 0.25, 0.125], atol=2e-3)
 
 
+def test_ground_plane_crossing_the_camera_plane(make_renderer):
+    """Two huge triangles reaching behind the camera (the G-buffer resolve's barycentrics are homogeneous, with no
+    clipping): every covered pixel is the exact ray-plane hit, and the horizon splits covered from background."""
+    corners = np.array([[-500.0, 0, -500], [500, 0, -500], [500, 0, 500], [-500, 0, 500]])
+    cam = Camera.look_at((0, 1, 0), (0, 0.8, -5), fov_y=60.0)
+    scene = Scene.from_arrays(corners, [[0, 2, 1], [0, 3, 2]], color=(0.25, 0.5, 0.75), camera=cam)
+    w, h = 64, 48
+    f = make_renderer(w, h).render(scene, shadows="off", ao=False)
+    d = pixel_rays(cam, w, h)
+    down = d[..., 1] < -0.02                      # rays that meet the plane well inside its 500 m
+    up = d[..., 1] > 0.0
+    covered = np.isfinite(f.aov["depth"])
+    assert covered[down].all() and not covered[up].any()
+    t = -1.0 / d[..., 1]
+    hit = np.asarray(cam.eye) + t[..., None] * d
+    near = down & (t < 50)
+    assert np.abs(f.aov["position"][near] - hit[near]).max() < 1e-3 * t[near].max()
+    assert np.allclose(f.aov["normal"][covered], [0, 1, 0], atol=1e-5)
+    assert np.allclose(f.aov["albedo"][covered], [0.25, 0.5, 0.75], atol=2e-3)
+
+
 def test_texture_reaches_albedo(make_renderer):
     """A quad with a 16x16 texture of four quadrants (sRGB red, green, blue, white) shows linear albedo per quadrant."""
     tex = np.zeros((16, 16, 4), np.uint8)

@@ -108,6 +108,23 @@ def test_batches_larger_than_the_buffer():
     assert (got != reference_occluded(v, f, o, d, np.full(len(o), 5.0, np.float32))).mean() < 0.002
 
 
+def test_staged_buffers_give_the_same_answers():
+    """The discrete-GPU path (rays and results through device-local buffers and copies, each copy sized to the
+    batch) answers exactly as the mapped path, also over several batches of different sizes."""
+    v, f = meshes()["sphere"]
+    rng = np.random.default_rng(5)
+    o, d = random_rays(rng, 2600, (v.min(0), v.max(0)))
+    with Tracer(v, f, batch_size=1024, staging=False, validation=True) as plain, \
+            Tracer(v, f, batch_size=1024, staging=True, validation=True) as staged:
+        assert staged.staged and not plain.staged
+        for n in (2600, 700, 1):
+            assert np.array_equal(staged.occluded(o[:n], d[:n], 3.0), plain.occluded(o[:n], d[:n], 3.0))
+            a, b = staged.intersect(o[:n], d[:n]), plain.intersect(o[:n], d[:n])
+            assert np.array_equal(a.prim, b.prim) and np.array_equal(a.t, b.t)
+        assert set(staged.last_times) == {"upload", "trace", "download"}
+        assert not staged.validation_errors and not plain.validation_errors
+
+
 def test_stats_and_bad_input():
     v, f = meshes()["sphere"]
     with Tracer(v, f) as t:

@@ -18,10 +18,20 @@ from ..bvh import build_bvh
 from ..errors import ConfigError, SceneError
 from ..shaders import ShaderLibrary
 from ..vk import SB, UTB, Buffer, BufferView, ComputePipeline, Context, DescriptorSet, Timestamps, memory_barrier, upload_buffer
-from ..vk.resources import STORAGE, UNIFORM_TEXEL
+from ..vk.resources import STORAGE, TRANSFER_DST, TRANSFER_SRC, UNIFORM_TEXEL
 
 RAY_BYTES = 32
 GROUP = 64
+HIT_BYTES = {"occluded": 4, "intersect": 16}
+
+
+def has_dedicated_vram(ctx: Context) -> bool:
+    """Is there device-local memory the host cannot map (a discrete GPU)? Then rays and results go through
+    staging copies, so that the trace kernel reads its rays from VRAM instead of across the bus."""
+    mp = ctx.memory_properties
+    host = vk.VK_MEMORY_PROPERTY_HOST_VISIBLE_BIT
+    return any(mp.memoryTypes[i].propertyFlags & vk.VK_MEMORY_PROPERTY_DEVICE_LOCAL_BIT
+               and not mp.memoryTypes[i].propertyFlags & host for i in range(mp.memoryTypeCount))
 
 
 @dataclass
@@ -108,11 +118,14 @@ class Tracer:
     """Batch ray queries against one triangle mesh (BVH built on the host, traversed by GLSL compute)."""
 
     def __init__(self, vertices, faces, *, device=None, validation: bool = False, batch_size: int = 1 << 20,
-                 context: Context | None = None):
+                 context: Context | None = None, staging: bool | None = None):
+        """`staging`: copy rays to and results from device-local buffers (default: when the device has memory
+        the host cannot map, i.e. a discrete GPU)."""
         v, f = _check_mesh(vertices, faces)
         self.bvh = build_bvh(v, f)
         self.stats = dict(self.bvh.stats)
         self.batch = int(batch_size)
+        self._staging = staging
         self._owns_ctx = context is None
         self.ctx = None
         try:
@@ -136,8 +149,16 @@ class Tracer:
         self.bvh_set = bvh_descriptor_set(ctx)
         self.scene = SceneBVH(ctx, self.bvh, self.bvh_set)
         self.io_set = DescriptorSet(ctx, [(0, SB), (1, SB), (2, SB)])
-        self.rays = Buffer(ctx, self.batch * RAY_BYTES, STORAGE, host=True, name="rays")
-        self.results = Buffer(ctx, self.batch * 16, STORAGE, host=True, name="hits")
+        # Rays and results: mapped host buffers; on a discrete GPU device-local ones filled / read by copies in the
+        # same command buffer (the copy is sized to the batch, rounded up to a power of two: one recording each).
+        self.staged = has_dedicated_vram(ctx) if self._staging is None else bool(self._staging)
+        self.rays_host = Buffer(ctx, self.batch * RAY_BYTES, STORAGE | TRANSFER_SRC, host=True, name="rays")
+        self.results_host = Buffer(ctx, self.batch * 16, STORAGE | TRANSFER_DST, host=True, name="hits")
+        if self.staged:
+            self.rays = Buffer(ctx, self.batch * RAY_BYTES, STORAGE | TRANSFER_DST, name="rays (device)")
+            self.results = Buffer(ctx, self.batch * 16, STORAGE | TRANSFER_SRC, name="hits (device)")
+        else:
+            self.rays, self.results = self.rays_host, self.results_host
         self.params = Buffer(ctx, 16, STORAGE | vk.VK_BUFFER_USAGE_INDIRECT_BUFFER_BIT, host=True, name="params")
         self.io_set.buffer(0, self.rays).buffer(1, self.results).buffer(2, self.params)
         self.timestamps = Timestamps(ctx, capacity=4)
@@ -145,21 +166,44 @@ class Tracer:
         for kind in ("occluded", "intersect"):
             self.pipelines[kind] = ComputePipeline(ctx, lib.get(f"trace_{kind}.comp"), [self.io_set, self.bvh_set],
                                                    name=f"trace_{kind}")
-            self._commands[kind] = self._record(kind)
         self.last_gpu_ms = 0.0
+        self.last_times: dict = {}   # GPU ms of the last batch per step: upload (staged only), trace, download
 
-    def _record(self, kind):
-        """One command buffer per query kind, recorded once: the batch size comes from the params buffer."""
-        cmd = self.ctx.allocate_command_buffer()
+    def _command(self, kind, n):
+        """The recorded command buffer for a query kind (and, when staged, the copy size for n rays)."""
+        span = min(1 << max(int(n - 1).bit_length(), 10), self.batch) if self.staged else self.batch
+        key = (kind, span)
+        if key not in self._commands:
+            self._commands[key] = self._record(kind, span)
+        return self._commands[key], self._marks[key]
+
+    def _record(self, kind, span):
+        """One command buffer per query kind (and copy span), recorded once: the ray count comes from `params`."""
+        ctx, ts = self.ctx, self.timestamps
+        cmd = ctx.allocate_command_buffer()
         vk.vkBeginCommandBuffer(cmd, vk.VkCommandBufferBeginInfo())
-        self.timestamps.begin(cmd)
+        ts.begin(cmd)
+        T, C = vk.VK_PIPELINE_STAGE_TRANSFER_BIT, vk.VK_PIPELINE_STAGE_COMPUTE_SHADER_BIT
+        if self.staged:
+            vk.vkCmdCopyBuffer(cmd, self.rays_host.handle, self.rays.handle, 1,
+                               [vk.VkBufferCopy(0, 0, span * RAY_BYTES)])
+            memory_barrier(cmd, T, C, vk.VK_ACCESS_TRANSFER_WRITE_BIT, vk.VK_ACCESS_SHADER_READ_BIT)
+            ts.mark(cmd, "upload")
         self.pipelines[kind].bind(cmd, [self.io_set, self.bvh_set])
         vk.vkCmdDispatchIndirect(cmd, self.params.handle, 0)
-        self.timestamps.mark(cmd, "trace")
-        memory_barrier(cmd, vk.VK_PIPELINE_STAGE_COMPUTE_SHADER_BIT, vk.VK_PIPELINE_STAGE_HOST_BIT,
-                       vk.VK_ACCESS_SHADER_WRITE_BIT, vk.VK_ACCESS_HOST_READ_BIT)
+        ts.mark(cmd, "trace")
+        if self.staged:
+            memory_barrier(cmd, C, T, vk.VK_ACCESS_SHADER_WRITE_BIT, vk.VK_ACCESS_TRANSFER_READ_BIT)
+            vk.vkCmdCopyBuffer(cmd, self.results.handle, self.results_host.handle, 1,
+                               [vk.VkBufferCopy(0, 0, span * HIT_BYTES[kind])])
+            memory_barrier(cmd, T, vk.VK_PIPELINE_STAGE_HOST_BIT, vk.VK_ACCESS_TRANSFER_WRITE_BIT,
+                           vk.VK_ACCESS_HOST_READ_BIT)
+            ts.mark(cmd, "download")
+        else:
+            memory_barrier(cmd, C, vk.VK_PIPELINE_STAGE_HOST_BIT, vk.VK_ACCESS_SHADER_WRITE_BIT,
+                           vk.VK_ACCESS_HOST_READ_BIT)
         vk.vkEndCommandBuffer(cmd)
-        self._marks[kind] = list(self.timestamps.names)
+        self._marks[(kind, span)] = list(ts.names)
         return cmd
 
     @property
@@ -174,7 +218,7 @@ class Tracer:
         self.last_gpu_ms = 0.0
         for s in range(0, len(o), self.batch):
             n = self._run("occluded", o[s:s + self.batch], d[s:s + self.batch], t[s:s + self.batch])
-            out[s:s + n] = self.results.view(np.uint32)[:n] != 0
+            out[s:s + n] = self.results_host.view(np.uint32)[:n] != 0
         return out
 
     def intersect(self, origins, directions, tmax=np.inf) -> Hits:
@@ -186,7 +230,7 @@ class Tracer:
         self.last_gpu_ms = 0.0
         for s in range(0, n_all, self.batch):
             n = self._run("intersect", o[s:s + self.batch], d[s:s + self.batch], t[s:s + self.batch])
-            rec = self.results.view(np.float32)[:n * 4].reshape(n, 4)
+            rec = self.results_host.view(np.float32)[:n * 4].reshape(n, 4)
             hits.t[s:s + n] = rec[:, 0]
             hits.prim[s:s + n] = rec[:, 1].view(np.int32)
             hits.u[s:s + n] = rec[:, 2]
@@ -197,14 +241,16 @@ class Tracer:
         n = len(o)
         if n == 0:
             return 0
-        rays = self.rays.view(np.float32)[:n * 8].reshape(n, 8)
+        rays = self.rays_host.view(np.float32)[:n * 8].reshape(n, 8)
         rays[:, 0:3] = o
         rays[:, 3] = 0.0
         rays[:, 4:7] = d
         rays[:, 7] = t
         self.params.write(np.array([(n + GROUP - 1) // GROUP, 1, 1, n], np.uint32))
-        self.ctx.submit(self._commands[kind])
-        self.last_gpu_ms += self.timestamps.read(self._marks[kind]).get("trace", 0.0)
+        cmd, marks = self._command(kind, n)
+        self.ctx.submit(cmd)
+        self.last_times = self.timestamps.read(marks)
+        self.last_gpu_ms += self.last_times.get("trace", 0.0)
         return n
 
     # ---- lifetime --------------------------------------------------------------------------
@@ -215,6 +261,7 @@ class Tracer:
             else:
                 self.ctx.wait_idle()
                 for obj in (getattr(self, "scene", None), getattr(self, "rays", None), getattr(self, "results", None),
+                            getattr(self, "rays_host", None), getattr(self, "results_host", None),
                             getattr(self, "params", None)):
                     if obj is not None:
                         obj.destroy()

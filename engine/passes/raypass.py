@@ -7,6 +7,7 @@ from __future__ import annotations
 import numpy as np
 
 from ..vk import SB, SI, UB, ComputePipeline, DescriptorSet
+from ..rt.tracer import bvh_spec
 
 
 class RayPass:
@@ -20,7 +21,7 @@ class RayPass:
         self.set = DescriptorSet(ctx, [(0, UB), (1, SI), (2, SI), (3, SB)])
         self.set.buffer(0, frame_ubo)
         self.pipeline = ComputePipeline(ctx, library.get(self.shaders[0]), [self.set, bvh_set],
-                                        push_size=self.push_size, name=self.name)
+                                        push_size=self.push_size, spec=bvh_spec(ctx), name=self.name)
         self.bind_targets(targets)
 
     def bind_targets(self, t):

@@ -80,6 +80,11 @@ def bvh_descriptor_set(ctx: Context) -> DescriptorSet:
     return DescriptorSet(ctx, [(0, UTB), (1, UTB)])
 
 
+def bvh_spec(ctx: Context) -> dict:
+    """Specialization constants of bvh.glsl for this device: the branchless stack push on CPU devices (lavapipe)."""
+    return {0: ctx.device_info["type"] == "CPU"}
+
+
 def _check_mesh(vertices, faces):
     try:
         v = np.asarray(vertices, dtype=np.float64)
@@ -165,7 +170,7 @@ class Tracer:
         self.pipelines, self._commands, self._marks = {}, {}, {}
         for kind in ("occluded", "intersect"):
             self.pipelines[kind] = ComputePipeline(ctx, lib.get(f"trace_{kind}.comp"), [self.io_set, self.bvh_set],
-                                                   name=f"trace_{kind}")
+                                                   spec=bvh_spec(ctx), name=f"trace_{kind}")
         self.last_gpu_ms = 0.0
         self.last_times: dict = {}   # GPU ms of the last batch per step: upload (staged only), trace, download
 

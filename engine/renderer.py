@@ -32,6 +32,7 @@ from .passes.denoise import DenoisePass
 from .passes.lighting import LightingPass
 from .passes.shadows import ShadowPass
 from .rt.tracer import SceneBVH, bvh_descriptor_set
+from .scene.camera import Camera
 from .shaders import ShaderLibrary
 from .vk import Buffer, Context, Image, Timestamps, image_barrier, memory_barrier
 from .vk.resources import STORAGE, TRANSFER_DST, TRANSFER_SRC, UNIFORM
@@ -304,6 +305,7 @@ class Renderer:
         self._validation_errors: list[str] = []
         self._owns_ctx = context is None
         self._commands: dict = {}          # set before anything can fail, so close() always works
+        self._steady = None                # _Steady: the last frame's inputs, for re-submitting it cheaply
         self._geometry = self._scene_bvh = self.targets = None
         try:
             self.ctx = context if context is not None else Context(device=device, validation=validation or None)
@@ -319,6 +321,8 @@ class Renderer:
             raise VulkanError(f"device {ctx.device_info['name']!r} lacks the geometryShader feature, which the G-buffer's "
                               "visibility pass needs (gl_PrimitiveID in a fragment shader); the Tracer works without it")
         self.frame_ubo = Buffer(ctx, FRAME_BYTES, UNIFORM, host=True, name="frame")
+        self._ubo_f32 = self.frame_ubo.view(np.float32)   # the mapped frame block (FRAME_BLOCK), written in place
+        self._ubo_u32 = self.frame_ubo.view(np.uint32)
         self.timestamps = Timestamps(ctx)
         self.targets = Targets(ctx, self.width, self.height, light_capacity=1)
         self.bvh_set = bvh_descriptor_set(ctx)
@@ -339,6 +343,7 @@ class Renderer:
         self._frame_index = 0
         self._prev_view_proj = None
         self._history_key = None   # what the temporal history was accumulated under (None: no valid history)
+        self._steady = None
         self.uploads = 0  # scene uploads so far (a test reads it: the same scene is uploaded once)
 
     # ---- public ---------------------------------------------------------------------------
@@ -387,11 +392,25 @@ class Renderer:
     def _prepare(self, scene, camera, settings, readback):
         if self.ctx is None:
             raise EngineError("render() on a closed Renderer")
+        polled = False
+        if self._steady is not None:
+            self._poll_shaders()   # a reload drops the recorded commands, and with them self._steady
+            polled = True
+            steady = self._steady
+            if steady is not None:
+                cam = camera if camera is not None else scene.camera
+                if steady.same(scene, settings, readback):
+                    if cam is steady.camera:
+                        return self._prepare_steady(steady)
+                    if isinstance(cam, Camera):
+                        return self._prepare_moved(steady, cam)
+        self._steady = None
         merged = dict(getattr(scene, "settings", None) or {})
         merged.update(settings)
         cfg = _check_settings(merged)
         camera = camera if camera is not None else scene.camera
-        self._poll_shaders()
+        if not polled:
+            self._poll_shaders()
         self._use_scene(scene)
         lights = list(scene.lights)
         if len(lights) > MAX_LIGHTS:
@@ -404,14 +423,15 @@ class Renderer:
         diag = float(np.linalg.norm(scene.bounds[1] - scene.bounds[0])) or 1.0
         # The temporal history holds the light masks and AO as traced under these: when any of them changes
         # (another scene, light, shadow mode or sample count, size), the next frame starts over.
+        packed_lights = [pack_light(l) for l in lights]
         history_key = (scene.uid if hasattr(scene, "uid") else id(scene), self.width, self.height,
-                       b"".join(pack_light(l).tobytes() for l in lights),
+                       b"".join(p.tobytes() for p in packed_lights),
                        tuple(cfg[k] for k in ("shadows", "shadow_samples", "ao", "ao_samples", "ao_radius",
                                               "accumulate")))
         reset = history_key != self._history_key
         shadow_samples = cfg["reference_samples"] if cfg["shadows"] == "reference" else cfg["shadow_samples"]
         ao_samples = cfg["reference_samples"] if cfg["shadows"] == "reference" else cfg["ao_samples"]
-        self.frame_ubo.write(np.frombuffer(pack_frame(
+        pack_frame(
             view_proj=view_proj,
             prev_view_proj=self._prev_view_proj if self._prev_view_proj is not None and not reset else view_proj,
             eye=camera.eye, forward=camera.forward, near=camera.near, width=self.width, height=self.height,
@@ -419,7 +439,7 @@ class Renderer:
             ao_radius=cfg["ao_radius"] or 0.1 * diag, ao_samples=ao_samples, shadow_samples=shadow_samples,
             exposure=cfg["exposure"], ambient=cfg["ambient"], scene_scale=diag, accum_alpha=ALPHA_MIN,
             pixel_footprint=2.0 * math.tan(math.radians(camera.fov_y) / 2.0) / self.height,
-            history_reset=reset, bounds=scene.bounds), np.uint8))
+            history_reset=reset, bounds=scene.bounds, out=self._ubo_f32, packed_lights=packed_lights)
         key = (cfg["shadows"], cfg["ao"], cfg["accumulate"], cfg["denoise"], cfg["view"], len(lights), readback)
         if cfg["shadows"] == "reference":
             key += (cfg["reference_samples"],)
@@ -430,7 +450,42 @@ class Renderer:
         self._frame_index += 1
         self._prev_view_proj = view_proj
         self._history_key = history_key
-        return cmd, marks, cfg, len(lights)
+        self._steady = _Steady.capture(scene, camera, settings, readback, lights, view_proj,
+                                       (cmd, marks, cfg, len(lights)))
+        return cmd, marks, dict(cfg), len(lights)
+
+    def _prepare_steady(self, steady):
+        """The same scene, lights, camera and settings as the last frame: its command buffer, and a frame block
+        that differs from the last one only in the frame index (plus, on the first such frame, the previous
+        camera, now this one, and the history-reset flag, now off). What the full path would write, bit for bit."""
+        if not steady.settled:
+            self._ubo_f32[16:32] = steady.view_proj_cols   # prev_view_proj = this camera's
+            self._ubo_f32[55] = 0.0                        # history_reset: the history key is unchanged
+            steady.settled = True
+        self._ubo_u32[42] = self._frame_index
+        self._frame_index += 1
+        cmd, marks, cfg, n_lights = steady.result
+        return cmd, marks, dict(cfg), n_lights
+
+    def _prepare_moved(self, steady, camera):
+        """As the last frame but for the camera (the viewer while flying): the camera's fields of the frame block
+        are rewritten, the rest (lights, settings, scene) stays; the temporal history is kept, as the full path
+        keeps it (the camera is not part of the history key)."""
+        view_proj = camera.projection_matrix(self.width / self.height) @ camera.view_matrix()
+        f32 = self._ubo_f32
+        f32[0:16] = view_proj.T.reshape(-1)
+        f32[16:32] = steady.view_proj_cols             # prev_view_proj: the last frame's camera
+        f32[32:35], f32[35] = camera.eye, camera.near
+        f32[36:39] = camera.forward
+        f32[54] = 2.0 * math.tan(math.radians(camera.fov_y) / 2.0) / self.height
+        f32[55] = 0.0                                  # history_reset: the history key is unchanged
+        self._ubo_u32[42] = self._frame_index
+        self._frame_index += 1
+        self._prev_view_proj = view_proj
+        steady.camera, steady.settled = camera, False
+        steady.view_proj_cols = np.asarray(view_proj, np.float32).T.reshape(-1)
+        cmd, marks, cfg, n_lights = steady.result
+        return cmd, marks, dict(cfg), n_lights
 
     def close(self):
         if self.ctx is not None:
@@ -473,6 +528,7 @@ class Renderer:
             self.targets.destroy()
 
     def _invalidate_commands(self):
+        self._steady = None
         if self._commands:
             self.ctx.wait_idle()
             for cmd, _ in self._commands.values():
@@ -482,6 +538,7 @@ class Renderer:
     def _use_scene(self, scene):
         if scene is self._scene:
             return
+        self._steady = None
         self._invalidate_commands()
         self.ctx.wait_idle()
         for old in (self._geometry, self._scene_bvh):
@@ -506,6 +563,7 @@ class Renderer:
         for p in (self.gbuffer, self.shadows, self.ao, self.accumulate, self.denoise, self.lighting, self.debug_view):
             p.bind_targets(self.targets)
         self._history_key = None
+        self._steady = None
 
     def _record(self, cfg, n_lights, readback=True):
         ctx, t = self.ctx, self.targets
@@ -569,6 +627,100 @@ class Renderer:
             ts.mark(cmd, "readback")
         vk.vkEndCommandBuffer(cmd)
         return cmd
+
+
+_MISSING = object()
+_PLAIN = (str, bool, int, float, type(None), np.generic)
+
+
+def _snapshot(settings) -> dict | None:
+    """A copy of a settings dict that later calls are compared with (`_same_settings`), or None when a value is
+    not a plain scalar or a list / tuple of them (such calls always take the full path)."""
+    out = {}
+    for key, value in settings.items():
+        if isinstance(value, (list, tuple)):
+            if not all(isinstance(x, _PLAIN) for x in value):
+                return None
+            out[key] = (type(value), tuple(value))
+        elif isinstance(value, _PLAIN):
+            out[key] = (type(value), value)
+        else:
+            return None
+    return out
+
+
+def _same_value(value, snap) -> bool:
+    kind, held = snap
+    if type(value) is not kind:
+        return False
+    if kind is list or kind is tuple:
+        return len(value) == len(held) and all(
+            type(a) is type(b) and bool(a == b) for a, b in zip(value, held))
+    return value is held or bool(value == held)
+
+
+def _same_settings(settings, snap) -> bool:
+    if len(settings) != len(snap):
+        return False
+    for key, value in settings.items():
+        held = snap.get(key, _MISSING)
+        if held is _MISSING or not _same_value(value, held):
+            return False
+    return True
+
+
+class _Steady:
+    """What the last frame was prepared from, to tell whether the next one is the same frame again: the same
+    scene, camera and lights (by identity: cameras are immutable, and a light's attributes are compared by
+    identity too, so an assigned attribute counts as a change) and equal settings (same values and types)."""
+
+    __slots__ = ("scene", "camera", "readback", "bounds", "lights", "settings", "scene_settings", "view_proj_cols",
+                 "settled", "result")
+
+    @classmethod
+    def capture(cls, scene, camera, settings, readback, lights, view_proj, result):
+        """The state after a full `_prepare`, or None when it cannot be compared cheaply (then every frame takes
+        the full path)."""
+        snap = _snapshot(settings)
+        scene_snap = _snapshot(getattr(scene, "settings", None) or {})
+        if snap is None or scene_snap is None or not hasattr(scene.lights, "__len__"):
+            return None
+        held = []
+        for light in lights:
+            attrs = getattr(light, "__dict__", None)
+            if attrs is None or any(getattr(c, "__slots__", ()) for c in type(light).__mro__):
+                return None
+            held.append((light, tuple(attrs.values())))
+        self = cls()
+        self.scene, self.camera, self.readback, self.bounds = scene, camera, readback, scene.bounds
+        self.lights, self.settings, self.scene_settings = held, snap, scene_snap
+        self.view_proj_cols = np.asarray(view_proj, np.float32).T.reshape(-1)   # as pack_frame writes it
+        self.settled = False   # the block's prev_view_proj / history_reset still are the full path's
+        self.result = result
+        return self
+
+    def same(self, scene, settings, readback) -> bool:
+        """The same frame but perhaps for the camera (compared by the caller)."""
+        if scene is not self.scene or readback != self.readback:
+            return False
+        if scene.bounds is not self.bounds or not _same_settings(settings, self.settings):
+            return False
+        scene_settings = getattr(scene, "settings", None) or {}
+        if not _same_settings(scene_settings, self.scene_settings):
+            return False
+        lights = scene.lights
+        if len(lights) != len(self.lights):
+            return False
+        for light, (held, values) in zip(lights, self.lights):
+            if light is not held:
+                return False
+            attrs = light.__dict__
+            if len(attrs) != len(values):
+                return False
+            for a, b in zip(attrs.values(), values):
+                if a is not b:
+                    return False
+        return True
 
 
 _ALL_STAGES = vk.VK_PIPELINE_STAGE_TRANSFER_BIT | vk.VK_PIPELINE_STAGE_COMPUTE_SHADER_BIT

@@ -54,13 +54,22 @@ def pack_light(light) -> np.ndarray:
 
 def pack_frame(*, view_proj, prev_view_proj, eye, forward, near, width, height, frame_index, lights,
                ao_radius, ao_samples, shadow_samples, exposure, ambient, scene_scale, accum_alpha,
-               pixel_footprint=0.0, history_reset=False, bounds=None) -> bytes:
+               pixel_footprint=0.0, history_reset=False, bounds=None, out=None, packed_lights=None):
     """The FRAME_BLOCK bytes. `accum_alpha`: the temporal blend's alpha_min; `pixel_footprint`: a pixel's size per
     unit of view depth (2 tan(fov_y / 2) / height); `history_reset`: the temporal history is invalid this frame;
-    `bounds`: (2, 3) scene min/max (debug views)."""
+    `bounds`: (2, 3) scene min/max (debug views).
+
+    `out`: a float32 array of FRAME_BYTES / 4 (e.g. a view of the mapped uniform buffer) to write the block into
+    instead; then `out` is returned, not bytes. `packed_lights`: `pack_light` of each light, when already made."""
     if len(lights) > MAX_LIGHTS:
         raise ConfigError(f"lights: {len(lights)} lights, at most {MAX_LIGHTS} are supported")
-    buf = np.zeros(FRAME_BYTES // 4, np.float32)
+    if out is None:
+        buf = np.zeros(FRAME_BYTES // 4, np.float32)
+    else:
+        buf = out
+        if buf.dtype != np.float32 or buf.shape != (FRAME_BYTES // 4,):
+            raise ValueError(f"pack_frame: out must be float32 ({FRAME_BYTES // 4},), got {buf.dtype} {buf.shape}")
+        buf[:] = 0.0
     u32 = buf.view(np.uint32)
     buf[0:16] = np.asarray(view_proj, np.float32).T.reshape(-1)       # GLSL mat4 is column-major
     buf[16:32] = np.asarray(prev_view_proj, np.float32).T.reshape(-1)
@@ -75,5 +84,6 @@ def pack_frame(*, view_proj, prev_view_proj, eye, forward, near, width, height, 
         buf[56:59], buf[60:63] = b[0], b[1]
     base = HEADER_BYTES // 4
     for i, light in enumerate(lights):
-        buf[base + i * LIGHT_VEC4S * 4: base + (i + 1) * LIGHT_VEC4S * 4] = pack_light(light).reshape(-1)
-    return buf.tobytes()
+        packed = packed_lights[i] if packed_lights is not None else pack_light(light)
+        buf[base + i * LIGHT_VEC4S * 4: base + (i + 1) * LIGHT_VEC4S * 4] = packed.reshape(-1)
+    return buf if out is not None else buf.tobytes()

@@ -15,6 +15,9 @@ from ..errors import ConfigError, VulkanError
 
 log = logging.getLogger("engine.vk")
 
+_CData = vk.ffi.CData
+_vkQueueSubmit = vk.lib.vkQueueSubmit   # the loader's entry point, called without the wrapper's conversions
+
 _TYPE_RANK = {  # lower is better: discrete > integrated > virtual > CPU
     vk.VK_PHYSICAL_DEVICE_TYPE_DISCRETE_GPU: 0,
     vk.VK_PHYSICAL_DEVICE_TYPE_INTEGRATED_GPU: 1,
@@ -111,6 +114,7 @@ class Context:
         self.validation_errors: list[str] = []
         self.validation_messages: list[str] = []
         self._destroy_stack = []
+        self._submit_infos = {}   # (cmd, wait semaphores, wait stages, signal semaphores) -> VkSubmitInfo*
         self.instance = None
         self.device = None
         self._messenger = None
@@ -255,23 +259,53 @@ class Context:
             commandPool=self.command_pool, level=vk.VK_COMMAND_BUFFER_LEVEL_PRIMARY, commandBufferCount=1))[0]
 
     def free_command_buffer(self, cmd):
+        for key in [k for k in self._submit_infos if k[0] == cmd]:
+            del self._submit_infos[key]
         vk.vkFreeCommandBuffers(self.device, self.command_pool, 1, [cmd])
 
     def submit(self, cmd, wait=True, wait_semaphores=(), wait_stages=(), signal_semaphores=(), fence=None):
-        """Submit one recorded command buffer; by default block until it finished."""
-        info = vk.VkSubmitInfo(
-            waitSemaphoreCount=len(wait_semaphores), pWaitSemaphores=list(wait_semaphores) or None,
-            pWaitDstStageMask=list(wait_stages) or None,
-            commandBufferCount=1, pCommandBuffers=[cmd],
-            signalSemaphoreCount=len(signal_semaphores), pSignalSemaphores=list(signal_semaphores) or None)
+        """Submit one recorded command buffer; by default block until it finished.
+
+        The VkSubmitInfo (and its handle arrays) is built once per (command buffer, semaphores, stages) and
+        reused, and vkQueueSubmit is called through the raw cffi function: a re-submitted frame costs one
+        dict lookup and one foreign call here (the viewer's per-frame path)."""
+        key = (cmd, tuple(wait_semaphores), tuple(wait_stages), tuple(signal_semaphores))
+        entry = self._submit_infos.get(key)
+        if entry is None:
+            entry = self._submit_info(key)
         use_fence = fence if fence is not None else (self.fence if wait else None)
+        if not isinstance(use_fence, _CData):
+            use_fence = vk.ffi.cast("VkFence", use_fence) if use_fence else vk.ffi.NULL
+        result = _vkQueueSubmit(self.queue, 1, entry[0], use_fence)
         try:
-            vk.vkQueueSubmit(self.queue, 1, [info], use_fence or vk.VK_NULL_HANDLE)
+            if result != vk.VK_SUCCESS:
+                raise vk.exception_codes[result]
             if wait and fence is None:
                 vk.vkWaitForFences(self.device, 1, [self.fence], vk.VK_TRUE, 0xFFFFFFFFFFFFFFFF)
                 vk.vkResetFences(self.device, 1, [self.fence])
         except vk.VkErrorDeviceLost:
             raise VulkanError("the Vulkan device was lost while running a command buffer") from None
+
+    def _submit_info(self, key):
+        """[VkSubmitInfo*, the arrays it points to] for `key` (see submit), cached: the list keeps them alive."""
+        cmd, waits, stages, signals = key
+        if len(stages) != len(waits):
+            raise ValueError(f"submit: {len(waits)} wait semaphores but {len(stages)} wait stages")
+        ffi = vk.ffi
+        info = ffi.new("VkSubmitInfo*")
+        info.sType = vk.VK_STRUCTURE_TYPE_SUBMIT_INFO
+        keep = [info, ffi.new("VkCommandBuffer[1]", [cmd])]
+        info.commandBufferCount, info.pCommandBuffers = 1, keep[1]
+        if waits:
+            keep += [ffi.new("VkSemaphore[]", list(waits)), ffi.new("VkPipelineStageFlags[]", list(stages))]
+            info.waitSemaphoreCount, info.pWaitSemaphores, info.pWaitDstStageMask = len(waits), keep[-2], keep[-1]
+        if signals:
+            keep.append(ffi.new("VkSemaphore[]", list(signals)))
+            info.signalSemaphoreCount, info.pSignalSemaphores = len(signals), keep[-1]
+        if len(self._submit_infos) >= 256:   # handles of freed objects; a bound, not a policy
+            self._submit_infos.clear()
+        self._submit_infos[key] = keep
+        return keep
 
     def one_shot(self):
         """`with ctx.one_shot() as cmd:` records into a command buffer and runs it on exit."""

@@ -114,11 +114,35 @@ def walk(bvh):
     return edges, leaves
 
 
+def check_depth_first_order(bvh):
+    """Interior nodes in pre-order: root 0, a node's left interior child at its index + 1, its right interior child
+    right after the whole left subtree, so every subtree occupies the contiguous index range [k, k + size)."""
+    nodes = bvh.nodes
+    m = len(nodes)
+    left, right = nodes["left"].astype(np.int64), nodes["right"].astype(np.int64)
+    li, ri = (left & int(LEAF_BIT)) == 0, (right & int(LEAF_BIT)) == 0
+    idx = np.arange(m)
+    assert (left[li] == idx[li] + 1).all(), "left interior child right after its parent"
+    assert (right[ri] > idx[ri]).all(), "children after their parent"
+    size = np.ones(m, dtype=np.int64)
+    lo, hi = idx.copy(), idx.copy()  # smallest and largest index in each subtree
+    for k in range(m - 1, -1, -1):  # children have larger indices: they are done first
+        for ok, c in ((li[k], left[k]), (ri[k], right[k])):
+            if ok:
+                size[k] += size[c]
+                lo[k], hi[k] = min(lo[k], lo[c]), max(hi[k], hi[c])
+    assert size[0] == m, "the root's subtree is every node"
+    assert (lo == idx).all() and (hi - lo + 1 == size).all(), "every subtree is a contiguous index range"
+    lsize = np.where(li, size[np.where(li, left, 0)], 0)
+    assert (right[ri] == (idx + 1 + lsize)[ri]).all(), "right child right after the left subtree"
+
+
 def check_invariants(bvh, vertices, faces, max_leaf=4, max_depth=32):
     vertices = np.asarray(vertices, dtype=np.float32)
     faces = np.asarray(faces)
     n = len(faces)
     edges, leaves = walk(bvh)
+    check_depth_first_order(bvh)
 
     # every triangle in exactly one leaf; leaves not over max_leaf
     covered = np.zeros(max(n, 1), dtype=np.int64)
@@ -199,6 +223,27 @@ def test_invariants_larger_mesh_and_other_leaf_sizes():
     v, f = soup(3000)
     for max_leaf in (1, 2, 8):
         check_invariants(build_bvh(v, f, max_leaf=max_leaf), v, f, max_leaf=max_leaf)
+
+
+@pytest.mark.parametrize("name", ["sphere6", "soup_leaf1", "ladder_deep", "coincident"])
+def test_nodes_are_in_depth_first_order(name):
+    v, f, kw = {
+        "sphere6": (*sphere(6), {}),  # several sampled levels and chunk groups
+        "soup_leaf1": (*soup(3000), {"max_leaf": 1}),
+        "ladder_deep": (*ladder(150), {"max_depth": 60}),  # lopsided: long chains of one-sided subtrees
+        "coincident": (*coincident(), {}),
+    }[name]
+    bvh = build_bvh(v, f, **kw)
+    check_depth_first_order(bvh)
+    nodes = bvh.nodes
+    # not just interior nodes: leaf words still point at their triangles, in leaf order
+    words = np.concatenate([nodes["left"], nodes["right"]])
+    counts = np.concatenate([nodes["lcount"], nodes["rcount"]])
+    leaf = (words & LEAF_BIT) != 0
+    first = (words[leaf] & ~LEAF_BIT).astype(np.int64)
+    order = np.argsort(first)
+    ends = first[order] + counts[leaf][order]
+    assert first[order][0] == 0 and (first[order][1:] == ends[:-1]).all() and ends[-1] == len(f)
 
 
 def test_float64_and_uint32_inputs_give_the_same_tree():

@@ -25,8 +25,14 @@ How it works
    child above its cap are not used, and a node whose counts are only estimated and could break the cap is split
    at its median. So leaves are never deeper than max_depth, whatever the geometry, and the GPU traversal stack
    (BVH_STACK_SIZE) cannot overflow.
-5. Triangles are ordered by leaf; leaf boxes come from np.minimum.at keyed by leaf, interior boxes from one union
-   per node bottom up, and everything is packed to the layout of engine/bvh/layout.py.
+5. Leaves are collected pass by pass (in each chunk group's own loop, on its cache-sized data): the triangles of a
+   pass's leaves are put in leaf order with a stable 16-bit radix argsort, and their boxes come from
+   np.minimum.at keyed by leaf, so leaf order and leaf boxes need no sort or scatter over the whole mesh. The
+   triangle records are written in Morton order during set-up and gathered once into leaf order.
+6. The interior nodes are renumbered depth first (pre-order, see engine/bvh/layout.py): subtree sizes bottom up,
+   positions top down, one vector step per record of nodes; one pass over the records in reverse then makes the
+   exact boxes (a node's box is the union of its children's), the SAH cost, and writes each record's nodes, packed,
+   at their positions.
 
 Boxes are carried as six float32 rows (min x, min y, min z, -max x, -max y, -max z) so that the union of boxes is a
 single elementwise minimum.
@@ -40,7 +46,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from ..errors import ConfigError, SceneError
-from .layout import LEAF_BIT, TRI_DTYPE, pack_nodes
+from .layout import LEAF_BIT, NODE_DTYPE, TRI_DTYPE
 
 #: Default depth cap; equal to the default BVH_STACK_SIZE of bvh.glsl (the traversal needs depth - 1 entries).
 DEFAULT_MAX_DEPTH = 32
@@ -49,7 +55,7 @@ DEFAULT_MAX_DEPTH = 32
 GRID2_MAX = 64
 GRID4_MAX = 2048
 #: Once every node holds at most CHUNK triangles, groups of about CHUNK are finished separately (cache-sized data).
-CHUNK = 1 << 18
+CHUNK = 1 << 17
 #: Nodes binned on a 4^3 / 8^3 grid take their statistics from about this many sampled triangles (at most twice).
 SAMPLE4 = 128
 SAMPLE8 = 4096
@@ -62,6 +68,8 @@ PREP_BLOCK = 1 << 16
 #: Sample targets of the top levels (the same as below them).
 TOP_SAMPLE8 = SAMPLE8
 TOP_SAMPLE4 = SAMPLE4
+#: Nodes of at most TOP_STOP (estimated) triangles leave the top.
+TOP_STOP = SAMPLE4
 
 
 @dataclass
@@ -113,11 +121,15 @@ def build_bvh(vertices, faces, *, max_leaf: int = 4, max_depth: int = DEFAULT_MA
     morton = _morton_order(c2, n_tri)
     del c2
 
-    # boxes, centres and zero-area flags in Morton order; from here on every per-triangle array is in that order,
-    # so the leaf-order gathers at the end are nearly sequential
+    # boxes, centres, zero-area flags and triangle records in Morton order; from here on every per-triangle array is
+    # in that order, so the leaf-order gathers at the end are nearly sequential
     box = np.empty((6, n_tri), dtype=np.float32)  # min xyz, -max xyz
     cen = np.empty((3, n_tri), dtype=np.float32)
-    degenerate_m = np.empty(n_tri, dtype=bool)
+    n_degenerate = 0
+    # triangle records (v0, prim) (v1, 0) (v2, 0), zero-area ones collapsed onto v0; never an empty buffer
+    tris_m = np.zeros(max(n_tri, 1), dtype=TRI_DTYPE)
+    flat_m = tris_m.view(np.float32).reshape(-1, 12)
+    tris_m["prim"][:n_tri] = morton
     for s in range(0, n_tri, PREP_BLOCK):
         e = min(s + PREP_BLOCK, n_tri)
         f = ft.take(morton[s:e], axis=1)
@@ -128,42 +140,37 @@ def build_bvh(vertices, faces, *, max_leaf: int = 4, max_depth: int = DEFAULT_MA
             np.add(box[a, s:e], box[3 + a, s:e], out=cen[a, s:e])
             cen[a, s:e] *= np.float32(0.5)
             np.negative(box[3 + a, s:e], out=box[3 + a, s:e])
-        degenerate_m[s:e] = _degenerate(corner)
+        rows = flat_m[s:e]
+        for c in range(3):
+            for a in range(3):
+                rows[:, 4 * c + a] = corner[c][a]
+        degen = np.flatnonzero(_degenerate(corner))
+        if degen.size:
+            n_degenerate += degen.size
+            rows[degen, 4:7] = rows[degen, 0:3]
+            rows[degen, 8:11] = rows[degen, 0:3]
 
     if n_tri >= 2:
-        records, leaf_of, leaf_size, leaf_depth = _grow(box, cen, max_leaf, max_depth)
+        records, leaves = _grow(box, cen, max_leaf, max_depth)
     else:
-        records, leaf_of, leaf_size, leaf_depth = _trivial(n_tri)
-    slot_tid, leaf_first = _leaf_order(leaf_of, leaf_size)
-    words, counts, child_box, node_box, leaf_box = _finish(records, box, leaf_of, leaf_first, leaf_size)
+        records, leaves = _trivial(box, n_tri)
+    slot_tid, leaf_size, leaf_depth, leaf_box = leaves.arrays()
+    leaf_first = np.concatenate([[0], np.cumsum(leaf_size)[:-1]]).astype(np.int64)
+    nodes, sah_cost = _finish(records, leaf_box, leaf_first, leaf_size, n_tri)
 
-    # triangles in leaf order: (v0, prim) (v1, 0) (v2, 0), zero-area ones collapsed onto v0
-    prim_ids = morton.take(slot_tid).astype(np.int32)
-    tris = np.empty(max(n_tri, 1), dtype=TRI_DTYPE)  # never an empty buffer: a lone degenerate record
-    flat = tris.view(np.float32).reshape(-1, 12)
-    flat[n_tri:] = 0
-    flat = flat[:n_tri]
-    v_rows = np.ascontiguousarray(vt.T)  # (V, 3)
-    rows = flat.reshape(-1, 3, 4)
-    for s in range(0, n_tri, PREP_BLOCK):
-        rows[s:s + PREP_BLOCK, :, :3] = v_rows.take(ft.take(prim_ids[s:s + PREP_BLOCK], axis=1).T, axis=0)
-    tris["pad1"] = 0
-    tris["pad2"] = 0
-    tris["prim"][:n_tri] = prim_ids
-    degenerate = degenerate_m.take(slot_tid)
-    if degenerate.any():
-        flat[degenerate, 4:7] = flat[degenerate, 0:3]
-        flat[degenerate, 8:11] = flat[degenerate, 0:3]
-    nodes = pack_nodes(words, counts, child_box)
+    # triangles in leaf order
+    tris = tris_m.take(slot_tid) if n_tri else tris_m
+    del tris_m, flat_m
+    prim_ids = tris["prim"][:n_tri].copy()
 
     stats = {
         "build_ms": (time.perf_counter() - t0) * 1e3,
         "nodes": int(len(nodes)),
         "leaves": int((leaf_size > 0).sum()),
         "depth": int(leaf_depth.max()),
-        "sah_cost": _sah_cost(node_box, leaf_box, leaf_size, n_tri),
+        "sah_cost": sah_cost,
         "triangles": int(n_tri),
-        "degenerate": int(degenerate.sum()),
+        "degenerate": n_degenerate,
         "bytes": int(nodes.nbytes + tris.nbytes),
         "max_leaf": max_leaf,
         "max_depth": max_depth,
@@ -318,7 +325,7 @@ def _grow_top(box, cen, cen_rows, max_leaf: int, max_depth: int):
         grid = np.where(count <= GRID4_MAX, 4, 8).astype(np.int64)
         target = np.where(grid == 8, TOP_SAMPLE8, TOP_SAMPLE4)
         rate_log = np.maximum(_ceil_log2(count) - _ceil_log2(target), 1)
-        elig = ~frozen & (count > SAMPLE4) & (room >= 0) & (np.left_shift(max_leaf, np.maximum(room, 0)) >= 4 * count)
+        elig = ~frozen & (count > TOP_STOP) & (room >= 0) & (np.left_shift(max_leaf, np.maximum(room, 0)) >= 4 * count)
         if not elig.any():
             break
         if sub_tid is None:
@@ -470,22 +477,20 @@ def _grow_from(box, cen, tid, slot, count, depth, dom, max_leaf: int, max_depth:
 
     Once every node holds at most `chunk` triangles, the nodes are split into independent groups of about that
     many triangles, and each group is finished by its own loop on compact copies of its data (cache-sized
-    arrays). Returns records (the first record's rows are the starting nodes), leaf_of, leaf sizes and depths.
+    arrays). Returns records (the first record's rows are the starting nodes) and the leaves (_Leaves).
     """
     n_tri = box.shape[1]
     if cen_rows is None:
         cen_rows = np.ascontiguousarray(cen.T).reshape(-1)  # (x, y, z) of triangle i at 3 i .. 3 i + 2
 
-    leaf_of = np.empty(n_tri, dtype=np.int64)
-    leaf_sizes: list[np.ndarray] = []
-    leaf_depths: list[np.ndarray] = []
+    leaves = _Leaves()
     records: list[_Record] = [] if records is None else records
     n_leaves = 0
     # pending: (record index the last pass's new nodes will live in, records that point at it)
     while count.size:
         if chunk and pending and tid.size > chunk and count.max() <= chunk:
             n_leaves = _grow_chunks(box, cen, tid, slot, count, depth, dom, max_leaf, max_depth, chunk, records,
-                                    pending, leaf_of, leaf_sizes, leaf_depths, n_leaves)
+                                    pending, leaves, n_leaves)
             break
         if depth.max() >= max_depth:  # the caps make this unreachable
             raise AssertionError("BVH depth cap violated")
@@ -631,17 +636,17 @@ def _grow_from(box, cen, tid, slot, count, depth, dom, max_leaf: int, max_depth:
                                    rec=np.stack([out_rec[grand], out_rec[grand + 1]], axis=1)))
         pending = (rec_next, [rec_here, rec_mid] if n_mid else [rec_here])
         out_depth = np.concatenate([np.repeat(depth, 2), np.repeat(depth, 4)]) + 1 + is_grand
-        leaf_sizes.append(ocount[leaf])
-        leaf_depths.append(out_depth[leaf])
         n_leaves += n_leaf
 
         # the next pass
         new_slot = out_index.take(dest)
         new_slot[~inner.take(dest)] = -1
         stay = new_slot >= 0
+        if n_leaf:  # this pass's leaves, in id order (their triangles in Morton order)
+            gone = np.flatnonzero(~stay)
+            leaves.add(box, tid.take(gone), out_index.take(dest.take(gone)) - (n_leaves - n_leaf), ocount[leaf],
+                       out_depth[leaf])
         if not stay.all():
-            gone = ~stay
-            leaf_of[tid[gone]] = out_index.take(dest[gone])
             tid, new_slot = tid[stay], new_slot[stay]
         slot = new_slot
         count = ocount[inner]
@@ -650,11 +655,11 @@ def _grow_from(box, cen, tid, slot, count, depth, dom, max_leaf: int, max_depth:
         cdom = np.where(median[None, None, :], dom[None].astype(np.float32), child_dom)  # (2, 6, K)
         gdom = grand_dom.transpose(2, 3, 0, 1).reshape(6, 4 * k_nodes)  # grandchild 2 child + side order
         dom = np.concatenate([cdom.transpose(1, 2, 0).reshape(6, 2 * k_nodes), gdom], axis=1)[:, inner]
-    return records, leaf_of, np.concatenate(leaf_sizes), np.concatenate(leaf_depths)
+    return records, leaves
 
 
-def _grow_chunks(box, cen, tid, slot, count, depth, dom, max_leaf, max_depth, chunk, records, pending, leaf_of,
-                 leaf_sizes, leaf_depths, n_leaves):
+def _grow_chunks(box, cen, tid, slot, count, depth, dom, max_leaf, max_depth, chunk, records, pending, leaves,
+                 n_leaves):
     """Finish the active nodes group by group (see _grow_from); appends to records and the leaf lists, points the
     last pass's references at each group's first record, and returns the new leaf count."""
     k_nodes = count.size
@@ -673,16 +678,13 @@ def _grow_chunks(box, cen, tid, slot, count, depth, dom, max_leaf, max_depth, ch
         sub = _grow_from(box.take(t, axis=1), cen.take(t, axis=1), np.arange(t.size, dtype=np.intp),
                          local.take(slot[lo:hi]), count[nodes], depth[nodes], dom[:, nodes], max_leaf, max_depth,
                          None)
-        sub_records, sub_leaf_of, sub_sizes, sub_depths = sub
+        sub_records, sub_leaves = sub
         node_rec[nodes] = len(records)
         for rc in sub_records:
             inner = rc.rec >= 0
             records.append(_Record(child=np.where(inner, rc.child, rc.child + n_leaves),
                                    rec=np.where(inner, rc.rec + node_rec[nodes[0]], -1)))
-        leaf_of[t] = sub_leaf_of + n_leaves
-        leaf_sizes.append(sub_sizes)
-        leaf_depths.append(sub_depths)
-        n_leaves += sub_sizes.size
+        n_leaves += leaves.extend(sub_leaves, t)
     # the last pass pointed its new nodes at (rec_next, slot): now (their group's first record, local row)
     rec_next, referrers = pending
     for r in referrers:
@@ -872,55 +874,118 @@ def _median_sides(right, slot, count, median):
     right[idx.take(o)] = rank >= count.take(s_sorted) // 2
 
 
-def _trivial(n_tri: int):
+def _trivial(box: np.ndarray, n_tri: int):
     """0 or 1 triangle: a root whose left child is a leaf with the mesh and whose right child is an empty leaf."""
     rec = _Record(child=np.array([[0, 1]], dtype=np.int64), rec=np.full((1, 2), -1, dtype=np.int64))
-    return [rec], np.zeros(n_tri, dtype=np.int64), np.array([n_tri, 0], dtype=np.int64), np.ones(2, np.int64)
+    leaves = _Leaves()
+    leaves.add(box, np.arange(n_tri, dtype=np.intp), np.zeros(n_tri, dtype=np.int64),
+               np.array([n_tri, 0], dtype=np.int64), np.ones(2, np.int64))
+    return [rec], leaves
 
 
-def _leaf_order(leaf_of: np.ndarray, leaf_size: np.ndarray):
-    """Sorted-triangle index of every leaf slot (leaves in id order, Morton order inside) and each leaf's first."""
-    n = leaf_of.size
-    leaf_first = np.concatenate([[0], np.cumsum(leaf_size)[:-1]]).astype(np.int64)
-    if n == 0:
-        return np.zeros(0, dtype=np.intp), leaf_first
-    bits = max(1, (n - 1).bit_length())
-    key = (leaf_of.astype(np.uint64) << np.uint64(bits)) | np.arange(n, dtype=np.uint64)
-    key.sort()
-    return (key & np.uint64((1 << bits) - 1)).astype(np.intp), leaf_first
+def _stable_order(key: np.ndarray, n_keys: int) -> np.ndarray:
+    """Stable argsort of integer keys in [0, n_keys): numpy's radix sort of 16-bit keys, twice (LSD) for larger."""
+    if n_keys <= 1 << 16:
+        return np.argsort(key.astype(np.uint16), kind="stable")
+    order = np.argsort((key & 0xFFFF).astype(np.uint16), kind="stable")
+    hi = (key.take(order) >> 16).astype(np.uint16 if n_keys <= 1 << 32 else np.int64)
+    return order.take(np.argsort(hi, kind="stable"))
 
 
-def _finish(records, box, leaf_of, leaf_first, leaf_size):
-    """Child words, counts and exact boxes of every interior node (records in order: node ids), node and leaf
-    boxes. Children always live in later records, so one pass over the records in reverse does the boxes."""
-    n_leaf = leaf_size.size
-    leaf_box = np.full((6, n_leaf), np.inf, dtype=np.float32)
-    for r in range(6):
-        np.minimum.at(leaf_box[r], leaf_of, box[r])
+class _Leaves:
+    """The leaves made so far, in id order, in batches (one per pass): the triangles of every leaf in leaf order
+    (Morton order inside a leaf), and every leaf's size, depth and box ((L, 6) rows, six-row form)."""
 
+    def __init__(self):
+        self.tids: list[np.ndarray] = []
+        self.sizes: list[np.ndarray] = []
+        self.depths: list[np.ndarray] = []
+        self.boxes: list[np.ndarray] = []
+
+    def add(self, box, tids, leaf, sizes, depths):
+        """A batch of len(sizes) leaves: triangles `tids` (increasing) of leaf `leaf` (0 .. len(sizes) - 1)."""
+        lb = np.full((6, sizes.size), np.inf, dtype=np.float32)  # empty leaves keep the inverted box
+        if tids.size:
+            for r in range(6):
+                np.minimum.at(lb[r], leaf, box[r].take(tids))
+            tids = tids.take(_stable_order(leaf, sizes.size))
+        lb = np.ascontiguousarray(lb.T)
+        self.tids.append(tids)
+        self.sizes.append(sizes)
+        self.depths.append(depths)
+        self.boxes.append(lb)
+
+    def extend(self, other: "_Leaves", t: np.ndarray) -> int:
+        """Append the leaves of a sub-build whose triangle i is triangle t[i] here; returns how many."""
+        self.tids.extend(t.take(x) for x in other.tids)
+        self.sizes.extend(other.sizes)
+        self.depths.extend(other.depths)
+        self.boxes.extend(other.boxes)
+        return sum(x.size for x in other.sizes)
+
+    def arrays(self):
+        """(slot -> sorted triangle index, sizes, depths, boxes (L, 6))."""
+        return (np.concatenate(self.tids), np.concatenate(self.sizes), np.concatenate(self.depths),
+                np.concatenate(self.boxes))
+
+
+def _finish(records, leaf_box, leaf_first, leaf_size, n_tri: int):
+    """The packed nodes (NODE_DTYPE) in depth-first order, and the SAH cost.
+
+    Records in order give the build's node ids (record 0 row 0 is the root; children always live in later
+    records). Subtree sizes go bottom up and depth-first positions top down (pre-order: the left child at the
+    parent + 1, the right child after the whole left subtree), one vector step per record; then one pass over the
+    records in reverse makes the exact boxes (a node's box is the union of its children's) and writes every
+    record's rows, packed, at their positions.
+    """
     base = np.concatenate([[0], np.cumsum([rc.child.shape[0] for rc in records])]).astype(np.int64)
     n_nodes = int(base[-1])
-    words = np.zeros((n_nodes, 2), dtype=np.uint32)
-    counts = np.zeros((n_nodes, 2), dtype=np.uint32)
-    child_box = np.empty((n_nodes, 2, 6), dtype=np.float32)
-    node_box = np.empty((6, n_nodes), dtype=np.float32)
+    # child node ids in build order; -1 (a leaf) reads the extra last entry of size / pos
+    nids = [np.where(rc.rec >= 0, base.take(np.maximum(rc.rec, 0)) + rc.child, -1) for rc in records]
+    size = np.empty(n_nodes + 1, dtype=np.int64)
+    size[n_nodes] = 0
     for r in range(len(records) - 1, -1, -1):
-        rc = records[r]
-        rows = slice(base[r], base[r + 1])
-        is_leaf = rc.rec < 0
-        lid = np.where(is_leaf, rc.child, 0)
-        nid = np.where(is_leaf, 0, base.take(np.maximum(rc.rec, 0)) + rc.child)
-        words[rows] = np.where(is_leaf, LEAF_BIT | leaf_first.take(lid).astype(np.uint32), nid.astype(np.uint32))
-        counts[rows] = np.where(is_leaf, leaf_size.take(lid), 0).astype(np.uint32)
-        for side in (0, 1):
-            b = np.where(is_leaf[:, side], leaf_box.take(lid[:, side], axis=1), node_box.take(nid[:, side], axis=1))
-            child_box[rows, side] = b.T
-        node_box[:, rows] = np.minimum(child_box[rows, 0], child_box[rows, 1]).T
+        sz = size.take(nids[r])
+        size[base[r]:base[r + 1]] = sz[:, 0] + sz[:, 1] + 1
+    pos = np.empty(n_nodes + 1, dtype=np.int64)
+    pos[0] = 0
+    for r in range(len(records)):
+        nid = nids[r]
+        p = pos[base[r]:base[r + 1]] + 1
+        pos[nid[:, 0]] = p  # leaves write the spare entry
+        p += size.take(nid[:, 0])
+        pos[nid[:, 1]] = p
 
-    out_box = np.empty((n_nodes, 2, 2, 3), dtype=np.float32)
-    out_box[:, :, 0] = child_box[:, :, 0:3]
-    out_box[:, :, 1] = -child_box[:, :, 3:6]
-    return words, counts, out_box, node_box, leaf_box
+    leaf_word = leaf_first.astype(np.uint32) | LEAF_BIT
+    out = np.empty((n_nodes, 16), dtype=np.float32)
+    node_box = np.empty((n_nodes + 1, 6), dtype=np.float32)
+    sah = 0.0
+    for r in range(len(records) - 1, -1, -1):
+        rc, nid = records[r], nids[r]
+        is_leaf = nid < 0
+        lid = np.where(is_leaf, rc.child, 0)
+        cb = np.where(is_leaf[:, :, None], leaf_box.take(lid, axis=0), node_box.take(nid, axis=0))  # (K, 2, 6)
+        node_box[base[r]:base[r + 1]] = np.minimum(cb[:, 0], cb[:, 1])
+        blk = np.empty((nid.shape[0], 4, 4), dtype=np.float32)  # (lmin, left) (lmax, right) (rmin, lc) (rmax, rc)
+        blk[:, 0::2, :3] = cb[:, :, :3]
+        np.negative(cb[:, :, 3:], out=blk[:, 1::2, :3])
+        u = blk.view(np.uint32)
+        u[:, 0:2, 3] = np.where(is_leaf, leaf_word.take(lid), pos.take(nid))
+        wt = np.where(is_leaf, leaf_size.take(lid), 1)
+        u[:, 2:4, 3] = np.where(is_leaf, wt, 0)
+        out[pos[base[r]:base[r + 1]]] = blk.reshape(-1, 16)
+        # SAH: every child slot's box is its child's box; leaves weigh their triangle count (empty ones nothing)
+        with np.errstate(invalid="ignore", over="ignore"):
+            area = _half_area(cb.transpose(2, 0, 1)).astype(np.float64)
+            sah += float(np.where(wt > 0, area * wt, 0.0).sum())
+    nodes = out.view(NODE_DTYPE).reshape(n_nodes)
+    if n_tri == 0:
+        return nodes, 0.0
+    with np.errstate(invalid="ignore", over="ignore"):
+        a_root = float(_half_area(node_box[0]))
+    if not a_root > 0:
+        return nodes, float(n_nodes + n_tri)
+    return nodes, (a_root + sah) / a_root
 
 
 def _degenerate(corner) -> np.ndarray:
@@ -947,17 +1012,3 @@ def _degenerate(corner) -> np.ndarray:
         zero = (f1[1] * f2[2] == f1[2] * f2[1]) & (f1[2] * f2[0] == f1[0] * f2[2]) & (f1[0] * f2[1] == f1[1] * f2[0])
         out[cand] = zero
     return out
-
-
-def _sah_cost(node_box: np.ndarray, leaf_box: np.ndarray, leaf_size: np.ndarray, n_tri: int) -> float:
-    """SAH cost with C_trav = C_tri = 1 and areas relative to the root box (empty leaves cost nothing)."""
-    if n_tri == 0:
-        return 0.0
-    filled = leaf_size > 0
-    with np.errstate(invalid="ignore", over="ignore"):
-        a_node = _half_area(node_box).astype(np.float64)
-        a_leaf = _half_area(leaf_box[:, filled]).astype(np.float64)
-    a_root = a_node[0]
-    if not a_root > 0:
-        return float(a_node.size + n_tri)
-    return float((a_node.sum() + (a_leaf * leaf_size[filled]).sum()) / a_root)

@@ -40,9 +40,11 @@ prim_ids[i]):
     same in all the triangles that use it, which edges rebuilt as v0 + e1 would not be. Degenerate triangles
     (zero area) are stored with v1 = v2 = v0, which the intersection test rejects exactly (its determinant is 0).
 
-Nodes are numbered in the order the builder makes them (about breadth first). The tree's depth (leaves at depth
-<= max_depth, root at 0) is capped at build time so that the GLSL stack (BVH_STACK_SIZE entries) cannot overflow:
-the traversal pushes at most depth - 1 entries.
+Nodes are numbered depth first (pre-order): the root is node 0, a node's left child, if it is a node, is the next
+node (index + 1), and its right child comes after the whole left subtree, so every subtree occupies one contiguous
+range of indices (cache locality for the traversal). The tree's depth (leaves at depth <= max_depth, root at 0) is
+capped at build time so that the GLSL stack (BVH_STACK_SIZE entries) cannot overflow: the traversal pushes at most
+depth - 1 entries.
 """
 
 from __future__ import annotations

@@ -22,6 +22,7 @@ import vulkan as vk
 
 from .bvh import build_bvh
 from .errors import ConfigError, EngineError, VulkanError
+from .passes import frame_data as fd
 from .passes.frame_data import FRAME_BYTES, MAX_LIGHTS, pack_frame, pack_light
 from .passes.gbuffer import (ALBEDO_FORMAT, DEPTH_FORMAT, NORMAL_FORMAT, POSITION_FORMAT, VISIBILITY_FORMAT, GBufferPass,
                              SceneGeometry)
@@ -185,12 +186,15 @@ class Targets:
         n = width * height
         self.check_capacity(ctx, width, height, light_capacity)
         att = vk.VK_IMAGE_USAGE_STORAGE_BIT | vk.VK_IMAGE_USAGE_TRANSFER_SRC_BIT   # written by the G-buffer resolve
-        self.visibility = Image(ctx, width, height, VISIBILITY_FORMAT,
-                                vk.VK_IMAGE_USAGE_COLOR_ATTACHMENT_BIT | vk.VK_IMAGE_USAGE_STORAGE_BIT, name="visibility")
+        self.visibility = Image(ctx, width, height, VISIBILITY_FORMAT, vk.VK_IMAGE_USAGE_COLOR_ATTACHMENT_BIT
+                                | vk.VK_IMAGE_USAGE_STORAGE_BIT | vk.VK_IMAGE_USAGE_TRANSFER_DST_BIT, name="visibility")
         self.position = Image(ctx, width, height, POSITION_FORMAT, att, name="position")
         self.normal = Image(ctx, width, height, NORMAL_FORMAT, att, name="normal")
         self.albedo = Image(ctx, width, height, ALBEDO_FORMAT, att, name="albedo")
         self.gbuffer = [self.position, self.normal, self.albedo]
+        # The normal in 4 bytes for the denoiser (written by the G-buffer resolve)
+        self.normal8 = Image(ctx, width, height, vk.VK_FORMAT_R8G8B8A8_SNORM, vk.VK_IMAGE_USAGE_STORAGE_BIT,
+                             name="normal (8-bit)")
         self.depth = Image(ctx, width, height, DEPTH_FORMAT, vk.VK_IMAGE_USAGE_DEPTH_STENCIL_ATTACHMENT_BIT)
         out_usage = (vk.VK_IMAGE_USAGE_STORAGE_BIT | vk.VK_IMAGE_USAGE_TRANSFER_SRC_BIT)
         self.color = Image(ctx, width, height, vk.VK_FORMAT_R8G8B8A8_UNORM, out_usage, name="color")
@@ -215,7 +219,7 @@ class Targets:
             self.offsets[name] = off
             off += size
         self.readback = Buffer(ctx, off, TRANSFER_DST, host=True, name="readback")
-        self._objects = [self.visibility, self.position, self.normal, self.albedo, self.depth, self.color, self.hdr,
+        self._objects = [self.visibility, self.normal8, self.position, self.normal, self.albedo, self.depth, self.color, self.hdr,
                          self.hist_position, self.hist_normal, self.len_cur, self.len_hist, self.readback]
         for sig in self.signals.values():
             self._objects += sig.buffers()
@@ -224,6 +228,15 @@ class Targets:
                 image_barrier(cmd, img, vk.VK_IMAGE_LAYOUT_UNDEFINED, vk.VK_IMAGE_LAYOUT_GENERAL,
                               vk.VK_PIPELINE_STAGE_TOP_OF_PIPE_BIT, vk.VK_PIPELINE_STAGE_COMPUTE_SHADER_BIT,
                               0, vk.VK_ACCESS_SHADER_WRITE_BIT)
+            # the visibility image starts as background; each frame's G-buffer resolve leaves it so again
+            image_barrier(cmd, self.visibility, vk.VK_IMAGE_LAYOUT_UNDEFINED, vk.VK_IMAGE_LAYOUT_GENERAL,
+                          vk.VK_PIPELINE_STAGE_TOP_OF_PIPE_BIT, vk.VK_PIPELINE_STAGE_TRANSFER_BIT,
+                          0, vk.VK_ACCESS_TRANSFER_WRITE_BIT)
+            vk.vkCmdClearColorImage(cmd, self.visibility.handle, vk.VK_IMAGE_LAYOUT_GENERAL,
+                                    vk.VkClearColorValue(uint32=[0, 0, 0, 0]), 1, [self.visibility.range()])
+            memory_barrier(cmd, vk.VK_PIPELINE_STAGE_TRANSFER_BIT, vk.VK_PIPELINE_STAGE_COLOR_ATTACHMENT_OUTPUT_BIT,
+                           vk.VK_ACCESS_TRANSFER_WRITE_BIT,
+                           vk.VK_ACCESS_COLOR_ATTACHMENT_READ_BIT | vk.VK_ACCESS_COLOR_ATTACHMENT_WRITE_BIT)
             for buf in (self.len_cur, self.len_hist):   # defined contents for the history-length AOV
                 vk.vkCmdFillBuffer(cmd, buf.handle, 0, WHOLE_SIZE, 0)
 
@@ -459,10 +472,10 @@ class Renderer:
         that differs from the last one only in the frame index (plus, on the first such frame, the previous
         camera, now this one, and the history-reset flag, now off). What the full path would write, bit for bit."""
         if not steady.settled:
-            self._ubo_f32[16:32] = steady.view_proj_cols   # prev_view_proj = this camera's
-            self._ubo_f32[55] = 0.0                        # history_reset: the history key is unchanged
+            self._ubo_f32[fd.PREV_VIEW_PROJ] = steady.view_proj_cols   # prev_view_proj = this camera's
+            self._ubo_f32[fd.HISTORY_RESET] = 0.0                      # the history key is unchanged
             steady.settled = True
-        self._ubo_u32[42] = self._frame_index
+        self._ubo_u32[fd.FRAME_INDEX] = self._frame_index
         self._frame_index += 1
         cmd, marks, cfg, n_lights = steady.result
         return cmd, marks, dict(cfg), n_lights
@@ -473,13 +486,13 @@ class Renderer:
         keeps it (the camera is not part of the history key)."""
         view_proj = camera.projection_matrix(self.width / self.height) @ camera.view_matrix()
         f32 = self._ubo_f32
-        f32[0:16] = view_proj.T.reshape(-1)
-        f32[16:32] = steady.view_proj_cols             # prev_view_proj: the last frame's camera
-        f32[32:35], f32[35] = camera.eye, camera.near
-        f32[36:39] = camera.forward
-        f32[54] = 2.0 * math.tan(math.radians(camera.fov_y) / 2.0) / self.height
-        f32[55] = 0.0                                  # history_reset: the history key is unchanged
-        self._ubo_u32[42] = self._frame_index
+        f32[fd.VIEW_PROJ] = view_proj.T.reshape(-1)
+        f32[fd.PREV_VIEW_PROJ] = steady.view_proj_cols   # the last frame's camera
+        f32[fd.EYE], f32[fd.NEAR] = camera.eye, camera.near
+        f32[fd.FORWARD] = camera.forward
+        f32[fd.PIXEL_FOOTPRINT] = 2.0 * math.tan(math.radians(camera.fov_y) / 2.0) / self.height
+        f32[fd.HISTORY_RESET] = 0.0                      # the history key is unchanged
+        self._ubo_u32[fd.FRAME_INDEX] = self._frame_index
         self._frame_index += 1
         self._prev_view_proj = view_proj
         steady.camera, steady.settled = camera, False

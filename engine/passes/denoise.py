@@ -22,7 +22,7 @@ class DenoisePass:
     def __init__(self, ctx, library, frame_ubo, targets):
         self.sets = []
         for _ in STEPS:
-            s = DescriptorSet(ctx, [(0, UB), (1, SI), (2, SI)] + [(b, SB) for b in range(3, 12)])
+            s = DescriptorSet(ctx, [(0, UB), (1, SI), (2, SI)] + [(b, SB) for b in range(3, 12)] + [(12, SI)])
             s.buffer(0, frame_ubo)
             self.sets.append(s)
         self.pipeline = ComputePipeline(ctx, library.get(self.shaders[0]), [self.sets[0]], push_size=8,
@@ -42,7 +42,7 @@ class DenoisePass:
     def bind_targets(self, t):
         last = len(STEPS) - 1
         for i, s in enumerate(self.sets):
-            s.image(1, t.position).image(2, t.normal)
+            s.image(1, t.position).image(2, t.normal).image(12, t.normal8)
             for base, name in ((3, "masks"), (7, "ao")):
                 for k, buf in enumerate(self.route(t.signals[name], i, last)):
                     s.buffer(base + k, buf)

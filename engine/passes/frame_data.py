@@ -12,6 +12,11 @@ LIGHT_TYPES = {"directional": 0, "point": 1, "spot": 2, "rect": 3}
 LIGHT_VEC4S = 5
 HEADER_BYTES = 64 * 2 + 16 * 8
 FRAME_BYTES = HEADER_BYTES + MAX_LIGHTS * LIGHT_VEC4S * 16
+# Where the per-camera fields sit, in 4-byte words (the renderer rewrites just these when only the camera moves)
+VIEW_PROJ, PREV_VIEW_PROJ = slice(0, 16), slice(16, 32)
+EYE, NEAR, FORWARD = slice(32, 35), 35, slice(36, 39)
+FRAME_INDEX = 42        # uint
+PIXEL_FOOTPRINT, HISTORY_RESET = 54, 55
 
 
 def _v3(x):
@@ -71,10 +76,10 @@ def pack_frame(*, view_proj, prev_view_proj, eye, forward, near, width, height, 
             raise ValueError(f"pack_frame: out must be float32 ({FRAME_BYTES // 4},), got {buf.dtype} {buf.shape}")
         buf[:] = 0.0
     u32 = buf.view(np.uint32)
-    buf[0:16] = np.asarray(view_proj, np.float32).T.reshape(-1)       # GLSL mat4 is column-major
-    buf[16:32] = np.asarray(prev_view_proj, np.float32).T.reshape(-1)
-    buf[32:35], buf[35] = _v3(eye), near
-    buf[36:39] = _v3(forward)
+    buf[VIEW_PROJ] = np.asarray(view_proj, np.float32).T.reshape(-1)       # GLSL mat4 is column-major
+    buf[PREV_VIEW_PROJ] = np.asarray(prev_view_proj, np.float32).T.reshape(-1)
+    buf[EYE], buf[NEAR] = _v3(eye), near
+    buf[FORWARD] = _v3(forward)
     u32[40:44] = [width, height, frame_index, len(lights)]
     buf[44:48] = [ao_radius, ao_samples, shadow_samples, exposure]
     buf[48:51] = np.broadcast_to(np.asarray(ambient, np.float32), (3,))

@@ -84,7 +84,7 @@ class GBufferPass:
         self.raster_set = DescriptorSet(ctx, [(0, UB)])
         self.raster_set.buffer(0, frame_ubo)
         self.set = DescriptorSet(ctx, [(0, UB), (1, SI), (2, SI), (3, SI), (4, SI), (5, UTB), (6, UTB), (7, UTB),
-                                       (8, UTB), (9, CIS, MAX_TEXTURES)])
+                                       (8, UTB), (9, CIS, MAX_TEXTURES), (10, SI)])
         self.set.buffer(0, frame_ubo)
         self.sampler = Sampler(ctx)
         self.white = upload_texture(ctx, np.full((1, 1, 4), 255, np.uint8))
@@ -103,6 +103,7 @@ class GBufferPass:
 
     def bind_targets(self, t):
         self.set.image(1, t.visibility).image(2, t.position).image(3, t.normal).image(4, t.albedo)
+        self.set.image(10, t.normal8)
 
     def bind_scene(self, geom: SceneGeometry):
         for binding, view in enumerate(geom.views, start=5):
@@ -115,17 +116,18 @@ class GBufferPass:
         w, h = targets.width, targets.height
         CA, GENERAL = vk.VK_IMAGE_LAYOUT_COLOR_ATTACHMENT_OPTIMAL, vk.VK_IMAGE_LAYOUT_GENERAL
         CS = vk.VK_PIPELINE_STAGE_COMPUTE_SHADER_BIT
-        image_barrier(cmd, targets.visibility, vk.VK_IMAGE_LAYOUT_UNDEFINED, CA, CS,
-                      vk.VK_PIPELINE_STAGE_COLOR_ATTACHMENT_OUTPUT_BIT, vk.VK_ACCESS_SHADER_READ_BIT,
-                      vk.VK_ACCESS_COLOR_ATTACHMENT_WRITE_BIT)
+        # The visibility image is all zeros here (cleared once when made, then by each frame's resolve after reading
+        # it), so the raster loads it instead of clearing it: a clear costs the few raster units of an H200 0.1 ms.
+        image_barrier(cmd, targets.visibility, GENERAL, CA, CS, vk.VK_PIPELINE_STAGE_COLOR_ATTACHMENT_OUTPUT_BIT,
+                      vk.VK_ACCESS_SHADER_READ_BIT | vk.VK_ACCESS_SHADER_WRITE_BIT,
+                      vk.VK_ACCESS_COLOR_ATTACHMENT_READ_BIT | vk.VK_ACCESS_COLOR_ATTACHMENT_WRITE_BIT)
         image_barrier(cmd, targets.depth, vk.VK_IMAGE_LAYOUT_UNDEFINED, vk.VK_IMAGE_LAYOUT_DEPTH_ATTACHMENT_OPTIMAL,
                       vk.VK_PIPELINE_STAGE_LATE_FRAGMENT_TESTS_BIT, vk.VK_PIPELINE_STAGE_EARLY_FRAGMENT_TESTS_BIT,
                       vk.VK_ACCESS_DEPTH_STENCIL_ATTACHMENT_WRITE_BIT,
                       vk.VK_ACCESS_DEPTH_STENCIL_ATTACHMENT_READ_BIT | vk.VK_ACCESS_DEPTH_STENCIL_ATTACHMENT_WRITE_BIT)
         vis = vk.VkRenderingAttachmentInfo(
-            imageView=targets.visibility.view, imageLayout=CA, loadOp=vk.VK_ATTACHMENT_LOAD_OP_CLEAR,
-            storeOp=vk.VK_ATTACHMENT_STORE_OP_STORE,
-            clearValue=vk.VkClearValue(color=vk.VkClearColorValue(uint32=[0, 0, 0, 0])))
+            imageView=targets.visibility.view, imageLayout=CA, loadOp=vk.VK_ATTACHMENT_LOAD_OP_LOAD,
+            storeOp=vk.VK_ATTACHMENT_STORE_OP_STORE)
         depth = vk.VkRenderingAttachmentInfo(
             imageView=targets.depth.view, imageLayout=vk.VK_IMAGE_LAYOUT_DEPTH_ATTACHMENT_OPTIMAL,
             loadOp=vk.VK_ATTACHMENT_LOAD_OP_CLEAR, storeOp=vk.VK_ATTACHMENT_STORE_OP_DONT_CARE,
@@ -145,12 +147,12 @@ class GBufferPass:
             vk.vkCmdDrawIndexed(cmd, count, 1, first, 0, 0)
         vk.vkCmdEndRendering(cmd)
         image_barrier(cmd, targets.visibility, CA, GENERAL, vk.VK_PIPELINE_STAGE_COLOR_ATTACHMENT_OUTPUT_BIT, CS,
-                      vk.VK_ACCESS_COLOR_ATTACHMENT_WRITE_BIT, vk.VK_ACCESS_SHADER_READ_BIT)
+                      vk.VK_ACCESS_COLOR_ATTACHMENT_WRITE_BIT, vk.VK_ACCESS_SHADER_READ_BIT | vk.VK_ACCESS_SHADER_WRITE_BIT)
         # The resolve overwrites every pixel: the last frame's contents (read by compute and copies) are discarded.
-        for img in targets.gbuffer:
+        for img in (*targets.gbuffer, targets.normal8):
             image_barrier(cmd, img, vk.VK_IMAGE_LAYOUT_UNDEFINED, GENERAL, CS | vk.VK_PIPELINE_STAGE_TRANSFER_BIT, CS,
                           vk.VK_ACCESS_SHADER_READ_BIT | vk.VK_ACCESS_TRANSFER_READ_BIT, vk.VK_ACCESS_SHADER_WRITE_BIT)
         self.resolve.dispatch(cmd, [self.set], (w + 7) // 8, (h + 7) // 8)
-        for img in targets.gbuffer:
+        for img in (*targets.gbuffer, targets.normal8):
             image_barrier(cmd, img, GENERAL, GENERAL, CS, CS | vk.VK_PIPELINE_STAGE_TRANSFER_BIT,
                           vk.VK_ACCESS_SHADER_WRITE_BIT, vk.VK_ACCESS_SHADER_READ_BIT | vk.VK_ACCESS_TRANSFER_READ_BIT)

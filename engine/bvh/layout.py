@@ -82,23 +82,3 @@ assert TRI_DTYPE.itemsize == 48
 
 NODE_BYTES = NODE_DTYPE.itemsize
 TRI_BYTES = TRI_DTYPE.itemsize
-
-
-def pack_nodes(words: np.ndarray, counts: np.ndarray, boxes: np.ndarray) -> np.ndarray:
-    """Pack interior nodes.
-
-    words:  (M, 2) uint32 child words (left, right), see the module doc.
-    counts: (M, 2) uint32 leaf triangle counts (0 for interior children).
-    boxes:  (M, 2, 2, 3) float32 child boxes: [node, child (0 left, 1 right), corner (0 min, 1 max), xyz].
-    """
-    m = len(words)
-    nodes = np.zeros(m, dtype=NODE_DTYPE)
-    nodes["lmin"] = boxes[:, 0, 0]
-    nodes["lmax"] = boxes[:, 0, 1]
-    nodes["rmin"] = boxes[:, 1, 0]
-    nodes["rmax"] = boxes[:, 1, 1]
-    nodes["left"] = words[:, 0]
-    nodes["right"] = words[:, 1]
-    nodes["lcount"] = counts[:, 0]
-    nodes["rcount"] = counts[:, 1]
-    return nodes

@@ -782,6 +782,20 @@ class Bench:
         passes = list(timings[-1])
         per_pass = {p: _median([t.get(p, 0.0) for t in timings]) for p in passes}
         totals = [sum(t.values()) for t in timings]
+        # The viewer's steady state: frames submitted back to back without readback, so the GPU never idles between
+        # them (after an idle gap a GPU drops its clocks: on an H200 render() frames, each followed by a readback to
+        # numpy, ran every pass about 2x slower). GPU ms per pass of the last of each run of 4 frames.
+        for _ in range(4):
+            r.submit(scene, wait=False, **settings)
+        r.ctx.wait_idle()
+        steady = []
+        for _ in range(max(cfg.frame_reps, 1)):
+            for _ in range(4):
+                r.submit(scene, wait=False, **settings)
+            r.ctx.wait_idle()
+            steady.append(r.last_timings())
+        steady_passes = {p: _median([t.get(p, 0.0) for t in steady]) for p in steady[-1]}
+        steady_totals = [sum(t.values()) for t in steady]
         # The viewer's path: submit() without readback or waiting; the host (Python + vkQueueSubmit) time per frame.
         r.submit(scene, wait=False, **settings)
         r.ctx.wait_idle()
@@ -797,6 +811,8 @@ class Bench:
         return {"scene": tag, "name": scene.name, "triangles": scene.triangle_count, "size": [r.width, r.height],
                 "lights": lights, "settings": dict(fr.settings), "passes_ms": per_pass,
                 "gpu_total_ms": _median(totals), "runs_gpu_total_ms": totals,
+                "viewer_passes_ms": steady_passes, "viewer_gpu_total_ms": _median(steady_totals),
+                "runs_viewer_gpu_total_ms": steady_totals,
                 "render_wall_ms": _median(walls), "runs_render_wall_ms": walls,
                 "submit_host_ms": _median(host), "submit_host_cpu_ms": _median(host_cpu),
                 "submit_gpu_total_ms": _median(sub_gpu)}
@@ -856,9 +872,9 @@ def evaluate_targets(results: dict) -> list[dict]:
     frame_ms = None
     for fr in results.get("frame", []):
         if gpu_device and fr["size"] == [1920, 1080] and fr["scene"] == "default-1light":
-            frame_ms = fr["gpu_total_ms"]
+            frame_ms = fr.get("viewer_gpu_total_ms", fr["gpu_total_ms"])
     out.append(_target(6, "GPU: full 1920x1080 frame <= 2 ms GPU (1 light, hard shadows, 1 AO ray, denoise)",
-                       frame_ms, 2.0, "ms", False, note_gpu))
+                       frame_ms, 2.0, "ms", False, note_gpu or "frames back to back, no readback (the viewer's)"))
     for fr in results.get("frame", []):
         if fr["scene"] == "default":
             out.append(_target(6, "host (Python) CPU time per frame <= 0.3 ms (Renderer.submit, static scene)",
@@ -942,15 +958,17 @@ def format_report(results: dict) -> str:
         parts += ["", f"Our tracer vs lavapipe worker threads ({probe[0].get('scene', '')} scene, same rays; "
                       "Mrays/s GPU / wall)", _table(rows, ["LP_NUM_THREADS"] + [f"{n} rays" for n in RAYSETS])]
     for fr in results.get("frame", []):
-        rows = [[k, _fmt(v, ".2f")] for k, v in fr["passes_ms"].items()]
-        rows += [["total GPU", _fmt(fr["gpu_total_ms"], ".2f")],
+        viewer = fr.get("viewer_passes_ms", {})
+        rows = [[k, _fmt(v, ".2f"), _fmt(viewer.get(k), ".2f")] for k, v in fr["passes_ms"].items()]
+        rows += [["total GPU", _fmt(fr["gpu_total_ms"], ".2f"), _fmt(fr.get("viewer_gpu_total_ms"), ".2f")],
                  ["render() wall (incl. readback to numpy)", _fmt(fr["render_wall_ms"], ".2f")],
                  ["submit() host wall / CPU (viewer path)",
                   f"{_fmt(fr['submit_host_ms'], '.3f')} / {_fmt(fr['submit_host_cpu_ms'], '.3f')}"]]
+        rows = [row + [""] * (3 - len(row)) for row in rows]
         s = fr["settings"]
         parts += ["", f"Frame: {fr['scene']} scene ({fr['triangles']:,} triangles) {fr['size'][0]}x{fr['size'][1]}, "
                       f"{fr['lights']} light(s), shadows {s.get('shadows')}, AO {s.get('ao_samples')} spp "
-                      f"(median of runs)", _table(rows, ["pass", "ms"])]
+                      f"(median of runs)", _table(rows, ["pass", "render() ms", "back to back ms"])]
     if results.get("targets"):
         rows = [[f"#{t['issue']}", t["target"], _fmt(t["measured"], ".3g") + (f" {t['unit']}" if t["measured"]
                  is not None else ""), t.get("summary", t["status"])

@@ -2,10 +2,10 @@
 """Regenerate docs/quality.md and its images: soft-shadow modes side by side against the reference.
 
     python tools/make_quality_report.py      # images + docs/quality.md on the default device (lavapipe here),
-                                             # with the committed H100 columns from docs/quality_data/
-    python tools/make_quality_report.py --timings-only --device NVIDIA --json docs/quality_data/h100_320x180.json
+                                             # with the committed GPU (H200) columns from docs/quality_data/
+    python tools/make_quality_report.py --timings-only --device NVIDIA --json docs/quality_data/h200_320x180.json
     python tools/make_quality_report.py --timings-only --device NVIDIA --size 1920x1080 \
-        --json docs/quality_data/h100_1920x1080.json          # (re)measure another GPU's columns there
+        --json docs/quality_data/h200_1920x1080.json          # (re)measure another GPU's columns there
     python tools/make_quality_report.py --extra-timings A.json --extra-timings B.json   # other columns
 
 Modes, all on scenes/penumbra.toml (a sphere light and a soft sun over the terrace's pergola corner):

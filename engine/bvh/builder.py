@@ -20,7 +20,8 @@ How it works
    Morton order.
    The top levels, where every node is sampled, run on the sampled triangles alone (_grow_top); the rest wait in
    pools by Morton-index stride and walk down the chosen planes once, in cache-sized blocks, when a node needs a
-   denser sample or the top is done. The top is checked against the depth cap with exact counts at the end.
+   denser sample or the top is done (in the final walk, triangles whose node splits at no later level leave early
+   for the node they end in). The top is checked against the depth cap with exact counts at the end.
 4. Depth cap: a node at depth d may hold at most max_leaf * 2^(max_depth - d) triangles. Planes that would leave a
    child above its cap are not used, and a node whose counts are only estimated and could break the cap is split
    at its median. So leaves are never deeper than max_depth, whatever the geometry, and the GPU traversal stack
@@ -28,7 +29,8 @@ How it works
 5. Leaves are collected pass by pass (in each chunk group's own loop, on its cache-sized data): the triangles of a
    pass's leaves are put in leaf order with a stable 16-bit radix argsort, and their boxes come from
    np.minimum.at keyed by leaf, so leaf order and leaf boxes need no sort or scatter over the whole mesh. The
-   triangle records are written in Morton order during set-up and gathered once into leaf order.
+   triangle records are written once, in leaf order, straight from the vertices (no Morton-order copy to gather
+   from: on this kind of machine fresh pages cost more than the second gather of the corners).
 6. The interior nodes are renumbered depth first (pre-order, see engine/bvh/layout.py): subtree sizes bottom up,
    positions top down, one vector step per record of nodes; one pass over the records in reverse then makes the
    exact boxes (a node's box is the union of its children's), the SAH cost, and writes each record's nodes, packed,
@@ -100,7 +102,7 @@ def build_bvh(vertices, faces, *, max_leaf: int = 4, max_depth: int = DEFAULT_MA
         raise ConfigError(f"build_bvh: max_leaf must be in [1, 65536], got {max_leaf}")
     if not 1 <= max_depth <= 60:
         raise ConfigError(f"build_bvh: max_depth must be in [1, 60], got {max_depth}")
-    n_tri = ft.shape[1]
+    n_tri = ft.shape[0]
     if n_tri >= 1 << 31:
         raise SceneError("build_bvh: faces: more than 2^31 - 1 triangles")
     if n_tri > max_leaf << max_depth:
@@ -110,7 +112,7 @@ def build_bvh(vertices, faces, *, max_leaf: int = 4, max_depth: int = DEFAULT_MA
     # allocator reuses instead of fresh multi-megabyte pages for every step.
     c2 = np.empty((3, n_tri), dtype=np.float32)  # twice the box centre, original order
     for s in range(0, n_tri, PREP_BLOCK):
-        f = ft[:, s:s + PREP_BLOCK]
+        f = ft[s:s + PREP_BLOCK].T.copy()
         for a in range(3):
             x0, x1, x2 = vt[a].take(f[0]), vt[a].take(f[1]), vt[a].take(f[2])
             lo = np.minimum(x0, x1)
@@ -119,28 +121,46 @@ def build_bvh(vertices, faces, *, max_leaf: int = 4, max_depth: int = DEFAULT_MA
             np.maximum(x0, x2, out=x0)
             np.add(lo, x0, out=c2[a, s:s + PREP_BLOCK])
     morton = _morton_order(c2, n_tri)
-    del c2
 
-    # boxes, centres, zero-area flags and triangle records in Morton order; from here on every per-triangle array is
-    # in that order, so the leaf-order gathers at the end are nearly sequential
+    # boxes and centres in Morton order (the centres reuse c2's memory: fresh pages are costly); from here on every
+    # per-triangle array is in that order
     box = np.empty((6, n_tri), dtype=np.float32)  # min xyz, -max xyz
-    cen = np.empty((3, n_tri), dtype=np.float32)
-    n_degenerate = 0
-    # triangle records (v0, prim) (v1, 0) (v2, 0), zero-area ones collapsed onto v0; never an empty buffer
-    tris_m = np.zeros(max(n_tri, 1), dtype=TRI_DTYPE)
-    flat_m = tris_m.view(np.float32).reshape(-1, 12)
-    tris_m["prim"][:n_tri] = morton
+    cen = c2
     for s in range(0, n_tri, PREP_BLOCK):
         e = min(s + PREP_BLOCK, n_tri)
-        f = ft.take(morton[s:e], axis=1)
-        corner = [[vt[a].take(f[c]) for a in range(3)] for c in range(3)]
+        f = ft.take(morton[s:e], axis=0).T.copy()
         for a in range(3):
-            np.minimum(np.minimum(corner[0][a], corner[1][a]), corner[2][a], out=box[a, s:e])
-            np.maximum(np.maximum(corner[0][a], corner[1][a]), corner[2][a], out=box[3 + a, s:e])
+            x0, x1, x2 = vt[a].take(f[0]), vt[a].take(f[1]), vt[a].take(f[2])
+            np.minimum(np.minimum(x0, x1), x2, out=box[a, s:e])
+            np.maximum(np.maximum(x0, x1), x2, out=box[3 + a, s:e])
             np.add(box[a, s:e], box[3 + a, s:e], out=cen[a, s:e])
             cen[a, s:e] *= np.float32(0.5)
             np.negative(box[3 + a, s:e], out=box[3 + a, s:e])
-        rows = flat_m[s:e]
+
+    if n_tri >= 2:
+        records, leaves = _grow(box, cen, max_leaf, max_depth)
+    else:
+        records, leaves = _trivial(box, n_tri)
+    del box, cen, c2
+    slot_tid, leaf_size, leaf_depth, leaf_box = leaves.arrays()
+    leaf_first = np.concatenate([[0], np.cumsum(leaf_size)[:-1]]).astype(np.int64)
+    nodes, sah_cost = _finish(records, leaf_box, leaf_first, leaf_size, n_tri)
+
+    # triangle records (v0, prim) (v1, 0) (v2, 0) in leaf order, zero-area ones collapsed onto v0; never an empty
+    # buffer. Written straight from the vertices (no Morton-order copy to gather from).
+    perm = morton.take(slot_tid)  # leaf-order slot -> original triangle index
+    del morton, slot_tid
+    tris = np.empty(max(n_tri, 1), dtype=TRI_DTYPE)
+    flat = tris.view(np.float32).reshape(-1, 12)
+    tris.view(np.uint32).reshape(-1, 12)[:, 7::4] = 0  # pads
+    if n_tri == 0:
+        tris[0] = np.zeros((), dtype=TRI_DTYPE)
+    n_degenerate = 0
+    for s in range(0, n_tri, PREP_BLOCK):
+        e = min(s + PREP_BLOCK, n_tri)
+        f = ft.take(perm[s:e], axis=0).T.copy()
+        rows = flat[s:e]
+        corner = [[vt[a].take(f[c]) for a in range(3)] for c in range(3)]
         for c in range(3):
             for a in range(3):
                 rows[:, 4 * c + a] = corner[c][a]
@@ -149,19 +169,8 @@ def build_bvh(vertices, faces, *, max_leaf: int = 4, max_depth: int = DEFAULT_MA
             n_degenerate += degen.size
             rows[degen, 4:7] = rows[degen, 0:3]
             rows[degen, 8:11] = rows[degen, 0:3]
-
-    if n_tri >= 2:
-        records, leaves = _grow(box, cen, max_leaf, max_depth)
-    else:
-        records, leaves = _trivial(box, n_tri)
-    slot_tid, leaf_size, leaf_depth, leaf_box = leaves.arrays()
-    leaf_first = np.concatenate([[0], np.cumsum(leaf_size)[:-1]]).astype(np.int64)
-    nodes, sah_cost = _finish(records, leaf_box, leaf_first, leaf_size, n_tri)
-
-    # triangles in leaf order
-    tris = tris_m.take(slot_tid) if n_tri else tris_m
-    del tris_m, flat_m
-    prim_ids = tris["prim"][:n_tri].copy()
+    prim_ids = perm.astype(np.int32)
+    tris["prim"][:n_tri] = prim_ids
 
     stats = {
         "build_ms": (time.perf_counter() - t0) * 1e3,
@@ -192,7 +201,7 @@ def _validated(vertices, faces):
     if f.size and (int(f.min()) < 0 or int(f.max()) >= len(v)):
         raise SceneError(f"build_bvh: faces index out of range [0, {len(v)})")
     vt = np.ascontiguousarray(v.T, dtype=np.float32)
-    ft = np.ascontiguousarray(f.T, dtype=np.intp)
+    ft = np.ascontiguousarray(f, dtype=np.intp)  # (T, 3): no transposed copy of the caller's faces
     return vt, ft
 
 
@@ -234,7 +243,8 @@ def _morton_order(c2, n: int) -> np.ndarray:
             acc |= spread
         code[s:e] = acc
     code.sort()  # a value sort of packed keys is several times faster than argsort
-    return (code & np.uint64((1 << idx_bits) - 1)).astype(np.intp)
+    code &= np.uint64((1 << idx_bits) - 1)  # the index, in place (< 2^31: also a valid intp)
+    return code.view(np.intp)
 
 
 # --------------------------------------------------------------------------------------------------------------
@@ -280,25 +290,68 @@ def _grow(box: np.ndarray, cen: np.ndarray, max_leaf: int, max_depth: int):
                       CHUNK, cen_rows=cen_rows)
 
 
-def _walk(tids: np.ndarray, node: np.ndarray | None, levels, cen_rows: np.ndarray) -> np.ndarray:
+def _walk(tids: np.ndarray, node: np.ndarray | None, levels, cen_rows: np.ndarray, tails=None) -> np.ndarray:
     """Node of the last of `levels` that each triangle `tids` reaches from `node` (its node in the first of them;
     None: the root), walking down their planes in cache-sized blocks with the same comparison as the top passes'
-    partition."""
+    partition. tails (_walk_tails of the same levels, aligned with their end): triangles whose node splits at no
+    later level leave the walk early for the node they would reach."""
     out = np.zeros(tids.size, dtype=np.intp) if node is None else node.astype(np.intp, copy=True)
     if not levels:
         return out
+    if tails is not None:
+        tails = tails[len(tails) - len(levels):]
     for s in range(0, tids.size, TOP_BLOCK):
         t3 = tids[s:s + TOP_BLOCK] * 3
         nd = out[s:s + TOP_BLOCK]
-        for axis, split, nxt in levels:
+        pos = None  # positions in the block of the triangles still walking (None: all)
+        for i, (axis, split, nxt) in enumerate(levels):
+            if tails is not None and tails[i] is not None:
+                dead_at, final = tails[i]
+                d = dead_at.take(nd)
+                n_dead = int(np.count_nonzero(d))
+                if n_dead * 4 > nd.size:
+                    done = np.flatnonzero(d)
+                    live = np.flatnonzero(~d)
+                    if pos is None:
+                        out[s + done] = final.take(nd.take(done))
+                        pos = live + s
+                    else:
+                        out[pos.take(done)] = final.take(nd.take(done))
+                        pos = pos.take(live)
+                    nd, t3 = nd.take(live), t3.take(live)
+                    if not nd.size:
+                        break
             a = axis.take(nd)
             a += t3
             right = cen_rows.take(a) >= split.take(nd)
             nd *= 2
             nd += right
             nd = nxt.take(nd)
-        out[s:s + t3.size] = nd
+        if pos is None:
+            out[s:s + t3.size] = nd
+        elif nd.size:
+            out[pos] = nd
     return out
+
+
+def _walk_tails(levels):
+    """Per level (None where few nodes qualify): which of its nodes split at no level from there on (dead_at), and
+    the node of the last level each of them ends in (final)."""
+    tails = [None] * len(levels)
+    dead = None
+    final = None
+    for i in range(len(levels) - 1, -1, -1):
+        nxt = levels[i][2].reshape(-1, 2)
+        succ = nxt[:, 0]
+        through = succ == nxt[:, 1]
+        if dead is None:
+            dead, final = through, succ
+        else:
+            dead = through & dead.take(succ)
+            final = final.take(succ)
+        if dead.mean() > 0.2:
+            tails[i] = (dead, final)
+    return tails
 
 
 def _grow_top(box, cen, cen_rows, max_leaf: int, max_depth: int):
@@ -439,10 +492,11 @@ def _grow_top(box, cen, cen_rows, max_leaf: int, max_depth: int):
         return None
 
     slot = np.empty(n, dtype=np.intp)
-    slot[1::2] = _walk(np.arange(1, n, 2, dtype=np.intp), None, levels, cen_rows)
+    tails = _walk_tails(levels)
+    slot[1::2] = _walk(np.arange(1, n, 2, dtype=np.intp), None, levels, cen_rows, tails)
     slot[sub_tid] = sub_slot
     for t, nd, l0 in list(tiers.values()) + parked:
-        slot[t] = _walk(t, nd, levels[l0:], cen_rows)
+        slot[t] = _walk(t, nd, levels[l0:], cen_rows, tails)
     count = np.bincount(slot, minlength=count.size).astype(np.int64)
     # the depth cap, with the exact counts: every node of the top within its limit (else: build without the top)
     sizes = count
@@ -666,8 +720,9 @@ def _grow_chunks(box, cen, tid, slot, count, depth, dom, max_leaf, max_depth, ch
     group = (np.cumsum(count) - 1) // chunk  # consecutive nodes, about `chunk` triangles a group
     _, group = np.unique(group, return_inverse=True)
     n_groups = int(group.max()) + 1
-    order = np.argsort(group.take(slot).astype(np.uint16 if n_groups < 1 << 16 else np.int64), kind="stable")
-    tid, slot = tid.take(order), slot.take(order)
+    order = np.argsort(group.astype(np.uint16 if n_groups < 1 << 16 else np.int64).take(slot), kind="stable")
+    # tid: increasing indices, so all of them is the identity
+    tid, slot = (order if tid.size == box.shape[1] else tid.take(order)), slot.take(order)
     ends = np.cumsum(np.bincount(group, weights=count, minlength=n_groups).astype(np.int64))
     local = np.empty(k_nodes, dtype=np.int64)
     node_rec = np.empty(k_nodes, dtype=np.int64)

@@ -21,14 +21,18 @@ How it works
    The top levels, where every node is sampled, run on the sampled triangles alone (_grow_top); the rest wait in
    pools by Morton-index stride and walk down the chosen planes once, in cache-sized blocks, when a node needs a
    denser sample or the top is done (in the final walk, triangles whose node splits at no later level leave early
-   for the node they end in). The top is checked against the depth cap with exact counts at the end.
+   for the node they end in; the odd-indexed triangles, half the mesh, first take the node of a Morton neighbour
+   when their centre is inside its region, the bounds that the planes above it set, and walk only where it is not).
+   The top is checked against the depth cap with exact counts at the end.
 4. Depth cap: a node at depth d may hold at most max_leaf * 2^(max_depth - d) triangles. Planes that would leave a
    child above its cap are not used, and a node whose counts are only estimated and could break the cap is split
    at its median. So leaves are never deeper than max_depth, whatever the geometry, and the GPU traversal stack
    (BVH_STACK_SIZE) cannot overflow.
 5. Leaves are collected pass by pass (in each chunk group's own loop, on its cache-sized data): the triangles of a
-   pass's leaves are put in leaf order with a stable 16-bit radix argsort, and their boxes come from
-   np.minimum.at keyed by leaf, so leaf order and leaf boxes need no sort or scatter over the whole mesh. The
+   pass's leaves are put in leaf order with a stable 16-bit radix argsort. A leaf of a node binned without sampling
+   (and not split at its median) takes its box from the statistics (the union of the cells on its side, exactly
+   the union of its triangles' boxes); the others reduce theirs with np.minimum.at keyed by leaf. So leaf order and
+   leaf boxes need no sort or scatter over the whole mesh. The
    triangle records are written once, in leaf order, straight from the vertices (no Morton-order copy to gather
    from: on this kind of machine fresh pages cost more than the second gather of the corners).
 6. The interior nodes are renumbered depth first (pre-order, see engine/bvh/layout.py): subtree sizes bottom up,
@@ -138,13 +142,16 @@ def build_bvh(vertices, faces, *, max_leaf: int = 4, max_depth: int = DEFAULT_MA
             np.negative(box[3 + a, s:e], out=box[3 + a, s:e])
 
     if n_tri >= 2:
-        records, leaves = _grow(box, cen, max_leaf, max_depth)
+        # leaf boxes may come from the cell statistics (exact unions, see _grow_from) unless a min could depend on
+        # the order of its operands (signed zeros, NaN)
+        stat_boxes = not (np.isnan(vt).any() or np.signbit(vt[vt == 0]).any())
+        records, leaves = _grow(box, cen, max_leaf, max_depth, stat_boxes)
     else:
         records, leaves = _trivial(box, n_tri)
     del box, cen, c2
-    slot_tid, leaf_size, leaf_depth, leaf_box = leaves.arrays()
+    slot_tid, leaf_size, leaf_depth, leaf_boxes = leaves.arrays()
     leaf_first = np.concatenate([[0], np.cumsum(leaf_size)[:-1]]).astype(np.int64)
-    nodes, sah_cost = _finish(records, leaf_box, leaf_first, leaf_size, n_tri)
+    nodes, sah_cost = _finish(records, leaf_boxes, leaf_first, leaf_size, n_tri)
 
     # triangle records (v0, prim) (v1, 0) (v2, 0) in leaf order, zero-area ones collapsed onto v0; never an empty
     # buffer. Written straight from the vertices (no Morton-order copy to gather from).
@@ -234,8 +241,9 @@ def _morton_order(c2, n: int) -> np.ndarray:
             c = c2[a, s:e]  # twice the centre; the scale cancels
             c -= lo[a]
             c *= scale[a]
-            q = c.astype(np.int64)
-            np.clip(q, 0, top, out=q)
+            # clamped in float (the same integers as clamping after the cast), then the fast float32 -> int32 cast
+            c.clip(np.float32(0), np.float32(top), out=c)
+            q = c.astype(np.int32)
             spread = _SPREAD.take(q & 2047)
             if bits > 11:
                 spread |= _SPREAD.take(q >> 11) << np.uint64(33)
@@ -273,7 +281,7 @@ class _Record:
     rec: np.ndarray  # (K, 2) int64
 
 
-def _grow(box: np.ndarray, cen: np.ndarray, max_leaf: int, max_depth: int):
+def _grow(box: np.ndarray, cen: np.ndarray, max_leaf: int, max_depth: int, stat_boxes: bool = True):
     """Build the topology: records of interior nodes (node 0 = record 0, row 0 is the root), the leaf of every
     (sorted) triangle, and every leaf's size and depth."""
     n_tri = box.shape[1]
@@ -283,11 +291,11 @@ def _grow(box: np.ndarray, cen: np.ndarray, max_leaf: int, max_depth: int):
         records, slot, count, depth, dom = top
         return _grow_from(box, cen, np.arange(n_tri, dtype=np.intp), slot, count, depth, dom, max_leaf, max_depth,
                           CHUNK, records=records, pending=(len(records), list(range(len(records)))),
-                          cen_rows=cen_rows)
+                          cen_rows=cen_rows, stat_boxes=stat_boxes)
     dom = np.concatenate([box[:3].min(axis=1), -box[3:].min(axis=1)]).reshape(6, 1)  # binning domain lo, hi
     return _grow_from(box, cen, np.arange(n_tri, dtype=np.intp), np.zeros(n_tri, dtype=np.intp),
                       np.array([n_tri], dtype=np.int64), np.zeros(1, dtype=np.int64), dom, max_leaf, max_depth,
-                      CHUNK, cen_rows=cen_rows)
+                      CHUNK, cen_rows=cen_rows, stat_boxes=stat_boxes)
 
 
 def _walk(tids: np.ndarray, node: np.ndarray | None, levels, cen_rows: np.ndarray, tails=None) -> np.ndarray:
@@ -332,6 +340,28 @@ def _walk(tids: np.ndarray, node: np.ndarray | None, levels, cen_rows: np.ndarra
         elif nd.size:
             out[pos] = nd
     return out
+
+
+def _regions(levels):
+    """Bounds (lo, hi), (3, K) float64, of the centres that _walk takes to each node of the last of `levels`: a
+    centre c reaches node j when lo[:, j] <= c < hi[:, j] (the same comparisons as the walk; a NaN bound admits
+    nothing)."""
+    lo = np.full((3, 1), -np.inf)
+    hi = np.full((3, 1), np.inf)
+    for axis, split, nxt in levels:
+        nx = nxt.reshape(-1, 2)
+        n_next = int(nxt.max()) + 1
+        new_lo = np.empty((3, n_next))
+        new_hi = np.empty((3, n_next))
+        for side in (0, 1):
+            new_lo[:, nx[:, side]] = lo
+            new_hi[:, nx[:, side]] = hi
+        d = np.flatnonzero(nx[:, 0] != nx[:, 1])
+        a, sd = axis.take(d), split.take(d)
+        new_hi[a, nx[d, 0]] = np.minimum(hi[a, d], sd)
+        new_lo[a, nx[d, 1]] = np.maximum(lo[a, d], sd)
+        lo, hi = new_lo, new_hi
+    return lo, hi
 
 
 def _walk_tails(levels):
@@ -402,19 +432,28 @@ def _grow_top(box, cen, cen_rows, max_leaf: int, max_depth: int):
                 add_t.append(t[take])
                 add_s.append(nd[take])
                 tiers[z] = [t[~take], nd[~take], lvl]
-            sub_tid, sub_slot = np.concatenate(add_t), np.concatenate(add_s)
-            order = np.argsort(sub_tid, kind="stable")  # sorted runs; in Morton order the gathers stay local
-            sub_tid, sub_slot = sub_tid.take(order), sub_slot.take(order)
+            # sorted runs, merged by a stable value sort of (tid, slot) packed in one int64: in Morton order the
+            # gathers stay local
+            packed = np.concatenate(add_t)
+            packed <<= 32
+            packed |= np.concatenate(add_s)
+            packed.sort(kind="stable")
+            sub_slot = packed & 0xFFFFFFFF
+            packed >>= 32
+            sub_tid = packed
             have = np.where(needy, rate_log, have)
 
         # statistics of the eligible nodes from their samples (every 2^rate_log-th triangle)
         mask = np.where(elig, (np.int64(1) << rate_log) - 1, -1)
         sel = np.flatnonzero((sub_tid & mask.take(sub_slot)) == 0)
-        s_tid, s_slot = sub_tid.take(sel), sub_slot.take(sel)
+        if sel.size == sub_tid.size:  # the whole subset (the upper passes)
+            s_tid, s_slot = sub_tid, sub_slot
+        else:
+            s_tid, s_slot = sub_tid.take(sel), sub_slot.take(sel)
         ext = dom[3:] - dom[:3]
         inv = np.where(ext > 0, grid / np.where(ext > 0, ext, 1), 0).astype(np.float32)
         off = (-dom[:3] * inv).astype(np.float32)
-        gmax = grid - 1
+        gmax = (grid - 1).astype(np.int32)
         cell_base = np.zeros(k, dtype=np.int64)
         groups, n_cells = [], 0
         for gsize in (4, 8):
@@ -424,13 +463,14 @@ def _grow_top(box, cen, cen_rows, max_leaf: int, max_depth: int):
                 groups.append((gsize, members, n_cells))
                 n_cells += members.size * gsize**3
         s_gmax = gmax.take(s_slot)
-        g = grid.take(s_slot)
-        key = _cell_axis(cen[0].take(s_tid), inv[0], off[0], s_gmax, s_slot)
-        key *= g
-        key += _cell_axis(cen[1].take(s_tid), inv[1], off[1], s_gmax, s_slot)
-        key *= g
-        key += _cell_axis(cen[2].take(s_tid), inv[2], off[2], s_gmax, s_slot)
-        key += cell_base.take(s_slot)
+        g = grid.astype(np.int32).take(s_slot)
+        cell = _cell_axis(cen[0].take(s_tid), inv[0], off[0], s_gmax, s_slot)  # int32 within the node
+        cell *= g
+        cell += _cell_axis(cen[1].take(s_tid), inv[1], off[1], s_gmax, s_slot)
+        cell *= g
+        cell += _cell_axis(cen[2].take(s_tid), inv[2], off[2], s_gmax, s_slot)
+        key = cell_base.take(s_slot)
+        key += cell
         cell_count = np.bincount(key, minlength=n_cells)
         cell_box = np.full((6, n_cells), np.inf, dtype=np.float32)
         for r in range(6):
@@ -493,10 +533,41 @@ def _grow_top(box, cen, cen_rows, max_leaf: int, max_depth: int):
 
     slot = np.empty(n, dtype=np.intp)
     tails = _walk_tails(levels)
-    slot[1::2] = _walk(np.arange(1, n, 2, dtype=np.intp), None, levels, cen_rows, tails)
     slot[sub_tid] = sub_slot
     for t, nd, l0 in list(tiers.values()) + parked:
         slot[t] = _walk(t, nd, levels[l0:], cen_rows, tails)
+    # every triangle with a trailing zero bit (even index) has its node; the others most often end in the node of
+    # the triangle before them (Morton order): a test against that node's region, and a walk where it fails
+    lo, hi = _regions(levels)
+    miss = []
+    for s in range(1, n, 2 * TOP_BLOCK):
+        e = min(s + 2 * TOP_BLOCK, n)
+        guess = slot[s - 1:e - 1:2]
+        inside = None
+        for a in range(3):
+            c = cen[a, s:e:2]
+            ok = c >= lo[a].take(guess)
+            ok &= c < hi[a].take(guess)
+            inside = ok if inside is None else inside & ok
+        slot[s:e:2] = guess
+        out = np.flatnonzero(~inside)
+        if out.size:  # then the node of the triangle after them
+            t = out * 2 + s
+            if t[-1] + 1 >= n:  # the last triangle has none after it
+                miss.append(t[-1:])
+                t = t[:-1]
+            guess = slot.take(t + 1)
+            inside = None
+            for a in range(3):
+                c = cen[a].take(t)
+                ok = c >= lo[a].take(guess)
+                ok &= c < hi[a].take(guess)
+                inside = ok if inside is None else inside & ok
+            slot[t] = guess
+            miss.append(t[~inside])
+    if miss:
+        miss = np.concatenate(miss)
+        slot[miss] = _walk(miss, None, levels, cen_rows, tails)
     count = np.bincount(slot, minlength=count.size).astype(np.int64)
     # the depth cap, with the exact counts: every node of the top within its limit (else: build without the top)
     sizes = count
@@ -525,13 +596,18 @@ def _grow_top(box, cen, cen_rows, max_leaf: int, max_depth: int):
 
 
 def _grow_from(box, cen, tid, slot, count, depth, dom, max_leaf: int, max_depth: int, chunk, records=None,
-               pending=None, cen_rows=None):
+               pending=None, cen_rows=None, stat_boxes=True):
     """The pass loop, from a set of active nodes: tid (increasing indices into box / cen) and slot of every
     active triangle; count, depth (the root is at 0) and binning domain (6, K) of every active node.
 
     Once every node holds at most `chunk` triangles, the nodes are split into independent groups of about that
     many triangles, and each group is finished by its own loop on compact copies of its data (cache-sized
     arrays). Returns records (the first record's rows are the starting nodes) and the leaves (_Leaves).
+
+    stat_boxes: a leaf made by a node binned without sampling (and not split at its median) takes its box from the
+    cell statistics, the union of the cells on its side, which is exactly the union of its triangles' boxes (they
+    are partitioned with the cells' own arithmetic); the others, and all where stat_boxes is false, reduce their
+    triangles' boxes.
     """
     n_tri = box.shape[1]
     if cen_rows is None:
@@ -544,7 +620,7 @@ def _grow_from(box, cen, tid, slot, count, depth, dom, max_leaf: int, max_depth:
     while count.size:
         if chunk and pending and tid.size > chunk and count.max() <= chunk:
             n_leaves = _grow_chunks(box, cen, tid, slot, count, depth, dom, max_leaf, max_depth, chunk, records,
-                                    pending, leaves, n_leaves)
+                                    pending, leaves, n_leaves, stat_boxes)
             break
         if depth.max() >= max_depth:  # the caps make this unreachable
             raise AssertionError("BVH depth cap violated")
@@ -563,7 +639,7 @@ def _grow_from(box, cen, tid, slot, count, depth, dom, max_leaf: int, max_depth:
         ext = dom[3:] - dom[:3]
         inv = np.where(ext > 0, grid / np.where(ext > 0, ext, 1), 0).astype(np.float32)
         off = (-dom[:3] * inv).astype(np.float32)  # cell coordinate = c * inv + off
-        gmax = grid - 1
+        gmax = (grid - 1).astype(np.int32)
 
         # cell (x, y, z) of node k sits at cell_base[k] + ((x * G + y) * G + z) * cell_step[k]. Nodes with the
         # same grid size form a group with adjacent cells: node-major (step 1) for 4^3 and 8^3 grids, which
@@ -595,15 +671,16 @@ def _grow_from(box, cen, tid, slot, count, depth, dom, max_leaf: int, max_depth:
             s_tid, s_slot = tid.take(sel), slot.take(sel)
         s_ident = s_tid.size == n_tri
         s_gmax = gmax.take(s_slot)
-        cells = np.empty((3, s_tid.size), dtype=np.int64)
+        cells = np.empty((3, s_tid.size), dtype=np.int32)
         for a in range(3):
             _cell_axis(cen[a] if s_ident else cen[a].take(s_tid), inv[a], off[a], s_gmax, s_slot, out=cells[a])
-        g = grid.take(s_slot)
-        key = cells[0] * g
-        key += cells[1]
-        key *= g
-        key += cells[2]
-        key *= cell_step.take(s_slot)
+        g = grid.astype(np.int32).take(s_slot)
+        cell = cells[0] * g  # int32 within the node
+        cell += cells[1]
+        cell *= g
+        cell += cells[2]
+        key = cell_step.take(s_slot)
+        key *= cell
         key += cell_base.take(s_slot)
         cell_count = np.bincount(key, minlength=n_cells)
         cell_box = np.full((6, n_cells), np.inf, dtype=np.float32)
@@ -696,24 +773,30 @@ def _grow_from(box, cen, tid, slot, count, depth, dom, max_leaf: int, max_depth:
         new_slot = out_index.take(dest)
         new_slot[~inner.take(dest)] = -1
         stay = new_slot >= 0
+        # domains of the outcomes (lo xyz, hi xyz): children of median splits keep the parent's
+        cdom = np.where(median[None, None, :], dom[None].astype(np.float32), child_dom)  # (2, 6, K)
+        gdom = grand_dom.transpose(2, 3, 0, 1).reshape(6, 4 * k_nodes)  # grandchild 2 child + side order
+        odom = np.concatenate([cdom.transpose(1, 2, 0).reshape(6, 2 * k_nodes), gdom], axis=1)
         if n_leaf:  # this pass's leaves, in id order (their triangles in Morton order)
             gone = np.flatnonzero(~stay)
+            known = None
+            if stat_boxes:  # (exact boxes, which leaves have one)
+                lb = odom[:, leaf]
+                lb[3:] *= -1
+                known = (lb, np.concatenate([np.repeat(exact & ~median, 2), np.repeat(split2, 2)])[leaf])
             leaves.add(box, tid.take(gone), out_index.take(dest.take(gone)) - (n_leaves - n_leaf), ocount[leaf],
-                       out_depth[leaf])
+                       out_depth[leaf], known)
         if not stay.all():
             tid, new_slot = tid[stay], new_slot[stay]
         slot = new_slot
         count = ocount[inner]
         depth = out_depth[inner]
-        # domains: children of median splits keep the parent's
-        cdom = np.where(median[None, None, :], dom[None].astype(np.float32), child_dom)  # (2, 6, K)
-        gdom = grand_dom.transpose(2, 3, 0, 1).reshape(6, 4 * k_nodes)  # grandchild 2 child + side order
-        dom = np.concatenate([cdom.transpose(1, 2, 0).reshape(6, 2 * k_nodes), gdom], axis=1)[:, inner]
+        dom = odom[:, inner]
     return records, leaves
 
 
 def _grow_chunks(box, cen, tid, slot, count, depth, dom, max_leaf, max_depth, chunk, records, pending, leaves,
-                 n_leaves):
+                 n_leaves, stat_boxes):
     """Finish the active nodes group by group (see _grow_from); appends to records and the leaf lists, points the
     last pass's references at each group's first record, and returns the new leaf count."""
     k_nodes = count.size
@@ -732,7 +815,7 @@ def _grow_chunks(box, cen, tid, slot, count, depth, dom, max_leaf, max_depth, ch
         t = tid[lo:hi]
         sub = _grow_from(box.take(t, axis=1), cen.take(t, axis=1), np.arange(t.size, dtype=np.intp),
                          local.take(slot[lo:hi]), count[nodes], depth[nodes], dom[:, nodes], max_leaf, max_depth,
-                         None)
+                         None, stat_boxes=stat_boxes)
         sub_records, sub_leaves = sub
         node_rec[nodes] = len(records)
         for rc in sub_records:
@@ -752,15 +835,18 @@ def _grow_chunks(box, cen, tid, slot, count, depth, dom, max_leaf, max_depth, ch
 
 
 def _cell_axis(c, inv, off, gmax_t, idx, out=None):
-    """Cell index along one axis: clamp(int(c * inv[idx] + off[idx]), 0, gmax_t), in float32.
+    """Cell index along one axis: clamp(int(c * inv[idx] + off[idx]), 0, gmax_t), in float32; int32 (gmax_t:
+    int32 too).
 
     Binning and partitioning both call this, so a triangle's side always agrees with its bin.
     """
     v = c * inv.take(idx)
     v += off.take(idx)
-    np.maximum(v, 0, out=v)
+    # clamped in float first (a clip with scalars is several times faster than np.maximum with one), so that the
+    # cast is the fast float32 -> int32 one; int() of anything above 2^30 is above gmax_t anyway
+    v.clip(np.float32(0), np.float32(1 << 30), out=v)
     if out is None:
-        out = np.empty(v.shape, dtype=np.int64)
+        out = np.empty(v.shape, dtype=np.int32)
     out[...] = v
     np.minimum(out, gmax_t, out=out)
     return out
@@ -848,6 +934,17 @@ _SPLIT_EDGES = [[[tuple(_EDGE_ID[(3 - a - _OTHERS[a][j], (_BITS[a] if s else 0) 
                         for t in (0, 1)) for j in (0, 1)] for s in (0, 1)] for a in range(3)]
 
 
+# index tables of _octant_sah, whole-array form
+_EDGE_LO = np.array([c for d, c in _EDGES])  # (12,) the edge's cells
+_EDGE_HI = np.array([c | _BITS[d] for d, c in _EDGES])
+_FACE_E0 = np.array([[_FACE_EDGES[a][s][0] for s in (0, 1)] for a in range(3)])  # (3, 2) a half's two edges
+_FACE_E1 = np.array([[_FACE_EDGES[a][s][1] for s in (0, 1)] for a in range(3)])
+_SPLIT_TABLE = np.array(_SPLIT_EDGES)  # (3, 2, 2, 2): a, side, j, (left, right)
+_SPLIT_L = _SPLIT_TABLE[..., 0]  # (3, 2, 2)
+_SPLIT_R = _SPLIT_TABLE[..., 1]
+_AXIS2_TABLE = np.array([[_OTHERS[a][j] for j in (0, 1)] for a in range(3)])  # (3, 2)
+
+
 def _octant_sah(cnt, cbox, exact: np.ndarray, cap: np.ndarray, cap2: np.ndarray, max_leaf: int):
     """SAH of nodes binned on 2^3 grids (cell-major: (8, k) counts, (6, 8, k) boxes).
 
@@ -859,22 +956,14 @@ def _octant_sah(cnt, cbox, exact: np.ndarray, cap: np.ndarray, cap2: np.ndarray,
     k = exact.size
     cnt = cnt.reshape(8, k)
     cbox = cbox.reshape(6, 8, k)
-    ebox = np.empty((12, 6, k), dtype=np.float32)
-    ecnt = np.empty((12, k), dtype=np.int64)
-    for e, (d, c) in enumerate(_EDGES):
-        np.minimum(cbox[:, c], cbox[:, c | _BITS[d]], out=ebox[e])
-        np.add(cnt[c], cnt[c | _BITS[d]], out=ecnt[e])
+    ebox = np.minimum(cbox[:, _EDGE_LO], cbox[:, _EDGE_HI])  # (6, 12, k)
+    ecnt = cnt[_EDGE_LO] + cnt[_EDGE_HI]  # (12, k)
+    fbox = np.minimum(ebox[:, _FACE_E0], ebox[:, _FACE_E1])  # (6, 3, 2, k): axis, side
+    fcnt = ecnt[_FACE_E0] + ecnt[_FACE_E1]  # (3, 2, k)
     with np.errstate(invalid="ignore", over="ignore"):
-        earea = _half_area(ebox.transpose(1, 0, 2)).astype(np.float64)  # (12, k)
-        fbox = np.empty((3, 2, 6, k), dtype=np.float32)
-        fcnt = np.empty((3, 2, k), dtype=np.int64)
-        for a in range(3):
-            for side in (0, 1):
-                e0, e1 = _FACE_EDGES[a][side]
-                np.minimum(ebox[e0], ebox[e1], out=fbox[a, side])
-                np.add(ecnt[e0], ecnt[e1], out=fcnt[a, side])
-        farea = _half_area(fbox.transpose(2, 0, 1, 3)).astype(np.float64)  # (3, 2, k)
-        tie = (_half_area(np.minimum(fbox[0, 0], fbox[0, 1])).astype(np.float64) + 1e-30) * 1e-6
+        earea = _half_area(ebox).astype(np.float64)  # (12, k)
+        farea = _half_area(fbox).astype(np.float64)  # (3, 2, k)
+        tie = (_half_area(np.minimum(fbox[:, 0, 0], fbox[:, 0, 1])).astype(np.float64) + 1e-30) * 1e-6
 
         # first split: one of three planes
         n_l, n_r = fcnt[:, 0], fcnt[:, 1]
@@ -886,32 +975,32 @@ def _octant_sah(cnt, cbox, exact: np.ndarray, cap: np.ndarray, cap2: np.ndarray,
     axis = np.argmin(cost, axis=0)
     cols = np.arange(k)
     found = np.isfinite(cost[axis, cols])
-    child = np.take_along_axis(fbox, axis[None, None, None, :], axis=0)[0].copy()  # (2, 6, k)
+    at = axis * (2 * k) + cols  # (k,): side 0 of the chosen axis in (3 x 2, k) rows
+    fb = fbox.reshape(6, 6 * k)
+    child = np.stack([fb.take(at, axis=1), fb.take(at + k, axis=1)])  # (2, 6, k)
 
-    # second split, per half of every axis: one of the two other axes' planes
-    cost2 = np.full((3, 2, 2, k), np.inf)
+    # second split, per half of the chosen axis: one of the two other axes' planes
+    el = _SPLIT_L[axis].transpose(1, 2, 0)  # (2 sides, 2 choices, k)
+    er = _SPLIT_R[axis].transpose(1, 2, 0)
+    flat_at_l = el * k + cols
+    flat_at_r = er * k + cols
+    nl, nr = ecnt.take(flat_at_l), ecnt.take(flat_at_r)
     with np.errstate(invalid="ignore", over="ignore"):
-        for a in range(3):
-            for side in (0, 1):
-                big = fcnt[a, side] > max_leaf
-                for j in (0, 1):
-                    el, er = _SPLIT_EDGES[a][side][j]
-                    nl, nr = ecnt[el], ecnt[er]
-                    c = earea[el] * nl + earea[er] * nr + tie * np.abs(nl - nr)
-                    good = big & (nl > 0) & (nr > 0) & (nl <= cap2) & (nr <= cap2)
-                    cost2[a, side, j] = np.where(good, c, np.inf)
-    mine = np.take_along_axis(cost2, axis[None, None, None, :], axis=0)[0]  # (2 sides, 2 choices, k)
-    pick = np.argmin(mine, axis=1)  # (2, k)
-    found2 = np.isfinite(np.take_along_axis(mine, pick[:, None, :], axis=1)[:, 0]) & exact & found
-    table_axis = np.array([[_OTHERS[a][j] for j in (0, 1)] for a in range(3)])  # (3, 2)
-    axis2 = table_axis[axis[None, :], pick]  # (2, k)
-    table_edge = np.array(_SPLIT_EDGES)  # (3, 2, 2, 2): a, side, j, (left, right)
-    flat_box = ebox.transpose(1, 0, 2).reshape(6, 12 * k)
+        c = earea.take(flat_at_l) * nl + earea.take(flat_at_r) * nr + tie * np.abs(nl - nr)
+    fc = fcnt.reshape(6 * k)
+    big = np.stack([fc.take(at), fc.take(at + k)]) > max_leaf  # (2, k)
+    good = big[:, None] & (nl > 0) & (nr > 0) & (nl <= cap2) & (nr <= cap2)
+    mine = np.where(good, c, np.inf)  # (2 sides, 2 choices, k)
+    pick = (mine[:, 1] < mine[:, 0]).astype(np.intp)  # argmin of two: the first on ties
+    found2 = np.isfinite(np.minimum(mine[:, 0], mine[:, 1])) & exact & found
+    axis2 = _AXIS2_TABLE[axis[None, :], pick]  # (2, k)
+    flat_box = ebox.reshape(6, 12 * k)
     grand = np.empty((2, 2, 6, k), dtype=np.float32)
     for side in (0, 1):
-        for t in (0, 1):
-            e = table_edge[axis, side, pick[side], t]
-            grand[side, t] = flat_box.take(e * k + cols, axis=1)
+        p = pick[side]
+        for t, side_at in ((0, flat_at_l), (1, flat_at_r)):
+            e_at = np.where(p == 1, side_at[side, 1], side_at[side, 0])
+            grand[side, t] = flat_box.take(e_at, axis=1)
     child[:, 3:] = -child[:, 3:]
     grand[:, :, 3:] = -grand[:, :, 3:]
     return axis, found, child, axis2, found2, grand
@@ -957,12 +1046,31 @@ class _Leaves:
         self.depths: list[np.ndarray] = []
         self.boxes: list[np.ndarray] = []
 
-    def add(self, box, tids, leaf, sizes, depths):
-        """A batch of len(sizes) leaves: triangles `tids` (increasing) of leaf `leaf` (0 .. len(sizes) - 1)."""
-        lb = np.full((6, sizes.size), np.inf, dtype=np.float32)  # empty leaves keep the inverted box
+    def add(self, box, tids, leaf, sizes, depths, known=None):
+        """A batch of len(sizes) leaves: triangles `tids` (increasing) of leaf `leaf` (0 .. len(sizes) - 1).
+        known: (boxes (6, L) in six-row form, which of them are exact); the others are reduced from the triangles."""
+        if known is None:
+            lb = np.full((6, sizes.size), np.inf, dtype=np.float32)  # empty leaves keep the inverted box
+            todo = None
+        else:
+            lb, have = known
+            todo = ~have
+            if todo.all():
+                lb[:] = np.inf
+                todo = None
+            elif todo.any():
+                lb[:, todo] = np.inf
+            else:
+                todo = False
         if tids.size:
-            for r in range(6):
-                np.minimum.at(lb[r], leaf, box[r].take(tids))
+            if todo is None:
+                for r in range(6):
+                    np.minimum.at(lb[r], leaf, box[r].take(tids))
+            elif todo is not False:
+                sel = np.flatnonzero(todo.take(leaf))
+                t, lf = tids.take(sel), leaf.take(sel)
+                for r in range(6):
+                    np.minimum.at(lb[r], lf, box[r].take(t))
             tids = tids.take(_stable_order(leaf, sizes.size))
         lb = np.ascontiguousarray(lb.T)
         self.tids.append(tids)
@@ -979,19 +1087,18 @@ class _Leaves:
         return sum(x.size for x in other.sizes)
 
     def arrays(self):
-        """(slot -> sorted triangle index, sizes, depths, boxes (L, 6))."""
-        return (np.concatenate(self.tids), np.concatenate(self.sizes), np.concatenate(self.depths),
-                np.concatenate(self.boxes))
+        """(slot -> sorted triangle index, sizes, depths, the batches' boxes (a list of (l, 6)))."""
+        return np.concatenate(self.tids), np.concatenate(self.sizes), np.concatenate(self.depths), self.boxes
 
 
-def _finish(records, leaf_box, leaf_first, leaf_size, n_tri: int):
+def _finish(records, leaf_boxes, leaf_first, leaf_size, n_tri: int):
     """The packed nodes (NODE_DTYPE) in depth-first order, and the SAH cost.
 
     Records in order give the build's node ids (record 0 row 0 is the root; children always live in later
     records). Subtree sizes go bottom up and depth-first positions top down (pre-order: the left child at the
     parent + 1, the right child after the whole left subtree), one vector step per record; then one pass over the
     records in reverse makes the exact boxes (a node's box is the union of its children's) and writes every
-    record's rows, packed, at their positions.
+    record's rows, packed, at their positions. leaf_boxes: the leaves' boxes, (l, 6) batches in leaf order.
     """
     base = np.concatenate([[0], np.cumsum([rc.child.shape[0] for rc in records])]).astype(np.int64)
     n_nodes = int(base[-1])
@@ -1012,14 +1119,21 @@ def _finish(records, leaf_box, leaf_first, leaf_size, n_tri: int):
         pos[nid[:, 1]] = p
 
     leaf_word = leaf_first.astype(np.uint32) | LEAF_BIT
+    # the packed rows and the boxes are moved as whole records (void views): one copy per row
     out = np.empty((n_nodes, 16), dtype=np.float32)
-    node_box = np.empty((n_nodes + 1, 6), dtype=np.float32)
+    out_rows = out.view(_V64).reshape(n_nodes)
+    # boxes of the nodes (build ids) and then of the leaves (row n_nodes + 1 + leaf id), one table for one gather
+    box_of = np.empty((n_nodes + 1 + int(leaf_size.size), 6), dtype=np.float32)
+    if leaf_boxes:
+        np.concatenate(leaf_boxes, out=box_of[n_nodes + 1:])
+    box_rows = box_of.view(_V24).reshape(-1)
+    node_box = box_of[:n_nodes + 1]
     sah = 0.0
     for r in range(len(records) - 1, -1, -1):
         rc, nid = records[r], nids[r]
         is_leaf = nid < 0
         lid = np.where(is_leaf, rc.child, 0)
-        cb = np.where(is_leaf[:, :, None], leaf_box.take(lid, axis=0), node_box.take(nid, axis=0))  # (K, 2, 6)
+        cb = box_rows.take(np.where(is_leaf, rc.child + (n_nodes + 1), nid)).view(np.float32).reshape(-1, 2, 6)
         node_box[base[r]:base[r + 1]] = np.minimum(cb[:, 0], cb[:, 1])
         blk = np.empty((nid.shape[0], 4, 4), dtype=np.float32)  # (lmin, left) (lmax, right) (rmin, lc) (rmax, rc)
         blk[:, 0::2, :3] = cb[:, :, :3]
@@ -1028,7 +1142,7 @@ def _finish(records, leaf_box, leaf_first, leaf_size, n_tri: int):
         u[:, 0:2, 3] = np.where(is_leaf, leaf_word.take(lid), pos.take(nid))
         wt = np.where(is_leaf, leaf_size.take(lid), 1)
         u[:, 2:4, 3] = np.where(is_leaf, wt, 0)
-        out[pos[base[r]:base[r + 1]]] = blk.reshape(-1, 16)
+        out_rows[pos[base[r]:base[r + 1]]] = blk.reshape(-1, 16).view(_V64).reshape(-1)
         # SAH: every child slot's box is its child's box; leaves weigh their triangle count (empty ones nothing)
         with np.errstate(invalid="ignore", over="ignore"):
             area = _half_area(cb.transpose(2, 0, 1)).astype(np.float64)
@@ -1041,6 +1155,10 @@ def _finish(records, leaf_box, leaf_first, leaf_size, n_tri: int):
     if not a_root > 0:
         return nodes, float(n_nodes + n_tri)
     return nodes, (a_root + sah) / a_root
+
+
+_V64 = np.dtype((np.void, 64))  # a packed node
+_V24 = np.dtype((np.void, 24))  # a box in six-row form
 
 
 def _degenerate(corner) -> np.ndarray:

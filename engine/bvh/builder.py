@@ -444,8 +444,12 @@ def _grow_top(box, cen, cen_rows, max_leaf: int, max_depth: int):
             have = np.where(needy, rate_log, have)
 
         # statistics of the eligible nodes from their samples (every 2^rate_log-th triangle)
+        # (an ineligible node samples nothing: its mask keeps every bit, so only triangle 0 would pass the test)
         mask = np.where(elig, (np.int64(1) << rate_log) - 1, -1)
-        sel = np.flatnonzero((sub_tid & mask.take(sub_slot)) == 0)
+        picked = (sub_tid & mask.take(sub_slot)) == 0
+        if not elig.all():
+            picked &= elig.take(sub_slot)
+        sel = np.flatnonzero(picked)
         if sel.size == sub_tid.size:  # the whole subset (the upper passes)
             s_tid, s_slot = sub_tid, sub_slot
         else:

@@ -15,7 +15,6 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass, field
-from pathlib import Path
 
 import numpy as np
 import vulkan as vk
@@ -24,8 +23,8 @@ from .bvh import build_bvh
 from .errors import ConfigError, EngineError, VulkanError
 from .passes import frame_data as fd
 from .passes.frame_data import FRAME_BYTES, MAX_LIGHTS, pack_frame, pack_light
-from .passes.gbuffer import (ALBEDO_FORMAT, DEPTH_FORMAT, NORMAL_FORMAT, POSITION_FORMAT, VISIBILITY_FORMAT, GBufferPass,
-                             SceneGeometry)
+from .passes.gbuffer import (ALBEDO_FORMAT, DEPTH_FORMAT, NORMAL_FORMAT, POSITION_FORMAT, VISIBILITY_FORMAT,
+                             GBufferPass, SceneGeometry)
 from .passes.accumulate import ALPHA_MIN, FILTER_AO, FILTER_MASKS, FILTER_TEMPORAL, AccumulatePass
 from .passes.ao import AOPass
 from .passes.debug_view import VIEW_MODES, DebugViewPass
@@ -219,8 +218,9 @@ class Targets:
             self.offsets[name] = off
             off += size
         self.readback = Buffer(ctx, off, TRANSFER_DST, host=True, name="readback")
-        self._objects = [self.visibility, self.normal8, self.position, self.normal, self.albedo, self.depth, self.color, self.hdr,
-                         self.hist_position, self.hist_normal, self.len_cur, self.len_hist, self.readback]
+        self._objects = [self.visibility, self.normal8, self.position, self.normal, self.albedo, self.depth,
+                         self.color, self.hdr, self.hist_position, self.hist_normal, self.len_cur, self.len_hist,
+                         self.readback]
         for sig in self.signals.values():
             self._objects += sig.buffers()
         with ctx.one_shot() as cmd:
@@ -331,8 +331,9 @@ class Renderer:
     def _init_gpu(self):
         ctx = self.ctx
         if not ctx.geometry_shader:
-            raise VulkanError(f"device {ctx.device_info['name']!r} lacks the geometryShader feature, which the G-buffer's "
-                              "visibility pass needs (gl_PrimitiveID in a fragment shader); the Tracer works without it")
+            raise VulkanError(f"device {ctx.device_info['name']!r} lacks the geometryShader feature, which the "
+                              "G-buffer's visibility pass needs (gl_PrimitiveID in a fragment shader); the Tracer "
+                              "works without it")
         self.frame_ubo = Buffer(ctx, FRAME_BYTES, UNIFORM, host=True, name="frame")
         self._ubo_f32 = self.frame_ubo.view(np.float32)   # the mapped frame block (FRAME_BLOCK), written in place
         self._ubo_u32 = self.frame_ubo.view(np.uint32)

@@ -390,9 +390,9 @@ def _grow_top(box, cen, cen_rows, max_leaf: int, max_depth: int):
     bits (a pool walks down the levels made so far when a node needs a denser sample), and once the top is done all
     of them walk down its planes (_walk). A node stops here (and goes on in _grow_from, with exact counts) once it
     is too small to be sampled, it has no plane, a child could be a leaf, or the depth cap could bind below it
-    (max_leaf * 2^levels left < 4 x its estimated triangles). Returns None where the root stops, else (records of the top, the node
-    of every triangle, then count, depth and binning domain of every such node); also None where the exact counts
-    would break the depth cap (the top's estimates were off)."""
+    (max_leaf * 2^levels left < 4 x its estimated triangles). Returns None where the root stops, else (records of the
+    top, the node of every triangle, then count, depth and binning domain of every such node); also None where the
+    exact counts would break the depth cap (the top's estimates were off)."""
     n = box.shape[1]
     dom = np.concatenate([box[:3].min(axis=1), -box[3:].min(axis=1)]).reshape(6, 1).astype(np.float32)
     count = np.array([n], dtype=np.int64)  # estimates below the root

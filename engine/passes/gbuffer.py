@@ -147,7 +147,8 @@ class GBufferPass:
             vk.vkCmdDrawIndexed(cmd, count, 1, first, 0, 0)
         vk.vkCmdEndRendering(cmd)
         image_barrier(cmd, targets.visibility, CA, GENERAL, vk.VK_PIPELINE_STAGE_COLOR_ATTACHMENT_OUTPUT_BIT, CS,
-                      vk.VK_ACCESS_COLOR_ATTACHMENT_WRITE_BIT, vk.VK_ACCESS_SHADER_READ_BIT | vk.VK_ACCESS_SHADER_WRITE_BIT)
+                      vk.VK_ACCESS_COLOR_ATTACHMENT_WRITE_BIT,
+                      vk.VK_ACCESS_SHADER_READ_BIT | vk.VK_ACCESS_SHADER_WRITE_BIT)
         # The resolve overwrites every pixel: the last frame's contents (read by compute and copies) are discarded.
         for img in (*targets.gbuffer, targets.normal8):
             image_barrier(cmd, img, vk.VK_IMAGE_LAYOUT_UNDEFINED, GENERAL, CS | vk.VK_PIPELINE_STAGE_TRANSFER_BIT, CS,

@@ -17,7 +17,8 @@ import vulkan as vk
 from ..bvh import build_bvh
 from ..errors import ConfigError, SceneError
 from ..shaders import ShaderLibrary
-from ..vk import SB, UTB, Buffer, BufferView, ComputePipeline, Context, DescriptorSet, Timestamps, memory_barrier, upload_buffer
+from ..vk import (SB, UTB, Buffer, BufferView, ComputePipeline, Context, DescriptorSet, Timestamps, memory_barrier,
+                  upload_buffer)
 from ..vk.resources import STORAGE, TRANSFER_DST, TRANSFER_SRC, UNIFORM_TEXEL
 
 RAY_BYTES = 32
@@ -61,7 +62,8 @@ class SceneBVH:
         texels = int(ctx.limits.maxTexelBufferElements)
         for what, arr in (("triangles", bvh.tris), ("nodes", bvh.nodes)):
             if arr.nbytes // 16 > texels:
-                raise SceneError(f"{bvh.stats['triangles']:,} triangles: the BVH {what} take {arr.nbytes / 2**20:.0f} MiB, "
+                raise SceneError(f"{bvh.stats['triangles']:,} triangles: the BVH {what} take "
+                                 f"{arr.nbytes / 2**20:.0f} MiB, "
                                  f"more than this device's texel-buffer limit of {texels:,} texels "
                                  f"({texels * 16 / 2**20:.0f} MiB, {ctx.device_info['name']})")
         self.nodes = upload_buffer(ctx, bvh.nodes, UNIFORM_TEXEL, "bvh nodes")

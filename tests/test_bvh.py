@@ -467,3 +467,23 @@ def test_bvh_glsl_compiles(tmp_path, defines):
         capture_output=True, text=True,
     )
     assert res.returncode == 0, res.stdout + res.stderr
+
+
+def test_threads_give_the_same_tree_byte_for_byte():
+    from engine.bench_scenes import generated_mesh
+    from engine.bvh import builder
+
+    v, f = generated_mesh(300_000)  # > 2 chunk groups, many blocks, a sampled top: every threaded step runs
+    assert len(f) > 2 * builder.CHUNK
+    one = build_bvh(v, f, threads=1)
+    for threads in (2, 3):
+        many = build_bvh(v, f, threads=threads)
+        assert many.stats["threads"] == threads
+        assert many.nodes.tobytes() == one.nodes.tobytes()
+        assert many.tris.tobytes() == one.tris.tobytes()
+        assert np.array_equal(many.prim_ids, one.prim_ids)
+    check_invariants(one, v, f)
+    assert build_bvh(*sphere(1)).stats["threads"] == builder.default_threads()
+    for bad in (0, -1, 1.5, True, "2"):
+        with pytest.raises(ConfigError, match="threads"):
+            build_bvh(*sphere(1), threads=bad)

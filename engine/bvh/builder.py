@@ -40,13 +40,21 @@ How it works
    exact boxes (a node's box is the union of its children's), the SAH cost, and writes each record's nodes, packed,
    at their positions.
 
+Threads: the per-triangle steps (1, 2 and the triangle records) run block by block, the Morton sort as sorted parts
+merged, the final walks of 3 by blocks, and the chunk groups of 3 (independent subtrees), on a pool of threads
+(`threads`, default all cores): numpy releases the GIL inside its calls on large arrays. Results are merged in a
+fixed order, so the tree is byte for byte the same for any number of threads. The sampled top passes stay serial.
+
 Boxes are carried as six float32 rows (min x, min y, min z, -max x, -max y, -max z) so that the union of boxes is a
 single elementwise minimum.
 """
 
 from __future__ import annotations
 
+import os
+import threading
 import time
+from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -89,19 +97,71 @@ class BVH:
 
 
 # --------------------------------------------------------------------------------------------------------------
+# threads
+
+
+def default_threads() -> int:
+    """The number of cores this process may run on (build_bvh's default thread count)."""
+    try:
+        return max(1, len(os.sched_getaffinity(0)))
+    except AttributeError:  # not on Linux
+        return max(1, os.cpu_count() or 1)
+
+
+_POOLS: dict[int, ThreadPoolExecutor] = {}
+_POOLS_LOCK = threading.Lock()
+_WORKER = threading.local()
+
+
+def _blocks(fn, n: int, block: int, threads: int) -> list:
+    """fn(start) for start = 0, block, 2 block, ... < n, on up to `threads` threads (fn writes disjoint slices)."""
+    return _parallel([lambda s=s: fn(s) for s in range(0, n, block)], threads)
+
+
+def _parallel(tasks, threads: int) -> list:
+    """The results of the callables `tasks`, in order, run on up to `threads` threads. The builder's big steps are
+    numpy calls on large arrays, which release the GIL, so independent blocks of work overlap on several cores.
+    A task that itself calls _parallel runs its tasks inline (no nested waits on the pool)."""
+    if threads <= 1 or len(tasks) <= 1 or getattr(_WORKER, "busy", False):
+        return [t() for t in tasks]
+    with _POOLS_LOCK:
+        pool = _POOLS.get(threads)
+        if pool is None:
+            pool = _POOLS[threads] = ThreadPoolExecutor(max_workers=threads, thread_name_prefix="bvh-build")
+
+    def run(task):
+        _WORKER.busy = True
+        try:
+            return task()
+        finally:
+            _WORKER.busy = False
+
+    futures = [pool.submit(run, t) for t in tasks]
+    return [f.result() for f in futures]
+
+
+# --------------------------------------------------------------------------------------------------------------
 # entry point
 
 
-def build_bvh(vertices, faces, *, max_leaf: int = 4, max_depth: int = DEFAULT_MAX_DEPTH) -> BVH:
+def build_bvh(vertices, faces, *, max_leaf: int = 4, max_depth: int = DEFAULT_MAX_DEPTH,
+              threads: int | None = None) -> BVH:
     """Build a BVH over the triangles `faces` (T, 3) indexing `vertices` (V, 3).
 
     max_leaf: most triangles per leaf. max_depth: deepest leaf (the root is at depth 0); the GLSL traversal needs a
-    stack of at least max_depth - 1 entries. Vertices are used as float32 (the GPU's precision).
+    stack of at least max_depth - 1 entries. Vertices are used as float32 (the GPU's precision). threads: how many
+    threads the independent parts of the build use (default: every core this process may use); the tree is byte
+    for byte the same for any number.
     """
     t0 = time.perf_counter()
     vt, ft = _validated(vertices, faces)
     max_leaf = int(max_leaf)
     max_depth = int(max_depth)
+    if threads is None:
+        threads = default_threads()
+    if isinstance(threads, bool) or not isinstance(threads, (int, np.integer)) or threads < 1:
+        raise ConfigError(f"build_bvh: threads must be a positive integer, got {threads!r}")
+    threads = int(threads)
     if not 1 <= max_leaf <= 1 << 16:
         raise ConfigError(f"build_bvh: max_leaf must be in [1, 65536], got {max_leaf}")
     if not 1 <= max_depth <= 60:
@@ -115,7 +175,8 @@ def build_bvh(vertices, faces, *, max_leaf: int = 4, max_depth: int = DEFAULT_MA
     # Morton order of the box centres. Per-triangle work runs in blocks of PREP_BLOCK: small temporaries that the
     # allocator reuses instead of fresh multi-megabyte pages for every step.
     c2 = np.empty((3, n_tri), dtype=np.float32)  # twice the box centre, original order
-    for s in range(0, n_tri, PREP_BLOCK):
+
+    def centres(s):
         f = ft[s:s + PREP_BLOCK].T.copy()
         for a in range(3):
             x0, x1, x2 = vt[a].take(f[0]), vt[a].take(f[1]), vt[a].take(f[2])
@@ -124,13 +185,16 @@ def build_bvh(vertices, faces, *, max_leaf: int = 4, max_depth: int = DEFAULT_MA
             np.maximum(x0, x1, out=x0)
             np.maximum(x0, x2, out=x0)
             np.add(lo, x0, out=c2[a, s:s + PREP_BLOCK])
-    morton = _morton_order(c2, n_tri)
+
+    _blocks(centres, n_tri, PREP_BLOCK, threads)
+    morton = _morton_order(c2, n_tri, threads)
 
     # boxes and centres in Morton order (the centres reuse c2's memory: fresh pages are costly); from here on every
     # per-triangle array is in that order
     box = np.empty((6, n_tri), dtype=np.float32)  # min xyz, -max xyz
     cen = c2
-    for s in range(0, n_tri, PREP_BLOCK):
+
+    def boxes(s):
         e = min(s + PREP_BLOCK, n_tri)
         f = ft.take(morton[s:e], axis=0).T.copy()
         for a in range(3):
@@ -141,11 +205,13 @@ def build_bvh(vertices, faces, *, max_leaf: int = 4, max_depth: int = DEFAULT_MA
             cen[a, s:e] *= np.float32(0.5)
             np.negative(box[3 + a, s:e], out=box[3 + a, s:e])
 
+    _blocks(boxes, n_tri, PREP_BLOCK, threads)
+
     if n_tri >= 2:
         # leaf boxes may come from the cell statistics (exact unions, see _grow_from) unless a min could depend on
         # the order of its operands (signed zeros, NaN)
         stat_boxes = not (np.isnan(vt).any() or np.signbit(vt[vt == 0]).any())
-        records, leaves = _grow(box, cen, max_leaf, max_depth, stat_boxes)
+        records, leaves = _grow(box, cen, max_leaf, max_depth, stat_boxes, threads)
     else:
         records, leaves = _trivial(box, n_tri)
     del box, cen, c2
@@ -162,8 +228,8 @@ def build_bvh(vertices, faces, *, max_leaf: int = 4, max_depth: int = DEFAULT_MA
     tris.view(np.uint32).reshape(-1, 12)[:, 7::4] = 0  # pads
     if n_tri == 0:
         tris[0] = np.zeros((), dtype=TRI_DTYPE)
-    n_degenerate = 0
-    for s in range(0, n_tri, PREP_BLOCK):
+
+    def records_of(s):
         e = min(s + PREP_BLOCK, n_tri)
         f = ft.take(perm[s:e], axis=0).T.copy()
         rows = flat[s:e]
@@ -173,9 +239,11 @@ def build_bvh(vertices, faces, *, max_leaf: int = 4, max_depth: int = DEFAULT_MA
                 rows[:, 4 * c + a] = corner[c][a]
         degen = np.flatnonzero(_degenerate(corner))
         if degen.size:
-            n_degenerate += degen.size
             rows[degen, 4:7] = rows[degen, 0:3]
             rows[degen, 8:11] = rows[degen, 0:3]
+        return degen.size
+
+    n_degenerate = sum(_blocks(records_of, n_tri, PREP_BLOCK, threads))
     prim_ids = perm.astype(np.int32)
     tris["prim"][:n_tri] = prim_ids
 
@@ -190,6 +258,7 @@ def build_bvh(vertices, faces, *, max_leaf: int = 4, max_depth: int = DEFAULT_MA
         "bytes": int(nodes.nbytes + tris.nbytes),
         "max_leaf": max_leaf,
         "max_depth": max_depth,
+        "threads": threads,
     }
     return BVH(nodes=nodes, tris=tris, prim_ids=prim_ids, stats=stats)
 
@@ -222,7 +291,7 @@ for _b in range(11):
 del _b
 
 
-def _morton_order(c2, n: int) -> np.ndarray:
+def _morton_order(c2, n: int, threads: int = 1) -> np.ndarray:
     """Permutation sorting the triangles by the Morton code of their box centres (ties by index); c2 (3, n): twice
     the centres (overwritten)."""
     if n == 0:
@@ -234,7 +303,8 @@ def _morton_order(c2, n: int) -> np.ndarray:
     lo = [np.float32(c2[a].min()) for a in range(3)]
     hi = [float(c2[a].max()) for a in range(3)]
     scale = [np.float32(top / (hi[a] - float(lo[a])) if hi[a] > float(lo[a]) else 0.0) for a in range(3)]
-    for s in range(0, n, PREP_BLOCK):
+
+    def codes(s):
         e = min(s + PREP_BLOCK, n)
         acc = np.arange(s, e, dtype=np.uint64)
         for a in range(3):
@@ -250,7 +320,18 @@ def _morton_order(c2, n: int) -> np.ndarray:
             spread <<= np.uint64(a + idx_bits)
             acc |= spread
         code[s:e] = acc
-    code.sort()  # a value sort of packed keys is several times faster than argsort
+
+    _blocks(codes, n, PREP_BLOCK, threads)
+    # a value sort of packed keys is several times faster than argsort; the keys are distinct (the index is in
+    # them), so sorting parts on several threads and merging them (a stable sort of sorted runs is a merge) gives
+    # the same array
+    parts = min(threads, n // PREP_BLOCK)
+    if parts >= 2:
+        cuts = [n * i // parts for i in range(parts + 1)]
+        _parallel([lambda a=a, b=b: code[a:b].sort() for a, b in zip(cuts[:-1], cuts[1:])], threads)
+        code.sort(kind="stable")
+    else:
+        code.sort()
     code &= np.uint64((1 << idx_bits) - 1)  # the index, in place (< 2^31: also a valid intp)
     return code.view(np.intp)
 
@@ -281,21 +362,22 @@ class _Record:
     rec: np.ndarray  # (K, 2) int64
 
 
-def _grow(box: np.ndarray, cen: np.ndarray, max_leaf: int, max_depth: int, stat_boxes: bool = True):
+def _grow(box: np.ndarray, cen: np.ndarray, max_leaf: int, max_depth: int, stat_boxes: bool = True,
+          threads: int = 1):
     """Build the topology: records of interior nodes (node 0 = record 0, row 0 is the root), the leaf of every
     (sorted) triangle, and every leaf's size and depth."""
     n_tri = box.shape[1]
     cen_rows = np.ascontiguousarray(cen.T).reshape(-1)  # (x, y, z) of triangle i at 3 i .. 3 i + 2
-    top = _grow_top(box, cen, cen_rows, max_leaf, max_depth) if n_tri > TOP_MIN else None
+    top = _grow_top(box, cen, cen_rows, max_leaf, max_depth, threads) if n_tri > TOP_MIN else None
     if top is not None:
         records, slot, count, depth, dom = top
         return _grow_from(box, cen, np.arange(n_tri, dtype=np.intp), slot, count, depth, dom, max_leaf, max_depth,
                           CHUNK, records=records, pending=(len(records), list(range(len(records)))),
-                          cen_rows=cen_rows, stat_boxes=stat_boxes)
+                          cen_rows=cen_rows, stat_boxes=stat_boxes, threads=threads)
     dom = np.concatenate([box[:3].min(axis=1), -box[3:].min(axis=1)]).reshape(6, 1)  # binning domain lo, hi
     return _grow_from(box, cen, np.arange(n_tri, dtype=np.intp), np.zeros(n_tri, dtype=np.intp),
                       np.array([n_tri], dtype=np.int64), np.zeros(1, dtype=np.int64), dom, max_leaf, max_depth,
-                      CHUNK, cen_rows=cen_rows, stat_boxes=stat_boxes)
+                      CHUNK, cen_rows=cen_rows, stat_boxes=stat_boxes, threads=threads)
 
 
 def _walk(tids: np.ndarray, node: np.ndarray | None, levels, cen_rows: np.ndarray, tails=None) -> np.ndarray:
@@ -384,7 +466,7 @@ def _walk_tails(levels):
     return tails
 
 
-def _grow_top(box, cen, cen_rows, max_leaf: int, max_depth: int):
+def _grow_top(box, cen, cen_rows, max_leaf: int, max_depth: int, threads: int = 1):
     """The top of the tree, where every node is binned on a sample: the passes see only the sampled triangles
     (every 2^rate-th in Morton order, as in _grow_from), the others wait in pools by their number of trailing zero
     bits (a pool walks down the levels made so far when a node needs a denser sample), and once the top is done all
@@ -538,13 +620,22 @@ def _grow_top(box, cen, cen_rows, max_leaf: int, max_depth: int):
     slot = np.empty(n, dtype=np.intp)
     tails = _walk_tails(levels)
     slot[sub_tid] = sub_slot
-    for t, nd, l0 in list(tiers.values()) + parked:
+
+    def walk_into_slot(t, nd, l0):  # disjoint triangles per task
         slot[t] = _walk(t, nd, levels[l0:], cen_rows, tails)
+
+    tasks = []
+    for t, nd, l0 in list(tiers.values()) + parked:
+        for b in range(0, t.size, 4 * TOP_BLOCK):
+            part = slice(b, b + 4 * TOP_BLOCK)
+            tasks.append(lambda t=t[part], nd=None if nd is None else nd[part], l0=l0: walk_into_slot(t, nd, l0))
+    _parallel(tasks, threads)
     # every triangle with a trailing zero bit (even index) has its node; the others most often end in the node of
     # the triangle before them (Morton order): a test against that node's region, and a walk where it fails
     lo, hi = _regions(levels)
-    miss = []
-    for s in range(1, n, 2 * TOP_BLOCK):
+
+    def guess_block(s):  # the odd triangles of [s, s + 2 TOP_BLOCK)
+        miss = []
         e = min(s + 2 * TOP_BLOCK, n)
         guess = slot[s - 1:e - 1:2]
         inside = None
@@ -569,9 +660,12 @@ def _grow_top(box, cen, cen_rows, max_leaf: int, max_depth: int):
                 inside = ok if inside is None else inside & ok
             slot[t] = guess
             miss.append(t[~inside])
-    if miss:
-        miss = np.concatenate(miss)
-        slot[miss] = _walk(miss, None, levels, cen_rows, tails)
+        if miss:
+            miss = np.concatenate(miss)
+            slot[miss] = _walk(miss, None, levels, cen_rows, tails)
+
+    # blocks read only even slots (set above) and write only their own odd ones
+    _parallel([lambda s=s: guess_block(s) for s in range(1, n, 2 * TOP_BLOCK)], threads)
     count = np.bincount(slot, minlength=count.size).astype(np.int64)
     # the depth cap, with the exact counts: every node of the top within its limit (else: build without the top)
     sizes = count
@@ -600,7 +694,7 @@ def _grow_top(box, cen, cen_rows, max_leaf: int, max_depth: int):
 
 
 def _grow_from(box, cen, tid, slot, count, depth, dom, max_leaf: int, max_depth: int, chunk, records=None,
-               pending=None, cen_rows=None, stat_boxes=True):
+               pending=None, cen_rows=None, stat_boxes=True, threads: int = 1):
     """The pass loop, from a set of active nodes: tid (increasing indices into box / cen) and slot of every
     active triangle; count, depth (the root is at 0) and binning domain (6, K) of every active node.
 
@@ -624,7 +718,7 @@ def _grow_from(box, cen, tid, slot, count, depth, dom, max_leaf: int, max_depth:
     while count.size:
         if chunk and pending and tid.size > chunk and count.max() <= chunk:
             n_leaves = _grow_chunks(box, cen, tid, slot, count, depth, dom, max_leaf, max_depth, chunk, records,
-                                    pending, leaves, n_leaves, stat_boxes)
+                                    pending, leaves, n_leaves, stat_boxes, threads)
             break
         if depth.max() >= max_depth:  # the caps make this unreachable
             raise AssertionError("BVH depth cap violated")
@@ -800,7 +894,7 @@ def _grow_from(box, cen, tid, slot, count, depth, dom, max_leaf: int, max_depth:
 
 
 def _grow_chunks(box, cen, tid, slot, count, depth, dom, max_leaf, max_depth, chunk, records, pending, leaves,
-                 n_leaves, stat_boxes):
+                 n_leaves, stat_boxes, threads=1):
     """Finish the active nodes group by group (see _grow_from); appends to records and the leaf lists, points the
     last pass's references at each group's first record, and returns the new leaf count."""
     k_nodes = count.size
@@ -813,14 +907,21 @@ def _grow_chunks(box, cen, tid, slot, count, depth, dom, max_leaf, max_depth, ch
     ends = np.cumsum(np.bincount(group, weights=count, minlength=n_groups).astype(np.int64))
     local = np.empty(k_nodes, dtype=np.int64)
     node_rec = np.empty(k_nodes, dtype=np.int64)
+    spans = []
     for g, (lo, hi) in enumerate(zip(np.r_[0, ends[:-1]], ends)):
         nodes = np.flatnonzero(group == g)
         local[nodes] = np.arange(nodes.size)
-        t = tid[lo:hi]
-        sub = _grow_from(box.take(t, axis=1), cen.take(t, axis=1), np.arange(t.size, dtype=np.intp),
-                         local.take(slot[lo:hi]), count[nodes], depth[nodes], dom[:, nodes], max_leaf, max_depth,
-                         None, stat_boxes=stat_boxes)
-        sub_records, sub_leaves = sub
+        spans.append((nodes, tid[lo:hi], slot[lo:hi]))
+
+    def finish_group(nodes, t, s):
+        return _grow_from(box.take(t, axis=1), cen.take(t, axis=1), np.arange(t.size, dtype=np.intp),
+                          local.take(s), count[nodes], depth[nodes], dom[:, nodes], max_leaf, max_depth,
+                          None, stat_boxes=stat_boxes)
+
+    # the groups are independent: they run on the pool's threads (numpy releases the GIL in most of their work),
+    # and are merged here in group order, so the tree does not depend on the number of threads
+    subs = _parallel([lambda span=span: finish_group(*span) for span in spans], threads)
+    for (nodes, t, _), (sub_records, sub_leaves) in zip(spans, subs):
         node_rec[nodes] = len(records)
         for rc in sub_records:
             inner = rc.rec >= 0

@@ -118,6 +118,12 @@ def _blocks(fn, n: int, block: int, threads: int) -> list:
     return _parallel([lambda s=s: fn(s) for s in range(0, n, block)], threads)
 
 
+def _cuts(n: int, threads: int, min_part: int) -> list[int]:
+    """Bounds of up to `threads` equal parts of range(n), none smaller than min_part (one part where n is small)."""
+    parts = max(1, min(threads, n // max(min_part, 1)))
+    return [n * i // parts for i in range(parts + 1)]
+
+
 def _parallel(tasks, threads: int) -> list:
     """The results of the callables `tasks`, in order, run on up to `threads` threads. The builder's big steps are
     numpy calls on large arrays, which release the GIL, so independent blocks of work overlap on several cores.
@@ -548,19 +554,32 @@ def _grow_top(box, cen, cen_rows, max_leaf: int, max_depth: int, threads: int = 
                 cell_base[members] = n_cells + np.arange(members.size) * gsize**3
                 groups.append((gsize, members, n_cells))
                 n_cells += members.size * gsize**3
-        s_gmax = gmax.take(s_slot)
-        g = grid.astype(np.int32).take(s_slot)
-        cell = _cell_axis(cen[0].take(s_tid), inv[0], off[0], s_gmax, s_slot)  # int32 within the node
-        cell *= g
-        cell += _cell_axis(cen[1].take(s_tid), inv[1], off[1], s_gmax, s_slot)
-        cell *= g
-        cell += _cell_axis(cen[2].take(s_tid), inv[2], off[2], s_gmax, s_slot)
-        key = cell_base.take(s_slot)
-        key += cell
-        cell_count = np.bincount(key, minlength=n_cells)
-        cell_box = np.full((6, n_cells), np.inf, dtype=np.float32)
-        for r in range(6):
-            np.minimum.at(cell_box[r], key, box[r].take(s_tid))
+        grid32 = grid.astype(np.int32)
+
+        def cell_stats(lo, hi):  # count and box of every cell from the sampled triangles [lo, hi)
+            t, sl = s_tid[lo:hi], s_slot[lo:hi]
+            gm = gmax.take(sl)
+            g = grid32.take(sl)
+            cell = _cell_axis(cen[0].take(t), inv[0], off[0], gm, sl)  # int32 within the node
+            cell *= g
+            cell += _cell_axis(cen[1].take(t), inv[1], off[1], gm, sl)
+            cell *= g
+            cell += _cell_axis(cen[2].take(t), inv[2], off[2], gm, sl)
+            key = cell_base.take(sl)
+            key += cell
+            cnt = np.bincount(key, minlength=n_cells)
+            cbox = np.full((6, n_cells), np.inf, dtype=np.float32)
+            for r in range(6):
+                np.minimum.at(cbox[r], key, box[r].take(t))
+            return cnt, cbox
+
+        # in parts on the pool's threads where the sample is large; sums and minima are exact in any order
+        cuts = _cuts(s_tid.size, threads, TOP_BLOCK * 2)
+        parts = _parallel([lambda a=a, b=b: cell_stats(a, b) for a, b in zip(cuts[:-1], cuts[1:])], threads)
+        cell_count, cell_box = parts[0]
+        for cnt, cbox in parts[1:]:
+            cell_count += cnt
+            np.minimum(cell_box, cbox, out=cell_box)
         axis = np.zeros(k, dtype=np.int64)
         plane = np.zeros(k, dtype=np.int64)
         found = np.zeros(k, dtype=bool)

@@ -487,3 +487,24 @@ def test_threads_give_the_same_tree_byte_for_byte():
     for bad in (0, -1, 1.5, True, "2"):
         with pytest.raises(ConfigError, match="threads"):
             build_bvh(*sphere(1), threads=bad)
+
+
+def test_build_in_a_forked_child_after_a_threaded_build():
+    """The builder's thread pool does not survive a fork; the child must make its own instead of waiting forever."""
+    import multiprocessing
+
+    from engine.bench_scenes import generated_mesh
+    from engine.bvh import builder
+
+    v, f = generated_mesh(150_000)  # more than one block: work goes to the pool
+    assert len(f) > 2 * builder.PREP_BLOCK
+    parent = build_bvh(v, f, threads=2)  # the pool exists now
+    assert builder._POOLS
+    ctx = multiprocessing.get_context("fork")
+    with ctx.Pool(1) as pool:
+        nodes = pool.apply_async(_child_build, (v, f)).get(timeout=30)
+    assert nodes == parent.nodes.tobytes()
+
+
+def _child_build(v, f):
+    return build_bvh(v, f, threads=2).nodes.tobytes()

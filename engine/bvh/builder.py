@@ -113,6 +113,16 @@ _POOLS_LOCK = threading.Lock()
 _WORKER = threading.local()
 
 
+def _forget_pools():  # a forked child has none of the parent's pool threads: it makes its own
+    global _POOLS_LOCK
+    _POOLS.clear()
+    _POOLS_LOCK = threading.Lock()
+
+
+if hasattr(os, "register_at_fork"):
+    os.register_at_fork(after_in_child=_forget_pools)
+
+
 def _blocks(fn, n: int, block: int, threads: int) -> list:
     """fn(start) for start = 0, block, 2 block, ... < n, on up to `threads` threads (fn writes disjoint slices)."""
     return _parallel([lambda s=s: fn(s) for s in range(0, n, block)], threads)

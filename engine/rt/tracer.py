@@ -83,8 +83,10 @@ def bvh_descriptor_set(ctx: Context) -> DescriptorSet:
 
 
 def bvh_spec(ctx: Context) -> dict:
-    """Specialization constants of bvh.glsl for this device: the branchless stack push on CPU devices (lavapipe)."""
-    return {0: ctx.device_info["type"] == "CPU"}
+    """Specialization constants of bvh.glsl for this device: the branchless stack push (0) and the postponed leaf
+    tests (1) on CPU devices (lavapipe)."""
+    cpu = ctx.device_info["type"] == "CPU"
+    return {0: cpu, 1: cpu}
 
 
 def _check_mesh(vertices, faces):

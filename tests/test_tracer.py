@@ -125,10 +125,13 @@ def test_staged_buffers_give_the_same_answers():
         assert not staged.validation_errors and not plain.validation_errors
 
 
-@pytest.mark.parametrize("spec", [{0: False, 1: False}, {0: True, 1: False}, {0: False, 1: True}])
+@pytest.mark.parametrize("spec", [{0: False, 1: False, 2: False}, {0: True, 1: False, 2: False},
+                                  {0: False, 1: True, 2: False}, {0: True, 1: True, 2: False},
+                                  {0: False, 1: False, 2: True, 3: 32}, {0: True, 1: True, 2: True, 3: 32}])
 def test_every_traversal_variant_gives_the_same_answers(monkeypatch, spec):
-    """bvh.glsl's specialization constants (branchless push, postponed leaf tests) select code paths per device;
-    each combination answers exactly as the default one of this device, and as the reference."""
+    """bvh.glsl's specialization constants (branchless push, postponed leaf tests, register stack and its size)
+    select code paths per device; each combination answers exactly as the default one of this device, and as the
+    reference. (The default here, on lavapipe, is a register stack of exactly the BVH's depth - 1 entries.)"""
     import engine.rt.tracer as tracer_mod
     v, f = meshes()["soup"]
     rng = np.random.default_rng(13)
@@ -136,7 +139,8 @@ def test_every_traversal_variant_gives_the_same_answers(monkeypatch, spec):
     tmax = rng.uniform(0.1, 4.0, len(o)).astype(np.float32)
     with Tracer(v, f, validation=True) as default:
         occ0, hit0 = default.occluded(o, d, tmax), default.intersect(o, d)
-    monkeypatch.setattr(tracer_mod, "bvh_spec", lambda ctx: dict(spec))
+        assert default.pipelines["occluded"].spec[3] == max(1, default.stats["depth"] - 1)
+    monkeypatch.setattr(tracer_mod, "bvh_spec", lambda ctx, depth=None: dict(spec))
     with Tracer(v, f, validation=True) as variant:
         assert np.array_equal(variant.occluded(o, d, tmax), occ0)
         hit1 = variant.intersect(o, d)

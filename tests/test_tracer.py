@@ -125,6 +125,30 @@ def test_staged_buffers_give_the_same_answers():
         assert not staged.validation_errors and not plain.validation_errors
 
 
+@pytest.mark.parametrize("spec", [{0: False, 1: False, 2: False}, {0: True, 1: False, 2: False},
+                                  {0: False, 1: True, 2: False}, {0: True, 1: True, 2: False},
+                                  {0: False, 1: False, 2: True, 3: 32}, {0: True, 1: True, 2: True, 3: 32}])
+def test_every_traversal_variant_gives_the_same_answers(monkeypatch, spec):
+    """bvh.glsl's specialization constants (branchless push, postponed leaf tests, register stack and its size)
+    select code paths per device; each combination answers exactly as the default one of this device, and as the
+    reference. (The default here, on lavapipe, is a register stack of exactly the BVH's depth - 1 entries.)"""
+    import engine.rt.tracer as tracer_mod
+    v, f = meshes()["soup"]
+    rng = np.random.default_rng(13)
+    o, d = random_rays(rng, 3000, (v.min(0), v.max(0)))
+    tmax = rng.uniform(0.1, 4.0, len(o)).astype(np.float32)
+    with Tracer(v, f, validation=True) as default:
+        occ0, hit0 = default.occluded(o, d, tmax), default.intersect(o, d)
+        assert default.pipelines["occluded"].spec[3] == max(1, default.stats["depth"] - 1)
+    monkeypatch.setattr(tracer_mod, "bvh_spec", lambda ctx, depth=None: dict(spec))
+    with Tracer(v, f, validation=True) as variant:
+        assert np.array_equal(variant.occluded(o, d, tmax), occ0)
+        hit1 = variant.intersect(o, d)
+        assert np.array_equal(hit1.prim, hit0.prim) and np.array_equal(hit1.t, hit0.t)
+        assert not variant.validation_errors
+    assert (occ0 != reference_occluded(v, f, o, d, tmax)).mean() < 0.002
+
+
 def test_stats_and_bad_input():
     v, f = meshes()["sphere"]
     with Tracer(v, f) as t:

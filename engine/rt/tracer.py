@@ -82,9 +82,13 @@ def bvh_descriptor_set(ctx: Context) -> DescriptorSet:
     return DescriptorSet(ctx, [(0, UTB), (1, UTB)])
 
 
-def bvh_spec(ctx: Context) -> dict:
-    """Specialization constants of bvh.glsl for this device: the branchless stack push on CPU devices (lavapipe)."""
-    return {0: ctx.device_info["type"] == "CPU"}
+def bvh_spec(ctx: Context, depth: int | None = None) -> dict:
+    """Specialization constants of bvh.glsl for this device: on CPU devices (lavapipe) the branchless stack push
+    (0), the postponed leaf tests (1) and the register stack (2) of BVH_STACK_REGS entries (3): the BVH's
+    `depth` - 1 (what its traversal can push) when known, else 32 (enough for any BVH of the builder's max_depth)."""
+    cpu = ctx.device_info["type"] == "CPU"
+    regs = 32 if depth is None else max(1, min(32, int(depth) - 1))
+    return {0: cpu, 1: cpu, 2: cpu, 3: regs}
 
 
 def _check_mesh(vertices, faces):
@@ -172,7 +176,8 @@ class Tracer:
         self.pipelines, self._commands, self._marks = {}, {}, {}
         for kind in ("occluded", "intersect"):
             self.pipelines[kind] = ComputePipeline(ctx, lib.get(f"trace_{kind}.comp"), [self.io_set, self.bvh_set],
-                                                   spec=bvh_spec(ctx), name=f"trace_{kind}")
+                                                   spec=bvh_spec(ctx, self.bvh.stats.get("depth")),
+                                                   name=f"trace_{kind}")
         self.last_gpu_ms = 0.0
         self.last_times: dict = {}   # GPU ms of the last batch per step: upload (staged only), trace, download
 

@@ -33,9 +33,9 @@ def meshes():
     }
 
 
-@pytest.fixture(scope="module")
-def tracers():
-    made = {name: Tracer(v, f, validation=True) for name, (v, f) in meshes().items()}
+@pytest.fixture(scope="module", params=["binary", "wide"])
+def tracers(request):
+    made = {name: Tracer(v, f, validation=True, layout=request.param) for name, (v, f) in meshes().items()}
     yield made
     errors = []
     for t in made.values():

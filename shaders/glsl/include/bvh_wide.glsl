@@ -1,8 +1,7 @@
 // bvh_wide.glsl: the 8-wide BVH traversal (layout in engine/bvh/wide.py), included by bvh.glsl; selected there by
 // specialization constant 1, BVH_WIDE. Same bindings as the binary layout: nodes are 5 texels (80 bytes), triangles
-// the binary layout's 3 texels. Child boxes: the host checked p + q * 2^e (float32) encloses each subtree; the box
-// test here bounds its own rounding with an absolute slack (below) instead of the binary test's relative scaling,
-// which would not hold for the fma form. Triangles: the binary layout's watertight test.
+// the binary layout's 3 texels. Child boxes are dequantized exactly as the host checked them (p + q * 2^e in float32,
+// the product exact), then tested with the binary layout's robust slab test; triangles with its watertight test.
 //
 // Traversal after Ylitie, Karras and Laine (HPG 2017): a node group is (first child node, hit bits << 24 | imask);
 // hit bit 24 + (slot ^ oct_inv) marks a hit interior child, so that taking the highest bit first visits the children
@@ -11,8 +10,6 @@
 
 #ifndef BVH_WIDE_GLSL_INCLUDED
 #define BVH_WIDE_GLSL_INCLUDED
-
-const float BVH_WIDE_EPS8 = 4.76837158e-7;   // 8 * 2^-24
 
 bool bvh_trace_wide_(vec3 o, vec3 d, float tmin, float tmax, bool any_hit, inout BvhHit hit) {
     BvhRay_ r = bvh_make_ray_(o, d);
@@ -49,32 +46,17 @@ bool bvh_trace_wide_(vec3 o, vec3 d, float tmin, float tmax, bool any_hit, inout
         vec3 p = uintBitsToFloat(t0.xyz);
         vec3 s = uintBitsToFloat(uvec3(t0.w << 23u, (t0.w >> 8u) << 23u, (t0.w >> 16u) << 23u) & 0x7F800000u);
         uint imask = t0.w >> 24u;
-        // A plane at p + q s is at t = q (s / d) + (p - o) / d: one fma per plane (the paper's form). s / d is
-        // exact (s is a power of two); the other roundings (1 / d, p - o, the product, the fma) move each plane by
-        // at most 5 eps (|p - o| + 255 s) / |d| (cancellation makes a relative bound useless), so a box counts as
-        // hit when its near t <= far t + 2 err with err of 8 eps that size: conservative, as the exact test is.
-        vec3 po = p - r.o;
-        vec3 a3 = s * r.inv_d;
-        vec3 b3 = po * r.inv_d;
-        vec3 e3 = (abs(po) + 255.0 * s) * abs(r.inv_d);
-        float slack = 2.0 * BVH_WIDE_EPS8 * max(max(e3.x, e3.y), e3.z);
         uint hits = 0u;
         uint tris = 0u;
         for (uint j = 0u; j < 8u; ++j) {
             uint sh = (j & 3u) * 8u;
             bool up = j >= 4u;
-            // bytes to floats without an int-to-float conversion: the bits of 2^23 + q, minus 2^23 (exact)
             uvec3 ql = (uvec3(up ? t2.y : t2.x, up ? t2.w : t2.z, up ? t3.y : t3.x) >> sh) & 0xFFu;
             uvec3 qh = (uvec3(up ? t3.w : t3.z, up ? t4.y : t4.x, up ? t4.w : t4.z) >> sh) & 0xFFu;
-            vec3 fl = uintBitsToFloat(ql | 0x4B000000u) - 8388608.0;
-            vec3 fh = uintBitsToFloat(qh | 0x4B000000u) - 8388608.0;
-            vec3 tl = fl * a3 + b3;
-            vec3 th = fh * a3 + b3;
-            vec3 tn = min(tl, th);
-            vec3 tf = max(tl, th);
-            float tnear = max(max(tn.x, tn.y), max(tn.z, tmin));
-            float tfar = min(min(tf.x, tf.y), min(tf.z, best));
-            if (tnear <= tfar + slack) {
+            vec3 lo = p + vec3(ql) * s;
+            vec3 hi = p + vec3(qh) * s;
+            vec2 sl = bvh_slab_(r, lo, hi, tmin, best);
+            if (sl.x <= sl.y) {
                 uint meta = ((up ? t1.w : t1.z) >> sh) & 0xFFu;
                 if (((imask >> j) & 1u) != 0u) {
                     hits |= 1u << (24u + (j ^ oct_inv));

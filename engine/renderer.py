@@ -31,7 +31,7 @@ from .passes.debug_view import VIEW_MODES, DebugViewPass
 from .passes.denoise import DenoisePass
 from .passes.lighting import LightingPass
 from .passes.shadows import ShadowPass
-from .rt.tracer import SceneBVH, bvh_descriptor_set
+from .rt.tracer import SceneBVH, bvh_descriptor_set, bvh_layout, scene_bvh_data
 from .scene.camera import Camera
 from .shaders import ShaderLibrary
 from .vk import Buffer, Context, Image, Timestamps, image_barrier, memory_barrier
@@ -309,8 +309,11 @@ class Renderer:
     """Headless hybrid renderer. `with Renderer(640, 360) as r: frame = r.render(scene)`."""
 
     def __init__(self, width: int, height: int, *, device=None, validation: bool = False,
-                 shader_dir=None, hot_reload: bool = False, context: Context | None = None):
-        """`context`: render on an existing Context (the viewer's, which has a surface); it is not closed here."""
+                 shader_dir=None, hot_reload: bool = False, context: Context | None = None,
+                 bvh_layout: str | None = None):
+        """`context`: render on an existing Context (the viewer's, which has a surface); it is not closed here.
+        `bvh_layout`: "binary" or "wide" scene BVH for the shadow and AO passes (default: tracer.bvh_layout's)."""
+        self._bvh_layout_arg = bvh_layout
         check_size(width, height)
         self.width, self.height = int(width), int(height)
         self.library = ShaderLibrary(shader_dir, hot_reload=hot_reload)
@@ -341,8 +344,9 @@ class Renderer:
         self.targets = Targets(ctx, self.width, self.height, light_capacity=1)
         self.bvh_set = bvh_descriptor_set(ctx)
         self.gbuffer = GBufferPass(ctx, self.library, self.frame_ubo, self.targets)
-        self.shadows = ShadowPass(ctx, self.library, self.frame_ubo, self.bvh_set, self.targets)
-        self.ao = AOPass(ctx, self.library, self.frame_ubo, self.bvh_set, self.targets)
+        self.bvh_layout = bvh_layout(ctx, self._bvh_layout_arg)
+        self.shadows = ShadowPass(ctx, self.library, self.frame_ubo, self.bvh_set, self.targets, self.bvh_layout)
+        self.ao = AOPass(ctx, self.library, self.frame_ubo, self.bvh_set, self.targets, self.bvh_layout)
         self.accumulate = AccumulatePass(ctx, self.library, self.frame_ubo, self.targets)
         self.denoise = DenoisePass(ctx, self.library, self.frame_ubo, self.targets)
         self.lighting = LightingPass(ctx, self.library, self.frame_ubo, self.targets)
@@ -561,8 +565,8 @@ class Renderer:
         self._geometry = self._scene_bvh = None
         self._geometry = SceneGeometry(self.ctx, scene, self.gbuffer.white, self.gbuffer.sampler)
         self.gbuffer.bind_scene(self._geometry)
-        bvh = build_bvh(scene.positions, scene.indices)
-        self.bvh_stats = dict(bvh.stats)
+        bvh = scene_bvh_data(build_bvh(scene.positions, scene.indices), self.bvh_layout)
+        self.bvh_stats = dict(bvh.stats, layout=self.bvh_layout)
         self._scene_bvh = SceneBVH(self.ctx, bvh, self.bvh_set)
         self._scene = scene
         self._prev_view_proj = None

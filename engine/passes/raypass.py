@@ -16,12 +16,12 @@ class RayPass:
     push_size = 0
     output = ""          # the Targets buffer the pass writes
 
-    def __init__(self, ctx, library, frame_ubo, bvh_set, targets):
+    def __init__(self, ctx, library, frame_ubo, bvh_set, targets, bvh_layout=None):
         self.bvh_set = bvh_set
         self.set = DescriptorSet(ctx, [(0, UB), (1, SI), (2, SI), (3, SB)])
         self.set.buffer(0, frame_ubo)
         self.pipeline = ComputePipeline(ctx, library.get(self.shaders[0]), [self.set, bvh_set],
-                                        push_size=self.push_size, spec=bvh_spec(ctx), name=self.name)
+                                        push_size=self.push_size, spec=bvh_spec(ctx, layout=bvh_layout), name=self.name)
         self.bind_targets(targets)
 
     def bind_targets(self, t):

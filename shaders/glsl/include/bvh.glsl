@@ -291,13 +291,23 @@ bool bvh_trace_(vec3 o, vec3 d, float tmin, float tmax, bool any_hit, inout BvhH
     return found;
 }
 
+// Specialization constant 4 (engine/rt/tracer.py bvh_spec): the bound buffers hold the 8-wide layout
+// (engine/bvh/wide.py) instead of the binary one; traversal in bvh_wide.glsl.
+layout(constant_id = 4) const bool BVH_WIDE = false;
+
+#include "bvh_wide.glsl"
+
 BvhHit bvh_intersect(vec3 o, vec3 d, float tmin, float tmax) {
     BvhHit hit;
     hit.t = BVH_INF;
     hit.prim = -1;
     hit.u = 0.0;
     hit.v = 0.0;
-    bvh_trace_(o, d, tmin, tmax, false, hit);
+    if (BVH_WIDE) {
+        bvh_trace_wide_(o, d, tmin, tmax, false, hit);
+    } else {
+        bvh_trace_(o, d, tmin, tmax, false, hit);
+    }
     return hit;
 }
 
@@ -307,7 +317,7 @@ bool bvh_occluded(vec3 o, vec3 d, float tmin, float tmax) {
     hit.prim = -1;
     hit.u = 0.0;
     hit.v = 0.0;
-    return bvh_trace_(o, d, tmin, tmax, true, hit);
+    return BVH_WIDE ? bvh_trace_wide_(o, d, tmin, tmax, true, hit) : bvh_trace_(o, d, tmin, tmax, true, hit);
 }
 
 #endif  // BVH_GLSL_INCLUDED

@@ -1,0 +1,92 @@
+// bvh_wide.glsl: the 8-wide BVH traversal (layout in engine/bvh/wide.py), included by bvh.glsl; selected there by
+// specialization constant 4, BVH_WIDE. Same bindings as the binary layout: nodes are 5 texels (80 bytes), triangles
+// the binary layout's 3 texels. Child boxes are dequantized exactly as the host checked them (p + q * 2^e in float32,
+// the product exact), then tested with the binary layout's robust slab test; triangles with its watertight test.
+//
+// Traversal after Ylitie, Karras and Laine (HPG 2017): a node group is (first child node, hit bits << 24 | imask);
+// hit bit 24 + (slot ^ oct_inv) marks a hit interior child, so that taking the highest bit first visits the children
+// in the ray octant's order. Leaf children's triangles (at most 32 per node, one bit each) are tested right after
+// their node. The stack holds node groups whose hits are still to visit.
+
+#ifndef BVH_WIDE_GLSL_INCLUDED
+#define BVH_WIDE_GLSL_INCLUDED
+
+bool bvh_trace_wide_(vec3 o, vec3 d, float tmin, float tmax, bool any_hit, inout BvhHit hit) {
+    BvhRay_ r = bvh_make_ray_(o, d);
+    // 7 - octant, octant bit a set = d negative along axis a (the host's slot order)
+    uint oct_inv = (d.x < 0.0 ? 0u : 1u) | (d.y < 0.0 ? 0u : 2u) | (d.z < 0.0 ? 0u : 4u);
+    float best = tmax;
+    bool found = false;
+    uvec2 stack[BVH_STACK_SIZE];
+    uint sp = 0u;
+    uvec2 group = uvec2(0u, (1u << (24u + oct_inv)) | 1u);   // the root: interior slot 0 of a virtual parent
+    for (;;) {
+        if (group.y <= 0x00FFFFFFu) {
+            if (sp == 0u) {
+                break;
+            }
+            sp -= 1u;
+            group = stack[sp];
+        }
+        uint bit = uint(findMSB(group.y));
+        group.y &= ~(1u << bit);
+        uint slot = (bit - 24u) ^ oct_inv;
+        uint node = group.x + uint(bitCount(group.y & ((1u << slot) - 1u)));   // low 8 bits: imask
+        if (group.y > 0x00FFFFFFu) {
+            stack[min(sp, uint(BVH_STACK_SIZE - 1))] = group;
+            sp += 1u;
+        }
+
+        int b = int(node) * 5;
+        uvec4 t0 = texelFetch(bvh_node_texels, b);
+        uvec4 t1 = texelFetch(bvh_node_texels, b + 1);
+        uvec4 t2 = texelFetch(bvh_node_texels, b + 2);
+        uvec4 t3 = texelFetch(bvh_node_texels, b + 3);
+        uvec4 t4 = texelFetch(bvh_node_texels, b + 4);
+        vec3 p = uintBitsToFloat(t0.xyz);
+        vec3 s = uintBitsToFloat(uvec3(t0.w << 23u, (t0.w >> 8u) << 23u, (t0.w >> 16u) << 23u) & 0x7F800000u);
+        uint imask = t0.w >> 24u;
+        uint hits = 0u;
+        uint tris = 0u;
+        for (uint j = 0u; j < 8u; ++j) {
+            uint sh = (j & 3u) * 8u;
+            bool up = j >= 4u;
+            uvec3 ql = (uvec3(up ? t2.y : t2.x, up ? t2.w : t2.z, up ? t3.y : t3.x) >> sh) & 0xFFu;
+            uvec3 qh = (uvec3(up ? t3.w : t3.z, up ? t4.y : t4.x, up ? t4.w : t4.z) >> sh) & 0xFFu;
+            vec3 lo = p + vec3(ql) * s;
+            vec3 hi = p + vec3(qh) * s;
+            vec2 sl = bvh_slab_(r, lo, hi, tmin, best);
+            if (sl.x <= sl.y) {
+                uint meta = ((up ? t1.w : t1.z) >> sh) & 0xFFu;
+                if (((imask >> j) & 1u) != 0u) {
+                    hits |= 1u << (24u + (j ^ oct_inv));
+                } else {
+                    tris |= ((1u << (meta >> 5u)) - 1u) << (meta & 31u);
+                }
+            }
+        }
+        group = uvec2(t1.x, hits | imask);
+
+        uint tri_base = t1.y;
+        while (tris != 0u) {
+            uint k = uint(findLSB(tris));
+            tris &= tris - 1u;
+            BvhTri tri = bvh_tri_(tri_base + k);
+            float t, u, v;
+            if (bvh_triangle_(r, tri.v0.xyz, tri.v1.xyz, tri.v2.xyz, tmin, best, t, u, v)) {
+                best = t;
+                found = true;
+                hit.t = t;
+                hit.prim = floatBitsToInt(tri.v0.w);
+                hit.u = u;
+                hit.v = v;
+                if (any_hit) {
+                    return true;
+                }
+            }
+        }
+    }
+    return found;
+}
+
+#endif  // BVH_WIDE_GLSL_INCLUDED

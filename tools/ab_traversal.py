@@ -1,0 +1,114 @@
+"""A/B of traversal variants (BVH layout and bvh.glsl specialization constants) on the same rays: the bench's ray
+sets (G-buffer shadow and AO rays, random closest-hit rays) traced by one Tracer per variant in one process,
+interleaved; GPU ms (timestamps) and whether every variant gives the default's answers.
+
+Usage: python tools/ab_traversal.py [generated|default ...] [--variants NAME ...] [--reps N] [--size WxH] [--json PATH]
+Variants (constants: 0 branchless push, 1 postponed leaves, 2 register stack, 3 its size = depth - 1, layout):
+  device (this device's defaults), plain, postpone, regs, postpone+regs, push, wide, wide+push"""
+from __future__ import annotations
+
+import argparse
+import json
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+
+sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
+
+from engine.bench import DEFAULT_SCENE, _median, gbuffer_raysets, random_rayset  # noqa: E402
+from engine.renderer import Renderer  # noqa: E402
+from engine.rt import tracer as tracer_mod  # noqa: E402
+
+VARIANTS = {  # name: (layout, {constant: value} over "plain", None = this device's own constants)
+    "device": ("binary", None),
+    "plain": ("binary", {}),
+    "postpone": ("binary", {1: True}),
+    "regs": ("binary", {2: True}),
+    "postpone+regs": ("binary", {1: True, 2: True}),
+    "push": ("binary", {0: True}),
+    "wide": ("wide", {}),
+    "wide+push": ("wide", {0: True}),
+}
+
+
+def load(key, tris):
+    if key == "generated":
+        from engine.bench_scenes import generated_scene
+        return generated_scene(tris, seed=1)
+    from engine.scene import Scene
+    return Scene.load(DEFAULT_SCENE)
+
+
+def make_tracer(v, f, name):
+    layout, over = VARIANTS[name]
+    real = tracer_mod.bvh_spec
+
+    def spec(ctx, depth=None, layout=None):
+        s = real(ctx, depth, layout)
+        if over is not None:
+            s.update({0: False, 1: False, 2: False})
+            s.update(over)
+        return s
+
+    tracer_mod.bvh_spec = spec
+    try:
+        return tracer_mod.Tracer(v, f, layout=layout)
+    finally:
+        tracer_mod.bvh_spec = real
+
+
+def main():
+    ap = argparse.ArgumentParser()
+    ap.add_argument("scenes", nargs="*", default=["generated", "default"])
+    ap.add_argument("--variants", nargs="+", default=["device", "postpone", "postpone+regs", "regs", "wide"])
+    ap.add_argument("--reps", type=int, default=7)
+    ap.add_argument("--size", default="1920x1080")
+    ap.add_argument("--tris", type=int, default=1_200_000)
+    ap.add_argument("--json", default=None)
+    a = ap.parse_args()
+    w, h = map(int, a.size.split("x"))
+    out = []
+    r = Renderer(w, h, bvh_layout="binary")
+    for key in a.scenes:
+        scene = load(key, a.tris)
+        frame = r.render(scene)
+        rng = np.random.default_rng(1)
+        sets = gbuffer_raysets(scene, frame, rng) + [random_rayset(scene, w * h, rng)]
+        v, f = np.asarray(scene.positions, np.float32), np.asarray(scene.indices, np.int64)
+        t0 = time.perf_counter()
+        tr = {name: make_tracer(v, f, name) for name in a.variants}
+        print(f"{key}: {len(f):,} triangles, {len(tr)} tracers in {time.perf_counter() - t0:.1f} s; "
+              f"spec {tr[a.variants[0]].pipelines['occluded'].spec}", flush=True)
+        for rs in sets:
+            ms = {k: [] for k in tr}
+            ans = {}
+            for i in range(a.reps + 1):
+                for name, t in tr.items():
+                    if rs.kind == "occluded":
+                        ans[name] = t.occluded(rs.origins, rs.directions, rs.tmax)
+                    else:
+                        ans[name] = t.intersect(rs.origins, rs.directions, rs.tmax).prim >= 0
+                    if i:
+                        ms[name].append(t.last_gpu_ms)
+            base = a.variants[0]
+            row = {"scene": key, "rays": rs.name, "n": len(rs)}
+            for name in tr:
+                g = _median(ms[name])
+                row[name] = {"ms": g, "grays": len(rs) / (g * 1e-3) / 1e9,
+                             "vs_first": _median(ms[base]) / g,
+                             "disagree": int((ans[name] != ans[base]).sum())}
+            out.append(row)
+            print(f"{key} {rs.name:7s} {len(rs):>9,} rays: " + "  ".join(
+                f"{n} {x['grays'] * 1e3:,.1f} Mrays/s ({x['vs_first']:.2f}x, {x['disagree']} differ)"
+                for n, x in row.items() if isinstance(x, dict)), flush=True)
+        for t in tr.values():
+            t.close()
+    r.close()
+    if a.json:
+        Path(a.json).write_text(json.dumps(out, indent=1))
+
+
+if __name__ == "__main__":
+    main()

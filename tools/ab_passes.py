@@ -1,0 +1,85 @@
+"""A/B of traversal variants in the renderer's own ray passes (shadow, AO): one Renderer per variant (BVH layout and
+bvh.glsl specialization constants, as in tools/ab_traversal.py), frames submitted back to back (the viewer's steady
+state), GPU ms per pass interleaved over the variants; shadow rays per second = rays the shadow pass traces (covered
+pixels with the light above their horizon, counted from a rendered G-buffer) / its GPU time.
+
+Usage: python tools/ab_passes.py [generated|default ...] [--variants NAME ...] [--reps N] [--size WxH] [--ao-samples N]"""
+from __future__ import annotations
+
+import argparse
+import sys
+from pathlib import Path
+
+import numpy as np
+
+sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
+
+from ab_traversal import VARIANTS, load  # noqa: E402
+
+from engine.bench import _median, gbuffer_raysets  # noqa: E402
+from engine.passes import raypass  # noqa: E402
+from engine.renderer import Renderer  # noqa: E402
+
+
+def make_renderer(w, h, name):
+    layout, over = VARIANTS[name]
+    real = raypass.bvh_spec
+
+    def spec(ctx, depth=None, layout=None):
+        s = real(ctx, depth, layout=layout)
+        if over is not None:
+            s.update({0: False, 1: False, 2: False})
+            s.update(over)
+        return s
+
+    raypass.bvh_spec = spec
+    try:
+        return Renderer(w, h, bvh_layout=layout)
+    finally:
+        raypass.bvh_spec = real
+
+
+def main():
+    ap = argparse.ArgumentParser()
+    ap.add_argument("scenes", nargs="*", default=["generated", "default"])
+    ap.add_argument("--variants", nargs="+", default=["device", "postpone", "wide"])
+    ap.add_argument("--reps", type=int, default=7)
+    ap.add_argument("--size", default="1920x1080")
+    ap.add_argument("--tris", type=int, default=1_200_000)
+    ap.add_argument("--ao-samples", type=int, default=1)
+    a = ap.parse_args()
+    w, h = map(int, a.size.split("x"))
+    rs = {name: make_renderer(w, h, name) for name in a.variants}
+    for key in a.scenes:
+        scene = load(key, a.tris)
+        if key == "default":
+            scene.lights = list(scene.lights[:1])
+        settings = {"shadows": "hard", "ao": True, "ao_samples": a.ao_samples}
+        first = rs[a.variants[0]]
+        frame = first.render(scene, **settings)
+        n_shadow = len(gbuffer_raysets(scene, frame, np.random.default_rng(1))[0])
+        times = {name: [] for name in rs}
+        for name, r in rs.items():  # warm-up (and the scene upload)
+            for _ in range(4):
+                r.submit(scene, wait=False, **settings)
+            r.ctx.wait_idle()
+        for _ in range(a.reps):
+            for name, r in rs.items():
+                for _ in range(4):
+                    r.submit(scene, wait=False, **settings)
+                r.ctx.wait_idle()
+                times[name].append(r.last_timings())
+        print(f"{key}: {scene.triangle_count:,} triangles, {w}x{h}, {n_shadow:,} shadow rays, AO {a.ao_samples} spp",
+              flush=True)
+        base = _median([t["shadows"] for t in times[a.variants[0]]])
+        for name, ts in times.items():
+            sh, ao = _median([t["shadows"] for t in ts]), _median([t["ao"] for t in ts])
+            total = _median([sum(t.values()) for t in ts])
+            print(f"  {name:14s} shadows {sh:.3f} ms = {n_shadow / (sh * 1e-3) / 1e9:.2f} Grays/s "
+                  f"({base / sh:.2f}x)  ao {ao:.3f} ms  frame {total:.2f} ms", flush=True)
+    for r in rs.values():
+        r.close()
+
+
+if __name__ == "__main__":
+    main()

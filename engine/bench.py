@@ -57,8 +57,10 @@ class BenchConfig:
     build_sizes: tuple = (100_000, 1_000_000, 4_000_000)
     build_reps: int = 3                        # sizes above 2M triangles get one run less (at least one)
     generated_tris: int = 1_200_000            # the trace benchmark's generated scene
+    mid_tris: int = 300_000                    # frame "generated-300k": the size the issue-6 shadow target names
     real_scene: str | None = str(DEFAULT_SCENE)
-    frame_scenes: tuple = ("real", "target", "generated")   # target: the issue-6 frame (1 light, 1 AO ray/pixel)
+    frame_scenes: tuple = ("real", "target", "mid", "generated")  # target: the issue-6 frame (1 light, 1 AO ray
+    #                                                                   per pixel); mid: generated, mid_tris, 1 AO ray
     peers: tuple = PEERS
     reps: int = 7
     warmup: int = 1
@@ -514,7 +516,7 @@ class Bench:
         return n
 
     def _frame_scene_keys(self):
-        return [k for k in self.cfg.frame_scenes if k == "generated" or self.cfg.real_scene is not None]
+        return [k for k in self.cfg.frame_scenes if k in ("generated", "mid") or self.cfg.real_scene is not None]
 
     def device_choice(self):
         from .vk import choose_device, describe_devices
@@ -535,9 +537,10 @@ class Bench:
 
     def scene(self, key):
         if key not in self._scenes:
-            if key == "generated":
+            if key in ("generated", "mid"):
                 from .bench_scenes import generated_scene
-                self._scenes[key] = generated_scene(self.cfg.generated_tris, seed=self.cfg.seed)
+                tris = self.cfg.generated_tris if key == "generated" else self.cfg.mid_tris
+                self._scenes[key] = generated_scene(tris, seed=self.cfg.seed)
             elif key == "real":
                 from .scene import Scene
                 self._scenes[key] = Scene.load(self.cfg.real_scene)
@@ -754,8 +757,9 @@ class Bench:
     def run_frame(self) -> list[dict]:
         out = []
         for key in self._frame_scene_keys():
-            tag = {"generated": "generated", "real": "default", "target": "default-1light"}[key]
-            settings = {"ao_samples": 1} if key == "target" else {}
+            tag = {"generated": "generated", "real": "default", "target": "default-1light",
+                   "mid": f"generated-{self.cfg.mid_tris // 1000}k"}[key]
+            settings = {"ao_samples": 1} if key in ("target", "mid") else {}
             scene = self._step(f"frame ({tag}): load scene", self._frame_scene, key)
             out.append(self._step(f"frame ({tag}): render x{self.cfg.frame_reps}", self._frame, tag, scene,
                                   settings))
@@ -784,6 +788,9 @@ class Bench:
             timings.append(fr.timings)
         passes = list(timings[-1])
         per_pass = {p: _median([t.get(p, 0.0) for t in timings]) for p in passes}
+        # the rays the shadow pass traces for the first light: covered pixels with the light above their horizon
+        # (what gbuffer_raysets counts)
+        shadow_rays = len(gbuffer_raysets(scene, fr, np.random.default_rng(cfg.seed))[0]) if scene.lights else 0
         totals = [sum(t.values()) for t in timings]
         # The viewer's steady state: frames submitted back to back without readback, so the GPU never idles between
         # them (after an idle gap a GPU drops its clocks: on an H200 render() frames, each followed by a readback to
@@ -811,7 +818,13 @@ class Bench:
             r.ctx.wait_idle()
             sub_gpu.append(sum(r.last_timings().values()))
         lights = len(scene.lights)
-        return {"scene": tag, "name": scene.name, "triangles": scene.triangle_count, "size": [r.width, r.height],
+
+        def grays(ms):  # the shadow pass's rays per second (one light's rays; a frame of several lights traces more)
+            return shadow_rays / (ms * 1e-3) / 1e9 if lights == 1 and ms and ms > 0 else None
+
+        return {"shadow_rays": shadow_rays, "shadow_pass_grays": grays(per_pass.get("shadows")),
+                "viewer_shadow_pass_grays": grays(steady_passes.get("shadows")),
+                "scene": tag, "name": scene.name, "triangles": scene.triangle_count, "size": [r.width, r.height],
                 "lights": lights, "settings": dict(fr.settings), "passes_ms": per_pass,
                 "gpu_total_ms": _median(totals), "runs_gpu_total_ms": totals,
                 "viewer_passes_ms": steady_passes, "viewer_gpu_total_ms": _median(steady_totals),
@@ -868,8 +881,18 @@ def evaluate_targets(results: dict) -> list[dict]:
         rs = {r["name"]: r for r in big[0]["raysets"]}
         shadow = rs["shadow"]["results"]["ours"].get("mrays_gpu")
         ao = rs["ao"]["results"]["ours"].get("mrays_gpu")
-    out.append(_target(6, "GPU: 1920x1080 shadow rays >= 4 Grays/s (>= 300k triangles)",
+    out.append(_target(6, f"GPU: 1920x1080 shadow rays >= 4 Grays/s, batch Tracer ({big[0]['scene'] if big else '-'} "
+                          f"scene, {big[0]['triangles'] if big else 0:,} triangles)",
                        shadow / 1e3 if shadow else None, 4.0, "Grays/s", True, note_gpu))
+    # the same target met by the renderer's own shadow pass (G-buffer in, light mask out; frames back to back) on the
+    # smallest frame scene of >= 300k triangles
+    passes = sorted((fr for fr in results.get("frame", []) if fr["triangles"] >= 300_000
+                     and fr.get("viewer_shadow_pass_grays")), key=lambda fr: fr["triangles"])
+    pass_grays = passes[0]["viewer_shadow_pass_grays"] if gpu_device and passes and size == [1920, 1080] else None
+    where = f"{passes[0]['scene']}, {passes[0]['triangles']:,} triangles" if passes else ">= 300k triangles"
+    out.append(_target(6, f"GPU: 1920x1080 shadow rays >= 4 Grays/s, the renderer's shadow pass ({where})",
+                       pass_grays, 4.0, "Grays/s", True,
+                       note_gpu or "rays traced / shadow pass GPU ms, frames back to back"))
     out.append(_target(6, "GPU: 1920x1080 AO rays >= 1.5 Grays/s", ao / 1e3 if ao else None, 1.5, "Grays/s", True,
                        note_gpu))
     frame_ms = None
@@ -966,6 +989,9 @@ def format_report(results: dict) -> str:
     for fr in results.get("frame", []):
         viewer = fr.get("viewer_passes_ms", {})
         rows = [[k, _fmt(v, ".2f"), _fmt(viewer.get(k), ".2f")] for k, v in fr["passes_ms"].items()]
+        if fr.get("shadow_pass_grays"):
+            rows.append([f"shadow pass Grays/s ({fr['shadow_rays']:,} rays)", _fmt(fr["shadow_pass_grays"], ".3f"),
+                         _fmt(fr.get("viewer_shadow_pass_grays"), ".3f")])
         rows += [["total GPU", _fmt(fr["gpu_total_ms"], ".2f"), _fmt(fr.get("viewer_gpu_total_ms"), ".2f")],
                  ["render() wall (incl. readback to numpy)", _fmt(fr["render_wall_ms"], ".2f")],
                  ["submit() host wall / CPU (viewer path)",

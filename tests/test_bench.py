@@ -64,6 +64,9 @@ def test_json_has_every_section_and_figure(results):
     assert {"gbuffer", "shadows", "ao"} <= set(fr["passes_ms"])
     assert all(v >= 0 for v in fr["passes_ms"].values()) and fr["gpu_total_ms"] > 0
     assert fr["render_wall_ms"] > 0 and fr["submit_host_ms"] > 0
+    # the shadow pass's rays: the same rays as the trace section's shadow set of the same scene and G-buffer size
+    assert fr["shadow_rays"] == sc["raysets"][0]["rays"] > 100
+    assert fr["shadow_pass_grays"] == pytest.approx(fr["shadow_rays"] / fr["passes_ms"]["shadows"] / 1e6)
 
     assert data["targets"] and all(t["status"] in ("pass", "miss", "not measured") for t in data["targets"])
     assert any("Open3D" in t["target"] for t in data["targets"]) or not _peer_available("open3d")

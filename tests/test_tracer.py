@@ -140,7 +140,7 @@ def test_every_traversal_variant_gives_the_same_answers(monkeypatch, spec):
     with Tracer(v, f, validation=True) as default:
         occ0, hit0 = default.occluded(o, d, tmax), default.intersect(o, d)
         assert default.pipelines["occluded"].spec[3] == max(1, default.stats["depth"] - 1)
-    monkeypatch.setattr(tracer_mod, "bvh_spec", lambda ctx, depth=None, layout=None: dict(spec))
+    monkeypatch.setattr(tracer_mod, "bvh_spec", lambda ctx, depth=None, layout=None, postpone=None: dict(spec))
     with Tracer(v, f, validation=True) as variant:
         assert np.array_equal(variant.occluded(o, d, tmax), occ0)
         hit1 = variant.intersect(o, d)

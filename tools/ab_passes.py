@@ -25,8 +25,8 @@ def make_renderer(w, h, name):
     layout, over = VARIANTS[name]
     real = raypass.bvh_spec
 
-    def spec(ctx, depth=None, layout=None):
-        s = real(ctx, depth, layout=layout)
+    def spec(ctx, depth=None, layout=None, postpone=None):
+        s = real(ctx, depth, layout=layout, postpone=postpone)
         if over is not None:
             s.update({0: False, 1: False, 2: False})
             s.update(over)

@@ -45,8 +45,8 @@ def make_tracer(v, f, name):
     layout, over = VARIANTS[name]
     real = tracer_mod.bvh_spec
 
-    def spec(ctx, depth=None, layout=None):
-        s = real(ctx, depth, layout)
+    def spec(ctx, depth=None, layout=None, postpone=None):
+        s = real(ctx, depth, layout, postpone)
         if over is not None:
             s.update({0: False, 1: False, 2: False})
             s.update(over)

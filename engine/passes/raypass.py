@@ -15,13 +15,15 @@ class RayPass:
     shaders: tuple = ()
     push_size = 0
     output = ""          # the Targets buffer the pass writes
+    postpone_leaves = None  # bvh.glsl's postponed leaf tests: None = the device's default (see bvh_spec)
 
     def __init__(self, ctx, library, frame_ubo, bvh_set, targets, bvh_layout=None):
         self.bvh_set = bvh_set
         self.set = DescriptorSet(ctx, [(0, UB), (1, SI), (2, SI), (3, SB)])
         self.set.buffer(0, frame_ubo)
         self.pipeline = ComputePipeline(ctx, library.get(self.shaders[0]), [self.set, bvh_set],
-                                        push_size=self.push_size, spec=bvh_spec(ctx, layout=bvh_layout), name=self.name)
+                                        push_size=self.push_size, spec=bvh_spec(ctx, layout=bvh_layout, postpone=self.postpone_leaves),
+                                        name=self.name)
         self.bind_targets(targets)
 
     def bind_targets(self, t):

@@ -105,14 +105,17 @@ def scene_bvh_data(bvh, layout: str):
     return collapse_bvh8(bvh) if layout == "wide" else bvh
 
 
-def bvh_spec(ctx: Context, depth: int | None = None, layout: str | None = None) -> dict:
+def bvh_spec(ctx: Context, depth: int | None = None, layout: str | None = None,
+             postpone: bool | None = None) -> dict:
     """Specialization constants of bvh.glsl for this device: on CPU devices (lavapipe) the branchless stack push
     (0), the postponed leaf tests (1) and the register stack (2) of BVH_STACK_REGS entries (3): the BVH's
     `depth` - 1 (what its traversal can push) when known, else 32 (enough for any BVH of the builder's max_depth);
-    the wide layout (4) when `bvh_layout(ctx, layout)` says so."""
+    the wide layout (4) when `bvh_layout(ctx, layout)` says so. `postpone`: postponed leaf tests whatever the
+    device (the renderer's AO pass asks for them: 1.35-1.46x on an H200, tools/ab_passes.py)."""
     cpu = ctx.device_info["type"] == "CPU"
     regs = 32 if depth is None else max(1, min(32, int(depth) - 1))
-    return {0: cpu, 1: cpu, 2: cpu, 3: regs, 4: bvh_layout(ctx, layout) == "wide"}
+    return {0: cpu, 1: cpu if postpone is None else bool(postpone), 2: cpu, 3: regs,
+            4: bvh_layout(ctx, layout) == "wide"}
 
 
 def _check_mesh(vertices, faces):

@@ -788,9 +788,7 @@ class Bench:
             timings.append(fr.timings)
         passes = list(timings[-1])
         per_pass = {p: _median([t.get(p, 0.0) for t in timings]) for p in passes}
-        # the rays the shadow pass traces for the first light: covered pixels with the light above their horizon
-        # (what gbuffer_raysets counts)
-        shadow_rays = len(gbuffer_raysets(scene, fr, np.random.default_rng(cfg.seed))[0]) if scene.lights else 0
+
         totals = [sum(t.values()) for t in timings]
         # The viewer's steady state: frames submitted back to back without readback, so the GPU never idles between
         # them (after an idle gap a GPU drops its clocks: on an H200 render() frames, each followed by a readback to
@@ -818,6 +816,10 @@ class Bench:
             r.ctx.wait_idle()
             sub_gpu.append(sum(r.last_timings().values()))
         lights = len(scene.lights)
+        # the rays the shadow pass traces for the first light: covered pixels with the light above their horizon
+        # (what gbuffer_raysets counts); counted last, since host work between the runs above lets a GPU's clocks
+        # drop
+        shadow_rays = len(gbuffer_raysets(scene, fr, np.random.default_rng(cfg.seed))[0]) if lights == 1 else 0
 
         def grays(ms):  # the shadow pass's rays per second (one light's rays; a frame of several lights traces more)
             return shadow_rays / (ms * 1e-3) / 1e9 if lights == 1 and ms and ms > 0 else None

@@ -14,7 +14,7 @@ import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
-from ab_traversal import VARIANTS, load  # noqa: E402
+from ab_traversal import VARIANTS, load, overriding  # noqa: E402
 
 from engine.bench import _median, gbuffer_raysets  # noqa: E402
 from engine.passes import raypass  # noqa: E402
@@ -24,15 +24,7 @@ from engine.renderer import Renderer  # noqa: E402
 def make_renderer(w, h, name):
     layout, over = VARIANTS[name]
     real = raypass.bvh_spec
-
-    def spec(ctx, depth=None, layout=None, postpone=None):
-        s = real(ctx, depth, layout=layout, postpone=postpone)
-        if over is not None:
-            s.update({0: False, 1: False, 2: False})
-            s.update(over)
-        return s
-
-    raypass.bvh_spec = spec
+    raypass.bvh_spec = overriding(real, over)
     try:
         return Renderer(w, h, bvh_layout=layout)
     finally:

@@ -1,6 +1,7 @@
 """A/B of traversal variants (BVH layout and bvh.glsl specialization constants) on the same rays: the bench's ray
 sets (G-buffer shadow and AO rays, random closest-hit rays) traced by one Tracer per variant in one process,
-interleaved; GPU ms (timestamps) and whether every variant gives the default's answers.
+interleaved; GPU ms (timestamps) and whether every variant gives the first one's answers (hit or miss; closest
+hits: the largest relative difference of t too).
 
 Usage: python tools/ab_traversal.py [generated|default ...] [--variants NAME ...] [--reps N] [--size WxH] [--json PATH]
 Variants (constants: 0 branchless push, 1 postponed leaves, 2 register stack, 3 its size = depth - 1, layout):
@@ -41,18 +42,21 @@ def load(key, tris):
     return Scene.load(DEFAULT_SCENE)
 
 
-def make_tracer(v, f, name):
-    layout, over = VARIANTS[name]
-    real = tracer_mod.bvh_spec
-
+def overriding(real, over):
+    """A bvh_spec that gives `real`'s constants with a variant's overrides (None: `real`'s own)."""
     def spec(ctx, depth=None, layout=None, postpone=None):
         s = real(ctx, depth, layout, postpone)
         if over is not None:
             s.update({0: False, 1: False, 2: False})
             s.update(over)
         return s
+    return spec
 
-    tracer_mod.bvh_spec = spec
+
+def make_tracer(v, f, name):
+    layout, over = VARIANTS[name]
+    real = tracer_mod.bvh_spec
+    tracer_mod.bvh_spec = overriding(real, over)
     try:
         return tracer_mod.Tracer(v, f, layout=layout)
     finally:
@@ -89,16 +93,23 @@ def main():
                     if rs.kind == "occluded":
                         ans[name] = t.occluded(rs.origins, rs.directions, rs.tmax)
                     else:
-                        ans[name] = t.intersect(rs.origins, rs.directions, rs.tmax).prim >= 0
+                        hits = t.intersect(rs.origins, rs.directions, rs.tmax)
+                        ans[name] = (hits.prim >= 0, hits.t)
                     if i:
                         ms[name].append(t.last_gpu_ms)
             base = a.variants[0]
             row = {"scene": key, "rays": rs.name, "n": len(rs)}
             for name in tr:
                 g = _median(ms[name])
-                row[name] = {"ms": g, "grays": len(rs) / (g * 1e-3) / 1e9,
-                             "vs_first": _median(ms[base]) / g,
-                             "disagree": int((ans[name] != ans[base]).sum())}
+                row[name] = {"ms": g, "grays": len(rs) / (g * 1e-3) / 1e9, "vs_first": _median(ms[base]) / g}
+                if rs.kind == "occluded":
+                    row[name]["disagree"] = int((ans[name] != ans[base]).sum())
+                else:  # hit or miss, and t where both hit
+                    (h0, t0), (h1, t1) = ans[base], ans[name]
+                    both = h0 & h1
+                    row[name]["disagree"] = int((h0 != h1).sum())
+                    row[name]["t_max_rel_diff"] = float(np.max(np.abs(t1[both] - t0[both]) /
+                                                               np.maximum(np.abs(t0[both]), 1e-30))) if both.any() else 0.0
             out.append(row)
             print(f"{key} {rs.name:7s} {len(rs):>9,} rays: " + "  ".join(
                 f"{n} {x['grays'] * 1e3:,.1f} Mrays/s ({x['vs_first']:.2f}x, {x['disagree']} differ)"

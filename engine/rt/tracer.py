@@ -15,6 +15,7 @@ import numpy as np
 import vulkan as vk
 
 from ..bvh import build_bvh
+from ..bvh.compress import compress_nodes
 from ..errors import ConfigError, SceneError
 from ..shaders import ShaderLibrary
 from ..vk import (SB, UTB, Buffer, BufferView, ComputePipeline, Context, DescriptorSet, Timestamps, memory_barrier,
@@ -53,23 +54,36 @@ class Hits:
 
 
 class SceneBVH:
-    """A BVH's two storage buffers on the GPU, bound as a descriptor set (BVH_SET in bvh.glsl)."""
+    """A BVH's two storage buffers on the GPU, bound as a descriptor set (BVH_SET in bvh.glsl).
 
-    def __init__(self, ctx: Context, bvh, dset: DescriptorSet):
+    compress: upload the 32-byte compressed nodes (engine/bvh/compress.py; bvh.glsl's BVH_COMPRESSED) instead of
+    the builder's 64-byte ones, where the tree fits that format; `compressed` says which were uploaded, `depth` is
+    the tree's depth: both go to bvh_spec."""
+
+    def __init__(self, ctx: Context, bvh, dset: DescriptorSet, compress: bool = False):
         self.bvh = bvh
+        self.depth = bvh.stats.get("depth")
+        nodes = compress_nodes(bvh.nodes) if compress else None
+        self.compressed = nodes is not None
+        if nodes is None:
+            nodes = bvh.nodes
         # Both buffers are read as uniform texel buffers of 16-byte texels (faster than storage buffers on lavapipe,
         # whose storage-buffer loads run lane by lane), so the limit is maxTexelBufferElements texels each.
         texels = int(ctx.limits.maxTexelBufferElements)
-        for what, arr in (("triangles", bvh.tris), ("nodes", bvh.nodes)):
+        for what, arr in (("triangles", bvh.tris), ("nodes", nodes)):
             if arr.nbytes // 16 > texels:
                 raise SceneError(f"{bvh.stats['triangles']:,} triangles: the BVH {what} take "
                                  f"{arr.nbytes / 2**20:.0f} MiB, "
                                  f"more than this device's texel-buffer limit of {texels:,} texels "
                                  f"({texels * 16 / 2**20:.0f} MiB, {ctx.device_info['name']})")
-        self.nodes = upload_buffer(ctx, bvh.nodes, UNIFORM_TEXEL, "bvh nodes")
+        self.nodes = upload_buffer(ctx, nodes, UNIFORM_TEXEL, "bvh nodes")
         self.tris = upload_buffer(ctx, bvh.tris, UNIFORM_TEXEL, "bvh triangles")
         self.views = [BufferView(self.nodes), BufferView(self.tris)]
         dset.texel_buffer(0, self.views[0]).texel_buffer(1, self.views[1])
+
+    def spec(self, ctx: Context) -> dict:
+        """bvh_spec for this BVH's depth and node layout."""
+        return bvh_spec(ctx, self.depth, self.compressed)
 
     def destroy(self):
         for view in self.views:
@@ -82,13 +96,27 @@ def bvh_descriptor_set(ctx: Context) -> DescriptorSet:
     return DescriptorSet(ctx, [(0, UTB), (1, UTB)])
 
 
-def bvh_spec(ctx: Context, depth: int | None = None) -> dict:
+def is_cpu(ctx: Context) -> bool:
+    return ctx.device_info["type"] == "CPU"
+
+
+#: Register-stack entries on CPU devices (bvh.glsl BVH_STACK_REGS): fewer than a deep BVH needs, the rare ray that
+#: overflows them walks again with the array stack (BVH_STACK_RETRY). Measured on lavapipe (A/B vs the BVH's
+#: depth - 1 entries): 10 was the best of 6, 8, 10, 13 over shadow, AO and closest-hit rays on both bench scenes.
+CPU_STACK_REGS = 10
+
+
+def bvh_spec(ctx: Context, depth: int | None = None, compressed: bool = False) -> dict:
     """Specialization constants of bvh.glsl for this device: on CPU devices (lavapipe) the branchless stack push
-    (0), the postponed leaf tests (1) and the register stack (2) of BVH_STACK_REGS entries (3): the BVH's
-    `depth` - 1 (what its traversal can push) when known, else 32 (enough for any BVH of the builder's max_depth)."""
-    cpu = ctx.device_info["type"] == "CPU"
-    regs = 32 if depth is None else max(1, min(32, int(depth) - 1))
-    return {0: cpu, 1: cpu, 2: cpu, 3: regs}
+    (0), the postponed leaf tests (1), the register stack (2) of BVH_STACK_REGS entries (3): min(CPU_STACK_REGS,
+    the BVH's `depth` - 1, what its traversal can push), with the retry walk (9) where that is fewer than
+    depth - 1 or the depth is unknown, and compare-and-select min/max (10); `compressed`: the nodes are the
+    32-byte ones (8)."""
+    cpu = is_cpu(ctx)
+    need = 32 if depth is None else max(1, min(32, int(depth) - 1))
+    regs = min(CPU_STACK_REGS, need) if cpu else need
+    return {0: cpu, 1: cpu, 2: cpu, 3: regs, 8: bool(compressed), 9: cpu and (depth is None or regs < need),
+            10: cpu}
 
 
 def _check_mesh(vertices, faces):
@@ -158,7 +186,7 @@ class Tracer:
         ctx = self.ctx
         lib = ShaderLibrary()
         self.bvh_set = bvh_descriptor_set(ctx)
-        self.scene = SceneBVH(ctx, self.bvh, self.bvh_set)
+        self.scene = SceneBVH(ctx, self.bvh, self.bvh_set, compress=is_cpu(ctx))
         self.io_set = DescriptorSet(ctx, [(0, SB), (1, SB), (2, SB)])
         # Rays and results: mapped host buffers; on a discrete GPU device-local ones filled / read by copies in the
         # same command buffer (the copy is sized to the batch, rounded up to a power of two: one recording each).
@@ -176,7 +204,7 @@ class Tracer:
         self.pipelines, self._commands, self._marks = {}, {}, {}
         for kind in ("occluded", "intersect"):
             self.pipelines[kind] = ComputePipeline(ctx, lib.get(f"trace_{kind}.comp"), [self.io_set, self.bvh_set],
-                                                   spec=bvh_spec(ctx, self.bvh.stats.get("depth")),
+                                                   spec=self.scene.spec(ctx),
                                                    name=f"trace_{kind}")
         self.last_gpu_ms = 0.0
         self.last_times: dict = {}   # GPU ms of the last batch per step: upload (staged only), trace, download

@@ -31,7 +31,7 @@ from .passes.debug_view import VIEW_MODES, DebugViewPass
 from .passes.denoise import DenoisePass
 from .passes.lighting import LightingPass
 from .passes.shadows import ShadowPass
-from .rt.tracer import SceneBVH, bvh_descriptor_set
+from .rt.tracer import SceneBVH, bvh_descriptor_set, is_cpu
 from .scene.camera import Camera
 from .shaders import ShaderLibrary
 from .vk import Buffer, Context, Image, Timestamps, image_barrier, memory_barrier
@@ -563,7 +563,9 @@ class Renderer:
         self.gbuffer.bind_scene(self._geometry)
         bvh = build_bvh(scene.positions, scene.indices)
         self.bvh_stats = dict(bvh.stats)
-        self._scene_bvh = SceneBVH(self.ctx, bvh, self.bvh_set)
+        self._scene_bvh = SceneBVH(self.ctx, bvh, self.bvh_set, compress=is_cpu(self.ctx))
+        for p in (self.shadows, self.ao):   # the traversal specialized to this BVH (its depth, its node layout)
+            p.specialize(self.library, self._scene_bvh.spec(self.ctx))
         self._scene = scene
         self._prev_view_proj = None
         self.uploads += 1

@@ -31,7 +31,7 @@ from .passes.debug_view import VIEW_MODES, DebugViewPass
 from .passes.denoise import DenoisePass
 from .passes.lighting import LightingPass
 from .passes.shadows import ShadowPass
-from .rt.tracer import SceneBVH, bvh_descriptor_set, bvh_layout, scene_bvh_data
+from .rt.tracer import SceneBVH, bvh_descriptor_set, bvh_layout, is_cpu, scene_bvh_data
 from .scene.camera import Camera
 from .shaders import ShaderLibrary
 from .vk import Buffer, Context, Image, Timestamps, image_barrier, memory_barrier
@@ -567,7 +567,10 @@ class Renderer:
         self.gbuffer.bind_scene(self._geometry)
         bvh = scene_bvh_data(build_bvh(scene.positions, scene.indices), self.bvh_layout)
         self.bvh_stats = dict(bvh.stats, layout=self.bvh_layout)
-        self._scene_bvh = SceneBVH(self.ctx, bvh, self.bvh_set)
+        self._scene_bvh = SceneBVH(self.ctx, bvh, self.bvh_set, layout=self.bvh_layout,
+                                   compress=is_cpu(self.ctx) and self.bvh_layout == "binary")
+        for p in (self.shadows, self.ao):   # the traversal specialized to this BVH (its depth, its node layout)
+            p.specialize(self.library, self._scene_bvh.spec(self.ctx, postpone=p.postpone_leaves))
         self._scene = scene
         self._prev_view_proj = None
         self.uploads += 1

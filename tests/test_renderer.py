@@ -92,3 +92,26 @@ def test_no_vulkan_driver_is_a_clear_error(tmp_path):
     assert res.returncode == 1
     lines = res.stderr.strip().splitlines()
     assert len(lines) == 1 and lines[0].startswith("error: ") and "Vulkan" in lines[0], res.stderr
+
+
+def test_ray_passes_are_specialized_to_the_scenes_bvh(make_renderer):
+    """The shadow and AO pipelines take the scene's BVH depth and node layout (SceneBVH.spec) when the scene
+    changes, and a frame of a deeper scene afterwards matches another renderer's with the same history."""
+    from engine.rt.tracer import CPU_STACK_REGS, is_cpu
+    r = make_renderer(48, 32)
+    r.render(small_scene())
+    depth = r.bvh_stats["depth"]
+    for p in (r.shadows, r.ao):
+        spec = p.pipeline.spec
+        assert spec == r._scene_bvh.spec(r.ctx)
+        if is_cpu(r.ctx):
+            assert spec[3] == min(CPU_STACK_REGS, max(1, depth - 1)) and spec[8] and spec[9] == (depth - 1 > spec[3])
+    rng = np.random.default_rng(2)
+    soup = trimesh.Trimesh(rng.uniform(-1, 1, (6000, 3)), np.arange(6000).reshape(2000, 3), process=False)
+    deep = Scene.from_trimesh(soup, camera=Camera.look_at((2, 2, 3), (0, 0, 0)))
+    a = r.render(deep)
+    assert r.shadows.pipeline.spec == r._scene_bvh.spec(r.ctx)
+    fresh = make_renderer(48, 32)
+    fresh.render(small_scene())      # the same frame history (AO samples follow the frame count)
+    b = fresh.render(deep)
+    assert np.array_equal(a.aov["shadow"], b.aov["shadow"]) and np.array_equal(a.aov["ao"], b.aov["ao"])

@@ -125,28 +125,85 @@ def test_staged_buffers_give_the_same_answers():
         assert not staged.validation_errors and not plain.validation_errors
 
 
-@pytest.mark.parametrize("spec", [{0: False, 1: False, 2: False}, {0: True, 1: False, 2: False},
-                                  {0: False, 1: True, 2: False}, {0: True, 1: True, 2: False},
-                                  {0: False, 1: False, 2: True, 3: 32}, {0: True, 1: True, 2: True, 3: 32}])
-def test_every_traversal_variant_gives_the_same_answers(monkeypatch, spec):
-    """bvh.glsl's specialization constants (branchless push, postponed leaf tests, register stack and its size)
-    select code paths per device; each combination answers exactly as the default one of this device, and as the
-    reference. (The default here, on lavapipe, is a register stack of exactly the BVH's depth - 1 entries.)"""
+VARIANTS = [{0: False, 1: False, 2: False}, {0: True, 1: False, 2: False},
+            {0: False, 1: True, 2: False}, {0: True, 1: True, 2: False},
+            {0: False, 1: False, 2: True, 3: 32}, {0: True, 1: True, 2: True, 3: 32},
+            {0: True, 1: True, 2: True, 3: 32, 10: True},
+            {0: True, 1: True, 2: True, 3: 2, 9: True}, {0: True, 1: True, 2: True, 3: 1, 9: True, 10: True},
+            {0: True, 1: True, 2: True, 3: 3, 9: True, "uncompressed": True},
+            {0: False, 1: False, 2: False, 10: True, "uncompressed": True}]
+
+
+def _variant_tracer(monkeypatch, spec, v, f):
+    """A Tracer whose bvh_spec is `spec` (constant 8 follows the nodes uploaded: compressed unless the spec says
+    "uncompressed")."""
     import engine.rt.tracer as tracer_mod
+    spec = dict(spec)
+    if spec.pop("uncompressed", False):
+        monkeypatch.setattr(tracer_mod, "compress_nodes", lambda nodes: None)
+    monkeypatch.setattr(tracer_mod, "bvh_spec",
+                        lambda ctx, depth=None, layout=None, compressed=False, postpone=None: {**spec, 8: compressed})
+    return Tracer(v, f, validation=True)
+
+
+@pytest.mark.parametrize("spec", VARIANTS)
+def test_every_traversal_variant_gives_the_same_answers(monkeypatch, spec):
+    """bvh.glsl's specialization constants (branchless push, postponed leaf tests, register stack and its size,
+    the retry walk of a short register stack, compressed nodes, select min/max) select code paths per device;
+    each combination answers exactly as the default one of this device, and as the reference. (The default here,
+    on lavapipe: compressed nodes, a register stack of min(CPU_STACK_REGS, the BVH's depth - 1) entries.)"""
+    from engine.rt.tracer import CPU_STACK_REGS
     v, f = meshes()["soup"]
     rng = np.random.default_rng(13)
     o, d = random_rays(rng, 3000, (v.min(0), v.max(0)))
     tmax = rng.uniform(0.1, 4.0, len(o)).astype(np.float32)
     with Tracer(v, f, validation=True) as default:
         occ0, hit0 = default.occluded(o, d, tmax), default.intersect(o, d)
-        assert default.pipelines["occluded"].spec[3] == max(1, default.stats["depth"] - 1)
-    monkeypatch.setattr(tracer_mod, "bvh_spec", lambda ctx, depth=None, layout=None, postpone=None: dict(spec))
-    with Tracer(v, f, validation=True) as variant:
+        dspec = default.pipelines["occluded"].spec
+        assert dspec[3] == min(CPU_STACK_REGS, max(1, default.stats["depth"] - 1))
+        assert dspec[8] and default.scene.compressed
+    with _variant_tracer(monkeypatch, spec, v, f) as variant:
+        assert variant.scene.compressed == ("uncompressed" not in spec)
         assert np.array_equal(variant.occluded(o, d, tmax), occ0)
         hit1 = variant.intersect(o, d)
         assert np.array_equal(hit1.prim, hit0.prim) and np.array_equal(hit1.t, hit0.t)
         assert not variant.validation_errors
     assert (occ0 != reference_occluded(v, f, o, d, tmax)).mean() < 0.002
+
+
+@pytest.mark.parametrize("name", list(meshes()))
+def test_short_stack_retry_matches_the_full_stack(monkeypatch, tracers, name):
+    """A register stack of 1 entry overflows on almost every ray of a deeper BVH: the retry walk must give exactly
+    the answers of the default traversal, on every mesh (thin, degenerate, a single triangle)."""
+    v, f = meshes()[name]
+    rng = np.random.default_rng(17)
+    o, d = random_rays(rng, 3000, (v.min(0), v.max(0)))
+    tmax = rng.uniform(0.1, 4.0, len(o)).astype(np.float32)
+    tmax[::4] = np.inf
+    occ0, hit0 = tracers[name].occluded(o, d, tmax), tracers[name].intersect(o, d, tmax)
+    with _variant_tracer(monkeypatch, {0: True, 1: True, 2: True, 3: 1, 9: True, 10: True}, v, f) as variant:
+        assert np.array_equal(variant.occluded(o, d, tmax), occ0)
+        hit1 = variant.intersect(o, d, tmax)
+        assert np.array_equal(hit1.prim, hit0.prim) and np.array_equal(hit1.t, hit0.t)
+        assert np.array_equal(hit1.u, hit0.u) and np.array_equal(hit1.v, hit0.v)
+        assert not variant.validation_errors
+    assert (occ0 != reference_occluded(v, f, o, d, tmax)).mean() < 0.002
+
+
+def test_uncompressed_nodes_give_the_same_answers(monkeypatch, tracers):
+    """The 64-byte nodes (a BVH whose leaves do not fit the compressed word) answer exactly as the compressed ones:
+    quantization only widens boxes, it never changes which triangles are tested against what."""
+    import engine.rt.tracer as tracer_mod
+    v, f = meshes()["thin_box"]
+    rng = np.random.default_rng(19)
+    o, d = random_rays(rng, 3000, (v.min(0), v.max(0)))
+    tmax = rng.uniform(0.1, 4.0, len(o)).astype(np.float32)
+    monkeypatch.setattr(tracer_mod, "compress_nodes", lambda nodes: None)
+    with Tracer(v, f, validation=True) as plain:
+        assert not plain.scene.compressed and not plain.pipelines["occluded"].spec[8]
+        assert np.array_equal(plain.occluded(o, d, tmax), tracers["thin_box"].occluded(o, d, tmax))
+        a, b = plain.intersect(o, d), tracers["thin_box"].intersect(o, d)
+        assert np.array_equal(a.prim, b.prim) and np.array_equal(a.t, b.t)
 
 
 def test_stats_and_bad_input():
@@ -172,11 +229,11 @@ def test_mesh_over_the_device_buffer_limit_is_a_clear_error(monkeypatch):
 
     real = tracer_mod.SceneBVH.__init__
 
-    def small_limit(self, ctx, bvh, dset):
+    def small_limit(self, ctx, bvh, dset, **kw):
         class Limits:
             maxTexelBufferElements = 64
         monkeypatch.setattr(ctx, "limits", Limits)
-        real(self, ctx, bvh, dset)
+        real(self, ctx, bvh, dset, **kw)
 
     monkeypatch.setattr(tracer_mod.SceneBVH, "__init__", small_limit)
     v, f = meshes()["sphere"]

@@ -3,7 +3,8 @@ bvh.glsl specialization constants, as in tools/ab_traversal.py), frames submitte
 state), GPU ms per pass interleaved over the variants; shadow rays per second = rays the shadow pass traces (covered
 pixels with the light above their horizon, counted from a rendered G-buffer) / its GPU time.
 
-Usage: python tools/ab_passes.py [generated|default ...] [--variants NAME ...] [--reps N] [--size WxH] [--ao-samples N]"""
+Usage: python tools/ab_passes.py [generated|default ...] [--variants NAME ...] [--reps N] [--size WxH]
+                                [--ao-samples N]"""
 from __future__ import annotations
 
 import argparse

@@ -44,8 +44,8 @@ def load(key, tris):
 
 def overriding(real, over):
     """A bvh_spec that gives `real`'s constants with a variant's overrides (None: `real`'s own)."""
-    def spec(ctx, depth=None, layout=None, postpone=None):
-        s = real(ctx, depth, layout, postpone)
+    def spec(ctx, depth=None, layout=None, compressed=False, postpone=None):
+        s = real(ctx, depth, layout=layout, compressed=compressed, postpone=postpone)
         if over is not None:
             s.update({0: False, 1: False, 2: False})
             s.update(over)
@@ -108,8 +108,8 @@ def main():
                     (h0, t0), (h1, t1) = ans[base], ans[name]
                     both = h0 & h1
                     row[name]["disagree"] = int((h0 != h1).sum())
-                    row[name]["t_max_rel_diff"] = float(np.max(np.abs(t1[both] - t0[both]) /
-                                                               np.maximum(np.abs(t0[both]), 1e-30))) if both.any() else 0.0
+                    rel = np.abs(t1[both] - t0[both]) / np.maximum(np.abs(t0[both]), 1e-30)
+                    row[name]["t_max_rel_diff"] = float(rel.max()) if both.any() else 0.0
             out.append(row)
             print(f"{key} {rs.name:7s} {len(rs):>9,} rays: " + "  ".join(
                 f"{n} {x['grays'] * 1e3:,.1f} Mrays/s ({x['vs_first']:.2f}x, {x['disagree']} differ)"

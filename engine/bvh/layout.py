@@ -82,3 +82,31 @@ assert TRI_DTYPE.itemsize == 48
 
 NODE_BYTES = NODE_DTYPE.itemsize
 TRI_BYTES = TRI_DTYPE.itemsize
+
+# ---- the compressed node (CNODE), 32 bytes: made from the nodes above by engine/bvh/compress.py ----------------
+# Used on CPU devices (bvh.glsl specialization constant 8, BVH_COMPRESSED): half the bytes and texel fetches per node
+# step, and two nodes per 64-byte cache line (a node and its left child share one every other time, pre-order).
+# Same tree, same node numbering, same triangle buffer; 8 uint32 (2 texels) per node:
+#
+#     word  field
+#     0     ox | ex      x axis: origin (float32 bits, low 8 mantissa bits 0) | exponent byte ex (bits 0..7)
+#     1     oy | ey      y axis
+#     2     oz | ez      z axis
+#     3     left         child word (below)
+#     4     qx           x axis: left lo (bits 0..7), left hi (8..15), right lo (16..23), right hi (24..31)
+#     5     qy           y axis, same
+#     6     qz           z axis, same
+#     7     right        child word
+#
+#     decoded plane = origin + float(q) * 2^(e - 127), in float32: q * 2^k is exact, so there is one rounding, which
+#     compress.py checks (and steps q outwards where needed): a decoded box always contains the builder's box.
+#     origin is the nodes' box min rounded down (the low mantissa bits hold e); e is the smallest exponent with
+#     255 * 2^(e-127) >= box max - origin (raised where rounding needs it). An empty slot decodes to a point.
+#     child word: bit 31 clear -> interior node index; bit 31 set -> leaf: count in bits 27..30, first triangle in
+#                 bits 0..26 (so leaves of <= 15 triangles and <= 2^27 triangles; otherwise the 64-byte nodes
+#                 stay: compress_nodes returns None).
+CNODE_WORDS = 8
+CNODE_BYTES = 32
+CNODE_COUNT_SHIFT = 27
+CNODE_COUNT_BITS = 4
+CNODE_FIRST_MASK = (1 << CNODE_COUNT_SHIFT) - 1

@@ -7,7 +7,7 @@ from __future__ import annotations
 import numpy as np
 
 from ..vk import SB, SI, UB, ComputePipeline, DescriptorSet
-from ..rt.tracer import bvh_spec
+from ..rt.tracer import bvh_spec, is_cpu
 
 
 class RayPass:
@@ -21,10 +21,21 @@ class RayPass:
         self.bvh_set = bvh_set
         self.set = DescriptorSet(ctx, [(0, UB), (1, SI), (2, SI), (3, SB)])
         self.set.buffer(0, frame_ubo)
+        # until a scene's BVH says otherwise (specialize): any depth (a short register stack with the retry walk
+        # on CPU devices) and the node layout this device gets
         self.pipeline = ComputePipeline(ctx, library.get(self.shaders[0]), [self.set, bvh_set],
-                                        push_size=self.push_size, spec=bvh_spec(ctx, layout=bvh_layout, postpone=self.postpone_leaves),
+                                        push_size=self.push_size,
+                                        spec=bvh_spec(ctx, None, layout=bvh_layout, postpone=self.postpone_leaves,
+                                                      compressed=is_cpu(ctx) and bvh_layout != "wide"),
                                         name=self.name)
         self.bind_targets(targets)
+
+    def specialize(self, library, spec: dict):
+        """Re-create the pipeline with these bvh.glsl specialization constants (a scene's SceneBVH.spec: its depth
+        and node layout), where they differ from the current ones."""
+        if spec != self.pipeline.spec:
+            self.pipeline.spec = dict(spec)
+            self.pipeline.rebuild(library.get(self.shaders[0]))
 
     def bind_targets(self, t):
         self.set.image(1, t.position).image(2, t.normal).buffer(3, getattr(t, self.output))

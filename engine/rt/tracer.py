@@ -16,6 +16,7 @@ import numpy as np
 import vulkan as vk
 
 from ..bvh import build_bvh
+from ..bvh.compress import compress_nodes
 from ..bvh.wide import collapse_bvh8
 from ..errors import ConfigError, SceneError
 from ..shaders import ShaderLibrary
@@ -55,23 +56,40 @@ class Hits:
 
 
 class SceneBVH:
-    """A BVH's two storage buffers on the GPU, bound as a descriptor set (BVH_SET in bvh.glsl)."""
+    """A BVH's two storage buffers on the GPU, bound as a descriptor set (BVH_SET in bvh.glsl).
 
-    def __init__(self, ctx: Context, bvh, dset: DescriptorSet):
+    layout: "binary" (a builder BVH) or "wide" (collapse_bvh8's). compress (binary only): upload the 32-byte
+    compressed nodes (engine/bvh/compress.py; bvh.glsl's BVH_COMPRESSED) instead of the builder's 64-byte ones,
+    where the tree fits that format; `compressed` says which were uploaded, `depth` is the tree's depth: they go to
+    bvh_spec."""
+
+    def __init__(self, ctx: Context, bvh, dset: DescriptorSet, layout: str = "binary", compress: bool = False):
+        if layout == "wide" and compress:
+            raise ConfigError("SceneBVH: the wide layout has no compressed nodes")
         self.bvh = bvh
+        self.layout = layout
+        self.depth = bvh.stats.get("depth")
+        nodes = compress_nodes(bvh.nodes) if compress else None
+        self.compressed = nodes is not None
+        if nodes is None:
+            nodes = bvh.nodes
         # Both buffers are read as uniform texel buffers of 16-byte texels (faster than storage buffers on lavapipe,
         # whose storage-buffer loads run lane by lane), so the limit is maxTexelBufferElements texels each.
         texels = int(ctx.limits.maxTexelBufferElements)
-        for what, arr in (("triangles", bvh.tris), ("nodes", bvh.nodes)):
+        for what, arr in (("triangles", bvh.tris), ("nodes", nodes)):
             if arr.nbytes // 16 > texels:
                 raise SceneError(f"{bvh.stats['triangles']:,} triangles: the BVH {what} take "
                                  f"{arr.nbytes / 2**20:.0f} MiB, "
                                  f"more than this device's texel-buffer limit of {texels:,} texels "
                                  f"({texels * 16 / 2**20:.0f} MiB, {ctx.device_info['name']})")
-        self.nodes = upload_buffer(ctx, bvh.nodes, UNIFORM_TEXEL, "bvh nodes")
+        self.nodes = upload_buffer(ctx, nodes, UNIFORM_TEXEL, "bvh nodes")
         self.tris = upload_buffer(ctx, bvh.tris, UNIFORM_TEXEL, "bvh triangles")
         self.views = [BufferView(self.nodes), BufferView(self.tris)]
         dset.texel_buffer(0, self.views[0]).texel_buffer(1, self.views[1])
+
+    def spec(self, ctx: Context, postpone: bool | None = None) -> dict:
+        """bvh_spec for this BVH's depth and node layout (postpone: see bvh_spec)."""
+        return bvh_spec(ctx, self.depth, layout=self.layout, compressed=self.compressed, postpone=postpone)
 
     def destroy(self):
         for view in self.views:
@@ -105,17 +123,30 @@ def scene_bvh_data(bvh, layout: str):
     return collapse_bvh8(bvh) if layout == "wide" else bvh
 
 
-def bvh_spec(ctx: Context, depth: int | None = None, layout: str | None = None,
+def is_cpu(ctx: Context) -> bool:
+    return ctx.device_info["type"] == "CPU"
+
+
+#: Register-stack entries on CPU devices (bvh.glsl BVH_STACK_REGS): fewer than a deep BVH needs, the rare ray that
+#: overflows them walks again with the array stack (BVH_STACK_RETRY). Measured on lavapipe (A/B vs the BVH's
+#: depth - 1 entries): 10 was the best of 6, 8, 10, 13 over shadow, AO and closest-hit rays on both bench scenes.
+CPU_STACK_REGS = 10
+
+
+def bvh_spec(ctx: Context, depth: int | None = None, layout: str | None = None, compressed: bool = False,
              postpone: bool | None = None) -> dict:
     """Specialization constants of bvh.glsl for this device: on CPU devices (lavapipe) the branchless stack push
-    (0), the postponed leaf tests (1) and the register stack (2) of BVH_STACK_REGS entries (3): the BVH's
-    `depth` - 1 (what its traversal can push) when known, else 32 (enough for any BVH of the builder's max_depth);
-    the wide layout (4) when `bvh_layout(ctx, layout)` says so. `postpone`: postponed leaf tests whatever the
-    device (the renderer's AO pass asks for them: 1.35-1.46x on an H200, tools/ab_passes.py)."""
-    cpu = ctx.device_info["type"] == "CPU"
-    regs = 32 if depth is None else max(1, min(32, int(depth) - 1))
+    (0), the postponed leaf tests (1), the register stack (2) of BVH_STACK_REGS entries (3): min(CPU_STACK_REGS,
+    the BVH's `depth` - 1, what its traversal can push), with the retry walk (9) where that is fewer than
+    depth - 1 or the depth is unknown, and compare-and-select min/max (10); the wide layout (4) when
+    `bvh_layout(ctx, layout)` says so; `compressed`: the nodes are the 32-byte ones (8). `postpone`: postponed leaf
+    tests whatever the device (the renderer's AO pass asks for them: 1.35-1.46x on an H200, tools/ab_passes.py)."""
+    cpu = is_cpu(ctx)
+    need = 32 if depth is None else max(1, min(32, int(depth) - 1))
+    regs = min(CPU_STACK_REGS, need) if cpu else need
     return {0: cpu, 1: cpu if postpone is None else bool(postpone), 2: cpu, 3: regs,
-            4: bvh_layout(ctx, layout) == "wide"}
+            4: bvh_layout(ctx, layout) == "wide", 8: bool(compressed), 9: cpu and (depth is None or regs < need),
+            10: cpu}
 
 
 def _check_mesh(vertices, faces):
@@ -191,7 +222,8 @@ class Tracer:
         self.bvh_set = bvh_descriptor_set(ctx)
         self.gpu_bvh = scene_bvh_data(self.bvh, self.layout)
         self.stats = dict(self.gpu_bvh.stats, layout=self.layout)
-        self.scene = SceneBVH(ctx, self.gpu_bvh, self.bvh_set)
+        self.scene = SceneBVH(ctx, self.gpu_bvh, self.bvh_set, layout=self.layout,
+                              compress=is_cpu(ctx) and self.layout == "binary")
         self.io_set = DescriptorSet(ctx, [(0, SB), (1, SB), (2, SB)])
         # Rays and results: mapped host buffers; on a discrete GPU device-local ones filled / read by copies in the
         # same command buffer (the copy is sized to the batch, rounded up to a power of two: one recording each).
@@ -209,7 +241,7 @@ class Tracer:
         self.pipelines, self._commands, self._marks = {}, {}, {}
         for kind in ("occluded", "intersect"):
             self.pipelines[kind] = ComputePipeline(ctx, lib.get(f"trace_{kind}.comp"), [self.io_set, self.bvh_set],
-                                                   spec=bvh_spec(ctx, self.bvh.stats.get("depth"), self.layout),
+                                                   spec=self.scene.spec(ctx),
                                                    name=f"trace_{kind}")
         self.last_gpu_ms = 0.0
         self.last_times: dict = {}   # GPU ms of the last batch per step: upload (staged only), trace, download

@@ -97,15 +97,49 @@ layout(constant_id = 1) const bool BVH_POSTPONE_LEAVES = true;
 // at every push and pop (BVH_REG_STACK, true on CPU devices) instead of an indexed local array. lavapipe runs an
 // indexed local array lane by lane (8 extracts and scalar loads or stores per access, on every node step, since
 // both sides of an `if` run), while the shift is 2 vector selects per entry, and entries past BVH_STACK_REGS
-// fold away at pipeline creation; so the Tracer sets BVH_STACK_REGS to its BVH's depth - 1 (the most the traversal
-// pushes), the renderer leaves 32. Measured on lavapipe: 1.1-1.3x with 32 entries, 1.3-1.55x with 16.
+// fold away at pipeline creation. The Tracer and the renderer's passes set BVH_STACK_REGS to min(10, the BVH's
+// depth - 1) (engine/rt/tracer.py CPU_STACK_REGS; depth - 1 is the most the traversal pushes), with constant 9
+// where that is fewer than depth - 1. Measured on lavapipe: 1.1-1.3x with 32 entries, 1.3-1.55x with 16.
 layout(constant_id = 2) const bool BVH_REG_STACK = true;
 layout(constant_id = 3) const int BVH_STACK_REGS = 32;
+// Specialization constant 9: BVH_STACK_REGS may be less than the BVH needs (a short register stack, fewer vector
+// registers live in the node loop): a push onto a full register stack drops its bottom entry and marks the ray;
+// a marked ray whose walk ends without the answer (no hit for bvh_occluded; always for bvh_intersect) walks the
+// tree again with the full array stack (the closest hit so far as tmax; of two hits at exactly that t either may be
+// reported). 10 entries instead of the BVH's depth - 1 (19-25 on the bench scenes): 1.1-1.3x on lavapipe.
+layout(constant_id = 9) const bool BVH_STACK_RETRY = false;
+
+// Specialization constant 8: the nodes are the 32-byte compressed ones (engine/bvh/layout.py CNODE, made by
+// engine/bvh/compress.py): 2 texels per node instead of 4, child boxes as 8-bit offsets in a per-node frame.
+layout(constant_id = 8) const bool BVH_COMPRESSED = false;
 
 const uint BVH_LEAF_BIT = 0x80000000u;
+const uint BVH_CFIRST_MASK = 0x07FFFFFFu;  // compressed child word: first triangle (bits 0..26), count (27..30)
 #define BVH_INF uintBitsToFloat(0x7F800000u)
 // Ize, "Robust BVH Ray Traversal" (JCGT 2013): 1 + 2 gamma(3), gamma(n) = n eps / (1 - n eps), eps = 2^-24
 const float BVH_FAR_SCALE = 1.0000004;
+
+// A compressed node decoded into the 64-byte node's form (boxes rounded outwards on the host; words as there).
+BvhNode bvh_cnode_(uint i) {
+    int b = int(i) * 2;
+    uvec4 h = texelFetch(bvh_node_texels, b);
+    uvec4 q = texelFetch(bvh_node_texels, b + 1);
+    vec3 org = uintBitsToFloat(h.xyz & 0xFFFFFF00u);
+    vec3 scl = uintBitsToFloat((h.xyz & 0xFFu) << 23);
+    // q * scale is exact (8 bits times a power of two), so this is one rounding whether fused or not
+    vec3 lmin = org + vec3(q.xyz & 0xFFu) * scl;
+    vec3 lmax = org + vec3((q.xyz >> 8) & 0xFFu) * scl;
+    vec3 rmin = org + vec3((q.xyz >> 16) & 0xFFu) * scl;
+    vec3 rmax = org + vec3(q.xyz >> 24) * scl;
+    bool ll = (h.w & BVH_LEAF_BIT) != 0u;
+    bool lr = (q.w & BVH_LEAF_BIT) != 0u;
+    BvhNode n;
+    n.a = vec4(lmin, uintBitsToFloat(ll ? (h.w & (BVH_LEAF_BIT | BVH_CFIRST_MASK)) : h.w));
+    n.b = vec4(lmax, uintBitsToFloat(lr ? (q.w & (BVH_LEAF_BIT | BVH_CFIRST_MASK)) : q.w));
+    n.c = vec4(rmin, uintBitsToFloat(ll ? ((h.w >> 27) & 15u) : 0u));
+    n.d = vec4(rmax, uintBitsToFloat(lr ? ((q.w >> 27) & 15u) : 0u));
+    return n;
+}
 
 // Everything about a ray that traversal and the triangle test reuse.
 struct BvhRay_ {
@@ -133,9 +167,23 @@ BvhRay_ bvh_make_ray_(vec3 o, vec3 d) {
 }
 
 // Entry and exit distance of a box, clipped to [tmin, tmax]; the box is hit when .x <= .y.
+// Specialization constant 10: min and max written as compare-and-select (BVH_SELECT_MINMAX): llvmpipe's min/max
+// keep GLSL's NaN rule with an extra unordered compare and blend each, a select is one vminps/vmaxps on x86.
+// No NaN reaches here from a finite ray (inv_d is finite, the box planes finite or +-inf).
+layout(constant_id = 10) const bool BVH_SELECT_MINMAX = false;
+float bvh_min_(float a, float b) { return BVH_SELECT_MINMAX ? (a < b ? a : b) : min(a, b); }
+float bvh_max_(float a, float b) { return BVH_SELECT_MINMAX ? (a > b ? a : b) : max(a, b); }
+
 vec2 bvh_slab_(BvhRay_ r, vec3 bmin, vec3 bmax, float tmin, float tmax) {
     vec3 t0 = (bmin - r.o) * r.inv_d;
     vec3 t1 = (bmax - r.o) * r.inv_d;
+    if (BVH_SELECT_MINMAX) {
+        vec3 tn = mix(t1, t0, lessThan(t0, t1));
+        vec3 tf = mix(t0, t1, lessThan(t0, t1));
+        float tnear = bvh_max_(bvh_max_(tn.x, tn.y), bvh_max_(tn.z, tmin));
+        float tfar = bvh_min_(bvh_min_(tf.x, tf.y), bvh_min_(tf.z, tmax)) * BVH_FAR_SCALE;
+        return vec2(tnear, tfar);
+    }
     vec3 tn = min(t0, t1);
     vec3 tf = max(t0, t1);
     float tnear = max(max(tn.x, tn.y), max(tn.z, tmin));
@@ -183,7 +231,7 @@ bool bvh_triangle_(BvhRay_ r, vec3 p0, vec3 p1, vec3 p2, float tmin, float tmax,
 
 // One entry of the register stack; entries at or past BVH_STACK_REGS stay 0 (and fold away).
 #define BVH_SHIFT_(k, below) old_ = s##k; \
-    s##k = (k < BVH_STACK_REGS) ? (push ? prev_ : (pop ? below : s##k)) : 0u; prev_ = old_;
+    s##k = (k < regs_) ? (push ? prev_ : (pop ? below : s##k)) : 0u; prev_ = old_;
 
 // The traversal behind both queries. Ordered (nearer child first), leaves tested straight from their parent's slot.
 // any_hit: stop at the first hit (its t, prim, u, v are still reported).
@@ -197,8 +245,10 @@ bool bvh_triangle_(BvhRay_ r, vec3 p0, vec3 p1, vec3 p2, float tmin, float tmax,
 // the triangle code runs once per leaf batch: 1.15-1.4x occlusion, 1.1-1.2x closest hit, measured.
 // The node loop's exit is its `while` condition on purpose: an unconditional `for (;;)` ended by
 // `if (total != 0u || done) break;` was miscompiled by llvmpipe 22.3 (4% of the shadow rays missed their hit).
-bool bvh_trace_(vec3 o, vec3 d, float tmin, float tmax, bool any_hit, inout BvhHit hit) {
-    BvhRay_ r = bvh_make_ray_(o, d);
+// full: the array stack whatever BVH_REG_STACK says (the retry walk). lost: set where a push dropped an entry.
+bool bvh_walk_(BvhRay_ r, float tmin, float tmax, bool any_hit, bool full, inout BvhHit hit, inout bool lost) {
+    const bool reg_stack = BVH_REG_STACK && !full;
+    const int regs_ = BVH_STACK_REGS;
     float best = tmax;
     bool found = false;
     uint stack[BVH_STACK_SIZE];     // far children still to visit (the array stack)
@@ -215,7 +265,12 @@ bool bvh_trace_(vec3 o, vec3 d, float tmin, float tmax, bool any_hit, inout BvhH
         // triangles to test: [f0, f0 + c0) then [f1, f1 + total - c0), the nearer leaf's first
         uint f0 = 0u, f1 = 0u, c0 = 0u, total = 0u;
         while (total == 0u && !done) {
-            BvhNode n = bvh_node_(node);
+            BvhNode n;
+            if (BVH_COMPRESSED) {
+                n = bvh_cnode_(node);
+            } else {
+                n = bvh_node_(node);
+            }
             vec2 sl = bvh_slab_(r, n.a.xyz, n.b.xyz, tmin, best);
             vec2 sr = bvh_slab_(r, n.c.xyz, n.d.xyz, tmin, best);
             uint wl = floatBitsToUint(n.a.w);
@@ -236,7 +291,7 @@ bool bvh_trace_(vec3 o, vec3 d, float tmin, float tmax, bool any_hit, inout BvhH
             bool near_left = il && (!ir || left_first);
             bool push = il && ir;
             uint top = s0;
-            if (BVH_REG_STACK) {
+            if (reg_stack) {
                 // push: every entry moves down one (prev_ is the entry above, before this step); pop: up one
                 bool pop = !il && !ir;
                 prev_ = near_left ? wr : wl;
@@ -248,7 +303,13 @@ bool bvh_trace_(vec3 o, vec3 d, float tmin, float tmax, bool any_hit, inout BvhH
                 BVH_SHIFT_(22, s23) BVH_SHIFT_(23, s24) BVH_SHIFT_(24, s25) BVH_SHIFT_(25, s26)
                 BVH_SHIFT_(26, s27) BVH_SHIFT_(27, s28) BVH_SHIFT_(28, s29) BVH_SHIFT_(29, s30)
                 BVH_SHIFT_(30, s31) BVH_SHIFT_(31, 0u)
-                sp += push ? 1u : 0u;
+                if (BVH_STACK_RETRY) {
+                    bool full_ = sp >= uint(regs_);
+                    lost = lost || (push && full_);
+                    sp += (push && !full_) ? 1u : 0u;
+                } else {
+                    sp += push ? 1u : 0u;
+                }
             } else if (BVH_BRANCHLESS_PUSH) {
                 stack[min(sp, uint(BVH_STACK_SIZE - 1))] = near_left ? wr : wl;
                 sp += (il && ir) ? 1u : 0u;
@@ -262,7 +323,7 @@ bool bvh_trace_(vec3 o, vec3 d, float tmin, float tmax, bool any_hit, inout BvhH
                 done = true;
             } else {
                 sp -= 1u;
-                node = BVH_REG_STACK ? top : stack[sp];
+                node = reg_stack ? top : stack[sp];
             }
             if (!BVH_POSTPONE_LEAVES) {
                 break;
@@ -286,6 +347,19 @@ bool bvh_trace_(vec3 o, vec3 d, float tmin, float tmax, bool any_hit, inout BvhH
         }
         if (done) {
             break;
+        }
+    }
+    return found;
+}
+
+bool bvh_trace_(vec3 o, vec3 d, float tmin, float tmax, bool any_hit, inout BvhHit hit) {
+    BvhRay_ r = bvh_make_ray_(o, d);
+    bool lost = false;
+    bool found = bvh_walk_(r, tmin, tmax, any_hit, false, hit, lost);
+    if (BVH_STACK_RETRY && BVH_REG_STACK) {
+        if (lost && !(any_hit && found)) {
+            bool unused = false;
+            found = bvh_walk_(r, tmin, found ? hit.t : tmax, any_hit, true, hit, unused) || found;
         }
     }
     return found;

@@ -106,6 +106,9 @@ def test_ray_passes_are_specialized_to_the_scenes_bvh(make_renderer):
         assert spec == r._scene_bvh.spec(r.ctx)
         if is_cpu(r.ctx):
             assert spec[3] == min(CPU_STACK_REGS, max(1, depth - 1)) and spec[8] and spec[9] == (depth - 1 > spec[3])
+            assert spec[11]   # image loads (the BVH's storage texel buffer views) on CPU devices
+        else:
+            assert not spec[11]
     rng = np.random.default_rng(2)
     soup = trimesh.Trimesh(rng.uniform(-1, 1, (6000, 3)), np.arange(6000).reshape(2000, 3), process=False)
     deep = Scene.from_trimesh(soup, camera=Camera.look_at((2, 2, 3), (0, 0, 0)))

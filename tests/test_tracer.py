@@ -131,7 +131,10 @@ VARIANTS = [{0: False, 1: False, 2: False}, {0: True, 1: False, 2: False},
             {0: True, 1: True, 2: True, 3: 32, 10: True},
             {0: True, 1: True, 2: True, 3: 2, 9: True}, {0: True, 1: True, 2: True, 3: 1, 9: True, 10: True},
             {0: True, 1: True, 2: True, 3: 3, 9: True, "uncompressed": True},
-            {0: False, 1: False, 2: False, 10: True, "uncompressed": True}]
+            {0: False, 1: False, 2: False, 10: True, "uncompressed": True},
+            {0: True, 1: True, 2: True, 3: 2, 9: True, 10: True, 11: True},
+            {0: False, 1: False, 2: False, 11: True, "uncompressed": True},
+            {0: True, 1: True, 2: True, 3: 3, 9: True, 11: True, "uncompressed": True}]
 
 
 def _variant_tracer(monkeypatch, spec, v, f):
@@ -161,7 +164,7 @@ def test_every_traversal_variant_gives_the_same_answers(monkeypatch, spec):
         occ0, hit0 = default.occluded(o, d, tmax), default.intersect(o, d)
         dspec = default.pipelines["occluded"].spec
         assert dspec[3] == min(CPU_STACK_REGS, max(1, default.stats["depth"] - 1))
-        assert dspec[8] and default.scene.compressed
+        assert dspec[8] and default.scene.compressed and dspec[11]
     with _variant_tracer(monkeypatch, spec, v, f) as variant:
         assert variant.scene.compressed == ("uncompressed" not in spec)
         assert np.array_equal(variant.occluded(o, d, tmax), occ0)
@@ -188,6 +191,29 @@ def test_short_stack_retry_matches_the_full_stack(monkeypatch, tracers, name):
         assert np.array_equal(hit1.u, hit0.u) and np.array_equal(hit1.v, hit0.v)
         assert not variant.validation_errors
     assert (occ0 != reference_occluded(v, f, o, d, tmax)).mean() < 0.002
+
+
+@pytest.mark.parametrize("name", list(meshes()))
+def test_image_loads_match_texel_fetches(monkeypatch, tracers, name):
+    """Specialization constant 11 reads the BVH through its storage texel buffer views (imageLoad; on by default on
+    CPU devices) instead of the uniform texel buffers: exactly the same answers, both layouts, every mesh."""
+    import engine.rt.tracer as tracer_mod
+    v, f = meshes()[name]
+    rng = np.random.default_rng(23)
+    o, d = random_rays(rng, 3000, (v.min(0), v.max(0)))
+    tmax = rng.uniform(0.1, 4.0, len(o)).astype(np.float32)
+    tmax[::4] = np.inf
+    base = tracers[name]
+    flipped = not base.pipelines["occluded"].spec[11]
+    real = tracer_mod.bvh_spec
+    monkeypatch.setattr(tracer_mod, "bvh_spec", lambda *a, **kw: {**real(*a, **kw), 11: flipped})
+    with Tracer(v, f, validation=True, layout=base.layout) as other:
+        assert other.pipelines["occluded"].spec[11] == flipped and other.layout == base.layout
+        assert np.array_equal(other.occluded(o, d, tmax), base.occluded(o, d, tmax))
+        a, b = other.intersect(o, d, tmax), base.intersect(o, d, tmax)
+        assert np.array_equal(a.prim, b.prim) and np.array_equal(a.t, b.t)
+        assert np.array_equal(a.u, b.u) and np.array_equal(a.v, b.v)
+        assert not other.validation_errors
 
 
 def test_uncompressed_nodes_give_the_same_answers(monkeypatch, tracers):

@@ -20,9 +20,9 @@ from ..bvh.compress import compress_nodes
 from ..bvh.wide import collapse_bvh8
 from ..errors import ConfigError, SceneError
 from ..shaders import ShaderLibrary
-from ..vk import (SB, UTB, Buffer, BufferView, ComputePipeline, Context, DescriptorSet, Timestamps, memory_barrier,
+from ..vk import (SB, STB, UTB, Buffer, BufferView, ComputePipeline, Context, DescriptorSet, Timestamps, memory_barrier,
                   upload_buffer)
-from ..vk.resources import STORAGE, TRANSFER_DST, TRANSFER_SRC, UNIFORM_TEXEL
+from ..vk.resources import STORAGE, STORAGE_TEXEL, TRANSFER_DST, TRANSFER_SRC, UNIFORM_TEXEL
 
 RAY_BYTES = 32
 GROUP = 64
@@ -82,10 +82,14 @@ class SceneBVH:
                                  f"{arr.nbytes / 2**20:.0f} MiB, "
                                  f"more than this device's texel-buffer limit of {texels:,} texels "
                                  f"({texels * 16 / 2**20:.0f} MiB, {ctx.device_info['name']})")
-        self.nodes = upload_buffer(ctx, nodes, UNIFORM_TEXEL, "bvh nodes")
-        self.tris = upload_buffer(ctx, bvh.tris, UNIFORM_TEXEL, "bvh triangles")
+        usage = UNIFORM_TEXEL | STORAGE_TEXEL
+        self.nodes = upload_buffer(ctx, nodes, usage, "bvh nodes")
+        self.tris = upload_buffer(ctx, bvh.tris, usage, "bvh triangles")
+        # the same buffers as uniform texel buffers (bindings 0, 1) and as storage texel buffers (2, 3), bvh_spec's
+        # constant 11 says which the shaders read (storage texel buffers on CPU devices)
         self.views = [BufferView(self.nodes), BufferView(self.tris)]
         dset.texel_buffer(0, self.views[0]).texel_buffer(1, self.views[1])
+        dset.texel_buffer(2, self.views[0]).texel_buffer(3, self.views[1])
 
     def spec(self, ctx: Context, postpone: bool | None = None) -> dict:
         """bvh_spec for this BVH's depth and node layout (postpone: see bvh_spec)."""
@@ -99,7 +103,7 @@ class SceneBVH:
 
 
 def bvh_descriptor_set(ctx: Context) -> DescriptorSet:
-    return DescriptorSet(ctx, [(0, UTB), (1, UTB)])
+    return DescriptorSet(ctx, [(0, UTB), (1, UTB), (2, STB), (3, STB)])
 
 
 LAYOUTS = ("binary", "wide")
@@ -138,7 +142,8 @@ def bvh_spec(ctx: Context, depth: int | None = None, layout: str | None = None, 
     """Specialization constants of bvh.glsl for this device: on CPU devices (lavapipe) the branchless stack push
     (0), the postponed leaf tests (1), the register stack (2) of BVH_STACK_REGS entries (3): min(CPU_STACK_REGS,
     the BVH's `depth` - 1, what its traversal can push), with the retry walk (9) where that is fewer than
-    depth - 1 or the depth is unknown, and compare-and-select min/max (10); the wide layout (4) when
+    depth - 1 or the depth is unknown, compare-and-select min/max (10) and image loads instead of texel fetches
+    (11: the BVH buffers through their storage texel buffer views, which llvmpipe inlines); the wide layout (4) when
     `bvh_layout(ctx, layout)` says so; `compressed`: the nodes are the 32-byte ones (8). `postpone`: postponed leaf
     tests whatever the device (the renderer's AO pass asks for them: 1.35-1.46x on an H200, tools/ab_passes.py)."""
     cpu = is_cpu(ctx)
@@ -146,7 +151,7 @@ def bvh_spec(ctx: Context, depth: int | None = None, layout: str | None = None, 
     regs = min(CPU_STACK_REGS, need) if cpu else need
     return {0: cpu, 1: cpu if postpone is None else bool(postpone), 2: cpu, 3: regs,
             4: bvh_layout(ctx, layout) == "wide", 8: bool(compressed), 9: cpu and (depth is None or regs < need),
-            10: cpu}
+            10: cpu, 11: cpu}
 
 
 def _check_mesh(vertices, faces):

@@ -18,6 +18,7 @@ UB = vk.VK_DESCRIPTOR_TYPE_UNIFORM_BUFFER
 SI = vk.VK_DESCRIPTOR_TYPE_STORAGE_IMAGE
 CIS = vk.VK_DESCRIPTOR_TYPE_COMBINED_IMAGE_SAMPLER
 UTB = vk.VK_DESCRIPTOR_TYPE_UNIFORM_TEXEL_BUFFER
+STB = vk.VK_DESCRIPTOR_TYPE_STORAGE_TEXEL_BUFFER
 ALL = vk.VK_SHADER_STAGE_ALL
 WHOLE_SIZE = 0xFFFFFFFFFFFFFFFF  # VK_WHOLE_SIZE (the binding exposes it as -1)
 
@@ -56,7 +57,8 @@ class DescriptorSet:
         return self
 
     def texel_buffer(self, binding, view):
-        """Bind a BufferView (a uniform texel buffer: `usamplerBuffer` / `samplerBuffer` in GLSL)."""
+        """Bind a BufferView as the binding's type: a uniform texel buffer (`usamplerBuffer` / `samplerBuffer` in GLSL)
+        or a storage texel buffer (`uimageBuffer` / `imageBuffer`)."""
         vk.vkUpdateDescriptorSets(self.ctx.device, 1, [vk.VkWriteDescriptorSet(
             dstSet=self.handle, dstBinding=binding, descriptorCount=1, descriptorType=self.types[binding],
             pTexelBufferView=[view.handle])], 0, None)

@@ -13,6 +13,7 @@ from .context import Context
 STORAGE = vk.VK_BUFFER_USAGE_STORAGE_BUFFER_BIT
 UNIFORM = vk.VK_BUFFER_USAGE_UNIFORM_BUFFER_BIT
 UNIFORM_TEXEL = vk.VK_BUFFER_USAGE_UNIFORM_TEXEL_BUFFER_BIT
+STORAGE_TEXEL = vk.VK_BUFFER_USAGE_STORAGE_TEXEL_BUFFER_BIT
 VERTEX = vk.VK_BUFFER_USAGE_VERTEX_BUFFER_BIT
 INDEX = vk.VK_BUFFER_USAGE_INDEX_BUFFER_BIT
 TRANSFER_SRC = vk.VK_BUFFER_USAGE_TRANSFER_SRC_BIT
@@ -62,7 +63,8 @@ class Buffer:
 
 
 class BufferView:
-    """A typed view of a buffer, for binding it as a texel buffer (the buffer needs UNIFORM_TEXEL usage)."""
+    """A typed view of a buffer, for binding it as a texel buffer (the buffer needs UNIFORM_TEXEL usage, or
+    STORAGE_TEXEL for a storage texel buffer)."""
 
     def __init__(self, buf: Buffer, fmt: int = vk.VK_FORMAT_R32G32B32A32_UINT):
         self.ctx, self.buffer = buf.ctx, buf

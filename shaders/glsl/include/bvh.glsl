@@ -5,7 +5,8 @@
 //     #extension GL_GOOGLE_include_directive : require
 //     #define BVH_SET 0          // descriptor set of the two buffers (default 0)
 //     #define BVH_BINDING 2      // nodes at BVH_BINDING, triangles at BVH_BINDING + 1 (default 0), both bound as
-//                                // uniform texel buffers of R32G32B32A32_UINT texels
+//                                // uniform texel buffers of R32G32B32A32_UINT texels, and the same two buffers
+//                                // at BVH_BINDING + 2, + 3 as storage texel buffers (constant 11)
 //     #define BVH_STACK_SIZE 32  // optional; must be >= the BVH's stats["depth"] - 1 (the builder's default
 //                                // max_depth of 32 guarantees that for the default 32)
 //     #include "bvh.glsl"
@@ -66,23 +67,38 @@ struct BvhHit {
 
 layout(set = BVH_SET, binding = BVH_BINDING) uniform usamplerBuffer bvh_node_texels;
 layout(set = BVH_SET, binding = BVH_BINDING + 1) uniform usamplerBuffer bvh_tri_texels;
+// Specialization constant 11 (BVH_IMAGE_FETCH, true on CPU devices): read the same two buffers through storage
+// texel buffer views at BVH_BINDING + 2 and + 3 (imageLoad) instead of the uniform texel buffers. llvmpipe 22.3
+// emits a texel fetch from an R32G32B32A32 buffer as a call to a sampling function (its "simple format" inline path
+// is only for RGBA8 unorm), and the call clobbers every vector register (~190 spill / reload instructions in the
+// node loop); an image load is inlined (8 16-byte loads and a transpose), no call. 1.0-1.1x on lavapipe.
+// (An RGBA8-unorm view, whose texel fetches are inlined, needs 8 fetches per node and a repack: 0.67x.)
+layout(constant_id = 11) const bool BVH_IMAGE_FETCH = false;
+layout(set = BVH_SET, binding = BVH_BINDING + 2, rgba32ui) uniform readonly restrict uimageBuffer bvh_node_image;
+layout(set = BVH_SET, binding = BVH_BINDING + 3, rgba32ui) uniform readonly restrict uimageBuffer bvh_tri_image;
+uvec4 bvh_node_texel_(int i) {
+    return BVH_IMAGE_FETCH ? imageLoad(bvh_node_image, i) : texelFetch(bvh_node_texels, i);
+}
+uvec4 bvh_tri_texel_(int i) {
+    return BVH_IMAGE_FETCH ? imageLoad(bvh_tri_image, i) : texelFetch(bvh_tri_texels, i);
+}
 
 BvhNode bvh_node_(uint i) {
     int b = int(i) * 4;
     BvhNode n;
-    n.a = uintBitsToFloat(texelFetch(bvh_node_texels, b));
-    n.b = uintBitsToFloat(texelFetch(bvh_node_texels, b + 1));
-    n.c = uintBitsToFloat(texelFetch(bvh_node_texels, b + 2));
-    n.d = uintBitsToFloat(texelFetch(bvh_node_texels, b + 3));
+    n.a = uintBitsToFloat(bvh_node_texel_(b));
+    n.b = uintBitsToFloat(bvh_node_texel_(b + 1));
+    n.c = uintBitsToFloat(bvh_node_texel_(b + 2));
+    n.d = uintBitsToFloat(bvh_node_texel_(b + 3));
     return n;
 }
 
 BvhTri bvh_tri_(uint i) {
     int b = int(i) * 3;
     BvhTri t;
-    t.v0 = uintBitsToFloat(texelFetch(bvh_tri_texels, b));
-    t.v1 = uintBitsToFloat(texelFetch(bvh_tri_texels, b + 1));
-    t.v2 = uintBitsToFloat(texelFetch(bvh_tri_texels, b + 2));
+    t.v0 = uintBitsToFloat(bvh_tri_texel_(b));
+    t.v1 = uintBitsToFloat(bvh_tri_texel_(b + 1));
+    t.v2 = uintBitsToFloat(bvh_tri_texel_(b + 2));
     return t;
 }
 
@@ -122,8 +138,8 @@ const float BVH_FAR_SCALE = 1.0000004;
 // A compressed node decoded into the 64-byte node's form (boxes rounded outwards on the host; words as there).
 BvhNode bvh_cnode_(uint i) {
     int b = int(i) * 2;
-    uvec4 h = texelFetch(bvh_node_texels, b);
-    uvec4 q = texelFetch(bvh_node_texels, b + 1);
+    uvec4 h = bvh_node_texel_(b);
+    uvec4 q = bvh_node_texel_(b + 1);
     vec3 org = uintBitsToFloat(h.xyz & 0xFFFFFF00u);
     vec3 scl = uintBitsToFloat((h.xyz & 0xFFu) << 23);
     // q * scale is exact (8 bits times a power of two), so this is one rounding whether fused or not

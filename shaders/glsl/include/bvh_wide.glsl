@@ -38,11 +38,11 @@ bool bvh_trace_wide_(vec3 o, vec3 d, float tmin, float tmax, bool any_hit, inout
         }
 
         int b = int(node) * 5;
-        uvec4 t0 = texelFetch(bvh_node_texels, b);
-        uvec4 t1 = texelFetch(bvh_node_texels, b + 1);
-        uvec4 t2 = texelFetch(bvh_node_texels, b + 2);
-        uvec4 t3 = texelFetch(bvh_node_texels, b + 3);
-        uvec4 t4 = texelFetch(bvh_node_texels, b + 4);
+        uvec4 t0 = bvh_node_texel_(b);
+        uvec4 t1 = bvh_node_texel_(b + 1);
+        uvec4 t2 = bvh_node_texel_(b + 2);
+        uvec4 t3 = bvh_node_texel_(b + 3);
+        uvec4 t4 = bvh_node_texel_(b + 4);
         vec3 p = uintBitsToFloat(t0.xyz);
         vec3 s = uintBitsToFloat(uvec3(t0.w << 23u, (t0.w >> 8u) << 23u, (t0.w >> 16u) << 23u) & 0x7F800000u);
         uint imask = t0.w >> 24u;

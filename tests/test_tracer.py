@@ -216,6 +216,40 @@ def test_image_loads_match_texel_fetches(monkeypatch, tracers, name):
         assert not other.validation_errors
 
 
+@pytest.mark.parametrize("name", list(meshes()))
+@pytest.mark.parametrize("over", [{12: True, 3: 1}, {12: True, 3: 2, 11: False}, {12: False}],
+                         ids=["cpu-1-entry", "cpu-2-entries-texel", "gpu-walk"])
+def test_wide_traversals_give_the_same_answers(monkeypatch, name, over):
+    """The 8-wide layout's two traversals (constant 12: the lavapipe one, postponed leaves and a register stack of
+    node groups with a retry walk; off: the GPU one) answer alike on every mesh, with a register stack of 1 or 2
+    entries that overflows on most rays of the deeper trees (the retry walk then gives the answer), and as the
+    reference does."""
+    import engine.rt.tracer as tracer_mod
+    v, f = meshes()[name]
+    rng = np.random.default_rng(29)
+    o, d = random_rays(rng, 3000, (v.min(0), v.max(0)))
+    tmax = rng.uniform(0.1, 4.0, len(o)).astype(np.float32)
+    tmax[::4] = np.inf
+    real = tracer_mod.bvh_spec
+    with Tracer(v, f, validation=True, layout="wide") as base:
+        spec = base.pipelines["occluded"].spec
+        if tracer_mod.is_cpu(base.ctx):
+            assert spec[12] and spec[3] == min(tracer_mod.CPU_WIDE_STACK_REGS, max(1, base.stats["wide_levels"] - 1))
+        else:
+            assert not spec[12]
+        occ0, hit0 = base.occluded(o, d, tmax), base.intersect(o, d, tmax)
+        monkeypatch.setattr(tracer_mod, "bvh_spec", lambda *a, **kw: {**real(*a, **kw), **over})
+        with Tracer(v, f, validation=True, layout="wide") as other:
+            assert all(other.pipelines["occluded"].spec[k] == x for k, x in over.items())
+            assert np.array_equal(other.occluded(o, d, tmax), occ0)
+            hit1 = other.intersect(o, d, tmax)
+            # closest hit: the same t; of two triangles hit at exactly that t either may be reported
+            assert np.array_equal(hit1.t, hit0.t) and (hit1.prim != hit0.prim).mean() < 0.002
+            assert not other.validation_errors
+        assert not base.validation_errors
+    assert (occ0 != reference_occluded(v, f, o, d, tmax)).mean() < 0.002
+
+
 def test_uncompressed_nodes_give_the_same_answers(monkeypatch, tracers):
     """The 64-byte nodes (a BVH whose leaves do not fit the compressed word) answer exactly as the compressed ones:
     quantization only widens boxes, it never changes which triangles are tested against what."""

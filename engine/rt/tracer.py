@@ -68,7 +68,8 @@ class SceneBVH:
             raise ConfigError("SceneBVH: the wide layout has no compressed nodes")
         self.bvh = bvh
         self.layout = layout
-        self.depth = bvh.stats.get("depth")
+        # what the traversal can push is the tree's depth - 1: the binary tree's, or the wide one's levels
+        self.depth = bvh.stats.get("wide_levels" if layout == "wide" else "depth")
         nodes = compress_nodes(bvh.nodes) if compress else None
         self.compressed = nodes is not None
         if nodes is None:
@@ -135,6 +136,9 @@ def is_cpu(ctx: Context) -> bool:
 #: overflows them walks again with the array stack (BVH_STACK_RETRY). Measured on lavapipe (A/B vs the BVH's
 #: depth - 1 entries): 10 was the best of 6, 8, 10, 13 over shadow, AO and closest-hit rays on both bench scenes.
 CPU_STACK_REGS = 10
+#: The same for the 8-wide layout's traversal on CPU devices (bvh_wide.glsl BVH_WIDE_CPU; entries are node groups,
+#: two vectors each): 4, 5, 6 and 8 measured on both bench scenes, 6 the best overall.
+CPU_WIDE_STACK_REGS = 6
 
 
 def bvh_spec(ctx: Context, depth: int | None = None, layout: str | None = None, compressed: bool = False,
@@ -144,14 +148,16 @@ def bvh_spec(ctx: Context, depth: int | None = None, layout: str | None = None, 
     the BVH's `depth` - 1, what its traversal can push), with the retry walk (9) where that is fewer than
     depth - 1 or the depth is unknown, compare-and-select min/max (10) and image loads instead of texel fetches
     (11: the BVH buffers through their storage texel buffer views, which llvmpipe inlines); the wide layout (4) when
-    `bvh_layout(ctx, layout)` says so; `compressed`: the nodes are the 32-byte ones (8). `postpone`: postponed leaf
+    `bvh_layout(ctx, layout)` says so, on CPU devices with its lavapipe traversal (12: postponed leaves, a register
+    stack of min(CPU_WIDE_STACK_REGS, `depth` - 1) node groups, `depth` then being the wide tree's levels); `compressed`: the nodes are the 32-byte ones (8). `postpone`: postponed leaf
     tests whatever the device (the renderer's AO pass asks for them: 1.35-1.46x on an H200, tools/ab_passes.py)."""
     cpu = is_cpu(ctx)
+    wide = bvh_layout(ctx, layout) == "wide"
     need = 32 if depth is None else max(1, min(32, int(depth) - 1))
-    regs = min(CPU_STACK_REGS, need) if cpu else need
+    regs = min(CPU_WIDE_STACK_REGS if wide else CPU_STACK_REGS, need) if cpu else need
     return {0: cpu, 1: cpu if postpone is None else bool(postpone), 2: cpu, 3: regs,
-            4: bvh_layout(ctx, layout) == "wide", 8: bool(compressed), 9: cpu and (depth is None or regs < need),
-            10: cpu, 11: cpu}
+            4: wide, 8: bool(compressed), 9: cpu and (depth is None or regs < need),
+            10: cpu, 11: cpu, 12: cpu and wide}
 
 
 def _check_mesh(vertices, faces):

@@ -11,7 +11,126 @@
 #ifndef BVH_WIDE_GLSL_INCLUDED
 #define BVH_WIDE_GLSL_INCLUDED
 
+// Specialization constant 12 (BVH_WIDE_CPU, CPU devices): the 8-wide traversal in lavapipe's terms, as the binary
+// one: postponed leaf tests (the node walk is an inner loop that runs until the ray has triangles), the stack as
+// shifted registers (min(BVH_STACK_REGS, 12) entries; a ray whose pushes overflowed them and that ends without its
+// answer walks again with the array stack), no store or load under a branch.
+layout(constant_id = 12) const bool BVH_WIDE_CPU = false;
+
+#define BVH_WSHIFT_(k, below) wold_ = w##k; \
+    w##k = (k < regs_) ? (down ? wprev_ : (up ? below : w##k)) : uvec2(0u); wprev_ = wold_;
+
+bool bvh_wide_walk_cpu_(BvhRay_ r, uint oct_inv, float tmin, float tmax, bool any_hit, bool full, inout BvhHit hit,
+                        inout bool lost) {
+    const bool reg_stack = BVH_REG_STACK && !full;
+    const int regs_ = min(BVH_STACK_REGS, 12);
+    float best = tmax;
+    bool found = false;
+    uvec2 stack[BVH_STACK_SIZE];
+    uvec2 w0 = uvec2(0u), w1 = uvec2(0u), w2 = uvec2(0u), w3 = uvec2(0u), w4 = uvec2(0u), w5 = uvec2(0u),
+          w6 = uvec2(0u), w7 = uvec2(0u), w8 = uvec2(0u), w9 = uvec2(0u), w10 = uvec2(0u), w11 = uvec2(0u);
+    uvec2 wold_, wprev_;
+    uint sp = 0u;
+    uvec2 group = uvec2(0u, (1u << (24u + oct_inv)) | 1u);   // the root: interior slot 0 of a virtual parent
+    bool done = false;
+    for (;;) {
+        uint tris = 0u;
+        uint tri_base = 0u;
+        while (tris == 0u && !done) {
+            // the next interior child: from the current group, else from the top of the stack
+            bool pop = group.y <= 0x00FFFFFFu;
+            bool empty = sp == 0u;
+            uvec2 top = reg_stack ? w0 : stack[max(sp, 1u) - 1u];
+            uvec2 g = pop ? top : group;
+            uint bit = uint(findMSB(g.y));
+            g.y &= ~(1u << bit);
+            uint slot = (bit - 24u) ^ oct_inv;
+            uint node = g.x + uint(bitCount(g.y & ((1u << slot) - 1u)));   // low 8 bits: imask
+            bool push = g.y > 0x00FFFFFFu;
+            bool fin = pop && empty;
+            // stack: pop and push = the top replaced by g; pop alone: up one; push alone: down one, g on top
+            bool up = pop && !push && !fin;
+            bool down = push && !pop;
+            if (reg_stack) {
+                bool full_ = sp >= uint(regs_);
+                lost = lost || (down && full_);
+                w0 = (push && !fin) ? g : (up ? w1 : w0);
+                wprev_ = top;
+                BVH_WSHIFT_(1, w2) BVH_WSHIFT_(2, w3) BVH_WSHIFT_(3, w4) BVH_WSHIFT_(4, w5) BVH_WSHIFT_(5, w6)
+                BVH_WSHIFT_(6, w7) BVH_WSHIFT_(7, w8) BVH_WSHIFT_(8, w9) BVH_WSHIFT_(9, w10) BVH_WSHIFT_(10, w11)
+                BVH_WSHIFT_(11, uvec2(0u))
+                sp += (down && !full_) ? 1u : 0u;
+            } else {
+                uint at = pop ? max(sp, 1u) - 1u : sp;
+                stack[min(at, uint(BVH_STACK_SIZE - 1))] = g;
+                sp += down ? 1u : 0u;
+            }
+            sp -= up ? 1u : 0u;
+
+            int b = int(node) * 5;
+            uvec4 t0 = bvh_node_texel_(b);
+            uvec4 t1 = bvh_node_texel_(b + 1);
+            uvec4 t2 = bvh_node_texel_(b + 2);
+            uvec4 t3 = bvh_node_texel_(b + 3);
+            uvec4 t4 = bvh_node_texel_(b + 4);
+            vec3 p = uintBitsToFloat(t0.xyz);
+            vec3 s = uintBitsToFloat(uvec3(t0.w << 23u, (t0.w >> 8u) << 23u, (t0.w >> 16u) << 23u) & 0x7F800000u);
+            uint imask = t0.w >> 24u;
+            uint hits = 0u;
+            uint tr = 0u;
+            for (uint j = 0u; j < 8u; ++j) {
+                uint sh = (j & 3u) * 8u;
+                bool hi4 = j >= 4u;
+                uvec3 ql = (uvec3(hi4 ? t2.y : t2.x, hi4 ? t2.w : t2.z, hi4 ? t3.y : t3.x) >> sh) & 0xFFu;
+                uvec3 qh = (uvec3(hi4 ? t3.w : t3.z, hi4 ? t4.y : t4.x, hi4 ? t4.w : t4.z) >> sh) & 0xFFu;
+                vec2 sl = bvh_slab_(r, p + vec3(ql) * s, p + vec3(qh) * s, tmin, best);
+                uint meta = ((hi4 ? t1.w : t1.z) >> sh) & 0xFFu;
+                bool inner = ((imask >> j) & 1u) != 0u;
+                bool h = sl.x <= sl.y;
+                hits |= (h && inner) ? 1u << (24u + (j ^ oct_inv)) : 0u;
+                tr |= (h && !inner) ? ((1u << (meta >> 5u)) - 1u) << (meta & 31u) : 0u;
+            }
+            group = fin ? group : uvec2(t1.x, hits | imask);
+            tris = fin ? 0u : tr;
+            tri_base = t1.y;
+            done = fin;
+        }
+        while (tris != 0u) {
+            uint k = uint(findLSB(tris));
+            tris &= tris - 1u;
+            BvhTri tri = bvh_tri_(tri_base + k);
+            float t, u, v;
+            if (bvh_triangle_(r, tri.v0.xyz, tri.v1.xyz, tri.v2.xyz, tmin, best, t, u, v)) {
+                best = t;
+                found = true;
+                hit.t = t;
+                hit.prim = floatBitsToInt(tri.v0.w);
+                hit.u = u;
+                hit.v = v;
+                if (any_hit) {
+                    return true;
+                }
+            }
+        }
+        if (done) {
+            break;
+        }
+    }
+    return found;
+}
+
 bool bvh_trace_wide_(vec3 o, vec3 d, float tmin, float tmax, bool any_hit, inout BvhHit hit) {
+    if (BVH_WIDE_CPU) {
+        BvhRay_ r = bvh_make_ray_(o, d);
+        uint oct_inv = (d.x < 0.0 ? 0u : 1u) | (d.y < 0.0 ? 0u : 2u) | (d.z < 0.0 ? 0u : 4u);
+        bool lost = false;
+        bool found = bvh_wide_walk_cpu_(r, oct_inv, tmin, tmax, any_hit, false, hit, lost);
+        if (BVH_REG_STACK && lost && !(any_hit && found)) {
+            bool unused = false;
+            found = bvh_wide_walk_cpu_(r, oct_inv, tmin, found ? hit.t : tmax, any_hit, true, hit, unused) || found;
+        }
+        return found;
+    }
     BvhRay_ r = bvh_make_ray_(o, d);
     // 7 - octant, octant bit a set = d negative along axis a (the host's slot order)
     uint oct_inv = (d.x < 0.0 ? 0u : 1u) | (d.y < 0.0 ? 0u : 2u) | (d.z < 0.0 ? 0u : 4u);

@@ -245,6 +245,21 @@ bool bvh_triangle_(BvhRay_ r, vec3 p0, vec3 p1, vec3 p2, float tmin, float tmax,
     return true;
 }
 
+// Triangle i of the leaf order against the ray; on a hit with t in [tmin, best]: best = t and hit = (t, prim, u, v).
+bool bvh_leaf_triangle_(BvhRay_ r, uint i, float tmin, inout float best, inout BvhHit hit) {
+    BvhTri tri = bvh_tri_(i);
+    float t, u, v;
+    if (!bvh_triangle_(r, tri.v0.xyz, tri.v1.xyz, tri.v2.xyz, tmin, best, t, u, v)) {
+        return false;
+    }
+    best = t;
+    hit.t = t;
+    hit.prim = floatBitsToInt(tri.v0.w);
+    hit.u = u;
+    hit.v = v;
+    return true;
+}
+
 // One entry of the register stack; entries at or past BVH_STACK_REGS stay 0 (and fold away).
 #define BVH_SHIFT_(k, below) old_ = s##k; \
     s##k = (k < regs_) ? (push ? prev_ : (pop ? below : s##k)) : 0u; prev_ = old_;
@@ -346,16 +361,8 @@ bool bvh_walk_(BvhRay_ r, float tmin, float tmax, bool any_hit, bool full, inout
             }
         }
         for (uint j = 0u; j < total; ++j) {
-            uint i = j < c0 ? f0 + j : f1 + (j - c0);
-            BvhTri tri = bvh_tri_(i);
-            float t, u, v;
-            if (bvh_triangle_(r, tri.v0.xyz, tri.v1.xyz, tri.v2.xyz, tmin, best, t, u, v)) {
-                best = t;
+            if (bvh_leaf_triangle_(r, j < c0 ? f0 + j : f1 + (j - c0), tmin, best, hit)) {
                 found = true;
-                hit.t = t;
-                hit.prim = floatBitsToInt(tri.v0.w);
-                hit.u = u;
-                hit.v = v;
                 if (any_hit) {
                     return true;
                 }

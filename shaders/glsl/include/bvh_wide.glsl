@@ -11,6 +11,40 @@
 #ifndef BVH_WIDE_GLSL_INCLUDED
 #define BVH_WIDE_GLSL_INCLUDED
 
+// A wide node's 5 texels: t0 = (grid origin p, exponents | imask << 24), t1 = (first child node, first triangle,
+// meta of slots 0-3, meta of slots 4-7), t2..t4 = the 8-bit lo / hi planes of the 8 slots per axis.
+struct BvhWideNode_ {
+    uvec4 t1, t2, t3, t4;
+    vec3 p;      // grid origin
+    vec3 s;      // 2^e per axis, built from the exponent bytes
+    uint imask;  // which slots are interior nodes
+};
+
+BvhWideNode_ bvh_wide_node_(uint node) {
+    int b = int(node) * 5;
+    uvec4 t0 = bvh_node_texel_(b);
+    BvhWideNode_ n;
+    n.t1 = bvh_node_texel_(b + 1);
+    n.t2 = bvh_node_texel_(b + 2);
+    n.t3 = bvh_node_texel_(b + 3);
+    n.t4 = bvh_node_texel_(b + 4);
+    n.p = uintBitsToFloat(t0.xyz);
+    n.s = uintBitsToFloat(uvec3(t0.w << 23u, (t0.w >> 8u) << 23u, (t0.w >> 16u) << 23u) & 0x7F800000u);
+    n.imask = t0.w >> 24u;
+    return n;
+}
+
+// Slot j's box, dequantized exactly as the host checked it (p + q * 2^e), and its meta byte.
+void bvh_wide_slot_(BvhWideNode_ n, uint j, out vec3 lo, out vec3 hi, out uint meta) {
+    uint sh = (j & 3u) * 8u;
+    bool up = j >= 4u;
+    uvec3 ql = (uvec3(up ? n.t2.y : n.t2.x, up ? n.t2.w : n.t2.z, up ? n.t3.y : n.t3.x) >> sh) & 0xFFu;
+    uvec3 qh = (uvec3(up ? n.t3.w : n.t3.z, up ? n.t4.y : n.t4.x, up ? n.t4.w : n.t4.z) >> sh) & 0xFFu;
+    lo = n.p + vec3(ql) * n.s;
+    hi = n.p + vec3(qh) * n.s;
+    meta = ((up ? n.t1.w : n.t1.z) >> sh) & 0xFFu;
+}
+
 // Specialization constant 12 (BVH_WIDE_CPU, CPU devices): the 8-wide traversal in lavapipe's terms, as the binary
 // one: postponed leaf tests (the node walk is an inner loop that runs until the ray has triangles), the stack as
 // shifted registers (min(BVH_STACK_REGS, 12) entries; a ray whose pushes overflowed them and that ends without its
@@ -67,46 +101,29 @@ bool bvh_wide_walk_cpu_(BvhRay_ r, uint oct_inv, float tmin, float tmax, bool an
             }
             sp -= up ? 1u : 0u;
 
-            int b = int(node) * 5;
-            uvec4 t0 = bvh_node_texel_(b);
-            uvec4 t1 = bvh_node_texel_(b + 1);
-            uvec4 t2 = bvh_node_texel_(b + 2);
-            uvec4 t3 = bvh_node_texel_(b + 3);
-            uvec4 t4 = bvh_node_texel_(b + 4);
-            vec3 p = uintBitsToFloat(t0.xyz);
-            vec3 s = uintBitsToFloat(uvec3(t0.w << 23u, (t0.w >> 8u) << 23u, (t0.w >> 16u) << 23u) & 0x7F800000u);
-            uint imask = t0.w >> 24u;
+            BvhWideNode_ n = bvh_wide_node_(node);
             uint hits = 0u;
             uint tr = 0u;
             for (uint j = 0u; j < 8u; ++j) {
-                uint sh = (j & 3u) * 8u;
-                bool hi4 = j >= 4u;
-                uvec3 ql = (uvec3(hi4 ? t2.y : t2.x, hi4 ? t2.w : t2.z, hi4 ? t3.y : t3.x) >> sh) & 0xFFu;
-                uvec3 qh = (uvec3(hi4 ? t3.w : t3.z, hi4 ? t4.y : t4.x, hi4 ? t4.w : t4.z) >> sh) & 0xFFu;
-                vec2 sl = bvh_slab_(r, p + vec3(ql) * s, p + vec3(qh) * s, tmin, best);
-                uint meta = ((hi4 ? t1.w : t1.z) >> sh) & 0xFFu;
-                bool inner = ((imask >> j) & 1u) != 0u;
+                vec3 lo, hi;
+                uint meta;
+                bvh_wide_slot_(n, j, lo, hi, meta);
+                vec2 sl = bvh_slab_(r, lo, hi, tmin, best);
+                bool inner = ((n.imask >> j) & 1u) != 0u;
                 bool h = sl.x <= sl.y;
                 hits |= (h && inner) ? 1u << (24u + (j ^ oct_inv)) : 0u;
                 tr |= (h && !inner) ? ((1u << (meta >> 5u)) - 1u) << (meta & 31u) : 0u;
             }
-            group = fin ? group : uvec2(t1.x, hits | imask);
+            group = fin ? group : uvec2(n.t1.x, hits | n.imask);
             tris = fin ? 0u : tr;
-            tri_base = t1.y;
+            tri_base = n.t1.y;
             done = fin;
         }
         while (tris != 0u) {
             uint k = uint(findLSB(tris));
             tris &= tris - 1u;
-            BvhTri tri = bvh_tri_(tri_base + k);
-            float t, u, v;
-            if (bvh_triangle_(r, tri.v0.xyz, tri.v1.xyz, tri.v2.xyz, tmin, best, t, u, v)) {
-                best = t;
+            if (bvh_leaf_triangle_(r, tri_base + k, tmin, best, hit)) {
                 found = true;
-                hit.t = t;
-                hit.prim = floatBitsToInt(tri.v0.w);
-                hit.u = u;
-                hit.v = v;
                 if (any_hit) {
                     return true;
                 }
@@ -156,49 +173,30 @@ bool bvh_trace_wide_(vec3 o, vec3 d, float tmin, float tmax, bool any_hit, inout
             sp += 1u;
         }
 
-        int b = int(node) * 5;
-        uvec4 t0 = bvh_node_texel_(b);
-        uvec4 t1 = bvh_node_texel_(b + 1);
-        uvec4 t2 = bvh_node_texel_(b + 2);
-        uvec4 t3 = bvh_node_texel_(b + 3);
-        uvec4 t4 = bvh_node_texel_(b + 4);
-        vec3 p = uintBitsToFloat(t0.xyz);
-        vec3 s = uintBitsToFloat(uvec3(t0.w << 23u, (t0.w >> 8u) << 23u, (t0.w >> 16u) << 23u) & 0x7F800000u);
-        uint imask = t0.w >> 24u;
+        BvhWideNode_ n = bvh_wide_node_(node);
         uint hits = 0u;
         uint tris = 0u;
         for (uint j = 0u; j < 8u; ++j) {
-            uint sh = (j & 3u) * 8u;
-            bool up = j >= 4u;
-            uvec3 ql = (uvec3(up ? t2.y : t2.x, up ? t2.w : t2.z, up ? t3.y : t3.x) >> sh) & 0xFFu;
-            uvec3 qh = (uvec3(up ? t3.w : t3.z, up ? t4.y : t4.x, up ? t4.w : t4.z) >> sh) & 0xFFu;
-            vec3 lo = p + vec3(ql) * s;
-            vec3 hi = p + vec3(qh) * s;
+            vec3 lo, hi;
+            uint meta;
+            bvh_wide_slot_(n, j, lo, hi, meta);
             vec2 sl = bvh_slab_(r, lo, hi, tmin, best);
             if (sl.x <= sl.y) {
-                uint meta = ((up ? t1.w : t1.z) >> sh) & 0xFFu;
-                if (((imask >> j) & 1u) != 0u) {
+                if (((n.imask >> j) & 1u) != 0u) {
                     hits |= 1u << (24u + (j ^ oct_inv));
                 } else {
                     tris |= ((1u << (meta >> 5u)) - 1u) << (meta & 31u);
                 }
             }
         }
-        group = uvec2(t1.x, hits | imask);
+        group = uvec2(n.t1.x, hits | n.imask);
 
-        uint tri_base = t1.y;
+        uint tri_base = n.t1.y;
         while (tris != 0u) {
             uint k = uint(findLSB(tris));
             tris &= tris - 1u;
-            BvhTri tri = bvh_tri_(tri_base + k);
-            float t, u, v;
-            if (bvh_triangle_(r, tri.v0.xyz, tri.v1.xyz, tri.v2.xyz, tmin, best, t, u, v)) {
-                best = t;
+            if (bvh_leaf_triangle_(r, tri_base + k, tmin, best, hit)) {
                 found = true;
-                hit.t = t;
-                hit.prim = floatBitsToInt(tri.v0.w);
-                hit.u = u;
-                hit.v = v;
                 if (any_hit) {
                     return true;
                 }

@@ -24,7 +24,7 @@ from ..vk import (SB, STB, UTB, Buffer, BufferView, ComputePipeline, Context, De
                   upload_buffer)
 from ..vk.resources import STORAGE, STORAGE_TEXEL, TRANSFER_DST, TRANSFER_SRC, UNIFORM_TEXEL
 
-RAY_BYTES = 32
+RAY_BYTES = 28  # 7 floats: origin, direction, tmax, as three packed arrays (shaders/glsl/include/rays.glsl)
 GROUP = 64
 HIT_BYTES = {"occluded": 4, "intersect": 16}
 
@@ -246,7 +246,7 @@ class Tracer:
             self.results = Buffer(ctx, self.batch * 16, STORAGE | TRANSFER_SRC, name="hits (device)")
         else:
             self.rays, self.results = self.rays_host, self.results_host
-        self.params = Buffer(ctx, 16, STORAGE | vk.VK_BUFFER_USAGE_INDIRECT_BUFFER_BIT, host=True, name="params")
+        self.params = Buffer(ctx, 32, STORAGE | vk.VK_BUFFER_USAGE_INDIRECT_BUFFER_BIT, host=True, name="params")
         self.io_set.buffer(0, self.rays).buffer(1, self.results).buffer(2, self.params)
         self.timestamps = Timestamps(ctx, capacity=4)
         self.pipelines, self._commands, self._marks = {}, {}, {}
@@ -273,8 +273,10 @@ class Tracer:
         ts.begin(cmd)
         T, C = vk.VK_PIPELINE_STAGE_TRANSFER_BIT, vk.VK_PIPELINE_STAGE_COMPUTE_SHADER_BIT
         if self.staged:
-            vk.vkCmdCopyBuffer(cmd, self.rays_host.handle, self.rays.handle, 1,
-                               [vk.VkBufferCopy(0, 0, span * RAY_BYTES)])
+            c = self.batch  # the three arrays of rays.glsl: origins, directions, tmax; the first `span` of each
+            vk.vkCmdCopyBuffer(cmd, self.rays_host.handle, self.rays.handle, 3,
+                               [vk.VkBufferCopy(0, 0, span * 12), vk.VkBufferCopy(c * 12, c * 12, span * 12),
+                                vk.VkBufferCopy(c * 24, c * 24, span * 4)])
             memory_barrier(cmd, T, C, vk.VK_ACCESS_TRANSFER_WRITE_BIT, vk.VK_ACCESS_SHADER_READ_BIT)
             ts.mark(cmd, "upload")
         self.pipelines[kind].bind(cmd, [self.io_set, self.bvh_set])
@@ -329,12 +331,12 @@ class Tracer:
         n = len(o)
         if n == 0:
             return 0
-        rays = self.rays_host.view(np.float32)[:n * 8].reshape(n, 8)
-        rays[:, 0:3] = o
-        rays[:, 3] = 0.0
-        rays[:, 4:7] = d
-        rays[:, 7] = t
-        self.params.write(np.array([(n + GROUP - 1) // GROUP, 1, 1, n], np.uint32))
+        c = self.batch
+        rays = self.rays_host.view(np.float32)  # rays.glsl: origins, directions, tmax, each an array of c rays
+        rays[:3 * n] = o.reshape(-1)
+        rays[3 * c:3 * c + 3 * n] = d.reshape(-1)
+        rays[6 * c:6 * c + n] = t
+        self.params.write(np.array([(n + GROUP - 1) // GROUP, 1, 1, n, c, 0, 0, 0], np.uint32))
         cmd, marks = self._command(kind, n)
         self.ctx.submit(cmd)
         self.last_times = self.timestamps.read(marks)

@@ -7,15 +7,14 @@
 #include "bvh.glsl"
 
 layout(local_size_x = 64) in;
-layout(std430, set = 0, binding = 0) readonly buffer Rays { Ray rays[]; };
 layout(std430, set = 0, binding = 1) writeonly buffer Result { HitRecord hits[]; };
-// Written by the host per batch; also the vkCmdDispatchIndirect arguments, so the command buffer is recorded once.
-layout(std430, set = 0, binding = 2) readonly buffer Params { uvec3 groups; uint count; } params;
 
 void main() {
     uint i = gl_GlobalInvocationID.x;
     if (i >= params.count) return;
-    Ray r = rays[i];
-    BvhHit h = bvh_intersect(r.origin.xyz, r.direction.xyz, r.origin.w, r.direction.w);
+    vec3 o, d;
+    float tmax;
+    load_ray(i, o, d, tmax);
+    BvhHit h = bvh_intersect(o, d, 0.0, tmax);
     hits[i] = HitRecord(h.prim >= 0 ? h.t : uintBitsToFloat(0x7f800000u), h.prim, h.u, h.v);
 }

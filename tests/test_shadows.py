@@ -87,3 +87,19 @@ def test_point_light_shadow_and_several_lights(make_renderer):
     under = np.isfinite(f.aov["depth"]) & (np.abs(pos[..., 0]) < 0.3) & (np.abs(pos[..., 2]) < 0.3) & (pos[..., 1] < 0.01)
     assert under.any()
     assert np.all(m[under] == 0.0)
+
+
+def test_wide_bvh_layout_gives_the_same_shadows_and_ao(make_renderer):
+    """The opt-in 8-wide BVH in the renderer's passes: the shadow mask still matches the CPU reference, and the
+    shadow and AO images are the binary layout's (the same rays, the same answers)."""
+    mesh, scene = box_on_ground()
+    binary = make_renderer(96, 72, bvh_layout="binary").render(scene, shadows="hard", ao=True, ao_samples=2)
+    r = make_renderer(96, 72, bvh_layout="wide")
+    assert r.bvh_layout == "wide"
+    wide = r.render(scene, shadows="hard", ao=True, ao_samples=2)
+    assert r.bvh_stats["layout"] == "wide"
+    ref = cpu_shadow_mask(mesh, wide, scene.lights[0].direction)
+    assert (wide.aov["shadow"][..., 0] != ref).mean() < 0.005
+    assert np.array_equal(wide.aov["shadow"], binary.aov["shadow"])
+    assert np.abs(wide.aov["ao"] - binary.aov["ao"]).max() < 1e-6
+    assert (wide.aov["ao"] < 0.99).mean() > 0.01          # the scene really has occlusion

@@ -299,3 +299,12 @@ def test_mesh_over_the_device_buffer_limit_is_a_clear_error(monkeypatch):
     v, f = meshes()["sphere"]
     with pytest.raises(SceneError, match="texel-buffer limit of 64 texels"):
         Tracer(v, f)
+
+
+def test_bad_layout_names_its_source(monkeypatch):
+    v, f = meshes()["sphere"]
+    with pytest.raises(ConfigError, match="BVH layout must be one of binary, wide, got 'tall'"):
+        Tracer(v, f, layout="tall")
+    monkeypatch.setenv("HYBRID_BVH_LAYOUT", "tall")
+    with pytest.raises(ConfigError, match="HYBRID_BVH_LAYOUT must be one of binary, wide, got 'tall'"):
+        Tracer(v, f)

@@ -110,16 +110,19 @@ def bvh_descriptor_set(ctx: Context) -> DescriptorSet:
 LAYOUTS = ("binary", "wide")
 
 
-def bvh_layout(ctx: Context, layout: str | None = None) -> str:
-    """The BVH layout to trace with: `layout` if given, else $HYBRID_BVH_LAYOUT, else "binary".
+def bvh_layout(ctx: Context | None, layout: str | None = None) -> str:
+    """The BVH layout to trace with: `layout` if given, else $HYBRID_BVH_LAYOUT, else "binary" (the same on every
+    device so far; `ctx` is where a per-device choice would look).
 
     "wide" (engine/bvh/wide.py) is opt-in: on an H200 it traced the bench's 1.2M-triangle scene's shadow / AO rays
-    1.11x / 1.14x faster than the binary layout but random closest-hit rays 0.98x, and the 1080p frame's shadow pass
+    1.13x / 1.15x faster than the binary layout but random closest-hit rays 0.95x, and the 1080p frame's shadow pass
     on the default 68k scene went 0.16 -> 0.19 ms (frame 1.93 -> 1.95 ms), so it is not the default anywhere yet."""
+    what = "BVH layout"
     if layout is None:
         layout = os.environ.get("HYBRID_BVH_LAYOUT") or "binary"
+        what = "HYBRID_BVH_LAYOUT"
     if layout not in LAYOUTS:
-        raise ConfigError(f"BVH layout must be one of {', '.join(LAYOUTS)}, got {layout!r}")
+        raise ConfigError(f"{what} must be one of {', '.join(LAYOUTS)}, got {layout!r}")
     return layout
 
 
@@ -202,10 +205,9 @@ class Tracer:
         """`staging`: copy rays to and results from device-local buffers (default: when the device has memory
         the host cannot map, i.e. a discrete GPU). `layout`: "binary" or "wide" BVH (default: bvh_layout's)."""
         v, f = _check_mesh(vertices, faces)
+        bvh_layout(None, layout)  # a bad layout (argument or HYBRID_BVH_LAYOUT) fails before the build
         self.bvh = build_bvh(v, f)
         self._layout_arg = layout
-        if layout is not None and layout not in LAYOUTS:
-            raise ConfigError(f"BVH layout must be one of {', '.join(LAYOUTS)}, got {layout!r}")
         self.stats = dict(self.bvh.stats)
         self.batch = int(batch_size)
         self._staging = staging

@@ -316,6 +316,10 @@ def test_depth_cap_holds_on_pathological_input():
 
 
 def test_bad_input_raises_scene_errors():
+    huge = np.array([[0, 0, 0], [1, 0, 0], [0, 1, 0], [2e38, 2e38, 0], [2.1e38, 2e38, 0], [2e38, 2.1e38, 0]])
+    with pytest.raises(SceneError, match="beyond"):
+        build_bvh(huge, [[0, 1, 2], [3, 4, 5]])   # twice a box centre would overflow float32
+    build_bvh(huge / 4, [[0, 1, 2], [3, 4, 5]])    # 5e37 is fine
     with pytest.raises(SceneError):
         build_bvh(np.zeros((3, 2)), [[0, 1, 2]])
     with pytest.raises(SceneError):
@@ -499,7 +503,7 @@ def test_build_in_a_forked_child_after_a_threaded_build():
     v, f = generated_mesh(150_000)  # more than one block: work goes to the pool
     assert len(f) > 2 * builder.PREP_BLOCK
     parent = build_bvh(v, f, threads=2)  # the pool exists now
-    assert builder._POOLS
+    assert builder._POOL[0] is not None
     ctx = multiprocessing.get_context("fork")
     with ctx.Pool(1) as pool:
         nodes = pool.apply_async(_child_build, (v, f)).get(timeout=30)
@@ -508,3 +512,27 @@ def test_build_in_a_forked_child_after_a_threaded_build():
 
 def _child_build(v, f):
     return build_bvh(v, f, threads=2).nodes.tobytes()
+
+
+def test_builds_from_several_threads_with_different_thread_counts():
+    """Callers on several threads, each with its own thread count, share the builder's pool (which grows when a
+    larger count comes): every tree is the single-threaded one."""
+    import threading
+    from engine.bench_scenes import generated_mesh
+
+    v, f = generated_mesh(150_000)
+    want = build_bvh(v, f, threads=1).nodes.tobytes()
+    got, errors = [], []
+
+    def build(threads):
+        try:
+            got.append(build_bvh(v, f, threads=threads).nodes.tobytes())
+        except Exception as exc:  # reported below
+            errors.append(exc)
+
+    callers = [threading.Thread(target=build, args=(n,)) for n in (2, 3, 2, 4)]
+    for c in callers:
+        c.start()
+    for c in callers:
+        c.join(timeout=120)
+    assert not errors and len(got) == 4 and all(g == want for g in got)

@@ -103,7 +103,7 @@ def test_ray_passes_are_specialized_to_the_scenes_bvh(make_renderer):
     depth = r.bvh_stats["depth"]
     for p in (r.shadows, r.ao):
         spec = p.pipeline.spec
-        assert spec == r._scene_bvh.spec(r.ctx)
+        assert spec == r._scene_bvh.spec(r.ctx, postpone=p.postpone_leaves)
         if is_cpu(r.ctx):
             assert spec[3] == min(CPU_STACK_REGS, max(1, depth - 1)) and spec[8] and spec[9] == (depth - 1 > spec[3])
             assert spec[11]   # image loads (the BVH's storage texel buffer views) on CPU devices
@@ -113,8 +113,25 @@ def test_ray_passes_are_specialized_to_the_scenes_bvh(make_renderer):
     soup = trimesh.Trimesh(rng.uniform(-1, 1, (6000, 3)), np.arange(6000).reshape(2000, 3), process=False)
     deep = Scene.from_trimesh(soup, camera=Camera.look_at((2, 2, 3), (0, 0, 0)))
     a = r.render(deep)
-    assert r.shadows.pipeline.spec == r._scene_bvh.spec(r.ctx)
+    assert r.shadows.pipeline.spec == r._scene_bvh.spec(r.ctx, postpone=r.shadows.postpone_leaves)
     fresh = make_renderer(48, 32)
     fresh.render(small_scene())      # the same frame history (AO samples follow the frame count)
     b = fresh.render(deep)
     assert np.array_equal(a.aov["shadow"], b.aov["shadow"]) and np.array_equal(a.aov["ao"], b.aov["ao"])
+
+
+def test_a_failed_specialization_keeps_the_old_pipeline_and_its_spec(make_renderer, monkeypatch):
+    """If re-creating a ray pass's pipeline fails, the pass keeps the old pipeline and the spec that describes it,
+    so the next scene upload tries again instead of tracing with constants that do not match the buffers."""
+    from engine.errors import ShaderError
+    r = make_renderer(32, 24)
+    r.render(small_scene())
+    before, handle = dict(r.shadows.pipeline.spec), r.shadows.pipeline.handle
+
+    def fail(*a, **k):
+        raise ShaderError("shadow.comp: pipeline creation failed (test)")
+
+    monkeypatch.setattr(r.shadows.pipeline, "rebuild", fail)
+    with pytest.raises(ShaderError, match="test"):
+        r.shadows.specialize(r.library, {**before, 3: before[3] + 1})
+    assert r.shadows.pipeline.spec == before and r.shadows.pipeline.handle == handle

@@ -308,3 +308,9 @@ def test_bad_layout_names_its_source(monkeypatch):
     monkeypatch.setenv("HYBRID_BVH_LAYOUT", "tall")
     with pytest.raises(ConfigError, match="HYBRID_BVH_LAYOUT must be one of binary, wide, got 'tall'"):
         Tracer(v, f)
+
+
+def test_huge_coordinates_are_refused_with_a_clear_error():
+    v = np.array([[0, 0, 0], [1, 0, 0], [0, 1, 0], [3e38, 0, 0]], float)
+    with pytest.raises(SceneError, match="Tracer: vertices: coordinates beyond"):
+        Tracer(v, [[0, 1, 2], [1, 2, 3]])

@@ -62,6 +62,8 @@ import numpy as np
 from ..errors import ConfigError, SceneError
 from .layout import LEAF_BIT, NODE_DTYPE, TRI_DTYPE
 
+#: Largest vertex coordinate magnitude the builder accepts (twice a box centre must stay finite in float32).
+MAX_COORD = 1e38
 #: Default depth cap; equal to the default BVH_STACK_SIZE of bvh.glsl (the traversal needs depth - 1 entries).
 DEFAULT_MAX_DEPTH = 32
 
@@ -108,19 +110,33 @@ def default_threads() -> int:
         return max(1, os.cpu_count() or 1)
 
 
-_POOLS: dict[int, ThreadPoolExecutor] = {}
-_POOLS_LOCK = threading.Lock()
+_POOL: list = [None, 0]  # [ThreadPoolExecutor or None, its number of workers]
+_POOL_LOCK = threading.Lock()
 _WORKER = threading.local()
 
 
-def _forget_pools():  # a forked child has none of the parent's pool threads: it makes its own
-    global _POOLS_LOCK
-    _POOLS.clear()
-    _POOLS_LOCK = threading.Lock()
+def _forget_pool():  # a forked child has none of the parent's pool threads: it makes its own
+    global _POOL_LOCK
+    _POOL[:] = [None, 0]
+    _POOL_LOCK = threading.Lock()
 
 
 if hasattr(os, "register_at_fork"):
-    os.register_at_fork(after_in_child=_forget_pools)
+    os.register_at_fork(after_in_child=_forget_pool)
+
+
+def _submit(fn, copies: int) -> list:
+    """`copies` futures of fn() on the one shared pool, grown to at least that many threads first (a smaller pool is
+    replaced; its work in flight finishes, then its threads end). Under the lock, so that no caller submits to a pool
+    that another is replacing."""
+    with _POOL_LOCK:
+        pool, size = _POOL
+        if pool is None or size < copies:
+            if pool is not None:
+                pool.shutdown(wait=False)
+            pool = ThreadPoolExecutor(max_workers=copies, thread_name_prefix="bvh-build")
+            _POOL[:] = [pool, copies]
+        return [pool.submit(fn) for _ in range(copies)]
 
 
 def _blocks(fn, n: int, block: int, threads: int) -> list:
@@ -137,23 +153,29 @@ def _cuts(n: int, threads: int, min_part: int) -> list[int]:
 def _parallel(tasks, threads: int) -> list:
     """The results of the callables `tasks`, in order, run on up to `threads` threads. The builder's big steps are
     numpy calls on large arrays, which release the GIL, so independent blocks of work overlap on several cores.
-    A task that itself calls _parallel runs its tasks inline (no nested waits on the pool)."""
+    `threads` worker loops of the shared pool take the tasks in turn, so no more than that run at once. A task that
+    itself calls _parallel runs its tasks inline (no nested waits on the pool)."""
     if threads <= 1 or len(tasks) <= 1 or getattr(_WORKER, "busy", False):
         return [t() for t in tasks]
-    with _POOLS_LOCK:
-        pool = _POOLS.get(threads)
-        if pool is None:
-            pool = _POOLS[threads] = ThreadPoolExecutor(max_workers=threads, thread_name_prefix="bvh-build")
+    results = [None] * len(tasks)
+    todo = iter(range(len(tasks)))
+    take = threading.Lock()
 
-    def run(task):
+    def worker():
         _WORKER.busy = True
         try:
-            return task()
+            while True:
+                with take:
+                    i = next(todo, None)
+                if i is None:
+                    return
+                results[i] = tasks[i]()
         finally:
             _WORKER.busy = False
 
-    futures = [pool.submit(run, t) for t in tasks]
-    return [f.result() for f in futures]
+    for f in _submit(worker, min(threads, len(tasks))):
+        f.result()
+    return results
 
 
 # --------------------------------------------------------------------------------------------------------------
@@ -293,6 +315,11 @@ def _validated(vertices, faces):
     if f.size and (int(f.min()) < 0 or int(f.max()) >= len(v)):
         raise SceneError(f"build_bvh: faces index out of range [0, {len(v)})")
     vt = np.ascontiguousarray(v.T, dtype=np.float32)
+    with np.errstate(invalid="ignore"):
+        huge = np.abs(vt) > MAX_COORD  # NaN compares false: NaN vertices are allowed (their triangles are never hit)
+    if huge.any():
+        raise SceneError(f"build_bvh: vertices: {int(huge.any(axis=0).sum())} vertices have a coordinate beyond "
+                         f"+-{MAX_COORD:g} (or infinite); the builder needs twice a box centre to fit a float32")
     ft = np.ascontiguousarray(f, dtype=np.intp)  # (T, 3): no transposed copy of the caller's faces
     return vt, ft
 
@@ -1299,18 +1326,19 @@ def _degenerate(corner) -> np.ndarray:
     """Zero-area triangles (corner[c][a]: coordinate a of corner c): their edge cross product is exactly zero in
     float64. A float32 pass keeps as candidates only triangles whose cross product is tiny against their edges
     (float32 rounding is far below that margin); only those get the exact float64 test."""
-    e1 = [corner[1][a] - corner[0][a] for a in range(3)]
-    e2 = [corner[2][a] - corner[0][a] for a in range(3)]
-    big = np.zeros_like(e1[0])  # max |cross component|
-    for i, j in ((1, 2), (2, 0), (0, 1)):
-        comp = e1[i] * e2[j]
-        comp -= e1[j] * e2[i]
-        np.abs(comp, out=comp)
-        np.maximum(big, comp, out=big)
-    size = np.maximum(np.maximum(np.abs(e1[0]), np.abs(e1[1])), np.abs(e1[2]))
-    size *= np.maximum(np.maximum(np.abs(e2[0]), np.abs(e2[1])), np.abs(e2[2]))
-    size *= np.float32(1e-3)
-    cand = np.flatnonzero(big <= size)
+    with np.errstate(over="ignore", invalid="ignore"):  # huge triangles overflow float32 here: they stay candidates
+        e1 = [corner[1][a] - corner[0][a] for a in range(3)]
+        e2 = [corner[2][a] - corner[0][a] for a in range(3)]
+        big = np.zeros_like(e1[0])  # max |cross component|
+        for i, j in ((1, 2), (2, 0), (0, 1)):
+            comp = e1[i] * e2[j]
+            comp -= e1[j] * e2[i]
+            np.abs(comp, out=comp)
+            np.maximum(big, comp, out=big)
+        size = np.maximum(np.maximum(np.abs(e1[0]), np.abs(e1[1])), np.abs(e1[2]))
+        size *= np.maximum(np.maximum(np.abs(e2[0]), np.abs(e2[1])), np.abs(e2[2]))
+        size *= np.float32(1e-3)
+        cand = np.flatnonzero(~(big > size))  # NaN (inf - inf) counts as a candidate: the float64 test decides
     out = np.zeros(big.size, dtype=bool)
     if cand.size:
         v = [[corner[c][a].take(cand).astype(np.float64) for a in range(3)] for c in range(3)]

@@ -34,8 +34,13 @@ class RayPass:
         """Re-create the pipeline with these bvh.glsl specialization constants (a scene's SceneBVH.spec: its depth
         and node layout), where they differ from the current ones."""
         if spec != self.pipeline.spec:
+            old = self.pipeline.spec
             self.pipeline.spec = dict(spec)
-            self.pipeline.rebuild(library.get(self.shaders[0]))
+            try:
+                self.pipeline.rebuild(library.get(self.shaders[0]))
+            except BaseException:
+                self.pipeline.spec = old  # the old pipeline stays, and says so: the next scene upload tries again
+                raise
 
     def bind_targets(self, t):
         self.set.image(1, t.position).image(2, t.normal).buffer(3, getattr(t, self.output))

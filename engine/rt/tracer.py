@@ -16,6 +16,7 @@ import numpy as np
 import vulkan as vk
 
 from ..bvh import build_bvh
+from ..bvh.builder import MAX_COORD
 from ..bvh.compress import compress_nodes
 from ..bvh.wide import collapse_bvh8
 from ..errors import ConfigError, SceneError
@@ -177,6 +178,8 @@ def _check_mesh(vertices, faces):
         raise SceneError("Tracer: the mesh has no triangles")
     if not np.all(np.isfinite(v)):
         raise SceneError("Tracer: vertices contain NaN or infinite values")
+    if v.size and np.abs(v).max() > MAX_COORD:
+        raise SceneError(f"Tracer: vertices: coordinates beyond +-{MAX_COORD:g} (found {np.abs(v).max():g})")
     if f.min() < 0 or f.max() >= len(v):
         raise SceneError(f"Tracer: face indices must be in 0..{len(v) - 1}, found {f.min()}..{f.max()}")
     return v.astype(np.float32), f.astype(np.int64)

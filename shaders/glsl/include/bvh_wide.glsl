@@ -75,13 +75,16 @@ bool bvh_wide_walk_cpu_(BvhRay_ r, uint oct_inv, float tmin, float tmax, bool an
             bool pop = group.y <= 0x00FFFFFFu;
             bool empty = sp == 0u;
             uvec2 top = reg_stack ? w0 : stack[max(sp, 1u) - 1u];
-            uvec2 g = pop ? top : group;
+            bool fin = pop && empty;
+            // when the walk ends, the stale top (no hit bits left) stands in as a group whose one hit is slot 0 of
+            // node 0: the step's loads stay in bounds (the array stack's stale entry would pick a slot past its
+            // group's children) and its result is dropped
+            uvec2 g = fin ? uvec2(0u, 1u << (24u + oct_inv)) : (pop ? top : group);
             uint bit = uint(findMSB(g.y));
             g.y &= ~(1u << bit);
             uint slot = (bit - 24u) ^ oct_inv;
             uint node = g.x + uint(bitCount(g.y & ((1u << slot) - 1u)));   // low 8 bits: imask
             bool push = g.y > 0x00FFFFFFu;
-            bool fin = pop && empty;
             // stack: pop and push = the top replaced by g; pop alone: up one; push alone: down one, g on top
             bool up = pop && !push && !fin;
             bool down = push && !pop;

@@ -31,7 +31,8 @@ from .passes.debug_view import VIEW_MODES, DebugViewPass
 from .passes.denoise import DenoisePass
 from .passes.lighting import LightingPass
 from .passes.shadows import ShadowPass
-from .rt.tracer import SceneBVH, bvh_descriptor_set, bvh_layout, is_cpu, scene_bvh_data
+from .rt.tracer import SceneBVH, bvh_descriptor_set
+from .rt.tracer import bvh_layout as resolve_layout
 from .scene.camera import Camera
 from .shaders import ShaderLibrary
 from .vk import Buffer, Context, Image, Timestamps, image_barrier, memory_barrier
@@ -312,8 +313,9 @@ class Renderer:
                  shader_dir=None, hot_reload: bool = False, context: Context | None = None,
                  bvh_layout: str | None = None):
         """`context`: render on an existing Context (the viewer's, which has a surface); it is not closed here.
-        `bvh_layout`: "binary" or "wide" scene BVH for the shadow and AO passes (default: tracer.bvh_layout's)."""
-        self._bvh_layout_arg = bvh_layout
+        `bvh_layout`: "binary" or "wide" scene BVH for the shadow and AO passes (default: $HYBRID_BVH_LAYOUT, else
+        "binary"; engine.rt.tracer.bvh_layout)."""
+        self.bvh_layout = resolve_layout(bvh_layout)  # a bad one fails here, before any Vulkan object exists
         check_size(width, height)
         self.width, self.height = int(width), int(height)
         self.library = ShaderLibrary(shader_dir, hot_reload=hot_reload)
@@ -344,7 +346,6 @@ class Renderer:
         self.targets = Targets(ctx, self.width, self.height, light_capacity=1)
         self.bvh_set = bvh_descriptor_set(ctx)
         self.gbuffer = GBufferPass(ctx, self.library, self.frame_ubo, self.targets)
-        self.bvh_layout = bvh_layout(ctx, self._bvh_layout_arg)
         self.shadows = ShadowPass(ctx, self.library, self.frame_ubo, self.bvh_set, self.targets, self.bvh_layout)
         self.ao = AOPass(ctx, self.library, self.frame_ubo, self.bvh_set, self.targets, self.bvh_layout)
         self.accumulate = AccumulatePass(ctx, self.library, self.frame_ubo, self.targets)
@@ -565,10 +566,9 @@ class Renderer:
         self._geometry = self._scene_bvh = None
         self._geometry = SceneGeometry(self.ctx, scene, self.gbuffer.white, self.gbuffer.sampler)
         self.gbuffer.bind_scene(self._geometry)
-        bvh = scene_bvh_data(build_bvh(scene.positions, scene.indices), self.bvh_layout)
-        self.bvh_stats = dict(bvh.stats, layout=self.bvh_layout)
-        self._scene_bvh = SceneBVH(self.ctx, bvh, self.bvh_set, layout=self.bvh_layout,
-                                   compress=is_cpu(self.ctx) and self.bvh_layout == "binary")
+        self._scene_bvh = SceneBVH.upload(self.ctx, build_bvh(scene.positions, scene.indices), self.bvh_set,
+                                          self.bvh_layout)
+        self.bvh_stats = dict(self._scene_bvh.bvh.stats, layout=self.bvh_layout)
         for p in (self.shadows, self.ao):   # the traversal specialized to this BVH (its depth, its node layout)
             p.specialize(self.library, self._scene_bvh.spec(self.ctx, postpone=p.postpone_leaves))
         self._scene = scene

@@ -7,7 +7,7 @@ from __future__ import annotations
 import numpy as np
 
 from ..vk import SB, SI, UB, ComputePipeline, DescriptorSet
-from ..rt.tracer import bvh_spec, is_cpu
+from ..rt.tracer import bvh_spec, compresses
 
 
 class RayPass:
@@ -17,7 +17,7 @@ class RayPass:
     output = ""          # the Targets buffer the pass writes
     postpone_leaves = None  # bvh.glsl's postponed leaf tests: None = the device's default (see bvh_spec)
 
-    def __init__(self, ctx, library, frame_ubo, bvh_set, targets, bvh_layout=None):
+    def __init__(self, ctx, library, frame_ubo, bvh_set, targets, bvh_layout="binary"):
         self.bvh_set = bvh_set
         self.set = DescriptorSet(ctx, [(0, UB), (1, SI), (2, SI), (3, SB)])
         self.set.buffer(0, frame_ubo)
@@ -26,7 +26,7 @@ class RayPass:
         self.pipeline = ComputePipeline(ctx, library.get(self.shaders[0]), [self.set, bvh_set],
                                         push_size=self.push_size,
                                         spec=bvh_spec(ctx, None, layout=bvh_layout, postpone=self.postpone_leaves,
-                                                      compressed=is_cpu(ctx) and bvh_layout != "wide"),
+                                                      compressed=compresses(ctx, bvh_layout)),
                                         name=self.name)
         self.bind_targets(targets)
 

@@ -59,12 +59,20 @@ class Hits:
 class SceneBVH:
     """A BVH's two storage buffers on the GPU, bound as a descriptor set (BVH_SET in bvh.glsl).
 
-    layout: "binary" (a builder BVH) or "wide" (collapse_bvh8's). compress (binary only): upload the 32-byte
-    compressed nodes (engine/bvh/compress.py; bvh.glsl's BVH_COMPRESSED) instead of the builder's 64-byte ones,
-    where the tree fits that format; `compressed` says which were uploaded, `depth` is the tree's depth: they go to
-    bvh_spec."""
+    layout: "binary" (a builder BVH) or "wide" (collapse_bvh8's; `SceneBVH.upload` makes it from a builder BVH).
+    compress (binary only; default: on CPU devices, `compresses`): upload the 32-byte compressed nodes
+    (engine/bvh/compress.py; bvh.glsl's BVH_COMPRESSED) instead of the builder's 64-byte ones, where the tree fits
+    that format; `compressed` says which were uploaded, `depth` is the tree's depth: they go to bvh_spec."""
 
-    def __init__(self, ctx: Context, bvh, dset: DescriptorSet, layout: str = "binary", compress: bool = False):
+    @classmethod
+    def upload(cls, ctx: Context, bvh, dset: DescriptorSet, layout: str) -> "SceneBVH":
+        """A builder BVH on the GPU in `layout` (collapsed to the 8-wide tree first for "wide"), with this device's
+        node format; `.bvh` is what was uploaded (its stats)."""
+        return cls(ctx, collapse_bvh8(bvh) if layout == "wide" else bvh, dset, layout=layout)
+
+    def __init__(self, ctx: Context, bvh, dset: DescriptorSet, layout: str = "binary", compress: bool | None = None):
+        if compress is None:
+            compress = compresses(ctx, layout)
         if layout == "wide" and compress:
             raise ConfigError("SceneBVH: the wide layout has no compressed nodes")
         self.bvh = bvh
@@ -111,9 +119,8 @@ def bvh_descriptor_set(ctx: Context) -> DescriptorSet:
 LAYOUTS = ("binary", "wide")
 
 
-def bvh_layout(ctx: Context | None, layout: str | None = None) -> str:
-    """The BVH layout to trace with: `layout` if given, else $HYBRID_BVH_LAYOUT, else "binary" (the same on every
-    device so far; `ctx` is where a per-device choice would look).
+def bvh_layout(layout: str | None = None) -> str:
+    """The BVH layout to trace with: `layout` if given, else $HYBRID_BVH_LAYOUT, else "binary" (on every device).
 
     "wide" (engine/bvh/wide.py) is opt-in: on an H200 it traced the bench's 1.2M-triangle scene's shadow / AO rays
     1.13x / 1.15x faster than the binary layout but random closest-hit rays 0.95x, and the 1080p frame's shadow pass
@@ -127,13 +134,13 @@ def bvh_layout(ctx: Context | None, layout: str | None = None) -> str:
     return layout
 
 
-def scene_bvh_data(bvh, layout: str):
-    """What SceneBVH uploads for a binary `BVH` in `layout`: the BVH itself, or its 8-wide collapse."""
-    return collapse_bvh8(bvh) if layout == "wide" else bvh
-
-
 def is_cpu(ctx: Context) -> bool:
     return ctx.device_info["type"] == "CPU"
+
+
+def compresses(ctx: Context, layout: str) -> bool:
+    """Does SceneBVH upload the 32-byte compressed nodes by default? The binary layout on CPU devices."""
+    return is_cpu(ctx) and layout == "binary"
 
 
 #: Register-stack entries on CPU devices (bvh.glsl BVH_STACK_REGS): fewer than a deep BVH needs, the rare ray that
@@ -152,11 +159,12 @@ def bvh_spec(ctx: Context, depth: int | None = None, layout: str | None = None, 
     the BVH's `depth` - 1, what its traversal can push), with the retry walk (9) where that is fewer than
     depth - 1 or the depth is unknown, compare-and-select min/max (10) and image loads instead of texel fetches
     (11: the BVH buffers through their storage texel buffer views, which llvmpipe inlines); the wide layout (4) when
-    `bvh_layout(ctx, layout)` says so, on CPU devices with its lavapipe traversal (12: postponed leaves, a register
-    stack of min(CPU_WIDE_STACK_REGS, `depth` - 1) node groups, `depth` then being the wide tree's levels); `compressed`: the nodes are the 32-byte ones (8). `postpone`: postponed leaf
-    tests whatever the device (the renderer's AO pass asks for them: 1.35-1.46x on an H200, tools/ab_passes.py)."""
+    `bvh_layout(layout)` says so, on CPU devices with its lavapipe traversal (12: postponed leaves, a register
+    stack of min(CPU_WIDE_STACK_REGS, `depth` - 1) node groups, `depth` then being the wide tree's levels);
+    `compressed`: the nodes are the 32-byte ones (8). `postpone`: postponed leaf tests whatever the device (the
+    renderer's AO pass asks for them: 1.35-1.46x on an H200, tools/ab_passes.py)."""
     cpu = is_cpu(ctx)
-    wide = bvh_layout(ctx, layout) == "wide"
+    wide = bvh_layout(layout) == "wide"
     need = 32 if depth is None else max(1, min(32, int(depth) - 1))
     regs = min(CPU_WIDE_STACK_REGS if wide else CPU_STACK_REGS, need) if cpu else need
     return {0: cpu, 1: cpu if postpone is None else bool(postpone), 2: cpu, 3: regs,
@@ -208,9 +216,8 @@ class Tracer:
         """`staging`: copy rays to and results from device-local buffers (default: when the device has memory
         the host cannot map, i.e. a discrete GPU). `layout`: "binary" or "wide" BVH (default: bvh_layout's)."""
         v, f = _check_mesh(vertices, faces)
-        bvh_layout(None, layout)  # a bad layout (argument or HYBRID_BVH_LAYOUT) fails before the build
+        self.layout = bvh_layout(layout)  # a bad layout (argument or HYBRID_BVH_LAYOUT) fails before the build
         self.bvh = build_bvh(v, f)
-        self._layout_arg = layout
         self.stats = dict(self.bvh.stats)
         self.batch = int(batch_size)
         self._staging = staging
@@ -234,12 +241,9 @@ class Tracer:
     def _init_gpu(self):
         ctx = self.ctx
         lib = ShaderLibrary()
-        self.layout = bvh_layout(ctx, self._layout_arg)
         self.bvh_set = bvh_descriptor_set(ctx)
-        self.gpu_bvh = scene_bvh_data(self.bvh, self.layout)
-        self.stats = dict(self.gpu_bvh.stats, layout=self.layout)
-        self.scene = SceneBVH(ctx, self.gpu_bvh, self.bvh_set, layout=self.layout,
-                              compress=is_cpu(ctx) and self.layout == "binary")
+        self.scene = SceneBVH.upload(ctx, self.bvh, self.bvh_set, self.layout)
+        self.stats = dict(self.scene.bvh.stats, layout=self.layout)
         self.io_set = DescriptorSet(ctx, [(0, SB), (1, SB), (2, SB)])
         # Rays and results: mapped host buffers; on a discrete GPU device-local ones filled / read by copies in the
         # same command buffer (the copy is sized to the batch, rounded up to a power of two: one recording each).

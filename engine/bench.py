@@ -279,21 +279,17 @@ def _f32(a):
     return np.ascontiguousarray(a, dtype=np.float32)
 
 
-def gbuffer_raysets(scene, frame, rng) -> list[RaySet]:
-    """Shadow rays towards the scene's first light and one AO ray per covered pixel of a rendered G-buffer.
-
-    Origins: p + n * 1e-4 * diagonal. Shadow rays whose light direction is below the surface's horizon are dropped,
-    as the shadow pass skips them. A directional light: unit directions and tmax = inf; a point-like light: the
-    direction is the vector to the light (not unit) and tmax = 0.999, so one tmax serves all rays."""
+def _shadow_rays(scene, frame):
+    """Per covered pixel of `frame`: origin (p + n * ORIGIN_OFFSET * diagonal), unit normal, direction to the
+    scene's first light, and the common tmax, a description, and which pixels have the light above their horizon
+    (the ones the shadow pass traces)."""
     from .scene import DirectionalLight
 
-    depth = frame.aov["depth"]
-    cover = np.isfinite(depth)
+    cover = np.isfinite(frame.aov["depth"])
     p = frame.aov["position"][cover].astype(np.float64)
     n = frame.aov["normal"][cover].astype(np.float64)
     n /= np.maximum(np.linalg.norm(n, axis=1, keepdims=True), 1e-30)
-    diag = _scene_diag(scene)
-    o = p + n * (ORIGIN_OFFSET * diag)
+    o = p + n * (ORIGIN_OFFSET * _scene_diag(scene))
     light = scene.lights[0]
     if isinstance(light, DirectionalLight):
         d = np.broadcast_to(-np.asarray(light.direction, np.float64), o.shape)
@@ -302,7 +298,18 @@ def gbuffer_raysets(scene, frame, rng) -> list[RaySet]:
         d = np.asarray(light.position, np.float64) - o
         tmax, what = 0.999, f"to the centre of a {type(light).__name__}"
     up = np.einsum("ij,ij->i", d, n) > 0
-    pixels = int(cover.sum())
+    return o, n, d, tmax, what, up
+
+
+def gbuffer_raysets(scene, frame, rng) -> list[RaySet]:
+    """Shadow rays towards the scene's first light and one AO ray per covered pixel of a rendered G-buffer.
+
+    Origins: p + n * 1e-4 * diagonal. Shadow rays whose light direction is below the surface's horizon are dropped,
+    as the shadow pass skips them. A directional light: unit directions and tmax = inf; a point-like light: the
+    direction is the vector to the light (not unit) and tmax = 0.999, so one tmax serves all rays."""
+    o, n, d, tmax, what, up = _shadow_rays(scene, frame)
+    diag = _scene_diag(scene)
+    pixels = len(o)
     shadow = RaySet("shadow", "occluded", _f32(o[up]), _f32(d[up]), tmax,
                     f"{int(up.sum())} of {pixels} covered pixels (light above the horizon), {what}")
     ao = RaySet("ao", "occluded", _f32(o), _f32(cosine_hemisphere(n, rng)), AO_RADIUS * diag,
@@ -822,9 +829,9 @@ class Bench:
             sub_gpu.append(sum(r.last_timings().values()))
         lights = len(scene.lights)
         # the rays the shadow pass traces for the first light: covered pixels with the light above their horizon
-        # (what gbuffer_raysets counts); counted last, since host work between the runs above lets a GPU's clocks
+        # (the bench's shadow ray set); counted last, since host work between the runs above lets a GPU's clocks
         # drop
-        shadow_rays = len(gbuffer_raysets(scene, fr, np.random.default_rng(cfg.seed))[0]) if lights == 1 else 0
+        shadow_rays = int(_shadow_rays(scene, fr)[-1].sum()) if lights == 1 else 0
 
         def grays(ms):  # the shadow pass's rays per second (one light's rays; a frame of several lights traces more)
             return shadow_rays / (ms * 1e-3) / 1e9 if lights == 1 and ms and ms > 0 else None

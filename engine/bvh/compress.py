@@ -12,14 +12,12 @@ from __future__ import annotations
 import numpy as np
 
 from .layout import CNODE_COUNT_BITS, CNODE_COUNT_SHIFT, CNODE_FIRST_MASK, LEAF_BIT
-
-F32 = np.float32
+from .quantize import F32, planes, scale_of
 
 
 def _decode(origin: np.ndarray, e: np.ndarray, q: np.ndarray) -> np.ndarray:
     """What the shader computes: origin + float(q) * 2^(e - 127), in float32 (the product is exact)."""
-    scale = (e.astype(np.uint32) << np.uint32(23)).view(F32)
-    return (origin + q.astype(F32) * scale).astype(F32)
+    return (origin + q.astype(F32) * scale_of(e)).astype(F32)
 
 
 def _origin(lo: np.ndarray) -> np.ndarray:
@@ -37,18 +35,8 @@ def _origin(lo: np.ndarray) -> np.ndarray:
 
 
 def _quantize(origin, e, lo, hi):
-    """8-bit planes of boxes lo, hi (broadcast against origin, e): floor / ceil (in float32: scaling by a power of
-    two is exact), then stepped outwards where the float32 decode rounds inwards; ok where the decode covers the
-    box."""
-    scale = (e.astype(np.uint32) << np.uint32(23)).view(F32)
-    inv = ((254 - e).astype(np.uint32) << np.uint32(23)).view(F32)   # 1 / scale, exact
-    with np.errstate(over="ignore", invalid="ignore"):
-        a = np.clip(np.floor((lo - origin) * inv), 0, 255)
-        b = np.clip(np.ceil((hi - origin) * inv), 0, 255)
-        for _ in range(2):
-            a -= ((origin + a * scale) > lo) & (a > 0)
-            b += ((origin + b * scale) < hi) & (b < 255)
-        ok = ((origin + a * scale) <= lo) & ((origin + b * scale) >= hi)
+    """8-bit planes of boxes lo, hi (broadcast against origin, e), as int64, and where they enclose the box."""
+    a, b, ok = planes(origin, e, lo, hi)
     return a.astype(np.int64), b.astype(np.int64), ok
 
 

@@ -49,6 +49,7 @@ import numpy as np
 
 from ..errors import ConfigError
 from .layout import LEAF_BIT
+from .quantize import planes, scale_of
 
 WIDTH = 8
 WIDE_NODE_WORDS = 20
@@ -196,29 +197,18 @@ def _quantize(lo, hi, valid):
     e = np.where(ext > 0, e, -126.0)
     ebias = np.clip(e + 127, EXP_MIN, EXP_MAX).astype(np.int64)
     for _ in range(4):   # 255 steps must reach the top in float32
-        s = np.ldexp(np.float32(1.0), (ebias - 127).astype(np.int32)).astype(np.float32)
-        reach = p + np.float32(255.0) * s
+        reach = p + np.float32(255.0) * scale_of(ebias)
         short = reach < top
         if not short.any():
             break
         ebias = np.where(short, np.minimum(ebias + 1, EXP_MAX), ebias)
     else:
         raise AssertionError("wide BVH: quantization grid cannot reach the node box")
-    s = np.ldexp(np.float32(1.0), (ebias - 127).astype(np.int32)).astype(np.float32)
-    p3, s3 = p[:, None, :], s[:, None, :]
-    ql = np.clip(np.floor((lo.astype(np.float64) - p3) / s3), 0, 255)
-    qh = np.clip(np.ceil((hi.astype(np.float64) - p3) / s3), 0, 255)
-    ql = np.where(vmask, ql, 0).astype(np.float32)
-    qh = np.where(vmask, qh, 0).astype(np.float32)
-    for _ in range(8):   # fix the last rounding: the float32 sums must enclose the exact boxes
-        bad_lo = vmask & ((p3 + ql * s3) > lo)
-        bad_hi = vmask & ((p3 + qh * s3) < hi)
-        if not (bad_lo.any() or bad_hi.any()):
-            break
-        ql = np.where(bad_lo, ql - 1, ql)
-        qh = np.where(bad_hi, qh + 1, qh)
-    else:
+    ql, qh, ok = planes(p[:, None, :], ebias[:, None, :], lo, hi)
+    if not ok[valid].all():
         raise AssertionError("wide BVH: quantized boxes do not converge")
+    ql = np.where(vmask, ql, 0)
+    qh = np.where(vmask, qh, 0)
     assert ql.min() >= 0 and qh.max() <= 255
     return p, ebias, ql.astype(np.uint8), qh.astype(np.uint8)
 

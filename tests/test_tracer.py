@@ -145,7 +145,7 @@ def _variant_tracer(monkeypatch, spec, v, f):
     if spec.pop("uncompressed", False):
         monkeypatch.setattr(tracer_mod, "compress_nodes", lambda nodes: None)
     monkeypatch.setattr(tracer_mod, "bvh_spec",
-                        lambda ctx, depth=None, layout=None, compressed=False, postpone=None: {**spec, 8: compressed})
+                        lambda ctx, depth=None, layout=None, compressed=False, **kw: {**spec, 8: compressed})
     return Tracer(v, f, validation=True)
 
 
@@ -155,15 +155,17 @@ def test_every_traversal_variant_gives_the_same_answers(monkeypatch, spec):
     the retry walk of a short register stack, compressed nodes, select min/max) select code paths per device;
     each combination answers exactly as the default one of this device, and as the reference. (The default here,
     on lavapipe: compressed nodes, a register stack of min(CPU_STACK_REGS, the BVH's depth - 1) entries.)"""
-    from engine.rt.tracer import CPU_STACK_REGS
+    from engine.rt.tracer import CPU_OCCLUSION_STACK_REGS, CPU_STACK_REGS
     v, f = meshes()["soup"]
     rng = np.random.default_rng(13)
     o, d = random_rays(rng, 3000, (v.min(0), v.max(0)))
     tmax = rng.uniform(0.1, 4.0, len(o)).astype(np.float32)
     with Tracer(v, f, validation=True) as default:
         occ0, hit0 = default.occluded(o, d, tmax), default.intersect(o, d)
-        dspec = default.pipelines["occluded"].spec
-        assert dspec[3] == min(CPU_STACK_REGS, max(1, default.stats["depth"] - 1))
+        need = max(1, default.stats["depth"] - 1)
+        assert default.pipelines["occluded"].spec[3] == min(CPU_OCCLUSION_STACK_REGS, need)
+        dspec = default.pipelines["intersect"].spec
+        assert dspec[3] == min(CPU_STACK_REGS, need)
         assert dspec[8] and default.scene.compressed and dspec[11]
     with _variant_tracer(monkeypatch, spec, v, f) as variant:
         assert variant.scene.compressed == ("uncompressed" not in spec)
@@ -185,6 +187,8 @@ def test_short_stack_retry_matches_the_full_stack(monkeypatch, tracers, name):
     tmax[::4] = np.inf
     occ0, hit0 = tracers[name].occluded(o, d, tmax), tracers[name].intersect(o, d, tmax)
     with _variant_tracer(monkeypatch, {0: True, 1: True, 2: True, 3: 1, 9: True, 10: True}, v, f) as variant:
+        # the retry in a second dispatch over the rays the first left unresolved (rays.glsl TRACE_PASS)
+        assert variant.two_pass == {"occluded": True, "intersect": True}
         assert np.array_equal(variant.occluded(o, d, tmax), occ0)
         hit1 = variant.intersect(o, d, tmax)
         assert np.array_equal(hit1.prim, hit0.prim) and np.array_equal(hit1.t, hit0.t)
@@ -217,8 +221,9 @@ def test_image_loads_match_texel_fetches(monkeypatch, tracers, name):
 
 
 @pytest.mark.parametrize("name", list(meshes()))
-@pytest.mark.parametrize("over", [{12: True, 3: 1}, {12: True, 3: 2, 11: False}, {12: False}],
-                         ids=["cpu-1-entry", "cpu-2-entries-texel", "gpu-walk"])
+@pytest.mark.parametrize("over", [{12: True, 3: 1, 9: False}, {12: True, 3: 1, 9: True},
+                                  {12: True, 3: 2, 11: False}, {12: False}],
+                         ids=["cpu-1-entry", "cpu-1-entry-second-dispatch", "cpu-2-entries-texel", "gpu-walk"])
 def test_wide_traversals_give_the_same_answers(monkeypatch, name, over):
     """The 8-wide layout's two traversals (constant 12: the lavapipe one, postponed leaves and a register stack of
     node groups with a retry walk; off: the GPU one) answer alike on every mesh, with a register stack of 1 or 2

@@ -48,8 +48,8 @@ def load(key, tris):
 
 def overriding(real, over):
     """A bvh_spec that gives `real`'s constants with a variant's overrides (None: `real`'s own)."""
-    def spec(ctx, depth=None, layout=None, compressed=False, postpone=None):
-        s = real(ctx, depth, layout=layout, compressed=compressed, postpone=postpone)
+    def spec(ctx, depth=None, layout=None, compressed=False, **kw):
+        s = real(ctx, depth, layout=layout, compressed=compressed, **kw)
         if over is not None:
             s.update({0: False, 1: False, 2: False})
             s.update(over)

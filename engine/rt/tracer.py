@@ -27,6 +27,7 @@ from ..vk.resources import STORAGE, STORAGE_TEXEL, TRANSFER_DST, TRANSFER_SRC, U
 
 RAY_BYTES = 28  # 7 floats: origin, direction, tmax, as three packed arrays (shaders/glsl/include/rays.glsl)
 GROUP = 64
+RETRY_GROUPS = 4  # workgroups of the second pass (rays.glsl TRACE_PASS 2), striding over the rays left to it
 HIT_BYTES = {"occluded": 4, "intersect": 16}
 
 
@@ -101,9 +102,10 @@ class SceneBVH:
         dset.texel_buffer(0, self.views[0]).texel_buffer(1, self.views[1])
         dset.texel_buffer(2, self.views[0]).texel_buffer(3, self.views[1])
 
-    def spec(self, ctx: Context, postpone: bool | None = None) -> dict:
-        """bvh_spec for this BVH's depth and node layout (postpone: see bvh_spec)."""
-        return bvh_spec(ctx, self.depth, layout=self.layout, compressed=self.compressed, postpone=postpone)
+    def spec(self, ctx: Context, postpone: bool | None = None, stack_regs: int | None = None) -> dict:
+        """bvh_spec for this BVH's depth and node layout (postpone, stack_regs: see bvh_spec)."""
+        return bvh_spec(ctx, self.depth, layout=self.layout, compressed=self.compressed, postpone=postpone,
+                        stack_regs=stack_regs)
 
     def destroy(self):
         for view in self.views:
@@ -147,13 +149,17 @@ def compresses(ctx: Context, layout: str) -> bool:
 #: overflows them walks again with the array stack (BVH_STACK_RETRY). Measured on lavapipe (A/B vs the BVH's
 #: depth - 1 entries): 10 was the best of 6, 8, 10, 13 over shadow, AO and closest-hit rays on both bench scenes.
 CPU_STACK_REGS = 10
+#: The same for the batch occlusion kernel, whose rare unresolved rays get a second dispatch instead of an inline
+#: second walk (Tracer.two_pass): 4-7 entries measured 1.0-1.2x faster than 10 there (lavapipe, same-run A/B);
+#: the closest-hit kernel keeps 10 (6 was 0.87x on the 1.2M scene: its rays cannot stop early and overflow more).
+CPU_OCCLUSION_STACK_REGS = 6
 #: The same for the 8-wide layout's traversal on CPU devices (bvh_wide.glsl BVH_WIDE_CPU; entries are node groups,
 #: two vectors each): 4, 5, 6 and 8 measured on both bench scenes, 6 the best overall.
 CPU_WIDE_STACK_REGS = 6
 
 
 def bvh_spec(ctx: Context, depth: int | None = None, layout: str | None = None, compressed: bool = False,
-             postpone: bool | None = None) -> dict:
+             postpone: bool | None = None, stack_regs: int | None = None) -> dict:
     """Specialization constants of bvh.glsl for this device: on CPU devices (lavapipe) the branchless stack push
     (0), the postponed leaf tests (1), the register stack (2) of BVH_STACK_REGS entries (3): min(CPU_STACK_REGS,
     the BVH's `depth` - 1, what its traversal can push), with the retry walk (9) where that is fewer than
@@ -162,11 +168,13 @@ def bvh_spec(ctx: Context, depth: int | None = None, layout: str | None = None, 
     `bvh_layout(layout)` says so, on CPU devices with its lavapipe traversal (12: postponed leaves, a register
     stack of min(CPU_WIDE_STACK_REGS, `depth` - 1) node groups, `depth` then being the wide tree's levels);
     `compressed`: the nodes are the 32-byte ones (8). `postpone`: postponed leaf tests whatever the device (the
-    renderer's AO pass asks for them: 1.35-1.46x on an H200, tools/ab_passes.py)."""
+    renderer's AO pass asks for them: 1.35-1.46x on an H200, tools/ab_passes.py). `stack_regs`: the register-stack
+    cap on CPU devices instead of CPU_STACK_REGS (binary layout)."""
     cpu = is_cpu(ctx)
     wide = bvh_layout(layout) == "wide"
     need = 32 if depth is None else max(1, min(32, int(depth) - 1))
-    regs = min(CPU_WIDE_STACK_REGS if wide else CPU_STACK_REGS, need) if cpu else need
+    cap = CPU_WIDE_STACK_REGS if wide else (CPU_STACK_REGS if stack_regs is None else int(stack_regs))
+    regs = min(cap, need) if cpu else need
     return {0: cpu, 1: cpu if postpone is None else bool(postpone), 2: cpu, 3: regs,
             4: wide, 8: bool(compressed), 9: cpu and (depth is None or regs < need),
             10: cpu, 11: cpu, 12: cpu and wide}
@@ -244,7 +252,7 @@ class Tracer:
         self.bvh_set = bvh_descriptor_set(ctx)
         self.scene = SceneBVH.upload(ctx, self.bvh, self.bvh_set, self.layout)
         self.stats = dict(self.scene.bvh.stats, layout=self.layout)
-        self.io_set = DescriptorSet(ctx, [(0, SB), (1, SB), (2, SB)])
+        self.io_set = DescriptorSet(ctx, [(0, SB), (1, SB), (2, SB), (3, SB)])
         # Rays and results: mapped host buffers; on a discrete GPU device-local ones filled / read by copies in the
         # same command buffer (the copy is sized to the batch, rounded up to a power of two: one recording each).
         self.staged = has_dedicated_vram(ctx) if self._staging is None else bool(self._staging)
@@ -256,13 +264,23 @@ class Tracer:
         else:
             self.rays, self.results = self.rays_host, self.results_host
         self.params = Buffer(ctx, 32, STORAGE | vk.VK_BUFFER_USAGE_INDIRECT_BUFFER_BIT, host=True, name="params")
-        self.io_set.buffer(0, self.rays).buffer(1, self.results).buffer(2, self.params)
+        # Where the register stack can overflow (CPU devices), the rare rays it leaves unresolved are walked again
+        # in a second dispatch (rays.glsl TRACE_PASS) rather than inline: llvmpipe runs the inline walk's loop body
+        # for every 8 rays whether or not one needs it (1.02-1.13x without it, lavapipe, same-run A/B).
+        specs = {"occluded": self.scene.spec(ctx, stack_regs=CPU_OCCLUSION_STACK_REGS),
+                 "intersect": self.scene.spec(ctx)}
+        self.two_pass = {kind: bool(s.get(2) and s.get(9)) for kind, s in specs.items()}
+        self.retry = Buffer(ctx, 4 + 4 * self.batch if any(self.two_pass.values()) else 16, STORAGE | TRANSFER_DST,
+                            name="retry list")
+        self.io_set.buffer(0, self.rays).buffer(1, self.results).buffer(2, self.params).buffer(3, self.retry)
         self.timestamps = Timestamps(ctx, capacity=4)
         self.pipelines, self._commands, self._marks = {}, {}, {}
-        for kind in ("occluded", "intersect"):
-            self.pipelines[kind] = ComputePipeline(ctx, lib.get(f"trace_{kind}.comp"), [self.io_set, self.bvh_set],
-                                                   spec=self.scene.spec(ctx),
-                                                   name=f"trace_{kind}")
+        for kind, spec in specs.items():
+            passes = {"": 1, "_retry": 2} if self.two_pass[kind] else {"": 0}
+            for suffix, pass_ in passes.items():
+                self.pipelines[kind + suffix] = ComputePipeline(
+                    ctx, lib.get(f"trace_{kind}.comp"), [self.io_set, self.bvh_set], spec={**spec, 16: pass_},
+                    name=f"trace_{kind}{suffix}")
         self.last_gpu_ms = 0.0
         self.last_times: dict = {}   # GPU ms of the last batch per step: upload (staged only), trace, download
 
@@ -288,8 +306,17 @@ class Tracer:
                                 vk.VkBufferCopy(c * 24, c * 24, span * 4)])
             memory_barrier(cmd, T, C, vk.VK_ACCESS_TRANSFER_WRITE_BIT, vk.VK_ACCESS_SHADER_READ_BIT)
             ts.mark(cmd, "upload")
+        if self.two_pass[kind]:
+            vk.vkCmdFillBuffer(cmd, self.retry.handle, 0, 4, 0)
+            memory_barrier(cmd, T, C, vk.VK_ACCESS_TRANSFER_WRITE_BIT,
+                           vk.VK_ACCESS_SHADER_READ_BIT | vk.VK_ACCESS_SHADER_WRITE_BIT)
         self.pipelines[kind].bind(cmd, [self.io_set, self.bvh_set])
         vk.vkCmdDispatchIndirect(cmd, self.params.handle, 0)
+        if self.two_pass[kind]:
+            rw = vk.VK_ACCESS_SHADER_READ_BIT | vk.VK_ACCESS_SHADER_WRITE_BIT
+            memory_barrier(cmd, C, C, vk.VK_ACCESS_SHADER_WRITE_BIT, rw)
+            self.pipelines[kind + "_retry"].bind(cmd, [self.io_set, self.bvh_set])
+            vk.vkCmdDispatch(cmd, RETRY_GROUPS, 1, 1)
         ts.mark(cmd, "trace")
         if self.staged:
             memory_barrier(cmd, C, T, vk.VK_ACCESS_SHADER_WRITE_BIT, vk.VK_ACCESS_TRANSFER_READ_BIT)
@@ -361,7 +388,7 @@ class Tracer:
                 self.ctx.wait_idle()
                 for obj in (getattr(self, "scene", None), getattr(self, "rays", None), getattr(self, "results", None),
                             getattr(self, "rays_host", None), getattr(self, "results_host", None),
-                            getattr(self, "params", None)):
+                            getattr(self, "params", None), getattr(self, "retry", None)):
                     if obj is not None:
                         obj.destroy()
             self.ctx = None

@@ -375,14 +375,29 @@ bool bvh_walk_(BvhRay_ r, float tmin, float tmax, bool any_hit, bool full, inout
     return found;
 }
 
-bool bvh_trace_(vec3 o, vec3 d, float tmin, float tmax, bool any_hit, inout BvhHit hit) {
+// How bvh_trace_ walks a ray (a constant argument: the other paths fold away):
+const int BVH_BOTH_ = 0;   // the register-stack walk, then the array-stack walk if it lost an entry and the answer
+const int BVH_FIRST_ = 1;  // the register-stack walk only; `unresolved` says the ray needs the array-stack walk
+const int BVH_FULL_ = 2;   // the array-stack walk only, from the first walk's closest hit in `hit` (if any)
+
+bool bvh_trace_(vec3 o, vec3 d, float tmin, float tmax, bool any_hit, int mode, inout BvhHit hit,
+                out bool unresolved) {
     BvhRay_ r = bvh_make_ray_(o, d);
+    unresolved = false;
     bool lost = false;
+    if (mode == BVH_FULL_) {
+        bool had = hit.prim >= 0;
+        return bvh_walk_(r, tmin, had ? hit.t : tmax, any_hit, true, hit, lost) || had;
+    }
     bool found = bvh_walk_(r, tmin, tmax, any_hit, false, hit, lost);
     if (BVH_STACK_RETRY && BVH_REG_STACK) {
         if (lost && !(any_hit && found)) {
-            bool unused = false;
-            found = bvh_walk_(r, tmin, found ? hit.t : tmax, any_hit, true, hit, unused) || found;
+            if (mode == BVH_FIRST_) {
+                unresolved = true;
+            } else {
+                bool unused = false;
+                found = bvh_walk_(r, tmin, found ? hit.t : tmax, any_hit, true, hit, unused) || found;
+            }
         }
     }
     return found;
@@ -394,27 +409,62 @@ layout(constant_id = 4) const bool BVH_WIDE = false;
 
 #include "bvh_wide.glsl"
 
-BvhHit bvh_intersect(vec3 o, vec3 d, float tmin, float tmax) {
+BvhHit bvh_miss_() {
     BvhHit hit;
     hit.t = BVH_INF;
     hit.prim = -1;
     hit.u = 0.0;
     hit.v = 0.0;
-    if (BVH_WIDE) {
-        bvh_trace_wide_(o, d, tmin, tmax, false, hit);
-    } else {
-        bvh_trace_(o, d, tmin, tmax, false, hit);
-    }
+    return hit;
+}
+
+bool bvh_trace_any_(vec3 o, vec3 d, float tmin, float tmax, bool any_hit, int mode, inout BvhHit hit,
+                    out bool unresolved) {
+    return BVH_WIDE ? bvh_trace_wide_(o, d, tmin, tmax, any_hit, mode, hit, unresolved)
+                    : bvh_trace_(o, d, tmin, tmax, any_hit, mode, hit, unresolved);
+}
+
+BvhHit bvh_intersect(vec3 o, vec3 d, float tmin, float tmax) {
+    BvhHit hit = bvh_miss_();
+    bool unused;
+    bvh_trace_any_(o, d, tmin, tmax, false, BVH_BOTH_, hit, unused);
     return hit;
 }
 
 bool bvh_occluded(vec3 o, vec3 d, float tmin, float tmax) {
-    BvhHit hit;
-    hit.t = BVH_INF;
-    hit.prim = -1;
-    hit.u = 0.0;
-    hit.v = 0.0;
-    return BVH_WIDE ? bvh_trace_wide_(o, d, tmin, tmax, true, hit) : bvh_trace_(o, d, tmin, tmax, true, hit);
+    BvhHit hit = bvh_miss_();
+    bool unused;
+    return bvh_trace_any_(o, d, tmin, tmax, true, BVH_BOTH_, hit, unused);
+}
+
+// The same two queries in two steps, for kernels that run the rare second walk in a later dispatch (the batch
+// kernels on CPU devices: lavapipe runs a walk's loop body at least once for every 8 lanes, even when no lane needs
+// it, so the inline second walk cost every ray; see engine/rt/tracer.py). `*_first`: the register-stack walk, with
+// `unresolved` set where the ray lost a stack entry and has no answer yet (never when specialization constant 9,
+// BVH_STACK_RETRY, is off); such a ray's answer is only complete after `*_full` (the array-stack walk; for
+// bvh_intersect_full, `so_far` is what bvh_intersect_first returned).
+bool bvh_occluded_first(vec3 o, vec3 d, float tmin, float tmax, out bool unresolved) {
+    BvhHit hit = bvh_miss_();
+    return bvh_trace_any_(o, d, tmin, tmax, true, BVH_FIRST_, hit, unresolved);
+}
+
+BvhHit bvh_intersect_first(vec3 o, vec3 d, float tmin, float tmax, out bool unresolved) {
+    BvhHit hit = bvh_miss_();
+    bvh_trace_any_(o, d, tmin, tmax, false, BVH_FIRST_, hit, unresolved);
+    return hit;
+}
+
+bool bvh_occluded_full(vec3 o, vec3 d, float tmin, float tmax) {
+    BvhHit hit = bvh_miss_();
+    bool unused;
+    return bvh_trace_any_(o, d, tmin, tmax, true, BVH_FULL_, hit, unused);
+}
+
+BvhHit bvh_intersect_full(vec3 o, vec3 d, float tmin, float tmax, BvhHit so_far) {
+    BvhHit hit = so_far;
+    bool unused;
+    bvh_trace_any_(o, d, tmin, tmax, false, BVH_FULL_, hit, unused);
+    return hit;
 }
 
 #endif  // BVH_GLSL_INCLUDED

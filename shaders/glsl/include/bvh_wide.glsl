@@ -139,15 +139,28 @@ bool bvh_wide_walk_cpu_(BvhRay_ r, uint oct_inv, float tmin, float tmax, bool an
     return found;
 }
 
-bool bvh_trace_wide_(vec3 o, vec3 d, float tmin, float tmax, bool any_hit, inout BvhHit hit) {
+// mode and unresolved: as bvh_trace_ (bvh.glsl); only the CPU walk's register stack can leave a ray unresolved.
+bool bvh_trace_wide_(vec3 o, vec3 d, float tmin, float tmax, bool any_hit, int mode, inout BvhHit hit,
+                     out bool unresolved) {
+    unresolved = false;
+    bool had = mode == BVH_FULL_ && hit.prim >= 0;   // the full walk starts from the first walk's closest hit
+    tmax = had ? hit.t : tmax;
     if (BVH_WIDE_CPU) {
         BvhRay_ r = bvh_make_ray_(o, d);
         uint oct_inv = (d.x < 0.0 ? 0u : 1u) | (d.y < 0.0 ? 0u : 2u) | (d.z < 0.0 ? 0u : 4u);
         bool lost = false;
+        if (mode == BVH_FULL_) {
+            return bvh_wide_walk_cpu_(r, oct_inv, tmin, tmax, any_hit, true, hit, lost) || had;
+        }
         bool found = bvh_wide_walk_cpu_(r, oct_inv, tmin, tmax, any_hit, false, hit, lost);
         if (BVH_REG_STACK && lost && !(any_hit && found)) {
-            bool unused = false;
-            found = bvh_wide_walk_cpu_(r, oct_inv, tmin, found ? hit.t : tmax, any_hit, true, hit, unused) || found;
+            if (mode == BVH_FIRST_) {
+                unresolved = true;
+            } else {
+                bool unused = false;
+                found = bvh_wide_walk_cpu_(r, oct_inv, tmin, found ? hit.t : tmax, any_hit, true, hit, unused)
+                        || found;
+            }
         }
         return found;
     }
@@ -206,7 +219,7 @@ bool bvh_trace_wide_(vec3 o, vec3 d, float tmin, float tmax, bool any_hit, inout
             }
         }
     }
-    return found;
+    return found || had;
 }
 
 #endif  // BVH_WIDE_GLSL_INCLUDED

@@ -516,7 +516,7 @@ class Bench:
         if "build" in cfg.sections:
             n += len(cfg.build_sizes)
         if "trace" in cfg.sections:
-            per_scene = 2 + len(cfg.peers) + len(RAYSETS) * (1 + len(cfg.peers))
+            per_scene = 2 + len(cfg.peers) + len(RAYSETS) * (2 + len(cfg.peers))
             n += per_scene * (1 + (cfg.real_scene is not None)) + self._probe_wanted()
         if "frame" in cfg.sections:
             n += 2 * len(self._frame_scene_keys())
@@ -722,35 +722,44 @@ class Bench:
         out = {"name": rs.name, "kind": rs.kind, "title": RAYSET_TITLES[rs.name], "rays": len(rs),
                "tmax": rs.tmax if np.isfinite(rs.tmax) else "inf", "note": rs.note, "results": {}, "agreement": {},
                "ratio": {}}
-        answers = {}
-        for name in ("ours",) + tuple(cfg.peers):
-            if name not in engines:
-                continue
-            e = engines[name]
+        answers, gpu, queue, walls = {}, {}, {}, {}
+        names = [name for name in ("ours",) + tuple(cfg.peers) if name in engines]
 
-            def measure(e=e, name=name):
-                gpu, queue = [], []
+        def once(name):
+            t0 = time.perf_counter()
+            answers[name] = engines[name].query(rs)
+            wall = time.perf_counter() - t0
+            if name == "ours":
+                gpu[name].append(engines[name].last_gpu_ms)
+                queue[name].append(engines[name].last_queue_ms)
+            return wall
 
-                def once():
-                    r = e.query(rs)
-                    if name == "ours":
-                        gpu.append(e.last_gpu_ms)
-                        queue.append(e.last_queue_ms)
-                    return r
-                wall, walls, answer = _timed(once, cfg.reps, cfg.warmup)
-                n = len(rs)
-                r = {"wall_ms": wall * 1e3, "runs_wall_ms": [w * 1e3 for w in walls],
-                     "mrays_wall": n / wall / 1e6 if wall > 0 else None}
-                if name == "ours":
-                    g = _median(gpu[cfg.warmup:])
-                    q = _median(queue[cfg.warmup:])
-                    r.update(gpu_ms=g, runs_gpu_ms=gpu[cfg.warmup:], mrays_gpu=n / (g * 1e-3) / 1e6 if g > 0 else None,
-                             queue_ms=q, runs_queue_ms=queue[cfg.warmup:], host_ms=wall * 1e3 - g,
-                             gpu_fraction_of_wall=g / (wall * 1e3),
-                             # timestamps cover the dispatch only; submit + wait adds ~0.1-1 ms, no more
-                             timestamps_plausible=bool(0.5 * q - 1.0 <= g <= 1.05 * q + 0.05))
-                return r, answer
-            r, answers[name] = self._step(f"trace ({tag}): {RAYSET_TITLES[rs.name]} ({name})", measure)
+        for name in names:   # warm-up runs, one engine after the other
+            gpu[name], queue[name], walls[name] = [], [], []
+            self._step(f"trace ({tag}): {RAYSET_TITLES[rs.name]} ({name}, warm-up)",
+                       lambda name=name: [once(name) for _ in range(cfg.warmup)])
+            gpu[name].clear()
+            queue[name].clear()
+
+        def timed():
+            # the timed runs interleaved (ours, peer, peer, ours, ...): this machine's speed drifts by 10-30% over
+            # seconds (a shared host), and interleaving gives every engine the same conditions, so ratios hold
+            for _ in range(max(cfg.reps, 1)):
+                for name in names:
+                    walls[name].append(once(name))
+        self._step(f"trace ({tag}): {RAYSET_TITLES[rs.name]} (timed runs, interleaved)", timed)
+        n = len(rs)
+        for name in names:
+            wall = _median(walls[name])
+            r = {"wall_ms": wall * 1e3, "runs_wall_ms": [w * 1e3 for w in walls[name]],
+                 "mrays_wall": n / wall / 1e6 if wall > 0 else None}
+            if name == "ours":
+                g, q = _median(gpu[name]), _median(queue[name])
+                r.update(gpu_ms=g, runs_gpu_ms=gpu[name], mrays_gpu=n / (g * 1e-3) / 1e6 if g > 0 else None,
+                         queue_ms=q, runs_queue_ms=queue[name], host_ms=wall * 1e3 - g,
+                         gpu_fraction_of_wall=g / (wall * 1e3),
+                         # timestamps cover the dispatch only; submit + wait adds ~0.1-1 ms, no more
+                         timestamps_plausible=bool(0.5 * q - 1.0 <= g <= 1.05 * q + 0.05))
             out["results"][name] = r
         ours = out["results"].get("ours")
         for name in cfg.peers:

@@ -255,6 +255,33 @@ def test_wide_traversals_give_the_same_answers(monkeypatch, name, over):
     assert (occ0 != reference_occluded(v, f, o, d, tmax)).mean() < 0.002
 
 
+def test_second_dispatch_over_several_batches(monkeypatch, tracers):
+    """The retry list of the two-pass kernels (rays.glsl TRACE_PASS) is emptied for every batch: with a 1-entry
+    register stack (many rays unresolved after the first pass) and batches of 700 rays, 2500 rays of both kinds give
+    exactly the default traversal's answers, and the second dispatch walks exactly the rays it walks when all 2500
+    are one batch (an unemptied list would walk the earlier batches' again), with the validation layer on."""
+    v, f = meshes()["sphere"]
+    rng = np.random.default_rng(31)
+    o, d = random_rays(rng, 2500, (v.min(0), v.max(0)))
+    tmax = rng.uniform(0.1, 4.0, len(o)).astype(np.float32)
+    base = tracers["sphere"]
+    occ0, hit0 = base.occluded(o, d, tmax), base.intersect(o, d, tmax)
+    import engine.rt.tracer as tracer_mod
+    real = tracer_mod.bvh_spec
+    monkeypatch.setattr(tracer_mod, "bvh_spec", lambda *a, **kw: {**real(*a, **kw), 2: True, 3: 1, 9: True})
+    with Tracer(v, f, batch_size=700, validation=True, layout=base.layout) as small, \
+            Tracer(v, f, validation=True, layout=base.layout) as one:
+        assert small.two_pass == {"occluded": True, "intersect": True}
+        assert np.array_equal(small.occluded(o, d, tmax), occ0)
+        one.occluded(o, d, tmax)
+        assert small.last_retried == one.last_retried > 0
+        hit1 = small.intersect(o, d, tmax)
+        assert np.array_equal(hit1.t, hit0.t) and (hit1.prim != hit0.prim).mean() < 0.002
+        one.intersect(o, d, tmax)
+        assert small.last_retried == one.last_retried > 0
+        assert not small.validation_errors and not one.validation_errors
+
+
 def test_uncompressed_nodes_give_the_same_answers(monkeypatch, tracers):
     """The 64-byte nodes (a BVH whose leaves do not fit the compressed word) answer exactly as the compressed ones:
     quantization only widens boxes, it never changes which triangles are tested against what."""

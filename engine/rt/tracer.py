@@ -270,7 +270,8 @@ class Tracer:
         specs = {"occluded": self.scene.spec(ctx, stack_regs=CPU_OCCLUSION_STACK_REGS),
                  "intersect": self.scene.spec(ctx)}
         self.two_pass = {kind: bool(s.get(2) and s.get(9)) for kind, s in specs.items()}
-        self.retry = Buffer(ctx, 4 + 4 * self.batch if any(self.two_pass.values()) else 16, STORAGE | TRANSFER_DST,
+        two = any(self.two_pass.values())   # (CPU devices only: host-visible is their device memory)
+        self.retry = Buffer(ctx, 4 + 4 * self.batch if two else 16, STORAGE | TRANSFER_DST, host=two,
                             name="retry list")
         self.io_set.buffer(0, self.rays).buffer(1, self.results).buffer(2, self.params).buffer(3, self.retry)
         self.timestamps = Timestamps(ctx, capacity=4)
@@ -282,6 +283,7 @@ class Tracer:
                     ctx, lib.get(f"trace_{kind}.comp"), [self.io_set, self.bvh_set], spec={**spec, 16: pass_},
                     name=f"trace_{kind}{suffix}")
         self.last_gpu_ms = 0.0
+        self.last_retried = 0        # rays of the last query that the second dispatch walked again (two_pass)
         self.last_times: dict = {}   # GPU ms of the last batch per step: upload (staged only), trace, download
 
     def _command(self, kind, n):
@@ -341,7 +343,7 @@ class Tracer:
         """(N,) bool: does any triangle lie along origin + t * direction for t in [0, tmax]?"""
         o, d, t = _check_rays(origins, directions, tmax)
         out = np.empty(len(o), bool)
-        self.last_gpu_ms = 0.0
+        self.last_gpu_ms, self.last_retried = 0.0, 0
         for s in range(0, len(o), self.batch):
             n = self._run("occluded", o[s:s + self.batch], d[s:s + self.batch], t[s:s + self.batch])
             out[s:s + n] = self.results_host.view(np.uint32)[:n] != 0
@@ -353,7 +355,7 @@ class Tracer:
         n_all = len(o)
         hits = Hits(np.empty(n_all, np.float32), np.empty(n_all, np.int32), np.empty(n_all, np.float32),
                     np.empty(n_all, np.float32))
-        self.last_gpu_ms = 0.0
+        self.last_gpu_ms, self.last_retried = 0.0, 0
         for s in range(0, n_all, self.batch):
             n = self._run("intersect", o[s:s + self.batch], d[s:s + self.batch], t[s:s + self.batch])
             rec = self.results_host.view(np.float32)[:n * 4].reshape(n, 4)
@@ -377,6 +379,8 @@ class Tracer:
         self.ctx.submit(cmd)
         self.last_times = self.timestamps.read(marks)
         self.last_gpu_ms += self.last_times.get("trace", 0.0)
+        if self.two_pass[kind]:
+            self.last_retried += int(self.retry.view(np.uint32)[0])
         return n
 
     # ---- lifetime --------------------------------------------------------------------------

@@ -103,3 +103,29 @@ def test_wide_bvh_layout_gives_the_same_shadows_and_ao(make_renderer):
     assert np.array_equal(wide.aov["shadow"], binary.aov["shadow"])
     assert np.abs(wide.aov["ao"] - binary.aov["ao"]).max() < 1e-6
     assert (wide.aov["ao"] < 0.99).mean() > 0.01          # the scene really has occlusion
+
+
+def test_short_register_stack_retry_in_the_passes(make_renderer, monkeypatch):
+    """The renderer's shadow and AO passes walk a ray again inline (bvh.glsl BVH_BOTH_) when a short register stack
+    lost an entry: with 1 entry (most rays overflow it), on both layouts, the shadow masks and AO are exactly those
+    of the default traversal."""
+    import engine.rt.tracer as tracer_mod
+    mesh, scene = box_on_ground()
+    ball = trimesh.creation.icosphere(subdivisions=3, radius=0.7)   # a deeper tree than the boxes' alone
+    ball.apply_translation((-2.0, 0.7, 0.5))
+    mesh = trimesh.util.concatenate([mesh, ball])
+    scene = Scene.from_trimesh(mesh, camera=scene.camera, lights=scene.lights)
+    settings = dict(shadows="hard", ao=True, ao_samples=2)
+    for layout in ("binary", "wide"):
+        base = make_renderer(96, 72, bvh_layout=layout).render(scene, **settings)
+        with monkeypatch.context() as m:
+            m.setattr(tracer_mod, "CPU_STACK_REGS", 1)
+            m.setattr(tracer_mod, "CPU_WIDE_STACK_REGS", 1)
+            r = make_renderer(96, 72, bvh_layout=layout)
+            short = r.render(scene, **settings)
+        if tracer_mod.is_cpu(r.ctx):
+            spec = r.shadows.pipeline.spec
+            assert spec[3] == 1 and spec[9], spec
+        assert np.array_equal(short.aov["shadow"], base.aov["shadow"])
+        assert np.abs(short.aov["ao"] - base.aov["ao"]).max() < 1e-6
+    assert (base.aov["ao"] < 0.99).mean() > 0.01 and (base.aov["shadow"] == 0).mean() > 0.01

@@ -187,7 +187,7 @@ def test_short_stack_retry_matches_the_full_stack(monkeypatch, tracers, name):
     tmax[::4] = np.inf
     occ0, hit0 = tracers[name].occluded(o, d, tmax), tracers[name].intersect(o, d, tmax)
     with _variant_tracer(monkeypatch, {0: True, 1: True, 2: True, 3: 1, 9: True, 10: True}, v, f) as variant:
-        # the retry in a second dispatch over the rays the first left unresolved (rays.glsl TRACE_PASS)
+        # the retry in a second dispatch over the rays the first left unresolved (trace_*_retry.comp)
         assert variant.two_pass == {"occluded": True, "intersect": True}
         assert np.array_equal(variant.occluded(o, d, tmax), occ0)
         hit1 = variant.intersect(o, d, tmax)
@@ -221,9 +221,8 @@ def test_image_loads_match_texel_fetches(monkeypatch, tracers, name):
 
 
 @pytest.mark.parametrize("name", list(meshes()))
-@pytest.mark.parametrize("over", [{12: True, 3: 1, 9: False}, {12: True, 3: 1, 9: True},
-                                  {12: True, 3: 2, 11: False}, {12: False}],
-                         ids=["cpu-1-entry", "cpu-1-entry-second-dispatch", "cpu-2-entries-texel", "gpu-walk"])
+@pytest.mark.parametrize("over", [{12: True, 3: 1, 9: True}, {12: True, 3: 2, 9: True, 11: False}, {12: False}],
+                         ids=["cpu-1-entry", "cpu-2-entries-texel", "gpu-walk"])
 def test_wide_traversals_give_the_same_answers(monkeypatch, name, over):
     """The 8-wide layout's two traversals (constant 12: the lavapipe one, postponed leaves and a register stack of
     node groups with a retry walk; off: the GPU one) answer alike on every mesh, with a register stack of 1 or 2
@@ -256,7 +255,7 @@ def test_wide_traversals_give_the_same_answers(monkeypatch, name, over):
 
 
 def test_second_dispatch_over_several_batches(monkeypatch, tracers):
-    """The retry list of the two-pass kernels (rays.glsl TRACE_PASS) is emptied for every batch: with a 1-entry
+    """The retry list of the two-pass kernels (trace_*_retry.comp) is emptied for every batch: with a 1-entry
     register stack (many rays unresolved after the first pass) and batches of 700 rays, 2500 rays of both kinds give
     exactly the default traversal's answers, and the second dispatch walks exactly the rays it walks when all 2500
     are one batch (an unemptied list would walk the earlier batches' again), with the validation layer on."""

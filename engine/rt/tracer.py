@@ -27,7 +27,7 @@ from ..vk.resources import STORAGE, STORAGE_TEXEL, TRANSFER_DST, TRANSFER_SRC, U
 
 RAY_BYTES = 28  # 7 floats: origin, direction, tmax, as three packed arrays (shaders/glsl/include/rays.glsl)
 GROUP = 64
-RETRY_GROUPS = 4  # workgroups of the second pass (rays.glsl TRACE_PASS 2), striding over the rays left to it
+RETRY_GROUPS = 4  # workgroups of the second dispatch (trace_*_retry.comp), striding over the rays left to it
 HIT_BYTES = {"occluded": 4, "intersect": 16}
 
 
@@ -265,7 +265,7 @@ class Tracer:
             self.rays, self.results = self.rays_host, self.results_host
         self.params = Buffer(ctx, 32, STORAGE | vk.VK_BUFFER_USAGE_INDIRECT_BUFFER_BIT, host=True, name="params")
         # Where the register stack can overflow (CPU devices), the rare rays it leaves unresolved are walked again
-        # in a second dispatch (rays.glsl TRACE_PASS) rather than inline: llvmpipe runs the inline walk's loop body
+        # in a second dispatch (trace_*_retry.comp) rather than inline: llvmpipe runs the inline walk's loop body
         # for every 8 rays whether or not one needs it (1.02-1.13x without it, lavapipe, same-run A/B).
         specs = {"occluded": self.scene.spec(ctx, stack_regs=CPU_OCCLUSION_STACK_REGS),
                  "intersect": self.scene.spec(ctx)}
@@ -277,11 +277,9 @@ class Tracer:
         self.timestamps = Timestamps(ctx, capacity=4)
         self.pipelines, self._commands, self._marks = {}, {}, {}
         for kind, spec in specs.items():
-            passes = {"": 1, "_retry": 2} if self.two_pass[kind] else {"": 0}
-            for suffix, pass_ in passes.items():
-                self.pipelines[kind + suffix] = ComputePipeline(
-                    ctx, lib.get(f"trace_{kind}.comp"), [self.io_set, self.bvh_set], spec={**spec, 16: pass_},
-                    name=f"trace_{kind}{suffix}")
+            for name in [f"trace_{kind}"] + ([f"trace_{kind}_retry"] if self.two_pass[kind] else []):
+                self.pipelines[name[6:]] = ComputePipeline(ctx, lib.get(f"{name}.comp"), [self.io_set, self.bvh_set],
+                                                           spec=spec, name=name)
         self.last_gpu_ms = 0.0
         self.last_retried = 0        # rays of the last query that the second dispatch walked again (two_pass)
         self.last_times: dict = {}   # GPU ms of the last batch per step: upload (staged only), trace, download

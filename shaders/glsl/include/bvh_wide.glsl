@@ -153,7 +153,7 @@ bool bvh_trace_wide_(vec3 o, vec3 d, float tmin, float tmax, bool any_hit, int m
             return bvh_wide_walk_cpu_(r, oct_inv, tmin, tmax, any_hit, true, hit, lost) || had;
         }
         bool found = bvh_wide_walk_cpu_(r, oct_inv, tmin, tmax, any_hit, false, hit, lost);
-        if (BVH_REG_STACK && lost && !(any_hit && found)) {
+        if (BVH_STACK_RETRY && BVH_REG_STACK && lost && !(any_hit && found)) {
             if (mode == BVH_FIRST_) {
                 unresolved = true;
             } else {

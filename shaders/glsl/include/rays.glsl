@@ -24,12 +24,9 @@ void load_ray(uint i, out vec3 o, out vec3 d, out float tmax) {
     d = vec3(ray_data[c3 + k], ray_data[c3 + k + 1u], ray_data[c3 + k + 2u]);
     tmax = ray_data[2u * c3 + i];
 }
-// The batch kernels' passes (specialization constant 16, set by engine/rt/tracer.py): 0 = one pass, each ray
-// answered by bvh_occluded / bvh_intersect; 1 = the first pass of two (CPU devices, where bvh.glsl's register stack
-// can overflow): bvh_*_first, and the rays left unresolved are appended to `retry`; 2 = the second pass: the rays in
-// `retry` walked again by bvh_*_full (a fixed, small dispatch striding over them). The host zeroes retry.count
-// before the first pass (a fill recorded in the same command buffer).
-layout(constant_id = 16) const int TRACE_PASS = 0;
+// The rays a kernel's register stack left unresolved (bvh.glsl bvh_*_first; CPU devices only, where the stack can
+// overflow): the batch kernels append them here, and trace_*_retry.comp, a second small dispatch, walks them again
+// with the array stack. The host zeroes retry.count before each batch (a fill recorded in the same command buffer).
 layout(std430, set = 0, binding = 3) buffer Retry { uint count; uint ids[]; } retry;
 
 void retry_later(uint i) {

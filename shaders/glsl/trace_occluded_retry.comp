@@ -1,0 +1,21 @@
+#version 450
+#extension GL_GOOGLE_include_directive : require
+// The second dispatch of the batch any-hit query (CPU devices): the rays trace_occluded.comp left unresolved
+// (rays.glsl `retry`), walked with the array stack; a few workgroups stride over the list.
+#include "rays.glsl"
+#define BVH_SET 1
+#define BVH_BINDING 0
+#include "bvh.glsl"
+
+layout(local_size_x = 64) in;
+layout(std430, set = 0, binding = 1) writeonly buffer Result { uint occluded[]; };
+
+void main() {
+    for (uint k = gl_GlobalInvocationID.x; k < retry.count; k += gl_NumWorkGroups.x * 64u) {
+        uint i = retry.ids[k];
+        vec3 o, d;
+        float tmax;
+        load_ray(i, o, d, tmax);
+        occluded[i] = bvh_occluded_full(o, d, 0.0, tmax) ? 1u : 0u;
+    }
+}

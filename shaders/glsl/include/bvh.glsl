@@ -17,6 +17,8 @@
 //            BvhHit { float t; int prim; float u; float v; }: t = +inf and prim = -1 on a miss; prim is the original
 //            triangle index; u, v are the barycentric weights of the triangle's second and third vertices, so the
 //            hit point is (1 - u - v) * p0 + u * p1 + v * p2 = o + t * d.
+//     bvh_occluded_first / bvh_intersect_first (+ out bool unresolved), bvh_occluded_full / bvh_intersect_full:
+//            the same queries in two steps, the rare second walk left to a later dispatch (see below)
 // Directions are used as given (not normalized); t is in units of d. Zero-area triangles are never hit.
 //
 // Buffer layout (documented in engine/bvh/layout.py, uploaded verbatim from BVH.nodes / BVH.tris). They are read as

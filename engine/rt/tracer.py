@@ -27,7 +27,9 @@ from ..vk.resources import STORAGE, STORAGE_TEXEL, TRANSFER_DST, TRANSFER_SRC, U
 
 RAY_BYTES = 28  # 7 floats: origin, direction, tmax, as three packed arrays (shaders/glsl/include/rays.glsl)
 GROUP = 64
-RETRY_GROUPS = 4  # workgroups of the second dispatch (trace_*_retry.comp), striding over the rays left to it
+#: workgroups of the second dispatch (trace_*_retry.comp), striding over the rays left to it: at least one per core
+#: (a CPU device's threads), so that a deep tree with many unresolved rays still uses every core
+RETRY_GROUPS = max(4, os.cpu_count() or 1)
 HIT_BYTES = {"occluded": 4, "intersect": 16}
 
 
@@ -322,8 +324,9 @@ class Tracer:
             memory_barrier(cmd, C, T, vk.VK_ACCESS_SHADER_WRITE_BIT, vk.VK_ACCESS_TRANSFER_READ_BIT)
             vk.vkCmdCopyBuffer(cmd, self.results.handle, self.results_host.handle, 1,
                                [vk.VkBufferCopy(0, 0, span * HIT_BYTES[kind])])
-            memory_barrier(cmd, T, vk.VK_PIPELINE_STAGE_HOST_BIT, vk.VK_ACCESS_TRANSFER_WRITE_BIT,
-                           vk.VK_ACCESS_HOST_READ_BIT)
+            # the copied results, and the retry list's counter the shader wrote (Tracer.last_retried)
+            memory_barrier(cmd, T | C, vk.VK_PIPELINE_STAGE_HOST_BIT,
+                           vk.VK_ACCESS_TRANSFER_WRITE_BIT | vk.VK_ACCESS_SHADER_WRITE_BIT, vk.VK_ACCESS_HOST_READ_BIT)
             ts.mark(cmd, "download")
         else:
             memory_barrier(cmd, C, vk.VK_PIPELINE_STAGE_HOST_BIT, vk.VK_ACCESS_SHADER_WRITE_BIT,

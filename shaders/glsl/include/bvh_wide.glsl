@@ -47,8 +47,9 @@ void bvh_wide_slot_(BvhWideNode_ n, uint j, out vec3 lo, out vec3 hi, out uint m
 
 // Specialization constant 12 (BVH_WIDE_CPU, CPU devices): the 8-wide traversal in lavapipe's terms, as the binary
 // one: postponed leaf tests (the node walk is an inner loop that runs until the ray has triangles), the stack as
-// shifted registers (min(BVH_STACK_REGS, 12) entries; a ray whose pushes overflowed them and that ends without its
-// answer walks again with the array stack), no store or load under a branch.
+// shifted registers (min(BVH_STACK_REGS, 12) entries; with constant 9, BVH_STACK_RETRY, which must be on where
+// they can be fewer than the tree needs, a ray whose pushes overflowed them and that ends without its answer walks
+// again with the array stack: inline, or in a later dispatch, see bvh.glsl), no store or load under a branch.
 layout(constant_id = 12) const bool BVH_WIDE_CPU = false;
 
 #define BVH_WSHIFT_(k, below) wold_ = w##k; \

@@ -45,6 +45,41 @@ void bvh_wide_slot_(BvhWideNode_ n, uint j, out vec3 lo, out vec3 hi, out uint m
     meta = ((up ? n.t1.w : n.t1.z) >> sh) & 0xFFu;
 }
 
+// The 8 children of node n against the ray: `hits` gets hit bit 24 + (slot ^ oct_inv) for every hit interior slot,
+// `tris` one bit per triangle of every hit leaf slot (its meta byte: count << 5 | first, over the node's triangles
+// from n.t1.y). Selects, not branches: lavapipe runs both sides of an `if`.
+void bvh_wide_children_(BvhRay_ r, BvhWideNode_ n, uint oct_inv, float tmin, float best, out uint hits,
+                        out uint tris) {
+    hits = 0u;
+    tris = 0u;
+    for (uint j = 0u; j < 8u; ++j) {
+        vec3 lo, hi;
+        uint meta;
+        bvh_wide_slot_(n, j, lo, hi, meta);
+        vec2 sl = bvh_slab_(r, lo, hi, tmin, best);
+        bool inner = ((n.imask >> j) & 1u) != 0u;
+        bool h = sl.x <= sl.y;
+        hits |= (h && inner) ? 1u << (24u + (j ^ oct_inv)) : 0u;
+        tris |= (h && !inner) ? ((1u << (meta >> 5u)) - 1u) << (meta & 31u) : 0u;
+    }
+}
+
+// The triangles whose bits `tris` holds (from tri_base) against the ray; true at the first hit when any_hit.
+bool bvh_wide_triangles_(BvhRay_ r, uint tri_base, uint tris, float tmin, bool any_hit, inout float best,
+                         inout BvhHit hit, inout bool found) {
+    while (tris != 0u) {
+        uint k = uint(findLSB(tris));
+        tris &= tris - 1u;
+        if (bvh_leaf_triangle_(r, tri_base + k, tmin, best, hit)) {
+            found = true;
+            if (any_hit) {
+                return true;
+            }
+        }
+    }
+    return false;
+}
+
 // Specialization constant 12 (BVH_WIDE_CPU, CPU devices): the 8-wide traversal in lavapipe's terms, as the binary
 // one: postponed leaf tests (the node walk is an inner loop that runs until the ray has triangles), the stack as
 // shifted registers (min(BVH_STACK_REGS, 12) entries; with constant 9, BVH_STACK_RETRY, which must be on where
@@ -106,32 +141,15 @@ bool bvh_wide_walk_cpu_(BvhRay_ r, uint oct_inv, float tmin, float tmax, bool an
             sp -= up ? 1u : 0u;
 
             BvhWideNode_ n = bvh_wide_node_(node);
-            uint hits = 0u;
-            uint tr = 0u;
-            for (uint j = 0u; j < 8u; ++j) {
-                vec3 lo, hi;
-                uint meta;
-                bvh_wide_slot_(n, j, lo, hi, meta);
-                vec2 sl = bvh_slab_(r, lo, hi, tmin, best);
-                bool inner = ((n.imask >> j) & 1u) != 0u;
-                bool h = sl.x <= sl.y;
-                hits |= (h && inner) ? 1u << (24u + (j ^ oct_inv)) : 0u;
-                tr |= (h && !inner) ? ((1u << (meta >> 5u)) - 1u) << (meta & 31u) : 0u;
-            }
+            uint hits, tr;
+            bvh_wide_children_(r, n, oct_inv, tmin, best, hits, tr);
             group = fin ? group : uvec2(n.t1.x, hits | n.imask);
             tris = fin ? 0u : tr;
             tri_base = n.t1.y;
             done = fin;
         }
-        while (tris != 0u) {
-            uint k = uint(findLSB(tris));
-            tris &= tris - 1u;
-            if (bvh_leaf_triangle_(r, tri_base + k, tmin, best, hit)) {
-                found = true;
-                if (any_hit) {
-                    return true;
-                }
-            }
+        if (bvh_wide_triangles_(r, tri_base, tris, tmin, any_hit, best, hit, found)) {
+            return true;
         }
         if (done) {
             break;
@@ -191,6 +209,7 @@ bool bvh_trace_wide_(vec3 o, vec3 d, float tmin, float tmax, bool any_hit, int m
         }
 
         BvhWideNode_ n = bvh_wide_node_(node);
+        // bvh_wide_children_'s test with branches, as measured on the H200 (the selects are for lavapipe)
         uint hits = 0u;
         uint tris = 0u;
         for (uint j = 0u; j < 8u; ++j) {
@@ -207,17 +226,8 @@ bool bvh_trace_wide_(vec3 o, vec3 d, float tmin, float tmax, bool any_hit, int m
             }
         }
         group = uvec2(n.t1.x, hits | n.imask);
-
-        uint tri_base = n.t1.y;
-        while (tris != 0u) {
-            uint k = uint(findLSB(tris));
-            tris &= tris - 1u;
-            if (bvh_leaf_triangle_(r, tri_base + k, tmin, best, hit)) {
-                found = true;
-                if (any_hit) {
-                    return true;
-                }
-            }
+        if (bvh_wide_triangles_(r, n.t1.y, tris, tmin, any_hit, best, hit, found)) {
+            return true;
         }
     }
     return found || had;

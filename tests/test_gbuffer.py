@@ -111,6 +111,45 @@ def test_texture_reaches_albedo(make_renderer):
     assert np.allclose(br, 0.2158, atol=0.01)  # sRGB 128 -> linear 0.2158
 
 
+ASPECT = 8
+
+
+def _quads_scene(n):
+    """n unit quads in a row, each with a material of its own whose 4x4 texture is one solid sRGB colour."""
+    from engine.scene.material import Material
+    rng = np.random.default_rng(n)
+    colours = rng.integers(40, 255, (n, 3))
+    verts, faces, vm, uvs, mats = [], [], [], [], []
+    for i in range(n):
+        x = 1.25 * (i - (n - 1) / 2)
+        base = len(verts)
+        verts += [[x - 0.5, -0.5, 0], [x + 0.5, -0.5, 0], [x + 0.5, 0.5, 0], [x - 0.5, 0.5, 0]]
+        uvs += [[0, 1], [1, 1], [1, 0], [0, 0]]
+        faces += [[base, base + 1, base + 2], [base, base + 2, base + 3]]
+        vm += [i] * 4
+        tex = np.empty((4, 4, 4), np.uint8)
+        tex[..., :3], tex[..., 3] = colours[i], 255
+        mats.append(Material(f"quad{i}", (1, 1, 1), tex))
+    dist = 0.6 * 1.25 * n / (math.tan(math.radians(22.5)) * ASPECT)   # the row fills the view's width
+    cam = Camera.look_at((0, 0, dist), (0, 0, 0), fov_y=45.0)
+    return Scene(np.array(verts, float), faces, uvs=np.array(uvs, float), vertex_material=np.array(vm),
+                 materials=mats, camera=cam), colours
+
+
+def test_every_texture_slot_reaches_albedo_as_scenes_change(make_renderer):
+    """One renderer, scenes of 2, 5 and 18 textured quads in turn (the resolve is specialized to the scene's slot
+    count each time): every quad's albedo is its own texture's colour; past the 16 slots, the base colour (white)."""
+    r = make_renderer(36 * ASPECT, 36)
+    for n in (2, 5, 18, 3):
+        scene, colours = _quads_scene(n)
+        a = r.render(scene, shadows="off", ao=False).aov["albedo"]
+        for i in range(n):   # quad i's centre, in a view 2 * 0.6 * 1.25 n wide
+            col = int(round(((i - (n - 1) / 2) / (0.6 * n) + 1) / 2 * 36 * ASPECT - 0.5))
+            want = (colours[i] / 255.0) ** 2.2 if i < 16 else np.ones(3)   # ~sRGB decode
+            got = a[18, col, :3]
+            assert np.allclose(got, want, atol=0.03), (n, i, got, want)
+
+
 def test_colour_image_lit_side_brighter(make_renderer):
     scene = sphere_scene()
     scene.lights = [DirectionalLight((-1, 0, 0), intensity=2.0)]  # light travels towards -x: lights the +x side

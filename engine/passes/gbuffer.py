@@ -94,10 +94,14 @@ class GBufferPass:
             ctx, library.get("gbuffer.vert"), library.get("gbuffer.frag"), [self.raster_set],
             color_formats=[VISIBILITY_FORMAT], depth_format=DEPTH_FORMAT, vertex_stride=32,
             attributes=[(0, F3, 0)], push_size=4, name="gbuffer")
-        self.resolve = ComputePipeline(ctx, library.get("gbuffer_resolve.comp"), [self.set], name="gbuffer_resolve")
+        # Specialization constant 0: the texture slots the scene uses (the resolve's sampling blocks past them go).
+        self.resolve = ComputePipeline(ctx, library.get("gbuffer_resolve.comp"), [self.set], spec={0: MAX_TEXTURES},
+                                       name="gbuffer_resolve")
+        self.library = library
         self.bind_targets(targets)
 
     def reload(self, library):
+        self.library = library
         self.pipeline.rebuild(library.get("gbuffer.vert"), library.get("gbuffer.frag"))
         self.resolve.rebuild(library.get("gbuffer_resolve.comp"))
 
@@ -106,6 +110,14 @@ class GBufferPass:
         self.set.image(10, t.normal8)
 
     def bind_scene(self, geom: SceneGeometry):
+        spec = {0: max(1, len(geom.textures))}
+        if spec != self.resolve.spec:
+            old, self.resolve.spec = self.resolve.spec, spec
+            try:
+                self.resolve.rebuild(self.library.get("gbuffer_resolve.comp"))
+            except BaseException:
+                self.resolve.spec = old
+                raise
         for binding, view in enumerate(geom.views, start=5):
             self.set.texel_buffer(binding, view)
         for slot in range(MAX_TEXTURES):

@@ -12,6 +12,17 @@
 FRAME_BLOCK
 
 #define MAX_TEXTURES 16
+layout(constant_id = 0) const int TEXTURE_SLOTS = MAX_TEXTURES;
+
+// Slot k of `textures` at the pixel's UV, with the level of detail a fragment quad would have used (isotropic: the
+// sampler has no anisotropy), given explicitly; multiplied into the albedo of the pixels whose material uses it.
+#define SAMPLE_SLOT(k)                                                                                          \
+    if (k < TEXTURE_SLOTS && (used & (1u << k)) != 0u) {                                                       \
+        vec2 texels = vec2(textureSize(textures[k], 0));                                                       \
+        float rho = max(length(duv_dx * texels), length(duv_dy * texels));                                     \
+        vec4 texel = textureLod(textures[k], uv, log2(max(rho, 1e-30)));                                       \
+        if (slot == k) albedo.rgb *= texel.rgb;                                                                \
+    }
 
 layout(local_size_x = 8, local_size_y = 8) in;
 // Read, then set back to 0 (background) for the next frame: the raster pass loads it instead of clearing it.
@@ -84,22 +95,19 @@ void main() {
         slot = floatBitsToInt(texelFetch(materials, 2 * material + 1).x);
     }
 
-    // Texture sampling with an index that is uniform over the workgroup: loop over the slots this tile uses.
+    // Texture sampling: one block per slot, each with a constant index, taken where some pixel of this workgroup
+    // samples that slot (the bits in tile_slots: a branch that is uniform over the workgroup). Constant indices,
+    // not a loop over textures[s]: lavapipe 22.3 samples a dynamically indexed array lane by lane, and in rare
+    // launches (2 seen in about 300) put the wrong texture on one object for the whole run.
+    // TEXTURE_SLOTS (specialization constant 0) is the number of slots the scene uses: the blocks past it go.
     if (gl_LocalInvocationIndex == 0u) tile_slots = 0u;
     barrier();
     if (slot >= 0) atomicOr(tile_slots, 1u << uint(slot));
     barrier();
-    uint todo = tile_slots;
-    while (todo != 0u) {
-        int s = findLSB(todo);
-        todo &= todo - 1u;
-        // The level of detail a fragment quad would have used (isotropic: the sampler has no anisotropy), given
-        // explicitly: lavapipe's LLVM fails to compile textureGrad with a non-constant sampler index.
-        vec2 texels = vec2(textureSize(textures[s], 0));
-        float rho = max(length(duv_dx * texels), length(duv_dy * texels));
-        vec4 texel = textureLod(textures[s], uv, log2(max(rho, 1e-30)));
-        if (s == slot) albedo.rgb *= texel.rgb;
-    }
+    uint used = tile_slots;
+    SAMPLE_SLOT(0) SAMPLE_SLOT(1) SAMPLE_SLOT(2) SAMPLE_SLOT(3) SAMPLE_SLOT(4) SAMPLE_SLOT(5) SAMPLE_SLOT(6)
+    SAMPLE_SLOT(7) SAMPLE_SLOT(8) SAMPLE_SLOT(9) SAMPLE_SLOT(10) SAMPLE_SLOT(11) SAMPLE_SLOT(12) SAMPLE_SLOT(13)
+    SAMPLE_SLOT(14) SAMPLE_SLOT(15)
 
     if (!inside) return;
     float depth = id != 0u ? dot(pos - frame.eye.xyz, frame.forward.xyz) : 0.0;

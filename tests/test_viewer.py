@@ -15,12 +15,24 @@ SCENE = DEFAULT if DEFAULT.exists() else REPO / "scenes" / "sphere.toml"
 SPHERE = REPO / "scenes" / "sphere.toml"
 
 
-def assert_close(got, ref, max_mean=1.0, max_bad=0.005):
-    """The same image up to driver differences: mean |diff| (0..255) and the share of pixels off by > 32 levels."""
+def assert_close(got, ref, max_mean=1.0, max_bad=0.005, name="viewer"):
+    """The same image up to driver differences: mean |diff| (0..255) and the share of pixels off by > 32 levels.
+    On failure both images and their difference go to out/test-failures/ and the message says where they differ."""
     assert got.shape == ref.shape, f"{got.shape} != {ref.shape}"
     diff = np.abs(got.astype(np.int16) - ref.astype(np.int16))
-    mean, bad = float(diff.mean()), float((diff.max(axis=2) > 32).mean())
-    assert mean <= max_mean and bad <= max_bad, f"mean |diff| {mean:.3f}, {bad:.2%} pixels off by > 32"
+    off = diff.max(axis=2) > 32
+    mean, bad = float(diff.mean()), float(off.mean())
+    if mean <= max_mean and bad <= max_bad:
+        return
+    from PIL import Image
+    out = REPO / "out" / "test-failures"
+    out.mkdir(parents=True, exist_ok=True)
+    Image.fromarray(np.concatenate([got[..., :3], ref[..., :3], np.minimum(4 * diff[..., :3], 255)], axis=1)
+                    .astype(np.uint8)).save(out / f"{name}-got-ref-diff.png")
+    ys, xs = np.nonzero(off) if off.any() else np.nonzero(diff.max(axis=2))
+    where = f"rows {ys.min()}-{ys.max()}, columns {xs.min()}-{xs.max()}" if len(ys) else "nowhere"
+    pytest.fail(f"mean |diff| {mean:.3f}, {bad:.2%} pixels off by > 32 ({where}); got | reference | 4x difference "
+                f"saved to {out / (name + '-got-ref-diff.png')}")
 
 
 @pytest.fixture

@@ -136,7 +136,7 @@ def _quads_scene(n):
                  materials=mats, camera=cam), colours
 
 
-def test_every_texture_slot_reaches_albedo_as_scenes_change(make_renderer):
+def test_every_texture_slot_reaches_albedo_as_scenes_change(make_renderer, caplog):
     """One renderer, scenes of 2, 5 and 18 textured quads in turn (the resolve is specialized to the scene's slot
     count each time): every quad's albedo is its own texture's colour; past the 16 slots, the base colour (white)."""
     r = make_renderer(36 * ASPECT, 36)
@@ -148,6 +148,10 @@ def test_every_texture_slot_reaches_albedo_as_scenes_change(make_renderer):
             want = (colours[i] / 255.0) ** 2.2 if i < 16 else np.ones(3)   # ~sRGB decode
             got = a[18, col, :3]
             assert np.allclose(got, want, atol=0.03), (n, i, got, want)
+        capped = [r.getMessage() for r in caplog.records if "textured materials" in r.getMessage()]
+        assert capped == (["<arrays>: 18 textured materials; the first 16 keep their textures, the other 2 show "
+                           "their base colour"] if n == 18 else []), capped
+        caplog.clear()
 
 
 def test_colour_image_lit_side_brighter(make_renderer):

@@ -12,6 +12,8 @@ draw per material, the draw's first triangle in a push constant (the triangle id
 """
 from __future__ import annotations
 
+import logging
+
 import numpy as np
 import vulkan as vk
 
@@ -26,6 +28,8 @@ ALBEDO_FORMAT = vk.VK_FORMAT_R16G16B16A16_SFLOAT
 VISIBILITY_FORMAT = vk.VK_FORMAT_R32_UINT
 DEPTH_FORMAT = vk.VK_FORMAT_D32_SFLOAT
 F3 = vk.VK_FORMAT_R32G32B32_SFLOAT
+
+log = logging.getLogger("engine.gbuffer")
 
 
 class SceneGeometry:
@@ -61,6 +65,10 @@ class SceneGeometry:
             if m.texture is not None and len(self.textures) < MAX_TEXTURES:
                 mat_slots[i, 4] = len(self.textures)
                 self.textures.append(upload_texture(ctx, m.texture))
+        textured = sum(m.texture is not None for m in scene.materials)
+        if textured > MAX_TEXTURES:
+            log.warning("%s: %d textured materials; the first %d keep their textures, the other %d show their base "
+                        "colour", scene.name, textured, MAX_TEXTURES, textured - MAX_TEXTURES)
         self.material_buffer = upload_buffer(ctx, mat_data, UNIFORM_TEXEL, "materials")
         F4, U1 = vk.VK_FORMAT_R32G32B32A32_SFLOAT, vk.VK_FORMAT_R32_UINT
         self.views = [BufferView(self.vertex_buffer, F4), BufferView(self.index_buffer, U1),

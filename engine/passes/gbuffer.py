@@ -120,12 +120,7 @@ class GBufferPass:
     def bind_scene(self, geom: SceneGeometry):
         spec = {0: max(1, len(geom.textures))}
         if spec != self.resolve.spec:
-            old, self.resolve.spec = self.resolve.spec, spec
-            try:
-                self.resolve.rebuild(self.library.get("gbuffer_resolve.comp"))
-            except BaseException:
-                self.resolve.spec = old
-                raise
+            self.resolve.specialize(self.library.get("gbuffer_resolve.comp"), spec)
         for binding, view in enumerate(geom.views, start=5):
             self.set.texel_buffer(binding, view)
         for slot in range(MAX_TEXTURES):

@@ -34,13 +34,7 @@ class RayPass:
         """Re-create the pipeline with these bvh.glsl specialization constants (a scene's SceneBVH.spec: its depth
         and node layout), where they differ from the current ones."""
         if spec != self.pipeline.spec:
-            old = self.pipeline.spec
-            self.pipeline.spec = dict(spec)
-            try:
-                self.pipeline.rebuild(library.get(self.shaders[0]))
-            except BaseException:
-                self.pipeline.spec = old  # the old pipeline stays, and says so: the next scene upload tries again
-                raise
+            self.pipeline.specialize(library.get(self.shaders[0]), spec)
 
     def bind_targets(self, t):
         self.set.image(1, t.position).image(2, t.normal).buffer(3, getattr(t, self.output))

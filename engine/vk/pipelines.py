@@ -159,6 +159,18 @@ class ComputePipeline(_Pipeline):
         finally:
             vk.vkDestroyShaderModule(self.ctx.device, module, None)
 
+    def specialize(self, spirv: bytes, spec: dict):
+        """Re-create the pipeline from `spirv` with these specialization constants, where they differ from the
+        current ones; if that fails the old pipeline and its constants stay (the next call tries again)."""
+        if spec == self.spec:
+            return
+        old, self.spec = self.spec, dict(spec)
+        try:
+            self.rebuild(spirv)
+        except BaseException:
+            self.spec = old
+            raise
+
     def dispatch(self, cmd, sets, gx, gy=1, gz=1, push=None):
         self.bind(cmd, sets, push)
         vk.vkCmdDispatch(cmd, gx, gy, gz)

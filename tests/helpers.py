@@ -2,6 +2,7 @@
 import math
 
 import numpy as np
+import trimesh
 
 
 def pixel_rays(camera, width, height):
@@ -23,3 +24,19 @@ def interior(mask, margin=1):
         for dx in range(-margin, margin + 1):
             m &= np.roll(np.roll(mask, dy, 0), dx, 1)
     return m
+
+
+def terrace(n=3000, seed=4):
+    """A ground quad (2 triangles) and a wall (a box) under a crowd of small triangles: the large ones are lifted
+    into the top of the tree (builder.py, "large triangles")."""
+    rng = np.random.default_rng(seed)
+    centre = np.c_[rng.uniform(-9, 9, n), rng.uniform(0.05, 3, n), rng.uniform(-9, 9, n)][:, None, :]
+    v = [(centre + rng.normal(scale=0.05, size=(n, 3, 3))).reshape(-1, 3)]
+    f = [np.arange(3 * n).reshape(n, 3)]
+    ground = np.array([[-10, 0, -10], [10, 0, -10], [10, 0, 10], [-10, 0, 10]], dtype=np.float64)
+    f.append(np.array([[0, 2, 1], [0, 3, 2]]) + 3 * n)
+    v.append(ground)
+    wall = trimesh.creation.box(extents=(16, 4, 0.4))
+    f.append(wall.faces + 3 * n + 4)
+    v.append(wall.vertices + [0, 2, -8])
+    return np.vstack(v), np.vstack(f)

@@ -12,6 +12,7 @@ from engine.bvh import LEAF_BIT, NODE_DTYPE, TRI_DTYPE, build_bvh
 from engine.bvh.traverse_py import traverse
 from engine.errors import ConfigError, SceneError
 from engine.rt.reference import _pairs, _Triangles, reference_intersect, reference_occluded
+from helpers import terrace
 
 ROOT = Path(__file__).resolve().parent.parent
 
@@ -72,6 +73,7 @@ def coincident(n=300):
 
 MESHES = {
     "sphere": sphere,
+    "terrace": terrace,
     "thin_box": thin_box,
     "soup": soup,
     "degenerate": with_degenerates,
@@ -225,9 +227,10 @@ def test_invariants_larger_mesh_and_other_leaf_sizes():
         check_invariants(build_bvh(v, f, max_leaf=max_leaf), v, f, max_leaf=max_leaf)
 
 
-@pytest.mark.parametrize("name", ["sphere6", "soup_leaf1", "ladder_deep", "coincident"])
+@pytest.mark.parametrize("name", ["sphere6", "soup_leaf1", "ladder_deep", "coincident", "terrace"])
 def test_nodes_are_in_depth_first_order(name):
     v, f, kw = {
+        "terrace": (*terrace(), {}),  # lifted large triangles: subtrees moved under a new top
         "sphere6": (*sphere(6), {}),  # several sampled levels and chunk groups
         "soup_leaf1": (*soup(3000), {"max_leaf": 1}),
         "ladder_deep": (*ladder(150), {"max_depth": 60}),  # lopsided: long chains of one-sided subtrees
@@ -330,6 +333,50 @@ def test_bad_input_raises_scene_errors():
         build_bvh(np.zeros((3, 3)), [[0, 1, 2]], max_leaf=0)
 
 
+def leaf_depths(bvh):
+    """{leaf-order slot: depth of its leaf} (root's children at depth 1)."""
+    _, leaves = walk(bvh)
+    return {first + i: depth for first, count, *_, depth in leaves for i in range(count)}
+
+
+def test_large_triangles_are_lifted_near_the_root():
+    v, f = terrace()
+    plain = build_bvh(v, f, lift=False)
+    lifted = build_bvh(v, f)
+    assert plain.stats["lifted"] == 0 and lifted.stats["lifted"] == 14  # the ground's 2 and the wall's 12
+    check_invariants(lifted, v, f)
+    # boxes are no longer stretched over the whole ground (32.3 -> 26.4 here)
+    assert lifted.stats["sah_cost"] < 0.85 * plain.stats["sah_cost"]
+    slot = {int(p): k for k, p in enumerate(lifted.prim_ids)}
+    depth = leaf_depths(lifted)
+    n = len(f) - 14
+    assert max(depth[slot[n]], depth[slot[n + 1]]) <= 3, "the ground's triangles sit at the top"
+    plain_slot = {int(p): k for k, p in enumerate(plain.prim_ids)}
+    assert leaf_depths(plain)[plain_slot[n]] > 6, "(without the lift they sink among the small ones)"
+    # the same answers as the plain tree
+    rng = np.random.default_rng(5)
+    o, d = random_rays(rng, 800, v)
+    a, b = traverse(plain, o, d), traverse(lifted, o, d)
+    assert np.array_equal(a[1] >= 0, b[1] >= 0) and np.allclose(a[0], b[0], rtol=1e-6)
+
+
+def test_no_lift_for_meshes_of_similar_triangles():
+    for v, f in (sphere(3), soup(), thin_box()):  # the thin box's faces are large but a third of the mesh
+        a, b = build_bvh(v, f), build_bvh(v, f, lift=False)
+        assert a.stats["lifted"] == 0
+        assert a.nodes.tobytes() == b.nodes.tobytes() and a.tris.tobytes() == b.tris.tobytes()
+
+
+def test_lift_gives_way_to_the_depth_cap():
+    v, f = terrace()
+    assert build_bvh(v, f).stats["depth"] == 13
+    for cap in (10, 12):  # the lifted top would put leaves below the cap: the plain tree is built instead
+        bvh = build_bvh(v, f, max_depth=cap)
+        check_invariants(bvh, v, f, max_depth=cap)
+        assert bvh.stats["lifted"] == 0
+        assert bvh.nodes.tobytes() == build_bvh(v, f, max_depth=cap, lift=False).nodes.tobytes()
+
+
 def test_sah_quality_is_sane():
     bvh = build_bvh(*sphere(5))  # 20480 triangles
     # A good binned SAH gives about 39 on this mesh; a median split on a space-filling curve about 60.
@@ -349,7 +396,7 @@ def random_rays(rng, n, v, spread=1.5):
     return o.astype(np.float32), d.astype(np.float32)
 
 
-@pytest.mark.parametrize("name", ["sphere", "thin_box", "soup", "degenerate", "coincident", "ladder"])
+@pytest.mark.parametrize("name", ["sphere", "thin_box", "soup", "degenerate", "coincident", "ladder", "terrace"])
 def test_traversal_matches_reference(name):
     v, f = MESHES[name]()
     bvh = build_bvh(v, f, max_depth=10 if name == "ladder" else 32)

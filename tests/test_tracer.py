@@ -5,6 +5,7 @@ import trimesh
 
 from engine import ConfigError, SceneError, Tracer
 from engine.rt.reference import reference_intersect, reference_occluded
+from helpers import terrace
 
 
 def random_rays(rng, n, bounds, spread=1.5):
@@ -30,6 +31,7 @@ def meshes():
         "soup": (soup_v, soup_f),
         "degenerate": (degen_v, degen_f),
         "one_triangle": (np.array([[0, 0, 0], [1, 0, 0], [0, 1, 0]], float), np.array([[0, 1, 2]])),
+        "terrace": terrace(1200),  # large triangles lifted into the top of the tree
     }
 
 

@@ -2,6 +2,7 @@
 import numpy as np
 import pytest
 import trimesh
+from helpers import terrace
 
 from engine.bvh import build_bvh
 from engine.bvh.wide import WIDE_NODE_WORDS, collapse_bvh8, dequantize
@@ -24,6 +25,7 @@ def meshes():
         "far": (far_v, np.arange(300).reshape(100, 3)),
         "degenerate": (degen_v, degen_f),
         "one_triangle": (np.array([[0, 0, 0], [1, 0, 0], [0, 1, 0]], float), np.array([[0, 1, 2]])),
+        "terrace": terrace(1200),  # lifted large triangles
     }
 
 

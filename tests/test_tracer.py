@@ -151,6 +151,29 @@ def _variant_tracer(monkeypatch, spec, v, f):
     return Tracer(v, f, validation=True)
 
 
+def test_rays_through_texel_buffers_match_storage_buffers(monkeypatch):
+    """rays.glsl constant 13: rays read (and occlusion results written) through texel buffer views instead of the
+    storage buffers; both paths, for both query kinds, give the same answers, over several batches."""
+    import engine.rt.tracer as tracer_mod
+    v, f = terrace(1200)
+    rng = np.random.default_rng(17)
+    o, d = random_rays(rng, 5000, (v.min(0), v.max(0)))
+    tmax = rng.uniform(0.1, 30.0, len(o)).astype(np.float32)
+    answers = []
+    for kinds in ((), ("occluded", "intersect")):
+        monkeypatch.setattr(tracer_mod, "RAYS_TEXEL_KINDS", kinds)
+        with Tracer(v, f, validation=True, batch_size=2048) as t:
+            cpu = tracer_mod.is_cpu(t.ctx)
+            assert t.pipelines["occluded"].spec[13] == (cpu and bool(kinds))
+            hits = t.intersect(o, d, tmax)
+            answers.append((t.occluded(o, d, tmax), hits.prim, hits.t))
+            assert not t.validation_errors
+    for a, b in zip(*answers):
+        assert np.array_equal(a, b)
+    assert answers[0][0].sum() > 500 and (answers[0][1] >= 0).sum() > 500
+    assert (answers[0][0] != reference_occluded(v, f, o, d, tmax)).mean() < 0.002
+
+
 @pytest.mark.parametrize("spec", VARIANTS)
 def test_every_traversal_variant_gives_the_same_answers(monkeypatch, spec):
     """bvh.glsl's specialization constants (branchless push, postponed leaf tests, register stack and its size,

@@ -8,6 +8,7 @@ Usage: python tools/ab_passes.py [generated|default ...] [--variants NAME ...] [
 from __future__ import annotations
 
 import argparse
+import contextlib
 import sys
 from pathlib import Path
 
@@ -19,17 +20,30 @@ from ab_traversal import VARIANTS, load, overriding  # noqa: E402
 
 from engine.bench import _median, gbuffer_raysets  # noqa: E402
 from engine.passes import raypass  # noqa: E402
+from engine import renderer as renderer_mod  # noqa: E402
 from engine.renderer import Renderer  # noqa: E402
 
 
 def make_renderer(w, h, name):
-    layout, over = VARIANTS[name]
+    layout, over, *_ = VARIANTS[name]
     real = raypass.bvh_spec
     raypass.bvh_spec = overriding(real, over)
     try:
         return Renderer(w, h, bvh_layout=layout)
     finally:
         raypass.bvh_spec = real
+
+
+@contextlib.contextmanager
+def building(name):
+    """The renderer builds its scenes' BVHs with the variant's build_bvh options (VARIANTS' third field)."""
+    build = VARIANTS[name][2] if len(VARIANTS[name]) > 2 else {}
+    real = renderer_mod.build_bvh
+    renderer_mod.build_bvh = lambda v, f: real(v, f, **build)
+    try:
+        yield
+    finally:
+        renderer_mod.build_bvh = real
 
 
 def main():
@@ -49,12 +63,14 @@ def main():
             scene.lights = list(scene.lights[:1])
         settings = {"shadows": "hard", "ao": True, "ao_samples": a.ao_samples}
         first = rs[a.variants[0]]
-        frame = first.render(scene, **settings)
+        with building(a.variants[0]):
+            frame = first.render(scene, **settings)
         n_shadow = len(gbuffer_raysets(scene, frame, np.random.default_rng(1))[0])
         times = {name: [] for name in rs}
-        for name, r in rs.items():  # warm-up (and the scene upload)
-            for _ in range(4):
-                r.submit(scene, wait=False, **settings)
+        for name, r in rs.items():  # warm-up (and the scene upload, with the variant's build options)
+            with building(name):
+                for _ in range(4):
+                    r.submit(scene, wait=False, **settings)
             r.ctx.wait_idle()
         for _ in range(a.reps):
             for name, r in rs.items():

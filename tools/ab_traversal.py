@@ -7,7 +7,8 @@ Usage: python tools/ab_traversal.py [generated|default ...] [--variants NAME ...
 Variants (constants: 0 branchless push, 1 postponed leaves, 2 register stack, 3 its size = depth - 1, layout):
   device (this device's defaults), plain, postpone, regs, postpone+regs, push, wide, wide+push,
   lvp2 (round 2's CPU set: 0-2 on, 11 image loads off, the rest this device's), wide-device (the wide layout with
-  this device's constants: on CPU devices its lavapipe traversal, 12)"""
+  this device's constants: on CPU devices its lavapipe traversal, 12), plain-tree (this device's constants on the
+  builder's tree without lifted large triangles, build_bvh(lift=False))"""
 from __future__ import annotations
 
 import argparse
@@ -35,6 +36,8 @@ VARIANTS = {  # name: (layout, {constant: value} over "plain", None = this devic
     "wide+push": ("wide", {0: True}),
     "lvp2": ("binary", {0: True, 1: True, 2: True, 11: False}),   # round 2's CPU constants (texel fetches)
     "wide-device": ("wide", None),                                # the wide layout with this device's constants
+    "plain-tree": ("binary", None, {"lift": False}),               # this device's constants, the tree without
+                                                                   # the lifted large triangles (builder.py)
 }
 
 
@@ -58,13 +61,15 @@ def overriding(real, over):
 
 
 def make_tracer(v, f, name):
-    layout, over = VARIANTS[name]
-    real = tracer_mod.bvh_spec
+    layout, over, *build = VARIANTS[name]
+    real, real_build = tracer_mod.bvh_spec, tracer_mod.build_bvh
     tracer_mod.bvh_spec = overriding(real, over)
+    if build:
+        tracer_mod.build_bvh = lambda v, f: real_build(v, f, **build[0])
     try:
         return tracer_mod.Tracer(v, f, layout=layout)
     finally:
-        tracer_mod.bvh_spec = real
+        tracer_mod.bvh_spec, tracer_mod.build_bvh = real, real_build
 
 
 def main():

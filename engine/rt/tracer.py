@@ -25,6 +25,9 @@ from ..vk import (SB, STB, UTB, Buffer, BufferView, ComputePipeline, Context, De
                   upload_buffer)
 from ..vk.resources import STORAGE, STORAGE_TEXEL, TRANSFER_DST, TRANSFER_SRC, UNIFORM_TEXEL
 
+#: Query kinds whose kernels read rays (and write results) through texel buffer views on CPU devices (rays.glsl
+#: constant 13): occlusion 1.02-1.07x on lavapipe, closest hit 0.89-1.00x (same-run A/B).
+RAYS_TEXEL_KINDS = ("occluded",)
 RAY_BYTES = 28  # 7 floats: origin, direction, tmax, as three packed arrays (shaders/glsl/include/rays.glsl)
 GROUP = 64
 #: workgroups of the second dispatch (trace_*_retry.comp), striding over the rays left to it: at least one per core
@@ -254,15 +257,19 @@ class Tracer:
         self.bvh_set = bvh_descriptor_set(ctx)
         self.scene = SceneBVH.upload(ctx, self.bvh, self.bvh_set, self.layout)
         self.stats = dict(self.scene.bvh.stats, layout=self.layout)
-        self.io_set = DescriptorSet(ctx, [(0, SB), (1, SB), (2, SB), (3, SB)])
+        self.io_set = DescriptorSet(ctx, [(0, SB), (1, SB), (2, SB), (3, SB), (4, UTB), (5, UTB), (6, UTB), (7, STB), (8, STB)])
         # Rays and results: mapped host buffers; on a discrete GPU device-local ones filled / read by copies in the
         # same command buffer (the copy is sized to the batch, rounded up to a power of two: one recording each).
         self.staged = has_dedicated_vram(ctx) if self._staging is None else bool(self._staging)
-        self.rays_host = Buffer(ctx, self.batch * RAY_BYTES, STORAGE | TRANSFER_SRC, host=True, name="rays")
-        self.results_host = Buffer(ctx, self.batch * 16, STORAGE | TRANSFER_DST, host=True, name="hits")
+        self.rays_host = Buffer(ctx, self.batch * RAY_BYTES, STORAGE | UNIFORM_TEXEL | TRANSFER_SRC, host=True,
+                                name="rays")
+        self.results_host = Buffer(ctx, self.batch * 16, STORAGE | STORAGE_TEXEL | TRANSFER_DST, host=True,
+                                   name="hits")
         if self.staged:
-            self.rays = Buffer(ctx, self.batch * RAY_BYTES, STORAGE | TRANSFER_DST, name="rays (device)")
-            self.results = Buffer(ctx, self.batch * 16, STORAGE | TRANSFER_SRC, name="hits (device)")
+            self.rays = Buffer(ctx, self.batch * RAY_BYTES, STORAGE | UNIFORM_TEXEL | TRANSFER_DST,
+                               name="rays (device)")
+            self.results = Buffer(ctx, self.batch * 16, STORAGE | STORAGE_TEXEL | TRANSFER_SRC,
+                                  name="hits (device)")
         else:
             self.rays, self.results = self.rays_host, self.results_host
         self.params = Buffer(ctx, 32, STORAGE | vk.VK_BUFFER_USAGE_INDIRECT_BUFFER_BIT, host=True, name="params")
@@ -271,11 +278,21 @@ class Tracer:
         # for every 8 rays whether or not one needs it (1.02-1.13x without it, lavapipe, same-run A/B).
         specs = {"occluded": self.scene.spec(ctx, stack_regs=CPU_OCCLUSION_STACK_REGS),
                  "intersect": self.scene.spec(ctx)}
+        for kind, spec in specs.items():  # rays.glsl constant 13: rays and results through texel buffer views
+            spec[13] = is_cpu(ctx) and kind in RAYS_TEXEL_KINDS
         self.two_pass = {kind: bool(s.get(2) and s.get(9)) for kind, s in specs.items()}
         two = any(self.two_pass.values())   # (CPU devices only: host-visible is their device memory)
         self.retry = Buffer(ctx, 4 + 4 * self.batch if two else 16, STORAGE | TRANSFER_DST, host=two,
                             name="retry list")
         self.io_set.buffer(0, self.rays).buffer(1, self.results).buffer(2, self.params).buffer(3, self.retry)
+        c = self.batch  # the texel buffer views of rays.glsl (bindings 4-8; read where its constant 13 says)
+        self.ray_views = [BufferView(self.rays, vk.VK_FORMAT_R32G32B32_SFLOAT, 0, 12 * c),
+                          BufferView(self.rays, vk.VK_FORMAT_R32G32B32_SFLOAT, 12 * c, 12 * c),
+                          BufferView(self.rays, vk.VK_FORMAT_R32_SFLOAT, 24 * c, 4 * c),
+                          BufferView(self.results, vk.VK_FORMAT_R32_UINT, 0, 4 * c),
+                          BufferView(self.results, vk.VK_FORMAT_R32G32B32A32_UINT, 0, 16 * c)]
+        for b, view in zip((4, 5, 6, 7, 8), self.ray_views):
+            self.io_set.texel_buffer(b, view)
         self.timestamps = Timestamps(ctx, capacity=4)
         self.pipelines, self._commands, self._marks = {}, {}, {}
         for kind, spec in specs.items():
@@ -391,6 +408,8 @@ class Tracer:
                 self.ctx.close()
             else:
                 self.ctx.wait_idle()
+                for obj in getattr(self, "ray_views", []):
+                    obj.destroy()
                 for obj in (getattr(self, "scene", None), getattr(self, "rays", None), getattr(self, "results", None),
                             getattr(self, "rays_host", None), getattr(self, "results_host", None),
                             getattr(self, "params", None), getattr(self, "retry", None)):

@@ -66,10 +66,13 @@ class BufferView:
     """A typed view of a buffer, for binding it as a texel buffer (the buffer needs UNIFORM_TEXEL usage, or
     STORAGE_TEXEL for a storage texel buffer)."""
 
-    def __init__(self, buf: Buffer, fmt: int = vk.VK_FORMAT_R32G32B32A32_UINT):
+    def __init__(self, buf: Buffer, fmt: int = vk.VK_FORMAT_R32G32B32A32_UINT, offset: int = 0,
+                 size: int | None = None):
+        """The bytes [offset, offset + size) of `buf` (default: from offset to its end)."""
         self.ctx, self.buffer = buf.ctx, buf
         self.handle = vk.vkCreateBufferView(buf.ctx.device, vk.VkBufferViewCreateInfo(
-            buffer=buf.handle, format=fmt, offset=0, range=0xFFFFFFFFFFFFFFFF), None)
+            buffer=buf.handle, format=fmt, offset=int(offset),
+            range=0xFFFFFFFFFFFFFFFF if size is None else int(size)), None)
         self._alive = True
         buf.ctx.defer_destroy(self.destroy)
 

@@ -17,7 +17,12 @@ void main() {
     if (i >= params.count) return;
     load_ray(i, o, d, tmax);
     bool unresolved;
-    occluded[i] = bvh_occluded_first(o, d, 0.0, tmax, unresolved) ? 1u : 0u;
+    uint hit = bvh_occluded_first(o, d, 0.0, tmax, unresolved) ? 1u : 0u;
+    if (RAYS_TEXEL) {
+        imageStore(occluded_texels, int(i), uvec4(hit));
+    } else {
+        occluded[i] = hit;
+    }
     if (unresolved) {
         retry_later(i);   // trace_occluded_retry.comp answers it
     }

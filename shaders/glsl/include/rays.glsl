@@ -15,9 +15,29 @@ struct HitRecord {
 
 layout(std430, set = 0, binding = 0) readonly buffer Rays { float ray_data[]; };
 layout(std430, set = 0, binding = 2) readonly buffer Params { uvec3 groups; uint count; uint capacity; } params;
+// The same three arrays as uniform texel buffers: origins and directions as RGB32F texels, tmax as R32F.
+layout(set = 0, binding = 4) uniform samplerBuffer ray_origins;
+layout(set = 0, binding = 5) uniform samplerBuffer ray_directions;
+layout(set = 0, binding = 6) uniform samplerBuffer ray_tmax;
+// The result buffer (binding 1) as storage texel buffers: one uint per ray (occlusion) and one HitRecord as an
+// RGBA32UI texel per ray (closest hit).
+layout(set = 0, binding = 7, r32ui) uniform writeonly restrict uimageBuffer occluded_texels;
+layout(set = 0, binding = 8, rgba32ui) uniform writeonly restrict uimageBuffer hit_texels;
+// Specialization constant 13 (RAYS_TEXEL): read the rays and write the results through the texel buffers. llvmpipe
+// 22.3 loads and stores a storage buffer lane by lane (a scalar loop over the 8 lanes with a bounds check per
+// element: 7 of them per ray to load it, ~14% of the samples on the default scene's AO rays); its texel fetches
+// and image stores are vector code. On for the occlusion kernels on CPU devices: 1.02-1.07x there (same-run A/B,
+// six runs of three ray sets); for closest hits 0.89-1.00x, so off (engine/rt/tracer.py).
+layout(constant_id = 13) const bool RAYS_TEXEL = false;
 
 // Ray i: origin, direction (not normalized: hit = origin + t * direction) and tmax; tmin is 0.
 void load_ray(uint i, out vec3 o, out vec3 d, out float tmax) {
+    if (RAYS_TEXEL) {
+        o = texelFetch(ray_origins, int(i)).xyz;
+        d = texelFetch(ray_directions, int(i)).xyz;
+        tmax = texelFetch(ray_tmax, int(i)).x;
+        return;
+    }
     uint c3 = 3u * params.capacity;
     uint k = 3u * i;
     o = vec3(ray_data[k], ray_data[k + 1u], ray_data[k + 2u]);

@@ -151,6 +151,28 @@ def _variant_tracer(monkeypatch, spec, v, f):
     return Tracer(v, f, validation=True)
 
 
+def test_workgroup_shares_permute_the_ray_blocks():
+    """rays.glsl ray_block: with `shares` (llvmpipe's worker threads) workgroups trace the ray blocks in a rotated,
+    interleaved order; for any share count every ray is traced exactly once (results buffer first filled by
+    another query, so a skipped block would show)."""
+    v, f = terrace(1200)
+    rng = np.random.default_rng(19)
+    o, d = random_rays(rng, 64 * 37 + 5, (v.min(0), v.max(0)))   # 38 workgroups, the last one partial
+    tmax = rng.uniform(0.1, 30.0, len(o)).astype(np.float32)
+    with Tracer(v, f, validation=True) as t:
+        t.shares = 1
+        want_occ, want_hit = t.occluded(o, d, tmax), t.intersect(o, d, tmax)
+        for shares in (2, 3, 5, 38, 39, 1000):
+            t.shares = shares
+            t.occluded(o[::-1], d[::-1], tmax[::-1])  # other answers in the result buffer
+            assert np.array_equal(t.occluded(o, d, tmax), want_occ), shares
+            t.intersect(-o, d)
+            hit = t.intersect(o, d, tmax)
+            assert np.array_equal(hit.prim, want_hit.prim) and np.array_equal(hit.t, want_hit.t), shares
+        assert not t.validation_errors
+    assert want_occ.sum() > 300 and (want_occ != reference_occluded(v, f, o, d, tmax)).mean() < 0.002
+
+
 def test_rays_through_texel_buffers_match_storage_buffers(monkeypatch):
     """rays.glsl constant 13: rays read (and occlusion results written) through texel buffer views instead of the
     storage buffers; both paths, for both query kinds, give the same answers, over several batches."""

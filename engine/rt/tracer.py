@@ -141,6 +141,16 @@ def bvh_layout(layout: str | None = None) -> str:
     return layout
 
 
+def lavapipe_threads() -> int:
+    """The worker threads llvmpipe runs compute work on: LP_NUM_THREADS, else one per online CPU (Mesa 22.3's
+    default), at most its 16. Only a balance hint (rays.glsl ray_block): a wrong count is slower, not wrong."""
+    try:
+        n = int(os.environ.get("LP_NUM_THREADS", ""))
+    except ValueError:
+        n = os.cpu_count() or 1
+    return min(16, max(1, n))
+
+
 def is_cpu(ctx: Context) -> bool:
     return ctx.device_info["type"] == "CPU"
 
@@ -299,6 +309,7 @@ class Tracer:
             for name in [f"trace_{kind}"] + ([f"trace_{kind}_retry"] if self.two_pass[kind] else []):
                 self.pipelines[name[6:]] = ComputePipeline(ctx, lib.get(f"{name}.comp"), [self.io_set, self.bvh_set],
                                                            spec=spec, name=name)
+        self.shares = lavapipe_threads() if is_cpu(ctx) else 1  # rays.glsl ray_block
         self.last_gpu_ms = 0.0
         self.last_retried = 0        # rays of the last query that the second dispatch walked again (two_pass)
         self.last_times: dict = {}   # GPU ms of the last batch per step: upload (staged only), trace, download
@@ -392,7 +403,7 @@ class Tracer:
         rays[:3 * n] = o.reshape(-1)
         rays[3 * c:3 * c + 3 * n] = d.reshape(-1)
         rays[6 * c:6 * c + n] = t
-        self.params.write(np.array([(n + GROUP - 1) // GROUP, 1, 1, n, c, 0, 0, 0], np.uint32))
+        self.params.write(np.array([(n + GROUP - 1) // GROUP, 1, 1, n, c, self.shares, 0, 0], np.uint32))
         cmd, marks = self._command(kind, n)
         self.ctx.submit(cmd)
         self.last_times = self.timestamps.read(marks)

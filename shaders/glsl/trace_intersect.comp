@@ -17,7 +17,7 @@ HitRecord record_(BvhHit h) {
 void main() {
     vec3 o, d;
     float tmax;
-    uint i = gl_GlobalInvocationID.x;
+    uint i = ray_block() * 64u + gl_LocalInvocationID.x;
     if (i >= params.count) return;
     load_ray(i, o, d, tmax);
     bool unresolved;

@@ -13,7 +13,7 @@ layout(std430, set = 0, binding = 1) writeonly buffer Result { uint occluded[]; 
 void main() {
     vec3 o, d;
     float tmax;
-    uint i = gl_GlobalInvocationID.x;
+    uint i = ray_block() * 64u + gl_LocalInvocationID.x;
     if (i >= params.count) return;
     load_ray(i, o, d, tmax);
     bool unresolved;

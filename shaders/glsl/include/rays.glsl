@@ -14,7 +14,12 @@ struct HitRecord {
 };
 
 layout(std430, set = 0, binding = 0) readonly buffer Rays { float ray_data[]; };
-layout(std430, set = 0, binding = 2) readonly buffer Params { uvec3 groups; uint count; uint capacity; } params;
+layout(std430, set = 0, binding = 2) readonly buffer Params {
+    uvec3 groups;
+    uint count;
+    uint capacity;
+    uint shares;  // how many contiguous shares of the workgroups the device runs in parallel (see ray_block)
+} params;
 // The same three arrays as uniform texel buffers: origins and directions as RGB32F texels, tmax as R32F.
 layout(set = 0, binding = 4) uniform samplerBuffer ray_origins;
 layout(set = 0, binding = 5) uniform samplerBuffer ray_directions;
@@ -29,6 +34,24 @@ layout(set = 0, binding = 8, rgba32ui) uniform writeonly restrict uimageBuffer h
 // and image stores are vector code. On for the occlusion kernels on CPU devices: 1.02-1.07x there (same-run A/B,
 // six runs of three ray sets); for closest hits 0.89-1.00x, so off (engine/rt/tracer.py).
 layout(constant_id = 13) const bool RAYS_TEXEL = false;
+
+// The block of 64 rays this workgroup traces. llvmpipe 22.3 splits a dispatch's workgroups into one contiguous
+// share per worker thread (lp_cs_tpool: iter_per_thread = groups / threads) and the dispatch ends with the slowest
+// share; rays in image order put the top of the image in one share and the bottom in the other (on the default
+// scene 56-62% of the work in one half). So workgroup p of share s traces block p * shares + (s + p) % shares:
+// every share gets one block of every `shares` consecutive ones (rotating, so that no period in the blocks' cost
+// can line up with a share), the same mix of the image, and neighbouring workgroups of a share stay neighbours in
+// the image. shares = 1 (GPUs) is the identity; a share count other than the device's is only slower, never wrong.
+uint ray_block() {
+    uint w = gl_WorkGroupID.x;
+    uint t = max(params.shares, 1u);
+    uint q = gl_NumWorkGroups.x / t;
+    if (w >= t * q) {
+        return w;  // the last groups % shares groups: llvmpipe hands them out one by one
+    }
+    uint p = w % q;
+    return p * t + (w / q + p) % t;
+}
 
 // Ray i: origin, direction (not normalized: hit = origin + t * direction) and tmax; tmin is 0.
 void load_ray(uint i, out vec3 o, out vec3 d, out float tmax) {

@@ -103,7 +103,7 @@ def test_ray_passes_are_specialized_to_the_scenes_bvh(make_renderer):
     depth = r.bvh_stats["depth"]
     for p in (r.shadows, r.ao):
         spec = p.pipeline.spec
-        assert spec == r._scene_bvh.spec(r.ctx, postpone=p.postpone_leaves)
+        assert spec == {**r._scene_bvh.spec(r.ctx, postpone=p.postpone_leaves), 15: p.shares}
         if is_cpu(r.ctx):
             assert spec[3] == min(CPU_STACK_REGS, max(1, depth - 1)) and spec[8] and spec[9] == (depth - 1 > spec[3])
             assert spec[11]   # image loads (the BVH's storage texel buffer views) on CPU devices
@@ -113,11 +113,31 @@ def test_ray_passes_are_specialized_to_the_scenes_bvh(make_renderer):
     soup = trimesh.Trimesh(rng.uniform(-1, 1, (6000, 3)), np.arange(6000).reshape(2000, 3), process=False)
     deep = Scene.from_trimesh(soup, camera=Camera.look_at((2, 2, 3), (0, 0, 0)))
     a = r.render(deep)
-    assert r.shadows.pipeline.spec == r._scene_bvh.spec(r.ctx, postpone=r.shadows.postpone_leaves)
+    assert r.shadows.pipeline.spec == {**r._scene_bvh.spec(r.ctx, postpone=r.shadows.postpone_leaves),
+                                       15: r.shadows.shares}
     fresh = make_renderer(48, 32)
     fresh.render(small_scene())      # the same frame history (AO samples follow the frame count)
     b = fresh.render(deep)
     assert np.array_equal(a.aov["shadow"], b.aov["shadow"]) and np.array_equal(a.aov["ao"], b.aov["ao"])
+
+
+def test_work_shares_do_not_change_the_frame(make_renderer, monkeypatch):
+    """The shadow and AO passes shade their 8x8 tiles in the order of shares.glsl (constant 15, the worker threads
+    of a CPU device): any share count gives the same masks, bit for bit, with a partial last row of tiles."""
+    from engine.passes import raypass
+    from pathlib import Path
+    scene = Scene.load(Path(__file__).resolve().parents[1] / "scenes" / "default.toml")
+    settings = dict(shadows="hard", ao=True, ao_samples=2)
+    frames = []
+    for shares in (1, 2, 3, 7):
+        monkeypatch.setattr(raypass, "work_shares", lambda ctx, n=shares: n)
+        r = make_renderer(76, 44)
+        assert r.shadows.shares == shares and r.ao.pipeline.spec[15] == shares
+        frames.append(r.render(scene, **settings))
+    for f in frames[1:]:
+        assert np.array_equal(f.aov["shadow"], frames[0].aov["shadow"])
+        assert np.array_equal(f.aov["ao"], frames[0].aov["ao"])
+    assert (frames[0].aov["shadow"] == 0).mean() > 0.01 and (frames[0].aov["ao"] < 0.99).mean() > 0.01
 
 
 def test_a_failed_specialization_keeps_the_old_pipeline_and_its_spec(make_renderer, monkeypatch):

@@ -7,7 +7,12 @@ from __future__ import annotations
 import numpy as np
 
 from ..vk import SB, SI, UB, ComputePipeline, DescriptorSet
-from ..rt.tracer import bvh_spec, compresses
+from ..rt.tracer import bvh_spec, compresses, is_cpu, lavapipe_threads
+
+
+def work_shares(ctx) -> int:
+    """Specialization constant 15 of the ray passes (shares.glsl): the worker threads of a CPU device, else 1."""
+    return lavapipe_threads() if is_cpu(ctx) else 1
 
 
 class RayPass:
@@ -23,16 +28,19 @@ class RayPass:
         self.set.buffer(0, frame_ubo)
         # until a scene's BVH says otherwise (specialize): any depth (a short register stack with the retry walk
         # on CPU devices) and the node layout this device gets
+        self.shares = work_shares(ctx)
         self.pipeline = ComputePipeline(ctx, library.get(self.shaders[0]), [self.set, bvh_set],
                                         push_size=self.push_size,
-                                        spec=bvh_spec(ctx, None, layout=bvh_layout, postpone=self.postpone_leaves,
-                                                      compressed=compresses(ctx, bvh_layout)),
+                                        spec={**bvh_spec(ctx, None, layout=bvh_layout, postpone=self.postpone_leaves,
+                                                         compressed=compresses(ctx, bvh_layout)),
+                                              15: self.shares},
                                         name=self.name)
         self.bind_targets(targets)
 
     def specialize(self, library, spec: dict):
         """Re-create the pipeline with these bvh.glsl specialization constants (a scene's SceneBVH.spec: its depth
-        and node layout), where they differ from the current ones."""
+        and node layout), where they differ from the current ones; constant 15 stays this pass's work shares."""
+        spec = {**spec, 15: self.shares}
         if spec != self.pipeline.spec:
             self.pipeline.specialize(library.get(self.shaders[0]), spec)
 

@@ -18,8 +18,10 @@ FRAME_BLOCK
 #define BVH_SET 1
 #define BVH_BINDING 0
 #include "bvh.glsl"
+#include "shares.glsl"
 
 layout(local_size_x = 8, local_size_y = 8) in;
+layout(constant_id = 15) const uint WORK_SHARES = 1u;
 layout(set = 0, binding = 1, rgba32f) uniform readonly image2D g_position;
 layout(set = 0, binding = 2, rgba32f) uniform readonly image2D g_normal;
 layout(std430, set = 0, binding = 3) buffer Masks { float masks[]; };   // [light][y][x]
@@ -37,7 +39,10 @@ layout(push_constant) uniform Push {
 } pc;
 
 void main() {
-    ivec2 px = ivec2(gl_GlobalInvocationID.x, gl_GlobalInvocationID.y + pc.row0);
+    // the 8x8 tile this workgroup shades, in the order of shares.glsl (constant 15: the device's worker threads)
+    uint nx = gl_NumWorkGroups.x;
+    uint tile = share_block(gl_WorkGroupID.y * nx + gl_WorkGroupID.x, nx * gl_NumWorkGroups.y, WORK_SHARES);
+    ivec2 px = ivec2(uvec2(tile % nx, tile / nx) * 8u + gl_LocalInvocationID.xy) + ivec2(0, pc.row0);
     uint w = frame.size.x, h = frame.size.y;
     if (px.x >= int(w) || px.y >= int(h)) return;
     uint pixel = uint(px.y) * w + uint(px.x);

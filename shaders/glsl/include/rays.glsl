@@ -7,6 +7,7 @@
 // arguments, so the command buffer is recorded once.
 #ifndef RAYS_GLSL
 #define RAYS_GLSL
+#include "shares.glsl"
 struct HitRecord {
     float t;          // +inf on a miss
     int prim;         // original triangle index, -1 on a miss
@@ -35,22 +36,9 @@ layout(set = 0, binding = 8, rgba32ui) uniform writeonly restrict uimageBuffer h
 // six runs of three ray sets); for closest hits 0.89-1.00x, so off (engine/rt/tracer.py).
 layout(constant_id = 13) const bool RAYS_TEXEL = false;
 
-// The block of 64 rays this workgroup traces. llvmpipe 22.3 splits a dispatch's workgroups into one contiguous
-// share per worker thread (lp_cs_tpool: iter_per_thread = groups / threads) and the dispatch ends with the slowest
-// share; rays in image order put the top of the image in one share and the bottom in the other (on the default
-// scene 56-62% of the work in one half). So workgroup p of share s traces block p * shares + (s + p) % shares:
-// every share gets one block of every `shares` consecutive ones (rotating, so that no period in the blocks' cost
-// can line up with a share), the same mix of the image, and neighbouring workgroups of a share stay neighbours in
-// the image. shares = 1 (GPUs) is the identity; a share count other than the device's is only slower, never wrong.
+// The block of 64 rays this workgroup traces (shares.glsl; params.shares: the device's worker threads).
 uint ray_block() {
-    uint w = gl_WorkGroupID.x;
-    uint t = max(params.shares, 1u);
-    uint q = gl_NumWorkGroups.x / t;
-    if (w >= t * q) {
-        return w;  // the last groups % shares groups: llvmpipe hands them out one by one
-    }
-    uint p = w % q;
-    return p * t + (w / q + p) % t;
+    return share_block(gl_WorkGroupID.x, gl_NumWorkGroups.x, params.shares);
 }
 
 // Ray i: origin, direction (not normalized: hit = origin + t * direction) and tmax; tmin is 0.

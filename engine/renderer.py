@@ -35,8 +35,8 @@ from .rt.tracer import SceneBVH, bvh_descriptor_set
 from .rt.tracer import bvh_layout as resolve_layout
 from .scene.camera import Camera
 from .shaders import ShaderLibrary
-from .vk import Buffer, Context, Image, Timestamps, image_barrier, memory_barrier
-from .vk.resources import STORAGE, TRANSFER_DST, TRANSFER_SRC, UNIFORM
+from .vk import Buffer, BufferView, Context, Image, Timestamps, image_barrier, memory_barrier
+from .vk.resources import STORAGE, STORAGE_TEXEL, TRANSFER_DST, TRANSFER_SRC, UNIFORM
 
 ONE_F32 = 0x3F800000  # bit pattern of 1.0f, for vkCmdFillBuffer
 WHOLE_SIZE = 0xFFFFFFFFFFFFFFFF
@@ -168,14 +168,21 @@ class Signal:
     light-major [channel][y][x] floats) or AO (1 channel). See the module docstring for the flow."""
 
     NAMES = ("raw", "cur", "hist", "var_a", "val_b", "var_b", "final")
+    #: The parts the denoiser reads, also as R32F storage texel buffers (`views`; denoise.comp constant 0).
+    READ = ("cur", "var_a", "val_b", "var_b")
 
     def __init__(self, ctx, name, n_pixels, channels):
-        usage = STORAGE | TRANSFER_SRC | TRANSFER_DST
+        usage = STORAGE | STORAGE_TEXEL | TRANSFER_SRC | TRANSFER_DST
         for part in self.NAMES:
             setattr(self, part, Buffer(ctx, n_pixels * 4 * channels, usage, name=f"{name} {part}"))
+        # (a GPU, which reads the storage buffers, may allow larger storage buffers than texel buffers: the views
+        # are then of the buffers' first maxTexelBufferElements floats, never read there)
+        size = min(n_pixels * 4 * channels, int(ctx.limits.maxTexelBufferElements) * 4)
+        self.views = {part: BufferView(getattr(self, part), vk.VK_FORMAT_R32_SFLOAT, 0, size) for part in self.READ}
 
     def buffers(self):
-        return [getattr(self, part) for part in self.NAMES]
+        """Everything to destroy, the views before their buffers."""
+        return list(self.views.values()) + [getattr(self, part) for part in self.NAMES]
 
 
 class Targets:

@@ -329,3 +329,22 @@ def test_light_masks_must_fit_one_storage_buffer():
     Targets.check_capacity(lavapipe, 2560, 1600, 8)
     with pytest.raises(ConfigError, match=r"3840x2160 with 8 lights.*maxStorageBufferRange of 128 MiB"):
         Targets.check_capacity(lavapipe, 3840, 2160, 8)
+
+
+def test_denoiser_reads_through_texel_views_or_storage_buffers_alike(make_renderer, monkeypatch):
+    """denoise.comp constant 0 (CPU devices: the inputs through their R32F storage texel views): both read paths
+    filter the soft shadow masks and AO to the same values, bit for bit, over several frames and lights."""
+    from engine.passes import denoise
+    scene = penumbra_scene(lights=[PointLight(LIGHT, intensity=16.0, radius=1.0),
+                                   RectLight((1.5, 3.5, 1.0), (1.0, 0, 0), (0, 0, 0.5), intensity=8.0)])
+    frames = {}
+    for texel in (False, True):
+        monkeypatch.setattr(denoise, "DENOISE_TEXEL", texel)
+        r = make_renderer(W, H)
+        assert r.denoise.pipeline.spec[0] == texel
+        for _ in range(3):
+            f = r.render(scene, shadows="soft", shadow_samples=1, ao=True, ao_samples=1)
+        frames[texel] = f
+    a, b = frames[False], frames[True]
+    assert np.array_equal(a.aov["shadow"], b.aov["shadow"]) and np.array_equal(a.aov["ao"], b.aov["ao"])
+    assert not np.array_equal(a.aov["shadow"], a.aov["shadow_raw"]), "the denoiser ran"

@@ -9,10 +9,13 @@ from __future__ import annotations
 import numpy as np
 import vulkan as vk
 
-from ..vk import SB, SI, UB, ComputePipeline, DescriptorSet, memory_barrier
+from ..rt.tracer import is_cpu
+from ..vk import SB, SI, STB, UB, ComputePipeline, DescriptorSet, memory_barrier
 from .accumulate import FILTER_FIRST, channels
 
 STEPS = (1, 2, 4, 8)
+#: denoise.comp constant 0 (the inputs through texel buffer views): None = on CPU devices.
+DENOISE_TEXEL = None
 
 
 class DenoisePass:
@@ -22,10 +25,15 @@ class DenoisePass:
     def __init__(self, ctx, library, frame_ubo, targets):
         self.sets = []
         for _ in STEPS:
-            s = DescriptorSet(ctx, [(0, UB), (1, SI), (2, SI)] + [(b, SB) for b in range(3, 12)] + [(12, SI)])
+            s = DescriptorSet(ctx, [(0, UB), (1, SI), (2, SI)] + [(b, SB) for b in range(3, 12)] + [(12, SI)]
+                              + [(b, STB) for b in range(13, 17)])
             s.buffer(0, frame_ubo)
             self.sets.append(s)
+        # constant 0: the inputs through their R32F storage texel views on CPU devices (llvmpipe runs a storage
+        # buffer load lane by lane, and the filter loads 25 taps per pixel); storage buffers on GPUs (the texel
+        # views were 12% slower on an H200)
         self.pipeline = ComputePipeline(ctx, library.get(self.shaders[0]), [self.sets[0]], push_size=8,
+                                        spec={0: DENOISE_TEXEL if DENOISE_TEXEL is not None else is_cpu(ctx)},
                                         name=self.name)
         self.bind_targets(targets)
 
@@ -43,9 +51,13 @@ class DenoisePass:
         last = len(STEPS) - 1
         for i, s in enumerate(self.sets):
             s.image(1, t.position).image(2, t.normal).image(12, t.normal8)
-            for base, name in ((3, "masks"), (7, "ao")):
-                for k, buf in enumerate(self.route(t.signals[name], i, last)):
+            for base, texel, name in ((3, 13, "masks"), (7, 15, "ao")):
+                sig = t.signals[name]
+                route = self.route(sig, i, last)
+                for k, buf in enumerate(route):
                     s.buffer(base + k, buf)
+                views = {id(getattr(sig, part)): view for part, view in sig.views.items()}
+                s.texel_buffer(texel, views[id(route[0])]).texel_buffer(texel + 1, views[id(route[1])])
             s.buffer(11, t.len_cur)
 
     def reload(self, library):

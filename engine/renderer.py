@@ -178,6 +178,7 @@ class Signal:
         # (a GPU, which reads the storage buffers, may allow larger storage buffers than texel buffers: the views
         # are then of the buffers' first maxTexelBufferElements floats, never read there)
         size = min(n_pixels * 4 * channels, int(ctx.limits.maxTexelBufferElements) * 4)
+        self.texel_ok = size == n_pixels * 4 * channels  # the views hold the whole signal (the denoiser may read them)
         self.views = {part: BufferView(getattr(self, part), vk.VK_FORMAT_R32_SFLOAT, 0, size) for part in self.READ}
 
     def buffers(self):
@@ -223,6 +224,7 @@ class Targets:
         for name, size in (("color", n * 4), ("position", n * 16), ("normal", n * 16), ("albedo", n * 8),
                            ("masks", n * 4 * light_capacity), ("ao", n * 4), ("masks_raw", n * 4 * light_capacity),
                            ("ao_raw", n * 4), ("history", n * 4)):
+            off = -(-off // 16) * 16  # a copy's buffer offset is a multiple of its texel size (16 B at most here)
             self.offsets[name] = off
             off += size
         self.readback = Buffer(ctx, off, TRANSFER_DST, host=True, name="readback")

@@ -318,6 +318,30 @@ def test_depth_cap_holds_on_pathological_input():
         build_bvh(v, f, max_depth=5)  # 150 triangles do not fit 4 * 2^5 leaf slots
 
 
+@pytest.mark.parametrize("n", [40, 3000, 40000])
+def test_nan_vertices_build_and_are_never_hit(n):
+    """NaN coordinates are allowed (the triangles that use them are never hit); the build neither fails nor lets
+    them spoil the tree: every triangle in exactly one leaf, the rays' hits as the brute-force reference's."""
+    v, f = soup(n, seed=9)
+    v = np.array(v)
+    v[3 * 7] = np.nan          # triangle 7: a whole vertex
+    v[3 * 11 + 2, 1] = np.nan  # triangle 11: one coordinate
+    bvh = build_bvh(v, f)
+    assert sorted(bvh.prim_ids.tolist()) == list(range(n))
+    _, leaves = walk(bvh)
+    covered = np.zeros(n, np.int64)
+    for first, count, *_ in leaves:
+        covered[first:first + count] += 1
+    assert (covered == 1).all()
+    rng = np.random.default_rng(4)
+    o, d = random_rays(rng, 800, np.nan_to_num(v))
+    t, prim, _, _ = traverse(bvh, o, d)
+    t_ref, prim_ref, _, _ = reference_intersect(np.asarray(v, np.float32), f, o, d, np.full(len(o), np.inf, np.float32))
+    assert np.array_equal(prim >= 0, prim_ref >= 0) and (prim >= 0).sum() > 20
+    assert not np.isin(prim, [7, 11]).any()
+    assert bvh.stats["depth"] <= 32 and np.isfinite(bvh.stats["sah_cost"])
+
+
 def test_bad_input_raises_scene_errors():
     huge = np.array([[0, 0, 0], [1, 0, 0], [0, 1, 0], [2e38, 2e38, 0], [2.1e38, 2e38, 0], [2e38, 2.1e38, 0]])
     with pytest.raises(SceneError, match="beyond"):

@@ -121,6 +121,20 @@ def test_ray_passes_are_specialized_to_the_scenes_bvh(make_renderer):
     assert np.array_equal(a.aov["shadow"], b.aov["shadow"]) and np.array_equal(a.aov["ao"], b.aov["ao"])
 
 
+def test_odd_sizes_render_and_read_back_cleanly(make_renderer):
+    """An odd pixel count (37 x 23): the readback's parts stay aligned to their texel sizes (no validation error,
+    which the fixture turns into a failure) and every AOV comes back whole; a resize to another odd size too."""
+    r = make_renderer(37, 23)
+    f = r.render(small_scene())
+    assert f.color.shape == (23, 37, 4) and f.aov["shadow"].shape[:2] == (23, 37)
+    assert np.isfinite(f.aov["depth"]).mean() > 0.02 and (f.color[..., :3] > 0).any()
+    assert r.ctx.validation_errors == []
+    r.resize(41, 19)
+    g = r.render(small_scene())
+    assert g.color.shape == (19, 41, 4) and np.isfinite(g.aov["depth"]).mean() > 0.02
+    assert r.ctx.validation_errors == []
+
+
 def test_work_shares_do_not_change_the_frame(make_renderer, monkeypatch):
     """The shadow and AO passes shade their 8x8 tiles in the order of shares.glsl (constant 15, the worker threads
     of a CPU device): any share count gives the same masks, bit for bit, with a partial last row of tiles."""

@@ -110,6 +110,24 @@ def test_batches_larger_than_the_buffer():
     assert (got != reference_occluded(v, f, o, d, np.full(len(o), 5.0, np.float32))).mean() < 0.002
 
 
+@pytest.mark.parametrize("batch", [1, 3, 5])
+def test_odd_batch_sizes_keep_the_texel_views_aligned(batch):
+    """The three ray arrays start at offsets the device's texel views allow (minTexelBufferOffsetAlignment) for
+    any batch size: no validation error, and the answers of a batch-1000 tracer, staged or not."""
+    v, f = meshes()["sphere"]
+    rng = np.random.default_rng(5)
+    o, d = random_rays(rng, 60, (v.min(0), v.max(0)))
+    with Tracer(v, f, batch_size=1000) as big:
+        want_occ, want = big.occluded(o, d, 5.0), big.intersect(o, d)
+    for staged in (False, True):
+        with Tracer(v, f, validation=True, batch_size=batch, staging=staged) as t:
+            assert t.batch == batch and t.capacity >= batch
+            assert np.array_equal(t.occluded(o, d, 5.0), want_occ)
+            hits = t.intersect(o, d)
+            assert np.array_equal(hits.prim, want.prim) and np.array_equal(hits.t, want.t)
+            assert not t.validation_errors, t.validation_errors[:3]
+
+
 def test_staged_buffers_give_the_same_answers():
     """The discrete-GPU path (rays and results through device-local buffers and copies, each copy sized to the
     batch) answers exactly as the mapped path, also over several batches of different sizes."""

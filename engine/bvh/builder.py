@@ -217,6 +217,14 @@ def build_bvh(vertices, faces, *, max_leaf: int = 4, max_depth: int = DEFAULT_MA
     if n_tri > max_leaf << max_depth:
         raise ConfigError(f"build_bvh: {n_tri} triangles do not fit max_leaf={max_leaf}, max_depth={max_depth}")
 
+    # Boxes and centres come from `vb`: the vertices, with NaN coordinates (allowed: such a triangle is never hit,
+    # its records keep the NaN) replaced by their axis' smallest finite one, so that every box is finite.
+    vb = vt
+    if np.isnan(vt).any():
+        with np.errstate(invalid="ignore"):
+            fill = [np.fmin.reduce(x) if np.isfinite(np.fmin.reduce(x)) else np.float32(0) for x in vt]
+        vb = np.where(np.isnan(vt), np.asarray(fill, np.float32)[:, None], vt)
+
     # Morton order of the box centres. Per-triangle work runs in blocks of PREP_BLOCK: small temporaries that the
     # allocator reuses instead of fresh multi-megabyte pages for every step.
     c2 = np.empty((3, n_tri), dtype=np.float32)  # twice the box centre, original order
@@ -227,7 +235,7 @@ def build_bvh(vertices, faces, *, max_leaf: int = 4, max_depth: int = DEFAULT_MA
         f = ft[s:s + PREP_BLOCK].T.copy()
         ext = []
         for a in range(3):
-            x0, x1, x2 = vt[a].take(f[0]), vt[a].take(f[1]), vt[a].take(f[2])
+            x0, x1, x2 = vb[a].take(f[0]), vb[a].take(f[1]), vb[a].take(f[2])
             lo = np.minimum(x0, x1)
             np.minimum(lo, x2, out=lo)
             np.maximum(x0, x1, out=x0)
@@ -238,7 +246,7 @@ def build_bvh(vertices, faces, *, max_leaf: int = 4, max_depth: int = DEFAULT_MA
                 ext.append(np.subtract(x0, lo, out=x0))
         if lift:
             a_ = area[s:s + PREP_BLOCK]
-            with np.errstate(over="ignore", invalid="ignore"):  # huge triangles: inf, which is never "large"
+            with np.errstate(over="ignore", invalid="ignore"):  # huge triangles overflow to inf (then large)
                 np.add(ext[0], ext[2], out=a_)
                 a_ *= ext[1]
                 ext[0] *= ext[2]
@@ -266,7 +274,7 @@ def build_bvh(vertices, faces, *, max_leaf: int = 4, max_depth: int = DEFAULT_MA
         e = min(s + PREP_BLOCK, n_tri)
         f = ft.take(morton[s:e], axis=0).T.copy()
         for a in range(3):
-            x0, x1, x2 = vt[a].take(f[0]), vt[a].take(f[1]), vt[a].take(f[2])
+            x0, x1, x2 = vb[a].take(f[0]), vb[a].take(f[1]), vb[a].take(f[2])
             np.minimum(np.minimum(x0, x1), x2, out=box[a, s:e])
             np.maximum(np.maximum(x0, x1), x2, out=box[3 + a, s:e])
             np.add(box[a, s:e], box[3 + a, s:e], out=cen[a, s:e])
@@ -294,7 +302,7 @@ def build_bvh(vertices, faces, *, max_leaf: int = 4, max_depth: int = DEFAULT_MA
     perm = morton.take(slot_tid)  # leaf-order slot -> original triangle index
     del morton, slot_tid
     if big is not None:
-        lifted = _lift(nodes, vt, ft_all.take(big, axis=0), n_tri, max_depth)
+        lifted = _lift(nodes, vb, ft_all.take(big, axis=0), n_tri, max_depth)
         if lifted is None:  # the top would put leaves below max_depth: the plain tree instead
             return build_bvh(vertices, faces, max_leaf=max_leaf, max_depth=max_depth, threads=threads, lift=False)
         nodes, sah_cost, depth = lifted
@@ -578,8 +586,9 @@ def _morton_order(c2, n: int, threads: int = 1) -> np.ndarray:
     bits = min(21, (64 - idx_bits) // 3)
     top = (1 << bits) - 1
     code = np.empty(n, dtype=np.uint64)
-    lo = [np.float32(c2[a].min()) for a in range(3)]
-    hi = [float(c2[a].max()) for a in range(3)]
+    lo = [np.float32(np.fmin.reduce(c2[a])) for a in range(3)]   # NaN centres (NaN vertices) ignored here
+    hi = [float(np.fmax.reduce(c2[a])) for a in range(3)]
+    lo = [x if np.isfinite(x) else np.float32(0) for x in lo]   # (every centre NaN)
     scale = [np.float32(top / (hi[a] - float(lo[a])) if hi[a] > float(lo[a]) else 0.0) for a in range(3)]
 
     def codes(s):
@@ -589,8 +598,10 @@ def _morton_order(c2, n: int, threads: int = 1) -> np.ndarray:
             c = c2[a, s:e]  # twice the centre; the scale cancels
             c -= lo[a]
             c *= scale[a]
-            # clamped in float (the same integers as clamping after the cast), then the fast float32 -> int32 cast
-            c.clip(np.float32(0), np.float32(top), out=c)
+            # clamped in float (the same integers as clamping after the cast; fmax sends NaN to 0), then the fast
+            # float32 -> int32 cast
+            np.fmax(c, np.float32(0), out=c)
+            np.minimum(c, np.float32(top), out=c)
             q = c.astype(np.int32)
             spread = _SPREAD.take(q & 2047)
             if bits > 11:

@@ -31,11 +31,15 @@ class DenoisePass:
             self.sets.append(s)
         # constant 0: the inputs through their R32F storage texel views on CPU devices (llvmpipe runs a storage
         # buffer load lane by lane, and the filter loads 25 taps per pixel); storage buffers on GPUs (the texel
-        # views were 12% slower on an H200)
+        # views were 12% slower on an H200) and where a signal is larger than a texel view may be
+        self.library = library
+        self.texel = DENOISE_TEXEL if DENOISE_TEXEL is not None else is_cpu(ctx)
         self.pipeline = ComputePipeline(ctx, library.get(self.shaders[0]), [self.sets[0]], push_size=8,
-                                        spec={0: DENOISE_TEXEL if DENOISE_TEXEL is not None else is_cpu(ctx)},
-                                        name=self.name)
+                                        spec={0: self._texel(targets)}, name=self.name)
         self.bind_targets(targets)
+
+    def _texel(self, t) -> bool:
+        return bool(self.texel) and all(sig.texel_ok for sig in t.signals.values())
 
     @staticmethod
     def route(sig, i, last):
@@ -48,6 +52,8 @@ class DenoisePass:
         return src + dst
 
     def bind_targets(self, t):
+        if self.pipeline.spec.get(0) != self._texel(t):  # new targets whose signals do not fit a view, or again do
+            self.pipeline.specialize(self.library.get(self.shaders[0]), {0: self._texel(t)})
         last = len(STEPS) - 1
         for i, s in enumerate(self.sets):
             s.image(1, t.position).image(2, t.normal).image(12, t.normal8)

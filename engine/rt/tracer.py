@@ -9,6 +9,7 @@ the same units. Batches larger than one dispatch's buffers are split.
 """
 from __future__ import annotations
 
+import math
 import os
 from dataclasses import dataclass
 
@@ -271,12 +272,20 @@ class Tracer:
         # Rays and results: mapped host buffers; on a discrete GPU device-local ones filled / read by copies in the
         # same command buffer (the copy is sized to the batch, rounded up to a power of two: one recording each).
         self.staged = has_dedicated_vram(ctx) if self._staging is None else bool(self._staging)
-        self.rays_host = Buffer(ctx, self.batch * RAY_BYTES, STORAGE | UNIFORM_TEXEL | TRANSFER_SRC, host=True,
+        # a batch is at most what a texel view of the rays may hold, and the three ray arrays start at offsets the
+        # texel views allow (minTexelBufferOffsetAlignment): the arrays' stride `capacity` is rounded up for that
+        self.batch = max(1, min(self.batch, int(ctx.limits.maxTexelBufferElements)))
+        align = max(1, int(ctx.limits.minTexelBufferOffsetAlignment))
+        step = align // math.gcd(12, align)
+        self.capacity = -(-self.batch // step) * step
+        self.rays_texel_ok = bool(vk.vkGetPhysicalDeviceFormatProperties(ctx.physical, vk.VK_FORMAT_R32G32B32_SFLOAT)
+                                  .bufferFeatures & vk.VK_FORMAT_FEATURE_UNIFORM_TEXEL_BUFFER_BIT)
+        self.rays_host = Buffer(ctx, self.capacity * RAY_BYTES, STORAGE | UNIFORM_TEXEL | TRANSFER_SRC, host=True,
                                 name="rays")
         self.results_host = Buffer(ctx, self.batch * 16, STORAGE | STORAGE_TEXEL | TRANSFER_DST, host=True,
                                    name="hits")
         if self.staged:
-            self.rays = Buffer(ctx, self.batch * RAY_BYTES, STORAGE | UNIFORM_TEXEL | TRANSFER_DST,
+            self.rays = Buffer(ctx, self.capacity * RAY_BYTES, STORAGE | UNIFORM_TEXEL | TRANSFER_DST,
                                name="rays (device)")
             self.results = Buffer(ctx, self.batch * 16, STORAGE | STORAGE_TEXEL | TRANSFER_SRC,
                                   name="hits (device)")
@@ -289,18 +298,21 @@ class Tracer:
         specs = {"occluded": self.scene.spec(ctx, stack_regs=CPU_OCCLUSION_STACK_REGS),
                  "intersect": self.scene.spec(ctx)}
         for kind, spec in specs.items():  # rays.glsl constant 13: rays and results through texel buffer views
-            spec[13] = is_cpu(ctx) and kind in RAYS_TEXEL_KINDS
+            spec[13] = is_cpu(ctx) and kind in RAYS_TEXEL_KINDS and self.rays_texel_ok
         self.two_pass = {kind: bool(s.get(2) and s.get(9)) for kind, s in specs.items()}
         two = any(self.two_pass.values())   # (CPU devices only: host-visible is their device memory)
         self.retry = Buffer(ctx, 4 + 4 * self.batch if two else 16, STORAGE | TRANSFER_DST, host=two,
                             name="retry list")
         self.io_set.buffer(0, self.rays).buffer(1, self.results).buffer(2, self.params).buffer(3, self.retry)
-        c = self.batch  # the texel buffer views of rays.glsl (bindings 4-8; read where its constant 13 says)
-        self.ray_views = [BufferView(self.rays, vk.VK_FORMAT_R32G32B32_SFLOAT, 0, 12 * c),
-                          BufferView(self.rays, vk.VK_FORMAT_R32G32B32_SFLOAT, 12 * c, 12 * c),
+        # the texel buffer views of rays.glsl (bindings 4-8; read where its constant 13 says). RGB32F uniform texel
+        # buffers are optional in Vulkan: without them the origin and direction views are R32F ones, which the
+        # shaders then never read (constant 13 off)
+        c = self.capacity
+        vec3 = vk.VK_FORMAT_R32G32B32_SFLOAT if self.rays_texel_ok else vk.VK_FORMAT_R32_SFLOAT
+        self.ray_views = [BufferView(self.rays, vec3, 0, 12 * c), BufferView(self.rays, vec3, 12 * c, 12 * c),
                           BufferView(self.rays, vk.VK_FORMAT_R32_SFLOAT, 24 * c, 4 * c),
-                          BufferView(self.results, vk.VK_FORMAT_R32_UINT, 0, 4 * c),
-                          BufferView(self.results, vk.VK_FORMAT_R32G32B32A32_UINT, 0, 16 * c)]
+                          BufferView(self.results, vk.VK_FORMAT_R32_UINT, 0, 4 * self.batch),
+                          BufferView(self.results, vk.VK_FORMAT_R32G32B32A32_UINT, 0, 16 * self.batch)]
         for b, view in zip((4, 5, 6, 7, 8), self.ray_views):
             self.io_set.texel_buffer(b, view)
         self.timestamps = Timestamps(ctx, capacity=4)
@@ -330,7 +342,7 @@ class Tracer:
         ts.begin(cmd)
         T, C = vk.VK_PIPELINE_STAGE_TRANSFER_BIT, vk.VK_PIPELINE_STAGE_COMPUTE_SHADER_BIT
         if self.staged:
-            c = self.batch  # the three arrays of rays.glsl: origins, directions, tmax; the first `span` of each
+            c = self.capacity  # the three arrays of rays.glsl: origins, directions, tmax; the first `span` of each
             vk.vkCmdCopyBuffer(cmd, self.rays_host.handle, self.rays.handle, 3,
                                [vk.VkBufferCopy(0, 0, span * 12), vk.VkBufferCopy(c * 12, c * 12, span * 12),
                                 vk.VkBufferCopy(c * 24, c * 24, span * 4)])
@@ -398,7 +410,7 @@ class Tracer:
         n = len(o)
         if n == 0:
             return 0
-        c = self.batch
+        c = self.capacity
         rays = self.rays_host.view(np.float32)  # rays.glsl: origins, directions, tmax, each an array of c rays
         rays[:3 * n] = o.reshape(-1)
         rays[3 * c:3 * c + 3 * n] = d.reshape(-1)

@@ -136,8 +136,9 @@ def test_odd_sizes_render_and_read_back_cleanly(make_renderer):
 
 
 def test_work_shares_do_not_change_the_frame(make_renderer, monkeypatch):
-    """The shadow and AO passes shade their 8x8 tiles in the order of shares.glsl (constant 15, the worker threads
-    of a CPU device): any share count gives the same masks, bit for bit, with a partial last row of tiles."""
+    """The shadow, AO and denoise passes shade their 8x8 tiles in the order of shares.glsl (constant 15, the worker
+    threads of a CPU device): any share count gives the same masks, bit for bit, with a partial last row of
+    tiles."""
     from engine.passes import raypass
     from pathlib import Path
     scene = Scene.load(Path(__file__).resolve().parents[1] / "scenes" / "default.toml")
@@ -147,6 +148,7 @@ def test_work_shares_do_not_change_the_frame(make_renderer, monkeypatch):
         monkeypatch.setattr(raypass, "work_shares", lambda ctx, n=shares: n)
         r = make_renderer(76, 44)
         assert r.shadows.shares == shares and r.ao.pipeline.spec[15] == shares
+        assert r.denoise.pipeline.spec[15] == shares
         frames.append(r.render(scene, **settings))
     for f in frames[1:]:
         assert np.array_equal(f.aov["shadow"], frames[0].aov["shadow"])

@@ -12,6 +12,7 @@ import vulkan as vk
 from ..rt.tracer import is_cpu
 from ..vk import SB, SI, STB, UB, ComputePipeline, DescriptorSet, memory_barrier
 from .accumulate import FILTER_FIRST, channels
+from . import raypass
 
 STEPS = (1, 2, 4, 8)
 #: denoise.comp constant 0 (the inputs through texel buffer views): None = on CPU devices.
@@ -31,11 +32,12 @@ class DenoisePass:
             self.sets.append(s)
         # constant 0: the inputs through their R32F storage texel views on CPU devices (llvmpipe runs a storage
         # buffer load lane by lane, and the filter loads 25 taps per pixel); storage buffers on GPUs (the texel
-        # views were 12% slower on an H200) and where a signal is larger than a texel view may be
+        # views were 12% slower on an H200) and where a signal is larger than a texel view may be. Constant 15: the
+        # 8x8 tiles in shares.glsl's order (the background and untouched pixels make some image rows cheaper)
         self.library = library
         self.texel = DENOISE_TEXEL if DENOISE_TEXEL is not None else is_cpu(ctx)
         self.pipeline = ComputePipeline(ctx, library.get(self.shaders[0]), [self.sets[0]], push_size=8,
-                                        spec={0: self._texel(targets)}, name=self.name)
+                                        spec={0: self._texel(targets), 15: raypass.work_shares(ctx)}, name=self.name)
         self.bind_targets(targets)
 
     def _texel(self, t) -> bool:
@@ -53,7 +55,7 @@ class DenoisePass:
 
     def bind_targets(self, t):
         if self.pipeline.spec.get(0) != self._texel(t):  # new targets whose signals do not fit a view, or again do
-            self.pipeline.specialize(self.library.get(self.shaders[0]), {0: self._texel(t)})
+            self.pipeline.specialize(self.library.get(self.shaders[0]), {**self.pipeline.spec, 0: self._texel(t)})
         last = len(STEPS) - 1
         for i, s in enumerate(self.sets):
             s.image(1, t.position).image(2, t.normal).image(12, t.normal8)

@@ -17,8 +17,10 @@
 #include "common.glsl"
 FRAME_BLOCK
 #include "filter.glsl"
+#include "shares.glsl"
 
 layout(local_size_x = 8, local_size_y = 8) in;
+layout(constant_id = 15) const uint WORK_SHARES = 1u;   // shares.glsl: the device's worker threads
 layout(set = 0, binding = 1, rgba32f) uniform readonly image2D g_position;
 layout(set = 0, binding = 2, rgba32f) uniform readonly image2D g_normal;
 layout(set = 0, binding = 12, rgba8_snorm) uniform readonly image2D g_normal8;   // the taps' normals, 8-bit
@@ -87,12 +89,13 @@ void store(uint pixel, float value, float variance) {
 
 // One invocation per pixel and channel (gl_GlobalInvocationID.z): the lights' masks first, then AO.
 void main() {
-    ivec2 px = ivec2(gl_GlobalInvocationID.xy);
+    uvec3 gid = share_invocation(WORK_SHARES, gl_WorkGroupSize);   // gl_GlobalInvocationID in the order of shares.glsl
+    ivec2 px = ivec2(gid.xy);
     uint w = frame.size.x, h = frame.size.y;
     if (px.x >= int(w) || px.y >= int(h)) return;
     uint pixel = uint(px.y) * w + uint(px.x);
     n_pixels = w * h;
-    channel = gl_GlobalInvocationID.z;
+    channel = gid.z;
     is_mask = (pc.flags & FILTER_MASKS) != 0u && channel < frame.size.w;
     bool first = (pc.flags & FILTER_FIRST) != 0u;
 

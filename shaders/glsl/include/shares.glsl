@@ -11,12 +11,30 @@
 #ifndef SHARES_GLSL
 #define SHARES_GLSL
 uint share_block(uint w, uint n, uint shares) {
-    uint t = max(shares, 1u);
+    if (shares <= 1u) {
+        return w;  // (a specialization constant of 1, as on GPUs, folds the rest away)
+    }
+    uint t = shares;
     uint q = n / t;
     if (w >= t * q) {
         return w;  // the last n % shares workgroups, which llvmpipe hands out one by one
     }
     uint p = w % q;
     return p * t + (w / q + p) % t;
+}
+
+// The workgroup this one stands for, in that order, over a whole 1D, 2D or 3D dispatch (llvmpipe counts its
+// workgroups x fastest, then y, then z), and the invocation's global id in it: what gl_GlobalInvocationID would be.
+uvec3 share_group(uint shares) {
+    uvec3 n = gl_NumWorkGroups;
+    uint w = (gl_WorkGroupID.z * n.y + gl_WorkGroupID.y) * n.x + gl_WorkGroupID.x;
+    uint b = share_block(w, n.x * n.y * n.z, shares);
+    return uvec3(b % n.x, (b / n.x) % n.y, b / (n.x * n.y));
+}
+uvec3 share_invocation(uint shares, uvec3 workgroup_size) {
+    if (shares <= 1u) {
+        return gl_GlobalInvocationID;
+    }
+    return share_group(shares) * workgroup_size + gl_LocalInvocationID;
 }
 #endif

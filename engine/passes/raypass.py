@@ -7,12 +7,7 @@ from __future__ import annotations
 import numpy as np
 
 from ..vk import SB, SI, UB, ComputePipeline, DescriptorSet
-from ..rt.tracer import bvh_spec, compresses, is_cpu, lavapipe_threads
-
-
-def work_shares(ctx) -> int:
-    """Specialization constant 15 of the ray passes (shares.glsl): the worker threads of a CPU device, else 1."""
-    return lavapipe_threads() if is_cpu(ctx) else 1
+from ..rt.tracer import bvh_spec, compresses, work_shares
 
 
 class RayPass:

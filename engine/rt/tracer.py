@@ -27,7 +27,7 @@ from ..vk import (SB, STB, UTB, Buffer, BufferView, ComputePipeline, Context, De
 from ..vk.resources import STORAGE, STORAGE_TEXEL, TRANSFER_DST, TRANSFER_SRC, UNIFORM_TEXEL
 
 #: Query kinds whose kernels read rays (and write results) through texel buffer views on CPU devices (rays.glsl
-#: constant 13): occlusion 1.02-1.07x on lavapipe, closest hit 0.89-1.00x (same-run A/B).
+#: constant 13): occlusion 1.01-1.16x on lavapipe, closest hit 0.89-1.00x (same-run A/B).
 RAYS_TEXEL_KINDS = ("occluded",)
 RAY_BYTES = 28  # 7 floats: origin, direction, tmax, as three packed arrays (shaders/glsl/include/rays.glsl)
 GROUP = 64
@@ -156,6 +156,12 @@ def is_cpu(ctx: Context) -> bool:
     return ctx.device_info["type"] == "CPU"
 
 
+def work_shares(ctx: Context) -> int:
+    """How many fixed shares of a dispatch's workgroups this device runs in parallel (shares.glsl): lavapipe's
+    worker threads on a CPU device, else 1 (the identity order)."""
+    return lavapipe_threads() if is_cpu(ctx) else 1
+
+
 def compresses(ctx: Context, layout: str) -> bool:
     """Does SceneBVH upload the 32-byte compressed nodes by default? The binary layout on CPU devices."""
     return is_cpu(ctx) and layout == "binary"
@@ -268,7 +274,8 @@ class Tracer:
         self.bvh_set = bvh_descriptor_set(ctx)
         self.scene = SceneBVH.upload(ctx, self.bvh, self.bvh_set, self.layout)
         self.stats = dict(self.scene.bvh.stats, layout=self.layout)
-        self.io_set = DescriptorSet(ctx, [(0, SB), (1, SB), (2, SB), (3, SB), (4, UTB), (5, UTB), (6, UTB), (7, STB), (8, STB)])
+        self.io_set = DescriptorSet(ctx, [(0, SB), (1, SB), (2, SB), (3, SB), (4, UTB), (5, UTB), (6, UTB),
+                                          (7, STB), (8, STB)])
         # Rays and results: mapped host buffers; on a discrete GPU device-local ones filled / read by copies in the
         # same command buffer (the copy is sized to the batch, rounded up to a power of two: one recording each).
         self.staged = has_dedicated_vram(ctx) if self._staging is None else bool(self._staging)
@@ -321,7 +328,7 @@ class Tracer:
             for name in [f"trace_{kind}"] + ([f"trace_{kind}_retry"] if self.two_pass[kind] else []):
                 self.pipelines[name[6:]] = ComputePipeline(ctx, lib.get(f"{name}.comp"), [self.io_set, self.bvh_set],
                                                            spec=spec, name=name)
-        self.shares = lavapipe_threads() if is_cpu(ctx) else 1  # rays.glsl ray_block
+        self.shares = work_shares(ctx)  # rays.glsl ray_block
         self.last_gpu_ms = 0.0
         self.last_retried = 0        # rays of the last query that the second dispatch walked again (two_pass)
         self.last_times: dict = {}   # GPU ms of the last batch per step: upload (staged only), trace, download

@@ -26,10 +26,8 @@ layout(push_constant) uniform Push {
 } pc;
 
 void main() {
-    // the 8x8 tile this workgroup shades, in the order of shares.glsl (constant 15: the device's worker threads)
-    uint nx = gl_NumWorkGroups.x;
-    uint tile = share_block(gl_WorkGroupID.y * nx + gl_WorkGroupID.x, nx * gl_NumWorkGroups.y, WORK_SHARES);
-    ivec2 px = ivec2(uvec2(tile % nx, tile / nx) * 8u + gl_LocalInvocationID.xy) + ivec2(0, pc.row0);
+    // the 8x8 tiles in the order of shares.glsl (constant 15: the device's worker threads)
+    ivec2 px = ivec2(share_invocation(WORK_SHARES, gl_WorkGroupSize).xy) + ivec2(0, pc.row0);
     uint w = frame.size.x, h = frame.size.y;
     if (px.x >= int(w) || px.y >= int(h)) return;
     uint pixel = uint(px.y) * w + uint(px.x);

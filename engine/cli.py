@@ -83,7 +83,9 @@ def build_parser() -> argparse.ArgumentParser:
     ap.add_argument("-v", "--verbose", action="store_true", help="log debug messages")
     sub = ap.add_subparsers(dest="command", required=True)
 
-    r = sub.add_parser("render", help="render a scene headless to a PNG")
+    r = sub.add_parser("render", help="render a scene headless to a PNG",
+                       description="Render a scene headless to a PNG. Settings not given here take the scene's "
+                                   "[settings] (docs/scenes.md), then the renderer's defaults.")
     r.add_argument("scene", help="a .toml scene or a mesh/glTF file")
     r.add_argument("-o", "--output", default="out.png", help="PNG to write (default out.png)")
     r.add_argument("--size", default="1280x720", help="WIDTHxHEIGHT (default 1280x720)")
@@ -91,7 +93,7 @@ def build_parser() -> argparse.ArgumentParser:
                    help="what to write: the colour or an AOV (raw / final light masks and AO, history length)")
     r.add_argument("--device", default=None, help="Vulkan device index or name substring")
     r.add_argument("--validation", action="store_true", help="enable the Khronos validation layer; fail on errors")
-    r.add_argument("--shadows", default=None, help=f"shadow mode: {', '.join(SHADOW_CHOICES)} (default hard)")
+    r.add_argument("--shadows", default=None, help=f"shadow mode: {', '.join(SHADOW_CHOICES)} (default: the scene's, else hard)")
     r.add_argument("--shadow-samples", type=int, default=None, help="soft: rays per pixel per light per frame")
     r.add_argument("--reference-samples", type=int, default=None,
                    help="reference: rays per pixel per light (default 256)")
@@ -124,6 +126,9 @@ def build_parser() -> argparse.ArgumentParser:
 def main(argv=None) -> int:
     args = build_parser().parse_args(argv)
     logging.basicConfig(level=logging.DEBUG if args.verbose else logging.WARNING, format="%(name)s: %(message)s")
+    if args.verbose:   # our debug messages; the image and mesh libraries' own (every PNG chunk) stay out
+        for name in ("PIL", "trimesh"):
+            logging.getLogger(name).setLevel(logging.INFO)
     try:
         return args.func(args)
     except EngineError as exc:

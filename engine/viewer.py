@@ -731,6 +731,8 @@ class Viewer:
             if frames is not None and self.frames - start >= frames:
                 break
             self.step()
+        if self.presenter.wait_render():   # the last frame's GPU times (step() collects each one a frame later)
+            self._collect_timings()
         if screenshot is not None:
             self.save_screenshot(screenshot)
         return self.frames - start
@@ -884,11 +886,13 @@ class Viewer:
 
     def stats(self, skip=2) -> dict:
         """Frame statistics over the frames presented so far, the first `skip` (scene upload, shader JIT) left out:
-        fps, median Python CPU ms per frame (perf_counter minus blocking waits, and thread_time), median GPU ms."""
+        fps, median Python CPU ms per frame (perf_counter minus blocking waits, and thread_time), median GPU ms.
+        Short runs keep at least two frames (one where only one was presented), so their figures are not empty."""
         h = self.history
+        skip = max(0, min(skip, len(h["end"]) - 2))
         end, cpu, thr = h["end"][skip:], h["cpu_ms"][skip:], h["thread_ms"][skip:]
         gpu = h["gpu"][skip:]
-        out = {"frames": len(h["end"]), "fps": 0.0, "cpu_ms": 0.0, "thread_ms": 0.0, "gpu_ms": {}}
+        out = {"frames": len(h["end"]), "skipped": skip, "fps": 0.0, "cpu_ms": 0.0, "thread_ms": 0.0, "gpu_ms": {}}
         if len(end) >= 2:
             out["fps"] = (len(end) - 1) / max(end[-1] - end[0], 1e-9)
         if cpu:
@@ -901,7 +905,8 @@ class Viewer:
         st = self.stats()
         gpu = ", ".join(f"{k} {v:.2f}" for k, v in st["gpu_ms"].items())
         rw, rh = (self.renderer.width, self.renderer.height) if self.renderer is not None else (0, 0)
-        return (f"{st['frames']} frames at {rw}x{rh}: {st['fps']:.2f} fps; python cpu per frame (median) "
+        first = f" (the first {st['skipped']} left out)" if st["skipped"] else ""
+        return (f"{st['frames']} frames at {rw}x{rh}{first}: {st['fps']:.2f} fps; python cpu per frame (median) "
                 f"{st['cpu_ms']:.2f} ms (thread cpu {st['thread_ms']:.2f} ms); median GPU ms: {gpu} "
                 f"(= {sum(st['gpu_ms'].values()):.2f})")
 

@@ -68,3 +68,16 @@ def test_toml_syntax_error(tmp_path):
 def test_unwritable_output(tmp_path):
     one_line_error(hybrid("render", "scenes/sphere.toml", "-o", tmp_path / "no" / "dir" / "x.png", "--size", "16x16"),
                    "x.png")
+
+
+def test_wrapper_script_runs_the_cli_in_the_callers_folder(tmp_path):
+    """`./hybrid` sets itself up in the checkout but runs the command where it was called: relative paths (the
+    output here) are the caller's, not the checkout's."""
+    if not (REPO / ".venv" / ".installed").exists():
+        import pytest
+        pytest.skip("the checkout's .venv is not set up (./hybrid would create it)")
+    res = subprocess.run([str(REPO / "hybrid"), "render", str(REPO / "scenes" / "sphere.toml"), "-o", "rel.png",
+                          "--size", "32x18"], capture_output=True, text=True, cwd=tmp_path, timeout=300)
+    assert res.returncode == 0, res.stderr
+    assert Image.open(tmp_path / "rel.png").size == (32, 18)
+    assert not (REPO / "rel.png").exists()

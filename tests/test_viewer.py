@@ -108,6 +108,18 @@ def test_resize_between_frames(viewer, make_renderer):
     assert_close(got, make_renderer(128, 72).render(Scene.load(SCENE), ao=False).color)
 
 
+def test_short_runs_still_report_fps_and_gpu_ms(viewer):
+    """The exit statistics leave out the first two frames (upload, shader JIT) only where frames remain."""
+    v = viewer(SPHERE, 64, 36, settings=dict(ao=False))
+    assert v.run(frames=1) == 1
+    st = v.stats()
+    assert st["frames"] == 1 and st["skipped"] == 0 and st["gpu_ms"]["gbuffer"] > 0 and st["fps"] == 0.0
+    assert v.run(frames=2) == 2
+    st = v.stats()
+    assert st["frames"] == 3 and st["skipped"] == 1 and st["fps"] > 0 and st["gpu_ms"]["lighting"] > 0
+    assert "3 frames at 64x36 (the first 1 left out)" in v.summary()
+
+
 def test_minimize_waits_and_restore_continues(viewer):
     """A minimized window has a 0x0 framebuffer: nothing is rendered or recreated until it comes back.
     (Xvfb has no window manager to iconify a window, so the framebuffer-size callback is driven directly.)"""

@@ -1,0 +1,49 @@
+"""The Python examples of README.md and docs/scenes.md run as written (the renderer's at a small size)."""
+import os
+import re
+import subprocess
+import sys
+from pathlib import Path
+
+from PIL import Image
+
+REPO = Path(__file__).resolve().parent.parent
+
+
+def python_blocks(doc: str) -> list[str]:
+    return re.findall(r"```python\n(.*?)```", (REPO / doc).read_text(), flags=re.S)
+
+
+def run_block(code: str, cwd: Path):
+    (cwd / "scenes").symlink_to(REPO / "scenes")   # the examples load scenes/... from the checkout's root
+    env = dict(os.environ, PYTHONPATH=str(REPO))
+    return subprocess.run([sys.executable, "-c", code], cwd=cwd, env=env, capture_output=True, text=True,
+                          timeout=300)
+
+
+def test_readme_has_the_two_examples():
+    blocks = python_blocks("README.md")
+    assert len(blocks) == 2 and "engine.Renderer(" in blocks[0] and "engine.Tracer(" in blocks[1]
+
+
+def test_readme_render_example(tmp_path):
+    code = python_blocks("README.md")[0]
+    assert "engine.Renderer(1280, 720)" in code
+    res = run_block(code.replace("engine.Renderer(1280, 720)", "engine.Renderer(96, 54)"), tmp_path)
+    assert res.returncode == 0, res.stderr[-3000:]
+    assert Image.open(tmp_path / "out.png").size == (96, 54)
+
+
+def test_readme_tracer_example(tmp_path):
+    res = run_block(python_blocks("README.md")[1], tmp_path)
+    assert res.returncode == 0, res.stderr[-3000:]
+    m = re.search(r"([\d.]+)% occluded within t <= 2, ([\d.]+)% hit at all", res.stdout)
+    assert m, res.stdout
+    occluded, hit = float(m.group(1)), float(m.group(2))
+    assert 0 < occluded < hit < 100   # rays from inside and outside a unit sphere, in every direction
+
+
+def test_scenes_doc_example(tmp_path):
+    (block,) = python_blocks("docs/scenes.md")
+    res = run_block(block, tmp_path)
+    assert res.returncode == 0, res.stderr[-3000:]

@@ -15,6 +15,7 @@ from .errors import ConfigError, EngineError
 # Kept equal to engine.passes.debug_view.VIEW_MODES (without importing the Vulkan layer here).
 AOVS = ("color", "position", "normal", "albedo", "depth", "shadow_raw", "shadow", "ao_raw", "ao", "history")
 SHADOW_CHOICES = ("hard", "soft", "seed-delta", "reference", "off")
+MAX_FRAMES = 1_000_000
 
 
 def _settings(args) -> dict:
@@ -29,15 +30,16 @@ def _settings(args) -> dict:
 
 
 def cmd_render(args) -> int:
-    from .renderer import Renderer, parse_size
+    from .renderer import Renderer, check_png_path, parse_size
     from .scene import Scene
 
     width, height = parse_size(args.size)
+    if not 1 <= args.frames <= MAX_FRAMES:
+        raise ConfigError(f"--frames {args.frames}: expected 1..{MAX_FRAMES}")
+    check_png_path(args.output)   # before the work, which a path that cannot be written would lose
     t0 = time.perf_counter()
     scene = Scene.load(args.scene)
     t1 = time.perf_counter()
-    if args.frames < 1:
-        raise ConfigError(f"--frames {args.frames}: expected at least 1")
     with Renderer(width, height, device=args.device, validation=args.validation) as r:
         for _ in range(args.frames):   # soft shadows and AO accumulate over the frames
             frame = r.render(scene, **_settings(args))

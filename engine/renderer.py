@@ -14,12 +14,16 @@ it with the reprojected `hist` into `cur` (then copied to `hist` for the next fr
 from __future__ import annotations
 
 import math
+import numbers
+import os
 from dataclasses import dataclass, field
+from pathlib import Path
 
 import numpy as np
 import vulkan as vk
 
 from .bvh import build_bvh
+from .bvh.builder import MAX_COORD
 from .errors import ConfigError, EngineError, VulkanError
 from .passes import frame_data as fd
 from .passes.frame_data import FRAME_BYTES, MAX_LIGHTS, pack_frame, pack_light
@@ -33,6 +37,7 @@ from .passes.lighting import LightingPass
 from .passes.shadows import ShadowPass
 from .rt.tracer import SceneBVH, bvh_descriptor_set
 from .rt.tracer import bvh_layout as resolve_layout
+from .scene import Scene
 from .scene.camera import Camera
 from .shaders import ShaderLibrary
 from .vk import Buffer, BufferView, Context, Image, Timestamps, image_barrier, memory_barrier
@@ -79,15 +84,20 @@ def _check_settings(settings: dict) -> dict:
         if isinstance(v, (bool, np.bool_)) or not isinstance(v, (int, np.integer)) or not 1 <= v <= hi:
             raise ConfigError(f"setting {key}={v!r}: expected an integer in 1..{hi}")
         out[key] = int(v)
-    for key in ("ao_radius", "exposure"):
+    for key, hi in (("ao_radius", MAX_COORD), ("exposure", 1e6)):
         v = out[key]
         if v is None and key == "ao_radius":
             continue
-        if isinstance(v, bool) or not isinstance(v, (int, float)) or not math.isfinite(v) or v <= 0:
-            raise ConfigError(f"setting {key}={v!r}: expected a positive number")
-    amb = np.asarray(out["ambient"], dtype=np.float64).reshape(-1) if not isinstance(out["ambient"], str) else None
-    if amb is None or amb.size not in (1, 3) or not np.all(np.isfinite(amb)) or np.any(amb < 0):
-        raise ConfigError(f"setting ambient={out['ambient']!r}: expected a non-negative number or 3 numbers")
+        if isinstance(v, (bool, np.bool_)) or not isinstance(v, numbers.Real) or not 0 < v <= hi:
+            raise ConfigError(f"setting {key}={v!r}: expected a positive number, at most {hi:g}")
+        out[key] = float(v)
+    amb = out["ambient"]
+    try:
+        amb = None if isinstance(amb, (str, bytes)) else np.asarray(amb, dtype=np.float64).reshape(-1)
+    except (TypeError, ValueError):
+        amb = None
+    if amb is None or amb.size not in (1, 3) or not np.all((amb >= 0) & (amb <= 1e6)):
+        raise ConfigError(f"setting ambient={out['ambient']!r}: expected a number or 3 numbers in [0, 1e6]")
     out["ambient"] = tuple(np.broadcast_to(amb, (3,)).tolist())
     return out
 
@@ -100,6 +110,18 @@ def parse_size(text: str) -> tuple[int, int]:
         raise ConfigError(f"size {text!r}: expected WIDTHxHEIGHT, e.g. 1280x720") from None
     check_size(w, h)
     return w, h
+
+
+def check_png_path(path):
+    """A .png path whose folder exists, checked before any work that would be lost if it could not be written."""
+    p = Path(os.fspath(path))
+    if p.suffix.lower() != ".png":
+        raise ConfigError(f"{p}: images are written as PNG: give a path ending in .png")
+    if p.is_dir():
+        raise ConfigError(f"{p}: is a folder, not an image file")
+    if not p.parent.is_dir():
+        raise ConfigError(f"{p}: cannot write image: no folder {str(p.parent)!r}")
+    return p
 
 
 def check_size(width, height):
@@ -120,8 +142,9 @@ class Frame:
     settings: dict = field(default_factory=dict)
 
     def save(self, path, aov: str | None = None):
-        """Write the colour (or an AOV, normalized for viewing) as PNG."""
+        """Write the colour (or an AOV, normalized for viewing) as PNG (`path` ends in .png)."""
         from PIL import Image as PILImage
+        check_png_path(path)
         img = self.color if aov is None else aov_to_rgba(self, aov)
         try:
             PILImage.fromarray(img, "RGBA").save(str(path))
@@ -433,9 +456,19 @@ class Renderer:
                     if isinstance(cam, Camera):
                         return self._prepare_moved(steady, cam)
         self._steady = None
-        merged = dict(getattr(scene, "settings", None) or {})
-        merged.update(settings)
-        cfg = _check_settings(merged)
+        if not isinstance(scene, Scene):
+            raise ConfigError(f"render(): scene must be an engine.Scene (Scene.load(path)), got {type(scene).__name__}")
+        if camera is not None and not isinstance(camera, Camera):
+            raise ConfigError(f"render(): camera must be an engine.Camera or None, got {type(camera).__name__}")
+        own = getattr(scene, "settings", None) or {}
+        try:
+            cfg = _check_settings({**own, **settings})
+        except ConfigError as exc:   # where the bad setting came from: the scene's [settings] (not overridden)?
+            try:
+                _check_settings({k: v for k, v in own.items() if k not in settings})
+            except ConfigError as own_exc:
+                raise ConfigError(f"{scene.name}: [settings]: {own_exc}") from None
+            raise exc from None
         camera = camera if camera is not None else scene.camera
         if not polled:
             self._poll_shaders()

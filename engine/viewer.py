@@ -870,7 +870,9 @@ class Viewer:
 
     def save_screenshot(self, path) -> Path:
         from PIL import Image as PILImage
-        path = Path(path)
+
+        from .renderer import check_png_path
+        path = check_png_path(path)
         rgba = self.read_color()
         try:
             PILImage.fromarray(rgba, "RGBA").save(str(path))
@@ -961,13 +963,16 @@ def add_arguments(p):
 
 
 def run_from_args(args) -> int:
-    from .renderer import parse_size
+    from .cli import MAX_FRAMES
+    from .renderer import check_png_path, parse_size
 
     width, height = parse_size(args.size)
-    if args.frames is not None and args.frames < 1:
-        raise ConfigError(f"--frames {args.frames}: expected at least 1")
+    if args.frames is not None and not 1 <= args.frames <= MAX_FRAMES:
+        raise ConfigError(f"--frames {args.frames}: expected 1..{MAX_FRAMES}")
     if args.screenshot is not None and args.frames is None:
         raise ConfigError("--screenshot needs --frames N (or press F12 in the window)")
+    if args.screenshot is not None:
+        check_png_path(args.screenshot)
     settings = {k: v for k, v in (("shadows", args.shadows), ("ao", args.ao), ("ao_samples", args.ao_samples))
                 if v is not None}
     viewer = Viewer(args.scene, width, height, hot_reload=args.hot_reload, shader_dir=args.shader_dir,

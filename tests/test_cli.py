@@ -81,3 +81,21 @@ def test_wrapper_script_runs_the_cli_in_the_callers_folder(tmp_path):
     assert res.returncode == 0, res.stderr
     assert Image.open(tmp_path / "rel.png").size == (32, 18)
     assert not (REPO / "rel.png").exists()
+
+
+def test_render_checks_the_output_before_rendering(tmp_path):
+    one_line_error(hybrid("render", "scenes/sphere.toml", "-o", tmp_path / "x.gif", "--size", "16x16"), "x.gif", ".png")
+    one_line_error(hybrid("render", "scenes/sphere.toml", "-o", tmp_path / "x.png", "--frames", "10000000000"),
+                   "--frames")
+
+
+def test_bench_checks_its_outputs_and_device_before_running(tmp_path):
+    """Bad --json / --plot / --device fail at once (not after minutes of benchmarks whose results they would lose)."""
+    (tmp_path / "dir.json").mkdir()
+    for args, words in ((["--json", tmp_path / "dir.json"], ("--json", "folder")),
+                        (["--plot", tmp_path / "plot.txt"], ("--plot", ".png")),
+                        (["--json", "/proc/nope/b.json"], ("--json", "/proc/nope/b.json")),
+                        (["--device", "no-such-gpu"], ("no-such-gpu",))):
+        res = hybrid("bench", "build", "--quick", *args, timeout=60)
+        one_line_error(res, *words)
+        assert "BVH build" not in res.stdout   # nothing ran

@@ -55,11 +55,40 @@ def test_save_png(make_renderer, tmp_path):
     (dict(ao_radius=-1.0), "ao_radius"),
     (dict(exposure=float("nan")), "exposure"),
     (dict(shadow_sampels=4), "shadow_sampels"),
+    (dict(exposure=1e300), "exposure"),
+    (dict(ambient=[[1, 2], [3]]), "ambient"),
+    (dict(ambient={"r": 1}), "ambient"),
+    (dict(ambient=["a", "b", "c"]), "ambient"),
 ])
 def test_bad_settings_name_the_field(make_renderer, kw, word):
     r = make_renderer(16, 16)
     with pytest.raises(ConfigError, match=word):
         r.render(small_scene(), **kw)
+
+
+def test_settings_accept_numpy_numbers_and_name_the_scene_for_its_own(make_renderer):
+    r = make_renderer(16, 16)
+    assert r.render(small_scene(), exposure=np.float32(2), ao_samples=np.int64(2)).settings["exposure"] == 2.0
+    scene = small_scene()
+    scene.settings = {"shadows": "blurry"}
+    with pytest.raises(ConfigError, match=r"\[settings\]: setting shadows='blurry'") as err:
+        r.render(scene)
+    assert str(err.value).startswith(scene.name)
+    assert r.render(scene, shadows="hard").settings["shadows"] == "hard"   # a keyword wins over the scene's
+
+
+def test_render_arguments_are_checked(make_renderer, tmp_path):
+    r = make_renderer(16, 16)
+    with pytest.raises(ConfigError, match="scene must be an engine.Scene"):
+        r.render(None)
+    with pytest.raises(ConfigError, match="camera must be an engine.Camera"):
+        r.render(small_scene(), "cam")
+    f = r.render(small_scene())
+    (tmp_path / "d.png").mkdir()
+    for path, word in ((tmp_path / "x.gif", "ending in .png"), (tmp_path / "no" / "x.png", "no folder"),
+                       (tmp_path / "d.png", "is a folder")):
+        with pytest.raises(ConfigError, match=word):
+            f.save(path)
 
 
 @pytest.mark.parametrize("size", [(0, 10), (10, -5), (1.5, 10), (100000, 10)])

@@ -358,6 +358,10 @@ class Renderer:
         self._steady = None                # _Steady: the last frame's inputs, for re-submitting it cheaply
         self._geometry = self._scene_bvh = self.targets = None
         try:
+            if context is not None:
+                if not isinstance(context, Context):
+                    raise ConfigError(f"Renderer: context must be an engine.vk.Context, got {type(context).__name__}")
+                context.check_open("Renderer")   # a destroyed device would abort the process in the first call
             self.ctx = context if context is not None else Context(device=device, validation=validation or None)
             self._validation_errors = self.ctx.validation_errors  # the same list: still readable after close()
             self._init_gpu()

@@ -345,8 +345,8 @@ def test_nan_vertices_build_and_are_never_hit(n):
 def test_bad_input_raises_scene_errors():
     huge = np.array([[0, 0, 0], [1, 0, 0], [0, 1, 0], [2e38, 2e38, 0], [2.1e38, 2e38, 0], [2e38, 2.1e38, 0]])
     with pytest.raises(SceneError, match="beyond"):
-        build_bvh(huge, [[0, 1, 2], [3, 4, 5]])   # twice a box centre would overflow float32
-    build_bvh(huge / 4, [[0, 1, 2], [3, 4, 5]])    # 5e37 is fine
+        build_bvh(huge, [[0, 1, 2], [3, 4, 5]])   # beyond MAX_COORD (the traversal's products would overflow)
+    build_bvh(huge / 4e28, [[0, 1, 2], [3, 4, 5]])    # 5e9 is fine
     with pytest.raises(SceneError):
         build_bvh(np.zeros((3, 2)), [[0, 1, 2]])
     with pytest.raises(SceneError):

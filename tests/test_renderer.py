@@ -200,3 +200,19 @@ def test_a_failed_specialization_keeps_the_old_pipeline_and_its_spec(make_render
     with pytest.raises(ShaderError, match="test"):
         r.shadows.specialize(r.library, {**before, 3: before[3] + 1})
     assert r.shadows.pipeline.spec == before and r.shadows.pipeline.handle == handle
+
+
+def test_closed_or_foreign_context_is_a_clear_error():
+    from engine.vk import Context
+    ctx = Context()
+    ctx.close()
+    with pytest.raises(ConfigError, match="Renderer: the Vulkan context is closed"):
+        Renderer(8, 8, context=ctx)
+    with pytest.raises(ConfigError, match="context must be an engine.vk.Context"):
+        Renderer(8, 8, context="gpu")
+
+
+def test_validation_environment_flag_is_checked(monkeypatch):
+    monkeypatch.setenv("HYBRID_VALIDATION", "maybe")
+    with pytest.raises(ConfigError, match="HYBRID_VALIDATION='maybe'"):
+        Renderer(8, 8)

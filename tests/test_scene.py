@@ -560,3 +560,109 @@ def test_docs_example_loads():
     assert [light.kind for light in scene.lights] == ["directional", "point", "spot", "rect"]
     assert scene.settings["shadows"] == "soft"
     assert_consistent(scene)
+
+
+# ------------------------------------------------------------------------------------------------ fuzzed input
+BOX = '[[mesh]]\nprimitive = "box"\n'
+OVERFLOW_CASES = [
+    # numbers finite in float64 that would overflow float32 (or the tracer's coordinate bound)
+    (BOX + '[camera]\neye = [0, 0, 1e39]\ntarget = [0, 0, 0]\n', ["[camera]", "eye must be within"]),
+    (BOX + '[[light]]\ntype = "point"\nposition = [0, 1, 0]\nintensity = 1e300\n', ["(point)", "intensity"]),
+    (BOX + '[[light]]\ntype = "point"\nposition = [0, 1, 0]\nradius = 1e300\n', ["(point)", "radius"]),
+    (BOX + '[[light]]\ntype = "spot"\nposition = [0, 1e300, 0]\ndirection = [0, -1, 0]\n', ["(spot)", "position"]),
+    (BOX + '[[light]]\ntype = "rect"\nposition = [0, 1, 0]\nu = [1e39, 0, 0]\nv = [0, 0, 1e39]\n', ["(rect)", "u"]),
+    (BOX + '[[light]]\ntype = "directional"\ndirection = [0, -1e300, 0]\n', ["direction must be within"]),
+    (BOX + 'color = [1e300, 0, 0]\n', ["[[mesh]] #1", "color must be within"]),
+    (BOX + 'translate = [0, 1e39, 0]\n', ["[[mesh]] #1", "translate"]),
+    (BOX + 'scale = 1e300\n', ["[[mesh]] #1", "scale"]),
+    (BOX + 'size = 1e300\n', ["[[mesh]] #1", "size"]),
+    (BOX + 'size = 1e25\nscale = 1e25\n', ["[[mesh]] #1", "mesh 'box'", "world-space", "beyond"]),
+    (BOX + 'rotate = {axis = [0, 1, 0], angle = 1e300}\n', ["rotate.angle"]),
+    # a list as a light type; the triangle count of one primitive
+    (BOX + '[[light]]\ntype = ["point"]\n', ["[[light]] #1", "type must be one of"]),
+    ('[[mesh]]\nprimitive = "sphere"\nsegments = 4096\nrings = 4096\n',
+     ["[[mesh]] #1", "segments x rings", "33,554,432", "4,000,000"]),
+    ('[[mesh]]\nprimitive = "torus"\nsegments = 4096\nsides = 1024\n', ["[[mesh]] #1", "segments x sides"]),
+]
+
+
+@pytest.mark.parametrize("text, parts", OVERFLOW_CASES)
+def test_toml_overflow_and_type_errors(tmp_path, text, parts):
+    expect_error(write(tmp_path / "bad.toml", text), *parts)
+
+
+def test_overflow_in_the_python_api():
+    with pytest.raises(ConfigError, match="camera eye must be within"):
+        Camera.look_at((0, 0, 1e39), (0, 0, 0))
+    with pytest.raises(ConfigError, match="rect light v"):
+        RectLight((0, 1, 0), (1, 0, 0), (0, 0, 1e300))
+    with pytest.raises(SceneError, match="base_color"):
+        Material("m", (1e300, 0, 0))
+    with pytest.raises(SceneError, match=r"<arrays>: 1 vertex position\(s\) have coordinates beyond"):
+        Scene.from_arrays([[0, 0, 0], [1, 0, 0], [0, 1e39, 0]], [[0, 1, 2]])
+    # a long direction is normalised without overflow
+    np.testing.assert_allclose(DirectionalLight((1e29, 1e29, 0)).direction, [2 ** -0.5, 2 ** -0.5, 0])
+
+
+def test_framing_camera_error_names_the_scene():
+    scene = Scene.from_arrays([[0, 0, 0], [1, 0, 0], [0, 1, 0]], [[0, 1, 2]], name="tri.obj")
+    with pytest.raises(ConfigError, match="tri.obj: .*fov_y"):
+        scene.framing_camera(fov_y=0)
+
+
+def test_toml_nested_too_deeply(tmp_path):
+    path = write(tmp_path / "deep.toml", BOX + "translate = " + "[" * 2000 + "]" * 2000 + "\n")
+    expect_error(path, "nested too deeply")
+
+
+@pytest.mark.skipif(not hasattr(os, "mkfifo"), reason="needs FIFOs")
+def test_non_regular_files_are_refused(tmp_path):
+    for name in ("pipe.toml", "pipe.obj"):
+        os.mkfifo(tmp_path / name)
+        expect_error(tmp_path / name, "not a regular file")
+    expect_error(write(tmp_path / "s.toml", '[[mesh]]\nfile = "pipe.obj"\n'), "[[mesh]] #1", "not a regular file")
+    expect_error(write(tmp_path / "t.toml", BOX + 'texture = "pipe.obj"\n'), "[[mesh]] #1", "not a regular file")
+    # a FIFO an OBJ refers to is skipped (with a warning), not read
+    os.mkfifo(tmp_path / "pipe.mtl")
+    write(tmp_path / "tri.obj", "mtllib pipe.mtl\nv 0 0 0\nv 1 0 0\nv 0 1 0\nf 1 2 3\n")
+    assert Scene.load(tmp_path / "tri.obj").triangle_count == 1
+
+
+def test_toml_file_as_a_mesh(tmp_path):
+    write(tmp_path / "other.toml", BOX)
+    msg = expect_error(write(tmp_path / "s.toml", '[[mesh]]\nfile = "other.toml"\n'), "[[mesh]] #1",
+                       "other.toml", "cannot be used as a mesh file")
+    assert "supported: .toml" not in msg
+    expect_error(write(tmp_path / "model.xyz3", "hello"), "unsupported file type", "supported: .toml")
+
+
+def test_missing_and_corrupt_references_warn(tmp_path, caplog):
+    tri = "v 0 0 0\nv 1 0 0\nv 0 1 0\nvt 0 0\nvt 1 0\nvt 0 1\nusemtl m\nf 1/1 2/2 3/3\n"
+    write(tmp_path / "a.obj", "mtllib gone.mtl\n" + tri)
+    write(tmp_path / "b.mtl", "newmtl m\nKd 1 1 1\nmap_Kd gone.png\n")
+    write(tmp_path / "b.obj", "mtllib b.mtl\n" + tri)
+    write(tmp_path / "c.mtl", "newmtl m\nKd 1 1 1\nmap_Kd bad.png\n")
+    write(tmp_path / "bad.png", b"not a png at all")
+    write(tmp_path / "c.obj", "mtllib c.mtl\n" + tri)
+    for name, parts in (("a.obj", ["material file 'gone.mtl' not found"]), ("b.obj", ["texture 'gone.png' not found"]),
+                        ("c.obj", ["texture 'bad.png' is unreadable"])):
+        caplog.clear()
+        with caplog.at_level("WARNING", logger="engine.scene"):
+            scene = Scene.load(tmp_path / name)
+        assert scene.triangle_count == 1
+        if name != "a.obj":   # (without its MTL trimesh gives the mesh a plain default material)
+            assert all(m.texture is None for m in scene.materials)
+        text = " | ".join(r.getMessage() for r in caplog.records if r.levelname == "WARNING")
+        for part in [str(tmp_path / name)] + parts:
+            assert part in text, f"{part!r} not in {text!r}"
+
+
+@pytest.mark.parametrize("path", [None, 5, b"scene.toml"])
+def test_scene_load_bad_path_type(path):
+    with pytest.raises(ConfigError, match="Scene.load: path"):
+        Scene.load(path)
+
+
+def test_from_arrays_bad_lights():
+    with pytest.raises(ConfigError, match="<arrays>: lights must be a list"):
+        Scene.from_arrays([[0, 0, 0], [1, 0, 0], [0, 1, 0]], [[0, 1, 2]], lights=5)

@@ -1,4 +1,6 @@
 """The batch Tracer against a brute-force numpy reference, on several meshes including thin and degenerate ones."""
+import re
+
 import numpy as np
 import pytest
 import trimesh
@@ -412,3 +414,164 @@ def test_huge_coordinates_are_refused_with_a_clear_error():
     v = np.array([[0, 0, 0], [1, 0, 0], [0, 1, 0], [3e38, 0, 0]], float)
     with pytest.raises(SceneError, match="Tracer: vertices: coordinates beyond"):
         Tracer(v, [[0, 1, 2], [1, 2, 3]])
+
+
+# ---- bad input: clear one-line errors naming the argument, never a crash or a silent wrong answer ----------------
+TRI_V = np.array([[-1, -1, 0], [1, -1, 0], [0, 1, 0]], float)
+TRI_F = np.array([[0, 1, 2]])
+O1, D1 = [[0.0, 0.0, 1.0]], [[0.0, 0.0, -1.0]]
+
+
+@pytest.fixture(scope="module")
+def tri_tracer():
+    with Tracer(TRI_V, TRI_F) as t:
+        yield t
+
+
+def test_closed_context_is_a_clear_error():
+    from engine.vk import Context
+    ctx = Context()
+    ctx.close()
+    assert ctx.closed
+    with pytest.raises(ConfigError, match="Tracer: the Vulkan context is closed"):
+        Tracer(TRI_V, TRI_F, context=ctx)
+    with pytest.raises(ConfigError, match="context must be an engine.vk.Context, got str"):
+        Tracer(TRI_V, TRI_F, context="gpu")
+
+
+def test_queries_after_close_are_a_clear_error():
+    from engine.vk import Context
+    with Tracer(TRI_V, TRI_F) as t:
+        assert t.occluded(O1, D1)[0]
+    for query in (t.occluded, t.intersect):
+        with pytest.raises(ConfigError, match="Tracer is closed"):
+            query(O1, D1)
+    t.close()  # a second close is harmless
+    ctx = Context()
+    shared = Tracer(TRI_V, TRI_F, context=ctx)
+    assert shared.intersect(O1, D1).hit[0]
+    ctx.close()
+    for query in (shared.occluded, shared.intersect):
+        with pytest.raises(ConfigError, match="Tracer is closed: the Vulkan context it was given was closed"):
+            query(O1, D1)
+    shared.close()
+    assert shared.validation_errors == []
+
+
+@pytest.mark.parametrize("origins, directions, tmax, what", [
+    ([["a", "b", "c"]], D1, np.inf, "origins must be numbers"),
+    ([["0", "0", "1"]], D1, np.inf, "origins must be numbers"),
+    ([[0, 0], [1, 2, 3]], D1 * 2, np.inf, "origins must be numbers"),
+    ({"o": 1}, D1, np.inf, "origins must be numbers"),
+    (O1, [[True, False, False]], np.inf, "directions must be numbers"),
+    (O1, [[0, 0, None]], np.inf, "directions must be numbers"),
+    (O1, D1, "far", "tmax must be numbers"),
+    (O1, D1, None, "tmax must be numbers"),
+    (O1, D1, [[1.0], "x"], "tmax must be numbers"),
+], ids=["strings", "numeric-strings", "ragged", "dict", "bools", "none-inside", "tmax-str", "tmax-none",
+        "tmax-ragged"])
+def test_non_numeric_rays_are_config_errors(tri_tracer, origins, directions, tmax, what):
+    for query in (tri_tracer.occluded, tri_tracer.intersect):
+        with pytest.raises(ConfigError, match=what):
+            query(origins, directions, tmax)
+
+
+@pytest.mark.parametrize("arg, value, what", [
+    ("origins", [np.nan, 0, 1], "origins: ray 2 is not finite"),
+    ("origins", [np.inf, 0, 1], "origins: ray 2 is not finite"),
+    ("origins", [1e300, 0, 1], "origins: ray 2 is not finite"),       # finite in float64, inf in float32
+    ("origins", [0, -2e11, 1], "origins: ray 2 has a coordinate beyond"),
+    ("directions", [np.nan, 0, -1], "directions: ray 2 is not finite"),
+    ("directions", [0, 0, -np.inf], "directions: ray 2 is not finite"),
+    ("directions", [0, 0, -1e300], "directions: ray 2 is not finite"),
+    ("directions", [0, 0, 0], "directions: ray 2 has zero length"),
+    ("directions", [0, 0, -1e-40], "directions: ray 2 has zero length"),  # subnormal in float32: 1/d overflows
+])
+def test_non_finite_and_zero_rays_name_the_first_bad_ray(tri_tracer, arg, value, what):
+    o, d = np.array(O1 * 4), np.array(D1 * 4)
+    (o if arg == "origins" else d)[2] = value
+    (o if arg == "origins" else d)[3] = value
+    for query in (tri_tracer.occluded, tri_tracer.intersect):
+        with pytest.raises(ConfigError, match=what):
+            query(o, d, 5.0)
+        with np.errstate(over="ignore"):
+            o32, d32 = o.astype(np.float32), d.astype(np.float32)
+        with pytest.raises(ConfigError, match=what):   # float32 input too
+            query(o32, d32, 5.0)
+
+
+def test_tmax_nan_or_none_is_refused_inf_and_negative_are_not(tri_tracer):
+    for query in (tri_tracer.occluded, tri_tracer.intersect):
+        with pytest.raises(ConfigError, match="tmax must be a number or \\+inf, got NaN"):
+            query(O1, D1, np.nan)
+        with pytest.raises(ConfigError, match="tmax: ray 1 has tmax NaN"):
+            query(O1 * 3, D1 * 3, [1.0, np.nan, np.nan])
+        with pytest.raises(ConfigError, match="tmax must be numbers, got None"):
+            query(O1, D1, None)
+    assert tri_tracer.occluded(O1, D1, np.inf)[0] and tri_tracer.occluded(O1, D1, 1e300)[0]
+    assert not tri_tracer.occluded(O1, D1, -1.0)[0] and not tri_tracer.intersect(O1, D1, -1.0).hit[0]
+    tiny = tri_tracer.intersect(O1, [[0, 0, -1e-30]])      # tiny but normal directions still trace: t = 1e30
+    assert tiny.hit[0] and np.isclose(tiny.t[0], 1e30, rtol=1e-5)
+    assert len(tri_tracer.occluded(np.zeros((0, 3)), np.zeros((0, 3)))) == 0
+
+
+@pytest.mark.parametrize("layout", ["binary", "wide"])
+def test_coordinates_just_under_the_bound_trace_exactly(layout):
+    """The watertight test's products grow as the cube of the coordinates: within MAX_COORD, hits of big
+    triangles seen from far away are exact (2^k scalings of a unit scene give exactly 2^k times its t); vertices
+    or origins beyond it are refused."""
+    from engine.bvh.builder import MAX_COORD
+    s = 2.0 ** np.floor(np.log2(MAX_COORD))          # the largest power of two under the bound
+    assert MAX_COORD / 2 < s <= MAX_COORD
+    v1 = np.array([[1, -1, -1], [-1, 1, -1], [-1, -1, 1], [1, 1, -1], [-1, 1, 1], [1, -1, 1]], float)
+    f = np.array([[0, 1, 2], [3, 4, 5]])
+    rng = np.random.default_rng(3)
+    n = 200
+    o1 = (rng.choice([-1.0, 1.0], (n, 3)) * rng.uniform(0.9, 1.0, (n, 3))).astype(np.float32)
+    target = np.einsum("ni,nij->nj", rng.dirichlet([1, 1, 1], n), v1[f[rng.integers(0, 2, n)]])
+    d = target - o1
+    d = (d * rng.uniform(0.5, 1.0, (n, 1)) / np.linalg.norm(d, axis=1, keepdims=True)).astype(np.float32)
+    with Tracer(v1, f, layout=layout) as unit, Tracer(v1 * s, f, layout=layout) as big:
+        want, want_occ = unit.intersect(o1, d), unit.occluded(o1, d, 10.0)
+        got, got_occ = big.intersect(o1 * np.float32(s), d), big.occluded(o1 * np.float32(s), d, 10.0 * s)
+        assert want.hit.all() and want_occ.all()
+        assert np.array_equal(got.prim, want.prim) and np.array_equal(got.t, want.t * np.float32(s))
+        assert np.array_equal(got_occ, want_occ)
+        # the reported repro: a triangle of half-width s under a ray from (0, 1, 1)
+        with Tracer([[s, 0, 0], [-s, 0, 0], [0, s, 0]], [[0, 1, 2]], layout=layout) as flat:
+            assert flat.occluded([[0, 1, 1]], D1)[0] and flat.intersect([[0, 1, 1]], D1).t[0] == 1.0
+        with pytest.raises(ConfigError, match=re.escape(f"origins: ray 0 has a coordinate beyond +-{MAX_COORD:g}")):
+            big.occluded([[0, 0, 2 * MAX_COORD]], D1)
+    with pytest.raises(SceneError, match=re.escape(f"vertices: coordinates beyond +-{MAX_COORD:g}")):
+        Tracer(v1 * 2 * MAX_COORD, f, layout=layout)
+
+
+def test_builder_refuses_coordinates_beyond_the_bound():
+    from engine.bvh import build_bvh
+    from engine.bvh.builder import MAX_COORD
+    v = np.array([[0, 0, 0], [1, 0, 0], [0, 1, 0], [3 * MAX_COORD, 0, 0]], np.float32)
+    with pytest.raises(SceneError, match=re.escape(f"1 vertices have a coordinate beyond +-{MAX_COORD:g}")):
+        build_bvh(v, [[0, 1, 2], [1, 2, 3]])
+    build_bvh(v / 4, [[0, 1, 2], [1, 2, 3]])
+
+
+@pytest.mark.parametrize("batch", ["x", 0, -5, 2.5, None, True, float("nan")])
+def test_bad_batch_size_is_a_config_error(batch):
+    with pytest.raises(ConfigError, match="batch_size must be a whole number of rays >= 1"):
+        Tracer(TRI_V, TRI_F, batch_size=batch)
+
+
+def test_integral_batch_sizes_are_accepted():
+    with Tracer(TRI_V, TRI_F, batch_size=np.int64(64)) as a, Tracer(TRI_V, TRI_F, batch_size=64.0) as b:
+        assert a.batch == b.batch == 64
+
+
+def test_from_trimesh_names_what_it_expected():
+    with pytest.raises(SceneError, match="mesh must be a trimesh.Trimesh or trimesh.Scene, got str"):
+        Tracer.from_trimesh("x")
+    with pytest.raises(SceneError, match="got PointCloud"):
+        Tracer.from_trimesh(trimesh.PointCloud(np.zeros((3, 3))))
+    with pytest.raises(SceneError, match="the trimesh.Scene has no triangle mesh"):
+        Tracer.from_trimesh(trimesh.Scene(trimesh.PointCloud(np.zeros((3, 3)))))
+    with Tracer.from_trimesh(trimesh.Scene(trimesh.creation.box())) as t:
+        assert t.occluded([[0, 0, 2]], [[0, 0, -1]])[0]

@@ -68,8 +68,11 @@ import numpy as np
 from ..errors import ConfigError, SceneError
 from .layout import LEAF_BIT, NODE_DTYPE, TRI_DTYPE
 
-#: Largest vertex coordinate magnitude the builder accepts (twice a box centre must stay finite in float32).
-MAX_COORD = 1e38
+#: Largest vertex (and ray origin) coordinate magnitude accepted. The watertight triangle test (bvh.glsl
+#: bvh_triangle_) forms t * det in float32, which grows as the cube of the coordinates (up to ~128 MAX_COORD^3 /
+#: |direction|): with 1e11 it stays finite for directions of length >= ~1e-3 (exact hits measured: unit-length
+#: directions up to ~2e12, 1e-3 ones up to ~1.4e11; beyond, hits come back with t = inf or are lost).
+MAX_COORD = 1e11
 #: Default depth cap; equal to the default BVH_STACK_SIZE of bvh.glsl (the traversal needs depth - 1 entries).
 DEFAULT_MAX_DEPTH = 32
 
@@ -368,7 +371,7 @@ def _validated(vertices, faces):
         huge = np.abs(vt) > MAX_COORD  # NaN compares false: NaN vertices are allowed (their triangles are never hit)
     if huge.any():
         raise SceneError(f"build_bvh: vertices: {int(huge.any(axis=0).sum())} vertices have a coordinate beyond "
-                         f"+-{MAX_COORD:g} (or infinite); the builder needs twice a box centre to fit a float32")
+                         f"+-{MAX_COORD:g} (or infinite); the float32 triangle test is exact only within that bound")
     ft = np.ascontiguousarray(f, dtype=np.intp)  # (T, 3): no transposed copy of the caller's faces
     return vt, ft
 

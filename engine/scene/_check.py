@@ -7,7 +7,15 @@ from numbers import Real
 
 import numpy as np
 
+from engine.bvh.builder import MAX_COORD
 from engine.errors import ConfigError
+
+#: Largest magnitude of any number in a scene (intensities, colours, angles, ...): far below float32's 3.4e38, so
+#: the float32 copies the GPU gets (and products of two of them, in float64 on the host) stay finite.
+MAX_VALUE = 1e30
+#: Positions and lengths in the world (light positions and radii, rect edges, translations) share the tracer's
+#: bound on vertex coordinates.
+MAX_POSITION = MAX_COORD
 
 
 def _is_number(x) -> bool:
@@ -15,13 +23,19 @@ def _is_number(x) -> bool:
 
 
 def number(value, field: str, *, min_value: float | None = None, max_value: float | None = None,
-           min_exclusive: bool = False, max_exclusive: bool = False, error=ConfigError) -> float:
-    """A finite real number within the given range."""
+           min_exclusive: bool = False, max_exclusive: bool = False, max_abs: float = MAX_VALUE,
+           error=ConfigError) -> float:
+    """A finite real number within the given range (and within +-max_abs)."""
     if not _is_number(value):
         raise error(f"{field} must be a number, got {value!r}")
-    v = float(value)
+    try:
+        v = float(value)
+    except OverflowError:  # an int too large for a float
+        v = math.inf
     if not math.isfinite(v):
-        raise error(f"{field} must be finite, got {v!r}")
+        raise error(f"{field} must be finite, got {value!r}")
+    if abs(v) > max_abs:
+        raise error(f"{field} must be within +-{max_abs:g}, got {v:g}")
     if min_value is not None and (v < min_value or (min_exclusive and v == min_value)):
         op = ">" if min_exclusive else ">="
         raise error(f"{field} must be {op} {min_value:g}, got {v:g}")
@@ -31,8 +45,8 @@ def number(value, field: str, *, min_value: float | None = None, max_value: floa
     return v
 
 
-def vector(value, n: int, field: str, *, error=ConfigError) -> np.ndarray:
-    """`n` finite numbers as a read-only float64 array."""
+def vector(value, n: int, field: str, *, max_abs: float = MAX_VALUE, error=ConfigError) -> np.ndarray:
+    """`n` finite numbers (each within +-max_abs) as a read-only float64 array."""
     if isinstance(value, (str, bytes)) or not hasattr(value, "__len__"):
         raise error(f"{field} must be {n} numbers, got {value!r}")
     try:
@@ -41,20 +55,32 @@ def vector(value, n: int, field: str, *, error=ConfigError) -> np.ndarray:
         raise error(f"{field} must be {n} numbers, got {value!r}") from None
     if len(items) != n or not all(_is_number(x) for x in items):
         raise error(f"{field} must be {n} numbers, got {value!r}")
-    arr = np.array([float(x) for x in items], dtype=np.float64)
+    try:
+        arr = np.array([float(x) for x in items], dtype=np.float64)
+    except OverflowError:  # an int too large for a float
+        raise error(f"{field} must be finite, got {value!r}") from None
     if not np.all(np.isfinite(arr)):
         raise error(f"{field} must be finite, got {value!r}")
+    if np.any(np.abs(arr) > max_abs):
+        raise error(f"{field} must be within +-{max_abs:g}, got {tuple(arr.tolist())}")
     arr.setflags(write=False)
     return arr
+
+
+def position(value, field: str, *, error=ConfigError) -> np.ndarray:
+    """A point (or an edge vector) in the world: 3 numbers within +-MAX_POSITION."""
+    return vector(value, 3, field, max_abs=MAX_POSITION, error=error)
 
 
 def direction(value, field: str, *, error=ConfigError) -> np.ndarray:
     """A non-zero 3-vector, returned unit length."""
     v = vector(value, 3, field, error=error)
-    length = float(np.linalg.norm(v))
-    if not (length > 1e-12) or not math.isfinite(length):
+    top = float(np.abs(v).max())
+    scaled = v / top if top > 0 else v  # the norm of the scaled vector cannot overflow
+    length = top * float(np.linalg.norm(scaled))
+    if not (length > 1e-12):
         raise error(f"{field} must be a non-zero vector, got {tuple(v.tolist())}")
-    out = v / length
+    out = scaled / float(np.linalg.norm(scaled))
     out.setflags(write=False)
     return out
 

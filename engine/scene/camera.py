@@ -88,6 +88,9 @@ class Camera:
                      up=(0.0, 1.0, 0.0)) -> "Camera":
         """A camera looking at the centre of `bounds` ((2, 3) min/max) from `direction` (target to eye), far enough
         back that the whole bounding sphere is inside the view for any aspect ratio >= `aspect`."""
+        fov_y = _check.number(fov_y, "camera fov_y", min_value=0.0, max_value=180.0,
+                              min_exclusive=True, max_exclusive=True)
+        aspect = _check.number(aspect, "aspect", min_value=0.0, min_exclusive=True)
         b = np.asarray(bounds, dtype=np.float64).reshape(2, 3)
         if not np.all(np.isfinite(b)):
             raise ConfigError("camera framing bounds must be finite")

@@ -94,4 +94,7 @@ def transform_normals(m: np.ndarray, n: np.ndarray) -> np.ndarray:
         it = np.linalg.inv(a).T
     except np.linalg.LinAlgError:
         it = a
+    top = np.abs(it).max()
+    if np.isfinite(top) and top > 0:
+        it = it / top  # a tiny scale makes a huge inverse: keep n @ it.T (and its norm) from overflowing
     return unitize(n @ it.T)

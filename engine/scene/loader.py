@@ -9,6 +9,7 @@ import warnings
 
 import numpy as np
 
+from engine.bvh.builder import MAX_COORD
 from engine.errors import SceneError
 
 from .geometry import crease_normals, transform_normals, transform_points, unitize
@@ -17,6 +18,9 @@ from .material import Material, srgb8_to_linear
 MAX_TEXTURE_SIZE = 2048
 MESH_EXTENSIONS = (".obj", ".ply", ".stl", ".gltf", ".glb", ".off")
 DEFAULT_COLOR = (0.8, 0.8, 0.8, 1.0)
+IMAGE_EXTENSIONS = (".png", ".jpg", ".jpeg", ".bmp", ".tga", ".tif", ".tiff", ".gif", ".webp")
+
+log = logging.getLogger(__name__)
 
 
 @contextlib.contextmanager
@@ -69,6 +73,8 @@ def image_to_texture(img, where: str) -> np.ndarray:
 def load_texture_file(path: str, where: str) -> np.ndarray:
     """An image file to a texture; `where` names what refers to it (e.g. 'scene.toml: [[mesh]] #2: texture')."""
     from PIL import Image
+    if os.path.exists(path) and not os.path.isfile(path):
+        raise SceneError(f"{where}: texture is not a regular file: {path}")
     if not os.path.isfile(path):
         raise SceneError(f"{where}: texture file not found: {path}")
     try:
@@ -80,24 +86,81 @@ def load_texture_file(path: str, where: str) -> np.ndarray:
         raise SceneError(f"{where}: cannot read texture image {path} ({_short(exc)})") from None
 
 
-def load_trimesh_scene(path: str):
-    """trimesh.load_scene with our errors: missing file, unsupported type, unreadable or corrupt content."""
+def _resolver(path: str):
+    """A trimesh resolver for the files a mesh file refers to (MTL, textures, glTF buffers) that refuses
+    non-regular files (a FIFO would block the read) and notes in `.problems` what was missing or unreadable."""
+    from trimesh.resolvers import FilePathResolver
+
+    class Resolver(FilePathResolver):
+        def __init__(self, source):
+            super().__init__(source)
+            self.problems = []
+
+        def get(self, name: str):
+            name = name.strip()
+            ext = os.path.splitext(name)[1].lower()
+            what = "material file" if ext == ".mtl" else "texture" if ext in IMAGE_EXTENSIONS else "referenced file"
+            for candidate in (name, name.lstrip("/"), os.path.split(name)[-1]):
+                try:
+                    full = self.absolute(candidate)
+                except ValueError:
+                    continue
+                if full.exists():
+                    if not full.is_file():
+                        self.problems.append(f"{what} {name!r} is not a regular file")
+                        raise OSError(f"{name}: not a regular file")
+                    data = full.read_bytes()
+                    if what == "texture":
+                        _check_image(data, name, self.problems)
+                    return data
+            self.problems.append(f"{what} {name!r} not found (next to the mesh file)")
+            raise FileNotFoundError(name)
+
+    return Resolver(path)
+
+
+def _check_image(data: bytes, name: str, problems: list) -> None:
+    """Note an image trimesh will fail to open (it drops it without a word)."""
+    import io
+
+    from PIL import Image
+    try:
+        Image.open(io.BytesIO(data)).close()
+    except Exception:
+        problems.append(f"texture {name!r} is unreadable (not an image file pillow can read)")
+
+
+def load_trimesh_scene(path: str, *, scene_file: bool = False):
+    """trimesh.load_scene with our errors: missing file, unsupported type, unreadable or corrupt content.
+
+    `scene_file`: the path was given as a scene (a .toml would have been one too), not as a [[mesh]] file.
+    Referenced files (textures, MTL) that are missing or unreadable are logged as warnings; the mesh is kept.
+    """
     import trimesh
     if not os.path.exists(path):
         raise SceneError(f"{path}: file not found")
     if os.path.isdir(path):
         raise SceneError(f"{path}: is a directory, not a scene file")
+    if not os.path.isfile(path):  # a FIFO or a device would block the read or never end
+        raise SceneError(f"{path}: not a regular file")
     ext = os.path.splitext(path)[1].lower()
+    if ext == ".toml" and not scene_file:
+        raise SceneError(f"{path}: a .toml scene cannot be used as a mesh file "
+                         f"(mesh files: {', '.join(MESH_EXTENSIONS)})")
     if ext not in MESH_EXTENSIONS:
-        raise SceneError(f"{path}: unsupported file type '{ext or '(none)'}' "
-                         f"(supported: .toml, {', '.join(MESH_EXTENSIONS)})")
+        supported = (".toml, " if scene_file else "") + ", ".join(MESH_EXTENSIONS)
+        raise SceneError(f"{path}: unsupported file type '{ext or '(none)'}' (supported: {supported})")
     try:
         if os.path.getsize(path) == 0:
             raise SceneError(f"{path}: file is empty")
+        resolver = _resolver(path)
         with _quiet():
             # process=False: keep the file's vertices as they are (trimesh would silently drop NaN vertices and
             # weld STL corners); we validate, and compute missing normals with creases ourselves
-            return trimesh.load_scene(path, process=False)
+            obj = trimesh.load_scene(path, process=False, resolver=resolver)
+        for problem in dict.fromkeys(resolver.problems):
+            log.warning(f"{path}: {problem}; rendering without it")
+        return obj
     except SceneError:
         raise
     except MemoryError:
@@ -144,6 +207,9 @@ class SceneBuilder:
         if not np.all(np.isfinite(p)):
             bad = int(np.count_nonzero(~np.all(np.isfinite(p), axis=1)))
             raise SceneError(f"{where}: mesh '{name}' has {bad} vertex position(s) that are NaN or infinite")
+        if np.abs(p).max() > MAX_COORD:
+            raise SceneError(f"{where}: mesh '{name}' has world-space vertex coordinates beyond +-{MAX_COORD:g} "
+                             f"(largest {np.abs(p).max():g}): check its size, scale and translate")
         if f.min() < 0 or f.max() >= len(p):
             raise SceneError(f"{where}: mesh '{name}' has face indices out of range")
         if uvs is not None:
@@ -276,7 +342,10 @@ def _material_of(visual, where: str, vertex_count: int):
             else:
                 base, image = DEFAULT_COLOR, getattr(mat, "image", None)
             tex = None
-            if image is not None and getattr(visual, "uv", None) is not None:
+            if image is not None and getattr(visual, "uv", None) is None:
+                log.warning(f"{where}: material '{name}' has a texture but the mesh has no UVs; "
+                            "rendering without it")
+            elif image is not None:
                 tex = image_to_texture(image, f"{where}: material '{name}'")
             return Material(name, base, tex)
         return ("trimesh-material", id(mat)), make
@@ -294,7 +363,7 @@ def _material_of(visual, where: str, vertex_count: int):
 
 def load_mesh_scene(path: str, lights=None, camera=None):
     """A Scene from one mesh / glTF file."""
-    obj = load_trimesh_scene(path)
+    obj = load_trimesh_scene(path, scene_file=True)
     builder = SceneBuilder(path)
     builder.add_trimesh(obj, path)
     return builder.build(lights=lights, camera=camera)

@@ -26,8 +26,9 @@ class Material:
             raise SceneError(f"material {self.name!r}: base_color must be 3 or 4 numbers, got {c.shape[0]}")
         if c.shape == (3,):
             c = np.append(c, 1.0)
-        if not np.all(np.isfinite(c)) or np.any(c < 0):
-            raise SceneError(f"material {self.name!r}: base_color must be finite and non-negative, got {c.tolist()}")
+        if not np.all(np.isfinite(c)) or np.any(c < 0) or np.any(c > _check.MAX_VALUE):
+            raise SceneError(f"material {self.name!r}: base_color must be finite, non-negative and at most "
+                             f"{_check.MAX_VALUE:g}, got {c.tolist()}")
         self.base_color = c.astype(np.float32)
         self.base_color.setflags(write=False)
         if texture is not None:

@@ -9,6 +9,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from engine.bvh.builder import MAX_COORD
 from engine.errors import ConfigError, SceneError
 
 from .camera import Camera
@@ -55,6 +56,10 @@ class Scene:
         if not np.all(np.isfinite(p)):
             bad = int(np.count_nonzero(~np.all(np.isfinite(p), axis=1)))
             raise SceneError(f"{where}: {bad} vertex position(s) are NaN or infinite")
+        extent = np.abs(p.astype(np.float64)).max(axis=1)
+        if extent.max() > MAX_COORD:  # the tracer's bound (and what would overflow the float32 copy)
+            bad = int(np.count_nonzero(extent > MAX_COORD))
+            raise SceneError(f"{where}: {bad} vertex position(s) have coordinates beyond +-{MAX_COORD:g}")
         if not np.issubdtype(f.dtype, np.integer):
             if np.issubdtype(f.dtype, np.floating) and np.all(np.isfinite(f)) and np.all(f == np.round(f)):
                 f = f.astype(np.int64)
@@ -121,6 +126,8 @@ class Scene:
             lights = [default_sun()]
         elif isinstance(lights, Light):
             lights = [lights]
+        if isinstance(lights, (str, bytes, dict)) or not hasattr(lights, "__iter__"):
+            raise ConfigError(f"{where}: lights must be a list of lights, got {type(lights).__name__}")
         lights = list(lights)
         for i, light in enumerate(lights):
             if not isinstance(light, Light):
@@ -144,7 +151,10 @@ class Scene:
 
     def framing_camera(self, fov_y: float = 60.0, aspect: float = 1.0) -> Camera:
         """A camera that sees the whole bounding sphere from a 3/4 view above."""
-        return Camera.frame_bounds(self.bounds, fov_y=fov_y, aspect=aspect)
+        try:
+            return Camera.frame_bounds(self.bounds, fov_y=fov_y, aspect=aspect)
+        except ConfigError as exc:
+            raise ConfigError(f"{self.name}: {exc}") from None
 
     # ------------------------------------------------------------------ info
     @property
@@ -199,7 +209,11 @@ class Scene:
     def load(cls, path) -> "Scene":
         """A `.toml` scene or any mesh / glTF file trimesh reads (OBJ, PLY, STL, glTF, GLB, ...)."""
         from . import loader, toml_format
+        if not isinstance(path, (str, os.PathLike)):
+            raise ConfigError(f"Scene.load: path must be a file path (str or os.PathLike), got {type(path).__name__}")
         path = os.fspath(path)
+        if not isinstance(path, str):
+            raise ConfigError(f"Scene.load: path must be a str path, got {path!r}")
         if path.lower().endswith(".toml"):
             return toml_format.load_toml(path)
         return loader.load_mesh_scene(path)

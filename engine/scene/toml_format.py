@@ -32,6 +32,8 @@ LIGHT_KEYS = {
     "spot": ("type", "position", "direction", "target", "color", "intensity", "radius", "cone_angle", "softness"),
     "rect": ("type", "position", "u", "v", "color", "intensity"),
 }
+#: Most triangles one primitive may have (sphere: 2 x segments x rings, torus: 2 x segments x sides).
+MAX_PRIMITIVE_TRIANGLES = 4_000_000
 
 
 class _Ctx:
@@ -69,6 +71,8 @@ def load_toml(path: str):
         raise SceneError(f"{path}: file not found")
     if os.path.isdir(path):
         raise SceneError(f"{path}: is a directory, not a scene file")
+    if not os.path.isfile(path):  # a FIFO or a device would block the read or never end
+        raise SceneError(f"{path}: not a regular file")
     try:
         with open(path, "rb") as fh:
             data = tomllib.load(fh)
@@ -82,6 +86,8 @@ def load_toml(path: str):
             except OSError:
                 pass
         raise SceneError(f"{path}: TOML syntax error: {msg}") from None
+    except RecursionError:
+        raise SceneError(f"{path}: TOML nested too deeply (arrays or inline tables inside each other)") from None
     except UnicodeDecodeError:
         raise SceneError(f"{path}: not a UTF-8 text file") from None
     except OSError as exc:
@@ -171,7 +177,7 @@ def _light(table: dict, ctx: _Ctx):
     if "type" not in table:
         raise ctx.error(f"missing key 'type' (one of {', '.join(LIGHT_TYPES)})")
     kind = table["type"]
-    if kind not in LIGHT_TYPES:
+    if not isinstance(kind, str) or kind not in LIGHT_TYPES:
         raise ctx.error(f"type must be one of {', '.join(LIGHT_TYPES)}, got {kind!r}")
     ctx = ctx.at(f"{ctx.table} ({kind})")
     _unknown(ctx, table, LIGHT_KEYS[kind])
@@ -184,7 +190,7 @@ def _light(table: dict, ctx: _Ctx):
         frm = table.get("position")
         if frm is None:
             raise ctx.error("'target' needs 'position' (or give 'direction')")
-        p = ctx.check(_check.vector, frm, 3, "position")
+        p = ctx.check(_check.position, frm, "position")
         t = ctx.check(_check.vector, table["target"], 3, "target")
         args["direction"] = t - p
     cls = LIGHT_TYPES[kind]
@@ -242,20 +248,29 @@ def _count(table, key, default, lo, ctx):
     return value
 
 
+def _grid_counts(table, keys, defaults, lows, ctx):
+    """The two counts of a grid primitive (2 triangles per cell), their product capped at MAX_PRIMITIVE_TRIANGLES."""
+    a, b = (_count(table, k, d, lo, ctx) for k, d, lo in zip(keys, defaults, lows))
+    if 2 * a * b > MAX_PRIMITIVE_TRIANGLES:
+        raise ctx.error(f"{keys[0]} x {keys[1]} = {a} x {b} makes {2 * a * b:,} triangles, more than the "
+                        f"{MAX_PRIMITIVE_TRIANGLES:,} one primitive may have")
+    return a, b
+
+
 def _primitive(kind: str, table: dict, ctx: _Ctx):
     if kind == "box":
         return primitives.box(_size(table.get("size", 1.0), 3, "size", ctx))
     if kind == "plane":
         return primitives.plane(_size(table.get("size", 1.0), 2, "size", ctx))
     if kind == "sphere":
-        return primitives.sphere(_positive(table, "radius", 1.0, ctx), _count(table, "segments", 64, 3, ctx),
-                                 _count(table, "rings", 32, 2, ctx))
+        return primitives.sphere(_positive(table, "radius", 1.0, ctx),
+                                 *_grid_counts(table, ("segments", "rings"), (64, 32), (3, 2), ctx))
     if kind == "cylinder":
         return primitives.cylinder(_positive(table, "radius", 0.5, ctx), _positive(table, "height", 1.0, ctx),
                                    _count(table, "segments", 48, 3, ctx))
     if kind == "torus":
         return primitives.torus(_positive(table, "radius", 1.0, ctx), _positive(table, "tube", 0.25, ctx),
-                                _count(table, "segments", 96, 3, ctx), _count(table, "sides", 32, 3, ctx))
+                                *_grid_counts(table, ("segments", "sides"), (96, 32), (3, 3), ctx))
     raise ctx.error(f"primitive must be one of {', '.join(PRIMITIVE_PARAMS)}, got {kind!r}")
 
 
@@ -281,7 +296,7 @@ def _add_mesh(builder: SceneBuilder, table: dict, ctx: _Ctx, base_dir: str, text
     # transform: scale, then rotate, then translate
     scale = _size(table["scale"], 3, "scale", ctx) if "scale" in table else np.ones(3)
     rot = _rotation(table["rotate"], ctx) if "rotate" in table else np.eye(3)
-    translate = ctx.check(_check.vector, table.get("translate", [0.0, 0.0, 0.0]), 3, "translate")
+    translate = ctx.check(_check.position, table.get("translate", [0.0, 0.0, 0.0]), "translate")
     m = np.eye(4)
     m[:3, :3] = rot @ np.diag(scale)
     m[:3, 3] = translate
@@ -316,6 +331,8 @@ def _add_mesh(builder: SceneBuilder, table: dict, ctx: _Ctx, base_dir: str, text
         return
 
     mesh_path = os.path.normpath(os.path.join(base_dir, table["file"]))
+    if os.path.exists(mesh_path) and not os.path.isfile(mesh_path):
+        raise ctx.error(f"not a regular file: {mesh_path} (file = {table['file']!r})")
     if not os.path.isfile(mesh_path):
         raise ctx.error(f"file not found: {mesh_path} (file = {table['file']!r}, relative to the scene file)")
     try:

@@ -38,7 +38,12 @@ VALIDATION_ENV = "HYBRID_VALIDATION"
 
 
 def _env_flag(name: str) -> bool:
-    return os.environ.get(name, "").strip().lower() in ("1", "true", "yes", "on")
+    value = os.environ.get(name, "").strip().lower()
+    if value in ("1", "true", "yes", "on"):
+        return True
+    if value in ("", "0", "false", "no", "off"):
+        return False
+    raise ConfigError(f"${name}={os.environ[name]!r}: expected 1 / true / yes / on or 0 / false / no / off")
 
 
 def _create_instance(extensions: list[str], layers: list[str]):
@@ -219,6 +224,17 @@ class Context:
     def defer_destroy(self, fn, *args):
         """Register a destructor to run on close(), newest first."""
         self._destroy_stack.append((fn, args))
+
+    @property
+    def closed(self) -> bool:
+        """Has close() run (or did set-up fail)? Then no Vulkan call may use this context."""
+        return self.device is None
+
+    def check_open(self, what: str):
+        """Raise a ConfigError naming `what` (the caller: "Tracer", "Renderer") if this context is closed: a Vulkan
+        call on a destroyed device aborts the process instead of raising."""
+        if self.device is None:
+            raise ConfigError(f"{what}: the Vulkan context is closed (create a new engine.vk.Context)")
 
     def wait_idle(self):
         if self.device is not None:

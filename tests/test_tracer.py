@@ -500,6 +500,19 @@ def test_non_finite_and_zero_rays_name_the_first_bad_ray(tri_tracer, arg, value,
             query(o32, d32, 5.0)
 
 
+def test_bad_rays_are_found_in_any_block_of_a_large_batch(tri_tracer):
+    """The checks run in blocks of 2^18 rays on a thread pool: a bad ray in a later block is named exactly."""
+    n = 700_000
+    o, d = np.tile(np.float32(O1), (n, 1)), np.tile(np.float32(D1), (n, 1))
+    d[600_001] = 0
+    with pytest.raises(ConfigError, match="directions: ray 600001 has zero length"):
+        tri_tracer.occluded(o, d, 5.0)
+    d[600_001] = D1[0]
+    o[300_000, 1] = np.nan
+    with pytest.raises(ConfigError, match="origins: ray 300000 is not finite"):
+        tri_tracer.occluded(o, d, 5.0)
+
+
 def test_tmax_nan_or_none_is_refused_inf_and_negative_are_not(tri_tracer):
     for query in (tri_tracer.occluded, tri_tracer.intersect):
         with pytest.raises(ConfigError, match="tmax must be a number or \\+inf, got NaN"):

@@ -447,6 +447,7 @@ class Renderer:
     def _prepare(self, scene, camera, settings, readback):
         if self.ctx is None:
             raise EngineError("render() on a closed Renderer")
+        self.ctx.check_open("Renderer.render()")   # a shared context its owner closed: no Vulkan call may follow
         polled = False
         if self._steady is not None:
             self._poll_shaders()   # a reload drops the recorded commands, and with them self._steady
@@ -556,6 +557,8 @@ class Renderer:
         if self.ctx is not None:
             if self._owns_ctx:
                 self.ctx.close()
+            elif self.ctx.closed:  # its owner closed it first: the device, and all made on it, is gone already
+                pass
             else:  # a shared context: free what this renderer made, leave the rest to its owner
                 self.ctx.wait_idle()
                 self._invalidate_commands()

@@ -76,11 +76,15 @@ def test_wrapper_script_runs_the_cli_in_the_callers_folder(tmp_path):
     if not (REPO / ".venv" / ".installed").exists():
         import pytest
         pytest.skip("the checkout's .venv is not set up (./hybrid would create it)")
-    res = subprocess.run([str(REPO / "hybrid"), "render", str(REPO / "scenes" / "sphere.toml"), "-o", "rel.png",
-                          "--size", "32x18"], capture_output=True, text=True, cwd=tmp_path, timeout=300)
-    assert res.returncode == 0, res.stderr
-    assert Image.open(tmp_path / "rel.png").size == (32, 18)
-    assert not (REPO / "rel.png").exists()
+    (tmp_path / "bin").mkdir()
+    (tmp_path / "bin" / "hybrid").symlink_to(REPO / "hybrid")   # called through a link on the PATH, too
+    for script in (REPO / "hybrid", tmp_path / "bin" / "hybrid"):
+        res = subprocess.run([str(script), "render", str(REPO / "scenes" / "sphere.toml"), "-o", "rel.png",
+                              "--size", "32x18"], capture_output=True, text=True, cwd=tmp_path, timeout=300)
+        assert res.returncode == 0, res.stderr
+        assert Image.open(tmp_path / "rel.png").size == (32, 18)
+        assert not (REPO / "rel.png").exists()
+        (tmp_path / "rel.png").unlink()
 
 
 def test_render_checks_the_output_before_rendering(tmp_path):

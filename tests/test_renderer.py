@@ -212,6 +212,19 @@ def test_closed_or_foreign_context_is_a_clear_error():
         Renderer(8, 8, context="gpu")
 
 
+def test_shared_context_closed_under_a_renderer_is_a_clear_error():
+    """Its owner closes a shared context first: render() says so and close() is harmless (it used to abort the
+    process inside the Vulkan loader)."""
+    from engine.vk import Context
+    ctx = Context()
+    r = Renderer(16, 16, context=ctx)
+    assert r.render(small_scene()).color.shape == (16, 16, 4)
+    ctx.close()
+    with pytest.raises(ConfigError, match="Renderer.render\\(\\): the Vulkan context is closed"):
+        r.render(small_scene())
+    r.close()
+
+
 def test_validation_environment_flag_is_checked(monkeypatch):
     monkeypatch.setenv("HYBRID_VALIDATION", "maybe")
     with pytest.raises(ConfigError, match="HYBRID_VALIDATION='maybe'"):

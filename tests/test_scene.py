@@ -666,3 +666,33 @@ def test_scene_load_bad_path_type(path):
 def test_from_arrays_bad_lights():
     with pytest.raises(ConfigError, match="<arrays>: lights must be a list"):
         Scene.from_arrays([[0, 0, 0], [1, 0, 0], [0, 1, 0]], [[0, 1, 2]], lights=5)
+
+
+def test_textures_referenced_by_mesh_files_load(tmp_path, caplog):
+    """OBJ + MTL with the texture in a subfolder, and a GLB with an embedded texture, load textured and quietly;
+    a texture outside the mesh's folder is named as such (trimesh does not search there)."""
+    import trimesh
+    from PIL import Image
+    (tmp_path / "tex").mkdir()
+    Image.new("RGB", (4, 4), (200, 30, 30)).save(tmp_path / "tex" / "a.png")
+    tri = "v 0 0 0\nv 1 0 0\nv 0 1 0\nvt 0 0\nvt 1 0\nvt 0 1\nusemtl m\nf 1/1 2/2 3/3\n"
+    write(tmp_path / "m.mtl", "newmtl m\nKd 1 1 1\nmap_Kd tex/a.png\n")
+    write(tmp_path / "a.obj", "mtllib m.mtl\n" + tri)
+    mesh = trimesh.Trimesh([[0, 0, 0], [1, 0, 0], [0, 1, 0]], [[0, 1, 2]], process=False)
+    mesh.visual = trimesh.visual.TextureVisuals(uv=[[0, 0], [1, 0], [0, 1]],
+                                                image=Image.new("RGB", (4, 4), (30, 200, 30)))
+    mesh.export(tmp_path / "b.glb")
+    (tmp_path / "up").mkdir()
+    write(tmp_path / "up" / "u.mtl", "newmtl m\nKd 1 1 1\nmap_Kd ../tex/a.png\n")
+    write(tmp_path / "up" / "u.obj", "mtllib u.mtl\n" + tri)
+    for name, rgb in (("a.obj", (200, 30, 30)), ("b.glb", (30, 200, 30))):
+        caplog.clear()
+        with caplog.at_level("WARNING", logger="engine.scene"):
+            scene = Scene.load(tmp_path / name)
+        textured = [m for m in scene.materials if m.texture is not None]
+        assert len(textured) == 1 and tuple(textured[0].texture[0, 0, :3]) == rgb, name
+        assert not [r for r in caplog.records if r.levelname == "WARNING"], name
+    caplog.clear()
+    with caplog.at_level("WARNING", logger="engine.scene"):
+        Scene.load(tmp_path / "up" / "u.obj")
+    assert "texture '../tex/a.png' outside the mesh file's folder" in caplog.text

@@ -13,9 +13,11 @@ from engine.errors import ConfigError
 #: Largest magnitude of any number in a scene (intensities, colours, angles, ...): far below float32's 3.4e38, so
 #: the float32 copies the GPU gets (and products of two of them, in float64 on the host) stay finite.
 MAX_VALUE = 1e30
-#: Positions and lengths in the world (light positions and radii, rect edges, translations) share the tracer's
-#: bound on vertex coordinates.
+#: Mesh translations share the tracer's bound on vertex coordinates (its float32 triangle test is exact within it).
+#: Light positions, radii and edges only need squared lengths that float32 holds (the shaders' falloff and
+#: normalize): MAX_LIGHT_POSITION (a sun-like point light 1.5e11 away is fine).
 MAX_POSITION = MAX_COORD
+MAX_LIGHT_POSITION = 1e18
 
 
 def _is_number(x) -> bool:
@@ -65,6 +67,11 @@ def vector(value, n: int, field: str, *, max_abs: float = MAX_VALUE, error=Confi
         raise error(f"{field} must be within +-{max_abs:g}, got {tuple(arr.tolist())}")
     arr.setflags(write=False)
     return arr
+
+
+def light_position(value, field: str, *, error=ConfigError) -> np.ndarray:
+    """A light's position (or a rect light's edge vector): 3 numbers within +-MAX_LIGHT_POSITION."""
+    return vector(value, 3, field, max_abs=MAX_LIGHT_POSITION, error=error)
 
 
 def position(value, field: str, *, error=ConfigError) -> np.ndarray:

@@ -76,10 +76,10 @@ class PointLight(Light):
     FIELDS = ("position", "color", "intensity", "radius")
 
     def __init__(self, position, color=(1.0, 1.0, 1.0), intensity: float = 1.0, radius: float = 0.0):
-        self.position = _check.position(position, "point light position")
+        self.position = _check.light_position(position, "point light position")
         self.color = _check.color(color, "point light color")
         self.intensity = _intensity(intensity, "point light")
-        self.radius = _check.number(radius, "point light radius", min_value=0.0, max_abs=_check.MAX_POSITION)
+        self.radius = _check.number(radius, "point light radius", min_value=0.0, max_abs=_check.MAX_LIGHT_POSITION)
 
 
 class SpotLight(Light):
@@ -92,11 +92,11 @@ class SpotLight(Light):
 
     def __init__(self, position, direction, color=(1.0, 1.0, 1.0), intensity: float = 1.0, radius: float = 0.0,
                  cone_angle: float = 30.0, softness: float = 0.1):
-        self.position = _check.position(position, "spot light position")
+        self.position = _check.light_position(position, "spot light position")
         self.direction = _check.direction(direction, "spot light direction")
         self.color = _check.color(color, "spot light color")
         self.intensity = _intensity(intensity, "spot light")
-        self.radius = _check.number(radius, "spot light radius", min_value=0.0, max_abs=_check.MAX_POSITION)
+        self.radius = _check.number(radius, "spot light radius", min_value=0.0, max_abs=_check.MAX_LIGHT_POSITION)
         self.cone_angle = _check.number(cone_angle, "spot light cone_angle", min_value=0.0, max_value=90.0,
                                         min_exclusive=True)
         self.softness = _check.number(softness, "spot light softness", min_value=0.0, max_value=1.0)
@@ -118,9 +118,9 @@ class RectLight(Light):
     FIELDS = ("position", "u", "v", "color", "intensity")
 
     def __init__(self, position, u, v, color=(1.0, 1.0, 1.0), intensity: float = 1.0):
-        self.position = _check.position(position, "rect light position")
-        self.u = _check.position(u, "rect light u")
-        self.v = _check.position(v, "rect light v")
+        self.position = _check.light_position(position, "rect light position")
+        self.u = _check.light_position(u, "rect light u")
+        self.v = _check.light_position(v, "rect light v")
         self.color = _check.color(color, "rect light color")
         self.intensity = _intensity(intensity, "rect light")
         n = np.cross(self.u, self.v)

@@ -113,7 +113,9 @@ def _resolver(path: str):
                     if what == "texture":
                         _check_image(data, name, self.problems)
                     return data
-            self.problems.append(f"{what} {name!r} not found (next to the mesh file)")
+            where = "outside the mesh file's folder, which is not searched" if ".." in name.replace("\\", "/").split("/") \
+                else "not found next to the mesh file"
+            self.problems.append(f"{what} {name!r} {where}")
             raise FileNotFoundError(name)
 
     return Resolver(path)

@@ -56,9 +56,8 @@ class Scene:
         if not np.all(np.isfinite(p)):
             bad = int(np.count_nonzero(~np.all(np.isfinite(p), axis=1)))
             raise SceneError(f"{where}: {bad} vertex position(s) are NaN or infinite")
-        extent = np.abs(p.astype(np.float64)).max(axis=1)
-        if extent.max() > MAX_COORD:  # the tracer's bound (and what would overflow the float32 copy)
-            bad = int(np.count_nonzero(extent > MAX_COORD))
+        if np.abs(p).max() > MAX_COORD:  # the tracer's bound (and what would overflow the float32 copy)
+            bad = int(np.count_nonzero(np.abs(p).max(axis=1) > MAX_COORD))
             raise SceneError(f"{where}: {bad} vertex position(s) have coordinates beyond +-{MAX_COORD:g}")
         if not np.issubdtype(f.dtype, np.integer):
             if np.issubdtype(f.dtype, np.floating) and np.all(np.isfinite(f)) and np.all(f == np.round(f)):

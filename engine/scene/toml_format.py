@@ -190,7 +190,7 @@ def _light(table: dict, ctx: _Ctx):
         frm = table.get("position")
         if frm is None:
             raise ctx.error("'target' needs 'position' (or give 'direction')")
-        p = ctx.check(_check.position, frm, "position")
+        p = ctx.check(_check.light_position, frm, "position")
         t = ctx.check(_check.vector, table["target"], 3, "target")
         args["direction"] = t - p
     cls = LIGHT_TYPES[kind]

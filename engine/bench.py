@@ -1288,10 +1288,7 @@ def run_cli(args) -> int:
     if args.device is not None:                # a device that does not exist fails now, whatever the section
         from .vk import choose_device, describe_devices
         choose_device(describe_devices(), args.device)
-    bench = Bench(cfg)
-    bench.progress = Progress(bench.plan(), enabled=True)
-    results = bench.run()
-    bench.progress.finish()
+    results = run_bench(cfg)                   # the files are written below, after the report
     print(format_report(results))              # on the terminal first: a failed write below loses nothing
     write_outputs(results, args.json, args.plot)
     print(f"\nJSON: {args.json}   plot: {args.plot}")

@@ -12,7 +12,7 @@ from __future__ import annotations
 import math
 import os
 from dataclasses import dataclass
-from numbers import Integral, Real
+from numbers import Real
 
 import numpy as np
 import vulkan as vk
@@ -313,7 +313,7 @@ def _name_bad_ray(o, d, origins, directions):
 
 def _check_batch_size(batch_size) -> int:
     """A whole number of rays >= 1 (an integral float such as 1e6 too)."""
-    if isinstance(batch_size, (bool, np.bool_)) or not isinstance(batch_size, (Integral, Real)) \
+    if isinstance(batch_size, (bool, np.bool_)) or not isinstance(batch_size, Real) \
             or not math.isfinite(batch_size) or batch_size != int(batch_size) or batch_size < 1:
         raise ConfigError(f"Tracer: batch_size must be a whole number of rays >= 1, got {batch_size!r}")
     return int(batch_size)

@@ -84,10 +84,10 @@ def direction(value, field: str, *, error=ConfigError) -> np.ndarray:
     v = vector(value, 3, field, error=error)
     top = float(np.abs(v).max())
     scaled = v / top if top > 0 else v  # the norm of the scaled vector cannot overflow
-    length = top * float(np.linalg.norm(scaled))
-    if not (length > 1e-12):
+    norm = float(np.linalg.norm(scaled))
+    if not (top * norm > 1e-12):
         raise error(f"{field} must be a non-zero vector, got {tuple(v.tolist())}")
-    out = scaled / float(np.linalg.norm(scaled))
+    out = scaled / norm
     out.setflags(write=False)
     return out
 

@@ -1281,7 +1281,7 @@ def add_arguments(p):
 
 
 def run_cli(args) -> int:
-    from .renderer import parse_size
+    from .settings import parse_size
     size = parse_size(args.size) if args.size else None
     cfg = BenchConfig.for_cli(args.section, quick=args.quick, size=size, device=args.device)
     check_output_paths(args.json, args.plot)   # before minutes of work

@@ -11,11 +11,7 @@ import time
 
 from .errors import ConfigError, EngineError
 
-# What --aov can write: the lit colour or one AOV, drawn by the renderer's debug view on the GPU (setting `view`).
-# Kept equal to engine.passes.debug_view.VIEW_MODES (without importing the Vulkan layer here).
-AOVS = ("color", "position", "normal", "albedo", "depth", "shadow_raw", "shadow", "ao_raw", "ao", "history")
-SHADOW_CHOICES = ("hard", "soft", "seed-delta", "reference", "off")
-MAX_FRAMES = 1_000_000
+from .settings import AOVS, MAX_FRAMES, SHADOW_MODES as SHADOW_CHOICES
 
 
 def _settings(args) -> dict:
@@ -30,7 +26,8 @@ def _settings(args) -> dict:
 
 
 def cmd_render(args) -> int:
-    from .renderer import Renderer, check_png_path, parse_size
+    from .renderer import Renderer
+    from .settings import check_png_path, parse_size
     from .scene import Scene
 
     width, height = parse_size(args.size)

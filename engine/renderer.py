@@ -14,16 +14,12 @@ it with the reprojected `hist` into `cur` (then copied to `hist` for the next fr
 from __future__ import annotations
 
 import math
-import numbers
-import os
 from dataclasses import dataclass, field
-from pathlib import Path
 
 import numpy as np
 import vulkan as vk
 
 from .bvh import build_bvh
-from .bvh.builder import MAX_COORD
 from .errors import ConfigError, EngineError, VulkanError
 from .passes import frame_data as fd
 from .passes.frame_data import FRAME_BYTES, MAX_LIGHTS, pack_frame, pack_light
@@ -31,7 +27,7 @@ from .passes.gbuffer import (ALBEDO_FORMAT, DEPTH_FORMAT, NORMAL_FORMAT, POSITIO
                              GBufferPass, SceneGeometry)
 from .passes.accumulate import ALPHA_MIN, FILTER_AO, FILTER_MASKS, FILTER_TEMPORAL, AccumulatePass
 from .passes.ao import AOPass
-from .passes.debug_view import VIEW_MODES, DebugViewPass
+from .passes.debug_view import DebugViewPass
 from .passes.denoise import DenoisePass
 from .passes.lighting import LightingPass
 from .passes.shadows import ShadowPass
@@ -39,98 +35,13 @@ from .rt.tracer import SceneBVH, bvh_descriptor_set
 from .rt.tracer import bvh_layout as resolve_layout
 from .scene import Scene
 from .scene.camera import Camera
+from .settings import DEFAULT_SETTINGS, check_png_path, check_settings, check_size
 from .shaders import ShaderLibrary
 from .vk import Buffer, BufferView, Context, Image, Timestamps, image_barrier, memory_barrier
 from .vk.resources import STORAGE, STORAGE_TEXEL, TRANSFER_DST, TRANSFER_SRC, UNIFORM
 
 ONE_F32 = 0x3F800000  # bit pattern of 1.0f, for vkCmdFillBuffer
 WHOLE_SIZE = 0xFFFFFFFFFFFFFFFF
-
-DEFAULT_SETTINGS = {
-    "shadows": "hard",       # SHADOW_MODES
-    "shadow_samples": 1,     # soft: rays per pixel per light per frame
-    "reference_samples": 256,  # reference: rays per pixel per light (shadows and AO)
-    "accumulate": True,      # temporal accumulation of the soft light masks and AO
-    "denoise": True,         # a-trous filter of the soft light masks and AO
-    "ao": True,
-    "ao_samples": 4,
-    "ao_radius": None,       # None: 10% of the scene's bounding-box diagonal
-    "exposure": 1.0,
-    "ambient": (0.20, 0.22, 0.26),
-    "view": "color",         # VIEW_MODES: the lit image or one AOV, drawn on the GPU
-}
-# hard: one ray to each light's centre. soft: `shadow_samples` rays over each light's area / solid angle (R2 points,
-# moving every frame), accumulated and denoised. seed-delta: the paper's occlusion-delta approximation (one ray).
-# reference: `reference_samples` rays per pixel per light, nothing accumulated or denoised (ground truth).
-SHADOW_MODES = ("hard", "soft", "seed-delta", "reference", "off")
-
-
-def _check_settings(settings: dict) -> dict:
-    out = dict(DEFAULT_SETTINGS)
-    for key, value in settings.items():
-        if key not in DEFAULT_SETTINGS:
-            raise ConfigError(f"unknown render setting {key!r} (known: {', '.join(sorted(DEFAULT_SETTINGS))})")
-        out[key] = value
-    if out["shadows"] not in SHADOW_MODES:
-        raise ConfigError(f"setting shadows={out['shadows']!r}: expected one of {', '.join(SHADOW_MODES)}")
-    if out["view"] not in VIEW_MODES:
-        raise ConfigError(f"setting view={out['view']!r}: expected one of {', '.join(VIEW_MODES)}")
-    for key in ("ao", "accumulate", "denoise"):
-        if not isinstance(out[key], (bool, np.bool_)):
-            raise ConfigError(f"setting {key}={out[key]!r}: expected true or false")
-        out[key] = bool(out[key])
-    for key, hi in (("ao_samples", 256), ("shadow_samples", 256), ("reference_samples", 65536)):
-        v = out[key]
-        if isinstance(v, (bool, np.bool_)) or not isinstance(v, (int, np.integer)) or not 1 <= v <= hi:
-            raise ConfigError(f"setting {key}={v!r}: expected an integer in 1..{hi}")
-        out[key] = int(v)
-    for key, hi in (("ao_radius", MAX_COORD), ("exposure", 1e6)):
-        v = out[key]
-        if v is None and key == "ao_radius":
-            continue
-        if isinstance(v, (bool, np.bool_)) or not isinstance(v, numbers.Real) or not 0 < v <= hi:
-            raise ConfigError(f"setting {key}={v!r}: expected a positive number, at most {hi:g}")
-        out[key] = float(v)
-    amb = out["ambient"]
-    try:
-        amb = None if isinstance(amb, (str, bytes)) else np.asarray(amb, dtype=np.float64).reshape(-1)
-    except (TypeError, ValueError):
-        amb = None
-    if amb is None or amb.size not in (1, 3) or not np.all((amb >= 0) & (amb <= 1e6)):
-        raise ConfigError(f"setting ambient={out['ambient']!r}: expected a number or 3 numbers in [0, 1e6]")
-    out["ambient"] = tuple(np.broadcast_to(amb, (3,)).tolist())
-    return out
-
-
-def parse_size(text: str) -> tuple[int, int]:
-    """'1280x720' -> (1280, 720), with a clear error."""
-    try:
-        w, h = (int(v) for v in str(text).lower().split("x"))
-    except ValueError:
-        raise ConfigError(f"size {text!r}: expected WIDTHxHEIGHT, e.g. 1280x720") from None
-    check_size(w, h)
-    return w, h
-
-
-def check_png_path(path):
-    """A .png path whose folder exists, checked before any work that would be lost if it could not be written."""
-    p = Path(os.fspath(path))
-    if p.suffix.lower() != ".png":
-        raise ConfigError(f"{p}: images are written as PNG: give a path ending in .png")
-    if p.is_dir():
-        raise ConfigError(f"{p}: is a folder, not an image file")
-    if not p.parent.is_dir():
-        raise ConfigError(f"{p}: cannot write image: no folder {str(p.parent)!r}")
-    return p
-
-
-def check_size(width, height):
-    for name, v in (("width", width), ("height", height)):
-        if isinstance(v, bool) or not isinstance(v, (int, np.integer)):
-            raise ConfigError(f"size: {name} must be an integer, got {v!r}")
-        if not 1 <= v <= 16384:
-            raise ConfigError(f"size: {name} must be in 1..16384, got {v}")
-
 
 @dataclass
 class Frame:
@@ -467,10 +378,10 @@ class Renderer:
             raise ConfigError(f"render(): camera must be an engine.Camera or None, got {type(camera).__name__}")
         own = getattr(scene, "settings", None) or {}
         try:
-            cfg = _check_settings({**own, **settings})
+            cfg = check_settings({**own, **settings})
         except ConfigError as exc:   # where the bad setting came from: the scene's [settings] (not overridden)?
             try:
-                _check_settings({k: v for k, v in own.items() if k not in settings})
+                check_settings({k: v for k, v in own.items() if k not in settings})
             except ConfigError as own_exc:
                 raise ConfigError(f"{scene.name}: [settings]: {own_exc}") from None
             raise exc from None

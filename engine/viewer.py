@@ -79,27 +79,12 @@ def key_map_text() -> str:
 
 
 # ---------------------------------------------------------------------------------------------------------------
-# Settings the keys toggle, read from the renderer so that new settings/modes show up without viewer changes.
+# Settings the keys toggle (engine/settings.py lists their choices).
 # ---------------------------------------------------------------------------------------------------------------
 def setting_choices(name: str):
-    """The values a key cycles through for render setting `name`, or None when the renderer lacks it.
-
-    Allowed values come from `engine.renderer`: a module constant `<NAME>_MODES` (e.g. SHADOW_MODES, VIEW_MODES)
-    when there is one, (True, False) for a boolean default."""
-    from . import renderer as R
-    defaults = R.DEFAULT_SETTINGS
-    if name not in defaults:
-        return None
-    for const in (name.upper() + "_MODES", name.upper().rstrip("S") + "_MODES", name.upper() + "S"):
-        modes = getattr(R, const, None)
-        if isinstance(modes, (tuple, list)) and modes:
-            return tuple(modes)
-    if isinstance(defaults[name], bool):
-        return (True, False)
-    if name == "view":
-        from .cli import AOVS
-        return AOVS
-    return None
+    """The values a key cycles through for render setting `name`, or None when it has no fixed choices."""
+    from .settings import choices
+    return choices(name)
 
 
 def _label(value) -> str:
@@ -536,7 +521,8 @@ class Viewer:
                  device=None, present_mode="fifo", render_scale=1.0, settings=None, title="hybrid view",
                  overlay=True, quiet=False):
         import glfw
-        from .renderer import Renderer, check_size
+        from .renderer import Renderer
+        from .settings import check_size
         from .scene import Scene
 
         check_size(width, height)
@@ -627,7 +613,7 @@ class Viewer:
 
     def _initial_settings(self, overrides):
         """The overrides passed to every submit: the command line's, plus the toggled settings' start values."""
-        from .renderer import DEFAULT_SETTINGS
+        from .settings import DEFAULT_SETTINGS
         merged = dict(getattr(self.scene, "settings", None) or {})
         merged.update(overrides)
         out = dict(overrides)   # the renderer validates them on the first submit
@@ -703,7 +689,7 @@ class Viewer:
             self._print(f"{name}: not available in this renderer")
             return None
         choices = tuple(c for c in choices if c not in KEY_SKIPS.get(name, ())) or choices
-        from .renderer import DEFAULT_SETTINGS
+        from .settings import DEFAULT_SETTINGS
         cur = self.settings.get(name, DEFAULT_SETTINGS[name])
         i = choices.index(cur) if cur in choices else -step
         self.settings[name] = choices[(i + step) % len(choices)]
@@ -817,7 +803,7 @@ class Viewer:
         toggles = []
         for name in ("shadows", "ao", "denoise", "view"):
             if setting_choices(name) is not None:
-                from .renderer import DEFAULT_SETTINGS
+                from .settings import DEFAULT_SETTINGS
                 toggles.append(f"{name} {_label(self.settings.get(name, DEFAULT_SETTINGS[name]))}")
         lines = [(head, TextImage.WHITE), (gpu, TextImage.WHITE), ("  ".join(toggles) + "   H: help", TextImage.GREY)]
         errors = self.renderer.shader_errors
@@ -871,7 +857,7 @@ class Viewer:
     def save_screenshot(self, path) -> Path:
         from PIL import Image as PILImage
 
-        from .renderer import check_png_path
+        from .settings import check_png_path
         path = check_png_path(path)
         rgba = self.read_color()
         try:
@@ -963,8 +949,8 @@ def add_arguments(p):
 
 
 def run_from_args(args) -> int:
-    from .cli import MAX_FRAMES
-    from .renderer import check_png_path, parse_size
+    from .settings import MAX_FRAMES
+    from .settings import check_png_path, parse_size
 
     width, height = parse_size(args.size)
     if args.frames is not None and not 1 <= args.frames <= MAX_FRAMES:

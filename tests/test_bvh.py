@@ -545,6 +545,7 @@ def test_bvh_glsl_compiles(tmp_path, defines):
 
 
 def test_threads_give_the_same_tree_byte_for_byte():
+    from engine import parallel
     from engine.bench_scenes import generated_mesh
     from engine.bvh import builder
 
@@ -558,7 +559,7 @@ def test_threads_give_the_same_tree_byte_for_byte():
         assert many.tris.tobytes() == one.tris.tobytes()
         assert np.array_equal(many.prim_ids, one.prim_ids)
     check_invariants(one, v, f)
-    assert build_bvh(*sphere(1)).stats["threads"] == builder.default_threads()
+    assert build_bvh(*sphere(1)).stats["threads"] == parallel.default_threads()
     for bad in (0, -1, 1.5, True, "2"):
         with pytest.raises(ConfigError, match="threads"):
             build_bvh(*sphere(1), threads=bad)
@@ -568,13 +569,14 @@ def test_build_in_a_forked_child_after_a_threaded_build():
     """The builder's thread pool does not survive a fork; the child must make its own instead of waiting forever."""
     import multiprocessing
 
+    from engine import parallel
     from engine.bench_scenes import generated_mesh
     from engine.bvh import builder
 
     v, f = generated_mesh(150_000)  # more than one block: work goes to the pool
     assert len(f) > 2 * builder.PREP_BLOCK
     parent = build_bvh(v, f, threads=2)  # the pool exists now
-    assert builder._POOL[0] is not None
+    assert parallel._POOL[0] is not None
     ctx = multiprocessing.get_context("fork")
     with ctx.Pool(1) as pool:
         nodes = pool.apply_async(_child_build, (v, f)).get(timeout=30)

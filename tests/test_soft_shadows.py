@@ -5,7 +5,7 @@ import pytest
 import trimesh
 
 from engine import Camera, ConfigError, DirectionalLight, PointLight, RectLight, Scene, SpotLight
-from engine.renderer import VIEW_MODES
+from engine.settings import AOVS as VIEW_MODES
 
 W, H = 96, 72
 PLATE_BOTTOM = 1.4

@@ -533,7 +533,7 @@ def test_coordinates_just_under_the_bound_trace_exactly(layout):
     """The watertight test's products grow as the cube of the coordinates: within MAX_COORD, hits of big
     triangles seen from far away are exact (2^k scalings of a unit scene give exactly 2^k times its t); vertices
     or origins beyond it are refused."""
-    from engine.bvh.builder import MAX_COORD
+    from engine.limits import MAX_COORD
     s = 2.0 ** np.floor(np.log2(MAX_COORD))          # the largest power of two under the bound
     assert MAX_COORD / 2 < s <= MAX_COORD
     v1 = np.array([[1, -1, -1], [-1, 1, -1], [-1, -1, 1], [1, 1, -1], [-1, 1, 1], [1, -1, 1]], float)
@@ -561,7 +561,7 @@ def test_coordinates_just_under_the_bound_trace_exactly(layout):
 
 def test_builder_refuses_coordinates_beyond_the_bound():
     from engine.bvh import build_bvh
-    from engine.bvh.builder import MAX_COORD
+    from engine.limits import MAX_COORD
     v = np.array([[0, 0, 0], [1, 0, 0], [0, 1, 0], [3 * MAX_COORD, 0, 0]], np.float32)
     with pytest.raises(SceneError, match=re.escape(f"1 vertices have a coordinate beyond +-{MAX_COORD:g}")):
         build_bvh(v, [[0, 1, 2], [1, 2, 3]])

@@ -28,7 +28,7 @@ ROOT = Path(__file__).resolve().parent.parent
 sys.path.insert(0, str(ROOT))
 
 from engine import Renderer, Scene  # noqa: E402
-from engine.renderer import parse_size  # noqa: E402
+from engine.settings import parse_size  # noqa: E402
 
 SHADOW_PASSES = ("shadows", "accumulate", "denoise")
 BURST = 4   # frames submitted back to back per timed frame

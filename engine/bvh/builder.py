@@ -57,22 +57,16 @@ single elementwise minimum.
 from __future__ import annotations
 
 import bisect
-import os
-import threading
 import time
-from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass, field
 
 import numpy as np
 
 from ..errors import ConfigError, SceneError
+from ..limits import MAX_COORD
+from ..parallel import blocks as _blocks, cuts as _cuts, default_threads, run as _parallel
 from .layout import LEAF_BIT, NODE_DTYPE, TRI_DTYPE
 
-#: Largest vertex (and ray origin) coordinate magnitude accepted. The watertight triangle test (bvh.glsl
-#: bvh_triangle_) forms t * det in float32, which grows as the cube of the coordinates (up to ~128 MAX_COORD^3 /
-#: |direction|): with 1e11 it stays finite for directions of length >= ~1e-3 (exact hits measured: unit-length
-#: directions up to ~2e12, 1e-3 ones up to ~1.4e11; beyond, hits come back with t = inf or are lost).
-MAX_COORD = 1e11
 #: Default depth cap; equal to the default BVH_STACK_SIZE of bvh.glsl (the traversal needs depth - 1 entries).
 DEFAULT_MAX_DEPTH = 32
 
@@ -105,86 +99,6 @@ class BVH:
     tris: np.ndarray  #: (max(T, 1),) TRI_DTYPE, 48 bytes each, in leaf order
     prim_ids: np.ndarray  #: (T,) int32: leaf-order slot -> original triangle index
     stats: dict = field(default_factory=dict)
-
-
-# --------------------------------------------------------------------------------------------------------------
-# threads
-
-
-def default_threads() -> int:
-    """The number of cores this process may run on (build_bvh's default thread count)."""
-    try:
-        return max(1, len(os.sched_getaffinity(0)))
-    except AttributeError:  # not on Linux
-        return max(1, os.cpu_count() or 1)
-
-
-_POOL: list = [None, 0]  # [ThreadPoolExecutor or None, its number of workers]
-_POOL_LOCK = threading.Lock()
-_WORKER = threading.local()
-
-
-def _forget_pool():  # a forked child has none of the parent's pool threads: it makes its own
-    global _POOL_LOCK
-    _POOL[:] = [None, 0]
-    _POOL_LOCK = threading.Lock()
-
-
-if hasattr(os, "register_at_fork"):
-    os.register_at_fork(after_in_child=_forget_pool)
-
-
-def _submit(fn, copies: int) -> list:
-    """`copies` futures of fn() on the one shared pool, grown to at least that many threads first (a smaller pool is
-    replaced; its work in flight finishes, then its threads end). Under the lock, so that no caller submits to a pool
-    that another is replacing."""
-    with _POOL_LOCK:
-        pool, size = _POOL
-        if pool is None or size < copies:
-            if pool is not None:
-                pool.shutdown(wait=False)
-            pool = ThreadPoolExecutor(max_workers=copies, thread_name_prefix="bvh-build")
-            _POOL[:] = [pool, copies]
-        return [pool.submit(fn) for _ in range(copies)]
-
-
-def _blocks(fn, n: int, block: int, threads: int) -> list:
-    """fn(start) for start = 0, block, 2 block, ... < n, on up to `threads` threads (fn writes disjoint slices)."""
-    return _parallel([lambda s=s: fn(s) for s in range(0, n, block)], threads)
-
-
-def _cuts(n: int, threads: int, min_part: int) -> list[int]:
-    """Bounds of up to `threads` equal parts of range(n), none smaller than min_part (one part where n is small)."""
-    parts = max(1, min(threads, n // max(min_part, 1)))
-    return [n * i // parts for i in range(parts + 1)]
-
-
-def _parallel(tasks, threads: int) -> list:
-    """The results of the callables `tasks`, in order, run on up to `threads` threads. The builder's big steps are
-    numpy calls on large arrays, which release the GIL, so independent blocks of work overlap on several cores.
-    `threads` worker loops of the shared pool take the tasks in turn, so no more than that run at once. A task that
-    itself calls _parallel runs its tasks inline (no nested waits on the pool)."""
-    if threads <= 1 or len(tasks) <= 1 or getattr(_WORKER, "busy", False):
-        return [t() for t in tasks]
-    results = [None] * len(tasks)
-    todo = iter(range(len(tasks)))
-    take = threading.Lock()
-
-    def worker():
-        _WORKER.busy = True
-        try:
-            while True:
-                with take:
-                    i = next(todo, None)
-                if i is None:
-                    return
-                results[i] = tasks[i]()
-        finally:
-            _WORKER.busy = False
-
-    for f in _submit(worker, min(threads, len(tasks))):
-        f.result()
-    return results
 
 
 # --------------------------------------------------------------------------------------------------------------

@@ -3,10 +3,9 @@ from __future__ import annotations
 
 import numpy as np
 
+from .interface import VIEW_MODES
 from ..vk import SB, SI, UB, ComputePipeline, DescriptorSet
 
-# Index = the shader's VIEW_* constant (shaders/glsl/debug_view.comp); "color" is the lit image (no dispatch).
-VIEW_MODES = ("color", "position", "normal", "albedo", "depth", "shadow_raw", "shadow", "ao_raw", "ao", "history")
 
 
 class DebugViewPass:

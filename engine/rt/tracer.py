@@ -18,7 +18,8 @@ import numpy as np
 import vulkan as vk
 
 from ..bvh import build_bvh
-from ..bvh.builder import MAX_COORD, _parallel, default_threads
+from ..limits import MAX_COORD
+from ..parallel import default_threads, run as _parallel
 from ..bvh.compress import compress_nodes
 from ..bvh.wide import collapse_bvh8
 from ..errors import ConfigError, SceneError

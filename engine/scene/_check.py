@@ -7,7 +7,7 @@ from numbers import Real
 
 import numpy as np
 
-from engine.bvh.builder import MAX_COORD
+from engine.limits import MAX_COORD
 from engine.errors import ConfigError
 
 #: Largest magnitude of any number in a scene (intensities, colours, angles, ...): far below float32's 3.4e38, so

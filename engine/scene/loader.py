@@ -9,7 +9,7 @@ import warnings
 
 import numpy as np
 
-from engine.bvh.builder import MAX_COORD
+from engine.limits import MAX_COORD
 from engine.errors import SceneError
 
 from .geometry import crease_normals, transform_normals, transform_points, unitize

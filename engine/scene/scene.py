@@ -9,7 +9,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from engine.bvh.builder import MAX_COORD
+from engine.limits import MAX_COORD
 from engine.errors import ConfigError, SceneError
 
 from .camera import Camera

@@ -1,0 +1,117 @@
+"""Render settings and the user-facing checks of sizes and output paths (no Vulkan).
+
+`DEFAULT_SETTINGS` are what `Renderer.render(**settings)` accepts; `AOVS` are the views (`setting view`, `--aov`):
+the lit colour or one AOV drawn by the debug view on the GPU.
+"""
+from __future__ import annotations
+
+import numbers
+import os
+from pathlib import Path
+
+import numpy as np
+
+from .errors import ConfigError
+from .limits import MAX_COORD
+from .passes.interface import VIEW_MODES
+
+#: What `view=` / `--aov` can show: the lit colour or one AOV.
+AOVS = VIEW_MODES
+#: The most frames one `hybrid render` / `hybrid view --frames` may ask for.
+MAX_FRAMES = 1_000_000
+
+DEFAULT_SETTINGS = {
+    "shadows": "hard",       # SHADOW_MODES
+    "shadow_samples": 1,     # soft: rays per pixel per light per frame
+    "reference_samples": 256,  # reference: rays per pixel per light (shadows and AO)
+    "accumulate": True,      # temporal accumulation of the soft light masks and AO
+    "denoise": True,         # a-trous filter of the soft light masks and AO
+    "ao": True,
+    "ao_samples": 4,
+    "ao_radius": None,       # None: 10% of the scene's bounding-box diagonal
+    "exposure": 1.0,
+    "ambient": (0.20, 0.22, 0.26),
+    "view": "color",         # VIEW_MODES: the lit image or one AOV, drawn on the GPU
+}
+# hard: one ray to each light's centre. soft: `shadow_samples` rays over each light's area / solid angle (R2 points,
+# moving every frame), accumulated and denoised. seed-delta: the paper's occlusion-delta approximation (one ray).
+# reference: `reference_samples` rays per pixel per light, nothing accumulated or denoised (ground truth).
+SHADOW_MODES = ("hard", "soft", "seed-delta", "reference", "off")
+
+
+def choices(name: str) -> tuple | None:
+    """The values a setting takes from a fixed list (the viewer's keys cycle them), or None."""
+    if name == "shadows":
+        return SHADOW_MODES
+    if name == "view":
+        return AOVS
+    if isinstance(DEFAULT_SETTINGS.get(name), bool):
+        return (True, False)
+    return None
+
+
+def check_settings(settings: dict) -> dict:
+    out = dict(DEFAULT_SETTINGS)
+    for key, value in settings.items():
+        if key not in DEFAULT_SETTINGS:
+            raise ConfigError(f"unknown render setting {key!r} (known: {', '.join(sorted(DEFAULT_SETTINGS))})")
+        out[key] = value
+    if out["shadows"] not in SHADOW_MODES:
+        raise ConfigError(f"setting shadows={out['shadows']!r}: expected one of {', '.join(SHADOW_MODES)}")
+    if out["view"] not in VIEW_MODES:
+        raise ConfigError(f"setting view={out['view']!r}: expected one of {', '.join(VIEW_MODES)}")
+    for key in ("ao", "accumulate", "denoise"):
+        if not isinstance(out[key], (bool, np.bool_)):
+            raise ConfigError(f"setting {key}={out[key]!r}: expected true or false")
+        out[key] = bool(out[key])
+    for key, hi in (("ao_samples", 256), ("shadow_samples", 256), ("reference_samples", 65536)):
+        v = out[key]
+        if isinstance(v, (bool, np.bool_)) or not isinstance(v, (int, np.integer)) or not 1 <= v <= hi:
+            raise ConfigError(f"setting {key}={v!r}: expected an integer in 1..{hi}")
+        out[key] = int(v)
+    for key, hi in (("ao_radius", MAX_COORD), ("exposure", 1e6)):
+        v = out[key]
+        if v is None and key == "ao_radius":
+            continue
+        if isinstance(v, (bool, np.bool_)) or not isinstance(v, numbers.Real) or not 0 < v <= hi:
+            raise ConfigError(f"setting {key}={v!r}: expected a positive number, at most {hi:g}")
+        out[key] = float(v)
+    amb = out["ambient"]
+    try:
+        amb = None if isinstance(amb, (str, bytes)) else np.asarray(amb, dtype=np.float64).reshape(-1)
+    except (TypeError, ValueError):
+        amb = None
+    if amb is None or amb.size not in (1, 3) or not np.all((amb >= 0) & (amb <= 1e6)):
+        raise ConfigError(f"setting ambient={out['ambient']!r}: expected a number or 3 numbers in [0, 1e6]")
+    out["ambient"] = tuple(np.broadcast_to(amb, (3,)).tolist())
+    return out
+
+
+def parse_size(text: str) -> tuple[int, int]:
+    """'1280x720' -> (1280, 720), with a clear error."""
+    try:
+        w, h = (int(v) for v in str(text).lower().split("x"))
+    except ValueError:
+        raise ConfigError(f"size {text!r}: expected WIDTHxHEIGHT, e.g. 1280x720") from None
+    check_size(w, h)
+    return w, h
+
+
+def check_png_path(path):
+    """A .png path whose folder exists, checked before any work that would be lost if it could not be written."""
+    p = Path(os.fspath(path))
+    if p.suffix.lower() != ".png":
+        raise ConfigError(f"{p}: images are written as PNG: give a path ending in .png")
+    if p.is_dir():
+        raise ConfigError(f"{p}: is a folder, not an image file")
+    if not p.parent.is_dir():
+        raise ConfigError(f"{p}: cannot write image: no folder {str(p.parent)!r}")
+    return p
+
+
+def check_size(width, height):
+    for name, v in (("width", width), ("height", height)):
+        if isinstance(v, bool) or not isinstance(v, (int, np.integer)):
+            raise ConfigError(f"size: {name} must be an integer, got {v!r}")
+        if not 1 <= v <= 16384:
+            raise ConfigError(f"size: {name} must be in 1..16384, got {v}")

@@ -6,7 +6,7 @@ hits: the largest relative difference of t too).
 Usage: python tools/ab_traversal.py [generated|default ...] [--variants NAME ...] [--reps N] [--size WxH] [--json PATH]
 Variants (constants: 0 branchless push, 1 postponed leaves, 2 register stack, 3 its size = depth - 1, layout):
   device (this device's defaults), plain, postpone, regs, postpone+regs, push, wide, wide+push,
-  lvp2 (round 2's CPU set: 0-2 on, 11 image loads off, the rest this device's), wide-device (the wide layout with
+  lvp2 (the older CPU set: 0-2 on, 11 image loads off, the rest this device's), wide-device (the wide layout with
   this device's constants: on CPU devices its lavapipe traversal, 12), plain-tree (this device's constants on the
   builder's tree without lifted large triangles, build_bvh(lift=False))"""
 from __future__ import annotations
@@ -34,7 +34,7 @@ VARIANTS = {  # name: (layout, {constant: value} over "plain", None = this devic
     "push": ("binary", {0: True}),
     "wide": ("wide", {}),
     "wide+push": ("wide", {0: True}),
-    "lvp2": ("binary", {0: True, 1: True, 2: True, 11: False}),   # round 2's CPU constants (texel fetches)
+    "lvp2": ("binary", {0: True, 1: True, 2: True, 11: False}),   # the older CPU constants (texel fetches)
     "wide-device": ("wide", None),                                # the wide layout with this device's constants
     "plain-tree": ("binary", None, {"lift": False}),               # this device's constants, the tree without
                                                                    # the lifted large triangles (builder.py)

@@ -88,6 +88,37 @@ def test_view_cli_rejects_bad_arguments(tmp_path):
         assert res.returncode == 1 and expect in res.stderr, (args, res.stderr)
 
 
+def test_overlay_wrap_takes_text_on_every_line():
+    """Any width down to one column cuts text into lines that each take part of it (no endless wrap)."""
+    from engine.viewer import wrap
+
+    assert wrap("abcde", 1) == list("abcde")
+    assert wrap("abcde", 2) == ["ab", "cd", "e"]
+    assert wrap("abcde", 3) == ["abc", "  d", "  e"]
+    assert wrap("abcdefgh", 4) == ["abcd", "  ef", "  gh"]
+    assert wrap("", 1) == [""] and wrap("a\nbc", 1) == ["a", "b", "c"]
+
+
+def test_overlay_text_fits_tiny_windows():
+    from engine.viewer import TextImage
+
+    text = TextImage()
+    lines = [("shader error in lighting.comp:12: a long message " * 20, TextImage.RED), ("x", TextImage.WHITE)]
+    for w, h in ((1, 1), (2, 1), (35, 90), (3 * text.char_w + 12, 40)):
+        img = text.render(lines, w, h)
+        assert img.shape[2] == 4 and 1 <= img.shape[0] <= h and 1 <= img.shape[1] <= w
+
+
+@pytest.mark.parametrize("size", ["1x1", "35x90"])
+def test_view_cli_tiny_windows(xvfb_display, size):
+    """A window too narrow for one column of overlay text (or 1x1) renders, presents and exits."""
+    env = dict(os.environ, HYBRID_VALIDATION="1")
+    res = subprocess.run([sys.executable, "-m", "engine", "view", str(SPHERE), "--size", size, "--frames", "3"],
+                         cwd=REPO, env=env, capture_output=True, text=True, timeout=120)
+    assert res.returncode == 0, f"exit {res.returncode}\n{res.stdout[-2000:]}\n{res.stderr[-3000:]}"
+    assert "validation: no errors" in res.stdout and f"3 frames at {size}" in res.stdout, res.stdout
+
+
 def test_resize_between_frames(viewer, make_renderer):
     import glfw
 

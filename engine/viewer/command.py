@@ -1,0 +1,60 @@
+"""`hybrid view`'s arguments and what the command does with them."""
+from __future__ import annotations
+
+import sys
+
+from ..errors import ConfigError
+from ..settings import MAX_FRAMES, check_png_path, parse_size
+from ..vk.swapchain import PRESENT_MODES
+from .app import Viewer
+
+
+def add_arguments(p):
+    p.add_argument("scene", help="a .toml scene or a mesh/glTF file")
+    p.add_argument("--size", default="1280x720", help="window size WIDTHxHEIGHT (default 1280x720)")
+    p.add_argument("--frames", type=int, default=None, help="present N frames, then exit")
+    p.add_argument("--screenshot", default=None, help="with --frames: save the last frame as this PNG")
+    p.add_argument("--no-hot-reload", dest="hot_reload", action="store_false",
+                   help="do not watch shaders/glsl for changes")
+    p.add_argument("--shader-dir", default=None, help="GLSL folder to compile and watch (default shaders/glsl)")
+    p.add_argument("--present-mode", default="fifo", choices=sorted(PRESENT_MODES),
+                   help="fifo (vsync, default), mailbox or immediate (falls back to fifo)")
+    p.add_argument("--scale", type=float, default=1.0, help="render at this fraction of the window size")
+    p.add_argument("--no-overlay", dest="overlay", action="store_false", help="start with the text overlay hidden")
+    p.add_argument("--device", default=None, help="Vulkan device index or name substring")
+    p.add_argument("--validation", action="store_true", help="enable the Khronos validation layer; fail on errors")
+    p.add_argument("--shadows", default=None, help="initial shadow mode")
+    p.add_argument("--ao", dest="ao", action="store_true", default=None, help="ambient occlusion on")
+    p.add_argument("--no-ao", dest="ao", action="store_false", help="ambient occlusion off")
+    p.add_argument("--ao-samples", type=int, default=None, help="AO rays per pixel")
+
+
+def run_from_args(args) -> int:
+    """Open the window, run (until closed, or --frames), print the statistics line; 1 on validation errors."""
+    width, height = parse_size(args.size)
+    if args.frames is not None and not 1 <= args.frames <= MAX_FRAMES:
+        raise ConfigError(f"--frames {args.frames}: expected 1..{MAX_FRAMES}")
+    if args.screenshot is not None and args.frames is None:
+        raise ConfigError("--screenshot needs --frames N (or press F12 in the window)")
+    if args.screenshot is not None:
+        check_png_path(args.screenshot)
+    settings = {k: v for k, v in (("shadows", args.shadows), ("ao", args.ao), ("ao_samples", args.ao_samples))
+                if v is not None}
+    viewer = Viewer(args.scene, width, height, hot_reload=args.hot_reload, shader_dir=args.shader_dir,
+                    validation=True if args.validation else None, device=args.device,
+                    present_mode=args.present_mode, render_scale=args.scale, settings=settings,
+                    overlay=args.overlay)
+    try:
+        viewer.run(frames=args.frames, screenshot=args.screenshot)
+        summary = viewer.summary()
+        validation = viewer.ctx.validation
+    finally:
+        viewer.close()
+    print(summary)
+    errors = viewer.validation_errors
+    if errors:
+        print(f"error: {len(errors)} validation errors; first: {errors[0]}", file=sys.stderr)
+        return 1
+    if validation:
+        print("validation: no errors")
+    return 0

@@ -28,7 +28,7 @@ def interior(mask, margin=1):
 
 def terrace(n=3000, seed=4):
     """A ground quad (2 triangles) and a wall (a box) under a crowd of small triangles: the large ones are lifted
-    into the top of the tree (builder.py, "large triangles")."""
+    into the top of the tree (engine/bvh/lift.py)."""
     rng = np.random.default_rng(seed)
     centre = np.c_[rng.uniform(-9, 9, n), rng.uniform(0.05, 3, n), rng.uniform(-9, 9, n)][:, None, :]
     v = [(centre + rng.normal(scale=0.05, size=(n, 3, 3))).reshape(-1, 3)]

@@ -547,10 +547,10 @@ def test_bvh_glsl_compiles(tmp_path, defines):
 def test_threads_give_the_same_tree_byte_for_byte():
     from engine import parallel
     from engine.bench_scenes import generated_mesh
-    from engine.bvh import builder
+    from engine.bvh.grow import CHUNK
 
     v, f = generated_mesh(300_000)  # > 2 chunk groups, many blocks, a sampled top: every threaded step runs
-    assert len(f) > 2 * builder.CHUNK
+    assert len(f) > 2 * CHUNK
     one = build_bvh(v, f, threads=1)
     for threads in (2, 3):
         many = build_bvh(v, f, threads=threads)
@@ -571,10 +571,10 @@ def test_build_in_a_forked_child_after_a_threaded_build():
 
     from engine import parallel
     from engine.bench_scenes import generated_mesh
-    from engine.bvh import builder
+    from engine.bvh.triangles import PREP_BLOCK
 
     v, f = generated_mesh(150_000)  # more than one block: work goes to the pool
-    assert len(f) > 2 * builder.PREP_BLOCK
+    assert len(f) > 2 * PREP_BLOCK
     parent = build_bvh(v, f, threads=2)  # the pool exists now
     assert parallel._POOL[0] is not None
     ctx = multiprocessing.get_context("fork")

@@ -553,7 +553,7 @@ def test_material_validation():
 def test_docs_example_loads():
     import tomllib
 
-    from engine.scene.toml_format import scene_from_dict
+    from engine.scene.scene import scene_from_dict
     text = open(os.path.join(ROOT, "docs", "scenes.md")).read()
     block = text.split("```toml\n", 1)[1].split("```", 1)[0]
     scene = scene_from_dict(tomllib.loads(block), os.path.join(SCENES, "doc_example.toml"))

@@ -6,7 +6,8 @@ Pure numpy / trimesh / pillow, no Vulkan. See docs/architecture.md (Scene contra
 from .camera import Camera
 from .lights import DirectionalLight, Light, PointLight, RectLight, SpotLight, default_sun
 from .material import Material
-from .scene import Scene, SubMesh
+from .parts import SubMesh
+from .scene import Scene
 
 __all__ = ["Scene", "SubMesh", "Camera", "Material", "Light", "DirectionalLight", "PointLight", "SpotLight",
            "RectLight", "default_sun"]

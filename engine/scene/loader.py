@@ -1,19 +1,23 @@
-"""Mesh and glTF files through trimesh, flattened to world space; texture images through pillow."""
+"""Mesh and glTF files through trimesh, flattened to world space (SceneBuilder -> SceneParts); texture images
+through pillow."""
 
 from __future__ import annotations
 
 import contextlib
+import io
 import logging
 import os
 import warnings
 
 import numpy as np
+from PIL import Image
 
 from engine.limits import MAX_COORD
 from engine.errors import SceneError
 
 from .geometry import crease_normals, transform_normals, transform_points, unitize
 from .material import Material, srgb8_to_linear
+from .parts import SceneParts, SubMesh
 
 MAX_TEXTURE_SIZE = 2048
 MESH_EXTENSIONS = (".obj", ".ply", ".stl", ".gltf", ".glb", ".off")
@@ -48,7 +52,6 @@ def _short(exc: BaseException) -> str:
 
 def image_to_texture(img, where: str) -> np.ndarray:
     """A PIL image to (H, W, 4) uint8 RGBA, at most MAX_TEXTURE_SIZE on a side."""
-    from PIL import Image
     try:
         img.load()
         if img.mode != "RGBA":
@@ -72,7 +75,6 @@ def image_to_texture(img, where: str) -> np.ndarray:
 
 def load_texture_file(path: str, where: str) -> np.ndarray:
     """An image file to a texture; `where` names what refers to it (e.g. 'scene.toml: [[mesh]] #2: texture')."""
-    from PIL import Image
     if os.path.exists(path) and not os.path.isfile(path):
         raise SceneError(f"{where}: texture is not a regular file: {path}")
     if not os.path.isfile(path):
@@ -89,7 +91,7 @@ def load_texture_file(path: str, where: str) -> np.ndarray:
 def _resolver(path: str):
     """A trimesh resolver for the files a mesh file refers to (MTL, textures, glTF buffers) that refuses
     non-regular files (a FIFO would block the read) and notes in `.problems` what was missing or unreadable."""
-    from trimesh.resolvers import FilePathResolver
+    from trimesh.resolvers import FilePathResolver  # deferred: heavy, and needed only to read meshes
 
     class Resolver(FilePathResolver):
         def __init__(self, source):
@@ -113,8 +115,9 @@ def _resolver(path: str):
                     if what == "texture":
                         _check_image(data, name, self.problems)
                     return data
-            where = "outside the mesh file's folder, which is not searched" if ".." in name.replace("\\", "/").split("/") \
-                else "not found next to the mesh file"
+            where = "not found next to the mesh file"
+            if ".." in name.replace("\\", "/").split("/"):
+                where = "outside the mesh file's folder, which is not searched"
             self.problems.append(f"{what} {name!r} {where}")
             raise FileNotFoundError(name)
 
@@ -123,9 +126,6 @@ def _resolver(path: str):
 
 def _check_image(data: bytes, name: str, problems: list) -> None:
     """Note an image trimesh will fail to open (it drops it without a word)."""
-    import io
-
-    from PIL import Image
     try:
         Image.open(io.BytesIO(data)).close()
     except Exception:
@@ -138,7 +138,7 @@ def load_trimesh_scene(path: str, *, scene_file: bool = False):
     `scene_file`: the path was given as a scene (a .toml would have been one too), not as a [[mesh]] file.
     Referenced files (textures, MTL) that are missing or unreadable are logged as warnings; the mesh is kept.
     """
-    import trimesh
+    import trimesh  # deferred: heavy, and needed only to read meshes
     if not os.path.exists(path):
         raise SceneError(f"{path}: file not found")
     if os.path.isdir(path):
@@ -175,7 +175,7 @@ def load_trimesh_scene(path: str, *, scene_file: bool = False):
 
 
 class SceneBuilder:
-    """Collects world-space mesh parts and materials, then makes a Scene."""
+    """Collects world-space mesh parts and materials, then hands them over as SceneParts."""
 
     def __init__(self, name: str):
         self.name = name
@@ -236,7 +236,6 @@ class SceneBuilder:
         self.uvs.append(uvs)
         self.faces.append(f + self._vertex_count)
         self.mats.append(np.full(len(p), material, dtype=np.uint32))
-        from .scene import SubMesh
         self.submeshes.append(SubMesh(name, self._vertex_count, len(p), self._triangle_count, len(f), material))
         self._vertex_count += len(p)
         self._triangle_count += len(f)
@@ -247,7 +246,7 @@ class SceneBuilder:
 
         `color` (linear RGBA) and `texture` override every material of `obj` (material overrides of the TOML format).
         """
-        import trimesh
+        import trimesh  # deferred: heavy, and needed only to read meshes
         if isinstance(obj, trimesh.Trimesh):
             items = [(np.eye(4), obj, label or getattr(obj.metadata, "get", lambda *_: None)("name") or "mesh")]
         elif isinstance(obj, trimesh.Scene):
@@ -315,14 +314,15 @@ class SceneBuilder:
         self.add(node_name, p, faces, n, uvs, material, where)
 
     # -------------------------------------------------------------- result
-    def build(self, lights=None, camera=None, settings=None):
-        from .scene import Scene
+    def build(self, lights=None, camera=None, settings=None) -> SceneParts:
+        """The parts collected, flattened, with the scene's lights, camera and settings."""
         if not self.faces:
             raise SceneError(f"{self.name}: the scene has no triangles")
-        return Scene(np.concatenate(self.positions), np.concatenate(self.faces),
-                     normals=np.concatenate(self.normals), uvs=np.concatenate(self.uvs),
-                     vertex_material=np.concatenate(self.mats), materials=self.materials, lights=lights,
-                     camera=camera, name=self.name, settings=settings, submeshes=self.submeshes)
+        return SceneParts(name=self.name, positions=np.concatenate(self.positions),
+                          indices=np.concatenate(self.faces), normals=np.concatenate(self.normals),
+                          uvs=np.concatenate(self.uvs), vertex_material=np.concatenate(self.mats),
+                          materials=self.materials, submeshes=self.submeshes, lights=lights, camera=camera,
+                          settings=settings)
 
 
 def _material_of(visual, where: str, vertex_count: int):
@@ -331,7 +331,7 @@ def _material_of(visual, where: str, vertex_count: int):
     if getattr(visual, "material", None) is not None:
         mat = visual.material
         name = getattr(mat, "name", None) or "material"
-        from trimesh.visual.material import PBRMaterial, SimpleMaterial
+        from trimesh.visual.material import PBRMaterial, SimpleMaterial  # deferred: heavy (trimesh)
 
         def make():
             if isinstance(mat, PBRMaterial):
@@ -363,9 +363,13 @@ def _material_of(visual, where: str, vertex_count: int):
     return ("default",), lambda: Material("default", DEFAULT_COLOR)
 
 
-def load_mesh_scene(path: str, lights=None, camera=None):
-    """A Scene from one mesh / glTF file."""
-    obj = load_trimesh_scene(path, scene_file=True)
-    builder = SceneBuilder(path)
-    builder.add_trimesh(obj, path)
+def load_mesh_file(path: str) -> SceneParts:
+    """The parts of a scene made of one mesh / glTF file."""
+    return trimesh_parts(load_trimesh_scene(path, scene_file=True), path)
+
+
+def trimesh_parts(obj, name: str, lights=None, camera=None) -> SceneParts:
+    """The parts of a scene made of a trimesh.Trimesh or trimesh.Scene (node transforms applied)."""
+    builder = SceneBuilder(name)
+    builder.add_trimesh(obj, name)
     return builder.build(lights=lights, camera=camera)

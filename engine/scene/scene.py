@@ -1,34 +1,28 @@
-"""The Scene: every mesh flattened into world-space arrays, plus materials, lights, a camera and settings."""
+"""The Scene: every mesh flattened into world-space arrays, plus materials, lights, a camera and settings.
+
+Scene sits above the loaders (loader.py for mesh files and trimesh objects, toml_format.py for TOML scenes): they
+hand it SceneParts (parts.py) and never make a Scene themselves.
+"""
 
 from __future__ import annotations
 
 import hashlib
 import itertools
 import os
-from dataclasses import dataclass
 
 import numpy as np
 
 from engine.limits import MAX_COORD
 from engine.errors import ConfigError, SceneError
 
+from . import loader, toml_format
 from .camera import Camera
 from .geometry import crease_normals, unitize
 from .lights import Light, default_sun
 from .material import Material
+from .parts import SceneParts, SubMesh
 
 _ids = itertools.count(1)
-
-
-@dataclass(frozen=True)
-class SubMesh:
-    """One source mesh's range in the flattened arrays (informational; draw everything in one call if you like)."""
-    name: str
-    first_vertex: int
-    vertex_count: int
-    first_triangle: int
-    triangle_count: int
-    material: int
 
 
 class Scene:
@@ -207,23 +201,19 @@ class Scene:
     @classmethod
     def load(cls, path) -> "Scene":
         """A `.toml` scene or any mesh / glTF file trimesh reads (OBJ, PLY, STL, glTF, GLB, ...)."""
-        from . import loader, toml_format
         if not isinstance(path, (str, os.PathLike)):
             raise ConfigError(f"Scene.load: path must be a file path (str or os.PathLike), got {type(path).__name__}")
         path = os.fspath(path)
         if not isinstance(path, str):
             raise ConfigError(f"Scene.load: path must be a str path, got {path!r}")
         if path.lower().endswith(".toml"):
-            return toml_format.load_toml(path)
-        return loader.load_mesh_scene(path)
+            return cls._from_parts(toml_format.load_toml(path))
+        return cls._from_parts(loader.load_mesh_file(path))
 
     @classmethod
     def from_trimesh(cls, obj, lights=None, camera=None, name: str = "<trimesh>") -> "Scene":
         """A scene from a `trimesh.Trimesh` or `trimesh.Scene` (node transforms applied)."""
-        from . import loader
-        builder = loader.SceneBuilder(name)
-        builder.add_trimesh(obj, name)
-        return builder.build(lights=lights, camera=camera)
+        return cls._from_parts(loader.trimesh_parts(obj, name, lights=lights, camera=camera))
 
     @classmethod
     def from_arrays(cls, vertices, faces, *, normals=None, uvs=None, color=(0.8, 0.8, 0.8), texture=None,
@@ -232,6 +222,19 @@ class Scene:
         mat = Material("material", color, texture)
         return cls(vertices, faces, normals=normals, uvs=uvs, materials=[mat], lights=lights, camera=camera,
                    name=name, settings=settings)
+
+    @classmethod
+    def _from_parts(cls, parts: SceneParts) -> "Scene":
+        """A scene from what a loader collected (checked like any other)."""
+        return cls(parts.positions, parts.indices, normals=parts.normals, uvs=parts.uvs,
+                   vertex_material=parts.vertex_material, materials=parts.materials, lights=parts.lights,
+                   camera=parts.camera, name=parts.name, settings=parts.settings, submeshes=parts.submeshes)
+
+
+def scene_from_dict(data: dict, path: str = "<toml>") -> Scene:
+    """A Scene from parsed TOML data (docs/scenes.md); `path` names the file in messages and anchors relative
+    paths."""
+    return Scene._from_parts(toml_format.parts_from_dict(data, path))
 
 
 def _as_array(value, field, where, shape):

@@ -1,4 +1,4 @@
-"""The TOML scene format (documented in docs/scenes.md)."""
+"""The TOML scene format (documented in docs/scenes.md): a file or its parsed tables to SceneParts."""
 
 from __future__ import annotations
 
@@ -15,6 +15,8 @@ from .camera import Camera
 from .geometry import transform_normals, transform_points
 from .lights import LIGHT_TYPES
 from .loader import SceneBuilder, load_texture_file, load_trimesh_scene
+from .material import Material
+from .parts import SceneParts
 
 TOP_LEVEL = ("camera", "mesh", "light", "settings")
 CAMERA_KEYS = ("eye", "target", "up", "fov", "near")
@@ -65,7 +67,8 @@ def _unknown(ctx: _Ctx, table: dict, allowed) -> None:
             raise ctx.error(f"unknown key {key!r} (allowed: {', '.join(allowed)})")
 
 
-def load_toml(path: str):
+def load_toml(path: str) -> SceneParts:
+    """The parts of the scene that the TOML file `path` describes."""
     path = os.fspath(path)
     if not os.path.exists(path):
         raise SceneError(f"{path}: file not found")
@@ -92,11 +95,11 @@ def load_toml(path: str):
         raise SceneError(f"{path}: not a UTF-8 text file") from None
     except OSError as exc:
         raise SceneError(f"{path}: cannot read file ({exc.strerror or exc})") from None
-    return scene_from_dict(data, path)
+    return parts_from_dict(data, path)
 
 
-def scene_from_dict(data: dict, path: str = "<toml>"):
-    """Build a Scene from parsed TOML data; `path` names the file in messages and anchors relative paths."""
+def parts_from_dict(data: dict, path: str = "<toml>") -> SceneParts:
+    """The parts of a scene from parsed TOML data; `path` names the file in messages and anchors relative paths."""
     ctx = _Ctx(path)
     base_dir = os.path.dirname(os.path.abspath(path)) if path != "<toml>" else os.getcwd()
     for key, value in data.items():
@@ -321,7 +324,6 @@ def _add_mesh(builder: SceneBuilder, table: dict, ctx: _Ctx, base_dir: str, text
             uv = uv * uv_scale
         if color is None:
             color = np.array([1.0, 1.0, 1.0, 1.0]) if texture is not None else np.array([0.8, 0.8, 0.8, 1.0])
-        from .material import Material
         key = ("primitive", tuple(color.tolist()), None if texture is None else id(texture))
         mat = builder.material_index(key, lambda: Material(name, color, texture))
         p, n = transform_points(m, p), transform_normals(m, n)

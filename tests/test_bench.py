@@ -1,4 +1,4 @@
-"""The benchmark machinery (engine/bench.py) on a tiny generated scene: the JSON has every section and figure, the
+"""The benchmark machinery (engine/bench/) on a tiny generated scene: the JSON has every section and figure, the
 throughputs are positive, and the peers (embreex, Open3D) answer the same rays as our Tracer does. Nothing here
 asserts a timing."""
 import io
@@ -8,7 +8,7 @@ import numpy as np
 import pytest
 
 from engine.bench import PEERS, BenchConfig, Progress, agreement, format_report, run_bench
-from engine.bench_scenes import generated_mesh
+from engine.bench.scenes import generated_mesh
 
 
 def _peer_available(name):

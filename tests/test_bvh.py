@@ -546,7 +546,7 @@ def test_bvh_glsl_compiles(tmp_path, defines):
 
 def test_threads_give_the_same_tree_byte_for_byte():
     from engine import parallel
-    from engine.bench_scenes import generated_mesh
+    from engine.bench.scenes import generated_mesh
     from engine.bvh.grow import CHUNK
 
     v, f = generated_mesh(300_000)  # > 2 chunk groups, many blocks, a sampled top: every threaded step runs
@@ -570,7 +570,7 @@ def test_build_in_a_forked_child_after_a_threaded_build():
     import multiprocessing
 
     from engine import parallel
-    from engine.bench_scenes import generated_mesh
+    from engine.bench.scenes import generated_mesh
     from engine.bvh.triangles import PREP_BLOCK
 
     v, f = generated_mesh(150_000)  # more than one block: work goes to the pool
@@ -591,7 +591,7 @@ def test_builds_from_several_threads_with_different_thread_counts():
     """Callers on several threads, each with its own thread count, share the builder's pool (which grows when a
     larger count comes): every tree is the single-threaded one."""
     import threading
-    from engine.bench_scenes import generated_mesh
+    from engine.bench.scenes import generated_mesh
 
     v, f = generated_mesh(150_000)
     want = build_bvh(v, f, threads=1).nodes.tobytes()

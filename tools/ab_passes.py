@@ -18,7 +18,8 @@ sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
 from ab_traversal import VARIANTS, load, overriding  # noqa: E402
 
-from engine.bench import _median, gbuffer_raysets  # noqa: E402
+from engine.bench.rays import gbuffer_raysets  # noqa: E402
+from engine.bench.timing import median  # noqa: E402
 from engine.passes import raypass  # noqa: E402
 from engine import renderer as renderer_mod  # noqa: E402
 from engine.renderer import Renderer  # noqa: E402
@@ -80,10 +81,10 @@ def main():
                 times[name].append(r.last_timings())
         print(f"{key}: {scene.triangle_count:,} triangles, {w}x{h}, {n_shadow:,} shadow rays, AO {a.ao_samples} spp",
               flush=True)
-        base = _median([t["shadows"] for t in times[a.variants[0]]])
+        base = median([t["shadows"] for t in times[a.variants[0]]])
         for name, ts in times.items():
-            sh, ao = _median([t["shadows"] for t in ts]), _median([t["ao"] for t in ts])
-            total = _median([sum(t.values()) for t in ts])
+            sh, ao = median([t["shadows"] for t in ts]), median([t["ao"] for t in ts])
+            total = median([sum(t.values()) for t in ts])
             print(f"  {name:14s} shadows {sh:.3f} ms = {n_shadow / (sh * 1e-3) / 1e9:.2f} Grays/s "
                   f"({base / sh:.2f}x)  ao {ao:.3f} ms  frame {total:.2f} ms", flush=True)
     for r in rs.values():

@@ -21,7 +21,9 @@ import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
-from engine.bench import DEFAULT_SCENE, _median, gbuffer_raysets, random_rayset  # noqa: E402
+from engine.bench.config import DEFAULT_SCENE  # noqa: E402
+from engine.bench.rays import gbuffer_raysets, random_rayset  # noqa: E402
+from engine.bench.timing import median  # noqa: E402
 from engine.renderer import Renderer  # noqa: E402
 from engine.rt import tracer as tracer_mod  # noqa: E402
 
@@ -43,7 +45,7 @@ VARIANTS = {  # name: (layout, {constant: value} over "plain", None = this devic
 
 def load(key, tris):
     if key == "generated":
-        from engine.bench_scenes import generated_scene
+        from engine.bench.scenes import generated_scene
         return generated_scene(tris, seed=1)
     from engine.scene import Scene
     return Scene.load(DEFAULT_SCENE)
@@ -109,8 +111,8 @@ def main():
             base = a.variants[0]
             row = {"scene": key, "rays": rs.name, "n": len(rs)}
             for name in tr:
-                g = _median(ms[name])
-                row[name] = {"ms": g, "grays": len(rs) / (g * 1e-3) / 1e9, "vs_first": _median(ms[base]) / g}
+                g = median(ms[name])
+                row[name] = {"ms": g, "grays": len(rs) / (g * 1e-3) / 1e9, "vs_first": median(ms[base]) / g}
                 if rs.kind == "occluded":
                     row[name]["disagree"] = int((ans[name] != ans[base]).sum())
                 else:  # hit or miss, and t where both hit

@@ -1,10 +1,10 @@
 """Generated scenes for `hybrid bench`: a noisy terrain scattered with displaced spheres and boxes.
 
-`generated_mesh(n)` makes about `n` triangles (exact count in the result) in well under a second per million, all
-numpy and deterministic for a seed: ~60% of the triangles are a height-field terrain (sum of random plane waves,
-an fBm-like noise), ~40% are lumpy spheres (subdivided icospheres with a radial displacement of their own) of
-log-uniform sizes resting on the terrain, plus a few hundred boxes. Triangle sizes, overlaps and empty space vary
-the way a real scene's do, unlike one big tessellated sphere.
+`generated_mesh(n)` makes about `n` triangles (exact count in the result), all numpy and deterministic for a seed:
+~60% of the triangles are a height-field terrain (sum of random plane waves, an fBm-like noise), ~40% are lumpy
+spheres (subdivided icospheres with a radial displacement of their own) of log-uniform sizes resting on the terrain,
+plus a few hundred boxes. Triangle sizes, overlaps and empty space vary the way a real scene's do, unlike one big
+tessellated sphere.
 
 `generated_scene(n)` wraps it as an `engine.Scene` with smooth normals, a few materials, a low sun and a camera
 looking across the terrain, ready for the Renderer (the G-buffer rays of the trace benchmark).
@@ -12,6 +12,8 @@ looking across the terrain, ready for the Renderer (the G-buffer rays of the tra
 from __future__ import annotations
 
 import numpy as np
+
+from ..scene import Camera, DirectionalLight, Material, Scene, SubMesh
 
 TERRAIN_SIZE = 200.0      # the terrain spans [-100, 100] in x and z
 TERRAIN_HEIGHT = 6.0      # amplitude of its noise (metres)
@@ -48,7 +50,7 @@ def _terrain(grid, waves):
 
 
 def _icosphere(subdiv):
-    import trimesh
+    import trimesh   # heavy to import: loaded only when a generated scene is made
     s = trimesh.creation.icosphere(subdivisions=subdiv)
     return np.asarray(s.vertices, np.float64), np.asarray(s.faces, np.int64)
 
@@ -72,7 +74,7 @@ def _lumpy_spheres(rng, count, subdiv, waves):
 
 
 def _boxes(rng, count, waves):
-    import trimesh
+    import trimesh   # heavy to import: loaded only when a generated scene is made
     b = trimesh.creation.box()
     bv, bf = np.asarray(b.vertices), np.asarray(b.faces)
     size = rng.uniform(0.3, 3.0, (count, 3)) * np.array([1.0, 2.0, 1.0])
@@ -131,9 +133,6 @@ def vertex_normals(v, f):
 
 def generated_scene(n_tris: int = 1_200_000, seed: int = 0):
     """An `engine.Scene` of the generated mesh: three materials, a low sun, a camera across the terrain."""
-    from .scene import Camera, DirectionalLight, Material, Scene
-    from .scene.scene import SubMesh
-
     colors = {"terrain": (0.35, 0.45, 0.25), "spheres": (0.7, 0.55, 0.45), "boxes": (0.6, 0.6, 0.65)}
     vs, fs, ns, vm, subs, base, first_tri = [], [], [], [], [], 0, 0
     for m, (name, v, f) in enumerate(generated_parts(n_tris, seed)):

@@ -1,0 +1,37 @@
+"""`hybrid bench [build|trace|frame|all]`: the benchmark suite (issue 6; issue 3 item 5).
+
+    build  BVH build at 100k, 1M and 4M generated triangles: ms, ms per million, SAH cost, bytes per triangle.
+    trace  Mrays/s of our Tracer (GPU timestamps and wall clock, upload + readback included) on three ray sets:
+           coherent shadow rays from a rendered G-buffer towards the scene's first light, incoherent AO rays
+           (cosine hemisphere, tmax = 10% of the scene diagonal) and closest hits of random rays; on a generated
+           scene of >= 1M triangles and on the default scene. The peers run the SAME rays in the same process:
+           embreex (trimesh's ray engine, one thread, as trimesh calls it) and Open3D's RaycastingScene (all
+           cores). Ratios ours / peer, and how often the answers agree (hit or miss).
+    frame  A full frame per pass (GPU ms from Frame.timings) at 640x360 on a CPU device (lavapipe) or 1920x1080 on a
+           GPU, plus the wall time of Renderer.render() and the host (Python) time of a Renderer.submit().
+
+Every figure is a median over `reps` runs after `warmup` runs. Output: a table on stdout, a progress bar on stderr,
+JSON (machine, date, command, every figure) and a PNG plot. The Python entry point is `run_bench(BenchConfig(...))`.
+
+Modules: config (sections, BenchConfig), scenes (the generated meshes and scenes), rays (the ray sets), engines (the
+engine interface and ours), peers (embreex, Open3D), machine (machine information), progress, timing, runner (Bench:
+the sections), targets (issue goals), report (tables, JSON), plot (the PNG), cli (run_bench and `hybrid bench`),
+probe (the lavapipe thread probe's child process).
+"""
+from __future__ import annotations
+
+from .cli import add_arguments, check_output_paths, run_bench, run_cli, write_outputs
+from .config import DEFAULT_SCENE, PEERS, RAYSETS, SECTIONS, BenchConfig
+from .peers import agreement
+from .plot import plot
+from .progress import Progress
+from .rays import RaySet, gbuffer_raysets, random_rayset
+from .report import format_report
+from .runner import Bench
+from .targets import evaluate_targets
+
+__all__ = [
+    "add_arguments", "check_output_paths", "run_bench", "run_cli", "write_outputs", "DEFAULT_SCENE", "PEERS",
+    "RAYSETS", "SECTIONS", "BenchConfig", "agreement", "plot", "Progress", "RaySet", "gbuffer_raysets",
+    "random_rayset", "format_report", "Bench", "evaluate_targets",
+]

@@ -1,0 +1,57 @@
+"""What `hybrid bench` runs: the sections, engines and ray sets it knows, and BenchConfig (sizes, repetitions)."""
+from __future__ import annotations
+
+from dataclasses import dataclass
+from pathlib import Path
+
+from ..errors import ConfigError
+
+REPO = Path(__file__).resolve().parents[2]
+DEFAULT_SCENE = REPO / "scenes" / "default.toml"
+SECTIONS = ("build", "trace", "frame")
+ENGINES = ("ours", "embreex", "open3d")
+PEERS = ("embreex", "open3d")
+RAYSETS = ("shadow", "ao", "random")
+RAYSET_TITLES = {"shadow": "shadow rays (occluded, G-buffer)", "ao": "AO rays (occluded, G-buffer)",
+                 "random": "random rays (closest hit)"}
+
+
+@dataclass
+class BenchConfig:
+    sections: tuple = SECTIONS
+    quick: bool = False
+    size: tuple | None = None                  # (w, h); None: 640x360 on a CPU device, 1920x1080 on a GPU
+    device: str | None = None
+    validation: bool = False
+    build_sizes: tuple = (100_000, 1_000_000, 4_000_000)
+    build_reps: int = 3                        # sizes above 2M triangles get one run less (at least one)
+    generated_tris: int = 1_200_000            # the trace benchmark's generated scene
+    mid_tris: int = 300_000                    # frame "generated-300k": the size the issue-6 shadow target names
+    real_scene: str | None = str(DEFAULT_SCENE)
+    frame_scenes: tuple = ("real", "target", "mid", "generated")  # target: the issue-6 frame (1 light, 1 AO ray
+    #                                                                   per pixel); mid: generated, mid_tris, 1 AO ray
+    peers: tuple = PEERS
+    reps: int = 7
+    warmup: int = 1
+    frame_reps: int = 5
+    frame_warmup: int = 2
+    random_rays: int | None = None             # None: as many as the G-buffer has pixels
+    thread_probe: bool = True                  # lavapipe only: re-run the default scene's rays with LP_NUM_THREADS
+    seed: int = 1
+
+    @classmethod
+    def for_cli(cls, section: str = "all", quick: bool = False, size=None, device=None) -> "BenchConfig":
+        sections = SECTIONS if section == "all" else (section,)
+        if section not in SECTIONS + ("all",):
+            raise ConfigError(f"bench: unknown section {section!r} (known: {', '.join(SECTIONS)}, all)")
+        cfg = cls(sections=sections, quick=quick, size=size, device=device)
+        if quick:
+            cfg.build_sizes = (100_000, 1_000_000)
+            cfg.build_reps = 2
+            cfg.generated_tris = 1_000_000
+            cfg.reps = 3
+            cfg.frame_reps = 3
+            cfg.frame_warmup = 1
+            cfg.thread_probe = False
+        return cfg
+

@@ -1,0 +1,120 @@
+"""A bench's results as text tables for the terminal, and as JSON."""
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import numpy as np
+
+from .config import PEERS, RAYSETS
+
+
+def _fmt(v, spec=".2f", none="-"):
+    if v is None or (isinstance(v, float) and not np.isfinite(v)):
+        return none
+    return format(v, spec)
+
+
+def _table(rows, header, align=None) -> str:
+    cols = len(header)
+    width = [max(len(str(r[i])) for r in [header] + rows) for i in range(cols)]
+    align = align or ["<"] + [">"] * (cols - 1)
+    line = lambda r: "  ".join(f"{str(c):{a}{w}}" for c, a, w in zip(r, align, width))  # noqa: E731
+    return "\n".join([line(header), "  ".join("-" * w for w in width)] + [line(r) for r in rows])
+
+
+def format_report(results: dict) -> str:
+    meta = results.get("meta", {})
+    m, dev = meta.get("machine", {}), meta.get("device", {})
+    parts = [f"hybrid bench - {meta.get('date', '')}",
+             f"machine: {m.get('cpu')} ({m.get('cores')} cores), device: {dev.get('name', '-')} "
+             f"({dev.get('type', '-')}, {dev.get('driver_info', dev.get('driver', '-'))})"
+             + (f", env {m['env']}" if m.get("env") else "")]
+    o = meta.get("other_processes", {})
+    if "others_cpu_s" in o:
+        parts.append(f"run: {o['wall_s']} s wall, this process {o['own_cpu_s']} CPU s; other processes used "
+                     f"{o['others_cpu_s']} CPU s (on average {o['others_mean_cores']} of {m.get('cores')} cores)")
+    if results.get("build"):
+        rows = [[f"{b['triangles']:,}", _fmt(b["ms"], ".0f"), _fmt(b["ms_per_million"], ".0f"),
+                 _fmt(b.get("ms_1thread"), ".0f"), _fmt(b["sah_cost"], ".1f"), _fmt(b["bytes_per_triangle"], ".1f"),
+                 f"{b['nodes']:,}", b["depth"]]
+                for b in results["build"]]
+        threads = results["build"][0].get("threads", "?")
+        parts += ["", f"BVH build (generated meshes; median of runs; {threads} threads, and 1 for comparison)",
+                  _table(rows, ["triangles", "build ms", "ms / M tris", "1 thread ms", "SAH cost", "bytes / tri",
+                                "nodes", "depth"])]
+    for sc in results.get("trace", {}).get("scenes", []):
+        setup = ", ".join(f"{k} {v:.0f} ms" for k, v in sc["setup_ms"].items())
+        skipped = ", ".join(f"{k}: {v['skipped']}" for k, v in sc["engines"].items() if "skipped" in v)
+        parts += ["", f"Trace throughput, Mrays/s: {sc['scene']} scene ({sc['triangles']:,} triangles), "
+                      f"G-buffer {sc['gbuffer_size'][0]}x{sc['gbuffer_size'][1]}; setup (BVH build): {setup}"
+                  + (f"; skipped {skipped}" if skipped else "")]
+        rows = []
+        for rs in sc["raysets"]:
+            res = rs["results"]
+            o = res.get("ours", {})
+            row = [rs["title"], f"{rs['rays']:,}", _fmt(o.get("mrays_gpu")), _fmt(o.get("mrays_wall")),
+                   _fmt(o.get("gpu_fraction_of_wall"), ".0%")]
+            for p in PEERS:
+                pr = res.get(p)
+                row.append(_fmt(pr["mrays_wall"]) if pr else "-")
+            for p in PEERS:
+                ra = rs["ratio"].get(p)
+                row.append(f"{_fmt(ra['gpu'])} / {_fmt(ra['wall'])}" if ra else "-")
+            agree = [f"{p} {rs['agreement'][p]['hit_miss']:.2%}" for p in PEERS if p in rs["agreement"]]
+            row.append(", ".join(agree) or "-")
+            rows.append(row)
+        parts.append(_table(rows, ["ray set", "rays", "ours GPU", "ours wall", "GPU/wall", "embreex 1T",
+                                   "open3d", "x embreex (GPU/wall)", "x open3d (GPU/wall)", "hit/miss agree"]))
+        bad = [rs["name"] for rs in sc["raysets"]
+               if rs["results"].get("ours", {}).get("timestamps_plausible") is False]
+        if bad:
+            parts.append(f"warning: GPU timestamps disagree with the submit+wait time for {', '.join(bad)}; "
+                         "see queue_ms in the JSON")
+    probe = results.get("trace", {}).get("lavapipe_threads")
+    if probe:
+        rows = []
+        for p in probe:
+            if "error" in p:
+                rows.append([p["threads"], p["error"], "", ""])
+                continue
+            rows.append([p["threads"]] + [f"{_fmt(p[n]['mrays_gpu'])} / {_fmt(p[n]['mrays_wall'])}" if n in p
+                                          else "-" for n in RAYSETS])
+        parts += ["", f"Our tracer vs lavapipe worker threads ({probe[0].get('scene', '')} scene, same rays; "
+                      "Mrays/s GPU / wall)", _table(rows, ["LP_NUM_THREADS"] + [f"{n} rays" for n in RAYSETS])]
+    for fr in results.get("frame", []):
+        viewer = fr.get("viewer_passes_ms", {})
+        rows = [[k, _fmt(v, ".2f"), _fmt(viewer.get(k), ".2f")] for k, v in fr["passes_ms"].items()]
+        if fr.get("shadow_pass_grays"):
+            rows.append([f"shadow pass Grays/s ({fr['shadow_rays']:,} rays)", _fmt(fr["shadow_pass_grays"], ".3f"),
+                         _fmt(fr.get("viewer_shadow_pass_grays"), ".3f")])
+        rows += [["total GPU", _fmt(fr["gpu_total_ms"], ".2f"), _fmt(fr.get("viewer_gpu_total_ms"), ".2f")],
+                 ["render() wall (incl. readback to numpy)", _fmt(fr["render_wall_ms"], ".2f")],
+                 ["submit() host wall / CPU (viewer path)",
+                  f"{_fmt(fr['submit_host_ms'], '.3f')} / {_fmt(fr['submit_host_cpu_ms'], '.3f')}"]]
+        rows = [row + [""] * (3 - len(row)) for row in rows]
+        s = fr["settings"]
+        parts += ["", f"Frame: {fr['scene']} scene ({fr['triangles']:,} triangles) {fr['size'][0]}x{fr['size'][1]}, "
+                      f"{fr['lights']} light(s), shadows {s.get('shadows')}, AO {s.get('ao_samples')} spp "
+                      f"(median of runs)", _table(rows, ["pass", "render() ms", "back to back ms"])]
+    if results.get("targets"):
+        rows = [[f"#{t['issue']}", t["target"], _fmt(t["measured"], ".3g") + (f" {t['unit']}" if t["measured"]
+                 is not None else ""), t.get("summary", t["status"])
+                 + (f"; {t['note']}" if t.get("note") else "")] for t in results["targets"]]
+        parts += ["", "Targets", _table(rows, ["issue", "target", "measured", "status"], ["<", "<", ">", "<"])]
+    return "\n".join(parts)
+
+
+
+def _json_default(o):
+    if isinstance(o, (np.integer,)):
+        return int(o)
+    if isinstance(o, (np.floating,)):
+        return float(o)
+    if isinstance(o, np.ndarray):
+        return o.tolist()
+    return str(o)
+
+
+def write_json(results: dict, path):
+    Path(path).write_text(json.dumps(results, indent=1, default=_json_default) + "\n")

@@ -1,0 +1,393 @@
+"""Runs the sections of a BenchConfig: BVH builds, trace throughput of ours and the peers on the same rays, and frames
+per pass; `Bench.run()` returns the results dict that becomes the JSON."""
+from __future__ import annotations
+
+import copy
+import datetime as _dt
+import json
+import os
+import subprocess
+import sys
+import tempfile
+import time
+from dataclasses import asdict
+from pathlib import Path
+
+import numpy as np
+
+from ..bvh import build_bvh
+from ..errors import ConfigError
+from ..renderer import Renderer
+from ..scene import Scene
+from ..vk import choose_device, describe_devices
+from ..vk.device_info import device_details
+from .config import RAYSET_TITLES, RAYSETS, REPO, BenchConfig
+from .engines import OursEngine
+from .machine import OtherLoad, machine_info
+from .peers import agreement, make_peer
+from .progress import Progress
+from .rays import RaySet, first_light_rays, gbuffer_raysets, random_rayset, scene_diag
+from .scenes import generated_mesh, generated_scene
+from .targets import evaluate_targets
+from .timing import median
+
+
+class Bench:
+    """Runs the sections of a BenchConfig; `results` is what goes to the JSON."""
+
+    def __init__(self, cfg: BenchConfig, progress: Progress | None = None):
+        self.cfg = cfg
+        self.progress = progress
+        self.results: dict = {}
+        self._renderer = None
+        self._scenes: dict = {}
+        self.validation_errors: list[str] = []
+        self.tracer_validation_errors: list[str] = []
+
+    # ---- plumbing ----------------------------------------------------------------------------------------------
+    def _step(self, label, fn, *args):
+        if self.progress is not None:
+            self.progress.step(label)
+        try:
+            return fn(*args)
+        finally:
+            if self.progress is not None:
+                self.progress.advance()
+
+    def plan(self) -> int:
+        """How many progress steps the configured run takes."""
+        cfg, n = self.cfg, 0
+        if "build" in cfg.sections:
+            n += len(cfg.build_sizes)
+        if "trace" in cfg.sections:
+            per_scene = 2 + len(cfg.peers) + len(RAYSETS) * (2 + len(cfg.peers))
+            n += per_scene * (1 + (cfg.real_scene is not None)) + self._probe_wanted()
+        if "frame" in cfg.sections:
+            n += 2 * len(self._frame_scene_keys())
+        return n
+
+    def _frame_scene_keys(self):
+        return [k for k in self.cfg.frame_scenes if k in ("generated", "mid") or self.cfg.real_scene is not None]
+
+    def device_choice(self):
+        devices = describe_devices()
+        return devices[choose_device(devices, self.cfg.device)]
+
+    def size(self) -> tuple[int, int]:
+        if self.cfg.size is not None:
+            return tuple(self.cfg.size)
+        return (640, 360) if self.device_choice()["type"] == "CPU" else (1920, 1080)
+
+    def renderer(self):
+        if self._renderer is None:
+            w, h = self.size()
+            self._renderer = Renderer(w, h, device=self.cfg.device, validation=self.cfg.validation)
+        return self._renderer
+
+    def scene(self, key):
+        if key not in self._scenes:
+            if key in ("generated", "mid"):
+                tris = self.cfg.generated_tris if key == "generated" else self.cfg.mid_tris
+                self._scenes[key] = generated_scene(tris, seed=self.cfg.seed)
+            elif key == "real":
+                self._scenes[key] = Scene.load(self.cfg.real_scene)
+            else:
+                raise ConfigError(f"bench: unknown scene {key!r}")
+        return self._scenes[key]
+
+    def close(self):
+        if self._renderer is not None:
+            self._renderer.close()
+            self.validation_errors += list(self._renderer.validation_errors)
+            self._renderer = None
+
+    # ---- sections ----------------------------------------------------------------------------------------------
+    def run(self) -> dict:
+        cfg = self.cfg
+        self.results["meta"] = {
+            "date": _dt.datetime.now().astimezone().isoformat(timespec="seconds"),
+            "command": " ".join(["hybrid"] + sys.argv[1:]) if Path(sys.argv[0]).name in ("hybrid", "__main__.py")
+            else " ".join(sys.argv),
+            "config": {k: (list(v) if isinstance(v, tuple) else v) for k, v in asdict(cfg).items()},
+            "machine": machine_info(),
+        }
+        other = OtherLoad()
+        try:
+            if "build" in cfg.sections:
+                self.results["build"] = self.run_build()
+            if "trace" in cfg.sections or "frame" in cfg.sections:
+                self.results["meta"]["device"] = device_details(self.renderer().ctx)
+                self.results["meta"]["size"] = list(self.size())
+            if "trace" in cfg.sections:
+                self.results["trace"] = self.run_trace()
+            if "frame" in cfg.sections:
+                self.results["frame"] = self.run_frame()
+        finally:
+            self.close()
+        self.results["meta"]["validation_errors"] = (self.validation_errors + self.tracer_validation_errors)[:20]
+        self.results["meta"]["load_average_end"] = machine_info()["load_average"]
+        self.results["meta"]["other_processes"] = other.result()
+        self.results["targets"] = evaluate_targets(self.results)
+        return self.results
+
+    def run_build(self) -> list[dict]:
+        out = []
+        for n in self.cfg.build_sizes:
+            reps = max(1, self.cfg.build_reps - (1 if n > 2_000_000 else 0))
+
+            def one(n=n, reps=reps):
+                v, f = generated_mesh(n, seed=self.cfg.seed)
+                runs, runs1, stats = [], [], None
+                for _ in range(reps):  # all cores (the default, which the targets are judged on), then one
+                    for threads, into in ((None, runs), (1, runs1)):
+                        t0 = time.perf_counter()
+                        bvh = build_bvh(v, f, threads=threads)
+                        into.append((time.perf_counter() - t0) * 1e3)
+                        if threads is None:
+                            stats = dict(bvh.stats)
+                        del bvh
+                ms = median(runs)
+                tris = int(len(f))
+                return {"triangles": tris, "requested": n, "ms": ms, "runs_ms": runs,
+                        "threads": stats["threads"], "ms_1thread": median(runs1), "runs_ms_1thread": runs1,
+                        "ms_per_million": ms / (tris / 1e6), "s_per_million": ms / 1e3 / (tris / 1e6),
+                        "sah_cost": stats.get("sah_cost"), "bytes": stats.get("bytes"),
+                        "bytes_per_triangle": stats["bytes"] / tris if stats.get("bytes") else None,
+                        "nodes": stats.get("nodes"), "leaves": stats.get("leaves"), "depth": stats.get("depth"),
+                        "stats": stats}
+            out.append(self._step(f"build: BVH of {n / 1e6:g}M triangles x{reps}", one))
+        return out
+
+    def run_trace(self) -> dict:
+        keys = ["generated"] + (["real"] if self.cfg.real_scene is not None else [])
+        out = {"scenes": [self._trace_scene(k) for k in keys]}
+        if self._probe_wanted():
+            out["lavapipe_threads"] = self._step("trace (default): lavapipe threads, LP_NUM_THREADS = "
+                                                 + ", ".join(map(str, self._probe_threads())), self._thread_probe)
+        return out
+
+    def _probe_wanted(self) -> bool:
+        cfg = self.cfg
+        return bool(cfg.thread_probe and "trace" in cfg.sections and
+                    "llvmpipe" in self.device_choice()["name"].lower())
+
+    def _probe_threads(self):
+        cores = os.cpu_count() or 1
+        return sorted({1, cores, 2 * cores})
+
+    def _thread_probe(self) -> list[dict]:
+        """The last trace scene's ray sets again, in child processes with LP_NUM_THREADS set: how our tracer scales
+        with lavapipe's worker threads (lavapipe reads the variable once, when the driver loads)."""
+        scene, sets = self._probe_input
+        out = []
+        with tempfile.TemporaryDirectory() as tmp:
+            path = Path(tmp) / "rays.npz"
+            arrays = {"vertices": np.asarray(scene.positions, np.float32), "faces": np.asarray(scene.indices)}
+            for rs in sets:
+                arrays[f"{rs.name}_o"], arrays[f"{rs.name}_d"] = rs.origins, rs.directions
+                arrays[f"{rs.name}_meta"] = np.array([rs.kind, repr(rs.tmax)])
+            np.savez(path, **arrays)
+            for threads in self._probe_threads():
+                env = dict(os.environ, LP_NUM_THREADS=str(threads))
+                cmd = [sys.executable, "-m", "engine.bench.probe", str(path), str(self.cfg.reps),
+                       str(self.cfg.warmup)] + ([str(self.cfg.device)] if self.cfg.device is not None else [])
+                proc = subprocess.run(cmd, env=env, capture_output=True, text=True, cwd=str(REPO), timeout=600)
+                if proc.returncode != 0:
+                    out.append({"threads": threads, "error": (proc.stderr.strip().splitlines() or ["?"])[-1]})
+                    continue
+                out.append({"threads": threads, "scene": "default" if scene is self._scenes.get("real")
+                            else "generated", **json.loads(proc.stdout.strip().splitlines()[-1])})
+        return out
+
+    def _trace_scene(self, key) -> dict:
+        cfg = self.cfg
+        tag = "generated" if key == "generated" else "default"
+
+        def prepare():
+            scene = self.scene(key)
+            frame = self.renderer().render(scene)
+            rng = np.random.default_rng(cfg.seed)
+            sets = gbuffer_raysets(scene, frame, rng)
+            count = cfg.random_rays or self.renderer().width * self.renderer().height
+            sets.append(random_rayset(scene, count, rng))
+            return scene, frame, sets
+        scene, frame, sets = self._step(f"trace ({tag}): scene, G-buffer, rays", prepare)
+        diag = scene_diag(scene)
+        v = np.asarray(scene.positions, np.float32)
+        f = np.asarray(scene.indices, np.int64)
+        res = {"scene": tag, "name": scene.name, "triangles": scene.triangle_count, "diagonal": diag,
+               "gbuffer_size": [self.renderer().width, self.renderer().height],
+               "frame_timings_ms": dict(frame.timings), "setup_ms": {}, "engines": {}, "raysets": []}
+        engines: dict = {}
+        try:
+            def build_ours():
+                t0 = time.perf_counter()
+                e = OursEngine(v, f, device=cfg.device, validation=cfg.validation)
+                res["setup_ms"]["ours"] = (time.perf_counter() - t0) * 1e3
+                res["bvh_stats"] = e.stats
+                return e
+            engines["ours"] = self._step(f"trace ({tag}): our BVH build + upload", build_ours)
+            res["engines"]["ours"] = {"label": engines["ours"].label, "threads": engines["ours"].threads}
+            for name in cfg.peers:
+                def build_peer(name=name):
+                    t0 = time.perf_counter()
+                    e, why = make_peer(name, v, f)
+                    if e is not None:
+                        res["setup_ms"][name] = (time.perf_counter() - t0) * 1e3
+                    return e, why
+                e, why = self._step(f"trace ({tag}): {name} scene build", build_peer)
+                if e is None:
+                    res["engines"][name] = {"skipped": why}
+                else:
+                    engines[name] = e
+                    res["engines"][name] = {"label": e.label, "threads": e.threads}
+            for rs in sets:
+                res["raysets"].append(self._trace_rayset(tag, rs, engines, diag))
+            self._probe_input = (scene, sets)
+        finally:
+            for e in engines.values():
+                if isinstance(e, OursEngine):
+                    e.close()   # leaks show up at close, as validation errors
+                    self.tracer_validation_errors += e.validation_errors
+                else:
+                    e.close()
+        return res
+
+    def _trace_rayset(self, tag, rs: RaySet, engines, diag) -> dict:
+        cfg = self.cfg
+        out = {"name": rs.name, "kind": rs.kind, "title": RAYSET_TITLES[rs.name], "rays": len(rs),
+               "tmax": rs.tmax if np.isfinite(rs.tmax) else "inf", "note": rs.note, "results": {}, "agreement": {},
+               "ratio": {}}
+        answers, gpu, queue, walls = {}, {}, {}, {}
+        names = [name for name in ("ours",) + tuple(cfg.peers) if name in engines]
+
+        def once(name):
+            t0 = time.perf_counter()
+            answers[name] = engines[name].query(rs)
+            wall = time.perf_counter() - t0
+            if name == "ours":
+                gpu[name].append(engines[name].last_gpu_ms)
+                queue[name].append(engines[name].last_queue_ms)
+            return wall
+
+        for name in names:   # warm-up runs, one engine after the other
+            gpu[name], queue[name], walls[name] = [], [], []
+            self._step(f"trace ({tag}): {RAYSET_TITLES[rs.name]} ({name}, warm-up)",
+                       lambda name=name: [once(name) for _ in range(cfg.warmup)])
+            gpu[name].clear()
+            queue[name].clear()
+
+        def timed():
+            # the timed runs interleaved (ours, peer, peer, ours, ...): this machine's speed drifts over seconds (a
+            # shared host), and interleaving gives every engine the same conditions, so ratios hold
+            for _ in range(max(cfg.reps, 1)):
+                for name in names:
+                    walls[name].append(once(name))
+        self._step(f"trace ({tag}): {RAYSET_TITLES[rs.name]} (timed runs, interleaved)", timed)
+        n = len(rs)
+        for name in names:
+            wall = median(walls[name])
+            r = {"wall_ms": wall * 1e3, "runs_wall_ms": [w * 1e3 for w in walls[name]],
+                 "mrays_wall": n / wall / 1e6 if wall > 0 else None}
+            if name == "ours":
+                g, q = median(gpu[name]), median(queue[name])
+                r.update(gpu_ms=g, runs_gpu_ms=gpu[name], mrays_gpu=n / (g * 1e-3) / 1e6 if g > 0 else None,
+                         queue_ms=q, runs_queue_ms=queue[name], host_ms=wall * 1e3 - g,
+                         gpu_fraction_of_wall=g / (wall * 1e3),
+                         # timestamps cover the dispatch only; submit + wait adds a little, no more
+                         timestamps_plausible=bool(0.5 * q - 1.0 <= g <= 1.05 * q + 0.05))
+            out["results"][name] = r
+        ours = out["results"].get("ours")
+        for name in cfg.peers:
+            if name in out["results"] and ours:
+                peer = out["results"][name]
+                out["ratio"][name] = {"gpu": ours["mrays_gpu"] / peer["mrays_wall"] if ours.get("mrays_gpu") else None,
+                                      "wall": ours["mrays_wall"] / peer["mrays_wall"]}
+                out["agreement"][name] = agreement(rs.kind, answers["ours"], answers[name], diag)
+        return out
+
+    def run_frame(self) -> list[dict]:
+        out = []
+        for key in self._frame_scene_keys():
+            tag = {"generated": "generated", "real": "default", "target": "default-1light",
+                   "mid": f"generated-{self.cfg.mid_tris // 1000}k"}[key]
+            settings = {"ao_samples": 1} if key in ("target", "mid") else {}
+            scene = self._step(f"frame ({tag}): load scene", self._frame_scene, key)
+            out.append(self._step(f"frame ({tag}): render x{self.cfg.frame_reps}", self._frame, tag, scene,
+                                  settings))
+        return out
+
+    def _frame_scene(self, key):
+        if key != "target":
+            return self.scene(key)
+        if "target" not in self._scenes:   # the default scene with its first light only (a shallow copy)
+            s = copy.copy(self.scene("real"))
+            s.lights = list(s.lights[:1])
+            self._scenes["target"] = s
+        return self._scenes["target"]
+
+    def _frame(self, tag, scene, settings=None) -> dict:
+        cfg, r = self.cfg, self.renderer()
+        settings = dict(settings or {})
+        for _ in range(cfg.frame_warmup):
+            r.render(scene, **settings)
+        walls, timings = [], []
+        for _ in range(max(cfg.frame_reps, 1)):
+            t0 = time.perf_counter()
+            fr = r.render(scene, **settings)
+            walls.append((time.perf_counter() - t0) * 1e3)
+            timings.append(fr.timings)
+        passes = list(timings[-1])
+        per_pass = {p: median([t.get(p, 0.0) for t in timings]) for p in passes}
+
+        totals = [sum(t.values()) for t in timings]
+        # The viewer's steady state: frames submitted back to back without readback, so the GPU never idles between
+        # them (after an idle gap a GPU drops its clocks, so render() frames, each followed by a readback to numpy,
+        # run every pass slower). GPU ms per pass of the last of each run of 4 frames.
+        # warm-up: runs of 4 until half a second has passed (a GPU that idled while the host loaded the scene ramps
+        # its clocks back up only under sustained load, which a few frames of a large scene do not give)
+        warm_until, warmed = time.perf_counter() + 0.5, 0
+        while warmed < 4 or time.perf_counter() < warm_until:
+            for _ in range(4):
+                r.submit(scene, wait=False, **settings)
+            r.ctx.wait_idle()
+            warmed += 4
+        steady = []
+        for _ in range(max(cfg.frame_reps, 1)):
+            for _ in range(4):
+                r.submit(scene, wait=False, **settings)
+            r.ctx.wait_idle()
+            steady.append(r.last_timings())
+        steady_passes = {p: median([t.get(p, 0.0) for t in steady]) for p in steady[-1]}
+        steady_totals = [sum(t.values()) for t in steady]
+        # The viewer's path: submit() without readback or waiting; the host (Python + vkQueueSubmit) time per frame.
+        r.submit(scene, wait=False, **settings)
+        r.ctx.wait_idle()
+        host, host_cpu, sub_gpu = [], [], []
+        for _ in range(max(cfg.frame_reps, 1) * 2):
+            c0, t0 = time.thread_time(), time.perf_counter()
+            r.submit(scene, wait=False, **settings)
+            host.append((time.perf_counter() - t0) * 1e3)
+            host_cpu.append((time.thread_time() - c0) * 1e3)
+            r.ctx.wait_idle()
+            sub_gpu.append(sum(r.last_timings().values()))
+        lights = len(scene.lights)
+        # the rays the shadow pass traces for the first light: covered pixels with the light above their horizon
+        # (the bench's shadow ray set); counted last, since host work between the runs above lets a GPU's clocks
+        # drop
+        shadow_rays = int(first_light_rays(scene, fr)[-1].sum()) if lights == 1 else 0
+
+        def grays(ms):  # the shadow pass's rays per second (one light's rays; a frame of several lights traces more)
+            return shadow_rays / (ms * 1e-3) / 1e9 if lights == 1 and ms and ms > 0 else None
+
+        return {"shadow_rays": shadow_rays, "shadow_pass_grays": grays(per_pass.get("shadows")),
+                "viewer_shadow_pass_grays": grays(steady_passes.get("shadows")),
+                "scene": tag, "name": scene.name, "triangles": scene.triangle_count, "size": [r.width, r.height],
+                "lights": lights, "settings": dict(fr.settings), "passes_ms": per_pass,
+                "gpu_total_ms": median(totals), "runs_gpu_total_ms": totals,
+                "viewer_passes_ms": steady_passes, "viewer_gpu_total_ms": median(steady_totals),
+                "runs_viewer_gpu_total_ms": steady_totals,
+                "render_wall_ms": median(walls), "runs_render_wall_ms": walls,
+                "submit_host_ms": median(host), "submit_host_cpu_ms": median(host_cpu),
+                "submit_gpu_total_ms": median(sub_gpu)}
+

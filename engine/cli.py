@@ -1,4 +1,4 @@
-"""`hybrid` command line: render, info (and view, bench as they land).
+"""`hybrid` command line: render, view, bench, info.
 
 Every engine error is printed on one line as `error: <message>` and the exit status is 1.
 """
@@ -9,9 +9,16 @@ import logging
 import sys
 import time
 
+from .bench import add_arguments as add_bench_arguments
+from .bench import run_cli
 from .errors import ConfigError, EngineError
-
+from .renderer import Renderer
+from .scene import Scene
 from .settings import AOVS, MAX_FRAMES, SHADOW_MODES as SHADOW_CHOICES
+from .settings import check_png_path, parse_size
+from .viewer import add_arguments as add_view_arguments
+from .viewer import run_from_args
+from .vk import choose_device, describe_devices
 
 
 def _settings(args) -> dict:
@@ -26,9 +33,6 @@ def _settings(args) -> dict:
 
 
 def cmd_render(args) -> int:
-    from .renderer import Renderer
-    from .settings import check_png_path, parse_size
-    from .scene import Scene
 
     width, height = parse_size(args.size)
     if not 1 <= args.frames <= MAX_FRAMES:
@@ -56,7 +60,6 @@ def cmd_render(args) -> int:
 
 
 def cmd_info(args) -> int:
-    from .vk import choose_device, describe_devices
 
     devices = describe_devices()
     chosen = choose_device(devices, args.device)
@@ -68,12 +71,10 @@ def cmd_info(args) -> int:
 
 
 def cmd_view(args) -> int:
-    from .viewer import run_from_args
     return run_from_args(args)
 
 
 def cmd_bench(args) -> int:
-    from .bench import run_cli
     return run_cli(args)
 
 
@@ -107,12 +108,10 @@ def build_parser() -> argparse.ArgumentParser:
     r.set_defaults(func=cmd_render)
 
     v = sub.add_parser("view", help="open a scene in a window (keys: H), shaders hot-reloaded")
-    from .viewer import add_arguments as add_view_arguments
     add_view_arguments(v)
     v.set_defaults(func=cmd_view)
 
     b = sub.add_parser("bench", help="benchmarks: BVH build, trace throughput vs Embree/Open3D, frame passes")
-    from .bench import add_arguments as add_bench_arguments
     add_bench_arguments(b)
     b.set_defaults(func=cmd_bench)
 

@@ -6,7 +6,7 @@ import pytest
 import trimesh
 
 from engine import Camera, ConfigError, DirectionalLight, PointLight, Scene
-from engine import renderer as renderer_mod
+from engine.settings import check_settings
 
 CAM_A = Camera.look_at((2.5, 2.0, 3.0), (0, 0.3, 0))
 CAM_B = Camera.look_at((-2.0, 2.5, 3.0), (0, 0.3, 0))
@@ -48,7 +48,7 @@ def test_steady_frames_write_what_the_full_path_writes(make_renderer, monkeypatc
             if r is full:
                 r._steady = None           # every call of `full` takes the full path
             cfg = r.submit(scene, cam, wait=True, **settings)
-            assert cfg == renderer_mod._check_settings(dict(settings)), i
+            assert cfg == check_settings(dict(settings)), i
         assert ubo_bytes(fast) == ubo_bytes(full), f"call {i}: frame blocks differ"
         keys_fast, keys_full = list(fast._commands), list(full._commands)
         assert keys_fast == keys_full, i

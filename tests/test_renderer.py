@@ -126,24 +126,27 @@ def test_no_vulkan_driver_is_a_clear_error(tmp_path):
 def test_ray_passes_are_specialized_to_the_scenes_bvh(make_renderer):
     """The shadow and AO pipelines take the scene's BVH depth and node layout (SceneBVH.spec) when the scene
     changes, and a frame of a deeper scene afterwards matches another renderer's with the same history."""
-    from engine.rt.tracer import CPU_STACK_REGS, is_cpu
+    from engine.gpu.bvh import CPU_STACK_REGS
+    from engine.vk.device import is_cpu, work_shares
     r = make_renderer(48, 32)
     r.render(small_scene())
     depth = r.bvh_stats["depth"]
     for p in (r.shadows, r.ao):
-        spec = p.pipeline.spec
-        assert spec == {**r._scene_bvh.spec(r.ctx, postpone=p.postpone_leaves), 15: p.shares}
+        spec = p.values
+        assert spec == {**r._scene_bvh.spec(r.ctx, postpone=p.postpone_leaves), "WORK_SHARES": work_shares(r.ctx)}
         if is_cpu(r.ctx):
-            assert spec[3] == min(CPU_STACK_REGS, max(1, depth - 1)) and spec[8] and spec[9] == (depth - 1 > spec[3])
-            assert spec[11]   # image loads (the BVH's storage texel buffer views) on CPU devices
+            regs = spec["BVH_STACK_REGS"]
+            assert regs == min(CPU_STACK_REGS, max(1, depth - 1)) and spec["BVH_COMPRESSED"]
+            assert spec["BVH_STACK_RETRY"] == (depth - 1 > regs)
+            assert spec["BVH_IMAGE_FETCH"]   # image loads (the BVH's storage texel buffer views) on CPU devices
         else:
-            assert not spec[11]
+            assert not spec["BVH_IMAGE_FETCH"]
     rng = np.random.default_rng(2)
     soup = trimesh.Trimesh(rng.uniform(-1, 1, (6000, 3)), np.arange(6000).reshape(2000, 3), process=False)
     deep = Scene.from_trimesh(soup, camera=Camera.look_at((2, 2, 3), (0, 0, 0)))
     a = r.render(deep)
-    assert r.shadows.pipeline.spec == {**r._scene_bvh.spec(r.ctx, postpone=r.shadows.postpone_leaves),
-                                       15: r.shadows.shares}
+    assert r.shadows.values == {**r._scene_bvh.spec(r.ctx, postpone=r.shadows.postpone_leaves),
+                                "WORK_SHARES": work_shares(r.ctx)}
     fresh = make_renderer(48, 32)
     fresh.render(small_scene())      # the same frame history (AO samples follow the frame count)
     b = fresh.render(deep)
@@ -165,19 +168,20 @@ def test_odd_sizes_render_and_read_back_cleanly(make_renderer):
 
 
 def test_work_shares_do_not_change_the_frame(make_renderer, monkeypatch):
-    """The shadow, AO and denoise passes shade their 8x8 tiles in the order of shares.glsl (constant 15, the worker
+    """The shadow, AO and denoise passes shade their 8x8 tiles in the order of shares.glsl (WORK_SHARES, the worker
     threads of a CPU device): any share count gives the same masks, bit for bit, with a partial last row of
     tiles."""
-    from engine.passes import raypass
     from pathlib import Path
+
+    from engine.vk import device
     scene = Scene.load(Path(__file__).resolve().parents[1] / "scenes" / "default.toml")
     settings = dict(shadows="hard", ao=True, ao_samples=2)
     frames = []
     for shares in (1, 2, 3, 7):
-        monkeypatch.setattr(raypass, "work_shares", lambda ctx, n=shares: n)
+        monkeypatch.setattr(device, "work_shares", lambda ctx, n=shares: n)
         r = make_renderer(76, 44)
-        assert r.shadows.shares == shares and r.ao.pipeline.spec[15] == shares
-        assert r.denoise.pipeline.spec[15] == shares
+        assert r.shadows.values["WORK_SHARES"] == shares and r.ao.values["WORK_SHARES"] == shares
+        assert r.denoise.values["WORK_SHARES"] == shares
         frames.append(r.render(scene, **settings))
     for f in frames[1:]:
         assert np.array_equal(f.aov["shadow"], frames[0].aov["shadow"])
@@ -191,15 +195,16 @@ def test_a_failed_specialization_keeps_the_old_pipeline_and_its_spec(make_render
     from engine.errors import ShaderError
     r = make_renderer(32, 24)
     r.render(small_scene())
-    before, handle = dict(r.shadows.pipeline.spec), r.shadows.pipeline.handle
+    before, handle, values = dict(r.shadows.pipeline.spec), r.shadows.pipeline.handle, dict(r.shadows.values)
 
     def fail(*a, **k):
         raise ShaderError("shadow.comp: pipeline creation failed (test)")
 
     monkeypatch.setattr(r.shadows.pipeline, "rebuild", fail)
     with pytest.raises(ShaderError, match="test"):
-        r.shadows.specialize(r.library, {**before, 3: before[3] + 1})
+        r.shadows.specialize(BVH_STACK_REGS=values["BVH_STACK_REGS"] + 1)
     assert r.shadows.pipeline.spec == before and r.shadows.pipeline.handle == handle
+    assert r.shadows.values == values
 
 
 def test_closed_or_foreign_context_is_a_clear_error():

@@ -109,7 +109,8 @@ def test_short_register_stack_retry_in_the_passes(make_renderer, monkeypatch):
     """The renderer's shadow and AO passes walk a ray again inline (bvh.glsl BVH_BOTH_) when a short register stack
     lost an entry: with 1 entry (most rays overflow it), on both layouts, the shadow masks and AO are exactly those
     of the default traversal."""
-    import engine.rt.tracer as tracer_mod
+    import engine.gpu.bvh as gpu_bvh
+    from engine.vk.device import is_cpu
     mesh, scene = box_on_ground()
     ball = trimesh.creation.icosphere(subdivisions=3, radius=0.7)   # a deeper tree than the boxes' alone
     ball.apply_translation((-2.0, 0.7, 0.5))
@@ -119,13 +120,13 @@ def test_short_register_stack_retry_in_the_passes(make_renderer, monkeypatch):
     for layout in ("binary", "wide"):
         base = make_renderer(96, 72, bvh_layout=layout).render(scene, **settings)
         with monkeypatch.context() as m:
-            m.setattr(tracer_mod, "CPU_STACK_REGS", 1)
-            m.setattr(tracer_mod, "CPU_WIDE_STACK_REGS", 1)
+            m.setattr(gpu_bvh, "CPU_STACK_REGS", 1)
+            m.setattr(gpu_bvh, "CPU_WIDE_STACK_REGS", 1)
             r = make_renderer(96, 72, bvh_layout=layout)
             short = r.render(scene, **settings)
-        if tracer_mod.is_cpu(r.ctx):
-            spec = r.shadows.pipeline.spec
-            assert spec[3] == 1 and spec[9], spec
+        if is_cpu(r.ctx):
+            spec = r.shadows.values
+            assert spec["BVH_STACK_REGS"] == 1 and spec["BVH_STACK_RETRY"], spec
         assert np.array_equal(short.aov["shadow"], base.aov["shadow"])
         assert np.abs(short.aov["ao"] - base.aov["ao"]).max() < 1e-6
     assert (base.aov["ao"] < 0.99).mean() > 0.01 and (base.aov["shadow"] == 0).mean() > 0.01

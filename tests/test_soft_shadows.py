@@ -323,7 +323,7 @@ def test_cli_soft_shadows_and_aov(tmp_path):
 def test_light_masks_must_fit_one_storage_buffer():
     from types import SimpleNamespace
 
-    from engine.renderer import Targets
+    from engine.passes.targets import Targets
     lavapipe = SimpleNamespace(limits=SimpleNamespace(maxStorageBufferRange=128 << 20))
     Targets.check_capacity(lavapipe, 1920, 1080, 16)     # 126.6 MiB: fits
     Targets.check_capacity(lavapipe, 2560, 1600, 8)
@@ -332,7 +332,7 @@ def test_light_masks_must_fit_one_storage_buffer():
 
 
 def test_denoiser_reads_through_texel_views_or_storage_buffers_alike(make_renderer, monkeypatch):
-    """denoise.comp constant 0 (CPU devices: the inputs through their R32F storage texel views): both read paths
+    """denoise.comp's DENOISE_TEXEL (CPU devices: the inputs through their R32F storage texel views): both read paths
     filter the soft shadow masks and AO to the same values, bit for bit, over several frames and lights."""
     from engine.passes import denoise
     scene = penumbra_scene(lights=[PointLight(LIGHT, intensity=16.0, radius=1.0),
@@ -341,7 +341,7 @@ def test_denoiser_reads_through_texel_views_or_storage_buffers_alike(make_render
     for texel in (False, True):
         monkeypatch.setattr(denoise, "DENOISE_TEXEL", texel)
         r = make_renderer(W, H)
-        assert r.denoise.pipeline.spec[0] == texel
+        assert r.denoise.values["DENOISE_TEXEL"] == texel
         for _ in range(3):
             f = r.render(scene, shadows="soft", shadow_samples=1, ao=True, ao_samples=1)
         frames[texel] = f
@@ -349,16 +349,16 @@ def test_denoiser_reads_through_texel_views_or_storage_buffers_alike(make_render
     assert np.array_equal(a.aov["shadow"], b.aov["shadow"]) and np.array_equal(a.aov["ao"], b.aov["ao"])
     assert not np.array_equal(a.aov["shadow"], a.aov["shadow_raw"]), "the denoiser ran"
     # a signal larger than a texel view may be (a device with a small maxTexelBufferElements): storage buffers
-    import engine.renderer as renderer_mod
-    real = renderer_mod.Signal.__init__
+    from engine.passes.targets import Signal
+    real = Signal.__init__
 
     def small_views(self, *args, **kw):
         real(self, *args, **kw)
         self.texel_ok = False
     monkeypatch.setattr(denoise, "DENOISE_TEXEL", True)
-    monkeypatch.setattr(renderer_mod.Signal, "__init__", small_views)
+    monkeypatch.setattr(Signal, "__init__", small_views)
     r = make_renderer(W, H)
-    assert r.denoise.pipeline.spec[0] is False
+    assert r.denoise.values["DENOISE_TEXEL"] is False
     for _ in range(3):
         f = r.render(scene, shadows="soft", shadow_samples=1, ao=True, ao_samples=1)
     assert np.array_equal(f.aov["shadow"], a.aov["shadow"]) and np.array_equal(f.aov["ao"], a.aov["ao"])

@@ -6,6 +6,7 @@ import pytest
 import trimesh
 
 from engine import ConfigError, SceneError, Tracer
+import engine.gpu.bvh as gpu_bvh
 from engine.rt.reference import reference_intersect, reference_occluded
 from helpers import terrace
 
@@ -147,27 +148,27 @@ def test_staged_buffers_give_the_same_answers():
         assert not staged.validation_errors and not plain.validation_errors
 
 
-VARIANTS = [{0: False, 1: False, 2: False}, {0: True, 1: False, 2: False},
-            {0: False, 1: True, 2: False}, {0: True, 1: True, 2: False},
-            {0: False, 1: False, 2: True, 3: 32}, {0: True, 1: True, 2: True, 3: 32},
-            {0: True, 1: True, 2: True, 3: 32, 10: True},
-            {0: True, 1: True, 2: True, 3: 2, 9: True}, {0: True, 1: True, 2: True, 3: 1, 9: True, 10: True},
-            {0: True, 1: True, 2: True, 3: 3, 9: True, "uncompressed": True},
-            {0: False, 1: False, 2: False, 10: True, "uncompressed": True},
-            {0: True, 1: True, 2: True, 3: 2, 9: True, 10: True, 11: True},
-            {0: False, 1: False, 2: False, 11: True, "uncompressed": True},
-            {0: True, 1: True, 2: True, 3: 3, 9: True, 11: True, "uncompressed": True}]
+VARIANTS = [{"BVH_BRANCHLESS_PUSH": False, "BVH_POSTPONE_LEAVES": False, "BVH_REG_STACK": False}, {"BVH_BRANCHLESS_PUSH": True, "BVH_POSTPONE_LEAVES": False, "BVH_REG_STACK": False},
+            {"BVH_BRANCHLESS_PUSH": False, "BVH_POSTPONE_LEAVES": True, "BVH_REG_STACK": False}, {"BVH_BRANCHLESS_PUSH": True, "BVH_POSTPONE_LEAVES": True, "BVH_REG_STACK": False},
+            {"BVH_BRANCHLESS_PUSH": False, "BVH_POSTPONE_LEAVES": False, "BVH_REG_STACK": True, "BVH_STACK_REGS": 32}, {"BVH_BRANCHLESS_PUSH": True, "BVH_POSTPONE_LEAVES": True, "BVH_REG_STACK": True, "BVH_STACK_REGS": 32},
+            {"BVH_BRANCHLESS_PUSH": True, "BVH_POSTPONE_LEAVES": True, "BVH_REG_STACK": True, "BVH_STACK_REGS": 32, "BVH_SELECT_MINMAX": True},
+            {"BVH_BRANCHLESS_PUSH": True, "BVH_POSTPONE_LEAVES": True, "BVH_REG_STACK": True, "BVH_STACK_REGS": 2, "BVH_STACK_RETRY": True}, {"BVH_BRANCHLESS_PUSH": True, "BVH_POSTPONE_LEAVES": True, "BVH_REG_STACK": True, "BVH_STACK_REGS": 1, "BVH_STACK_RETRY": True, "BVH_SELECT_MINMAX": True},
+            {"BVH_BRANCHLESS_PUSH": True, "BVH_POSTPONE_LEAVES": True, "BVH_REG_STACK": True, "BVH_STACK_REGS": 3, "BVH_STACK_RETRY": True, "uncompressed": True},
+            {"BVH_BRANCHLESS_PUSH": False, "BVH_POSTPONE_LEAVES": False, "BVH_REG_STACK": False, "BVH_SELECT_MINMAX": True, "uncompressed": True},
+            {"BVH_BRANCHLESS_PUSH": True, "BVH_POSTPONE_LEAVES": True, "BVH_REG_STACK": True, "BVH_STACK_REGS": 2, "BVH_STACK_RETRY": True, "BVH_SELECT_MINMAX": True, "BVH_IMAGE_FETCH": True},
+            {"BVH_BRANCHLESS_PUSH": False, "BVH_POSTPONE_LEAVES": False, "BVH_REG_STACK": False, "BVH_IMAGE_FETCH": True, "uncompressed": True},
+            {"BVH_BRANCHLESS_PUSH": True, "BVH_POSTPONE_LEAVES": True, "BVH_REG_STACK": True, "BVH_STACK_REGS": 3, "BVH_STACK_RETRY": True, "BVH_IMAGE_FETCH": True, "uncompressed": True}]
 
 
 def _variant_tracer(monkeypatch, spec, v, f):
     """A Tracer whose bvh_spec is `spec` (constant 8 follows the nodes uploaded: compressed unless the spec says
     "uncompressed")."""
-    import engine.rt.tracer as tracer_mod
+    import engine.gpu.bvh as gpu_bvh
     spec = dict(spec)
     if spec.pop("uncompressed", False):
-        monkeypatch.setattr(tracer_mod, "compress_nodes", lambda nodes: None)
-    monkeypatch.setattr(tracer_mod, "bvh_spec",
-                        lambda ctx, depth=None, layout=None, compressed=False, **kw: {**spec, 8: compressed})
+        monkeypatch.setattr(gpu_bvh, "compress_nodes", lambda nodes: None)
+    monkeypatch.setattr(gpu_bvh, "bvh_spec", lambda ctx, depth=None, layout=None, compressed=False, **kw:
+                        {**spec, "BVH_COMPRESSED": compressed})
     return Tracer(v, f, validation=True)
 
 
@@ -194,7 +195,7 @@ def test_workgroup_shares_permute_the_ray_blocks():
 
 
 def test_rays_through_texel_buffers_match_storage_buffers(monkeypatch):
-    """rays.glsl constant 13: rays read (and occlusion results written) through texel buffer views instead of the
+    """rays.glsl's RAYS_TEXEL: rays read (and occlusion results written) through texel buffer views instead of the
     storage buffers; both paths, for both query kinds, give the same answers, over several batches."""
     import engine.rt.tracer as tracer_mod
     v, f = terrace(1200)
@@ -206,7 +207,7 @@ def test_rays_through_texel_buffers_match_storage_buffers(monkeypatch):
         monkeypatch.setattr(tracer_mod, "RAYS_TEXEL_KINDS", kinds)
         with Tracer(v, f, validation=True, batch_size=2048) as t:
             cpu = tracer_mod.is_cpu(t.ctx)
-            assert t.pipelines["occluded"].spec[13] == (cpu and bool(kinds))
+            assert t.specs["occluded"]["RAYS_TEXEL"] == (cpu and bool(kinds))
             hits = t.intersect(o, d, tmax)
             answers.append((t.occluded(o, d, tmax), hits.prim, hits.t))
             assert not t.validation_errors
@@ -222,7 +223,7 @@ def test_every_traversal_variant_gives_the_same_answers(monkeypatch, spec):
     the retry walk of a short register stack, compressed nodes, select min/max) select code paths per device;
     each combination answers exactly as the default one of this device, and as the reference. (The default here,
     on lavapipe: compressed nodes, a register stack of min(CPU_STACK_REGS, the BVH's depth - 1) entries.)"""
-    from engine.rt.tracer import CPU_OCCLUSION_STACK_REGS, CPU_STACK_REGS
+    from engine.gpu.bvh import CPU_OCCLUSION_STACK_REGS, CPU_STACK_REGS
     v, f = meshes()["soup"]
     rng = np.random.default_rng(13)
     o, d = random_rays(rng, 3000, (v.min(0), v.max(0)))
@@ -230,10 +231,10 @@ def test_every_traversal_variant_gives_the_same_answers(monkeypatch, spec):
     with Tracer(v, f, validation=True) as default:
         occ0, hit0 = default.occluded(o, d, tmax), default.intersect(o, d)
         need = max(1, default.stats["depth"] - 1)
-        assert default.pipelines["occluded"].spec[3] == min(CPU_OCCLUSION_STACK_REGS, need)
-        dspec = default.pipelines["intersect"].spec
-        assert dspec[3] == min(CPU_STACK_REGS, need)
-        assert dspec[8] and default.scene.compressed and dspec[11]
+        assert default.specs["occluded"]["BVH_STACK_REGS"] == min(CPU_OCCLUSION_STACK_REGS, need)
+        dspec = default.specs["intersect"]
+        assert dspec["BVH_STACK_REGS"] == min(CPU_STACK_REGS, need)
+        assert dspec["BVH_COMPRESSED"] and default.scene.compressed and dspec["BVH_IMAGE_FETCH"]
     with _variant_tracer(monkeypatch, spec, v, f) as variant:
         assert variant.scene.compressed == ("uncompressed" not in spec)
         assert np.array_equal(variant.occluded(o, d, tmax), occ0)
@@ -253,7 +254,8 @@ def test_short_stack_retry_matches_the_full_stack(monkeypatch, tracers, name):
     tmax = rng.uniform(0.1, 4.0, len(o)).astype(np.float32)
     tmax[::4] = np.inf
     occ0, hit0 = tracers[name].occluded(o, d, tmax), tracers[name].intersect(o, d, tmax)
-    with _variant_tracer(monkeypatch, {0: True, 1: True, 2: True, 3: 1, 9: True, 10: True}, v, f) as variant:
+    with _variant_tracer(monkeypatch, {"BVH_BRANCHLESS_PUSH": True, "BVH_POSTPONE_LEAVES": True, "BVH_REG_STACK": True,
+                                            "BVH_STACK_REGS": 1, "BVH_STACK_RETRY": True, "BVH_SELECT_MINMAX": True}, v, f) as variant:
         # the retry in a second dispatch over the rays the first left unresolved (trace_*_retry.comp)
         assert variant.two_pass == {"occluded": True, "intersect": True}
         assert np.array_equal(variant.occluded(o, d, tmax), occ0)
@@ -266,7 +268,7 @@ def test_short_stack_retry_matches_the_full_stack(monkeypatch, tracers, name):
 
 @pytest.mark.parametrize("name", list(meshes()))
 def test_image_loads_match_texel_fetches(monkeypatch, tracers, name):
-    """Specialization constant 11 reads the BVH through its storage texel buffer views (imageLoad; on by default on
+    """BVH_IMAGE_FETCH reads the BVH through its storage texel buffer views (imageLoad; on by default on
     CPU devices) instead of the uniform texel buffers: exactly the same answers, both layouts, every mesh."""
     import engine.rt.tracer as tracer_mod
     v, f = meshes()[name]
@@ -275,11 +277,11 @@ def test_image_loads_match_texel_fetches(monkeypatch, tracers, name):
     tmax = rng.uniform(0.1, 4.0, len(o)).astype(np.float32)
     tmax[::4] = np.inf
     base = tracers[name]
-    flipped = not base.pipelines["occluded"].spec[11]
-    real = tracer_mod.bvh_spec
-    monkeypatch.setattr(tracer_mod, "bvh_spec", lambda *a, **kw: {**real(*a, **kw), 11: flipped})
+    flipped = not base.specs["occluded"]["BVH_IMAGE_FETCH"]
+    real = gpu_bvh.bvh_spec
+    monkeypatch.setattr(gpu_bvh, "bvh_spec", lambda *a, **kw: {**real(*a, **kw), "BVH_IMAGE_FETCH": flipped})
     with Tracer(v, f, validation=True, layout=base.layout) as other:
-        assert other.pipelines["occluded"].spec[11] == flipped and other.layout == base.layout
+        assert other.specs["occluded"]["BVH_IMAGE_FETCH"] == flipped and other.layout == base.layout
         assert np.array_equal(other.occluded(o, d, tmax), base.occluded(o, d, tmax))
         a, b = other.intersect(o, d, tmax), base.intersect(o, d, tmax)
         assert np.array_equal(a.prim, b.prim) and np.array_equal(a.t, b.t)
@@ -288,10 +290,12 @@ def test_image_loads_match_texel_fetches(monkeypatch, tracers, name):
 
 
 @pytest.mark.parametrize("name", list(meshes()))
-@pytest.mark.parametrize("over", [{12: True, 3: 1, 9: True}, {12: True, 3: 2, 9: True, 11: False}, {12: False}],
+@pytest.mark.parametrize("over", [{"BVH_WIDE_CPU": True, "BVH_STACK_REGS": 1, "BVH_STACK_RETRY": True},
+                                  {"BVH_WIDE_CPU": True, "BVH_STACK_REGS": 2, "BVH_STACK_RETRY": True,
+                                   "BVH_IMAGE_FETCH": False}, {"BVH_WIDE_CPU": False}],
                          ids=["cpu-1-entry", "cpu-2-entries-texel", "gpu-walk"])
 def test_wide_traversals_give_the_same_answers(monkeypatch, name, over):
-    """The 8-wide layout's two traversals (constant 12: the lavapipe one, postponed leaves and a register stack of
+    """The 8-wide layout's two traversals (BVH_WIDE_CPU: the lavapipe one, postponed leaves and a register stack of
     node groups with a retry walk; off: the GPU one) answer alike on every mesh, with a register stack of 1 or 2
     entries that overflows on most rays of the deeper trees (the retry walk then gives the answer), and as the
     reference does."""
@@ -301,17 +305,18 @@ def test_wide_traversals_give_the_same_answers(monkeypatch, name, over):
     o, d = random_rays(rng, 3000, (v.min(0), v.max(0)))
     tmax = rng.uniform(0.1, 4.0, len(o)).astype(np.float32)
     tmax[::4] = np.inf
-    real = tracer_mod.bvh_spec
+    real = gpu_bvh.bvh_spec
     with Tracer(v, f, validation=True, layout="wide") as base:
-        spec = base.pipelines["occluded"].spec
+        spec = base.specs["occluded"]
         if tracer_mod.is_cpu(base.ctx):
-            assert spec[12] and spec[3] == min(tracer_mod.CPU_WIDE_STACK_REGS, max(1, base.stats["wide_levels"] - 1))
+            regs = min(gpu_bvh.CPU_WIDE_STACK_REGS, max(1, base.stats["wide_levels"] - 1))
+            assert spec["BVH_WIDE_CPU"] and spec["BVH_STACK_REGS"] == regs
         else:
-            assert not spec[12]
+            assert not spec["BVH_WIDE_CPU"]
         occ0, hit0 = base.occluded(o, d, tmax), base.intersect(o, d, tmax)
-        monkeypatch.setattr(tracer_mod, "bvh_spec", lambda *a, **kw: {**real(*a, **kw), **over})
+        monkeypatch.setattr(gpu_bvh, "bvh_spec", lambda *a, **kw: {**real(*a, **kw), **over})
         with Tracer(v, f, validation=True, layout="wide") as other:
-            assert all(other.pipelines["occluded"].spec[k] == x for k, x in over.items())
+            assert all(other.specs["occluded"][k] == x for k, x in over.items())
             assert np.array_equal(other.occluded(o, d, tmax), occ0)
             hit1 = other.intersect(o, d, tmax)
             # closest hit: the same t; of two triangles hit at exactly that t either may be reported
@@ -333,10 +338,11 @@ def test_second_dispatch_over_several_batches(monkeypatch, tracers):
     base = tracers["sphere"]
     occ0, hit0 = base.occluded(o, d, tmax), base.intersect(o, d, tmax)
     import engine.rt.tracer as tracer_mod
-    real = tracer_mod.bvh_spec
-    # (12: the wide layout's register-stack walk, which is the CPU devices' and otherwise off)
-    monkeypatch.setattr(tracer_mod, "bvh_spec",
-                        lambda *a, **kw: {**real(*a, **kw), 2: True, 3: 1, 9: True, 12: True})
+    real = gpu_bvh.bvh_spec
+    # (BVH_WIDE_CPU: the wide layout's register-stack walk, which is the CPU devices' and otherwise off)
+    monkeypatch.setattr(gpu_bvh, "bvh_spec",
+                        lambda *a, **kw: {**real(*a, **kw), "BVH_REG_STACK": True, "BVH_STACK_REGS": 1,
+                                                         "BVH_STACK_RETRY": True, "BVH_WIDE_CPU": True})
     with Tracer(v, f, batch_size=700, validation=True, layout=base.layout) as small, \
             Tracer(v, f, validation=True, layout=base.layout) as one:
         assert small.two_pass == {"occluded": True, "intersect": True}
@@ -358,9 +364,9 @@ def test_uncompressed_nodes_give_the_same_answers(monkeypatch, tracers):
     rng = np.random.default_rng(19)
     o, d = random_rays(rng, 3000, (v.min(0), v.max(0)))
     tmax = rng.uniform(0.1, 4.0, len(o)).astype(np.float32)
-    monkeypatch.setattr(tracer_mod, "compress_nodes", lambda nodes: None)
+    monkeypatch.setattr(gpu_bvh, "compress_nodes", lambda nodes: None)
     with Tracer(v, f, validation=True) as plain:
-        assert not plain.scene.compressed and not plain.pipelines["occluded"].spec[8]
+        assert not plain.scene.compressed and not plain.specs["occluded"]["BVH_COMPRESSED"]
         assert np.array_equal(plain.occluded(o, d, tmax), tracers["thin_box"].occluded(o, d, tmax))
         a, b = plain.intersect(o, d), tracers["thin_box"].intersect(o, d)
         assert np.array_equal(a.prim, b.prim) and np.array_equal(a.t, b.t)

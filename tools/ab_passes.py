@@ -20,6 +20,7 @@ from ab_traversal import VARIANTS, load, overriding  # noqa: E402
 
 from engine.bench.rays import gbuffer_raysets  # noqa: E402
 from engine.bench.timing import median  # noqa: E402
+from engine.gpu import bvh as gpu_bvh  # noqa: E402
 from engine.passes import raypass  # noqa: E402
 from engine import renderer as renderer_mod  # noqa: E402
 from engine.renderer import Renderer  # noqa: E402
@@ -27,12 +28,12 @@ from engine.renderer import Renderer  # noqa: E402
 
 def make_renderer(w, h, name):
     layout, over, *_ = VARIANTS[name]
-    real = raypass.bvh_spec
-    raypass.bvh_spec = overriding(real, over)
+    real = gpu_bvh.bvh_spec
+    raypass.bvh_spec = gpu_bvh.bvh_spec = overriding(real, over)
     try:
         return Renderer(w, h, bvh_layout=layout)
     finally:
-        raypass.bvh_spec = real
+        raypass.bvh_spec = gpu_bvh.bvh_spec = real
 
 
 @contextlib.contextmanager

@@ -25,18 +25,20 @@ from engine.bench.config import DEFAULT_SCENE  # noqa: E402
 from engine.bench.rays import gbuffer_raysets, random_rayset  # noqa: E402
 from engine.bench.timing import median  # noqa: E402
 from engine.renderer import Renderer  # noqa: E402
+from engine.gpu import bvh as gpu_bvh  # noqa: E402
 from engine.rt import tracer as tracer_mod  # noqa: E402
 
-VARIANTS = {  # name: (layout, {constant: value} over "plain", None = this device's own constants)
+VARIANTS = {  # name: (layout, {constant name: value} over "plain", None = this device's own constants)
     "device": ("binary", None),
     "plain": ("binary", {}),
-    "postpone": ("binary", {1: True}),
-    "regs": ("binary", {2: True}),
-    "postpone+regs": ("binary", {1: True, 2: True}),
-    "push": ("binary", {0: True}),
+    "postpone": ("binary", {"BVH_POSTPONE_LEAVES": True}),
+    "regs": ("binary", {"BVH_REG_STACK": True}),
+    "postpone+regs": ("binary", {"BVH_POSTPONE_LEAVES": True, "BVH_REG_STACK": True}),
+    "push": ("binary", {"BVH_BRANCHLESS_PUSH": True}),
     "wide": ("wide", {}),
-    "wide+push": ("wide", {0: True}),
-    "lvp2": ("binary", {0: True, 1: True, 2: True, 11: False}),   # the older CPU constants (texel fetches)
+    "wide+push": ("wide", {"BVH_BRANCHLESS_PUSH": True}),
+    "lvp2": ("binary", {"BVH_BRANCHLESS_PUSH": True, "BVH_POSTPONE_LEAVES": True, "BVH_REG_STACK": True,
+                        "BVH_IMAGE_FETCH": False}),                # the older CPU constants (texel fetches)
     "wide-device": ("wide", None),                                # the wide layout with this device's constants
     "plain-tree": ("binary", None, {"lift": False}),               # this device's constants, the tree without
                                                                    # the lifted large triangles (builder.py)
@@ -56,7 +58,7 @@ def overriding(real, over):
     def spec(ctx, depth=None, layout=None, compressed=False, **kw):
         s = real(ctx, depth, layout=layout, compressed=compressed, **kw)
         if over is not None:
-            s.update({0: False, 1: False, 2: False})
+            s.update({"BVH_BRANCHLESS_PUSH": False, "BVH_POSTPONE_LEAVES": False, "BVH_REG_STACK": False})
             s.update(over)
         return s
     return spec
@@ -64,14 +66,14 @@ def overriding(real, over):
 
 def make_tracer(v, f, name):
     layout, over, *build = VARIANTS[name]
-    real, real_build = tracer_mod.bvh_spec, tracer_mod.build_bvh
-    tracer_mod.bvh_spec = overriding(real, over)
+    real, real_build = gpu_bvh.bvh_spec, tracer_mod.build_bvh
+    gpu_bvh.bvh_spec = overriding(real, over)
     if build:
         tracer_mod.build_bvh = lambda v, f: real_build(v, f, **build[0])
     try:
         return tracer_mod.Tracer(v, f, layout=layout)
     finally:
-        tracer_mod.bvh_spec, tracer_mod.build_bvh = real, real_build
+        gpu_bvh.bvh_spec, tracer_mod.build_bvh = real, real_build
 
 
 def main():
@@ -95,7 +97,7 @@ def main():
         t0 = time.perf_counter()
         tr = {name: make_tracer(v, f, name) for name in a.variants}
         print(f"{key}: {len(f):,} triangles, {len(tr)} tracers in {time.perf_counter() - t0:.1f} s; "
-              f"spec {tr[a.variants[0]].pipelines['occluded'].spec}", flush=True)
+              f"spec {tr[a.variants[0]].specs['occluded']}", flush=True)
         for rs in sets:
             ms = {k: [] for k in tr}
             ans = {}

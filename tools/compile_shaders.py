@@ -1,5 +1,6 @@
 #!/usr/bin/env python3
-"""Compile shaders/glsl/*.{vert,frag,comp} into shaders/spv/ and rewrite the manifest of source hashes.
+"""Regenerate shaders/glsl/include/interface.glsl (engine/passes/interface.py), compile
+shaders/glsl/*.{vert,frag,comp} into shaders/spv/ and rewrite the manifest of source hashes.
 
     python tools/compile_shaders.py           # rebuild every shader + manifest
     python tools/compile_shaders.py --check   # exit 1 and list the shaders whose SPIR-V is stale
@@ -10,6 +11,7 @@ from pathlib import Path
 
 sys.path.insert(0, str(Path(__file__).resolve().parent.parent))
 from engine.errors import ShaderError  # noqa: E402
+from engine.passes.interface import glsl_text, write_glsl  # noqa: E402
 from engine.shaders import GLSL_DIR, SPV_DIR, compile_all, stale_shaders  # noqa: E402
 
 
@@ -19,11 +21,15 @@ def main() -> int:
     args = ap.parse_args()
     if args.check:
         stale = stale_shaders(GLSL_DIR, SPV_DIR)
+        if (GLSL_DIR / "include" / "interface.glsl").read_text() != glsl_text():
+            stale.insert(0, "include/interface.glsl (generated)")
         if stale:
             print("stale SPIR-V (run tools/compile_shaders.py): " + ", ".join(stale))
             return 1
         print("SPIR-V up to date")
         return 0
+    if write_glsl():
+        print("rewrote shaders/glsl/include/interface.glsl")
     try:
         manifest = compile_all(GLSL_DIR, SPV_DIR)
     except ShaderError as exc:

@@ -7,38 +7,50 @@ lighting pass reads. One descriptor set per iteration, so the recorded command b
 from __future__ import annotations
 
 import numpy as np
-import vulkan as vk
 
-from ..rt.tracer import is_cpu
-from ..vk import SB, SI, STB, UB, ComputePipeline, DescriptorSet, memory_barrier
-from .accumulate import FILTER_FIRST, channels
-from . import raypass
+from ..vk import DescriptorSet
+from ..vk import device
+from .accumulate import channels
+from .base import ComputePass, read, write
+from .interface import FILTER_FIRST
 
 STEPS = (1, 2, 4, 8)
-#: denoise.comp constant 0 (the inputs through texel buffer views): None = on CPU devices.
+#: DENOISE_TEXEL (the inputs through texel buffer views): None = on CPU devices.
 DENOISE_TEXEL = None
+SIGNALS = ("masks", "ao")
 
 
-class DenoisePass:
+def _routed(kind):
+    """The per-iteration bindings of both signals (bound by `bind`, not from a fixed resource)."""
+    out = {}
+    for sig in SIGNALS:
+        out.update({f"{sig}_in": read(kind), f"{sig}_in_var": read(kind), f"{sig}_out": write(kind),
+                    f"{sig}_out_var": write(kind)})
+    return out
+
+
+class DenoisePass(ComputePass):
     name = "denoise"
-    shaders = ("denoise.comp",)
+    shader = "denoise.comp"
+    bindings = {
+        "frame": read("uniform", "frame"),
+        "g_position": read("image", "position"), "g_normal": read("image", "normal"),
+        "g_normal8": read("image", "normal8"), "hist_len": read("buffer", "len_cur"),
+        **_routed("buffer"),
+        **{f"{sig}_{part}_texels": read("storage_texel") for sig in SIGNALS for part in ("in", "in_var")},
+    }
 
-    def __init__(self, ctx, library, frame_ubo, targets):
-        self.sets = []
-        for _ in STEPS:
-            s = DescriptorSet(ctx, [(0, UB), (1, SI), (2, SI)] + [(b, SB) for b in range(3, 12)] + [(12, SI)]
-                              + [(b, STB) for b in range(13, 17)])
-            s.buffer(0, frame_ubo)
-            self.sets.append(s)
-        # constant 0: the inputs through their R32F storage texel views on CPU devices (llvmpipe runs a storage
-        # buffer load lane by lane, and the filter loads 25 taps per pixel); storage buffers on GPUs (the texel
-        # views were 12% slower on an H200) and where a signal is larger than a texel view may be. Constant 15: the
-        # 8x8 tiles in shares.glsl's order (the background and untouched pixels make some image rows cheaper)
-        self.library = library
-        self.texel = DENOISE_TEXEL if DENOISE_TEXEL is not None else is_cpu(ctx)
-        self.pipeline = ComputePipeline(ctx, library.get(self.shaders[0]), [self.sets[0]], push_size=8,
-                                        spec={0: self._texel(targets), 15: raypass.work_shares(ctx)}, name=self.name)
-        self.bind_targets(targets)
+    def __init__(self, ctx, library, resources, targets):
+        # CPU devices read the inputs through R32F texel views (llvmpipe runs storage-buffer loads lane by lane);
+        # GPUs read the storage buffers, as does any device where a signal is larger than a texel view may be
+        self.texel = DENOISE_TEXEL if DENOISE_TEXEL is not None else device.is_cpu(ctx)
+        self.targets = targets
+        super().__init__(ctx, library, resources)
+        self.sets = [self.set] + [DescriptorSet(ctx, self.interface.set(0).values()) for _ in STEPS[1:]]
+        self.bind(resources, targets)
+
+    def constants(self, ctx) -> dict:
+        return {"DENOISE_TEXEL": self._texel(self.targets), "WORK_SHARES": device.work_shares(ctx)}
 
     def _texel(self, t) -> bool:
         return bool(self.texel) and all(sig.texel_ok for sig in t.signals.values())
@@ -53,30 +65,35 @@ class DenoisePass:
             dst = (sig.val_b, sig.var_b) if i % 2 == 0 else (sig.cur, sig.var_a)
         return src + dst
 
-    def bind_targets(self, t):
-        if self.pipeline.spec.get(0) != self._texel(t):  # new targets whose signals do not fit a view, or again do
-            self.pipeline.specialize(self.library.get(self.shaders[0]), {**self.pipeline.spec, 0: self._texel(t)})
+    def bind(self, resources, targets=None):
+        if targets is None or not hasattr(self, "sets"):   # (the base class's first bind, before the sets exist)
+            self.resources = resources
+            return
+        self.targets = targets
+        self.specialize(DENOISE_TEXEL=self._texel(targets))   # new targets whose signals fit a view, or do not
         last = len(STEPS) - 1
+        self.routes = []
         for i, s in enumerate(self.sets):
-            s.image(1, t.position).image(2, t.normal).image(12, t.normal8)
-            for base, texel, name in ((3, 13, "masks"), (7, 15, "ao")):
-                sig = t.signals[name]
+            reads, writes = [], []
+            for binding, use in self.bindings.items():
+                if use.resource:
+                    s.bind(binding, resources[use.resource])
+            for name in SIGNALS:
+                sig = targets.signals[name]
                 route = self.route(sig, i, last)
-                for k, buf in enumerate(route):
-                    s.buffer(base + k, buf)
+                for part, buf in zip(("in", "in_var", "out", "out_var"), route):
+                    s.bind(f"{name}_{part}", buf)
                 views = {id(getattr(sig, part)): view for part, view in sig.views.items()}
-                s.texel_buffer(texel, views[id(route[0])]).texel_buffer(texel + 1, views[id(route[1])])
-            s.buffer(11, t.len_cur)
+                s.bind(f"{name}_in_texels", views[id(route[0])]).bind(f"{name}_in_var_texels", views[id(route[1])])
+                reads += route[:2]
+                writes += route[2:]
+            self.routes.append((reads, writes))
+        self.resources = resources
 
-    def reload(self, library):
-        self.pipeline.rebuild(library.get(self.shaders[0]))
-
-    def record(self, cmd, targets, flags: int, n_lights: int):
-        gx, gy = (targets.width + 7) // 8, (targets.height + 7) // 8
+    def record(self, rec, targets, flags: int, n_lights: int):
+        groups = self.tiles(targets.width, targets.height, channels(flags, n_lights))
+        fixed = self.reads
         for i, (step, s) in enumerate(zip(STEPS, self.sets)):
-            if i:
-                memory_barrier(cmd, vk.VK_PIPELINE_STAGE_COMPUTE_SHADER_BIT, vk.VK_PIPELINE_STAGE_COMPUTE_SHADER_BIT,
-                               vk.VK_ACCESS_SHADER_WRITE_BIT | vk.VK_ACCESS_SHADER_READ_BIT,
-                               vk.VK_ACCESS_SHADER_READ_BIT | vk.VK_ACCESS_SHADER_WRITE_BIT)
             push = np.array([flags | (FILTER_FIRST if i == 0 else 0), step], np.uint32)
-            self.pipeline.dispatch(cmd, [s], gx, gy, channels(flags, n_lights), push=push)
+            reads, writes = self.routes[i]
+            self.dispatch(rec, groups, push=push, sets=s, reads=fixed + reads, writes=writes)

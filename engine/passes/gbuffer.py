@@ -4,8 +4,8 @@ position + linear depth, normal and albedo.
 The raster writes 4 bytes per pixel (R32_UINT: triangle + 1, 0 = background) plus depth; `gbuffer_resolve.comp`
 then computes what the rasterizer would have interpolated at each pixel centre from the triangle's vertices
 (perspective-correct barycentrics from homogeneous edge functions) and samples the albedo texture with the UV
-derivatives of the neighbouring pixels. Writing 44 bytes per pixel from fragments took 3.4 ms of a 1920x1080 frame
-on an H200, whose raster units are few; the same bytes from compute cost a small fraction of that.
+derivatives of the neighbouring pixels. Writing the whole G-buffer from fragments was several times slower on a GPU
+with few raster units; the same bytes from compute cost a small fraction of that.
 
 Vertices are interleaved (position, normal, uv: 32 bytes); triangles are sorted by material and drawn with one
 draw per material, the draw's first triangle in a push constant (the triangle id is that + gl_PrimitiveID).
@@ -15,19 +15,14 @@ from __future__ import annotations
 import logging
 
 import numpy as np
-import vulkan as vk
 
-from ..vk import (CIS, SI, UB, UTB, BufferView, ComputePipeline, DescriptorSet, GraphicsPipeline, Sampler,
-                  image_barrier, upload_buffer, upload_texture)
+from ..errors import ShaderError
+from ..vk import BufferView, DescriptorSet, GraphicsPipeline, Sampler, reflect, upload_buffer, upload_texture
+from ..vk.formats import R32UI, RGB32F, RGBA32F
 from ..vk.resources import INDEX, UNIFORM_TEXEL, VERTEX
-
-MAX_TEXTURES = 16
-POSITION_FORMAT = vk.VK_FORMAT_R32G32B32A32_SFLOAT
-NORMAL_FORMAT = vk.VK_FORMAT_R32G32B32A32_SFLOAT
-ALBEDO_FORMAT = vk.VK_FORMAT_R16G16B16A16_SFLOAT
-VISIBILITY_FORMAT = vk.VK_FORMAT_R32_UINT
-DEPTH_FORMAT = vk.VK_FORMAT_D32_SFLOAT
-F3 = vk.VK_FORMAT_R32G32B32_SFLOAT
+from .base import ComputePass, read, update, write
+from .interface import MAX_TEXTURES
+from .targets import DEPTH_FORMAT, VISIBILITY_FORMAT
 
 log = logging.getLogger("engine.gbuffer")
 
@@ -70,7 +65,7 @@ class SceneGeometry:
             log.warning("%s: %d textured materials; the first %d keep their textures, the other %d show their base "
                         "colour", scene.name, textured, MAX_TEXTURES, textured - MAX_TEXTURES)
         self.material_buffer = upload_buffer(ctx, mat_data, UNIFORM_TEXEL, "materials")
-        F4, U1 = vk.VK_FORMAT_R32G32B32A32_SFLOAT, vk.VK_FORMAT_R32_UINT
+        F4, U1 = RGBA32F, R32UI
         self.views = [BufferView(self.vertex_buffer, F4), BufferView(self.index_buffer, U1),
                       BufferView(self.tri_material_buffer, U1), BufferView(self.material_buffer, F4)]
         self.white = white_texture
@@ -82,93 +77,72 @@ class SceneGeometry:
             obj.destroy()
 
 
+class ResolvePass(ComputePass):
+    """Visibility -> G-buffer (gbuffer_resolve.comp); the scene's geometry is bound by `bind_scene`."""
+
+    name = "gbuffer_resolve"
+    shader = "gbuffer_resolve.comp"
+    bindings = {
+        "frame": read("uniform", "frame"), "visibility": update("image", "visibility"),
+        "g_position": write("image", "position"), "g_normal": write("image", "normal"),
+        "g_albedo": write("image", "albedo"), "g_normal8": write("image", "normal8"),
+        "vertices": read("uniform_texel"), "indices": read("uniform_texel"), "tri_material": read("uniform_texel"),
+        "materials": read("uniform_texel"), "textures": read("texture"),
+    }
+
+    def constants(self, ctx) -> dict:
+        return {"TEXTURE_SLOTS": MAX_TEXTURES}   # lowered to the slots a scene uses (its sampling blocks past them go)
+
+
 class GBufferPass:
+    """The visibility raster (gbuffer.vert / gbuffer.frag) and its resolve."""
+
     name = "gbuffer"
     shaders = ("gbuffer.vert", "gbuffer.frag", "gbuffer_resolve.comp")
 
-    def __init__(self, ctx, library, frame_ubo, targets):
-        self.ctx = ctx
-        self.frame_ubo = frame_ubo
-        self.raster_set = DescriptorSet(ctx, [(0, UB)])
-        self.raster_set.buffer(0, frame_ubo)
-        self.set = DescriptorSet(ctx, [(0, UB), (1, SI), (2, SI), (3, SI), (4, SI), (5, UTB), (6, UTB), (7, UTB),
-                                       (8, UTB), (9, CIS, MAX_TEXTURES), (10, SI)])
-        self.set.buffer(0, frame_ubo)
+    def __init__(self, ctx, library, resources):
+        self.ctx, self.library = ctx, library
+        vert, frag = library.get("gbuffer.vert"), library.get("gbuffer.frag")
+        interface = reflect(vert, "gbuffer.vert").merged(reflect(frag, "gbuffer.frag"))
+        self.raster_set = DescriptorSet(ctx, interface.set(0).values())
+        self.raster_set.bind("frame", resources["frame"])
+        self.pipeline = GraphicsPipeline(
+            ctx, vert, frag, [self.raster_set], color_formats=[VISIBILITY_FORMAT], depth_format=DEPTH_FORMAT,
+            vertex_stride=32, attributes=[(0, RGB32F, 0)], push_size=interface.push_size, name="gbuffer")
+        self.resolve = ResolvePass(ctx, library, resources)
         self.sampler = Sampler(ctx)
         self.white = upload_texture(ctx, np.full((1, 1, 4), 255, np.uint8))
         for slot in range(MAX_TEXTURES):
-            self.set.image(9, self.white, vk.VK_IMAGE_LAYOUT_SHADER_READ_ONLY_OPTIMAL, self.sampler, element=slot)
-        self.pipeline = GraphicsPipeline(
-            ctx, library.get("gbuffer.vert"), library.get("gbuffer.frag"), [self.raster_set],
-            color_formats=[VISIBILITY_FORMAT], depth_format=DEPTH_FORMAT, vertex_stride=32,
-            attributes=[(0, F3, 0)], push_size=4, name="gbuffer")
-        # Specialization constant 0: the texture slots the scene uses (the resolve's sampling blocks past them go).
-        self.resolve = ComputePipeline(ctx, library.get("gbuffer_resolve.comp"), [self.set], spec={0: MAX_TEXTURES},
-                                       name="gbuffer_resolve")
-        self.library = library
-        self.bind_targets(targets)
+            self.resolve.set.bind("textures", self.white, sampler=self.sampler, element=slot)
+        self.resources = resources
 
     def reload(self, library):
         self.library = library
-        self.pipeline.rebuild(library.get("gbuffer.vert"), library.get("gbuffer.frag"))
-        self.resolve.rebuild(library.get("gbuffer_resolve.comp"))
+        vert, frag = library.get("gbuffer.vert"), library.get("gbuffer.frag")
+        interface = reflect(vert, "gbuffer.vert").merged(reflect(frag, "gbuffer.frag"))
+        if {b.name for b in interface.bindings} != {"frame"}:
+            raise ShaderError("gbuffer.vert/.frag: the raster reads the frame block (set 0, binding 0) and nothing "
+                              f"else; the shaders declare {', '.join(b.name for b in interface.bindings)}")
+        self.pipeline.rebuild(vert, frag)
+        self.resolve.reload(library)
 
-    def bind_targets(self, t):
-        self.set.image(1, t.visibility).image(2, t.position).image(3, t.normal).image(4, t.albedo)
-        self.set.image(10, t.normal8)
+    def bind(self, resources, targets=None):
+        self.resources = resources
+        self.resolve.bind(resources)
 
     def bind_scene(self, geom: SceneGeometry):
-        spec = {0: max(1, len(geom.textures))}
-        if spec != self.resolve.spec:
-            self.resolve.specialize(self.library.get("gbuffer_resolve.comp"), spec)
-        for binding, view in enumerate(geom.views, start=5):
-            self.set.texel_buffer(binding, view)
+        self.resolve.specialize(TEXTURE_SLOTS=max(1, len(geom.textures)))
+        s = self.resolve.set
+        for name, view in zip(("vertices", "indices", "tri_material", "materials"), geom.views):
+            s.bind(name, view)
         for slot in range(MAX_TEXTURES):
             tex = geom.textures[slot] if slot < len(geom.textures) else self.white
-            self.set.image(9, tex, vk.VK_IMAGE_LAYOUT_SHADER_READ_ONLY_OPTIMAL, self.sampler, element=slot)
+            s.bind("textures", tex, sampler=self.sampler, element=slot)
 
-    def record(self, cmd, targets, geom: SceneGeometry):
-        w, h = targets.width, targets.height
-        CA, GENERAL = vk.VK_IMAGE_LAYOUT_COLOR_ATTACHMENT_OPTIMAL, vk.VK_IMAGE_LAYOUT_GENERAL
-        CS = vk.VK_PIPELINE_STAGE_COMPUTE_SHADER_BIT
-        # The visibility image is all zeros here (cleared once when made, then by each frame's resolve after reading
-        # it), so the raster loads it instead of clearing it: a clear costs the few raster units of an H200 0.1 ms.
-        image_barrier(cmd, targets.visibility, GENERAL, CA, CS, vk.VK_PIPELINE_STAGE_COLOR_ATTACHMENT_OUTPUT_BIT,
-                      vk.VK_ACCESS_SHADER_READ_BIT | vk.VK_ACCESS_SHADER_WRITE_BIT,
-                      vk.VK_ACCESS_COLOR_ATTACHMENT_READ_BIT | vk.VK_ACCESS_COLOR_ATTACHMENT_WRITE_BIT)
-        image_barrier(cmd, targets.depth, vk.VK_IMAGE_LAYOUT_UNDEFINED, vk.VK_IMAGE_LAYOUT_DEPTH_ATTACHMENT_OPTIMAL,
-                      vk.VK_PIPELINE_STAGE_LATE_FRAGMENT_TESTS_BIT, vk.VK_PIPELINE_STAGE_EARLY_FRAGMENT_TESTS_BIT,
-                      vk.VK_ACCESS_DEPTH_STENCIL_ATTACHMENT_WRITE_BIT,
-                      vk.VK_ACCESS_DEPTH_STENCIL_ATTACHMENT_READ_BIT | vk.VK_ACCESS_DEPTH_STENCIL_ATTACHMENT_WRITE_BIT)
-        vis = vk.VkRenderingAttachmentInfo(
-            imageView=targets.visibility.view, imageLayout=CA, loadOp=vk.VK_ATTACHMENT_LOAD_OP_LOAD,
-            storeOp=vk.VK_ATTACHMENT_STORE_OP_STORE)
-        depth = vk.VkRenderingAttachmentInfo(
-            imageView=targets.depth.view, imageLayout=vk.VK_IMAGE_LAYOUT_DEPTH_ATTACHMENT_OPTIMAL,
-            loadOp=vk.VK_ATTACHMENT_LOAD_OP_CLEAR, storeOp=vk.VK_ATTACHMENT_STORE_OP_DONT_CARE,
-            clearValue=vk.VkClearValue(depthStencil=vk.VkClearDepthStencilValue(depth=0.0, stencil=0)))
-        area = vk.VkRect2D(offset=vk.VkOffset2D(0, 0), extent=vk.VkExtent2D(w, h))
-        info = vk.VkRenderingInfo(renderArea=area, layerCount=1, colorAttachmentCount=1, pColorAttachments=[vis],
-                                  pDepthAttachment=depth)
-        vk.vkCmdBeginRendering(cmd, info)
-        vk.vkCmdSetViewport(cmd, 0, 1, [vk.VkViewport(0, 0, w, h, 0.0, 1.0)])
-        vk.vkCmdSetScissor(cmd, 0, 1, [area])
-        self.pipeline.bind(cmd, [self.raster_set])
-        vk.vkCmdBindVertexBuffers(cmd, 0, 1, [geom.vertex_buffer.handle], [0])
-        vk.vkCmdBindIndexBuffer(cmd, geom.index_buffer.handle, 0, vk.VK_INDEX_TYPE_UINT32)
-        for _material, first, count in geom.draws:
-            vk.vkCmdPushConstants(cmd, self.pipeline.layout, vk.VK_SHADER_STAGE_ALL, 0, 4,
-                                  vk.ffi.new("uint32_t[]", [first // 3]))
-            vk.vkCmdDrawIndexed(cmd, count, 1, first, 0, 0)
-        vk.vkCmdEndRendering(cmd)
-        image_barrier(cmd, targets.visibility, CA, GENERAL, vk.VK_PIPELINE_STAGE_COLOR_ATTACHMENT_OUTPUT_BIT, CS,
-                      vk.VK_ACCESS_COLOR_ATTACHMENT_WRITE_BIT,
-                      vk.VK_ACCESS_SHADER_READ_BIT | vk.VK_ACCESS_SHADER_WRITE_BIT)
-        # The resolve overwrites every pixel: the last frame's contents (read by compute and copies) are discarded.
-        for img in (*targets.gbuffer, targets.normal8):
-            image_barrier(cmd, img, vk.VK_IMAGE_LAYOUT_UNDEFINED, GENERAL, CS | vk.VK_PIPELINE_STAGE_TRANSFER_BIT, CS,
-                          vk.VK_ACCESS_SHADER_READ_BIT | vk.VK_ACCESS_TRANSFER_READ_BIT, vk.VK_ACCESS_SHADER_WRITE_BIT)
-        self.resolve.dispatch(cmd, [self.set], (w + 7) // 8, (h + 7) // 8)
-        for img in (*targets.gbuffer, targets.normal8):
-            image_barrier(cmd, img, GENERAL, GENERAL, CS, CS | vk.VK_PIPELINE_STAGE_TRANSFER_BIT,
-                          vk.VK_ACCESS_SHADER_WRITE_BIT, vk.VK_ACCESS_SHADER_READ_BIT | vk.VK_ACCESS_TRANSFER_READ_BIT)
+    def record(self, rec, targets, geom: SceneGeometry):
+        # The visibility image is all zeros here (cleared when made, then by each frame's resolve after reading it),
+        # so the raster loads it instead of clearing it (a clear costs GPUs with few raster units).
+        draws = [(first, count, np.uint32(first // 3).tobytes()) for _material, first, count in geom.draws]
+        rec.raster(self.pipeline, [self.raster_set], targets.visibility, targets.depth, geom.vertex_buffer,
+                   geom.index_buffer, draws, reads=[self.resources["frame"]])
+        self.resolve.dispatch(rec, self.resolve.tiles(targets.width, targets.height))

@@ -6,13 +6,10 @@ driver's timeout (llvmpipe runs a dispatch to its end, a watchdog may not wait).
 """
 from __future__ import annotations
 
-import vulkan as vk
+from .interface import SHADOW_MODES
+from .raypass import RayPass, ray_bindings
 
-from ..vk import memory_barrier
-from .raypass import RayPass
-
-MODES = {"hard": 0, "soft": 1, "seed-delta": 2, "reference": 3}
-RAYS_PER_DISPATCH = 1 << 22   # reference mode: at most this many rays in one dispatch (~1 s on lavapipe)
+RAYS_PER_DISPATCH = 1 << 22   # reference mode: at most this many rays in one dispatch
 
 
 def reference_dispatches(width, height, rays_per_pixel_sample, total):
@@ -32,25 +29,20 @@ def reference_dispatches(width, height, rays_per_pixel_sample, total):
     return out
 
 
-def record_split(cmd, pass_, targets, mode, rays_per_sample, total):
-    """Record a reference-mode pass as a series of dispatches with barriers between those that add to the same
-    pixels."""
-    for i, (row0, rows, first, count) in enumerate(reference_dispatches(targets.width, targets.height,
-                                                                        rays_per_sample, total)):
-        if i:
-            memory_barrier(cmd, vk.VK_PIPELINE_STAGE_COMPUTE_SHADER_BIT, vk.VK_PIPELINE_STAGE_COMPUTE_SHADER_BIT,
-                           vk.VK_ACCESS_SHADER_WRITE_BIT, vk.VK_ACCESS_SHADER_READ_BIT | vk.VK_ACCESS_SHADER_WRITE_BIT)
-        pass_.dispatch(cmd, targets, push=[mode, first, count, total, row0], rows=rows)
+def record_split(rec, pass_, targets, mode, rays_per_sample, total):
+    """A reference-mode pass as a series of dispatches (each adds to its pixels: the recorder puts the barriers
+    between them)."""
+    for row0, rows, first, count in reference_dispatches(targets.width, targets.height, rays_per_sample, total):
+        pass_.dispatch_rows(rec, targets, [mode, first, count, total, row0], rows=rows)
 
 
 class ShadowPass(RayPass):
     name = "shadows"
-    output = "masks_raw"
-    shaders = ("shadow.comp",)
-    push_size = 20
+    shader = "shadow.comp"
+    bindings = ray_bindings("masks", "masks.raw")
 
-    def record(self, cmd, targets, mode: str, n_lights: int = 1, reference_samples=None):
+    def record(self, rec, targets, mode: str, n_lights: int = 1, reference_samples=None):
         if mode == "reference":
-            record_split(cmd, self, targets, MODES[mode], n_lights, int(reference_samples))
+            record_split(rec, self, targets, SHADOW_MODES.index(mode), n_lights, int(reference_samples))
         else:
-            self.dispatch(cmd, targets, push=[MODES[mode], 0, 0, 0, 0])
+            self.dispatch_rows(rec, targets, [SHADOW_MODES.index(mode), 0, 0, 0, 0])

@@ -1,11 +1,15 @@
-"""A thin layer over the `vulkan` cffi module: context, resources, descriptors, pipelines, timestamps."""
+"""The only package that calls Vulkan (through the `vulkan` cffi module): context and device capabilities,
+resources, descriptors and pipelines (laid out from SPIR-V reflection), command recording with derived barriers,
+timestamps, swapchain."""
 from .context import Context, choose_device, describe_devices
 from .pipelines import (ALL, CIS, SB, SI, STB, UB, UTB, ComputePipeline, DescriptorSet, GraphicsPipeline,
                         Timestamps)
+from .recorder import Recorder
+from .reflect import Interface, reflect
 from .resources import Buffer, BufferView, Image, Sampler, image_barrier, memory_barrier, upload_buffer, upload_texture
 
 __all__ = [
     "Context", "choose_device", "describe_devices", "ALL", "CIS", "SB", "SI", "STB", "UB", "UTB", "ComputePipeline",
-    "DescriptorSet", "GraphicsPipeline", "Timestamps", "Buffer", "BufferView", "Image", "Sampler", "image_barrier",
-    "memory_barrier", "upload_buffer", "upload_texture",
+    "DescriptorSet", "GraphicsPipeline", "Timestamps", "Recorder", "Interface", "reflect", "Buffer", "BufferView",
+    "Image", "Sampler", "image_barrier", "memory_barrier", "upload_buffer", "upload_texture",
 ]

@@ -12,6 +12,7 @@ import vulkan as vk
 
 from ..errors import ShaderError
 from .context import Context
+from .reflect import Binding
 
 SB = vk.VK_DESCRIPTOR_TYPE_STORAGE_BUFFER
 UB = vk.VK_DESCRIPTOR_TYPE_UNIFORM_BUFFER
@@ -24,15 +25,22 @@ WHOLE_SIZE = 0xFFFFFFFFFFFFFFFF  # VK_WHOLE_SIZE (the binding exposes it as -1)
 
 
 class DescriptorSet:
-    """One set layout + its own pool + one set. `bindings`: list of (binding, type[, count])."""
+    """One set layout + its own pool + one set. `bindings`: reflected `Binding`s (engine.vk.reflect), bound by name
+    with `bind`, or (binding, type[, count]) tuples, bound by number with `buffer` / `image` / `texel_buffer`."""
 
     def __init__(self, ctx: Context, bindings, stages=ALL):
         self.ctx = ctx
         self.types = {}
+        self.numbers: dict[str, int] = {}   # name -> binding number (reflected bindings)
+        self.kinds: dict[str, str] = {}
         entries = []
         sizes: dict[int, int] = {}
         for b in bindings:
-            binding, dtype, count = (b + (1,))[:3]
+            if isinstance(b, Binding):
+                binding, dtype, count = b.binding, b.descriptor_type, max(b.count, 1)
+                self.numbers[b.name], self.kinds[b.name] = b.binding, b.kind
+            else:
+                binding, dtype, count = (b + (1,))[:3]
             self.types[binding] = dtype
             entries.append(vk.VkDescriptorSetLayoutBinding(
                 binding=binding, descriptorType=dtype, descriptorCount=count, stageFlags=stages))
@@ -47,6 +55,19 @@ class DescriptorSet:
             descriptorPool=self.pool, descriptorSetCount=1, pSetLayouts=[self.layout]))[0]
         ctx.defer_destroy(vk.vkDestroyDescriptorSetLayout, dev, self.layout, None)
         ctx.defer_destroy(vk.vkDestroyDescriptorPool, dev, self.pool, None)
+
+    def bind(self, name: str, obj, sampler=None, element: int = 0):
+        """Bind a Buffer, BufferView or Image to the binding the shader calls `name`, as the shader declares it."""
+        binding = self.numbers.get(name)
+        if binding is None:
+            raise ShaderError(f"no binding named {name!r} in this set (it has: {', '.join(self.numbers)})")
+        kind = self.kinds[name]
+        if kind in ("uniform", "buffer"):
+            return self.buffer(binding, obj)
+        if kind in ("uniform_texel", "storage_texel"):
+            return self.texel_buffer(binding, obj)
+        layout = vk.VK_IMAGE_LAYOUT_GENERAL if kind == "image" else vk.VK_IMAGE_LAYOUT_SHADER_READ_ONLY_OPTIMAL
+        return self.image(binding, obj, layout=layout, sampler=sampler, element=element)
 
     def buffer(self, binding, buf, offset=0, size=None):
         info = vk.VkDescriptorBufferInfo(buffer=buf.handle, offset=offset,

@@ -10,7 +10,7 @@
 // and starts over (n = 0). The new value is an exponential blend:
 //     value = mix(history, raw, alpha),   alpha = max(1 / (n + 1), alpha_min)
 // so the first frames are a plain average. Zero-size lights (binary masks) pass through.
-// Without FILTER_TEMPORAL (denoise only) or when frame.params2.w says the history is invalid, value = raw.
+// Without FILTER_TEMPORAL (denoise only) or when frame.history_reset says the history is invalid, value = raw.
 #include "common.glsl"
 FRAME_BLOCK
 #include "filter.glsl"
@@ -37,12 +37,12 @@ const float PLANE_PIXELS = 2.0;
 // One invocation per pixel and channel (gl_GlobalInvocationID.z): the lights' masks first, then AO.
 void main() {
     ivec2 px = ivec2(gl_GlobalInvocationID.xy);
-    uint w = frame.size.x, h = frame.size.y;
+    uint w = frame.width, h = frame.height;
     if (px.x >= int(w) || px.y >= int(h)) return;
     uint pixel = uint(px.y) * w + uint(px.x);
     uint n_pixels = w * h;
     uint channel = gl_GlobalInvocationID.z;
-    bool is_mask = (pc.flags & FILTER_MASKS) != 0u && channel < frame.size.w;
+    bool is_mask = (pc.flags & FILTER_MASKS) != 0u && channel < frame.light_count;
     uint at = channel * n_pixels + pixel;
 
     vec4 nrm = imageLoad(g_normal, px);
@@ -53,7 +53,7 @@ void main() {
 
     // Reprojection into the previous frame and the disocclusion tests.
     float wsum = 0.0, hlen = 0.0, hval = 0.0;
-    bool temporal = covered && (pc.flags & FILTER_TEMPORAL) != 0u && frame.params2.w < 0.5;
+    bool temporal = covered && (pc.flags & FILTER_TEMPORAL) != 0u && frame.history_reset < 0.5;
     if (temporal) {
         vec4 clip = frame.prev_view_proj * vec4(pos.xyz, 1.0);
         if (clip.w > 0.0) {
@@ -82,7 +82,7 @@ void main() {
         n_prev = floor(hlen / wsum + 0.5);   // a whole number of frames
         hval /= wsum;
     }
-    float alpha = n_prev > 0.0 ? max(1.0 / (n_prev + 1.0), frame.params2.y) : 1.0;
+    float alpha = n_prev > 0.0 ? max(1.0 / (n_prev + 1.0), frame.accum_alpha) : 1.0;
     if (channel == 0u) len_cur[pixel] = covered ? min(n_prev + 1.0, MAX_HISTORY) : 0.0;
     float value = random ? mix(hval, raw, alpha) : raw;
     if (is_mask) masks_cur[at] = value;

@@ -1,7 +1,7 @@
 #version 450
 #extension GL_GOOGLE_include_directive : require
-// Ambient occlusion from the G-buffer: `frame.params.y` cosine-weighted hemisphere rays of length
-// `frame.params.x` per pixel; writes the unoccluded fraction (1 = open). The reference mode runs `pc.count` of
+// Ambient occlusion from the G-buffer: `frame.ao_samples` cosine-weighted hemisphere rays of length
+// `frame.ao_radius` per pixel; writes the unoccluded fraction (1 = open). The reference mode runs `pc.count` of
 // `pc.total` samples per dispatch and adds them up over several dispatches, optionally a band of rows each.
 #include "common.glsl"
 FRAME_BLOCK
@@ -18,7 +18,7 @@ layout(set = 0, binding = 1, rgba32f) uniform readonly image2D g_position;
 layout(set = 0, binding = 2, rgba32f) uniform readonly image2D g_normal;
 layout(std430, set = 0, binding = 3) buffer AO { float ao[]; };
 layout(push_constant) uniform Push {
-    uint mode;     // 0: this frame's samples (frame.params.y of them), 1: reference
+    uint mode;     // 0: this frame's samples (frame.ao_samples of them), 1: reference
     uint first;    // reference: first sample index of this dispatch
     uint count;    // reference: samples in this dispatch
     uint total;    // reference: samples in all
@@ -28,7 +28,7 @@ layout(push_constant) uniform Push {
 void main() {
     // the 8x8 tiles in the order of shares.glsl (constant 15: the device's worker threads)
     ivec2 px = ivec2(share_invocation(WORK_SHARES, gl_WorkGroupSize).xy) + ivec2(0, pc.row0);
-    uint w = frame.size.x, h = frame.size.y;
+    uint w = frame.width, h = frame.height;
     if (px.x >= int(w) || px.y >= int(h)) return;
     uint pixel = uint(px.y) * w + uint(px.x);
     bool reference = pc.mode == 1u;
@@ -40,10 +40,10 @@ void main() {
     }
     vec3 n = nrm.xyz;
     vec3 o = offset_ray(imageLoad(g_position, px).xyz, n);
-    uint k = reference ? pc.count : max(uint(frame.params.y), 1u);
-    uint first = reference ? pc.first : frame.size.z * k;
+    uint k = reference ? pc.count : max(uint(frame.ao_samples), 1u);
+    uint first = reference ? pc.first : frame.frame_index * k;
     float norm = 1.0 / float(reference ? max(pc.total, 1u) : k);
-    float radius = frame.params.x;
+    float radius = frame.ao_radius;
     vec2 rot = pixel_rotation(uvec2(px), 0x9e3779b9u);
     float open = 0.0;
     for (uint s = 0u; s < k; ++s) {

@@ -1,7 +1,7 @@
 #version 450
 #extension GL_GOOGLE_include_directive : require
 // Debug views: replaces the final colour with one AOV (setting `view`), on the GPU so a window can show it.
-// Same mappings as engine.renderer.aov_to_rgba where it can: normals n * 0.5 + 0.5, albedo gamma 2.2,
+// Same mappings as engine.frame.aov_to_rgba where it can: normals n * 0.5 + 0.5, albedo gamma 2.2,
 // position by the scene bounds, depth 1 (near) .. 0 (far) over the scene's depth range, masks averaged over the
 // lights, AO as is, history length / 32 in grey with fresh (disoccluded, n = 1) pixels in red.
 #include "common.glsl"
@@ -19,27 +19,17 @@ layout(std430, set = 0, binding = 8) readonly buffer HistLen { float hist_len[];
 layout(set = 0, binding = 9, rgba8) uniform writeonly image2D out_color;
 layout(push_constant) uniform Push { uint view; } pc;
 
-// Keep in step with VIEW_MODES in engine/renderer.py.
-#define VIEW_POSITION 1u
-#define VIEW_NORMAL 2u
-#define VIEW_ALBEDO 3u
-#define VIEW_DEPTH 4u
-#define VIEW_SHADOW_RAW 5u
-#define VIEW_SHADOW 6u
-#define VIEW_AO_RAW 7u
-#define VIEW_AO 8u
-#define VIEW_HISTORY 9u
 
 void main() {
     ivec2 px = ivec2(gl_GlobalInvocationID.xy);
-    uint w = frame.size.x, h = frame.size.y;
+    uint w = frame.width, h = frame.height;
     if (px.x >= int(w) || px.y >= int(h)) return;
     uint pixel = uint(px.y) * w + uint(px.x);
     uint n_pixels = w * h;
     vec4 nrm = imageLoad(g_normal, px);
     bool covered = nrm.w > 0.0;
     vec4 pos = imageLoad(g_position, px);
-    vec3 lo = frame.bounds_min.xyz, hi = frame.bounds_max.xyz;
+    vec3 lo = frame.bounds_min, hi = frame.bounds_max;
     vec3 c = vec3(0.0);
     uint v = pc.view;
     if (v == VIEW_POSITION) {
@@ -49,13 +39,13 @@ void main() {
     } else if (v == VIEW_ALBEDO) {
         c = pow(clamp(imageLoad(g_albedo, px).rgb, 0.0, 1.0), vec3(1.0 / 2.2));
     } else if (v == VIEW_DEPTH) {
-        float dist = length(frame.eye.xyz - 0.5 * (lo + hi));
+        float dist = length(frame.eye - 0.5 * (lo + hi));
         float r = 0.5 * length(hi - lo);
-        float near = max(dist - r, frame.eye.w), far = max(dist + r, near + 1e-6);
+        float near = max(dist - r, frame.near), far = max(dist + r, near + 1e-6);
         c = covered ? vec3(clamp(1.0 - (pos.w - near) / (far - near), 0.0, 1.0)) : vec3(0.0);
     } else if (v == VIEW_SHADOW_RAW || v == VIEW_SHADOW) {
         float s = 0.0;
-        uint n = frame.size.w;
+        uint n = frame.light_count;
         for (uint i = 0u; i < n; ++i)
             s += v == VIEW_SHADOW ? masks[i * n_pixels + pixel] : masks_raw[i * n_pixels + pixel];
         c = vec3(n > 0u ? s / float(n) : 1.0);

@@ -91,12 +91,12 @@ void store(uint pixel, float value, float variance) {
 void main() {
     uvec3 gid = share_invocation(WORK_SHARES, gl_WorkGroupSize);   // gl_GlobalInvocationID in the order of shares.glsl
     ivec2 px = ivec2(gid.xy);
-    uint w = frame.size.x, h = frame.size.y;
+    uint w = frame.width, h = frame.height;
     if (px.x >= int(w) || px.y >= int(h)) return;
     uint pixel = uint(px.y) * w + uint(px.x);
     n_pixels = w * h;
     channel = gid.z;
-    is_mask = (pc.flags & FILTER_MASKS) != 0u && channel < frame.size.w;
+    is_mask = (pc.flags & FILTER_MASKS) != 0u && channel < frame.light_count;
     bool first = (pc.flags & FILTER_FIRST) != 0u;
 
     vec4 nrm = imageLoad(g_normal, px);
@@ -124,8 +124,8 @@ void main() {
             }
         }
         mean /= wsum;
-        float n_eff = clamp(hist_len[pixel], 1.0, 2.0 / max(frame.params2.y, 1e-3) - 1.0);
-        float k = max(is_mask ? frame.params.z : frame.params.y, 1.0);
+        float n_eff = clamp(hist_len[pixel], 1.0, 2.0 / max(frame.accum_alpha, 1e-3) - 1.0);
+        float k = max(is_mask ? frame.shadow_samples : frame.ao_samples, 1.0);
         var_c = mean * (1.0 - mean) / (k * n_eff);
     } else {
         var_c = variance_at(pixel);

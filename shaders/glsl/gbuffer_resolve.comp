@@ -11,7 +11,6 @@
 #include "common.glsl"
 FRAME_BLOCK
 
-#define MAX_TEXTURES 16
 layout(constant_id = 0) const int TEXTURE_SLOTS = MAX_TEXTURES;
 
 // Slot k of `textures` at the pixel's UV, with the level of detail a fragment quad would have used (isotropic: the
@@ -49,7 +48,7 @@ vec3 weights(vec3 e0, vec3 e1, vec3 e2, vec3 p) {
 
 void main() {
     ivec2 px = ivec2(gl_GlobalInvocationID.xy);
-    uvec2 size = frame.size.xy;
+    uvec2 size = uvec2(frame.width, frame.height);
     bool inside = px.x < int(size.x) && px.y < int(size.y);
     uint id = inside ? imageLoad(visibility, px).x : 0u;
     if (id != 0u) imageStore(visibility, px, uvec4(0u));
@@ -82,7 +81,7 @@ void main() {
         float len = length(n);
         // a degenerate interpolated normal falls back to the facet normal
         n = len > 1e-6 ? n / len : normalize(cross(p1 - p0, p2 - p0));
-        if (dot(n, frame.eye.xyz - pos) < 0.0) n = -n;   // two-sided surfaces: the side we see
+        if (dot(n, frame.eye - pos) < 0.0) n = -n;   // two-sided surfaces: the side we see
         nrm = n;
 
         vec2 t0 = b0.zw, t1 = b1.zw, t2 = b2.zw;
@@ -110,7 +109,7 @@ void main() {
     SAMPLE_SLOT(14) SAMPLE_SLOT(15)
 
     if (!inside) return;
-    float depth = id != 0u ? dot(pos - frame.eye.xyz, frame.forward.xyz) : 0.0;
+    float depth = id != 0u ? dot(pos - frame.eye, frame.forward) : 0.0;
     imageStore(g_position, px, vec4(pos, depth));
     imageStore(g_normal, px, vec4(nrm, id != 0u ? 1.0 : 0.0));
     imageStore(g_albedo, px, albedo);

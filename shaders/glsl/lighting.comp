@@ -36,7 +36,7 @@ vec3 incident(Light l, vec3 p, out vec3 wi) {
 
 void main() {
     ivec2 px = ivec2(gl_GlobalInvocationID.xy);
-    uint w = frame.size.x, h = frame.size.y;
+    uint w = frame.width, h = frame.height;
     if (px.x >= int(w) || px.y >= int(h)) return;
     vec4 nrm = imageLoad(g_normal, px);
     vec3 color;
@@ -44,23 +44,23 @@ void main() {
         // Background: a simple sky gradient by the view direction's elevation is not known here
         // (no ray), so use the ambient colour with a vertical gradient over the image.
         float t = float(px.y) / float(max(h, 1u));
-        color = frame.ambient.rgb * mix(1.2, 0.6, t);
+        color = frame.ambient * mix(1.2, 0.6, t);
     } else {
         vec3 p = imageLoad(g_position, px).xyz;
         vec3 n = nrm.xyz;
         vec3 albedo = imageLoad(g_albedo, px).rgb;
         uint pixel = uint(px.y) * w + uint(px.x);
         vec3 direct = vec3(0.0);
-        for (uint i = 0u; i < frame.size.w; ++i) {
+        for (uint i = 0u; i < frame.light_count; ++i) {
             vec3 wi;
             vec3 li = incident(frame.lights[i], p, wi);
             float cos_theta = max(dot(n, wi), 0.0);
             direct += li * cos_theta * masks[i * w * h + pixel];
         }
         // Intensities are pi-normalized: a white surface facing a light of irradiance 1 reflects 1.
-        color = albedo * (direct + frame.ambient.rgb * ao[pixel]);
+        color = albedo * (direct + frame.ambient * ao[pixel]);
     }
-    color *= frame.params.w;   // exposure
+    color *= frame.exposure;   // exposure
     imageStore(out_hdr, px, vec4(color, 1.0));
     imageStore(out_color, px, vec4(srgb_encode(tonemap_aces(color)), 1.0));
 }

@@ -4,11 +4,8 @@
 #ifndef FILTER_GLSL
 #define FILTER_GLSL
 
-#define FILTER_MASKS 1u      // push flag: the light masks are filtered this frame
-#define FILTER_AO 2u         // push flag: AO is filtered this frame
-#define FILTER_TEMPORAL 4u   // push flag (accumulate.comp): blend with the reprojected history
-#define FILTER_FIRST 8u      // push flag (denoise.comp): the first a-trous iteration (estimates the variance)
-#define MAX_HISTORY 255.0    // history lengths are clamped here
+// Push flags (interface.glsl): FILTER_MASKS / FILTER_AO: that signal is filtered this frame; FILTER_TEMPORAL
+// (accumulate.comp): blend with the reprojected history; FILTER_FIRST (denoise.comp): the first a-trous iteration.
 
 // A light whose mask is random (needs accumulating / denoising): one with an area or a solid angle.
 // A zero-size light gives the same binary mask every frame, which is passed through untouched.
@@ -21,7 +18,7 @@ bool light_has_extent(Light l) {
 
 // World-space size of one pixel at view depth `depth`.
 float pixel_footprint(float depth) {
-    return max(depth * frame.params2.z, 1e-6);
+    return max(depth * frame.pixel_footprint, 1e-6);
 }
 
 #endif

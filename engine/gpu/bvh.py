@@ -1,0 +1,123 @@
+"""The scene's BVH on the GPU: its buffers, the descriptor set the traversal reads (set 1 of every shader that
+includes bvh.glsl), and the specialization constants that tune the traversal to the device and the tree.
+
+The renderer's shadow and AO passes and the batch Tracer share this module: the same upload, the same traversal.
+"""
+from __future__ import annotations
+
+import os
+
+from ..bvh.compress import compress_nodes
+from ..bvh.wide import collapse_bvh8
+from ..errors import ConfigError, SceneError
+from ..vk import BufferView, Context, DescriptorSet, upload_buffer
+from ..vk.device import is_cpu
+from ..vk.reflect import Interface
+from ..vk.resources import STORAGE_TEXEL, UNIFORM_TEXEL
+
+BVH_SET = 1   # the descriptor set index bvh.glsl declares
+LAYOUTS = ("binary", "wide")
+#: Register-stack entries of the traversal on CPU devices (BVH_STACK_REGS): fewer than a deep tree needs; the rare
+#: ray that overflows them walks again (BVH_STACK_RETRY). The best of the counts tried on lavapipe.
+CPU_STACK_REGS = 10
+#: The same for the batch occlusion kernel, whose unresolved rays get a second dispatch (Tracer.two_pass).
+CPU_OCCLUSION_STACK_REGS = 6
+#: The same for the 8-wide layout (entries are node groups).
+CPU_WIDE_STACK_REGS = 6
+
+
+def bvh_layout(layout: str | None = None) -> str:
+    """The BVH layout to trace with: `layout` if given, else $HYBRID_BVH_LAYOUT, else "binary" (on every device).
+    "wide" (engine/bvh/wide.py) is opt-in: faster for long occlusion rays on a GPU, slower for closest hits and on
+    lavapipe (docs/benchmarks.md)."""
+    what = "BVH layout"
+    if layout is None:
+        layout = os.environ.get("HYBRID_BVH_LAYOUT") or "binary"
+        what = "HYBRID_BVH_LAYOUT"
+    if layout not in LAYOUTS:
+        raise ConfigError(f"{what} must be one of {', '.join(LAYOUTS)}, got {layout!r}")
+    return layout
+
+
+def compresses(ctx: Context, layout: str) -> bool:
+    """Does SceneBVH upload the 32-byte compressed nodes by default? The binary layout on CPU devices."""
+    return is_cpu(ctx) and layout == "binary"
+
+
+def bvh_spec(ctx: Context, depth: int | None = None, layout: str | None = None, compressed: bool = False,
+             postpone: bool | None = None, stack_regs: int | None = None) -> dict:
+    """bvh.glsl's specialization constants (by name) for this device and tree. On CPU devices (lavapipe): the
+    branchless push, postponed leaf tests, a register stack of min(CPU_STACK_REGS, depth - 1) entries with the retry
+    walk where that is fewer than the tree needs (or its depth is unknown), compare-and-select min/max and image
+    loads of the BVH; on GPUs the plain forms. `layout` "wide" selects the 8-wide traversal (its CPU variant on CPU
+    devices, `depth` then being the wide tree's levels); `compressed`: the nodes are the 32-byte ones; `postpone`:
+    postponed leaf tests whatever the device; `stack_regs`: the register-stack cap on CPU devices."""
+    cpu = is_cpu(ctx)
+    wide = bvh_layout(layout) == "wide"
+    need = 32 if depth is None else max(1, min(32, int(depth) - 1))
+    cap = CPU_WIDE_STACK_REGS if wide else (CPU_STACK_REGS if stack_regs is None else int(stack_regs))
+    regs = min(cap, need) if cpu else need
+    return {"BVH_BRANCHLESS_PUSH": cpu, "BVH_POSTPONE_LEAVES": cpu if postpone is None else bool(postpone),
+            "BVH_REG_STACK": cpu, "BVH_STACK_REGS": regs, "BVH_WIDE": wide, "BVH_COMPRESSED": bool(compressed),
+            "BVH_STACK_RETRY": cpu and (depth is None or regs < need), "BVH_SELECT_MINMAX": cpu,
+            "BVH_IMAGE_FETCH": cpu, "BVH_WIDE_CPU": cpu and wide}
+
+
+def bvh_descriptor_set(ctx: Context, interface: Interface) -> DescriptorSet:
+    """The BVH's descriptor set, laid out as set BVH_SET of a shader that includes bvh.glsl (`interface`)."""
+    return DescriptorSet(ctx, interface.set(BVH_SET).values())
+
+
+class SceneBVH:
+    """A BVH's two buffers on the GPU, bound to the BVH descriptor set.
+
+    layout: "binary" (a builder BVH) or "wide" (collapse_bvh8's; `SceneBVH.upload` makes it from a builder BVH).
+    compress (binary only; default: on CPU devices, `compresses`): upload the 32-byte compressed nodes
+    (engine/bvh/compress.py) instead of the builder's 64-byte ones, where the tree fits that format; `compressed`
+    says which were uploaded, `depth` is the tree's depth: they go to bvh_spec."""
+
+    @classmethod
+    def upload(cls, ctx: Context, bvh, dset: DescriptorSet, layout: str) -> "SceneBVH":
+        """A builder BVH on the GPU in `layout` (collapsed to the 8-wide tree first for "wide")."""
+        return cls(ctx, collapse_bvh8(bvh) if layout == "wide" else bvh, dset, layout=layout)
+
+    def __init__(self, ctx: Context, bvh, dset: DescriptorSet, layout: str = "binary", compress: bool | None = None):
+        if compress is None:
+            compress = compresses(ctx, layout)
+        if layout == "wide" and compress:
+            raise ConfigError("SceneBVH: the wide layout has no compressed nodes")
+        self.bvh = bvh
+        self.layout = layout
+        # what the traversal can push is the tree's depth - 1: the binary tree's, or the wide one's levels
+        self.depth = bvh.stats.get("wide_levels" if layout == "wide" else "depth")
+        nodes = compress_nodes(bvh.nodes) if compress else None
+        self.compressed = nodes is not None
+        if nodes is None:
+            nodes = bvh.nodes
+        # Both buffers are read as texel buffers of 16-byte texels: at most maxTexelBufferElements texels each.
+        texels = int(ctx.limits.maxTexelBufferElements)
+        for what, arr in (("triangles", bvh.tris), ("nodes", nodes)):
+            if arr.nbytes // 16 > texels:
+                raise SceneError(f"{bvh.stats['triangles']:,} triangles: the BVH {what} take "
+                                 f"{arr.nbytes / 2**20:.0f} MiB, "
+                                 f"more than this device's texel-buffer limit of {texels:,} texels "
+                                 f"({texels * 16 / 2**20:.0f} MiB, {ctx.device_info['name']})")
+        usage = UNIFORM_TEXEL | STORAGE_TEXEL
+        self.nodes = upload_buffer(ctx, nodes, usage, "bvh nodes")
+        self.tris = upload_buffer(ctx, bvh.tris, usage, "bvh triangles")
+        # the same buffers as uniform texel buffers and as storage texel buffers; BVH_IMAGE_FETCH says which the
+        # shaders read (the storage views on CPU devices)
+        self.views = [BufferView(self.nodes), BufferView(self.tris)]
+        dset.bind("bvh_node_texels", self.views[0]).bind("bvh_tri_texels", self.views[1])
+        dset.bind("bvh_node_image", self.views[0]).bind("bvh_tri_image", self.views[1])
+
+    def spec(self, ctx: Context, postpone: bool | None = None, stack_regs: int | None = None) -> dict:
+        """bvh_spec for this BVH's depth and node layout."""
+        return bvh_spec(ctx, self.depth, layout=self.layout, compressed=self.compressed, postpone=postpone,
+                        stack_regs=stack_regs)
+
+    def destroy(self):
+        for view in self.views:
+            view.destroy()
+        self.nodes.destroy()
+        self.tris.destroy()

@@ -1,0 +1,128 @@
+"""The Tracer's input checks: meshes, rays and batch sizes, each a clear ConfigError / SceneError naming the first
+bad element (no Vulkan here)."""
+from __future__ import annotations
+
+import math
+from numbers import Real
+
+import numpy as np
+
+from ..errors import ConfigError, SceneError
+from ..limits import MAX_COORD
+from ..parallel import default_threads, run as _parallel
+
+
+def check_mesh(vertices, faces):
+    try:
+        v = np.asarray(vertices, dtype=np.float64)
+        f = np.asarray(faces)
+    except (TypeError, ValueError) as exc:
+        raise SceneError(f"Tracer: vertices/faces are not numeric arrays ({exc})") from None
+    if v.ndim != 2 or v.shape[1] != 3:
+        raise SceneError(f"Tracer: vertices must have shape (V, 3), got {v.shape}")
+    if f.ndim != 2 or f.shape[1] != 3 or not np.issubdtype(f.dtype, np.integer):
+        raise SceneError(f"Tracer: faces must be integers of shape (T, 3), got {f.dtype} {f.shape}")
+    if len(f) == 0:
+        raise SceneError("Tracer: the mesh has no triangles")
+    if not np.all(np.isfinite(v)):
+        raise SceneError("Tracer: vertices contain NaN or infinite values")
+    if v.size and np.abs(v).max() > MAX_COORD:
+        raise SceneError(f"Tracer: vertices: coordinates beyond +-{MAX_COORD:g} (found {np.abs(v).max():g}); "
+                         "the float32 triangle test is exact only within that bound")
+    if f.min() < 0 or f.max() >= len(v):
+        raise SceneError(f"Tracer: face indices must be in 0..{len(v) - 1}, found {f.min()}..{f.max()}")
+    return v.astype(np.float32), f.astype(np.int64)
+
+
+_F32_MAX = float(np.finfo(np.float32).max)
+_F32_EXPONENT = 0x7F800000  # a float32's exponent bits: all clear for zero and subnormals
+
+
+def _ray_array(value, what: str) -> np.ndarray:
+    """`value` as a float32 array: a ConfigError naming `what` for anything that is not numbers (strings, None, a
+    dict, a ragged list). float64 values beyond float32's range become +-inf here, which the callers reject."""
+    try:
+        a = np.asarray(value)
+    except (TypeError, ValueError) as exc:  # a ragged list
+        raise ConfigError(f"{what} must be numbers ({exc})") from None
+    if a.dtype.kind not in "iuf":
+        got = repr(value) if a.ndim == 0 else f"an array of {a.dtype} {a.shape}"
+        raise ConfigError(f"{what} must be numbers, got {got if len(got) <= 60 else type(value).__name__}")
+    with np.errstate(over="ignore"):  # overflow to inf is reported below, with the ray's index
+        return a.astype(np.float32, copy=False)
+
+
+def _first(bad: np.ndarray) -> int:
+    return int(np.flatnonzero(bad)[0])
+
+
+def check_rays(origins, directions, tmax):
+    """float32 origins (N, 3), directions (N, 3) and tmax (N,): finite origins within +-MAX_COORD (the triangle test
+    is exact there), finite directions not of zero length, tmax a number that is not NaN (+inf allowed; a negative
+    one hits nothing). A ConfigError names the argument and the first bad ray. Vectorized, in blocks on the
+    shared worker pool (docs/benchmarks.md has its cost)."""
+    o = _ray_array(origins, "origins")
+    d = _ray_array(directions, "directions")
+    if o.ndim != 2 or o.shape[1] != 3:
+        raise ConfigError(f"origins must have shape (N, 3), got {o.shape}")
+    if d.shape != o.shape:
+        raise ConfigError(f"directions must have the shape of origins {o.shape}, got {d.shape}")
+    t = _ray_array(tmax, "tmax")
+    if t.ndim == 0:
+        if np.isnan(t):
+            raise ConfigError("tmax must be a number or +inf, got NaN")
+        t = np.full(len(o), t, np.float32)
+    elif t.shape != (len(o),):
+        raise ConfigError(f"tmax must be a number or have shape ({len(o)},), got {t.shape}")
+    elif t.size and np.isnan(t.min()):  # min propagates NaN
+        raise ConfigError(f"tmax: ray {_first(np.isnan(t))} has tmax NaN")
+    if o.size:
+        block = 1 << 18   # rays per task on the worker pool (numpy releases the GIL)
+        starts = range(0, len(o), block)
+        fine = _parallel([lambda s=s: _rays_fine(o[s:s + block], d[s:s + block]) for s in starts], default_threads())
+        if not all(fine):
+            _name_bad_ray(o, d, origins, directions)
+    return o, d, t
+
+
+def _rays_fine(o: np.ndarray, d: np.ndarray) -> bool:
+    """Every origin finite and within +-MAX_COORD, every direction finite and not of zero length (fast: flat
+    reductions and one bit pass; _name_bad_ray finds which ray is not)."""
+    of, df = o.reshape(-1), d.reshape(-1)  # flat views: numpy reduces them faster than the (N, 3) arrays
+    if not (of.min() >= -MAX_COORD and of.max() <= MAX_COORD and df.min() >= -_F32_MAX and df.max() <= _F32_MAX):
+        return False  # (NaN fails every comparison)
+    # zero length: every component zero or subnormal (1 / d overflows in the shader), i.e. the OR of the three
+    # components' float32 bits has a zero exponent field
+    u = d.view(np.uint32)
+    e = np.bitwise_or(u[:, 0], u[:, 1])
+    np.bitwise_or(e, u[:, 2], out=e)
+    np.bitwise_and(e, np.uint32(_F32_EXPONENT), out=e)
+    return bool(e.min() != 0)
+
+
+def _name_bad_ray(o, d, origins, directions):
+    """The ConfigError for the first ray that _rays_fine refused."""
+    bad_o = ~(np.abs(o) <= MAX_COORD).all(axis=1)
+    if bad_o.any():
+        i = _first(bad_o)
+        given = np.asarray(origins)[i]
+        if np.isfinite(o[i]).all():
+            raise ConfigError(f"origins: ray {i} has a coordinate beyond +-{MAX_COORD:g} ({given}); "
+                              "the triangle test is exact only within that bound")
+        raise ConfigError(f"origins: ray {i} is not finite as float32 ({given}: NaN, infinite or beyond +-3.4e38)")
+    bad_d = ~np.isfinite(d).all(axis=1)
+    if bad_d.any():
+        i = _first(bad_d)
+        raise ConfigError(f"directions: ray {i} is not finite as float32 ({np.asarray(directions)[i]}: "
+                          "NaN, infinite or beyond +-3.4e38)")
+    i = _first(((d.view(np.uint32) & np.uint32(_F32_EXPONENT)) == 0).all(axis=1))
+    raise ConfigError(f"directions: ray {i} has zero length ({np.asarray(directions)[i]}; "
+                      f"a direction needs a component of magnitude >= {np.finfo(np.float32).tiny:g})")
+
+
+def check_batch_size(batch_size) -> int:
+    """A whole number of rays >= 1 (an integral float such as 1e6 too)."""
+    if isinstance(batch_size, (bool, np.bool_)) or not isinstance(batch_size, Real) \
+            or not math.isfinite(batch_size) or batch_size != int(batch_size) or batch_size < 1:
+        raise ConfigError(f"Tracer: batch_size must be a whole number of rays >= 1, got {batch_size!r}")
+    return int(batch_size)

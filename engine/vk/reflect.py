@@ -1,0 +1,240 @@
+"""What a SPIR-V module declares: its descriptor bindings (set, number, type, count, access), its specialization
+constants by name, and the size of its push constants.
+
+Pipelines build their descriptor-set layouts and specialization data from this, so binding numbers and constant ids
+are written once, in the GLSL. A binding is named by its GLSL variable; an anonymous block by its only member
+(`buffer MasksRaw { float masks_raw[]; };` is "masks_raw"), else by its block name.
+"""
+from __future__ import annotations
+
+import struct
+from dataclasses import dataclass
+
+import vulkan as vk
+
+from ..errors import ShaderError
+
+MAGIC = 0x07230203
+
+# opcodes
+OP_NAME, OP_MEMBER_NAME = 5, 6
+OP_TYPE_BOOL, OP_TYPE_INT, OP_TYPE_FLOAT, OP_TYPE_VECTOR, OP_TYPE_MATRIX = 20, 21, 22, 23, 24
+OP_TYPE_IMAGE, OP_TYPE_SAMPLER, OP_TYPE_SAMPLED_IMAGE, OP_TYPE_ARRAY, OP_TYPE_RUNTIME_ARRAY = 25, 26, 27, 28, 29
+OP_TYPE_STRUCT, OP_TYPE_POINTER = 30, 32
+OP_CONSTANT = 43
+OP_SPEC_TRUE, OP_SPEC_FALSE, OP_SPEC = 48, 49, 50
+OP_VARIABLE = 59
+OP_DECORATE, OP_MEMBER_DECORATE = 71, 72
+# decorations
+DEC_SPEC_ID, DEC_BLOCK, DEC_BUFFER_BLOCK, DEC_ARRAY_STRIDE, DEC_MATRIX_STRIDE = 1, 2, 3, 6, 7
+DEC_NON_WRITABLE, DEC_NON_READABLE, DEC_BINDING, DEC_SET, DEC_OFFSET = 24, 25, 33, 34, 35
+# storage classes
+SC_UNIFORM_CONSTANT, SC_UNIFORM, SC_PUSH_CONSTANT, SC_STORAGE_BUFFER = 0, 2, 9, 12
+DIM_BUFFER = 5
+
+#: Descriptor types by their short names (the names pass declarations use).
+DESCRIPTOR_TYPES = {
+    "uniform": vk.VK_DESCRIPTOR_TYPE_UNIFORM_BUFFER,
+    "buffer": vk.VK_DESCRIPTOR_TYPE_STORAGE_BUFFER,
+    "image": vk.VK_DESCRIPTOR_TYPE_STORAGE_IMAGE,
+    "texture": vk.VK_DESCRIPTOR_TYPE_COMBINED_IMAGE_SAMPLER,
+    "sampled_image": vk.VK_DESCRIPTOR_TYPE_SAMPLED_IMAGE,
+    "sampler": vk.VK_DESCRIPTOR_TYPE_SAMPLER,
+    "uniform_texel": vk.VK_DESCRIPTOR_TYPE_UNIFORM_TEXEL_BUFFER,
+    "storage_texel": vk.VK_DESCRIPTOR_TYPE_STORAGE_TEXEL_BUFFER,
+}
+
+
+@dataclass(frozen=True)
+class Binding:
+    name: str
+    set: int
+    binding: int
+    kind: str        # a DESCRIPTOR_TYPES key
+    count: int       # array length (1 for a single descriptor)
+    access: str      # "read", "write" or "read_write" (what the shader may do to it)
+
+    @property
+    def descriptor_type(self) -> int:
+        return DESCRIPTOR_TYPES[self.kind]
+
+
+@dataclass(frozen=True)
+class Constant:
+    name: str
+    id: int
+    type: str        # "bool", "int", "uint" or "float"
+    default: object
+
+
+@dataclass(frozen=True)
+class Interface:
+    """A shader module's resource interface."""
+
+    bindings: tuple          # Binding, sorted by (set, binding)
+    constants: dict          # name -> Constant
+    push_size: int           # bytes of the push-constant block (0: none)
+
+    def set(self, index: int) -> dict:
+        """name -> Binding of one descriptor set."""
+        return {b.name: b for b in self.bindings if b.set == index}
+
+    def sets(self) -> list[int]:
+        return sorted({b.set for b in self.bindings})
+
+    def merged(self, other: "Interface") -> "Interface":
+        """The union of two stages' interfaces (a graphics pipeline's vertex and fragment shaders)."""
+        by_key = {(b.set, b.binding): b for b in self.bindings}
+        for b in other.bindings:
+            old = by_key.get((b.set, b.binding))
+            if old is not None and (old.kind, old.count) != (b.kind, b.count):
+                raise ShaderError(f"binding {b.set}.{b.binding}: {old.name} is a {old.kind} in one stage and "
+                                  f"{b.name} a {b.kind} in another")
+            if old is None or old.access != b.access:
+                by_key[(b.set, b.binding)] = b if old is None else Binding(
+                    old.name, old.set, old.binding, old.kind, old.count, "read_write")
+        return Interface(tuple(sorted(by_key.values(), key=lambda b: (b.set, b.binding))),
+                         {**self.constants, **other.constants}, max(self.push_size, other.push_size))
+
+    def specialization(self, values: dict, shader: str = "shader") -> dict:
+        """{constant id: value} from {constant name: value}; an unknown name is a ShaderError."""
+        out = {}
+        for name, value in values.items():
+            c = self.constants.get(name)
+            if c is None:
+                known = ", ".join(sorted(self.constants)) or "none"
+                raise ShaderError(f"{shader}: no specialization constant {name!r} (it has: {known})")
+            out[c.id] = float(value) if c.type == "float" else value
+        return out
+
+
+def _string(words, start) -> str:
+    raw = struct.pack(f"<{len(words) - start}I", *words[start:])
+    return raw.split(b"\0", 1)[0].decode("utf-8", "replace")
+
+
+def reflect(spirv: bytes, name: str = "shader") -> Interface:
+    """The resource interface of one SPIR-V module (a ShaderError if it is not SPIR-V)."""
+    if len(spirv) < 20 or len(spirv) % 4:
+        raise ShaderError(f"{name}: not a SPIR-V binary")
+    words = struct.unpack(f"<{len(spirv) // 4}I", spirv)
+    if words[0] != MAGIC:
+        raise ShaderError(f"{name}: not a SPIR-V binary")
+    names, member_names, decorations, member_decorations = {}, {}, {}, {}
+    types, constants, variables, specs = {}, {}, [], {}
+    i = 5
+    while i < len(words):
+        count, op = words[i] >> 16, words[i] & 0xFFFF
+        if count == 0:
+            raise ShaderError(f"{name}: malformed SPIR-V (zero-length instruction at word {i})")
+        ins = words[i:i + count]
+        if op == OP_NAME:   # the first name wins: a local `const int x = SPEC;` names the same id again
+            names.setdefault(ins[1], _string(ins, 2))
+        elif op == OP_MEMBER_NAME:
+            member_names.setdefault(ins[1], {})[ins[2]] = _string(ins, 3)
+        elif op == OP_DECORATE:
+            decorations.setdefault(ins[1], {})[ins[2]] = ins[3] if len(ins) > 3 else True
+        elif op == OP_MEMBER_DECORATE:
+            member_decorations.setdefault(ins[1], {}).setdefault(ins[2], {})[ins[3]] = ins[4] if len(ins) > 4 else True
+        elif op in (OP_TYPE_BOOL, OP_TYPE_INT, OP_TYPE_FLOAT, OP_TYPE_VECTOR, OP_TYPE_MATRIX, OP_TYPE_IMAGE,
+                    OP_TYPE_SAMPLER, OP_TYPE_SAMPLED_IMAGE, OP_TYPE_ARRAY, OP_TYPE_RUNTIME_ARRAY, OP_TYPE_STRUCT,
+                    OP_TYPE_POINTER):
+            types[ins[1]] = (op, tuple(ins[2:]))
+        elif op == OP_CONSTANT:
+            constants[ins[2]] = ins[3]
+        elif op in (OP_SPEC_TRUE, OP_SPEC_FALSE, OP_SPEC):
+            specs[ins[2]] = (op, ins[1], ins[3] if op == OP_SPEC else op == OP_SPEC_TRUE)
+        elif op == OP_VARIABLE:
+            variables.append((ins[1], ins[2], ins[3]))
+        i += count
+
+    def scalar_name(type_id):
+        op, args = types[type_id]
+        if op == OP_TYPE_BOOL:
+            return "bool"
+        if op == OP_TYPE_FLOAT:
+            return "float"
+        return "int" if args[1] else "uint"
+
+    def size_of(type_id) -> int:
+        op, args = types[type_id]
+        if op in (OP_TYPE_INT, OP_TYPE_FLOAT):
+            return args[0] // 8
+        if op == OP_TYPE_VECTOR:
+            return size_of(args[0]) * args[1]
+        if op == OP_TYPE_MATRIX:
+            stride = 16
+            return stride * args[1]
+        if op == OP_TYPE_ARRAY:
+            return decorations.get(type_id, {}).get(DEC_ARRAY_STRIDE, size_of(args[0])) * constants[args[1]]
+        if op == OP_TYPE_STRUCT:
+            offs = member_decorations.get(type_id, {})
+            return max((offs.get(m, {}).get(DEC_OFFSET, 0) + size_of(t) for m, t in enumerate(args)), default=0)
+        raise ShaderError(f"{name}: cannot size a push-constant member of SPIR-V type op {op}")
+
+    bindings, push_size = [], 0
+    for ptr_type, var, storage in variables:
+        pointee = types[ptr_type][1][1]
+        if storage == SC_PUSH_CONSTANT:
+            push_size = max(push_size, size_of(pointee))
+            continue
+        dec = decorations.get(var, {})
+        if DEC_BINDING not in dec:
+            continue
+        count, base = 1, pointee
+        while types[base][0] in (OP_TYPE_ARRAY, OP_TYPE_RUNTIME_ARRAY):
+            op, args = types[base]
+            count = count * constants[args[1]] if op == OP_TYPE_ARRAY else 0
+            base = args[0]
+        op, args = types[base]
+        access = "read_write"
+        if op == OP_TYPE_STRUCT:
+            members = member_decorations.get(base, {})
+            block = decorations.get(base, {})
+            if storage == SC_UNIFORM and DEC_BLOCK in block:
+                kind, access = "uniform", "read"
+            else:
+                kind = "buffer"
+                flags = [members.get(m, {}) for m in range(len(args))]
+                if flags and all(DEC_NON_WRITABLE in f for f in flags):
+                    access = "read"
+                elif flags and all(DEC_NON_READABLE in f for f in flags):
+                    access = "write"
+            label = names.get(var) or (member_names.get(base, {}).get(0) if len(args) == 1 else None) \
+                or names.get(base, "")
+        else:
+            if op == OP_TYPE_SAMPLED_IMAGE:   # a sampled image, or a texel fetch from a uniform texel buffer
+                dim = types[args[0]][1][1]
+                kind, access = ("uniform_texel" if dim == DIM_BUFFER else "texture"), "read"
+            elif op == OP_TYPE_SAMPLER:
+                kind, access = "sampler", "read"
+            elif op == OP_TYPE_IMAGE:
+                dim, sampled = args[1], args[5]
+                if dim == DIM_BUFFER:
+                    kind = "storage_texel" if sampled == 2 else "uniform_texel"
+                else:
+                    kind = "image" if sampled == 2 else "sampled_image"
+                if sampled != 2:
+                    access = "read"
+            else:
+                raise ShaderError(f"{name}: binding {dec[DEC_BINDING]} has an unsupported type (SPIR-V op {op})")
+            if access == "read_write":
+                if DEC_NON_WRITABLE in dec:
+                    access = "read"
+                elif DEC_NON_READABLE in dec:
+                    access = "write"
+            label = names.get(var, "")
+        bindings.append(Binding(label or f"binding{dec[DEC_BINDING]}", dec.get(DEC_SET, 0), dec[DEC_BINDING], kind,
+                                count, access))
+    consts = {}
+    for cid, (op, type_id, value) in specs.items():
+        dec = decorations.get(cid, {})
+        if DEC_SPEC_ID not in dec:
+            continue
+        ctype = scalar_name(type_id)
+        if op == OP_SPEC:
+            value = struct.unpack("<f", struct.pack("<I", value))[0] if ctype == "float" else (
+                struct.unpack("<i", struct.pack("<I", value))[0] if ctype == "int" else value)
+        cname = names.get(cid) or f"constant{dec[DEC_SPEC_ID]}"
+        consts[cname] = Constant(cname, dec[DEC_SPEC_ID], ctype, value)
+    return Interface(tuple(sorted(bindings, key=lambda b: (b.set, b.binding))), consts, push_size)

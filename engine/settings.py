@@ -13,6 +13,7 @@ import numpy as np
 
 from .errors import ConfigError
 from .limits import MAX_COORD
+from .passes.interface import SHADOW_MODES as TRACED_SHADOW_MODES
 from .passes.interface import VIEW_MODES
 
 #: What `view=` / `--aov` can show: the lit colour or one AOV.
@@ -36,7 +37,7 @@ DEFAULT_SETTINGS = {
 # hard: one ray to each light's centre. soft: `shadow_samples` rays over each light's area / solid angle (R2 points,
 # moving every frame), accumulated and denoised. seed-delta: the paper's occlusion-delta approximation (one ray).
 # reference: `reference_samples` rays per pixel per light, nothing accumulated or denoised (ground truth).
-SHADOW_MODES = ("hard", "soft", "seed-delta", "reference", "off")
+SHADOW_MODES = TRACED_SHADOW_MODES + ("off",)
 
 
 def choices(name: str) -> tuple | None:

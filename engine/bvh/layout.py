@@ -84,8 +84,8 @@ NODE_BYTES = NODE_DTYPE.itemsize
 TRI_BYTES = TRI_DTYPE.itemsize
 
 # ---- the compressed node (CNODE), 32 bytes: made from the nodes above by engine/bvh/compress.py ----------------
-# Used on CPU devices (bvh.glsl specialization constant 8, BVH_COMPRESSED): half the bytes and texel fetches per node
-# step, and two nodes per 64-byte cache line (a node and its left child share one every other time, pre-order).
+# Used on CPU devices (bvh.glsl's BVH_COMPRESSED): half the bytes and texel fetches per node step, and two nodes
+# per 64-byte cache line (a node and its left child share one every other time, pre-order).
 # Same tree, same node numbering, same triangle buffer; 8 uint32 (2 texels) per node:
 #
 #     word  field

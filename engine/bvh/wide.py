@@ -3,8 +3,8 @@
 
     wide = collapse_bvh8(build_bvh(vertices, faces))   # WideBVH: nodes, tris, prim_ids, stats (as BVH has)
 
-The traversal is `bvh_trace_wide_` in shaders/glsl/include/bvh_wide.glsl (selected by specialization constant 4,
-BVH_WIDE, of bvh.glsl). It reads the two buffers at the same bindings as the binary layout.
+The traversal is `bvh_trace_wide_` in shaders/glsl/include/bvh_wide.glsl (selected by bvh.glsl's BVH_WIDE).
+It reads the two buffers at the same bindings as the binary layout.
 
 Nodes buffer: 80 bytes (5 texels of 16 bytes) per node, node 0 is the root, as 20 uint32 words:
 

@@ -115,9 +115,12 @@ class ComputePass:
         spirv = library.get(self.shader)
         interface = reflect(spirv, self.shader)
         check_interface(self.shader, self.bindings, interface)
-        for index in range(1, len(self.shared_sets) + 1):
+        for index in range(len(self.shared_sets) + 1):   # the set layouts the pipeline layout was made with
             if interface.set(index) != self.interface.set(index):
-                raise ShaderError(f"{self.shader}: set {index} changed; it is shared with other passes")
+                changed = set(interface.set(index).items()) ^ set(self.interface.set(index).items())
+                names = ", ".join(sorted({name for name, _ in changed}))
+                raise ShaderError(f"{self.shader}: set {index}'s layout changed ({names}: binding numbers or array "
+                                  "sizes); restart to use it")
         if interface.sets() != self.interface.sets() or interface.push_size != self.interface.push_size:
             raise ShaderError(f"{self.shader}: its sets or push constants changed (sets {interface.sets()}, "
                               f"{interface.push_size} bytes of push constants); restart to use it")

@@ -26,7 +26,7 @@ layout(push_constant) uniform Push {
 } pc;
 
 void main() {
-    // the 8x8 tiles in the order of shares.glsl (constant 15: the device's worker threads)
+    // the 8x8 tiles in the order of shares.glsl (WORK_SHARES: the device's worker threads)
     ivec2 px = ivec2(share_invocation(WORK_SHARES, gl_WorkGroupSize).xy) + ivec2(0, pc.row0);
     uint w = frame.width, h = frame.height;
     if (px.x >= int(w) || px.y >= int(h)) return;

@@ -33,9 +33,9 @@ layout(std430, set = 0, binding = 8) readonly buffer AOInVar { float ao_in_var[]
 layout(std430, set = 0, binding = 9) writeonly buffer AOOut { float ao_out[]; };
 layout(std430, set = 0, binding = 10) writeonly buffer AOOutVar { float ao_out_var[]; };
 layout(std430, set = 0, binding = 11) readonly buffer HistLen { float hist_len[]; };
-// The four inputs again as R32F storage texel buffers (the same buffers), read where constant 0 says: llvmpipe
-// 22.3 loads a storage buffer lane by lane (a scalar loop over the 8 lanes per load, 25 taps per pixel) but an
-// image load as vector code. Storage buffers on GPUs (the views were 12% slower on an H200).
+// The four inputs again as R32F storage texel buffers (the same buffers), read where DENOISE_TEXEL says (set by
+// engine/passes/denoise.py): llvmpipe 22.3 loads a storage buffer lane by lane (a scalar loop over the 8 lanes per
+// load, 25 taps per pixel) but an image load as vector code. Storage buffers on GPUs, where the views are slower.
 layout(constant_id = 0) const bool DENOISE_TEXEL = false;
 layout(set = 0, binding = 13, r32f) uniform readonly restrict imageBuffer masks_in_texels;
 layout(set = 0, binding = 14, r32f) uniform readonly restrict imageBuffer masks_in_var_texels;

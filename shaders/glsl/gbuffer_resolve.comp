@@ -29,8 +29,8 @@ layout(set = 0, binding = 1, r32ui) uniform uimage2D visibility;
 layout(set = 0, binding = 2, rgba32f) uniform writeonly image2D g_position;
 layout(set = 0, binding = 3, rgba32f) uniform writeonly image2D g_normal;
 layout(set = 0, binding = 4, rgba16f) uniform writeonly image2D g_albedo;
-// The normal again, 4 bytes (w: 1 where covered), for the denoiser's 25 taps per pixel and iteration: on an H200 its
-// 16-byte loads of the full normal were a third of the denoiser's time.
+// The normal again, 4 bytes (w: 1 where covered), for the denoiser's 25 taps per pixel and iteration: on GPUs the
+// 16-byte loads of the full normal are a large part of the denoiser's time.
 layout(set = 0, binding = 10, rgba8_snorm) uniform writeonly image2D g_normal8;
 // The scene's buffers as texel buffers (lavapipe gathers texels for 8 lanes at once, storage buffers lane by lane)
 layout(set = 0, binding = 5) uniform samplerBuffer vertices;       // 2 texels per vertex: (p, n.x), (n.yz, uv)
@@ -97,8 +97,8 @@ void main() {
     // Texture sampling: one block per slot, each with a constant index, taken where some pixel of this workgroup
     // samples that slot (the bits in tile_slots: a branch that is uniform over the workgroup). Constant indices,
     // not a loop over textures[s]: lavapipe 22.3 samples a dynamically indexed array lane by lane, and in rare
-    // launches (2 seen in about 300) put the wrong texture on one object for the whole run.
-    // TEXTURE_SLOTS (specialization constant 0) is the number of slots the scene uses: the blocks past it go.
+    // launches put the wrong texture on one object for the whole run.
+    // TEXTURE_SLOTS (set by engine/passes/gbuffer.py) is the number of slots the scene uses: the blocks past it go.
     if (gl_LocalInvocationIndex == 0u) tile_slots = 0u;
     barrier();
     if (slot >= 0) atomicOr(tile_slots, 1u << uint(slot));

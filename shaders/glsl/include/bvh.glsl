@@ -6,7 +6,7 @@
 //     #define BVH_SET 0          // descriptor set of the two buffers (default 0)
 //     #define BVH_BINDING 2      // nodes at BVH_BINDING, triangles at BVH_BINDING + 1 (default 0), both bound as
 //                                // uniform texel buffers of R32G32B32A32_UINT texels, and the same two buffers
-//                                // at BVH_BINDING + 2, + 3 as storage texel buffers (constant 11)
+//                                // at BVH_BINDING + 2, + 3 as storage texel buffers (BVH_IMAGE_FETCH)
 //     #define BVH_STACK_SIZE 32  // optional; must be >= the BVH's stats["depth"] - 1 (the builder's default
 //                                // max_depth of 32 guarantees that for the default 32)
 //     #include "bvh.glsl"
@@ -23,7 +23,7 @@
 //
 // Buffer layout (documented in engine/bvh/layout.py, uploaded verbatim from BVH.nodes / BVH.tris). They are read as
 // texel buffers, not storage buffers: lavapipe gathers texels for 8 lanes at once but loads storage buffers lane by
-// lane (1.3x faster traversal there); a texel is 16 bytes, so a node is 4 texels and a triangle 3.
+// lane; a texel is 16 bytes, so a node is 4 texels and a triangle 3.
 //   node, 64 bytes: vec4 (lmin, left word), vec4 (lmax, right word), vec4 (rmin, left count), vec4 (rmax, right count)
 //     child word: bit 31 set = leaf whose triangles are [word & 0x7fffffff, + count); clear = interior node index
 //   triangle, 48 bytes: vec4 (v0, original index as int bits), vec4 (v1, 0), vec4 (v2, 0)
@@ -69,12 +69,12 @@ struct BvhHit {
 
 layout(set = BVH_SET, binding = BVH_BINDING) uniform usamplerBuffer bvh_node_texels;
 layout(set = BVH_SET, binding = BVH_BINDING + 1) uniform usamplerBuffer bvh_tri_texels;
-// Specialization constant 11 (BVH_IMAGE_FETCH, true on CPU devices): read the same two buffers through storage
-// texel buffer views at BVH_BINDING + 2 and + 3 (imageLoad) instead of the uniform texel buffers. llvmpipe 22.3
-// emits a texel fetch from an R32G32B32A32 buffer as a call to a sampling function (its "simple format" inline path
-// is only for RGBA8 unorm), and the call clobbers every vector register (~190 spill / reload instructions in the
-// node loop); an image load is inlined (8 16-byte loads and a transpose), no call. 1.0-1.1x on lavapipe.
-// (An RGBA8-unorm view, whose texel fetches are inlined, needs 8 fetches per node and a repack: 0.67x.)
+// BVH_IMAGE_FETCH (set by engine/gpu/bvh.py bvh_spec; true on CPU devices): read the same two buffers through
+// storage texel buffer views at BVH_BINDING + 2 and + 3 (imageLoad) instead of the uniform texel buffers. llvmpipe
+// 22.3 emits a texel fetch from an R32G32B32A32 buffer as a call to a sampling function (its "simple format" inline
+// path is only for RGBA8 unorm), and the call clobbers every vector register (spills in the node loop); an image
+// load is inlined (16-byte loads and a transpose), no call. (An RGBA8-unorm view inlines its fetches but needs
+// twice as many per node and a repack: slower.)
 layout(constant_id = 11) const bool BVH_IMAGE_FETCH = false;
 layout(set = BVH_SET, binding = BVH_BINDING + 2, rgba32ui) uniform readonly restrict uimageBuffer bvh_node_image;
 layout(set = BVH_SET, binding = BVH_BINDING + 3, rgba32ui) uniform readonly restrict uimageBuffer bvh_tri_image;
@@ -104,30 +104,29 @@ BvhTri bvh_tri_(uint i) {
     return t;
 }
 
-// Specialization constant 0 (engine/rt/tracer.py bvh_spec): push the far child with an unconditional store (sp only
-// advances on a push) instead of a store under a branch. On lavapipe a store under a branch is a branch per SIMD
-// lane, and the unconditional one is 1.6-1.8x faster; on a GPU the branch is cheap and the extra store is not (the
-// branch is 10-14% faster on an H200).
+// BVH_BRANCHLESS_PUSH (set by engine/gpu/bvh.py bvh_spec): push the far child with an unconditional store (sp only
+// advances on a push) instead of a store under a branch. Faster on CPU devices, where llvmpipe runs a store under a
+// branch lane by lane; GPUs prefer the branch (cheap there, unlike the extra store).
 layout(constant_id = 0) const bool BVH_BRANCHLESS_PUSH = true;
-// Specialization constant 1: see bvh_trace_ (postponed leaf tests; true on CPU devices).
+// BVH_POSTPONE_LEAVES: see bvh_walk_ (postponed leaf tests; true on CPU devices).
 layout(constant_id = 1) const bool BVH_POSTPONE_LEAVES = true;
-// Specialization constants 2 and 3: the traversal stack as BVH_STACK_REGS (<= 32) plain variables shifted by one
+// BVH_REG_STACK and BVH_STACK_REGS: the traversal stack as BVH_STACK_REGS (<= 32) plain variables shifted by one
 // at every push and pop (BVH_REG_STACK, true on CPU devices) instead of an indexed local array. lavapipe runs an
 // indexed local array lane by lane (8 extracts and scalar loads or stores per access, on every node step, since
 // both sides of an `if` run), while the shift is 2 vector selects per entry, and entries past BVH_STACK_REGS
-// fold away at pipeline creation. The Tracer and the renderer's passes set BVH_STACK_REGS to min(10, the BVH's
-// depth - 1) (engine/rt/tracer.py CPU_STACK_REGS; depth - 1 is the most the traversal pushes), with constant 9
-// where that is fewer than depth - 1. Measured on lavapipe: 1.1-1.3x with 32 entries, 1.3-1.55x with 16.
+// fold away at pipeline creation. engine/gpu/bvh.py bvh_spec sets BVH_STACK_REGS to min(CPU_STACK_REGS, the BVH's
+// depth - 1) on CPU devices (depth - 1 is the most the traversal pushes), with BVH_STACK_RETRY where that is fewer
+// than depth - 1. Faster on CPU devices, the more so the fewer the entries.
 layout(constant_id = 2) const bool BVH_REG_STACK = true;
 layout(constant_id = 3) const int BVH_STACK_REGS = 32;
-// Specialization constant 9: BVH_STACK_REGS may be less than the BVH needs (a short register stack, fewer vector
+// BVH_STACK_RETRY: BVH_STACK_REGS may be less than the BVH needs (a short register stack, fewer vector
 // registers live in the node loop): a push onto a full register stack drops its bottom entry and marks the ray;
 // a marked ray whose walk ends without the answer (no hit for bvh_occluded; always for bvh_intersect) walks the
 // tree again with the full array stack (the closest hit so far as tmax; of two hits at exactly that t either may be
-// reported). 10 entries instead of the BVH's depth - 1 (19-25 on the bench scenes): 1.1-1.3x on lavapipe.
+// reported). Faster on lavapipe than a register stack as deep as the tree: the retries are rare.
 layout(constant_id = 9) const bool BVH_STACK_RETRY = false;
 
-// Specialization constant 8: the nodes are the 32-byte compressed ones (engine/bvh/layout.py CNODE, made by
+// BVH_COMPRESSED: the nodes are the 32-byte compressed ones (engine/bvh/layout.py CNODE, made by
 // engine/bvh/compress.py): 2 texels per node instead of 4, child boxes as 8-bit offsets in a per-node frame.
 layout(constant_id = 8) const bool BVH_COMPRESSED = false;
 
@@ -185,7 +184,7 @@ BvhRay_ bvh_make_ray_(vec3 o, vec3 d) {
 }
 
 // Entry and exit distance of a box, clipped to [tmin, tmax]; the box is hit when .x <= .y.
-// Specialization constant 10: min and max written as compare-and-select (BVH_SELECT_MINMAX): llvmpipe's min/max
+// BVH_SELECT_MINMAX: min and max written as compare-and-select: llvmpipe's min/max
 // keep GLSL's NaN rule with an extra unordered compare and blend each, a select is one vminps/vmaxps on x86.
 // No NaN reaches here from a finite ray (inv_d is finite, the box planes finite or +-inf).
 layout(constant_id = 10) const bool BVH_SELECT_MINMAX = false;
@@ -271,13 +270,13 @@ bool bvh_leaf_triangle_(BvhRay_ r, uint i, float tmin, inout float best, inout B
 //
 // Two nested loops (Aila and Laine's "while-while"): the inner one walks nodes until this ray has leaf triangles to
 // test (the triangles of both leaf children of one node) or is done; the triangle loop then tests them. With
-// specialization constant 1 (BVH_POSTPONE_LEAVES, true on CPU devices) the node loop keeps walking until the ray has
-// triangles; false: one node step per outer iteration (the classic single loop). On lavapipe a loop body always runs
-// at least once, masked, for all 8 lanes, so a single loop pays the whole triangle test (3 texel fetches, the
-// watertight test) at every node step although a ray tests 1.1 triangles per 14.6 nodes (shadow rays); postponed,
-// the triangle code runs once per leaf batch: 1.15-1.4x occlusion, 1.1-1.2x closest hit, measured.
+// BVH_POSTPONE_LEAVES (true on CPU devices) the node loop keeps walking until the ray has triangles; false: one
+// node step per outer iteration (the classic single loop). On lavapipe a loop body always runs at least once,
+// masked, for all 8 lanes, so a single loop pays the whole triangle test (3 texel fetches, the watertight test) at
+// every node step although a ray visits far more nodes than it tests triangles; postponed, the triangle code runs
+// once per leaf batch, which is faster there for both queries.
 // The node loop's exit is its `while` condition on purpose: an unconditional `for (;;)` ended by
-// `if (total != 0u || done) break;` was miscompiled by llvmpipe 22.3 (4% of the shadow rays missed their hit).
+// `if (total != 0u || done) break;` was miscompiled by llvmpipe 22.3 (some shadow rays missed their hit).
 // full: the array stack whatever BVH_REG_STACK says (the retry walk). lost: set where a push dropped an entry.
 bool bvh_walk_(BvhRay_ r, float tmin, float tmax, bool any_hit, bool full, inout BvhHit hit, inout bool lost) {
     const bool reg_stack = BVH_REG_STACK && !full;
@@ -405,7 +404,7 @@ bool bvh_trace_(vec3 o, vec3 d, float tmin, float tmax, bool any_hit, int mode, 
     return found;
 }
 
-// Specialization constant 4 (engine/rt/tracer.py bvh_spec): the bound buffers hold the 8-wide layout
+// BVH_WIDE (set by engine/gpu/bvh.py bvh_spec): the bound buffers hold the 8-wide layout
 // (engine/bvh/wide.py) instead of the binary one; traversal in bvh_wide.glsl.
 layout(constant_id = 4) const bool BVH_WIDE = false;
 
@@ -442,8 +441,8 @@ bool bvh_occluded(vec3 o, vec3 d, float tmin, float tmax) {
 // The same two queries in two steps, for kernels that run the rare second walk in a later dispatch (the batch
 // kernels on CPU devices: lavapipe runs a walk's loop body at least once for every 8 lanes, even when no lane needs
 // it, so the inline second walk cost every ray; see engine/rt/tracer.py). `*_first`: the register-stack walk, with
-// `unresolved` set where the ray lost a stack entry and has no answer yet (never when specialization constant 9,
-// BVH_STACK_RETRY, is off); such a ray's answer is only complete after `*_full` (the array-stack walk; for
+// `unresolved` set where the ray lost a stack entry and has no answer yet (never when BVH_STACK_RETRY is off);
+// such a ray's answer is only complete after `*_full` (the array-stack walk; for
 // bvh_intersect_full, `so_far` is what bvh_intersect_first returned).
 bool bvh_occluded_first(vec3 o, vec3 d, float tmin, float tmax, out bool unresolved) {
     BvhHit hit = bvh_miss_();

@@ -1,5 +1,5 @@
 // bvh_wide.glsl: the 8-wide BVH traversal (layout in engine/bvh/wide.py), included by bvh.glsl; selected there by
-// specialization constant 4, BVH_WIDE. Same bindings as the binary layout: nodes are 5 texels (80 bytes), triangles
+// BVH_WIDE. Same bindings as the binary layout: nodes are 5 texels (80 bytes), triangles
 // the binary layout's 3 texels. Child boxes are dequantized exactly as the host checked them (p + q * 2^e in float32,
 // the product exact), then tested with the binary layout's robust slab test; triangles with its watertight test.
 //
@@ -80,9 +80,9 @@ bool bvh_wide_triangles_(BvhRay_ r, uint tri_base, uint tris, float tmin, bool a
     return false;
 }
 
-// Specialization constant 12 (BVH_WIDE_CPU, CPU devices): the 8-wide traversal in lavapipe's terms, as the binary
+// BVH_WIDE_CPU (CPU devices): the 8-wide traversal in lavapipe's terms, as the binary
 // one: postponed leaf tests (the node walk is an inner loop that runs until the ray has triangles), the stack as
-// shifted registers (min(BVH_STACK_REGS, 12) entries; with constant 9, BVH_STACK_RETRY, which must be on where
+// shifted registers (min(BVH_STACK_REGS, 12) entries; with BVH_STACK_RETRY, which must be on where
 // they can be fewer than the tree needs, a ray whose pushes overflowed them and that ends without its answer walks
 // again with the array stack: inline, or in a later dispatch, see bvh.glsl), no store or load under a branch.
 layout(constant_id = 12) const bool BVH_WIDE_CPU = false;
@@ -209,7 +209,7 @@ bool bvh_trace_wide_(vec3 o, vec3 d, float tmin, float tmax, bool any_hit, int m
         }
 
         BvhWideNode_ n = bvh_wide_node_(node);
-        // bvh_wide_children_'s test with branches, as measured on the H200 (the selects are for lavapipe)
+        // bvh_wide_children_'s test with branches, which GPUs prefer (the selects are for lavapipe)
         uint hits = 0u;
         uint tris = 0u;
         for (uint j = 0u; j < 8u; ++j) {

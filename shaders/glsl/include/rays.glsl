@@ -2,7 +2,7 @@
 //
 // Rays (binding 0) are three tightly packed arrays in one buffer of `capacity` rays (params.capacity): origins as
 // 3 floats per ray at [0, 3 capacity), directions at [3 capacity, 6 capacity), tmax at [6 capacity, 7 capacity).
-// The host fills them with three contiguous copies (an interleaved record per ray was 16x slower to pack).
+// The host fills them with three contiguous copies (an interleaved record per ray is far slower to pack).
 // Params (binding 2) is written by the host per batch; its first three words are also the vkCmdDispatchIndirect
 // arguments, so the command buffer is recorded once.
 #ifndef RAYS_GLSL
@@ -29,11 +29,10 @@ layout(set = 0, binding = 6) uniform samplerBuffer ray_tmax;
 // RGBA32UI texel per ray (closest hit).
 layout(set = 0, binding = 7, r32ui) uniform writeonly restrict uimageBuffer occluded_texels;
 layout(set = 0, binding = 8, rgba32ui) uniform writeonly restrict uimageBuffer hit_texels;
-// Specialization constant 13 (RAYS_TEXEL): read the rays and write the results through the texel buffers. llvmpipe
+// RAYS_TEXEL (set by engine/rt/tracer.py): read the rays and write the results through the texel buffers. llvmpipe
 // 22.3 loads and stores a storage buffer lane by lane (a scalar loop over the 8 lanes with a bounds check per
-// element: 7 of them per ray to load it, ~14% of the samples on the default scene's AO rays); its texel fetches
-// and image stores are vector code. On for the occlusion kernels on CPU devices: 1.02-1.07x there (same-run A/B,
-// six runs of three ray sets); for closest hits 0.89-1.00x, so off (engine/rt/tracer.py).
+// element, 7 of them per ray to load it); its texel fetches and image stores are vector code. On for the occlusion
+// kernels on CPU devices, where it is faster; off for closest hits, where it is not.
 layout(constant_id = 13) const bool RAYS_TEXEL = false;
 
 // The block of 64 rays this workgroup traces (shares.glsl; params.shares: the device's worker threads).

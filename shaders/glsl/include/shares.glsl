@@ -2,8 +2,8 @@
 //
 // llvmpipe 22.3 splits a dispatch's workgroups into one contiguous share per worker thread (lp_cs_tpool:
 // iter_per_thread = groups / threads), and the dispatch lasts as long as its slowest share. Work in image order
-// puts the top of the image in one share and the bottom in the other (on the default scene 56-62% of the rays'
-// work in one half). share_block maps workgroup w of n, in shares of n / shares, to the work block it takes:
+// puts the top of the image in one share and the bottom in the other (and the rays' work is seldom even between
+// the halves). share_block maps workgroup w of n, in shares of n / shares, to the work block it takes:
 // workgroup p of share s takes block p * shares + (s + p) % shares, so that every share takes one block of every
 // `shares` consecutive ones (rotating, so that no period in the blocks' cost can line up with a share) and
 // neighbouring workgroups of a share stay neighbours in the image. A permutation of [0, n) for any shares >= 1;

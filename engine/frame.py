@@ -7,6 +7,7 @@ import numpy as np
 from PIL import Image as PILImage
 
 from .errors import ConfigError, EngineError
+from .files import atomic_write
 from .settings import check_png_path
 
 
@@ -20,12 +21,13 @@ class Frame:
     settings: dict = field(default_factory=dict)
 
     def save(self, path, aov: str | None = None):
-        """Write the colour (or an AOV, normalized for viewing) as PNG (`path` ends in .png)."""
+        """Write the colour (or an AOV, normalized for viewing) as PNG (`path` ends in .png). The file is replaced
+        whole or not at all (engine.files.atomic_write)."""
         check_png_path(path)
-        img = self.color if aov is None else aov_to_rgba(self, aov)
+        img = PILImage.fromarray(self.color if aov is None else aov_to_rgba(self, aov), "RGBA")
         try:
-            PILImage.fromarray(img, "RGBA").save(str(path))
-        except (OSError, ValueError) as exc:
+            atomic_write(path, lambda f: img.save(f, format="PNG"), "image")
+        except ValueError as exc:
             raise EngineError(f"{path}: cannot write image: {exc}") from None
 
 

@@ -1,10 +1,12 @@
 """One shared worker pool for numpy work that releases the GIL (the BVH build, the Tracer's ray checks).
 
 `run(tasks, threads)` runs callables on up to `threads` threads of a pool that grows on demand; a task that itself
-calls `run` runs its tasks inline, so work never waits on the pool from inside it.
+calls `run` runs its tasks inline, so work never waits on the pool from inside it. `serialized` makes an object's
+methods one call at a time (the Renderer's and the Tracer's thread-safety rule).
 """
 from __future__ import annotations
 
+import functools
 import os
 import threading
 from concurrent.futures import ThreadPoolExecutor
@@ -84,3 +86,13 @@ def run(tasks, threads: int) -> list:
     for f in _submit(worker, min(threads, len(tasks))):
         f.result()
     return results
+
+
+def serialized(method):
+    """Run an object's method under its `_lock` (an RLock): one call at a time per object, from any thread; close()
+    then waits for a call in progress instead of freeing what it uses."""
+    @functools.wraps(method)
+    def call(self, *args, **kwargs):
+        with self._lock:
+            return method(self, *args, **kwargs)
+    return call

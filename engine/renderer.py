@@ -11,6 +11,7 @@ and write (engine/passes/base.py); the recorder derives the barriers between the
 from __future__ import annotations
 
 import math
+import threading
 
 import numpy as np
 
@@ -28,6 +29,7 @@ from .passes.interface import (FILTER_AO, FILTER_MASKS, FILTER_TEMPORAL, FRAME, 
                                camera_fields, pack_frame, pack_light)
 from .passes.lighting import LightingPass
 from .passes.shadows import ShadowPass
+from .parallel import serialized
 from .passes.targets import Targets
 from .scene import Scene
 from .scene.camera import Camera
@@ -55,6 +57,7 @@ class Renderer:
         self.ctx = None
         self._validation_errors: list[str] = []
         self._owns_ctx = context is None
+        self._lock = threading.RLock()     # one call at a time (engine.parallel.serialized)
         self._commands: dict = {}          # set before anything can fail, so close() always works
         self._steady = None                # _Steady: the last frame's inputs, for re-submitting it cheaply
         self._geometry = self._scene_bvh = self.targets = None
@@ -116,6 +119,7 @@ class Renderer:
     def device_name(self) -> str:
         return self.ctx.device_info["name"]
 
+    @serialized
     def render(self, scene, camera=None, **settings) -> Frame:
         """Render one frame and read everything back: colour, AOVs and GPU timings."""
         cmd, marks, cfg, n_lights = self._prepare(scene, camera, settings, readback=True)
@@ -123,6 +127,7 @@ class Renderer:
         color, aov = self.targets.read(n_lights)
         return Frame(color=color, aov=aov, timings=self.timestamps.read(marks), settings=cfg)
 
+    @serialized
     def submit(self, scene, camera=None, *, wait=True, signal_semaphores=(), fence=None, **settings):
         """Render one frame into `self.targets.color` without reading it back (the viewer's path).
 
@@ -133,10 +138,12 @@ class Renderer:
         self.ctx.submit(cmd, wait=wait, signal_semaphores=signal_semaphores, fence=fence)
         return cfg
 
+    @serialized
     def last_timings(self) -> dict[str, float]:
         """GPU ms per pass of the last submitted frame (blocks until its queries are available)."""
         return self.timestamps.read(self._last_marks) if getattr(self, "_last_marks", None) else {}
 
+    @serialized
     def resize(self, width: int, height: int):
         """New render size: targets are recreated and recorded command buffers dropped."""
         check_size(width, height)
@@ -252,6 +259,7 @@ class Renderer:
         cmd, marks, cfg, n_lights = steady.result
         return cmd, marks, dict(cfg), n_lights
 
+    @serialized
     def close(self):
         if self.ctx is not None:
             if self._owns_ctx:
@@ -271,6 +279,12 @@ class Renderer:
 
     def __exit__(self, *exc):
         self.close()
+
+    def __del__(self):   # a Renderer that is dropped without close() frees its device too
+        try:
+            self.close()
+        except Exception:
+            pass
 
     # ---- internals ------------------------------------------------------------------------
     def _poll_shaders(self):

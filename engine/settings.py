@@ -12,6 +12,7 @@ from pathlib import Path
 import numpy as np
 
 from .errors import ConfigError
+from .files import check_writable
 from .limits import MAX_COORD
 from .passes.interface import SHADOW_MODES as TRACED_SHADOW_MODES
 from .passes.interface import VIEW_MODES
@@ -99,15 +100,14 @@ def parse_size(text: str) -> tuple[int, int]:
 
 
 def check_png_path(path):
-    """A .png path whose folder exists, checked before any work that would be lost if it could not be written."""
+    """A .png path that can be written (its folder exists and takes a new file), checked before any work that would
+    be lost if it could not be written."""
     p = Path(os.fspath(path))
     if p.suffix.lower() != ".png":
         raise ConfigError(f"{p}: images are written as PNG: give a path ending in .png")
     if p.is_dir():
         raise ConfigError(f"{p}: is a folder, not an image file")
-    if not p.parent.is_dir():
-        raise ConfigError(f"{p}: cannot write image: no folder {str(p.parent)!r}")
-    return p
+    return check_writable(p, "image")
 
 
 def check_size(width, height):

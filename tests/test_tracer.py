@@ -270,7 +270,6 @@ def test_short_stack_retry_matches_the_full_stack(monkeypatch, tracers, name):
 def test_image_loads_match_texel_fetches(monkeypatch, tracers, name):
     """BVH_IMAGE_FETCH reads the BVH through its storage texel buffer views (imageLoad; on by default on
     CPU devices) instead of the uniform texel buffers: exactly the same answers, both layouts, every mesh."""
-    import engine.rt.tracer as tracer_mod
     v, f = meshes()[name]
     rng = np.random.default_rng(23)
     o, d = random_rays(rng, 3000, (v.min(0), v.max(0)))
@@ -337,7 +336,6 @@ def test_second_dispatch_over_several_batches(monkeypatch, tracers):
     tmax = rng.uniform(0.1, 4.0, len(o)).astype(np.float32)
     base = tracers["sphere"]
     occ0, hit0 = base.occluded(o, d, tmax), base.intersect(o, d, tmax)
-    import engine.rt.tracer as tracer_mod
     real = gpu_bvh.bvh_spec
     # (BVH_WIDE_CPU: the wide layout's register-stack walk, which is the CPU devices' and otherwise off)
     monkeypatch.setattr(gpu_bvh, "bvh_spec",
@@ -359,7 +357,6 @@ def test_second_dispatch_over_several_batches(monkeypatch, tracers):
 def test_uncompressed_nodes_give_the_same_answers(monkeypatch, tracers):
     """The 64-byte nodes (a BVH whose leaves do not fit the compressed word) answer exactly as the compressed ones:
     quantization only widens boxes, it never changes which triangles are tested against what."""
-    import engine.rt.tracer as tracer_mod
     v, f = meshes()["thin_box"]
     rng = np.random.default_rng(19)
     o, d = random_rays(rng, 3000, (v.min(0), v.max(0)))

@@ -7,6 +7,7 @@ from pathlib import Path
 import numpy as np
 from PIL import Image, ImageDraw, ImageFont
 
+from ..files import atomic_write
 from .config import PEERS
 
 
@@ -181,6 +182,6 @@ def plot(results: dict, path):
                    hlines=[(1.0, "issue 3 goal 1.0"), (0.5, "issue 6 goal 0.5")])
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
-    img.save(path)
+    atomic_write(path, lambda f: img.save(f, format="PNG"), "plot")
     return path
 

@@ -2,10 +2,10 @@
 from __future__ import annotations
 
 import json
-from pathlib import Path
 
 import numpy as np
 
+from ..files import atomic_write_text
 from .config import PEERS, RAYSETS
 
 
@@ -117,4 +117,4 @@ def _json_default(o):
 
 
 def write_json(results: dict, path):
-    Path(path).write_text(json.dumps(results, indent=1, default=_json_default) + "\n")
+    atomic_write_text(path, json.dumps(results, indent=1, default=_json_default) + "\n", "benchmark JSON")

@@ -11,6 +11,7 @@ from pathlib import Path
 import numpy as np
 
 from ..errors import ConfigError
+from ..files import atomic_write_text
 from .std140 import Struct
 
 #: The views a frame can show (setting `view`): "color" is the lit image (no dispatch); the others are AOVs drawn
@@ -166,5 +167,5 @@ def write_glsl() -> bool:
     text = glsl_text()
     if GLSL_PATH.exists() and GLSL_PATH.read_text() == text:
         return False
-    GLSL_PATH.write_text(text)
+    atomic_write_text(GLSL_PATH, text, "generated GLSL")
     return True

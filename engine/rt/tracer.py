@@ -11,6 +11,7 @@ from __future__ import annotations
 
 import math
 import os
+import threading
 from dataclasses import dataclass
 
 import numpy as np
@@ -19,6 +20,7 @@ from ..bvh import build_bvh
 from ..errors import ConfigError, SceneError
 from ..gpu import SceneBVH, bvh_descriptor_set, bvh_layout
 from ..gpu.bvh import CPU_OCCLUSION_STACK_REGS
+from ..parallel import serialized
 from ..shaders import ShaderLibrary
 from ..vk import Buffer, BufferView, ComputePipeline, Context, DescriptorSet, Recorder, Timestamps, reflect
 from ..vk.device import has_dedicated_vram, is_cpu, rgb32f_texel_buffers, work_shares
@@ -61,6 +63,7 @@ class Tracer:
                  context: Context | None = None, staging: bool | None = None, layout: str | None = None):
         """`staging`: copy rays to and results from device-local buffers (default: when the device has memory
         the host cannot map, i.e. a discrete GPU). `layout`: "binary" or "wide" BVH (default: bvh_layout's)."""
+        self._lock = threading.RLock()   # one call at a time, from any thread (engine.parallel.serialized)
         self.ctx = None
         self._owns_ctx = context is None
         if context is not None:
@@ -216,6 +219,7 @@ class Tracer:
         if self.ctx.closed:
             raise ConfigError("Tracer is closed: the Vulkan context it was given was closed")
 
+    @serialized
     def occluded(self, origins, directions, tmax=np.inf) -> np.ndarray:
         """(N,) bool: does any triangle lie along origin + t * direction for t in [0, tmax]?"""
         self._check_open()
@@ -227,6 +231,7 @@ class Tracer:
             out[s:s + n] = self.results_host.view(np.uint32)[:n] != 0
         return out
 
+    @serialized
     def intersect(self, origins, directions, tmax=np.inf) -> Hits:
         """Closest hit per ray within [0, tmax]."""
         self._check_open()
@@ -263,6 +268,7 @@ class Tracer:
         return n
 
     # ---- lifetime --------------------------------------------------------------------------
+    @serialized
     def close(self):
         if self.ctx is not None:
             if self._owns_ctx:

@@ -3,11 +3,16 @@
 `Context` owns the instance, the (optional) validation messenger, the logical device, one
 queue that does graphics + compute (+ present when a surface is given), a command pool and a
 list of objects to destroy on `close()` in reverse order of creation.
+
+Threads: the queue, the command pool and the one-shot command buffer are used under `lock`, so objects on one
+context (a Renderer and Tracers) may run from different threads; each of those objects serializes its own calls.
 """
 from __future__ import annotations
 
 import logging
 import os
+import threading
+import weakref
 
 import vulkan as vk
 
@@ -110,11 +115,22 @@ def choose_device(descs: list[dict], selector=None) -> int:
     return matches[0]["index"]
 
 
+_LIVE: "weakref.WeakSet[Context]" = weakref.WeakSet()
+
+
+def live_contexts() -> int:
+    """How many Contexts are open in this process (each holds a Vulkan device)."""
+    return sum(1 for c in list(_LIVE) if not c.closed)
+
+
 class Context:
     """Instance + device + queue. Use as a context manager or call close()."""
 
     def __init__(self, device=None, validation: bool | None = None, instance_extensions=(),
                  device_extensions=(), surface_factory=None):
+        self.lock = threading.RLock()   # the queue, the command pool, the one-shot command buffer, teardown
+        self.lost = False               # VK_ERROR_DEVICE_LOST was seen: nothing more is submitted
+        self.allocations = 0            # live device-memory allocations (Buffer, Image)
         self.validation = _env_flag(VALIDATION_ENV) if validation is None else bool(validation)
         self.validation_errors: list[str] = []
         self.validation_messages: list[str] = []
@@ -129,6 +145,7 @@ class Context:
         except BaseException:
             self.close()
             raise
+        _LIVE.add(self)
 
     # ---- set-up -------------------------------------------------------------------------
     def _init(self, selector, inst_exts, dev_exts, surface_factory):
@@ -235,14 +252,28 @@ class Context:
         call on a destroyed device aborts the process instead of raising."""
         if self.device is None:
             raise ConfigError(f"{what}: the Vulkan context is closed (create a new engine.vk.Context)")
+        if self.lost:
+            raise VulkanError(f"{what}: the Vulkan device was lost; close this object and create a new one")
 
     def wait_idle(self):
-        if self.device is not None:
-            vk.vkDeviceWaitIdle(self.device)
+        with self.lock:
+            if self.device is not None and not self.lost:
+                try:
+                    vk.vkDeviceWaitIdle(self.device)
+                except vk.VkErrorDeviceLost:
+                    self.lost = True
+                    raise VulkanError("the Vulkan device was lost") from None
 
     def close(self):
+        with self.lock:
+            self._close()
+
+    def _close(self):
         if self.device is not None:
-            vk.vkDeviceWaitIdle(self.device)
+            try:
+                vk.vkDeviceWaitIdle(self.device)
+            except vk.VkErrorDeviceLost:   # destroying objects of a lost device is allowed
+                self.lost = True
             while self._destroy_stack:
                 fn, args = self._destroy_stack.pop()
                 fn(*args)
@@ -271,36 +302,44 @@ class Context:
 
     # ---- commands -----------------------------------------------------------------------
     def allocate_command_buffer(self):
-        return vk.vkAllocateCommandBuffers(self.device, vk.VkCommandBufferAllocateInfo(
-            commandPool=self.command_pool, level=vk.VK_COMMAND_BUFFER_LEVEL_PRIMARY, commandBufferCount=1))[0]
+        with self.lock:
+            return vk.vkAllocateCommandBuffers(self.device, vk.VkCommandBufferAllocateInfo(
+                commandPool=self.command_pool, level=vk.VK_COMMAND_BUFFER_LEVEL_PRIMARY, commandBufferCount=1))[0]
 
     def free_command_buffer(self, cmd):
-        for key in [k for k in self._submit_infos if k[0] == cmd]:
-            del self._submit_infos[key]
-        vk.vkFreeCommandBuffers(self.device, self.command_pool, 1, [cmd])
+        with self.lock:
+            for key in [k for k in self._submit_infos if k[0] == cmd]:
+                del self._submit_infos[key]
+            vk.vkFreeCommandBuffers(self.device, self.command_pool, 1, [cmd])
 
     def submit(self, cmd, wait=True, wait_semaphores=(), wait_stages=(), signal_semaphores=(), fence=None):
         """Submit one recorded command buffer; by default block until it finished.
 
         The VkSubmitInfo (and its handle arrays) is built once per (command buffer, semaphores, stages) and
         reused, and vkQueueSubmit is called through the raw cffi function: a re-submitted frame costs one
-        dict lookup and one foreign call here (the viewer's per-frame path)."""
-        key = (cmd, tuple(wait_semaphores), tuple(wait_stages), tuple(signal_semaphores))
-        entry = self._submit_infos.get(key)
-        if entry is None:
-            entry = self._submit_info(key)
-        use_fence = fence if fence is not None else (self.fence if wait else None)
-        if not isinstance(use_fence, _CData):
-            use_fence = vk.ffi.cast("VkFence", use_fence) if use_fence else vk.ffi.NULL
-        result = _vkQueueSubmit(self.queue, 1, entry[0], use_fence)
-        try:
-            if result != vk.VK_SUCCESS:
-                raise vk.exception_codes[result]
-            if wait and fence is None:
-                vk.vkWaitForFences(self.device, 1, [self.fence], vk.VK_TRUE, 0xFFFFFFFFFFFFFFFF)
-                vk.vkResetFences(self.device, 1, [self.fence])
-        except vk.VkErrorDeviceLost:
-            raise VulkanError("the Vulkan device was lost while running a command buffer") from None
+        dict lookup and one foreign call here (the viewer's per-frame path). Under `lock`, with the wait."""
+        with self.lock:
+            if self.device is None:
+                raise ConfigError("submit: the Vulkan context is closed")
+            if self.lost:
+                raise VulkanError("the Vulkan device was lost; nothing more can run on it")
+            key = (cmd, tuple(wait_semaphores), tuple(wait_stages), tuple(signal_semaphores))
+            entry = self._submit_infos.get(key)
+            if entry is None:
+                entry = self._submit_info(key)
+            use_fence = fence if fence is not None else (self.fence if wait else None)
+            if not isinstance(use_fence, _CData):
+                use_fence = vk.ffi.cast("VkFence", use_fence) if use_fence else vk.ffi.NULL
+            try:
+                result = _vkQueueSubmit(self.queue, 1, entry[0], use_fence)
+                if result != vk.VK_SUCCESS:
+                    raise vk.exception_codes[result]
+                if wait and fence is None:
+                    vk.vkWaitForFences(self.device, 1, [self.fence], vk.VK_TRUE, 0xFFFFFFFFFFFFFFFF)
+                    vk.vkResetFences(self.device, 1, [self.fence])
+            except vk.VkErrorDeviceLost:
+                self.lost = True
+                raise VulkanError("the Vulkan device was lost while running a command buffer") from None
 
     def _submit_info(self, key):
         """[VkSubmitInfo*, the arrays it points to] for `key` (see submit), cached: the list keeps them alive."""
@@ -343,13 +382,17 @@ class _OneShot:
         self.ctx = ctx
 
     def __enter__(self):
+        self.ctx.lock.acquire()   # the one-shot command buffer is shared: held until it has run
         cmd = self.ctx._one_shot
         vk.vkResetCommandBuffer(cmd, 0)
         vk.vkBeginCommandBuffer(cmd, vk.VkCommandBufferBeginInfo(flags=vk.VK_COMMAND_BUFFER_USAGE_ONE_TIME_SUBMIT_BIT))
         return cmd
 
     def __exit__(self, exc_type, *rest):
-        cmd = self.ctx._one_shot
-        vk.vkEndCommandBuffer(cmd)
-        if exc_type is None:
-            self.ctx.submit(cmd)
+        try:
+            cmd = self.ctx._one_shot
+            vk.vkEndCommandBuffer(cmd)
+            if exc_type is None:
+                self.ctx.submit(cmd)
+        finally:
+            self.ctx.lock.release()

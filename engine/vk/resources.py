@@ -8,6 +8,7 @@ from __future__ import annotations
 import numpy as np
 import vulkan as vk
 
+from ..errors import VulkanError
 from .context import Context
 
 STORAGE = vk.VK_BUFFER_USAGE_STORAGE_BUFFER_BIT
@@ -20,6 +21,33 @@ TRANSFER_SRC = vk.VK_BUFFER_USAGE_TRANSFER_SRC_BIT
 TRANSFER_DST = vk.VK_BUFFER_USAGE_TRANSFER_DST_BIT
 HOST = vk.VK_MEMORY_PROPERTY_HOST_VISIBLE_BIT | vk.VK_MEMORY_PROPERTY_HOST_COHERENT_BIT
 DEVICE = vk.VK_MEMORY_PROPERTY_DEVICE_LOCAL_BIT
+
+
+_OUT_OF_MEMORY = (vk.VkErrorOutOfDeviceMemory, vk.VkErrorOutOfHostMemory)
+
+
+def allocate(ctx: Context, req, mtype: int, what: str):
+    """Device memory for a resource's requirements `req`, or a VulkanError naming `what` and the size (refused before
+    the call when it exceeds the memory heap)."""
+    mp = ctx.memory_properties
+    heap = mp.memoryHeaps[mp.memoryTypes[mtype].heapIndex].size
+    size = f"{req.size / 2**20:.1f} MiB"
+    if req.size > heap:
+        raise VulkanError(f"{what}: {size} is more than this device's memory heap of {heap / 2**20:.0f} MiB "
+                          f"({ctx.device_info['name']}); use a smaller size or scene")
+    try:
+        memory = vk.vkAllocateMemory(ctx.device, vk.VkMemoryAllocateInfo(allocationSize=req.size,
+                                                                         memoryTypeIndex=mtype), None)
+    except _OUT_OF_MEMORY as exc:
+        kind = "device" if isinstance(exc, vk.VkErrorOutOfDeviceMemory) else "host"
+        raise VulkanError(f"{what}: out of {kind} memory allocating {size} on {ctx.device_info['name']}") from None
+    ctx.allocations += 1
+    return memory
+
+
+def free(ctx: Context, memory):
+    vk.vkFreeMemory(ctx.device, memory, None)
+    ctx.allocations -= 1
 
 
 class Buffer:
@@ -35,8 +63,11 @@ class Buffer:
             mtype = ctx.memory_type(req.memoryTypeBits, HOST | vk.VK_MEMORY_PROPERTY_HOST_CACHED_BIT)
         else:
             mtype = ctx.memory_type(req.memoryTypeBits, DEVICE)
-        self.memory = vk.vkAllocateMemory(dev, vk.VkMemoryAllocateInfo(
-            allocationSize=req.size, memoryTypeIndex=mtype), None)
+        try:
+            self.memory = allocate(ctx, req, mtype, f"buffer {name!r}" if name else "a buffer")
+        except VulkanError:
+            vk.vkDestroyBuffer(dev, self.handle, None)
+            raise
         vk.vkBindBufferMemory(dev, self.handle, self.memory, 0)
         self._mapped = vk.vkMapMemory(dev, self.memory, 0, self.size, 0) if host else None
         self._alive = True
@@ -59,7 +90,7 @@ class Buffer:
                 vk.vkUnmapMemory(self.ctx.device, self.memory)
                 self._mapped = None
             vk.vkDestroyBuffer(self.ctx.device, self.handle, None)
-            vk.vkFreeMemory(self.ctx.device, self.memory, None)
+            free(self.ctx, self.memory)
 
 
 class BufferView:
@@ -115,8 +146,12 @@ class Image:
             tiling=vk.VK_IMAGE_TILING_OPTIMAL, usage=usage, sharingMode=vk.VK_SHARING_MODE_EXCLUSIVE,
             initialLayout=vk.VK_IMAGE_LAYOUT_UNDEFINED), None)
         req = vk.vkGetImageMemoryRequirements(dev, self.handle)
-        self.memory = vk.vkAllocateMemory(dev, vk.VkMemoryAllocateInfo(
-            allocationSize=req.size, memoryTypeIndex=ctx.memory_type(req.memoryTypeBits, DEVICE)), None)
+        try:
+            self.memory = allocate(ctx, req, ctx.memory_type(req.memoryTypeBits, DEVICE),
+                                   f"image {name!r} ({width}x{height})" if name else f"a {width}x{height} image")
+        except VulkanError:
+            vk.vkDestroyImage(dev, self.handle, None)
+            raise
         vk.vkBindImageMemory(dev, self.handle, self.memory, 0)
         self.view = vk.vkCreateImageView(dev, vk.VkImageViewCreateInfo(
             image=self.handle, viewType=vk.VK_IMAGE_VIEW_TYPE_2D, format=fmt,
@@ -134,7 +169,7 @@ class Image:
             self._alive = False
             vk.vkDestroyImageView(self.ctx.device, self.view, None)
             vk.vkDestroyImage(self.ctx.device, self.handle, None)
-            vk.vkFreeMemory(self.ctx.device, self.memory, None)
+            free(self.ctx, self.memory)
 
 
 def image_barrier(cmd, image: Image, old, new, src_stage, dst_stage, src_access, dst_access, base_mip=0, levels=None):

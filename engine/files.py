@@ -1,0 +1,118 @@
+"""Writing output files so that nothing is lost: every file the engine writes goes to a temporary file in the same
+folder and is renamed over the target only once it is complete, so a crash, a kill or a full disk leaves the old file
+or the new one, never a part. Errors name the path; temporaries of writers that died are removed by the next write.
+"""
+from __future__ import annotations
+
+import errno
+import os
+import tempfile
+from pathlib import Path
+
+from .errors import ConfigError, EngineError
+
+_TMP_SUFFIX = ".tmp"
+
+
+def _umask() -> int:
+    mask = os.umask(0)
+    os.umask(mask)
+    return mask
+
+
+_MODE = 0o666 & ~_umask()   # what open() would have given a new file
+
+
+def _prefix(path: Path) -> str:
+    return f".{path.name}.part-"
+
+
+def _remove_stale(path: Path):
+    """Temporaries for `path` left by writers that no longer run (their pid is in the name)."""
+    try:
+        names = os.listdir(path.parent or ".")
+    except OSError:
+        return
+    prefix = _prefix(path)
+    for name in names:
+        if not (name.startswith(prefix) and name.endswith(_TMP_SUFFIX)):
+            continue
+        pid = name[len(prefix):].split("-", 1)[0]
+        if pid.isdigit() and not _running(int(pid)):
+            try:
+                os.unlink(path.parent / name)
+            except OSError:
+                pass
+
+
+def _running(pid: int) -> bool:
+    try:
+        os.kill(pid, 0)
+    except ProcessLookupError:
+        return False
+    except PermissionError:
+        return True
+    return True
+
+
+def _reason(exc: OSError) -> str:
+    if exc.errno == errno.ENOSPC:
+        return "no space left on the device"
+    if exc.errno in (errno.EACCES, errno.EPERM, errno.EROFS):
+        return "permission denied (read-only folder or file system)"
+    return exc.strerror or str(exc)
+
+
+def atomic_write(path, write, what: str = "file") -> Path:
+    """Write `path` through `write(binary_file)`: to a temporary file in the same folder, flushed to disk, then
+    renamed over `path`. On any failure the temporary is removed, `path` is left as it was, and an OSError becomes an
+    EngineError naming the path and the reason."""
+    path = Path(os.fspath(path))
+    _remove_stale(path)
+    try:
+        fd, tmp = tempfile.mkstemp(prefix=f"{_prefix(path)}{os.getpid()}-", suffix=_TMP_SUFFIX,
+                                   dir=str(path.parent) if str(path.parent) else ".")
+    except OSError as exc:
+        raise EngineError(f"{path}: cannot write {what}: {_reason(exc)}") from None
+    try:
+        with os.fdopen(fd, "wb") as f:
+            write(f)
+            f.flush()
+            os.fsync(f.fileno())
+        os.chmod(tmp, _MODE)
+        os.replace(tmp, path)
+    except BaseException as exc:
+        try:
+            os.unlink(tmp)
+        except OSError:
+            pass
+        if isinstance(exc, OSError):
+            raise EngineError(f"{path}: cannot write {what}: {_reason(exc)}") from None
+        raise
+    return path
+
+
+def atomic_write_bytes(path, data: bytes, what: str = "file") -> Path:
+    return atomic_write(path, lambda f: f.write(data), what)
+
+
+def atomic_write_text(path, text: str, what: str = "file") -> Path:
+    return atomic_write(path, lambda f: f.write(text.encode("utf-8")), what)
+
+
+def check_writable(path, what: str = "file") -> Path:
+    """Fail early, before work that a failed write would lose: `path`'s folder exists and a file can be created in it
+    (probed, so that read-only file systems are found even when running as root)."""
+    path = Path(os.fspath(path))
+    folder = path.parent if str(path.parent) else Path(".")
+    if path.is_dir():
+        raise ConfigError(f"{path}: is a folder, not a {what}")
+    if not folder.is_dir():
+        raise ConfigError(f"{path}: cannot write {what}: no folder {str(folder)!r}")
+    try:
+        fd, probe = tempfile.mkstemp(prefix=f"{_prefix(path)}{os.getpid()}-", suffix=_TMP_SUFFIX, dir=str(folder))
+        os.close(fd)
+        os.unlink(probe)
+    except OSError as exc:
+        raise ConfigError(f"{path}: cannot write {what}: {_reason(exc)}") from None
+    return path

@@ -1,0 +1,299 @@
+"""Threads, lifetimes, output files and device faults: never a wrong answer, a crash, a hang or a truncated file."""
+import errno
+import gc
+import multiprocessing
+import os
+import random
+import signal
+import threading
+import time
+
+import numpy as np
+import pytest
+import trimesh
+import vulkan as vk
+from PIL import Image
+
+import engine
+from engine import ConfigError, EngineError, Frame, Renderer, Scene, Tracer, VulkanError
+from engine.files import atomic_write_bytes
+from engine.vk import Context
+from engine.vk import context as context_mod
+from engine.vk import resources as resources_mod
+from engine.vk.context import live_contexts
+
+
+def sphere_scene():
+    return Scene.from_trimesh(trimesh.creation.icosphere(subdivisions=2),
+                              camera=engine.Camera.look_at((0, 0.5, 3), (0, 0, 0)))
+
+
+def ray_batches(n_batches, n_rays, seed):
+    rng = np.random.default_rng(seed)
+    out = []
+    for _ in range(n_batches):
+        o = rng.uniform(-2, 2, (n_rays, 3)).astype(np.float32)
+        d = (rng.uniform(-1, 1, (n_rays, 3)) - o * 0.3).astype(np.float32)
+        out.append((o, d))
+    return out
+
+
+# ---- threads --------------------------------------------------------------------------------------------------------
+def test_a_tracer_shared_by_four_threads_answers_every_ray_right():
+    """10,000 calls from 4 threads on one Tracer: each answer is the one the same rays get from one thread."""
+    mesh = trimesh.creation.icosphere(subdivisions=2)
+    with Tracer(mesh.vertices, mesh.faces, validation=True) as t:
+        batches = ray_batches(16, 64, 1)
+        want = [(t.occluded(o, d), t.intersect(o, d).t) for o, d in batches]
+        wrong, errors = [], []
+
+        def hammer(k):
+            try:
+                for i in range(2500):
+                    j = (k * 7 + i) % len(batches)
+                    o, d = batches[j]
+                    if i % 2:
+                        if not np.array_equal(t.occluded(o, d), want[j][0]):
+                            wrong.append((k, i))
+                    elif not np.array_equal(t.intersect(o, d).t, want[j][1]):
+                        wrong.append((k, i))
+            except Exception as exc:   # noqa: BLE001 - reported below
+                errors.append(repr(exc))
+
+        threads = [threading.Thread(target=hammer, args=(k,)) for k in range(4)]
+        for th in threads:
+            th.start()
+        for th in threads:
+            th.join()
+        assert errors == [] and wrong == []
+        assert any(w.any() for w, _ in want)
+        assert not t.validation_errors
+
+
+def test_two_renderers_on_two_threads_match_one_thread(make_renderer):
+    scene = sphere_scene()
+    want = make_renderer(48, 32).render(scene, shadows="hard", ao=True, ao_samples=2).color
+    got, errors = {}, []
+
+    def run(k):
+        try:
+            with Renderer(48, 32, validation=True) as r:
+                for _ in range(5):
+                    got[k] = r.render(scene, shadows="hard", ao=True, ao_samples=2).color
+                assert not r.validation_errors, r.validation_errors[:2]
+        except Exception as exc:   # noqa: BLE001 - reported below
+            errors.append(repr(exc))
+
+    threads = [threading.Thread(target=run, args=(k,)) for k in range(2)]
+    for th in threads:
+        th.start()
+    for th in threads:
+        th.join()
+    assert errors == []
+    assert all(np.array_equal(c.shape, want.shape) for c in got.values()) and len(got) == 2
+    assert np.array_equal(got[0], got[1])
+
+
+def test_a_renderer_and_a_tracer_on_one_context_from_two_threads():
+    """The context's queue and command pool are shared: submissions from two threads are serialized, with the
+    validation layer's thread-safety checks on."""
+    mesh = trimesh.creation.icosphere(subdivisions=2)
+    scene = sphere_scene()
+    errors = []
+    with Context(validation=True) as ctx:
+        r = Renderer(40, 30, context=ctx)
+        t = Tracer(mesh.vertices, mesh.faces, context=ctx)
+        o, d = ray_batches(1, 256, 3)[0]
+        want = t.occluded(o, d)
+
+        def render():
+            try:
+                for _ in range(15):
+                    r.render(scene, shadows="hard", ao=False)
+            except Exception as exc:   # noqa: BLE001
+                errors.append(repr(exc))
+
+        def trace():
+            try:
+                for _ in range(60):
+                    assert np.array_equal(t.occluded(o, d), want)
+            except Exception as exc:   # noqa: BLE001
+                errors.append(repr(exc))
+
+        threads = [threading.Thread(target=render), threading.Thread(target=trace)]
+        for th in threads:
+            th.start()
+        for th in threads:
+            th.join()
+        t.close()
+        r.close()
+        assert errors == []
+        assert not ctx.validation_errors, ctx.validation_errors[:2]
+
+
+@pytest.mark.parametrize("kind", ["renderer", "tracer"])
+def test_close_while_another_thread_is_inside_a_call(kind):
+    """close() waits for the call in progress, then frees; the other thread's next call is a clear error."""
+    mesh = trimesh.creation.icosphere(subdivisions=3)
+    scene = sphere_scene()
+    o, d = ray_batches(1, 20000, 5)[0]
+    for attempt in range(4):
+        obj = Renderer(64, 48) if kind == "renderer" else Tracer(mesh.vertices, mesh.faces)
+        started, outcome = threading.Event(), []
+
+        def loop():
+            try:
+                while True:
+                    if kind == "renderer":
+                        obj.render(scene, shadows="soft")
+                    else:
+                        obj.occluded(o, d)
+                    started.set()
+            except EngineError as exc:
+                outcome.append(str(exc))
+            except Exception as exc:   # noqa: BLE001
+                outcome.append("unexpected: " + repr(exc))
+            finally:
+                started.set()
+
+        th = threading.Thread(target=loop)
+        th.start()
+        started.wait(30)
+        time.sleep(0.01 * attempt)
+        obj.close()
+        th.join(30)
+        assert not th.is_alive(), "the calling thread hung"
+        assert len(outcome) == 1 and "closed" in outcome[0], outcome
+
+
+def test_use_after_close_is_a_clear_error():
+    mesh = trimesh.creation.icosphere(subdivisions=1)
+    t = Tracer(mesh.vertices, mesh.faces)
+    t.close()
+    with pytest.raises(ConfigError, match="Tracer is closed"):
+        t.occluded(np.zeros((1, 3)), np.ones((1, 3)))
+    r = Renderer(16, 16)
+    r.close()
+    r.close()   # twice is harmless
+    with pytest.raises(EngineError, match="closed Renderer"):
+        r.render(sphere_scene())
+
+
+def test_dropped_renderers_and_tracers_free_their_devices():
+    """Objects that are never closed free their Vulkan device when collected (a notebook re-running a cell)."""
+    gc.collect()
+    before = live_contexts()
+    mesh = trimesh.creation.icosphere(subdivisions=1)
+    for _ in range(6):
+        r = Renderer(16, 16)
+        r.render(sphere_scene())
+        t = Tracer(mesh.vertices, mesh.faces)
+        t.occluded(np.zeros((4, 3), np.float32), np.ones((4, 3), np.float32))
+        assert live_contexts() >= before + 2
+        del r, t
+    gc.collect()
+    assert live_contexts() == before
+
+
+# ---- output files ---------------------------------------------------------------------------------------------------
+def _writer(path, images, go):
+    """Child process: write the two images to `path` in turn, forever (killed by the parent)."""
+    go.set()
+    while True:
+        for img in images:
+            Frame(color=img).save(path)
+
+
+def test_killed_writers_never_leave_a_partial_file(tmp_path):
+    """kill -9 at random moments of 100 writes: the file is always one of the two images, whole."""
+    rng = np.random.default_rng(0)
+    images = [rng.integers(0, 256, (384, 384, 4), dtype=np.uint8) for _ in range(2)]
+    images[0][..., 3] = images[1][..., 3] = 255
+    path = tmp_path / "out.png"
+    Frame(color=images[0]).save(path)
+    ctx = multiprocessing.get_context("fork")
+    rand = random.Random(1)
+    for _ in range(100):
+        go = ctx.Event()
+        child = ctx.Process(target=_writer, args=(path, images, go))
+        child.start()
+        go.wait(10)
+        time.sleep(rand.uniform(0.0, 0.08))
+        os.kill(child.pid, signal.SIGKILL)
+        child.join()
+        with Image.open(path) as im:
+            got = np.asarray(im.convert("RGBA"))
+        assert any(np.array_equal(got, img) for img in images)
+    Frame(color=images[1]).save(path)   # a later write removes the temporaries the killed ones left
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["out.png"]
+
+
+def test_a_failed_write_keeps_the_old_file_and_leaves_no_temporary(tmp_path, monkeypatch):
+    path = tmp_path / "keep.png"
+    old = np.full((8, 8, 4), 200, np.uint8)
+    Frame(color=old).save(path)
+    before = path.read_bytes()
+
+    def full_disk(self, fp, *a, **k):
+        fp.write(b"\x89PNG partial")
+        raise OSError(errno.ENOSPC, "No space left on device")
+
+    monkeypatch.setattr(Image.Image, "save", full_disk)
+    with pytest.raises(EngineError, match=r"keep\.png: cannot write image: no space left on the device"):
+        Frame(color=np.zeros((8, 8, 4), np.uint8)).save(path)
+    assert path.read_bytes() == before
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["keep.png"]
+
+
+def test_unwritable_folders_are_found_before_the_work(tmp_path):
+    from engine.settings import check_png_path
+    for bad in ("/proc/hybrid-test.png", "/sys/hybrid-test.png"):
+        with pytest.raises(ConfigError, match=r"hybrid-test\.png: cannot write image"):
+            check_png_path(bad)
+    with pytest.raises(ConfigError, match="no folder"):
+        check_png_path(tmp_path / "missing" / "x.png")
+    with pytest.raises(EngineError, match=r"x\.bin: cannot write file"):
+        atomic_write_bytes("/proc/x.bin", b"data")
+
+
+# ---- device faults --------------------------------------------------------------------------------------------------
+def test_out_of_device_memory_is_a_clear_error_and_frees_everything(monkeypatch):
+    gc.collect()
+    before = live_contexts()
+    real = resources_mod.vk.vkAllocateMemory
+    calls = []
+
+    def failing(*a, **k):
+        calls.append(1)
+        if len(calls) > 12:
+            raise vk.VkErrorOutOfDeviceMemory()
+        return real(*a, **k)
+
+    monkeypatch.setattr(resources_mod.vk, "vkAllocateMemory", failing)
+    with pytest.raises(VulkanError, match=r"out of device memory allocating [0-9.]+ MiB"):
+        Renderer(64, 48, validation=True)
+    monkeypatch.setattr(resources_mod.vk, "vkAllocateMemory", real)
+    gc.collect()
+    assert live_contexts() == before
+
+
+def test_a_resource_larger_than_the_memory_heap_is_refused_before_allocating():
+    with Context(validation=True) as ctx:
+        heap = max(ctx.memory_properties.memoryHeaps[i].size for i in range(ctx.memory_properties.memoryHeapCount))
+        with pytest.raises(VulkanError, match=r"buffer 'huge': .* more than this device's memory heap"):
+            resources_mod.Buffer(ctx, heap + (1 << 20), resources_mod.STORAGE, name="huge")
+        assert ctx.allocations == 0
+        assert not ctx.validation_errors
+
+
+def test_device_lost_ends_the_renderer_cleanly(monkeypatch):
+    scene = sphere_scene()
+    r = Renderer(32, 24, validation=True)
+    r.render(scene)
+    monkeypatch.setattr(context_mod, "_vkQueueSubmit", lambda *a: vk.VK_ERROR_DEVICE_LOST)
+    with pytest.raises(VulkanError, match="device was lost"):
+        r.render(scene)
+    with pytest.raises(VulkanError, match="device was lost"):
+        r.render(scene)
+    r.close()
+    assert not r.validation_errors

@@ -33,12 +33,13 @@ from .parallel import serialized
 from .passes.targets import Targets
 from .scene import Scene
 from .scene.camera import Camera
-from .settings import check_settings, check_size
+from .settings import check_settings, check_size, resolve_aovs
 from .shaders import ShaderLibrary
 from .steady import Steady
 from .vk import Buffer, Context, Recorder, Timestamps, reflect
 from .vk.recorder import ONE_F32, TRANSFER
 from .vk.resources import UNIFORM
+from .vk.sync import create_fence, destroy_fence, reset_fences, wait_fences
 
 
 class Renderer:
@@ -81,7 +82,11 @@ class Renderer:
                               "works without it")
         self.frame_ubo = Buffer(ctx, FRAME_BYTES, UNIFORM, host=True, name="frame")
         self._block = self.frame_ubo.view(FRAME.dtype).reshape(())   # the mapped frame block, written in place
-        self.timestamps = Timestamps(ctx)
+        self._timestamps = [Timestamps(ctx), Timestamps(ctx)]   # per readback slot (render_many has two in flight)
+        self.timestamps = self._timestamps[0]
+        self._fences = [create_fence(ctx), create_fence(ctx)]
+        for fence in self._fences:
+            ctx.defer_destroy(destroy_fence, ctx, fence)
         self.targets = Targets(ctx, self.width, self.height, light_capacity=1, frame_ubo=self.frame_ubo)
         res, lib = self.targets.resources, self.library
         self.bvh_set = bvh_descriptor_set(ctx, reflect(lib.get(ShadowPass.shader), ShadowPass.shader))
@@ -120,12 +125,54 @@ class Renderer:
         return self.ctx.device_info["name"]
 
     @serialized
-    def render(self, scene, camera=None, **settings) -> Frame:
-        """Render one frame and read everything back: colour, AOVs and GPU timings."""
-        cmd, marks, cfg, n_lights = self._prepare(scene, camera, settings, readback=True)
+    def render(self, scene, camera=None, *, aovs=None, **settings) -> Frame:
+        """Render one frame and read back `aovs` (default: engine.settings.DEFAULT_AOVS; "all": every one) with the
+        GPU timings."""
+        names = resolve_aovs(aovs)
+        cmd, marks, cfg, n_lights = self._prepare(scene, camera, settings, readback=(names, 0))
         self.ctx.submit(cmd)
-        color, aov = self.targets.read(n_lights)
-        return Frame(color=color, aov=aov, timings=self.timestamps.read(marks), settings=cfg)
+        return self._frame(scene, names, 0, marks, cfg, n_lights)
+
+    def render_many(self, scene, cameras, *, aovs=None, **settings):
+        """Frames of `scene` from each camera in turn, as an iterator: frame N+1 renders on the GPU while frame N is
+        read back and handed to the caller (two readback buffers in turn). One call at a time per renderer, like
+        render(); the temporal history carries over from frame to frame as it does for render()."""
+        names = resolve_aovs(aovs)
+        pending = None   # (slot, marks, cfg, n_lights): the frame submitted and not yet waited for
+        try:
+            for i, camera in enumerate(cameras):
+                with self._lock:
+                    done, pending = pending, None
+                    if done is not None:
+                        self._wait_slot(done[0])   # its frame block is rewritten below
+                    slot = i % 2
+                    cmd, marks, cfg, n_lights = self._prepare(scene, camera, settings, readback=(names, slot))
+                    self.ctx.submit(cmd, wait=False, fence=self._fences[slot])
+                    pending = (slot, marks, cfg, n_lights)
+                    frame = None if done is None else self._frame(scene, names, *done)
+                if frame is not None:
+                    yield frame
+            if pending is not None:
+                with self._lock:
+                    done, pending = pending, None
+                    self._wait_slot(done[0])
+                    frame = self._frame(scene, names, *done)
+                yield frame
+        finally:
+            if pending is not None and self.ctx is not None:   # abandoned mid-way: let the last frame finish
+                with self._lock:
+                    self._wait_slot(pending[0])
+
+    def _wait_slot(self, slot):
+        wait_fences(self.ctx, [self._fences[slot]])
+        reset_fences(self.ctx, [self._fences[slot]])
+
+    def _frame(self, scene, names, slot, marks, cfg, n_lights) -> Frame:
+        buf, offsets = self.targets.readback(self.ctx, names, slot)
+        aov = self.targets.read(buf, offsets, n_lights)
+        return Frame(color=aov.pop("color", None), aov=aov, timings=self._timestamps[slot].read(marks), settings=cfg,
+                     object_names=[sub.name for sub in scene.submeshes],
+                     material_names=[m.name for m in scene.materials])
 
     @serialized
     def submit(self, scene, camera=None, *, wait=True, signal_semaphores=(), fence=None, **settings):
@@ -133,7 +180,7 @@ class Renderer:
 
         With wait=False the caller synchronizes through `signal_semaphores` / `fence`, and reads
         `last_timings()` once that frame has finished."""
-        cmd, marks, cfg, _ = self._prepare(scene, camera, settings, readback=False)
+        cmd, marks, cfg, _ = self._prepare(scene, camera, settings, readback=None)
         self._last_marks = marks
         self.ctx.submit(cmd, wait=wait, signal_semaphores=signal_semaphores, fence=fence)
         return cfg
@@ -218,8 +265,8 @@ class Renderer:
         if cfg["shadows"] == "reference":
             key += (cfg["reference_samples"],)
         if key not in self._commands:
-            cmd = self._record(cfg, len(lights), readback)
-            self._commands[key] = (cmd, list(self.timestamps.names))
+            cmd, ts = self._record(cfg, len(lights), readback)
+            self._commands[key] = (cmd, list(ts.names))
         cmd, marks = self._commands[key]
         self._frame_index += 1
         self._prev_view_proj = view_proj
@@ -348,10 +395,12 @@ class Renderer:
         self._history_key = None
         self._steady = None
 
-    def _record(self, cfg, n_lights, readback=True):
-        """The frame's command buffer: the passes in order; the recorder derives the barriers between them."""
+    def _record(self, cfg, n_lights, readback=None):
+        """The frame's command buffer (and the timestamps it writes): the passes in order; the recorder derives the
+        barriers between them. `readback`: (AOV names, slot) to copy out, or None (the viewer's path)."""
         t = self.targets
-        rec = Recorder(self.ctx, self.timestamps)
+        ts = self._timestamps[readback[1] if readback else 0]
+        rec = Recorder(self.ctx, ts)
         self.gbuffer.record(rec, t, self._geometry)
         rec.mark("gbuffer")
         mode = cfg["shadows"]
@@ -396,8 +445,8 @@ class Renderer:
             self.debug_view.record(rec, t, cfg["view"])
             rec.mark("view")
         if readback:
-            t.record_readback(rec)
+            t.record_readback(rec, *t.readback(self.ctx, *readback))
             rec.mark("readback")
         else:   # the colour image is copied out by the caller (the viewer's presenter)
             rec.use(reads=[t.color], stage=TRANSFER)
-        return rec.finish()
+        return rec.finish(), ts

@@ -15,10 +15,14 @@ from .errors import ConfigError
 from .files import check_writable
 from .limits import MAX_COORD
 from .passes.interface import SHADOW_MODES as TRACED_SHADOW_MODES
+from .passes.interface import AOVS as AOV_SPECS
 from .passes.interface import VIEW_MODES
 
 #: What `view=` / `--aov` can show: the lit colour or one AOV.
 AOVS = VIEW_MODES
+#: What `render()` reads back when not told (`aovs=`): the lit colour, the G-buffer and what lit it. The raw
+#: signals, history lengths, ids and motion come when asked for; `aovs="all"` reads every one.
+DEFAULT_AOVS = ("color", "depth", "normal", "position", "albedo", "shadow", "ao")
 #: The most frames one `hybrid render` / `hybrid view --frames` may ask for.
 MAX_FRAMES = 1_000_000
 
@@ -50,6 +54,23 @@ def choices(name: str) -> tuple | None:
     if isinstance(DEFAULT_SETTINGS.get(name), bool):
         return (True, False)
     return None
+
+
+def resolve_aovs(aovs) -> tuple:
+    """The AOV names to read back: `aovs` None (DEFAULT_AOVS), "all", one name or names; a ConfigError lists the
+    known ones for an unknown name. Order and duplicates do not matter."""
+    if aovs is None:
+        return DEFAULT_AOVS
+    if isinstance(aovs, str):
+        aovs = tuple(AOV_SPECS) if aovs == "all" else (aovs,)
+    try:
+        names = tuple(aovs)
+    except TypeError:
+        raise ConfigError(f"aovs={aovs!r}: expected AOV names, e.g. ('color', 'depth')") from None
+    for name in names:
+        if name not in AOV_SPECS:
+            raise ConfigError(f"aov {name!r}: unknown (known: {', '.join(AOV_SPECS)}, or 'all')")
+    return tuple(n for n in AOV_SPECS if n in names)
 
 
 def check_settings(settings: dict) -> dict:

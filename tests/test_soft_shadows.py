@@ -12,6 +12,14 @@ PLATE_BOTTOM = 1.4
 LIGHT = np.array([-1.5, 4.0, -0.5])
 
 
+@pytest.fixture(autouse=True)
+def every_aov(monkeypatch):
+    """These tests read the raw signals and the history lengths too: every AOV by default."""
+    import engine.settings
+    from engine.passes.interface import AOVS
+    monkeypatch.setattr(engine.settings, "DEFAULT_AOVS", tuple(AOVS))
+
+
 def penumbra_scene(radius=1.0, lights=None, camera=None):
     """A square plate floating over the ground beside a sphere light: wide, clean penumbrae on the ground."""
     ground = trimesh.creation.box(extents=(16, 0.1, 16))

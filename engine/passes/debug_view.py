@@ -16,6 +16,8 @@ class DebugViewPass(ComputePass):
         "g_albedo": read("image", "albedo"),
         "masks_raw": read("buffer", "masks.raw"), "masks": read("buffer", "masks.final"),
         "ao_raw": read("buffer", "ao.raw"), "ao": read("buffer", "ao.final"), "hist_len": read("buffer", "len_cur"),
+        "g_triangle": read("image", "triangle_id"), "g_object": read("image", "object_id"),
+        "g_material": read("image", "material_id"), "g_motion": read("image", "motion"),
         "out_color": write("image", "color"),
     }
 

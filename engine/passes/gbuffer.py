@@ -18,7 +18,7 @@ import numpy as np
 
 from ..errors import ShaderError
 from ..vk import BufferView, DescriptorSet, GraphicsPipeline, Sampler, reflect, upload_buffer, upload_texture
-from ..vk.formats import R32UI, RGB32F, RGBA32F
+from ..vk.formats import R32UI, RGB32F, RGBA32F, RGBA32UI
 from ..vk.resources import INDEX, UNIFORM_TEXEL, VERTEX
 from .base import ComputePass, read, update, write
 from .interface import MAX_TEXTURES
@@ -48,8 +48,10 @@ class SceneGeometry:
             self.draws = [(int(mats_sorted[s]), int(s) * 3, int(e - s) * 3) for s, e in zip(starts, ends)]
         self.vertex_buffer = upload_buffer(ctx, verts, VERTEX | UNIFORM_TEXEL, "vertices")
         self.index_buffer = upload_buffer(ctx, indices, INDEX | UNIFORM_TEXEL, "indices")
-        self.tri_material_buffer = upload_buffer(ctx, np.r_[mats_sorted, 0].astype(np.uint32), UNIFORM_TEXEL,
-                                                 "triangle materials")
+        # per drawn triangle: its material, its index in the scene and its object (the sub-mesh it came from)
+        info = np.zeros((len(order) + 1, 4), np.uint32)
+        info[:-1, 0], info[:-1, 1], info[:-1, 2] = mats_sorted, order, triangle_objects(scene)[order]
+        self.tri_info_buffer = upload_buffer(ctx, info, UNIFORM_TEXEL, "triangle info")
 
         self.textures = []
         mat_data = np.zeros((max(len(scene.materials), 1), 8), np.float32)
@@ -65,16 +67,23 @@ class SceneGeometry:
             log.warning("%s: %d textured materials; the first %d keep their textures, the other %d show their base "
                         "colour", scene.name, textured, MAX_TEXTURES, textured - MAX_TEXTURES)
         self.material_buffer = upload_buffer(ctx, mat_data, UNIFORM_TEXEL, "materials")
-        F4, U1 = RGBA32F, R32UI
-        self.views = [BufferView(self.vertex_buffer, F4), BufferView(self.index_buffer, U1),
-                      BufferView(self.tri_material_buffer, U1), BufferView(self.material_buffer, F4)]
+        self.views = [BufferView(self.vertex_buffer, RGBA32F), BufferView(self.index_buffer, R32UI),
+                      BufferView(self.tri_info_buffer, RGBA32UI), BufferView(self.material_buffer, RGBA32F)]
         self.white = white_texture
         self.sampler = sampler
 
     def destroy(self):
-        for obj in [*self.views, self.vertex_buffer, self.index_buffer, self.tri_material_buffer,
+        for obj in [*self.views, self.vertex_buffer, self.index_buffer, self.tri_info_buffer,
                     self.material_buffer, *self.textures]:
             obj.destroy()
+
+
+def triangle_objects(scene) -> np.ndarray:
+    """(T,) uint32: the index in `scene.submeshes` of each triangle's sub-mesh (the object id)."""
+    out = np.zeros(scene.triangle_count, np.uint32)
+    for k, sub in enumerate(scene.submeshes):
+        out[sub.first_triangle:sub.first_triangle + sub.triangle_count] = k
+    return out
 
 
 class ResolvePass(ComputePass):
@@ -86,8 +95,11 @@ class ResolvePass(ComputePass):
         "frame": read("uniform", "frame"), "visibility": update("image", "visibility"),
         "g_position": write("image", "position"), "g_normal": write("image", "normal"),
         "g_albedo": write("image", "albedo"), "g_normal8": write("image", "normal8"),
-        "vertices": read("uniform_texel"), "indices": read("uniform_texel"), "tri_material": read("uniform_texel"),
+        "vertices": read("uniform_texel"), "indices": read("uniform_texel"), "tri_info": read("uniform_texel"),
         "materials": read("uniform_texel"), "textures": read("texture"),
+        "g_depth": write("image", "view_depth"), "g_triangle": write("image", "triangle_id"),
+        "g_object": write("image", "object_id"), "g_material": write("image", "material_id"),
+        "g_motion": write("image", "motion"),
     }
 
     def constants(self, ctx) -> dict:
@@ -133,7 +145,7 @@ class GBufferPass:
     def bind_scene(self, geom: SceneGeometry):
         self.resolve.specialize(TEXTURE_SLOTS=max(1, len(geom.textures)))
         s = self.resolve.set
-        for name, view in zip(("vertices", "indices", "tri_material", "materials"), geom.views):
+        for name, view in zip(("vertices", "indices", "tri_info", "materials"), geom.views):
             s.bind(name, view)
         for slot in range(MAX_TEXTURES):
             tex = geom.textures[slot] if slot < len(geom.textures) else self.white

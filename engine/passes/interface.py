@@ -1,11 +1,12 @@
 """What the host and the shaders agree on, written once: view modes, shadow modes, filter flags, limits, and the
-per-frame uniform block. `glsl_text()` generates shaders/glsl/include/interface.glsl from these (committed; a test
+per-frame uniform block, the AOVs a frame can read back. `glsl_text()` generates shaders/glsl/include/interface.glsl from these (committed; a test
 fails when it is stale; tools/compile_shaders.py rewrites it); the renderer packs the block through `FRAME.dtype`.
 No Vulkan here.
 """
 from __future__ import annotations
 
 import math
+from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
@@ -16,7 +17,8 @@ from .std140 import Struct
 
 #: The views a frame can show (setting `view`): "color" is the lit image (no dispatch); the others are AOVs drawn
 #: by debug_view.comp (VIEW_<NAME> = the index here).
-VIEW_MODES = ("color", "position", "normal", "albedo", "depth", "shadow_raw", "shadow", "ao_raw", "ao", "history")
+VIEW_MODES = ("color", "position", "normal", "albedo", "depth", "shadow_raw", "shadow", "ao_raw", "ao", "history",
+              "triangle_id", "object_id", "material_id", "motion")
 #: shadow.comp's modes (SHADOW_<NAME>); "off" records no shadow pass.
 SHADOW_MODES = ("hard", "soft", "seed-delta", "reference")
 #: Push-constant flags of accumulate.comp and denoise.comp (FILTER_<NAME>).
@@ -27,6 +29,38 @@ MAX_LIGHTS = 16
 MAX_TEXTURES = 16
 #: History lengths are clamped here (accumulate.comp).
 MAX_HISTORY = 255
+@dataclass(frozen=True)
+class AOV:
+    """One array a frame can read back: the target it comes from, its bytes per pixel in that target (per light for
+    the light masks), how many of the target's channels it keeps, and the numpy dtype of the array."""
+
+    target: str
+    bytes: int
+    dtype: str
+    channels: int = 1        # of the target's: the AOV keeps the first `channels` (1: a (H, W) array)
+    per_light: bool = False  # a light-major buffer: (lights, H, W) -> (H, W, lights)
+
+
+#: Every AOV a frame can read back, by the name `Frame.aov` uses ("color" is `Frame.color`); the target is a frame
+#: resource (engine/passes/targets.py). Ids are -1 on the background.
+AOVS = {
+    "color": AOV("color", 4, "uint8", 4),
+    "position": AOV("position", 16, "float32", 3),
+    "normal": AOV("normal", 16, "float32", 3),
+    "albedo": AOV("albedo", 8, "float16", 3),
+    "depth": AOV("view_depth", 4, "float32"),
+    "shadow": AOV("masks.final", 4, "float32", per_light=True),
+    "shadow_raw": AOV("masks.raw", 4, "float32", per_light=True),
+    "ao": AOV("ao.final", 4, "float32"),
+    "ao_raw": AOV("ao.raw", 4, "float32"),
+    "history": AOV("len_cur", 4, "float32"),
+    "triangle_id": AOV("triangle_id", 4, "int32"),
+    "object_id": AOV("object_id", 4, "int32"),
+    "material_id": AOV("material_id", 4, "int32"),
+    "motion": AOV("motion", 8, "float32", 2),
+}
+
+
 LIGHT_TYPES = {"directional": 0, "point": 1, "spot": 2, "rect": 3}
 
 LIGHT = Struct("Light", [

@@ -12,10 +12,11 @@ import numpy as np
 
 from ..errors import ConfigError
 from ..vk import Buffer, BufferView, Image
-from ..vk.formats import (COLOR_ATTACHMENT, COPY_DST, COPY_SRC, D32F, DEPTH_ATTACHMENT, R32F, R32UI, RGBA8,
+from ..vk.formats import (COLOR_ATTACHMENT, COPY_DST, COPY_SRC, D32F, DEPTH_ATTACHMENT, R32F, R32UI, RG32F, RGBA8,
                           RGBA8_SNORM, RGBA16F, RGBA32F, STORAGE_IMAGE)
 from ..vk.recorder import TRANSFER, Recorder, fill, to_general
 from ..vk.resources import STORAGE, STORAGE_TEXEL, TRANSFER_DST, TRANSFER_SRC
+from .interface import AOVS
 
 POSITION_FORMAT = RGBA32F   # xyz world position, w linear view depth
 NORMAL_FORMAT = RGBA32F     # xyz unit normal, w 1 where covered
@@ -47,11 +48,6 @@ class Signal:
         return list(self.views.values()) + [getattr(self, part) for part in self.NAMES]
 
 
-#: What is read back after a frame: (name, bytes per pixel, or None for a buffer sized by the light count)
-READBACK = (("color", 4), ("position", 16), ("normal", 16), ("albedo", 8), ("masks", None), ("ao", 4),
-            ("masks_raw", None), ("ao_raw", 4), ("history", 4))
-
-
 class Targets:
     """Every per-size image and buffer of a frame, plus the host buffer the frame is read back into."""
 
@@ -67,6 +63,12 @@ class Targets:
         self.albedo = Image(ctx, width, height, ALBEDO_FORMAT, resolved, name="albedo")
         self.gbuffer = [self.position, self.normal, self.albedo]
         self.normal8 = Image(ctx, width, height, RGBA8_SNORM, STORAGE_IMAGE, name="normal (8-bit)")  # the denoiser's
+        # the data AOVs the resolve writes (only read back)
+        self.view_depth = Image(ctx, width, height, R32F, resolved, name="depth")
+        self.triangle_id = Image(ctx, width, height, R32UI, resolved, name="triangle id")
+        self.object_id = Image(ctx, width, height, R32UI, resolved, name="object id")
+        self.material_id = Image(ctx, width, height, R32UI, resolved, name="material id")
+        self.motion = Image(ctx, width, height, RG32F, resolved, name="motion")
         self.depth = Image(ctx, width, height, DEPTH_FORMAT, DEPTH_ATTACHMENT)
         self.color = Image(ctx, width, height, RGBA8, STORAGE_IMAGE | COPY_SRC, name="color")
         self.hdr = Image(ctx, width, height, RGBA16F, STORAGE_IMAGE | COPY_SRC, name="hdr")
@@ -78,21 +80,17 @@ class Targets:
         buf_usage = STORAGE | TRANSFER_SRC | TRANSFER_DST
         self.len_cur = Buffer(ctx, n * 4, buf_usage, name="history length")
         self.len_hist = Buffer(ctx, n * 4, buf_usage, name="previous history length")
-        self.offsets = {}
-        off = 0
-        for name, size in READBACK:
-            off = -(-off // 16) * 16  # a copy's buffer offset is a multiple of its texel size (16 B at most here)
-            self.offsets[name] = off
-            off += n * (size if size is not None else 4 * light_capacity)
-        self.readback = Buffer(ctx, off, TRANSFER_DST, host=True, name="readback")
+        self.readbacks: dict = {}   # (AOV names, slot) -> (host buffer, {name: offset})
         images = [self.visibility, self.normal8, self.position, self.normal, self.albedo, self.depth, self.color,
-                  self.hdr, self.hist_position, self.hist_normal]
-        self._objects = images + [self.len_cur, self.len_hist, self.readback]
+                  self.hdr, self.hist_position, self.hist_normal, self.view_depth, self.triangle_id, self.object_id,
+                  self.material_id, self.motion]
+        self._objects = images + [self.len_cur, self.len_hist]
         for sig in self.signals.values():
             self._objects += sig.buffers()
         self.resources = {"frame": frame_ubo, **{name: getattr(self, name) for name in (
             "visibility", "position", "normal", "albedo", "normal8", "depth", "color", "hdr", "hist_position",
-            "hist_normal", "len_cur", "len_hist", "readback")}}
+            "hist_normal", "len_cur", "len_hist", "view_depth", "triangle_id", "object_id", "material_id",
+            "motion")}}
         for sname, sig in self.signals.items():
             self.resources.update({f"{sname}.{part}": getattr(sig, part) for part in Signal.NAMES})
         # Every colour image in GENERAL layout; the visibility image starts as background (each frame's resolve leaves
@@ -118,52 +116,58 @@ class Targets:
                 f"buffer, over this device's maxStorageBufferRange of {limit / 2**20:.0f} MiB; use fewer lights "
                 f"or a smaller size")
 
-    def record_readback(self, rec: Recorder):
-        """Copy every target into the host buffer (after the lighting pass): disjoint parts of one buffer."""
-        images = (("color", self.color), ("position", self.position), ("normal", self.normal),
-                  ("albedo", self.albedo))
-        sig_m, sig_a = self.signals["masks"], self.signals["ao"]
-        buffers = (("masks", sig_m.final), ("ao", sig_a.final), ("masks_raw", sig_m.raw), ("ao_raw", sig_a.raw),
-                   ("history", self.len_cur))
-        rec.use(reads=[src for _, src in images + buffers], writes=[self.readback], stage=TRANSFER)
-        for name, img in images:
-            rec.image_to_buffer(img, self.readback, self.offsets[name], declared=True)
-        for name, buf in buffers:
-            rec.copy(buf, self.readback, [(0, self.offsets[name], buf.size)], declared=True)
-        rec.to_host(self.readback)
+    def readback(self, ctx, aovs: tuple, slot: int = 0):
+        """The host buffer (host-cached memory where the device has it) that `aovs` are read back into, and each
+        one's offset in it: exactly their bytes, each part aligned to 16 bytes. One per (aovs, slot)."""
+        key = (aovs, slot)
+        if key not in self.readbacks:
+            n, offsets, off = self.width * self.height, {}, 0
+            for name in aovs:
+                spec = AOVS[name]
+                off = -(-off // 16) * 16   # a copy's buffer offset is a multiple of its texel size (16 B at most)
+                offsets[name] = off
+                off += n * spec.bytes * (self.light_capacity if spec.per_light else 1)
+            buf = Buffer(ctx, max(off, 16), TRANSFER_DST, host=True, name=f"readback {slot}")
+            self.readbacks[key] = (buf, offsets)
+        return self.readbacks[key]
 
-    def read(self, n_lights) -> tuple[np.ndarray, dict]:
-        w, h = self.width, self.height
-        n = w * h
-        raw = self.readback.view(np.uint8)
+    def record_readback(self, rec: Recorder, buf, offsets: dict):
+        """Copy the AOVs' targets into their parts of `buf` (after the lighting pass): disjoint parts of one buffer,
+        one barrier before them all."""
+        sources = {name: self.resources[AOVS[name].target] for name in offsets}
+        rec.use(reads=list(sources.values()), writes=[buf], stage=TRANSFER)
+        for name, src in sources.items():
+            if isinstance(src, Image):
+                rec.image_to_buffer(src, buf, offsets[name], declared=True)
+            else:
+                rec.copy(src, buf, [(0, offsets[name], src.size)], declared=True)
+        rec.to_host(buf)
 
-        def part(name, dtype, count, shape):
-            o = self.offsets[name]
-            return np.frombuffer(raw[o:o + count * np.dtype(dtype).itemsize].tobytes(), dtype).reshape(shape)
-
-        def masks(name):
-            m = part(name, np.float32, n * max(n_lights, 1), (max(n_lights, 1), h, w))[:n_lights]
-            return np.ascontiguousarray(np.moveaxis(m, 0, -1))
-
-        color = part("color", np.uint8, n * 4, (h, w, 4)).copy()
-        pos = part("position", np.float32, n * 4, (h, w, 4))
-        nrm = part("normal", np.float32, n * 4, (h, w, 4))
-        alb = part("albedo", np.float16, n * 4, (h, w, 4)).astype(np.float32)
-        cover = nrm[..., 3] > 0
-        depth = np.where(cover, pos[..., 3], np.inf).astype(np.float32)
-        aov = {
-            "position": np.ascontiguousarray(pos[..., :3]),
-            "normal": np.ascontiguousarray(nrm[..., :3]),
-            "albedo": np.ascontiguousarray(alb[..., :3]),
-            "depth": depth,
-            "shadow": masks("masks"),              # what the lighting used (accumulated + denoised for soft)
-            "shadow_raw": masks("masks_raw"),      # this frame's rays alone
-            "ao": part("ao", np.float32, n, (h, w)).copy(),
-            "ao_raw": part("ao_raw", np.float32, n, (h, w)).copy(),
-            "history": part("history", np.float32, n, (h, w)).copy(),   # frames accumulated (0: none)
-        }
-        return color, aov
+    def read(self, buf, offsets: dict, n_lights: int) -> dict:
+        """The AOVs as numpy arrays, each one copy of the mapped memory (the buffer is written again by a later
+        frame). The light masks come as (H, W, lights), ids as int32 (-1: background)."""
+        h, w = self.height, self.width
+        raw = buf.view(np.uint8)
+        out = {}
+        for name, off in offsets.items():
+            spec = AOVS[name]
+            if spec.per_light:
+                lights = max(n_lights, 1)
+                m = np.frombuffer(raw, np.float32, h * w * lights, off).reshape(lights, h, w)[:n_lights]
+                out[name] = np.moveaxis(m, 0, -1).copy()   # a copy even where moveaxis is a no-op (1 light)
+                continue
+            per_pixel = spec.bytes // np.dtype(spec.dtype).itemsize
+            a = np.frombuffer(raw, spec.dtype, h * w * per_pixel, off).reshape(h, w, per_pixel)
+            a = a[..., :spec.channels] if spec.channels > 1 else a[..., 0]
+            out[name] = a.astype(np.float32) if spec.dtype == "float16" else a.copy()
+        return out
 
     def destroy(self):
+        for buf, _ in self.readbacks.values():
+            buf.destroy()
+        self.readbacks.clear()
+        self._destroy_targets()
+
+    def _destroy_targets(self):
         for obj in self._objects:
             obj.destroy()

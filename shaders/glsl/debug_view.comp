@@ -3,7 +3,8 @@
 // Debug views: replaces the final colour with one AOV (setting `view`), on the GPU so a window can show it.
 // Same mappings as engine.frame.aov_to_rgba where it can: normals n * 0.5 + 0.5, albedo gamma 2.2,
 // position by the scene bounds, depth 1 (near) .. 0 (far) over the scene's depth range, masks averaged over the
-// lights, AO as is, history length / 32 in grey with fresh (disoccluded, n = 1) pixels in red.
+// lights, AO as is, history length / 32 in grey with fresh (disoccluded, n = 1) pixels in red; ids as a colour per
+// id; motion as red / green around grey.
 #include "common.glsl"
 FRAME_BLOCK
 
@@ -17,7 +18,21 @@ layout(std430, set = 0, binding = 6) readonly buffer AORaw { float ao_raw[]; };
 layout(std430, set = 0, binding = 7) readonly buffer AO { float ao[]; };
 layout(std430, set = 0, binding = 8) readonly buffer HistLen { float hist_len[]; };
 layout(set = 0, binding = 9, rgba8) uniform writeonly image2D out_color;
+layout(set = 0, binding = 10, r32ui) uniform readonly uimage2D g_triangle;
+layout(set = 0, binding = 11, r32ui) uniform readonly uimage2D g_object;
+layout(set = 0, binding = 12, r32ui) uniform readonly uimage2D g_material;
+layout(set = 0, binding = 13, rg32f) uniform readonly image2D g_motion;
 layout(push_constant) uniform Push { uint view; } pc;
+
+// A colour per id (black for none), different for neighbouring ids.
+vec3 id_color(uint id) {
+    if (id == 0xFFFFFFFFu) return vec3(0.0);
+    uint h = id * 2654435761u;
+    h ^= h >> 15;
+    h *= 2246822519u;
+    h ^= h >> 13;
+    return 0.25 + 0.75 * vec3(h & 255u, (h >> 8) & 255u, (h >> 16) & 255u) / 255.0;
+}
 
 
 void main() {
@@ -53,6 +68,15 @@ void main() {
         c = vec3(ao_raw[pixel]);
     } else if (v == VIEW_AO) {
         c = vec3(ao[pixel]);
+    } else if (v == VIEW_TRIANGLE_ID) {
+        c = id_color(imageLoad(g_triangle, px).x);
+    } else if (v == VIEW_OBJECT_ID) {
+        c = id_color(imageLoad(g_object, px).x);
+    } else if (v == VIEW_MATERIAL_ID) {
+        c = id_color(imageLoad(g_material, px).x);
+    } else if (v == VIEW_MOTION) {   // x right: red, y down: green, 8 pixels = full
+        vec2 m = imageLoad(g_motion, px).xy;
+        c = covered ? vec3(0.5 + m / 16.0, 0.5) : vec3(0.0);
     } else if (v == VIEW_HISTORY) {
         float n = hist_len[pixel];
         c = !covered ? vec3(0.0) : (n <= 1.0 ? vec3(1.0, 0.0, 0.0) : vec3(clamp(n / 32.0, 0.0, 1.0)));

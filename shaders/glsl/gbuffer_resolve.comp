@@ -35,9 +35,16 @@ layout(set = 0, binding = 10, rgba8_snorm) uniform writeonly image2D g_normal8;
 // The scene's buffers as texel buffers (lavapipe gathers texels for 8 lanes at once, storage buffers lane by lane)
 layout(set = 0, binding = 5) uniform samplerBuffer vertices;       // 2 texels per vertex: (p, n.x), (n.yz, uv)
 layout(set = 0, binding = 6) uniform usamplerBuffer indices;       // material-sorted, 3 per triangle
-layout(set = 0, binding = 7) uniform usamplerBuffer tri_material;  // per triangle
+layout(set = 0, binding = 7) uniform usamplerBuffer tri_info;      // per triangle: material, scene triangle, object
 layout(set = 0, binding = 8) uniform samplerBuffer materials;      // 2 texels: base colour, (texture slot bits, ...)
 layout(set = 0, binding = 9) uniform sampler2D textures[MAX_TEXTURES];
+// The data AOVs: linear view depth (+inf on background), the scene's triangle, object and material ids (-1 as uint on
+// background), and the pixel's motion since the previous frame (now - then, in pixels).
+layout(set = 0, binding = 11, r32f) uniform writeonly image2D g_depth;
+layout(set = 0, binding = 12, r32ui) uniform writeonly uimage2D g_triangle;
+layout(set = 0, binding = 13, r32ui) uniform writeonly uimage2D g_object;
+layout(set = 0, binding = 14, r32ui) uniform writeonly uimage2D g_material;
+layout(set = 0, binding = 15, rg32f) uniform writeonly image2D g_motion;
 
 shared uint tile_slots;   // bit s: some pixel of this workgroup samples texture slot s
 
@@ -57,6 +64,7 @@ void main() {
     vec2 uv = vec2(0.0), duv_dx = vec2(0.0), duv_dy = vec2(0.0);
     vec4 albedo = vec4(0.0);
     int slot = -1;
+    uvec4 info = uvec4(0xFFFFFFFFu);
     if (id != 0u) {
         int tri = int(id - 1u);
         int i0 = int(texelFetch(indices, 3 * tri).x), i1 = int(texelFetch(indices, 3 * tri + 1).x);
@@ -89,7 +97,8 @@ void main() {
         duv_dx = bx.x * t0 + bx.y * t1 + bx.z * t2 - uv;
         duv_dy = by.x * t0 + by.y * t1 + by.z * t2 - uv;
 
-        int material = int(texelFetch(tri_material, tri).x);
+        info = texelFetch(tri_info, tri);
+        int material = int(info.x);
         albedo = vec4(texelFetch(materials, 2 * material).rgb, 1.0);
         slot = floatBitsToInt(texelFetch(materials, 2 * material + 1).x);
     }
@@ -114,4 +123,15 @@ void main() {
     imageStore(g_normal, px, vec4(nrm, id != 0u ? 1.0 : 0.0));
     imageStore(g_albedo, px, albedo);
     imageStore(g_normal8, px, vec4(nrm, id != 0u ? 1.0 : 0.0));
+    imageStore(g_depth, px, vec4(id != 0u ? depth : uintBitsToFloat(0x7F800000u)));
+    imageStore(g_triangle, px, uvec4(info.y));
+    imageStore(g_object, px, uvec4(info.z));
+    imageStore(g_material, px, uvec4(info.x));
+    vec2 motion = vec2(0.0);
+    if (id != 0u) {   // where this surface point is on screen minus where it was in the previous frame
+        vec4 now = frame.view_proj * vec4(pos, 1.0), prev = frame.prev_view_proj * vec4(pos, 1.0);
+        vec2 d = (now.xy / now.w - prev.xy / prev.w) * 0.5 * vec2(size);   // exactly 0 for the same matrices
+        motion = prev.w > 0.0 ? d : vec2(0.0);
+    }
+    imageStore(g_motion, px, vec4(motion, 0.0, 0.0));
 }

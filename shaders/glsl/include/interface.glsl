@@ -18,6 +18,10 @@
 #define VIEW_AO_RAW 7u
 #define VIEW_AO 8u
 #define VIEW_HISTORY 9u
+#define VIEW_TRIANGLE_ID 10u
+#define VIEW_OBJECT_ID 11u
+#define VIEW_MATERIAL_ID 12u
+#define VIEW_MOTION 13u
 #define SHADOW_HARD 0u
 #define SHADOW_SOFT 1u
 #define SHADOW_SEED_DELTA 2u

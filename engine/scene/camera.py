@@ -13,6 +13,16 @@ from . import _check
 # Direction (from the target towards the eye) of the automatic framing camera: a 3/4 view from above.
 FRAMING_DIRECTION = (0.55, 0.45, 0.70)
 
+# Cameras from intrinsics (Camera.from_intrinsics): their pose conventions, the default near plane (scene units),
+# how far from rigid a given pose may be (float32 files), how far another render's aspect ratio may be from the
+# camera's image (K then scales per axis), and the range of sizes and of focal lengths per image size.
+CONVENTIONS = ("opencv", "opengl")
+DEFAULT_INTRINSICS_NEAR = 0.01
+POSE_TOLERANCE = 1e-4
+ASPECT_TOLERANCE = 0.01
+MAX_IMAGE_SIZE = 1 << 20
+MAX_FOCAL_RATIO = 1e6
+
 
 class Camera:
     """`Camera.look_at(eye, target, up=(0, 1, 0), fov_y=60.0)`.
@@ -159,3 +169,223 @@ class Camera:
             return "(" + ", ".join(f"{x:.4g}" for x in v) + ")"
         return (f"Camera(eye={fmt(self.eye)}, target={fmt(self.target)}, up={fmt(self.up)}, "
                 f"fov_y={self.fov_y:g}, near={self.near:.4g})")
+
+    # ----------------------------------------------------------------- intrinsics, pose and rays
+    # Pixel coordinates (docs/architecture.md, "Camera and lights"): continuous, (0, 0) the top-left corner of the
+    # image, x right, y down; pixel (column i, row j) is the square [i, i+1) x [j, j+1), its centre (i + 0.5, j + 0.5),
+    # where the renderer samples it. A point at OpenCV camera coordinates (X, Y, Z) lands at
+    # (fx X / Z + cx, fy Y / Z + cy).
+    @classmethod
+    def from_intrinsics(cls, K, width: int, height: int, pose=None, convention: str = "opencv",
+                        near: float = DEFAULT_INTRINSICS_NEAR) -> "Camera":
+        """A pinhole camera from a 3x3 intrinsic matrix `K` ((fx, 0, cx), (0, fy, cy), (0, 0, 1); pixels, no skew)
+        for a `width` x `height` image, placed by `pose` (camera-to-world 4x4, rigid; default the identity) whose
+        axes follow `convention`: "opencv" (x right, y down, z forward) or "opengl" (x right, y up, -z forward).
+
+        Off-centre principal points and non-square pixels (fx != fy) are kept: `projection_matrix` is the
+        off-axis frustum of that image. Rendered at another size of the same aspect ratio (within 1%), the image
+        is the same view resampled: K scales with the size (`intrinsics(w, h)`); another aspect ratio is a
+        ConfigError. `fov_y` is 2 atan(height / (2 fy)), the view of a centred camera with that fy (it sets the
+        pixel footprint); `eye`, `forward`, `right`, `up_vector` come from the pose, `target` = eye + forward."""
+        return IntrinsicsCamera(K, width, height, pose=pose, convention=convention, near=near)
+
+    @property
+    def image_size(self) -> tuple[int, int] | None:
+        """(width, height) of the image the intrinsics were given for; None for a look_at camera (any size)."""
+        return None
+
+    def intrinsics(self, width: int | None = None, height: int | None = None) -> np.ndarray:
+        """K (3x3 float64) of a `width` x `height` render (pixel centres at +0.5, see above). A look_at camera:
+        fx = fy = height / (2 tan(fov_y / 2)), cx = width / 2, cy = height / 2."""
+        if width is None or height is None:
+            raise ConfigError("camera intrinsics: a look_at camera needs the image's width and height")
+        width, height = _image_size(width, height)
+        f = height / (2.0 * math.tan(math.radians(self.fov_y) / 2.0))
+        return np.array([[f, 0.0, width / 2.0], [0.0, f, height / 2.0], [0.0, 0.0, 1.0]])
+
+    @property
+    def pose(self) -> np.ndarray:
+        """Camera-to-world 4x4 float64 with OpenCV axes (columns: right, down, forward, eye). The OpenGL pose
+        (y up, looking down -z) is `pose @ np.diag([1, -1, -1, 1])`."""
+        m = np.eye(4)
+        m[:3, 0], m[:3, 1], m[:3, 2], m[:3, 3] = self.right, -self.up_vector, self.forward, self.eye
+        return m
+
+    def rays(self, width: int | None = None, height: int | None = None) -> tuple[np.ndarray, np.ndarray]:
+        """Primary rays of a `width` x `height` render: origins and unit directions, each (H, W, 3) float32,
+        through the pixel centres (row 0 the top), as the renderer samples them. A hit at distance t along a ray
+        has the renderer's depth t * dot(direction, forward)."""
+        K = self.intrinsics(width, height)
+        w, h = int(width), int(height)
+        x = (np.arange(w) + 0.5 - K[0, 2]) / K[0, 0]
+        y = (np.arange(h) + 0.5 - K[1, 2]) / K[1, 1]
+        rot = self.pose[:3, :3]
+        d = (x[None, :, None] * rot[:, 0] + y[:, None, None] * rot[:, 1]) + rot[:, 2]
+        d /= np.linalg.norm(d, axis=-1, keepdims=True)
+        origins = np.empty((h, w, 3), np.float32)
+        origins[...] = self.eye
+        return origins, d.astype(np.float32)
+
+
+def _image_size(width, height, what: str = "camera intrinsics") -> tuple[int, int]:
+    """An image size: two positive integers (at most MAX_IMAGE_SIZE)."""
+    out = []
+    for name, v in (("width", width), ("height", height)):
+        if isinstance(v, (bool, np.bool_)) or not isinstance(v, (int, np.integer)) or not 1 <= v <= MAX_IMAGE_SIZE:
+            raise ConfigError(f"{what}: {name} must be an integer in 1..{MAX_IMAGE_SIZE}, got {v!r}")
+        out.append(int(v))
+    return out[0], out[1]
+
+
+def _intrinsic_matrix(K) -> tuple[float, float, float, float]:
+    """(fx, fy, cx, cy) of a 3x3 K ((fx, 0, cx), (0, fy, cy), (0, 0, 1)), checked."""
+    try:
+        k = np.asarray(K, dtype=np.float64)
+    except (TypeError, ValueError, OverflowError):
+        raise ConfigError(f"camera K must be a 3x3 matrix of numbers, got {K!r}") from None
+    if k.shape != (3, 3):
+        raise ConfigError(f"camera K must be a 3x3 matrix, got shape {k.shape}")
+    if not np.all(np.isfinite(k)):
+        raise ConfigError("camera K must be finite")
+    if k[0, 1] != 0.0:
+        raise ConfigError(f"camera K: skew K[0][1] must be 0 (pixels are rectangular), got {k[0, 1]:g}")
+    if k[1, 0] != 0.0 or tuple(k[2]) != (0.0, 0.0, 1.0):
+        raise ConfigError(f"camera K must be ((fx, 0, cx), (0, fy, cy), (0, 0, 1)), got {k.tolist()}")
+    for name, v in (("fx (K[0][0])", k[0, 0]), ("fy (K[1][1])", k[1, 1])):
+        if not v > 0.0:
+            raise ConfigError(f"camera K: {name} must be > 0, got {v:g}")
+    return float(k[0, 0]), float(k[1, 1]), float(k[0, 2]), float(k[1, 2])
+
+
+def _rigid_pose(pose, convention) -> np.ndarray:
+    """A camera-to-world 4x4 (rigid, finite) with OpenCV axes, its rotation made exactly orthonormal."""
+    if convention not in CONVENTIONS:
+        raise ConfigError(f"camera convention must be 'opencv' or 'opengl', got {convention!r}")
+    if pose is None:
+        return np.eye(4)
+    try:
+        m = np.array(pose, dtype=np.float64)
+    except (TypeError, ValueError, OverflowError):
+        raise ConfigError(f"camera pose must be a 4x4 matrix of numbers (camera-to-world), got {pose!r}") from None
+    if m.shape != (4, 4):
+        raise ConfigError(f"camera pose must be a 4x4 matrix (camera-to-world), got shape {m.shape}")
+    if not np.all(np.isfinite(m)):
+        raise ConfigError("camera pose must be finite")
+    if np.abs(m[3] - (0.0, 0.0, 0.0, 1.0)).max() > 1e-6:
+        raise ConfigError(f"camera pose: the last row must be (0, 0, 0, 1), got {tuple(m[3].tolist())}")
+    rot = m[:3, :3]
+    off = float(np.abs(rot.T @ rot - np.eye(3)).max())
+    if off > POSE_TOLERANCE or np.linalg.det(rot) < 0.0:
+        why = "a reflection (det < 0)" if off <= POSE_TOLERANCE else f"not orthonormal (|R^T R - I| = {off:.3g})"
+        raise ConfigError(f"camera pose must be rigid (a rotation and a translation): its 3x3 part is {why}")
+    _check.vector(m[:3, 3], 3, "camera pose position")
+    if off > 1e-12:   # the nearest rotation; a pose that already is one is kept bit for bit (round trips)
+        u, _, vt = np.linalg.svd(rot)
+        m[:3, :3] = u @ vt
+    if convention == "opengl":
+        m[:3, 1:3] *= -1.0   # OpenGL y up, -z forward -> OpenCV y down, z forward
+    m[3] = (0.0, 0.0, 0.0, 1.0)
+    return m
+
+
+class IntrinsicsCamera(Camera):
+    """What `Camera.from_intrinsics` makes: a Camera whose projection is the off-axis frustum of a K for one image
+    size (see there). `replace` takes K, width, height, pose (with convention), eye (moves it, keeping its
+    orientation) and near."""
+
+    __slots__ = ("_k", "_size")
+
+    def __init__(self, K, width: int, height: int, pose=None, convention: str = "opencv",
+                 near: float = DEFAULT_INTRINSICS_NEAR):
+        fx, fy, cx, cy = _intrinsic_matrix(K)
+        width, height = _image_size(width, height, "camera")
+        for name, v in (("fx / width", fx / width), ("fy / height", fy / height)):
+            if not 1.0 / MAX_FOCAL_RATIO <= v <= MAX_FOCAL_RATIO:
+                raise ConfigError(f"camera K: {name} = {v:g} is outside [{1 / MAX_FOCAL_RATIO:g}, {MAX_FOCAL_RATIO:g}]")
+        for name, v in (("cx / width", cx / width), ("cy / height", cy / height)):
+            if abs(v) > MAX_FOCAL_RATIO:
+                raise ConfigError(f"camera K: {name} = {v:g} is outside +-{MAX_FOCAL_RATIO:g}")
+        m = _rigid_pose(pose, convention)
+        near = _check.number(near, "camera near", min_value=0.0, min_exclusive=True)
+        eye, right, forward = m[:3, 3].copy(), m[:3, 0].copy(), m[:3, 2].copy()
+        up_vector = -m[:3, 1]
+        target = eye + forward
+        for arr in (eye, right, forward, up_vector, target):
+            arr.setflags(write=False)
+        fields = dict(eye=eye, target=target, up=up_vector, fov_y=math.degrees(2.0 * math.atan(height / (2.0 * fy))),
+                      near=near, forward=forward, right=right, up_vector=up_vector, _k=(fx, fy, cx, cy),
+                      _size=(width, height))
+        for name, value in fields.items():
+            object.__setattr__(self, name, value)
+
+    @property
+    def image_size(self) -> tuple[int, int]:
+        return self._size
+
+    def _check_aspect(self, aspect: float):
+        w, h = self._size
+        if abs(aspect / (w / h) - 1.0) > ASPECT_TOLERANCE:
+            raise ConfigError(f"camera: its intrinsics are for a {w}x{h} image (aspect {w / h:.4g}), which cannot "
+                              f"render an image of aspect {aspect:.4g}: render at {w}x{h} or another size of that "
+                              f"aspect (K then scales), or make a camera with a K for this size")
+
+    def intrinsics(self, width: int | None = None, height: int | None = None) -> np.ndarray:
+        """K for a `width` x `height` render (default: the camera's own size): the camera's K, scaled per axis
+        by width / its width and height / its height (the same view, resampled)."""
+        fx, fy, cx, cy = self._k
+        w, h = self._size
+        if width is None and height is None:
+            width, height = w, h
+        width, height = _image_size(width, height)
+        self._check_aspect(width / height)
+        sx, sy = width / w, height / h
+        return np.array([[fx * sx, 0.0, cx * sx], [0.0, fy * sy, cy * sy], [0.0, 0.0, 1.0]])
+
+    def rays(self, width: int | None = None, height: int | None = None):
+        """As Camera.rays; the size defaults to the camera's own."""
+        if width is None and height is None:
+            width, height = self._size
+        return super().rays(width, height)
+
+    def projection_matrix(self, aspect: float) -> np.ndarray:
+        """The off-axis frustum of K: NDC x = 2 u / width - 1, y = 2 v / height - 1 (down) for the point's pixel
+        coordinates (u, v); reverse-Z infinite as for look_at cameras. The same at every size of that aspect."""
+        aspect = _check.number(aspect, "aspect", min_value=0.0, min_exclusive=True)
+        self._check_aspect(aspect)
+        fx, fy, cx, cy = self._k
+        w, h = self._size
+        m = np.zeros((4, 4), dtype=np.float64)
+        m[0, 0], m[0, 2] = 2.0 * fx / w, 1.0 - 2.0 * cx / w    # view z is -Z (OpenCV depth)
+        m[1, 1], m[1, 2] = -2.0 * fy / h, 1.0 - 2.0 * cy / h   # view y is -Y; NDC y points down
+        m[2, 3] = self.near
+        m[3, 2] = -1.0
+        return m.astype(np.float32)
+
+    def replace(self, **changes) -> "Camera":
+        """A copy with some of K, width, height, pose (read in `convention`, default "opencv"), eye, near changed.
+        A new width / height keeps K as it is (to keep the view, render at the new size instead)."""
+        allowed = ("K", "width", "height", "pose", "convention", "eye", "near")
+        unknown = sorted(set(changes) - set(allowed))
+        if unknown:
+            raise ConfigError(f"camera from intrinsics has no field {unknown[0]!r} to replace "
+                              f"(it has {', '.join(allowed)})")
+        if "convention" in changes and "pose" not in changes:
+            raise ConfigError("camera replace: convention says how to read pose; give pose too")
+        if "eye" in changes and "pose" in changes:
+            raise ConfigError("camera replace: give pose or eye, not both (the pose holds the position)")
+        fx, fy, cx, cy = self._k
+        args = dict(K=((fx, 0.0, cx), (0.0, fy, cy), (0.0, 0.0, 1.0)), width=self._size[0], height=self._size[1],
+                    pose=self.pose, convention="opencv", near=self.near)
+        if "eye" in changes:
+            args["pose"][:3, 3] = _check.vector(changes.pop("eye"), 3, "camera eye")
+        args.update(changes)
+        return IntrinsicsCamera(**args)
+
+    def _key(self):
+        return ("intrinsics", tuple(self.pose.ravel().tolist()), self.near, self._k, self._size)
+
+    def __repr__(self):
+        fx, fy, cx, cy = self._k
+        eye, fwd = ", ".join(f"{x:.4g}" for x in self.eye), ", ".join(f"{x:.4g}" for x in self.forward)
+        return (f"Camera.from_intrinsics(fx={fx:.6g}, fy={fy:.6g}, cx={cx:.6g}, cy={cy:.6g}, "
+                f"size={self._size[0]}x{self._size[1]}, eye=({eye}), forward=({fwd}), near={self.near:.4g})")

@@ -342,8 +342,9 @@ class Renderer:
             if updated & set(p.shaders):
                 try:
                     p.reload(self.library)
-                except EngineError as exc:   # the last good pipeline stays
-                    self.library.errors[str(self.library.glsl_dir / p.shaders[-1])] = str(exc)
+                except EngineError as exc:   # the last good pipeline stays; listed under the (first) edited shader
+                    name = next(n for n in p.shaders if n in updated)
+                    self.library.errors[str(self.library.glsl_dir / name)] = str(exc)
         self._invalidate_commands()
 
     def _release_owned(self):

@@ -176,15 +176,18 @@ class ShaderLibrary:
         except OSError:
             raise ShaderError(f"{path}: SPIR-V not found (run tools/compile_shaders.py)") from None
 
-    def _scan(self) -> dict[str, float]:
+    def _scan(self) -> dict[str, tuple]:
+        # Size and inode besides the time: a file rewritten in place (or replaced) within one tick of a coarse
+        # file-system clock still looks changed after a poll that saw it half written.
         stamps = {}
         for dirpath, _, files in os.walk(self.glsl_dir):
             for f in files:
                 p = os.path.join(dirpath, f)
                 try:
-                    stamps[p] = os.stat(p).st_mtime_ns
+                    st = os.stat(p)
                 except OSError:
-                    pass
+                    continue
+                stamps[p] = (st.st_mtime_ns, st.st_size, st.st_ino)
         return stamps
 
     def _try_compile(self, src: Path) -> bool:
@@ -200,18 +203,32 @@ class ShaderLibrary:
         return True
 
     def poll(self) -> set[str]:
-        """Recompile shaders affected by changed files; return the names that have new SPIR-V."""
+        """Recompile shaders affected by changed files; return the names that have new SPIR-V.
+
+        While the folder is missing nothing is compiled (the last good SPIR-V stays) and `errors` says so under the
+        folder's path; once it is back, its files are compared with what was seen before it went."""
         if not self.hot_reload:
             return set()
+        folder = str(self.glsl_dir)
         stamps = self._scan()
+        try:
+            sources = shader_sources(self.glsl_dir)
+        except OSError:   # removed or renamed: keep the old stamps to compare its return with
+            self.errors[folder] = f"{folder}: the shader folder is gone; hot reload resumes when it is back"
+            return set()
+        self.errors.pop(folder, None)
         changed = {Path(p).resolve() for p, t in stamps.items() if self._stamps.get(p) != t}
         changed |= {Path(p).resolve() for p in self._stamps if p not in stamps}
         self._stamps = stamps
         if not changed:
             return set()
         updated = set()
-        for src in shader_sources(self.glsl_dir):
-            deps = {src.resolve(), *includes_of(src, self.glsl_dir)}
+        for src in sources:
+            try:
+                deps = {src.resolve(), *includes_of(src, self.glsl_dir)}
+            except OSError:   # gone since the listing (a save by rename, the folder going): the next poll retries
+                self._stamps.pop(str(src), None)
+                continue
             if deps & changed or str(src) in self.errors:
                 if self._try_compile(src):
                     updated.add(src.name)

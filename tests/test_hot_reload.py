@@ -145,3 +145,30 @@ def test_compiler_message_is_the_located_error(tmp_path):
     assert "compilation errors" not in msg and "compilation terminated" not in msg
     assert not (tmp_path / "bad.spv").exists()
 
+
+
+def test_a_refused_shader_stays_out_of_later_pipelines(make_renderer, glsl_copy, scene):
+    """SPIR-V refused for a changed layout is not used later either, when a pass re-specializes its pipeline (a
+    textured scene changes the G-buffer resolve's TEXTURE_SLOTS): that frame used to crash."""
+    import trimesh
+    from PIL import Image
+
+    resolve = glsl_copy / "gbuffer_resolve.comp"
+    r = make_renderer(64, 48, shader_dir=glsl_copy, hot_reload=True)
+    plain = r.render(scene, **SETTINGS).color
+    original = resolve.read_text()
+    assert original.count("binding = 10, rgba8_snorm") == 1
+    edit(resolve, original.replace("binding = 10, rgba8_snorm", "binding = 11, rgba8_snorm"))
+    assert np.array_equal(r.render(scene, **SETTINGS).color, plain)
+    assert "g_normal8" in r.shader_errors.get(str(resolve), ""), r.shader_errors
+    meshes = []
+    for x, rgba in ((0.0, (255, 0, 0, 255)), (5.0, (0, 255, 0, 255))):   # two textures: two slots instead of one
+        mesh = trimesh.creation.icosphere(subdivisions=3)
+        mesh.apply_translation((x, 0, 0))
+        mesh.visual = trimesh.visual.TextureVisuals(uv=np.zeros((len(mesh.vertices), 2)),
+                                                    image=Image.new("RGBA", (4, 4), rgba))
+        meshes.append(mesh)
+    textured = Scene.from_trimesh(trimesh.Scene(meshes), camera=scene.camera, lights=scene.lights)
+    assert sum(m.texture is not None for m in textured.materials) == 2
+    red = r.render(textured, **SETTINGS).color
+    assert red[24, 32, 0] > 40 and red[24, 32, 1] < red[24, 32, 0] // 2, red[24, 32]   # the texture's red

@@ -77,6 +77,7 @@ class ComputePass:
         self.interface = reflect(spirv, self.shader)
         check_interface(self.shader, self.bindings, self.interface)
         self.set = DescriptorSet(ctx, self.interface.set(0).values())
+        self.spirv = spirv   # the current pipeline's SPIR-V (hot reload may hold newer SPIR-V that was refused)
         self.values = dict(self.constants(ctx))
         self.pipeline = ComputePipeline(ctx, spirv, [self.set, *self.shared_sets],
                                         push_size=self.interface.push_size,
@@ -132,7 +133,7 @@ class ComputePass:
         except BaseException:
             self.pipeline.spec = old
             raise
-        self.interface = interface
+        self.interface, self.spirv = interface, spirv
 
     def specialize(self, **values):
         """Re-create the pipeline with these constants changed (by name), where they differ from the current ones;
@@ -140,7 +141,7 @@ class ComputePass:
         merged = {**self.values, **values}
         if merged == self.values:
             return
-        self.pipeline.specialize(self.library.get(self.shader), self.interface.specialization(merged, self.shader))
+        self.pipeline.specialize(self.spirv, self.interface.specialization(merged, self.shader))
         self.values = merged
 
     def dispatch(self, rec: Recorder, groups, push=None, sets=None, reads=None, writes=None):

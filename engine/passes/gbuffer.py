@@ -116,6 +116,7 @@ class GBufferPass:
         self.ctx, self.library = ctx, library
         vert, frag = library.get("gbuffer.vert"), library.get("gbuffer.frag")
         interface = reflect(vert, "gbuffer.vert").merged(reflect(frag, "gbuffer.frag"))
+        self.interface = interface   # what the pipeline layout was made for; hot reload must keep it
         self.raster_set = DescriptorSet(ctx, interface.set(0).values())
         self.raster_set.bind("frame", resources["frame"])
         self.pipeline = GraphicsPipeline(
@@ -135,6 +136,12 @@ class GBufferPass:
         if {b.name for b in interface.bindings} != {"frame"}:
             raise ShaderError("gbuffer.vert/.frag: the raster reads the frame block (set 0, binding 0) and nothing "
                               f"else; the shaders declare {', '.join(b.name for b in interface.bindings)}")
+        old = self.interface
+        if (interface.bindings, interface.push_size) != (old.bindings, old.push_size):
+            was = ", ".join(f"{b.name} {b.kind} set {b.set} binding {b.binding}" for b in old.bindings)
+            now = ", ".join(f"{b.name} {b.kind} set {b.set} binding {b.binding}" for b in interface.bindings)
+            raise ShaderError(f"gbuffer.vert/.frag: their layout changed ({was}, {old.push_size} bytes of push "
+                              f"constants -> {now}, {interface.push_size} bytes); restart to use them")
         self.pipeline.rebuild(vert, frag)
         self.resolve.reload(library)
 

@@ -89,6 +89,7 @@ class Viewer:
         self.help_on = False
         self.frames = 0
         self._fb_size = glfw.get_framebuffer_size(self.window)
+        self._iconified = False
         self._resize_pending = False
         self._dragging = False
         self._cursor = None
@@ -142,11 +143,17 @@ class Viewer:
         g.set_cursor_pos_callback(w, self._on_cursor)
         g.set_scroll_callback(w, self._on_scroll)
         g.set_framebuffer_size_callback(w, self._on_framebuffer_size)
+        g.set_window_iconify_callback(w, self._on_iconify)
 
     # ---- input --------------------------------------------------------------------------------------------------
     def _on_framebuffer_size(self, window, w, h):
         self._fb_size = (w, h)
         self._resize_pending = True
+
+    def _on_iconify(self, window, iconified):
+        # X11 keeps a minimized window's framebuffer size: without this the frames would go on, unseen
+        self._iconified = bool(iconified)
+        self._resize_pending = True   # the size may have changed meanwhile
 
     def _on_mouse_button(self, window, button, action, mods):
         g = self.glfw
@@ -232,7 +239,7 @@ class Viewer:
         g, p = self.glfw, self.presenter
         t0, c0, wait0 = time.perf_counter(), time.thread_time(), p.wait_s
         g.poll_events()
-        if self._fb_size[0] == 0 or self._fb_size[1] == 0:   # minimized: wait, keep everything as it is
+        if self._iconified or self._fb_size[0] == 0 or self._fb_size[1] == 0:   # minimized: wait, change nothing
             g.wait_events_timeout(0.1)
             self._last_t = None
             return False
@@ -250,6 +257,8 @@ class Viewer:
             p.recreate(*g.get_framebuffer_size(self.window))
             return False
         index, suboptimal = got
+        if index is None:   # no image in time (presentation stalled): back to the events, try again next step
+            return False
         if p.wait_render():
             self._collect_timings()
         if self._screenshot_request is not None:
@@ -320,10 +329,11 @@ class Viewer:
                    if setting_choices(name) is not None]
         lines = [(head, TextImage.WHITE), (gpu, TextImage.WHITE), ("  ".join(toggles) + "   H: help", TextImage.GREY)]
         errors = self.renderer.shader_errors
-        folder = str(self.renderer.library.glsl_dir).rstrip("/") + "/"
+        folder = str(self.renderer.library.glsl_dir).rstrip("/")
         for path, msg in errors.items():
-            lines.append((f"shader error in {Path(path).name} (last good pipeline kept):", TextImage.RED))
-            lines.append((msg.replace(folder, ""), TextImage.RED))
+            head = "hot reload paused" if path == folder else f"shader error in {Path(path).name}"
+            lines.append((f"{head} (last good pipeline kept):", TextImage.RED))
+            lines.append((msg.replace(folder + "/", ""), TextImage.RED))
         if self.help_on:
             lines += [(line, TextImage.YELLOW) for line in key_map_text().splitlines()]
         overlay = self.presenter.overlay

@@ -12,6 +12,7 @@ from PIL import Image as PILImage, ImageDraw, ImageFont
 from ..errors import ShaderError
 from ..vk import SB, SI, Buffer, ComputePipeline, DescriptorSet
 from ..vk.present import COMPUTE_STAGES, composite_image
+from ..vk.reflect import reflect
 from ..vk.resources import STORAGE
 
 OVERLAY_MAX = (1024, 512)     # largest overlay rectangle (pixels, top-left corner of the window)
@@ -20,6 +21,9 @@ FONT_SIZE = 13
 LINE_H = 16
 PAD = 6
 SHADER = "overlay.comp"
+# The layout the pass is built for: (set, binding, kind) of each binding, and the push-constant bytes
+LAYOUT = ((0, 0, "image"), (0, 1, "image"), (0, 2, "buffer"))
+PUSH_SIZE = 32
 
 
 # ---------------------------------------------------------------------------------------------------------------
@@ -85,6 +89,19 @@ class TextImage:
 # ---------------------------------------------------------------------------------------------------------------
 # The compute pass: text image over the colour target -> a composite image per swapchain image
 # ---------------------------------------------------------------------------------------------------------------
+def check_layout(spirv: bytes):
+    """A ShaderError unless overlay.comp's bindings and push constants are the ones the pass was built for."""
+    interface = reflect(spirv, SHADER)
+    got = tuple((b.set, b.binding, b.kind) for b in interface.bindings)
+    if got != LAYOUT or interface.push_size != PUSH_SIZE:
+        raise ShaderError(f"{SHADER}: the overlay pass needs {_layout_text(LAYOUT, PUSH_SIZE)}; the shader has "
+                          f"{_layout_text(got, interface.push_size)}")
+
+
+def _layout_text(layout, push_size) -> str:
+    return ", ".join(f"set {s} binding {b} {kind}" for s, b, kind in layout) + f", {push_size} bytes of push constants"
+
+
 class _Target:
     """What overlay.comp uses for one swapchain image: its descriptor set, text buffer and composite image."""
 
@@ -117,7 +134,9 @@ class OverlayPass:
         self.text_version = 0
         self.generation = 0
         self._new_set()
-        self.pipeline = ComputePipeline(ctx, library.get(SHADER), [self.sets[0]], push_size=32, name="overlay")
+        spirv = library.get(SHADER)
+        check_layout(spirv)
+        self.pipeline = ComputePipeline(ctx, spirv, [self.sets[0]], push_size=PUSH_SIZE, name="overlay")
         self._shader_version = self._library_version()
 
     def _new_set(self):
@@ -191,7 +210,9 @@ class OverlayPass:
         lib = self.library
         self._shader_version = self._library_version()
         try:
-            self.pipeline.rebuild(lib.get(SHADER))
+            spirv = lib.get(SHADER)
+            check_layout(spirv)
+            self.pipeline.rebuild(spirv)
             self.generation += 1
         except ShaderError as exc:
             lib.errors[str(lib.glsl_dir / SHADER)] = str(exc)

@@ -166,7 +166,8 @@ class Presenter:
         return False
 
     def begin(self):
-        """Wait for this frame slot and acquire an image. Returns (index, suboptimal) or None (out of date)."""
+        """Wait for this frame slot and acquire an image. Returns (index, suboptimal), (None, False) when none came
+        in time, or None (out of date)."""
         s = self.slot
         if self.pending[s]:
             self._wait([self.in_flight[s]])

@@ -26,7 +26,9 @@ PRESENT_MODES = {
 PREFERRED_FORMATS = (vk.VK_FORMAT_B8G8R8A8_UNORM, vk.VK_FORMAT_R8G8B8A8_UNORM,
                      vk.VK_FORMAT_B8G8R8A8_SRGB, vk.VK_FORMAT_R8G8B8A8_SRGB)
 _SRGB_FORMATS = {vk.VK_FORMAT_B8G8R8A8_SRGB, vk.VK_FORMAT_R8G8B8A8_SRGB}
-NO_TIMEOUT = 0xFFFFFFFFFFFFFFFF
+# How long acquire waits for an image: a presentation engine that stalls (a hidden window on some systems) must not
+# hang the caller, which can then handle its window's events (a close) and try again
+ACQUIRE_TIMEOUT_NS = 1_000_000_000
 
 
 class Swapchain:
@@ -34,7 +36,8 @@ class Swapchain:
 
     `images` (VkImage handles), `extent` (w, h), `format`, `generation` (bumped on every recreate, so
     users can tell that what they recorded against the images is stale). `acquire(semaphore)` returns
-    `(index, suboptimal)` or None when the swapchain is out of date; `present(index, wait)` returns False
+    `(index, suboptimal)`, `(None, False)` when no image came within the timeout, or None when the swapchain is
+    out of date; `present(index, wait)` returns False
     when it should be recreated. `recreate(w, h)` waits for the device and rebuilds on the old one.
     """
 
@@ -145,14 +148,17 @@ class Swapchain:
             self.images = []
 
     # ---- per frame ------------------------------------------------------------------------
-    def acquire(self, semaphore, timeout=NO_TIMEOUT):
-        """Next image index and whether the swapchain is suboptimal; None when it is out of date."""
+    def acquire(self, semaphore, timeout=ACQUIRE_TIMEOUT_NS):
+        """Next image index and whether the swapchain is suboptimal; (None, False) when no image came within
+        `timeout` ns (the semaphore stays unsignalled); None when it is out of date."""
         try:
             self._acquire_fn(self.ctx.device, self.handle, timeout, semaphore, vk.VK_NULL_HANDLE, self._index)
         except vk.VkSuboptimalKhr:  # an image was acquired (the semaphore will be signalled): use it
             return int(self._index[0]), True
         except vk.VkErrorOutOfDateKhr:
             return None
+        except (vk.VkTimeout, vk.VkNotReady):
+            return None, False
         return int(self._index[0]), False
 
     def present(self, index: int, wait_semaphores=()) -> bool:

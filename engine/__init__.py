@@ -1,19 +1,43 @@
-"""Hybrid renderer: Vulkan rasterized G-buffer + compute ray-traced shadows and ambient occlusion.
-
-Public API::
+"""Hybrid renderer: a Vulkan rasterized G-buffer plus compute ray-traced shadows and ambient occlusion, and a batch
+ray-query library on the same BVH and traversal.
 
     import engine
-    scene = engine.Scene.load("scenes/default.toml")
+
+    scene = engine.Scene.load("scenes/default.toml")          # or Scene.from_trimesh(mesh), Scene.from_arrays(...)
+    cam = engine.Camera.look_at((4, 3, 6), (0, 1, 0), fov_y=50)
     with engine.Renderer(1280, 720) as r:
-        frame = r.render(scene, shadows="hard", ao=True)
-        frame.save("out.png")
+        frame = r.render(scene, cam, shadows="soft", ao=True)
+        frame.save("out.png")                                  # frame.color, frame.aov["depth"], frame.timings
+
+    with engine.Tracer(vertices, faces) as tracer:
+        blocked = tracer.occluded(origins, directions, tmax)  # (N,) bool
+        hits = tracer.intersect(origins, directions)           # Hits: t, prim, u, v
+
+What is where: `Scene` (geometry, materials, lights, camera; loading), `Camera`, the lights (`DirectionalLight`,
+`PointLight`, `SpotLight`, `RectLight`), `Material`; `Renderer` renders a `Frame`; `Tracer` answers ray queries
+with `Hits`. The render options and their defaults: `engine.settings` (`engine.settings.DEFAULT_SETTINGS`). Errors
+are `EngineError` subclasses whose one-line message names the file, field or argument at fault.
+
+Conventions, everywhere in the API:
+
+- World space is right-handed; lengths are the scene's world units (glTF: metres); +Y is up for the default camera
+  and sun (any `up` works). Angles are degrees (`Camera.fov_y`, a sun's `angle`, a spot's `cone_angle`).
+- Colours in scenes, lights and AOVs are linear RGB (floats); textures and `Frame.color` are 8-bit sRGB-encoded.
+- Images are numpy arrays of shape (H, W, ...) with row 0 at the top; UV (0, 0) is a texture's top-left corner.
+- `Frame.aov["depth"]` is the view depth along the camera's forward axis (not the distance to the eye), +inf on
+  the background. Normals are unit world-space vectors.
+- Arrays handed in may be any numeric dtype (lists too). A `Scene`'s arrays and what the GPU returns are float32
+  (uint8 images, uint32 / int32 indices), a `Scene`'s read-only; a `Camera`'s vectors are float64.
+- Rays: `origin + t * direction` with directions used as given, so `t` and `tmax` are in units of the direction's
+  length (world units for unit directions).
 """
 from .errors import ConfigError, EngineError, SceneError, ShaderError, VulkanError
 from .renderer import Frame, Renderer
 from .rt import Hits, Tracer
-from .scene import Camera, DirectionalLight, Material, PointLight, RectLight, Scene, SpotLight
+from .scene import (Camera, DirectionalLight, Light, Material, PointLight, RectLight, Scene, SpotLight,
+                    SubMesh)
 
 __all__ = [
-    "Scene", "Camera", "Material", "DirectionalLight", "PointLight", "SpotLight", "RectLight",
+    "Scene", "Camera", "Material", "Light", "DirectionalLight", "PointLight", "SpotLight", "RectLight", "SubMesh",
     "Renderer", "Frame", "Tracer", "Hits", "EngineError", "SceneError", "ConfigError", "VulkanError", "ShaderError",
 ]

@@ -11,7 +11,10 @@ and write (engine/passes/base.py); the recorder derives the barriers between the
 from __future__ import annotations
 
 import math
+import os
 import threading
+from collections.abc import Sequence
+from typing import Any
 
 import numpy as np
 
@@ -33,7 +36,8 @@ from .parallel import serialized
 from .passes.targets import Targets
 from .scene import Scene
 from .scene.camera import Camera
-from .settings import check_settings, check_size, resolve_aovs
+from .settings import (ShadowMode, ViewMode, check_settings, check_size, default, given_settings,
+                       resolve_aovs)
 from .shaders import ShaderLibrary
 from .steady import Steady
 from .vk import Buffer, Context, Recorder, Timestamps, reflect
@@ -43,14 +47,43 @@ from .vk.sync import create_fence, destroy_fence, reset_fences, wait_fences
 
 
 class Renderer:
-    """Headless hybrid renderer. `with Renderer(640, 360) as r: frame = r.render(scene)`."""
+    """A headless hybrid renderer of a fixed size: `with Renderer(640, 360) as r: frame = r.render(scene)`.
 
-    def __init__(self, width: int, height: int, *, device=None, validation: bool = False,
-                 shader_dir=None, hot_reload: bool = False, context: Context | None = None,
-                 bvh_layout: str | None = None):
-        """`context`: render on an existing Context (the viewer's, which has a surface); it is not closed here.
-        `bvh_layout`: "binary" or "wide" scene BVH for the shadow and AO passes (default: $HYBRID_BVH_LAYOUT, else
-        "binary"; engine.gpu.bvh_layout)."""
+    One renderer owns a Vulkan device context (or shares the one it is given), the frame's images and the passes;
+    `render()` draws a `Scene` and reads the frame back as numpy arrays (`Frame`). It keeps the last scene on the
+    GPU (rendering the same `Scene` object again uploads nothing; `uploads` counts uploads) and one recorded command
+    buffer per combination of settings, so repeated frames cost little host time. Soft shadows and AO accumulate
+    over successive frames of the same scene and lights (the camera may move). Close it (`close()` or a `with`
+    block) to free the device; a closed renderer raises `ConfigError` / `EngineError` instead of crashing.
+
+    Conventions: sizes in pixels; row 0 of every image is the top; world units are the scene's; colours are linear
+    RGB until the final image, which is tonemapped (ACES) and sRGB-encoded 8-bit RGBA.
+    """
+
+    def __init__(self, width: int, height: int, *, device: int | str | None = None, validation: bool = False,
+                 shader_dir: str | os.PathLike[str] | None = None, hot_reload: bool = False,
+                 context: Context | None = None, bvh_layout: str | None = None):
+        """A renderer of `width` x `height` pixels (1..16384 each).
+
+        Args:
+            width: image width in pixels.
+            height: image height in pixels.
+            device: the Vulkan device: its index in `hybrid info`'s list or part of its name (default:
+                $HYBRID_DEVICE, else discrete GPU > integrated > CPU).
+            validation: turn the Khronos validation layer on (errors collect in `validation_errors`); also
+                $HYBRID_VALIDATION=1.
+            shader_dir: a folder of GLSL sources to use instead of the committed SPIR-V (with `hot_reload`).
+            hot_reload: recompile changed GLSL before each frame; failures keep the last good pipeline and show in
+                `shader_errors`.
+            context: render on an existing `engine.vk.Context` (the viewer's, which has a surface); it is not
+                closed here.
+            bvh_layout: "binary" or "wide" scene BVH for the shadow and AO passes (default: $HYBRID_BVH_LAYOUT,
+                else "binary").
+
+        Raises:
+            ConfigError: a bad size, device selector or layout.
+            VulkanError: no usable Vulkan device, or it lacks the `geometryShader` feature.
+        """
         self.bvh_layout = resolve_layout(bvh_layout)  # a bad one fails here, before any Vulkan object exists
         check_size(width, height)
         self.width, self.height = int(width), int(height)
@@ -118,16 +151,64 @@ class Renderer:
 
     @property
     def shader_errors(self) -> dict[str, str]:
+        """Hot reload's failures: GLSL path -> compiler or interface error (empty when all shaders are good)."""
         return dict(self.library.errors)
 
     @property
     def device_name(self) -> str:
+        """The Vulkan device's name, e.g. "llvmpipe (LLVM 15.0.7, 256 bits)"."""
         return self.ctx.device_info["name"]
 
     @serialized
-    def render(self, scene, camera=None, *, aovs=None, **settings) -> Frame:
-        """Render one frame and read back `aovs` (default: engine.settings.DEFAULT_AOVS; "all": every one) with the
-        GPU timings."""
+    def render(self, scene: Scene, camera: Camera | None = None, *, aovs: str | Sequence[str] | None = None,
+               shadows: ShadowMode = default("shadows"), shadow_samples: int = default("shadow_samples"),
+               reference_samples: int = default("reference_samples"), accumulate: bool = default("accumulate"),
+               denoise: bool = default("denoise"), ao: bool = default("ao"), ao_samples: int = default("ao_samples"),
+               ao_radius: float | None = default("ao_radius"), exposure: float = default("exposure"),
+               ambient: float | Sequence[float] = default("ambient"), view: ViewMode = default("view"),
+               **unknown: Any) -> Frame:
+        """Render one frame of `scene` seen from `camera` and read it back: colour, AOVs and GPU timings.
+
+        The options are keywords. One left out takes the scene's `[settings]` value (docs/scenes.md), else its
+        entry of `engine.settings.DEFAULT_SETTINGS` (shown as `Default(value)` in the signature); one given wins
+        over both. Any other keyword is a `ConfigError` ("unknown render setting ...").
+
+        Args:
+            aovs: what to read back: AOV names ("color", "depth", "normal", "position", "albedo", "shadow",
+                "shadow_raw", "ao", "ao_raw", "history", "triangle_id", "object_id", "material_id", "motion"; see
+                `Frame.aov`), "all", or None for `engine.settings.DEFAULT_AOVS`. Only these are copied from the GPU.
+            scene: what to draw. The last scene stays on the GPU: rendering the same object again uploads nothing.
+            camera: the viewpoint (None: `scene.camera`). The image's aspect ratio is the renderer's width /
+                height; `camera.fov_y` is the vertical field of view.
+            shadows: "hard" (one ray to each light's centre), "soft" (`shadow_samples` rays over each light's
+                area or solid angle, new ones every frame, accumulated and denoised), "seed-delta" (the paper's
+                occlusion-delta approximation, one ray), "reference" (`reference_samples` rays per pixel per light,
+                nothing accumulated: ground truth, slow) or "off".
+            shadow_samples: soft shadows: rays per pixel per light per frame, 1..256.
+            reference_samples: the reference mode: rays per pixel per light, and AO rays per pixel, 1..65536.
+            accumulate: blend the soft light masks and AO with the previous frames' (reprojected when the camera
+                moves). The history starts over when the scene, a light, the size, `shadows`, `shadow_samples`,
+                `ao`, `ao_samples`, `ao_radius` or `accumulate` changes.
+            denoise: filter the soft light masks and AO (edge-aware a-trous, 4 iterations).
+            ao: trace ambient occlusion (off: AO is 1 everywhere).
+            ao_samples: AO rays per pixel per frame, 1..256.
+            ao_radius: the AO rays' length in world units (None: 10% of the scene's bounding-box diagonal).
+            exposure: a factor on the linear HDR colour before tonemapping (ACES) and sRGB encoding; > 0.
+            ambient: linear RGB ambient light (one number: grey), each in [0, 1e6]: added to the lights' irradiance,
+                times AO, and the background's colour.
+            view: "color" (the lit image) or an AOV drawn into the colour image instead, on the GPU (the names
+                are `engine.settings.AOVS`; `Frame.aov` holds every AOV whatever the view).
+            **unknown: none are accepted: a `ConfigError` names the first.
+
+        Returns:
+            The frame (`Frame`): `color`, `aov`, `timings` and the `settings` it was rendered with.
+
+        Raises:
+            ConfigError: a bad or unknown setting (naming it; a bad value from the scene's `[settings]` also names
+                the scene), a scene or camera of the wrong type, more lights than fit, a closed renderer.
+            VulkanError: the device failed.
+        """
+        settings = given_settings(locals(), unknown)
         names = resolve_aovs(aovs)
         cmd, marks, cfg, n_lights = self._prepare(scene, camera, settings, readback=(names, 0))
         self.ctx.submit(cmd)
@@ -175,11 +256,24 @@ class Renderer:
                      material_names=[m.name for m in scene.materials])
 
     @serialized
-    def submit(self, scene, camera=None, *, wait=True, signal_semaphores=(), fence=None, **settings):
+    def submit(self, scene: Scene, camera: Camera | None = None, *, wait: bool = True,
+               signal_semaphores: Sequence[Any] = (), fence: Any = None,
+               shadows: ShadowMode = default("shadows"), shadow_samples: int = default("shadow_samples"),
+               reference_samples: int = default("reference_samples"), accumulate: bool = default("accumulate"),
+               denoise: bool = default("denoise"), ao: bool = default("ao"), ao_samples: int = default("ao_samples"),
+               ao_radius: float | None = default("ao_radius"), exposure: float = default("exposure"),
+               ambient: float | Sequence[float] = default("ambient"), view: ViewMode = default("view"),
+               **unknown: Any) -> dict[str, Any]:
         """Render one frame into `self.targets.color` without reading it back (the viewer's path).
 
-        With wait=False the caller synchronizes through `signal_semaphores` / `fence`, and reads
-        `last_timings()` once that frame has finished."""
+        The settings are `render()`'s, with the same defaults and checks. With `wait=False` the caller
+        synchronizes through `signal_semaphores` (VkSemaphore handles signalled when the frame is done) or `fence`
+        (a VkFence), and reads `last_timings()` once that frame has finished.
+
+        Returns:
+            The settings the frame was rendered with (a copy: `DEFAULT_SETTINGS` keys, checked values).
+        """
+        settings = given_settings(locals(), unknown)
         cmd, marks, cfg, _ = self._prepare(scene, camera, settings, readback=None)
         self._last_marks = marks
         self.ctx.submit(cmd, wait=wait, signal_semaphores=signal_semaphores, fence=fence)
@@ -191,7 +285,7 @@ class Renderer:
         return self.timestamps.read(self._last_marks) if getattr(self, "_last_marks", None) else {}
 
     @serialized
-    def resize(self, width: int, height: int):
+    def resize(self, width: int, height: int) -> None:
         """New render size: targets are recreated and recorded command buffers dropped."""
         check_size(width, height)
         if (width, height) != (self.width, self.height):
@@ -307,7 +401,8 @@ class Renderer:
         return cmd, marks, dict(cfg), n_lights
 
     @serialized
-    def close(self):
+    def close(self) -> None:
+        """Free every Vulkan object (and the device, unless it was given as `context`); safe to call twice."""
         if self.ctx is not None:
             if self._owns_ctx:
                 self.ctx.close()
@@ -321,10 +416,10 @@ class Renderer:
         if getattr(self, "library", None) is not None:
             self.library.close()
 
-    def __enter__(self):
+    def __enter__(self) -> Renderer:
         return self
 
-    def __exit__(self, *exc):
+    def __exit__(self, *exc: object) -> None:
         self.close()
 
     def __del__(self):   # a Renderer that is dropped without close() frees its device too

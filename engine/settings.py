@@ -1,22 +1,23 @@
 """Render settings and the user-facing checks of sizes and output paths (no Vulkan).
 
-`DEFAULT_SETTINGS` are what `Renderer.render(**settings)` accepts; `AOVS` are the views (`setting view`, `--aov`):
-the lit colour or one AOV drawn by the debug view on the GPU.
+`DEFAULT_SETTINGS` are the options of `Renderer.render` / `Renderer.submit` (keyword parameters of the same names,
+whose defaults are `Default` wrappers of these values); `AOVS` are the views (setting `view`, `--aov`): the lit
+colour or one AOV drawn by the debug view on the GPU.
 """
 from __future__ import annotations
 
 import numbers
 import os
 from pathlib import Path
+from typing import Any, Literal, get_args
 
 import numpy as np
 
 from .errors import ConfigError
 from .files import check_writable
 from .limits import MAX_COORD
-from .passes.interface import SHADOW_MODES as TRACED_SHADOW_MODES
 from .passes.interface import AOVS as AOV_SPECS
-from .passes.interface import VIEW_MODES
+from .passes.interface import VIEW_MODES, TracedShadowMode, ViewMode
 
 #: What `view=` / `--aov` can show: the lit colour or one AOV.
 AOVS = VIEW_MODES
@@ -26,7 +27,8 @@ DEFAULT_AOVS = ("color", "depth", "normal", "position", "albedo", "shadow", "ao"
 #: The most frames one `hybrid render` / `hybrid view --frames` may ask for.
 MAX_FRAMES = 1_000_000
 
-DEFAULT_SETTINGS = {
+#: Each render option's default, used where neither the call nor the scene's `[settings]` sets it.
+DEFAULT_SETTINGS: dict[str, Any] = {
     "shadows": "hard",       # SHADOW_MODES
     "shadow_samples": 1,     # soft: rays per pixel per light per frame
     "reference_samples": 256,  # reference: rays per pixel per light (shadows and AO)
@@ -42,10 +44,45 @@ DEFAULT_SETTINGS = {
 # hard: one ray to each light's centre. soft: `shadow_samples` rays over each light's area / solid angle (R2 points,
 # moving every frame), accumulated and denoised. seed-delta: the paper's occlusion-delta approximation (one ray).
 # reference: `reference_samples` rays per pixel per light, nothing accumulated or denoised (ground truth).
-SHADOW_MODES = TRACED_SHADOW_MODES + ("off",)
+#: The values of the `shadows` setting (a Literal for type checkers; `SHADOW_MODES` is the same as a tuple).
+ShadowMode = Literal[TracedShadowMode, "off"]
+SHADOW_MODES: tuple[str, ...] = get_args(ShadowMode)
+__all__ = ["DEFAULT_SETTINGS", "SHADOW_MODES", "AOVS", "ShadowMode", "ViewMode", "Default", "MAX_FRAMES",
+           "check_settings", "choices", "parse_size", "check_size", "check_png_path"]
 
 
-def choices(name: str) -> tuple | None:
+class Default:
+    """The default of a render option in the signatures of `Renderer.render` and `Renderer.submit`.
+
+    `value` is that option's entry of `DEFAULT_SETTINGS` (the same object). It is a wrapper rather than the value
+    itself so that a keyword the caller left out can be told from one given: a left-out option takes the scene's
+    `[settings]` value first, and `value` only where the scene sets none either.
+    """
+
+    __slots__ = ("value",)
+
+    def __init__(self, value: Any):
+        self.value = value
+
+    def __repr__(self) -> str:
+        return f"Default({self.value!r})"
+
+
+def default(name: str) -> Any:
+    """The `Default` of setting `name`, typed `Any` so that it fits a parameter annotated with the setting's type."""
+    return Default(DEFAULT_SETTINGS[name])
+
+
+def given_settings(args: dict[str, Any], unknown: dict[str, Any]) -> dict[str, Any]:
+    """The settings a call of `render()` / `submit()` set: its setting parameters (`args`, e.g. the call's
+    `locals()`) that are not `Default`, then any `unknown` keywords (which `check_settings` reports by name)."""
+    out = {key: args[key] for key in DEFAULT_SETTINGS if type(args[key]) is not Default}
+    if unknown:
+        out.update(unknown)
+    return out
+
+
+def choices(name: str) -> tuple[Any, ...] | None:
     """The values a setting takes from a fixed list (the viewer's keys cycle them), or None."""
     if name == "shadows":
         return SHADOW_MODES
@@ -73,7 +110,9 @@ def resolve_aovs(aovs) -> tuple:
     return tuple(n for n in AOV_SPECS if n in names)
 
 
-def check_settings(settings: dict) -> dict:
+def check_settings(settings: dict[str, Any]) -> dict[str, Any]:
+    """`DEFAULT_SETTINGS` updated with `settings`, each value checked and normalized (bools, ints, floats, a
+    3-tuple `ambient`); a `ConfigError` names an unknown key or the setting and value at fault."""
     out = dict(DEFAULT_SETTINGS)
     for key, value in settings.items():
         if key not in DEFAULT_SETTINGS:
@@ -120,7 +159,7 @@ def parse_size(text: str) -> tuple[int, int]:
     return w, h
 
 
-def check_png_path(path):
+def check_png_path(path: str | os.PathLike[str]) -> Path:
     """A .png path that can be written (its folder exists and takes a new file), checked before any work that would
     be lost if it could not be written."""
     p = Path(os.fspath(path))
@@ -131,7 +170,8 @@ def check_png_path(path):
     return check_writable(p, "image")
 
 
-def check_size(width, height):
+def check_size(width: int, height: int) -> None:
+    """A `ConfigError` unless both are integers in 1..16384."""
     for name, v in (("width", width), ("height", height)):
         if isinstance(v, bool) or not isinstance(v, (int, np.integer)):
             raise ConfigError(f"size: {name} must be an integer, got {v!r}")

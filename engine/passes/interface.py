@@ -8,6 +8,7 @@ from __future__ import annotations
 import math
 from dataclasses import dataclass
 from pathlib import Path
+from typing import Literal, get_args
 
 import numpy as np
 
@@ -16,11 +17,13 @@ from ..files import atomic_write_text
 from .std140 import Struct
 
 #: The views a frame can show (setting `view`): "color" is the lit image (no dispatch); the others are AOVs drawn
-#: by debug_view.comp (VIEW_<NAME> = the index here).
-VIEW_MODES = ("color", "position", "normal", "albedo", "depth", "shadow_raw", "shadow", "ao_raw", "ao", "history",
-              "triangle_id", "object_id", "material_id", "motion")
+#: by debug_view.comp (VIEW_<NAME> = the index here). A Literal, so that type checkers and IDEs know the names.
+ViewMode = Literal["color", "position", "normal", "albedo", "depth", "shadow_raw", "shadow", "ao_raw", "ao", "history",
+                   "triangle_id", "object_id", "material_id", "motion"]
+VIEW_MODES: tuple[str, ...] = get_args(ViewMode)
 #: shadow.comp's modes (SHADOW_<NAME>); "off" records no shadow pass.
-SHADOW_MODES = ("hard", "soft", "seed-delta", "reference")
+TracedShadowMode = Literal["hard", "soft", "seed-delta", "reference"]
+SHADOW_MODES: tuple[str, ...] = get_args(TracedShadowMode)
 #: Push-constant flags of accumulate.comp and denoise.comp (FILTER_<NAME>).
 FILTER_FLAGS = {"masks": 1, "ao": 2, "temporal": 4, "first": 8}
 FILTER_MASKS, FILTER_AO, FILTER_TEMPORAL, FILTER_FIRST = (FILTER_FLAGS[k] for k in ("masks", "ao", "temporal", "first"))

@@ -13,8 +13,10 @@ import math
 import os
 import threading
 from dataclasses import dataclass
+from typing import Any
 
 import numpy as np
+from numpy.typing import ArrayLike, NDArray
 
 from ..bvh import build_bvh
 from ..errors import ConfigError, SceneError
@@ -39,30 +41,81 @@ RETRY_GROUPS = max(4, os.cpu_count() or 1)
 HIT_BYTES = {"occluded": 4, "intersect": 16}
 
 
-@dataclass
+@dataclass(repr=False)
 class Hits:
-    """Closest hits: `t` (+inf on a miss), `prim` (-1 on a miss), barycentrics `u`, `v` of vertices 1, 2."""
+    """The closest hit of each ray (`Tracer.intersect`): four (N,) arrays, in the rays' order.
 
-    t: np.ndarray
-    prim: np.ndarray
-    u: np.ndarray
-    v: np.ndarray
+    The hit point is `origin + t * direction` (directions as given, not normalized), and also
+    `(1 - u - v) * V0 + u * V1 + v * V2` for the triangle `faces[prim]` = (V0, V1, V2).
+    """
+
+    t: NDArray[np.float32]
+    """(N,) float32 ray parameter of the hit, in units of each ray's direction length; +inf on a miss."""
+    prim: NDArray[np.int32]
+    """(N,) int32 index of the triangle hit (a row of `faces`); -1 on a miss."""
+    u: NDArray[np.float32]
+    """(N,) float32 barycentric weight of the triangle's vertex 1 (undefined on a miss)."""
+    v: NDArray[np.float32]
+    """(N,) float32 barycentric weight of the triangle's vertex 2 (undefined on a miss)."""
 
     @property
-    def hit(self) -> np.ndarray:
+    def hit(self) -> NDArray[np.bool_]:
+        """(N,) bool: did the ray hit anything?"""
         return self.prim >= 0
 
-    def __len__(self):
+    def __len__(self) -> int:
         return len(self.t)
+
+    def __repr__(self) -> str:
+        n = len(self.t)
+        return f"<Hits {n} rays, {int(np.count_nonzero(self.prim >= 0))} hit>"
 
 
 class Tracer:
-    """Batch ray queries against one triangle mesh (BVH built on the host, traversed by GLSL compute)."""
+    """Batch ray queries against one triangle mesh, on the GPU: the Radeon Rays stand-in.
 
-    def __init__(self, vertices, faces, *, device=None, validation: bool = False, batch_size: int = 1 << 20,
-                 context: Context | None = None, staging: bool | None = None, layout: str | None = None):
-        """`staging`: copy rays to and results from device-local buffers (default: when the device has memory
-        the host cannot map, i.e. a discrete GPU). `layout`: "binary" or "wide" BVH (default: bvh_layout's)."""
+    `with Tracer(vertices, faces) as tracer: hit = tracer.occluded(origins, directions, tmax)`.
+
+    The BVH is built on the host (numpy, all cores) and traversed by GLSL compute shaders, the same traversal the
+    renderer's shadow and AO passes use. Queries take numpy arrays of any length (batches larger than the device's
+    buffers are split) and block until their results are back. Triangles are two-sided (no culling); a ray hits at
+    t in [0, tmax]. Coordinates of vertices and ray origins must lie within +-1e11 (`engine.limits.MAX_COORD`);
+    a NaN, infinite or zero direction is a `ConfigError` naming the ray, not a silent miss.
+
+    After a query: `last_gpu_ms` (GPU ms of its trace dispatches), `last_retried` (rays the second dispatch walked
+    again, on CPU devices), `last_times` (GPU ms of the last batch per step). `stats`: the BVH's build figures
+    (build_ms, nodes, depth, sah_cost, threads, layout, ...). Close it (`close()` or a `with` block) to free the
+    device; a closed Tracer raises `ConfigError`.
+    """
+
+    last_gpu_ms: float
+    last_retried: int
+    last_times: dict[str, float]
+    stats: dict[str, Any]
+
+    def __init__(self, vertices: ArrayLike, faces: ArrayLike, *, device: int | str | None = None,
+                 validation: bool = False, batch_size: int = 1 << 20, context: Context | None = None,
+                 staging: bool | None = None, layout: str | None = None):
+        """Build the BVH of a mesh and upload it.
+
+        Args:
+            vertices: (V, 3) vertex positions, float32 or float64 (converted to float32).
+            faces: (T, 3) integer vertex indices per triangle.
+            device: the Vulkan device, as `Renderer`'s (index or part of its name; default: $HYBRID_DEVICE, else
+                the best).
+            validation: turn the Khronos validation layer on.
+            batch_size: the most rays one dispatch takes (larger queries are split), at most the device's texel
+                buffer limit.
+            context: use an existing `engine.vk.Context` (not closed here).
+            staging: copy rays to and results from device-local buffers (default: when the device has memory the
+                host cannot map, i.e. a discrete GPU).
+            layout: "binary" or "wide" BVH (default: $HYBRID_BVH_LAYOUT, else "binary").
+
+        Raises:
+            SceneError: bad vertices or faces (shape, NaN, out-of-range indices, beyond MAX_COORD).
+            ConfigError: a bad device selector, batch size or layout.
+            VulkanError: no usable Vulkan device.
+        """
         self._lock = threading.RLock()   # one call at a time, from any thread (engine.parallel.serialized)
         self.ctx = None
         self._owns_ctx = context is None
@@ -84,8 +137,8 @@ class Tracer:
             raise
 
     @classmethod
-    def from_trimesh(cls, mesh, **kw) -> "Tracer":
-        """From a `trimesh.Trimesh` or a `trimesh.Scene` (its geometry in world space)."""
+    def from_trimesh(cls, mesh: Any, **kw: Any) -> Tracer:
+        """From a `trimesh.Trimesh` or a `trimesh.Scene` (its geometry in world space); `kw` as in `Tracer()`."""
         import trimesh   # deferred: a heavy import that only this constructor needs
         what = type(mesh).__name__
         if isinstance(mesh, trimesh.Scene):
@@ -209,6 +262,7 @@ class Tracer:
 
     @property
     def validation_errors(self) -> list[str]:
+        """Error-severity validation messages so far (with `validation=True`)."""
         return self.ctx.validation_errors if self.ctx else []
 
     # ---- queries ---------------------------------------------------------------------------
@@ -220,8 +274,20 @@ class Tracer:
             raise ConfigError("Tracer is closed: the Vulkan context it was given was closed")
 
     @serialized
-    def occluded(self, origins, directions, tmax=np.inf) -> np.ndarray:
-        """(N,) bool: does any triangle lie along origin + t * direction for t in [0, tmax]?"""
+    def occluded(self, origins: ArrayLike, directions: ArrayLike, tmax: ArrayLike = np.inf) -> NDArray[np.bool_]:
+        """Shadow-ray queries: does any triangle lie along `origin + t * direction` for some t in [0, tmax]?
+
+        Args:
+            origins: (N, 3) ray origins (world units), float32 or float64.
+            directions: (N, 3) ray directions, used as given (not normalized): `tmax` is in units of their length.
+            tmax: a scalar or (N,) one per ray, not NaN; +inf allowed (a negative one hits nothing).
+
+        Returns:
+            (N,) bool, True where the ray is blocked.
+
+        Raises:
+            ConfigError: bad shapes, NaN or infinite values, a zero direction (naming the ray), a closed Tracer.
+        """
         self._check_open()
         o, d, t = check_rays(origins, directions, tmax)
         out = np.empty(len(o), bool)
@@ -232,8 +298,11 @@ class Tracer:
         return out
 
     @serialized
-    def intersect(self, origins, directions, tmax=np.inf) -> Hits:
-        """Closest hit per ray within [0, tmax]."""
+    def intersect(self, origins: ArrayLike, directions: ArrayLike, tmax: ArrayLike = np.inf) -> Hits:
+        """Closest-hit queries: the nearest triangle along each ray within t in [0, tmax].
+
+        The arguments are `occluded()`'s. Returns `Hits` (t, prim, u, v per ray: t = +inf and prim = -1 on a miss).
+        """
         self._check_open()
         o, d, t = check_rays(origins, directions, tmax)
         n_all = len(o)
@@ -269,7 +338,8 @@ class Tracer:
 
     # ---- lifetime --------------------------------------------------------------------------
     @serialized
-    def close(self):
+    def close(self) -> None:
+        """Free the GPU buffers (and the device, unless it was given as `context`); safe to call twice."""
         if self.ctx is not None:
             if self._owns_ctx:
                 self.ctx.close()
@@ -284,13 +354,13 @@ class Tracer:
                         obj.destroy()
             self.ctx = None
 
-    def __enter__(self):
+    def __enter__(self) -> Tracer:
         return self
 
-    def __exit__(self, *exc):
+    def __exit__(self, *exc: object) -> None:
         self.close()
 
-    def __del__(self):
+    def __del__(self) -> None:
         try:
             self.close()
         except Exception:

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import numpy as np
+from numpy.typing import ArrayLike, NDArray
 
 from engine.errors import SceneError
 
@@ -10,16 +11,21 @@ from . import _check
 
 
 class Material:
-    """`Material(name, base_color, texture=None)`.
+    """A surface material: `Material(name, base_color, texture=None)`; immutable arrays.
 
-    `base_color`: (4,) float32 linear RGBA (multiplied with the texture, as in glTF).
+    `base_color`: 3 or 4 numbers, linear RGB(A) (alpha 1 when left out), stored as (4,) float32 and multiplied with
+    the texture, as in glTF; each in [0, 1e30] (values above 1 are allowed).
     `texture`: (H, W, 4) uint8 sRGB-encoded RGBA, row 0 at the top of the image, or None. UV (0, 0) is the top-left
-    corner of the image (glTF / Vulkan convention).
+    corner of the image (glTF / Vulkan convention). Alpha is read but not used for transparency.
     """
 
     __slots__ = ("name", "base_color", "texture")
+    name: str
+    base_color: NDArray[np.float32]
+    texture: NDArray[np.uint8] | None
 
-    def __init__(self, name: str, base_color=(0.8, 0.8, 0.8, 1.0), texture=None):
+    def __init__(self, name: str, base_color: ArrayLike = (0.8, 0.8, 0.8, 1.0), texture: ArrayLike | None = None):
+        """Raises `SceneError` (naming the material) for a bad colour or texture."""
         self.name = str(name)
         c = np.asarray(base_color, dtype=np.float64).reshape(-1)
         if c.shape not in ((3,), (4,)):
@@ -41,17 +47,19 @@ class Material:
             texture = t
         self.texture = texture
 
-    def with_overrides(self, base_color=None, texture=None, name=None) -> "Material":
+    def with_overrides(self, base_color: ArrayLike | None = None, texture: ArrayLike | None = None,
+                       name: str | None = None) -> Material:
+        """A copy with the given fields replaced (None: keep this material's)."""
         return Material(name or self.name, self.base_color if base_color is None else base_color,
                         self.texture if texture is None else texture)
 
-    def __repr__(self):
+    def __repr__(self) -> str:
         tex = "None" if self.texture is None else f"{self.texture.shape[1]}x{self.texture.shape[0]}"
         col = ", ".join(f"{x:.3g}" for x in self.base_color.tolist())
         return f"Material({self.name!r}, base_color=({col}), texture={tex})"
 
 
-def srgb8_to_linear(rgba8) -> np.ndarray:
+def srgb8_to_linear(rgba8: ArrayLike) -> NDArray[np.float64]:
     """8-bit sRGB RGBA (alpha linear) to float linear RGBA."""
     c = np.asarray(rgba8, dtype=np.float64).reshape(-1)[:4] / 255.0
     if c.shape[0] == 3:

@@ -9,8 +9,11 @@ from __future__ import annotations
 import hashlib
 import itertools
 import os
+from collections.abc import Iterable
+from typing import Any
 
 import numpy as np
+from numpy.typing import ArrayLike, NDArray
 
 from engine.limits import MAX_COORD
 from engine.errors import ConfigError, SceneError
@@ -26,19 +29,65 @@ _ids = itertools.count(1)
 
 
 class Scene:
-    """A static scene in world space (see docs/architecture.md, "Scene contract").
+    """A static scene in world space (docs/architecture.md, "Scene contract"; TOML scenes: docs/scenes.md).
 
-    Geometry arrays (read-only numpy arrays):
-      positions (V, 3) float32, normals (V, 3) float32 unit, uvs (V, 2) float32 (UV (0, 0) = top-left of the texture
-      image), vertex_material (V,) uint32, indices (T, 3) uint32 (counter-clockwise front faces).
-    Also: materials (list of Material), lights (list), camera (Camera, never None), bounds ((2, 3) float32 min/max),
-    name (source path or "<trimesh>"/"<arrays>"), settings (dict of render settings from a TOML [settings] table,
-    unvalidated), submeshes (list of SubMesh), uid (a unique int per Scene object), content_hash (hex digest of the
-    geometry and materials, computed on first use).
+    Make one with `Scene.load(path)` (a `.toml` scene or a mesh file), `Scene.from_trimesh(mesh)` or
+    `Scene.from_arrays(vertices, faces)`. Every mesh is flattened into one set of world-space arrays (node
+    transforms applied); lengths are in the scene's world units (glTF: metres), +Y is up for the default camera and
+    sun. All geometry arrays are read-only numpy arrays:
+
+    - `positions` (V, 3) float32; `normals` (V, 3) float32, unit (computed with a 40 degree crease angle when not
+      given); `uvs` (V, 2) float32 (UV (0, 0) = top-left of the texture image); `vertex_material` (V,) uint32, an
+      index into `materials`; `indices` (T, 3) uint32, counter-clockwise front faces (surfaces are two-sided when
+      lit and traced).
+    - `materials` (list of `Material`), `lights` (list of lights; a mutable list: the renderer reads it every frame),
+      `camera` (a `Camera`, never None: a framing camera when none is given), `bounds` ((2, 3) float32 min / max),
+      `name` (source path or "<trimesh>" / "<arrays>"), `settings` (the render settings of a TOML `[settings]`
+      table, checked when rendering), `submeshes` (list of `SubMesh`), `uid` (a unique int per Scene object),
+      `content_hash` (hex digest of the geometry and materials).
+
+    Coordinates must lie within +-1e11 (`engine.limits.MAX_COORD`).
     """
 
-    def __init__(self, positions, indices, *, normals=None, uvs=None, vertex_material=None, materials=None,
-                 lights=None, camera=None, name: str = "<arrays>", settings=None, submeshes=None):
+    name: str
+    positions: NDArray[np.float32]
+    normals: NDArray[np.float32]
+    uvs: NDArray[np.float32]
+    vertex_material: NDArray[np.uint32]
+    indices: NDArray[np.uint32]
+    materials: list[Material]
+    lights: list[Light]
+    bounds: NDArray[np.float32]
+    settings: dict[str, Any]
+    submeshes: list[SubMesh]
+    uid: int
+
+    def __init__(self, positions: ArrayLike, indices: ArrayLike, *, normals: ArrayLike | None = None,
+                 uvs: ArrayLike | None = None, vertex_material: ArrayLike | None = None,
+                 materials: Iterable[Material] | None = None, lights: Light | Iterable[Light] | None = None,
+                 camera: Camera | None = None, name: str = "<arrays>", settings: dict[str, Any] | None = None,
+                 submeshes: Iterable[SubMesh] | None = None):
+        """A scene from flattened arrays (the loaders' common constructor; `Scene.from_arrays` is simpler).
+
+        Args:
+            positions: (V, 3) world-space vertex positions.
+            indices: (T, 3) integer vertex indices per triangle, counter-clockwise front faces.
+            normals: (V, 3) vertex normals (normalized here); None: computed, with vertices split at creases
+                over 40 degrees.
+            uvs: (V, 2) texture coordinates; None: zeros.
+            vertex_material: (V,) index into `materials` per vertex; None: all 0.
+            materials: the materials (None: one light grey "default").
+            lights: a light or lights (None or empty: `engine.scene.default_sun()`).
+            camera: None: a camera framing the bounds from a 3/4 view above.
+            name: used in messages and `summary()`.
+            settings: render settings that apply when a `render()` call does not set them.
+            submeshes: the source meshes' ranges (informational).
+
+        Raises:
+            SceneError: bad geometry (wrong shapes, NaN, out-of-range indices, coordinates beyond MAX_COORD, no
+                triangles) or materials, naming the scene.
+            ConfigError: bad lights or camera.
+        """
         self.name = str(name)
         where = self.name
         p = _as_array(positions, "positions", where, (None, 3))
@@ -132,10 +181,11 @@ class Scene:
     # ------------------------------------------------------------------ camera
     @property
     def camera(self) -> Camera:
+        """The scene's camera; assigning None gives it the framing camera."""
         return self._camera
 
     @camera.setter
-    def camera(self, camera):
+    def camera(self, camera: Camera | None) -> None:
         if camera is None:
             camera = self.framing_camera()
         if not isinstance(camera, Camera):
@@ -143,7 +193,8 @@ class Scene:
         self._camera = camera
 
     def framing_camera(self, fov_y: float = 60.0, aspect: float = 1.0) -> Camera:
-        """A camera that sees the whole bounding sphere from a 3/4 view above."""
+        """A camera that sees the whole bounding sphere from a 3/4 view above, for images whose width / height is
+        at least `aspect`; `fov_y` in degrees."""
         try:
             return Camera.frame_bounds(self.bounds, fov_y=fov_y, aspect=aspect)
         except ConfigError as exc:
@@ -152,18 +203,22 @@ class Scene:
     # ------------------------------------------------------------------ info
     @property
     def triangle_count(self) -> int:
+        """T, the number of triangles."""
         return int(len(self.indices))
 
     @property
     def vertex_count(self) -> int:
+        """V, the number of vertices."""
         return int(len(self.positions))
 
     @property
-    def center(self) -> np.ndarray:
+    def center(self) -> NDArray[np.float32]:
+        """(3,) the centre of `bounds`."""
         return 0.5 * (self.bounds[0] + self.bounds[1])
 
     @property
     def radius(self) -> float:
+        """Half the diagonal of `bounds`, world units."""
         return float(0.5 * np.linalg.norm(self.bounds[1] - self.bounds[0]))
 
     @property
@@ -183,6 +238,7 @@ class Scene:
         return self._content_hash
 
     def summary(self) -> str:
+        """One line: file name, triangles, vertices, meshes, materials, lights, size."""
         lo, hi = self.bounds
         size = hi - lo
         kinds = {}
@@ -194,13 +250,17 @@ class Scene:
                 f"{self.vertex_count:,} vertices, {len(self.submeshes)} meshes, {len(self.materials)} materials "
                 f"({textures} textured), lights: {lights}, size {size[0]:.3g} x {size[1]:.3g} x {size[2]:.3g}")
 
-    def __repr__(self):
+    def __repr__(self) -> str:
         return f"<Scene {self.summary()}>"
 
     # ------------------------------------------------------------------ constructors
     @classmethod
-    def load(cls, path) -> "Scene":
-        """A `.toml` scene or any mesh / glTF file trimesh reads (OBJ, PLY, STL, glTF, GLB, ...)."""
+    def load(cls, path: str | os.PathLike[str]) -> Scene:
+        """A `.toml` scene (docs/scenes.md) or any mesh / glTF file trimesh reads (OBJ, PLY, STL, glTF, GLB, ...).
+
+        Raises:
+            SceneError: the file is missing, unreadable or invalid; the message names the file (and the field).
+        """
         if not isinstance(path, (str, os.PathLike)):
             raise ConfigError(f"Scene.load: path must be a file path (str or os.PathLike), got {type(path).__name__}")
         path = os.fspath(path)
@@ -211,20 +271,25 @@ class Scene:
         return cls._from_parts(loader.load_mesh_file(path))
 
     @classmethod
-    def from_trimesh(cls, obj, lights=None, camera=None, name: str = "<trimesh>") -> "Scene":
-        """A scene from a `trimesh.Trimesh` or `trimesh.Scene` (node transforms applied)."""
+    def from_trimesh(cls, obj: Any, lights: Light | Iterable[Light] | None = None, camera: Camera | None = None,
+                     name: str = "<trimesh>") -> Scene:
+        """A scene from a `trimesh.Trimesh` or `trimesh.Scene` (node transforms applied; its materials' colours
+        and base-colour textures kept)."""
         return cls._from_parts(loader.trimesh_parts(obj, name, lights=lights, camera=camera))
 
     @classmethod
-    def from_arrays(cls, vertices, faces, *, normals=None, uvs=None, color=(0.8, 0.8, 0.8), texture=None,
-                    lights=None, camera=None, name: str = "<arrays>", settings=None) -> "Scene":
-        """One mesh with one material (`color` linear RGB(A)); normals computed (40 degree crease) when None."""
+    def from_arrays(cls, vertices: ArrayLike, faces: ArrayLike, *, normals: ArrayLike | None = None,
+                    uvs: ArrayLike | None = None, color: ArrayLike = (0.8, 0.8, 0.8), texture: ArrayLike | None = None,
+                    lights: Light | Iterable[Light] | None = None, camera: Camera | None = None,
+                    name: str = "<arrays>", settings: dict[str, Any] | None = None) -> Scene:
+        """One mesh with one material: `vertices` (V, 3), `faces` (T, 3), `color` linear RGB(A), `texture`
+        (H, W, 4) uint8 sRGB; normals computed (40 degree crease) when None. The rest as in `Scene()`."""
         mat = Material("material", color, texture)
         return cls(vertices, faces, normals=normals, uvs=uvs, materials=[mat], lights=lights, camera=camera,
                    name=name, settings=settings)
 
     @classmethod
-    def _from_parts(cls, parts: SceneParts) -> "Scene":
+    def _from_parts(cls, parts: SceneParts) -> Scene:
         """A scene from what a loader collected (checked like any other)."""
         return cls(parts.positions, parts.indices, normals=parts.normals, uvs=parts.uvs,
                    vertex_material=parts.vertex_material, materials=parts.materials, lights=parts.lights,

@@ -24,7 +24,7 @@ ENGINE = ROOT / "engine"
 
 #: Bottom to top. A module imports only from its own package or from lower layers (plus the PEERS edges).
 LAYERS = [
-    ["engine.errors", "engine.limits", "engine.parallel"],
+    ["engine.errors", "engine.limits", "engine.parallel", "engine.data", "engine._version"],
     ["engine.vk", "engine.bvh", "engine.scene", "engine.shaders"],
     ["engine.gpu"],
     ["engine.passes"],
@@ -33,7 +33,8 @@ LAYERS = [
     ["engine.cli", "engine.__main__", "engine"],
 ]
 PEERS = {("engine.frame", "engine.settings"), ("engine.renderer", "engine.settings"),
-         ("engine.renderer", "engine.frame"), ("engine.renderer", "engine.steady"), ("engine.__main__", "engine.cli")}
+         ("engine.renderer", "engine.frame"), ("engine.renderer", "engine.steady"), ("engine.__main__", "engine.cli"),
+         ("engine.data", "engine.errors")}
 MAX_LINES = 600
 PASSES = [LightingPass, DebugViewPass, AccumulatePass, DenoisePass, ShadowPass, AOPass, ResolvePass]
 

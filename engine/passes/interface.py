@@ -6,11 +6,11 @@ No Vulkan here.
 from __future__ import annotations
 
 import math
-from pathlib import Path
 
 import numpy as np
 
 from ..errors import ConfigError
+from ..shaders import GLSL_DIR
 from .std140 import Struct
 
 #: The views a frame can show (setting `view`): "color" is the lit image (no dispatch); the others are AOVs drawn
@@ -85,7 +85,7 @@ def glsl_text() -> str:
     return "\n".join(lines)
 
 
-GLSL_PATH = Path(__file__).resolve().parent.parent.parent / "shaders" / "glsl" / "include" / "interface.glsl"
+GLSL_PATH = GLSL_DIR / "include" / "interface.glsl"
 
 
 # ---- packing --------------------------------------------------------------------------------------------------

@@ -12,6 +12,7 @@ import os
 
 import numpy as np
 
+from engine.data import scene_path
 from engine.limits import MAX_COORD
 from engine.errors import ConfigError, SceneError
 
@@ -200,12 +201,14 @@ class Scene:
     # ------------------------------------------------------------------ constructors
     @classmethod
     def load(cls, path) -> "Scene":
-        """A `.toml` scene or any mesh / glTF file trimesh reads (OBJ, PLY, STL, glTF, GLB, ...)."""
+        """A `.toml` scene or any mesh / glTF file trimesh reads (OBJ, PLY, STL, glTF, GLB, ...), or a bundled
+        scene by name (`"default"`, `"sphere"`, `"penumbra"`: `engine.scene_path` says the rule)."""
         if not isinstance(path, (str, os.PathLike)):
             raise ConfigError(f"Scene.load: path must be a file path (str or os.PathLike), got {type(path).__name__}")
         path = os.fspath(path)
         if not isinstance(path, str):
             raise ConfigError(f"Scene.load: path must be a str path, got {path!r}")
+        path = os.fspath(scene_path(path))
         if path.lower().endswith(".toml"):
             return cls._from_parts(toml_format.load_toml(path))
         return cls._from_parts(loader.load_mesh_file(path))

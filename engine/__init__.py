@@ -3,7 +3,7 @@ ray-query library on the same BVH and traversal.
 
     import engine
 
-    scene = engine.Scene.load("scenes/default.toml")          # or Scene.from_trimesh(mesh), Scene.from_arrays(...)
+    scene = engine.Scene.load("default")      # a bundled scene by name, or a path: "scenes/default.toml"
     cam = engine.Camera.look_at((4, 3, 6), (0, 1, 0), fov_y=50)
     with engine.Renderer(1280, 720) as r:
         frame = r.render(scene, cam, shadows="soft", ao=True)
@@ -31,6 +31,8 @@ Conventions, everywhere in the API:
 - Rays: `origin + t * direction` with directions used as given, so `t` and `tmax` are in units of the direction's
   length (world units for unit directions).
 """
+from ._version import __version__
+from .data import bundled_scenes, scene_path
 from .errors import ConfigError, EngineError, SceneError, ShaderError, VulkanError
 from .renderer import Frame, Renderer
 from .rt import Hits, Tracer
@@ -40,4 +42,5 @@ from .scene import (Camera, DirectionalLight, Light, Material, PointLight, RectL
 __all__ = [
     "Scene", "Camera", "Material", "Light", "DirectionalLight", "PointLight", "SpotLight", "RectLight", "SubMesh",
     "Renderer", "Frame", "Tracer", "Hits", "EngineError", "SceneError", "ConfigError", "VulkanError", "ShaderError",
+    "scene_path", "bundled_scenes", "__version__",
 ]

@@ -9,6 +9,7 @@ import logging
 import sys
 import time
 
+from ._version import __version__
 from .bench import add_arguments as add_bench_arguments
 from .bench import run_cli
 from .errors import ConfigError, EngineError
@@ -81,12 +82,14 @@ def cmd_bench(args) -> int:
 def build_parser() -> argparse.ArgumentParser:
     ap = argparse.ArgumentParser(prog="hybrid", description="Hybrid Vulkan renderer (raster G-buffer + ray-traced shadows/AO)")
     ap.add_argument("-v", "--verbose", action="store_true", help="log debug messages")
+    ap.add_argument("--version", action="version", version=f"hybrid {__version__}")
     sub = ap.add_subparsers(dest="command", required=True)
 
     r = sub.add_parser("render", help="render a scene headless to a PNG",
                        description="Render a scene headless to a PNG. Settings not given here take the scene's "
                                    "[settings] (docs/scenes.md), then the renderer's defaults.")
-    r.add_argument("scene", help="a .toml scene or a mesh/glTF file")
+    r.add_argument("scene", help="a .toml scene, a mesh/glTF file, or a bundled scene by name (default, sphere, "
+                                 "penumbra)")
     r.add_argument("-o", "--output", default="out.png", help="PNG to write (default out.png)")
     r.add_argument("--size", default="1280x720", help="WIDTHxHEIGHT (default 1280x720)")
     r.add_argument("--aov", default="color", choices=AOVS,

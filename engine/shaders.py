@@ -1,6 +1,7 @@
 """Shader sources, committed SPIR-V and its manifest, compilation with glslangValidator, hot reload.
 
-Rendering normally loads the committed SPIR-V in `shaders/spv/` and needs no compiler. The manifest
+Rendering normally loads the committed SPIR-V in `shaders/spv/` (in an installed package, its copy: engine/data.py)
+and needs no compiler. The manifest
 (`shaders/spv/manifest.json`) records, per shader, a hash of its source and of every file it
 includes, so a test can tell when the committed SPIR-V is stale without comparing SPIR-V bytes.
 
@@ -20,9 +21,10 @@ import subprocess
 import tempfile
 from pathlib import Path
 
+from .data import SHADERS_DIR
 from .errors import ShaderError
 
-ROOT = Path(__file__).resolve().parent.parent / "shaders"
+ROOT = SHADERS_DIR   # the checkout's shaders/, or the installed package's copy (engine/data.py)
 GLSL_DIR = ROOT / "glsl"
 SPV_DIR = ROOT / "spv"
 MANIFEST = "manifest.json"

@@ -24,8 +24,8 @@ ENGINE = ROOT / "engine"
 
 #: Bottom to top. A module imports only from its own package or from lower layers (plus the PEERS edges).
 LAYERS = [
-    ["engine.errors"],
-    ["engine.limits", "engine.parallel", "engine.files"],
+    ["engine.errors", "engine._version"],
+    ["engine.limits", "engine.parallel", "engine.files", "engine.data"],
     ["engine.vk", "engine.bvh", "engine.scene", "engine.shaders"],
     ["engine.gpu"],
     ["engine.passes"],

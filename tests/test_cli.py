@@ -1,4 +1,5 @@
 """The `hybrid` command as a user runs it: output files, one-line errors, non-zero exit codes."""
+import os
 import subprocess
 import sys
 from pathlib import Path
@@ -103,3 +104,41 @@ def test_bench_checks_its_outputs_and_device_before_running(tmp_path):
         res = hybrid("bench", "build", "--quick", *args, timeout=60)
         one_line_error(res, *words)
         assert "BVH build" not in res.stdout   # nothing ran
+
+
+def test_bundled_scene_by_name_from_any_folder(tmp_path):
+    """A name with no folder and no suffix is a bundled scene; an unknown one lists them."""
+    for name in ("sphere", "penumbra"):
+        res = subprocess.run([sys.executable, "-m", "engine", "render", name, "-o", "b.png", "--size", "32x24"],
+                             capture_output=True, text=True, cwd=tmp_path, timeout=300,
+                             env=dict(os.environ, PYTHONPATH=str(REPO)))
+        assert res.returncode == 0, res.stderr
+        assert f"scenes/{name}.toml" in res.stdout and Image.open(tmp_path / "b.png").size == (32, 24)
+    one_line_error(hybrid("render", "nope", "-o", tmp_path / "x.png"), "nope", "bundled: default, penumbra, sphere")
+
+
+def test_no_vulkan_driver_is_one_clear_line():
+    res = subprocess.run([sys.executable, "-m", "engine", "info"], capture_output=True, text=True, cwd=REPO,
+                         timeout=120, env=dict(os.environ, VK_DRIVER_FILES="/nonexistent", HYBRID_VALIDATION="0"))
+    one_line_error(res, "no Vulkan driver found", "mesa-vulkan-drivers")
+
+
+NO_LOADER = """
+import sys
+
+class NoLoader:   # what the vulkan module does when libvulkan.so.1 cannot be opened
+    def find_spec(self, name, path=None, target=None):
+        if name == "vulkan":
+            raise OSError("Cannot find Vulkan SDK version")
+
+sys.meta_path.insert(0, NoLoader())
+import engine
+"""
+
+
+def test_no_vulkan_loader_names_the_package():
+    res = subprocess.run([sys.executable, "-c", NO_LOADER], capture_output=True, text=True, cwd=REPO, timeout=120)
+    assert res.returncode == 1
+    assert res.stderr.strip().splitlines()[-1] == (
+        "engine.errors.VulkanError: the Vulkan loader (libvulkan.so.1) is not installed: install it and a driver, "
+        "e.g. apt-get install libvulkan1 mesa-vulkan-drivers")

@@ -4,10 +4,11 @@ from __future__ import annotations
 from dataclasses import dataclass
 from pathlib import Path
 
+from ..data import SCENES_DIR
 from ..errors import ConfigError
 
-REPO = Path(__file__).resolve().parents[2]
-DEFAULT_SCENE = REPO / "scenes" / "default.toml"
+REPO = Path(__file__).resolve().parents[2]   # the folder holding the engine package (the probe's working folder)
+DEFAULT_SCENE = SCENES_DIR / "default.toml"
 SECTIONS = ("build", "trace", "frame")
 ENGINES = ("ours", "embreex", "open3d")
 PEERS = ("embreex", "open3d")

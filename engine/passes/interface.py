@@ -7,13 +7,13 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass
-from pathlib import Path
 from typing import Literal, get_args
 
 import numpy as np
 
 from ..errors import ConfigError
 from ..files import atomic_write_text
+from ..shaders import GLSL_DIR
 from .std140 import Struct
 
 #: The views a frame can show (setting `view`): "color" is the lit image (no dispatch); the others are AOVs drawn
@@ -123,7 +123,7 @@ def glsl_text() -> str:
     return "\n".join(lines)
 
 
-GLSL_PATH = Path(__file__).resolve().parent.parent.parent / "shaders" / "glsl" / "include" / "interface.glsl"
+GLSL_PATH = GLSL_DIR / "include" / "interface.glsl"
 
 
 # ---- packing --------------------------------------------------------------------------------------------------

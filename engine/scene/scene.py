@@ -15,6 +15,7 @@ from typing import Any
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
+from engine.data import scene_path
 from engine.limits import MAX_COORD
 from engine.errors import ConfigError, SceneError
 
@@ -256,7 +257,8 @@ class Scene:
     # ------------------------------------------------------------------ constructors
     @classmethod
     def load(cls, path: str | os.PathLike[str]) -> Scene:
-        """A `.toml` scene (docs/scenes.md) or any mesh / glTF file trimesh reads (OBJ, PLY, STL, glTF, GLB, ...).
+        """A `.toml` scene (docs/scenes.md) or any mesh / glTF file trimesh reads (OBJ, PLY, STL, glTF, GLB, ...), or a
+        bundled scene by name (`"default"`, `"sphere"`, `"penumbra"`: `engine.scene_path` says the rule).
 
         Raises:
             SceneError: the file is missing, unreadable or invalid; the message names the file (and the field).
@@ -266,6 +268,7 @@ class Scene:
         path = os.fspath(path)
         if not isinstance(path, str):
             raise ConfigError(f"Scene.load: path must be a str path, got {path!r}")
+        path = os.fspath(scene_path(path))
         if path.lower().endswith(".toml"):
             return cls._from_parts(toml_format.load_toml(path))
         return cls._from_parts(loader.load_mesh_file(path))

@@ -4,7 +4,11 @@ from __future__ import annotations
 
 import math
 import os
-import tomllib
+
+try:
+    import tomllib   # Python 3.11+
+except ModuleNotFoundError:
+    import tomli as tomllib   # Python 3.10: the same parser (a dependency there)
 
 import numpy as np
 

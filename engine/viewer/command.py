@@ -10,13 +10,15 @@ from .app import Viewer
 
 
 def add_arguments(p):
-    p.add_argument("scene", help="a .toml scene or a mesh/glTF file")
+    p.add_argument("scene", help="a .toml scene, a mesh/glTF file, or a bundled scene by name (default, sphere, "
+                                 "penumbra)")
     p.add_argument("--size", default="1280x720", help="window size WIDTHxHEIGHT (default 1280x720)")
     p.add_argument("--frames", type=int, default=None, help="present N frames, then exit")
     p.add_argument("--screenshot", default=None, help="with --frames: save the last frame as this PNG")
     p.add_argument("--no-hot-reload", dest="hot_reload", action="store_false",
                    help="do not watch shaders/glsl for changes")
-    p.add_argument("--shader-dir", default=None, help="GLSL folder to compile and watch (default shaders/glsl)")
+    p.add_argument("--shader-dir", default=None,
+                   help="GLSL folder to compile and watch, e.g. a checkout's shaders/glsl (default: the package's own)")
     p.add_argument("--present-mode", default="fifo", choices=sorted(PRESENT_MODES),
                    help="fifo (vsync, default), mailbox or immediate (falls back to fifo)")
     p.add_argument("--scale", type=float, default=1.0, help="render at this fraction of the window size")

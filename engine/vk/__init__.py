@@ -1,6 +1,14 @@
 """The only package that calls Vulkan (through the `vulkan` cffi module): context and device capabilities,
 resources, descriptors and pipelines (laid out from SPIR-V reflection), command recording with derived barriers,
 timestamps, swapchain."""
+from ..errors import VulkanError
+
+try:   # the `vulkan` module opens the Vulkan loader when it is imported: say what to install if there is none
+    import vulkan  # noqa: F401
+except OSError:
+    raise VulkanError("the Vulkan loader (libvulkan.so.1) is not installed: install it and a driver, e.g. "
+                      "apt-get install libvulkan1 mesa-vulkan-drivers") from None
+
 from .context import Context, choose_device, describe_devices
 from .pipelines import (ALL, CIS, SB, SI, STB, UB, UTB, ComputePipeline, DescriptorSet, GraphicsPipeline,
                         Timestamps)

@@ -9,7 +9,9 @@ from __future__ import annotations
 import functools
 import os
 import threading
+from collections.abc import Callable
 from concurrent.futures import ThreadPoolExecutor
+from typing import ParamSpec, TypeVar
 
 
 def default_threads() -> int:
@@ -88,11 +90,15 @@ def run(tasks, threads: int) -> list:
     return results
 
 
-def serialized(method):
+P = ParamSpec("P")
+R = TypeVar("R")
+
+
+def serialized(method: Callable[P, R]) -> Callable[P, R]:
     """Run an object's method under its `_lock` (an RLock): one call at a time per object, from any thread; close()
     then waits for a call in progress instead of freeing what it uses."""
     @functools.wraps(method)
-    def call(self, *args, **kwargs):
-        with self._lock:
-            return method(self, *args, **kwargs)
+    def call(*args: P.args, **kwargs: P.kwargs) -> R:
+        with args[0]._lock:   # type: ignore[attr-defined]
+            return method(*args, **kwargs)
     return call

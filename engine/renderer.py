@@ -13,7 +13,7 @@ from __future__ import annotations
 import math
 import os
 import threading
-from collections.abc import Sequence
+from collections.abc import Iterable, Iterator, Sequence
 from typing import Any
 
 import numpy as np
@@ -214,7 +214,8 @@ class Renderer:
         self.ctx.submit(cmd)
         return self._frame(scene, names, 0, marks, cfg, n_lights)
 
-    def render_many(self, scene, cameras, *, aovs=None, **settings):
+    def render_many(self, scene: Scene, cameras: Iterable[Camera], *, aovs: str | Sequence[str] | None = None,
+                    **settings: Any) -> Iterator[Frame]:
         """Frames of `scene` from each camera in turn, as an iterator: frame N+1 renders on the GPU while frame N is
         read back and handed to the caller (two readback buffers in turn). One call at a time per renderer, like
         render(); the temporal history carries over from frame to frame as it does for render()."""

@@ -97,7 +97,7 @@ def resolve_aovs(aovs) -> tuple:
     """The AOV names to read back: `aovs` None (DEFAULT_AOVS), "all", one name or names; a ConfigError lists the
     known ones for an unknown name. Order and duplicates do not matter."""
     if aovs is None:
-        return DEFAULT_AOVS
+        aovs = DEFAULT_AOVS
     if isinstance(aovs, str):
         aovs = tuple(AOV_SPECS) if aovs == "all" else (aovs,)
     try:

@@ -30,7 +30,7 @@ def main(argv=None) -> int:
         scene = engine.Scene.load(args.scene)
         with engine.Renderer(width, height) as renderer:
             for _ in range(max(1, args.frames)):
-                frame = renderer.render(scene, shadows="soft", ao=True)
+                frame = renderer.render(scene, shadows="soft", ao=True, aovs="all")
         args.out.mkdir(parents=True, exist_ok=True)
         frame.save(args.out / "color.png")
         for name, array in frame.aov.items():

@@ -74,8 +74,11 @@ def main(argv=None) -> int:
         scene = engine.Scene.load(args.scene)
         cams = orbit(scene, args.views, args.elevation)
         with engine.Renderer(width, height) as renderer:
-            for cam in cams:   # hard shadows: every view is complete in one frame
-                frame = renderer.render(scene, cam, shadows="hard", ao=True)
+            # hard shadows: every view is complete in one frame; render_many renders view N+1 while N is read back
+            frames = renderer.render_many(scene, cams, aovs=("color", "depth", "normal", "position"), shadows="hard",
+                                          ao=True)
+            for cam, frame in zip(cams, frames):
+                assert frame.color is not None
                 data["color"].append(frame.color[..., :3])
                 for name in ("depth", "normal", "position"):
                     data[name].append(frame.aov[name])

@@ -31,13 +31,15 @@ def main(argv=None) -> int:
     except engine.EngineError as exc:   # one line naming the file or setting at fault
         print(f"error: {exc}", file=sys.stderr)
         return 1
+    color = frame.color
+    assert color is not None   # "color" is among the AOVs render() reads back by default
     args.out.mkdir(parents=True, exist_ok=True)
     frame.save(args.out / "color.png")
-    np.save(args.out / "color.npy", frame.color)
+    np.save(args.out / "color.npy", color)
     np.save(args.out / "depth.npy", frame.aov["depth"])
     covered = np.isfinite(frame.aov["depth"])
     print(frame)   # <Frame WxH, aov: ..., GPU ... ms>
-    print(f"{args.out}: color.png, color.npy {frame.color.shape} {frame.color.dtype}, depth.npy: "
+    print(f"{args.out}: color.png, color.npy {color.shape} {color.dtype}, depth.npy: "
           f"{covered.mean():.1%} of the pixels covered, depth {frame.aov['depth'][covered].min():.3g}.."
           f"{frame.aov['depth'][covered].max():.3g}")
     return 0

@@ -48,7 +48,8 @@ def main(argv=None) -> int:
             # 1 ray per pixel per light per frame; the history starts over here (the settings changed)
             first = renderer.render(scene, shadows="soft", shadow_samples=1, accumulate=True, denoise=True)
             for _ in range(args.frames - 1):
-                last = renderer.render(scene, shadows="soft", shadow_samples=1, accumulate=True, denoise=True)
+                last = renderer.render(scene, shadows="soft", shadow_samples=1, accumulate=True, denoise=True,
+                                       aovs=("color", "depth", "shadow", "history"))
         args.out.mkdir(parents=True, exist_ok=True)
         for name, frame in (("frame1", first), ("frameN", last), ("reference", reference)):
             frame.save(args.out / f"{name}.png")

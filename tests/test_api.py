@@ -20,7 +20,7 @@ from engine import ConfigError, Renderer, Scene
 from engine.settings import DEFAULT_SETTINGS, Default
 
 REPO = Path(__file__).resolve().parent.parent
-OWN = {"render": ("self", "scene", "camera"), "submit": ("self", "scene", "camera", "wait", "signal_semaphores",
+OWN = {"render": ("self", "scene", "camera", "aovs"), "submit": ("self", "scene", "camera", "wait", "signal_semaphores",
                                                          "fence")}
 
 
@@ -81,7 +81,13 @@ def test_public_api_is_fully_annotated():
     missing = []
     for name in engine.__all__:
         obj = getattr(engine, name)
-        if issubclass(obj, Exception):
+        if inspect.isfunction(obj):   # a module-level function of the API
+            sig = inspect.signature(obj, eval_str=True)
+            missing += [f"{name}({p.name})" for p in sig.parameters.values() if p.annotation is inspect.Parameter.empty]
+            if sig.return_annotation is inspect.Signature.empty:
+                missing.append(f"{name}: return")
+            continue
+        if not isinstance(obj, type) or issubclass(obj, Exception):
             continue
         for attr, member in vars(obj).items():
             if attr.startswith("_") and attr != "__init__":

@@ -66,12 +66,14 @@ def test_aovs_to_files(tmp_path):
     lights = len(Scene.load(REPO / "scenes" / "default.toml").lights)
     shapes = {"position": (48, 64, 3), "normal": (48, 64, 3), "albedo": (48, 64, 3), "depth": (48, 64),
               "shadow": (48, 64, lights), "shadow_raw": (48, 64, lights), "ao": (48, 64), "ao_raw": (48, 64),
-              "history": (48, 64)}
+              "history": (48, 64), "triangle_id": (48, 64), "object_id": (48, 64), "material_id": (48, 64),
+              "motion": (48, 64, 2)}
     assert set(shapes) == set(AOVS) - {"color"}
     arrays = {}
     for name, shape in shapes.items():
         arrays[name] = np.load(out / f"{name}.npy")
-        assert arrays[name].shape == shape and arrays[name].dtype == np.float32, name
+        dtype = np.int32 if name.endswith("_id") else np.float32
+        assert arrays[name].shape == shape and arrays[name].dtype == dtype, name
         assert png(out / f"{name}.png").shape == (48, 64, 4), name
     assert png(out / "color.png").shape == (48, 64, 4)
     covered = np.isfinite(arrays["depth"])

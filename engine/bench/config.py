@@ -17,6 +17,10 @@ RAYSET_TITLES = {"shadow": "shadow rays (occluded, G-buffer)", "ao": "AO rays (o
                  "random": "random rays (closest hit)"}
 
 
+#: The AOVs of the dataset figures (the headless-data target of issue 16).
+DATASET_AOVS = ("color", "depth", "normal", "object_id")
+
+
 @dataclass
 class BenchConfig:
     sections: tuple = SECTIONS
@@ -35,6 +39,7 @@ class BenchConfig:
     reps: int = 7
     warmup: int = 1
     frame_reps: int = 5
+    dataset_frames: int = 200                  # render_many's frames in the frame section's dataset figures
     frame_warmup: int = 2
     random_rays: int | None = None             # None: as many as the G-buffer has pixels
     thread_probe: bool = True                  # lavapipe only: re-run the default scene's rays with LP_NUM_THREADS
@@ -52,6 +57,7 @@ class BenchConfig:
             cfg.generated_tris = 1_000_000
             cfg.reps = 3
             cfg.frame_reps = 3
+            cfg.dataset_frames = 40
             cfg.frame_warmup = 1
             cfg.thread_probe = False
         return cfg

@@ -92,6 +92,15 @@ def format_report(results: dict) -> str:
                  ["render() wall (incl. readback to numpy)", _fmt(fr["render_wall_ms"], ".2f")],
                  ["submit() host wall / CPU (viewer path)",
                   f"{_fmt(fr['submit_host_ms'], '.3f')} / {_fmt(fr['submit_host_cpu_ms'], '.3f')}"]]
+        ds = fr.get("dataset")
+        if ds:
+            what = " + ".join(ds["aovs"])
+            rows += [[f"render() wall, {what} only", _fmt(ds["render_wall_ms"], ".2f")],
+                     [f"render_many wall ms / frame ({ds['frames']} frames; frames/s)",
+                      f"{_fmt(ds['many_wall_ms_per_frame'], '.2f')} ({_fmt(ds['many_fps'], '.0f')}/s)"],
+                     ["render_many GPU ms / frame; wall / GPU",
+                      f"{_fmt(ds['many_gpu_ms_per_frame'], '.2f')}; {_fmt(ds['many_wall_over_gpu'], '.2f')}x"],
+                     ["bytes read back / frame (the AOVs' bytes)", f"{ds['readback_bytes']:,} ({ds['aov_bytes']:,})"]]
         rows = [row + [""] * (3 - len(row)) for row in rows]
         s = fr["settings"]
         parts += ["", f"Frame: {fr['scene']} scene ({fr['triangles']:,} triangles) {fr['size'][0]}x{fr['size'][1]}, "

@@ -5,6 +5,7 @@ from __future__ import annotations
 import copy
 import datetime as _dt
 import json
+import math
 import os
 import subprocess
 import sys
@@ -17,11 +18,12 @@ import numpy as np
 
 from ..bvh import build_bvh
 from ..errors import ConfigError
+from ..passes.interface import AOVS
 from ..renderer import Renderer
-from ..scene import Scene
+from ..scene import Camera, Scene
 from ..vk import choose_device, describe_devices
 from ..vk.device_info import device_details
-from .config import RAYSET_TITLES, RAYSETS, REPO, BenchConfig
+from .config import DATASET_AOVS, RAYSET_TITLES, RAYSETS, REPO, BenchConfig
 from .engines import OursEngine
 from .machine import OtherLoad, machine_info
 from .peers import agreement, make_peer
@@ -317,6 +319,37 @@ class Bench:
                                   settings))
         return out
 
+    def _dataset(self, r, scene, settings) -> dict:
+        """Headless data: render() of DATASET_AOVS alone, and render_many over an orbit of cameras (frame N+1 on the
+        GPU while N is read back): wall ms per frame against the GPU ms per frame, and the bytes read back."""
+        cfg = self.cfg
+        n = cfg.dataset_frames
+        center = scene.center
+        eye = np.asarray(scene.camera.eye, float)
+        radius = float(np.linalg.norm((eye - center)[[0, 2]])) or 1.0
+        cams = [Camera.look_at(center + [radius * math.sin(a), eye[1] - center[1], radius * math.cos(a)], center,
+                               fov_y=scene.camera.fov_y) for a in np.linspace(0, 2 * math.pi, n, endpoint=False)]
+        for _ in range(2):
+            r.render(scene, cams[0], aovs=DATASET_AOVS, **settings)
+        walls = []
+        for _ in range(max(cfg.frame_reps, 1)):
+            t0 = time.perf_counter()
+            r.render(scene, cams[0], aovs=DATASET_AOVS, **settings)
+            walls.append((time.perf_counter() - t0) * 1e3)
+        list(r.render_many(scene, cams[:4], aovs=DATASET_AOVS, **settings))   # warm: both slots recorded
+        gpu = []
+        t0 = time.perf_counter()
+        for frame in r.render_many(scene, cams, aovs=DATASET_AOVS, **settings):
+            gpu.append(sum(frame.timings.values()))
+        wall = (time.perf_counter() - t0) * 1e3 / n
+        buf, offsets = r.targets.readback(r.ctx, DATASET_AOVS, 0)
+        pixels = r.width * r.height
+        aov_bytes = sum(AOVS[name].bytes * pixels for name in DATASET_AOVS)
+        return {"aovs": list(DATASET_AOVS), "frames": n, "render_wall_ms": median(walls), "runs_render_wall_ms": walls,
+                "many_wall_ms_per_frame": wall, "many_fps": 1e3 / wall, "many_gpu_ms_per_frame": median(gpu),
+                "many_wall_over_gpu": wall / median(gpu) if median(gpu) else None,
+                "readback_bytes": int(buf.size), "aov_bytes": int(aov_bytes)}
+
     def _frame_scene(self, key):
         if key != "target":
             return self.scene(key)
@@ -380,7 +413,9 @@ class Bench:
         def grays(ms):  # the shadow pass's rays per second (one light's rays; a frame of several lights traces more)
             return shadow_rays / (ms * 1e-3) / 1e9 if lights == 1 and ms and ms > 0 else None
 
-        return {"shadow_rays": shadow_rays, "shadow_pass_grays": grays(per_pass.get("shadows")),
+        dataset = self._dataset(r, scene, settings) if tag == "default-1light" else None
+        return {"dataset": dataset,
+                "shadow_rays": shadow_rays, "shadow_pass_grays": grays(per_pass.get("shadows")),
                 "viewer_shadow_pass_grays": grays(steady_passes.get("shadows")),
                 "scene": tag, "name": scene.name, "triangles": scene.triangle_count, "size": [r.width, r.height],
                 "lights": lights, "settings": dict(fr.settings), "passes_ms": per_pass,

@@ -1,4 +1,4 @@
-"""The goals of issues 3 and 6 judged on a bench's results: pass / miss with the margin, or not measured."""
+"""The goals of issues 3, 6 and 16 judged on a bench's results: pass / miss with the margin, or not measured."""
 from __future__ import annotations
 
 
@@ -65,6 +65,21 @@ def evaluate_targets(results: dict) -> list[dict]:
             frame_ms = fr.get("viewer_gpu_total_ms", fr["gpu_total_ms"])
     out.append(_target(6, "GPU: full 1920x1080 frame <= 2 ms GPU (1 light, hard shadows, 1 AO ray, denoise)",
                        frame_ms, 2.0, "ms", False, note_gpu or "frames back to back, no readback (the viewer's)"))
+    for fr in results.get("frame", []):
+        ds = fr.get("dataset")
+        if not ds:
+            continue
+        what = f"{fr['size'][0]}x{fr['size'][1]}, {fr['scene']}, {' + '.join(ds['aovs'])}"
+        if gpu_device and fr["size"] == [1920, 1080]:
+            out.append(_target(16, f"GPU: render_many >= 150 frames/s to numpy ({what})", ds["many_fps"], 150.0,
+                               "frames/s", True))
+            out.append(_target(16, f"GPU: one render() with those AOVs <= 12 ms wall ({what})", ds["render_wall_ms"],
+                               12.0, "ms", False))
+        if cpu_device:
+            out.append(_target(16, f"lavapipe: render_many wall <= 1.15x the frame's GPU time ({what})",
+                               ds["many_wall_over_gpu"], 1.15, "x", False))
+        out.append(_target(16, f"bytes read back per frame = the AOVs' bytes ({what})", ds["readback_bytes"],
+                           ds["aov_bytes"], "bytes", False, "each part aligned to 16 bytes"))
     for fr in results.get("frame", []):
         if fr["scene"] == "default":
             out.append(_target(6, "host (Python) CPU time per frame <= 0.3 ms (Renderer.submit, static scene)",

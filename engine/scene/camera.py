@@ -208,8 +208,8 @@ class Camera:
     # where the renderer samples it. A point at OpenCV camera coordinates (X, Y, Z) lands at
     # (fx X / Z + cx, fy Y / Z + cy).
     @classmethod
-    def from_intrinsics(cls, K, width: int, height: int, pose=None, convention: str = "opencv",
-                        near: float = DEFAULT_INTRINSICS_NEAR) -> "Camera":
+    def from_intrinsics(cls, K: ArrayLike, width: int, height: int, pose: ArrayLike | None = None,
+                        convention: str = "opencv", near: float = DEFAULT_INTRINSICS_NEAR) -> "Camera":
         """A pinhole camera from a 3x3 intrinsic matrix `K` ((fx, 0, cx), (0, fy, cy), (0, 0, 1); pixels, no skew)
         for a `width` x `height` image, placed by `pose` (camera-to-world 4x4, rigid; default the identity) whose
         axes follow `convention`: "opencv" (x right, y down, z forward) or "opengl" (x right, y up, -z forward).

@@ -11,6 +11,7 @@ from __future__ import annotations
 import numpy as np
 
 from ..errors import ConfigError
+from ..parallel import default_threads, run
 from ..vk import Buffer, BufferView, Image
 from ..vk.formats import (COLOR_ATTACHMENT, COPY_DST, COPY_SRC, D32F, DEPTH_ATTACHMENT, R32F, R32UI, RG32F, RGBA8,
                           RGBA8_SNORM, RGBA16F, RGBA32F, STORAGE_IMAGE)
@@ -145,21 +146,33 @@ class Targets:
 
     def read(self, buf, offsets: dict, n_lights: int) -> dict:
         """The AOVs as numpy arrays, each one copy of the mapped memory (the buffer is written again by a later
-        frame). The light masks come as (H, W, lights), ids as int32 (-1: background)."""
+        frame), made in row blocks on the worker pool: large frames are memory-bound copies that numpy runs without
+        the GIL. The light masks come as (H, W, lights), ids as int32 (-1: background)."""
         h, w = self.height, self.width
         raw = buf.view(np.uint8)
-        out = {}
+        out, tasks = {}, []
+        rows = max(1, (1 << 20) // max(w, 1))   # about 1M pixels' worth of rows per task
         for name, off in offsets.items():
             spec = AOVS[name]
             if spec.per_light:
                 lights = max(n_lights, 1)
-                m = np.frombuffer(raw, np.float32, h * w * lights, off).reshape(lights, h, w)[:n_lights]
-                out[name] = np.moveaxis(m, 0, -1).copy()   # a copy even where moveaxis is a no-op (1 light)
-                continue
-            per_pixel = spec.bytes // np.dtype(spec.dtype).itemsize
-            a = np.frombuffer(raw, spec.dtype, h * w * per_pixel, off).reshape(h, w, per_pixel)
-            a = a[..., :spec.channels] if spec.channels > 1 else a[..., 0]
-            out[name] = a.astype(np.float32) if spec.dtype == "float16" else a.copy()
+                src = np.frombuffer(raw, np.float32, h * w * lights, off).reshape(lights, h, w)[:n_lights]
+                dst = out[name] = np.empty((h, w, n_lights), np.float32)
+                view = np.moveaxis(src, 0, -1)
+            else:
+                item = np.dtype(spec.dtype).itemsize
+                per_pixel = spec.bytes // item
+                src = np.frombuffer(raw, spec.dtype, h * w * per_pixel, off).reshape(h, w, per_pixel)
+                dtype = np.float32 if spec.dtype == "float16" else spec.dtype
+                shape = (h, w, spec.channels) if spec.channels > 1 else (h, w)
+                dst = out[name] = np.empty(shape, dtype)
+                if spec.channels < per_pixel and spec.dtype != "float16":   # the first channels of each pixel: as
+                    view = raw[off:off + h * w * spec.bytes].reshape(h, w, spec.bytes)[..., :spec.channels * item]
+                    dst = dst.view(np.uint8).reshape(h, w, spec.channels * item)   # bytes (a faster strided copy)
+                else:
+                    view = src[..., :spec.channels] if spec.channels > 1 else src[..., 0]
+            tasks += [lambda d=dst, v=view, a=a: np.copyto(d[a:a + rows], v[a:a + rows]) for a in range(0, h, rows)]
+        run(tasks, default_threads())
         return out
 
     def destroy(self):

@@ -151,7 +151,7 @@ class Targets:
         h, w = self.height, self.width
         raw = buf.view(np.uint8)
         out, tasks = {}, []
-        rows = max(1, (1 << 20) // max(w, 1))   # about 1M pixels' worth of rows per task
+        rows = max(1, (1 << 18) // max(w, 1))   # about 256k pixels' worth of rows per task
         for name, off in offsets.items():
             spec = AOVS[name]
             if spec.per_light:

@@ -13,7 +13,7 @@ import os
 import numpy as np
 
 from engine.limits import MAX_COORD
-from engine.errors import ConfigError, SceneError
+from engine.errors import ConfigError, SceneError, shown
 
 from . import loader, toml_format
 from .camera import Camera
@@ -21,6 +21,7 @@ from .geometry import crease_normals, unitize
 from .lights import Light, default_sun
 from .material import Material
 from .parts import SceneParts, SubMesh
+from .paths import allowed_folders
 
 _ids = itertools.count(1)
 
@@ -40,7 +41,7 @@ class Scene:
     def __init__(self, positions, indices, *, normals=None, uvs=None, vertex_material=None, materials=None,
                  lights=None, camera=None, name: str = "<arrays>", settings=None, submeshes=None):
         self.name = str(name)
-        where = self.name
+        where = shown(self.name)
         p = _as_array(positions, "positions", where, (None, 3))
         f = _as_array(indices, "indices", where, (None, 3))
         if len(p) == 0 or len(f) == 0:
@@ -139,7 +140,7 @@ class Scene:
         if camera is None:
             camera = self.framing_camera()
         if not isinstance(camera, Camera):
-            raise ConfigError(f"{self.name}: camera must be a Camera, got {type(camera).__name__}")
+            raise ConfigError(f"{shown(self.name)}: camera must be a Camera, got {type(camera).__name__}")
         self._camera = camera
 
     def framing_camera(self, fov_y: float = 60.0, aspect: float = 1.0) -> Camera:
@@ -147,7 +148,7 @@ class Scene:
         try:
             return Camera.frame_bounds(self.bounds, fov_y=fov_y, aspect=aspect)
         except ConfigError as exc:
-            raise ConfigError(f"{self.name}: {exc}") from None
+            raise ConfigError(f"{shown(self.name)}: {exc}") from None
 
     # ------------------------------------------------------------------ info
     @property
@@ -190,7 +191,7 @@ class Scene:
             kinds[light.kind] = kinds.get(light.kind, 0) + 1
         lights = ", ".join(f"{v} {k}" for k, v in kinds.items())
         textures = sum(m.texture is not None for m in self.materials)
-        return (f"{os.path.basename(self.name) or self.name}: {self.triangle_count:,} triangles, "
+        return (f"{shown(os.path.basename(self.name) or self.name)}: {self.triangle_count:,} triangles, "
                 f"{self.vertex_count:,} vertices, {len(self.submeshes)} meshes, {len(self.materials)} materials "
                 f"({textures} textured), lights: {lights}, size {size[0]:.3g} x {size[1]:.3g} x {size[2]:.3g}")
 
@@ -199,15 +200,21 @@ class Scene:
 
     # ------------------------------------------------------------------ constructors
     @classmethod
-    def load(cls, path) -> "Scene":
-        """A `.toml` scene or any mesh / glTF file trimesh reads (OBJ, PLY, STL, glTF, GLB, ...)."""
+    def load(cls, path, allow_paths=None) -> "Scene":
+        """A `.toml` scene or any mesh / glTF file trimesh reads (OBJ, PLY, STL, glTF, GLB, ...).
+
+        The files a TOML scene names must lie inside its folder (symlinks followed); `allow_paths`, a folder or a
+        list of folders, allows those too (docs/scenes.md, "Paths"). A mesh file's own references (MTL, textures,
+        glTF buffers) are read from its folder only.
+        """
         if not isinstance(path, (str, os.PathLike)):
             raise ConfigError(f"Scene.load: path must be a file path (str or os.PathLike), got {type(path).__name__}")
         path = os.fspath(path)
         if not isinstance(path, str):
-            raise ConfigError(f"Scene.load: path must be a str path, got {path!r}")
+            raise ConfigError(f"Scene.load: path must be a str path, got {shown(repr(path))}")
+        allowed = allowed_folders(allow_paths)   # checked whatever the file type
         if path.lower().endswith(".toml"):
-            return cls._from_parts(toml_format.load_toml(path))
+            return cls._from_parts(toml_format.load_toml(path, allow_paths=allowed))
         return cls._from_parts(loader.load_mesh_file(path))
 
     @classmethod
@@ -231,10 +238,10 @@ class Scene:
                    camera=parts.camera, name=parts.name, settings=parts.settings, submeshes=parts.submeshes)
 
 
-def scene_from_dict(data: dict, path: str = "<toml>") -> Scene:
+def scene_from_dict(data: dict, path: str = "<toml>", allow_paths=None) -> Scene:
     """A Scene from parsed TOML data (docs/scenes.md); `path` names the file in messages and anchors relative
-    paths."""
-    return Scene._from_parts(toml_format.parts_from_dict(data, path))
+    paths; `allow_paths` as for Scene.load."""
+    return Scene._from_parts(toml_format.parts_from_dict(data, path, allow_paths=allow_paths))
 
 
 def _as_array(value, field, where, shape):

@@ -12,7 +12,7 @@ import time
 from ._version import __version__
 from .bench import add_arguments as add_bench_arguments
 from .bench import run_cli
-from .errors import ConfigError, EngineError
+from .errors import ConfigError, EngineError, shown
 from .renderer import Renderer
 from .scene import Scene
 from .settings import AOVS, MAX_FRAMES, SHADOW_MODES as SHADOW_CHOICES
@@ -40,7 +40,7 @@ def cmd_render(args) -> int:
         raise ConfigError(f"--frames {args.frames}: expected 1..{MAX_FRAMES}")
     check_png_path(args.output)   # before the work, which a path that cannot be written would lose
     t0 = time.perf_counter()
-    scene = Scene.load(args.scene)
+    scene = Scene.load(args.scene, allow_paths=args.allow_path)
     t1 = time.perf_counter()
     with Renderer(width, height, device=args.device, validation=args.validation) as r:
         for _ in range(args.frames):   # soft shadows and AO accumulate over the frames
@@ -91,6 +91,8 @@ def build_parser() -> argparse.ArgumentParser:
     r.add_argument("scene", help="a .toml scene, a mesh/glTF file, or a bundled scene by name (default, sphere, "
                                  "penumbra)")
     r.add_argument("-o", "--output", default="out.png", help="PNG to write (default out.png)")
+    r.add_argument("--allow-path", action="append", default=None, metavar="DIR",
+                   help="a folder outside the scene's own that its files may be in (repeatable)")
     r.add_argument("--size", default="1280x720", help="WIDTHxHEIGHT (default 1280x720)")
     r.add_argument("--aov", default="color", choices=AOVS,
                    help="what to write: the colour or an AOV (raw / final light masks and AO, history length)")
@@ -133,7 +135,7 @@ def main(argv=None) -> int:
     try:
         return args.func(args)
     except EngineError as exc:
-        print(f"error: {exc}", file=sys.stderr)
+        print(f"error: {shown(exc, limit=None)}", file=sys.stderr)   # one line, whatever the message holds
         return 1
     except KeyboardInterrupt:
         print("interrupted", file=sys.stderr)

@@ -147,6 +147,42 @@ def stale_shaders(glsl_dir: Path = GLSL_DIR, spv_dir: Path = SPV_DIR) -> list[st
     return stale
 
 
+def spv_temp_dir() -> tempfile.TemporaryDirectory:
+    """A temporary folder for hot-reloaded SPIR-V, named hybrid-spv-<pid>-*. A process that dies (a crashed or
+    killed viewer) cannot remove its own, so the folders of processes that no longer run are removed first (only
+    this user's)."""
+    tmp = tempfile.gettempdir()
+    try:
+        entries = list(os.scandir(tmp))
+    except OSError:
+        entries = []
+    for entry in entries:
+        m = _SPV_TEMP.fullmatch(entry.name)
+        try:
+            if m is None or not entry.is_dir(follow_symlinks=False) or entry.stat().st_uid != os.getuid():
+                continue
+        except OSError:
+            continue
+        if not _running(int(m.group(1))):
+            shutil.rmtree(entry.path, ignore_errors=True)
+    return tempfile.TemporaryDirectory(prefix=f"hybrid-spv-{os.getpid()}-", dir=tmp)
+
+
+_SPV_TEMP = re.compile(r"hybrid-spv-(\d{1,10})-[^/]+")
+
+
+def _running(pid: int) -> bool:
+    if pid == os.getpid():
+        return True
+    try:
+        os.kill(pid, 0)
+    except ProcessLookupError:
+        return False
+    except (PermissionError, OverflowError, OSError):   # another user's process, or not a pid: leave it
+        return True
+    return True
+
+
 class ShaderLibrary:
     """Where pipelines get their SPIR-V. Committed SPIR-V by default; compiled on change with hot reload."""
 
@@ -162,7 +198,7 @@ class ShaderLibrary:
         if not self.glsl_dir.is_dir() and hot_reload:
             raise ShaderError(f"{self.glsl_dir}: shader folder not found")
         if hot_reload:
-            self._tmp = tempfile.TemporaryDirectory(prefix="hybrid-spv-")
+            self._tmp = spv_temp_dir()
             self._stamps = self._scan()
             if glsl_dir is not None:  # a separate source folder: build it all now
                 for src in shader_sources(self.glsl_dir):

@@ -3,7 +3,7 @@ bad element (no Vulkan here)."""
 from __future__ import annotations
 
 import math
-from numbers import Real
+from numbers import Integral, Real
 
 import numpy as np
 
@@ -14,10 +14,13 @@ from ..parallel import default_threads, run as _parallel
 
 def check_mesh(vertices, faces):
     try:
-        v = np.asarray(vertices, dtype=np.float64)
+        v = np.asarray(vertices)
         f = np.asarray(faces)
     except (TypeError, ValueError) as exc:
         raise SceneError(f"Tracer: vertices/faces are not numeric arrays ({exc})") from None
+    if v.dtype.kind not in "iuf":   # (complex would lose its imaginary part, strings would be parsed)
+        raise SceneError(f"Tracer: vertices must be real numbers, got {v.dtype} {v.shape}")
+    v = v.astype(np.float64)
     if v.ndim != 2 or v.shape[1] != 3:
         raise SceneError(f"Tracer: vertices must have shape (V, 3), got {v.shape}")
     if f.ndim != 2 or f.shape[1] != 3 or not np.issubdtype(f.dtype, np.integer):
@@ -123,6 +126,7 @@ def _name_bad_ray(o, d, origins, directions):
 def check_batch_size(batch_size) -> int:
     """A whole number of rays >= 1 (an integral float such as 1e6 too)."""
     if isinstance(batch_size, (bool, np.bool_)) or not isinstance(batch_size, Real) \
-            or not math.isfinite(batch_size) or batch_size != int(batch_size) or batch_size < 1:
+            or not (isinstance(batch_size, Integral) or math.isfinite(batch_size)) \
+            or batch_size != int(batch_size) or batch_size < 1:
         raise ConfigError(f"Tracer: batch_size must be a whole number of rays >= 1, got {batch_size!r}")
     return int(batch_size)

@@ -13,13 +13,17 @@ import numpy as np
 from PIL import Image
 
 from engine.limits import MAX_COORD
-from engine.errors import SceneError
+from engine.errors import SceneError, shown
 
+from .filechecks import bomb_images, bomb_pixels, check_mesh_file, diagnose_gltf
 from .geometry import crease_normals, transform_normals, transform_points, unitize
 from .material import Material, srgb8_to_linear
 from .parts import SceneParts, SubMesh
 
 MAX_TEXTURE_SIZE = 2048
+#: Most pixels a texture image may have (64 Mpixel, e.g. 8192 x 8192): checked from the image's header, before it is
+#: decoded (RGBA at this size is 256 MB; it is downsized to MAX_TEXTURE_SIZE on a side after decoding).
+MAX_TEXTURE_PIXELS = 64 * 1024 * 1024
 MESH_EXTENSIONS = (".obj", ".ply", ".stl", ".gltf", ".glb", ".off")
 DEFAULT_COLOR = (0.8, 0.8, 0.8, 1.0)
 IMAGE_EXTENSIONS = (".png", ".jpg", ".jpeg", ".bmp", ".tga", ".tif", ".tiff", ".gif", ".webp")
@@ -44,15 +48,31 @@ def _quiet():
 
 def _short(exc: BaseException) -> str:
     text = str(exc).strip().splitlines()
-    text = text[0] if text else ""
-    if len(text) > 160:
-        text = text[:157] + "..."
+    text = shown(text[0] if text else "", limit=160)
     return f"{type(exc).__name__}: {text}" if text else type(exc).__name__
 
 
+def _too_large(pixels: int | None, size=None) -> str:
+    """The message for an image over MAX_TEXTURE_PIXELS; `pixels` None: pillow refused it before we could count."""
+    limit = f"the limit of {MAX_TEXTURE_PIXELS:,} ({MAX_TEXTURE_PIXELS // 2 ** 20} Mpixel)"
+    if pixels is None:
+        return f"texture image is too large (pillow refuses it as a decompression bomb; {limit})"
+    dims = f" ({size[0]} x {size[1]})" if size else ""
+    return f"texture image is too large: {pixels:,} pixels{dims}, more than {limit}"
+
+
+def check_image_size(img, where: str) -> None:
+    """Refuse an opened (not yet decoded) image with more than MAX_TEXTURE_PIXELS pixels."""
+    w, h = img.size
+    if w * h > MAX_TEXTURE_PIXELS:
+        raise SceneError(f"{where}: {_too_large(w * h, (w, h))}")
+
+
 def image_to_texture(img, where: str) -> np.ndarray:
-    """A PIL image to (H, W, 4) uint8 RGBA, at most MAX_TEXTURE_SIZE on a side."""
+    """A PIL image to (H, W, 4) uint8 RGBA, at most MAX_TEXTURE_SIZE on a side; at most MAX_TEXTURE_PIXELS before
+    it is downsized. `where` names what refers to it in messages."""
     try:
+        check_image_size(img, where)
         img.load()
         if img.mode != "RGBA":
             if img.mode in ("I;16", "I;16B", "I;16L", "I", "F"):
@@ -66,6 +86,8 @@ def image_to_texture(img, where: str) -> np.ndarray:
         tex = np.array(img, dtype=np.uint8)
     except SceneError:
         raise
+    except Image.DecompressionBombError as exc:
+        raise SceneError(f"{where}: {_too_large(bomb_pixels(exc))}") from None
     except Exception as exc:
         raise SceneError(f"{where}: cannot read texture image ({_short(exc)})") from None
     if tex.ndim != 3 or tex.shape[2] != 4 or tex.shape[0] == 0 or tex.shape[1] == 0:
@@ -76,16 +98,21 @@ def image_to_texture(img, where: str) -> np.ndarray:
 def load_texture_file(path: str, where: str) -> np.ndarray:
     """An image file to a texture; `where` names what refers to it (e.g. 'scene.toml: [[mesh]] #2: texture')."""
     if os.path.exists(path) and not os.path.isfile(path):
-        raise SceneError(f"{where}: texture is not a regular file: {path}")
+        raise SceneError(f"{where}: texture is not a regular file: {shown(path)}")
     if not os.path.isfile(path):
-        raise SceneError(f"{where}: texture file not found: {path}")
+        raise SceneError(f"{where}: texture file not found: {shown(path)}")
     try:
-        with Image.open(path) as img:
-            return image_to_texture(img, f"{where} ({path})")
+        with warnings.catch_warnings():   # PIL warns of a large image; image_to_texture says more
+            warnings.simplefilter("ignore", Image.DecompressionBombWarning)
+            img = Image.open(path)   # reads the header only: its size is checked before decoding
+        with img:
+            return image_to_texture(img, f"{where} ({shown(path)})")
     except SceneError:
         raise
+    except Image.DecompressionBombError as exc:
+        raise SceneError(f"{where} ({shown(path)}): {_too_large(bomb_pixels(exc))}") from None
     except Exception as exc:
-        raise SceneError(f"{where}: cannot read texture image {path} ({_short(exc)})") from None
+        raise SceneError(f"{where}: cannot read texture image {shown(path)} ({_short(exc)})") from None
 
 
 def _resolver(path: str):
@@ -125,11 +152,20 @@ def _resolver(path: str):
 
 
 def _check_image(data: bytes, name: str, problems: list) -> None:
-    """Note an image trimesh will fail to open (it drops it without a word)."""
+    """Note an image trimesh will fail to open (it drops it without a word); refuse one that is too large (an
+    OSError: trimesh drops it too)."""
     try:
-        Image.open(io.BytesIO(data)).close()
+        with Image.open(io.BytesIO(data)) as img:
+            pixels = img.size[0] * img.size[1]
+            size = img.size
+    except Image.DecompressionBombError as exc:
+        pixels, size = bomb_pixels(exc), None
     except Exception:
         problems.append(f"texture {name!r} is unreadable (not an image file pillow can read)")
+        return
+    if pixels is None or pixels > MAX_TEXTURE_PIXELS:
+        problems.append(f"texture {name!r}: {_too_large(pixels, size)}")
+        raise OSError(f"{name}: too large")
 
 
 def load_trimesh_scene(path: str, *, scene_file: bool = False):
@@ -139,38 +175,51 @@ def load_trimesh_scene(path: str, *, scene_file: bool = False):
     Referenced files (textures, MTL) that are missing or unreadable are logged as warnings; the mesh is kept.
     """
     import trimesh  # deferred: heavy, and needed only to read meshes
+    where = shown(path)
     if not os.path.exists(path):
-        raise SceneError(f"{path}: file not found")
+        raise SceneError(f"{where}: file not found")
     if os.path.isdir(path):
-        raise SceneError(f"{path}: is a directory, not a scene file")
+        raise SceneError(f"{where}: is a directory, not a scene file")
     if not os.path.isfile(path):  # a FIFO or a device would block the read or never end
-        raise SceneError(f"{path}: not a regular file")
+        raise SceneError(f"{where}: not a regular file")
     ext = os.path.splitext(path)[1].lower()
     if ext == ".toml" and not scene_file:
-        raise SceneError(f"{path}: a .toml scene cannot be used as a mesh file "
+        raise SceneError(f"{where}: a .toml scene cannot be used as a mesh file "
                          f"(mesh files: {', '.join(MESH_EXTENSIONS)})")
     if ext not in MESH_EXTENSIONS:
         supported = (".toml, " if scene_file else "") + ", ".join(MESH_EXTENSIONS)
-        raise SceneError(f"{path}: unsupported file type '{ext or '(none)'}' (supported: {supported})")
+        raise SceneError(f"{where}: unsupported file type '{shown(ext) or '(none)'}' (supported: {supported})")
     try:
         if os.path.getsize(path) == 0:
-            raise SceneError(f"{path}: file is empty")
+            raise SceneError(f"{where}: file is empty")
+        problem = check_mesh_file(path, ext)   # what trimesh would accept silently (OBJ index 0)
+        if problem:
+            raise SceneError(f"{where}: {problem}")
         resolver = _resolver(path)
         with _quiet():
             # process=False: keep the file's vertices as they are (trimesh would silently drop NaN vertices and
             # weld STL corners); we validate, and compute missing normals with creases ourselves
             obj = trimesh.load_scene(path, process=False, resolver=resolver)
-        for problem in dict.fromkeys(resolver.problems):
-            log.warning(f"{path}: {problem}; rendering without it")
+        problems = list(resolver.problems)
+        if ext in (".gltf", ".glb"):   # images pillow refused inside the file, which trimesh drops quietly
+            problems += [f"images[{i}]: {_too_large(pixels)}" for i, pixels in bomb_images(path)]
+        for problem in dict.fromkeys(problems):
+            log.warning(f"{where}: {problem}; rendering without it")
         return obj
     except SceneError:
         raise
     except MemoryError:
-        raise SceneError(f"{path}: corrupt {ext} file (asks for more memory than there is)") from None
+        raise SceneError(f"{where}: corrupt {ext} file (asks for more memory than there is)") from None
     except RecursionError:
-        raise SceneError(f"{path}: corrupt {ext} file (nested too deeply)") from None
+        raise SceneError(f"{where}: corrupt {ext} file (nested too deeply)") from None
+    except Image.DecompressionBombError as exc:   # an image inside the file (GLB)
+        raise SceneError(f"{where}: {_too_large(bomb_pixels(exc))}") from None
     except Exception as exc:
-        raise SceneError(f"{path}: cannot read {ext} file, it is corrupt or not a valid {ext[1:].upper()} file "
+        # trimesh's own exception says little about a glTF it cannot follow: say what is wrong with it
+        why = diagnose_gltf(path) if ext in (".gltf", ".glb") else None
+        if why:
+            raise SceneError(f"{where}: {why}") from None
+        raise SceneError(f"{where}: cannot read {ext} file, it is corrupt or not a valid {ext[1:].upper()} file "
                          f"({_short(exc)})") from None
 
 
@@ -203,17 +252,19 @@ class SceneBuilder:
         p = np.asarray(positions, dtype=np.float64)
         f = np.asarray(faces, dtype=np.int64)
         if p.ndim != 2 or p.shape[1] != 3 or f.ndim != 2 or f.shape[1] != 3:
-            raise SceneError(f"{where}: mesh '{name}' has malformed arrays (vertices {p.shape}, faces {f.shape})")
+            raise SceneError(f"{where}: mesh '{shown(name)}' has malformed arrays "
+                             f"(vertices {p.shape}, faces {f.shape})")
         if len(f) == 0:
             return
         if not np.all(np.isfinite(p)):
             bad = int(np.count_nonzero(~np.all(np.isfinite(p), axis=1)))
-            raise SceneError(f"{where}: mesh '{name}' has {bad} vertex position(s) that are NaN or infinite")
+            raise SceneError(f"{where}: mesh '{shown(name)}' has {bad} vertex position(s) that are NaN or "
+                             "infinite")
         if np.abs(p).max() > MAX_COORD:
-            raise SceneError(f"{where}: mesh '{name}' has world-space vertex coordinates beyond +-{MAX_COORD:g} "
-                             f"(largest {np.abs(p).max():g}): check its size, scale and translate")
+            raise SceneError(f"{where}: mesh '{shown(name)}' has world-space vertex coordinates beyond "
+                             f"+-{MAX_COORD:g} (largest {np.abs(p).max():g}): check its size, scale and translate")
         if f.min() < 0 or f.max() >= len(p):
-            raise SceneError(f"{where}: mesh '{name}' has face indices out of range")
+            raise SceneError(f"{where}: mesh '{shown(name)}' has face indices out of range")
         if uvs is not None:
             uvs = np.asarray(uvs, dtype=np.float64)
             if uvs.shape != (len(p), 2) or not np.all(np.isfinite(uvs)):
@@ -283,9 +334,10 @@ class SceneBuilder:
             return
         if not np.all(np.isfinite(vertices)):
             bad = int(np.count_nonzero(~np.all(np.isfinite(vertices), axis=1)))
-            raise SceneError(f"{where}: mesh '{node_name}' has {bad} vertex position(s) that are NaN or infinite")
+            raise SceneError(f"{where}: mesh '{shown(node_name)}' has {bad} vertex position(s) that are NaN or "
+                             "infinite")
         if not np.all(np.isfinite(m)):
-            raise SceneError(f"{where}: node '{node_name}' has a transform with NaN or infinite values")
+            raise SceneError(f"{where}: node '{shown(node_name)}' has a transform with NaN or infinite values")
         uvs = None
         mat_key, make = _material_of(visual, where, len(vertices))
         uv = getattr(visual, "uv", None) if getattr(visual, "material", None) is not None else None
@@ -317,7 +369,7 @@ class SceneBuilder:
     def build(self, lights=None, camera=None, settings=None) -> SceneParts:
         """The parts collected, flattened, with the scene's lights, camera and settings."""
         if not self.faces:
-            raise SceneError(f"{self.name}: the scene has no triangles")
+            raise SceneError(f"{shown(self.name)}: the scene has no triangles")
         return SceneParts(name=self.name, positions=np.concatenate(self.positions),
                           indices=np.concatenate(self.faces), normals=np.concatenate(self.normals),
                           uvs=np.concatenate(self.uvs), vertex_material=np.concatenate(self.mats),
@@ -345,10 +397,16 @@ def _material_of(visual, where: str, vertex_count: int):
                 base, image = DEFAULT_COLOR, getattr(mat, "image", None)
             tex = None
             if image is not None and getattr(visual, "uv", None) is None:
-                log.warning(f"{where}: material '{name}' has a texture but the mesh has no UVs; "
+                log.warning(f"{where}: material '{shown(name)}' has a texture but the mesh has no UVs; "
                             "rendering without it")
             elif image is not None:
-                tex = image_to_texture(image, f"{where}: material '{name}'")
+                what = f"{where}: material '{shown(name)}'"
+                try:
+                    check_image_size(image, what)   # as a referenced file that is too large: without it
+                except SceneError as exc:
+                    log.warning(f"{exc}; rendering without it")
+                else:
+                    tex = image_to_texture(image, what)
             return Material(name, base, tex)
         return ("trimesh-material", id(mat)), make
     if kind in ("face", "vertex"):
@@ -371,5 +429,5 @@ def load_mesh_file(path: str) -> SceneParts:
 def trimesh_parts(obj, name: str, lights=None, camera=None) -> SceneParts:
     """The parts of a scene made of a trimesh.Trimesh or trimesh.Scene (node transforms applied)."""
     builder = SceneBuilder(name)
-    builder.add_trimesh(obj, name)
+    builder.add_trimesh(obj, shown(name))
     return builder.build(lights=lights, camera=camera)

@@ -17,7 +17,7 @@ from numpy.typing import ArrayLike, NDArray
 
 from engine.data import scene_path
 from engine.limits import MAX_COORD
-from engine.errors import ConfigError, SceneError
+from engine.errors import ConfigError, SceneError, shown
 
 from . import loader, toml_format
 from .camera import Camera
@@ -25,6 +25,7 @@ from .geometry import crease_normals, unitize
 from .lights import Light, default_sun
 from .material import Material
 from .parts import SceneParts, SubMesh
+from .paths import allowed_folders
 
 _ids = itertools.count(1)
 
@@ -90,7 +91,7 @@ class Scene:
             ConfigError: bad lights or camera.
         """
         self.name = str(name)
-        where = self.name
+        where = shown(self.name)
         p = _as_array(positions, "positions", where, (None, 3))
         f = _as_array(indices, "indices", where, (None, 3))
         if len(p) == 0 or len(f) == 0:
@@ -190,7 +191,7 @@ class Scene:
         if camera is None:
             camera = self.framing_camera()
         if not isinstance(camera, Camera):
-            raise ConfigError(f"{self.name}: camera must be a Camera, got {type(camera).__name__}")
+            raise ConfigError(f"{shown(self.name)}: camera must be a Camera, got {type(camera).__name__}")
         self._camera = camera
 
     def framing_camera(self, fov_y: float = 60.0, aspect: float = 1.0) -> Camera:
@@ -199,7 +200,7 @@ class Scene:
         try:
             return Camera.frame_bounds(self.bounds, fov_y=fov_y, aspect=aspect)
         except ConfigError as exc:
-            raise ConfigError(f"{self.name}: {exc}") from None
+            raise ConfigError(f"{shown(self.name)}: {exc}") from None
 
     # ------------------------------------------------------------------ info
     @property
@@ -247,7 +248,7 @@ class Scene:
             kinds[light.kind] = kinds.get(light.kind, 0) + 1
         lights = ", ".join(f"{v} {k}" for k, v in kinds.items())
         textures = sum(m.texture is not None for m in self.materials)
-        return (f"{os.path.basename(self.name) or self.name}: {self.triangle_count:,} triangles, "
+        return (f"{shown(os.path.basename(self.name) or self.name)}: {self.triangle_count:,} triangles, "
                 f"{self.vertex_count:,} vertices, {len(self.submeshes)} meshes, {len(self.materials)} materials "
                 f"({textures} textured), lights: {lights}, size {size[0]:.3g} x {size[1]:.3g} x {size[2]:.3g}")
 
@@ -256,9 +257,13 @@ class Scene:
 
     # ------------------------------------------------------------------ constructors
     @classmethod
-    def load(cls, path: str | os.PathLike[str]) -> Scene:
+    def load(cls, path: str | os.PathLike[str], allow_paths: str | os.PathLike[str] | list | None = None) -> Scene:
         """A `.toml` scene (docs/scenes.md) or any mesh / glTF file trimesh reads (OBJ, PLY, STL, glTF, GLB, ...), or a
         bundled scene by name (`"default"`, `"sphere"`, `"penumbra"`: `engine.scene_path` says the rule).
+
+        The files a TOML scene names must lie inside its folder (symlinks followed); `allow_paths`, a folder or a
+        list of folders, allows those too (docs/scenes.md, "Paths"). A mesh file's own references (MTL, textures,
+        glTF buffers) are read from its folder only.
 
         Raises:
             SceneError: the file is missing, unreadable or invalid; the message names the file (and the field).
@@ -267,10 +272,11 @@ class Scene:
             raise ConfigError(f"Scene.load: path must be a file path (str or os.PathLike), got {type(path).__name__}")
         path = os.fspath(path)
         if not isinstance(path, str):
-            raise ConfigError(f"Scene.load: path must be a str path, got {path!r}")
+            raise ConfigError(f"Scene.load: path must be a str path, got {shown(repr(path))}")
         path = os.fspath(scene_path(path))
+        allowed = allowed_folders(allow_paths)   # checked whatever the file type
         if path.lower().endswith(".toml"):
-            return cls._from_parts(toml_format.load_toml(path))
+            return cls._from_parts(toml_format.load_toml(path, allow_paths=allowed))
         return cls._from_parts(loader.load_mesh_file(path))
 
     @classmethod
@@ -299,10 +305,10 @@ class Scene:
                    camera=parts.camera, name=parts.name, settings=parts.settings, submeshes=parts.submeshes)
 
 
-def scene_from_dict(data: dict, path: str = "<toml>") -> Scene:
+def scene_from_dict(data: dict, path: str = "<toml>", allow_paths=None) -> Scene:
     """A Scene from parsed TOML data (docs/scenes.md); `path` names the file in messages and anchors relative
-    paths."""
-    return Scene._from_parts(toml_format.parts_from_dict(data, path))
+    paths; `allow_paths` as for Scene.load."""
+    return Scene._from_parts(toml_format.parts_from_dict(data, path, allow_paths=allow_paths))
 
 
 def _as_array(value, field, where, shape):

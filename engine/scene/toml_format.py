@@ -12,7 +12,7 @@ except ModuleNotFoundError:
 
 import numpy as np
 
-from engine.errors import ConfigError, SceneError
+from engine.errors import ConfigError, SceneError, shown
 
 from . import _check, primitives
 from .camera import Camera
@@ -21,6 +21,7 @@ from .lights import LIGHT_TYPES
 from .loader import SceneBuilder, load_texture_file, load_trimesh_scene
 from .material import Material
 from .parts import SceneParts
+from .paths import Folders
 
 TOP_LEVEL = ("camera", "mesh", "light", "settings")
 CAMERA_KEYS = ("eye", "target", "up", "fov", "near")
@@ -38,6 +39,9 @@ LIGHT_KEYS = {
     "spot": ("type", "position", "direction", "target", "color", "intensity", "radius", "cone_angle", "softness"),
     "rect": ("type", "position", "u", "v", "color", "intensity"),
 }
+#: Longest message a scene error has (a value of megabytes is cut in the middle).
+MAX_MESSAGE = 1200
+BOM = "\ufeff"
 #: Most triangles one primitive may have (sphere: 2 x segments x rings, torus: 2 x segments x sides).
 MAX_PRIMITIVE_TRIANGLES = 4_000_000
 
@@ -55,7 +59,9 @@ class _Ctx:
         return f"{self.path}: {self.table}" if self.table else self.path
 
     def error(self, msg: str) -> SceneError:
-        return SceneError(f"{self.prefix()}: {msg}")
+        # names and paths in `msg` went through shown(), values through repr(): here only a hostile value's
+        # length is cut
+        return SceneError(shown(f"{self.prefix()}: {msg}", limit=MAX_MESSAGE))
 
     def check(self, fn, *args, **kwargs):
         """Run a validator from _check, turning its ConfigError into a SceneError with our location."""
@@ -71,41 +77,42 @@ def _unknown(ctx: _Ctx, table: dict, allowed) -> None:
             raise ctx.error(f"unknown key {key!r} (allowed: {', '.join(allowed)})")
 
 
-def load_toml(path: str) -> SceneParts:
-    """The parts of the scene that the TOML file `path` describes."""
+def load_toml(path, allow_paths=None) -> SceneParts:
+    """The parts of the scene that the TOML file `path` describes. Files it names must lie inside its folder or
+    inside one of the folders `allow_paths` (docs/scenes.md, "Paths")."""
     path = os.fspath(path)
+    where = shown(path)
     if not os.path.exists(path):
-        raise SceneError(f"{path}: file not found")
+        raise SceneError(f"{where}: file not found")
     if os.path.isdir(path):
-        raise SceneError(f"{path}: is a directory, not a scene file")
+        raise SceneError(f"{where}: is a directory, not a scene file")
     if not os.path.isfile(path):  # a FIFO or a device would block the read or never end
-        raise SceneError(f"{path}: not a regular file")
+        raise SceneError(f"{where}: not a regular file")
     try:
         with open(path, "rb") as fh:
-            data = tomllib.load(fh)
+            raw = fh.read()
+        text = raw.decode("utf-8")
+        data = tomllib.loads(text[1:] if text.startswith(BOM) else text)   # editors on Windows write a BOM
     except tomllib.TOMLDecodeError as exc:
         msg = str(exc)
         if "line" not in msg:  # "(at end of document)": name the last line
-            try:
-                with open(path, "rb") as fh:
-                    lines = fh.read().decode("utf-8", "replace").splitlines()
-                msg = f"{msg}, line {max(1, len(lines))}"
-            except OSError:
-                pass
-        raise SceneError(f"{path}: TOML syntax error: {msg}") from None
+            msg = f"{msg}, line {max(1, len(text.splitlines()))}"
+        raise SceneError(f"{where}: TOML syntax error: {shown(msg)}") from None
     except RecursionError:
-        raise SceneError(f"{path}: TOML nested too deeply (arrays or inline tables inside each other)") from None
+        raise SceneError(f"{where}: TOML nested too deeply (arrays or inline tables inside each other)") from None
     except UnicodeDecodeError:
-        raise SceneError(f"{path}: not a UTF-8 text file") from None
+        raise SceneError(f"{where}: not a UTF-8 text file") from None
     except OSError as exc:
-        raise SceneError(f"{path}: cannot read file ({exc.strerror or exc})") from None
-    return parts_from_dict(data, path)
+        raise SceneError(f"{where}: cannot read file ({shown(exc.strerror or exc)})") from None
+    return parts_from_dict(data, path, allow_paths=allow_paths)
 
 
-def parts_from_dict(data: dict, path: str = "<toml>") -> SceneParts:
-    """The parts of a scene from parsed TOML data; `path` names the file in messages and anchors relative paths."""
-    ctx = _Ctx(path)
+def parts_from_dict(data: dict, path: str = "<toml>", allow_paths=None) -> SceneParts:
+    """The parts of a scene from parsed TOML data; `path` names the file in messages and anchors relative paths
+    (the current folder for "<toml>"); `allow_paths`: folders outside that one that its files may be in."""
+    ctx = _Ctx(shown(path))
     base_dir = os.path.dirname(os.path.abspath(path)) if path != "<toml>" else os.getcwd()
+    folders = Folders(base_dir, allow_paths)
     for key, value in data.items():
         if key not in TOP_LEVEL:
             raise ctx.error(f"unknown key {key!r} at the top level (allowed: {', '.join(TOP_LEVEL)})")
@@ -123,7 +130,7 @@ def parts_from_dict(data: dict, path: str = "<toml>") -> SceneParts:
         mctx = ctx.at(f"[[mesh]] #{i}")
         if not isinstance(table, dict):
             raise mctx.error("must be a table")
-        _add_mesh(builder, table, mctx, base_dir, textures)
+        _add_mesh(builder, table, mctx, folders, textures)
 
     lights = []
     for i, table in enumerate(data.get("light", []), 1):
@@ -281,7 +288,25 @@ def _primitive(kind: str, table: dict, ctx: _Ctx):
     raise ctx.error(f"primitive must be one of {', '.join(PRIMITIVE_PARAMS)}, got {kind!r}")
 
 
-def _add_mesh(builder: SceneBuilder, table: dict, ctx: _Ctx, base_dir: str, textures: dict) -> None:
+def _referenced_file(table: dict, key: str, ctx: _Ctx, folders: Folders) -> str:
+    """The real path of the file that `key` ('file' or 'texture') names, which must lie inside the scene's folder or
+    an allowed one. Paths outside are refused before anything is checked on the disk, with one message for all."""
+    value = table[key]
+    if not isinstance(value, str) or not value:
+        raise ctx.error(f"{key} must be a path string, got {value!r}")
+    if "\0" in value:
+        raise ctx.error(f"{key} = '{shown(value)}': a path may not contain a NUL character")
+    real = folders.resolve(value)
+    if real is None:
+        raise ctx.error(folders.refusal(key, value))
+    if os.path.exists(real) and not os.path.isfile(real):
+        raise ctx.error(f"{key} = '{shown(value)}': not a regular file: {shown(real)}")
+    if not os.path.isfile(real):
+        raise ctx.error(f"{key} = '{shown(value)}': file not found: {shown(real)} (relative to the scene file)")
+    return real
+
+
+def _add_mesh(builder: SceneBuilder, table: dict, ctx: _Ctx, folders: Folders, textures: dict) -> None:
     has_file, has_prim = "file" in table, "primitive" in table
     if has_file == has_prim:
         raise ctx.error("needs exactly one of 'file' (a mesh file) or 'primitive' "
@@ -293,8 +318,7 @@ def _add_mesh(builder: SceneBuilder, table: dict, ctx: _Ctx, base_dir: str, text
         _unknown(ctx, table, MESH_COMMON + PRIMITIVE_PARAMS[kind])
     else:
         _unknown(ctx, table, MESH_COMMON)
-        if not isinstance(table["file"], str) or not table["file"]:
-            raise ctx.error(f"file must be a path string, got {table['file']!r}")
+        mesh_path = _referenced_file(table, "file", ctx, folders)
 
     name = table.get("name", table.get("primitive") or table.get("file"))
     if not isinstance(name, str):
@@ -311,12 +335,9 @@ def _add_mesh(builder: SceneBuilder, table: dict, ctx: _Ctx, base_dir: str, text
     color = _color(table["color"], "color", ctx, alpha=True) if "color" in table else None
     texture = None
     if "texture" in table:
-        tex_path = table["texture"]
-        if not isinstance(tex_path, str) or not tex_path:
-            raise ctx.error(f"texture must be a path string, got {tex_path!r}")
-        full = os.path.normpath(os.path.join(base_dir, tex_path))
+        full = _referenced_file(table, "texture", ctx, folders)
         if full not in textures:
-            textures[full] = load_texture_file(full, f"{ctx.prefix()}: texture")
+            textures[full] = load_texture_file(full, f"{ctx.prefix()}: texture = '{shown(table['texture'])}'")
         texture = textures[full]
     uv_scale = None
     if "uv_scale" in table:
@@ -336,14 +357,9 @@ def _add_mesh(builder: SceneBuilder, table: dict, ctx: _Ctx, base_dir: str, text
         builder.add(name, p, f, n, uv, mat, ctx.prefix())
         return
 
-    mesh_path = os.path.normpath(os.path.join(base_dir, table["file"]))
-    if os.path.exists(mesh_path) and not os.path.isfile(mesh_path):
-        raise ctx.error(f"not a regular file: {mesh_path} (file = {table['file']!r})")
-    if not os.path.isfile(mesh_path):
-        raise ctx.error(f"file not found: {mesh_path} (file = {table['file']!r}, relative to the scene file)")
     try:
         obj = load_trimesh_scene(mesh_path)
-        builder.add_trimesh(obj, mesh_path, transform=m, color=color, texture=texture, uv_scale=uv_scale,
+        builder.add_trimesh(obj, shown(mesh_path), transform=m, color=color, texture=texture, uv_scale=uv_scale,
                             label=name)
     except SceneError as exc:
-        raise ctx.error(f"file = {table['file']!r}: {exc}") from None
+        raise ctx.error(f"file = '{shown(table['file'])}': {exc}") from None

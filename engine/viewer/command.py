@@ -4,6 +4,7 @@ from __future__ import annotations
 import sys
 
 from ..errors import ConfigError
+from ..scene import Scene
 from ..settings import MAX_FRAMES, check_png_path, parse_size
 from ..vk.swapchain import PRESENT_MODES
 from .app import Viewer
@@ -13,6 +14,8 @@ def add_arguments(p):
     p.add_argument("scene", help="a .toml scene, a mesh/glTF file, or a bundled scene by name (default, sphere, "
                                  "penumbra)")
     p.add_argument("--size", default="1280x720", help="window size WIDTHxHEIGHT (default 1280x720)")
+    p.add_argument("--allow-path", action="append", default=None, metavar="DIR",
+                   help="a folder outside the scene's own that its files may be in (repeatable)")
     p.add_argument("--frames", type=int, default=None, help="present N frames, then exit")
     p.add_argument("--screenshot", default=None, help="with --frames: save the last frame as this PNG")
     p.add_argument("--no-hot-reload", dest="hot_reload", action="store_false",
@@ -42,7 +45,8 @@ def run_from_args(args) -> int:
         check_png_path(args.screenshot)
     settings = {k: v for k, v in (("shadows", args.shadows), ("ao", args.ao), ("ao_samples", args.ao_samples))
                 if v is not None}
-    viewer = Viewer(args.scene, width, height, hot_reload=args.hot_reload, shader_dir=args.shader_dir,
+    scene = Scene.load(args.scene, allow_paths=args.allow_path)
+    viewer = Viewer(scene, width, height, hot_reload=args.hot_reload, shader_dir=args.shader_dir,
                     validation=True if args.validation else None, device=args.device,
                     present_mode=args.present_mode, render_scale=args.scale, settings=settings,
                     overlay=args.overlay)

@@ -23,6 +23,7 @@ from pathlib import Path
 
 from .data import SHADERS_DIR
 from .errors import ShaderError
+from .files import atomic_write_bytes, atomic_write_text
 
 ROOT = SHADERS_DIR   # the checkout's shaders/, or the installed package's copy (engine/data.py)
 GLSL_DIR = ROOT / "glsl"
@@ -121,12 +122,15 @@ def compile_all(glsl_dir: Path = GLSL_DIR, spv_dir: Path = SPV_DIR) -> dict:
     """Compile every shader into spv_dir and write the manifest; returns the manifest."""
     spv_dir.mkdir(parents=True, exist_ok=True)
     manifest = {}
-    for src in shader_sources(glsl_dir):
-        compile_shader(src, spv_dir / (src.name + ".spv"), glsl_dir)
-        manifest[src.name] = {"source_sha256": source_hash(src, glsl_dir),
-                              "includes": sorted(str(p.relative_to(Path(glsl_dir).resolve()))
-                                                 for p in includes_of(src, glsl_dir))}
-    (spv_dir / MANIFEST).write_text(json.dumps(manifest, indent=2, sort_keys=True) + "\n")
+    with tempfile.TemporaryDirectory(prefix="hybrid-compile-") as tmp:
+        for src in shader_sources(glsl_dir):   # compiled aside, then each .spv replaced whole (engine.files)
+            out = Path(tmp) / (src.name + ".spv")
+            compile_shader(src, out, glsl_dir)
+            atomic_write_bytes(spv_dir / (src.name + ".spv"), out.read_bytes(), "SPIR-V")
+            manifest[src.name] = {"source_sha256": source_hash(src, glsl_dir),
+                                  "includes": sorted(str(p.relative_to(Path(glsl_dir).resolve()))
+                                                     for p in includes_of(src, glsl_dir))}
+    atomic_write_text(spv_dir / MANIFEST, json.dumps(manifest, indent=2, sort_keys=True) + "\n", "shader manifest")
     return manifest
 
 

@@ -23,6 +23,7 @@ import numpy as np
 from PIL import Image as PILImage
 
 from ..errors import ConfigError, EngineError, VulkanError
+from ..files import atomic_write
 from ..renderer import Renderer
 from ..scene import Scene
 from ..settings import check_png_path, check_size
@@ -361,9 +362,10 @@ class Viewer:
     def save_screenshot(self, path) -> Path:
         path = check_png_path(path)
         rgba = self.read_color()
+        img = PILImage.fromarray(rgba, "RGBA")
         try:
-            PILImage.fromarray(rgba, "RGBA").save(str(path))
-        except (OSError, ValueError) as exc:
+            atomic_write(path, lambda f: img.save(f, format="PNG"), "image")
+        except ValueError as exc:
             raise EngineError(f"{path}: cannot write image: {exc}") from None
         self._print(f"screenshot: {path} ({rgba.shape[1]}x{rgba.shape[0]})")
         return path

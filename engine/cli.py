@@ -1,4 +1,4 @@
-"""`hybrid` command line: render, view, bench, info.
+"""`hybrid` command line: render (one frame or a sequence), view, bench, info.
 
 Every engine error is printed on one line as `error: <message>` and the exit status is 1.
 """
@@ -6,17 +6,22 @@ from __future__ import annotations
 
 import argparse
 import logging
+import signal
 import sys
+import threading
 import time
+from pathlib import Path
 
 from ._version import __version__
 from .bench import add_arguments as add_bench_arguments
 from .bench import run_cli
 from .errors import ConfigError, EngineError, shown
+from .outputs import check_output_path
 from .renderer import Renderer
 from .scene import Scene
+from .sequence import load_camera_path, orbit_cameras, output_paths, render_size, render_sequence
 from .settings import AOVS, MAX_FRAMES, SHADOW_MODES as SHADOW_CHOICES
-from .settings import check_png_path, parse_size
+from .settings import parse_size, resolve_aovs
 from .viewer import add_arguments as add_view_arguments
 from .viewer import run_from_args
 from .vk import choose_device, describe_devices
@@ -28,36 +33,100 @@ def _settings(args) -> dict:
         value = getattr(args, key, None)
         if value is not None:
             out[key] = value
-    if getattr(args, "aov", "color") != "color":
-        out["view"] = args.aov
     return out
+
+
+def _outputs(args) -> tuple:
+    """What to read back, the view, what Frame.save is given and the AOV names to report, from -o's suffix,
+    --aov (repeatable), --depth-scale and --no-compress. A PNG is one image: the colour, an AOV drawn by the debug
+    view on the GPU, or (--depth-scale) 16-bit depth; .exr / .npz take every AOV named (default DEFAULT_AOVS)."""
+    suffix = Path(args.output).suffix.lower()
+    names = list(dict.fromkeys(args.aov or []))
+    if suffix == ".png":
+        if len(names) > 1 or "all" in names:
+            raise ConfigError(f"{args.output}: a PNG holds one image; several AOVs (--aov {' --aov '.join(names)}) "
+                              f"go to one .exr or .npz file")
+        name = names[0] if names else "color"
+        if args.depth_scale is not None:
+            if name != "depth":
+                raise ConfigError("--depth-scale writes a 16-bit depth PNG: give --aov depth")
+            return ("depth",), "color", dict(aov="depth", depth_scale=args.depth_scale), ["depth"]
+        return ("color",), name, {}, [name]   # the AOV drawn into the colour image on the GPU
+    if args.depth_scale is not None:
+        raise ConfigError(f"{args.output}: --depth-scale is for 16-bit depth PNGs (.exr and .npz hold metric depth)")
+    aovs = resolve_aovs("all" if "all" in names else names or None)
+    return aovs, "color", dict(compress=args.compress), list(aovs)
+
+
+def _cameras(args, scene) -> tuple:
+    """The sequence's cameras and where they came from (for messages), or ([scene camera], None) for one frame."""
+    if args.camera_path is not None:
+        return load_camera_path(args.camera_path, scene.camera.fov_y), str(args.camera_path)
+    if args.orbit is not None:
+        return orbit_cameras(scene, args.orbit), "--orbit"
+    return [scene.camera], None
 
 
 def cmd_render(args) -> int:
 
-    width, height = parse_size(args.size)
+    size = parse_size(args.size) if args.size is not None else None
     if not 1 <= args.frames <= MAX_FRAMES:
         raise ConfigError(f"--frames {args.frames}: expected 1..{MAX_FRAMES}")
-    check_png_path(args.output)   # before the work, which a path that cannot be written would lose
+    if args.orbit is not None and not 1 <= args.orbit <= MAX_FRAMES:
+        raise ConfigError(f"--orbit {args.orbit}: expected 1..{MAX_FRAMES} cameras")
+    sequence = args.orbit is not None or args.camera_path is not None
+    if args.resume and not sequence:
+        raise ConfigError("--resume is for sequences (--orbit N or --camera-path FILE)")
+    check_output_path(args.output)     # before the work, which a path that cannot be written would lose
+    aovs, view, save, names = _outputs(args)
+    settings = dict(_settings(args), **({"view": view} if view != "color" else {}))
+    if args.camera_path is not None and not Path(args.camera_path).is_file():
+        raise ConfigError(f"{args.camera_path}: no such camera path file")
     t0 = time.perf_counter()
     scene = Scene.load(args.scene, allow_paths=args.allow_path)
+    cameras, where = _cameras(args, scene)
+    paths = output_paths(args.output, len(cameras))
+    width, height = render_size(cameras, size, where or scene.name)
     t1 = time.perf_counter()
-    with Renderer(width, height, device=args.device, validation=args.validation) as r:
-        for _ in range(args.frames):   # soft shadows and AO accumulate over the frames
-            frame = r.render(scene, **_settings(args))
-        t2 = time.perf_counter()
-        frame.save(args.output)       # the colour image: the lit frame or the --aov debug view
-        errors = list(r.validation_errors)
-        device = r.device_name
-    gpu = ", ".join(f"{k} {v:.2f}" for k, v in frame.timings.items())
-    print(f"{args.output}: {width}x{height} {args.aov} of {scene.name} ({scene.triangle_count} triangles) "
-          f"on {device}; load {t1 - t0:.2f} s, render {t2 - t1:.2f} s; GPU ms: {gpu}")
+    # SIGTERM unwinds like Ctrl-C: the file being written is dropped whole, the renderer closed
+    old_handler = signal.signal(signal.SIGTERM, _interrupt) if threading.current_thread() is threading.main_thread() \
+        else None
+    try:
+        with Renderer(width, height, device=args.device, validation=args.validation) as r:
+            result = render_sequence(r, scene, cameras, paths, aovs=aovs, settings=settings, save=save,
+                                     frames_per_view=args.frames, sidecars=sequence, resume=args.resume,
+                                     progress=sequence and not args.quiet and sys.stderr.isatty())
+            errors = list(r.validation_errors)
+            device = r.device_name
+    finally:
+        if old_handler is not None:
+            signal.signal(signal.SIGTERM, old_handler)
+    what = ", ".join(names)
+    if args.quiet:
+        pass
+    elif sequence:
+        rate = result.rendered / result.seconds if result.seconds > 0 else 0.0
+        print(f"{args.output}: {result.frames} frames ({result.rendered} rendered, {result.skipped} already done) "
+              f"of {width}x{height} {what} of {scene.name} on {device}: {rate:.2f} frames/s, "
+              f"{_size(result.bytes_written)} written in {result.seconds:.1f} s")
+    else:
+        gpu = ", ".join(f"{k} {v:.2f}" for k, v in result.last.timings.items())
+        print(f"{args.output}: {width}x{height} {what} of {scene.name} ({scene.triangle_count} triangles) "
+              f"on {device}; load {t1 - t0:.2f} s, render {result.seconds:.2f} s; GPU ms: {gpu}")
     if errors:
         print(f"error: {len(errors)} validation errors; first: {errors[0]}", file=sys.stderr)
         return 1
-    if args.validation:
+    if args.validation and not args.quiet:
         print("validation: no errors")
     return 0
+
+
+def _interrupt(signum, frame):
+    raise KeyboardInterrupt
+
+
+def _size(n: int) -> str:
+    return f"{n / 1e6:.1f} MB" if n >= 1e6 else f"{n / 1e3:.1f} kB"
 
 
 def cmd_info(args) -> int:
@@ -85,17 +154,38 @@ def build_parser() -> argparse.ArgumentParser:
     ap.add_argument("--version", action="version", version=f"hybrid {__version__}")
     sub = ap.add_subparsers(dest="command", required=True)
 
-    r = sub.add_parser("render", help="render a scene headless to a PNG",
-                       description="Render a scene headless to a PNG. Settings not given here take the scene's "
-                                   "[settings] (docs/scenes.md), then the renderer's defaults.")
+    r = sub.add_parser("render", help="render a scene headless to a PNG, EXR or NPZ; sequences of cameras",
+                       description="Render a scene headless to a PNG, EXR or NPZ file (docs/datasets.md), or a "
+                                   "sequence of cameras (--orbit, --camera-path) to numbered files. Settings not "
+                                   "given here take the scene's [settings] (docs/scenes.md), then the renderer's "
+                                   "defaults.")
     r.add_argument("scene", help="a .toml scene, a mesh/glTF file, or a bundled scene by name (default, sphere, "
                                  "penumbra)")
-    r.add_argument("-o", "--output", default="out.png", help="PNG to write (default out.png)")
+    r.add_argument("-o", "--output", default="out.png",
+                   help="file to write: .png (one image), .exr or .npz (several AOVs and the camera); a run of # in "
+                        "the file name is the frame number of a sequence, e.g. out/frame_####.exr (default out.png)")
     r.add_argument("--allow-path", action="append", default=None, metavar="DIR",
                    help="a folder outside the scene's own that its files may be in (repeatable)")
-    r.add_argument("--size", default="1280x720", help="WIDTHxHEIGHT (default 1280x720)")
-    r.add_argument("--aov", default="color", choices=AOVS,
-                   help="what to write: the colour or an AOV (raw / final light masks and AO, history length)")
+    r.add_argument("--size", default=None,
+                   help="WIDTHxHEIGHT (default: a --camera-path camera's own size from its intrinsics, else 1280x720)")
+    r.add_argument("--aov", action="append", choices=AOVS + ("all",), metavar="AOV",
+                   help="what to write, may repeat: a PNG takes one (the colour, or an AOV drawn for viewing); "
+                        ".exr / .npz take several (default: color, depth, normal, position, albedo, shadow, ao; "
+                        f"'all': every one). AOVs: {', '.join(AOVS)}")
+    r.add_argument("--depth-scale", type=float, default=None, metavar="SCALE",
+                   help="with --aov depth and a .png: a 16-bit PNG of depth * SCALE (1000: millimetres), 0 on the "
+                        "background")
+    r.add_argument("--no-compress", dest="compress", action="store_false",
+                   help=".exr / .npz without compression (faster to write, about 9x larger)")
+    seq = r.add_mutually_exclusive_group()
+    seq.add_argument("--orbit", type=int, default=None, metavar="N",
+                     help="a sequence of N cameras on a circle around the scene, at its camera's distance and height")
+    seq.add_argument("--camera-path", default=None, metavar="FILE",
+                     help="a sequence of the cameras in a .json / .toml file: {eye, target} or {K, pose, width, "
+                          "height} each (docs/datasets.md)")
+    r.add_argument("--resume", action="store_true",
+                   help="sequences: skip frames whose files (and camera sidecar) exist, render the rest")
+    r.add_argument("-q", "--quiet", action="store_true", help="no progress bar and no summary line")
     r.add_argument("--device", default=None, help="Vulkan device index or name substring")
     r.add_argument("--validation", action="store_true", help="enable the Khronos validation layer; fail on errors")
     r.add_argument("--shadows", default=None, help=f"shadow mode: {', '.join(SHADOW_CHOICES)} (default: the scene's, else hard)")
@@ -103,7 +193,8 @@ def build_parser() -> argparse.ArgumentParser:
     r.add_argument("--reference-samples", type=int, default=None,
                    help="reference: rays per pixel per light (default 256)")
     r.add_argument("--frames", type=int, default=1,
-                   help="render this many frames and write the last (soft shadows and AO accumulate)")
+                   help="render this many frames (per camera of a sequence) and write the last (soft shadows and "
+                        "AO accumulate)")
     r.add_argument("--no-accumulate", dest="accumulate", action="store_false", default=None,
                    help="no temporal accumulation")
     r.add_argument("--no-denoise", dest="denoise", action="store_false", default=None, help="no a-trous denoiser")

@@ -1,17 +1,21 @@
-"""A rendered frame as numpy arrays: the colour image, the AOVs, GPU timings; saving and viewing AOVs."""
+"""A rendered frame as numpy arrays: the colour image, the AOVs, GPU timings, its camera; saving (PNG, EXR, NPZ,
+a JSON camera sidecar: engine/outputs.py) and viewing AOVs."""
 from __future__ import annotations
 
 import io
 import os
+from collections.abc import Sequence
 from dataclasses import dataclass, field
+from pathlib import Path
 from typing import Any
 
 import numpy as np
 from PIL import Image as PILImage
 
-from .errors import ConfigError, EngineError
-from .files import atomic_write
-from .settings import check_png_path
+from . import outputs
+from .errors import ConfigError
+from .files import check_writable
+from .scene.camera import Camera
 
 
 @dataclass(repr=False)
@@ -56,36 +60,119 @@ class Frame:
     material_names: list[str] = field(default_factory=list)
     """The names behind `material_id`: the scene's materials, in order."""
 
+    camera: Camera | None = None
+    """The camera the frame was rendered from (the scene's when `render()` was given none)."""
+    scene_name: str = ""
+    """The name of the scene rendered (`Scene.name`: its path for a loaded one)."""
+
     @property
     def width(self) -> int:
         """Image width in pixels."""
-        return int(self.color.shape[1])
+        return int(self._any_image().shape[1])
 
     @property
     def height(self) -> int:
         """Image height in pixels."""
-        return int(self.color.shape[0])
+        return int(self._any_image().shape[0])
+
+    def _any_image(self) -> np.ndarray:
+        if self.color is not None:
+            return self.color
+        if self.aov:
+            return next(iter(self.aov.values()))
+        raise ConfigError("frame: no colour image and no AOVs, so no size")
 
     @property
     def gpu_ms(self) -> float:
         """The frame's GPU time: the sum of `timings`, in milliseconds."""
         return float(sum(self.timings.values()))
 
-    def save(self, path: str | os.PathLike[str], aov: str | None = None) -> None:
-        """Write the colour image, or an AOV normalized for viewing (`aov_to_rgba`), as a PNG.
+    @property
+    def K(self) -> np.ndarray:
+        """(3, 3) float64 pinhole intrinsics of this frame's image, in pixels (OpenCV: a point at camera coordinates
+        (X, Y, Z) lands at (fx X / Z + cx, fy Y / Z + cy); pixel (column i, row j) has its centre at
+        (i + 0.5, j + 0.5)): `Camera.intrinsics` at the frame's size."""
+        return self._camera().intrinsics(self.width, self.height)
+
+    @property
+    def pose(self) -> np.ndarray:
+        """(4, 4) float64 camera-to-world pose with OpenCV axes (x right, y down, z forward = the view direction):
+        `Camera.pose`. `depth` is the z of a point in these camera coordinates."""
+        return self._camera().pose
+
+    def _camera(self) -> Camera:
+        if self.camera is None:
+            raise ConfigError("frame: no camera (a Frame made by hand; Renderer.render fills it)")
+        return self.camera
+
+    def camera_record(self) -> dict[str, Any]:
+        """The frame's camera as plain JSON values (what `save_camera` writes and .npz / .exr files hold): scene,
+        width, height, K (3x3 lists), pose (4x4, camera-to-world), convention ("opencv"), near (world units),
+        fov_y (degrees)."""
+        return outputs.camera_record(self._camera(), self.width, self.height, self.scene_name)
+
+    def save(self, path: str | os.PathLike[str], aov: str | Sequence[str] | None = None, *,
+             depth_scale: float | None = None, compress: bool = True) -> Path:
+        """Write the frame to `path`, in the format its suffix names (docs/datasets.md has the details):
+
+        - .png: the colour image (8-bit sRGB RGBA), or AOV `aov` normalized for viewing (`aov_to_rgba`); with
+          `aov="depth"` and `depth_scale` (e.g. 1000: millimetres from metres), a 16-bit grey PNG of
+          round(depth * depth_scale), 0 on the background and where it does not fit in 16 bits.
+        - .exr: the AOVs `aov` names (default: all the frame has, "color" included) as 32-bit float channels
+          ("depth.Z", "normal.X", ...; ids as UINT channels, -1 as 4294967295; the colour linear in R, G, B, A)
+          and the camera in the header; `engine.outputs.read_exr` reads it back exactly.
+        - .npz: the same AOVs as the arrays of `aov` (exactly; "color" uint8) plus K, pose, near, fov_y, width,
+          height, scene and the id names (`np.load` reads it). `compress`: deflated (about 9x smaller, slower).
 
         The file is replaced whole or not at all (engine.files.atomic_write).
 
+        Returns:
+            The path written.
+
         Raises:
-            ConfigError: `path` does not end in .png, is a folder or its folder cannot be written; no such AOV.
+            ConfigError: another suffix, a folder or a folder that cannot be written; an AOV not in the frame;
+                `depth_scale` with another AOV or format.
             EngineError: the file could not be written.
         """
-        check_png_path(path)
-        img = PILImage.fromarray(aov_to_rgba(self, "color" if aov is None else aov), "RGBA")
-        try:
-            atomic_write(path, lambda f: img.save(f, format="PNG"), "image")
-        except ValueError as exc:
-            raise EngineError(f"{path}: cannot write image: {exc}") from None
+        p = outputs.check_output_path(path)
+        suffix = p.suffix.lower()
+        if depth_scale is not None and (suffix != ".png" or aov != "depth"):
+            raise ConfigError(f"{p}: depth_scale writes a 16-bit depth PNG: give aov='depth' and a .png path")
+        if suffix == ".png":
+            if aov is not None and not isinstance(aov, str):
+                raise ConfigError(f"{p}: a PNG holds one image: give one aov (several go to .exr or .npz)")
+            if depth_scale is not None:
+                return outputs.write_depth_png(p, self._aov("depth"), depth_scale)
+            return outputs.write_png(p, aov_to_rgba(self, "color" if aov is None else aov))
+        names = self._names(aov)
+        arrays = {n: self._aov(n) for n in names}
+        write = outputs.write_exr if suffix == ".exr" else outputs.write_npz
+        return write(p, arrays, self.camera_record(), self.object_names, self.material_names, compress=compress)
+
+    def save_camera(self, path: str | os.PathLike[str]) -> Path:
+        """Write the camera sidecar: `camera_record()` as JSON (one key per line). A list of these is a camera path
+        that `hybrid render --camera-path` renders again."""
+        p = Path(os.fspath(path))
+        if p.suffix.lower() != ".json":
+            raise ConfigError(f"{p}: the camera is written as JSON: give a path ending in .json")
+        return outputs.write_camera_json(check_writable(p, "camera file"), self.camera_record())
+
+    def _names(self, aov) -> list[str]:
+        have = (["color"] if self.color is not None else []) + list(self.aov)
+        if aov is None:
+            return have
+        names = [aov] if isinstance(aov, str) else list(aov)
+        for n in names:
+            if n not in have:
+                raise ConfigError(f"aov {n!r}: not in this frame (have: {', '.join(have) or 'none'})")
+        return list(dict.fromkeys(names))
+
+    def _aov(self, name: str) -> np.ndarray:
+        if name == "color":
+            return aov_to_rgba(self, "color")
+        if name not in self.aov:
+            raise ConfigError(f"aov {name!r}: not in this frame (have: {', '.join(sorted(self.aov)) or 'none'})")
+        return self.aov[name]
 
     def _repr_png_(self) -> bytes:
         """The colour image as PNG bytes: how Jupyter and IPython show a frame."""

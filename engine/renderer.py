@@ -212,7 +212,7 @@ class Renderer:
         names = resolve_aovs(aovs)
         cmd, marks, cfg, n_lights = self._prepare(scene, camera, settings, readback=(names, 0))
         self.ctx.submit(cmd)
-        return self._frame(scene, names, 0, marks, cfg, n_lights)
+        return self._frame(scene, names, 0, marks, cfg, n_lights, camera)
 
     def render_many(self, scene: Scene, cameras: Iterable[Camera], *, aovs: str | Sequence[str] | None = None,
                     **settings: Any) -> Iterator[Frame]:
@@ -220,7 +220,7 @@ class Renderer:
         read back and handed to the caller (two readback buffers in turn). One call at a time per renderer, like
         render(); the temporal history carries over from frame to frame as it does for render()."""
         names = resolve_aovs(aovs)
-        pending = None   # (slot, marks, cfg, n_lights): the frame submitted and not yet waited for
+        pending = None   # (slot, marks, cfg, n_lights, camera): the frame submitted and not yet waited for
         try:
             for i, camera in enumerate(cameras):
                 with self._lock:
@@ -230,7 +230,7 @@ class Renderer:
                     slot = i % 2
                     cmd, marks, cfg, n_lights = self._prepare(scene, camera, settings, readback=(names, slot))
                     self.ctx.submit(cmd, wait=False, fence=self._fences[slot])
-                    pending = (slot, marks, cfg, n_lights)
+                    pending = (slot, marks, cfg, n_lights, camera)
                     frame = None if done is None else self._frame(scene, names, *done)
                 if frame is not None:
                     yield frame
@@ -249,12 +249,13 @@ class Renderer:
         wait_fences(self.ctx, [self._fences[slot]])
         reset_fences(self.ctx, [self._fences[slot]])
 
-    def _frame(self, scene, names, slot, marks, cfg, n_lights) -> Frame:
+    def _frame(self, scene, names, slot, marks, cfg, n_lights, camera) -> Frame:
         buf, offsets = self.targets.readback(self.ctx, names, slot)
         aov = self.targets.read(buf, offsets, n_lights)
         return Frame(color=aov.pop("color", None), aov=aov, timings=self._timestamps[slot].read(marks), settings=cfg,
                      object_names=[sub.name for sub in scene.submeshes],
-                     material_names=[m.name for m in scene.materials])
+                     material_names=[m.name for m in scene.materials],
+                     camera=camera if camera is not None else scene.camera, scene_name=scene.name)
 
     @serialized
     def submit(self, scene: Scene, camera: Camera | None = None, *, wait: bool = True,

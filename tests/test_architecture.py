@@ -29,11 +29,11 @@ LAYERS = [
     ["engine.vk", "engine.bvh", "engine.scene", "engine.shaders"],
     ["engine.gpu"],
     ["engine.passes"],
-    ["engine.settings", "engine.frame", "engine.steady", "engine.renderer", "engine.rt"],
-    ["engine.viewer", "engine.bench"],
+    ["engine.settings", "engine.outputs", "engine.frame", "engine.steady", "engine.renderer", "engine.rt"],
+    ["engine.viewer", "engine.bench", "engine.sequence"],
     ["engine.cli", "engine.__main__", "engine"],
 ]
-PEERS = {("engine.frame", "engine.settings"), ("engine.renderer", "engine.settings"),
+PEERS = {("engine.frame", "engine.settings"), ("engine.frame", "engine.outputs"), ("engine.renderer", "engine.settings"),
          ("engine.renderer", "engine.frame"), ("engine.renderer", "engine.steady"), ("engine.__main__", "engine.cli")}
 MAX_LINES = 600
 PASSES = [LightingPass, DebugViewPass, AccumulatePass, DenoisePass, ShadowPass, AOPass, ResolvePass]

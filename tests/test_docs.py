@@ -5,6 +5,7 @@ import subprocess
 import sys
 from pathlib import Path
 
+import numpy as np
 from PIL import Image
 
 REPO = Path(__file__).resolve().parent.parent
@@ -21,9 +22,10 @@ def run_block(code: str, cwd: Path):
                           timeout=300)
 
 
-def test_readme_has_the_two_examples():
+def test_readme_has_the_three_examples():
     blocks = python_blocks("README.md")
-    assert len(blocks) == 2 and "engine.Renderer(" in blocks[0] and "engine.Tracer(" in blocks[1]
+    assert len(blocks) == 3 and "engine.Renderer(" in blocks[0] and "render_many(" in blocks[1]
+    assert "engine.Tracer(" in blocks[2]
 
 
 def test_readme_render_example(tmp_path):
@@ -35,12 +37,37 @@ def test_readme_render_example(tmp_path):
 
 
 def test_readme_tracer_example(tmp_path):
-    res = run_block(python_blocks("README.md")[1], tmp_path)
+    res = run_block(python_blocks("README.md")[2], tmp_path)
     assert res.returncode == 0, res.stderr[-3000:]
     m = re.search(r"([\d.]+)% occluded within t <= 2, ([\d.]+)% hit at all", res.stdout)
     assert m, res.stdout
     occluded, hit = float(m.group(1)), float(m.group(2))
     assert 0 < occluded < hit < 100   # rays from inside and outside a unit sphere, in every direction
+
+
+def small_dataset(code: str, size: str) -> str:
+    """A dataset example at 48x36 with 3 views."""
+    assert f"engine.Renderer({size})" in code and "orbit_cameras(scene, 24)" in code
+    return code.replace(f"engine.Renderer({size})", "engine.Renderer(48, 36)").replace(
+        "orbit_cameras(scene, 24)", "orbit_cameras(scene, 3)")
+
+
+def test_readme_dataset_example(tmp_path):
+    res = run_block(small_dataset(python_blocks("README.md")[1], "640, 480"), tmp_path)
+    assert res.returncode == 0, res.stderr[-3000:]
+    assert sorted(p.name for p in (tmp_path / "dataset").iterdir()) == [f"{i:04d}.{s}" for i in range(3)
+                                                                        for s in ("exr", "npz")]
+    with np.load(tmp_path / "dataset" / "0002.npz") as z:
+        assert z["depth"].shape == (36, 48) and z["object_id"].dtype == np.int32 and z["K"].shape == (3, 3)
+        assert np.isinf(z["depth"]).any() and (z["object_id"] == -1).any()
+
+
+def test_datasets_doc_example(tmp_path):
+    (block,) = python_blocks("docs/datasets.md")
+    res = run_block(small_dataset(block, "640, 480") + "\nprint(sorted(arrays), camera['width'])\n", tmp_path)
+    assert res.returncode == 0, res.stderr[-3000:]
+    assert "['color', 'depth', 'normal', 'object_id'] 48" in res.stdout
+    assert len(list((tmp_path / "dataset").iterdir())) == 12
 
 
 def test_scenes_doc_example(tmp_path):

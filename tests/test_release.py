@@ -16,7 +16,7 @@ except ModuleNotFoundError:   # Python 3.10 (tomli is in the dev extra)
 
 REPO = Path(__file__).resolve().parent.parent
 PYPROJECT = tomllib.loads((REPO / "pyproject.toml").read_text())
-IMPORT_NAME = {"pillow": "PIL"}   # distribution name -> the module it is imported as
+IMPORT_NAME = {"pillow": "PIL", "openexr": "OpenEXR"}   # distribution name -> the module it is imported as
 
 
 def test_version_has_one_source():

@@ -24,8 +24,9 @@ from pathlib import Path
 REPO = Path(__file__).resolve().parent.parent
 sys.path.insert(0, str(REPO))
 
-#: The documented modules: the public API (engine/__init__.py's __all__), the render options, the coordinate bound.
-MODULES = ["engine", "engine.settings", "engine.limits"]
+#: The documented modules: the public API (engine/__init__.py's __all__), the render options, the coordinate bound,
+#: frame files (read_exr, ...) and camera sequences (orbit_cameras, ...).
+MODULES = ["engine", "engine.settings", "engine.limits", "engine.outputs", "engine.sequence"]
 DOCFORMAT = "google"
 CODE_SPAN = re.compile(r"`([A-Za-z_][\w.]*)(?:\(\))?`")
 DOC_PATH = re.compile(r"\bdocs/[\w./-]+\.md\b")

@@ -1,0 +1,251 @@
+"""Sequences of frames (`hybrid render --orbit N` / `--camera-path FILE`): the cameras (an orbit, or a JSON / TOML
+camera path), the output paths (a frame pattern, out/frame_####.exr), and the loop that renders them through
+`Renderer.render_many` with a progress bar and writes each frame and its camera sidecar, skipping finished frames
+when resuming. The formats are in docs/datasets.md.
+"""
+from __future__ import annotations
+
+import json
+import math
+import re
+import sys
+import time
+from collections.abc import Sequence
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+from tqdm import tqdm
+
+from .errors import ConfigError, SceneError
+from .frame import Frame
+from .outputs import check_output_path
+from .renderer import Renderer
+from .scene import Camera, Scene
+from .scene.camera import DEFAULT_INTRINSICS_NEAR
+from .settings import MAX_FRAMES
+
+try:
+    import tomllib   # Python 3.11+
+except ImportError:  # pragma: no cover
+    import tomli as tomllib   # Python 3.10: the same parser (a dependency there)
+
+_RUN = re.compile(r"#+")
+LOOK_AT_KEYS = ("eye", "target", "up", "fov_y", "fov", "near")
+INTRINSICS_KEYS = ("K", "pose", "width", "height", "convention", "near")
+#: Keys of a camera sidecar (`Frame.save_camera`) that a camera path ignores: a list of sidecars is a camera path.
+INFO_KEYS = ("scene", "fov_y")
+#: Keys a camera path may set once for every camera (at its top level).
+SHARED_KEYS = ("up", "fov_y", "fov", "near", "K", "width", "height", "convention")
+
+
+# ----------------------------------------------------------------------------------------------- paths
+def output_paths(pattern: str, count: int) -> list[Path]:
+    """The `count` paths of `pattern`, whose run of '#' in the file name becomes the frame number (0-based),
+    zero-padded to the run's length (out/frame_####.exr -> out/frame_0000.exr, ...). Without a run the pattern is
+    one path, which is an error for more than one frame."""
+    p = Path(pattern)
+    if "#" in str(p.parent):
+        raise ConfigError(f"-o {pattern}: the frame number (####) goes in the file name, not in a folder")
+    runs = _RUN.findall(p.name)
+    if len(runs) > 1:
+        raise ConfigError(f"-o {pattern}: one run of '#' for the frame number, found {len(runs)}")
+    if not runs:
+        if count > 1:
+            raise ConfigError(f"-o {pattern}: {count} frames need a frame number in the file name, "
+                              f"e.g. {p.with_name(p.stem + '_####' + p.suffix)}")
+        return [p]
+    width = len(runs[0])
+    return [p.with_name(_RUN.sub(f"{i:0{width}d}", p.name)) for i in range(count)]
+
+
+def sidecar_path(path: Path) -> Path:
+    """The camera sidecar beside an output: out/frame_0003.exr -> out/frame_0003.json."""
+    return path.with_suffix(".json")
+
+
+# ----------------------------------------------------------------------------------------------- cameras
+def orbit_cameras(scene: Scene, count: int) -> list[Camera]:
+    """`count` cameras on a circle around the centre of the scene's bounds, looking at it: at the scene camera's
+    distance from the centre and height above it (along its `up`), the first where the scene camera is, then
+    counter-clockwise seen from above, evenly spaced; the scene camera's fov_y and near."""
+    if isinstance(count, bool) or not 1 <= count <= MAX_FRAMES:
+        raise ConfigError(f"--orbit {count}: expected 1..{MAX_FRAMES} cameras")
+    cam = scene.camera
+    centre = np.asarray(scene.center, np.float64)
+    up = np.asarray(cam.up, np.float64) / np.linalg.norm(cam.up)
+    offset = cam.eye - centre
+    height = float(offset @ up)
+    horizontal = offset - height * up
+    radius = float(np.linalg.norm(horizontal))
+    if radius <= 1e-9 * max(1.0, float(np.linalg.norm(offset))):
+        raise ConfigError(f"--orbit: {scene.name}: the camera is straight above or below the centre of the scene's "
+                          f"bounds, so there is no circle to orbit on")
+    u = horizontal / radius
+    v = np.cross(up, u)
+    out = []
+    for k in range(count):
+        a = 2.0 * math.pi * k / count
+        eye = centre + height * up + radius * (math.cos(a) * u + math.sin(a) * v)
+        out.append(Camera.look_at(eye, centre, up, fov_y=cam.fov_y, near=cam.near))
+    return out
+
+
+def load_camera_path(path: str | Path, default_fov_y: float = 60.0) -> list[Camera]:
+    """The cameras of a camera-path file: JSON (a list of cameras, or an object with shared keys and a "camera"
+    list) or TOML (shared keys at the top, then [[camera]] tables). A camera is {eye, target[, up, fov_y, near]}
+    (look_at; fov_y defaults to `default_fov_y`) or {K, pose, width, height[, convention, near]} (intrinsics; the
+    pose camera-to-world, OpenCV axes unless convention = "opengl"); a camera sidecar (`Frame.save_camera`) is one.
+    Errors name the file and the entry: "path: camera[3]: missing key 'target'"."""
+    p = Path(path)
+    if not p.is_file():
+        raise ConfigError(f"{p}: no such camera path file")
+    try:
+        text = p.read_text(encoding="utf-8")
+    except (OSError, UnicodeDecodeError) as exc:
+        raise ConfigError(f"{p}: cannot read: {exc}") from None
+    suffix = p.suffix.lower()
+    if suffix == ".json":
+        try:
+            data: Any = json.loads(text)
+        except json.JSONDecodeError as exc:
+            raise ConfigError(f"{p}: invalid JSON: {exc}") from None
+    elif suffix == ".toml":
+        try:
+            data = tomllib.loads(text)
+        except tomllib.TOMLDecodeError as exc:
+            raise ConfigError(f"{p}: invalid TOML: {exc}") from None
+    else:
+        raise ConfigError(f"{p}: a camera path is a .json or .toml file")
+    shared: dict = {}
+    if isinstance(data, dict):
+        shared = {k: v for k, v in data.items() if k != "camera"}
+        bad = sorted(set(shared) - set(SHARED_KEYS))
+        if bad:
+            raise ConfigError(f"{p}: unknown key {bad[0]!r} (known: camera, {', '.join(SHARED_KEYS)})")
+        data = data.get("camera")
+        if data is None:
+            raise ConfigError(f"{p}: no 'camera' list")
+    if not isinstance(data, list):
+        raise ConfigError(f"{p}: expected a list of cameras, got {type(data).__name__}")
+    if not data:
+        raise ConfigError(f"{p}: no cameras")
+    cameras = []
+    for i, entry in enumerate(data):
+        if not isinstance(entry, dict):
+            raise ConfigError(f"{p}: camera[{i}]: expected a table of keys, got {type(entry).__name__}")
+        try:
+            cameras.append(_camera(entry, shared, default_fov_y))
+        except (ConfigError, SceneError) as exc:
+            raise ConfigError(f"{p}: camera[{i}]: {exc}") from None
+    return cameras
+
+
+def _camera(entry: dict, shared: dict, default_fov_y: float) -> Camera:
+    intrinsics = any(k in entry for k in ("K", "pose"))
+    if intrinsics and any(k in entry for k in ("eye", "target")):
+        raise ConfigError("give eye and target, or K and pose, not both")
+    allowed = (INTRINSICS_KEYS + INFO_KEYS) if intrinsics else (LOOK_AT_KEYS + ("scene",))
+    bad = sorted(set(entry) - set(allowed))
+    if bad:
+        raise ConfigError(f"unknown key {bad[0]!r} (a camera has eye, target[, up, fov_y, near] or K, pose, width, "
+                          f"height[, convention, near])")
+    keys = {**shared, **entry}
+    if intrinsics:
+        for k in ("K", "pose", "width", "height"):
+            if k not in keys:
+                raise ConfigError(f"missing key {k!r}")
+        return Camera.from_intrinsics(keys["K"], keys["width"], keys["height"], pose=keys["pose"],
+                                      convention=keys.get("convention", "opencv"),
+                                      near=keys.get("near", DEFAULT_INTRINSICS_NEAR))
+    for k in ("eye", "target"):
+        if k not in keys:
+            raise ConfigError(f"missing key {k!r}")
+    if "fov" in entry and "fov_y" in entry:
+        raise ConfigError("give fov_y or fov (the same), not both")
+    fov = entry.get("fov_y", entry.get("fov", shared.get("fov_y", shared.get("fov", default_fov_y))))
+    return Camera.look_at(keys["eye"], keys["target"], keys.get("up", (0.0, 1.0, 0.0)), fov_y=fov,
+                          near=keys.get("near"))
+
+
+def render_size(cameras: Sequence[Camera], size: tuple[int, int] | None, where: str) -> tuple[int, int]:
+    """The size to render `cameras` at: `size`, else the first camera's own image size (a camera from intrinsics),
+    else 1280x720; every camera from intrinsics must have that aspect ratio (errors name `where` and the entry)."""
+    if size is None:
+        size = next((c.image_size for c in cameras if c.image_size is not None), (1280, 720))
+    for i, cam in enumerate(cameras):
+        try:
+            cam.intrinsics(*size)
+        except ConfigError as exc:
+            raise ConfigError(f"{where}: camera[{i}]: {exc}") from None
+    return size
+
+
+# ----------------------------------------------------------------------------------------------- the loop
+@dataclass
+class SequenceResult:
+    """What `render_sequence` did: frames in the sequence, rendered now, skipped (finished before), bytes written
+    and the wall seconds of the rendering and writing; `last` the last frame rendered (None if none)."""
+
+    frames: int
+    rendered: int
+    skipped: int
+    bytes_written: int
+    seconds: float
+    last: Frame | None
+
+
+def render_sequence(renderer: Renderer, scene: Scene, cameras: Sequence[Camera], paths: Sequence[Path], *,
+                    aovs: Any, settings: dict, save: dict, frames_per_view: int = 1, sidecars: bool = True,
+                    resume: bool = False, progress: bool = False) -> SequenceResult:
+    """Render camera i into paths[i] (`Frame.save(path, **save)`) and, with `sidecars`, its camera beside it
+    (`sidecar_path`), through `Renderer.render_many` (the GPU renders the next frame while one is written).
+    `frames_per_view` frames per camera, the last written (soft shadows and AO accumulate). With `resume`, a frame
+    whose files exist is skipped; its sidecar must hold this run's camera. Writes are atomic: a killed run leaves
+    finished frames whole and nothing of the others."""
+    if len(cameras) != len(paths):
+        raise ConfigError(f"{len(cameras)} cameras for {len(paths)} output paths")
+    check_output_path(paths[0])   # every path is in that folder (output_paths): checked before the work
+    width, height = renderer.width, renderer.height
+    todo = []
+    for i, (cam, path) in enumerate(zip(cameras, paths)):
+        if not (resume and _finished(path, cam, i, width, height, scene.name, sidecars)):
+            todo.append((cam, path))
+    t0 = time.perf_counter()
+    written, last = 0, None
+    views = (cam for cam, _ in todo for _ in range(frames_per_view))
+    with tqdm(total=len(todo), unit="frame", file=sys.stderr, disable=not progress, dynamic_ncols=True) as bar:
+        for j, frame in enumerate(renderer.render_many(scene, views, aovs=aovs, **settings)):
+            if (j + 1) % frames_per_view:
+                continue
+            _, path = todo[j // frames_per_view]
+            written += frame.save(path, **save).stat().st_size
+            if sidecars:
+                written += frame.save_camera(sidecar_path(path)).stat().st_size
+            last = frame
+            bar.update(1)
+    return SequenceResult(len(paths), len(todo), len(paths) - len(todo), written, time.perf_counter() - t0, last)
+
+
+def _finished(path: Path, camera: Camera, index: int, width: int, height: int, scene_name: str,
+              sidecars: bool) -> bool:
+    """A frame is finished when its output exists and (with sidecars) its sidecar, written after it, does; a
+    sidecar of another camera or size is an error (the outputs are of another sequence)."""
+    side = sidecar_path(path)
+    if not path.is_file() or (sidecars and not side.is_file()):
+        return False
+    if not sidecars:
+        return True
+    try:
+        rec = json.loads(side.read_text(encoding="utf-8"))
+        same = ((rec["width"], rec["height"]) == (width, height)
+                and np.allclose(rec["K"], camera.intrinsics(width, height), rtol=1e-9, atol=1e-9)
+                and np.allclose(rec["pose"], camera.pose, rtol=1e-9, atol=1e-9))
+    except (OSError, ValueError, KeyError, TypeError) as exc:
+        raise ConfigError(f"{side}: cannot read the camera of a finished frame ({exc}): delete it to render the "
+                          f"frame again") from None
+    if not same:
+        raise ConfigError(f"{side}: frame {index} was rendered from another camera or size than this run's "
+                          f"({scene_name}): delete the old outputs, or run without --resume to overwrite them")
+    return True

@@ -89,6 +89,30 @@ def image_regression(request):
     return check
 
 
+@pytest.fixture
+def make_viewer(xvfb_display):
+    """`make_viewer(scene, w, h, **kw)`: an in-process Viewer with validation on (no hot reload, quiet), closed after
+    the test, which fails on any validation error (leaks included)."""
+    from engine.viewer import Viewer   # GLFW is loaded by window tests only
+
+    made = []
+
+    def make(scene, width=160, height=90, **kw):
+        kw.setdefault("validation", True)
+        kw.setdefault("hot_reload", False)
+        kw.setdefault("quiet", True)
+        v = Viewer(scene, width, height, **kw)
+        made.append(v)
+        return v
+
+    yield make
+    errors = []
+    for v in made:
+        v.close()   # leaked Vulkan objects are reported here
+        errors += v.validation_errors
+    assert not errors, "Vulkan validation errors:\n" + "\n".join(errors[:10])
+
+
 @pytest.fixture(scope="session")
 def xvfb_display():
     """A private Xvfb server for window tests: DISPLAY is set to it for the session (and for subprocesses).

@@ -36,26 +36,11 @@ def assert_close(got, ref, max_mean=1.0, max_bad=0.005, name="viewer"):
 
 
 @pytest.fixture
-def viewer(xvfb_display):
+def viewer(make_viewer):
     """`viewer(scene, w, h, **kw)`: an in-process Viewer with validation on, closed after the test."""
-    from engine.viewer import Viewer
-
-    made = []
-
     def make(scene=SPHERE, width=160, height=90, **kw):
-        kw.setdefault("validation", True)
-        kw.setdefault("hot_reload", False)
-        kw.setdefault("quiet", True)
-        v = Viewer(scene, width, height, **kw)
-        made.append(v)
-        return v
-
-    yield make
-    errors = []
-    for v in made:
-        v.close()   # leaked Vulkan objects are reported here
-        errors += v.validation_errors
-    assert not errors, "Vulkan validation errors:\n" + "\n".join(errors[:10])
+        return make_viewer(scene, width, height, **kw)
+    return make
 
 
 def test_view_cli_screenshot_matches_headless_render(xvfb_display, tmp_path, make_renderer):

@@ -28,27 +28,12 @@ SETTINGS = dict(ao=False)   # no per-frame sampling: every frame of a view is th
 
 
 @pytest.fixture
-def viewer(xvfb_display):
+def viewer(make_viewer):
     """`viewer(w, h, **kw)`: an in-process Viewer on the sphere scene with validation on, closed after the test."""
-    from engine.viewer import Viewer
-
-    made = []
-
     def make(width=64, height=48, **kw):
-        kw.setdefault("validation", True)
-        kw.setdefault("hot_reload", False)
-        kw.setdefault("quiet", True)
         kw.setdefault("settings", dict(SETTINGS))
-        v = Viewer(SPHERE, width, height, **kw)
-        made.append(v)
-        return v
-
-    yield make
-    errors = []
-    for v in made:
-        v.close()   # leaked Vulkan objects are reported here
-        errors += v.validation_errors
-    assert not errors, "Vulkan validation errors:\n" + "\n".join(errors[:10])
+        return make_viewer(SPHERE, width, height, **kw)
+    return make
 
 
 @pytest.fixture

@@ -30,7 +30,7 @@ LAYERS = [
     ["engine.gpu"],
     ["engine.passes"],
     ["engine.settings", "engine.frame", "engine.steady", "engine.renderer", "engine.rt"],
-    ["engine.viewer", "engine.bench"],
+    ["engine.viewer", "engine.bench", "engine.batch"],
     ["engine.cli", "engine.__main__", "engine"],
 ]
 PEERS = {("engine.frame", "engine.settings"), ("engine.renderer", "engine.settings"),

@@ -1,4 +1,4 @@
-"""`hybrid` command line: render (one frame or a sequence), view, bench, info.
+"""`hybrid` command line: render (one frame or a sequence), view, bench, batch, info.
 
 Every engine error is printed on one line as `error: <message>` and the exit status is 1.
 """
@@ -13,6 +13,8 @@ import time
 from pathlib import Path
 
 from ._version import __version__
+from .batch import add_arguments as add_batch_arguments
+from .batch import run_cli as run_batch_cli
 from .bench import add_arguments as add_bench_arguments
 from .bench import run_cli
 from .errors import ConfigError, EngineError, shown
@@ -148,6 +150,10 @@ def cmd_bench(args) -> int:
     return run_cli(args)
 
 
+def cmd_batch(args) -> int:
+    return run_batch_cli(args)
+
+
 def build_parser() -> argparse.ArgumentParser:
     ap = argparse.ArgumentParser(prog="hybrid", description="Hybrid Vulkan renderer (raster G-buffer + ray-traced shadows/AO)")
     ap.add_argument("-v", "--verbose", action="store_true", help="log debug messages")
@@ -210,6 +216,14 @@ def build_parser() -> argparse.ArgumentParser:
     b = sub.add_parser("bench", help="benchmarks: BVH build, trace throughput vs Embree/Open3D, frame passes")
     add_bench_arguments(b)
     b.set_defaults(func=cmd_bench)
+
+    j = sub.add_parser("batch", help="render a job (scenes x cameras x AOVs) into a folder: resumable, on several "
+                                     "workers or a Ray cluster",
+                       description="Render a batch job (docs/batch.md) into its output folder. Finished items are "
+                                   "skipped, so an interrupted batch resumes; failed items are reported and the rest "
+                                   "go on (exit status 1 if any failed).")
+    add_batch_arguments(j)
+    j.set_defaults(func=cmd_batch)
 
     i = sub.add_parser("info", help="list Vulkan devices and the one that would be used")
     i.add_argument("--device", default=None, help="Vulkan device index or name substring")

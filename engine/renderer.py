@@ -245,6 +245,14 @@ class Renderer:
                 with self._lock:
                     self._wait_slot(pending[0])
 
+    @serialized
+    def reset_history(self) -> None:
+        """Start the next frame as a fresh renderer would: no temporal history and frame index 0 (which seeds the
+        soft-shadow and AO samples), so a view's frames do not depend on what was rendered before (batch jobs)."""
+        self._history_key = None
+        self._frame_index = 0
+        self._steady = None
+
     def _wait_slot(self, slot):
         wait_fences(self.ctx, [self._fences[slot]])
         reset_fences(self.ctx, [self._fences[slot]])

@@ -30,7 +30,7 @@ LAYERS = [
     ["engine.gpu"],
     ["engine.passes"],
     ["engine.settings", "engine.outputs", "engine.frame", "engine.steady", "engine.renderer", "engine.rt"],
-    ["engine.viewer", "engine.bench", "engine.sequence"],
+    ["engine.viewer", "engine.bench", "engine.sequence", "engine.batch"],
     ["engine.cli", "engine.__main__", "engine"],
 ]
 PEERS = {("engine.frame", "engine.settings"), ("engine.frame", "engine.outputs"), ("engine.renderer", "engine.settings"),

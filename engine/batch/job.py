@@ -1,0 +1,192 @@
+"""A batch job file (TOML, docs/batch.md): what to render (scenes x views x AOVs), how, and where to.
+
+`load_job(path)` reads and checks it; every error is a ConfigError naming the job file and the key. The job is
+plain data (it is pickled to worker processes and Ray tasks) and lists its items: one per scene and view, each with
+a key, a fingerprint of everything its output files depend on, by which a later run tells finished items.
+"""
+from __future__ import annotations
+
+import hashlib
+import json
+import os
+import re
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+try:
+    import tomllib   # Python 3.11+
+except ModuleNotFoundError:
+    import tomli as tomllib   # Python 3.10: the same parser (a dependency there)
+
+from ..errors import ConfigError
+from ..settings import MAX_FRAMES, check_settings, parse_size, resolve_aovs
+from .cameras import read_cameras, view_fingerprint
+
+TOP_KEYS = ("output", "size", "aovs", "png", "frames", "compress", "settings", "cameras", "scenes")
+SCENE_KEYS = ("scene", "name", "cameras")
+_NAME = re.compile(r"^[A-Za-z0-9][A-Za-z0-9._-]*$")
+
+
+@dataclass(frozen=True)
+class SceneSpec:
+    """One scene of a job: `source` as the job gives it, `path` what `Scene.load` gets (a bundled name or an
+    absolute path), `name` its output folder, `cameras` its checked camera table (engine.batch.cameras)."""
+
+    source: str
+    path: str
+    name: str
+    cameras: dict
+
+
+@dataclass(frozen=True)
+class Item:
+    """One output: view `index` of scene `scene` (an index into `Job.scenes`); `id` is "<scene name>/<index>"."""
+
+    scene: int
+    index: int
+    id: str
+    key: str
+
+
+@dataclass
+class Job:
+    """A checked job. `settings` holds only the render settings the job gives (the scene's own `[settings]` fill
+    the rest, as for `Renderer.render`)."""
+
+    path: Path
+    output: Path
+    width: int
+    height: int
+    aovs: tuple
+    png: tuple
+    frames: int
+    compress: bool
+    settings: dict
+    scenes: list
+    items: list = field(default_factory=list)
+
+    def files(self, item: Item) -> list[str]:
+        """The item's output files, relative to the output folder: the PNGs, then the .npz (written last)."""
+        base = f"{self.scenes[item.scene].name}/{item.index:04d}"
+        pngs = [f"{base}.png" if aov == "color" else f"{base}.{aov}.png" for aov in self.png]
+        return pngs + [f"{base}.npz"]
+
+
+def load_job(path: str | os.PathLike[str], output: str | os.PathLike[str] | None = None) -> Job:
+    """Read and check a job file; `output` (relative to the current folder) overrides the job's `output` (which is
+    relative to the job file's folder)."""
+    path = Path(path)
+    try:
+        with open(path, "rb") as fh:
+            data = tomllib.load(fh)
+    except FileNotFoundError:
+        raise ConfigError(f"{path}: no such job file") from None
+    except IsADirectoryError:
+        raise ConfigError(f"{path}: is a folder, not a job file") from None
+    except OSError as exc:
+        raise ConfigError(f"{path}: cannot read: {exc.strerror or exc}") from None
+    except (tomllib.TOMLDecodeError, UnicodeDecodeError) as exc:
+        raise ConfigError(f"{path}: not valid TOML: {exc}") from None
+    return job_from_dict(data, path, output)
+
+
+def job_from_dict(data: dict, path: Path, output: str | os.PathLike[str] | None = None) -> Job:
+    """A job from its parsed TOML tables (`path` names the file in errors; relative paths are from its folder)."""
+    where = str(path)
+    base = path.resolve().parent
+    unknown = sorted(set(data) - set(TOP_KEYS))
+    if unknown:
+        raise ConfigError(f"{where}: unknown key {unknown[0]!r} (known: {', '.join(TOP_KEYS)})")
+    if output is not None:
+        out = Path(output).resolve()
+    elif isinstance(data.get("output"), str) and data["output"]:
+        out = (base / data["output"]).resolve()
+    else:
+        raise ConfigError(f"{where}: output: give the output folder (relative to the job file), or --output")
+    size = data.get("size", "640x480")
+    if isinstance(size, list) and len(size) == 2:
+        size = f"{size[0]}x{size[1]}"
+    try:
+        width, height = parse_size(str(size))
+        aovs = resolve_aovs(data.get("aovs"))
+        settings = _table(data.get("settings", {}), "settings")
+        check_settings(settings)
+    except ConfigError as exc:
+        raise ConfigError(f"{where}: {exc}") from None
+    png = data.get("png", ["color"] if "color" in aovs else [])
+    if isinstance(png, str):
+        png = [png]
+    if not isinstance(png, list) or not all(isinstance(p, str) for p in png):
+        raise ConfigError(f"{where}: png: expected a list of AOV names, got {png!r}")
+    for name in png:
+        if name not in aovs:
+            raise ConfigError(f"{where}: png: {name!r} is not among the aovs ({', '.join(aovs)})")
+    frames = data.get("frames", 1)
+    if isinstance(frames, bool) or not isinstance(frames, int) or not 1 <= frames <= MAX_FRAMES:
+        raise ConfigError(f"{where}: frames: expected frames per view, 1..{MAX_FRAMES}, got {frames!r}")
+    compress = data.get("compress", False)
+    if not isinstance(compress, bool):
+        raise ConfigError(f"{where}: compress: expected true or false, got {compress!r}")
+    default_cameras = (read_cameras(data["cameras"], f"{where}: cameras", base)
+                       if "cameras" in data else None)
+    scenes = _scenes(data.get("scenes"), where, base, default_cameras)
+    job = Job(path=path.resolve(), output=out, width=width, height=height, aovs=tuple(aovs),
+              png=tuple(dict.fromkeys(png)), frames=frames, compress=compress, settings=settings, scenes=scenes)
+    job.items = _items(job)
+    return job
+
+
+def _scenes(entries: Any, where: str, base: Path, default_cameras: dict | None) -> list[SceneSpec]:
+    if not isinstance(entries, list) or not entries:
+        raise ConfigError(f"{where}: scenes: expected a non-empty list ([[scenes]] tables, or scene names / paths)")
+    scenes: list[SceneSpec] = []
+    names: dict[str, int] = {}
+    for i, entry in enumerate(entries):
+        at = f"{where}: scenes[{i}]"
+        if isinstance(entry, str):
+            entry = {"scene": entry}
+        if not isinstance(entry, dict):
+            raise ConfigError(f"{at}: expected a table with scene = \"path or name\", got {entry!r}")
+        unknown = sorted(set(entry) - set(SCENE_KEYS))
+        if unknown:
+            raise ConfigError(f"{at}: unknown key {unknown[0]!r} (known: {', '.join(SCENE_KEYS)})")
+        source = entry.get("scene")
+        if not isinstance(source, str) or not source:
+            raise ConfigError(f"{at}: scene: expected a scene file or a bundled scene's name, got {source!r}")
+        candidate = Path(source) if os.path.isabs(source) else base / source
+        is_name = not (os.sep in source or "/" in source or Path(source).suffix or candidate.exists())
+        scene_path = source if is_name else str(candidate.resolve())
+        name = entry.get("name", Path(source).stem)
+        if not isinstance(name, str) or not _NAME.match(name):
+            raise ConfigError(f"{at}: name {name!r}: the output folder's name: letters, digits, '.', '_', '-'"
+                              + ("" if "name" in entry else " (give one with name = \"...\")"))
+        if name in names:
+            raise ConfigError(f"{at}: name {name!r} is scenes[{names[name]}]'s too: give each scene its own name")
+        names[name] = i
+        if "cameras" in entry:
+            cameras = read_cameras(entry["cameras"], f"{at}.cameras", base)
+        elif default_cameras is not None:
+            cameras = default_cameras
+        else:
+            raise ConfigError(f"{at}: no cameras: give [cameras] for every scene, or cameras in this one")
+        scenes.append(SceneSpec(source=source, path=scene_path, name=name, cameras=cameras))
+    return scenes
+
+
+def _items(job: Job) -> list[Item]:
+    common = {"size": [job.width, job.height], "aovs": list(job.aovs), "png": list(job.png), "frames": job.frames,
+              "settings": job.settings}
+    items = []
+    for s, spec in enumerate(job.scenes):
+        for index in range(spec.cameras["count"]):
+            what = dict(common, scene=spec.source, view=view_fingerprint(spec.cameras, index))
+            key = hashlib.sha256(json.dumps(what, sort_keys=True, default=str).encode()).hexdigest()[:24]
+            items.append(Item(scene=s, index=index, id=f"{spec.name}/{index:04d}", key=key))
+    return items
+
+
+def _table(value: Any, where: str) -> dict:
+    if not isinstance(value, dict):
+        raise ConfigError(f"{where}: expected a table, got {value!r}")
+    return dict(value)

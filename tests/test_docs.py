@@ -21,9 +21,10 @@ def run_block(code: str, cwd: Path):
                           timeout=300)
 
 
-def test_readme_has_the_two_examples():
+def test_readme_has_the_three_examples():
     blocks = python_blocks("README.md")
-    assert len(blocks) == 2 and "engine.Renderer(" in blocks[0] and "engine.Tracer(" in blocks[1]
+    assert len(blocks) == 3 and "engine.Renderer(" in blocks[0] and "engine.Tracer(" in blocks[1]
+    assert "engine.RayMeshIntersector(" in blocks[2]
 
 
 def test_readme_render_example(tmp_path):
@@ -41,6 +42,15 @@ def test_readme_tracer_example(tmp_path):
     assert m, res.stdout
     occluded, hit = float(m.group(1)), float(m.group(2))
     assert 0 < occluded < hit < 100   # rays from inside and outside a unit sphere, in every direction
+
+
+def test_readme_drop_in_example(tmp_path):
+    res = run_block(python_blocks("README.md")[2], tmp_path)
+    assert res.returncode == 0, res.stderr[-3000:]
+    m = re.search(r"(\d+) rays hit, (\d+) hits; inside: \[True, False\]", res.stdout)
+    assert m, res.stdout
+    rays, hits = int(m.group(1)), int(m.group(2))
+    assert 0 < rays < 1000 and hits == 2 * rays   # each ray that hits the sphere goes in and out
 
 
 def test_scenes_doc_example(tmp_path):

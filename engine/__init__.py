@@ -15,8 +15,9 @@ ray-query library on the same BVH and traversal.
 
 What is where: `Scene` (geometry, materials, lights, camera; loading), `Camera`, the lights (`DirectionalLight`,
 `PointLight`, `SpotLight`, `RectLight`), `Material`; `Renderer` renders a `Frame`; `Tracer` answers ray queries
-with `Hits`. The render options and their defaults: `engine.settings` (`engine.settings.DEFAULT_SETTINGS`). Errors
-are `EngineError` subclasses whose one-line message names the file, field or argument at fault.
+with `Hits`; `RayMeshIntersector` is trimesh's ray-query interface (`mesh.ray`) on it, `RaycastingScene` Open3D's.
+The render options and their defaults: `engine.settings` (`engine.settings.DEFAULT_SETTINGS`). Errors are
+`EngineError` subclasses whose one-line message names the file, field or argument at fault.
 
 Conventions, everywhere in the API:
 
@@ -36,6 +37,8 @@ from .data import bundled_scenes, scene_path
 from .errors import ConfigError, EngineError, SceneError, ShaderError, VulkanError
 from .renderer import Frame, Renderer
 from .rt import Hits, Tracer
+from .rt import RayMeshIntersector
+from .rt import RaycastingScene
 from .scene import (Camera, DirectionalLight, Light, Material, PointLight, RectLight, Scene, SpotLight,
                     SubMesh)
 
@@ -44,3 +47,5 @@ __all__ = [
     "Renderer", "Frame", "Tracer", "Hits", "EngineError", "SceneError", "ConfigError", "VulkanError", "ShaderError",
     "scene_path", "bundled_scenes", "__version__",
 ]
+__all__ += ["RayMeshIntersector"]
+__all__ += ["RaycastingScene"]

@@ -24,8 +24,9 @@ def run_block(code: str, cwd: Path):
 
 def test_readme_has_the_three_examples():
     blocks = python_blocks("README.md")
-    assert len(blocks) == 3 and "engine.Renderer(" in blocks[0] and "render_many(" in blocks[1]
+    assert len(blocks) == 4 and "engine.Renderer(" in blocks[0] and "render_many(" in blocks[1]
     assert "engine.Tracer(" in blocks[2]
+    assert "engine.RayMeshIntersector(" in blocks[3] and "engine.RaycastingScene(" in blocks[3]
 
 
 def test_readme_render_example(tmp_path):
@@ -68,6 +69,18 @@ def test_datasets_doc_example(tmp_path):
     assert res.returncode == 0, res.stderr[-3000:]
     assert "['color', 'depth', 'normal', 'object_id'] 48" in res.stdout
     assert len(list((tmp_path / "dataset").iterdir())) == 12
+
+
+def test_readme_drop_in_example(tmp_path):
+    res = run_block(python_blocks("README.md")[3], tmp_path)
+    assert res.returncode == 0, res.stderr[-3000:]
+    m = re.search(r"(\d+) rays hit, (\d+) hits; inside: \[True, False\]", res.stdout)
+    assert m, res.stdout
+    rays, hits = int(m.group(1)), int(m.group(2))
+    assert 0 < rays < 1000 and hits == 2 * rays   # each ray that hits the sphere goes in and out
+    m = re.search(r"(\d+)% of the pixels see the sphere, (\d+)% within t <= 3.5", res.stdout)
+    assert m, res.stdout
+    assert 15 <= int(m.group(1)) <= 27 and 0 < int(m.group(2)) < int(m.group(1))   # a unit sphere 4 away, 60 deg
 
 
 def test_scenes_doc_example(tmp_path):

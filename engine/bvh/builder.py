@@ -14,7 +14,8 @@
    renumbered depth first, with exact boxes and the SAH cost (pack.py).
 6. The large triangles go into a new top of the finished tree, rebuilt by an exact sweep SAH over its top subtrees
    and them (lift.py).
-7. The triangle records are written once, in leaf order, straight from the vertices (triangles.py).
+7. The triangle records are written once, in leaf order, straight from the vertices (triangles.py); every box is
+   widened by one float32 step (`_widen`).
 
 Threads: the per-triangle steps run block by block, the Morton sort as sorted parts merged, the final walks of the
 sampled top by blocks, and independent subtrees of the passes, on the shared worker pool (engine/parallel.py;
@@ -112,6 +113,7 @@ def build_bvh(vertices, faces, *, max_leaf: int = 4, max_depth: int = DEFAULT_MA
 
     # 7: the triangle records
     tris, prim_ids, n_degenerate = triangle_records(vt, ft, perm, threads)
+    _widen(nodes)
 
     stats = {
         "build_ms": (time.perf_counter() - t0) * 1e3,
@@ -128,6 +130,16 @@ def build_bvh(vertices, faces, *, max_leaf: int = 4, max_depth: int = DEFAULT_MA
         "threads": threads,
     }
     return BVH(nodes=nodes, tris=tris, prim_ids=prim_ids, stats=stats)
+
+
+def _widen(nodes):
+    """Every finite box plane one float32 step outwards: a ray parallel to a box face and lying in its plane (an
+    axis-aligned ray along a mesh's face or edge) then lies inside the slab, where bvh_slab_ (whose zero direction
+    components become +-1e-30) would put it on the slab's edge, an empty interval that culls the box. Slot boxes
+    stay exactly the union of their child's (stepping is monotonic)."""
+    for name, to in (("lmin", -np.inf), ("rmin", -np.inf), ("lmax", np.inf), ("rmax", np.inf)):
+        x = nodes[name]
+        nodes[name] = np.where(np.isfinite(x), np.nextafter(x, np.float32(to)), x)
 
 
 def _validated(vertices, faces):

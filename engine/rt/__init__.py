@@ -1,4 +1,7 @@
-"""Ray queries: the batch Tracer (GPU) and a brute-force numpy reference for tests."""
+"""Ray queries: the batch Tracer (GPU), trimesh's RayMeshIntersector and Open3D's RaycastingScene on it, and a
+brute-force numpy reference for tests."""
+from .raycasting import RaycastingScene
+from .raymesh import RayMeshIntersector
 from .tracer import Hits, Tracer
 
-__all__ = ["Tracer", "Hits"]
+__all__ = ["Tracer", "Hits", "RayMeshIntersector", "RaycastingScene"]

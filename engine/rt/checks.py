@@ -12,29 +12,56 @@ from ..limits import MAX_COORD
 from ..parallel import default_threads, run as _parallel
 
 
-def check_mesh(vertices, faces):
+def check_mesh(vertices, faces, who: str = "Tracer", allow_empty: bool = False):
+    """float32 vertices (V, 3) and int64 faces (T, 3); a SceneError starting with `who` for anything else (a mesh
+    without triangles too, unless `allow_empty`)."""
     try:
         v = np.asarray(vertices)
         f = np.asarray(faces)
     except (TypeError, ValueError) as exc:
-        raise SceneError(f"Tracer: vertices/faces are not numeric arrays ({exc})") from None
+        raise SceneError(f"{who}: vertices/faces are not numeric arrays ({exc})") from None
     if v.dtype.kind not in "iuf":   # (complex would lose its imaginary part, strings would be parsed)
-        raise SceneError(f"Tracer: vertices must be real numbers, got {v.dtype} {v.shape}")
+        raise SceneError(f"{who}: vertices must be real numbers, got {v.dtype} {v.shape}")
     v = v.astype(np.float64)
     if v.ndim != 2 or v.shape[1] != 3:
-        raise SceneError(f"Tracer: vertices must have shape (V, 3), got {v.shape}")
-    if f.ndim != 2 or f.shape[1] != 3 or not np.issubdtype(f.dtype, np.integer):
-        raise SceneError(f"Tracer: faces must be integers of shape (T, 3), got {f.dtype} {f.shape}")
+        raise SceneError(f"{who}: vertices must have shape (V, 3), got {v.shape}")
+    if f.ndim != 2 or f.shape[1] != 3 or not (np.issubdtype(f.dtype, np.integer) or f.size == 0):
+        raise SceneError(f"{who}: faces must be integers of shape (T, 3), got {f.dtype} {f.shape}")
     if len(f) == 0:
-        raise SceneError("Tracer: the mesh has no triangles")
+        if allow_empty:
+            return v.astype(np.float32), np.zeros((0, 3), np.int64)
+        raise SceneError(f"{who}: the mesh has no triangles")
     if not np.all(np.isfinite(v)):
-        raise SceneError("Tracer: vertices contain NaN or infinite values")
+        raise SceneError(f"{who}: vertices contain NaN or infinite values")
     if v.size and np.abs(v).max() > MAX_COORD:
-        raise SceneError(f"Tracer: vertices: coordinates beyond +-{MAX_COORD:g} (found {np.abs(v).max():g}); "
+        raise SceneError(f"{who}: vertices: coordinates beyond +-{MAX_COORD:g} (found {np.abs(v).max():g}); "
                          "the float32 triangle test is exact only within that bound")
     if f.min() < 0 or f.max() >= len(v):
-        raise SceneError(f"Tracer: face indices must be in 0..{len(v) - 1}, found {f.min()}..{f.max()}")
+        raise SceneError(f"{who}: face indices must be in 0..{len(v) - 1}, found {f.min()}..{f.max()}")
     return v.astype(np.float32), f.astype(np.int64)
+
+
+def check_vectors(value, what: str, width: int = 3) -> np.ndarray:
+    """float64 (N, width) rows of finite numbers (a list of them, or one row given as (width,)); a ConfigError naming
+    `what` and the first bad row otherwise."""
+    try:
+        a = np.asarray(value)
+    except (TypeError, ValueError) as exc:  # a ragged list
+        raise ConfigError(f"{what} must be numbers ({exc})") from None
+    if a.dtype.kind not in "iuf" and not (a.dtype.kind == "O" and a.size == 0):
+        got = repr(value) if a.ndim == 0 else f"an array of {a.dtype} {a.shape}"
+        raise ConfigError(f"{what} must be numbers, got {got if len(got) <= 60 else type(value).__name__}")
+    if a.size == 0 and a.ndim < 2:
+        a = a.reshape(0, width)   # an empty list: no rows
+    if a.ndim == 1 and a.shape[0] == width:
+        a = a.reshape(1, width)
+    if a.ndim != 2 or a.shape[1] != width:
+        raise ConfigError(f"{what} must have shape (N, {width}), got {a.shape}")
+    a = a.astype(np.float64)
+    if a.size and not (np.isfinite(a.min()) and np.isfinite(a.max())):   # (min and max propagate NaN)
+        i = _first(~np.isfinite(a).all(axis=1))
+        raise ConfigError(f"{what}: row {i} is not finite ({np.asarray(value)[i]})")
+    return a
 
 
 _F32_MAX = float(np.finfo(np.float32).max)

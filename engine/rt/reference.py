@@ -115,3 +115,20 @@ def reference_occluded(vertices, faces, origins, directions, tmax=np.inf, *, tmi
     for s in _chunks(len(o), tri.count):
         out[s] = _pairs(tri, o[s], d[s], tmin[s], tmax[s])[3].any(axis=1)
     return out
+
+
+def reference_all_hits(vertices, faces, origins, directions, tmax=np.inf, *, tmin=0.0):
+    """Every (ray, triangle) hit with t in [tmin, tmax]: (ray, prim, t, u, v) arrays (int64, int64, float64,
+    float64, float64), ordered by ray, then t, then prim. A ray through a shared edge or vertex hits every triangle
+    there."""
+    o, d, tmin, tmax = _rays(origins, directions, tmax, tmin)
+    tri = _Triangles(vertices, faces)
+    out = [[np.zeros(0, np.int64)] * 2 + [np.zeros(0)] * 3]
+    if tri.count:
+        for s in _chunks(len(o), tri.count):
+            t, u, v, ok = _pairs(tri, o[s], d[s], tmin[s], tmax[s])
+            ray, prim = np.nonzero(ok)
+            out.append([ray + s.start, prim, t[ray, prim], u[ray, prim], v[ray, prim]])
+    ray, prim, t, u, v = (np.concatenate(c) for c in zip(*out))
+    order = np.lexsort((prim, t, ray))
+    return ray[order], prim[order], t[order], u[order], v[order]

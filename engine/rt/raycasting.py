@@ -1,0 +1,365 @@
+"""RaycastingScene: Open3D's `open3d.t.geometry.RaycastingScene` on the GPU `Tracer`.
+
+    scene = engine.RaycastingScene()
+    mesh_id = scene.add_triangles(vertices, triangles)       # or add_triangles(trimesh_mesh); returns its id
+    rays = engine.RaycastingScene.create_rays_pinhole(fov_deg=60, center=[0, 0, 0], eye=[2, 3, 4], up=[0, 1, 0],
+                                                      width_px=640, height_px=480)
+    ans = scene.cast_rays(rays)                               # t_hit, geometry_ids, primitive_ids, uvs, normals
+
+Method names, arguments, result keys, shapes, dtypes and the invalid id (`INVALID_ID` = 2^32 - 1) are Open3D's;
+results are numpy arrays where Open3D returns `open3d.core.Tensor`s (`.numpy()` of those is what these are). All
+geometries are traced as one Tracer over their concatenated triangles, with a triangle -> (geometry id, primitive
+id) map; it is (re)built on the first query after `add_triangles`, as Open3D commits its scene then.
+"""
+from __future__ import annotations
+
+import threading
+from dataclasses import dataclass
+from numbers import Real
+from typing import Any
+
+import numpy as np
+from numpy.typing import ArrayLike, NDArray
+
+from ..errors import ConfigError, SceneError
+from ..vk import Context
+from .checks import check_mesh, check_vectors
+from .pinhole import _numpy, pinhole_rays
+from .tracer import Tracer
+
+#: Open3D's id for "no geometry / no primitive" (RaycastingScene.INVALID_ID): the largest uint32
+INVALID_ID = 0xFFFFFFFF
+#: the step past a hit before `count_intersections` / `list_intersections` cast a ray again:
+#: max(STEP_FLOOR, STEP_FACTOR * the scene's bounding-box diagonal) world units (as RayMeshIntersector steps)
+STEP_FACTOR = 1e-6
+STEP_FLOOR = 1e-8
+
+
+@dataclass
+class _Built:
+    """The scene as last built: its Tracer (None without triangles) and the per-triangle maps."""
+    count: int                       # geometries it was built from
+    tracer: Tracer | None
+    center: NDArray[np.float64]      # traced in a frame centred on the scene's bounding box where the box lies
+                                     # farther from the world origin than its size (float32 keeps its precision)
+    step: float                      # world units past a hit before casting again
+    geometry: NDArray[np.uint32]     # (T,) geometry id of each concatenated triangle
+    primitive: NDArray[np.uint32]    # (T,) its index within its geometry
+    normal: NDArray[np.float32]      # (T, 3) unit normals, (v1 - v0) x (v2 - v0) (zero for zero-area triangles)
+
+
+def _mesh_arrays(mesh: Any) -> tuple[Any, Any]:
+    """Vertices and triangles of a trimesh mesh, an Open3D tensor mesh or an Open3D legacy mesh."""
+    if hasattr(mesh, "vertices") and hasattr(mesh, "faces"):              # trimesh.Trimesh
+        return mesh.vertices, mesh.faces
+    if hasattr(mesh, "vertex") and hasattr(mesh, "triangle"):             # open3d.t.geometry.TriangleMesh
+        try:
+            return _numpy(mesh.vertex["positions"]), _numpy(mesh.triangle["indices"])
+        except KeyError as exc:
+            raise SceneError(f"RaycastingScene.add_triangles: the mesh has no {exc}") from None
+    if hasattr(mesh, "vertices") and hasattr(mesh, "triangles"):          # open3d.geometry.TriangleMesh
+        return np.asarray(mesh.vertices), np.asarray(mesh.triangles)
+    raise SceneError("RaycastingScene.add_triangles: give (vertex_positions, triangle_indices) arrays or a mesh "
+                     f"(trimesh.Trimesh, open3d TriangleMesh), got {type(mesh).__name__}")
+
+
+def _flat_rays(rays) -> tuple[NDArray[np.float64], tuple]:
+    """(N, 6) float64 rays and the leading shape of `rays` (Open3D's {.., 6}, at least 2 dimensions)."""
+    a = np.asarray(_numpy(rays)) if not isinstance(rays, np.ndarray) else rays
+    if a.ndim < 2 or a.shape[-1] != 6:
+        raise ConfigError(f"rays must have shape (..., 6) with at least 2 dimensions (ox, oy, oz, dx, dy, dz per "
+                          f"ray), got {a.shape}")
+    flat = check_vectors(a.reshape(-1, 6), "rays", width=6)
+    zero = ~(np.abs(flat[:, 3:]) > 0).any(axis=1)
+    if zero.any():
+        i = int(np.flatnonzero(zero)[0])
+        raise ConfigError(f"rays: ray {i} has a zero direction ({flat[i].tolist()})")
+    return flat, a.shape[:-1]
+
+
+def _limit(value, name: str, allow_inf: bool) -> float:
+    if isinstance(value, (bool, np.bool_)) or not isinstance(value, Real) or np.isnan(value) \
+            or (np.isinf(value) and not (allow_inf and value > 0)):
+        raise ConfigError(f"{name} must be a {'number or +inf' if allow_inf else 'finite number'}, got {value!r}")
+    return float(value)
+
+
+class RaycastingScene:
+    """Open3D's `RaycastingScene` on the GPU: several triangle meshes with ids, ray queries in batches.
+
+    The same method names, arguments, result keys, shapes and dtypes as Open3D's (0.17-0.20), with numpy arrays in
+    and out (Open3D returns tensors; `.numpy()` of them is what this returns). Differences: rays may be float32 or
+    float64 (Open3D: float32 only) and a NaN or infinite ray, a zero direction or out-of-range triangle indices are
+    errors naming the ray or mesh (Open3D: silent misses, or undefined); `nthreads` is accepted and ignored (the GPU
+    runs every ray); `count_intersections` / `list_intersections` find each ray's hits by casting it again from
+    just past each one (1e-6 of the scene's size), so hits closer together along a ray than that count once where
+    Open3D counts every triangle, e.g. a ray through an edge shared by two triangles: once here, twice there.
+    """
+
+    INVALID_ID: int = INVALID_ID
+    """Open3D's id for no hit in `geometry_ids` and `primitive_ids`: 2^32 - 1."""
+
+    def __init__(self, nthreads: int = 0, device: int | str | None = None, *, validation: bool = False):
+        """Args:
+            nthreads: Open3D's build threads: accepted and ignored (the build uses every core).
+            device: the Vulkan device, as `Tracer`'s (an index or part of its name), not an `open3d.core.Device`.
+            validation: turn the Khronos validation layer on (default: $HYBRID_VALIDATION).
+
+        Raises:
+            ConfigError: `device` is not an index, a name or None.
+        """
+        if device is not None and (isinstance(device, bool) or not isinstance(device, (int, str))):
+            raise ConfigError(f"RaycastingScene: device must be a Vulkan device index or name (as Tracer's), got "
+                              f"{type(device).__name__}")
+        self._device, self._validation = device, validation
+        self._meshes: list[tuple[NDArray[np.float64], NDArray[np.int64]]] = []
+        self._built: _Built | None = None
+        self._ctx: Context | None = None
+        self._errors: list[str] = []
+        self._closed = False
+        self._lock = threading.RLock()
+
+    def add_triangles(self, vertex_positions: Any, triangle_indices: ArrayLike | None = None) -> int:
+        """Add a triangle mesh; returns its geometry id (0, 1, 2, ... in the order added).
+
+        Args:
+            vertex_positions: (V, 3) vertex positions (any real dtype; Open3D: float32), or a whole mesh: a
+                `trimesh.Trimesh`, an `open3d.t.geometry.TriangleMesh` or an `open3d.geometry.TriangleMesh`.
+            triangle_indices: (T, 3) vertex indices per triangle (any integer dtype; Open3D: uint32); not given
+                with a mesh. A mesh without triangles gets an id too (it is never hit).
+
+        Raises:
+            SceneError: bad shapes, NaN or infinite vertices, indices out of range.
+            ConfigError: a closed scene.
+        """
+        with self._lock:
+            self._check_open()
+            if triangle_indices is None:
+                vertex_positions, triangle_indices = _mesh_arrays(vertex_positions)
+            v, f = _numpy(vertex_positions), _numpy(triangle_indices)
+            check_mesh(v, f, "RaycastingScene.add_triangles", allow_empty=True)
+            self._meshes.append((np.asarray(v, np.float64).reshape(-1, 3), np.asarray(f, np.int64).reshape(-1, 3)))
+            return len(self._meshes) - 1
+
+    # ---- the Tracer over every geometry ----------------------------------------------------------------------
+    def _check_open(self):
+        if self._closed:
+            raise ConfigError("RaycastingScene is closed (close() or its `with` block ended): create a new one")
+
+    def _scene(self) -> _Built:
+        self._check_open()
+        if self._built is not None and self._built.count == len(self._meshes):
+            return self._built
+        if self._built is not None and self._built.tracer is not None:
+            self._built.tracer.close()
+            self._built = None
+        offsets = np.cumsum([0] + [len(v) for v, _ in self._meshes])
+        v = np.concatenate([m[0] for m in self._meshes] or [np.zeros((0, 3))])
+        f = np.concatenate([m[1] + o for m, o in zip(self._meshes, offsets)] or [np.zeros((0, 3), np.int64)])
+        geometry = np.concatenate([np.full(len(m[1]), g, np.uint32) for g, m in enumerate(self._meshes)]
+                                  or [np.zeros(0, np.uint32)])
+        primitive = np.concatenate([np.arange(len(m[1]), dtype=np.uint32) for m in self._meshes]
+                                   or [np.zeros(0, np.uint32)])
+        used = v[f.reshape(-1)] if len(f) else np.zeros((1, 3))
+        lo, hi = used.min(axis=0), used.max(axis=0)
+        size = float(np.linalg.norm(hi - lo))
+        center = (lo + hi) / 2
+        if np.linalg.norm(center) <= size:   # near the world origin: world coordinates are as precise (Open3D's)
+            center = np.zeros(3)
+        step = max(STEP_FLOOR, STEP_FACTOR * size)
+        tracer = None
+        if len(f):
+            if self._ctx is None:
+                self._ctx = Context(device=self._device, validation=self._validation or None)
+            tracer = Tracer(v - center, f, context=self._ctx)
+        p0 = v[f[:, 0]]
+        n = np.cross(v[f[:, 1]] - p0, v[f[:, 2]] - p0)
+        length = np.linalg.norm(n, axis=1, keepdims=True)
+        normal = np.divide(n, length, out=np.zeros_like(n), where=length > 0).astype(np.float32)
+        self._built = _Built(len(self._meshes), tracer, center, step, geometry, primitive, normal)
+        return self._built
+
+    # ---- queries ------------------------------------------------------------------------------------------
+    def cast_rays(self, rays: ArrayLike, nthreads: int = 0) -> dict[str, NDArray]:
+        """The first hit of each ray.
+
+        Args:
+            rays: (..., 6) rays (at least 2 dimensions, e.g. (N, 6) or (H, W, 6)): origin xyz, direction xyz; the
+                direction is used as given and its length is the unit of `t_hit`.
+            nthreads: accepted and ignored (Open3D's thread count).
+
+        Returns:
+            A dict of numpy arrays, shaped by the rays' leading shape (...):
+            `t_hit` (...) float32, +inf on a miss; `geometry_ids` and `primitive_ids` (...) uint32 (the geometry's
+            id and the triangle's index within it), `INVALID_ID` on a miss; `primitive_uvs` (..., 2) float32, the
+            barycentric weights of the triangle's vertices 1 and 2 (0 on a miss); `primitive_normals` (..., 3)
+            float32, the hit triangle's unit normal (v1 - v0) x (v2 - v0), not flipped towards the ray (0 on a
+            miss).
+
+        Raises:
+            ConfigError: a bad shape, NaN or infinite values, a zero direction (naming the ray), a closed scene.
+        """
+        with self._lock:
+            flat, shape = _flat_rays(rays)
+            s = self._scene()
+            n = len(flat)
+            out = {"t_hit": np.full(n, np.inf, np.float32), "geometry_ids": np.full(n, INVALID_ID, np.uint32),
+                   "primitive_ids": np.full(n, INVALID_ID, np.uint32), "primitive_uvs": np.zeros((n, 2), np.float32),
+                   "primitive_normals": np.zeros((n, 3), np.float32)}
+            if s.tracer is not None and n:
+                hits = s.tracer.intersect(flat[:, :3] - s.center, flat[:, 3:])
+                hit = np.flatnonzero(hits.prim >= 0)
+                prim = hits.prim[hit]
+                out["t_hit"][hit] = hits.t[hit]
+                out["geometry_ids"][hit] = s.geometry[prim]
+                out["primitive_ids"][hit] = s.primitive[prim]
+                out["primitive_uvs"][hit, 0] = hits.u[hit]
+                out["primitive_uvs"][hit, 1] = hits.v[hit]
+                out["primitive_normals"][hit] = s.normal[prim]
+            return {k: a.reshape(shape + a.shape[1:]) for k, a in out.items()}
+
+    def test_occlusions(self, rays: ArrayLike, tnear: float = 0.0, tfar: float = float("inf"),
+                        nthreads: int = 0) -> NDArray[np.bool_]:
+        """Whether anything lies along each ray with t in [tnear, tfar] (in units of the direction's length).
+
+        Args:
+            rays: (..., 6) rays, as in `cast_rays`.
+            tnear: the start of each ray's interval (finite; may be negative: behind the origin).
+            tfar: its end (+inf allowed); where tfar < tnear nothing is occluded.
+            nthreads: accepted and ignored.
+
+        Returns:
+            (...) bool, True where the ray is occluded.
+
+        Raises:
+            ConfigError: as `cast_rays`, or a NaN / infinite tnear or a NaN tfar.
+        """
+        with self._lock:
+            flat, shape = _flat_rays(rays)
+            near, far = _limit(tnear, "tnear", False), _limit(tfar, "tfar", True)
+            s = self._scene()
+            out = np.zeros(len(flat), bool)
+            if s.tracer is not None and len(flat) and far >= near:
+                origins = flat[:, :3] + near * flat[:, 3:] if near else flat[:, :3]
+                out = s.tracer.occluded(origins - s.center, flat[:, 3:], far - near)
+            return out.reshape(shape)
+
+    def _all_hits(self, flat):
+        """Every hit of every ray, t >= 0, sorted by ray then t: (ray, concatenated triangle, t, u, v). Each round
+        casts the rays still going from just past their last hit (one GPU batch); a ray that reports the triangle it
+        just left again (float noise) doubles its step instead."""
+        s = self._scene()
+        n = len(flat)
+        found = [(np.zeros(0, np.int64), np.zeros(0, np.int64), np.zeros(0), np.zeros(0, np.float32),
+                  np.zeros(0, np.float32))]
+        if s.tracer is None or not n:
+            return [np.concatenate(c) for c in zip(*found)]
+        o, d = flat[:, :3] - s.center, flat[:, 3:]
+        base = s.step / np.linalg.norm(d, axis=1)   # the step in each ray's t units
+        step = base.copy()
+        start = np.zeros(n)                          # t where each ray is cast from next
+        last = np.full(n, -1, np.int64)
+        live = np.arange(n)
+        for _ in range(len(s.geometry) + 64):   # each round takes a new hit or doubles the step of every live ray
+            hits = s.tracer.intersect(o[live] + d[live] * start[live, None], d[live])
+            hit = hits.prim >= 0
+            rays, prim = live[hit], hits.prim[hit].astype(np.int64)
+            t = start[rays] + hits.t[hit]
+            new = last[rays] != prim
+            found.append((rays[new], prim[new], t[new], hits.u[hit][new], hits.v[hit][new]))
+            last[rays[new]] = prim[new]
+            step[rays[new]] = base[rays[new]]
+            start[rays[new]] = t[new] + step[rays[new]]
+            stuck = rays[~new]
+            step[stuck] *= 2
+            start[stuck] += step[stuck]
+            live = rays
+            if not len(live):
+                break
+        ray, prim, t, u, v = (np.concatenate(c) for c in zip(*found))
+        order = np.lexsort((t, ray))
+        return ray[order], prim[order], t[order], u[order], v[order]
+
+    def count_intersections(self, rays: ArrayLike, nthreads: int = 0) -> NDArray[np.int32]:
+        """(...) int32: how many times each ray (t >= 0) crosses the scene's triangles (see the class notes on hits
+        closer together than the step). The arguments are `cast_rays`'."""
+        with self._lock:
+            flat, shape = _flat_rays(rays)
+            ray = self._all_hits(flat)[0]
+            return np.bincount(ray, minlength=len(flat)).astype(np.int32).reshape(shape)
+
+    def list_intersections(self, rays: ArrayLike, nthreads: int = 0) -> dict[str, NDArray]:
+        """Every hit of every ray (t >= 0), ray by ray in order of t (Open3D: in no set order within a ray).
+
+        Returns:
+            A dict of numpy arrays over the M hits of the N rays (the rays' leading shape flattened):
+            `ray_splits` (N + 1,) uint32, ray i's hits are entries ray_splits[i]:ray_splits[i + 1]; `ray_ids` (M,)
+            uint32; `t_hit` (M,) float32; `geometry_ids`, `primitive_ids` (M,) uint32; `primitive_uvs` (M, 2)
+            float32.
+
+        The arguments are `cast_rays`'.
+        """
+        with self._lock:
+            flat, _ = _flat_rays(rays)
+            ray, prim, t, u, v = self._all_hits(flat)
+            s = self._built
+            splits = np.zeros(len(flat) + 1, np.uint32)
+            splits[1:] = np.cumsum(np.bincount(ray, minlength=len(flat)))
+            geometry = s.geometry[prim] if s is not None and len(prim) else np.zeros(0, np.uint32)
+            primitive = s.primitive[prim] if s is not None and len(prim) else np.zeros(0, np.uint32)
+            return {"ray_splits": splits, "ray_ids": ray.astype(np.uint32), "t_hit": t.astype(np.float32),
+                    "geometry_ids": geometry, "primitive_ids": primitive,
+                    "primitive_uvs": np.stack([u, v], axis=-1).astype(np.float32)}
+
+    @staticmethod
+    def create_rays_pinhole(*args: Any, **kwargs: Any) -> NDArray[np.float32]:
+        """Rays through the pixel centres of a pinhole camera, in Open3D's two forms:
+
+        - `create_rays_pinhole(intrinsic_matrix, extrinsic_matrix, width_px, height_px)`: a 3x3 intrinsic matrix K
+          (pixels) and a 4x4 world-to-camera extrinsic [R | t] (OpenCV axes: x right, y down, z forward); origins
+          are -R^T t and directions R^T K^-1 (col + 0.5, row + 0.5, 1) (z = 1 in the camera, not unit).
+        - `create_rays_pinhole(fov_deg, center, eye, up, width_px, height_px)`: a horizontal field of view in
+          degrees, the point looked at, the eye and an up vector; K has the focal length 0.5 W / tan(fov / 2) and its
+          centre at (W / 2, H / 2); the camera's rows are x = up x z, y = z x x, z = unit(center - eye), as Open3D
+          builds them (so its y axis points up and the image comes out mirrored against the OpenCV form).
+
+        Arrays may be numpy, lists or Open3D tensors. Returns (height_px, width_px, 6) float32: origin xyz,
+        direction xyz per pixel, row 0 first. A ConfigError names the argument at fault (a singular K, eye at
+        center, up parallel to the view, a size < 1).
+        """
+        return pinhole_rays(*args, **kwargs)
+
+    # ---- lifetime ----------------------------------------------------------------------------------------------
+    @property
+    def validation_errors(self) -> list[str]:
+        """Error-severity validation messages so far (with validation on), leaks found by `close()` included."""
+        return list(self._ctx.validation_errors) if self._ctx is not None else list(self._errors)
+
+    def close(self) -> None:
+        """Free the GPU resources; safe to call twice. Anything but `close()` afterwards is a ConfigError."""
+        with self._lock:
+            if self._built is not None and self._built.tracer is not None:
+                self._built.tracer.close()
+            self._built = None
+            if self._ctx is not None:
+                self._ctx.close()   # (reports leaked objects as validation errors)
+                self._errors = list(self._ctx.validation_errors)
+                self._ctx = None
+            self._closed = True
+
+    def __enter__(self) -> RaycastingScene:
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        self.close()
+
+    def __del__(self) -> None:
+        try:
+            self.close()
+        except Exception:
+            pass
+
+    def __repr__(self) -> str:
+        triangles = sum(len(f) for _, f in self._meshes)
+        closed = ", closed" if self._closed else ""
+        return f"<RaycastingScene {len(self._meshes)} geometries, {triangles} triangles{closed}>"

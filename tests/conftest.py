@@ -15,17 +15,6 @@ REFERENCE_DIR = Path(__file__).resolve().parent / "reference"
 def pytest_addoption(parser):
     parser.addoption("--regen-refs", action="store_true",
                      help="rewrite the reference images in tests/reference/ instead of comparing")
-    parser.addoption("--slow", action="store_true",
-                     help="also run the tests marked slow (minutes each; .ci/run gives this)")
-
-
-def pytest_collection_modifyitems(config, items):
-    if config.getoption("--slow"):
-        return
-    skip = pytest.mark.skip(reason="slow: minutes of work; run with --slow (.ci/run does)")
-    for item in items:
-        if "slow" in item.keywords:
-            item.add_marker(skip)
 
 
 @pytest.fixture

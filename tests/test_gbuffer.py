@@ -148,8 +148,8 @@ def test_every_texture_slot_reaches_albedo_as_scenes_change(make_renderer, caplo
             want = (colours[i] / 255.0) ** 2.2 if i < 16 else np.ones(3)   # ~sRGB decode
             got = a[18, col, :3]
             assert np.allclose(got, want, atol=0.03), (n, i, got, want)
-        capped = [r.getMessage() for r in caplog.records if "textured materials" in r.getMessage()]
-        assert capped == (["<arrays>: 18 textured materials; the first 16 keep their textures, the other 2 show "
+        capped = [r.getMessage() for r in caplog.records if "distinct textures" in r.getMessage()]
+        assert capped == (["<arrays>: 18 distinct textures; the first 16 are kept, materials with the other 2 show "
                            "their base colour"] if n == 18 else []), capped
         caplog.clear()
 

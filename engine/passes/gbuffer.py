@@ -17,6 +17,7 @@ import logging
 import numpy as np
 
 from ..errors import ShaderError
+from ..scene.material import texture_key
 from ..vk import BufferView, DescriptorSet, GraphicsPipeline, Sampler, reflect, upload_buffer, upload_texture
 from ..vk.formats import R32UI, RGB32F, RGBA32F, RGBA32UI
 from ..vk.resources import INDEX, UNIFORM_TEXEL, VERTEX
@@ -56,16 +57,18 @@ class SceneGeometry:
         self.textures = []
         mat_data = np.zeros((max(len(scene.materials), 1), 8), np.float32)
         mat_slots = mat_data.view(np.int32)
-        for i, m in enumerate(scene.materials):
+        slots = {}   # texture content -> slot: one image shared by many materials takes one slot
+        keys = [texture_key(m.texture) for m in scene.materials]
+        for i, (m, key) in enumerate(zip(scene.materials, keys)):
             mat_data[i, 0:4] = m.base_color
-            mat_slots[i, 4] = -1
-            if m.texture is not None and len(self.textures) < MAX_TEXTURES:
-                mat_slots[i, 4] = len(self.textures)
+            if key is not None and key not in slots and len(self.textures) < MAX_TEXTURES:
+                slots[key] = len(self.textures)
                 self.textures.append(upload_texture(ctx, m.texture))
-        textured = sum(m.texture is not None for m in scene.materials)
-        if textured > MAX_TEXTURES:
-            log.warning("%s: %d textured materials; the first %d keep their textures, the other %d show their base "
-                        "colour", scene.name, textured, MAX_TEXTURES, textured - MAX_TEXTURES)
+            mat_slots[i, 4] = slots.get(key, -1)
+        distinct = len(set(keys) - {None})
+        if distinct > MAX_TEXTURES:
+            log.warning("%s: %d distinct textures; the first %d are kept, materials with the other %d show their base "
+                        "colour", scene.name, distinct, MAX_TEXTURES, distinct - MAX_TEXTURES)
         self.material_buffer = upload_buffer(ctx, mat_data, UNIFORM_TEXEL, "materials")
         self.views = [BufferView(self.vertex_buffer, RGBA32F), BufferView(self.index_buffer, R32UI),
                       BufferView(self.tri_info_buffer, RGBA32UI), BufferView(self.material_buffer, RGBA32F)]

@@ -17,7 +17,7 @@ from engine.errors import SceneError, shown
 
 from .filechecks import bomb_images, bomb_pixels, check_mesh_file, diagnose_gltf
 from .geometry import crease_normals, transform_normals, transform_points, unitize
-from .material import Material, srgb8_to_linear
+from .material import Material, srgb8_to_linear, texture_key
 from .parts import SceneParts, SubMesh
 
 MAX_TEXTURE_SIZE = 2048
@@ -231,20 +231,26 @@ class SceneBuilder:
         self.positions, self.normals, self.uvs, self.faces, self.mats = [], [], [], [], []
         self.materials: list[Material] = []
         self._material_keys: dict = {}
+        self._textures: dict = {}
         self.submeshes = []
         self._vertex_count = 0
         self._triangle_count = 0
 
     # -------------------------------------------------------------- materials
-    def material_index(self, key, make) -> int:
-        """Index of the material for `key` (dedup), calling `make()` the first time."""
-        if key is not None and key in self._material_keys:
-            return self._material_keys[key]
-        self.materials.append(make())
-        idx = len(self.materials) - 1
-        if key is not None:
-            self._material_keys[key] = idx
-        return idx
+    def material_index(self, mat: Material, key_name=None) -> int:
+        """Index of `mat` in the scene: a material already added with the same name, base colour and texture pixels
+        is reused, and equal texture images are shared. `key_name` (any hashable) stands for the name in that
+        comparison (e.g. the file's material name for a material renamed after its node)."""
+        tex_key = texture_key(mat.texture)
+        if tex_key is not None:
+            shared = self._textures.setdefault(tex_key, mat.texture)
+            if shared is not mat.texture:
+                mat = Material(mat.name, mat.base_color, shared)
+        key = (mat.name if key_name is None else key_name, mat.base_color.tobytes(), tex_key)
+        if key not in self._material_keys:
+            self._material_keys[key] = len(self.materials)
+            self.materials.append(mat)
+        return self._material_keys[key]
 
     # -------------------------------------------------------------- geometry
     def add(self, name: str, positions, faces, normals, uvs, material: int, where: str):
@@ -312,14 +318,15 @@ class SceneBuilder:
             raise SceneError(f"{where}: expected a trimesh.Trimesh or trimesh.Scene, got {type(obj).__name__}")
         outer = np.eye(4) if transform is None else np.asarray(transform, dtype=np.float64)
         before = self._triangle_count
+        made = {}   # this call's materials by trimesh material; `obj` keeps those alive, so their ids stay unique
         for m, geom, node_name in items:
             if label and isinstance(obj, trimesh.Scene):
                 node_name = label if len(items) == 1 else f"{label}/{node_name}"
-            self._add_geometry(geom, outer @ m, node_name, where, color, texture, uv_scale)
+            self._add_geometry(geom, outer @ m, node_name, where, color, texture, uv_scale, made)
         if self._triangle_count == before:
             raise SceneError(f"{where}: contains no triangles")
 
-    def _add_geometry(self, geom, m, node_name, where, color, texture, uv_scale=None):
+    def _add_geometry(self, geom, m, node_name, where, color, texture, uv_scale, made):
         with _quiet():
             vertices = np.asarray(geom.vertices, dtype=np.float64)
             faces = np.asarray(geom.faces, dtype=np.int64)
@@ -339,7 +346,7 @@ class SceneBuilder:
         if not np.all(np.isfinite(m)):
             raise SceneError(f"{where}: node '{shown(node_name)}' has a transform with NaN or infinite values")
         uvs = None
-        mat_key, make = _material_of(visual, where, len(vertices))
+        mat = _material_of(visual, where, made)
         uv = getattr(visual, "uv", None) if getattr(visual, "material", None) is not None else None
         if uv is not None:
             uv = np.asarray(uv, dtype=np.float64)
@@ -347,17 +354,12 @@ class SceneBuilder:
                 uvs = np.column_stack([uv[:, 0], 1.0 - uv[:, 1]])  # trimesh: v up -> image rows top-down
                 if uv_scale is not None:
                     uvs = uvs * np.asarray(uv_scale, dtype=np.float64)
+        key_name = None
         if color is not None or texture is not None:
-            base = make
-
-            def make():
-                mat = base()
-                return Material(node_name if color is not None else mat.name,
-                                mat.base_color if color is None else color,
-                                mat.texture if texture is None else texture)
-            mat_key = (mat_key, None if color is None else tuple(np.asarray(color).tolist()),
-                       None if texture is None else id(texture))
-        material = self.material_index(mat_key, make)
+            key_name = mat.name   # overridden the same way, one material of the file stays one
+            mat = Material(node_name if color is not None else mat.name, mat.base_color if color is None else color,
+                           mat.texture if texture is None else texture)
+        material = self.material_index(mat, key_name)
         # world space; a mirroring transform flips the winding back to counter-clockwise
         p = transform_points(m, vertices)
         n = None if normals is None else transform_normals(m, normals)
@@ -377,8 +379,8 @@ class SceneBuilder:
                           settings=settings)
 
 
-def _material_of(visual, where: str, vertex_count: int):
-    """(dedup key, factory) for the Material of a trimesh visual."""
+def _material_of(visual, where: str, made: dict) -> Material:
+    """The Material of a trimesh visual; `made` caches those of trimesh materials (by id: see add_trimesh)."""
     kind = getattr(visual, "kind", None)
     if getattr(visual, "material", None) is not None:
         mat = visual.material
@@ -408,7 +410,10 @@ def _material_of(visual, where: str, vertex_count: int):
                 else:
                     tex = image_to_texture(image, what)
             return Material(name, base, tex)
-        return ("trimesh-material", id(mat)), make
+        key = (id(mat), getattr(visual, "uv", None) is None)
+        if key not in made:
+            made[key] = (mat, make())   # holding `mat` keeps its id from being reused while `made` lives
+        return made[key][1]
     if kind in ("face", "vertex"):
         try:
             colors = np.asarray(visual.face_colors if kind == "face" else visual.vertex_colors, dtype=np.float64)
@@ -417,8 +422,8 @@ def _material_of(visual, where: str, vertex_count: int):
             mean = None
         if mean is not None and np.all(np.isfinite(mean)):
             rgba = np.round(mean).astype(np.uint8)
-            return ("color", tuple(rgba.tolist())), lambda: Material("vertex-colors", srgb8_to_linear(rgba))
-    return ("default",), lambda: Material("default", DEFAULT_COLOR)
+            return Material("vertex-colors", srgb8_to_linear(rgba))
+    return Material("default", DEFAULT_COLOR)
 
 
 def load_mesh_file(path: str) -> SceneParts:

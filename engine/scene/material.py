@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import hashlib
+
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
@@ -57,6 +59,20 @@ class Material:
         tex = "None" if self.texture is None else f"{self.texture.shape[1]}x{self.texture.shape[0]}"
         col = ", ".join(f"{x:.3g}" for x in self.base_color.tolist())
         return f"Material({self.name!r}, base_color=({col}), texture={tex})"
+
+
+def texture_key(texture: NDArray[np.uint8] | None) -> tuple | None:
+    """What identifies a texture by content: its shape and a digest of its pixels (None: no texture). Never an
+    object's id: Python reuses the addresses of freed arrays and images."""
+    if texture is None:
+        return None
+    t = np.ascontiguousarray(texture)
+    return t.shape, str(t.dtype), hashlib.blake2b(memoryview(t).cast("B"), digest_size=16).digest()
+
+
+def material_key(material: Material) -> tuple:
+    """What identifies a material by content: its name, base colour and texture pixels (`texture_key`)."""
+    return material.name, material.base_color.tobytes(), texture_key(material.texture)
 
 
 def srgb8_to_linear(rgba8: ArrayLike) -> NDArray[np.float64]:

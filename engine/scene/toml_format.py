@@ -349,8 +349,7 @@ def _add_mesh(builder: SceneBuilder, table: dict, ctx: _Ctx, folders: Folders, t
             uv = uv * uv_scale
         if color is None:
             color = np.array([1.0, 1.0, 1.0, 1.0]) if texture is not None else np.array([0.8, 0.8, 0.8, 1.0])
-        key = ("primitive", tuple(color.tolist()), None if texture is None else id(texture))
-        mat = builder.material_index(key, lambda: Material(name, color, texture))
+        mat = builder.material_index(Material(name, color, texture), key_name=("primitive",))  # first one's name
         p, n = transform_points(m, p), transform_normals(m, n)
         if np.linalg.det(m[:3, :3]) < 0:
             f = f[:, ::-1]

@@ -169,7 +169,8 @@ def build_parser() -> argparse.ArgumentParser:
                                  "penumbra)")
     r.add_argument("-o", "--output", default="out.png",
                    help="file to write: .png (one image), .exr or .npz (several AOVs and the camera); a run of # in "
-                        "the file name is the frame number of a sequence, e.g. out/frame_####.exr (default out.png)")
+                        "the file name is the frame number of a sequence, e.g. out/frame_####.exr; the folder must exist "
+                        "(default out.png)")
     r.add_argument("--allow-path", action="append", default=None, metavar="DIR",
                    help="a folder outside the scene's own that its files may be in (repeatable)")
     r.add_argument("--size", default=None,

@@ -119,14 +119,17 @@ def load_camera_path(path: str | Path, default_fov_y: float = 60.0) -> list[Came
     else:
         raise ConfigError(f"{p}: a camera path is a .json or .toml file")
     shared: dict = {}
-    if isinstance(data, dict):
-        shared = {k: v for k, v in data.items() if k != "camera"}
+    if isinstance(data, dict):   # the list is "camera" ([[camera]] tables) or "views" (hybrid batch's name)
+        lists = [k for k in ("camera", "views") if k in data]
+        if len(lists) > 1:
+            raise ConfigError(f"{p}: give the cameras as 'camera' or as 'views', not both")
+        shared = {k: v for k, v in data.items() if k not in ("camera", "views")}
         bad = sorted(set(shared) - set(SHARED_KEYS))
         if bad:
-            raise ConfigError(f"{p}: unknown key {bad[0]!r} (known: camera, {', '.join(SHARED_KEYS)})")
-        data = data.get("camera")
-        if data is None:
-            raise ConfigError(f"{p}: no 'camera' list")
+            raise ConfigError(f"{p}: unknown key {bad[0]!r} (known: camera or views, {', '.join(SHARED_KEYS)})")
+        if not lists:
+            raise ConfigError(f"{p}: no 'camera' (or 'views') list")
+        data = data[lists[0]]
     if not isinstance(data, list):
         raise ConfigError(f"{p}: expected a list of cameras, got {type(data).__name__}")
     if not data:
@@ -143,6 +146,8 @@ def load_camera_path(path: str | Path, default_fov_y: float = 60.0) -> list[Came
 
 
 def _camera(entry: dict, shared: dict, default_fov_y: float) -> Camera:
+    if "pose" in entry and "K" not in entry and "K" not in shared:   # a pose and a field of view: a look-at camera
+        return _posed(entry, shared, default_fov_y)
     intrinsics = any(k in entry for k in ("K", "pose"))
     if intrinsics and any(k in entry for k in ("eye", "target")):
         raise ConfigError("give eye and target, or K and pose, not both")
@@ -167,6 +172,20 @@ def _camera(entry: dict, shared: dict, default_fov_y: float) -> Camera:
     fov = entry.get("fov_y", entry.get("fov", shared.get("fov_y", shared.get("fov", default_fov_y))))
     return Camera.look_at(keys["eye"], keys["target"], keys.get("up", (0.0, 1.0, 0.0)), fov_y=fov,
                           near=keys.get("near"))
+
+
+def _posed(entry: dict, shared: dict, default_fov_y: float) -> Camera:
+    """{pose[, convention, fov_y | fov, near]}: the camera at the pose's origin looking along its optical axis."""
+    bad = sorted(set(entry) - {"pose", "convention", "fov_y", "fov", "near", "scene"})
+    if bad:
+        raise ConfigError(f"unknown key {bad[0]!r} (a posed camera has pose[, convention, fov_y, near])")
+    keys = {**shared, **entry}
+    convention = keys.get("convention", "opencv")
+    # the pose's rigidity and convention are checked by from_intrinsics; its axes give eye, forward and up
+    probe = Camera.from_intrinsics([[1, 0, 0.5], [0, 1, 0.5], [0, 0, 1]], 1, 1, pose=keys["pose"],
+                                   convention=convention)
+    fov = keys.get("fov_y", keys.get("fov", default_fov_y))
+    return Camera.look_at(probe.eye, probe.eye + probe.forward, probe.up_vector, fov_y=fov, near=keys.get("near"))
 
 
 def render_size(cameras: Sequence[Camera], size: tuple[int, int] | None, where: str) -> tuple[int, int]:

@@ -38,7 +38,10 @@ def height_map(tracer: engine.Tracer, bounds: np.ndarray, grid: int) -> np.ndarr
 def vertex_ao(tracer: engine.Tracer, mesh: trimesh.Trimesh, rays: int, radius: float, seed: int = 0) -> np.ndarray:
     """Fraction of `rays` uniform hemisphere directions per vertex that travel `radius` without hitting anything."""
     rng = np.random.default_rng(seed)
-    normals = np.asarray(mesh.vertex_normals, np.float64)
+    normals = np.zeros((len(mesh.vertices), 3))   # area-weighted vertex normals (numpy alone: no scipy needed)
+    for k in range(3):
+        np.add.at(normals, mesh.faces[:, k], mesh.face_normals * mesh.area_faces[:, None])
+    normals /= np.maximum(np.linalg.norm(normals, axis=1, keepdims=True), 1e-30)
     d = rng.normal(size=(len(normals), rays, 3))
     d /= np.linalg.norm(d, axis=2, keepdims=True)
     flip = np.einsum("vrk,vk->vr", d, normals) < 0.0

@@ -365,3 +365,23 @@ def test_a_killed_sequence_leaves_whole_files_and_resumes(tmp_path, sig):
     assert all(_complete(p) for p in tmp_path.iterdir())
     assert {name: (tmp_path / name).stat().st_ino for name in before} == {k: v[0] for k, v in before.items()}
     assert {name: (tmp_path / name).stat().st_mtime_ns for name in before} == {k: v[1] for k, v in before.items()}
+
+
+def test_one_camera_path_format_for_render_and_batch(tmp_path):
+    """`hybrid render --camera-path` reads hybrid batch's camera files ("views") and batch reads render's ("camera")."""
+    import json
+
+    from engine.batch.cameras import read_camera_path
+    from engine.sequence import load_camera_path
+    repo = Path(__file__).resolve().parents[1]
+    batch_file = repo / "examples" / "batch_cameras.json"
+    views = read_camera_path(batch_file)
+    assert len(load_camera_path(batch_file)) == len(views) >= 2
+    render_file = tmp_path / "path.json"
+    render_file.write_text(json.dumps({"fov_y": 50, "camera": [{"eye": [3, 2, 3], "target": [0, 0, 0]},
+                                                               {"eye": [-3, 2, 3], "target": [0, 0, 0]}]}))
+    assert len(read_camera_path(render_file)) == 2 and len(load_camera_path(render_file)) == 2
+    both = tmp_path / "both.json"
+    both.write_text(json.dumps({"camera": [], "views": []}))
+    with pytest.raises(ConfigError, match="not both"):
+        load_camera_path(both)

@@ -86,7 +86,8 @@ def read_cameras(table: Any, where: str, base: Path) -> dict:
 
 
 def read_camera_path(path: str | os.PathLike[str]) -> list:
-    """The views of a camera-path file: JSON (a list of views, or {"views": [...]}) or TOML (`[[views]]` tables)."""
+    """The views of a camera-path file: JSON (a list of views, or {"views": [...]}) or TOML (`[[views]]` tables);
+    "camera" / `[[camera]]` (hybrid render --camera-path's name) is read the same."""
     path = Path(path)
     suffix = path.suffix.lower()
     if suffix not in (".json", ".toml"):
@@ -100,12 +101,19 @@ def read_camera_path(path: str | os.PathLike[str]) -> list:
         raise ConfigError(f"{path}: cannot read: {exc.strerror or exc}") from None
     except (ValueError, tomllib.TOMLDecodeError) as exc:   # json.JSONDecodeError and UnicodeDecodeError are both
         raise ConfigError(f"{path}: not valid {suffix[1:].upper()}: {exc}") from None
-    if isinstance(data, dict):
-        unknown = sorted(set(data) - {"views"})
-        if unknown or "views" not in data:
-            raise ConfigError(f"{path}: expected a list of views, or a table with only 'views'"
-                              + (f" (found {unknown[0]!r})" if unknown else ""))
-        data = data["views"]
+    if isinstance(data, dict):   # keys beside the list ("up", "fov", ...) apply to every view that lacks them
+        lists = [k for k in ("views", "camera") if k in data]
+        shared = {k: v for k, v in data.items() if k not in ("views", "camera")}
+        unknown = sorted(set(shared) - set(VIEW_KEYS) - {"fov_y"})
+        if unknown or len(lists) != 1:
+            raise ConfigError(f"{path}: expected a list of views, or a table of 'views' (or 'camera') and keys "
+                              "they share" + (f" (found {unknown[0]!r})" if unknown else ""))
+        data = data[lists[0]]
+        if isinstance(data, list):
+            data = [{**shared, **view} if isinstance(view, dict) else view for view in data]
+    if isinstance(data, list):   # "fov_y" (hybrid render's name) is "fov" here
+        data = [{("fov" if k == "fov_y" else k): v for k, v in view.items()} if isinstance(view, dict) else view
+                for view in data]
     if not isinstance(data, list):
         raise ConfigError(f"{path}: expected a list of views")
     return data

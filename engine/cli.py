@@ -85,7 +85,7 @@ def cmd_render(args) -> int:
     if args.camera_path is not None and not Path(args.camera_path).is_file():
         raise ConfigError(f"{args.camera_path}: no such camera path file")
     t0 = time.perf_counter()
-    scene = Scene.load(args.scene, allow_paths=args.allow_path)
+    scene = Scene.load(args.scene, allow_paths=args.allow_path, up=args.up)
     cameras, where = _cameras(args, scene)
     paths = output_paths(args.output, len(cameras))
     width, height = render_size(cameras, size, where or scene.name)
@@ -173,6 +173,9 @@ def build_parser() -> argparse.ArgumentParser:
                         "(default out.png)")
     r.add_argument("--allow-path", action="append", default=None, metavar="DIR",
                    help="a folder outside the scene's own that its files may be in (repeatable)")
+    r.add_argument("--up", default=None, metavar="AXIS",
+                   help="the files' up axis: y (default) or z (Z-up robotics/CAD assets; also -z, x, -x, -y); "
+                   "overrides a TOML scene's up key")
     r.add_argument("--size", default=None,
                    help="WIDTHxHEIGHT (default: a --camera-path camera's own size from its intrinsics, else 1280x720)")
     r.add_argument("--aov", action="append", choices=AOVS + ("all",), metavar="AOV",

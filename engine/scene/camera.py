@@ -14,6 +14,8 @@ from . import _check
 
 # Direction (from the target towards the eye) of the automatic framing camera: a 3/4 view from above.
 FRAMING_DIRECTION = (0.55, 0.45, 0.70)
+# The fraction of the view's height (or width) the automatic framing camera gives the scene's extent.
+FRAMING_FILL = 0.9
 
 # Cameras from intrinsics (Camera.from_intrinsics): their pose conventions, the default near plane (scene units),
 # how far from rigid a given pose may be (float32 files), how far another render's aspect ratio may be from the
@@ -143,6 +145,45 @@ class Camera:
         eye = centre + d * distance
         near = max(1e-4, min(0.5 * (distance - radius), 0.01 * distance)) if distance > radius else 1e-3 * radius
         return cls(eye, centre, up, fov_y, near)
+
+    @classmethod
+    def frame_points(cls, points: ArrayLike, fov_y: float = 60.0, direction: ArrayLike = FRAMING_DIRECTION,
+                     aspect: float = 1.0, up: ArrayLike = (0.0, 1.0, 0.0), fill: float = FRAMING_FILL) -> Camera:
+        """A camera looking at the centre of the box around `points` ((N, 3)) from `direction` (target to eye), as
+        close as it can be with every point inside the middle `fill` of the view (of its height, and of its width
+        for any aspect ratio >= `aspect`): the object fills most of the image, whatever its shape."""
+        fov_y = _check.number(fov_y, "camera fov_y", min_value=0.0, max_value=180.0,
+                              min_exclusive=True, max_exclusive=True)
+        aspect = _check.number(aspect, "aspect", min_value=0.0, min_exclusive=True)
+        fill = _check.number(fill, "fill", min_value=0.0, max_value=1.0, min_exclusive=True)
+        p = np.asarray(points, dtype=np.float64).reshape(-1, 3)
+        if len(p) == 0 or not np.all(np.isfinite(p)):
+            raise ConfigError("camera framing points must be finite and not empty")
+        lo, hi = p.min(axis=0), p.max(axis=0)
+        centre = 0.5 * (lo + hi)
+        size = float(np.linalg.norm(hi - lo))
+        if size <= 0.0:
+            return cls.frame_bounds(np.stack([lo, hi]), fov_y=fov_y, direction=direction, aspect=aspect, up=up)
+        d = np.asarray(direction, dtype=np.float64)
+        d = d / np.linalg.norm(d)
+        basis = cls(centre + d, centre, up, fov_y)
+        right, up_v = basis.right, basis.up_vector
+        tan_y = math.tan(math.radians(fov_y) / 2.0) * fill
+        tan_x = tan_y * min(1.0, aspect)
+        for step in range(4):   # fit, then slide sideways to centre the projected extent, and fit again
+            rel = p - centre
+            x, y, z = rel @ right, rel @ up_v, rel @ d   # z: towards the eye
+            # a point at depth (distance - z) is inside when |x| <= tan_x * depth and |y| <= tan_y * depth
+            distance = float(np.max(np.maximum(np.abs(x) / tan_x, np.abs(y) / tan_y) + z))
+            distance = max(distance, float(z.max()) + 1e-3 * size)   # every point in front of the eye
+            if step == 3:
+                break
+            depth = distance - z
+            u, v = x / depth, y / depth
+            centre = centre + distance * (0.5 * (u.max() + u.min()) * right + 0.5 * (v.max() + v.min()) * up_v)
+        closest = distance - float(z.max())
+        near = max(1e-6 * size, min(0.5 * closest, 0.01 * distance))
+        return cls(centre + d * distance, centre, up, fov_y, near)
 
     # ----------------------------------------------------------------- matrices
     def view_matrix(self) -> NDArray[np.float32]:

@@ -6,6 +6,8 @@ import math
 
 import numpy as np
 
+from engine.errors import ConfigError, shown
+
 # Above this many (corner, neighbouring corner) pairs at creased vertices the crease split is skipped for plain
 # smooth normals there (a fan of thousands of triangles around one point); pairs are compared in blocks of
 # _BLOCK_PAIRS, so memory stays bounded either way.
@@ -206,3 +208,29 @@ def transform_normals(m: np.ndarray, n: np.ndarray) -> np.ndarray:
     if np.isfinite(top) and top > 0:
         it = it / top  # a tiny scale makes a huge inverse: keep n @ it.T (and its norm) from overflowing
     return unitize(n @ it.T)
+
+
+#: The rotation taking a file's up axis to the renderer's +Y (right-handed, det +1): "z" is -90 degrees about X.
+UP_AXES = {
+    "y": ((1, 0, 0), (0, 1, 0), (0, 0, 1)),
+    "z": ((1, 0, 0), (0, 0, 1), (0, -1, 0)),
+    "-z": ((1, 0, 0), (0, 0, -1), (0, 1, 0)),
+    "x": ((0, -1, 0), (1, 0, 0), (0, 0, 1)),
+    "-x": ((0, 1, 0), (-1, 0, 0), (0, 0, 1)),
+    "-y": ((1, 0, 0), (0, -1, 0), (0, 0, -1)),
+}
+
+
+def up_transform(up, field: str = "up") -> np.ndarray:
+    """The (4, 4) transform that turns geometry whose up axis is `up` ("y", "z", "-z", "x", "-x", "-y") upright.
+
+    Raises:
+        ConfigError: `up` is not one of those; the message names `field`.
+    """
+    key = up.strip().lower() if isinstance(up, str) else None
+    if key not in UP_AXES:
+        allowed = ", ".join(repr(k) for k in UP_AXES)
+        raise ConfigError(f"{field} must be one of {allowed}, got {shown(repr(up), limit=80)}")
+    m = np.eye(4)
+    m[:3, :3] = UP_AXES[key]
+    return m

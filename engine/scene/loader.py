@@ -426,13 +426,14 @@ def _material_of(visual, where: str, made: dict) -> Material:
     return Material("default", DEFAULT_COLOR)
 
 
-def load_mesh_file(path: str) -> SceneParts:
-    """The parts of a scene made of one mesh / glTF file."""
-    return trimesh_parts(load_trimesh_scene(path, scene_file=True), path)
+def load_mesh_file(path: str, transform=None) -> SceneParts:
+    """The parts of a scene made of one mesh / glTF file (then `transform`, (4, 4), applied)."""
+    return trimesh_parts(load_trimesh_scene(path, scene_file=True), path, transform=transform)
 
 
-def trimesh_parts(obj, name: str, lights=None, camera=None) -> SceneParts:
-    """The parts of a scene made of a trimesh.Trimesh or trimesh.Scene (node transforms applied)."""
+def trimesh_parts(obj, name: str, lights=None, camera=None, transform=None) -> SceneParts:
+    """The parts of a scene made of a trimesh.Trimesh or trimesh.Scene (node transforms applied, then
+    `transform`)."""
     builder = SceneBuilder(name)
-    builder.add_trimesh(obj, shown(name))
+    builder.add_trimesh(obj, shown(name), transform=transform)
     return builder.build(lights=lights, camera=camera)

@@ -21,7 +21,7 @@ from engine.errors import ConfigError, SceneError, shown
 
 from . import loader, toml_format
 from .camera import Camera
-from .geometry import crease_normals, unitize
+from .geometry import crease_normals, unitize, up_transform
 from .lights import Light, default_sun
 from .material import Material
 from .parts import SceneParts, SubMesh
@@ -195,10 +195,11 @@ class Scene:
         self._camera = camera
 
     def framing_camera(self, fov_y: float = 60.0, aspect: float = 1.0) -> Camera:
-        """A camera that sees the whole bounding sphere from a 3/4 view above, for images whose width / height is
-        at least `aspect`; `fov_y` in degrees."""
+        """A camera that sees the whole scene from a 3/4 view above, as close as it fits: the geometry spans 90% of
+        the image's height or width (whichever limits), for images whose width / height is at least `aspect`;
+        `fov_y` in degrees."""
         try:
-            return Camera.frame_bounds(self.bounds, fov_y=fov_y, aspect=aspect)
+            return Camera.frame_points(self.positions, fov_y=fov_y, aspect=aspect)
         except ConfigError as exc:
             raise ConfigError(f"{shown(self.name)}: {exc}") from None
 
@@ -257,13 +258,18 @@ class Scene:
 
     # ------------------------------------------------------------------ constructors
     @classmethod
-    def load(cls, path: str | os.PathLike[str], allow_paths: str | os.PathLike[str] | list | None = None) -> Scene:
+    def load(cls, path: str | os.PathLike[str], allow_paths: str | os.PathLike[str] | list | None = None,
+             up: str | None = None) -> Scene:
         """A `.toml` scene (docs/scenes.md) or any mesh / glTF file trimesh reads (OBJ, PLY, STL, glTF, GLB, ...), or a
         bundled scene by name (`"default"`, `"sphere"`, `"penumbra"`: `engine.scene_path` says the rule).
 
         The files a TOML scene names must lie inside its folder (symlinks followed); `allow_paths`, a folder or a
         list of folders, allows those too (docs/scenes.md, "Paths"). A mesh file's own references (MTL, textures,
         glTF buffers) are read from its folder only.
+
+        `up` is the files' up axis, "y" (the renderer's) or "z" (robotics and CAD assets; also "-z", "x", "-x",
+        "-y"): their geometry is rotated upright as it loads ("z": -90 degrees about X). For a TOML scene it
+        replaces the file's top-level `up` key (a `[[mesh]]`'s own `up` still wins); None: the file's, else "y".
 
         Raises:
             SceneError: the file is missing, unreadable or invalid; the message names the file (and the field).
@@ -275,9 +281,10 @@ class Scene:
             raise ConfigError(f"Scene.load: path must be a str path, got {shown(repr(path))}")
         path = os.fspath(scene_path(path))
         allowed = allowed_folders(allow_paths)   # checked whatever the file type
+        up_m = None if up is None else up_transform(up, "Scene.load: up")
         if path.lower().endswith(".toml"):
-            return cls._from_parts(toml_format.load_toml(path, allow_paths=allowed))
-        return cls._from_parts(loader.load_mesh_file(path))
+            return cls._from_parts(toml_format.load_toml(path, allow_paths=allowed, up=up))
+        return cls._from_parts(loader.load_mesh_file(path, transform=up_m))
 
     @classmethod
     def from_trimesh(cls, obj: Any, lights: Light | Iterable[Light] | None = None, camera: Camera | None = None,

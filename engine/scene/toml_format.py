@@ -16,14 +16,14 @@ from engine.errors import ConfigError, SceneError, shown
 
 from . import _check, primitives
 from .camera import Camera
-from .geometry import transform_normals, transform_points
+from .geometry import transform_normals, transform_points, up_transform
 from .lights import LIGHT_TYPES
 from .loader import SceneBuilder, load_texture_file, load_trimesh_scene
 from .material import Material
 from .parts import SceneParts
 from .paths import Folders
 
-TOP_LEVEL = ("camera", "mesh", "light", "settings")
+TOP_LEVEL = ("up", "camera", "mesh", "light", "settings")
 CAMERA_KEYS = ("eye", "target", "up", "fov", "near")
 MESH_COMMON = ("name", "file", "primitive", "translate", "rotate", "scale", "color", "texture", "uv_scale")
 PRIMITIVE_PARAMS = {
@@ -77,9 +77,10 @@ def _unknown(ctx: _Ctx, table: dict, allowed) -> None:
             raise ctx.error(f"unknown key {key!r} (allowed: {', '.join(allowed)})")
 
 
-def load_toml(path, allow_paths=None) -> SceneParts:
+def load_toml(path, allow_paths=None, up=None) -> SceneParts:
     """The parts of the scene that the TOML file `path` describes. Files it names must lie inside its folder or
-    inside one of the folders `allow_paths` (docs/scenes.md, "Paths")."""
+    inside one of the folders `allow_paths` (docs/scenes.md, "Paths"); `up`, when given, replaces the file's
+    top-level `up` key."""
     path = os.fspath(path)
     where = shown(path)
     if not os.path.exists(path):
@@ -104,12 +105,13 @@ def load_toml(path, allow_paths=None) -> SceneParts:
         raise SceneError(f"{where}: not a UTF-8 text file") from None
     except OSError as exc:
         raise SceneError(f"{where}: cannot read file ({shown(exc.strerror or exc)})") from None
-    return parts_from_dict(data, path, allow_paths=allow_paths)
+    return parts_from_dict(data, path, allow_paths=allow_paths, up=up)
 
 
-def parts_from_dict(data: dict, path: str = "<toml>", allow_paths=None) -> SceneParts:
+def parts_from_dict(data: dict, path: str = "<toml>", allow_paths=None, up=None) -> SceneParts:
     """The parts of a scene from parsed TOML data; `path` names the file in messages and anchors relative paths
-    (the current folder for "<toml>"); `allow_paths`: folders outside that one that its files may be in."""
+    (the current folder for "<toml>"); `allow_paths`: folders outside that one that its files may be in; `up`
+    (when not None) replaces the top-level `up` key: the up axis of the mesh files."""
     ctx = _Ctx(shown(path))
     base_dir = os.path.dirname(os.path.abspath(path)) if path != "<toml>" else os.getcwd()
     folders = Folders(base_dir, allow_paths)
@@ -121,6 +123,11 @@ def parts_from_dict(data: dict, path: str = "<toml>", allow_paths=None) -> Scene
             form = f"[{key}]" if kind is dict else f"[[{key}]]"
             raise ctx.error(f"{key!r} must be a table written {form}")
 
+    if up is None:
+        up = data.get("up", "y")
+        up_m = ctx.check(up_transform, up, "up")
+    else:
+        up_m = up_transform(up, "up")   # the caller's argument: its own ConfigError, no file to name
     meshes = data.get("mesh", [])
     if not meshes:
         raise ctx.error("no [[mesh]] tables: the scene has no geometry")
@@ -130,7 +137,7 @@ def parts_from_dict(data: dict, path: str = "<toml>", allow_paths=None) -> Scene
         mctx = ctx.at(f"[[mesh]] #{i}")
         if not isinstance(table, dict):
             raise mctx.error("must be a table")
-        _add_mesh(builder, table, mctx, folders, textures)
+        _add_mesh(builder, table, mctx, folders, textures, up_m)
 
     lights = []
     for i, table in enumerate(data.get("light", []), 1):
@@ -306,7 +313,8 @@ def _referenced_file(table: dict, key: str, ctx: _Ctx, folders: Folders) -> str:
     return real
 
 
-def _add_mesh(builder: SceneBuilder, table: dict, ctx: _Ctx, folders: Folders, textures: dict) -> None:
+def _add_mesh(builder: SceneBuilder, table: dict, ctx: _Ctx, folders: Folders, textures: dict,
+              up_m: np.ndarray) -> None:
     has_file, has_prim = "file" in table, "primitive" in table
     if has_file == has_prim:
         raise ctx.error("needs exactly one of 'file' (a mesh file) or 'primitive' "
@@ -317,7 +325,7 @@ def _add_mesh(builder: SceneBuilder, table: dict, ctx: _Ctx, folders: Folders, t
             raise ctx.error(f"primitive must be one of {', '.join(PRIMITIVE_PARAMS)}, got {kind!r}")
         _unknown(ctx, table, MESH_COMMON + PRIMITIVE_PARAMS[kind])
     else:
-        _unknown(ctx, table, MESH_COMMON)
+        _unknown(ctx, table, MESH_COMMON + ("up",))
         mesh_path = _referenced_file(table, "file", ctx, folders)
 
     name = table.get("name", table.get("primitive") or table.get("file"))
@@ -357,8 +365,10 @@ def _add_mesh(builder: SceneBuilder, table: dict, ctx: _Ctx, folders: Folders, t
         return
 
     try:
+        if "up" in table:   # this file's up axis, turned upright before its scale / rotate / translate
+            up_m = ctx.check(up_transform, table["up"], "up")
         obj = load_trimesh_scene(mesh_path)
-        builder.add_trimesh(obj, shown(mesh_path), transform=m, color=color, texture=texture, uv_scale=uv_scale,
+        builder.add_trimesh(obj, shown(mesh_path), transform=m @ up_m, color=color, texture=texture, uv_scale=uv_scale,
                             label=name)
     except SceneError as exc:
         raise ctx.error(f"file = '{shown(table['file'])}': {exc}") from None

@@ -16,6 +16,9 @@ def add_arguments(p):
     p.add_argument("--size", default="1280x720", help="window size WIDTHxHEIGHT (default 1280x720)")
     p.add_argument("--allow-path", action="append", default=None, metavar="DIR",
                    help="a folder outside the scene's own that its files may be in (repeatable)")
+    p.add_argument("--up", default=None, metavar="AXIS",
+                   help="the files' up axis: y (default) or z (Z-up robotics/CAD assets; also -z, x, -x, -y); "
+                   "overrides a TOML scene's up key")
     p.add_argument("--frames", type=int, default=None, help="present N frames, then exit")
     p.add_argument("--screenshot", default=None, help="with --frames: save the last frame as this PNG")
     p.add_argument("--no-hot-reload", dest="hot_reload", action="store_false",
@@ -45,7 +48,7 @@ def run_from_args(args) -> int:
         check_png_path(args.screenshot)
     settings = {k: v for k, v in (("shadows", args.shadows), ("ao", args.ao), ("ao_samples", args.ao_samples))
                 if v is not None}
-    scene = Scene.load(args.scene, allow_paths=args.allow_path)
+    scene = Scene.load(args.scene, allow_paths=args.allow_path, up=args.up)
     viewer = Viewer(scene, width, height, hot_reload=args.hot_reload, shader_dir=args.shader_dir,
                     validation=True if args.validation else None, device=args.device,
                     present_mode=args.present_mode, render_scale=args.scale, settings=settings,

@@ -38,14 +38,17 @@ def _remove_stale(path: Path):
         if not (name.startswith(prefix) and name.endswith(_TMP_SUFFIX)):
             continue
         pid = name[len(prefix):].split("-", 1)[0]
-        if pid.isdigit() and not _running(int(pid)):
+        if pid.isdigit() and not running(int(pid)):
             try:
                 os.unlink(path.parent / name)
             except OSError:
                 pass
 
 
-def _running(pid: int) -> bool:
+def running(pid) -> bool:
+    """Is a process with this id alive (one of another user counts as alive)?"""
+    if not isinstance(pid, int) or pid <= 0:
+        return False
     try:
         os.kill(pid, 0)
     except ProcessLookupError:

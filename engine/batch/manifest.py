@@ -15,7 +15,7 @@ import time
 from datetime import datetime, timezone
 
 from ..errors import ConfigError, EngineError
-from ..files import atomic_write_text
+from ..files import atomic_write_text, running
 from .job import Item, Job
 from .writer import finished
 
@@ -104,7 +104,7 @@ class FolderLock:
                 fd = os.open(self.path, os.O_CREAT | os.O_EXCL | os.O_WRONLY, 0o644)
             except FileExistsError:
                 owner = self._owner()
-                if owner is not None and (owner.get("host") != me["host"] or _running(owner.get("pid"))):
+                if owner is not None and (owner.get("host") != me["host"] or running(owner.get("pid"))):
                     raise ConfigError(f"{self.path.parent}: another batch is writing here (pid {owner.get('pid')} "
                                       f"on {owner.get('host')}); if it no longer runs, remove {self.path}") from None
                 try:
@@ -138,15 +138,3 @@ class FolderLock:
             except OSError:
                 young = False
             return {"host": "?", "pid": "?"} if young else None
-
-
-def _running(pid) -> bool:
-    if not isinstance(pid, int) or pid <= 0:
-        return False
-    try:
-        os.kill(pid, 0)
-    except ProcessLookupError:
-        return False
-    except PermissionError:
-        return True
-    return True

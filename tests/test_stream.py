@@ -111,3 +111,23 @@ def test_command_buffers_are_recorded_once_per_kind_and_size(pair):
         small.occluded(o, d, tmax)
     assert all(slot.commands == recorded[slot] for slot in small.slots)
     assert sum(len(c) for c in recorded.values()) <= 3 * 2   # three slots, a full and a short chunk at most
+
+
+@pytest.mark.parametrize("bad_at", [0, CHUNK - 1, 3 * CHUNK + 5])
+def test_a_bad_ray_in_any_chunk_is_named_and_the_tracer_goes_on(pair, bad_at):
+    """Rays are checked chunk by chunk as they are packed: a bad one in a later chunk (earlier chunks already in
+    flight) is the same ConfigError naming it, and the next query is answered right."""
+    from engine import ConfigError
+    small, _ = pair
+    _, _, o, d, tmax = scene_and_rays(4 * CHUNK)
+    want = small.occluded(o, d, tmax)
+    bad_d = d.copy()
+    bad_d[bad_at] = 0.0
+    with pytest.raises(ConfigError, match=f"directions: ray {bad_at} has zero length"):
+        small.occluded(o, bad_d, tmax)
+    bad_o = o.copy()
+    bad_o[bad_at, 1] = np.nan
+    with pytest.raises(ConfigError, match=f"origins: ray {bad_at} is not finite"):
+        small.intersect(bad_o, d)
+    assert not any(slot.pending for slot in small.slots)
+    assert np.array_equal(small.occluded(o, d, tmax), want)

@@ -115,8 +115,8 @@ class RaycastingScene:
             if device.closed:
                 raise ConfigError("RaycastingScene: its engine.Device is closed (make a new engine.Device)")
         elif device is not None and (isinstance(device, bool) or not isinstance(device, (int, str))):
-            raise ConfigError(f"RaycastingScene: device must be an engine.Device, a Vulkan device index or name (as "
-                              f"Tracer's), got {type(device).__name__}")
+            raise ConfigError(f"RaycastingScene: device must be a Vulkan device index or name (as Tracer's) or an "
+                              f"engine.Device, got {type(device).__name__}")
         self._device, self._validation = device, validation
         self._meshes: list[tuple[NDArray[np.float64], NDArray[np.int64]]] = []
         self._built: _Built | None = None

@@ -19,12 +19,14 @@ from ..vk import Buffer, BufferView, DescriptorSet, Recorder, Timestamps
 from ..vk.formats import INDIRECT, R32F, R32UI, RGB32F, RGBA32UI
 from ..vk.resources import STORAGE, STORAGE_TEXEL, TRANSFER_DST, TRANSFER_SRC, UNIFORM_TEXEL
 from ..vk.sync import create_fence, destroy_fence, reset_fences, wait_fences
+from .checks import rays_fine
 
 GROUP = 64
 RAY_BYTES = 28  # 7 floats: origin, direction, tmax, as three packed arrays (shaders/glsl/include/rays.glsl)
 HIT_BYTES = {"occluded": 4, "intersect": 16}
-#: rays per task when numpy packs rays or unpacks results on the worker pool (each a few MB: cache-sized copies)
-BLOCK = 1 << 16
+#: the fewest rays per task when numpy checks and packs rays or unpacks results on the worker pool (a chunk is split
+#: into one task per thread, down to this)
+MIN_BLOCK = 1 << 13
 
 
 class Slot:
@@ -111,15 +113,24 @@ class Slot:
             rec.to_host(self.results, self.retry)
         return rec.finish(), list(self.timestamps.names)
 
-    def pack(self, o, d, t, n: int, shares: int, threads: int):
-        """Rays [0, n) of o, d, t into the mapped arrays (row blocks on the worker pool), and the dispatch size."""
+    def pack(self, o, d, t, n: int, shares: int, threads: int) -> bool:
+        """Rays [0, n) of o, d and t (an array, or one float32 for all) into the mapped arrays, each row block checked
+        (`rays_fine`) right before it is copied, while it is in cache (blocks on the worker pool); and the dispatch
+        size. False where a block has a bad ray (then nothing may be submitted)."""
+        step = block_size(n, threads)
+
         def block(s):
-            e = min(s + BLOCK, n)
+            e = min(s + step, n)
+            if not rays_fine(o[s:e], d[s:e]):
+                return False
             self.origins[s:e] = o[s:e]
             self.directions[s:e] = d[s:e]
-            self.tmax[s:e] = t[s:e]
-        _parallel([lambda s=s: block(s) for s in range(0, n, BLOCK)], threads)
+            self.tmax[s:e] = t if t.ndim == 0 else t[s:e]
+            return True
+        if not all(_parallel([lambda s=s: block(s) for s in range(0, n, step)], threads)):
+            return False
         self.params.write(np.array([(n + GROUP - 1) // GROUP, 1, 1, n, self.capacity, shares, 0, 0], np.uint32))
+        return True
 
     def wait(self):
         """Block until the last submission of this slot has run (then its results may be read)."""
@@ -129,9 +140,15 @@ class Slot:
             self.pending = False
 
 
-def stream(tracer, kind: str, o, d, t, sink) -> None:
-    """Trace rays o, d, t (float32 (N, 3), (N, 3), (N,)) through `tracer`'s slots in chunks of `tracer.chunk`, with
-    up to len(slots) chunks in flight; `sink(slot, start, n)` takes each chunk's results in order. Updates the
+def block_size(n: int, threads: int) -> int:
+    """Rays per task for n rays on `threads` threads: one task per thread, at least MIN_BLOCK rays each."""
+    return max(MIN_BLOCK, -(-n // max(threads, 1)))
+
+
+def stream(tracer, kind: str, o, d, t, sink, bad) -> None:
+    """Trace rays o, d, t (float32 (N, 3), (N, 3), and (N,) or one for all; checked but for `rays_fine`) through
+    `tracer`'s slots in chunks of `tracer.chunk`, with up to len(slots) chunks in flight; `sink(slot, start, n,
+    threads)` takes each chunk's results in order; `bad()` raises the error for a chunk with a bad ray. Updates the
     tracer's last_gpu_ms, last_retried and last_times."""
     slots, chunk, ctx = tracer.slots, tracer.chunk, tracer.ctx
     threads = default_threads()
@@ -153,7 +170,9 @@ def stream(tracer, kind: str, o, d, t, sink) -> None:
             if len(inflight) == len(slots):
                 finish()
             slot.wait()   # (a query that failed half-way left it pending)
-            slot.pack(o[start:start + n], d[start:start + n], t[start:start + n], n, tracer.shares, threads)
+            if not slot.pack(o[start:start + n], d[start:start + n], t if t.ndim == 0 else t[start:start + n], n,
+                             tracer.shares, threads):
+                bad()
             cmd, marks = slot.command(kind, n, tracer._record)
             ctx.submit(cmd, wait=False, fence=slot.fence)
             slot.pending = True
@@ -170,10 +189,12 @@ def occluded_sink(out: np.ndarray):
     def sink(slot, start, n, threads):
         words = slot.results_host.view(np.uint32)
 
+        step = block_size(n, threads)
+
         def block(s):
-            e = min(s + BLOCK, n)
+            e = min(s + step, n)
             np.not_equal(words[s:e], 0, out=out[start + s:start + e])
-        _parallel([lambda s=s: block(s) for s in range(0, n, BLOCK)], threads)
+        _parallel([lambda s=s: block(s) for s in range(0, n, step)], threads)
     return sink
 
 
@@ -182,12 +203,14 @@ def hits_sink(t_out, prim_out, u_out, v_out):
     def sink(slot, start, n, threads):
         rec = slot.results_host.view(np.float32)[:4 * n].reshape(n, 4)
 
+        step = block_size(n, threads)
+
         def block(s):
-            e = min(s + BLOCK, n)
+            e = min(s + step, n)
             r = rec[s:e]
             t_out[start + s:start + e] = r[:, 0]
             prim_out[start + s:start + e] = r[:, 1].view(np.int32)
             u_out[start + s:start + e] = r[:, 2]
             v_out[start + s:start + e] = r[:, 3]
-        _parallel([lambda s=s: block(s) for s in range(0, n, BLOCK)], threads)
+        _parallel([lambda s=s: block(s) for s in range(0, n, step)], threads)
     return sink

@@ -27,7 +27,7 @@ from ..shaders import ShaderLibrary
 from ..vk import ComputePipeline, Context, DescriptorSet, reflect
 from ..vk.device import has_dedicated_vram, is_cpu, rgb32f_texel_buffers, work_shares
 from ..vk.shared import Device, Scope
-from .checks import check_batch_size, check_mesh, check_rays
+from .checks import check_batch_size, check_mesh, name_bad_ray, ray_arrays
 from .stream import Slot, hits_sink, occluded_sink, stream
 
 #: Query kinds whose kernels read rays (and write results) through texel buffer views on CPU devices (RAYS_TEXEL):
@@ -279,9 +279,9 @@ class Tracer:
             ConfigError: bad shapes, NaN or infinite values, a zero direction (naming the ray), a closed Tracer.
         """
         self._check_open()
-        o, d, t = check_rays(origins, directions, tmax)
+        o, d, t = ray_arrays(origins, directions, tmax)
         out = np.empty(len(o), bool)
-        self._stream("occluded", o, d, t, occluded_sink(out))
+        self._stream("occluded", o, d, t, occluded_sink(out), lambda: name_bad_ray(o, d, origins, directions))
         return out
 
     @serialized
@@ -291,17 +291,19 @@ class Tracer:
         The arguments are `occluded()`'s. Returns `Hits` (t, prim, u, v per ray: t = +inf and prim = -1 on a miss).
         """
         self._check_open()
-        o, d, t = check_rays(origins, directions, tmax)
+        o, d, t = ray_arrays(origins, directions, tmax)
         n = len(o)
         hits = Hits(np.empty(n, np.float32), np.empty(n, np.int32), np.empty(n, np.float32), np.empty(n, np.float32))
-        self._stream("intersect", o, d, t, hits_sink(hits.t, hits.prim, hits.u, hits.v))
+        self._stream("intersect", o, d, t, hits_sink(hits.t, hits.prim, hits.u, hits.v),
+                     lambda: name_bad_ray(o, d, origins, directions))
         return hits
 
-    def _stream(self, kind, o, d, t, sink):
-        """Trace checked rays (float32 (N, 3), (N, 3), (N,)) with the `kind` kernels; `sink(slot, start, n,
-        threads)` takes each chunk's results from `slot.results_host` (engine/rt/stream.py)."""
+    def _stream(self, kind, o, d, t, sink, bad):
+        """Trace rays from `ray_arrays` (float32 (N, 3), (N, 3), and (N,) or one tmax) with the `kind` kernels;
+        each chunk is checked as it is packed (`bad()` raises the error naming the first bad ray); `sink(slot,
+        start, n, threads)` takes each chunk's results from `slot.results_host` (engine/rt/stream.py)."""
         self.last_gpu_ms, self.last_retried = 0.0, 0
-        stream(self, kind, o, d, t, sink)
+        stream(self, kind, o, d, t, sink, bad)
 
     # ---- lifetime --------------------------------------------------------------------------
     @serialized

@@ -131,3 +131,16 @@ def test_a_bad_ray_in_any_chunk_is_named_and_the_tracer_goes_on(pair, bad_at):
         small.intersect(bad_o, d)
     assert not any(slot.pending for slot in small.slots)
     assert np.array_equal(small.occluded(o, d, tmax), want)
+
+
+def test_row_blocks_on_the_worker_pool_give_the_same_answers(pair, monkeypatch):
+    """Packing and unpacking split into many small row blocks on the worker pool (as large chunks are)."""
+    small, whole = pair
+    _, _, o, d, tmax = scene_and_rays(3 * CHUNK + 17)
+    want_occ, want = whole.occluded(o, d, tmax), whole.intersect(o, d, tmax)
+    monkeypatch.setattr(stream_mod, "MIN_BLOCK", {"pack": 10, "intersect": 7, "occluded": 5})
+    monkeypatch.setattr(stream_mod, "default_threads", lambda: 4)
+    assert np.array_equal(small.occluded(o, d, tmax), want_occ)
+    got = small.intersect(o, d, tmax)
+    for name in ("t", "prim", "u", "v"):
+        assert np.array_equal(getattr(got, name), getattr(want, name)), name

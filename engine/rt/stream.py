@@ -24,9 +24,10 @@ from .checks import rays_fine
 GROUP = 64
 RAY_BYTES = 28  # 7 floats: origin, direction, tmax, as three packed arrays (shaders/glsl/include/rays.glsl)
 HIT_BYTES = {"occluded": 4, "intersect": 16}
-#: the fewest rays per task when numpy checks and packs rays or unpacks results on the worker pool (a chunk is split
-#: into one task per thread, down to this)
-MIN_BLOCK = 1 << 13
+#: the fewest rays per task when numpy checks and packs rays (28 bytes each) or unpacks closest hits (16) and
+#: occlusion words (4) on the worker pool: a chunk is split into one task per thread, down to about a megabyte each
+#: (below that, handing the work to the pool costs more than it saves)
+MIN_BLOCK = {"pack": 1 << 15, "intersect": 1 << 16, "occluded": 1 << 18}
 
 
 class Slot:
@@ -117,7 +118,7 @@ class Slot:
         """Rays [0, n) of o, d and t (an array, or one float32 for all) into the mapped arrays, each row block checked
         (`rays_fine`) right before it is copied, while it is in cache (blocks on the worker pool); and the dispatch
         size. False where a block has a bad ray (then nothing may be submitted)."""
-        step = block_size(n, threads)
+        step = block_size(n, threads, "pack")
 
         def block(s):
             e = min(s + step, n)
@@ -140,9 +141,9 @@ class Slot:
             self.pending = False
 
 
-def block_size(n: int, threads: int) -> int:
-    """Rays per task for n rays on `threads` threads: one task per thread, at least MIN_BLOCK rays each."""
-    return max(MIN_BLOCK, -(-n // max(threads, 1)))
+def block_size(n: int, threads: int, what: str) -> int:
+    """Rays per task for n rays on `threads` threads: one task per thread, at least MIN_BLOCK[what] rays each."""
+    return max(MIN_BLOCK[what], -(-n // max(threads, 1)))
 
 
 def stream(tracer, kind: str, o, d, t, sink, bad) -> None:
@@ -188,8 +189,7 @@ def occluded_sink(out: np.ndarray):
     """A sink writing (N,) bool `out` from the occlusion words of each chunk."""
     def sink(slot, start, n, threads):
         words = slot.results_host.view(np.uint32)
-
-        step = block_size(n, threads)
+        step = block_size(n, threads, "occluded")
 
         def block(s):
             e = min(s + step, n)
@@ -202,8 +202,7 @@ def hits_sink(t_out, prim_out, u_out, v_out):
     """A sink writing the (N,) arrays of Hits from each chunk's (t, prim, u, v) records."""
     def sink(slot, start, n, threads):
         rec = slot.results_host.view(np.float32)[:4 * n].reshape(n, 4)
-
-        step = block_size(n, threads)
+        step = block_size(n, threads, "intersect")
 
         def block(s):
             e = min(s + step, n)

@@ -80,7 +80,8 @@ def main() -> int:
         second = engine.Tracer(v, f, device=dev)
         second_ms = (time.perf_counter() - t0) * 1e3
         out["setup"] = {"first_tracer_ms": first_ms, "second_tracer_ms": second_ms,
-                        "second_build_ms": second.stats["build_ms"],
+                        "first_build_ms": first.stats["build_ms"], "second_build_ms": second.stats["build_ms"],
+                        "first_beyond_build_ms": first_ms - first.stats["build_ms"],
                         "second_beyond_build_ms": second_ms - second.stats["build_ms"]}
         first.close()
         second.close()
@@ -105,8 +106,11 @@ def main() -> int:
     s = out["setup"]
     print(f"{out['date']}  {out['device']}  {a.scene} scene, {len(o):,} shadow rays ({w}x{h}), float32 numpy in / "
           f"bool numpy out, {a.reps} runs back to back (medians)")
-    print(f"set-up on one Device: first Tracer {s['first_tracer_ms']:.1f} ms, second {s['second_tracer_ms']:.1f} ms "
-          f"(its BVH build {s['second_build_ms']:.1f} ms, the rest {s['second_beyond_build_ms']:.1f} ms)")
+    print(f"set-up on one Device: first Tracer {s['first_tracer_ms']:.1f} ms (BVH build {s['first_build_ms']:.1f}, the "
+          f"rest {s['first_beyond_build_ms']:.1f}), second {s['second_tracer_ms']:.1f} ms (BVH build "
+          f"{s['second_build_ms']:.1f}, the rest {s['second_beyond_build_ms']:.1f}); first / second "
+          f"{s['first_tracer_ms'] / s['second_tracer_ms']:.1f}x, beyond the build "
+          f"{s['first_beyond_build_ms'] / max(s['second_beyond_build_ms'], 1e-3):.1f}x")
     print(f"{'chunk':>9} {'rays':>10} {'wall ms':>9} {'Mrays/s':>9} {'GPU ms':>8} {'wall/GPU':>9} "
           f"{'copy ms':>9} {'copy Mr/s':>10} {'x copy':>7}")
     for run in out["runs"]:

@@ -192,3 +192,21 @@ def test_closing_the_device_waits_for_a_query_in_progress():
     assert np.array_equal(got[0], want)
     with pytest.raises(ConfigError, match="its engine.Device was closed"):
         t.occluded(o, d)
+
+
+def test_a_ray_mesh_intersector_on_a_device():
+    """trimesh's interface on a shared Device answers as on a device of its own, and ends with the Device."""
+    mesh = trimesh.creation.icosphere(subdivisions=2)
+    o = np.tile([0.0, 0.0, -5.0], (200, 1))
+    d = np.random.default_rng(6).normal([0, 0, 1], 0.1, (200, 3))
+    with engine.RayMeshIntersector(mesh) as alone:
+        want = alone.intersects_first(o, d)
+    dev = Device(validation=True)
+    ray = engine.RayMeshIntersector(mesh, device=dev)
+    assert np.array_equal(ray.intersects_first(o, d), want)
+    assert dev.users == 1
+    dev.close()
+    with pytest.raises(ConfigError, match="RayMeshIntersector is closed: its engine.Device was closed"):
+        ray.intersects_first(o, d)
+    ray.close()
+    assert ray.validation_errors == []

@@ -48,8 +48,6 @@ def test_two_tracers_and_a_renderer_on_one_device_answer_as_separate_ones():
         rr = Renderer(64, 48, device=dev)
         assert live_contexts() == before + 1   # one device for all three
         assert dev.users == 3 and ta.ctx.root is tb.ctx.root is rr.ctx.root is dev.context
-        # the trace kernels are made once per device (the two meshes have trees of the same depth here or not:
-        # on a GPU the kernels do not depend on it)
         for got, want in ((answers(ta, o, d), want_a), (answers(tb, o, d), want_b)):
             for g, w in zip(got, want):
                 assert np.array_equal(g, w)
@@ -72,11 +70,10 @@ def test_a_second_tracer_shares_the_first_ones_kernels():
         assert all(second.pipelines[k] is first.pipelines[k] for k in first.pipelines)
         first.close()   # the kernels belong to the device: the second tracer still runs them
         o, d = rays(300, 2)
-        want = reference = None
         with Tracer(va * 2.0, fa) as alone:
             want = alone.intersect(o, d)
-        reference = second.intersect(o, d)
-        assert np.array_equal(reference.prim, want.prim) and np.array_equal(reference.t, want.t)
+        got = second.intersect(o, d)
+        assert np.array_equal(got.prim, want.prim) and np.array_equal(got.t, want.t)
 
 
 def test_closing_in_any_order_and_use_after_close():

@@ -29,6 +29,7 @@ from ..vk.device import has_dedicated_vram, is_cpu, rgb32f_texel_buffers, work_s
 from ..vk.formats import INDIRECT, R32F, R32UI, RGB32F, RGBA32UI
 from ..vk.resources import STORAGE, STORAGE_TEXEL, TRANSFER_DST, TRANSFER_SRC, UNIFORM_TEXEL
 from .checks import check_batch_size, check_mesh, check_rays
+from .cuda_arrays import CudaRays, on_cuda
 
 #: Query kinds whose kernels read rays (and write results) through texel buffer views on CPU devices (RAYS_TEXEL):
 #: faster for occlusion on lavapipe, not for closest hits.
@@ -68,7 +69,7 @@ class Hits:
 
     def __repr__(self) -> str:
         n = len(self.t)
-        return f"<Hits {n} rays, {int(np.count_nonzero(self.prim >= 0))} hit>"
+        return f"<Hits {n} rays, {int((self.prim >= 0).sum())} hit>"
 
 
 class Tracer:
@@ -118,6 +119,7 @@ class Tracer:
         """
         self._lock = threading.RLock()   # one call at a time, from any thread (engine.parallel.serialized)
         self.ctx = None
+        self._cuda: CudaRays | None = None   # queries on CUDA arrays (engine.rt.cuda_arrays), made on first use
         self._owns_ctx = context is None
         if context is not None:
             if not isinstance(context, Context):
@@ -158,6 +160,7 @@ class Tracer:
         lib = ShaderLibrary()
         kinds = ("occluded", "intersect")
         interface = reflect(lib.get("trace_occluded.comp"), "trace_occluded.comp")
+        self.interface = interface   # (the ray / result bindings, also laid out by engine.rt.cuda_arrays)
         self.bvh_set = bvh_descriptor_set(ctx, interface)
         self.scene = SceneBVH.upload(ctx, self.bvh, self.bvh_set, self.layout)
         self.stats = dict(self.scene.bvh.stats, layout=self.layout)
@@ -283,12 +286,15 @@ class Tracer:
             tmax: a scalar or (N,) one per ray, not NaN; +inf allowed (a negative one hits nothing).
 
         Returns:
-            (N,) bool, True where the ray is blocked.
+            (N,) bool, True where the ray is blocked. CUDA arrays in (torch, CuPy, ...): the same framework's bool
+            array out, on the same device (engine.rt.cuda_arrays: the rays never leave the GPU).
 
         Raises:
             ConfigError: bad shapes, NaN or infinite values, a zero direction (naming the ray), a closed Tracer.
         """
         self._check_open()
+        if on_cuda(origins, directions, tmax):
+            return self._device_arrays().occluded(origins, directions, tmax)
         o, d, t = check_rays(origins, directions, tmax)
         out = np.empty(len(o), bool)
         self.last_gpu_ms, self.last_retried = 0.0, 0
@@ -301,9 +307,12 @@ class Tracer:
     def intersect(self, origins: ArrayLike, directions: ArrayLike, tmax: ArrayLike = np.inf) -> Hits:
         """Closest-hit queries: the nearest triangle along each ray within t in [0, tmax].
 
-        The arguments are `occluded()`'s. Returns `Hits` (t, prim, u, v per ray: t = +inf and prim = -1 on a miss).
+        The arguments are `occluded()`'s. Returns `Hits` (t, prim, u, v per ray: t = +inf and prim = -1 on a miss),
+        of the rays' framework's arrays for CUDA arrays in.
         """
         self._check_open()
+        if on_cuda(origins, directions, tmax):
+            return Hits(*self._device_arrays().intersect(origins, directions, tmax))
         o, d, t = check_rays(origins, directions, tmax)
         n_all = len(o)
         hits = Hits(np.empty(n_all, np.float32), np.empty(n_all, np.int32), np.empty(n_all, np.float32),
@@ -317,6 +326,12 @@ class Tracer:
             hits.u[s:s + n] = rec[:, 2]
             hits.v[s:s + n] = rec[:, 3]
         return hits
+
+    def _device_arrays(self) -> CudaRays:
+        """The queries on CUDA arrays (a ConfigError saying why where CUDA cannot share this device's memory)."""
+        if self._cuda is None:
+            self._cuda = CudaRays(self)
+        return self._cuda
 
     def _run(self, kind, o, d, t) -> int:
         n = len(o)
@@ -340,6 +355,9 @@ class Tracer:
     @serialized
     def close(self) -> None:
         """Free the GPU buffers (and the device, unless it was given as `context`); safe to call twice."""
+        if self._cuda is not None:   # (CUDA lets go of the shared memory before Vulkan frees it)
+            self._cuda.close()
+            self._cuda = None
         if self.ctx is not None:
             if self._owns_ctx:
                 self.ctx.close()

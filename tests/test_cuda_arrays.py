@@ -9,6 +9,7 @@ import pytest
 import trimesh
 
 from engine import ConfigError, RaycastingScene, Tracer
+from engine.rt import cuda_arrays
 from engine.rt.cuda_arrays import cuda_device, on_cuda
 from engine.vk import Context
 from engine.vk.external import ExternalBuffer, external_memory_unsupported
@@ -163,14 +164,28 @@ def test_intersect_matches_the_numpy_path(tracer, xp):
     assert int(got.hit.sum()) == int(hit.sum()) and f"{int(hit.sum())} hit" in repr(got)
 
 
-def test_batches_larger_than_a_dispatch_are_split(xp):
+def test_batches_larger_than_a_dispatch_are_split(xp, monkeypatch):
     mod, dev, host = xp
     v, f = mesh()
     o, d, t = rays(2500, seed=5)
+    monkeypatch.setattr(cuda_arrays, "CUDA_BATCH", 1000)   # (else up to 4M rays go in one dispatch)
     with Tracer(v, f, batch_size=1000) as small:
         np.testing.assert_array_equal(host(small.occluded(dev(o), dev(d), dev(t))), small.occluded(o, d, t))
+        assert small._cuda.shared.batch == 1000
         np.testing.assert_array_equal(host(small.intersect(dev(o), dev(d), dev(t)).prim),
                                       small.intersect(o, d, t).prim)
+
+
+def test_shared_buffers_grow_for_larger_queries(xp):
+    mod, dev, host = xp
+    o, d, t = rays(3000, seed=8)
+    with Tracer(*mesh()) as tracer:
+        small = tracer.occluded(dev(o[:100]), dev(d[:100]))
+        np.testing.assert_array_equal(host(small), tracer.occluded(o[:100], d[:100]))
+        first = tracer._cuda.shared.batch
+        big = np.concatenate([o] * 400), np.concatenate([d] * 400)   # 1.2M rays: more than the default batch_size
+        np.testing.assert_array_equal(host(tracer.occluded(dev(big[0]), dev(big[1]))), tracer.occluded(*big))
+        assert tracer._cuda.shared.batch >= len(big[0]) > first
 
 
 def test_bad_cuda_inputs_are_clear_errors(tracer, xp):

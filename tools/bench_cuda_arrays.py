@@ -33,7 +33,7 @@ def shadow_rays(scene, n, seed=0):
     unit_n = normal[tri] / np.maximum(area[tri], 1e-30)[:, None]
     unit_n *= np.sign(unit_n @ to_sun)[:, None]   # the side facing the sun
     origins = pts + 1e-3 * scene.radius * unit_n
-    return origins.astype(np.float32), np.broadcast_to(to_sun, (n, 3)).astype(np.float32)
+    return origins.astype(np.float32), np.tile(to_sun.astype(np.float32), (n, 1))
 
 
 def timed(fn, repeat):

@@ -11,6 +11,7 @@ stream synchronized, or the current one made to wait for it) before the call.
 """
 from __future__ import annotations
 
+import math
 import os
 import sys
 from numbers import Real
@@ -26,6 +27,9 @@ from ..vk.resources import STORAGE, STORAGE_TEXEL, UNIFORM_TEXEL
 
 RAY_BYTES = 28      # as the Tracer's: origins, directions, tmax as three packed arrays (rays.glsl)
 GROUP = 64
+#: rays per dispatch of queries on CUDA arrays, at least (where the Tracer's batch_size is smaller and the query
+#: larger): a 1920x1080 frame's rays in one dispatch, 4M rays taking 176 MB of device memory
+CUDA_BATCH = 1 << 22
 DLPACK_CUDA = (2, 13)   # DLPack device types: kDLCUDA, kDLCUDAManaged
 F32_MAX = float(np.finfo(np.float32).max)
 F32_TINY = float(np.finfo(np.float32).tiny)   # a direction needs a component at least this large (not subnormal)
@@ -188,40 +192,42 @@ def framework(value, what: str):
     return _CuPy(cupy), arr
 
 
-class CudaRays:
-    """A Tracer's queries on CUDA arrays: shared ray and result buffers, their own descriptor set and command
-    buffers (recorded once per query kind), the Tracer's pipelines and BVH. Made on the first such query."""
+class _Shared:
+    """The ray and result buffers CUDA and Vulkan share, for up to `batch` rays a dispatch: exported, mapped into
+    CUDA, bound in their own descriptor set, with a command buffer per query kind (recorded once)."""
 
-    def __init__(self, tracer):
-        self.tracer, self.ctx = tracer, tracer.ctx
-        self.device, reason = cuda_device(self.ctx)
-        if reason:
-            raise ConfigError(f"Tracer: CUDA arrays cannot be used here: {reason}. Pass numpy arrays instead "
-                              "(e.g. tensor.cpu().numpy())")
-        if any(tracer.two_pass.values()):
-            raise ConfigError("Tracer: CUDA arrays need a GPU Vulkan device, not a CPU one")
-        self.rt = cuda_runtime()
+    def __init__(self, tracer, rt, device: int, batch: int):
+        self.tracer, self.ctx, self.rt, self.device = tracer, tracer.ctx, rt, device
         self._imports: list[tuple] = []   # (external memory, mapped pointer) to free
         self._views: dict = {}
-        ctx, c, b = self.ctx, tracer.capacity, tracer.batch
-        self.rays = ExternalBuffer(ctx, c * RAY_BYTES, STORAGE | UNIFORM_TEXEL, name="rays (CUDA)")
-        self.results = ExternalBuffer(ctx, b * 16, STORAGE | STORAGE_TEXEL, name="hits (CUDA)")
-        self.params = Buffer(ctx, 32, STORAGE | INDIRECT, host=True, name="params (CUDA)")
-        interface = tracer.interface
-        self.io_set = DescriptorSet(ctx, interface.set(0).values())
-        for name, buf in (("ray_data", self.rays), ("params", self.params), ("retry", tracer.retry)):
-            self.io_set.bind(name, buf)
-        self.io_set.bind(interface.bindings[1].name, self.results)
-        vec3 = RGB32F if tracer.rays_texel_ok else R32F
-        self.ray_views = [BufferView(self.rays, vec3, 0, 12 * c), BufferView(self.rays, vec3, 12 * c, 12 * c),
-                          BufferView(self.rays, R32F, 24 * c, 4 * c), BufferView(self.results, R32UI, 0, 4 * b),
-                          BufferView(self.results, RGBA32UI, 0, 16 * b)]
-        for name, view in zip(("ray_origins", "ray_directions", "ray_tmax", "occluded_texels", "hit_texels"),
-                              self.ray_views):
-            self.io_set.bind(name, view)
-        self.rays_ptr = self._import(self.rays)
-        self.results_ptr = self._import(self.results)
-        self._commands = {kind: self._record(kind) for kind in ("occluded", "intersect")}
+        self.ray_views: list = []
+        self.batch = batch
+        align = max(1, int(self.ctx.limits.minTexelBufferOffsetAlignment))   # as the Tracer's ray arrays
+        step = align // math.gcd(12, align)
+        c = self.capacity = -(-batch // step) * step
+        ctx, b = self.ctx, batch
+        try:
+            self.rays = ExternalBuffer(ctx, c * RAY_BYTES, STORAGE | UNIFORM_TEXEL, name="rays (CUDA)")
+            self.results = ExternalBuffer(ctx, b * 16, STORAGE | STORAGE_TEXEL, name="hits (CUDA)")
+            self.params = Buffer(ctx, 32, STORAGE | INDIRECT, host=True, name="params (CUDA)")
+            interface = tracer.interface
+            self.io_set = DescriptorSet(ctx, interface.set(0).values())
+            for name, buf in (("ray_data", self.rays), ("params", self.params), ("retry", tracer.retry)):
+                self.io_set.bind(name, buf)
+            self.io_set.bind(interface.bindings[1].name, self.results)
+            vec3 = RGB32F if tracer.rays_texel_ok else R32F
+            self.ray_views = [BufferView(self.rays, vec3, 0, 12 * c), BufferView(self.rays, vec3, 12 * c, 12 * c),
+                              BufferView(self.rays, R32F, 24 * c, 4 * c), BufferView(self.results, R32UI, 0, 4 * b),
+                              BufferView(self.results, RGBA32UI, 0, 16 * b)]
+            for name, view in zip(("ray_origins", "ray_directions", "ray_tmax", "occluded_texels", "hit_texels"),
+                                  self.ray_views):
+                self.io_set.bind(name, view)
+            self.rays_ptr = self._import(self.rays)
+            self.results_ptr = self._import(self.results)
+            self.commands = {kind: self._record(kind) for kind in ("occluded", "intersect")}
+        except BaseException:
+            self.close()
+            raise
 
     def _import(self, buf: ExternalBuffer) -> int:
         """Map `buf`'s memory into CUDA on the Tracer's device; its device pointer."""
@@ -264,7 +270,7 @@ class CudaRays:
         """The shared buffers as `fw`'s arrays: origins, directions (c, 3), tmax (c,), results as uint32 (b,),
         float32 and int32 (b, 4)."""
         if fw.name not in self._views:
-            c, b, p, r, dev = self.tracer.capacity, self.tracer.batch, self.rays_ptr, self.results_ptr, self.device
+            c, b, p, r, dev = self.capacity, self.batch, self.rays_ptr, self.results_ptr, self.device
             self._views[fw.name] = {
                 "origins": fw.wrap(_Region(p, (c, 3), "<f4", dev)),
                 "directions": fw.wrap(_Region(p + 12 * c, (c, 3), "<f4", dev)),
@@ -273,6 +279,49 @@ class CudaRays:
                 "hits": fw.wrap(_Region(r, (b, 4), "<f4", dev)),
                 "prims": fw.wrap(_Region(r, (b, 4), "<i4", dev))}
         return self._views[fw.name]
+
+    def close(self):
+        """Unmap the memory from CUDA, then free the Vulkan side (the Tracer's device is idle: each query waits)."""
+        self._views.clear()
+        for cmd, _ in getattr(self, "commands", {}).values():
+            self.ctx.free_command_buffer(cmd)
+        self.commands = {}
+        for ext, ptr in self._imports:
+            self.rt.cudaFree(ptr)
+            self.rt.cudaDestroyExternalMemory(ext)
+        self._imports = []
+        for obj in self.ray_views + [getattr(self, k, None) for k in ("rays", "results", "params")]:
+            if obj is not None:
+                obj.destroy()
+        self.ray_views = []
+
+
+class CudaRays:
+    """A Tracer's queries on CUDA arrays, with the Tracer's pipelines and BVH. A query of N rays runs in dispatches
+    of up to max(the Tracer's batch_size, min(N, CUDA_BATCH)) rays (one for a 1080p frame's rays), through shared
+    buffers made for the largest size asked so far. Made on the first such query."""
+
+    def __init__(self, tracer):
+        self.tracer, self.ctx = tracer, tracer.ctx
+        self.device, reason = cuda_device(self.ctx)
+        if reason:
+            raise ConfigError(f"Tracer: CUDA arrays cannot be used here: {reason}. Pass numpy arrays instead "
+                              "(e.g. tensor.cpu().numpy())")
+        if any(tracer.two_pass.values()):
+            raise ConfigError("Tracer: CUDA arrays need a GPU Vulkan device, not a CPU one")
+        self.rt = cuda_runtime()
+        self.shared: _Shared | None = None
+
+    def _buffers(self, n: int) -> _Shared:
+        """Shared buffers for dispatches of min(n, the largest batch) rays, (re)made when smaller."""
+        limit = int(self.ctx.limits.maxTexelBufferElements)
+        want = min(max(self.tracer.batch, min(1 << max(n - 1, 0).bit_length(), CUDA_BATCH)), limit)
+        if self.shared is None or (self.shared.batch < want and self.shared.batch < n):
+            if self.shared is not None:
+                self.shared.close()
+                self.shared = None
+            self.shared = _Shared(self.tracer, self.rt, self.device, want)
+        return self.shared
 
     # ---- inputs ----------------------------------------------------------------------------------------------
     def _array(self, fw, value, what: str, shape_text: str):
@@ -320,15 +369,19 @@ class CudaRays:
                 raise ConfigError(f"tmax must be a number or have shape ({n},), got {tuple(t.shape)}")
         return fw, o, d, t, n
 
-    def _check_values(self, fw, v, k: int, start: int):
-        """A ConfigError naming the first bad ray of the batch now in the shared buffers (as the numpy path's)."""
+    def _check_values(self, fw, v, k: int, start: int, t_is_array: bool):
+        """A ConfigError naming the first bad ray of the batch now in the shared buffers (as the numpy path's):
+        a few whole-batch reductions and one wait on the stream; the rows only when one is bad."""
         o, d, t = v["origins"][:k], v["directions"][:k], v["tmax"][:k]
-        bad_o = ~(abs(o) <= MAX_COORD).all(1)
-        bad_d = ~(abs(d) <= F32_MAX).all(1) | ~(abs(d) >= F32_TINY).any(1)
-        bad_t = t != t
-        if not bool((bad_o | bad_d | bad_t).any()):
+        ad = abs(d)
+        fine = (abs(o).max() <= MAX_COORD) & (ad.max() <= F32_MAX) & (ad >= F32_TINY).any(1).all()
+        if t_is_array:
+            fine = fine & ~(t != t).any()
+        if bool(fine):   # (NaN fails every comparison)
             return
-        for bad, what in ((bad_o, "origins"), (bad_d, "directions"), (bad_t, "tmax")):
+        bad_o = ~(abs(o) <= MAX_COORD).all(1)
+        bad_d = ~(ad <= F32_MAX).all(1) | ~(ad >= F32_TINY).any(1)
+        for bad, what in ((bad_o, "origins"), (bad_d, "directions"), (t != t, "tmax")):
             if bool(bad.any()):
                 i = int(bad.nonzero()[0][0])
                 row = (o if what == "origins" else d if what == "directions" else t)[i].tolist()
@@ -344,17 +397,17 @@ class CudaRays:
                 raise ConfigError(f"{what}: ray {start + i} {why} ({row})")
 
     # ---- queries ---------------------------------------------------------------------------------------------
-    def _trace(self, kind, fw, o, d, t, start: int, k: int):
+    def _trace(self, kind, fw, shared: _Shared, o, d, t, start: int, k: int):
         """Rays [start, start + k) into the shared buffers, checked, and traced; the results stay there."""
-        v, tracer = self.views(fw), self.tracer
+        v, tracer = shared.views(fw), self.tracer
         v["origins"][:k] = o[start:start + k]
         v["directions"][:k] = d[start:start + k]
         v["tmax"][:k] = t if isinstance(t, float) else t[start:start + k]
-        self._check_values(fw, v, k, start)
+        self._check_values(fw, v, k, start, not isinstance(t, float))
         fw.sync(self.device)   # the stream rule: CUDA's writes are done before Vulkan reads
-        self.params.write(np.array([(k + GROUP - 1) // GROUP, 1, 1, k, tracer.capacity, tracer.shares, 0, 0],
-                                   np.uint32))
-        cmd, marks = self._commands[kind]
+        shared.params.write(np.array([(k + GROUP - 1) // GROUP, 1, 1, k, shared.capacity, tracer.shares, 0, 0],
+                                     np.uint32))
+        cmd, marks = shared.commands[kind]
         self.ctx.submit(cmd)   # waits for the fence
         tracer.last_times = tracer.timestamps.read(marks)
         tracer.last_gpu_ms += tracer.last_times.get("trace", 0.0)
@@ -363,10 +416,11 @@ class CudaRays:
         fw, o, d, t, n = self.inputs(origins, directions, tmax)
         out = fw.empty(n, "bool", self.device)
         self.tracer.last_gpu_ms, self.tracer.last_retried = 0.0, 0
-        for s in range(0, n, self.tracer.batch):
-            k = min(self.tracer.batch, n - s)
-            self._trace("occluded", fw, o, d, t, s, k)
-            out[s:s + k] = self.views(fw)["occluded"][:k] != 0
+        shared = self._buffers(n)
+        for s in range(0, n, shared.batch):
+            k = min(shared.batch, n - s)
+            self._trace("occluded", fw, shared, o, d, t, s, k)
+            out[s:s + k] = shared.views(fw)["occluded"][:k] != 0
         fw.sync(self.device)   # the results are complete, and the shared buffers free for the next call
         return out
 
@@ -377,10 +431,11 @@ class CudaRays:
         out = (fw.empty(n, "float32", dev), fw.empty(n, "int32", dev), fw.empty(n, "float32", dev),
                fw.empty(n, "float32", dev))
         self.tracer.last_gpu_ms, self.tracer.last_retried = 0.0, 0
-        for s in range(0, n, self.tracer.batch):
-            k = min(self.tracer.batch, n - s)
-            self._trace("intersect", fw, o, d, t, s, k)
-            hits, prims = self.views(fw)["hits"][:k], self.views(fw)["prims"][:k]
+        shared = self._buffers(n)
+        for s in range(0, n, shared.batch):
+            k = min(shared.batch, n - s)
+            self._trace("intersect", fw, shared, o, d, t, s, k)
+            hits, prims = shared.views(fw)["hits"][:k], shared.views(fw)["prims"][:k]
             out[0][s:s + k] = hits[:, 0]
             out[1][s:s + k] = prims[:, 1]
             out[2][s:s + k] = hits[:, 2]
@@ -389,15 +444,10 @@ class CudaRays:
         return out
 
     def close(self):
-        """Unmap the shared memory from CUDA, then free the Vulkan side; safe to call twice."""
-        self._views.clear()
-        for ext, ptr in self._imports:
-            self.rt.cudaFree(ptr)
-            self.rt.cudaDestroyExternalMemory(ext)
-        self._imports = []
-        for obj in self.ray_views + [self.rays, self.results, self.params]:
-            obj.destroy()
-        self.ray_views = []
+        """Free the shared buffers (CUDA's mapping first); safe to call twice."""
+        if self.shared is not None:
+            self.shared.close()
+            self.shared = None
 
 
 def scene_rays(rays, center):

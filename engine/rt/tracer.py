@@ -106,7 +106,7 @@ class Tracer:
                 the best).
             validation: turn the Khronos validation layer on.
             batch_size: the most rays one dispatch takes (larger queries are split), at most the device's texel
-                buffer limit.
+                buffer limit (queries on CUDA arrays: up to max(batch_size, min(N, 4M)), engine.rt.cuda_arrays).
             context: use an existing `engine.vk.Context` (not closed here).
             staging: copy rays to and results from device-local buffers (default: when the device has memory the
                 host cannot map, i.e. a discrete GPU).

@@ -26,9 +26,9 @@ DEVICE = vk.VK_MEMORY_PROPERTY_DEVICE_LOCAL_BIT
 _OUT_OF_MEMORY = (vk.VkErrorOutOfDeviceMemory, vk.VkErrorOutOfHostMemory)
 
 
-def allocate(ctx: Context, req, mtype: int, what: str):
+def allocate(ctx: Context, req, mtype: int, what: str, pnext=None):
     """Device memory for a resource's requirements `req`, or a VulkanError naming `what` and the size (refused before
-    the call when it exceeds the memory heap)."""
+    the call when it exceeds the memory heap). `pnext`: extension structures of the allocation (export, ...)."""
     mp = ctx.memory_properties
     heap = mp.memoryHeaps[mp.memoryTypes[mtype].heapIndex].size
     size = f"{req.size / 2**20:.1f} MiB"
@@ -36,7 +36,7 @@ def allocate(ctx: Context, req, mtype: int, what: str):
         raise VulkanError(f"{what}: {size} is more than this device's memory heap of {heap / 2**20:.0f} MiB "
                           f"({ctx.device_info['name']}); use a smaller size or scene")
     try:
-        memory = vk.vkAllocateMemory(ctx.device, vk.VkMemoryAllocateInfo(allocationSize=req.size,
+        memory = vk.vkAllocateMemory(ctx.device, vk.VkMemoryAllocateInfo(pNext=pnext, allocationSize=req.size,
                                                                          memoryTypeIndex=mtype), None)
     except _OUT_OF_MEMORY as exc:
         kind = "device" if isinstance(exc, vk.VkErrorOutOfDeviceMemory) else "host"

@@ -1,5 +1,5 @@
 """G-buffer pass: a visibility raster (the id of the visible triangle per pixel) and a compute resolve into world
-position + linear depth, normal and albedo.
+position + linear depth, normal, albedo and the material's roughness, metallic, occlusion and emission.
 
 The raster writes 4 bytes per pixel (R32_UINT: triangle + 1, 0 = background) plus depth; `gbuffer_resolve.comp`
 then computes what the rasterizer would have interpolated at each pixel centre from the triangle's vertices
@@ -55,12 +55,16 @@ class SceneGeometry:
         self.tri_info_buffer = upload_buffer(ctx, info, UNIFORM_TEXEL, "triangle info")
 
         self.textures = []
-        mat_data = np.zeros((max(len(scene.materials), 1), 8), np.float32)
+        # 4 RGBA texels per material (gbuffer_resolve.comp): base colour; texture slot; metallic, roughness,
+        # occlusion strength, normal scale; emissive, alpha cutoff
+        mat_data = np.zeros((max(len(scene.materials), 1), 16), np.float32)
         mat_slots = mat_data.view(np.int32)
         slots = {}   # texture content -> slot: one image shared by many materials takes one slot
         keys = [texture_key(m.texture) for m in scene.materials]
         for i, (m, key) in enumerate(zip(scene.materials, keys)):
             mat_data[i, 0:4] = m.base_color
+            mat_data[i, 8:12] = m.metallic, m.roughness, m.occlusion_strength, m.normal_scale
+            mat_data[i, 12:15], mat_data[i, 15] = m.emissive, m.alpha_cutoff
             if key is not None and key not in slots and len(self.textures) < MAX_TEXTURES:
                 slots[key] = len(self.textures)
                 self.textures.append(upload_texture(ctx, m.texture))
@@ -102,7 +106,8 @@ class ResolvePass(ComputePass):
         "materials": read("uniform_texel"), "textures": read("texture"),
         "g_depth": write("image", "view_depth"), "g_triangle": write("image", "triangle_id"),
         "g_object": write("image", "object_id"), "g_material": write("image", "material_id"),
-        "g_motion": write("image", "motion"),
+        "g_motion": write("image", "motion"), "g_pbr": write("image", "material"),
+        "g_emissive": write("image", "emissive"),
     }
 
     def constants(self, ctx) -> dict:

@@ -36,7 +36,9 @@ layout(set = 0, binding = 10, rgba8_snorm) uniform writeonly image2D g_normal8;
 layout(set = 0, binding = 5) uniform samplerBuffer vertices;       // 2 texels per vertex: (p, n.x), (n.yz, uv)
 layout(set = 0, binding = 6) uniform usamplerBuffer indices;       // material-sorted, 3 per triangle
 layout(set = 0, binding = 7) uniform usamplerBuffer tri_info;      // per triangle: material, scene triangle, object
-layout(set = 0, binding = 8) uniform samplerBuffer materials;      // 2 texels: base colour, (texture slot bits, ...)
+// 4 texels per material: base colour; (texture slot bits, ...); (metallic, roughness, occlusion strength, normal
+// scale); (emissive rgb, alpha cutoff)
+layout(set = 0, binding = 8) uniform samplerBuffer materials;
 layout(set = 0, binding = 9) uniform sampler2D textures[MAX_TEXTURES];
 // The data AOVs: linear view depth (+inf on background), the scene's triangle, object and material ids (-1 as uint on
 // background), and the pixel's motion since the previous frame (now - then, in pixels).
@@ -45,6 +47,9 @@ layout(set = 0, binding = 12, r32ui) uniform writeonly uimage2D g_triangle;
 layout(set = 0, binding = 13, r32ui) uniform writeonly uimage2D g_object;
 layout(set = 0, binding = 14, r32ui) uniform writeonly uimage2D g_material;
 layout(set = 0, binding = 15, rg32f) uniform writeonly image2D g_motion;
+// The lighting's material inputs: (roughness, metallic, occlusion, 1 where covered) and the emitted radiance.
+layout(set = 0, binding = 16, rgba8) uniform writeonly image2D g_pbr;
+layout(set = 0, binding = 17, rgba16f) uniform writeonly image2D g_emissive;
 
 shared uint tile_slots;   // bit s: some pixel of this workgroup samples texture slot s
 
@@ -63,6 +68,8 @@ void main() {
     vec3 pos = vec3(0.0), nrm = vec3(0.0);
     vec2 uv = vec2(0.0), duv_dx = vec2(0.0), duv_dy = vec2(0.0);
     vec4 albedo = vec4(0.0);
+    vec4 pbr = vec4(0.0);        // roughness, metallic, occlusion, covered
+    vec3 emissive = vec3(0.0);
     int slot = -1;
     uvec4 info = uvec4(0xFFFFFFFFu);
     if (id != 0u) {
@@ -99,8 +106,11 @@ void main() {
 
         info = texelFetch(tri_info, tri);
         int material = int(info.x);
-        albedo = vec4(texelFetch(materials, 2 * material).rgb, 1.0);
-        slot = floatBitsToInt(texelFetch(materials, 2 * material + 1).x);
+        albedo = vec4(texelFetch(materials, 4 * material).rgb, 1.0);
+        slot = floatBitsToInt(texelFetch(materials, 4 * material + 1).x);
+        vec4 factors = texelFetch(materials, 4 * material + 2);
+        pbr = vec4(factors.y, factors.x, 1.0, 1.0);
+        emissive = texelFetch(materials, 4 * material + 3).rgb;
     }
 
     // Texture sampling: one block per slot, each with a constant index, taken where some pixel of this workgroup
@@ -127,6 +137,8 @@ void main() {
     imageStore(g_triangle, px, uvec4(info.y));
     imageStore(g_object, px, uvec4(info.z));
     imageStore(g_material, px, uvec4(info.x));
+    imageStore(g_pbr, px, pbr);
+    imageStore(g_emissive, px, vec4(emissive, 0.0));
     vec2 motion = vec2(0.0);
     if (id != 0u) {   // where this surface point is on screen minus where it was in the previous frame
         vec4 now = frame.view_proj * vec4(pos, 1.0), prev = frame.prev_view_proj * vec4(pos, 1.0);

@@ -4,7 +4,8 @@ position + linear depth, normal and albedo.
 The raster writes 4 bytes per pixel (R32_UINT: triangle + 1, 0 = background) plus depth; `gbuffer_resolve.comp`
 then computes what the rasterizer would have interpolated at each pixel centre from the triangle's vertices
 (perspective-correct barycentrics from homogeneous edge functions) and samples the albedo texture with the UV
-derivatives of the neighbouring pixels. Writing the whole G-buffer from fragments was several times slower on a GPU
+derivatives of the neighbouring pixels (trilinear, anisotropic where the device can; textures are layers of a few
+array images, engine/passes/textures.py). Writing the whole G-buffer from fragments was several times slower on a GPU
 with few raster units; the same bytes from compute cost a small fraction of that.
 
 Vertices are interleaved (position, normal, uv: 32 bytes); triangles are sorted by material and drawn with one
@@ -12,20 +13,17 @@ draw per material, the draw's first triangle in a push constant (the triangle id
 """
 from __future__ import annotations
 
-import logging
-
 import numpy as np
 
 from ..errors import ShaderError
 from ..scene.material import texture_key
-from ..vk import BufferView, DescriptorSet, GraphicsPipeline, Sampler, reflect, upload_buffer, upload_texture
+from ..vk import BufferView, DescriptorSet, GraphicsPipeline, Sampler, reflect, upload_buffer, upload_texture_array
 from ..vk.formats import R32UI, RGB32F, RGBA32F, RGBA32UI
 from ..vk.resources import INDEX, UNIFORM_TEXEL, VERTEX
 from .base import ComputePass, read, update, write
-from .interface import MAX_TEXTURES
+from .interface import MAX_TEXTURE_ARRAYS
 from .targets import DEPTH_FORMAT, VISIBILITY_FORMAT
-
-log = logging.getLogger("engine.gbuffer")
+from .textures import TextureArrays
 
 
 class SceneGeometry:
@@ -54,21 +52,17 @@ class SceneGeometry:
         info[:-1, 0], info[:-1, 1], info[:-1, 2] = mats_sorted, order, triangle_objects(scene)[order]
         self.tri_info_buffer = upload_buffer(ctx, info, UNIFORM_TEXEL, "triangle info")
 
-        self.textures = []
-        mat_data = np.zeros((max(len(scene.materials), 1), 8), np.float32)
-        mat_slots = mat_data.view(np.int32)
-        slots = {}   # texture content -> slot: one image shared by many materials takes one slot
         keys = [texture_key(m.texture) for m in scene.materials]
+        unique = {}   # texture content -> image: one image shared by many materials is one layer
+        for m, key in zip(scene.materials, keys):
+            if key is not None:
+                unique.setdefault(key, (m.texture, True))
+        self.textures = TextureArrays(ctx, unique)
+        mat_data = np.zeros((max(len(scene.materials), 1), 8), np.float32)
+        mat_bits = mat_data.view(np.uint32)
         for i, (m, key) in enumerate(zip(scene.materials, keys)):
             mat_data[i, 0:4] = m.base_color
-            if key is not None and key not in slots and len(self.textures) < MAX_TEXTURES:
-                slots[key] = len(self.textures)
-                self.textures.append(upload_texture(ctx, m.texture))
-            mat_slots[i, 4] = slots.get(key, -1)
-        distinct = len(set(keys) - {None})
-        if distinct > MAX_TEXTURES:
-            log.warning("%s: %d distinct textures; the first %d are kept, materials with the other %d show their base "
-                        "colour", scene.name, distinct, MAX_TEXTURES, distinct - MAX_TEXTURES)
+            mat_bits[i, 4] = self.textures.handle(key)
         self.material_buffer = upload_buffer(ctx, mat_data, UNIFORM_TEXEL, "materials")
         self.views = [BufferView(self.vertex_buffer, RGBA32F), BufferView(self.index_buffer, R32UI),
                       BufferView(self.tri_info_buffer, RGBA32UI), BufferView(self.material_buffer, RGBA32F)]
@@ -77,7 +71,7 @@ class SceneGeometry:
 
     def destroy(self):
         for obj in [*self.views, self.vertex_buffer, self.index_buffer, self.tri_info_buffer,
-                    self.material_buffer, *self.textures]:
+                    self.material_buffer, self.textures]:
             obj.destroy()
 
 
@@ -106,7 +100,7 @@ class ResolvePass(ComputePass):
     }
 
     def constants(self, ctx) -> dict:
-        return {"TEXTURE_SLOTS": MAX_TEXTURES}   # lowered to the slots a scene uses (its sampling blocks past them go)
+        return {"TEXTURE_ARRAYS": MAX_TEXTURE_ARRAYS}   # lowered to the arrays a scene has (blocks past them go)
 
 
 class GBufferPass:
@@ -126,9 +120,9 @@ class GBufferPass:
             ctx, vert, frag, [self.raster_set], color_formats=[VISIBILITY_FORMAT], depth_format=DEPTH_FORMAT,
             vertex_stride=32, attributes=[(0, RGB32F, 0)], push_size=interface.push_size, name="gbuffer")
         self.resolve = ResolvePass(ctx, library, resources)
-        self.sampler = Sampler(ctx)
-        self.white = upload_texture(ctx, np.full((1, 1, 4), 255, np.uint8))
-        for slot in range(MAX_TEXTURES):
+        self.sampler = Sampler(ctx, anisotropy=16.0)
+        self.white = upload_texture_array(ctx, [np.full((1, 1, 4), 255, np.uint8)], 1, 1, name="white texture")
+        for slot in range(MAX_TEXTURE_ARRAYS):
             self.resolve.set.bind("textures", self.white, sampler=self.sampler, element=slot)
         self.resources = resources
 
@@ -153,12 +147,12 @@ class GBufferPass:
         self.resolve.bind(resources)
 
     def bind_scene(self, geom: SceneGeometry):
-        self.resolve.specialize(TEXTURE_SLOTS=max(1, len(geom.textures)))
+        self.resolve.specialize(TEXTURE_ARRAYS=max(1, len(geom.textures)))
         s = self.resolve.set
         for name, view in zip(("vertices", "indices", "tri_info", "materials"), geom.views):
             s.bind(name, view)
-        for slot in range(MAX_TEXTURES):
-            tex = geom.textures[slot] if slot < len(geom.textures) else self.white
+        for slot in range(MAX_TEXTURE_ARRAYS):
+            tex = geom.textures.images[slot] if slot < len(geom.textures) else self.white
             s.bind("textures", tex, sampler=self.sampler, element=slot)
 
     def record(self, rec, targets, geom: SceneGeometry):

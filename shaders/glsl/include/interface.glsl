@@ -3,7 +3,8 @@
 #define INTERFACE_GLSL
 
 #define MAX_LIGHTS 16
-#define MAX_TEXTURES 16
+#define MAX_TEXTURE_ARRAYS 16
+#define TEXTURE_NONE 0xffffffffu
 #define MAX_HISTORY 255.0
 #define LIGHT_DIRECTIONAL 0
 #define LIGHT_POINT 1

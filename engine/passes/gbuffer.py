@@ -17,7 +17,8 @@ import numpy as np
 
 from ..errors import ShaderError
 from ..scene.material import texture_key
-from ..vk import BufferView, DescriptorSet, GraphicsPipeline, Sampler, reflect, upload_buffer, upload_texture_array
+from ..vk import (BufferView, DescriptorSet, GraphicsPipeline, Sampler, device, reflect, upload_buffer,
+                  upload_texture_array)
 from ..vk.formats import R32UI, RGB32F, RGBA32F, RGBA32UI
 from ..vk.resources import INDEX, UNIFORM_TEXEL, VERTEX
 from .base import ComputePass, read, update, write
@@ -120,7 +121,7 @@ class GBufferPass:
             ctx, vert, frag, [self.raster_set], color_formats=[VISIBILITY_FORMAT], depth_format=DEPTH_FORMAT,
             vertex_stride=32, attributes=[(0, RGB32F, 0)], push_size=interface.push_size, name="gbuffer")
         self.resolve = ResolvePass(ctx, library, resources)
-        self.sampler = Sampler(ctx, anisotropy=16.0)
+        self.sampler = Sampler(ctx, anisotropy=device.texture_anisotropy(ctx))
         self.white = upload_texture_array(ctx, [np.full((1, 1, 4), 255, np.uint8)], 1, 1, name="white texture")
         for slot in range(MAX_TEXTURE_ARRAYS):
             self.resolve.set.bind("textures", self.white, sampler=self.sampler, element=slot)

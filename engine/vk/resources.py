@@ -281,7 +281,7 @@ class Sampler:
         self.ctx = ctx
         filt = vk.VK_FILTER_LINEAR if linear else vk.VK_FILTER_NEAREST
         mode = vk.VK_SAMPLER_ADDRESS_MODE_REPEAT if repeat else vk.VK_SAMPLER_ADDRESS_MODE_CLAMP_TO_EDGE
-        aniso = float(max(1.0, min(anisotropy, ctx.max_anisotropy)))
+        aniso = self.anisotropy = float(max(1.0, min(anisotropy, ctx.max_anisotropy)))
         self.handle = vk.vkCreateSampler(ctx.device, vk.VkSamplerCreateInfo(
             magFilter=filt, minFilter=filt, mipmapMode=vk.VK_SAMPLER_MIPMAP_MODE_LINEAR,
             addressModeU=mode, addressModeV=mode, addressModeW=mode, maxLod=max_lod, minLod=0.0,

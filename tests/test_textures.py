@@ -187,3 +187,43 @@ def test_more_textures_than_the_arrays_hold_are_named_in_a_warning(caplog):
     plans, handles = plan_arrays(textures, max_dim=64, max_layers=2)
     assert len(plans) == MAX_TEXTURE_ARRAYS and len(handles) == 2 * MAX_TEXTURE_ARRAYS
     assert "8 textures do not fit in 16 arrays of 2 layers" in caplog.text
+
+
+# ---- normal maps -------------------------------------------------------------------------------------------------
+def normal_map_quad(tn, mirrored=False, scale=1.0, eye=(0, 0, 4)):
+    """A unit-ish quad facing +z whose normal texture holds one tangent-space normal `tn` (u along +x, or -x when
+    `mirrored`; v down the image, so the map's +y is world +y)."""
+    tex = np.empty((4, 4, 4), np.uint8)
+    tex[..., :3] = np.round((np.asarray(tn) * 0.5 + 0.5) * 255)
+    tex[..., 3] = 255
+    verts = np.array([[-1, -1, 0], [1, -1, 0], [1, 1, 0], [-1, 1, 0]], float)
+    uvs = np.array([[0, 1], [1, 1], [1, 0], [0, 0]], float)
+    if mirrored:
+        uvs[:, 0] = 1 - uvs[:, 0]
+    mat = Material("bumpy", (1, 1, 1), normal_texture=tex, normal_scale=scale)
+    return Scene(verts, [[0, 1, 2], [0, 2, 3]], uvs=uvs, materials=[mat],
+                 camera=Camera.look_at(eye, (0, 0, 0), fov_y=30.0))
+
+
+@pytest.mark.parametrize("tn, mirrored, scale, want", [
+    ((0.6, 0.0, 0.8), False, 1.0, (0.6, 0.0, 0.8)),     # +x of the map: +u = world +x
+    ((0.0, 0.6, 0.8), False, 1.0, (0.0, 0.6, 0.8)),     # +y of the map: up in the image = world +y
+    ((0.6, 0.0, 0.8), True, 1.0, (-0.6, 0.0, 0.8)),     # mirrored u: +u = world -x, +y still up
+    ((0.0, 0.6, 0.8), True, 1.0, (0.0, 0.6, 0.8)),
+    ((0.6, 0.0, 0.8), False, 0.5, (0.3, 0.0, 0.8)),     # normal_scale scales x and y
+], ids=["x", "y", "mirrored-x", "mirrored-y", "scaled"])
+def test_a_normal_map_turns_the_normal_in_the_tangent_frame(make_renderer, tn, mirrored, scale, want):
+    scene = normal_map_quad(tn, mirrored, scale)
+    f = make_renderer(32, 32).render(scene, aovs=("normal", "depth"), shadows="off", ao=False)
+    want = np.asarray(want) / np.linalg.norm(want)
+    n = f.aov["normal"][8:24, 8:24].reshape(-1, 3)
+    assert np.isfinite(f.aov["depth"][8:24, 8:24]).all()
+    assert np.abs(n - want).max() < 0.01, (n.mean(axis=0), want)
+
+
+def test_a_normal_map_seen_from_behind_gives_the_fronts_normal_negated(make_renderer):
+    scene = normal_map_quad((0.6, 0.3, 0.74), eye=(0, 0, -4))
+    f = make_renderer(32, 32).render(scene, aovs=("normal",), shadows="off", ao=False)
+    want = -np.array([0.6, 0.3, 0.74]) / np.linalg.norm([0.6, 0.3, 0.74])
+    n = f.aov["normal"][8:24, 8:24].reshape(-1, 3)
+    assert np.abs(n - want).max() < 0.01, (n.mean(axis=0), want)

@@ -22,7 +22,7 @@ from ..vk import (BufferView, DescriptorSet, GraphicsPipeline, Sampler, device, 
 from ..vk.formats import R32UI, RGB32F, RGBA32F, RGBA32UI
 from ..vk.resources import INDEX, UNIFORM_TEXEL, VERTEX
 from .base import ComputePass, read, update, write
-from .interface import MAX_TEXTURE_ARRAYS
+from .interface import MATERIAL_FLAGS, MATERIAL_TEXELS, MAX_TEXTURE_ARRAYS
 from .targets import DEPTH_FORMAT, VISIBILITY_FORMAT
 from .textures import TextureArrays
 
@@ -53,17 +53,9 @@ class SceneGeometry:
         info[:-1, 0], info[:-1, 1], info[:-1, 2] = mats_sorted, order, triangle_objects(scene)[order]
         self.tri_info_buffer = upload_buffer(ctx, info, UNIFORM_TEXEL, "triangle info")
 
-        keys = [texture_key(m.texture) for m in scene.materials]
-        unique = {}   # texture content -> image: one image shared by many materials is one layer
-        for m, key in zip(scene.materials, keys):
-            if key is not None:
-                unique.setdefault(key, (m.texture, True))
-        self.textures = TextureArrays(ctx, unique)
-        mat_data = np.zeros((max(len(scene.materials), 1), 8), np.float32)
-        mat_bits = mat_data.view(np.uint32)
-        for i, (m, key) in enumerate(zip(scene.materials, keys)):
-            mat_data[i, 0:4] = m.base_color
-            mat_bits[i, 4] = self.textures.handle(key)
+        self.textures = TextureArrays(ctx, scene_textures(scene.materials))
+        mat_data = material_texels(scene.materials, self.textures)
+        self.alpha_tested = {i for i, m in enumerate(scene.materials) if m.alpha_mode != "OPAQUE"}
         self.material_buffer = upload_buffer(ctx, mat_data, UNIFORM_TEXEL, "materials")
         self.views = [BufferView(self.vertex_buffer, RGBA32F), BufferView(self.index_buffer, R32UI),
                       BufferView(self.tri_info_buffer, RGBA32UI), BufferView(self.material_buffer, RGBA32F)]
@@ -74,6 +66,45 @@ class SceneGeometry:
         for obj in [*self.views, self.vertex_buffer, self.index_buffer, self.tri_info_buffer,
                     self.material_buffer, self.textures]:
             obj.destroy()
+
+
+#: Each texture field of a Material and whether it holds colour (an sRGB array) or data (a linear one).
+TEXTURE_KINDS = {"texture": True, "metallic_roughness_texture": False, "normal_texture": False,
+                 "emissive_texture": True, "occlusion_texture": False}
+
+
+def scene_textures(materials) -> dict:
+    """(texture content, srgb) -> (image, srgb) over every texture of every material: one image used by many
+    materials is one layer; one used as colour and as data is one of each kind."""
+    out = {}
+    for m in materials:
+        for field, srgb in TEXTURE_KINDS.items():
+            image = getattr(m, field)
+            if image is not None:
+                out.setdefault((texture_key(image), srgb), (image, srgb))
+    return out
+
+
+def material_texels(materials, textures: TextureArrays) -> np.ndarray:
+    """The materials texel buffer: MATERIAL_TEXELS RGBA32F texels per material (the layout is in interface.py)."""
+    data = np.zeros((max(len(materials), 1), 4 * MATERIAL_TEXELS), np.float32)
+    bits = data.view(np.uint32)
+
+    def handle(m, field):
+        image = getattr(m, field)
+        return textures.handle(None if image is None else (texture_key(image), TEXTURE_KINDS[field]))
+
+    for i, m in enumerate(materials):
+        data[i, 0:4] = m.base_color
+        bits[i, 4:8] = [handle(m, f) for f in ("texture", "metallic_roughness_texture", "normal_texture",
+                                               "emissive_texture")]
+        data[i, 8:12] = m.metallic, m.roughness, m.occlusion_strength, m.normal_scale
+        # BLEND is cut out at 0.5 (no transparency): the raster and the rays see the same surface
+        data[i, 12:15], data[i, 15] = m.emissive, {"OPAQUE": 0.0, "MASK": m.alpha_cutoff, "BLEND": 0.5}[m.alpha_mode]
+        bits[i, 16] = handle(m, "occlusion_texture")
+        bits[i, 17] = ((MATERIAL_FLAGS["alpha_tested"] if m.alpha_mode != "OPAQUE" else 0)
+                       | (MATERIAL_FLAGS["double_sided"] if m.double_sided else 0))
+    return data
 
 
 def triangle_objects(scene) -> np.ndarray:

@@ -29,7 +29,7 @@ layout(set = 0, binding = 10, rgba8_snorm) uniform writeonly image2D g_normal8;
 layout(set = 0, binding = 5) uniform samplerBuffer vertices;       // 2 texels per vertex: (p, n.x), (n.yz, uv)
 layout(set = 0, binding = 6) uniform usamplerBuffer indices;       // material-sorted, 3 per triangle
 layout(set = 0, binding = 7) uniform usamplerBuffer tri_info;      // per triangle: material, scene triangle, object
-layout(set = 0, binding = 8) uniform samplerBuffer materials;      // 2 texels: base colour, (texture handle bits, ...)
+layout(set = 0, binding = 8) uniform samplerBuffer materials;      // MATERIAL_TEXELS per material (interface.py)
 // The data AOVs: linear view depth (+inf on background), the scene's triangle, object and material ids (-1 as uint on
 // background), and the pixel's motion since the previous frame (now - then, in pixels).
 layout(set = 0, binding = 11, r32f) uniform writeonly image2D g_depth;
@@ -55,7 +55,9 @@ void main() {
     vec3 pos = vec3(0.0), nrm = vec3(0.0);
     vec2 uv = vec2(0.0), duv_dx = vec2(0.0), duv_dy = vec2(0.0);
     vec4 albedo = vec4(0.0);
-    uint handle = TEXTURE_NONE;
+    uvec4 handles = uvec4(TEXTURE_NONE);   // base colour, metallic-roughness, normal, emissive
+    vec3 tangent = vec3(0.0), bitangent = vec3(0.0);
+    float normal_scale = 1.0;
     uvec4 info = uvec4(0xFFFFFFFFu);
     if (id != 0u) {
         int tri = int(id - 1u);
@@ -81,7 +83,8 @@ void main() {
         float len = length(n);
         // a degenerate interpolated normal falls back to the facet normal
         n = len > 1e-6 ? n / len : normalize(cross(p1 - p0, p2 - p0));
-        if (dot(n, frame.eye - pos) < 0.0) n = -n;   // two-sided surfaces: the side we see
+        float side = dot(n, frame.eye - pos) < 0.0 ? -1.0 : 1.0;
+        n *= side;   // two-sided surfaces: the side we see
         nrm = n;
 
         vec2 t0 = b0.zw, t1 = b1.zw, t2 = b2.zw;
@@ -90,22 +93,47 @@ void main() {
         duv_dy = by.x * t0 + by.y * t1 + by.z * t2 - uv;
 
         info = texelFetch(tri_info, tri);
-        int material = int(info.x);
-        albedo = vec4(texelFetch(materials, 2 * material).rgb, 1.0);
-        handle = floatBitsToUint(texelFetch(materials, 2 * material + 1).x);
+        int material = MATERIAL_TEXELS * int(info.x);
+        albedo = vec4(texelFetch(materials, material).rgb, 1.0);
+        handles = floatBitsToUint(texelFetch(materials, material + 1));
+        normal_scale = texelFetch(materials, material + 2).w;
+
+        // The normal map's tangent frame: T = dP/du of the triangle, orthonormalized against the interpolated
+        // normal; B = cross(N, T), its sign making B point along -dP/dv (up in the image: glTF's +Y), which also
+        // holds for mirrored UVs; seen from the back, the whole frame turns (the mapped normal is the front's,
+        // negated). Degenerate UVs: no normal map.
+        vec2 d1 = t1 - t0, d2 = t2 - t0;
+        float det = d1.x * d2.y - d2.x * d1.y;
+        if (handles.z != TEXTURE_NONE && abs(det) > 1e-20) {
+            vec3 q1 = p1 - p0, q2 = p2 - p0;
+            vec3 dp_du = (q1 * d2.y - q2 * d1.y) / det, dp_dv = (q2 * d1.x - q1 * d2.x) / det;
+            vec3 t = dp_du - n * dot(n, dp_du);
+            if (dot(t, t) > 1e-30) {
+                tangent = normalize(t);
+                bitangent = cross(n, tangent);
+                if (dot(bitangent, dp_dv) > 0.0) bitangent = -bitangent;
+                tangent *= side;
+                bitangent *= side;
+            }
+        }
     }
 
     // Texture sampling (textures.glsl): each array this workgroup's pixels use is sampled in a branch that is
     // uniform over the workgroup, with explicit UV derivatives (trilinear; anisotropic where the sampler has it).
     if (gl_LocalInvocationIndex == 0u) tile_arrays = 0u;
     barrier();
-    uint bit = texture_bit(handle);
-    if (bit != 0u) atomicOr(tile_arrays, bit);
+    uint bits = texture_bit(handles.x) | texture_bit(handles.y) | texture_bit(handles.z) | texture_bit(handles.w);
+    if (bits != 0u) atomicOr(tile_arrays, bits);
     barrier();
     uint used = tile_arrays;
     if (used != 0u) {
-        vec4 texel = sample_texture_masked(handle, uv, duv_dx, duv_dy, used);
-        albedo.rgb *= texel.rgb;
+        albedo.rgb *= sample_texture_masked(handles.x, uv, duv_dx, duv_dy, used).rgb;
+        vec3 tn = sample_texture_masked(handles.z, uv, duv_dx, duv_dy, used).xyz * 2.0 - 1.0;
+        if (tangent != vec3(0.0)) {   // tangent-space normal, x and y scaled (glTF normalTexture.scale)
+            vec3 mapped = tangent * (tn.x * normal_scale) + bitangent * (tn.y * normal_scale) + nrm * tn.z;
+            float len = length(mapped);
+            if (len > 1e-6) nrm = mapped / len;
+        }
     }
 
     if (!inside) return;

@@ -1,5 +1,5 @@
 """G-buffer pass: a visibility raster (the id of the visible triangle per pixel) and a compute resolve into world
-position + linear depth, normal and albedo.
+position + linear depth, normal, albedo and the material's roughness, metallic, occlusion and emission.
 
 The raster writes 4 bytes per pixel (R32_UINT: triangle + 1, 0 = background) plus depth; `gbuffer_resolve.comp`
 then computes what the rasterizer would have interpolated at each pixel centre from the triangle's vertices
@@ -128,7 +128,8 @@ class ResolvePass(ComputePass):
         "materials": read("uniform_texel"), "textures": read("texture"),
         "g_depth": write("image", "view_depth"), "g_triangle": write("image", "triangle_id"),
         "g_object": write("image", "object_id"), "g_material": write("image", "material_id"),
-        "g_motion": write("image", "motion"),
+        "g_motion": write("image", "motion"), "g_pbr": write("image", "material"),
+        "g_emissive": write("image", "emissive"),
     }
 
     def constants(self, ctx) -> dict:

@@ -19,7 +19,8 @@ from .std140 import Struct
 #: The views a frame can show (setting `view`): "color" is the lit image (no dispatch); the others are AOVs drawn
 #: by debug_view.comp (VIEW_<NAME> = the index here). A Literal, so that type checkers and IDEs know the names.
 ViewMode = Literal["color", "position", "normal", "albedo", "depth", "shadow_raw", "shadow", "ao_raw", "ao", "history",
-                   "triangle_id", "object_id", "material_id", "motion"]
+                   "triangle_id", "object_id", "material_id", "motion", "roughness", "metallic", "emissive",
+                   "radiance"]
 VIEW_MODES: tuple[str, ...] = get_args(ViewMode)
 #: shadow.comp's modes (SHADOW_<NAME>); "off" records no shadow pass.
 TracedShadowMode = Literal["hard", "soft", "seed-delta", "reference"]
@@ -50,6 +51,7 @@ class AOV:
     dtype: str
     channels: int = 1        # of the target's: the AOV keeps the first `channels` (1: a (H, W) array)
     per_light: bool = False  # a light-major buffer: (lights, H, W) -> (H, W, lights)
+    first: int = 0           # dtype "unorm8": the one channel kept (an RGBA8 target read as float32 / 255)
 
 
 #: Every AOV a frame can read back, by the name `Frame.aov` uses ("color" is `Frame.color`); the target is a frame
@@ -69,6 +71,10 @@ AOVS = {
     "object_id": AOV("object_id", 4, "int32"),
     "material_id": AOV("material_id", 4, "int32"),
     "motion": AOV("motion", 8, "float32", 2),
+    "roughness": AOV("material", 4, "unorm8", first=0),
+    "metallic": AOV("material", 4, "unorm8", first=1),
+    "emissive": AOV("emissive", 8, "float16", 3),
+    "radiance": AOV("hdr", 8, "float16", 3),
 }
 
 

@@ -37,6 +37,9 @@ layout(set = 0, binding = 12, r32ui) uniform writeonly uimage2D g_triangle;
 layout(set = 0, binding = 13, r32ui) uniform writeonly uimage2D g_object;
 layout(set = 0, binding = 14, r32ui) uniform writeonly uimage2D g_material;
 layout(set = 0, binding = 15, rg32f) uniform writeonly image2D g_motion;
+// The lighting's material inputs: (roughness, metallic, occlusion, 1 where covered) and the emitted radiance.
+layout(set = 0, binding = 16, rgba8) uniform writeonly image2D g_pbr;
+layout(set = 0, binding = 17, rgba16f) uniform writeonly image2D g_emissive;
 
 shared uint tile_arrays;   // bit a: some pixel of this workgroup samples texture array a
 
@@ -58,6 +61,10 @@ void main() {
     uvec4 handles = uvec4(TEXTURE_NONE);   // base colour, metallic-roughness, normal, emissive
     vec3 tangent = vec3(0.0), bitangent = vec3(0.0);
     float normal_scale = 1.0;
+    vec4 pbr = vec4(0.0);        // roughness, metallic, occlusion, covered
+    vec3 emissive = vec3(0.0);
+    uint occlusion_handle = TEXTURE_NONE;
+    float occlusion_strength = 0.0;
     uvec4 info = uvec4(0xFFFFFFFFu);
     if (id != 0u) {
         int tri = int(id - 1u);
@@ -96,7 +103,12 @@ void main() {
         int material = MATERIAL_TEXELS * int(info.x);
         albedo = vec4(texelFetch(materials, material).rgb, 1.0);
         handles = floatBitsToUint(texelFetch(materials, material + 1));
-        normal_scale = texelFetch(materials, material + 2).w;
+        vec4 factors = texelFetch(materials, material + 2);
+        pbr = vec4(factors.y, factors.x, 1.0, 1.0);
+        occlusion_strength = factors.z;
+        normal_scale = factors.w;
+        emissive = texelFetch(materials, material + 3).rgb;
+        occlusion_handle = floatBitsToUint(texelFetch(materials, material + 4).x);
 
         // The normal map's tangent frame: T = dP/du of the triangle, orthonormalized against the interpolated
         // normal; B = cross(N, T), its sign making B point along -dP/dv (up in the image: glTF's +Y), which also
@@ -122,12 +134,18 @@ void main() {
     // uniform over the workgroup, with explicit UV derivatives (trilinear; anisotropic where the sampler has it).
     if (gl_LocalInvocationIndex == 0u) tile_arrays = 0u;
     barrier();
-    uint bits = texture_bit(handles.x) | texture_bit(handles.y) | texture_bit(handles.z) | texture_bit(handles.w);
+    uint bits = texture_bit(handles.x) | texture_bit(handles.y) | texture_bit(handles.z) | texture_bit(handles.w)
+              | texture_bit(occlusion_handle);
     if (bits != 0u) atomicOr(tile_arrays, bits);
     barrier();
     uint used = tile_arrays;
     if (used != 0u) {
         albedo.rgb *= sample_texture_masked(handles.x, uv, duv_dx, duv_dy, used).rgb;
+        vec4 mr = sample_texture_masked(handles.y, uv, duv_dx, duv_dy, used);   // G roughness, B metallic
+        pbr.xy *= mr.gb;
+        emissive *= sample_texture_masked(handles.w, uv, duv_dx, duv_dy, used).rgb;
+        float occlusion = sample_texture_masked(occlusion_handle, uv, duv_dx, duv_dy, used).r;
+        pbr.z = 1.0 + occlusion_strength * (occlusion - 1.0);   // glTF occlusionTexture.strength
         vec3 tn = sample_texture_masked(handles.z, uv, duv_dx, duv_dy, used).xyz * 2.0 - 1.0;
         if (tangent != vec3(0.0)) {   // tangent-space normal, x and y scaled (glTF normalTexture.scale)
             vec3 mapped = tangent * (tn.x * normal_scale) + bitangent * (tn.y * normal_scale) + nrm * tn.z;
@@ -146,6 +164,8 @@ void main() {
     imageStore(g_triangle, px, uvec4(info.y));
     imageStore(g_object, px, uvec4(info.z));
     imageStore(g_material, px, uvec4(info.x));
+    imageStore(g_pbr, px, pbr);
+    imageStore(g_emissive, px, vec4(emissive, 0.0));
     vec2 motion = vec2(0.0);
     if (id != 0u) {   // where this surface point is on screen minus where it was in the previous frame
         vec4 now = frame.view_proj * vec4(pos, 1.0), prev = frame.prev_view_proj * vec4(pos, 1.0);

@@ -26,6 +26,10 @@
 #define VIEW_OBJECT_ID 11u
 #define VIEW_MATERIAL_ID 12u
 #define VIEW_MOTION 13u
+#define VIEW_ROUGHNESS 14u
+#define VIEW_METALLIC 15u
+#define VIEW_EMISSIVE 16u
+#define VIEW_RADIANCE 17u
 #define SHADOW_HARD 0u
 #define SHADOW_SOFT 1u
 #define SHADOW_SEED_DELTA 2u

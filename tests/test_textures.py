@@ -227,3 +227,95 @@ def test_a_normal_map_seen_from_behind_gives_the_fronts_normal_negated(make_rend
     want = -np.array([0.6, 0.3, 0.74]) / np.linalg.norm([0.6, 0.3, 0.74])
     n = f.aov["normal"][8:24, 8:24].reshape(-1, 3)
     assert np.abs(n - want).max() < 0.01, (n.mean(axis=0), want)
+
+
+def test_material_textures_multiply_their_factors(make_renderer):
+    """A quad whose metallic-roughness texture (G roughness, B metallic: linear) and emissive texture (sRGB) are
+    each half one value, half another: the roughness, metallic and emissive AOVs are factor x texture per half."""
+    mr = np.zeros((8, 8, 4), np.uint8)
+    mr[:, :4] = (0, 255, 51, 255)     # left: roughness x 1, metallic x 0.2
+    mr[:, 4:] = (0, 102, 255, 255)    # right: roughness x 0.4, metallic x 1
+    em = np.zeros((8, 8, 4), np.uint8)
+    em[:, :4] = (255, 128, 0, 255)
+    em[:, 4:] = (0, 0, 255, 255)
+    mat = Material("mr", (1, 1, 1), metallic=0.5, roughness=0.8, emissive=(2, 2, 2), metallic_roughness_texture=mr,
+                   emissive_texture=em)
+    verts = np.array([[-1, -1, 0], [1, -1, 0], [1, 1, 0], [-1, 1, 0]], float)
+    uvs = np.array([[0, 1], [1, 1], [1, 0], [0, 0]], float)
+    scene = Scene(verts, [[0, 1, 2], [0, 2, 3]], uvs=uvs, materials=[mat],
+                  camera=Camera.look_at((0, 0, 4), (0, 0, 0), fov_y=30.0))
+    f = make_renderer(32, 32).render(scene, aovs=("roughness", "metallic", "emissive"), shadows="off", ao=False)
+    left, right = (slice(10, 22), slice(8, 14)), (slice(10, 22), slice(18, 24))
+    assert np.allclose(f.aov["roughness"][left], 0.8, atol=0.01)
+    assert np.allclose(f.aov["roughness"][right], 0.8 * 0.4, atol=0.01)
+    assert np.allclose(f.aov["metallic"][left], 0.5 * 0.2, atol=0.01)
+    assert np.allclose(f.aov["metallic"][right], 0.5, atol=0.01)
+    assert np.allclose(f.aov["emissive"][left], 2 * srgb8_to_linear([255, 128, 0, 255])[:3], atol=0.01)
+    assert np.allclose(f.aov["emissive"][right], [0, 0, 2], atol=0.01)
+
+
+# ---- alpha-masked geometry ---------------------------------------------------------------------------------------
+def disc_mask(size=64):
+    """An RGBA texture, opaque red inside a disc of radius 0.35 (in UV units) around (0.5, 0.5), alpha 0 outside."""
+    y, x = (np.mgrid[0:size, 0:size] + 0.5) / size
+    inside = (x - 0.5) ** 2 + (y - 0.5) ** 2 < 0.35 ** 2
+    tex = np.zeros((size, size, 4), np.uint8)
+    tex[..., 0], tex[..., 3] = 255, np.where(inside, 255, 0)
+    return tex
+
+
+def masked_quad_scene(alpha_mode="MASK", cutoff=0.5, base_alpha=1.0):
+    """A grey opaque back wall, and in front of it a quad (x, y in [-1, 1], z = 1) with the disc mask texture."""
+    verts = np.array([[-3, -3, -1], [3, -3, -1], [3, 3, -1], [-3, 3, -1],
+                      [-1, -1, 1], [1, -1, 1], [1, 1, 1], [-1, 1, 1]], float)
+    uvs = np.array([[0, 0]] * 4 + [[0, 1], [1, 1], [1, 0], [0, 0]], float)
+    faces = [[0, 1, 2], [0, 2, 3], [4, 5, 6], [4, 6, 7]]
+    mats = [Material("wall", (0.5, 0.5, 0.5)),
+            Material("leaf", (1, 1, 1, base_alpha), disc_mask(), alpha_mode=alpha_mode, alpha_cutoff=cutoff)]
+    return Scene(verts, faces, uvs=uvs, vertex_material=np.array([0] * 4 + [1] * 4), materials=mats,
+                 camera=Camera.look_at((0, 0, 6), (0, 0, 0), fov_y=30.0))
+
+
+def quad_disc_pixels(f, w, h):
+    """Where the disc of the masked quad lies on screen (the quad's plane z = 1 hit by each pixel's ray)."""
+    from helpers import pixel_rays
+    cam = f.camera
+    d = pixel_rays(cam, w, h)
+    e = np.asarray(cam.eye)
+    t = (1.0 - e[2]) / d[..., 2]
+    p = e + t[..., None] * d
+    r2 = (p[..., 0] / 2) ** 2 + (p[..., 1] / 2) ** 2   # UV offset from the centre: (x / 2, -y / 2)
+    return r2, (np.abs(p[..., 0]) < 1) & (np.abs(p[..., 1]) < 1)
+
+
+@pytest.mark.parametrize("mode", ["MASK", "BLEND"])
+def test_an_alpha_masked_quad_covers_exactly_its_mask(make_renderer, mode):
+    """The quad's pixels (material 1) are those inside the disc, the wall shows through outside it (BLEND: cut
+    out at 0.5 too); away from the disc's edge every pixel agrees."""
+    w = h = 96
+    f = make_renderer(w, h).render(masked_quad_scene(mode), aovs=("material_id", "albedo"), shadows="off", ao=False)
+    r2, on_quad = quad_disc_pixels(f, w, h)
+    ids = f.aov["material_id"]
+    inside, outside = r2 < 0.33 ** 2, on_quad & (r2 > 0.37 ** 2)
+    assert inside.sum() > 500 and outside.sum() > 500
+    assert np.all(ids[inside] == 1) and np.all(ids[outside] == 0)
+    assert np.allclose(f.aov["albedo"][inside][:, :3], [1, 0, 0], atol=0.01)
+    assert np.allclose(f.aov["albedo"][outside][:, :3], 0.5, atol=0.01)
+    # coverage: the disc's area in pixels, within the edge's pixels
+    covered = (ids == 1).sum()
+    assert abs(covered - (r2 < 0.35 ** 2).sum()) < 0.05 * covered
+
+
+def test_opaque_materials_ignore_alpha_and_cutoff_and_base_alpha_count(make_renderer):
+    """The same quad OPAQUE: covered whole (alpha ignored). MASK with base alpha 0.4 and cutoff 0.5: gone, since
+    base alpha x texture alpha < cutoff everywhere; cutoff 0.3: the disc again."""
+    w = h = 64
+    r = make_renderer(w, h)
+    opaque = r.render(masked_quad_scene("OPAQUE"), aovs=("material_id",), shadows="off", ao=False)
+    _, on_quad = quad_disc_pixels(opaque, w, h)
+    assert np.all(opaque.aov["material_id"][on_quad] == 1)
+    gone = r.render(masked_quad_scene("MASK", 0.5, 0.4), aovs=("material_id",), shadows="off", ao=False)
+    assert not np.any(gone.aov["material_id"] == 1)
+    back = r.render(masked_quad_scene("MASK", 0.3, 0.4), aovs=("material_id",), shadows="off", ao=False)
+    r2, _ = quad_disc_pixels(back, w, h)
+    assert np.all(back.aov["material_id"][r2 < 0.33 ** 2] == 1)

@@ -19,7 +19,7 @@ from ..errors import ShaderError
 from ..scene.material import texture_key
 from ..vk import (BufferView, DescriptorSet, GraphicsPipeline, Sampler, device, reflect, upload_buffer,
                   upload_texture_array)
-from ..vk.formats import R32UI, RGB32F, RGBA32F, RGBA32UI
+from ..vk.formats import R32UI, RG32F, RGB32F, RGBA32F, RGBA32UI
 from ..vk.resources import INDEX, UNIFORM_TEXEL, VERTEX
 from .base import ComputePass, read, update, write
 from .interface import MATERIAL_FLAGS, MATERIAL_TEXELS, MAX_TEXTURE_ARRAYS
@@ -136,43 +136,69 @@ class ResolvePass(ComputePass):
         return {"TEXTURE_ARRAYS": MAX_TEXTURE_ARRAYS}   # lowered to the arrays a scene has (blocks past them go)
 
 
-class GBufferPass:
-    """The visibility raster (gbuffer.vert / gbuffer.frag) and its resolve."""
+class _Raster:
+    """One visibility pipeline: its vertex and fragment shaders, its set 0 (laid out from their reflection) and the
+    bindings its shaders may have (hot reload refuses others, or a changed layout)."""
 
-    name = "gbuffer"
-    shaders = ("gbuffer.vert", "gbuffer.frag", "gbuffer_resolve.comp")
-
-    def __init__(self, ctx, library, resources):
-        self.ctx, self.library = ctx, library
-        vert, frag = library.get("gbuffer.vert"), library.get("gbuffer.frag")
-        interface = reflect(vert, "gbuffer.vert").merged(reflect(frag, "gbuffer.frag"))
+    def __init__(self, ctx, library, stem: str, bindings: set, attributes: list):
+        self.stem, self.bindings = stem, bindings
+        vert, frag = self._spirv(library)
+        interface = reflect(vert, f"{stem}.vert").merged(reflect(frag, f"{stem}.frag"))
+        self._check(interface)
         self.interface = interface   # what the pipeline layout was made for; hot reload must keep it
-        self.raster_set = DescriptorSet(ctx, interface.set(0).values())
-        self.raster_set.bind("frame", resources["frame"])
+        self.set = DescriptorSet(ctx, interface.set(0).values())
         self.pipeline = GraphicsPipeline(
-            ctx, vert, frag, [self.raster_set], color_formats=[VISIBILITY_FORMAT], depth_format=DEPTH_FORMAT,
-            vertex_stride=32, attributes=[(0, RGB32F, 0)], push_size=interface.push_size, name="gbuffer")
-        self.resolve = ResolvePass(ctx, library, resources)
-        self.sampler = Sampler(ctx, anisotropy=device.texture_anisotropy(ctx))
-        self.white = upload_texture_array(ctx, [np.full((1, 1, 4), 255, np.uint8)], 1, 1, name="white texture")
-        for slot in range(MAX_TEXTURE_ARRAYS):
-            self.resolve.set.bind("textures", self.white, sampler=self.sampler, element=slot)
-        self.resources = resources
+            ctx, vert, frag, [self.set], color_formats=[VISIBILITY_FORMAT], depth_format=DEPTH_FORMAT,
+            vertex_stride=32, attributes=attributes, push_size=interface.push_size, name=stem)
+
+    def _spirv(self, library):
+        return library.get(f"{self.stem}.vert"), library.get(f"{self.stem}.frag")
+
+    def _check(self, interface):
+        if {b.name for b in interface.bindings} != self.bindings:
+            raise ShaderError(f"{self.stem}.vert/.frag: the raster reads {', '.join(sorted(self.bindings))} and "
+                              f"nothing else; the shaders declare {', '.join(b.name for b in interface.bindings)}")
 
     def reload(self, library):
-        self.library = library
-        vert, frag = library.get("gbuffer.vert"), library.get("gbuffer.frag")
-        interface = reflect(vert, "gbuffer.vert").merged(reflect(frag, "gbuffer.frag"))
-        if {b.name for b in interface.bindings} != {"frame"}:
-            raise ShaderError("gbuffer.vert/.frag: the raster reads the frame block (set 0, binding 0) and nothing "
-                              f"else; the shaders declare {', '.join(b.name for b in interface.bindings)}")
+        vert, frag = self._spirv(library)
+        interface = reflect(vert, f"{self.stem}.vert").merged(reflect(frag, f"{self.stem}.frag"))
+        self._check(interface)
         old = self.interface
         if (interface.bindings, interface.push_size) != (old.bindings, old.push_size):
             was = ", ".join(f"{b.name} {b.kind} set {b.set} binding {b.binding}" for b in old.bindings)
             now = ", ".join(f"{b.name} {b.kind} set {b.set} binding {b.binding}" for b in interface.bindings)
-            raise ShaderError(f"gbuffer.vert/.frag: their layout changed ({was}, {old.push_size} bytes of push "
+            raise ShaderError(f"{self.stem}.vert/.frag: their layout changed ({was}, {old.push_size} bytes of push "
                               f"constants -> {now}, {interface.push_size} bytes); restart to use them")
         self.pipeline.rebuild(vert, frag)
+
+
+class GBufferPass:
+    """The visibility raster (gbuffer.vert / gbuffer.frag; alpha-tested materials: gbuffer_mask.vert / .frag) and
+    its resolve."""
+
+    name = "gbuffer"
+    shaders = ("gbuffer.vert", "gbuffer.frag", "gbuffer_mask.vert", "gbuffer_mask.frag", "gbuffer_resolve.comp")
+
+    def __init__(self, ctx, library, resources):
+        self.ctx, self.library = ctx, library
+        self.raster = _Raster(ctx, library, "gbuffer", {"frame"}, [(0, RGB32F, 0)])
+        self.raster.set.bind("frame", resources["frame"])
+        # alpha-tested materials: UVs too, and the materials and textures for the alpha test
+        self.masked = _Raster(ctx, library, "gbuffer_mask", {"frame", "materials", "textures"},
+                              [(0, RGB32F, 0), (1, RG32F, 24)])
+        self.masked.set.bind("frame", resources["frame"])
+        self.resolve = ResolvePass(ctx, library, resources)
+        self.sampler = Sampler(ctx, anisotropy=device.texture_anisotropy(ctx))
+        self.white = upload_texture_array(ctx, [np.full((1, 1, 4), 255, np.uint8)], 1, 1, name="white texture")
+        for slot in range(MAX_TEXTURE_ARRAYS):
+            for s in (self.resolve.set, self.masked.set):
+                s.bind("textures", self.white, sampler=self.sampler, element=slot)
+        self.resources = resources
+
+    def reload(self, library):
+        self.library = library
+        self.raster.reload(library)
+        self.masked.reload(library)
         self.resolve.reload(library)
 
     def bind(self, resources, targets=None):
@@ -184,14 +210,21 @@ class GBufferPass:
         s = self.resolve.set
         for name, view in zip(("vertices", "indices", "tri_info", "materials"), geom.views):
             s.bind(name, view)
+        self.masked.set.bind("materials", geom.views[3])
         for slot in range(MAX_TEXTURE_ARRAYS):
             tex = geom.textures.images[slot] if slot < len(geom.textures) else self.white
-            s.bind("textures", tex, sampler=self.sampler, element=slot)
+            for s in (self.resolve.set, self.masked.set):
+                s.bind("textures", tex, sampler=self.sampler, element=slot)
 
     def record(self, rec, targets, geom: SceneGeometry):
         # The visibility image is all zeros here (cleared when made, then by each frame's resolve after reading it),
         # so the raster loads it instead of clearing it (a clear costs GPUs with few raster units).
-        draws = [(first, count, np.uint32(first // 3).tobytes()) for _material, first, count in geom.draws]
-        rec.raster(self.pipeline, [self.raster_set], targets.visibility, targets.depth, geom.vertex_buffer,
-                   geom.index_buffer, draws, reads=[self.resources["frame"]])
+        # Opaque materials first, keeping early depth tests; then the alpha-tested ones, whose shader discards.
+        opaque = [(first, count, np.uint32(first // 3).tobytes())
+                  for material, first, count in geom.draws if material not in geom.alpha_tested]
+        masked = [(first, count, np.array([first // 3, material], np.uint32).tobytes())
+                  for material, first, count in geom.draws if material in geom.alpha_tested]
+        rec.raster(self.raster.pipeline, [self.raster.set], targets.visibility, targets.depth, geom.vertex_buffer,
+                   geom.index_buffer, opaque, reads=[self.resources["frame"]],
+                   more=[(self.masked.pipeline, [self.masked.set], masked)])
         self.resolve.dispatch(rec, self.resolve.tiles(targets.width, targets.height))

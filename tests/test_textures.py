@@ -319,3 +319,71 @@ def test_opaque_materials_ignore_alpha_and_cutoff_and_base_alpha_count(make_rend
     back = r.render(masked_quad_scene("MASK", 0.3, 0.4), aovs=("material_id",), shadows="off", ao=False)
     r2, _ = quad_disc_pixels(back, w, h)
     assert np.all(back.aov["material_id"][r2 < 0.33 ** 2] == 1)
+
+
+# ---- alpha in ray passes -----------------------------------------------------------------------------------------
+def leaf_over_ground(leaf, ground_y=-1.0):
+    """A 10 x 10 ground plane (material 0) and `leaf` = (vertices, faces, uvs, material) 1 above it, lit from
+    above at a slant, seen from above."""
+    from engine import DirectionalLight
+    gv = np.array([[-5, ground_y, -5], [5, ground_y, -5], [5, ground_y, 5], [-5, ground_y, 5]], float)
+    lv, lf, luv, lmat = leaf
+    verts = np.concatenate([gv, lv])
+    faces = np.concatenate([[[0, 2, 1], [0, 3, 2]], np.asarray(lf) + 4])
+    uvs = np.concatenate([np.zeros((4, 2)), luv])
+    vm = np.array([0] * 4 + [1] * len(lv))
+    cam = Camera.look_at((0.5, 6, 2.5), (0.5, -1, 0.3), fov_y=40.0)
+    return Scene(verts, faces, uvs=uvs, vertex_material=vm,
+                 materials=[Material("ground", (0.7, 0.7, 0.7)), lmat], camera=cam,
+                 lights=[DirectionalLight((0.3, -1.0, 0.2), intensity=2.0)])
+
+
+def masked_leaf(size=256, alpha_mode="MASK", base_alpha=1.0):
+    """A 2 x 2 horizontal quad at y = 0 whose texture is opaque in a disc of radius 0.35 (UV units)."""
+    verts = np.array([[-1, 0, -1], [1, 0, -1], [1, 0, 1], [-1, 0, 1]], float)
+    uvs = np.array([[0, 0], [1, 0], [1, 1], [0, 1]], float)
+    mat = Material("leaf", (0.2, 0.6, 0.2, base_alpha), disc_mask(size), alpha_mode=alpha_mode)
+    return verts, [[0, 2, 1], [0, 3, 2]], uvs, mat
+
+
+def disc_leaf(segments=720):
+    """The same disc as geometry: a fan of `segments` triangles of radius 0.7 at y = 0."""
+    a = np.linspace(0, 2 * np.pi, segments, endpoint=False)
+    verts = np.concatenate([[[0, 0, 0]], np.stack([0.7 * np.cos(a), np.zeros_like(a), 0.7 * np.sin(a)], 1)])
+    faces = [[0, 1 + (k + 1) % segments, 1 + k] for k in range(segments)]
+    return verts, faces, np.zeros((len(verts), 2)), Material("leaf", (0.2, 0.6, 0.2))
+
+
+@pytest.mark.parametrize("mode", ["MASK", "BLEND"])
+def test_an_alpha_masked_quads_shadow_is_the_shadow_of_its_cut_out(make_renderer, mode):
+    """Hard shadows on the ground: the masked quad's shadow equals that of a disc made of triangles on >= 99.5% of
+    the ground pixels (and a solid quad's would not)."""
+    w, h = 128, 96
+    r = make_renderer(w, h)
+    settings = dict(aovs=("shadow", "material_id"), shadows="hard", ao=False, accumulate=False, denoise=False)
+    masked = r.render(leaf_over_ground(masked_leaf(alpha_mode=mode)), **settings)
+    geometry = r.render(leaf_over_ground(disc_leaf()), **settings)
+    solid = r.render(leaf_over_ground(masked_leaf(alpha_mode="OPAQUE")), **settings)
+    ground = (masked.aov["material_id"] == 0) & (geometry.aov["material_id"] == 0)
+    assert ground.sum() > 0.5 * w * h
+    s_masked, s_geom = masked.aov["shadow"][..., 0], geometry.aov["shadow"][..., 0]
+    assert (s_geom[ground] == 0).sum() > 200   # a shadow to compare
+    agree = (s_masked[ground] == s_geom[ground]).mean()
+    assert agree >= 0.995, agree
+    assert (solid.aov["shadow"][..., 0][ground] == s_geom[ground]).mean() < 0.97   # the test can tell
+
+
+def test_ambient_occlusion_sees_through_a_transparent_masked_quad(make_renderer):
+    """A masked quad of base alpha 0 (nothing passes its cutoff): invisible to the raster and to AO rays, so the
+    ground's raw AO is bit for bit that of the scene without it; as an opaque quad it darkens the ground."""
+    w, h = 64, 48
+    r = make_renderer(w, h)
+    settings = dict(aovs=("ao_raw",), shadows="off", ao=True, ao_samples=4, accumulate=False, denoise=False)
+    ground_only = leaf_over_ground(masked_leaf(base_alpha=0.0))
+    invisible = r.render(ground_only, **settings).aov["ao_raw"]
+    verts = ground_only.positions[:4]
+    bare = Scene(verts, [[0, 2, 1], [0, 3, 2]], uvs=np.zeros((4, 2)), materials=[ground_only.materials[0]],
+                 camera=ground_only.camera, lights=ground_only.lights)
+    assert np.array_equal(invisible, r.render(bare, **settings).aov["ao_raw"])
+    opaque = r.render(leaf_over_ground(masked_leaf(alpha_mode="OPAQUE")), **settings).aov["ao_raw"]
+    assert opaque.mean() < invisible.mean() - 0.01

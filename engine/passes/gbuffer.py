@@ -57,14 +57,17 @@ class SceneGeometry:
         mat_data = material_texels(scene.materials, self.textures)
         self.alpha_tested = {i for i, m in enumerate(scene.materials) if m.alpha_mode != "OPAQUE"}
         self.material_buffer = upload_buffer(ctx, mat_data, UNIFORM_TEXEL, "materials")
+        self.alpha_index, records = alpha_records(scene, self.textures)
+        self.alpha_buffer = upload_buffer(ctx, records, UNIFORM_TEXEL, "alpha records")
         self.views = [BufferView(self.vertex_buffer, RGBA32F), BufferView(self.index_buffer, R32UI),
-                      BufferView(self.tri_info_buffer, RGBA32UI), BufferView(self.material_buffer, RGBA32F)]
+                      BufferView(self.tri_info_buffer, RGBA32UI), BufferView(self.material_buffer, RGBA32F),
+                      BufferView(self.alpha_buffer, RGBA32F)]
         self.white = white_texture
         self.sampler = sampler
 
     def destroy(self):
         for obj in [*self.views, self.vertex_buffer, self.index_buffer, self.tri_info_buffer,
-                    self.material_buffer, self.textures]:
+                    self.material_buffer, self.alpha_buffer, self.textures]:
             obj.destroy()
 
 
@@ -105,6 +108,38 @@ def material_texels(materials, textures: TextureArrays) -> np.ndarray:
         bits[i, 17] = ((MATERIAL_FLAGS["alpha_tested"] if m.alpha_mode != "OPAQUE" else 0)
                        | (MATERIAL_FLAGS["double_sided"] if m.double_sided else 0))
     return data
+
+
+def alpha_records(scene, textures: TextureArrays) -> tuple[np.ndarray, np.ndarray]:
+    """The ray passes' alpha test (shaders/glsl/include/alpha.glsl): per scene triangle, 0 (opaque) or 1 + its
+    record; the records, 2 RGBA32F texels per alpha-tested triangle: (uv0, uv1), (uv2, base texture handle bits,
+    threshold): a hit counts where texture alpha >= threshold = cutoff / base alpha (BLEND: cutoff 0.5)."""
+    tri_mat = scene.vertex_material[scene.indices[:, 0]] if scene.triangle_count else np.zeros(0, np.int64)
+    tested = np.array([m.alpha_mode != "OPAQUE" for m in scene.materials] or [False])[tri_mat]
+    index = np.zeros(scene.triangle_count, np.uint32)
+    prims = np.flatnonzero(tested)
+    index[prims] = np.arange(1, len(prims) + 1, dtype=np.uint32)
+    records = np.zeros((max(len(prims), 1), 8), np.float32)
+    records[:len(prims), 0:6] = scene.uvs[scene.indices[prims]].reshape(-1, 6)
+    bits = records.view(np.uint32)
+    for k, m in enumerate(scene.materials):
+        if m.alpha_mode == "OPAQUE":
+            continue
+        rows = tri_mat[prims] == k
+        cutoff = 0.5 if m.alpha_mode == "BLEND" else m.alpha_cutoff
+        base = float(m.base_color[3])
+        bits[:len(prims)][rows, 6] = textures.handle(None if m.texture is None else (texture_key(m.texture), True))
+        records[:len(prims)][rows, 7] = 0.0 if cutoff == 0 else (cutoff / base if base > 0 else np.inf)
+    return index, records
+
+
+def flag_alpha_tested(tris: np.ndarray, alpha_index: np.ndarray):
+    """Write each BVH triangle's alpha record + 1 (0: opaque) into its free word (engine/bvh/layout.py pad1)."""
+    prim = tris["prim"].astype(np.int64)
+    flags = np.zeros(len(tris), np.uint32)
+    ok = (prim >= 0) & (prim < len(alpha_index))
+    flags[ok] = alpha_index[prim[ok]]
+    tris["pad1"] = flags
 
 
 def triangle_objects(scene) -> np.ndarray:

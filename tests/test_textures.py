@@ -322,9 +322,9 @@ def test_opaque_materials_ignore_alpha_and_cutoff_and_base_alpha_count(make_rend
 
 
 # ---- alpha in ray passes -----------------------------------------------------------------------------------------
-def leaf_over_ground(leaf, ground_y=-1.0):
+def leaf_over_ground(leaf, ground_y=-1.0, angle=0.0):
     """A 10 x 10 ground plane (material 0) and `leaf` = (vertices, faces, uvs, material) 1 above it, lit from
-    above at a slant, seen from above."""
+    above at a slant (a sun of angular radius `angle` degrees), seen from above."""
     from engine import DirectionalLight
     gv = np.array([[-5, ground_y, -5], [5, ground_y, -5], [5, ground_y, 5], [-5, ground_y, 5]], float)
     lv, lf, luv, lmat = leaf
@@ -335,7 +335,7 @@ def leaf_over_ground(leaf, ground_y=-1.0):
     cam = Camera.look_at((0.5, 6, 2.5), (0.5, -1, 0.3), fov_y=40.0)
     return Scene(verts, faces, uvs=uvs, vertex_material=vm,
                  materials=[Material("ground", (0.7, 0.7, 0.7)), lmat], camera=cam,
-                 lights=[DirectionalLight((0.3, -1.0, 0.2), intensity=2.0)])
+                 lights=[DirectionalLight((0.3, -1.0, 0.2), intensity=2.0, angle=angle)])
 
 
 def masked_leaf(size=256, alpha_mode="MASK", base_alpha=1.0):
@@ -354,20 +354,25 @@ def disc_leaf(segments=720):
     return verts, faces, np.zeros((len(verts), 2)), Material("leaf", (0.2, 0.6, 0.2))
 
 
-@pytest.mark.parametrize("mode", ["MASK", "BLEND"])
-def test_an_alpha_masked_quads_shadow_is_the_shadow_of_its_cut_out(make_renderer, mode):
-    """Hard shadows on the ground: the masked quad's shadow equals that of a disc made of triangles on >= 99.5% of
-    the ground pixels (and a solid quad's would not)."""
+@pytest.mark.parametrize("mode, shadows", [("MASK", "hard"), ("BLEND", "hard"), ("MASK", "soft")])
+def test_an_alpha_masked_quads_shadow_is_the_shadow_of_its_cut_out(make_renderer, mode, shadows):
+    """Shadows on the ground: the masked quad's shadow equals that of a disc made of triangles on >= 99.5% of the
+    ground pixels (and a solid quad's would not). Soft: the same rays (one frame, not filtered) in both scenes."""
     w, h = 128, 96
     r = make_renderer(w, h)
-    settings = dict(aovs=("shadow", "material_id"), shadows="hard", ao=False, accumulate=False, denoise=False)
-    masked = r.render(leaf_over_ground(masked_leaf(alpha_mode=mode)), **settings)
-    geometry = r.render(leaf_over_ground(disc_leaf()), **settings)
-    solid = r.render(leaf_over_ground(masked_leaf(alpha_mode="OPAQUE")), **settings)
+    settings = dict(aovs=("shadow", "material_id"), shadows=shadows, ao=False, accumulate=False, denoise=False)
+    if shadows == "soft":
+        settings["shadow_samples"] = 4
+    angle = 3.0 if shadows == "soft" else 0.0
+    masked = r.render(leaf_over_ground(masked_leaf(alpha_mode=mode), angle=angle), **settings)
+    geometry = r.render(leaf_over_ground(disc_leaf(), angle=angle), **settings)
+    solid = r.render(leaf_over_ground(masked_leaf(alpha_mode="OPAQUE"), angle=angle), **settings)
     ground = (masked.aov["material_id"] == 0) & (geometry.aov["material_id"] == 0)
     assert ground.sum() > 0.5 * w * h
     s_masked, s_geom = masked.aov["shadow"][..., 0], geometry.aov["shadow"][..., 0]
     assert (s_geom[ground] == 0).sum() > 200   # a shadow to compare
+    if shadows == "soft":
+        assert ((s_geom[ground] > 0) & (s_geom[ground] < 1)).sum() > 50   # and a penumbra
     agree = (s_masked[ground] == s_geom[ground]).mean()
     assert agree >= 0.995, agree
     assert (solid.aov["shadow"][..., 0][ground] == s_geom[ground]).mean() < 0.97   # the test can tell

@@ -150,7 +150,8 @@ class Image:
         req = vk.vkGetImageMemoryRequirements(dev, self.handle)
         try:
             self.memory = allocate(ctx, req, ctx.memory_type(req.memoryTypeBits, DEVICE),
-                                   f"image {name!r} ({width}x{height}x{layers})" if name else f"a {width}x{height} image")
+                                   f"image {name!r} ({width}x{height}x{layers})" if name
+                                   else f"a {width}x{height} image")
         except VulkanError:
             vk.vkDestroyImage(dev, self.handle, None)
             raise
@@ -285,5 +286,6 @@ class Sampler:
         self.handle = vk.vkCreateSampler(ctx.device, vk.VkSamplerCreateInfo(
             magFilter=filt, minFilter=filt, mipmapMode=vk.VK_SAMPLER_MIPMAP_MODE_LINEAR,
             addressModeU=mode, addressModeV=mode, addressModeW=mode, maxLod=max_lod, minLod=0.0,
-            anisotropyEnable=vk.VK_TRUE if aniso > 1.0 else vk.VK_FALSE, maxAnisotropy=aniso, borderColor=vk.VK_BORDER_COLOR_FLOAT_OPAQUE_WHITE), None)
+            anisotropyEnable=vk.VK_TRUE if aniso > 1.0 else vk.VK_FALSE, maxAnisotropy=aniso,
+            borderColor=vk.VK_BORDER_COLOR_FLOAT_OPAQUE_WHITE), None)
         ctx.defer_destroy(vk.vkDestroySampler, ctx.device, self.handle, None)

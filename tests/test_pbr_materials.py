@@ -117,3 +117,59 @@ def test_toml_material_factors(tmp_path):
     (tmp_path / "bad.toml").write_text('[[mesh]]\nprimitive = "sphere"\nroughness = 2\n')
     with pytest.raises(SceneError, match=r"bad.toml: \[\[mesh\]\] #1: roughness must be <= 1"):
         Scene.load(tmp_path / "bad.toml")
+
+
+# ------------------------------------------------------------------------------------------------ shading
+def quad_scene(material, lights=()):
+    """A 4 x 4 quad at z = 0 facing +z, seen head-on from z = 3."""
+    from engine.scene import Camera
+    v = np.array([[-2, -2, 0], [2, -2, 0], [2, 2, 0], [-2, 2, 0]], float)
+    return Scene(v, [[0, 1, 2], [0, 2, 3]], normals=np.tile([0.0, 0.0, 1.0], (4, 1)), materials=[material],
+                 lights=list(lights), camera=Camera.look_at((0, 0, 3), (0, 0, 0), (0, 1, 0), 40.0))
+
+
+def test_material_aovs_and_views(make_renderer):
+    r = make_renderer(32, 24)
+    m = Material("m", (0.5, 0.5, 0.5), metallic=0.6, roughness=0.3, emissive=(0.25, 0.5, 1.0))
+    from engine.scene import DirectionalLight
+    dark = [DirectionalLight((0, 0, -1), intensity=0.0)]   # (a scene without lights gets a default sun)
+    f = r.render(quad_scene(m, dark), aovs="all", ao=False, ambient=0.0, shadows="off")
+    assert np.allclose(f.aov["roughness"], round(0.3 * 255) / 255) and np.allclose(f.aov["metallic"], 0.6, atol=1e-2)
+    np.testing.assert_allclose(f.aov["emissive"], np.broadcast_to([0.25, 0.5, 1.0], (24, 32, 3)), atol=1e-3)
+    # no light, no ambient: what is seen is what the surface emits
+    np.testing.assert_allclose(f.aov["radiance"], f.aov["emissive"], atol=1e-3)
+    for view in ("roughness", "metallic"):
+        shown_rgb = r.render(quad_scene(m, dark), view=view, ao=False, shadows="off").color[..., :3] / 255.0
+        expect = np.clip(f.aov[view], 0, 1)[..., None]
+        assert np.abs(shown_rgb - expect).max() < 1.5 / 255, view
+
+
+def test_default_material_stays_close_to_lambert(make_renderer):
+    """A white default material (metallic 0, roughness 1) lit head-on reflects what a Lambert surface does, within
+    a few percent (glTF's 4% Fresnel layer takes from the diffuse what its broad specular lobe gives back)."""
+    from engine.scene import DirectionalLight
+    r = make_renderer(32, 24)
+    f = r.render(quad_scene(Material("m", (0.8, 0.8, 0.8)), [DirectionalLight((0, 0, -1), intensity=1.0)]),
+                 aovs=("radiance",), ao=False, ambient=0.0, shadows="off")
+    centre = f.aov["radiance"][8:16, 12:20]
+    assert np.all(np.abs(centre / 0.8 - 1.0) < 0.04), centre.mean()
+
+
+def test_metal_reflects_a_highlight_tinted_by_its_base_colour(make_renderer):
+    from engine.scene import PointLight
+    r = make_renderer(48, 36)
+    light = [PointLight((0.0, 0.0, 2.0), intensity=2.0)]
+    kw = dict(aovs=("radiance",), ao=False, ambient=0.0, shadows="off")
+    metal = r.render(quad_scene(Material("gold", (1.0, 0.7, 0.3), metallic=1.0, roughness=0.3), light), **kw)
+    matte = r.render(quad_scene(Material("clay", (1.0, 0.7, 0.3)), light), **kw)
+    m, d = metal.aov["radiance"], matte.aov["radiance"]
+    assert np.all(np.isfinite(m))
+    assert m[18, 24].sum() > 3 * d[18, 24].sum()           # a highlight where the light's mirror image is
+    assert m[2, 2].sum() < 0.5 * d[2, 2].sum()             # and dark away from it
+    rgb = m[18, 24]
+    assert rgb[0] > rgb[1] > rgb[2]                         # tinted by the base colour (F0 = base for metals)
+    # roughness 0 stays finite (clamped at a small minimum): a narrower highlight
+    sharp = r.render(quad_scene(Material("chrome", (0.9, 0.9, 0.9), metallic=1.0, roughness=0.0), light), **kw)
+    s = sharp.aov["radiance"].sum(axis=2)
+    assert np.all(np.isfinite(s)) and s.max() > 0
+    assert np.count_nonzero(s > 0.5 * s.max()) < np.count_nonzero(m.sum(axis=2) > 0.5 * m.sum(axis=2).max())

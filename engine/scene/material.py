@@ -4,6 +4,7 @@ maps, alpha mode) with textures as RGBA8 arrays."""
 from __future__ import annotations
 
 import hashlib
+from typing import Any
 
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
@@ -115,12 +116,12 @@ class Material:
         t.setflags(write=False)
         return t
 
-    def fields(self) -> dict:
+    def fields(self) -> dict[str, Any]:
         """Every field as a keyword argument of the constructor (the name too)."""
         return {f: getattr(self, f) for f in _FIELDS}
 
     def with_overrides(self, base_color: ArrayLike | None = None, texture: ArrayLike | None = None,
-                       name: str | None = None, **fields) -> Material:
+                       name: str | None = None, **fields: Any) -> Material:
         """A copy with the given fields replaced (None: keep this material's), e.g.
         `m.with_overrides(roughness=0.3, metallic=1.0)`."""
         unknown = set(fields) - set(_FIELDS)

@@ -29,8 +29,16 @@ SHADOW_MODES: tuple[str, ...] = get_args(TracedShadowMode)
 FILTER_FLAGS = {"masks": 1, "ao": 2, "temporal": 4, "first": 8}
 FILTER_MASKS, FILTER_AO, FILTER_TEMPORAL, FILTER_FIRST = (FILTER_FLAGS[k] for k in ("masks", "ao", "temporal", "first"))
 MAX_LIGHTS = 16
-#: Textured materials the G-buffer resolve samples (one descriptor each).
-MAX_TEXTURES = 16
+#: Texture array bindings (engine/passes/textures.py): every texture is a layer of one of these 2D arrays.
+MAX_TEXTURE_ARRAYS = 16
+#: A texture handle is `array << 16 | layer`; this one is "no texture" (samples as white).
+TEXTURE_NONE = 0xFFFFFFFF
+#: RGBA32F texels per material in the materials texel buffer (engine/passes/gbuffer.py `material_texels`):
+#: 0 base colour; 1 texture handles (base colour, metallic-roughness, normal, emissive; uint bits);
+#: 2 metallic, roughness, occlusion strength, normal scale; 3 emissive rgb, alpha cutoff (0: not alpha-tested);
+#: 4 occlusion texture handle, flags (uint bits: MATERIAL_*), 0, 0.
+MATERIAL_TEXELS = 5
+MATERIAL_FLAGS = {"alpha_tested": 1, "double_sided": 2}
 #: History lengths are clamped here (accumulate.comp).
 MAX_HISTORY = 255
 @dataclass(frozen=True)
@@ -115,7 +123,9 @@ def glsl_text() -> str:
     lines = [
         "// Generated from engine/passes/interface.py by tools/compile_shaders.py: do not edit.",
         "#ifndef INTERFACE_GLSL", "#define INTERFACE_GLSL", "",
-        f"#define MAX_LIGHTS {MAX_LIGHTS}", f"#define MAX_TEXTURES {MAX_TEXTURES}",
+        f"#define MAX_LIGHTS {MAX_LIGHTS}", f"#define MAX_TEXTURE_ARRAYS {MAX_TEXTURE_ARRAYS}",
+        f"#define TEXTURE_NONE {TEXTURE_NONE:#x}u", f"#define MATERIAL_TEXELS {MATERIAL_TEXELS}",
+        *[f"#define MATERIAL_{k.upper()} {v}u" for k, v in MATERIAL_FLAGS.items()],
         f"#define MAX_HISTORY {MAX_HISTORY}.0",
         *[f"#define LIGHT_{k.upper()} {v}" for k, v in LIGHT_TYPES.items()],
         *_defines("VIEW", VIEW_MODES[1:], 1),

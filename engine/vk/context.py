@@ -206,8 +206,12 @@ class Context:
         f12 = vk.VkPhysicalDeviceVulkan12Features(pNext=f13, hostQueryReset=vk.VK_TRUE)
         # geometryShader: only for gl_PrimitiveID in the G-buffer's visibility fragment shader (the Renderer checks it)
         self.geometry_shader = bool(vk.vkGetPhysicalDeviceFeatures(self.physical).geometryShader)
+        # samplerAnisotropy: anisotropic texture filtering where the device has it (Sampler caps at max_anisotropy)
+        aniso = bool(vk.vkGetPhysicalDeviceFeatures(self.physical).samplerAnisotropy)
+        self.max_anisotropy = float(self.limits.maxSamplerAnisotropy) if aniso else 1.0
         feats = vk.VkPhysicalDeviceFeatures2(pNext=f12, features=vk.VkPhysicalDeviceFeatures(
-            geometryShader=vk.VK_TRUE if self.geometry_shader else vk.VK_FALSE))
+            geometryShader=vk.VK_TRUE if self.geometry_shader else vk.VK_FALSE,
+            samplerAnisotropy=vk.VK_TRUE if aniso else vk.VK_FALSE))
         prio = vk.ffi.new("float[]", [1.0])
         qinfo = vk.VkDeviceQueueCreateInfo(queueFamilyIndex=self.queue_family, queueCount=1, pQueuePriorities=prio)
         dinfo = vk.VkDeviceCreateInfo(

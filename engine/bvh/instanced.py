@@ -51,6 +51,12 @@ class TwoLevel:
                                                                                          self.tris.nbytes),
                       "build_ms": float(sum(b.stats.get("build_ms", 0.0) for b in self.blas))}
         self._shape = _balanced(self.n_instances)
+        if self._shape is not None:   # the top level's words and counts depend on N alone
+            _, _, _, lword, rword, lcount, rcount, _ = self._shape
+            top = self.nodes[self.tlas_root:self.inst_base]
+            top["left"] = np.where(lcount > 0, lword, lword + self.tlas_root)
+            top["right"] = np.where(rcount > 0, rword, rword + self.tlas_root)
+            top["lcount"], top["rcount"] = lcount, rcount
         self._levels: dict = {}
 
     @property
@@ -78,7 +84,6 @@ class TwoLevel:
         bmax = np.nextafter((sb[:, 1] + pad).astype(np.float32), np.float32(np.inf))
 
         top = self.nodes[self.tlas_root:self.inst_base]
-        lo_, mid, hi_, lword, rword, lcount, rcount = self._shape
         if n == 1:
             top[0] = np.zeros((), NODE_DTYPE)
             top[0]["lmin"], top[0]["lmax"] = bmin[0], bmax[0]
@@ -86,29 +91,35 @@ class TwoLevel:
             top[0]["rmin"], top[0]["rmax"] = np.inf, -np.inf
             top[0]["right"], top[0]["rcount"] = _LEAF, 0
         else:
-            pmin = np.concatenate([bmin, bmin[:1]])
-            pmax = np.concatenate([bmax, bmax[:1]])
-            left = np.stack([lo_, mid], axis=1).reshape(-1)
-            right = np.stack([mid, hi_], axis=1).reshape(-1)
-            top["lmin"] = np.minimum.reduceat(pmin, left, axis=0)[0::2]
-            top["lmax"] = np.maximum.reduceat(pmax, left, axis=0)[0::2]
-            top["rmin"] = np.minimum.reduceat(pmin, right, axis=0)[0::2]
-            top["rmax"] = np.maximum.reduceat(pmax, right, axis=0)[0::2]
-            top["left"] = np.where(lcount > 0, lword, lword + self.tlas_root)
-            top["right"] = np.where(rcount > 0, rword, rword + self.tlas_root)
-            top["lcount"], top["rcount"] = lcount, rcount
+            lo_, mid, _, _, _, lcount, rcount, levels = self._shape
+            lmin, lmax = np.empty((n - 1, 3), np.float32), np.empty((n - 1, 3), np.float32)
+            rmin, rmax = np.empty((n - 1, 3), np.float32), np.empty((n - 1, 3), np.float32)
+            ll, rl = lcount > 0, rcount > 0
+            lmin[ll], lmax[ll] = bmin[lo_[ll]], bmax[lo_[ll]]
+            rmin[rl], rmax[rl] = bmin[mid[rl]], bmax[mid[rl]]
+            for idx, lkid, rkid in levels:   # deepest first; (nodes, their interior left / right children)
+                li, lc = idx[lkid >= 0], lkid[lkid >= 0]
+                lmin[li] = np.minimum(lmin[lc], rmin[lc])
+                lmax[li] = np.maximum(lmax[lc], rmax[lc])
+                ri, rc = idx[rkid >= 0], rkid[rkid >= 0]
+                rmin[ri] = np.minimum(lmin[rc], rmin[rc])
+                rmax[ri] = np.maximum(lmax[rc], rmax[rc])
+            flat = top.view(np.float32).reshape(-1, 16)   # words and counts were written once (__init__)
+            flat[:, 0:3], flat[:, 4:7], flat[:, 8:11], flat[:, 12:15] = lmin, lmax, rmin, rmax
 
         rec = self.nodes[self.inst_base:].view(INST_DTYPE)
         mo = m[order]
-        inv = np.linalg.inv(mo[:, :3, :3])
+        inv = _inverse3(mo[:, :3, :3])
         w2o = np.empty((n, 3, 4))
         w2o[:, :, :3] = inv
         w2o[:, :, 3] = -np.einsum("nij,nj->ni", inv, mo[:, :3, 3])
-        rec["w2o"] = w2o
-        rec["root"] = self.node_base[inst_mesh[order]]
-        rec["tri_base"] = np.asarray(flat_tri_base)[order]
-        rec["instance"] = order
-        rec["pad"] = 0
+        flat = rec.view(np.float32).reshape(-1, 16)
+        flat[:, :12] = w2o.reshape(n, 12)
+        words = rec.view(np.uint32).reshape(-1, 16)
+        words[:, 12] = self.node_base[inst_mesh[order]]
+        words[:, 13] = np.asarray(flat_tri_base)[order]
+        words[:, 14] = order
+        words[:, 15] = 0
         return self.nodes[self.tlas_root:]
 
     def refit(self, k: int, positions: np.ndarray, indices: np.ndarray) -> float:
@@ -154,6 +165,15 @@ class TwoLevel:
         return _sah(nodes) / built if built > 0 else 1.0
 
 
+def _inverse3(a: np.ndarray) -> np.ndarray:
+    """(N, 3, 3) inverses by cofactors (the rows of the inverse are cross products of the columns over the
+    determinant): several times faster than np.linalg.inv on many small matrices."""
+    c0, c1, c2 = a[:, :, 0], a[:, :, 1], a[:, :, 2]
+    rows = np.stack([np.cross(c1, c2), np.cross(c2, c0), np.cross(c0, c1)], axis=1)
+    det = np.einsum("ni,ni->n", c0, rows[:, 0])
+    return rows / det[:, None, None]
+
+
 def _rebased(nodes: np.ndarray, node_base: int, tri_base: int) -> np.ndarray:
     out = nodes.copy()
     for word in ("left", "right"):
@@ -192,9 +212,10 @@ def _node_levels(nodes: np.ndarray) -> list:
 
 def _balanced(n: int):
     """The top level's shape for n leaves: per node in preorder its leaf range [lo, mid) + [mid, hi), child words
-    (a leaf slot: LEAF_BIT | slot; a node: its index relative to the root) and counts (1 at a leaf, else 0)."""
+    (a leaf slot: LEAF_BIT | slot; a node: its index relative to the root), counts (1 at a leaf, else 0), and the
+    nodes by depth, deepest first, with their interior children (-1: a leaf) for the bottom-up box pass."""
     if n <= 1:
-        return None, None, None, None, None, None, None
+        return None
     lo, mid, hi = (np.empty(n - 1, np.int64) for _ in range(3))
     lword, rword = np.empty(n - 1, np.uint32), np.empty(n - 1, np.uint32)
     lcount, rcount = np.zeros(n - 1, np.uint32), np.zeros(n - 1, np.uint32)
@@ -215,7 +236,18 @@ def _balanced(n: int):
         else:
             rword[i] = right
             stack.append((c, b, right))
-    return lo, mid, hi, lword, rword, lcount, rcount
+    depth = np.zeros(n - 1, np.int64)
+    lkid = np.where(lcount == 0, lword.astype(np.int64), -1)
+    rkid = np.where(rcount == 0, rword.astype(np.int64), -1)
+    for i in range(n - 1):   # preorder: a parent comes before its children
+        for kid in (lkid[i], rkid[i]):
+            if kid >= 0:
+                depth[kid] = depth[i] + 1
+    levels = []
+    for level in range(int(depth.max()), -1, -1):
+        idx = np.flatnonzero(depth == level)
+        levels.append((idx, lkid[idx], rkid[idx]))
+    return lo, mid, hi, lword, rword, lcount, rcount, levels
 
 
 def _spread(x: np.ndarray) -> np.ndarray:

@@ -96,10 +96,12 @@ class Mesh:
 
     @property
     def triangle_count(self) -> int:
+        """T, the number of triangles."""
         return int(len(self.indices))
 
     @property
     def vertex_count(self) -> int:
+        """V, the number of vertices."""
         return int(len(self.positions))
 
     @property

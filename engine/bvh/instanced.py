@@ -128,41 +128,71 @@ class TwoLevel:
         b = self.blas[k]
         p = np.asarray(positions, dtype=np.float32)
         t0, nt = int(self.tri_base[k]), len(b.prim_ids)
-        tris = self.tris[t0:t0 + len(b.tris)]
-        if nt:
-            f = np.asarray(indices, dtype=np.int64)[b.prim_ids]
-            tris["v0"][:nt], tris["v1"][:nt], tris["v2"][:nt] = p[f[:, 0]], p[f[:, 1]], p[f[:, 2]]
         n0, nn = int(self.node_base[k]), len(b.nodes)
-        nodes = self.nodes[n0:n0 + nn]
         if nt == 0:
             return 1.0
-        v = np.stack([tris["v0"][:nt], tris["v1"][:nt], tris["v2"][:nt]], axis=1)
-        tmin, tmax = v.min(axis=1), v.max(axis=1)
-        tmin_p = np.concatenate([tmin, tmin[:1]])
-        tmax_p = np.concatenate([tmax, tmax[:1]])
-        levels = self._levels.get(k)
-        if levels is None:
-            levels = self._levels[k] = _node_levels(b.nodes)
-        for side, word, cnt in (("l", "left", "lcount"), ("r", "right", "rcount")):
-            leaf = (b.nodes[word] & _LEAF) != 0
-            full = leaf & (b.nodes[cnt] > 0)
-            idx = np.flatnonzero(full)
-            if idx.size:
-                first = (b.nodes[word][idx] & _MASK).astype(np.int64)
-                pairs = np.stack([first, first + b.nodes[cnt][idx]], axis=1).reshape(-1)
-                nodes[side + "min"][idx] = np.minimum.reduceat(tmin_p, pairs, axis=0)[0::2]
-                nodes[side + "max"][idx] = np.maximum.reduceat(tmax_p, pairs, axis=0)[0::2]
-        for idx in reversed(levels):   # deepest first: a child's slots are final before its parent reads them
-            for side, word in (("l", "left"), ("r", "right")):
-                inner = idx[(b.nodes[word][idx] & _LEAF) == 0]
-                child = b.nodes[word][inner].astype(np.int64)
-                nodes[side + "min"][inner] = np.minimum(nodes["lmin"][child], nodes["rmin"][child])
-                nodes[side + "max"][inner] = np.maximum(nodes["lmax"][child], nodes["rmax"][child])
-        for name, to in (("lmin", -np.inf), ("rmin", -np.inf), ("lmax", np.inf), ("rmax", np.inf)):
-            x = nodes[name]
-            nodes[name] = np.where(np.isfinite(x), np.nextafter(x, np.float32(to)), x)
+        shape = self._refit_shape(k)
+        f = shape["faces"] if shape.get("faces_src") is indices else None
+        if f is None:
+            f = np.asarray(indices, dtype=np.int64)[b.prim_ids].T.copy()   # (3, T) corners in leaf order
+            shape["faces"], shape["faces_src"] = f, indices
+        corners = [p[f[c]] for c in range(3)]
+        rows = self.tris[t0:t0 + nt].view(np.float32).reshape(nt, 12)
+        rows[:, 0:3], rows[:, 4:7], rows[:, 8:11] = corners
+        tmin = np.minimum(np.minimum(corners[0], corners[1]), corners[2])
+        tmax = np.maximum(np.maximum(corners[0], corners[1]), corners[2])
+        # the leaves' triangle ranges partition [0, T) (leaf order): one reduceat over their sorted starts
+        box = np.empty((nn, 12), np.float32)   # per node: lmin, lmax, rmin, rmax
+        starts, slot_node, slot_col = shape["starts"], shape["slot_node"], shape["slot_col"]
+        lo = np.minimum.reduceat(tmin, starts, axis=0)
+        hi = np.maximum.reduceat(tmax, starts, axis=0)
+        for col in (0, 6):
+            sel = slot_col == col
+            box[slot_node[sel], col:col + 3] = lo[sel]
+            box[slot_node[sel], col + 3:col + 6] = hi[sel]
+        for idx, col, child in shape["levels"]:   # deepest first: a child's slots are final before its parent's
+            c = box[child]
+            box[idx, col:col + 3] = np.minimum(c[:, 0:3], c[:, 6:9])
+            box[idx, col + 3:col + 6] = np.maximum(c[:, 3:6], c[:, 9:12])
+        for col in shape["empty"]:   # empty slots keep their inverted boxes
+            box[col[0], col[1]:col[1] + 6] = (np.inf, np.inf, np.inf, -np.inf, -np.inf, -np.inf)
+        box[:, 0:3] = np.nextafter(box[:, 0:3], np.float32(-np.inf))
+        box[:, 6:9] = np.nextafter(box[:, 6:9], np.float32(-np.inf))
+        box[:, 3:6] = np.nextafter(box[:, 3:6], np.float32(np.inf))
+        box[:, 9:12] = np.nextafter(box[:, 9:12], np.float32(np.inf))
+        out = self.nodes[n0:n0 + nn].view(np.float32).reshape(nn, 16)
+        out[:, 0:3], out[:, 4:7], out[:, 8:11], out[:, 12:15] = box[:, 0:3], box[:, 3:6], box[:, 6:9], box[:, 9:12]
         built = self.sah_built[k]
-        return _sah(nodes) / built if built > 0 else 1.0
+        return _sah(self.nodes[n0:n0 + nn]) / built if built > 0 else 1.0
+
+    def _refit_shape(self, k: int) -> dict:
+        """What refit reuses for mesh k: leaf slots by first triangle, interior slots by level, empty slots."""
+        shape = self._levels.get(k)
+        if shape is not None:
+            return shape
+        nodes = self.blas[k].nodes
+        words = {0: nodes["left"], 6: nodes["right"]}
+        counts = {0: nodes["lcount"], 6: nodes["rcount"]}
+        slot_node, slot_col, firsts, empty = [], [], [], []
+        for col in (0, 6):
+            leaf = (words[col] & _LEAF) != 0
+            idx = np.flatnonzero(leaf & (counts[col] > 0))
+            slot_node.append(idx)
+            slot_col.append(np.full(idx.size, col))
+            firsts.append((words[col][idx] & _MASK).astype(np.int64))
+            empty += [(int(i), col) for i in np.flatnonzero(leaf & (counts[col] == 0))]
+        firsts = np.concatenate(firsts)
+        order = np.argsort(firsts, kind="stable")
+        levels = []
+        for idx in reversed(_node_levels(nodes)):
+            for col in (0, 6):
+                inner = idx[(words[col][idx] & _LEAF) == 0]
+                if inner.size:
+                    levels.append((inner, col, words[col][inner].astype(np.int64)))
+        shape = {"starts": firsts[order], "slot_node": np.concatenate(slot_node)[order],
+                 "slot_col": np.concatenate(slot_col)[order], "levels": levels, "empty": empty}
+        self._levels[k] = shape
+        return shape
 
 
 def _inverse3(a: np.ndarray) -> np.ndarray:

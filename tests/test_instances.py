@@ -229,3 +229,16 @@ def test_moving_frames_are_validation_clean(make_renderer):
         scene.update_positions("cube", scene.meshes[1].positions * (1.0 + 0.1 * k))
         r.render(scene, shadows="soft", ao=True)
     assert r.validation_errors == []
+
+
+def test_refit_to_the_same_positions_is_the_build_byte_for_byte():
+    from engine.bvh import build_bvh
+    from engine.bvh.instanced import TwoLevel
+    sphere = trimesh.creation.icosphere(subdivisions=3)
+    v = sphere.vertices.astype(np.float32)
+    two = TwoLevel([build_bvh(v, sphere.faces), build_bvh(v * 2, sphere.faces)], 3)
+    nodes, tris = two.nodes.copy(), two.tris.copy()
+    assert two.refit(1, v * 2, sphere.faces) == pytest.approx(1.0)
+    assert np.array_equal(two.nodes.view(np.uint32), nodes.view(np.uint32))
+    assert np.array_equal(two.tris.view(np.uint32), tris.view(np.uint32))
+    assert two.refit(0, v * (1.0 + 0.5 * np.abs(v[:, :1])), sphere.faces) > 1.0   # stretched: boxes grow

@@ -483,7 +483,7 @@ class Renderer:
         self._geometry = self._scene_bvh = None
         self._geometry = SceneGeometry(self.ctx, scene, self.gbuffer.white, self.gbuffer.sampler)
         self.gbuffer.bind_scene(self._geometry)
-        self._scene_bvh = scene_bvh(self.ctx, scene, self.bvh_set, self.bvh_layout)
+        self._scene_bvh = scene_bvh(self.ctx, scene, self.bvh_set, self.bvh_layout, flat_static=True)
         self._specialize_bvh()
         self._scene = scene
         self._scene_version = scene.version

@@ -84,9 +84,10 @@ class TwoLevel:
         mesh_boxes = np.asarray(mesh_boxes, dtype=np.float64)
         oc = (0.5 * (mesh_boxes[:, 0] + mesh_boxes[:, 1]))[inst_mesh]
         oh = (0.5 * (mesh_boxes[:, 1] - mesh_boxes[:, 0]))[inst_mesh]
-        wc, wh = m[:, :3, 3].copy(), np.zeros((n, 3))
+        cols = m[:, :3, :].transpose(2, 0, 1).copy()   # (4, N, 3): the columns of A, then t
+        wc, wh = cols[3], np.zeros((n, 3))
         for k in range(3):   # centre and half extent through the transform: A c + t, |A| h
-            col = m[:, :3, k]
+            col = cols[k]
             wc += col * oc[:, k:k + 1]
             wh += np.abs(col) * oh[:, k:k + 1]
         lo, hi = wc.min(axis=0), wc.max(axis=0)
@@ -109,27 +110,29 @@ class TwoLevel:
         words[bottom:, 7] = self._order[1::2] | _LEAF
         cur = leaf
         for j in range(self.levels - 1, -1, -1):   # level j's nodes hold the boxes of level j + 1's pairs
-            pair = cur.reshape(-1, 2, 6)
-            r = rows[(1 << j) - 1:(2 << j) - 1]
-            r[:, 0:3], r[:, 4:7] = pair[:, 0, :3], pair[:, 0, 3:]
-            r[:, 8:11], r[:, 12:15] = pair[:, 1, :3], pair[:, 1, 3:]
-            cur = np.concatenate([np.minimum(pair[:, 0, :3], pair[:, 1, :3]),
-                                  np.maximum(pair[:, 0, 3:], pair[:, 1, 3:])], axis=1)
+            pair = cur.reshape(-1, 12)   # (left min, left max, right min, right max): the node's four box rows
+            rows[(1 << j) - 1:(2 << j) - 1].reshape(-1, 4, 4)[:, :, :3] = pair.reshape(-1, 4, 3)
+            cur = np.empty((len(pair), 6), np.float32)
+            np.minimum(pair[:, 0:3], pair[:, 6:9], out=cur[:, 0:3])
+            np.maximum(pair[:, 3:6], pair[:, 9:12], out=cur[:, 3:6])
 
         idx = np.arange(n) if moved is None else np.asarray(moved, dtype=np.int64)
         if idx.size:
             rec = self.nodes[self.inst_base:]
-            mo = m[idx]
+            if moved is None:
+                mo, idx = m, slice(None)
+            else:
+                mo = m[idx]
             inv = _inverse3(mo[:, :3, :3])
             t = mo[:, :3, 3]
-            w2o = np.empty((len(idx), 3, 4))
+            w2o = np.empty((len(mo), 3, 4))
             w2o[:, :, :3] = inv
             w2o[:, :, 3] = -(inv[:, :, 0] * t[:, 0:1] + inv[:, :, 1] * t[:, 1:2] + inv[:, :, 2] * t[:, 2:3])
             rec.view(np.float32).reshape(-1, 16)[idx, :12] = w2o.reshape(-1, 12)
             recw = rec.view(np.uint32).reshape(-1, 16)
             recw[idx, 12] = self.node_base[np.asarray(inst_mesh)[idx]]
             recw[idx, 13] = np.asarray(flat_tri_base)[idx]
-            recw[idx, 14] = idx
+            recw[idx, 14] = np.arange(n)[idx]
         return self.nodes[self.tlas_root:]
 
     def refit(self, k: int, positions: np.ndarray, indices: np.ndarray) -> float:
@@ -208,7 +211,8 @@ class TwoLevel:
 def _inverse3(a: np.ndarray) -> np.ndarray:
     """(N, 3, 3) inverses by cofactors (the rows of the inverse are cross products of the columns over the
     determinant): several times faster than np.linalg.inv on many small matrices."""
-    (a00, a01, a02), (a10, a11, a12), (a20, a21, a22) = (tuple(a[:, i, j] for j in range(3)) for i in range(3))
+    e = a.reshape(-1, 9).T.copy()   # the nine elements, each contiguous
+    (a00, a01, a02), (a10, a11, a12), (a20, a21, a22) = e[0:3], e[3:6], e[6:9]
     out = np.empty_like(a)
     out[:, 0, 0], out[:, 0, 1], out[:, 0, 2] = a11 * a22 - a12 * a21, a02 * a21 - a01 * a22, a01 * a12 - a02 * a11
     out[:, 1, 0], out[:, 1, 1], out[:, 1, 2] = a12 * a20 - a10 * a22, a00 * a22 - a02 * a20, a02 * a10 - a00 * a12

@@ -236,7 +236,8 @@ def check_transforms(value: ArrayLike, labels) -> NDArray[np.float64]:
                          f"{m[int(np.argmax(bad)), 3].tolist()}")
     a = m[:, :3, :3]
     scale = np.abs(a).max(axis=(1, 2))
-    det = np.linalg.det(a / np.where(scale > 0, scale, 1.0)[:, None, None])
+    e = (a / np.where(scale > 0, scale, 1.0)[:, None, None]).reshape(-1, 9).T
+    det = e[0] * (e[4] * e[8] - e[5] * e[7]) - e[1] * (e[3] * e[8] - e[5] * e[6]) + e[2] * (e[3] * e[7] - e[4] * e[6])
     bad = (scale <= 0) | (np.abs(det) < 1e-12)
     if bad.any():
         raise SceneError(f"{label(int(np.argmax(bad)))}: transform is not invertible (its 3x3 part is singular)")

@@ -275,10 +275,10 @@ class Scene:
         if not len(idx):
             return
         boxes = np.stack([m.box for m in self.meshes])[self._inst_mesh[idx]]
-        top = np.abs(world_boxes(boxes, self._transforms[idx])).max(axis=(1, 2))
-        bad = top > MAX_COORD
-        if bad.any():
-            i = int(idx[int(np.argmax(bad))])
+        world = world_boxes(boxes, self._transforms[idx])
+        if np.abs(world).max() > MAX_COORD:
+            top = np.abs(world).reshape(len(world), 6).max(axis=1)
+            i = int(idx[int(np.argmax(top > MAX_COORD))])
             raise SceneError(f"{self._label(i)}: world-space coordinates beyond +-{MAX_COORD:g} (largest "
                              f"{top.max():g}): check its transform")
 

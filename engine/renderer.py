@@ -21,8 +21,8 @@ import numpy as np
 from .errors import ConfigError, EngineError, VulkanError
 from .frame import Frame
 from .gpu import bvh_descriptor_set
+from .gpu import InstancedBVH, scene_bvh
 from .gpu import bvh_layout as resolve_layout
-from .gpu.bvh import InstancedBVH, scene_bvh
 from .passes.accumulate import ALPHA_MIN, AccumulatePass
 from .passes.ao import AOPass
 from .passes.debug_view import DebugViewPass

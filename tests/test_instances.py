@@ -119,7 +119,8 @@ def test_loaders_keep_instancing(tmp_path):
     assert glb.triangle_count == 72
     np.testing.assert_allclose(glb.bounds, [[-0.5, -0.5, -0.5], [15.5, 0.5, 0.5]], atol=1e-6)
     toml = tmp_path / "s.toml"
-    toml.write_text('[[mesh]]\nfile = "six.glb"\ninstances = [{translate = [0, 0, 0]}, {translate = [0, 4, 0], name = "up"}]\n'
+    toml.write_text('[[mesh]]\nfile = "six.glb"\n'
+                    'instances = [{translate = [0, 0, 0]}, {translate = [0, 4, 0], name = "up"}]\n'
                     '[[mesh]]\nfile = "six.glb"\ntranslate = [0, 0, 9]\n'
                     '[[mesh]]\nprimitive = "sphere"\nsegments = 8\nrings = 4\n'
                     'instances = [{translate = [1, 2, 3]}, {scale = [1, 2, 3], rotate = [0, 90, 0]}]\n')

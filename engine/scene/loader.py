@@ -293,8 +293,8 @@ class SceneBuilder:
             raise SceneError(f"{where}: mesh '{shown(name)}' has {bad} vertex position(s) that are NaN or "
                              "infinite")
         if np.abs(p).max() > MAX_COORD:
-            raise SceneError(f"{where}: mesh '{shown(name)}' has world-space (and object-space) vertex coordinates "
-                             f"beyond +-{MAX_COORD:g} (largest {np.abs(p).max():g}): check its size")
+            raise SceneError(f"{where}: mesh '{shown(name)}' has world-space vertex coordinates beyond +-{MAX_COORD:g} "
+                             f"(already in its own space; largest {np.abs(p).max():g}): check its size")
         if f.min() < 0 or f.max() >= len(p):
             raise SceneError(f"{where}: mesh '{shown(name)}' has face indices out of range")
         if uvs is not None:

@@ -436,7 +436,8 @@ class Scene:
         textures = sum(m.texture is not None for m in self.materials)
         inst = "" if len(self.instances) == 1 else f" ({len(self.instances):,} instances of {len(self.meshes)})"
         return (f"{shown(os.path.basename(self.name) or self.name)}: {self.triangle_count:,} triangles, "
-                f"{self.vertex_count:,} vertices, {len(self.meshes) if inst else len(self.submeshes)} meshes{inst}, {len(self.materials)} materials "
+                f"{self.vertex_count:,} vertices, {len(self.meshes) if inst else len(self.submeshes)} meshes{inst}, "
+                f"{len(self.materials)} materials "
                 f"({textures} textured), lights: {lights}, size {size[0]:.3g} x {size[1]:.3g} x {size[2]:.3g}")
 
     def __repr__(self) -> str:

@@ -41,8 +41,8 @@ from .vk.shared import Device
 from .rt import Hits, Tracer
 from .rt import RayMeshIntersector
 from .rt import RaycastingScene
-from .scene import (Camera, DirectionalLight, Light, Material, PointLight, RectLight, Scene, SpotLight,
-                    SubMesh)
+from .scene import (Camera, DirectionalLight, Instance, Light, Material, Mesh, PointLight, RectLight, Scene,
+                    SpotLight, SubMesh)
 
 __all__ = [
     "Scene", "Camera", "Material", "Light", "DirectionalLight", "PointLight", "SpotLight", "RectLight", "SubMesh",
@@ -52,3 +52,4 @@ __all__ = [
 __all__ += ["RayMeshIntersector"]
 __all__ += ["RaycastingScene"]
 __all__ += ["Device"]
+__all__ += ["Mesh", "Instance"]

@@ -18,16 +18,16 @@ from typing import Any
 
 import numpy as np
 
-from .bvh import build_bvh
 from .errors import ConfigError, EngineError, VulkanError
 from .frame import Frame
-from .gpu import SceneBVH, bvh_descriptor_set
+from .gpu import bvh_descriptor_set
+from .gpu import InstancedBVH, scene_bvh
 from .gpu import bvh_layout as resolve_layout
 from .passes.accumulate import ALPHA_MIN, AccumulatePass
 from .passes.ao import AOPass
 from .passes.debug_view import DebugViewPass
 from .passes.denoise import DenoisePass
-from .passes.gbuffer import GBufferPass, SceneGeometry, flag_alpha_tested
+from .passes.gbuffer import GBufferPass, SceneGeometry
 from .passes.interface import (FILTER_AO, FILTER_MASKS, FILTER_TEMPORAL, FRAME, FRAME_BYTES, MAX_LIGHTS,
                                camera_fields, pack_frame, pack_light)
 from .passes.lighting import LightingPass
@@ -147,6 +147,7 @@ class Renderer:
         self._scene = None
         self._geometry = None
         self._scene_bvh = None
+        self._scene_version = -1
         self.bvh_stats = {}
         self._commands: dict = {}
         self._frame_index = 0
@@ -352,6 +353,7 @@ class Renderer:
         if not polled:
             self._poll_shaders()
         self._use_scene(scene)
+        self._sync_scene(scene)
         lights = list(scene.lights)
         if len(lights) > MAX_LIGHTS:
             raise ConfigError(f"{scene.name}: {len(lights)} lights, at most {MAX_LIGHTS} are supported")
@@ -485,16 +487,50 @@ class Renderer:
         self._geometry = self._scene_bvh = None
         self._geometry = SceneGeometry(self.ctx, scene, self.gbuffer.white, self.gbuffer.sampler)
         self.gbuffer.bind_scene(self._geometry)
-        bvh = build_bvh(scene.positions, scene.indices)
-        flag_alpha_tested(bvh.tris, self._geometry.alpha_index)   # the alpha test's per-triangle flag
-        self._scene_bvh = SceneBVH.upload(self.ctx, bvh, self.bvh_set, self.bvh_layout)
-        self.bvh_stats = dict(self._scene_bvh.bvh.stats, layout=self.bvh_layout)
-        for p in (self.shadows, self.ao):   # the traversal specialized to this BVH (its depth, its node layout)
+        self._scene_bvh = scene_bvh(self.ctx, scene, self.bvh_set, self.bvh_layout, flat_static=True,
+                                    alpha_index=self._geometry.alpha_index)   # with the alpha test's flags
+        for p in (self.shadows, self.ao):
             p.bind_scene(self._geometry, self.gbuffer.white, self.gbuffer.sampler)
-            p.specialize_for(self._scene_bvh)
+        self._specialize_bvh()
         self._scene = scene
+        self._scene_version = scene.version
         self._prev_view_proj = None
         self.uploads += 1
+
+    def _specialize_bvh(self):
+        self.bvh_stats = dict(self._scene_bvh.bvh.stats, layout=self._scene_bvh.layout)
+        for p in (self.shadows, self.ao):   # the traversal specialized to this BVH (its depth, its node layout)
+            p.specialize_for(self._scene_bvh)
+
+    def _sync_scene(self, scene):
+        """The one place the GPU copy of the current scene follows its changes (moved instances, deformed
+        meshes; `scene.version`), at the start of a frame: the two-level BVH's `update` (top level rebuilt,
+        bottom levels refitted; a scene of one identity instance switches to the two-level BVH at its first
+        change), and the G-buffer's vertex buffer flattened again."""
+        if scene.version == self._scene_version:
+            return
+        self._steady = None
+        self._invalidate_commands()
+        self.ctx.wait_idle()
+        self._geometry.destroy()
+        self._geometry = None
+        self._geometry = SceneGeometry(self.ctx, scene, self.gbuffer.white, self.gbuffer.sampler)
+        self.gbuffer.bind_scene(self._geometry)
+        for p in (self.shadows, self.ao):
+            p.bind_scene(self._geometry, self.gbuffer.white, self.gbuffer.sampler)
+        alpha = self._geometry.alpha_index   # the alpha test's flags (materials may have changed too)
+        if isinstance(self._scene_bvh, InstancedBVH):
+            structure = self._scene_bvh.structure
+            self._scene_bvh.set_alpha(scene, alpha)
+            self._scene_bvh.update(scene)
+            if structure != self._scene_bvh.structure:
+                self._specialize_bvh()
+        else:
+            self._scene_bvh.destroy()
+            self._scene_bvh = None
+            self._scene_bvh = InstancedBVH(self.ctx, scene, self.bvh_set, alpha)
+            self._specialize_bvh()
+        self._scene_version = scene.version
 
     def _resize_targets(self, light_capacity):
         Targets.check_capacity(self.ctx, self.width, self.height, light_capacity)

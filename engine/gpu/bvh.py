@@ -7,16 +7,23 @@ from __future__ import annotations
 
 import os
 
+import numpy as np
+
+from ..bvh import build_bvh
 from ..bvh.compress import compress_nodes
+from ..bvh.instanced import TwoLevel
 from ..bvh.wide import collapse_bvh8
 from ..errors import ConfigError, SceneError
-from ..vk import BufferView, Context, DescriptorSet, upload_buffer
+from ..vk import Buffer, BufferView, Context, DescriptorSet, update_buffer, upload_buffer
 from ..vk.device import is_cpu
 from ..vk.reflect import Interface
-from ..vk.resources import STORAGE_TEXEL, UNIFORM_TEXEL
+from ..vk.resources import STORAGE_TEXEL, TRANSFER_SRC, UNIFORM_TEXEL
 
 BVH_SET = 1   # the descriptor set index bvh.glsl declares
 LAYOUTS = ("binary", "wide")
+#: A deforming mesh's bottom level is rebuilt instead of refitted once its refitted SAH cost exceeds the build's
+#: by this factor (InstancedBVH.update; docs/architecture.md, "Instances and the two-level BVH").
+REBUILD_RATIO = 2.0
 #: Register-stack entries of the traversal on CPU devices (BVH_STACK_REGS): fewer than a deep tree needs; the rare
 #: ray that overflows them walks again (BVH_STACK_RETRY). The best of the counts tried on lavapipe.
 CPU_STACK_REGS = 10
@@ -121,3 +128,197 @@ class SceneBVH:
             view.destroy()
         self.nodes.destroy()
         self.tris.destroy()
+
+
+def is_instanced(scene) -> bool:
+    """Does `scene` need the two-level BVH? Not for one instance with the identity transform (today's scenes:
+    the single-level path, unchanged)."""
+    return len(scene.instances) > 1 or not np.array_equal(scene.transforms[0], np.eye(4))
+
+
+#: A scene that has not changed since it was made (`scene.version` 0) and has at most this many instanced triangles
+#: is traced through one BVH of its flattened triangles by the renderer (`scene_bvh`): faster than two levels where
+#: instances are few (a loaded scene of placed meshes), and the same ids; the first change switches to two levels.
+FLAT_STATIC_TRIANGLES = 4_000_000
+
+
+def flag_alpha_tested(tris: np.ndarray, alpha_index: np.ndarray) -> None:
+    """Write each triangle record's alpha word (v1.w, engine/bvh/layout.py pad1): `alpha_index[prim]`, 1 + its
+    alpha record or 0 for opaque (shaders/glsl/include/alpha.glsl)."""
+    prim = tris["prim"].astype(np.int64)
+    flags = np.zeros(len(tris), np.uint32)
+    ok = (prim >= 0) & (prim < len(alpha_index))
+    flags[ok] = alpha_index[prim[ok]]
+    tris["pad1"] = flags
+
+
+def mesh_alpha_index(scene, flat_tri_base: np.ndarray, alpha_index: np.ndarray) -> list:
+    """Per mesh, its triangles' alpha words for the two-level BVH (whose triangle records are the meshes', shared
+    by their instances), read from the flattened scene's `alpha_index` at the mesh's first instance: the records
+    hold a triangle's UVs and its material's texture and cutoff, the same for every instance of the mesh unless
+    an instance's material override changes them.
+
+    Raises:
+        SceneError: a mesh with alpha-tested (MASK / BLEND) triangles whose instances override its material
+            differently (the two-level BVH has one alpha record per mesh triangle).
+    """
+    inst_mesh, override = scene.instance_mesh, scene.instance_material
+    base = np.asarray(flat_tri_base, dtype=np.int64)
+    tested = np.zeros(len(inst_mesh), bool)
+    if len(alpha_index):
+        tested = np.logical_or.reduceat(np.asarray(alpha_index) != 0, np.minimum(base, len(alpha_index) - 1))
+        tested &= np.array([m.triangle_count for m in scene.meshes], np.int64)[inst_mesh] > 0
+    out = []
+    for k, mesh in enumerate(scene.meshes):
+        insts = np.flatnonzero(inst_mesh == k)
+        if len(insts) == 0 or not tested[insts].any():
+            out.append(np.zeros(mesh.triangle_count, np.uint32))
+            continue
+        differ = insts[override[insts] != override[insts[0]]]
+        if len(differ):
+            name = scene.instances[int(differ[0])].name
+            raise SceneError(f"{scene.name}: instance {int(differ[0])} ('{name}') of mesh '{mesh.name}' overrides "
+                             "its material differently from the mesh's other instances, and the mesh has "
+                             "alpha-tested (MASK / BLEND) triangles: the two-level BVH keeps one alpha record per "
+                             "mesh triangle; give these instances a mesh of their own")
+        first = int(base[insts[0]])
+        out.append(np.asarray(alpha_index[first:first + mesh.triangle_count], np.uint32))
+    return out
+
+
+def scene_bvh(ctx: Context, scene, dset: DescriptorSet, layout: str, flat_static: bool = False,
+              alpha_index: np.ndarray | None = None):
+    """The BVH of a Scene on the GPU: a SceneBVH of its one mesh (one identity instance) or, with `flat_static`,
+    of its flattened triangles while it is unchanged and small enough (FLAT_STATIC_TRIANGLES); else an
+    InstancedBVH (binary layout only). `alpha_index`: the flattened scene's alpha words (flag_alpha_tested)."""
+    if not is_instanced(scene) or (flat_static and scene.version == 0 and
+                                   scene.triangle_count <= FLAT_STATIC_TRIANGLES):
+        source = scene.meshes[0] if not is_instanced(scene) else scene   # (one identity instance: the same ids)
+        bvh = build_bvh(source.positions, source.indices)
+        if alpha_index is not None:
+            flag_alpha_tested(bvh.tris, alpha_index)
+        return SceneBVH.upload(ctx, bvh, dset, layout)
+    return InstancedBVH(ctx, scene, dset, alpha_index)
+
+
+class InstancedBVH:
+    """A scene's two-level BVH on the GPU (engine/bvh/instanced.py): per-mesh bottom levels built once, the top
+    level and instance records rewritten by `update(scene)` when instances moved, deformed meshes refitted (or
+    rebuilt past REBUILD_RATIO, which uploads everything again). Same descriptor set and `spec` as SceneBVH; the
+    traversal's triangle ids are the flattened scene's (`scene.indices`)."""
+
+    layout = "binary"
+    compressed = False
+
+    def __init__(self, ctx: Context, scene, dset: DescriptorSet, alpha_index: np.ndarray | None = None):
+        self.ctx, self.dset = ctx, dset
+        tri_counts = np.array([m.triangle_count for m in scene.meshes], dtype=np.int64)[scene.instance_mesh]
+        if tri_counts.sum() >= 2 ** 31:
+            raise SceneError(f"{scene.name}: {int(tri_counts.sum()):,} instanced triangles: more than the 2^31 "
+                             "triangle ids the traversal reports")
+        self.flat_tri_base = np.concatenate([[0], np.cumsum(tri_counts)[:-1]]).astype(np.uint32)
+        self.blas = [build_bvh(m.positions, m.indices) for m in scene.meshes]
+        self.rebuilds = 0
+        self.last_refit_ratio: dict[int, float] = {}
+        self.nodes = self.tris = None
+        self.views = []
+        self.alpha = None if alpha_index is None else mesh_alpha_index(scene, self.flat_tri_base, alpha_index)
+        self._upload(scene)
+
+    def _flag_alpha(self) -> None:
+        if self.alpha is None:
+            return
+        for k, b in enumerate(self.blas):
+            t0 = int(self.two.tri_base[k])
+            flag_alpha_tested(self.two.tris[t0:t0 + len(b.tris)], self.alpha[k])
+
+    def set_alpha(self, scene, alpha_index: np.ndarray) -> None:
+        """New alpha words (the flattened scene's, as `scene_bvh` takes them; after its materials changed)."""
+        alpha = mesh_alpha_index(scene, self.flat_tri_base, alpha_index)
+        if self.alpha is not None and all(np.array_equal(a, b) for a, b in zip(alpha, self.alpha)):
+            return
+        self.alpha = alpha
+        self._flag_alpha()
+        update_buffer(self.ctx, self.tris, [(0, self.two.tris)])
+
+    def _upload(self, scene) -> None:
+        self.destroy()
+        self.two = TwoLevel(self.blas, len(scene.instances))
+        self.two.top(scene.transforms, scene.instance_mesh, self._mesh_boxes(scene), self.flat_tri_base)
+        self._flag_alpha()
+        self.depth = self.two.depth
+        self.bvh = self.two   # (stats, as SceneBVH.bvh)
+        texels = int(self.ctx.limits.maxTexelBufferElements)
+        for what, arr in (("triangles", self.two.tris), ("nodes", self.two.nodes)):
+            if arr.nbytes // 16 > texels:
+                raise SceneError(f"{scene.name}: the two-level BVH {what} take {arr.nbytes / 2**20:.0f} MiB, more "
+                                 f"than this device's texel-buffer limit of {texels:,} texels")
+        usage = UNIFORM_TEXEL | STORAGE_TEXEL
+        self.nodes = upload_buffer(self.ctx, self.two.nodes, usage, "bvh nodes (two-level)")
+        self.tris = upload_buffer(self.ctx, self.two.tris, usage, "bvh triangles (two-level)")
+        tail = self.two.nodes.nbytes - self.two.tail_offset
+        self.staging = Buffer(self.ctx, tail, TRANSFER_SRC, host=True, name="top-level staging")
+        self.views = [BufferView(self.nodes), BufferView(self.tris)]
+        self.dset.bind("bvh_node_texels", self.views[0]).bind("bvh_tri_texels", self.views[1])
+        self.dset.bind("bvh_node_image", self.views[0]).bind("bvh_tri_image", self.views[1])
+        self.version = scene.version
+        self.structure = getattr(self, "structure", 0) + 1   # changes when the buffers (and spec) are new
+
+    @staticmethod
+    def _mesh_boxes(scene) -> np.ndarray:
+        return np.stack([m.box for m in scene.meshes])
+
+    def update(self, scene) -> bool:
+        """Bring the GPU copy up to `scene`'s current state (the renderer and Tracer call it before tracing):
+        refit deformed meshes, rebuild the top level if anything moved. Returns True when it changed anything;
+        check `structure` for whether the buffers were replaced (a rebuild: descriptors rebound, spec changed)."""
+        if scene.version == self.version:
+            return False
+        moved = scene.moved_instances(self.version)
+        deformed = scene.deformed_meshes(self.version)
+        parts = []
+        rebuild = False
+        for k in deformed:
+            mesh = scene.meshes[int(k)]
+            ratio = self.two.refit(int(k), mesh.positions, mesh.indices)
+            self.last_refit_ratio[int(k)] = ratio
+            if ratio > REBUILD_RATIO:
+                self.blas[int(k)] = build_bvh(mesh.positions, mesh.indices)
+                rebuild = True
+                continue
+            b = self.blas[int(k)]
+            n0, t0 = int(self.two.node_base[k]), int(self.two.tri_base[k])
+            parts.append((n0 * 64, self.two.nodes[n0:n0 + len(b.nodes)]))
+            parts.append(("tris", t0 * 48, self.two.tris[t0:t0 + len(b.tris)]))
+        if rebuild:
+            self.rebuilds += 1
+            self._upload(scene)
+            return True
+        if len(moved) or len(deformed):
+            tail = self.two.top(scene.transforms, scene.instance_mesh, self._mesh_boxes(scene), self.flat_tri_base,
+                                moved=moved)
+            parts.append((self.two.tail_offset, tail))
+        node_parts = [p for p in parts if len(p) == 2]
+        tri_parts = [p[1:] for p in parts if len(p) == 3]
+        tail_only = len(node_parts) == 1 and not tri_parts
+        update_buffer(self.ctx, self.nodes, node_parts, self.staging if tail_only else None)
+        if tri_parts:
+            update_buffer(self.ctx, self.tris, tri_parts)
+        self.version = scene.version
+        return True
+
+    def spec(self, ctx: Context, postpone: bool | None = None, stack_regs: int | None = None) -> dict:
+        """bvh_spec for the bottom levels' depth, with the two-level constants."""
+        spec = bvh_spec(ctx, self.depth, layout="binary", compressed=False, postpone=postpone,
+                        stack_regs=stack_regs)
+        spec.update(BVH_INSTANCED=True, BVH_TLAS_ROOT=self.two.tlas_root, BVH_INST_BASE=self.two.inst_base)
+        return spec
+
+    def destroy(self):
+        for view in self.views:
+            view.destroy()
+        self.views = []
+        for buf in (self.nodes, self.tris, getattr(self, "staging", None)):
+            if buf is not None:
+                buf.destroy()
+        self.nodes = self.tris = self.staging = None

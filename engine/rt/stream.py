@@ -213,3 +213,18 @@ def hits_sink(t_out, prim_out, u_out, v_out):
             v_out[start + s:start + e] = r[:, 3]
         _parallel([lambda s=s: block(s) for s in range(0, n, step)], threads)
     return sink
+
+
+def instance_sink(inner, prim, flat_tri_base, inst_out, mesh_prim_out):
+    """A sink running `inner` (hits_sink), then writing each chunk's instance and mesh triangle (-1 on a miss) from
+    its flattened-scene triangle ids `prim` and the instances' first flat triangles `flat_tri_base` (ascending)."""
+    base = np.asarray(flat_tri_base, dtype=np.int64)
+
+    def sink(slot, start, n, threads):
+        inner(slot, start, n, threads)
+        p = prim[start:start + n].astype(np.int64)
+        hit = p >= 0
+        inst = np.searchsorted(base, p, side="right") - 1
+        inst_out[start:start + n] = np.where(hit, inst, -1)
+        mesh_prim_out[start:start + n] = np.where(hit, p - base[np.maximum(inst, 0)], -1)
+    return sink

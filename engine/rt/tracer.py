@@ -21,15 +21,15 @@ from numpy.typing import ArrayLike, NDArray
 from ..bvh import build_bvh
 from ..errors import ConfigError, SceneError
 from ..gpu import SceneBVH, bvh_descriptor_set, bvh_layout
-from ..gpu.bvh import CPU_OCCLUSION_STACK_REGS
+from ..gpu.bvh import CPU_OCCLUSION_STACK_REGS, InstancedBVH, is_instanced
 from ..parallel import serialized
 from ..shaders import ShaderLibrary
-from ..vk import ComputePipeline, Context, DescriptorSet, reflect
+from ..vk import Buffer, ComputePipeline, Context, DescriptorSet, Timestamps, reflect
 from ..vk.device import has_dedicated_vram, is_cpu, rgb32f_texel_buffers, work_shares
 from ..vk.shared import Device, Scope
 from .checks import check_batch_size, check_mesh, name_bad_ray, ray_arrays
 from .cuda_arrays import CudaRays, on_cuda
-from .stream import Slot, hits_sink, occluded_sink, stream
+from .stream import Slot, hits_sink, instance_sink, occluded_sink, stream
 
 #: Query kinds whose kernels read rays (and write results) through texel buffer views on CPU devices (RAYS_TEXEL):
 #: faster for occlusion on lavapipe, not for closest hits.
@@ -96,6 +96,11 @@ class Hits:
     """(N,) float32 barycentric weight of the triangle's vertex 1 (undefined on a miss)."""
     v: NDArray[np.float32]
     """(N,) float32 barycentric weight of the triangle's vertex 2 (undefined on a miss)."""
+    instance: NDArray[np.int32] | None = None
+    """(N,) int32 index in `scene.instances` of the instance hit, -1 on a miss (a Tracer made by `from_scene`;
+    `prim` is then the triangle of the flattened scene, `scene.indices`)."""
+    mesh_prim: NDArray[np.int32] | None = None
+    """(N,) int32 the triangle hit in its mesh's own `indices` (`from_scene`), -1 on a miss."""
 
     @property
     def hit(self) -> NDArray[np.bool_]:
@@ -170,10 +175,15 @@ class Tracer:
         if isinstance(device, Device) and device.closed:
             raise ConfigError("Tracer: its engine.Device is closed (make a new engine.Device)")
         self.batch = check_batch_size(batch_size)
-        v, f = check_mesh(vertices, faces)
         self.layout = bvh_layout(layout)  # a bad layout (argument or HYBRID_BVH_LAYOUT) fails before the build
-        self.bvh = build_bvh(v, f)
-        self.stats = dict(self.bvh.stats)
+        self._source = getattr(self, "_source", None)   # the Scene of from_scene
+        if self._source is not None and is_instanced(self._source):
+            self.bvh = None   # a two-level BVH, built with the GPU objects
+            self.stats = {}
+        else:
+            v, f = check_mesh(vertices, faces)
+            self.bvh = build_bvh(v, f)
+            self.stats = dict(self.bvh.stats)
         self._staging = staging
         try:
             with self._lock:   # (a Device closed meanwhile waits for the set-up, then closes this Tracer)
@@ -209,13 +219,34 @@ class Tracer:
             raise SceneError(f"Tracer.from_trimesh: mesh must be a trimesh.Trimesh or trimesh.Scene, got {what}")
         return cls(mesh.vertices, mesh.faces, **kw)
 
+    @classmethod
+    def from_scene(cls, scene: Any, **kw: Any) -> Tracer:
+        """From an `engine.Scene`: its meshes and instances (a two-level BVH when it has several instances or a
+        transform other than the identity; its one mesh's BVH otherwise). Queries see the scene's current state:
+        instances moved or meshes deformed since the last query are updated first (top level rebuilt, bottom
+        levels refitted). `Hits.prim` is the flattened scene's triangle (`scene.indices`), `Hits.instance` and
+        `Hits.mesh_prim` the instance and its mesh's triangle; `kw` as in `Tracer()`."""
+        if not hasattr(scene, "instances") or not hasattr(scene, "meshes"):
+            raise ConfigError(f"Tracer.from_scene: expected an engine.Scene, got {type(scene).__name__}")
+        self = cls.__new__(cls)
+        self._source = scene
+        if is_instanced(scene):
+            cls.__init__(self, None, None, **kw)
+        else:
+            cls.__init__(self, scene.meshes[0].positions, scene.meshes[0].indices, **kw)
+        return self
+
     def _init_gpu(self):
         ctx = self.ctx
         lib = ShaderLibrary()
         interface = _interface(ctx, lib, "trace_occluded")
         self.interface = interface   # (the ray / result bindings, also laid out by engine.rt.cuda_arrays)
         self.bvh_set = bvh_descriptor_set(ctx, interface)
-        self.scene = SceneBVH.upload(ctx, self.bvh, self.bvh_set, self.layout)
+        if self.bvh is None:
+            self.scene = InstancedBVH(ctx, self._source, self.bvh_set)
+            self.layout = "binary"
+        else:
+            self.scene = SceneBVH.upload(ctx, self.bvh, self.bvh_set, self.layout)
         self.stats = dict(self.scene.bvh.stats, layout=self.layout)
         # Rays and results: mapped host buffers; on a discrete GPU device-local ones filled / read by copies in the
         # same command buffer (the copy is sized to the batch, rounded up to a power of two: one recording each).
@@ -239,8 +270,11 @@ class Tracer:
         self.specs = specs   # by name, per query kind
         self.two_pass = {kind: bool(s.get("BVH_REG_STACK") and s.get("BVH_STACK_RETRY")) for kind, s in specs.items()}
         bindings = list(interface.set(0).values())
-        self.slots = [Slot(ctx, bindings, self.chunk, self.capacity, self.staged, any(self.two_pass.values()),
-                           self.rays_texel_ok, i) for i in range(STREAM_SLOTS)]
+        # (a two-level BVH's depth may grow when a bottom level is rebuilt: its slots keep room for the retry list)
+        retry = any(self.two_pass.values()) or (isinstance(self.scene, InstancedBVH) and is_cpu(ctx))
+        self.slots = [Slot(ctx, bindings, self.chunk, self.capacity, self.staged, retry, self.rays_texel_ok, i)
+                      for i in range(STREAM_SLOTS)]
+        self._lib = lib
         self.pipelines = _pipelines(ctx, lib, specs, self.two_pass)
         self.shares = work_shares(ctx)  # rays.glsl ray_block
         self.last_gpu_ms = 0.0
@@ -250,6 +284,29 @@ class Tracer:
     def _record(self, slot, kind, span):
         """A slot's command buffer for a query kind (and copy span), recorded once: the ray count is in `params`."""
         return slot.record(kind, span, self.pipelines, self.bvh_set, self.two_pass[kind], RETRY_GROUPS)
+
+    def _sync(self):
+        """A two-level BVH brought up to its Scene's current state (between queries: no chunk is in flight);
+        replaced buffers (a rebuilt bottom level) need kernels for the new spec (it names the top level's place)
+        and new recordings in every slot."""
+        if not isinstance(self.scene, InstancedBVH):
+            return
+        structure = self.scene.structure
+        self.scene.update(self._source)
+        if self.scene.structure != structure:
+            self.ctx.wait_idle()
+            for slot in self.slots:
+                for cmd, _ in slot.commands.values():
+                    self.ctx.free_command_buffer(cmd)
+                slot.commands.clear()
+            specs = {"occluded": self.scene.spec(self.ctx, stack_regs=CPU_OCCLUSION_STACK_REGS),
+                     "intersect": self.scene.spec(self.ctx)}
+            for kind, spec in specs.items():   # rays read as before
+                spec["RAYS_TEXEL"] = self.specs[kind].get("RAYS_TEXEL", False)
+            self.specs = specs
+            self.two_pass = {kind: bool(s.get("BVH_REG_STACK") and s.get("BVH_STACK_RETRY"))
+                             for kind, s in specs.items()}
+            self.pipelines = _pipelines(self.ctx, self._lib, specs, self.two_pass)
 
     @property
     def validation_errors(self) -> list[str]:
@@ -286,6 +343,7 @@ class Tracer:
         if on_cuda(origins, directions, tmax):
             return self._device_arrays().occluded(origins, directions, tmax)
         o, d, t = ray_arrays(origins, directions, tmax)
+        self._sync()
         out = np.empty(len(o), bool)
         self._stream("occluded", o, d, t, occluded_sink(out), lambda: name_bad_ray(o, d, origins, directions))
         return out
@@ -300,10 +358,15 @@ class Tracer:
         if on_cuda(origins, directions, tmax):
             return Hits(*self._device_arrays().intersect(origins, directions, tmax))
         o, d, t = ray_arrays(origins, directions, tmax)
+        self._sync()
         n = len(o)
         hits = Hits(np.empty(n, np.float32), np.empty(n, np.int32), np.empty(n, np.float32), np.empty(n, np.float32))
-        self._stream("intersect", o, d, t, hits_sink(hits.t, hits.prim, hits.u, hits.v),
-                     lambda: name_bad_ray(o, d, origins, directions))
+        sink = hits_sink(hits.t, hits.prim, hits.u, hits.v)
+        if self._source is not None:   # from_scene: each chunk's instance and mesh triangle, from its flat ids
+            hits.instance, hits.mesh_prim = np.empty(n, np.int32), np.empty(n, np.int32)
+            base = self.scene.flat_tri_base if isinstance(self.scene, InstancedBVH) else np.zeros(1, np.uint32)
+            sink = instance_sink(sink, hits.prim, base, hits.instance, hits.mesh_prim)
+        self._stream("intersect", o, d, t, sink, lambda: name_bad_ray(o, d, origins, directions))
         return hits
 
     def _stream(self, kind, o, d, t, sink, bad):
@@ -315,17 +378,20 @@ class Tracer:
 
     def _device_arrays(self) -> CudaRays:
         """The queries on CUDA arrays (a ConfigError saying why where CUDA cannot share this device's memory)."""
+        if self._source is not None:
+            raise ConfigError("Tracer.from_scene: queries on CUDA arrays are not supported for a Tracer of a Scene "
+                              "(its instance ids and BVH updates are host-side); pass numpy arrays")
         if self._cuda is None:
             self._cuda = CudaRays(self)
         return self._cuda
 
     @property
-    def retry(self):
+    def retry(self) -> Buffer:
         """The first slot's retry list (bound by the CUDA-array queries, which run one at a time)."""
         return self.slots[0].retry
 
     @property
-    def timestamps(self):
+    def timestamps(self) -> Timestamps:
         """The first slot's timestamp queries (used by the CUDA-array queries)."""
         return self.slots[0].timestamps
 

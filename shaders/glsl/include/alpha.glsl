@@ -4,16 +4,16 @@
 // material's cutoff / base alpha; BLEND is cut out at 0.5 as in the raster). Opaque triangles (v1.w = 0) skip it.
 //
 // Include before bvh.glsl, after defining ALPHA_BINDING (the records) and TEXTURES_BINDING (the texture arrays),
-// both in set 0. ALPHA_TEST (specialization constant 21) is false for scenes without alpha-tested materials: the
+// both in set 0. ALPHA_TEST (specialization constant 24) is false for scenes without alpha-tested materials: the
 // test is then compiled out.
 #ifndef ALPHA_GLSL
 #define ALPHA_GLSL
 
 #define TEXTURES_SET 0
-#define TEXTURE_ARRAYS_ID 20
+#define TEXTURE_ARRAYS_ID 23   // (20-22: bvh.glsl's instancing constants)
 #include "textures.glsl"
 
-layout(constant_id = 21) const bool ALPHA_TEST = false;
+layout(constant_id = 24) const bool ALPHA_TEST = false;
 // 2 texels per alpha-tested triangle: (uv0, uv1), (uv2, texture handle bits, alpha threshold)
 layout(set = 0, binding = ALPHA_BINDING) uniform samplerBuffer alpha_tris;
 

@@ -1,0 +1,267 @@
+"""A two-level BVH for scenes of instances, in the buffers bvh.glsl reads (its BVH_INSTANCED form).
+
+Nodes buffer: every mesh's bottom-level nodes (the builder's, child words rebased onto the concatenation), then the
+top level's 2^k - 1 nodes from `tlas_root` (binary nodes whose leaf slots hold one instance each: the slot's word
+is LEAF_BIT | instance index, count 1), then from `inst_base` one 64-byte INST_DTYPE record per instance.
+Triangles buffer: the meshes' triangle records concatenated (their `prim` is the mesh's own triangle index).
+
+The top level is rebuilt on the host whenever an instance moves (`top`): instances sorted along a Morton curve of
+their world-box centres fill the leaf slots of a perfect binary tree (depth ceil(log2 N), slots past N empty; its
+shape depends on N alone), whose nodes are stored level by level, so that each level's boxes are one vectorized
+pairwise union of the level below. Instance records stay in instance order: only moved instances' are rewritten.
+Deforming meshes are refitted (`refit`): triangle records rewritten, boxes recomputed bottom-up over the existing
+topology, level by level; `refit` returns the refitted tree's SAH cost over the build's, the figure the rebuild
+policy reads.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from .layout import LEAF_BIT, NODE_DTYPE
+
+INST_DTYPE = np.dtype([("w2o", "<f4", (3, 4)), ("root", "<u4"), ("tri_base", "<u4"), ("instance", "<u4"),
+                       ("pad", "<u4")])
+assert INST_DTYPE.itemsize == NODE_DTYPE.itemsize == 64
+_LEAF = int(LEAF_BIT)
+_MASK = _LEAF - 1
+
+
+class TwoLevel:
+    """The bottom levels of `meshes` (a list of builder BVHs, one per mesh) concatenated; `top()` makes the top
+    level and instance records for a set of transforms. `nodes` / `tris` are the whole buffers (the tail of
+    `nodes` is what `top()` rewrites)."""
+
+    def __init__(self, blas: list, n_instances: int):
+        self.blas = list(blas)
+        counts = np.array([len(b.nodes) for b in self.blas], dtype=np.int64)
+        tcounts = np.array([len(b.tris) for b in self.blas], dtype=np.int64)
+        self.node_base = np.concatenate([[0], np.cumsum(counts)[:-1]])
+        self.tri_base = np.concatenate([[0], np.cumsum(tcounts)[:-1]])
+        self.n_instances = n = int(n_instances)
+        # the top level: a perfect binary tree over P = 2^k >= max(n, 2) leaf slots (slots past n empty), its
+        # P - 1 nodes in level order (node i's children are 2i + 1, 2i + 2; level j is [2^j - 1, 2^(j+1) - 1))
+        self.levels = max(1, int(np.ceil(np.log2(max(n, 2)))))
+        p = 1 << self.levels
+        self.tlas_root = int(counts.sum())
+        self.inst_base = self.tlas_root + p - 1
+        self.nodes = np.zeros(self.inst_base + n, dtype=NODE_DTYPE)
+        self.tris = np.concatenate([b.tris for b in self.blas])
+        for k, b in enumerate(self.blas):
+            self.nodes[self.node_base[k]:self.node_base[k] + len(b.nodes)] = _rebased(b.nodes, self.node_base[k],
+                                                                                        self.tri_base[k])
+        words = self.nodes[self.tlas_root:self.inst_base].view(np.uint32).reshape(-1, 16)
+        inner = np.arange((p >> 1) - 1)
+        words[inner, 3] = self.tlas_root + 2 * inner + 1
+        words[inner, 7] = self.tlas_root + 2 * inner + 2
+        slots = np.arange(p).reshape(-1, 2)   # the bottom level's leaf slots (count 0 past n: empty)
+        words[(p >> 1) - 1:, 11] = slots[:, 0] < n
+        words[(p >> 1) - 1:, 15] = slots[:, 1] < n
+        self._padded = np.empty((p, 6), np.float32)
+        self._padded[n:, :3], self._padded[n:, 3:] = np.inf, -np.inf
+        self._order = np.zeros(p, np.uint32)
+        self.depth = max(int(b.stats.get("depth", 1)) for b in self.blas)
+        self.sah_built = [_sah(b.nodes) for b in self.blas]
+        self.stats = {"depth": self.depth, "nodes": int(len(self.nodes)), "triangles": int(len(self.tris)),
+                      "meshes": len(self.blas), "instances": n, "top_levels": self.levels,
+                      "bytes": int(self.nodes.nbytes + self.tris.nbytes),
+                      "build_ms": float(sum(b.stats.get("build_ms", 0.0) for b in self.blas))}
+        self._levels: dict = {}
+
+    @property
+    def tail_offset(self) -> int:
+        """Byte offset of what `top()` rewrites (top-level nodes and instance records)."""
+        return self.tlas_root * NODE_DTYPE.itemsize
+
+    def top(self, transforms: np.ndarray, inst_mesh: np.ndarray, mesh_boxes: np.ndarray,
+            flat_tri_base: np.ndarray, moved: np.ndarray | None = None) -> np.ndarray:
+        """Rebuild the top level for (N, 4, 4) `transforms` of instances of meshes `inst_mesh` (N,), whose object
+        boxes are `mesh_boxes` (M, 2, 3) and whose first triangle in the flattened scene is `flat_tri_base` (N,),
+        and rewrite the records of the instances `moved` (None: all). Writes them into `nodes` and returns that
+        tail (a view)."""
+        n = self.n_instances
+        m = np.asarray(transforms, dtype=np.float64)
+        mesh_boxes = np.asarray(mesh_boxes, dtype=np.float64)
+        oc = (0.5 * (mesh_boxes[:, 0] + mesh_boxes[:, 1]))[inst_mesh]
+        oh = (0.5 * (mesh_boxes[:, 1] - mesh_boxes[:, 0]))[inst_mesh]
+        cols = m[:, :3, :].transpose(2, 0, 1).copy()   # (4, N, 3): the columns of A, then t
+        wc, wh = cols[3], np.zeros((n, 3))
+        for k in range(3):   # centre and half extent through the transform: A c + t, |A| h
+            col = cols[k]
+            wc += col * oc[:, k:k + 1]
+            wh += np.abs(col) * oh[:, k:k + 1]
+        lo, hi = wc.min(axis=0), wc.max(axis=0)
+        q = ((wc - lo) * (1023.0 / np.maximum(hi - lo, 1e-300))).astype(np.uint32)
+        code = _spread(q[:, 0]) | (_spread(q[:, 1]) << np.uint32(1)) | (_spread(q[:, 2]) << np.uint32(2))
+        order = np.argsort(code, kind="stable")
+        # conservative float32 boxes: padded by 1e-6 relative (more than float32 rounding, and the GPU's float32
+        # ray transform), so the cast cannot shrink them
+        wc, wh = wc[order], wh[order]
+        wh += 1e-6 * (np.abs(wc) + wh)
+        leaf = self._padded
+        leaf[:n, :3] = wc - wh
+        leaf[:n, 3:] = wc + wh
+        top = self.nodes[self.tlas_root:self.inst_base]
+        rows = top.view(np.float32).reshape(-1, 16)
+        words = top.view(np.uint32).reshape(-1, 16)
+        self._order[:n] = order
+        bottom = (len(leaf) >> 1) - 1
+        words[bottom:, 3] = self._order[0::2] | _LEAF
+        words[bottom:, 7] = self._order[1::2] | _LEAF
+        cur = leaf
+        for j in range(self.levels - 1, -1, -1):   # level j's nodes hold the boxes of level j + 1's pairs
+            pair = cur.reshape(-1, 12)   # (left min, left max, right min, right max): the node's four box rows
+            rows[(1 << j) - 1:(2 << j) - 1].reshape(-1, 4, 4)[:, :, :3] = pair.reshape(-1, 4, 3)
+            cur = np.empty((len(pair), 6), np.float32)
+            np.minimum(pair[:, 0:3], pair[:, 6:9], out=cur[:, 0:3])
+            np.maximum(pair[:, 3:6], pair[:, 9:12], out=cur[:, 3:6])
+
+        idx = np.arange(n) if moved is None else np.asarray(moved, dtype=np.int64)
+        if idx.size:
+            rec = self.nodes[self.inst_base:]
+            if moved is None:
+                mo, idx = m, slice(None)
+            else:
+                mo = m[idx]
+            inv = _inverse3(mo[:, :3, :3])
+            t = mo[:, :3, 3]
+            w2o = np.empty((len(mo), 3, 4))
+            w2o[:, :, :3] = inv
+            w2o[:, :, 3] = -(inv[:, :, 0] * t[:, 0:1] + inv[:, :, 1] * t[:, 1:2] + inv[:, :, 2] * t[:, 2:3])
+            rec.view(np.float32).reshape(-1, 16)[idx, :12] = w2o.reshape(-1, 12)
+            recw = rec.view(np.uint32).reshape(-1, 16)
+            recw[idx, 12] = self.node_base[np.asarray(inst_mesh)[idx]]
+            recw[idx, 13] = np.asarray(flat_tri_base)[idx]
+            recw[idx, 14] = np.arange(n)[idx]
+        return self.nodes[self.tlas_root:]
+
+    def refit(self, k: int, positions: np.ndarray, indices: np.ndarray) -> float:
+        """Mesh k's new `positions` (same topology `indices`): its triangle records and node boxes are recomputed
+        bottom-up (in `nodes` / `tris`). Returns the refitted tree's SAH cost over the build's (1: as good)."""
+        b = self.blas[k]
+        p = np.asarray(positions, dtype=np.float32)
+        t0, nt = int(self.tri_base[k]), len(b.prim_ids)
+        n0, nn = int(self.node_base[k]), len(b.nodes)
+        if nt == 0:
+            return 1.0
+        shape = self._refit_shape(k)
+        f = shape["faces"] if shape.get("faces_src") is indices else None
+        if f is None:
+            f = np.asarray(indices, dtype=np.int64)[b.prim_ids].T.copy()   # (3, T) corners in leaf order
+            shape["faces"], shape["faces_src"] = f, indices
+        corners = [p[f[c]] for c in range(3)]
+        rows = self.tris[t0:t0 + nt].view(np.float32).reshape(nt, 12)
+        rows[:, 0:3], rows[:, 4:7], rows[:, 8:11] = corners
+        tmin = np.minimum(np.minimum(corners[0], corners[1]), corners[2])
+        tmax = np.maximum(np.maximum(corners[0], corners[1]), corners[2])
+        # the leaves' triangle ranges partition [0, T) (leaf order): one reduceat over their sorted starts
+        box = np.empty((nn, 12), np.float32)   # per node: lmin, lmax, rmin, rmax
+        starts, slot_node, slot_col = shape["starts"], shape["slot_node"], shape["slot_col"]
+        lo = np.minimum.reduceat(tmin, starts, axis=0)
+        hi = np.maximum.reduceat(tmax, starts, axis=0)
+        for col in (0, 6):
+            sel = slot_col == col
+            box[slot_node[sel], col:col + 3] = lo[sel]
+            box[slot_node[sel], col + 3:col + 6] = hi[sel]
+        for idx, col, child in shape["levels"]:   # deepest first: a child's slots are final before its parent's
+            c = box[child]
+            box[idx, col:col + 3] = np.minimum(c[:, 0:3], c[:, 6:9])
+            box[idx, col + 3:col + 6] = np.maximum(c[:, 3:6], c[:, 9:12])
+        for col in shape["empty"]:   # empty slots keep their inverted boxes
+            box[col[0], col[1]:col[1] + 6] = (np.inf, np.inf, np.inf, -np.inf, -np.inf, -np.inf)
+        box[:, 0:3] = np.nextafter(box[:, 0:3], np.float32(-np.inf))
+        box[:, 6:9] = np.nextafter(box[:, 6:9], np.float32(-np.inf))
+        box[:, 3:6] = np.nextafter(box[:, 3:6], np.float32(np.inf))
+        box[:, 9:12] = np.nextafter(box[:, 9:12], np.float32(np.inf))
+        out = self.nodes[n0:n0 + nn].view(np.float32).reshape(nn, 16)
+        out[:, 0:3], out[:, 4:7], out[:, 8:11], out[:, 12:15] = box[:, 0:3], box[:, 3:6], box[:, 6:9], box[:, 9:12]
+        built = self.sah_built[k]
+        return _sah(self.nodes[n0:n0 + nn]) / built if built > 0 else 1.0
+
+    def _refit_shape(self, k: int) -> dict:
+        """What refit reuses for mesh k: leaf slots by first triangle, interior slots by level, empty slots."""
+        shape = self._levels.get(k)
+        if shape is not None:
+            return shape
+        nodes = self.blas[k].nodes
+        words = {0: nodes["left"], 6: nodes["right"]}
+        counts = {0: nodes["lcount"], 6: nodes["rcount"]}
+        slot_node, slot_col, firsts, empty = [], [], [], []
+        for col in (0, 6):
+            leaf = (words[col] & _LEAF) != 0
+            idx = np.flatnonzero(leaf & (counts[col] > 0))
+            slot_node.append(idx)
+            slot_col.append(np.full(idx.size, col))
+            firsts.append((words[col][idx] & _MASK).astype(np.int64))
+            empty += [(int(i), col) for i in np.flatnonzero(leaf & (counts[col] == 0))]
+        firsts = np.concatenate(firsts)
+        order = np.argsort(firsts, kind="stable")
+        levels = []
+        for idx in reversed(_node_levels(nodes)):
+            for col in (0, 6):
+                inner = idx[(words[col][idx] & _LEAF) == 0]
+                if inner.size:
+                    levels.append((inner, col, words[col][inner].astype(np.int64)))
+        shape = {"starts": firsts[order], "slot_node": np.concatenate(slot_node)[order],
+                 "slot_col": np.concatenate(slot_col)[order], "levels": levels, "empty": empty}
+        self._levels[k] = shape
+        return shape
+
+
+def _inverse3(a: np.ndarray) -> np.ndarray:
+    """(N, 3, 3) inverses by cofactors (the rows of the inverse are cross products of the columns over the
+    determinant): several times faster than np.linalg.inv on many small matrices."""
+    e = a.reshape(-1, 9).T.copy()   # the nine elements, each contiguous
+    (a00, a01, a02), (a10, a11, a12), (a20, a21, a22) = e[0:3], e[3:6], e[6:9]
+    out = np.empty_like(a)
+    out[:, 0, 0], out[:, 0, 1], out[:, 0, 2] = a11 * a22 - a12 * a21, a02 * a21 - a01 * a22, a01 * a12 - a02 * a11
+    out[:, 1, 0], out[:, 1, 1], out[:, 1, 2] = a12 * a20 - a10 * a22, a00 * a22 - a02 * a20, a02 * a10 - a00 * a12
+    out[:, 2, 0], out[:, 2, 1], out[:, 2, 2] = a10 * a21 - a11 * a20, a01 * a20 - a00 * a21, a00 * a11 - a01 * a10
+    det = a00 * out[:, 0, 0] + a01 * out[:, 1, 0] + a02 * out[:, 2, 0]
+    return out / det[:, None, None]
+
+
+def _rebased(nodes: np.ndarray, node_base: int, tri_base: int) -> np.ndarray:
+    out = nodes.copy()
+    for word in ("left", "right"):
+        w = out[word]
+        leaf = (w & _LEAF) != 0
+        out[word] = np.where(leaf, ((w & _MASK) + tri_base) | _LEAF, w + node_base).astype(np.uint32)
+    return out
+
+
+def _sah(nodes: np.ndarray) -> float:
+    """Sum of the child boxes' surface areas over the root box's (the traversal cost the build minimizes, up to
+    constants)."""
+    def area(lo, hi):
+        e = np.maximum(hi.astype(np.float64) - lo, 0.0)
+        e[~np.isfinite(e)] = 0.0
+        return (e[:, 0] * e[:, 1] + e[:, 1] * e[:, 2] + e[:, 2] * e[:, 0]).sum()
+    lo = np.minimum(nodes["lmin"][:1], nodes["rmin"][:1])
+    hi = np.maximum(nodes["lmax"][:1], nodes["rmax"][:1])
+    root = area(lo, hi)
+    total = area(nodes["lmin"], nodes["lmax"]) + area(nodes["rmin"], nodes["rmax"])
+    return float(total / root) if root > 0 else 0.0
+
+
+def _node_levels(nodes: np.ndarray) -> list:
+    """Node indices by depth (root level first), from the preorder child words."""
+    levels, cur = [], np.array([0], dtype=np.int64)
+    while cur.size:
+        levels.append(cur)
+        nxt = []
+        for word in ("left", "right"):
+            w = nodes[word][cur]
+            nxt.append(w[(w & _LEAF) == 0].astype(np.int64))
+        cur = np.concatenate(nxt)
+    return levels
+
+
+def _spread(x: np.ndarray) -> np.ndarray:
+    """10 bits (uint32) to every third bit (Morton)."""
+    x = x & np.uint32(0x3FF)
+    x = (x | (x << np.uint32(16))) & np.uint32(0x030000FF)
+    x = (x | (x << np.uint32(8))) & np.uint32(0x0300F00F)
+    x = (x | (x << np.uint32(4))) & np.uint32(0x030C30C3)
+    x = (x | (x << np.uint32(2))) & np.uint32(0x09249249)
+    return x

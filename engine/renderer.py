@@ -27,7 +27,7 @@ from .passes.accumulate import ALPHA_MIN, AccumulatePass
 from .passes.ao import AOPass
 from .passes.debug_view import DebugViewPass
 from .passes.denoise import DenoisePass
-from .passes.gbuffer import GBufferPass, SceneGeometry
+from .passes.gbuffer import GBufferPass, SceneGeometry, scene_transforms
 from .passes.interface import (FILTER_AO, FILTER_MASKS, FILTER_TEMPORAL, FRAME, FRAME_BYTES, MAX_LIGHTS,
                                camera_fields, pack_frame, pack_light)
 from .passes.lighting import LightingPass
@@ -139,9 +139,12 @@ class Renderer:
         self._commands: dict = {}
         self._frame_index = 0
         self._prev_view_proj = None
+        self._last_transforms = None   # the instances' transforms of the last frame (their motion)
+        self._bvh_state = None         # what the ray passes' BVH was built from (see _update_bvh)
         self._history_key = None   # what the temporal history was accumulated under (None: no valid history)
         self._steady = None
-        self.uploads = 0  # scene uploads so far (a test reads it: the same scene is uploaded once)
+        self.uploads = 0
+        self.bvh_builds = 0   # BVH builds so far (the scene's first, and each after something moved)  # scene uploads so far (a test reads it: the same scene is uploaded once)
 
     # ---- public ---------------------------------------------------------------------------
     @property
@@ -308,6 +311,8 @@ class Renderer:
             raise EngineError("render() on a closed Renderer")
         self.ctx.check_open("Renderer.render()")   # a shared context its owner closed: no Vulkan call may follow
         polled = False
+        if scene is self._scene and self._geometry is not None:
+            self._frame_start(scene)   # moved instances: their transforms, the BVH (may drop the recordings)
         if self._steady is not None:
             self._poll_shaders()   # a reload drops the recorded commands, and with them self._steady
             polled = True
@@ -336,7 +341,8 @@ class Renderer:
         camera = camera if camera is not None else scene.camera
         if not polled:
             self._poll_shaders()
-        self._use_scene(scene)
+        if self._use_scene(scene):
+            self._frame_start(scene)
         lights = list(scene.lights)
         if len(lights) > MAX_LIGHTS:
             raise ConfigError(f"{scene.name}: {len(lights)} lights, at most {MAX_LIGHTS} are supported")
@@ -354,6 +360,9 @@ class Renderer:
                        tuple(cfg[k] for k in ("shadows", "shadow_samples", "ao", "ao_samples", "ao_radius",
                                               "accumulate")))
         reset = history_key != self._history_key
+        if reset:   # no motion on a frame without history (as the camera's previous matrix is this one)
+            transforms = self._last_transforms
+            self._geometry.write_transforms(transforms, transforms)
         shadow_samples = cfg["reference_samples"] if cfg["shadows"] == "reference" else cfg["shadow_samples"]
         ao_samples = cfg["reference_samples"] if cfg["shadows"] == "reference" else cfg["ao_samples"]
         pack_frame(
@@ -469,9 +478,43 @@ class Renderer:
                 self.ctx.free_command_buffer(cmd)
             self._commands.clear()
 
-    def _use_scene(self, scene):
-        if scene is self._scene:
+    def _frame_start(self, scene):
+        """Before each frame: the instances' transforms, this frame's and the last one's (the instance buffer is
+        host-visible and rewritten in place; the recorded command buffers stay valid), then the ray passes' BVH."""
+        transforms = scene_transforms(scene)
+        last = self._last_transforms
+        if last is None or last.shape != transforms.shape:
+            last = transforms
+        self._geometry.write_transforms(transforms, last)
+        self._last_transforms = transforms
+        self._update_bvh(scene, transforms)
+
+    def _update_bvh(self, scene, transforms):
+        """The BVH the shadow and AO rays trace, current with the scene: the one hook per frame where a moved or
+        deformed scene updates it. Here: the flat BVH of the scene's world-space arrays, rebuilt (and the recorded
+        command buffers, which bind it, dropped) when an instance moved or a mesh's vertices changed."""
+        state = (transforms, getattr(scene, "version", None))
+        old = self._bvh_state
+        if old is not None and old[1] == state[1] and np.array_equal(old[0], transforms):
             return
+        self._bvh_state = (transforms.copy(), state[1])
+        if self._scene_bvh is not None and old is not None:
+            self._invalidate_commands()
+            self.ctx.wait_idle()
+            self._scene_bvh.destroy()
+            self._scene_bvh = None
+        if self._scene_bvh is None:
+            self._scene_bvh = SceneBVH.upload(self.ctx, build_bvh(scene.positions, scene.indices), self.bvh_set,
+                                              self.bvh_layout)
+            self.bvh_builds += 1
+            self.bvh_stats = dict(self._scene_bvh.bvh.stats, layout=self.bvh_layout)
+            for p in (self.shadows, self.ao):   # the traversal specialized to this BVH (its depth, its node layout)
+                p.specialize_for(self._scene_bvh)
+
+    def _use_scene(self, scene):
+        """Upload a scene that is not the last one; True when it did."""
+        if scene is self._scene:
+            return False
         self._steady = None
         self._invalidate_commands()
         self.ctx.wait_idle()
@@ -481,14 +524,11 @@ class Renderer:
         self._geometry = self._scene_bvh = None
         self._geometry = SceneGeometry(self.ctx, scene, self.gbuffer.white, self.gbuffer.sampler)
         self.gbuffer.bind_scene(self._geometry)
-        self._scene_bvh = SceneBVH.upload(self.ctx, build_bvh(scene.positions, scene.indices), self.bvh_set,
-                                          self.bvh_layout)
-        self.bvh_stats = dict(self._scene_bvh.bvh.stats, layout=self.bvh_layout)
-        for p in (self.shadows, self.ao):   # the traversal specialized to this BVH (its depth, its node layout)
-            p.specialize_for(self._scene_bvh)
+        self._bvh_state = self._last_transforms = None   # built by the first frame's _frame_start
         self._scene = scene
         self._prev_view_proj = None
         self.uploads += 1
+        return True
 
     def _resize_targets(self, light_capacity):
         Targets.check_capacity(self.ctx, self.width, self.height, light_capacity)

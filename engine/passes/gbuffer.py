@@ -7,8 +7,12 @@ then computes what the rasterizer would have interpolated at each pixel centre f
 derivatives of the neighbouring pixels. Writing the whole G-buffer from fragments was several times slower on a GPU
 with few raster units; the same bytes from compute cost a small fraction of that.
 
-Vertices are interleaved (position, normal, uv: 32 bytes); triangles are sorted by material and drawn with one
-draw per material, the draw's first triangle in a push constant (the triangle id is that + gl_PrimitiveID).
+Vertices are interleaved (position, normal, uv: 32 bytes), in object space, every mesh once in one vertex and one
+index buffer; each mesh is one instanced draw (vkCmdDrawIndexed with its instances' count and first slot). The
+instances are a storage buffer in draw order (grouped by mesh): transforms (this frame's and the previous one's,
+with their normal matrices), rewritten in place per frame, and each instance's first visibility id (the triangles
+of the instances before it), so the visibility id is that + gl_PrimitiveID + 1 and the resolve finds the instance
+by a binary search.
 """
 from __future__ import annotations
 
@@ -16,11 +20,11 @@ import logging
 
 import numpy as np
 
-from ..errors import ShaderError
+from ..errors import SceneError, ShaderError
 from ..scene.material import texture_key
-from ..vk import BufferView, DescriptorSet, GraphicsPipeline, Sampler, reflect, upload_buffer, upload_texture
+from ..vk import Buffer, BufferView, DescriptorSet, GraphicsPipeline, Sampler, reflect, upload_buffer, upload_texture
 from ..vk.formats import R32UI, RGB32F, RGBA32F, RGBA32UI
-from ..vk.resources import INDEX, UNIFORM_TEXEL, VERTEX
+from ..vk.resources import INDEX, STORAGE, UNIFORM_TEXEL, VERTEX
 from .base import ComputePass, read, update, write
 from .interface import MAX_TEXTURES
 from .targets import DEPTH_FORMAT, VISIBILITY_FORMAT
@@ -28,31 +32,67 @@ from .targets import DEPTH_FORMAT, VISIBILITY_FORMAT
 log = logging.getLogger("engine.gbuffer")
 
 
+INSTANCE_FLOATS = 64   # std430 `Instance` (shaders/glsl/include/instances.glsl): 256 bytes
+NO_MATERIAL = 0xFFFFFFFF
+
+
+def scene_meshes(scene):
+    """(meshes, mesh of each instance, material override of each instance (-1: none)) of a scene. A scene without
+    instances (`scene.meshes`) is one mesh, its flat arrays, placed once by the identity."""
+    meshes = getattr(scene, "meshes", None)
+    if meshes is None:
+        return [scene], np.zeros(1, np.int64), np.full(1, -1, np.int64)
+    insts = scene.instances
+    mesh_of = np.array([i.mesh for i in insts], np.int64)
+    over = np.array([-1 if i.material is None else i.material for i in insts], np.int64)
+    return list(meshes), mesh_of, over
+
+
+def scene_transforms(scene) -> np.ndarray:
+    """(N, 4, 4) float64 object-to-world transforms of the scene's instances (the identity for a flat scene)."""
+    if getattr(scene, "meshes", None) is None:
+        return np.eye(4)[None]
+    t = getattr(scene, "transforms", None)
+    return np.asarray(t if t is not None else [i.transform for i in scene.instances], np.float64)
+
+
 class SceneGeometry:
-    """The scene's raster data on the GPU: vertex/index buffers, per-triangle materials, materials, textures, draw
-    ranges. Vertices, indices and materials are also texel buffers: the resolve reads the visible triangle's."""
+    """The scene's raster data on the GPU: one vertex and one index buffer holding every mesh once (object space),
+    per mesh triangle its material and object, the materials, textures, one instanced draw per mesh, and the
+    instances (transforms this frame and the previous one, in a host-visible buffer rewritten per frame, so the
+    recorded command buffer stays valid while instances move). Vertices, indices and triangle data are also texel
+    buffers: the resolve reads the visible triangle's."""
 
     def __init__(self, ctx, scene, white_texture, sampler):
         self.ctx = ctx
-        verts = np.zeros((len(scene.positions), 8), np.float32)
-        verts[:, 0:3] = scene.positions
-        verts[:, 3:6] = scene.normals
-        verts[:, 6:8] = scene.uvs
-        tri_mat = scene.vertex_material[scene.indices[:, 0]]
-        order = np.argsort(tri_mat, kind="stable")
-        indices = np.ascontiguousarray(scene.indices[order], dtype=np.uint32)
-        mats_sorted = tri_mat[order]
-        self.draws = []  # (material, first index, index count); the draw's first triangle is first index / 3
-        if len(mats_sorted):
-            starts = np.flatnonzero(np.r_[True, mats_sorted[1:] != mats_sorted[:-1]])
-            ends = np.r_[starts[1:], len(mats_sorted)]
-            self.draws = [(int(mats_sorted[s]), int(s) * 3, int(e - s) * 3) for s, e in zip(starts, ends)]
+        meshes, mesh_of, overrides = scene_meshes(scene)
+        n_vert = sum(len(m.positions) for m in meshes)
+        verts = np.zeros((n_vert, 8), np.float32)
+        indices, info, first_tri = [], [], []
+        v0 = t0 = 0
+        for m in meshes:
+            nv, nt = len(m.positions), len(m.indices)
+            verts[v0:v0 + nv, 0:3] = m.positions
+            verts[v0:v0 + nv, 3:6] = m.normals
+            verts[v0:v0 + nv, 6:8] = m.uvs
+            indices.append(np.asarray(m.indices, np.int64) + v0)
+            tri = np.zeros((nt, 4), np.uint32)   # material, triangle within the mesh, object within the mesh
+            tri[:, 0] = m.vertex_material[m.indices[:, 0]]
+            tri[:, 1] = np.arange(nt)
+            for k, sub in enumerate(m.submeshes):
+                tri[sub.first_triangle:sub.first_triangle + sub.triangle_count, 2] = k
+            info.append(tri)
+            first_tri.append(t0)
+            v0, t0 = v0 + nv, t0 + nt
+        self.mesh_triangles = np.array([len(m.indices) for m in meshes], np.int64)
+        self.mesh_first_triangle = np.array(first_tri, np.int64)
         self.vertex_buffer = upload_buffer(ctx, verts, VERTEX | UNIFORM_TEXEL, "vertices")
-        self.index_buffer = upload_buffer(ctx, indices, INDEX | UNIFORM_TEXEL, "indices")
-        # per drawn triangle: its material, its index in the scene and its object (the sub-mesh it came from)
-        info = np.zeros((len(order) + 1, 4), np.uint32)
-        info[:-1, 0], info[:-1, 1], info[:-1, 2] = mats_sorted, order, triangle_objects(scene)[order]
-        self.tri_info_buffer = upload_buffer(ctx, info, UNIFORM_TEXEL, "triangle info")
+        self.index_buffer = upload_buffer(ctx, np.ascontiguousarray(np.concatenate(indices), np.uint32),
+                                          INDEX | UNIFORM_TEXEL, "indices")
+        self.tri_info_buffer = upload_buffer(ctx, np.concatenate(info + [np.zeros((1, 4), np.uint32)]),
+                                             UNIFORM_TEXEL, "triangle info")
+        self.mesh_vertex_base = np.cumsum([0] + [len(m.positions) for m in meshes])[:-1]
+        self._instances(meshes, mesh_of, overrides)
 
         self.textures = []
         mat_data = np.zeros((max(len(scene.materials), 1), 8), np.float32)
@@ -75,18 +115,63 @@ class SceneGeometry:
         self.white = white_texture
         self.sampler = sampler
 
+    def _instances(self, meshes, mesh_of, overrides):
+        """The draw order (instances grouped by mesh), the draws and the instance buffer's constant fields."""
+        n = len(mesh_of)
+        self.instance_count = n
+        self.order = np.argsort(mesh_of, kind="stable")   # draw slot -> instance
+        tris = self.mesh_triangles[mesh_of[self.order]]
+        total = int(tris.sum())
+        if total >= 2 ** 32 - 1:
+            raise SceneError(f"{total:,} instanced triangles: the visibility buffer's 32-bit ids hold at most "
+                             f"{2 ** 32 - 2:,}")
+        prefix = np.concatenate([[0], np.cumsum(tris)[:-1]]).astype(np.int64)
+        # the flat arrays' order (scene.indices, scene.submeshes): instances in scene order, their triangles in a row
+        flat_tri = np.concatenate([[0], np.cumsum(self.mesh_triangles[mesh_of])[:-1]])
+        subs = np.array([len(m.submeshes) for m in meshes], np.int64)
+        flat_obj = np.concatenate([[0], np.cumsum(subs[mesh_of])[:-1]])
+        self.draws = []   # (first index, index count, instance count, first instance)
+        for k in range(len(meshes)):
+            slots = np.flatnonzero(mesh_of[self.order] == k)
+            if len(slots) and self.mesh_triangles[k]:
+                self.draws.append((int(self.mesh_first_triangle[k]) * 3, int(self.mesh_triangles[k]) * 3,
+                                   len(slots), int(slots[0])))
+        self.instance_buffer = Buffer(self.ctx, max(n, 1) * INSTANCE_FLOATS * 4, STORAGE, host=True,
+                                      name="instances")
+        block = self.instance_buffer.view(np.float32)[:n * INSTANCE_FLOATS].reshape(n, INSTANCE_FLOATS)
+        block[:] = 0
+        ids = block.view(np.uint32)
+        o = self.order
+        ids[:, 56] = prefix
+        ids[:, 57] = self.mesh_first_triangle[mesh_of[o]]
+        ids[:, 58] = o
+        ids[:, 59] = np.where(overrides[o] < 0, NO_MATERIAL, overrides[o])
+        ids[:, 60] = flat_tri[o]
+        ids[:, 61] = flat_obj[o]
+        self._block = block
+        self._written = None   # (transforms, previous transforms) last written
+
+    def write_transforms(self, transforms: np.ndarray, previous: np.ndarray) -> bool:
+        """Write this frame's and the previous frame's (N, 4, 4) object-to-world transforms (scene order) into the
+        instance buffer (the frame that reads it must have finished). Returns False when they are what the buffer
+        holds already (nothing written)."""
+        w = self._written
+        if w is not None and np.array_equal(w[0], transforms) and np.array_equal(w[1], previous):
+            return False
+        block, o = self._block, self.order
+        for at, m in ((0, transforms[o]), (16, previous[o])):
+            block[:, at:at + 16] = m.transpose(0, 2, 1).reshape(-1, 16)   # GLSL mat4: column-major
+            inv = np.linalg.inv(m[:, :3, :3])   # rows of inv(A): the columns of its inverse transpose
+            base = 32 + at * 3 // 4
+            for r in range(3):
+                block[:, base + 4 * r:base + 4 * r + 3] = inv[:, r]
+        self._written = (transforms.copy(), previous.copy())
+        return True
+
     def destroy(self):
         for obj in [*self.views, self.vertex_buffer, self.index_buffer, self.tri_info_buffer,
-                    self.material_buffer, *self.textures]:
+                    self.material_buffer, self.instance_buffer, *self.textures]:
             obj.destroy()
-
-
-def triangle_objects(scene) -> np.ndarray:
-    """(T,) uint32: the index in `scene.submeshes` of each triangle's sub-mesh (the object id)."""
-    out = np.zeros(scene.triangle_count, np.uint32)
-    for k, sub in enumerate(scene.submeshes):
-        out[sub.first_triangle:sub.first_triangle + sub.triangle_count] = k
-    return out
 
 
 class ResolvePass(ComputePass):
@@ -102,7 +187,9 @@ class ResolvePass(ComputePass):
         "materials": read("uniform_texel"), "textures": read("texture"),
         "g_depth": write("image", "view_depth"), "g_triangle": write("image", "triangle_id"),
         "g_object": write("image", "object_id"), "g_material": write("image", "material_id"),
-        "g_motion": write("image", "motion"),
+        "g_motion": write("image", "motion"), "g_instance": write("image", "instance_id"),
+        "g_prev_position": write("image", "prev_position"), "g_prev_normal": write("image", "prev_normal"),
+        "instances": read("buffer"),
     }
 
     def constants(self, ctx) -> dict:
@@ -136,9 +223,10 @@ class GBufferPass:
         self.library = library
         vert, frag = library.get("gbuffer.vert"), library.get("gbuffer.frag")
         interface = reflect(vert, "gbuffer.vert").merged(reflect(frag, "gbuffer.frag"))
-        if {b.name for b in interface.bindings} != {"frame"}:
-            raise ShaderError("gbuffer.vert/.frag: the raster reads the frame block (set 0, binding 0) and nothing "
-                              f"else; the shaders declare {', '.join(b.name for b in interface.bindings)}")
+        if {b.name for b in interface.bindings} != {"frame", "instances"}:
+            raise ShaderError("gbuffer.vert/.frag: the raster reads the frame block (set 0, binding 0) and the "
+                              "instances (set 0, binding 1) and nothing else; the shaders declare "
+                              f"{', '.join(b.name for b in interface.bindings)}")
         old = self.interface
         if (interface.bindings, interface.push_size) != (old.bindings, old.push_size):
             was = ", ".join(f"{b.name} {b.kind} set {b.set} binding {b.binding}" for b in old.bindings)
@@ -157,6 +245,8 @@ class GBufferPass:
         s = self.resolve.set
         for name, view in zip(("vertices", "indices", "tri_info", "materials"), geom.views):
             s.bind(name, view)
+        s.bind("instances", geom.instance_buffer)
+        self.raster_set.bind("instances", geom.instance_buffer)
         for slot in range(MAX_TEXTURES):
             tex = geom.textures[slot] if slot < len(geom.textures) else self.white
             s.bind("textures", tex, sampler=self.sampler, element=slot)
@@ -164,7 +254,7 @@ class GBufferPass:
     def record(self, rec, targets, geom: SceneGeometry):
         # The visibility image is all zeros here (cleared when made, then by each frame's resolve after reading it),
         # so the raster loads it instead of clearing it (a clear costs GPUs with few raster units).
-        draws = [(first, count, np.uint32(first // 3).tobytes()) for _material, first, count in geom.draws]
         rec.raster(self.pipeline, [self.raster_set], targets.visibility, targets.depth, geom.vertex_buffer,
-                   geom.index_buffer, draws, reads=[self.resources["frame"]])
-        self.resolve.dispatch(rec, self.resolve.tiles(targets.width, targets.height))
+                   geom.index_buffer, geom.draws, reads=[self.resources["frame"]])
+        self.resolve.dispatch(rec, self.resolve.tiles(targets.width, targets.height),
+                              push=np.array([geom.instance_count], np.uint32))

@@ -19,7 +19,7 @@ from .std140 import Struct
 #: The views a frame can show (setting `view`): "color" is the lit image (no dispatch); the others are AOVs drawn
 #: by debug_view.comp (VIEW_<NAME> = the index here). A Literal, so that type checkers and IDEs know the names.
 ViewMode = Literal["color", "position", "normal", "albedo", "depth", "shadow_raw", "shadow", "ao_raw", "ao", "history",
-                   "triangle_id", "object_id", "material_id", "motion"]
+                   "triangle_id", "object_id", "material_id", "motion", "instance_id"]
 VIEW_MODES: tuple[str, ...] = get_args(ViewMode)
 #: shadow.comp's modes (SHADOW_<NAME>); "off" records no shadow pass.
 TracedShadowMode = Literal["hard", "soft", "seed-delta", "reference"]
@@ -61,6 +61,7 @@ AOVS = {
     "object_id": AOV("object_id", 4, "int32"),
     "material_id": AOV("material_id", 4, "int32"),
     "motion": AOV("motion", 8, "float32", 2),
+    "instance_id": AOV("instance_id", 4, "int32"),
 }
 
 

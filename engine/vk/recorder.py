@@ -143,7 +143,8 @@ class Recorder:
     def raster(self, pipeline, sets, color: Image, depth: Image, vertices: Buffer, indices: Buffer, draws,
                reads=()):
         """Indexed draws into `color` (kept: loaded and stored; GENERAL before and after) with a cleared reversed-Z
-        `depth`. `draws`: (first index, index count, push-constant bytes). Afterwards `color` counts as written by a
+        `depth`. `draws`: (first index, index count, instance count, first instance), instanced indexed draws
+        (gl_InstanceIndex counts from the first instance). Afterwards `color` counts as written by a
         compute-stage step, visible to compute and transfer."""
         self.use(reads=reads)
         cmd, w, h = self.cmd, color.width, color.height
@@ -170,10 +171,8 @@ class Recorder:
         pipeline.bind(cmd, sets)
         vk.vkCmdBindVertexBuffers(cmd, 0, 1, [vertices.handle], [0])
         vk.vkCmdBindIndexBuffer(cmd, indices.handle, 0, vk.VK_INDEX_TYPE_UINT32)
-        for first, count, push in draws:
-            vk.vkCmdPushConstants(cmd, pipeline.layout, vk.VK_SHADER_STAGE_ALL, 0, len(push),
-                                  vk.ffi.new("char[]", bytes(push)))
-            vk.vkCmdDrawIndexed(cmd, count, 1, first, 0, 0)
+        for first, count, instances, first_instance in draws:
+            vk.vkCmdDrawIndexed(cmd, count, instances, first, 0, first_instance)
         vk.vkCmdEndRendering(cmd)
         image_barrier(cmd, color, CA, GENERAL, OUT, _EVERYTHING, vk.VK_ACCESS_COLOR_ATTACHMENT_WRITE_BIT, _ANY_ACCESS)
         st = self.hazards.state.setdefault(id(color), _State())

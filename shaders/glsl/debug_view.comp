@@ -22,6 +22,7 @@ layout(set = 0, binding = 10, r32ui) uniform readonly uimage2D g_triangle;
 layout(set = 0, binding = 11, r32ui) uniform readonly uimage2D g_object;
 layout(set = 0, binding = 12, r32ui) uniform readonly uimage2D g_material;
 layout(set = 0, binding = 13, rg32f) uniform readonly image2D g_motion;
+layout(set = 0, binding = 14, r32ui) uniform readonly uimage2D g_instance;
 layout(push_constant) uniform Push { uint view; } pc;
 
 // A colour per id (black for none), different for neighbouring ids.
@@ -72,6 +73,8 @@ void main() {
         c = id_color(imageLoad(g_triangle, px).x);
     } else if (v == VIEW_OBJECT_ID) {
         c = id_color(imageLoad(g_object, px).x);
+    } else if (v == VIEW_INSTANCE_ID) {
+        c = id_color(imageLoad(g_instance, px).x);
     } else if (v == VIEW_MATERIAL_ID) {
         c = id_color(imageLoad(g_material, px).x);
     } else if (v == VIEW_MOTION) {   // x right: red, y down: green, 8 pixels = full

@@ -22,6 +22,7 @@
 #define VIEW_OBJECT_ID 11u
 #define VIEW_MATERIAL_ID 12u
 #define VIEW_MOTION 13u
+#define VIEW_INSTANCE_ID 14u
 #define SHADOW_HARD 0u
 #define SHADOW_SOFT 1u
 #define SHADOW_SEED_DELTA 2u

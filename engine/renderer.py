@@ -27,7 +27,7 @@ from .passes.accumulate import ALPHA_MIN, AccumulatePass
 from .passes.ao import AOPass
 from .passes.debug_view import DebugViewPass
 from .passes.denoise import DenoisePass
-from .passes.gbuffer import GBufferPass, SceneGeometry, scene_transforms
+from .passes.gbuffer import GBufferPass, SceneChanges, SceneGeometry
 from .passes.interface import (FILTER_AO, FILTER_MASKS, FILTER_TEMPORAL, FRAME, FRAME_BYTES, MAX_LIGHTS,
                                camera_fields, pack_frame, pack_light)
 from .passes.lighting import LightingPass
@@ -139,8 +139,7 @@ class Renderer:
         self._commands: dict = {}
         self._frame_index = 0
         self._prev_view_proj = None
-        self._last_transforms = None   # the instances' transforms of the last frame (their motion)
-        self._bvh_state = None         # what the ray passes' BVH was built from (see _update_bvh)
+        self._changes = SceneChanges()   # the scene's state the last frame drew (instance motion)
         self._history_key = None   # what the temporal history was accumulated under (None: no valid history)
         self._steady = None
         self.uploads = 0
@@ -361,8 +360,7 @@ class Renderer:
                                               "accumulate")))
         reset = history_key != self._history_key
         if reset:   # no motion on a frame without history (as the camera's previous matrix is this one)
-            transforms = self._last_transforms
-            self._geometry.write_transforms(transforms, transforms)
+            self._changes.still(self._geometry)
         shadow_samples = cfg["reference_samples"] if cfg["shadows"] == "reference" else cfg["shadow_samples"]
         ao_samples = cfg["reference_samples"] if cfg["shadows"] == "reference" else cfg["ao_samples"]
         pack_frame(
@@ -479,37 +477,42 @@ class Renderer:
             self._commands.clear()
 
     def _frame_start(self, scene):
-        """Before each frame: the instances' transforms, this frame's and the last one's (the instance buffer is
-        host-visible and rewritten in place; the recorded command buffers stay valid), then the ray passes' BVH."""
-        transforms = scene_transforms(scene)
-        last = self._last_transforms
-        if last is None or last.shape != transforms.shape:
-            last = transforms
-        self._geometry.write_transforms(transforms, last)
-        self._last_transforms = transforms
-        self._update_bvh(scene, transforms)
+        """Before each frame, what changed in the scene since the last one (`SceneChanges`): moved instances and
+        material overrides go into the instance buffer (rewritten in place: the recorded command buffers stay
+        valid), a deformed mesh uploads the geometry again; then the ray passes' BVH (`_update_bvh`)."""
+        todo = self._changes.begin(scene)   # None: nothing to do; else (a mesh deformed, something changed)
+        if todo is not None:
+            if todo[0]:
+                self._upload_geometry(scene)
+            self._changes.write(scene, self._geometry)
+            self._update_bvh(scene, todo[1])
 
-    def _update_bvh(self, scene, transforms):
-        """The BVH the shadow and AO rays trace, current with the scene: the one hook per frame where a moved or
-        deformed scene updates it. Here: the flat BVH of the scene's world-space arrays, rebuilt (and the recorded
-        command buffers, which bind it, dropped) when an instance moved or a mesh's vertices changed."""
-        state = (transforms, getattr(scene, "version", None))
-        old = self._bvh_state
-        if old is not None and old[1] == state[1] and np.array_equal(old[0], transforms):
-            return
-        self._bvh_state = (transforms.copy(), state[1])
-        if self._scene_bvh is not None and old is not None:
+    def _update_bvh(self, scene, changed: bool):
+        """The one hook per frame where the shadow and AO rays' BVH follows the scene (`changed`: something moved):
+        the flat BVH of its world-space arrays, rebuilt (and the recordings, which bind it, dropped)."""
+        if self._scene_bvh is not None:
+            if not changed:
+                return
             self._invalidate_commands()
             self.ctx.wait_idle()
             self._scene_bvh.destroy()
             self._scene_bvh = None
-        if self._scene_bvh is None:
-            self._scene_bvh = SceneBVH.upload(self.ctx, build_bvh(scene.positions, scene.indices), self.bvh_set,
-                                              self.bvh_layout)
-            self.bvh_builds += 1
-            self.bvh_stats = dict(self._scene_bvh.bvh.stats, layout=self.bvh_layout)
-            for p in (self.shadows, self.ao):   # the traversal specialized to this BVH (its depth, its node layout)
-                p.specialize_for(self._scene_bvh)
+        self._scene_bvh = SceneBVH.upload(self.ctx, build_bvh(scene.positions, scene.indices), self.bvh_set,
+                                          self.bvh_layout)
+        self.bvh_builds += 1
+        self.bvh_stats = dict(self._scene_bvh.bvh.stats, layout=self.bvh_layout)
+        for p in (self.shadows, self.ao):   # the traversal specialized to this BVH (its depth, its node layout)
+            p.specialize_for(self._scene_bvh)
+
+    def _upload_geometry(self, scene):
+        """The scene's raster data onto the GPU (again after a mesh deformed: the recordings bind it, dropped)."""
+        self._invalidate_commands()
+        if self._geometry is not None:
+            self.ctx.wait_idle()
+            self._geometry.destroy()
+            self._geometry = None
+        self._geometry = SceneGeometry(self.ctx, scene, self.gbuffer.white, self.gbuffer.sampler)
+        self.gbuffer.bind_scene(self._geometry)
 
     def _use_scene(self, scene):
         """Upload a scene that is not the last one; True when it did."""
@@ -522,9 +525,8 @@ class Renderer:
             if old is not None:
                 old.destroy()
         self._geometry = self._scene_bvh = None
-        self._geometry = SceneGeometry(self.ctx, scene, self.gbuffer.white, self.gbuffer.sampler)
-        self.gbuffer.bind_scene(self._geometry)
-        self._bvh_state = self._last_transforms = None   # built by the first frame's _frame_start
+        self._upload_geometry(scene)
+        self._changes = SceneChanges()   # the BVH is built by the first frame's _frame_start
         self._scene = scene
         self._prev_view_proj = None
         self.uploads += 1

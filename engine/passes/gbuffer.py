@@ -42,10 +42,14 @@ def scene_meshes(scene):
     meshes = getattr(scene, "meshes", None)
     if meshes is None:
         return [scene], np.zeros(1, np.int64), np.full(1, -1, np.int64)
-    insts = scene.instances
-    mesh_of = np.array([i.mesh for i in insts], np.int64)
-    over = np.array([-1 if i.material is None else i.material for i in insts], np.int64)
-    return list(meshes), mesh_of, over
+    return list(meshes), np.asarray(scene.instance_mesh, np.int64), instance_materials(scene)
+
+
+def instance_materials(scene) -> np.ndarray:
+    """(N,) int64 material override of each instance, -1 where none."""
+    if getattr(scene, "meshes", None) is None:
+        return np.full(1, -1, np.int64)
+    return np.asarray(scene.instance_material, np.int64)
 
 
 def scene_transforms(scene) -> np.ndarray:
@@ -149,7 +153,16 @@ class SceneGeometry:
         ids[:, 60] = flat_tri[o]
         ids[:, 61] = flat_obj[o]
         self._block = block
+        self._overrides = overrides.copy()
         self._written = None   # (transforms, previous transforms) last written
+
+    def write_materials(self, scene) -> None:
+        """The instances' material overrides, where they changed since the buffer was written."""
+        over = instance_materials(scene)
+        if not np.array_equal(over, self._overrides):
+            o = self.order
+            self._block.view(np.uint32)[:, 59] = np.where(over[o] < 0, NO_MATERIAL, over[o])
+            self._overrides = over.copy()
 
     def write_transforms(self, transforms: np.ndarray, previous: np.ndarray) -> bool:
         """Write this frame's and the previous frame's (N, 4, 4) object-to-world transforms (scene order) into the
@@ -172,6 +185,43 @@ class SceneGeometry:
         for obj in [*self.views, self.vertex_buffer, self.index_buffer, self.tri_info_buffer,
                     self.material_buffer, self.instance_buffer, *self.textures]:
             obj.destroy()
+
+
+class SceneChanges:
+    """What the last frame drew of a scene's instances (its `version`, the transforms), so that the next frame
+    writes the instance buffer only when something moved, with the previous transforms its motion needs."""
+
+    def __init__(self):
+        self.version = None      # the scene's `version` the last frame drew (None: none drawn yet)
+        self.last = None         # the transforms the last frame drew
+        self.settled = False     # the instance buffer's previous transforms equal its current ones
+
+    def begin(self, scene):
+        """None when nothing changed since the last frame (and it had no motion); else (whether a mesh deformed,
+        whether anything changed)."""
+        version = getattr(scene, "version", 0)
+        if version == self.version and self.settled:
+            return None
+        changed = self.version is None or version != self.version
+        deformed = (self.version is not None and changed and hasattr(scene, "deformed_meshes")
+                    and len(scene.deformed_meshes(self.version)) > 0)
+        self.version = version
+        return deformed, changed
+
+    def write(self, scene, geom: SceneGeometry) -> None:
+        """This frame's transforms and material overrides, and the last frame's transforms, into `geom`."""
+        transforms = scene_transforms(scene)
+        last = self.last if self.last is not None and self.last.shape == transforms.shape else transforms
+        geom.write_materials(scene)
+        geom.write_transforms(transforms, last)
+        self.settled = np.array_equal(transforms, last)
+        self.last = transforms.copy()
+
+    def still(self, geom: SceneGeometry) -> None:
+        """No motion this frame (a frame without temporal history): the previous transforms are the current."""
+        if self.last is not None:
+            geom.write_transforms(self.last, self.last)
+            self.settled = True
 
 
 class ResolvePass(ComputePass):

@@ -39,8 +39,8 @@ from .renderer import Frame, Renderer
 from .rt import Hits, Tracer
 from .rt import RayMeshIntersector
 from .rt import RaycastingScene
-from .scene import (Camera, DirectionalLight, Light, Material, PointLight, RectLight, Scene, SpotLight,
-                    SubMesh)
+from .scene import (Camera, DirectionalLight, Instance, Light, Material, Mesh, PointLight, RectLight, Scene,
+                    SpotLight, SubMesh)
 
 __all__ = [
     "Scene", "Camera", "Material", "Light", "DirectionalLight", "PointLight", "SpotLight", "RectLight", "SubMesh",
@@ -49,3 +49,4 @@ __all__ = [
 ]
 __all__ += ["RayMeshIntersector"]
 __all__ += ["RaycastingScene"]
+__all__ += ["Mesh", "Instance"]

@@ -6,8 +6,9 @@ Pure numpy / trimesh / pillow, no Vulkan. See docs/architecture.md (Scene contra
 from .camera import Camera
 from .lights import DirectionalLight, Light, PointLight, RectLight, SpotLight, default_sun
 from .material import Material
+from .instances import Instance, Mesh
 from .parts import SubMesh
 from .scene import Scene
 
-__all__ = ["Scene", "SubMesh", "Camera", "Material", "Light", "DirectionalLight", "PointLight", "SpotLight",
+__all__ = ["Scene", "Mesh", "Instance", "SubMesh", "Camera", "Material", "Light", "DirectionalLight", "PointLight", "SpotLight",
            "RectLight", "default_sun"]

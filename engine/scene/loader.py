@@ -1,5 +1,5 @@
-"""Mesh and glTF files through trimesh, flattened to world space (SceneBuilder -> SceneParts); texture images
-through pillow."""
+"""Mesh and glTF files through trimesh, as meshes in object space and the instances that place them
+(SceneBuilder -> SceneParts); texture images through pillow."""
 
 from __future__ import annotations
 
@@ -16,9 +16,9 @@ from engine.limits import MAX_COORD
 from engine.errors import SceneError, shown
 
 from .filechecks import bomb_images, bomb_pixels, check_mesh_file, diagnose_gltf
-from .geometry import crease_normals, transform_normals, transform_points, unitize
+from .instances import Instance, Mesh, world_boxes
 from .material import Material, srgb8_to_linear, texture_key
-from .parts import SceneParts, SubMesh
+from .parts import SceneParts
 
 MAX_TEXTURE_SIZE = 2048
 #: Most pixels a texture image may have (64 Mpixel, e.g. 8192 x 8192): checked from the image's header, before it is
@@ -224,17 +224,18 @@ def load_trimesh_scene(path: str, *, scene_file: bool = False):
 
 
 class SceneBuilder:
-    """Collects world-space mesh parts and materials, then hands them over as SceneParts."""
+    """Collects meshes (object space; a geometry used several times is one Mesh) and the instances that place
+    them, and materials, then hands them over as SceneParts."""
 
     def __init__(self, name: str):
         self.name = name
-        self.positions, self.normals, self.uvs, self.faces, self.mats = [], [], [], [], []
+        self.meshes: list[Mesh] = []
+        self.instances: list[Instance] = []
         self.materials: list[Material] = []
         self._material_keys: dict = {}
         self._textures: dict = {}
-        self.submeshes = []
-        self._vertex_count = 0
-        self._triangle_count = 0
+        self._mesh_keys: dict = {}
+        self._keep: list = []   # the objects whose ids are in _mesh_keys, kept alive so the ids stay unique
 
     # -------------------------------------------------------------- materials
     def material_index(self, mat: Material, key_name=None) -> int:
@@ -253,22 +254,47 @@ class SceneBuilder:
         return self._material_keys[key]
 
     # -------------------------------------------------------------- geometry
-    def add(self, name: str, positions, faces, normals, uvs, material: int, where: str):
-        """Add a part already in world space. `normals` None: computed with a crease angle."""
+    def add(self, name: str, positions, faces, normals, uvs, material: int, where: str, transform=None,
+            key=None, instance_name: str | None = None):
+        """Add a part in object space placed by `transform` ((4, 4); None: identity). Parts added with the same
+        hashable `key` (not None) share the first one's Mesh. `normals` None: computed with a crease angle."""
+        m = np.eye(4) if transform is None else np.asarray(transform, dtype=np.float64)
+        inst_name = name if instance_name is None else instance_name
+        if not np.all(np.isfinite(m)):
+            raise SceneError(f"{where}: node '{shown(inst_name)}' has a transform with NaN or infinite values")
+        k = self._mesh_keys.get(key) if key is not None else None
+        if k is None:
+            mesh = self._mesh(name, positions, faces, normals, uvs, material, where)
+            if mesh is None:
+                return
+            k = len(self.meshes)
+            self.meshes.append(mesh)
+            if key is not None:
+                self._mesh_keys[key] = k
+        a = m[:3, :3]
+        if not np.isfinite(np.linalg.cond(a)) or abs(np.linalg.det(a / max(np.abs(a).max(), 1e-300))) < 1e-12:
+            return   # a zero scale hides the part (glTF does this): nothing to trace or draw
+        box = world_boxes(self.meshes[k].box[None], m[None])[0]
+        if np.abs(box).max() > MAX_COORD:
+            raise SceneError(f"{where}: mesh '{shown(inst_name)}' has world-space vertex coordinates beyond "
+                             f"+-{MAX_COORD:g} (largest {np.abs(box).max():g}): check its size, scale and translate")
+        self.instances.append(Instance(k, m, name=inst_name))
+
+    def _mesh(self, name, positions, faces, normals, uvs, material, where) -> Mesh | None:
         p = np.asarray(positions, dtype=np.float64)
         f = np.asarray(faces, dtype=np.int64)
         if p.ndim != 2 or p.shape[1] != 3 or f.ndim != 2 or f.shape[1] != 3:
             raise SceneError(f"{where}: mesh '{shown(name)}' has malformed arrays "
                              f"(vertices {p.shape}, faces {f.shape})")
         if len(f) == 0:
-            return
+            return None
         if not np.all(np.isfinite(p)):
             bad = int(np.count_nonzero(~np.all(np.isfinite(p), axis=1)))
             raise SceneError(f"{where}: mesh '{shown(name)}' has {bad} vertex position(s) that are NaN or "
                              "infinite")
         if np.abs(p).max() > MAX_COORD:
-            raise SceneError(f"{where}: mesh '{shown(name)}' has world-space vertex coordinates beyond "
-                             f"+-{MAX_COORD:g} (largest {np.abs(p).max():g}): check its size, scale and translate")
+            raise SceneError(f"{where}: mesh '{shown(name)}' has world-space (and object-space) vertex coordinates "
+                             f"beyond +-{MAX_COORD:g} (largest {np.abs(p).max():g}): check its size")
         if f.min() < 0 or f.max() >= len(p):
             raise SceneError(f"{where}: mesh '{shown(name)}' has face indices out of range")
         if uvs is not None:
@@ -280,32 +306,21 @@ class SceneBuilder:
             if normals.shape != (len(p), 3) or not np.all(np.isfinite(normals)) or \
                     np.any(np.linalg.norm(normals, axis=1) < 1e-12):
                 normals = None
-        if normals is None:
-            src, normals, f = crease_normals(p, f, uvs=uvs)
-            p = p[src]
-            uvs = None if uvs is None else uvs[src]
-        else:
-            normals = unitize(normals)
-        if uvs is None:
-            uvs = np.zeros((len(p), 2))
-        self.positions.append(p)
-        self.normals.append(normals)
-        self.uvs.append(uvs)
-        self.faces.append(f + self._vertex_count)
-        self.mats.append(np.full(len(p), material, dtype=np.uint32))
-        self.submeshes.append(SubMesh(name, self._vertex_count, len(p), self._triangle_count, len(f), material))
-        self._vertex_count += len(p)
-        self._triangle_count += len(f)
+        return Mesh(p, f, normals=normals, uvs=uvs, vertex_material=np.full(len(p), material, dtype=np.uint32),
+                    name=name, where=f"{where}: mesh '{shown(name)}'")
 
     def add_trimesh(self, obj, where: str, transform=None, color=None, texture=None, label: str | None = None,
-                    uv_scale=None):
-        """Add a trimesh.Trimesh or trimesh.Scene (node transforms applied, then `transform`).
+                    uv_scale=None, transforms=None):
+        """Add a trimesh.Trimesh or trimesh.Scene (node transforms applied, then `transform`); with `transforms`
+        (a list of (4, 4)), once per transform (each applied after `transform`). A geometry used by several nodes
+        (or added again from the same `obj`) stays one mesh with several instances.
 
         `color` (linear RGBA) and `texture` override every material of `obj` (material overrides of the TOML format).
         """
         import trimesh  # deferred: heavy, and needed only to read meshes
         if isinstance(obj, trimesh.Trimesh):
-            items = [(np.eye(4), obj, label or getattr(obj.metadata, "get", lambda *_: None)("name") or "mesh")]
+            items = [(np.eye(4), obj, label or getattr(obj.metadata, "get", lambda *_: None)("name") or "mesh",
+                      "mesh")]
         elif isinstance(obj, trimesh.Scene):
             items = []
             with _quiet():
@@ -313,20 +328,23 @@ class SceneBuilder:
                     m, geom_name = obj.graph[node]
                     geom = obj.geometry.get(geom_name)
                     if isinstance(geom, trimesh.Trimesh):
-                        items.append((np.asarray(m, dtype=np.float64), geom, str(node)))
+                        items.append((np.asarray(m, dtype=np.float64), geom, str(node), str(geom_name)))
         else:
             raise SceneError(f"{where}: expected a trimesh.Trimesh or trimesh.Scene, got {type(obj).__name__}")
         outer = np.eye(4) if transform is None else np.asarray(transform, dtype=np.float64)
-        before = self._triangle_count
+        placements = [outer] if transforms is None else [np.asarray(t, dtype=np.float64) @ outer for t in transforms]
+        before = len(self.instances)
         made = {}   # this call's materials by trimesh material; `obj` keeps those alive, so their ids stay unique
-        for m, geom, node_name in items:
-            if label and isinstance(obj, trimesh.Scene):
-                node_name = label if len(items) == 1 else f"{label}/{node_name}"
-            self._add_geometry(geom, outer @ m, node_name, where, color, texture, uv_scale, made)
-        if self._triangle_count == before:
+        self._keep.append(obj)
+        for place in placements:
+            for m, geom, node_name, geom_name in items:
+                if label and isinstance(obj, trimesh.Scene):
+                    node_name = label if len(items) == 1 else f"{label}/{node_name}"
+                self._add_geometry(geom, place @ m, node_name, geom_name, where, color, texture, uv_scale, made)
+        if len(self.instances) == before:
             raise SceneError(f"{where}: contains no triangles")
 
-    def _add_geometry(self, geom, m, node_name, where, color, texture, uv_scale, made):
+    def _add_geometry(self, geom, m, node_name, geom_name, where, color, texture, uv_scale, made):
         with _quiet():
             vertices = np.asarray(geom.vertices, dtype=np.float64)
             faces = np.asarray(geom.faces, dtype=np.int64)
@@ -360,23 +378,18 @@ class SceneBuilder:
             mat = Material(node_name if color is not None else mat.name, mat.base_color if color is None else color,
                            mat.texture if texture is None else texture)
         material = self.material_index(mat, key_name)
-        # world space; a mirroring transform flips the winding back to counter-clockwise
-        p = transform_points(m, vertices)
-        n = None if normals is None else transform_normals(m, normals)
-        if np.linalg.det(m[:3, :3]) < 0:
-            faces = faces[:, ::-1]
-        self.add(node_name, p, faces, n, uvs, material, where)
+        key = (id(geom), material, None if uv_scale is None else tuple(np.asarray(uv_scale, np.float64).tolist()))
+        self._keep.append(geom)
+        self.add(geom_name, vertices, faces, normals, uvs, material, where, transform=m, key=key,
+                 instance_name=node_name)
 
     # -------------------------------------------------------------- result
     def build(self, lights=None, camera=None, settings=None) -> SceneParts:
-        """The parts collected, flattened, with the scene's lights, camera and settings."""
-        if not self.faces:
+        """The meshes and instances collected, with the scene's lights, camera and settings."""
+        if not self.instances:
             raise SceneError(f"{shown(self.name)}: the scene has no triangles")
-        return SceneParts(name=self.name, positions=np.concatenate(self.positions),
-                          indices=np.concatenate(self.faces), normals=np.concatenate(self.normals),
-                          uvs=np.concatenate(self.uvs), vertex_material=np.concatenate(self.mats),
-                          materials=self.materials, submeshes=self.submeshes, lights=lights, camera=camera,
-                          settings=settings)
+        return SceneParts(name=self.name, meshes=self.meshes, instances=self.instances, materials=self.materials,
+                          lights=lights, camera=camera, settings=settings)
 
 
 def _material_of(visual, where: str, made: dict) -> Material:

@@ -1,10 +1,9 @@
-"""What the loaders hand to Scene: the flattened mesh parts of a scene before its checks (plain data, no loading)."""
+"""What the loaders hand to Scene: the meshes and instances of a scene before its checks (plain data, no loading)."""
 
 from __future__ import annotations
 
 from dataclasses import dataclass
 
-import numpy as np
 
 
 @dataclass(frozen=True)
@@ -20,17 +19,13 @@ class SubMesh:
 
 @dataclass
 class SceneParts:
-    """The arguments of a Scene as a loader collected them (Scene checks and freezes them): world-space positions,
-    indices, normals, uvs and vertex_material, the materials and submeshes they refer to, and the scene's name,
-    lights, camera and settings (None: the Scene's defaults)."""
+    """The arguments of a Scene as a loader collected them (Scene checks them): the meshes (object space,
+    `instances.Mesh`) and the instances placing them (`instances.Instance`), the materials they refer to, and the
+    scene's name, lights, camera and settings (None: the Scene's defaults)."""
     name: str
-    positions: np.ndarray
-    indices: np.ndarray
-    normals: np.ndarray
-    uvs: np.ndarray
-    vertex_material: np.ndarray
+    meshes: list
+    instances: list
     materials: list
-    submeshes: list
     lights: list | None = None
     camera: object | None = None
     settings: dict | None = None

@@ -21,13 +21,16 @@ from engine.errors import ConfigError, SceneError, shown
 
 from . import loader, toml_format
 from .camera import Camera
-from .geometry import crease_normals, unitize, up_transform
+from .geometry import up_transform
 from .lights import Light, default_sun
 from .material import Material
+from .instances import Instance, Mesh, check_material_override, check_transforms, flatten, frozen, world_boxes
 from .parts import SceneParts, SubMesh
 from .paths import allowed_folders
 
 _ids = itertools.count(1)
+#: Up to this many instanced vertices `Scene.bounds` is the flattened positions' exact box.
+FLAT_BOUNDS_VERTICES = 2_000_000
 
 
 class Scene:
@@ -91,81 +94,56 @@ class Scene:
             ConfigError: bad lights or camera.
         """
         self.name = str(name)
-        where = shown(self.name)
-        p = _as_array(positions, "positions", where, (None, 3))
-        f = _as_array(indices, "indices", where, (None, 3))
-        if len(p) == 0 or len(f) == 0:
-            raise SceneError(f"{where}: the scene has no triangles")
-        if not np.issubdtype(p.dtype, np.number) or np.issubdtype(p.dtype, np.complexfloating):
-            raise SceneError(f"{where}: positions must be real numbers, got {p.dtype}")
-        if not np.all(np.isfinite(p)):
-            bad = int(np.count_nonzero(~np.all(np.isfinite(p), axis=1)))
-            raise SceneError(f"{where}: {bad} vertex position(s) are NaN or infinite")
-        if np.abs(p).max() > MAX_COORD:  # the tracer's bound (and what would overflow the float32 copy)
-            bad = int(np.count_nonzero(np.abs(p).max(axis=1) > MAX_COORD))
-            raise SceneError(f"{where}: {bad} vertex position(s) have coordinates beyond +-{MAX_COORD:g}")
-        if not np.issubdtype(f.dtype, np.integer):
-            if np.issubdtype(f.dtype, np.floating) and np.all(np.isfinite(f)) and np.all(f == np.round(f)):
-                f = f.astype(np.int64)
-            else:
-                raise SceneError(f"{where}: indices must be integers, got {f.dtype}")
-        if f.min() < 0 or f.max() >= len(p):
-            raise SceneError(f"{where}: indices out of range [0, {len(p)}): min {int(f.min())}, max {int(f.max())}")
-        if len(p) >= 2 ** 32:
-            raise SceneError(f"{where}: too many vertices ({len(p)}) for 32-bit indices")
+        mesh = Mesh(positions, indices, normals=normals, uvs=uvs, vertex_material=vertex_material, name=self.name,
+                    submeshes=None if submeshes is None else list(submeshes), where=shown(self.name))
+        self._setup([mesh], [Instance(0)], materials, settings)
+        self._init_rest(lights, camera)
 
+    def _setup(self, meshes, instances, materials, settings) -> None:
+        """Meshes, instances (attached to this scene) and materials, checked; the change tracking starts at 0."""
+        where = shown(self.name)
         if materials is None:
             materials = [Material("default")]
         materials = list(materials)
         if not materials or not all(isinstance(m, Material) for m in materials):
             raise SceneError(f"{where}: materials must be a non-empty list of Material")
-
-        if normals is None:
-            if uvs is not None:
-                uvs = _as_array(uvs, "uvs", where, (len(p), 2))
-            if vertex_material is not None:
-                vertex_material = np.asarray(vertex_material).reshape(-1)
-                if vertex_material.shape != (len(p),):
-                    raise SceneError(f"{where}: vertex_material must be ({len(p)},) integers")
-            src, n, f = crease_normals(p, f, uvs=uvs)
-            p = p[src]
-            uvs = None if uvs is None else uvs[src]
-            vertex_material = None if vertex_material is None else vertex_material[src]
-        else:
-            n = _as_array(normals, "normals", where, (len(p), 3)).astype(np.float64)
-            if not np.all(np.isfinite(n)):
-                raise SceneError(f"{where}: normals contain NaN or infinite values")
-            n = unitize(n)
-        if uvs is None:
-            uv = np.zeros((len(p), 2), dtype=np.float32)
-        else:
-            uv = _as_array(uvs, "uvs", where, (len(p), 2)).astype(np.float32)
-            if not np.all(np.isfinite(uv)):
-                raise SceneError(f"{where}: uvs contain NaN or infinite values")
-        if vertex_material is None:
-            vm = np.zeros(len(p), dtype=np.uint32)
-        else:
-            vm = np.asarray(vertex_material).reshape(-1)
-            if vm.shape != (len(p),) or not np.issubdtype(vm.dtype, np.integer):
-                raise SceneError(f"{where}: vertex_material must be ({len(p)},) integers")
-            if vm.min() < 0 or vm.max() >= len(materials):
-                raise SceneError(f"{where}: vertex_material out of range [0, {len(materials)})")
-            vm = vm.astype(np.uint32)
-
-        self.positions = _frozen(p, np.float32)
-        self.normals = _frozen(n, np.float32)
-        self.uvs = _frozen(uv, np.float32)
-        self.vertex_material = _frozen(vm, np.uint32)
-        self.indices = _frozen(f, np.uint32)
+        meshes, instances = list(meshes), list(instances)
+        if not meshes or not all(isinstance(m, Mesh) for m in meshes):
+            raise SceneError(f"{where}: meshes must be a non-empty list of Mesh")
+        if not instances or not all(isinstance(i, Instance) for i in instances):
+            raise SceneError(f"{where}: instances must be a non-empty list of Instance")
+        for k, mesh in enumerate(meshes):
+            if mesh.vertex_count and int(mesh.vertex_material.max()) >= len(materials):
+                raise SceneError(f"{where}: mesh {k} '{shown(mesh.name)}': vertex_material out of range "
+                                 f"[0, {len(materials)})")
+        for i, inst in enumerate(instances):
+            if inst._scene is not None:
+                raise SceneError(f"{where}: instances[{i}] already belongs to a scene")
+            if inst.mesh >= len(meshes):
+                raise SceneError(f"{where}: instances[{i}] '{shown(inst.name)}': mesh {inst.mesh} out of range "
+                                 f"[0, {len(meshes)})")
+            if inst._material is not None and inst._material >= len(materials):
+                raise SceneError(f"{where}: instances[{i}] '{shown(inst.name)}': material {inst._material} out of "
+                                 f"range [0, {len(materials)})")
         self.materials = materials
-        self.bounds = _frozen(np.stack([self.positions.min(axis=0), self.positions.max(axis=0)]), np.float32)
+        self.meshes = tuple(meshes)
+        self._inst_mesh = np.array([i.mesh for i in instances], dtype=np.int64)
+        self._inst_mesh.setflags(write=False)
+        self._inst_material = np.array([-1 if i._material is None else i._material for i in instances], np.int64)
+        self._transforms = np.stack([i._transform for i in instances]).astype(np.float64)
+        self._check_world(np.arange(len(instances)))
+        self._version = 0
+        self._inst_changed = np.zeros(len(instances), dtype=np.int64)
+        self._mesh_changed = np.zeros(len(meshes), dtype=np.int64)
+        self._cache: dict = {}
+        for i, inst in enumerate(instances):
+            inst._scene, inst._index = self, i
+        self.instances = tuple(instances)
         self.settings = dict(settings or {})
-        if submeshes is None:
-            submeshes = [SubMesh(self.name, 0, len(p), 0, len(f), 0)]
-        self.submeshes = list(submeshes)
         self.uid = next(_ids)
-        self._content_hash = None
 
+    def _init_rest(self, lights, camera) -> None:
+        where = shown(self.name)
         if lights is None or (isinstance(lights, (list, tuple)) and len(lights) == 0):
             lights = [default_sun()]
         elif isinstance(lights, Light):
@@ -179,6 +157,204 @@ class Scene:
         self.lights = lights
         self._camera = None
         self.camera = camera
+
+    # ------------------------------------------------------------------ instances and changes
+    @property
+    def version(self) -> int:
+        """Increases with every change to an instance's transform or material or a mesh's positions; the renderer
+        compares it with the version it last drew to know what to update."""
+        return self._version
+
+    @property
+    def transforms(self) -> NDArray[np.float64]:
+        """(N, 4, 4) float64 object-to-world transforms of the instances (read-only view)."""
+        out = self._transforms.view()
+        out.setflags(write=False)
+        return out
+
+    @property
+    def instance_mesh(self) -> NDArray[np.int64]:
+        """(N,) the mesh index of each instance."""
+        return self._inst_mesh
+
+    @property
+    def instance_material(self) -> NDArray[np.int64]:
+        """(N,) each instance's material override, -1 where none (a read-only copy)."""
+        out = self._inst_material.copy()
+        out.setflags(write=False)
+        return out
+
+    def set_transforms(self, transforms: ArrayLike, which: ArrayLike | None = None) -> None:
+        """Move instances: `transforms` (K, 4, 4) for the instances `which` (K indices; None: all N, in order).
+        Checked (finite, affine, invertible, world coordinates within MAX_COORD) before anything changes.
+
+        Raises:
+            SceneError: a bad transform or index, naming the instance.
+        """
+        n = len(self.instances)
+        idx = np.arange(n) if which is None else np.asarray(which)
+        if idx.ndim != 1 or not np.issubdtype(idx.dtype, np.integer) or (len(idx) and (idx.min() < -n or
+                                                                                         idx.max() >= n)):
+            raise SceneError(f"{shown(self.name)}: instance indices must be integers in [0, {n})")
+        idx = idx % n if len(idx) else idx.astype(np.int64)
+        m = check_transforms(transforms, lambda k: self._label(int(idx[k]) if k < len(idx) else 0))
+        if len(m) != len(idx):
+            raise SceneError(f"{shown(self.name)}: {len(m)} transforms for {len(idx)} instances")
+        old = self._transforms[idx].copy()
+        self._transforms[idx] = m
+        try:
+            self._check_world(idx)
+        except SceneError:
+            self._transforms[idx] = old
+            raise
+        self._version += 1
+        self._inst_changed[idx] = self._version
+
+    def set_instance_material(self, index: int, material: int | None) -> None:
+        """Replace instance `index`'s material override (a material index, or None: the mesh's own)."""
+        value = check_material_override(material, self._label(index))
+        if value is not None and value >= len(self.materials):
+            raise SceneError(f"{self._label(index)}: material {value} out of range [0, {len(self.materials)})")
+        self._inst_material[index] = -1 if value is None else value
+        self._version += 1
+        self._inst_changed[index] = self._version
+
+    def update_positions(self, mesh: int | str, positions: ArrayLike, normals: ArrayLike | None = None) -> None:
+        """Deform a mesh (by index or name): new object-space `positions` (V, 3) with the same V (the triangles
+        stay); `normals` None: recomputed, area-weighted over the mesh's triangles. Every instance of the mesh
+        changes on the next frame (its bottom-level BVH is refitted).
+
+        Raises:
+            SceneError: an unknown mesh, a different vertex count, NaN or out-of-range coordinates.
+        """
+        k = self.mesh_index(mesh)
+        where = f"{shown(self.name)}: mesh {k} '{shown(self.meshes[k].name)}'"
+        self.meshes[k]._set_positions(positions, normals, where)
+        try:
+            self._check_world(np.flatnonzero(self._inst_mesh == k))
+        finally:
+            self._version += 1
+            self._mesh_changed[k] = self._version
+
+    def mesh_index(self, mesh: int | str) -> int:
+        """The index of a mesh given by index or name."""
+        if isinstance(mesh, str):
+            for k, m in enumerate(self.meshes):
+                if m.name == mesh:
+                    return k
+            names = ", ".join(repr(m.name) for m in self.meshes[:8])
+            raise SceneError(f"{shown(self.name)}: no mesh named {shown(mesh)!r} (meshes: {names})")
+        if isinstance(mesh, bool) or not isinstance(mesh, (int, np.integer)) or not -len(self.meshes) <= mesh < \
+                len(self.meshes):
+            raise SceneError(f"{shown(self.name)}: mesh must be an index in [0, {len(self.meshes)}) or a name, "
+                             f"got {mesh!r}")
+        return int(mesh) % len(self.meshes)
+
+    def moved_instances(self, since: int) -> NDArray[np.int64]:
+        """Indices of the instances whose transform or material changed after version `since`."""
+        return np.flatnonzero(self._inst_changed > since)
+
+    def deformed_meshes(self, since: int) -> NDArray[np.int64]:
+        """Indices of the meshes whose positions changed after version `since`."""
+        return np.flatnonzero(self._mesh_changed > since)
+
+    def instance_boxes(self) -> NDArray[np.float64]:
+        """(N, 2, 3) float64 world AABBs of the instances (their mesh's box through the transform)."""
+        boxes = np.stack([m.box for m in self.meshes])[self._inst_mesh]
+        return world_boxes(boxes, self._transforms)
+
+    def _label(self, i: int) -> str:
+        name = self.instances[i].name if hasattr(self, "instances") else ""
+        return f"{shown(self.name)}: instance {i}" + (f" '{shown(name)}'" if name else "")
+
+    def _check_world(self, idx: np.ndarray) -> None:
+        if not len(idx):
+            return
+        boxes = np.stack([m.box for m in self.meshes])[self._inst_mesh[idx]]
+        top = np.abs(world_boxes(boxes, self._transforms[idx])).max(axis=(1, 2))
+        bad = top > MAX_COORD
+        if bad.any():
+            i = int(idx[int(np.argmax(bad))])
+            raise SceneError(f"{self._label(i)}: world-space coordinates beyond +-{MAX_COORD:g} (largest "
+                             f"{top.max():g}): check its transform")
+
+    def _cached(self, key: str, make):
+        hit = self._cache.get(key)
+        if hit is None or hit[0] != self._version:
+            hit = (self._version, make())
+            self._cache[key] = hit
+        return hit[1]
+
+    def _frame_points(self) -> np.ndarray:
+        """The points a framing camera must see: the flattened positions, or the instances' box corners when
+        there are more than FLAT_BOUNDS_VERTICES."""
+        if self.vertex_count <= FLAT_BOUNDS_VERTICES:
+            return self.positions
+        b = self.instance_boxes()
+        corners = np.stack(np.meshgrid([0, 1], [0, 1], [0, 1], indexing="ij"), -1).reshape(8, 3)
+        return b[:, corners, [0, 1, 2]].reshape(-1, 3)
+
+    # ------------------------------------------------------------------ flat (world-space) views
+    def _flat(self) -> dict:
+        def make():
+            if len(self.instances) == 1 and np.array_equal(self._transforms[0], np.eye(4)) and \
+                    self._inst_material[0] < 0:
+                mesh = self.meshes[self._inst_mesh[0]]
+                name = self.instances[0].name
+                subs = mesh.submeshes if len(mesh.submeshes) > 1 or not name else [
+                    SubMesh(name, *(s.first_vertex, s.vertex_count, s.first_triangle, s.triangle_count, s.material))
+                    for s in mesh.submeshes]
+                return {"positions": mesh.positions, "normals": mesh.normals, "uvs": mesh.uvs,
+                        "vertex_material": mesh.vertex_material, "indices": mesh.indices, "submeshes": list(subs)}
+            return flatten(self.meshes, self._inst_mesh, self._transforms, self._inst_material,
+                           [i.name for i in self.instances])
+        return self._cached("flat", make)
+
+    @property
+    def positions(self) -> NDArray[np.float32]:
+        """(V, 3) float32 world-space positions of every instance, flattened (computed when first read after a
+        change)."""
+        return self._flat()["positions"]
+
+    @property
+    def normals(self) -> NDArray[np.float32]:
+        """(V, 3) float32 world-space unit normals, flattened."""
+        return self._flat()["normals"]
+
+    @property
+    def uvs(self) -> NDArray[np.float32]:
+        """(V, 2) float32 texture coordinates, flattened."""
+        return self._flat()["uvs"]
+
+    @property
+    def vertex_material(self) -> NDArray[np.uint32]:
+        """(V,) uint32 material index per vertex (instance overrides applied), flattened."""
+        return self._flat()["vertex_material"]
+
+    @property
+    def indices(self) -> NDArray[np.uint32]:
+        """(T, 3) uint32 triangles of the flattened arrays, counter-clockwise (mirrored instances flipped)."""
+        return self._flat()["indices"]
+
+    @property
+    def submeshes(self) -> list[SubMesh]:
+        """The flattened arrays' parts: one per instance and source part."""
+        return self._flat()["submeshes"]
+
+    @property
+    def bounds(self) -> NDArray[np.float32]:
+        """(2, 3) float32 world min / max: exact up to FLAT_BOUNDS_VERTICES instanced vertices, else the union of
+        the instances' boxes (which can be slightly larger under rotation)."""
+        def make():
+            counts = np.array([m.vertex_count for m in self.meshes])[self._inst_mesh]
+            if counts.sum() <= FLAT_BOUNDS_VERTICES:
+                p = self.positions
+                box = np.stack([p.min(axis=0), p.max(axis=0)])
+            else:
+                b = self.instance_boxes()
+                box = np.stack([b[:, 0].min(axis=0), b[:, 1].max(axis=0)])
+            return _frozen(box, np.float32)
+        return self._cached("bounds", make)
 
     # ------------------------------------------------------------------ camera
     @property
@@ -199,20 +375,20 @@ class Scene:
         the image's height or width (whichever limits), for images whose width / height is at least `aspect`;
         `fov_y` in degrees."""
         try:
-            return Camera.frame_points(self.positions, fov_y=fov_y, aspect=aspect)
+            return Camera.frame_points(self._frame_points(), fov_y=fov_y, aspect=aspect)
         except ConfigError as exc:
             raise ConfigError(f"{shown(self.name)}: {exc}") from None
 
     # ------------------------------------------------------------------ info
     @property
     def triangle_count(self) -> int:
-        """T, the number of triangles."""
-        return int(len(self.indices))
+        """T, the number of (instanced) triangles."""
+        return int(np.array([m.triangle_count for m in self.meshes])[self._inst_mesh].sum())
 
     @property
     def vertex_count(self) -> int:
-        """V, the number of vertices."""
-        return int(len(self.positions))
+        """V, the number of (instanced) vertices."""
+        return int(np.array([m.vertex_count for m in self.meshes])[self._inst_mesh].sum())
 
     @property
     def center(self) -> NDArray[np.float32]:
@@ -226,19 +402,24 @@ class Scene:
 
     @property
     def content_hash(self) -> str:
-        """A stable digest of geometry, materials and textures (not lights/camera/settings)."""
-        if self._content_hash is None:
+        """A stable digest of the current geometry (meshes and instances: transforms, material overrides),
+        materials and textures (not lights/camera/settings); it changes when an instance moves or a mesh deforms."""
+        def make():
             h = hashlib.blake2b(digest_size=16)
-            for a in (self.positions, self.normals, self.uvs, self.vertex_material, self.indices):
+            for mesh in self.meshes:
+                for a in (mesh.positions, mesh.normals, mesh.uvs, mesh.vertex_material, mesh.indices):
+                    h.update(str(a.shape).encode())
+                    h.update(a.tobytes())
+            for a in (self._inst_mesh, self._inst_material, self._transforms):
                 h.update(str(a.shape).encode())
-                h.update(a.tobytes())
+                h.update(np.ascontiguousarray(a).tobytes())
             for m in self.materials:
                 h.update(m.base_color.tobytes())
                 if m.texture is not None:
                     h.update(str(m.texture.shape).encode())
                     h.update(m.texture.tobytes())
-            self._content_hash = h.hexdigest()
-        return self._content_hash
+            return h.hexdigest()
+        return self._cached("hash", make)
 
     def summary(self) -> str:
         """One line: file name, triangles, vertices, meshes, materials, lights, size."""
@@ -249,8 +430,9 @@ class Scene:
             kinds[light.kind] = kinds.get(light.kind, 0) + 1
         lights = ", ".join(f"{v} {k}" for k, v in kinds.items())
         textures = sum(m.texture is not None for m in self.materials)
+        inst = "" if len(self.instances) == 1 else f" ({len(self.instances):,} instances of {len(self.meshes)})"
         return (f"{shown(os.path.basename(self.name) or self.name)}: {self.triangle_count:,} triangles, "
-                f"{self.vertex_count:,} vertices, {len(self.submeshes)} meshes, {len(self.materials)} materials "
+                f"{self.vertex_count:,} vertices, {len(self.meshes) if inst else len(self.submeshes)} meshes{inst}, {len(self.materials)} materials "
                 f"({textures} textured), lights: {lights}, size {size[0]:.3g} x {size[1]:.3g} x {size[2]:.3g}")
 
     def __repr__(self) -> str:
@@ -305,11 +487,23 @@ class Scene:
                    name=name, settings=settings)
 
     @classmethod
+    def from_meshes(cls, meshes: Iterable[Mesh], instances: Iterable[Instance], *,
+                    materials: Iterable[Material] | None = None, lights: Light | Iterable[Light] | None = None,
+                    camera: Camera | None = None, name: str = "<instances>",
+                    settings: dict[str, Any] | None = None) -> Scene:
+        """A scene of meshes (object space, `Mesh`) placed by instances (`Instance(mesh_index, transform,
+        material, name)`); each Instance object belongs to one scene. The rest as in `Scene()`."""
+        scene = cls.__new__(cls)
+        scene.name = str(name)
+        scene._setup(meshes, instances, materials, settings)
+        scene._init_rest(lights, camera)
+        return scene
+
+    @classmethod
     def _from_parts(cls, parts: SceneParts) -> Scene:
         """A scene from what a loader collected (checked like any other)."""
-        return cls(parts.positions, parts.indices, normals=parts.normals, uvs=parts.uvs,
-                   vertex_material=parts.vertex_material, materials=parts.materials, lights=parts.lights,
-                   camera=parts.camera, name=parts.name, settings=parts.settings, submeshes=parts.submeshes)
+        return cls.from_meshes(parts.meshes, parts.instances, materials=parts.materials, lights=parts.lights,
+                               camera=parts.camera, name=parts.name, settings=parts.settings)
 
 
 def scene_from_dict(data: dict, path: str = "<toml>", allow_paths=None) -> Scene:
@@ -318,22 +512,4 @@ def scene_from_dict(data: dict, path: str = "<toml>", allow_paths=None) -> Scene
     return Scene._from_parts(toml_format.parts_from_dict(data, path, allow_paths=allow_paths))
 
 
-def _as_array(value, field, where, shape):
-    try:
-        a = np.asarray(value)
-    except Exception:
-        raise SceneError(f"{where}: {field} is not an array") from None
-    if a.ndim != len(shape) or any(s is not None and s != d for s, d in zip(shape, a.shape)):
-        want = "(" + ", ".join("N" if s is None else str(s) for s in shape) + ")"
-        raise SceneError(f"{where}: {field} must have shape {want}, got {a.shape}")
-    if a.dtype == object:
-        raise SceneError(f"{where}: {field} must be numeric")
-    return a
-
-
-def _frozen(a, dtype):
-    out = np.ascontiguousarray(a, dtype=dtype)
-    if out is a:
-        out = out.copy()
-    out.setflags(write=False)
-    return out
+_frozen = frozen

@@ -16,7 +16,7 @@ from engine.errors import ConfigError, SceneError, shown
 
 from . import _check, primitives
 from .camera import Camera
-from .geometry import transform_normals, transform_points, up_transform
+from .geometry import up_transform
 from .lights import LIGHT_TYPES
 from .loader import SceneBuilder, load_texture_file, load_trimesh_scene
 from .material import Material
@@ -25,7 +25,9 @@ from .paths import Folders
 
 TOP_LEVEL = ("up", "camera", "mesh", "light", "settings")
 CAMERA_KEYS = ("eye", "target", "up", "fov", "near")
-MESH_COMMON = ("name", "file", "primitive", "translate", "rotate", "scale", "color", "texture", "uv_scale")
+MESH_COMMON = ("name", "file", "primitive", "translate", "rotate", "scale", "color", "texture", "uv_scale",
+               "instances")
+INSTANCE_KEYS = ("name", "translate", "rotate", "scale")
 PRIMITIVE_PARAMS = {
     "box": ("size",),
     "sphere": ("radius", "segments", "rings"),
@@ -133,11 +135,12 @@ def parts_from_dict(data: dict, path: str = "<toml>", allow_paths=None, up=None)
         raise ctx.error("no [[mesh]] tables: the scene has no geometry")
     builder = SceneBuilder(path)
     textures: dict[str, np.ndarray] = {}
+    files: dict = {}   # mesh files by real path: a file placed several times is read (and stored) once
     for i, table in enumerate(meshes, 1):
         mctx = ctx.at(f"[[mesh]] #{i}")
         if not isinstance(table, dict):
             raise mctx.error("must be a table")
-        _add_mesh(builder, table, mctx, folders, textures, up_m)
+        _add_mesh(builder, table, mctx, folders, textures, up_m, files)
 
     lights = []
     for i, table in enumerate(data.get("light", []), 1):
@@ -313,8 +316,40 @@ def _referenced_file(table: dict, key: str, ctx: _Ctx, folders: Folders) -> str:
     return real
 
 
+def _trs(table: dict, ctx: _Ctx) -> np.ndarray:
+    """The (4, 4) transform of a table's scale, then rotate, then translate."""
+    scale = _size(table["scale"], 3, "scale", ctx) if "scale" in table else np.ones(3)
+    rot = _rotation(table["rotate"], ctx) if "rotate" in table else np.eye(3)
+    translate = ctx.check(_check.position, table.get("translate", [0.0, 0.0, 0.0]), "translate")
+    m = np.eye(4)
+    m[:3, :3] = rot @ np.diag(scale)
+    m[:3, 3] = translate
+    return m
+
+
+def _instances(table: dict, ctx: _Ctx) -> list | None:
+    """The placements of a table's `instances` list ((4, 4) each, applied after the table's own transform, and
+    their names), or None without one."""
+    if "instances" not in table:
+        return None
+    value = table["instances"]
+    if not isinstance(value, list) or not value:
+        raise ctx.error("instances must be a non-empty list of tables {translate = .., rotate = .., scale = ..}")
+    out = []
+    for j, item in enumerate(value, 1):
+        ictx = ctx.at(f"{ctx.table}: instances #{j}")
+        if not isinstance(item, dict):
+            raise ictx.error(f"must be a table {{translate = .., rotate = .., scale = ..}}, got {item!r}")
+        _unknown(ictx, item, INSTANCE_KEYS)
+        name = item.get("name")
+        if name is not None and not isinstance(name, str):
+            raise ictx.error(f"name must be a string, got {name!r}")
+        out.append((_trs(item, ictx), name))
+    return out
+
+
 def _add_mesh(builder: SceneBuilder, table: dict, ctx: _Ctx, folders: Folders, textures: dict,
-              up_m: np.ndarray) -> None:
+              up_m: np.ndarray, files: dict) -> None:
     has_file, has_prim = "file" in table, "primitive" in table
     if has_file == has_prim:
         raise ctx.error("needs exactly one of 'file' (a mesh file) or 'primitive' "
@@ -332,13 +367,8 @@ def _add_mesh(builder: SceneBuilder, table: dict, ctx: _Ctx, folders: Folders, t
     if not isinstance(name, str):
         raise ctx.error(f"name must be a string, got {name!r}")
 
-    # transform: scale, then rotate, then translate
-    scale = _size(table["scale"], 3, "scale", ctx) if "scale" in table else np.ones(3)
-    rot = _rotation(table["rotate"], ctx) if "rotate" in table else np.eye(3)
-    translate = ctx.check(_check.position, table.get("translate", [0.0, 0.0, 0.0]), "translate")
-    m = np.eye(4)
-    m[:3, :3] = rot @ np.diag(scale)
-    m[:3, 3] = translate
+    m = _trs(table, ctx)   # scale, then rotate, then translate
+    placements = _instances(table, ctx)
 
     color = _color(table["color"], "color", ctx, alpha=True) if "color" in table else None
     texture = None
@@ -358,17 +388,19 @@ def _add_mesh(builder: SceneBuilder, table: dict, ctx: _Ctx, folders: Folders, t
         if color is None:
             color = np.array([1.0, 1.0, 1.0, 1.0]) if texture is not None else np.array([0.8, 0.8, 0.8, 1.0])
         mat = builder.material_index(Material(name, color, texture), key_name=("primitive",))  # first one's name
-        p, n = transform_points(m, p), transform_normals(m, n)
-        if np.linalg.det(m[:3, :3]) < 0:
-            f = f[:, ::-1]
-        builder.add(name, p, f, n, uv, mat, ctx.prefix())
+        key = object()   # this table's placements share its mesh
+        for place, inst_name in placements or [(np.eye(4), None)]:
+            builder.add(name, p, f, n, uv, mat, ctx.prefix(), transform=place @ m, key=key,
+                        instance_name=inst_name or name)
         return
 
     try:
         if "up" in table:   # this file's up axis, turned upright before its scale / rotate / translate
             up_m = ctx.check(up_transform, table["up"], "up")
-        obj = load_trimesh_scene(mesh_path)
-        builder.add_trimesh(obj, shown(mesh_path), transform=m @ up_m, color=color, texture=texture, uv_scale=uv_scale,
-                            label=name)
+        if mesh_path not in files:
+            files[mesh_path] = load_trimesh_scene(mesh_path)
+        builder.add_trimesh(files[mesh_path], shown(mesh_path), transform=m @ up_m, color=color, texture=texture,
+                            uv_scale=uv_scale, label=name,
+                            transforms=None if placements is None else [t for t, _ in placements])
     except SceneError as exc:
         raise ctx.error(f"file = '{shown(table['file'])}': {exc}") from None

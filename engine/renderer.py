@@ -371,7 +371,8 @@ class Renderer:
             ao_radius=cfg["ao_radius"] or 0.1 * diag, ao_samples=ao_samples, shadow_samples=shadow_samples,
             exposure=cfg["exposure"], ambient=cfg["ambient"], scene_scale=diag, accum_alpha=ALPHA_MIN,
             pixel_footprint=2.0 * math.tan(math.radians(camera.fov_y) / 2.0) / self.height,
-            history_reset=reset, bounds=scene.bounds, out=self._block, packed_lights=packed_lights)
+            history_reset=reset, bounds=scene.bounds, out=self._block, packed_lights=packed_lights,
+            objects_moved=not self._changes.settled)
         key = (cfg["shadows"], cfg["ao"], cfg["accumulate"], cfg["denoise"], cfg["view"], len(lights), readback)
         if cfg["shadows"] == "reference":
             key += (cfg["reference_samples"],)
@@ -395,7 +396,7 @@ class Renderer:
             block["prev_view_proj"] = steady.view_proj_cols   # prev_view_proj = this camera's
             block["history_reset"] = 0.0                      # the history key is unchanged
             steady.settled = True
-        block["frame_index"] = self._frame_index
+        block["frame_index"], block["objects_moved"] = self._frame_index, not self._changes.settled
         self._frame_index += 1
         cmd, marks, cfg, n_lights = steady.result
         return cmd, marks, dict(cfg), n_lights
@@ -409,7 +410,7 @@ class Renderer:
         camera_fields(block, view_proj, camera, self.height)
         block["prev_view_proj"] = steady.view_proj_cols   # the last frame's camera
         block["history_reset"] = 0.0                      # the history key is unchanged
-        block["frame_index"] = self._frame_index
+        block["frame_index"], block["objects_moved"] = self._frame_index, not self._changes.settled
         self._frame_index += 1
         self._prev_view_proj = view_proj
         steady.camera, steady.settled = camera, False
@@ -477,9 +478,8 @@ class Renderer:
             self._commands.clear()
 
     def _frame_start(self, scene):
-        """Before each frame, what changed in the scene since the last one (`SceneChanges`): moved instances and
-        material overrides go into the instance buffer (rewritten in place: the recorded command buffers stay
-        valid), a deformed mesh uploads the geometry again; then the ray passes' BVH (`_update_bvh`)."""
+        """Before each frame: moved instances and material overrides into the instance buffer (in place: the
+        recordings stay valid), a deformed mesh's geometry uploaded again, then the ray passes' BVH."""
         todo = self._changes.begin(scene)   # None: nothing to do; else (a mesh deformed, something changed)
         if todo is not None:
             if todo[0]:

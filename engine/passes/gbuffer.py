@@ -36,28 +36,9 @@ INSTANCE_FLOATS = 64   # std430 `Instance` (shaders/glsl/include/instances.glsl)
 NO_MATERIAL = 0xFFFFFFFF
 
 
-def scene_meshes(scene):
-    """(meshes, mesh of each instance, material override of each instance (-1: none)) of a scene. A scene without
-    instances (`scene.meshes`) is one mesh, its flat arrays, placed once by the identity."""
-    meshes = getattr(scene, "meshes", None)
-    if meshes is None:
-        return [scene], np.zeros(1, np.int64), np.full(1, -1, np.int64)
-    return list(meshes), np.asarray(scene.instance_mesh, np.int64), instance_materials(scene)
-
-
 def instance_materials(scene) -> np.ndarray:
     """(N,) int64 material override of each instance, -1 where none."""
-    if getattr(scene, "meshes", None) is None:
-        return np.full(1, -1, np.int64)
     return np.asarray(scene.instance_material, np.int64)
-
-
-def scene_transforms(scene) -> np.ndarray:
-    """(N, 4, 4) float64 object-to-world transforms of the scene's instances (the identity for a flat scene)."""
-    if getattr(scene, "meshes", None) is None:
-        return np.eye(4)[None]
-    t = getattr(scene, "transforms", None)
-    return np.asarray(t if t is not None else [i.transform for i in scene.instances], np.float64)
 
 
 class SceneGeometry:
@@ -69,7 +50,8 @@ class SceneGeometry:
 
     def __init__(self, ctx, scene, white_texture, sampler):
         self.ctx = ctx
-        meshes, mesh_of, overrides = scene_meshes(scene)
+        meshes, mesh_of, overrides = list(scene.meshes), np.asarray(scene.instance_mesh, np.int64), \
+            instance_materials(scene)
         n_vert = sum(len(m.positions) for m in meshes)
         verts = np.zeros((n_vert, 8), np.float32)
         indices, info, first_tri = [], [], []
@@ -199,18 +181,17 @@ class SceneChanges:
     def begin(self, scene):
         """None when nothing changed since the last frame (and it had no motion); else (whether a mesh deformed,
         whether anything changed)."""
-        version = getattr(scene, "version", 0)
+        version = scene.version
         if version == self.version and self.settled:
             return None
         changed = self.version is None or version != self.version
-        deformed = (self.version is not None and changed and hasattr(scene, "deformed_meshes")
-                    and len(scene.deformed_meshes(self.version)) > 0)
+        deformed = self.version is not None and changed and len(scene.deformed_meshes(self.version)) > 0
         self.version = version
         return deformed, changed
 
     def write(self, scene, geom: SceneGeometry) -> None:
         """This frame's transforms and material overrides, and the last frame's transforms, into `geom`."""
-        transforms = scene_transforms(scene)
+        transforms = scene.transforms
         last = self.last if self.last is not None and self.last.shape == transforms.shape else transforms
         geom.write_materials(scene)
         geom.write_transforms(transforms, last)

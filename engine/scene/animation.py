@@ -1,10 +1,11 @@
 """Scene animation: the TOML `[[animation]]` tables (docs/scenes.md, "Animation") and how they move a scene's
 instances and lights at a time t (seconds). Numpy only.
 
-An animation drives one instance (by name) or one light (by its 1-based `[[light]]` number) with any of:
+An animation drives instances (`instance = "name"`: the instances of that name, and those named "name/..." -- a
+mesh file's parts) or one light (by its 1-based `[[light]]` number) with any of:
 
 - `rotate = {axis = [x, y, z], degrees_per_second = w, pivot = [x, y, z]}`: a turn of w * t degrees about the
-  axis through the pivot (default: an instance's centre, the origin for a light);
+  axis through the pivot (default: the centre of the instances' bounding box, the origin for a light);
 - `oscillate = {offset = [x, y, z], period = s}`: a translation by offset * sin(2 pi t / s).
 
 The motion is applied to the pose the thing had when the scene was made: `animate(scene, t)` at any t gives the same
@@ -21,6 +22,7 @@ import numpy as np
 from engine.errors import ConfigError, SceneError, shown
 
 from . import _check
+from .instances import world_boxes
 
 ANIMATION_KEYS = ("instance", "light", "rotate", "oscillate")
 ROTATE_KEYS = ("axis", "degrees_per_second", "pivot")
@@ -123,13 +125,19 @@ def _unknown(table, allowed, at):
             raise SceneError(f"{at}: unknown key {shown(repr(key))} (allowed: {', '.join(allowed)})")
 
 
+def matching(name: str, instance_names) -> list[int]:
+    """The instances an animation's `instance` names: that name, or under it ("name/part")."""
+    return [k for k, n in enumerate(instance_names) if n == name or n.startswith(name + "/")]
+
+
 def check_targets(animations, instance_names, where: str) -> None:
     """Every animated instance names an instance of the scene."""
-    names = set(instance_names)
+    names = list(instance_names)
     for i, a in enumerate(animations, 1):
-        if a.instance is not None and a.instance not in names:
-            raise SceneError(f"{where}: [[animation]] #{i}: no instance named {a.instance!r} (the [[mesh]] names: "
-                             f"{', '.join(sorted(names)) or 'none'})")
+        if a.instance is not None and not matching(a.instance, names):
+            shown_names = ", ".join(sorted(set(names))[:40]) or "none"
+            raise SceneError(f"{where}: [[animation]] #{i}: no instance named {shown(a.instance)!r} (the instances: "
+                             f"{shown_names})")
 
 
 class Player:
@@ -138,17 +146,15 @@ class Player:
 
     def __init__(self, scene, animations):
         self.scene, self.animations = scene, list(animations)
-        by_name = {inst.name: k for k, inst in enumerate(scene.instances)} if self.animations else {}
+        names = [inst.name for inst in scene.instances]
         self.targets = []
         for a in self.animations:
             if a.instance is not None:
-                k = by_name[a.instance]
-                base = np.array(scene.instances[k].transform, np.float64)
-                mesh = scene.meshes[scene.instances[k].mesh]
-                box = np.asarray(mesh.box if hasattr(mesh, "box") else
-                                 (mesh.positions.min(0), mesh.positions.max(0)), np.float64)
-                centre = base[:3, :3] @ (0.5 * (box[0] + box[1])) + base[:3, 3]
-                self.targets.append(("instance", k, base, centre))
+                ks = matching(a.instance, names)
+                base = np.array(scene.transforms[ks], np.float64)
+                boxes = world_boxes(np.stack([scene.meshes[scene.instances[k].mesh].box for k in ks]), base)
+                centre = 0.5 * (boxes[:, 0].min(axis=0) + boxes[:, 1].max(axis=0))
+                self.targets.append(("instance", ks, base, centre))
             else:
                 light = scene.lights[a.light]
                 pose = {f: np.array(getattr(light, f), np.float64) for f in ("position", "direction", "u", "v")
@@ -163,7 +169,8 @@ class Player:
         for a, (kind, k, base, centre) in zip(self.animations, self.targets):
             m = a.matrix(t, centre)
             if kind == "instance":   # several animations of one instance compose, in file order
-                moved[k] = m @ moved.get(k, base)
+                for j, i in enumerate(k):
+                    moved[i] = m @ moved.get(i, base[j])
             else:
                 light = self.scene.lights[k]
                 for field, value in base.items():
@@ -173,9 +180,4 @@ class Player:
                         setattr(light, field, m[:3, :3] @ value)
         if moved:
             ks = sorted(moved)
-            set_transforms = getattr(self.scene, "set_transforms", None)
-            if set_transforms is not None:
-                set_transforms(np.stack([moved[k] for k in ks]), ks)
-            else:
-                for k in ks:
-                    self.scene.instances[k].transform = moved[k]
+            self.scene.set_transforms(np.stack([moved[k] for k in ks]), ks)

@@ -12,6 +12,9 @@
 // and starts over (n = 0). The new value is an exponential blend:
 //     value = mix(history, raw, alpha),   alpha = max(1 / (n + 1), alpha_min)
 // so the first frames are a plain average. Zero-size lights (binary masks) pass through.
+// On a frame where an instance moved (frame.objects_moved), the shadows and occlusion it casts moved too, also on
+// surfaces that did not: there the history is clamped into the range of this frame's raw values in the 3x3
+// neighbourhood, so a shadow that left a static surface does not linger as a trail.
 // Without FILTER_TEMPORAL (denoise only) or when frame.history_reset says the history is invalid, value = raw.
 #include "common.glsl"
 FRAME_BLOCK
@@ -92,6 +95,18 @@ void main() {
     if (wsum > 1e-3) {
         n_prev = floor(hlen / wsum + 0.5);   // a whole number of frames
         hval /= wsum;
+        if (frame.objects_moved > 0.5 && random) {
+            float lo = raw, hi = raw;
+            for (int dy = -1; dy <= 1; ++dy)
+                for (int dx = -1; dx <= 1; ++dx) {
+                    ivec2 q = clamp(px + ivec2(dx, dy), ivec2(0), ivec2(int(w) - 1, int(h) - 1));
+                    uint qi = uint(q.y) * w + uint(q.x);
+                    float r = is_mask ? masks_raw[channel * n_pixels + qi] : ao_raw[qi];
+                    lo = min(lo, r);
+                    hi = max(hi, r);
+                }
+            hval = clamp(hval, lo, hi);
+        }
     }
     float alpha = n_prev > 0.0 ? max(1.0 / (n_prev + 1.0), frame.accum_alpha) : 1.0;
     if (channel == 0u) len_cur[pixel] = covered ? min(n_prev + 1.0, MAX_HISTORY) : 0.0;

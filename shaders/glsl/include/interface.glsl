@@ -59,6 +59,7 @@ struct FrameData {
     float accum_alpha;              // the temporal blend's smallest weight
     float pixel_footprint;          // a pixel's size per unit of view depth
     float history_reset;            // 1: the temporal history is invalid
+    float objects_moved;            // 1: an instance moved since the last frame (accumulate.comp clamps the history)
     vec3 bounds_min;                // scene bounds (debug views)
     vec3 bounds_max;
     Light lights[16];

@@ -190,8 +190,11 @@ def test_moving_object_converges_without_trails(make_renderer):
     scene = make_scene(slide(steps - 1))
     ref = r.render(scene, aovs=["shadow", "ao", "instance_id"], shadows="reference", reference_samples=256)
     still = converge(r, scene, steps, moving=False, frames_after=after)
-    # where box a was at the start of the slide but is not at the end: ground now
-    first = r.render(make_scene(slide(0)), aovs=["instance_id"], **STILL)
+    # the last step of the slide at which box a covered each pixel (-1: never)
+    last_cover = np.full((H, W), -1)
+    for k in range(steps):
+        seen = r.render(make_scene(slide(k)), aovs=["instance_id"], **STILL).aov["instance_id"]
+        last_cover[seen == 1] = k
     moved = converge(r, scene, steps, moving=True, frames_after=after)
     cov = ref.aov["instance_id"] >= 0
 
@@ -200,12 +203,13 @@ def test_moving_object_converges_without_trails(make_renderer):
                 float(np.abs(f.aov["ao"][cov] - ref.aov["ao"][cov]).mean()))
 
     (s_still, a_still), (s_moved, a_moved) = error(still), error(moved)
-    assert s_moved < s_still + 0.02 and a_moved < a_still + 0.02, (s_still, s_moved, a_still, a_moved)
-    left = (first.aov["instance_id"] == 1) & (moved.aov["instance_id"] == 0)
+    assert s_moved < s_still + 0.01 and a_moved < a_still + 0.01, (s_still, s_moved, a_still, a_moved)
+    left = (last_cover >= 0) & (moved.aov["instance_id"] == 0)
     assert left.sum() > 20
-    # reset where the box left: those pixels' history is younger than the frames since they were uncovered
-    assert moved.aov["history"][left].max() <= steps + after - 1
-    assert moved.aov["history"][left].mean() < still.aov["history"][left].mean()
+    # reset where the box left: no pixel's history is older than the frames since the box uncovered it (one
+    # frame more where a bilinear tap reaches a neighbour uncovered earlier)
+    since = steps + after - 1 - last_cover[left]
+    assert np.all(moved.aov["history"][left] <= since + 1), (moved.aov["history"][left] - since).max()
     # on the box (which moved all along) the history was kept: longer than the frames since it stopped
     on_box = moved.aov["instance_id"] == 1
     assert np.median(moved.aov["history"][on_box]) > after + 4

@@ -7,16 +7,23 @@ from __future__ import annotations
 
 import os
 
+import numpy as np
+
+from ..bvh import build_bvh
 from ..bvh.compress import compress_nodes
+from ..bvh.instanced import TwoLevel
 from ..bvh.wide import collapse_bvh8
 from ..errors import ConfigError, SceneError
-from ..vk import BufferView, Context, DescriptorSet, upload_buffer
+from ..vk import Buffer, BufferView, Context, DescriptorSet, update_buffer, upload_buffer
 from ..vk.device import is_cpu
 from ..vk.reflect import Interface
-from ..vk.resources import STORAGE_TEXEL, UNIFORM_TEXEL
+from ..vk.resources import STORAGE_TEXEL, TRANSFER_SRC, UNIFORM_TEXEL
 
 BVH_SET = 1   # the descriptor set index bvh.glsl declares
 LAYOUTS = ("binary", "wide")
+#: A deforming mesh's bottom level is rebuilt instead of refitted once its refitted SAH cost exceeds the build's
+#: by this factor (InstancedBVH.update; docs/architecture.md, "Instances and the two-level BVH").
+REBUILD_RATIO = 2.0
 #: Register-stack entries of the traversal on CPU devices (BVH_STACK_REGS): fewer than a deep tree needs; the rare
 #: ray that overflows them walks again (BVH_STACK_RETRY). The best of the counts tried on lavapipe.
 CPU_STACK_REGS = 10
@@ -121,3 +128,120 @@ class SceneBVH:
             view.destroy()
         self.nodes.destroy()
         self.tris.destroy()
+
+
+def is_instanced(scene) -> bool:
+    """Does `scene` need the two-level BVH? Not for one instance with the identity transform (today's scenes:
+    the single-level path, unchanged)."""
+    return len(scene.instances) > 1 or not np.array_equal(scene.transforms[0], np.eye(4))
+
+
+def scene_bvh(ctx: Context, scene, dset: DescriptorSet, layout: str):
+    """The BVH of a Scene on the GPU: a SceneBVH of its one mesh, or an InstancedBVH (binary layout only)."""
+    if is_instanced(scene):
+        return InstancedBVH(ctx, scene, dset)
+    return SceneBVH.upload(ctx, build_bvh(scene.meshes[0].positions, scene.meshes[0].indices), dset, layout)
+
+
+class InstancedBVH:
+    """A scene's two-level BVH on the GPU (engine/bvh/instanced.py): per-mesh bottom levels built once, the top
+    level and instance records rewritten by `update(scene)` when instances moved, deformed meshes refitted (or
+    rebuilt past REBUILD_RATIO, which uploads everything again). Same descriptor set and `spec` as SceneBVH; the
+    traversal's triangle ids are the flattened scene's (`scene.indices`)."""
+
+    layout = "binary"
+    compressed = False
+
+    def __init__(self, ctx: Context, scene, dset: DescriptorSet):
+        self.ctx, self.dset = ctx, dset
+        tri_counts = np.array([m.triangle_count for m in scene.meshes], dtype=np.int64)[scene.instance_mesh]
+        if tri_counts.sum() >= 2 ** 31:
+            raise SceneError(f"{scene.name}: {int(tri_counts.sum()):,} instanced triangles: more than the 2^31 "
+                             "triangle ids the traversal reports")
+        self.flat_tri_base = np.concatenate([[0], np.cumsum(tri_counts)[:-1]]).astype(np.uint32)
+        self.blas = [build_bvh(m.positions, m.indices) for m in scene.meshes]
+        self.rebuilds = 0
+        self.last_refit_ratio: dict[int, float] = {}
+        self.nodes = self.tris = None
+        self.views = []
+        self._upload(scene)
+
+    def _upload(self, scene) -> None:
+        self.destroy()
+        self.two = TwoLevel(self.blas, len(scene.instances))
+        self.two.top(scene.transforms, scene.instance_mesh, self._mesh_boxes(scene), self.flat_tri_base)
+        self.depth = self.two.depth
+        self.bvh = self.two   # (stats, as SceneBVH.bvh)
+        texels = int(self.ctx.limits.maxTexelBufferElements)
+        for what, arr in (("triangles", self.two.tris), ("nodes", self.two.nodes)):
+            if arr.nbytes // 16 > texels:
+                raise SceneError(f"{scene.name}: the two-level BVH {what} take {arr.nbytes / 2**20:.0f} MiB, more "
+                                 f"than this device's texel-buffer limit of {texels:,} texels")
+        usage = UNIFORM_TEXEL | STORAGE_TEXEL
+        self.nodes = upload_buffer(self.ctx, self.two.nodes, usage, "bvh nodes (two-level)")
+        self.tris = upload_buffer(self.ctx, self.two.tris, usage, "bvh triangles (two-level)")
+        tail = self.two.nodes.nbytes - self.two.tail_offset
+        self.staging = Buffer(self.ctx, tail, TRANSFER_SRC, host=True, name="top-level staging")
+        self.views = [BufferView(self.nodes), BufferView(self.tris)]
+        self.dset.bind("bvh_node_texels", self.views[0]).bind("bvh_tri_texels", self.views[1])
+        self.dset.bind("bvh_node_image", self.views[0]).bind("bvh_tri_image", self.views[1])
+        self.version = scene.version
+        self.structure = getattr(self, "structure", 0) + 1   # changes when the buffers (and spec) are new
+
+    @staticmethod
+    def _mesh_boxes(scene) -> np.ndarray:
+        return np.stack([m.box for m in scene.meshes])
+
+    def update(self, scene) -> bool:
+        """Bring the GPU copy up to `scene`'s current state (the renderer and Tracer call it before tracing):
+        refit deformed meshes, rebuild the top level if anything moved. Returns True when it changed anything;
+        check `structure` for whether the buffers were replaced (a rebuild: descriptors rebound, spec changed)."""
+        if scene.version == self.version:
+            return False
+        moved = scene.moved_instances(self.version)
+        deformed = scene.deformed_meshes(self.version)
+        parts = []
+        rebuild = False
+        for k in deformed:
+            mesh = scene.meshes[int(k)]
+            ratio = self.two.refit(int(k), mesh.positions, mesh.indices)
+            self.last_refit_ratio[int(k)] = ratio
+            if ratio > REBUILD_RATIO:
+                self.blas[int(k)] = build_bvh(mesh.positions, mesh.indices)
+                rebuild = True
+                continue
+            b = self.blas[int(k)]
+            n0, t0 = int(self.two.node_base[k]), int(self.two.tri_base[k])
+            parts.append((n0 * 64, self.two.nodes[n0:n0 + len(b.nodes)]))
+            parts.append(("tris", t0 * 48, self.two.tris[t0:t0 + len(b.tris)]))
+        if rebuild:
+            self.rebuilds += 1
+            self._upload(scene)
+            return True
+        if len(moved) or len(deformed):
+            tail = self.two.top(scene.transforms, scene.instance_mesh, self._mesh_boxes(scene), self.flat_tri_base)
+            parts.append((self.two.tail_offset, tail))
+        node_parts = [p for p in parts if len(p) == 2]
+        tri_parts = [p[1:] for p in parts if len(p) == 3]
+        tail_only = len(node_parts) == 1 and not tri_parts
+        update_buffer(self.ctx, self.nodes, node_parts, self.staging if tail_only else None)
+        if tri_parts:
+            update_buffer(self.ctx, self.tris, tri_parts)
+        self.version = scene.version
+        return True
+
+    def spec(self, ctx: Context, postpone: bool | None = None, stack_regs: int | None = None) -> dict:
+        """bvh_spec for the bottom levels' depth, with the two-level constants."""
+        spec = bvh_spec(ctx, self.depth, layout="binary", compressed=False, postpone=postpone,
+                        stack_regs=stack_regs)
+        spec.update(BVH_INSTANCED=True, BVH_TLAS_ROOT=self.two.tlas_root, BVH_INST_BASE=self.two.inst_base)
+        return spec
+
+    def destroy(self):
+        for view in self.views:
+            view.destroy()
+        self.views = []
+        for buf in (self.nodes, self.tris, getattr(self, "staging", None)):
+            if buf is not None:
+                buf.destroy()
+        self.nodes = self.tris = self.staging = None

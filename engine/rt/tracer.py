@@ -21,7 +21,7 @@ from numpy.typing import ArrayLike, NDArray
 from ..bvh import build_bvh
 from ..errors import ConfigError, SceneError
 from ..gpu import SceneBVH, bvh_descriptor_set, bvh_layout
-from ..gpu.bvh import CPU_OCCLUSION_STACK_REGS
+from ..gpu.bvh import CPU_OCCLUSION_STACK_REGS, InstancedBVH, is_instanced
 from ..parallel import serialized
 from ..shaders import ShaderLibrary
 from ..vk import Buffer, BufferView, ComputePipeline, Context, DescriptorSet, Recorder, Timestamps, reflect
@@ -57,6 +57,11 @@ class Hits:
     """(N,) float32 barycentric weight of the triangle's vertex 1 (undefined on a miss)."""
     v: NDArray[np.float32]
     """(N,) float32 barycentric weight of the triangle's vertex 2 (undefined on a miss)."""
+    instance: NDArray[np.int32] | None = None
+    """(N,) int32 index in `scene.instances` of the instance hit, -1 on a miss (a Tracer made by `from_scene`;
+    `prim` is then the triangle of the flattened scene, `scene.indices`)."""
+    mesh_prim: NDArray[np.int32] | None = None
+    """(N,) int32 the triangle hit in its mesh's own `indices` (`from_scene`), -1 on a miss."""
 
     @property
     def hit(self) -> NDArray[np.bool_]:
@@ -124,10 +129,15 @@ class Tracer:
                 raise ConfigError(f"Tracer: context must be an engine.vk.Context, got {type(context).__name__}")
             context.check_open("Tracer")
         self.batch = check_batch_size(batch_size)
-        v, f = check_mesh(vertices, faces)
         self.layout = bvh_layout(layout)  # a bad layout (argument or HYBRID_BVH_LAYOUT) fails before the build
-        self.bvh = build_bvh(v, f)
-        self.stats = dict(self.bvh.stats)
+        self._source = getattr(self, "_source", None)   # the Scene of from_scene
+        if self._source is not None and is_instanced(self._source):
+            self.bvh = None   # a two-level BVH, built with the GPU objects
+            self.stats = {}
+        else:
+            v, f = check_mesh(vertices, faces)
+            self.bvh = build_bvh(v, f)
+            self.stats = dict(self.bvh.stats)
         self._staging = staging
         try:
             self.ctx = context if context is not None else Context(device=device, validation=validation or None)
@@ -153,13 +163,34 @@ class Tracer:
             raise SceneError(f"Tracer.from_trimesh: mesh must be a trimesh.Trimesh or trimesh.Scene, got {what}")
         return cls(mesh.vertices, mesh.faces, **kw)
 
+    @classmethod
+    def from_scene(cls, scene: Any, **kw: Any) -> Tracer:
+        """From an `engine.Scene`: its meshes and instances (a two-level BVH when it has several instances or a
+        transform other than the identity; its one mesh's BVH otherwise). Queries see the scene's current state:
+        instances moved or meshes deformed since the last query are updated first (top level rebuilt, bottom
+        levels refitted). `Hits.prim` is the flattened scene's triangle (`scene.indices`), `Hits.instance` and
+        `Hits.mesh_prim` the instance and its mesh's triangle; `kw` as in `Tracer()`."""
+        if not hasattr(scene, "instances") or not hasattr(scene, "meshes"):
+            raise ConfigError(f"Tracer.from_scene: expected an engine.Scene, got {type(scene).__name__}")
+        self = cls.__new__(cls)
+        self._source = scene
+        if is_instanced(scene):
+            cls.__init__(self, None, None, **kw)
+        else:
+            cls.__init__(self, scene.meshes[0].positions, scene.meshes[0].indices, **kw)
+        return self
+
     def _init_gpu(self):
         ctx = self.ctx
         lib = ShaderLibrary()
         kinds = ("occluded", "intersect")
         interface = reflect(lib.get("trace_occluded.comp"), "trace_occluded.comp")
         self.bvh_set = bvh_descriptor_set(ctx, interface)
-        self.scene = SceneBVH.upload(ctx, self.bvh, self.bvh_set, self.layout)
+        if self.bvh is None:
+            self.scene = InstancedBVH(ctx, self._source, self.bvh_set)
+            self.layout = "binary"
+        else:
+            self.scene = SceneBVH.upload(ctx, self.bvh, self.bvh_set, self.layout)
         self.stats = dict(self.scene.bvh.stats, layout=self.layout)
         self.io_set = DescriptorSet(ctx, interface.set(0).values())
         # Rays and results: mapped host buffers; on a discrete GPU device-local ones filled / read by copies in the
@@ -214,16 +245,41 @@ class Tracer:
         self.ray_views = list(views.values())
         self.timestamps = Timestamps(ctx, capacity=4)
         self.pipelines, self._commands, self._marks = {}, {}, {}
-        for kind in kinds:
-            for name in [f"trace_{kind}"] + ([f"trace_{kind}_retry"] if self.two_pass[kind] else []):
-                spirv = lib.get(f"{name}.comp")
-                spec = reflect(spirv, name).specialization(specs[kind], name)
-                self.pipelines[name[6:]] = ComputePipeline(ctx, spirv, [self.io_set, self.bvh_set], spec=spec,
-                                                           name=name)
+        self._lib = lib
+        self._make_pipelines()
         self.shares = work_shares(ctx)  # rays.glsl ray_block
         self.last_gpu_ms = 0.0
         self.last_retried = 0        # rays of the last query that the second dispatch walked again (two_pass)
         self.last_times: dict = {}   # GPU ms of the last batch per step: upload (staged only), trace, download
+
+    def _make_pipelines(self):
+        for kind in ("occluded", "intersect"):
+            for name in [f"trace_{kind}"] + ([f"trace_{kind}_retry"] if self.two_pass[kind] else []):
+                spirv = self._lib.get(f"{name}.comp")
+                spec = reflect(spirv, name).specialization(self.specs[kind], name)
+                self.pipelines[name[6:]] = ComputePipeline(self.ctx, spirv, [self.io_set, self.bvh_set], spec=spec,
+                                                           name=name)
+
+    def _sync(self):
+        """A two-level BVH brought up to its Scene's current state; replaced buffers (a rebuilt bottom level)
+        need new pipelines (the spec names the top level's place) and new recordings."""
+        if not isinstance(self.scene, InstancedBVH):
+            return
+        structure = self.scene.structure
+        self.scene.update(self._source)
+        if self.scene.structure != structure:
+            self.ctx.wait_idle()
+            for pipe in self.pipelines.values():
+                pipe.destroy()
+            for cmd in self._commands.values():
+                self.ctx.free_command_buffer(cmd)
+            self._commands.clear()
+            self._marks.clear()
+            occ = self.specs["occluded"].get("RAYS_TEXEL")
+            self.specs = {"occluded": dict(self.scene.spec(self.ctx, stack_regs=CPU_OCCLUSION_STACK_REGS),
+                                           RAYS_TEXEL=occ),
+                          "intersect": dict(self.scene.spec(self.ctx), RAYS_TEXEL=False)}
+            self._make_pipelines()
 
     def _command(self, kind, n):
         """The recorded command buffer for a query kind (and, when staged, the copy size for n rays)."""
@@ -290,6 +346,7 @@ class Tracer:
         """
         self._check_open()
         o, d, t = check_rays(origins, directions, tmax)
+        self._sync()
         out = np.empty(len(o), bool)
         self.last_gpu_ms, self.last_retried = 0.0, 0
         for s in range(0, len(o), self.batch):
@@ -305,6 +362,7 @@ class Tracer:
         """
         self._check_open()
         o, d, t = check_rays(origins, directions, tmax)
+        self._sync()
         n_all = len(o)
         hits = Hits(np.empty(n_all, np.float32), np.empty(n_all, np.int32), np.empty(n_all, np.float32),
                     np.empty(n_all, np.float32))
@@ -316,6 +374,12 @@ class Tracer:
             hits.prim[s:s + n] = rec[:, 1].view(np.int32)
             hits.u[s:s + n] = rec[:, 2]
             hits.v[s:s + n] = rec[:, 3]
+        if self._source is not None:
+            hit = hits.prim >= 0
+            base = self.scene.flat_tri_base if isinstance(self.scene, InstancedBVH) else np.zeros(1, np.uint32)
+            inst = np.searchsorted(base, hits.prim, side="right").astype(np.int32) - 1
+            hits.instance = np.where(hit, inst, -1).astype(np.int32)
+            hits.mesh_prim = np.where(hit, hits.prim - base[np.maximum(inst, 0)].astype(np.int64), -1).astype(np.int32)
         return hits
 
     def _run(self, kind, o, d, t) -> int:

@@ -126,6 +126,35 @@ def upload_buffer(ctx: Context, data: np.ndarray, usage: int, name: str = "") ->
     return buf
 
 
+def update_buffer(ctx: Context, buf: Buffer, parts, staging: Buffer | None = None) -> None:
+    """Overwrite ranges of a device-local buffer: `parts` = [(byte offset, array)], copied through `staging` (a
+    host TRANSFER_SRC buffer large enough for all of them; None: a temporary one). Runs at once, ordered after
+    every earlier use of `buf` on the queue and before every later one."""
+    raws = [(int(off), np.ascontiguousarray(a).view(np.uint8).reshape(-1)) for off, a in parts]
+    total = sum(r.nbytes for _, r in raws)
+    if total == 0:
+        return
+    own = staging is None or staging.size < total
+    if own:
+        staging = Buffer(ctx, total, TRANSFER_SRC, host=True, name="update staging")
+    try:
+        regions, at = [], 0
+        for off, raw in raws:
+            staging.write(raw, at)
+            regions.append(vk.VkBufferCopy(at, off, raw.nbytes))
+            at += raw.nbytes
+        with ctx.one_shot() as cmd:
+            all_ = vk.VK_PIPELINE_STAGE_ALL_COMMANDS_BIT
+            memory_barrier(cmd, all_, vk.VK_PIPELINE_STAGE_TRANSFER_BIT, vk.VK_ACCESS_MEMORY_READ_BIT,
+                           vk.VK_ACCESS_TRANSFER_WRITE_BIT)
+            vk.vkCmdCopyBuffer(cmd, staging.handle, buf.handle, len(regions), regions)
+            memory_barrier(cmd, vk.VK_PIPELINE_STAGE_TRANSFER_BIT, all_, vk.VK_ACCESS_TRANSFER_WRITE_BIT,
+                           vk.VK_ACCESS_MEMORY_READ_BIT | vk.VK_ACCESS_SHADER_READ_BIT)
+    finally:
+        if own:
+            staging.destroy()
+
+
 def _aspect(fmt):
     if fmt in (vk.VK_FORMAT_D32_SFLOAT, vk.VK_FORMAT_D16_UNORM):
         return vk.VK_IMAGE_ASPECT_DEPTH_BIT

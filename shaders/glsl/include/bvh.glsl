@@ -278,7 +278,9 @@ bool bvh_leaf_triangle_(BvhRay_ r, uint i, float tmin, inout float best, inout B
 // The node loop's exit is its `while` condition on purpose: an unconditional `for (;;)` ended by
 // `if (total != 0u || done) break;` was miscompiled by llvmpipe 22.3 (some shadow rays missed their hit).
 // full: the array stack whatever BVH_REG_STACK says (the retry walk). lost: set where a push dropped an entry.
-bool bvh_walk_(BvhRay_ r, float tmin, float tmax, bool any_hit, bool full, inout BvhHit hit, inout bool lost) {
+// root: the node to start from (0; an instance's bottom-level root in a two-level scene).
+bool bvh_walk_(BvhRay_ r, float tmin, float tmax, bool any_hit, bool full, uint root, inout BvhHit hit,
+               inout bool lost) {
     const bool reg_stack = BVH_REG_STACK && !full;
     const int regs_ = BVH_STACK_REGS;
     float best = tmax;
@@ -291,7 +293,7 @@ bool bvh_walk_(BvhRay_ r, float tmin, float tmax, bool any_hit, bool full, inout
          s31 = 0u;
     uint old_, prev_;
     uint sp = 0u;
-    uint node = 0u;
+    uint node = root;
     bool done = false;              // no node left to visit (the pending triangles may still be tested)
     for (;;) {
         // triangles to test: [f0, f0 + c0) then [f1, f1 + total - c0), the nearer leaf's first
@@ -388,16 +390,16 @@ bool bvh_trace_(vec3 o, vec3 d, float tmin, float tmax, bool any_hit, int mode, 
     bool lost = false;
     if (mode == BVH_FULL_) {
         bool had = hit.prim >= 0;
-        return bvh_walk_(r, tmin, had ? hit.t : tmax, any_hit, true, hit, lost) || had;
+        return bvh_walk_(r, tmin, had ? hit.t : tmax, any_hit, true, 0u, hit, lost) || had;
     }
-    bool found = bvh_walk_(r, tmin, tmax, any_hit, false, hit, lost);
+    bool found = bvh_walk_(r, tmin, tmax, any_hit, false, 0u, hit, lost);
     if (BVH_STACK_RETRY && BVH_REG_STACK) {
         if (lost && !(any_hit && found)) {
             if (mode == BVH_FIRST_) {
                 unresolved = true;
             } else {
                 bool unused = false;
-                found = bvh_walk_(r, tmin, found ? hit.t : tmax, any_hit, true, hit, unused) || found;
+                found = bvh_walk_(r, tmin, found ? hit.t : tmax, any_hit, true, 0u, hit, unused) || found;
             }
         }
     }
@@ -419,8 +421,86 @@ BvhHit bvh_miss_() {
     return hit;
 }
 
+// BVH_INSTANCED (set by engine/gpu/bvh.py for a scene of instances): a two-level BVH in the same two buffers
+// (engine/bvh/instanced.py): the nodes buffer holds every mesh's bottom-level nodes, then the top level's nodes
+// from BVH_TLAS_ROOT (leaf slots are instance records, one instance each), then from BVH_INST_BASE one 64-byte
+// record per instance: three texels, the rows of its world-to-object 3x4 transform, and a texel (bottom-level
+// root node, first flat triangle index, instance id, 0). At an instance the ray moves into object space (the
+// direction not renormalized, so t stays the world t) and walks that mesh's tree; the triangle ids it reports are
+// the flattened scene's (the instance's first flat triangle + the mesh's triangle). No second dispatch: a ray whose
+// register stack overflowed walks that instance again at once with the array stack.
+layout(constant_id = 20) const bool BVH_INSTANCED = false;
+layout(constant_id = 21) const int BVH_TLAS_ROOT = 0;
+layout(constant_id = 22) const int BVH_INST_BASE = 0;
+#ifndef BVH_TLAS_STACK_SIZE
+#define BVH_TLAS_STACK_SIZE 40
+#endif
+
+bool bvh_trace_instanced_(vec3 o, vec3 d, float tmin, float tmax, bool any_hit, inout BvhHit hit) {
+    BvhRay_ r = bvh_make_ray_(o, d);
+    float best = hit.prim >= 0 ? hit.t : tmax;
+    bool found = false;
+    uint stack[BVH_TLAS_STACK_SIZE];   // child words still to visit: top-level nodes or instance slots
+    uint sp = 1u;
+    stack[0] = uint(BVH_TLAS_ROOT);
+    while (sp > 0u) {
+        sp -= 1u;
+        uint w = stack[sp];
+        if ((w & BVH_LEAF_BIT) != 0u) {
+            int rec = (BVH_INST_BASE + int(w & ~BVH_LEAF_BIT)) * 4;
+            vec4 m0 = uintBitsToFloat(bvh_node_texel_(rec));
+            vec4 m1 = uintBitsToFloat(bvh_node_texel_(rec + 1));
+            vec4 m2 = uintBitsToFloat(bvh_node_texel_(rec + 2));
+            uvec4 info = bvh_node_texel_(rec + 3);
+            vec3 oo = vec3(dot(m0.xyz, o) + m0.w, dot(m1.xyz, o) + m1.w, dot(m2.xyz, o) + m2.w);
+            vec3 dd = vec3(dot(m0.xyz, d), dot(m1.xyz, d), dot(m2.xyz, d));
+            BvhRay_ ro = bvh_make_ray_(oo, dd);
+            BvhHit h = hit;
+            bool lost = false;
+            bool f = bvh_walk_(ro, tmin, best, any_hit, false, info.x, h, lost);
+            if (BVH_STACK_RETRY && BVH_REG_STACK && lost && !(any_hit && f)) {
+                bool unused = false;
+                f = bvh_walk_(ro, tmin, f ? h.t : best, any_hit, true, info.x, h, unused) || f;
+            }
+            if (f) {
+                hit = h;
+                hit.prim += int(info.y);
+                best = h.t;
+                found = true;
+                if (any_hit) {
+                    return true;
+                }
+            }
+            continue;
+        }
+        BvhNode n = bvh_node_(w);
+        vec2 sl = bvh_slab_(r, n.a.xyz, n.b.xyz, tmin, best);
+        vec2 sr = bvh_slab_(r, n.c.xyz, n.d.xyz, tmin, best);
+        uint wl = floatBitsToUint(n.a.w);
+        uint wr = floatBitsToUint(n.b.w);
+        // an empty slot (count 0 at a leaf word) holds nothing
+        bool hl = sl.x <= sl.y && ((wl & BVH_LEAF_BIT) == 0u || floatBitsToUint(n.c.w) != 0u);
+        bool hr = sr.x <= sr.y && ((wr & BVH_LEAF_BIT) == 0u || floatBitsToUint(n.d.w) != 0u);
+        bool left_first = sl.x <= sr.x;
+        // the far child first, so that the near one is popped next
+        if (hl && hr) {
+            stack[sp] = left_first ? wr : wl;
+            stack[sp + 1u] = left_first ? wl : wr;
+            sp += 2u;
+        } else if (hl || hr) {
+            stack[sp] = hl ? wl : wr;
+            sp += 1u;
+        }
+    }
+    return found;
+}
+
 bool bvh_trace_any_(vec3 o, vec3 d, float tmin, float tmax, bool any_hit, int mode, inout BvhHit hit,
                     out bool unresolved) {
+    if (BVH_INSTANCED) {
+        unresolved = false;
+        return (mode == BVH_FULL_) ? hit.prim >= 0 : bvh_trace_instanced_(o, d, tmin, tmax, any_hit, hit);
+    }
     return BVH_WIDE ? bvh_trace_wide_(o, d, tmin, tmax, any_hit, mode, hit, unresolved)
                     : bvh_trace_(o, d, tmin, tmax, any_hit, mode, hit, unresolved);
 }

@@ -18,10 +18,9 @@ from typing import Any
 
 import numpy as np
 
-from .bvh import build_bvh
 from .errors import ConfigError, EngineError, VulkanError
 from .frame import Frame
-from .gpu import SceneBVH, bvh_descriptor_set
+from .gpu import bvh_descriptor_set
 from .gpu import bvh_layout as resolve_layout
 from .passes.accumulate import ALPHA_MIN, AccumulatePass
 from .passes.ao import AOPass
@@ -31,6 +30,7 @@ from .passes.gbuffer import GBufferPass, SceneChanges, SceneGeometry
 from .passes.interface import (FILTER_AO, FILTER_MASKS, FILTER_TEMPORAL, FRAME, FRAME_BYTES, MAX_LIGHTS,
                                camera_fields, pack_frame, pack_light)
 from .passes.lighting import LightingPass
+from .passes.raypass import follow_scene
 from .passes.shadows import ShadowPass
 from .parallel import serialized
 from .passes.targets import Targets
@@ -488,21 +488,15 @@ class Renderer:
             self._update_bvh(scene, todo[1])
 
     def _update_bvh(self, scene, changed: bool):
-        """The one hook per frame where the shadow and AO rays' BVH follows the scene (`changed`: something moved):
-        the flat BVH of its world-space arrays, rebuilt (and the recordings, which bind it, dropped)."""
-        if self._scene_bvh is not None:
-            if not changed:
-                return
-            self._invalidate_commands()
-            self.ctx.wait_idle()
-            self._scene_bvh.destroy()
-            self._scene_bvh = None
-        self._scene_bvh = SceneBVH.upload(self.ctx, build_bvh(scene.positions, scene.indices), self.bvh_set,
-                                          self.bvh_layout)
-        self.bvh_builds += 1
-        self.bvh_stats = dict(self._scene_bvh.bvh.stats, layout=self.bvh_layout)
-        for p in (self.shadows, self.ao):   # the traversal specialized to this BVH (its depth, its node layout)
-            p.specialize_for(self._scene_bvh)
+        """The one hook per frame where the shadow and AO rays' BVH follows the scene (`changed`: something moved;
+        `follow_scene` says how)."""
+        if self._scene_bvh is None or changed:
+            old = self._scene_bvh
+            self._scene_bvh = follow_scene(self.ctx, old, scene, self.bvh_set, self.bvh_layout,
+                                           (self.shadows, self.ao), self._invalidate_commands)
+            if self._scene_bvh is not old:
+                self.bvh_builds += 1
+            self.bvh_stats = dict(self._scene_bvh.bvh.stats, layout=self._scene_bvh.layout)
 
     def _upload_geometry(self, scene):
         """The scene's raster data onto the GPU (again after a mesh deformed: the recordings bind it, dropped)."""

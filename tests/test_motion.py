@@ -72,6 +72,30 @@ def test_moved_instance_draws_what_a_scene_made_moved_draws(make_renderer):
     assert {0, 1, 2, 3} <= set(np.unique(moved.aov["instance_id"]).tolist())
 
 
+def test_moving_instances_resubmit_the_recorded_frame(make_renderer):
+    """Instances moving every frame (soft shadows, AO, accumulation: every pass) re-use the recorded command
+    buffer: the transforms and the two-level BVH's top level are rewritten in place."""
+    r = make_renderer(W, H)
+    scene = make_scene(START)
+    soft = dict(shadows="soft", ao=True, accumulate=True, denoise=True)
+    r.render(scene, aovs=["shadow", "instance_id"], **soft)
+    recorded = {k: v[0] for k, v in r._commands.items()}
+    builds = r.bvh_builds
+    frames = []
+    for k in range(4):
+        scene.set_transforms(np.stack(slide(k)))
+        frames.append(r.render(scene, aovs=["shadow", "instance_id"], **soft))
+    assert {k: v[0] for k, v in r._commands.items()} == recorded
+    assert r.bvh_builds == builds and r.uploads == 1
+    assert not np.array_equal(frames[0].aov["instance_id"], frames[-1].aov["instance_id"])
+    # what the rays traced moved too: the hard shadows equal those of a scene made with the moved boxes
+    hard = dict(shadows="hard", ao=False, accumulate=False, denoise=False)
+    moved = r.render(scene, aovs=["shadow"], **hard).aov["shadow"]
+    fresh = r.render(make_scene(slide(3)), aovs=["shadow"], **hard).aov["shadow"]
+    first = r.render(make_scene(slide(0)), aovs=["shadow"], **hard).aov["shadow"]
+    assert np.array_equal(moved, fresh) and not np.array_equal(moved, first)
+
+
 def test_ids_match_the_flat_arrays(make_renderer):
     """triangle_id and object_id index the scene's flat views (`scene.indices`, `scene.submeshes`), material_id
     honours an instance's material override, instance_id indexes `scene.instances`; -1 on the background."""

@@ -8,6 +8,7 @@ from __future__ import annotations
 import numpy as np
 
 from ..gpu import bvh_spec, compresses
+from ..gpu.bvh import InstancedBVH, is_instanced, scene_bvh
 from ..vk import device
 from .base import ComputePass, read, update
 
@@ -35,7 +36,36 @@ class RayPass(ComputePass):
         """The traversal specialized to this scene's BVH (its depth, its node layout)."""
         self.specialize(**scene_bvh.spec(self.ctx, postpone=self.postpone_leaves))
 
+    def spec_matches(self, scene_bvh) -> bool:
+        """Is the pipeline specialized as `specialize_for(scene_bvh)` would make it?"""
+        want = scene_bvh.spec(self.ctx, postpone=self.postpone_leaves)
+        return all(self.values.get(k) == v for k, v in want.items())
+
     def dispatch_rows(self, rec, targets, push, rows=None):
         """One dispatch over the image, or over `rows` rows (the push constants then say which)."""
         rows = targets.height if rows is None else rows
         self.dispatch(rec, self.tiles(targets.width, rows), push=np.asarray(push, np.uint32))
+
+
+def follow_scene(ctx, bvh, scene, dset, layout, passes, drop_recordings):
+    """The ray passes' BVH brought up to `scene`'s current state (`bvh`: the one they trace, or None); returns it.
+    A scene of instances has the two-level BVH: its top level rewritten in place, a deformed mesh refitted, and
+    the recorded command buffers stay valid; new buffers (a rebuild), another kind of BVH or another
+    specialization of `passes` call `drop_recordings()` first. One instance placed by the identity: its mesh's
+    BVH, made again when the mesh deformed."""
+    if bvh is not None and is_instanced(scene) and isinstance(bvh, InstancedBVH):
+        structure = bvh.structure
+        bvh.update(scene)
+        if bvh.structure == structure and all(p.spec_matches(bvh) for p in passes):
+            return bvh
+    elif bvh is not None:
+        drop_recordings()
+        ctx.wait_idle()
+        bvh.destroy()
+        bvh = None
+    if bvh is None:
+        bvh = scene_bvh(ctx, scene, dset, layout)
+    drop_recordings()
+    for p in passes:   # the traversal specialized to this BVH (its depth, its node layout)
+        p.specialize_for(bvh)
+    return bvh

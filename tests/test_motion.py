@@ -288,3 +288,62 @@ oscillate = { offset = [1.0, 0.0, 0.0], period = 4.0 }
     path.write_text(text.replace("degrees_per_second = 90.0", "degrees_per_minute = 90.0"))
     with pytest.raises(SceneError, match="anim.toml: \\[\\[animation\\]\\] #1: rotate: unknown key"):
         Scene.load(path)
+
+
+ANIMATED = """
+[camera]
+eye = [3.0, 2.5, 3.5]
+target = [0.0, 0.4, 0.0]
+
+[[mesh]]
+name = "ground"
+primitive = "plane"
+size = [6.0, 6.0]
+
+[[mesh]]
+name = "cube"
+primitive = "box"
+size = [1.0, 0.8, 0.4]
+translate = [0.0, 0.5, 0.0]
+color = "#c83a3a"
+
+[[light]]
+type = "directional"
+direction = [0.3, -1.0, 0.2]
+
+[[animation]]
+instance = "cube"
+rotate = { axis = [0.0, 1.0, 0.0], degrees_per_second = 45.0 }
+"""
+
+
+def test_viewer_plays_the_animation_and_p_pauses_it(make_viewer, tmp_path):
+    """Under Xvfb: the viewer plays the scene's [[animation]] (the cube turns, the window's frame changes), P
+    pauses it (clock, transforms and frame stand still), P again plays on; `on_frame(scene, t)` is called each
+    frame with the clock."""
+    import glfw
+
+    path = tmp_path / "animated.toml"
+    path.write_text(ANIMATED)
+    seen = []
+    hard = {"shadows": "hard", "ao": False, "denoise": False}
+    v = make_viewer(str(path), 96, 64, time_step=0.25, on_frame=lambda scene, t: seen.append(t), settings=hard)
+    k = [i.name for i in v.scene.instances].index("cube")
+    v.run(frames=1)
+    start, first = v.scene.transforms[k].copy(), v.read_color()
+    v.run(frames=2)
+    assert v.time == pytest.approx(0.75) and seen == pytest.approx([0.25, 0.5, 0.75])
+    turned = v.scene.transforms[k].copy()
+    assert not np.allclose(turned, start)
+    assert np.allclose(turned[:3, :3], rotation((0.0, 1.0, 0.0), math.radians(45.0 * 0.75)))   # from unturned
+    moving = v.read_color()
+    assert not np.array_equal(moving, first)
+    v._on_key(v.window, glfw.KEY_P, 0, glfw.PRESS, 0)
+    assert v.paused
+    v.run(frames=3)
+    assert v.time == pytest.approx(0.75) and np.array_equal(v.scene.transforms[k], turned)
+    assert np.array_equal(v.read_color(), moving)
+    assert any("paused" in line for line in v.overlay_lines), v.overlay_lines
+    v._on_key(v.window, glfw.KEY_P, 0, glfw.PRESS, 0)
+    v.run(frames=1)
+    assert v.time == pytest.approx(1.0) and not np.allclose(v.scene.transforms[k], turned)

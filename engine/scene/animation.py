@@ -160,11 +160,15 @@ class Player:
                 pose = {f: np.array(getattr(light, f), np.float64) for f in ("position", "direction", "u", "v")
                         if getattr(light, f, None) is not None}
                 self.targets.append(("light", a.light, pose, np.zeros(3)))
+        self.last_t = None
 
     def apply(self, t: float) -> None:
         t = float(t)
         if not math.isfinite(t):
             raise ConfigError(f"animation time must be finite, got {t!r}")
+        if t == self.last_t:   # posed at t already: nothing changes (the scene's version stays)
+            return
+        self.last_t = t
         moved: dict = {}
         for a, (kind, k, base, centre) in zip(self.animations, self.targets):
             m = a.matrix(t, centre)

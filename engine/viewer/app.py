@@ -27,7 +27,6 @@ from ..errors import ConfigError, EngineError, VulkanError
 from ..files import atomic_write
 from ..renderer import Renderer
 from ..scene import Scene
-from ..scene.animation import Player
 from ..settings import check_png_path, check_size
 from ..vk import Context
 from ..vk.present import SWAPCHAIN_EXTENSION, surface_factory
@@ -54,14 +53,14 @@ class Viewer:
     `v.read_color()`, `v.save_screenshot(path)`, `v.window` (the GLFW window), `v.validation_errors`.
 
     Animation: the scene's `[[animation]]` tables play on the animation clock `v.time` (seconds; it stands still
-    while `v.paused`, the P key), then `on_frame(scene, t)`, when given, is called before every frame with it: move
-    instances (`scene.instances[i].transform = M`), lights or the camera there. `time_step` (seconds) advances the
-    clock by that much per frame instead of by the wall clock (recordings, tests).
+    while `v.paused`: the P key, or `paused=True` to start so), then `on_frame(scene, t)`, when given, is called
+    before every frame with it: move instances (`scene.instances[i].transform = M`), lights or the camera there.
+    `time_step` (seconds) advances the clock by that much per frame instead of by the wall clock (recordings).
     """
 
     def __init__(self, scene, width=1280, height=720, *, hot_reload=True, shader_dir=None, validation=None,
                  device=None, present_mode="fifo", render_scale=1.0, settings=None, title="hybrid view",
-                 overlay=True, quiet=False, on_frame=None, time_step=None):
+                 overlay=True, quiet=False, on_frame=None, time_step=None, paused=False):
         import glfw   # deferred: loads the GLFW shared library, which only the viewer needs
 
         check_size(width, height)
@@ -115,8 +114,7 @@ class Viewer:
         self._versions_seen = dict(getattr(self.renderer.library, "versions", {}))
         self._screenshot_request = None
         self.on_frame, self.time_step = on_frame, time_step
-        self.time, self.paused = 0.0, False
-        self.player = Player(self.scene, getattr(self.scene, "animations", None) or [])
+        self.time, self.paused = 0.0, bool(paused)
         self._install_callbacks()
 
     # ---- set-up -------------------------------------------------------------------------------------------------
@@ -231,7 +229,7 @@ class Viewer:
         [[animation]] tables, then `on_frame(scene, t)`."""
         if not self.paused:
             self.time += dt
-        self.player.apply(self.time)
+        self.scene.animate(self.time)
         if self.on_frame is not None:
             self.on_frame(self.scene, self.time)
 
@@ -359,7 +357,7 @@ class Viewer:
         gpu = "gpu ms: " + "  ".join(f"{k} {v:.1f}" for k, v in self.gpu_ms.items()) + f"  = {gpu_total:.1f}"
         toggles = [f"{name} {label(current(self.settings, name))}" for name in TOGGLED
                    if setting_choices(name) is not None]
-        if self.player.animations or self.on_frame is not None:
+        if self.scene.animations or self.on_frame is not None:
             toggles.append(f"t {self.time:.1f} s" + (" paused" if self.paused else ""))
         lines = [(head, TextImage.WHITE), (gpu, TextImage.WHITE), ("  ".join(toggles) + "   H: help", TextImage.GREY)]
         errors = self.renderer.shader_errors

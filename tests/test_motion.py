@@ -347,3 +347,25 @@ def test_viewer_plays_the_animation_and_p_pauses_it(make_viewer, tmp_path):
     v._on_key(v.window, glfw.KEY_P, 0, glfw.PRESS, 0)
     v.run(frames=1)
     assert v.time == pytest.approx(1.0) and not np.allclose(v.scene.transforms[k], turned)
+
+
+def test_sequence_records_the_animation(make_renderer, tmp_path):
+    """`hybrid render --orbit N --fps F` (render_sequence with fps): frame i shows the scene posed at i / F, the
+    same image as rendering the scene posed there directly."""
+    from engine.sequence import orbit_cameras, output_paths, render_sequence
+
+    path = tmp_path / "animated.toml"
+    path.write_text(ANIMATED)
+    scene = Scene.load(path)
+    r = make_renderer(W, H)
+    cams = orbit_cameras(scene, 3)
+    paths = output_paths(str(tmp_path / "f_####.png"), 3)
+    render_sequence(r, scene, cams, paths, aovs=("color",), settings=STILL, save={}, fps=2.0)
+    from PIL import Image
+
+    for i in (0, 2):
+        other = Scene.load(path)
+        other.animate(i / 2.0)
+        ref = make_renderer(W, H).render(other, cams[i], **STILL).color
+        assert np.array_equal(np.asarray(Image.open(paths[i]).convert("RGBA")), ref), i
+    assert not np.array_equal(np.asarray(Image.open(paths[0])), np.asarray(Image.open(paths[2])))

@@ -177,7 +177,7 @@ class Renderer:
 
         Args:
             aovs: what to read back: AOV names ("color", "depth", "normal", "position", "albedo", "shadow",
-                "shadow_raw", "ao", "ao_raw", "history", "triangle_id", "object_id", "material_id", "motion"; see
+                "shadow_raw", "ao", "ao_raw", "history", "triangle_id", "object_id", "material_id", "instance_id", "motion"; see
                 `Frame.aov`), "all", or None for `engine.settings.DEFAULT_AOVS`. Only these are copied from the GPU.
             scene: what to draw. The last scene stays on the GPU: rendering the same object again uploads nothing.
             camera: the viewpoint (None: `scene.camera`). The image's aspect ratio is the renderer's width /

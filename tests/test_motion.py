@@ -369,3 +369,27 @@ def test_sequence_records_the_animation(make_renderer, tmp_path):
         ref = make_renderer(W, H).render(other, cams[i], **STILL).color
         assert np.array_equal(np.asarray(Image.open(paths[i]).convert("RGBA")), ref), i
     assert not np.array_equal(np.asarray(Image.open(paths[0])), np.asarray(Image.open(paths[2])))
+
+
+def test_deformed_mesh_and_new_material_override_are_drawn(make_renderer):
+    """`update_positions` (a mesh's vertices) and a new material override reach the next frame: the raster and the
+    shadows equal those of a scene made with the deformed mesh and the override."""
+    r = make_renderer(W, H)
+    scene = make_scene(MOVED)
+    aovs = ["position", "shadow", *IDS]
+    hard = dict(shadows="hard", ao=False, accumulate=False, denoise=False)
+    r.render(scene, aovs=aovs, **hard)
+    box = scene.meshes[1]
+    squashed = box.positions * np.array([1.6, 0.6, 1.0], np.float32)
+    scene.update_positions(1, squashed, box.normals)
+    scene.instances[3].material = 0
+    got = r.render(scene, aovs=aovs, **hard)
+    ms, mats = meshes()
+    ms[1] = Mesh(squashed, ms[1].indices, normals=ms[1].normals, uvs=ms[1].uvs,
+                 vertex_material=ms[1].vertex_material, name="box")
+    insts = [Instance(k, t, material=o, name=n) for k, t, o, n in
+             zip((0, 1, 1, 2), MOVED, (None, None, None, 0), ("ground", "box a", "box b", "ball"))]
+    fresh = r.render(Scene.from_meshes(ms, insts, materials=mats, lights=[SUN], camera=CAMERA), aovs=aovs, **hard)
+    for name in aovs:
+        assert np.array_equal(got.aov[name], fresh.aov[name]), name
+    assert np.all(got.aov["material_id"][got.aov["instance_id"] == 3] == 0)

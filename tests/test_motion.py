@@ -207,18 +207,22 @@ def converge(r, scene, steps, moving: bool, frames_after: int):
 
 def test_moving_object_converges_without_trails(make_renderer):
     """A box slides for 12 frames, then stands 8: its soft shadow and AO (on itself and on the ground) are as
-    close to the converged reference as when it stood still all 20 frames (plus a small margin), the pixels it
-    left were reset (history restarted there), and on the box its history was kept while it moved."""
+    close to the converged reference as when it stood still all 20 frames (plus a small margin), its shadow left no
+    trail on the ground, the pixels it left were reset (history restarted there), and on the box its history was
+    kept while it moved."""
     r = make_renderer(W, H)
     steps, after = 12, 8
     scene = make_scene(slide(steps - 1))
     ref = r.render(scene, aovs=["shadow", "ao", "instance_id"], shadows="reference", reference_samples=256)
     still = converge(r, scene, steps, moving=False, frames_after=after)
-    # the last step of the slide at which box a covered each pixel (-1: never)
-    last_cover = np.full((H, W), -1)
+    # the last step of the slide at which box a covered each pixel (-1: never), and the ground its hard shadow
+    # crossed that is lit at the end (where a shadow trail would show)
+    last_cover, shaded = np.full((H, W), -1), np.zeros((H, W), bool)
     for k in range(steps):
-        seen = r.render(make_scene(slide(k)), aovs=["instance_id"], **STILL).aov["instance_id"]
-        last_cover[seen == 1] = k
+        seen = r.render(make_scene(slide(k)), aovs=["instance_id", "shadow"], **STILL)
+        last_cover[seen.aov["instance_id"] == 1] = k
+        shaded |= seen.aov["shadow"][..., 0] < 0.5
+    trail = shaded & (ref.aov["shadow"][..., 0] > 0.99) & (ref.aov["instance_id"] == 0)
     moved = converge(r, scene, steps, moving=True, frames_after=after)
     cov = ref.aov["instance_id"] >= 0
 
@@ -228,6 +232,9 @@ def test_moving_object_converges_without_trails(make_renderer):
 
     (s_still, a_still), (s_moved, a_moved) = error(still), error(moved)
     assert s_moved < s_still + 0.01 and a_moved < a_still + 0.01, (s_still, s_moved, a_still, a_moved)
+    # no shadow trail on the ground the box's shadow crossed
+    assert trail.sum() > 20
+    assert np.abs(moved.aov["shadow"][trail, 0] - 1.0).max() < 0.1
     left = (last_cover >= 0) & (moved.aov["instance_id"] == 0)
     assert left.sum() > 20
     # reset where the box left: no pixel's history is older than the frames since the box uncovered it (one

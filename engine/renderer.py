@@ -78,7 +78,7 @@ class Renderer:
             context: render on an existing `engine.vk.Context` (the viewer's, which has a surface); it is not
                 closed here.
             bvh_layout: "binary" or "wide" scene BVH for the shadow and AO passes (default: $HYBRID_BVH_LAYOUT,
-                else "binary").
+                else "binary"); a scene of several (or moved) instances traces the two-level BVH, binary.
 
         Raises:
             ConfigError: a bad size, device selector or layout.

@@ -77,7 +77,6 @@ class SceneGeometry:
                                           INDEX | UNIFORM_TEXEL, "indices")
         self.tri_info_buffer = upload_buffer(ctx, np.concatenate(info + [np.zeros((1, 4), np.uint32)]),
                                              UNIFORM_TEXEL, "triangle info")
-        self.mesh_vertex_base = np.cumsum([0] + [len(m.positions) for m in meshes])[:-1]
         self._instances(meshes, mesh_of, overrides)
 
         self.textures = []
@@ -116,12 +115,10 @@ class SceneGeometry:
         flat_tri = np.concatenate([[0], np.cumsum(self.mesh_triangles[mesh_of])[:-1]])
         subs = np.array([len(m.submeshes) for m in meshes], np.int64)
         flat_obj = np.concatenate([[0], np.cumsum(subs[mesh_of])[:-1]])
-        self.draws = []   # (first index, index count, instance count, first instance)
-        for k in range(len(meshes)):
-            slots = np.flatnonzero(mesh_of[self.order] == k)
-            if len(slots) and self.mesh_triangles[k]:
-                self.draws.append((int(self.mesh_first_triangle[k]) * 3, int(self.mesh_triangles[k]) * 3,
-                                   len(slots), int(slots[0])))
+        # one draw per mesh with instances: (first index, index count, instance count, first instance)
+        used, first, count = np.unique(mesh_of[self.order], return_index=True, return_counts=True)
+        self.draws = [(int(self.mesh_first_triangle[k]) * 3, int(self.mesh_triangles[k]) * 3, int(c), int(f))
+                      for k, f, c in zip(used, first, count) if self.mesh_triangles[k]]
         self.instance_buffer = Buffer(self.ctx, max(n, 1) * INSTANCE_FLOATS * 4, STORAGE, host=True,
                                       name="instances")
         block = self.instance_buffer.view(np.float32)[:n * INSTANCE_FLOATS].reshape(n, INSTANCE_FLOATS)

@@ -41,6 +41,19 @@ def instance_materials(scene) -> np.ndarray:
     return np.asarray(scene.instance_material, np.int64)
 
 
+def inverse3(a: np.ndarray) -> np.ndarray:
+    """(N, 3, 3) inverses of invertible (N, 3, 3) matrices: the adjugate over the determinant, component by
+    component (far cheaper than np.linalg.inv or np.cross for many small matrices)."""
+    (a00, a01, a02), (a10, a11, a12), (a20, a21, a22) = (
+        (a[:, i, 0], a[:, i, 1], a[:, i, 2]) for i in range(3))
+    adj = np.empty_like(a)
+    adj[:, 0, 0], adj[:, 0, 1], adj[:, 0, 2] = a11 * a22 - a12 * a21, a02 * a21 - a01 * a22, a01 * a12 - a02 * a11
+    adj[:, 1, 0], adj[:, 1, 1], adj[:, 1, 2] = a12 * a20 - a10 * a22, a00 * a22 - a02 * a20, a02 * a10 - a00 * a12
+    adj[:, 2, 0], adj[:, 2, 1], adj[:, 2, 2] = a10 * a21 - a11 * a20, a01 * a20 - a00 * a21, a00 * a11 - a01 * a10
+    det = a00 * adj[:, 0, 0] + a01 * adj[:, 1, 0] + a02 * adj[:, 2, 0]
+    return adj / det[:, None, None]
+
+
 class SceneGeometry:
     """The scene's raster data on the GPU: one vertex and one index buffer holding every mesh once (object space),
     per mesh triangle its material and object, the materials, textures, one instanced draw per mesh, and the
@@ -151,9 +164,14 @@ class SceneGeometry:
         if w is not None and np.array_equal(w[0], transforms) and np.array_equal(w[1], previous):
             return False
         block, o = self._block, self.order
-        for at, m in ((0, transforms[o]), (16, previous[o])):
+        todo = [(0, transforms), (16, previous)]
+        if w is not None and np.array_equal(w[0], previous):   # last frame's current: moved over, not recomputed
+            block[:, 16:32], block[:, 44:56] = block[:, 0:16], block[:, 32:44]
+            todo = todo[:1]
+        for at, m in todo:
+            m = m[o]
             block[:, at:at + 16] = m.transpose(0, 2, 1).reshape(-1, 16)   # GLSL mat4: column-major
-            inv = np.linalg.inv(m[:, :3, :3])   # rows of inv(A): the columns of its inverse transpose
+            inv = inverse3(m[:, :3, :3])   # rows of inv(A): the columns of its inverse transpose
             base = 32 + at * 3 // 4
             for r in range(3):
                 block[:, base + 4 * r:base + 4 * r + 3] = inv[:, r]

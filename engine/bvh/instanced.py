@@ -51,6 +51,12 @@ class TwoLevel:
                                                                                          self.tris.nbytes),
                       "build_ms": float(sum(b.stats.get("build_ms", 0.0) for b in self.blas))}
         self._shape = _balanced(self.n_instances)
+        if self._shape is not None:   # the top level's words and counts depend on N alone
+            _, _, _, lword, rword, lcount, rcount, _ = self._shape
+            top = self.nodes[self.tlas_root:self.inst_base]
+            top["left"] = np.where(lcount > 0, lword, lword + self.tlas_root)
+            top["right"] = np.where(rcount > 0, rword, rword + self.tlas_root)
+            top["lcount"], top["rcount"] = lcount, rcount
         self._levels: dict = {}
 
     @property
@@ -78,7 +84,6 @@ class TwoLevel:
         bmax = np.nextafter((sb[:, 1] + pad).astype(np.float32), np.float32(np.inf))
 
         top = self.nodes[self.tlas_root:self.inst_base]
-        lo_, mid, hi_, lword, rword, lcount, rcount = self._shape
         if n == 1:
             top[0] = np.zeros((), NODE_DTYPE)
             top[0]["lmin"], top[0]["lmax"] = bmin[0], bmax[0]
@@ -86,29 +91,35 @@ class TwoLevel:
             top[0]["rmin"], top[0]["rmax"] = np.inf, -np.inf
             top[0]["right"], top[0]["rcount"] = _LEAF, 0
         else:
-            pmin = np.concatenate([bmin, bmin[:1]])
-            pmax = np.concatenate([bmax, bmax[:1]])
-            left = np.stack([lo_, mid], axis=1).reshape(-1)
-            right = np.stack([mid, hi_], axis=1).reshape(-1)
-            top["lmin"] = np.minimum.reduceat(pmin, left, axis=0)[0::2]
-            top["lmax"] = np.maximum.reduceat(pmax, left, axis=0)[0::2]
-            top["rmin"] = np.minimum.reduceat(pmin, right, axis=0)[0::2]
-            top["rmax"] = np.maximum.reduceat(pmax, right, axis=0)[0::2]
-            top["left"] = np.where(lcount > 0, lword, lword + self.tlas_root)
-            top["right"] = np.where(rcount > 0, rword, rword + self.tlas_root)
-            top["lcount"], top["rcount"] = lcount, rcount
+            lo_, mid, _, _, _, lcount, rcount, levels = self._shape
+            lmin, lmax = np.empty((n - 1, 3), np.float32), np.empty((n - 1, 3), np.float32)
+            rmin, rmax = np.empty((n - 1, 3), np.float32), np.empty((n - 1, 3), np.float32)
+            ll, rl = lcount > 0, rcount > 0
+            lmin[ll], lmax[ll] = bmin[lo_[ll]], bmax[lo_[ll]]
+            rmin[rl], rmax[rl] = bmin[mid[rl]], bmax[mid[rl]]
+            for idx, lkid, rkid in levels:   # deepest first; (nodes, their interior left / right children)
+                li, lc = idx[lkid >= 0], lkid[lkid >= 0]
+                lmin[li] = np.minimum(lmin[lc], rmin[lc])
+                lmax[li] = np.maximum(lmax[lc], rmax[lc])
+                ri, rc = idx[rkid >= 0], rkid[rkid >= 0]
+                rmin[ri] = np.minimum(lmin[rc], rmin[rc])
+                rmax[ri] = np.maximum(lmax[rc], rmax[rc])
+            flat = top.view(np.float32).reshape(-1, 16)   # words and counts were written once (__init__)
+            flat[:, 0:3], flat[:, 4:7], flat[:, 8:11], flat[:, 12:15] = lmin, lmax, rmin, rmax
 
         rec = self.nodes[self.inst_base:].view(INST_DTYPE)
         mo = m[order]
-        inv = np.linalg.inv(mo[:, :3, :3])
+        inv = _inverse3(mo[:, :3, :3])
         w2o = np.empty((n, 3, 4))
         w2o[:, :, :3] = inv
         w2o[:, :, 3] = -np.einsum("nij,nj->ni", inv, mo[:, :3, 3])
-        rec["w2o"] = w2o
-        rec["root"] = self.node_base[inst_mesh[order]]
-        rec["tri_base"] = np.asarray(flat_tri_base)[order]
-        rec["instance"] = order
-        rec["pad"] = 0
+        flat = rec.view(np.float32).reshape(-1, 16)
+        flat[:, :12] = w2o.reshape(n, 12)
+        words = rec.view(np.uint32).reshape(-1, 16)
+        words[:, 12] = self.node_base[inst_mesh[order]]
+        words[:, 13] = np.asarray(flat_tri_base)[order]
+        words[:, 14] = order
+        words[:, 15] = 0
         return self.nodes[self.tlas_root:]
 
     def refit(self, k: int, positions: np.ndarray, indices: np.ndarray) -> float:
@@ -117,41 +128,80 @@ class TwoLevel:
         b = self.blas[k]
         p = np.asarray(positions, dtype=np.float32)
         t0, nt = int(self.tri_base[k]), len(b.prim_ids)
-        tris = self.tris[t0:t0 + len(b.tris)]
-        if nt:
-            f = np.asarray(indices, dtype=np.int64)[b.prim_ids]
-            tris["v0"][:nt], tris["v1"][:nt], tris["v2"][:nt] = p[f[:, 0]], p[f[:, 1]], p[f[:, 2]]
         n0, nn = int(self.node_base[k]), len(b.nodes)
-        nodes = self.nodes[n0:n0 + nn]
         if nt == 0:
             return 1.0
-        v = np.stack([tris["v0"][:nt], tris["v1"][:nt], tris["v2"][:nt]], axis=1)
-        tmin, tmax = v.min(axis=1), v.max(axis=1)
-        tmin_p = np.concatenate([tmin, tmin[:1]])
-        tmax_p = np.concatenate([tmax, tmax[:1]])
-        levels = self._levels.get(k)
-        if levels is None:
-            levels = self._levels[k] = _node_levels(b.nodes)
-        for side, word, cnt in (("l", "left", "lcount"), ("r", "right", "rcount")):
-            leaf = (b.nodes[word] & _LEAF) != 0
-            full = leaf & (b.nodes[cnt] > 0)
-            idx = np.flatnonzero(full)
-            if idx.size:
-                first = (b.nodes[word][idx] & _MASK).astype(np.int64)
-                pairs = np.stack([first, first + b.nodes[cnt][idx]], axis=1).reshape(-1)
-                nodes[side + "min"][idx] = np.minimum.reduceat(tmin_p, pairs, axis=0)[0::2]
-                nodes[side + "max"][idx] = np.maximum.reduceat(tmax_p, pairs, axis=0)[0::2]
-        for idx in reversed(levels):   # deepest first: a child's slots are final before its parent reads them
-            for side, word in (("l", "left"), ("r", "right")):
-                inner = idx[(b.nodes[word][idx] & _LEAF) == 0]
-                child = b.nodes[word][inner].astype(np.int64)
-                nodes[side + "min"][inner] = np.minimum(nodes["lmin"][child], nodes["rmin"][child])
-                nodes[side + "max"][inner] = np.maximum(nodes["lmax"][child], nodes["rmax"][child])
-        for name, to in (("lmin", -np.inf), ("rmin", -np.inf), ("lmax", np.inf), ("rmax", np.inf)):
-            x = nodes[name]
-            nodes[name] = np.where(np.isfinite(x), np.nextafter(x, np.float32(to)), x)
+        shape = self._refit_shape(k)
+        f = shape["faces"] if shape.get("faces_src") is indices else None
+        if f is None:
+            f = np.asarray(indices, dtype=np.int64)[b.prim_ids].T.copy()   # (3, T) corners in leaf order
+            shape["faces"], shape["faces_src"] = f, indices
+        corners = [p[f[c]] for c in range(3)]
+        rows = self.tris[t0:t0 + nt].view(np.float32).reshape(nt, 12)
+        rows[:, 0:3], rows[:, 4:7], rows[:, 8:11] = corners
+        tmin = np.minimum(np.minimum(corners[0], corners[1]), corners[2])
+        tmax = np.maximum(np.maximum(corners[0], corners[1]), corners[2])
+        # the leaves' triangle ranges partition [0, T) (leaf order): one reduceat over their sorted starts
+        box = np.empty((nn, 12), np.float32)   # per node: lmin, lmax, rmin, rmax
+        starts, slot_node, slot_col = shape["starts"], shape["slot_node"], shape["slot_col"]
+        lo = np.minimum.reduceat(tmin, starts, axis=0)
+        hi = np.maximum.reduceat(tmax, starts, axis=0)
+        for col in (0, 6):
+            sel = slot_col == col
+            box[slot_node[sel], col:col + 3] = lo[sel]
+            box[slot_node[sel], col + 3:col + 6] = hi[sel]
+        for idx, col, child in shape["levels"]:   # deepest first: a child's slots are final before its parent's
+            c = box[child]
+            box[idx, col:col + 3] = np.minimum(c[:, 0:3], c[:, 6:9])
+            box[idx, col + 3:col + 6] = np.maximum(c[:, 3:6], c[:, 9:12])
+        for col in shape["empty"]:   # empty slots keep their inverted boxes
+            box[col[0], col[1]:col[1] + 6] = (np.inf, np.inf, np.inf, -np.inf, -np.inf, -np.inf)
+        box[:, 0:3] = np.nextafter(box[:, 0:3], np.float32(-np.inf))
+        box[:, 6:9] = np.nextafter(box[:, 6:9], np.float32(-np.inf))
+        box[:, 3:6] = np.nextafter(box[:, 3:6], np.float32(np.inf))
+        box[:, 9:12] = np.nextafter(box[:, 9:12], np.float32(np.inf))
+        out = self.nodes[n0:n0 + nn].view(np.float32).reshape(nn, 16)
+        out[:, 0:3], out[:, 4:7], out[:, 8:11], out[:, 12:15] = box[:, 0:3], box[:, 3:6], box[:, 6:9], box[:, 9:12]
         built = self.sah_built[k]
-        return _sah(nodes) / built if built > 0 else 1.0
+        return _sah(self.nodes[n0:n0 + nn]) / built if built > 0 else 1.0
+
+    def _refit_shape(self, k: int) -> dict:
+        """What refit reuses for mesh k: leaf slots by first triangle, interior slots by level, empty slots."""
+        shape = self._levels.get(k)
+        if shape is not None:
+            return shape
+        nodes = self.blas[k].nodes
+        words = {0: nodes["left"], 6: nodes["right"]}
+        counts = {0: nodes["lcount"], 6: nodes["rcount"]}
+        slot_node, slot_col, firsts, empty = [], [], [], []
+        for col in (0, 6):
+            leaf = (words[col] & _LEAF) != 0
+            idx = np.flatnonzero(leaf & (counts[col] > 0))
+            slot_node.append(idx)
+            slot_col.append(np.full(idx.size, col))
+            firsts.append((words[col][idx] & _MASK).astype(np.int64))
+            empty += [(int(i), col) for i in np.flatnonzero(leaf & (counts[col] == 0))]
+        firsts = np.concatenate(firsts)
+        order = np.argsort(firsts, kind="stable")
+        levels = []
+        for idx in reversed(_node_levels(nodes)):
+            for col in (0, 6):
+                inner = idx[(words[col][idx] & _LEAF) == 0]
+                if inner.size:
+                    levels.append((inner, col, words[col][inner].astype(np.int64)))
+        shape = {"starts": firsts[order], "slot_node": np.concatenate(slot_node)[order],
+                 "slot_col": np.concatenate(slot_col)[order], "levels": levels, "empty": empty}
+        self._levels[k] = shape
+        return shape
+
+
+def _inverse3(a: np.ndarray) -> np.ndarray:
+    """(N, 3, 3) inverses by cofactors (the rows of the inverse are cross products of the columns over the
+    determinant): several times faster than np.linalg.inv on many small matrices."""
+    c0, c1, c2 = a[:, :, 0], a[:, :, 1], a[:, :, 2]
+    rows = np.stack([np.cross(c1, c2), np.cross(c2, c0), np.cross(c0, c1)], axis=1)
+    det = np.einsum("ni,ni->n", c0, rows[:, 0])
+    return rows / det[:, None, None]
 
 
 def _rebased(nodes: np.ndarray, node_base: int, tri_base: int) -> np.ndarray:
@@ -192,9 +242,10 @@ def _node_levels(nodes: np.ndarray) -> list:
 
 def _balanced(n: int):
     """The top level's shape for n leaves: per node in preorder its leaf range [lo, mid) + [mid, hi), child words
-    (a leaf slot: LEAF_BIT | slot; a node: its index relative to the root) and counts (1 at a leaf, else 0)."""
+    (a leaf slot: LEAF_BIT | slot; a node: its index relative to the root), counts (1 at a leaf, else 0), and the
+    nodes by depth, deepest first, with their interior children (-1: a leaf) for the bottom-up box pass."""
     if n <= 1:
-        return None, None, None, None, None, None, None
+        return None
     lo, mid, hi = (np.empty(n - 1, np.int64) for _ in range(3))
     lword, rword = np.empty(n - 1, np.uint32), np.empty(n - 1, np.uint32)
     lcount, rcount = np.zeros(n - 1, np.uint32), np.zeros(n - 1, np.uint32)
@@ -215,7 +266,18 @@ def _balanced(n: int):
         else:
             rword[i] = right
             stack.append((c, b, right))
-    return lo, mid, hi, lword, rword, lcount, rcount
+    depth = np.zeros(n - 1, np.int64)
+    lkid = np.where(lcount == 0, lword.astype(np.int64), -1)
+    rkid = np.where(rcount == 0, rword.astype(np.int64), -1)
+    for i in range(n - 1):   # preorder: a parent comes before its children
+        for kid in (lkid[i], rkid[i]):
+            if kid >= 0:
+                depth[kid] = depth[i] + 1
+    levels = []
+    for level in range(int(depth.max()), -1, -1):
+        idx = np.flatnonzero(depth == level)
+        levels.append((idx, lkid[idx], rkid[idx]))
+    return lo, mid, hi, lword, rword, lcount, rcount, levels
 
 
 def _spread(x: np.ndarray) -> np.ndarray:

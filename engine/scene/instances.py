@@ -96,10 +96,12 @@ class Mesh:
 
     @property
     def triangle_count(self) -> int:
+        """T, the number of triangles."""
         return int(len(self.indices))
 
     @property
     def vertex_count(self) -> int:
+        """V, the number of vertices."""
         return int(len(self.positions))
 
     @property
@@ -156,6 +158,8 @@ class Instance:
         self._index = -1
 
     def _label(self) -> str:
+        if getattr(self, "_scene", None) is not None:
+            return self._scene._label(self._index)
         tag = f"#{self._index}" if getattr(self, "_index", -1) >= 0 else ""
         return f"instance {tag} '{shown(self.name)}'".replace("  ", " ") if self.name else f"instance {tag}".strip()
 

@@ -35,12 +35,16 @@ FLAT_BOUNDS_VERTICES = 2_000_000
 
 
 class Scene:
-    """A static scene in world space (docs/architecture.md, "Scene contract"; TOML scenes: docs/scenes.md).
+    """A scene of meshes placed by instances, in world space (docs/architecture.md, "Scene contract"; TOML scenes:
+    docs/scenes.md).
 
-    Make one with `Scene.load(path)` (a `.toml` scene or a mesh file), `Scene.from_trimesh(mesh)` or
-    `Scene.from_arrays(vertices, faces)`. Every mesh is flattened into one set of world-space arrays (node
-    transforms applied); lengths are in the scene's world units (glTF: metres), +Y is up for the default camera and
-    sun. All geometry arrays are read-only numpy arrays:
+    Make one with `Scene.load(path)` (a `.toml` scene or a mesh file), `Scene.from_trimesh(mesh)`,
+    `Scene.from_arrays(vertices, faces)` or `Scene.from_meshes(meshes, instances)`. `meshes` (`Mesh`, object space)
+    are stored once however often they are placed; `instances` (`Instance`: mesh, transform, material, name) place
+    them, and may move between frames (`set_transforms`, `update_positions`, tracked by `version`). The flat arrays
+    below are the current state of every instance flattened into world space (computed when read after a change);
+    lengths are in the scene's world units (glTF: metres), +Y is up for the default camera and sun. All geometry
+    arrays are read-only numpy arrays:
 
     - `positions` (V, 3) float32; `normals` (V, 3) float32, unit (computed with a 40 degree crease angle when not
       given); `uvs` (V, 2) float32 (UV (0, 0) = top-left of the texture image); `vertex_material` (V,) uint32, an

@@ -443,11 +443,37 @@ bool bvh_trace_instanced_(vec3 o, vec3 d, float tmin, float tmax, bool any_hit, 
     uint stack[BVH_TLAS_STACK_SIZE];   // child words still to visit: top-level nodes or instance slots
     uint sp = 1u;
     stack[0] = uint(BVH_TLAS_ROOT);
-    while (sp > 0u) {
-        sp -= 1u;
-        uint w = stack[sp];
-        if ((w & BVH_LEAF_BIT) != 0u) {
-            int rec = (BVH_INST_BASE + int(w & ~BVH_LEAF_BIT)) * 4;
+    bool more = true;
+    while (more) {
+        // top-level steps until this ray has an instance to walk (or none is left): the lanes of a SIMD group
+        // then walk their instances together, as postponed leaf tests do (BVH_POSTPONE_LEAVES)
+        uint slot = BVH_LEAF_BIT;
+        while (slot == BVH_LEAF_BIT && sp > 0u) {
+            sp -= 1u;
+            uint w = stack[sp];
+            if ((w & BVH_LEAF_BIT) != 0u) {
+                slot = w & ~BVH_LEAF_BIT;
+            } else {
+                BvhNode n = bvh_node_(w);
+                vec2 sl = bvh_slab_(r, n.a.xyz, n.b.xyz, tmin, best);
+                vec2 sr = bvh_slab_(r, n.c.xyz, n.d.xyz, tmin, best);
+                uint wl = floatBitsToUint(n.a.w);
+                uint wr = floatBitsToUint(n.b.w);
+                // an empty slot (count 0 at a leaf word) holds nothing
+                bool hl = sl.x <= sl.y && ((wl & BVH_LEAF_BIT) == 0u || floatBitsToUint(n.c.w) != 0u);
+                bool hr = sr.x <= sr.y && ((wr & BVH_LEAF_BIT) == 0u || floatBitsToUint(n.d.w) != 0u);
+                bool left_first = sl.x <= sr.x;
+                // the far child first, so that the near one is popped next
+                uint first = (hl && hr) ? (left_first ? wr : wl) : (hl ? wl : wr);
+                stack[min(sp, uint(BVH_TLAS_STACK_SIZE - 1))] = first;
+                sp += (hl || hr) ? 1u : 0u;
+                stack[min(sp, uint(BVH_TLAS_STACK_SIZE - 1))] = left_first ? wl : wr;
+                sp += (hl && hr) ? 1u : 0u;
+            }
+        }
+        more = slot != BVH_LEAF_BIT;
+        if (more) {
+            int rec = (BVH_INST_BASE + int(slot)) * 4;
             vec4 m0 = uintBitsToFloat(bvh_node_texel_(rec));
             vec4 m1 = uintBitsToFloat(bvh_node_texel_(rec + 1));
             vec4 m2 = uintBitsToFloat(bvh_node_texel_(rec + 2));
@@ -467,29 +493,8 @@ bool bvh_trace_instanced_(vec3 o, vec3 d, float tmin, float tmax, bool any_hit, 
                 hit.prim += int(info.y);
                 best = h.t;
                 found = true;
-                if (any_hit) {
-                    return true;
-                }
+                more = !any_hit;
             }
-            continue;
-        }
-        BvhNode n = bvh_node_(w);
-        vec2 sl = bvh_slab_(r, n.a.xyz, n.b.xyz, tmin, best);
-        vec2 sr = bvh_slab_(r, n.c.xyz, n.d.xyz, tmin, best);
-        uint wl = floatBitsToUint(n.a.w);
-        uint wr = floatBitsToUint(n.b.w);
-        // an empty slot (count 0 at a leaf word) holds nothing
-        bool hl = sl.x <= sl.y && ((wl & BVH_LEAF_BIT) == 0u || floatBitsToUint(n.c.w) != 0u);
-        bool hr = sr.x <= sr.y && ((wr & BVH_LEAF_BIT) == 0u || floatBitsToUint(n.d.w) != 0u);
-        bool left_first = sl.x <= sr.x;
-        // the far child first, so that the near one is popped next
-        if (hl && hr) {
-            stack[sp] = left_first ? wr : wl;
-            stack[sp + 1u] = left_first ? wl : wr;
-            sp += 2u;
-        } else if (hl || hr) {
-            stack[sp] = hl ? wl : wr;
-            sp += 1u;
         }
     }
     return found;

@@ -1,0 +1,244 @@
+"""Scenes of instances: the scene model (meshes, instances, changes), loaders that keep instancing, the two-level BVH
+in the Tracer and the renderer's shadow pass, checked against brute-force references on the flattened triangles."""
+import os
+
+import numpy as np
+import pytest
+import trimesh
+
+from engine import Camera, DirectionalLight, Instance, Mesh, Scene, SceneError, Tracer
+from engine.rt.reference import reference_intersect, reference_occluded
+from tests.test_shadows import cpu_shadow_mask
+
+
+def random_transform(rng, mirror=False):
+    """A rotation times a non-uniform scale (0.3..3), optionally mirrored, and a translation."""
+    q, _ = np.linalg.qr(rng.normal(size=(3, 3)))
+    q *= np.sign(np.linalg.det(q))
+    a = q @ np.diag(rng.uniform(0.3, 3.0, 3))
+    if mirror:
+        a = a @ np.diag([-1.0, 1.0, 1.0])
+    m = np.eye(4)
+    m[:3, :3] = a
+    m[:3, 3] = rng.uniform(-8, 8, 3)
+    return m
+
+
+def instanced_scene(seed=0, n=24):
+    rng = np.random.default_rng(seed)
+    sphere = trimesh.creation.icosphere(subdivisions=2)
+    box = trimesh.creation.box(extents=(1.0, 0.5, 2.0))
+    meshes = [Mesh(sphere.vertices, sphere.faces, name="sphere"), Mesh(box.vertices, box.faces, name="box")]
+    instances = [Instance(i % 2, random_transform(rng, mirror=i % 3 == 0), name=f"i{i}") for i in range(n)]
+    return Scene.from_meshes(meshes, instances), rng
+
+
+def random_rays(rng, n=2000):
+    o = rng.uniform(-12, 12, (n, 3))
+    target = rng.uniform(-8, 8, (n, 3))
+    return o, target - o
+
+
+def check_hits(hits, scene, o, d, tmax=np.inf):
+    t, prim, _, _ = reference_intersect(scene.positions, scene.indices, o, d, tmax)
+    hit = prim >= 0
+    assert hit.sum() > 100                     # the rays really hit instances
+    agree = (hits.prim >= 0) == hit
+    assert agree.mean() > 0.998, f"{(~agree).sum()} rays disagree on hit / miss"
+    both = hit & (hits.prim >= 0)
+    same = hits.prim[both] == prim[both]
+    assert same.mean() > 0.998, f"{(~same).sum()} rays hit another triangle"
+    rel = np.abs(hits.t[both] - t[both]) / np.maximum(t[both], 1.0)
+    assert rel[same].max() < 1e-4
+    # instance and mesh triangle ids agree with the flattened view's layout
+    counts = np.array([m.triangle_count for m in scene.meshes])[scene.instance_mesh]
+    base = np.concatenate([[0], np.cumsum(counts)[:-1]])
+    inst = np.searchsorted(base, prim[both], side="right") - 1
+    assert np.array_equal(hits.instance[both][same], inst[same])
+    assert np.array_equal(hits.mesh_prim[both][same], (prim[both] - base[inst])[same])
+    assert np.all(hits.instance[~(hits.prim >= 0)] == -1)
+
+
+# ---------------------------------------------------------------------------------------------- the scene model
+def test_scene_model_changes_and_flat_views():
+    scene, rng = instanced_scene()
+    assert len(scene.meshes) == 2 and len(scene.instances) == 24
+    assert scene.triangle_count == 12 * (320 + 12)
+    v0 = scene.version
+    p0 = scene.positions
+    assert scene.positions is p0                               # cached while nothing changes
+    m = random_transform(rng)
+    scene.instances[3].transform = m
+    assert scene.version > v0 and list(scene.moved_instances(v0)) == [3]
+    assert len(scene.deformed_meshes(v0)) == 0
+    np.testing.assert_allclose(scene.instances[3].transform, m)
+    first = 2 * scene.meshes[0].vertex_count + scene.meshes[1].vertex_count   # instances 0..2: sphere, box, sphere
+    mesh = scene.meshes[1]
+    np.testing.assert_allclose(scene.positions[first:first + mesh.vertex_count],
+                               mesh.positions @ m[:3, :3].T + m[:3, 3], rtol=1e-5, atol=1e-5)
+    v1 = scene.version
+    scene.update_positions("box", mesh.positions * 2.0)
+    assert list(scene.deformed_meshes(v1)) == [1] and len(scene.moved_instances(v1)) == 0
+    # mirrored instances keep counter-clockwise faces in the flat view: normals agree with the winding
+    p, f = scene.positions.astype(np.float64), scene.indices
+    fn = np.cross(p[f[:, 1]] - p[f[:, 0]], p[f[:, 2]] - p[f[:, 0]])
+    assert np.mean(np.einsum("ij,ij->i", fn, scene.normals[f[:, 0]]) > 0) > 0.99
+
+
+def test_bad_changes_are_clear_errors():
+    scene, _ = instanced_scene()
+    with pytest.raises(SceneError, match=r"instance 5 'i5'.*NaN"):
+        scene.instances[5].transform = np.full((4, 4), np.nan)
+    with pytest.raises(SceneError, match=r"instance 2 'i2'.*not invertible"):
+        scene.instances[2].transform = np.diag([1.0, 0.0, 1.0, 1.0])
+    with pytest.raises(SceneError, match="affine"):
+        scene.instances[2].transform = np.ones((4, 4))
+    with pytest.raises(SceneError, match=r"mesh 0 'sphere'.*shape \(162, 3\), got \(10, 3\)"):
+        scene.update_positions(0, np.zeros((10, 3)))
+    with pytest.raises(SceneError, match="no mesh named 'nope'"):
+        scene.update_positions("nope", np.zeros((10, 3)))
+    with pytest.raises(SceneError, match="beyond"):
+        scene.set_transforms(np.diag([1e12, 1e12, 1e12, 1.0])[None], [0])
+    assert scene.version == 0                                  # nothing changed
+
+
+def test_loaders_keep_instancing(tmp_path):
+    box = trimesh.creation.box()
+    tm = trimesh.Scene()
+    tm.add_geometry(box, geom_name="box", node_name="n0")
+    for i in range(1, 6):
+        m = np.eye(4)
+        m[:3, 3] = (3.0 * i, 0, 0)
+        tm.graph.update(frame_to=f"n{i}", frame_from=tm.graph.base_frame, matrix=m, geometry="box")
+    scene = Scene.from_trimesh(tm)
+    assert (len(scene.meshes), len(scene.instances)) == (1, 6)
+    path = tmp_path / "six.glb"
+    path.write_bytes(tm.export(file_type="glb"))
+    glb = Scene.load(path)
+    assert (len(glb.meshes), len(glb.instances)) == (1, 6)
+    assert glb.triangle_count == 72
+    np.testing.assert_allclose(glb.bounds, [[-0.5, -0.5, -0.5], [15.5, 0.5, 0.5]], atol=1e-6)
+    toml = tmp_path / "s.toml"
+    toml.write_text('[[mesh]]\nfile = "six.glb"\ninstances = [{translate = [0, 0, 0]}, {translate = [0, 4, 0]}]\n'
+                    '[[mesh]]\nfile = "six.glb"\ntranslate = [0, 0, 9]\n'
+                    '[[mesh]]\nprimitive = "sphere"\nsegments = 8\nrings = 4\n'
+                    'instances = [{translate = [1, 2, 3]}, {scale = [1, 2, 3], rotate = [0, 90, 0]}]\n')
+    s = Scene.load(toml)
+    assert len(s.meshes) == 2 and len(s.instances) == 6 * 3 + 2
+    np.testing.assert_allclose(s.transforms[-2][:3, 3], [1, 2, 3])
+    toml.write_text('[[mesh]]\nprimitive = "box"\ninstances = [{translate = [0, 0, 0], size = 2}]\n')
+    with pytest.raises(SceneError, match=r"\[\[mesh\]\] #1: instances #1: unknown key 'size'"):
+        Scene.load(toml)
+
+
+# ---------------------------------------------------------------------------------------------- the Tracer
+def test_tracer_on_instances_matches_flattened_reference():
+    scene, rng = instanced_scene(seed=1)
+    o, d = random_rays(rng)
+    with Tracer.from_scene(scene, validation=True) as tracer:
+        check_hits(tracer.intersect(o, d), scene, o, d)
+        tmax = rng.uniform(0.2, 1.0, len(o))
+        ref = reference_occluded(scene.positions, scene.indices, o, d, tmax)
+        got = tracer.occluded(o, d, tmax)
+        assert ref.sum() > 50 and (got != ref).mean() < 0.002
+        # move every instance: the next query sees the new transforms
+        scene.set_transforms(np.stack([random_transform(rng, mirror=i % 4 == 1) for i in range(24)]))
+        check_hits(tracer.intersect(o, d), scene, o, d)
+        assert tracer.validation_errors == []
+
+
+def test_refit_gives_the_same_hits_as_a_rebuild():
+    scene, rng = instanced_scene(seed=2)
+    o, d = random_rays(rng)
+    sphere = scene.meshes[0].positions.astype(np.float64)
+    with Tracer.from_scene(scene, validation=True) as tracer:
+        tracer.intersect(o[:10], d[:10])
+        wobble = sphere * (1.0 + 0.3 * np.sin(3.0 * sphere[:, :1]))   # a deformation, not a scale
+        scene.update_positions("sphere", wobble)
+        refit = tracer.intersect(o, d)
+        assert tracer.scene.last_refit_ratio[0] < 2.0                   # refitted, not rebuilt
+        assert tracer.scene.rebuilds == 0
+        check_hits(refit, scene, o, d)
+        with Tracer.from_scene(scene) as fresh:                         # built from the deformed mesh
+            rebuilt = fresh.intersect(o, d)
+        assert np.array_equal(refit.prim, rebuilt.prim)
+        np.testing.assert_allclose(refit.t[refit.prim >= 0], rebuilt.t[rebuilt.prim >= 0], rtol=1e-6)
+
+
+def test_one_identity_instance_is_the_single_level_bvh():
+    mesh = trimesh.creation.icosphere(subdivisions=2)
+    scene = Scene.from_trimesh(mesh)
+    rng = np.random.default_rng(3)
+    o = rng.uniform(-3, 3, (500, 3))
+    d = -o
+    with Tracer.from_scene(scene) as tracer:
+        assert "instances" not in tracer.stats            # the one-mesh BVH
+        hits = tracer.intersect(o, d)
+        assert hits.hit.all() and np.all(hits.instance == 0)
+        assert np.array_equal(hits.mesh_prim, hits.prim)
+
+
+# ---------------------------------------------------------------------------------------------- the renderer
+def moving_scene():
+    ground = trimesh.creation.box(extents=(10, 0.1, 10))
+    cube = trimesh.creation.box(extents=(1, 1, 1))
+    meshes = [Mesh(ground.vertices, ground.faces, name="ground"), Mesh(cube.vertices, cube.faces, name="cube")]
+    place = []
+    for x, y in ((0, 1.5), (2.5, 0.5), (-2, 1.0)):
+        m = np.eye(4)
+        m[:3, 3] = (x, y, 0)
+        place.append(m)
+    ground_m = np.eye(4)
+    ground_m[1, 3] = -0.05
+    instances = [Instance(0, ground_m, name="ground")] + [Instance(1, m, name=f"cube{i}") for i, m in
+                                                          enumerate(place)]
+    cam = Camera.look_at((0, 8, 6), (0.5, 0, 0), fov_y=50)
+    return Scene.from_meshes(meshes, instances, camera=cam,
+                             lights=[DirectionalLight((0.3, -1.0, 0.2), intensity=2.5)])
+
+
+def test_shadow_mask_after_objects_moved_matches_cpu_reference(make_renderer):
+    scene = moving_scene()
+    r = make_renderer(96, 72)
+    r.render(scene, shadows="hard", ao=False)
+    uploads = r.uploads
+    rng = np.random.default_rng(4)
+    for _ in range(2):
+        moved = scene.transforms[1:].copy()
+        moved[:, :3, 3] += rng.uniform(-0.8, 0.8, (3, 3)) * (1, 0, 1)
+        a = random_transform(rng)[:3, :3]
+        moved[0, :3, :3] = a / np.abs(np.linalg.det(a)) ** (1 / 3)   # turned and sheared, volume kept
+        scene.set_transforms(moved, [1, 2, 3])
+        f = r.render(scene, shadows="hard", ao=False)
+        flat = trimesh.Trimesh(scene.positions, scene.indices, process=False)
+        ref = cpu_shadow_mask(flat, f, scene.lights[0].direction)
+        got = f.aov["shadow"][..., 0]
+        assert 0.01 < (ref == 0).mean() < 0.6
+        assert (got != ref).mean() < 0.005, f"{(got != ref).sum()} pixels differ"
+    assert r.uploads == uploads                                    # moved, not uploaded again
+
+
+@pytest.mark.skipif(not os.environ.get("HYBRID_VALIDATION"), reason="validation run only")
+def test_moving_frames_are_validation_clean(make_renderer):
+    scene = moving_scene()
+    r = make_renderer(64, 48)
+    for k in range(3):
+        m = scene.transforms[2].copy()
+        m[0, 3] += 0.3
+        scene.instances[2].transform = m
+        scene.update_positions("cube", scene.meshes[1].positions * (1.0 + 0.1 * k))
+        r.render(scene, shadows="soft", ao=True)
+    assert r.validation_errors == []
+
+
+def test_refit_to_the_same_positions_is_the_build_byte_for_byte():
+    from engine.bvh import build_bvh
+    from engine.bvh.instanced import TwoLevel
+    sphere = trimesh.creation.icosphere(subdivisions=3)
+    v = sphere.vertices.astype(np.float32)
+    two = TwoLevel([build_bvh(v, sphere.faces), build_bvh(v * 2, sphere.faces)], 3)
+    nodes, tris = two.nodes.copy(), two.tris.copy()
+    assert two.refit(1, v * 2, sphere.faces) == pytest.approx(1.0)
+    assert np.array_equal(two.nodes.view(np.uint32), nodes.view(np.uint32))
+    assert np.array_equal(two.tris.view(np.uint32), tris.view(np.uint32))
+    assert two.refit(0, v * (1.0 + 0.5 * np.abs(v[:, :1])), sphere.faces) > 1.0   # stretched: boxes grow

@@ -119,13 +119,15 @@ def test_loaders_keep_instancing(tmp_path):
     assert glb.triangle_count == 72
     np.testing.assert_allclose(glb.bounds, [[-0.5, -0.5, -0.5], [15.5, 0.5, 0.5]], atol=1e-6)
     toml = tmp_path / "s.toml"
-    toml.write_text('[[mesh]]\nfile = "six.glb"\ninstances = [{translate = [0, 0, 0]}, {translate = [0, 4, 0]}]\n'
+    toml.write_text('[[mesh]]\nfile = "six.glb"\n'
+                    'instances = [{translate = [0, 0, 0]}, {translate = [0, 4, 0], name = "up"}]\n'
                     '[[mesh]]\nfile = "six.glb"\ntranslate = [0, 0, 9]\n'
                     '[[mesh]]\nprimitive = "sphere"\nsegments = 8\nrings = 4\n'
                     'instances = [{translate = [1, 2, 3]}, {scale = [1, 2, 3], rotate = [0, 90, 0]}]\n')
     s = Scene.load(toml)
     assert len(s.meshes) == 2 and len(s.instances) == 6 * 3 + 2
     np.testing.assert_allclose(s.transforms[-2][:3, 3], [1, 2, 3])
+    assert sum(i.name.startswith("up/") for i in s.instances) == 6      # a placement's name labels its nodes
     toml.write_text('[[mesh]]\nprimitive = "box"\ninstances = [{translate = [0, 0, 0], size = 2}]\n')
     with pytest.raises(SceneError, match=r"\[\[mesh\]\] #1: instances #1: unknown key 'size'"):
         Scene.load(toml)

@@ -79,6 +79,8 @@ def test_moving_instances_resubmit_the_recorded_frame(make_renderer):
     scene = make_scene(START)
     soft = dict(shadows="soft", ao=True, accumulate=True, denoise=True)
     r.render(scene, aovs=["shadow", "instance_id"], **soft)
+    scene.set_transforms(np.stack(START))   # the first change: from the flat BVH of a still scene to two levels
+    r.render(scene, aovs=["shadow", "instance_id"], **soft)
     recorded = {k: v[0] for k, v in r._commands.items()}
     builds = r.bvh_builds
     frames = []
@@ -88,12 +90,14 @@ def test_moving_instances_resubmit_the_recorded_frame(make_renderer):
     assert {k: v[0] for k, v in r._commands.items()} == recorded
     assert r.bvh_builds == builds and r.uploads == 1
     assert not np.array_equal(frames[0].aov["instance_id"], frames[-1].aov["instance_id"])
-    # what the rays traced moved too: the hard shadows equal those of a scene made with the moved boxes
+    # what the rays traced moved too: the hard shadows are those of a scene made with the moved boxes (traced
+    # through its flat BVH: the same up to rays grazing an edge), not those of the first pose
     hard = dict(shadows="hard", ao=False, accumulate=False, denoise=False)
     moved = r.render(scene, aovs=["shadow"], **hard).aov["shadow"]
     fresh = r.render(make_scene(slide(3)), aovs=["shadow"], **hard).aov["shadow"]
     first = r.render(make_scene(slide(0)), aovs=["shadow"], **hard).aov["shadow"]
-    assert np.array_equal(moved, fresh) and not np.array_equal(moved, first)
+    assert (moved != fresh).mean() < 0.002 and (moved != first).mean() > 0.004, ((moved != fresh).mean(),
+                                                                               (moved != first).mean())
 
 
 def test_ids_match_the_flat_arrays(make_renderer):

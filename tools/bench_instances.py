@@ -116,6 +116,7 @@ def main(argv=None) -> None:
                              fov_y=50)
         o, d = cam.rays(w, h)
         o, d = o.reshape(-1, 3), d.reshape(-1, 3)
+        tracer.intersect(o, d)   # warm-up: the first dispatch of a pipeline may compile it
         hits = tracer.intersect(o, d)
         print(f"rays: {len(o)} ({w} x {h})")
         print(f"intersect_gpu_ms: {tracer.last_gpu_ms:.3f}")
@@ -123,6 +124,7 @@ def main(argv=None) -> None:
         p = o + d * np.where(hits.hit, hits.t, 0.0)[:, None]
         sun = np.broadcast_to(np.array([0.3, 1.0, 0.2]) / np.linalg.norm([0.3, 1.0, 0.2]), p.shape)
         sel = hits.hit
+        tracer.occluded(p[sel] + 1e-3 * sun[sel], sun[sel], 1e30)
         tracer.occluded(p[sel] + 1e-3 * sun[sel], sun[sel], 1e30)
         print(f"shadow_rays: {int(sel.sum())}")
         print(f"occluded_gpu_ms: {tracer.last_gpu_ms:.3f}")

@@ -1,22 +1,24 @@
 """A two-level BVH for scenes of instances, in the buffers bvh.glsl reads (its BVH_INSTANCED form).
 
 Nodes buffer: every mesh's bottom-level nodes (the builder's, child words rebased onto the concatenation), then the
-top level's `max(N - 1, 1)` nodes from `tlas_root` (binary nodes whose leaf slots hold one instance each: the
-slot's word is LEAF_BIT | record slot, count 1), then from `inst_base` one 64-byte INST_DTYPE record per instance.
+top level's 2^k - 1 nodes from `tlas_root` (binary nodes whose leaf slots hold one instance each: the slot's word
+is LEAF_BIT | instance index, count 1), then from `inst_base` one 64-byte INST_DTYPE record per instance.
 Triangles buffer: the meshes' triangle records concatenated (their `prim` is the mesh's own triangle index).
 
 The top level is rebuilt on the host whenever an instance moves (`top`): instances sorted along a Morton curve of
-their world-box centres, split at the median of that order (a balanced tree of depth ceil(log2 N), whose shape
-depends only on N and is computed once), every node's box a vectorized range reduction. Deforming meshes are
-refitted (`refit`): triangle records rewritten, boxes recomputed bottom-up over the existing topology, level by
-level; `refit` returns the refitted tree's SAH cost over the build's, the figure the rebuild policy reads.
+their world-box centres fill the leaf slots of a perfect binary tree (depth ceil(log2 N), slots past N empty; its
+shape depends on N alone), whose nodes are stored level by level, so that each level's boxes are one vectorized
+pairwise union of the level below. Instance records stay in instance order: only moved instances' are rewritten.
+Deforming meshes are refitted (`refit`): triangle records rewritten, boxes recomputed bottom-up over the existing
+topology, level by level; `refit` returns the refitted tree's SAH cost over the build's, the figure the rebuild
+policy reads.
 """
 
 from __future__ import annotations
 
 import numpy as np
 
-from .layout import LEAF_BIT, NODE_DTYPE, TRI_DTYPE
+from .layout import LEAF_BIT, NODE_DTYPE
 
 INST_DTYPE = np.dtype([("w2o", "<f4", (3, 4)), ("root", "<u4"), ("tri_base", "<u4"), ("instance", "<u4"),
                        ("pad", "<u4")])
@@ -36,27 +38,34 @@ class TwoLevel:
         tcounts = np.array([len(b.tris) for b in self.blas], dtype=np.int64)
         self.node_base = np.concatenate([[0], np.cumsum(counts)[:-1]])
         self.tri_base = np.concatenate([[0], np.cumsum(tcounts)[:-1]])
-        self.n_instances = int(n_instances)
+        self.n_instances = n = int(n_instances)
+        # the top level: a perfect binary tree over P = 2^k >= max(n, 2) leaf slots (slots past n empty), its
+        # P - 1 nodes in level order (node i's children are 2i + 1, 2i + 2; level j is [2^j - 1, 2^(j+1) - 1))
+        self.levels = max(1, int(np.ceil(np.log2(max(n, 2)))))
+        p = 1 << self.levels
         self.tlas_root = int(counts.sum())
-        self.inst_base = self.tlas_root + max(self.n_instances - 1, 1)
-        self.nodes = np.zeros(self.inst_base + self.n_instances, dtype=NODE_DTYPE)
+        self.inst_base = self.tlas_root + p - 1
+        self.nodes = np.zeros(self.inst_base + n, dtype=NODE_DTYPE)
         self.tris = np.concatenate([b.tris for b in self.blas])
         for k, b in enumerate(self.blas):
             self.nodes[self.node_base[k]:self.node_base[k] + len(b.nodes)] = _rebased(b.nodes, self.node_base[k],
                                                                                         self.tri_base[k])
+        words = self.nodes[self.tlas_root:self.inst_base].view(np.uint32).reshape(-1, 16)
+        inner = np.arange((p >> 1) - 1)
+        words[inner, 3] = self.tlas_root + 2 * inner + 1
+        words[inner, 7] = self.tlas_root + 2 * inner + 2
+        slots = np.arange(p).reshape(-1, 2)   # the bottom level's leaf slots (count 0 past n: empty)
+        words[(p >> 1) - 1:, 11] = slots[:, 0] < n
+        words[(p >> 1) - 1:, 15] = slots[:, 1] < n
+        self._padded = np.empty((p, 6), np.float32)
+        self._padded[n:, :3], self._padded[n:, 3:] = np.inf, -np.inf
+        self._order = np.zeros(p, np.uint32)
         self.depth = max(int(b.stats.get("depth", 1)) for b in self.blas)
         self.sah_built = [_sah(b.nodes) for b in self.blas]
         self.stats = {"depth": self.depth, "nodes": int(len(self.nodes)), "triangles": int(len(self.tris)),
-                      "meshes": len(self.blas), "instances": self.n_instances, "bytes": int(self.nodes.nbytes +
-                                                                                         self.tris.nbytes),
+                      "meshes": len(self.blas), "instances": n, "top_levels": self.levels,
+                      "bytes": int(self.nodes.nbytes + self.tris.nbytes),
                       "build_ms": float(sum(b.stats.get("build_ms", 0.0) for b in self.blas))}
-        self._shape = _balanced(self.n_instances)
-        if self._shape is not None:   # the top level's words and counts depend on N alone
-            _, _, _, lword, rword, lcount, rcount, _ = self._shape
-            top = self.nodes[self.tlas_root:self.inst_base]
-            top["left"] = np.where(lcount > 0, lword, lword + self.tlas_root)
-            top["right"] = np.where(rcount > 0, rword, rword + self.tlas_root)
-            top["lcount"], top["rcount"] = lcount, rcount
         self._levels: dict = {}
 
     @property
@@ -65,61 +74,65 @@ class TwoLevel:
         return self.tlas_root * NODE_DTYPE.itemsize
 
     def top(self, transforms: np.ndarray, inst_mesh: np.ndarray, mesh_boxes: np.ndarray,
-            flat_tri_base: np.ndarray) -> np.ndarray:
-        """Rebuild the top level and the instance records for (N, 4, 4) `transforms` of instances of meshes
-        `inst_mesh` (N,), whose object boxes are `mesh_boxes` (M, 2, 3) and whose first triangle in the flattened
-        scene is `flat_tri_base` (N,). Writes them into `nodes` and returns that tail (a view)."""
+            flat_tri_base: np.ndarray, moved: np.ndarray | None = None) -> np.ndarray:
+        """Rebuild the top level for (N, 4, 4) `transforms` of instances of meshes `inst_mesh` (N,), whose object
+        boxes are `mesh_boxes` (M, 2, 3) and whose first triangle in the flattened scene is `flat_tri_base` (N,),
+        and rewrite the records of the instances `moved` (None: all). Writes them into `nodes` and returns that
+        tail (a view)."""
         n = self.n_instances
         m = np.asarray(transforms, dtype=np.float64)
-        boxes = _world_boxes(mesh_boxes[inst_mesh], m)
-        c = boxes.mean(axis=1)
-        lo, hi = c.min(axis=0), c.max(axis=0)
-        q = ((c - lo) * (1023.0 / np.maximum(hi - lo, 1e-300))).astype(np.uint64)
-        order = np.argsort(_spread(q[:, 0]) | (_spread(q[:, 1]) << np.uint64(1)) | (_spread(q[:, 2]) << np.uint64(2)),
-                           kind="stable")
-        sb = boxes[order]
-        # conservative float32 boxes: rounded outwards and padded for the float32 ray transform on the GPU
-        pad = 1e-6 * (np.abs(sb).max(axis=1) + (sb[:, 1] - sb[:, 0]))
-        bmin = np.nextafter((sb[:, 0] - pad).astype(np.float32), np.float32(-np.inf))
-        bmax = np.nextafter((sb[:, 1] + pad).astype(np.float32), np.float32(np.inf))
-
+        mesh_boxes = np.asarray(mesh_boxes, dtype=np.float64)
+        oc = (0.5 * (mesh_boxes[:, 0] + mesh_boxes[:, 1]))[inst_mesh]
+        oh = (0.5 * (mesh_boxes[:, 1] - mesh_boxes[:, 0]))[inst_mesh]
+        cols = m[:, :3, :].transpose(2, 0, 1).copy()   # (4, N, 3): the columns of A, then t
+        wc, wh = cols[3], np.zeros((n, 3))
+        for k in range(3):   # centre and half extent through the transform: A c + t, |A| h
+            col = cols[k]
+            wc += col * oc[:, k:k + 1]
+            wh += np.abs(col) * oh[:, k:k + 1]
+        lo, hi = wc.min(axis=0), wc.max(axis=0)
+        q = ((wc - lo) * (1023.0 / np.maximum(hi - lo, 1e-300))).astype(np.uint32)
+        code = _spread(q[:, 0]) | (_spread(q[:, 1]) << np.uint32(1)) | (_spread(q[:, 2]) << np.uint32(2))
+        order = np.argsort(code, kind="stable")
+        # conservative float32 boxes: padded by 1e-6 relative (more than float32 rounding, and the GPU's float32
+        # ray transform), so the cast cannot shrink them
+        wc, wh = wc[order], wh[order]
+        wh += 1e-6 * (np.abs(wc) + wh)
+        leaf = self._padded
+        leaf[:n, :3] = wc - wh
+        leaf[:n, 3:] = wc + wh
         top = self.nodes[self.tlas_root:self.inst_base]
-        if n == 1:
-            top[0] = np.zeros((), NODE_DTYPE)
-            top[0]["lmin"], top[0]["lmax"] = bmin[0], bmax[0]
-            top[0]["left"], top[0]["lcount"] = _LEAF, 1
-            top[0]["rmin"], top[0]["rmax"] = np.inf, -np.inf
-            top[0]["right"], top[0]["rcount"] = _LEAF, 0
-        else:
-            lo_, mid, _, _, _, lcount, rcount, levels = self._shape
-            lmin, lmax = np.empty((n - 1, 3), np.float32), np.empty((n - 1, 3), np.float32)
-            rmin, rmax = np.empty((n - 1, 3), np.float32), np.empty((n - 1, 3), np.float32)
-            ll, rl = lcount > 0, rcount > 0
-            lmin[ll], lmax[ll] = bmin[lo_[ll]], bmax[lo_[ll]]
-            rmin[rl], rmax[rl] = bmin[mid[rl]], bmax[mid[rl]]
-            for idx, lkid, rkid in levels:   # deepest first; (nodes, their interior left / right children)
-                li, lc = idx[lkid >= 0], lkid[lkid >= 0]
-                lmin[li] = np.minimum(lmin[lc], rmin[lc])
-                lmax[li] = np.maximum(lmax[lc], rmax[lc])
-                ri, rc = idx[rkid >= 0], rkid[rkid >= 0]
-                rmin[ri] = np.minimum(lmin[rc], rmin[rc])
-                rmax[ri] = np.maximum(lmax[rc], rmax[rc])
-            flat = top.view(np.float32).reshape(-1, 16)   # words and counts were written once (__init__)
-            flat[:, 0:3], flat[:, 4:7], flat[:, 8:11], flat[:, 12:15] = lmin, lmax, rmin, rmax
+        rows = top.view(np.float32).reshape(-1, 16)
+        words = top.view(np.uint32).reshape(-1, 16)
+        self._order[:n] = order
+        bottom = (len(leaf) >> 1) - 1
+        words[bottom:, 3] = self._order[0::2] | _LEAF
+        words[bottom:, 7] = self._order[1::2] | _LEAF
+        cur = leaf
+        for j in range(self.levels - 1, -1, -1):   # level j's nodes hold the boxes of level j + 1's pairs
+            pair = cur.reshape(-1, 12)   # (left min, left max, right min, right max): the node's four box rows
+            rows[(1 << j) - 1:(2 << j) - 1].reshape(-1, 4, 4)[:, :, :3] = pair.reshape(-1, 4, 3)
+            cur = np.empty((len(pair), 6), np.float32)
+            np.minimum(pair[:, 0:3], pair[:, 6:9], out=cur[:, 0:3])
+            np.maximum(pair[:, 3:6], pair[:, 9:12], out=cur[:, 3:6])
 
-        rec = self.nodes[self.inst_base:].view(INST_DTYPE)
-        mo = m[order]
-        inv = _inverse3(mo[:, :3, :3])
-        w2o = np.empty((n, 3, 4))
-        w2o[:, :, :3] = inv
-        w2o[:, :, 3] = -np.einsum("nij,nj->ni", inv, mo[:, :3, 3])
-        flat = rec.view(np.float32).reshape(-1, 16)
-        flat[:, :12] = w2o.reshape(n, 12)
-        words = rec.view(np.uint32).reshape(-1, 16)
-        words[:, 12] = self.node_base[inst_mesh[order]]
-        words[:, 13] = np.asarray(flat_tri_base)[order]
-        words[:, 14] = order
-        words[:, 15] = 0
+        idx = np.arange(n) if moved is None else np.asarray(moved, dtype=np.int64)
+        if idx.size:
+            rec = self.nodes[self.inst_base:]
+            if moved is None:
+                mo, idx = m, slice(None)
+            else:
+                mo = m[idx]
+            inv = _inverse3(mo[:, :3, :3])
+            t = mo[:, :3, 3]
+            w2o = np.empty((len(mo), 3, 4))
+            w2o[:, :, :3] = inv
+            w2o[:, :, 3] = -(inv[:, :, 0] * t[:, 0:1] + inv[:, :, 1] * t[:, 1:2] + inv[:, :, 2] * t[:, 2:3])
+            rec.view(np.float32).reshape(-1, 16)[idx, :12] = w2o.reshape(-1, 12)
+            recw = rec.view(np.uint32).reshape(-1, 16)
+            recw[idx, 12] = self.node_base[np.asarray(inst_mesh)[idx]]
+            recw[idx, 13] = np.asarray(flat_tri_base)[idx]
+            recw[idx, 14] = np.arange(n)[idx]
         return self.nodes[self.tlas_root:]
 
     def refit(self, k: int, positions: np.ndarray, indices: np.ndarray) -> float:
@@ -198,10 +211,14 @@ class TwoLevel:
 def _inverse3(a: np.ndarray) -> np.ndarray:
     """(N, 3, 3) inverses by cofactors (the rows of the inverse are cross products of the columns over the
     determinant): several times faster than np.linalg.inv on many small matrices."""
-    c0, c1, c2 = a[:, :, 0], a[:, :, 1], a[:, :, 2]
-    rows = np.stack([np.cross(c1, c2), np.cross(c2, c0), np.cross(c0, c1)], axis=1)
-    det = np.einsum("ni,ni->n", c0, rows[:, 0])
-    return rows / det[:, None, None]
+    e = a.reshape(-1, 9).T.copy()   # the nine elements, each contiguous
+    (a00, a01, a02), (a10, a11, a12), (a20, a21, a22) = e[0:3], e[3:6], e[6:9]
+    out = np.empty_like(a)
+    out[:, 0, 0], out[:, 0, 1], out[:, 0, 2] = a11 * a22 - a12 * a21, a02 * a21 - a01 * a22, a01 * a12 - a02 * a11
+    out[:, 1, 0], out[:, 1, 1], out[:, 1, 2] = a12 * a20 - a10 * a22, a00 * a22 - a02 * a20, a02 * a10 - a00 * a12
+    out[:, 2, 0], out[:, 2, 1], out[:, 2, 2] = a10 * a21 - a11 * a20, a01 * a20 - a00 * a21, a00 * a11 - a01 * a10
+    det = a00 * out[:, 0, 0] + a01 * out[:, 1, 0] + a02 * out[:, 2, 0]
+    return out / det[:, None, None]
 
 
 def _rebased(nodes: np.ndarray, node_base: int, tri_base: int) -> np.ndarray:
@@ -240,61 +257,11 @@ def _node_levels(nodes: np.ndarray) -> list:
     return levels
 
 
-def _balanced(n: int):
-    """The top level's shape for n leaves: per node in preorder its leaf range [lo, mid) + [mid, hi), child words
-    (a leaf slot: LEAF_BIT | slot; a node: its index relative to the root), counts (1 at a leaf, else 0), and the
-    nodes by depth, deepest first, with their interior children (-1: a leaf) for the bottom-up box pass."""
-    if n <= 1:
-        return None
-    lo, mid, hi = (np.empty(n - 1, np.int64) for _ in range(3))
-    lword, rword = np.empty(n - 1, np.uint32), np.empty(n - 1, np.uint32)
-    lcount, rcount = np.zeros(n - 1, np.uint32), np.zeros(n - 1, np.uint32)
-    stack = [(0, n, 0)]
-    while stack:
-        a, b, i = stack.pop()
-        c = (a + b) // 2
-        lo[i], mid[i], hi[i] = a, c, b
-        # preorder: the left subtree's c - a - 1 nodes right after this one, then the right subtree's
-        right = i + 1 + (c - a - 1)
-        if c - a == 1:
-            lword[i], lcount[i] = _LEAF | a, 1
-        else:
-            lword[i] = i + 1
-            stack.append((a, c, i + 1))
-        if b - c == 1:
-            rword[i], rcount[i] = _LEAF | c, 1
-        else:
-            rword[i] = right
-            stack.append((c, b, right))
-    depth = np.zeros(n - 1, np.int64)
-    lkid = np.where(lcount == 0, lword.astype(np.int64), -1)
-    rkid = np.where(rcount == 0, rword.astype(np.int64), -1)
-    for i in range(n - 1):   # preorder: a parent comes before its children
-        for kid in (lkid[i], rkid[i]):
-            if kid >= 0:
-                depth[kid] = depth[i] + 1
-    levels = []
-    for level in range(int(depth.max()), -1, -1):
-        idx = np.flatnonzero(depth == level)
-        levels.append((idx, lkid[idx], rkid[idx]))
-    return lo, mid, hi, lword, rword, lcount, rcount, levels
-
-
 def _spread(x: np.ndarray) -> np.ndarray:
-    """10 bits to every third bit (Morton)."""
-    x = x & np.uint64(0x3FF)
-    x = (x | (x << np.uint64(16))) & np.uint64(0x030000FF)
-    x = (x | (x << np.uint64(8))) & np.uint64(0x0300F00F)
-    x = (x | (x << np.uint64(4))) & np.uint64(0x030C30C3)
-    x = (x | (x << np.uint64(2))) & np.uint64(0x09249249)
+    """10 bits (uint32) to every third bit (Morton)."""
+    x = x & np.uint32(0x3FF)
+    x = (x | (x << np.uint32(16))) & np.uint32(0x030000FF)
+    x = (x | (x << np.uint32(8))) & np.uint32(0x0300F00F)
+    x = (x | (x << np.uint32(4))) & np.uint32(0x030C30C3)
+    x = (x | (x << np.uint32(2))) & np.uint32(0x09249249)
     return x
-
-
-def _world_boxes(boxes: np.ndarray, transforms: np.ndarray) -> np.ndarray:
-    """(N, 2, 3) world AABBs of object boxes (N, 2, 3) under (N, 4, 4) transforms: centre +- |A| half-extent."""
-    c = 0.5 * (boxes[:, 0] + boxes[:, 1])
-    h = 0.5 * (boxes[:, 1] - boxes[:, 0])
-    a = transforms[:, :3, :3]
-    wc = np.einsum("nij,nj->ni", a, c) + transforms[:, :3, 3]
-    wh = np.einsum("nij,nj->ni", np.abs(a), h)
-    return np.stack([wc - wh, wc + wh], axis=1)

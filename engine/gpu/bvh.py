@@ -136,11 +136,21 @@ def is_instanced(scene) -> bool:
     return len(scene.instances) > 1 or not np.array_equal(scene.transforms[0], np.eye(4))
 
 
-def scene_bvh(ctx: Context, scene, dset: DescriptorSet, layout: str):
-    """The BVH of a Scene on the GPU: a SceneBVH of its one mesh, or an InstancedBVH (binary layout only)."""
-    if is_instanced(scene):
-        return InstancedBVH(ctx, scene, dset)
-    return SceneBVH.upload(ctx, build_bvh(scene.meshes[0].positions, scene.meshes[0].indices), dset, layout)
+#: A scene that has not changed since it was made (`scene.version` 0) and has at most this many instanced triangles
+#: is traced through one BVH of its flattened triangles by the renderer (`scene_bvh`): faster than two levels where
+#: instances are few (a loaded scene of placed meshes), and the same ids; the first change switches to two levels.
+FLAT_STATIC_TRIANGLES = 4_000_000
+
+
+def scene_bvh(ctx: Context, scene, dset: DescriptorSet, layout: str, flat_static: bool = False):
+    """The BVH of a Scene on the GPU: a SceneBVH of its one mesh (one identity instance) or, with `flat_static`,
+    of its flattened triangles while it is unchanged and small enough (FLAT_STATIC_TRIANGLES); else an
+    InstancedBVH (binary layout only)."""
+    if not is_instanced(scene):
+        return SceneBVH.upload(ctx, build_bvh(scene.meshes[0].positions, scene.meshes[0].indices), dset, layout)
+    if flat_static and scene.version == 0 and scene.triangle_count <= FLAT_STATIC_TRIANGLES:
+        return SceneBVH.upload(ctx, build_bvh(scene.positions, scene.indices), dset, layout)
+    return InstancedBVH(ctx, scene, dset)
 
 
 class InstancedBVH:
@@ -219,7 +229,8 @@ class InstancedBVH:
             self._upload(scene)
             return True
         if len(moved) or len(deformed):
-            tail = self.two.top(scene.transforms, scene.instance_mesh, self._mesh_boxes(scene), self.flat_tri_base)
+            tail = self.two.top(scene.transforms, scene.instance_mesh, self._mesh_boxes(scene), self.flat_tri_base,
+                                moved=moved)
             parts.append((self.two.tail_offset, tail))
         node_parts = [p for p in parts if len(p) == 2]
         tri_parts = [p[1:] for p in parts if len(p) == 3]

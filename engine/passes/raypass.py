@@ -33,13 +33,17 @@ class RayPass(ComputePass):
                 "WORK_SHARES": device.work_shares(ctx)}
 
     def specialize_for(self, scene_bvh):
-        """The traversal specialized to this scene's BVH (its depth, its node layout)."""
-        self.specialize(**scene_bvh.spec(self.ctx, postpone=self.postpone_leaves))
+        """The traversal specialized to this scene's BVH (its depth, its node layout, one or two levels)."""
+        self.specialize(**self._spec(scene_bvh))
 
     def spec_matches(self, scene_bvh) -> bool:
         """Is the pipeline specialized as `specialize_for(scene_bvh)` would make it?"""
-        want = scene_bvh.spec(self.ctx, postpone=self.postpone_leaves)
-        return all(self.values.get(k) == v for k, v in want.items())
+        return all(self.values.get(k) == v for k, v in self._spec(scene_bvh).items())
+
+    def _spec(self, scene_bvh) -> dict:
+        # a single-level BVH's spec leaves the two-level walk out: said here, so that a pass that traced a
+        # scene of instances before walks this one as one level
+        return {"BVH_INSTANCED": False, **scene_bvh.spec(self.ctx, postpone=self.postpone_leaves)}
 
     def dispatch_rows(self, rec, targets, push, rows=None):
         """One dispatch over the image, or over `rows` rows (the push constants then say which)."""
@@ -49,7 +53,8 @@ class RayPass(ComputePass):
 
 def follow_scene(ctx, bvh, scene, dset, layout, passes, drop_recordings):
     """The ray passes' BVH brought up to `scene`'s current state (`bvh`: the one they trace, or None); returns it.
-    A scene of instances has the two-level BVH: its top level rewritten in place, a deformed mesh refitted, and
+    A scene of instances has the two-level BVH from its first change on (until then one flat BVH of its
+    triangles, `scene_bvh(flat_static=True)`): its top level rewritten in place, a deformed mesh refitted, and
     the recorded command buffers stay valid; new buffers (a rebuild), another kind of BVH or another
     specialization of `passes` call `drop_recordings()` first. One instance placed by the identity: its mesh's
     BVH, made again when the mesh deformed."""
@@ -64,7 +69,7 @@ def follow_scene(ctx, bvh, scene, dset, layout, passes, drop_recordings):
         bvh.destroy()
         bvh = None
     if bvh is None:
-        bvh = scene_bvh(ctx, scene, dset, layout)
+        bvh = scene_bvh(ctx, scene, dset, layout, flat_static=True)   # flat while unchanged (faster on CPUs)
     drop_recordings()
     for p in passes:   # the traversal specialized to this BVH (its depth, its node layout)
         p.specialize_for(bvh)

@@ -227,17 +227,19 @@ def check_transforms(value: ArrayLike, labels) -> NDArray[np.float64]:
     if m.ndim != 3 or m.shape[1:] != (4, 4):
         raise SceneError(f"{label(0)}: transform must be a (4, 4) array of numbers, got shape "
                          f"{np.shape(value)}")
-    bad = ~np.all(np.isfinite(m), axis=(1, 2))
-    if bad.any():
+    e = m.reshape(-1, 16).T.copy()   # the 16 elements, each contiguous over the instances
+    if not np.isfinite(e).all():
+        bad = ~np.isfinite(e).all(axis=0)
         raise SceneError(f"{label(int(np.argmax(bad)))}: transform has NaN or infinite values")
-    bad = np.any(m[:, 3] != (0.0, 0.0, 0.0, 1.0), axis=1)
+    bad = (e[12] != 0.0) | (e[13] != 0.0) | (e[14] != 0.0) | (e[15] != 1.0)
     if bad.any():
         raise SceneError(f"{label(int(np.argmax(bad)))}: transform must be affine (last row 0 0 0 1), got "
                          f"{m[int(np.argmax(bad)), 3].tolist()}")
-    a = m[:, :3, :3]
-    scale = np.abs(a).max(axis=(1, 2))
-    det = np.linalg.det(a / np.where(scale > 0, scale, 1.0)[:, None, None])
-    bad = (scale <= 0) | (np.abs(det) < 1e-12)
+    (a00, a01, a02), (a10, a11, a12), (a20, a21, a22) = e[0:3], e[4:7], e[8:11]
+    det = a00 * (a11 * a22 - a12 * a21) - a01 * (a10 * a22 - a12 * a20) + a02 * (a10 * a21 - a11 * a20)
+    size = (a00 * a00 + a01 * a01 + a02 * a02 + a10 * a10 + a11 * a11 + a12 * a12 + a20 * a20 + a21 * a21
+            + a22 * a22) / 3.0   # the mean squared row length: det against its 3/2 power is scale-free
+    bad = ~(np.abs(det) >= 1e-12 * size ** 1.5) | (size <= 0)
     if bad.any():
         raise SceneError(f"{label(int(np.argmax(bad)))}: transform is not invertible (its 3x3 part is singular)")
     return m

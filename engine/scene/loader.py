@@ -293,8 +293,8 @@ class SceneBuilder:
             raise SceneError(f"{where}: mesh '{shown(name)}' has {bad} vertex position(s) that are NaN or "
                              "infinite")
         if np.abs(p).max() > MAX_COORD:
-            raise SceneError(f"{where}: mesh '{shown(name)}' has world-space (and object-space) vertex coordinates "
-                             f"beyond +-{MAX_COORD:g} (largest {np.abs(p).max():g}): check its size")
+            raise SceneError(f"{where}: mesh '{shown(name)}' has world-space vertex coordinates beyond +-{MAX_COORD:g} "
+                             f"(already in its own space; largest {np.abs(p).max():g}): check its size")
         if f.min() < 0 or f.max() >= len(p):
             raise SceneError(f"{where}: mesh '{shown(name)}' has face indices out of range")
         if uvs is not None:
@@ -310,9 +310,10 @@ class SceneBuilder:
                     name=name, where=f"{where}: mesh '{shown(name)}'")
 
     def add_trimesh(self, obj, where: str, transform=None, color=None, texture=None, label: str | None = None,
-                    uv_scale=None, transforms=None):
+                    uv_scale=None, transforms=None, labels=None):
         """Add a trimesh.Trimesh or trimesh.Scene (node transforms applied, then `transform`); with `transforms`
-        (a list of (4, 4)), once per transform (each applied after `transform`). A geometry used by several nodes
+        (a list of (4, 4)), once per transform (each applied after `transform`), `labels` (None or a name per
+        transform) replacing `label` for that placement. A geometry used by several nodes
         (or added again from the same `obj`) stays one mesh with several instances.
 
         `color` (linear RGBA) and `texture` override every material of `obj` (material overrides of the TOML format).
@@ -332,14 +333,18 @@ class SceneBuilder:
         else:
             raise SceneError(f"{where}: expected a trimesh.Trimesh or trimesh.Scene, got {type(obj).__name__}")
         outer = np.eye(4) if transform is None else np.asarray(transform, dtype=np.float64)
-        placements = [outer] if transforms is None else [np.asarray(t, dtype=np.float64) @ outer for t in transforms]
+        placements = [(outer, label)] if transforms is None else [
+            (np.asarray(t, dtype=np.float64) @ outer, (labels[i] if labels and labels[i] else label))
+            for i, t in enumerate(transforms)]
         before = len(self.instances)
         made = {}   # this call's materials by trimesh material; `obj` keeps those alive, so their ids stay unique
         self._keep.append(obj)
-        for place in placements:
+        for place, name in placements:
             for m, geom, node_name, geom_name in items:
-                if label and isinstance(obj, trimesh.Scene):
-                    node_name = label if len(items) == 1 else f"{label}/{node_name}"
+                if name and isinstance(obj, trimesh.Scene):
+                    node_name = name if len(items) == 1 else f"{name}/{node_name}"
+                elif name:
+                    node_name = name
                 self._add_geometry(geom, place @ m, node_name, geom_name, where, color, texture, uv_scale, made)
         if len(self.instances) == before:
             raise SceneError(f"{where}: contains no triangles")

@@ -278,10 +278,10 @@ class Scene:
         if not len(idx):
             return
         boxes = np.stack([m.box for m in self.meshes])[self._inst_mesh[idx]]
-        top = np.abs(world_boxes(boxes, self._transforms[idx])).max(axis=(1, 2))
-        bad = top > MAX_COORD
-        if bad.any():
-            i = int(idx[int(np.argmax(bad))])
+        world = world_boxes(boxes, self._transforms[idx])
+        if np.abs(world).max() > MAX_COORD:
+            top = np.abs(world).reshape(len(world), 6).max(axis=1)
+            i = int(idx[int(np.argmax(top > MAX_COORD))])
             raise SceneError(f"{self._label(i)}: world-space coordinates beyond +-{MAX_COORD:g} (largest "
                              f"{top.max():g}): check its transform")
 
@@ -439,7 +439,8 @@ class Scene:
         textures = sum(m.texture is not None for m in self.materials)
         inst = "" if len(self.instances) == 1 else f" ({len(self.instances):,} instances of {len(self.meshes)})"
         return (f"{shown(os.path.basename(self.name) or self.name)}: {self.triangle_count:,} triangles, "
-                f"{self.vertex_count:,} vertices, {len(self.meshes) if inst else len(self.submeshes)} meshes{inst}, {len(self.materials)} materials "
+                f"{self.vertex_count:,} vertices, {len(self.meshes) if inst else len(self.submeshes)} meshes{inst}, "
+                f"{len(self.materials)} materials "
                 f"({textures} textured), lights: {lights}, size {size[0]:.3g} x {size[1]:.3g} x {size[2]:.3g}")
 
     def __repr__(self) -> str:

@@ -404,6 +404,7 @@ def _add_mesh(builder: SceneBuilder, table: dict, ctx: _Ctx, folders: Folders, t
             files[mesh_path] = load_trimesh_scene(mesh_path)
         builder.add_trimesh(files[mesh_path], shown(mesh_path), transform=m @ up_m, color=color, texture=texture,
                             uv_scale=uv_scale, label=name,
-                            transforms=None if placements is None else [t for t, _ in placements])
+                            transforms=None if placements is None else [t for t, _ in placements],
+                            labels=None if placements is None else [n for _, n in placements])
     except SceneError as exc:
         raise ctx.error(f"file = '{shown(table['file'])}': {exc}") from None

@@ -79,6 +79,9 @@ def cmd_render(args) -> int:
     sequence = args.orbit is not None or args.camera_path is not None
     if args.resume and not sequence:
         raise ConfigError("--resume is for sequences (--orbit N or --camera-path FILE)")
+    if args.fps is not None and not sequence:
+        raise ConfigError("--fps is for sequences (--orbit N or --camera-path FILE): frame i shows the scene's "
+                          "animation at i / FPS seconds")
     check_output_path(args.output)     # before the work, which a path that cannot be written would lose
     aovs, view, save, names = _outputs(args)
     settings = dict(_settings(args), **({"view": view} if view != "color" else {}))
@@ -96,7 +99,7 @@ def cmd_render(args) -> int:
     try:
         with Renderer(width, height, device=args.device, validation=args.validation) as r:
             result = render_sequence(r, scene, cameras, paths, aovs=aovs, settings=settings, save=save,
-                                     frames_per_view=args.frames, sidecars=sequence, resume=args.resume,
+                                     frames_per_view=args.frames, sidecars=sequence, resume=args.resume, fps=args.fps,
                                      progress=sequence and not args.quiet and sys.stderr.isatty())
             errors = list(r.validation_errors)
             device = r.device_name
@@ -193,6 +196,8 @@ def build_parser() -> argparse.ArgumentParser:
     seq.add_argument("--camera-path", default=None, metavar="FILE",
                      help="a sequence of the cameras in a .json / .toml file: {eye, target} or {K, pose, width, "
                           "height} each (docs/datasets.md)")
+    r.add_argument("--fps", type=float, default=None, metavar="FPS",
+                   help="sequences: play the scene's [[animation]] tables, frame i at i / FPS seconds")
     r.add_argument("--resume", action="store_true",
                    help="sequences: skip frames whose files (and camera sidecar) exist, render the rest")
     r.add_argument("-q", "--quiet", action="store_true", help="no progress bar and no summary line")

@@ -43,10 +43,13 @@ class Frame:
     - "shadow_raw": (H, W, L) this frame's shadow rays alone.
     - "ao": (H, W) ambient occlusion in [0, 1] (1: open), as lit; "ao_raw": this frame's AO rays alone.
     - "history": (H, W) frames accumulated per pixel (0: nothing accumulated).
-    - "triangle_id", "object_id", "material_id": (H, W) int32, -1 on the background: the scene's triangle, the
-      sub-mesh it belongs to (`object_names[id]`) and its material (`material_names[id]`).
-    - "motion": (H, W, 2) float32 pixels, where the surface point is now minus where it was in the previous frame
-      (x right, y down); 0 on the background and for an unmoved camera.
+    - "triangle_id", "object_id", "material_id", "instance_id": (H, W) int32, -1 on the background: the triangle in
+      the scene's flat `indices` (every instance's triangles in a row), the entry of its flat `submeshes` (one per
+      instance and mesh part: `object_names[id]`), its material (an instance's override, else the mesh's:
+      `material_names[id]`) and the instance (`scene.instances[id]`).
+    - "motion": (H, W, 2) float32 pixels, where the surface point is now minus where the same point of its object
+      was in the previous frame (previous camera and instance transform; x right, y down); 0 on the background and
+      where neither the camera nor the instance moved.
     - "roughness", "metallic": (H, W) the material's glTF perceptual roughness and metallic in [0, 1] (8-bit);
       0 on the background.
     - "emissive": (H, W, 3) linear RGB radiance the surface emits; 0 on the background.

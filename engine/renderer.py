@@ -21,16 +21,16 @@ import numpy as np
 from .errors import ConfigError, EngineError, VulkanError
 from .frame import Frame
 from .gpu import bvh_descriptor_set
-from .gpu import InstancedBVH, scene_bvh
 from .gpu import bvh_layout as resolve_layout
 from .passes.accumulate import ALPHA_MIN, AccumulatePass
 from .passes.ao import AOPass
 from .passes.debug_view import DebugViewPass
 from .passes.denoise import DenoisePass
-from .passes.gbuffer import GBufferPass, SceneGeometry
+from .passes.gbuffer import GBufferPass, SceneChanges, SceneGeometry
 from .passes.interface import (FILTER_AO, FILTER_MASKS, FILTER_TEMPORAL, FRAME, FRAME_BYTES, MAX_LIGHTS,
                                camera_fields, pack_frame, pack_light)
 from .passes.lighting import LightingPass
+from .passes.raypass import follow_scene
 from .passes.shadows import ShadowPass
 from .parallel import serialized
 from .passes.targets import Targets
@@ -81,7 +81,7 @@ class Renderer:
             context: render on an existing `engine.vk.Context` (the viewer's, which has a surface); it is not
                 closed here.
             bvh_layout: "binary" or "wide" scene BVH for the shadow and AO passes (default: $HYBRID_BVH_LAYOUT,
-                else "binary").
+                else "binary"); a scene of several (or moved) instances traces the two-level BVH, binary.
 
         Raises:
             ConfigError: a bad size, device selector or layout.
@@ -147,14 +147,15 @@ class Renderer:
         self._scene = None
         self._geometry = None
         self._scene_bvh = None
-        self._scene_version = -1
         self.bvh_stats = {}
         self._commands: dict = {}
         self._frame_index = 0
         self._prev_view_proj = None
+        self._changes = SceneChanges()   # the scene's state the last frame drew (instance motion)
         self._history_key = None   # what the temporal history was accumulated under (None: no valid history)
         self._steady = None
-        self.uploads = 0  # scene uploads so far (a test reads it: the same scene is uploaded once)
+        self.uploads = 0
+        self.bvh_builds = 0   # BVH builds so far (the scene's first, and each after something moved)  # scene uploads so far (a test reads it: the same scene is uploaded once)
 
     # ---- public ---------------------------------------------------------------------------
     @property
@@ -189,7 +190,7 @@ class Renderer:
         Args:
             aovs: what to read back: AOV names ("color", "depth", "normal", "position", "albedo", "shadow",
                 "shadow_raw", "ao", "ao_raw", "history", "triangle_id", "object_id", "material_id", "motion",
-                "roughness", "metallic", "emissive", "radiance"; see
+                "roughness", "metallic", "emissive", "radiance", "instance_id"; see
                 `Frame.aov`), "all", or None for `engine.settings.DEFAULT_AOVS`. Only these are copied from the GPU.
             scene: what to draw. The last scene stays on the GPU: rendering the same object again uploads nothing.
             camera: the viewpoint (None: `scene.camera`). The image's aspect ratio is the renderer's width /
@@ -324,6 +325,8 @@ class Renderer:
             raise EngineError("render() on a closed Renderer")
         self.ctx.check_open("Renderer.render()")   # a shared context its owner closed: no Vulkan call may follow
         polled = False
+        if scene is self._scene and self._geometry is not None:
+            self._frame_start(scene)   # moved instances: their transforms, the BVH (may drop the recordings)
         if self._steady is not None:
             self._poll_shaders()   # a reload drops the recorded commands, and with them self._steady
             polled = True
@@ -352,8 +355,8 @@ class Renderer:
         camera = camera if camera is not None else scene.camera
         if not polled:
             self._poll_shaders()
-        self._use_scene(scene)
-        self._sync_scene(scene)
+        if self._use_scene(scene):
+            self._frame_start(scene)
         lights = list(scene.lights)
         if len(lights) > MAX_LIGHTS:
             raise ConfigError(f"{scene.name}: {len(lights)} lights, at most {MAX_LIGHTS} are supported")
@@ -371,6 +374,8 @@ class Renderer:
                        tuple(cfg[k] for k in ("shadows", "shadow_samples", "ao", "ao_samples", "ao_radius",
                                               "accumulate")))
         reset = history_key != self._history_key
+        if reset:   # no motion on a frame without history (as the camera's previous matrix is this one)
+            self._changes.still(self._geometry)
         shadow_samples = cfg["reference_samples"] if cfg["shadows"] == "reference" else cfg["shadow_samples"]
         ao_samples = cfg["reference_samples"] if cfg["shadows"] == "reference" else cfg["ao_samples"]
         pack_frame(
@@ -381,7 +386,8 @@ class Renderer:
             ao_radius=cfg["ao_radius"] or 0.1 * diag, ao_samples=ao_samples, shadow_samples=shadow_samples,
             exposure=cfg["exposure"], ambient=cfg["ambient"], scene_scale=diag, accum_alpha=ALPHA_MIN,
             pixel_footprint=2.0 * math.tan(math.radians(camera.fov_y) / 2.0) / self.height,
-            history_reset=reset, bounds=scene.bounds, out=self._block, packed_lights=packed_lights)
+            history_reset=reset, bounds=scene.bounds, out=self._block, packed_lights=packed_lights,
+            objects_moved=not self._changes.settled)
         key = (cfg["shadows"], cfg["ao"], cfg["accumulate"], cfg["denoise"], cfg["view"], len(lights), readback)
         if cfg["shadows"] == "reference":
             key += (cfg["reference_samples"],)
@@ -405,7 +411,7 @@ class Renderer:
             block["prev_view_proj"] = steady.view_proj_cols   # prev_view_proj = this camera's
             block["history_reset"] = 0.0                      # the history key is unchanged
             steady.settled = True
-        block["frame_index"] = self._frame_index
+        block["frame_index"], block["objects_moved"] = self._frame_index, not self._changes.settled
         self._frame_index += 1
         cmd, marks, cfg, n_lights = steady.result
         return cmd, marks, dict(cfg), n_lights
@@ -419,7 +425,7 @@ class Renderer:
         camera_fields(block, view_proj, camera, self.height)
         block["prev_view_proj"] = steady.view_proj_cols   # the last frame's camera
         block["history_reset"] = 0.0                      # the history key is unchanged
-        block["frame_index"] = self._frame_index
+        block["frame_index"], block["objects_moved"] = self._frame_index, not self._changes.settled
         self._frame_index += 1
         self._prev_view_proj = view_proj
         steady.camera, steady.settled = camera, False
@@ -475,9 +481,43 @@ class Renderer:
                 self.ctx.free_command_buffer(cmd)
             self._commands.clear()
 
+    def _frame_start(self, scene):
+        """Before each frame: moved instances into the instance buffer (in place: the recordings stay valid), the
+        geometry uploaded again after a mesh deformed or the material overrides changed, then the ray passes' BVH."""
+        todo = self._changes.begin(scene)   # None: nothing to do; else (a mesh deformed, something changed)
+        if todo is not None:
+            if todo[0] or self._geometry.overrides_changed(scene):   # (the draws and alpha records follow them)
+                self._upload_geometry(scene)
+            self._changes.write(scene, self._geometry)
+            self._update_bvh(scene, todo[1])
+
+    def _update_bvh(self, scene, changed: bool):
+        """The one hook per frame where the ray passes' BVH follows the scene (`changed`; `follow_scene`)."""
+        if self._scene_bvh is None or changed:
+            old = self._scene_bvh
+            self._scene_bvh = follow_scene(self.ctx, old, scene, self.bvh_set, self.bvh_layout,
+                                           (self.shadows, self.ao), self._invalidate_commands,
+                                           self._geometry.alpha_index)
+            if self._scene_bvh is not old:
+                self.bvh_builds += 1
+            self.bvh_stats = dict(self._scene_bvh.bvh.stats, layout=self._scene_bvh.layout)
+
+    def _upload_geometry(self, scene):
+        """The scene's raster data onto the GPU (again after a mesh deformed: the recordings bind it, dropped)."""
+        self._invalidate_commands()
+        if self._geometry is not None:
+            self.ctx.wait_idle()
+            self._geometry.destroy()
+            self._geometry = None
+        self._geometry = SceneGeometry(self.ctx, scene, self.gbuffer.white, self.gbuffer.sampler)
+        self.gbuffer.bind_scene(self._geometry)
+        for p in (self.shadows, self.ao):   # the alpha test's records and textures
+            p.bind_scene(self._geometry, self.gbuffer.white, self.gbuffer.sampler)
+
     def _use_scene(self, scene):
+        """Upload a scene that is not the last one; True when it did."""
         if scene is self._scene:
-            return
+            return False
         self._steady = None
         self._invalidate_commands()
         self.ctx.wait_idle()
@@ -485,52 +525,12 @@ class Renderer:
             if old is not None:
                 old.destroy()
         self._geometry = self._scene_bvh = None
-        self._geometry = SceneGeometry(self.ctx, scene, self.gbuffer.white, self.gbuffer.sampler)
-        self.gbuffer.bind_scene(self._geometry)
-        self._scene_bvh = scene_bvh(self.ctx, scene, self.bvh_set, self.bvh_layout, flat_static=True,
-                                    alpha_index=self._geometry.alpha_index)   # with the alpha test's flags
-        for p in (self.shadows, self.ao):
-            p.bind_scene(self._geometry, self.gbuffer.white, self.gbuffer.sampler)
-        self._specialize_bvh()
+        self._upload_geometry(scene)
+        self._changes = SceneChanges()   # the BVH is built by the first frame's _frame_start
         self._scene = scene
-        self._scene_version = scene.version
         self._prev_view_proj = None
         self.uploads += 1
-
-    def _specialize_bvh(self):
-        self.bvh_stats = dict(self._scene_bvh.bvh.stats, layout=self._scene_bvh.layout)
-        for p in (self.shadows, self.ao):   # the traversal specialized to this BVH (its depth, its node layout)
-            p.specialize_for(self._scene_bvh)
-
-    def _sync_scene(self, scene):
-        """The one place the GPU copy of the current scene follows its changes (moved instances, deformed
-        meshes; `scene.version`), at the start of a frame: the two-level BVH's `update` (top level rebuilt,
-        bottom levels refitted; a scene of one identity instance switches to the two-level BVH at its first
-        change), and the G-buffer's vertex buffer flattened again."""
-        if scene.version == self._scene_version:
-            return
-        self._steady = None
-        self._invalidate_commands()
-        self.ctx.wait_idle()
-        self._geometry.destroy()
-        self._geometry = None
-        self._geometry = SceneGeometry(self.ctx, scene, self.gbuffer.white, self.gbuffer.sampler)
-        self.gbuffer.bind_scene(self._geometry)
-        for p in (self.shadows, self.ao):
-            p.bind_scene(self._geometry, self.gbuffer.white, self.gbuffer.sampler)
-        alpha = self._geometry.alpha_index   # the alpha test's flags (materials may have changed too)
-        if isinstance(self._scene_bvh, InstancedBVH):
-            structure = self._scene_bvh.structure
-            self._scene_bvh.set_alpha(scene, alpha)
-            self._scene_bvh.update(scene)
-            if structure != self._scene_bvh.structure:
-                self._specialize_bvh()
-        else:
-            self._scene_bvh.destroy()
-            self._scene_bvh = None
-            self._scene_bvh = InstancedBVH(self.ctx, scene, self.bvh_set, alpha)
-            self._specialize_bvh()
-        self._scene_version = scene.version
+        return True
 
     def _resize_targets(self, light_capacity):
         Targets.check_capacity(self.ctx, self.width, self.height, light_capacity)

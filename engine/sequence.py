@@ -217,34 +217,45 @@ class SequenceResult:
 
 def render_sequence(renderer: Renderer, scene: Scene, cameras: Sequence[Camera], paths: Sequence[Path], *,
                     aovs: Any, settings: dict, save: dict, frames_per_view: int = 1, sidecars: bool = True,
-                    resume: bool = False, progress: bool = False) -> SequenceResult:
+                    resume: bool = False, progress: bool = False, fps: float | None = None) -> SequenceResult:
     """Render camera i into paths[i] (`Frame.save(path, **save)`) and, with `sidecars`, its camera beside it
     (`sidecar_path`), through `Renderer.render_many` (the GPU renders the next frame while one is written).
     `frames_per_view` frames per camera, the last written (soft shadows and AO accumulate). With `resume`, a frame
     whose files exist is skipped; its sidecar must hold this run's camera. Writes are atomic: a killed run leaves
-    finished frames whole and nothing of the others."""
+    finished frames whole and nothing of the others. With `fps`, frame i shows the scene's animation at
+    t = i / fps (`Scene.animate`; its frames_per_view frames all at that t)."""
     if len(cameras) != len(paths):
         raise ConfigError(f"{len(cameras)} cameras for {len(paths)} output paths")
     check_output_path(paths[0])   # every path is in that folder (output_paths): checked before the work
     width, height = renderer.width, renderer.height
+    if fps is not None and not (isinstance(fps, (int, float)) and not isinstance(fps, bool) and 0 < fps <= 1e6):
+        raise ConfigError(f"--fps {fps!r}: expected frames per second in (0, 1e6]")
     todo = []
     for i, (cam, path) in enumerate(zip(cameras, paths)):
         if not (resume and _finished(path, cam, i, width, height, scene.name, sidecars)):
-            todo.append((cam, path))
+            todo.append((cam, path, i))
     t0 = time.perf_counter()
     written, last = 0, None
-    views = (cam for cam, _ in todo for _ in range(frames_per_view))
+    views = (_at_time(scene, cam, i, fps) for cam, _, i in todo for _ in range(frames_per_view))
     with tqdm(total=len(todo), unit="frame", file=sys.stderr, disable=not progress, dynamic_ncols=True) as bar:
         for j, frame in enumerate(renderer.render_many(scene, views, aovs=aovs, **settings)):
             if (j + 1) % frames_per_view:
                 continue
-            _, path = todo[j // frames_per_view]
+            _, path, _ = todo[j // frames_per_view]
             written += frame.save(path, **save).stat().st_size
             if sidecars:
                 written += frame.save_camera(sidecar_path(path)).stat().st_size
             last = frame
             bar.update(1)
     return SequenceResult(len(paths), len(todo), len(paths) - len(todo), written, time.perf_counter() - t0, last)
+
+
+def _at_time(scene: Scene, camera: Camera, index: int, fps: float | None) -> Camera:
+    """The camera of frame `index`, the scene posed at its time first (render_many asks for the next camera only
+    once the frame before has been prepared, so this moves nothing the GPU still reads)."""
+    if fps is not None:
+        scene.animate(index / fps)
+    return camera
 
 
 def _finished(path: Path, camera: Camera, index: int, width: int, height: int, scene_name: str,

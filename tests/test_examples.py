@@ -17,7 +17,7 @@ from engine.settings import AOVS
 REPO = Path(__file__).resolve().parent.parent
 EXAMPLES = REPO / "examples"
 TESTED = {"render_png.py", "aovs_to_files.py", "soft_shadows.py", "ray_queries.py", "orbit_dataset.py",
-          "view_mesh.py"}
+          "view_mesh.py", "animate.py"}
 
 
 def run_example(name: str, *args, cwd: Path, timeout=300) -> subprocess.CompletedProcess:
@@ -67,7 +67,7 @@ def test_aovs_to_files(tmp_path):
               "shadow": (48, 64, lights), "shadow_raw": (48, 64, lights), "ao": (48, 64), "ao_raw": (48, 64),
               "history": (48, 64), "triangle_id": (48, 64), "object_id": (48, 64), "material_id": (48, 64),
               "motion": (48, 64, 2), "roughness": (48, 64), "metallic": (48, 64), "emissive": (48, 64, 3),
-              "radiance": (48, 64, 3)}
+              "radiance": (48, 64, 3), "instance_id": (48, 64)}
     assert set(shapes) == set(AOVS) - {"color"}
     arrays = {}
     for name, shape in shapes.items():
@@ -94,6 +94,20 @@ def test_soft_shadows_converge(tmp_path):
     assert 0 < last < 0.7 * first, res.stdout   # the noise against the reference drops as frames accumulate
     for name in ("frame1", "frameN", "reference", "shadow_frame1", "shadow_frameN", "shadow_reference"):
         assert png(tmp_path / "soft" / f"{name}.png").shape == (54, 96, 4), name
+
+
+def test_animate_moves_the_default_scene(tmp_path):
+    """Four frames of the default scene's animation plus the scripted drum: every frame written, each differs from
+    the one before, there is motion from frame 1 on (none on the first), and most of the image kept its history."""
+    res = run_example("animate.py", "--size", "96x54", "--frames", "4", "--fps", "2", "-o", "anim", cwd=tmp_path)
+    lines = re.findall(r"frame (\d+): t [\d.]+ s, max motion ([\d.]+) px, history kept on (\d+)%", res.stdout)
+    assert [int(n) for n, _, _ in lines] == [0, 1, 2, 3], res.stdout
+    motion = [float(m) for _, m, _ in lines]
+    assert motion[0] == 0.0 and min(motion[1:]) > 0.5, res.stdout
+    assert min(int(k) for _, _, k in lines[1:]) > 50, res.stdout
+    frames = [png(tmp_path / "anim" / f"frame_{i:04d}.png") for i in range(4)]
+    assert all(f.shape == (54, 96, 4) for f in frames)
+    assert all(not np.array_equal(a, b) for a, b in zip(frames, frames[1:]))
 
 
 def test_ray_queries_over_a_trimesh_mesh(tmp_path):

@@ -305,10 +305,42 @@ def test_masked_instances_cast_the_same_shadows_through_the_two_level_bvh(make_r
     assert r.validation_errors == []
 
 
-def test_masked_mesh_with_differing_instance_overrides_is_refused_by_the_two_level_bvh(make_renderer):
-    r = make_renderer(32, 24)
+def test_masked_mesh_with_differing_instance_overrides_is_traced_through_a_flat_bvh(make_renderer):
+    """Instances of a masked mesh that override its material differently: one alpha record per mesh triangle
+    cannot serve them, so after a change the ray passes trace a flat BVH of the flattened triangles (rebuilt per
+    change), whose shadows equal those of the same scene unchanged; the two-level BVH refuses them itself."""
+    from engine.gpu import InstancedBVH
+    r = make_renderer(96, 72)
+    settings = dict(aovs=("shadow",), shadows="hard", ao=False, accumulate=False, denoise=False)
+    fresh = r.render(masked_leaves_scene(overrides=(None, 2)), **settings).aov["shadow"]
     scene = masked_leaves_scene(overrides=(None, 2))
-    r.render(scene, shadows="hard", ao=False)   # unchanged: the flat BVH, a record per flattened triangle
+    r.render(scene, **settings)
     scene.set_transforms(scene.transforms[1:], [1, 2])
-    with pytest.raises(SceneError, match=r"instance 2 \('leaf1'\) of mesh 'leaf' overrides its material"):
-        r.render(scene, shadows="hard", ao=False)
+    moved = r.render(scene, **settings).aov["shadow"]
+    assert not isinstance(r._scene_bvh, InstancedBVH)
+    assert (fresh == 0).sum() > 100 and np.array_equal(moved, fresh)
+    with pytest.raises(SceneError, match="override its material differently"):
+        InstancedBVH(r.ctx, scene, r.bvh_set, r._geometry.alpha_index)
+    assert r.validation_errors == []
+
+
+def test_masked_instances_are_drawn_instanced_with_their_cut_out(make_renderer):
+    """The raster draws both instances of the masked leaf through the alpha-tested pipeline: each covers its disc
+    (pi 0.35^2 of the quad's UV area), not the quad; an instance's opaque override (set between frames) covers
+    the whole quad, and its instance and material ids say so."""
+    r = make_renderer(128, 96)
+    settings = dict(aovs=("instance_id", "material_id"), shadows="off", ao=False, accumulate=False, denoise=False)
+    scene = masked_leaves_scene()
+    f = r.render(scene, **settings)
+    masked = [int(((f.aov["instance_id"] == i) & (f.aov["material_id"] == 1)).sum()) for i in (1, 2)]
+    solid = masked_leaves_scene(overrides=(2, 2))
+    g = r.render(solid, **settings)
+    full = [int(((g.aov["instance_id"] == i) & (g.aov["material_id"] == 2)).sum()) for i in (1, 2)]
+    for m, s in zip(masked, full):
+        assert s > 300
+        assert abs(m / s - np.pi * 0.35 ** 2) < 0.06, (m, s)
+    scene.set_instance_material(2, 2)   # the second leaf solid from the next frame on
+    h = r.render(scene, **settings)
+    assert int(((h.aov["instance_id"] == 1) & (h.aov["material_id"] == 1)).sum()) == masked[0]
+    assert abs(int(((h.aov["instance_id"] == 2) & (h.aov["material_id"] == 2)).sum()) - full[1]) <= 2
+    assert r.validation_errors == []

@@ -53,7 +53,8 @@ def test_exr_holds_every_aov_exactly_in_named_channels(frame, tmp_path):
                        "position.Y", "position.Z", "albedo.R", "albedo.G", "albedo.B", "motion.X", "motion.Y",
                        "ao.Y", "ao_raw.Y", "history.Y", "shadow.0", "shadow.1", "shadow_raw.0", "shadow_raw.1",
                        "triangle_id.ID", "object_id.ID", "material_id.ID", "roughness.Y", "metallic.Y",
-                       "emissive.R", "emissive.G", "emissive.B", "radiance.R", "radiance.G", "radiance.B"}
+                       "emissive.R", "emissive.G", "emissive.B", "radiance.R", "radiance.G", "radiance.B",
+                       "instance_id.ID"}
     assert ch["depth.Z"].type() == OpenEXR.FLOAT and ch["object_id.ID"].type() == OpenEXR.UINT
     depth = ch["depth.Z"].pixels
     assert depth.dtype == np.float32 and np.array_equal(depth, frame.aov["depth"])   # +inf on the background

@@ -51,12 +51,13 @@ def test_view_cli_screenshot_matches_headless_render(xvfb_display, tmp_path, mak
     shot = tmp_path / "shot.png"
     env = dict(os.environ, HYBRID_VALIDATION="1")
     res = subprocess.run([sys.executable, "-m", "engine", "view", str(SCENE), "--size", "160x90", "--frames", "20",
-                          "--screenshot", str(shot)], cwd=REPO, env=env, capture_output=True, text=True, timeout=300)
+                          "--screenshot", str(shot), "--paused"], cwd=REPO, env=env, capture_output=True, text=True, timeout=300)
     assert res.returncode == 0, f"exit {res.returncode}\n{res.stdout[-2000:]}\n{res.stderr[-3000:]}"
     assert "validation: no errors" in res.stdout
     assert "20 frames at 160x90" in res.stdout   # the summary line
     got = np.asarray(Image.open(shot).convert("RGBA"))
-    # The same view headless, after the same number of frames (temporal accumulation sees the same history).
+    # The same view headless, after the same number of frames (temporal accumulation sees the same history; the
+    # scene's animation paused at its start, as a headless render draws it).
     r, scene = make_renderer(160, 90), Scene.load(SCENE)
     for _ in range(20):
         ref = r.render(scene).color
@@ -109,7 +110,8 @@ def test_resize_between_frames(viewer, make_renderer):
 
     from engine import Scene
 
-    v = viewer(SCENE, 160, 90, settings=dict(ao=False))   # no sampling: any frame of a view is the same
+    # no sampling: any frame of a view is the same (the scene's animation paused at its start)
+    v = viewer(SCENE, 160, 90, settings=dict(ao=False), paused=True)
     assert v.run(frames=3) == 3
     assert v.read_color().shape == (90, 160, 4)
     glfw.set_window_size(v.window, 128, 72)

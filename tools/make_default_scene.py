@@ -447,6 +447,15 @@ position = [4.6, 2.6, 1.0]
 color = [1.0, 0.75, 0.45]
 intensity = 4.0
 radius = 0.1
+
+# motion (docs/scenes.md, "Animation"): the viewer plays it (P pauses), `hybrid render --fps` records it
+[[animation]]
+instance = "knot/knot"
+rotate = { axis = [0.0, 1.0, 0.0], degrees_per_second = 20.0 }
+
+[[animation]]
+instance = "ball"
+oscillate = { offset = [0.0, 0.0, 0.8], period = 4.0 }
 '''
 
 if __name__ == "__main__":

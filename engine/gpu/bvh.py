@@ -152,15 +152,12 @@ def flag_alpha_tested(tris: np.ndarray, alpha_index: np.ndarray) -> None:
     tris["pad1"] = flags
 
 
-def mesh_alpha_index(scene, flat_tri_base: np.ndarray, alpha_index: np.ndarray) -> list:
+def mesh_alpha_index(scene, flat_tri_base: np.ndarray, alpha_index: np.ndarray) -> list | None:
     """Per mesh, its triangles' alpha words for the two-level BVH (whose triangle records are the meshes', shared
     by their instances), read from the flattened scene's `alpha_index` at the mesh's first instance: the records
     hold a triangle's UVs and its material's texture and cutoff, the same for every instance of the mesh unless
-    an instance's material override changes them.
-
-    Raises:
-        SceneError: a mesh with alpha-tested (MASK / BLEND) triangles whose instances override its material
-            differently (the two-level BVH has one alpha record per mesh triangle).
+    an instance's material override changes them. None where a mesh with alpha-tested (MASK / BLEND) triangles
+    has instances that override its material differently: one record per mesh triangle cannot serve them.
     """
     inst_mesh, override = scene.instance_mesh, scene.instance_material
     base = np.asarray(flat_tri_base, dtype=np.int64)
@@ -174,13 +171,8 @@ def mesh_alpha_index(scene, flat_tri_base: np.ndarray, alpha_index: np.ndarray) 
         if len(insts) == 0 or not tested[insts].any():
             out.append(np.zeros(mesh.triangle_count, np.uint32))
             continue
-        differ = insts[override[insts] != override[insts[0]]]
-        if len(differ):
-            name = scene.instances[int(differ[0])].name
-            raise SceneError(f"{scene.name}: instance {int(differ[0])} ('{name}') of mesh '{mesh.name}' overrides "
-                             "its material differently from the mesh's other instances, and the mesh has "
-                             "alpha-tested (MASK / BLEND) triangles: the two-level BVH keeps one alpha record per "
-                             "mesh triangle; give these instances a mesh of their own")
+        if np.any(override[insts] != override[insts[0]]):
+            return None
         first = int(base[insts[0]])
         out.append(np.asarray(alpha_index[first:first + mesh.triangle_count], np.uint32))
     return out
@@ -190,15 +182,23 @@ def scene_bvh(ctx: Context, scene, dset: DescriptorSet, layout: str, flat_static
               alpha_index: np.ndarray | None = None):
     """The BVH of a Scene on the GPU: a SceneBVH of its one mesh (one identity instance) or, with `flat_static`,
     of its flattened triangles while it is unchanged and small enough (FLAT_STATIC_TRIANGLES); else an
-    InstancedBVH (binary layout only). `alpha_index`: the flattened scene's alpha words (flag_alpha_tested)."""
+    InstancedBVH (binary layout only). `alpha_index`: the flattened scene's alpha words (flag_alpha_tested); a
+    scene whose alpha words the two-level BVH cannot share (`mesh_alpha_index`) gets the flat BVH too."""
     if not is_instanced(scene) or (flat_static and scene.version == 0 and
-                                   scene.triangle_count <= FLAT_STATIC_TRIANGLES):
+                                   scene.triangle_count <= FLAT_STATIC_TRIANGLES) or \
+            (alpha_index is not None and mesh_alpha_index(scene, flat_triangle_bases(scene), alpha_index) is None):
         source = scene.meshes[0] if not is_instanced(scene) else scene   # (one identity instance: the same ids)
         bvh = build_bvh(source.positions, source.indices)
         if alpha_index is not None:
             flag_alpha_tested(bvh.tris, alpha_index)
         return SceneBVH.upload(ctx, bvh, dset, layout)
     return InstancedBVH(ctx, scene, dset, alpha_index)
+
+
+def flat_triangle_bases(scene) -> np.ndarray:
+    """(N,) uint32: each instance's first triangle in the flattened scene (`scene.indices`)."""
+    counts = np.array([m.triangle_count for m in scene.meshes], dtype=np.int64)[scene.instance_mesh]
+    return np.concatenate([[0], np.cumsum(counts)[:-1]]).astype(np.uint32)
 
 
 class InstancedBVH:
@@ -223,6 +223,10 @@ class InstancedBVH:
         self.nodes = self.tris = None
         self.views = []
         self.alpha = None if alpha_index is None else mesh_alpha_index(scene, self.flat_tri_base, alpha_index)
+        if alpha_index is not None and self.alpha is None:
+            raise SceneError(f"{scene.name}: a mesh with alpha-tested (MASK / BLEND) triangles has instances that "
+                             "override its material differently; the two-level BVH keeps one alpha record per mesh "
+                             "triangle (scene_bvh traces such a scene through a flat BVH)")
         self._upload(scene)
 
     def _flag_alpha(self) -> None:
@@ -232,14 +236,18 @@ class InstancedBVH:
             t0 = int(self.two.tri_base[k])
             flag_alpha_tested(self.two.tris[t0:t0 + len(b.tris)], self.alpha[k])
 
-    def set_alpha(self, scene, alpha_index: np.ndarray) -> None:
-        """New alpha words (the flattened scene's, as `scene_bvh` takes them; after its materials changed)."""
+    def set_alpha(self, scene, alpha_index: np.ndarray) -> bool:
+        """New alpha words (the flattened scene's, as `scene_bvh` takes them; after its materials changed). False
+        where this BVH cannot hold them (`mesh_alpha_index`): the caller traces a flat BVH instead."""
         alpha = mesh_alpha_index(scene, self.flat_tri_base, alpha_index)
+        if alpha is None:
+            return False
         if self.alpha is not None and all(np.array_equal(a, b) for a, b in zip(alpha, self.alpha)):
-            return
+            return True
         self.alpha = alpha
         self._flag_alpha()
         update_buffer(self.ctx, self.tris, [(0, self.two.tris)])
+        return True
 
     def _upload(self, scene) -> None:
         self.destroy()

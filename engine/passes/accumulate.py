@@ -31,6 +31,9 @@ class AccumulatePass(ComputePass):
         "masks_cur": write("buffer", "masks.cur"),
         "ao_raw": read("buffer", "ao.raw"), "ao_hist": read("buffer", "ao.hist"), "ao_cur": write("buffer", "ao.cur"),
         "len_hist": read("buffer", "len_hist"), "len_cur": write("buffer", "len_cur"),
+        "g_motion": read("image", "motion"), "g_prev_position": read("image", "prev_position"),
+        "g_prev_normal": read("image", "prev_normal"), "g_instance": read("image", "instance_id"),
+        "h_instance": read("image", "hist_instance"),
     }
 
     def record(self, rec, targets, flags: int, n_lights: int):
@@ -39,10 +42,11 @@ class AccumulatePass(ComputePass):
 
     @staticmethod
     def record_history_copy(rec, t, signals):
-        """Copy this frame's accumulated values, history lengths and G-buffer position/normal into the history
+        """Copy this frame's accumulated values, history lengths and G-buffer position/normal/instance into the history
         that the next frame reprojects into (after the accumulate dispatch)."""
         for name in signals:
             rec.copy(t.signals[name].cur, t.signals[name].hist)
         rec.copy(t.len_cur, t.len_hist)
         rec.copy_image(t.position, t.hist_position)
         rec.copy_image(t.normal, t.hist_normal)
+        rec.copy_image(t.instance_id, t.hist_instance)

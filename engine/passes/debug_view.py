@@ -19,6 +19,7 @@ class DebugViewPass(ComputePass):
         "g_triangle": read("image", "triangle_id"), "g_object": read("image", "object_id"),
         "g_material": read("image", "material_id"), "g_motion": read("image", "motion"),
         "g_pbr": read("image", "material"), "g_emissive": read("image", "emissive"), "g_hdr": read("image", "hdr"),
+        "g_instance": read("image", "instance_id"),
         "out_color": write("image", "color"),
     }
 

@@ -8,54 +8,103 @@ derivatives of the neighbouring pixels (trilinear, anisotropic where the device 
 array images, engine/passes/textures.py). Writing the whole G-buffer from fragments was several times slower on a GPU
 with few raster units; the same bytes from compute cost a small fraction of that.
 
-Vertices are interleaved (position, normal, uv: 32 bytes); triangles are sorted by material and drawn with one
-draw per material, the draw's first triangle in a push constant (the triangle id is that + gl_PrimitiveID).
+Vertices are interleaved (position, normal, uv: 32 bytes), in object space, every mesh once in one vertex and one
+index buffer, each mesh's triangles sorted by material; a mesh's instances are drawn together (vkCmdDrawIndexed
+with their count and first slot), one draw per material range of the mesh (or one for the whole mesh where the
+instances override its material), the range's first triangle within the mesh in a push constant. Alpha-tested
+materials are drawn after the opaque ones by their own pipeline (gbuffer_mask.vert / .frag, which discards). The
+instances are a storage buffer in draw order (grouped by mesh and material override): transforms (this frame's and
+the previous one's, with their normal matrices), rewritten in place per frame, and each instance's first visibility
+id (the triangles of the instances before it), so the visibility id is that + the draw's first triangle +
+gl_PrimitiveID + 1 and the resolve finds the instance by a binary search.
 """
 from __future__ import annotations
 
 import numpy as np
 
-from ..errors import ShaderError
+from ..errors import SceneError, ShaderError
 from ..scene.material import texture_key
-from ..vk import (BufferView, DescriptorSet, GraphicsPipeline, Sampler, device, reflect, upload_buffer,
+from ..vk import (Buffer, BufferView, DescriptorSet, GraphicsPipeline, Sampler, device, reflect, upload_buffer,
                   upload_texture_array)
 from ..vk.formats import R32UI, RG32F, RGB32F, RGBA32F, RGBA32UI
-from ..vk.resources import INDEX, UNIFORM_TEXEL, VERTEX
+from ..vk.resources import INDEX, STORAGE, UNIFORM_TEXEL, VERTEX
 from .base import ComputePass, read, update, write
 from .interface import MATERIAL_FLAGS, MATERIAL_TEXELS, MAX_TEXTURE_ARRAYS
 from .targets import DEPTH_FORMAT, VISIBILITY_FORMAT
 from .textures import TextureArrays
 
 
+INSTANCE_FLOATS = 64   # std430 `Instance` (shaders/glsl/include/instances.glsl): 256 bytes
+NO_MATERIAL = 0xFFFFFFFF
+
+
+def instance_materials(scene) -> np.ndarray:
+    """(N,) int64 material override of each instance, -1 where none."""
+    return np.asarray(scene.instance_material, np.int64)
+
+
+def inverse3(a: np.ndarray) -> np.ndarray:
+    """(N, 3, 3) inverses of invertible (N, 3, 3) matrices: the adjugate over the determinant, component by
+    component (far cheaper than np.linalg.inv or np.cross for many small matrices)."""
+    (a00, a01, a02), (a10, a11, a12), (a20, a21, a22) = (
+        (a[:, i, 0], a[:, i, 1], a[:, i, 2]) for i in range(3))
+    adj = np.empty_like(a)
+    adj[:, 0, 0], adj[:, 0, 1], adj[:, 0, 2] = a11 * a22 - a12 * a21, a02 * a21 - a01 * a22, a01 * a12 - a02 * a11
+    adj[:, 1, 0], adj[:, 1, 1], adj[:, 1, 2] = a12 * a20 - a10 * a22, a00 * a22 - a02 * a20, a02 * a10 - a00 * a12
+    adj[:, 2, 0], adj[:, 2, 1], adj[:, 2, 2] = a10 * a21 - a11 * a20, a01 * a20 - a00 * a21, a00 * a11 - a01 * a10
+    det = a00 * adj[:, 0, 0] + a01 * adj[:, 1, 0] + a02 * adj[:, 2, 0]
+    return adj / det[:, None, None]
+
+
 class SceneGeometry:
-    """The scene's raster data on the GPU: vertex/index buffers, per-triangle materials, materials, textures, draw
-    ranges. Vertices, indices and materials are also texel buffers: the resolve reads the visible triangle's."""
+    """The scene's raster data on the GPU: one vertex and one index buffer holding every mesh once (object space),
+    per mesh triangle its material and object, the materials, textures, the ray passes' alpha records, the instanced
+    draws (opaque and alpha-tested), and the
+    instances (transforms this frame and the previous one, in a host-visible buffer rewritten per frame, so the
+    recorded command buffer stays valid while instances move). Vertices, indices and triangle data are also texel
+    buffers: the resolve reads the visible triangle's."""
 
     def __init__(self, ctx, scene, white_texture, sampler):
         self.ctx = ctx
-        verts = np.zeros((len(scene.positions), 8), np.float32)
-        verts[:, 0:3] = scene.positions
-        verts[:, 3:6] = scene.normals
-        verts[:, 6:8] = scene.uvs
-        tri_mat = scene.vertex_material[scene.indices[:, 0]]
-        order = np.argsort(tri_mat, kind="stable")
-        indices = np.ascontiguousarray(scene.indices[order], dtype=np.uint32)
-        mats_sorted = tri_mat[order]
-        self.draws = []  # (material, first index, index count); the draw's first triangle is first index / 3
-        if len(mats_sorted):
-            starts = np.flatnonzero(np.r_[True, mats_sorted[1:] != mats_sorted[:-1]])
-            ends = np.r_[starts[1:], len(mats_sorted)]
-            self.draws = [(int(mats_sorted[s]), int(s) * 3, int(e - s) * 3) for s, e in zip(starts, ends)]
+        meshes, mesh_of, overrides = list(scene.meshes), np.asarray(scene.instance_mesh, np.int64), \
+            instance_materials(scene)
+        n_vert = sum(len(m.positions) for m in meshes)
+        verts = np.zeros((n_vert, 8), np.float32)
+        indices, info, first_tri = [], [], []
+        self.mesh_ranges = []   # per mesh: (material, first triangle within the mesh, triangle count)
+        v0 = t0 = 0
+        for m in meshes:
+            nv, nt = len(m.positions), len(m.indices)
+            verts[v0:v0 + nv, 0:3] = m.positions
+            verts[v0:v0 + nv, 3:6] = m.normals
+            verts[v0:v0 + nv, 6:8] = m.uvs
+            tri_mat = np.asarray(m.vertex_material[m.indices[:, 0]], np.int64)
+            order = np.argsort(tri_mat, kind="stable")   # the mesh's triangles grouped by material
+            indices.append(np.asarray(m.indices, np.int64)[order] + v0)
+            objects = np.zeros(nt, np.uint32)
+            for k, sub in enumerate(m.submeshes):
+                objects[sub.first_triangle:sub.first_triangle + sub.triangle_count] = k
+            tri = np.zeros((nt, 4), np.uint32)   # material, triangle within the mesh, object within the mesh
+            tri[:, 0], tri[:, 1], tri[:, 2] = tri_mat[order], order, objects[order]
+            info.append(tri)
+            mats = tri_mat[order]
+            starts = np.flatnonzero(np.r_[True, mats[1:] != mats[:-1]]) if nt else np.zeros(0, np.int64)
+            ends = np.r_[starts[1:], nt]
+            self.mesh_ranges.append([(int(mats[a]), int(a), int(b - a)) for a, b in zip(starts, ends)])
+            first_tri.append(t0)
+            v0, t0 = v0 + nv, t0 + nt
+        self.mesh_triangles = np.array([len(m.indices) for m in meshes], np.int64)
+        self.mesh_first_triangle = np.array(first_tri, np.int64)
         self.vertex_buffer = upload_buffer(ctx, verts, VERTEX | UNIFORM_TEXEL, "vertices")
-        self.index_buffer = upload_buffer(ctx, indices, INDEX | UNIFORM_TEXEL, "indices")
-        # per drawn triangle: its material, its index in the scene and its object (the sub-mesh it came from)
-        info = np.zeros((len(order) + 1, 4), np.uint32)
-        info[:-1, 0], info[:-1, 1], info[:-1, 2] = mats_sorted, order, triangle_objects(scene)[order]
-        self.tri_info_buffer = upload_buffer(ctx, info, UNIFORM_TEXEL, "triangle info")
+        self.index_buffer = upload_buffer(ctx, np.ascontiguousarray(np.concatenate(indices), np.uint32),
+                                          INDEX | UNIFORM_TEXEL, "indices")
+        self.tri_info_buffer = upload_buffer(ctx, np.concatenate(info + [np.zeros((1, 4), np.uint32)]),
+                                             UNIFORM_TEXEL, "triangle info")
+        self.alpha_tested = {i for i, m in enumerate(scene.materials) if m.alpha_mode != "OPAQUE"}
+        self._instances(meshes, mesh_of, overrides)
 
         self.textures = TextureArrays(ctx, scene_textures(scene.materials))
         mat_data = material_texels(scene.materials, self.textures)
-        self.alpha_tested = {i for i, m in enumerate(scene.materials) if m.alpha_mode != "OPAQUE"}
         self.material_buffer = upload_buffer(ctx, mat_data, UNIFORM_TEXEL, "materials")
         self.alpha_index, records = alpha_records(scene, self.textures)
         self.alpha_buffer = upload_buffer(ctx, records, UNIFORM_TEXEL, "alpha records")
@@ -65,9 +114,85 @@ class SceneGeometry:
         self.white = white_texture
         self.sampler = sampler
 
+    def _instances(self, meshes, mesh_of, overrides):
+        """The draw order (instances grouped by mesh, then material override), the draws and the instance buffer's
+        constant fields."""
+        n = len(mesh_of)
+        self.instance_count = n
+        self.order = np.lexsort((overrides, mesh_of))   # draw slot -> instance (stable)
+        tris = self.mesh_triangles[mesh_of[self.order]]
+        total = int(tris.sum())
+        if total >= 2 ** 32 - 1:
+            raise SceneError(f"{total:,} instanced triangles: the visibility buffer's 32-bit ids hold at most "
+                             f"{2 ** 32 - 2:,}")
+        prefix = np.concatenate([[0], np.cumsum(tris)[:-1]]).astype(np.int64)
+        # the flat arrays' order (scene.indices, scene.submeshes): instances in scene order, their triangles in a row
+        flat_tri = np.concatenate([[0], np.cumsum(self.mesh_triangles[mesh_of])[:-1]])
+        subs = np.array([len(m.submeshes) for m in meshes], np.int64)
+        flat_obj = np.concatenate([[0], np.cumsum(subs[mesh_of])[:-1]])
+        # per run of instances of one mesh and override, its draws: (first index, index count, instance count,
+        # first instance, push constants: first triangle within the mesh (and the material, for the alpha test))
+        self.opaque_draws, self.masked_draws = [], []
+        keys = np.stack([mesh_of[self.order], overrides[self.order]], axis=1) if n else np.zeros((0, 2), np.int64)
+        runs = np.flatnonzero(np.r_[True, np.any(keys[1:] != keys[:-1], axis=1)]) if n else np.zeros(0, np.int64)
+        for f, e in zip(runs, np.r_[runs[1:], n]):
+            k, over = int(keys[f, 0]), int(keys[f, 1])
+            base = int(self.mesh_first_triangle[k])
+            ranges = self.mesh_ranges[k] if over < 0 else [(over, 0, int(self.mesh_triangles[k]))]
+            for material, start, count in ranges:
+                if count == 0:
+                    continue
+                draw = (3 * (base + start), 3 * count, int(e - f), int(f))
+                if material in self.alpha_tested:
+                    self.masked_draws.append(draw + (np.array([start, material], np.uint32).tobytes(),))
+                else:
+                    self.opaque_draws.append(draw + (np.uint32(start).tobytes(),))
+        self.instance_buffer = Buffer(self.ctx, max(n, 1) * INSTANCE_FLOATS * 4, STORAGE, host=True,
+                                      name="instances")
+        block = self.instance_buffer.view(np.float32)[:n * INSTANCE_FLOATS].reshape(n, INSTANCE_FLOATS)
+        block[:] = 0
+        ids = block.view(np.uint32)
+        o = self.order
+        ids[:, 56] = prefix
+        ids[:, 57] = self.mesh_first_triangle[mesh_of[o]]
+        ids[:, 58] = o
+        ids[:, 59] = np.where(overrides[o] < 0, NO_MATERIAL, overrides[o])
+        ids[:, 60] = flat_tri[o]
+        ids[:, 61] = flat_obj[o]
+        self._block = block
+        self._overrides = overrides.copy()
+        self._written = None   # (transforms, previous transforms) last written
+
+    def overrides_changed(self, scene) -> bool:
+        """Do the instances' material overrides differ from those this geometry was made for? (The draws, their
+        pipelines and the ray passes' alpha records follow the overrides: the geometry is made again.)"""
+        return not np.array_equal(instance_materials(scene), self._overrides)
+
+    def write_transforms(self, transforms: np.ndarray, previous: np.ndarray) -> bool:
+        """Write this frame's and the previous frame's (N, 4, 4) object-to-world transforms (scene order) into the
+        instance buffer (the frame that reads it must have finished). Returns False when they are what the buffer
+        holds already (nothing written)."""
+        w = self._written
+        if w is not None and np.array_equal(w[0], transforms) and np.array_equal(w[1], previous):
+            return False
+        block, o = self._block, self.order
+        todo = [(0, transforms), (16, previous)]
+        if w is not None and np.array_equal(w[0], previous):   # last frame's current: moved over, not recomputed
+            block[:, 16:32], block[:, 44:56] = block[:, 0:16], block[:, 32:44]
+            todo = todo[:1]
+        for at, m in todo:
+            m = m[o]
+            block[:, at:at + 16] = m.transpose(0, 2, 1).reshape(-1, 16)   # GLSL mat4: column-major
+            inv = inverse3(m[:, :3, :3])   # rows of inv(A): the columns of its inverse transpose
+            base = 32 + at * 3 // 4
+            for r in range(3):
+                block[:, base + 4 * r:base + 4 * r + 3] = inv[:, r]
+        self._written = (transforms.copy(), previous.copy())
+        return True
+
     def destroy(self):
         for obj in [*self.views, self.vertex_buffer, self.index_buffer, self.tri_info_buffer,
-                    self.material_buffer, self.alpha_buffer, self.textures]:
+                    self.material_buffer, self.alpha_buffer, self.instance_buffer, self.textures]:
             obj.destroy()
 
 
@@ -133,21 +258,40 @@ def alpha_records(scene, textures: TextureArrays) -> tuple[np.ndarray, np.ndarra
     return index, records
 
 
-def flag_alpha_tested(tris: np.ndarray, alpha_index: np.ndarray):
-    """Write each BVH triangle's alpha record + 1 (0: opaque) into its free word (engine/bvh/layout.py pad1)."""
-    prim = tris["prim"].astype(np.int64)
-    flags = np.zeros(len(tris), np.uint32)
-    ok = (prim >= 0) & (prim < len(alpha_index))
-    flags[ok] = alpha_index[prim[ok]]
-    tris["pad1"] = flags
+class SceneChanges:
+    """What the last frame drew of a scene's instances (its `version`, the transforms), so that the next frame
+    writes the instance buffer only when something moved, with the previous transforms its motion needs."""
 
+    def __init__(self):
+        self.version = None      # the scene's `version` the last frame drew (None: none drawn yet)
+        self.last = None         # the transforms the last frame drew
+        self.settled = False     # the instance buffer's previous transforms equal its current ones
 
-def triangle_objects(scene) -> np.ndarray:
-    """(T,) uint32: the index in `scene.submeshes` of each triangle's sub-mesh (the object id)."""
-    out = np.zeros(scene.triangle_count, np.uint32)
-    for k, sub in enumerate(scene.submeshes):
-        out[sub.first_triangle:sub.first_triangle + sub.triangle_count] = k
-    return out
+    def begin(self, scene):
+        """None when nothing changed since the last frame (and it had no motion); else (whether a mesh deformed,
+        whether anything changed)."""
+        version = scene.version
+        if version == self.version and self.settled:
+            return None
+        changed = self.version is None or version != self.version
+        deformed = self.version is not None and changed and len(scene.deformed_meshes(self.version)) > 0
+        self.version = version
+        return deformed, changed
+
+    def write(self, scene, geom: SceneGeometry) -> None:
+        """This frame's transforms and the last frame's into `geom` (made for the scene's current material
+        overrides: `SceneGeometry.overrides_changed`)."""
+        transforms = scene.transforms
+        last = self.last if self.last is not None and self.last.shape == transforms.shape else transforms
+        geom.write_transforms(transforms, last)
+        self.settled = np.array_equal(transforms, last)
+        self.last = transforms.copy()
+
+    def still(self, geom: SceneGeometry) -> None:
+        """No motion this frame (a frame without temporal history): the previous transforms are the current."""
+        if self.last is not None:
+            geom.write_transforms(self.last, self.last)
+            self.settled = True
 
 
 class ResolvePass(ComputePass):
@@ -164,7 +308,9 @@ class ResolvePass(ComputePass):
         "g_depth": write("image", "view_depth"), "g_triangle": write("image", "triangle_id"),
         "g_object": write("image", "object_id"), "g_material": write("image", "material_id"),
         "g_motion": write("image", "motion"), "g_pbr": write("image", "material"),
-        "g_emissive": write("image", "emissive"),
+        "g_emissive": write("image", "emissive"), "g_instance": write("image", "instance_id"),
+        "g_prev_position": write("image", "prev_position"), "g_prev_normal": write("image", "prev_normal"),
+        "instances": read("buffer"),
     }
 
     def constants(self, ctx) -> dict:
@@ -216,10 +362,10 @@ class GBufferPass:
 
     def __init__(self, ctx, library, resources):
         self.ctx, self.library = ctx, library
-        self.raster = _Raster(ctx, library, "gbuffer", {"frame"}, [(0, RGB32F, 0)])
+        self.raster = _Raster(ctx, library, "gbuffer", {"frame", "instances"}, [(0, RGB32F, 0)])
         self.raster.set.bind("frame", resources["frame"])
         # alpha-tested materials: UVs too, and the materials and textures for the alpha test
-        self.masked = _Raster(ctx, library, "gbuffer_mask", {"frame", "materials", "textures"},
+        self.masked = _Raster(ctx, library, "gbuffer_mask", {"frame", "materials", "textures", "instances"},
                               [(0, RGB32F, 0), (1, RG32F, 24)])
         self.masked.set.bind("frame", resources["frame"])
         self.resolve = ResolvePass(ctx, library, resources)
@@ -246,6 +392,9 @@ class GBufferPass:
         for name, view in zip(("vertices", "indices", "tri_info", "materials"), geom.views):
             s.bind(name, view)
         self.masked.set.bind("materials", geom.views[3])
+        for r in (self.raster, self.masked):
+            r.set.bind("instances", geom.instance_buffer)
+        s.bind("instances", geom.instance_buffer)
         for slot in range(MAX_TEXTURE_ARRAYS):
             tex = geom.textures.images[slot] if slot < len(geom.textures) else self.white
             for s in (self.resolve.set, self.masked.set):
@@ -255,11 +404,8 @@ class GBufferPass:
         # The visibility image is all zeros here (cleared when made, then by each frame's resolve after reading it),
         # so the raster loads it instead of clearing it (a clear costs GPUs with few raster units).
         # Opaque materials first, keeping early depth tests; then the alpha-tested ones, whose shader discards.
-        opaque = [(first, count, np.uint32(first // 3).tobytes())
-                  for material, first, count in geom.draws if material not in geom.alpha_tested]
-        masked = [(first, count, np.array([first // 3, material], np.uint32).tobytes())
-                  for material, first, count in geom.draws if material in geom.alpha_tested]
         rec.raster(self.raster.pipeline, [self.raster.set], targets.visibility, targets.depth, geom.vertex_buffer,
-                   geom.index_buffer, opaque, reads=[self.resources["frame"]],
-                   more=[(self.masked.pipeline, [self.masked.set], masked)])
-        self.resolve.dispatch(rec, self.resolve.tiles(targets.width, targets.height))
+                   geom.index_buffer, geom.opaque_draws, reads=[self.resources["frame"]],
+                   more=[(self.masked.pipeline, [self.masked.set], geom.masked_draws)])
+        self.resolve.dispatch(rec, self.resolve.tiles(targets.width, targets.height),
+                              push=np.array([geom.instance_count], np.uint32))

@@ -20,7 +20,7 @@ from .std140 import Struct
 #: by debug_view.comp (VIEW_<NAME> = the index here). A Literal, so that type checkers and IDEs know the names.
 ViewMode = Literal["color", "position", "normal", "albedo", "depth", "shadow_raw", "shadow", "ao_raw", "ao", "history",
                    "triangle_id", "object_id", "material_id", "motion", "roughness", "metallic", "emissive",
-                   "radiance"]
+                   "radiance", "instance_id"]
 VIEW_MODES: tuple[str, ...] = get_args(ViewMode)
 #: shadow.comp's modes (SHADOW_<NAME>); "off" records no shadow pass.
 TracedShadowMode = Literal["hard", "soft", "seed-delta", "reference"]
@@ -75,6 +75,7 @@ AOVS = {
     "metallic": AOV("material", 4, "unorm8", first=1),
     "emissive": AOV("emissive", 8, "float16", 3),
     "radiance": AOV("hdr", 8, "float16", 3),
+    "instance_id": AOV("instance_id", 4, "int32"),
 }
 
 
@@ -96,7 +97,7 @@ FRAME = Struct("FrameData", [
     ("width", "uint"), ("height", "uint"), ("frame_index", "uint"), ("light_count", "uint"),
     ("ao_radius", "float"), ("ao_samples", "float"), ("shadow_samples", "float"), ("exposure", "float"),
     ("ambient", "vec3"), ("scene_scale", "float"),
-    ("accum_alpha", "float"), ("pixel_footprint", "float"), ("history_reset", "float"),
+    ("accum_alpha", "float"), ("pixel_footprint", "float"), ("history_reset", "float"), ("objects_moved", "float"),
     ("bounds_min", "vec3"), ("bounds_max", "vec3"),
     ("lights", LIGHT, MAX_LIGHTS),
 ], doc={
@@ -109,6 +110,7 @@ FRAME = Struct("FrameData", [
     "accum_alpha": "the temporal blend's smallest weight",
     "pixel_footprint": "a pixel's size per unit of view depth",
     "history_reset": "1: the temporal history is invalid",
+    "objects_moved": "1: an instance moved since the last frame (accumulate.comp clamps the history)",
     "bounds_min": "scene bounds (debug views)",
 })
 FRAME_BYTES = FRAME.size
@@ -191,7 +193,8 @@ def camera_fields(block, view_proj, camera, height: int):
 
 def pack_frame(*, view_proj, prev_view_proj, eye, forward, near, width, height, frame_index, lights,
                ao_radius, ao_samples, shadow_samples, exposure, ambient, scene_scale, accum_alpha,
-               pixel_footprint=0.0, history_reset=False, bounds=None, out=None, packed_lights=None):
+               pixel_footprint=0.0, history_reset=False, bounds=None, out=None, packed_lights=None,
+               objects_moved=False):
     """The FRAME block. `out`: a FRAME record (e.g. a view of the mapped uniform buffer) to write into, returned;
     without it, the block's bytes. `packed_lights`: `pack_light` of each light, when already made."""
     if len(lights) > MAX_LIGHTS:
@@ -207,6 +210,7 @@ def pack_frame(*, view_proj, prev_view_proj, eye, forward, near, width, height, 
     block["exposure"], block["ambient"] = exposure, np.broadcast_to(np.asarray(ambient, np.float32), (3,))
     block["scene_scale"], block["accum_alpha"], block["pixel_footprint"] = scene_scale, accum_alpha, pixel_footprint
     block["history_reset"] = 1.0 if history_reset else 0.0
+    block["objects_moved"] = 1.0 if objects_moved else 0.0
     if bounds is not None:
         b = np.asarray(bounds, np.float32).reshape(2, 3)
         block["bounds_min"], block["bounds_max"] = b[0], b[1]

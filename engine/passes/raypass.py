@@ -8,6 +8,7 @@ from __future__ import annotations
 import numpy as np
 
 from ..gpu import bvh_spec, compresses
+from ..gpu.bvh import InstancedBVH, is_instanced, scene_bvh
 from ..vk import device
 from .base import ComputePass, read, update
 from .interface import MAX_TEXTURE_ARRAYS
@@ -43,10 +44,48 @@ class RayPass(ComputePass):
         self.specialize(ALPHA_TEST=bool(geom.alpha_tested), TEXTURE_ARRAYS=max(1, len(geom.textures)))
 
     def specialize_for(self, scene_bvh):
-        """The traversal specialized to this scene's BVH (its depth, its node layout)."""
-        self.specialize(**scene_bvh.spec(self.ctx, postpone=self.postpone_leaves))
+        """The traversal specialized to this scene's BVH (its depth, its node layout, one or two levels)."""
+        self.specialize(**self._spec(scene_bvh))
+
+    def spec_matches(self, scene_bvh) -> bool:
+        """Is the pipeline specialized as `specialize_for(scene_bvh)` would make it?"""
+        return all(self.values.get(k) == v for k, v in self._spec(scene_bvh).items())
+
+    def _spec(self, scene_bvh) -> dict:
+        # a single-level BVH's spec leaves the two-level walk out: said here, so that a pass that traced a
+        # scene of instances before walks this one as one level
+        return {"BVH_INSTANCED": False, **scene_bvh.spec(self.ctx, postpone=self.postpone_leaves)}
 
     def dispatch_rows(self, rec, targets, push, rows=None):
         """One dispatch over the image, or over `rows` rows (the push constants then say which)."""
         rows = targets.height if rows is None else rows
         self.dispatch(rec, self.tiles(targets.width, rows), push=np.asarray(push, np.uint32))
+
+
+def follow_scene(ctx, bvh, scene, dset, layout, passes, drop_recordings, alpha_index=None):
+    """The ray passes' BVH brought up to `scene`'s current state (`bvh`: the one they trace, or None); returns it.
+    A scene of instances has the two-level BVH from its first change on (until then one flat BVH of its
+    triangles, `scene_bvh(flat_static=True)`): its top level rewritten in place, a deformed mesh refitted, and
+    the recorded command buffers stay valid; new buffers (a rebuild), another kind of BVH or another
+    specialization of `passes` call `drop_recordings()` first. One instance placed by the identity: its mesh's
+    BVH, made again when the mesh deformed. `alpha_index`: the alpha test's words per flattened triangle
+    (SceneGeometry.alpha_index; written into the triangle records, `flag_alpha_tested`)."""
+    # (the alpha words in place where the overrides changed them; where the two-level BVH cannot hold them, a flat one)
+    if bvh is not None and is_instanced(scene) and isinstance(bvh, InstancedBVH) and \
+            (alpha_index is None or bvh.set_alpha(scene, alpha_index)):
+        structure = bvh.structure
+        bvh.update(scene)
+        if bvh.structure == structure and all(p.spec_matches(bvh) for p in passes):
+            return bvh
+    elif bvh is not None:
+        drop_recordings()
+        ctx.wait_idle()
+        bvh.destroy()
+        bvh = None
+    if bvh is None:
+        bvh = scene_bvh(ctx, scene, dset, layout, flat_static=True,   # flat while unchanged (faster on CPUs)
+                        alpha_index=alpha_index)
+    drop_recordings()
+    for p in passes:   # the traversal specialized to this BVH (its depth, its node layout)
+        p.specialize_for(bvh)
+    return bvh

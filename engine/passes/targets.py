@@ -73,6 +73,11 @@ class Targets:
         # the lighting's material inputs: roughness, metallic, occlusion (RGBA8 unorm) and emitted radiance
         self.material = Image(ctx, width, height, RGBA8, resolved, name="material")
         self.emissive = Image(ctx, width, height, RGBA16F, resolved, name="emissive")
+        self.instance_id = Image(ctx, width, height, R32UI, resolved, name="instance id")
+        # where each pixel's surface point was in the previous frame (its instance's previous transform): the
+        # temporal reprojection's same-surface tests
+        self.prev_position = Image(ctx, width, height, POSITION_FORMAT, STORAGE_IMAGE, name="previous position")
+        self.prev_normal = Image(ctx, width, height, RGBA16F, STORAGE_IMAGE, name="previous normal")
         self.depth = Image(ctx, width, height, DEPTH_FORMAT, DEPTH_ATTACHMENT)
         self.color = Image(ctx, width, height, RGBA8, STORAGE_IMAGE | COPY_SRC, name="color")
         self.hdr = Image(ctx, width, height, RGBA16F, STORAGE_IMAGE | COPY_SRC, name="hdr")
@@ -80,6 +85,7 @@ class Targets:
         self.hist_position = Image(ctx, width, height, POSITION_FORMAT, STORAGE_IMAGE | COPY_DST,
                                    name="history position")
         self.hist_normal = Image(ctx, width, height, NORMAL_FORMAT, STORAGE_IMAGE | COPY_DST, name="history normal")
+        self.hist_instance = Image(ctx, width, height, R32UI, STORAGE_IMAGE | COPY_DST, name="history instance")
         self.signals = {"masks": Signal(ctx, "masks", n, light_capacity), "ao": Signal(ctx, "ao", n, 1)}
         buf_usage = STORAGE | TRANSFER_SRC | TRANSFER_DST
         self.len_cur = Buffer(ctx, n * 4, buf_usage, name="history length")
@@ -87,14 +93,15 @@ class Targets:
         self.readbacks: dict = {}   # (AOV names, slot) -> (host buffer, {name: offset})
         images = [self.visibility, self.normal8, self.position, self.normal, self.albedo, self.depth, self.color,
                   self.hdr, self.hist_position, self.hist_normal, self.view_depth, self.triangle_id, self.object_id,
-                  self.material_id, self.motion, self.material, self.emissive]
+                  self.material_id, self.motion, self.material, self.emissive, self.instance_id, self.prev_position,
+                  self.prev_normal, self.hist_instance]
         self._objects = images + [self.len_cur, self.len_hist]
         for sig in self.signals.values():
             self._objects += sig.buffers()
         self.resources = {"frame": frame_ubo, **{name: getattr(self, name) for name in (
             "visibility", "position", "normal", "albedo", "normal8", "depth", "color", "hdr", "hist_position",
             "hist_normal", "len_cur", "len_hist", "view_depth", "triangle_id", "object_id", "material_id",
-            "motion", "material", "emissive")}}
+            "motion", "material", "emissive", "instance_id", "prev_position", "prev_normal", "hist_instance")}}
         for sname, sig in self.signals.items():
             self.resources.update({f"{sname}.{part}": getattr(sig, part) for part in Signal.NAMES})
         # Every colour image in GENERAL layout; the visibility image starts as background (each frame's resolve leaves
@@ -102,7 +109,8 @@ class Targets:
         with ctx.one_shot() as cmd:
             for img in images:
                 if img is not self.depth:
-                    to_general(cmd, img, clear=img in (self.visibility, self.hist_position, self.hist_normal))
+                    to_general(cmd, img, clear=img in (self.visibility, self.hist_position, self.hist_normal,
+                                                             self.hist_instance))
             for buf in (self.len_cur, self.len_hist):
                 fill(cmd, buf, 0)
 

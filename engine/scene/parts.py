@@ -29,3 +29,4 @@ class SceneParts:
     lights: list | None = None
     camera: object | None = None
     settings: dict | None = None
+    animations: list | None = None   # animation.Animation (a TOML scene's [[animation]] tables)

@@ -24,6 +24,7 @@ from .camera import Camera
 from .geometry import up_transform
 from .lights import Light, default_sun
 from .material import Material, material_key
+from .animation import Player, check_targets
 from .instances import Instance, Mesh, check_material_override, check_transforms, flatten, frozen, world_boxes
 from .parts import SceneParts, SubMesh
 from .paths import allowed_folders
@@ -159,6 +160,8 @@ class Scene:
             if not isinstance(light, Light):
                 raise SceneError(f"{where}: lights[{i}] is a {type(light).__name__}, not a light")
         self.lights = lights
+        self.animations: list = []   # animation.Animation: what `animate(t)` plays
+        self._player = None
         self._camera = None
         self.camera = camera
 
@@ -504,8 +507,23 @@ class Scene:
     @classmethod
     def _from_parts(cls, parts: SceneParts) -> Scene:
         """A scene from what a loader collected (checked like any other)."""
-        return cls.from_meshes(parts.meshes, parts.instances, materials=parts.materials, lights=parts.lights,
-                               camera=parts.camera, name=parts.name, settings=parts.settings)
+        scene = cls.from_meshes(parts.meshes, parts.instances, materials=parts.materials, lights=parts.lights,
+                                camera=parts.camera, name=parts.name, settings=parts.settings)
+        if parts.animations:
+            check_targets(parts.animations, [i.name for i in scene.instances], shown(scene.name))
+            scene.animations = list(parts.animations)
+        return scene
+
+    # ------------------------------------------------------------------ animation
+    def animate(self, t: float) -> None:
+        """Pose the scene at time `t` (seconds) by its `animations` (a TOML scene's `[[animation]]` tables,
+        docs/scenes.md): each animated instance's transform and light's position / direction is set to its initial
+        one moved by the animation at `t`; so any `t`, in any order, gives the same scene. No animations: nothing
+        changes."""
+        if self.animations:
+            if self._player is None:
+                self._player = Player(self, self.animations)
+            self._player.apply(t)
 
 
 def scene_from_dict(data: dict, path: str = "<toml>", allow_paths=None) -> Scene:

@@ -15,6 +15,7 @@ import numpy as np
 from engine.errors import ConfigError, SceneError, shown
 
 from . import _check, primitives
+from .animation import parse_animations
 from .camera import Camera
 from .geometry import up_transform
 from .lights import LIGHT_TYPES
@@ -23,7 +24,7 @@ from .material import Material
 from .parts import SceneParts
 from .paths import Folders
 
-TOP_LEVEL = ("up", "camera", "mesh", "light", "settings")
+TOP_LEVEL = ("up", "camera", "mesh", "light", "settings", "animation")
 CAMERA_KEYS = ("eye", "target", "up", "fov", "near")
 MESH_COMMON = ("name", "file", "primitive", "translate", "rotate", "scale", "color", "texture", "uv_scale", "metallic",
                "roughness", "emissive", "instances")
@@ -150,7 +151,9 @@ def parts_from_dict(data: dict, path: str = "<toml>", allow_paths=None, up=None)
         lights.append(_light(table, lctx))
 
     camera = _camera(data["camera"], ctx.at("[camera]")) if "camera" in data else None
-    return builder.build(lights=lights or None, camera=camera, settings=data.get("settings", {}))
+    parts = builder.build(lights=lights or None, camera=camera, settings=data.get("settings", {}))
+    parts.animations = parse_animations(data.get("animation", []), ctx.prefix().rstrip(": "), max(len(lights), 1))
+    return parts
 
 
 # ---------------------------------------------------------------------------------------------- camera

@@ -3,7 +3,8 @@ screenshots and frame statistics.
 
 Per frame (no command buffer is recorded in the loop):
 
-    input -> camera -> wait the previous render -> acquire a swapchain image
+    input -> camera -> animation (the scene's [[animation]] tables, then `on_frame(scene, t)`)
+          -> wait the previous render -> acquire a swapchain image
           -> renderer.submit(wait=False, signal render_done)                   the renderer's own recording
           -> submit the present command buffer recorded for that swapchain image (presenter.py)
           -> present
@@ -50,11 +51,16 @@ class Viewer:
 
     In-process use (tests): `v.run(frames=5)`, `v.step()` (one frame; False when nothing was presented),
     `v.read_color()`, `v.save_screenshot(path)`, `v.window` (the GLFW window), `v.validation_errors`.
+
+    Animation: the scene's `[[animation]]` tables play on the animation clock `v.time` (seconds; it stands still
+    while `v.paused`: the P key, or `paused=True` to start so), then `on_frame(scene, t)`, when given, is called
+    before every frame with it: move instances (`scene.instances[i].transform = M`), lights or the camera there.
+    `time_step` (seconds) advances the clock by that much per frame instead of by the wall clock (recordings).
     """
 
     def __init__(self, scene, width=1280, height=720, *, hot_reload=True, shader_dir=None, validation=None,
                  device=None, present_mode="fifo", render_scale=1.0, settings=None, title="hybrid view",
-                 overlay=True, quiet=False):
+                 overlay=True, quiet=False, on_frame=None, time_step=None, paused=False):
         import glfw   # deferred: loads the GLFW shared library, which only the viewer needs
 
         check_size(width, height)
@@ -62,6 +68,10 @@ class Viewer:
             raise ConfigError(f"present mode {present_mode!r}: expected one of {', '.join(PRESENT_MODES)}")
         if not (isinstance(render_scale, (int, float)) and 0.05 <= render_scale <= 4.0):
             raise ConfigError(f"render scale {render_scale!r}: expected a number in 0.05..4")
+        _check_on_frame(on_frame)
+        if time_step is not None and not (isinstance(time_step, (int, float)) and not isinstance(time_step, bool)
+                                          and 0.0 <= time_step <= 3600.0):
+            raise ConfigError(f"time step {time_step!r}: expected seconds in 0..3600, or None (the wall clock)")
         self.glfw = glfw
         self.quiet = quiet
         self.scene = scene if isinstance(scene, Scene) else Scene.load(scene)
@@ -103,6 +113,8 @@ class Viewer:
         self._errors_seen: dict[str, str] = {}
         self._versions_seen = dict(getattr(self.renderer.library, "versions", {}))
         self._screenshot_request = None
+        self.on_frame, self.time_step = on_frame, time_step
+        self.time, self.paused = 0.0, bool(paused)
         self._install_callbacks()
 
     # ---- set-up -------------------------------------------------------------------------------------------------
@@ -188,6 +200,9 @@ class Viewer:
             self.cycle("view", -1 if shift else 1)
         elif key == g.KEY_R:
             self.fly.reset()
+        elif key == g.KEY_P:
+            self.paused = not self.paused
+            self._print("animation: paused" if self.paused else "animation: playing")
         elif key == g.KEY_TAB:
             self.overlay_on = not self.overlay_on
         elif key == g.KEY_H:
@@ -209,6 +224,15 @@ class Viewer:
         self._text_dirty = True
         return value
 
+    def animate(self, dt: float) -> None:
+        """Advance the animation clock by `dt` seconds (not while paused) and pose the scene at it: its
+        [[animation]] tables, then `on_frame(scene, t)`."""
+        if not self.paused:
+            self.time += dt
+        self.scene.animate(self.time)
+        if self.on_frame is not None:
+            self.on_frame(self.scene, self.time)
+
     def _poll_movement(self, dt):
         g, w = self.glfw, self.window
         k = lambda key: g.get_key(w, key) == g.PRESS  # noqa: E731
@@ -219,8 +243,12 @@ class Viewer:
             self.fly.move(right, up, fwd, dt, fast=k(g.KEY_LEFT_SHIFT) or k(g.KEY_RIGHT_SHIFT))
 
     # ---- the loop -----------------------------------------------------------------------------------------------
-    def run(self, frames=None, screenshot=None) -> int:
-        """Run until the window closes (or `frames` frames were presented); returns the frames presented."""
+    def run(self, frames=None, screenshot=None, on_frame=None) -> int:
+        """Run until the window closes (or `frames` frames were presented); returns the frames presented.
+        `on_frame(scene, t)`: called before each frame from now on (replaces the constructor's)."""
+        if on_frame is not None:
+            _check_on_frame(on_frame)
+            self.on_frame = on_frame
         start = self.frames
         if not self.quiet:
             self._print(f"{self.scene.name}: {self.scene.triangle_count} triangles on {self.renderer.device_name}\n"
@@ -252,6 +280,7 @@ class Viewer:
         dt = 0.0 if self._last_t is None else min(t0 - self._last_t, 0.25)
         self._last_t = t0
         self._poll_movement(dt)
+        self.animate(self.time_step if self.time_step is not None else dt)
 
         got = p.begin()
         if got is None:   # out of date: recreate now, render next time
@@ -328,6 +357,8 @@ class Viewer:
         gpu = "gpu ms: " + "  ".join(f"{k} {v:.1f}" for k, v in self.gpu_ms.items()) + f"  = {gpu_total:.1f}"
         toggles = [f"{name} {label(current(self.settings, name))}" for name in TOGGLED
                    if setting_choices(name) is not None]
+        if self.scene.animations or self.on_frame is not None:
+            toggles.append(f"t {self.time:.1f} s" + (" paused" if self.paused else ""))
         lines = [(head, TextImage.WHITE), (gpu, TextImage.WHITE), ("  ".join(toggles) + "   H: help", TextImage.GREY)]
         errors = self.renderer.shader_errors
         folder = str(self.renderer.library.glsl_dir).rstrip("/")
@@ -436,6 +467,11 @@ class Viewer:
 
     def __exit__(self, *exc):
         self.close()
+
+
+def _check_on_frame(on_frame):
+    if on_frame is not None and not callable(on_frame):
+        raise ConfigError(f"on_frame must be a callable (scene, t) or None, got {type(on_frame).__name__}")
 
 
 def _free_screenshot_path() -> Path:

@@ -35,6 +35,9 @@ def add_arguments(p):
     p.add_argument("--ao", dest="ao", action="store_true", default=None, help="ambient occlusion on")
     p.add_argument("--no-ao", dest="ao", action="store_false", help="ambient occlusion off")
     p.add_argument("--ao-samples", type=int, default=None, help="AO rays per pixel")
+    p.add_argument("--paused", action="store_true", help="start with the scene's animation paused (P plays it)")
+    p.add_argument("--time-step", type=float, default=None, metavar="SECONDS",
+                   help="advance the animation by this much per frame instead of by the clock (recordings)")
 
 
 def run_from_args(args) -> int:
@@ -52,7 +55,7 @@ def run_from_args(args) -> int:
     viewer = Viewer(scene, width, height, hot_reload=args.hot_reload, shader_dir=args.shader_dir,
                     validation=True if args.validation else None, device=args.device,
                     present_mode=args.present_mode, render_scale=args.scale, settings=settings,
-                    overlay=args.overlay)
+                    overlay=args.overlay, time_step=args.time_step, paused=args.paused)
     try:
         viewer.run(frames=args.frames, screenshot=args.screenshot)
         summary = viewer.summary()

@@ -21,6 +21,7 @@ KEYS = [
     ("3", "denoise on / off (if the renderer has it)"),
     ("V / Shift+V", "next / previous debug view (if the renderer has it)"),
     ("R", "reset the camera to the scene's"),
+    ("P", "pause / play the scene's animation"),
     ("Tab", "hide / show the overlay"),
     ("F12", "save a screenshot PNG (the render, without overlay)"),
     ("H", "show / hide this help"),

@@ -147,9 +147,10 @@ class Recorder:
     def raster(self, pipeline, sets, color: Image, depth: Image, vertices: Buffer, indices: Buffer, draws,
                reads=(), more=()):
         """Indexed draws into `color` (kept: loaded and stored; GENERAL before and after) with a cleared reversed-Z
-        `depth`. `draws`: (first index, index count, push-constant bytes); `more`: further (pipeline, sets, draws)
-        drawn after them in the same rendering. Afterwards `color` counts as written by a compute-stage step,
-        visible to compute and transfer."""
+        `depth`. `draws`: (first index, index count, instance count, first instance, push-constant bytes), instanced
+        indexed draws (gl_InstanceIndex counts from the first instance; no push constants where the bytes are
+        empty); `more`: further (pipeline, sets, draws) drawn after them in the same rendering. Afterwards `color`
+        counts as written by a compute-stage step, visible to compute and transfer."""
         self.use(reads=reads)
         cmd, w, h = self.cmd, color.width, color.height
         CA, GENERAL = vk.VK_IMAGE_LAYOUT_COLOR_ATTACHMENT_OPTIMAL, vk.VK_IMAGE_LAYOUT_GENERAL
@@ -178,10 +179,11 @@ class Recorder:
             if not pipe_draws:
                 continue
             pipe.bind(cmd, pipe_sets)
-            for first, count, push in pipe_draws:
-                vk.vkCmdPushConstants(cmd, pipe.layout, vk.VK_SHADER_STAGE_ALL, 0, len(push),
-                                      vk.ffi.new("char[]", bytes(push)))
-                vk.vkCmdDrawIndexed(cmd, count, 1, first, 0, 0)
+            for first, count, instances, first_instance, push in pipe_draws:
+                if push:
+                    vk.vkCmdPushConstants(cmd, pipe.layout, vk.VK_SHADER_STAGE_ALL, 0, len(push),
+                                          vk.ffi.new("char[]", bytes(push)))
+                vk.vkCmdDrawIndexed(cmd, count, instances, first, 0, first_instance)
         vk.vkCmdEndRendering(cmd)
         image_barrier(cmd, color, CA, GENERAL, OUT, _EVERYTHING, vk.VK_ACCESS_COLOR_ATTACHMENT_WRITE_BIT, _ANY_ACCESS)
         st = self.hazards.state.setdefault(id(color), _State())

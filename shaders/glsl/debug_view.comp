@@ -26,6 +26,7 @@ layout(set = 0, binding = 13, rg32f) uniform readonly image2D g_motion;
 layout(set = 0, binding = 14, rgba8) uniform readonly image2D g_pbr;        // roughness, metallic, occlusion
 layout(set = 0, binding = 15, rgba16f) uniform readonly image2D g_emissive;
 layout(set = 0, binding = 16, rgba16f) uniform readonly image2D g_hdr;        // the lit linear colour
+layout(set = 0, binding = 17, r32ui) uniform readonly uimage2D g_instance;
 layout(push_constant) uniform Push { uint view; } pc;
 
 // A colour per id (black for none), different for neighbouring ids.
@@ -76,6 +77,8 @@ void main() {
         c = id_color(imageLoad(g_triangle, px).x);
     } else if (v == VIEW_OBJECT_ID) {
         c = id_color(imageLoad(g_object, px).x);
+    } else if (v == VIEW_INSTANCE_ID) {
+        c = id_color(imageLoad(g_instance, px).x);
     } else if (v == VIEW_MATERIAL_ID) {
         c = id_color(imageLoad(g_material, px).x);
     } else if (v == VIEW_MOTION) {   // x right: red, y down: green, 8 pixels = full

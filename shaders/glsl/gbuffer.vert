@@ -1,11 +1,17 @@
 #version 450
 #extension GL_GOOGLE_include_directive : require
-// Visibility pass, vertex stage: world-space positions in, clip space out (nothing else is interpolated).
+// Visibility pass, vertex stage: object-space positions in, moved by the instance's transform (gl_InstanceIndex,
+// which includes the draw's firstInstance), clip space out; the instance's first visibility id goes to the fragment.
 #include "common.glsl"
+#include "instances.glsl"
 FRAME_BLOCK
+layout(std430, set = 0, binding = 1) readonly buffer Instances { Instance instances[]; };
 
 layout(location = 0) in vec3 in_position;
+layout(location = 0) flat out uint out_prefix;
 
 void main() {
-    gl_Position = frame.view_proj * vec4(in_position, 1.0);
+    Instance inst = instances[gl_InstanceIndex];
+    out_prefix = inst.ids.x;
+    gl_Position = frame.view_proj * (inst.model * vec4(in_position, 1.0));
 }

@@ -10,13 +10,14 @@
 #include "textures.glsl"
 
 layout(push_constant) uniform Push {
-    uint first_triangle;   // of this draw, in the material-sorted index buffer
-    uint material;         // the draw's material
+    uint first_triangle;   // of this draw within its mesh (a mesh's triangles are sorted by material)
+    uint material;         // the draw's material (an instance's override, else the mesh's)
 } pc;
 
 layout(set = 0, binding = 1) uniform samplerBuffer materials;   // MATERIAL_TEXELS per material (interface.py)
 
 layout(location = 0) in vec2 v_uv;
+layout(location = 1) flat in uint in_prefix;   // the instance's first id - 1 (gl_PrimitiveID restarts per instance)
 layout(location = 0) out uint out_id;
 
 void main() {
@@ -25,5 +26,5 @@ void main() {
     uint handle = floatBitsToUint(texelFetch(materials, m + 1).x);
     float alpha = texelFetch(materials, m).a * sample_texture(handle, v_uv, dx, dy).a;
     if (alpha < texelFetch(materials, m + 3).w) discard;
-    out_id = pc.first_triangle + uint(gl_PrimitiveID) + 1u;
+    out_id = in_prefix + pc.first_triangle + uint(gl_PrimitiveID) + 1u;
 }

@@ -1,14 +1,20 @@
 #version 450
 #extension GL_GOOGLE_include_directive : require
-// Visibility pass of alpha-tested materials, vertex stage: clip-space position and the UV (for the alpha test).
+// Visibility pass of alpha-tested materials, vertex stage: object-space positions moved by the instance's transform
+// (as gbuffer.vert), the instance's first visibility id and the UV (for the alpha test).
 #include "common.glsl"
+#include "instances.glsl"
 FRAME_BLOCK
+layout(std430, set = 0, binding = 3) readonly buffer Instances { Instance instances[]; };
 
 layout(location = 0) in vec3 in_position;
 layout(location = 1) in vec2 in_uv;
 layout(location = 0) out vec2 v_uv;
+layout(location = 1) flat out uint out_prefix;
 
 void main() {
-    gl_Position = frame.view_proj * vec4(in_position, 1.0);
+    Instance inst = instances[gl_InstanceIndex];
+    out_prefix = inst.ids.x;
+    gl_Position = frame.view_proj * (inst.model * vec4(in_position, 1.0));
     v_uv = in_uv;
 }

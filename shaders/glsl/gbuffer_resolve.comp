@@ -1,7 +1,10 @@
 #version 450
 #extension GL_GOOGLE_include_directive : require
-// G-buffer resolve: from the visibility image (triangle id + 1 per pixel) to world position + linear depth,
-// unit normal facing the viewer and albedo, the values the rasterizer would have interpolated at the pixel centre.
+// G-buffer resolve: from the visibility image (instance's first id + triangle + 1 per pixel) to world position +
+// linear depth, unit normal facing the viewer and albedo, the values the rasterizer would have interpolated at the
+// pixel centre. The instance is found by a binary search over the instances' first ids; its transform moves the
+// object-space vertices (normals by the inverse transpose, renormalized; surfaces are two-sided, so a mirroring
+// transform needs nothing more), and its previous transform gives the motion and where the point was.
 //
 // Perspective-correct barycentrics come from the triangle's clip-space vertices with homogeneous edge functions
 // (Olano and Greer 1997): with the columns C_i = (x_i, y_i, w_i) and the pixel's NDC point P = (px, py, 1), the
@@ -9,6 +12,7 @@
 // the camera plane need no clipping. The same weights one pixel to the right and one below give the UV
 // derivatives, the pixel's footprint in the texture (what a fragment quad would have had).
 #include "common.glsl"
+#include "instances.glsl"
 FRAME_BLOCK
 
 #define TEXTURES_SET 0
@@ -27,8 +31,8 @@ layout(set = 0, binding = 4, rgba16f) uniform writeonly image2D g_albedo;
 layout(set = 0, binding = 10, rgba8_snorm) uniform writeonly image2D g_normal8;
 // The scene's buffers as texel buffers (lavapipe gathers texels for 8 lanes at once, storage buffers lane by lane)
 layout(set = 0, binding = 5) uniform samplerBuffer vertices;       // 2 texels per vertex: (p, n.x), (n.yz, uv)
-layout(set = 0, binding = 6) uniform usamplerBuffer indices;       // material-sorted, 3 per triangle
-layout(set = 0, binding = 7) uniform usamplerBuffer tri_info;      // per triangle: material, scene triangle, object
+layout(set = 0, binding = 6) uniform usamplerBuffer indices;       // each mesh's, material-sorted, 3 per triangle
+layout(set = 0, binding = 7) uniform usamplerBuffer tri_info;      // per mesh triangle: material, its index in the mesh, object
 layout(set = 0, binding = 8) uniform samplerBuffer materials;      // MATERIAL_TEXELS per material (interface.py)
 // The data AOVs: linear view depth (+inf on background), the scene's triangle, object and material ids (-1 as uint on
 // background), and the pixel's motion since the previous frame (now - then, in pixels).
@@ -40,6 +44,13 @@ layout(set = 0, binding = 15, rg32f) uniform writeonly image2D g_motion;
 // The lighting's material inputs: (roughness, metallic, occlusion, 1 where covered) and the emitted radiance.
 layout(set = 0, binding = 16, rgba8) uniform writeonly image2D g_pbr;
 layout(set = 0, binding = 17, rgba16f) uniform writeonly image2D g_emissive;
+// The instance (its index in scene.instances; -1 as uint on background), and where the pixel's surface point was
+// in the previous frame (world position, w: 1 where covered; its normal) for the temporal reprojection's tests.
+layout(set = 0, binding = 18, r32ui) uniform writeonly uimage2D g_instance;
+layout(set = 0, binding = 19, rgba32f) uniform writeonly image2D g_prev_position;
+layout(set = 0, binding = 20, rgba16f) uniform writeonly image2D g_prev_normal;
+layout(std430, set = 0, binding = 21) readonly buffer Instances { Instance instances[]; };
+layout(push_constant) uniform Push { uint instance_count; } pc;
 
 shared uint tile_arrays;   // bit a: some pixel of this workgroup samples texture array a
 
@@ -48,6 +59,19 @@ vec3 weights(vec3 e0, vec3 e1, vec3 e2, vec3 p) {
     return b / (b.x + b.y + b.z);
 }
 
+// The instance whose ids hold `id0` (visibility id - 1): the last one whose prefix is <= id0.
+uint find_instance(uint id0) {
+    uint lo = 0u, hi = pc.instance_count;   // instances[lo].prefix <= id0 < instances[hi].prefix
+    while (hi - lo > 1u) {
+        uint mid = (lo + hi) >> 1;
+        if (instances[mid].ids.x <= id0) lo = mid; else hi = mid;
+    }
+    return lo;
+}
+
+vec3 xform(mat4 m, vec3 p) { return (m * vec4(p, 1.0)).xyz; }
+vec3 xnormal(vec4 c[3], vec3 n) { return c[0].xyz * n.x + c[1].xyz * n.y + c[2].xyz * n.z; }
+
 void main() {
     ivec2 px = ivec2(gl_GlobalInvocationID.xy);
     uvec2 size = uvec2(frame.width, frame.height);
@@ -55,7 +79,7 @@ void main() {
     uint id = inside ? imageLoad(visibility, px).x : 0u;
     if (id != 0u) imageStore(visibility, px, uvec4(0u));
 
-    vec3 pos = vec3(0.0), nrm = vec3(0.0);
+    vec3 pos = vec3(0.0), nrm = vec3(0.0), prev_pos = vec3(0.0), prev_nrm = vec3(0.0);
     vec2 uv = vec2(0.0), duv_dx = vec2(0.0), duv_dy = vec2(0.0);
     vec4 albedo = vec4(0.0);
     uvec4 handles = uvec4(TEXTURE_NONE);   // base colour, metallic-roughness, normal, emissive
@@ -66,14 +90,18 @@ void main() {
     uint occlusion_handle = TEXTURE_NONE;
     float occlusion_strength = 0.0;
     uvec4 info = uvec4(0xFFFFFFFFu);
+    uint instance_id = 0xFFFFFFFFu;
     if (id != 0u) {
-        int tri = int(id - 1u);
+        uint k = find_instance(id - 1u);
+        Instance inst = instances[k];
+        uint local = id - 1u - inst.ids.x;   // the triangle within its mesh
+        int tri = int(inst.ids.y + local);
         int i0 = int(texelFetch(indices, 3 * tri).x), i1 = int(texelFetch(indices, 3 * tri + 1).x);
         int i2 = int(texelFetch(indices, 3 * tri + 2).x);
         vec4 a0 = texelFetch(vertices, 2 * i0), a1 = texelFetch(vertices, 2 * i1), a2 = texelFetch(vertices, 2 * i2);
         vec4 b0 = texelFetch(vertices, 2 * i0 + 1), b1 = texelFetch(vertices, 2 * i1 + 1);
         vec4 b2 = texelFetch(vertices, 2 * i2 + 1);
-        vec3 p0 = a0.xyz, p1 = a1.xyz, p2 = a2.xyz;
+        vec3 p0 = xform(inst.model, a0.xyz), p1 = xform(inst.model, a1.xyz), p2 = xform(inst.model, a2.xyz);
         vec4 c0 = frame.view_proj * vec4(p0, 1.0);
         vec4 c1 = frame.view_proj * vec4(p1, 1.0);
         vec4 c2 = frame.view_proj * vec4(p2, 1.0);
@@ -86,7 +114,8 @@ void main() {
         vec3 by = weights(e0, e1, e2, P + vec3(0.0, step_ndc.y, 0.0));
 
         pos = b.x * p0 + b.y * p1 + b.z * p2;
-        vec3 n = b.x * vec3(a0.w, b0.xy) + b.y * vec3(a1.w, b1.xy) + b.z * vec3(a2.w, b2.xy);
+        vec3 n_obj = b.x * vec3(a0.w, b0.xy) + b.y * vec3(a1.w, b1.xy) + b.z * vec3(a2.w, b2.xy);
+        vec3 n = xnormal(inst.nrm, n_obj);
         float len = length(n);
         // a degenerate interpolated normal falls back to the facet normal
         n = len > 1e-6 ? n / len : normalize(cross(p1 - p0, p2 - p0));
@@ -94,12 +123,26 @@ void main() {
         n *= side;   // two-sided surfaces: the side we see
         nrm = n;
 
+        // The same object-space point and normal under the previous frame's transform.
+        vec3 q0 = xform(inst.prev_model, a0.xyz), q1 = xform(inst.prev_model, a1.xyz);
+        vec3 q2 = xform(inst.prev_model, a2.xyz);
+        prev_pos = b.x * q0 + b.y * q1 + b.z * q2;
+        vec3 m = xnormal(inst.prev_nrm, n_obj);
+        float mlen = length(m);
+        prev_nrm = side * (mlen > 1e-6 ? m / mlen : normalize(cross(q1 - q0, q2 - q0)));
+
         vec2 t0 = b0.zw, t1 = b1.zw, t2 = b2.zw;
         uv = b.x * t0 + b.y * t1 + b.z * t2;
         duv_dx = bx.x * t0 + bx.y * t1 + bx.z * t2 - uv;
         duv_dy = by.x * t0 + by.y * t1 + by.z * t2 - uv;
 
+        // material, triangle within the mesh (the index buffer holds each mesh's triangles sorted by material),
+        // object within the mesh; then the instance's material override and its places in the flat arrays
         info = texelFetch(tri_info, tri);
+        if (inst.ids.w != 0xFFFFFFFFu) info.x = inst.ids.w;
+        info.y += inst.flat_ids.x;
+        info.z += inst.flat_ids.y;
+        instance_id = inst.ids.z;
         int material = MATERIAL_TEXELS * int(info.x);
         albedo = vec4(texelFetch(materials, material).rgb, 1.0);
         handles = floatBitsToUint(texelFetch(materials, material + 1));
@@ -117,8 +160,8 @@ void main() {
         vec2 d1 = t1 - t0, d2 = t2 - t0;
         float det = d1.x * d2.y - d2.x * d1.y;
         if (handles.z != TEXTURE_NONE && abs(det) > 1e-20) {
-            vec3 q1 = p1 - p0, q2 = p2 - p0;
-            vec3 dp_du = (q1 * d2.y - q2 * d1.y) / det, dp_dv = (q2 * d1.x - q1 * d2.x) / det;
+            vec3 e1w = p1 - p0, e2w = p2 - p0;
+            vec3 dp_du = (e1w * d2.y - e2w * d1.y) / det, dp_dv = (e2w * d1.x - e1w * d2.x) / det;
             vec3 t = dp_du - n * dot(n, dp_du);
             if (dot(t, t) > 1e-30) {
                 tangent = normalize(t);
@@ -166,9 +209,12 @@ void main() {
     imageStore(g_material, px, uvec4(info.x));
     imageStore(g_pbr, px, pbr);
     imageStore(g_emissive, px, vec4(emissive, 0.0));
+    imageStore(g_instance, px, uvec4(instance_id));
+    imageStore(g_prev_position, px, vec4(prev_pos, id != 0u ? 1.0 : 0.0));
+    imageStore(g_prev_normal, px, vec4(prev_nrm, 0.0));
     vec2 motion = vec2(0.0);
     if (id != 0u) {   // where this surface point is on screen minus where it was in the previous frame
-        vec4 now = frame.view_proj * vec4(pos, 1.0), prev = frame.prev_view_proj * vec4(pos, 1.0);
+        vec4 now = frame.view_proj * vec4(pos, 1.0), prev = frame.prev_view_proj * vec4(prev_pos, 1.0);
         vec2 d = (now.xy / now.w - prev.xy / prev.w) * 0.5 * vec2(size);   // exactly 0 for the same matrices
         motion = prev.w > 0.0 ? d : vec2(0.0);
     }

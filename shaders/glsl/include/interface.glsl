@@ -30,6 +30,7 @@
 #define VIEW_METALLIC 15u
 #define VIEW_EMISSIVE 16u
 #define VIEW_RADIANCE 17u
+#define VIEW_INSTANCE_ID 18u
 #define SHADOW_HARD 0u
 #define SHADOW_SOFT 1u
 #define SHADOW_SEED_DELTA 2u
@@ -66,6 +67,7 @@ struct FrameData {
     float accum_alpha;              // the temporal blend's smallest weight
     float pixel_footprint;          // a pixel's size per unit of view depth
     float history_reset;            // 1: the temporal history is invalid
+    float objects_moved;            // 1: an instance moved since the last frame (accumulate.comp clamps the history)
     vec3 bounds_min;                // scene bounds (debug views)
     vec3 bounds_max;
     Light lights[16];

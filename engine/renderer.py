@@ -154,8 +154,8 @@ class Renderer:
         self._changes = SceneChanges()   # the scene's state the last frame drew (instance motion)
         self._history_key = None   # what the temporal history was accumulated under (None: no valid history)
         self._steady = None
-        self.uploads = 0
-        self.bvh_builds = 0   # BVH builds so far (the scene's first, and each after something moved)  # scene uploads so far (a test reads it: the same scene is uploaded once)
+        self.uploads = 0  # scene uploads so far (a test reads it: the same scene is uploaded once)
+        self.bvh_builds = 0   # ray-pass BVHs made so far (a scene's first, and a new kind or rebuild after changes)
 
     # ---- public ---------------------------------------------------------------------------
     @property
@@ -189,9 +189,9 @@ class Renderer:
 
         Args:
             aovs: what to read back: AOV names ("color", "depth", "normal", "position", "albedo", "shadow",
-                "shadow_raw", "ao", "ao_raw", "history", "triangle_id", "object_id", "material_id", "motion",
-                "roughness", "metallic", "emissive", "radiance", "instance_id"; see
-                `Frame.aov`), "all", or None for `engine.settings.DEFAULT_AOVS`. Only these are copied from the GPU.
+                "shadow_raw", "ao", "ao_raw", "history", "triangle_id", "object_id", "material_id", "instance_id",
+                "motion", "roughness", "metallic", "emissive", "radiance"; see `Frame.aov`), "all", or None for
+                `engine.settings.DEFAULT_AOVS`. Only these are copied from the GPU.
             scene: what to draw. The last scene stays on the GPU: rendering the same object again uploads nothing.
             camera: the viewpoint (None: `scene.camera`). The image's aspect ratio is the renderer's width /
                 height; `camera.fov_y` is the vertical field of view.

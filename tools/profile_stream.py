@@ -89,8 +89,9 @@ def main() -> int:
         ms, _ = best(lambda: block_fine(o, d, t, scratch))
         print(f"block_fine all {n} rays, one thread: {ms:.2f} ms")
         for blk, k in ((1 << 17, 16), (1 << 18, 8), (1 << 19, 4)):
-            ms, _ = best(lambda: prun([lambda s=s: block_fine(o[s:s + blk], d[s:s + blk], t[s:s + blk],
-                                                              scratch[3 * s:3 * s + 3 * blk]) for s in range(0, n, blk)], k))
+            def one(s, blk=blk):
+                return block_fine(o[s:s + blk], d[s:s + blk], t[s:s + blk], scratch[3 * s:3 * s + 3 * blk])
+            ms, _ = best(lambda: prun([lambda s=s: one(s) for s in range(0, n, blk)], k))
             print(f"block_fine blocks {blk}, {k} threads: {ms:.2f} ms")
         ms, _ = best(lambda: t.min())
         print(f"t.min() one thread: {ms:.2f} ms")

@@ -3,6 +3,7 @@
     tracer = engine.Tracer(vertices, faces)            # or Tracer.from_trimesh(mesh)
     hit = tracer.occluded(origins, directions, tmax)   # (N,) bool
     hits = tracer.intersect(origins, directions)       # Hits(t, prim, u, v)
+    near = tracer.closest(points)                      # Closest(point, distance, prim, u, v)
 
 Directions are used as given, as Embree does: the hit point is origin + t * direction and tmax is in
 the same units. Batches larger than one dispatch's buffers are split.
@@ -29,6 +30,7 @@ from ..vk.device import has_dedicated_vram, is_cpu, rgb32f_texel_buffers, work_s
 from ..vk.formats import INDIRECT, R32F, R32UI, RGB32F, RGBA32UI
 from ..vk.resources import STORAGE, STORAGE_TEXEL, TRANSFER_DST, TRANSFER_SRC, UNIFORM_TEXEL
 from .checks import check_batch_size, check_mesh, check_rays
+from .closest import Closest, ClosestQuery
 
 #: Query kinds whose kernels read rays (and write results) through texel buffer views on CPU devices (RAYS_TEXEL):
 #: faster for occlusion on lavapipe, not for closest hits.
@@ -127,6 +129,8 @@ class Tracer:
         v, f = check_mesh(vertices, faces)
         self.layout = bvh_layout(layout)  # a bad layout (argument or HYBRID_BVH_LAYOUT) fails before the build
         self.bvh = build_bvh(v, f)
+        self.mesh = (v, f)   # float32 vertices, int64 faces: closest() reads them
+        self._closest: ClosestQuery | None = None
         self.stats = dict(self.bvh.stats)
         self._staging = staging
         try:
@@ -318,6 +322,24 @@ class Tracer:
             hits.v[s:s + n] = rec[:, 3]
         return hits
 
+    @serialized
+    def closest(self, points: ArrayLike) -> Closest:
+        """Closest-point queries: the nearest point of the mesh to each point (engine/rt/closest.py).
+
+        Args:
+            points: (N, 3) query points (world units), float32 or float64, finite, within +-MAX_COORD.
+
+        Returns:
+            `Closest` (point, distance, prim, u, v per query point).
+
+        Raises:
+            ConfigError: a bad shape, NaN or infinite values (naming the point), a closed Tracer.
+        """
+        self._check_open()
+        if self._closest is None:
+            self._closest = ClosestQuery(self)
+        return self._closest.run(points)
+
     def _run(self, kind, o, d, t) -> int:
         n = len(o)
         if n == 0:
@@ -341,6 +363,10 @@ class Tracer:
     def close(self) -> None:
         """Free the GPU buffers (and the device, unless it was given as `context`); safe to call twice."""
         if self.ctx is not None:
+            if getattr(self, "_closest", None) is not None:
+                self.ctx.wait_idle()
+                self._closest.destroy()
+                self._closest = None
             if self._owns_ctx:
                 self.ctx.close()
             else:

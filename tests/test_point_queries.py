@@ -162,11 +162,10 @@ def test_wide_layout_and_batches_give_the_same_answers(tracer):
     v, f = meshes()["torus"]
     points, _ = queries(v, f, n=700)
     base = tracer(v, f).closest(points)
-    for kw in ({"layout": "wide"}, {"batch_size": 97}):
+    for kw in ({"layout": "wide"}, {"batch_size": 97}):   # the same binary tree walked: the same answers
         other = tracer(v, f, **kw).closest(points)
-        assert np.allclose(other.distance, base.distance, rtol=1e-6, atol=1e-7)
-        assert np.array_equal(other.prim == base.prim, np.ones(len(points), bool)) or \
-            np.allclose(other.distance, base.distance)
+        assert np.array_equal(other.distance, base.distance) and np.array_equal(other.prim, base.prim), kw
+        assert np.array_equal(other.point, base.point)
     assert len(tracer(v, f).closest(np.zeros((0, 3)))) == 0
 
 

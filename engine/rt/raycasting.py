@@ -126,6 +126,9 @@ class RaycastingScene:
     runs every ray); `count_intersections` / `list_intersections` find each ray's hits by casting it again from
     just past each one (1e-6 of the scene's size), so hits closer together along a ray than that count once where
     Open3D counts every triangle, e.g. a ray through an edge shared by two triangles: once here, twice there.
+    Point queries (`compute_closest_points`, `compute_distance`, `compute_signed_distance`, `compute_occupancy`)
+    walk the BVH on the GPU for the nearest triangle; a zero-area triangle's normal is 0 (Open3D: NaN), a scene
+    without triangles gives INVALID_ID and an infinite distance (Open3D: the distance to the origin).
     """
 
     INVALID_ID: int = INVALID_ID

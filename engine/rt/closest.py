@@ -11,7 +11,7 @@ vertex, are points or segments here: where a mesh has any, a second triangle buf
 from __future__ import annotations
 
 from dataclasses import dataclass
-from typing import TYPE_CHECKING
+from typing import Any
 
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
@@ -25,9 +25,6 @@ from ..vk import BufferView, ComputePipeline, Recorder, reflect, upload_buffer
 from ..vk.device import work_shares
 from ..vk.resources import STORAGE_TEXEL, UNIFORM_TEXEL
 from .checks import check_vectors
-
-if TYPE_CHECKING:
-    from .tracer import Tracer
 
 GROUP = 64
 SHADER = "trace_closest.comp"
@@ -93,7 +90,7 @@ class ClosestQuery:
     """The closest-point kernel of one Tracer: its pipeline, its BVH descriptor set and recorded commands. Made
     on the Tracer's first `closest()` call; `destroy()` frees what it uploaded."""
 
-    def __init__(self, tracer: Tracer):
+    def __init__(self, tracer: Any):   # the Tracer (engine/rt/tracer.py, which imports this module)
         ctx = tracer.ctx
         self.tracer = tracer
         spirv = ShaderLibrary().get(SHADER)

@@ -158,8 +158,9 @@ def test_zero_area_triangles_are_segments_and_points(tracer):
     assert near.prim[0] == 200 and near.prim[2] == 201
 
 
-def test_wide_layout_batches_and_staging_give_the_same_answers(tracer):
-    v, f = meshes()["torus"]
+@pytest.mark.parametrize("name", ["torus", "degenerate"])
+def test_wide_layout_batches_and_staging_give_the_same_answers(tracer, name):
+    v, f = meshes()[name]
     points, _ = queries(v, f, n=700)
     base = tracer(v, f).closest(points)
     # the same binary tree walked (staged: through device-local copies, as on a discrete GPU): the same answers

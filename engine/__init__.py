@@ -16,8 +16,9 @@ ray-query library on the same BVH and traversal.
 
 What is where: `Scene` (geometry, materials, lights, camera; loading), `Camera`, the lights (`DirectionalLight`,
 `PointLight`, `SpotLight`, `RectLight`), `Material`; `Renderer` renders a `Frame`; `Tracer` answers ray queries
-with `Hits` and closest-point queries with `Closest`; `RayMeshIntersector` is trimesh's ray-query interface
-(`mesh.ray`) on it, `RaycastingScene` Open3D's.
+with `Hits` and closest-point queries with `Closest`; `RayMeshIntersector` is trimesh's ray-query
+interface (`mesh.ray`) on it, `RaycastingScene` Open3D's; `Device` is one Vulkan device that Renderers,
+Tracers and RaycastingScenes share.
 The render options and their defaults: `engine.settings` (`engine.settings.DEFAULT_SETTINGS`). Errors are
 `EngineError` subclasses whose one-line message names the file, field or argument at fault.
 
@@ -38,6 +39,7 @@ from ._version import __version__
 from .data import bundled_scenes, scene_path
 from .errors import ConfigError, EngineError, SceneError, ShaderError, VulkanError
 from .renderer import Frame, Renderer
+from .vk.shared import Device
 from .rt import Closest, Hits, Tracer
 from .rt import RayMeshIntersector
 from .rt import RaycastingScene
@@ -51,3 +53,4 @@ __all__ = [
 ]
 __all__ += ["RayMeshIntersector"]
 __all__ += ["RaycastingScene"]
+__all__ += ["Device"]

@@ -41,6 +41,7 @@ from .settings import (ShadowMode, ViewMode, check_settings, check_size, default
 from .shaders import ShaderLibrary
 from .steady import Steady
 from .vk import Buffer, Context, Recorder, Timestamps, reflect
+from .vk.shared import Device, Scope
 from .vk.recorder import ONE_F32, TRANSFER
 from .vk.resources import UNIFORM
 from .vk.sync import create_fence, destroy_fence, reset_fences, wait_fences
@@ -60,7 +61,8 @@ class Renderer:
     RGB until the final image, which is tonemapped (ACES) and sRGB-encoded 8-bit RGBA.
     """
 
-    def __init__(self, width: int, height: int, *, device: int | str | None = None, validation: bool = False,
+    def __init__(self, width: int, height: int, *, device: Device | int | str | None = None,
+                 validation: bool = False,
                  shader_dir: str | os.PathLike[str] | None = None, hot_reload: bool = False,
                  context: Context | None = None, bvh_layout: str | None = None):
         """A renderer of `width` x `height` pixels (1..16384 each).
@@ -68,10 +70,11 @@ class Renderer:
         Args:
             width: image width in pixels.
             height: image height in pixels.
-            device: the Vulkan device: its index in `hybrid info`'s list or part of its name (default:
-                $HYBRID_DEVICE, else discrete GPU > integrated > CPU).
+            device: an open `engine.Device` to share (with Tracers, other Renderers), or the Vulkan device to open
+                one of its own on: its index in `hybrid info`'s list or part of its name (default: $HYBRID_DEVICE,
+                else discrete GPU > integrated > CPU).
             validation: turn the Khronos validation layer on (errors collect in `validation_errors`); also
-                $HYBRID_VALIDATION=1.
+                $HYBRID_VALIDATION=1 (a shared `engine.Device` has its own setting).
             shader_dir: a folder of GLSL sources to use instead of the committed SPIR-V (with `hot_reload`).
             hot_reload: recompile changed GLSL before each frame; failures keep the last good pipeline and show in
                 `shader_errors`.
@@ -90,7 +93,10 @@ class Renderer:
         self.library = ShaderLibrary(shader_dir, hot_reload=hot_reload)
         self.ctx = None
         self._validation_errors: list[str] = []
-        self._owns_ctx = context is None
+        if isinstance(device, Device) and device.closed:
+            raise ConfigError("Renderer: its engine.Device is closed (make a new engine.Device)")
+        self._owns_ctx = context is None and not isinstance(device, Device)
+        self._device = device if isinstance(device, Device) else None
         self._lock = threading.RLock()     # one call at a time (engine.parallel.serialized)
         self._commands: dict = {}          # set before anything can fail, so close() always works
         self._steady = None                # _Steady: the last frame's inputs, for re-submitting it cheaply
@@ -100,9 +106,15 @@ class Renderer:
                 if not isinstance(context, Context):
                     raise ConfigError(f"Renderer: context must be an engine.vk.Context, got {type(context).__name__}")
                 context.check_open("Renderer")   # a destroyed device would abort the process in the first call
-            self.ctx = context if context is not None else Context(device=device, validation=validation or None)
-            self._validation_errors = self.ctx.validation_errors  # the same list: still readable after close()
-            self._init_gpu()
+            with self._lock:   # (a Device closed meanwhile waits for the set-up, then closes this Renderer)
+                if self._device is not None:   # its own share of the device: command pool, objects to destroy
+                    self.ctx = self._device._attach(self, "Renderer")
+                elif context is not None:
+                    self.ctx = Scope(context, "Renderer")
+                else:
+                    self.ctx = Context(device=device, validation=validation or None)
+                self._validation_errors = self.ctx.validation_errors  # the same list: still readable after close()
+                self._init_gpu()
         except BaseException:
             self.close()
             raise
@@ -304,6 +316,8 @@ class Renderer:
             self._resize_targets(self.targets.light_capacity)
 
     def _prepare(self, scene, camera, settings, readback):
+        if self._device is not None and self._device.closed:
+            raise ConfigError("render() on a closed Renderer: its engine.Device was closed")
         if self.ctx is None:
             raise EngineError("render() on a closed Renderer")
         self.ctx.check_open("Renderer.render()")   # a shared context its owner closed: no Vulkan call may follow
@@ -412,17 +426,15 @@ class Renderer:
 
     @serialized
     def close(self) -> None:
-        """Free every Vulkan object (and the device, unless it was given as `context`); safe to call twice."""
+        """Free every Vulkan object (and the device, unless it was given: an `engine.Device` or a `context`); safe
+        to call twice."""
         if self.ctx is not None:
-            if self._owns_ctx:
-                self.ctx.close()
-            elif self.ctx.closed:  # its owner closed it first: the device, and all made on it, is gone already
-                pass
-            else:  # a shared context: free what this renderer made, leave the rest to its owner
-                self.ctx.wait_idle()
+            if not self._owns_ctx and not self.ctx.closed:
                 self._invalidate_commands()
-                self._release_owned()
+            self.ctx.close()   # its own context, or its Scope of a shared one: what this renderer made
             self.ctx = None
+        if self._device is not None:
+            self._device._detach(self)
         if getattr(self, "library", None) is not None:
             self.library.close()
 
@@ -451,15 +463,6 @@ class Renderer:
                     name = next(n for n in p.shaders if n in updated)
                     self.library.errors[str(self.library.glsl_dir / name)] = str(exc)
         self._invalidate_commands()
-
-    def _release_owned(self):
-        """Destroy this renderer's objects on a shared context (its defer list would hold them until the end)."""
-        for obj in (self._geometry, self._scene_bvh):
-            if obj is not None:
-                obj.destroy()
-        self._geometry = self._scene_bvh = None
-        if self.targets is not None:
-            self.targets.destroy()
 
     def _invalidate_commands(self):
         self._steady = None

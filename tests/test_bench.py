@@ -52,6 +52,9 @@ def test_json_has_every_section_and_figure(results):
         assert rs["rays"] > 100, rs["note"]
         ours = rs["results"]["ours"]
         assert ours["mrays_gpu"] > 0 and ours["mrays_wall"] > 0 and ours["gpu_ms"] > 0
+        # the plain host -> device -> host copy of the same bytes, measured in the same run
+        assert rs["results"]["copy"]["mrays_wall"] > 0 and rs["ratio"]["copy"]["wall"] > 0
+        assert rs["results"]["copy"]["bytes"] == rs["rays"] * (32 if rs["kind"] == "occluded" else 44)
         for peer in PEERS:
             if peer in rs["results"]:
                 assert rs["results"][peer]["mrays_wall"] > 0
@@ -73,6 +76,7 @@ def test_json_has_every_section_and_figure(results):
     assert (out / "bench.png").stat().st_size > 10_000
     report = format_report(res)
     assert "Mrays/s" in report and "BVH build" in report and "total GPU" in report
+    assert "plain copy" in report and "x copy (wall)" in report
 
 
 @pytest.mark.parametrize("peer", PEERS)

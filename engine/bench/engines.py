@@ -4,7 +4,6 @@ from __future__ import annotations
 
 import abc
 import os
-import time
 
 import numpy as np
 
@@ -37,8 +36,7 @@ class OursEngine(Engine):
 
     Its own context on purpose: on lavapipe (Mesa 22.3) a compute-only command buffer submitted on a context that
     has rendered before gets its TOP_OF_PIPE timestamp resolved only at the next flush, after the dispatch, so
-    `last_gpu_ms` reads almost nothing there. `queue_ms` (vkQueueSubmit + fence wait, timed on the host) is kept as a
-    cross-check of the timestamps."""
+    `last_gpu_ms` reads almost nothing there."""
 
     name, label = "ours", "ours (Vulkan compute)"
 
@@ -47,26 +45,13 @@ class OursEngine(Engine):
         self.stats = dict(self.tracer.stats)
         self.threads = os.environ.get("LP_NUM_THREADS")
         self.last_gpu_ms = 0.0
-        self.last_queue_ms = 0.0
-        ctx = self.tracer.ctx
-        submit = ctx.submit
-
-        def timed_submit(*a, **k):
-            t0 = time.perf_counter()
-            try:
-                return submit(*a, **k)
-            finally:
-                self.last_queue_ms += (time.perf_counter() - t0) * 1e3
-        ctx.submit = timed_submit   # instance attribute: only this engine's context is timed
 
     def occluded(self, rs):
-        self.last_queue_ms = 0.0
         out = self.tracer.occluded(rs.origins, rs.directions, rs.tmax)
         self.last_gpu_ms = self.tracer.last_gpu_ms
         return out
 
     def intersect(self, rs):
-        self.last_queue_ms = 0.0
         h = self.tracer.intersect(rs.origins, rs.directions, rs.tmax)
         self.last_gpu_ms = self.tracer.last_gpu_ms
         return h.t, h.prim

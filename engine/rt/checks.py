@@ -86,11 +86,10 @@ def _first(bad: np.ndarray) -> int:
     return int(np.flatnonzero(bad)[0])
 
 
-def check_rays(origins, directions, tmax):
-    """float32 origins (N, 3), directions (N, 3) and tmax (N,): finite origins within +-MAX_COORD (the triangle test
-    is exact there), finite directions not of zero length, tmax a number that is not NaN (+inf allowed; a negative
-    one hits nothing). A ConfigError names the argument and the first bad ray. Vectorized, in blocks on the
-    shared worker pool (docs/benchmarks.md has its cost)."""
+def ray_arrays(origins, directions, tmax):
+    """`check_rays` but for its per-ray pass: float32 origins and directions (N, 3) (views where they already are),
+    and tmax as a float32 scalar or (N,) array, not NaN. The caller runs `rays_fine` over blocks of the rays (the
+    Tracer does so while it packs them) and `name_bad_ray` where a block fails."""
     o = _ray_array(origins, "origins")
     d = _ray_array(directions, "directions")
     if o.ndim != 2 or o.shape[1] != 3:
@@ -101,23 +100,34 @@ def check_rays(origins, directions, tmax):
     if t.ndim == 0:
         if np.isnan(t):
             raise ConfigError("tmax must be a number or +inf, got NaN")
-        t = np.full(len(o), t, np.float32)
+        t = np.float32(t)
     elif t.shape != (len(o),):
         raise ConfigError(f"tmax must be a number or have shape ({len(o)},), got {t.shape}")
     elif t.size and np.isnan(t.min()):  # min propagates NaN
         raise ConfigError(f"tmax: ray {_first(np.isnan(t))} has tmax NaN")
-    if o.size:
-        block = 1 << 18   # rays per task on the worker pool (numpy releases the GIL)
-        starts = range(0, len(o), block)
-        fine = _parallel([lambda s=s: _rays_fine(o[s:s + block], d[s:s + block]) for s in starts], default_threads())
-        if not all(fine):
-            _name_bad_ray(o, d, origins, directions)
     return o, d, t
 
 
-def _rays_fine(o: np.ndarray, d: np.ndarray) -> bool:
+def check_rays(origins, directions, tmax):
+    """float32 origins (N, 3), directions (N, 3) and tmax (N,): finite origins within +-MAX_COORD (the triangle test
+    is exact there), finite directions not of zero length, tmax a number that is not NaN (+inf allowed; a negative
+    one hits nothing). A ConfigError names the argument and the first bad ray. Vectorized, in blocks on the
+    shared worker pool (docs/benchmarks.md has its cost)."""
+    o, d, t = ray_arrays(origins, directions, tmax)
+    if t.ndim == 0:
+        t = np.full(len(o), t, np.float32)
+    if o.size:
+        block = 1 << 18   # rays per task on the worker pool (numpy releases the GIL)
+        starts = range(0, len(o), block)
+        fine = _parallel([lambda s=s: rays_fine(o[s:s + block], d[s:s + block]) for s in starts], default_threads())
+        if not all(fine):
+            name_bad_ray(o, d, origins, directions)
+    return o, d, t
+
+
+def rays_fine(o: np.ndarray, d: np.ndarray) -> bool:
     """Every origin finite and within +-MAX_COORD, every direction finite and not of zero length (fast: flat
-    reductions and one bit pass; _name_bad_ray finds which ray is not)."""
+    reductions and one bit pass; name_bad_ray finds which ray is not)."""
     of, df = o.reshape(-1), d.reshape(-1)  # flat views: numpy reduces them faster than the (N, 3) arrays
     if not (of.min() >= -MAX_COORD and of.max() <= MAX_COORD and df.min() >= -_F32_MAX and df.max() <= _F32_MAX):
         return False  # (NaN fails every comparison)
@@ -130,8 +140,8 @@ def _rays_fine(o: np.ndarray, d: np.ndarray) -> bool:
     return bool(e.min() != 0)
 
 
-def _name_bad_ray(o, d, origins, directions):
-    """The ConfigError for the first ray that _rays_fine refused."""
+def name_bad_ray(o, d, origins, directions):
+    """The ConfigError for the first ray that rays_fine refused."""
     bad_o = ~(np.abs(o) <= MAX_COORD).all(axis=1)
     if bad_o.any():
         i = _first(bad_o)

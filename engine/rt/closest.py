@@ -4,9 +4,10 @@
 
 A point-query walk of the Tracer's BVH (shaders/glsl/include/bvh_point.glsl, kernel trace_closest.comp) on the
 binary layout: a Tracer built with layout="wide" gets a binary copy of its tree for these queries. The walk runs
-through the Tracer's own buffers and batching (points where rays' origins go, results where its hits go), with
-its own recorded command buffers. Zero-area triangles, which the ray-tracing records collapse onto their first
-vertex, are points or segments here: where a mesh has any, a second triangle buffer holds their real vertices.
+through the Tracer's stream of buffer slots (engine/rt/stream.py: points where rays' origins go, results where
+its hits go), with command buffers of its own. Zero-area triangles, which the ray-tracing records collapse onto
+their first vertex, are points or segments here: where a mesh has any, a second triangle buffer holds their real
+vertices.
 """
 from __future__ import annotations
 
@@ -22,11 +23,10 @@ from ..gpu.bvh import bvh_spec
 from ..limits import MAX_COORD
 from ..shaders import ShaderLibrary
 from ..vk import BufferView, ComputePipeline, Recorder, reflect, upload_buffer
-from ..vk.device import work_shares
 from ..vk.resources import STORAGE_TEXEL, UNIFORM_TEXEL
 from .checks import check_vectors
+from .stream import hits_sink
 
-GROUP = 64
 SHADER = "trace_closest.comp"
 ZERO_AREA_FLAG = 1   # bvh_point.glsl BVH_ZERO_AREA_FLAG, in a triangle record's v1.w
 
@@ -87,8 +87,9 @@ def real_triangles(tris: np.ndarray, prim_ids: np.ndarray, vertices: np.ndarray,
 
 
 class ClosestQuery:
-    """The closest-point kernel of one Tracer: its pipeline, its BVH descriptor set and recorded commands. Made
-    on the Tracer's first `closest()` call; `destroy()` frees what it uploaded."""
+    """The closest-point kernel of one Tracer: its pipeline and BVH descriptor set (made on the Tracer's first
+    `closest()` call, on its device scope: freed with it), and the command buffers it records on the Tracer's
+    stream slots (engine/rt/stream.py) for the query kind "closest"."""
 
     def __init__(self, tracer: Any):   # the Tracer (engine/rt/tracer.py, which imports this module)
         ctx = tracer.ctx
@@ -96,7 +97,6 @@ class ClosestQuery:
         spirv = ShaderLibrary().get(SHADER)
         interface = reflect(spirv, SHADER)
         self.set = bvh_descriptor_set(ctx, interface)
-        self.owned: list = []   # buffers and views made here, destroyed by destroy()
         if tracer.layout == "binary":
             scene = tracer.scene
             for name in ("bvh_node_texels", "bvh_node_image"):
@@ -105,70 +105,50 @@ class ClosestQuery:
                 self.set.bind(name, scene.views[1])
         else:   # the point walk reads the binary tree
             scene = SceneBVH(ctx, tracer.bvh, self.set, layout="binary")
-            self.owned.append(scene)
         v, f = tracer.mesh
         real = real_triangles(tracer.bvh.tris, tracer.bvh.prim_ids, v, f)
         if real is not None:
-            buf = upload_buffer(ctx, real, UNIFORM_TEXEL | STORAGE_TEXEL, "bvh triangles (closest points)")
-            view = BufferView(buf)
-            self.owned += [view, buf]
+            view = BufferView(upload_buffer(ctx, real, UNIFORM_TEXEL | STORAGE_TEXEL, "bvh triangles (closest)"))
             self.set.bind("bvh_tri_texels", view).bind("bvh_tri_image", view)
         spec = bvh_spec(ctx, scene.depth, layout="binary", compressed=scene.compressed)
         spec["RAYS_TEXEL"] = False
-        self.pipeline = ComputePipeline(ctx, spirv, [tracer.io_set, self.set],
+        # (every slot's io set has the same layout)
+        self.pipeline = ComputePipeline(ctx, spirv, [tracer.slots[0].io_set, self.set],
                                         spec=interface.specialization(spec, SHADER), name="trace_closest")
-        self.shares = work_shares(ctx)
-        self._commands: dict = {}
 
-    def _command(self, n):
-        t = self.tracer
-        span = min(1 << max(int(n - 1).bit_length(), 10), t.batch) if t.staged else t.batch
-        if span not in self._commands:
-            rec = Recorder(t.ctx, t.timestamps)
-            if t.staged:
-                rec.copy(t.rays_host, t.rays, [(0, 0, span * 12)])
-                rec.mark("upload")
-            rec.dispatch_indirect(self.pipeline, [t.io_set, self.set], t.params, reads=[t.rays], writes=[t.results])
-            rec.mark("trace")
-            if t.staged:
-                rec.copy(t.results, t.results_host, [(0, 0, span * 16)])
-                rec.to_host(t.results_host)
-                rec.mark("download")
-            else:
-                rec.to_host(t.results)
-            self._commands[span] = (rec.finish(), list(t.timestamps.names))
-        return self._commands[span]
+    def record(self, slot, span: int):
+        """A slot's command buffer: (upload the points), the point walk, (download); as `Slot.record`."""
+        rec = Recorder(slot.ctx, slot.timestamps, after_earlier=False)
+        if slot.staged:
+            rec.copy(slot.rays_host, slot.rays, [(0, 0, span * 12)])   # the points: where origins go
+            rec.mark("upload")
+        rec.dispatch_indirect(self.pipeline, [slot.io_set, self.set], slot.params, reads=[slot.rays],
+                              writes=[slot.results])
+        rec.mark("trace")
+        if slot.staged:
+            rec.copy(slot.results, slot.results_host, [(0, 0, span * 16)])
+            rec.to_host(slot.results_host)
+            rec.mark("download")
+        else:
+            rec.to_host(slot.results)
+        return rec.finish(), list(slot.timestamps.names)
 
     def run(self, points: ArrayLike) -> Closest:
-        """`Tracer.closest` (the Tracer checked open and holds its lock)."""
+        """`Tracer.closest` (the Tracer checked open and holds its lock): the points streamed through its slots
+        as rays' origins (a unit direction and tmax 0 beside them, which the kernel never reads)."""
         t = self.tracer
-        p = check_points(points)
-        n_all = len(p)
-        p32 = p.astype(np.float32)
-        out = Closest(np.empty((n_all, 3), np.float32), np.empty(n_all, np.float32), np.empty(n_all, np.int32),
-                      np.empty(n_all, np.float32), np.empty(n_all, np.float32))
-        t.last_gpu_ms, t.last_retried = 0.0, 0
-        for s in range(0, n_all, t.batch):
-            n = min(t.batch, n_all - s)
-            t.rays_host.view(np.float32)[:3 * n] = p32[s:s + n].reshape(-1)
-            t.params.write(np.array([(n + GROUP - 1) // GROUP, 1, 1, n, t.capacity, self.shares, 0, 0], np.uint32))
-            cmd, marks = self._command(n)
-            t.ctx.submit(cmd)
-            t.last_times = t.timestamps.read(marks)
-            t.last_gpu_ms += t.last_times.get("trace", 0.0)
-            rec = t.results_host.view(np.float32)[:n * 4].reshape(n, 4)
-            out.distance[s:s + n] = rec[:, 0]
-            out.prim[s:s + n] = rec[:, 1].view(np.int32)
-            out.u[s:s + n] = rec[:, 2]
-            out.v[s:s + n] = rec[:, 3]
-        v, f = t.mesh
-        if n_all:
+        p = check_points(points).astype(np.float32)
+        n = len(p)
+        out = Closest(np.zeros((n, 3), np.float32), np.empty(n, np.float32), np.empty(n, np.int32),
+                      np.empty(n, np.float32), np.empty(n, np.float32))
+
+        def bad():   # (check_points passed every point; float32 rounding could only push one past the bound)
+            raise ConfigError(f"points: a coordinate beyond +-{MAX_COORD:g} once rounded to float32")
+        t._stream("closest", p, np.broadcast_to(np.float32(1), (n, 3)), np.float32(0),
+                  hits_sink(out.distance, out.prim, out.u, out.v), bad)
+        if n:
+            v, f = t.mesh
             tri = v[f[out.prim]].astype(np.float64)   # (N, 3 corners, 3)
             u, w = out.u[:, None].astype(np.float64), out.v[:, None].astype(np.float64)
             out.point[:] = tri[:, 0] + u * (tri[:, 1] - tri[:, 0]) + w * (tri[:, 2] - tri[:, 0])
         return out
-
-    def destroy(self):
-        for obj in self.owned:
-            obj.destroy()
-        self.owned = []

@@ -25,6 +25,7 @@ from numpy.typing import ArrayLike, NDArray
 
 from ..errors import ConfigError, SceneError
 from ..vk import Context
+from ..vk.shared import Device
 from .checks import check_mesh, check_vectors
 from .closest import check_points
 from .pinhole import _numpy, pinhole_rays
@@ -134,18 +135,23 @@ class RaycastingScene:
     INVALID_ID: int = INVALID_ID
     """Open3D's id for no hit in `geometry_ids` and `primitive_ids`: 2^32 - 1."""
 
-    def __init__(self, nthreads: int = 0, device: int | str | None = None, *, validation: bool = False):
+    def __init__(self, nthreads: int = 0, device: Device | int | str | None = None, *, validation: bool = False):
         """Args:
             nthreads: Open3D's build threads: accepted and ignored (the build uses every core).
-            device: the Vulkan device, as `Tracer`'s (an index or part of its name), not an `open3d.core.Device`.
-            validation: turn the Khronos validation layer on (default: $HYBRID_VALIDATION).
+            device: an open `engine.Device` to share, or the Vulkan device, as `Tracer`'s (an index or part of its
+                name), not an `open3d.core.Device`.
+            validation: turn the Khronos validation layer on (default: $HYBRID_VALIDATION; a shared
+                `engine.Device` has its own setting).
 
         Raises:
-            ConfigError: `device` is not an index, a name or None.
+            ConfigError: `device` is not an `engine.Device`, an index, a name or None; a closed `engine.Device`.
         """
-        if device is not None and (isinstance(device, bool) or not isinstance(device, (int, str))):
-            raise ConfigError(f"RaycastingScene: device must be a Vulkan device index or name (as Tracer's), got "
-                              f"{type(device).__name__}")
+        if isinstance(device, Device):
+            if device.closed:
+                raise ConfigError("RaycastingScene: its engine.Device is closed (make a new engine.Device)")
+        elif device is not None and (isinstance(device, bool) or not isinstance(device, (int, str))):
+            raise ConfigError(f"RaycastingScene: device must be a Vulkan device index or name (as Tracer's) or an "
+                              f"engine.Device, got {type(device).__name__}")
         self._device, self._validation = device, validation
         self._meshes: list[tuple[NDArray[np.float64], NDArray[np.int64]]] = []
         self._built: _Built | None = None
@@ -178,6 +184,8 @@ class RaycastingScene:
 
     # ---- the Tracer over every geometry ----------------------------------------------------------------------
     def _check_open(self):
+        if isinstance(self._device, Device) and self._device.closed:
+            raise ConfigError("RaycastingScene is closed: its engine.Device was closed")
         if self._closed:
             raise ConfigError("RaycastingScene is closed (close() or its `with` block ended): create a new one")
 
@@ -204,9 +212,12 @@ class RaycastingScene:
         step = max(STEP_FLOOR, STEP_FACTOR * size)
         tracer = None
         if len(f):
-            if self._ctx is None:
-                self._ctx = Context(device=self._device, validation=self._validation or None)
-            tracer = Tracer(v - center, f, context=self._ctx)
+            if isinstance(self._device, Device):
+                tracer = Tracer(v - center, f, device=self._device)
+            else:
+                if self._ctx is None:
+                    self._ctx = Context(device=self._device, validation=self._validation or None)
+                tracer = Tracer(v - center, f, context=self._ctx)
         p0 = v[f[:, 0]]
         n = np.cross(v[f[:, 1]] - p0, v[f[:, 2]] - p0)
         length = np.linalg.norm(n, axis=1, keepdims=True)
@@ -466,7 +477,11 @@ class RaycastingScene:
     @property
     def validation_errors(self) -> list[str]:
         """Error-severity validation messages so far (with validation on), leaks found by `close()` included."""
-        return list(self._ctx.validation_errors) if self._ctx is not None else list(self._errors)
+        if self._ctx is not None:
+            return list(self._ctx.validation_errors)
+        if isinstance(self._device, Device):
+            return list(self._device.validation_errors)
+        return list(self._errors)
 
     def close(self) -> None:
         """Free the GPU resources; safe to call twice. Anything but `close()` afterwards is a ConfigError."""

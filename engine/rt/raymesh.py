@@ -23,6 +23,7 @@ from numpy.typing import ArrayLike, NDArray
 
 from ..errors import ConfigError, SceneError
 from ..vk import Context
+from ..vk.shared import Device
 from .checks import check_mesh, check_vectors
 from .tracer import Tracer
 
@@ -67,21 +68,25 @@ class RayMeshIntersector:
     direction is an error naming the ray, not a silent miss.
     """
 
-    def __init__(self, mesh: Any, scale_to_box: bool = True, *, device: int | str | None = None,
+    def __init__(self, mesh: Any, scale_to_box: bool = True, *, device: Device | int | str | None = None,
                  validation: bool = False):
         """Args:
             mesh: the `trimesh.Trimesh` to query (kept by reference, as trimesh does: edits to it are seen).
             scale_to_box: trace in a frame where the mesh spans about 100 units, as trimesh's Embree backend does
                 (either way the mesh is centred first).
-            device: the Vulkan device, as `Tracer`'s.
-            validation: turn the Khronos validation layer on (default: $HYBRID_VALIDATION).
+            device: an open `engine.Device` to share, or the Vulkan device, as `Tracer`'s.
+            validation: turn the Khronos validation layer on (default: $HYBRID_VALIDATION; a shared
+                `engine.Device` has its own setting).
 
         Raises:
             SceneError: `mesh` is not a `trimesh.Trimesh`.
+            ConfigError: a closed `engine.Device`.
         """
         import trimesh   # deferred: heavy, and only needed to check what `mesh` is (trimesh is already loaded then)
         if not isinstance(mesh, trimesh.Trimesh):
             raise SceneError(f"RayMeshIntersector: mesh must be a trimesh.Trimesh, got {type(mesh).__name__}")
+        if isinstance(device, Device) and device.closed:
+            raise ConfigError("RayMeshIntersector: its engine.Device is closed (make a new engine.Device)")
         self.mesh = mesh
         self._scale_to_box = bool(scale_to_box)
         self._device, self._validation = device, validation
@@ -93,6 +98,8 @@ class RayMeshIntersector:
 
     # ---- the Tracer for the mesh as it is now ------------------------------------------------------------------
     def _geometry(self) -> _Geometry:
+        if isinstance(self._device, Device) and self._device.closed:
+            raise ConfigError("RayMeshIntersector is closed: its engine.Device was closed")
         if self._closed:
             raise ConfigError("RayMeshIntersector is closed (close() or its `with` block ended): create a new one")
         key = hash(self.mesh)
@@ -110,9 +117,12 @@ class RayMeshIntersector:
             self._geom = None
         tracer = None
         if len(f):
-            if self._ctx is None:
-                self._ctx = Context(device=self._device, validation=self._validation or None)
-            tracer = Tracer((v - center) * factor, f, context=self._ctx)
+            if isinstance(self._device, Device):
+                tracer = Tracer((v - center) * factor, f, device=self._device)
+            else:
+                if self._ctx is None:
+                    self._ctx = Context(device=self._device, validation=self._validation or None)
+                tracer = Tracer((v - center) * factor, f, context=self._ctx)
         p0 = v[f[:, 0]]
         n = np.cross(v[f[:, 1]] - p0, v[f[:, 2]] - p0)
         length = np.linalg.norm(n, axis=1, keepdims=True)
@@ -247,7 +257,11 @@ class RayMeshIntersector:
     @property
     def validation_errors(self) -> list[str]:
         """Error-severity validation messages so far (with validation on), leaks found by `close()` included."""
-        return list(self._ctx.validation_errors) if self._ctx is not None else list(self._errors)
+        if self._ctx is not None:
+            return list(self._ctx.validation_errors)
+        if isinstance(self._device, Device):
+            return list(self._device.validation_errors)
+        return list(self._errors)
 
     def close(self) -> None:
         """Free the GPU resources; safe to call twice. A query afterwards is a ConfigError."""
@@ -274,8 +288,10 @@ class RayMeshIntersector:
             pass
 
     def __getstate__(self) -> dict:
-        """Pickled without its GPU state (rebuilt on the first query after unpickling), as trimesh drops its cache."""
-        return {"mesh": self.mesh, "scale_to_box": self._scale_to_box, "device": self._device,
+        """Pickled without its GPU state (rebuilt on the first query after unpickling), as trimesh drops its cache;
+        a shared `engine.Device` is not pickled (the copy opens a device of its own)."""
+        device = None if isinstance(self._device, Device) else self._device
+        return {"mesh": self.mesh, "scale_to_box": self._scale_to_box, "device": device,
                 "validation": self._validation}
 
     def __setstate__(self, state: dict) -> None:

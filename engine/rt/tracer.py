@@ -6,7 +6,7 @@
     near = tracer.closest(points)                      # Closest(point, distance, prim, u, v)
 
 Directions are used as given, as Embree does: the hit point is origin + t * direction and tmax is in
-the same units. Batches larger than one dispatch's buffers are split.
+the same units. A batch is streamed through the device in chunks, several in flight (engine/rt/stream.py).
 """
 from __future__ import annotations
 
@@ -25,22 +25,60 @@ from ..gpu import SceneBVH, bvh_descriptor_set, bvh_layout
 from ..gpu.bvh import CPU_OCCLUSION_STACK_REGS
 from ..parallel import serialized
 from ..shaders import ShaderLibrary
-from ..vk import Buffer, BufferView, ComputePipeline, Context, DescriptorSet, Recorder, Timestamps, reflect
+from ..vk import ComputePipeline, Context, DescriptorSet, reflect
 from ..vk.device import has_dedicated_vram, is_cpu, rgb32f_texel_buffers, work_shares
-from ..vk.formats import INDIRECT, R32F, R32UI, RGB32F, RGBA32UI
-from ..vk.resources import STORAGE, STORAGE_TEXEL, TRANSFER_DST, TRANSFER_SRC, UNIFORM_TEXEL
-from .checks import check_batch_size, check_mesh, check_rays
+from ..vk.shared import Device, Scope
+from .checks import check_batch_size, check_mesh, name_bad_ray, ray_arrays
 from .closest import Closest, ClosestQuery
+from .stream import Slot, hits_sink, occluded_sink, stream
 
 #: Query kinds whose kernels read rays (and write results) through texel buffer views on CPU devices (RAYS_TEXEL):
 #: faster for occlusion on lavapipe, not for closest hits.
 RAYS_TEXEL_KINDS = ("occluded",)
-RAY_BYTES = 28  # 7 floats: origin, direction, tmax, as three packed arrays (shaders/glsl/include/rays.glsl)
-GROUP = 64
+#: rays per chunk of a streamed batch (at most `batch_size`), and chunks in flight (slots of buffers)
+STREAM_CHUNK = 1 << 18
+STREAM_SLOTS = 3
 #: workgroups of the second dispatch (trace_*_retry.comp), striding over the rays left to it: at least one per core
 #: (a CPU device's threads), so that a deep tree with many unresolved rays still uses every core
 RETRY_GROUPS = max(4, os.cpu_count() or 1)
-HIT_BYTES = {"occluded": 4, "intersect": 16}
+
+
+def _interface(ctx, lib, name):
+    """The reflected interface of a tracer kernel, once per device (reflection parses the SPIR-V in Python)."""
+    root = ctx.root
+    with root.memo_lock:
+        key = ("tracer.interface", name)
+        if key not in root.memo:
+            root.memo[key] = reflect(lib.get(f"{name}.comp"), name)
+        return root.memo[key]
+
+
+def _pipelines(ctx, lib, specs, two_pass) -> dict:
+    """The trace kernels for `specs` (per query kind), made once per device and shared by its Tracers: made on the
+    context itself with set layouts of its own, which are compatible with every Tracer's identically laid out sets.
+    A constant that the variant never reads (the register stack's size without the register stack) is left out of
+    the key, so that Tracers of meshes of different depths share the GPU's kernels."""
+    root = ctx.root
+    out = {}
+    with root.memo_lock:
+        if "tracer.layouts" not in root.memo:
+            iface = root.memo[("tracer.interface", "trace_occluded")]
+            root.memo["tracer.layouts"] = [DescriptorSet(root, list(iface.set(0).values())),
+                                           bvh_descriptor_set(root, iface)]
+        layouts = root.memo["tracer.layouts"]
+        for kind, spec in specs.items():
+            used = {k: v for k, v in spec.items()
+                    if k != "BVH_STACK_REGS" or spec.get("BVH_REG_STACK") or spec.get("BVH_STACK_RETRY")}
+            for name in [f"trace_{kind}"] + ([f"trace_{kind}_retry"] if two_pass[kind] else []):
+                key = ("tracer.pipeline", name, tuple(sorted(used.items())))
+                if key not in root.memo:
+                    spirv = lib.get(f"{name}.comp")
+                    if ("tracer.interface", name) not in root.memo:
+                        root.memo[("tracer.interface", name)] = reflect(spirv, name)
+                    constants = root.memo[("tracer.interface", name)].specialization(spec, name)
+                    root.memo[key] = ComputePipeline(root, spirv, layouts, spec=constants, name=name)
+                out[name[6:]] = root.memo[key]
+    return out
 
 
 @dataclass(repr=False)
@@ -79,15 +117,16 @@ class Tracer:
     `with Tracer(vertices, faces) as tracer: hit = tracer.occluded(origins, directions, tmax)`.
 
     The BVH is built on the host (numpy, all cores) and traversed by GLSL compute shaders, the same traversal the
-    renderer's shadow and AO passes use. Queries take numpy arrays of any length (batches larger than the device's
-    buffers are split) and block until their results are back. Triangles are two-sided (no culling); a ray hits at
+    renderer's shadow and AO passes use. Queries take numpy arrays of any length and block until their results are
+    back; a large batch is streamed in chunks, packing, tracing and reading back overlapped. Triangles are two-sided (no culling); a ray hits at
     t in [0, tmax]. Coordinates of vertices and ray origins must lie within +-1e11 (`engine.limits.MAX_COORD`);
     a NaN, infinite or zero direction is a `ConfigError` naming the ray, not a silent miss.
 
     After a query: `last_gpu_ms` (GPU ms of its trace dispatches), `last_retried` (rays the second dispatch walked
-    again, on CPU devices), `last_times` (GPU ms of the last batch per step). `stats`: the BVH's build figures
+    again, on CPU devices), `last_times` (GPU ms of the last chunk per step). `stats`: the BVH's build figures
     (build_ms, nodes, depth, sah_cost, threads, layout, ...). Close it (`close()` or a `with` block) to free the
-    device; a closed Tracer raises `ConfigError`.
+    device; a closed Tracer raises `ConfigError`. Several Tracers (and Renderers) can share one `engine.Device`
+    (`device=dev`): each then costs only its BVH build and upload.
     """
 
     last_gpu_ms: float
@@ -95,7 +134,7 @@ class Tracer:
     last_times: dict[str, float]
     stats: dict[str, Any]
 
-    def __init__(self, vertices: ArrayLike, faces: ArrayLike, *, device: int | str | None = None,
+    def __init__(self, vertices: ArrayLike, faces: ArrayLike, *, device: Device | int | str | None = None,
                  validation: bool = False, batch_size: int = 1 << 20, context: Context | None = None,
                  staging: bool | None = None, layout: str | None = None):
         """Build the BVH of a mesh and upload it.
@@ -103,11 +142,11 @@ class Tracer:
         Args:
             vertices: (V, 3) vertex positions, float32 or float64 (converted to float32).
             faces: (T, 3) integer vertex indices per triangle.
-            device: the Vulkan device, as `Renderer`'s (index or part of its name; default: $HYBRID_DEVICE, else
-                the best).
-            validation: turn the Khronos validation layer on.
-            batch_size: the most rays one dispatch takes (larger queries are split), at most the device's texel
-                buffer limit.
+            device: an open `engine.Device` to share, or the Vulkan device to open one of its own on, as
+                `Renderer`'s (index or part of its name; default: $HYBRID_DEVICE, else the best).
+            validation: turn the Khronos validation layer on (a shared `engine.Device` has its own setting).
+            batch_size: the most rays one dispatch takes (larger queries are streamed in chunks of at most this
+                many), at most the device's texel buffer limit.
             context: use an existing `engine.vk.Context` (not closed here).
             staging: copy rays to and results from device-local buffers (default: when the device has memory the
                 host cannot map, i.e. a discrete GPU).
@@ -115,16 +154,20 @@ class Tracer:
 
         Raises:
             SceneError: bad vertices or faces (shape, NaN, out-of-range indices, beyond MAX_COORD).
-            ConfigError: a bad device selector, batch size or layout.
+            ConfigError: a bad device selector, batch size or layout; a closed `engine.Device` or context.
             VulkanError: no usable Vulkan device.
         """
         self._lock = threading.RLock()   # one call at a time, from any thread (engine.parallel.serialized)
         self.ctx = None
-        self._owns_ctx = context is None
+        self._root = None       # the Context this Tracer opened itself (closed with it)
+        self._shared = None     # the engine.Device or engine.vk.Context it was given (left open)
+        self._errors: list[str] = []
         if context is not None:
             if not isinstance(context, Context):
                 raise ConfigError(f"Tracer: context must be an engine.vk.Context, got {type(context).__name__}")
             context.check_open("Tracer")
+        if isinstance(device, Device) and device.closed:
+            raise ConfigError("Tracer: its engine.Device is closed (make a new engine.Device)")
         self.batch = check_batch_size(batch_size)
         v, f = check_mesh(vertices, faces)
         self.layout = bvh_layout(layout)  # a bad layout (argument or HYBRID_BVH_LAYOUT) fails before the build
@@ -134,8 +177,18 @@ class Tracer:
         self.stats = dict(self.bvh.stats)
         self._staging = staging
         try:
-            self.ctx = context if context is not None else Context(device=device, validation=validation or None)
-            self._init_gpu()
+            with self._lock:   # (a Device closed meanwhile waits for the set-up, then closes this Tracer)
+                if isinstance(device, Device):
+                    self._shared = device
+                    self.ctx = device._attach(self, "Tracer")
+                elif context is not None:
+                    self._shared = context
+                    self.ctx = Scope(context, "Tracer")
+                else:
+                    self._root = Context(device=device, validation=validation or None)
+                    self.ctx = Scope(self._root, "Tracer")
+                self._errors = self.ctx.validation_errors   # the context's list: still readable after close()
+                self._init_gpu()
         except BaseException:
             self.close()
             raise
@@ -160,34 +213,22 @@ class Tracer:
     def _init_gpu(self):
         ctx = self.ctx
         lib = ShaderLibrary()
-        kinds = ("occluded", "intersect")
-        interface = reflect(lib.get("trace_occluded.comp"), "trace_occluded.comp")
+        interface = _interface(ctx, lib, "trace_occluded")
         self.bvh_set = bvh_descriptor_set(ctx, interface)
         self.scene = SceneBVH.upload(ctx, self.bvh, self.bvh_set, self.layout)
         self.stats = dict(self.scene.bvh.stats, layout=self.layout)
-        self.io_set = DescriptorSet(ctx, interface.set(0).values())
         # Rays and results: mapped host buffers; on a discrete GPU device-local ones filled / read by copies in the
         # same command buffer (the copy is sized to the batch, rounded up to a power of two: one recording each).
         self.staged = has_dedicated_vram(ctx) if self._staging is None else bool(self._staging)
-        # a batch is at most what a texel view of the rays may hold, and the three ray arrays start at offsets the
-        # texel views allow (minTexelBufferOffsetAlignment): the arrays' stride `capacity` is rounded up for that
+        # a batch is at most what a texel view of the rays may hold; it is streamed in chunks of at most
+        # STREAM_CHUNK rays, and the three ray arrays of a slot start at offsets the texel views allow
+        # (minTexelBufferOffsetAlignment): their stride `capacity` is rounded up for that
         self.batch = max(1, min(self.batch, int(ctx.limits.maxTexelBufferElements)))
+        self.chunk = min(self.batch, STREAM_CHUNK)
         align = max(1, int(ctx.limits.minTexelBufferOffsetAlignment))
         step = align // math.gcd(12, align)
-        self.capacity = -(-self.batch // step) * step
+        self.capacity = -(-self.chunk // step) * step
         self.rays_texel_ok = rgb32f_texel_buffers(ctx)
-        self.rays_host = Buffer(ctx, self.capacity * RAY_BYTES, STORAGE | UNIFORM_TEXEL | TRANSFER_SRC, host=True,
-                                name="rays")
-        self.results_host = Buffer(ctx, self.batch * 16, STORAGE | STORAGE_TEXEL | TRANSFER_DST, host=True,
-                                   name="hits")
-        if self.staged:
-            self.rays = Buffer(ctx, self.capacity * RAY_BYTES, STORAGE | UNIFORM_TEXEL | TRANSFER_DST,
-                               name="rays (device)")
-            self.results = Buffer(ctx, self.batch * 16, STORAGE | STORAGE_TEXEL | TRANSFER_SRC,
-                                  name="hits (device)")
-        else:
-            self.rays, self.results = self.rays_host, self.results_host
-        self.params = Buffer(ctx, 32, STORAGE | INDIRECT, host=True, name="params")
         # Where the register stack can overflow (CPU devices), the rare rays it leaves unresolved are walked again
         # in a second dispatch (trace_*_retry.comp) rather than inline: llvmpipe would run the inline walk's loop
         # body for every 8 rays whether or not one needs it.
@@ -197,81 +238,32 @@ class Tracer:
             spec["RAYS_TEXEL"] = is_cpu(ctx) and kind in RAYS_TEXEL_KINDS and self.rays_texel_ok
         self.specs = specs   # by name, per query kind
         self.two_pass = {kind: bool(s.get("BVH_REG_STACK") and s.get("BVH_STACK_RETRY")) for kind, s in specs.items()}
-        two = any(self.two_pass.values())   # (CPU devices only: host-visible is their device memory)
-        self.retry = Buffer(ctx, 4 + 4 * self.batch if two else 16, STORAGE | TRANSFER_DST, host=two,
-                            name="retry list")
-        for name, buf in (("ray_data", self.rays), ("params", self.params), ("retry", self.retry)):
-            self.io_set.bind(name, buf)
-        # (occluded / hits: two names of the results buffer in the two kernels; the set is laid out from one)
-        self.io_set.bind(interface.bindings[1].name, self.results)
-        # the texel buffer views of rays.glsl (read where RAYS_TEXEL says). RGB32F uniform texel buffers are optional
-        # in Vulkan: without them the origin and direction views are R32F ones, which the shaders then never read
-        c = self.capacity
-        vec3 = RGB32F if self.rays_texel_ok else R32F
-        views = {"ray_origins": BufferView(self.rays, vec3, 0, 12 * c),
-                 "ray_directions": BufferView(self.rays, vec3, 12 * c, 12 * c),
-                 "ray_tmax": BufferView(self.rays, R32F, 24 * c, 4 * c),
-                 "occluded_texels": BufferView(self.results, R32UI, 0, 4 * self.batch),
-                 "hit_texels": BufferView(self.results, RGBA32UI, 0, 16 * self.batch)}
-        for name, view in views.items():
-            self.io_set.bind(name, view)
-        self.ray_views = list(views.values())
-        self.timestamps = Timestamps(ctx, capacity=4)
-        self.pipelines, self._commands, self._marks = {}, {}, {}
-        for kind in kinds:
-            for name in [f"trace_{kind}"] + ([f"trace_{kind}_retry"] if self.two_pass[kind] else []):
-                spirv = lib.get(f"{name}.comp")
-                spec = reflect(spirv, name).specialization(specs[kind], name)
-                self.pipelines[name[6:]] = ComputePipeline(ctx, spirv, [self.io_set, self.bvh_set], spec=spec,
-                                                           name=name)
+        bindings = list(interface.set(0).values())
+        self.slots = [Slot(ctx, bindings, self.chunk, self.capacity, self.staged, any(self.two_pass.values()),
+                           self.rays_texel_ok, i) for i in range(STREAM_SLOTS)]
+        self.pipelines = _pipelines(ctx, lib, specs, self.two_pass)
         self.shares = work_shares(ctx)  # rays.glsl ray_block
         self.last_gpu_ms = 0.0
         self.last_retried = 0        # rays of the last query that the second dispatch walked again (two_pass)
-        self.last_times: dict = {}   # GPU ms of the last batch per step: upload (staged only), trace, download
+        self.last_times: dict = {}   # GPU ms of the last chunk per step: upload (staged only), trace, download
 
-    def _command(self, kind, n):
-        """The recorded command buffer for a query kind (and, when staged, the copy size for n rays)."""
-        span = min(1 << max(int(n - 1).bit_length(), 10), self.batch) if self.staged else self.batch
-        key = (kind, span)
-        if key not in self._commands:
-            self._commands[key] = self._record(kind, span)
-        return self._commands[key], self._marks[key]
-
-    def _record(self, kind, span):
-        """One command buffer per query kind (and copy span), recorded once: the ray count comes from `params`."""
-        rec = Recorder(self.ctx, self.timestamps)
-        sets = [self.io_set, self.bvh_set]
-        if self.staged:
-            c = self.capacity  # the three arrays of rays.glsl: origins, directions, tmax; the first `span` of each
-            rec.copy(self.rays_host, self.rays, [(0, 0, span * 12), (c * 12, c * 12, span * 12),
-                                                 (c * 24, c * 24, span * 4)])
-            rec.mark("upload")
-        if self.two_pass[kind]:
-            rec.fill(self.retry, 0, size=4)
-        rec.dispatch_indirect(self.pipelines[kind], sets, self.params, reads=[self.rays, self.retry],
-                              writes=[self.results, self.retry])
-        if self.two_pass[kind]:
-            rec.dispatch(self.pipelines[kind + "_retry"], sets, (RETRY_GROUPS, 1, 1),
-                         reads=[self.rays, self.retry, self.results], writes=[self.results, self.retry])
-        rec.mark("trace")
-        if self.staged:
-            rec.copy(self.results, self.results_host, [(0, 0, span * HIT_BYTES[kind])])
-            # the copied results, and the retry list's counter the shader wrote (Tracer.last_retried)
-            rec.to_host(self.results_host, self.retry)
-            rec.mark("download")
-        else:
-            rec.to_host(self.results, self.retry)
-        self._marks[(kind, span)] = list(self.timestamps.names)
-        return rec.finish()
+    def _record(self, slot, kind, span):
+        """A slot's command buffer for a query kind (and copy span), recorded once: the ray count is in `params`."""
+        if kind == "closest":
+            return self._closest.record(slot, span)
+        return slot.record(kind, span, self.pipelines, self.bvh_set, self.two_pass[kind], RETRY_GROUPS)
 
     @property
     def validation_errors(self) -> list[str]:
-        """Error-severity validation messages so far (with `validation=True`)."""
-        return self.ctx.validation_errors if self.ctx else []
+        """Error-severity validation messages so far (with validation on; on a shared `engine.Device`, those of
+        every object on it)."""
+        return self._errors
 
     # ---- queries ---------------------------------------------------------------------------
     def _check_open(self):
         """A ConfigError, not a crash in the freed buffers or the destroyed device, once closed."""
+        if isinstance(self._shared, Device) and self._shared.closed:
+            raise ConfigError("Tracer is closed: its engine.Device was closed")
         if self.ctx is None:
             raise ConfigError("Tracer is closed (close() or its `with` block ended): create a new Tracer")
         if self.ctx.closed:
@@ -293,12 +285,9 @@ class Tracer:
             ConfigError: bad shapes, NaN or infinite values, a zero direction (naming the ray), a closed Tracer.
         """
         self._check_open()
-        o, d, t = check_rays(origins, directions, tmax)
+        o, d, t = ray_arrays(origins, directions, tmax)
         out = np.empty(len(o), bool)
-        self.last_gpu_ms, self.last_retried = 0.0, 0
-        for s in range(0, len(o), self.batch):
-            n = self._run("occluded", o[s:s + self.batch], d[s:s + self.batch], t[s:s + self.batch])
-            out[s:s + n] = self.results_host.view(np.uint32)[:n] != 0
+        self._stream("occluded", o, d, t, occluded_sink(out), lambda: name_bad_ray(o, d, origins, directions))
         return out
 
     @serialized
@@ -308,18 +297,11 @@ class Tracer:
         The arguments are `occluded()`'s. Returns `Hits` (t, prim, u, v per ray: t = +inf and prim = -1 on a miss).
         """
         self._check_open()
-        o, d, t = check_rays(origins, directions, tmax)
-        n_all = len(o)
-        hits = Hits(np.empty(n_all, np.float32), np.empty(n_all, np.int32), np.empty(n_all, np.float32),
-                    np.empty(n_all, np.float32))
-        self.last_gpu_ms, self.last_retried = 0.0, 0
-        for s in range(0, n_all, self.batch):
-            n = self._run("intersect", o[s:s + self.batch], d[s:s + self.batch], t[s:s + self.batch])
-            rec = self.results_host.view(np.float32)[:n * 4].reshape(n, 4)
-            hits.t[s:s + n] = rec[:, 0]
-            hits.prim[s:s + n] = rec[:, 1].view(np.int32)
-            hits.u[s:s + n] = rec[:, 2]
-            hits.v[s:s + n] = rec[:, 3]
+        o, d, t = ray_arrays(origins, directions, tmax)
+        n = len(o)
+        hits = Hits(np.empty(n, np.float32), np.empty(n, np.int32), np.empty(n, np.float32), np.empty(n, np.float32))
+        self._stream("intersect", o, d, t, hits_sink(hits.t, hits.prim, hits.u, hits.v),
+                     lambda: name_bad_ray(o, d, origins, directions))
         return hits
 
     @serialized
@@ -338,47 +320,29 @@ class Tracer:
         self._check_open()
         if self._closest is None:
             self._closest = ClosestQuery(self)
+            self.two_pass["closest"] = False   # one dispatch: the point walk keeps its stack in an array
         return self._closest.run(points)
 
-    def _run(self, kind, o, d, t) -> int:
-        n = len(o)
-        if n == 0:
-            return 0
-        c = self.capacity
-        rays = self.rays_host.view(np.float32)  # rays.glsl: origins, directions, tmax, each an array of c rays
-        rays[:3 * n] = o.reshape(-1)
-        rays[3 * c:3 * c + 3 * n] = d.reshape(-1)
-        rays[6 * c:6 * c + n] = t
-        self.params.write(np.array([(n + GROUP - 1) // GROUP, 1, 1, n, c, self.shares, 0, 0], np.uint32))
-        cmd, marks = self._command(kind, n)
-        self.ctx.submit(cmd)
-        self.last_times = self.timestamps.read(marks)
-        self.last_gpu_ms += self.last_times.get("trace", 0.0)
-        if self.two_pass[kind]:
-            self.last_retried += int(self.retry.view(np.uint32)[0])
-        return n
+    def _stream(self, kind, o, d, t, sink, bad):
+        """Trace rays from `ray_arrays` (float32 (N, 3), (N, 3), and (N,) or one tmax) with the `kind` kernels;
+        each chunk is checked as it is packed (`bad()` raises the error naming the first bad ray); `sink(slot,
+        start, n, threads)` takes each chunk's results from `slot.results_host` (engine/rt/stream.py)."""
+        self.last_gpu_ms, self.last_retried = 0.0, 0
+        stream(self, kind, o, d, t, sink, bad)
 
     # ---- lifetime --------------------------------------------------------------------------
     @serialized
     def close(self) -> None:
-        """Free the GPU buffers (and the device, unless it was given as `context`); safe to call twice."""
+        """Free the GPU buffers (and the device, unless it was given: an `engine.Device` or a context); safe to
+        call twice."""
         if self.ctx is not None:
-            if getattr(self, "_closest", None) is not None:
-                self.ctx.wait_idle()
-                self._closest.destroy()
-                self._closest = None
-            if self._owns_ctx:
-                self.ctx.close()
-            else:
-                self.ctx.wait_idle()
-                for obj in getattr(self, "ray_views", []):
-                    obj.destroy()
-                for obj in (getattr(self, "scene", None), getattr(self, "rays", None), getattr(self, "results", None),
-                            getattr(self, "rays_host", None), getattr(self, "results_host", None),
-                            getattr(self, "params", None), getattr(self, "retry", None)):
-                    if obj is not None:
-                        obj.destroy()
+            self.ctx.close()   # (its Scope: what this Tracer made)
             self.ctx = None
+        if self._root is not None:
+            self._root.close()
+            self._root = None
+        if isinstance(self._shared, Device):
+            self._shared._detach(self)
 
     def __enter__(self) -> Tracer:
         return self

@@ -135,6 +135,9 @@ class Context:
         self.validation_errors: list[str] = []
         self.validation_messages: list[str] = []
         self._destroy_stack = []
+        self._scopes = []         # engine.vk.shared.Scope: users' shares, closed before this context's own objects
+        self.memo: dict = {}      # objects its users share (pipelines by shader and constants), under memo_lock
+        self.memo_lock = threading.Lock()
         self._submit_infos = {}   # (cmd, wait semaphores, wait stages, signal semaphores) -> VkSubmitInfo*
         self.instance = None
         self.device = None
@@ -243,6 +246,20 @@ class Context:
         self._destroy_stack.append((fn, args))
 
     @property
+    def root(self) -> "Context":
+        """The context itself (a Scope's is its context): where objects shared by its users are made."""
+        return self
+
+    def add_scope(self, scope):
+        with self.lock:
+            self._scopes.append(scope)
+
+    def remove_scope(self, scope):
+        with self.lock:
+            if scope in self._scopes:
+                self._scopes.remove(scope)
+
+    @property
     def closed(self) -> bool:
         """Has close() run (or did set-up fail)? Then no Vulkan call may use this context."""
         return self.device is None
@@ -274,6 +291,8 @@ class Context:
                 vk.vkDeviceWaitIdle(self.device)
             except vk.VkErrorDeviceLost:   # destroying objects of a lost device is allowed
                 self.lost = True
+            while self._scopes:   # users still open: their objects go first (they were made on ours)
+                self._scopes.pop().destroy_objects()
             while self._destroy_stack:
                 fn, args = self._destroy_stack.pop()
                 fn(*args)
@@ -306,10 +325,15 @@ class Context:
             return vk.vkAllocateCommandBuffers(self.device, vk.VkCommandBufferAllocateInfo(
                 commandPool=self.command_pool, level=vk.VK_COMMAND_BUFFER_LEVEL_PRIMARY, commandBufferCount=1))[0]
 
-    def free_command_buffer(self, cmd):
+    def forget_command_buffer(self, cmd):
+        """Drop the cached submit infos of a command buffer about to be freed."""
         with self.lock:
             for key in [k for k in self._submit_infos if k[0] == cmd]:
                 del self._submit_infos[key]
+
+    def free_command_buffer(self, cmd):
+        with self.lock:
+            self.forget_command_buffer(cmd)
             vk.vkFreeCommandBuffers(self.device, self.command_pool, 1, [cmd])
 
     def submit(self, cmd, wait=True, wait_semaphores=(), wait_stages=(), signal_semaphores=(), fence=None):

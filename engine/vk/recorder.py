@@ -81,7 +81,10 @@ class Hazards:
 class Recorder:
     """One command buffer being recorded, with derived barriers and named GPU timestamps."""
 
-    def __init__(self, ctx, timestamps=None):
+    def __init__(self, ctx, timestamps=None, after_earlier: bool = True):
+        """`after_earlier=False`: no barrier against earlier submissions, for a recording whose resources no other
+        submission in flight touches (a Tracer's stream slot, reused only after its fence), so that it may overlap
+        them on the device."""
         self.ctx = ctx
         self.cmd = ctx.allocate_command_buffer()
         self.hazards = Hazards()
@@ -90,8 +93,9 @@ class Recorder:
         if timestamps is not None:
             timestamps.begin(self.cmd)
         # What earlier submissions on the queue did to the same resources comes before anything recorded here.
-        memory_barrier(self.cmd, _EVERYTHING | vk.VK_PIPELINE_STAGE_COLOR_ATTACHMENT_OUTPUT_BIT, _EVERYTHING,
-                       _ANY_ACCESS | vk.VK_ACCESS_COLOR_ATTACHMENT_WRITE_BIT, _ANY_ACCESS)
+        if after_earlier:
+            memory_barrier(self.cmd, _EVERYTHING | vk.VK_PIPELINE_STAGE_COLOR_ATTACHMENT_OUTPUT_BIT, _EVERYTHING,
+                           _ANY_ACCESS | vk.VK_ACCESS_COLOR_ATTACHMENT_WRITE_BIT, _ANY_ACCESS)
 
     def use(self, reads=(), writes=(), stage=COMPUTE):
         """Declare a step's accesses (emitting the barrier it needs) without recording the step itself."""

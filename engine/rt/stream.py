@@ -1,0 +1,215 @@
+"""The Tracer's host path: a batch streamed through a few slots of buffers, so that packing the next chunk's rays,
+tracing and reading back the last ones' results overlap.
+
+A `Slot` holds one chunk in flight: its rays and results in mapped memory (plus device-local copies on a discrete
+GPU), the dispatch parameters, the retry list, its descriptor set, timestamps, a fence and its command buffers
+(recorded once per query kind and copy size, then re-submitted). `stream()` packs chunk i into slot i mod S with
+numpy, straight into the mapped memory (row blocks on the worker pool), submits it without waiting, and before
+reusing a slot waits for its fence and hands its results to the query's sink, which writes them into the arrays
+the query returns.
+"""
+from __future__ import annotations
+
+from collections import deque
+
+import numpy as np
+
+from ..parallel import default_threads, run as _parallel
+from ..vk import Buffer, BufferView, DescriptorSet, Recorder, Timestamps
+from ..vk.formats import INDIRECT, R32F, R32UI, RGB32F, RGBA32UI
+from ..vk.resources import STORAGE, STORAGE_TEXEL, TRANSFER_DST, TRANSFER_SRC, UNIFORM_TEXEL
+from ..vk.sync import create_fence, destroy_fence, reset_fences, wait_fences
+from .checks import rays_fine
+
+GROUP = 64
+RAY_BYTES = 28  # 7 floats: origin, direction, tmax, as three packed arrays (shaders/glsl/include/rays.glsl)
+HIT_BYTES = {"occluded": 4, "intersect": 16}
+#: the fewest rays per task when numpy checks and packs rays (28 bytes each) or unpacks closest hits (16) and
+#: occlusion words (4) on the worker pool: a chunk is split into one task per thread, down to about a megabyte each
+#: (below that, handing the work to the pool costs more than it saves)
+MIN_BLOCK = {"pack": 1 << 15, "intersect": 1 << 16, "occluded": 1 << 18}
+
+
+class Slot:
+    """One chunk's buffers in flight (see the module notes)."""
+
+    def __init__(self, ctx, bindings, chunk: int, capacity: int, staged: bool, two_pass: bool, texel_ok: bool,
+                 index: int):
+        self.ctx, self.chunk, self.capacity, self.staged = ctx, chunk, capacity, staged
+        c = capacity
+        self.io_set = DescriptorSet(ctx, bindings)
+        self.rays_host = Buffer(ctx, c * RAY_BYTES, STORAGE | UNIFORM_TEXEL | TRANSFER_SRC, host=True,
+                                name=f"rays {index}")
+        self.results_host = Buffer(ctx, chunk * 16, STORAGE | STORAGE_TEXEL | TRANSFER_DST, host=True,
+                                   name=f"hits {index}")
+        if staged:
+            self.rays = Buffer(ctx, c * RAY_BYTES, STORAGE | UNIFORM_TEXEL | TRANSFER_DST,
+                               name=f"rays {index} (device)")
+            self.results = Buffer(ctx, chunk * 16, STORAGE | STORAGE_TEXEL | TRANSFER_SRC,
+                                  name=f"hits {index} (device)")
+        else:
+            self.rays, self.results = self.rays_host, self.results_host
+        self.params = Buffer(ctx, 32, STORAGE | INDIRECT, host=True, name=f"params {index}")
+        # (CPU devices only have a second pass: host-visible is their device memory)
+        self.retry = Buffer(ctx, 4 + 4 * chunk if two_pass else 16, STORAGE | TRANSFER_DST, host=two_pass,
+                            name=f"retry list {index}")
+        for name, buf in (("ray_data", self.rays), ("params", self.params), ("retry", self.retry)):
+            self.io_set.bind(name, buf)
+        # (occluded / hits: two names of the results buffer in the two kernels; the set is laid out from one)
+        self.io_set.bind(bindings[1].name, self.results)
+        # the texel buffer views of rays.glsl (read where RAYS_TEXEL says). RGB32F uniform texel buffers are optional
+        # in Vulkan: without them the origin and direction views are R32F ones, which the shaders then never read
+        vec3 = RGB32F if texel_ok else R32F
+        views = {"ray_origins": BufferView(self.rays, vec3, 0, 12 * c),
+                 "ray_directions": BufferView(self.rays, vec3, 12 * c, 12 * c),
+                 "ray_tmax": BufferView(self.rays, R32F, 24 * c, 4 * c),
+                 "occluded_texels": BufferView(self.results, R32UI, 0, 4 * chunk),
+                 "hit_texels": BufferView(self.results, RGBA32UI, 0, 16 * chunk)}
+        for name, view in views.items():
+            self.io_set.bind(name, view)
+        self.timestamps = Timestamps(ctx, capacity=4)
+        self.fence = create_fence(ctx)
+        ctx.defer_destroy(destroy_fence, ctx, self.fence)
+        self.pending = False          # submitted, fence not yet waited for
+        self.commands: dict = {}      # (kind, span) -> (command buffer, timestamp names)
+        # the mapped arrays, as rays.glsl reads them: origins, directions, tmax, each an array of `capacity` rays
+        f32 = self.rays_host.view(np.float32)
+        self.origins = f32[:3 * c].reshape(c, 3)
+        self.directions = f32[3 * c:6 * c].reshape(c, 3)
+        self.tmax = f32[6 * c:7 * c]
+
+    def command(self, kind: str, n: int, record):
+        """The recorded command buffer for `kind` (and, when staged, the copy size for n rays: the batch rounded up
+        to a power of two, so that a few recordings serve every size)."""
+        span = min(1 << max(int(n - 1).bit_length(), 10), self.chunk) if self.staged else self.chunk
+        key = (kind, span)
+        if key not in self.commands:
+            self.commands[key] = record(self, kind, span)
+        return self.commands[key]
+
+    def record(self, kind, span, pipelines, bvh_set, two_pass: bool, retry_groups: int):
+        """One command buffer: (upload), trace (and the retry pass), (download); the ray count comes from `params`.
+        No barrier against earlier submissions: this slot's buffers are reused only after its fence."""
+        rec = Recorder(self.ctx, self.timestamps, after_earlier=False)
+        sets = [self.io_set, bvh_set]
+        if self.staged:
+            c = self.capacity  # the three arrays of rays.glsl: origins, directions, tmax; the first `span` of each
+            rec.copy(self.rays_host, self.rays, [(0, 0, span * 12), (c * 12, c * 12, span * 12),
+                                                 (c * 24, c * 24, span * 4)])
+            rec.mark("upload")
+        if two_pass:
+            rec.fill(self.retry, 0, size=4)
+        rec.dispatch_indirect(pipelines[kind], sets, self.params, reads=[self.rays, self.retry],
+                              writes=[self.results, self.retry])
+        if two_pass:
+            rec.dispatch(pipelines[kind + "_retry"], sets, (retry_groups, 1, 1),
+                         reads=[self.rays, self.retry, self.results], writes=[self.results, self.retry])
+        rec.mark("trace")
+        if self.staged:
+            rec.copy(self.results, self.results_host, [(0, 0, span * HIT_BYTES[kind])])
+            # the copied results, and the retry list's counter the shader wrote (Tracer.last_retried)
+            rec.to_host(self.results_host, self.retry)
+            rec.mark("download")
+        else:
+            rec.to_host(self.results, self.retry)
+        return rec.finish(), list(self.timestamps.names)
+
+    def pack(self, o, d, t, n: int, shares: int, threads: int) -> bool:
+        """Rays [0, n) of o, d and t (an array, or one float32 for all) into the mapped arrays, each row block checked
+        (`rays_fine`) right before it is copied, while it is in cache (blocks on the worker pool); and the dispatch
+        size. False where a block has a bad ray (then nothing may be submitted)."""
+        step = block_size(n, threads, "pack")
+
+        def block(s):
+            e = min(s + step, n)
+            if not rays_fine(o[s:e], d[s:e]):
+                return False
+            self.origins[s:e] = o[s:e]
+            self.directions[s:e] = d[s:e]
+            self.tmax[s:e] = t if t.ndim == 0 else t[s:e]
+            return True
+        if not all(_parallel([lambda s=s: block(s) for s in range(0, n, step)], threads)):
+            return False
+        self.params.write(np.array([(n + GROUP - 1) // GROUP, 1, 1, n, self.capacity, shares, 0, 0], np.uint32))
+        return True
+
+    def wait(self):
+        """Block until the last submission of this slot has run (then its results may be read)."""
+        if self.pending:
+            wait_fences(self.ctx, [self.fence])
+            reset_fences(self.ctx, [self.fence])
+            self.pending = False
+
+
+def block_size(n: int, threads: int, what: str) -> int:
+    """Rays per task for n rays on `threads` threads: one task per thread, at least MIN_BLOCK[what] rays each."""
+    return max(MIN_BLOCK[what], -(-n // max(threads, 1)))
+
+
+def stream(tracer, kind: str, o, d, t, sink, bad) -> None:
+    """Trace rays o, d, t (float32 (N, 3), (N, 3), and (N,) or one for all; checked but for `rays_fine`) through
+    `tracer`'s slots in chunks of `tracer.chunk`, with up to len(slots) chunks in flight; `sink(slot, start, n,
+    threads)` takes each chunk's results in order; `bad()` raises the error for a chunk with a bad ray. Updates the
+    tracer's last_gpu_ms, last_retried and last_times."""
+    slots, chunk, ctx = tracer.slots, tracer.chunk, tracer.ctx
+    threads = default_threads()
+    inflight: deque = deque()
+
+    def finish():
+        slot, start, n, marks = inflight.popleft()
+        slot.wait()
+        tracer.last_times = slot.timestamps.read(marks)
+        tracer.last_gpu_ms += tracer.last_times.get("trace", 0.0)
+        if tracer.two_pass[kind]:
+            tracer.last_retried += int(slot.retry.view(np.uint32)[0])
+        sink(slot, start, n, threads)
+
+    try:
+        for i, start in enumerate(range(0, len(o), chunk)):
+            n = min(chunk, len(o) - start)
+            slot = slots[i % len(slots)]
+            if len(inflight) == len(slots):
+                finish()
+            slot.wait()   # (a query that failed half-way left it pending)
+            if not slot.pack(o[start:start + n], d[start:start + n], t if t.ndim == 0 else t[start:start + n], n,
+                             tracer.shares, threads):
+                bad()
+            cmd, marks = slot.command(kind, n, tracer._record)
+            ctx.submit(cmd, wait=False, fence=slot.fence)
+            slot.pending = True
+            inflight.append((slot, start, n, marks))
+        while inflight:
+            finish()
+    finally:
+        for slot in slots:   # an error half-way: nothing of this query stays in flight
+            slot.wait()
+
+
+def occluded_sink(out: np.ndarray):
+    """A sink writing (N,) bool `out` from the occlusion words of each chunk."""
+    def sink(slot, start, n, threads):
+        words = slot.results_host.view(np.uint32)
+        step = block_size(n, threads, "occluded")
+
+        def block(s):
+            e = min(s + step, n)
+            np.not_equal(words[s:e], 0, out=out[start + s:start + e])
+        _parallel([lambda s=s: block(s) for s in range(0, n, step)], threads)
+    return sink
+
+
+def hits_sink(t_out, prim_out, u_out, v_out):
+    """A sink writing the (N,) arrays of Hits from each chunk's (t, prim, u, v) records."""
+    def sink(slot, start, n, threads):
+        rec = slot.results_host.view(np.float32)[:4 * n].reshape(n, 4)
+        step = block_size(n, threads, "intersect")
+
+        def block(s):
+            e = min(s + step, n)
+            r = rec[s:e]
+            t_out[start + s:start + e] = r[:, 0]
+            prim_out[start + s:start + e] = r[:, 1].view(np.int32)
+            u_out[start + s:start + e] = r[:, 2]
+            v_out[start + s:start + e] = r[:, 3]
+        _parallel([lambda s=s: block(s) for s in range(0, n, step)], threads)
+    return sink

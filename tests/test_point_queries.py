@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 import trimesh
 
-from engine import ConfigError, RaycastingScene, Tracer
+from engine import ConfigError, Device, RaycastingScene, Tracer
 from engine.rt.raycasting import vote_directions
 from engine.rt.reference import reference_closest
 
@@ -169,6 +169,21 @@ def test_wide_layout_batches_and_staging_give_the_same_answers(tracer, name):
         assert np.array_equal(other.distance, base.distance) and np.array_equal(other.prim, base.prim), kw
         assert np.array_equal(other.point, base.point)
     assert len(tracer(v, f).closest(np.zeros((0, 3)))) == 0
+
+
+def test_closest_on_a_shared_device_answers_as_alone(tracer):
+    (va, fa), (vb, fb) = meshes()["torus"], meshes()["degenerate"]
+    points, _ = queries(va, fa, n=500)
+    want = [tracer(va, fa).closest(points), tracer(vb, fb).closest(points)]
+    with Device(validation=True) as dev:
+        ta, tb = Tracer(va, fa, device=dev), Tracer(vb, fb, device=dev, layout="wide")
+        for t, w in zip((ta, tb, ta), want + want[:1]):
+            got = t.closest(points)
+            assert np.array_equal(got.distance, w.distance) and np.array_equal(got.prim, w.prim)
+        ta.close()
+        assert np.array_equal(tb.closest(points).distance, want[1].distance)   # the other one's buffers are intact
+        tb.close()
+        assert dev.validation_errors == []
 
 
 def test_tracer_closest_bad_input(tracer):

@@ -47,6 +47,11 @@ class Frame:
       sub-mesh it belongs to (`object_names[id]`) and its material (`material_names[id]`).
     - "motion": (H, W, 2) float32 pixels, where the surface point is now minus where it was in the previous frame
       (x right, y down); 0 on the background and for an unmoved camera.
+    - "roughness", "metallic": (H, W) the material's glTF perceptual roughness and metallic in [0, 1] (8-bit);
+      0 on the background.
+    - "emissive": (H, W, 3) linear RGB radiance the surface emits; 0 on the background.
+    - "radiance": (H, W, 3) the lit linear RGB colour before tonemapping (times `exposure`; half floats): what
+      `color` is the ACES-tonemapped, sRGB-encoded image of.
 
     Which are present is the `aovs` argument of `Renderer.render` (default `engine.settings.DEFAULT_AOVS`).
     """
@@ -218,7 +223,7 @@ def aov_to_rgba(frame: Frame, name: str) -> np.ndarray:
     elif name == "position":
         lo, hi = (a[cover].min(0), a[cover].max(0)) if cover.any() else (0.0, 1.0)
         rgb = np.where(cover[..., None], (a - lo) / np.maximum(hi - lo, 1e-12), 0.0)
-    elif name == "albedo":
+    elif name in ("albedo", "emissive", "radiance"):
         rgb = np.clip(a, 0, 1) ** (1 / 2.2)
     elif name in ("shadow", "shadow_raw"):  # per-light masks: average over lights
         rgb = np.repeat(a.mean(axis=2, keepdims=True), 3, axis=2) if a.shape[2] else np.ones(a.shape[:2] + (3,))

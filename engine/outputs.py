@@ -132,8 +132,8 @@ def exr_channels(name: str, channels: int) -> list[str]:
         return ["depth.Z"]
     if name.endswith("_id"):
         return [f"{name}.ID"]
-    if name == "albedo":
-        return ["albedo.R", "albedo.G", "albedo.B"]
+    if name in ("albedo", "emissive", "radiance"):
+        return [f"{name}.R", f"{name}.G", f"{name}.B"]
     if channels == 1:
         return [f"{name}.Y"]
     return [f"{name}.{axis}" for axis in "XYZ"[:channels]]

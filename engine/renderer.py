@@ -27,7 +27,7 @@ from .passes.accumulate import ALPHA_MIN, AccumulatePass
 from .passes.ao import AOPass
 from .passes.debug_view import DebugViewPass
 from .passes.denoise import DenoisePass
-from .passes.gbuffer import GBufferPass, SceneGeometry
+from .passes.gbuffer import GBufferPass, SceneGeometry, flag_alpha_tested
 from .passes.interface import (FILTER_AO, FILTER_MASKS, FILTER_TEMPORAL, FRAME, FRAME_BYTES, MAX_LIGHTS,
                                camera_fields, pack_frame, pack_light)
 from .passes.lighting import LightingPass
@@ -187,7 +187,8 @@ class Renderer:
 
         Args:
             aovs: what to read back: AOV names ("color", "depth", "normal", "position", "albedo", "shadow",
-                "shadow_raw", "ao", "ao_raw", "history", "triangle_id", "object_id", "material_id", "motion"; see
+                "shadow_raw", "ao", "ao_raw", "history", "triangle_id", "object_id", "material_id", "motion",
+                "roughness", "metallic", "emissive", "radiance"; see
                 `Frame.aov`), "all", or None for `engine.settings.DEFAULT_AOVS`. Only these are copied from the GPU.
             scene: what to draw. The last scene stays on the GPU: rendering the same object again uploads nothing.
             camera: the viewpoint (None: `scene.camera`). The image's aspect ratio is the renderer's width /
@@ -484,10 +485,12 @@ class Renderer:
         self._geometry = self._scene_bvh = None
         self._geometry = SceneGeometry(self.ctx, scene, self.gbuffer.white, self.gbuffer.sampler)
         self.gbuffer.bind_scene(self._geometry)
-        self._scene_bvh = SceneBVH.upload(self.ctx, build_bvh(scene.positions, scene.indices), self.bvh_set,
-                                          self.bvh_layout)
+        bvh = build_bvh(scene.positions, scene.indices)
+        flag_alpha_tested(bvh.tris, self._geometry.alpha_index)   # the alpha test's per-triangle flag
+        self._scene_bvh = SceneBVH.upload(self.ctx, bvh, self.bvh_set, self.bvh_layout)
         self.bvh_stats = dict(self._scene_bvh.bvh.stats, layout=self.bvh_layout)
         for p in (self.shadows, self.ao):   # the traversal specialized to this BVH (its depth, its node layout)
+            p.bind_scene(self._geometry, self.gbuffer.white, self.gbuffer.sampler)
             p.specialize_for(self._scene_bvh)
         self._scene = scene
         self._prev_view_proj = None

@@ -184,7 +184,7 @@ def test_pass_constants_exist_in_the_shader(cls):
         ShadowPass: {"WORK_SHARES", "BVH_STACK_REGS", "BVH_WIDE", "BVH_COMPRESSED", "BVH_IMAGE_FETCH"},
         AOPass: {"WORK_SHARES", "BVH_STACK_REGS", "BVH_POSTPONE_LEAVES"},
         DenoisePass: {"DENOISE_TEXEL", "WORK_SHARES"},
-        ResolvePass: {"TEXTURE_SLOTS"},
+        ResolvePass: {"TEXTURE_ARRAYS"},
     }[cls]
     assert wanted <= set(interface.constants)
 

@@ -66,7 +66,8 @@ def test_aovs_to_files(tmp_path):
     shapes = {"position": (48, 64, 3), "normal": (48, 64, 3), "albedo": (48, 64, 3), "depth": (48, 64),
               "shadow": (48, 64, lights), "shadow_raw": (48, 64, lights), "ao": (48, 64), "ao_raw": (48, 64),
               "history": (48, 64), "triangle_id": (48, 64), "object_id": (48, 64), "material_id": (48, 64),
-              "motion": (48, 64, 2)}
+              "motion": (48, 64, 2), "roughness": (48, 64), "metallic": (48, 64), "emissive": (48, 64, 3),
+              "radiance": (48, 64, 3)}
     assert set(shapes) == set(AOVS) - {"color"}
     arrays = {}
     for name, shape in shapes.items():

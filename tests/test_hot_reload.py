@@ -149,7 +149,7 @@ def test_compiler_message_is_the_located_error(tmp_path):
 
 def test_a_refused_shader_stays_out_of_later_pipelines(make_renderer, glsl_copy, scene):
     """SPIR-V refused for a changed layout is not used later either, when a pass re-specializes its pipeline (a
-    textured scene changes the G-buffer resolve's TEXTURE_SLOTS): that frame used to crash."""
+    textured scene changes the G-buffer resolve's TEXTURE_ARRAYS): that frame used to crash."""
     import trimesh
     from PIL import Image
 
@@ -162,11 +162,12 @@ def test_a_refused_shader_stays_out_of_later_pipelines(make_renderer, glsl_copy,
     assert np.array_equal(r.render(scene, **SETTINGS).color, plain)
     assert "g_normal8" in r.shader_errors.get(str(resolve), ""), r.shader_errors
     meshes = []
-    for x, rgba in ((0.0, (255, 0, 0, 255)), (5.0, (0, 255, 0, 255))):   # two textures: two slots instead of one
+    # two textures of two sizes: two texture arrays instead of one
+    for x, rgba, size in ((0.0, (255, 0, 0, 255), 4), (5.0, (0, 255, 0, 255), 8)):
         mesh = trimesh.creation.icosphere(subdivisions=3)
         mesh.apply_translation((x, 0, 0))
         mesh.visual = trimesh.visual.TextureVisuals(uv=np.zeros((len(mesh.vertices), 2)),
-                                                    image=Image.new("RGBA", (4, 4), rgba))
+                                                    image=Image.new("RGBA", (size, size), rgba))
         meshes.append(mesh)
     textured = Scene.from_trimesh(trimesh.Scene(meshes), camera=scene.camera, lights=scene.lights)
     assert sum(m.texture is not None for m in textured.materials) == 2

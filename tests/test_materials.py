@@ -61,7 +61,7 @@ def test_every_mesh_keeps_its_own_files_material_across_loads(tmp_path):
 
 def test_thirty_meshes_of_six_images_have_six_textures_each_in_its_colour(tmp_path, make_renderer, caplog):
     """30 [[mesh]] entries over 20 OBJ files (20 material names) that share 6 images: 6 distinct textures (one
-    array each), and every quad's albedo is its own image's colour (past 16 textures the renderer shows white)."""
+    layer each), and every quad's albedo is its own image's colour."""
     colours = np.array([(230, 40, 40), (40, 200, 40), (40, 60, 230), (230, 220, 40), (40, 210, 220), (200, 40, 210)])
     for k in range(20):
         textured_quad(tmp_path, f"q{k}", f"m{k}", f"img{k % 6}.png", rgba(colours[k % 6]))

@@ -265,7 +265,8 @@ def main(argv=None):
                              visual=trimesh.visual.TextureVisuals(
                                  uv=to_trimesh_uv(puv_),
                                  material=trimesh.visual.material.PBRMaterial(
-                                     name="plinth", baseColorFactor=[0.55, 0.55, 0.58, 1.0])))
+                                     name="plinth", baseColorFactor=[0.55, 0.55, 0.58, 1.0],
+                                     metallicFactor=0.0, roughnessFactor=1.0)))
     ks = trimesh.Scene()
     ks.add_geometry(knot, node_name="knot", geom_name="knot", transform=node)
     ks.add_geometry(plinth, node_name="plinth", geom_name="plinth",
@@ -275,7 +276,9 @@ def main(argv=None):
 
     # colonnade.glb: the column mesh instanced by 4 nodes, plus a beam
     (cp, cf, cn, cuv), (bp, bf, bn, buv) = colonnade_parts()
-    stone = trimesh.visual.material.PBRMaterial(name="stone", baseColorFactor=[0.72, 0.70, 0.66, 1.0])
+    # glTF's default metallic factor is 1: a dielectric says 0
+    stone = trimesh.visual.material.PBRMaterial(name="stone", baseColorFactor=[0.72, 0.70, 0.66, 1.0],
+                                                metallicFactor=0.0, roughnessFactor=1.0)
     column = trimesh.Trimesh(cp, cf, vertex_normals=cn, process=False,
                              visual=trimesh.visual.TextureVisuals(uv=to_trimesh_uv(cuv), material=stone))
     beam = trimesh.Trimesh(bp, bf, vertex_normals=bn, process=False,

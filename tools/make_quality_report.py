@@ -28,6 +28,8 @@ ROOT = Path(__file__).resolve().parent.parent
 sys.path.insert(0, str(ROOT))
 
 from engine import Renderer, Scene  # noqa: E402
+
+MITSUBA_MARKER = "<!-- mitsuba comparison: made by tools/mitsuba_compare.py -->"
 from engine.settings import parse_size  # noqa: E402
 
 SHADOW_PASSES = ("shadows", "accumulate", "denoise")
@@ -205,7 +207,10 @@ def write_markdown(path, scene_path, size, frames, reference_samples, device_nam
         "bounding-box diagonal. It brightens shadows of occluders far from the receiver, but it has no penumbra at "
         "all: the shadow's outline stays hard and its inside is too bright, which is what the paper found.")
     add("")
-    path.write_text("\n".join(lines) + "\n")
+    # the Mitsuba comparison's section (tools/mitsuba_compare.py) is kept as it is
+    old = path.read_text() if path.exists() else ""
+    kept = old[old.index(MITSUBA_MARKER):] if MITSUBA_MARKER in old else ""
+    path.write_text("\n".join(lines) + "\n" + ("\n" + kept if kept else ""))
 
 
 def main(argv=None) -> int:

@@ -32,7 +32,8 @@ prim_ids[i]):
     0       vec3      v0       first vertex (float32, bitwise as given after the float32 cast)
     12      int       prim     original triangle index (read with floatBitsToInt)
     16      vec3      v1       second vertex
-    28      uint      pad      0
+    28      uint      pad1     0, or 1 + the triangle's alpha record (alpha-tested materials: the renderer's
+                               shadow and AO passes, shaders/glsl/include/alpha.glsl)
     32      vec3      v2       third vertex
     44      uint      pad      0
 

@@ -18,6 +18,7 @@ class DebugViewPass(ComputePass):
         "ao_raw": read("buffer", "ao.raw"), "ao": read("buffer", "ao.final"), "hist_len": read("buffer", "len_cur"),
         "g_triangle": read("image", "triangle_id"), "g_object": read("image", "object_id"),
         "g_material": read("image", "material_id"), "g_motion": read("image", "motion"),
+        "g_pbr": read("image", "material"), "g_emissive": read("image", "emissive"), "g_hdr": read("image", "hdr"),
         "out_color": write("image", "color"),
     }
 

@@ -1,10 +1,11 @@
 """G-buffer pass: a visibility raster (the id of the visible triangle per pixel) and a compute resolve into world
-position + linear depth, normal and albedo.
+position + linear depth, normal, albedo and the material's roughness, metallic, occlusion and emission.
 
 The raster writes 4 bytes per pixel (R32_UINT: triangle + 1, 0 = background) plus depth; `gbuffer_resolve.comp`
 then computes what the rasterizer would have interpolated at each pixel centre from the triangle's vertices
 (perspective-correct barycentrics from homogeneous edge functions) and samples the albedo texture with the UV
-derivatives of the neighbouring pixels. Writing the whole G-buffer from fragments was several times slower on a GPU
+derivatives of the neighbouring pixels (trilinear, anisotropic where the device can; textures are layers of a few
+array images, engine/passes/textures.py). Writing the whole G-buffer from fragments was several times slower on a GPU
 with few raster units; the same bytes from compute cost a small fraction of that.
 
 Vertices are interleaved (position, normal, uv: 32 bytes); triangles are sorted by material and drawn with one
@@ -12,20 +13,18 @@ draw per material, the draw's first triangle in a push constant (the triangle id
 """
 from __future__ import annotations
 
-import logging
-
 import numpy as np
 
 from ..errors import ShaderError
 from ..scene.material import texture_key
-from ..vk import BufferView, DescriptorSet, GraphicsPipeline, Sampler, reflect, upload_buffer, upload_texture
-from ..vk.formats import R32UI, RGB32F, RGBA32F, RGBA32UI
+from ..vk import (BufferView, DescriptorSet, GraphicsPipeline, Sampler, device, reflect, upload_buffer,
+                  upload_texture_array)
+from ..vk.formats import R32UI, RG32F, RGB32F, RGBA32F, RGBA32UI
 from ..vk.resources import INDEX, UNIFORM_TEXEL, VERTEX
 from .base import ComputePass, read, update, write
-from .interface import MAX_TEXTURES
+from .interface import MATERIAL_FLAGS, MATERIAL_TEXELS, MAX_TEXTURE_ARRAYS
 from .targets import DEPTH_FORMAT, VISIBILITY_FORMAT
-
-log = logging.getLogger("engine.gbuffer")
+from .textures import TextureArrays
 
 
 class SceneGeometry:
@@ -54,31 +53,93 @@ class SceneGeometry:
         info[:-1, 0], info[:-1, 1], info[:-1, 2] = mats_sorted, order, triangle_objects(scene)[order]
         self.tri_info_buffer = upload_buffer(ctx, info, UNIFORM_TEXEL, "triangle info")
 
-        self.textures = []
-        mat_data = np.zeros((max(len(scene.materials), 1), 8), np.float32)
-        mat_slots = mat_data.view(np.int32)
-        slots = {}   # texture content -> slot: one image shared by many materials takes one slot
-        keys = [texture_key(m.texture) for m in scene.materials]
-        for i, (m, key) in enumerate(zip(scene.materials, keys)):
-            mat_data[i, 0:4] = m.base_color
-            if key is not None and key not in slots and len(self.textures) < MAX_TEXTURES:
-                slots[key] = len(self.textures)
-                self.textures.append(upload_texture(ctx, m.texture))
-            mat_slots[i, 4] = slots.get(key, -1)
-        distinct = len(set(keys) - {None})
-        if distinct > MAX_TEXTURES:
-            log.warning("%s: %d distinct textures; the first %d are kept, materials with the other %d show their base "
-                        "colour", scene.name, distinct, MAX_TEXTURES, distinct - MAX_TEXTURES)
+        self.textures = TextureArrays(ctx, scene_textures(scene.materials))
+        mat_data = material_texels(scene.materials, self.textures)
+        self.alpha_tested = {i for i, m in enumerate(scene.materials) if m.alpha_mode != "OPAQUE"}
         self.material_buffer = upload_buffer(ctx, mat_data, UNIFORM_TEXEL, "materials")
+        self.alpha_index, records = alpha_records(scene, self.textures)
+        self.alpha_buffer = upload_buffer(ctx, records, UNIFORM_TEXEL, "alpha records")
         self.views = [BufferView(self.vertex_buffer, RGBA32F), BufferView(self.index_buffer, R32UI),
-                      BufferView(self.tri_info_buffer, RGBA32UI), BufferView(self.material_buffer, RGBA32F)]
+                      BufferView(self.tri_info_buffer, RGBA32UI), BufferView(self.material_buffer, RGBA32F),
+                      BufferView(self.alpha_buffer, RGBA32F)]
         self.white = white_texture
         self.sampler = sampler
 
     def destroy(self):
         for obj in [*self.views, self.vertex_buffer, self.index_buffer, self.tri_info_buffer,
-                    self.material_buffer, *self.textures]:
+                    self.material_buffer, self.alpha_buffer, self.textures]:
             obj.destroy()
+
+
+#: Each texture field of a Material and whether it holds colour (an sRGB array) or data (a linear one).
+TEXTURE_KINDS = {"texture": True, "metallic_roughness_texture": False, "normal_texture": False,
+                 "emissive_texture": True, "occlusion_texture": False}
+
+
+def scene_textures(materials) -> dict:
+    """(texture content, srgb) -> (image, srgb) over every texture of every material: one image used by many
+    materials is one layer; one used as colour and as data is one of each kind."""
+    out = {}
+    for m in materials:
+        for field, srgb in TEXTURE_KINDS.items():
+            image = getattr(m, field)
+            if image is not None:
+                out.setdefault((texture_key(image), srgb), (image, srgb))
+    return out
+
+
+def material_texels(materials, textures: TextureArrays) -> np.ndarray:
+    """The materials texel buffer: MATERIAL_TEXELS RGBA32F texels per material (the layout is in interface.py)."""
+    data = np.zeros((max(len(materials), 1), 4 * MATERIAL_TEXELS), np.float32)
+    bits = data.view(np.uint32)
+
+    def handle(m, field):
+        image = getattr(m, field)
+        return textures.handle(None if image is None else (texture_key(image), TEXTURE_KINDS[field]))
+
+    for i, m in enumerate(materials):
+        data[i, 0:4] = m.base_color
+        bits[i, 4:8] = [handle(m, f) for f in ("texture", "metallic_roughness_texture", "normal_texture",
+                                               "emissive_texture")]
+        data[i, 8:12] = m.metallic, m.roughness, m.occlusion_strength, m.normal_scale
+        # BLEND is cut out at 0.5 (no transparency): the raster and the rays see the same surface
+        data[i, 12:15], data[i, 15] = m.emissive, {"OPAQUE": 0.0, "MASK": m.alpha_cutoff, "BLEND": 0.5}[m.alpha_mode]
+        bits[i, 16] = handle(m, "occlusion_texture")
+        bits[i, 17] = ((MATERIAL_FLAGS["alpha_tested"] if m.alpha_mode != "OPAQUE" else 0)
+                       | (MATERIAL_FLAGS["double_sided"] if m.double_sided else 0))
+    return data
+
+
+def alpha_records(scene, textures: TextureArrays) -> tuple[np.ndarray, np.ndarray]:
+    """The ray passes' alpha test (shaders/glsl/include/alpha.glsl): per scene triangle, 0 (opaque) or 1 + its
+    record; the records, 2 RGBA32F texels per alpha-tested triangle: (uv0, uv1), (uv2, base texture handle bits,
+    threshold): a hit counts where texture alpha >= threshold = cutoff / base alpha (BLEND: cutoff 0.5)."""
+    tri_mat = scene.vertex_material[scene.indices[:, 0]] if scene.triangle_count else np.zeros(0, np.int64)
+    tested = np.array([m.alpha_mode != "OPAQUE" for m in scene.materials] or [False])[tri_mat]
+    index = np.zeros(scene.triangle_count, np.uint32)
+    prims = np.flatnonzero(tested)
+    index[prims] = np.arange(1, len(prims) + 1, dtype=np.uint32)
+    records = np.zeros((max(len(prims), 1), 8), np.float32)
+    records[:len(prims), 0:6] = scene.uvs[scene.indices[prims]].reshape(-1, 6)
+    bits = records.view(np.uint32)
+    for k, m in enumerate(scene.materials):
+        if m.alpha_mode == "OPAQUE":
+            continue
+        rows = tri_mat[prims] == k
+        cutoff = 0.5 if m.alpha_mode == "BLEND" else m.alpha_cutoff
+        base = float(m.base_color[3])
+        bits[:len(prims)][rows, 6] = textures.handle(None if m.texture is None else (texture_key(m.texture), True))
+        records[:len(prims)][rows, 7] = 0.0 if cutoff == 0 else (cutoff / base if base > 0 else np.inf)
+    return index, records
+
+
+def flag_alpha_tested(tris: np.ndarray, alpha_index: np.ndarray):
+    """Write each BVH triangle's alpha record + 1 (0: opaque) into its free word (engine/bvh/layout.py pad1)."""
+    prim = tris["prim"].astype(np.int64)
+    flags = np.zeros(len(tris), np.uint32)
+    ok = (prim >= 0) & (prim < len(alpha_index))
+    flags[ok] = alpha_index[prim[ok]]
+    tris["pad1"] = flags
 
 
 def triangle_objects(scene) -> np.ndarray:
@@ -102,50 +163,77 @@ class ResolvePass(ComputePass):
         "materials": read("uniform_texel"), "textures": read("texture"),
         "g_depth": write("image", "view_depth"), "g_triangle": write("image", "triangle_id"),
         "g_object": write("image", "object_id"), "g_material": write("image", "material_id"),
-        "g_motion": write("image", "motion"),
+        "g_motion": write("image", "motion"), "g_pbr": write("image", "material"),
+        "g_emissive": write("image", "emissive"),
     }
 
     def constants(self, ctx) -> dict:
-        return {"TEXTURE_SLOTS": MAX_TEXTURES}   # lowered to the slots a scene uses (its sampling blocks past them go)
+        return {"TEXTURE_ARRAYS": MAX_TEXTURE_ARRAYS}   # lowered to the arrays a scene has (blocks past them go)
 
 
-class GBufferPass:
-    """The visibility raster (gbuffer.vert / gbuffer.frag) and its resolve."""
+class _Raster:
+    """One visibility pipeline: its vertex and fragment shaders, its set 0 (laid out from their reflection) and the
+    bindings its shaders may have (hot reload refuses others, or a changed layout)."""
 
-    name = "gbuffer"
-    shaders = ("gbuffer.vert", "gbuffer.frag", "gbuffer_resolve.comp")
-
-    def __init__(self, ctx, library, resources):
-        self.ctx, self.library = ctx, library
-        vert, frag = library.get("gbuffer.vert"), library.get("gbuffer.frag")
-        interface = reflect(vert, "gbuffer.vert").merged(reflect(frag, "gbuffer.frag"))
+    def __init__(self, ctx, library, stem: str, bindings: set, attributes: list):
+        self.stem, self.bindings = stem, bindings
+        vert, frag = self._spirv(library)
+        interface = reflect(vert, f"{stem}.vert").merged(reflect(frag, f"{stem}.frag"))
+        self._check(interface)
         self.interface = interface   # what the pipeline layout was made for; hot reload must keep it
-        self.raster_set = DescriptorSet(ctx, interface.set(0).values())
-        self.raster_set.bind("frame", resources["frame"])
+        self.set = DescriptorSet(ctx, interface.set(0).values())
         self.pipeline = GraphicsPipeline(
-            ctx, vert, frag, [self.raster_set], color_formats=[VISIBILITY_FORMAT], depth_format=DEPTH_FORMAT,
-            vertex_stride=32, attributes=[(0, RGB32F, 0)], push_size=interface.push_size, name="gbuffer")
-        self.resolve = ResolvePass(ctx, library, resources)
-        self.sampler = Sampler(ctx)
-        self.white = upload_texture(ctx, np.full((1, 1, 4), 255, np.uint8))
-        for slot in range(MAX_TEXTURES):
-            self.resolve.set.bind("textures", self.white, sampler=self.sampler, element=slot)
-        self.resources = resources
+            ctx, vert, frag, [self.set], color_formats=[VISIBILITY_FORMAT], depth_format=DEPTH_FORMAT,
+            vertex_stride=32, attributes=attributes, push_size=interface.push_size, name=stem)
+
+    def _spirv(self, library):
+        return library.get(f"{self.stem}.vert"), library.get(f"{self.stem}.frag")
+
+    def _check(self, interface):
+        if {b.name for b in interface.bindings} != self.bindings:
+            raise ShaderError(f"{self.stem}.vert/.frag: the raster reads {', '.join(sorted(self.bindings))} and "
+                              f"nothing else; the shaders declare {', '.join(b.name for b in interface.bindings)}")
 
     def reload(self, library):
-        self.library = library
-        vert, frag = library.get("gbuffer.vert"), library.get("gbuffer.frag")
-        interface = reflect(vert, "gbuffer.vert").merged(reflect(frag, "gbuffer.frag"))
-        if {b.name for b in interface.bindings} != {"frame"}:
-            raise ShaderError("gbuffer.vert/.frag: the raster reads the frame block (set 0, binding 0) and nothing "
-                              f"else; the shaders declare {', '.join(b.name for b in interface.bindings)}")
+        vert, frag = self._spirv(library)
+        interface = reflect(vert, f"{self.stem}.vert").merged(reflect(frag, f"{self.stem}.frag"))
+        self._check(interface)
         old = self.interface
         if (interface.bindings, interface.push_size) != (old.bindings, old.push_size):
             was = ", ".join(f"{b.name} {b.kind} set {b.set} binding {b.binding}" for b in old.bindings)
             now = ", ".join(f"{b.name} {b.kind} set {b.set} binding {b.binding}" for b in interface.bindings)
-            raise ShaderError(f"gbuffer.vert/.frag: their layout changed ({was}, {old.push_size} bytes of push "
+            raise ShaderError(f"{self.stem}.vert/.frag: their layout changed ({was}, {old.push_size} bytes of push "
                               f"constants -> {now}, {interface.push_size} bytes); restart to use them")
         self.pipeline.rebuild(vert, frag)
+
+
+class GBufferPass:
+    """The visibility raster (gbuffer.vert / gbuffer.frag; alpha-tested materials: gbuffer_mask.vert / .frag) and
+    its resolve."""
+
+    name = "gbuffer"
+    shaders = ("gbuffer.vert", "gbuffer.frag", "gbuffer_mask.vert", "gbuffer_mask.frag", "gbuffer_resolve.comp")
+
+    def __init__(self, ctx, library, resources):
+        self.ctx, self.library = ctx, library
+        self.raster = _Raster(ctx, library, "gbuffer", {"frame"}, [(0, RGB32F, 0)])
+        self.raster.set.bind("frame", resources["frame"])
+        # alpha-tested materials: UVs too, and the materials and textures for the alpha test
+        self.masked = _Raster(ctx, library, "gbuffer_mask", {"frame", "materials", "textures"},
+                              [(0, RGB32F, 0), (1, RG32F, 24)])
+        self.masked.set.bind("frame", resources["frame"])
+        self.resolve = ResolvePass(ctx, library, resources)
+        self.sampler = Sampler(ctx, anisotropy=device.texture_anisotropy(ctx))
+        self.white = upload_texture_array(ctx, [np.full((1, 1, 4), 255, np.uint8)], 1, 1, name="white texture")
+        for slot in range(MAX_TEXTURE_ARRAYS):
+            for s in (self.resolve.set, self.masked.set):
+                s.bind("textures", self.white, sampler=self.sampler, element=slot)
+        self.resources = resources
+
+    def reload(self, library):
+        self.library = library
+        self.raster.reload(library)
+        self.masked.reload(library)
         self.resolve.reload(library)
 
     def bind(self, resources, targets=None):
@@ -153,18 +241,25 @@ class GBufferPass:
         self.resolve.bind(resources)
 
     def bind_scene(self, geom: SceneGeometry):
-        self.resolve.specialize(TEXTURE_SLOTS=max(1, len(geom.textures)))
+        self.resolve.specialize(TEXTURE_ARRAYS=max(1, len(geom.textures)))
         s = self.resolve.set
         for name, view in zip(("vertices", "indices", "tri_info", "materials"), geom.views):
             s.bind(name, view)
-        for slot in range(MAX_TEXTURES):
-            tex = geom.textures[slot] if slot < len(geom.textures) else self.white
-            s.bind("textures", tex, sampler=self.sampler, element=slot)
+        self.masked.set.bind("materials", geom.views[3])
+        for slot in range(MAX_TEXTURE_ARRAYS):
+            tex = geom.textures.images[slot] if slot < len(geom.textures) else self.white
+            for s in (self.resolve.set, self.masked.set):
+                s.bind("textures", tex, sampler=self.sampler, element=slot)
 
     def record(self, rec, targets, geom: SceneGeometry):
         # The visibility image is all zeros here (cleared when made, then by each frame's resolve after reading it),
         # so the raster loads it instead of clearing it (a clear costs GPUs with few raster units).
-        draws = [(first, count, np.uint32(first // 3).tobytes()) for _material, first, count in geom.draws]
-        rec.raster(self.pipeline, [self.raster_set], targets.visibility, targets.depth, geom.vertex_buffer,
-                   geom.index_buffer, draws, reads=[self.resources["frame"]])
+        # Opaque materials first, keeping early depth tests; then the alpha-tested ones, whose shader discards.
+        opaque = [(first, count, np.uint32(first // 3).tobytes())
+                  for material, first, count in geom.draws if material not in geom.alpha_tested]
+        masked = [(first, count, np.array([first // 3, material], np.uint32).tobytes())
+                  for material, first, count in geom.draws if material in geom.alpha_tested]
+        rec.raster(self.raster.pipeline, [self.raster.set], targets.visibility, targets.depth, geom.vertex_buffer,
+                   geom.index_buffer, opaque, reads=[self.resources["frame"]],
+                   more=[(self.masked.pipeline, [self.masked.set], masked)])
         self.resolve.dispatch(rec, self.resolve.tiles(targets.width, targets.height))

@@ -19,7 +19,8 @@ from .std140 import Struct
 #: The views a frame can show (setting `view`): "color" is the lit image (no dispatch); the others are AOVs drawn
 #: by debug_view.comp (VIEW_<NAME> = the index here). A Literal, so that type checkers and IDEs know the names.
 ViewMode = Literal["color", "position", "normal", "albedo", "depth", "shadow_raw", "shadow", "ao_raw", "ao", "history",
-                   "triangle_id", "object_id", "material_id", "motion"]
+                   "triangle_id", "object_id", "material_id", "motion", "roughness", "metallic", "emissive",
+                   "radiance"]
 VIEW_MODES: tuple[str, ...] = get_args(ViewMode)
 #: shadow.comp's modes (SHADOW_<NAME>); "off" records no shadow pass.
 TracedShadowMode = Literal["hard", "soft", "seed-delta", "reference"]
@@ -28,8 +29,16 @@ SHADOW_MODES: tuple[str, ...] = get_args(TracedShadowMode)
 FILTER_FLAGS = {"masks": 1, "ao": 2, "temporal": 4, "first": 8}
 FILTER_MASKS, FILTER_AO, FILTER_TEMPORAL, FILTER_FIRST = (FILTER_FLAGS[k] for k in ("masks", "ao", "temporal", "first"))
 MAX_LIGHTS = 16
-#: Textured materials the G-buffer resolve samples (one descriptor each).
-MAX_TEXTURES = 16
+#: Texture array bindings (engine/passes/textures.py): every texture is a layer of one of these 2D arrays.
+MAX_TEXTURE_ARRAYS = 16
+#: A texture handle is `array << 16 | layer`; this one is "no texture" (samples as white).
+TEXTURE_NONE = 0xFFFFFFFF
+#: RGBA32F texels per material in the materials texel buffer (engine/passes/gbuffer.py `material_texels`):
+#: 0 base colour; 1 texture handles (base colour, metallic-roughness, normal, emissive; uint bits);
+#: 2 metallic, roughness, occlusion strength, normal scale; 3 emissive rgb, alpha cutoff (0: not alpha-tested);
+#: 4 occlusion texture handle, flags (uint bits: MATERIAL_*), 0, 0.
+MATERIAL_TEXELS = 5
+MATERIAL_FLAGS = {"alpha_tested": 1, "double_sided": 2}
 #: History lengths are clamped here (accumulate.comp).
 MAX_HISTORY = 255
 @dataclass(frozen=True)
@@ -42,6 +51,7 @@ class AOV:
     dtype: str
     channels: int = 1        # of the target's: the AOV keeps the first `channels` (1: a (H, W) array)
     per_light: bool = False  # a light-major buffer: (lights, H, W) -> (H, W, lights)
+    first: int = 0           # dtype "unorm8": the one channel kept (an RGBA8 target read as float32 / 255)
 
 
 #: Every AOV a frame can read back, by the name `Frame.aov` uses ("color" is `Frame.color`); the target is a frame
@@ -61,6 +71,10 @@ AOVS = {
     "object_id": AOV("object_id", 4, "int32"),
     "material_id": AOV("material_id", 4, "int32"),
     "motion": AOV("motion", 8, "float32", 2),
+    "roughness": AOV("material", 4, "unorm8", first=0),
+    "metallic": AOV("material", 4, "unorm8", first=1),
+    "emissive": AOV("emissive", 8, "float16", 3),
+    "radiance": AOV("hdr", 8, "float16", 3),
 }
 
 
@@ -109,7 +123,9 @@ def glsl_text() -> str:
     lines = [
         "// Generated from engine/passes/interface.py by tools/compile_shaders.py: do not edit.",
         "#ifndef INTERFACE_GLSL", "#define INTERFACE_GLSL", "",
-        f"#define MAX_LIGHTS {MAX_LIGHTS}", f"#define MAX_TEXTURES {MAX_TEXTURES}",
+        f"#define MAX_LIGHTS {MAX_LIGHTS}", f"#define MAX_TEXTURE_ARRAYS {MAX_TEXTURE_ARRAYS}",
+        f"#define TEXTURE_NONE {TEXTURE_NONE:#x}u", f"#define MATERIAL_TEXELS {MATERIAL_TEXELS}",
+        *[f"#define MATERIAL_{k.upper()} {v}u" for k, v in MATERIAL_FLAGS.items()],
         f"#define MAX_HISTORY {MAX_HISTORY}.0",
         *[f"#define LIGHT_{k.upper()} {v}" for k, v in LIGHT_TYPES.items()],
         *_defines("VIEW", VIEW_MODES[1:], 1),

@@ -1,4 +1,5 @@
-"""Deferred lighting pass: albedo, normal, light masks and AO -> HDR and tonemapped sRGB colour."""
+"""Deferred lighting pass: albedo, normal, material, light masks and AO -> HDR and tonemapped sRGB colour
+(glTF metallic-roughness BRDF: shaders/glsl/include/brdf.glsl)."""
 from __future__ import annotations
 
 from .base import ComputePass, read, write
@@ -13,6 +14,7 @@ class LightingPass(ComputePass):
         "g_albedo": read("image", "albedo"),
         "masks": read("buffer", "masks.final"), "ao": read("buffer", "ao.final"),
         "out_color": write("image", "color"), "out_hdr": write("image", "hdr"),
+        "g_pbr": read("image", "material"), "g_emissive": read("image", "emissive"),
     }
 
     def record(self, rec, targets):

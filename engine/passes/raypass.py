@@ -10,11 +10,13 @@ import numpy as np
 from ..gpu import bvh_spec, compresses
 from ..vk import device
 from .base import ComputePass, read, update
+from .interface import MAX_TEXTURE_ARRAYS
 
 
 def ray_bindings(output: str, resource: str) -> dict:
     return {"frame": read("uniform", "frame"), "g_position": read("image", "position"),
-            "g_normal": read("image", "normal"), output: update("buffer", resource)}
+            "g_normal": read("image", "normal"), output: update("buffer", resource),
+            "alpha_tris": read("uniform_texel"), "textures": read("texture")}   # alpha.glsl: bound by bind_scene
 
 
 class RayPass(ComputePass):
@@ -30,6 +32,15 @@ class RayPass(ComputePass):
         return {**bvh_spec(ctx, None, layout=self.bvh_layout, postpone=self.postpone_leaves,
                            compressed=compresses(ctx, self.bvh_layout)),
                 "WORK_SHARES": device.work_shares(ctx)}
+
+    def bind_scene(self, geom, white, sampler):
+        """The scene's alpha records and texture arrays (alpha.glsl); the alpha test compiled in only where the
+        scene has alpha-tested materials."""
+        self.set.bind("alpha_tris", geom.views[4])
+        for slot in range(MAX_TEXTURE_ARRAYS):
+            tex = geom.textures.images[slot] if slot < len(geom.textures) else white
+            self.set.bind("textures", tex, sampler=sampler, element=slot)
+        self.specialize(ALPHA_TEST=bool(geom.alpha_tested), TEXTURE_ARRAYS=max(1, len(geom.textures)))
 
     def specialize_for(self, scene_bvh):
         """The traversal specialized to this scene's BVH (its depth, its node layout)."""

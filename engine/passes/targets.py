@@ -70,6 +70,9 @@ class Targets:
         self.object_id = Image(ctx, width, height, R32UI, resolved, name="object id")
         self.material_id = Image(ctx, width, height, R32UI, resolved, name="material id")
         self.motion = Image(ctx, width, height, RG32F, resolved, name="motion")
+        # the lighting's material inputs: roughness, metallic, occlusion (RGBA8 unorm) and emitted radiance
+        self.material = Image(ctx, width, height, RGBA8, resolved, name="material")
+        self.emissive = Image(ctx, width, height, RGBA16F, resolved, name="emissive")
         self.depth = Image(ctx, width, height, DEPTH_FORMAT, DEPTH_ATTACHMENT)
         self.color = Image(ctx, width, height, RGBA8, STORAGE_IMAGE | COPY_SRC, name="color")
         self.hdr = Image(ctx, width, height, RGBA16F, STORAGE_IMAGE | COPY_SRC, name="hdr")
@@ -84,14 +87,14 @@ class Targets:
         self.readbacks: dict = {}   # (AOV names, slot) -> (host buffer, {name: offset})
         images = [self.visibility, self.normal8, self.position, self.normal, self.albedo, self.depth, self.color,
                   self.hdr, self.hist_position, self.hist_normal, self.view_depth, self.triangle_id, self.object_id,
-                  self.material_id, self.motion]
+                  self.material_id, self.motion, self.material, self.emissive]
         self._objects = images + [self.len_cur, self.len_hist]
         for sig in self.signals.values():
             self._objects += sig.buffers()
         self.resources = {"frame": frame_ubo, **{name: getattr(self, name) for name in (
             "visibility", "position", "normal", "albedo", "normal8", "depth", "color", "hdr", "hist_position",
             "hist_normal", "len_cur", "len_hist", "view_depth", "triangle_id", "object_id", "material_id",
-            "motion")}}
+            "motion", "material", "emissive")}}
         for sname, sig in self.signals.items():
             self.resources.update({f"{sname}.{part}": getattr(sig, part) for part in Signal.NAMES})
         # Every colour image in GENERAL layout; the visibility image starts as background (each frame's resolve leaves
@@ -159,6 +162,13 @@ class Targets:
                 src = np.frombuffer(raw, np.float32, h * w * lights, off).reshape(lights, h, w)[:n_lights]
                 dst = out[name] = np.empty((h, w, n_lights), np.float32)
                 view = np.moveaxis(src, 0, -1)
+            elif spec.dtype == "unorm8":   # one 8-bit unorm channel of an RGBA8 target, as float32 in [0, 1]
+                src = np.frombuffer(raw, np.uint8, h * w * spec.bytes, off).reshape(h, w, spec.bytes)
+                dst = out[name] = np.empty((h, w), np.float32)
+                view = src[..., spec.first]
+                tasks += [lambda d=dst, v=view, a=a: np.divide(v[a:a + rows], np.float32(255.0), out=d[a:a + rows])
+                          for a in range(0, h, rows)]
+                continue
             else:
                 item = np.dtype(spec.dtype).itemsize
                 per_pixel = spec.bytes // item

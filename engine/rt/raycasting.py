@@ -16,7 +16,7 @@ id) map; it is (re)built on the first query after `add_triangles`, as Open3D com
 from __future__ import annotations
 
 import threading
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from numbers import Integral, Real
 from typing import Any
 
@@ -28,6 +28,7 @@ from ..vk import Context
 from ..vk.shared import Device
 from .checks import check_mesh, check_vectors
 from .closest import check_points
+from .cuda_arrays import on_cuda, scene_hits, scene_rays
 from .pinhole import _numpy, pinhole_rays
 from .tracer import Tracer
 
@@ -50,6 +51,7 @@ class _Built:
     geometry: NDArray[np.uint32]     # (T,) geometry id of each concatenated triangle
     primitive: NDArray[np.uint32]    # (T,) its index within its geometry
     normal: NDArray[np.float32]      # (T, 3) unit normals, (v1 - v0) x (v2 - v0) (zero for zero-area triangles)
+    tables: dict = field(default_factory=dict)   # the maps above as CUDA arrays, per framework (cuda_arrays)
 
 
 def _mesh_arrays(mesh: Any) -> tuple[Any, Any]:
@@ -242,10 +244,14 @@ class RaycastingScene:
             float32, the hit triangle's unit normal (v1 - v0) x (v2 - v0), not flipped towards the ray (0 on a
             miss).
 
+            CUDA rays (a torch tensor, a CuPy array): the same keys as that framework's arrays on the same device.
+
         Raises:
             ConfigError: a bad shape, NaN or infinite values, a zero direction (naming the ray), a closed scene.
         """
         with self._lock:
+            if on_cuda(rays):
+                return self._cast_cuda(rays)
             flat, shape = _flat_rays(rays)
             s = self._scene()
             n = len(flat)
@@ -275,20 +281,50 @@ class RaycastingScene:
             nthreads: accepted and ignored.
 
         Returns:
-            (...) bool, True where the ray is occluded.
+            (...) bool, True where the ray is occluded (for CUDA rays, that framework's array on their device).
 
         Raises:
             ConfigError: as `cast_rays`, or a NaN / infinite tnear or a NaN tfar.
         """
         with self._lock:
-            flat, shape = _flat_rays(rays)
+            flat, shape = (None, None) if on_cuda(rays) else _flat_rays(rays)
             near, far = _limit(tnear, "tnear", False), _limit(tfar, "tfar", True)
             s = self._scene()
+            if on_cuda(rays):
+                return self._occlusions_cuda(s, rays, near, far)
             out = np.zeros(len(flat), bool)
             if s.tracer is not None and len(flat) and far >= near:
                 origins = flat[:, :3] + near * flat[:, 3:] if near else flat[:, :3]
                 out = s.tracer.occluded(origins - s.center, flat[:, 3:], far - near)
             return out.reshape(shape)
+
+    def _cast_cuda(self, rays):
+        """cast_rays on CUDA rays: traced and mapped to ids on their device (engine.rt.cuda_arrays)."""
+        s = self._scene()
+        if s.tracer is not None:
+            s.tracer._device_arrays()   # (a clear error first where CUDA cannot be used)
+        fw, o, d, shape = scene_rays(rays, s.center)
+        if s.tracer is None or not len(o):
+            hits = (fw.empty(len(o), "float32", fw.device(o)), fw.empty(len(o), "int32", fw.device(o)),
+                    fw.empty(len(o), "float32", fw.device(o)), fw.empty(len(o), "float32", fw.device(o)))
+            hits[1][:] = -1
+        else:
+            h = s.tracer.intersect(o, d)
+            hits = (h.t, h.prim, h.u, h.v)
+        return scene_hits(fw, hits, s, shape, INVALID_ID)
+
+    @staticmethod
+    def _occlusions_cuda(s, rays, near, far):
+        if s.tracer is not None:
+            s.tracer._device_arrays()   # (a clear error first where CUDA cannot be used)
+        fw, o, d, shape = scene_rays(rays, s.center)
+        if s.tracer is None or not len(o) or far < near:
+            out = fw.empty(len(o), "bool", fw.device(o))
+            out[:] = False
+            return out.reshape(shape)
+        if near:
+            o = o + near * d
+        return s.tracer.occluded(o, d, far - near).reshape(shape)
 
     def _all_hits(self, flat):
         """Every hit of every ray, t >= 0, sorted by ray then t: (ray, concatenated triangle, t, u, v). Each round

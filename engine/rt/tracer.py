@@ -30,6 +30,7 @@ from ..vk.device import has_dedicated_vram, is_cpu, rgb32f_texel_buffers, work_s
 from ..vk.shared import Device, Scope
 from .checks import check_batch_size, check_mesh, name_bad_ray, ray_arrays
 from .closest import Closest, ClosestQuery
+from .cuda_arrays import CudaRays, on_cuda
 from .stream import Slot, hits_sink, occluded_sink, stream
 
 #: Query kinds whose kernels read rays (and write results) through texel buffer views on CPU devices (RAYS_TEXEL):
@@ -146,7 +147,8 @@ class Tracer:
                 `Renderer`'s (index or part of its name; default: $HYBRID_DEVICE, else the best).
             validation: turn the Khronos validation layer on (a shared `engine.Device` has its own setting).
             batch_size: the most rays one dispatch takes (larger queries are streamed in chunks of at most this
-                many), at most the device's texel buffer limit.
+                many), at most the device's texel buffer limit (queries on CUDA arrays: up to max(batch_size,
+                min(N, 4M)), engine.rt.cuda_arrays).
             context: use an existing `engine.vk.Context` (not closed here).
             staging: copy rays to and results from device-local buffers (default: when the device has memory the
                 host cannot map, i.e. a discrete GPU).
@@ -162,6 +164,7 @@ class Tracer:
         self._root = None       # the Context this Tracer opened itself (closed with it)
         self._shared = None     # the engine.Device or engine.vk.Context it was given (left open)
         self._errors: list[str] = []
+        self._cuda: CudaRays | None = None   # queries on CUDA arrays (engine.rt.cuda_arrays), made on first use
         if context is not None:
             if not isinstance(context, Context):
                 raise ConfigError(f"Tracer: context must be an engine.vk.Context, got {type(context).__name__}")
@@ -214,6 +217,7 @@ class Tracer:
         ctx = self.ctx
         lib = ShaderLibrary()
         interface = _interface(ctx, lib, "trace_occluded")
+        self.interface = interface   # (the ray / result bindings, also laid out by engine.rt.cuda_arrays)
         self.bvh_set = bvh_descriptor_set(ctx, interface)
         self.scene = SceneBVH.upload(ctx, self.bvh, self.bvh_set, self.layout)
         self.stats = dict(self.scene.bvh.stats, layout=self.layout)
@@ -285,6 +289,8 @@ class Tracer:
             ConfigError: bad shapes, NaN or infinite values, a zero direction (naming the ray), a closed Tracer.
         """
         self._check_open()
+        if on_cuda(origins, directions, tmax):
+            return self._device_arrays().occluded(origins, directions, tmax)
         o, d, t = ray_arrays(origins, directions, tmax)
         out = np.empty(len(o), bool)
         self._stream("occluded", o, d, t, occluded_sink(out), lambda: name_bad_ray(o, d, origins, directions))
@@ -297,6 +303,8 @@ class Tracer:
         The arguments are `occluded()`'s. Returns `Hits` (t, prim, u, v per ray: t = +inf and prim = -1 on a miss).
         """
         self._check_open()
+        if on_cuda(origins, directions, tmax):
+            return Hits(*self._device_arrays().intersect(origins, directions, tmax))
         o, d, t = ray_arrays(origins, directions, tmax)
         n = len(o)
         hits = Hits(np.empty(n, np.float32), np.empty(n, np.int32), np.empty(n, np.float32), np.empty(n, np.float32))
@@ -330,11 +338,30 @@ class Tracer:
         self.last_gpu_ms, self.last_retried = 0.0, 0
         stream(self, kind, o, d, t, sink, bad)
 
+    def _device_arrays(self) -> CudaRays:
+        """The queries on CUDA arrays (a ConfigError saying why where CUDA cannot share this device's memory)."""
+        if self._cuda is None:
+            self._cuda = CudaRays(self)
+        return self._cuda
+
+    @property
+    def retry(self):
+        """The first slot's retry list (bound by the CUDA-array queries, which run one at a time)."""
+        return self.slots[0].retry
+
+    @property
+    def timestamps(self):
+        """The first slot's timestamp queries (used by the CUDA-array queries)."""
+        return self.slots[0].timestamps
+
     # ---- lifetime --------------------------------------------------------------------------
     @serialized
     def close(self) -> None:
         """Free the GPU buffers (and the device, unless it was given: an `engine.Device` or a context); safe to
         call twice."""
+        if self._cuda is not None:   # (CUDA lets go of the shared memory before Vulkan frees it)
+            self._cuda.close()
+            self._cuda = None
         if self.ctx is not None:
             self.ctx.close()   # (its Scope: what this Tracer made)
             self.ctx = None

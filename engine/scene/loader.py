@@ -15,9 +15,10 @@ from PIL import Image
 from engine.limits import MAX_COORD
 from engine.errors import SceneError, shown
 
+from . import mtl
 from .filechecks import bomb_images, bomb_pixels, check_mesh_file, diagnose_gltf
 from .geometry import crease_normals, transform_normals, transform_points, unitize
-from .material import Material, srgb8_to_linear, texture_key
+from .material import TEXTURE_FIELDS, Material, material_key, srgb8_to_linear, texture_key
 from .parts import SceneParts, SubMesh
 
 MAX_TEXTURE_SIZE = 2048
@@ -200,6 +201,8 @@ def load_trimesh_scene(path: str, *, scene_file: bool = False):
             # process=False: keep the file's vertices as they are (trimesh would silently drop NaN vertices and
             # weld STL corners); we validate, and compute missing normals with creases ourselves
             obj = trimesh.load_scene(path, process=False, resolver=resolver)
+            if ext == ".obj":
+                mtl.load_images(obj, resolver, where)
         problems = list(resolver.problems)
         if ext in (".gltf", ".glb"):   # images pillow refused inside the file, which trimesh drops quietly
             problems += [f"images[{i}]: {_too_large(pixels)}" for i, pixels in bomb_images(path)]
@@ -238,15 +241,19 @@ class SceneBuilder:
 
     # -------------------------------------------------------------- materials
     def material_index(self, mat: Material, key_name=None) -> int:
-        """Index of `mat` in the scene: a material already added with the same name, base colour and texture pixels
+        """Index of `mat` in the scene: a material already added with the same name, factors and texture pixels
         is reused, and equal texture images are shared. `key_name` (any hashable) stands for the name in that
         comparison (e.g. the file's material name for a material renamed after its node)."""
-        tex_key = texture_key(mat.texture)
-        if tex_key is not None:
-            shared = self._textures.setdefault(tex_key, mat.texture)
-            if shared is not mat.texture:
-                mat = Material(mat.name, mat.base_color, shared)
-        key = (mat.name if key_name is None else key_name, mat.base_color.tobytes(), tex_key)
+        shared = {}
+        for field in TEXTURE_FIELDS:
+            tex = getattr(mat, field)
+            if tex is not None:
+                kept = self._textures.setdefault(texture_key(tex), tex)
+                if kept is not tex:
+                    shared[field] = kept
+        if shared:
+            mat = mat.with_overrides(**shared)
+        key = material_key(mat, key_name)
         if key not in self._material_keys:
             self._material_keys[key] = len(self.materials)
             self.materials.append(mat)
@@ -298,10 +305,11 @@ class SceneBuilder:
         self._triangle_count += len(f)
 
     def add_trimesh(self, obj, where: str, transform=None, color=None, texture=None, label: str | None = None,
-                    uv_scale=None):
+                    uv_scale=None, overrides: dict | None = None):
         """Add a trimesh.Trimesh or trimesh.Scene (node transforms applied, then `transform`).
 
-        `color` (linear RGBA) and `texture` override every material of `obj` (material overrides of the TOML format).
+        `color` (linear RGBA), `texture` and `overrides` (other Material fields: metallic, roughness, emissive) override
+        every material of `obj` (material overrides of the TOML format).
         """
         import trimesh  # deferred: heavy, and needed only to read meshes
         if isinstance(obj, trimesh.Trimesh):
@@ -322,11 +330,11 @@ class SceneBuilder:
         for m, geom, node_name in items:
             if label and isinstance(obj, trimesh.Scene):
                 node_name = label if len(items) == 1 else f"{label}/{node_name}"
-            self._add_geometry(geom, outer @ m, node_name, where, color, texture, uv_scale, made)
+            self._add_geometry(geom, outer @ m, node_name, where, color, texture, uv_scale, made, overrides or {})
         if self._triangle_count == before:
             raise SceneError(f"{where}: contains no triangles")
 
-    def _add_geometry(self, geom, m, node_name, where, color, texture, uv_scale, made):
+    def _add_geometry(self, geom, m, node_name, where, color, texture, uv_scale, made, overrides):
         with _quiet():
             vertices = np.asarray(geom.vertices, dtype=np.float64)
             faces = np.asarray(geom.faces, dtype=np.int64)
@@ -355,10 +363,9 @@ class SceneBuilder:
                 if uv_scale is not None:
                     uvs = uvs * np.asarray(uv_scale, dtype=np.float64)
         key_name = None
-        if color is not None or texture is not None:
+        if color is not None or texture is not None or overrides:
             key_name = mat.name   # overridden the same way, one material of the file stays one
-            mat = Material(node_name if color is not None else mat.name, mat.base_color if color is None else color,
-                           mat.texture if texture is None else texture)
+            mat = mat.with_overrides(color, texture, name=node_name if color is not None else mat.name, **overrides)
         material = self.material_index(mat, key_name)
         # world space; a mirroring transform flips the winding back to counter-clockwise
         p = transform_points(m, vertices)
@@ -384,35 +391,9 @@ def _material_of(visual, where: str, made: dict) -> Material:
     kind = getattr(visual, "kind", None)
     if getattr(visual, "material", None) is not None:
         mat = visual.material
-        name = getattr(mat, "name", None) or "material"
-        from trimesh.visual.material import PBRMaterial, SimpleMaterial  # deferred: heavy (trimesh)
-
-        def make():
-            if isinstance(mat, PBRMaterial):
-                factor = mat.baseColorFactor
-                base = (1.0, 1.0, 1.0, 1.0) if factor is None else np.asarray(factor, dtype=np.float64) / 255.0
-                image = mat.baseColorTexture
-            elif isinstance(mat, SimpleMaterial):
-                base = srgb8_to_linear(mat.diffuse) if mat.diffuse is not None else DEFAULT_COLOR
-                image = mat.image
-            else:
-                base, image = DEFAULT_COLOR, getattr(mat, "image", None)
-            tex = None
-            if image is not None and getattr(visual, "uv", None) is None:
-                log.warning(f"{where}: material '{shown(name)}' has a texture but the mesh has no UVs; "
-                            "rendering without it")
-            elif image is not None:
-                what = f"{where}: material '{shown(name)}'"
-                try:
-                    check_image_size(image, what)   # as a referenced file that is too large: without it
-                except SceneError as exc:
-                    log.warning(f"{exc}; rendering without it")
-                else:
-                    tex = image_to_texture(image, what)
-            return Material(name, base, tex)
         key = (id(mat), getattr(visual, "uv", None) is None)
         if key not in made:
-            made[key] = (mat, make())   # holding `mat` keeps its id from being reused while `made` lives
+            made[key] = (mat, _convert_material(mat, visual, where))   # holding `mat` keeps its id from being reused
         return made[key][1]
     if kind in ("face", "vertex"):
         try:
@@ -424,6 +405,100 @@ def _material_of(visual, where: str, made: dict) -> Material:
             rgba = np.round(mean).astype(np.uint8)
             return Material("vertex-colors", srgb8_to_linear(rgba))
     return Material("default", DEFAULT_COLOR)
+
+
+def _convert_material(mat, visual, where: str) -> Material:
+    """A trimesh PBRMaterial (glTF) or SimpleMaterial (OBJ/MTL) to a Material; textures of a mesh without UVs and
+    images that are too large are left out with a warning."""
+    from trimesh.visual.material import PBRMaterial, SimpleMaterial  # deferred: heavy (trimesh)
+    name = getattr(mat, "name", None) or "material"
+    what = f"{where}: material '{shown(name)}'"
+    no_uv = getattr(visual, "uv", None) is None
+    warned = []
+
+    def texture(image, field):
+        if image is None:
+            return None
+        if no_uv:
+            if not warned:
+                log.warning(f"{what} has a texture but the mesh has no UVs; rendering without it")
+                warned.append(field)
+            return None
+        try:
+            check_image_size(image, f"{what}: {field}")   # as a referenced file that is too large: without it
+        except SceneError as exc:
+            log.warning(f"{exc}; rendering without it")
+            return None
+        return image_to_texture(image, f"{what}: {field}")
+
+    if isinstance(mat, PBRMaterial):
+        return _gltf_material(mat, name, texture, what)
+    if isinstance(mat, SimpleMaterial):
+        return _mtl_material(mat, name, texture)
+    return Material(name, DEFAULT_COLOR, texture(getattr(mat, "image", None), "image"))
+
+
+def _factor(value, default, n=None):
+    if value is None:
+        return default
+    a = np.asarray(value, dtype=np.float64).reshape(-1)
+    if n is not None and a.shape != (n,):
+        return default
+    return a if n is not None else float(a[0])
+
+
+def _gltf_material(mat, name: str, texture, what: str) -> Material:
+    """glTF pbrMetallicRoughness and the core material keys; absent factors take glTF's defaults (metallic 1,
+    roughness 1, emissive 0)."""
+    factor = mat.baseColorFactor
+    base = (1.0, 1.0, 1.0, 1.0) if factor is None else np.asarray(factor, dtype=np.float64) / 255.0
+    mode = (mat.alphaMode or "OPAQUE").upper() if isinstance(mat.alphaMode, (str, type(None))) else "OPAQUE"
+    try:
+        return Material(
+            name, base, texture(mat.baseColorTexture, "baseColorTexture"),
+            metallic=float(np.clip(_factor(mat.metallicFactor, 1.0), 0.0, 1.0)),
+            roughness=float(np.clip(_factor(mat.roughnessFactor, 1.0), 0.0, 1.0)),
+            emissive=np.clip(_factor(mat.emissiveFactor, np.zeros(3), 3), 0.0, None),
+            metallic_roughness_texture=texture(mat.metallicRoughnessTexture, "metallicRoughnessTexture"),
+            normal_texture=texture(mat.normalTexture, "normalTexture"),
+            emissive_texture=texture(mat.emissiveTexture, "emissiveTexture"),
+            occlusion_texture=texture(mat.occlusionTexture, "occlusionTexture"),
+            alpha_mode=mode if mode in ("OPAQUE", "MASK", "BLEND") else "OPAQUE",
+            alpha_cutoff=float(np.clip(_factor(mat.alphaCutoff, 0.5), 0.0, 1.0)),
+            double_sided=bool(mat.doubleSided))
+    except SceneError as exc:
+        raise SceneError(f"{what}: {exc}") from None
+
+
+def _mtl_material(mat, name: str, texture) -> Material:
+    """OBJ/MTL: Kd -> base colour, map_Kd -> texture, Ks/Ns -> roughness (a dielectric: metallic 0; roughness 1
+    without a specular colour), d / Tr -> alpha (BLEND below 1), map_d -> alpha mask (MASK), norm (and a
+    map_Bump / bump that is a normal map) -> normal_texture."""
+    base = srgb8_to_linear(mat.diffuse) if mat.diffuse is not None else np.array(DEFAULT_COLOR)
+    kwargs = getattr(mat, "kwargs", None) or {}
+    images = kwargs.get(mtl.IMAGES_KEY, {})
+    roughness = 1.0
+    specular = kwargs.get("ks")   # as the MTL gave it (trimesh's `specular` has a default colour)
+    specular = [specular] if isinstance(specular, (int, float)) else specular
+    ns = mtl.number(kwargs.get("ns"), getattr(mat, "glossiness", None))
+    if specular is not None and max(mtl.number(x, 0.0) or 0.0 for x in specular) > 0 and ns is not None:
+        roughness = mtl.roughness(ns)
+    alpha = mtl.number(kwargs.get("d"), None)
+    if alpha is None:
+        tr = mtl.number(kwargs.get("tr"), None)
+        alpha = None if tr is None else 1.0 - tr
+    alpha = 1.0 if alpha is None else float(np.clip(alpha, 0.0, 1.0))
+    base = np.array(base, dtype=np.float64)
+    base[3] = alpha
+    mode = "BLEND" if alpha < 1.0 else "OPAQUE"
+    tex = texture(mat.image, "map_Kd")
+    mask = texture(images.get("map_d"), "map_d")
+    if mask is not None:
+        tex = mtl.with_alpha(tex, mask)
+        mode = "MASK"
+    normal, scale = images.get("normal", (None, 1.0))
+    return Material(name, base, tex, metallic=0.0, roughness=roughness,
+                    normal_texture=texture(normal, "map_Bump"), normal_scale=scale, alpha_mode=mode)
 
 
 def load_mesh_file(path: str, transform=None) -> SceneParts:

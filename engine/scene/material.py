@@ -1,8 +1,10 @@
-"""Surface materials: a linear RGBA base colour and an optional sRGB base-colour texture."""
+"""Surface materials: glTF metallic-roughness (base colour, metallic, roughness, emissive, normal and occlusion
+maps, alpha mode) with textures as RGBA8 arrays."""
 
 from __future__ import annotations
 
 import hashlib
+from typing import Any
 
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
@@ -11,23 +13,56 @@ from engine.errors import SceneError
 
 from . import _check
 
+ALPHA_MODES = ("OPAQUE", "MASK", "BLEND")
+#: The texture fields of a Material, in the order material_key lists them.
+TEXTURE_FIELDS = ("texture", "metallic_roughness_texture", "normal_texture", "emissive_texture", "occlusion_texture")
+_FIELDS = ("name", "base_color", "metallic", "roughness", "emissive", "normal_scale", "occlusion_strength",
+           "alpha_mode", "alpha_cutoff", "double_sided") + TEXTURE_FIELDS
+
 
 class Material:
-    """A surface material: `Material(name, base_color, texture=None)`; immutable arrays.
+    """A glTF metallic-roughness surface material; immutable arrays.
+
+    `Material(name, base_color=(0.8, 0.8, 0.8, 1), texture=None, *, metallic=0, roughness=1, emissive=(0, 0, 0),
+    metallic_roughness_texture=None, normal_texture=None, normal_scale=1, emissive_texture=None,
+    occlusion_texture=None, occlusion_strength=1, alpha_mode="OPAQUE", alpha_cutoff=0.5, double_sided=True)`.
 
     `base_color`: 3 or 4 numbers, linear RGB(A) (alpha 1 when left out), stored as (4,) float32 and multiplied with
-    the texture, as in glTF; each in [0, 1e30] (values above 1 are allowed).
-    `texture`: (H, W, 4) uint8 sRGB-encoded RGBA, row 0 at the top of the image, or None. UV (0, 0) is the top-left
-    corner of the image (glTF / Vulkan convention). Alpha is read but not used for transparency.
+    `texture`, as in glTF; each in [0, 1e30]. `metallic`, `roughness` in [0, 1]: `roughness` is glTF's perceptual
+    roughness (the GGX alpha is roughness squared). `emissive`: linear RGB radiance, multiplied with
+    `emissive_texture`. `normal_scale` scales the tangent-space normal map's x and y; `occlusion_strength` in [0, 1]
+    blends the occlusion map in. `alpha_mode`: "OPAQUE", "MASK" (cut out where alpha < `alpha_cutoff`) or "BLEND".
+
+    Textures are (H, W, 4) uint8 arrays, row 0 at the top of the image, UV (0, 0) its top-left corner (glTF /
+    Vulkan convention): `texture` (base colour, sRGB RGBA) and `emissive_texture` (sRGB) are colour textures;
+    `metallic_roughness_texture` (G = roughness, B = metallic), `normal_texture` (tangent-space, RGB = xyz * 0.5 +
+    0.5) and `occlusion_texture` (R) hold linear data.
     """
 
-    __slots__ = ("name", "base_color", "texture")
+    __slots__ = _FIELDS
     name: str
     base_color: NDArray[np.float32]
     texture: NDArray[np.uint8] | None
+    metallic: float
+    roughness: float
+    emissive: NDArray[np.float32]
+    metallic_roughness_texture: NDArray[np.uint8] | None
+    normal_texture: NDArray[np.uint8] | None
+    normal_scale: float
+    emissive_texture: NDArray[np.uint8] | None
+    occlusion_texture: NDArray[np.uint8] | None
+    occlusion_strength: float
+    alpha_mode: str
+    alpha_cutoff: float
+    double_sided: bool
 
-    def __init__(self, name: str, base_color: ArrayLike = (0.8, 0.8, 0.8, 1.0), texture: ArrayLike | None = None):
-        """Raises `SceneError` (naming the material) for a bad colour or texture."""
+    def __init__(self, name: str, base_color: ArrayLike = (0.8, 0.8, 0.8, 1.0), texture: ArrayLike | None = None, *,
+                 metallic: float = 0.0, roughness: float = 1.0, emissive: ArrayLike = (0.0, 0.0, 0.0),
+                 metallic_roughness_texture: ArrayLike | None = None, normal_texture: ArrayLike | None = None,
+                 normal_scale: float = 1.0, emissive_texture: ArrayLike | None = None,
+                 occlusion_texture: ArrayLike | None = None, occlusion_strength: float = 1.0,
+                 alpha_mode: str = "OPAQUE", alpha_cutoff: float = 0.5, double_sided: bool = True):
+        """Raises `SceneError` (naming the material and the field) for a bad value or texture."""
         self.name = str(name)
         c = np.asarray(base_color, dtype=np.float64).reshape(-1)
         if c.shape not in ((3,), (4,)):
@@ -39,26 +74,92 @@ class Material:
                              f"{_check.MAX_VALUE:g}, got {c.tolist()}")
         self.base_color = c.astype(np.float32)
         self.base_color.setflags(write=False)
-        if texture is not None:
-            t = np.asarray(texture)
-            if t.dtype != np.uint8 or t.ndim != 3 or t.shape[2] != 4 or t.shape[0] < 1 or t.shape[1] < 1:
-                raise SceneError(f"material {self.name!r}: texture must be an (H, W, 4) uint8 array, "
-                                 f"got {t.dtype} {t.shape}")
-            t = np.ascontiguousarray(t)
-            t.setflags(write=False)
-            texture = t
-        self.texture = texture
+        self.metallic = self._number(metallic, "metallic", 0.0, 1.0)
+        self.roughness = self._number(roughness, "roughness", 0.0, 1.0)
+        self.normal_scale = self._number(normal_scale, "normal_scale", -_check.MAX_VALUE, _check.MAX_VALUE)
+        self.occlusion_strength = self._number(occlusion_strength, "occlusion_strength", 0.0, 1.0)
+        self.alpha_cutoff = self._number(alpha_cutoff, "alpha_cutoff", 0.0, 1.0)
+        try:
+            e = _check.color(emissive, "emissive", error=SceneError)
+        except SceneError as exc:
+            raise SceneError(f"material {self.name!r}: {exc}") from None
+        self.emissive = e.astype(np.float32)
+        self.emissive.setflags(write=False)
+        mode = alpha_mode.upper() if isinstance(alpha_mode, str) else alpha_mode
+        if mode not in ALPHA_MODES:
+            raise SceneError(f"material {self.name!r}: alpha_mode must be one of {', '.join(ALPHA_MODES)}, "
+                             f"got {alpha_mode!r}")
+        self.alpha_mode = mode
+        if not isinstance(double_sided, (bool, np.bool_)):
+            raise SceneError(f"material {self.name!r}: double_sided must be true or false, got {double_sided!r}")
+        self.double_sided = bool(double_sided)
+        self.texture = self._texture(texture, "texture")
+        self.metallic_roughness_texture = self._texture(metallic_roughness_texture, "metallic_roughness_texture")
+        self.normal_texture = self._texture(normal_texture, "normal_texture")
+        self.emissive_texture = self._texture(emissive_texture, "emissive_texture")
+        self.occlusion_texture = self._texture(occlusion_texture, "occlusion_texture")
+
+    def _number(self, value, field: str, lo: float, hi: float) -> float:
+        try:
+            return _check.number(value, field, min_value=lo, max_value=hi, error=SceneError)
+        except SceneError as exc:
+            raise SceneError(f"material {self.name!r}: {exc}") from None
+
+    def _texture(self, texture, field: str) -> NDArray[np.uint8] | None:
+        if texture is None:
+            return None
+        t = np.asarray(texture)
+        if t.dtype != np.uint8 or t.ndim != 3 or t.shape[2] != 4 or t.shape[0] < 1 or t.shape[1] < 1:
+            raise SceneError(f"material {self.name!r}: {field} must be an (H, W, 4) uint8 array, "
+                             f"got {t.dtype} {t.shape}")
+        t = np.ascontiguousarray(t)
+        t.setflags(write=False)
+        return t
+
+    def fields(self) -> dict[str, Any]:
+        """Every field as a keyword argument of the constructor (the name too)."""
+        return {f: getattr(self, f) for f in _FIELDS}
 
     def with_overrides(self, base_color: ArrayLike | None = None, texture: ArrayLike | None = None,
-                       name: str | None = None) -> Material:
-        """A copy with the given fields replaced (None: keep this material's)."""
-        return Material(name or self.name, self.base_color if base_color is None else base_color,
-                        self.texture if texture is None else texture)
+                       name: str | None = None, **fields: Any) -> Material:
+        """A copy with the given fields replaced (None: keep this material's), e.g.
+        `m.with_overrides(roughness=0.3, metallic=1.0)`."""
+        unknown = set(fields) - set(_FIELDS)
+        if unknown:
+            raise SceneError(f"material {self.name!r}: unknown field(s) {', '.join(sorted(unknown))} "
+                             f"(fields: {', '.join(_FIELDS[1:])})")
+        args = self.fields()
+        args.update({k: v for k, v in fields.items() if v is not None})
+        if base_color is not None:
+            args["base_color"] = base_color
+        if texture is not None:
+            args["texture"] = texture
+        args["name"] = name or self.name
+        return Material(args.pop("name"), args.pop("base_color"), args.pop("texture"), **args)
 
     def __repr__(self) -> str:
-        tex = "None" if self.texture is None else f"{self.texture.shape[1]}x{self.texture.shape[0]}"
+        def size(t):
+            return "None" if t is None else f"{t.shape[1]}x{t.shape[0]}"
         col = ", ".join(f"{x:.3g}" for x in self.base_color.tolist())
-        return f"Material({self.name!r}, base_color=({col}), texture={tex})"
+        text = (f"Material({self.name!r}, base_color=({col}), texture={size(self.texture)}, "
+                f"metallic={self.metallic:.3g}, roughness={self.roughness:.3g}")
+        if np.any(self.emissive > 0):
+            text += ", emissive=(" + ", ".join(f"{x:.3g}" for x in self.emissive.tolist()) + ")"
+        for field in TEXTURE_FIELDS[1:]:
+            t = getattr(self, field)
+            if t is not None:
+                text += f", {field}={size(t)}"
+        if self.normal_texture is not None and self.normal_scale != 1.0:
+            text += f", normal_scale={self.normal_scale:.3g}"
+        if self.occlusion_texture is not None and self.occlusion_strength != 1.0:
+            text += f", occlusion_strength={self.occlusion_strength:.3g}"
+        if self.alpha_mode != "OPAQUE":
+            text += f", alpha_mode={self.alpha_mode!r}"
+            if self.alpha_mode == "MASK":
+                text += f", alpha_cutoff={self.alpha_cutoff:.3g}"
+        if not self.double_sided:
+            text += ", double_sided=False"
+        return text + ")"
 
 
 def texture_key(texture: NDArray[np.uint8] | None) -> tuple | None:
@@ -70,9 +171,14 @@ def texture_key(texture: NDArray[np.uint8] | None) -> tuple | None:
     return t.shape, str(t.dtype), hashlib.blake2b(memoryview(t).cast("B"), digest_size=16).digest()
 
 
-def material_key(material: Material) -> tuple:
-    """What identifies a material by content: its name, base colour and texture pixels (`texture_key`)."""
-    return material.name, material.base_color.tobytes(), texture_key(material.texture)
+def material_key(material: Material, name=None) -> tuple:
+    """What identifies a material by content: its name (or `name` in its place), its factors and flags, and the
+    pixels of each of its textures (`texture_key`)."""
+    m = material
+    factors = np.array([m.metallic, m.roughness, m.normal_scale, m.occlusion_strength, m.alpha_cutoff],
+                       np.float64).tobytes()
+    return ((m.name if name is None else name), m.base_color.tobytes(), m.emissive.tobytes(), factors, m.alpha_mode,
+            m.double_sided, *(texture_key(getattr(m, f)) for f in TEXTURE_FIELDS))
 
 
 def srgb8_to_linear(rgba8: ArrayLike) -> NDArray[np.float64]:

@@ -23,7 +23,7 @@ from . import loader, toml_format
 from .camera import Camera
 from .geometry import crease_normals, unitize, up_transform
 from .lights import Light, default_sun
-from .material import Material
+from .material import Material, material_key
 from .parts import SceneParts, SubMesh
 from .paths import allowed_folders
 
@@ -233,10 +233,7 @@ class Scene:
                 h.update(str(a.shape).encode())
                 h.update(a.tobytes())
             for m in self.materials:
-                h.update(m.base_color.tobytes())
-                if m.texture is not None:
-                    h.update(str(m.texture.shape).encode())
-                    h.update(m.texture.tobytes())
+                h.update(repr(material_key(m, name="")).encode())   # factors, flags and texture digests
             self._content_hash = h.hexdigest()
         return self._content_hash
 

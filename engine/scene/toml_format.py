@@ -25,7 +25,8 @@ from .paths import Folders
 
 TOP_LEVEL = ("up", "camera", "mesh", "light", "settings")
 CAMERA_KEYS = ("eye", "target", "up", "fov", "near")
-MESH_COMMON = ("name", "file", "primitive", "translate", "rotate", "scale", "color", "texture", "uv_scale")
+MESH_COMMON = ("name", "file", "primitive", "translate", "rotate", "scale", "color", "texture", "uv_scale", "metallic",
+               "roughness", "emissive")
 PRIMITIVE_PARAMS = {
     "box": ("size",),
     "sphere": ("radius", "segments", "rings"),
@@ -347,6 +348,12 @@ def _add_mesh(builder: SceneBuilder, table: dict, ctx: _Ctx, folders: Folders, t
         if full not in textures:
             textures[full] = load_texture_file(full, f"{ctx.prefix()}: texture = '{shown(table['texture'])}'")
         texture = textures[full]
+    overrides = {}   # glTF metallic-roughness factors, replacing those of every material of the mesh
+    for key in ("metallic", "roughness"):
+        if key in table:
+            overrides[key] = ctx.check(_check.number, table[key], key, min_value=0.0, max_value=1.0)
+    if "emissive" in table:
+        overrides["emissive"] = _color(table["emissive"], "emissive", ctx)
     uv_scale = None
     if "uv_scale" in table:
         uv_scale = _size(table["uv_scale"], 2, "uv_scale", ctx)
@@ -357,7 +364,8 @@ def _add_mesh(builder: SceneBuilder, table: dict, ctx: _Ctx, folders: Folders, t
             uv = uv * uv_scale
         if color is None:
             color = np.array([1.0, 1.0, 1.0, 1.0]) if texture is not None else np.array([0.8, 0.8, 0.8, 1.0])
-        mat = builder.material_index(Material(name, color, texture), key_name=("primitive",))  # first one's name
+        mat = builder.material_index(Material(name, color, texture, **overrides),
+                                     key_name=("primitive",))  # first one's name
         p, n = transform_points(m, p), transform_normals(m, n)
         if np.linalg.det(m[:3, :3]) < 0:
             f = f[:, ::-1]
@@ -369,6 +377,6 @@ def _add_mesh(builder: SceneBuilder, table: dict, ctx: _Ctx, folders: Folders, t
             up_m = ctx.check(up_transform, table["up"], "up")
         obj = load_trimesh_scene(mesh_path)
         builder.add_trimesh(obj, shown(mesh_path), transform=m @ up_m, color=color, texture=texture, uv_scale=uv_scale,
-                            label=name)
+                            label=name, overrides=overrides)
     except SceneError as exc:
         raise ctx.error(f"file = '{shown(table['file'])}': {exc}") from None

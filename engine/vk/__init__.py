@@ -14,10 +14,11 @@ from .pipelines import (ALL, CIS, SB, SI, STB, UB, UTB, ComputePipeline, Descrip
                         Timestamps)
 from .recorder import Recorder
 from .reflect import Interface, reflect
-from .resources import Buffer, BufferView, Image, Sampler, image_barrier, memory_barrier, upload_buffer, upload_texture
+from .resources import (Buffer, BufferView, Image, Sampler, image_barrier, memory_barrier, upload_buffer,
+                        upload_texture_array)
 
 __all__ = [
     "Context", "choose_device", "describe_devices", "ALL", "CIS", "SB", "SI", "STB", "UB", "UTB", "ComputePipeline",
     "DescriptorSet", "GraphicsPipeline", "Timestamps", "Recorder", "Interface", "reflect", "Buffer", "BufferView",
-    "Image", "Sampler", "image_barrier", "memory_barrier", "upload_buffer", "upload_texture",
+    "Image", "Sampler", "image_barrier", "memory_barrier", "upload_buffer", "upload_texture_array",
 ]

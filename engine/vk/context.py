@@ -143,6 +143,7 @@ class Context:
         self.device = None
         self._messenger = None
         self.surface = None
+        self.external_memory_fd = False   # VK_KHR_external_memory_fd enabled (set in _init)
         try:
             self._init(device, list(instance_extensions), list(device_extensions), surface_factory)
         except BaseException:
@@ -196,12 +197,21 @@ class Context:
             raise VulkanError(f"device {self.device_info['name']!r} has no graphics+compute queue"
                               + (" that can present" if self.surface is not None else ""))
 
+        # memory that CUDA can map (engine.vk.external): enabled wherever the device offers it
+        offered = {e.extensionName for e in vk.vkEnumerateDeviceExtensionProperties(self.physical, None)}
+        self.external_memory_fd = vk.VK_KHR_EXTERNAL_MEMORY_FD_EXTENSION_NAME in offered
+        if self.external_memory_fd and vk.VK_KHR_EXTERNAL_MEMORY_FD_EXTENSION_NAME not in dev_exts:
+            dev_exts.append(vk.VK_KHR_EXTERNAL_MEMORY_FD_EXTENSION_NAME)
         f13 = vk.VkPhysicalDeviceVulkan13Features(dynamicRendering=vk.VK_TRUE)
         f12 = vk.VkPhysicalDeviceVulkan12Features(pNext=f13, hostQueryReset=vk.VK_TRUE)
         # geometryShader: only for gl_PrimitiveID in the G-buffer's visibility fragment shader (the Renderer checks it)
         self.geometry_shader = bool(vk.vkGetPhysicalDeviceFeatures(self.physical).geometryShader)
+        # samplerAnisotropy: anisotropic texture filtering where the device has it (Sampler caps at max_anisotropy)
+        aniso = bool(vk.vkGetPhysicalDeviceFeatures(self.physical).samplerAnisotropy)
+        self.max_anisotropy = float(self.limits.maxSamplerAnisotropy) if aniso else 1.0
         feats = vk.VkPhysicalDeviceFeatures2(pNext=f12, features=vk.VkPhysicalDeviceFeatures(
-            geometryShader=vk.VK_TRUE if self.geometry_shader else vk.VK_FALSE))
+            geometryShader=vk.VK_TRUE if self.geometry_shader else vk.VK_FALSE,
+            samplerAnisotropy=vk.VK_TRUE if aniso else vk.VK_FALSE))
         prio = vk.ffi.new("float[]", [1.0])
         qinfo = vk.VkDeviceQueueCreateInfo(queueFamilyIndex=self.queue_family, queueCount=1, pQueuePriorities=prio)
         dinfo = vk.VkDeviceCreateInfo(

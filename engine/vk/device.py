@@ -43,3 +43,10 @@ def rgb32f_texel_buffers(ctx: Context) -> bool:
     """Can RGB32F be read as a uniform texel buffer (optional in Vulkan)?"""
     props = vk.vkGetPhysicalDeviceFormatProperties(ctx.physical, vk.VK_FORMAT_R32G32B32_SFLOAT)
     return bool(props.bufferFeatures & vk.VK_FORMAT_FEATURE_UNIFORM_TEXEL_BUFFER_BIT)
+
+
+def texture_anisotropy(ctx: Context) -> float:
+    """The anisotropic filtering ratio of scene textures: up to 16 where the device has samplerAnisotropy, 1
+    (trilinear) on CPU devices: lavapipe's anisotropic filter takes the level of the footprint's minor axis without
+    enough samples along the major one, so distant stripes alias (docs/scenes.md)."""
+    return 1.0 if is_cpu(ctx) else min(16.0, ctx.max_anisotropy)

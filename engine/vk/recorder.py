@@ -145,10 +145,11 @@ class Recorder:
         vk.vkCmdCopyImageToBuffer(self.cmd, src.handle, vk.VK_IMAGE_LAYOUT_GENERAL, dst.handle, 1, [region])
 
     def raster(self, pipeline, sets, color: Image, depth: Image, vertices: Buffer, indices: Buffer, draws,
-               reads=()):
+               reads=(), more=()):
         """Indexed draws into `color` (kept: loaded and stored; GENERAL before and after) with a cleared reversed-Z
-        `depth`. `draws`: (first index, index count, push-constant bytes). Afterwards `color` counts as written by a
-        compute-stage step, visible to compute and transfer."""
+        `depth`. `draws`: (first index, index count, push-constant bytes); `more`: further (pipeline, sets, draws)
+        drawn after them in the same rendering. Afterwards `color` counts as written by a compute-stage step,
+        visible to compute and transfer."""
         self.use(reads=reads)
         cmd, w, h = self.cmd, color.width, color.height
         CA, GENERAL = vk.VK_IMAGE_LAYOUT_COLOR_ATTACHMENT_OPTIMAL, vk.VK_IMAGE_LAYOUT_GENERAL
@@ -171,13 +172,16 @@ class Recorder:
                                                        pColorAttachments=[color_info], pDepthAttachment=depth_info))
         vk.vkCmdSetViewport(cmd, 0, 1, [vk.VkViewport(0, 0, w, h, 0.0, 1.0)])
         vk.vkCmdSetScissor(cmd, 0, 1, [area])
-        pipeline.bind(cmd, sets)
         vk.vkCmdBindVertexBuffers(cmd, 0, 1, [vertices.handle], [0])
         vk.vkCmdBindIndexBuffer(cmd, indices.handle, 0, vk.VK_INDEX_TYPE_UINT32)
-        for first, count, push in draws:
-            vk.vkCmdPushConstants(cmd, pipeline.layout, vk.VK_SHADER_STAGE_ALL, 0, len(push),
-                                  vk.ffi.new("char[]", bytes(push)))
-            vk.vkCmdDrawIndexed(cmd, count, 1, first, 0, 0)
+        for pipe, pipe_sets, pipe_draws in ((pipeline, sets, draws), *more):
+            if not pipe_draws:
+                continue
+            pipe.bind(cmd, pipe_sets)
+            for first, count, push in pipe_draws:
+                vk.vkCmdPushConstants(cmd, pipe.layout, vk.VK_SHADER_STAGE_ALL, 0, len(push),
+                                      vk.ffi.new("char[]", bytes(push)))
+                vk.vkCmdDrawIndexed(cmd, count, 1, first, 0, 0)
         vk.vkCmdEndRendering(cmd)
         image_barrier(cmd, color, CA, GENERAL, OUT, _EVERYTHING, vk.VK_ACCESS_COLOR_ATTACHMENT_WRITE_BIT, _ANY_ACCESS)
         st = self.hazards.state.setdefault(id(color), _State())

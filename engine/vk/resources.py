@@ -26,9 +26,9 @@ DEVICE = vk.VK_MEMORY_PROPERTY_DEVICE_LOCAL_BIT
 _OUT_OF_MEMORY = (vk.VkErrorOutOfDeviceMemory, vk.VkErrorOutOfHostMemory)
 
 
-def allocate(ctx: Context, req, mtype: int, what: str):
+def allocate(ctx: Context, req, mtype: int, what: str, pnext=None):
     """Device memory for a resource's requirements `req`, or a VulkanError naming `what` and the size (refused before
-    the call when it exceeds the memory heap)."""
+    the call when it exceeds the memory heap). `pnext`: extension structures of the allocation (export, ...)."""
     mp = ctx.memory_properties
     heap = mp.memoryHeaps[mp.memoryTypes[mtype].heapIndex].size
     size = f"{req.size / 2**20:.1f} MiB"
@@ -36,7 +36,7 @@ def allocate(ctx: Context, req, mtype: int, what: str):
         raise VulkanError(f"{what}: {size} is more than this device's memory heap of {heap / 2**20:.0f} MiB "
                           f"({ctx.device_info['name']}); use a smaller size or scene")
     try:
-        memory = vk.vkAllocateMemory(ctx.device, vk.VkMemoryAllocateInfo(allocationSize=req.size,
+        memory = vk.vkAllocateMemory(ctx.device, vk.VkMemoryAllocateInfo(pNext=pnext, allocationSize=req.size,
                                                                          memoryTypeIndex=mtype), None)
     except _OUT_OF_MEMORY as exc:
         kind = "device" if isinstance(exc, vk.VkErrorOutOfDeviceMemory) else "host"
@@ -133,28 +133,32 @@ def _aspect(fmt):
 
 
 class Image:
-    """A 2D image (optionally mipmapped) with one view over all its levels."""
+    """A 2D image (optionally mipmapped, optionally an array of `layers`) with one view over all its levels and
+    layers (a 2D view, or a 2D array view when `array`)."""
 
-    def __init__(self, ctx: Context, width: int, height: int, fmt: int, usage: int, mip_levels: int = 1, name=""):
+    def __init__(self, ctx: Context, width: int, height: int, fmt: int, usage: int, mip_levels: int = 1, name="",
+                 layers: int = 1, array: bool = False):
         self.ctx, self.width, self.height, self.format, self.name = ctx, width, height, fmt, name
-        self.mip_levels = mip_levels
+        self.mip_levels, self.layers = mip_levels, layers
         self.aspect = _aspect(fmt)
         dev = ctx.device
         self.handle = vk.vkCreateImage(dev, vk.VkImageCreateInfo(
             imageType=vk.VK_IMAGE_TYPE_2D, format=fmt, extent=vk.VkExtent3D(width, height, 1),
-            mipLevels=mip_levels, arrayLayers=1, samples=vk.VK_SAMPLE_COUNT_1_BIT,
+            mipLevels=mip_levels, arrayLayers=layers, samples=vk.VK_SAMPLE_COUNT_1_BIT,
             tiling=vk.VK_IMAGE_TILING_OPTIMAL, usage=usage, sharingMode=vk.VK_SHARING_MODE_EXCLUSIVE,
             initialLayout=vk.VK_IMAGE_LAYOUT_UNDEFINED), None)
         req = vk.vkGetImageMemoryRequirements(dev, self.handle)
         try:
             self.memory = allocate(ctx, req, ctx.memory_type(req.memoryTypeBits, DEVICE),
-                                   f"image {name!r} ({width}x{height})" if name else f"a {width}x{height} image")
+                                   f"image {name!r} ({width}x{height}x{layers})" if name
+                                   else f"a {width}x{height} image")
         except VulkanError:
             vk.vkDestroyImage(dev, self.handle, None)
             raise
         vk.vkBindImageMemory(dev, self.handle, self.memory, 0)
         self.view = vk.vkCreateImageView(dev, vk.VkImageViewCreateInfo(
-            image=self.handle, viewType=vk.VK_IMAGE_VIEW_TYPE_2D, format=fmt,
+            image=self.handle, format=fmt,
+            viewType=vk.VK_IMAGE_VIEW_TYPE_2D_ARRAY if array else vk.VK_IMAGE_VIEW_TYPE_2D,
             subresourceRange=self.range()), None)
         self._alive = True
         ctx.defer_destroy(self.destroy)
@@ -162,7 +166,7 @@ class Image:
     def range(self, base_mip=0, levels=None):
         return vk.VkImageSubresourceRange(aspectMask=self.aspect, baseMipLevel=base_mip,
                                           levelCount=self.mip_levels if levels is None else levels,
-                                          baseArrayLayer=0, layerCount=1)
+                                          baseArrayLayer=0, layerCount=self.layers)
 
     def destroy(self):
         if self._alive:
@@ -185,55 +189,103 @@ def memory_barrier(cmd, src_stage, dst_stage, src_access, dst_access):
     vk.vkCmdPipelineBarrier(cmd, src_stage, dst_stage, 0, 1, [barrier], 0, None, 0, None)
 
 
-def upload_texture(ctx: Context, rgba: np.ndarray, srgb: bool = True) -> Image:
-    """An RGBA8 texture with a full mip chain, filled through staging and blits, left SHADER_READ_ONLY."""
-    h, w = rgba.shape[:2]
-    levels = int(np.floor(np.log2(max(w, h)))) + 1
+def _layers(layer: int, count: int, level: int = 0):
+    return vk.VkImageSubresourceLayers(vk.VK_IMAGE_ASPECT_COLOR_BIT, level, layer, count)
+
+
+def _layout(cmd, img: Image, old, new, src_access, dst_access, base_mip=0, levels=None,
+            dst_stage=vk.VK_PIPELINE_STAGE_TRANSFER_BIT):
+    image_barrier(cmd, img, old, new, vk.VK_PIPELINE_STAGE_TRANSFER_BIT if src_access else
+                  vk.VK_PIPELINE_STAGE_TOP_OF_PIPE_BIT, dst_stage, src_access, dst_access, base_mip, levels)
+
+
+def upload_texture_array(ctx: Context, images: list, width: int, height: int, srgb: bool = True,
+                         name: str = "textures") -> Image:
+    """A 2D array texture, one layer per (h, w, 4) uint8 image in `images` (in that order), each resized to
+    width x height by a linear blit where its size differs (in linear light for sRGB), with a full mip chain made by
+    blits (all layers at once), left SHADER_READ_ONLY. Consecutive images of one size share one temporary image and
+    one blit, so callers order images by size."""
+    n = len(images)
+    levels = int(np.floor(np.log2(max(width, height)))) + 1
     fmt = vk.VK_FORMAT_R8G8B8A8_SRGB if srgb else vk.VK_FORMAT_R8G8B8A8_UNORM
-    img = Image(ctx, w, h, fmt, vk.VK_IMAGE_USAGE_SAMPLED_BIT | vk.VK_IMAGE_USAGE_TRANSFER_DST_BIT
-                | vk.VK_IMAGE_USAGE_TRANSFER_SRC_BIT, mip_levels=levels, name="texture")
-    staging = Buffer(ctx, rgba.nbytes, TRANSFER_SRC, host=True)
-    staging.write(np.ascontiguousarray(rgba, dtype=np.uint8))
-    T, TW, TR = (vk.VK_PIPELINE_STAGE_TRANSFER_BIT, vk.VK_ACCESS_TRANSFER_WRITE_BIT, vk.VK_ACCESS_TRANSFER_READ_BIT)
-    with ctx.one_shot() as cmd:
-        image_barrier(cmd, img, vk.VK_IMAGE_LAYOUT_UNDEFINED, vk.VK_IMAGE_LAYOUT_TRANSFER_DST_OPTIMAL,
-                      vk.VK_PIPELINE_STAGE_TOP_OF_PIPE_BIT, T, 0, TW)
-        region = vk.VkBufferImageCopy(
-            bufferOffset=0, bufferRowLength=0, bufferImageHeight=0,
-            imageSubresource=vk.VkImageSubresourceLayers(vk.VK_IMAGE_ASPECT_COLOR_BIT, 0, 0, 1),
-            imageOffset=vk.VkOffset3D(0, 0, 0), imageExtent=vk.VkExtent3D(w, h, 1))
-        vk.vkCmdCopyBufferToImage(cmd, staging.handle, img.handle, vk.VK_IMAGE_LAYOUT_TRANSFER_DST_OPTIMAL, 1, [region])
-        mw, mh = w, h
-        for level in range(1, levels):
-            image_barrier(cmd, img, vk.VK_IMAGE_LAYOUT_TRANSFER_DST_OPTIMAL, vk.VK_IMAGE_LAYOUT_TRANSFER_SRC_OPTIMAL,
-                          T, T, TW, TR, base_mip=level - 1, levels=1)
-            nw, nh = max(mw // 2, 1), max(mh // 2, 1)
-            blit = vk.VkImageBlit(
-                srcSubresource=vk.VkImageSubresourceLayers(vk.VK_IMAGE_ASPECT_COLOR_BIT, level - 1, 0, 1),
-                srcOffsets=[vk.VkOffset3D(0, 0, 0), vk.VkOffset3D(mw, mh, 1)],
-                dstSubresource=vk.VkImageSubresourceLayers(vk.VK_IMAGE_ASPECT_COLOR_BIT, level, 0, 1),
-                dstOffsets=[vk.VkOffset3D(0, 0, 0), vk.VkOffset3D(nw, nh, 1)])
-            vk.vkCmdBlitImage(cmd, img.handle, vk.VK_IMAGE_LAYOUT_TRANSFER_SRC_OPTIMAL, img.handle,
-                              vk.VK_IMAGE_LAYOUT_TRANSFER_DST_OPTIMAL, 1, [blit], vk.VK_FILTER_LINEAR)
-            image_barrier(cmd, img, vk.VK_IMAGE_LAYOUT_TRANSFER_SRC_OPTIMAL,
-                          vk.VK_IMAGE_LAYOUT_SHADER_READ_ONLY_OPTIMAL, T,
-                          vk.VK_PIPELINE_STAGE_FRAGMENT_SHADER_BIT, TR, vk.VK_ACCESS_SHADER_READ_BIT,
-                          base_mip=level - 1, levels=1)
-            mw, mh = nw, nh
-        image_barrier(cmd, img, vk.VK_IMAGE_LAYOUT_TRANSFER_DST_OPTIMAL, vk.VK_IMAGE_LAYOUT_SHADER_READ_ONLY_OPTIMAL,
-                      T, vk.VK_PIPELINE_STAGE_FRAGMENT_SHADER_BIT, TW, vk.VK_ACCESS_SHADER_READ_BIT,
-                      base_mip=levels - 1, levels=1)
-    staging.destroy()
+    usage = vk.VK_IMAGE_USAGE_SAMPLED_BIT | vk.VK_IMAGE_USAGE_TRANSFER_DST_BIT | vk.VK_IMAGE_USAGE_TRANSFER_SRC_BIT
+    img = Image(ctx, width, height, fmt, usage, mip_levels=levels, name=name, layers=n, array=True)
+    offsets = np.cumsum([0] + [im.nbytes for im in images])
+    staging = Buffer(ctx, int(offsets[-1]), TRANSFER_SRC, host=True)
+    view = staging.view()
+    for im, off in zip(images, offsets[:-1]):
+        view[off:off + im.nbytes] = np.ascontiguousarray(im, dtype=np.uint8).reshape(-1)
+    runs, start = [], 0   # (first layer, count, h, w): consecutive images of one size
+    for i in range(1, n + 1):
+        if i == n or images[i].shape[:2] != images[start].shape[:2]:
+            runs.append((start, i - start, *images[start].shape[:2]))
+            start = i
+    TW, TR = vk.VK_ACCESS_TRANSFER_WRITE_BIT, vk.VK_ACCESS_TRANSFER_READ_BIT
+    DST, SRC = vk.VK_IMAGE_LAYOUT_TRANSFER_DST_OPTIMAL, vk.VK_IMAGE_LAYOUT_TRANSFER_SRC_OPTIMAL
+    READ_ONLY = vk.VK_IMAGE_LAYOUT_SHADER_READ_ONLY_OPTIMAL
+    temps = []
+    try:
+        with ctx.one_shot() as cmd:
+            _layout(cmd, img, vk.VK_IMAGE_LAYOUT_UNDEFINED, DST, 0, TW)
+
+            def copy(target, first, count, h, w, layer0):
+                regions = [vk.VkBufferImageCopy(
+                    bufferOffset=int(offsets[first + k]), bufferRowLength=0, bufferImageHeight=0,
+                    imageSubresource=_layers(layer0 + k, 1), imageOffset=vk.VkOffset3D(0, 0, 0),
+                    imageExtent=vk.VkExtent3D(w, h, 1)) for k in range(count)]
+                vk.vkCmdCopyBufferToImage(cmd, staging.handle, target.handle, DST, len(regions), regions)
+
+            for first, count, h, w in runs:
+                if (w, h) == (width, height):
+                    copy(img, first, count, h, w, first)
+                    continue
+                tmp = Image(ctx, w, h, fmt, usage, name=f"{name} (resize)", layers=count, array=True)
+                temps.append(tmp)
+                _layout(cmd, tmp, vk.VK_IMAGE_LAYOUT_UNDEFINED, DST, 0, TW)
+                copy(tmp, first, count, h, w, 0)
+                _layout(cmd, tmp, DST, SRC, TW, TR)
+                blit = vk.VkImageBlit(
+                    srcSubresource=_layers(0, count), srcOffsets=[vk.VkOffset3D(0, 0, 0), vk.VkOffset3D(w, h, 1)],
+                    dstSubresource=_layers(first, count),
+                    dstOffsets=[vk.VkOffset3D(0, 0, 0), vk.VkOffset3D(width, height, 1)])
+                vk.vkCmdBlitImage(cmd, tmp.handle, SRC, img.handle, DST, 1, [blit], vk.VK_FILTER_LINEAR)
+            mw, mh = width, height
+            for level in range(1, levels):   # each level from the one above, all layers in one blit
+                _layout(cmd, img, DST, SRC, TW, TR, base_mip=level - 1, levels=1)
+                nw, nh = max(mw // 2, 1), max(mh // 2, 1)
+                blit = vk.VkImageBlit(
+                    srcSubresource=_layers(0, n, level - 1),
+                    srcOffsets=[vk.VkOffset3D(0, 0, 0), vk.VkOffset3D(mw, mh, 1)],
+                    dstSubresource=_layers(0, n, level),
+                    dstOffsets=[vk.VkOffset3D(0, 0, 0), vk.VkOffset3D(nw, nh, 1)])
+                vk.vkCmdBlitImage(cmd, img.handle, SRC, img.handle, DST, 1, [blit], vk.VK_FILTER_LINEAR)
+                _layout(cmd, img, SRC, READ_ONLY, TR, vk.VK_ACCESS_SHADER_READ_BIT, level - 1, 1,
+                        vk.VK_PIPELINE_STAGE_ALL_COMMANDS_BIT)
+                mw, mh = nw, nh
+            _layout(cmd, img, DST, READ_ONLY, TW, vk.VK_ACCESS_SHADER_READ_BIT, levels - 1, 1,
+                    vk.VK_PIPELINE_STAGE_ALL_COMMANDS_BIT)
+    except BaseException:
+        img.destroy()
+        raise
+    finally:
+        for tmp in temps:
+            tmp.destroy()
+        staging.destroy()
     return img
 
 
 class Sampler:
-    def __init__(self, ctx: Context, linear=True, repeat=True, max_lod=16.0):
+    """Linear (trilinear with mip levels) or nearest filtering; `anisotropy` > 1 enables anisotropic filtering up to
+    that ratio where the device has samplerAnisotropy (`Context.max_anisotropy`; capped there)."""
+
+    def __init__(self, ctx: Context, linear=True, repeat=True, max_lod=16.0, anisotropy: float = 1.0):
         self.ctx = ctx
         filt = vk.VK_FILTER_LINEAR if linear else vk.VK_FILTER_NEAREST
         mode = vk.VK_SAMPLER_ADDRESS_MODE_REPEAT if repeat else vk.VK_SAMPLER_ADDRESS_MODE_CLAMP_TO_EDGE
+        aniso = self.anisotropy = float(max(1.0, min(anisotropy, ctx.max_anisotropy)))
         self.handle = vk.vkCreateSampler(ctx.device, vk.VkSamplerCreateInfo(
             magFilter=filt, minFilter=filt, mipmapMode=vk.VK_SAMPLER_MIPMAP_MODE_LINEAR,
             addressModeU=mode, addressModeV=mode, addressModeW=mode, maxLod=max_lod, minLod=0.0,
-            maxAnisotropy=1.0, borderColor=vk.VK_BORDER_COLOR_FLOAT_OPAQUE_WHITE), None)
+            anisotropyEnable=vk.VK_TRUE if aniso > 1.0 else vk.VK_FALSE, maxAnisotropy=aniso,
+            borderColor=vk.VK_BORDER_COLOR_FLOAT_OPAQUE_WHITE), None)
         ctx.defer_destroy(vk.vkDestroySampler, ctx.device, self.handle, None)

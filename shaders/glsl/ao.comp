@@ -7,6 +7,9 @@
 FRAME_BLOCK
 #include "sampling.glsl"
 #include "rayutil.glsl"
+#define ALPHA_BINDING 6
+#define TEXTURES_BINDING 7
+#include "alpha.glsl"
 #define BVH_SET 1
 #define BVH_BINDING 0
 #include "bvh.glsl"

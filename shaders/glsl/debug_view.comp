@@ -4,7 +4,8 @@
 // Same mappings as engine.frame.aov_to_rgba where it can: normals n * 0.5 + 0.5, albedo gamma 2.2,
 // position by the scene bounds, depth 1 (near) .. 0 (far) over the scene's depth range, masks averaged over the
 // lights, AO as is, history length / 32 in grey with fresh (disoccluded, n = 1) pixels in red; ids as a colour per
-// id; motion as red / green around grey.
+// id; motion as red / green around grey; roughness and metallic in grey; emissive and radiance (the lit linear
+// colour before tonemapping) clamped, gamma 2.2 as albedo.
 #include "common.glsl"
 FRAME_BLOCK
 
@@ -22,6 +23,9 @@ layout(set = 0, binding = 10, r32ui) uniform readonly uimage2D g_triangle;
 layout(set = 0, binding = 11, r32ui) uniform readonly uimage2D g_object;
 layout(set = 0, binding = 12, r32ui) uniform readonly uimage2D g_material;
 layout(set = 0, binding = 13, rg32f) uniform readonly image2D g_motion;
+layout(set = 0, binding = 14, rgba8) uniform readonly image2D g_pbr;        // roughness, metallic, occlusion
+layout(set = 0, binding = 15, rgba16f) uniform readonly image2D g_emissive;
+layout(set = 0, binding = 16, rgba16f) uniform readonly image2D g_hdr;        // the lit linear colour
 layout(push_constant) uniform Push { uint view; } pc;
 
 // A colour per id (black for none), different for neighbouring ids.
@@ -77,6 +81,14 @@ void main() {
     } else if (v == VIEW_MOTION) {   // x right: red, y down: green, 8 pixels = full
         vec2 m = imageLoad(g_motion, px).xy;
         c = covered ? vec3(0.5 + m / 16.0, 0.5) : vec3(0.0);
+    } else if (v == VIEW_ROUGHNESS) {
+        c = covered ? vec3(imageLoad(g_pbr, px).x) : vec3(0.0);
+    } else if (v == VIEW_METALLIC) {
+        c = covered ? vec3(imageLoad(g_pbr, px).y) : vec3(0.0);
+    } else if (v == VIEW_EMISSIVE) {
+        c = pow(clamp(imageLoad(g_emissive, px).rgb, 0.0, 1.0), vec3(1.0 / 2.2));
+    } else if (v == VIEW_RADIANCE) {
+        c = pow(clamp(imageLoad(g_hdr, px).rgb, 0.0, 1.0), vec3(1.0 / 2.2));
     } else if (v == VIEW_HISTORY) {
         float n = hist_len[pixel];
         c = !covered ? vec3(0.0) : (n <= 1.0 ? vec3(1.0, 0.0, 0.0) : vec3(clamp(n / 32.0, 0.0, 1.0)));

@@ -7,21 +7,14 @@
 // (Olano and Greer 1997): with the columns C_i = (x_i, y_i, w_i) and the pixel's NDC point P = (px, py, 1), the
 // weights are b_i ~ dot(cross(C_i+1, C_i+2), P), normalized to sum 1. No division by w, so triangles that cross
 // the camera plane need no clipping. The same weights one pixel to the right and one below give the UV
-// derivatives, and from them the texture's level of detail (what a fragment quad would have had).
+// derivatives, the pixel's footprint in the texture (what a fragment quad would have had).
 #include "common.glsl"
 FRAME_BLOCK
 
-layout(constant_id = 0) const int TEXTURE_SLOTS = MAX_TEXTURES;
-
-// Slot k of `textures` at the pixel's UV, with the level of detail a fragment quad would have used (isotropic: the
-// sampler has no anisotropy), given explicitly; multiplied into the albedo of the pixels whose material uses it.
-#define SAMPLE_SLOT(k)                                                                                          \
-    if (k < TEXTURE_SLOTS && (used & (1u << k)) != 0u) {                                                       \
-        vec2 texels = vec2(textureSize(textures[k], 0));                                                       \
-        float rho = max(length(duv_dx * texels), length(duv_dy * texels));                                     \
-        vec4 texel = textureLod(textures[k], uv, log2(max(rho, 1e-30)));                                       \
-        if (slot == k) albedo.rgb *= texel.rgb;                                                                \
-    }
+#define TEXTURES_SET 0
+#define TEXTURES_BINDING 9
+#define TEXTURE_ARRAYS_ID 0
+#include "textures.glsl"
 
 layout(local_size_x = 8, local_size_y = 8) in;
 // Read, then set back to 0 (background) for the next frame: the raster pass loads it instead of clearing it.
@@ -36,8 +29,7 @@ layout(set = 0, binding = 10, rgba8_snorm) uniform writeonly image2D g_normal8;
 layout(set = 0, binding = 5) uniform samplerBuffer vertices;       // 2 texels per vertex: (p, n.x), (n.yz, uv)
 layout(set = 0, binding = 6) uniform usamplerBuffer indices;       // material-sorted, 3 per triangle
 layout(set = 0, binding = 7) uniform usamplerBuffer tri_info;      // per triangle: material, scene triangle, object
-layout(set = 0, binding = 8) uniform samplerBuffer materials;      // 2 texels: base colour, (texture slot bits, ...)
-layout(set = 0, binding = 9) uniform sampler2D textures[MAX_TEXTURES];
+layout(set = 0, binding = 8) uniform samplerBuffer materials;      // MATERIAL_TEXELS per material (interface.py)
 // The data AOVs: linear view depth (+inf on background), the scene's triangle, object and material ids (-1 as uint on
 // background), and the pixel's motion since the previous frame (now - then, in pixels).
 layout(set = 0, binding = 11, r32f) uniform writeonly image2D g_depth;
@@ -45,8 +37,11 @@ layout(set = 0, binding = 12, r32ui) uniform writeonly uimage2D g_triangle;
 layout(set = 0, binding = 13, r32ui) uniform writeonly uimage2D g_object;
 layout(set = 0, binding = 14, r32ui) uniform writeonly uimage2D g_material;
 layout(set = 0, binding = 15, rg32f) uniform writeonly image2D g_motion;
+// The lighting's material inputs: (roughness, metallic, occlusion, 1 where covered) and the emitted radiance.
+layout(set = 0, binding = 16, rgba8) uniform writeonly image2D g_pbr;
+layout(set = 0, binding = 17, rgba16f) uniform writeonly image2D g_emissive;
 
-shared uint tile_slots;   // bit s: some pixel of this workgroup samples texture slot s
+shared uint tile_arrays;   // bit a: some pixel of this workgroup samples texture array a
 
 vec3 weights(vec3 e0, vec3 e1, vec3 e2, vec3 p) {
     vec3 b = vec3(dot(e0, p), dot(e1, p), dot(e2, p));
@@ -63,7 +58,13 @@ void main() {
     vec3 pos = vec3(0.0), nrm = vec3(0.0);
     vec2 uv = vec2(0.0), duv_dx = vec2(0.0), duv_dy = vec2(0.0);
     vec4 albedo = vec4(0.0);
-    int slot = -1;
+    uvec4 handles = uvec4(TEXTURE_NONE);   // base colour, metallic-roughness, normal, emissive
+    vec3 tangent = vec3(0.0), bitangent = vec3(0.0);
+    float normal_scale = 1.0;
+    vec4 pbr = vec4(0.0);        // roughness, metallic, occlusion, covered
+    vec3 emissive = vec3(0.0);
+    uint occlusion_handle = TEXTURE_NONE;
+    float occlusion_strength = 0.0;
     uvec4 info = uvec4(0xFFFFFFFFu);
     if (id != 0u) {
         int tri = int(id - 1u);
@@ -89,7 +90,8 @@ void main() {
         float len = length(n);
         // a degenerate interpolated normal falls back to the facet normal
         n = len > 1e-6 ? n / len : normalize(cross(p1 - p0, p2 - p0));
-        if (dot(n, frame.eye - pos) < 0.0) n = -n;   // two-sided surfaces: the side we see
+        float side = dot(n, frame.eye - pos) < 0.0 ? -1.0 : 1.0;
+        n *= side;   // two-sided surfaces: the side we see
         nrm = n;
 
         vec2 t0 = b0.zw, t1 = b1.zw, t2 = b2.zw;
@@ -98,24 +100,59 @@ void main() {
         duv_dy = by.x * t0 + by.y * t1 + by.z * t2 - uv;
 
         info = texelFetch(tri_info, tri);
-        int material = int(info.x);
-        albedo = vec4(texelFetch(materials, 2 * material).rgb, 1.0);
-        slot = floatBitsToInt(texelFetch(materials, 2 * material + 1).x);
+        int material = MATERIAL_TEXELS * int(info.x);
+        albedo = vec4(texelFetch(materials, material).rgb, 1.0);
+        handles = floatBitsToUint(texelFetch(materials, material + 1));
+        vec4 factors = texelFetch(materials, material + 2);
+        pbr = vec4(factors.y, factors.x, 1.0, 1.0);
+        occlusion_strength = factors.z;
+        normal_scale = factors.w;
+        emissive = texelFetch(materials, material + 3).rgb;
+        occlusion_handle = floatBitsToUint(texelFetch(materials, material + 4).x);
+
+        // The normal map's tangent frame: T = dP/du of the triangle, orthonormalized against the interpolated
+        // normal; B = cross(N, T), its sign making B point along -dP/dv (up in the image: glTF's +Y), which also
+        // holds for mirrored UVs; seen from the back, the whole frame turns (the mapped normal is the front's,
+        // negated). Degenerate UVs: no normal map.
+        vec2 d1 = t1 - t0, d2 = t2 - t0;
+        float det = d1.x * d2.y - d2.x * d1.y;
+        if (handles.z != TEXTURE_NONE && abs(det) > 1e-20) {
+            vec3 q1 = p1 - p0, q2 = p2 - p0;
+            vec3 dp_du = (q1 * d2.y - q2 * d1.y) / det, dp_dv = (q2 * d1.x - q1 * d2.x) / det;
+            vec3 t = dp_du - n * dot(n, dp_du);
+            if (dot(t, t) > 1e-30) {
+                tangent = normalize(t);
+                bitangent = cross(n, tangent);
+                if (dot(bitangent, dp_dv) > 0.0) bitangent = -bitangent;
+                tangent *= side;
+                bitangent *= side;
+            }
+        }
     }
 
-    // Texture sampling: one block per slot, each with a constant index, taken where some pixel of this workgroup
-    // samples that slot (the bits in tile_slots: a branch that is uniform over the workgroup). Constant indices,
-    // not a loop over textures[s]: lavapipe 22.3 samples a dynamically indexed array lane by lane, and in rare
-    // launches put the wrong texture on one object for the whole run.
-    // TEXTURE_SLOTS (set by engine/passes/gbuffer.py) is the number of slots the scene uses: the blocks past it go.
-    if (gl_LocalInvocationIndex == 0u) tile_slots = 0u;
+    // Texture sampling (textures.glsl): each array this workgroup's pixels use is sampled in a branch that is
+    // uniform over the workgroup, with explicit UV derivatives (trilinear; anisotropic where the sampler has it).
+    if (gl_LocalInvocationIndex == 0u) tile_arrays = 0u;
     barrier();
-    if (slot >= 0) atomicOr(tile_slots, 1u << uint(slot));
+    uint bits = texture_bit(handles.x) | texture_bit(handles.y) | texture_bit(handles.z) | texture_bit(handles.w)
+              | texture_bit(occlusion_handle);
+    if (bits != 0u) atomicOr(tile_arrays, bits);
     barrier();
-    uint used = tile_slots;
-    SAMPLE_SLOT(0) SAMPLE_SLOT(1) SAMPLE_SLOT(2) SAMPLE_SLOT(3) SAMPLE_SLOT(4) SAMPLE_SLOT(5) SAMPLE_SLOT(6)
-    SAMPLE_SLOT(7) SAMPLE_SLOT(8) SAMPLE_SLOT(9) SAMPLE_SLOT(10) SAMPLE_SLOT(11) SAMPLE_SLOT(12) SAMPLE_SLOT(13)
-    SAMPLE_SLOT(14) SAMPLE_SLOT(15)
+    uint used = tile_arrays;
+    if (used != 0u) {
+        albedo.rgb *= sample_texture_masked(handles.x, uv, duv_dx, duv_dy, used).rgb;
+        vec4 mr = sample_texture_masked(handles.y, uv, duv_dx, duv_dy, used);   // G roughness, B metallic
+        pbr.xy *= mr.gb;
+        emissive *= sample_texture_masked(handles.w, uv, duv_dx, duv_dy, used).rgb;
+        float occlusion = sample_texture_masked(occlusion_handle, uv, duv_dx, duv_dy, used).r;
+        pbr.z = 1.0 + occlusion_strength * (occlusion - 1.0);   // glTF occlusionTexture.strength
+        vec3 tn = sample_texture_masked(handles.z, uv, duv_dx, duv_dy, used).xyz * 2.0 - 1.0;
+        if (tangent != vec3(0.0)) {   // tangent-space normal, x and y scaled (glTF normalTexture.scale)
+            vec3 mapped = tangent * (tn.x * normal_scale) + bitangent * (tn.y * normal_scale) + nrm * tn.z;
+            float len = length(mapped);
+            if (len > 1e-6) nrm = mapped / len;
+        }
+    }
 
     if (!inside) return;
     float depth = id != 0u ? dot(pos - frame.eye, frame.forward) : 0.0;
@@ -127,6 +164,8 @@ void main() {
     imageStore(g_triangle, px, uvec4(info.y));
     imageStore(g_object, px, uvec4(info.z));
     imageStore(g_material, px, uvec4(info.x));
+    imageStore(g_pbr, px, pbr);
+    imageStore(g_emissive, px, vec4(emissive, 0.0));
     vec2 motion = vec2(0.0);
     if (id != 0u) {   // where this surface point is on screen minus where it was in the previous frame
         vec4 now = frame.view_proj * vec4(pos, 1.0), prev = frame.prev_view_proj * vec4(pos, 1.0);

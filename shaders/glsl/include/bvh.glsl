@@ -26,7 +26,8 @@
 // lane; a texel is 16 bytes, so a node is 4 texels and a triangle 3.
 //   node, 64 bytes: vec4 (lmin, left word), vec4 (lmax, right word), vec4 (rmin, left count), vec4 (rmax, right count)
 //     child word: bit 31 set = leaf whose triangles are [word & 0x7fffffff, + count); clear = interior node index
-//   triangle, 48 bytes: vec4 (v0, original index as int bits), vec4 (v1, 0), vec4 (v2, 0)
+//   triangle, 48 bytes: vec4 (v0, original index as int bits), vec4 (v1, alpha record + 1 or 0), vec4 (v2, 0)
+//     (the alpha record: an includer that defines BVH_ALPHA_TEST, see alpha.glsl; others ignore it)
 //
 // Intersection is watertight (Woop, Benthin and Wald, JCGT 2013): every vertex is moved into a ray-aligned frame
 // with exactly the same float operations whichever triangle it belongs to (the `precise` qualifiers forbid the
@@ -253,6 +254,13 @@ bool bvh_leaf_triangle_(BvhRay_ r, uint i, float tmin, inout float best, inout B
     if (!bvh_triangle_(r, tri.v0.xyz, tri.v1.xyz, tri.v2.xyz, tmin, best, t, u, v)) {
         return false;
     }
+#ifdef BVH_ALPHA_TEST
+    // alpha-tested triangle (v1.w = 1 + its alpha record): the includer's bvh_alpha_passes decides (alpha.glsl)
+    uint alpha_ = floatBitsToUint(tri.v1.w);
+    if (BVH_ALPHA_TEST && alpha_ != 0u && !bvh_alpha_passes(alpha_ - 1u, u, v)) {
+        return false;
+    }
+#endif
     best = t;
     hit.t = t;
     hit.prim = floatBitsToInt(tri.v0.w);

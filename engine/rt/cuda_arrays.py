@@ -1,0 +1,504 @@
+"""CUDA arrays in and out of the Tracer: rays given as device arrays (torch tensors, CuPy arrays, or anything with
+`__cuda_array_interface__` / DLPack on a CUDA device) are copied on the GPU into Vulkan buffers that CUDA maps
+(engine.vk.external: exported as opaque fds, imported with cudaImportExternalMemory through the `cuda-bindings`
+package), traced there, and the results are returned as device arrays of the caller's framework (torch in, torch
+out; other CUDA arrays go through CuPy and come back as CuPy arrays). The rays never cross the bus.
+
+The stream rule: inputs are read and results written on the caller's current CUDA stream (of the inputs'
+framework); the Tracer synchronizes that stream before each Vulkan dispatch and before it returns, so the results
+are complete on return and the inputs may be changed then. Arrays written on another stream must be ready (that
+stream synchronized, or the current one made to wait for it) before the call.
+"""
+from __future__ import annotations
+
+import math
+import os
+import sys
+from numbers import Real
+
+import numpy as np
+
+from ..errors import ConfigError, VulkanError
+from ..limits import MAX_COORD
+from ..vk import Buffer, BufferView, DescriptorSet, Recorder
+from ..vk.external import ExternalBuffer, device_uuid, external_memory_unsupported
+from ..vk.formats import INDIRECT, R32F, R32UI, RGB32F, RGBA32UI
+from ..vk.resources import STORAGE, STORAGE_TEXEL, UNIFORM_TEXEL
+
+RAY_BYTES = 28      # as the Tracer's: origins, directions, tmax as three packed arrays (rays.glsl)
+GROUP = 64
+#: rays per dispatch of queries on CUDA arrays, at least (where the Tracer's batch_size is smaller and the query
+#: larger): a 1920x1080 frame's rays in one dispatch, 4M rays taking 176 MB of device memory
+CUDA_BATCH = 1 << 22
+DLPACK_CUDA = (2, 13)   # DLPack device types: kDLCUDA, kDLCUDAManaged
+F32_MAX = float(np.finfo(np.float32).max)
+F32_TINY = float(np.finfo(np.float32).tiny)   # a direction needs a component at least this large (not subnormal)
+INSTALL = "pip install cuda-bindings (NVIDIA's CUDA Python bindings, matching the driver's CUDA major version)"
+
+_runtime = None
+
+
+def on_cuda(*values) -> bool:
+    """Whether any of `values` is an array in CUDA device memory (numpy arrays, lists and numbers are not)."""
+    return any(_is_cuda(v) for v in values)
+
+
+def _is_cuda(value) -> bool:
+    if value is None or isinstance(value, (np.ndarray, np.generic, Real, list, tuple)):
+        return False
+    try:
+        if getattr(value, "__cuda_array_interface__", None) is not None:
+            return True
+    except Exception:   # (torch raises for a CPU tensor)
+        pass
+    dev = getattr(value, "__dlpack_device__", None)
+    if dev is None:
+        return False
+    try:
+        return int(dev()[0]) in DLPACK_CUDA
+    except Exception:
+        return False
+
+
+def cuda_runtime():
+    """The CUDA runtime module of the `cuda-bindings` package (cuda-python), or None where it is not installed."""
+    global _runtime
+    if _runtime is None:
+        try:
+            from cuda.bindings import runtime   # deferred: optional, and only CUDA arrays need it
+        except ImportError:
+            try:
+                from cuda import cudart as runtime   # deferred: its name before cuda-bindings 12.6
+            except ImportError:
+                return None
+        _runtime = runtime
+    return _runtime
+
+
+def _ok(result, what: str):
+    """The values a cuda-bindings call returned after its error code, or a VulkanError naming the call."""
+    err, rest = result[0], result[1:]
+    if int(err) != 0:
+        raise VulkanError(f"CUDA {what} failed: {getattr(err, 'name', err)}")
+    return rest[0] if len(rest) == 1 else rest
+
+
+def cuda_device(ctx) -> tuple[int | None, str | None]:
+    """(the CUDA device ordinal of the Vulkan device of `ctx`, None), or (None, why CUDA arrays cannot be used)."""
+    rt = cuda_runtime()
+    if rt is None:
+        return None, f"the cuda-bindings package is not installed ({INSTALL})"
+    err, count = rt.cudaGetDeviceCount()
+    if int(err) != 0 or count == 0:
+        return None, f"no CUDA device or NVIDIA driver is usable ({getattr(err, 'name', err)})"
+    reason = external_memory_unsupported(ctx)
+    if reason:
+        return None, reason
+    want = device_uuid(ctx)
+    for i in range(count):
+        uuid = _ok(rt.cudaGetDeviceProperties(i), "cudaGetDeviceProperties").uuid.bytes
+        if (uuid if isinstance(uuid, bytes) else bytes(uuid, "latin-1"))[:16] == want:
+            return i, None
+    return None, (f"the Vulkan device {ctx.device_info['name']!r} is none of the {count} CUDA devices (no UUID "
+                  "matches; pick the NVIDIA GPU with device=)")
+
+
+class _Region:
+    """A piece of CUDA memory as `__cuda_array_interface__`, for torch.as_tensor / cupy.asarray to wrap."""
+
+    def __init__(self, ptr: int, shape: tuple, typestr: str, device: int):
+        self.device = device
+        self.__cuda_array_interface__ = {"shape": shape, "typestr": typestr, "data": (ptr, False), "version": 3,
+                                         "strides": None, "stream": None}
+
+
+class _Torch:
+    name = "torch"
+
+    def __init__(self, module):
+        self.m = module
+
+    def device(self, a):
+        return a.device.index if a.device.type == "cuda" else None
+
+    def contiguous(self, a):
+        return a.is_contiguous()
+
+    def dtype(self, a):
+        return str(a.dtype).replace("torch.", "")
+
+    def wrap(self, region: _Region):
+        return self.m.as_tensor(region, device=f"cuda:{region.device}")
+
+    def empty(self, shape, dtype: str, device: int):
+        return self.m.empty(shape, dtype=getattr(self.m, dtype), device=f"cuda:{device}")
+
+    def from_numpy(self, a, device: int):
+        return self.m.from_numpy(np.ascontiguousarray(a)).to(f"cuda:{device}")
+
+    def sync(self, device: int):
+        self.m.cuda.current_stream(device).synchronize()
+
+
+class _CuPy:
+    name = "cupy"
+
+    def __init__(self, module):
+        self.m = module
+
+    def device(self, a):
+        return a.device.id
+
+    def contiguous(self, a):
+        return a.flags.c_contiguous
+
+    def dtype(self, a):
+        return str(a.dtype)
+
+    def wrap(self, region: _Region):
+        with self.m.cuda.Device(region.device):
+            return self.m.asarray(region)
+
+    def empty(self, shape, dtype: str, device: int):
+        with self.m.cuda.Device(device):
+            return self.m.empty(shape, dtype=dtype)
+
+    def from_numpy(self, a, device: int):
+        with self.m.cuda.Device(device):
+            return self.m.asarray(a)
+
+    def sync(self, device: int):
+        with self.m.cuda.Device(device):
+            self.m.cuda.get_current_stream().synchronize()
+
+
+def framework(value, what: str):
+    """(the adapter of `value`'s framework, the array as that framework's): torch and CuPy as they are, any other
+    CUDA array through CuPy (zero-copy)."""
+    top = type(value).__module__.split(".")[0]
+    if top == "torch":
+        return _Torch(sys.modules["torch"]), value
+    if top == "cupy":
+        return _CuPy(sys.modules["cupy"]), value
+    try:
+        import cupy   # deferred: optional; only CUDA arrays of frameworks other than torch and CuPy need it
+    except ImportError:
+        raise ConfigError(f"{what} is a CUDA array of type {type(value).__name__}: pass a torch tensor or a CuPy "
+                          "array, or install cupy to pass others") from None
+    try:
+        arr = cupy.asarray(value) if hasattr(value, "__cuda_array_interface__") else cupy.from_dlpack(value)
+    except Exception as exc:
+        raise ConfigError(f"{what}: could not read the CUDA array {type(value).__name__} with CuPy ({exc})") from None
+    return _CuPy(cupy), arr
+
+
+class _Shared:
+    """The ray and result buffers CUDA and Vulkan share, for up to `batch` rays a dispatch: exported, mapped into
+    CUDA, bound in their own descriptor set, with a command buffer per query kind (recorded once)."""
+
+    def __init__(self, tracer, rt, device: int, batch: int):
+        self.tracer, self.ctx, self.rt, self.device = tracer, tracer.ctx, rt, device
+        self._imports: list[tuple] = []   # (external memory, mapped pointer) to free
+        self._views: dict = {}
+        self.ray_views: list = []
+        self.batch = batch
+        align = max(1, int(self.ctx.limits.minTexelBufferOffsetAlignment))   # as the Tracer's ray arrays
+        step = align // math.gcd(12, align)
+        c = self.capacity = -(-batch // step) * step
+        ctx, b = self.ctx, batch
+        try:
+            self.rays = ExternalBuffer(ctx, c * RAY_BYTES, STORAGE | UNIFORM_TEXEL, name="rays (CUDA)")
+            self.results = ExternalBuffer(ctx, b * 16, STORAGE | STORAGE_TEXEL, name="hits (CUDA)")
+            self.params = Buffer(ctx, 32, STORAGE | INDIRECT, host=True, name="params (CUDA)")
+            interface = tracer.interface
+            self.io_set = DescriptorSet(ctx, interface.set(0).values())
+            for name, buf in (("ray_data", self.rays), ("params", self.params), ("retry", tracer.retry)):
+                self.io_set.bind(name, buf)
+            self.io_set.bind(interface.bindings[1].name, self.results)
+            vec3 = RGB32F if tracer.rays_texel_ok else R32F
+            self.ray_views = [BufferView(self.rays, vec3, 0, 12 * c), BufferView(self.rays, vec3, 12 * c, 12 * c),
+                              BufferView(self.rays, R32F, 24 * c, 4 * c), BufferView(self.results, R32UI, 0, 4 * b),
+                              BufferView(self.results, RGBA32UI, 0, 16 * b)]
+            for name, view in zip(("ray_origins", "ray_directions", "ray_tmax", "occluded_texels", "hit_texels"),
+                                  self.ray_views):
+                self.io_set.bind(name, view)
+            self.rays_ptr = self._import(self.rays)
+            self.results_ptr = self._import(self.results)
+            self.commands = {kind: self._record(kind) for kind in ("occluded", "intersect")}
+        except BaseException:
+            self.close()
+            raise
+
+    def _import(self, buf: ExternalBuffer) -> int:
+        """Map `buf`'s memory into CUDA on the Tracer's device; its device pointer."""
+        rt = self.rt
+        fd = buf.export_fd()
+        prev = _ok(rt.cudaGetDevice(), "cudaGetDevice")
+        try:
+            _ok(rt.cudaSetDevice(self.device), "cudaSetDevice")
+            desc = rt.cudaExternalMemoryHandleDesc()
+            desc.type = rt.cudaExternalMemoryHandleType.cudaExternalMemoryHandleTypeOpaqueFd
+            desc.handle.fd = fd
+            desc.size = buf.allocation_size
+            desc.flags = rt.cudaExternalMemoryDedicated if buf.dedicated else 0
+            try:
+                ext = _ok(rt.cudaImportExternalMemory(desc), "cudaImportExternalMemory")
+            except VulkanError:
+                os.close(fd)   # (CUDA owns the descriptor only once imported)
+                raise
+            mapping = rt.cudaExternalMemoryBufferDesc()
+            mapping.offset, mapping.size, mapping.flags = 0, buf.size, 0
+            try:
+                ptr = int(_ok(rt.cudaExternalMemoryGetMappedBuffer(ext, mapping), "cudaExternalMemoryGetMappedBuffer"))
+            except VulkanError:
+                rt.cudaDestroyExternalMemory(ext)
+                raise
+            self._imports.append((ext, ptr))
+            return ptr
+        finally:
+            rt.cudaSetDevice(prev)
+
+    def _record(self, kind: str):
+        rec = Recorder(self.ctx, self.tracer.timestamps)
+        rec.dispatch_indirect(self.tracer.pipelines[kind], [self.io_set, self.tracer.bvh_set], self.params,
+                              reads=[self.rays], writes=[self.results])
+        rec.mark("trace")
+        rec.to_host(self.results)   # (complete at the fence, before CUDA reads them)
+        return rec.finish(), list(self.tracer.timestamps.names)
+
+    def views(self, fw):
+        """The shared buffers as `fw`'s arrays: origins, directions (c, 3), tmax (c,), results as uint32 (b,),
+        float32 and int32 (b, 4)."""
+        if fw.name not in self._views:
+            c, b, p, r, dev = self.capacity, self.batch, self.rays_ptr, self.results_ptr, self.device
+            self._views[fw.name] = {
+                "origins": fw.wrap(_Region(p, (c, 3), "<f4", dev)),
+                "directions": fw.wrap(_Region(p + 12 * c, (c, 3), "<f4", dev)),
+                "tmax": fw.wrap(_Region(p + 24 * c, (c,), "<f4", dev)),
+                "occluded": fw.wrap(_Region(r, (b,), "<u4", dev)),
+                "hits": fw.wrap(_Region(r, (b, 4), "<f4", dev)),
+                "prims": fw.wrap(_Region(r, (b, 4), "<i4", dev))}
+        return self._views[fw.name]
+
+    def close(self):
+        """Unmap the memory from CUDA, then free the Vulkan side (the Tracer's device is idle: each query waits)."""
+        self._views.clear()
+        for cmd, _ in getattr(self, "commands", {}).values():
+            self.ctx.free_command_buffer(cmd)
+        self.commands = {}
+        for ext, ptr in self._imports:
+            self.rt.cudaFree(ptr)
+            self.rt.cudaDestroyExternalMemory(ext)
+        self._imports = []
+        for obj in self.ray_views + [getattr(self, k, None) for k in ("rays", "results", "params")]:
+            if obj is not None:
+                obj.destroy()
+        self.ray_views = []
+
+
+class CudaRays:
+    """A Tracer's queries on CUDA arrays, with the Tracer's pipelines and BVH. A query of N rays runs in dispatches
+    of up to max(the Tracer's batch_size, min(N, CUDA_BATCH)) rays (one for a 1080p frame's rays), through shared
+    buffers made for the largest size asked so far. Made on the first such query."""
+
+    def __init__(self, tracer):
+        self.tracer, self.ctx = tracer, tracer.ctx
+        self.device, reason = cuda_device(self.ctx)
+        if reason:
+            raise ConfigError(f"Tracer: CUDA arrays cannot be used here: {reason}. Pass numpy arrays instead "
+                              "(e.g. tensor.cpu().numpy())")
+        if any(tracer.two_pass.values()):
+            raise ConfigError("Tracer: CUDA arrays need a GPU Vulkan device, not a CPU one")
+        self.rt = cuda_runtime()
+        self.shared: _Shared | None = None
+
+    def _buffers(self, n: int) -> _Shared:
+        """Shared buffers for dispatches of min(n, the largest batch) rays, (re)made when smaller."""
+        limit = int(self.ctx.limits.maxTexelBufferElements)
+        want = min(max(self.tracer.batch, min(1 << max(n - 1, 0).bit_length(), CUDA_BATCH)), limit)
+        if self.shared is None or (self.shared.batch < want and self.shared.batch < n):
+            if self.shared is not None:
+                self.shared.close()
+                self.shared = None
+            self.shared = _Shared(self.tracer, self.rt, self.device, want)
+        return self.shared
+
+    # ---- inputs ----------------------------------------------------------------------------------------------
+    def _array(self, fw, value, what: str, shape_text: str):
+        if not _is_cuda(value):
+            raise ConfigError(f"{what} must be a CUDA array like origins ({fw.name}, {shape_text}), got "
+                              f"{type(value).__name__}: all ray arrays on the same device")
+        f, a = framework(value, what)
+        if f.name != fw.name:
+            raise ConfigError(f"{what} is a {f.name} array, origins a {fw.name} one: give all rays in one framework")
+        dev = fw.device(a)
+        if dev != self.device:
+            raise ConfigError(f"{what} is on CUDA device {dev}, the Tracer's Vulkan device "
+                              f"({self.ctx.device_info['name']}) is CUDA device {self.device}")
+        dtype = fw.dtype(a)
+        if dtype not in ("float32", "float64"):
+            raise ConfigError(f"{what} must be float32 or float64, got {dtype} {tuple(a.shape)}")
+        if not fw.contiguous(a):
+            raise ConfigError(f"{what} is not contiguous (a strided view, shape {tuple(a.shape)}): pass a "
+                              "contiguous copy (torch: .contiguous(), CuPy: cupy.ascontiguousarray)")
+        return a
+
+    def inputs(self, origins, directions, tmax):
+        """(framework, origins, directions, tmax as a float or a CUDA array, N), or a ConfigError naming the
+        argument at fault."""
+        if not _is_cuda(origins):
+            raise ConfigError(f"origins must be a CUDA array when directions or tmax is one, got "
+                              f"{type(origins).__name__}: all ray arrays on the same device")
+        fw, _ = framework(origins, "origins")
+        o = self._array(fw, origins, "origins", "(N, 3)")
+        if o.ndim != 2 or o.shape[1] != 3:
+            raise ConfigError(f"origins must have shape (N, 3), got {tuple(o.shape)}")
+        n = int(o.shape[0])
+        d = self._array(fw, directions, "directions", "(N, 3)")
+        if tuple(d.shape) != tuple(o.shape):
+            raise ConfigError(f"directions must have the shape of origins {tuple(o.shape)}, got {tuple(d.shape)}")
+        if isinstance(tmax, (Real, np.floating, np.integer)) and not isinstance(tmax, (bool, np.bool_)):
+            t = float(tmax)
+            if np.isnan(t):
+                raise ConfigError("tmax must be a number or +inf, got NaN")
+        else:
+            t = self._array(fw, tmax, "tmax", "(N,), or a number")
+            if t.ndim == 0:
+                t = t.reshape(1).expand(n) if fw.name == "torch" else fw.m.broadcast_to(t, (n,))
+            elif tuple(t.shape) != (n,):
+                raise ConfigError(f"tmax must be a number or have shape ({n},), got {tuple(t.shape)}")
+        return fw, o, d, t, n
+
+    def _check_values(self, fw, v, k: int, start: int, t_is_array: bool):
+        """A ConfigError naming the first bad ray of the batch now in the shared buffers (as the numpy path's):
+        a few whole-batch reductions and one wait on the stream; the rows only when one is bad."""
+        o, d, t = v["origins"][:k], v["directions"][:k], v["tmax"][:k]
+        ad = abs(d)
+        fine = (abs(o).max() <= MAX_COORD) & (ad.max() <= F32_MAX) & (ad >= F32_TINY).any(1).all()
+        if t_is_array:
+            fine = fine & ~(t != t).any()
+        if bool(fine):   # (NaN fails every comparison)
+            return
+        bad_o = ~(abs(o) <= MAX_COORD).all(1)
+        bad_d = ~(ad <= F32_MAX).all(1) | ~(ad >= F32_TINY).any(1)
+        for bad, what in ((bad_o, "origins"), (bad_d, "directions"), (t != t, "tmax")):
+            if bool(bad.any()):
+                i = int(bad.nonzero()[0][0])
+                row = (o if what == "origins" else d if what == "directions" else t)[i].tolist()
+                if what == "origins":
+                    why = (f"has a coordinate beyond +-{MAX_COORD:g} (the triangle test is exact only within it)"
+                           if np.isfinite(row).all() else "is not finite as float32 (NaN, infinite or beyond "
+                                                          "+-3.4e38)")
+                elif what == "directions":
+                    why = ("is not finite as float32 (NaN, infinite or beyond +-3.4e38)" if not np.isfinite(row).all()
+                           else f"has zero length (a direction needs a component of magnitude >= {F32_TINY:g})")
+                else:
+                    why = "has tmax NaN"
+                raise ConfigError(f"{what}: ray {start + i} {why} ({row})")
+
+    # ---- queries ---------------------------------------------------------------------------------------------
+    def _trace(self, kind, fw, shared: _Shared, o, d, t, start: int, k: int):
+        """Rays [start, start + k) into the shared buffers, checked, and traced; the results stay there."""
+        v, tracer = shared.views(fw), self.tracer
+        v["origins"][:k] = o[start:start + k]
+        v["directions"][:k] = d[start:start + k]
+        v["tmax"][:k] = t if isinstance(t, float) else t[start:start + k]
+        self._check_values(fw, v, k, start, not isinstance(t, float))
+        fw.sync(self.device)   # the stream rule: CUDA's writes are done before Vulkan reads
+        shared.params.write(np.array([(k + GROUP - 1) // GROUP, 1, 1, k, shared.capacity, tracer.shares, 0, 0],
+                                     np.uint32))
+        cmd, marks = shared.commands[kind]
+        self.ctx.submit(cmd)   # waits for the fence
+        tracer.last_times = tracer.timestamps.read(marks)
+        tracer.last_gpu_ms += tracer.last_times.get("trace", 0.0)
+
+    def occluded(self, origins, directions, tmax):
+        fw, o, d, t, n = self.inputs(origins, directions, tmax)
+        out = fw.empty(n, "bool", self.device)
+        self.tracer.last_gpu_ms, self.tracer.last_retried = 0.0, 0
+        shared = self._buffers(n)
+        for s in range(0, n, shared.batch):
+            k = min(shared.batch, n - s)
+            self._trace("occluded", fw, shared, o, d, t, s, k)
+            out[s:s + k] = shared.views(fw)["occluded"][:k] != 0
+        fw.sync(self.device)   # the results are complete, and the shared buffers free for the next call
+        return out
+
+    def intersect(self, origins, directions, tmax):
+        """(t, prim, u, v) as `fw`'s (N,) arrays."""
+        fw, o, d, t, n = self.inputs(origins, directions, tmax)
+        dev = self.device
+        out = (fw.empty(n, "float32", dev), fw.empty(n, "int32", dev), fw.empty(n, "float32", dev),
+               fw.empty(n, "float32", dev))
+        self.tracer.last_gpu_ms, self.tracer.last_retried = 0.0, 0
+        shared = self._buffers(n)
+        for s in range(0, n, shared.batch):
+            k = min(shared.batch, n - s)
+            self._trace("intersect", fw, shared, o, d, t, s, k)
+            hits, prims = shared.views(fw)["hits"][:k], shared.views(fw)["prims"][:k]
+            out[0][s:s + k] = hits[:, 0]
+            out[1][s:s + k] = prims[:, 1]
+            out[2][s:s + k] = hits[:, 2]
+            out[3][s:s + k] = hits[:, 3]
+        fw.sync(dev)
+        return out
+
+    def close(self):
+        """Free the shared buffers (CUDA's mapping first); safe to call twice."""
+        if self.shared is not None:
+            self.shared.close()
+            self.shared = None
+
+
+def scene_rays(rays, center):
+    """RaycastingScene's (..., 6) CUDA rays: (framework, origins - center, directions, leading shape), contiguous;
+    a ConfigError for a bad shape."""
+    fw, a = framework(rays, "rays")
+    shape = tuple(a.shape)
+    if len(shape) < 2 or shape[-1] != 6:
+        raise ConfigError(f"rays must have shape (..., 6) with at least 2 dimensions (ox, oy, oz, dx, dy, dz per "
+                          f"ray), got {shape}")
+    flat = a.reshape(-1, 6)
+    o, d = flat[:, :3], flat[:, 3:]
+    if np.any(center):   # (in float64, as the numpy path)
+        o = o - fw.from_numpy(np.asarray(center, np.float64), fw.device(a))
+    return fw, _contiguous(fw, o), _contiguous(fw, d), shape[:-1]
+
+
+def _contiguous(fw, a):
+    return a.contiguous() if fw.name == "torch" else fw.m.ascontiguousarray(a)
+
+
+def _table(fw, scene, key: str, dev: int):
+    """One of the scene's per-triangle maps as `fw`'s array on `dev`, uploaded once per build."""
+    if (fw.name, key) not in scene.tables:
+        table = getattr(scene, key)
+        scene.tables[(fw.name, key)] = fw.from_numpy(table.astype(np.int64) if key != "normal" else table, dev)
+    return scene.tables[(fw.name, key)]
+
+
+def scene_hits(fw, hits, scene, shape, invalid: int):
+    """cast_rays' dict from the Tracer's device `hits` (t, prim, u, v) and the scene's per-triangle maps, as
+    `fw`'s arrays shaped by the rays' leading `shape` (misses as the numpy path's: inf, `invalid`, zeros)."""
+    t, prim, u, v = hits
+    n, dev = len(t), fw.device(t)
+    hit = prim >= 0
+    miss = ~hit
+    safe = prim.clamp(min=0).long() if fw.name == "torch" else fw.m.maximum(prim, 0)
+    t[miss] = float("inf")
+    out = {"t_hit": t}
+    for key, table in (("geometry_ids", "geometry"), ("primitive_ids", "primitive")):
+        ids = _table(fw, scene, table, dev)[safe] if len(getattr(scene, table)) else safe * 0
+        ids[miss] = invalid
+        out[key] = ids.to(fw.m.uint32) if fw.name == "torch" else ids.astype(np.uint32)
+    uvs = fw.empty((n, 2), "float32", dev)
+    uvs[:, 0], uvs[:, 1] = u, v
+    uvs[miss] = 0
+    out["primitive_uvs"] = uvs
+    if len(scene.normal):
+        normals = _table(fw, scene, "normal", dev)[safe]
+    else:
+        normals = fw.empty((n, 3), "float32", dev)
+    normals[miss] = 0
+    out["primitive_normals"] = normals
+    return {k: a.reshape(shape + tuple(a.shape[1:])) for k, a in out.items()}

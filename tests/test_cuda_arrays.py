@@ -1,0 +1,260 @@
+"""CUDA arrays in and out of the Tracer and RaycastingScene (engine.rt.cuda_arrays): on an NVIDIA GPU with torch /
+CuPy and cuda-bindings, the same hits as the numpy path as the same framework's device arrays; elsewhere a clear
+error. The Vulkan half (exportable memory) is tested on any device that offers VK_KHR_external_memory_fd."""
+import importlib.util
+import os
+
+import numpy as np
+import pytest
+import trimesh
+
+from engine import ConfigError, RaycastingScene, Tracer
+from engine.rt import cuda_arrays
+from engine.rt.cuda_arrays import cuda_device, on_cuda
+from engine.vk import Context
+from engine.vk.external import ExternalBuffer, external_memory_unsupported
+from engine.vk.resources import STORAGE
+
+
+def mesh():
+    sphere = trimesh.creation.icosphere(3)
+    floor = trimesh.creation.box(extents=(6.0, 0.1, 6.0))
+    floor.apply_translation((0, -1.2, 0))
+    both = trimesh.util.concatenate([sphere, floor])
+    return np.asarray(both.vertices), np.asarray(both.faces)
+
+
+def rays(n, seed=3):
+    rng = np.random.default_rng(seed)
+    o = rng.uniform(-3, 3, (n, 3)).astype(np.float32)
+    d = (rng.uniform(-1, 1, (n, 3)) - 0.3 * o).astype(np.float32)
+    t = rng.uniform(0.5, 6.0, n).astype(np.float32)
+    t[::4] = np.inf
+    return o, d, t
+
+
+class FakeCudaArray:
+    """Claims to be in CUDA memory (as a torch tensor or CuPy array would), pointing nowhere."""
+    __cuda_array_interface__ = {"shape": (4, 3), "typestr": "<f4", "data": (0xDEAD0000, False), "version": 3}
+    shape = (4, 3)
+
+
+class DLPackOn:
+    def __init__(self, device_type):
+        self.device_type = device_type
+
+    def __dlpack_device__(self):
+        return (self.device_type, 0)
+
+
+@pytest.fixture(scope="module")
+def tracer():
+    v, f = mesh()
+    t = Tracer(v, f)   # validated where HYBRID_VALIDATION=1 (the layer is not everywhere the CUDA tests run)
+    yield t
+    errors = t.validation_errors
+    t.close()
+    assert not errors, errors[:3]
+
+
+def cuda_reason(tracer):
+    """Why CUDA arrays cannot be tested here (None: they can)."""
+    _, reason = cuda_device(tracer.ctx)
+    return reason
+
+
+# ---- everywhere -----------------------------------------------------------------------------------------------
+def test_what_counts_as_a_cuda_array():
+    assert not on_cuda(np.zeros((2, 3)), [[0, 0, 1]], 1.5, np.float32(2), None)
+    assert on_cuda(np.zeros((2, 3)), FakeCudaArray())
+    assert on_cuda(DLPackOn(2)) and on_cuda(DLPackOn(13))   # kDLCUDA, kDLCUDAManaged
+    assert not on_cuda(DLPackOn(1))                          # kDLCPU
+
+
+def test_exportable_buffer_hands_out_its_memory_as_a_file_descriptor():
+    with Context() as ctx:
+        if external_memory_unsupported(ctx):
+            pytest.skip(external_memory_unsupported(ctx))
+        buf = ExternalBuffer(ctx, 1000, STORAGE, name="shared")
+        fd = buf.export_fd()
+        try:
+            assert fd >= 0 and buf.allocation_size >= 1000
+            assert os.fstat(fd) is not None   # a live descriptor
+        finally:
+            os.close(fd)
+        buf.destroy()
+        assert ctx.allocations == 0
+        assert ctx.validation_errors == []
+
+
+def test_a_cuda_array_without_cuda_is_a_clear_error(tracer):
+    reason = cuda_reason(tracer)
+    if reason is None:
+        pytest.skip("CUDA is usable here: the CUDA tests below cover it")
+    with pytest.raises(ConfigError, match=r"Tracer: CUDA arrays cannot be used here: .*(cuda-bindings|no CUDA "
+                                          r"device|lacks VK_KHR_external_memory_fd|none of the).*numpy"):
+        tracer.occluded(FakeCudaArray(), FakeCudaArray())
+    with pytest.raises(ConfigError, match="CUDA arrays cannot be used here"):
+        tracer.intersect(np.zeros((4, 3)), FakeCudaArray())
+    assert str(reason) in str(pytest.raises(ConfigError, tracer.occluded, FakeCudaArray(), FakeCudaArray()).value)
+    with RaycastingScene() as scene:
+        scene.add_triangles(*mesh())
+        with pytest.raises(ConfigError, match="CUDA arrays cannot be used here"):
+            scene.cast_rays(FakeCudaArray())
+    # the numpy path is untouched
+    o, d, t = rays(100)
+    assert tracer.occluded(o, d, t).dtype == np.bool_
+
+
+# ---- on an NVIDIA GPU -----------------------------------------------------------------------------------------
+FRAMEWORKS = [name for name in ("torch", "cupy") if importlib.util.find_spec(name) is not None]
+
+
+@pytest.fixture(params=["torch", "cupy"])
+def xp(request, tracer):
+    """(framework module, to_device, to_numpy), or a skip saying what is missing."""
+    reason = cuda_reason(tracer)
+    if reason:
+        pytest.skip(f"CUDA arrays need an NVIDIA GPU and driver: {reason}")
+    if request.param not in FRAMEWORKS:
+        pytest.skip(f"{request.param} is not installed")
+    if request.param == "torch":
+        import torch
+        if not torch.cuda.is_available():
+            pytest.skip("torch has no CUDA here")
+        return torch, lambda a: torch.from_numpy(np.ascontiguousarray(a)).cuda(), lambda a: a.cpu().numpy()
+    import cupy
+    return cupy, cupy.asarray, cupy.asnumpy
+
+
+def is_framework_device_array(xp, a):
+    mod = xp[0]
+    if mod.__name__ == "torch":
+        return isinstance(a, mod.Tensor) and a.is_cuda
+    return isinstance(a, mod.ndarray)
+
+
+@pytest.mark.parametrize("dtype", [np.float32, np.float64])
+def test_occluded_matches_the_numpy_path(tracer, xp, dtype):
+    mod, dev, host = xp
+    o, d, t = rays(5000)
+    o, d = o.astype(dtype), d.astype(dtype)
+    want = tracer.occluded(o, d, t)
+    got = tracer.occluded(dev(o), dev(d), dev(t))
+    assert is_framework_device_array(xp, got)
+    assert str(got.dtype).endswith("bool")
+    np.testing.assert_array_equal(host(got), want)
+    assert 0 < want.sum() < len(want)   # hits and misses both
+    np.testing.assert_array_equal(host(tracer.occluded(dev(o), dev(d), 2.5)), tracer.occluded(o, d, 2.5))
+
+
+def test_intersect_matches_the_numpy_path(tracer, xp):
+    mod, dev, host = xp
+    o, d, t = rays(5000, seed=4)
+    want = tracer.intersect(o, d, t)
+    got = tracer.intersect(dev(o), dev(d), dev(t))
+    for a in (got.t, got.prim, got.u, got.v):
+        assert is_framework_device_array(xp, a)
+    np.testing.assert_array_equal(host(got.prim), want.prim)
+    np.testing.assert_array_equal(host(got.t), want.t)
+    hit = want.prim >= 0
+    assert 0 < hit.sum() < len(hit)
+    np.testing.assert_array_equal(host(got.u)[hit], want.u[hit])
+    np.testing.assert_array_equal(host(got.v)[hit], want.v[hit])
+    assert int(got.hit.sum()) == int(hit.sum()) and f"{int(hit.sum())} hit" in repr(got)
+
+
+def test_batches_larger_than_a_dispatch_are_split(xp, monkeypatch):
+    mod, dev, host = xp
+    v, f = mesh()
+    o, d, t = rays(2500, seed=5)
+    monkeypatch.setattr(cuda_arrays, "CUDA_BATCH", 1000)   # (else up to 4M rays go in one dispatch)
+    with Tracer(v, f, batch_size=1000) as small:
+        np.testing.assert_array_equal(host(small.occluded(dev(o), dev(d), dev(t))), small.occluded(o, d, t))
+        assert small._cuda.shared.batch == 1000
+        np.testing.assert_array_equal(host(small.intersect(dev(o), dev(d), dev(t)).prim),
+                                      small.intersect(o, d, t).prim)
+
+
+def test_shared_buffers_grow_for_larger_queries(xp):
+    mod, dev, host = xp
+    o, d, t = rays(3000, seed=8)
+    with Tracer(*mesh()) as tracer:
+        small = tracer.occluded(dev(o[:100]), dev(d[:100]))
+        np.testing.assert_array_equal(host(small), tracer.occluded(o[:100], d[:100]))
+        first = tracer._cuda.shared.batch
+        big = np.concatenate([o] * 400), np.concatenate([d] * 400)   # 1.2M rays: more than the default batch_size
+        np.testing.assert_array_equal(host(tracer.occluded(dev(big[0]), dev(big[1]))), tracer.occluded(*big))
+        assert tracer._cuda.shared.batch >= len(big[0]) > first
+
+
+def test_bad_cuda_inputs_are_clear_errors(tracer, xp):
+    mod, dev, host = xp
+    o, d, t = rays(64)
+    with pytest.raises(ConfigError, match=r"origins must have shape \(N, 3\), got \(64, 4\)"):
+        tracer.occluded(dev(np.zeros((64, 4), np.float32)), dev(d))
+    with pytest.raises(ConfigError, match=r"directions must have the shape of origins \(64, 3\), got \(63, 3\)"):
+        tracer.occluded(dev(o), dev(d[:63]))
+    with pytest.raises(ConfigError, match=r"tmax must be a number or have shape \(64,\), got \(10,\)"):
+        tracer.occluded(dev(o), dev(d), dev(t[:10]))
+    with pytest.raises(ConfigError, match="directions must be float32 or float64, got float16"):
+        tracer.occluded(dev(o), dev(d.astype(np.float16)))
+    with pytest.raises(ConfigError, match="origins must be float32 or float64, got int32"):
+        tracer.occluded(dev(o.astype(np.int32)), dev(d))
+    strided = dev(np.ascontiguousarray(o.T)).T   # (64, 3), not contiguous
+    with pytest.raises(ConfigError, match=r"origins is not contiguous .*\(64, 3\)"):
+        tracer.occluded(strided, dev(d))
+    with pytest.raises(ConfigError, match="directions must be a CUDA array like origins"):
+        tracer.occluded(dev(o), d)           # numpy directions with CUDA origins: not silently copied
+    with pytest.raises(ConfigError, match="origins must be a CUDA array when directions or tmax is one"):
+        tracer.occluded(o, dev(d))
+    bad = o.copy()
+    bad[5, 1] = np.nan
+    with pytest.raises(ConfigError, match="origins: ray 5 is not finite"):
+        tracer.occluded(dev(bad), dev(d))
+    zero = d.copy()
+    zero[7] = 0
+    with pytest.raises(ConfigError, match="directions: ray 7 has zero length"):
+        tracer.intersect(dev(o), dev(zero))
+    with pytest.raises(ConfigError, match="tmax must be a number or \\+inf, got NaN"):
+        tracer.occluded(dev(o), dev(d), float("nan"))
+    # a failed call leaves the Tracer working
+    np.testing.assert_array_equal(host(tracer.occluded(dev(o), dev(d), dev(t))), tracer.occluded(o, d, t))
+
+
+def test_cuda_arrays_on_another_gpu_are_refused(tracer, xp):
+    mod, dev, host = xp
+    count = mod.cuda.device_count() if mod.__name__ == "torch" else mod.cuda.runtime.getDeviceCount()
+    if count < 2:
+        pytest.skip("one CUDA device here: no other device to put the rays on")
+    other = (tracer._device_arrays().device + 1) % count
+    o, d, _ = rays(16)
+    if mod.__name__ == "torch":
+        od, dd = mod.from_numpy(o).to(f"cuda:{other}"), mod.from_numpy(d).to(f"cuda:{other}")
+    else:
+        with mod.cuda.Device(other):
+            od, dd = mod.asarray(o), mod.asarray(d)
+    with pytest.raises(ConfigError, match=f"origins is on CUDA device {other}, the Tracer's Vulkan device"):
+        tracer.occluded(od, dd)
+
+
+def test_raycasting_scene_on_cuda_rays_matches_numpy(xp):
+    mod, dev, host = xp
+    v, f = mesh()
+    o, d, _ = rays(3000, seed=6)
+    grid = np.concatenate([o, d], axis=1).reshape(50, 60, 6)
+    with RaycastingScene() as scene:
+        scene.add_triangles(v + 100.0, f)   # off the origin: traced in a centred frame
+        scene.add_triangles(v[:, [2, 0, 1]] * 0.5 + 100.0, f)
+        want = scene.cast_rays(grid + np.array([100, 100, 100, 0, 0, 0], np.float32))
+        got = scene.cast_rays(dev(grid + np.array([100, 100, 100, 0, 0, 0], np.float32)))
+        assert set(got) == set(want)
+        for key, a in want.items():
+            assert is_framework_device_array(xp, got[key]), key
+            assert str(got[key].dtype).endswith(str(a.dtype)), (key, got[key].dtype, a.dtype)
+            np.testing.assert_array_equal(host(got[key]), a, err_msg=key)
+        assert (want["geometry_ids"] == RaycastingScene.INVALID_ID).any() and (want["geometry_ids"] == 1).any()
+        shifted = grid + np.array([100, 100, 100, 0, 0, 0], np.float32)
+        occ = scene.test_occlusions(dev(shifted), tfar=3.0)
+        assert is_framework_device_array(xp, occ) and tuple(occ.shape) == (50, 60)
+        np.testing.assert_array_equal(host(occ), scene.test_occlusions(shifted, tfar=3.0))

@@ -3,6 +3,7 @@
     tracer = engine.Tracer(vertices, faces)            # or Tracer.from_trimesh(mesh)
     hit = tracer.occluded(origins, directions, tmax)   # (N,) bool
     hits = tracer.intersect(origins, directions)       # Hits(t, prim, u, v)
+    near = tracer.closest(points)                      # Closest(point, distance, prim, u, v)
 
 Directions are used as given, as Embree does: the hit point is origin + t * direction and tmax is in
 the same units. A batch is streamed through the device in chunks, several in flight (engine/rt/stream.py).
@@ -24,10 +25,11 @@ from ..gpu import SceneBVH, bvh_descriptor_set, bvh_layout
 from ..gpu.bvh import CPU_OCCLUSION_STACK_REGS
 from ..parallel import serialized
 from ..shaders import ShaderLibrary
-from ..vk import ComputePipeline, Context, DescriptorSet, reflect
+from ..vk import Buffer, ComputePipeline, Context, DescriptorSet, Timestamps, reflect
 from ..vk.device import has_dedicated_vram, is_cpu, rgb32f_texel_buffers, work_shares
 from ..vk.shared import Device, Scope
 from .checks import check_batch_size, check_mesh, name_bad_ray, name_bad_tmax, ray_arrays
+from .closest import Closest, ClosestQuery
 from .cuda_arrays import CudaRays, on_cuda
 from .stream import Slot, hits_sink, occluded_sink, stream
 
@@ -184,6 +186,8 @@ class Tracer:
         v, f = check_mesh(vertices, faces)
         self.layout = bvh_layout(layout)  # a bad layout (argument or HYBRID_BVH_LAYOUT) fails before the build
         self.bvh = build_bvh(v, f)
+        self.mesh = (v, f)   # float32 vertices, int64 faces: closest() reads them
+        self._closest: ClosestQuery | None = None
         self.stats = dict(self.bvh.stats)
         self._staging = staging
         try:
@@ -261,6 +265,8 @@ class Tracer:
 
     def _record(self, slot, kind, span):
         """A slot's command buffer for a query kind (and copy span), recorded once: the ray count is in `params`."""
+        if kind == "closest":
+            return self._closest.record(slot, span)
         return slot.record(kind, span, self.pipelines, self.bvh_set, self.two_pass[kind], RETRY_GROUPS)
 
     @property
@@ -318,6 +324,25 @@ class Tracer:
                      lambda: _name_bad(o, d, t, origins, directions))
         return hits
 
+    @serialized
+    def closest(self, points: ArrayLike) -> Closest:
+        """Closest-point queries: the nearest point of the mesh to each point (engine/rt/closest.py).
+
+        Args:
+            points: (N, 3) query points (world units), float32 or float64, finite, within +-MAX_COORD.
+
+        Returns:
+            `Closest` (point, distance, prim, u, v per query point).
+
+        Raises:
+            ConfigError: a bad shape, NaN or infinite values (naming the point), a closed Tracer.
+        """
+        self._check_open()
+        if self._closest is None:
+            self._closest = ClosestQuery(self)
+            self.two_pass["closest"] = False   # one dispatch: the point walk keeps its stack in an array
+        return self._closest.run(points)
+
     def _stream(self, kind, o, d, t, sink, bad):
         """Trace rays from `ray_arrays` (float32 (N, 3), (N, 3), and (N,) or one tmax) with the `kind` kernels;
         each chunk is checked as it is packed (`bad()` raises the error naming the first bad ray); `sink(slot,
@@ -332,12 +357,12 @@ class Tracer:
         return self._cuda
 
     @property
-    def retry(self):
+    def retry(self) -> Buffer:
         """The first slot's retry list (bound by the CUDA-array queries, which run one at a time)."""
         return self.slots[0].retry
 
     @property
-    def timestamps(self):
+    def timestamps(self) -> Timestamps:
         """The first slot's timestamp queries (used by the CUDA-array queries)."""
         return self.slots[0].timestamps
 

@@ -179,7 +179,7 @@ def test_metal_reflects_a_highlight_tinted_by_its_base_colour(make_renderer):
 @pytest.mark.parametrize("alpha_mode", ["OPAQUE", "MASK"])
 def test_single_sided_back_faces_are_culled(make_renderer, alpha_mode):
     """glTF doubleSided false: the quad is seen from its front only; doubleSided true: from both sides. The triangle
-    id AOV is background (-1) where nothing is seen; the ray passes keep single-sided triangles as occluders."""
+    id AOV is background (-1) and the albedo 0 where nothing is seen. MASK materials take the same choice."""
     from engine.scene import Camera, DirectionalLight
     r = make_renderer(32, 24)
     light = [DirectionalLight((0, 0, -1), intensity=1.0)]

@@ -10,6 +10,9 @@ with few raster units; the same bytes from compute cost a small fraction of that
 
 Vertices are interleaved (position, normal, uv: 32 bytes); triangles are sorted by material and drawn with one
 draw per material, the draw's first triangle in a push constant (the triangle id is that + gl_PrimitiveID).
+Single-sided materials (glTF doubleSided false) are drawn by a variant of the same pipeline that culls back faces
+(counter-clockwise front faces, as glTF); double-sided ones by one that culls nothing (the resolve turns the normal
+to the viewer). The ray passes see every triangle from both sides (shadows and AO of single-sided geometry too).
 """
 from __future__ import annotations
 
@@ -20,6 +23,7 @@ from ..scene.material import texture_key
 from ..vk import (BufferView, DescriptorSet, GraphicsPipeline, Sampler, device, reflect, upload_buffer,
                   upload_texture_array)
 from ..vk.formats import R32UI, RG32F, RGB32F, RGBA32F, RGBA32UI
+from ..vk.pipelines import CULL_BACK, CULL_NONE
 from ..vk.resources import INDEX, UNIFORM_TEXEL, VERTEX
 from .base import ComputePass, read, update, write
 from .interface import MATERIAL_FLAGS, MATERIAL_TEXELS, MAX_TEXTURE_ARRAYS
@@ -56,6 +60,7 @@ class SceneGeometry:
         self.textures = TextureArrays(ctx, scene_textures(scene.materials))
         mat_data = material_texels(scene.materials, self.textures)
         self.alpha_tested = {i for i, m in enumerate(scene.materials) if m.alpha_mode != "OPAQUE"}
+        self.single_sided = {i for i, m in enumerate(scene.materials) if not m.double_sided}
         self.material_buffer = upload_buffer(ctx, mat_data, UNIFORM_TEXEL, "materials")
         self.alpha_index, records = alpha_records(scene, self.textures)
         self.alpha_buffer = upload_buffer(ctx, records, UNIFORM_TEXEL, "alpha records")
@@ -182,9 +187,11 @@ class _Raster:
         self._check(interface)
         self.interface = interface   # what the pipeline layout was made for; hot reload must keep it
         self.set = DescriptorSet(ctx, interface.set(0).values())
-        self.pipeline = GraphicsPipeline(
+        # `pipeline` draws both sides (double-sided materials), `culled` front faces only (single-sided ones)
+        self.pipeline, self.culled = (GraphicsPipeline(
             ctx, vert, frag, [self.set], color_formats=[VISIBILITY_FORMAT], depth_format=DEPTH_FORMAT,
-            vertex_stride=32, attributes=attributes, push_size=interface.push_size, name=stem)
+            vertex_stride=32, attributes=attributes, push_size=interface.push_size, cull=cull,
+            name=f"{stem} {label}") for cull, label in ((CULL_NONE, "two-sided"), (CULL_BACK, "one-sided")))
 
     def _spirv(self, library):
         return library.get(f"{self.stem}.vert"), library.get(f"{self.stem}.frag")
@@ -205,6 +212,7 @@ class _Raster:
             raise ShaderError(f"{self.stem}.vert/.frag: their layout changed ({was}, {old.push_size} bytes of push "
                               f"constants -> {now}, {interface.push_size} bytes); restart to use them")
         self.pipeline.rebuild(vert, frag)
+        self.culled.rebuild(vert, frag)
 
 
 class GBufferPass:
@@ -255,11 +263,16 @@ class GBufferPass:
         # The visibility image is all zeros here (cleared when made, then by each frame's resolve after reading it),
         # so the raster loads it instead of clearing it (a clear costs GPUs with few raster units).
         # Opaque materials first, keeping early depth tests; then the alpha-tested ones, whose shader discards.
-        opaque = [(first, count, np.uint32(first // 3).tobytes())
-                  for material, first, count in geom.draws if material not in geom.alpha_tested]
-        masked = [(first, count, np.array([first // 3, material], np.uint32).tobytes())
-                  for material, first, count in geom.draws if material in geom.alpha_tested]
+        # Each kind: double-sided materials (no culling), then single-sided ones (back faces culled).
+        def draws(masked: bool, single: bool):
+            return [(first, count, (np.array([first // 3, material], np.uint32) if masked
+                                    else np.uint32(first // 3)).tobytes())
+                    for material, first, count in geom.draws
+                    if (material in geom.alpha_tested) == masked and (material in geom.single_sided) == single]
+
         rec.raster(self.raster.pipeline, [self.raster.set], targets.visibility, targets.depth, geom.vertex_buffer,
-                   geom.index_buffer, opaque, reads=[self.resources["frame"]],
-                   more=[(self.masked.pipeline, [self.masked.set], masked)])
+                   geom.index_buffer, draws(False, False), reads=[self.resources["frame"]],
+                   more=[(self.raster.culled, [self.raster.set], draws(False, True)),
+                         (self.masked.pipeline, [self.masked.set], draws(True, False)),
+                         (self.masked.culled, [self.masked.set], draws(True, True))])
         self.resolve.dispatch(rec, self.resolve.tiles(targets.width, targets.height))

@@ -12,11 +12,13 @@ ray-query library on the same BVH and traversal.
     with engine.Tracer(vertices, faces) as tracer:
         blocked = tracer.occluded(origins, directions, tmax)  # (N,) bool
         hits = tracer.intersect(origins, directions)           # Hits: t, prim, u, v
+        near = tracer.closest(points)                          # Closest: point, distance, prim, u, v
 
 What is where: `Scene` (geometry, materials, lights, camera; loading), `Camera`, the lights (`DirectionalLight`,
 `PointLight`, `SpotLight`, `RectLight`), `Material`; `Renderer` renders a `Frame`; `Tracer` answers ray queries
-with `Hits`; `RayMeshIntersector` is trimesh's ray-query interface (`mesh.ray`) on it, `RaycastingScene` Open3D's;
-`Device` is one Vulkan device that Renderers, Tracers and RaycastingScenes share.
+with `Hits` and closest-point queries with `Closest`; `RayMeshIntersector` is trimesh's ray-query
+interface (`mesh.ray`) on it, `RaycastingScene` Open3D's; `Device` is one Vulkan device that Renderers,
+Tracers and RaycastingScenes share.
 The render options and their defaults: `engine.settings` (`engine.settings.DEFAULT_SETTINGS`). Errors are
 `EngineError` subclasses whose one-line message names the file, field or argument at fault.
 
@@ -38,7 +40,7 @@ from .data import bundled_scenes, scene_path
 from .errors import ConfigError, EngineError, SceneError, ShaderError, VulkanError
 from .renderer import Frame, Renderer
 from .vk.shared import Device
-from .rt import Hits, Tracer
+from .rt import Closest, Hits, Tracer
 from .rt import RayMeshIntersector
 from .rt import RaycastingScene
 from .scene import (Camera, DirectionalLight, Instance, Light, Material, Mesh, PointLight, RectLight, Scene,
@@ -46,8 +48,8 @@ from .scene import (Camera, DirectionalLight, Instance, Light, Material, Mesh, P
 
 __all__ = [
     "Scene", "Camera", "Material", "Light", "DirectionalLight", "PointLight", "SpotLight", "RectLight", "SubMesh",
-    "Renderer", "Frame", "Tracer", "Hits", "EngineError", "SceneError", "ConfigError", "VulkanError", "ShaderError",
-    "scene_path", "bundled_scenes", "__version__",
+    "Renderer", "Frame", "Tracer", "Hits", "Closest", "EngineError", "SceneError", "ConfigError", "VulkanError",
+    "ShaderError", "scene_path", "bundled_scenes", "__version__",
 ]
 __all__ += ["RayMeshIntersector"]
 __all__ += ["RaycastingScene"]

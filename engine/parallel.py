@@ -85,8 +85,11 @@ def run(tasks, threads: int) -> list:
         finally:
             _WORKER.busy = False
 
-    for f in _submit(worker, min(threads, len(tasks))):
-        f.result()
+    futures = _submit(worker, min(threads, len(tasks)))
+    errors = [f.exception() for f in futures]   # all of them ended (none still writes), then the first error
+    for exc in errors:
+        if exc is not None:
+            raise exc
     return results
 
 

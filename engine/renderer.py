@@ -486,7 +486,7 @@ class Renderer:
         geometry uploaded again after a mesh deformed or the material overrides changed, then the ray passes' BVH."""
         todo = self._changes.begin(scene)   # None: nothing to do; else (a mesh deformed, something changed)
         if todo is not None:
-            if todo[0] or self._geometry.overrides_changed(scene):   # (the draws and alpha records follow them)
+            if todo[0] or self._geometry.overrides_changed(scene) or self._geometry.mirrors_changed(scene):
                 self._upload_geometry(scene)
             self._changes.write(scene, self._geometry)
             self._update_bvh(scene, todo[1])

@@ -81,6 +81,9 @@ def test_readme_drop_in_example(tmp_path):
     m = re.search(r"(\d+)% of the pixels see the sphere, (\d+)% within t <= 3.5", res.stdout)
     assert m, res.stdout
     assert 15 <= int(m.group(1)) <= 27 and 0 < int(m.group(2)) < int(m.group(1))   # a unit sphere 4 away, 60 deg
+    m = re.search(r"(\d+)% of the grid inside, sdf < 0 there: True", res.stdout)
+    assert m, res.stdout
+    assert 13 <= int(m.group(1)) <= 18   # a unit sphere in a cube of side 3: 4.19 / 27 of it
 
 
 def test_scenes_doc_example(tmp_path):

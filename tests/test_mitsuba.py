@@ -1,5 +1,6 @@
-"""Fidelity against a renderer nobody here wrote: Mitsuba 3 (`scalar_rgb`, `direct` integrator) renders the same
-small scenes (a point and a directional light; a diffuse sphere, a rough-metal sphere and a rough dielectric plane);
+"""Fidelity against a renderer nobody here wrote: Mitsuba 3 (`scalar_rgb`, `direct` integrator; `volpath` to depth 2
+for alpha masks) renders the same small scenes (a point and a directional light; a diffuse sphere, a rough-metal
+sphere, a rough dielectric plane, a normal-mapped plane, an alpha-masked quad casting its shadow on a floor);
 our linear radiance matches within tools/mitsuba_compare.py's RMSE bound, edges excluded (issue 18.6;
 docs/quality.md)."""
 import sys
@@ -50,3 +51,37 @@ def test_a_wrong_light_unit_would_fail(runs):
     """The bound is tight: radiance off by 5% (e.g. a light unit or a Fresnel term) breaks it."""
     res = runs["gltf"]["diffuse sphere, point light"]
     assert mc.relative_rmse(res["ours"] * 1.05, res["mitsuba"], res["mask"]) > mc.RMSE_BOUND
+
+
+def test_normal_map_convention_is_checked(runs):
+    """The normal-mapped plane's match depends on the map: Mitsuba with the green channel flipped (the other
+    bitangent sign) or with no normal map is far outside the bound, so the bound checks glTF's tangent frame."""
+    name = "normal-mapped plane, point light"
+    res = runs["gltf"][name]
+    spec = mc.SCENES[name]
+    (prim, translate, m), = spec["objects"]
+    flipped = m.normal_texture.copy()
+    flipped[..., 1] = 255 - flipped[..., 1]
+    for texture in (flipped, None):
+        other = mc.Material("bumps", m.base_color, roughness=m.roughness, normal_texture=texture)
+        ref = mc.render_mitsuba(dict(spec, objects=[(prim, translate, other)]))
+        assert mc.relative_rmse(res["ours"], ref, res["mask"]) > 5 * mc.RMSE_BOUND
+
+
+def test_alpha_masked_quad_shadow_has_its_holes(runs):
+    """The cut-out quad's shadow on the floor is not a solid square: floor pixels lit through the holes inside the
+    shadow's outline, in both renderers, and those pixels agree."""
+    res = runs["gltf"]["alpha-masked quad and its shadow, directional light"]
+    ours, ref, mask = res["ours"].mean(axis=2), res["mitsuba"].mean(axis=2), res["mask"]
+    floor = res["per_object"]["floor"]
+    assert floor <= mc.RMSE_BOUND
+    on_floor = mask & (res["material_id"] == 1)
+    dark, lit = (ref < 0.05) & on_floor, (ref > 0.3) & on_floor
+    assert dark.sum() > 200 and np.mean(dark == ((ours < 0.05) & on_floor)) >= 0.995   # the same shadowed pixels
+    # a lit pixel surrounded on its row by shadow on both sides: light came through a hole
+    rows = [y for y in range(ref.shape[0]) if np.any(dark[y])]
+    through = 0
+    for y in rows:
+        xs = np.flatnonzero(dark[y])
+        through += int(np.sum(lit[y, xs.min():xs.max()]))
+    assert through > 20, through

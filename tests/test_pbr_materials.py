@@ -173,3 +173,88 @@ def test_metal_reflects_a_highlight_tinted_by_its_base_colour(make_renderer):
     s = sharp.aov["radiance"].sum(axis=2)
     assert np.all(np.isfinite(s)) and s.max() > 0
     assert np.count_nonzero(s > 0.5 * s.max()) < np.count_nonzero(m.sum(axis=2) > 0.5 * m.sum(axis=2).max())
+
+
+# ------------------------------------------------------------------------------------------------ double-sided
+@pytest.mark.parametrize("alpha_mode", ["OPAQUE", "MASK"])
+def test_single_sided_back_faces_are_culled(make_renderer, alpha_mode):
+    """glTF doubleSided false: the quad is seen from its front only; doubleSided true: from both sides. The triangle
+    id AOV is background (-1) and the albedo 0 where nothing is seen. MASK materials take the same choice."""
+    from engine.scene import Camera, DirectionalLight
+    r = make_renderer(32, 24)
+    light = [DirectionalLight((0, 0, -1), intensity=1.0)]
+    for double_sided in (False, True):
+        m = Material("q", (0.8, 0.8, 0.8), alpha_mode=alpha_mode, double_sided=double_sided)
+        front = r.render(quad_scene(m, light), aovs=("triangle_id", "albedo"), ao=False, shadows="off")
+        assert np.all(front.aov["triangle_id"] >= 0), double_sided
+        np.testing.assert_allclose(front.aov["albedo"], 0.8, atol=1e-2)
+        behind = quad_scene(m, light)
+        behind.camera = Camera.look_at((0, 0, -3), (0, 0, 0), (0, 1, 0), 40.0)
+        back = r.render(behind, aovs=("triangle_id", "albedo"), ao=False, shadows="off")
+        if double_sided:
+            assert np.all(back.aov["triangle_id"] >= 0)
+        else:
+            assert np.all(back.aov["triangle_id"] == -1), np.mean(back.aov["triangle_id"] >= 0)
+            assert np.all(back.aov["albedo"] == 0)
+
+
+def test_single_sided_quad_still_casts_a_shadow_seen_from_below(make_renderer):
+    """A single-sided roof facing away from the sun (the light meets its back) still shadows the floor: the ray
+    passes treat every triangle as two-sided."""
+    from engine.scene import Camera, DirectionalLight
+    r = make_renderer(32, 24)
+    # floor at y = 0 facing up; roof at y = 1 facing down (its back to the sun above), both single-sided
+    v = np.array([[-4, 0, -4], [-4, 0, 4], [4, 0, 4], [4, 0, -4],
+                  [-1, 1, -1], [1, 1, -1], [1, 1, 1], [-1, 1, 1]], float)
+    faces = [[0, 1, 2], [0, 2, 3], [4, 5, 6], [4, 6, 7]]
+    normals = np.array([[0, 1, 0]] * 4 + [[0, -1, 0]] * 4, float)
+    mats = [Material("floor", (0.8, 0.8, 0.8), double_sided=False), Material("roof", (0.8, 0.8, 0.8),
+                                                                               double_sided=False)]
+    scene = Scene(v, faces, normals=normals, vertex_material=np.array([0] * 4 + [1] * 4), materials=mats,
+                  lights=[DirectionalLight((0, -1, 0), intensity=1.0)],
+                  camera=Camera.look_at((0, 6, 0.01), (0, 0, 0), (0, 1, 0), 60.0))
+    f = r.render(scene, aovs=("triangle_id", "shadow"), ao=False, shadows="hard")
+    tri = f.aov["triangle_id"]
+    assert not np.any(tri >= 2) and np.all(tri[4:20, 6:26] >= 0)   # the roof's back is culled; the floor is seen
+    shadow = f.aov["shadow"][..., 0]
+    centre, outside = shadow[10:14, 14:18], shadow[4:20, 6:9]
+    assert centre.max() < 0.05 and outside.min() > 0.95, (centre.max(), outside.min())
+
+
+def test_gltf_double_sided_flag_reaches_the_raster(tmp_path, make_renderer):
+    """A GLB quad written by trimesh with doubleSided false is culled from behind; with true it is not."""
+    from engine.scene import Camera
+    r = make_renderer(32, 24)
+    for double_sided in (False, True):
+        quad = trimesh.Trimesh([[-2, -2, 0], [2, -2, 0], [2, 2, 0], [-2, 2, 0]], [[0, 1, 2], [0, 2, 3]],
+                               process=False)
+        quad.visual = trimesh.visual.TextureVisuals(material=PBRMaterial(
+            name="q", baseColorFactor=[200, 200, 200, 255], doubleSided=double_sided))
+        path = tmp_path / f"q{double_sided}.glb"
+        quad.export(path)
+        scene = Scene.load(path)
+        assert scene.materials[0].double_sided is double_sided
+        scene.camera = Camera.look_at((0, 0, -3), (0, 0, 0), (0, 1, 0), 40.0)
+        seen = r.render(scene, aovs=("triangle_id",), ao=False, shadows="off").aov["triangle_id"] >= 0
+        assert seen.all() if double_sided else not seen.any(), (double_sided, seen.mean())
+
+
+def test_single_sided_culling_follows_mirrored_instances(make_renderer):
+    """A mirroring transform turns the winding over: a single-sided quad mirrored in x still faces +z, so it is seen
+    from +z and culled from -z, before and after the instance's determinant changes sign between frames."""
+    from engine.scene import Camera, DirectionalLight, Instance, Mesh
+    r = make_renderer(32, 24)
+    v = np.array([[-2, -2, 0], [2, -2, 0], [2, 2, 0], [-2, 2, 0]], float)
+    quad = Mesh(v, [[0, 1, 2], [0, 2, 3]], normals=np.tile([0.0, 0.0, 1.0], (4, 1)))
+    m = Material("q", (0.8, 0.8, 0.8), double_sided=False)
+    scene = Scene.from_meshes([quad], [Instance(0, np.diag([-1.0, 1.0, 1.0, 1.0]))], materials=[m],
+                              lights=[DirectionalLight((0, 0, -1), intensity=1.0)])
+    front = Camera.look_at((0, 0, 3), (0, 0, 0), (0, 1, 0), 40.0)
+    back = Camera.look_at((0, 0, -3), (0, 0, 0), (0, 1, 0), 40.0)
+
+    def seen(camera):
+        return r.render(scene, camera, aovs=("triangle_id",), ao=False, shadows="off").aov["triangle_id"] >= 0
+    for transform in (np.diag([-1.0, 1.0, 1.0, 1.0]), np.eye(4), np.diag([1.0, -1.0, 1.0, 1.0])):
+        scene.instances[0].transform = transform
+        assert seen(front).all(), transform.diagonal()
+        assert not seen(back).any(), transform.diagonal()

@@ -144,3 +144,85 @@ def test_row_blocks_on_the_worker_pool_give_the_same_answers(pair, monkeypatch):
     got = small.intersect(o, d, tmax)
     for name in ("t", "prim", "u", "v"):
         assert np.array_equal(getattr(got, name), getattr(want, name)), name
+
+
+def test_the_packing_check_agrees_with_rays_fine():
+    """block_fine (flat integer passes over the packed block) decides every block as rays_fine does: values at the
+    edges of MAX_COORD, zero and subnormal components (fine in a direction that has a normal one), infinities, NaN."""
+    from engine.limits import MAX_COORD
+    from engine.rt.checks import block_fine, rays_fine
+    edge = np.float32(MAX_COORD)
+    specials = np.array([0.0, -0.0, 1e-40, -1e-40, np.finfo(np.float32).tiny, 1.0, -3.5, np.inf, -np.inf, np.nan,
+                         edge, -edge, np.nextafter(edge, np.float32(np.inf)), np.finfo(np.float32).max],
+                        np.float32)
+    rng = np.random.default_rng(3)
+    scratch = np.empty(3 * 8, np.uint32)
+    for _ in range(3000):
+        n = int(rng.integers(1, 9))
+        o = rng.uniform(-5, 5, (n, 3)).astype(np.float32)
+        d = rng.uniform(-1, 1, (n, 3)).astype(np.float32)
+        for a in (o, d):
+            k = int(rng.integers(0, 4))
+            a.reshape(-1)[rng.integers(0, a.size, k)] = rng.choice(specials, k)
+        t = rng.uniform(0, 5, n).astype(np.float32)
+        assert block_fine(o, d, t, scratch) == rays_fine(o, d), (o, d)
+        assert block_fine(o, d, None, scratch) == rays_fine(o, d), (o, d)
+        if rays_fine(o, d):
+            t[int(rng.integers(0, n))] = np.nan
+            assert not block_fine(o, d, t, scratch)
+
+
+def test_a_nan_tmax_in_a_later_chunk_is_named_first(pair):
+    """tmax is checked for NaN as each chunk is packed; the error is check_rays': a NaN tmax before a bad origin or
+    direction, wherever the two lie."""
+    from engine import ConfigError
+    small, _ = pair
+    _, _, o, d, tmax = scene_and_rays(4 * CHUNK)
+    want = small.occluded(o, d, tmax)
+    bad_t = tmax.copy()
+    bad_t[3 * CHUNK + 1] = np.nan
+    with pytest.raises(ConfigError, match=f"tmax: ray {3 * CHUNK + 1} has tmax NaN"):
+        small.occluded(o, d, bad_t)
+    bad_d = d.copy()
+    bad_d[5] = 0.0
+    with pytest.raises(ConfigError, match=f"tmax: ray {3 * CHUNK + 1} has tmax NaN"):
+        small.intersect(o, bad_d, bad_t)
+    assert np.array_equal(small.occluded(o, d, tmax), want)
+
+
+def test_directions_with_zero_components_are_traced(pair):
+    """Axis-aligned directions (zero and subnormal components beside a normal one) pass the packing check."""
+    small, whole = pair
+    v, f, o, d, tmax = scene_and_rays(2 * CHUNK + 9)
+    d[::3, 0] = 0.0
+    d[::2, 1] = -0.0
+    d[1::4, 2] = 1e-40
+    d[7] = (0.0, 0.0, -1.0)
+    occ = small.occluded(o, d, tmax)
+    assert np.array_equal(occ, whole.occluded(o, d, tmax))
+    assert (occ != reference_occluded(v, f, o, d, tmax)).sum() <= 2   # rays grazing an edge may go either way
+    hits, one = small.intersect(o, d, tmax), whole.intersect(o, d, tmax)
+    assert np.array_equal(hits.prim, one.prim) and np.array_equal(hits.t, one.t)
+
+
+def test_a_failing_task_on_the_worker_pool_waits_for_the_others():
+    """engine.parallel.run raises a task's error only once every other task has ended (none still writes into the
+    slots the next query packs)."""
+    import threading
+    import time as time_mod
+
+    from engine.parallel import run
+    done = []
+    started = threading.Event()
+
+    def fail():
+        started.wait(5)
+        raise ValueError("task failed")
+
+    def slow():
+        started.set()
+        time_mod.sleep(0.05)
+        done.append(1)
+    with pytest.raises(ValueError, match="task failed"):
+        run([fail, slow, slow, slow], 4)
+    assert len(done) == 3

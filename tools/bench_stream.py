@@ -61,7 +61,8 @@ def main() -> int:
     ap.add_argument("--reps", type=int, default=20)
     ap.add_argument("--warmup", type=int, default=3)
     ap.add_argument("--chunks", type=int, nargs="*", default=None,
-                    help="stream chunk sizes to compare (default: the Tracer's, STREAM_CHUNK)")
+                    help="stream chunk sizes to compare (default: the Tracer's for the device, STREAM_CHUNK or "
+                         "STREAM_CHUNK_STAGED)")
     ap.add_argument("--json", default=None)
     a = ap.parse_args()
     w, h = (int(x) for x in a.size.lower().split("x"))
@@ -86,19 +87,21 @@ def main() -> int:
         first.close()
         second.close()
         copy = CopyPeer(dev.context, len(o))
-        default_chunk = tracer_mod.STREAM_CHUNK
-        for chunk in a.chunks or [default_chunk]:
-            tracer_mod.STREAM_CHUNK = chunk
+        default_chunk = tracer_mod.STREAM_CHUNK, tracer_mod.STREAM_CHUNK_STAGED
+        for chunk in a.chunks or [None]:
+            if chunk is not None:   # (both: the Tracer takes the one for its device)
+                tracer_mod.STREAM_CHUNK = tracer_mod.STREAM_CHUNK_STAGED = chunk
             try:
-                with engine.Tracer(v, f, device=dev, batch_size=max(chunk, 1 << 20)) as tr:
-                    assert tr.chunk == chunk or chunk > tr.batch
+                with engine.Tracer(v, f, device=dev, batch_size=max(chunk or 0, 1 << 20)) as tr:
+                    assert chunk is None or tr.chunk == chunk or chunk > tr.batch
+                    chunk = tr.chunk
                     want = tr.occluded(o[:4096], d[:4096], t[:4096])
                     full = measure(tr, copy, o, d, t, a.reps, a.warmup)
                     m = min(len(o), 1_000_000)
                     one_m = measure(tr, copy, o[:m], d[:m], t[:m], max(3, a.reps // 2), 1)
                     assert np.array_equal(tr.occluded(o[:4096], d[:4096], t[:4096]), want)
             finally:
-                tracer_mod.STREAM_CHUNK = default_chunk
+                tracer_mod.STREAM_CHUNK, tracer_mod.STREAM_CHUNK_STAGED = default_chunk
             out["runs"].append({"chunk": chunk, "full": full, "one_million": one_m})
         copy.close()
         out["validation_errors"] = dev.validation_errors[:5]

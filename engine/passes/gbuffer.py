@@ -13,10 +13,15 @@ index buffer, each mesh's triangles sorted by material; a mesh's instances are d
 with their count and first slot), one draw per material range of the mesh (or one for the whole mesh where the
 instances override its material), the range's first triangle within the mesh in a push constant. Alpha-tested
 materials are drawn after the opaque ones by their own pipeline (gbuffer_mask.vert / .frag, which discards). The
-instances are a storage buffer in draw order (grouped by mesh and material override): transforms (this frame's and
-the previous one's, with their normal matrices), rewritten in place per frame, and each instance's first visibility
-id (the triangles of the instances before it), so the visibility id is that + the draw's first triangle +
+instances are a storage buffer in draw order (grouped by mesh, material override and mirroring): transforms (this
+frame's and the previous one's, with their normal matrices), rewritten in place per frame, and each instance's first
+visibility id (the triangles of the instances before it), so the visibility id is that + the draw's first triangle +
 gl_PrimitiveID + 1 and the resolve finds the instance by a binary search.
+Single-sided materials (glTF doubleSided false) are drawn by variants of the same pipelines that cull back faces
+(counter-clockwise front faces, as glTF), or front faces for mirrored instances (a negative determinant turns the
+winding over; an instance that changes sign makes the geometry again, as a new material override does); double-sided
+ones by variants that cull nothing (the resolve turns the normal to the viewer). The ray passes see every triangle
+from both sides (shadows and AO of single-sided geometry too).
 """
 from __future__ import annotations
 
@@ -27,6 +32,7 @@ from ..scene.material import texture_key
 from ..vk import (Buffer, BufferView, DescriptorSet, GraphicsPipeline, Sampler, device, reflect, upload_buffer,
                   upload_texture_array)
 from ..vk.formats import R32UI, RG32F, RGB32F, RGBA32F, RGBA32UI
+from ..vk.pipelines import CULL_BACK, CULL_FRONT, CULL_NONE
 from ..vk.resources import INDEX, STORAGE, UNIFORM_TEXEL, VERTEX
 from .base import ComputePass, read, update, write
 from .interface import MATERIAL_FLAGS, MATERIAL_TEXELS, MAX_TEXTURE_ARRAYS
@@ -36,6 +42,12 @@ from .textures import TextureArrays
 
 INSTANCE_FLOATS = 64   # std430 `Instance` (shaders/glsl/include/instances.glsl): 256 bytes
 NO_MATERIAL = 0xFFFFFFFF
+
+
+def mirrored(transforms: np.ndarray) -> np.ndarray:
+    """(N,) bool: which of the (N, 4, 4) transforms turn the winding over (a negative 3x3 determinant)."""
+    m = np.asarray(transforms, np.float64)[:, :3, :3]
+    return np.einsum("ij,ij->i", m[:, 0], np.cross(m[:, 1], m[:, 2])) < 0
 
 
 def instance_materials(scene) -> np.ndarray:
@@ -101,6 +113,8 @@ class SceneGeometry:
         self.tri_info_buffer = upload_buffer(ctx, np.concatenate(info + [np.zeros((1, 4), np.uint32)]),
                                              UNIFORM_TEXEL, "triangle info")
         self.alpha_tested = {i for i, m in enumerate(scene.materials) if m.alpha_mode != "OPAQUE"}
+        self.single_sided = {i for i, m in enumerate(scene.materials) if not m.double_sided}
+        self._mirrored = mirrored(scene.transforms) if self.single_sided else None
         self._instances(meshes, mesh_of, overrides)
 
         self.textures = TextureArrays(ctx, scene_textures(scene.materials))
@@ -119,7 +133,8 @@ class SceneGeometry:
         constant fields."""
         n = len(mesh_of)
         self.instance_count = n
-        self.order = np.lexsort((overrides, mesh_of))   # draw slot -> instance (stable)
+        flip = self._mirrored.astype(np.int64) if self._mirrored is not None else np.zeros(n, np.int64)
+        self.order = np.lexsort((flip, overrides, mesh_of))   # draw slot -> instance (stable)
         tris = self.mesh_triangles[mesh_of[self.order]]
         total = int(tris.sum())
         if total >= 2 ** 32 - 1:
@@ -131,22 +146,25 @@ class SceneGeometry:
         subs = np.array([len(m.submeshes) for m in meshes], np.int64)
         flat_obj = np.concatenate([[0], np.cumsum(subs[mesh_of])[:-1]])
         # per run of instances of one mesh and override, its draws: (first index, index count, instance count,
-        # first instance, push constants: first triangle within the mesh (and the material, for the alpha test))
-        self.opaque_draws, self.masked_draws = [], []
-        keys = np.stack([mesh_of[self.order], overrides[self.order]], axis=1) if n else np.zeros((0, 2), np.int64)
+        # first instance, push constants: first triangle within the mesh (and the material, for the alpha test)),
+        # by pipeline (masked or not) and culling (CULL_NONE, CULL_BACK, CULL_FRONT)
+        self.draws = {(masked, cull): [] for masked in (False, True) for cull in (CULL_NONE, CULL_BACK, CULL_FRONT)}
+        keys = np.stack([mesh_of[self.order], overrides[self.order], flip[self.order]], axis=1) if n else \
+            np.zeros((0, 3), np.int64)
         runs = np.flatnonzero(np.r_[True, np.any(keys[1:] != keys[:-1], axis=1)]) if n else np.zeros(0, np.int64)
         for f, e in zip(runs, np.r_[runs[1:], n]):
-            k, over = int(keys[f, 0]), int(keys[f, 1])
+            k, over, mirror = int(keys[f, 0]), int(keys[f, 1]), bool(keys[f, 2])
             base = int(self.mesh_first_triangle[k])
             ranges = self.mesh_ranges[k] if over < 0 else [(over, 0, int(self.mesh_triangles[k]))]
             for material, start, count in ranges:
                 if count == 0:
                     continue
                 draw = (3 * (base + start), 3 * count, int(e - f), int(f))
+                cull = CULL_NONE if material not in self.single_sided else CULL_FRONT if mirror else CULL_BACK
                 if material in self.alpha_tested:
-                    self.masked_draws.append(draw + (np.array([start, material], np.uint32).tobytes(),))
+                    self.draws[True, cull].append(draw + (np.array([start, material], np.uint32).tobytes(),))
                 else:
-                    self.opaque_draws.append(draw + (np.uint32(start).tobytes(),))
+                    self.draws[False, cull].append(draw + (np.uint32(start).tobytes(),))
         self.instance_buffer = Buffer(self.ctx, max(n, 1) * INSTANCE_FLOATS * 4, STORAGE, host=True,
                                       name="instances")
         block = self.instance_buffer.view(np.float32)[:n * INSTANCE_FLOATS].reshape(n, INSTANCE_FLOATS)
@@ -167,6 +185,11 @@ class SceneGeometry:
         """Do the instances' material overrides differ from those this geometry was made for? (The draws, their
         pipelines and the ray passes' alpha records follow the overrides: the geometry is made again.)"""
         return not np.array_equal(instance_materials(scene), self._overrides)
+
+    def mirrors_changed(self, scene) -> bool:
+        """Has an instance's determinant changed sign since this geometry was made (only where some material is
+        single-sided: its draws cull the other face for mirrored instances)?"""
+        return self._mirrored is not None and not np.array_equal(mirrored(scene.transforms), self._mirrored)
 
     def write_transforms(self, transforms: np.ndarray, previous: np.ndarray) -> bool:
         """Write this frame's and the previous frame's (N, 4, 4) object-to-world transforms (scene order) into the
@@ -328,9 +351,14 @@ class _Raster:
         self._check(interface)
         self.interface = interface   # what the pipeline layout was made for; hot reload must keep it
         self.set = DescriptorSet(ctx, interface.set(0).values())
-        self.pipeline = GraphicsPipeline(
+        # by culling: both sides (double-sided materials), front faces only (single-sided ones), back faces only
+        # (single-sided ones of mirrored instances)
+        self.pipelines = {cull: GraphicsPipeline(
             ctx, vert, frag, [self.set], color_formats=[VISIBILITY_FORMAT], depth_format=DEPTH_FORMAT,
-            vertex_stride=32, attributes=attributes, push_size=interface.push_size, name=stem)
+            vertex_stride=32, attributes=attributes, push_size=interface.push_size, cull=cull,
+            name=f"{stem} {label}") for cull, label in ((CULL_NONE, "two-sided"), (CULL_BACK, "one-sided"),
+                                                        (CULL_FRONT, "one-sided mirrored"))}
+        self.pipeline = self.pipelines[CULL_NONE]
 
     def _spirv(self, library):
         return library.get(f"{self.stem}.vert"), library.get(f"{self.stem}.frag")
@@ -350,7 +378,8 @@ class _Raster:
             now = ", ".join(f"{b.name} {b.kind} set {b.set} binding {b.binding}" for b in interface.bindings)
             raise ShaderError(f"{self.stem}.vert/.frag: their layout changed ({was}, {old.push_size} bytes of push "
                               f"constants -> {now}, {interface.push_size} bytes); restart to use them")
-        self.pipeline.rebuild(vert, frag)
+        for pipeline in self.pipelines.values():
+            pipeline.rebuild(vert, frag)
 
 
 class GBufferPass:
@@ -404,8 +433,11 @@ class GBufferPass:
         # The visibility image is all zeros here (cleared when made, then by each frame's resolve after reading it),
         # so the raster loads it instead of clearing it (a clear costs GPUs with few raster units).
         # Opaque materials first, keeping early depth tests; then the alpha-tested ones, whose shader discards.
-        rec.raster(self.raster.pipeline, [self.raster.set], targets.visibility, targets.depth, geom.vertex_buffer,
-                   geom.index_buffer, geom.opaque_draws, reads=[self.resources["frame"]],
-                   more=[(self.masked.pipeline, [self.masked.set], geom.masked_draws)])
+        # Opaque then masked; each: double-sided materials (no culling), single-sided ones (back faces culled;
+        # front faces for mirrored instances).
+        passes = [(r, cull) for r in (self.raster, self.masked) for cull in (CULL_NONE, CULL_BACK, CULL_FRONT)]
+        lists = [(r.pipelines[cull], [r.set], geom.draws[r is self.masked, cull]) for r, cull in passes]
+        rec.raster(lists[0][0], lists[0][1], targets.visibility, targets.depth, geom.vertex_buffer,
+                   geom.index_buffer, lists[0][2], reads=[self.resources["frame"]], more=lists[1:])
         self.resolve.dispatch(rec, self.resolve.tiles(targets.width, targets.height),
                               push=np.array([geom.instance_count], np.uint32))

@@ -86,10 +86,11 @@ def _first(bad: np.ndarray) -> int:
     return int(np.flatnonzero(bad)[0])
 
 
-def ray_arrays(origins, directions, tmax):
+def ray_arrays(origins, directions, tmax, tmax_nan: bool = True):
     """`check_rays` but for its per-ray pass: float32 origins and directions (N, 3) (views where they already are),
     and tmax as a float32 scalar or (N,) array, not NaN. The caller runs `rays_fine` over blocks of the rays (the
-    Tracer does so while it packs them) and `name_bad_ray` where a block fails."""
+    Tracer does so while it packs them) and `name_bad_ray` where a block fails. With tmax_nan=False an (N,) tmax is
+    not checked for NaN here (the caller does so per block: `block_fine`, then `name_bad_tmax`)."""
     o = _ray_array(origins, "origins")
     d = _ray_array(directions, "directions")
     if o.ndim != 2 or o.shape[1] != 3:
@@ -103,9 +104,15 @@ def ray_arrays(origins, directions, tmax):
         t = np.float32(t)
     elif t.shape != (len(o),):
         raise ConfigError(f"tmax must be a number or have shape ({len(o)},), got {t.shape}")
-    elif t.size and np.isnan(t.min()):  # min propagates NaN
-        raise ConfigError(f"tmax: ray {_first(np.isnan(t))} has tmax NaN")
+    elif tmax_nan:
+        name_bad_tmax(t)
     return o, d, t
+
+
+def name_bad_tmax(t: np.ndarray):
+    """The ConfigError for the first NaN of an (N,) tmax, if it has one."""
+    if t.size and np.isnan(t.min()):  # min propagates NaN
+        raise ConfigError(f"tmax: ray {_first(np.isnan(t))} has tmax NaN")
 
 
 def check_rays(origins, directions, tmax):
@@ -138,6 +145,30 @@ def rays_fine(o: np.ndarray, d: np.ndarray) -> bool:
     np.bitwise_or(e, u[:, 2], out=e)
     np.bitwise_and(e, np.uint32(_F32_EXPONENT), out=e)
     return bool(e.min() != 0)
+
+
+# float32 bits shifted left by one (the sign bit dropped): the largest magnitude within +-MAX_COORD, and the
+# smallest normal one (2 * 0x00800000) and infinity (2 * 0x7F800000)
+_COORD_BITS2 = 2 * int(np.float32(MAX_COORD).view(np.uint32) - (float(np.float32(MAX_COORD)) > MAX_COORD))
+_NORMAL_BITS2, _INF_BITS2 = 0x01000000, 0xFF000000
+
+
+def block_fine(o: np.ndarray, d: np.ndarray, t: np.ndarray | None, scratch: np.ndarray) -> bool:
+    """rays_fine(o, d), and no NaN in tmax block t (None: nothing to check), for C-contiguous float32 blocks, in a
+    few flat integer passes over `scratch` (uint32, at least o.size): the magnitude bits of every origin component
+    within +-MAX_COORD, of every direction component finite and normal. A block with a zero or subnormal component
+    (which a fine direction may have) is then decided by rays_fine."""
+    s = scratch[:o.size]
+    u = o.reshape(-1).view(np.uint32)
+    np.add(u, u, out=s)   # (the sign bit drops out)
+    if s.max() > _COORD_BITS2:
+        return False   # (NaN and infinity have larger bits)
+    u = d.reshape(-1).view(np.uint32)
+    np.add(u, u, out=s)
+    np.subtract(s, np.uint32(_NORMAL_BITS2), out=s)   # zero and subnormal wrap round to the top
+    if s.max() >= _INF_BITS2 - _NORMAL_BITS2 and not rays_fine(o, d):
+        return False
+    return t is None or not np.isnan(t.min())
 
 
 def name_bad_ray(o, d, origins, directions):

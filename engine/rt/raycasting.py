@@ -5,6 +5,8 @@
     rays = engine.RaycastingScene.create_rays_pinhole(fov_deg=60, center=[0, 0, 0], eye=[2, 3, 4], up=[0, 1, 0],
                                                       width_px=640, height_px=480)
     ans = scene.cast_rays(rays)                               # t_hit, geometry_ids, primitive_ids, uvs, normals
+    near = scene.compute_closest_points(points)               # points, geometry_ids, primitive_ids, uvs, normals
+    sdf = scene.compute_signed_distance(points)               # negative inside (ray parity)
 
 Method names, arguments, result keys, shapes, dtypes and the invalid id (`INVALID_ID` = 2^32 - 1) are Open3D's;
 results are numpy arrays where Open3D returns `open3d.core.Tensor`s (`.numpy()` of those is what these are). All
@@ -15,7 +17,7 @@ from __future__ import annotations
 
 import threading
 from dataclasses import dataclass, field
-from numbers import Real
+from numbers import Integral, Real
 from typing import Any
 
 import numpy as np
@@ -25,6 +27,7 @@ from ..errors import ConfigError, SceneError
 from ..vk import Context
 from ..vk.shared import Device
 from .checks import check_mesh, check_vectors
+from .closest import check_points
 from .cuda_arrays import on_cuda, scene_hits, scene_rays
 from .pinhole import _numpy, pinhole_rays
 from .tracer import Tracer
@@ -80,6 +83,35 @@ def _flat_rays(rays) -> tuple[NDArray[np.float64], tuple]:
     return flat, a.shape[:-1]
 
 
+def _flat_points(points) -> tuple[NDArray[np.float64], tuple]:
+    """(N, 3) float64 finite points and the leading shape of `points` (Open3D's {.., 3}, at least 2 dimensions)."""
+    a = np.asarray(_numpy(points)) if not isinstance(points, np.ndarray) else points
+    if a.ndim < 2 or a.shape[-1] != 3:
+        raise ConfigError(f"query_points must have shape (..., 3) with at least 2 dimensions (x, y, z per point), "
+                          f"got {a.shape}")
+    return check_points(a.reshape(-1, 3), "query_points"), a.shape[:-1]
+
+
+def _nsamples(nsamples) -> int:
+    if isinstance(nsamples, (bool, np.bool_)) or not isinstance(nsamples, Integral) or nsamples < 1 \
+            or nsamples % 2 != 1:
+        raise ConfigError(f"nsamples must be an odd whole number >= 1 (rays per point, a majority vote), "
+                          f"got {nsamples!r}")
+    return int(nsamples)
+
+
+def vote_directions(nsamples: int) -> NDArray[np.float32]:
+    """The (nsamples, 3) ray directions of the inside test, Open3D's: each component 1 + a uniform float32 in
+    [-0.001, 0.001) from a Mersenne Twister (MT19937) seeded with 42, drawn x, y, z per direction as Open3D draws
+    them (std::mt19937 and std::uniform_real_distribution<float>, libstdc++), so the same points fall inside."""
+    raw = np.random.RandomState(42).randint(0, 2**32, size=3 * nsamples, dtype=np.uint32)
+    canonical = raw.astype(np.float32) / np.float32(2.0**32)   # generate_canonical<float, 24>: one draw
+    canonical = np.minimum(canonical, np.nextafter(np.float32(1), np.float32(0)))
+    low = np.float32(-0.001)
+    sample = (np.float32(0.001) - low) * canonical + low
+    return (np.float32(1) + sample).reshape(nsamples, 3)
+
+
 def _limit(value, name: str, allow_inf: bool) -> float:
     if isinstance(value, (bool, np.bool_)) or not isinstance(value, Real) or np.isnan(value) \
             or (np.isinf(value) and not (allow_inf and value > 0)):
@@ -97,6 +129,9 @@ class RaycastingScene:
     runs every ray); `count_intersections` / `list_intersections` find each ray's hits by casting it again from
     just past each one (1e-6 of the scene's size), so hits closer together along a ray than that count once where
     Open3D counts every triangle, e.g. a ray through an edge shared by two triangles: once here, twice there.
+    Point queries (`compute_closest_points`, `compute_distance`, `compute_signed_distance`, `compute_occupancy`)
+    walk the BVH on the GPU for the nearest triangle; a zero-area triangle's normal is 0 (Open3D: NaN), a scene
+    without triangles gives INVALID_ID and an infinite distance (Open3D: the distance to the origin).
     """
 
     INVALID_ID: int = INVALID_ID
@@ -357,6 +392,104 @@ class RaycastingScene:
             return {"ray_splits": splits, "ray_ids": ray.astype(np.uint32), "t_hit": t.astype(np.float32),
                     "geometry_ids": geometry, "primitive_ids": primitive,
                     "primitive_uvs": np.stack([u, v], axis=-1).astype(np.float32)}
+
+    # ---- point queries ------------------------------------------------------------------------------------
+    def _closest(self, flat):
+        """The scene's built state and the GPU closest-point answer (None without triangles) for (N, 3) points."""
+        s = self._scene()
+        if s.tracer is None or not len(flat):
+            return s, None
+        return s, s.tracer.closest(flat - s.center)
+
+    def compute_closest_points(self, query_points: ArrayLike, nthreads: int = 0) -> dict[str, NDArray]:
+        """The nearest point of the scene's triangles to each query point (a GPU BVH walk, engine/rt/closest.py).
+
+        Args:
+            query_points: (..., 3) points (at least 2 dimensions, e.g. (N, 3) or (D, H, W, 3)), float32 or float64.
+            nthreads: accepted and ignored (Open3D's thread count).
+
+        Returns:
+            A dict of numpy arrays, shaped by the points' leading shape (...): `points` (..., 3) float32, the
+            nearest point; `geometry_ids`, `primitive_ids` (...) uint32, its geometry and triangle; `primitive_uvs`
+            (..., 2) float32, the barycentric weights of the triangle's vertices 1 and 2 there; `primitive_normals`
+            (..., 3) float32, the triangle's unit normal (v1 - v0) x (v2 - v0) (0 for a zero-area triangle; Open3D:
+            NaN). Of equally near triangles (an edge, a vertex) either may be reported. A scene without triangles
+            gives INVALID_ID and zeros (Open3D's zeros too).
+
+        Raises:
+            ConfigError: a bad shape, NaN or infinite values (naming the point), a closed scene.
+        """
+        with self._lock:
+            flat, shape = _flat_points(query_points)
+            s, near = self._closest(flat)
+            n = len(flat)
+            out = {"points": np.zeros((n, 3), np.float32), "geometry_ids": np.full(n, INVALID_ID, np.uint32),
+                   "primitive_ids": np.full(n, INVALID_ID, np.uint32), "primitive_uvs": np.zeros((n, 2), np.float32),
+                   "primitive_normals": np.zeros((n, 3), np.float32)}
+            if near is not None:
+                out["points"][:] = near.point + s.center
+                out["geometry_ids"][:] = s.geometry[near.prim]
+                out["primitive_ids"][:] = s.primitive[near.prim]
+                out["primitive_uvs"][:, 0], out["primitive_uvs"][:, 1] = near.u, near.v
+                out["primitive_normals"][:] = s.normal[near.prim]
+            return {k: a.reshape(shape + a.shape[1:]) for k, a in out.items()}
+
+    def _distance(self, flat) -> NDArray[np.float32]:
+        near = self._closest(flat)[1]
+        return near.distance if near is not None else np.full(len(flat), np.inf, np.float32)
+
+    def compute_distance(self, query_points: ArrayLike, nthreads: int = 0) -> NDArray[np.float32]:
+        """(...) float32: the distance from each query point to the nearest triangle (+inf in a scene without
+        triangles; Open3D: the distance to the origin). The arguments are `compute_closest_points`'."""
+        with self._lock:
+            flat, shape = _flat_points(query_points)
+            return self._distance(flat).reshape(shape)
+
+    def _inside(self, flat, nsamples: int) -> NDArray[np.bool_]:
+        """Open3D's inside test: a ray from each point along each of `vote_directions(nsamples)`; a point is inside
+        where most of its rays cross the triangles an odd number of times (`count_intersections`' counting)."""
+        if not len(flat):
+            return np.zeros(0, bool)
+        dirs = vote_directions(nsamples)
+        rays = np.concatenate([np.repeat(flat, nsamples, axis=0), np.tile(dirs, (len(flat), 1))], axis=1)
+        counts = np.bincount(self._all_hits(rays)[0], minlength=len(rays)).reshape(len(flat), nsamples)
+        return (counts % 2).sum(axis=1) > nsamples // 2
+
+    def compute_signed_distance(self, query_points: ArrayLike, nthreads: int = 0,
+                                nsamples: int = 1) -> NDArray[np.float32]:
+        """(...) float32: `compute_distance`, negative for points inside (`compute_occupancy`'s test).
+
+        Meant for closed (watertight), non-intersecting meshes, where inside is well defined.
+
+        Args:
+            query_points: (..., 3) points, as in `compute_closest_points`.
+            nthreads: accepted and ignored.
+            nsamples: rays per point (odd, >= 1): inside where most of them cross the triangles an odd number of
+                times. More rays guard against a ray through an edge or a vertex counted wrongly.
+
+        Raises:
+            ConfigError: as `compute_closest_points`, or an even or non-positive `nsamples`.
+        """
+        with self._lock:
+            flat, shape = _flat_points(query_points)
+            votes = _nsamples(nsamples)
+            distance = self._distance(flat)
+            return np.where(self._inside(flat, votes), -distance, distance).astype(np.float32).reshape(shape)
+
+    def compute_occupancy(self, query_points: ArrayLike, nthreads: int = 0, nsamples: int = 1) -> NDArray[np.float32]:
+        """(...) float32: 1 for points inside the scene's closed meshes, 0 outside, by Open3D's ray-parity vote.
+
+        Each point casts `nsamples` rays (odd, >= 1) along `vote_directions(nsamples)`, Open3D's directions (near
+        (1, 1, 1)), and counts the triangles each crosses as `count_intersections` does (crossings closer
+        together than 1e-6 of the scene's size count once, so a ray through a shared edge counts one crossing);
+        it is inside where more than half of its rays cross an odd number of times. A point on the surface counts
+        the triangle it lies on (t = 0), as Open3D's does. The arguments are `compute_signed_distance`'.
+        """
+        with self._lock:
+            flat, shape = _flat_points(query_points)
+            votes = _nsamples(nsamples)
+            self._scene()
+            return self._inside(flat, votes).astype(np.float32).reshape(shape)
 
     @staticmethod
     def create_rays_pinhole(*args: Any, **kwargs: Any) -> NDArray[np.float32]:

@@ -132,3 +132,56 @@ def reference_all_hits(vertices, faces, origins, directions, tmax=np.inf, *, tmi
     ray, prim, t, u, v = (np.concatenate(c) for c in zip(*out))
     order = np.lexsort((prim, t, ray))
     return ray[order], prim[order], t[order], u[order], v[order]
+
+
+def _segments(p, a, b):
+    """Per (point, triangle) pair: the parameter in [0, 1] of the point of segment a b nearest to p and the squared
+    distance to it (p: (P, 1, 3); a, b: (T, 3))."""
+    ab = b - a
+    len2 = np.einsum("ij,ij->i", ab, ab)
+    t = np.einsum("pij,ij->pi", p - a, ab) / np.where(len2 > 0, len2, 1.0)
+    t = np.clip(np.where(len2 > 0, t, 0.0), 0.0, 1.0)
+    q = a + t[..., None] * ab
+    return t, np.einsum("pij,pij->pi", p - q, p - q)
+
+
+def reference_closest(vertices, faces, points):
+    """The point of the mesh nearest to each point, by testing every triangle: (point (N, 3), distance (N,), prim
+    (N,) int64, u (N,), v (N,)), float64; u, v the barycentric weights of vertices 1 and 2. A triangle's nearest
+    point is its face's (the projection, where it falls inside) or its three edges' nearest; zero-area triangles are
+    their edges. Of equally near triangles the first wins."""
+    v = np.asarray(vertices, dtype=np.float64).reshape(-1, 3)
+    f = np.asarray(faces, dtype=np.int64).reshape(-1, 3)
+    pts = np.asarray(points, dtype=np.float64).reshape(-1, 3)
+    a, b, c = v[f[:, 0]], v[f[:, 1]], v[f[:, 2]]
+    tri = _Triangles(v, f)
+    n, a_u, a_v = np.split(tri.m, 3)
+    nn = np.einsum("ij,ij->i", n, n)
+    out_d2 = np.full(len(pts), np.inf)
+    prim = np.full(len(pts), -1, np.int64)
+    out_u, out_v = np.zeros(len(pts)), np.zeros(len(pts))
+    step = max(1, (PAIRS_PER_CHUNK // 4) // max(len(f), 1))
+    for s in range(0, len(pts), step):
+        p = pts[s:s + step, None, :]
+        rel = p - a
+        fu, fv = np.einsum("pij,ij->pi", rel, a_u), np.einsum("pij,ij->pi", rel, a_v)
+        inside = (nn > 0) & (fu >= 0) & (fv >= 0) & (fu + fv <= 1)
+        plane = np.einsum("pij,ij->pi", rel, n)
+        d2 = np.where(inside, plane * plane / np.where(nn > 0, nn, 1.0), np.inf)
+        u, w = np.where(inside, fu, 0.0), np.where(inside, fv, 0.0)
+        # each edge's (u at its start, u at its end), (v at its start, v at its end)
+        for (t, e2), (bu, bv) in ((_segments(p, a, b), ((0, 1), (0, 0))), (_segments(p, a, c), ((0, 0), (0, 1))),
+                                  (_segments(p, b, c), ((1, 0), (0, 1)))):
+            better = e2 < d2
+            d2 = np.where(better, e2, d2)
+            # the segment's point (1 - t) * start + t * end, in the triangle's barycentrics
+            u = np.where(better, (1 - t) * bu[0] + t * bu[1], u)
+            w = np.where(better, (1 - t) * bv[0] + t * bv[1], w)
+        best = np.argmin(d2, axis=1)
+        rows = np.arange(len(best))
+        out_d2[s:s + step] = d2[rows, best]
+        prim[s:s + step] = best
+        out_u[s:s + step], out_v[s:s + step] = u[rows, best], w[rows, best]
+    point = (a[prim] + out_u[:, None] * (b[prim] - a[prim]) + out_v[:, None] * (c[prim] - a[prim])
+             if len(f) else np.zeros((len(pts), 3)))
+    return point, np.sqrt(out_d2), prim, out_u, out_v

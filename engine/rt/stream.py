@@ -4,9 +4,10 @@ tracing and reading back the last ones' results overlap.
 A `Slot` holds one chunk in flight: its rays and results in mapped memory (plus device-local copies on a discrete
 GPU), the dispatch parameters, the retry list, its descriptor set, timestamps, a fence and its command buffers
 (recorded once per query kind and copy size, then re-submitted). `stream()` packs chunk i into slot i mod S with
-numpy, straight into the mapped memory (row blocks on the worker pool), submits it without waiting, and before
-reusing a slot waits for its fence and hands its results to the query's sink, which writes them into the arrays
-the query returns.
+numpy, straight into the mapped memory, and submits it without waiting. The packing runs as one row block per
+thread on the worker pool, each block checked where it was just copied (in cache), and in the same round the sink
+of the chunk that last used the slot (its fence waited for first) writes its results into the arrays the query
+returns: one hand-over to the pool per chunk.
 """
 from __future__ import annotations
 
@@ -19,15 +20,18 @@ from ..vk import Buffer, BufferView, DescriptorSet, Recorder, Timestamps
 from ..vk.formats import INDIRECT, R32F, R32UI, RGB32F, RGBA32UI
 from ..vk.resources import STORAGE, STORAGE_TEXEL, TRANSFER_DST, TRANSFER_SRC, UNIFORM_TEXEL
 from ..vk.sync import create_fence, destroy_fence, reset_fences, wait_fences
-from .checks import rays_fine
+from .checks import block_fine
 
 GROUP = 64
 RAY_BYTES = 28  # 7 floats: origin, direction, tmax, as three packed arrays (shaders/glsl/include/rays.glsl)
 HIT_BYTES = {"occluded": 4, "intersect": 16}
-#: the fewest rays per task when numpy checks and packs rays (28 bytes each) or unpacks closest hits (16) and
-#: occlusion words (4) on the worker pool: a chunk is split into one task per thread, down to about a megabyte each
-#: (below that, handing the work to the pool costs more than it saves)
-MIN_BLOCK = {"pack": 1 << 15, "intersect": 1 << 16, "occluded": 1 << 18}
+#: the fewest rays per task when numpy packs and checks rays (28 bytes each) or unpacks closest hits (16) and
+#: occlusion words (4) on the worker pool (closest points: 16, as closest hits): a chunk is split into one task per thread, down to about half a megabyte
+#: each (below that, handing the work to the pool and the GIL's hand-overs cost more than it saves)
+MIN_BLOCK = {"pack": 1 << 15, "intersect": 1 << 17, "closest": 1 << 17, "occluded": 1 << 18}
+#: the most worker threads a stream uses: every numpy call of a task hands the GIL over, and beyond this many threads
+#: those hand-overs (and a thread holding the GIL while descheduled) cost more than the extra cores gain
+STREAM_THREADS = 8
 
 
 class Slot:
@@ -114,24 +118,32 @@ class Slot:
             rec.to_host(self.results, self.retry)
         return rec.finish(), list(self.timestamps.names)
 
-    def pack(self, o, d, t, n: int, shares: int, threads: int) -> bool:
-        """Rays [0, n) of o, d and t (an array, or one float32 for all) into the mapped arrays, each row block checked
-        (`rays_fine`) right before it is copied, while it is in cache (blocks on the worker pool); and the dispatch
-        size. False where a block has a bad ray (then nothing may be submitted)."""
+    def pack_tasks(self, o, d, t, n: int, threads: int, scratch: np.ndarray) -> list:
+        """Tasks (on the worker pool, one row block each) copying rays [0, n) of o, d and t (an array, or one float32
+        for all) into the mapped arrays and then checking the block there, while it is in cache (`block_fine`,
+        over the block's rows of `scratch`); each returns False for a block with a bad ray (then nothing may be
+        submitted)."""
         step = block_size(n, threads, "pack")
 
         def block(s):
             e = min(s + step, n)
-            if not rays_fine(o[s:e], d[s:e]):
-                return False
-            self.origins[s:e] = o[s:e]
-            self.directions[s:e] = d[s:e]
-            self.tmax[s:e] = t if t.ndim == 0 else t[s:e]
-            return True
-        if not all(_parallel([lambda s=s: block(s) for s in range(0, n, step)], threads)):
-            return False
+            oo, dd, tt = self.origins[s:e], self.directions[s:e], self.tmax[s:e]
+            np.copyto(oo, o[s:e])
+            np.copyto(dd, d[s:e])
+            if t.ndim == 0:
+                tt.fill(t)
+            else:
+                np.copyto(tt, t[s:e])
+            return block_fine(oo, dd, None if t.ndim == 0 else tt, scratch[3 * s:3 * e])
+        return [lambda s=s: block(s) for s in range(0, n, step)]
+
+    def submit(self, kind: str, n: int, shares: int, record):
+        """The dispatch size for n rays, and the slot's command buffer for `kind` submitted (not waited for)."""
         self.params.write(np.array([(n + GROUP - 1) // GROUP, 1, 1, n, self.capacity, shares, 0, 0], np.uint32))
-        return True
+        cmd, marks = self.command(kind, n, record)
+        self.ctx.submit(cmd, wait=False, fence=self.fence)
+        self.pending = True
+        return marks
 
     def wait(self):
         """Block until the last submission of this slot has run (then its results may be read)."""
@@ -147,39 +159,41 @@ def block_size(n: int, threads: int, what: str) -> int:
 
 
 def stream(tracer, kind: str, o, d, t, sink, bad) -> None:
-    """Trace rays o, d, t (float32 (N, 3), (N, 3), and (N,) or one for all; checked but for `rays_fine`) through
-    `tracer`'s slots in chunks of `tracer.chunk`, with up to len(slots) chunks in flight; `sink(slot, start, n,
-    threads)` takes each chunk's results in order; `bad()` raises the error for a chunk with a bad ray. Updates the
-    tracer's last_gpu_ms, last_retried and last_times."""
-    slots, chunk, ctx = tracer.slots, tracer.chunk, tracer.ctx
-    threads = default_threads()
+    """Trace rays o, d, t (float32 (N, 3), (N, 3), and (N,) or one for all; checked but for `block_fine`) through
+    `tracer`'s slots in chunks of `tracer.chunk`, with up to len(slots) chunks in flight; `sink(slot, start, s, e)`
+    takes rays [s, e) of the chunk from `start` from the slot's results; `bad()` raises the error for a chunk with a
+    bad ray. One round of tasks on the worker pool per chunk: its packing, and the sink of the chunk whose slot it
+    reuses (that chunk's fence waited for first). Updates the tracer's last_gpu_ms, last_retried and last_times."""
+    slots, chunk = tracer.slots, tracer.chunk
+    threads = min(default_threads(), STREAM_THREADS)
     inflight: deque = deque()
+    if tracer.scratch is None:
+        tracer.scratch = np.empty(3 * chunk, np.uint32)
 
-    def finish():
+    def collect():
+        """The oldest chunk in flight, waited for: the tasks reading its results."""
         slot, start, n, marks = inflight.popleft()
         slot.wait()
         tracer.last_times = slot.timestamps.read(marks)
         tracer.last_gpu_ms += tracer.last_times.get("trace", 0.0)
         if tracer.two_pass[kind]:
             tracer.last_retried += int(slot.retry.view(np.uint32)[0])
-        sink(slot, start, n, threads)
+        step = block_size(n, threads, kind)
+        return [lambda s=s: sink(slot, start, s, min(s + step, n)) for s in range(0, n, step)]
 
     try:
         for i, start in enumerate(range(0, len(o), chunk)):
             n = min(chunk, len(o) - start)
             slot = slots[i % len(slots)]
-            if len(inflight) == len(slots):
-                finish()
+            tasks = collect() if len(inflight) == len(slots) else []
             slot.wait()   # (a query that failed half-way left it pending)
-            if not slot.pack(o[start:start + n], d[start:start + n], t if t.ndim == 0 else t[start:start + n], n,
-                             tracer.shares, threads):
+            packs = slot.pack_tasks(o[start:start + n], d[start:start + n], t if t.ndim == 0 else t[start:start + n],
+                                    n, threads, tracer.scratch)
+            if not all(_parallel(packs + tasks, threads)[:len(packs)]):
                 bad()
-            cmd, marks = slot.command(kind, n, tracer._record)
-            ctx.submit(cmd, wait=False, fence=slot.fence)
-            slot.pending = True
-            inflight.append((slot, start, n, marks))
+            inflight.append((slot, start, n, slot.submit(kind, n, tracer.shares, tracer._record)))
         while inflight:
-            finish()
+            _parallel(collect(), threads)
     finally:
         for slot in slots:   # an error half-way: nothing of this query stays in flight
             slot.wait()
@@ -187,31 +201,19 @@ def stream(tracer, kind: str, o, d, t, sink, bad) -> None:
 
 def occluded_sink(out: np.ndarray):
     """A sink writing (N,) bool `out` from the occlusion words of each chunk."""
-    def sink(slot, start, n, threads):
-        words = slot.results_host.view(np.uint32)
-        step = block_size(n, threads, "occluded")
-
-        def block(s):
-            e = min(s + step, n)
-            np.not_equal(words[s:e], 0, out=out[start + s:start + e])
-        _parallel([lambda s=s: block(s) for s in range(0, n, step)], threads)
+    def sink(slot, start, s, e):
+        np.not_equal(slot.results_host.view(np.uint32)[s:e], 0, out=out[start + s:start + e])
     return sink
 
 
 def hits_sink(t_out, prim_out, u_out, v_out):
     """A sink writing the (N,) arrays of Hits from each chunk's (t, prim, u, v) records."""
-    def sink(slot, start, n, threads):
-        rec = slot.results_host.view(np.float32)[:4 * n].reshape(n, 4)
-        step = block_size(n, threads, "intersect")
-
-        def block(s):
-            e = min(s + step, n)
-            r = rec[s:e]
-            t_out[start + s:start + e] = r[:, 0]
-            prim_out[start + s:start + e] = r[:, 1].view(np.int32)
-            u_out[start + s:start + e] = r[:, 2]
-            v_out[start + s:start + e] = r[:, 3]
-        _parallel([lambda s=s: block(s) for s in range(0, n, step)], threads)
+    def sink(slot, start, s, e):
+        r = slot.results_host.view(np.float32)[4 * s:4 * e].reshape(e - s, 4)
+        t_out[start + s:start + e] = r[:, 0]
+        prim_out[start + s:start + e] = r[:, 1].view(np.int32)
+        u_out[start + s:start + e] = r[:, 2]
+        v_out[start + s:start + e] = r[:, 3]
     return sink
 
 
@@ -220,11 +222,12 @@ def instance_sink(inner, prim, flat_tri_base, inst_out, mesh_prim_out):
     its flattened-scene triangle ids `prim` and the instances' first flat triangles `flat_tri_base` (ascending)."""
     base = np.asarray(flat_tri_base, dtype=np.int64)
 
-    def sink(slot, start, n, threads):
-        inner(slot, start, n, threads)
-        p = prim[start:start + n].astype(np.int64)
+    def sink(slot, start, s, e):
+        inner(slot, start, s, e)
+        a, b = start + s, start + e
+        p = prim[a:b].astype(np.int64)
         hit = p >= 0
         inst = np.searchsorted(base, p, side="right") - 1
-        inst_out[start:start + n] = np.where(hit, inst, -1)
-        mesh_prim_out[start:start + n] = np.where(hit, p - base[np.maximum(inst, 0)], -1)
+        inst_out[a:b] = np.where(hit, inst, -1)
+        mesh_prim_out[a:b] = np.where(hit, p - base[np.maximum(inst, 0)], -1)
     return sink

@@ -3,6 +3,7 @@
     tracer = engine.Tracer(vertices, faces)            # or Tracer.from_trimesh(mesh)
     hit = tracer.occluded(origins, directions, tmax)   # (N,) bool
     hits = tracer.intersect(origins, directions)       # Hits(t, prim, u, v)
+    near = tracer.closest(points)                      # Closest(point, distance, prim, u, v)
 
 Directions are used as given, as Embree does: the hit point is origin + t * direction and tmax is in
 the same units. A batch is streamed through the device in chunks, several in flight (engine/rt/stream.py).
@@ -27,15 +28,19 @@ from ..shaders import ShaderLibrary
 from ..vk import Buffer, ComputePipeline, Context, DescriptorSet, Timestamps, reflect
 from ..vk.device import has_dedicated_vram, is_cpu, rgb32f_texel_buffers, work_shares
 from ..vk.shared import Device, Scope
-from .checks import check_batch_size, check_mesh, name_bad_ray, ray_arrays
+from .checks import check_batch_size, check_mesh, name_bad_ray, name_bad_tmax, ray_arrays
+from .closest import Closest, ClosestQuery
 from .cuda_arrays import CudaRays, on_cuda
 from .stream import Slot, hits_sink, instance_sink, occluded_sink, stream
 
 #: Query kinds whose kernels read rays (and write results) through texel buffer views on CPU devices (RAYS_TEXEL):
 #: faster for occlusion on lavapipe, not for closest hits.
 RAYS_TEXEL_KINDS = ("occluded",)
-#: rays per chunk of a streamed batch (at most `batch_size`), and chunks in flight (slots of buffers)
+#: rays per chunk of a streamed batch (at most `batch_size`), and chunks in flight (slots of buffers): larger chunks
+#: where rays are staged through device-local memory (a discrete GPU: a round trip per chunk costs more than the
+#: trace), smaller ones where the device traces from the mapped memory (a CPU device: packing overlaps tracing)
 STREAM_CHUNK = 1 << 18
+STREAM_CHUNK_STAGED = 1 << 20
 STREAM_SLOTS = 3
 #: workgroups of the second dispatch (trace_*_retry.comp), striding over the rays left to it: at least one per core
 #: (a CPU device's threads), so that a deep tree with many unresolved rays still uses every core
@@ -78,6 +83,14 @@ def _pipelines(ctx, lib, specs, two_pass) -> dict:
                     root.memo[key] = ComputePipeline(root, spirv, layouts, spec=constants, name=name)
                 out[name[6:]] = root.memo[key]
     return out
+
+
+def _name_bad(o, d, t, origins, directions):
+    """The error for a batch with a bad ray, as `check_rays` orders them: a NaN tmax first, then origins and
+    directions."""
+    if t.ndim:
+        name_bad_tmax(t)
+    name_bad_ray(o, d, origins, directions)
 
 
 @dataclass(repr=False)
@@ -177,12 +190,15 @@ class Tracer:
         self.batch = check_batch_size(batch_size)
         self.layout = bvh_layout(layout)  # a bad layout (argument or HYBRID_BVH_LAYOUT) fails before the build
         self._source = getattr(self, "_source", None)   # the Scene of from_scene
+        self._closest: ClosestQuery | None = None
         if self._source is not None and is_instanced(self._source):
             self.bvh = None   # a two-level BVH, built with the GPU objects
+            self.mesh = None  # (closest points need one level: refused for instanced scenes)
             self.stats = {}
         else:
             v, f = check_mesh(vertices, faces)
             self.bvh = build_bvh(v, f)
+            self.mesh = (v, f)   # float32 vertices, int64 faces: closest() reads them
             self.stats = dict(self.bvh.stats)
         self._staging = staging
         try:
@@ -255,7 +271,7 @@ class Tracer:
         # STREAM_CHUNK rays, and the three ray arrays of a slot start at offsets the texel views allow
         # (minTexelBufferOffsetAlignment): their stride `capacity` is rounded up for that
         self.batch = max(1, min(self.batch, int(ctx.limits.maxTexelBufferElements)))
-        self.chunk = min(self.batch, STREAM_CHUNK)
+        self.chunk = min(self.batch, STREAM_CHUNK_STAGED if self.staged else STREAM_CHUNK)
         align = max(1, int(ctx.limits.minTexelBufferOffsetAlignment))
         step = align // math.gcd(12, align)
         self.capacity = -(-self.chunk // step) * step
@@ -280,9 +296,12 @@ class Tracer:
         self.last_gpu_ms = 0.0
         self.last_retried = 0        # rays of the last query that the second dispatch walked again (two_pass)
         self.last_times: dict = {}   # GPU ms of the last chunk per step: upload (staged only), trace, download
+        self.scratch = None          # the ray checks' uint32 scratch (engine/rt/stream.py), made on first use
 
     def _record(self, slot, kind, span):
         """A slot's command buffer for a query kind (and copy span), recorded once: the ray count is in `params`."""
+        if kind == "closest":
+            return self._closest.record(slot, span)
         return slot.record(kind, span, self.pipelines, self.bvh_set, self.two_pass[kind], RETRY_GROUPS)
 
     def _sync(self):
@@ -342,10 +361,10 @@ class Tracer:
         self._check_open()
         if on_cuda(origins, directions, tmax):
             return self._device_arrays().occluded(origins, directions, tmax)
-        o, d, t = ray_arrays(origins, directions, tmax)
+        o, d, t = ray_arrays(origins, directions, tmax, tmax_nan=False)
         self._sync()
         out = np.empty(len(o), bool)
-        self._stream("occluded", o, d, t, occluded_sink(out), lambda: name_bad_ray(o, d, origins, directions))
+        self._stream("occluded", o, d, t, occluded_sink(out), lambda: _name_bad(o, d, t, origins, directions))
         return out
 
     @serialized
@@ -357,7 +376,7 @@ class Tracer:
         self._check_open()
         if on_cuda(origins, directions, tmax):
             return Hits(*self._device_arrays().intersect(origins, directions, tmax))
-        o, d, t = ray_arrays(origins, directions, tmax)
+        o, d, t = ray_arrays(origins, directions, tmax, tmax_nan=False)
         self._sync()
         n = len(o)
         hits = Hits(np.empty(n, np.float32), np.empty(n, np.int32), np.empty(n, np.float32), np.empty(n, np.float32))
@@ -366,13 +385,36 @@ class Tracer:
             hits.instance, hits.mesh_prim = np.empty(n, np.int32), np.empty(n, np.int32)
             base = self.scene.flat_tri_base if isinstance(self.scene, InstancedBVH) else np.zeros(1, np.uint32)
             sink = instance_sink(sink, hits.prim, base, hits.instance, hits.mesh_prim)
-        self._stream("intersect", o, d, t, sink, lambda: name_bad_ray(o, d, origins, directions))
+        self._stream("intersect", o, d, t, sink, lambda: _name_bad(o, d, t, origins, directions))
         return hits
+
+    @serialized
+    def closest(self, points: ArrayLike) -> Closest:
+        """Closest-point queries: the nearest point of the mesh to each point (engine/rt/closest.py).
+
+        Args:
+            points: (N, 3) query points (world units), float32 or float64, finite, within +-MAX_COORD.
+
+        Returns:
+            `Closest` (point, distance, prim, u, v per query point).
+
+        Raises:
+            ConfigError: a bad shape, NaN or infinite values (naming the point), a closed Tracer.
+        """
+        self._check_open()
+        if self.mesh is None:
+            raise ConfigError("Tracer.closest: not available on a Tracer of a scene of several instances "
+                              "(Tracer.from_scene); make one from the flat arrays: Tracer(scene.positions, "
+                              "scene.indices)")
+        if self._closest is None:
+            self._closest = ClosestQuery(self)
+            self.two_pass["closest"] = False   # one dispatch: the point walk keeps its stack in an array
+        return self._closest.run(points)
 
     def _stream(self, kind, o, d, t, sink, bad):
         """Trace rays from `ray_arrays` (float32 (N, 3), (N, 3), and (N,) or one tmax) with the `kind` kernels;
         each chunk is checked as it is packed (`bad()` raises the error naming the first bad ray); `sink(slot,
-        start, n, threads)` takes each chunk's results from `slot.results_host` (engine/rt/stream.py)."""
+        start, s, e)` takes rays [s, e) of a chunk's results from `slot.results_host` (engine/rt/stream.py)."""
         self.last_gpu_ms, self.last_retried = 0.0, 0
         stream(self, kind, o, d, t, sink, bad)
 

@@ -1,0 +1,88 @@
+"""The issue-17 frame benchmark: N instances of a ~T-triangle mesh, all moving every frame, rendered at WxH with one
+light's hard shadows, one AO ray and the denoiser (a benchmark, not a test).
+
+    python tools/bench_instanced_frame.py                       # 10,000 x 10k triangles at 1920x1080 (H200 scale)
+    python tools/bench_instanced_frame.py --instances 300 --size 640x360 --frames 5   # lavapipe scale
+
+Per frame: the host time of moving every instance (scene.set_transforms) and of the renderer's per-frame update
+(top level rebuilt and uploaded, instance buffer rewritten: the wall of render() minus its GPU and readback), and the
+GPU ms of each pass (Frame.timings). Prints medians; --json writes them.
+"""
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import statistics
+import sys
+import time
+
+import numpy as np
+
+sys.path.insert(0, os.path.dirname(os.path.dirname(os.path.abspath(__file__))))
+
+from engine import Camera, Instance, Mesh, Renderer, Scene  # noqa: E402
+from bench_instances import uv_sphere  # noqa: E402
+
+
+def transforms(n: int, t: float, side: int, rng_phase: np.ndarray) -> np.ndarray:
+    """(n, 4, 4): instances on a side x side grid, each turning about y and bobbing, phase-shifted."""
+    i = np.arange(n)
+    x, z = (i % side) * 3.0, (i // side) * 3.0
+    a = t + rng_phase
+    c, s = np.cos(a), np.sin(a)
+    m = np.zeros((n, 4, 4))
+    m[:, 0, 0], m[:, 0, 2], m[:, 2, 0], m[:, 2, 2] = c, s, -s, c
+    m[:, 1, 1] = 1.0
+    m[:, 3, 3] = 1.0
+    m[:, 0, 3], m[:, 1, 3], m[:, 2, 3] = x, 1.0 + 0.3 * np.sin(2 * a), z
+    return m
+
+
+def main() -> int:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--instances", type=int, default=10_000)
+    ap.add_argument("--tris", type=int, default=10_000)
+    ap.add_argument("--size", default="1920x1080")
+    ap.add_argument("--frames", type=int, default=30)
+    ap.add_argument("--json", default=None)
+    a = ap.parse_args()
+    w, h = map(int, a.size.split("x"))
+    v, f = uv_sphere(a.tris)
+    side = int(np.ceil(np.sqrt(a.instances)))
+    ground = Mesh(np.array([[-5, 0, -5], [3 * side + 5, 0, -5], [3 * side + 5, 0, 3 * side + 5], [-5, 0, 3 * side + 5]],
+                           float), np.array([[0, 2, 1], [0, 3, 2]]))
+    phase = np.random.default_rng(1).uniform(0, 2 * np.pi, a.instances)
+    inst = [Instance(1, m) for m in transforms(a.instances, 0.0, side, phase)] + [Instance(0)]
+    scene = Scene.from_meshes([ground, Mesh(v, f)], inst)
+    tri_total = a.instances * len(f)
+    cam = Camera(eye=(-10.0, 25.0, -10.0), target=(1.5 * side, 0.0, 1.5 * side), fov_y=55.0)
+    rows = []
+    with Renderer(w, h) as r:
+        for k in range(a.frames + 3):
+            t0 = time.perf_counter()
+            scene.set_transforms(transforms(a.instances, 0.05 * k, side, phase), np.arange(a.instances))
+            t1 = time.perf_counter()
+            frame = r.render(scene, cam, shadows="hard", ao=True, aovs=["depth"])
+            t2 = time.perf_counter()
+            if k >= 3:
+                rows.append({"move_ms": (t1 - t0) * 1e3, "render_wall_ms": (t2 - t1) * 1e3,
+                             "gpu_ms": frame.gpu_ms, "passes": dict(frame.timings)})
+    med = lambda key: statistics.median(x[key] for x in rows)  # noqa: E731
+    passes = {p: statistics.median(x["passes"].get(p, 0.0) for x in rows) for p in rows[0]["passes"]}
+    render_gpu = sum(v for p, v in passes.items() if p != "readback")
+    out = {"instances": a.instances, "triangles_per_mesh": len(f), "instanced_triangles": tri_total,
+           "size": [w, h], "frames": a.frames, "move_ms": med("move_ms"), "render_wall_ms": med("render_wall_ms"),
+           "gpu_ms": med("gpu_ms"), "render_passes_gpu_ms": render_gpu, "passes_ms": passes}
+    print(f"{a.instances} instances x {len(f)} triangles = {tri_total:,} instanced triangles, {w}x{h}, all moving")
+    print(f"move (set_transforms) {out['move_ms']:.2f} ms host; render() wall {out['render_wall_ms']:.2f} ms; "
+          f"frame GPU {out['gpu_ms']:.3f} ms (passes without readback {render_gpu:.3f})")
+    print("  " + "  ".join(f"{p} {v:.3f}" for p, v in passes.items()))
+    if a.json:
+        with open(a.json, "w") as fh:
+            json.dump(out, fh, indent=1)
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -344,3 +344,17 @@ def test_masked_instances_are_drawn_instanced_with_their_cut_out(make_renderer):
     assert int(((h.aov["instance_id"] == 1) & (h.aov["material_id"] == 1)).sum()) == masked[0]
     assert abs(int(((h.aov["instance_id"] == 2) & (h.aov["material_id"] == 2)).sum()) - full[1]) <= 2
     assert r.validation_errors == []
+
+
+def test_object_names_match_the_flat_submeshes_without_flattening():
+    """Scene.object_names (what frames name object ids by) equals the flat submeshes' names, for named and unnamed
+    instances of one- and several-part meshes, and stays right after instances move."""
+    from engine.scene.parts import SubMesh
+    tri = np.array([[0, 0, 0], [1, 0, 0], [0, 1, 0]], float)
+    one = Mesh(tri, [[0, 1, 2]], name="one")
+    two = Mesh(np.vstack([tri, tri + 2]), [[0, 1, 2], [3, 4, 5]], name="two",
+               submeshes=[SubMesh("a", 0, 3, 0, 1, 0), SubMesh("b", 3, 3, 1, 1, 0)])
+    scene = Scene.from_meshes([one, two], [Instance(0, name="left"), Instance(1, name="pair"), Instance(0)])
+    assert scene.object_names == [s.name for s in scene.submeshes]
+    scene.instances[0].transform = np.diag([2.0, 1.0, 1.0, 1.0])
+    assert scene.object_names == [s.name for s in scene.submeshes]

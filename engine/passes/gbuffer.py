@@ -261,7 +261,10 @@ def material_texels(materials, textures: TextureArrays) -> np.ndarray:
 def alpha_records(scene, textures: TextureArrays) -> tuple[np.ndarray, np.ndarray]:
     """The ray passes' alpha test (shaders/glsl/include/alpha.glsl): per scene triangle, 0 (opaque) or 1 + its
     record; the records, 2 RGBA32F texels per alpha-tested triangle: (uv0, uv1), (uv2, base texture handle bits,
-    threshold): a hit counts where texture alpha >= threshold = cutoff / base alpha (BLEND: cutoff 0.5)."""
+    threshold): a hit counts where texture alpha >= threshold = cutoff / base alpha (BLEND: cutoff 0.5). Without
+    alpha-tested materials: an empty index (every triangle opaque), and the flat arrays are never made."""
+    if all(m.alpha_mode == "OPAQUE" for m in scene.materials):
+        return np.zeros(0, np.uint32), np.zeros((1, 8), np.float32)
     tri_mat = scene.vertex_material[scene.indices[:, 0]] if scene.triangle_count else np.zeros(0, np.int64)
     tested = np.array([m.alpha_mode != "OPAQUE" for m in scene.materials] or [False])[tri_mat]
     index = np.zeros(scene.triangle_count, np.uint32)

@@ -349,6 +349,21 @@ class Scene:
         return self._flat()["submeshes"]
 
     @property
+    def object_names(self) -> list[str]:
+        """The names of `submeshes` (what the object_id AOV indexes), without flattening any geometry: they do not
+        change when instances move."""
+        names = [i.name for i in self.instances]
+        hit = self._cache.get("object_names")
+        if hit is None or hit[0] != names:
+            out = []
+            for i, k in enumerate(self._inst_mesh):
+                subs = self.meshes[k].submeshes
+                out += [s.name if len(subs) > 1 or not names[i] else names[i] for s in subs]
+            hit = (names, out)
+            self._cache["object_names"] = hit
+        return list(hit[1])
+
+    @property
     def bounds(self) -> NDArray[np.float32]:
         """(2, 3) float32 world min / max: exact up to FLAT_BOUNDS_VERTICES instanced vertices, else the union of
         the instances' boxes (which can be slightly larger under rotation)."""

@@ -252,8 +252,8 @@ INTERFACE_EDITS = [   # (file, edit, what the message says)
     ("gbuffer.vert", lambda s: sub(s, "FRAME_BLOCK", frame_block(set_=1)), "set 1 binding 0"),
     ("gbuffer.vert", lambda s: sub(s, "FRAME_BLOCK", frame_block(binding=3)), "set 0 binding 3"),
     ("gbuffer.vert", lambda s: sub(s, "FRAME_BLOCK", frame_block(kind="buffer")), "frame buffer"),
-    ("gbuffer.frag", lambda s: sub(sub(s, "void main() {", "layout(push_constant) uniform Push { uint more; } pc;\n"
-                                   "void main() {"), "+ 1u;", "+ 1u + pc.more;"), "4 bytes"),
+    ("gbuffer.frag", lambda s: sub(s, "uint first_triangle;", "uint first_triangle;\n    uint more;"),
+     "8 bytes"),
 ]
 
 

@@ -18,6 +18,7 @@ from typing import Any
 
 import numpy as np
 
+from .lifetime import Closes
 from .errors import ConfigError, EngineError, VulkanError
 from .frame import Frame
 from .gpu import bvh_descriptor_set
@@ -47,7 +48,7 @@ from .vk.resources import UNIFORM
 from .vk.sync import create_fence, destroy_fence, reset_fences, wait_fences
 
 
-class Renderer:
+class Renderer(Closes):
     """A headless hybrid renderer of a fixed size: `with Renderer(640, 360) as r: frame = r.render(scene)`.
 
     One renderer owns a Vulkan device context (or shares the one it is given), the frame's images and the passes;
@@ -447,17 +448,6 @@ class Renderer:
         if getattr(self, "library", None) is not None:
             self.library.close()
 
-    def __enter__(self) -> Renderer:
-        return self
-
-    def __exit__(self, *exc: object) -> None:
-        self.close()
-
-    def __del__(self):   # a Renderer that is dropped without close() frees its device too
-        try:
-            self.close()
-        except Exception:
-            pass
 
     # ---- internals ------------------------------------------------------------------------
     def _poll_shaders(self):

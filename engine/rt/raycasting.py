@@ -23,6 +23,7 @@ from typing import Any
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
+from ..lifetime import Closes
 from ..errors import ConfigError, SceneError
 from ..vk import Context
 from ..vk.shared import Device
@@ -119,7 +120,7 @@ def _limit(value, name: str, allow_inf: bool) -> float:
     return float(value)
 
 
-class RaycastingScene:
+class RaycastingScene(Closes):
     """Open3D's `RaycastingScene` on the GPU: several triangle meshes with ids, ray queries in batches.
 
     The same method names, arguments, result keys, shapes and dtypes as Open3D's (0.17-0.20), with numpy arrays in
@@ -531,17 +532,6 @@ class RaycastingScene:
                 self._ctx = None
             self._closed = True
 
-    def __enter__(self) -> RaycastingScene:
-        return self
-
-    def __exit__(self, *exc: object) -> None:
-        self.close()
-
-    def __del__(self) -> None:
-        try:
-            self.close()
-        except Exception:
-            pass
 
     def __repr__(self) -> str:
         triangles = sum(len(f) for _, f in self._meshes)

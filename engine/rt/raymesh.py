@@ -21,6 +21,7 @@ from typing import Any
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
+from ..lifetime import Closes
 from ..errors import ConfigError, SceneError
 from ..vk import Context
 from ..vk.shared import Device
@@ -58,7 +59,7 @@ def _planes_lines(p0, normal, origins, directions):
     return origins[valid] + directions[valid] * dist[:, None], valid
 
 
-class RayMeshIntersector:
+class RayMeshIntersector(Closes):
     """trimesh's `RayMeshIntersector` on the GPU: `mesh.ray = engine.RayMeshIntersector(mesh)`.
 
     Methods, arguments, results and their dtypes are trimesh's (`intersects_id`, `intersects_location`,
@@ -275,17 +276,6 @@ class RayMeshIntersector:
                 self._ctx = None
             self._closed = True
 
-    def __enter__(self) -> RayMeshIntersector:
-        return self
-
-    def __exit__(self, *exc: object) -> None:
-        self.close()
-
-    def __del__(self) -> None:
-        try:
-            self.close()
-        except Exception:
-            pass
 
     def __getstate__(self) -> dict:
         """Pickled without its GPU state (rebuilt on the first query after unpickling), as trimesh drops its cache;

@@ -19,6 +19,7 @@ from typing import Any
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
+from ..lifetime import Closes
 from ..bvh import build_bvh
 from ..errors import ConfigError, SceneError
 from ..gpu import SceneBVH, bvh_descriptor_set, bvh_layout
@@ -128,7 +129,7 @@ class Hits:
         return f"<Hits {n} rays, {int(np.count_nonzero(self.prim >= 0))} hit>"
 
 
-class Tracer:
+class Tracer(Closes):
     """Batch ray queries against one triangle mesh, on the GPU: the Radeon Rays stand-in.
 
     `with Tracer(vertices, faces) as tracer: hit = tracer.occluded(origins, directions, tmax)`.
@@ -454,14 +455,3 @@ class Tracer:
         if isinstance(self._shared, Device):
             self._shared._detach(self)
 
-    def __enter__(self) -> Tracer:
-        return self
-
-    def __exit__(self, *exc: object) -> None:
-        self.close()
-
-    def __del__(self) -> None:
-        try:
-            self.close()
-        except Exception:
-            pass

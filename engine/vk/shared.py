@@ -13,6 +13,7 @@ from typing import Any
 
 import vulkan as vk
 
+from ..lifetime import Closes
 from ..errors import ConfigError
 from .context import Context
 
@@ -96,7 +97,7 @@ class Scope:
         self.pool = None
 
 
-class Device:
+class Device(Closes):
     """A Vulkan device that Renderers, Tracers and RaycastingScenes share: one instance, one logical device, one
     queue, made once (opening a device takes a second or two; a Tracer on an open Device costs only its BVH build and
     upload).
@@ -184,17 +185,6 @@ class Device:
             user.close()
         self.context.close()
 
-    def __enter__(self) -> Device:
-        return self
-
-    def __exit__(self, *exc: object) -> None:
-        self.close()
-
-    def __del__(self) -> None:
-        try:
-            self.close()
-        except Exception:
-            pass
 
     def __repr__(self) -> str:
         state = "closed" if self._closed else f"{self.users} users"

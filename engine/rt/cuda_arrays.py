@@ -222,6 +222,7 @@ class _Shared:
             for name, view in zip(("ray_origins", "ray_directions", "ray_tmax", "occluded_texels", "hit_texels"),
                                   self.ray_views):
                 self.io_set.bind(name, view)
+            tracer.bind_alpha(self.io_set)   # (a Tracer of arrays: the test compiled out, its dummy bindings)
             self.rays_ptr = self._import(self.rays)
             self.results_ptr = self._import(self.results)
             self.commands = {kind: self._record(kind) for kind in ("occluded", "intersect")}

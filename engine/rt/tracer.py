@@ -23,11 +23,17 @@ from ..lifetime import Closes
 from ..bvh import build_bvh
 from ..errors import ConfigError, SceneError
 from ..gpu import SceneBVH, bvh_descriptor_set, bvh_layout
-from ..gpu.bvh import CPU_OCCLUSION_STACK_REGS, InstancedBVH, is_instanced
+from ..gpu.bvh import CPU_OCCLUSION_STACK_REGS, InstancedBVH, flag_alpha_tested, is_instanced
 from ..parallel import serialized
+from ..passes.gbuffer import alpha_records, scene_textures
+from ..passes.interface import MAX_TEXTURE_ARRAYS
+from ..passes.textures import TextureArrays
 from ..shaders import ShaderLibrary
-from ..vk import Buffer, ComputePipeline, Context, DescriptorSet, Timestamps, reflect
+from ..vk import (Buffer, BufferView, ComputePipeline, Context, DescriptorSet, Sampler, Timestamps, reflect,
+                  upload_buffer, upload_texture_array)
 from ..vk.device import has_dedicated_vram, is_cpu, rgb32f_texel_buffers, work_shares
+from ..vk.formats import RGBA32F
+from ..vk.resources import UNIFORM_TEXEL
 from ..vk.shared import Device, Scope
 from .checks import check_batch_size, check_mesh, name_bad_ray, name_bad_tmax, ray_arrays
 from .closest import Closest, ClosestQuery
@@ -242,7 +248,9 @@ class Tracer(Closes):
         transform other than the identity; its one mesh's BVH otherwise). Queries see the scene's current state:
         instances moved or meshes deformed since the last query are updated first (top level rebuilt, bottom
         levels refitted). `Hits.prim` is the flattened scene's triangle (`scene.indices`), `Hits.instance` and
-        `Hits.mesh_prim` the instance and its mesh's triangle; `kw` as in `Tracer()`."""
+        `Hits.mesh_prim` the instance and its mesh's triangle; `kw` as in `Tracer()`. MASK / BLEND materials are
+        cut out by their base texture's alpha as in the renderer's shadow and AO rays (the materials as they are
+        now; a masked mesh whose instances override its material differently is a SceneError)."""
         if not hasattr(scene, "instances") or not hasattr(scene, "meshes"):
             raise ConfigError(f"Tracer.from_scene: expected an engine.Scene, got {type(scene).__name__}")
         self = cls.__new__(cls)
@@ -259,10 +267,13 @@ class Tracer(Closes):
         interface = _interface(ctx, lib, "trace_occluded")
         self.interface = interface   # (the ray / result bindings, also laid out by engine.rt.cuda_arrays)
         self.bvh_set = bvh_descriptor_set(ctx, interface)
+        alpha_index = self._alpha_setup(ctx)
         if self.bvh is None:
-            self.scene = InstancedBVH(ctx, self._source, self.bvh_set)
+            self.scene = InstancedBVH(ctx, self._source, self.bvh_set, alpha_index)
             self.layout = "binary"
         else:
+            if alpha_index is not None:
+                flag_alpha_tested(self.bvh.tris, alpha_index)
             self.scene = SceneBVH.upload(ctx, self.bvh, self.bvh_set, self.layout)
         self.stats = dict(self.scene.bvh.stats, layout=self.layout)
         # Rays and results: mapped host buffers; on a discrete GPU device-local ones filled / read by copies in the
@@ -284,6 +295,7 @@ class Tracer(Closes):
                  "intersect": self.scene.spec(ctx)}
         for kind, spec in specs.items():  # rays and results through texel buffer views
             spec["RAYS_TEXEL"] = is_cpu(ctx) and kind in RAYS_TEXEL_KINDS and self.rays_texel_ok
+            spec.update(self.alpha_spec)
         self.specs = specs   # by name, per query kind
         self.two_pass = {kind: bool(s.get("BVH_REG_STACK") and s.get("BVH_STACK_RETRY")) for kind, s in specs.items()}
         bindings = list(interface.set(0).values())
@@ -291,6 +303,8 @@ class Tracer(Closes):
         retry = any(self.two_pass.values()) or (isinstance(self.scene, InstancedBVH) and is_cpu(ctx))
         self.slots = [Slot(ctx, bindings, self.chunk, self.capacity, self.staged, retry, self.rays_texel_ok, i)
                       for i in range(STREAM_SLOTS)]
+        for slot in self.slots:
+            self.bind_alpha(slot.io_set)
         self._lib = lib
         self.pipelines = _pipelines(ctx, lib, specs, self.two_pass)
         self.shares = work_shares(ctx)  # rays.glsl ray_block
@@ -298,6 +312,29 @@ class Tracer(Closes):
         self.last_retried = 0        # rays of the last query that the second dispatch walked again (two_pass)
         self.last_times: dict = {}   # GPU ms of the last chunk per step: upload (staged only), trace, download
         self.scratch = None          # the ray checks' uint32 scratch (engine/rt/stream.py), made on first use
+
+    def _alpha_setup(self, ctx):
+        """The alpha test of a Scene's MASK / BLEND materials (shaders/glsl/include/alpha.glsl), as the renderer's
+        ray passes run it: the same records and texture arrays (engine/passes/gbuffer.py `alpha_records`). Returns
+        the flattened scene's alpha words for the BVH's triangle records, or None (no alpha-tested material, or a
+        Tracer of plain arrays): the test is then compiled out and its bindings are a 1-texel record and a white
+        texture."""
+        source = self._source
+        tested = source is not None and any(m.alpha_mode != "OPAQUE" for m in source.materials)
+        self.textures = TextureArrays(ctx, scene_textures(source.materials) if tested else {})
+        index, records = alpha_records(source, self.textures) if tested else (None, np.zeros((1, 8), np.float32))
+        self.alpha_view = BufferView(upload_buffer(ctx, records, UNIFORM_TEXEL, "alpha records"), RGBA32F)
+        self.white = upload_texture_array(ctx, [np.full((1, 1, 4), 255, np.uint8)], 1, 1, name="white texture")
+        self.sampler = Sampler(ctx)
+        self.alpha_spec = {"ALPHA_TEST": tested, "TEXTURE_ARRAYS": max(1, len(self.textures))}
+        return index
+
+    def bind_alpha(self, dset: DescriptorSet) -> None:
+        """The alpha records and texture arrays into a set of the trace kernels' set-0 layout."""
+        dset.bind("alpha_tris", self.alpha_view)
+        for slot in range(MAX_TEXTURE_ARRAYS):
+            tex = self.textures.images[slot] if slot < len(self.textures) else self.white
+            dset.bind("textures", tex, sampler=self.sampler, element=slot)
 
     def _record(self, slot, kind, span):
         """A slot's command buffer for a query kind (and copy span), recorded once: the ray count is in `params`."""
@@ -323,6 +360,7 @@ class Tracer(Closes):
                      "intersect": self.scene.spec(self.ctx)}
             for kind, spec in specs.items():   # rays read as before
                 spec["RAYS_TEXEL"] = self.specs[kind].get("RAYS_TEXEL", False)
+                spec.update(self.alpha_spec)
             self.specs = specs
             self.two_pass = {kind: bool(s.get("BVH_REG_STACK") and s.get("BVH_STACK_RETRY"))
                              for kind, s in specs.items()}

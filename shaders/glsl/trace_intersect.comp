@@ -3,6 +3,9 @@
 // Batch closest-hit query: one ray per invocation, writes t, primitive id and barycentrics (the rare ray left
 // unresolved goes to trace_intersect_retry.comp).
 #include "rays.glsl"
+#define ALPHA_BINDING 9     // alpha-tested triangles (Tracer.from_scene); dummies otherwise
+#define TEXTURES_BINDING 10
+#include "alpha.glsl"
 #define BVH_SET 1
 #define BVH_BINDING 0
 #include "bvh.glsl"

@@ -4,6 +4,9 @@
 // (rays.glsl `retry`), walked with the array stack from the first pass's closest hit so far; a few workgroups
 // stride over the list.
 #include "rays.glsl"
+#define ALPHA_BINDING 9     // alpha-tested triangles (Tracer.from_scene); dummies otherwise
+#define TEXTURES_BINDING 10
+#include "alpha.glsl"
 #define BVH_SET 1
 #define BVH_BINDING 0
 #include "bvh.glsl"

@@ -3,6 +3,9 @@
 // Batch any-hit query: one ray per invocation, writes 1 if anything lies in [0, tmax] (the rare ray left
 // unresolved goes to trace_occluded_retry.comp).
 #include "rays.glsl"
+#define ALPHA_BINDING 9     // alpha-tested triangles (Tracer.from_scene); dummies otherwise
+#define TEXTURES_BINDING 10
+#include "alpha.glsl"
 #define BVH_SET 1
 #define BVH_BINDING 0
 #include "bvh.glsl"

@@ -3,6 +3,9 @@
 // The second dispatch of the batch any-hit query (CPU devices): the rays trace_occluded.comp left unresolved
 // (rays.glsl `retry`), walked with the array stack; a few workgroups stride over the list.
 #include "rays.glsl"
+#define ALPHA_BINDING 9     // alpha-tested triangles (Tracer.from_scene); dummies otherwise
+#define TEXTURES_BINDING 10
+#include "alpha.glsl"
 #define BVH_SET 1
 #define BVH_BINDING 0
 #include "bvh.glsl"

@@ -123,7 +123,7 @@ class TwoLevel:
                 mo, idx = m, slice(None)
             else:
                 mo = m[idx]
-            inv = _inverse3(mo[:, :3, :3])
+            inv = inverse3(mo[:, :3, :3])
             t = mo[:, :3, 3]
             w2o = np.empty((len(mo), 3, 4))
             w2o[:, :, :3] = inv
@@ -208,7 +208,7 @@ class TwoLevel:
         return shape
 
 
-def _inverse3(a: np.ndarray) -> np.ndarray:
+def inverse3(a: np.ndarray) -> np.ndarray:
     """(N, 3, 3) inverses by cofactors (the rows of the inverse are cross products of the columns over the
     determinant): several times faster than np.linalg.inv on many small matrices."""
     e = a.reshape(-1, 9).T.copy()   # the nine elements, each contiguous

@@ -27,6 +27,7 @@ from __future__ import annotations
 
 import numpy as np
 
+from ..bvh.instanced import inverse3
 from ..errors import SceneError, ShaderError
 from ..scene.material import texture_key
 from ..vk import (Buffer, BufferView, DescriptorSet, GraphicsPipeline, Sampler, device, reflect, upload_buffer,
@@ -53,19 +54,6 @@ def mirrored(transforms: np.ndarray) -> np.ndarray:
 def instance_materials(scene) -> np.ndarray:
     """(N,) int64 material override of each instance, -1 where none."""
     return np.asarray(scene.instance_material, np.int64)
-
-
-def inverse3(a: np.ndarray) -> np.ndarray:
-    """(N, 3, 3) inverses of invertible (N, 3, 3) matrices: the adjugate over the determinant, component by
-    component (far cheaper than np.linalg.inv or np.cross for many small matrices)."""
-    (a00, a01, a02), (a10, a11, a12), (a20, a21, a22) = (
-        (a[:, i, 0], a[:, i, 1], a[:, i, 2]) for i in range(3))
-    adj = np.empty_like(a)
-    adj[:, 0, 0], adj[:, 0, 1], adj[:, 0, 2] = a11 * a22 - a12 * a21, a02 * a21 - a01 * a22, a01 * a12 - a02 * a11
-    adj[:, 1, 0], adj[:, 1, 1], adj[:, 1, 2] = a12 * a20 - a10 * a22, a00 * a22 - a02 * a20, a02 * a10 - a00 * a12
-    adj[:, 2, 0], adj[:, 2, 1], adj[:, 2, 2] = a10 * a21 - a11 * a20, a01 * a20 - a00 * a21, a00 * a11 - a01 * a10
-    det = a00 * adj[:, 0, 0] + a01 * adj[:, 1, 0] + a02 * adj[:, 2, 0]
-    return adj / det[:, None, None]
 
 
 class SceneGeometry:

@@ -12,7 +12,7 @@ from .config import PEERS
 
 
 ENGINE_COLORS = {"ours GPU": (46, 117, 182), "ours wall": (143, 187, 227), "embreex": (230, 126, 34),
-                 "open3d": (68, 160, 80)}
+                 "open3d": (68, 160, 80), "mitsuba": (142, 68, 173), "mitsuba_device": (195, 155, 211)}
 PASS_COLORS = [(46, 117, 182), (230, 126, 34), (68, 160, 80), (192, 57, 43), (142, 68, 173), (127, 140, 141),
                (241, 196, 15), (22, 160, 133)]
 
@@ -149,7 +149,11 @@ def plot(results: dict, path):
         eng = sc["engines"]
         names = {"ours GPU": "ours (GPU timestamps)", "ours wall": "ours (wall clock, upload + readback)",
                  "embreex": f"embreex ({eng.get('embreex', {}).get('threads') or 1} thread, wall)",
-                 "open3d": f"Open3D ({eng.get('open3d', {}).get('threads') or '?'} threads, wall)"}
+                 "open3d": f"Open3D ({eng.get('open3d', {}).get('threads') or '?'} threads, wall)",
+                 "mitsuba": "Mitsuba, rays from numpy (wall)", "mitsuba_device": "Mitsuba, rays resident (wall)"}
+        for p in ("mitsuba", "mitsuba_device"):
+            if "label" in eng.get(p, {}):
+                names[p] = "Mitsuba " + eng[p]["label"].split(" ", 2)[-1] + " (wall)"   # variant, backend, where
         groups = []
         for rs in sc["raysets"]:
             r = rs["results"]
@@ -159,7 +163,8 @@ def plot(results: dict, path):
                 if p in r:
                     vals[names[p]] = r[p]["mrays_wall"]
             groups.append((f"{rs['title']}\n{rs['rays']:,} rays", vals))
-        series = [names[k] for k in ("ours GPU", "ours wall") + PEERS if k in ("ours GPU", "ours wall") or k in eng]
+        series = [names[k] for k in ("ours GPU", "ours wall") + PEERS
+                  if k in ("ours GPU", "ours wall") or "label" in eng.get(k, {})]
         colors = {names[k]: ENGINE_COLORS[k] for k in names}
         _bar_panel(d, (30, y, W - 30, y + h), f"Trace throughput, {sc['scene']} scene ({sc['triangles']:,} "
                    f"triangles), same rays for every engine", groups, series, colors, "Mrays/s (higher is better)",

@@ -83,7 +83,7 @@ class MitsubaEngine(Engine):
 
     def __init__(self, vertices, faces):
         import drjit as dr       # optional (a peer): a missing one skips the peer
-        import mitsuba as mi
+        import mitsuba as mi     # optional and heavy (a peer): loaded only when it runs
         self.dr, self.variant, why = dr, None, []
         for variant, backend in MITSUBA_VARIANTS:
             if variant not in mi.variants():

@@ -112,6 +112,9 @@ def test_mitsuba_gives_our_answers(results, peer):
     variant = "cuda_ad_rgb" if "cuda_ad_rgb" in eng["label"] else "llvm_ad_rgb"
     assert variant in eng["label"]
     assert (eng["threads"] is None) == (variant == "cuda_ad_rgb")   # the LLVM backend reports its thread count
+    if variant == "llvm_ad_rgb" and "cuda_ad_rgb" in __import__("mitsuba").variants():
+        # the CUDA variant was tried first: why it did not load is in the JSON
+        assert any(t.startswith("cuda_ad_rgb: ") for t in eng["tried"]), eng
     for rs in sc["raysets"]:
         agree = rs["agreement"][peer]
         assert agree["hit_miss"] >= 0.999, (rs["name"], agree)

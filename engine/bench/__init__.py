@@ -15,9 +15,9 @@ Every figure is a median over `reps` runs after `warmup` runs. Output: a table o
 JSON (machine, date, command, every figure) and a PNG plot. The Python entry point is `run_bench(BenchConfig(...))`.
 
 Modules: config (sections, BenchConfig), scenes (the generated meshes and scenes), rays (the ray sets), engines (the
-engine interface and ours), peers (embreex, Open3D, Mitsuba), machine (machine information), progress, timing, runner (Bench:
-the sections), targets (issue goals), report (tables, JSON), plot (the PNG), cli (run_bench and `hybrid bench`),
-probe (the lavapipe thread probe's child process).
+engine interface and ours), peers (embreex, Open3D, Mitsuba), machine (machine information), progress, timing,
+runner (Bench: the sections), targets (issue goals), report (tables, JSON), plot (the PNG), cli (run_bench and
+`hybrid bench`), probe (the lavapipe thread probe's child process).
 """
 from __future__ import annotations
 

@@ -84,29 +84,32 @@ class MitsubaEngine(Engine):
     def __init__(self, vertices, faces):
         import drjit as dr       # optional (a peer): a missing one skips the peer
         import mitsuba as mi     # optional and heavy (a peer): loaded only when it runs
-        self.dr, self.variant, why = dr, None, []
+        self.dr, self.variant, self.tried = dr, None, []
+        v = np.ascontiguousarray(vertices, np.float32).reshape(-1)
+        f = np.ascontiguousarray(faces, np.uint32).reshape(-1)
         for variant, backend in MITSUBA_VARIANTS:
             if variant not in mi.variants():
-                why.append(f"{variant}: not in this build")
+                self.tried.append(f"{variant}: not in this build")
                 continue
-            try:
+            try:   # a CUDA variant imports without a GPU and fails on first use; OptiX fails at the first trace
                 mi.set_variant(variant)
-                mi.Float([0.0]).numpy()   # the CUDA variant loads without a GPU and fails on first use
-            except (ImportError, RuntimeError) as exc:
-                why.append(f"{variant}: {str(exc).splitlines()[0] if str(exc) else type(exc).__name__}")
+                self._load(mi, v, f)
+            except (ImportError, RuntimeError, OSError) as exc:
+                first = str(exc).strip().splitlines()
+                self.tried.append(f"{variant}: {first[0] if first else type(exc).__name__}")
                 continue
             self.variant, self.backend = variant, backend
             break
         if self.variant is None:
-            raise ImportError("no Mitsuba variant loads (" + "; ".join(why) + ")")
-        self.Float, self.UInt32, self.Ray3f = mi.Float, mi.UInt32, mi.Ray3f
-        self.Point3f, self.Vector3f = mi.Point3f, mi.Vector3f
+            raise ImportError("no Mitsuba variant loads (" + "; ".join(self.tried) + ")")
         self.on_gpu = self.variant.startswith("cuda")
         self.threads = None if self.on_gpu else dr.thread_count()
         where = "GPU" if self.on_gpu else f"{self.threads} threads"
         self.label = f"Mitsuba {mi.__version__} {self.variant} ({self.backend}, {where}), rays from numpy"
-        v = np.ascontiguousarray(vertices, np.float32).reshape(-1)
-        f = np.ascontiguousarray(faces, np.uint32).reshape(-1)
+
+    def _load(self, mi, v, f):
+        """The current variant's classes (kept: set_variant is process-wide) and the scene, committed by one query."""
+        self.Float, self.Ray3f, self.Point3f, self.Vector3f = mi.Float, mi.Ray3f, mi.Point3f, mi.Vector3f
         mesh = mi.Mesh("hybrid", len(v) // 3, len(f) // 3, has_vertex_normals=False, has_vertex_texcoords=False)
         params = mi.traverse(mesh)
         params["vertex_positions"] = mi.Float(v)
@@ -156,6 +159,7 @@ class MitsubaDeviceEngine(Engine):
     def __init__(self, vertices, faces, base: MitsubaEngine | None = None):
         self.base = base if base is not None else MitsubaEngine(vertices, faces)
         self.dr, self.on_gpu, self.threads = self.base.dr, self.base.on_gpu, self.base.threads
+        self.tried = self.base.tried
         self.label = self.base.label.replace("rays from numpy", "rays on the device" if self.on_gpu
                                              else "rays in Dr.Jit arrays")
         self.rays: dict = {}

@@ -246,6 +246,8 @@ class Bench:
                 else:
                     engines[name] = e
                     res["engines"][name] = {"label": e.label, "threads": e.threads}
+                    if getattr(e, "tried", None):   # Mitsuba: the variants tried before the one it runs, and why
+                        res["engines"][name]["tried"] = list(e.tried)
             # the plain copy of each ray set's bytes, on our Tracer's device: what the bus allows
             engines["copy"] = CopyPeer(engines["ours"].tracer.ctx, max(len(rs) for rs in sets))
             for rs in sets:

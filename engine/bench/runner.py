@@ -32,9 +32,9 @@ from .rays import RaySet, first_light_rays, gbuffer_raysets, random_rayset, scen
 from .scenes import generated_mesh, generated_scene
 from .targets import evaluate_targets
 from .timing import median
+from .transfer import CopyPeer
 
 CLOCK_WARMUP_S = 0.4   # seconds of back-to-back queries before a GPU engine's timed runs (see raise_clocks)
-from .transfer import CopyPeer
 
 
 class Bench:

@@ -1,8 +1,9 @@
 """The benchmark machinery (engine/bench/) on a tiny generated scene: the JSON has every section and figure, the
-throughputs are positive, and the peers (embreex, Open3D) answer the same rays as our Tracer does. Nothing here
-asserts a timing."""
+throughputs are positive, and the peers (embreex, Open3D, Mitsuba) answer the same rays as our Tracer does. Nothing
+here asserts a timing."""
 import io
 import json
+import sys
 
 import numpy as np
 import pytest
@@ -13,10 +14,12 @@ from engine.bench.scenes import generated_mesh
 
 def _peer_available(name):
     try:
-        __import__({"embreex": "embreex.rtcore_scene", "open3d": "open3d"}[name])
-        return True
+        mod = __import__({"embreex": "embreex.rtcore_scene", "open3d": "open3d", "mitsuba": "mitsuba",
+                          "mitsuba_device": "mitsuba"}[name])
     except ImportError:
         return False
+    # Mitsuba: a build with a variant the peer uses (llvm_ad_rgb runs on any x86-64 CPU)
+    return not name.startswith("mitsuba") or bool({"llvm_ad_rgb", "cuda_ad_rgb"} & set(mod.variants()))
 
 
 @pytest.fixture(scope="module")
@@ -50,6 +53,8 @@ def test_json_has_every_section_and_figure(results):
     assert [r["name"] for r in sc["raysets"]] == ["shadow", "ao", "random"]
     for rs in sc["raysets"]:
         assert rs["rays"] > 100, rs["note"]
+        # a CPU device (lavapipe): one run before ours' timed runs, no clock warm-up loop
+        assert rs["clock_warmup"]["ours"]["runs"] == 1
         ours = rs["results"]["ours"]
         assert ours["mrays_gpu"] > 0 and ours["mrays_wall"] > 0 and ours["gpu_ms"] > 0
         # the plain host -> device -> host copy of the same bytes, measured in the same run
@@ -92,6 +97,69 @@ def test_peers_agree_with_ours(results, peer):
     # the ray sets are not trivial: some rays hit, some miss
     hits = {rs["name"]: rs["agreement"][peer]["ours_hit_fraction"] for rs in res["trace"]["scenes"][0]["raysets"]}
     assert 0 < hits["random"] < 1 and 0 < hits["ao"] < 1, hits
+
+
+@pytest.mark.parametrize("peer", ["mitsuba", "mitsuba_device"])
+def test_mitsuba_gives_our_answers(results, peer):
+    """Mitsuba 3 (llvm_ad_rgb on a machine without an NVIDIA GPU) on the bench's ray sets: the same hits and misses,
+    distances and triangles as ours."""
+    if not _peer_available(peer):
+        pytest.skip("mitsuba (with an llvm_ad_rgb or cuda_ad_rgb variant) is not installed")
+    res, _ = results
+    sc = res["trace"]["scenes"][0]
+    eng = sc["engines"][peer]
+    assert "skipped" not in eng, eng
+    variant = "cuda_ad_rgb" if "cuda_ad_rgb" in eng["label"] else "llvm_ad_rgb"
+    assert variant in eng["label"]
+    assert (eng["threads"] is None) == (variant == "cuda_ad_rgb")   # the LLVM backend reports its thread count
+    if variant == "llvm_ad_rgb" and "cuda_ad_rgb" in __import__("mitsuba").variants():
+        # the CUDA variant was tried first: why it did not load is in the JSON
+        assert any(t.startswith("cuda_ad_rgb: ") for t in eng["tried"]), eng
+    for rs in sc["raysets"]:
+        agree = rs["agreement"][peer]
+        assert agree["hit_miss"] >= 0.999, (rs["name"], agree)
+        assert 0 < agree["ours_hit_fraction"] < 1, (rs["name"], agree)
+        if rs["kind"] == "intersect":
+            assert agree["t_close"] >= 0.999 and agree["same_prim"] >= 0.999, agree
+        assert rs["results"][peer]["mrays_wall"] > 0
+
+
+def test_mitsuba_peer_skips_when_missing(monkeypatch):
+    from engine.bench.peers import make_peer
+    v, f = generated_mesh(2000, seed=2)
+    monkeypatch.setitem(sys.modules, "mitsuba", None)   # `import mitsuba` raises ImportError
+    for name in ("mitsuba", "mitsuba_device"):
+        engine, why = make_peer(name, v, f)
+        assert engine is None and why.startswith("not installed or not loadable"), why
+
+
+def test_mitsuba_variant_that_does_not_load_is_named(monkeypatch):
+    if not _peer_available("mitsuba"):
+        pytest.skip("mitsuba is not installed")
+    from engine.bench import peers
+    v, f = generated_mesh(2000, seed=2)
+    monkeypatch.setattr(peers, "MITSUBA_VARIANTS", (("no_such_variant", "?"),))
+    engine, why = peers.make_peer("mitsuba", v, f)
+    assert engine is None and "no_such_variant: not in this build" in why, why
+
+
+def test_mitsuba_device_needs_prepared_rays():
+    if not _peer_available("mitsuba"):
+        pytest.skip("mitsuba is not installed")
+    from engine.bench.peers import make_peer
+    from engine.bench.rays import RaySet
+    v, f = generated_mesh(2000, seed=2)
+    engine, why = make_peer("mitsuba_device", v, f)
+    assert engine is not None, why
+    lo, hi = v.min(0), v.max(0)
+    o = np.tile(((lo + hi) / 2 + [0, hi[1] - lo[1] + 1, 0]).astype(np.float32), (4, 1))
+    rs = RaySet("down", "intersect", o, np.tile(np.float32([0, -1, 0]), (4, 1)), float("inf"))
+    with pytest.raises(RuntimeError, match="prepare"):
+        engine.query(rs)
+    engine.prepare(rs)
+    t, prim = engine.answer(engine.query(rs))
+    assert (prim >= 0).all() and np.allclose(t, t[0]) and 0 < t[0] < hi[1] - lo[1] + 1
+    engine.close()
 
 
 def test_agreement_counts_mismatches():

@@ -5,8 +5,9 @@
            coherent shadow rays from a rendered G-buffer towards the scene's first light, incoherent AO rays
            (cosine hemisphere, tmax = 10% of the scene diagonal) and closest hits of random rays; on a generated
            scene of >= 1M triangles and on the default scene. The peers run the SAME rays in the same process:
-           embreex (trimesh's ray engine, one thread, as trimesh calls it) and Open3D's RaycastingScene (all
-           cores). Ratios ours / peer, and how often the answers agree (hit or miss).
+           embreex (trimesh's ray engine, one thread, as trimesh calls it), Open3D's RaycastingScene (all
+           cores) and Mitsuba 3 (cuda_ad_rgb / OptiX on an NVIDIA GPU, else llvm_ad_rgb on all cores; rays from
+           numpy and rays already in Dr.Jit arrays). Ratios ours / peer, and how often the answers agree.
     frame  A full frame per pass (GPU ms from Frame.timings) at 640x360 on a CPU device (lavapipe) or 1920x1080 on a
            GPU, plus the wall time of Renderer.render() and the host (Python) time of a Renderer.submit().
 
@@ -14,9 +15,9 @@ Every figure is a median over `reps` runs after `warmup` runs. Output: a table o
 JSON (machine, date, command, every figure) and a PNG plot. The Python entry point is `run_bench(BenchConfig(...))`.
 
 Modules: config (sections, BenchConfig), scenes (the generated meshes and scenes), rays (the ray sets), engines (the
-engine interface and ours), peers (embreex, Open3D), machine (machine information), progress, timing, runner (Bench:
-the sections), targets (issue goals), report (tables, JSON), plot (the PNG), cli (run_bench and `hybrid bench`),
-probe (the lavapipe thread probe's child process).
+engine interface and ours), peers (embreex, Open3D, Mitsuba), machine (machine information), progress, timing,
+runner (Bench: the sections), targets (issue goals), report (tables, JSON), plot (the PNG), cli (run_bench and
+`hybrid bench`), probe (the lavapipe thread probe's child process).
 """
 from __future__ import annotations
 

@@ -10,8 +10,8 @@ from ..errors import ConfigError
 REPO = Path(__file__).resolve().parents[2]   # the folder holding the engine package (the probe's working folder)
 DEFAULT_SCENE = SCENES_DIR / "default.toml"
 SECTIONS = ("build", "trace", "frame")
-ENGINES = ("ours", "embreex", "open3d")
-PEERS = ("embreex", "open3d")
+PEERS = ("embreex", "open3d", "mitsuba", "mitsuba_device")
+ENGINES = ("ours",) + PEERS
 RAYSETS = ("shadow", "ao", "random")
 RAYSET_TITLES = {"shadow": "shadow rays (occluded, G-buffer)", "ao": "AO rays (occluded, G-buffer)",
                  "random": "random rays (closest hit)"}

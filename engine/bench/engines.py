@@ -15,6 +15,7 @@ class Engine(abc.ABC):
     name = ""
     label = ""
     threads = None
+    on_gpu = False   # timed runs on a GPU get a warm-up that raises its clocks first
 
     @abc.abstractmethod
     def occluded(self, rs: RaySet) -> np.ndarray:
@@ -26,6 +27,13 @@ class Engine(abc.ABC):
 
     def query(self, rs: RaySet):
         return self.occluded(rs) if rs.kind == "occluded" else self.intersect(rs)
+
+    def prepare(self, rs: RaySet):
+        """Untimed work before `rs`'s runs (a peer's kernel compile, rays made resident on its device)."""
+
+    def answer(self, result):
+        """A query's result as numpy (bool hits, or t and prim), for the agreement check after the timed runs."""
+        return result
 
     def close(self):
         pass
@@ -44,6 +52,7 @@ class OursEngine(Engine):
         self.tracer = Tracer(vertices, faces, device=device, validation=validation)
         self.stats = dict(self.tracer.stats)
         self.threads = os.environ.get("LP_NUM_THREADS")
+        self.on_gpu = self.tracer.ctx.device_info["type"] != "CPU"
         self.last_gpu_ms = 0.0
 
     def occluded(self, rs):

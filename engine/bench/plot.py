@@ -12,7 +12,7 @@ from .config import PEERS
 
 
 ENGINE_COLORS = {"ours GPU": (46, 117, 182), "ours wall": (143, 187, 227), "embreex": (230, 126, 34),
-                 "open3d": (68, 160, 80)}
+                 "open3d": (68, 160, 80), "mitsuba": (142, 68, 173), "mitsuba_device": (195, 155, 211)}
 PASS_COLORS = [(46, 117, 182), (230, 126, 34), (68, 160, 80), (192, 57, 43), (142, 68, 173), (127, 140, 141),
                (241, 196, 15), (22, 160, 133)]
 
@@ -45,13 +45,17 @@ def _bar_panel(draw, box, title, groups, series, colors, unit, fonts, hlines=())
     x0, y0, x1, y1 = box
     f_title, f_label, f_small = fonts
     draw.text((x0, y0), title, fill=(0, 0, 0), font=f_title)
-    lx = x0
-    for s in series:   # legend under the title
-        draw.rectangle([lx, y0 + 34, lx + 14, y0 + 48], fill=colors[s])
-        draw.text((lx + 20, y0 + 41), s, fill=(0, 0, 0), font=f_small, anchor="lm")
-        lx += 34 + draw.textlength(s, font=f_small)
-    top, bottom, left = y0 + 92, y1 - 50, x0 + 64
-    draw.text((x0, y0 + 62), unit, fill=(80, 80, 80), font=f_small)
+    lx, ly = x0, y0 + 34
+    for s in series:   # legend under the title, wrapped at the panel's width
+        step = 34 + draw.textlength(s, font=f_small)
+        if lx > x0 and lx + step - 20 > x1:
+            lx, ly = x0, ly + 22
+        draw.rectangle([lx, ly, lx + 14, ly + 14], fill=colors[s])
+        draw.text((lx + 20, ly + 7), s, fill=(0, 0, 0), font=f_small, anchor="lm")
+        lx += step
+    extra = ly - (y0 + 34)
+    top, bottom, left = y0 + 92 + extra, y1 - 50, x0 + 64
+    draw.text((x0, y0 + 62 + extra), unit, fill=(80, 80, 80), font=f_small)
     values = [v for _, vals in groups for v in vals.values() if v] + [v for v, _ in hlines]
     vmax = _nice_max(max(values + [1e-9]) * 1.12)
     for i in range(6):
@@ -149,7 +153,11 @@ def plot(results: dict, path):
         eng = sc["engines"]
         names = {"ours GPU": "ours (GPU timestamps)", "ours wall": "ours (wall clock, upload + readback)",
                  "embreex": f"embreex ({eng.get('embreex', {}).get('threads') or 1} thread, wall)",
-                 "open3d": f"Open3D ({eng.get('open3d', {}).get('threads') or '?'} threads, wall)"}
+                 "open3d": f"Open3D ({eng.get('open3d', {}).get('threads') or '?'} threads, wall)",
+                 "mitsuba": "Mitsuba, numpy (wall)", "mitsuba_device": "Mitsuba, resident (wall)"}
+        for p in ("mitsuba", "mitsuba_device"):
+            if "label" in eng.get(p, {}):   # the label's third word: the variant
+                names[p] = names[p].replace("Mitsuba", "Mitsuba " + eng[p]["label"].split()[2])
         groups = []
         for rs in sc["raysets"]:
             r = rs["results"]
@@ -159,7 +167,8 @@ def plot(results: dict, path):
                 if p in r:
                     vals[names[p]] = r[p]["mrays_wall"]
             groups.append((f"{rs['title']}\n{rs['rays']:,} rays", vals))
-        series = [names[k] for k in ("ours GPU", "ours wall") + PEERS if k in ("ours GPU", "ours wall") or k in eng]
+        series = [names[k] for k in ("ours GPU", "ours wall") + PEERS
+                  if k in ("ours GPU", "ours wall") or "label" in eng.get(k, {})]
         colors = {names[k]: ENGINE_COLORS[k] for k in names}
         _bar_panel(d, (30, y, W - 30, y + h), f"Trace throughput, {sc['scene']} scene ({sc['triangles']:,} "
                    f"triangles), same rays for every engine", groups, series, colors, "Mrays/s (higher is better)",

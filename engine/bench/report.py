@@ -8,6 +8,9 @@ import numpy as np
 from ..files import atomic_write_text
 from .config import PEERS, RAYSETS
 
+#: The peers' column names in the trace table.
+PEER_SHORT = {"embreex": "embreex 1T", "open3d": "open3d", "mitsuba": "mitsuba", "mitsuba_device": "mitsuba dev"}
+
 
 def _fmt(v, spec=".2f", none="-"):
     if v is None or (isinstance(v, float) and not np.isfinite(v)):
@@ -49,25 +52,28 @@ def format_report(results: dict) -> str:
         parts += ["", f"Trace throughput, Mrays/s: {sc['scene']} scene ({sc['triangles']:,} triangles), "
                       f"G-buffer {sc['gbuffer_size'][0]}x{sc['gbuffer_size'][1]}; setup (BVH build): {setup}"
                   + (f"; skipped {skipped}" if skipped else "")]
+        ran = [p for p in PEERS if p in sc["engines"] and "skipped" not in sc["engines"][p]]
         rows = []
         for rs in sc["raysets"]:
             res = rs["results"]
             o = res.get("ours", {})
             row = [rs["title"], f"{rs['rays']:,}", _fmt(o.get("mrays_gpu")), _fmt(o.get("mrays_wall")),
                    _fmt(o.get("gpu_fraction_of_wall"), ".0%")]
-            for p in ("copy",) + PEERS:
+            for p in ("copy",) + tuple(ran):
                 pr = res.get(p)
                 row.append(_fmt(pr["mrays_wall"]) if pr else "-")
             row.append(_fmt(rs["ratio"].get("copy", {}).get("wall")))
-            for p in PEERS:
+            for p in ran:
                 ra = rs["ratio"].get(p)
                 row.append(f"{_fmt(ra['gpu'])} / {_fmt(ra['wall'])}" if ra else "-")
-            agree = [f"{p} {rs['agreement'][p]['hit_miss']:.2%}" for p in PEERS if p in rs["agreement"]]
+            agree = [f"{PEER_SHORT[p]} {rs['agreement'][p]['hit_miss']:.2%}" for p in ran if p in rs["agreement"]]
             row.append(", ".join(agree) or "-")
             rows.append(row)
-        parts.append(_table(rows, ["ray set", "rays", "ours GPU", "ours wall", "GPU/wall", "plain copy", "embreex 1T",
-                                   "open3d", "x copy (wall)", "x embreex (GPU/wall)", "x open3d (GPU/wall)",
-                                   "hit/miss agree"]))
+        parts.append(_table(rows, ["ray set", "rays", "ours GPU", "ours wall", "GPU/wall", "plain copy"]
+                            + [PEER_SHORT[p] for p in ran] + ["x copy (wall)"]
+                            + [f"x {PEER_SHORT[p]} (GPU/wall)" for p in ran] + ["hit/miss agree"]))
+        if ran:
+            parts.append("peers: " + "; ".join(f"{PEER_SHORT[p]} = {sc['engines'][p]['label']}" for p in ran))
         parts.append("(ours wall: numpy to numpy, streamed; plain copy: the same bytes host -> device -> host, in "
                      "rays/s)")
         bad = [rs["name"] for rs in sc["raysets"]

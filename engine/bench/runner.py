@@ -34,6 +34,8 @@ from .targets import evaluate_targets
 from .timing import median
 from .transfer import CopyPeer
 
+CLOCK_WARMUP_S = 0.4   # seconds of back-to-back queries before a GPU engine's timed runs (see raise_clocks)
+
 
 class Bench:
     """Runs the sections of a BenchConfig; `results` is what goes to the JSON."""
@@ -234,7 +236,7 @@ class Bench:
             for name in cfg.peers:
                 def build_peer(name=name):
                     t0 = time.perf_counter()
-                    e, why = make_peer(name, v, f)
+                    e, why = make_peer(name, v, f, built=engines)
                     if e is not None:
                         res["setup_ms"][name] = (time.perf_counter() - t0) * 1e3
                     return e, why
@@ -244,6 +246,8 @@ class Bench:
                 else:
                     engines[name] = e
                     res["engines"][name] = {"label": e.label, "threads": e.threads}
+                    if getattr(e, "tried", None):   # Mitsuba: the variants tried before the one it runs, and why
+                        res["engines"][name]["tried"] = list(e.tried)
             # the plain copy of each ray set's bytes, on our Tracer's device: what the bus allows
             engines["copy"] = CopyPeer(engines["ours"].tracer.ctx, max(len(rs) for rs in sets))
             for rs in sets:
@@ -274,21 +278,37 @@ class Bench:
                 gpu[name].append(engines[name].last_gpu_ms)
             return wall
 
-        for name in names:   # warm-up runs, one engine after the other
+        for name in names:   # untimed preparation (a peer's kernel compile) and warm-up runs, one engine at a time
             gpu[name], walls[name] = [], []
-            self._step(f"trace ({tag}): {RAYSET_TITLES[rs.name]} ({name}, warm-up)",
-                       lambda name=name: [once(name) for _ in range(cfg.warmup)])
+
+            def warm(name=name):
+                engines[name].prepare(rs)
+                for _ in range(cfg.warmup):
+                    once(name)
+            self._step(f"trace ({tag}): {RAYSET_TITLES[rs.name]} ({name}, warm-up)", warm)
             gpu[name].clear()
 
         copy_walls: list = []
+        clock_warmup: dict = {}
+
+        def raise_clocks(name):
+            """Before an engine's timed runs: on a GPU, its query again and again for CLOCK_WARMUP_S (a GPU that
+            idled while a CPU peer ran or the host prepared rays has lowered its clocks and ramps them back up only
+            under sustained load); on a CPU device one run."""
+            t0 = time.perf_counter()
+            runs = 0
+            while runs < 1 or (engines[name].on_gpu and time.perf_counter() - t0 < CLOCK_WARMUP_S):
+                once(name)
+                runs += 1
+            gpu[name].clear()
+            clock_warmup[name] = {"runs": runs, "s": time.perf_counter() - t0}
 
         def timed():
-            # ours first: a short warm-up, then its repeats back to back (the device kept busy and clocked up, not
-            # idling while a CPU peer runs), the plain copy of the same bytes right after; then each peer's repeats
+            # each engine's repeats back to back after raise_clocks: ours first, the plain copy of the same bytes
+            # right after it; then each peer's
             for name in names:
-                if name == "ours":
-                    once(name)
-                    gpu[name].clear()
+                if name == "ours" or engines[name].on_gpu:
+                    raise_clocks(name)
                 for _ in range(max(cfg.reps, 1)):
                     walls[name].append(once(name))
                 if name == "ours" and "copy" in engines:
@@ -299,6 +319,7 @@ class Bench:
                         copy_walls.append(copy.last_wall_ms / 1e3)
         self._step(f"trace ({tag}): {RAYSET_TITLES[rs.name]} (timed runs, ours back to back)", timed)
         n = len(rs)
+        out["clock_warmup"] = clock_warmup
         for name in names:
             wall = median(walls[name])
             r = {"wall_ms": wall * 1e3, "runs_wall_ms": [w * 1e3 for w in walls[name]],
@@ -322,7 +343,8 @@ class Bench:
                 peer = out["results"][name]
                 out["ratio"][name] = {"gpu": ours["mrays_gpu"] / peer["mrays_wall"] if ours.get("mrays_gpu") else None,
                                       "wall": ours["mrays_wall"] / peer["mrays_wall"]}
-                out["agreement"][name] = agreement(rs.kind, answers["ours"], answers[name], diag)
+                out["agreement"][name] = agreement(rs.kind, answers["ours"], engines[name].answer(answers[name]),
+                                                   diag)
         return out
 
     def run_frame(self) -> list[dict]:

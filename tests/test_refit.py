@@ -154,3 +154,26 @@ def test_frames_of_a_deforming_mesh_equal_a_scene_made_deformed(make_renderer):
         assert np.array_equal(got.color, fresh.color)
     bvh = r._scene_bvh
     assert bvh.refit_on == "gpu" and bvh.refitted == {2} and bvh.rebuilds == 0
+
+
+def test_gpu_refit_of_one_and_two_triangle_meshes():
+    """A one-triangle mesh's root has an empty slot (inverted box, kept inverted); coordinates of exactly 0 step to
+    the smallest denormals, as on the host."""
+    tri = Mesh(np.array([[0, 0, 0], [1, 0, 0], [0, 1, 0]], float), np.array([[0, 1, 2]]), name="tri")
+    quad = Mesh(np.array([[0, 0, 0], [1, 0, 0], [0, 1, 0], [1, 1, 0]], float), np.array([[0, 1, 2], [1, 3, 2]]),
+                name="quad")
+    m = np.eye(4)
+    m[:3, 3] = 2.0
+    scene = Scene.from_meshes([tri, quad], [Instance(0, np.eye(4)), Instance(1, m)])
+    o, d = np.array([[0.2, 1.5, 1.0], [1.3, 2.5, 3.0]]), np.array([[0.0, 0.0, -1.0], [0.0, 0.0, -1.0]])
+    with Tracer.from_scene(scene, validation=True) as tracer:
+        assert np.array_equal(tracer.intersect(o, d).prim, [-1, -1])
+        scene.update_positions(0, tri.positions * [1, 2, 1])
+        scene.update_positions(1, quad.positions * [-1, 1, 3])
+        hits = tracer.intersect(o, d)
+        assert np.array_equal(hits.prim, [0, 2]) and np.allclose(hits.t, [1.0, 1.0])   # (quad: 1, 2)
+        for k in range(2):
+            got_nodes, got_tris = tracer.scene.gpu_refit.read_back(k)
+            nodes, tris, _ = host_refit_words(tracer.scene.blas, 2, k, scene.meshes[k])
+            assert np.array_equal(got_nodes, nodes) and np.array_equal(got_tris, tris)
+        assert tracer.validation_errors == []

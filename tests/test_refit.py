@@ -177,3 +177,28 @@ def test_gpu_refit_of_one_and_two_triangle_meshes():
             nodes, tris, _ = host_refit_words(tracer.scene.blas, 2, k, scene.meshes[k])
             assert np.array_equal(got_nodes, nodes) and np.array_equal(got_tris, tris)
         assert tracer.validation_errors == []
+
+
+def test_new_alpha_words_keep_a_refitted_mesh_deformed(make_renderer):
+    """New material overrides rewrite the alpha words by uploading the host copy of the triangle records (which holds
+    the build's positions): the GPU-refitted leaves must stay deformed, their shadows those of a scene made with the
+    deformed leaves and the overrides."""
+    from tests.test_instances import masked_leaves_scene
+    r = make_renderer(96, 72)
+    settings = dict(aovs=("shadow",), shadows="hard", ao=False, accumulate=False, denoise=False)
+    scene = masked_leaves_scene()
+    r.render(scene, **settings)
+    scene.set_transforms(scene.transforms[1:], [1, 2])   # the two-level BVH from here on
+    r.render(scene, **settings)
+    bent = scene.meshes[1].positions * np.array([1.8, 1.0, 0.7], np.float32) + np.array([0.4, 0.0, 0.0], np.float32)
+    scene.update_positions(1, bent)
+    r.render(scene, **settings)
+    assert r._scene_bvh.refitted == {1}
+    scene.set_instance_material(1, 2)
+    scene.set_instance_material(2, 2)
+    got = r.render(scene, **settings).aov["shadow"][..., 0]
+    fresh = masked_leaves_scene(overrides=(2, 2))
+    fresh.update_positions(1, bent)
+    want = make_renderer(96, 72).render(fresh, **settings).aov["shadow"][..., 0]
+    assert (want == 0).sum() > 100
+    assert (got != want).mean() < 0.002, f"{(got != want).sum()} pixels differ"

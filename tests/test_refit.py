@@ -158,7 +158,7 @@ def test_frames_of_a_deforming_mesh_equal_a_scene_made_deformed(make_renderer):
 
 def test_gpu_refit_of_one_and_two_triangle_meshes():
     """A one-triangle mesh's root has an empty slot (inverted box, kept inverted); coordinates of exactly 0 step to
-    the smallest denormals, as on the host."""
+    the smallest denormals, and denormal coordinates stay as they are (no flushing), as on the host."""
     tri = Mesh(np.array([[0, 0, 0], [1, 0, 0], [0, 1, 0]], float), np.array([[0, 1, 2]]), name="tri")
     quad = Mesh(np.array([[0, 0, 0], [1, 0, 0], [0, 1, 0], [1, 1, 0]], float), np.array([[0, 1, 2], [1, 3, 2]]),
                 name="quad")
@@ -168,7 +168,7 @@ def test_gpu_refit_of_one_and_two_triangle_meshes():
     o, d = np.array([[0.2, 1.5, 1.0], [1.3, 2.5, 3.0]]), np.array([[0.0, 0.0, -1.0], [0.0, 0.0, -1.0]])
     with Tracer.from_scene(scene, validation=True) as tracer:
         assert np.array_equal(tracer.intersect(o, d).prim, [-1, -1])
-        scene.update_positions(0, tri.positions * [1, 2, 1])
+        scene.update_positions(0, tri.positions * [1, 2, 1] + [[0, 0, 1e-42], [0, 0, 0], [-3e-41, 0, 0]])
         scene.update_positions(1, quad.positions * [-1, 1, 3])
         hits = tracer.intersect(o, d)
         assert np.array_equal(hits.prim, [0, 2]) and np.allclose(hits.t, [1.0, 1.0])   # (quad: 1, 2)

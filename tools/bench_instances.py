@@ -9,7 +9,9 @@ Measures, with every instance moving every frame:
   estimate;
 - batch Tracer: closest hits and occlusion for `--rays` camera rays (1920 x 1080 by default), GPU ms, on the
   instanced scene (and with --flat-check, the same query on a flattened scene when it fits);
-- bottom-level refit of a mesh of `--refit-tris` triangles (host numpy) against its rebuild.
+- bottom-level refit of a mesh of `--refit-tris` triangles, on the host (numpy) and on the device (engine/gpu/refit.py:
+  GPU timestamps of the positions copy, the box passes and the SAH sums, and the wall time of the update with the
+  staging write and the SAH read-back), against its rebuild.
 Prints one `name: value` line per figure.
 """
 from __future__ import annotations
@@ -141,6 +143,34 @@ def main(argv=None) -> None:
     print(f"refit_host_ms: {(time.perf_counter() - t0) * 1e3:.3f}")
     print(f"refit_sah_ratio: {ratio:.3f}")
     print(f"rebuild_host_ms: {big.stats['build_ms']:.3f}")
+
+    # the same refit on the device: a scene of the big mesh (one instance, moved: the two-level BVH)
+    place = np.eye(4)
+    place[:3, 3] = 1.0
+    rscene = Scene.from_meshes([Mesh(rv, rf, name="big")], [Instance(0, place)], name="<refit>")
+    with Tracer.from_scene(rscene, device=args.device) as tracer:
+        bvh = tracer.scene
+        rp = rscene.meshes[0].positions.astype(np.float64)   # (the mesh as the scene keeps it)
+        shapes = [rp * (1.0 + 0.05 * np.sin(5 * rp[:, :1])) * (1.0 + 0.002 * k) for k in range(4)]
+        t0 = time.perf_counter()
+        rscene.update_positions(0, shapes[0])
+        tracer._sync()   # the first refit makes and uploads the plan, and records the command buffer
+        first_ms = (time.perf_counter() - t0) * 1e3
+        gpu, walls = [], []
+        for k in range(args.repeat):
+            rscene.update_positions(0, shapes[(k + 1) % 4])
+            t0 = time.perf_counter()
+            tracer._sync()
+            walls.append((time.perf_counter() - t0) * 1e3)
+            gpu.append(bvh.gpu_refit.last_ms)
+        assert bvh.rebuilds == 0
+        print(f"refit_gpu_device: {tracer.ctx.device_info['name']}")
+        print(f"refit_gpu_first_ms: {first_ms:.3f}")
+        for mark in ("upload", "boxes", "sah"):
+            print(f"refit_gpu_{mark}_ms: {np.median([g.get(mark, np.nan) for g in gpu]):.3f}")
+        print(f"refit_gpu_ms: {np.median([sum(g.values()) for g in gpu]):.3f}")
+        print(f"refit_gpu_wall_ms: {np.median(walls):.3f}")
+        print(f"refit_gpu_sah_ratio: {bvh.last_refit_ratio[0]:.3f}")
 
 
 if __name__ == "__main__":

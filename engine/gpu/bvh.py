@@ -17,13 +17,16 @@ from ..errors import ConfigError, SceneError
 from ..vk import Buffer, BufferView, Context, DescriptorSet, update_buffer, upload_buffer
 from ..vk.device import is_cpu
 from ..vk.reflect import Interface
-from ..vk.resources import STORAGE_TEXEL, TRANSFER_SRC, UNIFORM_TEXEL
+from ..vk.resources import STORAGE, STORAGE_TEXEL, TRANSFER_SRC, UNIFORM_TEXEL
+from .refit import GpuRefit
 
 BVH_SET = 1   # the descriptor set index bvh.glsl declares
 LAYOUTS = ("binary", "wide")
 #: A deforming mesh's bottom level is rebuilt instead of refitted once its refitted SAH cost exceeds the build's
 #: by this factor (InstancedBVH.update; docs/architecture.md, "Instances and the two-level BVH").
 REBUILD_RATIO = 2.0
+#: Where InstancedBVH refits deformed meshes: on the device (engine/gpu/refit.py) or on the host (the reference).
+REFIT_ON = ("gpu", "host")
 #: Register-stack entries of the traversal on CPU devices (BVH_STACK_REGS): fewer than a deep tree needs; the rare
 #: ray that overflows them walks again (BVH_STACK_RETRY). The best of the counts tried on lavapipe.
 CPU_STACK_REGS = 10
@@ -205,7 +208,9 @@ class InstancedBVH:
     """A scene's two-level BVH on the GPU (engine/bvh/instanced.py): per-mesh bottom levels built once, the top
     level and instance records rewritten by `update(scene)` when instances moved, deformed meshes refitted (or
     rebuilt past REBUILD_RATIO, which uploads everything again). Same descriptor set and `spec` as SceneBVH; the
-    traversal's triangle ids are the flattened scene's (`scene.indices`)."""
+    traversal's triangle ids are the flattened scene's (`scene.indices`). `refit_on` (REFIT_ON): where meshes are
+    refitted, "gpu" by default; `refitted`: the meshes refitted since their build, refitted again from the scene's
+    positions whenever the host copy is uploaded (a rebuild of another mesh, new alpha words)."""
 
     layout = "binary"
     compressed = False
@@ -219,6 +224,9 @@ class InstancedBVH:
         self.flat_tri_base = np.concatenate([[0], np.cumsum(tri_counts)[:-1]]).astype(np.uint32)
         self.blas = [build_bvh(m.positions, m.indices) for m in scene.meshes]
         self.rebuilds = 0
+        self.refit_on = "gpu"
+        self.refitted: set[int] = set()
+        self.gpu_refit = None
         self.last_refit_ratio: dict[int, float] = {}
         self.nodes = self.tris = None
         self.views = []
@@ -247,12 +255,16 @@ class InstancedBVH:
         self.alpha = alpha
         self._flag_alpha()
         update_buffer(self.ctx, self.tris, [(0, self.two.tris)])
+        if self.refit_on == "gpu":   # (the host copy holds their build's positions)
+            self._refit_again(scene)
         return True
 
     def _upload(self, scene) -> None:
-        self.destroy()
+        self._release()
         self.two = TwoLevel(self.blas, len(scene.instances))
         self.two.top(scene.transforms, scene.instance_mesh, self._mesh_boxes(scene), self.flat_tri_base)
+        if self.refit_on == "host":
+            self._refit_again(scene)
         self._flag_alpha()
         self.depth = self.two.depth
         self.bvh = self.two   # (stats, as SceneBVH.bvh)
@@ -261,7 +273,7 @@ class InstancedBVH:
             if arr.nbytes // 16 > texels:
                 raise SceneError(f"{scene.name}: the two-level BVH {what} take {arr.nbytes / 2**20:.0f} MiB, more "
                                  f"than this device's texel-buffer limit of {texels:,} texels")
-        usage = UNIFORM_TEXEL | STORAGE_TEXEL
+        usage = UNIFORM_TEXEL | STORAGE_TEXEL | STORAGE | TRANSFER_SRC   # (storage buffers of the GPU refit)
         self.nodes = upload_buffer(self.ctx, self.two.nodes, usage, "bvh nodes (two-level)")
         self.tris = upload_buffer(self.ctx, self.two.tris, usage, "bvh triangles (two-level)")
         tail = self.two.nodes.nbytes - self.two.tail_offset
@@ -271,6 +283,26 @@ class InstancedBVH:
         self.dset.bind("bvh_node_image", self.views[0]).bind("bvh_tri_image", self.views[1])
         self.version = scene.version
         self.structure = getattr(self, "structure", 0) + 1   # changes when the buffers (and spec) are new
+        if self.gpu_refit is not None:
+            self.gpu_refit.attach(self.two, self.nodes, self.tris)
+        if self.refit_on == "gpu":
+            self._refit_again(scene)
+
+    def _refit(self, k: int, mesh) -> float:
+        if self.refit_on not in REFIT_ON:
+            raise ConfigError(f"InstancedBVH.refit_on must be one of {', '.join(REFIT_ON)}, got {self.refit_on!r}")
+        if self.refit_on == "host":
+            return self.two.refit(k, mesh.positions, mesh.indices)
+        if self.gpu_refit is None:
+            self.gpu_refit = GpuRefit(self.ctx)
+            self.gpu_refit.attach(self.two, self.nodes, self.tris)
+        return self.gpu_refit.refit(k, mesh.positions, mesh.indices)
+
+    def _refit_again(self, scene) -> None:
+        """The meshes refitted since their build, refitted from `scene`'s positions: the host copy that was just
+        written (host refit) or uploaded (GPU refit) holds their build's."""
+        for k in sorted(self.refitted):
+            self._refit(k, scene.meshes[k])
 
     @staticmethod
     def _mesh_boxes(scene) -> np.ndarray:
@@ -287,14 +319,19 @@ class InstancedBVH:
         parts = []
         rebuild = False
         for k in deformed:
-            mesh = scene.meshes[int(k)]
-            ratio = self.two.refit(int(k), mesh.positions, mesh.indices)
-            self.last_refit_ratio[int(k)] = ratio
+            k = int(k)
+            mesh = scene.meshes[k]
+            ratio = self._refit(k, mesh)
+            self.last_refit_ratio[k] = ratio
             if ratio > REBUILD_RATIO:
-                self.blas[int(k)] = build_bvh(mesh.positions, mesh.indices)
+                self.blas[k] = build_bvh(mesh.positions, mesh.indices)
+                self.refitted.discard(k)
                 rebuild = True
                 continue
-            b = self.blas[int(k)]
+            self.refitted.add(k)
+            if self.refit_on == "gpu":   # the device buffers are refitted already
+                continue
+            b = self.blas[k]
             n0, t0 = int(self.two.node_base[k]), int(self.two.tri_base[k])
             parts.append((n0 * 64, self.two.nodes[n0:n0 + len(b.nodes)]))
             parts.append(("tris", t0 * 48, self.two.tris[t0:t0 + len(b.tris)]))
@@ -323,6 +360,12 @@ class InstancedBVH:
         return spec
 
     def destroy(self):
+        self._release()
+        if self.gpu_refit is not None:
+            self.gpu_refit.destroy()
+            self.gpu_refit = None
+
+    def _release(self):
         for view in self.views:
             view.destroy()
         self.views = []

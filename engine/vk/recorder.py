@@ -193,6 +193,13 @@ class Recorder:
         """Make what earlier steps wrote into `resources` visible to the host (after the fence)."""
         self.use(reads=resources, stage=HOST)
 
+    def to_later(self):
+        """Make every write recorded so far visible to every command of later submissions (the last step of a
+        recording whose results recordings made without `after_earlier` read)."""
+        memory_barrier(self.cmd, _EVERYTHING, vk.VK_PIPELINE_STAGE_ALL_COMMANDS_BIT,
+                       vk.VK_ACCESS_SHADER_WRITE_BIT | vk.VK_ACCESS_TRANSFER_WRITE_BIT,
+                       vk.VK_ACCESS_MEMORY_READ_BIT | vk.VK_ACCESS_SHADER_READ_BIT)
+
     def mark(self, name: str):
         if self.timestamps is not None:
             self.timestamps.mark(self.cmd, name)

@@ -1,6 +1,7 @@
 """CUDA arrays in and out of the Tracer and RaycastingScene (engine.rt.cuda_arrays): on an NVIDIA GPU with torch /
 CuPy and cuda-bindings, the same hits as the numpy path as the same framework's device arrays; elsewhere a clear
 error. The Vulkan half (exportable memory) is tested on any device that offers VK_KHR_external_memory_fd."""
+import gc
 import importlib.util
 import os
 
@@ -9,7 +10,7 @@ import pytest
 import trimesh
 
 from engine import ConfigError, RaycastingScene, Tracer
-from engine.rt import cuda_arrays
+from engine.rt import cuda_arrays, cuda_results
 from engine.rt.cuda_arrays import cuda_device, on_cuda
 from engine.vk import Context
 from engine.vk.external import ExternalBuffer, external_memory_unsupported
@@ -171,7 +172,7 @@ def test_batches_larger_than_a_dispatch_are_split(xp, monkeypatch):
     monkeypatch.setattr(cuda_arrays, "CUDA_BATCH", 1000)   # (else up to 4M rays go in one dispatch)
     with Tracer(v, f, batch_size=1000) as small:
         np.testing.assert_array_equal(host(small.occluded(dev(o), dev(d), dev(t))), small.occluded(o, d, t))
-        assert small._cuda.shared.batch == 1000
+        assert small._cuda.shared.batch == 1024   # (whole workgroups of 64)
         np.testing.assert_array_equal(host(small.intersect(dev(o), dev(d), dev(t)).prim),
                                       small.intersect(o, d, t).prim)
 
@@ -222,6 +223,82 @@ def test_bad_cuda_inputs_are_clear_errors(tracer, xp):
     np.testing.assert_array_equal(host(tracer.occluded(dev(o), dev(d), dev(t))), tracer.occluded(o, d, t))
 
 
+def test_bad_values_name_the_first_bad_ray_of_each_kind(tracer, xp, monkeypatch):
+    """The kernels check the rays (rays.glsl CHECK_RAYS): the numpy path's errors, origins before directions before
+    tmax, each its first bad ray, counted over the whole query."""
+    mod, dev, host = xp
+    o, d, t = rays(300)
+    cases = []
+    bad = o.copy()
+    bad[9, 2] = 2e11
+    cases.append(((bad, d, t), r"origins: ray 9 has a coordinate beyond \+-1e\+11"))
+    bad_d = d.copy()
+    bad_d[4, 0] = np.inf
+    bad_o = o.copy()
+    bad_o[200, 1] = np.nan
+    cases.append(((bad_o, bad_d, t), "origins: ray 200 is not finite"))       # origins first
+    cases.append(((o, bad_d, t), "directions: ray 4 is not finite"))
+    tiny = d.copy()
+    tiny[17] = 1e-39   # subnormal: zero length for the shader
+    cases.append(((o, tiny, t), "directions: ray 17 has zero length"))
+    bad_t = t.copy()
+    bad_t[[31, 250]] = np.nan
+    cases.append(((o, d, bad_t), "tmax: ray 31 has tmax NaN"))
+    for (a, b, c), message in cases:
+        for query in (tracer.occluded, tracer.intersect):
+            with pytest.raises(ConfigError, match=message):
+                query(dev(a), dev(b), dev(c))
+    v, f = mesh()
+    monkeypatch.setattr(cuda_arrays, "CUDA_BATCH", 128)   # several dispatches: the ray's index in the whole query
+    bad_t[31] = 1.0
+    with Tracer(v, f, batch_size=128) as small:
+        with pytest.raises(ConfigError, match="tmax: ray 250 has tmax NaN"):
+            small.occluded(dev(o), dev(d), dev(bad_t))
+        np.testing.assert_array_equal(host(small.occluded(dev(o), dev(d), dev(t))), small.occluded(o, d, t))
+    np.testing.assert_array_equal(host(tracer.occluded(dev(o), dev(d), dev(t))), tracer.occluded(o, d, t))
+
+
+def data_ptr(a):
+    return a.data_ptr() if hasattr(a, "data_ptr") else a.data.ptr
+
+
+def test_results_view_pooled_buffers_and_stay_valid_across_calls(tracer, xp, monkeypatch):
+    """occluded() hands out bool arrays over the kernels' result buffers: no copy, each array's buffer lent to it
+    alone while it (or a view of it) lives, then reused."""
+    mod, dev, host = xp
+    o, d, t = rays(4000, seed=9)
+    o2, d2, t2 = rays(4000, seed=10)
+    want, want2 = tracer.occluded(o, d, t), tracer.occluded(o2, d2, t2)
+    first = tracer.occluded(dev(o), dev(d), dev(t))
+    second = tracer.occluded(dev(o2), dev(d2), dev(t2))
+    assert data_ptr(first) != data_ptr(second)
+    tail = first[1000:]
+    for _ in range(3):
+        tracer.occluded(dev(o2), dev(d2), dev(t2))
+    np.testing.assert_array_equal(host(first), want)
+    np.testing.assert_array_equal(host(second), want2)
+    pool = tracer._cuda.shared.pool
+    assert len(pool.lent) == 2
+    del first
+    gc.collect()
+    assert len(pool.lent) == 2   # the view keeps its buffer
+    np.testing.assert_array_equal(host(tail), want[1000:])
+    ptr = data_ptr(tail) - 1000
+    del tail
+    gc.collect()
+    assert len(pool.lent) == 1
+    again = tracer.occluded(dev(o2), dev(d2), dev(t2))
+    assert data_ptr(again) == ptr   # reused
+    np.testing.assert_array_equal(host(again), want2)
+    monkeypatch.setattr(cuda_results, "POOL_MAX", len(pool.lent))   # all lent: the next results are copies
+    held = [tracer.occluded(dev(o), dev(d), dev(t)) for _ in range(3)]
+    for a in held:
+        np.testing.assert_array_equal(host(a), want)
+    assert len(pool.lent) == 2
+    assert str(held[0].dtype).endswith("bool") and tuple(held[0].shape) == (4000,)
+    assert tuple(tracer.occluded(dev(o[:0]), dev(d[:0])).shape) == (0,)
+
+
 def test_cuda_arrays_on_another_gpu_are_refused(tracer, xp):
     mod, dev, host = xp
     count = mod.cuda.device_count() if mod.__name__ == "torch" else mod.cuda.runtime.getDeviceCount()
@@ -258,3 +335,19 @@ def test_raycasting_scene_on_cuda_rays_matches_numpy(xp):
         occ = scene.test_occlusions(dev(shifted), tfar=3.0)
         assert is_framework_device_array(xp, occ) and tuple(occ.shape) == (50, 60)
         np.testing.assert_array_equal(host(occ), scene.test_occlusions(shifted, tfar=3.0))
+
+
+def test_results_outlive_their_tracer(xp):
+    mod, dev, host = xp
+    v, f = mesh()
+    o, d, t = rays(3000, seed=11)
+    with Tracer(v, f) as first:
+        want = first.occluded(o, d, t)
+        got = first.occluded(dev(o), dev(d), dev(t))
+    with Tracer(v * 2.0, f) as other:   # new Vulkan and CUDA memory in use meanwhile
+        junk = [dev(np.full((1 << 20, 3), 7.0, np.float32)) for _ in range(8)]
+        other.occluded(dev(o), dev(d), dev(t))
+        np.testing.assert_array_equal(host(got), want)
+        del junk
+    del got
+    gc.collect()

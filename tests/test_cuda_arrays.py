@@ -12,9 +12,11 @@ import trimesh
 from engine import ConfigError, RaycastingScene, Tracer
 from engine.rt import cuda_arrays, cuda_results
 from engine.rt.cuda_arrays import cuda_device, on_cuda
-from engine.vk import Context
+from engine.limits import MAX_COORD
+from engine.vk import Buffer, BufferView, Context, DescriptorSet, Recorder
 from engine.vk.external import ExternalBuffer, external_memory_unsupported
-from engine.vk.resources import STORAGE
+from engine.vk.formats import INDIRECT, R32F, R32UI, RGB32F, RGBA32UI
+from engine.vk.resources import STORAGE, STORAGE_TEXEL, UNIFORM_TEXEL
 
 
 def mesh():
@@ -105,6 +107,65 @@ def test_a_cuda_array_without_cuda_is_a_clear_error(tracer):
     # the numpy path is untouched
     o, d, t = rays(100)
     assert tracer.occluded(o, d, t).dtype == np.bool_
+
+
+def run_checked_kernel(tracer, o, d, t, out_base):
+    """The CUDA-array queries' occlusion kernel (CHECK_RAYS, RESULT_BYTES) on host buffers laid out as
+    engine.rt.cuda_arrays lays out the shared ones: (its result bytes from out_base words on, its error words)."""
+    ctx, n, c = tracer.ctx, len(o), 1024   # (c: the texel views' offsets aligned for any device)
+    rays_buf = Buffer(ctx, 28 * c, STORAGE | UNIFORM_TEXEL, host=True)
+    f32 = rays_buf.view(np.float32)
+    f32[:3 * n], f32[3 * c:3 * c + 3 * n], f32[6 * c:6 * c + n] = o.reshape(-1), d.reshape(-1), t
+    results = Buffer(ctx, 4 * out_base + 16 * c, STORAGE | STORAGE_TEXEL, host=True)   # (room for the views)
+    results.view(np.uint8)[:] = 0xAB
+    params = Buffer(ctx, 32, STORAGE | INDIRECT, host=True)
+    params.view(np.uint32)[:] = ((n + 63) // 64, 1, 1, n, c, tracer.shares, out_base, 0)
+    errors = Buffer(ctx, 16, STORAGE, host=True)
+    errors.view(np.uint32)[:] = 0xFFFFFFFF
+    io_set = DescriptorSet(ctx, tracer.interface.set(0).values())
+    for name, buf in (("ray_data", rays_buf), ("params", params), ("retry", tracer.retry), ("ray_errors", errors),
+                      (tracer.interface.bindings[1].name, results)):
+        io_set.bind(name, buf)
+    vec3 = RGB32F if tracer.rays_texel_ok else R32F
+    views = [BufferView(rays_buf, vec3, 0, 12 * c), BufferView(rays_buf, vec3, 12 * c, 12 * c),
+             BufferView(rays_buf, R32F, 24 * c, 4 * c), BufferView(results, R32UI, 0, 4 * c),
+             BufferView(results, RGBA32UI, 0, 16 * c)]
+    for name, view in zip(("ray_origins", "ray_directions", "ray_tmax", "occluded_texels", "hit_texels"), views):
+        io_set.bind(name, view)
+    tracer.bind_alpha(io_set)
+    rec = Recorder(ctx)
+    kernel = tracer.kernel("occluded", CHECK_RAYS=True, RESULT_BYTES=True, BVH_STACK_RETRY=False)   # (one pass)
+    rec.dispatch_indirect(kernel, [io_set, tracer.bvh_set], params, reads=[rays_buf], writes=[results, errors])
+    rec.to_host(results, errors)
+    cmd = rec.finish()
+    ctx.submit(cmd, spin_s=0.001)
+    ctx.free_command_buffer(cmd)
+    out = results.view(np.uint8).copy(), errors.view(np.uint32)[:3].tolist()
+    for obj in views + [rays_buf, results, params, errors]:
+        obj.destroy()
+    return out
+
+
+def test_the_cuda_array_kernels_check_rays_and_write_bytes(tracer):
+    """What the CUDA-array queries run, on any Vulkan device: one 0 / 1 byte per ray (the numpy path's answers) from
+    the given word on, and the first bad ray of each kind (origins, directions, tmax) in the error words."""
+    o, d, t = rays(1000, seed=12)
+    want = tracer.occluded(o, d, t)
+    got, first_bad = run_checked_kernel(tracer, o, d, t, out_base=16)
+    assert first_bad == [cuda_arrays.NONE] * 3
+    assert (got[:64] == 0xAB).all() and (got[64 + 1024:] == 0xAB).all()   # nothing written past the workgroups
+    np.testing.assert_array_equal(got[64:64 + 1000], want.astype(np.uint8))
+    bad_o, bad_d, bad_t = o.copy(), d.copy(), t.copy()
+    bad_o[[7, 900], 0] = np.nan, 2 * MAX_COORD
+    bad_d[3] = 0
+    bad_d[5, 1] = -np.inf
+    bad_t[600] = np.nan
+    got, first_bad = run_checked_kernel(tracer, bad_o, bad_d, bad_t, out_base=0)
+    assert first_bad == [7, 3, 600]
+    fine = np.ones(1000, bool)
+    fine[[7, 900, 3, 5, 600]] = False
+    np.testing.assert_array_equal(got[:1000][fine], want[fine].astype(np.uint8))
+    assert (got[:1000][~fine] == 0).all()   # bad rays are not traced
 
 
 # ---- on an NVIDIA GPU -----------------------------------------------------------------------------------------

@@ -467,9 +467,9 @@ class Tracer(Closes):
         return self._cuda
 
     def kernel(self, kind: str, **constants):
-        """The `kind` trace kernel with `constants` added to its specialization (the CUDA-array queries' variant)."""
-        return _pipelines(self.ctx, self._lib, {kind: dict(self.specs[kind], **constants)},
-                          {kind: self.two_pass[kind]})[kind]
+        """The `kind` trace kernel with `constants` added to its specialization, without its retry pass (the
+        CUDA-array queries' variant: GPU devices, whose register stack never leaves a ray unresolved)."""
+        return _pipelines(self.ctx, self._lib, {kind: dict(self.specs[kind], **constants)}, {kind: False})[kind]
 
     @property
     def retry(self) -> Buffer:

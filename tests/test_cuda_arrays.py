@@ -4,6 +4,8 @@ error. The Vulkan half (exportable memory) is tested on any device that offers V
 import gc
 import importlib.util
 import os
+import re
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -144,6 +146,12 @@ def run_checked_kernel(tracer, o, d, t, out_base):
     for obj in views + [rays_buf, results, params, errors]:
         obj.destroy()
     return out
+
+
+def test_the_kernels_ray_checks_use_the_hosts_coordinate_bound():
+    text = (Path(__file__).resolve().parents[1] / "shaders/glsl/include/rays.glsl").read_text()
+    bound = re.search(r"#define RAY_MAX_COORD (\S+)", text).group(1)
+    assert float(bound) == MAX_COORD
 
 
 def test_the_cuda_array_kernels_check_rays_and_write_bytes(tracer):

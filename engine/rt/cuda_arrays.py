@@ -4,7 +4,7 @@
 package), traced there, and the results are returned as device arrays of the caller's framework (torch in, torch
 out; other CUDA arrays go through CuPy and come back as CuPy arrays). The rays never cross the bus.
 
-The stream rule: inputs are read and results written on the caller's current CUDA stream (of the inputs'
+The stream rule: inputs are read (and closest hits copied out) on the caller's current CUDA stream (of the inputs'
 framework); the Tracer synchronizes that stream before each Vulkan dispatch and waits for the dispatch, so the
 results are complete on return and the inputs may be changed then. Arrays written on another stream must be ready
 (that stream synchronized, or the current one made to wait for it) before the call.

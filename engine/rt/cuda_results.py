@@ -14,7 +14,6 @@ query makes only its own stream wait before Vulkan writes a returned buffer agai
 from __future__ import annotations
 
 import os
-import threading
 import weakref
 
 from ..errors import VulkanError
@@ -107,55 +106,50 @@ class Lent:
 
 
 class ResultPool:
-    """The result buffers of one set of shared ray buffers (see the module notes)."""
+    """The result buffers of one set of shared ray buffers (see the module notes). Used under the Tracer's lock; the
+    finalizer that gives a buffer back may run inside any method here (a garbage collection) and on any thread, so it
+    takes no lock and makes only single list and set operations."""
 
     def __init__(self, ctx, rt, device: int, make):
         self.ctx, self.rt, self.device, self.make = ctx, rt, device, make
         self.free: list[Lent] = []
         self.lent: set[Lent] = set()
-        self.lock = threading.Lock()   # (arrays are freed on any thread)
         self.closed = False
 
     def take(self, n: int) -> tuple[Lent, bool]:
         """(a buffer for n rays, whether it can be lent): the smallest free one that is large enough, else a new
         one; when POOL_MAX are lent, the caller copies out of it instead."""
-        with self.lock:
-            fits = [e for e in self.free if e.capacity >= n]
-            entry = min(fits, key=lambda e: e.capacity) if fits else None
-            if entry is not None:
-                self.free.remove(entry)
-        if entry is None:
+        fits = [e for e in self.free if e.capacity >= n]
+        if fits:
+            entry = min(fits, key=lambda e: e.capacity)
+            self.free.remove(entry)
+        else:
             entry = Lent(self, max(MIN_BYTES, 1 << max(n - 1, 0).bit_length()))
         return entry, len(self.lent) < POOL_MAX
 
     def lend(self, fw, entry: Lent, n: int):
         """The (n,) bool array of framework `fw` over `entry`'s first n bytes; the entry returns when it is freed."""
         region = Region(entry.ptr, (n,), "|b1", self.device)
-        with self.lock:
-            self.lent.add(entry)
+        self.lent.add(entry)
         weakref.finalize(region, self._back, entry)
         return fw.wrap(region)
 
     def put(self, entry: Lent):
         """An entry taken but not lent (its query failed) back into the pool."""
-        with self.lock:
-            self.free.append(entry)
+        self.free.append(entry)
 
     def _back(self, entry: Lent):
-        with self.lock:
-            self.lent.discard(entry)
-            if not self.closed:
-                self.free.append(entry)
-                return
-        entry.unmap(self.rt)   # (the pool was closed while an array viewed it: its Vulkan side is gone)
+        self.lent.discard(entry)
+        if self.closed:
+            entry.unmap(self.rt)   # (its Vulkan side is gone with the pool)
+        else:
+            self.free.append(entry)
 
     def close(self):
         """Free the buffers; one still viewed by an array keeps its CUDA mapping until that array is freed."""
-        with self.lock:
-            self.closed = True
-            free, lent = self.free, list(self.lent)
-            self.free = []
+        self.closed = True
+        free, self.free = self.free, []
         for entry in free:
             entry.unmap(self.rt)
-        for entry in free + lent:
+        for entry in free + list(self.lent):
             entry.destroy_vulkan(self.ctx)

@@ -466,7 +466,7 @@ class Tracer(Closes):
             self._cuda = CudaRays(self)
         return self._cuda
 
-    def kernel(self, kind: str, **constants):
+    def kernel(self, kind: str, **constants: bool) -> ComputePipeline:
         """The `kind` trace kernel with `constants` added to its specialization, without its retry pass (the
         CUDA-array queries' variant: GPU devices, whose register stack never leaves a ray unresolved)."""
         return _pipelines(self.ctx, self._lib, {kind: dict(self.specs[kind], **constants)}, {kind: False})[kind]

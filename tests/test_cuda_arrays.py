@@ -1,19 +1,24 @@
 """CUDA arrays in and out of the Tracer and RaycastingScene (engine.rt.cuda_arrays): on an NVIDIA GPU with torch /
 CuPy and cuda-bindings, the same hits as the numpy path as the same framework's device arrays; elsewhere a clear
 error. The Vulkan half (exportable memory) is tested on any device that offers VK_KHR_external_memory_fd."""
+import gc
 import importlib.util
 import os
+import re
+from pathlib import Path
 
 import numpy as np
 import pytest
 import trimesh
 
 from engine import ConfigError, RaycastingScene, Tracer
-from engine.rt import cuda_arrays
+from engine.rt import cuda_arrays, cuda_results
 from engine.rt.cuda_arrays import cuda_device, on_cuda
-from engine.vk import Context
+from engine.limits import MAX_COORD
+from engine.vk import Buffer, BufferView, Context, DescriptorSet, Recorder
 from engine.vk.external import ExternalBuffer, external_memory_unsupported
-from engine.vk.resources import STORAGE
+from engine.vk.formats import INDIRECT, R32F, R32UI, RGB32F, RGBA32UI
+from engine.vk.resources import STORAGE, STORAGE_TEXEL, UNIFORM_TEXEL
 
 
 def mesh():
@@ -106,6 +111,71 @@ def test_a_cuda_array_without_cuda_is_a_clear_error(tracer):
     assert tracer.occluded(o, d, t).dtype == np.bool_
 
 
+def run_checked_kernel(tracer, o, d, t, out_base):
+    """The CUDA-array queries' occlusion kernel (CHECK_RAYS, RESULT_BYTES) on host buffers laid out as
+    engine.rt.cuda_arrays lays out the shared ones: (its result bytes from out_base words on, its error words)."""
+    ctx, n, c = tracer.ctx, len(o), 1024   # (c: the texel views' offsets aligned for any device)
+    rays_buf = Buffer(ctx, 28 * c, STORAGE | UNIFORM_TEXEL, host=True)
+    f32 = rays_buf.view(np.float32)
+    f32[:3 * n], f32[3 * c:3 * c + 3 * n], f32[6 * c:6 * c + n] = o.reshape(-1), d.reshape(-1), t
+    results = Buffer(ctx, 4 * out_base + 16 * c, STORAGE | STORAGE_TEXEL, host=True)   # (room for the views)
+    results.view(np.uint8)[:] = 0xAB
+    params = Buffer(ctx, 32, STORAGE | INDIRECT, host=True)
+    params.view(np.uint32)[:] = ((n + 63) // 64, 1, 1, n, c, tracer.shares, out_base, 0)
+    errors = Buffer(ctx, 16, STORAGE, host=True)
+    errors.view(np.uint32)[:] = 0xFFFFFFFF
+    io_set = DescriptorSet(ctx, tracer.interface.set(0).values())
+    for name, buf in (("ray_data", rays_buf), ("params", params), ("retry", tracer.retry), ("ray_errors", errors),
+                      (tracer.interface.bindings[1].name, results)):
+        io_set.bind(name, buf)
+    vec3 = RGB32F if tracer.rays_texel_ok else R32F
+    views = [BufferView(rays_buf, vec3, 0, 12 * c), BufferView(rays_buf, vec3, 12 * c, 12 * c),
+             BufferView(rays_buf, R32F, 24 * c, 4 * c), BufferView(results, R32UI, 0, 4 * c),
+             BufferView(results, RGBA32UI, 0, 16 * c)]
+    for name, view in zip(("ray_origins", "ray_directions", "ray_tmax", "occluded_texels", "hit_texels"), views):
+        io_set.bind(name, view)
+    tracer.bind_alpha(io_set)
+    rec = Recorder(ctx)
+    kernel = tracer.kernel("occluded", CHECK_RAYS=True, RESULT_BYTES=True, BVH_STACK_RETRY=False)   # (one pass)
+    rec.dispatch_indirect(kernel, [io_set, tracer.bvh_set], params, reads=[rays_buf], writes=[results, errors])
+    rec.to_host(results, errors)
+    cmd = rec.finish()
+    ctx.submit(cmd, spin_s=0.001)
+    ctx.free_command_buffer(cmd)
+    out = results.view(np.uint8).copy(), errors.view(np.uint32)[:3].tolist()
+    for obj in views + [rays_buf, results, params, errors]:
+        obj.destroy()
+    return out
+
+
+def test_the_kernels_ray_checks_use_the_hosts_coordinate_bound():
+    text = (Path(__file__).resolve().parents[1] / "shaders/glsl/include/rays.glsl").read_text()
+    bound = re.search(r"#define RAY_MAX_COORD (\S+)", text).group(1)
+    assert float(bound) == MAX_COORD
+
+
+def test_the_cuda_array_kernels_check_rays_and_write_bytes(tracer):
+    """What the CUDA-array queries run, on any Vulkan device: one 0 / 1 byte per ray (the numpy path's answers) from
+    the given word on, and the first bad ray of each kind (origins, directions, tmax) in the error words."""
+    o, d, t = rays(1000, seed=12)
+    want = tracer.occluded(o, d, t)
+    got, first_bad = run_checked_kernel(tracer, o, d, t, out_base=16)
+    assert first_bad == [cuda_arrays.NONE] * 3
+    assert (got[:64] == 0xAB).all() and (got[64 + 1024:] == 0xAB).all()   # nothing written past the workgroups
+    np.testing.assert_array_equal(got[64:64 + 1000], want.astype(np.uint8))
+    bad_o, bad_d, bad_t = o.copy(), d.copy(), t.copy()
+    bad_o[[7, 900], 0] = np.nan, 2 * MAX_COORD
+    bad_d[3] = 0
+    bad_d[5, 1] = -np.inf
+    bad_t[600] = np.nan
+    got, first_bad = run_checked_kernel(tracer, bad_o, bad_d, bad_t, out_base=0)
+    assert first_bad == [7, 3, 600]
+    fine = np.ones(1000, bool)
+    fine[[7, 900, 3, 5, 600]] = False
+    np.testing.assert_array_equal(got[:1000][fine], want[fine].astype(np.uint8))
+    assert (got[:1000][~fine] == 0).all()   # bad rays are not traced
+
+
 # ---- on an NVIDIA GPU -----------------------------------------------------------------------------------------
 FRAMEWORKS = [name for name in ("torch", "cupy") if importlib.util.find_spec(name) is not None]
 
@@ -171,7 +241,7 @@ def test_batches_larger_than_a_dispatch_are_split(xp, monkeypatch):
     monkeypatch.setattr(cuda_arrays, "CUDA_BATCH", 1000)   # (else up to 4M rays go in one dispatch)
     with Tracer(v, f, batch_size=1000) as small:
         np.testing.assert_array_equal(host(small.occluded(dev(o), dev(d), dev(t))), small.occluded(o, d, t))
-        assert small._cuda.shared.batch == 1000
+        assert small._cuda.shared.batch == 1024   # (whole workgroups of 64)
         np.testing.assert_array_equal(host(small.intersect(dev(o), dev(d), dev(t)).prim),
                                       small.intersect(o, d, t).prim)
 
@@ -222,6 +292,85 @@ def test_bad_cuda_inputs_are_clear_errors(tracer, xp):
     np.testing.assert_array_equal(host(tracer.occluded(dev(o), dev(d), dev(t))), tracer.occluded(o, d, t))
 
 
+def test_bad_values_name_the_first_bad_ray_of_each_kind(tracer, xp, monkeypatch):
+    """The kernels check the rays (rays.glsl CHECK_RAYS): the numpy path's errors, origins before directions before
+    tmax, each its first bad ray, counted over the whole query."""
+    mod, dev, host = xp
+    o, d, t = rays(300)
+    cases = []
+    bad = o.copy()
+    bad[9, 2] = 2e11
+    cases.append(((bad, d, t), r"origins: ray 9 has a coordinate beyond \+-1e\+11"))
+    bad_d = d.copy()
+    bad_d[4, 0] = np.inf
+    bad_o = o.copy()
+    bad_o[200, 1] = np.nan
+    cases.append(((bad_o, bad_d, t), "origins: ray 200 is not finite"))       # origins first
+    cases.append(((o, bad_d, t), "directions: ray 4 is not finite"))
+    tiny = d.copy()
+    tiny[17] = 1e-39   # subnormal: zero length for the shader
+    cases.append(((o, tiny, t), "directions: ray 17 has zero length"))
+    bad_t = t.copy()
+    bad_t[[31, 250]] = np.nan
+    cases.append(((o, d, bad_t), "tmax: ray 31 has tmax NaN"))
+    for (a, b, c), message in cases:
+        for query in (tracer.occluded, tracer.intersect):
+            with pytest.raises(ConfigError, match=message):
+                query(dev(a), dev(b), dev(c))
+    v, f = mesh()
+    monkeypatch.setattr(cuda_arrays, "CUDA_BATCH", 128)   # several dispatches: the ray's index in the whole query
+    bad_t[31] = 1.0
+    with Tracer(v, f, batch_size=128) as small:
+        with pytest.raises(ConfigError, match="tmax: ray 250 has tmax NaN"):
+            small.occluded(dev(o), dev(d), dev(bad_t))
+        np.testing.assert_array_equal(host(small.occluded(dev(o), dev(d), dev(t))), small.occluded(o, d, t))
+    np.testing.assert_array_equal(host(tracer.occluded(dev(o), dev(d), dev(t))), tracer.occluded(o, d, t))
+
+
+def data_ptr(a):
+    return a.data_ptr() if hasattr(a, "data_ptr") else a.data.ptr
+
+
+def test_results_view_pooled_buffers_and_stay_valid_across_calls(tracer, xp, monkeypatch):
+    """occluded() hands out bool arrays over the kernels' result buffers: no copy, each array's buffer lent to it
+    alone while it (or a view of it) lives, then reused."""
+    mod, dev, host = xp
+    o, d, t = rays(4000, seed=9)
+    o2, d2, t2 = rays(4000, seed=10)
+    want, want2 = tracer.occluded(o, d, t), tracer.occluded(o2, d2, t2)
+    first = tracer.occluded(dev(o), dev(d), dev(t))
+    second = tracer.occluded(dev(o2), dev(d2), dev(t2))
+    assert data_ptr(first) != data_ptr(second)
+    tail = first[1000:]
+    for _ in range(3):
+        tracer.occluded(dev(o2), dev(d2), dev(t2))
+    np.testing.assert_array_equal(host(first), want)
+    np.testing.assert_array_equal(host(second), want2)
+    pool = tracer._cuda.shared.pool
+    gc.collect()   # (CuPy arrays dropped above may wait for a collection)
+    assert len(pool.lent) == 2
+    del first
+    gc.collect()
+    assert len(pool.lent) == 2   # the view keeps its buffer
+    np.testing.assert_array_equal(host(tail), want[1000:])
+    ptr = data_ptr(tail) - 1000
+    del tail
+    gc.collect()
+    assert len(pool.lent) == 1 and ptr in {e.ptr for e in pool.free}
+    free = {e.ptr for e in pool.free}
+    again = tracer.occluded(dev(o2), dev(d2), dev(t2))
+    assert data_ptr(again) in free and len(pool.free) == len(free) - 1   # a free buffer reused, none made
+    np.testing.assert_array_equal(host(again), want2)
+    monkeypatch.setattr(cuda_results, "POOL_MAX", len(pool.lent))   # all lent: the next results are copies
+    held = [tracer.occluded(dev(o), dev(d), dev(t)) for _ in range(3)]
+    for a in held:
+        np.testing.assert_array_equal(host(a), want)
+    gc.collect()
+    assert len(pool.lent) == 2 and not {data_ptr(a) for a in held} & {e.ptr for e in [*pool.free, *pool.lent]}
+    assert str(held[0].dtype).endswith("bool") and tuple(held[0].shape) == (4000,)
+    assert tuple(tracer.occluded(dev(o[:0]), dev(d[:0])).shape) == (0,)
+
+
 def test_cuda_arrays_on_another_gpu_are_refused(tracer, xp):
     mod, dev, host = xp
     count = mod.cuda.device_count() if mod.__name__ == "torch" else mod.cuda.runtime.getDeviceCount()
@@ -258,3 +407,19 @@ def test_raycasting_scene_on_cuda_rays_matches_numpy(xp):
         occ = scene.test_occlusions(dev(shifted), tfar=3.0)
         assert is_framework_device_array(xp, occ) and tuple(occ.shape) == (50, 60)
         np.testing.assert_array_equal(host(occ), scene.test_occlusions(shifted, tfar=3.0))
+
+
+def test_results_outlive_their_tracer(xp):
+    mod, dev, host = xp
+    v, f = mesh()
+    o, d, t = rays(3000, seed=11)
+    with Tracer(v, f) as first:
+        want = first.occluded(o, d, t)
+        got = first.occluded(dev(o), dev(d), dev(t))
+    with Tracer(v * 2.0, f) as other:   # new Vulkan and CUDA memory in use meanwhile
+        junk = [dev(np.full((1 << 20, 3), 7.0, np.float32)) for _ in range(8)]
+        other.occluded(dev(o), dev(d), dev(t))
+        np.testing.assert_array_equal(host(got), want)
+        del junk
+    del got
+    gc.collect()

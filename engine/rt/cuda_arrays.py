@@ -4,15 +4,18 @@
 package), traced there, and the results are returned as device arrays of the caller's framework (torch in, torch
 out; other CUDA arrays go through CuPy and come back as CuPy arrays). The rays never cross the bus.
 
-The stream rule: inputs are read and results written on the caller's current CUDA stream (of the inputs'
-framework); the Tracer synchronizes that stream before each Vulkan dispatch and before it returns, so the results
-are complete on return and the inputs may be changed then. Arrays written on another stream must be ready (that
-stream synchronized, or the current one made to wait for it) before the call.
+The stream rule: inputs are read (and closest hits copied out) on the caller's current CUDA stream (of the inputs'
+framework); the Tracer synchronizes that stream before each Vulkan dispatch and waits for the dispatch, so the
+results are complete on return and the inputs may be changed then. Arrays written on another stream must be ready
+(that stream synchronized, or the current one made to wait for it) before the call.
+
+The kernels check the rays as the numpy path does (CHECK_RAYS in rays.glsl: the first bad ray of each kind in a small
+host-visible buffer, the ConfigError naming it raised after the dispatch), and `occluded` writes one byte per ray into
+a buffer of engine.rt.cuda_results' pool that the returned bool array views (no copy; see there for its lifetime).
 """
 from __future__ import annotations
 
 import math
-import os
 import sys
 from numbers import Real
 
@@ -24,6 +27,7 @@ from ..vk import Buffer, BufferView, DescriptorSet, Recorder
 from ..vk.external import ExternalBuffer, device_uuid, external_memory_unsupported
 from ..vk.formats import INDIRECT, R32F, R32UI, RGB32F, RGBA32UI
 from ..vk.resources import STORAGE, STORAGE_TEXEL, UNIFORM_TEXEL
+from .cuda_results import Region, ResultPool, map_memory, ok, unmap_memory
 
 RAY_BYTES = 28      # as the Tracer's: origins, directions, tmax as three packed arrays (rays.glsl)
 GROUP = 64
@@ -31,8 +35,10 @@ GROUP = 64
 #: larger): a 1920x1080 frame's rays in one dispatch, 4M rays taking 176 MB of device memory
 CUDA_BATCH = 1 << 22
 DLPACK_CUDA = (2, 13)   # DLPack device types: kDLCUDA, kDLCUDAManaged
-F32_MAX = float(np.finfo(np.float32).max)
 F32_TINY = float(np.finfo(np.float32).tiny)   # a direction needs a component at least this large (not subnormal)
+#: seconds the host polls a dispatch's fence before the driver's blocking wait (which wakes later)
+SPIN_S = 0.005
+NONE = 0xFFFFFFFF   # an error word of the kernels (rays.glsl ray_errors): no bad ray
 INSTALL = "pip install cuda-bindings (NVIDIA's CUDA Python bindings, matching the driver's CUDA major version)"
 
 _runtime = None
@@ -46,6 +52,11 @@ def on_cuda(*values) -> bool:
 def _is_cuda(value) -> bool:
     if value is None or isinstance(value, (np.ndarray, np.generic, Real, list, tuple)):
         return False
+    top = type(value).__module__.split(".", 1)[0]
+    if top == "torch" and isinstance(getattr(value, "is_cuda", None), bool):
+        return value.is_cuda   # (without building its __cuda_array_interface__)
+    if top == "cupy" and hasattr(value, "device"):
+        return True
     try:
         if getattr(value, "__cuda_array_interface__", None) is not None:
             return True
@@ -75,14 +86,6 @@ def cuda_runtime():
     return _runtime
 
 
-def _ok(result, what: str):
-    """The values a cuda-bindings call returned after its error code, or a VulkanError naming the call."""
-    err, rest = result[0], result[1:]
-    if int(err) != 0:
-        raise VulkanError(f"CUDA {what} failed: {getattr(err, 'name', err)}")
-    return rest[0] if len(rest) == 1 else rest
-
-
 def cuda_device(ctx) -> tuple[int | None, str | None]:
     """(the CUDA device ordinal of the Vulkan device of `ctx`, None), or (None, why CUDA arrays cannot be used)."""
     rt = cuda_runtime()
@@ -96,20 +99,11 @@ def cuda_device(ctx) -> tuple[int | None, str | None]:
         return None, reason
     want = device_uuid(ctx)
     for i in range(count):
-        uuid = _ok(rt.cudaGetDeviceProperties(i), "cudaGetDeviceProperties").uuid.bytes
+        uuid = ok(rt.cudaGetDeviceProperties(i), "cudaGetDeviceProperties").uuid.bytes
         if (uuid if isinstance(uuid, bytes) else bytes(uuid, "latin-1"))[:16] == want:
             return i, None
     return None, (f"the Vulkan device {ctx.device_info['name']!r} is none of the {count} CUDA devices (no UUID "
                   "matches; pick the NVIDIA GPU with device=)")
-
-
-class _Region:
-    """A piece of CUDA memory as `__cuda_array_interface__`, for torch.as_tensor / cupy.asarray to wrap."""
-
-    def __init__(self, ptr: int, shape: tuple, typestr: str, device: int):
-        self.device = device
-        self.__cuda_array_interface__ = {"shape": shape, "typestr": typestr, "data": (ptr, False), "version": 3,
-                                         "strides": None, "stream": None}
 
 
 class _Torch:
@@ -127,7 +121,7 @@ class _Torch:
     def dtype(self, a):
         return str(a.dtype).replace("torch.", "")
 
-    def wrap(self, region: _Region):
+    def wrap(self, region: Region):
         return self.m.as_tensor(region, device=f"cuda:{region.device}")
 
     def empty(self, shape, dtype: str, device: int):
@@ -155,7 +149,7 @@ class _CuPy:
     def dtype(self, a):
         return str(a.dtype)
 
-    def wrap(self, region: _Region):
+    def wrap(self, region: Region):
         with self.m.cuda.Device(region.device):
             return self.m.asarray(region)
 
@@ -193,105 +187,95 @@ def framework(value, what: str):
 
 
 class _Shared:
-    """The ray and result buffers CUDA and Vulkan share, for up to `batch` rays a dispatch: exported, mapped into
-    CUDA, bound in their own descriptor set, with a command buffer per query kind (recorded once)."""
+    """The ray buffers CUDA and Vulkan share, for up to `batch` rays a dispatch (exported, mapped into CUDA), the
+    closest hits' result buffer, the pool of occlusion-result buffers, and the kernels' error words; each result
+    buffer has its own descriptor set and recording (made once)."""
 
     def __init__(self, tracer, rt, device: int, batch: int):
         self.tracer, self.ctx, self.rt, self.device = tracer, tracer.ctx, rt, device
         self._imports: list[tuple] = []   # (external memory, mapped pointer) to free
         self._views: dict = {}
         self.ray_views: list = []
-        self.batch = batch
+        self.batch = batch = -(-batch // GROUP) * GROUP   # (each dispatch's results start at a whole workgroup)
         align = max(1, int(self.ctx.limits.minTexelBufferOffsetAlignment))   # as the Tracer's ray arrays
         step = align // math.gcd(12, align)
         c = self.capacity = -(-batch // step) * step
         ctx, b = self.ctx, batch
+        self.pool = None
         try:
             self.rays = ExternalBuffer(ctx, c * RAY_BYTES, STORAGE | UNIFORM_TEXEL, name="rays (CUDA)")
             self.results = ExternalBuffer(ctx, b * 16, STORAGE | STORAGE_TEXEL, name="hits (CUDA)")
             self.params = Buffer(ctx, 32, STORAGE | INDIRECT, host=True, name="params (CUDA)")
-            interface = tracer.interface
-            self.io_set = DescriptorSet(ctx, interface.set(0).values())
-            for name, buf in (("ray_data", self.rays), ("params", self.params), ("retry", tracer.retry)):
-                self.io_set.bind(name, buf)
-            self.io_set.bind(interface.bindings[1].name, self.results)
+            self.errors = Buffer(ctx, 16, STORAGE, host=True, name="ray errors (CUDA)")
+            self.first_bad = self.errors.view(np.uint32)   # (mapped: set before, read after each dispatch)
+            self.words = self.params.view(np.uint32)
             vec3 = RGB32F if tracer.rays_texel_ok else R32F
+            # (the texel views are read only on CPU devices, which CUDA arrays never use; bound as the layout asks)
             self.ray_views = [BufferView(self.rays, vec3, 0, 12 * c), BufferView(self.rays, vec3, 12 * c, 12 * c),
                               BufferView(self.rays, R32F, 24 * c, 4 * c), BufferView(self.results, R32UI, 0, 4 * b),
                               BufferView(self.results, RGBA32UI, 0, 16 * b)]
-            for name, view in zip(("ray_origins", "ray_directions", "ray_tmax", "occluded_texels", "hit_texels"),
-                                  self.ray_views):
-                self.io_set.bind(name, view)
-            tracer.bind_alpha(self.io_set)   # (a Tracer of arrays: the test compiled out, its dummy bindings)
+            self.kernels = {"occluded": tracer.kernel("occluded", CHECK_RAYS=True, RESULT_BYTES=True),
+                            "intersect": tracer.kernel("intersect", CHECK_RAYS=True)}
             self.rays_ptr = self._import(self.rays)
             self.results_ptr = self._import(self.results)
-            self.commands = {kind: self._record(kind) for kind in ("occluded", "intersect")}
+            self.io_set, self.intersect = self._recording("intersect", self.results)
+            self.pool = ResultPool(ctx, rt, device, lambda buf: self._recording("occluded", buf))
         except BaseException:
             self.close()
             raise
 
     def _import(self, buf: ExternalBuffer) -> int:
         """Map `buf`'s memory into CUDA on the Tracer's device; its device pointer."""
-        rt = self.rt
-        fd = buf.export_fd()
-        prev = _ok(rt.cudaGetDevice(), "cudaGetDevice")
-        try:
-            _ok(rt.cudaSetDevice(self.device), "cudaSetDevice")
-            desc = rt.cudaExternalMemoryHandleDesc()
-            desc.type = rt.cudaExternalMemoryHandleType.cudaExternalMemoryHandleTypeOpaqueFd
-            desc.handle.fd = fd
-            desc.size = buf.allocation_size
-            desc.flags = rt.cudaExternalMemoryDedicated if buf.dedicated else 0
-            try:
-                ext = _ok(rt.cudaImportExternalMemory(desc), "cudaImportExternalMemory")
-            except VulkanError:
-                os.close(fd)   # (CUDA owns the descriptor only once imported)
-                raise
-            mapping = rt.cudaExternalMemoryBufferDesc()
-            mapping.offset, mapping.size, mapping.flags = 0, buf.size, 0
-            try:
-                ptr = int(_ok(rt.cudaExternalMemoryGetMappedBuffer(ext, mapping), "cudaExternalMemoryGetMappedBuffer"))
-            except VulkanError:
-                rt.cudaDestroyExternalMemory(ext)
-                raise
-            self._imports.append((ext, ptr))
-            return ptr
-        finally:
-            rt.cudaSetDevice(prev)
+        ext, ptr = map_memory(self.rt, self.device, buf)
+        self._imports.append((ext, ptr))
+        return ptr
 
-    def _record(self, kind: str):
-        rec = Recorder(self.ctx, self.tracer.timestamps)
-        rec.dispatch_indirect(self.tracer.pipelines[kind], [self.io_set, self.tracer.bvh_set], self.params,
-                              reads=[self.rays], writes=[self.results])
+    def _recording(self, kind: str, results):
+        """(a descriptor set of the rays and `results`, the recorded `kind` dispatch with its timestamp names)."""
+        tracer = self.tracer
+        io_set = DescriptorSet(self.ctx, tracer.interface.set(0).values())
+        for name, buf in (("ray_data", self.rays), ("params", self.params), ("retry", tracer.retry),
+                          ("ray_errors", self.errors)):
+            io_set.bind(name, buf)
+        io_set.bind(tracer.interface.bindings[1].name, results)
+        for name, view in zip(("ray_origins", "ray_directions", "ray_tmax", "occluded_texels", "hit_texels"),
+                              self.ray_views):
+            io_set.bind(name, view)
+        tracer.bind_alpha(io_set)   # (a Tracer of arrays: the test compiled out, its dummy bindings)
+        rec = Recorder(self.ctx, tracer.timestamps)
+        rec.dispatch_indirect(self.kernels[kind], [io_set, tracer.bvh_set], self.params,
+                              reads=[self.rays], writes=[results, self.errors])
         rec.mark("trace")
-        rec.to_host(self.results)   # (complete at the fence, before CUDA reads them)
-        return rec.finish(), list(self.tracer.timestamps.names)
+        rec.to_host(results, self.errors)   # (complete at the fence, before CUDA and the host read them)
+        return io_set, (rec.finish(), list(tracer.timestamps.names))
 
     def views(self, fw):
-        """The shared buffers as `fw`'s arrays: origins, directions (c, 3), tmax (c,), results as uint32 (b,),
-        float32 and int32 (b, 4)."""
+        """The shared buffers as `fw`'s arrays: origins, directions (c, 3), tmax (c,), closest hits as float32 and
+        int32 (b, 4)."""
         if fw.name not in self._views:
             c, b, p, r, dev = self.capacity, self.batch, self.rays_ptr, self.results_ptr, self.device
             self._views[fw.name] = {
-                "origins": fw.wrap(_Region(p, (c, 3), "<f4", dev)),
-                "directions": fw.wrap(_Region(p + 12 * c, (c, 3), "<f4", dev)),
-                "tmax": fw.wrap(_Region(p + 24 * c, (c,), "<f4", dev)),
-                "occluded": fw.wrap(_Region(r, (b,), "<u4", dev)),
-                "hits": fw.wrap(_Region(r, (b, 4), "<f4", dev)),
-                "prims": fw.wrap(_Region(r, (b, 4), "<i4", dev))}
+                "origins": fw.wrap(Region(p, (c, 3), "<f4", dev)),
+                "directions": fw.wrap(Region(p + 12 * c, (c, 3), "<f4", dev)),
+                "tmax": fw.wrap(Region(p + 24 * c, (c,), "<f4", dev)),
+                "hits": fw.wrap(Region(r, (b, 4), "<f4", dev)),
+                "prims": fw.wrap(Region(r, (b, 4), "<i4", dev))}
         return self._views[fw.name]
 
     def close(self):
-        """Unmap the memory from CUDA, then free the Vulkan side (the Tracer's device is idle: each query waits)."""
+        """Unmap the memory from CUDA, then free the Vulkan side (the Tracer's device is idle: each query waits); a
+        result buffer still viewed by an array keeps its CUDA mapping until the array is freed."""
         self._views.clear()
-        for cmd, _ in getattr(self, "commands", {}).values():
-            self.ctx.free_command_buffer(cmd)
-        self.commands = {}
+        if self.pool is not None:
+            self.pool.close()
+            self.pool = None
+        if getattr(self, "intersect", None) is not None:
+            self.ctx.free_command_buffer(self.intersect[0])
+            self.intersect = None
         for ext, ptr in self._imports:
-            self.rt.cudaFree(ptr)
-            self.rt.cudaDestroyExternalMemory(ext)
+            unmap_memory(self.rt, ext, ptr)
         self._imports = []
-        for obj in self.ray_views + [getattr(self, k, None) for k in ("rays", "results", "params")]:
+        for obj in self.ray_views + [getattr(self, k, None) for k in ("rays", "results", "params", "errors")]:
             if obj is not None:
                 obj.destroy()
         self.ray_views = []
@@ -370,60 +354,59 @@ class CudaRays:
                 raise ConfigError(f"tmax must be a number or have shape ({n},), got {tuple(t.shape)}")
         return fw, o, d, t, n
 
-    def _check_values(self, fw, v, k: int, start: int, t_is_array: bool):
-        """A ConfigError naming the first bad ray of the batch now in the shared buffers (as the numpy path's):
-        a few whole-batch reductions and one wait on the stream; the rows only when one is bad."""
-        o, d, t = v["origins"][:k], v["directions"][:k], v["tmax"][:k]
-        ad = abs(d)
-        fine = (abs(o).max() <= MAX_COORD) & (ad.max() <= F32_MAX) & (ad >= F32_TINY).any(1).all()
-        if t_is_array:
-            fine = fine & ~(t != t).any()
-        if bool(fine):   # (NaN fails every comparison)
-            return
-        bad_o = ~(abs(o) <= MAX_COORD).all(1)
-        bad_d = ~(ad <= F32_MAX).all(1) | ~(ad >= F32_TINY).any(1)
-        for bad, what in ((bad_o, "origins"), (bad_d, "directions"), (t != t, "tmax")):
-            if bool(bad.any()):
-                i = int(bad.nonzero()[0][0])
-                row = (o if what == "origins" else d if what == "directions" else t)[i].tolist()
-                if what == "origins":
-                    why = (f"has a coordinate beyond +-{MAX_COORD:g} (the triangle test is exact only within it)"
-                           if np.isfinite(row).all() else "is not finite as float32 (NaN, infinite or beyond "
-                                                          "+-3.4e38)")
-                elif what == "directions":
-                    why = ("is not finite as float32 (NaN, infinite or beyond +-3.4e38)" if not np.isfinite(row).all()
-                           else f"has zero length (a direction needs a component of magnitude >= {F32_TINY:g})")
-                else:
-                    why = "has tmax NaN"
-                raise ConfigError(f"{what}: ray {start + i} {why} ({row})")
+    def _name_bad(self, fw, v, start: int):
+        """The ConfigError naming the first bad ray of the batch just traced (the kernels' error words), as the numpy
+        path words it; None when every ray was fine."""
+        first = self.shared.first_bad[:3].tolist()
+        for i, what in zip(first, ("origins", "directions", "tmax")):
+            if i == NONE:
+                continue
+            row = v[what][i].tolist()
+            if what == "origins":
+                why = (f"has a coordinate beyond +-{MAX_COORD:g} (the triangle test is exact only within it)"
+                       if np.isfinite(row).all() else "is not finite as float32 (NaN, infinite or beyond +-3.4e38)")
+            elif what == "directions":
+                why = ("is not finite as float32 (NaN, infinite or beyond +-3.4e38)" if not np.isfinite(row).all()
+                       else f"has zero length (a direction needs a component of magnitude >= {F32_TINY:g})")
+            else:
+                why = "has tmax NaN"
+            return ConfigError(f"{what}: ray {start + i} {why} ({row})")
+        return None
 
     # ---- queries ---------------------------------------------------------------------------------------------
-    def _trace(self, kind, fw, shared: _Shared, o, d, t, start: int, k: int):
-        """Rays [start, start + k) into the shared buffers, checked, and traced; the results stay there."""
+    def _trace(self, command, fw, shared: _Shared, o, d, t, start: int, k: int, out_base: int = 0):
+        """Rays [start, start + k) into the shared buffers and traced by `command` (checked there: a ConfigError
+        naming the first bad one); the results stay in the command's result buffer."""
         v, tracer = shared.views(fw), self.tracer
-        v["origins"][:k] = o[start:start + k]
-        v["directions"][:k] = d[start:start + k]
-        v["tmax"][:k] = t if isinstance(t, float) else t[start:start + k]
-        self._check_values(fw, v, k, start, not isinstance(t, float))
+        whole = start == 0 and k == len(o)   # (slices of the arrays cost more than the copies' launches)
+        v["origins"][:k] = o if whole else o[start:start + k]
+        v["directions"][:k] = d if whole else d[start:start + k]
+        v["tmax"][:k] = t if isinstance(t, float) or whole else t[start:start + k]
+        shared.first_bad[:] = NONE
+        shared.words[:] = ((k + GROUP - 1) // GROUP, 1, 1, k, shared.capacity, tracer.shares, out_base, 0)
         fw.sync(self.device)   # the stream rule: CUDA's writes are done before Vulkan reads
-        shared.params.write(np.array([(k + GROUP - 1) // GROUP, 1, 1, k, shared.capacity, tracer.shares, 0, 0],
-                                     np.uint32))
-        cmd, marks = shared.commands[kind]
-        self.ctx.submit(cmd)   # waits for the fence
+        cmd, marks = command
+        self.ctx.submit(cmd, spin_s=SPIN_S)   # waits for the fence
         tracer.last_times = tracer.timestamps.read(marks)
         tracer.last_gpu_ms += tracer.last_times.get("trace", 0.0)
+        if (shared.first_bad[:3] != NONE).any():
+            raise self._name_bad(fw, v, start)
 
     def occluded(self, origins, directions, tmax):
         fw, o, d, t, n = self.inputs(origins, directions, tmax)
-        out = fw.empty(n, "bool", self.device)
         self.tracer.last_gpu_ms, self.tracer.last_retried = 0.0, 0
+        if n == 0:
+            return fw.empty(0, "bool", self.device)
         shared = self._buffers(n)
-        for s in range(0, n, shared.batch):
-            k = min(shared.batch, n - s)
-            self._trace("occluded", fw, shared, o, d, t, s, k)
-            out[s:s + k] = shared.views(fw)["occluded"][:k] != 0
-        fw.sync(self.device)   # the results are complete, and the shared buffers free for the next call
-        return out
+        entry, lend = shared.pool.take(n)
+        try:
+            for s in range(0, n, shared.batch):
+                self._trace(entry.command, fw, shared, o, d, t, s, min(shared.batch, n - s), s // 4)
+        except BaseException:
+            shared.pool.put(entry)
+            raise
+        out = shared.pool.lend(fw, entry, n)
+        return out if lend else _copy(fw, out)
 
     def intersect(self, origins, directions, tmax):
         """(t, prim, u, v) as `fw`'s (N,) arrays."""
@@ -435,13 +418,13 @@ class CudaRays:
         shared = self._buffers(n)
         for s in range(0, n, shared.batch):
             k = min(shared.batch, n - s)
-            self._trace("intersect", fw, shared, o, d, t, s, k)
+            self._trace(shared.intersect, fw, shared, o, d, t, s, k)
             hits, prims = shared.views(fw)["hits"][:k], shared.views(fw)["prims"][:k]
             out[0][s:s + k] = hits[:, 0]
             out[1][s:s + k] = prims[:, 1]
             out[2][s:s + k] = hits[:, 2]
             out[3][s:s + k] = hits[:, 3]
-        fw.sync(dev)
+        fw.sync(dev)   # the results are complete, and the shared buffers free for the next call
         return out
 
     def close(self):
@@ -464,6 +447,10 @@ def scene_rays(rays, center):
     if np.any(center):   # (in float64, as the numpy path)
         o = o - fw.from_numpy(np.asarray(center, np.float64), fw.device(a))
     return fw, _contiguous(fw, o), _contiguous(fw, d), shape[:-1]
+
+
+def _copy(fw, a):
+    return a.clone() if fw.name == "torch" else a.copy()
 
 
 def _contiguous(fw, a):

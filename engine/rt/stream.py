@@ -59,6 +59,7 @@ class Slot:
                             name=f"retry list {index}")
         for name, buf in (("ray_data", self.rays), ("params", self.params), ("retry", self.retry)):
             self.io_set.bind(name, buf)
+        self.io_set.bind("ray_errors", self.retry)   # (written only by the CUDA-array kernels: CHECK_RAYS)
         # (occluded / hits: two names of the results buffer in the two kernels; the set is laid out from one)
         self.io_set.bind(bindings[1].name, self.results)
         # the texel buffer views of rays.glsl (read where RAYS_TEXEL says). RGB32F uniform texel buffers are optional

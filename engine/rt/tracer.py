@@ -132,7 +132,7 @@ class Hits:
 
     def __repr__(self) -> str:
         n = len(self.t)
-        return f"<Hits {n} rays, {int(np.count_nonzero(self.prim >= 0))} hit>"
+        return f"<Hits {n} rays, {int((self.prim >= 0).sum())} hit>"   # (numpy or CUDA arrays)
 
 
 class Tracer(Closes):
@@ -465,6 +465,11 @@ class Tracer(Closes):
         if self._cuda is None:
             self._cuda = CudaRays(self)
         return self._cuda
+
+    def kernel(self, kind: str, **constants: bool) -> ComputePipeline:
+        """The `kind` trace kernel with `constants` added to its specialization, without its retry pass (the
+        CUDA-array queries' variant: GPU devices, whose register stack never leaves a ray unresolved)."""
+        return _pipelines(self.ctx, self._lib, {kind: dict(self.specs[kind], **constants)}, {kind: False})[kind]
 
     @property
     def retry(self) -> Buffer:

@@ -10,9 +10,11 @@ import struct
 import numpy as np
 import vulkan as vk
 
-from ..errors import ShaderError
+from ..errors import ShaderError, VulkanError
 from .context import Context
 from .reflect import Binding
+
+_vkGetQueryPoolResults = vk.lib.vkGetQueryPoolResults
 
 SB = vk.VK_DESCRIPTOR_TYPE_STORAGE_BUFFER
 UB = vk.VK_DESCRIPTOR_TYPE_UNIFORM_BUFFER
@@ -279,6 +281,7 @@ class Timestamps:
         self.ctx = ctx
         self.capacity = capacity
         self.names: list[str] = []
+        self._ticks = None
         self.enabled = ctx.timestamp_bits > 0 and ctx.timestamp_period_ns > 0
         self.pool = vk.vkCreateQueryPool(ctx.device, vk.VkQueryPoolCreateInfo(
             queryType=vk.VK_QUERY_TYPE_TIMESTAMP, queryCount=2 * capacity), None)
@@ -303,12 +306,15 @@ class Timestamps:
         n = len(names) + 1
         if not self.enabled or n < 2:
             return {}
-        data = vk.ffi.new("uint64_t[]", n)
-        vk.vkGetQueryPoolResults(self.ctx.device, self.pool, 0, n, n * 8, data, 8,
-                                 vk.VK_QUERY_RESULT_64_BIT | vk.VK_QUERY_RESULT_WAIT_BIT)
-        ticks = np.frombuffer(vk.ffi.buffer(data), dtype=np.uint64).astype(np.float64)
-        ms = np.diff(ticks) * self.ctx.timestamp_period_ns * 1e-6
+        if self._ticks is None:
+            self._ticks = vk.ffi.new("uint64_t[]", self.capacity)
+        ticks = self._ticks   # (the loader's entry point, without the wrapper's conversions: a per-query cost)
+        result = _vkGetQueryPoolResults(self.ctx.device, self.pool, 0, n, n * 8, ticks, 8,
+                                        vk.VK_QUERY_RESULT_64_BIT | vk.VK_QUERY_RESULT_WAIT_BIT)
+        if result != vk.VK_SUCCESS:
+            raise VulkanError(f"vkGetQueryPoolResults failed ({result})")
+        scale = self.ctx.timestamp_period_ns * 1e-6
         out: dict[str, float] = {}
-        for name, value in zip(names, ms):
-            out[name] = out.get(name, 0.0) + float(value)
+        for i, name in enumerate(names):
+            out[name] = out.get(name, 0.0) + (ticks[i + 1] - ticks[i]) * scale
         return out

@@ -23,6 +23,10 @@ void main() {
     uint i = ray_block() * 64u + gl_LocalInvocationID.x;
     if (i >= params.count) return;
     load_ray(i, o, d, tmax);
+    if (CHECK_RAYS && !ray_fine(i, o, d, tmax)) {
+        hits[i] = HitRecord(uintBitsToFloat(0x7f800000u), -1, 0.0, 0.0);   // (the query raises: never read)
+        return;
+    }
     bool unresolved;
     hits[i] = record_(bvh_intersect_first(o, d, 0.0, tmax, unresolved));
     if (unresolved) {

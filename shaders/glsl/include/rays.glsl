@@ -20,6 +20,7 @@ layout(std430, set = 0, binding = 2) readonly buffer Params {
     uint count;
     uint capacity;
     uint shares;  // how many contiguous shares of the workgroups the device runs in parallel (see ray_block)
+    uint out_base;  // where this batch's results start in the result buffer, in words (RESULT_BYTES only)
 } params;
 // The same three arrays as uniform texel buffers: origins and directions as RGB32F texels, tmax as R32F.
 layout(set = 0, binding = 4) uniform samplerBuffer ray_origins;
@@ -61,5 +62,27 @@ layout(std430, set = 0, binding = 3) buffer Retry { uint count; uint ids[]; } re
 
 void retry_later(uint i) {
     retry.ids[atomicAdd(retry.count, 1u)] = i;
+}
+
+// CHECK_RAYS (queries on CUDA arrays, engine/rt/cuda_arrays.py, whose rays the host never sees): each kernel checks
+// its ray as engine/rt/checks.py does on the host and traces only fine ones; the first bad ray of each kind goes to
+// ray_errors (origins, directions, tmax; 0xffffffff: none), which the host sets before and reads after the batch.
+layout(constant_id = 30) const bool CHECK_RAYS = false;
+#define RAY_MAX_COORD 1e11   // engine.limits.MAX_COORD
+layout(std430, set = 0, binding = 12) buffer RayErrors { uint first_bad[4]; } ray_errors;
+
+// Whether ray i is fine: origins finite and within +-MAX_COORD, directions finite and with a component of magnitude
+// >= the smallest normal float32 (1 / d would overflow), tmax not NaN. Records the ray when not.
+bool ray_fine(uint i, vec3 o, vec3 d, float tmax) {
+    vec3 ad = abs(d);
+    bool o_ok = all(lessThanEqual(abs(o), vec3(RAY_MAX_COORD)));   // (false for NaN)
+    bool d_ok = all(lessThanEqual(ad, vec3(uintBitsToFloat(0x7f7fffffu))))
+                && any(greaterThanEqual(ad, vec3(uintBitsToFloat(0x00800000u))));
+    bool t_ok = !isnan(tmax);
+    if (o_ok && d_ok && t_ok) return true;
+    if (!o_ok) atomicMin(ray_errors.first_bad[0], i);
+    if (!d_ok) atomicMin(ray_errors.first_bad[1], i);
+    if (!t_ok) atomicMin(ray_errors.first_bad[2], i);
+    return false;
 }
 #endif

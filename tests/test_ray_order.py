@@ -65,18 +65,26 @@ def test_keys_sort_nearby_origins_together():
                              1 << 3, x31 | 1]
 
 
-def test_auto_tells_image_order_from_random_order():
+def test_auto_tells_which_batches_gain():
+    """"auto" reorders shadow rays (one direction) and short rays (AO) from shuffled surface points; not rays in
+    image or triangle order, rays crossing the scene in all directions, non-finite origins or small batches."""
     rng = np.random.default_rng(1)
-    v, f = trimesh.creation.icosphere(4).vertices, trimesh.creation.icosphere(4).faces
-    o, _, _ = surface_rays(v, f, N, rng)
-    assert not incoherent(o)                                  # triangle order: neighbours are close
-    assert incoherent(o[rng.permutation(N)])                  # shuffled
-    assert not incoherent(o[rng.permutation(N)][:ray_order_mod.MIN_RAYS - 1])   # too few rays to bother
+    s = trimesh.creation.icosphere(4)
+    o, d, tmax = surface_rays(s.vertices, s.faces, N, rng)
+    perm = rng.permutation(N)
+    assert not incoherent(o, d, tmax)                          # triangle order: neighbours are close
+    assert incoherent(o[perm], d[perm], tmax[perm])            # shuffled shadow rays
+    assert incoherent(o[perm], d[perm], np.float32(np.inf))
+    assert not incoherent(o[perm][:ray_order_mod.MIN_RAYS - 1], d[:ray_order_mod.MIN_RAYS - 1], np.inf)
+    hemi = rng.normal(size=(N, 3)).astype(np.float32)
+    assert incoherent(o[perm], hemi, np.float32(0.1))          # short rays in all directions (AO)
+    assert not incoherent(o[perm], hemi, np.float32(np.inf))   # long ones: the sort costs more than it gains
     grid = np.stack(np.meshgrid(np.arange(300), np.arange(200), [0.0], indexing="ij"), -1).reshape(-1, 3)
-    assert not incoherent(grid.astype(np.float32))            # pixels in rows
-    bad = o[rng.permutation(N)]
-    bad[:50] = np.nan
-    assert ray_order(np.full((N, 3), np.nan, np.float32), bad) is None   # no box: traced as given
+    assert not incoherent(grid.astype(np.float32), np.ones_like(grid, np.float32), np.inf)   # pixels in rows
+    bad = o[perm]
+    bad[::100] = np.nan
+    assert not incoherent(bad, d, np.inf)
+    assert ray_order(bad, d) is None                           # no box: traced as given, the checks name it
 
 
 @pytest.mark.parametrize("layout", ["binary", "wide"])

@@ -1,11 +1,12 @@
 """Ray reordering for the batch Tracer: incoherent batches (rays in no spatial order, e.g. shadow rays from random
 surface samples) are traced in the order of a coarse Morton code of their origins, and their results scattered back.
 
-On a CPU device (llvmpipe) a SIMD group of 8 lanes walks 8 rays in lock step until the slowest ends and each lane's
-node loads miss the cache on their own: rays of nearby origins walk the same nodes. The key is 16 bits (5 per axis of
-the origin quantized in the batch's box, the octant of the direction in the last bit... see `ray_keys`) so that
-numpy's stable argsort is a radix sort (linear time). `incoherent` decides whether a batch needs it from a sample of
-consecutive origins: image-ordered batches (G-buffer rays) are left alone.
+On a CPU device (llvmpipe) a SIMD group of 8 lanes walks 8 rays in lock step until the slowest ends, and each lane's
+node loads miss the cache on their own: rays from nearby origins walk the same nodes. The key is 16 bits (a 15-bit
+Morton code of the origin's cell in the batch's box, and whether the direction points up), so that numpy's stable
+argsort is a radix sort (linear time). The stream gathers the rays in that order as it packs them and the sinks
+scatter the results back (engine/rt/stream.py). `incoherent` decides whether a batch gains from it, from a sample:
+image-ordered batches (G-buffer rays) and rays crossing the scene in all directions are left alone.
 """
 from __future__ import annotations
 
@@ -14,8 +15,6 @@ import numpy as np
 from ..errors import ConfigError
 from ..parallel import blocks
 
-#: reordering modes of `Tracer(reorder=...)`
-REORDER_MODES = ("auto", True, False)
 #: batches below this many rays are traced as given ("auto"): the trace of a small batch costs little either way
 MIN_RAYS = 1 << 15
 #: consecutive origin pairs sampled by `incoherent`
@@ -23,6 +22,10 @@ SAMPLE = 4096
 #: "auto" reorders a batch when the median distance between consecutive origins (sampled) exceeds this fraction of
 #: the sampled origins' box diagonal (image-ordered rays: neighbouring pixels, ~1e-3 or less; random order: ~0.3)
 INCOHERENT = 0.02
+#: "auto" also wants the directions of rays that the sort brings together to agree (median cosine above this) ...
+ALIKE = 0.7
+#: ... or the rays to be short (median length below this fraction of the diagonal)
+SHORT = 0.2
 #: bits of the origin's Morton code per axis (3 x 5 = 15 bits of the 16-bit key)
 AXIS_BITS = 5
 #: rays per task of the key computation on the worker pool
@@ -54,10 +57,9 @@ def check_reorder(value, where: str = "Tracer") -> object:
     raise ConfigError(f"{where}: reorder must be 'auto', True or False, got {value!r}")
 
 
-def _sample_rows(n: int, count: int, rng_seed: int = 0) -> np.ndarray:
-    """`count` row indices spread over [0, n - 1) (a fixed stride with a fixed offset: deterministic)."""
-    step = max(1, (n - 1) // count)
-    return np.arange(rng_seed % step, n - 1, step)[:count]
+def _sample_rows(n: int, count: int) -> np.ndarray:
+    """Up to `count` row indices spread evenly over [0, n - 1) (deterministic)."""
+    return np.arange(0, n - 1, max(1, (n - 1) // count))[:count]
 
 
 def origin_box(o: np.ndarray):
@@ -70,9 +72,13 @@ def origin_box(o: np.ndarray):
     return lo.astype(np.float32), hi.astype(np.float32)
 
 
-def incoherent(o: np.ndarray) -> bool:
-    """Whether a batch's origins are in no spatial order: the median distance between sampled consecutive origins
-    exceeds INCOHERENT times the diagonal of their box (False for fewer than MIN_RAYS rays)."""
+def incoherent(o: np.ndarray, d: np.ndarray, tmax) -> bool:
+    """Whether reordering a batch pays ("auto"), judged on a sample of SAMPLE rays: its origins come in no spatial
+    order (the median distance between consecutive origins exceeds INCOHERENT times the diagonal of their box) and
+    the rays that the sort brings together would walk the same nodes: their directions agree (the median cosine
+    between sampled rays next to each other in key order exceeds ALIKE, e.g. shadow rays towards a light) or the
+    rays are short (median length below SHORT diagonals, e.g. AO rays). Rays crossing the scene in all directions
+    from random points gain less from the sort than it costs. False for fewer than MIN_RAYS rays."""
     n = len(o)
     if n < MIN_RAYS:
         return False
@@ -80,10 +86,21 @@ def incoherent(o: np.ndarray) -> bool:
     a, b = o[rows].astype(np.float64), o[rows + 1].astype(np.float64)
     lo, hi = np.minimum(a, b).min(axis=0), np.maximum(a, b).max(axis=0)
     diag = float(np.linalg.norm(hi - lo))
-    if not np.isfinite(diag) or diag <= 0:
-        return False
     gap = np.linalg.norm(b - a, axis=1)
-    return bool(np.median(gap[np.isfinite(gap)]) > INCOHERENT * diag) if np.isfinite(gap).any() else False
+    if not (np.isfinite(diag) and diag > 0 and np.isfinite(gap).all()) or np.median(gap) <= INCOHERENT * diag:
+        return False
+    dirs = d[rows].astype(np.float64)
+    length = np.linalg.norm(dirs, axis=1)
+    t = np.asarray(tmax, np.float64)
+    with np.errstate(invalid="ignore", over="ignore"):
+        reach = length * (t if t.ndim == 0 else t[rows])
+        if np.median(np.where(np.isnan(reach), np.inf, reach)) < SHORT * diag:
+            return True
+        unit = dirs / length[:, None]
+        near = unit[np.argsort(ray_keys(o[rows], d[rows], (lo.astype(np.float32), hi.astype(np.float32))),
+                               kind="stable")]
+        cos = np.einsum("ij,ij->i", near[1:], near[:-1])
+    return bool(np.median(np.nan_to_num(cos, nan=-1.0)) > ALIKE)
 
 
 def ray_keys(o: np.ndarray, d: np.ndarray, box, threads: int = 1) -> np.ndarray:

@@ -412,7 +412,7 @@ class Tracer(Closes):
         o, d, t = ray_arrays(origins, directions, tmax, tmax_nan=False)
         self._sync()
         out = np.empty(len(o), bool)
-        order = self._order(o, d, reorder)
+        order = self._order(o, d, t, reorder)
         self._stream("occluded", o, d, t, occluded_sink(out, order), lambda: _name_bad(o, d, t, origins, directions),
                      order)
         return out
@@ -430,7 +430,7 @@ class Tracer(Closes):
         o, d, t = ray_arrays(origins, directions, tmax, tmax_nan=False)
         self._sync()
         n = len(o)
-        order = self._order(o, d, reorder)
+        order = self._order(o, d, t, reorder)
         hits = Hits(np.empty(n, np.float32), np.empty(n, np.int32), np.empty(n, np.float32), np.empty(n, np.float32))
         sink = hits_sink(hits.t, hits.prim, hits.u, hits.v, order)
         if self._source is not None:   # from_scene: each chunk's instance and mesh triangle, from its flat ids
@@ -463,11 +463,11 @@ class Tracer(Closes):
             self.two_pass["closest"] = False   # one dispatch: the point walk keeps its stack in an array
         return self._closest.run(points)
 
-    def _order(self, o, d, reorder):
+    def _order(self, o, d, t, reorder):
         """The order to trace a batch in (engine/rt/order.py), or None for the given order; sets `last_reordered`."""
         mode = self.reorder if reorder is None else check_reorder(reorder, "Tracer query")
         if mode == "auto":
-            mode = is_cpu(self.ctx) and incoherent(o)
+            mode = is_cpu(self.ctx) and incoherent(o, d, t)
         order = ray_order(o, d, min(default_threads(), STREAM_THREADS)) if mode and len(o) > 1 else None
         self.last_reordered = order is not None
         return order

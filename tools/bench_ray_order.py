@@ -17,7 +17,9 @@ and the ratios are per run (medians):
   auto       the shuffled rays with the default reorder="auto"
 
 and G-buffer shadow rays (one per covered pixel of a rendered frame, image order, repeated up to the same count)
-with reorder=False and "auto" (auto must leave them alone). Results of every variant are checked equal (permuted).
+with reorder=False and "auto" (auto must leave them alone), and the bench's random closest-hit rays (between two
+random points of the box: random order, random directions) with reorder=False, True and "auto" (auto leaves them
+alone: the sort costs more than it gains there). Results of every variant are checked equal (permuted).
 """
 from __future__ import annotations
 
@@ -32,32 +34,8 @@ import numpy as np
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
 import engine  # noqa: E402
-from engine.bench.rays import ORIGIN_OFFSET, first_light_rays, scene_diag  # noqa: E402
+from engine.bench.rays import first_light_rays, random_rayset, surface_shadow_rays  # noqa: E402
 from engine.bench.scenes import generated_scene  # noqa: E402
-from engine.scene import DirectionalLight  # noqa: E402
-
-
-def surface_shadow_rays(scene, n, rng):
-    """n shadow rays from area-weighted uniform random surface points towards the scene's first light."""
-    v = np.asarray(scene.positions, np.float64)
-    f = np.asarray(scene.indices, np.int64)
-    a, b, c = v[f[:, 0]], v[f[:, 1]], v[f[:, 2]]
-    normal = np.cross(b - a, c - a)
-    area = np.linalg.norm(normal, axis=1)
-    tri = rng.choice(len(f), size=n, p=area / area.sum())
-    r1, r2 = np.sqrt(rng.random(n)), rng.random(n)
-    p = a[tri] * (1 - r1)[:, None] + b[tri] * (r1 * (1 - r2))[:, None] + c[tri] * (r1 * r2)[:, None]
-    nrm = normal[tri] / np.maximum(area[tri], 1e-30)[:, None]
-    light = scene.lights[0]
-    if isinstance(light, DirectionalLight):
-        d = np.broadcast_to(-np.asarray(light.direction, np.float64), p.shape)
-        tmax = np.inf
-    else:
-        d = np.asarray(light.position, np.float64) - p
-        tmax = 0.999
-    side = np.where(np.einsum("ij,ij->i", nrm, d) >= 0, 1.0, -1.0)[:, None]   # the face's side facing the light
-    o = p + nrm * side * (ORIGIN_OFFSET * scene_diag(scene))
-    return np.ascontiguousarray(o, np.float32), np.ascontiguousarray(d, np.float32), np.float32(tmax)
 
 
 def morton30(o):
@@ -105,7 +83,8 @@ def gbuffer_rays(scene, n, size):
 
 
 def bench_scene(name, scene, a, rng):
-    o, d, t = surface_shadow_rays(scene, a.rays, rng)
+    o, d, tmax, _ = surface_shadow_rays(scene, a.rays, rng)
+    t = np.float32(tmax)
     variants = {}
     coherent = np.argsort(morton30(o), kind="stable")
     variants["coherent"] = (o[coherent], d[coherent], False, coherent)
@@ -117,7 +96,12 @@ def bench_scene(name, scene, a, rng):
     variants["auto"] = (variants["shuffled"][0], variants["shuffled"][1], "auto", shuffle)
     go, gd, gt = gbuffer_rays(scene, a.rays, a.gbuffer)
     v, f = np.asarray(scene.positions, np.float32), np.asarray(scene.indices, np.int64)
-    walls = {k: [] for k in list(variants) + ["gbuffer", "gbuffer auto"]}
+    rnd = random_rayset(scene, a.rays, rng)
+    extra = {"gbuffer": (go, gd, gt, False, "occluded"), "gbuffer auto": (go, gd, gt, "auto", "occluded"),
+             "random": (rnd.origins, rnd.directions, np.float32(np.inf), False, "intersect"),
+             "random sorted": (rnd.origins, rnd.directions, np.float32(np.inf), True, "intersect"),
+             "random auto": (rnd.origins, rnd.directions, np.float32(np.inf), "auto", "intersect")}
+    walls = {k: [] for k in list(variants) + list(extra)}
     reordered = {}
     with engine.Tracer(v, f) as tr:
         want = tr.occluded(o, d, t, reorder=False)
@@ -131,12 +115,13 @@ def bench_scene(name, scene, a, rng):
                 tr.occluded(vo, vd, t, reorder=mode)
                 walls[key].append(time.perf_counter() - t0)
                 reordered[key] = tr.last_reordered
-            for key, mode in (("gbuffer", False), ("gbuffer auto", "auto")):
+            for key, (xo, xd, xt, mode, kind) in extra.items():
                 t0 = time.perf_counter()
-                got = tr.occluded(go, gd, gt, reorder=mode)
+                got = getattr(tr, kind)(xo, xd, xt, reorder=mode)
                 walls[key].append(time.perf_counter() - t0)
                 reordered[key] = tr.last_reordered
-            assert np.array_equal(got, g_want)
+                if key.startswith("gbuffer"):
+                    assert np.array_equal(got, g_want)
         errors = tr.validation_errors[:5]
     w = {k: np.asarray(x) for k, x in walls.items()}
     ratio = lambda x, y: float(np.median(w[x] / w[y]))   # noqa: E731  (per run, interleaved)
@@ -149,7 +134,9 @@ def bench_scene(name, scene, a, rng):
                        "shuffled / coherent": ratio("coherent", "shuffled"),
                        "reordered / shuffled": ratio("shuffled", "reordered"),
                        "auto / reordered": ratio("reordered", "auto"),
-                       "gbuffer auto / gbuffer": ratio("gbuffer", "gbuffer auto")},
+                       "gbuffer auto / gbuffer": ratio("gbuffer", "gbuffer auto"),
+                       "random sorted / random": ratio("random", "random sorted"),
+                       "random auto / random": ratio("random", "random auto")},
             "validation_errors": errors}
 
 

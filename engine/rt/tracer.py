@@ -148,7 +148,8 @@ class Tracer(Closes):
     a NaN, infinite or zero direction is a `ConfigError` naming the ray, not a silent miss.
 
     After a query: `last_gpu_ms` (GPU ms of its trace dispatches), `last_retried` (rays the second dispatch walked
-    again, on CPU devices), `last_times` (GPU ms of the last chunk per step). `stats`: the BVH's build figures
+    again, on CPU devices), `last_times` (GPU ms of the last chunk per step), `last_reordered` (whether its rays
+    were traced in the order of their origins, `reorder`). `stats`: the BVH's build figures
     (build_ms, nodes, depth, sah_cost, threads, layout, ...). Close it (`close()` or a `with` block) to free the
     device; a closed Tracer raises `ConfigError`. Several Tracers (and Renderers) can share one `engine.Device`
     (`device=dev`): each then costs only its BVH build and upload.

@@ -181,7 +181,8 @@ class Tracer(Closes):
             reorder: trace the rays of `occluded` / `intersect` in the order of a coarse Morton code of their origins
                 (results still in the caller's order; engine/rt/order.py): True, False, or "auto" (the default:
                 on CPU devices, for batches whose origins come in no spatial order, e.g. shadow rays from random
-                surface samples; image-ordered batches are traced as given; off on GPUs).
+                surface samples; image-ordered batches are traced as given; off on GPUs). Queries on CUDA arrays are
+                traced as given.
 
         Raises:
             SceneError: bad vertices or faces (shape, NaN, out-of-range indices, beyond MAX_COORD).
@@ -488,6 +489,7 @@ class Tracer(Closes):
                               "(its instance ids and BVH updates are host-side); pass numpy arrays")
         if self._cuda is None:
             self._cuda = CudaRays(self)
+        self.last_reordered = False   # (CUDA arrays are traced as given)
         return self._cuda
 
     @property

@@ -193,3 +193,21 @@ def test_open3d_and_trimesh_interfaces_on_shuffled_rays(bumpy):
     assert np.array_equal(rmi.intersects_any(o, d)[perm], rmi.intersects_any(o[perm], d[perm]))
     assert rmi.validation_errors == []
     rmi.close()
+
+
+def test_one_direction_for_all_is_filled_not_gathered():
+    """Shadow rays towards a distant light share one direction: the reordered stream fills it (a stride-0 view);
+    rays whose directions differ in one row are gathered as they are. Both give the unshuffled results permuted."""
+    v, f = trimesh.creation.icosphere(3).vertices, trimesh.creation.icosphere(3).faces
+    rng = np.random.default_rng(8)
+    o, d, tmax = surface_rays(v, f, N, rng)
+    perm = rng.permutation(N)
+    assert ray_order_mod.shared_direction(d).strides[0] == 0
+    odd = d.copy()
+    odd[N - 3] = (0.0, -1.0, 0.0)
+    assert ray_order_mod.shared_direction(odd) is odd
+    with Tracer(v, f, batch_size=8192) as tr:
+        for dirs in (d, odd):
+            want = tr.occluded(o, dirs, tmax, reorder=False)
+            assert np.array_equal(tr.occluded(o[perm], dirs[perm], tmax[perm], reorder=True), want[perm])
+            assert want.any() and not want.all()

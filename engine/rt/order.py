@@ -103,6 +103,15 @@ def incoherent(o: np.ndarray, d: np.ndarray, tmax) -> bool:
     return bool(np.median(np.nan_to_num(cos, nan=-1.0)) > ALIKE)
 
 
+def shared_direction(d: np.ndarray) -> np.ndarray:
+    """`d`, or where every ray has the same direction (shadow rays towards a distant light), its first row
+    broadcast to d's shape (a stride-0 view: the stream then fills the directions instead of gathering them). The
+    full comparison runs only when a sample's directions are all equal."""
+    if len(d) == 0 or not (d[_sample_rows(len(d) + 1, SAMPLE)] == d[0]).all() or not (d == d[0]).all():
+        return d
+    return np.broadcast_to(d[0], d.shape)
+
+
 def ray_keys(o: np.ndarray, d: np.ndarray, box, threads: int = 1) -> np.ndarray:
     """(N,) uint16 keys: the 15-bit Morton code of each origin quantized to 32 cells per axis of `box` (clamped),
     then whether the direction points up (+y) or down, which splits a cell's rays leaving opposite sides of a

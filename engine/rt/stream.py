@@ -133,7 +133,10 @@ class Slot:
                 np.copyto(dd, d[s:e])
             else:
                 np.take(o, rows[s:e], axis=0, out=oo)
-                np.take(d, rows[s:e], axis=0, out=dd)
+                if d.strides[0] == 0:   # one direction for all (order.shared_direction): not gathered
+                    dd[:] = d[0]
+                else:
+                    np.take(d, rows[s:e], axis=0, out=dd)
             if t.ndim == 0:
                 tt.fill(t)
             elif rows is None:

@@ -38,7 +38,7 @@ from ..vk.shared import Device, Scope
 from .checks import check_batch_size, check_mesh, name_bad_ray, name_bad_tmax, ray_arrays
 from .closest import Closest, ClosestQuery
 from .cuda_arrays import CudaRays, on_cuda
-from .order import check_reorder, incoherent, ray_order
+from .order import check_reorder, incoherent, ray_order, shared_direction
 from .stream import STREAM_THREADS, Slot, hits_sink, instance_sink, occluded_sink, stream
 
 #: Query kinds whose kernels read rays (and write results) through texel buffer views on CPU devices (RAYS_TEXEL):
@@ -480,7 +480,7 @@ class Tracer(Closes):
         ray); `sink(slot, start, s, e)` takes rays [s, e) of a chunk's results from `slot.results_host`
         (engine/rt/stream.py)."""
         self.last_gpu_ms, self.last_retried = 0.0, 0
-        stream(self, kind, o, d, t, sink, bad, order)
+        stream(self, kind, o, d if order is None else shared_direction(d), t, sink, bad, order)
 
     def _device_arrays(self) -> CudaRays:
         """The queries on CUDA arrays (a ConfigError saying why where CUDA cannot share this device's memory)."""

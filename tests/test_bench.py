@@ -50,7 +50,7 @@ def test_json_has_every_section_and_figure(results):
 
     (sc,) = data["trace"]["scenes"]
     assert sc["scene"] == "generated" and sc["triangles"] > 4000
-    assert [r["name"] for r in sc["raysets"]] == ["shadow", "ao", "random"]
+    assert [r["name"] for r in sc["raysets"]] == ["shadow", "ao", "random", "scattered"]
     for rs in sc["raysets"]:
         assert rs["rays"] > 100, rs["note"]
         # a CPU device (lavapipe): one run before ours' timed runs, no clock warm-up loop

@@ -89,7 +89,7 @@ def test_a_query_that_fails_half_way_leaves_nothing_in_flight(pair, monkeypatch)
     _, _, o, d, tmax = scene_and_rays(3 * CHUNK)
     want = small.occluded(o, d, tmax)
 
-    def failing(out):
+    def failing(out, order=None):
         def sink(*args):
             raise RuntimeError("sink failed")
         return sink

@@ -12,9 +12,10 @@ DEFAULT_SCENE = SCENES_DIR / "default.toml"
 SECTIONS = ("build", "trace", "frame")
 PEERS = ("embreex", "open3d", "mitsuba", "mitsuba_device")
 ENGINES = ("ours",) + PEERS
-RAYSETS = ("shadow", "ao", "random")
+RAYSETS = ("shadow", "ao", "random", "scattered")
 RAYSET_TITLES = {"shadow": "shadow rays (occluded, G-buffer)", "ao": "AO rays (occluded, G-buffer)",
-                 "random": "random rays (closest hit)"}
+                 "random": "random rays (closest hit)",
+                 "scattered": "shadow rays (occluded, random surface points, random order)"}
 
 
 #: The AOVs of the dataset figures (the headless-data target of issue 16).

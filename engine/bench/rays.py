@@ -84,6 +84,39 @@ def gbuffer_raysets(scene, frame, rng) -> list[RaySet]:
     return [shadow, ao]
 
 
+def surface_shadow_rays(scene, count, rng):
+    """`count` shadow rays from area-weighted uniform random points of the scene's triangles (in random order),
+    offset ORIGIN_OFFSET diagonals along the face normal on the light's side, towards the scene's first light:
+    float32 origins and directions, one tmax (as first_light_rays), and a description."""
+    v = np.asarray(scene.positions, np.float64)
+    f = np.asarray(scene.indices, np.int64)
+    a, b, c = v[f[:, 0]], v[f[:, 1]], v[f[:, 2]]
+    normal = np.cross(b - a, c - a)
+    area = np.linalg.norm(normal, axis=1)
+    tri = rng.choice(len(f), size=count, p=area / area.sum())
+    r1, r2 = np.sqrt(rng.random(count)), rng.random(count)
+    p = a[tri] * (1 - r1)[:, None] + b[tri] * (r1 * (1 - r2))[:, None] + c[tri] * (r1 * r2)[:, None]
+    nrm = normal[tri] / np.maximum(area[tri], 1e-30)[:, None]
+    light = scene.lights[0]
+    if isinstance(light, DirectionalLight):
+        d = np.broadcast_to(-np.asarray(light.direction, np.float64), p.shape)
+        tmax, what = float("inf"), f"towards the sun {type(light).__name__}"
+    else:
+        d = np.asarray(light.position, np.float64) - p
+        tmax, what = 0.999, f"to the centre of a {type(light).__name__}"
+    side = np.where(np.einsum("ij,ij->i", nrm, d) >= 0, 1.0, -1.0)[:, None]   # the face's side facing the light
+    o = p + nrm * side * (ORIGIN_OFFSET * scene_diag(scene))
+    return _f32(o), _f32(d), tmax, what
+
+
+def scattered_rayset(scene, count, rng) -> RaySet:
+    """Shadow rays from random surface points in random order (`surface_shadow_rays`): what a path tracer's or a
+    light-map baker's batch looks like, unlike the G-buffer's image-ordered rays."""
+    o, d, tmax, what = surface_shadow_rays(scene, count, rng)
+    return RaySet("scattered", "occluded", o, d, tmax,
+                  f"{count} rays from random surface points (area-weighted, random order), {what}")
+
+
 def random_rayset(scene, count, rng) -> RaySet:
     """Closest-hit rays between two uniform random points of the scene's bounding box (incoherent, crossing it)."""
     lo, hi = (np.asarray(b, np.float64) for b in scene.bounds)

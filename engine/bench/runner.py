@@ -28,7 +28,7 @@ from .engines import OursEngine
 from .machine import OtherLoad, machine_info
 from .peers import agreement, make_peer
 from .progress import Progress
-from .rays import RaySet, first_light_rays, gbuffer_raysets, random_rayset, scene_diag
+from .rays import RaySet, first_light_rays, gbuffer_raysets, random_rayset, scattered_rayset, scene_diag
 from .scenes import generated_mesh, generated_scene
 from .targets import evaluate_targets
 from .timing import median
@@ -215,6 +215,7 @@ class Bench:
             sets = gbuffer_raysets(scene, frame, rng)
             count = cfg.random_rays or self.renderer().width * self.renderer().height
             sets.append(random_rayset(scene, count, rng))
+            sets.append(scattered_rayset(scene, len(sets[0]), rng))   # as many as the G-buffer's shadow rays
             return scene, frame, sets
         scene, frame, sets = self._step(f"trace ({tag}): scene, G-buffer, rays", prepare)
         diag = scene_diag(scene)

@@ -27,8 +27,8 @@ def evaluate_targets(results: dict) -> list[dict]:
     cpu_device = device.get("type") == "CPU"
     for sc in results.get("trace", {}).get("scenes", []):
         for rs in sc["raysets"]:
-            if rs["kind"] != "occluded" or "open3d" not in rs["ratio"]:
-                continue
+            if rs["kind"] != "occluded" or "open3d" not in rs["ratio"] or rs["name"] == "scattered":
+                continue   # (issues 3 and 6 name the G-buffer's ray sets)
             ratio = rs["ratio"]["open3d"]
             for basis in ("wall", "gpu"):
                 where = f"{sc['scene']} scene, {rs['name']} rays, {'wall clock' if basis == 'wall' else 'GPU time'}"

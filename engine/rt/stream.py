@@ -119,22 +119,31 @@ class Slot:
             rec.to_host(self.results, self.retry)
         return rec.finish(), list(self.timestamps.names)
 
-    def pack_tasks(self, o, d, t, n: int, threads: int, scratch: np.ndarray) -> list:
+    def pack_tasks(self, o, d, t, n: int, threads: int, scratch: np.ndarray, rows=None) -> list:
         """Tasks (on the worker pool, one row block each) copying rays [0, n) of o, d and t (an array, or one float32
-        for all) into the mapped arrays and then checking the block there, while it is in cache (`block_fine`,
-        over the block's rows of `scratch`); each returns False for a block with a bad ray (then nothing may be
-        submitted)."""
+        for all) into the mapped arrays, or with `rows` (n indices) rays rows[0:n] of them (a reordered batch), and
+        then checking the block there, while it is in cache (`block_fine`, over the block's rows of `scratch`);
+        each returns False for a block with a bad ray (then nothing may be submitted)."""
         step = block_size(n, threads, "pack")
 
         def block(s):
             e = min(s + step, n)
             oo, dd, tt = self.origins[s:e], self.directions[s:e], self.tmax[s:e]
-            np.copyto(oo, o[s:e])
-            np.copyto(dd, d[s:e])
+            if rows is None:
+                np.copyto(oo, o[s:e])
+                np.copyto(dd, d[s:e])
+            else:
+                np.take(o, rows[s:e], axis=0, out=oo)
+                if d.strides[0] == 0:   # one direction for all (order.shared_direction): not gathered
+                    dd[:] = d[0]
+                else:
+                    np.take(d, rows[s:e], axis=0, out=dd)
             if t.ndim == 0:
                 tt.fill(t)
-            else:
+            elif rows is None:
                 np.copyto(tt, t[s:e])
+            else:
+                np.take(t, rows[s:e], out=tt)
             return block_fine(oo, dd, None if t.ndim == 0 else tt, scratch[3 * s:3 * e])
         return [lambda s=s: block(s) for s in range(0, n, step)]
 
@@ -159,10 +168,11 @@ def block_size(n: int, threads: int, what: str) -> int:
     return max(MIN_BLOCK[what], -(-n // max(threads, 1)))
 
 
-def stream(tracer, kind: str, o, d, t, sink, bad) -> None:
+def stream(tracer, kind: str, o, d, t, sink, bad, order=None) -> None:
     """Trace rays o, d, t (float32 (N, 3), (N, 3), and (N,) or one for all; checked but for `block_fine`) through
-    `tracer`'s slots in chunks of `tracer.chunk`, with up to len(slots) chunks in flight; `sink(slot, start, s, e)`
-    takes rays [s, e) of the chunk from `start` from the slot's results; `bad()` raises the error for a chunk with a
+    `tracer`'s slots in chunks of `tracer.chunk`, with up to len(slots) chunks in flight, in the order of the (N,)
+    indices `order` if given (engine/rt/order.py); `sink(slot, start, s, e)` takes traced rays [s, e) of the chunk
+    from `start` from the slot's results (made with the same `order`); `bad()` raises the error for a chunk with a
     bad ray. One round of tasks on the worker pool per chunk: its packing, and the sink of the chunk whose slot it
     reuses (that chunk's fence waited for first). Updates the tracer's last_gpu_ms, last_retried and last_times."""
     slots, chunk = tracer.slots, tracer.chunk
@@ -188,8 +198,11 @@ def stream(tracer, kind: str, o, d, t, sink, bad) -> None:
             slot = slots[i % len(slots)]
             tasks = collect() if len(inflight) == len(slots) else []
             slot.wait()   # (a query that failed half-way left it pending)
-            packs = slot.pack_tasks(o[start:start + n], d[start:start + n], t if t.ndim == 0 else t[start:start + n],
-                                    n, threads, tracer.scratch)
+            if order is None:
+                packs = slot.pack_tasks(o[start:start + n], d[start:start + n],
+                                        t if t.ndim == 0 else t[start:start + n], n, threads, tracer.scratch)
+            else:
+                packs = slot.pack_tasks(o, d, t, n, threads, tracer.scratch, order[start:start + n])
             if not all(_parallel(packs + tasks, threads)[:len(packs)]):
                 bad()
             inflight.append((slot, start, n, slot.submit(kind, n, tracer.shares, tracer._record)))
@@ -200,35 +213,45 @@ def stream(tracer, kind: str, o, d, t, sink, bad) -> None:
             slot.wait()
 
 
-def occluded_sink(out: np.ndarray):
-    """A sink writing (N,) bool `out` from the occlusion words of each chunk."""
+def _rows(order, a: int, b: int):
+    """Where traced rays [a, b) go in the caller's arrays: a slice, or their indices in a reordered batch."""
+    return slice(a, b) if order is None else order[a:b]
+
+
+def occluded_sink(out: np.ndarray, order=None):
+    """A sink writing (N,) bool `out` from the occlusion words of each chunk (scattered by `order`, as traced)."""
     def sink(slot, start, s, e):
-        np.not_equal(slot.results_host.view(np.uint32)[s:e], 0, out=out[start + s:start + e])
+        words = slot.results_host.view(np.uint32)[s:e]
+        if order is None:
+            np.not_equal(words, 0, out=out[start + s:start + e])
+        else:
+            out[order[start + s:start + e]] = words != 0
     return sink
 
 
-def hits_sink(t_out, prim_out, u_out, v_out):
-    """A sink writing the (N,) arrays of Hits from each chunk's (t, prim, u, v) records."""
+def hits_sink(t_out, prim_out, u_out, v_out, order=None):
+    """A sink writing the (N,) arrays of Hits from each chunk's (t, prim, u, v) records (scattered by `order`)."""
     def sink(slot, start, s, e):
         r = slot.results_host.view(np.float32)[4 * s:4 * e].reshape(e - s, 4)
-        t_out[start + s:start + e] = r[:, 0]
-        prim_out[start + s:start + e] = r[:, 1].view(np.int32)
-        u_out[start + s:start + e] = r[:, 2]
-        v_out[start + s:start + e] = r[:, 3]
+        rows = _rows(order, start + s, start + e)
+        t_out[rows] = r[:, 0]
+        prim_out[rows] = r[:, 1].view(np.int32)
+        u_out[rows] = r[:, 2]
+        v_out[rows] = r[:, 3]
     return sink
 
 
-def instance_sink(inner, prim, flat_tri_base, inst_out, mesh_prim_out):
+def instance_sink(inner, prim, flat_tri_base, inst_out, mesh_prim_out, order=None):
     """A sink running `inner` (hits_sink), then writing each chunk's instance and mesh triangle (-1 on a miss) from
     its flattened-scene triangle ids `prim` and the instances' first flat triangles `flat_tri_base` (ascending)."""
     base = np.asarray(flat_tri_base, dtype=np.int64)
 
     def sink(slot, start, s, e):
         inner(slot, start, s, e)
-        a, b = start + s, start + e
-        p = prim[a:b].astype(np.int64)
+        a = _rows(order, start + s, start + e)
+        p = prim[a].astype(np.int64)
         hit = p >= 0
         inst = np.searchsorted(base, p, side="right") - 1
-        inst_out[a:b] = np.where(hit, inst, -1)
-        mesh_prim_out[a:b] = np.where(hit, p - base[np.maximum(inst, 0)], -1)
+        inst_out[a] = np.where(hit, inst, -1)
+        mesh_prim_out[a] = np.where(hit, p - base[np.maximum(inst, 0)], -1)
     return sink

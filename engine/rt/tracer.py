@@ -24,7 +24,7 @@ from ..bvh import build_bvh
 from ..errors import ConfigError, SceneError
 from ..gpu import SceneBVH, bvh_descriptor_set, bvh_layout
 from ..gpu.bvh import CPU_OCCLUSION_STACK_REGS, InstancedBVH, flag_alpha_tested, is_instanced
-from ..parallel import serialized
+from ..parallel import default_threads, serialized
 from ..passes.gbuffer import alpha_records, scene_textures
 from ..passes.interface import MAX_TEXTURE_ARRAYS
 from ..passes.textures import TextureArrays
@@ -38,7 +38,8 @@ from ..vk.shared import Device, Scope
 from .checks import check_batch_size, check_mesh, name_bad_ray, name_bad_tmax, ray_arrays
 from .closest import Closest, ClosestQuery
 from .cuda_arrays import CudaRays, on_cuda
-from .stream import Slot, hits_sink, instance_sink, occluded_sink, stream
+from .order import check_reorder, incoherent, ray_order, shared_direction
+from .stream import STREAM_THREADS, Slot, hits_sink, instance_sink, occluded_sink, stream
 
 #: Query kinds whose kernels read rays (and write results) through texel buffer views on CPU devices (RAYS_TEXEL):
 #: faster for occlusion on lavapipe, not for closest hits.
@@ -147,7 +148,8 @@ class Tracer(Closes):
     a NaN, infinite or zero direction is a `ConfigError` naming the ray, not a silent miss.
 
     After a query: `last_gpu_ms` (GPU ms of its trace dispatches), `last_retried` (rays the second dispatch walked
-    again, on CPU devices), `last_times` (GPU ms of the last chunk per step). `stats`: the BVH's build figures
+    again, on CPU devices), `last_times` (GPU ms of the last chunk per step), `last_reordered` (whether its rays
+    were traced in the order of their origins, `reorder`). `stats`: the BVH's build figures
     (build_ms, nodes, depth, sah_cost, threads, layout, ...). Close it (`close()` or a `with` block) to free the
     device; a closed Tracer raises `ConfigError`. Several Tracers (and Renderers) can share one `engine.Device`
     (`device=dev`): each then costs only its BVH build and upload.
@@ -160,7 +162,7 @@ class Tracer(Closes):
 
     def __init__(self, vertices: ArrayLike, faces: ArrayLike, *, device: Device | int | str | None = None,
                  validation: bool = False, batch_size: int = 1 << 20, context: Context | None = None,
-                 staging: bool | None = None, layout: str | None = None):
+                 staging: bool | None = None, layout: str | None = None, reorder: bool | str = "auto"):
         """Build the BVH of a mesh and upload it.
 
         Args:
@@ -176,6 +178,11 @@ class Tracer(Closes):
             staging: copy rays to and results from device-local buffers (default: when the device has memory the
                 host cannot map, i.e. a discrete GPU).
             layout: "binary" or "wide" BVH (default: $HYBRID_BVH_LAYOUT, else "binary").
+            reorder: trace the rays of `occluded` / `intersect` in the order of a coarse Morton code of their origins
+                (results still in the caller's order; engine/rt/order.py): True, False, or "auto" (the default:
+                on CPU devices, for batches whose origins come in no spatial order, e.g. shadow rays from random
+                surface samples; image-ordered batches are traced as given; off on GPUs). Queries on CUDA arrays are
+                traced as given.
 
         Raises:
             SceneError: bad vertices or faces (shape, NaN, out-of-range indices, beyond MAX_COORD).
@@ -195,6 +202,7 @@ class Tracer(Closes):
         if isinstance(device, Device) and device.closed:
             raise ConfigError("Tracer: its engine.Device is closed (make a new engine.Device)")
         self.batch = check_batch_size(batch_size)
+        self.reorder = check_reorder(reorder)
         self.layout = bvh_layout(layout)  # a bad layout (argument or HYBRID_BVH_LAYOUT) fails before the build
         self._source = getattr(self, "_source", None)   # the Scene of from_scene
         self._closest: ClosestQuery | None = None
@@ -310,6 +318,7 @@ class Tracer(Closes):
         self.shares = work_shares(ctx)  # rays.glsl ray_block
         self.last_gpu_ms = 0.0
         self.last_retried = 0        # rays of the last query that the second dispatch walked again (two_pass)
+        self.last_reordered = False  # whether the last occluded / intersect query was traced reordered
         self.last_times: dict = {}   # GPU ms of the last chunk per step: upload (staged only), trace, download
         self.scratch = None          # the ray checks' uint32 scratch (engine/rt/stream.py), made on first use
 
@@ -383,13 +392,15 @@ class Tracer(Closes):
             raise ConfigError("Tracer is closed: the Vulkan context it was given was closed")
 
     @serialized
-    def occluded(self, origins: ArrayLike, directions: ArrayLike, tmax: ArrayLike = np.inf) -> NDArray[np.bool_]:
+    def occluded(self, origins: ArrayLike, directions: ArrayLike, tmax: ArrayLike = np.inf, *,
+                 reorder: bool | str | None = None) -> NDArray[np.bool_]:
         """Shadow-ray queries: does any triangle lie along `origin + t * direction` for some t in [0, tmax]?
 
         Args:
             origins: (N, 3) ray origins (world units), float32 or float64.
             directions: (N, 3) ray directions, used as given (not normalized): `tmax` is in units of their length.
             tmax: a scalar or (N,) one per ray, not NaN; +inf allowed (a negative one hits nothing).
+            reorder: this query's `Tracer(reorder=...)` (default: the Tracer's).
 
         Returns:
             (N,) bool, True where the ray is blocked.
@@ -403,11 +414,14 @@ class Tracer(Closes):
         o, d, t = ray_arrays(origins, directions, tmax, tmax_nan=False)
         self._sync()
         out = np.empty(len(o), bool)
-        self._stream("occluded", o, d, t, occluded_sink(out), lambda: _name_bad(o, d, t, origins, directions))
+        order = self._order(o, d, t, reorder)
+        self._stream("occluded", o, d, t, occluded_sink(out, order), lambda: _name_bad(o, d, t, origins, directions),
+                     order)
         return out
 
     @serialized
-    def intersect(self, origins: ArrayLike, directions: ArrayLike, tmax: ArrayLike = np.inf) -> Hits:
+    def intersect(self, origins: ArrayLike, directions: ArrayLike, tmax: ArrayLike = np.inf, *,
+                  reorder: bool | str | None = None) -> Hits:
         """Closest-hit queries: the nearest triangle along each ray within t in [0, tmax].
 
         The arguments are `occluded()`'s. Returns `Hits` (t, prim, u, v per ray: t = +inf and prim = -1 on a miss).
@@ -418,13 +432,14 @@ class Tracer(Closes):
         o, d, t = ray_arrays(origins, directions, tmax, tmax_nan=False)
         self._sync()
         n = len(o)
+        order = self._order(o, d, t, reorder)
         hits = Hits(np.empty(n, np.float32), np.empty(n, np.int32), np.empty(n, np.float32), np.empty(n, np.float32))
-        sink = hits_sink(hits.t, hits.prim, hits.u, hits.v)
+        sink = hits_sink(hits.t, hits.prim, hits.u, hits.v, order)
         if self._source is not None:   # from_scene: each chunk's instance and mesh triangle, from its flat ids
             hits.instance, hits.mesh_prim = np.empty(n, np.int32), np.empty(n, np.int32)
             base = self.scene.flat_tri_base if isinstance(self.scene, InstancedBVH) else np.zeros(1, np.uint32)
-            sink = instance_sink(sink, hits.prim, base, hits.instance, hits.mesh_prim)
-        self._stream("intersect", o, d, t, sink, lambda: _name_bad(o, d, t, origins, directions))
+            sink = instance_sink(sink, hits.prim, base, hits.instance, hits.mesh_prim, order)
+        self._stream("intersect", o, d, t, sink, lambda: _name_bad(o, d, t, origins, directions), order)
         return hits
 
     @serialized
@@ -450,12 +465,22 @@ class Tracer(Closes):
             self.two_pass["closest"] = False   # one dispatch: the point walk keeps its stack in an array
         return self._closest.run(points)
 
-    def _stream(self, kind, o, d, t, sink, bad):
-        """Trace rays from `ray_arrays` (float32 (N, 3), (N, 3), and (N,) or one tmax) with the `kind` kernels;
-        each chunk is checked as it is packed (`bad()` raises the error naming the first bad ray); `sink(slot,
-        start, s, e)` takes rays [s, e) of a chunk's results from `slot.results_host` (engine/rt/stream.py)."""
+    def _order(self, o, d, t, reorder):
+        """The order to trace a batch in (engine/rt/order.py), or None for the given order; sets `last_reordered`."""
+        mode = self.reorder if reorder is None else check_reorder(reorder, "Tracer query")
+        if mode == "auto":
+            mode = is_cpu(self.ctx) and incoherent(o, d, t)
+        order = ray_order(o, d, min(default_threads(), STREAM_THREADS)) if mode and len(o) > 1 else None
+        self.last_reordered = order is not None
+        return order
+
+    def _stream(self, kind, o, d, t, sink, bad, order=None):
+        """Trace rays from `ray_arrays` (float32 (N, 3), (N, 3), and (N,) or one tmax) with the `kind` kernels, in
+        `order` if given; each chunk is checked as it is packed (`bad()` raises the error naming the first bad
+        ray); `sink(slot, start, s, e)` takes rays [s, e) of a chunk's results from `slot.results_host`
+        (engine/rt/stream.py)."""
         self.last_gpu_ms, self.last_retried = 0.0, 0
-        stream(self, kind, o, d, t, sink, bad)
+        stream(self, kind, o, d if order is None else shared_direction(d), t, sink, bad, order)
 
     def _device_arrays(self) -> CudaRays:
         """The queries on CUDA arrays (a ConfigError saying why where CUDA cannot share this device's memory)."""
@@ -464,6 +489,7 @@ class Tracer(Closes):
                               "(its instance ids and BVH updates are host-side); pass numpy arrays")
         if self._cuda is None:
             self._cuda = CudaRays(self)
+        self.last_reordered = False   # (CUDA arrays are traced as given)
         return self._cuda
 
     def kernel(self, kind: str, **constants: bool) -> ComputePipeline:

@@ -226,3 +226,28 @@ def test_a_failing_task_on_the_worker_pool_waits_for_the_others():
     with pytest.raises(ValueError, match="task failed"):
         run([fail, slow, slow, slow], 4)
     assert len(done) == 3
+
+
+def test_staged_rays_are_checked_by_the_kernels_and_occlusion_read_as_bytes(monkeypatch):
+    """Where rays are staged (discrete GPUs; forced here), packing only copies them: the kernels check them
+    (CHECK_RAYS) and the error is the host check's; occlusion comes back as one byte per ray. Same answers as the
+    mapped path, which checks as it packs."""
+    from engine import ConfigError
+    v, f, o, d, tmax = scene_and_rays(3 * CHUNK + 7)
+    with Tracer(v, f, batch_size=CHUNK, staging=True, validation=True) as staged, \
+            Tracer(v, f, batch_size=CHUNK, staging=False, validation=True) as mapped:
+        assert all(s.kernel_checks and s.hit_bytes["occluded"] == 1 for s in staged.slots)
+        assert not any(s.kernel_checks for s in mapped.slots)
+        want_occ, want_hits = mapped.occluded(o, d, tmax), mapped.intersect(o, d, tmax)
+        calls = []
+        monkeypatch.setattr(stream_mod, "block_fine", lambda *a: calls.append(1) or True)
+        assert np.array_equal(staged.occluded(o, d, tmax), want_occ)
+        assert np.array_equal(staged.intersect(o, d, tmax).prim, want_hits.prim)
+        assert not calls   # the host did not check them
+        bad = d.copy()
+        bad[2 * CHUNK + 3] = (1e-40, 0.0, -1e-39)   # subnormal components only: 1 / d overflows
+        for query in (staged.occluded, staged.intersect):
+            with pytest.raises(ConfigError, match=f"directions: ray {2 * CHUNK + 3} has zero length"):
+                query(o, bad, tmax)
+        assert np.array_equal(staged.occluded(o, d, tmax), want_occ)
+        assert not staged.validation_errors and not mapped.validation_errors

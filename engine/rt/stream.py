@@ -25,6 +25,7 @@ from .checks import block_fine
 GROUP = 64
 RAY_BYTES = 28  # 7 floats: origin, direction, tmax, as three packed arrays (shaders/glsl/include/rays.glsl)
 HIT_BYTES = {"occluded": 4, "intersect": 16}
+NO_BAD_RAY = 0xFFFFFFFF   # a word of rays.glsl's ray_errors: no bad ray (CHECK_RAYS)
 #: the fewest rays per task when numpy packs and checks rays (28 bytes each) or unpacks closest hits (16) and
 #: occlusion words (4) on the worker pool (closest points: 16, as closest hits): a chunk is split into one task per thread, down to about half a megabyte
 #: each (below that, handing the work to the pool and the GIL's hand-overs cost more than it saves)
@@ -38,8 +39,12 @@ class Slot:
     """One chunk's buffers in flight (see the module notes)."""
 
     def __init__(self, ctx, bindings, chunk: int, capacity: int, staged: bool, two_pass: bool, texel_ok: bool,
-                 index: int):
+                 index: int, kernel_checks: bool = False, result_bytes: bool = False):
         self.ctx, self.chunk, self.capacity, self.staged = ctx, chunk, capacity, staged
+        # kernel_checks: the kernels check the rays (CHECK_RAYS), the packing only copies them; result_bytes: the
+        # occlusion kernels write one byte per ray (RESULT_BYTES), a bool array's layout
+        self.kernel_checks = kernel_checks
+        self.hit_bytes = dict(HIT_BYTES, occluded=1 if result_bytes else 4)
         c = capacity
         self.io_set = DescriptorSet(ctx, bindings)
         self.rays_host = Buffer(ctx, c * RAY_BYTES, STORAGE | UNIFORM_TEXEL | TRANSFER_SRC, host=True,
@@ -59,7 +64,9 @@ class Slot:
                             name=f"retry list {index}")
         for name, buf in (("ray_data", self.rays), ("params", self.params), ("retry", self.retry)):
             self.io_set.bind(name, buf)
-        self.io_set.bind("ray_errors", self.retry)   # (written only by the CUDA-array kernels: CHECK_RAYS)
+        # the kernels' first bad rays (CHECK_RAYS; otherwise a binding they never write)
+        self.errors = Buffer(ctx, 16, STORAGE, host=True, name=f"ray errors {index}") if kernel_checks else None
+        self.io_set.bind("ray_errors", self.errors if self.errors is not None else self.retry)
         # (occluded / hits: two names of the results buffer in the two kernels; the set is laid out from one)
         self.io_set.bind(bindings[1].name, self.results)
         # the texel buffer views of rays.glsl (read where RAYS_TEXEL says). RGB32F uniform texel buffers are optional
@@ -104,26 +111,28 @@ class Slot:
             rec.mark("upload")
         if two_pass:
             rec.fill(self.retry, 0, size=4)
+        errors = [self.errors] if self.errors is not None else []
         rec.dispatch_indirect(pipelines[kind], sets, self.params, reads=[self.rays, self.retry],
-                              writes=[self.results, self.retry])
+                              writes=[self.results, self.retry] + errors)
         if two_pass:
             rec.dispatch(pipelines[kind + "_retry"], sets, (retry_groups, 1, 1),
-                         reads=[self.rays, self.retry, self.results], writes=[self.results, self.retry])
+                         reads=[self.rays, self.retry, self.results], writes=[self.results, self.retry] + errors)
         rec.mark("trace")
         if self.staged:
-            rec.copy(self.results, self.results_host, [(0, 0, span * HIT_BYTES[kind])])
-            # the copied results, and the retry list's counter the shader wrote (Tracer.last_retried)
-            rec.to_host(self.results_host, self.retry)
+            rec.copy(self.results, self.results_host, [(0, 0, -(-span * self.hit_bytes[kind] // 4) * 4)])
+            # the copied results, the retry list's counter the shader wrote (Tracer.last_retried), the bad rays
+            rec.to_host(self.results_host, self.retry, *errors)
             rec.mark("download")
         else:
-            rec.to_host(self.results, self.retry)
+            rec.to_host(self.results, self.retry, *errors)
         return rec.finish(), list(self.timestamps.names)
 
     def pack_tasks(self, o, d, t, n: int, threads: int, scratch: np.ndarray, rows=None) -> list:
         """Tasks (on the worker pool, one row block each) copying rays [0, n) of o, d and t (an array, or one float32
         for all) into the mapped arrays, or with `rows` (n indices) rays rows[0:n] of them (a reordered batch), and
-        then checking the block there, while it is in cache (`block_fine`, over the block's rows of `scratch`);
-        each returns False for a block with a bad ray (then nothing may be submitted)."""
+        then checking the block there, while it is in cache (`block_fine`, over the block's rows of `scratch`;
+        not where the kernels check the rays); each returns False for a block with a bad ray (then nothing may be
+        submitted)."""
         step = block_size(n, threads, "pack")
 
         def block(s):
@@ -144,16 +153,22 @@ class Slot:
                 np.copyto(tt, t[s:e])
             else:
                 np.take(t, rows[s:e], out=tt)
-            return block_fine(oo, dd, None if t.ndim == 0 else tt, scratch[3 * s:3 * e])
+            return self.kernel_checks or block_fine(oo, dd, None if t.ndim == 0 else tt, scratch[3 * s:3 * e])
         return [lambda s=s: block(s) for s in range(0, n, step)]
 
     def submit(self, kind: str, n: int, shares: int, record):
         """The dispatch size for n rays, and the slot's command buffer for `kind` submitted (not waited for)."""
         self.params.write(np.array([(n + GROUP - 1) // GROUP, 1, 1, n, self.capacity, shares, 0, 0], np.uint32))
+        if self.errors is not None:
+            self.errors.view(np.uint32)[:] = NO_BAD_RAY
         cmd, marks = self.command(kind, n, record)
         self.ctx.submit(cmd, wait=False, fence=self.fence)
         self.pending = True
         return marks
+
+    def had_bad_ray(self) -> bool:
+        """Did the kernels find a bad ray in this slot's last chunk (CHECK_RAYS; its fence waited for)?"""
+        return self.errors is not None and bool((self.errors.view(np.uint32)[:3] != NO_BAD_RAY).any())
 
     def wait(self):
         """Block until the last submission of this slot has run (then its results may be read)."""
@@ -185,6 +200,8 @@ def stream(tracer, kind: str, o, d, t, sink, bad, order=None) -> None:
         """The oldest chunk in flight, waited for: the tasks reading its results."""
         slot, start, n, marks = inflight.popleft()
         slot.wait()
+        if slot.had_bad_ray():
+            bad()
         tracer.last_times = slot.timestamps.read(marks)
         tracer.last_gpu_ms += tracer.last_times.get("trace", 0.0)
         if tracer.two_pass[kind]:
@@ -219,8 +236,16 @@ def _rows(order, a: int, b: int):
 
 
 def occluded_sink(out: np.ndarray, order=None):
-    """A sink writing (N,) bool `out` from the occlusion words of each chunk (scattered by `order`, as traced)."""
+    """A sink writing (N,) bool `out` from the occlusion words (or bytes) of each chunk (scattered by `order`, as
+    traced)."""
     def sink(slot, start, s, e):
+        if slot.hit_bytes["occluded"] == 1:   # 0 / 1 bytes: a bool array's layout
+            flags = slot.results_host.view(np.bool_)[s:e]
+            if order is None:
+                np.copyto(out[start + s:start + e], flags)
+            else:
+                out[order[start + s:start + e]] = flags
+            return
         words = slot.results_host.view(np.uint32)[s:e]
         if order is None:
             np.not_equal(words, 0, out=out[start + s:start + e])

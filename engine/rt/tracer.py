@@ -303,14 +303,14 @@ class Tracer(Closes):
                  "intersect": self.scene.spec(ctx)}
         for kind, spec in specs.items():  # rays and results through texel buffer views
             spec["RAYS_TEXEL"] = is_cpu(ctx) and kind in RAYS_TEXEL_KINDS and self.rays_texel_ok
-            spec.update(self.alpha_spec)
+            spec.update(self.alpha_spec, **self._host_path_spec(kind))
         self.specs = specs   # by name, per query kind
         self.two_pass = {kind: bool(s.get("BVH_REG_STACK") and s.get("BVH_STACK_RETRY")) for kind, s in specs.items()}
         bindings = list(interface.set(0).values())
         # (a two-level BVH's depth may grow when a bottom level is rebuilt: its slots keep room for the retry list)
         retry = any(self.two_pass.values()) or (isinstance(self.scene, InstancedBVH) and is_cpu(ctx))
-        self.slots = [Slot(ctx, bindings, self.chunk, self.capacity, self.staged, retry, self.rays_texel_ok, i)
-                      for i in range(STREAM_SLOTS)]
+        self.slots = [Slot(ctx, bindings, self.chunk, self.capacity, self.staged, retry, self.rays_texel_ok, i,
+                           kernel_checks=self.staged, result_bytes=self.staged) for i in range(STREAM_SLOTS)]
         for slot in self.slots:
             self.bind_alpha(slot.io_set)
         self._lib = lib
@@ -321,6 +321,15 @@ class Tracer(Closes):
         self.last_reordered = False  # whether the last occluded / intersect query was traced reordered
         self.last_times: dict = {}   # GPU ms of the last chunk per step: upload (staged only), trace, download
         self.scratch = None          # the ray checks' uint32 scratch (engine/rt/stream.py), made on first use
+
+    def _host_path_spec(self, kind: str) -> dict:
+        """Where rays are staged (discrete GPUs), the kernels check the rays (CHECK_RAYS: the host's packing is
+        then a plain copy, half the memory traffic of copying and checking) and occlusion comes back as one byte per
+        ray (RESULT_BYTES); on CPU devices the host checks the rays as it packs them, where they are in its cache."""
+        spec = {"CHECK_RAYS": self.staged}
+        if kind == "occluded":
+            spec["RESULT_BYTES"] = self.staged
+        return spec
 
     def _alpha_setup(self, ctx):
         """The alpha test of a Scene's MASK / BLEND materials (shaders/glsl/include/alpha.glsl), as the renderer's
@@ -369,7 +378,7 @@ class Tracer(Closes):
                      "intersect": self.scene.spec(self.ctx)}
             for kind, spec in specs.items():   # rays read as before
                 spec["RAYS_TEXEL"] = self.specs[kind].get("RAYS_TEXEL", False)
-                spec.update(self.alpha_spec)
+                spec.update(self.alpha_spec, **self._host_path_spec(kind))
             self.specs = specs
             self.two_pass = {kind: bool(s.get("BVH_REG_STACK") and s.get("BVH_STACK_RETRY"))
                              for kind, s in specs.items()}

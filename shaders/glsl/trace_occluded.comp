@@ -12,7 +12,7 @@
 
 layout(local_size_x = 64) in;
 layout(std430, set = 0, binding = 1) writeonly buffer Result { uint occluded[]; };
-// RESULT_BYTES (queries on CUDA arrays): one byte per ray (0 / 1, a bool array's layout) instead of one uint, the
+// RESULT_BYTES (queries on CUDA arrays; on GPUs numpy ones too): one byte per ray (0 / 1, a bool array's layout) instead of one uint, the
 // workgroup's 64 packed in shared memory into 16 words at params.out_base + 16 * block.
 layout(constant_id = 31) const bool RESULT_BYTES = false;
 shared uint packed_[16];

@@ -11,7 +11,9 @@
 #include "bvh.glsl"
 
 layout(local_size_x = 64) in;
-layout(std430, set = 0, binding = 1) writeonly buffer Result { uint occluded[]; };
+layout(std430, set = 0, binding = 1) buffer Result { uint occluded[]; };
+// RESULT_BYTES (trace_occluded.comp): one byte per ray; the first pass wrote 0 for the rays walked here
+layout(constant_id = 31) const bool RESULT_BYTES = false;
 
 void main() {
     for (uint k = gl_GlobalInvocationID.x; k < retry.count; k += gl_NumWorkGroups.x * 64u) {
@@ -19,6 +21,11 @@ void main() {
         vec3 o, d;
         float tmax;
         load_ray(i, o, d, tmax);
-        occluded[i] = bvh_occluded_full(o, d, 0.0, tmax) ? 1u : 0u;
+        bool hit = bvh_occluded_full(o, d, 0.0, tmax);
+        if (!RESULT_BYTES) {
+            occluded[i] = hit ? 1u : 0u;
+        } else if (hit) {
+            atomicOr(occluded[params.out_base + (i >> 2u)], 1u << (8u * (i & 3u)));
+        }
     }
 }

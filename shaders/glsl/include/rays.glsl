@@ -64,9 +64,10 @@ void retry_later(uint i) {
     retry.ids[atomicAdd(retry.count, 1u)] = i;
 }
 
-// CHECK_RAYS (queries on CUDA arrays, engine/rt/cuda_arrays.py, whose rays the host never sees): each kernel checks
-// its ray as engine/rt/checks.py does on the host and traces only fine ones; the first bad ray of each kind goes to
-// ray_errors (origins, directions, tmax; 0xffffffff: none), which the host sets before and reads after the batch.
+// CHECK_RAYS (queries on CUDA arrays, engine/rt/cuda_arrays.py, whose rays the host never sees, and numpy ones on
+// GPUs, whose packing then only copies): each kernel checks its ray as engine/rt/checks.py does on the host and
+// traces only fine ones; the first bad ray of each kind goes to ray_errors (origins, directions, tmax; 0xffffffff:
+// none), which the host sets before and reads after the batch.
 layout(constant_id = 30) const bool CHECK_RAYS = false;
 #define RAY_MAX_COORD 1e11   // engine.limits.MAX_COORD
 layout(std430, set = 0, binding = 12) buffer RayErrors { uint first_bad[4]; } ray_errors;

@@ -18,6 +18,7 @@ from ..vk import Buffer, BufferView, Context, DescriptorSet, update_buffer, uplo
 from ..vk.device import is_cpu
 from ..vk.reflect import Interface
 from ..vk.resources import STORAGE_TEXEL, TRANSFER_SRC, UNIFORM_TEXEL
+from .tlas import TopLevelBuilder, tlas_builder
 
 BVH_SET = 1   # the descriptor set index bvh.glsl declares
 LAYOUTS = ("binary", "wide")
@@ -222,6 +223,8 @@ class InstancedBVH:
         self.last_refit_ratio: dict[int, float] = {}
         self.nodes = self.tris = None
         self.views = []
+        self.builder = tlas_builder(ctx)   # who builds the top level: "gpu" (engine/gpu/tlas.py) or "host"
+        self.gpu_top = TopLevelBuilder(ctx) if self.builder == "gpu" else None
         self.alpha = None if alpha_index is None else mesh_alpha_index(scene, self.flat_tri_base, alpha_index)
         if alpha_index is not None and self.alpha is None:
             raise SceneError(f"{scene.name}: a mesh with alpha-tested (MASK / BLEND) triangles has instances that "
@@ -262,13 +265,18 @@ class InstancedBVH:
                 raise SceneError(f"{scene.name}: the two-level BVH {what} take {arr.nbytes / 2**20:.0f} MiB, more "
                                  f"than this device's texel-buffer limit of {texels:,} texels")
         usage = UNIFORM_TEXEL | STORAGE_TEXEL
-        self.nodes = upload_buffer(self.ctx, self.two.nodes, usage, "bvh nodes (two-level)")
+        # (the nodes also a copy source: the GPU-built top level can be read back, engine/gpu/tlas.py read_back)
+        self.nodes = upload_buffer(self.ctx, self.two.nodes, usage | TRANSFER_SRC, "bvh nodes (two-level)")
         self.tris = upload_buffer(self.ctx, self.two.tris, usage, "bvh triangles (two-level)")
         tail = self.two.nodes.nbytes - self.two.tail_offset
         self.staging = Buffer(self.ctx, tail, TRANSFER_SRC, host=True, name="top-level staging")
         self.views = [BufferView(self.nodes), BufferView(self.tris)]
         self.dset.bind("bvh_node_texels", self.views[0]).bind("bvh_tri_texels", self.views[1])
         self.dset.bind("bvh_node_image", self.views[0]).bind("bvh_tri_image", self.views[1])
+        if self.gpu_top is not None:   # the top level as the GPU builds it, from the start
+            self.gpu_top.prepare(self.two, self.nodes, scene.instance_mesh, self.flat_tri_base,
+                                 self._mesh_boxes(scene))
+            self.gpu_top.build(scene.transforms)
         self.version = scene.version
         self.structure = getattr(self, "structure", 0) + 1   # changes when the buffers (and spec) are new
 
@@ -302,7 +310,10 @@ class InstancedBVH:
             self.rebuilds += 1
             self._upload(scene)
             return True
-        if len(moved) or len(deformed):
+        if self.gpu_top is not None:
+            if len(deformed):
+                self.gpu_top.set_mesh_boxes(self._mesh_boxes(scene))
+        elif len(moved) or len(deformed):
             tail = self.two.top(scene.transforms, scene.instance_mesh, self._mesh_boxes(scene), self.flat_tri_base,
                                 moved=moved)
             parts.append((self.two.tail_offset, tail))
@@ -312,6 +323,8 @@ class InstancedBVH:
         update_buffer(self.ctx, self.nodes, node_parts, self.staging if tail_only else None)
         if tri_parts:
             update_buffer(self.ctx, self.tris, tri_parts)
+        if self.gpu_top is not None and (len(moved) or len(deformed)):
+            self.gpu_top.build(scene.transforms)
         self.version = scene.version
         return True
 
@@ -330,3 +343,5 @@ class InstancedBVH:
             if buf is not None:
                 buf.destroy()
         self.nodes = self.tris = self.staging = None
+        if getattr(self, "gpu_top", None) is not None:
+            self.gpu_top.destroy()

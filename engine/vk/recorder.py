@@ -193,6 +193,14 @@ class Recorder:
         """Make what earlier steps wrote into `resources` visible to the host (after the fence)."""
         self.use(reads=resources, stage=HOST)
 
+    def to_later(self, *resources):
+        """Make what earlier steps wrote into `resources` visible to every later submission on the queue, whatever
+        stage reads them (a recording other command buffers depend on without barriers of their own)."""
+        if any(self.hazards.state.get(id(r)) is not None for r in resources):
+            memory_barrier(self.cmd, _EVERYTHING, vk.VK_PIPELINE_STAGE_ALL_COMMANDS_BIT,
+                           vk.VK_ACCESS_SHADER_WRITE_BIT | vk.VK_ACCESS_TRANSFER_WRITE_BIT,
+                           vk.VK_ACCESS_MEMORY_READ_BIT | vk.VK_ACCESS_SHADER_READ_BIT)
+
     def mark(self, name: str):
         if self.timestamps is not None:
             self.timestamps.mark(self.cmd, name)

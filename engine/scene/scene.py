@@ -199,21 +199,22 @@ class Scene:
             SceneError: a bad transform or index, naming the instance.
         """
         n = len(self.instances)
-        idx = np.arange(n) if which is None else np.asarray(which)
-        if idx.ndim != 1 or not np.issubdtype(idx.dtype, np.integer) or (len(idx) and (idx.min() < -n or
-                                                                                         idx.max() >= n)):
-            raise SceneError(f"{shown(self.name)}: instance indices must be integers in [0, {n})")
-        idx = idx % n if len(idx) else idx.astype(np.int64)
-        m = check_transforms(transforms, lambda k: self._label(int(idx[k]) if k < len(idx) else 0))
-        if len(m) != len(idx):
-            raise SceneError(f"{shown(self.name)}: {len(m)} transforms for {len(idx)} instances")
-        old = self._transforms[idx].copy()
+        if which is None:   # all: a slice, no gathers
+            idx, count = slice(None), n
+            m = check_transforms(transforms, lambda k: self._label(k if k < n else 0), copy=False)
+        else:
+            idx = np.asarray(which)
+            if idx.ndim != 1 or not np.issubdtype(idx.dtype, np.integer) or (len(idx) and (idx.min() < -n or
+                                                                                             idx.max() >= n)):
+                raise SceneError(f"{shown(self.name)}: instance indices must be integers in [0, {n})")
+            idx = idx % n if len(idx) else idx.astype(np.int64)
+            count = len(idx)
+            m = check_transforms(transforms, lambda k: self._label(int(idx[k]) if k < len(idx) else 0),
+                                 copy=False)
+        if len(m) != count:
+            raise SceneError(f"{shown(self.name)}: {len(m)} transforms for {count} instances")
+        self._check_world(idx, m)   # before anything changes
         self._transforms[idx] = m
-        try:
-            self._check_world(idx)
-        except SceneError:
-            self._transforms[idx] = old
-            raise
         self._version += 1
         self._inst_changed[idx] = self._version
 
@@ -274,14 +275,20 @@ class Scene:
         name = self.instances[i].name if hasattr(self, "instances") else ""
         return f"{shown(self.name)}: instance {i}" + (f" '{shown(name)}'" if name else "")
 
-    def _check_world(self, idx: np.ndarray) -> None:
-        if not len(idx):
+    def _check_world(self, idx, transforms: np.ndarray | None = None) -> None:
+        """The instances `idx` (indices or a slice) stay within MAX_COORD under their `transforms` (default: their
+        current ones)."""
+        mesh = self._inst_mesh[idx]
+        if not len(mesh):
             return
-        boxes = np.stack([m.box for m in self.meshes])[self._inst_mesh[idx]]
-        world = world_boxes(boxes, self._transforms[idx])
+        if transforms is None:
+            transforms = self._transforms[idx]
+        boxes = np.stack([m.box for m in self.meshes])
+        one = len(boxes) == 1 or not np.any(mesh != mesh[0])
+        world = world_boxes(boxes[mesh[:1]] if one else boxes[mesh], transforms)
         if np.abs(world).max() > MAX_COORD:
             top = np.abs(world).reshape(len(world), 6).max(axis=1)
-            i = int(idx[int(np.argmax(top > MAX_COORD))])
+            i = int(np.arange(len(self._inst_mesh))[idx][int(np.argmax(top > MAX_COORD))])
             raise SceneError(f"{self._label(i)}: world-space coordinates beyond +-{MAX_COORD:g} (largest "
                              f"{top.max():g}): check its transform")
 

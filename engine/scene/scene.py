@@ -377,13 +377,30 @@ class Scene:
         def make():
             counts = np.array([m.vertex_count for m in self.meshes])[self._inst_mesh]
             if counts.sum() <= FLAT_BOUNDS_VERTICES:
-                p = self.positions
-                box = np.stack([p.min(axis=0), p.max(axis=0)])
+                box = self._vertex_bounds()
             else:
                 b = self.instance_boxes()
                 box = np.stack([b[:, 0].min(axis=0), b[:, 1].max(axis=0)])
             return _frozen(box, np.float32)
         return self._cached("bounds", make)
+
+    def _vertex_bounds(self) -> np.ndarray:
+        """(2, 3) float64 min / max of the instances' world-space vertices, without flattening: per mesh, the rows
+        of its instances' 3x3 parts against its vertices (GEMMs over chunks of instances), plus the translations."""
+        lo, hi = np.full(3, np.inf), np.full(3, -np.inf)
+        for k, mesh in enumerate(self.meshes):
+            which = np.flatnonzero(self._inst_mesh == k)
+            if not len(which) or not mesh.vertex_count:
+                continue
+            v = mesh.positions.astype(np.float64).T   # (3, V)
+            step = max(1, (1 << 20) // (3 * v.shape[1]))
+            for c in range(0, len(which), step):
+                m = self._transforms[which[c:c + step]]
+                proj = (m[:, :3, :3].reshape(-1, 3) @ v).reshape(len(m), 3, -1)   # (n, 3, V): A v per component
+                t = m[:, :3, 3]
+                lo = np.minimum(lo, (proj.min(axis=2) + t).min(axis=0))
+                hi = np.maximum(hi, (proj.max(axis=2) + t).max(axis=0))
+        return np.stack([lo, hi])
 
     # ------------------------------------------------------------------ camera
     @property

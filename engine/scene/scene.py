@@ -385,22 +385,39 @@ class Scene:
         return self._cached("bounds", make)
 
     def _vertex_bounds(self) -> np.ndarray:
-        """(2, 3) float64 min / max of the instances' world-space vertices, without flattening: per mesh, the rows
-        of its instances' 3x3 parts against its vertices (GEMMs over chunks of instances), plus the translations."""
+        """(2, 3) float64 min / max of the instances' world-space vertices, without flattening: the instances whose
+        (conservative) world boxes reach past the extremes found so far, transformed exactly (`_vertex_extremes`):
+        first the instances of the outermost boxes, then any whose box still reaches past those."""
+        boxes = self.instance_boxes()
+        seeds = np.unique(np.concatenate([boxes[:, 0].argmin(axis=0), boxes[:, 1].argmax(axis=0)]))
+        lo, hi = self._vertex_extremes(seeds)
+        slack = 1e-9 * (np.abs(boxes).max() + 1.0)   # (the boxes' rounding)
+        rest = (boxes[:, 0] < lo + slack).any(axis=1) | (boxes[:, 1] > hi - slack).any(axis=1)
+        rest[seeds] = False
+        if rest.any():
+            more = self._vertex_extremes(np.flatnonzero(rest))
+            lo, hi = np.minimum(lo, more[0]), np.maximum(hi, more[1])
+        return np.stack([lo, hi])
+
+    def _vertex_extremes(self, which: np.ndarray) -> tuple:
+        """min, max (3,) of the world-space vertices of the instances `which`: per mesh, the rows of their 3x3
+        parts against its vertices (GEMMs over chunks of instances; the flattened positions' float64 math)."""
         lo, hi = np.full(3, np.inf), np.full(3, -np.inf)
-        for k, mesh in enumerate(self.meshes):
-            which = np.flatnonzero(self._inst_mesh == k)
-            if not len(which) or not mesh.vertex_count:
+        mesh_of = self._inst_mesh[which]
+        for k in np.unique(mesh_of):
+            mesh = self.meshes[int(k)]
+            if not mesh.vertex_count:
                 continue
+            insts = which[mesh_of == k]
             v = mesh.positions.astype(np.float64).T   # (3, V)
             step = max(1, (1 << 20) // (3 * v.shape[1]))
-            for c in range(0, len(which), step):
-                m = self._transforms[which[c:c + step]]
+            for c in range(0, len(insts), step):
+                m = self._transforms[insts[c:c + step]]
                 proj = (m[:, :3, :3].reshape(-1, 3) @ v).reshape(len(m), 3, -1)   # (n, 3, V): A v per component
                 t = m[:, :3, 3]
                 lo = np.minimum(lo, (proj.min(axis=2) + t).min(axis=0))
                 hi = np.maximum(hi, (proj.max(axis=2) + t).max(axis=0))
-        return np.stack([lo, hi])
+        return lo, hi
 
     # ------------------------------------------------------------------ camera
     @property

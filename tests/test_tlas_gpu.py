@@ -9,7 +9,8 @@ from engine import ConfigError, Instance, Mesh, Scene, Tracer
 from engine.bvh.instanced import INST_DTYPE, _spread
 from engine.bvh.layout import LEAF_BIT, NODE_DTYPE
 from engine.gpu.tlas import read_back, tlas_builder
-from tests.test_instances import check_hits, random_rays, random_transform
+from tests.test_instances import check_hits, moving_scene, random_rays, random_transform
+from tests.test_shadows import cpu_shadow_mask
 
 
 def scene_of(n, seed):
@@ -139,3 +140,29 @@ def test_top_level_builder_choice(monkeypatch):
         monkeypatch.setenv("HYBRID_TLAS_BUILD", "cuda")
         with pytest.raises(ConfigError, match="HYBRID_TLAS_BUILD must be one of gpu, host, got 'cuda'"):
             tlas_builder(tracer.ctx)
+
+
+def test_renderer_traces_moving_instances_through_the_gpu_build(monkeypatch, make_renderer):
+    monkeypatch.setenv("HYBRID_TLAS_BUILD", "gpu")
+    scene = moving_scene()
+    r = make_renderer(96, 72)
+    r.render(scene, shadows="hard", ao=False)
+    uploads = r.uploads
+    rng = np.random.default_rng(5)
+    for k in range(3):
+        moved = scene.transforms[1:].copy()
+        moved[:, :3, 3] += rng.uniform(-0.8, 0.8, (3, 3)) * (1, 0, 1)
+        a = random_transform(rng, mirror=k == 1)[:3, :3]
+        moved[0, :3, :3] = a / np.abs(np.linalg.det(a)) ** (1 / 3)   # turned and sheared (mirrored), volume kept
+        scene.set_transforms(moved, [1, 2, 3])
+        if k == 2:
+            scene.update_positions("cube", scene.meshes[1].positions * 1.3)
+        f = r.render(scene, shadows="hard", ao=True)
+        assert r._scene_bvh.builder == "gpu"
+        flat = trimesh.Trimesh(scene.positions, scene.indices, process=False)
+        ref = cpu_shadow_mask(flat, f, scene.lights[0].direction)
+        got = f.aov["shadow"][..., 0]
+        assert 0.01 < (ref == 0).mean() < 0.6
+        assert (got != ref).mean() < 0.005, f"{(got != ref).sum()} pixels differ"
+    assert r.uploads == uploads                                     # moved and deformed in place
+    assert r.validation_errors == []

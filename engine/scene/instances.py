@@ -214,9 +214,6 @@ def check_transform(value: ArrayLike, label: str) -> NDArray[np.float64]:
     return m[0]
 
 
-_LINEAR_PART = np.array([1.0, 1.0, 1.0, 0.0] * 3 + [0.0] * 4)   # picks a transform's 3x3 part (row-major)
-
-
 def check_transforms(value: ArrayLike, labels, copy: bool = True) -> NDArray[np.float64]:
     """(N, 4, 4) float64 transforms, checked: finite, affine, invertible; `labels[i]` (a sequence or a callable
     of i) names instance i in messages. `copy=False`: `value` itself where it is a float64 array (for a caller
@@ -241,8 +238,8 @@ def check_transforms(value: ArrayLike, labels, copy: bool = True) -> NDArray[np.
                          f"{m[int(np.argmax(bad)), 3].tolist()}")
     (a00, a01, a02), (a10, a11, a12), (a20, a21, a22) = [[rows[:, 4 * i + j] for j in range(3)] for i in range(3)]
     det = a00 * (a11 * a22 - a12 * a21) - a01 * (a10 * a22 - a12 * a20) + a02 * (a10 * a21 - a11 * a20)
-    # the mean squared row length: det against its 3/2 power is scale-free
-    size = np.square(rows) @ _LINEAR_PART / 3.0
+    size = (a00 * a00 + a01 * a01 + a02 * a02 + a10 * a10 + a11 * a11 + a12 * a12 + a20 * a20 + a21 * a21
+            + a22 * a22) / 3.0   # the mean squared row length: det against its 3/2 power is scale-free
     bad = ~(np.abs(det) >= 1e-12 * size ** 1.5) | (size <= 0)
     if bad.any():
         raise SceneError(f"{label(int(np.argmax(bad)))}: transform is not invertible (its 3x3 part is singular)")
@@ -255,21 +252,15 @@ def world_boxes(boxes: np.ndarray, transforms: np.ndarray) -> np.ndarray:
     c = 0.5 * (boxes[:, 0] + boxes[:, 1])
     h = 0.5 * (boxes[:, 1] - boxes[:, 0])
     n = len(transforms)
-    if len(boxes) == 1:   # one box for all: (N, 12) rows of the transforms times (12, 6) matrices (GEMMs)
-        rows = transforms.reshape(n, 16)[:, :12]
-        pick_c, pick_h = np.zeros((12, 6)), np.zeros((12, 6))
-        for i in range(3):
-            pick_c[4 * i:4 * i + 3, i], pick_c[4 * i + 3, i] = c[0], 1.0
-            pick_h[4 * i:4 * i + 3, i] = -h[0]
-        pick_c[:, 3:], pick_h[:, 3:] = pick_c[:, :3], -pick_h[:, :3]
-        out = rows @ pick_c
-        out += np.abs(rows) @ pick_h
-        return out.reshape(n, 2, 3)
-    a = transforms[:, :3, :3]
-    p, q = a * c[:, None, :], np.abs(a) * h[:, None, :]
-    wc = p[:, :, 0] + p[:, :, 1] + p[:, :, 2] + transforms[:, :3, 3]
-    wh = q[:, :, 0] + q[:, :, 1] + q[:, :, 2]
-    return np.stack([wc - wh, wc + wh], axis=1)
+    rows = transforms.reshape(n, 16)   # (strided 1-D operations over the instances: fast at any N)
+    out = np.empty((n, 2, 3))
+    for i in range(3):
+        a0, a1, a2 = rows[:, 4 * i], rows[:, 4 * i + 1], rows[:, 4 * i + 2]
+        wc = a0 * c[:, 0] + a1 * c[:, 1] + a2 * c[:, 2] + rows[:, 4 * i + 3]
+        wh = np.abs(a0) * h[:, 0] + np.abs(a1) * h[:, 1] + np.abs(a2) * h[:, 2]
+        out[:, 0, i] = wc - wh
+        out[:, 1, i] = wc + wh
+    return out
 
 
 def flatten(meshes, mesh_of: np.ndarray, transforms: np.ndarray, overrides: np.ndarray, names) -> dict:

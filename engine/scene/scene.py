@@ -401,7 +401,7 @@ class Scene:
 
     def _vertex_extremes(self, which: np.ndarray) -> tuple:
         """min, max (3,) of the world-space vertices of the instances `which`: per mesh, the rows of their 3x3
-        parts against its vertices (GEMMs over chunks of instances; the flattened positions' float64 math)."""
+        parts against its vertices (over chunks of instances; the flattened positions' float64 math)."""
         lo, hi = np.full(3, np.inf), np.full(3, -np.inf)
         mesh_of = self._inst_mesh[which]
         for k in np.unique(mesh_of):
@@ -413,7 +413,8 @@ class Scene:
             step = max(1, (1 << 20) // (3 * v.shape[1]))
             for c in range(0, len(insts), step):
                 m = self._transforms[insts[c:c + step]]
-                proj = (m[:, :3, :3].reshape(-1, 3) @ v).reshape(len(m), 3, -1)   # (n, 3, V): A v per component
+                a = m[:, :3, :3, None]
+                proj = a[:, :, 0] * v[0] + a[:, :, 1] * v[1] + a[:, :, 2] * v[2]   # (n, 3, V): A v per component
                 t = m[:, :3, 3]
                 lo = np.minimum(lo, (proj.min(axis=2) + t).min(axis=0))
                 hi = np.maximum(hi, (proj.max(axis=2) + t).max(axis=0))

@@ -294,6 +294,7 @@ class InstancedBVH:
         deformed = scene.deformed_meshes(self.version)
         parts = []
         rebuild = False
+        rebuilt = set()
         for k in deformed:
             mesh = scene.meshes[int(k)]
             ratio = self.two.refit(int(k), mesh.positions, mesh.indices)
@@ -301,6 +302,7 @@ class InstancedBVH:
             if ratio > REBUILD_RATIO:
                 self.blas[int(k)] = build_bvh(mesh.positions, mesh.indices)
                 rebuild = True
+                rebuilt.add(int(k))
                 continue
             b = self.blas[int(k)]
             n0, t0 = int(self.two.node_base[k]), int(self.two.tri_base[k])
@@ -308,7 +310,11 @@ class InstancedBVH:
             parts.append(("tris", t0 * 48, self.two.tris[t0:t0 + len(b.tris)]))
         if rebuild:
             self.rebuilds += 1
+            sah_built = list(self.two.sah_built)
+            self._keep_refits(rebuilt)
             self._upload(scene)
+            for k in set(range(len(sah_built))) - rebuilt:   # (the rebuild policy keeps comparing with the build)
+                self.two.sah_built[k] = sah_built[k]
             return True
         if self.gpu_top is not None:
             if len(deformed):
@@ -327,6 +333,18 @@ class InstancedBVH:
             self.gpu_top.build(scene.transforms)
         self.version = scene.version
         return True
+
+    def _keep_refits(self, rebuilt: set) -> None:
+        """Before the buffers are made again: the refitted boxes and triangles of the meshes not `rebuilt` copied
+        back into their bottom levels (which the new TwoLevel concatenates; they hold the build's)."""
+        for k, b in enumerate(self.blas):
+            if k in rebuilt:
+                continue
+            n0, t0 = int(self.two.node_base[k]), int(self.two.tri_base[k])
+            nodes, seg = b.nodes.copy(), self.two.nodes[n0:n0 + len(b.nodes)]
+            for field in ("lmin", "lmax", "rmin", "rmax"):
+                nodes[field] = seg[field]
+            b.nodes, b.tris = nodes, self.two.tris[t0:t0 + len(b.tris)].copy()
 
     def spec(self, ctx: Context, postpone: bool | None = None, stack_regs: int | None = None) -> dict:
         """bvh_spec for the bottom levels' depth, with the two-level constants."""

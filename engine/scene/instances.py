@@ -229,7 +229,7 @@ def check_transforms(value: ArrayLike, labels, copy: bool = True) -> NDArray[np.
         raise SceneError(f"{label(0)}: transform must be a (4, 4) array of numbers, got shape "
                          f"{np.shape(value)}")
     rows = m.reshape(len(m), 16)   # (whole-array and strided 1-D operations: fast at any N)
-    if not np.isfinite(rows).all():
+    if not np.isfinite(rows.sum()) and not np.isfinite(rows).all():   # (the sum: no temporary array)
         bad = ~np.isfinite(rows).all(axis=1)
         raise SceneError(f"{label(int(np.argmax(bad)))}: transform has NaN or infinite values")
     bad = (rows[:, 12] != 0.0) | (rows[:, 13] != 0.0) | (rows[:, 14] != 0.0) | (rows[:, 15] != 1.0)

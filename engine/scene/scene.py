@@ -284,6 +284,10 @@ class Scene:
         if transforms is None:
             transforms = self._transforms[idx]
         boxes = np.stack([m.box for m in self.meshes])
+        # a bound first: |A c + t| + |A| h <= (3 (|c| + h) + 1) max|m|, for every instance at once
+        reach = np.abs(boxes[mesh if len(mesh) < len(boxes) else slice(None)]).max()
+        if (3.0 * reach + 1.0) * max(transforms.max(), -transforms.min()) <= MAX_COORD:   # (no temporaries)
+            return
         one = len(boxes) == 1 or not np.any(mesh != mesh[0])
         world = world_boxes(boxes[mesh[:1]] if one else boxes[mesh], transforms)
         if np.abs(world).max() > MAX_COORD:

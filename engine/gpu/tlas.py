@@ -19,7 +19,7 @@ from ..errors import ConfigError
 from ..shaders import ShaderLibrary
 from ..vk import Buffer, BufferView, ComputePipeline, DescriptorSet, Recorder, Timestamps, reflect
 from ..vk.device import is_cpu
-from ..vk.resources import STORAGE, STORAGE_TEXEL, TRANSFER_DST, TRANSFER_SRC
+from ..vk.resources import STORAGE, TRANSFER_DST, TRANSFER_SRC
 
 SHADER = "tlas_build.comp"
 BUILDERS = ("gpu", "host")

@@ -4,7 +4,8 @@
     python tools/bench_instances.py --instances 500 --rays 65536 --refit-tris 100000   # lavapipe scale
 
 Measures, with every instance moving every frame:
-- top level update on the host (scene.set_transforms + TwoLevel.top) and with the upload (InstancedBVH.update);
+- top level update on the host (scene.set_transforms + TwoLevel.top) and with the upload (InstancedBVH.update),
+  by the host build and by the GPU build (engine/gpu/tlas.py, with its GPU ms per step from timestamps);
 - GPU memory of the two-level BVH against the unique meshes' BVHs (+ bytes per instance) and a flattened BVH's
   estimate;
 - batch Tracer: closest hits and occlusion for `--rays` camera rays (1920 x 1080 by default), GPU ms, on the
@@ -104,8 +105,29 @@ def main(argv=None) -> None:
     print(f"bytes_per_instance: {(two.nodes.nbytes + two.tris.nbytes - blas.nodes.nbytes - blas.tris.nbytes) / n:.1f}")
     print(f"flattened_bvh_bytes_estimate: {(blas.nodes.nbytes + blas.tris.nbytes) * n}")
 
+    # scene.set_transforms + the top level's update on the device, by each builder (engine/gpu/tlas.py)
+    before = os.environ.get("HYBRID_TLAS_BUILD")
+    for builder in ("host", "gpu"):
+        os.environ["HYBRID_TLAS_BUILD"] = builder
+        with Tracer.from_scene(scene, device=args.device) as tracer:
+            def update():
+                set_all()
+                tracer._sync()
+            print(f"top_level_update_{builder}_ms: {timed(update, args.repeat):.3f}")
+            if builder == "gpu":
+                steps = tracer.scene.gpu_top.gpu_ms()
+                if steps:
+                    print(f"gpu_top_level_build_gpu_ms: {sum(steps.values()):.3f}")
+                    for name, ms in steps.items():
+                        print(f"gpu_top_level_{name.split()[-1]}_gpu_ms: {ms:.3f}")
+    if before is None:
+        del os.environ["HYBRID_TLAS_BUILD"]
+    else:
+        os.environ["HYBRID_TLAS_BUILD"] = before
+
     with Tracer.from_scene(scene, device=args.device) as tracer:
         print(f"device: {tracer.ctx.device_info['name']}")
+        print(f"top_level_builder: {tracer.scene.builder}")
 
         def update():
             set_all()

@@ -82,14 +82,17 @@ class TwoLevel:
         n = self.n_instances
         m = np.asarray(transforms, dtype=np.float64)
         mesh_boxes = np.asarray(mesh_boxes, dtype=np.float64)
-        oc = (0.5 * (mesh_boxes[:, 0] + mesh_boxes[:, 1]))[inst_mesh]
-        oh = (0.5 * (mesh_boxes[:, 1] - mesh_boxes[:, 0]))[inst_mesh]
-        cols = m[:, :3, :].transpose(2, 0, 1).copy()   # (4, N, 3): the columns of A, then t
-        wc, wh = cols[3], np.zeros((n, 3))
-        for k in range(3):   # centre and half extent through the transform: A c + t, |A| h
-            col = cols[k]
-            wc += col * oc[:, k:k + 1]
-            wh += np.abs(col) * oh[:, k:k + 1]
+        one = len(mesh_boxes) == 1   # (one mesh: its box's centre and half extent are scalars per axis)
+        oc = 0.5 * (mesh_boxes[:, 0] + mesh_boxes[:, 1])
+        oh = 0.5 * (mesh_boxes[:, 1] - mesh_boxes[:, 0])
+        if not one:
+            oc, oh = oc[inst_mesh], oh[inst_mesh]
+        e = m.reshape(n, 16)   # strided 1-D operations over the instances (fast at any N)
+        wc, wh = np.empty((n, 3)), np.empty((n, 3))
+        for i in range(3):   # centre and half extent through the transform: A c + t, |A| h
+            a0, a1, a2 = e[:, 4 * i], e[:, 4 * i + 1], e[:, 4 * i + 2]
+            wc[:, i] = a0 * oc[:, 0] + a1 * oc[:, 1] + a2 * oc[:, 2] + e[:, 4 * i + 3]
+            wh[:, i] = np.abs(a0) * oh[:, 0] + np.abs(a1) * oh[:, 1] + np.abs(a2) * oh[:, 2]
         lo, hi = wc.min(axis=0), wc.max(axis=0)
         q = ((wc - lo) * (1023.0 / np.maximum(hi - lo, 1e-300))).astype(np.uint32)
         code = _spread(q[:, 0]) | (_spread(q[:, 1]) << np.uint32(1)) | (_spread(q[:, 2]) << np.uint32(2))
@@ -123,11 +126,11 @@ class TwoLevel:
                 mo, idx = m, slice(None)
             else:
                 mo = m[idx]
-            inv = inverse3(mo[:, :3, :3])
-            t = mo[:, :3, 3]
             w2o = np.empty((len(mo), 3, 4))
-            w2o[:, :, :3] = inv
-            w2o[:, :, 3] = -(inv[:, :, 0] * t[:, 0:1] + inv[:, :, 1] * t[:, 1:2] + inv[:, :, 2] * t[:, 2:3])
+            inv = inverse3(mo[:, :3, :3], out=w2o[:, :, :3])
+            t0, t1, t2 = mo[:, 0, 3], mo[:, 1, 3], mo[:, 2, 3]
+            for r in range(3):
+                w2o[:, r, 3] = -(inv[:, r, 0] * t0 + inv[:, r, 1] * t1 + inv[:, r, 2] * t2)
             rec.view(np.float32).reshape(-1, 16)[idx, :12] = w2o.reshape(-1, 12)
             recw = rec.view(np.uint32).reshape(-1, 16)
             recw[idx, 12] = self.node_base[np.asarray(inst_mesh)[idx]]
@@ -208,17 +211,19 @@ class TwoLevel:
         return shape
 
 
-def inverse3(a: np.ndarray) -> np.ndarray:
+def inverse3(a: np.ndarray, out: np.ndarray | None = None) -> np.ndarray:
     """(N, 3, 3) inverses by cofactors (the rows of the inverse are cross products of the columns over the
-    determinant): several times faster than np.linalg.inv on many small matrices."""
-    e = a.reshape(-1, 9).T.copy()   # the nine elements, each contiguous
-    (a00, a01, a02), (a10, a11, a12), (a20, a21, a22) = e[0:3], e[3:6], e[6:9]
-    out = np.empty_like(a)
-    out[:, 0, 0], out[:, 0, 1], out[:, 0, 2] = a11 * a22 - a12 * a21, a02 * a21 - a01 * a22, a01 * a12 - a02 * a11
-    out[:, 1, 0], out[:, 1, 1], out[:, 1, 2] = a12 * a20 - a10 * a22, a00 * a22 - a02 * a20, a02 * a10 - a00 * a12
-    out[:, 2, 0], out[:, 2, 1], out[:, 2, 2] = a10 * a21 - a11 * a20, a01 * a20 - a00 * a21, a00 * a11 - a01 * a10
-    det = a00 * out[:, 0, 0] + a01 * out[:, 1, 0] + a02 * out[:, 2, 0]
-    return out / det[:, None, None]
+    determinant), in strided 1-D operations over the matrices: many times faster than np.linalg.inv on many small
+    matrices. `out`: an (N, 3, 3) array (a view is fine) to write them into."""
+    (a00, a01, a02), (a10, a11, a12), (a20, a21, a22) = [[a[:, i, j] for j in range(3)] for i in range(3)]
+    c00, c10, c20 = a11 * a22 - a12 * a21, a12 * a20 - a10 * a22, a10 * a21 - a11 * a20
+    r = 1.0 / (a00 * c00 + a01 * c10 + a02 * c20)
+    out = np.empty(a.shape, np.result_type(a.dtype, np.float32)) if out is None else out
+    out[:, 0, 0], out[:, 1, 0], out[:, 2, 0] = c00 * r, c10 * r, c20 * r
+    out[:, 0, 1], out[:, 0, 2] = (a02 * a21 - a01 * a22) * r, (a01 * a12 - a02 * a11) * r
+    out[:, 1, 1], out[:, 1, 2] = (a00 * a22 - a02 * a20) * r, (a02 * a10 - a00 * a12) * r
+    out[:, 2, 1], out[:, 2, 2] = (a01 * a20 - a00 * a21) * r, (a00 * a11 - a01 * a10) * r
+    return out
 
 
 def _rebased(nodes: np.ndarray, node_base: int, tri_base: int) -> np.ndarray:

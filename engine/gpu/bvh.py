@@ -19,6 +19,7 @@ from ..vk.device import is_cpu
 from ..vk.reflect import Interface
 from ..vk.resources import STORAGE, STORAGE_TEXEL, TRANSFER_SRC, UNIFORM_TEXEL
 from .refit import GpuRefit
+from .tlas import TopLevelBuilder, tlas_builder
 
 BVH_SET = 1   # the descriptor set index bvh.glsl declares
 LAYOUTS = ("binary", "wide")
@@ -230,6 +231,8 @@ class InstancedBVH:
         self.last_refit_ratio: dict[int, float] = {}
         self.nodes = self.tris = None
         self.views = []
+        self.builder = tlas_builder(ctx)   # who builds the top level: "gpu" (engine/gpu/tlas.py) or "host"
+        self.gpu_top = TopLevelBuilder(ctx) if self.builder == "gpu" else None
         self.alpha = None if alpha_index is None else mesh_alpha_index(scene, self.flat_tri_base, alpha_index)
         if alpha_index is not None and self.alpha is None:
             raise SceneError(f"{scene.name}: a mesh with alpha-tested (MASK / BLEND) triangles has instances that "
@@ -273,7 +276,8 @@ class InstancedBVH:
             if arr.nbytes // 16 > texels:
                 raise SceneError(f"{scene.name}: the two-level BVH {what} take {arr.nbytes / 2**20:.0f} MiB, more "
                                  f"than this device's texel-buffer limit of {texels:,} texels")
-        usage = UNIFORM_TEXEL | STORAGE_TEXEL | STORAGE | TRANSFER_SRC   # (storage buffers of the GPU refit)
+        # (storage buffers of the GPU refit; the nodes a copy source: engine/gpu/tlas.py read_back)
+        usage = UNIFORM_TEXEL | STORAGE_TEXEL | STORAGE | TRANSFER_SRC
         self.nodes = upload_buffer(self.ctx, self.two.nodes, usage, "bvh nodes (two-level)")
         self.tris = upload_buffer(self.ctx, self.two.tris, usage, "bvh triangles (two-level)")
         tail = self.two.nodes.nbytes - self.two.tail_offset
@@ -281,6 +285,10 @@ class InstancedBVH:
         self.views = [BufferView(self.nodes), BufferView(self.tris)]
         self.dset.bind("bvh_node_texels", self.views[0]).bind("bvh_tri_texels", self.views[1])
         self.dset.bind("bvh_node_image", self.views[0]).bind("bvh_tri_image", self.views[1])
+        if self.gpu_top is not None:   # the top level as the GPU builds it, from the start
+            self.gpu_top.prepare(self.two, self.nodes, scene.instance_mesh, self.flat_tri_base,
+                                 self._mesh_boxes(scene))
+            self.gpu_top.build(scene.transforms)
         self.version = scene.version
         self.structure = getattr(self, "structure", 0) + 1   # changes when the buffers (and spec) are new
         if self.gpu_refit is not None:
@@ -318,6 +326,7 @@ class InstancedBVH:
         deformed = scene.deformed_meshes(self.version)
         parts = []
         rebuild = False
+        rebuilt = set()
         for k in deformed:
             k = int(k)
             mesh = scene.meshes[k]
@@ -327,6 +336,7 @@ class InstancedBVH:
                 self.blas[k] = build_bvh(mesh.positions, mesh.indices)
                 self.refitted.discard(k)
                 rebuild = True
+                rebuilt.add(int(k))
                 continue
             self.refitted.add(k)
             if self.refit_on == "gpu":   # the device buffers are refitted already
@@ -337,9 +347,16 @@ class InstancedBVH:
             parts.append(("tris", t0 * 48, self.two.tris[t0:t0 + len(b.tris)]))
         if rebuild:
             self.rebuilds += 1
+            sah_built = list(self.two.sah_built)
+            self._keep_refits(rebuilt)
             self._upload(scene)
+            for k in set(range(len(sah_built))) - rebuilt:   # (the rebuild policy keeps comparing with the build)
+                self.two.sah_built[k] = sah_built[k]
             return True
-        if len(moved) or len(deformed):
+        if self.gpu_top is not None:
+            if len(deformed):
+                self.gpu_top.set_mesh_boxes(self._mesh_boxes(scene))
+        elif len(moved) or len(deformed):
             tail = self.two.top(scene.transforms, scene.instance_mesh, self._mesh_boxes(scene), self.flat_tri_base,
                                 moved=moved)
             parts.append((self.two.tail_offset, tail))
@@ -349,8 +366,22 @@ class InstancedBVH:
         update_buffer(self.ctx, self.nodes, node_parts, self.staging if tail_only else None)
         if tri_parts:
             update_buffer(self.ctx, self.tris, tri_parts)
+        if self.gpu_top is not None and (len(moved) or len(deformed)):
+            self.gpu_top.build(scene.transforms)
         self.version = scene.version
         return True
+
+    def _keep_refits(self, rebuilt: set) -> None:
+        """Before the buffers are made again: the refitted boxes and triangles of the meshes not `rebuilt` copied
+        back into their bottom levels (which the new TwoLevel concatenates; they hold the build's)."""
+        for k, b in enumerate(self.blas):
+            if k in rebuilt:
+                continue
+            n0, t0 = int(self.two.node_base[k]), int(self.two.tri_base[k])
+            nodes, seg = b.nodes.copy(), self.two.nodes[n0:n0 + len(b.nodes)]
+            for field in ("lmin", "lmax", "rmin", "rmax"):
+                nodes[field] = seg[field]
+            b.nodes, b.tris = nodes, self.two.tris[t0:t0 + len(b.tris)].copy()
 
     def spec(self, ctx: Context, postpone: bool | None = None, stack_regs: int | None = None) -> dict:
         """bvh_spec for the bottom levels' depth, with the two-level constants."""
@@ -373,3 +404,5 @@ class InstancedBVH:
             if buf is not None:
                 buf.destroy()
         self.nodes = self.tris = self.staging = None
+        if getattr(self, "gpu_top", None) is not None:
+            self.gpu_top.destroy()

@@ -214,12 +214,13 @@ def check_transform(value: ArrayLike, label: str) -> NDArray[np.float64]:
     return m[0]
 
 
-def check_transforms(value: ArrayLike, labels) -> NDArray[np.float64]:
+def check_transforms(value: ArrayLike, labels, copy: bool = True) -> NDArray[np.float64]:
     """(N, 4, 4) float64 transforms, checked: finite, affine, invertible; `labels[i]` (a sequence or a callable
-    of i) names instance i in messages."""
+    of i) names instance i in messages. `copy=False`: `value` itself where it is a float64 array (for a caller
+    that copies it into its own storage)."""
     label = labels if callable(labels) else labels.__getitem__
     try:
-        m = np.array(value, dtype=np.float64)
+        m = np.array(value, dtype=np.float64) if copy else np.asarray(value, dtype=np.float64)
     except (TypeError, ValueError):
         raise SceneError(f"{label(0)}: transform must be a (4, 4) array of numbers") from None
     if m.ndim == 2:
@@ -227,15 +228,15 @@ def check_transforms(value: ArrayLike, labels) -> NDArray[np.float64]:
     if m.ndim != 3 or m.shape[1:] != (4, 4):
         raise SceneError(f"{label(0)}: transform must be a (4, 4) array of numbers, got shape "
                          f"{np.shape(value)}")
-    e = m.reshape(-1, 16).T.copy()   # the 16 elements, each contiguous over the instances
-    if not np.isfinite(e).all():
-        bad = ~np.isfinite(e).all(axis=0)
+    rows = m.reshape(len(m), 16)   # (whole-array and strided 1-D operations: fast at any N)
+    if not np.isfinite(rows.sum()) and not np.isfinite(rows).all():   # (the sum: no temporary array)
+        bad = ~np.isfinite(rows).all(axis=1)
         raise SceneError(f"{label(int(np.argmax(bad)))}: transform has NaN or infinite values")
-    bad = (e[12] != 0.0) | (e[13] != 0.0) | (e[14] != 0.0) | (e[15] != 1.0)
+    bad = (rows[:, 12] != 0.0) | (rows[:, 13] != 0.0) | (rows[:, 14] != 0.0) | (rows[:, 15] != 1.0)
     if bad.any():
         raise SceneError(f"{label(int(np.argmax(bad)))}: transform must be affine (last row 0 0 0 1), got "
                          f"{m[int(np.argmax(bad)), 3].tolist()}")
-    (a00, a01, a02), (a10, a11, a12), (a20, a21, a22) = e[0:3], e[4:7], e[8:11]
+    (a00, a01, a02), (a10, a11, a12), (a20, a21, a22) = [[rows[:, 4 * i + j] for j in range(3)] for i in range(3)]
     det = a00 * (a11 * a22 - a12 * a21) - a01 * (a10 * a22 - a12 * a20) + a02 * (a10 * a21 - a11 * a20)
     size = (a00 * a00 + a01 * a01 + a02 * a02 + a10 * a10 + a11 * a11 + a12 * a12 + a20 * a20 + a21 * a21
             + a22 * a22) / 3.0   # the mean squared row length: det against its 3/2 power is scale-free
@@ -246,14 +247,20 @@ def check_transforms(value: ArrayLike, labels) -> NDArray[np.float64]:
 
 
 def world_boxes(boxes: np.ndarray, transforms: np.ndarray) -> np.ndarray:
-    """(N, 2, 3) world AABBs of object boxes (N, 2, 3) under transforms (N, 4, 4) (exact for the box's 8 corners:
-    centre +- |A| half-extent)."""
+    """(N, 2, 3) world AABBs of object boxes (N, 2, 3) (or (1, 2, 3): one box for all) under transforms (N, 4, 4)
+    (exact for the box's 8 corners: centre +- |A| half-extent)."""
     c = 0.5 * (boxes[:, 0] + boxes[:, 1])
     h = 0.5 * (boxes[:, 1] - boxes[:, 0])
-    a = transforms[:, :3, :3]
-    wc = np.einsum("nij,nj->ni", a, c) + transforms[:, :3, 3]
-    wh = np.einsum("nij,nj->ni", np.abs(a), h)
-    return np.stack([wc - wh, wc + wh], axis=1)
+    n = len(transforms)
+    rows = transforms.reshape(n, 16)   # (strided 1-D operations over the instances: fast at any N)
+    out = np.empty((n, 2, 3))
+    for i in range(3):
+        a0, a1, a2 = rows[:, 4 * i], rows[:, 4 * i + 1], rows[:, 4 * i + 2]
+        wc = a0 * c[:, 0] + a1 * c[:, 1] + a2 * c[:, 2] + rows[:, 4 * i + 3]
+        wh = np.abs(a0) * h[:, 0] + np.abs(a1) * h[:, 1] + np.abs(a2) * h[:, 2]
+        out[:, 0, i] = wc - wh
+        out[:, 1, i] = wc + wh
+    return out
 
 
 def flatten(meshes, mesh_of: np.ndarray, transforms: np.ndarray, overrides: np.ndarray, names) -> dict:

@@ -199,21 +199,22 @@ class Scene:
             SceneError: a bad transform or index, naming the instance.
         """
         n = len(self.instances)
-        idx = np.arange(n) if which is None else np.asarray(which)
-        if idx.ndim != 1 or not np.issubdtype(idx.dtype, np.integer) or (len(idx) and (idx.min() < -n or
-                                                                                         idx.max() >= n)):
-            raise SceneError(f"{shown(self.name)}: instance indices must be integers in [0, {n})")
-        idx = idx % n if len(idx) else idx.astype(np.int64)
-        m = check_transforms(transforms, lambda k: self._label(int(idx[k]) if k < len(idx) else 0))
-        if len(m) != len(idx):
-            raise SceneError(f"{shown(self.name)}: {len(m)} transforms for {len(idx)} instances")
-        old = self._transforms[idx].copy()
+        if which is None:   # all: a slice, no gathers
+            idx, count = slice(None), n
+            m = check_transforms(transforms, lambda k: self._label(k if k < n else 0), copy=False)
+        else:
+            idx = np.asarray(which)
+            if idx.ndim != 1 or not np.issubdtype(idx.dtype, np.integer) or (len(idx) and (idx.min() < -n or
+                                                                                             idx.max() >= n)):
+                raise SceneError(f"{shown(self.name)}: instance indices must be integers in [0, {n})")
+            idx = idx % n if len(idx) else idx.astype(np.int64)
+            count = len(idx)
+            m = check_transforms(transforms, lambda k: self._label(int(idx[k]) if k < len(idx) else 0),
+                                 copy=False)
+        if len(m) != count:
+            raise SceneError(f"{shown(self.name)}: {len(m)} transforms for {count} instances")
+        self._check_world(idx, m)   # before anything changes
         self._transforms[idx] = m
-        try:
-            self._check_world(idx)
-        except SceneError:
-            self._transforms[idx] = old
-            raise
         self._version += 1
         self._inst_changed[idx] = self._version
 
@@ -274,14 +275,24 @@ class Scene:
         name = self.instances[i].name if hasattr(self, "instances") else ""
         return f"{shown(self.name)}: instance {i}" + (f" '{shown(name)}'" if name else "")
 
-    def _check_world(self, idx: np.ndarray) -> None:
-        if not len(idx):
+    def _check_world(self, idx, transforms: np.ndarray | None = None) -> None:
+        """The instances `idx` (indices or a slice) stay within MAX_COORD under their `transforms` (default: their
+        current ones)."""
+        mesh = self._inst_mesh[idx]
+        if not len(mesh):
             return
-        boxes = np.stack([m.box for m in self.meshes])[self._inst_mesh[idx]]
-        world = world_boxes(boxes, self._transforms[idx])
+        if transforms is None:
+            transforms = self._transforms[idx]
+        boxes = np.stack([m.box for m in self.meshes])
+        # a bound first: |A c + t| + |A| h <= (3 (|c| + h) + 1) max|m|, for every instance at once
+        reach = np.abs(boxes[mesh if len(mesh) < len(boxes) else slice(None)]).max()
+        if (3.0 * reach + 1.0) * max(transforms.max(), -transforms.min()) <= MAX_COORD:   # (no temporaries)
+            return
+        one = len(boxes) == 1 or not np.any(mesh != mesh[0])
+        world = world_boxes(boxes[mesh[:1]] if one else boxes[mesh], transforms)
         if np.abs(world).max() > MAX_COORD:
             top = np.abs(world).reshape(len(world), 6).max(axis=1)
-            i = int(idx[int(np.argmax(top > MAX_COORD))])
+            i = int(np.arange(len(self._inst_mesh))[idx][int(np.argmax(top > MAX_COORD))])
             raise SceneError(f"{self._label(i)}: world-space coordinates beyond +-{MAX_COORD:g} (largest "
                              f"{top.max():g}): check its transform")
 
@@ -370,13 +381,48 @@ class Scene:
         def make():
             counts = np.array([m.vertex_count for m in self.meshes])[self._inst_mesh]
             if counts.sum() <= FLAT_BOUNDS_VERTICES:
-                p = self.positions
-                box = np.stack([p.min(axis=0), p.max(axis=0)])
+                box = self._vertex_bounds()
             else:
                 b = self.instance_boxes()
                 box = np.stack([b[:, 0].min(axis=0), b[:, 1].max(axis=0)])
             return _frozen(box, np.float32)
         return self._cached("bounds", make)
+
+    def _vertex_bounds(self) -> np.ndarray:
+        """(2, 3) float64 min / max of the instances' world-space vertices, without flattening: the instances whose
+        (conservative) world boxes reach past the extremes found so far, transformed exactly (`_vertex_extremes`):
+        first the instances of the outermost boxes, then any whose box still reaches past those."""
+        boxes = self.instance_boxes()
+        seeds = np.unique(np.concatenate([boxes[:, 0].argmin(axis=0), boxes[:, 1].argmax(axis=0)]))
+        lo, hi = self._vertex_extremes(seeds)
+        slack = 1e-9 * (np.abs(boxes).max() + 1.0)   # (the boxes' rounding)
+        rest = (boxes[:, 0] < lo + slack).any(axis=1) | (boxes[:, 1] > hi - slack).any(axis=1)
+        rest[seeds] = False
+        if rest.any():
+            more = self._vertex_extremes(np.flatnonzero(rest))
+            lo, hi = np.minimum(lo, more[0]), np.maximum(hi, more[1])
+        return np.stack([lo, hi])
+
+    def _vertex_extremes(self, which: np.ndarray) -> tuple:
+        """min, max (3,) of the world-space vertices of the instances `which`: per mesh, the rows of their 3x3
+        parts against its vertices (over chunks of instances; the flattened positions' float64 math)."""
+        lo, hi = np.full(3, np.inf), np.full(3, -np.inf)
+        mesh_of = self._inst_mesh[which]
+        for k in np.unique(mesh_of):
+            mesh = self.meshes[int(k)]
+            if not mesh.vertex_count:
+                continue
+            insts = which[mesh_of == k]
+            v = mesh.positions.astype(np.float64).T   # (3, V)
+            step = max(1, (1 << 20) // (3 * v.shape[1]))
+            for c in range(0, len(insts), step):
+                m = self._transforms[insts[c:c + step]]
+                a = m[:, :3, :3, None]
+                proj = a[:, :, 0] * v[0] + a[:, :, 1] * v[1] + a[:, :, 2] * v[2]   # (n, 3, V): A v per component
+                t = m[:, :3, 3]
+                lo = np.minimum(lo, (proj.min(axis=2) + t).min(axis=0))
+                hi = np.maximum(hi, (proj.max(axis=2) + t).max(axis=0))
+        return lo, hi
 
     # ------------------------------------------------------------------ camera
     @property

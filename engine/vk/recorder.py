@@ -193,12 +193,14 @@ class Recorder:
         """Make what earlier steps wrote into `resources` visible to the host (after the fence)."""
         self.use(reads=resources, stage=HOST)
 
-    def to_later(self):
-        """Make every write recorded so far visible to every command of later submissions (the last step of a
-        recording whose results recordings made without `after_earlier` read)."""
-        memory_barrier(self.cmd, _EVERYTHING, vk.VK_PIPELINE_STAGE_ALL_COMMANDS_BIT,
-                       vk.VK_ACCESS_SHADER_WRITE_BIT | vk.VK_ACCESS_TRANSFER_WRITE_BIT,
-                       vk.VK_ACCESS_MEMORY_READ_BIT | vk.VK_ACCESS_SHADER_READ_BIT)
+    def to_later(self, *resources):
+        """Make what earlier steps wrote visible to every later submission on the queue, whatever stage reads it
+        (a recording other command buffers depend on without barriers of their own): every write recorded so far,
+        or only those into `resources` when some are named (no barrier when none of them was written)."""
+        if not resources or any(self.hazards.state.get(id(r)) is not None for r in resources):
+            memory_barrier(self.cmd, _EVERYTHING, vk.VK_PIPELINE_STAGE_ALL_COMMANDS_BIT,
+                           vk.VK_ACCESS_SHADER_WRITE_BIT | vk.VK_ACCESS_TRANSFER_WRITE_BIT,
+                           vk.VK_ACCESS_MEMORY_READ_BIT | vk.VK_ACCESS_SHADER_READ_BIT)
 
     def mark(self, name: str):
         if self.timestamps is not None:

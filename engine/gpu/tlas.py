@@ -1,0 +1,188 @@
+"""The two-level BVH's top level built on the GPU (shaders/glsl/tlas_build.comp): the same layout TwoLevel.top makes
+on the host (engine/bvh/instanced.py), written straight into the nodes buffer the traversal reads.
+
+Per update the host writes the instances' 3x4 object-to-world transforms into a mapped staging buffer and
+re-submits one command buffer, recorded once per scene structure: a copy of the transforms to the device, then
+dispatches of one shader: world boxes, instance records and centre bounds; Morton keys; a bitonic sort of the keys
+(blocks of 1024 in shared memory, longer strides a dispatch each); the leaf level; one dispatch per level above.
+
+`tlas_builder(ctx)` says which builds the top level: $HYBRID_TLAS_BUILD ("gpu" / "host") if set, else the GPU on
+GPUs and the host on CPU devices, where the numpy build is the faster (docs/benchmarks.md, #17).
+"""
+from __future__ import annotations
+
+import os
+
+import numpy as np
+
+from ..errors import ConfigError
+from ..shaders import ShaderLibrary
+from ..vk import Buffer, BufferView, ComputePipeline, DescriptorSet, Recorder, Timestamps, reflect
+from ..vk.device import is_cpu
+from ..vk.resources import STORAGE, TRANSFER_DST, TRANSFER_SRC
+
+SHADER = "tlas_build.comp"
+BUILDERS = ("gpu", "host")
+WORLD, MORTON, SORT_BLOCK_FULL, SORT_BLOCK_MERGE, SORT_STEP, LEAVES, LEVEL = range(7)
+GROUP = 512          # the shader's local size
+SORT_BLOCK = 1024    # keys a workgroup sorts in shared memory
+#: the GPU timestamps of a build, in order (`TopLevelBuilder.gpu_ms`)
+MARKS = ("tlas upload", "tlas world", "tlas sort", "tlas nodes")
+
+
+def tlas_builder(ctx, builder: str | None = None) -> str:
+    """"gpu" or "host": `builder` if given, else $HYBRID_TLAS_BUILD, else the GPU except on CPU devices."""
+    what = "top-level builder"
+    if builder is None:
+        builder = os.environ.get("HYBRID_TLAS_BUILD") or ("host" if is_cpu(ctx) else "gpu")
+        what = "HYBRID_TLAS_BUILD"
+    if builder not in BUILDERS:
+        raise ConfigError(f"{what} must be one of {', '.join(BUILDERS)}, got {builder!r}")
+    return builder
+
+
+def _pipeline(ctx):
+    """The build shader's interface, set layout and pipeline: once per device."""
+    root = ctx.root
+    with root.memo_lock:
+        hit = root.memo.get("tlas.pipeline")
+        if hit is None:
+            spirv = ShaderLibrary().get(SHADER)
+            iface = reflect(spirv, SHADER)
+            layout = DescriptorSet(root, list(iface.set(0).values()))
+            hit = (iface, ComputePipeline(root, spirv, [layout], push_size=iface.push_size, name="tlas_build"))
+            root.memo["tlas.pipeline"] = hit
+        return hit
+
+
+def _groups(n: int) -> int:
+    return max(1, -(-int(n) // GROUP))
+
+
+class TopLevelBuilder:
+    """Builds a TwoLevel's top level (its `tlas_root` / `inst_base` / `levels`) into `nodes` (the device buffer of
+    TwoLevel.nodes, with STORAGE_TEXEL usage) for the transforms of the instances. `prepare` (re)allocates and
+    records for a structure; `build` runs it."""
+
+    def __init__(self, ctx):
+        self.ctx = ctx
+        self.interface, self.pipeline = _pipeline(ctx)
+        self.dset = DescriptorSet(ctx, list(self.interface.set(0).values()))
+        self.timestamps = Timestamps(ctx, capacity=len(MARKS) + 1)
+        self.cmd = None
+        self.buffers: list = []
+        self.view = None
+
+    def prepare(self, two, nodes: Buffer, inst_mesh: np.ndarray, flat_tri_base: np.ndarray,
+                mesh_boxes: np.ndarray) -> None:
+        """Buffers and the recorded build for `two` (a TwoLevel) whose nodes live in `nodes`."""
+        self._release()
+        ctx = self.ctx
+        n = two.n_instances
+        slots = 1 << two.levels
+        keys = max(slots, SORT_BLOCK)
+        self.n = n
+        self.staging = Buffer(ctx, n * 48, TRANSFER_SRC, host=True, name="tlas transforms staging")
+        self.xf = Buffer(ctx, n * 48, STORAGE | TRANSFER_DST, name="tlas transforms")
+        info = np.zeros((n, 4), np.uint32)
+        info[:, 0] = inst_mesh
+        info[:, 1] = two.node_base[inst_mesh]
+        info[:, 2] = flat_tri_base
+        self.info = Buffer(ctx, info.nbytes, STORAGE, host=True, name="tlas instance info")
+        self.info.write(info)
+        self.mesh_boxes = Buffer(ctx, len(mesh_boxes) * 32, STORAGE, host=True, name="tlas mesh boxes")
+        self.set_mesh_boxes(mesh_boxes)
+        self.boxes = Buffer(ctx, n * 32, STORAGE, name="tlas world boxes")
+        self.bounds = Buffer(ctx, 32, STORAGE | TRANSFER_DST, name="tlas bounds")
+        self.keys = Buffer(ctx, keys * 8, STORAGE, name="tlas sort keys")
+        self.buffers = [self.staging, self.xf, self.info, self.mesh_boxes, self.boxes, self.bounds, self.keys]
+        self.view = BufferView(nodes)
+        self._xf_host = self.staging.view(np.float32).reshape(n, 3, 4)
+        d = self.dset
+        d.bind("xf", self.xf).bind("info", self.info).bind("mesh_box", self.mesh_boxes).bind("boxes", self.boxes)
+        d.bind("bounds", self.bounds).bind("keys", self.keys).bind("nodes", self.view)
+        self.cmd = self._record(two, nodes, slots, keys)
+
+    def set_mesh_boxes(self, mesh_boxes: np.ndarray) -> None:
+        """The meshes' object boxes (M, 2, 3), rounded outwards to float32 (after a mesh deformed)."""
+        b = np.asarray(mesh_boxes, np.float64)
+        out = np.zeros((len(b), 2, 4), np.float32)
+        lo, hi = b[:, 0].astype(np.float32), b[:, 1].astype(np.float32)
+        out[:, 0, :3] = np.where(lo > b[:, 0], np.nextafter(lo, np.float32(-np.inf)), lo)
+        out[:, 1, :3] = np.where(hi < b[:, 1], np.nextafter(hi, np.float32(np.inf)), hi)
+        self.mesh_boxes.write(out)
+
+    def _record(self, two, nodes: Buffer, slots: int, keys: int):
+        ctx, n = self.ctx, self.n
+        rec = Recorder(ctx, self.timestamps)
+        base = [0, n, slots, two.tlas_root, two.inst_base, 0, 0, 0]
+
+        def run(mode, groups, reads, writes, level=0, k=0, j=0):
+            push = np.array(base, np.uint32)
+            push[0], push[5], push[6], push[7] = mode, level, k, j
+            rec.dispatch(self.pipeline, [self.dset], (groups, 1, 1), push=push, reads=reads, writes=writes)
+
+        rec.copy(self.staging, self.xf)
+        rec.fill(self.bounds, 0)
+        rec.mark(MARKS[0])
+        run(WORLD, _groups(n), [self.xf, self.info, self.mesh_boxes], [self.boxes, self.bounds, nodes])
+        run(MORTON, keys // GROUP, [self.boxes, self.bounds], [self.keys])
+        rec.mark(MARKS[1])
+        blocks = keys // SORT_BLOCK
+        run(SORT_BLOCK_FULL, blocks, [self.keys], [self.keys])
+        k = 2 * SORT_BLOCK
+        while k <= keys:
+            j = k // 2
+            while j >= SORT_BLOCK:
+                run(SORT_STEP, keys // 2 // GROUP, [self.keys], [self.keys], k=k, j=j)
+                j //= 2
+            run(SORT_BLOCK_MERGE, blocks, [self.keys], [self.keys], k=k)
+            k *= 2
+        rec.mark(MARKS[2])
+        run(LEAVES, _groups(slots // 2), [self.keys, self.boxes], [nodes])
+        for level in range(two.levels - 2, -1, -1):
+            run(LEVEL, _groups(1 << level), [nodes], [nodes], level=level)
+        rec.mark(MARKS[3])
+        rec.to_later(nodes)
+        return rec.finish()
+
+    def build(self, transforms: np.ndarray) -> None:
+        """The top level for (N, 4, 4) `transforms`, written on the device before this returns."""
+        np.copyto(self._xf_host, transforms[:, :3, :], casting="same_kind")
+        self.ctx.submit(self.cmd)
+
+    def gpu_ms(self) -> dict:
+        """GPU ms of the last build's steps (MARKS; empty where the device has no timestamps)."""
+        return self.timestamps.read(list(MARKS))
+
+    def _release(self) -> None:
+        if self.cmd is not None:
+            self.ctx.free_command_buffer(self.cmd)
+            self.cmd = None
+        if self.view is not None:
+            self.view.destroy()
+            self.view = None
+        for buf in self.buffers:
+            buf.destroy()
+        self.buffers = []
+
+    def destroy(self) -> None:
+        self._release()
+
+
+def read_back(ctx, buf: Buffer, offset: int, size: int) -> np.ndarray:
+    """Bytes [offset, offset + size) of a device buffer (uint8), copied to the host: what the GPU built, for
+    checks."""
+    host = Buffer(ctx, size, TRANSFER_DST, host=True, name="read back")
+    try:
+        rec = Recorder(ctx)
+        rec.copy(buf, host, regions=[(int(offset), 0, int(size))])
+        rec.to_host(host)
+        cmd = rec.finish()
+        try:
+            ctx.submit(cmd)
+        finally:
+            ctx.free_command_buffer(cmd)
+        return host.view()[:size].copy()
+    finally:
+        host.destroy()

@@ -20,6 +20,7 @@ from ..shaders import ShaderLibrary
 from ..vk import Buffer, BufferView, ComputePipeline, DescriptorSet, Recorder, Timestamps, reflect
 from ..vk.device import is_cpu
 from ..vk.resources import STORAGE, TRANSFER_DST, TRANSFER_SRC
+from ..vk.sync import create_fence, destroy_fence, reset_fences, wait_fences
 
 SHADER = "tlas_build.comp"
 BUILDERS = ("gpu", "host")
@@ -69,6 +70,11 @@ class TopLevelBuilder:
         self.interface, self.pipeline = _pipeline(ctx)
         self.dset = DescriptorSet(ctx, list(self.interface.set(0).values()))
         self.timestamps = Timestamps(ctx, capacity=len(MARKS) + 1)
+        # a build is submitted without waiting (later work on the queue is ordered after it by its closing
+        # barrier); the host waits for it only before it rewrites what the build reads
+        self.fence = create_fence(ctx)
+        ctx.defer_destroy(destroy_fence, ctx, self.fence)
+        self.pending = False
         self.cmd = None
         self.buffers: list = []
         self.view = None
@@ -76,6 +82,7 @@ class TopLevelBuilder:
     def prepare(self, two, nodes: Buffer, inst_mesh: np.ndarray, flat_tri_base: np.ndarray,
                 mesh_boxes: np.ndarray) -> None:
         """Buffers and the recorded build for `two` (a TwoLevel) whose nodes live in `nodes`."""
+        self.wait()
         self._release()
         ctx = self.ctx
         n = two.n_instances
@@ -105,6 +112,7 @@ class TopLevelBuilder:
 
     def set_mesh_boxes(self, mesh_boxes: np.ndarray) -> None:
         """The meshes' object boxes (M, 2, 3), rounded outwards to float32 (after a mesh deformed)."""
+        self.wait()
         b = np.asarray(mesh_boxes, np.float64)
         out = np.zeros((len(b), 2, 4), np.float32)
         lo, hi = b[:, 0].astype(np.float32), b[:, 1].astype(np.float32)
@@ -147,15 +155,26 @@ class TopLevelBuilder:
         return rec.finish()
 
     def build(self, transforms: np.ndarray) -> None:
-        """The top level for (N, 4, 4) `transforms`, written on the device before this returns."""
+        """The top level for (N, 4, 4) `transforms`, submitted: work submitted later to the queue sees it."""
+        self.wait()
         np.copyto(self._xf_host, transforms[:, :3, :], casting="same_kind")
-        self.ctx.submit(self.cmd)
+        self.ctx.submit(self.cmd, wait=False, fence=self.fence)
+        self.pending = True
+
+    def wait(self) -> None:
+        """Block until the last build has run."""
+        if self.pending:
+            wait_fences(self.ctx, [self.fence])
+            reset_fences(self.ctx, [self.fence])
+            self.pending = False
 
     def gpu_ms(self) -> dict:
         """GPU ms of the last build's steps (MARKS; empty where the device has no timestamps)."""
+        self.wait()
         return self.timestamps.read(list(MARKS))
 
     def _release(self) -> None:
+        self.wait()
         if self.cmd is not None:
             self.ctx.free_command_buffer(self.cmd)
             self.cmd = None

@@ -70,7 +70,7 @@ def grow_top(box, cen, cen_rows, max_leaf: int, max_depth: int, threads: int = 1
                 if not want.any() or z not in tiers:
                     continue
                 t, nd, l0 = tiers[z]
-                nd = _walk(t, nd, levels[l0:], cen_rows)
+                nd = _walk_blocks(t, nd, levels[l0:], cen_rows, threads)
                 take = want.take(nd)
                 add_t.append(t[take])
                 add_s.append(nd[take])
@@ -265,6 +265,16 @@ def grow_top(box, cen, cen_rows, max_leaf: int, max_depth: int, threads: int = 1
         here_child = np.where(do, np.cumsum(do) - 1, res_child.take(nxt[:, 0]))
         res_rec, res_child = here_rec, here_child
     return records, slot, count, depth, dom
+
+
+def _walk_blocks(tids, node, levels, cen_rows, threads):
+    """_walk in blocks of 4 TOP_BLOCK triangles on the pool's threads (the same nodes in any case)."""
+    if threads <= 1 or tids.size <= 4 * TOP_BLOCK:
+        return _walk(tids, node, levels, cen_rows)
+    step = 4 * TOP_BLOCK
+    parts = _parallel([lambda b=b: _walk(tids[b:b + step], None if node is None else node[b:b + step], levels,
+                                         cen_rows) for b in range(0, tids.size, step)], threads)
+    return np.concatenate(parts)
 
 
 def _walk(tids: np.ndarray, node: np.ndarray | None, levels, cen_rows: np.ndarray, tails=None) -> np.ndarray:

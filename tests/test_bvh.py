@@ -609,6 +609,19 @@ def _median_split_sah(v, f, order, max_leaf=4):
     return total / area(0, len(order))
 
 
+def test_boxes_widened_while_packed_are_one_float32_step_out():
+    """The packing's integer step (nodes of meshes with nothing to lift) is np.nextafter towards -inf on finite
+    values, signed zeros, subnormals and the float32 extremes included; inf and NaN stay."""
+    from engine.bvh.pack import _step_down
+
+    edge = np.array([0.0, -0.0, 1.0, -1.0, 1e-45, -1e-45, 3.4028235e38, -3.4028235e38, np.inf, np.nan], np.float32)
+    rng = np.random.default_rng(5)
+    x = np.concatenate([edge, (rng.normal(size=20_000) * 10.0 ** rng.integers(-44, 38, 20_000)).astype(np.float32)])
+    with np.errstate(over="ignore", invalid="ignore"):
+        want = np.where(np.isfinite(x), np.nextafter(x, np.float32(-np.inf)), x)
+    assert np.array_equal(_step_down(x).view(np.int32), want.view(np.int32))
+
+
 def test_build_in_a_forked_child_after_a_threaded_build():
     """The builder's thread pool does not survive a fork; the child must make its own instead of waiting forever."""
     import multiprocessing

@@ -137,10 +137,8 @@ def build_bvh(vertices, faces, *, max_leaf: int = 4, max_depth: int = DEFAULT_MA
 
 
 def _finished(records, leaf_boxes, leaf_first, leaf_size, n_tri):
-    """finish() and _widen(): the packed nodes of a tree with nothing to lift, and its SAH cost."""
-    nodes, sah_cost = finish(records, leaf_boxes, leaf_first, leaf_size, n_tri)
-    _widen(nodes)
-    return nodes, sah_cost
+    """The packed nodes of a tree with nothing to lift, widened (see _widen) as they are packed, and its SAH cost."""
+    return finish(records, leaf_boxes, leaf_first, leaf_size, n_tri, widen=True)
 
 
 def _widen(nodes):

@@ -18,10 +18,11 @@
    widened by one float32 step (`_widen`). Where nothing is lifted, the packing of step 5 runs on the pool beside
    the records' blocks (it is serial; they need only the leaf order).
 
-Threads: the per-triangle steps run block by block, the Morton sort as sorted parts merged, the walks of the
-sampled top by blocks, and independent subtrees of the passes, on the shared worker pool (engine/parallel.py;
-`threads`, default all cores): numpy releases the GIL inside its calls on large arrays. Results are merged in a
-fixed order, so the tree is byte for byte the same for any number of threads. The sampled top passes stay serial.
+Threads: the per-triangle steps run block by block, the Morton sort as sorted parts merged, the sampled top's
+statistics, partitions and walks in parts, the independent subtrees of the passes, and the node packing beside the
+triangle records, on the shared worker pool (engine/parallel.py; `threads`, default all cores): numpy releases the
+GIL inside its calls on large arrays. Results are merged in a fixed order, so the tree is byte for byte the same for
+any number of threads. The top's per-node choices (grid SAH over its nodes) stay serial.
 """
 
 from __future__ import annotations

@@ -6,6 +6,7 @@ when a node needs a denser sample or the top is done. In the final walk, triangl
 level leave early for the node they end in (`_walk_tails`); the odd-indexed triangles, half the mesh, first take the
 node of a Morton neighbour when their centre is inside its region, the bounds that the planes above it set
 (`_regions`), and walk only where it is not. The top is checked against the depth cap with exact counts at the end.
+Each pass's sample selection, cell statistics and partition of the subset run in parts on the pool's threads.
 """
 
 from __future__ import annotations

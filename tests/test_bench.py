@@ -7,9 +7,12 @@ import sys
 
 import numpy as np
 import pytest
+import trimesh
 
 from engine.bench import PEERS, BenchConfig, Progress, agreement, format_report, run_bench
-from engine.bench.scenes import generated_mesh
+from engine.bench.config import BUILD_KINDS
+from engine.bench.scenes import build_mesh, generated_mesh
+from engine.errors import ConfigError
 
 
 def _peer_available(name):
@@ -43,10 +46,11 @@ def test_json_has_every_section_and_figure(results):
     assert meta["device"]["name"] and meta["device"]["type"]
     assert meta["validation_errors"] == []
 
-    (b,) = data["build"]
-    assert b["triangles"] > 4000 and b["ms"] > 0 and b["ms_per_million"] > 0
-    assert b["sah_cost"] > 0 and b["bytes_per_triangle"] > 0
-    assert b["threads"] >= 1 and b["ms_1thread"] > 0 and len(b["runs_ms_1thread"]) == len(b["runs_ms"])
+    assert [b["kind"] for b in data["build"]] == list(BUILD_KINDS)
+    for b in data["build"]:
+        assert b["triangles"] > 4000 and b["ms"] > 0 and b["ms_per_million"] > 0 and b["cpu_ms"] > 0
+        assert b["sah_cost"] > 0 and b["bytes_per_triangle"] > 0
+        assert b["threads"] >= 1 and b["ms_1thread"] > 0 and len(b["runs_ms_1thread"]) == len(b["runs_ms"])
 
     (sc,) = data["trace"]["scenes"]
     assert sc["scene"] == "generated" and sc["triangles"] > 4000
@@ -81,6 +85,7 @@ def test_json_has_every_section_and_figure(results):
     assert (out / "bench.png").stat().st_size > 10_000
     report = format_report(res)
     assert "Mrays/s" in report and "BVH build" in report and "total GPU" in report
+    assert all(kind in report for kind in BUILD_KINDS)
     assert "plain copy" in report and "x copy (wall)" in report
 
 
@@ -186,3 +191,21 @@ def test_progress_bar_and_generated_mesh():
     assert abs(len(f) - 20_000) < 2_000 and f.max() < len(v) and np.isfinite(v).all()
     v2, f2 = generated_mesh(20_000, seed=3)
     assert np.array_equal(v, v2) and np.array_equal(f, f2)
+
+
+@pytest.mark.parametrize("kind", BUILD_KINDS)
+def test_build_mesh_kinds(kind):
+    v, f = build_mesh(kind, 50_000, seed=4)
+    assert abs(len(f) - 50_000) < 5_000 and f.max() < len(v) and np.isfinite(v).all()
+    assert v.dtype == np.float32 and f.dtype == np.int64
+    v2, f2 = build_mesh(kind, 50_000, seed=4)
+    assert np.array_equal(v, v2) and np.array_equal(f, f2)
+    mesh = trimesh.Trimesh(v, f, process=False)
+    mesh.merge_vertices()
+    if kind == "spheres":  # separate spheres of 1280 triangles: each triangle's vertices in its sphere's block
+        block = f // (len(v) // (len(f) // 1280))
+        assert (block == block[:, :1]).all() and (np.bincount(block[:, 0]) == 1280).all()
+    if kind != "generated":  # closed surfaces, wound outwards
+        assert mesh.is_watertight and mesh.is_winding_consistent and mesh.volume > 0
+    with pytest.raises(ConfigError, match="unknown mesh kind 'cube'"):
+        build_mesh("cube", 1000)

@@ -565,6 +565,63 @@ def test_threads_give_the_same_tree_byte_for_byte():
             build_bvh(*sphere(1), threads=bad)
 
 
+@pytest.mark.parametrize("kind", ["spheres", "scan"])
+def test_bench_mesh_kinds_build_valid_trees(kind):
+    """The build benchmark's other meshes (a field of separate spheres; one scan-like surface), large enough for the
+    sampled top and several chunk groups: every triangle in exactly one leaf, every box holding its children, the
+    same tree on 1 and 2 threads, and a SAH cost far below a median split's."""
+    from engine.bench.scenes import build_mesh
+    from engine.bvh.grow import CHUNK
+    from engine.bvh.morton import morton_order
+
+    v, f = build_mesh(kind, 200_000, seed=2)
+    assert len(f) > CHUNK
+    bvh = build_bvh(v, f, threads=2)
+    check_invariants(bvh, v, f)
+    assert build_bvh(v, f, threads=1).nodes.tobytes() == bvh.nodes.tobytes()
+    # a median split of the triangles in Morton order (the builder's own sort) is the floor the SAH build must beat
+    tri = v[f]
+    c2 = np.ascontiguousarray((tri.min(axis=1) + tri.max(axis=1)).T)
+    median = _median_split_sah(v, f, morton_order(c2, len(f)))
+    assert bvh.stats["sah_cost"] < 0.9 * median, (bvh.stats["sah_cost"], median)
+
+
+def _median_split_sah(v, f, order, max_leaf=4):
+    """SAH cost (C_trav = C_tri = 1, relative to the root box) of halving `order` recursively down to max_leaf."""
+    tri = np.asarray(v, np.float64)[np.asarray(f)[order]]
+    lo, hi = tri.min(axis=1), tri.max(axis=1)
+
+    def area(a, b):
+        if b - a == 0:
+            return 0.0
+        e = hi[a:b].max(axis=0) - lo[a:b].min(axis=0)
+        return e[0] * e[1] + e[1] * e[2] + e[2] * e[0]
+
+    total, todo = 0.0, [(0, len(order))]
+    while todo:
+        a, b = todo.pop()
+        if b - a <= max_leaf:
+            total += area(a, b) * (b - a)
+            continue
+        total += area(a, b)
+        m = (a + b) // 2
+        todo += [(a, m), (m, b)]
+    return total / area(0, len(order))
+
+
+def test_boxes_widened_while_packed_are_one_float32_step_out():
+    """The packing's integer step (nodes of meshes with nothing to lift) is np.nextafter towards -inf on finite
+    values, signed zeros, subnormals and the float32 extremes included; inf and NaN stay."""
+    from engine.bvh.pack import _step_down
+
+    edge = np.array([0.0, -0.0, 1.0, -1.0, 1e-45, -1e-45, 3.4028235e38, -3.4028235e38, np.inf, np.nan], np.float32)
+    rng = np.random.default_rng(5)
+    x = np.concatenate([edge, (rng.normal(size=20_000) * 10.0 ** rng.integers(-44, 38, 20_000)).astype(np.float32)])
+    with np.errstate(over="ignore", invalid="ignore"):
+        want = np.where(np.isfinite(x), np.nextafter(x, np.float32(-np.inf)), x)
+    assert np.array_equal(_step_down(x).view(np.int32), want.view(np.int32))
+
+
 def test_build_in_a_forked_child_after_a_threaded_build():
     """The builder's thread pool does not survive a fork; the child must make its own instead of waiting forever."""
     import multiprocessing

@@ -18,6 +18,11 @@ RAYSET_TITLES = {"shadow": "shadow rays (occluded, G-buffer)", "ao": "AO rays (o
                  "scattered": "shadow rays (occluded, random surface points, random order)"}
 
 
+#: The mesh kinds of the build section (engine/bench/scenes.py build_mesh): the generated scene's mesh (terrain,
+#: lumpy spheres, boxes), a field of separate subdivided spheres, one scan-like closed surface.
+BUILD_KINDS = ("generated", "spheres", "scan")
+
+
 #: The AOVs of the dataset figures (the headless-data target of issue 16).
 DATASET_AOVS = ("color", "depth", "normal", "object_id")
 
@@ -30,6 +35,7 @@ class BenchConfig:
     device: str | None = None
     validation: bool = False
     build_sizes: tuple = (100_000, 1_000_000, 4_000_000)
+    build_kinds: tuple = BUILD_KINDS           # every kind is built at every size
     build_reps: int = 3                        # sizes above 2M triangles get one run less (at least one)
     generated_tris: int = 1_200_000            # the trace benchmark's generated scene
     mid_tris: int = 300_000                    # frame "generated-300k": the size the issue-6 shadow target names

@@ -38,14 +38,15 @@ def format_report(results: dict) -> str:
         parts.append(f"run: {o['wall_s']} s wall, this process {o['own_cpu_s']} CPU s; other processes used "
                      f"{o['others_cpu_s']} CPU s (on average {o['others_mean_cores']} of {m.get('cores')} cores)")
     if results.get("build"):
-        rows = [[f"{b['triangles']:,}", _fmt(b["ms"], ".0f"), _fmt(b["ms_per_million"], ".0f"),
-                 _fmt(b.get("ms_1thread"), ".0f"), _fmt(b["sah_cost"], ".1f"), _fmt(b["bytes_per_triangle"], ".1f"),
-                 f"{b['nodes']:,}", b["depth"]]
+        rows = [[b.get("kind", "generated"), f"{b['triangles']:,}", _fmt(b["ms"], ".0f"),
+                 _fmt(b["ms_per_million"], ".0f"), _fmt(b.get("cpu_ms"), ".0f"), _fmt(b.get("ms_1thread"), ".0f"), _fmt(b["sah_cost"], ".1f"),
+                 _fmt(b["bytes_per_triangle"], ".1f"), f"{b['nodes']:,}", b["depth"]]
                 for b in results["build"]]
         threads = results["build"][0].get("threads", "?")
-        parts += ["", f"BVH build (generated meshes; median of runs; {threads} threads, and 1 for comparison)",
-                  _table(rows, ["triangles", "build ms", "ms / M tris", "1 thread ms", "SAH cost", "bytes / tri",
-                                "nodes", "depth"])]
+        parts += ["", f"BVH build (generated meshes of each kind; median of runs; {threads} threads, and 1 for "
+                      "comparison; CPU ms: this process, all threads)",
+                  _table(rows, ["mesh", "triangles", "build ms", "ms / M tris", "CPU ms", "1 thread ms", "SAH cost",
+                                "bytes / tri", "nodes", "depth"])]
     for sc in results.get("trace", {}).get("scenes", []):
         setup = ", ".join(f"{k} {v:.0f} ms" for k, v in sc["setup_ms"].items())
         skipped = ", ".join(f"{k}: {v['skipped']}" for k, v in sc["engines"].items() if "skipped" in v)

@@ -29,7 +29,7 @@ from .machine import OtherLoad, machine_info
 from .peers import agreement, make_peer
 from .progress import Progress
 from .rays import RaySet, first_light_rays, gbuffer_raysets, random_rayset, scattered_rayset, scene_diag
-from .scenes import generated_mesh, generated_scene
+from .scenes import build_mesh, generated_scene
 from .targets import evaluate_targets
 from .timing import median
 from .transfer import CopyPeer
@@ -63,7 +63,7 @@ class Bench:
         """How many progress steps the configured run takes."""
         cfg, n = self.cfg, 0
         if "build" in cfg.sections:
-            n += len(cfg.build_sizes)
+            n += len(cfg.build_sizes) * len(cfg.build_kinds)
         if "trace" in cfg.sections:
             per_scene = 2 + len(cfg.peers) + len(RAYSETS) * (2 + len(cfg.peers))
             n += per_scene * (1 + (cfg.real_scene is not None)) + self._probe_wanted()
@@ -136,32 +136,37 @@ class Bench:
         return self.results
 
     def run_build(self) -> list[dict]:
+        """Every kind at every size, the kinds of one size one after the other (the same moment of the machine)."""
         out = []
         for n in self.cfg.build_sizes:
             reps = max(1, self.cfg.build_reps - (1 if n > 2_000_000 else 0))
-
-            def one(n=n, reps=reps):
-                v, f = generated_mesh(n, seed=self.cfg.seed)
-                runs, runs1, stats = [], [], None
-                for _ in range(reps):  # all cores (the default, which the targets are judged on), then one
-                    for threads, into in ((None, runs), (1, runs1)):
-                        t0 = time.perf_counter()
-                        bvh = build_bvh(v, f, threads=threads)
-                        into.append((time.perf_counter() - t0) * 1e3)
-                        if threads is None:
-                            stats = dict(bvh.stats)
-                        del bvh
-                ms = median(runs)
-                tris = int(len(f))
-                return {"triangles": tris, "requested": n, "ms": ms, "runs_ms": runs,
-                        "threads": stats["threads"], "ms_1thread": median(runs1), "runs_ms_1thread": runs1,
-                        "ms_per_million": ms / (tris / 1e6), "s_per_million": ms / 1e3 / (tris / 1e6),
-                        "sah_cost": stats.get("sah_cost"), "bytes": stats.get("bytes"),
-                        "bytes_per_triangle": stats["bytes"] / tris if stats.get("bytes") else None,
-                        "nodes": stats.get("nodes"), "leaves": stats.get("leaves"), "depth": stats.get("depth"),
-                        "stats": stats}
-            out.append(self._step(f"build: BVH of {n / 1e6:g}M triangles x{reps}", one))
+            for kind in self.cfg.build_kinds:
+                out.append(self._step(f"build: BVH of {n / 1e6:g}M triangles, {kind} x{reps}", self._build_one, kind,
+                                      n, reps))
         return out
+
+    def _build_one(self, kind, n, reps) -> dict:
+        v, f = build_mesh(kind, n, seed=self.cfg.seed)
+        runs, runs1, cpu, stats = [], [], [], None
+        for _ in range(reps):  # all cores (the default, which the targets are judged on), then one
+            for threads, into in ((None, runs), (1, runs1)):
+                c0, t0 = time.process_time(), time.perf_counter()
+                bvh = build_bvh(v, f, threads=threads)
+                into.append((time.perf_counter() - t0) * 1e3)
+                if threads is None:
+                    cpu.append((time.process_time() - c0) * 1e3)
+                    stats = dict(bvh.stats)
+                del bvh
+        ms = median(runs)
+        tris = int(len(f))
+        return {"kind": kind, "triangles": tris, "requested": n, "ms": ms, "runs_ms": runs,
+                "cpu_ms": median(cpu), "runs_cpu_ms": cpu,
+                "threads": stats["threads"], "ms_1thread": median(runs1), "runs_ms_1thread": runs1,
+                "ms_per_million": ms / (tris / 1e6), "s_per_million": ms / 1e3 / (tris / 1e6),
+                "sah_cost": stats.get("sah_cost"), "bytes": stats.get("bytes"),
+                "bytes_per_triangle": stats["bytes"] / tris if stats.get("bytes") else None,
+                "nodes": stats.get("nodes"), "leaves": stats.get("leaves"), "depth": stats.get("depth"),
+                "stats": stats}
 
     def run_trace(self) -> dict:
         keys = ["generated"] + (["real"] if self.cfg.real_scene is not None else [])

@@ -6,6 +6,10 @@ spheres (subdivided icospheres with a radial displacement of their own) of log-u
 plus a few hundred boxes. Triangle sizes, overlaps and empty space vary the way a real scene's do, unlike one big
 tessellated sphere.
 
+`build_mesh(kind, n)` makes the meshes of the build benchmark (config.BUILD_KINDS): "generated" is the mesh above,
+"spheres" a field of many separate subdivided icospheres (5120 triangles each) scattered in a box, "scan" one closed
+lumpy surface of nearly uniform triangles, the way a scanned object is tessellated.
+
 `generated_scene(n)` wraps it as an `engine.Scene` with smooth normals, a few materials, a low sun and a camera
 looking across the terrain, ready for the Renderer (the G-buffer rays of the trace benchmark).
 """
@@ -13,7 +17,9 @@ from __future__ import annotations
 
 import numpy as np
 
+from ..errors import ConfigError
 from ..scene import Camera, DirectionalLight, Material, Scene, SubMesh
+from .config import BUILD_KINDS
 
 TERRAIN_SIZE = 200.0      # the terrain spans [-100, 100] in x and z
 TERRAIN_HEIGHT = 6.0      # amplitude of its noise (metres)
@@ -116,6 +122,59 @@ def generated_mesh(n_tris: int, seed: int = 0):
         fs.append(f + base)
         base += len(v)
     return np.concatenate(vs).astype(np.float32), np.concatenate(fs).astype(np.int64)
+
+
+def sphere_field_mesh(n_tris: int, seed: int = 0):
+    """About `n_tris` triangles as separate icospheres (5120 triangles each; 1280 below 200k triangles) of radii
+    0.5-1.5, centred at random in a box sized so that they rarely touch; float32 vertices, int64 faces."""
+    n_tris = max(int(n_tris), 1000)
+    rng = np.random.default_rng(seed)
+    subdiv = 4 if n_tris >= 200_000 else 3
+    sv, sf = _icosphere(subdiv)
+    count = max(1, int(round(n_tris / len(sf))))
+    radius = rng.uniform(0.5, 1.5, count)
+    side = 4.0 * count ** (1 / 3)  # about one sphere per 64 unit cubes
+    centre = rng.uniform(0, side, (count, 3))
+    v = sv[None] * radius[:, None, None] + centre[:, None, :]
+    f = sf[None] + (np.arange(count) * len(sv))[:, None, None]
+    return v.reshape(-1, 3).astype(np.float32), f.reshape(-1, 3).astype(np.int64)
+
+
+def scan_mesh(n_tris: int, seed: int = 0):
+    """About `n_tris` triangles on one closed lumpy surface: a cube's six faces gridded m x m, projected onto the
+    unit sphere and displaced radially by a few random waves (triangles of nearly one size, like a scan's);
+    float32 vertices, int64 faces."""
+    m = max(2, int(round(np.sqrt(max(int(n_tris), 1000) / 12))))
+    rng = np.random.default_rng(seed)
+    t = np.linspace(-1.0, 1.0, m + 1)
+    u, w = np.meshgrid(t, t, indexing="ij")
+    one = np.ones_like(u)
+    vs, fs = [], []
+    i, j = np.meshgrid(np.arange(m), np.arange(m), indexing="ij")
+    a = (i * (m + 1) + j).reshape(-1)
+    quad = np.concatenate([np.stack([a, a + m + 1, a + m + 2], 1), np.stack([a, a + m + 2, a + 1], 1)])
+    for axis in range(3):
+        for sign in (1.0, -1.0):
+            p = np.roll(np.stack([sign * one, u, w], -1), axis, axis=-1).reshape(-1, 3)
+            face = quad if sign > 0 else quad[:, ::-1]  # outward winding on both sides
+            fs.append(face + sum(len(x) for x in vs))
+            vs.append(p)
+    v = np.concatenate(vs)
+    v /= np.linalg.norm(v, axis=1, keepdims=True)  # the seams' duplicate vertices land on the same points
+    k = rng.normal(size=(6, 3)) * rng.uniform(2.0, 9.0, (6, 1))
+    disp = 1.0 + 0.1 * np.sin(v @ k.T + rng.uniform(0, 2 * np.pi, 6)).mean(axis=1)
+    return (v * disp[:, None]).astype(np.float32), np.concatenate(fs).astype(np.int64)
+
+
+def build_mesh(kind: str, n_tris: int, seed: int = 0):
+    """(vertices float32, faces int64) of about `n_tris` triangles of a BUILD_KINDS kind."""
+    if kind == "generated":
+        return generated_mesh(n_tris, seed)
+    if kind == "spheres":
+        return sphere_field_mesh(n_tris, seed)
+    if kind == "scan":
+        return scan_mesh(n_tris, seed)
+    raise ConfigError(f"build_mesh: unknown mesh kind {kind!r} (known: {', '.join(BUILD_KINDS)})")
 
 
 def vertex_normals(v, f):

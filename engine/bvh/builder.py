@@ -15,12 +15,14 @@
 6. The large triangles go into a new top of the finished tree, rebuilt by an exact sweep SAH over its top subtrees
    and them (lift.py).
 7. The triangle records are written once, in leaf order, straight from the vertices (triangles.py); every box is
-   widened by one float32 step (`_widen`).
+   widened by one float32 step (`_widen`). Where nothing is lifted, the packing of step 5 runs on the pool beside
+   the records' blocks (it is serial; they need only the leaf order).
 
-Threads: the per-triangle steps run block by block, the Morton sort as sorted parts merged, the final walks of the
-sampled top by blocks, and independent subtrees of the passes, on the shared worker pool (engine/parallel.py;
-`threads`, default all cores): numpy releases the GIL inside its calls on large arrays. Results are merged in a
-fixed order, so the tree is byte for byte the same for any number of threads. The sampled top passes stay serial.
+Threads: the per-triangle steps run block by block, the Morton sort as sorted parts merged, the sampled top's
+statistics, partitions and walks in parts, the independent subtrees of the passes, and the node packing beside the
+triangle records, on the shared worker pool (engine/parallel.py; `threads`, default all cores): numpy releases the
+GIL inside its calls on large arrays. Results are merged in a fixed order, so the tree is byte for byte the same for
+any number of threads. The top's per-node choices (grid SAH over its nodes) stay serial.
 """
 
 from __future__ import annotations
@@ -95,11 +97,15 @@ def build_bvh(vertices, faces, *, max_leaf: int = 4, max_depth: int = DEFAULT_MA
     del box, cen, c2
     slot_tid, leaf_size, leaf_depth, leaf_boxes = leaves.arrays()
     leaf_first = np.concatenate([[0], np.cumsum(leaf_size)[:-1]]).astype(np.int64)
-    nodes, sah_cost = finish(records, leaf_boxes, leaf_first, leaf_size, n_tri)
-    depth = int(leaf_depth.max())
-    n_leaves = int((leaf_size > 0).sum())
     perm = morton.take(slot_tid)  # leaf-order slot -> original triangle index
     del morton, slot_tid
+    if big is None:  # 5 and 7 side by side: the node packing is serial, the triangle records need only perm
+        tris, prim_ids, n_degenerate, (nodes, sah_cost) = triangle_records(
+            vt, ft, perm, threads, beside=lambda: _finished(records, leaf_boxes, leaf_first, leaf_size, n_tri))
+    else:
+        nodes, sah_cost = finish(records, leaf_boxes, leaf_first, leaf_size, n_tri)
+    depth = int(leaf_depth.max())
+    n_leaves = int((leaf_size > 0).sum())
 
     # 6: the large triangles on top
     if big is not None:
@@ -110,10 +116,9 @@ def build_bvh(vertices, faces, *, max_leaf: int = 4, max_depth: int = DEFAULT_MA
         perm = np.concatenate([small.take(perm), big])  # the large triangles' slots follow the others'
         ft, n_tri = ft_all, n_all
         n_leaves += big.size
-
-    # 7: the triangle records
-    tris, prim_ids, n_degenerate = triangle_records(vt, ft, perm, threads)
-    _widen(nodes)
+        # 7: the triangle records
+        tris, prim_ids, n_degenerate, _ = triangle_records(vt, ft, perm, threads)
+        _widen(nodes)
 
     stats = {
         "build_ms": (time.perf_counter() - t0) * 1e3,
@@ -130,6 +135,11 @@ def build_bvh(vertices, faces, *, max_leaf: int = 4, max_depth: int = DEFAULT_MA
         "threads": threads,
     }
     return BVH(nodes=nodes, tris=tris, prim_ids=prim_ids, stats=stats)
+
+
+def _finished(records, leaf_boxes, leaf_first, leaf_size, n_tri):
+    """The packed nodes of a tree with nothing to lift, widened (see _widen) as they are packed, and its SAH cost."""
+    return finish(records, leaf_boxes, leaf_first, leaf_size, n_tri, widen=True)
 
 
 def _widen(nodes):

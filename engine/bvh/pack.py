@@ -85,7 +85,7 @@ class Leaves:
         return np.concatenate(self.tids), np.concatenate(self.sizes), np.concatenate(self.depths), self.boxes
 
 
-def finish(records, leaf_boxes, leaf_first, leaf_size, n_tri: int):
+def finish(records, leaf_boxes, leaf_first, leaf_size, n_tri: int, widen: bool = False):
     """The packed nodes (NODE_DTYPE) in depth-first order, and the SAH cost.
 
     Records in order give the build's node ids (record 0 row 0 is the root; children always live in later
@@ -93,6 +93,7 @@ def finish(records, leaf_boxes, leaf_first, leaf_size, n_tri: int):
     parent + 1, the right child after the whole left subtree), one vector step per record; then one pass over the
     records in reverse makes the exact boxes (a node's box is the union of its children's) and writes every
     record's rows, packed, at their positions. leaf_boxes: the leaves' boxes, (l, 6) batches in leaf order.
+    widen: the packed boxes are stepped outwards as builder._widen does (the SAH cost is of the exact boxes).
     """
     base = np.concatenate([[0], np.cumsum([rc.child.shape[0] for rc in records])]).astype(np.int64)
     n_nodes = int(base[-1])
@@ -130,8 +131,9 @@ def finish(records, leaf_boxes, leaf_first, leaf_size, n_tri: int):
         cb = box_rows.take(np.where(is_leaf, rc.child + (n_nodes + 1), nid)).view(np.float32).reshape(-1, 2, 6)
         node_box[base[r]:base[r + 1]] = np.minimum(cb[:, 0], cb[:, 1])
         blk = np.empty((nid.shape[0], 4, 4), dtype=np.float32)  # (lmin, left) (lmax, right) (rmin, lc) (rmax, rc)
-        blk[:, 0::2, :3] = cb[:, :, :3]
-        np.negative(cb[:, :, 3:], out=blk[:, 1::2, :3])
+        wb = _step_down(cb) if widen else cb
+        blk[:, 0::2, :3] = wb[:, :, :3]
+        np.negative(wb[:, :, 3:], out=blk[:, 1::2, :3])
         u = blk.view(np.uint32)
         u[:, 0:2, 3] = np.where(is_leaf, leaf_word.take(lid), pos.take(nid))
         wt = np.where(is_leaf, leaf_size.take(lid), 1)
@@ -149,6 +151,18 @@ def finish(records, leaf_boxes, leaf_first, leaf_size, n_tri: int):
     if not a_root > 0:
         return nodes, float(n_nodes + n_tri)
     return nodes, (a_root + sah) / a_root
+
+
+def _step_down(x: np.ndarray) -> np.ndarray:
+    """np.nextafter(x, -inf) of the finite float32 values of x, the others as they are, by integer steps on the
+    bits. In six-row form this widens a box by one float32 step on every side (its rows are min and -max)."""
+    u = x.view(np.int32)
+    out = np.where(u > 0, u - 1, u + 1)  # positive: towards zero; negative (and -0): away from it
+    out[u == 0] = np.iinfo(np.int32).min + 1  # +0: the negative subnormal next to it
+    keep = (u & 0x7F800000) == 0x7F800000  # inf, NaN
+    if keep.any():
+        out[keep] = u[keep]
+    return out.view(np.float32)
 
 
 _V64 = np.dtype((np.void, 64))  # a packed node

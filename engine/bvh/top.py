@@ -6,6 +6,7 @@ when a node needs a denser sample or the top is done. In the final walk, triangl
 level leave early for the node they end in (`_walk_tails`); the odd-indexed triangles, half the mesh, first take the
 node of a Morton neighbour when their centre is inside its region, the bounds that the planes above it set
 (`_regions`), and walk only where it is not. The top is checked against the depth cap with exact counts at the end.
+Each pass's sample selection, cell statistics and partition of the subset run in parts on the pool's threads.
 """
 
 from __future__ import annotations
@@ -70,7 +71,7 @@ def grow_top(box, cen, cen_rows, max_leaf: int, max_depth: int, threads: int = 1
                 if not want.any() or z not in tiers:
                     continue
                 t, nd, l0 = tiers[z]
-                nd = _walk(t, nd, levels[l0:], cen_rows)
+                nd = _walk_blocks(t, nd, levels[l0:], cen_rows, threads)
                 take = want.take(nd)
                 add_t.append(t[take])
                 add_s.append(nd[take])
@@ -89,14 +90,7 @@ def grow_top(box, cen, cen_rows, max_leaf: int, max_depth: int, threads: int = 1
         # statistics of the eligible nodes from their samples (every 2^rate_log-th triangle)
         # (an ineligible node samples nothing: its mask keeps every bit, so only triangle 0 would pass the test)
         mask = np.where(elig, (np.int64(1) << rate_log) - 1, -1)
-        picked = (sub_tid & mask.take(sub_slot)) == 0
-        if not elig.all():
-            picked &= elig.take(sub_slot)
-        sel = np.flatnonzero(picked)
-        if sel.size == sub_tid.size:  # the whole subset (the upper passes)
-            s_tid, s_slot = sub_tid, sub_slot
-        else:
-            s_tid, s_slot = sub_tid.take(sel), sub_slot.take(sel)
+        all_elig = bool(elig.all())
         ext = dom[3:] - dom[:3]
         inv = np.where(ext > 0, grid / np.where(ext > 0, ext, 1), 0).astype(np.float32)
         off = (-dom[:3] * inv).astype(np.float32)
@@ -111,8 +105,14 @@ def grow_top(box, cen, cen_rows, max_leaf: int, max_depth: int, threads: int = 1
                 n_cells += members.size * gsize**3
         grid32 = grid.astype(np.int32)
 
-        def cell_stats(lo, hi):  # count and box of every cell from the sampled triangles [lo, hi)
-            t, sl = s_tid[lo:hi], s_slot[lo:hi]
+        def cell_stats(lo, hi):  # count and box of every cell from the samples among the subset's [lo, hi)
+            t, sl = sub_tid[lo:hi], sub_slot[lo:hi]
+            picked = (t & mask.take(sl)) == 0
+            if not all_elig:
+                picked &= elig.take(sl)
+            sel = np.flatnonzero(picked)
+            if sel.size < t.size:  # (the upper passes take the whole subset)
+                t, sl = t.take(sel), sl.take(sel)
             gm = gmax.take(sl)
             g = grid32.take(sl)
             cell = cell_axis(cen[0].take(t), inv[0], off[0], gm, sl)  # int32 within the node
@@ -128,8 +128,8 @@ def grow_top(box, cen, cen_rows, max_leaf: int, max_depth: int, threads: int = 1
                 np.minimum.at(cbox[r], key, box[r].take(t))
             return cnt, cbox
 
-        # in parts on the pool's threads where the sample is large; sums and minima are exact in any order
-        cuts = _cuts(s_tid.size, threads, TOP_BLOCK * 2)
+        # in parts on the pool's threads where the subset is large; sums and minima are exact in any order
+        cuts = _cuts(sub_tid.size, threads, TOP_BLOCK * 2)
         parts = _parallel([lambda a=a, b=b: cell_stats(a, b) for a, b in zip(cuts[:-1], cuts[1:])], threads)
         cell_count, cell_box = parts[0]
         for cnt, cbox in parts[1:]:
@@ -150,12 +150,17 @@ def grow_top(box, cen, cen_rows, max_leaf: int, max_depth: int, threads: int = 1
         split[~(elig & found)] = np.inf
 
         # the subset goes down; a node splits only where both children keep more than max_leaf of it
-        a_t = axis.take(sub_slot)
-        a_t += sub_tid * 3
-        right = cen_rows.take(a_t) >= split.take(sub_slot)
-        dest = 2 * sub_slot
-        dest += right
-        sub_cnt = np.bincount(dest, minlength=2 * k).reshape(k, 2)
+        def sides(lo, hi):  # child slot (2 node + side) of the subset's [lo, hi), and their counts
+            sl = sub_slot[lo:hi]
+            a_t = axis.take(sl)
+            a_t += sub_tid[lo:hi] * 3
+            d = 2 * sl
+            d += cen_rows.take(a_t) >= split.take(sl)
+            return d, np.bincount(d, minlength=2 * k)
+
+        parts = _parallel([lambda a=a, b=b: sides(a, b) for a, b in zip(cuts[:-1], cuts[1:])], threads)
+        dest = parts[0][0] if len(parts) == 1 else np.concatenate([d for d, _ in parts])
+        sub_cnt = sum(c for _, c in parts).reshape(k, 2)
         do = elig & found & (sub_cnt > max_leaf).all(axis=1)
         if not do.any():
             break
@@ -265,6 +270,16 @@ def grow_top(box, cen, cen_rows, max_leaf: int, max_depth: int, threads: int = 1
         here_child = np.where(do, np.cumsum(do) - 1, res_child.take(nxt[:, 0]))
         res_rec, res_child = here_rec, here_child
     return records, slot, count, depth, dom
+
+
+def _walk_blocks(tids, node, levels, cen_rows, threads):
+    """_walk in blocks of 4 TOP_BLOCK triangles on the pool's threads (the same nodes in any case)."""
+    if threads <= 1 or tids.size <= 4 * TOP_BLOCK:
+        return _walk(tids, node, levels, cen_rows)
+    step = 4 * TOP_BLOCK
+    parts = _parallel([lambda b=b: _walk(tids[b:b + step], None if node is None else node[b:b + step], levels,
+                                         cen_rows) for b in range(0, tids.size, step)], threads)
+    return np.concatenate(parts)
 
 
 def _walk(tids: np.ndarray, node: np.ndarray | None, levels, cen_rows: np.ndarray, tails=None) -> np.ndarray:

@@ -9,7 +9,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from ..parallel import blocks as _blocks
+from ..parallel import blocks as _blocks, run as _parallel
 from .layout import TRI_DTYPE
 
 #: Triangles per block of the per-triangle set-up and output steps of build_bvh.
@@ -72,11 +72,12 @@ def sorted_boxes(vb, ft, order, c2, threads: int):
     return box, cen
 
 
-def triangle_records(vt, ft, perm, threads: int):
+def triangle_records(vt, ft, perm, threads: int, beside=None):
     """The TRI_DTYPE records (v0, prim) (v1, 0) (v2, 0) of the triangles ft[perm], in that order, zero-area ones
     collapsed onto v0; never an empty buffer. Written straight from the vertices (no Morton-order copy to gather
     from: fresh pages cost more than a second gather of the corners). Returns (records, prim_ids (T,) int32, number
-    of zero-area triangles)."""
+    of zero-area triangles, beside() or None). beside: a callable run on the pool first, beside the blocks (a
+    serial step of the build that needs no records)."""
     n_tri = perm.size
     tris = np.empty(max(n_tri, 1), dtype=TRI_DTYPE)
     flat = tris.view(np.float32).reshape(-1, 12)
@@ -98,10 +99,13 @@ def triangle_records(vt, ft, perm, threads: int):
             rows[degen, 8:11] = rows[degen, 0:3]
         return degen.size
 
-    n_degenerate = sum(_blocks(records_of, n_tri, PREP_BLOCK, threads))
+    tasks = [lambda s=s: records_of(s) for s in range(0, n_tri, PREP_BLOCK)]
+    done = _parallel(tasks if beside is None else [beside] + tasks, threads)
+    other = None if beside is None else done.pop(0)
+    n_degenerate = sum(done)
     prim_ids = perm.astype(np.int32)
     tris["prim"][:n_tri] = prim_ids
-    return tris, prim_ids, n_degenerate
+    return tris, prim_ids, n_degenerate, other
 
 
 def _degenerate(corner) -> np.ndarray:

@@ -27,6 +27,7 @@ from .passes.accumulate import ALPHA_MIN, AccumulatePass
 from .passes.ao import AOPass
 from .passes.debug_view import DebugViewPass
 from .passes.denoise import DenoisePass
+from .passes.cull import LOD_PIXELS
 from .passes.gbuffer import GBufferPass, SceneChanges, SceneGeometry
 from .passes.interface import (FILTER_AO, FILTER_MASKS, FILTER_TEMPORAL, FRAME, FRAME_BYTES, MAX_LIGHTS,
                                camera_fields, pack_frame, pack_light)
@@ -65,7 +66,8 @@ class Renderer(Closes):
     def __init__(self, width: int, height: int, *, device: Device | int | str | None = None,
                  validation: bool = False,
                  shader_dir: str | os.PathLike[str] | None = None, hot_reload: bool = False,
-                 context: Context | None = None, bvh_layout: str | None = None):
+                 context: Context | None = None, bvh_layout: str | None = None, culling: bool = True,
+                 lod_pixels: float = LOD_PIXELS):
         """A renderer of `width` x `height` pixels (1..16384 each).
 
         Args:
@@ -83,12 +85,23 @@ class Renderer(Closes):
                 closed here.
             bvh_layout: "binary" or "wide" scene BVH for the shadow and AO passes (default: $HYBRID_BVH_LAYOUT,
                 else "binary"); a scene of several (or moved) instances traces the two-level BVH, binary.
+            culling: cull instances outside the view on the GPU before the raster and draw the rest with indirect
+                draws (the same pixels as without; where the device lacks drawIndirectFirstInstance, off). Also the
+                attribute `culling`, read by each frame.
+            lod_pixels: with culling, draw each instance at the coarsest level of detail of its mesh whose error
+                projects below this many pixels (meshes of 2048+ triangles have levels, engine/scene/lod.py);
+                0 draws every mesh in full. Also the attribute `lod_pixels`. Rays always trace the full meshes.
 
         Raises:
             ConfigError: a bad size, device selector or layout.
             VulkanError: no usable Vulkan device, or it lacks the `geometryShader` feature.
         """
         self.bvh_layout = resolve_layout(bvh_layout)  # a bad one fails here, before any Vulkan object exists
+        self.culling = bool(culling)
+        if isinstance(lod_pixels, bool) or not isinstance(lod_pixels, (int, float)) or not lod_pixels >= 0 \
+                or not math.isfinite(lod_pixels):
+            raise ConfigError(f"Renderer: lod_pixels must be a finite number >= 0 (pixels), got {lod_pixels!r}")
+        self.lod_pixels = float(lod_pixels)
         check_size(width, height)
         self.width, self.height = int(width), int(height)
         self.library = ShaderLibrary(shader_dir, hot_reload=hot_reload)
@@ -389,7 +402,8 @@ class Renderer(Closes):
             pixel_footprint=2.0 * math.tan(math.radians(camera.fov_y) / 2.0) / self.height,
             history_reset=reset, bounds=scene.bounds, out=self._block, packed_lights=packed_lights,
             objects_moved=not self._changes.settled)
-        key = (cfg["shadows"], cfg["ao"], cfg["accumulate"], cfg["denoise"], cfg["view"], len(lights), readback)
+        key = (cfg["shadows"], cfg["ao"], cfg["accumulate"], cfg["denoise"], cfg["view"], len(lights), readback,
+               bool(self.culling), float(self.lod_pixels))
         if cfg["shadows"] == "reference":
             key += (cfg["reference_samples"],)
         if key not in self._commands:
@@ -539,7 +553,7 @@ class Renderer(Closes):
         t = self.targets
         ts = self._timestamps[readback[1] if readback else 0]
         rec = Recorder(self.ctx, ts)
-        self.gbuffer.record(rec, t, self._geometry)
+        self.gbuffer.record(rec, t, self._geometry, bool(self.culling), float(self.lod_pixels))
         rec.mark("gbuffer")
         mode = cfg["shadows"]
         reference = cfg["reference_samples"] if mode == "reference" else None

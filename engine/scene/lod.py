@@ -1,0 +1,161 @@
+"""Levels of detail of a mesh for the raster (numpy only): a chain of coarser copies made by vertex clustering.
+
+    chain = lod_chain(mesh)           # [Level 0 (the mesh itself), Level 1, ...], cached per mesh
+    chain[2].indices, chain[2].error  # its triangles; its object-space geometric error
+
+Each level clusters the mesh's vertices on a uniform grid (Rossignac and Borrel 1993): the vertices of one cell
+become one, at their mean position (normals summed and renormalized, UVs averaged), triangles whose corners fell
+into fewer than three cells are dropped, and duplicates (the same three cells) are kept once. The cell size of
+level l is searched so that it keeps about `1 / 4**l` of the mesh's triangles. A level's `error` is the largest
+distance any vertex moved, an object-space bound on how far its surface lies from the mesh's near each vertex;
+the raster's culling pass picks, per instance, the coarsest level whose error projects below a pixel threshold.
+Every triangle of a level remembers the mesh triangle it came from (`source`): material, object and the
+triangle-id AOV stay those of the full mesh. Only the raster draws levels; rays trace the full mesh.
+"""
+from __future__ import annotations
+
+import weakref
+from dataclasses import dataclass
+
+import numpy as np
+
+#: Meshes with fewer triangles get no coarser levels (the raster's per-instance cost is then the draw, not them).
+LOD_MIN_TRIANGLES = 2048
+#: At most this many levels (the mesh itself included).
+LOD_MAX_LEVELS = 5
+#: Each level keeps about 1 / LOD_RATIO of the previous one's triangles.
+LOD_RATIO = 4
+#: A level with fewer triangles than this ends the chain.
+LOD_MIN_LEVEL_TRIANGLES = 32
+
+
+@dataclass(frozen=True)
+class Level:
+    """One level of detail: its vertices (positions, unit normals, uvs), triangles (indices into them), for each
+    triangle the mesh triangle it came from, and the object-space error (0 for the mesh itself)."""
+
+    positions: np.ndarray   # (V, 3) float32
+    normals: np.ndarray     # (V, 3) float32
+    uvs: np.ndarray         # (V, 2) float32
+    indices: np.ndarray     # (T, 3) int64
+    source: np.ndarray      # (T,) int64: the mesh triangle
+    error: float
+
+
+_cache: "weakref.WeakKeyDictionary" = weakref.WeakKeyDictionary()
+
+
+def lod_chain(mesh) -> list[Level]:
+    """The mesh's levels of detail, finest first (just the mesh below LOD_MIN_TRIANGLES triangles). Cached per
+    mesh while its positions are the same array (a deformed mesh gets a new chain)."""
+    hit = _cache.get(mesh)
+    if hit is not None and hit[0] is mesh.positions:
+        return hit[1]
+    chain = build_chain(mesh.positions, mesh.normals, mesh.uvs, mesh.indices)
+    try:
+        _cache[mesh] = (mesh.positions, chain)
+    except TypeError:   # not weakly referenceable: not cached
+        pass
+    return chain
+
+
+def build_chain(positions, normals, uvs, indices, min_triangles: int = LOD_MIN_TRIANGLES,
+                max_levels: int = LOD_MAX_LEVELS) -> list[Level]:
+    """The levels of one mesh's arrays (see the module's docstring)."""
+    p = np.asarray(positions, np.float64)
+    f = np.asarray(indices, np.int64)
+    base = Level(np.asarray(positions, np.float32), np.asarray(normals, np.float32), np.asarray(uvs, np.float32),
+                 f, np.arange(len(f), dtype=np.int64), 0.0)
+    chain = [base]
+    if len(f) < min_triangles or len(p) == 0:
+        return chain
+    lo, hi = p.min(axis=0), p.max(axis=0)
+    diag = float(np.linalg.norm(hi - lo))
+    if diag <= 0:
+        return chain
+    # for a surface, clusters ~ area / cell^2: a first guess of the cell that keeps `target` triangles
+    cell = diag / max(np.sqrt(len(f)), 1.0)
+    error = 0.0
+    for level in range(1, max_levels):
+        target = len(f) / LOD_RATIO ** level
+        if target < LOD_MIN_LEVEL_TRIANGLES:
+            break
+        best = None
+        lo_c, hi_c = None, None   # bracketing cells: lo_c keeps too many triangles, hi_c too few
+        for _ in range(12):
+            made = cluster(p, base.normals, base.uvs, f, cell, lo)
+            kept = len(made[3])
+            if best is None or abs(np.log(max(kept, 1) / target)) < abs(np.log(max(len(best[3]), 1) / target)):
+                best = made
+            if 0.8 * target <= kept <= 1.25 * target:
+                break
+            if kept > target:
+                lo_c = cell
+                cell = cell * 2.0 if hi_c is None else np.sqrt(cell * hi_c)
+            else:
+                hi_c = cell
+                cell = cell * 0.5 if lo_c is None else np.sqrt(cell * lo_c)
+        pos, nrm, uv, tris, src, err = best
+        if len(tris) < LOD_MIN_LEVEL_TRIANGLES or len(tris) > 0.6 * len(chain[-1].indices):
+            break
+        error = max(error, err)   # errors grow down the chain (the culling pass relies on it)
+        chain.append(Level(pos, nrm, uv, tris, src, error))
+    return chain
+
+
+def cluster(p: np.ndarray, normals: np.ndarray, uvs: np.ndarray, f: np.ndarray, cell: float, origin: np.ndarray):
+    """Vertex clustering on a grid of `cell`: (positions, normals, uvs, triangles, source triangle, error)."""
+    k = np.floor((p - origin) / cell).astype(np.int64)
+    k -= k.min(axis=0)
+    dims = k.max(axis=0) + 1
+    key = k[:, 0] + dims[0] * (k[:, 1] + dims[1] * k[:, 2])
+    cells, inv = np.unique(key, return_inverse=True)
+    inv = inv.reshape(-1)
+    m = len(cells)
+    count = np.bincount(inv, minlength=m).astype(np.float64)
+    pos = np.stack([np.bincount(inv, p[:, i], m) for i in range(3)], axis=1) / count[:, None]
+    n = np.asarray(normals, np.float64)
+    nrm = np.stack([np.bincount(inv, n[:, i], m) for i in range(3)], axis=1)
+    length = np.linalg.norm(nrm, axis=1)
+    nrm = np.where(length[:, None] > 1e-12, nrm / np.maximum(length, 1e-12)[:, None], [0.0, 0.0, 1.0])
+    uv = np.stack([np.bincount(inv, np.asarray(uvs, np.float64)[:, i], m) for i in range(2)], axis=1) / count[:, None]
+    t = inv[f]
+    keep = (t[:, 0] != t[:, 1]) & (t[:, 1] != t[:, 2]) & (t[:, 0] != t[:, 2])
+    src = np.flatnonzero(keep)
+    t = t[keep]
+    if len(t):   # one triangle per set of three cells (either winding)
+        _, first = np.unique(np.sort(t, axis=1), axis=0, return_index=True)
+        first = np.sort(first)
+        t, src = t[first], src[first]
+    used = np.zeros(m, bool)
+    used[t.reshape(-1)] = True
+    # compact to the vertices the kept triangles use
+    remap = np.cumsum(used) - 1
+    err = max(float(np.linalg.norm(p - pos[inv], axis=1).max()), _plane_error(p, inv, count, pos, t))
+    return (pos[used].astype(np.float32), nrm[used].astype(np.float32), uv[used].astype(np.float32),
+            remap[t].astype(np.int64), src.astype(np.int64), err)
+
+
+def _plane_error(p, inv, count, pos, t) -> float:
+    """The largest distance from a mesh vertex to the plane of a level triangle at its cell (what the coarse
+    triangles cut off or bulge past between their corners, which the vertices' own moves do not show)."""
+    if len(t) == 0:
+        return 0.0
+    nt = np.cross(pos[t[:, 1]] - pos[t[:, 0]], pos[t[:, 2]] - pos[t[:, 0]])
+    length = np.linalg.norm(nt, axis=1)
+    ok = length > 1e-20
+    t, nt = t[ok], nt[ok] / length[ok, None]
+    order = np.argsort(inv, kind="stable")
+    counts = count.astype(np.int64)
+    starts = np.concatenate([[0], np.cumsum(counts)[:-1]])
+    worst = 0.0
+    for j in range(3):
+        cells = t[:, j]
+        reps = counts[cells]
+        total = int(reps.sum())
+        tri = np.repeat(np.arange(len(t)), reps)
+        within = np.arange(total) - np.repeat(np.cumsum(reps) - reps, reps)
+        vert = order[np.repeat(starts[cells], reps) + within]
+        d = np.abs(np.einsum("ij,ij->i", p[vert] - pos[t[tri, 0]], nt[tri]))
+        worst = max(worst, float(d.max()) if len(d) else 0.0)
+    return worst

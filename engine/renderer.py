@@ -27,7 +27,7 @@ from .passes.accumulate import ALPHA_MIN, AccumulatePass
 from .passes.ao import AOPass
 from .passes.debug_view import DebugViewPass
 from .passes.denoise import DenoisePass
-from .passes.cull import LOD_PIXELS
+from .passes.cull import LOD_PIXELS, check_lod_pixels
 from .passes.gbuffer import GBufferPass, SceneChanges, SceneGeometry
 from .passes.interface import (FILTER_AO, FILTER_MASKS, FILTER_TEMPORAL, FRAME, FRAME_BYTES, MAX_LIGHTS,
                                camera_fields, pack_frame, pack_light)
@@ -85,12 +85,10 @@ class Renderer(Closes):
                 closed here.
             bvh_layout: "binary" or "wide" scene BVH for the shadow and AO passes (default: $HYBRID_BVH_LAYOUT,
                 else "binary"); a scene of several (or moved) instances traces the two-level BVH, binary.
-            culling: cull instances outside the view on the GPU before the raster and draw the rest with indirect
-                draws (the same pixels as without; where the device lacks drawIndirectFirstInstance, off). Also the
-                attribute `culling`, read by each frame.
-            lod_pixels: with culling, draw each instance at the coarsest level of detail of its mesh whose error
-                projects below this many pixels (meshes of 2048+ triangles have levels, engine/scene/lod.py);
-                0 draws every mesh in full. Also the attribute `lod_pixels`. Rays always trace the full meshes.
+            culling: cull instances outside the view on the GPU and draw the rest indirectly (the same pixels;
+                off where the device lacks drawIndirectFirstInstance). Also the attribute `culling`.
+            lod_pixels: with culling, draw each instance at its mesh's coarsest level of detail whose error projects
+                below this many pixels (engine/scene/lod.py); 0: full meshes. Also the attribute `lod_pixels`.
 
         Raises:
             ConfigError: a bad size, device selector or layout.
@@ -98,10 +96,7 @@ class Renderer(Closes):
         """
         self.bvh_layout = resolve_layout(bvh_layout)  # a bad one fails here, before any Vulkan object exists
         self.culling = bool(culling)
-        if isinstance(lod_pixels, bool) or not isinstance(lod_pixels, (int, float)) or not lod_pixels >= 0 \
-                or not math.isfinite(lod_pixels):
-            raise ConfigError(f"Renderer: lod_pixels must be a finite number >= 0 (pixels), got {lod_pixels!r}")
-        self.lod_pixels = float(lod_pixels)
+        self.lod_pixels = check_lod_pixels(lod_pixels)
         check_size(width, height)
         self.width, self.height = int(width), int(height)
         self.library = ShaderLibrary(shader_dir, hot_reload=hot_reload)

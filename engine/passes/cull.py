@@ -16,8 +16,11 @@ the resolve reads the level's triangle without knowing the level.
 """
 from __future__ import annotations
 
+import math
+
 import numpy as np
 
+from ..errors import ConfigError
 from ..vk import Buffer, upload_buffer
 from ..vk.resources import read_buffer
 from ..vk.formats import INDIRECT
@@ -30,6 +33,13 @@ RECORD_WORDS = 5
 MAX_COARSE_LEVELS = 4
 #: The default largest projected error of a level of detail, in pixels.
 LOD_PIXELS = 1.0
+
+
+def check_lod_pixels(value) -> float:
+    """`value` as the largest projected error of a level (pixels), or a ConfigError."""
+    if isinstance(value, bool) or not isinstance(value, (int, float)) or not math.isfinite(value) or value < 0:
+        raise ConfigError(f"Renderer: lod_pixels must be a finite number >= 0 (pixels), got {value!r}")
+    return float(value)
 
 
 class DrawTables:

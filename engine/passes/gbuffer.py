@@ -9,14 +9,17 @@ array images, engine/passes/textures.py). Writing the whole G-buffer from fragme
 with few raster units; the same bytes from compute cost a small fraction of that.
 
 Vertices are interleaved (position, normal, uv: 32 bytes), in object space, every mesh once in one vertex and one
-index buffer, each mesh's triangles sorted by material; a mesh's instances are drawn together (vkCmdDrawIndexed
-with their count and first slot), one draw per material range of the mesh (or one for the whole mesh where the
-instances override its material), the range's first triangle within the mesh in a push constant. Alpha-tested
-materials are drawn after the opaque ones by their own pipeline (gbuffer_mask.vert / .frag, which discards). The
-instances are a storage buffer in draw order (grouped by mesh, material override and mirroring): transforms (this
-frame's and the previous one's, with their normal matrices), rewritten in place per frame, and each instance's first
-visibility id (the triangles of the instances before it), so the visibility id is that + the draw's first triangle +
-gl_PrimitiveID + 1 and the resolve finds the instance by a binary search.
+index buffer with its levels of detail after it (engine/scene/lod.py), each level's triangles sorted by material; a
+mesh's instances are drawn together, one draw per material range of the mesh (or one for the whole mesh where the
+instances override its material), the range's first triangle within the mesh's levels in a push constant. With
+culling (engine/passes/cull.py) a compute pass first drops the instances outside the frustum and picks each one's
+level, and the draws are indirect, one per run, level and range; without, direct draws of the full meshes.
+Alpha-tested materials are drawn after the opaque ones by their own pipeline (gbuffer_mask.vert / .frag, which
+discards). The instances are a storage buffer in draw order (grouped by mesh, material override and mirroring):
+transforms (this frame's and the previous one's, with their normal matrices), written per frame into a host
+staging buffer that the frame's command buffer copies to the device-local one, and each instance's first
+visibility id (the triangles of the levels of the instances before it), so the visibility id is that + the draw's
+first triangle + gl_PrimitiveID + 1 and the resolve finds the instance by a binary search.
 Single-sided materials (glTF doubleSided false) are drawn by variants of the same pipelines that cull back faces
 (counter-clockwise front faces, as glTF), or front faces for mirrored instances (a negative determinant turns the
 winding over; an instance that changes sign makes the geometry again, as a new material override does); double-sided
@@ -59,12 +62,13 @@ def instance_materials(scene) -> np.ndarray:
 
 
 class SceneGeometry:
-    """The scene's raster data on the GPU: one vertex and one index buffer holding every mesh once (object space),
-    per mesh triangle its material and object, the materials, textures, the ray passes' alpha records, the instanced
-    draws (opaque and alpha-tested), and the
-    instances (transforms this frame and the previous one, in a host-visible buffer rewritten per frame, so the
-    recorded command buffer stays valid while instances move). Vertices, indices and triangle data are also texel
-    buffers: the resolve reads the visible triangle's."""
+    """The scene's raster data on the GPU: one vertex and one index buffer holding every mesh once (object space)
+    with its levels of detail, per triangle its material, mesh triangle, object and level error, the materials,
+    textures, the ray passes' alpha records, the instanced draws (opaque and alpha-tested; direct, and the culled
+    indirect ones with their `tables`), and the instances (transforms this frame and the previous one, rewritten
+    per frame in a host staging buffer that each frame copies to a device-local one, so the recorded command buffer
+    stays valid while instances move). Vertices, indices and triangle data are also texel buffers: the resolve
+    reads the visible triangle's."""
 
     def __init__(self, ctx, scene, white_texture, sampler):
         self.ctx = ctx

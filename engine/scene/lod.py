@@ -15,7 +15,7 @@ triangle-id AOV stay those of the full mesh. Only the raster draws levels; rays 
 from __future__ import annotations
 
 import weakref
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 import numpy as np
 
@@ -32,7 +32,8 @@ LOD_MIN_LEVEL_TRIANGLES = 32
 @dataclass(frozen=True)
 class Level:
     """One level of detail: its vertices (positions, unit normals, uvs), triangles (indices into them), for each
-    triangle the mesh triangle it came from, and the object-space error (0 for the mesh itself)."""
+    triangle the mesh triangle it came from, the object-space error (0 for the mesh itself), and the clustering that
+    made it (each mesh vertex's cell, which cells the triangles use), to remake it for deformed positions."""
 
     positions: np.ndarray   # (V, 3) float32
     normals: np.ndarray     # (V, 3) float32
@@ -40,6 +41,8 @@ class Level:
     indices: np.ndarray     # (T, 3) int64
     source: np.ndarray      # (T,) int64: the mesh triangle
     error: float
+    cells: np.ndarray | None = None   # (mesh V,) int64: each mesh vertex's cell
+    used: np.ndarray | None = None    # (cells,) bool: the cells that are this level's vertices, in order
 
 
 _cache: "weakref.WeakKeyDictionary" = weakref.WeakKeyDictionary()
@@ -47,25 +50,34 @@ _cache: "weakref.WeakKeyDictionary" = weakref.WeakKeyDictionary()
 
 def lod_chain(mesh) -> list[Level]:
     """The mesh's levels of detail, finest first (just the mesh below LOD_MIN_TRIANGLES triangles). Cached per
-    mesh while its positions are the same array (a deformed mesh gets a new chain)."""
+    mesh; a deformed mesh (new positions, the same triangles) keeps its levels' clusterings and gets their vertices
+    and errors again."""
     hit = _cache.get(mesh)
     if hit is not None and hit[0] is mesh.positions:
         return hit[1]
-    chain = build_chain(mesh.positions, mesh.normals, mesh.uvs, mesh.indices)
+    if hit is not None and hit[2] is mesh.indices and len(hit[1][0].positions) == len(mesh.positions):
+        chain = refit_chain(hit[1], mesh.positions, mesh.normals, mesh.uvs, mesh.indices)
+    else:
+        chain = build_chain(mesh.positions, mesh.normals, mesh.uvs, mesh.indices)
     try:
-        _cache[mesh] = (mesh.positions, chain)
+        _cache[mesh] = (mesh.positions, chain, mesh.indices)
     except TypeError:   # not weakly referenceable: not cached
         pass
     return chain
+
+
+def _base(positions, normals, uvs, indices) -> Level:
+    f = np.asarray(indices, np.int64)
+    return Level(np.asarray(positions, np.float32), np.asarray(normals, np.float32), np.asarray(uvs, np.float32),
+                 f, np.arange(len(f), dtype=np.int64), 0.0)
 
 
 def build_chain(positions, normals, uvs, indices, min_triangles: int = LOD_MIN_TRIANGLES,
                 max_levels: int = LOD_MAX_LEVELS) -> list[Level]:
     """The levels of one mesh's arrays (see the module's docstring)."""
     p = np.asarray(positions, np.float64)
-    f = np.asarray(indices, np.int64)
-    base = Level(np.asarray(positions, np.float32), np.asarray(normals, np.float32), np.asarray(uvs, np.float32),
-                 f, np.arange(len(f), dtype=np.int64), 0.0)
+    base = _base(positions, normals, uvs, indices)
+    f = base.indices
     chain = [base]
     if len(f) < min_triangles or len(p) == 0:
         return chain
@@ -83,9 +95,9 @@ def build_chain(positions, normals, uvs, indices, min_triangles: int = LOD_MIN_T
         best = None
         lo_c, hi_c = None, None   # bracketing cells: lo_c keeps too many triangles, hi_c too few
         for _ in range(12):
-            made = cluster(p, base.normals, base.uvs, f, cell, lo)
-            kept = len(made[3])
-            if best is None or abs(np.log(max(kept, 1) / target)) < abs(np.log(max(len(best[3]), 1) / target)):
+            made = cluster(p, f, cell, lo)
+            kept = len(made[2])
+            if best is None or abs(np.log(max(kept, 1) / target)) < abs(np.log(max(len(best[2]), 1) / target)):
                 best = made
             if 0.8 * target <= kept <= 1.25 * target:
                 break
@@ -95,30 +107,34 @@ def build_chain(positions, normals, uvs, indices, min_triangles: int = LOD_MIN_T
             else:
                 hi_c = cell
                 cell = cell * 0.5 if lo_c is None else np.sqrt(cell * lo_c)
-        pos, nrm, uv, tris, src, err = best
-        if len(tris) < LOD_MIN_LEVEL_TRIANGLES or len(tris) > 0.6 * len(chain[-1].indices):
+        if len(best[2]) < LOD_MIN_LEVEL_TRIANGLES or len(best[2]) > 0.6 * len(chain[-1].indices):
             break
-        error = max(error, err)   # errors grow down the chain (the culling pass relies on it)
-        chain.append(Level(pos, nrm, uv, tris, src, error))
+        made = level_of(p, base.normals, base.uvs, *best)
+        error = max(error, made.error)   # errors grow down the chain (the culling pass relies on it)
+        chain.append(replace(made, error=error))
     return chain
 
 
-def cluster(p: np.ndarray, normals: np.ndarray, uvs: np.ndarray, f: np.ndarray, cell: float, origin: np.ndarray):
-    """Vertex clustering on a grid of `cell`: (positions, normals, uvs, triangles, source triangle, error)."""
+def refit_chain(chain: list[Level], positions, normals, uvs, indices) -> list[Level]:
+    """`chain`'s clusterings applied to new positions (and normals) of the same mesh."""
+    p = np.asarray(positions, np.float64)
+    out, error = [_base(positions, normals, uvs, indices)], 0.0
+    for level in chain[1:]:
+        t_cells = np.flatnonzero(level.used)[level.indices]
+        made = level_of(p, normals, uvs, level.cells, t_cells, level.source)
+        error = max(error, made.error)
+        out.append(replace(made, error=error))
+    return out
+
+
+def cluster(p: np.ndarray, f: np.ndarray, cell: float, origin: np.ndarray):
+    """Vertex clustering on a grid of `cell`: (each vertex's cell, the kept triangles as cells, their source)."""
     k = np.floor((p - origin) / cell).astype(np.int64)
     k -= k.min(axis=0)
     dims = k.max(axis=0) + 1
     key = k[:, 0] + dims[0] * (k[:, 1] + dims[1] * k[:, 2])
-    cells, inv = np.unique(key, return_inverse=True)
+    _, inv = np.unique(key, return_inverse=True)
     inv = inv.reshape(-1)
-    m = len(cells)
-    count = np.bincount(inv, minlength=m).astype(np.float64)
-    pos = np.stack([np.bincount(inv, p[:, i], m) for i in range(3)], axis=1) / count[:, None]
-    n = np.asarray(normals, np.float64)
-    nrm = np.stack([np.bincount(inv, n[:, i], m) for i in range(3)], axis=1)
-    length = np.linalg.norm(nrm, axis=1)
-    nrm = np.where(length[:, None] > 1e-12, nrm / np.maximum(length, 1e-12)[:, None], [0.0, 0.0, 1.0])
-    uv = np.stack([np.bincount(inv, np.asarray(uvs, np.float64)[:, i], m) for i in range(2)], axis=1) / count[:, None]
     t = inv[f]
     keep = (t[:, 0] != t[:, 1]) & (t[:, 1] != t[:, 2]) & (t[:, 0] != t[:, 2])
     src = np.flatnonzero(keep)
@@ -127,13 +143,26 @@ def cluster(p: np.ndarray, normals: np.ndarray, uvs: np.ndarray, f: np.ndarray, 
         _, first = np.unique(np.sort(t, axis=1), axis=0, return_index=True)
         first = np.sort(first)
         t, src = t[first], src[first]
+    return inv, t, src
+
+
+def level_of(p: np.ndarray, normals, uvs, inv: np.ndarray, t: np.ndarray, src: np.ndarray) -> Level:
+    """The level a clustering makes of positions `p`: cell means (normals summed and renormalized), the cells the
+    triangles `t` use as its vertices, and its error."""
+    m = int(inv.max()) + 1
+    count = np.bincount(inv, minlength=m).astype(np.float64)
+    pos = np.stack([np.bincount(inv, p[:, i], m) for i in range(3)], axis=1) / count[:, None]
+    n = np.asarray(normals, np.float64)
+    nrm = np.stack([np.bincount(inv, n[:, i], m) for i in range(3)], axis=1)
+    length = np.linalg.norm(nrm, axis=1)
+    nrm = np.where(length[:, None] > 1e-12, nrm / np.maximum(length, 1e-12)[:, None], [0.0, 0.0, 1.0])
+    uv = np.stack([np.bincount(inv, np.asarray(uvs, np.float64)[:, i], m) for i in range(2)], axis=1) / count[:, None]
     used = np.zeros(m, bool)
     used[t.reshape(-1)] = True
-    # compact to the vertices the kept triangles use
-    remap = np.cumsum(used) - 1
+    remap = np.cumsum(used) - 1   # compacted to the cells the kept triangles use
     err = max(float(np.linalg.norm(p - pos[inv], axis=1).max()), _plane_error(p, inv, count, pos, t))
-    return (pos[used].astype(np.float32), nrm[used].astype(np.float32), uv[used].astype(np.float32),
-            remap[t].astype(np.int64), src.astype(np.int64), err)
+    return Level(pos[used].astype(np.float32), nrm[used].astype(np.float32), uv[used].astype(np.float32),
+                 remap[t].astype(np.int64), np.asarray(src, np.int64), err, inv, used)
 
 
 def _plane_error(p, inv, count, pos, t) -> float:

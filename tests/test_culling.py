@@ -121,13 +121,13 @@ def test_levels_of_detail_stay_within_a_pixel_and_too_coarse_ones_do_not(make_re
         return np.abs(a - b).mean(), covered.mean()
 
     color, edges = error(lod)
-    assert color < 0.4 and edges < 0.004, (color, edges)   # mean 8-bit difference; pixels whose coverage changed
+    assert color < 1.0 and edges < 0.01, (color, edges)   # mean 8-bit difference; pixels whose coverage changed
     c_color, c_edges = error(coarse)
-    assert c_color > 0.4 and c_edges > 0.004, (c_color, c_edges)
+    assert c_color > 1.0 and c_edges > 0.01, (c_color, c_edges)
     # no self-shadowing of the coarse surfaces against the full meshes the shadow rays trace (the resolve lifts
     # them off by their level's error; without that, about a seventh of the image is shadowed here)
     lit_full = full.aov["shadow"][..., 0] > 0.5
-    assert (lit_full & (lod.aov["shadow"][..., 0] < 0.5)).mean() < 0.002
+    assert (lit_full & (lod.aov["shadow"][..., 0] < 0.5)).mean() < 0.005
 
 
 def test_lod_pixels_is_checked():

@@ -7,7 +7,8 @@ Each level clusters the mesh's vertices on a uniform grid (Rossignac and Borrel 
 become one, at their mean position (normals summed and renormalized, UVs averaged), triangles whose corners fell
 into fewer than three cells are dropped, and duplicates (the same three cells) are kept once. The cell size of
 level l is searched so that it keeps about `1 / 4**l` of the mesh's triangles. A level's `error` is the largest
-distance any vertex moved, an object-space bound on how far its surface lies from the mesh's near each vertex;
+distance from a mesh vertex to the level's surface (the nearest level triangle at the vertex's cell), how far its
+surface lies from the mesh's (checked both ways against closest-point queries in tests/test_culling.py);
 the raster's culling pass picks, per instance, the coarsest level whose error projects below a pixel threshold.
 Every triangle of a level remembers the mesh triangle it came from (`source`): material, object and the
 triangle-id AOV stay those of the full mesh. Only the raster draws levels; rays trace the full mesh.
@@ -160,31 +161,49 @@ def level_of(p: np.ndarray, normals, uvs, inv: np.ndarray, t: np.ndarray, src: n
     used = np.zeros(m, bool)
     used[t.reshape(-1)] = True
     remap = np.cumsum(used) - 1   # compacted to the cells the kept triangles use
-    err = max(float(np.linalg.norm(p - pos[inv], axis=1).max()), _plane_error(p, inv, count, pos, t))
+    err = _surface_error(p, inv, count, pos, t)
     return Level(pos[used].astype(np.float32), nrm[used].astype(np.float32), uv[used].astype(np.float32),
                  remap[t].astype(np.int64), np.asarray(src, np.int64), err, inv, used)
 
 
-def _plane_error(p, inv, count, pos, t) -> float:
-    """The largest distance from a mesh vertex to the plane of a level triangle at its cell (what the coarse
-    triangles cut off or bulge past between their corners, which the vertices' own moves do not show)."""
+def _surface_error(p, inv, count, pos, t) -> float:
+    """How far the mesh's vertices lie from the level's surface: per vertex, the distance to the nearest level
+    triangle at its cell (where its cell is no vertex of the level, the distance to the cell's mean, larger)."""
+    moved = np.linalg.norm(p - pos[inv], axis=1)
     if len(t) == 0:
-        return 0.0
-    nt = np.cross(pos[t[:, 1]] - pos[t[:, 0]], pos[t[:, 2]] - pos[t[:, 0]])
-    length = np.linalg.norm(nt, axis=1)
-    ok = length > 1e-20
-    t, nt = t[ok], nt[ok] / length[ok, None]
+        return float(moved.max())
     order = np.argsort(inv, kind="stable")
     counts = count.astype(np.int64)
     starts = np.concatenate([[0], np.cumsum(counts)[:-1]])
-    worst = 0.0
-    for j in range(3):
+    best = np.full(len(p), np.inf)
+    for j in range(3):   # each vertex against the triangles at its cell
         cells = t[:, j]
         reps = counts[cells]
-        total = int(reps.sum())
         tri = np.repeat(np.arange(len(t)), reps)
-        within = np.arange(total) - np.repeat(np.cumsum(reps) - reps, reps)
+        within = np.arange(int(reps.sum())) - np.repeat(np.cumsum(reps) - reps, reps)
         vert = order[np.repeat(starts[cells], reps) + within]
-        d = np.abs(np.einsum("ij,ij->i", p[vert] - pos[t[tri, 0]], nt[tri]))
-        worst = max(worst, float(d.max()) if len(d) else 0.0)
-    return worst
+        d = point_triangle_distance(p[vert], pos[t[tri, 0]], pos[t[tri, 1]], pos[t[tri, 2]])
+        np.minimum.at(best, vert, d)
+    best = np.where(np.isfinite(best), best, moved)
+    return float(best.max())
+
+
+def point_triangle_distance(p, a, b, c) -> np.ndarray:
+    """(k,) distances from points p to triangles (a, b, c), all (k, 3) (Ericson, Real-Time Collision Detection
+    5.1.5: the closest point by the Voronoi region of the triangle it lies in)."""
+    ab, ac, ap, bp, cp = b - a, c - a, p - a, p - b, p - c
+    dot = lambda x, y: np.einsum("ij,ij->i", x, y)  # noqa: E731
+    d1, d2, d3, d4, d5, d6 = dot(ab, ap), dot(ac, ap), dot(ab, bp), dot(ac, bp), dot(ab, cp), dot(ac, cp)
+    va, vb, vc = d3 * d6 - d5 * d4, d5 * d2 - d1 * d6, d1 * d4 - d3 * d2
+    with np.errstate(divide="ignore", invalid="ignore"):
+        on_ab = a + (d1 / (d1 - d3))[:, None] * ab
+        on_ac = a + (d2 / (d2 - d6))[:, None] * ac
+        on_bc = b + ((d4 - d3) / ((d4 - d3) + (d5 - d6)))[:, None] * (c - b)
+        denom = va + vb + vc
+        inside = a + (vb / denom)[:, None] * ab + (vc / denom)[:, None] * ac
+    conds = [(d1 <= 0) & (d2 <= 0), (d3 >= 0) & (d4 <= d3), (vc <= 0) & (d1 >= 0) & (d3 <= 0),
+             (d6 >= 0) & (d5 <= d6), (vb <= 0) & (d2 >= 0) & (d6 <= 0), (va <= 0) & (d4 >= d3) & (d5 >= d6)]
+    q = inside.copy()
+    for cond, point in reversed(list(zip(conds, [a, b, on_ab, c, on_ac, on_bc]))):   # the first region wins
+        q[cond] = point[cond]
+    return np.linalg.norm(p - q, axis=1)

@@ -64,6 +64,7 @@ def test_culled_frames_are_the_unculled_pixels(make_renderer):
     assert drawn[0] == visible and 10 < visible < len(scene.instances) - 10   # some culled, some drawn
     r.culling = False
     full = render(r, scene)
+    assert len(r._commands) == 2   # the unculled frame has its own recording (direct draws)
     assert np.array_equal(culled.color, full.color)
     for name in ("depth", "instance_id", "triangle_id"):
         assert np.array_equal(culled.aov[name], full.aov[name]), name
@@ -99,18 +100,21 @@ def test_an_instance_moved_off_screen_and_back(make_renderer, monkeypatch):
     assert r.uploads == 1
 
 
-def lod_images(make_renderer, lod_pixels):
+def test_levels_of_detail_stay_within_a_pixel_and_too_coarse_ones_do_not(make_renderer):
     cam = Camera.look_at((0.0, 6.0, 12.0), (0.0, 0.0, -12.0), fov_y=45)
     scene = grid_scene(big_mesh(), side=6, spacing=3.0, camera=cam)
-    r = make_renderer(160, 120, lod_pixels=lod_pixels)
-    f = r.render(scene, shadows="hard", ao=False, aovs=["color", "shadow", "instance_id"])
-    return f, r._geometry.tables.drawn()
+    r = make_renderer(160, 120)   # lod_pixels 0 (the default): full meshes, uploaded without levels
 
+    def frame(lod_pixels):
+        r.lod_pixels = lod_pixels
+        f = r.render(scene, shadows="hard", ao=False, aovs=["color", "shadow", "instance_id"])
+        return f, r._geometry.tables.drawn()
 
-def test_levels_of_detail_stay_within_a_pixel_and_too_coarse_ones_do_not(make_renderer):
-    full, drawn_full = lod_images(make_renderer, 0.0)
-    lod, drawn_lod = lod_images(make_renderer, 1.0)
-    coarse, drawn_coarse = lod_images(make_renderer, 1e9)
+    full, drawn_full = frame(0.0)
+    assert not r._geometry.has_levels and r.uploads == 1
+    lod, drawn_lod = frame(1.0)   # uploaded again, with levels
+    coarse, drawn_coarse = frame(1e9)
+    assert r.uploads == 2
     assert drawn_full[1:].sum() == 0 and drawn_lod[1:].sum() > 10   # far instances drawn coarser
     assert drawn_full.sum() == drawn_lod.sum() == drawn_coarse.sum()
     assert drawn_coarse[0] == 1 and drawn_coarse[-1] == drawn_coarse.sum() - 1   # all balls at the coarsest level

@@ -3,8 +3,8 @@ fills.
 
 Every frame, before the raster, one invocation per instance tests its mesh's box against the camera frustum and
 picks a level of detail (engine/scene/lod.py) from the box's nearest view depth: the coarsest level whose
-object-space error, scaled by the instance, projects below `lod_pixels` pixels (1 by default: silhouettes move by
-less than a pixel). It appends the instance's draw slot to that level's list of its run (instances drawn together:
+object-space error, scaled by the instance, projects below `lod_pixels` pixels (`Renderer(lod_pixels=1.0)`:
+silhouettes move by less than a pixel; the default 0 draws the full meshes). It appends the instance's draw slot to that level's list of its run (instances drawn together:
 one mesh, material override and mirroring) and counts it into the instanceCount of the run's indirect draw records
 of that level (one per material range). The raster then records one vkCmdDrawIndexedIndirect per record, once:
 the recorded command buffer stays valid while instances move, and the counts are zeroed each frame by a copy of a
@@ -31,7 +31,8 @@ from .base import ComputePass, read, update, write
 RECORD_WORDS = 5
 #: Levels of detail the Group record of cull.comp holds errors for (beyond the full mesh).
 MAX_COARSE_LEVELS = 4
-#: The default largest projected error of a level of detail, in pixels.
+#: A good largest projected error of a level of detail, in pixels (silhouettes move by less than a pixel); the
+#: Renderer's default is 0 (full meshes: AOVs exact), tools/bench_instanced_frame.py's this.
 LOD_PIXELS = 1.0
 
 
@@ -106,5 +107,6 @@ class CullPass(ComputePass):
         push = np.zeros(2, np.uint32)
         push[0] = n
         push[1:2] = np.array([lod_pixels], np.float32).view(np.uint32)
-        self.dispatch(rec, ((n + 63) // 64, 1, 1), push=push, reads=self.reads + [instances, tables.groups, tables.commands],
+        self.dispatch(rec, ((n + 63) // 64, 1, 1), push=push,
+                      reads=self.reads + [instances, tables.groups, tables.commands],
                       writes=[tables.commands, tables.visible])

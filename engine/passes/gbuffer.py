@@ -40,7 +40,7 @@ from ..vk.formats import R32UI, RG32F, RGB32F, RGBA32F, RGBA32UI
 from ..vk.pipelines import CULL_BACK, CULL_FRONT, CULL_NONE
 from ..vk.resources import INDEX, STORAGE, TRANSFER_DST, TRANSFER_SRC, UNIFORM_TEXEL, VERTEX
 from .base import ComputePass, read, update, write
-from .cull import LOD_PIXELS, CullPass, DrawTables
+from .cull import CullPass, DrawTables
 from .interface import MATERIAL_FLAGS, MATERIAL_TEXELS, MAX_TEXTURE_ARRAYS
 from .targets import DEPTH_FORMAT, VISIBILITY_FORMAT
 from .textures import TextureArrays
@@ -70,11 +70,12 @@ class SceneGeometry:
     stays valid while instances move). Vertices, indices and triangle data are also texel buffers: the resolve
     reads the visible triangle's."""
 
-    def __init__(self, ctx, scene, white_texture, sampler):
-        self.ctx = ctx
+    def __init__(self, ctx, scene, white_texture, sampler, levels: bool = True):
+        """`levels`: make the meshes' levels of detail (else each mesh is its only level)."""
+        self.ctx, self.has_levels = ctx, bool(levels)
         meshes, mesh_of, overrides = list(scene.meshes), np.asarray(scene.instance_mesh, np.int64), \
             instance_materials(scene)
-        chains = [lod_chain(m) for m in meshes]
+        chains = [lod_chain(m) if levels else lod_chain(m, max_levels=1) for m in meshes]
         n_vert = sum(len(level.positions) for chain in chains for level in chain)
         verts = np.zeros((n_vert, 8), np.float32)
         indices, info, first_tri = [], [], []
@@ -461,7 +462,7 @@ class GBufferPass:
             for s in (self.resolve.set, self.masked.set):
                 s.bind("textures", tex, sampler=self.sampler, element=slot)
 
-    def record(self, rec, targets, geom: SceneGeometry, culling: bool = True, lod_pixels: float = LOD_PIXELS):
+    def record(self, rec, targets, geom: SceneGeometry, culling: bool = True, lod_pixels: float = 0.0):
         """The instances' copy to the device, the culling pass (`culling`; levels of detail where `lod_pixels` >
         0), the raster and the resolve."""
         rec.copy(geom.instance_staging, geom.instance_buffer)

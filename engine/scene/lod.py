@@ -49,10 +49,12 @@ class Level:
 _cache: "weakref.WeakKeyDictionary" = weakref.WeakKeyDictionary()
 
 
-def lod_chain(mesh) -> list[Level]:
-    """The mesh's levels of detail, finest first (just the mesh below LOD_MIN_TRIANGLES triangles). Cached per
-    mesh; a deformed mesh (new positions, the same triangles) keeps its levels' clusterings and gets their vertices
-    and errors again."""
+def lod_chain(mesh, max_levels: int = LOD_MAX_LEVELS) -> list[Level]:
+    """The mesh's levels of detail, finest first (just the mesh below LOD_MIN_TRIANGLES triangles, or with
+    `max_levels` 1, which makes and caches nothing). Cached per mesh; a deformed mesh (new positions, the same
+    triangles) keeps its levels' clusterings and gets their vertices and errors again."""
+    if max_levels <= 1:
+        return [_base(mesh.positions, mesh.normals, mesh.uvs, mesh.indices)]
     hit = _cache.get(mesh)
     if hit is not None and hit[0] is mesh.positions:
         return hit[1]

@@ -134,14 +134,18 @@ void main() {
 
         // material, triangle within the mesh (of the full mesh, for a coarser level's triangle), object within the
         // mesh, the level's object-space error. A coarser level's surface lies up to that error from the full
-        // mesh, which the shadow and AO rays trace: the point is lifted off by it (scaled by the instance) so that
-        // those rays start outside the full mesh (0 for the full mesh: nothing moves).
+        // mesh, which the shadow and AO rays trace: the point moves toward the eye along the pixel's ray (so that
+        // depth and position still agree) until it is that error (scaled by the instance) off the surface, at most
+        // 4x the error at grazing angles, so that those rays start outside the full mesh (0 for the full mesh).
         info = texelFetch(tri_info, tri);
         float lod_error = uintBitsToFloat(info.w);
         if (lod_error > 0.0) {
-            mat3 a = mat3(inst.model), a_prev = mat3(inst.prev_model);
-            pos += n * (lod_error * max(length(a[0]), max(length(a[1]), length(a[2]))));
-            prev_pos += prev_nrm * (lod_error * max(length(a_prev[0]), max(length(a_prev[1]), length(a_prev[2]))));
+            mat3 a = mat3(inst.model);
+            vec3 to_eye = normalize(frame.eye - pos);
+            float lift = lod_error * max(length(a[0]), max(length(a[1]), length(a[2])))
+                       / max(dot(n, to_eye), 0.25);
+            pos += to_eye * lift;
+            prev_pos += to_eye * lift;
         }
 
         vec2 t0 = b0.zw, t1 = b1.zw, t2 = b2.zw;

@@ -24,6 +24,7 @@ import numpy as np
 sys.path.insert(0, os.path.dirname(os.path.dirname(os.path.abspath(__file__))))
 
 from engine import Camera, Instance, Mesh, Renderer, Scene  # noqa: E402
+from engine.scene.lod import lod_chain  # noqa: E402
 from bench_instances import uv_sphere  # noqa: E402
 
 
@@ -75,6 +76,8 @@ def main() -> int:
             if k >= 3:
                 rows.append({"move_ms": (t1 - t0) * 1e3, "render_wall_ms": (t2 - t1) * 1e3,
                              "gpu_ms": frame.gpu_ms, "passes": dict(frame.timings)})
+        # the last frame's instances drawn at each level of detail (read back from the culling pass's records)
+        drawn = r._geometry.tables.drawn().tolist() if r.culling and r._geometry.has_levels else None
     med = lambda key: statistics.median(x[key] for x in rows)  # noqa: E731
     passes = {p: statistics.median(x["passes"].get(p, 0.0) for x in rows) for p in rows[0]["passes"]}
     render_gpu = sum(v for p, v in passes.items() if p != "readback")
@@ -82,12 +85,19 @@ def main() -> int:
            "culling": not a.no_cull, "lod_pixels": a.lod_pixels, "first_frame_ms": first_ms,
            "size": [w, h], "frames": a.frames, "move_ms": med("move_ms"), "render_wall_ms": med("render_wall_ms"),
            "gpu_ms": med("gpu_ms"), "render_passes_gpu_ms": render_gpu, "passes_ms": passes}
+    if drawn is not None:   # level 0 counts the ground too (one instance of 2 triangles, always in view)
+        levels = [len(level.indices) for level in lod_chain(scene.meshes[1])]
+        out["drawn_per_level"] = drawn
+        out["triangles_drawn"] = int(sum(d * t for d, t in zip(drawn, levels)) - levels[0] + 2)
     print(f"{a.instances} instances x {len(f)} triangles = {tri_total:,} instanced triangles, {w}x{h}, all moving; "
           f"culling {'off' if a.no_cull else f'on, levels of detail below {a.lod_pixels:g} px'}; first frame "
           f"(renderer, upload, levels, BVH) {first_ms:.0f} ms")
     print(f"move (set_transforms) {out['move_ms']:.2f} ms host; render() wall {out['render_wall_ms']:.2f} ms; "
           f"frame GPU {out['gpu_ms']:.3f} ms (passes without readback {render_gpu:.3f})")
     print("  " + "  ".join(f"{p} {v:.3f}" for p, v in passes.items()))
+    if drawn is not None:
+        print(f"last frame: instances drawn per level of detail {drawn} (ground included), "
+              f"{out['triangles_drawn']:,} triangles")
     if a.json:
         with open(a.json, "w") as fh:
             json.dump(out, fh, indent=1)

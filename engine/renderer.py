@@ -27,6 +27,7 @@ from .passes.accumulate import ALPHA_MIN, AccumulatePass
 from .passes.ao import AOPass
 from .passes.debug_view import DebugViewPass
 from .passes.denoise import DenoisePass
+from .passes.cull import check_lod_pixels
 from .passes.gbuffer import GBufferPass, SceneChanges, SceneGeometry
 from .passes.interface import (FILTER_AO, FILTER_MASKS, FILTER_TEMPORAL, FRAME, FRAME_BYTES, MAX_LIGHTS,
                                camera_fields, pack_frame, pack_light)
@@ -65,7 +66,8 @@ class Renderer(Closes):
     def __init__(self, width: int, height: int, *, device: Device | int | str | None = None,
                  validation: bool = False,
                  shader_dir: str | os.PathLike[str] | None = None, hot_reload: bool = False,
-                 context: Context | None = None, bvh_layout: str | None = None):
+                 context: Context | None = None, bvh_layout: str | None = None, culling: bool = True,
+                 lod_pixels: float = 0.0):
         """A renderer of `width` x `height` pixels (1..16384 each).
 
         Args:
@@ -83,12 +85,17 @@ class Renderer(Closes):
                 closed here.
             bvh_layout: "binary" or "wide" scene BVH for the shadow and AO passes (default: $HYBRID_BVH_LAYOUT,
                 else "binary"); a scene of several (or moved) instances traces the two-level BVH, binary.
+            culling: cull instances outside the view on the GPU, draw the rest indirectly (the same pixels; off
+                where the device lacks drawIndirectFirstInstance). Also an attribute, as is `lod_pixels`.
+            lod_pixels: with culling, draw each instance at its mesh's coarsest level of detail (engine/scene/lod.py)
+                whose error projects below this many pixels (1.0 is good); 0 (default): full meshes, exact AOVs.
 
         Raises:
             ConfigError: a bad size, device selector or layout.
             VulkanError: no usable Vulkan device, or it lacks the `geometryShader` feature.
         """
         self.bvh_layout = resolve_layout(bvh_layout)  # a bad one fails here, before any Vulkan object exists
+        self._raster = (bool(culling), check_lod_pixels(lod_pixels))
         check_size(width, height)
         self.width, self.height = int(width), int(height)
         self.library = ShaderLibrary(shader_dir, hot_reload=hot_reload)
@@ -131,30 +138,21 @@ class Renderer(Closes):
         self._timestamps = [Timestamps(ctx), Timestamps(ctx)]   # per readback slot (render_many has two in flight)
         self.timestamps = self._timestamps[0]
         self._fences = [create_fence(ctx), create_fence(ctx)]
-        for fence in self._fences:
-            ctx.defer_destroy(destroy_fence, ctx, fence)
+        [ctx.defer_destroy(destroy_fence, ctx, fence) for fence in self._fences]
         self.targets = Targets(ctx, self.width, self.height, light_capacity=1, frame_ubo=self.frame_ubo)
         res, lib = self.targets.resources, self.library
         self.bvh_set = bvh_descriptor_set(ctx, reflect(lib.get(ShadowPass.shader), ShadowPass.shader))
-        self.gbuffer = GBufferPass(ctx, lib, res)
+        self.gbuffer, self.accumulate = GBufferPass(ctx, lib, res), AccumulatePass(ctx, lib, res)
         self.shadows = ShadowPass(ctx, lib, res, self.bvh_set, self.bvh_layout)
         self.ao = AOPass(ctx, lib, res, self.bvh_set, self.bvh_layout)
-        self.accumulate = AccumulatePass(ctx, lib, res)
         self.denoise = DenoisePass(ctx, lib, res, self.targets)
-        self.lighting = LightingPass(ctx, lib, res)
-        self.debug_view = DebugViewPass(ctx, lib, res)
+        self.lighting, self.debug_view = LightingPass(ctx, lib, res), DebugViewPass(ctx, lib, res)
         self.passes = [self.gbuffer, self.shadows, self.ao, self.accumulate, self.denoise, self.lighting,
                        self.debug_view]
-        self._scene = None
-        self._geometry = None
-        self._scene_bvh = None
-        self.bvh_stats = {}
-        self._commands: dict = {}
-        self._frame_index = 0
-        self._prev_view_proj = None
+        self._scene = self._geometry = self._scene_bvh = self._prev_view_proj = None
+        self.bvh_stats, self._commands, self._frame_index = {}, {}, 0
         self._changes = SceneChanges()   # the scene's state the last frame drew (instance motion)
-        self._history_key = None   # what the temporal history was accumulated under (None: no valid history)
-        self._steady = None
+        self._history_key = self._steady = None   # _history_key: what the temporal history was accumulated under
         self.uploads = 0  # scene uploads so far (a test reads it: the same scene is uploaded once)
         self.bvh_builds = 0   # ray-pass BVHs made so far (a scene's first, and a new kind or rebuild after changes)
 
@@ -168,6 +166,17 @@ class Renderer(Closes):
     def shader_errors(self) -> dict[str, str]:
         """Hot reload's failures: GLSL path -> compiler or interface error (empty when all shaders are good)."""
         return dict(self.library.errors)
+
+    culling = property(lambda self: self._raster[0], lambda self, v: self._set_raster(bool(v), self.lod_pixels),
+                       doc="GPU culling of the instances before the raster (the constructor's `culling`).")
+    lod_pixels = property(lambda self: self._raster[1], lambda self, v: self._set_raster(self.culling, v),
+                          doc="The largest projected error of a level of detail (the constructor's `lod_pixels`).")
+
+    def _set_raster(self, culling: bool, lod_pixels):
+        """The next frame takes (or records) their recording; levels wanted, the scene has none: uploaded again."""
+        self._raster, self._steady = (culling, check_lod_pixels(lod_pixels)), None
+        if self._raster[1] > 0 and self._geometry is not None and not self._geometry.has_levels:
+            self._scene = None
 
     @property
     def device_name(self) -> str:
@@ -389,7 +398,8 @@ class Renderer(Closes):
             pixel_footprint=2.0 * math.tan(math.radians(camera.fov_y) / 2.0) / self.height,
             history_reset=reset, bounds=scene.bounds, out=self._block, packed_lights=packed_lights,
             objects_moved=not self._changes.settled)
-        key = (cfg["shadows"], cfg["ao"], cfg["accumulate"], cfg["denoise"], cfg["view"], len(lights), readback)
+        key = (cfg["shadows"], cfg["ao"], cfg["accumulate"], cfg["denoise"], cfg["view"], len(lights), readback,
+               self._raster)
         if cfg["shadows"] == "reference":
             key += (cfg["reference_samples"],)
         if key not in self._commands:
@@ -499,7 +509,7 @@ class Renderer(Closes):
             self.ctx.wait_idle()
             self._geometry.destroy()
             self._geometry = None
-        self._geometry = SceneGeometry(self.ctx, scene, self.gbuffer.white, self.gbuffer.sampler)
+        self._geometry = SceneGeometry(self.ctx, scene, self.gbuffer.white, self.gbuffer.sampler, self._raster[1] > 0)
         self.gbuffer.bind_scene(self._geometry)
         for p in (self.shadows, self.ao):   # the alpha test's records and textures
             p.bind_scene(self._geometry, self.gbuffer.white, self.gbuffer.sampler)
@@ -539,7 +549,7 @@ class Renderer(Closes):
         t = self.targets
         ts = self._timestamps[readback[1] if readback else 0]
         rec = Recorder(self.ctx, ts)
-        self.gbuffer.record(rec, t, self._geometry)
+        self.gbuffer.record(rec, t, self._geometry, *self._raster)
         rec.mark("gbuffer")
         mode = cfg["shadows"]
         reference = cfg["reference_samples"] if mode == "reference" else None

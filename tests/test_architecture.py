@@ -10,6 +10,7 @@ from engine.errors import ShaderError
 from engine.passes.accumulate import AccumulatePass
 from engine.passes.ao import AOPass
 from engine.passes.base import check_interface, read, write
+from engine.passes.cull import CullPass
 from engine.passes.debug_view import DebugViewPass
 from engine.passes.denoise import DenoisePass
 from engine.passes.gbuffer import ResolvePass
@@ -36,7 +37,7 @@ LAYERS = [
 PEERS = {("engine.frame", "engine.settings"), ("engine.frame", "engine.outputs"), ("engine.renderer", "engine.settings"),
          ("engine.renderer", "engine.frame"), ("engine.renderer", "engine.steady"), ("engine.__main__", "engine.cli")}
 MAX_LINES = 600
-PASSES = [LightingPass, DebugViewPass, AccumulatePass, DenoisePass, ShadowPass, AOPass, ResolvePass]
+PASSES = [LightingPass, DebugViewPass, AccumulatePass, DenoisePass, ShadowPass, AOPass, ResolvePass, CullPass]
 
 
 def module_name(path: Path) -> str:

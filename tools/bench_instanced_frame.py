@@ -3,6 +3,8 @@ light's hard shadows, one AO ray and the denoiser (a benchmark, not a test).
 
     python tools/bench_instanced_frame.py                       # 10,000 x 10k triangles at 1920x1080 (H200 scale)
     python tools/bench_instanced_frame.py --instances 300 --size 640x360 --frames 5   # lavapipe scale
+    python tools/bench_instanced_frame.py --no-cull         # A/B: every instance's full mesh, direct draws
+    python tools/bench_instanced_frame.py --lod-pixels 0    # A/B: culling, but full meshes (no levels of detail)
 
 Per frame: the host time of moving every instance (scene.set_transforms) and of the renderer's per-frame update
 (top level rebuilt and uploaded, instance buffer rewritten: the wall of render() minus its GPU and readback), and the
@@ -22,6 +24,7 @@ import numpy as np
 sys.path.insert(0, os.path.dirname(os.path.dirname(os.path.abspath(__file__))))
 
 from engine import Camera, Instance, Mesh, Renderer, Scene  # noqa: E402
+from engine.scene.lod import lod_chain  # noqa: E402
 from bench_instances import uv_sphere  # noqa: E402
 
 
@@ -46,6 +49,8 @@ def main() -> int:
     ap.add_argument("--size", default="1920x1080")
     ap.add_argument("--frames", type=int, default=30)
     ap.add_argument("--json", default=None)
+    ap.add_argument("--no-cull", action="store_true", help="no GPU culling / levels of detail (Renderer culling)")
+    ap.add_argument("--lod-pixels", type=float, default=1.0, help="largest projected level error (0: full meshes)")
     a = ap.parse_args()
     w, h = map(int, a.size.split("x"))
     v, f = uv_sphere(a.tris)
@@ -58,26 +63,41 @@ def main() -> int:
     tri_total = a.instances * len(f)
     cam = Camera(eye=(-10.0, 25.0, -10.0), target=(1.5 * side, 0.0, 1.5 * side), fov_y=55.0)
     rows = []
-    with Renderer(w, h) as r:
+    t_load = time.perf_counter()
+    with Renderer(w, h, culling=not a.no_cull, lod_pixels=a.lod_pixels) as r:
         for k in range(a.frames + 3):
             t0 = time.perf_counter()
             scene.set_transforms(transforms(a.instances, 0.05 * k, side, phase), np.arange(a.instances))
             t1 = time.perf_counter()
             frame = r.render(scene, cam, shadows="hard", ao=True, ao_samples=1, aovs=["depth"])
             t2 = time.perf_counter()
+            if k == 0:
+                first_ms = (t2 - t_load) * 1e3
             if k >= 3:
                 rows.append({"move_ms": (t1 - t0) * 1e3, "render_wall_ms": (t2 - t1) * 1e3,
                              "gpu_ms": frame.gpu_ms, "passes": dict(frame.timings)})
+        # the last frame's instances drawn at each level of detail (read back from the culling pass's records)
+        drawn = r._geometry.tables.drawn().tolist() if r.culling and r._geometry.has_levels else None
     med = lambda key: statistics.median(x[key] for x in rows)  # noqa: E731
     passes = {p: statistics.median(x["passes"].get(p, 0.0) for x in rows) for p in rows[0]["passes"]}
     render_gpu = sum(v for p, v in passes.items() if p != "readback")
     out = {"instances": a.instances, "triangles_per_mesh": len(f), "instanced_triangles": tri_total,
+           "culling": not a.no_cull, "lod_pixels": a.lod_pixels, "first_frame_ms": first_ms,
            "size": [w, h], "frames": a.frames, "move_ms": med("move_ms"), "render_wall_ms": med("render_wall_ms"),
            "gpu_ms": med("gpu_ms"), "render_passes_gpu_ms": render_gpu, "passes_ms": passes}
-    print(f"{a.instances} instances x {len(f)} triangles = {tri_total:,} instanced triangles, {w}x{h}, all moving")
+    if drawn is not None:   # level 0 counts the ground too (one instance of 2 triangles, always in view)
+        levels = [len(level.indices) for level in lod_chain(scene.meshes[1])]
+        out["drawn_per_level"] = drawn
+        out["triangles_drawn"] = int(sum(d * t for d, t in zip(drawn, levels)) - levels[0] + 2)
+    print(f"{a.instances} instances x {len(f)} triangles = {tri_total:,} instanced triangles, {w}x{h}, all moving; "
+          f"culling {'off' if a.no_cull else f'on, levels of detail below {a.lod_pixels:g} px'}; first frame "
+          f"(renderer, upload, levels, BVH) {first_ms:.0f} ms")
     print(f"move (set_transforms) {out['move_ms']:.2f} ms host; render() wall {out['render_wall_ms']:.2f} ms; "
           f"frame GPU {out['gpu_ms']:.3f} ms (passes without readback {render_gpu:.3f})")
     print("  " + "  ".join(f"{p} {v:.3f}" for p, v in passes.items()))
+    if drawn is not None:
+        print(f"last frame: instances drawn per level of detail {drawn} (ground included), "
+              f"{out['triangles_drawn']:,} triangles")
     if a.json:
         with open(a.json, "w") as fh:
             json.dump(out, fh, indent=1)

@@ -9,14 +9,17 @@ array images, engine/passes/textures.py). Writing the whole G-buffer from fragme
 with few raster units; the same bytes from compute cost a small fraction of that.
 
 Vertices are interleaved (position, normal, uv: 32 bytes), in object space, every mesh once in one vertex and one
-index buffer, each mesh's triangles sorted by material; a mesh's instances are drawn together (vkCmdDrawIndexed
-with their count and first slot), one draw per material range of the mesh (or one for the whole mesh where the
-instances override its material), the range's first triangle within the mesh in a push constant. Alpha-tested
-materials are drawn after the opaque ones by their own pipeline (gbuffer_mask.vert / .frag, which discards). The
-instances are a storage buffer in draw order (grouped by mesh, material override and mirroring): transforms (this
-frame's and the previous one's, with their normal matrices), rewritten in place per frame, and each instance's first
-visibility id (the triangles of the instances before it), so the visibility id is that + the draw's first triangle +
-gl_PrimitiveID + 1 and the resolve finds the instance by a binary search.
+index buffer with its levels of detail after it (engine/scene/lod.py), each level's triangles sorted by material; a
+mesh's instances are drawn together, one draw per material range of the mesh (or one for the whole mesh where the
+instances override its material), the range's first triangle within the mesh's levels in a push constant. With
+culling (engine/passes/cull.py) a compute pass first drops the instances outside the frustum and picks each one's
+level, and the draws are indirect, one per run, level and range; without, direct draws of the full meshes.
+Alpha-tested materials are drawn after the opaque ones by their own pipeline (gbuffer_mask.vert / .frag, which
+discards). The instances are a storage buffer in draw order (grouped by mesh, material override and mirroring):
+transforms (this frame's and the previous one's, with their normal matrices), written per frame into a host
+staging buffer that the frame's command buffer copies to the device-local one, and each instance's first
+visibility id (the triangles of the levels of the instances before it), so the visibility id is that + the draw's
+first triangle + gl_PrimitiveID + 1 and the resolve finds the instance by a binary search.
 Single-sided materials (glTF doubleSided false) are drawn by variants of the same pipelines that cull back faces
 (counter-clockwise front faces, as glTF), or front faces for mirrored instances (a negative determinant turns the
 winding over; an instance that changes sign makes the geometry again, as a new material override does); double-sided
@@ -29,13 +32,15 @@ import numpy as np
 
 from ..bvh.instanced import inverse3
 from ..errors import SceneError, ShaderError
+from ..scene.lod import lod_chain
 from ..scene.material import texture_key
 from ..vk import (Buffer, BufferView, DescriptorSet, GraphicsPipeline, Sampler, device, reflect, upload_buffer,
                   upload_texture_array)
 from ..vk.formats import R32UI, RG32F, RGB32F, RGBA32F, RGBA32UI
 from ..vk.pipelines import CULL_BACK, CULL_FRONT, CULL_NONE
-from ..vk.resources import INDEX, STORAGE, UNIFORM_TEXEL, VERTEX
+from ..vk.resources import INDEX, STORAGE, TRANSFER_DST, TRANSFER_SRC, UNIFORM_TEXEL, VERTEX
 from .base import ComputePass, read, update, write
+from .cull import CullPass, DrawTables
 from .interface import MATERIAL_FLAGS, MATERIAL_TEXELS, MAX_TEXTURE_ARRAYS
 from .targets import DEPTH_FORMAT, VISIBILITY_FORMAT
 from .textures import TextureArrays
@@ -57,43 +62,58 @@ def instance_materials(scene) -> np.ndarray:
 
 
 class SceneGeometry:
-    """The scene's raster data on the GPU: one vertex and one index buffer holding every mesh once (object space),
-    per mesh triangle its material and object, the materials, textures, the ray passes' alpha records, the instanced
-    draws (opaque and alpha-tested), and the
-    instances (transforms this frame and the previous one, in a host-visible buffer rewritten per frame, so the
-    recorded command buffer stays valid while instances move). Vertices, indices and triangle data are also texel
-    buffers: the resolve reads the visible triangle's."""
+    """The scene's raster data on the GPU: one vertex and one index buffer holding every mesh once (object space)
+    with its levels of detail, per triangle its material, mesh triangle, object and level error, the materials,
+    textures, the ray passes' alpha records, the instanced draws (opaque and alpha-tested; direct, and the culled
+    indirect ones with their `tables`), and the instances (transforms this frame and the previous one, rewritten
+    per frame in a host staging buffer that each frame copies to a device-local one, so the recorded command buffer
+    stays valid while instances move). Vertices, indices and triangle data are also texel buffers: the resolve
+    reads the visible triangle's."""
 
-    def __init__(self, ctx, scene, white_texture, sampler):
-        self.ctx = ctx
+    def __init__(self, ctx, scene, white_texture, sampler, levels: bool = True):
+        """`levels`: make the meshes' levels of detail (else each mesh is its only level)."""
+        self.ctx, self.has_levels = ctx, bool(levels)
         meshes, mesh_of, overrides = list(scene.meshes), np.asarray(scene.instance_mesh, np.int64), \
             instance_materials(scene)
-        n_vert = sum(len(m.positions) for m in meshes)
+        chains = [lod_chain(m) if levels else lod_chain(m, max_levels=1) for m in meshes]
+        n_vert = sum(len(level.positions) for chain in chains for level in chain)
         verts = np.zeros((n_vert, 8), np.float32)
         indices, info, first_tri = [], [], []
-        self.mesh_ranges = []   # per mesh: (material, first triangle within the mesh, triangle count)
+        # per mesh, per level of detail: (material, first triangle within the mesh's levels, triangle count), the
+        # same materials at every level (a count may be 0)
+        self.mesh_ranges = []
+        self.mesh_levels = []   # per mesh: (object-space box, the object-space error of each level)
         v0 = t0 = 0
-        for m in meshes:
-            nv, nt = len(m.positions), len(m.indices)
-            verts[v0:v0 + nv, 0:3] = m.positions
-            verts[v0:v0 + nv, 3:6] = m.normals
-            verts[v0:v0 + nv, 6:8] = m.uvs
+        for m, chain in zip(meshes, chains):
             tri_mat = np.asarray(m.vertex_material[m.indices[:, 0]], np.int64)
-            order = np.argsort(tri_mat, kind="stable")   # the mesh's triangles grouped by material
-            indices.append(np.asarray(m.indices, np.int64)[order] + v0)
-            objects = np.zeros(nt, np.uint32)
+            objects = np.zeros(len(m.indices), np.uint32)
             for k, sub in enumerate(m.submeshes):
                 objects[sub.first_triangle:sub.first_triangle + sub.triangle_count] = k
-            tri = np.zeros((nt, 4), np.uint32)   # material, triangle within the mesh, object within the mesh
-            tri[:, 0], tri[:, 1], tri[:, 2] = tri_mat[order], order, objects[order]
-            info.append(tri)
-            mats = tri_mat[order]
-            starts = np.flatnonzero(np.r_[True, mats[1:] != mats[:-1]]) if nt else np.zeros(0, np.int64)
-            ends = np.r_[starts[1:], nt]
-            self.mesh_ranges.append([(int(mats[a]), int(a), int(b - a)) for a, b in zip(starts, ends)])
+            materials = np.unique(tri_mat)
+            levels, at = [], 0
+            for level in chain:   # each level's triangles grouped by material, the levels in a row
+                nv, nt = len(level.positions), len(level.indices)
+                verts[v0:v0 + nv, 0:3] = level.positions
+                verts[v0:v0 + nv, 3:6] = level.normals
+                verts[v0:v0 + nv, 6:8] = level.uvs
+                mats = tri_mat[level.source]
+                order = np.argsort(mats, kind="stable")
+                indices.append(np.asarray(level.indices, np.int64)[order] + v0)
+                tri = np.zeros((nt, 4), np.uint32)   # material, triangle of the mesh, object, the level's error
+                src = level.source[order]
+                tri[:, 0], tri[:, 1], tri[:, 2] = mats[order], src, objects[src]
+                tri[:, 3] = np.float32(level.error).view(np.uint32)
+                info.append(tri)
+                lo, hi = np.searchsorted(mats[order], materials), np.searchsorted(mats[order], materials, "right")
+                levels.append([(int(mat), int(at + a), int(b - a)) for mat, a, b in zip(materials, lo, hi)])
+                v0, at = v0 + nv, at + nt
+            self.mesh_ranges.append(levels)
+            self.mesh_levels.append((np.asarray(m.box, np.float32), [level.error for level in chain]))
             first_tri.append(t0)
-            v0, t0 = v0 + nv, t0 + nt
+            t0 += at
         self.mesh_triangles = np.array([len(m.indices) for m in meshes], np.int64)
+        self.mesh_level_triangles = np.array([sum(len(level.indices) for level in chain) for chain in chains],
+                                             np.int64)
         self.mesh_first_triangle = np.array(first_tri, np.int64)
         self.vertex_buffer = upload_buffer(ctx, verts, VERTEX | UNIFORM_TEXEL, "vertices")
         self.index_buffer = upload_buffer(ctx, np.ascontiguousarray(np.concatenate(indices), np.uint32),
@@ -123,39 +143,53 @@ class SceneGeometry:
         self.instance_count = n
         flip = self._mirrored.astype(np.int64) if self._mirrored is not None else np.zeros(n, np.int64)
         self.order = np.lexsort((flip, overrides, mesh_of))   # draw slot -> instance (stable)
-        tris = self.mesh_triangles[mesh_of[self.order]]
+        tris = self.mesh_level_triangles[mesh_of[self.order]]
         total = int(tris.sum())
         if total >= 2 ** 32 - 1:
-            raise SceneError(f"{total:,} instanced triangles: the visibility buffer's 32-bit ids hold at most "
-                             f"{2 ** 32 - 2:,}")
+            raise SceneError(f"{total:,} instanced triangles (levels of detail included): the visibility buffer's "
+                             f"32-bit ids hold at most {2 ** 32 - 2:,}")
         prefix = np.concatenate([[0], np.cumsum(tris)[:-1]]).astype(np.int64)
         # the flat arrays' order (scene.indices, scene.submeshes): instances in scene order, their triangles in a row
         flat_tri = np.concatenate([[0], np.cumsum(self.mesh_triangles[mesh_of])[:-1]])
         subs = np.array([len(m.submeshes) for m in meshes], np.int64)
         flat_obj = np.concatenate([[0], np.cumsum(subs[mesh_of])[:-1]])
         # per run of instances of one mesh and override, its draws: (first index, index count, instance count,
-        # first instance, push constants: first triangle within the mesh (and the material, for the alpha test)),
-        # by pipeline (masked or not) and culling (CULL_NONE, CULL_BACK, CULL_FRONT)
+        # first instance, push constants: first triangle within the mesh's levels (and the material, for the alpha
+        # test)), by pipeline (masked or not) and culling (CULL_NONE, CULL_BACK, CULL_FRONT); `draws` draw every
+        # instance's full mesh, `indirect` the records the culling pass fills, one per run, level and range
+        # (engine/passes/cull.py)
         self.draws = {(masked, cull): [] for masked in (False, True) for cull in (CULL_NONE, CULL_BACK, CULL_FRONT)}
+        self.indirect = {key: [] for key in self.draws}
+        records, groups = [], []
         keys = np.stack([mesh_of[self.order], overrides[self.order], flip[self.order]], axis=1) if n else \
             np.zeros((0, 3), np.int64)
         runs = np.flatnonzero(np.r_[True, np.any(keys[1:] != keys[:-1], axis=1)]) if n else np.zeros(0, np.int64)
-        for f, e in zip(runs, np.r_[runs[1:], n]):
+        run_of = np.zeros(n, np.int64)
+        for r, (f, e) in enumerate(zip(runs, np.r_[runs[1:], n])):
+            run_of[f:e] = r
             k, over, mirror = int(keys[f, 0]), int(keys[f, 1]), bool(keys[f, 2])
             base = int(self.mesh_first_triangle[k])
-            ranges = self.mesh_ranges[k] if over < 0 else [(over, 0, int(self.mesh_triangles[k]))]
-            for material, start, count in ranges:
-                if count == 0:
-                    continue
-                draw = (3 * (base + start), 3 * count, int(e - f), int(f))
-                cull = CULL_NONE if material not in self.single_sided else CULL_FRONT if mirror else CULL_BACK
-                if material in self.alpha_tested:
-                    self.draws[True, cull].append(draw + (np.array([start, material], np.uint32).tobytes(),))
-                else:
-                    self.draws[False, cull].append(draw + (np.uint32(start).tobytes(),))
-        self.instance_buffer = Buffer(self.ctx, max(n, 1) * INSTANCE_FLOATS * 4, STORAGE, host=True,
-                                      name="instances")
-        block = self.instance_buffer.view(np.float32)[:n * INSTANCE_FLOATS].reshape(n, INSTANCE_FLOATS)
+            levels = self.mesh_ranges[k] if over < 0 else \
+                [[(over, ranges[0][1], sum(c for _, _, c in ranges))] for ranges in self.mesh_ranges[k]]
+            groups.append((self.mesh_levels[k][0], self.mesh_levels[k][1], len(records), len(levels[0]), int(f),
+                           len(levels)))
+            for level, ranges in enumerate(levels):
+                for material, start, count in ranges:
+                    cull = CULL_NONE if material not in self.single_sided else CULL_FRONT if mirror else CULL_BACK
+                    masked = material in self.alpha_tested
+                    push = np.array([start, material] if masked else [start], np.uint32).tobytes()
+                    if count and level == 0:
+                        self.draws[masked, cull].append((3 * (base + start), 3 * count, int(e - f), int(f), push))
+                    if count:
+                        self.indirect[masked, cull].append((len(records), push))
+                    records.append((3 * count, 0, 3 * (base + start), 0, (1 + level) * n + int(f), level))
+        self.tables = DrawTables(self.ctx, records, groups, n, max((len(c) for c in self.mesh_ranges), default=1))
+        size = max(n, 1) * INSTANCE_FLOATS * 4
+        # written by the host, read by the raster and the resolve from a device-local copy (the frame's command
+        # buffer copies it first): on a discrete GPU, reads of host memory would cross the bus per vertex and pixel
+        self.instance_staging = Buffer(self.ctx, size, TRANSFER_SRC, host=True, name="instances staging")
+        self.instance_buffer = Buffer(self.ctx, size, STORAGE | TRANSFER_DST, name="instances")
+        block = self.instance_staging.view(np.float32)[:n * INSTANCE_FLOATS].reshape(n, INSTANCE_FLOATS)
         block[:] = 0
         ids = block.view(np.uint32)
         o = self.order
@@ -165,6 +199,7 @@ class SceneGeometry:
         ids[:, 59] = np.where(overrides[o] < 0, NO_MATERIAL, overrides[o])
         ids[:, 60] = flat_tri[o]
         ids[:, 61] = flat_obj[o]
+        ids[:, 62] = run_of
         self._block = block
         self._overrides = overrides.copy()
         self._written = None   # (transforms, previous transforms) last written
@@ -203,7 +238,8 @@ class SceneGeometry:
 
     def destroy(self):
         for obj in [*self.views, self.vertex_buffer, self.index_buffer, self.tri_info_buffer,
-                    self.material_buffer, self.alpha_buffer, self.instance_buffer, self.textures]:
+                    self.material_buffer, self.alpha_buffer, self.instance_buffer, self.instance_staging,
+                    self.tables, self.textures]:
             obj.destroy()
 
 
@@ -378,17 +414,19 @@ class GBufferPass:
     its resolve."""
 
     name = "gbuffer"
-    shaders = ("gbuffer.vert", "gbuffer.frag", "gbuffer_mask.vert", "gbuffer_mask.frag", "gbuffer_resolve.comp")
+    shaders = ("gbuffer.vert", "gbuffer.frag", "gbuffer_mask.vert", "gbuffer_mask.frag", "gbuffer_resolve.comp",
+               "cull.comp")
 
     def __init__(self, ctx, library, resources):
         self.ctx, self.library = ctx, library
-        self.raster = _Raster(ctx, library, "gbuffer", {"frame", "instances"}, [(0, RGB32F, 0)])
+        self.raster = _Raster(ctx, library, "gbuffer", {"frame", "instances", "visible"}, [(0, RGB32F, 0)])
         self.raster.set.bind("frame", resources["frame"])
         # alpha-tested materials: UVs too, and the materials and textures for the alpha test
-        self.masked = _Raster(ctx, library, "gbuffer_mask", {"frame", "materials", "textures", "instances"},
+        self.masked = _Raster(ctx, library, "gbuffer_mask", {"frame", "materials", "textures", "instances", "visible"},
                               [(0, RGB32F, 0), (1, RG32F, 24)])
         self.masked.set.bind("frame", resources["frame"])
         self.resolve = ResolvePass(ctx, library, resources)
+        self.cull = CullPass(ctx, library, resources)
         self.sampler = Sampler(ctx, anisotropy=device.texture_anisotropy(ctx))
         self.white = upload_texture_array(ctx, [np.full((1, 1, 4), 255, np.uint8)], 1, 1, name="white texture")
         for slot in range(MAX_TEXTURE_ARRAYS):
@@ -401,10 +439,12 @@ class GBufferPass:
         self.raster.reload(library)
         self.masked.reload(library)
         self.resolve.reload(library)
+        self.cull.reload(library)
 
     def bind(self, resources, targets=None):
         self.resources = resources
         self.resolve.bind(resources)
+        self.cull.bind(resources)
 
     def bind_scene(self, geom: SceneGeometry):
         self.resolve.specialize(TEXTURE_ARRAYS=max(1, len(geom.textures)))
@@ -414,21 +454,33 @@ class GBufferPass:
         self.masked.set.bind("materials", geom.views[3])
         for r in (self.raster, self.masked):
             r.set.bind("instances", geom.instance_buffer)
+            r.set.bind("visible", geom.tables.visible)
+        self.cull.bind_scene(geom.instance_buffer, geom.tables)
         s.bind("instances", geom.instance_buffer)
         for slot in range(MAX_TEXTURE_ARRAYS):
             tex = geom.textures.images[slot] if slot < len(geom.textures) else self.white
             for s in (self.resolve.set, self.masked.set):
                 s.bind("textures", tex, sampler=self.sampler, element=slot)
 
-    def record(self, rec, targets, geom: SceneGeometry):
+    def record(self, rec, targets, geom: SceneGeometry, culling: bool = True, lod_pixels: float = 0.0):
+        """The instances' copy to the device, the culling pass (`culling`; levels of detail where `lod_pixels` >
+        0), the raster and the resolve."""
+        rec.copy(geom.instance_staging, geom.instance_buffer)
+        culling = culling and self.ctx.draw_indirect_first_instance
+        if culling:
+            self.cull.record(rec, geom.instance_buffer, geom.tables, lod_pixels)
         # The visibility image is all zeros here (cleared when made, then by each frame's resolve after reading it),
         # so the raster loads it instead of clearing it (a clear costs GPUs with few raster units).
         # Opaque materials first, keeping early depth tests; then the alpha-tested ones, whose shader discards.
         # Opaque then masked; each: double-sided materials (no culling), single-sided ones (back faces culled;
         # front faces for mirrored instances).
+        draws = geom.indirect if culling else geom.draws
         passes = [(r, cull) for r in (self.raster, self.masked) for cull in (CULL_NONE, CULL_BACK, CULL_FRONT)]
-        lists = [(r.pipelines[cull], [r.set], geom.draws[r is self.masked, cull]) for r, cull in passes]
+        lists = [(r.pipelines[cull], [r.set], draws[r is self.masked, cull]) for r, cull in passes]
         rec.raster(lists[0][0], lists[0][1], targets.visibility, targets.depth, geom.vertex_buffer,
-                   geom.index_buffer, lists[0][2], reads=[self.resources["frame"]], more=lists[1:])
+                   geom.index_buffer, lists[0][2], more=lists[1:],
+                   reads=[self.resources["frame"], geom.instance_buffer, geom.tables.visible],
+                   indirect=geom.tables.commands if culling else None)
         self.resolve.dispatch(rec, self.resolve.tiles(targets.width, targets.height),
-                              push=np.array([geom.instance_count], np.uint32))
+                              push=np.array([geom.instance_count], np.uint32),
+                              reads=self.resolve.reads + [geom.instance_buffer])

@@ -220,8 +220,12 @@ class Context:
         # samplerAnisotropy: anisotropic texture filtering where the device has it (Sampler caps at max_anisotropy)
         aniso = bool(vk.vkGetPhysicalDeviceFeatures(self.physical).samplerAnisotropy)
         self.max_anisotropy = float(self.limits.maxSamplerAnisotropy) if aniso else 1.0
+        # drawIndirectFirstInstance: the G-buffer's culled indirect draws start at their instance list's slot
+        self.draw_indirect_first_instance = bool(
+            vk.vkGetPhysicalDeviceFeatures(self.physical).drawIndirectFirstInstance)
         feats = vk.VkPhysicalDeviceFeatures2(pNext=f12, features=vk.VkPhysicalDeviceFeatures(
             geometryShader=vk.VK_TRUE if self.geometry_shader else vk.VK_FALSE,
+            drawIndirectFirstInstance=vk.VK_TRUE if self.draw_indirect_first_instance else vk.VK_FALSE,
             samplerAnisotropy=vk.VK_TRUE if aniso else vk.VK_FALSE))
         prio = vk.ffi.new("float[]", [1.0])
         qinfo = vk.VkDeviceQueueCreateInfo(queueFamilyIndex=self.queue_family, queueCount=1, pQueuePriorities=prio)

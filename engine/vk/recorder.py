@@ -21,12 +21,16 @@ from .resources import Buffer, Image, image_barrier, memory_barrier
 COMPUTE = vk.VK_PIPELINE_STAGE_COMPUTE_SHADER_BIT
 TRANSFER = vk.VK_PIPELINE_STAGE_TRANSFER_BIT
 HOST = vk.VK_PIPELINE_STAGE_HOST_BIT
+GRAPHICS = vk.VK_PIPELINE_STAGE_VERTEX_SHADER_BIT | vk.VK_PIPELINE_STAGE_FRAGMENT_SHADER_BIT   # the raster's shaders
+INDIRECT = vk.VK_PIPELINE_STAGE_DRAW_INDIRECT_BIT   # indirect draw commands
 READ = {COMPUTE: vk.VK_ACCESS_SHADER_READ_BIT, TRANSFER: vk.VK_ACCESS_TRANSFER_READ_BIT,
-        HOST: vk.VK_ACCESS_HOST_READ_BIT}
+        HOST: vk.VK_ACCESS_HOST_READ_BIT, GRAPHICS: vk.VK_ACCESS_SHADER_READ_BIT,
+        INDIRECT: vk.VK_ACCESS_INDIRECT_COMMAND_READ_BIT}
 WRITE = {COMPUTE: vk.VK_ACCESS_SHADER_WRITE_BIT, TRANSFER: vk.VK_ACCESS_TRANSFER_WRITE_BIT,
          HOST: vk.VK_ACCESS_HOST_WRITE_BIT}
 WHOLE_SIZE = 0xFFFFFFFFFFFFFFFF
 ONE_F32 = 0x3F800000  # the bit pattern of 1.0f, for fill()
+DRAW_RECORD = 20   # bytes of a VkDrawIndexedIndirectCommand
 _EVERYTHING = COMPUTE | TRANSFER
 _ANY_ACCESS = (vk.VK_ACCESS_SHADER_READ_BIT | vk.VK_ACCESS_SHADER_WRITE_BIT | vk.VK_ACCESS_TRANSFER_READ_BIT
                | vk.VK_ACCESS_TRANSFER_WRITE_BIT)
@@ -145,13 +149,17 @@ class Recorder:
         vk.vkCmdCopyImageToBuffer(self.cmd, src.handle, vk.VK_IMAGE_LAYOUT_GENERAL, dst.handle, 1, [region])
 
     def raster(self, pipeline, sets, color: Image, depth: Image, vertices: Buffer, indices: Buffer, draws,
-               reads=(), more=()):
+               reads=(), more=(), indirect: Buffer | None = None):
         """Indexed draws into `color` (kept: loaded and stored; GENERAL before and after) with a cleared reversed-Z
         `depth`. `draws`: (first index, index count, instance count, first instance, push-constant bytes), instanced
         indexed draws (gl_InstanceIndex counts from the first instance; no push constants where the bytes are
-        empty); `more`: further (pipeline, sets, draws) drawn after them in the same rendering. Afterwards `color`
-        counts as written by a compute-stage step, visible to compute and transfer."""
-        self.use(reads=reads)
+        empty); with `indirect` (VkDrawIndexedIndirectCommand records), (record index, push-constant bytes) instead:
+        each an indirect draw of that record. `more`: further (pipeline, sets, draws) drawn after them in the same
+        rendering. `reads`: buffers the vertex and fragment shaders read. Afterwards `color` counts as written by a
+        compute-stage step, visible to compute and transfer."""
+        self.use(reads=reads, stage=GRAPHICS)
+        if indirect is not None:
+            self.use(reads=[indirect], stage=INDIRECT)
         cmd, w, h = self.cmd, color.width, color.height
         CA, GENERAL = vk.VK_IMAGE_LAYOUT_COLOR_ATTACHMENT_OPTIMAL, vk.VK_IMAGE_LAYOUT_GENERAL
         OUT = vk.VK_PIPELINE_STAGE_COLOR_ATTACHMENT_OUTPUT_BIT
@@ -179,11 +187,15 @@ class Recorder:
             if not pipe_draws:
                 continue
             pipe.bind(cmd, pipe_sets)
-            for first, count, instances, first_instance, push in pipe_draws:
+            for *draw, push in pipe_draws:
                 if push:
                     vk.vkCmdPushConstants(cmd, pipe.layout, vk.VK_SHADER_STAGE_ALL, 0, len(push),
                                           vk.ffi.new("char[]", bytes(push)))
-                vk.vkCmdDrawIndexed(cmd, count, instances, first, 0, first_instance)
+                if indirect is not None:
+                    vk.vkCmdDrawIndexedIndirect(cmd, indirect.handle, DRAW_RECORD * draw[0], 1, DRAW_RECORD)
+                else:
+                    first, count, instances, first_instance = draw
+                    vk.vkCmdDrawIndexed(cmd, count, instances, first, 0, first_instance)
         vk.vkCmdEndRendering(cmd)
         image_barrier(cmd, color, CA, GENERAL, OUT, _EVERYTHING, vk.VK_ACCESS_COLOR_ATTACHMENT_WRITE_BIT, _ANY_ACCESS)
         st = self.hazards.state.setdefault(id(color), _State())

@@ -155,6 +155,23 @@ def update_buffer(ctx: Context, buf: Buffer, parts, staging: Buffer | None = Non
             staging.destroy()
 
 
+def read_buffer(ctx: Context, buf: Buffer, dtype=np.uint8) -> np.ndarray:
+    """A copy of a device-local buffer's contents (it needs TRANSFER_SRC usage), after every earlier use of it on
+    the queue (for tests and diagnostics: it waits for the device)."""
+    staging = Buffer(ctx, buf.size, TRANSFER_DST, host=True, name="read staging")
+    try:
+        with ctx.one_shot() as cmd:
+            all_ = vk.VK_PIPELINE_STAGE_ALL_COMMANDS_BIT
+            memory_barrier(cmd, all_, vk.VK_PIPELINE_STAGE_TRANSFER_BIT, vk.VK_ACCESS_MEMORY_WRITE_BIT,
+                           vk.VK_ACCESS_TRANSFER_READ_BIT)
+            vk.vkCmdCopyBuffer(cmd, buf.handle, staging.handle, 1, [vk.VkBufferCopy(0, 0, buf.size)])
+            memory_barrier(cmd, vk.VK_PIPELINE_STAGE_TRANSFER_BIT, vk.VK_PIPELINE_STAGE_HOST_BIT,
+                           vk.VK_ACCESS_TRANSFER_WRITE_BIT, vk.VK_ACCESS_HOST_READ_BIT)
+        return staging.view(dtype).copy()
+    finally:
+        staging.destroy()
+
+
 def _aspect(fmt):
     if fmt in (vk.VK_FORMAT_D32_SFLOAT, vk.VK_FORMAT_D16_UNORM):
         return vk.VK_IMAGE_ASPECT_DEPTH_BIT

@@ -6,6 +6,8 @@
 #include "instances.glsl"
 FRAME_BLOCK
 layout(std430, set = 0, binding = 3) readonly buffer Instances { Instance instances[]; };
+// gl_InstanceIndex -> draw slot: the unculled list (every instance in order) or a level's list (cull.comp)
+layout(std430, set = 0, binding = 4) readonly buffer Visible { uint visible[]; };
 
 layout(location = 0) in vec3 in_position;
 layout(location = 1) in vec2 in_uv;
@@ -13,7 +15,7 @@ layout(location = 0) out vec2 v_uv;
 layout(location = 1) flat out uint out_prefix;
 
 void main() {
-    Instance inst = instances[gl_InstanceIndex];
+    Instance inst = instances[visible[gl_InstanceIndex]];
     out_prefix = inst.ids.x;
     gl_Position = frame.view_proj * (inst.model * vec4(in_position, 1.0));
     v_uv = in_uv;

@@ -1,6 +1,7 @@
 #version 450
 #extension GL_GOOGLE_include_directive : require
-// G-buffer resolve: from the visibility image (instance's first id + triangle + 1 per pixel) to world position +
+// G-buffer resolve: from the visibility image (instance's first id + triangle + 1 per pixel; an instance's ids
+// cover its mesh's levels of detail in a row, as the index buffer holds them) to world position +
 // linear depth, unit normal facing the viewer and albedo, the values the rasterizer would have interpolated at the
 // pixel centre. The instance is found by a binary search over the instances' first ids; its transform moves the
 // object-space vertices (normals by the inverse transpose, renormalized; surfaces are two-sided, so a mirroring
@@ -31,8 +32,8 @@ layout(set = 0, binding = 4, rgba16f) uniform writeonly image2D g_albedo;
 layout(set = 0, binding = 10, rgba8_snorm) uniform writeonly image2D g_normal8;
 // The scene's buffers as texel buffers (lavapipe gathers texels for 8 lanes at once, storage buffers lane by lane)
 layout(set = 0, binding = 5) uniform samplerBuffer vertices;       // 2 texels per vertex: (p, n.x), (n.yz, uv)
-layout(set = 0, binding = 6) uniform usamplerBuffer indices;       // each mesh's, material-sorted, 3 per triangle
-layout(set = 0, binding = 7) uniform usamplerBuffer tri_info;      // per mesh triangle: material, its index in the mesh, object
+layout(set = 0, binding = 6) uniform usamplerBuffer indices;       // each mesh's levels, material-sorted, 3 per tri
+layout(set = 0, binding = 7) uniform usamplerBuffer tri_info;      // per triangle: material, index, object, error
 layout(set = 0, binding = 8) uniform samplerBuffer materials;      // MATERIAL_TEXELS per material (interface.py)
 // The data AOVs: linear view depth (+inf on background), the scene's triangle, object and material ids (-1 as uint on
 // background), and the pixel's motion since the previous frame (now - then, in pixels).
@@ -131,14 +132,28 @@ void main() {
         float mlen = length(m);
         prev_nrm = side * (mlen > 1e-6 ? m / mlen : normalize(cross(q1 - q0, q2 - q0)));
 
+        // material, triangle within the mesh (of the full mesh, for a coarser level's triangle), object within the
+        // mesh, the level's object-space error. A coarser level's surface lies up to that error from the full
+        // mesh, which the shadow and AO rays trace: the point moves toward the eye along the pixel's ray (so that
+        // depth and position still agree) until it is that error (scaled by the instance) off the surface, at most
+        // 4x the error at grazing angles, so that those rays start outside the full mesh (0 for the full mesh).
+        info = texelFetch(tri_info, tri);
+        float lod_error = uintBitsToFloat(info.w);
+        if (lod_error > 0.0) {
+            mat3 a = mat3(inst.model);
+            vec3 to_eye = normalize(frame.eye - pos);
+            float lift = lod_error * max(length(a[0]), max(length(a[1]), length(a[2])))
+                       / max(dot(n, to_eye), 0.25);
+            pos += to_eye * lift;
+            prev_pos += to_eye * lift;
+        }
+
         vec2 t0 = b0.zw, t1 = b1.zw, t2 = b2.zw;
         uv = b.x * t0 + b.y * t1 + b.z * t2;
         duv_dx = bx.x * t0 + bx.y * t1 + bx.z * t2 - uv;
         duv_dy = by.x * t0 + by.y * t1 + by.z * t2 - uv;
 
-        // material, triangle within the mesh (the index buffer holds each mesh's triangles sorted by material),
-        // object within the mesh; then the instance's material override and its places in the flat arrays
-        info = texelFetch(tri_info, tri);
+        // the instance's material override and its places in the flat arrays
         if (inst.ids.w != 0xFFFFFFFFu) info.x = inst.ids.w;
         info.y += inst.flat_ids.x;
         info.z += inst.flat_ids.y;

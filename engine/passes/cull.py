@@ -1,0 +1,112 @@
+"""GPU-driven instance culling and level of detail for the visibility raster (cull.comp), and the draw tables it
+fills.
+
+Every frame, before the raster, one invocation per instance tests its mesh's box against the camera frustum and
+picks a level of detail (engine/scene/lod.py) from the box's nearest view depth: the coarsest level whose
+object-space error, scaled by the instance, projects below `lod_pixels` pixels (`Renderer(lod_pixels=1.0)`:
+silhouettes move by less than a pixel; the default 0 draws the full meshes). It appends the instance's draw slot to that level's list of its run (instances drawn together:
+one mesh, material override and mirroring) and counts it into the instanceCount of the run's indirect draw records
+of that level (one per material range). The raster then records one vkCmdDrawIndexedIndirect per record, once:
+the recorded command buffer stays valid while instances move, and the counts are zeroed each frame by a copy of a
+template. With culling off, the raster draws every instance's full mesh with direct draws instead.
+
+Visibility ids: an instance owns as many ids as its mesh's levels have triangles together (the index buffer holds
+each mesh's levels in a row), so `prefix + triangle within the levels + 1` names instance, level and triangle, and
+the resolve reads the level's triangle without knowing the level.
+"""
+from __future__ import annotations
+
+import math
+
+import numpy as np
+
+from ..errors import ConfigError
+from ..vk import Buffer, upload_buffer
+from ..vk.resources import read_buffer
+from ..vk.formats import INDIRECT
+from ..vk.resources import STORAGE, TRANSFER_DST, TRANSFER_SRC
+from .base import ComputePass, read, update, write
+
+#: Words of one indirect draw record (VkDrawIndexedIndirectCommand).
+RECORD_WORDS = 5
+#: Levels of detail the Group record of cull.comp holds errors for (beyond the full mesh).
+MAX_COARSE_LEVELS = 4
+#: A good largest projected error of a level of detail, in pixels (silhouettes move by less than a pixel); the
+#: Renderer's default is 0 (full meshes: AOVs exact), tools/bench_instanced_frame.py's this.
+LOD_PIXELS = 1.0
+
+
+def check_lod_pixels(value) -> float:
+    """`value` as the largest projected error of a level (pixels), or a ConfigError."""
+    if isinstance(value, bool) or not isinstance(value, (int, float)) or not math.isfinite(value) or value < 0:
+        raise ConfigError(f"Renderer: lod_pixels must be a finite number >= 0 (pixels), got {value!r}")
+    return float(value)
+
+
+class DrawTables:
+    """The culled raster's GPU tables of one scene: per run its group (box, level errors, records), the indirect
+    draw records (and their template with zero instance counts), and the draw slot lists (list 0: every slot in
+    order; then one region per level, each run's part at the run's first slot)."""
+
+    def __init__(self, ctx, records: list, groups: list, instance_count: int, levels: int):
+        """`records`: (index count, 0, first index, 0, first instance, level) per draw record; `groups`: (box,
+        level errors, first record, records per level, first draw slot, levels) per run."""
+        self.ctx, self.instance_count, self.levels = ctx, instance_count, levels
+        record_levels = [r[5] for r in records]
+        records = [r[:5] for r in records]
+        rec = np.array(records, np.uint32).reshape(-1, RECORD_WORDS) if records else \
+            np.zeros((1, RECORD_WORDS), np.uint32)
+        self.template = upload_buffer(ctx, rec, TRANSFER_SRC, "draw records template")
+        self.commands = Buffer(ctx, rec.nbytes, INDIRECT | STORAGE | TRANSFER_DST | TRANSFER_SRC, name="draw records")
+        self.record_level = np.array(record_levels, np.int64)
+        # the first record of each run and level (the others of that run and level hold the same count)
+        self.counted = np.array([first + lv * per for _, _, first, per, _, n_levels in groups if per
+                                 for lv in range(n_levels)], np.int64)
+        g = np.zeros((max(len(groups), 1), 16), np.float32)
+        bits = g.view(np.uint32)
+        for i, (box, errors, first, per_level, slot, n_levels) in enumerate(groups):
+            g[i, 0:3], g[i, 4:7] = box[0], box[1]
+            err = list(errors[1:1 + MAX_COARSE_LEVELS])
+            g[i, 8:8 + len(err)] = err
+            bits[i, 12:16] = first, per_level, slot, min(n_levels, 1 + MAX_COARSE_LEVELS)
+        self.groups = upload_buffer(ctx, g, STORAGE, "cull groups")
+        n = max(instance_count, 1)
+        visible = np.zeros((1 + levels) * n, np.uint32)
+        visible[:instance_count] = np.arange(instance_count, dtype=np.uint32)
+        self.visible = upload_buffer(ctx, visible, STORAGE, "draw slots")
+
+    def drawn(self) -> np.ndarray:
+        """(levels,) instances the last culled frame drew at each level (read back from the device: tests)."""
+        counts = read_buffer(self.ctx, self.commands, np.uint32).reshape(-1, RECORD_WORDS)[:, 1]
+        at = self.counted
+        return np.bincount(self.record_level[at], counts[at], minlength=self.levels).astype(np.int64)
+
+    def destroy(self):
+        for buf in (self.template, self.commands, self.groups, self.visible):
+            buf.destroy()
+
+
+class CullPass(ComputePass):
+    """cull.comp: the per-instance frustum test and level choice (the scene's tables bound by `bind_scene`)."""
+
+    name = "cull"
+    shader = "cull.comp"
+    bindings = {"frame": read("uniform", "frame"), "instances": read("buffer"), "groups": read("buffer"),
+                "commands": update("buffer"), "visible": write("buffer")}
+
+    def bind_scene(self, instances: Buffer, tables: DrawTables):
+        self.set.bind("instances", instances)
+        self.set.bind("groups", tables.groups)
+        self.set.bind("commands", tables.commands)
+        self.set.bind("visible", tables.visible)
+
+    def record(self, rec, instances: Buffer, tables: DrawTables, lod_pixels: float):
+        """Zero the records' instance counts (a copy of the template), then cull and choose levels."""
+        rec.copy(tables.template, tables.commands)
+        n = tables.instance_count
+        push = np.zeros(2, np.uint32)
+        push[0] = n
+        push[1:2] = np.array([lod_pixels], np.float32).view(np.uint32)
+        self.dispatch(rec, ((n + 63) // 64, 1, 1), push=push,
+                      reads=self.reads + [instances, tables.groups, tables.commands],
+                      writes=[tables.commands, tables.visible])

@@ -50,6 +50,8 @@ def main() -> int:
     ap.add_argument("--frames", type=int, default=30)
     ap.add_argument("--json", default=None)
     ap.add_argument("--no-cull", action="store_true", help="no GPU culling / levels of detail (Renderer culling)")
+    ap.add_argument("--ao-radius", type=float, default=None,
+                    help="AO ray length (default: the renderer's, 10%% of the scene's diagonal)")
     ap.add_argument("--lod-pixels", type=float, default=1.0, help="largest projected level error (0: full meshes)")
     a = ap.parse_args()
     w, h = map(int, a.size.split("x"))
@@ -69,7 +71,8 @@ def main() -> int:
             t0 = time.perf_counter()
             scene.set_transforms(transforms(a.instances, 0.05 * k, side, phase), np.arange(a.instances))
             t1 = time.perf_counter()
-            frame = r.render(scene, cam, shadows="hard", ao=True, ao_samples=1, aovs=["depth"])
+            frame = r.render(scene, cam, shadows="hard", ao=True, ao_samples=1, ao_radius=a.ao_radius,
+                             aovs=["depth"])
             t2 = time.perf_counter()
             if k == 0:
                 first_ms = (t2 - t_load) * 1e3
@@ -82,7 +85,7 @@ def main() -> int:
     passes = {p: statistics.median(x["passes"].get(p, 0.0) for x in rows) for p in rows[0]["passes"]}
     render_gpu = sum(v for p, v in passes.items() if p != "readback")
     out = {"instances": a.instances, "triangles_per_mesh": len(f), "instanced_triangles": tri_total,
-           "culling": not a.no_cull, "lod_pixels": a.lod_pixels, "first_frame_ms": first_ms,
+           "culling": not a.no_cull, "lod_pixels": a.lod_pixels, "ao_radius": a.ao_radius, "first_frame_ms": first_ms,
            "size": [w, h], "frames": a.frames, "move_ms": med("move_ms"), "render_wall_ms": med("render_wall_ms"),
            "gpu_ms": med("gpu_ms"), "render_passes_gpu_ms": render_gpu, "passes_ms": passes}
     if drawn is not None:   # level 0 counts the ground too (one instance of 2 triangles, always in view)

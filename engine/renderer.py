@@ -27,7 +27,7 @@ from .passes.accumulate import ALPHA_MIN, AccumulatePass
 from .passes.ao import AOPass
 from .passes.debug_view import DebugViewPass
 from .passes.denoise import DenoisePass
-from .passes.cull import check_lod_pixels
+from .passes.cull import check_lod_pixels, raster_option
 from .passes.gbuffer import GBufferPass, SceneChanges, SceneGeometry
 from .passes.interface import (FILTER_AO, FILTER_MASKS, FILTER_TEMPORAL, FRAME, FRAME_BYTES, MAX_LIGHTS,
                                camera_fields, pack_frame, pack_light)
@@ -167,10 +167,8 @@ class Renderer(Closes):
         """Hot reload's failures: GLSL path -> compiler or interface error (empty when all shaders are good)."""
         return dict(self.library.errors)
 
-    culling = property(lambda self: self._raster[0], lambda self, v: self._set_raster(bool(v), self.lod_pixels),
-                       doc="GPU culling of the instances before the raster (the constructor's `culling`).")
-    lod_pixels = property(lambda self: self._raster[1], lambda self, v: self._set_raster(self.culling, v),
-                          doc="The largest projected error of a level of detail (the constructor's `lod_pixels`).")
+    culling = raster_option(0, "GPU culling of the instances before the raster (the constructor's `culling`).")
+    lod_pixels = raster_option(1, "The largest projected error of a level of detail (the constructor's `lod_pixels`).")
 
     def _set_raster(self, culling: bool, lod_pixels):
         """The next frame takes (or records) their recording; levels wanted, the scene has none: uploaded again."""

@@ -43,6 +43,18 @@ def check_lod_pixels(value) -> float:
     return float(value)
 
 
+def raster_option(index: int, doc: str) -> property:
+    """A Renderer property over its `_raster` options (culling, lod_pixels): set, it goes through `_set_raster`."""
+    def get(self) -> bool | float:
+        return self._raster[index]
+
+    def put(self, value: bool | float) -> None:
+        options = list(self._raster)
+        options[index] = value
+        self._set_raster(bool(options[0]), options[1])
+    return property(get, put, doc=doc)
+
+
 class DrawTables:
     """The culled raster's GPU tables of one scene: per run its group (box, level errors, records), the indirect
     draw records (and their template with zero instance counts), and the draw slot lists (list 0: every slot in

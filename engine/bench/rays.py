@@ -48,6 +48,17 @@ def _f32(a):
     return np.ascontiguousarray(a, dtype=np.float32)
 
 
+def towards_first_light(scene, points):
+    """Directions from (N, 3) `points` to the scene's first light, their tmax and a description: parallel towards a
+    sun (tmax inf), else to the light's centre (tmax just short of it)."""
+    light = scene.lights[0]
+    if isinstance(light, DirectionalLight):
+        return (np.broadcast_to(-np.asarray(light.direction, np.float64), points.shape), float("inf"),
+                f"towards the sun {type(light).__name__}")
+    return (np.asarray(light.position, np.float64) - points, 0.999,
+            f"to the centre of a {type(light).__name__}")
+
+
 def first_light_rays(scene, frame):
     """Per covered pixel of `frame`: origin (p + n * ORIGIN_OFFSET * diagonal), unit normal, direction to the
     scene's first light, and the common tmax, a description, and which pixels have the light above their horizon
@@ -57,13 +68,7 @@ def first_light_rays(scene, frame):
     n = frame.aov["normal"][cover].astype(np.float64)
     n /= np.maximum(np.linalg.norm(n, axis=1, keepdims=True), 1e-30)
     o = p + n * (ORIGIN_OFFSET * scene_diag(scene))
-    light = scene.lights[0]
-    if isinstance(light, DirectionalLight):
-        d = np.broadcast_to(-np.asarray(light.direction, np.float64), o.shape)
-        tmax, what = float("inf"), f"towards the sun {type(light).__name__}"
-    else:
-        d = np.asarray(light.position, np.float64) - o
-        tmax, what = 0.999, f"to the centre of a {type(light).__name__}"
+    d, tmax, what = towards_first_light(scene, o)
     up = np.einsum("ij,ij->i", d, n) > 0
     return o, n, d, tmax, what, up
 
@@ -97,13 +102,7 @@ def surface_shadow_rays(scene, count, rng):
     r1, r2 = np.sqrt(rng.random(count)), rng.random(count)
     p = a[tri] * (1 - r1)[:, None] + b[tri] * (r1 * (1 - r2))[:, None] + c[tri] * (r1 * r2)[:, None]
     nrm = normal[tri] / np.maximum(area[tri], 1e-30)[:, None]
-    light = scene.lights[0]
-    if isinstance(light, DirectionalLight):
-        d = np.broadcast_to(-np.asarray(light.direction, np.float64), p.shape)
-        tmax, what = float("inf"), f"towards the sun {type(light).__name__}"
-    else:
-        d = np.asarray(light.position, np.float64) - p
-        tmax, what = 0.999, f"to the centre of a {type(light).__name__}"
+    d, tmax, what = towards_first_light(scene, p)
     side = np.where(np.einsum("ij,ij->i", nrm, d) >= 0, 1.0, -1.0)[:, None]   # the face's side facing the light
     o = p + nrm * side * (ORIGIN_OFFSET * scene_diag(scene))
     return _f32(o), _f32(d), tmax, what

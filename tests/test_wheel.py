@@ -176,7 +176,8 @@ def test_bench_quick(installed):
              "hybrid bench --quick")
     data = json.loads((installed.work / "b.json").read_text())
     assert data["meta"]["validation_errors"] == []
-    assert [b["requested"] for b in data["build"]] == [100_000, 1_000_000]
+    assert [(b["requested"], b["kind"]) for b in data["build"]] == [
+        (n, kind) for n in (100_000, 1_000_000) for kind in ("generated", "spheres", "scan")]
     assert all(b["ms"] > 0 and b["nodes"] > 0 for b in data["build"])
     scenes = data["trace"]["scenes"]
     assert [s["scene"] for s in scenes] == ["generated", "default"]

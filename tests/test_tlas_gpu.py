@@ -52,25 +52,33 @@ def check_tree(tracer, scene):
     lo = np.stack([top["lmin"], top["rmin"]], 1).astype(np.float64)
     hi = np.stack([top["lmax"], top["rmax"]], 1).astype(np.float64)
     leaf = (words & LEAF_BIT) != 0
-    bottom = (1 << two.levels >> 1) - 1
-    assert leaf[bottom:].all() and not leaf[:bottom].any()
     inst = (words[leaf & (counts == 1)] & ~LEAF_BIT).astype(np.int64)
     assert np.array_equal(np.sort(inst), np.arange(n))          # each instance in exactly one slot
-    assert (counts == 1).sum() == n and np.all(counts[~leaf] == 0)
+    assert (counts == 1).sum() == n and np.all(counts[~leaf] == 0) and np.all(counts <= 1)
     world = scene.instance_boxes()
     full = leaf & (counts == 1)
     wb = world[(words[full] & ~LEAF_BIT).astype(np.int64)]
     assert np.all(lo[full] <= wb[:, 0]) and np.all(hi[full] >= wb[:, 1])
     empty = leaf & (counts == 0)
     assert np.all(lo[empty] == np.inf) and np.all(hi[empty] == -np.inf)
-    child = (words[~leaf] - two.tlas_root).astype(np.int64)     # an inner slot's box holds its node's two boxes
-    assert np.array_equal(child, np.flatnonzero((~leaf).ravel()) + 1)
+    # a tree: every node but the root is the child of exactly one slot; a slot's box holds its node's two boxes
+    child = (words[~leaf] - two.tlas_root).astype(np.int64)
+    assert np.array_equal(np.sort(child), np.arange(1, len(top)))
     assert np.all(lo[~leaf] <= lo[child].min(axis=1)) and np.all(hi[~leaf] >= hi[child].max(axis=1))
-    # the slots in Morton order of the instances' centres (but where float32 and float64 quantize differently)
+    # the leaves, left to right, in Morton order of the instances' centres (but where float32 and float64
+    # quantize differently)
+    order, stack = [], [(0, 1), (0, 0)]
+    while stack:
+        k, c = stack.pop()
+        if not leaf[k, c]:
+            node = int(words[k, c]) - two.tlas_root
+            stack += [(node, 1), (node, 0)]   # the left slot comes out first
+        elif counts[k, c]:
+            order.append(int(words[k, c] & ~LEAF_BIT))
     c = world.mean(axis=1)
-    q = np.clip((c - c.min(0)) * (1023.0 / np.maximum(np.ptp(c, axis=0), 1e-30)), 0, 1023).astype(np.uint32)
+    q = np.clip((c - c.min(0)) * (1023.0 / max(np.ptp(c, axis=0).max(), 1e-30)), 0, 1023).astype(np.uint32)
     code = (_spread(q[:, 0]) | (_spread(q[:, 1]) << 1) | (_spread(q[:, 2]) << 2)).astype(np.int64)
-    in_order = code[(words[bottom:].ravel()[:n] & ~LEAF_BIT).astype(np.int64)]
+    in_order = code[np.array(order, np.int64)]
     assert (np.diff(in_order) < 0).sum() <= n // 100
     inv = np.linalg.inv(scene.transforms)[:, :3, :]
     np.testing.assert_allclose(rec["w2o"], inv, rtol=1e-4, atol=1e-4 * np.abs(inv).max())
@@ -182,3 +190,52 @@ def test_renderer_traces_moving_instances_through_the_gpu_build(monkeypatch, mak
         assert (got != ref).mean() < 0.005, f"{(got != ref).sum()} pixels differ"
     assert r.uploads == uploads                                     # moved and deformed in place
     assert r.validation_errors == []
+
+
+def node_extents(top, two):
+    """Per top-level node: (instances below it, the xz area of its box)."""
+    words = np.stack([top["left"], top["right"]], 1)
+    counts = np.stack([top["lcount"], top["rcount"]], 1).astype(np.int64)
+    lo = np.minimum(top["lmin"], top["rmin"]).astype(np.float64)
+    hi = np.maximum(top["lmax"], top["rmax"]).astype(np.float64)
+    below = np.zeros(len(top), np.int64)
+    done = np.zeros(len(top), bool)
+    while not done.all():   # bottom-up until every node's count is known
+        for k in np.flatnonzero(~done):
+            total, ready = 0, True
+            for c in range(2):
+                if words[k, c] & LEAF_BIT:
+                    total += counts[k, c]
+                else:
+                    j = int(words[k, c]) - two.tlas_root
+                    ready &= bool(done[j])
+                    total += below[j]
+            if ready:
+                below[k], done[k] = total, True
+    e = hi - lo
+    return below, e[:, 0] * e[:, 2]
+
+
+@pytest.mark.parametrize("builder", ["host", "gpu"])
+def test_top_level_nodes_stay_compact_on_a_floor_of_instances(monkeypatch, builder):
+    # 40 x 40 instances on a floor, each bobbing a little: the Morton order's cells must keep every node's box
+    # near the area of the instances under it (an equal-count split of the order makes boxes that span the scene)
+    monkeypatch.setenv("HYBRID_TLAS_BUILD", builder)
+    rng = np.random.default_rng(3)
+    side = 40
+    box = trimesh.creation.box(extents=(1.0, 1.0, 1.0))
+    m = np.tile(np.eye(4), (side * side, 1, 1))
+    m[:, 0, 3], m[:, 2, 3] = np.repeat(np.arange(side), side) * 3.0, np.tile(np.arange(side), side) * 3.0
+    m[:, 1, 3] = rng.uniform(0.0, 0.3, side * side)
+    scene = Scene.from_meshes([Mesh(box.vertices, box.faces)], [Instance(0, x) for x in m])
+    scene.set_transforms(m)   # moved: the two-level BVH
+    with Tracer.from_scene(scene, validation=True) as tracer:
+        o = np.c_[rng.uniform(0, 3 * side, 2000), np.full(2000, 5.0), rng.uniform(0, 3 * side, 2000)]
+        check_hits(tracer.intersect(o, np.tile([0.0, -1.0, 0.0], (2000, 1))), scene, o,
+                   np.tile([0.0, -1.0, 0.0], (2000, 1)))
+        two, top, _ = top_level(tracer)
+        below, area = node_extents(top, two)
+        assert below[0] == side * side
+        # a node's instances fill at least a quarter of its box (a 3 x 3 cell each, up to the cells' rounding)
+        assert np.max(area / (below * 9.0 * 4.0)) <= 1.0, np.max(area / (below * 9.0))
+        assert tracer.validation_errors == []

@@ -28,12 +28,13 @@ from engine.scene.lod import lod_chain  # noqa: E402
 from bench_instances import uv_sphere  # noqa: E402
 
 
-def transforms(n: int, t: float, side: int, rng_phase: np.ndarray) -> np.ndarray:
-    """(n, 4, 4): instances on a side x side grid, each turning about y and bobbing, phase-shifted."""
+def transforms(n: int, t: float, side: int, rng_phase: np.ndarray, turn: bool = True) -> np.ndarray:
+    """(n, 4, 4): instances on a side x side grid, each turning about y (unless not `turn`) and bobbing,
+    phase-shifted."""
     i = np.arange(n)
     x, z = (i % side) * 3.0, (i // side) * 3.0
     a = t + rng_phase
-    c, s = np.cos(a), np.sin(a)
+    c, s = (np.cos(a), np.sin(a)) if turn else (np.ones(n), np.zeros(n))
     m = np.zeros((n, 4, 4))
     m[:, 0, 0], m[:, 0, 2], m[:, 2, 0], m[:, 2, 2] = c, s, -s, c
     m[:, 1, 1] = 1.0
@@ -52,6 +53,9 @@ def main() -> int:
     ap.add_argument("--no-cull", action="store_true", help="no GPU culling / levels of detail (Renderer culling)")
     ap.add_argument("--ao-radius", type=float, default=None,
                     help="AO ray length (default: the renderer's, 10%% of the scene's diagonal)")
+    ap.add_argument("--no-turn", action="store_true", help="instances only bob (A/B: world boxes of unrotated meshes)")
+    ap.add_argument("--flatten", action="store_true",
+                    help="A/B: the first frame's scene flattened into one mesh (one BVH, nothing moves)")
     ap.add_argument("--lod-pixels", type=float, default=1.0, help="largest projected level error (0: full meshes)")
     a = ap.parse_args()
     w, h = map(int, a.size.split("x"))
@@ -60,8 +64,10 @@ def main() -> int:
     ground = Mesh(np.array([[-5, 0, -5], [3 * side + 5, 0, -5], [3 * side + 5, 0, 3 * side + 5], [-5, 0, 3 * side + 5]],
                            float), np.array([[0, 2, 1], [0, 3, 2]]))
     phase = np.random.default_rng(1).uniform(0, 2 * np.pi, a.instances)
-    inst = [Instance(1, m) for m in transforms(a.instances, 0.0, side, phase)] + [Instance(0)]
+    inst = [Instance(1, m) for m in transforms(a.instances, 0.0, side, phase, not a.no_turn)] + [Instance(0)]
     scene = Scene.from_meshes([ground, Mesh(v, f)], inst)
+    if a.flatten:
+        scene = Scene.from_meshes([Mesh(scene.positions, scene.indices)], [Instance(0)])
     tri_total = a.instances * len(f)
     cam = Camera(eye=(-10.0, 25.0, -10.0), target=(1.5 * side, 0.0, 1.5 * side), fov_y=55.0)
     rows = []
@@ -69,7 +75,9 @@ def main() -> int:
     with Renderer(w, h, culling=not a.no_cull, lod_pixels=a.lod_pixels) as r:
         for k in range(a.frames + 3):
             t0 = time.perf_counter()
-            scene.set_transforms(transforms(a.instances, 0.05 * k, side, phase), np.arange(a.instances))
+            if not a.flatten:
+                scene.set_transforms(transforms(a.instances, 0.05 * k, side, phase, not a.no_turn),
+                                     np.arange(a.instances))
             t1 = time.perf_counter()
             frame = r.render(scene, cam, shadows="hard", ao=True, ao_samples=1, ao_radius=a.ao_radius,
                              aovs=["depth"])
@@ -85,11 +93,11 @@ def main() -> int:
     passes = {p: statistics.median(x["passes"].get(p, 0.0) for x in rows) for p in rows[0]["passes"]}
     render_gpu = sum(v for p, v in passes.items() if p != "readback")
     out = {"instances": a.instances, "triangles_per_mesh": len(f), "instanced_triangles": tri_total,
-           "culling": not a.no_cull, "lod_pixels": a.lod_pixels, "ao_radius": a.ao_radius, "first_frame_ms": first_ms,
+           "culling": not a.no_cull, "turn": not a.no_turn, "flatten": a.flatten, "lod_pixels": a.lod_pixels, "ao_radius": a.ao_radius, "first_frame_ms": first_ms,
            "size": [w, h], "frames": a.frames, "move_ms": med("move_ms"), "render_wall_ms": med("render_wall_ms"),
            "gpu_ms": med("gpu_ms"), "render_passes_gpu_ms": render_gpu, "passes_ms": passes}
     if drawn is not None:   # level 0 counts the ground too (one instance of 2 triangles, always in view)
-        levels = [len(level.indices) for level in lod_chain(scene.meshes[1])]
+        levels = [len(level.indices) for level in lod_chain(scene.meshes[-1])]
         out["drawn_per_level"] = drawn
         out["triangles_drawn"] = int(sum(d * t for d, t in zip(drawn, levels)) - levels[0] + 2)
     print(f"{a.instances} instances x {len(f)} triangles = {tri_total:,} instanced triangles, {w}x{h}, all moving; "

@@ -1,14 +1,18 @@
 """A two-level BVH for scenes of instances, in the buffers bvh.glsl reads (its BVH_INSTANCED form).
 
 Nodes buffer: every mesh's bottom-level nodes (the builder's, child words rebased onto the concatenation), then the
-top level's 2^k - 1 nodes from `tlas_root` (binary nodes whose leaf slots hold one instance each: the slot's word
-is LEAF_BIT | instance index, count 1), then from `inst_base` one 64-byte INST_DTYPE record per instance.
+top level's max(N - 1, 1) nodes from `tlas_root` (binary nodes whose leaf slots hold one instance each: the slot's word
+is LEAF_BIT | instance index, count 1; root at `tlas_root`), then from `inst_base` one 64-byte INST_DTYPE record per instance.
 Triangles buffer: the meshes' triangle records concatenated (their `prim` is the mesh's own triangle index).
 
 The top level is rebuilt on the host whenever an instance moves (`top`): instances sorted along a Morton curve of
-their world-box centres fill the leaf slots of a perfect binary tree (depth ceil(log2 N), slots past N empty; its
-shape depends on N alone), whose nodes are stored level by level, so that each level's boxes are one vectorized
-pairwise union of the level below. Instance records stay in instance order: only moved instances' are rewritten.
+their world-box centres (one scale for the three axes), then the radix tree over the sorted codes (Karras, "Maximizing
+Parallelism in the Construction of BVHs, Octrees, and k-d Trees", HPG 2012): N - 1 nodes, node i split where the
+codes' common prefix ends, so that every node's instances are one cell of the Morton grid (an equal-count split of
+the sorted order instead straddles the curve's jumps: a few nodes per level then span the whole scene, and every
+ray enters them). Each node is computed independently (`radix_tree`, as tlas_build.comp does one per invocation);
+its child boxes are range unions of the sorted leaves' boxes (a sparse table). Instance records stay in instance
+order: only moved instances' are rewritten.
 Deforming meshes are refitted (`refit`): triangle records rewritten, boxes recomputed bottom-up over the existing
 topology, level by level; `refit` returns the refitted tree's SAH cost over the build's, the figure the rebuild
 policy reads.
@@ -39,31 +43,18 @@ class TwoLevel:
         self.node_base = np.concatenate([[0], np.cumsum(counts)[:-1]])
         self.tri_base = np.concatenate([[0], np.cumsum(tcounts)[:-1]])
         self.n_instances = n = int(n_instances)
-        # the top level: a perfect binary tree over P = 2^k >= max(n, 2) leaf slots (slots past n empty), its
-        # P - 1 nodes in level order (node i's children are 2i + 1, 2i + 2; level j is [2^j - 1, 2^(j+1) - 1))
-        self.levels = max(1, int(np.ceil(np.log2(max(n, 2)))))
-        p = 1 << self.levels
+        # the top level: the radix tree's n - 1 nodes (one node with an empty right slot for a single instance)
         self.tlas_root = int(counts.sum())
-        self.inst_base = self.tlas_root + p - 1
+        self.inst_base = self.tlas_root + max(n - 1, 1)
         self.nodes = np.zeros(self.inst_base + n, dtype=NODE_DTYPE)
         self.tris = np.concatenate([b.tris for b in self.blas])
         for k, b in enumerate(self.blas):
             self.nodes[self.node_base[k]:self.node_base[k] + len(b.nodes)] = _rebased(b.nodes, self.node_base[k],
                                                                                         self.tri_base[k])
-        words = self.nodes[self.tlas_root:self.inst_base].view(np.uint32).reshape(-1, 16)
-        inner = np.arange((p >> 1) - 1)
-        words[inner, 3] = self.tlas_root + 2 * inner + 1
-        words[inner, 7] = self.tlas_root + 2 * inner + 2
-        slots = np.arange(p).reshape(-1, 2)   # the bottom level's leaf slots (count 0 past n: empty)
-        words[(p >> 1) - 1:, 11] = slots[:, 0] < n
-        words[(p >> 1) - 1:, 15] = slots[:, 1] < n
-        self._padded = np.empty((p, 6), np.float32)
-        self._padded[n:, :3], self._padded[n:, 3:] = np.inf, -np.inf
-        self._order = np.zeros(p, np.uint32)
         self.depth = max(int(b.stats.get("depth", 1)) for b in self.blas)
         self.sah_built = [_sah(b.nodes) for b in self.blas]
         self.stats = {"depth": self.depth, "nodes": int(len(self.nodes)), "triangles": int(len(self.tris)),
-                      "meshes": len(self.blas), "instances": n, "top_levels": self.levels,
+                      "meshes": len(self.blas), "instances": n,
                       "bytes": int(self.nodes.nbytes + self.tris.nbytes),
                       "build_ms": float(sum(b.stats.get("build_ms", 0.0) for b in self.blas))}
         self._levels: dict = {}
@@ -94,30 +85,35 @@ class TwoLevel:
             wc[:, i] = a0 * oc[:, 0] + a1 * oc[:, 1] + a2 * oc[:, 2] + e[:, 4 * i + 3]
             wh[:, i] = np.abs(a0) * oh[:, 0] + np.abs(a1) * oh[:, 1] + np.abs(a2) * oh[:, 2]
         lo, hi = wc.min(axis=0), wc.max(axis=0)
-        q = ((wc - lo) * (1023.0 / np.maximum(hi - lo, 1e-300))).astype(np.uint32)
+        # one scale for all axes (the largest extent), so that a thin axis does not split every third level
+        q = ((wc - lo) * (1023.0 / max(float((hi - lo).max()), 1e-300))).astype(np.uint32)
         code = _spread(q[:, 0]) | (_spread(q[:, 1]) << np.uint32(1)) | (_spread(q[:, 2]) << np.uint32(2))
         order = np.argsort(code, kind="stable")
         # conservative float32 boxes: padded by 1e-6 relative (more than float32 rounding, and the GPU's float32
         # ray transform), so the cast cannot shrink them
         wc, wh = wc[order], wh[order]
         wh += 1e-6 * (np.abs(wc) + wh)
-        leaf = self._padded
-        leaf[:n, :3] = wc - wh
-        leaf[:n, 3:] = wc + wh
+        leaf = np.empty((n, 6), np.float32)
+        leaf[:, :3] = wc - wh
+        leaf[:, 3:] = wc + wh
         top = self.nodes[self.tlas_root:self.inst_base]
-        rows = top.view(np.float32).reshape(-1, 16)
-        words = top.view(np.uint32).reshape(-1, 16)
-        self._order[:n] = order
-        bottom = (len(leaf) >> 1) - 1
-        words[bottom:, 3] = self._order[0::2] | _LEAF
-        words[bottom:, 7] = self._order[1::2] | _LEAF
-        cur = leaf
-        for j in range(self.levels - 1, -1, -1):   # level j's nodes hold the boxes of level j + 1's pairs
-            pair = cur.reshape(-1, 12)   # (left min, left max, right min, right max): the node's four box rows
-            rows[(1 << j) - 1:(2 << j) - 1].reshape(-1, 4, 4)[:, :, :3] = pair.reshape(-1, 4, 3)
-            cur = np.empty((len(pair), 6), np.float32)
-            np.minimum(pair[:, 0:3], pair[:, 6:9], out=cur[:, 0:3])
-            np.maximum(pair[:, 3:6], pair[:, 9:12], out=cur[:, 3:6])
+        if n == 1:   # one node: the instance on the left, an empty right slot
+            top["lmin"], top["lmax"] = leaf[:, :3], leaf[:, 3:]
+            top["rmin"], top["rmax"] = np.inf, -np.inf
+            top["left"], top["right"] = _LEAF | int(order[0]), _LEAF
+            top["lcount"], top["rcount"] = 1, 0
+        else:
+            first, last, split = radix_tree(code[order])
+            union = RangeUnion(leaf)
+            lbox, rbox = union(first, split), union(split + 1, last)
+            top["lmin"], top["lmax"] = lbox[:, :3], lbox[:, 3:]
+            top["rmin"], top["rmax"] = rbox[:, :3], rbox[:, 3:]
+            order32 = order.astype(np.uint32)
+            lleaf, rleaf = first == split, last == split + 1
+            top["left"] = np.where(lleaf, order32[split] | np.uint32(_LEAF), self.tlas_root + split)
+            top["right"] = np.where(rleaf, order32[np.minimum(split + 1, n - 1)] | np.uint32(_LEAF),
+                                    self.tlas_root + split + 1)
+            top["lcount"], top["rcount"] = lleaf, rleaf
 
         idx = np.arange(n) if moved is None else np.asarray(moved, dtype=np.int64)
         if idx.size:
@@ -209,6 +205,83 @@ class TwoLevel:
                  "slot_col": np.concatenate(slot_col)[order], "levels": levels, "empty": empty}
         self._levels[k] = shape
         return shape
+
+
+def radix_tree(codes: np.ndarray) -> tuple:
+    """The radix tree over N >= 2 sorted (N,) uint32 Morton `codes` (Karras 2012; equal codes are told apart by
+    their index): for internal node i in [0, N - 1) its sorted leaf range [first, last] and its split (the left
+    child covers [first, split], the right [split + 1, last]; a child covering one leaf is that leaf, else it is
+    internal node split / split + 1). Node 0 is the root. All nodes at once, each as tlas_build.comp's invocation
+    computes it."""
+    codes = np.asarray(codes, np.uint32)
+    n = len(codes)
+    i = np.arange(n - 1, dtype=np.int64)
+
+    def delta(j):   # common prefix length of (code, index) of i and j; -1 where j is outside [0, n)
+        inside = (j >= 0) & (j < n)
+        jj = np.clip(j, 0, n - 1)
+        x = codes[i] ^ codes[jj]
+        tie = (i ^ jj).astype(np.uint32)
+        return np.where(inside, np.where(x != 0, _clz32(x), 32 + _clz32(tie)), -1)
+
+    d = np.where(delta(i + 1) > delta(i - 1), 1, -1)
+    dmin = delta(i - d)
+    lmax = np.full(n - 1, 2, np.int64)
+    grow = delta(i + lmax * d) > dmin
+    while grow.any():   # an upper bound of the range's length, doubling
+        lmax[grow] *= 2
+        grow &= delta(i + lmax * d) > dmin
+    span = np.zeros(n - 1, np.int64)
+    t = lmax // 2
+    while (t >= 1).any():   # its exact length by binary search
+        step = (t >= 1) & (delta(i + (span + t) * d) > dmin)
+        span += np.where(step, t, 0)
+        t //= 2
+    j = i + span * d
+    dnode = delta(j)
+    s = np.zeros(n - 1, np.int64)
+    t = span.copy()
+    active = np.ones(n - 1, bool)
+    while active.any():   # the split: the last leaf sharing more than the node's prefix with i
+        t = np.where(active, (t + 1) >> 1, t)
+        step = active & (delta(i + (s + t) * d) > dnode)
+        s += np.where(step, t, 0)
+        active &= t > 1
+    split = i + s * d + np.minimum(d, 0)
+    return np.minimum(i, j), np.maximum(i, j), split
+
+
+class RangeUnion:
+    """Union boxes of ranges [a, b] of (N, 6) float32 boxes (min xyz, max xyz), by a sparse table: log2 N
+    vectorized levels, then any range's box from two overlapping power-of-two spans."""
+
+    def __init__(self, boxes: np.ndarray):
+        self.table = [boxes]
+        k = 1
+        while 2 * k <= len(boxes):
+            prev = self.table[-1]
+            cur = np.empty((len(prev) - k, 6), np.float32)
+            np.minimum(prev[:-k, :3], prev[k:, :3], out=cur[:, :3])
+            np.maximum(prev[:-k, 3:], prev[k:, 3:], out=cur[:, 3:])
+            self.table.append(cur)
+            k *= 2
+
+    def __call__(self, a: np.ndarray, b: np.ndarray) -> np.ndarray:
+        length = b - a + 1
+        level = (np.frexp(length.astype(np.float64))[1] - 1).astype(np.int64)   # floor(log2(length))
+        out = np.empty((len(a), 6), np.float32)
+        for k in np.unique(level):
+            at = level == k
+            tab, w = self.table[k], 1 << int(k)
+            lo, hi = tab[a[at]], tab[b[at] - w + 1]
+            out[at, :3] = np.minimum(lo[:, :3], hi[:, :3])
+            out[at, 3:] = np.maximum(lo[:, 3:], hi[:, 3:])
+        return out
+
+
+def _clz32(x: np.ndarray) -> np.ndarray:
+    """Leading zero bits of (nonzero) uint32 values (float64 holds them exactly)."""
+    return 32 - np.frexp(x.astype(np.float64))[1]
 
 
 def inverse3(a: np.ndarray, out: np.ndarray | None = None) -> np.ndarray:

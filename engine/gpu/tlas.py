@@ -4,7 +4,8 @@ on the host (engine/bvh/instanced.py), written straight into the nodes buffer th
 Per update the host writes the instances' 3x4 object-to-world transforms into a mapped staging buffer and
 re-submits one command buffer, recorded once per scene structure: a copy of the transforms to the device, then
 dispatches of one shader: world boxes, instance records and centre bounds; Morton keys; a bitonic sort of the keys
-(blocks of 1024 in shared memory, longer strides a dispatch each); the leaf level; one dispatch per level above.
+(blocks of 1024 in shared memory, longer strides a dispatch each); a segment tree of the sorted boxes (a dispatch a
+level); the radix tree's nodes, one invocation each, their child boxes range unions from the segment tree.
 
 `tlas_builder(ctx)` says which builds the top level: $HYBRID_TLAS_BUILD ("gpu" / "host") if set, else the GPU on
 GPUs and the host on CPU devices, where the numpy build is the faster (docs/benchmarks.md, #17).
@@ -24,7 +25,7 @@ from ..vk.sync import create_fence, destroy_fence, reset_fences, wait_fences
 
 SHADER = "tlas_build.comp"
 BUILDERS = ("gpu", "host")
-WORLD, MORTON, SORT_BLOCK_FULL, SORT_BLOCK_MERGE, SORT_STEP, LEAVES, LEVEL = range(7)
+WORLD, MORTON, SORT_BLOCK_FULL, SORT_BLOCK_MERGE, SORT_STEP, SEG_LEAVES, SEG_LEVEL, TREE = range(8)
 GROUP = 512          # the shader's local size
 SORT_BLOCK = 1024    # keys a workgroup sorts in shared memory
 #: the GPU timestamps of a build, in order (`TopLevelBuilder.gpu_ms`)
@@ -61,7 +62,7 @@ def _groups(n: int) -> int:
 
 
 class TopLevelBuilder:
-    """Builds a TwoLevel's top level (its `tlas_root` / `inst_base` / `levels`) into `nodes` (the device buffer of
+    """Builds a TwoLevel's top level (its `tlas_root` / `inst_base`) into `nodes` (the device buffer of
     TwoLevel.nodes, with STORAGE_TEXEL usage) for the transforms of the instances. `prepare` (re)allocates and
     records for a structure; `build` runs it."""
 
@@ -86,7 +87,7 @@ class TopLevelBuilder:
         self._release()
         ctx = self.ctx
         n = two.n_instances
-        slots = 1 << two.levels
+        slots = 1 << max(1, int(n - 1).bit_length())   # the sort's power-of-two length
         keys = max(slots, SORT_BLOCK)
         self.n = n
         self.staging = Buffer(ctx, n * 48, TRANSFER_SRC, host=True, name="tlas transforms staging")
@@ -102,12 +103,15 @@ class TopLevelBuilder:
         self.boxes = Buffer(ctx, n * 32, STORAGE, name="tlas world boxes")
         self.bounds = Buffer(ctx, 32, STORAGE | TRANSFER_DST, name="tlas bounds")
         self.keys = Buffer(ctx, keys * 8, STORAGE, name="tlas sort keys")
-        self.buffers = [self.staging, self.xf, self.info, self.mesh_boxes, self.boxes, self.bounds, self.keys]
+        self.seg = Buffer(ctx, 2 * slots * 32, STORAGE, name="tlas segment tree")
+        self.buffers = [self.staging, self.xf, self.info, self.mesh_boxes, self.boxes, self.bounds, self.keys,
+                        self.seg]
         self.view = BufferView(nodes)
         self._xf_host = self.staging.view(np.float32).reshape(n, 3, 4)
         d = self.dset
         d.bind("xf", self.xf).bind("info", self.info).bind("mesh_box", self.mesh_boxes).bind("boxes", self.boxes)
         d.bind("bounds", self.bounds).bind("keys", self.keys).bind("nodes", self.view)
+        d.bind("seg", self.seg)
         self.cmd = self._record(two, nodes, slots, keys)
 
     def set_mesh_boxes(self, mesh_boxes: np.ndarray) -> None:
@@ -147,9 +151,10 @@ class TopLevelBuilder:
             run(SORT_BLOCK_MERGE, blocks, [self.keys], [self.keys], k=k)
             k *= 2
         rec.mark(MARKS[2])
-        run(LEAVES, _groups(slots // 2), [self.keys, self.boxes], [nodes])
-        for level in range(two.levels - 2, -1, -1):
-            run(LEVEL, _groups(1 << level), [nodes], [nodes], level=level)
+        run(SEG_LEAVES, _groups(slots), [self.keys, self.boxes], [self.seg])
+        for level in range(slots.bit_length() - 2, -1, -1):
+            run(SEG_LEVEL, _groups(1 << level), [self.seg], [self.seg], level=level)
+        run(TREE, _groups(max(n - 1, 1)), [self.keys, self.boxes, self.seg], [nodes])
         rec.mark(MARKS[3])
         rec.to_later(nodes)
         return rec.finish()

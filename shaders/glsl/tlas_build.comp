@@ -1,16 +1,17 @@
 #version 450
 // The two-level BVH's top level built on the GPU (engine/gpu/tlas.py), in the layout engine/bvh/instanced.py makes
-// on the host and bvh.glsl's BVH_INSTANCED walk reads: instance records, then a perfect binary tree over the
-// instances sorted along a Morton curve, its nodes level by level. One shader, one step per dispatch (`pc.mode`):
+// on the host and bvh.glsl's BVH_INSTANCED walk reads: instance records, then the radix tree (Karras 2012) over the
+// instances sorted along a Morton curve, its N - 1 nodes from the root. One shader, one step per dispatch (`pc.mode`):
 //   WORLD    per instance: world box of its mesh's box (padded), world-to-object record, centre bounds (atomics)
 //   MORTON   per sort slot: (Morton code of the box centre, instance) keys; slots past the instances sort last
 //   SORT_*   bitonic sort of the keys: blocks of SORT_BLOCK in shared memory, longer strides one step a dispatch
-//   LEAVES   the bottom level: a node per pair of sorted slots, their instances' boxes
-//   LEVEL    level pc.level: a node per pair of level pc.level + 1 nodes, the unions of their child boxes
+//   SEG_*    a segment tree of the sorted instances' boxes: the leaves, then one level a dispatch (range unions)
+//   TREE     per internal node: its range of sorted leaves and split (radix_tree in instanced.py), and the node
+//            with its two children's boxes, unions of their ranges from the segment tree
 layout(local_size_x = 512) in;
 
-const uint WORLD = 0u, MORTON = 1u, SORT_BLOCK_FULL = 2u, SORT_BLOCK_MERGE = 3u, SORT_STEP = 4u, LEAVES = 5u,
-           LEVEL = 6u;
+const uint WORLD = 0u, MORTON = 1u, SORT_BLOCK_FULL = 2u, SORT_BLOCK_MERGE = 3u, SORT_STEP = 4u, SEG_LEAVES = 5u,
+           SEG_LEVEL = 6u, TREE = 7u;
 const uint SORT_BLOCK = 1024u;   // keys a workgroup sorts in shared memory (two per invocation)
 const uint LEAF = 0x80000000u;
 // relative padding of the float32 world boxes: covers the rounding of their float32 arithmetic and of the ray's
@@ -23,7 +24,7 @@ layout(push_constant) uniform Push {
     uint slots;       // leaf slots of the perfect tree (a power of two)
     uint tlas_root;   // node index of the top level's root in the nodes buffer
     uint inst_base;   // node index of instance 0's record
-    uint level;       // LEVEL: the level written (root: 0)
+    uint level;       // SEG_LEVEL: the segment tree's level written (nodes [2^level, 2^(level + 1)))
     uint k;           // SORT_*: the bitonic sequence length
     uint j;           // SORT_STEP: the compare distance
 } pc;
@@ -42,6 +43,8 @@ layout(std430, set = 0, binding = 4) restrict buffer Bounds { uint bounds[]; };
 layout(std430, set = 0, binding = 5) restrict buffer Keys { uvec2 keys[]; };
 // the BVH nodes buffer as 16-byte texels (a node or a record is 4)
 layout(set = 0, binding = 6, rgba32ui) uniform restrict uimageBuffer nodes;
+// the segment tree over the sorted instances' boxes (min, max), node k at 2k, 2k + 1: leaves from pc.slots
+layout(std430, set = 0, binding = 7) restrict buffer Segments { vec4 seg[]; };
 
 shared uint s_bounds[6];
 shared uvec2 s_keys[SORT_BLOCK];
@@ -123,7 +126,11 @@ void morton() {
     vec3 lo = vec3(unordered(~bounds[0]), unordered(~bounds[1]), unordered(~bounds[2]));
     vec3 hi = vec3(unordered(bounds[4]), unordered(bounds[5]), unordered(bounds[6]));
     vec3 c = 0.5 * (boxes[2u * s].xyz + boxes[2u * s + 1u].xyz);
-    uvec3 q = uvec3(clamp((c - lo) * (1023.0 / max(hi - lo, vec3(1e-30))), vec3(0.0), vec3(1023.0)));
+    // one scale for all three axes (the centres' largest extent): a thin axis (instances on a floor, bobbing a
+    // little) then keeps few significant bits instead of splitting every third level on noise
+    vec3 ext = hi - lo;
+    float scale = 1023.0 / max(max(ext.x, ext.y), max(ext.z, 1e-30));
+    uvec3 q = uvec3(clamp((c - lo) * scale, vec3(0.0), vec3(1023.0)));
     keys[s] = uvec2(spread(q.x) | (spread(q.y) << 1) | (spread(q.z) << 2), s);
 }
 
@@ -165,39 +172,92 @@ void sort_step() {
     keys[i + pc.j] = b;
 }
 
-void leaves() {
-    uint s = gl_GlobalInvocationID.x;
-    if (s >= pc.slots / 2u) return;
-    const float INF = uintBitsToFloat(0x7F800000u);
-    vec3 lo[2] = vec3[2](vec3(INF), vec3(INF)), hi[2] = vec3[2](vec3(-INF), vec3(-INF));
-    uint word[2] = uint[2](LEAF, LEAF), n[2] = uint[2](0u, 0u);
-    for (uint c = 0u; c < 2u; ++c) {
-        uint slot = 2u * s + c;
-        if (slot < pc.count) {
-            uint inst = keys[slot].y;
-            lo[c] = boxes[2u * inst].xyz;
-            hi[c] = boxes[2u * inst + 1u].xyz;
-            word[c] = LEAF | inst;
-            n[c] = 1u;
-        }
-    }
-    store_node(pc.slots / 2u - 1u + s, lo[0], hi[0], lo[1], hi[1], word[0], word[1], n[0], n[1]);
+// common prefix length of the sorted keys i and j (code, then index); -1 where j is outside [0, N)
+int delta(int i, int j) {
+    if (j < 0 || j >= int(pc.count)) return -1;
+    uint x = keys[i].x ^ keys[j].x;
+    return x != 0u ? 31 - findMSB(x) : 63 - findMSB(uint(i ^ j));
 }
 
-void level() {
+void seg_leaves() {
     uint i = gl_GlobalInvocationID.x;
-    if (i >= (1u << pc.level)) return;
-    uint node = (1u << pc.level) - 1u + i;
-    vec3 lo[2], hi[2];
-    for (uint c = 0u; c < 2u; ++c) {
-        int t = int(4u * (pc.tlas_root + 2u * node + 1u + c));
-        vec3 lmin = uintBitsToFloat(imageLoad(nodes, t).xyz), lmax = uintBitsToFloat(imageLoad(nodes, t + 1).xyz);
-        vec3 rmin = uintBitsToFloat(imageLoad(nodes, t + 2).xyz), rmax = uintBitsToFloat(imageLoad(nodes, t + 3).xyz);
-        lo[c] = min(lmin, rmin);
-        hi[c] = max(lmax, rmax);
+    if (i >= pc.slots) return;
+    const float INF = uintBitsToFloat(0x7F800000u);
+    vec4 lo = vec4(INF), hi = vec4(-INF);
+    if (i < pc.count) {
+        uint inst = keys[i].y;
+        lo = boxes[2u * inst];
+        hi = boxes[2u * inst + 1u];
     }
-    store_node(node, lo[0], hi[0], lo[1], hi[1], pc.tlas_root + 2u * node + 1u, pc.tlas_root + 2u * node + 2u,
-               0u, 0u);
+    seg[2u * (pc.slots + i)] = lo;
+    seg[2u * (pc.slots + i) + 1u] = hi;
+}
+
+void seg_level() {
+    uint k = (1u << pc.level) + gl_GlobalInvocationID.x;
+    if (k >= (2u << pc.level)) return;
+    seg[2u * k] = min(seg[4u * k], seg[4u * k + 2u]);
+    seg[2u * k + 1u] = max(seg[4u * k + 1u], seg[4u * k + 3u]);
+}
+
+// the union of the sorted instances' boxes [first, last]
+void range_box(int first, int last, out vec3 lo, out vec3 hi) {
+    const float INF = uintBitsToFloat(0x7F800000u);
+    lo = vec3(INF);
+    hi = vec3(-INF);
+    uint l = pc.slots + uint(first), r = pc.slots + uint(last) + 1u;
+    while (l < r) {
+        if ((l & 1u) != 0u) {
+            lo = min(lo, seg[2u * l].xyz);
+            hi = max(hi, seg[2u * l + 1u].xyz);
+            l += 1u;
+        }
+        if ((r & 1u) != 0u) {
+            r -= 1u;
+            lo = min(lo, seg[2u * r].xyz);
+            hi = max(hi, seg[2u * r + 1u].xyz);
+        }
+        l >>= 1u;
+        r >>= 1u;
+    }
+}
+
+void tree() {
+    int i = int(gl_GlobalInvocationID.x);
+    int n = int(pc.count);
+    if (n == 1 && i == 0) {   // one node: the instance on the left, an empty right slot
+        const float INF = uintBitsToFloat(0x7F800000u);
+        uint inst = keys[0].y;
+        store_node(0u, boxes[2u * inst].xyz, boxes[2u * inst + 1u].xyz, vec3(INF), vec3(-INF), LEAF | inst, LEAF,
+                   1u, 0u);
+    }
+    if (i >= n - 1) return;
+    // the direction of the node's range, its length (doubling bound, then binary search), then the split
+    int d = delta(i, i + 1) > delta(i, i - 1) ? 1 : -1;
+    int dmin = delta(i, i - d);
+    int lmax = 2;
+    while (delta(i, i + lmax * d) > dmin) lmax *= 2;
+    int span = 0;
+    for (int t = lmax / 2; t >= 1; t /= 2) {
+        if (delta(i, i + (span + t) * d) > dmin) span += t;
+    }
+    int j = i + span * d;
+    int dnode = delta(i, j);
+    int s = 0;
+    int t = span;
+    do {
+        t = (t + 1) >> 1;
+        if (delta(i, i + (s + t) * d) > dnode) s += t;
+    } while (t > 1);
+    int split = i + s * d + min(d, 0);
+    int first = min(i, j), last = max(i, j);
+    bool lleaf = first == split, rleaf = last == split + 1;
+    uint left = lleaf ? (LEAF | keys[split].y) : pc.tlas_root + uint(split);
+    uint right = rleaf ? (LEAF | keys[split + 1].y) : pc.tlas_root + uint(split + 1);
+    vec3 lmin, lmax_, rmin, rmax;
+    range_box(first, split, lmin, lmax_);
+    range_box(split + 1, last, rmin, rmax);
+    store_node(uint(i), lmin, lmax_, rmin, rmax, left, right, lleaf ? 1u : 0u, rleaf ? 1u : 0u);
 }
 
 void main() {
@@ -207,7 +267,8 @@ void main() {
         case SORT_BLOCK_FULL: sort_block(true); break;
         case SORT_BLOCK_MERGE: sort_block(false); break;
         case SORT_STEP: sort_step(); break;
-        case LEAVES: leaves(); break;
-        default: level(); break;
+        case SEG_LEAVES: seg_leaves(); break;
+        case SEG_LEVEL: seg_level(); break;
+        default: tree(); break;
     }
 }

@@ -441,7 +441,7 @@ layout(constant_id = 20) const bool BVH_INSTANCED = false;
 layout(constant_id = 21) const int BVH_TLAS_ROOT = 0;
 layout(constant_id = 22) const int BVH_INST_BASE = 0;
 #ifndef BVH_TLAS_STACK_SIZE
-#define BVH_TLAS_STACK_SIZE 40
+#define BVH_TLAS_STACK_SIZE 64
 #endif
 
 bool bvh_trace_instanced_(vec3 o, vec3 d, float tmin, float tmax, bool any_hit, inout BvhHit hit) {

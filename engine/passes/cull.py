@@ -31,6 +31,7 @@ from ..vk.resources import read_buffer
 from ..vk.formats import INDIRECT
 from ..vk.resources import STORAGE, TRANSFER_DST, TRANSFER_SRC
 from .base import ComputePass, read, update, write
+from .soft_raster import SW_RASTER_PIXELS, check_sw_raster, check_sw_raster_pixels
 
 #: Words of one indirect draw record (VkDrawIndexedIndirectCommand).
 RECORD_WORDS = 5
@@ -48,6 +49,12 @@ def check_lod_pixels(value) -> float:
     if isinstance(value, bool) or not isinstance(value, (int, float)) or not math.isfinite(value) or value < 0:
         raise ConfigError(f"Renderer: lod_pixels must be a finite number >= 0 (pixels), got {value!r}")
     return float(value)
+
+
+def raster_options(culling, lod_pixels, sw_raster=None, sw_raster_pixels=SW_RASTER_PIXELS) -> tuple:
+    """The Renderer's raster options, checked: (culling, lod_pixels, sw_raster, sw_raster_pixels), or a ConfigError."""
+    return bool(culling), check_lod_pixels(lod_pixels), check_sw_raster(sw_raster), \
+        check_sw_raster_pixels(sw_raster_pixels)
 
 
 def raster_option(index: int, doc: str) -> property:
@@ -96,7 +103,7 @@ class DrawTables:
         visible = np.zeros((1 + levels) * n, np.uint32)
         visible[:instance_count] = np.arange(instance_count, dtype=np.uint32)
         self.visible = upload_buffer(ctx, visible, STORAGE, "draw slots")
-        self.soft_list = Buffer(ctx, n * 16, STORAGE, name="software raster list")
+        self.soft_list = Buffer(ctx, n * 16, STORAGE | TRANSFER_SRC, name="software raster list")
         self.soft_template = upload_buffer(ctx, np.array([0, 1, 1, 0], np.uint32), TRANSFER_SRC,
                                            "software raster dispatch template")
         self.soft_args = Buffer(ctx, 16, INDIRECT | STORAGE | TRANSFER_DST | TRANSFER_SRC,
@@ -108,9 +115,11 @@ class DrawTables:
         at = self.counted
         return np.bincount(self.record_level[at], counts[at], minlength=self.levels).astype(np.int64)
 
-    def soft_drawn(self) -> int:
-        """Instances the last culled frame sent to the software raster (read back from the device)."""
-        return int(read_buffer(self.ctx, self.soft_args, np.uint32)[0])
+    def soft_drawn(self) -> np.ndarray:
+        """(instances, 4) uint32: the last culled frame's software raster list (read back from the device: tests,
+        benchmarks): draw slot, first index and index count of the instance's level, facing mode."""
+        count = int(read_buffer(self.ctx, self.soft_args, np.uint32)[0])
+        return read_buffer(self.ctx, self.soft_list, np.uint32).reshape(-1, 4)[:count]
 
     def destroy(self):
         for buf in (self.template, self.commands, self.groups, self.visible, self.soft_list, self.soft_template,

@@ -64,6 +64,26 @@ def test_soft_raster_draws_the_hardware_rasters_pixels(make_renderer):
     assert len(np.unique(soft.aov["instance_id"])) > 10
 
 
+def test_later_frames_start_from_a_clear_software_buffer(make_renderer):
+    """The recorded frame re-submitted after an instance moved away: its old pixels are gone, the list is rebuilt."""
+    scene = grid_scene(small_mesh())
+    r = soft_renderer(make_renderer, 160, 120)
+    first = r.render(scene, shadows="hard", ao=False, aovs=AOVS)
+    listed = r._geometry.order[r._geometry.tables.soft_drawn()[:, 0]]   # draw slots -> instances
+    ids = first.aov["instance_id"]
+    k = max(listed, key=lambda i: (ids == i).sum())   # the largest instance the software raster drew
+    assert (ids == k).sum() > 20
+    m = scene.instances[k].transform.copy()
+    m[1, 3] += 500.0   # far above the view: culled
+    scene.instances[k].transform = m
+    second = r.render(scene, shadows="hard", ao=False, aovs=AOVS)
+    assert len(r._commands) == 1 and len(r._geometry.tables.soft_drawn()) == len(listed) - 1
+    assert not (second.aov["instance_id"] == k).any()
+    r.sw_raster = False
+    hard = r.render(scene, shadows="hard", ao=False, aovs=AOVS)
+    check_same_surfaces(second, hard)
+
+
 def test_levels_of_detail_in_the_soft_raster(make_renderer):
     scene = grid_scene(big_mesh())
     soft, hard, n_soft, _ = frames(make_renderer, scene, lod_pixels=1.0)

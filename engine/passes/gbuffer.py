@@ -457,8 +457,10 @@ class GBufferPass:
 
     def software(self, culling: bool, sw_raster: bool | None) -> bool:
         """Does the software raster draw the small instances? Only with culling, on devices with 64-bit buffer
-        atomics; `sw_raster` None: on GPUs, not on CPU devices (lavapipe rasterizes fast enough itself)."""
-        if not (self.soft and culling and self.ctx.draw_indirect_first_instance):
+        atomics, at sizes whose buffer fits (`Targets.soft_visibility`); `sw_raster` None: on GPUs, not on CPU
+        devices."""
+        if not (self.soft and culling and self.ctx.draw_indirect_first_instance
+                and self.resources.get("soft_visibility") is not None):
             return False
         return not device.is_cpu(self.ctx) if sw_raster is None else sw_raster
 

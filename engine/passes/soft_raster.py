@@ -11,7 +11,8 @@ depth attachment in the visibility image, before the resolve (which is unchanged
 
 Only runs whose materials share one facing and are not alpha-tested go software (the rest keep the hardware path).
 The software raster needs the device's shaderInt64 and shaderBufferInt64Atomics features (lavapipe and NVIDIA have
-them); without them every instance takes the hardware raster.
+them) and a frame whose W x H x 8 bytes fit one storage buffer (maxStorageBufferRange); else every instance takes the
+hardware raster (`Targets.soft_visibility` is None).
 """
 from __future__ import annotations
 
@@ -51,7 +52,17 @@ def soft_facing(culls: set, masked: bool) -> int:
     return FACING[next(iter(culls))] if len(culls) == 1 and not masked else 0
 
 
-class SoftRasterPass(ComputePass):
+class _SoftPass(ComputePass):
+    """A pass over the frame's `soft_visibility` buffer, bound only where the targets have one."""
+
+    def bind(self, resources: dict, targets=None):
+        if resources.get("soft_visibility") is not None:
+            super().bind(resources, targets)
+        else:
+            self.resources = resources
+
+
+class SoftRasterPass(_SoftPass):
     """soft_raster.comp over the culling pass's software list (the scene's buffers bound by `bind_scene`)."""
 
     name = "soft_raster"
@@ -73,7 +84,7 @@ class SoftRasterPass(ComputePass):
                               reads=self.reads + [geom.instance_buffer, geom.tables.soft_list], writes=self.writes)
 
 
-class SoftMergePass(ComputePass):
+class SoftMergePass(_SoftPass):
     """soft_merge.comp: the nearer of the hardware and the software raster into the visibility image."""
 
     name = "soft_merge"

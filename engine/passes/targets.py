@@ -98,9 +98,9 @@ class Targets:
                   self.prev_normal, self.hist_instance]
         self._objects = images + [self.len_cur, self.len_hist]
         # the software raster's 64-bit depth + visibility id per pixel (engine/passes/soft_raster.py), on devices
-        # with 64-bit buffer atomics
-        self.soft_visibility = Buffer(ctx, n * 8, STORAGE | TRANSFER_DST, name="soft visibility") \
-            if ctx.int64_atomics else None
+        # with 64-bit buffer atomics, where one storage buffer can hold it
+        soft = ctx.int64_atomics and n * 8 <= int(ctx.limits.maxStorageBufferRange)
+        self.soft_visibility = Buffer(ctx, n * 8, STORAGE | TRANSFER_DST, name="soft visibility") if soft else None
         if self.soft_visibility is not None:
             self._objects.append(self.soft_visibility)
         for sig in self.signals.values():

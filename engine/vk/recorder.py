@@ -169,8 +169,8 @@ class Recorder:
         image_barrier(cmd, color, GENERAL, CA, _EVERYTHING, OUT, _ANY_ACCESS, RW)
         DEPTH = vk.VK_IMAGE_LAYOUT_DEPTH_ATTACHMENT_OPTIMAL
         LATE = vk.VK_PIPELINE_STAGE_LATE_FRAGMENT_TESTS_BIT
-        # (a kept depth was read by compute shaders of the previous frame: after them)
-        image_barrier(cmd, depth, vk.VK_IMAGE_LAYOUT_UNDEFINED, DEPTH, LATE | (COMPUTE if keep_depth else 0),
+        # (after compute shaders of earlier frames that read a kept depth)
+        image_barrier(cmd, depth, vk.VK_IMAGE_LAYOUT_UNDEFINED, DEPTH, LATE | COMPUTE,
                       vk.VK_PIPELINE_STAGE_EARLY_FRAGMENT_TESTS_BIT, vk.VK_ACCESS_DEPTH_STENCIL_ATTACHMENT_WRITE_BIT,
                       vk.VK_ACCESS_DEPTH_STENCIL_ATTACHMENT_READ_BIT | vk.VK_ACCESS_DEPTH_STENCIL_ATTACHMENT_WRITE_BIT)
         color_info = vk.VkRenderingAttachmentInfo(imageView=color.view, imageLayout=CA,

@@ -13,7 +13,9 @@ index buffer with its levels of detail after it (engine/scene/lod.py), each leve
 mesh's instances are drawn together, one draw per material range of the mesh (or one for the whole mesh where the
 instances override its material), the range's first triangle within the mesh's levels in a push constant. With
 culling (engine/passes/cull.py) a compute pass first drops the instances outside the frustum and picks each one's
-level, and the draws are indirect, one per run, level and range; without, direct draws of the full meshes.
+level, and the draws are indirect, one per run, level and range; without, direct draws of the full meshes. With
+culling, small instances may go to a compute raster instead, merged into the visibility image by depth before the
+resolve (engine/passes/soft_raster.py).
 Alpha-tested materials are drawn after the opaque ones by their own pipeline (gbuffer_mask.vert / .frag, which
 discards). The instances are a storage buffer in draw order (grouped by mesh, material override and mirroring):
 transforms (this frame's and the previous one's, with their normal matrices), written per frame into a host
@@ -431,7 +433,7 @@ class GBufferPass:
         self.masked.set.bind("frame", resources["frame"])
         self.resolve = ResolvePass(ctx, library, resources)
         self.cull = CullPass(ctx, library, resources)
-        # the software raster, where the device has 64-bit buffer atomics (else None: the hardware raster only)
+        # the software raster and its merge, where the device has 64-bit buffer atomics (else none: hardware only)
         self.soft = (SoftRasterPass(ctx, library, resources), SoftMergePass(ctx, library, resources)) \
             if ctx.int64_atomics else ()
         self.sampler = Sampler(ctx, anisotropy=device.texture_anisotropy(ctx))

@@ -212,3 +212,18 @@ def test_edges_through_pixel_centres_follow_the_top_left_rule(make_renderer):
     assert (n_soft, n_hard) == (20, 0)
     assert np.array_equal(soft.aov["triangle_id"], hard.aov["triangle_id"])
     assert (hard.aov["instance_id"] >= 0).sum() == 40 * 32   # the tiles' pixels, every one drawn once
+
+
+def test_without_64_bit_atomics_every_instance_takes_the_hardware_raster():
+    from engine import Renderer
+    from engine.vk import Context
+
+    scene = grid_scene(small_mesh())
+    with Context(validation=True) as ctx:
+        ctx.int64_atomics = False   # as on a device without shaderBufferInt64Atomics
+        with Renderer(160, 120, context=ctx, sw_raster=True) as r:
+            assert r.sw_raster is True and not active(r) and r.targets.soft_visibility is None
+            frame = r.render(scene, shadows="hard", ao=False, aovs=AOVS)
+            assert len(np.unique(frame.aov["instance_id"])) > 10
+            assert int(r._geometry.tables.drawn().sum()) > 10
+        assert not ctx.validation_errors

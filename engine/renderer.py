@@ -27,7 +27,7 @@ from .passes.accumulate import ALPHA_MIN, AccumulatePass
 from .passes.ao import AOPass
 from .passes.debug_view import DebugViewPass
 from .passes.denoise import DenoisePass
-from .passes.cull import check_lod_pixels, raster_option
+from .passes.cull import SW_RASTER_PIXELS, raster_option, raster_options
 from .passes.gbuffer import GBufferPass, SceneChanges, SceneGeometry
 from .passes.interface import (FILTER_AO, FILTER_MASKS, FILTER_TEMPORAL, FRAME, FRAME_BYTES, MAX_LIGHTS,
                                camera_fields, pack_frame, pack_light)
@@ -38,8 +38,7 @@ from .parallel import serialized
 from .passes.targets import Targets
 from .scene import Scene
 from .scene.camera import Camera
-from .settings import (ShadowMode, ViewMode, check_settings, check_size, default, given_settings,
-                       resolve_aovs)
+from .settings import (ShadowMode, ViewMode, check_settings, check_size, default, given_settings, resolve_aovs)
 from .shaders import ShaderLibrary
 from .steady import Steady
 from .vk import Buffer, Context, Recorder, Timestamps, reflect
@@ -63,11 +62,10 @@ class Renderer(Closes):
     RGB until the final image, which is tonemapped (ACES) and sRGB-encoded 8-bit RGBA.
     """
 
-    def __init__(self, width: int, height: int, *, device: Device | int | str | None = None,
-                 validation: bool = False,
+    def __init__(self, width: int, height: int, *, device: Device | int | str | None = None, validation: bool = False,
                  shader_dir: str | os.PathLike[str] | None = None, hot_reload: bool = False,
                  context: Context | None = None, bvh_layout: str | None = None, culling: bool = True,
-                 lod_pixels: float = 0.0):
+                 lod_pixels: float = 0.0, sw_raster: bool | None = None, sw_raster_pixels: float = SW_RASTER_PIXELS):
         """A renderer of `width` x `height` pixels (1..16384 each).
 
         Args:
@@ -89,13 +87,16 @@ class Renderer(Closes):
                 where the device lacks drawIndirectFirstInstance). Also an attribute, as is `lod_pixels`.
             lod_pixels: with culling, draw each instance at its mesh's coarsest level of detail (engine/scene/lod.py)
                 whose error projects below this many pixels (1.0 is good); 0 (default): full meshes, exact AOVs.
+            sw_raster: with culling, draw instances of at most `sw_raster_pixels` (in (0, 128]) across with a compute
+                raster (engine/passes/soft_raster.py). None: on for GPUs, off on CPU devices; True / False: forced;
+                off where the device lacks shaderInt64 / shaderBufferInt64Atomics (no error). Both also attributes.
 
         Raises:
             ConfigError: a bad size, device selector or layout.
             VulkanError: no usable Vulkan device, or it lacks the `geometryShader` feature.
         """
         self.bvh_layout = resolve_layout(bvh_layout)  # a bad one fails here, before any Vulkan object exists
-        self._raster = (bool(culling), check_lod_pixels(lod_pixels))
+        self._raster = raster_options(culling, lod_pixels, sw_raster, sw_raster_pixels)
         check_size(width, height)
         self.width, self.height = int(width), int(height)
         self.library = ShaderLibrary(shader_dir, hot_reload=hot_reload)
@@ -169,10 +170,12 @@ class Renderer(Closes):
 
     culling = raster_option(0, "GPU culling of the instances before the raster (the constructor's `culling`).")
     lod_pixels = raster_option(1, "The largest projected error of a level of detail (the constructor's `lod_pixels`).")
+    sw_raster = raster_option(2, "The software raster of small instances (the constructor's `sw_raster`).")
+    sw_raster_pixels = raster_option(3, "Its largest instance, in pixels (the constructor's `sw_raster_pixels`).")
 
-    def _set_raster(self, culling: bool, lod_pixels):
+    def _set_raster(self, *options):
         """The next frame takes (or records) their recording; levels wanted, the scene has none: uploaded again."""
-        self._raster, self._steady = (culling, check_lod_pixels(lod_pixels)), None
+        self._raster, self._steady = raster_options(*options), None
         if self._raster[1] > 0 and self._geometry is not None and not self._geometry.has_levels:
             self._scene = None
 
@@ -284,8 +287,7 @@ class Renderer(Closes):
         buf, offsets = self.targets.readback(self.ctx, names, slot)
         aov = self.targets.read(buf, offsets, n_lights)
         return Frame(color=aov.pop("color", None), aov=aov, timings=self._timestamps[slot].read(marks), settings=cfg,
-                     object_names=scene.object_names,
-                     material_names=[m.name for m in scene.materials],
+                     object_names=scene.object_names, material_names=[m.name for m in scene.materials],
                      camera=camera if camera is not None else scene.camera, scene_name=scene.name)
 
     @serialized

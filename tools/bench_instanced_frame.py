@@ -5,6 +5,8 @@ light's hard shadows, one AO ray and the denoiser (a benchmark, not a test).
     python tools/bench_instanced_frame.py --instances 300 --size 640x360 --frames 5   # lavapipe scale
     python tools/bench_instanced_frame.py --no-cull         # A/B: every instance's full mesh, direct draws
     python tools/bench_instanced_frame.py --lod-pixels 0    # A/B: culling, but full meshes (no levels of detail)
+    python tools/bench_instanced_frame.py --sw-raster off   # A/B: no software raster of small instances
+    python tools/bench_instanced_frame.py --sw-raster on --sw-raster-pixels 32   # its threshold (default 64 px)
 
 Per frame: the host time of moving every instance (scene.set_transforms) and of the renderer's per-frame update
 (top level rebuilt and uploaded, instance buffer rewritten: the wall of render() minus its GPU and readback), and the
@@ -24,6 +26,7 @@ import numpy as np
 sys.path.insert(0, os.path.dirname(os.path.dirname(os.path.abspath(__file__))))
 
 from engine import Camera, Instance, Mesh, Renderer, Scene  # noqa: E402
+from engine.passes.soft_raster import SW_RASTER_PIXELS  # noqa: E402
 from engine.scene.lod import lod_chain  # noqa: E402
 from bench_instances import uv_sphere  # noqa: E402
 
@@ -57,6 +60,10 @@ def main() -> int:
     ap.add_argument("--flatten", action="store_true",
                     help="A/B: the first frame's scene flattened into one mesh (one BVH, nothing moves)")
     ap.add_argument("--lod-pixels", type=float, default=1.0, help="largest projected level error (0: full meshes)")
+    ap.add_argument("--sw-raster", choices=("on", "off", "auto"), default="auto",
+                    help="software raster of small instances (auto: on for GPUs, off on CPU devices)")
+    ap.add_argument("--sw-raster-pixels", type=float, default=SW_RASTER_PIXELS,
+                    help="largest screen extent (pixels) of an instance the software raster draws")
     a = ap.parse_args()
     w, h = map(int, a.size.split("x"))
     v, f = uv_sphere(a.tris)
@@ -72,7 +79,9 @@ def main() -> int:
     cam = Camera(eye=(-10.0, 25.0, -10.0), target=(1.5 * side, 0.0, 1.5 * side), fov_y=55.0)
     rows = []
     t_load = time.perf_counter()
-    with Renderer(w, h, culling=not a.no_cull, lod_pixels=a.lod_pixels) as r:
+    sw = {"on": True, "off": False, "auto": None}[a.sw_raster]
+    with Renderer(w, h, culling=not a.no_cull, lod_pixels=a.lod_pixels, sw_raster=sw,
+                  sw_raster_pixels=a.sw_raster_pixels) as r:
         for k in range(a.frames + 3):
             t0 = time.perf_counter()
             if not a.flatten:
@@ -89,11 +98,20 @@ def main() -> int:
                              "gpu_ms": frame.gpu_ms, "passes": dict(frame.timings)})
         # the last frame's instances drawn at each level of detail (read back from the culling pass's records)
         drawn = r._geometry.tables.drawn().tolist() if r.culling and r._geometry.has_levels else None
+        sw_active = r.gbuffer.software(r.culling, r.sw_raster)
+        # instances the last frame drew on each path (ground included in the hardware count)
+        soft = r._geometry.tables.soft_drawn() if r.culling else None
+        paths = {"software": len(soft), "software_triangles": int(soft[:, 2].sum()) // 3,
+                 "hardware": int(r._geometry.tables.drawn().sum())} if r.culling else None
+        device = r.device_name
     med = lambda key: statistics.median(x[key] for x in rows)  # noqa: E731
     passes = {p: statistics.median(x["passes"].get(p, 0.0) for x in rows) for p in rows[0]["passes"]}
     render_gpu = sum(v for p, v in passes.items() if p != "readback")
     out = {"instances": a.instances, "triangles_per_mesh": len(f), "instanced_triangles": tri_total,
-           "culling": not a.no_cull, "turn": not a.no_turn, "flatten": a.flatten, "lod_pixels": a.lod_pixels, "ao_radius": a.ao_radius, "first_frame_ms": first_ms,
+           "culling": not a.no_cull, "turn": not a.no_turn, "flatten": a.flatten, "lod_pixels": a.lod_pixels,
+           "device": device, "sw_raster": a.sw_raster, "sw_raster_active": sw_active,
+           "sw_raster_pixels": a.sw_raster_pixels, "instances_by_path": paths,
+           "ao_radius": a.ao_radius, "first_frame_ms": first_ms,
            "size": [w, h], "frames": a.frames, "move_ms": med("move_ms"), "render_wall_ms": med("render_wall_ms"),
            "gpu_ms": med("gpu_ms"), "render_passes_gpu_ms": render_gpu, "passes_ms": passes}
     if drawn is not None:   # level 0 counts the ground too (one instance of 2 triangles, always in view)
@@ -102,12 +120,16 @@ def main() -> int:
         out["triangles_drawn"] = int(sum(d * t for d, t in zip(drawn, levels)) - levels[0] + 2)
     print(f"{a.instances} instances x {len(f)} triangles = {tri_total:,} instanced triangles, {w}x{h}, all moving; "
           f"culling {'off' if a.no_cull else f'on, levels of detail below {a.lod_pixels:g} px'}; first frame "
-          f"(renderer, upload, levels, BVH) {first_ms:.0f} ms")
+          f"(renderer, upload, levels, BVH) {first_ms:.0f} ms; {device}")
+    print(f"software raster {a.sw_raster} ({'active' if sw_active else 'inactive'}, instances up to "
+          f"{a.sw_raster_pixels:g} px across)" + (f"; last frame's instances: {paths['software']} software "
+                                                  f"({paths['software_triangles']:,} triangles), {paths['hardware']} "
+                                                  "hardware (ground included)" if paths else ""))
     print(f"move (set_transforms) {out['move_ms']:.2f} ms host; render() wall {out['render_wall_ms']:.2f} ms; "
           f"frame GPU {out['gpu_ms']:.3f} ms (passes without readback {render_gpu:.3f})")
     print("  " + "  ".join(f"{p} {v:.3f}" for p, v in passes.items()))
     if drawn is not None:
-        print(f"last frame: instances drawn per level of detail {drawn} (ground included), "
+        print(f"last frame: instances the hardware raster drew per level of detail {drawn} (ground included), "
               f"{out['triangles_drawn']:,} triangles")
     if a.json:
         with open(a.json, "w") as fh:

@@ -13,7 +13,9 @@ index buffer with its levels of detail after it (engine/scene/lod.py), each leve
 mesh's instances are drawn together, one draw per material range of the mesh (or one for the whole mesh where the
 instances override its material), the range's first triangle within the mesh's levels in a push constant. With
 culling (engine/passes/cull.py) a compute pass first drops the instances outside the frustum and picks each one's
-level, and the draws are indirect, one per run, level and range; without, direct draws of the full meshes.
+level, and the draws are indirect, one per run, level and range; without, direct draws of the full meshes. With
+culling, small instances may go to a compute raster instead, merged into the visibility image by depth before the
+resolve (engine/passes/soft_raster.py).
 Alpha-tested materials are drawn after the opaque ones by their own pipeline (gbuffer_mask.vert / .frag, which
 discards). The instances are a storage buffer in draw order (grouped by mesh, material override and mirroring):
 transforms (this frame's and the previous one's, with their normal matrices), written per frame into a host
@@ -41,6 +43,7 @@ from ..vk.pipelines import CULL_BACK, CULL_FRONT, CULL_NONE
 from ..vk.resources import INDEX, STORAGE, TRANSFER_DST, TRANSFER_SRC, UNIFORM_TEXEL, VERTEX
 from .base import ComputePass, read, update, write
 from .cull import CullPass, DrawTables
+from .soft_raster import SW_RASTER_PIXELS, SoftMergePass, SoftRasterPass, soft_facing
 from .interface import MATERIAL_FLAGS, MATERIAL_TEXELS, MAX_TEXTURE_ARRAYS
 from .targets import DEPTH_FORMAT, VISIBILITY_FORMAT
 from .textures import TextureArrays
@@ -171,8 +174,11 @@ class SceneGeometry:
             base = int(self.mesh_first_triangle[k])
             levels = self.mesh_ranges[k] if over < 0 else \
                 [[(over, ranges[0][1], sum(c for _, _, c in ranges))] for ranges in self.mesh_ranges[k]]
+            materials = {material for ranges in levels for material, _, _ in ranges}
+            culls = {CULL_NONE if m not in self.single_sided else CULL_FRONT if mirror else CULL_BACK
+                     for m in materials}
             groups.append((self.mesh_levels[k][0], self.mesh_levels[k][1], len(records), len(levels[0]), int(f),
-                           len(levels)))
+                           len(levels), soft_facing(culls, bool(materials & self.alpha_tested))))
             for level, ranges in enumerate(levels):
                 for material, start, count in ranges:
                     cull = CULL_NONE if material not in self.single_sided else CULL_FRONT if mirror else CULL_BACK
@@ -410,12 +416,12 @@ class _Raster:
 
 
 class GBufferPass:
-    """The visibility raster (gbuffer.vert / gbuffer.frag; alpha-tested materials: gbuffer_mask.vert / .frag) and
-    its resolve."""
+    """The visibility raster (gbuffer.vert / gbuffer.frag; alpha-tested materials: gbuffer_mask.vert / .frag), the
+    software raster of small instances and its merge (engine/passes/soft_raster.py) and the resolve."""
 
     name = "gbuffer"
     shaders = ("gbuffer.vert", "gbuffer.frag", "gbuffer_mask.vert", "gbuffer_mask.frag", "gbuffer_resolve.comp",
-               "cull.comp")
+               "cull.comp", "soft_raster.comp", "soft_merge.comp")
 
     def __init__(self, ctx, library, resources):
         self.ctx, self.library = ctx, library
@@ -427,6 +433,9 @@ class GBufferPass:
         self.masked.set.bind("frame", resources["frame"])
         self.resolve = ResolvePass(ctx, library, resources)
         self.cull = CullPass(ctx, library, resources)
+        # the software raster and its merge, where the device has 64-bit buffer atomics (else none: hardware only)
+        self.soft = (SoftRasterPass(ctx, library, resources), SoftMergePass(ctx, library, resources)) \
+            if ctx.int64_atomics else ()
         self.sampler = Sampler(ctx, anisotropy=device.texture_anisotropy(ctx))
         self.white = upload_texture_array(ctx, [np.full((1, 1, 4), 255, np.uint8)], 1, 1, name="white texture")
         for slot in range(MAX_TEXTURE_ARRAYS):
@@ -440,11 +449,22 @@ class GBufferPass:
         self.masked.reload(library)
         self.resolve.reload(library)
         self.cull.reload(library)
+        for p in self.soft:
+            p.reload(library)
 
     def bind(self, resources, targets=None):
         self.resources = resources
-        self.resolve.bind(resources)
-        self.cull.bind(resources)
+        for p in (self.resolve, self.cull, *self.soft):
+            p.bind(resources)
+
+    def software(self, culling: bool, sw_raster: bool | None) -> bool:
+        """Does the software raster draw the small instances? Only with culling, on devices with 64-bit buffer
+        atomics, at sizes whose buffer fits (`Targets.soft_visibility`); `sw_raster` None: on GPUs, not on CPU
+        devices."""
+        if not (self.soft and culling and self.ctx.draw_indirect_first_instance
+                and self.resources.get("soft_visibility") is not None):
+            return False
+        return not device.is_cpu(self.ctx) if sw_raster is None else sw_raster
 
     def bind_scene(self, geom: SceneGeometry):
         self.resolve.specialize(TEXTURE_ARRAYS=max(1, len(geom.textures)))
@@ -456,19 +476,25 @@ class GBufferPass:
             r.set.bind("instances", geom.instance_buffer)
             r.set.bind("visible", geom.tables.visible)
         self.cull.bind_scene(geom.instance_buffer, geom.tables)
+        if self.soft:
+            self.soft[0].bind_scene(geom)
         s.bind("instances", geom.instance_buffer)
         for slot in range(MAX_TEXTURE_ARRAYS):
             tex = geom.textures.images[slot] if slot < len(geom.textures) else self.white
             for s in (self.resolve.set, self.masked.set):
                 s.bind("textures", tex, sampler=self.sampler, element=slot)
 
-    def record(self, rec, targets, geom: SceneGeometry, culling: bool = True, lod_pixels: float = 0.0):
+    def record(self, rec, targets, geom: SceneGeometry, culling: bool = True, lod_pixels: float = 0.0,
+               sw_raster: bool | None = None, sw_raster_pixels: float = SW_RASTER_PIXELS):
         """The instances' copy to the device, the culling pass (`culling`; levels of detail where `lod_pixels` >
-        0), the raster and the resolve."""
+        0; instances of at most `sw_raster_pixels` across to the software raster where `software`), the raster,
+        the software raster and its merge, and the resolve."""
         rec.copy(geom.instance_staging, geom.instance_buffer)
+        soft = self.software(culling, sw_raster)
         culling = culling and self.ctx.draw_indirect_first_instance
         if culling:
-            self.cull.record(rec, geom.instance_buffer, geom.tables, lod_pixels)
+            self.cull.record(rec, geom.instance_buffer, geom.tables, lod_pixels,
+                             sw_raster_pixels if soft else 0.0)
         # The visibility image is all zeros here (cleared when made, then by each frame's resolve after reading it),
         # so the raster loads it instead of clearing it (a clear costs GPUs with few raster units).
         # Opaque materials first, keeping early depth tests; then the alpha-tested ones, whose shader discards.
@@ -480,7 +506,10 @@ class GBufferPass:
         rec.raster(lists[0][0], lists[0][1], targets.visibility, targets.depth, geom.vertex_buffer,
                    geom.index_buffer, lists[0][2], more=lists[1:],
                    reads=[self.resources["frame"], geom.instance_buffer, geom.tables.visible],
-                   indirect=geom.tables.commands if culling else None)
+                   indirect=geom.tables.commands if culling else None, keep_depth=soft)
+        if soft:   # (after the raster in the recording: the GPU may run it while the raster runs)
+            self.soft[0].record(rec, geom)
+            self.soft[1].record(rec, targets.width, targets.height)
         self.resolve.dispatch(rec, self.resolve.tiles(targets.width, targets.height),
                               push=np.array([geom.instance_count], np.uint32),
                               reads=self.resolve.reads + [geom.instance_buffer])

@@ -14,7 +14,7 @@ from ..errors import ConfigError
 from ..parallel import default_threads, run
 from ..vk import Buffer, BufferView, Image
 from ..vk.formats import (COLOR_ATTACHMENT, COPY_DST, COPY_SRC, D32F, DEPTH_ATTACHMENT, R32F, R32UI, RG32F, RGBA8,
-                          RGBA8_SNORM, RGBA16F, RGBA32F, STORAGE_IMAGE)
+                          RGBA8_SNORM, RGBA16F, RGBA32F, SAMPLED, STORAGE_IMAGE)
 from ..vk.recorder import TRANSFER, Recorder, fill, to_general
 from ..vk.resources import STORAGE, STORAGE_TEXEL, TRANSFER_DST, TRANSFER_SRC
 from .interface import AOVS
@@ -78,7 +78,8 @@ class Targets:
         # temporal reprojection's same-surface tests
         self.prev_position = Image(ctx, width, height, POSITION_FORMAT, STORAGE_IMAGE, name="previous position")
         self.prev_normal = Image(ctx, width, height, RGBA16F, STORAGE_IMAGE, name="previous normal")
-        self.depth = Image(ctx, width, height, DEPTH_FORMAT, DEPTH_ATTACHMENT)
+        # (sampled: the software raster's merge compares its depth with the hardware raster's)
+        self.depth = Image(ctx, width, height, DEPTH_FORMAT, DEPTH_ATTACHMENT | SAMPLED, name="raster depth")
         self.color = Image(ctx, width, height, RGBA8, STORAGE_IMAGE | COPY_SRC, name="color")
         self.hdr = Image(ctx, width, height, RGBA16F, STORAGE_IMAGE | COPY_SRC, name="hdr")
         # The previous frame's G-buffer position and normal (temporal reprojection / disocclusion tests).
@@ -96,12 +97,19 @@ class Targets:
                   self.material_id, self.motion, self.material, self.emissive, self.instance_id, self.prev_position,
                   self.prev_normal, self.hist_instance]
         self._objects = images + [self.len_cur, self.len_hist]
+        # the software raster's 64-bit depth + visibility id per pixel (engine/passes/soft_raster.py), on devices
+        # with 64-bit buffer atomics, where one storage buffer can hold it
+        soft = ctx.int64_atomics and n * 8 <= int(ctx.limits.maxStorageBufferRange)
+        self.soft_visibility = Buffer(ctx, n * 8, STORAGE | TRANSFER_DST, name="soft visibility") if soft else None
+        if self.soft_visibility is not None:
+            self._objects.append(self.soft_visibility)
         for sig in self.signals.values():
             self._objects += sig.buffers()
         self.resources = {"frame": frame_ubo, **{name: getattr(self, name) for name in (
             "visibility", "position", "normal", "albedo", "normal8", "depth", "color", "hdr", "hist_position",
             "hist_normal", "len_cur", "len_hist", "view_depth", "triangle_id", "object_id", "material_id",
-            "motion", "material", "emissive", "instance_id", "prev_position", "prev_normal", "hist_instance")}}
+            "motion", "material", "emissive", "instance_id", "prev_position", "prev_normal", "hist_instance",
+            "soft_visibility")}}
         for sname, sig in self.signals.items():
             self.resources.update({f"{sname}.{part}": getattr(sig, part) for part in Signal.NAMES})
         # Every colour image in GENERAL layout; the visibility image starts as background (each frame's resolve leaves

@@ -223,10 +223,19 @@ class Context:
         # drawIndirectFirstInstance: the G-buffer's culled indirect draws start at their instance list's slot
         self.draw_indirect_first_instance = bool(
             vk.vkGetPhysicalDeviceFeatures(self.physical).drawIndirectFirstInstance)
+        # shaderInt64 + shaderBufferInt64Atomics: the G-buffer's software raster of small instances (64-bit
+        # depth + id atomics, engine/passes/soft_raster.py); without them every instance takes the hardware raster
+        have12 = vk.VkPhysicalDeviceVulkan12Features()
+        vk.vkGetPhysicalDeviceFeatures2(self.physical, vk.VkPhysicalDeviceFeatures2(pNext=have12))
+        self.int64_atomics = bool(vk.vkGetPhysicalDeviceFeatures(self.physical).shaderInt64
+                                  and have12.shaderBufferInt64Atomics)
+        if self.int64_atomics:
+            f12.shaderBufferInt64Atomics = vk.VK_TRUE
         feats = vk.VkPhysicalDeviceFeatures2(pNext=f12, features=vk.VkPhysicalDeviceFeatures(
             geometryShader=vk.VK_TRUE if self.geometry_shader else vk.VK_FALSE,
             drawIndirectFirstInstance=vk.VK_TRUE if self.draw_indirect_first_instance else vk.VK_FALSE,
-            samplerAnisotropy=vk.VK_TRUE if aniso else vk.VK_FALSE))
+            samplerAnisotropy=vk.VK_TRUE if aniso else vk.VK_FALSE,
+            shaderInt64=vk.VK_TRUE if self.int64_atomics else vk.VK_FALSE))
         prio = vk.ffi.new("float[]", [1.0])
         qinfo = vk.VkDeviceQueueCreateInfo(queueFamilyIndex=self.queue_family, queueCount=1, pQueuePriorities=prio)
         dinfo = vk.VkDeviceCreateInfo(

@@ -110,6 +110,7 @@ class Recorder:
         pipeline.dispatch(self.cmd, sets, *groups, push=push)
 
     def dispatch_indirect(self, pipeline, sets, args: Buffer, reads=(), writes=()):
+        self.use(reads=[args], stage=INDIRECT)   # (args a shader wrote: visible to the indirect command read)
         self.use(list(reads) + [args], writes)
         pipeline.bind(self.cmd, sets)
         vk.vkCmdDispatchIndirect(self.cmd, args.handle, 0)
@@ -149,14 +150,15 @@ class Recorder:
         vk.vkCmdCopyImageToBuffer(self.cmd, src.handle, vk.VK_IMAGE_LAYOUT_GENERAL, dst.handle, 1, [region])
 
     def raster(self, pipeline, sets, color: Image, depth: Image, vertices: Buffer, indices: Buffer, draws,
-               reads=(), more=(), indirect: Buffer | None = None):
+               reads=(), more=(), indirect: Buffer | None = None, keep_depth: bool = False):
         """Indexed draws into `color` (kept: loaded and stored; GENERAL before and after) with a cleared reversed-Z
         `depth`. `draws`: (first index, index count, instance count, first instance, push-constant bytes), instanced
         indexed draws (gl_InstanceIndex counts from the first instance; no push constants where the bytes are
         empty); with `indirect` (VkDrawIndexedIndirectCommand records), (record index, push-constant bytes) instead:
         each an indirect draw of that record. `more`: further (pipeline, sets, draws) drawn after them in the same
         rendering. `reads`: buffers the vertex and fragment shaders read. Afterwards `color` counts as written by a
-        compute-stage step, visible to compute and transfer."""
+        compute-stage step, visible to compute and transfer; with `keep_depth`, so does `depth` (stored, then in
+        the SHADER_READ_ONLY_OPTIMAL layout for compute shaders to read; it needs SAMPLED usage)."""
         self.use(reads=reads, stage=GRAPHICS)
         if indirect is not None:
             self.use(reads=[indirect], stage=INDIRECT)
@@ -166,7 +168,9 @@ class Recorder:
         RW = vk.VK_ACCESS_COLOR_ATTACHMENT_READ_BIT | vk.VK_ACCESS_COLOR_ATTACHMENT_WRITE_BIT
         image_barrier(cmd, color, GENERAL, CA, _EVERYTHING, OUT, _ANY_ACCESS, RW)
         DEPTH = vk.VK_IMAGE_LAYOUT_DEPTH_ATTACHMENT_OPTIMAL
-        image_barrier(cmd, depth, vk.VK_IMAGE_LAYOUT_UNDEFINED, DEPTH, vk.VK_PIPELINE_STAGE_LATE_FRAGMENT_TESTS_BIT,
+        LATE = vk.VK_PIPELINE_STAGE_LATE_FRAGMENT_TESTS_BIT
+        # (after compute shaders of earlier frames that read a kept depth)
+        image_barrier(cmd, depth, vk.VK_IMAGE_LAYOUT_UNDEFINED, DEPTH, LATE | COMPUTE,
                       vk.VK_PIPELINE_STAGE_EARLY_FRAGMENT_TESTS_BIT, vk.VK_ACCESS_DEPTH_STENCIL_ATTACHMENT_WRITE_BIT,
                       vk.VK_ACCESS_DEPTH_STENCIL_ATTACHMENT_READ_BIT | vk.VK_ACCESS_DEPTH_STENCIL_ATTACHMENT_WRITE_BIT)
         color_info = vk.VkRenderingAttachmentInfo(imageView=color.view, imageLayout=CA,
@@ -174,7 +178,7 @@ class Recorder:
                                                   storeOp=vk.VK_ATTACHMENT_STORE_OP_STORE)
         depth_info = vk.VkRenderingAttachmentInfo(
             imageView=depth.view, imageLayout=DEPTH, loadOp=vk.VK_ATTACHMENT_LOAD_OP_CLEAR,
-            storeOp=vk.VK_ATTACHMENT_STORE_OP_DONT_CARE,
+            storeOp=vk.VK_ATTACHMENT_STORE_OP_STORE if keep_depth else vk.VK_ATTACHMENT_STORE_OP_DONT_CARE,
             clearValue=vk.VkClearValue(depthStencil=vk.VkClearDepthStencilValue(depth=0.0, stencil=0)))
         area = vk.VkRect2D(offset=vk.VkOffset2D(0, 0), extent=vk.VkExtent2D(w, h))
         vk.vkCmdBeginRendering(cmd, vk.VkRenderingInfo(renderArea=area, layerCount=1, colorAttachmentCount=1,
@@ -200,6 +204,11 @@ class Recorder:
         image_barrier(cmd, color, CA, GENERAL, OUT, _EVERYTHING, vk.VK_ACCESS_COLOR_ATTACHMENT_WRITE_BIT, _ANY_ACCESS)
         st = self.hazards.state.setdefault(id(color), _State())
         st.write_stage, st.visible, st.readers = COMPUTE, COMPUTE | TRANSFER, 0
+        if keep_depth:
+            image_barrier(cmd, depth, DEPTH, vk.VK_IMAGE_LAYOUT_SHADER_READ_ONLY_OPTIMAL, LATE, COMPUTE,
+                          vk.VK_ACCESS_DEPTH_STENCIL_ATTACHMENT_WRITE_BIT, vk.VK_ACCESS_SHADER_READ_BIT)
+            st = self.hazards.state.setdefault(id(depth), _State())
+            st.write_stage, st.visible, st.readers = COMPUTE, COMPUTE, 0
 
     def to_host(self, *resources):
         """Make what earlier steps wrote into `resources` visible to the host (after the fence)."""

@@ -7,6 +7,8 @@
 // whose object-space error, scaled by the instance and divided by a pixel's size at the box's nearest view depth,
 // stays below pc.lod_pixels, counts itself into that level's indirect draw records (one per material range of its
 // run, all counted alike) and writes its draw slot into the level's instance list at the place the count gave.
+// An instance whose box projects to at most pc.soft_pixels pixels across, wholly in front of the near plane, of a run
+// the software raster can draw, goes to the software raster's list instead (engine/passes/soft_raster.py).
 #include "common.glsl"
 #include "instances.glsl"
 FRAME_BLOCK
@@ -20,6 +22,7 @@ struct Group {
     vec4 error;     // object-space error of levels 1..4
     uvec4 cmd;      // x: first draw record of the run, y: records per level (material ranges), z: the run's first
                     // draw slot, w: levels
+    uvec4 soft;     // x: the software raster's facing mode (soft_raster.comp; 0: hardware raster only)
 };
 layout(std430, set = 0, binding = 1) readonly buffer Instances { Instance instances[]; };
 layout(std430, set = 0, binding = 2) readonly buffer Groups { Group groups[]; };
@@ -27,9 +30,14 @@ layout(std430, set = 0, binding = 2) readonly buffer Groups { Group groups[]; };
 layout(std430, set = 0, binding = 3) buffer Commands { uint commands[]; };
 // draw slots: level l's lists start at (1 + l) * instance_count (list 0 is every instance in order, unculled)
 layout(std430, set = 0, binding = 4) writeonly buffer Visible { uint visible[]; };
+// The software raster's list: (draw slot, first index, index count of its level, facing mode) per instance, and its
+// indirect dispatch (x: the list's length, zeroed before this pass; one workgroup per instance).
+layout(std430, set = 0, binding = 5) writeonly buffer SoftList { uvec4 soft_list[]; };
+layout(std430, set = 0, binding = 6) buffer SoftArgs { uint soft_args[]; };
 layout(push_constant) uniform Push {
     uint instance_count;
-    float lod_pixels;   // largest projected error of a level, in pixels (0: always the full mesh)
+    float lod_pixels;    // largest projected error of a level, in pixels (0: always the full mesh)
+    float soft_pixels;   // largest screen extent of an instance the software raster draws (0: none)
 } pc;
 
 void main() {
@@ -42,6 +50,7 @@ void main() {
     vec3 lo = g.box_min.xyz, hi = g.box_max.xyz;
     uint outside = 31u;
     float w_min = 3.0e38;
+    vec2 ndc_lo = vec2(3.0e38), ndc_hi = vec2(-3.0e38);   // the box's screen bound (where every corner has w > 0)
     for (int c = 0; c < 8; c++) {
         vec3 p = vec3((c & 1) != 0 ? hi.x : lo.x, (c & 2) != 0 ? hi.y : lo.y, (c & 4) != 0 ? hi.z : lo.z);
         vec4 q = m * vec4(p, 1.0);
@@ -51,6 +60,9 @@ void main() {
                   | (q.w < frame.near - slack ? 16u : 0u);
         outside &= bits;
         w_min = min(w_min, q.w);
+        vec2 ndc = q.xy / q.w;
+        ndc_lo = min(ndc_lo, ndc);
+        ndc_hi = max(ndc_hi, ndc);
     }
     if (outside != 0u) return;
 
@@ -64,6 +76,19 @@ void main() {
         }
     }
     uint first = g.cmd.x + level * g.cmd.y;
+    // wholly in front of the near plane (no clipping), with slack for the vertices' own rounding
+    if (pc.soft_pixels > 0.0 && g.soft.x != 0u && w_min > 1.01 * frame.near) {
+        vec2 across = (ndc_hi - ndc_lo) * 0.5 * vec2(frame.width, frame.height);
+        if (max(across.x, across.y) <= pc.soft_pixels) {
+            // the level's triangles: its material ranges' records, which lie in a row in the index buffer
+            uint last = first + g.cmd.y - 1u;
+            uint start = commands[5u * first + 2u];
+            uint count = commands[5u * last + 2u] + commands[5u * last] - start;
+            uint slot = atomicAdd(soft_args[0], 1u);
+            soft_list[slot] = uvec4(k, start, count, g.soft.x);
+            return;
+        }
+    }
     uint at = atomicAdd(commands[5u * first + 1u], 1u);
     for (uint r = 1u; r < g.cmd.y; r++) atomicAdd(commands[5u * (first + r) + 1u], 1u);
     visible[(1u + level) * pc.instance_count + g.cmd.z + at] = k;

@@ -174,6 +174,11 @@ def test_a_bad_ray_in_a_reordered_batch_is_named_as_without_reordering():
                 query(o, d, reorder=True)
             assert str(reordered.value) == str(plain.value)
             assert "ray 777 " in str(plain.value)
+        shared = np.broadcast_to(np.float32([0.3, 1.0, 0.2]), o.shape).copy()   # one direction (filled, not gathered)
+        for query in (tr.occluded, tr.intersect):
+            with pytest.raises(ConfigError, match=r"origins: ray 777 "):
+                query(o, shared, reorder=True)
+            assert tr.last_reordered
 
 
 def test_instance_ids_of_shuffled_rays():
@@ -236,3 +241,9 @@ def test_one_direction_for_all_is_filled_not_gathered():
             want = tr.occluded(o, dirs, tmax, reorder=False)
             assert np.array_equal(tr.occluded(o[perm], dirs[perm], tmax[perm], reorder=True), want[perm])
             assert want.any() and not want.all()
+        # closest hits along one direction: the rays from outside the mesh, towards it (5 chunks, 3 in flight)
+        src = o - 4 * d
+        h0 = tr.intersect(src, d, reorder=False)
+        h1 = tr.intersect(src[perm], d[perm], reorder=True)
+        assert tr.last_reordered and 0.2 < h0.hit.mean()
+        assert np.array_equal(h0.prim[perm], h1.prim) and np.array_equal(h0.t[perm], h1.t)

@@ -4,9 +4,10 @@ surface samples) are traced in the order of a coarse Morton code of their origin
 On a CPU device (llvmpipe) a SIMD group of 8 lanes walks 8 rays in lock step until the slowest ends, and each lane's
 node loads miss the cache on their own: rays from nearby origins walk the same nodes. The key is 16 bits (the code of
 the origin's cell in the batch's box, cut along its longest side in turn, and whether the direction points up unless
-every ray has the same one), so that numpy's stable argsort is a radix sort (linear time). The stream gathers the rays in that order as it packs them and the sinks
-scatter the results back (engine/rt/stream.py). `incoherent` decides whether a batch gains from it, from a sample:
-image-ordered batches (G-buffer rays) and rays crossing the scene in all directions are left alone.
+every ray has the same one), so that numpy's stable argsort is a radix sort (linear time). The stream gathers the
+rays in that order as it packs them and the sinks scatter the results back (engine/rt/stream.py). `incoherent`
+decides whether a batch gains from it, from a sample: image-ordered batches (G-buffer rays) and rays crossing the
+scene in all directions are left alone.
 """
 from __future__ import annotations
 

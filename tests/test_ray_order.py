@@ -65,6 +65,28 @@ def test_keys_sort_nearby_origins_together():
                              1 << 3, x31 | 1]
 
 
+def test_cells_follow_the_shape_of_the_box():
+    """The key's bits halve the origins' box along its longest side in turn: a flat box's thin axis gets none, a
+    long one most; 16 bits of cell where the direction is shared, 15 and the up bit otherwise."""
+    split = ray_order_mod.split_axes
+    assert split([0, 0, 0], [32, 32, 32], 6) == (0, 1, 2, 0, 1, 2)
+    assert split([0, 0, 0], [40, 0, 40], 8) == (0, 2) * 4
+    assert split([0, 0, 0], [64, 8, 16], 5) == (0, 0, 0, 2, 0)
+    rng = np.random.default_rng(9)
+    o = np.zeros((4096, 3), np.float32)
+    o[:, 0] = rng.uniform(0, 40, len(o))
+    o[:, 2] = rng.uniform(0, 40, len(o))
+    d = np.broadcast_to(np.float32([0.3, 0.9, 0.1]), o.shape)
+    box = (np.float32([0, 0, 0]), np.float32([40, 0, 40]))
+    keys = ray_keys(o, d, box)
+    cells = np.floor(o[:, [0, 2]] / 40 * 256).clip(0, 255).astype(int)   # 8 bits each for x and z
+    assert len(np.unique(keys)) == len(np.unique(cells[:, 0] * 256 + cells[:, 1]))
+    gathered = ray_keys(o, np.ascontiguousarray(d), box)   # not a shared view: 15 bits of cell (x 8, z 7), then up
+    assert (gathered & 1).all()
+    coarse = np.floor(o[:, [0, 2]] / 40 * [256, 128]).clip(0, [255, 127]).astype(int)
+    assert len(np.unique(gathered)) == len(np.unique(coarse[:, 0] * 128 + coarse[:, 1]))
+
+
 def test_auto_tells_which_batches_gain():
     """"auto" reorders shadow rays (one direction) and short rays (AO) from shuffled surface points; not rays in
     image or triangle order, rays crossing the scene in all directions, non-finite origins or small batches."""
@@ -152,6 +174,11 @@ def test_a_bad_ray_in_a_reordered_batch_is_named_as_without_reordering():
                 query(o, d, reorder=True)
             assert str(reordered.value) == str(plain.value)
             assert "ray 777 " in str(plain.value)
+        shared = np.broadcast_to(np.float32([0.3, 1.0, 0.2]), o.shape).copy()   # one direction (filled, not gathered)
+        for query in (tr.occluded, tr.intersect):
+            with pytest.raises(ConfigError, match=r"origins: ray 777 "):
+                query(o, shared, reorder=True)
+            assert tr.last_reordered
 
 
 def test_instance_ids_of_shuffled_rays():
@@ -206,8 +233,17 @@ def test_one_direction_for_all_is_filled_not_gathered():
     odd = d.copy()
     odd[N - 3] = (0.0, -1.0, 0.0)
     assert ray_order_mod.shared_direction(odd) is odd
+    signed = np.tile(np.float32([0.0, 1.0, 0.0]), (N, 1))
+    signed[N - 2, 0] = -0.0   # equal as a number, not bit for bit: gathered, so that the kernel gets each as given
+    assert ray_order_mod.shared_direction(signed) is signed
     with Tracer(v, f, batch_size=8192) as tr:
-        for dirs in (d, odd):
+        for dirs in (d, odd, signed):
             want = tr.occluded(o, dirs, tmax, reorder=False)
             assert np.array_equal(tr.occluded(o[perm], dirs[perm], tmax[perm], reorder=True), want[perm])
             assert want.any() and not want.all()
+        # closest hits along one direction: the rays from outside the mesh, towards it (5 chunks, 3 in flight)
+        src = o - 4 * d
+        h0 = tr.intersect(src, d, reorder=False)
+        h1 = tr.intersect(src[perm], d[perm], reorder=True)
+        assert tr.last_reordered and 0.2 < h0.hit.mean()
+        assert np.array_equal(h0.prim[perm], h1.prim) and np.array_equal(h0.t[perm], h1.t)

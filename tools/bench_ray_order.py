@@ -15,16 +15,22 @@ and the ratios are per run (medians):
   shuffled   a random permutation, reorder=False
   reordered  the same shuffled rays, reorder=True (the Tracer's 16-bit key and radix sort, timed in the call)
   auto       the shuffled rays with the default reorder="auto"
+  coherent auto  the coherent rays with reorder="auto" (auto must leave them alone: its check is all it costs)
 
 and G-buffer shadow rays (one per covered pixel of a rendered frame, image order, repeated up to the same count)
 with reorder=False and "auto" (auto must leave them alone), and the bench's random closest-hit rays (between two
 random points of the box: random order, random directions) with reorder=False, True and "auto" (auto leaves them
 alone: the sort costs more than it gains there). Results of every variant are checked equal (permuted).
+
+Also per variant the trace dispatches' time (`Tracer.last_gpu_ms`; on lavapipe CPU time that the host's work
+running beside it lengthens) and, once, the host steps of the reordering on the shuffled rays, timed alone: the
+order (`engine.rt.order.ray_order`: box, keys, radix sort) and a gather of the origins in that order (`np.take`).
 """
 from __future__ import annotations
 
 import argparse
 import json
+import os
 import sys
 import time
 from pathlib import Path
@@ -36,6 +42,9 @@ sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 import engine  # noqa: E402
 from engine.bench.rays import first_light_rays, random_rayset, surface_shadow_rays  # noqa: E402
 from engine.bench.scenes import generated_scene  # noqa: E402
+from engine.parallel import default_threads  # noqa: E402
+from engine.rt.order import ray_order, shared_direction  # noqa: E402
+from engine.rt.stream import STREAM_THREADS  # noqa: E402
 
 
 def morton30(o):
@@ -94,6 +103,7 @@ def bench_scene(name, scene, a, rng):
     variants["shuffled"] = (o[shuffle], d[shuffle], False, shuffle)
     variants["reordered"] = (variants["shuffled"][0], variants["shuffled"][1], True, shuffle)
     variants["auto"] = (variants["shuffled"][0], variants["shuffled"][1], "auto", shuffle)
+    variants["coherent auto"] = (variants["coherent"][0], variants["coherent"][1], "auto", coherent)
     go, gd, gt = gbuffer_rays(scene, a.rays, a.gbuffer)
     v, f = np.asarray(scene.positions, np.float32), np.asarray(scene.indices, np.int64)
     rnd = random_rayset(scene, a.rays, rng)
@@ -102,6 +112,7 @@ def bench_scene(name, scene, a, rng):
              "random sorted": (rnd.origins, rnd.directions, np.float32(np.inf), True, "intersect"),
              "random auto": (rnd.origins, rnd.directions, np.float32(np.inf), "auto", "intersect")}
     walls = {k: [] for k in list(variants) + list(extra)}
+    gpu = {k: [] for k in variants}
     reordered = {}
     with engine.Tracer(v, f) as tr:
         want = tr.occluded(o, d, t, reorder=False)
@@ -114,6 +125,7 @@ def bench_scene(name, scene, a, rng):
                 t0 = time.perf_counter()
                 tr.occluded(vo, vd, t, reorder=mode)
                 walls[key].append(time.perf_counter() - t0)
+                gpu[key].append(tr.last_gpu_ms)
                 reordered[key] = tr.last_reordered
             for key, (xo, xd, xt, mode, kind) in extra.items():
                 t0 = time.perf_counter()
@@ -123,17 +135,30 @@ def bench_scene(name, scene, a, rng):
                 if key.startswith("gbuffer"):
                     assert np.array_equal(got, g_want)
         errors = tr.validation_errors[:5]
+    so, sd = variants["shuffled"][0], variants["shuffled"][1]
+    steps = {"order": [], "gather": []}
+    for _ in range(a.reps):
+        t0 = time.perf_counter()
+        perm = ray_order(so, shared_direction(sd), min(default_threads(), STREAM_THREADS))
+        steps["order"].append(time.perf_counter() - t0)
+        t0 = time.perf_counter()
+        np.take(so, perm, axis=0)
+        steps["gather"].append(time.perf_counter() - t0)
     w = {k: np.asarray(x) for k, x in walls.items()}
     ratio = lambda x, y: float(np.median(w[x] / w[y]))   # noqa: E731  (per run, interleaved)
     return {"scene": name, "rays": len(o), "blocked": float(want.mean()), "tris": len(f),
             "wall_ms": {k: float(np.median(x)) * 1e3 for k, x in w.items()},
             "mrays_s": {k: len(o) / float(np.median(x)) / 1e6 for k, x in w.items()},
             "reordered": reordered,
+            "gpu_ms": {k: float(np.median(x)) for k, x in gpu.items()},
+            "host_steps_ms": {k: float(np.median(x)) * 1e3 for k, x in steps.items()},
+            "load_average": os.getloadavg()[0],
             "ratios": {"reordered / coherent": ratio("coherent", "reordered"),
                        "reordered / image": ratio("image", "reordered"),
                        "shuffled / coherent": ratio("coherent", "shuffled"),
                        "reordered / shuffled": ratio("shuffled", "reordered"),
                        "auto / reordered": ratio("reordered", "auto"),
+                       "coherent auto / coherent": ratio("coherent", "coherent auto"),
                        "gbuffer auto / gbuffer": ratio("gbuffer", "gbuffer auto"),
                        "random sorted / random": ratio("random", "random sorted"),
                        "random auto / random": ratio("random", "random auto")},
@@ -160,7 +185,10 @@ def main() -> int:
         print(f"{name} scene ({run['tris']:,} triangles), {run['rays']:,} shadow rays from random surface samples "
               f"({run['blocked']:.1%} blocked), {a.reps} interleaved runs, medians:")
         for k, ms in run["wall_ms"].items():
-            print(f"  {k:>13}  {ms:8.1f} ms  {run['mrays_s'][k]:6.2f} Mrays/s  reordered: {run['reordered'][k]}")
+            trace = f"  trace {run['gpu_ms'][k]:7.1f} ms" if k in run["gpu_ms"] else ""
+            print(f"  {k:>13}  {ms:8.1f} ms  {run['mrays_s'][k]:6.2f} Mrays/s  reordered: {run['reordered'][k]}{trace}")
+        print("  host steps alone: " + ", ".join(f"{k} {ms:.1f} ms" for k, ms in run["host_steps_ms"].items())
+              + f" (load average {run['load_average']:.1f})")
         for k, r in run["ratios"].items():
             print(f"  {k:>24}  {r:.2f}x")
         if run["validation_errors"]:

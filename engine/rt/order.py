@@ -2,13 +2,16 @@
 surface samples) are traced in the order of a coarse Morton code of their origins, and their results scattered back.
 
 On a CPU device (llvmpipe) a SIMD group of 8 lanes walks 8 rays in lock step until the slowest ends, and each lane's
-node loads miss the cache on their own: rays from nearby origins walk the same nodes. The key is 16 bits (a 15-bit
-Morton code of the origin's cell in the batch's box, and whether the direction points up), so that numpy's stable
-argsort is a radix sort (linear time). The stream gathers the rays in that order as it packs them and the sinks
-scatter the results back (engine/rt/stream.py). `incoherent` decides whether a batch gains from it, from a sample:
-image-ordered batches (G-buffer rays) and rays crossing the scene in all directions are left alone.
+node loads miss the cache on their own: rays from nearby origins walk the same nodes. The key is 16 bits (the code of
+the origin's cell in the batch's box, cut along its longest side in turn, and whether the direction points up unless
+every ray has the same one), so that numpy's stable argsort is a radix sort (linear time). The stream gathers the
+rays in that order as it packs them and the sinks scatter the results back (engine/rt/stream.py). `incoherent`
+decides whether a batch gains from it, from a sample: image-ordered batches (G-buffer rays) and rays crossing the
+scene in all directions are left alone.
 """
 from __future__ import annotations
+
+import functools
 
 import numpy as np
 
@@ -26,26 +29,43 @@ INCOHERENT = 0.02
 ALIKE = 0.7
 #: ... or the rays to be short (median length below this fraction of the diagonal)
 SHORT = 0.2
-#: bits of the origin's Morton code per axis (3 x 5 = 15 bits of the 16-bit key)
-AXIS_BITS = 5
+#: bits of a key (numpy's stable argsort is a radix sort up to 16-bit keys, a merge sort above)
+KEY_BITS = 16
 #: rays per task of the key computation on the worker pool
 KEY_BLOCK = 1 << 17
+#: rows per block of `shared_direction`'s comparison (its temporaries stay in the L2 cache)
+SHARED_BLOCK = 1 << 14
 
 
-def _morton_table(bits: int) -> np.ndarray:
-    """The Morton code (x highest), shifted left by one, of each cell x * 2^(2 bits) + y * 2^bits + z."""
-    cell = np.arange(1 << (3 * bits), dtype=np.uint32)
+def split_axes(lo, hi, bits: int) -> tuple:
+    """The axes that `bits` halvings of the box (lo, hi) split in turn, each time its longest side (x first on a
+    tie): cells about as long as they are wide (a flat scene's thin axis gets few bits), and for a cube x, y, z, x,
+    y, z, ... (the Morton code)."""
+    size = [float(x) for x in np.maximum(np.asarray(hi, np.float64) - np.asarray(lo, np.float64), 0.0)]
+    axes = []
+    for _ in range(bits):
+        a = max(range(3), key=lambda i: (size[i], -i))
+        axes.append(a)
+        size[a] /= 2
+    return tuple(axes)
+
+
+@functools.lru_cache(maxsize=16)
+def _code_table(axes: tuple, shift: int) -> np.ndarray:
+    """(2^len(axes),) uint16: the code of each cell x * 2^(by + bz) + y * 2^bz + z (b: an axis's count in `axes`),
+    its bits in the order of `axes` (the first split highest), shifted left by `shift`."""
+    bits = [axes.count(a) for a in range(3)]
+    cell = np.arange(1 << len(axes), dtype=np.uint32)
+    coord = [(cell >> (bits[1] + bits[2])) & ((1 << bits[0]) - 1), (cell >> bits[2]) & ((1 << bits[1]) - 1),
+             cell & ((1 << bits[2]) - 1)]
     out = np.zeros_like(cell)
-    for axis, shift in ((0, 2), (1, 1), (2, 0)):
-        c = (cell >> (bits * (2 - axis))) & ((1 << bits) - 1)
-        for i in range(bits):
-            out |= ((c >> i) & 1) << (3 * i + shift + 1)
-    return out.astype(np.uint16)
-
-
-_MORTON = _morton_table(AXIS_BITS)
-#: an origin's cell (float32 per axis, 0..2^bits - 1) to the index of _MORTON
-_CELL_WEIGHTS = np.array([1 << (2 * AXIS_BITS), 1 << AXIS_BITS, 1], np.float32)
+    seen = [0, 0, 0]
+    for k, a in enumerate(axes):   # split k: the next bit of axis a, from its highest
+        seen[a] += 1
+        out |= ((coord[a] >> (bits[a] - seen[a])) & 1) << (len(axes) - 1 - k + shift)
+    out = out.astype(np.uint16)
+    out.setflags(write=False)   # (shared by the cache)
+    return out
 
 
 def check_reorder(value, where: str = "Tracer") -> object:
@@ -106,22 +126,39 @@ def incoherent(o: np.ndarray, d: np.ndarray, tmax) -> bool:
 def shared_direction(d: np.ndarray) -> np.ndarray:
     """`d`, or where every ray has the same direction (shadow rays towards a distant light), its first row
     broadcast to d's shape (a stride-0 view: the stream then fills the directions instead of gathering them). The
-    full comparison runs only when a sample's directions are all equal."""
-    if len(d) == 0 or not (d[_sample_rows(len(d) + 1, SAMPLE)] == d[0]).all() or not (d == d[0]).all():
+    rows are compared bit for bit (a -0.0 stays -0.0), a sample first, then in blocks of SHARED_BLOCK rows that stay
+    in cache, stopping at the first block that differs."""
+    if len(d) == 0 or d.strides[0] == 0:
         return d
+    first = d[0].view(np.uint32)
+    if not (d[_sample_rows(len(d) + 1, SAMPLE)].view(np.uint32) == first).all():
+        return d
+    # (flat, as long as a block: an (N, 3) == (3,) comparison loops 3 elements at a time)
+    flat = np.tile(first, min(SHARED_BLOCK, len(d)))
+    for s in range(0, len(d), SHARED_BLOCK):
+        rows = d[s:s + SHARED_BLOCK].view(np.uint32).reshape(-1)
+        if not np.array_equal(rows, flat[:len(rows)]):
+            return d
     return np.broadcast_to(d[0], d.shape)
 
 
 def ray_keys(o: np.ndarray, d: np.ndarray, box, threads: int = 1) -> np.ndarray:
-    """(N,) uint16 keys: the 15-bit Morton code of each origin quantized to 32 cells per axis of `box` (clamped),
-    then whether the direction points up (+y) or down, which splits a cell's rays leaving opposite sides of a
-    surface. In row blocks on `threads` threads. Non-finite values give some key (the ray checks name them)."""
+    """(N,) uint16 keys: the code of each origin's cell in `box` (clamped), whose KEY_BITS - 1 bits halve the box
+    along its longest side in turn (`split_axes`: a Morton code for a cube), then whether the direction points up
+    (+y) or down, which splits a cell's rays leaving opposite sides of a surface; where every ray has the same
+    direction (a stride-0 `d`, `shared_direction`) that bit is the same for all and the cells get all KEY_BITS. In
+    row blocks on `threads` threads. Non-finite values give some key (the ray checks name them)."""
     lo, hi = (np.asarray(b, np.float32) for b in box)
-    scale = np.float32(1 << AXIS_BITS) / np.maximum(hi - lo, np.float32(1e-30))
+    shared = len(d) > 0 and d.strides[0] == 0
+    axes = split_axes(lo, hi, KEY_BITS if shared else KEY_BITS - 1)
+    table = _code_table(axes, 0 if shared else 1)
+    bits = np.array([axes.count(a) for a in range(3)])
+    scale = (np.float32(2.0) ** bits).astype(np.float32) / np.maximum(hi - lo, np.float32(1e-30))
+    top = (np.float32(2.0) ** bits - 1).astype(np.float32)
+    weights = np.array([1 << (bits[1] + bits[2]), 1 << bits[2], 1], np.float32)
     rows = min(KEY_BLOCK, len(o))
     # (flat, as long as a block: numpy's (N, 3) op (3,) broadcasts loop 3 elements at a time)
-    lo3, scale3 = np.tile(lo, rows), np.tile(scale, rows)
-    top = np.float32((1 << AXIS_BITS) - 1)
+    lo3, scale3, top3 = np.tile(lo, rows), np.tile(scale, rows), np.tile(top, rows)
     key = np.empty(len(o), np.uint16)
 
     def block(s):
@@ -129,12 +166,13 @@ def ray_keys(o: np.ndarray, d: np.ndarray, box, threads: int = 1) -> np.ndarray:
         q = np.subtract(o[s:e].reshape(-1), lo3[:3 * (e - s)])
         with np.errstate(invalid="ignore"):
             np.multiply(q, scale3[:3 * (e - s)], out=q)
-            np.clip(q, 0, top, out=q)
+            np.clip(q, 0, top3[:3 * (e - s)], out=q)
             np.floor(q, out=q)
-            cell = (q.reshape(-1, 3) @ _CELL_WEIGHTS).astype(np.uint16)
+            cell = (q.reshape(-1, 3) @ weights).astype(np.uint16)
         k = key[s:e]
-        np.take(_MORTON, cell, out=k, mode="clip")   # (a NaN origin casts to any integer)
-        k |= d[s:e, 1] > 0
+        np.take(table, cell, out=k, mode="clip")   # (a NaN origin casts to any integer)
+        if not shared:
+            k |= d[s:e, 1] > 0
     blocks(block, len(o), KEY_BLOCK, threads)
     return key
 
@@ -142,7 +180,7 @@ def ray_keys(o: np.ndarray, d: np.ndarray, box, threads: int = 1) -> np.ndarray:
 def ray_order(o: np.ndarray, d: np.ndarray, threads: int = 1) -> np.ndarray | None:
     """The order to trace rays in (an (N,) index array: trace row order[i] i-th), or None where the origins' box is
     not finite (bad rays: traced as given, so that the checks name the first one). A stable argsort of 16-bit keys
-    (numpy's radix sort)."""
+    (numpy's radix sort); `d` may be `shared_direction`'s stride-0 view (then the cells get the direction's bit)."""
     box = origin_box(o)
     if box is None:
         return None

@@ -423,9 +423,9 @@ class Tracer(Closes):
         o, d, t = ray_arrays(origins, directions, tmax, tmax_nan=False)
         self._sync()
         out = np.empty(len(o), bool)
-        order = self._order(o, d, t, reorder)
-        self._stream("occluded", o, d, t, occluded_sink(out, order), lambda: _name_bad(o, d, t, origins, directions),
-                     order)
+        order, dirs = self._order(o, d, t, reorder)
+        self._stream("occluded", o, dirs, t, occluded_sink(out, order),
+                     lambda: _name_bad(o, d, t, origins, directions), order)
         return out
 
     @serialized
@@ -441,14 +441,14 @@ class Tracer(Closes):
         o, d, t = ray_arrays(origins, directions, tmax, tmax_nan=False)
         self._sync()
         n = len(o)
-        order = self._order(o, d, t, reorder)
+        order, dirs = self._order(o, d, t, reorder)
         hits = Hits(np.empty(n, np.float32), np.empty(n, np.int32), np.empty(n, np.float32), np.empty(n, np.float32))
         sink = hits_sink(hits.t, hits.prim, hits.u, hits.v, order)
         if self._source is not None:   # from_scene: each chunk's instance and mesh triangle, from its flat ids
             hits.instance, hits.mesh_prim = np.empty(n, np.int32), np.empty(n, np.int32)
             base = self.scene.flat_tri_base if isinstance(self.scene, InstancedBVH) else np.zeros(1, np.uint32)
             sink = instance_sink(sink, hits.prim, base, hits.instance, hits.mesh_prim, order)
-        self._stream("intersect", o, d, t, sink, lambda: _name_bad(o, d, t, origins, directions), order)
+        self._stream("intersect", o, dirs, t, sink, lambda: _name_bad(o, d, t, origins, directions), order)
         return hits
 
     @serialized
@@ -475,13 +475,18 @@ class Tracer(Closes):
         return self._closest.run(points)
 
     def _order(self, o, d, t, reorder):
-        """The order to trace a batch in (engine/rt/order.py), or None for the given order; sets `last_reordered`."""
+        """The order to trace a batch in (engine/rt/order.py), or None for the given order, and its directions (for a
+        reordered batch `shared_direction`'s view: one direction for all is filled, not gathered); sets
+        `last_reordered`."""
         mode = self.reorder if reorder is None else check_reorder(reorder, "Tracer query")
         if mode == "auto":
             mode = is_cpu(self.ctx) and incoherent(o, d, t)
-        order = ray_order(o, d, min(default_threads(), STREAM_THREADS)) if mode and len(o) > 1 else None
+        order = None
+        if mode and len(o) > 1:
+            d = shared_direction(d)
+            order = ray_order(o, d, min(default_threads(), STREAM_THREADS))
         self.last_reordered = order is not None
-        return order
+        return order, d
 
     def _stream(self, kind, o, d, t, sink, bad, order=None):
         """Trace rays from `ray_arrays` (float32 (N, 3), (N, 3), and (N,) or one tmax) with the `kind` kernels, in
@@ -489,7 +494,7 @@ class Tracer(Closes):
         ray); `sink(slot, start, s, e)` takes rays [s, e) of a chunk's results from `slot.results_host`
         (engine/rt/stream.py)."""
         self.last_gpu_ms, self.last_retried = 0.0, 0
-        stream(self, kind, o, d if order is None else shared_direction(d), t, sink, bad, order)
+        stream(self, kind, o, d, t, sink, bad, order)
 
     def _device_arrays(self) -> CudaRays:
         """The queries on CUDA arrays (a ConfigError saying why where CUDA cannot share this device's memory)."""

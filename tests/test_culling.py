@@ -52,6 +52,9 @@ def in_frustum(scene, camera, aspect):
 
 
 def culling_renderer(make_renderer, *args, **kw):
+    # the hardware raster's indirect draws, whatever the device's default (the software raster's list of small
+    # instances is tested in test_soft_raster.py)
+    kw.setdefault("sw_raster", False)
     r = make_renderer(*args, **kw)
     if not r.ctx.draw_indirect_first_instance:
         pytest.skip(f"{r.device_name} lacks drawIndirectFirstInstance: the renderer does not cull there")

@@ -106,6 +106,8 @@ def test_a_cuda_array_without_cuda_is_a_clear_error(tracer):
         scene.add_triangles(*mesh())
         with pytest.raises(ConfigError, match="CUDA arrays cannot be used here"):
             scene.cast_rays(FakeCudaArray())
+    with pytest.raises(ConfigError, match="CUDA arrays cannot be used here"):
+        tracer.cuda_ray_arrays(100)
     # the numpy path is untouched
     o, d, t = rays(100)
     assert tracer.occluded(o, d, t).dtype == np.bool_
@@ -232,6 +234,36 @@ def test_intersect_matches_the_numpy_path(tracer, xp):
     np.testing.assert_array_equal(host(got.u)[hit], want.u[hit])
     np.testing.assert_array_equal(host(got.v)[hit], want.v[hit])
     assert int(got.hit.sum()) == int(hit.sum()) and f"{int(hit.sum())} hit" in repr(got)
+
+
+def test_rays_written_into_the_tracers_arrays_are_traced_without_a_copy(tracer, xp, monkeypatch):
+    mod, dev, host = xp
+    o, d, t = rays(4000, seed=11)
+    want_occ, want_hit = tracer.occluded(o, d, t), tracer.intersect(o, d, t)
+    name = mod.__name__
+    ro, rd, rt = tracer.cuda_ray_arrays(len(o), framework=name)
+    assert tuple(ro.shape) == (len(o), 3) and tuple(rt.shape) == (len(o),)
+    assert all(is_framework_device_array(xp, a) and str(a.dtype).endswith("float32") for a in (ro, rd, rt))
+    ro[:], rd[:], rt[:] = dev(o), dev(d), dev(t)
+    copies = []
+    real = cuda_arrays.CudaRays._trace
+
+    def counting(self, command, fw, shared, o_, d_, t_, *a, **kw):
+        v = shared.views(fw)
+        copies.append(sum(not isinstance(x, float) and fw.ptr(x) != fw.ptr(v[k])
+                          for k, x in (("origins", o_), ("directions", d_), ("tmax", t_))))
+        return real(self, command, fw, shared, o_, d_, t_, *a, **kw)
+    monkeypatch.setattr(cuda_arrays.CudaRays, "_trace", counting)
+    np.testing.assert_array_equal(host(tracer.occluded(ro, rd, rt)), want_occ)
+    np.testing.assert_array_equal(host(tracer.intersect(ro, rd, rt).prim), want_hit.prim)
+    assert copies == [0, 0]
+    # the same rays from arrays of the caller's own: copied in, the same answers
+    np.testing.assert_array_equal(host(tracer.occluded(dev(o), dev(d), dev(t))), want_occ)
+    assert copies[-1] == 3
+    with pytest.raises(ConfigError, match="framework must be 'torch' or 'cupy', got 'jax'"):
+        tracer.cuda_ray_arrays(10, framework="jax")
+    with pytest.raises(ConfigError, match=r"ray_arrays: at most [\d,]+ rays in the shared buffers"):
+        tracer.cuda_ray_arrays(cuda_arrays.CUDA_BATCH * 2, framework=name)
 
 
 def test_batches_larger_than_a_dispatch_are_split(xp, monkeypatch):

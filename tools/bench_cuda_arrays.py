@@ -82,6 +82,14 @@ def run_set(tracer, name, o, d, t, repeat):
             finally:
                 cuda_arrays.SPIN_S = spin
             rows["torch, no fence polling"] = (walls, tracer.last_gpu_ms)
+        if hasattr(tracer, "cuda_ray_arrays"):   # the rays written into the Tracer's own arrays: no copy in
+            ro, rd, rt = tracer.cuda_ray_arrays(n, framework=fw)
+            ro[:], rd[:], rt[:] = od, dd, td   # (a tmax for all rays written once too)
+            sync()
+            own, walls = timed(lambda: tracer.occluded(ro, rd, rt), repeat)
+            rows[f"{fw}, rays in the Tracer's arrays"] = (walls, tracer.last_gpu_ms)
+            if not np.array_equal(back(own), ref):
+                raise SystemExit(f"{name} {fw} (the Tracer's arrays) results differ from the numpy path")
         same = np.array_equal(back(out), ref)
         print(f"{name} {fw}: {type(out).__module__}.{type(out).__name__}, identical to numpy: {same}")
         if not same:

@@ -121,6 +121,9 @@ class _Torch:
     def dtype(self, a):
         return str(a.dtype).replace("torch.", "")
 
+    def ptr(self, a):
+        return a.data_ptr()
+
     def wrap(self, region: Region):
         return self.m.as_tensor(region, device=f"cuda:{region.device}")
 
@@ -149,6 +152,9 @@ class _CuPy:
     def dtype(self, a):
         return str(a.dtype)
 
+    def ptr(self, a):
+        return a.data.ptr
+
     def wrap(self, region: Region):
         with self.m.cuda.Device(region.device):
             return self.m.asarray(region)
@@ -164,6 +170,17 @@ class _CuPy:
     def sync(self, device: int):
         with self.m.cuda.Device(device):
             self.m.cuda.get_current_stream().synchronize()
+
+
+def framework_named(name: str):
+    """The adapter of the framework `name` ("torch" or "cupy"), a ConfigError where it is not installed."""
+    if name not in ("torch", "cupy"):
+        raise ConfigError(f"framework must be 'torch' or 'cupy', got {name!r}")
+    try:
+        module = __import__(name)
+    except ImportError:
+        raise ConfigError(f"framework {name!r} is not installed") from None
+    return _Torch(module) if name == "torch" else _CuPy(module)
 
 
 def framework(value, what: str):
@@ -379,9 +396,11 @@ class CudaRays:
         naming the first bad one); the results stay in the command's result buffer."""
         v, tracer = shared.views(fw), self.tracer
         whole = start == 0 and k == len(o)   # (slices of the arrays cost more than the copies' launches)
-        v["origins"][:k] = o if whole else o[start:start + k]
-        v["directions"][:k] = d if whole else d[start:start + k]
-        v["tmax"][:k] = t if isinstance(t, float) or whole else t[start:start + k]
+        for key, a in (("origins", o), ("directions", d), ("tmax", t)):
+            if isinstance(a, float):
+                v[key][:k] = a
+            elif not (whole and fw.ptr(a) == fw.ptr(v[key])):   # (rays written in place: `ray_arrays`)
+                v[key][:k] = a if whole else a[start:start + k]
         shared.first_bad[:] = NONE
         shared.words[:] = ((k + GROUP - 1) // GROUP, 1, 1, k, shared.capacity, tracer.shares, out_base, 0)
         fw.sync(self.device)   # the stream rule: CUDA's writes are done before Vulkan reads
@@ -391,6 +410,20 @@ class CudaRays:
         tracer.last_gpu_ms += tracer.last_times.get("trace", 0.0)
         if (shared.first_bad[:3] != NONE).any():
             raise self._name_bad(fw, v, start)
+
+    def ray_arrays(self, n: int, name: str):
+        """(origins (n, 3), directions (n, 3), tmax (n,)) float32 arrays of framework `name` that view the buffers
+        the kernels read: rays written there are traced without a copy (a query given these very arrays)."""
+        fw = framework_named(name)
+        n = int(n)
+        if n < 1:
+            raise ConfigError(f"ray_arrays: n must be at least 1, got {n}")
+        shared = self._buffers(n)
+        if n > shared.batch:
+            raise ConfigError(f"ray_arrays: at most {shared.batch:,} rays in the shared buffers, got {n:,}; trace "
+                              "larger batches from your own arrays")
+        v = shared.views(fw)
+        return v["origins"][:n], v["directions"][:n], v["tmax"][:n]
 
     def occluded(self, origins, directions, tmax):
         fw, o, d, t, n = self.inputs(origins, directions, tmax)

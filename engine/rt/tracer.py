@@ -496,6 +496,23 @@ class Tracer(Closes):
         self.last_gpu_ms, self.last_retried = 0.0, 0
         stream(self, kind, o, d, t, sink, bad, order)
 
+    @serialized
+    def cuda_ray_arrays(self, n: int, framework: str = "torch") -> tuple:
+        """Device arrays to write up to `n` rays into, for queries on CUDA arrays without the copy of the rays.
+
+        Returns (origins (n, 3), directions (n, 3), tmax (n,)), float32 torch tensors or CuPy arrays on the
+        Tracer's GPU that view the buffers the trace kernels read. Fill them (e.g. `origins.copy_(...)` or a
+        kernel of yours writing there), then pass these very arrays to `occluded` / `intersect`: the rays are not
+        copied. They stay valid until the Tracer is closed or a query needs larger buffers; a later query on other
+        arrays overwrites them. The stream rule of CUDA queries holds (docs/api.md).
+
+        Raises:
+            ConfigError: no CUDA here (naming why), a framework other than "torch" / "cupy", or n beyond the
+            shared buffers' size (CUDA_BATCH rays or the Tracer's batch_size).
+        """
+        self._check_open()
+        return self._device_arrays().ray_arrays(n, framework)
+
     def _device_arrays(self) -> CudaRays:
         """The queries on CUDA arrays (a ConfigError saying why where CUDA cannot share this device's memory)."""
         if self._source is not None:

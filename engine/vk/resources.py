@@ -45,6 +45,13 @@ def allocate(ctx: Context, req, mtype: int, what: str, pnext=None):
     return memory
 
 
+def _all_device_memory_mappable(ctx: Context) -> bool:
+    """Is every device-local memory type host-visible and coherent (no VRAM that only the device reaches)?"""
+    mp = ctx.memory_properties
+    return all(mp.memoryTypes[i].propertyFlags & HOST == HOST for i in range(mp.memoryTypeCount)
+               if mp.memoryTypes[i].propertyFlags & DEVICE)
+
+
 def free(ctx: Context, memory):
     vk.vkFreeMemory(ctx.device, memory, None)
     ctx.allocations -= 1
@@ -63,6 +70,10 @@ class Buffer:
             mtype = ctx.memory_type(req.memoryTypeBits, HOST | vk.VK_MEMORY_PROPERTY_HOST_CACHED_BIT)
         else:
             mtype = ctx.memory_type(req.memoryTypeBits, DEVICE)
+        # device-local memory that the host may write without a copy: where every device-local type is host-visible
+        # and coherent (a CPU device, an integrated GPU; not a discrete GPU's small mappable window)
+        self.host_writable = (ctx.memory_properties.memoryTypes[mtype].propertyFlags & HOST) == HOST \
+            and _all_device_memory_mappable(ctx)
         try:
             self.memory = allocate(ctx, req, mtype, f"buffer {name!r}" if name else "a buffer")
         except VulkanError:
@@ -117,7 +128,13 @@ def upload_buffer(ctx: Context, data: np.ndarray, usage: int, name: str = "") ->
     """A device-local buffer filled with `data` through a staging buffer."""
     raw = np.ascontiguousarray(data).view(np.uint8).reshape(-1)
     buf = Buffer(ctx, raw.nbytes, usage | TRANSFER_DST, name=name)
-    if raw.nbytes:
+    if raw.nbytes and buf.host_writable:   # written in place: no staging buffer, no submission to wait for
+        ptr = vk.vkMapMemory(ctx.device, buf.memory, 0, raw.nbytes, 0)
+        try:
+            np.frombuffer(ptr, np.uint8, raw.nbytes)[:] = raw
+        finally:
+            vk.vkUnmapMemory(ctx.device, buf.memory)
+    elif raw.nbytes:
         staging = Buffer(ctx, raw.nbytes, TRANSFER_SRC, host=True)
         staging.write(raw)
         with ctx.one_shot() as cmd:

@@ -1,9 +1,11 @@
 """The Tracer's host path: a batch streamed through a few slots of buffers, so that packing the next chunk's rays,
 tracing and reading back the last ones' results overlap.
 
-A `Slot` holds one chunk in flight: its rays and results in mapped memory (plus device-local copies on a discrete
-GPU), the dispatch parameters, the retry list, its descriptor set, timestamps, a fence and its command buffers
-(recorded once per query kind and copy size, then re-submitted). `stream()` packs chunk i into slot i mod S with
+A slot holds one chunk in flight. Its memory (`SlotBuffers`: rays and results in mapped memory, plus device-local
+copies on a discrete GPU, the dispatch parameters, the retry list, timestamps, a fence) belongs to the device and is
+shared by its Tracers: a `SlotPool` on the context hands a set of slots to one query for the length of its call
+(made on first use, sized to the batch); a Tracer's `Slot` over one of them adds its own descriptor set and command
+buffers (recorded once per query kind and copy size, then re-submitted). `stream()` packs chunk i into slot i mod S with
 numpy, straight into the mapped memory, and submits it without waiting. The packing runs as one row block per
 thread on the worker pool, each block checked where it was just copied (in cache), and in the same round the sink
 of the chunk that last used the slot (its fence waited for first) writes its results into the arrays the query

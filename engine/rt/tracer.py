@@ -572,8 +572,8 @@ class Tracer(Closes):
     # ---- lifetime --------------------------------------------------------------------------
     @serialized
     def close(self) -> None:
-        """Free the GPU buffers (and the device, unless it was given: an `engine.Device` or a context); safe to
-        call twice."""
+        """Free the GPU buffers (and the device, unless it was given: an `engine.Device` or a context, which keeps
+        the stream buffers its Tracers share until it is closed); safe to call twice."""
         if self._cuda is not None:   # (CUDA lets go of the shared memory before Vulkan frees it)
             self._cuda.close()
             self._cuda = None

@@ -103,15 +103,17 @@ class SlotSet:
     """Up to STREAM_SLOTS `SlotBuffers` of one size, made as a call first needs each (a batch of one chunk uses
     one); taken from a `SlotPool` by one call at a time."""
 
-    def __init__(self, ctx, key: tuple, chunk: int, capacity: int):
+    def __init__(self, ctx, key: tuple, chunk: int, capacity: int, lock):
         self.ctx, self.key, self.chunk, self.capacity = ctx, key, chunk, capacity
+        self.lock = lock   # the pool's: objects are made on the shared context one at a time
         self.buffers: list[SlotBuffers] = []
 
     def get(self, i: int) -> SlotBuffers:
         while len(self.buffers) <= i:
             staged, two_pass, texel_ok = self.key
-            self.buffers.append(SlotBuffers(self.ctx, self.chunk, self.capacity, staged, two_pass, texel_ok,
-                                            len(self.buffers)))
+            with self.lock:
+                self.buffers.append(SlotBuffers(self.ctx, self.chunk, self.capacity, staged, two_pass, texel_ok,
+                                                len(self.buffers)))
         return self.buffers[i]
 
 
@@ -139,7 +141,7 @@ class SlotPool:
                 self.free.remove(best)
                 return best
             self.sets += 1
-        return SlotSet(self.ctx, key, chunk, -(-chunk // align) * align)
+        return SlotSet(self.ctx, key, chunk, -(-chunk // align) * align, self.lock)
 
     def give(self, sset: SlotSet) -> None:
         """Back to the pool (its chunks all waited for)."""

@@ -76,6 +76,44 @@ def test_a_second_tracer_shares_the_first_ones_kernels():
         assert np.array_equal(got.prim, want.prim) and np.array_equal(got.t, want.t)
 
 
+def test_tracers_on_one_device_share_its_stream_buffers():
+    """The stream slots' buffers belong to the Device, made on a first query and taken by each query for its call:
+    two Tracers interleaving streamed queries (more chunks than slots) answer as separate ones, the second one's
+    queries allocate no device memory, closing one leaves the other answering, and closing the Device frees every
+    allocation (validation on, which also reports objects left undestroyed)."""
+    (va, fa), (vb, fb) = two_meshes()
+    o, d = rays(4 * 256 + 40, 5)
+    with Tracer(va, fa, batch_size=256) as a, Tracer(vb, fb, batch_size=256) as b:
+        want_a, want_b = answers(a, o, d), answers(b, o, d)
+    dev = Device(validation=True)
+    with dev:
+        ctx = dev.context
+        ta = Tracer(va, fa, device=dev, batch_size=256)
+        for g, w in zip(answers(ta, o, d), want_a):
+            assert np.array_equal(g, w)
+        before = ctx.allocations
+        tb = Tracer(vb, fb, device=dev, batch_size=256)
+        for _ in range(2):   # interleaved, each query streaming through the same buffers
+            for t, want in ((tb, want_b), (ta, want_a)):
+                for g, w in zip(answers(t, o, d), want):
+                    assert np.array_equal(g, w)
+        assert ctx.allocations == before + 2   # the second Tracer's own device memory: its BVH's two buffers
+        ta.close()
+        for g, w in zip(answers(tb, o, d), want_b):
+            assert np.array_equal(g, w)
+        tb.close()
+        assert dev.users == 0 and ctx.allocations > 0   # the buffers stay with the Device for its next Tracers
+        with Tracer(va, fa, device=dev) as tc:   # batches of growing and shrinking size on one Device
+            for n in (100, 20000, 100, 1):
+                oo, dd = rays(n, 6)
+                with Tracer(va, fa) as alone:
+                    want = answers(alone, oo, dd)
+                for g, w in zip(answers(tc, oo, dd), want):
+                    assert np.array_equal(g, w)
+    assert ctx.allocations == 0
+    assert dev.validation_errors == []
+
+
 def test_closing_in_any_order_and_use_after_close():
     (va, fa), (vb, fb) = two_meshes()
     o, d = rays(200, 3)

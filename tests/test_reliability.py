@@ -286,6 +286,28 @@ def test_a_resource_larger_than_the_memory_heap_is_refused_before_allocating():
         assert not ctx.validation_errors
 
 
+def test_uploaded_buffers_hold_their_data_written_in_place_or_staged(monkeypatch):
+    """upload_buffer writes device memory in place where all of it is host-visible (lavapipe) and through a staging
+    copy elsewhere (forced here): either way the buffer reads back the bytes given, and nothing is left allocated."""
+    data = np.arange(1000, dtype=np.uint32) * np.uint32(2654435761)
+    more = np.linspace(-1, 1, 333, dtype=np.float32)
+    usage = resources_mod.STORAGE | resources_mod.TRANSFER_SRC
+    with Context(validation=True) as ctx:
+        for in_place in (True, False):
+            monkeypatch.setattr(resources_mod, "_all_device_memory_mappable", lambda c, v=in_place: v)
+            buf = resources_mod.upload_buffer(ctx, data, usage, "data")
+            assert np.array_equal(resources_mod.read_buffer(ctx, buf, np.uint32)[:1000], data)
+            # several at once (one staging buffer and one submission where staged), an empty one among them
+            bufs = resources_mod.upload_buffers(ctx, [(more, usage, "a"), (np.zeros(0, np.uint8), usage, "b"),
+                                                      (data[::-1], usage, "c")])
+            assert np.array_equal(resources_mod.read_buffer(ctx, bufs[0], np.float32)[:333], more)
+            assert np.array_equal(resources_mod.read_buffer(ctx, bufs[2], np.uint32)[:1000], data[::-1])
+            for b in [buf] + bufs:
+                b.destroy()
+        assert ctx.allocations == 0
+        assert not ctx.validation_errors
+
+
 def test_device_lost_ends_the_renderer_cleanly(monkeypatch):
     scene = sphere_scene()
     r = Renderer(32, 24, validation=True)

@@ -236,12 +236,12 @@ def test_staged_rays_are_checked_by_the_kernels_and_occlusion_read_as_bytes(monk
     v, f, o, d, tmax = scene_and_rays(3 * CHUNK + 7)
     with Tracer(v, f, batch_size=CHUNK, staging=True, validation=True) as staged, \
             Tracer(v, f, batch_size=CHUNK, staging=False, validation=True) as mapped:
-        assert all(s.kernel_checks and s.hit_bytes["occluded"] == 1 for s in staged.slots)
-        assert not any(s.kernel_checks for s in mapped.slots)
         want_occ, want_hits = mapped.occluded(o, d, tmax), mapped.intersect(o, d, tmax)
+        assert mapped.slots and not any(s.kernel_checks for s in mapped.slots)
         calls = []
         monkeypatch.setattr(stream_mod, "block_fine", lambda *a: calls.append(1) or True)
         assert np.array_equal(staged.occluded(o, d, tmax), want_occ)
+        assert staged.slots and all(s.kernel_checks and s.hit_bytes["occluded"] == 1 for s in staged.slots)
         assert np.array_equal(staged.intersect(o, d, tmax).prim, want_hits.prim)
         assert not calls   # the host did not check them
         bad = d.copy()

@@ -9,8 +9,10 @@ geometry repeat covered ones, so the batch has exactly width x height rays), flo
 Timed, on one engine.Device, each back to back after a short warm-up (the device kept busy): `Tracer.occluded`
 numpy in, numpy out (the streamed path; Mrays/s of wall clock, and the GPU ms of its trace dispatches); then a plain
 host -> device -> host copy of the same bytes (28 per ray up, 4 down; engine/bench/transfer.py) and the ratio of the
-two; the same for the first 1M rays (lavapipe's wall / GPU target). Also the set-up of a first and a second Tracer of
-the scene on the Device (the second one's cost beyond its BVH build). Prints the figures and the issue-19 targets.
+two; the same for the first 1M rays (lavapipe's wall / GPU target). Also the set-up of a first Tracer of the scene on
+the Device, which then answers the batch once (the Device's stream buffers exist from then on), and of a second one
+(`--setup-runs` of them, medians): its cost beyond its BVH build, its first query of the batch and a warm one. Prints
+the figures and the issue-19 targets.
 """
 from __future__ import annotations
 
@@ -41,6 +43,39 @@ def shadow_rays(scene, width, height, device):
     return o, d, np.full(n, tmax, np.float32)
 
 
+def setup_figures(dev, v, f, o, d, t, runs):
+    """The set-up of a first Tracer on the Device (which then answers the batch once: the Device's stream buffers
+    exist from then on), and `runs` times of a second one: its set-up, its first query of the batch and a second
+    (warm) one; the second's figures are medians, those of each run listed too."""
+    t0 = time.perf_counter()
+    first = engine.Tracer(v, f, device=dev)
+    first_ms = (time.perf_counter() - t0) * 1e3
+    want = first.occluded(o, d, t)
+    runs_out = []
+    for _ in range(runs):
+        t0 = time.perf_counter()
+        second = engine.Tracer(v, f, device=dev)
+        ms = (time.perf_counter() - t0) * 1e3
+        t0 = time.perf_counter()
+        got = second.occluded(o, d, t)
+        first_query = (time.perf_counter() - t0) * 1e3
+        t0 = time.perf_counter()
+        second.occluded(o, d, t)
+        warm = (time.perf_counter() - t0) * 1e3
+        assert np.array_equal(got, want)
+        runs_out.append({"tracer_ms": ms, "build_ms": second.stats["build_ms"],
+                         "beyond_build_ms": ms - second.stats["build_ms"], "first_query_ms": first_query,
+                         "warm_query_ms": warm})
+        second.close()
+    first.close()
+    med = {k: float(np.median([r[k] for r in runs_out])) for k in runs_out[0]}
+    return {"first_tracer_ms": first_ms, "first_build_ms": first.stats["build_ms"],
+            "first_beyond_build_ms": first_ms - first.stats["build_ms"],
+            "second_tracer_ms": med["tracer_ms"], "second_build_ms": med["build_ms"],
+            "second_beyond_build_ms": med["beyond_build_ms"], "second_first_query_ms": med["first_query_ms"],
+            "second_warm_query_ms": med["warm_query_ms"], "second_runs": runs_out}
+
+
 def measure(tracer, copy, o, d, t, reps, warmup):
     gpu = []
 
@@ -63,6 +98,7 @@ def main() -> int:
     ap.add_argument("--chunks", type=int, nargs="*", default=None,
                     help="stream chunk sizes to compare (default: the Tracer's for the device, STREAM_CHUNK or "
                          "STREAM_CHUNK_STAGED)")
+    ap.add_argument("--setup-runs", type=int, default=5, help="second Tracers made (medians)")
     ap.add_argument("--json", default=None)
     a = ap.parse_args()
     w, h = (int(x) for x in a.size.lower().split("x"))
@@ -74,18 +110,7 @@ def main() -> int:
     with engine.Device(a.device) as dev:
         out["device"] = dev.name
         cpu = is_cpu(dev.context)
-        t0 = time.perf_counter()
-        first = engine.Tracer(v, f, device=dev)
-        first_ms = (time.perf_counter() - t0) * 1e3
-        t0 = time.perf_counter()
-        second = engine.Tracer(v, f, device=dev)
-        second_ms = (time.perf_counter() - t0) * 1e3
-        out["setup"] = {"first_tracer_ms": first_ms, "second_tracer_ms": second_ms,
-                        "first_build_ms": first.stats["build_ms"], "second_build_ms": second.stats["build_ms"],
-                        "first_beyond_build_ms": first_ms - first.stats["build_ms"],
-                        "second_beyond_build_ms": second_ms - second.stats["build_ms"]}
-        first.close()
-        second.close()
+        out["setup"] = setup_figures(dev, v, f, o, d, t, a.setup_runs)
         copy = CopyPeer(dev.context, len(o))
         default_chunk = tracer_mod.STREAM_CHUNK, tracer_mod.STREAM_CHUNK_STAGED
         for chunk in a.chunks or [None]:
@@ -107,13 +132,16 @@ def main() -> int:
         out["validation_errors"] = dev.validation_errors[:5]
 
     s = out["setup"]
+    each = ", ".join(f"{r['beyond_build_ms']:.1f}" for r in s["second_runs"])
     print(f"{out['date']}  {out['device']}  {a.scene} scene, {len(o):,} shadow rays ({w}x{h}), float32 numpy in / "
           f"bool numpy out, {a.reps} runs back to back (medians)")
     print(f"set-up on one Device: first Tracer {s['first_tracer_ms']:.1f} ms (BVH build {s['first_build_ms']:.1f}, the "
           f"rest {s['first_beyond_build_ms']:.1f}), second {s['second_tracer_ms']:.1f} ms (BVH build "
           f"{s['second_build_ms']:.1f}, the rest {s['second_beyond_build_ms']:.1f}); first / second "
           f"{s['first_tracer_ms'] / s['second_tracer_ms']:.1f}x, beyond the build "
-          f"{s['first_beyond_build_ms'] / max(s['second_beyond_build_ms'], 1e-3):.1f}x")
+          f"{s['first_beyond_build_ms'] / max(s['second_beyond_build_ms'], 1e-3):.1f}x; the second's first "
+          f"query {s['second_first_query_ms']:.1f} ms, its next {s['second_warm_query_ms']:.1f} "
+          f"(medians of {a.setup_runs}; beyond the build, each: {each})")
     print(f"{'chunk':>9} {'rays':>10} {'wall ms':>9} {'Mrays/s':>9} {'GPU ms':>8} {'wall/GPU':>9} "
           f"{'copy ms':>9} {'copy Mr/s':>10} {'x copy':>7}")
     for run in out["runs"]:

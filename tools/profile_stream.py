@@ -116,9 +116,9 @@ def main() -> int:
                 return r
             setattr(obj, name, inner)
             return fn
-        orig = {k: getattr(sm.Slot, k) for k in ("pack", "wait", "submit") if hasattr(sm.Slot, k)}
-        for k in orig:
-            wrap(sm.Slot, k, k)
+        orig = {(cls, k): getattr(cls, k) for cls, k in ((sm.Slot, "submit"), (sm.SlotBuffers, "wait"))}
+        for cls, k in orig:
+            wrap(cls, k, k)
         orig_round = wrap(sm, "_parallel", "round")
         orig_sink = tm.occluded_sink
 
@@ -169,8 +169,8 @@ def main() -> int:
             sm.STREAM_THREADS = default_stream_threads
         tm.STREAM_CHUNK, tm.STREAM_CHUNK_STAGED = default_chunk
         sm._parallel = orig_round
-        for k, fn in orig.items():
-            setattr(sm.Slot, k, fn)
+        for (cls, k), fn in orig.items():
+            setattr(cls, k, fn)
         tm.occluded_sink = orig_sink
     if a.json:
         Path(a.json).parent.mkdir(parents=True, exist_ok=True)

@@ -58,14 +58,17 @@ def compress_nodes(nodes: np.ndarray) -> np.ndarray | None:
     # child boxes (M, 2 children, 3 axes); an empty leaf slot (inverted box, count 0) gets the frame's origin
     bmin = np.stack([nodes["lmin"], nodes["rmin"]], 1).astype(F32)
     bmax = np.stack([nodes["lmax"], nodes["rmax"]], 1).astype(F32)
-    empty = ~(bmin <= bmax).all(axis=2)
+    inside = bmin <= bmax   # (reductions over the 2- and 3-long axes spelled out: numpy's are slow there)
+    empty = ~(inside[..., 0] & inside[..., 1] & inside[..., 2])
     if np.any(empty & ~(leaf & (counts == 0))):
         raise ValueError("compress_nodes: an inverted box that is not an empty leaf")
-    if not (np.all(np.isfinite(bmin[~empty])) and np.all(np.isfinite(bmax[~empty]))):
+    if not (np.all(np.isfinite(bmin) | empty[..., None]) and np.all(np.isfinite(bmax) | empty[..., None])):
         raise ValueError("compress_nodes: a non-finite box")
     big = np.float32(np.finfo(F32).max)
-    lo = np.where(empty[..., None], big, bmin).min(axis=1)
-    hi = np.where(empty[..., None], -big, bmax).max(axis=1)
+    lo = np.where(empty[..., None], big, bmin)
+    lo = np.minimum(lo[:, 0], lo[:, 1])
+    hi = np.where(empty[..., None], -big, bmax)
+    hi = np.maximum(hi[:, 0], hi[:, 1])
     none = lo > hi  # both slots empty (a mesh of 0 triangles)
     lo = np.where(none, F32(0), lo)
     hi = np.where(none, F32(0), hi)
@@ -81,7 +84,7 @@ def compress_nodes(nodes: np.ndarray) -> np.ndarray | None:
     e = np.clip(e, 1, 254)
     qlo, qhi, ok = _quantize(origin[:, None, :], e[:, None, :], bmin, bmax)
     for _ in range(64):
-        bad = ~ok.all(axis=1)                                       # (M, 3): an axis whose exponent must grow
+        bad = ~(ok[:, 0] & ok[:, 1])                                # (M, 3): an axis whose exponent must grow
         if not bad.any():
             break
         rows, ax = np.nonzero(bad)

@@ -14,7 +14,7 @@ from ..bvh.compress import compress_nodes
 from ..bvh.instanced import TwoLevel
 from ..bvh.wide import collapse_bvh8
 from ..errors import ConfigError, SceneError
-from ..vk import Buffer, BufferView, Context, DescriptorSet, update_buffer, upload_buffer
+from ..vk import Buffer, BufferView, Context, DescriptorSet, update_buffer, upload_buffers
 from ..vk.device import is_cpu
 from ..vk.reflect import Interface
 from ..vk.resources import STORAGE, STORAGE_TEXEL, TRANSFER_SRC, UNIFORM_TEXEL
@@ -114,8 +114,8 @@ class SceneBVH:
                                  f"more than this device's texel-buffer limit of {texels:,} texels "
                                  f"({texels * 16 / 2**20:.0f} MiB, {ctx.device_info['name']})")
         usage = UNIFORM_TEXEL | STORAGE_TEXEL
-        self.nodes = upload_buffer(ctx, nodes, usage, "bvh nodes")
-        self.tris = upload_buffer(ctx, bvh.tris, usage, "bvh triangles")
+        self.nodes, self.tris = upload_buffers(ctx, [(nodes, usage, "bvh nodes"),
+                                                     (bvh.tris, usage, "bvh triangles")])
         # the same buffers as uniform texel buffers and as storage texel buffers; BVH_IMAGE_FETCH says which the
         # shaders read (the storage views on CPU devices)
         self.views = [BufferView(self.nodes), BufferView(self.tris)]
@@ -278,8 +278,8 @@ class InstancedBVH:
                                  f"than this device's texel-buffer limit of {texels:,} texels")
         # (storage buffers of the GPU refit; the nodes a copy source: engine/gpu/tlas.py read_back)
         usage = UNIFORM_TEXEL | STORAGE_TEXEL | STORAGE | TRANSFER_SRC
-        self.nodes = upload_buffer(self.ctx, self.two.nodes, usage, "bvh nodes (two-level)")
-        self.tris = upload_buffer(self.ctx, self.two.tris, usage, "bvh triangles (two-level)")
+        self.nodes, self.tris = upload_buffers(self.ctx, [(self.two.nodes, usage, "bvh nodes (two-level)"),
+                                                          (self.two.tris, usage, "bvh triangles (two-level)")])
         tail = self.two.nodes.nbytes - self.two.tail_offset
         self.staging = Buffer(self.ctx, tail, TRANSFER_SRC, host=True, name="top-level staging")
         self.views = [BufferView(self.nodes), BufferView(self.tris)]

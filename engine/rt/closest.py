@@ -112,8 +112,8 @@ class ClosestQuery:
             self.set.bind("bvh_tri_texels", view).bind("bvh_tri_image", view)
         spec = bvh_spec(ctx, scene.depth, layout="binary", compressed=scene.compressed)
         spec["RAYS_TEXEL"] = False
-        # (every slot's io set has the same layout)
-        self.pipeline = ComputePipeline(ctx, spirv, [tracer.slots[0].io_set, self.set],
+        # (every slot's io set has the trace kernels' set-0 layout)
+        self.pipeline = ComputePipeline(ctx, spirv, [tracer.io_layout, self.set],
                                         spec=interface.specialization(spec, SHADER), name="trace_closest")
 
     def record(self, slot, span: int):

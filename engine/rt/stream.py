@@ -1,9 +1,11 @@
 """The Tracer's host path: a batch streamed through a few slots of buffers, so that packing the next chunk's rays,
 tracing and reading back the last ones' results overlap.
 
-A `Slot` holds one chunk in flight: its rays and results in mapped memory (plus device-local copies on a discrete
-GPU), the dispatch parameters, the retry list, its descriptor set, timestamps, a fence and its command buffers
-(recorded once per query kind and copy size, then re-submitted). `stream()` packs chunk i into slot i mod S with
+A slot holds one chunk in flight. Its memory (`SlotBuffers`: rays and results in mapped memory, plus device-local
+copies on a discrete GPU, the dispatch parameters, the retry list, timestamps, a fence) belongs to the device and is
+shared by its Tracers: a `SlotPool` on the context hands a set of slots to one query for the length of its call
+(made on first use, sized to the batch); a Tracer's `Slot` over one of them adds its own descriptor set and command
+buffers (recorded once per query kind and copy size, then re-submitted). `stream()` packs chunk i into slot i mod S with
 numpy, straight into the mapped memory, and submits it without waiting. The packing runs as one row block per
 thread on the worker pool, each block checked where it was just copied (in cache), and in the same round the sink
 of the chunk that last used the slot (its fence waited for first) writes its results into the arrays the query
@@ -11,6 +13,7 @@ returns: one hand-over to the pool per chunk.
 """
 from __future__ import annotations
 
+import threading
 from collections import deque
 
 import numpy as np
@@ -33,20 +36,22 @@ MIN_BLOCK = {"pack": 1 << 15, "intersect": 1 << 17, "closest": 1 << 17, "occlude
 #: the most worker threads a stream uses: every numpy call of a task hands the GIL over, and beyond this many threads
 #: those hand-overs (and a thread holding the GIL while descheduled) cost more than the extra cores gain
 STREAM_THREADS = 8
+#: the smallest set of stream slots (rays per chunk) a batch takes (SlotPool): small batches share one size
+MIN_SET_CHUNK = 1 << 14
 
 
-class Slot:
-    """One chunk's buffers in flight (see the module notes)."""
+class SlotBuffers:
+    """One chunk's memory in flight: rays and results in mapped memory (plus device-local copies when staged), the
+    dispatch parameters, the retry list, the kernels' error words, the texel views of rays.glsl, timestamps and a
+    fence. Made on the device's context and shared by its Tracers through a `SlotPool` (see the module notes)."""
 
-    def __init__(self, ctx, bindings, chunk: int, capacity: int, staged: bool, two_pass: bool, texel_ok: bool,
-                 index: int, kernel_checks: bool = False, result_bytes: bool = False):
+    def __init__(self, ctx, chunk: int, capacity: int, staged: bool, two_pass: bool, texel_ok: bool, index: int):
         self.ctx, self.chunk, self.capacity, self.staged = ctx, chunk, capacity, staged
-        # kernel_checks: the kernels check the rays (CHECK_RAYS), the packing only copies them; result_bytes: the
-        # occlusion kernels write one byte per ray (RESULT_BYTES), a bool array's layout
-        self.kernel_checks = kernel_checks
-        self.hit_bytes = dict(HIT_BYTES, occluded=1 if result_bytes else 4)
+        # staged: the kernels check the rays (CHECK_RAYS), the packing only copies them, and the occlusion kernels
+        # write one byte per ray (RESULT_BYTES), a bool array's layout
+        self.kernel_checks = staged
+        self.hit_bytes = dict(HIT_BYTES, occluded=1 if staged else 4)
         c = capacity
-        self.io_set = DescriptorSet(ctx, bindings)
         self.rays_host = Buffer(ctx, c * RAY_BYTES, STORAGE | UNIFORM_TEXEL | TRANSFER_SRC, host=True,
                                 name=f"rays {index}")
         self.results_host = Buffer(ctx, chunk * 16, STORAGE | STORAGE_TEXEL | TRANSFER_DST, host=True,
@@ -62,33 +67,122 @@ class Slot:
         # (CPU devices only have a second pass: host-visible is their device memory)
         self.retry = Buffer(ctx, 4 + 4 * chunk if two_pass else 16, STORAGE | TRANSFER_DST, host=two_pass,
                             name=f"retry list {index}")
-        for name, buf in (("ray_data", self.rays), ("params", self.params), ("retry", self.retry)):
-            self.io_set.bind(name, buf)
         # the kernels' first bad rays (CHECK_RAYS; otherwise a binding they never write)
-        self.errors = Buffer(ctx, 16, STORAGE, host=True, name=f"ray errors {index}") if kernel_checks else None
-        self.io_set.bind("ray_errors", self.errors if self.errors is not None else self.retry)
-        # (occluded / hits: two names of the results buffer in the two kernels; the set is laid out from one)
-        self.io_set.bind(bindings[1].name, self.results)
+        self.errors = Buffer(ctx, 16, STORAGE, host=True, name=f"ray errors {index}") if staged else None
         # the texel buffer views of rays.glsl (read where RAYS_TEXEL says). RGB32F uniform texel buffers are optional
         # in Vulkan: without them the origin and direction views are R32F ones, which the shaders then never read
         vec3 = RGB32F if texel_ok else R32F
-        views = {"ray_origins": BufferView(self.rays, vec3, 0, 12 * c),
-                 "ray_directions": BufferView(self.rays, vec3, 12 * c, 12 * c),
-                 "ray_tmax": BufferView(self.rays, R32F, 24 * c, 4 * c),
-                 "occluded_texels": BufferView(self.results, R32UI, 0, 4 * chunk),
-                 "hit_texels": BufferView(self.results, RGBA32UI, 0, 16 * chunk)}
-        for name, view in views.items():
-            self.io_set.bind(name, view)
+        self.views = {"ray_origins": BufferView(self.rays, vec3, 0, 12 * c),
+                      "ray_directions": BufferView(self.rays, vec3, 12 * c, 12 * c),
+                      "ray_tmax": BufferView(self.rays, R32F, 24 * c, 4 * c),
+                      "occluded_texels": BufferView(self.results, R32UI, 0, 4 * chunk),
+                      "hit_texels": BufferView(self.results, RGBA32UI, 0, 16 * chunk)}
         self.timestamps = Timestamps(ctx, capacity=4)
         self.fence = create_fence(ctx)
         ctx.defer_destroy(destroy_fence, ctx, self.fence)
         self.pending = False          # submitted, fence not yet waited for
-        self.commands: dict = {}      # (kind, span) -> (command buffer, timestamp names)
         # the mapped arrays, as rays.glsl reads them: origins, directions, tmax, each an array of `capacity` rays
         f32 = self.rays_host.view(np.float32)
         self.origins = f32[:3 * c].reshape(c, 3)
         self.directions = f32[3 * c:6 * c].reshape(c, 3)
         self.tmax = f32[6 * c:7 * c]
+
+    def had_bad_ray(self) -> bool:
+        """Did the kernels find a bad ray in this slot's last chunk (CHECK_RAYS; its fence waited for)?"""
+        return self.errors is not None and bool((self.errors.view(np.uint32)[:3] != NO_BAD_RAY).any())
+
+    def wait(self):
+        """Block until the last submission of this slot has run (then its results may be read)."""
+        if self.pending:
+            wait_fences(self.ctx, [self.fence])
+            reset_fences(self.ctx, [self.fence])
+            self.pending = False
+
+
+class SlotSet:
+    """Up to STREAM_SLOTS `SlotBuffers` of one size, made as a call first needs each (a batch of one chunk uses
+    one); taken from a `SlotPool` by one call at a time."""
+
+    def __init__(self, ctx, key: tuple, chunk: int, capacity: int, lock):
+        self.ctx, self.key, self.chunk, self.capacity = ctx, key, chunk, capacity
+        self.lock = lock   # the pool's: objects are made on the shared context one at a time
+        self.buffers: list[SlotBuffers] = []
+
+    def get(self, i: int) -> SlotBuffers:
+        while len(self.buffers) <= i:
+            staged, two_pass, texel_ok = self.key
+            with self.lock:
+                self.buffers.append(SlotBuffers(self.ctx, self.chunk, self.capacity, staged, two_pass, texel_ok,
+                                                len(self.buffers)))
+        return self.buffers[i]
+
+
+class SlotPool:
+    """The stream slots of one device (its context's memo: `slot_pool`), shared by every Tracer on it, made on first
+    use and freed with the context. A query takes a set for its whole call (`take`) and gives it back at its end
+    (`give`), every chunk waited for: a set is never used by two calls at once, so Tracers used from several threads
+    each get a set of their own (the pool then holds one per concurrent call). A set is sized to the batch (a power
+    of two, at least MIN_SET_CHUNK rays, at most the Tracer's chunk); the smallest free one that fits is reused, so
+    the pool holds at most about twice the largest set per kind of slot."""
+
+    def __init__(self, ctx):
+        self.ctx = ctx
+        self.lock = threading.Lock()
+        self.free: list[SlotSet] = []
+        self.sets = 0   # made so far
+
+    def take(self, key: tuple, chunk: int, align: int) -> SlotSet:
+        """A free set of `key` (staged, two_pass, texel_ok) for chunks of up to `chunk` rays, or a new one (its ray
+        arrays' stride `capacity` rounded up to `align` rays)."""
+        with self.lock:
+            fits = [s for s in self.free if s.key == key and s.chunk >= chunk]
+            if fits:
+                best = min(fits, key=lambda s: s.chunk)
+                self.free.remove(best)
+                return best
+            self.sets += 1
+        return SlotSet(self.ctx, key, chunk, -(-chunk // align) * align, self.lock)
+
+    def give(self, sset: SlotSet) -> None:
+        """Back to the pool (its chunks all waited for)."""
+        with self.lock:
+            self.free.append(sset)
+
+
+def slot_pool(ctx) -> SlotPool:
+    """The `SlotPool` of `ctx`'s device (made once, on the context the Tracers share)."""
+    root = ctx.root
+    with root.memo_lock:
+        if "stream.slots" not in root.memo:
+            root.memo["stream.slots"] = SlotPool(root)
+        return root.memo["stream.slots"]
+
+
+def set_chunk(n: int, chunk: int) -> int:
+    """The chunk size of the set a batch of n rays takes: n rounded up to a power of two, at least MIN_SET_CHUNK, at
+    most the Tracer's `chunk`."""
+    return min(chunk, max(MIN_SET_CHUNK, 1 << max(int(n) - 1, 0).bit_length()))
+
+
+class Slot:
+    """One Tracer's use of a `SlotBuffers`: its descriptor set over those buffers (with the Tracer's own bindings)
+    and its command buffers, made on the Tracer's scope; the buffers' attributes read through."""
+
+    def __init__(self, ctx, buffers: SlotBuffers, bindings, bind_own):
+        self.ctx, self.buffers = ctx, buffers
+        self.io_set = DescriptorSet(ctx, bindings)
+        for name, buf in (("ray_data", buffers.rays), ("params", buffers.params), ("retry", buffers.retry)):
+            self.io_set.bind(name, buf)
+        self.io_set.bind("ray_errors", buffers.errors if buffers.errors is not None else buffers.retry)
+        # (occluded / hits: two names of the results buffer in the two kernels; the set is laid out from one)
+        self.io_set.bind(bindings[1].name, buffers.results)
+        for name, view in buffers.views.items():
+            self.io_set.bind(name, view)
+        bind_own(self.io_set)
+        self.commands: dict = {}      # (kind, span) -> (command buffer, timestamp names)
+
+    def __getattr__(self, name: str):
+        return getattr(self.__dict__["buffers"], name)
 
     def command(self, kind: str, n: int, record):
         """The recorded command buffer for `kind` (and, when staged, the copy size for n rays: the batch rounded up
@@ -163,19 +257,8 @@ class Slot:
             self.errors.view(np.uint32)[:] = NO_BAD_RAY
         cmd, marks = self.command(kind, n, record)
         self.ctx.submit(cmd, wait=False, fence=self.fence)
-        self.pending = True
+        self.buffers.pending = True
         return marks
-
-    def had_bad_ray(self) -> bool:
-        """Did the kernels find a bad ray in this slot's last chunk (CHECK_RAYS; its fence waited for)?"""
-        return self.errors is not None and bool((self.errors.view(np.uint32)[:3] != NO_BAD_RAY).any())
-
-    def wait(self):
-        """Block until the last submission of this slot has run (then its results may be read)."""
-        if self.pending:
-            wait_fences(self.ctx, [self.fence])
-            reset_fences(self.ctx, [self.fence])
-            self.pending = False
 
 
 def block_size(n: int, threads: int, what: str) -> int:
@@ -189,8 +272,11 @@ def stream(tracer, kind: str, o, d, t, sink, bad, order=None) -> None:
     indices `order` if given (engine/rt/order.py); `sink(slot, start, s, e)` takes traced rays [s, e) of the chunk
     from `start` from the slot's results (made with the same `order`); `bad()` raises the error for a chunk with a
     bad ray. One round of tasks on the worker pool per chunk: its packing, and the sink of the chunk whose slot it
-    reuses (that chunk's fence waited for first). Updates the tracer's last_gpu_ms, last_retried and last_times."""
-    slots, chunk = tracer.slots, tracer.chunk
+    reuses (that chunk's fence waited for first). The slots are taken from the device's `SlotPool` for the call and
+    given back at its end, nothing in flight. Updates the tracer's last_gpu_ms, last_retried and last_times."""
+    chunk = tracer.chunk
+    if not len(o):
+        return
     threads = min(default_threads(), STREAM_THREADS)
     inflight: deque = deque()
     if tracer.scratch is None:
@@ -209,25 +295,26 @@ def stream(tracer, kind: str, o, d, t, sink, bad, order=None) -> None:
         step = block_size(n, threads, kind)
         return [lambda s=s: sink(slot, start, s, min(s + step, n)) for s in range(0, n, step)]
 
-    try:
-        for i, start in enumerate(range(0, len(o), chunk)):
-            n = min(chunk, len(o) - start)
-            slot = slots[i % len(slots)]
-            tasks = collect() if len(inflight) == len(slots) else []
-            slot.wait()   # (a query that failed half-way left it pending)
-            if order is None:
-                packs = slot.pack_tasks(o[start:start + n], d[start:start + n],
-                                        t if t.ndim == 0 else t[start:start + n], n, threads, tracer.scratch)
-            else:
-                packs = slot.pack_tasks(o, d, t, n, threads, tracer.scratch, order[start:start + n])
-            if not all(_parallel(packs + tasks, threads)[:len(packs)]):
-                bad()
-            inflight.append((slot, start, n, slot.submit(kind, n, tracer.shares, tracer._record)))
-        while inflight:
-            _parallel(collect(), threads)
-    finally:
-        for slot in slots:   # an error half-way: nothing of this query stays in flight
-            slot.wait()
+    with tracer.take_slots(len(o)) as slots:   # (given back to the device's pool at the end)
+        try:
+            for i, start in enumerate(range(0, len(o), chunk)):
+                n = min(chunk, len(o) - start)
+                slot = slots[i % len(slots)]
+                tasks = collect() if len(inflight) == len(slots) else []
+                slot.wait()   # (a query that failed half-way left it pending)
+                if order is None:
+                    packs = slot.pack_tasks(o[start:start + n], d[start:start + n],
+                                            t if t.ndim == 0 else t[start:start + n], n, threads, tracer.scratch)
+                else:
+                    packs = slot.pack_tasks(o, d, t, n, threads, tracer.scratch, order[start:start + n])
+                if not all(_parallel(packs + tasks, threads)[:len(packs)]):
+                    bad()
+                inflight.append((slot, start, n, slot.submit(kind, n, tracer.shares, tracer._record)))
+            while inflight:
+                _parallel(collect(), threads)
+        finally:
+            for slot in slots:   # an error half-way: nothing of this query stays in flight
+                slot.wait()
 
 
 def _rows(order, a: int, b: int):

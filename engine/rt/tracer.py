@@ -13,6 +13,7 @@ from __future__ import annotations
 import math
 import os
 import threading
+from contextlib import contextmanager
 from dataclasses import dataclass
 from typing import Any
 
@@ -33,18 +34,19 @@ from ..vk import (Buffer, BufferView, ComputePipeline, Context, DescriptorSet, S
                   upload_buffer, upload_texture_array)
 from ..vk.device import has_dedicated_vram, is_cpu, rgb32f_texel_buffers, work_shares
 from ..vk.formats import RGBA32F
-from ..vk.resources import UNIFORM_TEXEL
+from ..vk.resources import STORAGE, TRANSFER_DST, UNIFORM_TEXEL
 from ..vk.shared import Device, Scope
 from .checks import check_batch_size, check_mesh, name_bad_ray, name_bad_tmax, ray_arrays
 from .closest import Closest, ClosestQuery
 from .cuda_arrays import CudaRays, on_cuda
 from .order import check_reorder, incoherent, ray_order, shared_direction
-from .stream import STREAM_THREADS, Slot, hits_sink, instance_sink, occluded_sink, stream
+from .stream import STREAM_THREADS, Slot, hits_sink, instance_sink, occluded_sink, set_chunk, slot_pool, stream
 
 #: Query kinds whose kernels read rays (and write results) through texel buffer views on CPU devices (RAYS_TEXEL):
 #: faster for occlusion on lavapipe, not for closest hits.
 RAYS_TEXEL_KINDS = ("occluded",)
-#: rays per chunk of a streamed batch (at most `batch_size`), and chunks in flight (slots of buffers): larger chunks
+#: rays per chunk of a streamed batch (at most `batch_size`), and chunks in flight (slots of buffers, shared by the
+#: Tracers of a device: engine/rt/stream.py SlotPool): larger chunks
 #: where rays are staged through device-local memory (a discrete GPU: a round trip per chunk costs more than the
 #: trace), smaller ones where the device traces from the mapped memory (a CPU device: packing overlaps tracing)
 STREAM_CHUNK = 1 << 18
@@ -91,6 +93,24 @@ def _pipelines(ctx, lib, specs, two_pass) -> dict:
                     root.memo[key] = ComputePipeline(root, spirv, layouts, spec=constants, name=name)
                 out[name[6:]] = root.memo[key]
     return out
+
+
+_WHITE = np.full((1, 1, 4), 255, np.uint8)
+
+
+def _untested_bindings(ctx):
+    """(texture arrays, alpha records view, white texture, sampler) of a Tracer without alpha-tested materials: no
+    texture arrays, a 1-texel record and a white texture, which the kernels never read (ALPHA_TEST off); made on
+    the context itself, once, and shared by its Tracers."""
+    root = ctx.root
+    with root.memo_lock:
+        if "tracer.untested" not in root.memo:
+            view = BufferView(upload_buffer(root, np.zeros((1, 8), np.float32), UNIFORM_TEXEL, "alpha records"),
+                              RGBA32F)
+            root.memo["tracer.untested"] = (TextureArrays(root, {}), view,
+                                            upload_texture_array(root, [_WHITE], 1, 1, name="white texture"),
+                                            Sampler(root))
+        return root.memo["tracer.untested"]
 
 
 def _name_bad(o, d, t, origins, directions):
@@ -306,15 +326,20 @@ class Tracer(Closes):
             spec.update(self.alpha_spec, **self._host_path_spec(kind))
         self.specs = specs   # by name, per query kind
         self.two_pass = {kind: bool(s.get("BVH_REG_STACK") and s.get("BVH_STACK_RETRY")) for kind, s in specs.items()}
-        bindings = list(interface.set(0).values())
-        # (a two-level BVH's depth may grow when a bottom level is rebuilt: its slots keep room for the retry list)
-        retry = any(self.two_pass.values()) or (isinstance(self.scene, InstancedBVH) and is_cpu(ctx))
-        self.slots = [Slot(ctx, bindings, self.chunk, self.capacity, self.staged, retry, self.rays_texel_ok, i,
-                           kernel_checks=self.staged, result_bytes=self.staged) for i in range(STREAM_SLOTS)]
-        for slot in self.slots:
-            self.bind_alpha(slot.io_set)
+        self._io_bindings = list(interface.set(0).values())
+        # slots with room for the second dispatch's retry list on every CPU device (the only ones with that pass),
+        # whatever this tree's depth: then all Tracers of the device share them (and a two-level BVH whose bottom
+        # level is rebuilt deeper needs no others)
+        self._retry_list = is_cpu(ctx)
+        self._align = step
+        # the stream slots' buffers are the device's (SlotPool, made on the first query); this Tracer's descriptor
+        # sets and command buffers over each set of them are made as a query first takes that set
+        self._bindings: dict = {}    # SlotSet -> [Slot]
+        self.slots: list[Slot] = []  # the slots of the last query
         self._lib = lib
         self.pipelines = _pipelines(ctx, lib, specs, self.two_pass)
+        self.io_layout = ctx.root.memo["tracer.layouts"][0]   # set 0's layout (the trace kernels' io sets)
+        self._own_retry = self._own_timestamps = None   # the CUDA-array queries' (retry, timestamps)
         self.shares = work_shares(ctx)  # rays.glsl ray_block
         self.last_gpu_ms = 0.0
         self.last_retried = 0        # rays of the last query that the second dispatch walked again (two_pass)
@@ -339,12 +364,16 @@ class Tracer(Closes):
         texture."""
         source = self._source
         tested = source is not None and any(m.alpha_mode != "OPAQUE" for m in source.materials)
-        self.textures = TextureArrays(ctx, scene_textures(source.materials) if tested else {})
-        index, records = alpha_records(source, self.textures) if tested else (None, np.zeros((1, 8), np.float32))
+        self.alpha_spec = {"ALPHA_TEST": tested, "TEXTURE_ARRAYS": 1}
+        if not tested:   # the dummy bindings, the same for every Tracer: made once per device
+            self.textures, self.alpha_view, self.white, self.sampler = _untested_bindings(ctx)
+            return None
+        self.textures = TextureArrays(ctx, scene_textures(source.materials))
+        index, records = alpha_records(source, self.textures)
         self.alpha_view = BufferView(upload_buffer(ctx, records, UNIFORM_TEXEL, "alpha records"), RGBA32F)
-        self.white = upload_texture_array(ctx, [np.full((1, 1, 4), 255, np.uint8)], 1, 1, name="white texture")
+        self.white = upload_texture_array(ctx, [_WHITE], 1, 1, name="white texture")
         self.sampler = Sampler(ctx)
-        self.alpha_spec = {"ALPHA_TEST": tested, "TEXTURE_ARRAYS": max(1, len(self.textures))}
+        self.alpha_spec["TEXTURE_ARRAYS"] = max(1, len(self.textures))
         return index
 
     def bind_alpha(self, dset: DescriptorSet) -> None:
@@ -353,6 +382,23 @@ class Tracer(Closes):
         for slot in range(MAX_TEXTURE_ARRAYS):
             tex = self.textures.images[slot] if slot < len(self.textures) else self.white
             dset.bind("textures", tex, sampler=self.sampler, element=slot)
+
+    @contextmanager
+    def take_slots(self, n: int):
+        """The slots a query of n rays streams through (one per chunk, at most STREAM_SLOTS): a set of the device's
+        shared buffers taken for the call (engine/rt/stream.py SlotPool) and given back at its end, with this
+        Tracer's descriptor sets and command buffers over them (made the first time it takes that set)."""
+        pool = slot_pool(self.ctx)
+        sset = pool.take((self.staged, self._retry_list, self.rays_texel_ok), set_chunk(n, self.chunk), self._align)
+        try:
+            mine = self._bindings.setdefault(sset, [])
+            count = min(STREAM_SLOTS, -(-n // self.chunk))
+            while len(mine) < count:
+                mine.append(Slot(self.ctx, sset.get(len(mine)), self._io_bindings, self.bind_alpha))
+            self.slots = mine
+            yield mine[:count]
+        finally:
+            pool.give(sset)
 
     def _record(self, slot, kind, span):
         """A slot's command buffer for a query kind (and copy span), recorded once: the ray count is in `params`."""
@@ -370,10 +416,11 @@ class Tracer(Closes):
         self.scene.update(self._source)
         if self.scene.structure != structure:
             self.ctx.wait_idle()
-            for slot in self.slots:
-                for cmd, _ in slot.commands.values():
-                    self.ctx.free_command_buffer(cmd)
-                slot.commands.clear()
+            for slots in self._bindings.values():
+                for slot in slots:
+                    for cmd, _ in slot.commands.values():
+                        self.ctx.free_command_buffer(cmd)
+                    slot.commands.clear()
             specs = {"occluded": self.scene.spec(self.ctx, stack_regs=CPU_OCCLUSION_STACK_REGS),
                      "intersect": self.scene.spec(self.ctx)}
             for kind, spec in specs.items():   # rays read as before
@@ -530,19 +577,25 @@ class Tracer(Closes):
 
     @property
     def retry(self) -> Buffer:
-        """The first slot's retry list (bound by the CUDA-array queries, which run one at a time)."""
-        return self.slots[0].retry
+        """The retry list bound by the CUDA-array queries, which run one at a time (made on first use)."""
+        if self._own_retry is None:
+            two = self._retry_list
+            self._own_retry = Buffer(self.ctx, 4 + 4 * self.chunk if two else 16, STORAGE | TRANSFER_DST, host=two,
+                                     name="retry list (CUDA arrays)")
+        return self._own_retry
 
     @property
     def timestamps(self) -> Timestamps:
-        """The first slot's timestamp queries (used by the CUDA-array queries)."""
-        return self.slots[0].timestamps
+        """The timestamp queries of the CUDA-array queries (made on first use)."""
+        if self._own_timestamps is None:
+            self._own_timestamps = Timestamps(self.ctx, capacity=4)
+        return self._own_timestamps
 
     # ---- lifetime --------------------------------------------------------------------------
     @serialized
     def close(self) -> None:
-        """Free the GPU buffers (and the device, unless it was given: an `engine.Device` or a context); safe to
-        call twice."""
+        """Free the GPU buffers (and the device, unless it was given: an `engine.Device` or a context, which keeps
+        the stream buffers its Tracers share until it is closed); safe to call twice."""
         if self._cuda is not None:   # (CUDA lets go of the shared memory before Vulkan frees it)
             self._cuda.close()
             self._cuda = None

@@ -15,10 +15,11 @@ from .pipelines import (ALL, CIS, SB, SI, STB, UB, UTB, ComputePipeline, Descrip
 from .recorder import Recorder
 from .reflect import Interface, reflect
 from .resources import (Buffer, BufferView, Image, Sampler, image_barrier, memory_barrier, update_buffer, upload_buffer,
-                        upload_texture_array)
+                        upload_buffers, upload_texture_array)
 
 __all__ = [
     "Context", "choose_device", "describe_devices", "ALL", "CIS", "SB", "SI", "STB", "UB", "UTB", "ComputePipeline",
     "DescriptorSet", "GraphicsPipeline", "Timestamps", "Recorder", "Interface", "reflect", "Buffer", "BufferView",
-    "Image", "Sampler", "image_barrier", "memory_barrier", "update_buffer", "upload_buffer", "upload_texture_array",
+    "Image", "Sampler", "image_barrier", "memory_barrier", "update_buffer", "upload_buffer", "upload_buffers",
+    "upload_texture_array",
 ]

@@ -45,6 +45,13 @@ def allocate(ctx: Context, req, mtype: int, what: str, pnext=None):
     return memory
 
 
+def _all_device_memory_mappable(ctx: Context) -> bool:
+    """Is every device-local memory type host-visible and coherent (no VRAM that only the device reaches)?"""
+    mp = ctx.memory_properties
+    return all(mp.memoryTypes[i].propertyFlags & HOST == HOST for i in range(mp.memoryTypeCount)
+               if mp.memoryTypes[i].propertyFlags & DEVICE)
+
+
 def free(ctx: Context, memory):
     vk.vkFreeMemory(ctx.device, memory, None)
     ctx.allocations -= 1
@@ -63,6 +70,10 @@ class Buffer:
             mtype = ctx.memory_type(req.memoryTypeBits, HOST | vk.VK_MEMORY_PROPERTY_HOST_CACHED_BIT)
         else:
             mtype = ctx.memory_type(req.memoryTypeBits, DEVICE)
+        # device-local memory that the host may write without a copy: where every device-local type is host-visible
+        # and coherent (a CPU device, an integrated GPU; not a discrete GPU's small mappable window)
+        self.host_writable = (ctx.memory_properties.memoryTypes[mtype].propertyFlags & HOST) == HOST \
+            and _all_device_memory_mappable(ctx)
         try:
             self.memory = allocate(ctx, req, mtype, f"buffer {name!r}" if name else "a buffer")
         except VulkanError:
@@ -114,16 +125,38 @@ class BufferView:
 
 
 def upload_buffer(ctx: Context, data: np.ndarray, usage: int, name: str = "") -> Buffer:
-    """A device-local buffer filled with `data` through a staging buffer."""
-    raw = np.ascontiguousarray(data).view(np.uint8).reshape(-1)
-    buf = Buffer(ctx, raw.nbytes, usage | TRANSFER_DST, name=name)
-    if raw.nbytes:
-        staging = Buffer(ctx, raw.nbytes, TRANSFER_SRC, host=True)
-        staging.write(raw)
+    """A device-local buffer filled with `data` (as `upload_buffers`)."""
+    return upload_buffers(ctx, [(data, usage, name)])[0]
+
+
+def upload_buffers(ctx: Context, items) -> list[Buffer]:
+    """Device-local buffers filled with the arrays of `items`, (data, usage, name) each: written in place where the
+    host may write the device memory (`Buffer.host_writable`), else through one staging buffer and one submission
+    for all of them."""
+    raws = [np.ascontiguousarray(data).view(np.uint8).reshape(-1) for data, _, _ in items]
+    bufs = [Buffer(ctx, raw.nbytes, usage | TRANSFER_DST, name=name) for raw, (_, usage, name) in zip(raws, items)]
+    staged = []
+    for raw, buf in zip(raws, bufs):
+        if raw.nbytes and buf.host_writable:   # written in place: no staging buffer, no submission to wait for
+            ptr = vk.vkMapMemory(ctx.device, buf.memory, 0, raw.nbytes, 0)
+            try:
+                np.frombuffer(ptr, np.uint8, raw.nbytes)[:] = raw
+            finally:
+                vk.vkUnmapMemory(ctx.device, buf.memory)
+        elif raw.nbytes:
+            staged.append((raw, buf))
+    if staged:
+        staging = Buffer(ctx, sum(raw.nbytes for raw, _ in staged), TRANSFER_SRC, host=True)
+        regions, at = [], 0
+        for raw, buf in staged:
+            staging.write(raw, at)
+            regions.append((buf, vk.VkBufferCopy(at, 0, raw.nbytes)))
+            at += raw.nbytes
         with ctx.one_shot() as cmd:
-            vk.vkCmdCopyBuffer(cmd, staging.handle, buf.handle, 1, [vk.VkBufferCopy(0, 0, raw.nbytes)])
+            for buf, region in regions:
+                vk.vkCmdCopyBuffer(cmd, staging.handle, buf.handle, 1, [region])
         staging.destroy()
-    return buf
+    return bufs
 
 
 def update_buffer(ctx: Context, buf: Buffer, parts, staging: Buffer | None = None) -> None:

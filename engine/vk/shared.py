@@ -109,8 +109,10 @@ class Device(Closes):
             ...                                                # any of them from any thread
 
     Each object on it keeps its own buffers, pipelines and command buffers and frees them when it is closed; the
-    Device stays open for the others. Submissions to the one queue are serialized (each object also runs one call
-    at a time), so objects on one Device may be used from different threads.
+    Device stays open for the others. What its objects share (the trace kernels, the Tracers' stream buffers: each
+    query takes a set of those for its call, engine/rt/stream.py `SlotPool`) is the Device's, freed with it.
+    Submissions to the one queue are serialized (each object also runs one call at a time), so objects on one Device
+    may be used from different threads.
 
     `close()` (or the end of the `with` block) first waits for calls in progress on the objects still open on it,
     closes them (a later call on one raises `ConfigError` saying that its Device was closed), then frees the device.

@@ -25,7 +25,7 @@ from .geometry import up_transform
 from .lights import Light, default_sun
 from .material import Material, material_key
 from .animation import Player, check_targets
-from .instances import Instance, Mesh, check_material_override, check_transforms, flatten, frozen, world_boxes
+from .instances import Instance, Mesh, check_material_override, checked_transforms, flatten, frozen, world_boxes
 from .parts import SceneParts, SubMesh
 from .paths import allowed_folders
 
@@ -201,7 +201,7 @@ class Scene:
         n = len(self.instances)
         if which is None:   # all: a slice, no gathers
             idx, count = slice(None), n
-            m = check_transforms(transforms, lambda k: self._label(k if k < n else 0), copy=False)
+            m, peak = checked_transforms(transforms, lambda k: self._label(k if k < n else 0), copy=False)
         else:
             idx = np.asarray(which)
             if idx.ndim != 1 or not np.issubdtype(idx.dtype, np.integer) or (len(idx) and (idx.min() < -n or
@@ -209,11 +209,11 @@ class Scene:
                 raise SceneError(f"{shown(self.name)}: instance indices must be integers in [0, {n})")
             idx = idx % n if len(idx) else idx.astype(np.int64)
             count = len(idx)
-            m = check_transforms(transforms, lambda k: self._label(int(idx[k]) if k < len(idx) else 0),
-                                 copy=False)
+            m, peak = checked_transforms(transforms, lambda k: self._label(int(idx[k]) if k < len(idx) else 0),
+                                         copy=False)
         if len(m) != count:
             raise SceneError(f"{shown(self.name)}: {len(m)} transforms for {count} instances")
-        self._check_world(idx, m)   # before anything changes
+        self._check_world(idx, m, peak)   # before anything changes
         self._transforms[idx] = m
         self._version += 1
         self._inst_changed[idx] = self._version
@@ -275,9 +275,9 @@ class Scene:
         name = self.instances[i].name if hasattr(self, "instances") else ""
         return f"{shown(self.name)}: instance {i}" + (f" '{shown(name)}'" if name else "")
 
-    def _check_world(self, idx, transforms: np.ndarray | None = None) -> None:
+    def _check_world(self, idx, transforms: np.ndarray | None = None, peak: float | None = None) -> None:
         """The instances `idx` (indices or a slice) stay within MAX_COORD under their `transforms` (default: their
-        current ones)."""
+        current ones); `peak`: the transforms' largest magnitude, where the caller has it."""
         mesh = self._inst_mesh[idx]
         if not len(mesh):
             return
@@ -286,7 +286,9 @@ class Scene:
         boxes = np.stack([m.box for m in self.meshes])
         # a bound first: |A c + t| + |A| h <= (3 (|c| + h) + 1) max|m|, for every instance at once
         reach = np.abs(boxes[mesh if len(mesh) < len(boxes) else slice(None)]).max()
-        if (3.0 * reach + 1.0) * max(transforms.max(), -transforms.min()) <= MAX_COORD:   # (no temporaries)
+        if peak is None:
+            peak = max(transforms.max(), -transforms.min())   # (no temporaries)
+        if (3.0 * reach + 1.0) * peak <= MAX_COORD:
             return
         one = len(boxes) == 1 or not np.any(mesh != mesh[0])
         world = world_boxes(boxes[mesh[:1]] if one else boxes[mesh], transforms)

@@ -236,11 +236,14 @@ def checked_transforms(value: ArrayLike, labels, copy: bool = True) -> tuple[NDA
     n = len(m)
     if n == 0:
         return m, 0.0
+    if not m.flags.c_contiguous:   # (a strided view given: the checks below view its rows)
+        m = np.ascontiguousarray(m)
     hi, lo = float(m.max()), float(m.min())   # (NaN propagates through both: also the finite check)
     if not (np.isfinite(hi) and np.isfinite(lo)):
         bad = ~np.isfinite(m.reshape(n, 16)).all(axis=1)
         raise SceneError(f"{label(int(np.argmax(bad)))}: transform has NaN or infinite values")
-    if m[:, 3, :3].any() or m[:, 3, 3].min() != 1.0 or m[:, 3, 3].max() != 1.0:
+    last = m.view(np.complex128)[:, 3]   # the last rows as (0 + 0j, 0 + 1j): two strided compares, not four
+    if (last[:, 0] != 0.0).any() or (last[:, 1] != 1j).any():
         bad = (m[:, 3, :] != (0.0, 0.0, 0.0, 1.0)).any(axis=1)
         raise SceneError(f"{label(int(np.argmax(bad)))}: transform must be affine (last row 0 0 0 1), got "
                          f"{m[int(np.argmax(bad)), 3].tolist()}")
@@ -264,17 +267,21 @@ def _singular(m: np.ndarray) -> int | None:
         cols[:, :, s:s + _BLOCK] = m[s:s + _BLOCK, :3, :3].transpose(1, 2, 0)
     (a00, a01, a02), (a10, a11, a12), (a20, a21, a22) = cols
     det = a00 * (a11 * a22 - a12 * a21) - a01 * (a10 * a22 - a12 * a20) + a02 * (a10 * a21 - a11 * a20)
-    size = a00 * a00
-    for a in (a01, a02, a10, a11, a12, a20, a21, a22):   # (left to right, as the sum is written)
-        size += a * a
-    size /= 3.0   # the mean squared row length: det against its 3/2 power is scale-free
     adet = np.abs(det)
-    # size * sqrt(size) is within a few ulp of size ** 1.5: a margin of 1e-9 passes only what the exact test passes
+    sq = cols.reshape(9, n)
+    size = np.einsum("ij,ij->j", sq, sq) / 3.0   # the mean squared row length: det against its 3/2 power is scale-free
+    # this size and size * sqrt(size) are within a few ulp of the exact test's terms: with a margin of 1e-9, the
+    # bound passes only what the exact test passes
     fast = (adet >= (1e-12 * (1.0 + 1e-9)) * (size * np.sqrt(size))) & (size > 1e-100)
     if fast.all():
         return None
     rest = np.flatnonzero(~fast)
-    bad = ~(adet[rest] >= 1e-12 * size[rest] ** 1.5) | (size[rest] <= 0)
+    a = sq[:, rest]
+    size = a[0] * a[0]
+    for row in a[1:]:   # (left to right, as the sum is written)
+        size += row * row
+    size /= 3.0
+    bad = ~(adet[rest] >= 1e-12 * size ** 1.5) | (size <= 0)
     return int(rest[np.argmax(bad)]) if bad.any() else None
 
 

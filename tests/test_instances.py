@@ -389,3 +389,7 @@ def test_object_names_match_the_flat_submeshes_without_flattening():
     assert scene.object_names == [s.name for s in scene.submeshes]
     scene.instances[0].transform = np.diag([2.0, 1.0, 1.0, 1.0])
     assert scene.object_names == [s.name for s in scene.submeshes]
+    scene.instances[2].name = "renamed"   # the names are cached: a rename shows in the next read
+    assert scene.object_names == ["left", "a", "b", "renamed"]
+    scene.instances[0].name = ""
+    assert scene.object_names == ["one", "a", "b", "renamed"]

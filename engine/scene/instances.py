@@ -144,7 +144,7 @@ class Instance:
     Inside a Scene the instance is a handle on the scene's arrays: assigning `transform` (or `material`) checks the
     value, stores it and marks the instance moved for the next frame (`Scene.moved_instances`)."""
 
-    __slots__ = ("mesh", "name", "_transform", "_material", "_scene", "_index")
+    __slots__ = ("mesh", "_name", "_transform", "_material", "_scene", "_index")
 
     def __init__(self, mesh: int, transform: ArrayLike | None = None, material: int | None = None,
                  name: str = ""):
@@ -156,6 +156,18 @@ class Instance:
         self._material = check_material_override(material, self._label())
         self._scene: Any = None
         self._index = -1
+
+    @property
+    def name(self) -> str:
+        """The instance's name (the object_id AOV's names; messages)."""
+        return self._name
+
+    @name.setter
+    def name(self, value: str) -> None:
+        self._name = value
+        scene = getattr(self, "_scene", None)
+        if scene is not None:   # (its object names are made again when next read)
+            scene._names_version += 1
 
     def _label(self) -> str:
         if getattr(self, "_scene", None) is not None:
@@ -262,9 +274,7 @@ def _singular(m: np.ndarray) -> int | None:
     power 3/2 (scale-free), or None. The 3x3 parts are transposed into 9 contiguous rows (whole-array operations);
     the threshold's power is taken exactly only for the instances a bound with a margin does not pass."""
     n = len(m)
-    cols = np.empty((3, 3, n))
-    for s in range(0, n, _BLOCK):
-        cols[:, :, s:s + _BLOCK] = m[s:s + _BLOCK, :3, :3].transpose(1, 2, 0)
+    cols = _entries(m, 3, 3)
     (a00, a01, a02), (a10, a11, a12), (a20, a21, a22) = cols
     det = a00 * (a11 * a22 - a12 * a21) - a01 * (a10 * a22 - a12 * a20) + a02 * (a10 * a21 - a11 * a20)
     adet = np.abs(det)
@@ -288,17 +298,43 @@ def _singular(m: np.ndarray) -> int | None:
 def world_boxes(boxes: np.ndarray, transforms: np.ndarray) -> np.ndarray:
     """(N, 2, 3) world AABBs of object boxes (N, 2, 3) (or (1, 2, 3): one box for all) under transforms (N, 4, 4)
     (exact for the box's 8 corners: centre +- |A| half-extent)."""
-    c = 0.5 * (boxes[:, 0] + boxes[:, 1])
-    h = 0.5 * (boxes[:, 1] - boxes[:, 0])
-    n = len(transforms)
-    rows = transforms.reshape(n, 16)   # (strided 1-D operations over the instances: fast at any N)
-    out = np.empty((n, 2, 3))
-    for i in range(3):
-        a0, a1, a2 = rows[:, 4 * i], rows[:, 4 * i + 1], rows[:, 4 * i + 2]
-        wc = a0 * c[:, 0] + a1 * c[:, 1] + a2 * c[:, 2] + rows[:, 4 * i + 3]
-        wh = np.abs(a0) * h[:, 0] + np.abs(a1) * h[:, 1] + np.abs(a2) * h[:, 2]
+    out = np.empty((len(transforms), 2, 3))
+    for i, wc, wh in _world_extents(boxes, transforms):
         out[:, 0, i] = wc - wh
         out[:, 1, i] = wc + wh
+    return out
+
+
+def world_box_union(boxes: np.ndarray, transforms: np.ndarray) -> np.ndarray:
+    """(2, 3) min / max of `world_boxes(boxes, transforms)` (the same values), without making them."""
+    out = np.empty((2, 3))
+    for i, wc, wh in _world_extents(boxes, transforms):
+        out[0, i] = (wc - wh).min()
+        out[1, i] = (wc + wh).max()
+    return out
+
+
+def _world_extents(boxes: np.ndarray, transforms: np.ndarray):
+    """Per world axis i: (i, the boxes' world centres (N,), half extents (N,)): A c + t and |A| h, on the
+    transforms' entries transposed into contiguous rows (`_entries`)."""
+    c = np.ascontiguousarray((0.5 * (boxes[:, 0] + boxes[:, 1])).T)
+    h = np.ascontiguousarray((0.5 * (boxes[:, 1] - boxes[:, 0])).T)
+    rows = _entries(transforms)
+    for i in range(3):
+        a0, a1, a2, t = rows[i]
+        wc = a0 * c[0] + a1 * c[1] + a2 * c[2] + t
+        wh = np.abs(a0) * h[0] + np.abs(a1) * h[1] + np.abs(a2) * h[2]
+        yield i, wc, wh
+
+
+def _entries(transforms: np.ndarray, rows: int = 3, cols: int = 4) -> np.ndarray:
+    """(rows, cols, N): the entries [:rows, :cols] of (N, 4, 4) transforms, each contiguous over the instances (the
+    whole-array operations on them are many times faster than on strided columns), transposed in blocks that stay
+    in cache."""
+    n = len(transforms)
+    out = np.empty((rows, cols, n), np.result_type(transforms.dtype, np.float64))
+    for s in range(0, n, _BLOCK):
+        out[:, :, s:s + _BLOCK] = transforms[s:s + _BLOCK, :rows, :cols].transpose(1, 2, 0)
     return out
 
 

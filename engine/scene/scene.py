@@ -25,7 +25,8 @@ from .geometry import up_transform
 from .lights import Light, default_sun
 from .material import Material, material_key
 from .animation import Player, check_targets
-from .instances import Instance, Mesh, check_material_override, checked_transforms, flatten, frozen, world_boxes
+from .instances import (Instance, Mesh, check_material_override, checked_transforms, flatten, frozen, world_box_union,
+                        world_boxes)
 from .parts import SceneParts, SubMesh
 from .paths import allowed_folders
 
@@ -141,6 +142,7 @@ class Scene:
         self._inst_changed = np.zeros(len(instances), dtype=np.int64)
         self._mesh_changed = np.zeros(len(meshes), dtype=np.int64)
         self._cache: dict = {}
+        self._names_version = 0   # increases when an instance is renamed (the object names' cache)
         for i, inst in enumerate(instances):
             inst._scene, inst._index = self, i
         self.instances = tuple(instances)
@@ -268,8 +270,14 @@ class Scene:
 
     def instance_boxes(self) -> NDArray[np.float64]:
         """(N, 2, 3) float64 world AABBs of the instances (their mesh's box through the transform)."""
-        boxes = np.stack([m.box for m in self.meshes])[self._inst_mesh]
-        return world_boxes(boxes, self._transforms)
+        return world_boxes(self._instance_object_boxes(), self._transforms)
+
+    def _instance_object_boxes(self) -> np.ndarray:
+        """(N, 2, 3) object boxes of the instances' meshes, or (1, 2, 3) where all instances share one mesh."""
+        boxes = np.stack([m.box for m in self.meshes])
+        if len(boxes) == 1:
+            return boxes
+        return boxes[self._inst_mesh]
 
     def _label(self, i: int) -> str:
         name = self.instances[i].name if hasattr(self, "instances") else ""
@@ -365,14 +373,14 @@ class Scene:
     def object_names(self) -> list[str]:
         """The names of `submeshes` (what the object_id AOV indexes), without flattening any geometry: they do not
         change when instances move."""
-        names = [i.name for i in self.instances]
         hit = self._cache.get("object_names")
-        if hit is None or hit[0] != names:
+        if hit is None or hit[0] != self._names_version:
+            names = [i.name for i in self.instances]
             out = []
             for i, k in enumerate(self._inst_mesh):
                 subs = self.meshes[k].submeshes
                 out += [s.name if len(subs) > 1 or not names[i] else names[i] for s in subs]
-            hit = (names, out)
+            hit = (self._names_version, out)
             self._cache["object_names"] = hit
         return list(hit[1])
 
@@ -385,8 +393,7 @@ class Scene:
             if counts.sum() <= FLAT_BOUNDS_VERTICES:
                 box = self._vertex_bounds()
             else:
-                b = self.instance_boxes()
-                box = np.stack([b[:, 0].min(axis=0), b[:, 1].max(axis=0)])
+                box = world_box_union(self._instance_object_boxes(), self._transforms)
             return _frozen(box, np.float32)
         return self._cached("bounds", make)
 

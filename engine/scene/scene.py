@@ -209,10 +209,12 @@ class Scene:
             if idx.ndim != 1 or not np.issubdtype(idx.dtype, np.integer) or (len(idx) and (idx.min() < -n or
                                                                                              idx.max() >= n)):
                 raise SceneError(f"{shown(self.name)}: instance indices must be integers in [0, {n})")
-            idx = idx % n if len(idx) else idx.astype(np.int64)
-            count = len(idx)
-            m, peak = checked_transforms(transforms, lambda k: self._label(int(idx[k]) if k < len(idx) else 0),
+            which = idx % n if len(idx) else idx.astype(np.int64)
+            count = len(which)
+            m, peak = checked_transforms(transforms, lambda k: self._label(int(which[k]) if k < count else 0),
                                          copy=False)
+            in_order = count == n and which[0] == 0 and np.array_equal(which, np.arange(n))
+            idx = slice(None) if in_order else which   # (all, in order: written as a slice, not scattered)
         if len(m) != count:
             raise SceneError(f"{shown(self.name)}: {len(m)} transforms for {count} instances")
         self._check_world(idx, m, peak)   # before anything changes

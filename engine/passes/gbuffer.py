@@ -32,6 +32,7 @@ import numpy as np
 
 from ..bvh.instanced import inverse3
 from ..errors import SceneError, ShaderError
+from ..scene.instances import determinants
 from ..scene.lod import lod_chain
 from ..scene.material import texture_key
 from ..vk import (Buffer, BufferView, DescriptorSet, GraphicsPipeline, Sampler, device, reflect, upload_buffer,
@@ -52,8 +53,7 @@ NO_MATERIAL = 0xFFFFFFFF
 
 def mirrored(transforms: np.ndarray) -> np.ndarray:
     """(N,) bool: which of the (N, 4, 4) transforms turn the winding over (a negative 3x3 determinant)."""
-    m = np.asarray(transforms, np.float64)[:, :3, :3]
-    return np.einsum("ij,ij->i", m[:, 0], np.cross(m[:, 1], m[:, 2])) < 0
+    return determinants(np.asarray(transforms, np.float64)) < 0
 
 
 def instance_materials(scene) -> np.ndarray:

@@ -275,9 +275,7 @@ def _singular(m: np.ndarray) -> int | None:
     the threshold's power is taken exactly only for the instances a bound with a margin does not pass."""
     n = len(m)
     cols = _entries(m, 3, 3)
-    (a00, a01, a02), (a10, a11, a12), (a20, a21, a22) = cols
-    det = a00 * (a11 * a22 - a12 * a21) - a01 * (a10 * a22 - a12 * a20) + a02 * (a10 * a21 - a11 * a20)
-    adet = np.abs(det)
+    adet = np.abs(_det3(cols))
     sq = cols.reshape(9, n)
     size = np.einsum("ij,ij->j", sq, sq) / 3.0   # the mean squared row length: det against its 3/2 power is scale-free
     # this size and size * sqrt(size) are within a few ulp of the exact test's terms: with a margin of 1e-9, the
@@ -293,6 +291,17 @@ def _singular(m: np.ndarray) -> int | None:
     size /= 3.0
     bad = ~(adet[rest] >= 1e-12 * size ** 1.5) | (size <= 0)
     return int(rest[np.argmax(bad)]) if bad.any() else None
+
+
+def determinants(transforms: np.ndarray) -> np.ndarray:
+    """(N,) float64 determinants of the (N, 4, 4) transforms' 3x3 parts (negative: a mirror)."""
+    return _det3(_entries(transforms, 3, 3))
+
+
+def _det3(cols: np.ndarray) -> np.ndarray:
+    """Determinants of 3x3 matrices given as their entries' rows (3, 3, N)."""
+    (a00, a01, a02), (a10, a11, a12), (a20, a21, a22) = cols
+    return a00 * (a11 * a22 - a12 * a21) - a01 * (a10 * a22 - a12 * a20) + a02 * (a10 * a21 - a11 * a20)
 
 
 def world_boxes(boxes: np.ndarray, transforms: np.ndarray) -> np.ndarray:

@@ -102,6 +102,37 @@ def test_bad_changes_are_clear_errors():
     assert scene.version == 0                                  # nothing changed
 
 
+def test_batch_checks_name_the_first_bad_instance():
+    """set_transforms of many instances: each check names the first bad one, near the singular threshold (|det|
+    against 1e-12 times the mean squared row length to the 3/2) and at extreme scales too."""
+    scene, _ = instanced_scene()
+    n = len(scene.instances)
+    ok = np.tile(np.eye(4), (n, 1, 1))
+    ok[:, :3, 3] = np.arange(3 * n).reshape(n, 3)
+    size = (2.0 + 1e-24) / 3.0   # diag(1, 1, e) with e ~ 1e-12: its mean squared row length
+    for scale, factor, bad in ((1.0, 1.01, False), (1.0, 0.99, True), (1e-60, 1.01, False), (1e-60, 0.99, True),
+                               (1e3, 1.01, False), (1e3, 0.99, True)):
+        m = ok.copy()
+        m[:, :3, :3] *= 1e-60 if scale == 1e-60 else 1.0   # every instance tiny: the thresholds' exact path
+        m[4, :3, :3] = np.diag([1.0, 1.0, factor * 1e-12 * size ** 1.5]) * scale
+        m[4, :3, 3] = 0.0
+        if bad:
+            with pytest.raises(SceneError, match=r"instance 4 'i4'.*not invertible"):
+                scene.set_transforms(m)
+        else:
+            scene.set_transforms(m)
+            assert np.array_equal(scene.transforms, m)
+    version = scene.version
+    for k, (value, msg) in enumerate([(np.inf, "NaN or infinite"), (2.0, "affine"), (-0.0, None)]):
+        m = ok.copy()
+        m[3 + k, 3, 1 if k < 2 else 0] = value
+        m[6, 2, 2] = 0.0   # a later, singular instance: the first bad one is named
+        with pytest.raises(SceneError, match=rf"instance {3 + k} 'i{3 + k}'.*{msg}" if msg else
+                           r"instance 6 'i6'.*not invertible"):
+            scene.set_transforms(m)
+    assert scene.version == version                            # nothing changed
+
+
 def test_loaders_keep_instancing(tmp_path):
     box = trimesh.creation.box()
     tm = trimesh.Scene()
@@ -358,3 +389,7 @@ def test_object_names_match_the_flat_submeshes_without_flattening():
     assert scene.object_names == [s.name for s in scene.submeshes]
     scene.instances[0].transform = np.diag([2.0, 1.0, 1.0, 1.0])
     assert scene.object_names == [s.name for s in scene.submeshes]
+    scene.instances[2].name = "renamed"   # the names are cached: a rename shows in the next read
+    assert scene.object_names == ["left", "a", "b", "renamed"]
+    scene.instances[0].name = ""
+    assert scene.object_names == ["one", "a", "b", "renamed"]

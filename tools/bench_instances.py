@@ -2,10 +2,15 @@
 
     python tools/bench_instances.py                      # 10,000 instances of a ~10k-triangle mesh (H200 scale)
     python tools/bench_instances.py --instances 500 --rays 65536 --refit-tris 100000   # lavapipe scale
+    python tools/bench_instances.py --update-only --frames 300   # only the top-level update figures
 
 Measures, with every instance moving every frame:
 - top level update on the host (scene.set_transforms + TwoLevel.top) and with the upload (InstancedBVH.update),
-  by the host build and by the GPU build (engine/gpu/tlas.py, with its GPU ms per step from timestamps);
+  by the host build and by the GPU build (engine/gpu/tlas.py, with its GPU ms per step from timestamps): back to
+  back (`top_level_update_<builder>_ms`, the mean of --repeat; each update waits for the previous GPU build), and
+  per frame, medians of --frames: the host's part alone (`..._host_ms`: set_transforms + the update's submit,
+  the previous build finished before the clock starts) and host + GPU in series (`..._latency_ms`: the same, then
+  waiting for the build);
 - GPU memory of the two-level BVH against the unique meshes' BVHs (+ bytes per instance) and a flattened BVH's
   estimate;
 - batch Tracer: closest hits and occlusion for `--rays` camera rays (1920 x 1080 by default), GPU ms, on the
@@ -62,6 +67,25 @@ def timed(fn, repeat: int) -> float:
     return (time.perf_counter() - t0) / repeat * 1e3
 
 
+def update_split(tracer, move, frames: int) -> tuple:
+    """Medians over `frames` of one update (`move()`, then the tracer's InstancedBVH.update), in ms: the host's
+    part (the previous GPU build finished first) and host + GPU in series (then waiting for this build)."""
+    top = tracer.scene.gpu_top
+    finish = top.wait if top is not None else (lambda: None)
+    host, latency = [], []
+    for _ in range(frames):
+        finish()
+        t0 = time.perf_counter()
+        move()
+        tracer._sync()
+        t1 = time.perf_counter()
+        finish()
+        t2 = time.perf_counter()
+        host.append(t1 - t0)
+        latency.append(t2 - t0)
+    return float(np.median(host)) * 1e3, float(np.median(latency)) * 1e3
+
+
 def main(argv=None) -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--instances", type=int, default=10_000)
@@ -70,6 +94,8 @@ def main(argv=None) -> None:
     ap.add_argument("--refit-tris", type=int, default=1_000_000)
     ap.add_argument("--repeat", type=int, default=10)
     ap.add_argument("--device", default=None)
+    ap.add_argument("--frames", type=int, default=100, help="frames of the per-frame update medians")
+    ap.add_argument("--update-only", action="store_true", help="only the top-level update figures")
     args = ap.parse_args(argv)
     rng = np.random.default_rng(0)
 
@@ -114,6 +140,9 @@ def main(argv=None) -> None:
                 set_all()
                 tracer._sync()
             print(f"top_level_update_{builder}_ms: {timed(update, args.repeat):.3f}")
+            host, latency = update_split(tracer, set_all, args.frames)
+            print(f"top_level_update_{builder}_host_ms: {host:.3f}")
+            print(f"top_level_update_{builder}_latency_ms: {latency:.3f}")
             if builder == "gpu":
                 steps = tracer.scene.gpu_top.gpu_ms()
                 if steps:
@@ -124,6 +153,8 @@ def main(argv=None) -> None:
         del os.environ["HYBRID_TLAS_BUILD"]
     else:
         os.environ["HYBRID_TLAS_BUILD"] = before
+    if args.update_only:
+        return
 
     with Tracer.from_scene(scene, device=args.device) as tracer:
         print(f"device: {tracer.ctx.device_info['name']}")

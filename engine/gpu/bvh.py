@@ -357,8 +357,9 @@ class InstancedBVH:
             if len(deformed):
                 self.gpu_top.set_mesh_boxes(self._mesh_boxes(scene))
         elif len(moved) or len(deformed):
+            every = len(moved) == len(scene.instances)   # (all moved: the records rewritten by slices, no gathers)
             tail = self.two.top(scene.transforms, scene.instance_mesh, self._mesh_boxes(scene), self.flat_tri_base,
-                                moved=moved)
+                                moved=None if every else moved)
             parts.append((self.two.tail_offset, tail))
         node_parts = [p for p in parts if len(p) == 2]
         tri_parts = [p[1:] for p in parts if len(p) == 3]

@@ -34,6 +34,7 @@ import numpy as np
 
 from ..bvh.instanced import inverse3
 from ..errors import SceneError, ShaderError
+from ..scene.instances import determinants
 from ..scene.lod import lod_chain
 from ..scene.material import texture_key
 from ..vk import (Buffer, BufferView, DescriptorSet, GraphicsPipeline, Sampler, device, reflect, upload_buffer,
@@ -55,8 +56,7 @@ NO_MATERIAL = 0xFFFFFFFF
 
 def mirrored(transforms: np.ndarray) -> np.ndarray:
     """(N,) bool: which of the (N, 4, 4) transforms turn the winding over (a negative 3x3 determinant)."""
-    m = np.asarray(transforms, np.float64)[:, :3, :3]
-    return np.einsum("ij,ij->i", m[:, 0], np.cross(m[:, 1], m[:, 2])) < 0
+    return determinants(np.asarray(transforms, np.float64)) < 0
 
 
 def instance_materials(scene) -> np.ndarray:
@@ -146,6 +146,7 @@ class SceneGeometry:
         self.instance_count = n
         flip = self._mirrored.astype(np.int64) if self._mirrored is not None else np.zeros(n, np.int64)
         self.order = np.lexsort((flip, overrides, mesh_of))   # draw slot -> instance (stable)
+        self._in_order = bool(np.array_equal(self.order, np.arange(n)))   # (no gather of the transforms per frame)
         tris = self.mesh_level_triangles[mesh_of[self.order]]
         total = int(tris.sum())
         if total >= 2 ** 32 - 1:
@@ -220,26 +221,29 @@ class SceneGeometry:
         single-sided: its draws cull the other face for mirrored instances)?"""
         return self._mirrored is not None and not np.array_equal(mirrored(scene.transforms), self._mirrored)
 
-    def write_transforms(self, transforms: np.ndarray, previous: np.ndarray) -> bool:
+    def write_transforms(self, transforms: np.ndarray, previous: np.ndarray, owned: bool = False) -> bool:
         """Write this frame's and the previous frame's (N, 4, 4) object-to-world transforms (scene order) into the
         instance buffer (the frame that reads it must have finished). Returns False when they are what the buffer
-        holds already (nothing written)."""
+        holds already (nothing written). `owned`: the arrays are the caller's own, never changed afterwards (kept,
+        not copied; the next call knows them by identity)."""
         w = self._written
-        if w is not None and np.array_equal(w[0], transforms) and np.array_equal(w[1], previous):
+        if w is not None and _same(w[0], transforms) and _same(w[1], previous):
             return False
         block, o = self._block, self.order
+        n = len(block)
         todo = [(0, transforms), (16, previous)]
-        if w is not None and np.array_equal(w[0], previous):   # last frame's current: moved over, not recomputed
+        if w is not None and _same(w[0], previous):   # last frame's current: moved over, not recomputed
             block[:, 16:32], block[:, 44:56] = block[:, 0:16], block[:, 32:44]
             todo = todo[:1]
         for at, m in todo:
-            m = m[o]
-            block[:, at:at + 16] = m.transpose(0, 2, 1).reshape(-1, 16)   # GLSL mat4: column-major
+            m = m if self._in_order else m[o]
+            # GLSL mat4: column-major (written through a strided view of the block: no transposed copy)
+            np.copyto(block[:, at:at + 16].reshape(n, 4, 4), m.transpose(0, 2, 1), casting="same_kind")
             inv = inverse3(m[:, :3, :3])   # rows of inv(A): the columns of its inverse transpose
             base = 32 + at * 3 // 4
             for r in range(3):
                 block[:, base + 4 * r:base + 4 * r + 3] = inv[:, r]
-        self._written = (transforms.copy(), previous.copy())
+        self._written = (transforms, previous) if owned else (transforms.copy(), previous.copy())
         return True
 
     def destroy(self):
@@ -314,6 +318,11 @@ def alpha_records(scene, textures: TextureArrays) -> tuple[np.ndarray, np.ndarra
     return index, records
 
 
+def _same(a: np.ndarray, b: np.ndarray) -> bool:
+    """The same transforms: the same array, or equal ones."""
+    return a is b or np.array_equal(a, b)
+
+
 class SceneChanges:
     """What the last frame drew of a scene's instances (its `version`, the transforms), so that the next frame
     writes the instance buffer only when something moved, with the previous transforms its motion needs."""
@@ -337,16 +346,16 @@ class SceneChanges:
     def write(self, scene, geom: SceneGeometry) -> None:
         """This frame's transforms and the last frame's into `geom` (made for the scene's current material
         overrides: `SceneGeometry.overrides_changed`)."""
-        transforms = scene.transforms
+        transforms = scene.transforms.copy()   # (one copy: the instance buffer's record and the next `last`)
         last = self.last if self.last is not None and self.last.shape == transforms.shape else transforms
-        geom.write_transforms(transforms, last)
-        self.settled = np.array_equal(transforms, last)
-        self.last = transforms.copy()
+        geom.write_transforms(transforms, last, owned=True)
+        self.settled = _same(transforms, last)
+        self.last = transforms
 
     def still(self, geom: SceneGeometry) -> None:
         """No motion this frame (a frame without temporal history): the previous transforms are the current."""
         if self.last is not None:
-            geom.write_transforms(self.last, self.last)
+            geom.write_transforms(self.last, self.last, owned=True)
             self.settled = True
 
 

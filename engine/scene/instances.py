@@ -144,7 +144,7 @@ class Instance:
     Inside a Scene the instance is a handle on the scene's arrays: assigning `transform` (or `material`) checks the
     value, stores it and marks the instance moved for the next frame (`Scene.moved_instances`)."""
 
-    __slots__ = ("mesh", "name", "_transform", "_material", "_scene", "_index")
+    __slots__ = ("mesh", "_name", "_transform", "_material", "_scene", "_index")
 
     def __init__(self, mesh: int, transform: ArrayLike | None = None, material: int | None = None,
                  name: str = ""):
@@ -156,6 +156,18 @@ class Instance:
         self._material = check_material_override(material, self._label())
         self._scene: Any = None
         self._index = -1
+
+    @property
+    def name(self) -> str:
+        """The instance's name (the object_id AOV's names; messages)."""
+        return self._name
+
+    @name.setter
+    def name(self, value: str) -> None:
+        self._name = value
+        scene = getattr(self, "_scene", None)
+        if scene is not None:   # (its object names are made again when next read)
+            scene._names_version += 1
 
     def _label(self) -> str:
         if getattr(self, "_scene", None) is not None:
@@ -218,6 +230,11 @@ def check_transforms(value: ArrayLike, labels, copy: bool = True) -> NDArray[np.
     """(N, 4, 4) float64 transforms, checked: finite, affine, invertible; `labels[i]` (a sequence or a callable
     of i) names instance i in messages. `copy=False`: `value` itself where it is a float64 array (for a caller
     that copies it into its own storage)."""
+    return checked_transforms(value, labels, copy)[0]
+
+
+def checked_transforms(value: ArrayLike, labels, copy: bool = True) -> tuple[NDArray[np.float64], float]:
+    """`check_transforms`, and the largest magnitude of any entry (for a caller's range check)."""
     label = labels if callable(labels) else labels.__getitem__
     try:
         m = np.array(value, dtype=np.float64) if copy else np.asarray(value, dtype=np.float64)
@@ -228,38 +245,105 @@ def check_transforms(value: ArrayLike, labels, copy: bool = True) -> NDArray[np.
     if m.ndim != 3 or m.shape[1:] != (4, 4):
         raise SceneError(f"{label(0)}: transform must be a (4, 4) array of numbers, got shape "
                          f"{np.shape(value)}")
-    rows = m.reshape(len(m), 16)   # (whole-array and strided 1-D operations: fast at any N)
-    if not np.isfinite(rows.sum()) and not np.isfinite(rows).all():   # (the sum: no temporary array)
-        bad = ~np.isfinite(rows).all(axis=1)
+    n = len(m)
+    if n == 0:
+        return m, 0.0
+    if not m.flags.c_contiguous:   # (a strided view given: the checks below view its rows)
+        m = np.ascontiguousarray(m)
+    hi, lo = float(m.max()), float(m.min())   # (NaN propagates through both: also the finite check)
+    if not (np.isfinite(hi) and np.isfinite(lo)):
+        bad = ~np.isfinite(m.reshape(n, 16)).all(axis=1)
         raise SceneError(f"{label(int(np.argmax(bad)))}: transform has NaN or infinite values")
-    bad = (rows[:, 12] != 0.0) | (rows[:, 13] != 0.0) | (rows[:, 14] != 0.0) | (rows[:, 15] != 1.0)
-    if bad.any():
+    last = m.view(np.complex128)[:, 3]   # the last rows as (0 + 0j, 0 + 1j): two strided compares, not four
+    if (last[:, 0] != 0.0).any() or (last[:, 1] != 1j).any():
+        bad = (m[:, 3, :] != (0.0, 0.0, 0.0, 1.0)).any(axis=1)
         raise SceneError(f"{label(int(np.argmax(bad)))}: transform must be affine (last row 0 0 0 1), got "
                          f"{m[int(np.argmax(bad)), 3].tolist()}")
-    (a00, a01, a02), (a10, a11, a12), (a20, a21, a22) = [[rows[:, 4 * i + j] for j in range(3)] for i in range(3)]
-    det = a00 * (a11 * a22 - a12 * a21) - a01 * (a10 * a22 - a12 * a20) + a02 * (a10 * a21 - a11 * a20)
-    size = (a00 * a00 + a01 * a01 + a02 * a02 + a10 * a10 + a11 * a11 + a12 * a12 + a20 * a20 + a21 * a21
-            + a22 * a22) / 3.0   # the mean squared row length: det against its 3/2 power is scale-free
-    bad = ~(np.abs(det) >= 1e-12 * size ** 1.5) | (size <= 0)
-    if bad.any():
-        raise SceneError(f"{label(int(np.argmax(bad)))}: transform is not invertible (its 3x3 part is singular)")
-    return m
+    bad = _singular(m)
+    if bad is not None:
+        raise SceneError(f"{label(int(bad))}: transform is not invertible (its 3x3 part is singular)")
+    return m, max(hi, -lo)
+
+
+#: instances per block of the 3x3 parts transposed to rows (a block's columns stay in cache)
+_BLOCK = 2048
+
+
+def _singular(m: np.ndarray) -> int | None:
+    """The first instance whose 3x3 part is singular: |det| below 1e-12 times its mean squared row length to the
+    power 3/2 (scale-free), or None. The 3x3 parts are transposed into 9 contiguous rows (whole-array operations);
+    the threshold's power is taken exactly only for the instances a bound with a margin does not pass."""
+    n = len(m)
+    cols = _entries(m, 3, 3)
+    adet = np.abs(_det3(cols))
+    sq = cols.reshape(9, n)
+    size = np.einsum("ij,ij->j", sq, sq) / 3.0   # the mean squared row length: det against its 3/2 power is scale-free
+    # this size and size * sqrt(size) are within a few ulp of the exact test's terms: with a margin of 1e-9, the
+    # bound passes only what the exact test passes
+    fast = (adet >= (1e-12 * (1.0 + 1e-9)) * (size * np.sqrt(size))) & (size > 1e-100)
+    if fast.all():
+        return None
+    rest = np.flatnonzero(~fast)
+    a = sq[:, rest]
+    size = a[0] * a[0]
+    for row in a[1:]:   # (left to right, as the sum is written)
+        size += row * row
+    size /= 3.0
+    bad = ~(adet[rest] >= 1e-12 * size ** 1.5) | (size <= 0)
+    return int(rest[np.argmax(bad)]) if bad.any() else None
+
+
+def determinants(transforms: np.ndarray) -> np.ndarray:
+    """(N,) float64 determinants of the (N, 4, 4) transforms' 3x3 parts (negative: a mirror)."""
+    return _det3(_entries(transforms, 3, 3))
+
+
+def _det3(cols: np.ndarray) -> np.ndarray:
+    """Determinants of 3x3 matrices given as their entries' rows (3, 3, N)."""
+    (a00, a01, a02), (a10, a11, a12), (a20, a21, a22) = cols
+    return a00 * (a11 * a22 - a12 * a21) - a01 * (a10 * a22 - a12 * a20) + a02 * (a10 * a21 - a11 * a20)
 
 
 def world_boxes(boxes: np.ndarray, transforms: np.ndarray) -> np.ndarray:
     """(N, 2, 3) world AABBs of object boxes (N, 2, 3) (or (1, 2, 3): one box for all) under transforms (N, 4, 4)
     (exact for the box's 8 corners: centre +- |A| half-extent)."""
-    c = 0.5 * (boxes[:, 0] + boxes[:, 1])
-    h = 0.5 * (boxes[:, 1] - boxes[:, 0])
-    n = len(transforms)
-    rows = transforms.reshape(n, 16)   # (strided 1-D operations over the instances: fast at any N)
-    out = np.empty((n, 2, 3))
-    for i in range(3):
-        a0, a1, a2 = rows[:, 4 * i], rows[:, 4 * i + 1], rows[:, 4 * i + 2]
-        wc = a0 * c[:, 0] + a1 * c[:, 1] + a2 * c[:, 2] + rows[:, 4 * i + 3]
-        wh = np.abs(a0) * h[:, 0] + np.abs(a1) * h[:, 1] + np.abs(a2) * h[:, 2]
+    out = np.empty((len(transforms), 2, 3))
+    for i, wc, wh in _world_extents(boxes, transforms):
         out[:, 0, i] = wc - wh
         out[:, 1, i] = wc + wh
+    return out
+
+
+def world_box_union(boxes: np.ndarray, transforms: np.ndarray) -> np.ndarray:
+    """(2, 3) min / max of `world_boxes(boxes, transforms)` (the same values), without making them."""
+    out = np.empty((2, 3))
+    for i, wc, wh in _world_extents(boxes, transforms):
+        out[0, i] = (wc - wh).min()
+        out[1, i] = (wc + wh).max()
+    return out
+
+
+def _world_extents(boxes: np.ndarray, transforms: np.ndarray):
+    """Per world axis i: (i, the boxes' world centres (N,), half extents (N,)): A c + t and |A| h, on the
+    transforms' entries transposed into contiguous rows (`_entries`)."""
+    c = np.ascontiguousarray((0.5 * (boxes[:, 0] + boxes[:, 1])).T)
+    h = np.ascontiguousarray((0.5 * (boxes[:, 1] - boxes[:, 0])).T)
+    rows = _entries(transforms)
+    for i in range(3):
+        a0, a1, a2, t = rows[i]
+        wc = a0 * c[0] + a1 * c[1] + a2 * c[2] + t
+        wh = np.abs(a0) * h[0] + np.abs(a1) * h[1] + np.abs(a2) * h[2]
+        yield i, wc, wh
+
+
+def _entries(transforms: np.ndarray, rows: int = 3, cols: int = 4) -> np.ndarray:
+    """(rows, cols, N): the entries [:rows, :cols] of (N, 4, 4) transforms, each contiguous over the instances (the
+    whole-array operations on them are many times faster than on strided columns), transposed in blocks that stay
+    in cache."""
+    n = len(transforms)
+    out = np.empty((rows, cols, n), np.result_type(transforms.dtype, np.float64))
+    for s in range(0, n, _BLOCK):
+        out[:, :, s:s + _BLOCK] = transforms[s:s + _BLOCK, :rows, :cols].transpose(1, 2, 0)
     return out
 
 

@@ -25,7 +25,8 @@ from .geometry import up_transform
 from .lights import Light, default_sun
 from .material import Material, material_key
 from .animation import Player, check_targets
-from .instances import Instance, Mesh, check_material_override, check_transforms, flatten, frozen, world_boxes
+from .instances import (Instance, Mesh, check_material_override, checked_transforms, flatten, frozen, world_box_union,
+                        world_boxes)
 from .parts import SceneParts, SubMesh
 from .paths import allowed_folders
 
@@ -141,6 +142,7 @@ class Scene:
         self._inst_changed = np.zeros(len(instances), dtype=np.int64)
         self._mesh_changed = np.zeros(len(meshes), dtype=np.int64)
         self._cache: dict = {}
+        self._names_version = 0   # increases when an instance is renamed (the object names' cache)
         for i, inst in enumerate(instances):
             inst._scene, inst._index = self, i
         self.instances = tuple(instances)
@@ -201,19 +203,21 @@ class Scene:
         n = len(self.instances)
         if which is None:   # all: a slice, no gathers
             idx, count = slice(None), n
-            m = check_transforms(transforms, lambda k: self._label(k if k < n else 0), copy=False)
+            m, peak = checked_transforms(transforms, lambda k: self._label(k if k < n else 0), copy=False)
         else:
             idx = np.asarray(which)
             if idx.ndim != 1 or not np.issubdtype(idx.dtype, np.integer) or (len(idx) and (idx.min() < -n or
                                                                                              idx.max() >= n)):
                 raise SceneError(f"{shown(self.name)}: instance indices must be integers in [0, {n})")
-            idx = idx % n if len(idx) else idx.astype(np.int64)
-            count = len(idx)
-            m = check_transforms(transforms, lambda k: self._label(int(idx[k]) if k < len(idx) else 0),
-                                 copy=False)
+            which = idx % n if len(idx) else idx.astype(np.int64)
+            count = len(which)
+            m, peak = checked_transforms(transforms, lambda k: self._label(int(which[k]) if k < count else 0),
+                                         copy=False)
+            in_order = count == n and which[0] == 0 and np.array_equal(which, np.arange(n))
+            idx = slice(None) if in_order else which   # (all, in order: written as a slice, not scattered)
         if len(m) != count:
             raise SceneError(f"{shown(self.name)}: {len(m)} transforms for {count} instances")
-        self._check_world(idx, m)   # before anything changes
+        self._check_world(idx, m, peak)   # before anything changes
         self._transforms[idx] = m
         self._version += 1
         self._inst_changed[idx] = self._version
@@ -268,16 +272,22 @@ class Scene:
 
     def instance_boxes(self) -> NDArray[np.float64]:
         """(N, 2, 3) float64 world AABBs of the instances (their mesh's box through the transform)."""
-        boxes = np.stack([m.box for m in self.meshes])[self._inst_mesh]
-        return world_boxes(boxes, self._transforms)
+        return world_boxes(self._instance_object_boxes(), self._transforms)
+
+    def _instance_object_boxes(self) -> np.ndarray:
+        """(N, 2, 3) object boxes of the instances' meshes, or (1, 2, 3) where all instances share one mesh."""
+        boxes = np.stack([m.box for m in self.meshes])
+        if len(boxes) == 1:
+            return boxes
+        return boxes[self._inst_mesh]
 
     def _label(self, i: int) -> str:
         name = self.instances[i].name if hasattr(self, "instances") else ""
         return f"{shown(self.name)}: instance {i}" + (f" '{shown(name)}'" if name else "")
 
-    def _check_world(self, idx, transforms: np.ndarray | None = None) -> None:
+    def _check_world(self, idx, transforms: np.ndarray | None = None, peak: float | None = None) -> None:
         """The instances `idx` (indices or a slice) stay within MAX_COORD under their `transforms` (default: their
-        current ones)."""
+        current ones); `peak`: the transforms' largest magnitude, where the caller has it."""
         mesh = self._inst_mesh[idx]
         if not len(mesh):
             return
@@ -286,7 +296,9 @@ class Scene:
         boxes = np.stack([m.box for m in self.meshes])
         # a bound first: |A c + t| + |A| h <= (3 (|c| + h) + 1) max|m|, for every instance at once
         reach = np.abs(boxes[mesh if len(mesh) < len(boxes) else slice(None)]).max()
-        if (3.0 * reach + 1.0) * max(transforms.max(), -transforms.min()) <= MAX_COORD:   # (no temporaries)
+        if peak is None:
+            peak = max(transforms.max(), -transforms.min())   # (no temporaries)
+        if (3.0 * reach + 1.0) * peak <= MAX_COORD:
             return
         one = len(boxes) == 1 or not np.any(mesh != mesh[0])
         world = world_boxes(boxes[mesh[:1]] if one else boxes[mesh], transforms)
@@ -363,14 +375,14 @@ class Scene:
     def object_names(self) -> list[str]:
         """The names of `submeshes` (what the object_id AOV indexes), without flattening any geometry: they do not
         change when instances move."""
-        names = [i.name for i in self.instances]
         hit = self._cache.get("object_names")
-        if hit is None or hit[0] != names:
+        if hit is None or hit[0] != self._names_version:
+            names = [i.name for i in self.instances]
             out = []
             for i, k in enumerate(self._inst_mesh):
                 subs = self.meshes[k].submeshes
                 out += [s.name if len(subs) > 1 or not names[i] else names[i] for s in subs]
-            hit = (names, out)
+            hit = (self._names_version, out)
             self._cache["object_names"] = hit
         return list(hit[1])
 
@@ -383,8 +395,7 @@ class Scene:
             if counts.sum() <= FLAT_BOUNDS_VERTICES:
                 box = self._vertex_bounds()
             else:
-                b = self.instance_boxes()
-                box = np.stack([b[:, 0].min(axis=0), b[:, 1].max(axis=0)])
+                box = world_box_union(self._instance_object_boxes(), self._transforms)
             return _frozen(box, np.float32)
         return self._cached("bounds", make)
 

@@ -480,11 +480,11 @@ bool bvh_trace_instanced_(vec3 o, vec3 d, float tmin, float tmax, bool any_hit, 
                 float first_t = (hl && hr) ? (left_first ? sr.x : sl.x) : (hl ? sl.x : sr.x);
                 uint at = min(sp, uint(BVH_TLAS_STACK_SIZE - 1));
                 stack[at] = first;
-                enter[at] = first_t;
+                if (!any_hit) enter[at] = first_t;   // (occlusion never reads them: no stores)
                 sp += (hl || hr) ? 1u : 0u;
                 at = min(sp, uint(BVH_TLAS_STACK_SIZE - 1));
                 stack[at] = left_first ? wl : wr;
-                enter[at] = left_first ? sl.x : sr.x;
+                if (!any_hit) enter[at] = left_first ? sl.x : sr.x;
                 sp += (hl && hr) ? 1u : 0u;
             }
         }

@@ -24,6 +24,37 @@ from pathlib import Path
 FIGURES = ("beyond_build_ms", "build_ms", "first_query_ms", "warm_query_ms")
 
 
+def second_tracers(dev, v, f, o, d, t, runs: int) -> tuple:
+    """A first Tracer of (v, f) on engine.Device `dev` that answers the batch once (the Device's stream buffers exist
+    from then on), then `runs` second Tracers: per run its set-up, BVH build and set-up beyond it, its first query
+    of the batch and a second (warm) one, the answers checked against the first's. Public API only. Returns (the
+    runs as dicts of ms, the first Tracer's set-up ms, its BVH build ms)."""
+    import engine
+    import numpy as np
+    t0 = time.perf_counter()
+    first = engine.Tracer(v, f, device=dev)
+    first_ms = (time.perf_counter() - t0) * 1e3
+    want = first.occluded(o, d, t)
+    out = []
+    for _ in range(runs):
+        t0 = time.perf_counter()
+        second = engine.Tracer(v, f, device=dev)
+        ms = (time.perf_counter() - t0) * 1e3
+        t0 = time.perf_counter()
+        got = second.occluded(o, d, t)
+        first_query = (time.perf_counter() - t0) * 1e3
+        t0 = time.perf_counter()
+        second.occluded(o, d, t)
+        warm = (time.perf_counter() - t0) * 1e3
+        assert np.array_equal(got, want), "a second Tracer answered differently"
+        out.append({"tracer_ms": ms, "build_ms": second.stats["build_ms"],
+                    "beyond_build_ms": ms - second.stats["build_ms"], "first_query_ms": first_query,
+                    "warm_query_ms": warm})
+        second.close()
+    first.close()
+    return out, first_ms, first.stats["build_ms"]
+
+
 def one_run(size: str, runs: int) -> dict:
     """The figures of `runs` second Tracers (lists), in this process (its sys.path: the root under test)."""
     import numpy as np
@@ -33,27 +64,10 @@ def one_run(size: str, runs: int) -> dict:
     scene = engine.Scene.load("default")
     o, d, t = shadow_rays(scene, w, h, None)
     v, f = np.asarray(scene.positions, np.float32), np.asarray(scene.indices, np.int64)
-    out: dict = {k: [] for k in FIGURES}
     with engine.Device() as dev:
+        made, _, _ = second_tracers(dev, v, f, o, d, t, runs)
+        out: dict = {k: [r[k] for r in made] for k in FIGURES}
         out["device"] = dev.name
-        first = engine.Tracer(v, f, device=dev)
-        want = first.occluded(o, d, t)
-        for _ in range(runs):
-            t0 = time.perf_counter()
-            second = engine.Tracer(v, f, device=dev)
-            ms = (time.perf_counter() - t0) * 1e3
-            t0 = time.perf_counter()
-            got = second.occluded(o, d, t)
-            first_query = (time.perf_counter() - t0) * 1e3
-            t0 = time.perf_counter()
-            second.occluded(o, d, t)
-            out["warm_query_ms"].append((time.perf_counter() - t0) * 1e3)
-            out["first_query_ms"].append(first_query)
-            out["build_ms"].append(second.stats["build_ms"])
-            out["beyond_build_ms"].append(ms - second.stats["build_ms"])
-            assert np.array_equal(got, want), "a second Tracer answered differently"
-            second.close()
-        first.close()
         out["validation_errors"] = dev.validation_errors[:3]
     return out
 

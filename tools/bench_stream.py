@@ -31,6 +31,7 @@ import engine.rt.tracer as tracer_mod  # noqa: E402
 from engine.bench.rays import first_light_rays  # noqa: E402
 from engine.bench.transfer import CopyPeer, stream_figures, time_back_to_back  # noqa: E402
 from engine.vk.device import is_cpu  # noqa: E402
+from bench_second_tracer import second_tracers  # noqa: E402
 
 
 def shadow_rays(scene, width, height, device):
@@ -47,30 +48,10 @@ def setup_figures(dev, v, f, o, d, t, runs):
     """The set-up of a first Tracer on the Device (which then answers the batch once: the Device's stream buffers
     exist from then on), and `runs` times of a second one: its set-up, its first query of the batch and a second
     (warm) one; the second's figures are medians, those of each run listed too."""
-    t0 = time.perf_counter()
-    first = engine.Tracer(v, f, device=dev)
-    first_ms = (time.perf_counter() - t0) * 1e3
-    want = first.occluded(o, d, t)
-    runs_out = []
-    for _ in range(runs):
-        t0 = time.perf_counter()
-        second = engine.Tracer(v, f, device=dev)
-        ms = (time.perf_counter() - t0) * 1e3
-        t0 = time.perf_counter()
-        got = second.occluded(o, d, t)
-        first_query = (time.perf_counter() - t0) * 1e3
-        t0 = time.perf_counter()
-        second.occluded(o, d, t)
-        warm = (time.perf_counter() - t0) * 1e3
-        assert np.array_equal(got, want)
-        runs_out.append({"tracer_ms": ms, "build_ms": second.stats["build_ms"],
-                         "beyond_build_ms": ms - second.stats["build_ms"], "first_query_ms": first_query,
-                         "warm_query_ms": warm})
-        second.close()
-    first.close()
+    runs_out, first_ms, first_build_ms = second_tracers(dev, v, f, o, d, t, runs)
     med = {k: float(np.median([r[k] for r in runs_out])) for k in runs_out[0]}
-    return {"first_tracer_ms": first_ms, "first_build_ms": first.stats["build_ms"],
-            "first_beyond_build_ms": first_ms - first.stats["build_ms"],
+    return {"first_tracer_ms": first_ms, "first_build_ms": first_build_ms,
+            "first_beyond_build_ms": first_ms - first_build_ms,
             "second_tracer_ms": med["tracer_ms"], "second_build_ms": med["build_ms"],
             "second_beyond_build_ms": med["beyond_build_ms"], "second_first_query_ms": med["first_query_ms"],
             "second_warm_query_ms": med["warm_query_ms"], "second_runs": runs_out}

@@ -56,9 +56,14 @@ def check_tree(tracer, scene):
     assert np.array_equal(np.sort(inst), np.arange(n))          # each instance in exactly one slot
     assert (counts == 1).sum() == n and np.all(counts[~leaf] == 0) and np.all(counts <= 1)
     world = scene.instance_boxes()
+    # a leaf's box holds its instance's triangles (the tighter of the turned box's and bounding sphere's bounds)
+    exact = np.stack([[p.min(0), p.max(0)] for p in
+                      (scene.meshes[k].positions @ m[:3, :3].T + m[:3, 3]
+                       for k, m in zip(scene.instance_mesh, scene.transforms))])
     full = leaf & (counts == 1)
-    wb = world[(words[full] & ~LEAF_BIT).astype(np.int64)]
+    wb = exact[(words[full] & ~LEAF_BIT).astype(np.int64)]
     assert np.all(lo[full] <= wb[:, 0]) and np.all(hi[full] >= wb[:, 1])
+    assert np.all(lo[full] >= world[(words[full] & ~LEAF_BIT).astype(np.int64), 0] - 1e-3)   # never looser
     empty = leaf & (counts == 0)
     assert np.all(lo[empty] == np.inf) and np.all(hi[empty] == -np.inf)
     # a tree: every node but the root is the child of exactly one slot; a slot's box holds its node's two boxes

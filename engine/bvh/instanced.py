@@ -65,25 +65,30 @@ class TwoLevel:
         return self.tlas_root * NODE_DTYPE.itemsize
 
     def top(self, transforms: np.ndarray, inst_mesh: np.ndarray, mesh_boxes: np.ndarray,
-            flat_tri_base: np.ndarray, moved: np.ndarray | None = None) -> np.ndarray:
+            flat_tri_base: np.ndarray, moved: np.ndarray | None = None,
+            mesh_radii: np.ndarray | None = None) -> np.ndarray:
         """Rebuild the top level for (N, 4, 4) `transforms` of instances of meshes `inst_mesh` (N,), whose object
         boxes are `mesh_boxes` (M, 2, 3) and whose first triangle in the flattened scene is `flat_tri_base` (N,),
-        and rewrite the records of the instances `moved` (None: all). Writes them into `nodes` and returns that
-        tail (a view)."""
+        and rewrite the records of the instances `moved` (None: all). `mesh_radii` (M,): radii of spheres about the
+        boxes' centres that bound the meshes (`Mesh.radius`): an instance's world box is the tighter of its turned
+        box's and its turned sphere's, per axis. Writes them into `nodes` and returns that tail (a view)."""
         n = self.n_instances
         m = np.asarray(transforms, dtype=np.float64)
         mesh_boxes = np.asarray(mesh_boxes, dtype=np.float64)
         one = len(mesh_boxes) == 1   # (one mesh: its box's centre and half extent are scalars per axis)
         oc = 0.5 * (mesh_boxes[:, 0] + mesh_boxes[:, 1])
         oh = 0.5 * (mesh_boxes[:, 1] - mesh_boxes[:, 0])
+        radius = np.full(len(mesh_boxes), np.inf) if mesh_radii is None else np.asarray(mesh_radii, np.float64)
         if not one:
-            oc, oh = oc[inst_mesh], oh[inst_mesh]
+            oc, oh, radius = oc[inst_mesh], oh[inst_mesh], radius[inst_mesh]
         e = m.reshape(n, 16)   # strided 1-D operations over the instances (fast at any N)
         wc, wh = np.empty((n, 3)), np.empty((n, 3))
         for i in range(3):   # centre and half extent through the transform: A c + t, |A| h
             a0, a1, a2 = e[:, 4 * i], e[:, 4 * i + 1], e[:, 4 * i + 2]
             wc[:, i] = a0 * oc[:, 0] + a1 * oc[:, 1] + a2 * oc[:, 2] + e[:, 4 * i + 3]
             wh[:, i] = np.abs(a0) * oh[:, 0] + np.abs(a1) * oh[:, 1] + np.abs(a2) * oh[:, 2]
+            # the sphere's extent along axis i: its radius times row i's length
+            np.minimum(wh[:, i], radius * np.sqrt(a0 * a0 + a1 * a1 + a2 * a2), out=wh[:, i])
         lo, hi = wc.min(axis=0), wc.max(axis=0)
         # one scale for all axes (the largest extent), so that a thin axis does not split every third level
         q = ((wc - lo) * (1023.0 / max(float((hi - lo).max()), 1e-300))).astype(np.uint32)

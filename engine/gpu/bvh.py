@@ -265,7 +265,8 @@ class InstancedBVH:
     def _upload(self, scene) -> None:
         self._release()
         self.two = TwoLevel(self.blas, len(scene.instances))
-        self.two.top(scene.transforms, scene.instance_mesh, self._mesh_boxes(scene), self.flat_tri_base)
+        self.two.top(scene.transforms, scene.instance_mesh, self._mesh_boxes(scene), self.flat_tri_base,
+                     mesh_radii=self._mesh_radii(scene))
         if self.refit_on == "host":
             self._refit_again(scene)
         self._flag_alpha()
@@ -287,7 +288,7 @@ class InstancedBVH:
         self.dset.bind("bvh_node_image", self.views[0]).bind("bvh_tri_image", self.views[1])
         if self.gpu_top is not None:   # the top level as the GPU builds it, from the start
             self.gpu_top.prepare(self.two, self.nodes, scene.instance_mesh, self.flat_tri_base,
-                                 self._mesh_boxes(scene))
+                                 self._mesh_boxes(scene), self._mesh_radii(scene))
             self.gpu_top.build(scene.transforms)
         self.version = scene.version
         self.structure = getattr(self, "structure", 0) + 1   # changes when the buffers (and spec) are new
@@ -315,6 +316,10 @@ class InstancedBVH:
     @staticmethod
     def _mesh_boxes(scene) -> np.ndarray:
         return np.stack([m.box for m in scene.meshes])
+
+    @staticmethod
+    def _mesh_radii(scene) -> np.ndarray:
+        return np.array([m.radius for m in scene.meshes])
 
     def update(self, scene) -> bool:
         """Bring the GPU copy up to `scene`'s current state (the renderer and Tracer call it before tracing):
@@ -355,11 +360,11 @@ class InstancedBVH:
             return True
         if self.gpu_top is not None:
             if len(deformed):
-                self.gpu_top.set_mesh_boxes(self._mesh_boxes(scene))
+                self.gpu_top.set_mesh_boxes(self._mesh_boxes(scene), self._mesh_radii(scene))
         elif len(moved) or len(deformed):
             every = len(moved) == len(scene.instances)   # (all moved: the records rewritten by slices, no gathers)
             tail = self.two.top(scene.transforms, scene.instance_mesh, self._mesh_boxes(scene), self.flat_tri_base,
-                                moved=None if every else moved)
+                                moved=None if every else moved, mesh_radii=self._mesh_radii(scene))
             parts.append((self.two.tail_offset, tail))
         node_parts = [p for p in parts if len(p) == 2]
         tri_parts = [p[1:] for p in parts if len(p) == 3]

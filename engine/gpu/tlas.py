@@ -81,8 +81,9 @@ class TopLevelBuilder:
         self.view = None
 
     def prepare(self, two, nodes: Buffer, inst_mesh: np.ndarray, flat_tri_base: np.ndarray,
-                mesh_boxes: np.ndarray) -> None:
-        """Buffers and the recorded build for `two` (a TwoLevel) whose nodes live in `nodes`."""
+                mesh_boxes: np.ndarray, mesh_radii: np.ndarray | None = None) -> None:
+        """Buffers and the recorded build for `two` (a TwoLevel) whose nodes live in `nodes` (`mesh_boxes`,
+        `mesh_radii`: as TwoLevel.top's)."""
         self.wait()
         self._release()
         ctx = self.ctx
@@ -99,7 +100,7 @@ class TopLevelBuilder:
         self.info = Buffer(ctx, info.nbytes, STORAGE, host=True, name="tlas instance info")
         self.info.write(info)
         self.mesh_boxes = Buffer(ctx, len(mesh_boxes) * 32, STORAGE, host=True, name="tlas mesh boxes")
-        self.set_mesh_boxes(mesh_boxes)
+        self.set_mesh_boxes(mesh_boxes, mesh_radii)
         self.boxes = Buffer(ctx, n * 32, STORAGE, name="tlas world boxes")
         self.bounds = Buffer(ctx, 32, STORAGE | TRANSFER_DST, name="tlas bounds")
         self.keys = Buffer(ctx, keys * 8, STORAGE, name="tlas sort keys")
@@ -114,14 +115,18 @@ class TopLevelBuilder:
         d.bind("seg", self.seg)
         self.cmd = self._record(two, nodes, slots, keys)
 
-    def set_mesh_boxes(self, mesh_boxes: np.ndarray) -> None:
-        """The meshes' object boxes (M, 2, 3), rounded outwards to float32 (after a mesh deformed)."""
+    def set_mesh_boxes(self, mesh_boxes: np.ndarray, mesh_radii: np.ndarray | None = None) -> None:
+        """The meshes' object boxes (M, 2, 3), rounded outwards to float32, and their bounding spheres' radii (M,)
+        about the boxes' centres, rounded up (None: no sphere bound); after a mesh deformed."""
         self.wait()
         b = np.asarray(mesh_boxes, np.float64)
         out = np.zeros((len(b), 2, 4), np.float32)
         lo, hi = b[:, 0].astype(np.float32), b[:, 1].astype(np.float32)
         out[:, 0, :3] = np.where(lo > b[:, 0], np.nextafter(lo, np.float32(-np.inf)), lo)
         out[:, 1, :3] = np.where(hi < b[:, 1], np.nextafter(hi, np.float32(np.inf)), hi)
+        r = np.full(len(b), np.inf) if mesh_radii is None else np.asarray(mesh_radii, np.float64)
+        r32 = r.astype(np.float32)
+        out[:, 0, 3] = np.where(r32 < r, np.nextafter(r32, np.float32(np.inf)), r32)   # (w of the min row)
         self.mesh_boxes.write(out)
 
     def _record(self, two, nodes: Buffer, slots: int, keys: int):

@@ -92,7 +92,7 @@ class Mesh:
         if submeshes is None:
             submeshes = [SubMesh(self.name, 0, len(p), 0, len(f), int(vm[0]) if len(vm) else 0)]
         self.submeshes = list(submeshes)
-        self._box = None
+        self._box = self._radius = None
 
     @property
     def triangle_count(self) -> int:
@@ -110,6 +110,15 @@ class Mesh:
         if self._box is None:
             self._box = np.stack([self.positions.min(axis=0), self.positions.max(axis=0)]).astype(np.float64)
         return self._box
+
+    @property
+    def radius(self) -> float:
+        """Largest distance of the positions from the centre of `box` (a sphere that bounds the mesh: the top
+        level bounds a turned instance by the tighter of it and the turned box)."""
+        if self._radius is None:
+            c = 0.5 * (self.box[0] + self.box[1])
+            self._radius = float(np.sqrt(((self.positions - c) ** 2).sum(axis=1).max()))
+        return self._radius
 
     def _set_positions(self, positions: np.ndarray, normals: np.ndarray | None, where: str) -> None:
         """New positions (same count) and normals (None: recomputed, area-weighted over the existing triangles)."""
@@ -130,7 +139,7 @@ class Mesh:
             n = unitize(n)
         self.positions = frozen(p, np.float32)
         self.normals = frozen(n, np.float32)
-        self._box = None
+        self._box = self._radius = None
 
     def __repr__(self) -> str:
         return f"<Mesh {shown(self.name)}: {self.triangle_count:,} triangles, {self.vertex_count:,} vertices>"

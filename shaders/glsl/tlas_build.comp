@@ -33,7 +33,7 @@ layout(push_constant) uniform Push {
 layout(std430, set = 0, binding = 0) readonly restrict buffer Xf { vec4 xf[]; };
 // per instance: (mesh, root node of its mesh, first triangle in the flattened scene, 0)
 layout(std430, set = 0, binding = 1) readonly restrict buffer Info { uvec4 info[]; };
-// per mesh: object box min, max
+// per mesh: object box min (w: the radius of a sphere about the box's centre bounding the mesh), max
 layout(std430, set = 0, binding = 2) readonly restrict buffer MeshBoxes { vec4 mesh_box[]; };
 // per instance: world box min, max (scratch)
 layout(std430, set = 0, binding = 3) restrict buffer Boxes { vec4 boxes[]; };
@@ -88,11 +88,14 @@ void world() {
         vec4 r0 = xf[3u * i], r1 = xf[3u * i + 1u], r2 = xf[3u * i + 2u];
         uvec4 inf = info[i];
         vec3 bmin = mesh_box[2u * inf.x].xyz, bmax = mesh_box[2u * inf.x + 1u].xyz;
+        float radius = mesh_box[2u * inf.x].w;   // of a sphere about the box's centre that bounds the mesh
         vec3 oc = 0.5 * (bmin + bmax), oh = 0.5 * (bmax - bmin);
         mat3 a = mat3(r0.x, r1.x, r2.x, r0.y, r1.y, r2.y, r0.z, r1.z, r2.z);   // columns
         vec3 t = vec3(r0.w, r1.w, r2.w);
         vec3 wc = a * oc + t;
-        vec3 wh = abs(a[0]) * oh.x + abs(a[1]) * oh.y + abs(a[2]) * oh.z;
+        // the turned box's half extent, or the turned sphere's (its radius times each row's length) where tighter
+        vec3 wh = min(abs(a[0]) * oh.x + abs(a[1]) * oh.y + abs(a[2]) * oh.z,
+                      radius * sqrt(vec3(dot(r0.xyz, r0.xyz), dot(r1.xyz, r1.xyz), dot(r2.xyz, r2.xyz))));
         vec3 size = abs(a[0] * oc.x) + abs(a[1] * oc.y) + abs(a[2] * oc.z) + abs(t) + wh;
         vec3 h = wh + PAD * size;
         boxes[2u * i] = vec4(wc - h, 0.0);

@@ -55,36 +55,54 @@ def test_keys_sort_nearby_origins_together():
     gap = lambda a: np.median(np.linalg.norm(np.diff(a, axis=0), axis=1))   # noqa: E731
     assert gap(o[order]) < gap(o) / 10
     box = (np.array([0, 0, 0], np.float32), np.array([32, 32, 32], np.float32))
-    pts = np.array([[0.5, 0.5, 0.5], [31.5, 0.5, 0.5], [0.5, 31.5, 0.5], [0.5, 0.5, 31.5], [1.5, 0.5, 0.5],
-                    [99, -99, 0.5]], np.float32)
+    pts = np.array([[0.001, 0.001, 0.001], [31.999, 0.001, 0.001], [0.001, 31.999, 0.001], [0.001, 0.001, 31.999],
+                    [1.5, 0.001, 0.001], [99, -99, 0.001]], np.float32)
     up = np.array([[0, 1, 0], [0, -1, 0], [0, -1, 0], [0, -1, 0], [0, -1, 0], [0, 1, 0]], np.float32)
     keys = ray_keys(pts, up, box)
-    # x = 31 sets bits 3k + 2 (+1 for the direction bit), y = 31 bits 3k + 1, z = 31 bits 3k; clamped outside
-    x31 = sum(1 << (3 * k + 3) for k in range(5))
-    assert keys.tolist() == [1, x31, sum(1 << (3 * k + 2) for k in range(5)), sum(1 << (3 * k + 1) for k in range(5)),
-                             1 << 3, x31 | 1]
+    # 31 bits of cell (x 11, y 10, z 10), then the direction bit: x's bits at 3k + 1, y's at 3k + 3, z's at 3k + 2;
+    # x = 1.5 is cell 96 of 2048 (bits 5 and 6); clamped outside the box
+    x_all = sum(1 << (3 * k + 1) for k in range(11))
+    y_all, z_all = sum(1 << (3 * k + 3) for k in range(10)), sum(1 << (3 * k + 2) for k in range(10))
+    assert keys.dtype == np.uint32
+    assert keys.tolist() == [1, x_all, y_all, z_all, (1 << 16) | (1 << 19), x_all | 1]
 
 
 def test_cells_follow_the_shape_of_the_box():
     """The key's bits halve the origins' box along its longest side in turn: a flat box's thin axis gets none, a
-    long one most; 16 bits of cell where the direction is shared, 15 and the up bit otherwise."""
+    long one most (up to 16); 32 bits of cell where the direction is shared, 31 and the up bit otherwise."""
     split = ray_order_mod.split_axes
     assert split([0, 0, 0], [32, 32, 32], 6) == (0, 1, 2, 0, 1, 2)
     assert split([0, 0, 0], [40, 0, 40], 8) == (0, 2) * 4
     assert split([0, 0, 0], [64, 8, 16], 5) == (0, 0, 0, 2, 0)
+    assert split([0, 0, 0], [1 << 20, 1, 1], 20) == (0,) * 16 + (1, 2, 1, 2)
+    # origins at the centres of a flat box's cells, 2^16 along x and z: the key interleaves their bits (x first)
     rng = np.random.default_rng(9)
+    cell = rng.integers(0, 1 << 16, (4096, 2))
     o = np.zeros((4096, 3), np.float32)
-    o[:, 0] = rng.uniform(0, 40, len(o))
-    o[:, 2] = rng.uniform(0, 40, len(o))
+    o[:, [0, 2]] = (cell + 0.5) * (40 / 65536)
     d = np.broadcast_to(np.float32([0.3, 0.9, 0.1]), o.shape)
     box = (np.float32([0, 0, 0]), np.float32([40, 0, 40]))
-    keys = ray_keys(o, d, box)
-    cells = np.floor(o[:, [0, 2]] / 40 * 256).clip(0, 255).astype(int)   # 8 bits each for x and z
-    assert len(np.unique(keys)) == len(np.unique(cells[:, 0] * 256 + cells[:, 1]))
-    gathered = ray_keys(o, np.ascontiguousarray(d), box)   # not a shared view: 15 bits of cell (x 8, z 7), then up
-    assert (gathered & 1).all()
-    coarse = np.floor(o[:, [0, 2]] / 40 * [256, 128]).clip(0, [255, 127]).astype(int)
-    assert len(np.unique(gathered)) == len(np.unique(coarse[:, 0] * 128 + coarse[:, 1]))
+
+    def interleave(x, z, x_at, z_at):
+        return sum(((x >> b) & 1) << (2 * b + x_at) for b in range(16)) | sum(((z >> b) & 1) << (2 * b + z_at)
+                                                                             for b in range(16))
+    assert ray_keys(o, d, box).tolist() == interleave(cell[:, 0], cell[:, 1], 1, 0).tolist()
+    gathered = ray_keys(o, np.ascontiguousarray(d), box)   # not a shared view: x 16 bits, z 15, then up
+    assert gathered.tolist() == (interleave(cell[:, 0], cell[:, 1] >> 1, 1, 2) | 1).tolist()
+
+
+def test_rays_with_equal_keys_keep_their_order(monkeypatch):
+    """Rays in one cell are traced in the caller's order; the same order where the row numbers do not fit the sorted
+    words (batches of 2^32 rays: the keys' stable argsort)."""
+    rng = np.random.default_rng(4)
+    o = rng.integers(0, 4, (20_000, 3)).astype(np.float32)   # 64 distinct origins
+    d = rng.normal(size=o.shape).astype(np.float32)
+    keys = ray_keys(o, d, ray_order_mod.origin_box(o))
+    order = ray_order(o, d)
+    assert np.array_equal(order, np.argsort(keys, kind="stable"))
+    assert len(np.unique(keys)) < 200 and (np.diff(order)[np.diff(keys[order]) == 0] > 0).all()
+    monkeypatch.setattr(ray_order_mod, "WORD_ROWS", 1000)
+    assert np.array_equal(ray_order(o, d), order)
 
 
 def test_auto_tells_which_batches_gain():

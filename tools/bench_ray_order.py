@@ -13,7 +13,7 @@ and the ratios are per run (medians):
   image      the rays in image order: sorted by the pixel they project to (a 1920x1080 view from the scene's camera;
              samples outside the view after them, in Morton order), reorder=False
   shuffled   a random permutation, reorder=False
-  reordered  the same shuffled rays, reorder=True (the Tracer's 16-bit key and radix sort, timed in the call)
+  reordered  the same shuffled rays, reorder=True (the Tracer's 32-bit key and sort, timed in the call)
   auto       the shuffled rays with the default reorder="auto"
   coherent auto  the coherent rays with reorder="auto" (auto must leave them alone: its check is all it costs)
 
@@ -24,7 +24,7 @@ alone: the sort costs more than it gains there). Results of every variant are ch
 
 Also per variant the trace dispatches' time (`Tracer.last_gpu_ms`; on lavapipe CPU time that the host's work
 running beside it lengthens) and, once, the host steps of the reordering on the shuffled rays, timed alone: the
-order (`engine.rt.order.ray_order`: box, keys, radix sort) and a gather of the origins in that order (`np.take`).
+order (`engine.rt.order.ray_order`: box, keys, sort) and a gather of the origins in that order (`np.take`).
 """
 from __future__ import annotations
 

@@ -1,17 +1,20 @@
 """Ray reordering for the batch Tracer: incoherent batches (rays in no spatial order, e.g. shadow rays from random
-surface samples) are traced in the order of a coarse Morton code of their origins, and their results scattered back.
+surface samples) are traced in the order of a Morton code of their origins, and their results scattered back.
 
 On a CPU device (llvmpipe) a SIMD group of 8 lanes walks 8 rays in lock step until the slowest ends, and each lane's
-node loads miss the cache on their own: rays from nearby origins walk the same nodes. The key is 16 bits (the code of
-the origin's cell in the batch's box, cut along its longest side in turn, and whether the direction points up unless
-every ray has the same one), so that numpy's stable argsort is a radix sort (linear time). The stream gathers the
-rays in that order as it packs them and the sinks scatter the results back (engine/rt/stream.py). `incoherent`
-decides whether a batch gains from it, from a sample: image-ordered batches (G-buffer rays) and rays crossing the
-scene in all directions are left alone.
+node loads miss the cache on their own: rays from nearby origins walk the same nodes. The key (the code of the
+origin's cell in the batch's box, cut along its longest side in turn, and whether the direction points up unless
+every ray has the same one) has 32 bits, so that the rays of a SIMD group are neighbours (a 16-bit key leaves a dozen
+rays per cell of a million-ray batch, in the caller's order). The key and the ray's index, as one 64-bit word, go
+through numpy's sort (vectorized; about as fast as the stable radix argsort of a 16-bit key; the index makes the
+words unique, so the order is the key's stable one). The stream gathers the rays in that order as it packs them and
+the sinks scatter the results back (engine/rt/stream.py). `incoherent` decides whether a batch gains from it, from a
+sample: image-ordered batches (G-buffer rays) and rays crossing the scene in all directions are left alone.
 """
 from __future__ import annotations
 
 import functools
+import sys
 
 import numpy as np
 
@@ -29,43 +32,53 @@ INCOHERENT = 0.02
 ALIKE = 0.7
 #: ... or the rays to be short (median length below this fraction of the diagonal)
 SHORT = 0.2
-#: bits of a key (numpy's stable argsort is a radix sort up to 16-bit keys, a merge sort above)
-KEY_BITS = 16
-#: rays per task of the key computation on the worker pool
-KEY_BLOCK = 1 << 17
+#: bits of a key (cells, and the direction's up bit where the rays' directions differ)
+KEY_BITS = 32
+#: the most of a key's splits that one axis gets (a long thin box's further splits go to the other axes)
+AXIS_BITS = 16
+#: rays per task of the key computation on the worker pool (its temporaries stay in the L2 cache)
+KEY_BLOCK = 1 << 15
+#: batches of at least this many rays are sorted by a stable argsort of their keys (their row numbers take more than
+#: the low half of a 64-bit word)
+WORD_ROWS = 1 << 32
 #: rows per block of `shared_direction`'s comparison (its temporaries stay in the L2 cache)
 SHARED_BLOCK = 1 << 14
 
 
 def split_axes(lo, hi, bits: int) -> tuple:
     """The axes that `bits` halvings of the box (lo, hi) split in turn, each time its longest side (x first on a
-    tie): cells about as long as they are wide (a flat scene's thin axis gets few bits), and for a cube x, y, z, x,
-    y, z, ... (the Morton code)."""
+    tie) of those split fewer than AXIS_BITS times: cells about as long as they are wide (a flat scene's thin axis
+    gets few bits), and for a cube x, y, z, x, y, z, ... (the Morton code)."""
     size = [float(x) for x in np.maximum(np.asarray(hi, np.float64) - np.asarray(lo, np.float64), 0.0)]
     axes = []
     for _ in range(bits):
-        a = max(range(3), key=lambda i: (size[i], -i))
+        a = max((i for i in range(3) if axes.count(i) < AXIS_BITS), key=lambda i: (size[i], -i))
         axes.append(a)
         size[a] /= 2
     return tuple(axes)
 
 
 @functools.lru_cache(maxsize=16)
-def _code_table(axes: tuple, shift: int) -> np.ndarray:
-    """(2^len(axes),) uint16: the code of each cell x * 2^(by + bz) + y * 2^bz + z (b: an axis's count in `axes`),
-    its bits in the order of `axes` (the first split highest), shifted left by `shift`."""
+def _axis_tables(axes: tuple, shift: int) -> tuple:
+    """The key bits of each cell coordinate, per axis: a uint32 table holding the three axes' tables one after the
+    other (axis a's coordinate c at offsets[a] + c), the bits of coordinate c of axis a at the places of its splits
+    in `axes` (the first split highest), shifted left by `shift`; and the (3,) uint32 offsets."""
     bits = [axes.count(a) for a in range(3)]
-    cell = np.arange(1 << len(axes), dtype=np.uint32)
-    coord = [(cell >> (bits[1] + bits[2])) & ((1 << bits[0]) - 1), (cell >> bits[2]) & ((1 << bits[1]) - 1),
-             cell & ((1 << bits[2]) - 1)]
-    out = np.zeros_like(cell)
-    seen = [0, 0, 0]
-    for k, a in enumerate(axes):   # split k: the next bit of axis a, from its highest
-        seen[a] += 1
-        out |= ((coord[a] >> (bits[a] - seen[a])) & 1) << (len(axes) - 1 - k + shift)
-    out = out.astype(np.uint16)
-    out.setflags(write=False)   # (shared by the cache)
-    return out
+    parts = []
+    for a in range(3):
+        coord = np.arange(1 << bits[a], dtype=np.uint32)
+        part = np.zeros_like(coord)
+        seen = 0
+        for k, axis in enumerate(axes):   # split k: the next bit of this axis, from its highest
+            if axis == a:
+                seen += 1
+                part |= ((coord >> (bits[a] - seen)) & 1) << np.uint32(len(axes) - 1 - k + shift)
+        parts.append(part)
+    table = np.concatenate(parts)
+    offsets = np.array([0, len(parts[0]), len(parts[0]) + len(parts[1])], np.uint32)
+    table.setflags(write=False)   # (shared by the cache)
+    offsets.setflags(write=False)
+    return table, offsets
 
 
 def check_reorder(value, where: str = "Tracer") -> object:
@@ -142,46 +155,64 @@ def shared_direction(d: np.ndarray) -> np.ndarray:
     return np.broadcast_to(d[0], d.shape)
 
 
-def ray_keys(o: np.ndarray, d: np.ndarray, box, threads: int = 1) -> np.ndarray:
-    """(N,) uint16 keys: the code of each origin's cell in `box` (clamped), whose KEY_BITS - 1 bits halve the box
+def ray_keys(o: np.ndarray, d: np.ndarray, box, threads: int = 1, out: np.ndarray | None = None,
+             index: np.ndarray | None = None) -> np.ndarray:
+    """(N,) uint32 keys: the code of each origin's cell in `box` (clamped), whose KEY_BITS - 1 bits halve the box
     along its longest side in turn (`split_axes`: a Morton code for a cube), then whether the direction points up
     (+y) or down, which splits a cell's rays leaving opposite sides of a surface; where every ray has the same
-    direction (a stride-0 `d`, `shared_direction`) that bit is the same for all and the cells get all KEY_BITS. In
-    row blocks on `threads` threads. Non-finite values give some key (the ray checks name them)."""
+    direction (a stride-0 `d`, `shared_direction`) that bit is the same for all and the cells get all KEY_BITS.
+    Written into `out` if given (an (N,) uint32 array or view), and with `index` (an (N,) uint32 view) the rays'
+    row numbers into that. In row blocks on `threads` threads. Non-finite values give some key (the ray checks
+    name them)."""
     lo, hi = (np.asarray(b, np.float32) for b in box)
     shared = len(d) > 0 and d.strides[0] == 0
     axes = split_axes(lo, hi, KEY_BITS if shared else KEY_BITS - 1)
-    table = _code_table(axes, 0 if shared else 1)
+    table, offsets = _axis_tables(axes, 0 if shared else 1)
     bits = np.array([axes.count(a) for a in range(3)])
     scale = (np.float32(2.0) ** bits).astype(np.float32) / np.maximum(hi - lo, np.float32(1e-30))
     top = (np.float32(2.0) ** bits - 1).astype(np.float32)
-    weights = np.array([1 << (bits[1] + bits[2]), 1 << bits[2], 1], np.float32)
     rows = min(KEY_BLOCK, len(o))
     # (flat, as long as a block: numpy's (N, 3) op (3,) broadcasts loop 3 elements at a time)
-    lo3, scale3, top3 = np.tile(lo, rows), np.tile(scale, rows), np.tile(top, rows)
-    key = np.empty(len(o), np.uint16)
+    lo3, scale3, top3, offsets3 = np.tile(lo, rows), np.tile(scale, rows), np.tile(top, rows), np.tile(offsets, rows)
+    key = np.empty(len(o), np.uint32) if out is None else out
 
     def block(s):
         e = min(s + KEY_BLOCK, len(o))
-        q = np.subtract(o[s:e].reshape(-1), lo3[:3 * (e - s)])
+        m = 3 * (e - s)
+        q = np.subtract(o[s:e].reshape(-1), lo3[:m])
         with np.errstate(invalid="ignore"):
-            np.multiply(q, scale3[:3 * (e - s)], out=q)
-            np.clip(q, 0, top3[:3 * (e - s)], out=q)
-            np.floor(q, out=q)
-            cell = (q.reshape(-1, 3) @ weights).astype(np.uint16)
-        k = key[s:e]
-        np.take(table, cell, out=k, mode="clip")   # (a NaN origin casts to any integer)
+            np.multiply(q, scale3[:m], out=q)
+            np.maximum(q, np.float32(0), out=q)   # (two ufuncs: np.clip with array bounds is slower)
+            np.minimum(q, top3[:m], out=q)
+            cell = q.astype(np.uint32)   # (whole cells, >= 0: truncation is the floor; a NaN casts to any integer)
+        cell += offsets3[:m]
+        part = np.take(table, cell, mode="clip").reshape(-1, 3)
+        k = np.bitwise_or(part[:, 0], part[:, 1])
+        k |= part[:, 2]
         if not shared:
             k |= d[s:e, 1] > 0
+        key[s:e] = k
+        if index is not None:
+            index[s:e] = np.arange(s, e, dtype=np.uint32)
     blocks(block, len(o), KEY_BLOCK, threads)
     return key
 
 
 def ray_order(o: np.ndarray, d: np.ndarray, threads: int = 1) -> np.ndarray | None:
     """The order to trace rays in (an (N,) index array: trace row order[i] i-th), or None where the origins' box is
-    not finite (bad rays: traced as given, so that the checks name the first one). A stable argsort of 16-bit keys
-    (numpy's radix sort); `d` may be `shared_direction`'s stride-0 view (then the cells get the direction's bit)."""
+    not finite (bad rays: traced as given, so that the checks name the first one). The rays sorted by their keys,
+    stably: the key and the row number as one uint64 word each (key high), sorted, then the key bits cleared; `d`
+    may be `shared_direction`'s stride-0 view (then the cells get the direction's bit)."""
     box = origin_box(o)
     if box is None:
         return None
-    return np.argsort(ray_keys(o, d, box, threads), kind="stable")
+    n = len(o)
+    if n >= WORD_ROWS:
+        return np.argsort(ray_keys(o, d, box, threads), kind="stable")
+    words = np.empty(n, np.uint64)
+    halves = words.view(np.uint32).reshape(n, 2)
+    high = 1 if sys.byteorder == "little" else 0
+    ray_keys(o, d, box, threads, out=halves[:, high], index=halves[:, 1 - high])
+    words.sort()
+    halves[:, high] = 0
+    return words.view(np.int64)

@@ -15,7 +15,7 @@ import os
 import threading
 from contextlib import contextmanager
 from dataclasses import dataclass
-from typing import Any
+from typing import Any, Iterator
 
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
@@ -327,13 +327,11 @@ class Tracer(Closes):
         self.specs = specs   # by name, per query kind
         self.two_pass = {kind: bool(s.get("BVH_REG_STACK") and s.get("BVH_STACK_RETRY")) for kind, s in specs.items()}
         self._io_bindings = list(interface.set(0).values())
-        # slots with room for the second dispatch's retry list on every CPU device (the only ones with that pass),
-        # whatever this tree's depth: then all Tracers of the device share them (and a two-level BVH whose bottom
-        # level is rebuilt deeper needs no others)
+        # slots with room for the retry list on every CPU device (the only ones with that pass), whatever this
+        # tree's depth: all Tracers of the device share them
         self._retry_list = is_cpu(ctx)
         self._align = step
-        # the stream slots' buffers are the device's (SlotPool, made on the first query); this Tracer's descriptor
-        # sets and command buffers over each set of them are made as a query first takes that set
+        # the slots' buffers are the device's (SlotPool); this Tracer's sets and commands over them: `take_slots`
         self._bindings: dict = {}    # SlotSet -> [Slot]
         self.slots: list[Slot] = []  # the slots of the last query
         self._lib = lib
@@ -384,7 +382,7 @@ class Tracer(Closes):
             dset.bind("textures", tex, sampler=self.sampler, element=slot)
 
     @contextmanager
-    def take_slots(self, n: int):
+    def take_slots(self, n: int) -> Iterator[list]:
         """The slots a query of n rays streams through (one per chunk, at most STREAM_SLOTS): a set of the device's
         shared buffers taken for the call (engine/rt/stream.py SlotPool) and given back at its end, with this
         Tracer's descriptor sets and command buffers over them (made the first time it takes that set)."""
@@ -545,18 +543,10 @@ class Tracer(Closes):
 
     @serialized
     def cuda_ray_arrays(self, n: int, framework: str = "torch") -> tuple:
-        """Device arrays to write up to `n` rays into, for queries on CUDA arrays without the copy of the rays.
-
-        Returns (origins (n, 3), directions (n, 3), tmax (n,)), float32 torch tensors or CuPy arrays on the
-        Tracer's GPU that view the buffers the trace kernels read. Fill them (e.g. `origins.copy_(...)` or a
-        kernel of yours writing there), then pass these very arrays to `occluded` / `intersect`: the rays are not
-        copied. They stay valid until the Tracer is closed or a query needs larger buffers; a later query on other
-        arrays overwrites them. The stream rule of CUDA queries holds (docs/api.md).
-
-        Raises:
-            ConfigError: no CUDA here (naming why), a framework other than "torch" / "cupy", or n beyond the
-            shared buffers' size (CUDA_BATCH rays or the Tracer's batch_size).
-        """
+        """(origins (n, 3), directions (n, 3), tmax (n,)): float32 torch / CuPy arrays (`framework`) on the GPU that
+        view the buffers the kernels read. Rays written there and these very arrays passed to `occluded` /
+        `intersect` are traced without a copy. Valid until the Tracer closes or a query needs larger buffers; a query
+        on other arrays overwrites them. ConfigError: no CUDA here, another framework, n beyond the buffers' size."""
         self._check_open()
         return self._device_arrays().ray_arrays(n, framework)
 

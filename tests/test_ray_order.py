@@ -44,6 +44,21 @@ def bumpy():
     return np.vstack([v, ground]), faces
 
 
+def test_a_window_sorts_each_run_of_rows_on_its_own():
+    """With a window (the stream's chunk), each run of rows is sorted by the whole batch's keys within itself: a
+    chunk gathers only from its own rows; without one, the whole batch is sorted."""
+    rng = np.random.default_rng(2)
+    o = rng.uniform(-5, 5, (10_000, 3)).astype(np.float32)
+    d = rng.normal(size=o.shape).astype(np.float32)
+    keys = ray_keys(o, d, ray_order_mod.origin_box(o))
+    whole, windowed = ray_order(o, d), ray_order(o, d, window=4096)
+    assert np.array_equal(whole, np.argsort(keys, kind="stable"))
+    for s in range(0, len(o), 4096):
+        run = windowed[s:s + 4096]
+        assert np.array_equal(run, s + np.argsort(keys[s:s + 4096], kind="stable"))
+    assert np.array_equal(ray_order(o, d, window=len(o)), whole)
+
+
 def test_keys_sort_nearby_origins_together():
     """The order is a permutation; consecutive rays in it are far closer than in the shuffled batch; the key is
     the Morton code of the origin's cell (x highest), then the direction's up / down bit."""

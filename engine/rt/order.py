@@ -198,11 +198,13 @@ def ray_keys(o: np.ndarray, d: np.ndarray, box, threads: int = 1, out: np.ndarra
     return key
 
 
-def ray_order(o: np.ndarray, d: np.ndarray, threads: int = 1) -> np.ndarray | None:
+def ray_order(o: np.ndarray, d: np.ndarray, threads: int = 1, window: int | None = None) -> np.ndarray | None:
     """The order to trace rays in (an (N,) index array: trace row order[i] i-th), or None where the origins' box is
     not finite (bad rays: traced as given, so that the checks name the first one). The rays sorted by their keys,
     stably: the key and the row number as one uint64 word each (key high), sorted, then the key bits cleared; `d`
-    may be `shared_direction`'s stride-0 view (then the cells get the direction's bit)."""
+    may be `shared_direction`'s stride-0 view (then the cells get the direction's bit). `window`: sort each run of
+    that many rows on its own (the stream's chunk: a chunk then gathers from one cache-sized run of the caller's
+    rows, not from the whole batch), the keys being the whole batch's."""
     box = origin_box(o)
     if box is None:
         return None
@@ -213,6 +215,9 @@ def ray_order(o: np.ndarray, d: np.ndarray, threads: int = 1) -> np.ndarray | No
     halves = words.view(np.uint32).reshape(n, 2)
     high = 1 if sys.byteorder == "little" else 0
     ray_keys(o, d, box, threads, out=halves[:, high], index=halves[:, 1 - high])
-    words.sort()
+    if window is None or window >= n:
+        words.sort()
+    else:
+        blocks(lambda s: words[s:s + window].sort(), n, window, threads)
     halves[:, high] = 0
     return words.view(np.int64)

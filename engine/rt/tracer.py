@@ -529,7 +529,7 @@ class Tracer(Closes):
         order = None
         if mode and len(o) > 1:
             d = shared_direction(d)
-            order = ray_order(o, d, min(default_threads(), STREAM_THREADS))
+            order = ray_order(o, d, min(default_threads(), STREAM_THREADS), window=self.chunk)
         self.last_reordered = order is not None
         return order, d
 

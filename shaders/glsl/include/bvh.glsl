@@ -449,10 +449,8 @@ bool bvh_trace_instanced_(vec3 o, vec3 d, float tmin, float tmax, bool any_hit, 
     float best = hit.prim >= 0 ? hit.t : tmax;
     bool found = false;
     uint stack[BVH_TLAS_STACK_SIZE];   // child words still to visit: top-level nodes or instance slots
-    float enter[BVH_TLAS_STACK_SIZE];  // (closest hit) the ray's entry distance into each: skipped once beyond best
     uint sp = 1u;
     stack[0] = uint(BVH_TLAS_ROOT);
-    enter[0] = tmin;
     bool more = true;
     while (more) {
         // top-level steps until this ray has an instance to walk (or none is left): the lanes of a SIMD group
@@ -461,9 +459,7 @@ bool bvh_trace_instanced_(vec3 o, vec3 d, float tmin, float tmax, bool any_hit, 
         while (slot == BVH_LEAF_BIT && sp > 0u) {
             sp -= 1u;
             uint w = stack[sp];
-            if (!any_hit && enter[sp] > best) {
-                // entered beyond the closest hit found since it was pushed: nothing nearer there
-            } else if ((w & BVH_LEAF_BIT) != 0u) {
+            if ((w & BVH_LEAF_BIT) != 0u) {
                 slot = w & ~BVH_LEAF_BIT;
             } else {
                 BvhNode n = bvh_node_(w);
@@ -477,14 +473,9 @@ bool bvh_trace_instanced_(vec3 o, vec3 d, float tmin, float tmax, bool any_hit, 
                 bool left_first = sl.x <= sr.x;
                 // the far child first, so that the near one is popped next
                 uint first = (hl && hr) ? (left_first ? wr : wl) : (hl ? wl : wr);
-                float first_t = (hl && hr) ? (left_first ? sr.x : sl.x) : (hl ? sl.x : sr.x);
-                uint at = min(sp, uint(BVH_TLAS_STACK_SIZE - 1));
-                stack[at] = first;
-                if (!any_hit) enter[at] = first_t;   // (occlusion never reads them: no stores)
+                stack[min(sp, uint(BVH_TLAS_STACK_SIZE - 1))] = first;
                 sp += (hl || hr) ? 1u : 0u;
-                at = min(sp, uint(BVH_TLAS_STACK_SIZE - 1));
-                stack[at] = left_first ? wl : wr;
-                if (!any_hit) enter[at] = left_first ? sl.x : sr.x;
+                stack[min(sp, uint(BVH_TLAS_STACK_SIZE - 1))] = left_first ? wl : wr;
                 sp += (hl && hr) ? 1u : 0u;
             }
         }

@@ -404,3 +404,26 @@ def test_deformed_mesh_and_new_material_override_are_drawn(make_renderer):
     for name in aovs:
         assert np.array_equal(got.aov[name], fresh.aov[name]), name
     assert np.all(got.aov["material_id"][got.aov["instance_id"] == 3] == 0)
+
+
+def test_resolve_reads_instances_through_texel_views_or_the_storage_buffer_alike(make_renderer, monkeypatch):
+    """gbuffer_resolve.comp's INSTANCES_TEXEL (CPU devices: the instance records through RGBA32F / RGBA32UI texel
+    views of the instance buffer; GPUs: the storage buffer): both give the same G-buffer of moved, scaled instances,
+    bit for bit, motion included."""
+    from engine.passes import gbuffer
+    scene = make_scene(START)
+    aovs = ["position", "normal", "depth", "motion"] + IDS
+    frames = {}
+    for mode in (False, True):
+        monkeypatch.setattr(gbuffer, "INSTANCES_TEXEL", mode)
+        r = make_renderer(W, H)
+        r.render(scene, aovs=aovs, **STILL)
+        scene.set_transforms(MOVED)
+        frames[mode] = r.render(scene, aovs=aovs, **STILL)
+        assert r.gbuffer.resolve.values["INSTANCES_TEXEL"] is mode
+        scene.set_transforms(START)
+    a, b = frames[False], frames[True]
+    assert (a.aov["instance_id"] >= 0).sum() > W * H // 4, "the instances cover the frame"
+    for name in aovs:
+        assert np.array_equal(a.aov[name], b.aov[name]), name
+    assert np.abs(a.aov["motion"]).max() > 1.0, "the instances moved"

@@ -45,12 +45,14 @@ from ..vk.resources import INDEX, STORAGE, TRANSFER_DST, TRANSFER_SRC, UNIFORM_T
 from .base import ComputePass, read, update, write
 from .cull import CullPass, DrawTables
 from .soft_raster import SW_RASTER_PIXELS, SoftMergePass, SoftRasterPass, soft_facing
-from .interface import MATERIAL_FLAGS, MATERIAL_TEXELS, MAX_TEXTURE_ARRAYS
+from .interface import INSTANCE_TEXELS, MATERIAL_FLAGS, MATERIAL_TEXELS, MAX_TEXTURE_ARRAYS
 from .targets import DEPTH_FORMAT, VISIBILITY_FORMAT
 from .textures import TextureArrays
 
 
-INSTANCE_FLOATS = 64   # std430 `Instance` (shaders/glsl/include/instances.glsl): 256 bytes
+INSTANCE_FLOATS = 4 * INSTANCE_TEXELS   # std430 `Instance` (shaders/glsl/include/instances.glsl): 256 bytes
+#: INSTANCES_TEXEL (the resolve reads the instance records through texel views): None = on CPU devices.
+INSTANCES_TEXEL = None
 NO_MATERIAL = 0xFFFFFFFF
 
 
@@ -195,7 +197,13 @@ class SceneGeometry:
         # written by the host, read by the raster and the resolve from a device-local copy (the frame's command
         # buffer copies it first): on a discrete GPU, reads of host memory would cross the bus per vertex and pixel
         self.instance_staging = Buffer(self.ctx, size, TRANSFER_SRC, host=True, name="instances staging")
-        self.instance_buffer = Buffer(self.ctx, size, STORAGE | TRANSFER_DST, name="instances")
+        self.instance_buffer = Buffer(self.ctx, size, STORAGE | TRANSFER_DST | UNIFORM_TEXEL, name="instances")
+        # the resolve's texel views of it (read on CPU devices, where the records fit one view)
+        texels = int(self.ctx.limits.maxTexelBufferElements)
+        self.instance_texel_ok = size // 16 <= texels
+        view = min(size, 16 * texels)
+        self.instance_views = (BufferView(self.instance_buffer, RGBA32F, 0, view),
+                               BufferView(self.instance_buffer, RGBA32UI, 0, view))
         block = self.instance_staging.view(np.float32)[:n * INSTANCE_FLOATS].reshape(n, INSTANCE_FLOATS)
         block[:] = 0
         ids = block.view(np.uint32)
@@ -247,7 +255,7 @@ class SceneGeometry:
         return True
 
     def destroy(self):
-        for obj in [*self.views, self.vertex_buffer, self.index_buffer, self.tri_info_buffer,
+        for obj in [*self.views, *self.instance_views, self.vertex_buffer, self.index_buffer, self.tri_info_buffer,
                     self.material_buffer, self.alpha_buffer, self.instance_buffer, self.instance_staging,
                     self.tables, self.textures]:
             obj.destroy()
@@ -375,11 +383,13 @@ class ResolvePass(ComputePass):
         "g_motion": write("image", "motion"), "g_pbr": write("image", "material"),
         "g_emissive": write("image", "emissive"), "g_instance": write("image", "instance_id"),
         "g_prev_position": write("image", "prev_position"), "g_prev_normal": write("image", "prev_normal"),
-        "instances": read("buffer"),
+        "instances": read("buffer"), "instance_texels": read("uniform_texel"),
+        "instance_words": read("uniform_texel"),
     }
 
     def constants(self, ctx) -> dict:
-        return {"TEXTURE_ARRAYS": MAX_TEXTURE_ARRAYS}   # lowered to the arrays a scene has (blocks past them go)
+        # TEXTURE_ARRAYS: lowered to the arrays a scene has (blocks past them go); INSTANCES_TEXEL: set per scene
+        return {"TEXTURE_ARRAYS": MAX_TEXTURE_ARRAYS, "INSTANCES_TEXEL": False}
 
 
 class _Raster:
@@ -476,8 +486,12 @@ class GBufferPass:
         return not device.is_cpu(self.ctx) if sw_raster is None else sw_raster
 
     def bind_scene(self, geom: SceneGeometry):
-        self.resolve.specialize(TEXTURE_ARRAYS=max(1, len(geom.textures)))
+        self.resolve.specialize(TEXTURE_ARRAYS=max(1, len(geom.textures)),
+                                INSTANCES_TEXEL=geom.instance_texel_ok and (device.is_cpu(self.ctx)
+                                                                             if INSTANCES_TEXEL is None
+                                                                             else INSTANCES_TEXEL))
         s = self.resolve.set
+        s.bind("instance_texels", geom.instance_views[0]).bind("instance_words", geom.instance_views[1])
         for name, view in zip(("vertices", "indices", "tri_info", "materials"), geom.views):
             s.bind(name, view)
         self.masked.set.bind("materials", geom.views[3])

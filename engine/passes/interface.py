@@ -39,6 +39,8 @@ TEXTURE_NONE = 0xFFFFFFFF
 #: 4 occlusion texture handle, flags (uint bits: MATERIAL_*), 0, 0.
 MATERIAL_TEXELS = 5
 MATERIAL_FLAGS = {"alpha_tested": 1, "double_sided": 2}
+#: 16-byte texels per instance record (shaders/glsl/include/instances.glsl `Instance`, engine/passes/gbuffer.py)
+INSTANCE_TEXELS = 16
 #: History lengths are clamped here (accumulate.comp).
 MAX_HISTORY = 255
 @dataclass(frozen=True)
@@ -127,6 +129,7 @@ def glsl_text() -> str:
         "#ifndef INTERFACE_GLSL", "#define INTERFACE_GLSL", "",
         f"#define MAX_LIGHTS {MAX_LIGHTS}", f"#define MAX_TEXTURE_ARRAYS {MAX_TEXTURE_ARRAYS}",
         f"#define TEXTURE_NONE {TEXTURE_NONE:#x}u", f"#define MATERIAL_TEXELS {MATERIAL_TEXELS}",
+        f"#define INSTANCE_TEXELS {INSTANCE_TEXELS}",
         *[f"#define MATERIAL_{k.upper()} {v}u" for k, v in MATERIAL_FLAGS.items()],
         f"#define MAX_HISTORY {MAX_HISTORY}.0",
         *[f"#define LIGHT_{k.upper()} {v}" for k, v in LIGHT_TYPES.items()],

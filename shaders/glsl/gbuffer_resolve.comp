@@ -51,6 +51,11 @@ layout(set = 0, binding = 18, r32ui) uniform writeonly uimage2D g_instance;
 layout(set = 0, binding = 19, rgba32f) uniform writeonly image2D g_prev_position;
 layout(set = 0, binding = 20, rgba16f) uniform writeonly image2D g_prev_normal;
 layout(std430, set = 0, binding = 21) readonly buffer Instances { Instance instances[]; };
+// The same records as texel buffers, INSTANCE_TEXELS RGBA32F texels each, and the same bytes as RGBA32UI:
+// INSTANCES_TEXEL (CPU devices) reads them there, as llvmpipe loads a storage buffer's struct lane by lane.
+layout(set = 0, binding = 22) uniform samplerBuffer instance_texels;
+layout(set = 0, binding = 23) uniform usamplerBuffer instance_words;
+layout(constant_id = 1) const bool INSTANCES_TEXEL = false;
 layout(push_constant) uniform Push { uint instance_count; } pc;
 
 shared uint tile_arrays;   // bit a: some pixel of this workgroup samples texture array a
@@ -60,14 +65,35 @@ vec3 weights(vec3 e0, vec3 e1, vec3 e2, vec3 p) {
     return b / (b.x + b.y + b.z);
 }
 
+uint instance_prefix(uint k) {
+    return INSTANCES_TEXEL ? texelFetch(instance_words, INSTANCE_TEXELS * int(k) + 14).x : instances[k].ids.x;
+}
+
 // The instance whose ids hold `id0` (visibility id - 1): the last one whose prefix is <= id0.
 uint find_instance(uint id0) {
     uint lo = 0u, hi = pc.instance_count;   // instances[lo].prefix <= id0 < instances[hi].prefix
     while (hi - lo > 1u) {
         uint mid = (lo + hi) >> 1;
-        if (instances[mid].ids.x <= id0) lo = mid; else hi = mid;
+        if (instance_prefix(mid) <= id0) lo = mid; else hi = mid;
     }
     return lo;
+}
+
+Instance load_instance(uint k) {
+    if (!INSTANCES_TEXEL) return instances[k];
+    int t = INSTANCE_TEXELS * int(k);
+    Instance r;
+    r.model = mat4(texelFetch(instance_texels, t), texelFetch(instance_texels, t + 1),
+                   texelFetch(instance_texels, t + 2), texelFetch(instance_texels, t + 3));
+    r.prev_model = mat4(texelFetch(instance_texels, t + 4), texelFetch(instance_texels, t + 5),
+                        texelFetch(instance_texels, t + 6), texelFetch(instance_texels, t + 7));
+    for (int c = 0; c < 3; c++) {
+        r.nrm[c] = texelFetch(instance_texels, t + 8 + c);
+        r.prev_nrm[c] = texelFetch(instance_texels, t + 11 + c);
+    }
+    r.ids = texelFetch(instance_words, t + 14);
+    r.flat_ids = texelFetch(instance_words, t + 15);
+    return r;
 }
 
 vec3 xform(mat4 m, vec3 p) { return (m * vec4(p, 1.0)).xyz; }
@@ -94,7 +120,7 @@ void main() {
     uint instance_id = 0xFFFFFFFFu;
     if (id != 0u) {
         uint k = find_instance(id - 1u);
-        Instance inst = instances[k];
+        Instance inst = load_instance(k);
         uint local = id - 1u - inst.ids.x;   // the triangle within its mesh
         int tri = int(inst.ids.y + local);
         int i0 = int(texelFetch(indices, 3 * tri).x), i1 = int(texelFetch(indices, 3 * tri + 1).x);

@@ -406,10 +406,10 @@ def test_deformed_mesh_and_new_material_override_are_drawn(make_renderer):
     assert np.all(got.aov["material_id"][got.aov["instance_id"] == 3] == 0)
 
 
-def test_resolve_reads_instances_through_texel_views_or_the_storage_buffer_alike(make_renderer, monkeypatch):
-    """gbuffer_resolve.comp's INSTANCES_TEXEL (CPU devices: the instance records through RGBA32F / RGBA32UI texel
-    views of the instance buffer; GPUs: the storage buffer): both give the same G-buffer of moved, scaled instances,
-    bit for bit, motion included."""
+def test_raster_and_resolve_read_instances_through_texel_views_or_storage_alike(make_renderer, monkeypatch):
+    """INSTANCES_TEXEL of the visibility raster's vertex shaders and gbuffer_resolve.comp (CPU devices: the instance
+    records and draw slots through texel views of their buffers; GPUs: the storage buffers): both give the same
+    G-buffer of moved, scaled instances, bit for bit, ids and motion included."""
     from engine.passes import gbuffer
     scene = make_scene(START)
     aovs = ["position", "normal", "depth", "motion"] + IDS
@@ -420,7 +420,7 @@ def test_resolve_reads_instances_through_texel_views_or_the_storage_buffer_alike
         r.render(scene, aovs=aovs, **STILL)
         scene.set_transforms(MOVED)
         frames[mode] = r.render(scene, aovs=aovs, **STILL)
-        assert r.gbuffer.resolve.values["INSTANCES_TEXEL"] is mode
+        assert r.gbuffer.resolve.values["INSTANCES_TEXEL"] is mode and r.gbuffer.raster.values["INSTANCES_TEXEL"] is mode
         scene.set_transforms(START)
     a, b = frames[False], frames[True]
     assert (a.aov["instance_id"] >= 0).sum() > W * H // 4, "the instances cover the frame"

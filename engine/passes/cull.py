@@ -26,10 +26,10 @@ import math
 import numpy as np
 
 from ..errors import ConfigError
-from ..vk import Buffer, upload_buffer
+from ..vk import Buffer, BufferView, upload_buffer
 from ..vk.resources import read_buffer
-from ..vk.formats import INDIRECT
-from ..vk.resources import STORAGE, TRANSFER_DST, TRANSFER_SRC
+from ..vk.formats import INDIRECT, R32UI
+from ..vk.resources import STORAGE, TRANSFER_DST, TRANSFER_SRC, UNIFORM_TEXEL
 from .base import ComputePass, read, update, write
 from .soft_raster import SW_RASTER_PIXELS, check_sw_raster, check_sw_raster_pixels
 
@@ -102,7 +102,11 @@ class DrawTables:
         n = max(instance_count, 1)
         visible = np.zeros((1 + levels) * n, np.uint32)
         visible[:instance_count] = np.arange(instance_count, dtype=np.uint32)
-        self.visible = upload_buffer(ctx, visible, STORAGE, "draw slots")
+        self.visible = upload_buffer(ctx, visible, STORAGE | UNIFORM_TEXEL, "draw slots")
+        # the same as an R32UI texel view (the raster's INSTANCES_TEXEL reads it there; `texel_ok`: it all fits one)
+        texels = int(ctx.limits.maxTexelBufferElements)
+        self.texel_ok = len(visible) <= texels
+        self.visible_view = BufferView(self.visible, R32UI, 0, 4 * min(len(visible), texels))
         self.soft_list = Buffer(ctx, n * 16, STORAGE | TRANSFER_SRC, name="software raster list")
         self.soft_template = upload_buffer(ctx, np.array([0, 1, 1, 0], np.uint32), TRANSFER_SRC,
                                            "software raster dispatch template")
@@ -122,8 +126,8 @@ class DrawTables:
         return read_buffer(self.ctx, self.soft_list, np.uint32).reshape(-1, 4)[:count]
 
     def destroy(self):
-        for buf in (self.template, self.commands, self.groups, self.visible, self.soft_list, self.soft_template,
-                    self.soft_args):
+        for buf in (self.visible_view, self.template, self.commands, self.groups, self.visible, self.soft_list,
+                    self.soft_template, self.soft_args):
             buf.destroy()
 
 

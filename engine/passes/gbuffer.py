@@ -51,8 +51,10 @@ from .textures import TextureArrays
 
 
 INSTANCE_FLOATS = 4 * INSTANCE_TEXELS   # std430 `Instance` (shaders/glsl/include/instances.glsl): 256 bytes
-#: INSTANCES_TEXEL (the resolve reads the instance records through texel views): None = on CPU devices.
+#: INSTANCES_TEXEL (the raster and the resolve read the instance records through texel views): None = on CPU devices.
 INSTANCES_TEXEL = None
+#: The texel views of the instances and draw slots that the visibility raster's vertex shaders also declare.
+RASTER_TEXEL_BINDINGS = {"instance_texels", "instance_words", "visible_texels"}
 NO_MATERIAL = 0xFFFFFFFF
 
 
@@ -200,7 +202,7 @@ class SceneGeometry:
         self.instance_buffer = Buffer(self.ctx, size, STORAGE | TRANSFER_DST | UNIFORM_TEXEL, name="instances")
         # the resolve's texel views of it (read on CPU devices, where the records fit one view)
         texels = int(self.ctx.limits.maxTexelBufferElements)
-        self.instance_texel_ok = size // 16 <= texels
+        self.instance_texel_ok = size // 16 <= texels and self.tables.texel_ok
         view = min(size, 16 * texels)
         self.instance_views = (BufferView(self.instance_buffer, RGBA32F, 0, view),
                                BufferView(self.instance_buffer, RGBA32UI, 0, view))
@@ -397,17 +399,20 @@ class _Raster:
     bindings its shaders may have (hot reload refuses others, or a changed layout)."""
 
     def __init__(self, ctx, library, stem: str, bindings: set, attributes: list):
-        self.stem, self.bindings = stem, bindings
+        self.stem, self.bindings = stem, bindings | RASTER_TEXEL_BINDINGS
+        self.library = library
         vert, frag = self._spirv(library)
         interface = reflect(vert, f"{stem}.vert").merged(reflect(frag, f"{stem}.frag"))
         self._check(interface)
         self.interface = interface   # what the pipeline layout was made for; hot reload must keep it
         self.set = DescriptorSet(ctx, interface.set(0).values())
+        self.values = {"INSTANCES_TEXEL": False}   # set per scene (GBufferPass.bind_scene)
+        spec = interface.specialization(self.values, stem)
         # by culling: both sides (double-sided materials), front faces only (single-sided ones), back faces only
         # (single-sided ones of mirrored instances)
         self.pipelines = {cull: GraphicsPipeline(
             ctx, vert, frag, [self.set], color_formats=[VISIBILITY_FORMAT], depth_format=DEPTH_FORMAT,
-            vertex_stride=32, attributes=attributes, push_size=interface.push_size, cull=cull,
+            vertex_stride=32, attributes=attributes, push_size=interface.push_size, cull=cull, spec=spec,
             name=f"{stem} {label}") for cull, label in ((CULL_NONE, "two-sided"), (CULL_BACK, "one-sided"),
                                                         (CULL_FRONT, "one-sided mirrored"))}
         self.pipeline = self.pipelines[CULL_NONE]
@@ -415,12 +420,24 @@ class _Raster:
     def _spirv(self, library):
         return library.get(f"{self.stem}.vert"), library.get(f"{self.stem}.frag")
 
+    def specialize(self, **values):
+        """Re-create the pipelines with these constants changed (by name), where they differ."""
+        merged = {**self.values, **values}
+        if merged == self.values:
+            return
+        vert, frag = self._spirv(self.library)
+        spec = self.interface.specialization(merged, self.stem)
+        for pipeline in self.pipelines.values():
+            pipeline.specialize(vert, frag, spec)
+        self.values = merged
+
     def _check(self, interface):
         if {b.name for b in interface.bindings} != self.bindings:
             raise ShaderError(f"{self.stem}.vert/.frag: the raster reads {', '.join(sorted(self.bindings))} and "
                               f"nothing else; the shaders declare {', '.join(b.name for b in interface.bindings)}")
 
     def reload(self, library):
+        self.library = library
         vert, frag = self._spirv(library)
         interface = reflect(vert, f"{self.stem}.vert").merged(reflect(frag, f"{self.stem}.frag"))
         self._check(interface)
@@ -485,13 +502,19 @@ class GBufferPass:
             return False
         return not device.is_cpu(self.ctx) if sw_raster is None else sw_raster
 
+    def instances_texel(self, geom: SceneGeometry) -> bool:
+        """Do the raster and the resolve read the instance records (and draw slots) through their texel views?"""
+        return geom.instance_texel_ok and (device.is_cpu(self.ctx) if INSTANCES_TEXEL is None else INSTANCES_TEXEL)
+
     def bind_scene(self, geom: SceneGeometry):
         self.resolve.specialize(TEXTURE_ARRAYS=max(1, len(geom.textures)),
-                                INSTANCES_TEXEL=geom.instance_texel_ok and (device.is_cpu(self.ctx)
-                                                                             if INSTANCES_TEXEL is None
-                                                                             else INSTANCES_TEXEL))
+                                INSTANCES_TEXEL=self.instances_texel(geom))
         s = self.resolve.set
         s.bind("instance_texels", geom.instance_views[0]).bind("instance_words", geom.instance_views[1])
+        for r in (self.raster, self.masked):
+            r.specialize(INSTANCES_TEXEL=self.instances_texel(geom))
+            r.set.bind("instance_texels", geom.instance_views[0]).bind("instance_words", geom.instance_views[1])
+            r.set.bind("visible_texels", geom.tables.visible_view)
         for name, view in zip(("vertices", "indices", "tri_info", "materials"), geom.views):
             s.bind(name, view)
         self.masked.set.bind("materials", geom.views[3])

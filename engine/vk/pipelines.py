@@ -208,9 +208,10 @@ class GraphicsPipeline(_Pipeline):
 
     def __init__(self, ctx, vert: bytes, frag: bytes, set_layouts, *, color_formats, depth_format=None,
                  vertex_stride=0, attributes=(), push_size=0, cull=vk.VK_CULL_MODE_NONE,
-                 depth_compare=vk.VK_COMPARE_OP_GREATER, name="graphics"):
+                 depth_compare=vk.VK_COMPARE_OP_GREATER, spec=None, name="graphics"):
+        """`spec`: {constant id: value}, the specialization constants of both stages."""
         super().__init__(ctx, set_layouts, push_size)
-        self.name = name
+        self.name, self.spec = name, spec
         self.cfg = dict(color_formats=list(color_formats), depth_format=depth_format, vertex_stride=vertex_stride,
                         attributes=list(attributes), cull=cull, depth_compare=depth_compare)
         self.rebuild(vert, frag)
@@ -225,9 +226,12 @@ class GraphicsPipeline(_Pipeline):
             vk.vkDestroyShaderModule(dev, vmod, None)
             raise
         try:
+            spec_info, keep = _specialization(self.spec)
             stages = [
-                vk.VkPipelineShaderStageCreateInfo(stage=vk.VK_SHADER_STAGE_VERTEX_BIT, module=vmod, pName="main"),
-                vk.VkPipelineShaderStageCreateInfo(stage=vk.VK_SHADER_STAGE_FRAGMENT_BIT, module=fmod, pName="main"),
+                vk.VkPipelineShaderStageCreateInfo(stage=vk.VK_SHADER_STAGE_VERTEX_BIT, module=vmod, pName="main",
+                                                   pSpecializationInfo=spec_info),
+                vk.VkPipelineShaderStageCreateInfo(stage=vk.VK_SHADER_STAGE_FRAGMENT_BIT, module=fmod, pName="main",
+                                                   pSpecializationInfo=spec_info),
             ]
             vbind = [vk.VkVertexInputBindingDescription(binding=0, stride=c["vertex_stride"],
                                                         inputRate=vk.VK_VERTEX_INPUT_RATE_VERTEX)]
@@ -266,6 +270,18 @@ class GraphicsPipeline(_Pipeline):
         finally:
             vk.vkDestroyShaderModule(dev, vmod, None)
             vk.vkDestroyShaderModule(dev, fmod, None)
+
+    def specialize(self, vert: bytes, frag: bytes, spec: dict):
+        """Re-create the pipeline with these specialization constants, where they differ from the current ones; if
+        that fails the old pipeline and its constants stay."""
+        if spec == self.spec:
+            return
+        old, self.spec = self.spec, dict(spec)
+        try:
+            self.rebuild(vert, frag)
+        except BaseException:
+            self.spec = old
+            raise
 
 
 class Timestamps:

@@ -8,6 +8,12 @@ FRAME_BLOCK
 layout(std430, set = 0, binding = 3) readonly buffer Instances { Instance instances[]; };
 // gl_InstanceIndex -> draw slot: the unculled list (every instance in order) or a level's list (cull.comp)
 layout(std430, set = 0, binding = 4) readonly buffer Visible { uint visible[]; };
+// The same through texel views (INSTANCES_TEXEL, CPU devices; instances.glsl): the records as RGBA32F and RGBA32UI,
+// the draw slots as R32UI
+layout(set = 0, binding = 5) uniform samplerBuffer instance_texels;
+layout(set = 0, binding = 6) uniform usamplerBuffer instance_words;
+layout(set = 0, binding = 7) uniform usamplerBuffer visible_texels;
+layout(constant_id = 1) const bool INSTANCES_TEXEL = false;
 
 layout(location = 0) in vec3 in_position;
 layout(location = 1) in vec2 in_uv;
@@ -15,7 +21,12 @@ layout(location = 0) out vec2 v_uv;
 layout(location = 1) flat out uint out_prefix;
 
 void main() {
-    Instance inst = instances[visible[gl_InstanceIndex]];
+    Instance inst;   // (not a ?: between the two: their struct types differ in SPIR-V)
+    if (INSTANCES_TEXEL) {
+        inst = instance_from_texels(instance_texels, instance_words, texelFetch(visible_texels, gl_InstanceIndex).x);
+    } else {
+        inst = instances[visible[gl_InstanceIndex]];
+    }
     out_prefix = inst.ids.x;
     gl_Position = frame.view_proj * (inst.model * vec4(in_position, 1.0));
     v_uv = in_uv;

@@ -80,20 +80,8 @@ uint find_instance(uint id0) {
 }
 
 Instance load_instance(uint k) {
-    if (!INSTANCES_TEXEL) return instances[k];
-    int t = INSTANCE_TEXELS * int(k);
-    Instance r;
-    r.model = mat4(texelFetch(instance_texels, t), texelFetch(instance_texels, t + 1),
-                   texelFetch(instance_texels, t + 2), texelFetch(instance_texels, t + 3));
-    r.prev_model = mat4(texelFetch(instance_texels, t + 4), texelFetch(instance_texels, t + 5),
-                        texelFetch(instance_texels, t + 6), texelFetch(instance_texels, t + 7));
-    for (int c = 0; c < 3; c++) {
-        r.nrm[c] = texelFetch(instance_texels, t + 8 + c);
-        r.prev_nrm[c] = texelFetch(instance_texels, t + 11 + c);
-    }
-    r.ids = texelFetch(instance_words, t + 14);
-    r.flat_ids = texelFetch(instance_words, t + 15);
-    return r;
+    if (INSTANCES_TEXEL) return instance_from_texels(instance_texels, instance_words, k);
+    return instances[k];   // (not a ?: between the two: their struct types differ in SPIR-V)
 }
 
 vec3 xform(mat4 m, vec3 p) { return (m * vec4(p, 1.0)).xyz; }

@@ -16,4 +16,21 @@ struct Instance {
                        // z: its run (cull.comp's group: instances of one mesh, override and mirroring)
 };
 
+// Record k read through texel views of the instance buffer: `f` RGBA32F and `u` RGBA32UI over the same bytes,
+// INSTANCE_TEXELS texels per record (CPU devices: llvmpipe loads a storage buffer's struct lane by lane, texels for
+// 8 lanes at once). Fields a shader does not use are not fetched.
+Instance instance_from_texels(samplerBuffer f, usamplerBuffer u, uint k) {
+    int t = INSTANCE_TEXELS * int(k);
+    Instance r;
+    r.model = mat4(texelFetch(f, t), texelFetch(f, t + 1), texelFetch(f, t + 2), texelFetch(f, t + 3));
+    r.prev_model = mat4(texelFetch(f, t + 4), texelFetch(f, t + 5), texelFetch(f, t + 6), texelFetch(f, t + 7));
+    for (int c = 0; c < 3; c++) {
+        r.nrm[c] = texelFetch(f, t + 8 + c);
+        r.prev_nrm[c] = texelFetch(f, t + 11 + c);
+    }
+    r.ids = texelFetch(u, t + 14);
+    r.flat_ids = texelFetch(u, t + 15);
+    return r;
+}
+
 #endif

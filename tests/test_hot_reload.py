@@ -173,3 +173,17 @@ def test_a_refused_shader_stays_out_of_later_pipelines(make_renderer, glsl_copy,
     assert sum(m.texture is not None for m in textured.materials) == 2
     red = r.render(textured, **SETTINGS).color
     assert red[24, 32, 0] > 40 and red[24, 32, 1] < red[24, 32, 0] // 2, red[24, 32]   # the texture's red
+
+
+def test_a_refused_raster_shader_stays_out_of_its_specialized_pipelines(make_renderer, glsl_copy, scene):
+    """The visibility raster re-specializes its pipelines for each scene (INSTANCES_TEXEL): a vertex shader refused
+    for a changed layout must not come back through that (its pipelines would not match their descriptor set)."""
+    vert = glsl_copy / "gbuffer.vert"
+    plain = make_renderer(64, 48).render(scene, **SETTINGS).color
+    r = make_renderer(64, 48, shader_dir=glsl_copy, hot_reload=True)
+    original = vert.read_text()
+    assert original.count("binding = 2) readonly buffer Visible") == 1
+    edit(vert, original.replace("binding = 2) readonly buffer Visible", "binding = 9) readonly buffer Visible"))
+    assert np.array_equal(r.render(scene, **SETTINGS).color, plain)   # the scene's first frame: specialized here
+    assert "visible" in r.shader_errors.get(str(vert), ""), r.shader_errors
+    assert r.gbuffer.raster.values["INSTANCES_TEXEL"] is r.gbuffer.instances_texel(r._geometry)

@@ -411,7 +411,10 @@ def test_raster_and_resolve_read_instances_through_texel_views_or_storage_alike(
     records and draw slots through texel views of their buffers; GPUs: the storage buffers): both give the same
     G-buffer of moved, scaled instances, bit for bit, ids and motion included."""
     from engine.passes import gbuffer
-    scene = make_scene(START)
+    ms, mats = meshes()
+    mats.append(Material("cut out", (0.9, 0.8, 0.2), alpha_mode="MASK"))   # the ball: gbuffer_mask.vert's draws
+    insts = [Instance(k, t, material=o) for k, t, o in zip((0, 1, 1, 2), START, (None, None, None, 3))]
+    scene = Scene.from_meshes(ms, insts, materials=mats, lights=[SUN], camera=CAMERA)
     aovs = ["position", "normal", "depth", "motion"] + IDS
     frames = {}
     for mode in (False, True):
@@ -420,10 +423,11 @@ def test_raster_and_resolve_read_instances_through_texel_views_or_storage_alike(
         r.render(scene, aovs=aovs, **STILL)
         scene.set_transforms(MOVED)
         frames[mode] = r.render(scene, aovs=aovs, **STILL)
-        assert r.gbuffer.resolve.values["INSTANCES_TEXEL"] is mode and r.gbuffer.raster.values["INSTANCES_TEXEL"] is mode
+        assert all(p.values["INSTANCES_TEXEL"] is mode for p in (r.gbuffer.resolve, r.gbuffer.raster, r.gbuffer.masked))
         scene.set_transforms(START)
     a, b = frames[False], frames[True]
     assert (a.aov["instance_id"] >= 0).sum() > W * H // 4, "the instances cover the frame"
+    assert (a.aov["material_id"] == 3).sum() > 50, "the alpha-tested ball is drawn"
     for name in aovs:
         assert np.array_equal(a.aov[name], b.aov[name]), name
     assert np.abs(a.aov["motion"]).max() > 1.0, "the instances moved"

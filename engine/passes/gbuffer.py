@@ -400,8 +400,8 @@ class _Raster:
 
     def __init__(self, ctx, library, stem: str, bindings: set, attributes: list):
         self.stem, self.bindings = stem, bindings | RASTER_TEXEL_BINDINGS
-        self.library = library
-        vert, frag = self._spirv(library)
+        self.spirv = self._spirv(library)   # what the pipelines run (hot reload replaces it once they took the new)
+        vert, frag = self.spirv
         interface = reflect(vert, f"{stem}.vert").merged(reflect(frag, f"{stem}.frag"))
         self._check(interface)
         self.interface = interface   # what the pipeline layout was made for; hot reload must keep it
@@ -421,15 +421,32 @@ class _Raster:
         return library.get(f"{self.stem}.vert"), library.get(f"{self.stem}.frag")
 
     def specialize(self, **values):
-        """Re-create the pipelines with these constants changed (by name), where they differ."""
+        """Re-create the pipelines with these constants changed (by name), where they differ; on a failure the
+        old pipelines and constants stay."""
         merged = {**self.values, **values}
-        if merged == self.values:
-            return
-        vert, frag = self._spirv(self.library)
-        spec = self.interface.specialization(merged, self.stem)
-        for pipeline in self.pipelines.values():
-            pipeline.specialize(vert, frag, spec)
-        self.values = merged
+        if merged != self.values:
+            self._build(self.spirv, self.interface, merged)
+            self.values = merged
+
+    def _build(self, spirv, interface, values):
+        """The three pipelines re-created from `spirv` with the constants `values`, or, where one fails, all as
+        they were."""
+        spec = interface.specialization(values, self.stem)
+        done = []
+        try:
+            for pipeline in self.pipelines.values():
+                old, pipeline.spec = pipeline.spec, spec
+                try:
+                    pipeline.rebuild(*spirv)
+                except BaseException:
+                    pipeline.spec = old
+                    raise
+                done.append((pipeline, old))
+        except BaseException:
+            for pipeline, old in done:
+                pipeline.spec = old
+                pipeline.rebuild(*self.spirv)
+            raise
 
     def _check(self, interface):
         if {b.name for b in interface.bindings} != self.bindings:
@@ -437,7 +454,6 @@ class _Raster:
                               f"nothing else; the shaders declare {', '.join(b.name for b in interface.bindings)}")
 
     def reload(self, library):
-        self.library = library
         vert, frag = self._spirv(library)
         interface = reflect(vert, f"{self.stem}.vert").merged(reflect(frag, f"{self.stem}.frag"))
         self._check(interface)
@@ -447,8 +463,8 @@ class _Raster:
             now = ", ".join(f"{b.name} {b.kind} set {b.set} binding {b.binding}" for b in interface.bindings)
             raise ShaderError(f"{self.stem}.vert/.frag: their layout changed ({was}, {old.push_size} bytes of push "
                               f"constants -> {now}, {interface.push_size} bytes); restart to use them")
-        for pipeline in self.pipelines.values():
-            pipeline.rebuild(vert, frag)
+        self._build((vert, frag), interface, self.values)   # (the constants' ids as the new shaders have them)
+        self.spirv, self.interface = (vert, frag), interface
 
 
 class GBufferPass:

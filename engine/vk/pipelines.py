@@ -271,18 +271,6 @@ class GraphicsPipeline(_Pipeline):
             vk.vkDestroyShaderModule(dev, vmod, None)
             vk.vkDestroyShaderModule(dev, fmod, None)
 
-    def specialize(self, vert: bytes, frag: bytes, spec: dict):
-        """Re-create the pipeline with these specialization constants, where they differ from the current ones; if
-        that fails the old pipeline and its constants stay."""
-        if spec == self.spec:
-            return
-        old, self.spec = self.spec, dict(spec)
-        try:
-            self.rebuild(vert, frag)
-        except BaseException:
-            self.spec = old
-            raise
-
 
 class Timestamps:
     """GPU timestamps around named passes: `begin(cmd)`, `mark(cmd, name)` after each pass, `read()`.

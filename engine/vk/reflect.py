@@ -93,6 +93,12 @@ class Interface:
             if old is None or old.access != b.access:
                 by_key[(b.set, b.binding)] = b if old is None else Binding(
                     old.name, old.set, old.binding, old.kind, old.count, "read_write")
+        # (a graphics pipeline gives both stages one specialization map: an id must mean one constant in both)
+        for name, c in other.constants.items():
+            clash = [n for n, mine in self.constants.items() if mine.id == c.id and n != name]
+            if clash:
+                raise ShaderError(f"specialization constant id {c.id} is {clash[0]} in one stage and {name} in "
+                                  f"another")
         return Interface(tuple(sorted(by_key.values(), key=lambda b: (b.set, b.binding))),
                          {**self.constants, **other.constants}, max(self.push_size, other.push_size))
 

@@ -250,7 +250,7 @@ INTERFACE_EDITS = [   # (file, edit, what the message says)
     ("overlay.comp", lambda s: sub(s, "set = 0, binding = 1", "set = 1, binding = 1"), "overlay pass needs"),
     ("overlay.comp", lambda s: sub(s, "vec4 scale;", "vec4 scale;\n    vec4 more;"), "48 bytes of push constants"),
     ("gbuffer.vert", lambda s: sub(s, "FRAME_BLOCK", frame_block(set_=1)), "set 1 binding 0"),
-    ("gbuffer.vert", lambda s: sub(s, "FRAME_BLOCK", frame_block(binding=3)), "set 0 binding 3"),
+    ("gbuffer.vert", lambda s: sub(s, "FRAME_BLOCK", frame_block(binding=7)), "set 0 binding 7"),
     ("gbuffer.vert", lambda s: sub(s, "FRAME_BLOCK", frame_block(kind="buffer")), "frame buffer"),
     ("gbuffer.frag", lambda s: sub(s, "uint first_triangle;", "uint first_triangle;\n    uint more;"),
      "8 bytes"),

@@ -110,7 +110,7 @@ void main() {
     }
     float alpha = n_prev > 0.0 ? max(1.0 / (n_prev + 1.0), frame.accum_alpha) : 1.0;
     if (channel == 0u) len_cur[pixel] = covered ? min(n_prev + 1.0, MAX_HISTORY) : 0.0;
-    float value = random ? mix(hval, raw, alpha) : raw;
+    float value = random ? clamp(mix(hval, raw, alpha), 0.0, 1.0) : raw;   // (a rounding step past 1 taken back)
     if (is_mask) masks_cur[at] = value;
     else ao_cur[pixel] = value;
 }

@@ -156,5 +156,6 @@ void main() {
             vsum += wt * wt * vq;
         }
     }
-    store(pixel, sum / wsum, vsum / (wsum * wsum));
+    // (a weighted mean of values in [0, 1]; the clamp takes back a rounding step past 1, as GPUs' fused ops give)
+    store(pixel, clamp(sum / wsum, 0.0, 1.0), vsum / (wsum * wsum));
 }

@@ -95,6 +95,7 @@ void main() {
     if (id != 0u) imageStore(visibility, px, uvec4(0u));
 
     vec3 pos = vec3(0.0), nrm = vec3(0.0), prev_pos = vec3(0.0), prev_nrm = vec3(0.0);
+    bool still = false;   // the pixel's instance has the same transform as in the previous frame
     vec2 uv = vec2(0.0), duv_dx = vec2(0.0), duv_dy = vec2(0.0);
     vec4 albedo = vec4(0.0);
     uvec4 handles = uvec4(TEXTURE_NONE);   // base colour, metallic-roughness, normal, emissive
@@ -138,13 +139,20 @@ void main() {
         n *= side;   // two-sided surfaces: the side we see
         nrm = n;
 
-        // The same object-space point and normal under the previous frame's transform.
-        vec3 q0 = xform(inst.prev_model, a0.xyz), q1 = xform(inst.prev_model, a1.xyz);
-        vec3 q2 = xform(inst.prev_model, a2.xyz);
-        prev_pos = b.x * q0 + b.y * q1 + b.z * q2;
-        vec3 m = xnormal(inst.prev_nrm, n_obj);
-        float mlen = length(m);
-        prev_nrm = side * (mlen > 1e-6 ? m / mlen : normalize(cross(q1 - q0, q2 - q0)));
+        // The same object-space point and normal under the previous frame's transform: the point itself where the
+        // instance did not move (so that a still surface has no motion at all, whatever the compiler fuses).
+        still = inst.model == inst.prev_model;
+        if (still) {
+            prev_pos = pos;
+            prev_nrm = nrm;
+        } else {
+            vec3 q0 = xform(inst.prev_model, a0.xyz), q1 = xform(inst.prev_model, a1.xyz);
+            vec3 q2 = xform(inst.prev_model, a2.xyz);
+            prev_pos = b.x * q0 + b.y * q1 + b.z * q2;
+            vec3 m = xnormal(inst.prev_nrm, n_obj);
+            float mlen = length(m);
+            prev_nrm = side * (mlen > 1e-6 ? m / mlen : normalize(cross(q1 - q0, q2 - q0)));
+        }
 
         // material, triangle within the mesh (of the full mesh, for a coarser level's triangle), object within the
         // mesh, the level's object-space error. A coarser level's surface lies up to that error from the full
@@ -242,9 +250,11 @@ void main() {
     imageStore(g_prev_position, px, vec4(prev_pos, id != 0u ? 1.0 : 0.0));
     imageStore(g_prev_normal, px, vec4(prev_nrm, 0.0));
     vec2 motion = vec2(0.0);
-    if (id != 0u) {   // where this surface point is on screen minus where it was in the previous frame
+    // where this surface point is on screen minus where it was in the previous frame (none for a still instance
+    // seen by a still camera)
+    if (id != 0u && !(still && frame.view_proj == frame.prev_view_proj)) {
         vec4 now = frame.view_proj * vec4(pos, 1.0), prev = frame.prev_view_proj * vec4(prev_pos, 1.0);
-        vec2 d = (now.xy / now.w - prev.xy / prev.w) * 0.5 * vec2(size);   // exactly 0 for the same matrices
+        vec2 d = (now.xy / now.w - prev.xy / prev.w) * 0.5 * vec2(size);
         motion = prev.w > 0.0 ? d : vec2(0.0);
     }
     imageStore(g_motion, px, vec4(motion, 0.0, 0.0));

@@ -523,12 +523,12 @@ class GBufferPass:
         return geom.instance_texel_ok and (device.is_cpu(self.ctx) if INSTANCES_TEXEL is None else INSTANCES_TEXEL)
 
     def bind_scene(self, geom: SceneGeometry):
-        self.resolve.specialize(TEXTURE_ARRAYS=max(1, len(geom.textures)),
-                                INSTANCES_TEXEL=self.instances_texel(geom))
+        texel = self.instances_texel(geom)
+        self.resolve.specialize(TEXTURE_ARRAYS=max(1, len(geom.textures)), INSTANCES_TEXEL=texel)
         s = self.resolve.set
         s.bind("instance_texels", geom.instance_views[0]).bind("instance_words", geom.instance_views[1])
         for r in (self.raster, self.masked):
-            r.specialize(INSTANCES_TEXEL=self.instances_texel(geom))
+            r.specialize(INSTANCES_TEXEL=texel)
             r.set.bind("instance_texels", geom.instance_views[0]).bind("instance_words", geom.instance_views[1])
             r.set.bind("visible_texels", geom.tables.visible_view)
         for name, view in zip(("vertices", "indices", "tri_info", "materials"), geom.views):

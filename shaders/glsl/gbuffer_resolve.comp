@@ -66,7 +66,8 @@ vec3 weights(vec3 e0, vec3 e1, vec3 e2, vec3 p) {
 }
 
 uint instance_prefix(uint k) {
-    return INSTANCES_TEXEL ? texelFetch(instance_words, INSTANCE_TEXELS * int(k) + 14).x : instances[k].ids.x;
+    if (INSTANCES_TEXEL) return texelFetch(instance_words, INSTANCE_TEXELS * int(k) + INSTANCE_IDS_TEXEL).x;
+    return instances[k].ids.x;
 }
 
 // The instance whose ids hold `id0` (visibility id - 1): the last one whose prefix is <= id0.

@@ -19,6 +19,8 @@ struct Instance {
 // Record k read through texel views of the instance buffer: `f` RGBA32F and `u` RGBA32UI over the same bytes,
 // INSTANCE_TEXELS texels per record (CPU devices: llvmpipe loads a storage buffer's struct lane by lane, texels for
 // 8 lanes at once). Fields a shader does not use are not fetched.
+const int INSTANCE_IDS_TEXEL = 14;   // `ids` (x: the prefix that the resolve's search reads alone)
+
 Instance instance_from_texels(samplerBuffer f, usamplerBuffer u, uint k) {
     int t = INSTANCE_TEXELS * int(k);
     Instance r;
@@ -28,8 +30,8 @@ Instance instance_from_texels(samplerBuffer f, usamplerBuffer u, uint k) {
         r.nrm[c] = texelFetch(f, t + 8 + c);
         r.prev_nrm[c] = texelFetch(f, t + 11 + c);
     }
-    r.ids = texelFetch(u, t + 14);
-    r.flat_ids = texelFetch(u, t + 15);
+    r.ids = texelFetch(u, t + INSTANCE_IDS_TEXEL);
+    r.flat_ids = texelFetch(u, t + INSTANCE_IDS_TEXEL + 1);
     return r;
 }
 

@@ -547,6 +547,7 @@ def test_bvh_glsl_compiles(tmp_path, defines):
 def test_threads_give_the_same_tree_byte_for_byte():
     from engine import parallel
     from engine.bench.scenes import generated_mesh
+    from engine.bvh.builder import TRIS_PER_THREAD
     from engine.bvh.grow import CHUNK
 
     v, f = generated_mesh(300_000)  # > 2 chunk groups, many blocks, a sampled top: every threaded step runs
@@ -559,7 +560,10 @@ def test_threads_give_the_same_tree_byte_for_byte():
         assert many.tris.tobytes() == one.tris.tobytes()
         assert np.array_equal(many.prim_ids, one.prim_ids)
     check_invariants(one, v, f)
-    assert build_bvh(*sphere(1)).stats["threads"] == parallel.default_threads()
+    # the default: every core, at most one per TRIS_PER_THREAD triangles (a small mesh builds on one thread)
+    assert build_bvh(*sphere(1)).stats["threads"] == 1
+    assert one.stats["triangles"] >= 2 * TRIS_PER_THREAD
+    assert build_bvh(v, f).stats["threads"] == min(parallel.default_threads(), len(f) // TRIS_PER_THREAD)
     for bad in (0, -1, 1.5, True, "2"):
         with pytest.raises(ConfigError, match="threads"):
             build_bvh(*sphere(1), threads=bad)
@@ -666,3 +670,39 @@ def test_builds_from_several_threads_with_different_thread_counts():
     for c in callers:
         c.join(timeout=120)
     assert not errors and len(got) == 4 and all(g == want for g in got)
+
+
+def test_octant_sah_in_blocks_matches_one_call(monkeypatch):
+    """The 2^3-grid SAH, run in blocks of nodes (cache-sized temporaries), gives bit for bit what one call over all
+    the nodes gives, and its edge and half boxes are the unions of the right cells (x bit 4, y 2, z 1)."""
+    from engine.bvh import binning
+
+    rng = np.random.default_rng(5)
+    k = 5000
+    cnt = rng.integers(0, 7, (8, k))
+    lo = rng.uniform(-10, 10, (3, 8, k)).astype(np.float32)
+    cbox = np.concatenate([lo, -(lo + rng.uniform(0, 3, (3, 8, k)).astype(np.float32))])
+    cbox[:, cnt == 0] = np.inf                       # empty cells
+    cbox[0, 3, 7] = -0.0                              # a signed zero among the minima
+    exact = rng.random(k) < 0.7
+    cap = rng.integers(4, 40, k)
+    cap2 = rng.integers(2, 20, k)
+    monkeypatch.setattr(binning, "OCTANT_BLOCK", 1 << 30)
+    whole = binning.octant_sah(cnt, cbox, exact, cap, cap2, 4)
+    monkeypatch.setattr(binning, "OCTANT_BLOCK", 700)
+    blocked = binning.octant_sah(cnt, cbox, exact, cap, cap2, 4)
+    for a, b in zip(whole, blocked):
+        assert a.shape == b.shape and a.dtype == b.dtype
+        assert np.ascontiguousarray(a).tobytes() == np.ascontiguousarray(b).tobytes()
+    # _edges and _faces against the tables that define their order (cells lo / hi of each edge, edges of each half)
+    lo_cells = np.array([c for _, c in binning._EDGES])
+    hi_cells = np.array([c | binning._BITS[d] for d, c in binning._EDGES])
+    e0 = np.array([[binning._FACE_EDGES[a][s][0] for s in (0, 1)] for a in range(3)])
+    e1 = np.array([[binning._FACE_EDGES[a][s][1] for s in (0, 1)] for a in range(3)])
+    ebox, ecnt = binning._edges(cbox, cnt, k)
+    fbox, fcnt = binning._faces(ebox, ecnt, k)
+    assert np.minimum(cbox[:, lo_cells], cbox[:, hi_cells]).tobytes() == ebox.tobytes()
+    assert np.array_equal(cnt[lo_cells] + cnt[hi_cells], ecnt)
+    assert np.minimum(ebox[:, e0], ebox[:, e1]).tobytes() == fbox.tobytes()
+    assert np.array_equal(ecnt[e0] + ecnt[e1], fcnt)
+    assert np.array_equal(fcnt[0, 0], cnt[:4].sum(axis=0))   # the x half 0: cells 0-3

@@ -6,6 +6,7 @@ import pytest
 import trimesh
 
 from engine import ConfigError, Tracer
+from engine.rt import native
 from engine.rt import order as ray_order_mod
 from engine.rt.order import incoherent, ray_keys, ray_order
 from engine.rt.raycasting import RaycastingScene
@@ -44,9 +45,23 @@ def bumpy():
     return np.vstack([v, ground]), faces
 
 
-def test_a_window_sorts_each_run_of_rows_on_its_own():
-    """With a window (the stream's chunk), each run of rows is sorted by the whole batch's keys within itself: a
-    chunk gathers only from its own rows; without one, the whole batch is sorted."""
+@pytest.fixture
+def numpy_steps(monkeypatch):
+    """The reordering's numpy path, as where there is no C compiler (engine/rt/native.py)."""
+    monkeypatch.setattr(native, "library", lambda: None)
+
+
+@pytest.fixture
+def native_lib():
+    lib = native.library()
+    if lib is None:
+        pytest.skip("no C compiler here: the reordering runs its numpy path (tested on its own)")
+    return lib
+
+
+def test_a_window_sorts_each_run_of_rows_on_its_own(numpy_steps):
+    """With a window (the stream's chunk), numpy's path sorts each run of rows by the whole batch's keys within
+    itself: a chunk gathers only from its own rows; without one, the whole batch is sorted."""
     rng = np.random.default_rng(2)
     o = rng.uniform(-5, 5, (10_000, 3)).astype(np.float32)
     d = rng.normal(size=o.shape).astype(np.float32)
@@ -142,8 +157,10 @@ def test_auto_tells_which_batches_gain():
     assert ray_order(bad, d) is None                           # no box: traced as given, the checks name it
 
 
-@pytest.mark.parametrize("layout", ["binary", "wide"])
-def test_shuffled_rays_give_the_unshuffled_results_permuted(bumpy, layout):
+@pytest.mark.parametrize("layout,steps", [("binary", "native"), ("wide", "native"), ("binary", "numpy")])
+def test_shuffled_rays_give_the_unshuffled_results_permuted(bumpy, layout, steps, monkeypatch):
+    if steps == "numpy":
+        monkeypatch.setattr(native, "library", lambda: None)
     v, f = bumpy
     rng = np.random.default_rng(2)
     o, d, tmax = surface_rays(v, f, N, rng)
@@ -280,3 +297,64 @@ def test_one_direction_for_all_is_filled_not_gathered():
         h1 = tr.intersect(src[perm], d[perm], reorder=True)
         assert tr.last_reordered and 0.2 < h0.hit.mean()
         assert np.array_equal(h0.prim[perm], h1.prim) and np.array_equal(h0.t[perm], h1.t)
+
+
+@pytest.mark.parametrize("shared", [True, False])
+def test_the_c_steps_give_numpy_s_order_gathers_and_scatters(native_lib, shared):
+    """engine/rt/native.c: the same keys and order as numpy's path (the whole batch sorted; on one thread and on
+    two), the same gathered rows (xyz and single floats) and scattered flags."""
+    rng = np.random.default_rng(11)
+    for n in (1, 5, 70_001):
+        o = rng.uniform(-5, 5, (n, 3)).astype(np.float32)
+        o[: n // 3] = np.round(o[: n // 3])                      # equal keys: their rows stay in order
+        d = rng.normal(size=(n, 3)).astype(np.float32)
+        if shared:
+            d = ray_order_mod.shared_direction(np.tile(np.float32([0.2, 0.9, -0.1]), (n, 1)))
+            assert d.strides[0] == 0
+        keys = ray_keys(o, d, ray_order_mod.origin_box(o))
+        want = np.argsort(keys, kind="stable")
+        for threads in (1, 2):
+            assert np.array_equal(ray_order(o, d, threads, window=1000), want), (n, threads)
+        got = np.empty_like(o)
+        native.gather(o, want, got)
+        assert np.array_equal(got, o[want])
+        t = rng.random(n).astype(np.float32)
+        got_t = np.empty_like(t)
+        native.gather(t, want, got_t)
+        assert np.array_equal(got_t, t[want])
+        words = rng.integers(0, 3, n).astype(np.uint32)
+        out = np.zeros(n, bool)
+        native.scatter_flags(words, want, out)
+        ref = np.zeros(n, bool)
+        ref[want] = words != 0
+        assert np.array_equal(out, ref)
+
+
+def test_the_c_steps_build_once_and_fall_back_without_a_compiler(tmp_path, monkeypatch):
+    """The library builds into $XDG_CACHE_HOME/hybrid on first use (named by the source's hash); without a working
+    compiler, or with HYBRID_NATIVE=0, there is none and a reordered query gives the same results through numpy."""
+    monkeypatch.setenv("XDG_CACHE_HOME", str(tmp_path))
+    native.library.cache_clear()
+    try:
+        monkeypatch.setenv("HYBRID_NATIVE", "0")
+        assert native.library() is None
+        native.library.cache_clear()
+        monkeypatch.delenv("HYBRID_NATIVE")
+        monkeypatch.setenv("CC", "/bin/false")          # a "compiler" that fails
+        assert native.library() is None
+        assert not list(tmp_path.rglob("*.so"))          # nothing half-built left behind
+        v, f = trimesh.creation.icosphere(3).vertices, trimesh.creation.icosphere(3).faces
+        rng = np.random.default_rng(3)
+        o, d, tmax = surface_rays(v, f, N, rng)
+        perm = rng.permutation(N)
+        with Tracer(v, f, batch_size=8192) as tr:
+            want = tr.occluded(o, d, tmax, reorder=False)
+            assert np.array_equal(tr.occluded(o[perm], d[perm], tmax[perm], reorder=True), want[perm])
+            native.library.cache_clear()
+            monkeypatch.delenv("CC")
+            if native.library() is None:
+                pytest.skip("no C compiler here")
+            assert [p.parent.name for p in tmp_path.rglob("native-*.so")] == ["hybrid"]
+            assert np.array_equal(tr.occluded(o[perm], d[perm], tmax[perm], reorder=True), want[perm])
+    finally:
+        native.library.cache_clear()

@@ -120,7 +120,9 @@ def test_unknown_scene_name_lists_the_bundled_ones(installed):
 
 
 TRACER_QUERY = """
-import json
+import json, os, pathlib, shutil, tempfile
+cache = pathlib.Path(tempfile.mkdtemp())
+os.environ["XDG_CACHE_HOME"] = str(cache)
 import numpy as np
 import engine
 
@@ -134,9 +136,16 @@ with engine.Tracer(vertices, faces, validation=True) as tracer:
     hits = tracer.intersect(origins, directions)
     near = tracer.occluded(origins, directions, 1.5)
     far = tracer.occluded(origins, directions, 3.0)
+    # a shuffled batch, reordered with the C steps built from the package's own source into a fresh cache
+    rng = np.random.default_rng(0)
+    o = np.column_stack([rng.uniform(-2, 2, (50_000, 2)), np.full(50_000, 2.0)]).astype(np.float32)
+    d = np.tile(np.float32((0.0, 0.0, -1.0)), (len(o), 1))
+    reordered = bool(np.array_equal(tracer.occluded(o, d, 3.0, reorder=True), tracer.occluded(o, d, 3.0, reorder=False)))
     errors = tracer.validation_errors
+from engine.rt import native
 print(json.dumps({"t": [float(t) if np.isfinite(t) else None for t in hits.t], "prim": hits.prim.tolist(),
-                  "near": near.tolist(), "far": far.tolist(), "errors": errors, "file": engine.__file__}))
+                  "near": near.tolist(), "far": far.tolist(), "errors": errors, "file": engine.__file__,
+                  "reordered": reordered, "native": str(native.SOURCE), "built": [p.name for p in cache.rglob("*.so")]}))
 """
 
 
@@ -148,7 +157,10 @@ def test_tracer_query(installed):
     assert got["t"][:2] == pytest.approx([2.0, 2.0], abs=1e-5)
     assert got["prim"][:2] == [0, 1]    # (0.5, -0.5) is below the diagonal: triangle 0; (-0.5, 0.5) triangle 1
     assert got["near"] == [False] * 4 and got["far"] == [True, True, False, False]
-    assert got["errors"] == []
+    assert got["errors"] == [] and got["reordered"]
+    assert Path(got["native"]).is_relative_to(installed.bin.parent)   # the reordering's C source ships in the wheel
+    if shutil.which("cc") or shutil.which("gcc"):
+        assert len(got["built"]) == 1 and got["built"][0].startswith("native-")
 
 
 @pytest.mark.parametrize("shaders", ["packaged", "checkout"])

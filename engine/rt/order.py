@@ -8,7 +8,9 @@ every ray has the same one) has 32 bits, so that the rays of a SIMD group are ne
 rays per cell of a million-ray batch, in the caller's order). The key and the ray's index, as one 64-bit word, go
 through numpy's sort (vectorized; about as fast as the stable radix argsort of a 16-bit key; the index makes the
 words unique, so the order is the key's stable one). The stream gathers the rays in that order as it packs them and
-the sinks scatter the results back (engine/rt/stream.py). `incoherent` decides whether a batch gains from it, from a
+the sinks scatter the results back (engine/rt/stream.py). Where a C compiler is at hand the keys, the gathers and the
+scatters run in C (engine/rt/native.py: same keys, same order; numpy's gathers of 12-byte rows cost 3-4x more), and
+the whole batch is sorted at once. `incoherent` decides whether a batch gains from it, from a
 sample: image-ordered batches (G-buffer rays) and rays crossing the scene in all directions are left alone.
 """
 from __future__ import annotations
@@ -19,7 +21,8 @@ import sys
 import numpy as np
 
 from ..errors import ConfigError
-from ..parallel import blocks
+from ..parallel import blocks, run
+from . import native
 
 #: batches below this many rays are traced as given ("auto"): the trace of a small batch costs little either way
 MIN_RAYS = 1 << 15
@@ -41,6 +44,8 @@ KEY_BLOCK = 1 << 15
 #: batches of at least this many rays are sorted by a stable argsort of their keys (their row numbers take more than
 #: the low half of a 64-bit word)
 WORD_ROWS = 1 << 32
+#: the most rays whose words a Tracer keeps for its next batch (KeptWords: 32 MB)
+KEEP_ROWS = 1 << 22
 #: rows per block of `shared_direction`'s comparison (its temporaries stay in the L2 cache)
 SHARED_BLOCK = 1 << 14
 
@@ -79,6 +84,23 @@ def _axis_tables(axes: tuple, shift: int) -> tuple:
     table.setflags(write=False)   # (shared by the cache)
     offsets.setflags(write=False)
     return table, offsets
+
+
+class KeptWords:
+    """A Tracer's array for `ray_order`'s words (8 bytes a ray), kept from one batch to the next (the pages of a
+    fresh array cost their first touch: ~5 ms per million rays on a 2-core VM); batches of more than KEEP_ROWS rays
+    get a fresh one."""
+
+    def __init__(self):
+        self.words: np.ndarray | None = None
+
+    def get(self, n: int) -> np.ndarray | None:
+        """(n,) uint64 (the kept array, grown if need be), or None for a batch above KEEP_ROWS."""
+        if n > KEEP_ROWS:
+            return None
+        if self.words is None or len(self.words) < n:
+            self.words = np.empty(n, np.uint64)
+        return self.words[:n]
 
 
 def check_reorder(value, where: str = "Tracer") -> object:
@@ -155,6 +177,19 @@ def shared_direction(d: np.ndarray) -> np.ndarray:
     return np.broadcast_to(d[0], d.shape)
 
 
+def _key_terms(d: np.ndarray, box) -> tuple:
+    """What a key is made of: (shared direction?, the box's lo, the cells per unit length and the last cell per
+    axis (float32 (3,) each), the bit table and its axes' offsets (`_axis_tables`))."""
+    lo, hi = (np.asarray(b, np.float32) for b in box)
+    shared = len(d) > 0 and d.strides[0] == 0
+    axes = split_axes(lo, hi, KEY_BITS if shared else KEY_BITS - 1)
+    table, offsets = _axis_tables(axes, 0 if shared else 1)
+    bits = np.array([axes.count(a) for a in range(3)])
+    scale = (np.float32(2.0) ** bits).astype(np.float32) / np.maximum(hi - lo, np.float32(1e-30))
+    top = (np.float32(2.0) ** bits - 1).astype(np.float32)
+    return shared, lo, scale, top, table, offsets
+
+
 def ray_keys(o: np.ndarray, d: np.ndarray, box, threads: int = 1, out: np.ndarray | None = None,
              index: np.ndarray | None = None) -> np.ndarray:
     """(N,) uint32 keys: the code of each origin's cell in `box` (clamped), whose KEY_BITS - 1 bits halve the box
@@ -164,13 +199,7 @@ def ray_keys(o: np.ndarray, d: np.ndarray, box, threads: int = 1, out: np.ndarra
     Written into `out` if given (an (N,) uint32 array or view), and with `index` (an (N,) uint32 view) the rays'
     row numbers into that. In row blocks on `threads` threads. Non-finite values give some key (the ray checks
     name them)."""
-    lo, hi = (np.asarray(b, np.float32) for b in box)
-    shared = len(d) > 0 and d.strides[0] == 0
-    axes = split_axes(lo, hi, KEY_BITS if shared else KEY_BITS - 1)
-    table, offsets = _axis_tables(axes, 0 if shared else 1)
-    bits = np.array([axes.count(a) for a in range(3)])
-    scale = (np.float32(2.0) ** bits).astype(np.float32) / np.maximum(hi - lo, np.float32(1e-30))
-    top = (np.float32(2.0) ** bits - 1).astype(np.float32)
+    shared, lo, scale, top, table, offsets = _key_terms(d, box)
     rows = min(KEY_BLOCK, len(o))
     # (flat, as long as a block: numpy's (N, 3) op (3,) broadcasts loop 3 elements at a time)
     lo3, scale3, top3, offsets3 = np.tile(lo, rows), np.tile(scale, rows), np.tile(top, rows), np.tile(offsets, rows)
@@ -198,20 +227,26 @@ def ray_keys(o: np.ndarray, d: np.ndarray, box, threads: int = 1, out: np.ndarra
     return key
 
 
-def ray_order(o: np.ndarray, d: np.ndarray, threads: int = 1, window: int | None = None) -> np.ndarray | None:
+def ray_order(o: np.ndarray, d: np.ndarray, threads: int = 1, window: int | None = None,
+              scratch: np.ndarray | None = None) -> np.ndarray | None:
     """The order to trace rays in (an (N,) index array: trace row order[i] i-th), or None where the origins' box is
     not finite (bad rays: traced as given, so that the checks name the first one). The rays sorted by their keys,
     stably: the key and the row number as one uint64 word each (key high), sorted, then the key bits cleared; `d`
     may be `shared_direction`'s stride-0 view (then the cells get the direction's bit). `window`: sort each run of
     that many rows on its own (the stream's chunk: a chunk then gathers from one cache-sized run of the caller's
-    rows, not from the whole batch), the keys being the whole batch's."""
+    rows, not from the whole batch), the keys being the whole batch's; not where the C steps are at hand
+    (engine/rt/native.py: the whole batch is sorted). `scratch`: an (N,) uint64 array to build the order in
+    (the caller's, reused from batch to batch: a fresh array's pages cost their first touch), viewed as int64."""
     box = origin_box(o)
     if box is None:
         return None
     n = len(o)
     if n >= WORD_ROWS:
         return np.argsort(ray_keys(o, d, box, threads), kind="stable")
-    words = np.empty(n, np.uint64)
+    words = np.empty(n, np.uint64) if scratch is None else scratch
+    lib = native.library()
+    if lib is not None:
+        return _native_order(lib, o, d, box, threads, words)
     halves = words.view(np.uint32).reshape(n, 2)
     high = 1 if sys.byteorder == "little" else 0
     ray_keys(o, d, box, threads, out=halves[:, high], index=halves[:, 1 - high])
@@ -220,4 +255,35 @@ def ray_order(o: np.ndarray, d: np.ndarray, threads: int = 1, window: int | None
     else:
         blocks(lambda s: words[s:s + window].sort(), n, window, threads)
     halves[:, high] = 0
+    return words.view(np.int64)
+
+
+def _native_order(lib, o: np.ndarray, d: np.ndarray, box, threads: int, words: np.ndarray) -> np.ndarray:
+    """`ray_order`'s order of the whole batch with the keys made in C (engine/rt/native.c): the same keys and the
+    same order (the keys' stable one). The keys in row blocks on `threads` threads; the words split at their median
+    (np.partition) and each part sorted on its own thread where there are two (numpy sorts on one core); the whole
+    batch sorted at once (numpy's path sorts windows of its rows instead, to bound the cost of its gathers, which
+    the C gather does not need)."""
+    n = len(o)
+    shared, lo, scale, top, table, offsets = _key_terms(d, box)
+    o = np.ascontiguousarray(o, np.float32).reshape(-1)
+    up, stride = None, 0
+    if not shared:
+        d = np.ascontiguousarray(d, np.float32)
+        up, stride = d[:, 1:].ctypes.data, 3
+    table = np.ascontiguousarray(table)
+    step = max(KEY_BLOCK, -(-n // max(threads, 1)))
+
+    def keys(s):
+        e = min(s + step, n)
+        lib.hybrid_ray_keys(o[3 * s:3 * e], e - s, lo, scale, top, table, offsets,
+                            None if up is None else up + 12 * s, stride, s, words[s:e])
+    blocks(keys, n, step, threads)
+    if threads > 1 and n >= 2 * KEY_BLOCK:
+        half = n // 2
+        words.partition(half)
+        run([words[:half].sort, words[half:].sort], 2)
+    else:
+        words.sort()
+    blocks(lambda s: lib.hybrid_rows_of(words[s:s + step], min(step, n - s)), n, step, threads)
     return words.view(np.int64)

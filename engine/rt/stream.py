@@ -23,6 +23,7 @@ from ..vk import Buffer, BufferView, DescriptorSet, Recorder, Timestamps
 from ..vk.formats import INDIRECT, R32F, R32UI, RGB32F, RGBA32UI
 from ..vk.resources import STORAGE, STORAGE_TEXEL, TRANSFER_DST, TRANSFER_SRC, UNIFORM_TEXEL
 from ..vk.sync import create_fence, destroy_fence, reset_fences, wait_fences
+from . import native
 from .checks import block_fine
 
 GROUP = 64
@@ -236,17 +237,17 @@ class Slot:
                 np.copyto(oo, o[s:e])
                 np.copyto(dd, d[s:e])
             else:
-                np.take(o, rows[s:e], axis=0, out=oo)
+                native.gather(o, rows[s:e], oo)
                 if d.strides[0] == 0:   # one direction for all (order.shared_direction): not gathered
                     dd[:] = d[0]
                 else:
-                    np.take(d, rows[s:e], axis=0, out=dd)
+                    native.gather(d, rows[s:e], dd)
             if t.ndim == 0:
                 tt.fill(t)
             elif rows is None:
                 np.copyto(tt, t[s:e])
             else:
-                np.take(t, rows[s:e], out=tt)
+                native.gather(t, rows[s:e], tt)
             return self.kernel_checks or block_fine(oo, dd, None if t.ndim == 0 else tt, scratch[3 * s:3 * e])
         return [lambda s=s: block(s) for s in range(0, n, step)]
 
@@ -337,7 +338,7 @@ def occluded_sink(out: np.ndarray, order=None):
         if order is None:
             np.not_equal(words, 0, out=out[start + s:start + e])
         else:
-            out[order[start + s:start + e]] = words != 0
+            native.scatter_flags(words, order[start + s:start + e], out)
     return sink
 
 

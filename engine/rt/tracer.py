@@ -39,7 +39,7 @@ from ..vk.shared import Device, Scope
 from .checks import check_batch_size, check_mesh, name_bad_ray, name_bad_tmax, ray_arrays
 from .closest import Closest, ClosestQuery
 from .cuda_arrays import CudaRays, on_cuda
-from .order import check_reorder, incoherent, ray_order, shared_direction
+from .order import KeptWords, check_reorder, incoherent, ray_order, shared_direction
 from .stream import STREAM_THREADS, Slot, hits_sink, instance_sink, occluded_sink, set_chunk, slot_pool, stream
 
 #: Query kinds whose kernels read rays (and write results) through texel buffer views on CPU devices (RAYS_TEXEL):
@@ -344,6 +344,7 @@ class Tracer(Closes):
         self.last_reordered = False  # whether the last occluded / intersect query was traced reordered
         self.last_times: dict = {}   # GPU ms of the last chunk per step: upload (staged only), trace, download
         self.scratch = None          # the ray checks' uint32 scratch (engine/rt/stream.py), made on first use
+        self._order_words = KeptWords()   # the reordering's words, kept for the next batch
 
     def _host_path_spec(self, kind: str) -> dict:
         """Where rays are staged (discrete GPUs), the kernels check the rays (CHECK_RAYS: the host's packing is
@@ -521,15 +522,14 @@ class Tracer(Closes):
 
     def _order(self, o, d, t, reorder):
         """The order to trace a batch in (engine/rt/order.py), or None for the given order, and its directions (for a
-        reordered batch `shared_direction`'s view: one direction for all is filled, not gathered); sets
-        `last_reordered`."""
+        reordered batch `shared_direction`'s view: one direction for all is filled, not gathered); sets `last_reordered`."""
         mode = self.reorder if reorder is None else check_reorder(reorder, "Tracer query")
         if mode == "auto":
             mode = is_cpu(self.ctx) and incoherent(o, d, t)
         order = None
         if mode and len(o) > 1:
             d = shared_direction(d)
-            order = ray_order(o, d, min(default_threads(), STREAM_THREADS), window=self.chunk)
+            order = ray_order(o, d, min(default_threads(), STREAM_THREADS), self.chunk, self._order_words.get(len(o)))
         self.last_reordered = order is not None
         return order, d
 

@@ -1,6 +1,12 @@
 """Ray reordering in the batch Tracer (engine/rt/order.py): rays in arbitrary order are traced in the order of a
 Morton code of their origins and their results come back in the caller's order, equal to the unshuffled query's
 permuted (occluded, intersect with instance ids, and the Open3D / trimesh interfaces that go through them)."""
+import os
+import shutil
+import subprocess
+import sys
+from pathlib import Path
+
 import numpy as np
 import pytest
 import trimesh
@@ -332,7 +338,8 @@ def test_the_c_steps_give_numpy_s_order_gathers_and_scatters(native_lib, shared)
 
 def test_the_c_steps_build_once_and_fall_back_without_a_compiler(tmp_path, monkeypatch):
     """The library builds into $XDG_CACHE_HOME/hybrid on first use (named by the source's hash); without a working
-    compiler, or with HYBRID_NATIVE=0, there is none and a reordered query gives the same results through numpy."""
+    compiler, or with HYBRID_NATIVE=0, there is none and a reordered query gives the same results through numpy; a
+    damaged file in the cache is built again."""
     monkeypatch.setenv("XDG_CACHE_HOME", str(tmp_path))
     native.library.cache_clear()
     try:
@@ -354,7 +361,18 @@ def test_the_c_steps_build_once_and_fall_back_without_a_compiler(tmp_path, monke
             monkeypatch.delenv("CC")
             if native.library() is None:
                 pytest.skip("no C compiler here")
-            assert [p.parent.name for p in tmp_path.rglob("native-*.so")] == ["hybrid"]
+            (built,) = tmp_path.rglob("native-*.so")
+            assert built.parent.name == "hybrid"
             assert np.array_equal(tr.occluded(o[perm], d[perm], tmax[perm], reorder=True), want[perm])
     finally:
         native.library.cache_clear()
+    # in a fresh process (this one has the good file loaded under that name, which dlopen would hand back)
+    monkeypatch.setenv("XDG_CACHE_HOME", str(tmp_path / "damaged"))
+    path = native.library_path(shutil.which("cc") or shutil.which("gcc"))
+    path.parent.mkdir(parents=True)
+    path.write_bytes(b"not a library")
+    env = dict(os.environ, PYTHONPATH=str(Path(native.__file__).parents[2]))
+    res = subprocess.run([sys.executable, "-c", "from engine.rt import native; print(native.library() is not None)"],
+                         env=env, capture_output=True, text=True, timeout=300)
+    assert res.stdout.strip() == "True", res.stderr
+    assert path.stat().st_size > 1000

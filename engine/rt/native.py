@@ -33,6 +33,22 @@ def cache_dir() -> Path:
         return Path(tempfile.gettempdir()) / f"hybrid-{os.getuid()}"
 
 
+def library_path(cc: str) -> Path:
+    """The cached library built from SOURCE with compiler `cc`: native-<hash of both>.so in `cache_dir()`."""
+    tag = hashlib.sha256(SOURCE.read_bytes() + " ".join([cc] + FLAGS).encode()).hexdigest()[:16]
+    return cache_dir() / f"native-{tag}.so"
+
+
+def _build(cc: str, path: Path) -> None:
+    """Compile SOURCE into `path`: in a temporary file beside it, then moved into place (atomic: a concurrent
+    build or load never sees half a file)."""
+    path.parent.mkdir(parents=True, exist_ok=True)
+    with tempfile.TemporaryDirectory(dir=path.parent) as tmp:
+        out = Path(tmp) / path.name
+        subprocess.run([cc, *FLAGS, "-o", str(out), str(SOURCE)], check=True, capture_output=True, timeout=120)
+        os.replace(out, path)
+
+
 @functools.lru_cache(maxsize=1)
 def library() -> ctypes.CDLL | None:
     """The loaded library with its functions' signatures, or None (see the module's docstring)."""
@@ -41,18 +57,15 @@ def library() -> ctypes.CDLL | None:
     cc = os.environ.get("CC") or shutil.which("cc") or shutil.which("gcc")
     if not cc or not SOURCE.exists():
         return None
-    text = SOURCE.read_bytes()
-    tag = hashlib.sha256(text + " ".join([cc] + FLAGS).encode()).hexdigest()[:16]
-    path = cache_dir() / f"native-{tag}.so"
+    path = library_path(cc)
     try:
         if not path.exists():
-            path.parent.mkdir(parents=True, exist_ok=True)
-            with tempfile.TemporaryDirectory(dir=path.parent) as tmp:
-                out = Path(tmp) / path.name
-                subprocess.run([cc, *FLAGS, "-o", str(out), str(SOURCE)], check=True, capture_output=True,
-                               timeout=120)
-                os.replace(out, path)   # (atomic: a concurrent build or load never sees half a file)
-        lib = ctypes.CDLL(str(path))
+            _build(cc, path)
+        try:
+            lib = ctypes.CDLL(str(path))
+        except OSError:   # a damaged file in the cache: built again, once
+            _build(cc, path)
+            lib = ctypes.CDLL(str(path))
     except (OSError, subprocess.SubprocessError):
         return None
     i64 = ctypes.c_int64

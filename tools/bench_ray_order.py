@@ -24,7 +24,8 @@ alone: the sort costs more than it gains there). Results of every variant are ch
 
 Also per variant the trace dispatches' time (`Tracer.last_gpu_ms`; on lavapipe CPU time that the host's work
 running beside it lengthens) and, once, the host steps of the reordering on the shuffled rays, timed alone: the
-order (`engine.rt.order.ray_order`: box, keys, sort) and a gather of the origins in that order (`np.take`).
+order (`engine.rt.order.ray_order`: box, keys, sort, into kept words as the Tracer does) and a gather of the origins
+in that order (`engine.rt.native.gather`: C where a compiler is at hand, else np.take), and whether the C steps ran.
 """
 from __future__ import annotations
 
@@ -43,7 +44,8 @@ import engine  # noqa: E402
 from engine.bench.rays import first_light_rays, random_rayset, surface_shadow_rays  # noqa: E402
 from engine.bench.scenes import generated_scene  # noqa: E402
 from engine.parallel import default_threads  # noqa: E402
-from engine.rt.order import ray_order, shared_direction  # noqa: E402
+from engine.rt import native  # noqa: E402
+from engine.rt.order import KeptWords, ray_order, shared_direction  # noqa: E402
 from engine.rt.stream import STREAM_THREADS  # noqa: E402
 
 
@@ -137,12 +139,13 @@ def bench_scene(name, scene, a, rng):
         errors = tr.validation_errors[:5]
     so, sd = variants["shuffled"][0], variants["shuffled"][1]
     steps = {"order": [], "gather": []}
+    words, gathered = KeptWords(), np.empty_like(so)
     for _ in range(a.reps):
         t0 = time.perf_counter()
-        perm = ray_order(so, shared_direction(sd), min(default_threads(), STREAM_THREADS))
+        perm = ray_order(so, shared_direction(sd), min(default_threads(), STREAM_THREADS), scratch=words.get(len(so)))
         steps["order"].append(time.perf_counter() - t0)
         t0 = time.perf_counter()
-        np.take(so, perm, axis=0)
+        native.gather(so, perm, gathered)
         steps["gather"].append(time.perf_counter() - t0)
     w = {k: np.asarray(x) for k, x in walls.items()}
     ratio = lambda x, y: float(np.median(w[x] / w[y]))   # noqa: E731  (per run, interleaved)
@@ -152,6 +155,7 @@ def bench_scene(name, scene, a, rng):
             "reordered": reordered,
             "gpu_ms": {k: float(np.median(x)) for k, x in gpu.items()},
             "host_steps_ms": {k: float(np.median(x)) * 1e3 for k, x in steps.items()},
+            "native": native.library() is not None,
             "load_average": os.getloadavg()[0],
             "ratios": {"reordered / coherent": ratio("coherent", "reordered"),
                        "reordered / image": ratio("image", "reordered"),
@@ -188,7 +192,7 @@ def main() -> int:
             trace = f"  trace {run['gpu_ms'][k]:7.1f} ms" if k in run["gpu_ms"] else ""
             print(f"  {k:>13}  {ms:8.1f} ms  {run['mrays_s'][k]:6.2f} Mrays/s  reordered: {run['reordered'][k]}{trace}")
         print("  host steps alone: " + ", ".join(f"{k} {ms:.1f} ms" for k, ms in run["host_steps_ms"].items())
-              + f" (load average {run['load_average']:.1f})")
+              + f" ({'C' if run['native'] else 'numpy'} steps; load average {run['load_average']:.1f})")
         for k, r in run["ratios"].items():
             print(f"  {k:>24}  {r:.2f}x")
         if run["validation_errors"]:

@@ -334,6 +334,10 @@ def test_the_c_steps_give_numpy_s_order_gathers_and_scatters(native_lib, shared)
         ref = np.zeros(n, bool)
         ref[want] = words != 0
         assert np.array_equal(out, ref)
+    with pytest.raises(IndexError):   # a row out of range: numpy's error, never a read past the array
+        native.gather(o, np.array([len(o)], np.int64), np.empty((1, 3), np.float32))
+    with pytest.raises(IndexError):
+        native.scatter_flags(np.ones(1, np.uint32), np.array([-len(o) - 1], np.int64), np.zeros(len(o), bool))
 
 
 def test_the_c_steps_build_once_and_fall_back_without_a_compiler(tmp_path, monkeypatch):
@@ -347,8 +351,9 @@ def test_the_c_steps_build_once_and_fall_back_without_a_compiler(tmp_path, monke
         assert native.library() is None
         native.library.cache_clear()
         monkeypatch.delenv("HYBRID_NATIVE")
-        monkeypatch.setenv("CC", "/bin/false")          # a "compiler" that fails
-        assert native.library() is None
+        monkeypatch.setenv("CC", "/bin/false -q")       # a "compiler" that fails: said once, numpy's steps
+        with pytest.warns(RuntimeWarning, match="could not build or load native.c with /bin/false -q"):
+            assert native.library() is None
         assert not list(tmp_path.rglob("*.so"))          # nothing half-built left behind
         v, f = trimesh.creation.icosphere(3).vertices, trimesh.creation.icosphere(3).faces
         rng = np.random.default_rng(3)
@@ -368,7 +373,7 @@ def test_the_c_steps_build_once_and_fall_back_without_a_compiler(tmp_path, monke
         native.library.cache_clear()
     # in a fresh process (this one has the good file loaded under that name, which dlopen would hand back)
     monkeypatch.setenv("XDG_CACHE_HOME", str(tmp_path / "damaged"))
-    path = native.library_path(shutil.which("cc") or shutil.which("gcc"))
+    path = native.library_path([shutil.which("cc") or shutil.which("gcc")])
     path.parent.mkdir(parents=True)
     path.write_bytes(b"not a library")
     env = dict(os.environ, PYTHONPATH=str(Path(native.__file__).parents[2]))

@@ -8,7 +8,7 @@
 /* Keys as order.ray_keys computes them, into the high halves of `words` (row numbers first + i in the low halves): per
  * coordinate a = (o - lo) * scale, clamped to [0, top], truncated, its bits looked up in `table` at offsets[axis];
  * then, unless `up` is null, bit 0 set where up[i * up_stride] > 0 (the direction's y). */
-#if defined(__GNUC__) && defined(__x86_64__) && !defined(__clang__)
+#if defined(__GNUC__) && defined(__x86_64__) && defined(__GLIBC__) && !defined(__clang__)
 __attribute__((target_clones("avx2", "default")))   /* (AVX2's gathers vectorize the table lookups: 2-3x) */
 #endif
 void hybrid_ray_keys(const float *o, int64_t n, const float *lo, const float *scale, const float *top,

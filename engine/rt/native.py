@@ -1,16 +1,20 @@
 """The C versions of the ray reordering's host steps (native.c), compiled on first use with the system's C compiler
-(`cc`, or $CC) into the user's cache directory and loaded with ctypes; None where there is no compiler, the build
-fails or HYBRID_NATIVE=0, and engine/rt/order.py and stream.py then run their numpy versions. The library's file
-name carries a hash of the source and the compiler command, so an edited source builds afresh."""
+(`cc`, or $CC) into the user's cache directory and loaded with ctypes; None where there is no compiler or no home,
+with HYBRID_NATIVE=0, or where the build fails (a RuntimeWarning with the compiler's message), and
+engine/rt/order.py and stream.py then run their numpy versions. The library's file name carries a hash of the source,
+the compiler command and the machine's architecture, so an edited source builds afresh."""
 from __future__ import annotations
 
 import ctypes
 import functools
 import hashlib
 import os
+import platform
+import shlex
 import shutil
 import subprocess
 import tempfile
+import warnings
 from pathlib import Path
 
 import numpy as np
@@ -22,30 +26,34 @@ _F32, _U32, _U64, _I64, _U8 = (np.ctypeslib.ndpointer(dtype=t, flags="C_CONTIGUO
                                for t in (np.float32, np.uint32, np.uint64, np.int64, np.uint8))
 
 
-def cache_dir() -> Path:
-    """Where the compiled library goes: $XDG_CACHE_HOME/hybrid (default ~/.cache/hybrid; without a home, the
-    temporary directory's hybrid-<uid>)."""
+def cache_dir() -> Path | None:
+    """Where the compiled library goes: $XDG_CACHE_HOME/hybrid (default ~/.cache/hybrid); None without a home (no
+    shared temporary directory: another user could put a library there first)."""
     if os.environ.get("XDG_CACHE_HOME"):
         return Path(os.environ["XDG_CACHE_HOME"]) / "hybrid"
     try:
         return Path.home() / ".cache" / "hybrid"
     except RuntimeError:
-        return Path(tempfile.gettempdir()) / f"hybrid-{os.getuid()}"
+        return None
 
 
-def library_path(cc: str) -> Path:
-    """The cached library built from SOURCE with compiler `cc`: native-<hash of both>.so in `cache_dir()`."""
-    tag = hashlib.sha256(SOURCE.read_bytes() + " ".join([cc] + FLAGS).encode()).hexdigest()[:16]
-    return cache_dir() / f"native-{tag}.so"
+def library_path(cc: list) -> Path | None:
+    """The cached library built from SOURCE with the compiler command `cc` on this kind of machine:
+    native-<hash of the three>.so in `cache_dir()` (None without one)."""
+    where = cache_dir()
+    if where is None:
+        return None
+    tag = hashlib.sha256(SOURCE.read_bytes() + " ".join(cc + FLAGS + [platform.machine()]).encode()).hexdigest()[:16]
+    return where / f"native-{tag}.so"
 
 
-def _build(cc: str, path: Path) -> None:
+def _build(cc: list, path: Path) -> None:
     """Compile SOURCE into `path`: in a temporary file beside it, then moved into place (atomic: a concurrent
     build or load never sees half a file)."""
     path.parent.mkdir(parents=True, exist_ok=True)
     with tempfile.TemporaryDirectory(dir=path.parent) as tmp:
         out = Path(tmp) / path.name
-        subprocess.run([cc, *FLAGS, "-o", str(out), str(SOURCE)], check=True, capture_output=True, timeout=120)
+        subprocess.run([*cc, *FLAGS, "-o", str(out), str(SOURCE)], check=True, capture_output=True, timeout=120)
         os.replace(out, path)
 
 
@@ -54,10 +62,11 @@ def library() -> ctypes.CDLL | None:
     """The loaded library with its functions' signatures, or None (see the module's docstring)."""
     if os.environ.get("HYBRID_NATIVE", "1") == "0":
         return None
-    cc = os.environ.get("CC") or shutil.which("cc") or shutil.which("gcc")
-    if not cc or not SOURCE.exists():
+    found = shutil.which("cc") or shutil.which("gcc")
+    cc = shlex.split(os.environ["CC"]) if os.environ.get("CC") else [found] if found else []
+    path = library_path(cc) if cc and SOURCE.exists() else None
+    if path is None:
         return None
-    path = library_path(cc)
     try:
         if not path.exists():
             _build(cc, path)
@@ -66,7 +75,11 @@ def library() -> ctypes.CDLL | None:
         except OSError:   # a damaged file in the cache: built again, once
             _build(cc, path)
             lib = ctypes.CDLL(str(path))
-    except (OSError, subprocess.SubprocessError):
+    except (OSError, subprocess.SubprocessError) as e:   # (a compiler that fails: said once, then numpy's steps)
+        detail = getattr(e, "stderr", None) or str(e)
+        detail = detail.decode(errors="replace") if isinstance(detail, bytes) else detail
+        warnings.warn(f"hybrid: could not build or load {SOURCE.name} with {' '.join(cc)} ({detail.strip()[-300:]}); "
+                      "ray reordering runs its numpy steps", RuntimeWarning, stacklevel=2)
         return None
     i64 = ctypes.c_int64
     lib.hybrid_ray_keys.argtypes = [_F32, i64, _F32, _F32, _F32, _U32, _U32, ctypes.c_void_p, i64, i64, _U64]
@@ -79,21 +92,26 @@ def library() -> ctypes.CDLL | None:
 
 
 def gather(src: np.ndarray, rows: np.ndarray, out: np.ndarray) -> None:
-    """out[i] = src[rows[i]] (rows of a C-contiguous float32 array: xyz or single floats), in C where the library
-    is at hand, else np.take."""
+    """out[i] = src[rows[i]] (rows of a C-contiguous, aligned float32 array: xyz or single floats; `rows` in range),
+    in C where the library is at hand and the arrays are as it expects, else np.take."""
     lib = library()
-    if lib is None or not (src.flags.c_contiguous and out.flags.c_contiguous and rows.dtype == np.int64
-                           and rows.flags.c_contiguous and src.dtype == out.dtype == np.float32):
-        np.take(src, rows, axis=0, out=out)
+    fits = (src.dtype == out.dtype == np.float32 and rows.dtype == np.int64 and src.ndim in (1, 2)
+            and out.shape == (len(rows),) + src.shape[1:] and all(a.flags.c_contiguous and a.flags.aligned
+                                                                 for a in (src, rows, out)))
+    if lib is None or not fits or (len(rows) and not (0 <= rows.min() and rows.max() < len(src))):
+        np.take(src, rows, axis=0, out=out)   # (also the error for a row out of range)
         return
     lib.hybrid_gather_rows(src.ctypes.data, rows, len(rows), src.itemsize * int(np.prod(src.shape[1:])),
                            out.ctypes.data)
 
 
 def scatter_flags(words: np.ndarray, rows: np.ndarray, out: np.ndarray) -> None:
-    """out[rows[i]] = words[i] != 0 (uint32 words, a bool `out`), in C where the library is at hand."""
+    """out[rows[i]] = words[i] != 0 (uint32 words, rows in range of the bool `out`), in C where the library is at
+    hand."""
     lib = library()
-    if lib is None or not (rows.dtype == np.int64 and rows.flags.c_contiguous and words.flags.c_contiguous):
+    fits = (words.dtype == np.uint32 and rows.dtype == np.int64 and out.dtype == np.bool_ and words.shape == rows.shape
+            and all(a.flags.c_contiguous and a.flags.aligned for a in (words, rows, out)))
+    if lib is None or not fits or (len(rows) and not (0 <= rows.min() and rows.max() < len(out))):
         out[rows] = words != 0
         return
     lib.hybrid_scatter_flags(words, rows, len(rows), out.view(np.uint8))

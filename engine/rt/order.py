@@ -266,10 +266,10 @@ def _native_order(lib, o: np.ndarray, d: np.ndarray, box, threads: int, words: n
     the C gather does not need)."""
     n = len(o)
     shared, lo, scale, top, table, offsets = _key_terms(d, box)
-    o = np.ascontiguousarray(o, np.float32).reshape(-1)
+    o = np.require(o, np.float32, ["C", "A"]).reshape(-1)   # (contiguous and aligned, as C reads it)
     up, stride = None, 0
     if not shared:
-        d = np.ascontiguousarray(d, np.float32)
+        d = np.require(d, np.float32, ["C", "A"])
         up, stride = d[:, 1:].ctypes.data, 3
     table = np.ascontiguousarray(table)
     step = max(KEY_BLOCK, -(-n // max(threads, 1)))

@@ -44,7 +44,7 @@ from .triangles import box_centres, sorted_boxes, triangle_records
 #: Default depth cap; equal to the default BVH_STACK_SIZE of bvh.glsl (the traversal needs depth - 1 entries).
 DEFAULT_MAX_DEPTH = 32
 #: The default thread count is at most one per this many triangles: below it the pool's hand-offs cost more than
-#: the second thread gains (a 0.1M-triangle mesh built 8-15% faster on one thread than on two; docs/benchmarks.md)
+#: a second thread gains (docs/benchmarks.md, "BVH build")
 TRIS_PER_THREAD = 100_000
 
 
@@ -65,8 +65,8 @@ def build_bvh(vertices, faces, *, max_leaf: int = 4, max_depth: int = DEFAULT_MA
     max_leaf: most triangles per leaf. max_depth: deepest leaf (the root is at depth 0); the GLSL traversal needs a
     stack of at least max_depth - 1 entries. Vertices are used as float32 (the GPU's precision). threads: how many
     threads the independent parts of the build use (default: every core this process may use, at most one per
-    TRIS_PER_THREAD triangles); the tree is byte for byte the same for any number. lift: large triangles (see lift.py) go into the top of the tree instead of
-    the binning (True by default; False gives the plain binned tree).
+    TRIS_PER_THREAD triangles); the tree is byte for byte the same for any number. lift: large triangles (see
+    lift.py) go into the top of the tree instead of the binning (True by default; False gives the plain binned tree).
     """
     t0 = time.perf_counter()
     vt, ft = _validated(vertices, faces)

@@ -1,15 +1,16 @@
 /* The host steps of ray reordering (engine/rt/order.py) in C: the key of each ray, and the gathers and scatters
- * of rows in the keys' order (the sort itself stays numpy's, vectorized and in place). numpy's versions of these steps are the reference (the same
- * keys and the same order, bit for bit); engine/rt/native.py compiles this file with the system's C compiler on
- * first use and falls back to numpy where there is none. Plain C99, no Python headers: loaded with ctypes. */
+ * of rows in the keys' order (the sort itself stays numpy's, vectorized and in place). numpy's versions of these
+ * steps are the reference (the same keys and the same order, bit for bit); engine/rt/native.py compiles this file
+ * with the system's C compiler on first use and falls back to numpy where there is none. Plain C99, no Python
+ * headers: loaded with ctypes. */
 #include <stdint.h>
 #include <string.h>
 
-/* Keys as order.ray_keys computes them, into the high halves of `words` (row numbers first + i in the low halves): per
- * coordinate a = (o - lo) * scale, clamped to [0, top], truncated, its bits looked up in `table` at offsets[axis];
- * then, unless `up` is null, bit 0 set where up[i * up_stride] > 0 (the direction's y). */
+/* Keys as order.ray_keys computes them, into the high halves of `words` (row numbers first + i in the low
+ * halves): per coordinate a = (o - lo) * scale, clamped to [0, top], truncated, its bits looked up in `table` at
+ * offsets[axis]; then, unless `up` is null, bit 0 set where up[i * up_stride] > 0 (the direction's y). */
 #if defined(__GNUC__) && defined(__x86_64__) && defined(__GLIBC__) && !defined(__clang__)
-__attribute__((target_clones("avx2", "default")))   /* (AVX2's gathers vectorize the table lookups: 2-3x) */
+__attribute__((target_clones("avx2", "default")))   /* (AVX2's gathers vectorize the table lookups) */
 #endif
 void hybrid_ray_keys(const float *o, int64_t n, const float *lo, const float *scale, const float *top,
                      const uint32_t *table, const uint32_t *offsets, const float *up, int64_t up_stride,

@@ -9,9 +9,9 @@ rays per cell of a million-ray batch, in the caller's order). The key and the ra
 through numpy's sort (vectorized; about as fast as the stable radix argsort of a 16-bit key; the index makes the
 words unique, so the order is the key's stable one). The stream gathers the rays in that order as it packs them and
 the sinks scatter the results back (engine/rt/stream.py). Where a C compiler is at hand the keys, the gathers and the
-scatters run in C (engine/rt/native.py: same keys, same order; numpy's gathers of 12-byte rows cost 3-4x more), and
-the whole batch is sorted at once. `incoherent` decides whether a batch gains from it, from a
-sample: image-ordered batches (G-buffer rays) and rays crossing the scene in all directions are left alone.
+scatters run in C (engine/rt/native.py: same keys, same order, cheaper gathers of 12-byte rows), and the whole batch
+is sorted at once. `incoherent` decides whether a batch gains from it, from a sample: image-ordered batches (G-buffer
+rays) and rays crossing the scene in all directions are left alone.
 """
 from __future__ import annotations
 
@@ -88,8 +88,7 @@ def _axis_tables(axes: tuple, shift: int) -> tuple:
 
 class KeptWords:
     """A Tracer's array for `ray_order`'s words (8 bytes a ray), kept from one batch to the next (the pages of a
-    fresh array cost their first touch: ~5 ms per million rays on a 2-core VM); batches of more than KEEP_ROWS rays
-    get a fresh one."""
+    fresh array cost their first touch); batches of more than KEEP_ROWS rays get a fresh one."""
 
     def __init__(self):
         self.words: np.ndarray | None = None

@@ -41,7 +41,7 @@ void hybrid_rows_of(uint64_t *words, int64_t n)
 /* dst[i] = src[rows[i]] for rows of `size` bytes (12: a float32 xyz), the source rows prefetched ahead. */
 void hybrid_gather_rows(const uint8_t *src, const int64_t *rows, int64_t n, int64_t size, uint8_t *dst)
 {
-    const int64_t ahead = 16;
+    const int64_t ahead = 64;   /* (rows this far ahead: a random row is a miss to memory) */
     if (size == 12) {   /* (a constant size: an inlined copy) */
         for (int64_t i = 0; i < n; ++i) {
             if (i + ahead < n)

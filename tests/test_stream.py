@@ -6,6 +6,7 @@ import trimesh
 
 from engine import Tracer
 from engine.rt import stream as stream_mod
+from engine.rt.stream import fill_rows
 from engine.rt.reference import reference_intersect, reference_occluded
 
 CHUNK = 256
@@ -251,3 +252,13 @@ def test_staged_rays_are_checked_by_the_kernels_and_occlusion_read_as_bytes(monk
                 query(o, bad, tmax)
         assert np.array_equal(staged.occluded(o, d, tmax), want_occ)
         assert not staged.validation_errors and not mapped.validation_errors
+
+
+def test_fill_rows_sets_every_row_bit_for_bit():
+    """stream.fill_rows (a shared direction filled into the mapped rays): every row equal to the given one, -0.0
+    and all, for lengths that are and are not powers of two."""
+    row = np.float32([0.25, -0.0, -3.5])
+    for n in (0, 1, 2, 3, 5, 64, 1000, 4097):
+        out = np.full((n, 3), np.nan, np.float32)
+        fill_rows(out, row)
+        assert np.array_equal(out.view(np.uint32), np.tile(row, (n, 1)).view(np.uint32)), n

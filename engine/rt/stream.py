@@ -235,13 +235,14 @@ class Slot:
             oo, dd, tt = self.origins[s:e], self.directions[s:e], self.tmax[s:e]
             if rows is None:
                 np.copyto(oo, o[s:e])
-                np.copyto(dd, d[s:e])
             else:
                 native.gather(o, rows[s:e], oo)
-                if d.strides[0] == 0:   # one direction for all (order.shared_direction): not gathered
-                    dd[:] = d[0]
-                else:
-                    native.gather(d, rows[s:e], dd)
+            if d.strides[0] == 0 and len(d):   # one direction for all (order.shared_direction, a broadcast view)
+                fill_rows(dd, d[0])
+            elif rows is None:
+                np.copyto(dd, d[s:e])
+            else:
+                native.gather(d, rows[s:e], dd)
             if t.ndim == 0:
                 tt.fill(t)
             elif rows is None:
@@ -260,6 +261,19 @@ class Slot:
         self.ctx.submit(cmd, wait=False, fence=self.fence)
         self.buffers.pending = True
         return marks
+
+
+def fill_rows(out: np.ndarray, row: np.ndarray) -> None:
+    """Every row of the (n, k) array `out` set to `row`, in copies of doubling runs of rows (contiguous copies:
+    numpy's broadcast assignment of a short row loops row by row, many times slower)."""
+    if not len(out):
+        return
+    out[0] = row
+    done = 1
+    while done < len(out):
+        m = min(done, len(out) - done)
+        out[done:done + m] = out[:m]
+        done += m
 
 
 def block_size(n: int, threads: int, what: str) -> int:

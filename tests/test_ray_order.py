@@ -310,9 +310,11 @@ def test_the_c_steps_give_numpy_s_order_gathers_and_scatters(native_lib, shared)
     """engine/rt/native.c: the same keys and order as numpy's path (the whole batch sorted; on one thread and on
     two), the same gathered rows (xyz and single floats) and scattered flags."""
     rng = np.random.default_rng(11)
-    for n in (1, 5, 70_001):
+    for n, same in ((1, False), (5, False), (70_001, False), (70_001, True)):
         o = rng.uniform(-5, 5, (n, 3)).astype(np.float32)
         o[: n // 3] = np.round(o[: n // 3])                      # equal keys: their rows stay in order
+        if same:                                                  # one key for all: ordered by row numbers alone
+            o[:] = o[0]
         d = rng.normal(size=(n, 3)).astype(np.float32)
         if shared:
             d = ray_order_mod.shared_direction(np.tile(np.float32([0.2, 0.9, -0.1]), (n, 1)))

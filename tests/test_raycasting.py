@@ -270,6 +270,8 @@ def test_bad_input_is_a_clear_error(make):
         scene.cast_rays(np.vstack([good, [[np.nan, 0, 0, 1, 0, 0]]]))
     with pytest.raises(ConfigError, match=r"rays: ray 0 has a zero direction"):
         scene.test_occlusions(np.array([[0, 0, 0, 0, 0, 0]], np.float32))
+    with pytest.raises(ConfigError, match=r"rays: ray 1 has a zero direction or nearly"):   # (bent in traversal)
+        scene.cast_rays(np.vstack([good, [[0, 0, -5, 0, 1e-25, 1e-25]]]))
     with pytest.raises(ConfigError, match=r"rays must be numbers"):
         scene.list_intersections(np.array([["a"] * 6, ["b"] * 6]))
     with pytest.raises(ConfigError, match=r"tnear must be a finite number, got nan"):

@@ -25,6 +25,7 @@ from numpy.typing import ArrayLike, NDArray
 
 from ..lifetime import Closes
 from ..errors import ConfigError, SceneError
+from ..limits import MIN_DIRECTION
 from ..vk import Context
 from ..vk.shared import Device
 from .checks import check_mesh, check_vectors
@@ -77,10 +78,11 @@ def _flat_rays(rays) -> tuple[NDArray[np.float64], tuple]:
         raise ConfigError(f"rays must have shape (..., 6) with at least 2 dimensions (ox, oy, oz, dx, dy, dz per "
                           f"ray), got {a.shape}")
     flat = check_vectors(a.reshape(-1, 6), "rays", width=6)
-    zero = ~(np.abs(flat[:, 3:]) > 0).any(axis=1)
+    zero = ~(np.abs(flat[:, 3:]) >= MIN_DIRECTION).any(axis=1)
     if zero.any():
         i = int(np.flatnonzero(zero)[0])
-        raise ConfigError(f"rays: ray {i} has a zero direction ({flat[i].tolist()})")
+        raise ConfigError(f"rays: ray {i} has a zero direction or nearly ({flat[i].tolist()}; a direction needs a "
+                          f"component of magnitude >= {MIN_DIRECTION:.3g})")
     return flat, a.shape[:-1]
 
 

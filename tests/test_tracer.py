@@ -552,6 +552,7 @@ def test_tmax_nan_or_none_is_refused_inf_and_negative_are_not(tri_tracer):
     tiny = tri_tracer.intersect(O1, [[0, 0, -2e-19]])      # short directions down to MIN_DIRECTION trace: t = 5e18
     assert tiny.hit[0] and np.isclose(tiny.t[0], 5e18, rtol=1e-5)
     assert len(tri_tracer.occluded(np.zeros((0, 3)), np.zeros((0, 3)))) == 0
+    assert len(tri_tracer.intersect([], [], reorder=True)) == 0   # (empty lists: no rays, as check_vectors takes them)
 
 
 @pytest.mark.parametrize("layout", ["binary", "wide"])

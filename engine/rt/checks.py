@@ -93,6 +93,7 @@ def ray_arrays(origins, directions, tmax, tmax_nan: bool = True):
     not checked for NaN here (the caller does so per block: `block_fine`, then `name_bad_tmax`)."""
     o = _ray_array(origins, "origins")
     d = _ray_array(directions, "directions")
+    o, d = (a.reshape(0, 3) if a.size == 0 and a.ndim < 2 else a for a in (o, d))   # an empty list: no rays
     if o.ndim != 2 or o.shape[1] != 3:
         raise ConfigError(f"origins must have shape (N, 3), got {o.shape}")
     if d.shape != o.shape:

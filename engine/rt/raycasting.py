@@ -25,7 +25,7 @@ from numpy.typing import ArrayLike, NDArray
 
 from ..lifetime import Closes
 from ..errors import ConfigError, SceneError
-from ..limits import MIN_DIRECTION
+from ..limits import MAX_COORD, MIN_DIRECTION
 from ..vk import Context
 from ..vk.shared import Device
 from .checks import check_mesh, check_vectors
@@ -78,12 +78,21 @@ def _flat_rays(rays) -> tuple[NDArray[np.float64], tuple]:
         raise ConfigError(f"rays must have shape (..., 6) with at least 2 dimensions (ox, oy, oz, dx, dy, dz per "
                           f"ray), got {a.shape}")
     flat = check_vectors(a.reshape(-1, 6), "rays", width=6)
+    _check_origins(flat[:, :3], "rays: ray {i} has an origin coordinate")
     zero = ~(np.abs(flat[:, 3:]) >= MIN_DIRECTION).any(axis=1)
     if zero.any():
         i = int(np.flatnonzero(zero)[0])
         raise ConfigError(f"rays: ray {i} has a zero direction or nearly ({flat[i].tolist()}; a direction needs a "
                           f"component of magnitude >= {MIN_DIRECTION:.3g})")
     return flat, a.shape[:-1]
+
+
+def _check_origins(origins, what: str) -> None:
+    """A ConfigError `what` (formatted with the ray's index i) where an origin lies beyond +-MAX_COORD."""
+    if len(origins) and not np.abs(origins).max() <= MAX_COORD:
+        i = int(np.flatnonzero((np.abs(origins) > MAX_COORD).any(axis=1))[0])
+        raise ConfigError(f"{what.format(i=i)} beyond +-{MAX_COORD:g} ({origins[i].tolist()}); the triangle test is "
+                          "exact only within that bound")
 
 
 def _flat_points(points) -> tuple[NDArray[np.float64], tuple]:
@@ -298,6 +307,7 @@ class RaycastingScene(Closes):
             out = np.zeros(len(flat), bool)
             if s.tracer is not None and len(flat) and far >= near:
                 origins = flat[:, :3] + near * flat[:, 3:] if near else flat[:, :3]
+                _check_origins(origins, "tnear: ray {i} starts (origin + tnear * direction) at a coordinate")
                 out = s.tracer.occluded(origins - s.center, flat[:, 3:], far - near)
             return out.reshape(shape)
 

@@ -898,7 +898,14 @@ def _native_cases():
     open(afile, "w").write("x")
     case("native/xdg_is_a_file")(with_env(XDG_CACHE_HOME=afile))
     case("native/xdg_missing_dir")(with_env(XDG_CACHE_HOME=os.path.join(tmp, "new", "deeper")))
-    case("native/xdg_relative")(with_env(XDG_CACHE_HOME="relative-cache-dir-fuzz"))
+    def frel():   # (relative to the working directory: a temporary one)
+        here = os.getcwd()
+        os.chdir(tmp)
+        try:
+            return with_env(XDG_CACHE_HOME="relative-cache-dir")()
+        finally:
+            os.chdir(here)
+    case("native/xdg_relative")(frel)
     case("native/cc_false")(with_env(CC="false", XDG_CACHE_HOME=os.path.join(tmp, "cc_false")))
     case("native/cc_missing")(with_env(CC="/nonexistent/cc", XDG_CACHE_HOME=os.path.join(tmp, "cc_missing")))
     case("native/cc_bad_quote")(with_env(CC='cc "-O3', XDG_CACHE_HOME=os.path.join(tmp, "cc_q")))

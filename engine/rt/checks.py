@@ -118,9 +118,9 @@ def name_bad_tmax(t: np.ndarray):
 
 def check_rays(origins, directions, tmax):
     """float32 origins (N, 3), directions (N, 3) and tmax (N,): finite origins within +-MAX_COORD (the triangle test
-    is exact there), finite directions with a component of magnitude >= MIN_DIRECTION, tmax a number that is not NaN (+inf allowed; a negative
-    one hits nothing). A ConfigError names the argument and the first bad ray. Vectorized, in blocks on the
-    shared worker pool (docs/benchmarks.md has its cost)."""
+    is exact there), finite directions with a component of magnitude >= MIN_DIRECTION, tmax a number that is not
+    NaN (+inf allowed; a negative one hits nothing). A ConfigError names the argument and the first bad ray.
+    Vectorized, in blocks on the shared worker pool (docs/benchmarks.md has its cost)."""
     o, d, t = ray_arrays(origins, directions, tmax)
     if t.ndim == 0:
         t = np.full(len(o), t, np.float32)

@@ -383,7 +383,8 @@ class CudaRays:
                        if np.isfinite(row).all() else "is not finite as float32 (NaN, infinite or beyond +-3.4e38)")
             elif what == "directions":
                 why = ("is not finite as float32 (NaN, infinite or beyond +-3.4e38)" if not np.isfinite(row).all()
-                       else f"has zero length or nearly (a direction needs a component of magnitude >= {MIN_DIRECTION:.3g})")
+                       else "has zero length or nearly (a direction needs a component of magnitude >= "
+                            f"{MIN_DIRECTION:.3g})")
             else:
                 why = "has tmax NaN"
             return ConfigError(f"{what}: ray {start + i} {why} ({row})")

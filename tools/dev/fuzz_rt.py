@@ -93,7 +93,8 @@ def base(kind, o, d, t):
             got = (h.t, h.prim)
             ref = reference_intersect(*mesh(), o, d, t)
             bad = int((h.prim != ref[1]).sum())
-        assert bad <= max(2, len(o) // 5000) or not _REF_CHECK[0], f"baseline differs from the numpy reference on {bad} rays"
+        assert bad <= max(2, len(o) // 5000) or not _REF_CHECK[0], \
+            f"baseline differs from the numpy reference on {bad} rays"
         _BASE[key] = got
     return _BASE[key]
 
@@ -786,7 +787,8 @@ def _scene_cases():
                 np.arange(500)[:, None] == 250, np.nan, pts)), ("beyond_max", pts * 1e12), ("bool", pts > 0),
                 ("complex", pts.astype(complex)), ("None", None), ("str", "pts")):
             case(f"scene/points/{m}/{label}", "err", ("query_points",))(lambda m=m, p=p: getattr(scene(), m)(p))
-        for label, p in (("fortran", np.asfortranarray(pts)), ("f16", pts.astype(np.float16)), ("be", pts.astype(">f8")),
+        for label, p in (("fortran", np.asfortranarray(pts)), ("f16", pts.astype(np.float16)),
+                         ("be", pts.astype(">f8")),
                          ("HW3", pts.reshape(20, 25, 3)), ("reversed", pts[::-1]), ("int", pts.astype(int))):
             case(f"scene/points_ok/{m}/{label}")(lambda m=m, p=p: getattr(scene(), m)(p))
     for m in ("compute_signed_distance", "compute_occupancy"):
@@ -830,7 +832,8 @@ def _scene_cases():
     def rmi():
         return engine.RayMeshIntersector(trimesh.Trimesh(*mesh(), process=False))
     for m in ("intersects_id", "intersects_location", "intersects_first", "intersects_any"):
-        for label, oo, dd, words in (("nan", np.where(np.arange(N_BIG)[:, None] == 9, np.nan, o), d, ("ray_origins", "9")),
+        nan9 = np.where(np.arange(N_BIG)[:, None] == 9, np.nan, o)
+        for label, oo, dd, words in (("nan", nan9, d, ("ray_origins", "9")),
                                      ("zero_dir", o, np.where(np.arange(N_BIG)[:, None] == N_BIG - 1, 0, d),
                                       ("ray_directions", str(N_BIG - 1))),
                                      ("mismatch", o, d[:-1], ("ray_directions",)),

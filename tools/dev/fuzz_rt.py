@@ -475,6 +475,24 @@ def _mesh_cases():
         same("intersect", tr.intersect(o, d, t, reorder=True), o, d, t)
         tr.close()
     case("mesh/tracer/unused_far_vertex")(funused)
+
+    def flayouts():   # vertices and faces in odd layouts and dtypes: the same hits as the plain mesh
+        o, d, t = rays(N_BIG)
+        want = tracer().intersect(o, d, t, reorder=False)
+        fr = f.copy()
+        fr.setflags(write=False)
+        faces = {"fortran": np.asfortranarray(f), "transposed": np.ascontiguousarray(f.T).T,
+                 "reversed": np.ascontiguousarray(f[::-1])[::-1], "u32": f.astype(np.uint32), "be": f.astype(">i8"),
+                 "i16": f.astype(np.int16), "strided": np.repeat(f, 2, axis=1)[:, ::2], "readonly": fr}
+        for name, (vv, _) in layouts(v).items():
+            if name == "f16":
+                continue   # (other vertices)
+            for fname, ff in faces.items():
+                with engine.Tracer(vv, ff) as tr:
+                    got = tr.intersect(o, d, t, reorder=True)
+                    assert np.array_equal(got.prim, want.prim) and np.array_equal(got.t, want.t), (name, fname)
+                    tr.closest(o[:100])
+    case("mesh/tracer/layouts_and_dtypes")(flayouts)
     # RaycastingScene.add_triangles
     for label, vv, ff, words in (("nan_vertex", vn, f, ("vertices",)), ("negative_index", v, fneg, ("face",)),
                                  ("index_out_of_range", v, fbig, ("face",)), ("float_faces", v, f + 0.5, ("faces",)),
@@ -823,6 +841,21 @@ def _scene_cases():
             ("E_huge_translation", lambda: P(K, np.diag([1, 1, 1, 1.0]) + np.pad([[0, 0, 0, 1e300]], ((0, 3), (0, 0))),
                                              4, 4), ("extrinsic",))):
         case(f"pinhole/{label}", "err", words)(fn)
+    def far_scene():
+        s = engine.RaycastingScene()
+        vv, ff = mesh()
+        s.add_triangles(vv.astype(np.float64) + [9e10, 0, 0], ff)   # (float64: float32 has steps of 8192 there)
+        return s
+    far = np.array([[9e10 + 0.5, 0.5, -1, 0, 0, 1], [-5e10, 0, 0, 1, 0, 0]])
+    for m in ("cast_rays", "test_occlusions", "count_intersections", "list_intersections"):
+        case(f"scene/far_scene/{m}", "err", ("rays", "ray 1"))(lambda m=m: getattr(far_scene(), m)(far))
+    for m in ("compute_closest_points", "compute_distance", "compute_signed_distance", "compute_occupancy"):
+        case(f"scene/far_scene/{m}", "err", ("query_points", "row 1"))(lambda m=m: getattr(far_scene(), m)(far[:, :3]))
+    def fnear():
+        r = far_scene().cast_rays(far[:1])
+        assert r["geometry_ids"][0] == 0, r
+    case("scene/far_scene/near_ray_hits")(fnear)
+
     def fpin_cast():   # huge coordinates from the pinhole, cast
         r = P(60, [0, 0, 0], [0, 0, 1e20], [0, 1, 0], 4, 4)
         scene().cast_rays(r)

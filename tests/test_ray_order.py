@@ -383,3 +383,29 @@ def test_the_c_steps_build_once_and_fall_back_without_a_compiler(tmp_path, monke
                          env=env, capture_output=True, text=True, timeout=300)
     assert res.stdout.strip() == "True", res.stderr
     assert path.stat().st_size > 1000
+
+
+def test_a_bad_cc_or_a_foreign_library_in_the_cache_falls_back_with_a_warning(tmp_path, monkeypatch):
+    """$CC with unbalanced quotes, and a library in the cache without native.c's functions (another library under
+    its name): a RuntimeWarning saying why, and numpy's steps; never a ValueError from shlex or an AttributeError
+    from ctypes."""
+    monkeypatch.setenv("XDG_CACHE_HOME", str(tmp_path))
+    native.library.cache_clear()
+    try:
+        monkeypatch.setenv("CC", 'cc "-O3')
+        with pytest.warns(RuntimeWarning, match="No closing quotation"):
+            assert native.library() is None
+        native.library.cache_clear()
+        monkeypatch.delenv("CC")
+        cc = shutil.which("cc") or shutil.which("gcc")
+        if cc is None:
+            pytest.skip("no C compiler here")
+        other = tmp_path / "other.c"
+        other.write_text("int not_native(void) { return 1; }\n")
+        path = native.library_path([cc])
+        path.parent.mkdir(parents=True)
+        subprocess.run([cc, "-shared", "-fPIC", "-o", str(path), str(other)], check=True, timeout=120)
+        with pytest.warns(RuntimeWarning, match="undefined symbol: hybrid_"):
+            assert native.library() is None
+    finally:
+        native.library.cache_clear()

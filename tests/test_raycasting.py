@@ -258,6 +258,42 @@ def test_create_rays_pinhole_matches_open3d():
         assert np.array_equal(RaycastingScene.create_rays_pinhole(*kw.values()), ours)
 
 
+def test_pinhole_rays_beyond_memory_or_float32_are_clear_errors():
+    """An image too large to make, and matrices or points beyond float32's range (the rays' type): errors naming
+    the argument, not numpy's MemoryError or rays of inf / zero directions."""
+    P = RaycastingScene.create_rays_pinhole
+    k = np.array([[100.0, 0, 32], [0, 100, 24], [0, 0, 1]])
+    with pytest.raises(ConfigError, match=r"width_px x height_px = 1000000 x 1000000 rays do not fit in memory"):
+        P(60.0, [0, 0, 0], [0, 0, 3], [0, 1, 0], 10**6, 10**6)
+    with pytest.raises(ConfigError, match=r"intrinsic_matrix is beyond float32's range"):
+        P(k * 1e300, np.eye(4), 4, 4)
+    far = np.eye(4)
+    far[0, 3] = 1e300
+    with pytest.raises(ConfigError, match=r"extrinsic_matrix is beyond float32's range"):
+        P(k, far, 4, 4)
+    with pytest.raises(ConfigError, match=r"eye is beyond float32's range"):
+        P(60.0, [0, 0, 0], [1e300, 0, 1], [0, 1, 0], 4, 4)
+    with pytest.raises(ConfigError, match=r"intrinsic_matrix gives ray directions beyond float32's range or too short"):
+        P(k * 1e30, np.eye(4), 4, 4)
+
+
+def test_a_ray_or_point_too_far_from_a_far_scene_names_the_argument(make):
+    """A scene far from the world origin is traced about the centre of its box: a ray origin or query point within
+    +-MAX_COORD but beyond it from there is an error naming `rays` / `query_points` and the row as given, not the
+    Tracer's `origins` with moved coordinates."""
+    box = trimesh.creation.box()
+    scene = make((box.vertices + [9e10, 0, 0], box.faces))
+    near = np.array([[9e10 - 5, 0, 0, 1, 0, 0]])
+    assert scene.cast_rays(near)["t_hit"][0] == pytest.approx(4.5, abs=1e-3)
+    far = np.array([[9e10 - 5, 0, 0, 1, 0, 0], [-5e10, 0, 0, 1, 0, 0]])
+    for query in (scene.cast_rays, scene.test_occlusions, scene.count_intersections, scene.list_intersections):
+        with pytest.raises(ConfigError, match=r"rays: ray 1's origin \[-50000000000.0, 0.0, 0.0\] lies beyond"):
+            query(far)
+    for query in (scene.compute_distance, scene.compute_closest_points, scene.compute_occupancy):
+        with pytest.raises(ConfigError, match=r"query_points: row 1 \[-50000000000.0, 0.0, 0.0\] lies beyond"):
+            query(far[:, :3])
+
+
 def test_bad_input_is_a_clear_error(make):
     box = trimesh.creation.box()
     scene = make((box.vertices, box.faces))
@@ -270,6 +306,12 @@ def test_bad_input_is_a_clear_error(make):
         scene.cast_rays(np.vstack([good, [[np.nan, 0, 0, 1, 0, 0]]]))
     with pytest.raises(ConfigError, match=r"rays: ray 0 has a zero direction"):
         scene.test_occlusions(np.array([[0, 0, 0, 0, 0, 0]], np.float32))
+    with pytest.raises(ConfigError, match=r"rays: ray 1 has a zero direction or nearly"):   # (bent in traversal)
+        scene.cast_rays(np.vstack([good, [[0, 0, -5, 0, 1e-25, 1e-25]]]))
+    with pytest.raises(ConfigError, match=r"rays: ray 1 has an origin coordinate beyond \+-1e\+11"):   # (not "origins")
+        scene.cast_rays(np.vstack([good, [[0, 1e38, -5, 0, 0, 1]]]))
+    with pytest.raises(ConfigError, match=r"tnear: ray 0's start \(origin \+ tnear \* direction\) \[.*\] lies beyond"):
+        scene.test_occlusions(good, tnear=1e30)
     with pytest.raises(ConfigError, match=r"rays must be numbers"):
         scene.list_intersections(np.array([["a"] * 6, ["b"] * 6]))
     with pytest.raises(ConfigError, match=r"tnear must be a finite number, got nan"):

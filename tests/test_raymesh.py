@@ -204,6 +204,10 @@ def test_bad_input_is_a_clear_error(make):
         ours.intersects_location([[0, 0, 0], [0, 0, 0]], [[1, 0, 0], [0, 0, 0]])
     with pytest.raises(ConfigError, match=r"ray_origins must be numbers"):
         ours.intersects_first("abc", [[1, 0, 0]])
+    far = [[0, 0, -5], [0, 0, -5], [0, 0, 1e37]]   # (beyond MAX_COORD where the box is traced: named as given)
+    for query in (ours.intersects_id, ours.intersects_first, ours.intersects_any, ours.intersects_location):
+        with pytest.raises(ConfigError, match=r"ray_origins: ray 2 lies too far from the mesh \(\[0.0, 0.0, 1e\+37\]"):
+            query(far, [[0, 0, 1]] * 3)
     with pytest.raises(ConfigError, match=r"max_hits must be a whole number >= 0, got -1"):
         ours.intersects_id([[0, 0, 0]], [[1, 0, 0]], max_hits=-1)
     with pytest.raises(ConfigError, match=r"points must have shape \(N, 3\)"):

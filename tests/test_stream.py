@@ -149,12 +149,15 @@ def test_row_blocks_on_the_worker_pool_give_the_same_answers(pair, monkeypatch):
 
 def test_the_packing_check_agrees_with_rays_fine():
     """block_fine (flat integer passes over the packed block) decides every block as rays_fine does: values at the
-    edges of MAX_COORD, zero and subnormal components (fine in a direction that has a normal one), infinities, NaN."""
-    from engine.limits import MAX_COORD
+    edges of MAX_COORD and MIN_DIRECTION, zero and subnormal components (fine in a direction that has a larger one),
+    infinities, NaN."""
+    from engine.limits import MAX_COORD, MIN_DIRECTION
     from engine.rt.checks import block_fine, rays_fine
     edge = np.float32(MAX_COORD)
+    shortest = np.float32(MIN_DIRECTION)   # (the shortest direction component that makes a direction fine)
     specials = np.array([0.0, -0.0, 1e-40, -1e-40, np.finfo(np.float32).tiny, 1.0, -3.5, np.inf, -np.inf, np.nan,
-                         edge, -edge, np.nextafter(edge, np.float32(np.inf)), np.finfo(np.float32).max],
+                         edge, -edge, np.nextafter(edge, np.float32(np.inf)), np.finfo(np.float32).max,
+                         shortest, -shortest, np.nextafter(shortest, np.float32(0)), 1e-25],
                         np.float32)
     rng = np.random.default_rng(3)
     scratch = np.empty(3 * 8, np.uint32)

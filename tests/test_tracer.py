@@ -489,6 +489,7 @@ def test_non_numeric_rays_are_config_errors(tri_tracer, origins, directions, tma
     ("directions", [0, 0, -1e300], "directions: ray 2 is not finite"),
     ("directions", [0, 0, 0], "directions: ray 2 has zero length"),
     ("directions", [0, 0, -1e-40], "directions: ray 2 has zero length"),  # subnormal in float32: 1/d overflows
+    ("directions", [0, 1e-25, -1e-25], "directions: ray 2 has zero length or nearly"),  # (traversal bends it)
 ])
 def test_non_finite_and_zero_rays_name_the_first_bad_ray(tri_tracer, arg, value, what):
     o, d = np.array(O1 * 4), np.array(D1 * 4)
@@ -501,6 +502,28 @@ def test_non_finite_and_zero_rays_name_the_first_bad_ray(tri_tracer, arg, value,
             o32, d32 = o.astype(np.float32), d.astype(np.float32)
         with pytest.raises(ConfigError, match=what):   # float32 input too
             query(o32, d32, 5.0)
+
+
+def test_directions_down_to_the_shortest_accepted_hit_what_unit_ones_hit():
+    """Directions scaled down to engine.limits.MIN_DIRECTION (their largest component) hit the triangles that the
+    unscaled ones hit, at t scaled up by as much, in a batch large enough to be reordered (shorter ones are refused:
+    the traversal missed hits below about 1e-27, silently)."""
+    from engine.limits import MIN_DIRECTION
+    s = trimesh.creation.icosphere(2)
+    rng = np.random.default_rng(5)
+    n = 40_000
+    o = rng.uniform(-2, 2, (n, 3)).astype(np.float32)
+    d = (rng.uniform(-0.5, 0.5, (n, 3)) - o).astype(np.float32)
+    d[::3, 0] = 0                              # (a zero component: 1 / d's stand-in)
+    d /= np.abs(d).max(axis=1, keepdims=True)   # largest component +-1
+    with Tracer(s.vertices, s.faces) as tr:
+        want = tr.intersect(o, d, reorder=False)
+        assert (want.prim >= 0).mean() > 0.5
+        for scale in (np.float32(2.0 ** -40), np.float32(MIN_DIRECTION)):
+            for reorder in (False, True):
+                got = tr.intersect(o, d * scale, reorder=reorder)
+                assert np.array_equal(got.prim, want.prim)
+                assert np.allclose(got.t * scale, want.t, rtol=1e-6)
 
 
 def test_bad_rays_are_found_in_any_block_of_a_large_batch(tri_tracer):
@@ -526,9 +549,10 @@ def test_tmax_nan_or_none_is_refused_inf_and_negative_are_not(tri_tracer):
             query(O1, D1, None)
     assert tri_tracer.occluded(O1, D1, np.inf)[0] and tri_tracer.occluded(O1, D1, 1e300)[0]
     assert not tri_tracer.occluded(O1, D1, -1.0)[0] and not tri_tracer.intersect(O1, D1, -1.0).hit[0]
-    tiny = tri_tracer.intersect(O1, [[0, 0, -1e-30]])      # tiny but normal directions still trace: t = 1e30
-    assert tiny.hit[0] and np.isclose(tiny.t[0], 1e30, rtol=1e-5)
+    tiny = tri_tracer.intersect(O1, [[0, 0, -2e-19]])      # short directions down to MIN_DIRECTION trace: t = 5e18
+    assert tiny.hit[0] and np.isclose(tiny.t[0], 5e18, rtol=1e-5)
     assert len(tri_tracer.occluded(np.zeros((0, 3)), np.zeros((0, 3)))) == 0
+    assert len(tri_tracer.intersect([], [], reorder=True)) == 0   # (empty lists: no rays, as check_vectors takes them)
 
 
 @pytest.mark.parametrize("layout", ["binary", "wide"])

@@ -8,7 +8,7 @@ from numbers import Integral, Real
 import numpy as np
 
 from ..errors import ConfigError, SceneError
-from ..limits import MAX_COORD
+from ..limits import MAX_COORD, MIN_DIRECTION
 from ..parallel import default_threads, run as _parallel
 
 
@@ -65,7 +65,7 @@ def check_vectors(value, what: str, width: int = 3) -> np.ndarray:
 
 
 _F32_MAX = float(np.finfo(np.float32).max)
-_F32_EXPONENT = 0x7F800000  # a float32's exponent bits: all clear for zero and subnormals
+_SHORT_BITS = 0x60000000  # bits 6 and 7 of a float32's exponent field: both clear below MIN_DIRECTION (2^-63)
 
 
 def _ray_array(value, what: str) -> np.ndarray:
@@ -93,6 +93,7 @@ def ray_arrays(origins, directions, tmax, tmax_nan: bool = True):
     not checked for NaN here (the caller does so per block: `block_fine`, then `name_bad_tmax`)."""
     o = _ray_array(origins, "origins")
     d = _ray_array(directions, "directions")
+    o, d = (a.reshape(0, 3) if a.size == 0 and a.ndim < 2 else a for a in (o, d))   # an empty list: no rays
     if o.ndim != 2 or o.shape[1] != 3:
         raise ConfigError(f"origins must have shape (N, 3), got {o.shape}")
     if d.shape != o.shape:
@@ -117,9 +118,9 @@ def name_bad_tmax(t: np.ndarray):
 
 def check_rays(origins, directions, tmax):
     """float32 origins (N, 3), directions (N, 3) and tmax (N,): finite origins within +-MAX_COORD (the triangle test
-    is exact there), finite directions not of zero length, tmax a number that is not NaN (+inf allowed; a negative
-    one hits nothing). A ConfigError names the argument and the first bad ray. Vectorized, in blocks on the
-    shared worker pool (docs/benchmarks.md has its cost)."""
+    is exact there), finite directions with a component of magnitude >= MIN_DIRECTION, tmax a number that is not
+    NaN (+inf allowed; a negative one hits nothing). A ConfigError names the argument and the first bad ray.
+    Vectorized, in blocks on the shared worker pool (docs/benchmarks.md has its cost)."""
     o, d, t = ray_arrays(origins, directions, tmax)
     if t.ndim == 0:
         t = np.full(len(o), t, np.float32)
@@ -133,31 +134,31 @@ def check_rays(origins, directions, tmax):
 
 
 def rays_fine(o: np.ndarray, d: np.ndarray) -> bool:
-    """Every origin finite and within +-MAX_COORD, every direction finite and not of zero length (fast: flat
-    reductions and one bit pass; name_bad_ray finds which ray is not)."""
+    """Every origin finite and within +-MAX_COORD, every direction finite with a component of magnitude >=
+    MIN_DIRECTION (fast: flat reductions and one bit pass; name_bad_ray finds which ray is not)."""
     of, df = o.reshape(-1), d.reshape(-1)  # flat views: numpy reduces them faster than the (N, 3) arrays
     if not (of.min() >= -MAX_COORD and of.max() <= MAX_COORD and df.min() >= -_F32_MAX and df.max() <= _F32_MAX):
         return False  # (NaN fails every comparison)
-    # zero length: every component zero or subnormal (1 / d overflows in the shader), i.e. the OR of the three
-    # components' float32 bits has a zero exponent field
+    # too short: every component below MIN_DIRECTION (zero included), i.e. the OR of the three components' float32
+    # bits has bits 6 and 7 of its exponent field clear
     u = d.view(np.uint32)
     e = np.bitwise_or(u[:, 0], u[:, 1])
     np.bitwise_or(e, u[:, 2], out=e)
-    np.bitwise_and(e, np.uint32(_F32_EXPONENT), out=e)
+    np.bitwise_and(e, np.uint32(_SHORT_BITS), out=e)
     return bool(e.min() != 0)
 
 
-# float32 bits shifted left by one (the sign bit dropped): the largest magnitude within +-MAX_COORD, and the
-# smallest normal one (2 * 0x00800000) and infinity (2 * 0x7F800000)
+# float32 bits shifted left by one (the sign bit dropped): the largest magnitude within +-MAX_COORD, and
+# MIN_DIRECTION (2 * 0x20000000) and infinity (2 * 0x7F800000)
 _COORD_BITS2 = 2 * int(np.float32(MAX_COORD).view(np.uint32) - (float(np.float32(MAX_COORD)) > MAX_COORD))
-_NORMAL_BITS2, _INF_BITS2 = 0x01000000, 0xFF000000
+_SHORT_BITS2, _INF_BITS2 = 2 * int(np.float32(MIN_DIRECTION).view(np.uint32)), 0xFF000000
 
 
 def block_fine(o: np.ndarray, d: np.ndarray, t: np.ndarray | None, scratch: np.ndarray) -> bool:
     """rays_fine(o, d), and no NaN in tmax block t (None: nothing to check), for C-contiguous float32 blocks, in a
     few flat integer passes over `scratch` (uint32, at least o.size): the magnitude bits of every origin component
-    within +-MAX_COORD, of every direction component finite and normal. A block with a zero or subnormal component
-    (which a fine direction may have) is then decided by rays_fine."""
+    within +-MAX_COORD, of every direction component finite and >= MIN_DIRECTION. A block with a smaller component
+    (zero: which a fine direction may have) is then decided by rays_fine."""
     s = scratch[:o.size]
     u = o.reshape(-1).view(np.uint32)
     np.add(u, u, out=s)   # (the sign bit drops out)
@@ -165,8 +166,8 @@ def block_fine(o: np.ndarray, d: np.ndarray, t: np.ndarray | None, scratch: np.n
         return False   # (NaN and infinity have larger bits)
     u = d.reshape(-1).view(np.uint32)
     np.add(u, u, out=s)
-    np.subtract(s, np.uint32(_NORMAL_BITS2), out=s)   # zero and subnormal wrap round to the top
-    if s.max() >= _INF_BITS2 - _NORMAL_BITS2 and not rays_fine(o, d):
+    np.subtract(s, np.uint32(_SHORT_BITS2), out=s)   # zero and those below MIN_DIRECTION wrap round to the top
+    if s.max() >= _INF_BITS2 - _SHORT_BITS2 and not rays_fine(o, d):
         return False
     return t is None or not np.isnan(t.min())
 
@@ -186,9 +187,9 @@ def name_bad_ray(o, d, origins, directions):
         i = _first(bad_d)
         raise ConfigError(f"directions: ray {i} is not finite as float32 ({np.asarray(directions)[i]}: "
                           "NaN, infinite or beyond +-3.4e38)")
-    i = _first(((d.view(np.uint32) & np.uint32(_F32_EXPONENT)) == 0).all(axis=1))
-    raise ConfigError(f"directions: ray {i} has zero length ({np.asarray(directions)[i]}; "
-                      f"a direction needs a component of magnitude >= {np.finfo(np.float32).tiny:g})")
+    i = _first(((d.view(np.uint32) & np.uint32(_SHORT_BITS)) == 0).all(axis=1))
+    raise ConfigError(f"directions: ray {i} has zero length or nearly ({np.asarray(directions)[i]}; "
+                      f"a direction needs a component of magnitude >= {MIN_DIRECTION:.3g})")
 
 
 def check_batch_size(batch_size) -> int:

@@ -22,7 +22,7 @@ from numbers import Real
 import numpy as np
 
 from ..errors import ConfigError, VulkanError
-from ..limits import MAX_COORD
+from ..limits import MAX_COORD, MIN_DIRECTION
 from ..vk import Buffer, BufferView, DescriptorSet, Recorder
 from ..vk.external import ExternalBuffer, device_uuid, external_memory_unsupported
 from ..vk.formats import INDIRECT, R32F, R32UI, RGB32F, RGBA32UI
@@ -35,7 +35,6 @@ GROUP = 64
 #: larger): a 1920x1080 frame's rays in one dispatch, 4M rays taking 176 MB of device memory
 CUDA_BATCH = 1 << 22
 DLPACK_CUDA = (2, 13)   # DLPack device types: kDLCUDA, kDLCUDAManaged
-F32_TINY = float(np.finfo(np.float32).tiny)   # a direction needs a component at least this large (not subnormal)
 #: seconds the host polls a dispatch's fence before the driver's blocking wait (which wakes later)
 SPIN_S = 0.005
 NONE = 0xFFFFFFFF   # an error word of the kernels (rays.glsl ray_errors): no bad ray
@@ -384,7 +383,8 @@ class CudaRays:
                        if np.isfinite(row).all() else "is not finite as float32 (NaN, infinite or beyond +-3.4e38)")
             elif what == "directions":
                 why = ("is not finite as float32 (NaN, infinite or beyond +-3.4e38)" if not np.isfinite(row).all()
-                       else f"has zero length (a direction needs a component of magnitude >= {F32_TINY:g})")
+                       else "has zero length or nearly (a direction needs a component of magnitude >= "
+                            f"{MIN_DIRECTION:.3g})")
             else:
                 why = "has tmax NaN"
             return ConfigError(f"{what}: ray {start + i} {why} ({row})")

@@ -63,7 +63,11 @@ def library() -> ctypes.CDLL | None:
     if os.environ.get("HYBRID_NATIVE", "1") == "0":
         return None
     found = shutil.which("cc") or shutil.which("gcc")
-    cc = shlex.split(os.environ["CC"]) if os.environ.get("CC") else [found] if found else []
+    try:
+        cc = shlex.split(os.environ["CC"]) if os.environ.get("CC") else [found] if found else []
+    except ValueError as e:   # (unbalanced quotes in $CC)
+        _fall_back(f"$CC {os.environ['CC']!r}", f"$CC: {e}")
+        return None
     path = library_path(cc) if cc and SOURCE.exists() else None
     if path is None:
         return None
@@ -71,16 +75,26 @@ def library() -> ctypes.CDLL | None:
         if not path.exists():
             _build(cc, path)
         try:
-            lib = ctypes.CDLL(str(path))
-        except OSError:   # a damaged file in the cache: built again, once
+            lib = _load(path)
+        except (OSError, AttributeError):   # a damaged file in the cache, or another library: built again, once
             _build(cc, path)
-            lib = ctypes.CDLL(str(path))
-    except (OSError, subprocess.SubprocessError) as e:   # (a compiler that fails: said once, then numpy's steps)
+            lib = _load(path)
+    except (OSError, AttributeError, subprocess.SubprocessError) as e:   # (said once, then numpy's steps)
         detail = getattr(e, "stderr", None) or str(e)
         detail = detail.decode(errors="replace") if isinstance(detail, bytes) else detail
-        warnings.warn(f"hybrid: could not build or load {SOURCE.name} with {' '.join(cc)} ({detail.strip()[-300:]}); "
-                      "ray reordering runs its numpy steps", RuntimeWarning, stacklevel=2)
+        _fall_back(" ".join(cc), detail)
         return None
+    return lib
+
+
+def _fall_back(cc: str, detail: str) -> None:
+    warnings.warn(f"hybrid: could not build or load {SOURCE.name} with {cc} ({detail.strip()[-300:]}); "
+                  "ray reordering runs its numpy steps", RuntimeWarning, stacklevel=3)
+
+
+def _load(path: Path) -> ctypes.CDLL:
+    """The library at `path` with its functions' signatures (AttributeError where one is missing)."""
+    lib = ctypes.CDLL(str(path))
     i64 = ctypes.c_int64
     lib.hybrid_ray_keys.argtypes = [_F32, i64, _F32, _F32, _F32, _U32, _U32, ctypes.c_void_p, i64, i64, _U64]
     lib.hybrid_rows_of.argtypes = [_U64, i64]

@@ -9,10 +9,12 @@ import numpy as np
 from numpy.typing import NDArray
 
 from ..errors import ConfigError
+from ..limits import MIN_DIRECTION
 
 INTRINSIC_FORM = ("intrinsic_matrix", "extrinsic_matrix", "width_px", "height_px")
 FOV_FORM = ("fov_deg", "center", "eye", "up", "width_px", "height_px")
 WHO = "create_rays_pinhole"
+_F32_MAX = float(np.finfo(np.float32).max)   # (the rays are float32)
 
 
 def _numpy(value):
@@ -29,6 +31,8 @@ def _matrix(value, name: str, shape: tuple) -> NDArray[np.float64]:
         raise ConfigError(f"{WHO}: {name} must have shape {shape}, got {a.shape}")
     if not np.isfinite(a).all():
         raise ConfigError(f"{WHO}: {name} is not finite ({a.tolist()})")
+    if not np.abs(a).max() <= _F32_MAX:
+        raise ConfigError(f"{WHO}: {name} is beyond float32's range ({a.tolist()})")
     return a
 
 
@@ -85,10 +89,25 @@ def pinhole_rays(*args, **kwargs) -> NDArray[np.float32]:
         focal = 0.5 * width / np.tan(np.radians(float(_numpy(fov))) / 2)   # fov_deg is horizontal
         k = np.array([[focal, 0, width / 2], [0, focal, height / 2], [0, 0, 1]])
         origin = eye
-    u, v = np.meshgrid(np.arange(width) + 0.5, np.arange(height) + 0.5)   # pixel centres, row 0 first
-    pix = np.stack([u, v, np.ones_like(u)], axis=-1)
-    directions = pix @ (r.T @ np.linalg.inv(k)).T
-    out = np.empty((height, width, 6), np.float32)
+    where = "extrinsic_matrix" if names is INTRINSIC_FORM else "eye"
+    if not np.all(np.abs(origin) <= _F32_MAX):
+        raise ConfigError(f"{WHO}: {where} puts the camera beyond float32's range ({origin.tolist()})")
+    to_world = r.T @ np.linalg.inv(k)
+    corners = np.array([[0, 0, 1], [width, 0, 1], [0, height, 1], [width, height, 1]], np.float64) @ to_world.T
+    with np.errstate(over="ignore", under="ignore"):
+        short = ~(np.abs(corners.astype(np.float32)) >= MIN_DIRECTION).any(axis=1)
+    if not np.isfinite(corners.astype(np.float32)).all() or short.any():
+        raise ConfigError(f"{WHO}: {'intrinsic_matrix' if names is INTRINSIC_FORM else 'fov_deg'} gives ray "
+                          f"directions beyond float32's range or too short ({corners.tolist()})")
+    try:
+        out = np.empty((height, width, 6), np.float32)
+        u, v = np.meshgrid(np.arange(width) + 0.5, np.arange(height) + 0.5)   # pixel centres, row 0 first
+        pix = np.stack([u, v, np.ones_like(u)], axis=-1)
+        directions = pix @ to_world.T
+    except MemoryError:
+        raise ConfigError(f"{WHO}: width_px x height_px = {width} x {height} rays do not fit in memory "
+                          f"({width * height * 24 / 2**30:.3g} GiB of float32 rays, several times that while made)") \
+            from None
     out[..., :3] = origin
     out[..., 3:] = directions
     return out

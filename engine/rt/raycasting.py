@@ -25,6 +25,7 @@ from numpy.typing import ArrayLike, NDArray
 
 from ..lifetime import Closes
 from ..errors import ConfigError, SceneError
+from ..limits import MAX_COORD, MIN_DIRECTION
 from ..vk import Context
 from ..vk.shared import Device
 from .checks import check_mesh, check_vectors
@@ -77,11 +78,34 @@ def _flat_rays(rays) -> tuple[NDArray[np.float64], tuple]:
         raise ConfigError(f"rays must have shape (..., 6) with at least 2 dimensions (ox, oy, oz, dx, dy, dz per "
                           f"ray), got {a.shape}")
     flat = check_vectors(a.reshape(-1, 6), "rays", width=6)
-    zero = ~(np.abs(flat[:, 3:]) > 0).any(axis=1)
+    _check_origins(flat[:, :3], "rays: ray {i} has an origin coordinate")
+    zero = ~(np.abs(flat[:, 3:]) >= MIN_DIRECTION).any(axis=1)
     if zero.any():
         i = int(np.flatnonzero(zero)[0])
-        raise ConfigError(f"rays: ray {i} has a zero direction ({flat[i].tolist()})")
+        raise ConfigError(f"rays: ray {i} has a zero direction or nearly ({flat[i].tolist()}; a direction needs a "
+                          f"component of magnitude >= {MIN_DIRECTION:.3g})")
     return flat, a.shape[:-1]
+
+
+def _check_origins(origins, what: str) -> None:
+    """A ConfigError `what` (formatted with the ray's index i) where an origin lies beyond +-MAX_COORD."""
+    if len(origins) and not np.abs(origins).max() <= MAX_COORD:
+        i = int(np.flatnonzero((np.abs(origins) > MAX_COORD).any(axis=1))[0])
+        raise ConfigError(f"{what.format(i=i)} beyond +-{MAX_COORD:g} ({origins[i].tolist()}); the triangle test is "
+                          "exact only within that bound")
+
+
+def _traced(s: _Built, origins, what: str):
+    """`origins` in the frame the scene is traced in (less its centre), or a ConfigError `what` (formatted with the
+    index i) for the first that lies beyond +-MAX_COORD there (a scene far from the world origin is traced about
+    the centre of its box)."""
+    local = origins - s.center
+    if len(local) and not np.abs(local).max() <= MAX_COORD:
+        i = int(np.flatnonzero(~(np.abs(local) <= MAX_COORD).all(axis=1))[0])
+        raise ConfigError(f"{what.format(i=i)} {origins[i].tolist()} lies beyond +-{MAX_COORD:g} of the centre of the "
+                          f"scene's box {s.center.tolist()}, where it is traced; the triangle test is exact only "
+                          "within that bound")
+    return local
 
 
 def _flat_points(points) -> tuple[NDArray[np.float64], tuple]:
@@ -260,7 +284,7 @@ class RaycastingScene(Closes):
                    "primitive_ids": np.full(n, INVALID_ID, np.uint32), "primitive_uvs": np.zeros((n, 2), np.float32),
                    "primitive_normals": np.zeros((n, 3), np.float32)}
             if s.tracer is not None and n:
-                hits = s.tracer.intersect(flat[:, :3] - s.center, flat[:, 3:])
+                hits = s.tracer.intersect(_traced(s, flat[:, :3], "rays: ray {i}'s origin"), flat[:, 3:])
                 hit = np.flatnonzero(hits.prim >= 0)
                 prim = hits.prim[hit]
                 out["t_hit"][hit] = hits.t[hit]
@@ -296,7 +320,8 @@ class RaycastingScene(Closes):
             out = np.zeros(len(flat), bool)
             if s.tracer is not None and len(flat) and far >= near:
                 origins = flat[:, :3] + near * flat[:, 3:] if near else flat[:, :3]
-                out = s.tracer.occluded(origins - s.center, flat[:, 3:], far - near)
+                what = "tnear: ray {i}'s start (origin + tnear * direction)" if near else "rays: ray {i}'s origin"
+                out = s.tracer.occluded(_traced(s, origins, what), flat[:, 3:], far - near)
             return out.reshape(shape)
 
     def _cast_cuda(self, rays):
@@ -337,7 +362,7 @@ class RaycastingScene(Closes):
                   np.zeros(0, np.float32))]
         if s.tracer is None or not n:
             return [np.concatenate(c) for c in zip(*found)]
-        o, d = flat[:, :3] - s.center, flat[:, 3:]
+        o, d = _traced(s, flat[:, :3], "rays: ray {i}'s origin"), flat[:, 3:]
         base = s.step / np.linalg.norm(d, axis=1)   # the step in each ray's t units
         step = base.copy()
         start = np.zeros(n)                          # t where each ray is cast from next
@@ -400,7 +425,7 @@ class RaycastingScene(Closes):
         s = self._scene()
         if s.tracer is None or not len(flat):
             return s, None
-        return s, s.tracer.closest(flat - s.center)
+        return s, s.tracer.closest(_traced(s, flat, "query_points: row {i}"))
 
     def compute_closest_points(self, query_points: ArrayLike, nthreads: int = 0) -> dict[str, NDArray]:
         """The nearest point of the scene's triangles to each query point (a GPU BVH walk, engine/rt/closest.py).
@@ -451,6 +476,7 @@ class RaycastingScene(Closes):
         where most of its rays cross the triangles an odd number of times (`count_intersections`' counting)."""
         if not len(flat):
             return np.zeros(0, bool)
+        _traced(self._scene(), flat, "query_points: row {i}")   # (named by row, not by one of its rays)
         dirs = vote_directions(nsamples)
         rays = np.concatenate([np.repeat(flat, nsamples, axis=0), np.tile(dirs, (len(flat), 1))], axis=1)
         counts = np.bincount(self._all_hits(rays)[0], minlength=len(rays)).reshape(len(flat), nsamples)

@@ -23,6 +23,7 @@ from numpy.typing import ArrayLike, NDArray
 
 from ..lifetime import Closes
 from ..errors import ConfigError, SceneError
+from ..limits import MAX_COORD
 from ..vk import Context
 from ..vk.shared import Device
 from .checks import check_mesh, check_vectors
@@ -57,6 +58,19 @@ def _planes_lines(p0, normal, origins, directions):
     valid = np.abs(along) > PARALLEL_COS
     dist = np.einsum("ij,ij->i", p0[valid] - origins[valid], normal[valid]) / along[valid]
     return origins[valid] + directions[valid] * dist[:, None], valid
+
+
+def _check_frame(g: _Geometry, o: NDArray[np.float64]) -> None:
+    """A ConfigError naming the first ray (of the caller's) whose origin lies beyond +-MAX_COORD in the frame the
+    mesh is traced in (centred on it, and scaled with scale_to_box), rather than the Tracer's error on the moved
+    origins of a subset of the rays."""
+    local = np.abs((o - g.center) * g.factor)
+    if len(o) and not local.max() <= MAX_COORD:
+        i = int(np.flatnonzero(~(local <= MAX_COORD).all(axis=1))[0])
+        raise ConfigError(f"ray_origins: ray {i} lies too far from the mesh ({o[i].tolist()}: beyond +-{MAX_COORD:g} "
+                          f"in the frame it is traced in, centred on the mesh"
+                          f"{' and scaled to 100 units across' if g.factor != 1 else ''}); the triangle test is exact "
+                          "only within that bound")
 
 
 class RayMeshIntersector(Closes):
@@ -178,6 +192,7 @@ class RayMeshIntersector(Closes):
             g = self._geometry()
             tris, rays, locs = [np.zeros(0, np.int64)], [np.zeros(0, np.int64)], [np.zeros((0, 3))]
             if g.tracer is not None and len(o):
+                _check_frame(g, o)
                 self._walk(g, o, d, bool(multiple_hits), int(max_hits), bool(multiple_hits or return_locations),
                            tris, rays, locs)
             out = (np.concatenate(tris), np.concatenate(rays))
@@ -232,6 +247,7 @@ class RayMeshIntersector(Closes):
             g = self._geometry()
             if g.tracer is None or not len(o):
                 return np.full(len(o), -1, np.int64)
+            _check_frame(g, o)
             return self._first(g, o, d)
 
     def intersects_any(self, ray_origins: ArrayLike, ray_directions: ArrayLike) -> NDArray[np.bool_]:
@@ -241,6 +257,7 @@ class RayMeshIntersector(Closes):
             g = self._geometry()
             if g.tracer is None or not len(o):
                 return np.zeros(len(o), bool)
+            _check_frame(g, o)
             return g.tracer.occluded((o - g.center) * g.factor, d)
 
     def contains_points(self, points: ArrayLike) -> NDArray[np.bool_]:

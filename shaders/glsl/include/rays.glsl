@@ -73,12 +73,12 @@ layout(constant_id = 30) const bool CHECK_RAYS = false;
 layout(std430, set = 0, binding = 12) buffer RayErrors { uint first_bad[4]; } ray_errors;
 
 // Whether ray i is fine: origins finite and within +-MAX_COORD, directions finite and with a component of magnitude
-// >= the smallest normal float32 (1 / d would overflow), tmax not NaN. Records the ray when not.
+// >= 2^-63 (engine.limits.MIN_DIRECTION: bvh_make_ray_ bends shorter ones), tmax not NaN. Records the ray when not.
 bool ray_fine(uint i, vec3 o, vec3 d, float tmax) {
     vec3 ad = abs(d);
     bool o_ok = all(lessThanEqual(abs(o), vec3(RAY_MAX_COORD)));   // (false for NaN)
     bool d_ok = all(lessThanEqual(ad, vec3(uintBitsToFloat(0x7f7fffffu))))
-                && any(greaterThanEqual(ad, vec3(uintBitsToFloat(0x00800000u))));
+                && any(greaterThanEqual(ad, vec3(uintBitsToFloat(0x20000000u))));
     bool t_ok = !isnan(tmax);
     if (o_ok && d_ok && t_ok) return true;
     if (!o_ok) atomicMin(ray_errors.first_bad[0], i);

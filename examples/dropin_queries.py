@@ -16,8 +16,10 @@ grey, near = light; mirrored left-right, as Open3D's field-of-view form of `crea
 Open3D, depth_open3d.png.
 """
 import argparse
+import importlib
 import sys
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 import trimesh
@@ -30,7 +32,9 @@ def default_mesh() -> trimesh.Trimesh:
     sphere = trimesh.creation.icosphere(subdivisions=3, radius=1.0)
     box = trimesh.creation.box(extents=[1.2, 1.2, 1.2])
     box.apply_translation([2.2, 0.0, 0.0])
-    return trimesh.util.concatenate([sphere, box])
+    mesh = trimesh.util.concatenate([sphere, box])
+    assert isinstance(mesh, trimesh.Trimesh)
+    return mesh
 
 
 def camera(mesh: trimesh.Trimesh, width: int, height: int) -> np.ndarray:
@@ -57,7 +61,9 @@ def depth_png(t_hit: np.ndarray, path: Path) -> None:
 def trimesh_side(mesh: trimesh.Trimesh, rays: np.ndarray, points: np.ndarray, sample: int) -> None:
     origins, directions = rays[:, :3], rays[:, 3:]
     mine = mesh.copy()
-    mine.ray = engine.RayMeshIntersector(mine)                 # the drop-in: mesh.ray now runs on the GPU
+    ours = engine.RayMeshIntersector(mine)
+    # the drop-in: mesh.ray now runs on the GPU (trimesh annotates .ray with its own classes: the ignore)
+    mine.ray = ours  # type: ignore[assignment]
     theirs = mesh.ray                                          # trimesh's own: Embree where installed, else numpy
     pick = np.random.default_rng(0).choice(len(origins), min(sample, len(origins)), replace=False)
     o, d = origins[pick], directions[pick]
@@ -67,7 +73,7 @@ def trimesh_side(mesh: trimesh.Trimesh, rays: np.ndarray, points: np.ndarray, sa
         ref = theirs.intersects_first(o, d)
     except ImportError as e:   # (trimesh's numpy intersector needs rtree)
         print(f"trimesh's own intersector is not usable here ({e}): ours alone")
-        mine.ray.close()
+        ours.close()
         return
     print(f"trimesh's own intersector: {type(theirs).__module__}")
     agree("trimesh intersects_first", first == ref)
@@ -81,7 +87,7 @@ def trimesh_side(mesh: trimesh.Trimesh, rays: np.ndarray, points: np.ndarray, sa
     p = points[:sample]
     inside = mine.contains(p)                                  # trimesh's parity test, through mesh.ray
     agree("trimesh contains", inside == theirs.contains_points(p))
-    mine.ray.close()
+    ours.close()
 
 
 def open3d_side(mesh: trimesh.Trimesh, rays: np.ndarray, points: np.ndarray, out: Path) -> None:
@@ -93,7 +99,7 @@ def open3d_side(mesh: trimesh.Trimesh, rays: np.ndarray, points: np.ndarray, out
     depth_png(ans["t_hit"], out / "depth.png")
     print(f"{'ours cast_rays':<34} {ans['t_hit'].size:>9,} rays: {np.isfinite(ans['t_hit']).mean():.1%} hit")
     try:
-        import open3d as o3d
+        o3d: Any = importlib.import_module("open3d")   # (optional: typed loosely, its stubs take no numpy arrays)
     except ImportError:
         print("Open3D is not installed: ours alone (pip install open3d to compare)")
         return

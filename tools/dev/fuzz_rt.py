@@ -771,22 +771,17 @@ def _scene_cases():
     for where, i in (("first", 0), ("middle", N_BIG // 2), ("last", N_BIG - 1)):
         for label, col, x in (("nan_origin", 0, np.nan), ("inf_dir", 4, np.inf), ("zero_dir", None, 0.0),
                               ("huge_origin", 1, 1e38)):
-            def fb(i=i, col=col, x=x):
+            def bad_rays(i=i, col=col, x=x):
                 rr = r6.copy()
                 if col is None:
                     rr[i, 3:] = 0
                 else:
                     rr[i, col] = x
-                scene().cast_rays(rr)
-            case(f"scene/bad_value/{label}/{where}", "err", ("rays", f" {i} "))(fb)
-            def fbo(i=i, col=col, x=x):
-                rr = r6.copy()
-                if col is None:
-                    rr[i, 3:] = 0
-                else:
-                    rr[i, col] = x
-                scene().test_occlusions(rr)
-            case(f"scene/bad_value_occl/{label}/{where}", "err", ("ray", f" {i}"))(fbo)
+                return rr
+            case(f"scene/bad_value/{label}/{where}", "err", ("rays", f" {i} "))(
+                lambda f=bad_rays: scene().cast_rays(f()))
+            case(f"scene/bad_value_occl/{label}/{where}", "err", ("ray", f" {i}"))(
+                lambda f=bad_rays: scene().test_occlusions(f()))
     for label, kw, ok in (("tnear_nan", dict(tnear=np.nan), False), ("tfar_nan", dict(tfar=np.nan), False),
                           ("tnear_inf", dict(tnear=np.inf), False), ("tfar_-inf", dict(tfar=-np.inf), False),
                           ("tnear_str", dict(tnear="0"), False), ("tfar_bool", dict(tfar=True), False),

@@ -17,18 +17,21 @@ REFERENCE_DIR = Path(__file__).resolve().parent / "reference"
 VALIDATE = os.environ.get("HYBRID_VALIDATION", "1") != "0"
 
 
-@pytest.fixture(autouse=True)
-def _validation_as_configured(monkeypatch):
+@pytest.fixture(autouse=True, scope="session")
+def _validation_as_configured():
     """With HYBRID_VALIDATION=0, objects a test makes with validation=True run without the layer too (the tests
-    then check everything but the layer's messages)."""
+    then check everything but the layer's messages). Session-wide, so that module-scoped fixtures get it too."""
     if VALIDATE:
+        yield
         return
     from engine.vk import context
     real = context.Context.__init__
 
     def init(self, device=None, validation=None, *args, **kw):
         real(self, device, False, *args, **kw)
-    monkeypatch.setattr(context.Context, "__init__", init)
+    with pytest.MonkeyPatch.context() as mp:
+        mp.setattr(context.Context, "__init__", init)
+        yield
 
 
 def pytest_addoption(parser):

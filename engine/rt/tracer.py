@@ -327,9 +327,9 @@ class Tracer(Closes):
         self.specs = specs   # by name, per query kind
         self.two_pass = {kind: bool(s.get("BVH_REG_STACK") and s.get("BVH_STACK_RETRY")) for kind, s in specs.items()}
         self._io_bindings = list(interface.set(0).values())
-        # slots with room for the retry list on every CPU device (the only ones with that pass), whatever this
-        # tree's depth: all Tracers of the device share them
-        self._retry_list = is_cpu(ctx)
+        # slots with room for the retry list on every CPU device (the ones whose traversal has that pass), whatever
+        # this tree's depth: all Tracers of the device share them; elsewhere where a spec asks for the pass
+        self._retry_list = is_cpu(ctx) or any(self.two_pass.values())
         self._align = step
         # the slots' buffers are the device's (SlotPool); this Tracer's sets and commands over them: `take_slots`
         self._bindings: dict = {}    # SlotSet -> [Slot]

@@ -110,6 +110,13 @@ def ray_arrays(origins, directions, tmax, tmax_nan: bool = True):
     return o, d, t
 
 
+def first_beyond(points: np.ndarray, bound: float) -> int | None:
+    """The first row of (N, k) `points` with a coordinate beyond +-bound (or NaN), or None."""
+    if not len(points) or np.abs(points).max() <= bound:
+        return None
+    return int(np.flatnonzero(~(np.abs(points) <= bound).all(axis=1))[0])
+
+
 def name_bad_tmax(t: np.ndarray):
     """The ConfigError for the first NaN of an (N,) tmax, if it has one."""
     if t.size and np.isnan(t.min()):  # min propagates NaN

@@ -28,7 +28,7 @@ from ..errors import ConfigError, SceneError
 from ..limits import MAX_COORD, MIN_DIRECTION
 from ..vk import Context
 from ..vk.shared import Device
-from .checks import check_mesh, check_vectors
+from .checks import check_mesh, check_vectors, first_beyond
 from .closest import check_points
 from .cuda_arrays import on_cuda, scene_hits, scene_rays
 from .pinhole import _numpy, pinhole_rays
@@ -89,8 +89,8 @@ def _flat_rays(rays) -> tuple[NDArray[np.float64], tuple]:
 
 def _check_origins(origins, what: str) -> None:
     """A ConfigError `what` (formatted with the ray's index i) where an origin lies beyond +-MAX_COORD."""
-    if len(origins) and not np.abs(origins).max() <= MAX_COORD:
-        i = int(np.flatnonzero((np.abs(origins) > MAX_COORD).any(axis=1))[0])
+    i = first_beyond(origins, MAX_COORD)
+    if i is not None:
         raise ConfigError(f"{what.format(i=i)} beyond +-{MAX_COORD:g} ({origins[i].tolist()}); the triangle test is "
                           "exact only within that bound")
 
@@ -100,8 +100,8 @@ def _traced(s: _Built, origins, what: str):
     index i) for the first that lies beyond +-MAX_COORD there (a scene far from the world origin is traced about
     the centre of its box)."""
     local = origins - s.center
-    if len(local) and not np.abs(local).max() <= MAX_COORD:
-        i = int(np.flatnonzero(~(np.abs(local) <= MAX_COORD).all(axis=1))[0])
+    i = first_beyond(local, MAX_COORD)
+    if i is not None:
         raise ConfigError(f"{what.format(i=i)} {origins[i].tolist()} lies beyond +-{MAX_COORD:g} of the centre of the "
                           f"scene's box {s.center.tolist()}, where it is traced; the triangle test is exact only "
                           "within that bound")

@@ -26,7 +26,7 @@ from ..errors import ConfigError, SceneError
 from ..limits import MAX_COORD
 from ..vk import Context
 from ..vk.shared import Device
-from .checks import check_mesh, check_vectors
+from .checks import check_mesh, check_vectors, first_beyond
 from .tracer import Tracer
 
 #: the step past a hit before a ray is cast again: max(STEP_FLOOR, STEP_FACTOR * mesh.scale) world units
@@ -64,9 +64,8 @@ def _check_frame(g: _Geometry, o: NDArray[np.float64]) -> None:
     """A ConfigError naming the first ray (of the caller's) whose origin lies beyond +-MAX_COORD in the frame the
     mesh is traced in (centred on it, and scaled with scale_to_box), rather than the Tracer's error on the moved
     origins of a subset of the rays."""
-    local = np.abs((o - g.center) * g.factor)
-    if len(o) and not local.max() <= MAX_COORD:
-        i = int(np.flatnonzero(~(local <= MAX_COORD).all(axis=1))[0])
+    i = first_beyond((o - g.center) * g.factor, MAX_COORD)
+    if i is not None:
         raise ConfigError(f"ray_origins: ray {i} lies too far from the mesh ({o[i].tolist()}: beyond +-{MAX_COORD:g} "
                           f"in the frame it is traced in, centred on the mesh"
                           f"{' and scaled to 100 units across' if g.factor != 1 else ''}); the triangle test is exact "

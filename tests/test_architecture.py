@@ -26,7 +26,7 @@ ENGINE = ROOT / "engine"
 #: Bottom to top. A module imports only from its own package or from lower layers (plus the PEERS edges).
 LAYERS = [
     ["engine.errors", "engine._version", "engine.lifetime"],
-    ["engine.limits", "engine.parallel", "engine.files", "engine.data"],
+    ["engine.limits", "engine.parallel", "engine.files", "engine.data", "engine.native"],
     ["engine.vk", "engine.bvh", "engine.scene", "engine.shaders"],
     ["engine.gpu"],
     ["engine.passes"],

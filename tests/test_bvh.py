@@ -672,21 +672,30 @@ def test_builds_from_several_threads_with_different_thread_counts():
     assert not errors and len(got) == 4 and all(g == want for g in got)
 
 
-def test_octant_sah_in_blocks_matches_one_call(monkeypatch):
-    """The 2^3-grid SAH, run in blocks of nodes (cache-sized temporaries), gives bit for bit what one call over all
-    the nodes gives, and its edge and half boxes are the unions of the right cells (x bit 4, y 2, z 1)."""
+def test_octant_sah_in_blocks_and_in_c_matches_one_call(monkeypatch):
+    """The 2^3-grid SAH, run in blocks of nodes (cache-sized temporaries) or in C, gives bit for bit what one call
+    over all the nodes gives, and its edge and half boxes are the unions of the right cells (x bit 4, y 2, z 1)."""
+    from engine import native
     from engine.bvh import binning
 
     rng = np.random.default_rng(5)
     k = 5000
     cnt = rng.integers(0, 7, (8, k))
     lo = rng.uniform(-10, 10, (3, 8, k)).astype(np.float32)
+    lo[:, :, ::2] = np.round(lo[:, :, ::2])            # lattice boxes: equal areas, ties between planes
     cbox = np.concatenate([lo, -(lo + rng.uniform(0, 3, (3, 8, k)).astype(np.float32))])
+    cbox[3:, :, ::2] = np.round(cbox[3:, :, ::2])
     cbox[:, cnt == 0] = np.inf                       # empty cells
     cbox[0, 3, 7] = -0.0                              # a signed zero among the minima
+    cbox[:, :, 1::3][cbox[:, :, 1::3] == 0] = -0.0
     exact = rng.random(k) < 0.7
     cap = rng.integers(4, 40, k)
     cap2 = rng.integers(2, 20, k)
+    wide = np.full((6, 8 * k + 64), np.nan, np.float32)  # the cells as a slice of a pass's cell boxes (strided rows)
+    wide[:, 32:32 + 8 * k] = cbox.reshape(6, 8 * k)
+    lib = native.library
+    in_c = binning.octant_sah(cnt, wide[:, 32:32 + 8 * k], exact, cap, cap2, 4)
+    monkeypatch.setattr(native, "library", lambda: None)
     monkeypatch.setattr(binning, "OCTANT_BLOCK", 1 << 30)
     whole = binning.octant_sah(cnt, cbox, exact, cap, cap2, 4)
     monkeypatch.setattr(binning, "OCTANT_BLOCK", 700)
@@ -694,6 +703,10 @@ def test_octant_sah_in_blocks_matches_one_call(monkeypatch):
     for a, b in zip(whole, blocked):
         assert a.shape == b.shape and a.dtype == b.dtype
         assert np.ascontiguousarray(a).tobytes() == np.ascontiguousarray(b).tobytes()
+    if lib() is not None:  # engine/native.c's version, node by node: the same numbers
+        for a, b in zip(whole, in_c):
+            assert a.shape == b.shape and a.dtype == b.dtype
+            assert np.ascontiguousarray(a).tobytes() == np.ascontiguousarray(b).tobytes()
     # _edges and _faces against the tables that define their order (cells lo / hi of each edge, edges of each half)
     lo_cells = np.array([c for _, c in binning._EDGES])
     hi_cells = np.array([c | binning._BITS[d] for d, c in binning._EDGES])
@@ -706,3 +719,179 @@ def test_octant_sah_in_blocks_matches_one_call(monkeypatch):
     assert np.minimum(ebox[:, e0], ebox[:, e1]).tobytes() == fbox.tobytes()
     assert np.array_equal(ecnt[e0] + ecnt[e1], fcnt)
     assert np.array_equal(fcnt[0, 0], cnt[:4].sum(axis=0))   # the x half 0: cells 0-3
+
+
+def _same_tree(a, b):
+    return (a.nodes.tobytes() == b.nodes.tobytes() and a.tris.tobytes() == b.tris.tobytes()
+            and np.array_equal(a.prim_ids, b.prim_ids))
+
+
+@pytest.mark.parametrize("mesh", ["sphere", "soup", "degenerates", "signed_zeros", "nan", "spheres", "scan"])
+def test_the_c_steps_give_numpy_s_tree_byte_for_byte(mesh, monkeypatch):
+    """The passes' cell statistics and the triangle records in C (engine/native.c) give the tree and records of
+    numpy's steps, byte for byte: small meshes, zero-area and NaN triangles, signed zeros (ties of the minima), and
+    meshes large enough for the sampled top and several chunk groups."""
+    from engine import native
+    from engine.bench.scenes import build_mesh
+
+    if native.library() is None:
+        pytest.skip("no C compiler here: the build runs its numpy steps")
+    v, f = {"sphere": lambda: sphere(4), "soup": lambda: soup(20_000), "degenerates": with_degenerates,
+            "signed_zeros": lambda: soup(5000), "nan": lambda: soup(3000),
+            "spheres": lambda: build_mesh("spheres", 150_000, seed=3),
+            "scan": lambda: build_mesh("scan", 150_000, seed=3)}[mesh]()
+    v = np.array(v, np.float32)
+    if mesh == "signed_zeros":  # on a coarse lattice, half of the zero coordinates negative: ties decide the sign
+        v = np.round(v * 2) / 2
+        zero = np.flatnonzero(v.reshape(-1) == 0)
+        assert zero.size > 100
+        v.reshape(-1)[zero[::2]] = -0.0
+    if mesh == "nan":
+        v[::97] = np.nan
+    calls, records = [], []
+    stats, recs = native.cell_stats, native.triangle_records
+    monkeypatch.setattr(native, "cell_stats", lambda *a: calls.append(stats(*a)) or calls[-1])
+    monkeypatch.setattr(native, "triangle_records", lambda *a: records.append(recs(*a)) or records[-1])
+    in_c = build_bvh(v, f, threads=2)
+    assert calls and all(calls)  # every pass ran in C
+    assert records and None not in records
+    n_zero = sum(records)
+    monkeypatch.setattr(native, "library", lambda: None)
+    in_numpy = build_bvh(v, f, threads=2)
+    assert _same_tree(in_c, in_numpy)
+    assert in_c.stats["degenerate"] == in_numpy.stats["degenerate"] == n_zero
+    if mesh == "degenerates":
+        assert in_c.stats["degenerate"] > 0
+
+
+def test_c_cell_statistics_match_numpy_s_and_refuse_what_they_cannot_compute():
+    """One pass's statistics, in C and in numpy: the same cells, counts and boxes for sampled and unsampled nodes
+    on 2^3 (cell-major) and 4^3 grids; a NaN cell coordinate or a NaN box gives False (numpy's steps then run)."""
+    from engine import native
+    from engine.bvh import binning
+
+    if native.library() is None:
+        pytest.skip("no C compiler here: the build runs its numpy steps")
+    rng = np.random.default_rng(11)
+    n, k = 20_000, 40
+    cen = rng.uniform(-5, 5, (3, n)).astype(np.float32)
+    lo = cen - rng.uniform(0, 1, (3, n)).astype(np.float32)
+    box = np.concatenate([lo, -(cen + rng.uniform(0, 1, (3, n)).astype(np.float32))])
+    box[0, ::50] = 0.0
+    box[0, 1::50] = -0.0                                  # ties between signed zeros
+    tid = np.sort(rng.choice(n, 15_000, replace=False)).astype(np.int64)
+    slot = rng.integers(0, k, tid.size)
+    grid = np.where(np.arange(k) % 2, 4, 2).astype(np.int32)
+    inv = (grid / np.float32(10.0) * np.ones((3, 1), np.float32)).astype(np.float32)
+    off = np.full((3, k), 5.0, np.float32) * inv
+    gmax = grid - 1
+    cell_base = np.cumsum(np.r_[0, grid[:-1].astype(np.int64) ** 3])
+    n_cells = int(cell_base[-1] + grid[-1] ** 3)
+    for mask in (None, np.where(np.arange(k) % 3 == 0, -1, np.arange(k) % 4).astype(np.int64)):
+        for step in (None, np.ones(k, np.int64)):
+            args = (cen, box, tid, slot, mask, inv, off, gmax, grid, cell_base, step, n_cells, mask is None)
+            c = binning.cell_stats(*args)
+            lib = native.library
+            native.library = lambda: None
+            try:
+                p = binning.cell_stats(*args)
+            finally:
+                native.library = lib
+            for x, y in zip(c, p):
+                assert (x is None) == (y is None)
+                assert x is None or (x.dtype == y.dtype and x.tobytes() == y.tobytes())
+    count, cbox = np.zeros(n_cells, np.int64), np.full((6, n_cells), np.inf, np.float32)
+    rest = (gmax, grid, cell_base, None, None, count, cbox)
+    assert native.cell_stats(cen, box, tid, slot, None, inv, off, *rest)
+    bad_off = off.copy()
+    bad_off[1, slot[7]] = np.nan
+    assert not native.cell_stats(cen, box, tid, slot, None, inv, bad_off, *rest)
+    bad_box = box.copy()
+    bad_box[4, tid[9]] = np.nan
+    assert not native.cell_stats(cen, bad_box, tid, slot, None, inv, off, *rest)
+    assert not native.cell_stats(cen, box, tid, slot, None, inv.astype(np.float64), off, *rest)  # not its dtype
+
+
+def test_c_triangle_records_match_numpy_s_on_slivers_and_huge_triangles(monkeypatch):
+    """Records in C and in numpy alike, and the same triangles found zero-area: collinear corners, corners one
+    float32 step apart, repeated corners, huge coordinates (float32 cross products overflow), NaN."""
+    from engine import native
+    from engine.bvh.triangles import triangle_records
+    from engine.limits import MAX_COORD
+
+    if native.library() is None:
+        pytest.skip("no C compiler here: the build runs its numpy steps")
+    rng = np.random.default_rng(8)
+    n = 4000
+    v0 = rng.uniform(-4, 4, (n, 3)).astype(np.float32)
+    v1 = v0 + rng.uniform(-1, 1, (n, 3)).astype(np.float32)
+    v2 = v0 + rng.uniform(-1, 1, (n, 3)).astype(np.float32)
+    v2[::5] = v0[::5] + (v1[::5] - v0[::5]) * np.float32(0.5)                # collinear (within rounding)
+    v2[1::5] = v1[1::5]                                                       # repeated corner
+    v2[2::5] = np.nextafter(v1[2::5], np.float32(9))                          # one float32 step from v1
+    v0[3::50] *= np.float32(MAX_COORD / 8)                                    # huge
+    v1[4::50] = np.nan
+    vt = np.ascontiguousarray(np.concatenate([v0, v1, v2]).T)
+    ft = np.arange(3 * n).reshape(3, n).T.copy()
+    perm = rng.permutation(n).astype(np.int64)
+    in_c = triangle_records(vt, ft, perm, threads=1)
+    monkeypatch.setattr(native, "library", lambda: None)
+    in_numpy = triangle_records(vt, ft, perm, threads=1)
+    assert in_c[0].tobytes() == in_numpy[0].tobytes()
+    assert in_c[2] == in_numpy[2] > n // 5
+
+
+@pytest.mark.parametrize("g", [4, 8])
+def test_grid_sah_in_c_matches_numpy_s(g, monkeypatch):
+    """The 4^3 / 8^3-grid SAH in C (engine/native.c) gives bit for bit what numpy's gives: planes, tie breaks between
+    equal costs, signed zeros among the minima, empty cells, and nodes under a size cap."""
+    from engine import native
+    from engine.bvh import binning
+
+    if native.library() is None:
+        pytest.skip("no C compiler here: the build runs its numpy steps")
+    rng = np.random.default_rng(g)
+    k, g3 = 700, g ** 3
+    cnt = rng.integers(0, 5, k * g3) * (rng.random(k * g3) < 0.6)
+    lo = rng.uniform(-10, 10, (3, k * g3)).astype(np.float32)
+    lo[:, ::2] = np.round(lo[:, ::2])                       # lattice boxes: equal areas, ties between planes
+    cbox = np.concatenate([lo, -(lo + rng.uniform(0, 3, (3, k * g3)).astype(np.float32))])
+    cbox[3:, ::2] = np.round(cbox[3:, ::2])
+    zeros = cbox[:, : k // 3 * g3]                           # a third of the nodes: minima of 0 and -0 (tie rules)
+    zeros[:] = np.round(rng.uniform(0, 0.7, zeros.shape))
+    zeros[(zeros == 0) & (rng.random(zeros.shape) < 0.5)] = -0.0
+    cbox[:, cnt == 0] = np.inf
+    exact = rng.random(k) < 0.5
+    cap = rng.integers(4, 200, k)
+    wide = np.full((6, k * g3 + 64), np.nan, np.float32)    # a slice of a pass's cell boxes (strided rows)
+    wide[:, 32:32 + k * g3] = cbox
+    in_c = binning.grid_sah(cnt, wide[:, 32:32 + k * g3], g, exact, cap)
+    monkeypatch.setattr(native, "library", lambda: None)
+    want = binning.grid_sah(cnt, cbox, g, exact, cap)
+    assert want[2].sum() > k // 3
+    for a, b in zip(want, in_c):
+        assert a.shape == b.shape and a.dtype == b.dtype
+        assert np.ascontiguousarray(a).tobytes() == np.ascontiguousarray(b).tobytes()
+
+
+def test_c_steps_hand_bad_indices_back_to_numpy():
+    """The C records refuse a vertex index out of range (numpy's steps then raise), and the cell statistics refuse
+    slots or triangles outside their arrays, instead of reading beyond them."""
+    from engine import native
+
+    if native.library() is None:
+        pytest.skip("no C compiler here: the build runs its numpy steps")
+    vt = np.zeros((3, 4), np.float32)
+    out = np.empty((1, 12), np.float32)
+    assert native.triangle_records(vt, np.array([[0, 1, 2]]), np.array([0]), out) == 1  # (zero area)
+    assert native.triangle_records(vt, np.array([[0, 1, 4]]), np.array([0]), out) is None
+    assert native.triangle_records(vt, np.array([[0, -1, 2]]), np.array([0]), out) is None
+    assert native.triangle_records(vt, np.array([[0, 1, 2]]), np.array([1]), out) is None
+    cen, box = np.zeros((3, 4), np.float32), np.zeros((6, 4), np.float32)
+    one = np.ones((3, 1), np.float32)
+    rest = (np.ones(1, np.int32), np.full(1, 2, np.int32), np.zeros(1, np.int64), None, None, np.zeros(8, np.int64),
+            np.full((6, 8), np.inf, np.float32))
+    assert native.cell_stats(cen, box, np.array([0, 3]), np.array([0, 0]), None, one, one, *rest)
+    assert not native.cell_stats(cen, box, np.array([0, 4]), np.array([0, 0]), None, one, one, *rest)
+    assert not native.cell_stats(cen, box, np.array([0, 3]), np.array([0, 1]), None, one, one, *rest)
+    assert not native.cell_stats(cen, box, None, np.zeros(5, np.int64), None, one, one, *rest)

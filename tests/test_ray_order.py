@@ -12,7 +12,7 @@ import pytest
 import trimesh
 
 from engine import ConfigError, Tracer
-from engine.rt import native
+from engine import native
 from engine.rt import order as ray_order_mod
 from engine.rt.order import incoherent, ray_keys, ray_order
 from engine.rt.raycasting import RaycastingScene
@@ -53,7 +53,7 @@ def bumpy():
 
 @pytest.fixture
 def numpy_steps(monkeypatch):
-    """The reordering's numpy path, as where there is no C compiler (engine/rt/native.py)."""
+    """The reordering's numpy path, as where there is no C compiler (engine/native.py)."""
     monkeypatch.setattr(native, "library", lambda: None)
 
 
@@ -307,7 +307,7 @@ def test_one_direction_for_all_is_filled_not_gathered():
 
 @pytest.mark.parametrize("shared", [True, False])
 def test_the_c_steps_give_numpy_s_order_gathers_and_scatters(native_lib, shared):
-    """engine/rt/native.c: the same keys and order as numpy's path (the whole batch sorted; on one thread and on
+    """engine/native.c: the same keys and order as numpy's path (the whole batch sorted; on one thread and on
     two), the same gathered rows (xyz and single floats) and scattered flags."""
     rng = np.random.default_rng(11)
     for n, same in ((1, False), (5, False), (70_001, False), (70_001, True)):
@@ -379,7 +379,7 @@ def test_the_c_steps_build_once_and_fall_back_without_a_compiler(tmp_path, monke
     path.parent.mkdir(parents=True)
     path.write_bytes(b"not a library")
     env = dict(os.environ, PYTHONPATH=str(Path(native.__file__).parents[2]))
-    res = subprocess.run([sys.executable, "-c", "from engine.rt import native; print(native.library() is not None)"],
+    res = subprocess.run([sys.executable, "-c", "from engine import native; print(native.library() is not None)"],
                          env=env, capture_output=True, text=True, timeout=300)
     assert res.stdout.strip() == "True", res.stderr
     assert path.stat().st_size > 1000

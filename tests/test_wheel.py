@@ -142,7 +142,7 @@ with engine.Tracer(vertices, faces, validation=True) as tracer:
     d = np.tile(np.float32((0.0, 0.0, -1.0)), (len(o), 1))
     reordered = bool(np.array_equal(tracer.occluded(o, d, 3.0, reorder=True), tracer.occluded(o, d, 3.0, reorder=False)))
     errors = tracer.validation_errors
-from engine.rt import native
+from engine import native
 print(json.dumps({"t": [float(t) if np.isfinite(t) else None for t in hits.t], "prim": hits.prim.tolist(),
                   "near": near.tolist(), "far": far.tolist(), "errors": errors, "file": engine.__file__,
                   "reordered": reordered, "native": str(native.SOURCE), "built": [p.name for p in cache.rglob("*.so")]}))

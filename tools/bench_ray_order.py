@@ -25,7 +25,7 @@ alone: the sort costs more than it gains there). Results of every variant are ch
 Also per variant the trace dispatches' time (`Tracer.last_gpu_ms`; on lavapipe CPU time that the host's work
 running beside it lengthens) and, once, the host steps of the reordering on the shuffled rays, timed alone: the
 order (`engine.rt.order.ray_order`: box, keys, sort, into kept words as the Tracer does) and a gather of the origins
-in that order (`engine.rt.native.gather`: C where a compiler is at hand, else np.take), and whether the C steps ran.
+in that order (`engine.native.gather`: C where a compiler is at hand, else np.take), and whether the C steps ran.
 """
 from __future__ import annotations
 
@@ -44,7 +44,7 @@ import engine  # noqa: E402
 from engine.bench.rays import first_light_rays, random_rayset, surface_shadow_rays  # noqa: E402
 from engine.bench.scenes import generated_scene  # noqa: E402
 from engine.parallel import default_threads  # noqa: E402
-from engine.rt import native  # noqa: E402
+from engine import native  # noqa: E402
 from engine.rt.order import KeptWords, ray_order, shared_direction  # noqa: E402
 from engine.rt.stream import STREAM_THREADS  # noqa: E402
 

@@ -12,6 +12,8 @@ from __future__ import annotations
 
 import numpy as np
 
+from .. import native
+
 #: Grid resolution per node size: G = 2 up to GRID2_MAX triangles, 4 up to GRID4_MAX, else 8.
 GRID2_MAX = 64
 GRID4_MAX = 2048
@@ -40,6 +42,52 @@ def cell_axis(c, inv, off, gmax_t, idx, out=None):
     return out
 
 
+def cell_stats(cen, box, tid, slot, mask, inv, off, gmax, grid, cell_base, cell_step, n_cells: int,
+               want_cells: bool = False):
+    """(cells, count, box) of every cell of a pass: counts (n_cells,) int64 and boxes (6, n_cells) float32 (+inf
+    where empty) of the triangles `tid` (increasing; None: all) of the nodes `slot` that their node samples,
+    (tid & mask[slot]) == 0 (mask None: every one; mask < 0: a node not binned). Cell (x, y, z) of node k has key
+    cell_base[k] + ((x * G + y) * G + z) * cell_step[k] (step 1 where cell_step is None), G = grid[k]. With
+    want_cells (and no mask), also every triangle's cell along each axis, (3, n) int32. In C (engine/native.c)
+    where at hand, else numpy; the same numbers either way."""
+    n = len(slot)
+    count = np.zeros(n_cells, dtype=np.int64)
+    cbox = np.full((6, n_cells), np.inf, dtype=np.float32)
+    cells = np.empty((3, n), dtype=np.int32) if want_cells else None
+    if native.cell_stats(cen, box, tid, slot, mask, np.ascontiguousarray(inv), np.ascontiguousarray(off), gmax, grid,
+                         cell_base, cell_step, cells, count, cbox):  # (inv, off: (3, nodes), small)
+        return cells, count, cbox
+    t, s = (np.arange(n) if tid is None else tid), slot
+    if mask is not None:
+        m = mask.take(s)
+        sel = np.flatnonzero((m >= 0) & ((t & m) == 0))
+        if sel.size < n:
+            t, s = t.take(sel), s.take(sel)
+    ident = t.size == cen.shape[1]  # (increasing indices: all of them is the identity)
+    gm = gmax.take(s)
+    g = grid.take(s)
+    if cells is None:
+        cells = np.empty((3, t.size), dtype=np.int32)
+    for a in range(3):
+        cell_axis(cen[a] if ident else cen[a].take(t), inv[a], off[a], gm, s, out=cells[a])
+    cell = cells[0] * g  # int32 within the node
+    cell += cells[1]
+    cell *= g
+    cell += cells[2]
+    if cell_step is None:
+        key = cell_base.take(s)
+        key += cell
+    else:
+        key = cell_step.take(s)
+        key *= cell
+        key += cell_base.take(s)
+    count = np.bincount(key, minlength=n_cells)
+    cbox = np.full((6, n_cells), np.inf, dtype=np.float32)  # (afresh: C may have written part of the first)
+    for r in range(6):
+        np.minimum.at(cbox[r], key, box[r] if ident else box[r].take(t))
+    return (cells if want_cells else None), count, cbox
+
+
 def grid_sah(cnt, cbox, g: int, exact: np.ndarray, cap: np.ndarray):
     """Best plane of k nodes binned on g^3 grids (node-major cells, (k, g^3) and (6, k, g^3)).
 
@@ -47,6 +95,9 @@ def grid_sah(cnt, cbox, g: int, exact: np.ndarray, cap: np.ndarray):
     (lo xyz, hi xyz) from the statistics.
     """
     k = exact.size
+    in_c = native.grid_sah(cnt.reshape(-1), cbox.reshape(6, -1), g, exact, cap)
+    if in_c is not None:  # (engine/native.c: the same numbers node by node)
+        return in_c
     cnt = np.ascontiguousarray(cnt.reshape(k, g**3).T).reshape(g, g, g, k)
     cbox = np.ascontiguousarray(cbox.reshape(6, k, g**3).transpose(0, 2, 1)).reshape(6, g, g, g, k)
     slab_ns = _slabs(cnt, np.add)  # 3 x (g, k)
@@ -127,6 +178,7 @@ _SPLIT_TABLE = np.array(_SPLIT_EDGES)  # (3, 2, 2, 2): a, side, j, (left, right)
 _SPLIT_L = _SPLIT_TABLE[..., 0]  # (3, 2, 2)
 _SPLIT_R = _SPLIT_TABLE[..., 1]
 _AXIS2_TABLE = np.array([[_OTHERS[a][j] for j in (0, 1)] for a in range(3)])  # (3, 2)
+_SPLIT_C, _AXIS2_C = (np.ascontiguousarray(t, dtype=np.int64) for t in (_SPLIT_TABLE, _AXIS2_TABLE))  # (native.c)
 
 
 def _edges(cbox: np.ndarray, cnt: np.ndarray, k: int) -> tuple:
@@ -164,6 +216,10 @@ def _faces(ebox: np.ndarray, ecnt: np.ndarray, k: int) -> tuple:
 def octant_sah(cnt, cbox, exact: np.ndarray, cap: np.ndarray, cap2: np.ndarray, max_leaf: int):
     """`_octant_sah` in blocks of OCTANT_BLOCK nodes (its dozens of temporaries then stay in the L2 cache)."""
     k = exact.size
+    in_c = native.octant_sah(cnt.reshape(8, k), cbox.reshape(6, 8 * k), exact, cap, cap2, max_leaf, _SPLIT_C,
+                             _AXIS2_C)
+    if in_c is not None:  # (engine/native.c: the same numbers node by node)
+        return in_c
     if k <= OCTANT_BLOCK:
         return _octant_sah(cnt, cbox, exact, cap, cap2, max_leaf)
     cnt, cbox = cnt.reshape(8, k), cbox.reshape(6, 8, k)

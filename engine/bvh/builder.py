@@ -23,6 +23,9 @@ statistics, partitions and walks in parts, the independent subtrees of the passe
 triangle records, on the shared worker pool (engine/parallel.py; `threads`, default all cores): numpy releases the
 GIL inside its calls on large arrays. Results are merged in a fixed order, so the tree is byte for byte the same for
 any number of threads. The top's per-node choices (grid SAH over its nodes) stay serial.
+
+C: where engine/native.py has its library, the passes' cell statistics and SAH choices and the triangle records run
+in C, node by node and triangle by triangle with numpy's arithmetic and tie rules: the same tree, byte for byte.
 """
 
 from __future__ import annotations

@@ -28,7 +28,7 @@ from __future__ import annotations
 import numpy as np
 
 from ..parallel import run as _parallel
-from .binning import GRID2_MAX, GRID4_MAX, SAMPLE4, SAMPLE8, ceil_log2, cell_axis, grid_sah, octant_sah
+from .binning import GRID2_MAX, GRID4_MAX, SAMPLE4, SAMPLE8, ceil_log2, cell_axis, cell_stats, grid_sah, octant_sah
 from .pack import Leaves, Record
 from .top import TOP_MIN, grow_top
 
@@ -131,29 +131,9 @@ def _grow_from(box, cen, tid, slot, count, depth, dom, max_leaf: int, max_depth:
                 n_cells += members.size * gsize**3
 
         # statistics: one cell per (sampled) triangle
-        if exact.all():
-            s_tid, s_slot = tid, slot
-        else:
-            keep = (tid & ((np.int64(1) << rate_log) - 1).take(slot)) == 0
-            sel = np.flatnonzero(keep)
-            s_tid, s_slot = tid.take(sel), slot.take(sel)
-        s_ident = s_tid.size == n_tri
-        s_gmax = gmax.take(s_slot)
-        cells = np.empty((3, s_tid.size), dtype=np.int32)
-        for a in range(3):
-            cell_axis(cen[a] if s_ident else cen[a].take(s_tid), inv[a], off[a], s_gmax, s_slot, out=cells[a])
-        g = grid.astype(np.int32).take(s_slot)
-        cell = cells[0] * g  # int32 within the node
-        cell += cells[1]
-        cell *= g
-        cell += cells[2]
-        key = cell_step.take(s_slot)
-        key *= cell
-        key += cell_base.take(s_slot)
-        cell_count = np.bincount(key, minlength=n_cells)
-        cell_box = np.full((6, n_cells), np.inf, dtype=np.float32)
-        for r in range(6):
-            np.minimum.at(cell_box[r], key, box[r] if s_ident else box[r].take(s_tid))
+        mask = None if exact.all() else (np.int64(1) << rate_log) - 1
+        cells, cell_count, cell_box = cell_stats(cen, box, tid, slot, mask, inv, off, gmax, grid.astype(np.int32),
+                                                 cell_base, cell_step, n_cells, want_cells=mask is None)
 
         # SAH per group. Nodes on 2^3 grids also choose their children's splits from the same statistics
         # (each half is four cells: one plane along each of the two other axes), so that their triangles move

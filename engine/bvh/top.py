@@ -14,7 +14,7 @@ from __future__ import annotations
 import numpy as np
 
 from ..parallel import cuts as _cuts, run as _parallel
-from .binning import GRID4_MAX, SAMPLE4, SAMPLE8, ceil_log2, cell_axis, grid_sah
+from .binning import GRID4_MAX, SAMPLE4, SAMPLE8, ceil_log2, cell_stats, grid_sah
 from .pack import Record
 
 #: Meshes of more than TOP_MIN triangles build their sampled top levels on a subset; TOP_BLOCK triangles at a time
@@ -88,9 +88,8 @@ def grow_top(box, cen, cen_rows, max_leaf: int, max_depth: int, threads: int = 1
             have = np.where(needy, rate_log, have)
 
         # statistics of the eligible nodes from their samples (every 2^rate_log-th triangle)
-        # (an ineligible node samples nothing: its mask keeps every bit, so only triangle 0 would pass the test)
+        # (an ineligible node has mask -1: it samples nothing)
         mask = np.where(elig, (np.int64(1) << rate_log) - 1, -1)
-        all_elig = bool(elig.all())
         ext = dom[3:] - dom[:3]
         inv = np.where(ext > 0, grid / np.where(ext > 0, ext, 1), 0).astype(np.float32)
         off = (-dom[:3] * inv).astype(np.float32)
@@ -105,32 +104,13 @@ def grow_top(box, cen, cen_rows, max_leaf: int, max_depth: int, threads: int = 1
                 n_cells += members.size * gsize**3
         grid32 = grid.astype(np.int32)
 
-        def cell_stats(lo, hi):  # count and box of every cell from the samples among the subset's [lo, hi)
-            t, sl = sub_tid[lo:hi], sub_slot[lo:hi]
-            picked = (t & mask.take(sl)) == 0
-            if not all_elig:
-                picked &= elig.take(sl)
-            sel = np.flatnonzero(picked)
-            if sel.size < t.size:  # (the upper passes take the whole subset)
-                t, sl = t.take(sel), sl.take(sel)
-            gm = gmax.take(sl)
-            g = grid32.take(sl)
-            cell = cell_axis(cen[0].take(t), inv[0], off[0], gm, sl)  # int32 within the node
-            cell *= g
-            cell += cell_axis(cen[1].take(t), inv[1], off[1], gm, sl)
-            cell *= g
-            cell += cell_axis(cen[2].take(t), inv[2], off[2], gm, sl)
-            key = cell_base.take(sl)
-            key += cell
-            cnt = np.bincount(key, minlength=n_cells)
-            cbox = np.full((6, n_cells), np.inf, dtype=np.float32)
-            for r in range(6):
-                np.minimum.at(cbox[r], key, box[r].take(t))
-            return cnt, cbox
+        def stats(lo, hi):  # count and box of every cell from the samples among the subset's [lo, hi)
+            return cell_stats(cen, box, sub_tid[lo:hi], sub_slot[lo:hi], mask, inv, off, gmax, grid32, cell_base,
+                              None, n_cells)[1:]
 
         # in parts on the pool's threads where the subset is large; sums and minima are exact in any order
         cuts = _cuts(sub_tid.size, threads, TOP_BLOCK * 2)
-        parts = _parallel([lambda a=a, b=b: cell_stats(a, b) for a, b in zip(cuts[:-1], cuts[1:])], threads)
+        parts = _parallel([lambda a=a, b=b: stats(a, b) for a, b in zip(cuts[:-1], cuts[1:])], threads)
         cell_count, cell_box = parts[0]
         for cnt, cbox in parts[1:]:
             cell_count += cnt

@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import numpy as np
 
+from .. import native
 from ..parallel import blocks as _blocks, run as _parallel
 from .layout import TRI_DTYPE
 
@@ -87,8 +88,11 @@ def triangle_records(vt, ft, perm, threads: int, beside=None):
 
     def records_of(s):
         e = min(s + PREP_BLOCK, n_tri)
-        f = ft.take(perm[s:e], axis=0).T.copy()
         rows = flat[s:e]
+        in_c = native.triangle_records(vt, ft, perm[s:e], rows)
+        if in_c is not None:
+            return in_c
+        f = ft.take(perm[s:e], axis=0).T.copy()
         corner = [[vt[a].take(f[c]) for a in range(3)] for c in range(3)]
         for c in range(3):
             for a in range(3):

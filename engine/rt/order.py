@@ -9,7 +9,7 @@ rays per cell of a million-ray batch, in the caller's order). The key and the ra
 through numpy's sort (vectorized; about as fast as the stable radix argsort of a 16-bit key; the index makes the
 words unique, so the order is the key's stable one). The stream gathers the rays in that order as it packs them and
 the sinks scatter the results back (engine/rt/stream.py). Where a C compiler is at hand the keys, the gathers and the
-scatters run in C (engine/rt/native.py: same keys, same order, cheaper gathers of 12-byte rows), and the whole batch
+scatters run in C (engine/native.py: same keys, same order, cheaper gathers of 12-byte rows), and the whole batch
 is sorted at once. `incoherent` decides whether a batch gains from it, from a sample: image-ordered batches (G-buffer
 rays) and rays crossing the scene in all directions are left alone.
 """
@@ -22,7 +22,7 @@ import numpy as np
 
 from ..errors import ConfigError
 from ..parallel import blocks, run
-from . import native
+from .. import native
 
 #: batches below this many rays are traced as given ("auto"): the trace of a small batch costs little either way
 MIN_RAYS = 1 << 15
@@ -234,7 +234,7 @@ def ray_order(o: np.ndarray, d: np.ndarray, threads: int = 1, window: int | None
     may be `shared_direction`'s stride-0 view (then the cells get the direction's bit). `window`: sort each run of
     that many rows on its own (the stream's chunk: a chunk then gathers from one cache-sized run of the caller's
     rows, not from the whole batch), the keys being the whole batch's; not where the C steps are at hand
-    (engine/rt/native.py: the whole batch is sorted). `scratch`: an (N,) uint64 array to build the order in
+    (engine/native.py: the whole batch is sorted). `scratch`: an (N,) uint64 array to build the order in
     (the caller's, reused from batch to batch: a fresh array's pages cost their first touch), viewed as int64."""
     box = origin_box(o)
     if box is None:
@@ -258,7 +258,7 @@ def ray_order(o: np.ndarray, d: np.ndarray, threads: int = 1, window: int | None
 
 
 def _native_order(lib, o: np.ndarray, d: np.ndarray, box, threads: int, words: np.ndarray) -> np.ndarray:
-    """`ray_order`'s order of the whole batch with the keys made in C (engine/rt/native.c): the same keys and the
+    """`ray_order`'s order of the whole batch with the keys made in C (engine/native.c): the same keys and the
     same order (the keys' stable one). The keys in row blocks on `threads` threads; the words split at their median
     (np.partition) and each part sorted on its own thread where there are two (numpy sorts on one core); the whole
     batch sorted at once (numpy's path sorts windows of its rows instead, to bound the cost of its gathers, which

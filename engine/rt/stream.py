@@ -23,7 +23,7 @@ from ..vk import Buffer, BufferView, DescriptorSet, Recorder, Timestamps
 from ..vk.formats import INDIRECT, R32F, R32UI, RGB32F, RGBA32UI
 from ..vk.resources import STORAGE, STORAGE_TEXEL, TRANSFER_DST, TRANSFER_SRC, UNIFORM_TEXEL
 from ..vk.sync import create_fence, destroy_fence, reset_fences, wait_fences
-from . import native
+from .. import native
 from .checks import block_fine
 
 GROUP = 64

@@ -1,5 +1,5 @@
 """Bad-input fuzz of engine.rt (Tracer, RaycastingScene, RayMeshIntersector): layouts, dtypes, shapes and values
-of rays (batches of 40k rays, reordered with reorder=True / "auto", through the C steps of engine/rt/native.c, and
+of rays (batches of 40k rays, reordered with reorder=True / "auto", through the C steps of engine/native.c, and
 small ones), meshes, closed objects, two threads on one Tracer, CPU tensor lookalikes, the C library's cache dir
 and compiler, and HYBRID_NATIVE=0 against the C steps. Each case either returns what the plain float32 query (itself
 checked against engine/rt/reference.py) returns, or raises a ConfigError / SceneError / ValueError / TypeError
@@ -900,7 +900,7 @@ def _native_cases():
     o, d, t = rays(N_BIG)
 
     def lib_query():
-        from engine.rt import native
+        from engine import native
         native.library.cache_clear()
         got, tr = query("intersect", o, d, t, reorder=True, ref=(o, d, t))
         got2, _ = query("occluded", o, d, t, reorder=True, ref=(o, d, t))
@@ -947,7 +947,7 @@ def _native_cases():
 
     def damaged(kind):
         def fn():
-            from engine.rt import native
+            from engine import native
             import shutil
             base_dir = os.path.join(tmp, "dmg_" + kind)
             os.environ["XDG_CACHE_HOME"] = base_dir
@@ -987,7 +987,8 @@ def _native_cases():
                 "h = tr.intersect(o, d, t, reorder=True); a = tr.occluded(o, d, t, reorder=True)\n"
                 "h2 = tr.intersect(o, d, t, reorder='auto'); a2 = tr.occluded(o[::-1], d[::-1], t[::-1], reorder=True)\n"
                 "assert tr.last_reordered\n"
-                "from engine.rt import native, order\n"
+                "from engine import native\n"
+                "from engine.rt import order\n"
                 "words = order.ray_order(o, order.shared_direction(d), 2, 1 << 18)\n"
                 "np.savez(sys.argv[1], t=h.t, prim=h.prim, u=h.u, v=h.v, occ=a, t2=h2.t, occ2=a2, lib=native.library() is not None, order=words)\n"
                 % os.path.dirname(os.path.abspath(__file__)))
@@ -1006,7 +1007,7 @@ def _native_cases():
 
     def fdirect():
         """native.gather / scatter_flags called with odd arrays: fall back, never read out of bounds."""
-        from engine.rt import native
+        from engine import native
         src = np.arange(30, dtype=np.float32).reshape(10, 3)
         out = np.empty((4, 3), np.float32)
         for rows in (np.array([0, 9, 3, 3]), np.array([0, 10, 1, 2]), np.array([-1, 0, 1, 2]),

@@ -748,13 +748,16 @@ def test_the_c_steps_give_numpy_s_tree_byte_for_byte(mesh, monkeypatch):
         v.reshape(-1)[zero[::2]] = -0.0
     if mesh == "nan":
         v[::97] = np.nan
-    calls, records = [], []
-    stats, recs = native.cell_stats, native.triangle_records
-    monkeypatch.setattr(native, "cell_stats", lambda *a: calls.append(stats(*a)) or calls[-1])
-    monkeypatch.setattr(native, "triangle_records", lambda *a: records.append(recs(*a)) or records[-1])
+    calls = {name: [] for name in ("cell_stats", "triangle_records", "grid_sah", "octant_sah")}
+    for name, got in calls.items():
+        real = getattr(native, name)
+        monkeypatch.setattr(native, name, lambda *a, real=real, got=got: got.append(real(*a)) or got[-1])
     in_c = build_bvh(v, f, threads=2)
-    assert calls and all(calls)  # every pass ran in C
+    assert calls["cell_stats"] and all(calls["cell_stats"])  # every pass's statistics in C
+    records = calls["triangle_records"]
     assert records and None not in records
+    for name in ("grid_sah", "octant_sah") if len(f) > 10_000 else ():
+        assert calls[name] and None not in calls[name]
     n_zero = sum(records)
     monkeypatch.setattr(native, "library", lambda: None)
     in_numpy = build_bvh(v, f, threads=2)

@@ -5,7 +5,8 @@ triangle goes to the cell of its centre (`cell_axis`, the same float32 arithmeti
 so a triangle's side always agrees with its bin). From the count and box of every cell, `grid_sah` finds the best of
 the G - 1 planes along each axis (C_trav = C_tri = 1; ties go to the most balanced split); on 2^3 grids
 `octant_sah` also picks each child's split along the two other axes, so that those triangles go down two levels in
-one pass.
+one pass. `cell_stats`, `grid_sah` and `octant_sah` run in C where engine/native.py has its library, node by node
+with the arithmetic and tie rules of the numpy code here, which stays the reference: the same numbers either way.
 """
 
 from __future__ import annotations

@@ -378,7 +378,8 @@ def test_the_c_steps_build_once_and_fall_back_without_a_compiler(tmp_path, monke
     path = native.library_path([shutil.which("cc") or shutil.which("gcc")])
     path.parent.mkdir(parents=True)
     path.write_bytes(b"not a library")
-    env = dict(os.environ, PYTHONPATH=str(Path(native.__file__).parents[2]))
+    env = dict(os.environ, PYTHONPATH=os.pathsep.join([str(Path(native.__file__).parents[1]),
+                                                       os.environ.get("PYTHONPATH", "")]))
     res = subprocess.run([sys.executable, "-c", "from engine import native; print(native.library() is not None)"],
                          env=env, capture_output=True, text=True, timeout=300)
     assert res.stdout.strip() == "True", res.stderr

@@ -223,7 +223,7 @@ def test_every_traversal_variant_gives_the_same_answers(monkeypatch, spec):
     the retry walk of a short register stack, compressed nodes, select min/max) select code paths per device;
     each combination answers exactly as the default one of this device, and as the reference. (The default here,
     on lavapipe: compressed nodes, a register stack of min(CPU_STACK_REGS, the BVH's depth - 1) entries.)"""
-    from engine.gpu.bvh import CPU_OCCLUSION_STACK_REGS, CPU_STACK_REGS
+    from engine.gpu.bvh import CPU_OCCLUSION_STACK_REGS, CPU_STACK_REGS, compresses
     import engine.rt.tracer as tracer_mod
     v, f = meshes()["soup"]
     rng = np.random.default_rng(13)
@@ -238,7 +238,7 @@ def test_every_traversal_variant_gives_the_same_answers(monkeypatch, spec):
             assert dspec["BVH_STACK_REGS"] == min(CPU_STACK_REGS, need)
             assert dspec["BVH_COMPRESSED"] and default.scene.compressed and dspec["BVH_IMAGE_FETCH"]
     with _variant_tracer(monkeypatch, spec, v, f) as variant:
-        assert variant.scene.compressed == ("uncompressed" not in spec)
+        assert variant.scene.compressed == (compresses(variant.ctx, "binary") and "uncompressed" not in spec)
         assert np.array_equal(variant.occluded(o, d, tmax), occ0)
         hit1 = variant.intersect(o, d)
         assert np.array_equal(hit1.prim, hit0.prim) and np.array_equal(hit1.t, hit0.t)

@@ -11,10 +11,10 @@
  * samples ((t & mask[s]) == 0; mask < 0: the node is not binned), its cell along each axis as binning.cell_axis
  * computes it (c * inv + off in float32, clamped to [0, 2^30], truncated, at most gmax), stored in cells[a * n + i]
  * where cells is not null; its count added to count[key] and its box folded into cbox[r * n_cells + key] as
- * np.minimum.at does (a tie takes the new value: signed zeros as numpy's), key = cell_base[s] + ((x * g + y) * g + z) * cell_step[s] (step 1 where
- * cell_step is null). cen is (3, stride) and box (6, stride) float32; inv, off are (3, k). Returns how many
- * triangles had a NaN box value, a NaN cell coordinate or a key outside [0, n_cells) (numpy's path then runs
- * instead). */
+ * np.minimum.at does (a tie takes the new value: signed zeros as numpy's), key = cell_base[s] + ((x * g + y) * g
+ * + z) * cell_step[s] (step 1 where cell_step is null), g = grid[s]. cen is (3, stride) and box (6, stride)
+ * float32; inv, off are (3, k). Returns how many triangles had a NaN box value, a NaN cell coordinate or a key
+ * outside [0, n_cells) (numpy's path then runs instead). */
 int64_t hybrid_cell_stats(const float *cen, const float *box, int64_t stride, const int64_t *t, const int64_t *s,
                           int64_t n, const int64_t *mask, const float *inv, const float *off, int64_t k,
                           const int32_t *gmax, const int32_t *grid, const int64_t *cell_base,
@@ -192,7 +192,8 @@ void hybrid_octant_sah(const int64_t *cnt, const float *box, int64_t box_row, in
         }
         for (int q = 0; q < 4; ++q) {   /* edges along x by (y, z), along y by (x, z), along z by (x, y) */
             const int hi = q >> 1, lo = q & 1;
-            const int cells[3][2] = {{q, 4 + q}, {hi * 4 + lo, hi * 4 + 2 + lo}, {hi * 4 + lo * 2, hi * 4 + lo * 2 + 1}};
+            const int cells[3][2] = {{q, 4 + q}, {hi * 4 + lo, hi * 4 + 2 + lo},
+                                     {hi * 4 + lo * 2, hi * 4 + lo * 2 + 1}};
             for (int d = 0; d < 3; ++d) {
                 ec[4 * d + q] = gc[cells[d][0]] + gc[cells[d][1]];
                 for (int r = 0; r < 6; ++r)

@@ -1,8 +1,9 @@
-"""The C versions of host steps of the BVH build and of ray reordering (native.c), compiled on first use with the system's C compiler
-(`cc`, or $CC) into the user's cache directory and loaded with ctypes; None where there is no compiler or no home,
-with HYBRID_NATIVE=0, or where the build fails (a RuntimeWarning with the compiler's message), and
-engine/bvh/binning.py, engine/rt/order.py and stream.py then run their numpy versions. The library's file name carries a hash of the source,
-the compiler command and the machine's architecture, so an edited source builds afresh."""
+"""The C versions of host steps of the BVH build and of ray reordering (native.c), compiled on first use with the
+system's C compiler (`cc`, or $CC) into the user's cache directory and loaded with ctypes; None where there is no
+compiler or no home, with HYBRID_NATIVE=0, or where the build fails (a RuntimeWarning with the compiler's message),
+and engine/bvh/binning.py, triangles.py, engine/rt/order.py and stream.py then run their numpy versions. The
+library's file name carries a hash of the source, the compiler command and the machine's architecture, so an edited
+source builds afresh."""
 from __future__ import annotations
 
 import ctypes
@@ -134,10 +135,11 @@ def cell_stats(cen, box, t, s, mask, inv, off, gmax, grid, cell_base, cell_step,
     n, k, stride, n_cells = len(s), len(gmax), cen.shape[1], len(count)
     if (cen.shape[0] != 3 or box.shape != (6, stride) or (t is None and n > stride) or inv.shape != (3, k)
             or off.shape != (3, k) or cbox.shape != (6, n_cells) or (cells is not None and cells.shape != (3, n))
-            or any(a is not None and len(a) != n for a in (t,)) or any(a is not None and len(a) != k for a in
-                                                                       (mask, grid, cell_base, cell_step))):
+            or (t is not None and len(t) != n)
+            or any(a is not None and len(a) != k for a in (mask, grid, cell_base, cell_step))):
         return False
-    if n and (int(s.min()) < 0 or int(s.max()) >= k or (t is not None and (int(t.min()) < 0 or int(t.max()) >= stride))):
+    if n and (int(s.min()) < 0 or int(s.max()) >= k
+              or (t is not None and (int(t.min()) < 0 or int(t.max()) >= stride))):
         return False
     ptr = lambda a: None if a is None else a.ctypes.data  # noqa: E731
     bad = lib.hybrid_cell_stats(cen, box, stride, ptr(t), s, n, ptr(mask), inv, off, k, gmax, grid, cell_base,

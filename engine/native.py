@@ -155,7 +155,8 @@ def grid_sah(cnt, cbox, g: int, exact, cap):
     k = len(exact)
     n = k * g ** 3
     if lib is None or g not in (4, 8) or cnt.dtype != np.int64 or cnt.shape != (n,) or not cnt.flags.c_contiguous \
-            or cbox.dtype != np.float32 or cbox.shape != (6, n) or cbox.strides[1] != 4 or not cbox.flags.aligned \
+            or not all(a.flags.aligned for a in (cnt, exact, cap)) or cbox.dtype != np.float32 or cbox.shape != (6, n) \
+            or cbox.strides[1] != 4 or not cbox.flags.aligned \
             or exact.dtype != np.bool_ or cap.dtype != np.int64 or cap.shape != (k,):
         return None
     axis, plane, found = np.empty(k, np.int64), np.empty(k, np.int64), np.empty(k, np.bool_)
@@ -172,7 +173,8 @@ def octant_sah(cnt, cbox, exact, cap, cap2, max_leaf: int, split_table, axis2_ta
     lib = library()
     k = len(exact)
     if lib is None or cnt.dtype != np.int64 or cnt.shape != (8, k) or not cnt.flags.c_contiguous \
-            or cbox.dtype != np.float32 or cbox.shape != (6, 8 * k) or cbox.strides[1] != 4 or not cbox.flags.aligned \
+            or not all(a.flags.aligned for a in (cnt, exact, cap, cap2)) or cbox.dtype != np.float32 \
+            or cbox.shape != (6, 8 * k) or cbox.strides[1] != 4 or not cbox.flags.aligned \
             or exact.dtype != np.bool_ or any(a.dtype != np.int64 or a.shape != (k,) for a in (cap, cap2)):
         return None
     axis, found = np.empty(k, np.int64), np.empty(k, np.bool_)

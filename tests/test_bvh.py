@@ -877,6 +877,44 @@ def test_grid_sah_in_c_matches_numpy_s(g, monkeypatch):
         assert np.ascontiguousarray(a).tobytes() == np.ascontiguousarray(b).tobytes()
 
 
+def test_c_sah_matches_numpy_s_on_nan_inf_and_huge_counts(monkeypatch):
+    """The 2^3, 4^3 and 8^3 SAH in C give numpy's choices and boxes bit for bit where cells hold NaN, infinite and
+    signed-zero bounds, counts near 2^50, caps below zero, and no nodes; a misaligned count array goes to numpy."""
+    from engine import native
+    from engine.bvh import binning
+
+    if native.library() is None:
+        pytest.skip("no C compiler here: the build runs its numpy steps")
+    odd = np.array([0.0, -0.0, 1.0, -1.0, np.inf, -np.inf, np.nan, 3e38, -3e38, 1e-45], np.float32)
+    lib = native.library
+    for trial in range(60):
+        rng = np.random.default_rng(trial)
+        g, k = (2, 4, 8)[trial % 3], int(rng.integers(0, 12))
+        n = k * g ** 3
+        cnt = rng.integers(0, 4, n) * (rng.random(n) < 0.5) * (1 << 48 if trial % 5 == 0 else 1)
+        cbox = rng.uniform(-4, 4, (6, n)).astype(np.float32)
+        pick = rng.random((6, n)) < 0.2
+        cbox[pick] = rng.choice(odd, pick.sum())
+        exact, cap, cap2 = rng.random(k) < 0.5, rng.integers(-2, 30, k), rng.integers(-2, 20, k)
+        if g == 2:
+            call = lambda: binning.octant_sah(cnt.reshape(8, k), cbox.reshape(6, 8, k), exact, cap, cap2, 3)  # noqa
+        else:
+            call = lambda: binning.grid_sah(cnt, cbox, g, exact, cap)  # noqa: E731
+        in_c = call()
+        monkeypatch.setattr(native, "library", lambda: None)
+        with np.errstate(all="ignore"):
+            want = call()
+        monkeypatch.setattr(native, "library", lib)
+        for a, b in zip(want, in_c):
+            assert a.shape == b.shape and a.dtype == b.dtype
+            assert np.ascontiguousarray(a).tobytes() == np.ascontiguousarray(b).tobytes()
+    k = 4
+    cnt = np.frombuffer(bytearray(8 * 64 * k + 1), np.int64, 64 * k, offset=1)
+    args = (np.zeros(k, bool), np.zeros(k, np.int64))
+    assert not cnt.flags.aligned and native.grid_sah(cnt, np.zeros((6, 64 * k), np.float32), 4, *args) is None
+    assert native.grid_sah(cnt.copy(), np.zeros((6, 64 * k), np.float32), 4, *args) is not None
+
+
 def test_c_steps_hand_bad_indices_back_to_numpy():
     """The C records refuse a vertex index out of range (numpy's steps then raise), and the cell statistics refuse
     slots or triangles outside their arrays, instead of reading beyond them."""

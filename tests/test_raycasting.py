@@ -281,6 +281,26 @@ def test_pinhole_rays_beyond_memory_or_float32_are_clear_errors():
         P(k * 1e30, np.eye(4), 4, 4)
 
 
+def test_pinhole_rays_beyond_available_memory_are_refused_before_allocating(monkeypatch):
+    """Where memory is overcommitted (np.empty of more than the machine has succeeds, and filling it brings the
+    OOM killer), the rays are checked against the memory available first: an error saying how much is needed and
+    available."""
+    from engine.rt import pinhole
+
+    monkeypatch.setattr(pinhole, "_available_memory", lambda: 20 * 2**20)
+    P = RaycastingScene.create_rays_pinhole
+    assert P(60.0, [0, 0, 0], [0, 0, 3], [0, 1, 0], 1000, 800).shape == (800, 1000, 6)   # 18.3 MiB
+    with pytest.raises(ConfigError, match=r"1000 x 900 rays do not fit in memory \(0.0201 GiB of float32 rays, "
+                                          r"0.0195 GiB available\)"):
+        P(60.0, [0, 0, 0], [0, 0, 3], [0, 1, 0], 1000, 900)
+    monkeypatch.undo()
+    assert pinhole._available_memory() > 2**20
+    # the directions are made a block of rows at a time: any block size gives the same rays
+    whole = P(np.array([[90.0, 0, 31], [0, 80, 20], [0, 0, 1]]), np.eye(4), 61, 43)
+    monkeypatch.setattr(pinhole, "ROWS_RAYS", 200)
+    assert P(np.array([[90.0, 0, 31], [0, 80, 20], [0, 0, 1]]), np.eye(4), 61, 43).tobytes() == whole.tobytes()
+
+
 def test_a_ray_or_point_too_far_from_a_far_scene_names_the_argument(make):
     """A scene far from the world origin is traced about the centre of its box: a ray origin or query point within
     +-MAX_COORD but beyond it from there is an error naming `rays` / `query_points` and the row as given, not the

@@ -3,6 +3,7 @@ origin and direction, one per pixel centre, in either of Open3D's two forms, wit
 Open3D 0.19-0.20: tests/test_raycasting.py compares them)."""
 from __future__ import annotations
 
+import os
 from numbers import Integral, Real
 
 import numpy as np
@@ -15,6 +16,8 @@ INTRINSIC_FORM = ("intrinsic_matrix", "extrinsic_matrix", "width_px", "height_px
 FOV_FORM = ("fov_deg", "center", "eye", "up", "width_px", "height_px")
 WHO = "create_rays_pinhole"
 _F32_MAX = float(np.finfo(np.float32).max)   # (the rays are float32)
+#: Rays per block of rows whose directions are made at once (float64 temporaries of a few tens of MB).
+ROWS_RAYS = 1 << 20
 
 
 def _numpy(value):
@@ -99,15 +102,36 @@ def pinhole_rays(*args, **kwargs) -> NDArray[np.float32]:
     if not np.isfinite(corners.astype(np.float32)).all() or short.any():
         raise ConfigError(f"{WHO}: {'intrinsic_matrix' if names is INTRINSIC_FORM else 'fov_deg'} gives ray "
                           f"directions beyond float32's range or too short ({corners.tolist()})")
+    need, free = width * height * 24, _available_memory()
+    too_big = ConfigError(f"{WHO}: width_px x height_px = {width} x {height} rays do not fit in memory "
+                          f"({need / 2**30:.3g} GiB of float32 rays"
+                          + (f", {free / 2**30:.3g} GiB available)" if free is not None else ")"))
+    if free is not None and need > free:   # (where memory is overcommitted, np.empty would not say so)
+        raise too_big
     try:
         out = np.empty((height, width, 6), np.float32)
-        u, v = np.meshgrid(np.arange(width) + 0.5, np.arange(height) + 0.5)   # pixel centres, row 0 first
-        pix = np.stack([u, v, np.ones_like(u)], axis=-1)
-        directions = pix @ to_world.T
     except MemoryError:
-        raise ConfigError(f"{WHO}: width_px x height_px = {width} x {height} rays do not fit in memory "
-                          f"({width * height * 24 / 2**30:.3g} GiB of float32 rays, several times that while made)") \
-            from None
+        raise too_big from None
     out[..., :3] = origin
-    out[..., 3:] = directions
+    u = np.arange(width) + 0.5
+    rows = max(1, ROWS_RAYS // max(width, 1))
+    for r0 in range(0, height, rows):   # directions a block of rows at a time: small float64 temporaries
+        u2, v2 = np.meshgrid(u, np.arange(r0, min(r0 + rows, height)) + 0.5)   # pixel centres, row 0 first
+        out[r0:r0 + rows, :, 3:] = np.stack([u2, v2, np.ones_like(u2)], axis=-1) @ to_world.T
     return out
+
+
+def _available_memory() -> int | None:
+    """Bytes of memory available to a new allocation (Linux's MemAvailable, else the physical memory), or None
+    where neither is known."""
+    try:
+        with open("/proc/meminfo") as fh:
+            for line in fh:
+                if line.startswith("MemAvailable:"):
+                    return int(line.split()[1]) * 1024
+    except (OSError, ValueError, IndexError):
+        pass
+    try:
+        return os.sysconf("SC_PAGE_SIZE") * os.sysconf("SC_PHYS_PAGES")
+    except (AttributeError, ValueError, OSError):
+        return None

@@ -1,57 +1,14 @@
-/* Host steps in C: the cell statistics of the BVH build's passes (engine/bvh/binning.py), and the key of each ray
- * and the gathers and scatters of rows in the keys' order for ray reordering (engine/rt/order.py; the sort itself
- * stays numpy's, vectorized and in place). numpy's versions of these steps are the reference (the same cells,
- * boxes, keys and order, bit for bit); engine/native.py compiles this file with the system's C compiler on first use
- * and falls back to numpy where there is none. Plain C99, no Python headers: loaded with ctypes. */
+/* Host steps in C: the pass loop of the BVH build (engine/bvh/grow.py) with its SAH (binning.py) and its triangle
+ * records (triangles.py), and the key of each ray and the gathers and scatters of rows in the keys' order for ray
+ * reordering (engine/rt/order.py; the sort itself stays numpy's, vectorized and in place). numpy's versions of these
+ * steps are the reference (the same records, leaves, keys and order, bit for bit); engine/native.py compiles this
+ * file with the system's C compiler on first use and falls back to numpy where there is none. Plain C99, no Python
+ * headers: loaded with ctypes. */
+#include <pthread.h>
 #include <stdint.h>
 #include <math.h>
+#include <stdlib.h>
 #include <string.h>
-
-/* The cells of a pass of the binned build: for every triangle t[i] (i where t is null) of slot s[i] that its node
- * samples ((t & mask[s]) == 0; mask < 0: the node is not binned), its cell along each axis as binning.cell_axis
- * computes it (c * inv + off in float32, clamped to [0, 2^30], truncated, at most gmax), stored in cells[a * n + i]
- * where cells is not null; its count added to count[key] and its box folded into cbox[r * n_cells + key] as
- * np.minimum.at does (a tie takes the new value: signed zeros as numpy's), key = cell_base[s] + ((x * g + y) * g
- * + z) * cell_step[s] (step 1 where cell_step is null), g = grid[s]. cen is (3, stride) and box (6, stride)
- * float32; inv, off are (3, k). Returns how many triangles had a NaN box value, a NaN cell coordinate or a key
- * outside [0, n_cells) (numpy's path then runs instead). */
-int64_t hybrid_cell_stats(const float *cen, const float *box, int64_t stride, const int64_t *t, const int64_t *s,
-                          int64_t n, const int64_t *mask, const float *inv, const float *off, int64_t k,
-                          const int32_t *gmax, const int32_t *grid, const int64_t *cell_base,
-                          const int64_t *cell_step, int32_t *cells, int64_t *count, float *cbox, int64_t n_cells)
-{
-    int64_t bad = 0;
-    for (int64_t i = 0; i < n; ++i) {
-        const int64_t ti = t ? t[i] : i, si = s[i];
-        if (mask && (mask[si] < 0 || (ti & mask[si]) != 0))
-            continue;
-        int32_t c[3];
-        int nan = 0;
-        for (int a = 0; a < 3; ++a) {
-            float v = cen[a * stride + ti] * inv[a * k + si];
-            v = v + off[a * k + si];
-            nan |= v != v;
-            v = v > 0.0f ? v : 0.0f;
-            v = v < 1073741824.0f ? v : 1073741824.0f;
-            c[a] = (int32_t)v < gmax[si] ? (int32_t)v : gmax[si];
-            if (cells)
-                cells[a * n + i] = c[a];
-        }
-        const int64_t g = grid[si];
-        const int64_t key = cell_base[si] + ((c[0] * g + c[1]) * g + c[2]) * (cell_step ? cell_step[si] : 1);
-        if (nan || key < 0 || key >= n_cells) {
-            ++bad;
-            continue;
-        }
-        count[key] += 1;
-        for (int r = 0; r < 6; ++r) {   /* (branch-free: a NaN box counts as bad, so ties alone need care) */
-            const float v = box[r * stride + ti], m = cbox[r * n_cells + key];
-            bad += v != v;
-            cbox[r * n_cells + key] = m < v ? m : v;
-        }
-    }
-    return bad;
-}
 
 /* np.minimum's choice (the second operand on ties, a NaN first operand kept), and binning.half_area, in float32
  * with numpy's order of operations. */
@@ -258,6 +215,518 @@ void hybrid_octant_sah(const int64_t *cnt, const float *box, int64_t box_row, in
             }
         }
     }
+}
+
+/* ceil(log2(n)) for n >= 1: the bit length of n - 1 (binning.ceil_log2). */
+static int64_t ceil_log2_of(int64_t n)
+{
+    int64_t b = 0;
+    for (uint64_t x = (uint64_t)(n - 1); x; x >>= 1)
+        ++b;
+    return b;
+}
+
+/* A node's cell along axis a of its grid, as binning.cell_axis: c * inv + off in float32, clamped to [0, 2^30],
+ * truncated, at most gmax; -1 for a NaN (numpy's loop then runs). */
+static int32_t cell_of(float c, float inv, float off, int32_t gmax)
+{
+    float v = c * inv;
+    v = v + off;
+    if (v != v)
+        return -1;
+    v = v > 0.0f ? v : 0.0f;
+    v = v < 1073741824.0f ? v : 1073741824.0f;
+    return (int32_t)v < gmax ? (int32_t)v : gmax;
+}
+
+/* A triangle as the passes of hybrid_grow move it: its centre, its box (six-row form) and its index. */
+struct tri_row {
+    float c[3], b[6];
+    int32_t id;
+};
+
+/* The count and box (six rows of g^3, +inf where empty) of every cell of one node's grid, from its triangles
+ * rows[0, m) (increasing) that it samples ((id & mask) == 0), folded in that order as np.minimum.at does (a tie
+ * takes the new value: signed zeros as numpy's; the boxes hold no NaN). Returns nonzero where a cell was NaN. */
+static int node_cells(const struct tri_row *rows, int64_t m, int64_t mask, const float *inv, const float *off,
+                      int64_t k, int32_t gmax, int64_t g, int64_t *cnt, float *cbox)
+{
+    const int64_t g3 = g * g * g;
+    memset(cnt, 0, sizeof(int64_t) * g3);
+    for (int64_t q = 0; q < 6 * g3; ++q)
+        cbox[q] = INFINITY;
+    for (int64_t i = 0; i < m; ++i) {
+        const struct tri_row *t = rows + i;
+        if (t->id & mask)
+            continue;
+        const int32_t x = cell_of(t->c[0], inv[0], off[0], gmax);
+        const int32_t y = cell_of(t->c[1], inv[k], off[k], gmax);
+        const int32_t z = cell_of(t->c[2], inv[2 * k], off[2 * k], gmax);
+        if ((x | y | z) < 0)
+            return 1;
+        const int64_t key = (x * g + y) * g + z;
+        ++cnt[key];
+        for (int r = 0; r < 6; ++r) {
+            const float v = t->b[r], c = cbox[r * g3 + key];
+            cbox[r * g3 + key] = c < v ? c : v;
+        }
+    }
+    return 0;
+}
+
+/* Passes of fewer active triangles than this run on one thread (a thread's start costs more than they gain). */
+#define PASS_THREAD_MIN 8192
+
+/* One pass's state and outputs, per node (see hybrid_grow): what its nodes read and write. */
+struct pass {
+    const struct tri_row *idx;
+    struct tri_row *tmp;
+    uint8_t *part;
+    const int64_t *beg, *count, *rate, *cap, *cap2;
+    const int32_t *gmax, *grid;
+    const float *inv, *off;
+    const uint8_t *exact;
+    int64_t K, max_leaf;
+    int all_exact, any_exact;
+    const int64_t *split, *axis2_table;
+    int64_t *axis, *plane, *axis2, *ocount, *obeg;
+    uint8_t *found, *found2, *median;
+    float *child_dom, *grand_dom;
+};
+
+/* Nodes [k0, k1) of a pass: each one's cells, its SAH (2^3 grids also choose their children's splits) and the
+ * stable partition of its range into tmp. Returns 0, or 1 where a cell was NaN. */
+static int64_t pass_range(const struct pass *P, int64_t k0, int64_t k1)
+{
+    const int64_t K = P->K, K2 = 2 * K, max_leaf = P->max_leaf;
+    const int all_exact = P->all_exact, any_exact = P->any_exact;
+    const int64_t *beg = P->beg, *count = P->count, *cap = P->cap;
+    const int32_t *gmax = P->gmax;
+    const float *inv = P->inv, *off = P->off;
+    const uint8_t *exact = P->exact;
+    int64_t *axis = P->axis, *plane = P->plane, *axis2 = P->axis2, *ocount = P->ocount, *obeg = P->obeg;
+    uint8_t *found = P->found, *found2 = P->found2, *median = P->median;
+    int64_t lc[512], a_out[3];
+    float lb[6 * 512];
+    for (int64_t k = k0; k < k1; ++k) {
+        const int64_t b = beg[k], m = count[k], g = P->grid[k];
+        const int64_t mask = ((int64_t)1 << P->rate[k]) - 1;
+        if (node_cells(P->idx + b, m, mask, inv + k, off + k, K, gmax[k], g, lc, lb))
+            return 1;
+        float cb[12], gb[24];
+        uint8_t fo[3];
+        if (g == 2) {
+            hybrid_octant_sah(lc, lb, 8, 1, exact + k, cap + k, P->cap2 + k, max_leaf, P->split, P->axis2_table,
+                              a_out, fo, cb, a_out + 1, fo + 1, gb);
+            plane[k] = 1;
+            axis2[k] = a_out[1];
+            axis2[K + k] = a_out[2];
+            found2[k] = fo[1] && all_exact;
+            found2[K + k] = fo[2] && all_exact;
+        } else {
+            hybrid_grid_sah(lc, lb, g * g * g, 1, g, exact + k, cap + k, a_out, a_out + 1, fo, cb);
+            plane[k] = a_out[1];
+            axis2[k] = axis2[K + k] = 0;
+            found2[k] = found2[K + k] = 0;
+        }
+        axis[k] = a_out[0];
+        found[k] = fo[0];
+        for (int q = 0; q < 12; ++q)
+            P->child_dom[q * K + k] = cb[q];
+        if (g == 2)
+            for (int q = 0; q < 24; ++q)
+                P->grand_dom[q * K + k] = gb[q];
+        /* nodes whose counts are estimates and could break the depth cap are split at the median */
+        median[k] = !found[k] || (!exact[k] && count[k] > cap[k]);
+        if (median[k])
+            found2[k] = found2[K + k] = 0;
+
+        /* every triangle goes left or right (the same arithmetic as its cell), and on into a grandchild: part 0 /
+         * 1 the children, 2 + 2 side + cell the grandchildren */
+        const int64_t a = axis[k];
+        const float iv = inv[a * K + k], of = off[a * K + k];
+        const double sp = ((double)plane[k] - (double)of) / (double)(iv > 0 ? iv : 1.0f);
+        uint8_t *part = P->part + b;
+        int64_t pc[6] = {0, 0, 0, 0, 0, 0};
+        for (int64_t i = 0; i < m; ++i) {
+            const struct tri_row *t = P->idx + b + i;
+            const float c = t->c[a];
+            int right;
+            if (!any_exact) {
+                right = (double)c >= sp;
+            } else {
+                const int32_t x = cell_of(c, iv, of, gmax[k]);
+                if (x < 0)
+                    return 1;
+                right = x >= plane[k];
+            }
+            if (median[k])
+                right = i >= m / 2;
+            int p = right;
+            if (found2[right * K + k]) {
+                const int64_t a2 = axis2[right * K + k];
+                p = 2 + 2 * right + cell_of(t->c[a2], inv[a2 * K + k], off[a2 * K + k], gmax[k]);
+            }
+            part[i] = (uint8_t)p;
+            ++pc[p];
+        }
+        /* the stable partition of the range: side 0 (or its two grandchildren), then side 1 */
+        static const int ORDER[6] = {0, 2, 3, 1, 4, 5};
+        int64_t at[6];
+        int64_t pos = b;
+        for (int q = 0; q < 6; ++q) {
+            const int p = ORDER[q];
+            const int64_t o = p < 2 ? 2 * k + p : K2 + 4 * k + (p - 2);
+            at[p] = pos;
+            obeg[o] = pos;
+            ocount[o] = pc[p];
+            pos += pc[p];
+        }
+        for (int64_t i = 0; i < m; ++i)
+            P->tmp[at[part[i]]++] = P->idx[b + i];
+    }
+    return 0;
+}
+
+struct pass_part {
+    const struct pass *p;
+    int64_t k0, k1, rc;
+};
+
+static void *pass_thread(void *arg)
+{
+    struct pass_part *q = arg;
+    q->rc = pass_range(q->p, q->k0, q->k1);
+    return NULL;
+}
+
+/* A pass's nodes on up to `threads` threads, in parts of about equal triangle counts (the nodes are independent:
+ * each writes its own outputs and its own range). Small passes stay on this thread. */
+static int64_t pass_nodes(const struct pass *P, int64_t threads, int64_t active)
+{
+    enum { MAX_THREADS = 64 };
+    const int64_t K = P->K;
+    int64_t t = threads < MAX_THREADS ? threads : MAX_THREADS;
+    if (t > K)
+        t = K;
+    if (t <= 1 || active < PASS_THREAD_MIN)
+        return pass_range(P, 0, K);
+    struct pass_part parts[MAX_THREADS];
+    pthread_t ids[MAX_THREADS];
+    int started[MAX_THREADS] = {0};
+    int64_t k = 0, seen = 0;
+    for (int64_t j = 0; j < t; ++j) {   /* part j ends where the running count passes (j + 1) / t of the total */
+        parts[j].p = P;
+        parts[j].k0 = k;
+        while (k < K && (j == t - 1 || seen + P->count[k] <= active * (j + 1) / t || k == parts[j].k0))
+            seen += P->count[k++];
+        parts[j].k1 = k;
+        parts[j].rc = 0;
+    }
+    for (int64_t j = 1; j < t; ++j)
+        started[j] = pthread_create(&ids[j], NULL, pass_thread, &parts[j]) == 0;
+    int64_t rc = pass_range(P, parts[0].k0, parts[0].k1);
+    for (int64_t j = 1; j < t; ++j) {
+        if (started[j])
+            pthread_join(ids[j], NULL);
+        else   /* (no thread to be had: this one) */
+            parts[j].rc = pass_range(P, parts[j].k0, parts[j].k1);
+        rc = rc ? rc : parts[j].rc;
+    }
+    return rc;
+}
+
+/* The state of the pass loop in grow._grow_from's terms: the active triangles in increasing order with their
+ * node, and the nodes' count, depth and domain (6, K). Returns 3 where memory ran out. */
+static int64_t hand_back(const struct tri_row *rows, const int64_t *beg, const int64_t *count, const int64_t *depth,
+                         const float *dom, int64_t K, int64_t stride, int64_t *tid, int64_t *slot, int64_t *count_out,
+                         int64_t *depth_out, float *dom_out)
+{
+    int32_t *node_of = malloc(sizeof(int32_t) * (stride + 1));
+    if (!node_of)
+        return 3;
+    for (int64_t t = 0; t < stride; ++t)
+        node_of[t] = -1;
+    for (int64_t k = 0; k < K; ++k)
+        for (int64_t i = beg[k]; i < beg[k] + count[k]; ++i)
+            node_of[rows[i].id] = (int32_t)k;
+    int64_t n = 0;
+    for (int64_t t = 0; t < stride; ++t)
+        if (node_of[t] >= 0) {
+            tid[n] = t;
+            slot[n++] = node_of[t];
+        }
+    free(node_of);
+    memcpy(count_out, count, sizeof(int64_t) * K);
+    memcpy(depth_out, depth, sizeof(int64_t) * K);
+    memcpy(dom_out, dom, sizeof(float) * 6 * K);
+    return 0;
+}
+
+/* The pass loop of grow._grow_from from its first pass, with its arithmetic, its order and its tie rules, so that
+ * its records and leaves are numpy's, number for number. Where numpy bins every node of a pass into one array of
+ * cells, this keeps each node's triangles together (a stable partition of the node's range: in increasing order,
+ * the order of numpy's folds) and bins them node by node on a grid that stays in the L1 cache.
+ * In: the triangles' boxes (6, stride) and centres (3, stride) float32; the n active triangles tid (increasing)
+ * and slot; k0 active nodes' count, depth and binning domain dom0 (6, k0) float32; n_tri, the size cap's bound
+ * (grow's box.shape[1]); split and axis2_table, octant_sah's tables; chunk: where > 0, the loop stops once the
+ * active triangles are more than chunk and every node holds at most chunk (grow's chunk groups follow); threads:
+ * how many threads a pass's nodes use (pass_nodes; the same results for any number).
+ * Out: record r has rec_rows[r] rows of rec_child and rec_rec (rows of 2); leaf l has leaf_size[l], leaf_depth[l],
+ * a box leaf_box[6 l .. 6 l + 5] (six-row form) and its triangles next in leaf_tid (in leaf order); made =
+ * (records, rows, leaves, triangles, K, then the last pass's next record, its record and whether it made
+ * intermediate nodes) where the loop stopped with K nodes left, their state in state_* (see hand_back), else K =
+ * -1. Returns 0, or 1 where a cell was not computable (a NaN), 2 where an output is full, 3 where memory ran out,
+ * 4 where a node reached max_depth or a count disagreed with the slots (numpy's loop then runs instead, and says
+ * so). */
+int64_t hybrid_grow(const float *box, const float *cen, int64_t stride, int64_t n_tri, const int64_t *tid0,
+                    const int64_t *slot0, int64_t n, const int64_t *count0, const int64_t *depth0, const float *dom0,
+                    int64_t k0, int64_t max_leaf, int64_t max_depth, int64_t stat_boxes, const int64_t *split,
+                    const int64_t *axis2_table, int64_t *rec_child, int64_t *rec_rec, int64_t rows_cap,
+                    int64_t *rec_rows, int64_t recs_cap, int64_t *leaf_tid, int64_t *leaf_size, int64_t *leaf_depth,
+                    float *leaf_box, int64_t leaves_cap, int64_t chunk, int64_t *state_tid, int64_t *state_slot,
+                    int64_t *state_count, int64_t *state_depth, float *state_dom, int64_t threads,
+                    int64_t *made)
+{
+    int64_t rc = 0, n_rec = 0, n_rows = 0, n_leaves = 0, n_tids = 0, K = k0, last_here = 0, last_mid = 0;
+    made[4] = -1;
+    struct tri_row *idx = malloc(sizeof(struct tri_row) * (n + 1)), *tmp = malloc(sizeof(struct tri_row) * (n + 1));
+    uint8_t *part = malloc(n + 1);
+    int64_t *count = malloc(sizeof(int64_t) * (K + 1)), *depth = malloc(sizeof(int64_t) * (K + 1));
+    int64_t *beg = calloc((size_t)K + 1, sizeof(int64_t));
+    float *dom = malloc(sizeof(float) * (6 * K + 1));
+    if (!idx || !tmp || !part || !count || !depth || !beg || !dom) {
+        rc = 3;
+        goto out;
+    }
+    memcpy(count, count0, sizeof(int64_t) * K);
+    memcpy(depth, depth0, sizeof(int64_t) * K);
+    memcpy(dom, dom0, sizeof(float) * 6 * K);
+    /* each node's triangles together, in increasing order (a stable counting sort by slot) */
+    for (int64_t i = 0; i < n; ++i)
+        ++beg[slot0[i] + 1];
+    for (int64_t k = 0; k < K; ++k) {
+        if (beg[k + 1] != count[k]) {
+            rc = 4;
+            goto out;
+        }
+        beg[k + 1] += beg[k];
+    }
+    int nan = 0;   /* (a NaN box: numpy's loop, whose minima keep it) */
+    for (int64_t i = 0; i < n; ++i) {
+        struct tri_row *t = idx + beg[slot0[i]]++;
+        t->id = (int32_t)tid0[i];
+        for (int a = 0; a < 3; ++a)
+            t->c[a] = cen[a * stride + tid0[i]];
+        for (int r = 0; r < 6; ++r) {
+            t->b[r] = box[r * stride + tid0[i]];
+            nan |= t->b[r] != t->b[r];
+        }
+    }
+    if (nan) {
+        rc = 1;
+        goto out;
+    }
+    for (int64_t k = K; k > 0; --k)
+        beg[k] = beg[k - 1];
+    beg[0] = 0;
+
+    while (K > 0 && rc == 0) {
+        /* once every node fits a chunk (and a pass has pointed its new nodes at a record): handed back */
+        int64_t active = 0, biggest = 0;
+        for (int64_t k = 0; k < K; ++k) {
+            active += count[k];
+            biggest = count[k] > biggest ? count[k] : biggest;
+        }
+        if (chunk > 0 && n_rec && active > chunk && biggest <= chunk) {
+            rc = hand_back(idx, beg, count, depth, dom, K, stride, state_tid, state_slot, state_count, state_depth,
+                           state_dom);
+            made[4] = K;
+            made[5] = n_rec;
+            made[6] = last_here;
+            made[7] = last_mid;
+            break;
+        }
+        /* per node (K) and per outcome (6K: children 2k + side, then grandchildren 2K + 2 child + side) */
+        const int64_t K2 = 2 * K, K6 = 6 * K;
+        int64_t *cap = malloc(sizeof(int64_t) * (7 * K + 5 * K6 + 8));
+        float *fl = malloc(sizeof(float) * (6 * K + 12 * K + 24 * K + 6 * K6 + 8));
+        int32_t *i32 = malloc(sizeof(int32_t) * (2 * K + 8));
+        uint8_t *u8 = malloc(5 * K + 3 * K6 + 8);
+        if (!cap || !fl || !i32 || !u8) {
+            rc = 3;
+            goto pass_end;
+        }
+        int64_t *cap2 = cap + K, *rate = cap + 2 * K, *axis = cap + 3 * K, *plane = cap + 4 * K;
+        int64_t *axis2 = cap + 5 * K;
+        int64_t *ocount = cap + 7 * K, *out_index = ocount + K6, *out_rec = ocount + 2 * K6;
+        int64_t *out_depth = ocount + 3 * K6, *obeg = ocount + 4 * K6;
+        float *inv = fl, *off = fl + 3 * K, *child_dom = fl + 6 * K, *grand_dom = fl + 18 * K, *odom = fl + 42 * K;
+        int32_t *gmax = i32, *grid = i32 + K;
+        uint8_t *exact = u8, *found = u8 + K, *found2 = u8 + 2 * K, *median = u8 + 4 * K;
+        uint8_t *used = u8 + 5 * K, *inner = used + K6, *is_leaf = used + 2 * K6;
+
+        int64_t dmax = -1;
+        for (int64_t k = 0; k < K; ++k)
+            dmax = depth[k] > dmax ? depth[k] : dmax;
+        if (dmax >= max_depth) {
+            rc = 4;
+            goto pass_end;
+        }
+        /* caps, grids, sampling, the cells' scale and offset */
+        int64_t sampled = 0;
+        for (int64_t k = 0; k < K; ++k) {
+            const int64_t room = max_depth - depth[k] - 1 < 40 ? max_depth - depth[k] - 1 : 40;
+            const int64_t r1 = room - 1 > 0 ? room - 1 : 0;
+            cap[k] = (max_leaf << room) < n_tri ? (max_leaf << room) : n_tri;
+            cap2[k] = room >= 1 ? ((max_leaf << r1) < n_tri ? (max_leaf << r1) : n_tri) : 0;
+            grid[k] = count[k] <= 64 ? 2 : count[k] <= 2048 ? 4 : 8;
+            const int64_t r = ceil_log2_of(count[k]) - ceil_log2_of(grid[k] == 8 ? 4096 : 128);
+            rate[k] = grid[k] == 2 ? 0 : (r > 0 ? r : 0);
+            if (rate[k] > 0)
+                sampled += count[k];
+        }
+        int all_exact = 1, any_exact = 0;
+        for (int64_t k = 0; k < K; ++k) {
+            if (sampled * 4 < active)
+                rate[k] = 0;
+            exact[k] = rate[k] == 0;
+            all_exact &= exact[k];
+            any_exact |= exact[k];
+            gmax[k] = grid[k] - 1;
+            for (int a = 0; a < 3; ++a) {
+                const float ext = dom[(3 + a) * K + k] - dom[a * K + k];
+                inv[a * K + k] = ext > 0 ? (float)((double)grid[k] / (double)ext) : 0.0f;
+                const float neg = -dom[a * K + k];
+                off[a * K + k] = neg * inv[a * K + k];
+            }
+        }
+        /* node by node: its cells, its SAH, its partition; the nodes in parts on `threads` threads */
+        memset(ocount, 0, sizeof(int64_t) * K6);
+        memset(grand_dom, 0, sizeof(float) * 24 * K);
+        struct pass p = {idx, tmp, part, beg, count, rate, cap, cap2, gmax, grid, inv, off, exact, K, max_leaf,
+                         all_exact, any_exact, split, axis2_table, axis, plane, axis2, ocount, obeg, found, found2,
+                         median, child_dom, grand_dom};
+        if ((rc = pass_nodes(&p, threads, active)))
+            goto pass_end;
+        {   /* (the partitioned ranges are in tmp: the buffers swap) */
+            struct tri_row *was = idx;
+            idx = tmp;
+            tmp = was;
+        }
+        /* outcomes: intermediate nodes (children split here), new active nodes, leaves */
+        int64_t n_inner = 0, n_leaf = 0, n_mid = 0;
+        for (int64_t o = 0; o < K6; ++o) {
+            used[o] = o < K2 ? !found2[(o & 1) * K + (o >> 1)] : found2[(((o - K2) >> 1) & 1) * K + ((o - K2) >> 2)];
+            inner[o] = used[o] && ocount[o] > max_leaf;
+            is_leaf[o] = used[o] && !inner[o];
+            out_index[o] = inner[o] ? n_inner++ : is_leaf[o] ? n_leaves + n_leaf++ : o < K2 ? n_mid++ : -1;
+            out_depth[o] = o < K2 ? depth[o >> 1] + 1 : depth[(o - K2) >> 2] + 2;
+        }
+        const int64_t rec_here = n_rec, rec_mid = rec_here + 1, rec_next = rec_here + (n_mid ? 2 : 1);
+        last_here = rec_here;
+        last_mid = n_mid > 0;
+        for (int64_t o = 0; o < K6; ++o)
+            out_rec[o] = inner[o] ? rec_next : (o < K2 && !used[o]) ? rec_mid : -1;
+        if (n_rec + 2 > recs_cap || n_rows + K + n_mid > rows_cap || n_leaves + n_leaf > leaves_cap) {
+            rc = 2;
+            goto pass_end;
+        }
+        for (int64_t o = 0; o < K2; ++o) {   /* the records: this pass's nodes, then its intermediate ones */
+            rec_child[2 * n_rows + o] = out_index[o];
+            rec_rec[2 * n_rows + o] = out_rec[o];
+        }
+        n_rows += K;
+        rec_rows[n_rec++] = K;
+        if (n_mid) {
+            for (int64_t c = 0; c < K2; ++c) {
+                if (used[c])
+                    continue;
+                for (int t = 0; t < 2; ++t) {
+                    const int64_t o = K2 + 2 * c + t;
+                    rec_child[2 * n_rows + t] = out_index[o];
+                    rec_rec[2 * n_rows + t] = out_rec[o];
+                }
+                ++n_rows;
+            }
+            rec_rows[n_rec++] = n_mid;
+        }
+        /* the outcomes' domains: children of median splits keep the parent's */
+        for (int64_t o = 0; o < K6; ++o)
+            for (int r = 0; r < 6; ++r) {
+                float v;
+                if (o < K2) {
+                    const int64_t k = o >> 1;
+                    v = median[k] ? dom[r * K + k] : child_dom[((o & 1) * 6 + r) * K + k];
+                } else {
+                    const int64_t q = o - K2, k = q >> 2;
+                    v = grand_dom[((((q >> 1) & 1) * 2 + (q & 1)) * 6 + r) * K + k];
+                }
+                odom[r * K6 + o] = v;
+            }
+        /* this pass's leaves, in id order: boxes from the statistics where exact, else their triangles' union */
+        for (int64_t o = 0; o < K6; ++o) {
+            if (!is_leaf[o])
+                continue;
+            const int64_t l = out_index[o], b = obeg[o], m = ocount[o];
+            const int known = stat_boxes && (o < K2 ? exact[o >> 1] && !median[o >> 1] : 1);
+            leaf_size[l] = m;
+            leaf_depth[l] = out_depth[o];
+            for (int64_t i = 0; i < m; ++i)
+                leaf_tid[n_tids + i] = idx[b + i].id;
+            n_tids += m;
+            float *lbx = leaf_box + 6 * l;
+            for (int r = 0; r < 6; ++r)
+                lbx[r] = !known ? INFINITY : r < 3 ? odom[r * K6 + o] : -odom[r * K6 + o];
+            if (!known)
+                for (int64_t i = 0; i < m; ++i)
+                    for (int r = 0; r < 6; ++r)
+                        lbx[r] = min_np(lbx[r], idx[b + i].b[r]);
+        }
+        n_leaves += n_leaf;
+        /* the next pass's nodes (up to four per node) */
+        int64_t *nc = realloc(count, sizeof(int64_t) * (n_inner + 1));
+        count = nc ? nc : count;
+        int64_t *nd = nc ? realloc(depth, sizeof(int64_t) * (n_inner + 1)) : NULL;
+        depth = nd ? nd : depth;
+        int64_t *nb = nd ? realloc(beg, sizeof(int64_t) * (n_inner + 1)) : NULL;
+        beg = nb ? nb : beg;
+        float *nm = nb ? realloc(dom, sizeof(float) * (6 * n_inner + 1)) : NULL;
+        dom = nm ? nm : dom;
+        if (!nm) {
+            rc = 3;
+            goto pass_end;
+        }
+        int64_t j = 0;
+        for (int64_t o = 0; o < K6; ++o)
+            if (inner[o]) {
+                count[j] = ocount[o];
+                depth[j] = out_depth[o];
+                beg[j] = obeg[o];
+                for (int r = 0; r < 6; ++r)
+                    dom[r * n_inner + j] = odom[r * K6 + o];
+                ++j;
+            }
+        K = n_inner;
+    pass_end:
+        free(cap);
+        free(fl);
+        free(i32);
+        free(u8);
+    }
+out:
+    made[0] = n_rec;
+    made[1] = n_rows;
+    made[2] = n_leaves;
+    made[3] = n_tids;
+    free(idx);
+    free(tmp);
+    free(part);
+    free(count);
+    free(depth);
+    free(beg);
+    free(dom);
+    return rc;
 }
 
 /* The triangle records of engine/bvh/triangles.py for rows [0, n): the corners of triangle faces[perm[i]] (faces

@@ -21,10 +21,12 @@ from pathlib import Path
 import numpy as np
 
 SOURCE = Path(__file__).with_name("native.c")
-FLAGS = ["-O2", "-shared", "-fPIC", "-ffp-contract=off", "-std=c99"]
+#: threads for the build's passes; no fused multiply-adds (numpy's roundings, step by step); no FP traps assumed, so
+#: float compares may become branch-free selects (the same values)
+FLAGS = ["-O2", "-shared", "-fPIC", "-pthread", "-ffp-contract=off", "-fno-trapping-math", "-std=c99"]
 
-_F32, _U32, _U64, _I64, _U8, _I32 = (np.ctypeslib.ndpointer(dtype=t, flags="C_CONTIGUOUS")
-                                     for t in (np.float32, np.uint32, np.uint64, np.int64, np.uint8, np.int32))
+_F32, _U32, _U64, _I64, _U8 = (np.ctypeslib.ndpointer(dtype=t, flags="C_CONTIGUOUS")
+                               for t in (np.float32, np.uint32, np.uint64, np.int64, np.uint8))
 
 
 def cache_dir() -> Path | None:
@@ -104,9 +106,6 @@ def _load(path: Path) -> ctypes.CDLL:
     for f in (lib.hybrid_ray_keys, lib.hybrid_rows_of, lib.hybrid_gather_rows, lib.hybrid_scatter_flags):
         f.restype = None
     p = ctypes.c_void_p
-    lib.hybrid_cell_stats.argtypes = [_F32, _F32, i64, p, _I64, i64, p, _F32, _F32, i64, _I32, _I32, _I64, p, p,
-                                      _I64, _F32, i64]
-    lib.hybrid_cell_stats.restype = i64
     lib.hybrid_triangle_records.argtypes = [_F32, i64, _I64, _I64, i64, p]
     lib.hybrid_triangle_records.restype = i64
     lib.hybrid_octant_sah.argtypes = [_I64, p, i64, i64, _U8, _I64, _I64, i64, _I64, _I64, _I64, _U8, _F32, _I64,
@@ -114,37 +113,11 @@ def _load(path: Path) -> ctypes.CDLL:
     lib.hybrid_octant_sah.restype = None
     lib.hybrid_grid_sah.argtypes = [_I64, p, i64, i64, i64, _U8, _I64, _I64, _I64, _U8, _F32]
     lib.hybrid_grid_sah.restype = None
+    lib.hybrid_grow.argtypes = [_F32, _F32, i64, i64, _I64, _I64, i64, _I64, _I64, _F32, i64, i64, i64, i64, _I64,
+                                _I64, _I64, _I64, i64, _I64, i64, _I64, _I64, _I64, _F32, i64, i64, _I64, _I64, _I64,
+                                _I64, _F32, i64, _I64]
+    lib.hybrid_grow.restype = i64
     return lib
-
-
-def cell_stats(cen, box, t, s, mask, inv, off, gmax, grid, cell_base, cell_step, cells, count, cbox) -> bool:
-    """The cell statistics of a pass of the BVH build (see hybrid_cell_stats in native.c) added into `count` and
-    folded into `cbox`, the cells written into `cells` (3, n) where it is not None; t, mask, cell_step may be None.
-    False, with nothing guaranteed about the outputs, where the library is not at hand, an array is not as it
-    expects, or a cell was not computable (the caller then runs numpy's steps)."""
-    lib = library()
-    if lib is None:
-        return False
-    wants = [(cen, np.float32, 2), (box, np.float32, 2), (t, np.int64, 1), (s, np.int64, 1), (mask, np.int64, 1),
-             (inv, np.float32, 2), (off, np.float32, 2), (gmax, np.int32, 1), (grid, np.int32, 1),
-             (cell_base, np.int64, 1), (cell_step, np.int64, 1), (cells, np.int32, 2), (count, np.int64, 1),
-             (cbox, np.float32, 2)]
-    if not all(a is None or (a.dtype == dt and a.ndim == nd and a.flags.c_contiguous and a.flags.aligned)
-               for a, dt, nd in wants):
-        return False
-    n, k, stride, n_cells = len(s), len(gmax), cen.shape[1], len(count)
-    if (cen.shape[0] != 3 or box.shape != (6, stride) or (t is None and n > stride) or inv.shape != (3, k)
-            or off.shape != (3, k) or cbox.shape != (6, n_cells) or (cells is not None and cells.shape != (3, n))
-            or (t is not None and len(t) != n)
-            or any(a is not None and len(a) != k for a in (mask, grid, cell_base, cell_step))):
-        return False
-    if n and (int(s.min()) < 0 or int(s.max()) >= k
-              or (t is not None and (int(t.min()) < 0 or int(t.max()) >= stride))):
-        return False
-    ptr = lambda a: None if a is None else a.ctypes.data  # noqa: E731
-    bad = lib.hybrid_cell_stats(cen, box, stride, ptr(t), s, n, ptr(mask), inv, off, k, gmax, grid, cell_base,
-                                ptr(cell_step), ptr(cells), count, cbox, n_cells)
-    return bad == 0
 
 
 def grid_sah(cnt, cbox, g: int, exact, cap):
@@ -185,6 +158,52 @@ def octant_sah(cnt, cbox, exact, cap, cap2, max_leaf: int, split_table, axis2_ta
                           as_c(cap2), max_leaf, split_table, axis2_table, axis, found.view(np.uint8), child, axis2,
                           found2.view(np.uint8), grand)
     return axis, found, child, axis2, found2, grand
+
+
+def grow(box, cen, tid, slot, count, depth, dom, max_leaf: int, max_depth: int, stat_boxes: bool, chunk,
+         split_table, axis2_table, threads: int = 1):
+    """grow._grow_from's pass loop from its first pass (see hybrid_grow in native.c), numpy's records and leaves
+    number for number, until it ends or, where chunk, the chunk groups begin: ([(child, rec) of every record],
+    (leaf-order triangles, sizes, depths, boxes (L, 6)) of the leaves, and None or the loop's state at the chunk
+    groups (tid, slot, count, depth, dom, (the next record, the records pointing at it))). None where the library
+    is not at hand, an array is not as it expects, or the loop needs numpy's (a NaN cell, a depth cap reached:
+    numpy's loop says so). threads: how many threads a pass's nodes may use (the same results for any number)."""
+    lib = library()
+    n, k = len(slot), len(count)
+    stride = box.shape[1] if box.ndim == 2 else -1
+    count, depth, dom = (np.ascontiguousarray(a) for a in (count, depth, dom))   # (small: one per node)
+    want = [(box, np.float32, (6, stride)), (cen, np.float32, (3, stride)), (tid, np.int64, (n,)),
+            (slot, np.int64, (n,)), (count, np.int64, (k,)), (depth, np.int64, (k,)), (dom, np.float32, (6, k))]
+    if lib is None or k == 0 or not all(a.dtype == dt and a.shape == shape and a.flags.c_contiguous and a.flags.aligned
+                                        for a, dt, shape in want):
+        return None
+    if stride >= 1 << 31 or (n and (int(slot.min()) < 0 or int(slot.max()) >= k or int(tid.min()) < 0
+                                    or int(tid.max()) >= stride)):
+        return None
+    cap = n + k + 64   # (leaves = interior nodes + k: one per triangle unless a sampled split left a side empty)
+    rec_child, rec_rec = np.empty((cap, 2), np.int64), np.empty((cap, 2), np.int64)
+    rec_rows = np.empty(2 * max_depth + 4, np.int64)
+    leaf_tid, leaf_size, leaf_depth = np.empty(n, np.int64), np.empty(cap, np.int64), np.empty(cap, np.int64)
+    leaf_box = np.empty((cap, 6), np.float32)
+    state_tid, state_slot = (np.empty(n, np.int64) for _ in range(2)) if chunk else (np.empty(1, np.int64),) * 2
+    state_count, state_depth = (np.empty(cap, np.int64) for _ in range(2)) if chunk else (np.empty(1, np.int64),) * 2
+    state_dom = np.empty(6 * cap if chunk else 1, np.float32)
+    made = np.zeros(8, np.int64)
+    if lib.hybrid_grow(box, cen, stride, stride, tid, slot, n, count, depth, dom, k, max_leaf, max_depth,
+                       int(stat_boxes), split_table, axis2_table, rec_child, rec_rec, cap, rec_rows, len(rec_rows),
+                       leaf_tid, leaf_size, leaf_depth, leaf_box, cap, int(chunk or 0), state_tid, state_slot,
+                       state_count, state_depth, state_dom, max(1, int(threads)), made):
+        return None
+    n_rec, _, n_leaves, n_tids, k_left, rec_next, last, mid = (int(x) for x in made)
+    ends = np.cumsum(rec_rows[:n_rec])
+    records = [(rec_child[e - r:e], rec_rec[e - r:e]) for r, e in zip(rec_rows[:n_rec].tolist(), ends.tolist())]
+    leaves = (leaf_tid[:n_tids], leaf_size[:n_leaves], leaf_depth[:n_leaves], leaf_box[:n_leaves])
+    state = None
+    if k_left >= 0:
+        n_left = n - n_tids
+        state = (state_tid[:n_left], state_slot[:n_left], state_count[:k_left], state_depth[:k_left],
+                 state_dom[:6 * k_left].reshape(6, k_left), (rec_next, [last, last + 1] if mid else [last]))
+    return records, leaves, state
 
 
 def triangle_records(vt, faces, perm, out) -> int | None:

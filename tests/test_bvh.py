@@ -726,18 +726,30 @@ def _same_tree(a, b):
             and np.array_equal(a.prim_ids, b.prim_ids))
 
 
-@pytest.mark.parametrize("mesh", ["sphere", "soup", "degenerates", "signed_zeros", "nan", "spheres", "scan"])
+def coincident_centres():
+    """Clusters of 9 triangles of one box centre and different sizes (exact in float32): nodes with no usable plane,
+    split at their median, whose leaves take their boxes from their triangles."""
+    base = np.array([[-1.0, -1.0, -1.0], [1.0, 0.5, 1.0], [0.5, 1.0, -0.5]])
+    scales = 2.0 ** np.arange(-4, 5)
+    centres = np.random.default_rng(4).integers(-20, 20, (400, 3)).astype(np.float64)
+    v = (centres[:, None, None, :] + scales[None, :, None, None] * base).reshape(-1, 3)
+    return v, np.arange(len(v)).reshape(-1, 3)
+
+
+@pytest.mark.parametrize("mesh", ["sphere", "soup", "degenerates", "signed_zeros", "nan", "coincident", "spheres",
+                                  "scan"])
 def test_the_c_steps_give_numpy_s_tree_byte_for_byte(mesh, monkeypatch):
-    """The passes' cell statistics and the triangle records in C (engine/native.c) give the tree and records of
-    numpy's steps, byte for byte: small meshes, zero-area and NaN triangles, signed zeros (ties of the minima), and
-    meshes large enough for the sampled top and several chunk groups."""
+    """The pass loop and the triangle records in C (engine/native.c) give the tree and records of numpy's steps,
+    byte for byte: small meshes, zero-area and NaN triangles, signed zeros (ties of the minima), and meshes large
+    enough for several chunk groups (the loop hands its state back to grow.py at the groups, which run it again)."""
     from engine import native
     from engine.bench.scenes import build_mesh
+    from engine.bvh.grow import CHUNK
 
     if native.library() is None:
         pytest.skip("no C compiler here: the build runs its numpy steps")
     v, f = {"sphere": lambda: sphere(4), "soup": lambda: soup(20_000), "degenerates": with_degenerates,
-            "signed_zeros": lambda: soup(5000), "nan": lambda: soup(3000),
+            "signed_zeros": lambda: soup(5000), "nan": lambda: soup(3000), "coincident": coincident_centres,
             "spheres": lambda: build_mesh("spheres", 150_000, seed=3),
             "scan": lambda: build_mesh("scan", 150_000, seed=3)}[mesh]()
     v = np.array(v, np.float32)
@@ -748,16 +760,17 @@ def test_the_c_steps_give_numpy_s_tree_byte_for_byte(mesh, monkeypatch):
         v.reshape(-1)[zero[::2]] = -0.0
     if mesh == "nan":
         v[::97] = np.nan
-    calls = {name: [] for name in ("cell_stats", "triangle_records", "grid_sah", "octant_sah")}
+    calls = {name: [] for name in ("grow", "triangle_records")}
     for name, got in calls.items():
         real = getattr(native, name)
-        monkeypatch.setattr(native, name, lambda *a, real=real, got=got: got.append(real(*a)) or got[-1])
+        monkeypatch.setattr(native, name, lambda *a, real=real, got=got, **k: got.append(real(*a, **k)) or got[-1])
     in_c = build_bvh(v, f, threads=2)
-    assert calls["cell_stats"] and all(calls["cell_stats"])  # every pass's statistics in C
+    assert calls["grow"] and None not in calls["grow"]  # every pass in C
+    handed_back = [state for _, _, state in calls["grow"] if state is not None]
+    assert len(handed_back) == (len(f) > CHUNK)  # at the chunk groups: from the root, then once per group
+    assert len(calls["grow"]) == 1 or len(f) > CHUNK and len(calls["grow"]) > 2
     records = calls["triangle_records"]
     assert records and None not in records
-    for name in ("grid_sah", "octant_sah") if len(f) > 10_000 else ():
-        assert calls[name] and None not in calls[name]
     n_zero = sum(records)
     monkeypatch.setattr(native, "library", lambda: None)
     in_numpy = build_bvh(v, f, threads=2)
@@ -765,54 +778,6 @@ def test_the_c_steps_give_numpy_s_tree_byte_for_byte(mesh, monkeypatch):
     assert in_c.stats["degenerate"] == in_numpy.stats["degenerate"] == n_zero
     if mesh == "degenerates":
         assert in_c.stats["degenerate"] > 0
-
-
-def test_c_cell_statistics_match_numpy_s_and_refuse_what_they_cannot_compute():
-    """One pass's statistics, in C and in numpy: the same cells, counts and boxes for sampled and unsampled nodes
-    on 2^3 (cell-major) and 4^3 grids; a NaN cell coordinate or a NaN box gives False (numpy's steps then run)."""
-    from engine import native
-    from engine.bvh import binning
-
-    if native.library() is None:
-        pytest.skip("no C compiler here: the build runs its numpy steps")
-    rng = np.random.default_rng(11)
-    n, k = 20_000, 40
-    cen = rng.uniform(-5, 5, (3, n)).astype(np.float32)
-    lo = cen - rng.uniform(0, 1, (3, n)).astype(np.float32)
-    box = np.concatenate([lo, -(cen + rng.uniform(0, 1, (3, n)).astype(np.float32))])
-    box[0, ::50] = 0.0
-    box[0, 1::50] = -0.0                                  # ties between signed zeros
-    tid = np.sort(rng.choice(n, 15_000, replace=False)).astype(np.int64)
-    slot = rng.integers(0, k, tid.size)
-    grid = np.where(np.arange(k) % 2, 4, 2).astype(np.int32)
-    inv = (grid / np.float32(10.0) * np.ones((3, 1), np.float32)).astype(np.float32)
-    off = np.full((3, k), 5.0, np.float32) * inv
-    gmax = grid - 1
-    cell_base = np.cumsum(np.r_[0, grid[:-1].astype(np.int64) ** 3])
-    n_cells = int(cell_base[-1] + grid[-1] ** 3)
-    for mask in (None, np.where(np.arange(k) % 3 == 0, -1, np.arange(k) % 4).astype(np.int64)):
-        for step in (None, np.ones(k, np.int64)):
-            args = (cen, box, tid, slot, mask, inv, off, gmax, grid, cell_base, step, n_cells, mask is None)
-            c = binning.cell_stats(*args)
-            lib = native.library
-            native.library = lambda: None
-            try:
-                p = binning.cell_stats(*args)
-            finally:
-                native.library = lib
-            for x, y in zip(c, p):
-                assert (x is None) == (y is None)
-                assert x is None or (x.dtype == y.dtype and x.tobytes() == y.tobytes())
-    count, cbox = np.zeros(n_cells, np.int64), np.full((6, n_cells), np.inf, np.float32)
-    rest = (gmax, grid, cell_base, None, None, count, cbox)
-    assert native.cell_stats(cen, box, tid, slot, None, inv, off, *rest)
-    bad_off = off.copy()
-    bad_off[1, slot[7]] = np.nan
-    assert not native.cell_stats(cen, box, tid, slot, None, inv, bad_off, *rest)
-    bad_box = box.copy()
-    bad_box[4, tid[9]] = np.nan
-    assert not native.cell_stats(cen, bad_box, tid, slot, None, inv, off, *rest)
-    assert not native.cell_stats(cen, box, tid, slot, None, inv.astype(np.float64), off, *rest)  # not its dtype
 
 
 def test_c_triangle_records_match_numpy_s_on_slivers_and_huge_triangles(monkeypatch):
@@ -916,8 +881,9 @@ def test_c_sah_matches_numpy_s_on_nan_inf_and_huge_counts(monkeypatch):
 
 
 def test_c_steps_hand_bad_indices_back_to_numpy():
-    """The C records refuse a vertex index out of range (numpy's steps then raise), and the cell statistics refuse
-    slots or triangles outside their arrays, instead of reading beyond them."""
+    """The C records refuse a vertex index out of range (numpy's steps then raise), and the C pass loop refuses
+    slots or triangles outside their arrays, counts that disagree with the slots and centres it cannot bin (NaN),
+    instead of reading beyond them or guessing: numpy's loop then runs."""
     from engine import native
 
     if native.library() is None:
@@ -928,11 +894,22 @@ def test_c_steps_hand_bad_indices_back_to_numpy():
     assert native.triangle_records(vt, np.array([[0, 1, 4]]), np.array([0]), out) is None
     assert native.triangle_records(vt, np.array([[0, -1, 2]]), np.array([0]), out) is None
     assert native.triangle_records(vt, np.array([[0, 1, 2]]), np.array([1]), out) is None
-    cen, box = np.zeros((3, 4), np.float32), np.zeros((6, 4), np.float32)
-    one = np.ones((3, 1), np.float32)
-    rest = (np.ones(1, np.int32), np.full(1, 2, np.int32), np.zeros(1, np.int64), None, None, np.zeros(8, np.int64),
-            np.full((6, 8), np.inf, np.float32))
-    assert native.cell_stats(cen, box, np.array([0, 3]), np.array([0, 0]), None, one, one, *rest)
-    assert not native.cell_stats(cen, box, np.array([0, 4]), np.array([0, 0]), None, one, one, *rest)
-    assert not native.cell_stats(cen, box, np.array([0, 3]), np.array([0, 1]), None, one, one, *rest)
-    assert not native.cell_stats(cen, box, None, np.zeros(5, np.int64), None, one, one, *rest)
+    from engine.bvh.binning import OCTANT_TABLES
+
+    rng = np.random.default_rng(5)
+    cen = rng.uniform(0, 1, (3, 40)).astype(np.float32)
+    box = np.concatenate([cen - 0.01, -(cen + 0.01)]).astype(np.float32)
+    dom = np.array([[0], [0], [0], [1], [1], [1]], np.float32)
+
+    def loop(tid, slot, count, c=cen):
+        return native.grow(box, c, tid, slot, np.array(count), np.zeros(len(count), np.int64), dom, 4, 32, True,
+                           None, *OCTANT_TABLES)
+
+    every, root = np.arange(40), np.zeros(40, np.int64)
+    records, (tids, sizes, depths, boxes), state = loop(every, root, [40])
+    assert state is None and np.array_equal(np.sort(tids), every) and sizes.sum() == 40 and np.all(sizes <= 4)
+    assert loop(np.r_[every[:-1], 40], root, [40]) is None                    # a triangle beyond the arrays
+    assert loop(every, np.r_[root[:-1], 1], [40]) is None                     # a slot beyond the nodes
+    assert loop(every, root, [39]) is None                                    # a count the slots disagree with
+    assert loop(every, root, [40], np.where(every % 7 == 3, np.nan, cen).astype(np.float32)) is None  # NaN
+    assert loop(every, root.astype(np.int32), [40]) is None                   # not its dtype

@@ -16,17 +16,16 @@ def _target(issue, what, measured, target, unit, higher_is_better, note=""):
 
 def evaluate_targets(results: dict) -> list[dict]:
     out = []
-    for b in results.get("build", []):
-        if b["triangles"] >= 900_000:
-            kind = b.get("kind", "generated")
-            m = f"{kind}, {b['triangles'] / 1e6:.1f}M triangles"
-            if kind == "generated":
-                out.append(_target(3, f"BVH build <= 1.0 s per million triangles ({m})", b["s_per_million"], 1.0,
-                                   "s/M", False))
-                out.append(_target(6, f"BVH build <= 0.5 s per million triangles ({m})", b["s_per_million"], 0.5,
-                                   "s/M", False))
-            out.append(_target(19, f"BVH build <= 1.0 s per million triangles on every mesh kind ({m})",
-                               b["s_per_million"], 1.0, "s/M", False))
+    for b in results.get("build", []):  # (#19: every size measured; #3 and #6: the large meshes)
+        kind = b.get("kind", "generated")
+        m = f"{kind}, {b['triangles'] / 1e6:.1f}M triangles"
+        if kind == "generated" and b["triangles"] >= 900_000:
+            out.append(_target(3, f"BVH build <= 1.0 s per million triangles ({m})", b["s_per_million"], 1.0,
+                               "s/M", False))
+            out.append(_target(6, f"BVH build <= 0.5 s per million triangles ({m})", b["s_per_million"], 0.5,
+                               "s/M", False))
+        out.append(_target(19, f"BVH build <= 1.0 s per million triangles on every mesh kind ({m})",
+                           b["s_per_million"], 1.0, "s/M", False))
     device = results.get("meta", {}).get("device", {})
     cpu_device = device.get("type") == "CPU"
     for sc in results.get("trace", {}).get("scenes", []):

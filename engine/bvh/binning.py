@@ -5,8 +5,9 @@ triangle goes to the cell of its centre (`cell_axis`, the same float32 arithmeti
 so a triangle's side always agrees with its bin). From the count and box of every cell, `grid_sah` finds the best of
 the G - 1 planes along each axis (C_trav = C_tri = 1; ties go to the most balanced split); on 2^3 grids
 `octant_sah` also picks each child's split along the two other axes, so that those triangles go down two levels in
-one pass. `cell_stats`, `grid_sah` and `octant_sah` run in C where engine/native.py has its library, node by node
-with the arithmetic and tie rules of the numpy code here, which stays the reference: the same numbers either way.
+one pass. `grid_sah` and `octant_sah` run in C where engine/native.py has its library, node by node with the
+arithmetic and tie rules of the numpy code here, which stays the reference: the same numbers either way (the C pass
+loop, native.grow, bins its nodes with the same arithmetic and calls the same C SAH).
 """
 
 from __future__ import annotations
@@ -49,15 +50,9 @@ def cell_stats(cen, box, tid, slot, mask, inv, off, gmax, grid, cell_base, cell_
     where empty) of the triangles `tid` (increasing; None: all) of the nodes `slot` that their node samples,
     (tid & mask[slot]) == 0 (mask None: every one; mask < 0: a node not binned). Cell (x, y, z) of node k has key
     cell_base[k] + ((x * G + y) * G + z) * cell_step[k] (step 1 where cell_step is None), G = grid[k]. With
-    want_cells (and no mask), also every triangle's cell along each axis, (3, n) int32. In C (engine/native.c)
-    where at hand, else numpy; the same numbers either way."""
+    want_cells (and no mask), also every triangle's cell along each axis, (3, n) int32."""
     n = len(slot)
-    count = np.zeros(n_cells, dtype=np.int64)
-    cbox = np.full((6, n_cells), np.inf, dtype=np.float32)
     cells = np.empty((3, n), dtype=np.int32) if want_cells else None
-    if native.cell_stats(cen, box, tid, slot, mask, np.ascontiguousarray(inv), np.ascontiguousarray(off), gmax, grid,
-                         cell_base, cell_step, cells, count, cbox):  # (inv, off: (3, nodes), small)
-        return cells, count, cbox
     t, s = (np.arange(n) if tid is None else tid), slot
     if mask is not None:
         m = mask.take(s)
@@ -83,7 +78,7 @@ def cell_stats(cen, box, tid, slot, mask, inv, off, gmax, grid, cell_base, cell_
         key *= cell
         key += cell_base.take(s)
     count = np.bincount(key, minlength=n_cells)
-    cbox = np.full((6, n_cells), np.inf, dtype=np.float32)  # (afresh: C may have written part of the first)
+    cbox = np.full((6, n_cells), np.inf, dtype=np.float32)
     for r in range(6):
         np.minimum.at(cbox[r], key, box[r] if ident else box[r].take(t))
     return (cells if want_cells else None), count, cbox
@@ -180,6 +175,8 @@ _SPLIT_L = _SPLIT_TABLE[..., 0]  # (3, 2, 2)
 _SPLIT_R = _SPLIT_TABLE[..., 1]
 _AXIS2_TABLE = np.array([[_OTHERS[a][j] for j in (0, 1)] for a in range(3)])  # (3, 2)
 _SPLIT_C, _AXIS2_C = (np.ascontiguousarray(t, dtype=np.int64) for t in (_SPLIT_TABLE, _AXIS2_TABLE))  # (native.c)
+#: The split and axis2 tables of octant_sah in native.c (for native.grow)
+OCTANT_TABLES = (_SPLIT_C, _AXIS2_C)
 
 
 def _edges(cbox: np.ndarray, cnt: np.ndarray, k: int) -> tuple:

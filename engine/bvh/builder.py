@@ -8,8 +8,8 @@
 3. The triangles are sorted along a 3D Morton curve of their centres (morton.py). The order gives memory locality to
    everything below and makes "every 2^j-th triangle" a spatially stratified sample.
 4. The tree grows top-down in passes, every node of a pass handled by the same numpy calls: each node bins its
-   triangles on a grid and splits at the best SAH plane, under a depth cap that keeps every leaf within max_depth
-   (grow.py, binning.py); on large meshes the top levels run on a Morton-stratified sample first (top.py).
+   triangles (a Morton-stratified sample of the large ones) on a grid and splits at the best SAH plane, under a
+   depth cap that keeps every leaf within max_depth (grow.py, binning.py).
 5. Leaves are collected pass by pass with their triangles in leaf order and their boxes; the interior nodes are
    renumbered depth first, with exact boxes and the SAH cost (pack.py).
 6. The large triangles go into a new top of the finished tree, rebuilt by an exact sweep SAH over its top subtrees
@@ -18,14 +18,14 @@
    widened by one float32 step (`_widen`). Where nothing is lifted, the packing of step 5 runs on the pool beside
    the records' blocks (it is serial; they need only the leaf order).
 
-Threads: the per-triangle steps run block by block, the Morton sort as sorted parts merged, the sampled top's
-statistics, partitions and walks in parts, the independent subtrees of the passes, and the node packing beside the
-triangle records, on the shared worker pool (engine/parallel.py; `threads`, default all cores): numpy releases the
-GIL inside its calls on large arrays. Results are merged in a fixed order, so the tree is byte for byte the same for
-any number of threads. The top's per-node choices (grid SAH over its nodes) stay serial.
+Threads: the per-triangle steps run block by block, the Morton sort as sorted parts merged, the independent
+subtrees of the passes, and the node packing beside the triangle records, on the shared worker pool
+(engine/parallel.py; `threads`, default all cores): numpy and the C steps release the GIL. Results are merged in a
+fixed order, so the tree is byte for byte the same for any number of threads.
 
-C: where engine/native.py has its library, the passes' cell statistics and SAH choices and the triangle records run
-in C, node by node and triangle by triangle with numpy's arithmetic and tie rules: the same tree, byte for byte.
+C: where engine/native.py has its library, the pass loop (with each pass's nodes on the threads) and the triangle
+records run in C, node by node and triangle by triangle with numpy's arithmetic and tie rules: the same tree, byte
+for byte.
 """
 
 from __future__ import annotations
@@ -46,9 +46,9 @@ from .triangles import box_centres, sorted_boxes, triangle_records
 
 #: Default depth cap; equal to the default BVH_STACK_SIZE of bvh.glsl (the traversal needs depth - 1 entries).
 DEFAULT_MAX_DEPTH = 32
-#: The default thread count is at most one per this many triangles: below it the pool's hand-offs cost more than
-#: a second thread gains (docs/benchmarks.md, "BVH build")
-TRIS_PER_THREAD = 100_000
+#: The default thread count is at most one per this many triangles: below it a thread's start costs more than it
+#: gains (docs/benchmarks.md, "BVH build")
+TRIS_PER_THREAD = 25_000
 
 
 @dataclass

@@ -18,19 +18,24 @@ child above its cap are not used, and a node whose counts are only estimated and
 its median. So leaves are never deeper than max_depth, whatever the geometry, and the GPU traversal stack
 (BVH_STACK_SIZE) cannot overflow.
 
-Large meshes build their sampled top levels first (top.py). Once every node holds at most CHUNK triangles, groups of
-nodes (independent subtrees) are finished separately on cache-sized copies of their data, on the pool's threads,
-and merged in a fixed order.
+Once every node holds at most CHUNK triangles, groups of nodes (independent subtrees) are finished separately on
+cache-sized copies of their data, on the pool's threads, and merged in a fixed order.
+
+C: where engine/native.py has its library, the pass loop runs in C (native.grow) up to the chunk groups and in
+each group, with the arithmetic, order and tie rules of the numpy steps here, which stay the reference and the
+fallback: the same records and leaves, number for number. It keeps each node's triangles together and bins them
+node by node, where numpy bins every node of a pass at once.
 """
 
 from __future__ import annotations
 
 import numpy as np
 
+from .. import native
 from ..parallel import run as _parallel
-from .binning import GRID2_MAX, GRID4_MAX, SAMPLE4, SAMPLE8, ceil_log2, cell_axis, cell_stats, grid_sah, octant_sah
+from .binning import (GRID2_MAX, GRID4_MAX, OCTANT_TABLES, SAMPLE4, SAMPLE8, ceil_log2, cell_axis, cell_stats,
+                      grid_sah, octant_sah)
 from .pack import Leaves, Record
-from .top import TOP_MIN, grow_top
 
 #: Once every node holds at most CHUNK triangles, groups of about CHUNK are finished separately (cache-sized data).
 CHUNK = 1 << 17
@@ -41,17 +46,10 @@ def grow(box: np.ndarray, cen: np.ndarray, max_leaf: int, max_depth: int, stat_b
     """Build the topology: records of interior nodes (node 0 = record 0, row 0 is the root), the leaf of every
     (sorted) triangle, and every leaf's size and depth."""
     n_tri = box.shape[1]
-    cen_rows = np.ascontiguousarray(cen.T).reshape(-1)  # (x, y, z) of triangle i at 3 i .. 3 i + 2
-    top = grow_top(box, cen, cen_rows, max_leaf, max_depth, threads) if n_tri > TOP_MIN else None
-    if top is not None:
-        records, slot, count, depth, dom = top
-        return _grow_from(box, cen, np.arange(n_tri, dtype=np.intp), slot, count, depth, dom, max_leaf, max_depth,
-                          CHUNK, records=records, pending=(len(records), list(range(len(records)))),
-                          cen_rows=cen_rows, stat_boxes=stat_boxes, threads=threads)
     dom = np.concatenate([box[:3].min(axis=1), -box[3:].min(axis=1)]).reshape(6, 1)  # binning domain lo, hi
     return _grow_from(box, cen, np.arange(n_tri, dtype=np.intp), np.zeros(n_tri, dtype=np.intp),
                       np.array([n_tri], dtype=np.int64), np.zeros(1, dtype=np.int64), dom, max_leaf, max_depth,
-                      CHUNK, cen_rows=cen_rows, stat_boxes=stat_boxes, threads=threads)
+                      CHUNK, stat_boxes=stat_boxes, threads=threads)
 
 
 def trivial(box: np.ndarray, n_tri: int):
@@ -63,8 +61,8 @@ def trivial(box: np.ndarray, n_tri: int):
     return [rec], leaves
 
 
-def _grow_from(box, cen, tid, slot, count, depth, dom, max_leaf: int, max_depth: int, chunk, records=None,
-               pending=None, cen_rows=None, stat_boxes=True, threads: int = 1):
+def _grow_from(box, cen, tid, slot, count, depth, dom, max_leaf: int, max_depth: int, chunk, stat_boxes=True,
+               threads: int = 1):
     """The pass loop, from a set of active nodes: tid (increasing indices into box / cen) and slot of every
     active triangle; count, depth (the root is at 0) and binning domain (6, K) of every active node.
 
@@ -78,13 +76,22 @@ def _grow_from(box, cen, tid, slot, count, depth, dom, max_leaf: int, max_depth:
     triangles' boxes.
     """
     n_tri = box.shape[1]
-    if cen_rows is None:
-        cen_rows = np.ascontiguousarray(cen.T).reshape(-1)  # (x, y, z) of triangle i at 3 i .. 3 i + 2
-
     leaves = Leaves()
-    records: list[Record] = [] if records is None else records
+    records: list[Record] = []
     n_leaves = 0
     # pending: (record index the last pass's new nodes will live in, records that point at it)
+    pending = None
+    done = native.grow(box, cen, tid, slot, count, depth, dom, max_leaf, max_depth, stat_boxes, chunk,
+                       *OCTANT_TABLES, threads=threads)
+    if done is not None:  # in C, up to the end or the chunk groups
+        made, batch, state = done
+        records.extend(Record(child=child, rec=rec) for child, rec in made)
+        leaves.append(*batch)
+        if state is None:
+            return records, leaves
+        n_leaves = batch[1].size
+        tid, slot, count, depth, dom, pending = state
+    cen_rows = None
     while count.size:
         if chunk and pending and tid.size > chunk and count.max() <= chunk:
             n_leaves = _grow_chunks(box, cen, tid, slot, count, depth, dom, max_leaf, max_depth, chunk, records,
@@ -171,6 +178,8 @@ def _grow_from(box, cen, tid, slot, count, depth, dom, max_leaf: int, max_depth:
             at_node = slot * 3
             at_node += a_t
             a_t += tid * 3
+            if cen_rows is None:
+                cen_rows = np.ascontiguousarray(cen.T).reshape(-1)  # (x, y, z) of triangle i at 3 i .. 3 i + 2
             c_t = cen_rows.take(a_t)  # each triangle's centre on its node's axis
             if not exact.any():  # estimates only: a plain plane test in world space is enough
                 with np.errstate(divide="ignore", invalid="ignore"):

@@ -72,6 +72,13 @@ class Leaves:
         self.depths.append(depths)
         self.boxes.append(lb)
 
+    def append(self, tids, sizes, depths, boxes):
+        """A batch of leaves made elsewhere (native.grow): triangles already in leaf order, boxes (L, 6)."""
+        self.tids.append(tids)
+        self.sizes.append(sizes)
+        self.depths.append(depths)
+        self.boxes.append(boxes)
+
     def extend(self, other: "Leaves", t: np.ndarray) -> int:
         """Append the leaves of a sub-build whose triangle i is triangle t[i] here; returns how many."""
         self.tids.extend(t.take(x) for x in other.tids)

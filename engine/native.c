@@ -1,9 +1,9 @@
-/* Host steps in C: the pass loop of the BVH build (engine/bvh/grow.py) with its SAH (binning.py) and its triangle
- * records (triangles.py), and the key of each ray and the gathers and scatters of rows in the keys' order for ray
- * reordering (engine/rt/order.py; the sort itself stays numpy's, vectorized and in place). numpy's versions of these
- * steps are the reference (the same records, leaves, keys and order, bit for bit); engine/native.py compiles this
- * file with the system's C compiler on first use and falls back to numpy where there is none. Plain C99, no Python
- * headers: loaded with ctypes. */
+/* Host steps in C: the pass loop of the BVH build (engine/bvh/grow.py) with its SAH (binning.py), its node packing
+ * (pack.py) and its triangle records (triangles.py); the key of each ray and the gathers and scatters of rows in the
+ * keys' order for ray reordering (engine/rt/order.py; the sort itself stays numpy's, vectorized and in place).
+ * numpy's versions of these steps are the reference (the same records, leaves, nodes, keys and order, bit for
+ * bit); engine/native.py compiles this file with the system's C compiler on first use and falls back to numpy where
+ * there is none. Plain C99 and pthreads, no Python headers: loaded with ctypes. */
 #include <pthread.h>
 #include <stdint.h>
 #include <math.h>
@@ -726,6 +726,96 @@ out:
     free(depth);
     free(beg);
     free(dom);
+    return rc;
+}
+
+/* pack._step_down: the float32 next to x towards -inf, on the bits (inf and NaN as they are). */
+static float step_down(float x)
+{
+    int32_t u;
+    memcpy(&u, &x, 4);
+    if ((u & 0x7F800000) != 0x7F800000)
+        u = u > 0 ? u - 1 : u == 0 ? INT32_MIN + 1 : u + 1;
+    memcpy(&x, &u, 4);
+    return x;
+}
+
+/* pack.finish for n_rec records (rows[r] rows each; child and rec (N, 2) all records' rows in order, N the node
+ * count): the nodes in depth-first order, packed as NODE_DTYPE's 16 words each into out (widened by step_down
+ * where `widen`), the root's box (six-row form) into root_box, and each child slot's SAH term (its box's half area
+ * times its triangles, 1 for a node, 0 for an empty leaf) into terms (N, 2), for numpy's sums. Leaves: boxes (L, 6)
+ * six-row form, first slot, size. Returns 0, or -1 for a record, node or leaf reference out of range. */
+int64_t hybrid_finish(const int64_t *child, const int64_t *rec, const int64_t *rows, int64_t n_rec,
+                      const float *leaf_box, const int64_t *leaf_first, const int64_t *leaf_size, int64_t n_leaves,
+                      int64_t widen, uint32_t *out, float *root_box, double *terms)
+{
+    int64_t n = 0, rc = -1;
+    int64_t *base = malloc(sizeof(int64_t) * (n_rec + 1));
+    if (!base)
+        return -1;
+    for (int64_t r = 0; r < n_rec; ++r) {
+        base[r] = n;
+        n += rows[r];
+    }
+    base[n_rec] = n;
+    int64_t *nid = malloc(sizeof(int64_t) * (2 * n + 1)), *size = malloc(sizeof(int64_t) * (n + 1));
+    int64_t *pos = malloc(sizeof(int64_t) * (n + 1));
+    float *box = malloc(sizeof(float) * (6 * n + 1));
+    if (!nid || !size || !pos || !box)
+        goto done;
+    for (int64_t q = 0; q < 2 * n; ++q) {   /* child node ids in build order, -1 for a leaf */
+        const int64_t r = rec[q], c = child[q];
+        if (r >= 0 ? r >= n_rec || c < 0 || c >= rows[r] || base[r] + c <= q / 2 : c < 0 || c >= n_leaves)
+            goto done;
+        nid[q] = r >= 0 ? base[r] + c : -1;
+    }
+    for (int64_t i = n - 1; i >= 0; --i)   /* subtree sizes bottom up (children have larger ids) */
+        size[i] = (nid[2 * i] >= 0 ? size[nid[2 * i]] : 0) + (nid[2 * i + 1] >= 0 ? size[nid[2 * i + 1]] : 0) + 1;
+    if (n)
+        pos[0] = 0;
+    for (int64_t i = 0; i < n; ++i) {   /* pre-order positions top down: the right child after the left subtree */
+        int64_t p = pos[i] + 1;
+        if (nid[2 * i] >= 0) {
+            pos[nid[2 * i]] = p;
+            p += size[nid[2 * i]];
+        }
+        if (nid[2 * i + 1] >= 0)
+            pos[nid[2 * i + 1]] = p;
+    }
+    for (int64_t i = n - 1; i >= 0; --i) {   /* exact boxes bottom up; each node packed at its position */
+        const float *cb[2];
+        uint32_t word[2], count[2];
+        for (int s = 0; s < 2; ++s) {
+            const int64_t j = nid[2 * i + s], lid = child[2 * i + s];
+            cb[s] = j >= 0 ? box + 6 * j : leaf_box + 6 * lid;
+            word[s] = j >= 0 ? (uint32_t)pos[j] : ((uint32_t)leaf_first[lid] | 0x80000000u);
+            count[s] = j >= 0 ? 0 : (uint32_t)leaf_size[lid];
+            const int64_t wt = j >= 0 ? 1 : leaf_size[lid];
+            terms[2 * i + s] = wt > 0 ? (double)half_area(cb[s]) * (double)wt : 0.0;
+        }
+        for (int r = 0; r < 6; ++r)
+            box[6 * i + r] = min_np(cb[0][r], cb[1][r]);
+        float *row = (float *)(out + 16 * pos[i]);
+        for (int s = 0; s < 2; ++s)
+            for (int a = 0; a < 3; ++a) {
+                const float lo = cb[s][a], hi = cb[s][3 + a];
+                row[8 * s + a] = widen ? step_down(lo) : lo;
+                row[8 * s + 4 + a] = -(widen ? step_down(hi) : hi);
+            }
+        out[16 * pos[i] + 3] = word[0];
+        out[16 * pos[i] + 7] = word[1];
+        out[16 * pos[i] + 11] = count[0];
+        out[16 * pos[i] + 15] = count[1];
+    }
+    if (n)
+        memcpy(root_box, box, sizeof(float) * 6);
+    rc = 0;
+done:
+    free(base);
+    free(nid);
+    free(size);
+    free(pos);
+    free(box);
     return rc;
 }
 

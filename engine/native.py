@@ -1,9 +1,9 @@
 """The C versions of host steps of the BVH build and of ray reordering (native.c), compiled on first use with the
 system's C compiler (`cc`, or $CC) into the user's cache directory and loaded with ctypes; None where there is no
 compiler or no home, with HYBRID_NATIVE=0, or where the build fails (a RuntimeWarning with the compiler's message),
-and engine/bvh/binning.py, triangles.py, engine/rt/order.py and stream.py then run their numpy versions. The
-library's file name carries a hash of the source, the compiler command and the machine's architecture, so an edited
-source builds afresh."""
+and engine/bvh/grow.py, binning.py, pack.py, triangles.py, engine/rt/order.py and stream.py then run their numpy
+versions. The library's file name carries a hash of the source, the compiler command and the machine's
+architecture, so an edited source builds afresh."""
 from __future__ import annotations
 
 import ctypes
@@ -25,8 +25,8 @@ SOURCE = Path(__file__).with_name("native.c")
 #: float compares may become branch-free selects (the same values)
 FLAGS = ["-O2", "-shared", "-fPIC", "-pthread", "-ffp-contract=off", "-fno-trapping-math", "-std=c99"]
 
-_F32, _U32, _U64, _I64, _U8 = (np.ctypeslib.ndpointer(dtype=t, flags="C_CONTIGUOUS")
-                               for t in (np.float32, np.uint32, np.uint64, np.int64, np.uint8))
+_F32, _U32, _U64, _I64, _U8, _F64 = (np.ctypeslib.ndpointer(dtype=t, flags="C_CONTIGUOUS")
+                                     for t in (np.float32, np.uint32, np.uint64, np.int64, np.uint8, np.float64))
 
 
 def cache_dir() -> Path | None:
@@ -117,6 +117,8 @@ def _load(path: Path) -> ctypes.CDLL:
                                 _I64, _I64, _I64, i64, _I64, i64, _I64, _I64, _I64, _F32, i64, i64, _I64, _I64, _I64,
                                 _I64, _F32, i64, _I64]
     lib.hybrid_grow.restype = i64
+    lib.hybrid_finish.argtypes = [_I64, _I64, _I64, i64, _F32, _I64, _I64, i64, i64, _U32, _F32, _F64]
+    lib.hybrid_finish.restype = i64
     return lib
 
 
@@ -204,6 +206,26 @@ def grow(box, cen, tid, slot, count, depth, dom, max_leaf: int, max_depth: int, 
         state = (state_tid[:n_left], state_slot[:n_left], state_count[:k_left], state_depth[:k_left],
                  state_dom[:6 * k_left].reshape(6, k_left), (rec_next, [last, last + 1] if mid else [last]))
     return records, leaves, state
+
+
+def finish(child, rec, rows, leaf_box, leaf_first, leaf_size, widen: bool):
+    """pack.finish's packed nodes (N, 16) float32 words, the root's box and every child slot's SAH term (N, 2)
+    float64 (see hybrid_finish in native.c): child and rec (N, 2) int64, every record's rows in order; rows (R,) the
+    records' row counts; the leaves' boxes (L, 6) float32, first slots and sizes (L,) int64. None where the library
+    is not at hand, an array is not as it expects or a reference is out of range (numpy's steps then run)."""
+    lib = library()
+    n, n_leaves = len(child), len(leaf_first)
+    want = [(child, np.int64, (n, 2)), (rec, np.int64, (n, 2)), (rows, np.int64, (len(rows),)),
+            (leaf_box, np.float32, (n_leaves, 6)), (leaf_first, np.int64, (n_leaves,)),
+            (leaf_size, np.int64, (n_leaves,))]
+    if lib is None or not all(a.dtype == dt and a.shape == shape and a.flags.c_contiguous and a.flags.aligned
+                              for a, dt, shape in want) or int(rows.sum()) != n:
+        return None
+    out, root, terms = np.empty((n, 16), np.uint32), np.empty(6, np.float32), np.empty((n, 2), np.float64)
+    if lib.hybrid_finish(child, rec, rows, len(rows), leaf_box, leaf_first, leaf_size, n_leaves, int(widen), out, root,
+                         terms):
+        return None
+    return out.view(np.float32), root, terms
 
 
 def triangle_records(vt, faces, perm, out) -> int | None:

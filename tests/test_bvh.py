@@ -760,7 +760,7 @@ def test_the_c_steps_give_numpy_s_tree_byte_for_byte(mesh, monkeypatch):
         v.reshape(-1)[zero[::2]] = -0.0
     if mesh == "nan":
         v[::97] = np.nan
-    calls = {name: [] for name in ("grow", "triangle_records")}
+    calls = {name: [] for name in ("grow", "triangle_records", "finish")}
     for name, got in calls.items():
         real = getattr(native, name)
         monkeypatch.setattr(native, name, lambda *a, real=real, got=got, **k: got.append(real(*a, **k)) or got[-1])
@@ -771,10 +771,12 @@ def test_the_c_steps_give_numpy_s_tree_byte_for_byte(mesh, monkeypatch):
     assert len(calls["grow"]) == 1 or len(f) > CHUNK and len(calls["grow"]) > 2
     records = calls["triangle_records"]
     assert records and None not in records
+    assert calls["finish"] and None not in calls["finish"]  # the node packing in C
     n_zero = sum(records)
     monkeypatch.setattr(native, "library", lambda: None)
     in_numpy = build_bvh(v, f, threads=2)
     assert _same_tree(in_c, in_numpy)
+    assert in_c.stats["sah_cost"] == in_numpy.stats["sah_cost"]  # (the same terms, summed alike)
     assert in_c.stats["degenerate"] == in_numpy.stats["degenerate"] == n_zero
     if mesh == "degenerates":
         assert in_c.stats["degenerate"] > 0
@@ -913,3 +915,9 @@ def test_c_steps_hand_bad_indices_back_to_numpy():
     assert loop(every, root, [39]) is None                                    # a count the slots disagree with
     assert loop(every, root, [40], np.where(every % 7 == 3, np.nan, cen).astype(np.float32)) is None  # NaN
     assert loop(every, root.astype(np.int32), [40]) is None                   # not its dtype
+    # the C packing refuses references out of range: a leaf, a record, a child not below its parent
+    child, rec = np.array([[0, 0], [1, 2]]), np.array([[-1, 1], [-1, -1]])  # a root, its right child: 3 leaves
+    leaves = (np.zeros((3, 6), np.float32), np.arange(3), np.ones(3, np.int64))
+    assert native.finish(child, rec, np.array([1, 1]), *leaves, False) is not None
+    for c, r in (([[0, 0], [1, 3]], rec), (child, [[-1, 2], [-1, -1]]), (child, [[-1, 0], [-1, -1]])):
+        assert native.finish(np.array(c), np.array(r), np.array([1, 1]), *leaves, False) is None

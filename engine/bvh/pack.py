@@ -18,6 +18,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from .. import native
 from .binning import half_area
 from .layout import LEAF_BIT, NODE_DTYPE
 
@@ -101,9 +102,19 @@ def finish(records, leaf_boxes, leaf_first, leaf_size, n_tri: int, widen: bool =
     records in reverse makes the exact boxes (a node's box is the union of its children's) and writes every
     record's rows, packed, at their positions. leaf_boxes: the leaves' boxes, (l, 6) batches in leaf order.
     widen: the packed boxes are stepped outwards as builder._widen does (the SAH cost is of the exact boxes).
+    In C where engine/native.py has its library (the same nodes; the SAH terms summed here as below).
     """
     base = np.concatenate([[0], np.cumsum([rc.child.shape[0] for rc in records])]).astype(np.int64)
     n_nodes = int(base[-1])
+    in_c = native.finish(np.concatenate([rc.child for rc in records]), np.concatenate([rc.rec for rc in records]),
+                         np.diff(base), np.concatenate(leaf_boxes) if leaf_boxes else np.empty((0, 6), np.float32),
+                         leaf_first, leaf_size, widen)
+    if in_c is not None:
+        out, root_box, terms = in_c
+        sah = 0.0
+        for r in range(len(records) - 1, -1, -1):  # (each record's terms summed as one array, as below)
+            sah += float(terms[base[r]:base[r + 1]].sum())
+        return _cost(out.view(NODE_DTYPE).reshape(n_nodes), root_box, sah, n_nodes, n_tri)
     # child node ids in build order; -1 (a leaf) reads the extra last entry of size / pos
     nids = [np.where(rc.rec >= 0, base.take(np.maximum(rc.rec, 0)) + rc.child, -1) for rc in records]
     size = np.empty(n_nodes + 1, dtype=np.int64)
@@ -150,11 +161,15 @@ def finish(records, leaf_boxes, leaf_first, leaf_size, n_tri: int, widen: bool =
         with np.errstate(invalid="ignore", over="ignore"):
             area = half_area(cb.transpose(2, 0, 1)).astype(np.float64)
             sah += float(np.where(wt > 0, area * wt, 0.0).sum())
-    nodes = out.view(NODE_DTYPE).reshape(n_nodes)
+    return _cost(out.view(NODE_DTYPE).reshape(n_nodes), node_box[0], sah, n_nodes, n_tri)
+
+
+def _cost(nodes, root_box, sah: float, n_nodes: int, n_tri: int):
+    """(nodes, the SAH cost: (root area + the child slots' terms) / root area)."""
     if n_tri == 0:
         return nodes, 0.0
     with np.errstate(invalid="ignore", over="ignore"):
-        a_root = float(half_area(node_box[0]))
+        a_root = float(half_area(root_box))
     if not a_root > 0:
         return nodes, float(n_nodes + n_tri)
     return nodes, (a_root + sah) / a_root

@@ -550,7 +550,7 @@ def test_threads_give_the_same_tree_byte_for_byte():
     from engine.bvh.builder import TRIS_PER_THREAD
     from engine.bvh.grow import CHUNK
 
-    v, f = generated_mesh(300_000)  # > 2 chunk groups, many blocks, a sampled top: every threaded step runs
+    v, f = generated_mesh(300_000)  # > 2 chunk groups, many blocks, passes of many nodes: every threaded step runs
     assert len(f) > 2 * CHUNK
     one = build_bvh(v, f, threads=1)
     for threads in (2, 3):
@@ -572,7 +572,7 @@ def test_threads_give_the_same_tree_byte_for_byte():
 @pytest.mark.parametrize("kind", ["spheres", "scan"])
 def test_bench_mesh_kinds_build_valid_trees(kind):
     """The build benchmark's other meshes (a field of separate spheres; one scan-like surface), large enough for the
-    sampled top and several chunk groups: every triangle in exactly one leaf, every box holding its children, the
+    sampled nodes and several chunk groups: every triangle in exactly one leaf, every box holding its children, the
     same tree on 1 and 2 threads, and a SAH cost far below a median split's."""
     from engine.bench.scenes import build_mesh
     from engine.bvh.grow import CHUNK

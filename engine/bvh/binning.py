@@ -174,9 +174,8 @@ _SPLIT_TABLE = np.array(_SPLIT_EDGES)  # (3, 2, 2, 2): a, side, j, (left, right)
 _SPLIT_L = _SPLIT_TABLE[..., 0]  # (3, 2, 2)
 _SPLIT_R = _SPLIT_TABLE[..., 1]
 _AXIS2_TABLE = np.array([[_OTHERS[a][j] for j in (0, 1)] for a in range(3)])  # (3, 2)
-_SPLIT_C, _AXIS2_C = (np.ascontiguousarray(t, dtype=np.int64) for t in (_SPLIT_TABLE, _AXIS2_TABLE))  # (native.c)
-#: The split and axis2 tables of octant_sah in native.c (for native.grow)
-OCTANT_TABLES = (_SPLIT_C, _AXIS2_C)
+#: The split and axis2 tables of octant_sah in native.c (native.octant_sah and native.grow take them)
+OCTANT_TABLES = tuple(np.ascontiguousarray(t, dtype=np.int64) for t in (_SPLIT_TABLE, _AXIS2_TABLE))
 
 
 def _edges(cbox: np.ndarray, cnt: np.ndarray, k: int) -> tuple:
@@ -214,8 +213,7 @@ def _faces(ebox: np.ndarray, ecnt: np.ndarray, k: int) -> tuple:
 def octant_sah(cnt, cbox, exact: np.ndarray, cap: np.ndarray, cap2: np.ndarray, max_leaf: int):
     """`_octant_sah` in blocks of OCTANT_BLOCK nodes (its dozens of temporaries then stay in the L2 cache)."""
     k = exact.size
-    in_c = native.octant_sah(cnt.reshape(8, k), cbox.reshape(6, 8 * k), exact, cap, cap2, max_leaf, _SPLIT_C,
-                             _AXIS2_C)
+    in_c = native.octant_sah(cnt.reshape(8, k), cbox.reshape(6, 8 * k), exact, cap, cap2, max_leaf, *OCTANT_TABLES)
     if in_c is not None:  # (engine/native.c: the same numbers node by node)
         return in_c
     if k <= OCTANT_BLOCK:

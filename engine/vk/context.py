@@ -18,6 +18,7 @@ import weakref
 import vulkan as vk
 
 from ..errors import ConfigError, VulkanError
+from .pipeline_cache import PipelineCache
 
 log = logging.getLogger("engine.vk")
 
@@ -154,6 +155,7 @@ class Context:
         self.device = None
         self._messenger = None
         self.surface = None
+        self.pipeline_cache = None      # PipelineCache: every pipeline made on this device goes through it
         self.external_memory_fd = False   # VK_KHR_external_memory_fd enabled (set in _init)
         try:
             self._init(device, list(instance_extensions), list(device_extensions), surface_factory)
@@ -250,6 +252,7 @@ class Context:
             flags=vk.VK_COMMAND_POOL_CREATE_RESET_COMMAND_BUFFER_BIT, queueFamilyIndex=self.queue_family), None)
         self.fence = vk.vkCreateFence(self.device, vk.VkFenceCreateInfo(), None)
         self._one_shot = self.allocate_command_buffer()
+        self.pipeline_cache = PipelineCache(self.device, self.properties)
 
     def _install_messenger(self):
         sev = vk.VK_DEBUG_UTILS_MESSAGE_SEVERITY_ERROR_BIT_EXT
@@ -330,6 +333,11 @@ class Context:
             while self._destroy_stack:
                 fn, args = self._destroy_stack.pop()
                 fn(*args)
+            if self.pipeline_cache is not None:
+                if not self.lost:
+                    self.pipeline_cache.save()
+                self.pipeline_cache.destroy()
+                self.pipeline_cache = None
             if getattr(self, "fence", None) is not None:
                 vk.vkDestroyFence(self.device, self.fence, None)
             if getattr(self, "command_pool", None) is not None:

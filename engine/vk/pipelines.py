@@ -6,6 +6,7 @@ only swapped in when that succeeded, so a bad shader leaves the last good pipeli
 from __future__ import annotations
 
 import struct
+import threading
 
 import numpy as np
 import vulkan as vk
@@ -122,8 +123,15 @@ def _specialization(spec: dict | None):
     return info, (entries, buf)
 
 
+def _cache(ctx):
+    """The device's VkPipelineCache (engine/vk/pipeline_cache.py), or none."""
+    cache = getattr(ctx.root, "pipeline_cache", None)
+    return cache.handle if cache is not None else vk.VK_NULL_HANDLE
+
+
 class _Pipeline:
-    """Shared bits: a pipeline layout and a handle that can be swapped on rebuild."""
+    """Shared bits: a pipeline layout, and a handle made on first use (so a pass specialized after it was made
+    compiles once) that `rebuild` can swap."""
 
     bind_point = vk.VK_PIPELINE_BIND_POINT_COMPUTE
 
@@ -134,16 +142,36 @@ class _Pipeline:
         self.layout = vk.vkCreatePipelineLayout(ctx.device, vk.VkPipelineLayoutCreateInfo(
             setLayoutCount=len(set_layouts), pSetLayouts=[s.layout if hasattr(s, "layout") else s for s in set_layouts],
             pushConstantRangeCount=len(ranges), pPushConstantRanges=ranges or None), None)
-        self.handle = None
+        self._handle = None
+        self._source: tuple | None = None   # the shader(s) of the pipeline to make on first use
+        self._make_lock = threading.Lock()   # one first use makes it (Tracers share pipelines across threads)
         ctx.defer_destroy(self.destroy)
 
-    def rebuild(self, *args, **kw):
-        """Make a new pipeline; swap it in only when that succeeded (raises ShaderError otherwise)."""
-        new = self._create(*args, **kw)
-        if self.handle is not None:
+    @property
+    def handle(self):
+        """The VkPipeline, made now if it was not yet."""
+        if self._handle is None and self._source is not None:
+            with self._make_lock:
+                if self._handle is None:
+                    self._handle = self._create(*self._source)
+        return self._handle
+
+    def defer(self, *source):
+        """Make the pipeline from `source` on first use (dropping the current one)."""
+        self._drop()
+        self._source = source
+
+    def rebuild(self, *source):
+        """Make a new pipeline now; swap it in only when that succeeded (raises ShaderError otherwise)."""
+        new = self._create(*source)
+        self._drop()
+        self._handle, self._source = new, source
+
+    def _drop(self):
+        if self._handle is not None:
             self.ctx.wait_idle()
-            vk.vkDestroyPipeline(self.ctx.device, self.handle, None)
-        self.handle = new
+            vk.vkDestroyPipeline(self.ctx.device, self._handle, None)
+            self._handle = None
 
     def bind(self, cmd, sets=(), push: bytes | np.ndarray | None = None):
         vk.vkCmdBindPipeline(cmd, self.bind_point, self.handle)
@@ -155,9 +183,10 @@ class _Pipeline:
             vk.vkCmdPushConstants(cmd, self.layout, ALL, 0, len(raw), vk.ffi.new("char[]", raw))
 
     def destroy(self):
-        if self.handle is not None:
-            vk.vkDestroyPipeline(self.ctx.device, self.handle, None)
-            self.handle = None
+        self._source = None
+        if self._handle is not None:
+            vk.vkDestroyPipeline(self.ctx.device, self._handle, None)
+            self._handle = None
         if self.layout is not None:
             vk.vkDestroyPipelineLayout(self.ctx.device, self.layout, None)
             self.layout = None
@@ -167,7 +196,7 @@ class ComputePipeline(_Pipeline):
     def __init__(self, ctx: Context, spirv: bytes, set_layouts, push_size: int = 0, spec=None, name="compute"):
         super().__init__(ctx, set_layouts, push_size)
         self.name, self.spec = name, spec
-        self.rebuild(spirv)
+        self.defer(spirv)
 
     def _create(self, spirv: bytes):
         module = _shader_module(self.ctx, spirv, self.name)
@@ -178,7 +207,7 @@ class ComputePipeline(_Pipeline):
                 pSpecializationInfo=spec_info)
             info = vk.VkComputePipelineCreateInfo(stage=stage, layout=self.layout)
             try:
-                return vk.vkCreateComputePipelines(self.ctx.device, vk.VK_NULL_HANDLE, 1, [info], None)[0]
+                return vk.vkCreateComputePipelines(self.ctx.device, _cache(self.ctx), 1, [info], None)[0]
             except vk.VkError as exc:
                 raise ShaderError(f"{self.name}: compute pipeline creation failed ({type(exc).__name__})") from None
         finally:
@@ -186,10 +215,14 @@ class ComputePipeline(_Pipeline):
 
     def specialize(self, spirv: bytes, spec: dict):
         """Re-create the pipeline from `spirv` with these specialization constants, where they differ from the
-        current ones; if that fails the old pipeline and its constants stay (the next call tries again)."""
+        current ones (on first use, if it was not made yet); if that fails the old pipeline and its constants stay
+        (the next call tries again)."""
         if spec == self.spec:
             return
         old, self.spec = self.spec, dict(spec)
+        if self._handle is None:
+            self.defer(spirv)
+            return
         try:
             self.rebuild(spirv)
         except BaseException:
@@ -214,7 +247,7 @@ class GraphicsPipeline(_Pipeline):
         self.name, self.spec = name, spec
         self.cfg = dict(color_formats=list(color_formats), depth_format=depth_format, vertex_stride=vertex_stride,
                         attributes=list(attributes), cull=cull, depth_compare=depth_compare)
-        self.rebuild(vert, frag)
+        self.defer(vert, frag)
 
     def _create(self, vert: bytes, frag: bytes):
         c = self.cfg
@@ -264,7 +297,7 @@ class GraphicsPipeline(_Pipeline):
                 pViewportState=vp, pRasterizationState=rs, pMultisampleState=ms, pDepthStencilState=ds,
                 pColorBlendState=cb, pDynamicState=dyn, layout=self.layout)
             try:
-                return vk.vkCreateGraphicsPipelines(dev, vk.VK_NULL_HANDLE, 1, [info], None)[0]
+                return vk.vkCreateGraphicsPipelines(dev, _cache(self.ctx), 1, [info], None)[0]
             except vk.VkError as exc:
                 raise ShaderError(f"{self.name}: graphics pipeline creation failed ({type(exc).__name__})") from None
         finally:

@@ -39,14 +39,31 @@ def pytest_addoption(parser):
                      help="rewrite the reference images in tests/reference/ instead of comparing")
 
 
+@pytest.fixture(scope="session")
+def shared_device():
+    """One validated engine.Device for the session's renderers (`make_renderer`): Renderers on one device share
+    its compiled pipelines, so each shader and specialization compiles once per session, not once per test.
+    Closed at the end, which reports any object a test leaked as a validation error."""
+    from engine import Device
+
+    dev = Device(validation=VALIDATE)
+    yield dev
+    dev.close()
+    assert not dev.validation_errors, "Vulkan validation errors:\n" + "\n".join(dev.validation_errors[:10])
+
+
 @pytest.fixture
-def make_renderer():
-    """`make_renderer(w, h, **kw)`: a validated Renderer, closed after the test; validation errors fail it."""
+def make_renderer(shared_device):
+    """`make_renderer(w, h, **kw)`: a validated Renderer, closed after the test; validation errors fail it. On the
+    session's shared device unless `kw` names a device, context or validation setting of its own."""
     from engine import Renderer
 
     made = []
+    seen = len(shared_device.validation_errors)
 
     def make(width=64, height=48, **kw):
+        if not {"device", "context", "validation"} & kw.keys():
+            kw["device"] = shared_device
         kw.setdefault("validation", VALIDATE)
         r = Renderer(width, height, **kw)
         made.append(r)
@@ -55,8 +72,10 @@ def make_renderer():
     yield make
     errors = []
     for r in made:
-        r.close()  # leaked Vulkan objects are reported here, as validation errors
-        errors += r.validation_errors
+        r.close()  # leaked Vulkan objects are reported here (on the shared device: when it closes), as errors
+        if r.validation_errors is not shared_device.validation_errors:
+            errors += r.validation_errors
+    errors += shared_device.validation_errors[seen:]
     assert not errors, "Vulkan validation errors:\n" + "\n".join(errors[:10])
 
 

@@ -5,6 +5,7 @@ only swapped in when that succeeded, so a bad shader leaves the last good pipeli
 """
 from __future__ import annotations
 
+import hashlib
 import struct
 import threading
 
@@ -38,7 +39,7 @@ class DescriptorSet:
         self.types = {}
         self.numbers: dict[str, int] = {}   # name -> binding number (reflected bindings)
         self.kinds: dict[str, str] = {}
-        entries = []
+        entries, signature = [], []
         sizes: dict[int, int] = {}
         for b in bindings:
             if isinstance(b, Binding):
@@ -47,9 +48,11 @@ class DescriptorSet:
             else:
                 binding, dtype, count = (b + (1,))[:3]
             self.types[binding] = dtype
+            signature.append((binding, dtype, count, stages))
             entries.append(vk.VkDescriptorSetLayoutBinding(
                 binding=binding, descriptorType=dtype, descriptorCount=count, stageFlags=stages))
             sizes[dtype] = sizes.get(dtype, 0) + count
+        self.signature = tuple(sorted(signature))   # what makes two set layouts "identically defined"
         dev = ctx.device
         self.layout = vk.vkCreateDescriptorSetLayout(dev, vk.VkDescriptorSetLayoutCreateInfo(
             bindingCount=len(entries), pBindings=entries), None)
@@ -109,15 +112,19 @@ def _shader_module(ctx, spirv: bytes, name: str):
         raise ShaderError(f"{name}: vkCreateShaderModule failed ({type(exc).__name__})") from None
 
 
+def _spec_words(spec: dict | None) -> list:
+    """[(constant_id, its 4 bytes)] from {constant_id: int|float|bool}, as the shader receives them."""
+    return [(cid, struct.pack("<f", value) if isinstance(value, float) else struct.pack("<I", int(value) & 0xFFFFFFFF))
+            for cid, value in sorted((spec or {}).items())]
+
+
 def _specialization(spec: dict | None):
     """VkSpecializationInfo from {constant_id: int|float|bool}; returns (info, keepalive)."""
     if not spec:
         return None, None
-    entries, data = [], b""
-    for cid, value in sorted(spec.items()):
-        raw = struct.pack("<f", value) if isinstance(value, float) else struct.pack("<I", int(value) & 0xFFFFFFFF)
-        entries.append(vk.VkSpecializationMapEntry(constantID=cid, offset=len(data), size=4))
-        data += raw
+    words = _spec_words(spec)
+    entries = [vk.VkSpecializationMapEntry(constantID=cid, offset=4 * i, size=4) for i, (cid, _) in enumerate(words)]
+    data = b"".join(raw for _, raw in words)
     buf = vk.ffi.new("char[]", data)
     info = vk.VkSpecializationInfo(mapEntryCount=len(entries), pMapEntries=entries, dataSize=len(data), pData=buf)
     return info, (entries, buf)
@@ -129,9 +136,40 @@ def _cache(ctx):
     return cache.handle if cache is not None else vk.VK_NULL_HANDLE
 
 
+def _digest(*blobs) -> str:
+    return hashlib.sha256(b"".join(hashlib.sha256(b).digest() for b in blobs)).hexdigest()
+
+
+def _memoized(ctx, key, make):
+    """(pipeline, shared): the device's pipeline for `key`, made by `make()` the first time (kept until the device
+    closes), so Renderers and Tracers on one device compile each shader and specialization once; `key` None: a
+    pipeline of the caller's own."""
+    if key is None:
+        return make(), False
+    root = ctx.root
+    with root.memo_lock:
+        hit = root.memo.get(key)
+    if hit is not None:
+        return hit, True
+    new = make()
+    with root.memo_lock:
+        hit = root.memo.get(key)
+        if hit is None:
+            root.memo[key] = new
+            root.defer_destroy(vk.vkDestroyPipeline, root.device, new, None)
+    if hit is not None:   # another thread made it meanwhile
+        vk.vkDestroyPipeline(root.device, new, None)
+        return hit, True
+    return new, True
+
+
 class _Pipeline:
     """Shared bits: a pipeline layout, and a handle made on first use (so a pass specialized after it was made
-    compiles once) that `rebuild` can swap."""
+    compiles once) that `rebuild` can swap.
+
+    Made on first use, the pipeline is the device's for its shaders, constants and layout definition (pipelines
+    bound with identically defined layouts are compatible), shared with every other user of the device; made by
+    `rebuild` (hot reload), it is this object's own."""
 
     bind_point = vk.VK_PIPELINE_BIND_POINT_COMPUTE
 
@@ -142,10 +180,18 @@ class _Pipeline:
         self.layout = vk.vkCreatePipelineLayout(ctx.device, vk.VkPipelineLayoutCreateInfo(
             setLayoutCount=len(set_layouts), pSetLayouts=[s.layout if hasattr(s, "layout") else s for s in set_layouts],
             pushConstantRangeCount=len(ranges), pPushConstantRanges=ranges or None), None)
+        # the layout's definition, where every set is a DescriptorSet (a raw handle: no shared pipelines)
+        signatures = [getattr(s, "signature", None) for s in set_layouts]
+        self._layout_key = None if None in signatures else (tuple(signatures), push_size)
         self._handle = None
+        self._shared = False
         self._source: tuple | None = None   # the shader(s) of the pipeline to make on first use
         self._make_lock = threading.Lock()   # one first use makes it (Tracers share pipelines across threads)
         ctx.defer_destroy(self.destroy)
+
+    def _key(self, *source):
+        """What identifies the pipeline `source` makes (None: not shareable)."""
+        return None
 
     @property
     def handle(self):
@@ -153,7 +199,9 @@ class _Pipeline:
         if self._handle is None and self._source is not None:
             with self._make_lock:
                 if self._handle is None:
-                    self._handle = self._create(*self._source)
+                    source = self._source
+                    self._handle, self._shared = _memoized(self.ctx, self._key(*source),
+                                                           lambda: self._create(*source))
         return self._handle
 
     def defer(self, *source):
@@ -165,12 +213,13 @@ class _Pipeline:
         """Make a new pipeline now; swap it in only when that succeeded (raises ShaderError otherwise)."""
         new = self._create(*source)
         self._drop()
-        self._handle, self._source = new, source
+        self._handle, self._shared, self._source = new, False, source
 
     def _drop(self):
         if self._handle is not None:
-            self.ctx.wait_idle()
-            vk.vkDestroyPipeline(self.ctx.device, self._handle, None)
+            if not self._shared:   # (a shared one stays the device's)
+                self.ctx.wait_idle()
+                vk.vkDestroyPipeline(self.ctx.device, self._handle, None)
             self._handle = None
 
     def bind(self, cmd, sets=(), push: bytes | np.ndarray | None = None):
@@ -184,9 +233,9 @@ class _Pipeline:
 
     def destroy(self):
         self._source = None
-        if self._handle is not None:
+        if self._handle is not None and not self._shared:
             vk.vkDestroyPipeline(self.ctx.device, self._handle, None)
-            self._handle = None
+        self._handle = None
         if self.layout is not None:
             vk.vkDestroyPipelineLayout(self.ctx.device, self.layout, None)
             self.layout = None
@@ -197,6 +246,11 @@ class ComputePipeline(_Pipeline):
         super().__init__(ctx, set_layouts, push_size)
         self.name, self.spec = name, spec
         self.defer(spirv)
+
+    def _key(self, spirv: bytes):
+        if self._layout_key is None:
+            return None
+        return ("compute", self._layout_key, _digest(spirv), tuple(_spec_words(self.spec)))
 
     def _create(self, spirv: bytes):
         module = _shader_module(self.ctx, spirv, self.name)
@@ -248,6 +302,14 @@ class GraphicsPipeline(_Pipeline):
         self.cfg = dict(color_formats=list(color_formats), depth_format=depth_format, vertex_stride=vertex_stride,
                         attributes=list(attributes), cull=cull, depth_compare=depth_compare)
         self.defer(vert, frag)
+
+    def _key(self, vert: bytes, frag: bytes):
+        if self._layout_key is None:
+            return None
+        c = self.cfg
+        cfg = (tuple(c["color_formats"]), c["depth_format"], c["vertex_stride"], tuple(map(tuple, c["attributes"])),
+               c["cull"], c["depth_compare"])
+        return ("graphics", self._layout_key, _digest(vert, frag), tuple(_spec_words(self.spec)), cfg)
 
     def _create(self, vert: bytes, frag: bytes):
         c = self.cfg

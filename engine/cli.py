@@ -158,7 +158,8 @@ def cmd_batch(args) -> int:
 
 
 def build_parser() -> argparse.ArgumentParser:
-    ap = argparse.ArgumentParser(prog="hybrid", description="Hybrid Vulkan renderer (raster G-buffer + ray-traced shadows/AO)")
+    ap = argparse.ArgumentParser(prog="hybrid",
+                                 description="Hybrid Vulkan renderer (raster G-buffer + ray-traced shadows/AO)")
     ap.add_argument("-v", "--verbose", action="store_true", help="log debug messages")
     ap.add_argument("--version", action="version", version=f"hybrid {__version__}")
     sub = ap.add_subparsers(dest="command", required=True)
@@ -172,8 +173,8 @@ def build_parser() -> argparse.ArgumentParser:
                                  "penumbra)")
     r.add_argument("-o", "--output", default="out.png",
                    help="file to write: .png (one image), .exr or .npz (several AOVs and the camera); a run of # in "
-                        "the file name is the frame number of a sequence, e.g. out/frame_####.exr; the folder must exist "
-                        "(default out.png)")
+                        "the file name is the frame number of a sequence, e.g. out/frame_####.exr; the folder must "
+                        "exist (default out.png)")
     r.add_argument("--allow-path", action="append", default=None, metavar="DIR",
                    help="a folder outside the scene's own that its files may be in (repeatable)")
     r.add_argument("--up", default=None, metavar="AXIS",
@@ -203,7 +204,8 @@ def build_parser() -> argparse.ArgumentParser:
     r.add_argument("-q", "--quiet", action="store_true", help="no progress bar and no summary line")
     r.add_argument("--device", default=None, help="Vulkan device index or name substring")
     r.add_argument("--validation", action="store_true", help="enable the Khronos validation layer; fail on errors")
-    r.add_argument("--shadows", default=None, help=f"shadow mode: {', '.join(SHADOW_CHOICES)} (default: the scene's, else hard)")
+    r.add_argument("--shadows", default=None,
+                   help=f"shadow mode: {', '.join(SHADOW_CHOICES)} (default: the scene's, else hard)")
     r.add_argument("--shadow-samples", type=int, default=None, help="soft: rays per pixel per light per frame")
     r.add_argument("--reference-samples", type=int, default=None,
                    help="reference: rays per pixel per light (default 256)")

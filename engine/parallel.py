@@ -63,10 +63,10 @@ def cuts(n: int, threads: int, min_part: int) -> list[int]:
 
 
 def run(tasks, threads: int) -> list:
-    """The results of the callables `tasks`, in order, run on up to `threads` threads. Used by the BVH builder and the Tracer's
-    ray checks: their steps are numpy calls on large arrays, which release the GIL, so independent blocks of work overlap on several cores.
-    `threads` worker loops of the shared pool take the tasks in turn, so no more than that run at once. A task that
-    itself calls run() runs its tasks inline (no nested waits on the pool)."""
+    """The results of the callables `tasks`, in order, run on up to `threads` threads. Used by the BVH builder and the
+    Tracer's ray checks: their steps are numpy calls on large arrays, which release the GIL, so independent blocks of
+    work overlap on several cores. `threads` worker loops of the shared pool take the tasks in turn, so no more than
+    that run at once. A task that itself calls run() runs its tasks inline (no nested waits on the pool)."""
     if threads <= 1 or len(tasks) <= 1 or getattr(_WORKER, "busy", False):
         return [t() for t in tasks]
     results = [None] * len(tasks)

@@ -84,7 +84,8 @@ def test_point_light_shadow_and_several_lights(make_renderer):
     assert m.shape == (48, 64, 2)
     # The ground right under the floating box is shadowed from both lights (both come from above).
     pos = f.aov["position"]
-    under = np.isfinite(f.aov["depth"]) & (np.abs(pos[..., 0]) < 0.3) & (np.abs(pos[..., 2]) < 0.3) & (pos[..., 1] < 0.01)
+    under = (np.isfinite(f.aov["depth"]) & (np.abs(pos[..., 0]) < 0.3) & (np.abs(pos[..., 2]) < 0.3)
+             & (pos[..., 1] < 0.01))
     assert under.any()
     assert np.all(m[under] == 0.0)
 

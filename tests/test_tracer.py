@@ -148,16 +148,28 @@ def test_staged_buffers_give_the_same_answers():
         assert not staged.validation_errors and not plain.validation_errors
 
 
-VARIANTS = [{"BVH_BRANCHLESS_PUSH": False, "BVH_POSTPONE_LEAVES": False, "BVH_REG_STACK": False}, {"BVH_BRANCHLESS_PUSH": True, "BVH_POSTPONE_LEAVES": False, "BVH_REG_STACK": False},
-            {"BVH_BRANCHLESS_PUSH": False, "BVH_POSTPONE_LEAVES": True, "BVH_REG_STACK": False}, {"BVH_BRANCHLESS_PUSH": True, "BVH_POSTPONE_LEAVES": True, "BVH_REG_STACK": False},
-            {"BVH_BRANCHLESS_PUSH": False, "BVH_POSTPONE_LEAVES": False, "BVH_REG_STACK": True, "BVH_STACK_REGS": 32}, {"BVH_BRANCHLESS_PUSH": True, "BVH_POSTPONE_LEAVES": True, "BVH_REG_STACK": True, "BVH_STACK_REGS": 32},
-            {"BVH_BRANCHLESS_PUSH": True, "BVH_POSTPONE_LEAVES": True, "BVH_REG_STACK": True, "BVH_STACK_REGS": 32, "BVH_SELECT_MINMAX": True},
-            {"BVH_BRANCHLESS_PUSH": True, "BVH_POSTPONE_LEAVES": True, "BVH_REG_STACK": True, "BVH_STACK_REGS": 2, "BVH_STACK_RETRY": True}, {"BVH_BRANCHLESS_PUSH": True, "BVH_POSTPONE_LEAVES": True, "BVH_REG_STACK": True, "BVH_STACK_REGS": 1, "BVH_STACK_RETRY": True, "BVH_SELECT_MINMAX": True},
-            {"BVH_BRANCHLESS_PUSH": True, "BVH_POSTPONE_LEAVES": True, "BVH_REG_STACK": True, "BVH_STACK_REGS": 3, "BVH_STACK_RETRY": True, "uncompressed": True},
-            {"BVH_BRANCHLESS_PUSH": False, "BVH_POSTPONE_LEAVES": False, "BVH_REG_STACK": False, "BVH_SELECT_MINMAX": True, "uncompressed": True},
-            {"BVH_BRANCHLESS_PUSH": True, "BVH_POSTPONE_LEAVES": True, "BVH_REG_STACK": True, "BVH_STACK_REGS": 2, "BVH_STACK_RETRY": True, "BVH_SELECT_MINMAX": True, "BVH_IMAGE_FETCH": True},
-            {"BVH_BRANCHLESS_PUSH": False, "BVH_POSTPONE_LEAVES": False, "BVH_REG_STACK": False, "BVH_IMAGE_FETCH": True, "uncompressed": True},
-            {"BVH_BRANCHLESS_PUSH": True, "BVH_POSTPONE_LEAVES": True, "BVH_REG_STACK": True, "BVH_STACK_REGS": 3, "BVH_STACK_RETRY": True, "BVH_IMAGE_FETCH": True, "uncompressed": True}]
+VARIANTS = [{"BVH_BRANCHLESS_PUSH": False, "BVH_POSTPONE_LEAVES": False, "BVH_REG_STACK": False},
+            {"BVH_BRANCHLESS_PUSH": True, "BVH_POSTPONE_LEAVES": False, "BVH_REG_STACK": False},
+            {"BVH_BRANCHLESS_PUSH": False, "BVH_POSTPONE_LEAVES": True, "BVH_REG_STACK": False},
+            {"BVH_BRANCHLESS_PUSH": True, "BVH_POSTPONE_LEAVES": True, "BVH_REG_STACK": False},
+            {"BVH_BRANCHLESS_PUSH": False, "BVH_POSTPONE_LEAVES": False, "BVH_REG_STACK": True, "BVH_STACK_REGS": 32},
+            {"BVH_BRANCHLESS_PUSH": True, "BVH_POSTPONE_LEAVES": True, "BVH_REG_STACK": True, "BVH_STACK_REGS": 32},
+            {"BVH_BRANCHLESS_PUSH": True, "BVH_POSTPONE_LEAVES": True, "BVH_REG_STACK": True, "BVH_STACK_REGS": 32,
+             "BVH_SELECT_MINMAX": True},
+            {"BVH_BRANCHLESS_PUSH": True, "BVH_POSTPONE_LEAVES": True, "BVH_REG_STACK": True, "BVH_STACK_REGS": 2,
+             "BVH_STACK_RETRY": True},
+            {"BVH_BRANCHLESS_PUSH": True, "BVH_POSTPONE_LEAVES": True, "BVH_REG_STACK": True, "BVH_STACK_REGS": 1,
+             "BVH_STACK_RETRY": True, "BVH_SELECT_MINMAX": True},
+            {"BVH_BRANCHLESS_PUSH": True, "BVH_POSTPONE_LEAVES": True, "BVH_REG_STACK": True, "BVH_STACK_REGS": 3,
+             "BVH_STACK_RETRY": True, "uncompressed": True},
+            {"BVH_BRANCHLESS_PUSH": False, "BVH_POSTPONE_LEAVES": False, "BVH_REG_STACK": False,
+             "BVH_SELECT_MINMAX": True, "uncompressed": True},
+            {"BVH_BRANCHLESS_PUSH": True, "BVH_POSTPONE_LEAVES": True, "BVH_REG_STACK": True, "BVH_STACK_REGS": 2,
+             "BVH_STACK_RETRY": True, "BVH_SELECT_MINMAX": True, "BVH_IMAGE_FETCH": True},
+            {"BVH_BRANCHLESS_PUSH": False, "BVH_POSTPONE_LEAVES": False, "BVH_REG_STACK": False,
+             "BVH_IMAGE_FETCH": True, "uncompressed": True},
+            {"BVH_BRANCHLESS_PUSH": True, "BVH_POSTPONE_LEAVES": True, "BVH_REG_STACK": True, "BVH_STACK_REGS": 3,
+             "BVH_STACK_RETRY": True, "BVH_IMAGE_FETCH": True, "uncompressed": True}]
 
 
 def _variant_tracer(monkeypatch, spec, v, f):
@@ -256,8 +268,9 @@ def test_short_stack_retry_matches_the_full_stack(monkeypatch, tracers, name):
     tmax = rng.uniform(0.1, 4.0, len(o)).astype(np.float32)
     tmax[::4] = np.inf
     occ0, hit0 = tracers[name].occluded(o, d, tmax), tracers[name].intersect(o, d, tmax)
-    with _variant_tracer(monkeypatch, {"BVH_BRANCHLESS_PUSH": True, "BVH_POSTPONE_LEAVES": True, "BVH_REG_STACK": True,
-                                            "BVH_STACK_REGS": 1, "BVH_STACK_RETRY": True, "BVH_SELECT_MINMAX": True}, v, f) as variant:
+    retry = {"BVH_BRANCHLESS_PUSH": True, "BVH_POSTPONE_LEAVES": True, "BVH_REG_STACK": True, "BVH_STACK_REGS": 1,
+             "BVH_STACK_RETRY": True, "BVH_SELECT_MINMAX": True}
+    with _variant_tracer(monkeypatch, retry, v, f) as variant:
         # the retry in a second dispatch over the rays the first left unresolved (trace_*_retry.comp)
         assert variant.two_pass == {"occluded": True, "intersect": True}
         assert np.array_equal(variant.occluded(o, d, tmax), occ0)

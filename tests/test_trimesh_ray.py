@@ -71,7 +71,8 @@ def test_trimesh_ray_tests_pass_with_our_intersector(trimesh_ray_tests, tmp_path
     report = tmp_path / "junit.xml"
     env = dict(os.environ, PYTHONPATH=os.pathsep.join([str(HERE.parent), str(HERE), os.environ.get("PYTHONPATH", "")]))
     proc = subprocess.run([sys.executable, "-m", "pytest", "-q", "-p", "trimesh_ray_plugin", "-p", "no:cacheprovider",
-                           "-p", "no:dash", "-c", str(trimesh_ray_tests / "pytest.ini"), f"--junitxml={report}", *FILES],
+                           "-p", "no:dash", "-c", str(trimesh_ray_tests / "pytest.ini"), f"--junitxml={report}",
+                           *FILES],
                           cwd=trimesh_ray_tests, env=env, capture_output=True, text=True, timeout=900)
     assert report.exists(), f"pytest did not run: {proc.stdout[-2000:]}{proc.stderr[-2000:]}"
     outcome = {}

@@ -51,7 +51,8 @@ def test_view_cli_screenshot_matches_headless_render(xvfb_display, tmp_path, mak
     shot = tmp_path / "shot.png"
     env = dict(os.environ, HYBRID_VALIDATION="1")
     res = subprocess.run([sys.executable, "-m", "engine", "view", str(SCENE), "--size", "160x90", "--frames", "20",
-                          "--screenshot", str(shot), "--paused"], cwd=REPO, env=env, capture_output=True, text=True, timeout=300)
+                          "--screenshot", str(shot), "--paused"],
+                         cwd=REPO, env=env, capture_output=True, text=True, timeout=300)
     assert res.returncode == 0, f"exit {res.returncode}\n{res.stdout[-2000:]}\n{res.stderr[-3000:]}"
     assert "validation: no errors" in res.stdout
     assert "20 frames at 160x90" in res.stdout   # the summary line

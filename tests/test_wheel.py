@@ -140,12 +140,14 @@ with engine.Tracer(vertices, faces, validation=True) as tracer:
     rng = np.random.default_rng(0)
     o = np.column_stack([rng.uniform(-2, 2, (50_000, 2)), np.full(50_000, 2.0)]).astype(np.float32)
     d = np.tile(np.float32((0.0, 0.0, -1.0)), (len(o), 1))
-    reordered = bool(np.array_equal(tracer.occluded(o, d, 3.0, reorder=True), tracer.occluded(o, d, 3.0, reorder=False)))
+    reordered = bool(np.array_equal(tracer.occluded(o, d, 3.0, reorder=True),
+                                    tracer.occluded(o, d, 3.0, reorder=False)))
     errors = tracer.validation_errors
 from engine import native
 print(json.dumps({"t": [float(t) if np.isfinite(t) else None for t in hits.t], "prim": hits.prim.tolist(),
                   "near": near.tolist(), "far": far.tolist(), "errors": errors, "file": engine.__file__,
-                  "reordered": reordered, "native": str(native.SOURCE), "built": [p.name for p in cache.rglob("*.so")]}))
+                  "reordered": reordered, "native": str(native.SOURCE),
+                  "built": [p.name for p in cache.rglob("*.so")]}))
 """
 
 

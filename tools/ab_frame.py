@@ -41,7 +41,8 @@ def main() -> int:
     runs: dict[str, list[dict]] = {t: [] for t in a.trees}
     for _ in range(a.rounds):
         for tree in a.trees:
-            env = dict(os.environ, PYTHONPATH=os.pathsep.join([os.path.abspath(tree), os.environ.get("PYTHONPATH", "")]))
+            env = dict(os.environ,
+                       PYTHONPATH=os.pathsep.join([os.path.abspath(tree), os.environ.get("PYTHONPATH", "")]))
             res = subprocess.run([sys.executable, "-c", CHILD, a.scene, a.size, str(a.frames)], env=env,
                                  capture_output=True, text=True, cwd=os.path.abspath(tree))
             line = [ln for ln in res.stdout.splitlines() if ln.startswith("AB")]

@@ -60,7 +60,8 @@ def run_set(tracer, name, o, d, t, repeat):
     frameworks = []
     try:
         import torch   # optional: the torch row
-        dev = (lambda a: torch.from_numpy(a).cuda())
+        def dev(a):
+            return torch.from_numpy(a).cuda()
         frameworks.append(("torch", dev, lambda a: a.cpu().numpy(), torch.cuda.synchronize))
     except ImportError:
         pass

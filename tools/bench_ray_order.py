@@ -122,7 +122,7 @@ def bench_scene(name, scene, a, rng):
             got = tr.occluded(vo, vd, t, reorder=mode)
             assert np.array_equal(got, want[perm]), f"{name} {key}: results differ from the unordered query"
         g_want = tr.occluded(go, gd, gt, reorder=False)
-        for rep in range(a.reps):
+        for _ in range(a.reps):
             for key, (vo, vd, mode, _) in variants.items():
                 t0 = time.perf_counter()
                 tr.occluded(vo, vd, t, reorder=mode)

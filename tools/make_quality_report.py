@@ -156,7 +156,7 @@ def write_markdown(path, scene_path, size, frames, reference_samples, device_nam
     add("Runs: " + "; ".join(f"**{chr(65 + i)}** = {label}" for i, (label, _, _) in enumerate(runs)) + ".")
     add("")
     head, sep = "| mode | settings |", "|---|---|"
-    for i, (label, size_text, _) in enumerate(runs):
+    for i, (_, size_text, _) in enumerate(runs):
         tag = chr(65 + i)
         if i == 0 or size_text != runs[0][1]:
             head += f" RMSE {tag} |"
@@ -168,7 +168,7 @@ def write_markdown(path, scene_path, size, frames, reference_samples, device_nam
     for key, v in results.items():
         settings = ", ".join(f"{k}={v2}" for k, v2 in v["settings"].items())
         row = f"| {v['label']} | `{settings}` |"
-        for i, (label, size_text, run) in enumerate(runs):
+        for i, (_, size_text, run) in enumerate(runs):
             o = run.get(key)
             if i == 0 or size_text != runs[0][1]:
                 row += " (the reference) |" if key == "reference" else (f" {o['rmse']:.4f} |" if o else " |")
@@ -237,7 +237,7 @@ def main(argv=None) -> int:
         img_dir.mkdir(parents=True, exist_ok=True)
     device_name, results = render_modes(scene, size, args.frames, args.repeat, args.reference_samples,
                                         args.device, not args.timings_only, img_dir, ao=args.ao)
-    for key, v in results.items():
+    for v in results.values():
         print(f"{v['label']:<26} RMSE {v['rmse']:.4f}  shadow {v['shadow_ms']:9.2f} ms  frame {v['frame_ms']:9.2f} ms")
     if args.json:
         Path(args.json).write_text(json.dumps({"device": device_name, "size": args.size, "results": results},

@@ -119,7 +119,8 @@ def our_scene(spec) -> Scene:
         offset += len(p)
     eye, target, fov = spec["camera"]
     return Scene(np.concatenate(positions), np.concatenate(faces), normals=np.concatenate(normals),
-                 uvs=np.concatenate(uvs), vertex_material=np.concatenate(mats), materials=materials, lights=spec["lights"],
+                 uvs=np.concatenate(uvs), vertex_material=np.concatenate(mats), materials=materials,
+                 lights=spec["lights"],
                  camera=Camera.look_at(eye, target, (0.0, 1.0, 0.0), fov), name="mitsuba comparison")
 
 

@@ -2,9 +2,10 @@
 two batches from writing one folder at once.
 
 The manifest is rewritten whole (engine.files.atomic_write) at most every `interval` seconds (and never for more
-than 5% of the time: large manifests less often) while a batch runs and at its end, so a kill leaves the last complete one. What counts as finished is decided from the files: an item is
-done when its files exist and its .npz holds the item's key (engine.batch.writer.finished), so items finished after
-the last manifest write are not rendered again either.
+than 5% of the time: large manifests less often) while a batch runs and at its end, so a kill leaves the last
+complete one. What counts as finished is decided from the files: an item is done when its files exist and its .npz
+holds the item's key (engine.batch.writer.finished), so items finished after the last manifest write are not
+rendered again either.
 """
 from __future__ import annotations
 
@@ -37,7 +38,8 @@ class Manifest:
         if self.path.exists():
             try:
                 data = json.loads(self.path.read_text())
-                if not isinstance(data, dict) or data.get("format") != FORMAT or not isinstance(data.get("items"), dict):
+                if (not isinstance(data, dict) or data.get("format") != FORMAT
+                        or not isinstance(data.get("items"), dict)):
                     raise ValueError(f"no \"format\": \"{FORMAT}\" with items")
             except (OSError, ValueError) as exc:
                 raise ConfigError(f"{self.path}: not a batch manifest ({exc}); move it away to start over") from None

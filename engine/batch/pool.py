@@ -48,93 +48,115 @@ def run_local(job: Job, todo: list[Item], on_record: Callable[[dict], None], *, 
             for rec in ir.render(todo):
                 on_record(rec)
         return {"devices": [ir.device], "errors": ir.unreported_errors()}
-    ctx = multiprocessing.get_context("spawn")
-    tasks, results = ctx.Queue(), ctx.Queue()
-    size = shard_size or auto_shard_size(len(todo), workers)
-    parts = shards(todo, size)
-    procs = [ctx.Process(target=worker_main, args=(job, devices[w % len(devices)], w, tasks, results),
-                         name=f"hybrid-batch-{w}", daemon=True) for w in range(workers)]
-    for p in procs:
-        p.start()
-    holding: dict[int, int] = {}          # worker -> the shard it renders
-    reported: set[str] = set()
-    fatal: list[str] = []
-    names: list[str] = []
-    late: list[str] = []
-    exited: set[int] = set()
-    started: set[int] = set()              # workers whose Renderer is open (or that failed to open one)
-    dealt = False
-    t_start = time.monotonic()
-
-    def deal():
-        """The shards go into the queue once every worker is ready (or out), so that all share them from the start
-        rather than the first one up taking the lot; or once one is, after STARTUP_WAIT_S (a worker stuck starting)."""
-        nonlocal dealt
-        if dealt or not (len(started | exited) == workers
-                         or (started and time.monotonic() - t_start > STARTUP_WAIT_S)):
-            return
-        for i, part in enumerate(parts):
-            tasks.put((i, part))
-        for _ in range(workers):
-            tasks.put(None)
-        dealt = True
-
-    def handle(msg):
-        kind, w, payload = msg
-        if kind == "shard":
-            holding[w] = payload
-        elif kind == "item":
-            reported.add(payload["id"])
-            on_record(payload)
-        elif kind == "ready":
-            names.append(payload)
-            started.add(w)
-        elif kind == "fatal":
-            fatal.append(f"worker {w}: {payload}")
-            started.add(w)
-        elif kind == "exit":
-            holding.pop(w, None)
-            exited.add(w)
-            late.extend(payload or [])
-
+    driver = _Driver(job, todo, on_record, workers, devices, shard_size)
     try:
-        while len(exited) < workers:
-            deal()
+        driver.run()
+    finally:
+        driver.close()
+    return {"devices": sorted(set(driver.names)), "errors": driver.late}
+
+
+class _Driver:
+    """run_local's side of several worker processes: it deals the shards, hands on the records the workers send, and
+    reports as failed the items of a shard whose worker died, then any item that no worker rendered."""
+
+    def __init__(self, job: Job, todo: list[Item], on_record: Callable[[dict], None], workers: int, devices: list,
+                 shard_size: int | None):
+        ctx = multiprocessing.get_context("spawn")
+        self.todo, self.on_record, self.workers = todo, on_record, workers
+        self.tasks, self.results = ctx.Queue(), ctx.Queue()
+        self.parts = shards(todo, shard_size or auto_shard_size(len(todo), workers))
+        self.procs = [ctx.Process(target=worker_main, name=f"hybrid-batch-{w}", daemon=True,
+                                  args=(job, devices[w % len(devices)], w, self.tasks, self.results))
+                      for w in range(workers)]
+        for p in self.procs:
+            p.start()
+        self.holding: dict[int, int] = {}          # worker -> the shard it renders
+        self.reported: set[str] = set()
+        self.fatal: list[str] = []
+        self.names: list[str] = []
+        self.late: list[str] = []
+        self.exited: set[int] = set()
+        self.started: set[int] = set()              # workers whose Renderer is open (or that failed to open one)
+        self.dealt = False
+        self.t_start = time.monotonic()
+
+    def run(self) -> None:
+        """Until every worker has ended: deal, hand on what comes, and reap the workers that died."""
+        while len(self.exited) < self.workers:
+            self.deal()
             try:
-                handle(results.get(timeout=_POLL_S))
+                self.handle(self.results.get(timeout=_POLL_S))
                 continue
             except queue.Empty:
                 pass
-            for w, p in enumerate(procs):
-                if w in exited or p.is_alive():
-                    continue
-                while True:   # what it sent before it ended
-                    try:
-                        handle(results.get_nowait())
-                    except queue.Empty:
-                        break
-                if w in exited:
-                    continue
-                exited.add(w)
-                shard = holding.pop(w, None)
-                if shard is not None:
-                    for item in parts[shard]:
-                        if item.id not in reported:
-                            reported.add(item.id)
-                            on_record(record(item, "failed", f"worker {w}",
-                                             error=f"worker {w} ended (exit code {p.exitcode}) while rendering it"))
-        why = "; ".join(fatal) or "the workers ended before rendering it"
-        for item in todo:
-            if item.id not in reported:
-                on_record(record(item, "failed", "driver", error=f"not rendered: {why}"))
-    finally:
-        for p in procs:
+            for w, p in enumerate(self.procs):
+                if w not in self.exited and not p.is_alive():
+                    self.reap(w, p)
+        why = "; ".join(self.fatal) or "the workers ended before rendering it"
+        for item in self.todo:
+            if item.id not in self.reported:
+                self.on_record(record(item, "failed", "driver", error=f"not rendered: {why}"))
+
+    def deal(self) -> None:
+        """The shards go into the queue once every worker is ready (or out), so that all share them from the start
+        rather than the first one up taking the lot; or once one is, after STARTUP_WAIT_S (a worker stuck starting)."""
+        if self.dealt or not (len(self.started | self.exited) == self.workers
+                              or (self.started and time.monotonic() - self.t_start > STARTUP_WAIT_S)):
+            return
+        for i, part in enumerate(self.parts):
+            self.tasks.put((i, part))
+        for _ in range(self.workers):
+            self.tasks.put(None)
+        self.dealt = True
+
+    def handle(self, msg) -> None:
+        """One message of a worker (worker_main says which)."""
+        kind, w, payload = msg
+        if kind == "shard":
+            self.holding[w] = payload
+        elif kind == "item":
+            self.reported.add(payload["id"])
+            self.on_record(payload)
+        elif kind == "ready":
+            self.names.append(payload)
+            self.started.add(w)
+        elif kind == "fatal":
+            self.fatal.append(f"worker {w}: {payload}")
+            self.started.add(w)
+        elif kind == "exit":
+            self.holding.pop(w, None)
+            self.exited.add(w)
+            self.late.extend(payload or [])
+
+    def reap(self, w: int, p) -> None:
+        """Worker `w`'s process `p` has ended: what it sent before it did, then, unless it said it was done, the
+        items of the shard it held that it had not reported, as failed."""
+        while True:
+            try:
+                self.handle(self.results.get_nowait())
+            except queue.Empty:
+                break
+        if w in self.exited:
+            return
+        self.exited.add(w)
+        shard = self.holding.pop(w, None)
+        if shard is None:
+            return
+        for item in self.parts[shard]:
+            if item.id not in self.reported:
+                self.reported.add(item.id)
+                self.on_record(record(item, "failed", f"worker {w}",
+                                      error=f"worker {w} ended (exit code {p.exitcode}) while rendering it"))
+
+    def close(self) -> None:
+        """Stop the workers still running; close the queues."""
+        for p in self.procs:
             if p.is_alive():
                 p.terminate()
             p.join(timeout=10)
-        tasks.close()
-        results.close()
-    return {"devices": sorted(set(names)), "errors": late}
+        self.tasks.close()
+        self.results.close()
 
 
 def worker_main(job: Job, device, w: int, tasks, results) -> None:

@@ -177,7 +177,8 @@ def plot(results: dict, path):
     if frames:
         h = heights[len(scenes)]
         rows = [(f"{fr['scene']} ({fr['triangles']:,} tris)\n{fr['size'][0]}x{fr['size'][1]}, {fr['lights']} light"
-                 f"{'s' if fr['lights'] != 1 else ''}, AO {fr['settings'].get('ao_samples')} spp", fr["passes_ms"]) for fr in frames]
+                 f"{'s' if fr['lights'] != 1 else ''}, AO {fr['settings'].get('ao_samples')} spp", fr["passes_ms"])
+                for fr in frames]
         _stack_panel(d, (30, y, W - 30, y + h), "Frame: GPU ms per pass (median of each pass; total: median of "
                      "frame totals)", rows, fonts, totals=[fr["gpu_total_ms"] for fr in frames])
         y += h + 30

@@ -39,7 +39,8 @@ def format_report(results: dict) -> str:
                      f"{o['others_cpu_s']} CPU s (on average {o['others_mean_cores']} of {m.get('cores')} cores)")
     if results.get("build"):
         rows = [[b.get("kind", "generated"), f"{b['triangles']:,}", _fmt(b["ms"], ".0f"),
-                 _fmt(b["ms_per_million"], ".0f"), _fmt(b.get("cpu_ms"), ".0f"), _fmt(b.get("ms_1thread"), ".0f"), _fmt(b["sah_cost"], ".1f"),
+                 _fmt(b["ms_per_million"], ".0f"), _fmt(b.get("cpu_ms"), ".0f"), _fmt(b.get("ms_1thread"), ".0f"),
+                 _fmt(b["sah_cost"], ".1f"),
                  _fmt(b["bytes_per_triangle"], ".1f"), f"{b['nodes']:,}", b["depth"]]
                 for b in results["build"]]
         threads = results["build"][0].get("threads", "?")

@@ -2,7 +2,8 @@
 
 Nodes buffer: every mesh's bottom-level nodes (the builder's, child words rebased onto the concatenation), then the
 top level's max(N - 1, 1) nodes from `tlas_root` (binary nodes whose leaf slots hold one instance each: the slot's word
-is LEAF_BIT | instance index, count 1; root at `tlas_root`), then from `inst_base` one 64-byte INST_DTYPE record per instance.
+is LEAF_BIT | instance index, count 1; root at `tlas_root`), then from `inst_base` one 64-byte INST_DTYPE record per
+instance.
 Triangles buffer: the meshes' triangle records concatenated (their `prim` is the mesh's own triangle index).
 
 The top level is rebuilt on the host whenever an instance moves (`top`): instances sorted along a Morton curve of

@@ -1,7 +1,7 @@
 """What the host and the shaders agree on, written once: view modes, shadow modes, filter flags, limits, and the
-per-frame uniform block, the AOVs a frame can read back. `glsl_text()` generates shaders/glsl/include/interface.glsl from these (committed; a test
-fails when it is stale; tools/compile_shaders.py rewrites it); the renderer packs the block through `FRAME.dtype`.
-No Vulkan here.
+per-frame uniform block, the AOVs a frame can read back. `glsl_text()` generates
+shaders/glsl/include/interface.glsl from these (committed; a test fails when it is stale; tools/compile_shaders.py
+rewrites it); the renderer packs the block through `FRAME.dtype`. No Vulkan here.
 """
 from __future__ import annotations
 
@@ -208,7 +208,8 @@ def pack_frame(*, view_proj, prev_view_proj, eye, forward, near, width, height, 
     block["view_proj"] = np.asarray(view_proj, np.float32).T
     block["prev_view_proj"] = np.asarray(prev_view_proj, np.float32).T
     block["eye"], block["near"], block["forward"] = _v3(eye), near, _v3(forward)
-    block["width"], block["height"], block["frame_index"], block["light_count"] = width, height, frame_index, len(lights)
+    block["width"], block["height"] = width, height
+    block["frame_index"], block["light_count"] = frame_index, len(lights)
     block["ao_radius"], block["ao_samples"], block["shadow_samples"] = ao_radius, ao_samples, shadow_samples
     block["exposure"], block["ambient"] = exposure, np.broadcast_to(np.asarray(ambient, np.float32), (3,))
     block["scene_scale"], block["accum_alpha"], block["pixel_footprint"] = scene_scale, accum_alpha, pixel_footprint

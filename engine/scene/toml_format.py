@@ -118,7 +118,7 @@ def parts_from_dict(data: dict, path: str = "<toml>", allow_paths=None, up=None)
     ctx = _Ctx(shown(path))
     base_dir = os.path.dirname(os.path.abspath(path)) if path != "<toml>" else os.getcwd()
     folders = Folders(base_dir, allow_paths)
-    for key, value in data.items():
+    for key in data:
         if key not in TOP_LEVEL:
             raise ctx.error(f"unknown key {key!r} at the top level (allowed: {', '.join(TOP_LEVEL)})")
     for key, kind in (("camera", dict), ("settings", dict), ("mesh", list), ("light", list)):

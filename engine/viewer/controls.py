@@ -114,7 +114,8 @@ class FlyCamera:
 
     def forward(self):
         cp = math.cos(self.pitch)
-        return (cp * math.cos(self.yaw)) * self.e1 + (cp * math.sin(self.yaw)) * self.e2 + math.sin(self.pitch) * self.up
+        return ((cp * math.cos(self.yaw)) * self.e1 + (cp * math.sin(self.yaw)) * self.e2
+                + math.sin(self.pitch) * self.up)
 
     def look(self, dx_px, dy_px):
         if dx_px or dy_px:

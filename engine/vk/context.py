@@ -168,7 +168,7 @@ class Context:
     def _init(self, selector, inst_exts, dev_exts, surface_factory):
         layers = []
         try:
-            available_layers = {l.layerName for l in vk.vkEnumerateInstanceLayerProperties()}
+            available_layers = {p.layerName for p in vk.vkEnumerateInstanceLayerProperties()}
         except (vk.VkError, OSError) as exc:
             raise VulkanError(f"the Vulkan loader is not usable: {exc}") from None
         if self.validation:
@@ -246,7 +246,8 @@ class Context:
         try:
             self.device = vk.vkCreateDevice(self.physical, dinfo, None)
         except vk.VkError as exc:
-            raise VulkanError(f"could not create a device on {self.device_info['name']!r}: {type(exc).__name__}") from None
+            raise VulkanError(f"could not create a device on {self.device_info['name']!r}: "
+                              f"{type(exc).__name__}") from None
         self.queue = vk.vkGetDeviceQueue(self.device, self.queue_family, 0)
         self.command_pool = vk.vkCreateCommandPool(self.device, vk.VkCommandPoolCreateInfo(
             flags=vk.VK_COMMAND_POOL_CREATE_RESET_COMMAND_BUFFER_BIT, queueFamilyIndex=self.queue_family), None)

@@ -31,6 +31,8 @@ DEC_NON_WRITABLE, DEC_NON_READABLE, DEC_BINDING, DEC_SET, DEC_OFFSET = 24, 25, 3
 # storage classes
 SC_UNIFORM_CONSTANT, SC_UNIFORM, SC_PUSH_CONSTANT, SC_STORAGE_BUFFER = 0, 2, 9, 12
 DIM_BUFFER = 5
+_TYPE_OPS = (OP_TYPE_BOOL, OP_TYPE_INT, OP_TYPE_FLOAT, OP_TYPE_VECTOR, OP_TYPE_MATRIX, OP_TYPE_IMAGE, OP_TYPE_SAMPLER,
+             OP_TYPE_SAMPLED_IMAGE, OP_TYPE_ARRAY, OP_TYPE_RUNTIME_ARRAY, OP_TYPE_STRUCT, OP_TYPE_POINTER)
 
 #: Descriptor types by their short names (the names pass declarations use).
 DESCRIPTOR_TYPES = {
@@ -121,126 +123,156 @@ def _string(words, start) -> str:
 
 def reflect(spirv: bytes, name: str = "shader") -> Interface:
     """The resource interface of one SPIR-V module (a ShaderError if it is not SPIR-V)."""
-    if len(spirv) < 20 or len(spirv) % 4:
-        raise ShaderError(f"{name}: not a SPIR-V binary")
-    words = struct.unpack(f"<{len(spirv) // 4}I", spirv)
-    if words[0] != MAGIC:
-        raise ShaderError(f"{name}: not a SPIR-V binary")
-    names, member_names, decorations, member_decorations = {}, {}, {}, {}
-    types, constants, variables, specs = {}, {}, [], {}
-    i = 5
-    while i < len(words):
-        count, op = words[i] >> 16, words[i] & 0xFFFF
-        if count == 0:
-            raise ShaderError(f"{name}: malformed SPIR-V (zero-length instruction at word {i})")
-        ins = words[i:i + count]
-        if op == OP_NAME:   # the first name wins: a local `const int x = SPEC;` names the same id again
-            names.setdefault(ins[1], _string(ins, 2))
-        elif op == OP_MEMBER_NAME:
-            member_names.setdefault(ins[1], {})[ins[2]] = _string(ins, 3)
-        elif op == OP_DECORATE:
-            decorations.setdefault(ins[1], {})[ins[2]] = ins[3] if len(ins) > 3 else True
-        elif op == OP_MEMBER_DECORATE:
-            member_decorations.setdefault(ins[1], {}).setdefault(ins[2], {})[ins[3]] = ins[4] if len(ins) > 4 else True
-        elif op in (OP_TYPE_BOOL, OP_TYPE_INT, OP_TYPE_FLOAT, OP_TYPE_VECTOR, OP_TYPE_MATRIX, OP_TYPE_IMAGE,
-                    OP_TYPE_SAMPLER, OP_TYPE_SAMPLED_IMAGE, OP_TYPE_ARRAY, OP_TYPE_RUNTIME_ARRAY, OP_TYPE_STRUCT,
-                    OP_TYPE_POINTER):
-            types[ins[1]] = (op, tuple(ins[2:]))
-        elif op == OP_CONSTANT:
-            constants[ins[2]] = ins[3]
-        elif op in (OP_SPEC_TRUE, OP_SPEC_FALSE, OP_SPEC):
-            specs[ins[2]] = (op, ins[1], ins[3] if op == OP_SPEC else op == OP_SPEC_TRUE)
-        elif op == OP_VARIABLE:
-            variables.append((ins[1], ins[2], ins[3]))
-        i += count
+    module = _Module(spirv, name)
+    bindings, push_size = [], 0
+    for ptr_type, var, storage in module.variables:
+        pointee = module.types[ptr_type][1][1]
+        if storage == SC_PUSH_CONSTANT:
+            push_size = max(push_size, module.size_of(pointee))
+        elif DEC_BINDING in module.decorations.get(var, {}):
+            bindings.append(module.binding(var, pointee, storage))
+    return Interface(tuple(sorted(bindings, key=lambda b: (b.set, b.binding))), module.spec_constants(), push_size)
 
-    def scalar_name(type_id):
-        op, args = types[type_id]
+
+class _Module:
+    """The instructions of a SPIR-V module that reflection reads (names, decorations, types, constants, variables),
+    and what they say about one variable, type or constant."""
+
+    def __init__(self, spirv: bytes, name: str):
+        if len(spirv) < 20 or len(spirv) % 4:
+            raise ShaderError(f"{name}: not a SPIR-V binary")
+        words = struct.unpack(f"<{len(spirv) // 4}I", spirv)
+        if words[0] != MAGIC:
+            raise ShaderError(f"{name}: not a SPIR-V binary")
+        self.name = name
+        self.names, self.member_names, self.decorations, self.member_decorations = {}, {}, {}, {}
+        self.types, self.constants, self.variables, self.specs = {}, {}, [], {}
+        i = 5
+        while i < len(words):
+            count, op = words[i] >> 16, words[i] & 0xFFFF
+            if count == 0:
+                raise ShaderError(f"{name}: malformed SPIR-V (zero-length instruction at word {i})")
+            self._read(op, words[i:i + count])
+            i += count
+
+    def _read(self, op: int, ins) -> None:
+        """Record one instruction (`ins`: its words, the opcode word first) if reflection needs it."""
+        if op == OP_NAME:   # the first name wins: a local `const int x = SPEC;` names the same id again
+            self.names.setdefault(ins[1], _string(ins, 2))
+        elif op == OP_MEMBER_NAME:
+            self.member_names.setdefault(ins[1], {})[ins[2]] = _string(ins, 3)
+        elif op == OP_DECORATE:
+            self.decorations.setdefault(ins[1], {})[ins[2]] = ins[3] if len(ins) > 3 else True
+        elif op == OP_MEMBER_DECORATE:
+            members = self.member_decorations.setdefault(ins[1], {})
+            members.setdefault(ins[2], {})[ins[3]] = ins[4] if len(ins) > 4 else True
+        elif op in _TYPE_OPS:
+            self.types[ins[1]] = (op, tuple(ins[2:]))
+        elif op == OP_CONSTANT:
+            self.constants[ins[2]] = ins[3]
+        elif op in (OP_SPEC_TRUE, OP_SPEC_FALSE, OP_SPEC):
+            self.specs[ins[2]] = (op, ins[1], ins[3] if op == OP_SPEC else op == OP_SPEC_TRUE)
+        elif op == OP_VARIABLE:
+            self.variables.append((ins[1], ins[2], ins[3]))
+
+    def scalar_name(self, type_id) -> str:
+        op, args = self.types[type_id]
         if op == OP_TYPE_BOOL:
             return "bool"
         if op == OP_TYPE_FLOAT:
             return "float"
         return "int" if args[1] else "uint"
 
-    def size_of(type_id) -> int:
-        op, args = types[type_id]
+    def size_of(self, type_id) -> int:
+        """Bytes of a push-constant block or member."""
+        op, args = self.types[type_id]
         if op in (OP_TYPE_INT, OP_TYPE_FLOAT):
             return args[0] // 8
         if op == OP_TYPE_VECTOR:
-            return size_of(args[0]) * args[1]
+            return self.size_of(args[0]) * args[1]
         if op == OP_TYPE_MATRIX:
             stride = 16
             return stride * args[1]
         if op == OP_TYPE_ARRAY:
-            return decorations.get(type_id, {}).get(DEC_ARRAY_STRIDE, size_of(args[0])) * constants[args[1]]
+            stride = self.decorations.get(type_id, {}).get(DEC_ARRAY_STRIDE, self.size_of(args[0]))
+            return stride * self.constants[args[1]]
         if op == OP_TYPE_STRUCT:
-            offs = member_decorations.get(type_id, {})
-            return max((offs.get(m, {}).get(DEC_OFFSET, 0) + size_of(t) for m, t in enumerate(args)), default=0)
-        raise ShaderError(f"{name}: cannot size a push-constant member of SPIR-V type op {op}")
+            offs = self.member_decorations.get(type_id, {})
+            return max((offs.get(m, {}).get(DEC_OFFSET, 0) + self.size_of(t) for m, t in enumerate(args)), default=0)
+        raise ShaderError(f"{self.name}: cannot size a push-constant member of SPIR-V type op {op}")
 
-    bindings, push_size = [], 0
-    for ptr_type, var, storage in variables:
-        pointee = types[ptr_type][1][1]
-        if storage == SC_PUSH_CONSTANT:
-            push_size = max(push_size, size_of(pointee))
-            continue
-        dec = decorations.get(var, {})
-        if DEC_BINDING not in dec:
-            continue
+    def binding(self, var, pointee, storage) -> Binding:
+        """The descriptor binding of variable `var` (which has a Binding decoration), of type `pointee`."""
+        dec = self.decorations[var]
         count, base = 1, pointee
-        while types[base][0] in (OP_TYPE_ARRAY, OP_TYPE_RUNTIME_ARRAY):
-            op, args = types[base]
-            count = count * constants[args[1]] if op == OP_TYPE_ARRAY else 0
+        while self.types[base][0] in (OP_TYPE_ARRAY, OP_TYPE_RUNTIME_ARRAY):
+            op, args = self.types[base]
+            count = count * self.constants[args[1]] if op == OP_TYPE_ARRAY else 0
             base = args[0]
-        op, args = types[base]
-        access = "read_write"
-        if op == OP_TYPE_STRUCT:
-            members = member_decorations.get(base, {})
-            block = decorations.get(base, {})
-            if storage == SC_UNIFORM and DEC_BLOCK in block:
-                kind, access = "uniform", "read"
-            else:
-                kind = "buffer"
-                flags = [members.get(m, {}) for m in range(len(args))]
-                if flags and all(DEC_NON_WRITABLE in f for f in flags):
-                    access = "read"
-                elif flags and all(DEC_NON_READABLE in f for f in flags):
-                    access = "write"
-            label = names.get(var) or (member_names.get(base, {}).get(0) if len(args) == 1 else None) \
-                or names.get(base, "")
+        if self.types[base][0] == OP_TYPE_STRUCT:
+            kind, access, label = self._block(var, base, storage)
         else:
-            if op == OP_TYPE_SAMPLED_IMAGE:   # a sampled image, or a texel fetch from a uniform texel buffer
-                dim = types[args[0]][1][1]
-                kind, access = ("uniform_texel" if dim == DIM_BUFFER else "texture"), "read"
-            elif op == OP_TYPE_SAMPLER:
-                kind, access = "sampler", "read"
-            elif op == OP_TYPE_IMAGE:
-                dim, sampled = args[1], args[5]
-                if dim == DIM_BUFFER:
-                    kind = "storage_texel" if sampled == 2 else "uniform_texel"
-                else:
-                    kind = "image" if sampled == 2 else "sampled_image"
-                if sampled != 2:
-                    access = "read"
+            kind, access = self._opaque(base, dec)
+            label = self.names.get(var, "")
+        return Binding(label or f"binding{dec[DEC_BINDING]}", dec.get(DEC_SET, 0), dec[DEC_BINDING], kind, count,
+                       access)
+
+    def _block(self, var, base, storage) -> tuple[str, str, str]:
+        """(kind, access, name) of a uniform or storage block: named by its variable, else by its only member, else
+        by its block name."""
+        args = self.types[base][1]
+        members = self.member_decorations.get(base, {})
+        access = "read_write"
+        if storage == SC_UNIFORM and DEC_BLOCK in self.decorations.get(base, {}):
+            kind, access = "uniform", "read"
+        else:
+            kind = "buffer"
+            flags = [members.get(m, {}) for m in range(len(args))]
+            if flags and all(DEC_NON_WRITABLE in f for f in flags):
+                access = "read"
+            elif flags and all(DEC_NON_READABLE in f for f in flags):
+                access = "write"
+        label = (self.names.get(var) or (self.member_names.get(base, {}).get(0) if len(args) == 1 else None)
+                 or self.names.get(base, ""))
+        return kind, access, label
+
+    def _opaque(self, base, dec) -> tuple[str, str]:
+        """(kind, access) of an image, sampler or texel buffer binding (`dec`: the variable's decorations)."""
+        op, args = self.types[base]
+        access = "read_write"
+        if op == OP_TYPE_SAMPLED_IMAGE:   # a sampled image, or a texel fetch from a uniform texel buffer
+            dim = self.types[args[0]][1][1]
+            kind, access = ("uniform_texel" if dim == DIM_BUFFER else "texture"), "read"
+        elif op == OP_TYPE_SAMPLER:
+            kind, access = "sampler", "read"
+        elif op == OP_TYPE_IMAGE:
+            dim, sampled = args[1], args[5]
+            if dim == DIM_BUFFER:
+                kind = "storage_texel" if sampled == 2 else "uniform_texel"
             else:
-                raise ShaderError(f"{name}: binding {dec[DEC_BINDING]} has an unsupported type (SPIR-V op {op})")
-            if access == "read_write":
-                if DEC_NON_WRITABLE in dec:
-                    access = "read"
-                elif DEC_NON_READABLE in dec:
-                    access = "write"
-            label = names.get(var, "")
-        bindings.append(Binding(label or f"binding{dec[DEC_BINDING]}", dec.get(DEC_SET, 0), dec[DEC_BINDING], kind,
-                                count, access))
-    consts = {}
-    for cid, (op, type_id, value) in specs.items():
-        dec = decorations.get(cid, {})
-        if DEC_SPEC_ID not in dec:
-            continue
-        ctype = scalar_name(type_id)
-        if op == OP_SPEC:
-            value = struct.unpack("<f", struct.pack("<I", value))[0] if ctype == "float" else (
-                struct.unpack("<i", struct.pack("<I", value))[0] if ctype == "int" else value)
-        cname = names.get(cid) or f"constant{dec[DEC_SPEC_ID]}"
-        consts[cname] = Constant(cname, dec[DEC_SPEC_ID], ctype, value)
-    return Interface(tuple(sorted(bindings, key=lambda b: (b.set, b.binding))), consts, push_size)
+                kind = "image" if sampled == 2 else "sampled_image"
+            if sampled != 2:
+                access = "read"
+        else:
+            raise ShaderError(f"{self.name}: binding {dec[DEC_BINDING]} has an unsupported type (SPIR-V op {op})")
+        if access == "read_write":
+            if DEC_NON_WRITABLE in dec:
+                access = "read"
+            elif DEC_NON_READABLE in dec:
+                access = "write"
+        return kind, access
+
+    def spec_constants(self) -> dict:
+        """name -> Constant of the specialization constants (those with a SpecId)."""
+        consts = {}
+        for cid, (op, type_id, value) in self.specs.items():
+            dec = self.decorations.get(cid, {})
+            if DEC_SPEC_ID not in dec:
+                continue
+            ctype = self.scalar_name(type_id)
+            if op == OP_SPEC:
+                value = struct.unpack("<f", struct.pack("<I", value))[0] if ctype == "float" else (
+                    struct.unpack("<i", struct.pack("<I", value))[0] if ctype == "int" else value)
+            cname = self.names.get(cid) or f"constant{dec[DEC_SPEC_ID]}"
+            consts[cname] = Constant(cname, dec[DEC_SPEC_ID], ctype, value)
+        return consts

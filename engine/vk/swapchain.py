@@ -116,7 +116,8 @@ class Swapchain:
                               f"(usage {caps.supportedUsageFlags:#x})")
         alpha = vk.VK_COMPOSITE_ALPHA_OPAQUE_BIT_KHR
         if not caps.supportedCompositeAlpha & alpha:
-            alpha = next(b for b in (vk.VK_COMPOSITE_ALPHA_INHERIT_BIT_KHR, vk.VK_COMPOSITE_ALPHA_PRE_MULTIPLIED_BIT_KHR,
+            alpha = next(b for b in (vk.VK_COMPOSITE_ALPHA_INHERIT_BIT_KHR,
+                                     vk.VK_COMPOSITE_ALPHA_PRE_MULTIPLIED_BIT_KHR,
                                      vk.VK_COMPOSITE_ALPHA_POST_MULTIPLIED_BIT_KHR)
                          if caps.supportedCompositeAlpha & b)
         old = self.handle

@@ -371,7 +371,6 @@ def _value_cases():
             query("occluded", o[:32767], d[:32767], t[:32767], reorder=r, ref=(o[:32767], d[:32767], t[:32767]))
     case("value/1_2_and_boundary_batches")(fone)
     def fchunks():   # several chunks of a small-batch Tracer, reordered
-        from engine.rt import stream
         tr = tracer(batch_size=5000)
         for r in (True, False):
             got = tr.occluded(o, d, t, reorder=r)
@@ -418,10 +417,14 @@ def _mesh_cases():
     v, f = mesh()
     def mk(vv, ff):
         return lambda: engine.Tracer(vv, ff)
-    vn = v.copy(); vn[5, 1] = np.nan
-    vi = v.copy(); vi[-1, 0] = np.inf
-    fneg = f.copy(); fneg[3, 1] = -1
-    fbig = f.copy(); fbig[-1, 2] = len(v)
+    vn = v.copy()
+    vn[5, 1] = np.nan
+    vi = v.copy()
+    vi[-1, 0] = np.inf
+    fneg = f.copy()
+    fneg[3, 1] = -1
+    fbig = f.copy()
+    fbig[-1, 2] = len(v)
     for label, vv, ff, words in (("nan_vertex", vn, f, ("vertices",)), ("inf_vertex", vi, f, ("vertices",)),
                                  ("negative_index", v, fneg, ("face",)), ("index_out_of_range", v, fbig, ("face",)),
                                  ("empty", np.zeros((0, 3)), np.zeros((0, 3), int), ("triangles",)),
@@ -442,7 +445,8 @@ def _mesh_cases():
         case(f"mesh/tracer/{label}", "err", words)(mk(vv, ff))
     def fdeg():   # every triangle of zero area: builds, nothing is hit
         o, d, t = rays(N_BIG)
-        vv = v.copy(); vv[:, 2] = 0
+        vv = v.copy()
+        vv[:, 2] = 0
         ff = np.stack([f[:, 0], f[:, 0], f[:, 1]], 1)
         tr = engine.Tracer(vv, ff)
         h = tr.intersect(o, d, reorder=True)
@@ -453,7 +457,8 @@ def _mesh_cases():
     def fsome():
         from engine.rt.reference import reference_intersect
         o, d, t = rays(N_BIG)
-        ff = f.copy(); ff[::3, 2] = ff[::3, 1]
+        ff = f.copy()
+        ff[::3, 2] = ff[::3, 1]
         tr = engine.Tracer(v, ff)
         h = tr.intersect(o, d, reorder=True)
         ref = reference_intersect(v, ff, o, d)
@@ -599,7 +604,7 @@ def _lifetime_cases():
                         outs[(k, rep)] = ("occluded", tr.occluded(oo, dd, tt, reorder=True), (oo, dd, tt))
                     else:
                         outs[(k, rep)] = ("intersect", tr.intersect(oo, dd, tt, reorder="auto"), (oo, dd, tt))
-            except Exception as e:
+            except Exception:
                 errs.append(traceback.format_exc())
         th = [threading.Thread(target=work, args=(k,)) for k in range(2)]
         [x.start() for x in th]
@@ -701,7 +706,7 @@ def _tensor_cases():
         def fs(cls=cls):
             s = engine.RaycastingScene()
             s.add_triangles(cls(mesh()[0]), cls(mesh()[1]))
-            r = s.cast_rays(cls(np.concatenate([o, d], 1)[:100]))
+            s.cast_rays(cls(np.concatenate([o, d], 1)[:100]))
             s.compute_distance(cls(o[:10]))
             s.close()
         case(f"tensor/scene/{cls.__name__}")(fs)
@@ -962,8 +967,6 @@ def _native_cases():
             elif kind == "directory":
                 path.mkdir()
             elif kind == "other_lib":
-                import ctypes.util
-                libm = ctypes.util.find_library("m")
                 src = [p for p in ("/lib/x86_64-linux-gnu/libm.so.6", "/usr/lib/x86_64-linux-gnu/libm.so.6")
                        if os.path.exists(p)][0]
                 shutil.copy(src, path)
@@ -985,12 +988,14 @@ def _native_cases():
                 "o, d, t = fuzz.rays(300000, 5)\n"
                 "tr = engine.Tracer(*fuzz.mesh())\n"
                 "h = tr.intersect(o, d, t, reorder=True); a = tr.occluded(o, d, t, reorder=True)\n"
-                "h2 = tr.intersect(o, d, t, reorder='auto'); a2 = tr.occluded(o[::-1], d[::-1], t[::-1], reorder=True)\n"
+                "h2 = tr.intersect(o, d, t, reorder='auto')\n"
+                "a2 = tr.occluded(o[::-1], d[::-1], t[::-1], reorder=True)\n"
                 "assert tr.last_reordered\n"
                 "from engine import native\n"
                 "from engine.rt import order\n"
                 "words = order.ray_order(o, order.shared_direction(d), 2, 1 << 18)\n"
-                "np.savez(sys.argv[1], t=h.t, prim=h.prim, u=h.u, v=h.v, occ=a, t2=h2.t, occ2=a2, lib=native.library() is not None, order=words)\n"
+                "np.savez(sys.argv[1], t=h.t, prim=h.prim, u=h.u, v=h.v, occ=a, t2=h2.t, occ2=a2,\n"
+                "         lib=native.library() is not None, order=words)\n"
                 % os.path.dirname(os.path.abspath(__file__)))
         outs = []
         for env in ("1", "0"):
@@ -1098,11 +1103,13 @@ def main():
         while proc.poll() is None:
             time.sleep(0.2)
             while seen < len(lines):
-                line = lines[seen]; seen += 1
+                line = lines[seen]
+                seen += 1
                 if line.startswith("START "):
                     current, last = line.split()[1], time.time()
                 elif line.startswith("RESULT "):
-                    done.add(line.split()[1]); current = None
+                    done.add(line.split()[1])
+                    current = None
                     print(line, end="", flush=True)
                 elif not line.startswith("START"):
                     print("   ", line, end="", flush=True)
@@ -1114,7 +1121,8 @@ def main():
         th.join(5)
         for line in lines[seen:]:
             if line.startswith("RESULT "):
-                done.add(line.split()[1]); current = None
+                done.add(line.split()[1])
+                current = None
                 print(line, end="", flush=True)
             elif line.startswith("START "):
                 current = line.split()[1]

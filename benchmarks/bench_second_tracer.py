@@ -1,15 +1,16 @@
 """A second Tracer on a shared engine.Device (issue 19): A/B of checkouts, interleaved run by run.
 
-    .venv/bin/python tools/bench_second_tracer.py                          # this checkout, 3 rounds
+    .venv/bin/python benchmarks/bench_second_tracer.py                          # this checkout, 3 rounds
     git archive <commit> | tar -x -C /tmp/base                             # a checkout to compare with, then:
-    .venv/bin/python tools/bench_second_tracer.py --root /tmp/base --root . --rounds 4 --json out/second.json
+    .venv/bin/python benchmarks/bench_second_tracer.py --root /tmp/base --root . --rounds 4 --json out/second.json
 
 Each round runs every root once, in turn, in a process of its own (so a noisy host moves them alike). A run: the
-default scene's shadow rays of `tools/bench_stream.py` (one per pixel of its G-buffer towards the first light), on
+default scene's shadow rays of `benchmarks/bench_stream.py` (one per pixel of its G-buffer towards the first light), on
 one engine.Device a first Tracer of the scene that answers the batch once, then `--runs` times a second Tracer: its
 set-up beyond its BVH build (the issue's figure), its first query of the batch and a second (warm) one, the answers
-checked against the first Tracer's. Only the public API, so any checkout with tools/bench_stream.py runs it. Prints
-the median of each figure per run and over all runs per root.
+checked against the first Tracer's. Only the public API, so any checkout with benchmarks/bench_stream.py (or
+tools/bench_stream.py, where older checkouts had it) runs it. Prints the median of each figure per run and over all
+runs per root.
 """
 from __future__ import annotations
 
@@ -81,8 +82,8 @@ def main() -> int:
     ap.add_argument("--json", default=None)
     ap.add_argument("--child", default=None, help=argparse.SUPPRESS)
     a = ap.parse_args()
-    if a.child:   # one run, in the root given: its engine and tools first on the path
-        sys.path[:0] = [a.child, str(Path(a.child) / "tools")]
+    if a.child:   # one run, in the root given: its engine and bench_stream.py first on the path
+        sys.path[:0] = [a.child, str(Path(a.child) / "benchmarks"), str(Path(a.child) / "tools")]
         print(json.dumps(one_run(a.size, a.runs)))
         return 0
     roots = [str(Path(r).resolve()) for r in (a.root or ["."])]

@@ -1,10 +1,10 @@
 """Tracer.occluded on CUDA arrays (torch, CuPy) against the numpy path, in one process, on two sets of 1920x1080
-shadow rays of the default scene: "gbuffer", tools/bench_stream.py's (one ray per pixel of a rendered G-buffer towards
-its first light, in image order, tmax per ray: the issue-19 target's rays), and "random" (from random points on its
-surfaces towards its sun, tmax inf: less coherent). Needs an NVIDIA GPU, torch and/or cupy, and cuda-bindings
+shadow rays of the default scene: "gbuffer", benchmarks/bench_stream.py's (one ray per pixel of a rendered G-buffer
+towards its first light, in image order, tmax per ray: the issue-19 target's rays), and "random" (from random points
+on its surfaces towards its sun, tmax inf: less coherent). Needs an NVIDIA GPU, torch and/or cupy, and cuda-bindings
 (docs/benchmarks.md has the figures).
 
-    python tools/bench_cuda_arrays.py [--sets gbuffer random] [--rays 2073600] [--repeat 20] [--json out.json]
+    python benchmarks/bench_cuda_arrays.py [--sets gbuffer random] [--rays 2073600] [--repeat 20] [--json out.json]
 """
 import argparse
 import json

@@ -2,7 +2,7 @@
 """Soak: many frames (camera moving, soft shadows, accumulation, denoise) and many Tracer queries in one process,
 printing resident memory and live Vulkan allocations as they go and the slope of each at the end.
 
-    python tools/soak.py --frames 100000 --size 64x64 --queries 20000      # a long run (GPU machine or lavapipe)
+    python benchmarks/soak.py --frames 100000 --size 64x64 --queries 20000      # a long run (GPU machine or lavapipe)
 
 A leak shows as a positive slope after warm-up (MB per 1,000 frames); tests/test_soak.py runs a short version.
 """

@@ -1,8 +1,8 @@
 """The batch Tracer on an instanced scene against the same scene flattened (issue #17's "within 0.8x of the same
 scene flattened, GPU time"; a benchmark, not a test).
 
-    python tools/bench_instanced_vs_flat.py                    # 1,000 instances of a ~10k-triangle sphere (10M)
-    python tools/bench_instanced_vs_flat.py --instances 100 --tris 2000 --rays 65536   # lavapipe scale
+    python benchmarks/bench_instanced_vs_flat.py                    # 1,000 instances of a ~10k-triangle sphere (10M)
+    python benchmarks/bench_instanced_vs_flat.py --instances 100 --tris 2000 --rays 65536   # lavapipe scale
 
 The same rays through `Tracer.from_scene(scene)` (two levels) and `Tracer(scene.positions, scene.indices)` (one BVH
 over the flattened triangles): camera rays (closest hit) over the grid of instances, then shadow rays from their hit

@@ -1,6 +1,6 @@
 """A/B of the BVH build between source trees (e.g. before and after a change), in one run on one machine.
 
-    python tools/ab_build.py OLD_TREE NEW_TREE [--sizes 100000 1000000] [--rounds 3] [--reps 5]
+    python benchmarks/ab_build.py OLD_TREE NEW_TREE [--sizes 100000 1000000] [--rounds 3] [--reps 5]
 
 The bench's meshes (`engine.bench.scenes.build_mesh`: spheres, scan, generated) at each size, built `--reps` times
 with the default threads in a child process per tree and size, the trees taking turns round by round (so clocks and

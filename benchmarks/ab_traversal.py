@@ -3,7 +3,8 @@ sets (G-buffer shadow and AO rays, random closest-hit rays) traced by one Tracer
 interleaved; GPU ms (timestamps) and whether every variant gives the first one's answers (hit or miss; closest
 hits: the largest relative difference of t too).
 
-Usage: python tools/ab_traversal.py [generated|default ...] [--variants NAME ...] [--reps N] [--size WxH] [--json PATH]
+Usage: python benchmarks/ab_traversal.py [generated|default ...] [--variants NAME ...] [--reps N] [--size WxH]
+       [--json PATH]
 Variants (constants: 0 branchless push, 1 postponed leaves, 2 register stack, 3 its size = depth - 1, layout):
   device (this device's defaults), plain, postpone, regs, postpone+regs, push, wide, wide+push,
   lvp2 (the older CPU set: 0-2 on, 11 image loads off, the rest this device's), wide-device (the wide layout with

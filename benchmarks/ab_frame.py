@@ -1,6 +1,6 @@
 """A/B of the frame's GPU time between source trees (e.g. before and after a change), in one run on one machine.
 
-    python tools/ab_frame.py OLD_TREE NEW_TREE [--scene default] [--size 1920x1080] [--rounds 5] [--frames 40]
+    python benchmarks/ab_frame.py OLD_TREE NEW_TREE [--scene default] [--size 1920x1080] [--rounds 5] [--frames 40]
 
 Each round renders `--frames` frames of the scene back to back (render(), default settings) in a child process per
 tree, the trees taking turns round by round (so clocks and load drift hit both alike); prints the median frame GPU

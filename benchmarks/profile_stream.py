@@ -2,7 +2,7 @@
 copy bandwidth into mapped memory on 1..all threads, the cost of the ray checks, and a per-chunk timeline of
 `Tracer.occluded` (pack, submit, wait, sink) for a few chunk sizes, threads and staging on / off.
 
-    .venv/bin/python tools/profile_stream.py [--size 1920x1080] [--json out/profile.json]
+    .venv/bin/python benchmarks/profile_stream.py [--size 1920x1080] [--json out/profile.json]
 """
 from __future__ import annotations
 

@@ -1,9 +1,9 @@
 """A/B of traversal variants in the renderer's own ray passes (shadow, AO): one Renderer per variant (BVH layout and
-bvh.glsl specialization constants, as in tools/ab_traversal.py), frames submitted back to back (the viewer's steady
+bvh.glsl specialization constants, as in benchmarks/ab_traversal.py), frames submitted back to back (the viewer's steady
 state), GPU ms per pass interleaved over the variants; shadow rays per second = rays the shadow pass traces (covered
 pixels with the light above their horizon, counted from a rendered G-buffer) / its GPU time.
 
-Usage: python tools/ab_passes.py [generated|default ...] [--variants NAME ...] [--reps N] [--size WxH]
+Usage: python benchmarks/ab_passes.py [generated|default ...] [--variants NAME ...] [--reps N] [--size WxH]
                                 [--ao-samples N]"""
 from __future__ import annotations
 

@@ -1,8 +1,8 @@
 """Benchmark of instanced scenes and the two-level BVH (issue #17 targets; a benchmark, not a test).
 
-    python tools/bench_instances.py                      # 10,000 instances of a ~10k-triangle mesh (H200 scale)
-    python tools/bench_instances.py --instances 500 --rays 65536 --refit-tris 100000   # lavapipe scale
-    python tools/bench_instances.py --update-only --frames 300   # only the top-level update figures
+    python benchmarks/bench_instances.py                      # 10,000 instances of a ~10k-triangle mesh (H200 scale)
+    python benchmarks/bench_instances.py --instances 500 --rays 65536 --refit-tris 100000   # lavapipe scale
+    python benchmarks/bench_instances.py --update-only --frames 300   # only the top-level update figures
 
 Measures, with every instance moving every frame:
 - top level update on the host (scene.set_transforms + TwoLevel.top) and with the upload (InstancedBVH.update),

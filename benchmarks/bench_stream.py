@@ -1,8 +1,8 @@
 """The batch Tracer's host path at bus speed, and a second Tracer on a shared engine.Device (issue 19).
 
-    .venv/bin/python tools/bench_stream.py                       # default scene, 1920x1080: 2,073,600 shadow rays
-    .venv/bin/python tools/bench_stream.py --size 1280x720 --reps 10 --json out/stream.json
-    .venv/bin/python tools/bench_stream.py --chunks 131072 262144 524288 1048576   # A/B of the stream chunk size
+    .venv/bin/python benchmarks/bench_stream.py                       # default scene, 1920x1080: 2,073,600 shadow rays
+    .venv/bin/python benchmarks/bench_stream.py --size 1280x720 --reps 10 --json out/stream.json
+    .venv/bin/python benchmarks/bench_stream.py --chunks 131072 262144 524288 1048576   # A/B of the stream chunk size
 
 Rays: one shadow ray per pixel of a rendered G-buffer of the default scene towards its first light (pixels without
 geometry repeat covered ones, so the batch has exactly width x height rays), float32, tmax as the shadow pass's.

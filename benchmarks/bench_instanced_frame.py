@@ -1,12 +1,12 @@
 """The issue-17 frame benchmark: N instances of a ~T-triangle mesh, all moving every frame, rendered at WxH with one
 light's hard shadows, one AO ray and the denoiser (a benchmark, not a test).
 
-    python tools/bench_instanced_frame.py                       # 10,000 x 10k triangles at 1920x1080 (H200 scale)
-    python tools/bench_instanced_frame.py --instances 300 --size 640x360 --frames 5   # lavapipe scale
-    python tools/bench_instanced_frame.py --no-cull         # A/B: every instance's full mesh, direct draws
-    python tools/bench_instanced_frame.py --lod-pixels 0    # A/B: culling, but full meshes (no levels of detail)
-    python tools/bench_instanced_frame.py --sw-raster off   # A/B: no software raster of small instances
-    python tools/bench_instanced_frame.py --sw-raster on --sw-raster-pixels 32   # its threshold (default 64 px)
+    python benchmarks/bench_instanced_frame.py                       # 10,000 x 10k triangles at 1920x1080 (H200 scale)
+    python benchmarks/bench_instanced_frame.py --instances 300 --size 640x360 --frames 5   # lavapipe scale
+    python benchmarks/bench_instanced_frame.py --no-cull         # A/B: every instance's full mesh, direct draws
+    python benchmarks/bench_instanced_frame.py --lod-pixels 0    # A/B: culling, but full meshes (no levels of detail)
+    python benchmarks/bench_instanced_frame.py --sw-raster off   # A/B: no software raster of small instances
+    python benchmarks/bench_instanced_frame.py --sw-raster on --sw-raster-pixels 32   # its threshold (default 64 px)
 
 Per frame: the host time of moving every instance (scene.set_transforms) and of the renderer's per-frame update
 (top level rebuilt and uploaded, instance buffer rewritten: the wall of render() minus its GPU and readback), and the

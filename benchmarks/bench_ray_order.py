@@ -1,7 +1,7 @@
 """Rays in arbitrary order against the same rays in coherent order, with and without the Tracer's reordering (issue 19).
 
-    .venv/bin/python tools/bench_ray_order.py                      # 1M rays, default + generated scene
-    .venv/bin/python tools/bench_ray_order.py --rays 262144 --reps 3 --scenes default --json out/order.json
+    .venv/bin/python benchmarks/bench_ray_order.py                      # 1M rays, default + generated scene
+    .venv/bin/python benchmarks/bench_ray_order.py --rays 262144 --reps 3 --scenes default --json out/order.json
 
 Rays: shadow rays from uniform random points on the scene's surfaces (area-weighted, offset 1e-4 x the diagonal along
 the face normal on the light's side) towards its first light, float32, one tmax (engine/bench/rays.py's shadow rays

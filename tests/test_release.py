@@ -35,9 +35,31 @@ def test_licence_in_the_repo_and_the_metadata():
     assert PYPROJECT["project"]["license"] == "MIT" and PYPROJECT["project"]["license-files"] == ["LICENSE"]
 
 
+#: The kinds of change of a Keep a Changelog entry (https://keepachangelog.com/en/1.1.0/).
+CHANGE_TYPES = {"Added", "Changed", "Deprecated", "Removed", "Fixed", "Security"}
+
+
 def test_changelog_has_the_version():
+    """CHANGELOG.md is in the Keep a Changelog form and its newest version is this one, so that a user who runs
+    `hybrid --version` finds at the top what that version brings: `## [Unreleased]` (optional, first), then
+    `## [X.Y.Z] - YYYY-MM-DD` entries, newest first (only the newest may say "Unreleased" for its date), each with
+    changes listed under Added / Changed / Deprecated / Removed / Fixed / Security."""
     text = (REPO / "CHANGELOG.md").read_text()
-    assert re.search(rf"^## \[?{re.escape(engine.__version__)}\]?", text, re.M), "no entry for this version"
+    entries = re.split(r"^(?=## )", text, flags=re.M)[1:]
+    heads = [re.fullmatch(r"## \[([^\]]+)\](?: - (\S+))?", e.splitlines()[0]) for e in entries]
+    assert heads and all(heads), [e.splitlines()[0] for e, h in zip(entries, heads) if not h]
+    if heads[0].group(1) == "Unreleased":
+        entries, heads = entries[1:], heads[1:]
+    versions = [h.group(1) for h in heads]
+    assert all(re.fullmatch(r"\d+\.\d+\.\d+", v) for v in versions), versions
+    assert versions and versions[0] == engine.__version__, f"the newest entry is {versions[:1]}, not this version"
+    assert versions == sorted(versions, key=lambda v: tuple(map(int, v.split("."))), reverse=True)
+    for i, (entry, head) in enumerate(zip(entries, heads)):
+        assert re.fullmatch(r"\d{4}-\d\d-\d\d", head.group(2) or "") or (i == 0 and head.group(2) == "Unreleased"), \
+            head.group(0)
+        kinds = re.findall(r"^### (.+)$", entry, re.M)
+        assert kinds and set(kinds) <= CHANGE_TYPES, (head.group(0), kinds)
+        assert re.search(r"^- \S", entry, re.M), f"{head.group(0)}: no change listed"
 
 
 def engine_imports() -> set[str]:

@@ -1,10 +1,10 @@
 """A short soak in the suite: 2,000 frames with a moving camera and soft shadows, 1,000 Tracer queries; memory and
-Vulkan allocations stay flat and the validation layer stays silent (tools/soak.py runs the long version)."""
+Vulkan allocations stay flat and the validation layer stays silent (benchmarks/soak.py runs the long version)."""
 import sys
 from pathlib import Path
 
 ROOT = Path(__file__).resolve().parents[1]
-sys.path.insert(0, str(ROOT / "tools"))
+sys.path.insert(0, str(ROOT / "benchmarks"))
 
 import soak  # noqa: E402
 

@@ -85,7 +85,7 @@ def test_wheel_carries_shaders_scenes_and_licence(installed):
     assert {f"engine/_data/shaders/glsl/{n}" for n in glsl} <= names
     assert {f"engine/_data/scenes/{n}" for n in scenes} <= names
     assert f"hybrid_renderer-{VERSION}.dist-info/licenses/LICENSE" in names
-    assert not [n for n in names if n.startswith(("tests/", "tools/", "shaders/", "scenes/"))]
+    assert not [n for n in names if n.startswith(("tests/", "tools/", "benchmarks/", "shaders/", "scenes/"))]
 
 
 def test_version_from_one_source(installed):

@@ -1,6 +1,7 @@
 """Build the API reference from the docstrings with pdoc (HTML, into docs/api/ by default) and check it.
 
     .venv/bin/python tools/build_api_docs.py               # writes docs/api/index.html, engine.html, ...
+    ./hybrid docs                                           # the same (setting up the checkout's .venv first)
     .venv/bin/python tools/build_api_docs.py -o /tmp/api    # elsewhere
     .venv/bin/python tools/build_api_docs.py --check        # check only, write nothing
 
@@ -8,11 +9,15 @@ Warnings are errors: every warning pdoc gives (an annotation it cannot evaluate,
 every backticked reference in a docstring that does not resolve (`engine.settings.DEFAULT_SETTINGS`,
 `Frame.aov`, `Scene.load()`: names under `engine.` or starting with a public class) and every `docs/*.md` a
 docstring names that does not exist is printed, and the exit status is 1. tests/test_api_docs.py runs it.
+
+The folder is a site to open in a browser: index.html lists the modules and the public API (`engine.__all__`) with
+the first sentence of each docstring, linked to pdoc's pages (engine.html, engine/settings.html, ...).
 """
 from __future__ import annotations
 
 import argparse
 import dataclasses
+import html
 import importlib
 import re
 import sys
@@ -113,6 +118,47 @@ def _short_numpy_aliases(pdoc_doc, pdoc_doc_types) -> None:
     pdoc_doc.safe_eval_type = pdoc_doc_types.safe_eval_type = safe_eval_type
 
 
+def _summary(docstring: str | None) -> str:
+    """The first sentence of a docstring's first paragraph, as plain text (backticks dropped), HTML-escaped."""
+    para = " ".join((docstring or "").strip().split("\n\n")[0].split()).replace("`", "")
+    m = re.match(r"(.+?\.)(\s|$)", para)
+    text = m.group(1) if m else para
+    return html.escape(text if len(text) <= 160 else text[:157] + "...")
+
+
+def write_index(out: Path, docs) -> None:
+    """`out`/index.html, the page a user opens: each module with its summary, then the first module's public names
+    (for `engine`, its `__all__`) with theirs, linked to their pages. pdoc's own index.html only redirects to
+    engine.html, whose page does not link the other modules (they are not in `engine.__all__`)."""
+    import engine
+    mods = "\n".join(f'<li><a href="{d.fullname.replace(".", "/")}.html"><code>{d.fullname}</code></a> - '
+                     f"{_summary(d.docstring)}</li>" for d in docs)
+    names = "\n".join(f'<li><a href="{docs[0].fullname.replace(".", "/")}.html#{m.name}"><code>{m.name}</code></a>'
+                      f" - {_summary(m.docstring)}</li>" for m in docs[0].members.values()
+                      if not m.name.startswith("_"))
+    title = f"hybrid {engine.__version__}: API reference"
+    (out / "index.html").write_text(f"""<!doctype html>
+<html lang="en">
+<head><meta charset="utf-8"><title>{title}</title>
+<style>body {{ font-family: sans-serif; max-width: 60em; margin: 2em auto; line-height: 1.5 }}
+li {{ margin: 0.2em 0 }}</style></head>
+<body>
+<h1>{title}</h1>
+<p>Built from the docstrings by <code>tools/build_api_docs.py</code> (<code>./hybrid docs</code>). Guides:
+README.md and docs/ in the repository.</p>
+<h2>Modules</h2>
+<ul>
+{mods}
+</ul>
+<h2>{docs[0].fullname}</h2>
+<ul>
+{names}
+</ul>
+</body>
+</html>
+""")
+
+
 def build(out: Path | None) -> list[str]:
     """Render the reference into `out` (None: a temporary folder, discarded); the problems found, as lines."""
     import pdoc
@@ -124,12 +170,11 @@ def build(out: Path | None) -> list[str]:
     _short_numpy_aliases(pdoc.doc, pdoc.doc_types)
     with warnings.catch_warnings(record=True) as caught:
         warnings.simplefilter("always")
-        if out is None:
-            with tempfile.TemporaryDirectory() as tmp:
-                pdoc.pdoc(*MODULES, output_directory=Path(tmp))
-        else:
-            pdoc.pdoc(*MODULES, output_directory=out)
-        docs = [pdoc.doc.Module.from_name(name) for name in MODULES]
+        with tempfile.TemporaryDirectory() as tmp:
+            folder = Path(tmp) if out is None else out
+            pdoc.pdoc(*MODULES, output_directory=folder)
+            docs = [pdoc.doc.Module.from_name(name) for name in MODULES]
+            write_index(folder, docs)
     problems = [f"pdoc: {w.category.__name__}: {w.message}" for w in caught]
     return problems + check_docstrings(docs)
 
@@ -145,8 +190,8 @@ def main(argv=None) -> int:
     if problems:
         return 1
     if not args.check:
-        print(f"{args.output}: API reference of {', '.join(MODULES)} ({len(list(args.output.rglob('*.html')))} "
-              "pages)")
+        print(f"{args.output / 'index.html'}: the API reference of {', '.join(MODULES)} "
+              f"({len(list(args.output.rglob('*.html')))} pages); open it in a browser")
     return 0
 
 

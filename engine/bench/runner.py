@@ -147,8 +147,8 @@ class Bench:
 
     def _build_one(self, kind, n, reps) -> dict:
         v, f = build_mesh(kind, n, seed=self.cfg.seed)
-        # one untimed build first, as the trace's warm-up runs and tools/ab_build.py do: the first build after a
-        # mesh is made also grows the heap to its size (its time is kept as cold_ms)
+        # one untimed build first, as the trace's warm-up runs and benchmarks/ab_build.py do: the first build after
+        # a mesh is made also grows the heap to its size (its time is kept as cold_ms)
         t0 = time.perf_counter()
         build_bvh(v, f)
         cold = (time.perf_counter() - t0) * 1e3

@@ -1,5 +1,6 @@
 """The bus-speed peer of the trace benchmark: a plain host -> device -> host copy of a ray set's bytes, on the same
-device as our Tracer, timed numpy to numpy as our queries are; and the shadow-ray batches of `tools/bench_stream.py`.
+device as our Tracer, timed numpy to numpy as our queries are; and the shadow-ray batches of
+`benchmarks/bench_stream.py`.
 
 `CopyPeer.run` writes the rays' 28 bytes each into a mapped buffer with numpy (row blocks on every core, as fast as
 numpy copies go), copies them to a device-local buffer and the query's result bytes (4 or 16 per ray) back to a

@@ -38,7 +38,7 @@ RECORD_WORDS = 5
 #: Levels of detail the Group record of cull.comp holds errors for (beyond the full mesh).
 MAX_COARSE_LEVELS = 4
 #: A good largest projected error of a level of detail, in pixels (silhouettes move by less than a pixel); the
-#: Renderer's default is 0 (full meshes: AOVs exact), tools/bench_instanced_frame.py's this.
+#: Renderer's default is 0 (full meshes: AOVs exact), benchmarks/bench_instanced_frame.py's this.
 LOD_PIXELS = 1.0
 #: Words of a Group record of cull.comp.
 GROUP_WORDS = 20

@@ -1,1 +1,0 @@
-for n in 1000 2000 2048 2100 4096 4200 8192 8300; do echo "== $n"; python3 tools/bench_instanced_vs_flat.py --instances $n --tris 160 --repeat 3 --rays 500000 2>&1 | grep -E "intersect:|occluded:"; done

@@ -10,7 +10,7 @@ import pytest
 pytest.importorskip("ruff", reason="ruff is a dev dependency: pip install -e .[dev]")
 
 ROOT = Path(__file__).resolve().parents[1]
-PATHS = ["engine", "tests", "tools", "examples", "setup.py"]
+PATHS = ["engine", "tests", "tools", "benchmarks", "examples", "setup.py"]
 
 
 def ruff(*args: str) -> subprocess.CompletedProcess:

@@ -1,7 +1,7 @@
 """Bad-input fuzz of engine.rt (Tracer, RaycastingScene, RayMeshIntersector): layouts, dtypes, shapes and values
 of rays (batches of 40k rays, reordered with reorder=True / "auto", through the C steps of engine/native.c, and
-small ones), meshes, closed objects, two threads on one Tracer, CPU tensor lookalikes, the C library's cache dir
-and compiler, and HYBRID_NATIVE=0 against the C steps. Each case either returns what the plain float32 query (itself
+small ones), meshes, closed objects, two threads on one Tracer, CPU tensor lookalikes, the compiled module
+missing, and HYBRID_NATIVE=0 against the C steps. Each case either returns what the plain float32 query (itself
 checked against engine/rt/reference.py) returns, or raises a ConfigError / SceneError / ValueError / TypeError
 naming the argument (and the ray); a crash, a hang, another exception, one raised inside numpy or ctypes, or a
 message not naming the argument is reported. Cases run in subprocesses, in groups (a crash or hang names the case

@@ -1,11 +1,16 @@
-"""Build hook: the shaders and scenes live at the top of the checkout (shaders/glsl, shaders/spv, scenes/); a built
-wheel carries a copy of them as package data in engine/_data/, which engine/data.py finds. The rest of the metadata
-is in pyproject.toml."""
+"""Build hooks. The shaders and scenes live at the top of the checkout (shaders/glsl, shaders/spv, scenes/); a built
+wheel carries a copy of them as package data in engine/_data/, which engine/data.py finds. The host steps in C
+(engine/native.c) become the extension module engine._native through cffi (engine/_native_build.py), an optional
+one: where it cannot be compiled (no C compiler) the package installs without it and engine/native.py runs numpy's
+steps, saying so once. The rest of the metadata is in pyproject.toml."""
 import shutil
+import sys
 from pathlib import Path
 
 from setuptools import setup
+from setuptools.command.build_ext import build_ext
 from setuptools.command.build_py import build_py
+from setuptools.errors import CCompilerError, ExecError, PlatformError
 
 HERE = Path(__file__).resolve().parent
 
@@ -25,4 +30,32 @@ class BuildPyWithData(build_py):
             shutil.copy2(scene, dst / "scenes" / scene.name)
 
 
-setup(cmdclass={"build_py": BuildPyWithData})
+class OptionalBuildExt(build_ext):
+    """build_ext that leaves out an extension it cannot compile (no compiler, or a failing one), with a message."""
+
+    def run(self):
+        try:
+            super().run()
+        except (CCompilerError, ExecError, PlatformError, OSError) as e:   # (no compiler at all: found before any file)
+            self._skip("engine._native", e)
+
+    def build_extension(self, ext):
+        try:
+            super().build_extension(ext)
+        except (CCompilerError, ExecError, PlatformError, OSError) as e:
+            self._skip(ext.name, e)
+
+    @staticmethod
+    def _skip(name, e):
+        print(f"warning: {name} not built ({e}); the package installs without it and runs numpy's steps instead "
+              "(slower BVH builds): install a C compiler and reinstall to have it", file=sys.stderr)
+
+
+try:
+    import cffi  # noqa: F401   (a build requirement; a build without isolation may lack it)
+    native = {"cffi_modules": ["engine/_native_build.py:ffibuilder"]}
+except ImportError:
+    print("warning: cffi is not installed: engine._native not built (numpy's steps instead)", file=sys.stderr)
+    native = {}
+
+setup(cmdclass={"build_py": BuildPyWithData, "build_ext": OptionalBuildExt}, **native)

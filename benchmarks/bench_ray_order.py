@@ -25,7 +25,8 @@ alone: the sort costs more than it gains there). Results of every variant are ch
 Also per variant the trace dispatches' time (`Tracer.last_gpu_ms`; on lavapipe CPU time that the host's work
 running beside it lengthens) and, once, the host steps of the reordering on the shuffled rays, timed alone: the
 order (`engine.rt.order.ray_order`: box, keys, sort, into kept words as the Tracer does) and a gather of the origins
-in that order (`engine.native.gather`: C where a compiler is at hand, else np.take), and whether the C steps ran.
+in that order (`engine.native.gather`: C where the package has its compiled C steps, else np.take), and whether
+the C steps ran.
 """
 from __future__ import annotations
 

@@ -2,8 +2,11 @@
  * (pack.py) and its triangle records (triangles.py); the key of each ray and the gathers and scatters of rows in the
  * keys' order for ray reordering (engine/rt/order.py; the sort itself stays numpy's, vectorized and in place).
  * numpy's versions of these steps are the reference (the same records, leaves, nodes, keys and order, bit for
- * bit); engine/native.py compiles this file with the system's C compiler on first use and falls back to numpy where
- * there is none. Plain C99 and pthreads, no Python headers: loaded with ctypes. */
+ * bit). native.h declares the exported functions; engine/_native_build.py compiles this file into the extension
+ * module engine._native when the package is built, and engine/native.py calls it (numpy's steps where the package
+ * was installed without it). Plain C99 and pthreads, no Python headers (cffi's generated wrapper has those). */
+#include "native.h"
+
 #include <pthread.h>
 #include <stdint.h>
 #include <math.h>
@@ -467,11 +470,11 @@ static int64_t hand_back(const struct tri_row *rows, const int64_t *beg, const i
  * its records and leaves are numpy's, number for number. Where numpy bins every node of a pass into one array of
  * cells, this keeps each node's triangles together (a stable partition of the node's range: in increasing order,
  * the order of numpy's folds) and bins them node by node on a grid that stays in the L1 cache.
- * In: the triangles' boxes (6, stride) and centres (3, stride) float32; the n active triangles tid (increasing)
- * and slot; k0 active nodes' count, depth and binning domain dom0 (6, k0) float32; n_tri, the size cap's bound
- * (grow's box.shape[1]); split and axis2_table, octant_sah's tables; chunk: where > 0, the loop stops once the
- * active triangles are more than chunk and every node holds at most chunk (grow's chunk groups follow); threads:
- * how many threads a pass's nodes use (pass_nodes; the same results for any number).
+ * In (io's fields, native.h): the triangles' boxes (6, stride) and centres (3, stride) float32; the n active
+ * triangles tid (increasing) and slot; k0 active nodes' count, depth and binning domain dom0 (6, k0) float32; n_tri,
+ * the size cap's bound (grow's box.shape[1]); split and axis2_table, octant_sah's tables; chunk: where > 0, the loop
+ * stops once the active triangles are more than chunk and every node holds at most chunk (grow's chunk groups
+ * follow); threads: how many threads a pass's nodes use (pass_nodes; the same results for any number).
  * Out: record r has rec_rows[r] rows of rec_child and rec_rec (rows of 2); leaf l has leaf_size[l], leaf_depth[l],
  * a box leaf_box[6 l .. 6 l + 5] (six-row form) and its triangles next in leaf_tid (in leaf order); made =
  * (records, rows, leaves, triangles, K, then the last pass's next record, its record and whether it made
@@ -479,15 +482,22 @@ static int64_t hand_back(const struct tri_row *rows, const int64_t *beg, const i
  * -1. Returns 0, or 1 where a cell was not computable (a NaN), 2 where an output is full, 3 where memory ran out,
  * 4 where a node reached max_depth or a count disagreed with the slots (numpy's loop then runs instead, and says
  * so). */
-int64_t hybrid_grow(const float *box, const float *cen, int64_t stride, int64_t n_tri, const int64_t *tid0,
-                    const int64_t *slot0, int64_t n, const int64_t *count0, const int64_t *depth0, const float *dom0,
-                    int64_t k0, int64_t max_leaf, int64_t max_depth, int64_t stat_boxes, const int64_t *split,
-                    const int64_t *axis2_table, int64_t *rec_child, int64_t *rec_rec, int64_t rows_cap,
-                    int64_t *rec_rows, int64_t recs_cap, int64_t *leaf_tid, int64_t *leaf_size, int64_t *leaf_depth,
-                    float *leaf_box, int64_t leaves_cap, int64_t chunk, int64_t *state_tid, int64_t *state_slot,
-                    int64_t *state_count, int64_t *state_depth, float *state_dom, int64_t threads,
-                    int64_t *made)
+int64_t hybrid_grow(const struct hybrid_grow_io *io)
 {
+    /* (the arguments under the names the loop uses) */
+    const float *box = io->box, *cen = io->cen, *dom0 = io->dom0;
+    const int64_t stride = io->stride, n_tri = io->n_tri, n = io->n, k0 = io->k0;
+    const int64_t *tid0 = io->tid0, *slot0 = io->slot0, *count0 = io->count0, *depth0 = io->depth0;
+    const int64_t max_leaf = io->max_leaf, max_depth = io->max_depth, stat_boxes = io->stat_boxes;
+    const int64_t *split = io->split, *axis2_table = io->axis2_table;
+    const int64_t chunk = io->chunk, threads = io->threads;
+    int64_t *rec_child = io->rec_child, *rec_rec = io->rec_rec, *rec_rows = io->rec_rows;
+    const int64_t rows_cap = io->rows_cap, recs_cap = io->recs_cap, leaves_cap = io->leaves_cap;
+    int64_t *leaf_tid = io->leaf_tid, *leaf_size = io->leaf_size, *leaf_depth = io->leaf_depth;
+    float *leaf_box = io->leaf_box;
+    int64_t *state_tid = io->state_tid, *state_slot = io->state_slot, *state_count = io->state_count;
+    int64_t *state_depth = io->state_depth, *made = io->made;
+    float *state_dom = io->state_dom;
     int64_t rc = 0, n_rec = 0, n_rows = 0, n_leaves = 0, n_tids = 0, K = k0, last_here = 0, last_mid = 0;
     made[4] = -1;
     struct tri_row *idx = malloc(sizeof(struct tri_row) * (n + 1)), *tmp = malloc(sizeof(struct tri_row) * (n + 1));

@@ -1,125 +1,89 @@
-"""The C versions of host steps of the BVH build and of ray reordering (native.c), compiled on first use with the
-system's C compiler (`cc`, or $CC) into the user's cache directory and loaded with ctypes; None where there is no
-compiler or no home, with HYBRID_NATIVE=0, or where the build fails (a RuntimeWarning with the compiler's message),
-and engine/bvh/grow.py, binning.py, pack.py, triangles.py, engine/rt/order.py and stream.py then run their numpy
-versions. The library's file name carries a hash of the source, the compiler command and the machine's
-architecture, so an edited source builds afresh."""
+"""The C versions of host steps of the BVH build and of ray reordering (native.c, its functions declared in native.h),
+compiled when the package is built into the extension module engine._native (cffi's API mode: engine/_native_build.py,
+named in setup.py; a wheel per platform carries it, a source install compiles it with the machine's C compiler).
+`library()` is its functions, or None, where engine/bvh/grow.py, binning.py, pack.py, triangles.py,
+engine/rt/order.py and stream.py run their numpy versions (the reference: the same trees, keys and order, bit for
+bit): with HYBRID_NATIVE=0, or where the package was installed without the module (a source install without a C
+compiler: setup.py leaves it out; one RuntimeWarning per process says so), or where the module was built from
+another native.c or native.h than the ones beside it (an edited checkout not rebuilt: also one warning). Nothing
+is compiled, written or loaded at run time from anywhere but the installed package."""
 from __future__ import annotations
 
-import ctypes
 import functools
 import hashlib
+import importlib
 import os
-import platform
-import shlex
-import shutil
-import subprocess
-import tempfile
+import threading
 import warnings
 from pathlib import Path
 
 import numpy as np
 
-SOURCE = Path(__file__).with_name("native.c")
-#: threads for the build's passes; no fused multiply-adds (numpy's roundings, step by step); no FP traps assumed, so
-#: float compares may become branch-free selects (the same values)
-FLAGS = ["-O2", "-shared", "-fPIC", "-pthread", "-ffp-contract=off", "-fno-trapping-math", "-std=c99"]
-
-_F32, _U32, _U64, _I64, _U8, _F64 = (np.ctypeslib.ndpointer(dtype=t, flags="C_CONTIGUOUS")
-                                     for t in (np.float32, np.uint32, np.uint64, np.int64, np.uint8, np.float64))
+HERE = Path(__file__).resolve().parent
+MODULE = "engine._native"
+_ffi = None   # the module's cffi FFI, once `library()` has loaded it
+_lock = threading.Lock()
 
 
-def cache_dir() -> Path | None:
-    """Where the compiled library goes: $XDG_CACHE_HOME/hybrid (default ~/.cache/hybrid); None without a home (no
-    shared temporary directory: another user could put a library there first)."""
-    if os.environ.get("XDG_CACHE_HOME"):
-        return Path(os.environ["XDG_CACHE_HOME"]) / "hybrid"
-    try:
-        return Path.home() / ".cache" / "hybrid"
-    except RuntimeError:
-        return None
-
-
-def library_path(cc: list) -> Path | None:
-    """The cached library built from SOURCE with the compiler command `cc` on this kind of machine:
-    native-<hash of the three>.so in `cache_dir()` (None without one)."""
-    where = cache_dir()
-    if where is None:
-        return None
-    tag = hashlib.sha256(SOURCE.read_bytes() + " ".join(cc + FLAGS + [platform.machine()]).encode()).hexdigest()[:16]
-    return where / f"native-{tag}.so"
-
-
-def _build(cc: list, path: Path) -> None:
-    """Compile SOURCE into `path`: in a temporary file beside it, then moved into place (atomic: a concurrent
-    build or load never sees half a file)."""
-    path.parent.mkdir(parents=True, exist_ok=True)
-    with tempfile.TemporaryDirectory(dir=path.parent) as tmp:
-        out = Path(tmp) / path.name
-        subprocess.run([*cc, *FLAGS, "-o", str(out), str(SOURCE)], check=True, capture_output=True, timeout=120)
-        os.replace(out, path)
+def library():
+    """The compiled module's functions (cffi's `lib`: native.h's functions), or None (see the module's docstring).
+    Loaded once per process (`library.cache_clear()` forgets it: the tests' way to load it again)."""
+    with _lock:   # (threads asking at once: one load, one warning)
+        return _load()
 
 
 @functools.lru_cache(maxsize=1)
-def library() -> ctypes.CDLL | None:
-    """The loaded library with its functions' signatures, or None (see the module's docstring)."""
+def _load():
+    global _ffi
     if os.environ.get("HYBRID_NATIVE", "1") == "0":
         return None
-    found = shutil.which("cc") or shutil.which("gcc")
     try:
-        cc = shlex.split(os.environ["CC"]) if os.environ.get("CC") else [found] if found else []
-    except ValueError as e:   # (unbalanced quotes in $CC)
-        _fall_back(f"$CC {os.environ['CC']!r}", f"$CC: {e}")
+        # (deferred: the compiled module is optional, and HYBRID_NATIVE=0 never loads it)
+        module = importlib.import_module(MODULE)
+    except ImportError as e:
+        _fall_back(f"could not import the compiled module {MODULE} ({e}): the package was installed without it "
+                   "(no C compiler at hand?); reinstall it with one (`pip install -e .` in a checkout)")
         return None
-    path = library_path(cc) if cc and SOURCE.exists() else None
-    if path is None:
+    if source_tag() not in (None, module.ffi.string(module.lib.hybrid_source_tag()).decode()):
+        _fall_back(f"{Path(module.__file__).name} was built from another native.c or native.h than the ones in "
+                   f"{HERE}: rebuild it (`pip install -e .`, or `python setup.py build_ext --inplace`)")
         return None
+    _ffi = module.ffi
+    return module.lib
+
+
+library.cache_clear = _load.cache_clear  # type: ignore[attr-defined]
+
+
+def source_tag() -> str | None:
+    """A hash of native.h and native.c beside this file (as engine/_native_build.py compiles it into the module),
+    or None where they are not there."""
     try:
-        if not path.exists():
-            _build(cc, path)
-        try:
-            lib = _load(path)
-        except (OSError, AttributeError):   # a damaged file in the cache, or another library: built again, once
-            _build(cc, path)
-            lib = _load(path)
-    except (OSError, AttributeError, subprocess.SubprocessError) as e:   # (said once, then numpy's steps)
-        detail = getattr(e, "stderr", None) or str(e)
-        detail = detail.decode(errors="replace") if isinstance(detail, bytes) else detail
-        _fall_back(" ".join(cc), detail)
+        return hashlib.sha256((HERE / "native.h").read_bytes() + (HERE / "native.c").read_bytes()).hexdigest()[:16]
+    except OSError:
         return None
-    return lib
 
 
-def _fall_back(cc: str, detail: str) -> None:
-    warnings.warn(f"hybrid: could not build or load {SOURCE.name} with {cc} ({detail.strip()[-300:]}); "
-                  "the BVH build and ray reordering run their numpy steps", RuntimeWarning, stacklevel=3)
+def _fall_back(why: str) -> None:
+    warnings.warn(f"hybrid: {why}; the BVH build and ray reordering run their numpy steps (slower builds)",
+                  RuntimeWarning, stacklevel=5)
 
 
-def _load(path: Path) -> ctypes.CDLL:
-    """The library at `path` with its functions' signatures (AttributeError where one is missing)."""
-    lib = ctypes.CDLL(str(path))
-    i64 = ctypes.c_int64
-    lib.hybrid_ray_keys.argtypes = [_F32, i64, _F32, _F32, _F32, _U32, _U32, ctypes.c_void_p, i64, i64, _U64]
-    lib.hybrid_rows_of.argtypes = [_U64, i64]
-    lib.hybrid_gather_rows.argtypes = [ctypes.c_void_p, _I64, i64, i64, ctypes.c_void_p]
-    lib.hybrid_scatter_flags.argtypes = [_U32, _I64, i64, _U8]
-    for f in (lib.hybrid_ray_keys, lib.hybrid_rows_of, lib.hybrid_gather_rows, lib.hybrid_scatter_flags):
-        f.restype = None
-    p = ctypes.c_void_p
-    lib.hybrid_triangle_records.argtypes = [_F32, i64, _I64, _I64, i64, p]
-    lib.hybrid_triangle_records.restype = i64
-    lib.hybrid_octant_sah.argtypes = [_I64, p, i64, i64, _U8, _I64, _I64, i64, _I64, _I64, _I64, _U8, _F32, _I64,
-                                      _U8, _F32]
-    lib.hybrid_octant_sah.restype = None
-    lib.hybrid_grid_sah.argtypes = [_I64, p, i64, i64, i64, _U8, _I64, _I64, _I64, _U8, _F32]
-    lib.hybrid_grid_sah.restype = None
-    lib.hybrid_grow.argtypes = [_F32, _F32, i64, i64, _I64, _I64, i64, _I64, _I64, _F32, i64, i64, i64, i64, _I64,
-                                _I64, _I64, _I64, i64, _I64, i64, _I64, _I64, _I64, _F32, i64, i64, _I64, _I64, _I64,
-                                _I64, _F32, i64, _I64]
-    lib.hybrid_grow.restype = i64
-    lib.hybrid_finish.argtypes = [_I64, _I64, _I64, i64, _F32, _I64, _I64, i64, i64, _U32, _F32, _F64]
-    lib.hybrid_finish.restype = i64
-    return lib
+#: the C element type of each dtype the functions take (a bool array as native.h's uint8_t flags)
+_C_TYPES = {np.dtype(t): c for t, c in ((np.float32, "float[]"), (np.float64, "double[]"), (np.int64, "int64_t[]"),
+                                        (np.uint64, "uint64_t[]"), (np.uint32, "uint32_t[]"), (np.uint8, "uint8_t[]"),
+                                        (np.bool_, "uint8_t[]"))}
+
+
+def _at(a: np.ndarray, ctype: str | None = None):
+    """`a`'s memory as a C array of its dtype's type, or of `ctype` (C-contiguous `a`, referenced by the cdata for
+    its lifetime; cffi refuses a pointer of another type than native.h's, as ctypes' ndpointer did)."""
+    return _ffi.from_buffer(ctype or _C_TYPES[a.dtype], a)
+
+
+def _rows_at(a: np.ndarray):
+    """A float pointer to the first element of float32 `a`, whose rows may be strided (the caller keeps `a`)."""
+    return _ffi.cast("float *", a.ctypes.data)
 
 
 def grid_sah(cnt, cbox, g: int, exact, cap):
@@ -136,8 +100,8 @@ def grid_sah(cnt, cbox, g: int, exact, cap):
         return None
     axis, plane, found = np.empty(k, np.int64), np.empty(k, np.int64), np.empty(k, np.bool_)
     child = np.empty((2, 6, k), np.float32)
-    lib.hybrid_grid_sah(cnt, cbox.ctypes.data, cbox.strides[0] // 4, k, g, np.ascontiguousarray(exact).view(np.uint8),
-                        np.ascontiguousarray(cap), axis, plane, found.view(np.uint8), child)
+    lib.hybrid_grid_sah(_at(cnt), _rows_at(cbox), cbox.strides[0] // 4, k, g, _at(np.ascontiguousarray(exact)),
+                        _at(np.ascontiguousarray(cap)), _at(axis), _at(plane), _at(found), _at(child))
     return axis, plane, found, child
 
 
@@ -156,9 +120,9 @@ def octant_sah(cnt, cbox, exact, cap, cap2, max_leaf: int, split_table, axis2_ta
     child, grand = np.empty((2, 6, k), np.float32), np.empty((2, 2, 6, k), np.float32)
     axis2, found2 = np.empty((2, k), np.int64), np.empty((2, k), np.bool_)
     as_c = np.ascontiguousarray
-    lib.hybrid_octant_sah(cnt, cbox.ctypes.data, cbox.strides[0] // 4, k, as_c(exact).view(np.uint8), as_c(cap),
-                          as_c(cap2), max_leaf, split_table, axis2_table, axis, found.view(np.uint8), child, axis2,
-                          found2.view(np.uint8), grand)
+    lib.hybrid_octant_sah(_at(cnt), _rows_at(cbox), cbox.strides[0] // 4, k, _at(as_c(exact)), _at(as_c(cap)),
+                          _at(as_c(cap2)), max_leaf, _at(split_table), _at(axis2_table), _at(axis), _at(found),
+                          _at(child), _at(axis2), _at(found2), _at(grand))
     return axis, found, child, axis2, found2, grand
 
 
@@ -191,10 +155,17 @@ def grow(box, cen, tid, slot, count, depth, dom, max_leaf: int, max_depth: int, 
     state_count, state_depth = (np.empty(cap, np.int64) for _ in range(2)) if chunk else (np.empty(1, np.int64),) * 2
     state_dom = np.empty(6 * cap if chunk else 1, np.float32)
     made = np.zeros(8, np.int64)
-    if lib.hybrid_grow(box, cen, stride, stride, tid, slot, n, count, depth, dom, k, max_leaf, max_depth,
-                       int(stat_boxes), split_table, axis2_table, rec_child, rec_rec, cap, rec_rows, len(rec_rows),
-                       leaf_tid, leaf_size, leaf_depth, leaf_box, cap, int(chunk or 0), state_tid, state_slot,
-                       state_count, state_depth, state_dom, max(1, int(threads)), made):
+    arrays = dict(box=box, cen=cen, tid0=tid, slot0=slot, count0=count, depth0=depth, dom0=dom, split=split_table,
+                  axis2_table=axis2_table, rec_child=rec_child, rec_rec=rec_rec, rec_rows=rec_rows, leaf_tid=leaf_tid,
+                  leaf_size=leaf_size, leaf_depth=leaf_depth, leaf_box=leaf_box, state_tid=state_tid,
+                  state_slot=state_slot, state_count=state_count, state_depth=state_depth, state_dom=state_dom,
+                  made=made)
+    buffers = {name: _at(a) for name, a in arrays.items()}   # (kept here while the call runs: the struct's pointers)
+    io = _ffi.new("struct hybrid_grow_io *", dict(
+        buffers, stride=stride, n_tri=stride, n=n, k0=k, max_leaf=max_leaf, max_depth=max_depth,
+        stat_boxes=int(stat_boxes), chunk=int(chunk or 0), threads=max(1, int(threads)), rows_cap=cap,
+        recs_cap=len(rec_rows), leaves_cap=cap))
+    if lib.hybrid_grow(io):
         return None
     n_rec, _, n_leaves, n_tids, k_left, rec_next, last, mid = (int(x) for x in made)
     ends = np.cumsum(rec_rows[:n_rec])
@@ -222,8 +193,8 @@ def finish(child, rec, rows, leaf_box, leaf_first, leaf_size, widen: bool):
                               for a, dt, shape in want) or int(rows.sum()) != n:
         return None
     out, root, terms = np.empty((n, 16), np.uint32), np.empty(6, np.float32), np.empty((n, 2), np.float64)
-    if lib.hybrid_finish(child, rec, rows, len(rows), leaf_box, leaf_first, leaf_size, n_leaves, int(widen), out, root,
-                         terms):
+    if lib.hybrid_finish(_at(child), _at(rec), _at(rows), len(rows), _at(leaf_box), _at(leaf_first), _at(leaf_size),
+                         n_leaves, int(widen), _at(out), _at(root), _at(terms)):
         return None
     return out.view(np.float32), root, terms
 
@@ -240,7 +211,7 @@ def triangle_records(vt, faces, perm, out) -> int | None:
         return None
     if len(perm) and not (0 <= perm.min() and perm.max() < len(faces)):
         return None
-    n_zero = int(lib.hybrid_triangle_records(vt, vt.shape[1], faces, perm, len(perm), out.ctypes.data))
+    n_zero = int(lib.hybrid_triangle_records(_at(vt), vt.shape[1], _at(faces), _at(perm), len(perm), _at(out)))
     return None if n_zero < 0 else n_zero
 
 
@@ -254,8 +225,8 @@ def gather(src: np.ndarray, rows: np.ndarray, out: np.ndarray) -> None:
     if lib is None or not fits or (len(rows) and not (0 <= rows.min() and rows.max() < len(src))):
         np.take(src, rows, axis=0, out=out)   # (also the error for a row out of range)
         return
-    lib.hybrid_gather_rows(src.ctypes.data, rows, len(rows), src.itemsize * int(np.prod(src.shape[1:])),
-                           out.ctypes.data)
+    lib.hybrid_gather_rows(_at(src, "uint8_t[]"), _at(rows), len(rows), src.itemsize * int(np.prod(src.shape[1:])),
+                           _at(out, "uint8_t[]"))
 
 
 def scatter_flags(words: np.ndarray, rows: np.ndarray, out: np.ndarray) -> None:
@@ -267,4 +238,24 @@ def scatter_flags(words: np.ndarray, rows: np.ndarray, out: np.ndarray) -> None:
     if lib is None or not fits or (len(rows) and not (0 <= rows.min() and rows.max() < len(out))):
         out[rows] = words != 0
         return
-    lib.hybrid_scatter_flags(words, rows, len(rows), out.view(np.uint8))
+    lib.hybrid_scatter_flags(_at(words), _at(rows), len(rows), _at(out))
+
+
+def ray_keys(o: np.ndarray, lo, scale, top, table, offsets, up: int | None, up_stride: int, first: int,
+             words: np.ndarray) -> None:
+    """order.ray_keys's keys of the len(words) origins `o` (float32, C-contiguous, flat xyz) into the high halves of
+    `words` (uint64) and the row numbers first + i into their low halves (see hybrid_ray_keys in native.c): lo,
+    scale, top float32 (3,), the bit table and its axes' offsets uint32; `up`, the address of the first direction's
+    y (rows up_stride floats apart, the caller keeping it alive) or None. Only where `library()` is at hand."""
+    if o.dtype != np.float32 or o.shape != (3 * len(words),) or not o.flags.c_contiguous or words.dtype != np.uint64:
+        raise TypeError("ray_keys: o must be C-contiguous float32 (3 N,) and words uint64 (N,)")
+    lo, scale, top = (np.ascontiguousarray(a, np.float32) for a in (lo, scale, top))
+    table, offsets = (np.ascontiguousarray(a, np.uint32) for a in (table, offsets))
+    library().hybrid_ray_keys(_at(o), len(words), _at(lo), _at(scale), _at(top), _at(table), _at(offsets),
+                              _ffi.NULL if up is None else _ffi.cast("float *", up), up_stride, first, _at(words))
+
+
+def rows_of(words: np.ndarray) -> None:
+    """The row numbers of sorted key words (uint64, C-contiguous), in place (see hybrid_rows_of in native.c). Only
+    where `library()` is at hand."""
+    library().hybrid_rows_of(_at(words), len(words))

@@ -747,7 +747,7 @@ def test_the_c_steps_give_numpy_s_tree_byte_for_byte(mesh, monkeypatch):
     from engine.bvh.grow import CHUNK
 
     if native.library() is None:
-        pytest.skip("no C compiler here: the build runs its numpy steps")
+        pytest.skip("engine._native is not built here: the build runs its numpy steps")
     v, f = {"sphere": lambda: sphere(4), "soup": lambda: soup(20_000), "degenerates": with_degenerates,
             "signed_zeros": lambda: soup(5000), "nan": lambda: soup(3000), "coincident": coincident_centres,
             "spheres": lambda: build_mesh("spheres", 150_000, seed=3),
@@ -790,7 +790,7 @@ def test_c_triangle_records_match_numpy_s_on_slivers_and_huge_triangles(monkeypa
     from engine.limits import MAX_COORD
 
     if native.library() is None:
-        pytest.skip("no C compiler here: the build runs its numpy steps")
+        pytest.skip("engine._native is not built here: the build runs its numpy steps")
     rng = np.random.default_rng(8)
     n = 4000
     v0 = rng.uniform(-4, 4, (n, 3)).astype(np.float32)
@@ -819,7 +819,7 @@ def test_grid_sah_in_c_matches_numpy_s(g, monkeypatch):
     from engine.bvh import binning
 
     if native.library() is None:
-        pytest.skip("no C compiler here: the build runs its numpy steps")
+        pytest.skip("engine._native is not built here: the build runs its numpy steps")
     rng = np.random.default_rng(g)
     k, g3 = 700, g ** 3
     cnt = rng.integers(0, 5, k * g3) * (rng.random(k * g3) < 0.6)
@@ -851,7 +851,7 @@ def test_c_sah_matches_numpy_s_on_nan_inf_and_huge_counts(monkeypatch):
     from engine.bvh import binning
 
     if native.library() is None:
-        pytest.skip("no C compiler here: the build runs its numpy steps")
+        pytest.skip("engine._native is not built here: the build runs its numpy steps")
     odd = np.array([0.0, -0.0, 1.0, -1.0, np.inf, -np.inf, np.nan, 3e38, -3e38, 1e-45], np.float32)
     lib = native.library
     for trial in range(60):
@@ -889,7 +889,7 @@ def test_c_steps_hand_bad_indices_back_to_numpy():
     from engine import native
 
     if native.library() is None:
-        pytest.skip("no C compiler here: the build runs its numpy steps")
+        pytest.skip("engine._native is not built here: the build runs its numpy steps")
     vt = np.zeros((3, 4), np.float32)
     out = np.empty((1, 12), np.float32)
     assert native.triangle_records(vt, np.array([[0, 1, 2]]), np.array([0]), out) == 1  # (zero area)

@@ -1,6 +1,7 @@
 """The wheel is the product: built from the checkout (sdist, then the wheel from the sdist), installed with its
 dependencies into a fresh venv (no system site-packages), and used from another folder as a user would: `hybrid
---version`, the bundled scenes rendered by name, a Tracer query, the viewer under Xvfb, `hybrid bench --quick`.
+--version`, the bundled scenes rendered by name, a Tracer query, the C steps compiled into the wheel
+(tools/check_wheel.py, cibuildwheel's check too), the viewer under Xvfb, `hybrid bench --quick`.
 
 The venv is made once per run of this module (pip's cache makes the dependencies quick after the first time), with
 $HYBRID_WHEEL_PYTHON if set (to try another interpreter: requires-python says 3.10+), else this one."""
@@ -67,11 +68,14 @@ def installed(tmp_path_factory):
         (src / f).parent.mkdir(parents=True, exist_ok=True)
         (src / f).write_bytes((REPO / f).read_bytes())
     env = {k: v for k, v in os.environ.items() if k != "PYTHONPATH"}
-    ok(run([sys.executable, "-m", "build", "--outdir", root / "dist", src], root, env), "python -m build")
-    (wheel,) = (root / "dist").glob("*.whl")
+    ok(run([sys.executable, "-m", "build", "--sdist", "--outdir", root / "dist", src], root, env), "python -m build")
+    (sdist,) = (root / "dist").glob("*.tar.gz")
     ok(run([PYTHON, "-m", "venv", root / "venv"], root, env), "python -m venv")
-    ok(run([root / "venv" / "bin" / "python", "-m", "pip", "install", "--disable-pip-version-check", "-q", wheel],
-           root, env), "pip install the wheel")
+    pip = [root / "venv" / "bin" / "python", "-m", "pip", "--disable-pip-version-check"]
+    # the wheel from the sdist by the venv's Python (a platform wheel, for that interpreter; not kept in pip's cache)
+    ok(run([*pip, "wheel", "--no-deps", "--no-cache-dir", "-q", "-w", root / "dist", sdist], root, env), "pip wheel")
+    (wheel,) = (root / "dist").glob("*.whl")
+    ok(run([*pip, "install", "-q", wheel], root, env), "pip install the wheel")
     return Installed(root, wheel)
 
 
@@ -86,6 +90,31 @@ def test_wheel_carries_shaders_scenes_and_licence(installed):
     assert {f"engine/_data/scenes/{n}" for n in scenes} <= names
     assert f"hybrid_renderer-{VERSION}.dist-info/licenses/LICENSE" in names
     assert not [n for n in names if n.startswith(("tests/", "tools/", "benchmarks/", "shaders/", "scenes/"))]
+
+
+def test_wheel_is_a_platform_wheel_with_the_compiled_module(installed):
+    """engine._native compiled in (this machine has a C compiler: the tests' set-up installs one), with the sources
+    it was built from; so the wheel is tagged for this Python and platform, not py3-none-any."""
+    if not (shutil.which("cc") or shutil.which("gcc")):
+        pytest.skip("no C compiler: the wheel is built without engine._native")
+    names = set(zipfile.ZipFile(installed.wheel).namelist())
+    assert [n for n in names if re.fullmatch(r"engine/_native\.[\w.-]*so", n)], sorted(names)[:20]
+    assert {"engine/native.c", "engine/native.h"} <= names
+    res = ok(installed.python("import sys; print(f'cp{sys.version_info[0]}{sys.version_info[1]}')"), "python")
+    tag = res.stdout.strip()
+    assert re.fullmatch(rf"hybrid_renderer-{re.escape(VERSION)}-{tag}-{tag}-linux_\w+\.whl", installed.wheel.name)
+
+
+def test_the_installed_c_steps_build_numpy_s_tree(installed):
+    """tools/check_wheel.py (cibuildwheel's test-command) in the venv: the module is the venv's, loaded without a
+    warning, and a BVH built with it is numpy's byte for byte."""
+    if not (shutil.which("cc") or shutil.which("gcc")):
+        pytest.skip("no C compiler: the wheel is built without engine._native")
+    res = ok(run([installed.bin / "python", REPO / "tools" / "check_wheel.py"], installed.work, installed.env()),
+             "tools/check_wheel.py")
+    got = json.loads(res.stdout.strip().splitlines()[-1])
+    assert Path(got["module"]).is_relative_to(installed.bin.parent)
+    assert got["in_c"] and got["same_tree"]
 
 
 def test_version_from_one_source(installed):
@@ -136,18 +165,20 @@ with engine.Tracer(vertices, faces, validation=True) as tracer:
     hits = tracer.intersect(origins, directions)
     near = tracer.occluded(origins, directions, 1.5)
     far = tracer.occluded(origins, directions, 3.0)
-    # a shuffled batch, reordered with the C steps built from the package's own source into a fresh cache
+    # a shuffled batch, reordered with the C steps compiled into the wheel (nothing built or cached at run time)
     rng = np.random.default_rng(0)
     o = np.column_stack([rng.uniform(-2, 2, (50_000, 2)), np.full(50_000, 2.0)]).astype(np.float32)
     d = np.tile(np.float32((0.0, 0.0, -1.0)), (len(o), 1))
     reordered = bool(np.array_equal(tracer.occluded(o, d, 3.0, reorder=True),
                                     tracer.occluded(o, d, 3.0, reorder=False)))
     errors = tracer.validation_errors
+import sys
 from engine import native
+module = sys.modules.get(native.MODULE)
 print(json.dumps({"t": [float(t) if np.isfinite(t) else None for t in hits.t], "prim": hits.prim.tolist(),
                   "near": near.tolist(), "far": far.tolist(), "errors": errors, "file": engine.__file__,
-                  "reordered": reordered, "native": str(native.SOURCE),
-                  "built": [p.name for p in cache.rglob("*.so")]}))
+                  "reordered": reordered, "native": native.library() is not None and module.__file__,
+                  "cache": [str(p.relative_to(cache)) for p in cache.rglob("*")]}))
 """
 
 
@@ -160,9 +191,9 @@ def test_tracer_query(installed):
     assert got["prim"][:2] == [0, 1]    # (0.5, -0.5) is below the diagonal: triangle 0; (-0.5, 0.5) triangle 1
     assert got["near"] == [False] * 4 and got["far"] == [True, True, False, False]
     assert got["errors"] == [] and got["reordered"]
-    assert Path(got["native"]).is_relative_to(installed.bin.parent)   # the reordering's C source ships in the wheel
-    if shutil.which("cc") or shutil.which("gcc"):
-        assert len(got["built"]) == 1 and got["built"][0].startswith("native-")
+    if shutil.which("cc") or shutil.which("gcc"):   # the reordering's C steps: the wheel's compiled module
+        assert Path(got["native"]).is_relative_to(installed.bin.parent)
+    assert not [p for p in got["cache"] if "native" in p or p.endswith(".so")]   # nothing compiled into a cache
 
 
 @pytest.mark.parametrize("shaders", ["packaged", "checkout"])

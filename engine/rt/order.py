@@ -8,10 +8,10 @@ every ray has the same one) has 32 bits, so that the rays of a SIMD group are ne
 rays per cell of a million-ray batch, in the caller's order). The key and the ray's index, as one 64-bit word, go
 through numpy's sort (vectorized; about as fast as the stable radix argsort of a 16-bit key; the index makes the
 words unique, so the order is the key's stable one). The stream gathers the rays in that order as it packs them and
-the sinks scatter the results back (engine/rt/stream.py). Where a C compiler is at hand the keys, the gathers and the
-scatters run in C (engine/native.py: same keys, same order, cheaper gathers of 12-byte rows), and the whole batch
-is sorted at once. `incoherent` decides whether a batch gains from it, from a sample: image-ordered batches (G-buffer
-rays) and rays crossing the scene in all directions are left alone.
+the sinks scatter the results back (engine/rt/stream.py). Where the package has its C steps the keys, the gathers
+and the scatters run in C (engine/native.py: same keys, same order, cheaper gathers of 12-byte rows), and the whole
+batch is sorted at once. `incoherent` decides whether a batch gains from it, from a sample: image-ordered batches
+(G-buffer rays) and rays crossing the scene in all directions are left alone.
 """
 from __future__ import annotations
 
@@ -243,9 +243,8 @@ def ray_order(o: np.ndarray, d: np.ndarray, threads: int = 1, window: int | None
     if n >= WORD_ROWS:
         return np.argsort(ray_keys(o, d, box, threads), kind="stable")
     words = np.empty(n, np.uint64) if scratch is None else scratch
-    lib = native.library()
-    if lib is not None:
-        return _native_order(lib, o, d, box, threads, words)
+    if native.library() is not None:
+        return _native_order(o, d, box, threads, words)
     halves = words.view(np.uint32).reshape(n, 2)
     high = 1 if sys.byteorder == "little" else 0
     ray_keys(o, d, box, threads, out=halves[:, high], index=halves[:, 1 - high])
@@ -257,7 +256,7 @@ def ray_order(o: np.ndarray, d: np.ndarray, threads: int = 1, window: int | None
     return words.view(np.int64)
 
 
-def _native_order(lib, o: np.ndarray, d: np.ndarray, box, threads: int, words: np.ndarray) -> np.ndarray:
+def _native_order(o: np.ndarray, d: np.ndarray, box, threads: int, words: np.ndarray) -> np.ndarray:
     """`ray_order`'s order of the whole batch with the keys made in C (engine/native.c): the same keys and the
     same order (the keys' stable one). The keys in row blocks on `threads` threads; the words split at their median
     (np.partition) and each part sorted on its own thread where there are two (numpy sorts on one core); the whole
@@ -275,8 +274,8 @@ def _native_order(lib, o: np.ndarray, d: np.ndarray, box, threads: int, words: n
 
     def keys(s):
         e = min(s + step, n)
-        lib.hybrid_ray_keys(o[3 * s:3 * e], e - s, lo, scale, top, table, offsets,
-                            None if up is None else up + 12 * s, stride, s, words[s:e])
+        native.ray_keys(o[3 * s:3 * e], lo, scale, top, table, offsets, None if up is None else up + 12 * s, stride,
+                        s, words[s:e])
     blocks(keys, n, step, threads)
     if threads > 1 and n >= 2 * KEY_BLOCK:
         half = n // 2
@@ -284,5 +283,5 @@ def _native_order(lib, o: np.ndarray, d: np.ndarray, box, threads: int, words: n
         run([words[:half].sort, words[half:].sort], 2)
     else:
         words.sort()
-    blocks(lambda s: lib.hybrid_rows_of(words[s:s + step], min(step, n - s)), n, step, threads)
+    blocks(lambda s: native.rows_of(words[s:s + step]), n, step, threads)
     return words.view(np.int64)

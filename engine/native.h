@@ -1,0 +1,91 @@
+/* The functions engine/native.c exports: the one list of their signatures. native.c includes this file, and
+ * engine/_native_build.py hands it to cffi (the lines starting with '#' left out), which compiles both into the
+ * extension module engine._native when the package is built; engine/native.py calls them through it.
+ * Arrays are C-contiguous unless a row length (box_row, stride) says otherwise; what each function computes is
+ * described at its definition in native.c. Only declarations cffi's parser reads: no macros, no attributes. */
+#ifndef HYBRID_NATIVE_H
+#define HYBRID_NATIVE_H
+#include <stdint.h>
+
+/* binning.grid_sah for k nodes on g^3 grids (g = 4 or 8). */
+void hybrid_grid_sah(const int64_t *cnt, const float *box, int64_t box_row, int64_t k, int64_t g, const uint8_t *exact,
+                     const int64_t *cap, int64_t *axis_out, int64_t *plane, uint8_t *found, float *child);
+
+/* binning._octant_sah for k nodes on 2^3 grids. */
+void hybrid_octant_sah(const int64_t *cnt, const float *box, int64_t box_row, int64_t k, const uint8_t *exact,
+                       const int64_t *cap, const int64_t *cap2, int64_t max_leaf, const int64_t *split,
+                       const int64_t *axis2, int64_t *axis_out, uint8_t *found, float *child, int64_t *axis2_out,
+                       uint8_t *found2, float *grand);
+
+/* hybrid_grow's inputs and outputs (grow._grow_from's pass loop): the shapes are those native.grow allocates. */
+struct hybrid_grow_io {
+    /* in: the triangles' boxes (6, stride) and centres (3, stride); n_tri, the size cap's bound */
+    const float *box;
+    const float *cen;
+    int64_t stride;
+    int64_t n_tri;
+    /* in: the n active triangles (tid increasing, slot their node) and the k0 active nodes' count, depth and
+     * binning domain dom0 (6, k0) */
+    const int64_t *tid0;
+    const int64_t *slot0;
+    int64_t n;
+    const int64_t *count0;
+    const int64_t *depth0;
+    const float *dom0;
+    int64_t k0;
+    /* in: the build's settings; split and axis2_table, octant_sah's tables; chunk > 0: stop at the chunk groups */
+    int64_t max_leaf;
+    int64_t max_depth;
+    int64_t stat_boxes;
+    const int64_t *split;
+    const int64_t *axis2_table;
+    int64_t chunk;
+    int64_t threads;
+    /* out: the records (rows_cap rows of 2 in rec_child and rec_rec; rec_rows, recs_cap records' row counts) */
+    int64_t *rec_child;
+    int64_t *rec_rec;
+    int64_t rows_cap;
+    int64_t *rec_rows;
+    int64_t recs_cap;
+    /* out: the leaves (leaves_cap of them; leaf_box 6 floats each) and their triangles in leaf order */
+    int64_t *leaf_tid;
+    int64_t *leaf_size;
+    int64_t *leaf_depth;
+    float *leaf_box;
+    int64_t leaves_cap;
+    /* out: the loop's state where it stopped at the chunk groups; made, 8 counts (see hybrid_grow) */
+    int64_t *state_tid;
+    int64_t *state_slot;
+    int64_t *state_count;
+    int64_t *state_depth;
+    float *state_dom;
+    int64_t *made;
+};
+
+/* grow._grow_from's pass loop from its first pass: 0, or why numpy's loop must run instead (1-4). */
+int64_t hybrid_grow(const struct hybrid_grow_io *io);
+
+/* pack.finish's packed nodes, root box and SAH terms: 0, or -1 for a reference out of range. */
+int64_t hybrid_finish(const int64_t *child, const int64_t *rec, const int64_t *rows, int64_t n_rec,
+                      const float *leaf_box, const int64_t *leaf_first, const int64_t *leaf_size, int64_t n_leaves,
+                      int64_t widen, uint32_t *out, float *root_box, double *terms);
+
+/* triangles.py's records of triangles faces[perm]: the number of zero-area ones, or -1 for an index out of range. */
+int64_t hybrid_triangle_records(const float *vt, int64_t nv, const int64_t *faces, const int64_t *perm, int64_t n,
+                                float *out);
+
+/* order.ray_keys's keys in the high halves of `words`, the row numbers first + i in the low halves. */
+void hybrid_ray_keys(const float *o, int64_t n, const float *lo, const float *scale, const float *top,
+                     const uint32_t *table, const uint32_t *offsets, const float *up, int64_t up_stride,
+                     int64_t first, uint64_t *words);
+
+/* The row numbers of sorted key words, in place. */
+void hybrid_rows_of(uint64_t *words, int64_t n);
+
+/* dst[i] = src[rows[i]] for rows of `size` bytes. */
+void hybrid_gather_rows(const uint8_t *src, const int64_t *rows, int64_t n, int64_t size, uint8_t *dst);
+
+/* out[rows[i]] = words[i] != 0. */
+void hybrid_scatter_flags(const uint32_t *words, const int64_t *rows, int64_t n, uint8_t *out);
+
+#endif

@@ -3,6 +3,7 @@ ours and intact, and pipelines made on first use, once."""
 import os
 import stat
 
+import numpy as np
 import pytest
 
 from engine.vk import pipeline_cache as pc
@@ -80,13 +81,14 @@ def test_disabled_by_the_environment(cache_home, monkeypatch):
     assert not cache_home.exists()
 
 
-def test_a_pass_compiles_once_with_its_final_constants(make_renderer, monkeypatch):
+def test_a_pass_compiles_once_and_renderers_on_a_device_share_it(make_renderer, monkeypatch):
     """Pipelines are made on first use: a pass re-specialized for the scene before its first frame is compiled
-    once, not once per specialization."""
+    once, not once per specialization; a second Renderer on the same engine.Device compiles nothing."""
     from collections import Counter
 
-    from engine import Scene, scene_path
+    from engine import Device, Scene, scene_path
     from engine.vk import pipelines
+    from conftest import VALIDATE
 
     made = Counter()
     real = pipelines.ComputePipeline._create
@@ -96,12 +98,17 @@ def test_a_pass_compiles_once_with_its_final_constants(make_renderer, monkeypatc
         return real(self, *source)
 
     monkeypatch.setattr(pipelines.ComputePipeline, "_create", counting)
-    r = make_renderer(32, 24)
-    assert not made                                # nothing compiled before there is work
-    frame = r.render(Scene.load(scene_path("sphere")))
-    assert frame.color.shape == (24, 32, 4) and frame.color[..., 3].min() == 255
-    assert {"shadows", "ao", "lighting"} <= set(made)
-    assert max(made.values()) == 1, made           # each compiled once, with the constants it runs with
-    before = sum(made.values())
-    r.render(Scene.load(scene_path("sphere")))     # another scene of the same kind: nothing compiled again
-    assert sum(made.values()) == before
+    scene = Scene.load(scene_path("sphere"))
+    with Device(validation=VALIDATE) as dev:
+        r = make_renderer(32, 24, device=dev)
+        assert not made                            # nothing compiled before there is work
+        frame = r.render(scene)
+        assert frame.color.shape == (24, 32, 4) and frame.color[..., 3].min() == 255
+        assert {"shadows", "ao", "lighting"} <= set(made)
+        assert max(made.values()) == 1, made       # each compiled once, with the constants it runs with
+        before = sum(made.values())
+        r.render(Scene.load(scene_path("sphere")))     # another scene of the same kind: nothing compiled again
+        again = make_renderer(32, 24, device=dev).render(scene)   # another Renderer on the device: nothing either
+        assert sum(made.values()) == before
+        assert np.array_equal(again.color, frame.color)
+        assert not dev.validation_errors

@@ -15,39 +15,42 @@ RTOL = 1e-4
 
 
 @pytest.fixture
-def tracer():
-    """`tracer(vertices, faces, **kw)`: a Tracer with validation on, closed (and checked) after the test."""
+def tracer(shared_device):
+    """`tracer(vertices, faces, **kw)`: a Tracer on the session's validated device, closed after the test, which
+    fails on the device's new validation errors."""
     made = []
+    seen = len(shared_device.validation_errors)
 
     def new(v, f, **kw):
-        t = Tracer(v, f, validation=True, **kw)
+        t = Tracer(v, f, device=shared_device, **kw)
         made.append(t)
         return t
 
     yield new
     for t in made:
-        errors = list(t.validation_errors)
         t.close()
-        assert not errors, errors[:5]
+    errors = shared_device.validation_errors[seen:]
+    assert not errors, errors[:5]
 
 
 @pytest.fixture
-def make():
-    """`make(*meshes)`: a RaycastingScene of (vertices, faces) meshes, validation on, closed after the test."""
+def make(shared_device):
+    """`make(*meshes)`: a RaycastingScene of (vertices, faces) meshes on the session's validated device, closed
+    after the test, which fails on the device's new validation errors."""
     made = []
+    seen = len(shared_device.validation_errors)
 
     def new(*meshes):
-        scene = RaycastingScene(validation=True)
+        scene = RaycastingScene(device=shared_device)
         for v, f in meshes:
             scene.add_triangles(v, f)
         made.append(scene)
         return scene
 
     yield new
-    errors = []
     for s in made:
         s.close()
-        errors += s.validation_errors
+    errors = shared_device.validation_errors[seen:]
     assert not errors, errors[:5]
 
 

@@ -12,11 +12,15 @@ INVALID = 2**32 - 1
 
 
 @pytest.fixture
-def make():
-    """`make(*meshes, **kw)`: a scene of (vertices, faces) meshes, validation on, closed after the test."""
+def make(shared_device):
+    """`make(*meshes, **kw)`: a scene of (vertices, faces) meshes, validation on, closed after the test; on the
+    session's device unless `kw` names a device or validation setting."""
     made = []
+    seen = len(shared_device.validation_errors)
 
     def new(*meshes, **kw):
+        if not {"device", "validation"} & kw.keys():
+            kw["device"] = shared_device
         kw.setdefault("validation", True)
         scene = RaycastingScene(**kw)
         for v, f in meshes:
@@ -28,7 +32,9 @@ def make():
     errors = []
     for s in made:
         s.close()
-        errors += s.validation_errors
+        if s.validation_errors is not shared_device.validation_errors:
+            errors += s.validation_errors
+    errors += shared_device.validation_errors[seen:]
     assert not errors, errors[:5]
 
 

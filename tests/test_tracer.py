@@ -39,13 +39,14 @@ def meshes():
 
 
 @pytest.fixture(scope="module", params=["binary", "wide"])
-def tracers(request):
-    made = {name: Tracer(v, f, validation=True, layout=request.param) for name, (v, f) in meshes().items()}
+def tracers(request, shared_device):
+    """A Tracer per mesh on the session's validated device, for each layout."""
+    seen = len(shared_device.validation_errors)
+    made = {name: Tracer(v, f, device=shared_device, layout=request.param) for name, (v, f) in meshes().items()}
     yield made
-    errors = []
     for t in made.values():
-        errors += t.validation_errors
         t.close()
+    errors = shared_device.validation_errors[seen:]
     assert not errors, errors[:5]
 
 

@@ -40,3 +40,23 @@ def terrace(n=3000, seed=4):
     f.append(wall.faces + 3 * n + 4)
     v.append(wall.vertices + [0, 2, -8])
     return np.vstack(v), np.vstack(f)
+
+
+def tiered(values, default, ids=None):
+    """pytest parameters: `values` at the indices in `default` run in every tier, the rest are marked slow (the
+    complete set runs with the slow tier, which CI includes: CONTRIBUTING.md, "Tests")."""
+    import pytest
+    ids = ids or [None] * len(values)
+    return [pytest.param(v, id=i) if k in default else pytest.param(v, id=i, marks=pytest.mark.slow)
+            for k, (v, i) in enumerate(zip(values, ids))]
+
+
+def covering(a, b, ids_b=None):
+    """(x, y) pytest parameters of the cross product of `a` and `b`: a diagonal that takes every value of each at
+    least once runs in every tier, the rest of the product is marked slow."""
+    import pytest
+    n = max(len(a), len(b))
+    diagonal = {(k % len(a), k % len(b)) for k in range(n)}
+    ids_b = ids_b or [str(y) for y in b]
+    return [pytest.param(x, y, id=f"{x}-{ids_b[j]}", marks=() if (i, j) in diagonal else pytest.mark.slow)
+            for i, x in enumerate(a) for j, y in enumerate(b)]

@@ -104,6 +104,7 @@ def test_public_api_is_fully_annotated():
     assert (REPO / "engine" / "py.typed").is_file()
 
 
+@pytest.mark.slow
 def test_mypy_checks_calls_against_the_api(tmp_path):
     """mypy reads the annotations: the examples pass, and a script with a wrong shadow mode, a misspelt Frame
     attribute and a wrong camera fails with exactly those errors."""

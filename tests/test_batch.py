@@ -343,6 +343,7 @@ ray.shutdown()
 
 @pytest.mark.skipif(importlib.util.find_spec("ray") is None,
                     reason="Ray is not installed (pip install '.[distributed]' or pip install ray)")
+@pytest.mark.slow
 def test_ray_runs_a_job_end_to_end_on_a_local_cluster(tmp_path):
     """A 2-CPU Ray cluster on loopback, started here; `hybrid batch --ray ADDRESS` submits shards as tasks, which
     write the files; the driver merges the manifest. The files equal a local run's; a failing item is reported."""

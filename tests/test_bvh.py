@@ -544,6 +544,7 @@ def test_bvh_glsl_compiles(tmp_path, defines):
     assert res.returncode == 0, res.stdout + res.stderr
 
 
+@pytest.mark.slow
 def test_threads_give_the_same_tree_byte_for_byte():
     from engine import parallel
     from engine.bench.scenes import generated_mesh

@@ -339,6 +339,7 @@ def _complete(path: Path) -> bool:
         return z["depth"].shape == (12, 16) and z["K"].shape == (3, 3)
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("sig", [signal.SIGKILL, signal.SIGTERM])
 def test_a_killed_sequence_leaves_whole_files_and_resumes(tmp_path, sig):
     n = 120

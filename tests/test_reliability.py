@@ -204,6 +204,7 @@ def _writer(path, images, go):
             Frame(color=img).save(path)
 
 
+@pytest.mark.slow
 def test_killed_writers_never_leave_a_partial_file(tmp_path):
     """kill -9 at random moments of 100 writes: the file is always one of the two images, whole."""
     rng = np.random.default_rng(0)

@@ -3,10 +3,14 @@ Vulkan allocations stay flat and the validation layer stays silent (benchmarks/s
 import sys
 from pathlib import Path
 
+import pytest
+
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT / "benchmarks"))
 
 import soak  # noqa: E402
+
+pytestmark = pytest.mark.slow   # thousands of frames and queries: the slow tier (CONTRIBUTING.md, "Tests")
 
 
 def test_two_thousand_frames_stay_flat():

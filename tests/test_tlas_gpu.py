@@ -10,6 +10,7 @@ from engine.bvh.instanced import INST_DTYPE, _spread
 from engine.bvh.layout import LEAF_BIT, NODE_DTYPE
 from engine.gpu.tlas import read_back, tlas_builder
 from engine.rt.reference import reference_intersect
+from helpers import tiered
 from tests.test_instances import check_hits, moving_scene, random_rays, random_transform
 from tests.test_shadows import cpu_shadow_mask
 
@@ -99,7 +100,7 @@ def same_hits(a, b):
     assert np.all(np.abs(a.t[hit] - b.t[hit]) <= 2e-5 * np.maximum(a.t[hit], 1.0))   # float32 inverses' rounding
 
 
-@pytest.mark.parametrize("n", [1, 2, 5, 1025, 3000])
+@pytest.mark.parametrize("n", tiered([1, 2, 5, 1025, 3000], {0, 1, 2, 3}))
 def test_gpu_built_top_level_gives_the_host_builds_hits(monkeypatch, n):
     # 3000 instances: 4096 leaf slots, sorted in shared-memory blocks and by whole-buffer bitonic steps
     scene, rng, spread = scene_of(n, seed=n)

@@ -8,7 +8,7 @@ import trimesh
 from engine import ConfigError, SceneError, Tracer
 import engine.gpu.bvh as gpu_bvh
 from engine.rt.reference import reference_intersect, reference_occluded
-from helpers import terrace
+from helpers import covering, terrace, tiered
 
 
 def random_rays(rng, n, bounds, spread=1.5):
@@ -230,7 +230,8 @@ def test_rays_through_texel_buffers_match_storage_buffers(monkeypatch):
     assert (answers[0][0] != reference_occluded(v, f, o, d, tmax)).mean() < 0.002
 
 
-@pytest.mark.parametrize("spec", VARIANTS)
+# every flag on and off at least once in every tier; the whole list with the slow tier
+@pytest.mark.parametrize("spec", tiered(VARIANTS, {0, 3, 8, 11, 13}))
 def test_every_traversal_variant_gives_the_same_answers(monkeypatch, spec):
     """bvh.glsl's specialization constants (branchless push, postponed leaf tests, register stack and its size,
     the retry walk of a short register stack, compressed nodes, select min/max) select code paths per device;
@@ -304,11 +305,10 @@ def test_image_loads_match_texel_fetches(monkeypatch, tracers, name):
         assert not other.validation_errors
 
 
-@pytest.mark.parametrize("name", list(meshes()))
-@pytest.mark.parametrize("over", [{"BVH_WIDE_CPU": True, "BVH_STACK_REGS": 1, "BVH_STACK_RETRY": True},
-                                  {"BVH_WIDE_CPU": True, "BVH_STACK_REGS": 2, "BVH_STACK_RETRY": True,
-                                   "BVH_IMAGE_FETCH": False}, {"BVH_WIDE_CPU": False}],
-                         ids=["cpu-1-entry", "cpu-2-entries-texel", "gpu-walk"])
+@pytest.mark.parametrize("name, over", covering(
+    list(meshes()), [{"BVH_WIDE_CPU": True, "BVH_STACK_REGS": 1, "BVH_STACK_RETRY": True},
+                     {"BVH_WIDE_CPU": True, "BVH_STACK_REGS": 2, "BVH_STACK_RETRY": True, "BVH_IMAGE_FETCH": False},
+                     {"BVH_WIDE_CPU": False}], ids_b=["cpu-1-entry", "cpu-2-entries-texel", "gpu-walk"]))
 def test_wide_traversals_give_the_same_answers(monkeypatch, name, over):
     """The 8-wide layout's two traversals (BVH_WIDE_CPU: the lavapipe one, postponed leaves and a register stack of
     node groups with a retry walk; off: the GPU one) answer alike on every mesh, with a register stack of 1 or 2

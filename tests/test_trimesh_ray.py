@@ -67,6 +67,7 @@ def trimesh_ray_tests() -> Path:
         shutil.rmtree(work, ignore_errors=True)
 
 
+@pytest.mark.slow
 def test_trimesh_ray_tests_pass_with_our_intersector(trimesh_ray_tests, tmp_path):
     report = tmp_path / "junit.xml"
     env = dict(os.environ, PYTHONPATH=os.pathsep.join([str(HERE.parent), str(HERE), os.environ.get("PYTHONPATH", "")]))

@@ -24,6 +24,8 @@ from test_viewer import REPO, SPHERE, assert_close
 
 from engine.shaders import GLSL_DIR
 
+pytestmark = pytest.mark.slow   # storms of window events and shader rewrites: the slow tier (CONTRIBUTING.md, "Tests")
+
 SETTINGS = dict(ao=False)   # no per-frame sampling: every frame of a view is the same
 
 

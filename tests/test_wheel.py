@@ -20,6 +20,8 @@ from PIL import Image
 
 from engine import Scene
 
+pytestmark = pytest.mark.slow   # the sdist, the wheel and a fresh venv: the slow tier (CONTRIBUTING.md, "Tests")
+
 REPO = Path(__file__).resolve().parent.parent
 PYTHON = os.environ.get("HYBRID_WHEEL_PYTHON", sys.executable)
 VERSION = re.search(r'__version__ = "([^"]+)"', (REPO / "engine" / "_version.py").read_text()).group(1)
@@ -213,7 +215,6 @@ def test_view_under_xvfb(installed, xvfb_display, shaders):
     assert rgb.shape == (48, 64, 3) and rgb.std() > 10, "a flat screenshot"
 
 
-@pytest.mark.slow
 def test_bench_quick(installed):
     """`hybrid bench --quick` at a small frame size (its builds and the 1M-triangle trace scene stay as they are);
     without the peers installed (a dev extra) they are reported as skipped."""

@@ -21,14 +21,14 @@ import numpy as np
 from .lifetime import Closes
 from .errors import ConfigError, EngineError, VulkanError
 from .frame import Frame
-from .gpu import bvh_descriptor_set
-from .gpu import bvh_layout as resolve_layout
+from .gpu import bvh_descriptor_set, bvh_layout as resolve_layout
+from .gpu.scene import SceneChanges, SceneGeometry
 from .passes.accumulate import ALPHA_MIN, AccumulatePass
 from .passes.ao import AOPass
 from .passes.debug_view import DebugViewPass
 from .passes.denoise import DenoisePass
 from .passes.cull import SW_RASTER_PIXELS, raster_option, raster_options
-from .passes.gbuffer import GBufferPass, SceneChanges, SceneGeometry
+from .passes.gbuffer import GBufferPass
 from .passes.interface import (FILTER_AO, FILTER_MASKS, FILTER_TEMPORAL, FRAME, FRAME_BYTES, MAX_LIGHTS,
                                camera_fields, pack_frame, pack_light)
 from .passes.lighting import LightingPass
@@ -512,7 +512,7 @@ class Renderer(Closes):
         self._geometry = SceneGeometry(self.ctx, scene, self.gbuffer.white, self.gbuffer.sampler, self._raster[1] > 0)
         self.gbuffer.bind_scene(self._geometry)
         for p in (self.shadows, self.ao):   # the alpha test's records and textures
-            p.bind_scene(self._geometry, self.gbuffer.white, self.gbuffer.sampler)
+            p.bind_scene(self._geometry)
 
     def _use_scene(self, scene):
         """Upload a scene that is not the last one; True when it did."""

@@ -26,15 +26,11 @@ from ..errors import ConfigError, SceneError
 from ..gpu import SceneBVH, bvh_descriptor_set, bvh_layout
 from ..gpu.bvh import CPU_OCCLUSION_STACK_REGS, InstancedBVH, flag_alpha_tested, is_instanced
 from ..parallel import default_threads, serialized
-from ..passes.gbuffer import alpha_records, scene_textures
-from ..passes.interface import MAX_TEXTURE_ARRAYS
-from ..passes.textures import TextureArrays
+from ..gpu.materials import scene_alpha, untested_alpha
 from ..shaders import ShaderLibrary
-from ..vk import (Buffer, BufferView, ComputePipeline, Context, DescriptorSet, Sampler, Timestamps, reflect,
-                  upload_buffer, upload_texture_array)
+from ..vk import Buffer, ComputePipeline, Context, DescriptorSet, Timestamps, reflect
 from ..vk.device import has_dedicated_vram, is_cpu, rgb32f_texel_buffers, work_shares
-from ..vk.formats import RGBA32F
-from ..vk.resources import STORAGE, TRANSFER_DST, UNIFORM_TEXEL
+from ..vk.resources import STORAGE, TRANSFER_DST
 from ..vk.shared import Device, Scope
 from .checks import check_batch_size, check_mesh, name_bad_ray, name_bad_tmax, ray_arrays
 from .closest import Closest, ClosestQuery
@@ -93,24 +89,6 @@ def _pipelines(ctx, lib, specs, two_pass) -> dict:
                     root.memo[key] = ComputePipeline(root, spirv, layouts, spec=constants, name=name)
                 out[name[6:]] = root.memo[key]
     return out
-
-
-_WHITE = np.full((1, 1, 4), 255, np.uint8)
-
-
-def _untested_bindings(ctx):
-    """(texture arrays, alpha records view, white texture, sampler) of a Tracer without alpha-tested materials: no
-    texture arrays, a 1-texel record and a white texture, which the kernels never read (ALPHA_TEST off); made on
-    the context itself, once, and shared by its Tracers."""
-    root = ctx.root
-    with root.memo_lock:
-        if "tracer.untested" not in root.memo:
-            view = BufferView(upload_buffer(root, np.zeros((1, 8), np.float32), UNIFORM_TEXEL, "alpha records"),
-                              RGBA32F)
-            root.memo["tracer.untested"] = (TextureArrays(root, {}), view,
-                                            upload_texture_array(root, [_WHITE], 1, 1, name="white texture"),
-                                            Sampler(root))
-        return root.memo["tracer.untested"]
 
 
 def _name_bad(o, d, t, origins, directions):
@@ -357,30 +335,22 @@ class Tracer(Closes):
 
     def _alpha_setup(self, ctx):
         """The alpha test of a Scene's MASK / BLEND materials (shaders/glsl/include/alpha.glsl), as the renderer's
-        ray passes run it: the same records and texture arrays (engine/passes/gbuffer.py `alpha_records`). Returns
-        the flattened scene's alpha words for the BVH's triangle records, or None (no alpha-tested material, or a
-        Tracer of plain arrays): the test is then compiled out and its bindings are a 1-texel record and a white
-        texture."""
+        ray passes run it: the same records and texture arrays (engine/gpu/materials.py). Returns the flattened
+        scene's alpha words for the BVH's triangle records, or None (no alpha-tested material, or a Tracer of plain
+        arrays): the test is then compiled out and its bindings are a 1-texel record and a white texture."""
         source = self._source
         tested = source is not None and any(m.alpha_mode != "OPAQUE" for m in source.materials)
         self.alpha_spec = {"ALPHA_TEST": tested, "TEXTURE_ARRAYS": 1}
         if not tested:   # the dummy bindings, the same for every Tracer: made once per device
-            self.textures, self.alpha_view, self.white, self.sampler = _untested_bindings(ctx)
+            self.alpha = untested_alpha(ctx)
             return None
-        self.textures = TextureArrays(ctx, scene_textures(source.materials))
-        index, records = alpha_records(source, self.textures)
-        self.alpha_view = BufferView(upload_buffer(ctx, records, UNIFORM_TEXEL, "alpha records"), RGBA32F)
-        self.white = upload_texture_array(ctx, [_WHITE], 1, 1, name="white texture")
-        self.sampler = Sampler(ctx)
-        self.alpha_spec["TEXTURE_ARRAYS"] = max(1, len(self.textures))
+        self.alpha, index = scene_alpha(ctx, source)
+        self.alpha_spec["TEXTURE_ARRAYS"] = max(1, len(self.alpha.textures))
         return index
 
     def bind_alpha(self, dset: DescriptorSet) -> None:
         """The alpha records and texture arrays into a set of the trace kernels' set-0 layout."""
-        dset.bind("alpha_tris", self.alpha_view)
-        for slot in range(MAX_TEXTURE_ARRAYS):
-            tex = self.textures.images[slot] if slot < len(self.textures) else self.white
-            dset.bind("textures", tex, sampler=self.sampler, element=slot)
+        self.alpha.bind(dset)
 
     @contextmanager
     def take_slots(self, n: int) -> Iterator[list]:

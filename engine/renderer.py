@@ -10,7 +10,6 @@ and write (engine/passes/base.py); the recorder derives the barriers between the
 """
 from __future__ import annotations
 
-import math
 import os
 import threading
 from collections.abc import Iterable, Iterator, Sequence
@@ -29,8 +28,8 @@ from .passes.debug_view import DebugViewPass
 from .passes.denoise import DenoisePass
 from .passes.cull import SW_RASTER_PIXELS, raster_option, raster_options
 from .passes.gbuffer import GBufferPass
-from .passes.interface import (FILTER_AO, FILTER_MASKS, FILTER_TEMPORAL, FRAME, FRAME_BYTES, MAX_LIGHTS,
-                               camera_fields, pack_frame, pack_light)
+from .passes.frame_block import FrameBlock
+from .passes.interface import FILTER_AO, FILTER_MASKS, FILTER_TEMPORAL, MAX_LIGHTS, pack_light
 from .passes.lighting import LightingPass
 from .passes.raypass import follow_scene
 from .passes.shadows import ShadowPass
@@ -41,10 +40,9 @@ from .scene.camera import Camera
 from .settings import (ShadowMode, ViewMode, check_settings, check_size, default, given_settings, resolve_aovs)
 from .shaders import ShaderLibrary
 from .steady import Steady
-from .vk import Buffer, Context, Recorder, Timestamps, reflect
+from .vk import Context, Recorder, Timestamps, reflect
 from .vk.shared import Device, Scope
 from .vk.recorder import ONE_F32, TRANSFER
-from .vk.resources import UNIFORM
 from .vk.sync import create_fence, destroy_fence, reset_fences, wait_fences
 
 
@@ -134,13 +132,12 @@ class Renderer(Closes):
             raise VulkanError(f"device {ctx.device_info['name']!r} lacks the geometryShader feature, which the "
                               "G-buffer's visibility pass needs (gl_PrimitiveID in a fragment shader); the Tracer "
                               "works without it")
-        self.frame_ubo = Buffer(ctx, FRAME_BYTES, UNIFORM, host=True, name="frame")
-        self._block = self.frame_ubo.view(FRAME.dtype).reshape(())   # the mapped frame block, written in place
+        self.frame_block = FrameBlock(ctx)   # the per-frame uniform block and its one writer
         self._timestamps = [Timestamps(ctx), Timestamps(ctx)]   # per readback slot (render_many has two in flight)
         self.timestamps = self._timestamps[0]
         self._fences = [create_fence(ctx), create_fence(ctx)]
         [ctx.defer_destroy(destroy_fence, ctx, fence) for fence in self._fences]
-        self.targets = Targets(ctx, self.width, self.height, light_capacity=1, frame_ubo=self.frame_ubo)
+        self.targets = Targets(ctx, self.width, self.height, light_capacity=1, frame_ubo=self.frame_block.buffer)
         res, lib = self.targets.resources, self.library
         self.bvh_set = bvh_descriptor_set(ctx, reflect(lib.get(ShadowPass.shader), ShadowPass.shader))
         self.gbuffer, self.accumulate = GBufferPass(ctx, lib, res), AccumulatePass(ctx, lib, res)
@@ -150,8 +147,8 @@ class Renderer(Closes):
         self.lighting, self.debug_view = LightingPass(ctx, lib, res), DebugViewPass(ctx, lib, res)
         self.passes = [self.gbuffer, self.shadows, self.ao, self.accumulate, self.denoise, self.lighting,
                        self.debug_view]
-        self._scene = self._geometry = self._scene_bvh = self._prev_view_proj = None
-        self.bvh_stats, self._commands, self._frame_index = {}, {}, 0
+        self._scene = self._geometry = self._scene_bvh = None
+        self.bvh_stats, self._commands = {}, {}
         self._changes = SceneChanges()   # the scene's state the last frame drew (instance motion)
         self._history_key = self._steady = None   # _history_key: what the temporal history was accumulated under
         self.uploads = 0  # scene uploads so far (a test reads it: the same scene is uploaded once)
@@ -276,7 +273,7 @@ class Renderer(Closes):
         """Start the next frame as a fresh renderer would: no temporal history and frame index 0 (which seeds the
         soft-shadow and AO samples), so a view's frames do not depend on what was rendered before (batch jobs)."""
         self._history_key = None
-        self._frame_index = 0
+        self.frame_block.restart()
         self._steady = None
 
     def _wait_slot(self, slot):
@@ -373,8 +370,7 @@ class Renderer(Closes):
         if len(lights) > self.targets.light_capacity:
             self._resize_targets(light_capacity=len(lights))
 
-        aspect = self.width / self.height
-        view_proj = camera.projection_matrix(aspect) @ camera.view_matrix()
+        view_proj = camera.projection_matrix(self.width / self.height) @ camera.view_matrix()
         diag = float(np.linalg.norm(scene.bounds[1] - scene.bounds[0])) or 1.0
         # The temporal history holds the light masks and AO as traced under these: when any of them changes
         # (another scene, light, shadow mode or sample count, size), the next frame starts over.
@@ -386,18 +382,6 @@ class Renderer(Closes):
         reset = history_key != self._history_key
         if reset:   # no motion on a frame without history (as the camera's previous matrix is this one)
             self._changes.still(self._geometry)
-        shadow_samples = cfg["reference_samples"] if cfg["shadows"] == "reference" else cfg["shadow_samples"]
-        ao_samples = cfg["reference_samples"] if cfg["shadows"] == "reference" else cfg["ao_samples"]
-        pack_frame(
-            view_proj=view_proj,
-            prev_view_proj=self._prev_view_proj if self._prev_view_proj is not None and not reset else view_proj,
-            eye=camera.eye, forward=camera.forward, near=camera.near, width=self.width, height=self.height,
-            frame_index=self._frame_index, lights=lights,
-            ao_radius=cfg["ao_radius"] or 0.1 * diag, ao_samples=ao_samples, shadow_samples=shadow_samples,
-            exposure=cfg["exposure"], ambient=cfg["ambient"], scene_scale=diag, accum_alpha=ALPHA_MIN,
-            pixel_footprint=2.0 * math.tan(math.radians(camera.fov_y) / 2.0) / self.height,
-            history_reset=reset, bounds=scene.bounds, out=self._block, packed_lights=packed_lights,
-            objects_moved=not self._changes.settled)
         key = (cfg["shadows"], cfg["ao"], cfg["accumulate"], cfg["denoise"], cfg["view"], len(lights), readback,
                self._raster)
         if cfg["shadows"] == "reference":
@@ -406,24 +390,24 @@ class Renderer(Closes):
             cmd, ts = self._record(cfg, len(lights), readback)
             self._commands[key] = (cmd, list(ts.names))
         cmd, marks = self._commands[key]
-        self._frame_index += 1
-        self._prev_view_proj = view_proj
+        reference = cfg["shadows"] == "reference"
+        self.frame_block.write(
+            view_proj=view_proj, camera=camera, width=self.width, height=self.height, lights=lights,
+            packed_lights=packed_lights, history_reset=reset, objects_moved=not self._changes.settled,
+            ao_radius=cfg["ao_radius"] or 0.1 * diag,
+            ao_samples=cfg["reference_samples"] if reference else cfg["ao_samples"],
+            shadow_samples=cfg["reference_samples"] if reference else cfg["shadow_samples"],
+            exposure=cfg["exposure"], ambient=cfg["ambient"], scene_scale=diag, accum_alpha=ALPHA_MIN,
+            bounds=scene.bounds)
         self._history_key = history_key
-        self._steady = Steady.capture(scene, camera, settings, readback, lights, view_proj,
-                                       (cmd, marks, cfg, len(lights)))
+        self._steady = Steady.capture(scene, camera, settings, readback, lights, (cmd, marks, cfg, len(lights)))
         return cmd, marks, dict(cfg), len(lights)
 
     def _prepare_steady(self, steady):
         """The same scene, lights, camera and settings as the last frame: its command buffer, and a frame block
         that differs from the last one only in the frame index (plus, on the first such frame, the previous
         camera, now this one, and the history-reset flag, now off). What the full path would write, bit for bit."""
-        block = self._block
-        if not steady.settled:
-            block["prev_view_proj"] = steady.view_proj_cols   # prev_view_proj = this camera's
-            block["history_reset"] = 0.0                      # the history key is unchanged
-            steady.settled = True
-        block["frame_index"], block["objects_moved"] = self._frame_index, not self._changes.settled
-        self._frame_index += 1
+        self.frame_block.again(objects_moved=not self._changes.settled)
         cmd, marks, cfg, n_lights = steady.result
         return cmd, marks, dict(cfg), n_lights
 
@@ -432,15 +416,8 @@ class Renderer(Closes):
         are rewritten, the rest (lights, settings, scene) stays; the temporal history is kept, as the full path
         keeps it (the camera is not part of the history key)."""
         view_proj = camera.projection_matrix(self.width / self.height) @ camera.view_matrix()
-        block = self._block
-        camera_fields(block, view_proj, camera, self.height)
-        block["prev_view_proj"] = steady.view_proj_cols   # the last frame's camera
-        block["history_reset"] = 0.0                      # the history key is unchanged
-        block["frame_index"], block["objects_moved"] = self._frame_index, not self._changes.settled
-        self._frame_index += 1
-        self._prev_view_proj = view_proj
-        steady.camera, steady.settled = camera, False
-        steady.view_proj_cols = np.asarray(view_proj, np.float32).T
+        self.frame_block.move_camera(view_proj, camera, self.height, objects_moved=not self._changes.settled)
+        steady.camera = camera
         cmd, marks, cfg, n_lights = steady.result
         return cmd, marks, dict(cfg), n_lights
 
@@ -528,7 +505,7 @@ class Renderer(Closes):
         self._upload_geometry(scene)
         self._changes = SceneChanges()   # the BVH is built by the first frame's _frame_start
         self._scene = scene
-        self._prev_view_proj = None
+        self.frame_block.forget_camera()
         self.uploads += 1
         return True
 
@@ -537,7 +514,7 @@ class Renderer(Closes):
         self._invalidate_commands()
         self.ctx.wait_idle()
         self.targets.destroy()
-        self.targets = Targets(self.ctx, self.width, self.height, light_capacity, frame_ubo=self.frame_ubo)
+        self.targets = Targets(self.ctx, self.width, self.height, light_capacity, frame_ubo=self.frame_block.buffer)
         for p in self.passes:
             p.bind(self.targets.resources, self.targets)
         self._history_key = None

@@ -5,8 +5,13 @@
 
 A frame's command buffer is recorded once per (scene, settings) and re-submitted; only the per-frame
 uniform block (camera, previous camera, frame index, history reset flag) is rewritten before each submit
-(engine/steady.py tells when the last frame's recording can be re-submitted). The passes declare what they read
-and write (engine/passes/base.py); the recorder derives the barriers between them.
+(engine/steady.py tells when the last frame's recording can be re-submitted; engine/passes/frame_block.py writes
+the block). The passes declare what they read and write (engine/passes/base.py); the recorder derives the barriers
+between them. The raster options (culling, levels of detail, the software raster) are one named type,
+engine/passes/raster_options.py; the scene on the GPU is engine/gpu's.
+
+Size: the Renderer's public API with its documentation (the constructor, render, render_many, submit, the raster
+options' attributes) and the frame's order of passes are one concern, kept together rather than cut to a line count.
 """
 from __future__ import annotations
 
@@ -26,13 +31,14 @@ from .passes.accumulate import ALPHA_MIN, AccumulatePass
 from .passes.ao import AOPass
 from .passes.debug_view import DebugViewPass
 from .passes.denoise import DenoisePass
-from .passes.cull import SW_RASTER_PIXELS, raster_option, raster_options
 from .passes.gbuffer import GBufferPass
 from .passes.frame_block import FrameBlock
 from .passes.interface import FILTER_AO, FILTER_MASKS, FILTER_TEMPORAL, MAX_LIGHTS, pack_light
 from .passes.lighting import LightingPass
+from .passes.raster_options import RasterOptions
 from .passes.raypass import follow_scene
 from .passes.shadows import ShadowPass
+from .passes.soft_raster import SW_RASTER_PIXELS
 from .parallel import serialized
 from .passes.targets import Targets
 from .scene import Scene
@@ -60,10 +66,12 @@ class Renderer(Closes):
     RGB until the final image, which is tonemapped (ACES) and sRGB-encoded 8-bit RGBA.
     """
 
-    def __init__(self, width: int, height: int, *, device: Device | int | str | None = None, validation: bool = False,
+    def __init__(self, width: int, height: int, *,
+                 device: Device | int | str | None = None, validation: bool = False,
                  shader_dir: str | os.PathLike[str] | None = None, hot_reload: bool = False,
-                 context: Context | None = None, bvh_layout: str | None = None, culling: bool = True,
-                 lod_pixels: float = 0.0, sw_raster: bool | None = None, sw_raster_pixels: float = SW_RASTER_PIXELS):
+                 context: Context | None = None, bvh_layout: str | None = None,
+                 culling: bool = True, lod_pixels: float = 0.0,
+                 sw_raster: bool | None = None, sw_raster_pixels: float = SW_RASTER_PIXELS):
         """A renderer of `width` x `height` pixels (1..16384 each).
 
         Args:
@@ -82,19 +90,24 @@ class Renderer(Closes):
             bvh_layout: "binary" or "wide" scene BVH for the shadow and AO passes (default: $HYBRID_BVH_LAYOUT,
                 else "binary"); a scene of several (or moved) instances traces the two-level BVH, binary.
             culling: cull instances outside the view on the GPU, draw the rest indirectly (the same pixels; off
-                where the device lacks drawIndirectFirstInstance). Also an attribute, as is `lod_pixels`.
+                where the device lacks drawIndirectFirstInstance). Also an attribute.
             lod_pixels: with culling, draw each instance at its mesh's coarsest level of detail (engine/scene/lod.py)
                 whose error projects below this many pixels (1.0 is good); 0 (default): full meshes, exact AOVs.
-            sw_raster: with culling, draw instances of at most `sw_raster_pixels` (in (0, 128]) across with a compute
-                raster (engine/passes/soft_raster.py). None: on for GPUs, off on CPU devices; True / False: forced;
-                off where the device lacks shaderInt64 / shaderBufferInt64Atomics (no error). Both also attributes.
+                Also an attribute.
+            sw_raster: with culling, draw the instances that project to at most `sw_raster_pixels` pixels across
+                with a compute (software) raster into the same visibility buffer (engine/passes/soft_raster.py):
+                faster on GPUs with few raster units. None (default): on for GPUs, off on CPU devices (lavapipe);
+                True / False: forced. Where the device lacks 64-bit buffer atomics (shaderInt64 and
+                shaderBufferInt64Atomics) it stays off, without an error. Also an attribute.
+            sw_raster_pixels: the software raster's largest instance extent, in pixels (0 < it <= 128; 64 by
+                default). Also an attribute.
 
         Raises:
-            ConfigError: a bad size, device selector or layout.
+            ConfigError: a bad size, device selector, layout or raster option.
             VulkanError: no usable Vulkan device, or it lacks the `geometryShader` feature.
         """
         self.bvh_layout = resolve_layout(bvh_layout)  # a bad one fails here, before any Vulkan object exists
-        self._raster = raster_options(culling, lod_pixels, sw_raster, sw_raster_pixels)
+        self._raster = RasterOptions(culling, lod_pixels, sw_raster, sw_raster_pixels)   # checked here
         check_size(width, height)
         self.width, self.height = int(width), int(height)
         self.library = ShaderLibrary(shader_dir, hot_reload=hot_reload)
@@ -165,15 +178,48 @@ class Renderer(Closes):
         """Hot reload's failures: GLSL path -> compiler or interface error (empty when all shaders are good)."""
         return dict(self.library.errors)
 
-    culling = raster_option(0, "GPU culling of the instances before the raster (the constructor's `culling`).")
-    lod_pixels = raster_option(1, "The largest projected error of a level of detail (the constructor's `lod_pixels`).")
-    sw_raster = raster_option(2, "The software raster of small instances (the constructor's `sw_raster`).")
-    sw_raster_pixels = raster_option(3, "Its largest instance, in pixels (the constructor's `sw_raster_pixels`).")
+    # ---- raster options: the constructor's, also attributes (engine/passes/raster_options.py) ----------------
+    @property
+    def culling(self) -> bool:
+        """GPU culling of the instances before the raster (the constructor's `culling`)."""
+        return self._raster.culling
 
-    def _set_raster(self, *options):
-        """The next frame takes (or records) their recording; levels wanted, the scene has none: uploaded again."""
-        self._raster, self._steady = raster_options(*options), None
-        if self._raster[1] > 0 and self._geometry is not None and not self._geometry.has_levels:
+    @culling.setter
+    def culling(self, value: bool) -> None:
+        self._set_raster(culling=value)
+
+    @property
+    def lod_pixels(self) -> float:
+        """The largest projected error of a level of detail, in pixels (the constructor's `lod_pixels`)."""
+        return self._raster.lod_pixels
+
+    @lod_pixels.setter
+    def lod_pixels(self, value: float) -> None:
+        self._set_raster(lod_pixels=value)
+
+    @property
+    def sw_raster(self) -> bool | None:
+        """The software raster of small instances: None (auto), True, False (the constructor's `sw_raster`)."""
+        return self._raster.sw_raster
+
+    @sw_raster.setter
+    def sw_raster(self, value: bool | None) -> None:
+        self._set_raster(sw_raster=value)
+
+    @property
+    def sw_raster_pixels(self) -> float:
+        """The software raster's largest instance extent, in pixels (the constructor's `sw_raster_pixels`)."""
+        return self._raster.sw_raster_pixels
+
+    @sw_raster_pixels.setter
+    def sw_raster_pixels(self, value: float) -> None:
+        self._set_raster(sw_raster_pixels=value)
+
+    def _set_raster(self, **changes):
+        """New raster options (checked): the next frame takes (or records) their recording; where levels of detail
+        are wanted and the scene was uploaded without them, it is uploaded again."""
+        self._raster, self._steady = self._raster.replace(**changes), None
+        if self._raster.lod_pixels > 0 and self._geometry is not None and not self._geometry.has_levels:
             self._scene = None
 
     @property
@@ -486,7 +532,8 @@ class Renderer(Closes):
             self.ctx.wait_idle()
             self._geometry.destroy()
             self._geometry = None
-        self._geometry = SceneGeometry(self.ctx, scene, self.gbuffer.white, self.gbuffer.sampler, self._raster[1] > 0)
+        self._geometry = SceneGeometry(self.ctx, scene, self.gbuffer.white, self.gbuffer.sampler,
+                                       levels=self._raster.lod_pixels > 0)
         self.gbuffer.bind_scene(self._geometry)
         for p in (self.shadows, self.ao):   # the alpha test's records and textures
             p.bind_scene(self._geometry)
@@ -526,7 +573,7 @@ class Renderer(Closes):
         t = self.targets
         ts = self._timestamps[readback[1] if readback else 0]
         rec = Recorder(self.ctx, ts)
-        self.gbuffer.record(rec, t, self._geometry, *self._raster)
+        self.gbuffer.record(rec, t, self._geometry, self._raster)
         rec.mark("gbuffer")
         mode = cfg["shadows"]
         reference = cfg["reference_samples"] if mode == "reference" else None

@@ -21,45 +21,15 @@ the resolve reads the level's triangle without knowing the level.
 """
 from __future__ import annotations
 
-import math
-
 import numpy as np
 
-from ..errors import ConfigError
 from ..gpu.draws import DrawTables
 from ..vk import Buffer
 from .base import ComputePass, read, update, write
-from .soft_raster import SW_RASTER_PIXELS, check_sw_raster, check_sw_raster_pixels
 
 #: A good largest projected error of a level of detail, in pixels (silhouettes move by less than a pixel); the
 #: Renderer's default is 0 (full meshes: AOVs exact), tools/bench_instanced_frame.py's this.
 LOD_PIXELS = 1.0
-
-
-def check_lod_pixels(value) -> float:
-    """`value` as the largest projected error of a level (pixels), or a ConfigError."""
-    if isinstance(value, bool) or not isinstance(value, (int, float)) or not math.isfinite(value) or value < 0:
-        raise ConfigError(f"Renderer: lod_pixels must be a finite number >= 0 (pixels), got {value!r}")
-    return float(value)
-
-
-def raster_options(culling, lod_pixels, sw_raster=None, sw_raster_pixels=SW_RASTER_PIXELS) -> tuple:
-    """The Renderer's raster options, checked: (culling, lod_pixels, sw_raster, sw_raster_pixels), or a ConfigError."""
-    return bool(culling), check_lod_pixels(lod_pixels), check_sw_raster(sw_raster), \
-        check_sw_raster_pixels(sw_raster_pixels)
-
-
-def raster_option(index: int, doc: str) -> property:
-    """A Renderer property over its `_raster` options (culling, lod_pixels, sw_raster, sw_raster_pixels): set, it
-    goes through `_set_raster`."""
-    def get(self) -> bool | float | None:
-        return self._raster[index]
-
-    def put(self, value: bool | float | None) -> None:
-        options = list(self._raster)
-        options[index] = value
-        self._set_raster(*options)
-    return property(get, put, doc=doc)
 
 
 class CullPass(ComputePass):

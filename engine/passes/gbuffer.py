@@ -34,7 +34,8 @@ from ..vk.formats import RG32F, RGB32F
 from ..vk.pipelines import CULL_BACK, CULL_FRONT, CULL_NONE
 from .base import ComputePass, read, update, write
 from .cull import CullPass
-from .soft_raster import SW_RASTER_PIXELS, SoftMergePass, SoftRasterPass
+from .raster_options import RasterOptions
+from .soft_raster import SoftMergePass, SoftRasterPass
 from .interface import MAX_TEXTURE_ARRAYS
 from .targets import DEPTH_FORMAT, VISIBILITY_FORMAT
 
@@ -220,17 +221,16 @@ class GBufferPass:
         for s in (self.resolve.set, self.masked.set):
             bind_textures(s, geom.textures, self.white, self.sampler)
 
-    def record(self, rec, targets, geom: SceneGeometry, culling: bool = True, lod_pixels: float = 0.0,
-               sw_raster: bool | None = None, sw_raster_pixels: float = SW_RASTER_PIXELS):
-        """The instances' copy to the device, the culling pass (`culling`; levels of detail where `lod_pixels` >
-        0; instances of at most `sw_raster_pixels` across to the software raster where `software`), the raster,
-        the software raster and its merge, and the resolve."""
+    def record(self, rec, targets, geom: SceneGeometry, options: RasterOptions = RasterOptions()):
+        """The instances' copy to the device, the culling pass (`options.culling`; levels of detail where
+        `lod_pixels` > 0; instances of at most `sw_raster_pixels` across to the software raster where `software`),
+        the raster, the software raster and its merge, and the resolve."""
         rec.copy(geom.instance_staging, geom.instance_buffer)
-        soft = self.software(culling, sw_raster)
-        culling = culling and self.ctx.draw_indirect_first_instance
+        soft = self.software(options.culling, options.sw_raster)
+        culling = options.culling and self.ctx.draw_indirect_first_instance
         if culling:
-            self.cull.record(rec, geom.instance_buffer, geom.tables, lod_pixels,
-                             sw_raster_pixels if soft else 0.0)
+            self.cull.record(rec, geom.instance_buffer, geom.tables, options.lod_pixels,
+                             options.sw_raster_pixels if soft else 0.0)
         # The visibility image is all zeros here (cleared when made, then by each frame's resolve after reading it),
         # so the raster loads it instead of clearing it (a clear costs GPUs with few raster units).
         # Opaque materials first, keeping early depth tests; then the alpha-tested ones, whose shader discards.

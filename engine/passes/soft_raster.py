@@ -17,31 +17,13 @@ hardware raster (`Targets.soft_visibility` is None).
 """
 from __future__ import annotations
 
-import math
-
-from ..errors import ConfigError
 from .base import ComputePass, read, update
 
 #: The default largest screen extent (pixels) of an instance the software raster draws.
 SW_RASTER_PIXELS = 64.0
-#: The largest allowed: soft_raster.comp's 32-bit edge functions are exact for triangles up to 181 pixels across.
+#: The largest allowed (engine/passes/raster_options.py): soft_raster.comp's 32-bit edge functions are exact for
+#: triangles up to 181 pixels across.
 MAX_SW_RASTER_PIXELS = 128.0
-
-
-def check_sw_raster(value) -> bool | None:
-    """`sw_raster` as None (auto: on for GPUs, off for CPU devices), True or False, or a ConfigError."""
-    if value is not None and not isinstance(value, bool):
-        raise ConfigError(f"Renderer: sw_raster must be None (auto), True or False, got {value!r}")
-    return value
-
-
-def check_sw_raster_pixels(value) -> float:
-    """`value` as the software raster's largest instance extent (pixels), or a ConfigError."""
-    if isinstance(value, bool) or not isinstance(value, (int, float)) or not math.isfinite(value) \
-            or not 0 < value <= MAX_SW_RASTER_PIXELS:
-        raise ConfigError(f"Renderer: sw_raster_pixels must be a number in (0, {MAX_SW_RASTER_PIXELS:g}] (pixels), "
-                          f"got {value!r}")
-    return float(value)
 
 
 class _SoftPass(ComputePass):

@@ -330,7 +330,8 @@ class Renderer(Closes):
         buf, offsets = self.targets.readback(self.ctx, names, slot)
         aov = self.targets.read(buf, offsets, n_lights)
         return Frame(color=aov.pop("color", None), aov=aov, timings=self._timestamps[slot].read(marks), settings=cfg,
-                     object_names=scene.object_names, material_names=[m.name for m in scene.materials],
+                     object_names=scene.object_names,
+                     material_names=[m.name for m in scene.materials],
                      camera=camera if camera is not None else scene.camera, scene_name=scene.name)
 
     @serialized

@@ -90,12 +90,14 @@ class TraceSession:
         self.io_bindings = list(interface.set(0).values())
         self.use(specs)
         self.io_layout = ctx.root.memo["tracer.layouts"][0]   # set 0's layout (the trace kernels' io sets)
-        # slots with room for the retry list on every CPU device (the ones whose traversal has that pass), whatever
-        # this tree's depth: all Tracers of the device share them; elsewhere where a spec asks for the pass
+        # slots with room for the second dispatch's retry list on every CPU device (the ones whose traversal has that
+        # pass), whatever this tree's depth: then all Tracers of the device share them (and a two-level BVH whose
+        # bottom level is rebuilt deeper needs no others); elsewhere where a spec asks for the pass
         self.retry_list = is_cpu(ctx) or any(self.two_pass.values())
         self.shares = work_shares(ctx)   # rays.glsl ray_block
         self.recorders: dict[str, Callable] = {}   # kinds with a kernel of their own: kind -> record(slot, span)
-        # the slots' buffers are the device's (SlotPool); this Tracer's sets and commands over them: `take_slots`
+        # the stream slots' buffers are the device's (SlotPool, made on the first query); this session's descriptor
+        # sets and command buffers over each set of them are made as a query first takes that set (`take_slots`)
         self._bindings: dict = {}    # SlotSet -> [Slot]
         self.slots: list[Slot] = []  # the slots of the last query
         self._scratch = None

@@ -106,9 +106,10 @@ class Tracer(Closes):
 
     The BVH is built on the host (numpy, all cores) and traversed by GLSL compute shaders, the same traversal the
     renderer's shadow and AO passes use. Queries take numpy arrays of any length and block until their results are
-    back; a large batch is streamed in chunks, packing, tracing and reading back overlapped. Triangles are two-sided (no culling); a ray hits at
-    t in [0, tmax]. Coordinates of vertices and ray origins must lie within +-1e11 (`engine.limits.MAX_COORD`);
-    a NaN, infinite or zero direction is a `ConfigError` naming the ray, not a silent miss.
+    back; a large batch is streamed in chunks, packing, tracing and reading back overlapped (its trace session,
+    engine/rt/session.py). Triangles are two-sided (no culling); a ray hits at t in [0, tmax]. Coordinates of
+    vertices and ray origins must lie within +-1e11 (`engine.limits.MAX_COORD`); a NaN, infinite or zero direction
+    is a `ConfigError` naming the ray, not a silent miss.
 
     After a query: `last_gpu_ms` (GPU ms of its trace dispatches), `last_retried` (rays the second dispatch walked
     again, on CPU devices), `last_times` (GPU ms of the last chunk per step), `last_reordered` (whether its rays
@@ -403,7 +404,8 @@ class Tracer(Closes):
 
     def _order(self, o, d, t, reorder):
         """The order to trace a batch in (engine/rt/order.py), or None for the given order, and its directions (for a
-        reordered batch `shared_direction`'s view: one direction for all is filled, not gathered); sets `last_reordered`."""
+        reordered batch `shared_direction`'s view: one direction for all is filled, not gathered); sets
+        `last_reordered`."""
         mode = self.reorder if reorder is None else check_reorder(reorder, "Tracer query")
         if mode == "auto":
             mode = is_cpu(self.ctx) and incoherent(o, d, t)
@@ -417,10 +419,18 @@ class Tracer(Closes):
 
     @serialized
     def cuda_ray_arrays(self, n: int, framework: str = "torch") -> tuple:
-        """(origins (n, 3), directions (n, 3), tmax (n,)): float32 torch / CuPy arrays (`framework`) on the GPU that
-        view the buffers the kernels read. Rays written there and these very arrays passed to `occluded` /
-        `intersect` are traced without a copy. Valid until the Tracer closes or a query needs larger buffers; a query
-        on other arrays overwrites them. ConfigError: no CUDA here, another framework, n beyond the buffers' size."""
+        """Device arrays to write up to `n` rays into, for queries on CUDA arrays without the copy of the rays.
+
+        Returns (origins (n, 3), directions (n, 3), tmax (n,)), float32 torch tensors or CuPy arrays on the
+        Tracer's GPU that view the buffers the trace kernels read. Fill them (e.g. `origins.copy_(...)` or a
+        kernel of yours writing there), then pass these very arrays to `occluded` / `intersect`: the rays are not
+        copied. They stay valid until the Tracer is closed or a query needs larger buffers; a later query on other
+        arrays overwrites them. The stream rule of CUDA queries holds (engine/rt/cuda_arrays.py).
+
+        Raises:
+            ConfigError: no CUDA here (naming why), a framework other than "torch" / "cupy", or n beyond the
+            shared buffers' size (CUDA_BATCH rays or the Tracer's batch_size).
+        """
         self._check_open()
         return self._device_arrays().ray_arrays(n, framework)
 

@@ -2,6 +2,10 @@
 
 Scene sits above the loaders (loader.py for mesh files and trimesh objects, toml_format.py for TOML scenes): they
 hand it SceneParts (parts.py) and never make a Scene themselves.
+
+Size: the Scene's public API with its documentation (constructors, the flat world-space arrays made per version,
+instance motion and its queries) is one concern; loaders, instances, flattening and animation are modules of their
+own.
 """
 
 from __future__ import annotations
@@ -195,8 +199,11 @@ class Scene:
 
     def set_transforms(self, transforms: ArrayLike, which: ArrayLike | None = None) -> None:
         """Move instances: `transforms` (K, 4, 4) for the instances `which` (K indices; None: all N, in order).
-        Checked (finite, affine, invertible, world coordinates within MAX_COORD) before anything changes: a bad
-        transform or index raises SceneError naming the instance."""
+        Checked (finite, affine, invertible, world coordinates within MAX_COORD) before anything changes.
+
+        Raises:
+            SceneError: a bad transform or index, naming the instance.
+        """
         n = len(self.instances)
         if which is None:   # all: a slice, no gathers
             idx, count = slice(None), n
@@ -210,8 +217,8 @@ class Scene:
             count = len(which)
             m, peak = checked_transforms(transforms, lambda k: self._label(int(which[k]) if k < count else 0),
                                          copy=False)
-            # (all, in order: written as a slice, not scattered)
-            idx = slice(None) if count == n and which[0] == 0 and np.array_equal(which, np.arange(n)) else which
+            in_order = count == n and which[0] == 0 and np.array_equal(which, np.arange(n))
+            idx = slice(None) if in_order else which   # (all, in order: written as a slice, not scattered)
         if len(m) != count:
             raise SceneError(f"{shown(self.name)}: {len(m)} transforms for {count} instances")
         self._check_world(idx, m, peak)   # before anything changes
@@ -274,7 +281,9 @@ class Scene:
     def _instance_object_boxes(self) -> np.ndarray:
         """(N, 2, 3) object boxes of the instances' meshes, or (1, 2, 3) where all instances share one mesh."""
         boxes = np.stack([m.box for m in self.meshes])
-        return boxes if len(boxes) == 1 else boxes[self._inst_mesh]
+        if len(boxes) == 1:
+            return boxes
+        return boxes[self._inst_mesh]
 
     def _label(self, i: int) -> str:
         name = self.instances[i].name if hasattr(self, "instances") else ""
@@ -291,7 +300,8 @@ class Scene:
         boxes = np.stack([m.box for m in self.meshes])
         # a bound first: |A c + t| + |A| h <= (3 (|c| + h) + 1) max|m|, for every instance at once
         reach = np.abs(boxes[mesh if len(mesh) < len(boxes) else slice(None)]).max()
-        peak = max(transforms.max(), -transforms.min()) if peak is None else peak   # (no temporaries)
+        if peak is None:
+            peak = max(transforms.max(), -transforms.min())   # (no temporaries)
         if (3.0 * reach + 1.0) * peak <= MAX_COORD:
             return
         one = len(boxes) == 1 or not np.any(mesh != mesh[0])
@@ -336,7 +346,8 @@ class Scene:
 
     @property
     def positions(self) -> NDArray[np.float32]:
-        """(V, 3) float32 world-space positions of every instance, flattened (computed on first read after a change)."""
+        """(V, 3) float32 world-space positions of every instance, flattened (computed when first read after a
+        change)."""
         return self._flat()["positions"]
 
     @property

@@ -82,7 +82,7 @@ class RayAlpha:
     def bind(self, dset) -> None:
         """The records and texture arrays into a set that declares them (a ray pass's, a trace kernel's set 0)."""
         dset.bind("alpha_tris", self.records)
-        bind_textures(dset, self.textures, self.white, self.sampler)
+        bind_textures(dset, self.textures.images, self.white, self.sampler)
 
 
 def scene_alpha(ctx, scene) -> tuple[RayAlpha, np.ndarray]:

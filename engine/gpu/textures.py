@@ -130,10 +130,9 @@ def scene_textures(materials) -> dict:
     return out
 
 
-def bind_textures(dset, textures: TextureArrays, white, sampler) -> None:
-    """The `textures` binding of a set (textures.glsl, alpha.glsl): each of its MAX_TEXTURE_ARRAYS elements one of
-    the arrays, the ones past them the 1x1 `white` texture (every element must hold an image)."""
+def bind_textures(dset, images: list, white, sampler) -> None:
+    """The `textures` binding of a set (textures.glsl, alpha.glsl): its MAX_TEXTURE_ARRAYS elements the array
+    `images` (a `TextureArrays`' images) and, past them, the 1x1 `white` texture (every element must hold one)."""
     for slot in range(MAX_TEXTURE_ARRAYS):
-        tex = textures.images[slot] if slot < len(textures) else white
+        tex = images[slot] if slot < len(images) else white
         dset.bind("textures", tex, sampler=sampler, element=slot)
-

@@ -28,7 +28,7 @@ import numpy as np
 from ..errors import ShaderError
 from ..gpu.materials import white_texture
 from ..gpu.scene import SceneGeometry
-from ..gpu.textures import TextureArrays, bind_textures
+from ..gpu.textures import bind_textures
 from ..vk import DescriptorSet, GraphicsPipeline, Sampler, device, reflect
 from ..vk.formats import RG32F, RGB32F
 from ..vk.pipelines import CULL_BACK, CULL_FRONT, CULL_NONE
@@ -167,9 +167,8 @@ class GBufferPass:
             if ctx.int64_atomics else ()
         self.sampler = Sampler(ctx, anisotropy=device.texture_anisotropy(ctx))
         self.white = white_texture(ctx)
-        no_textures = TextureArrays(ctx, {})
-        for s in (self.resolve.set, self.masked.set):
-            bind_textures(s, no_textures, self.white, self.sampler)
+        for s in (self.resolve.set, self.masked.set):   # (until a scene's arrays are bound)
+            bind_textures(s, [], self.white, self.sampler)
         self.resources = resources
 
     def reload(self, library):
@@ -219,7 +218,7 @@ class GBufferPass:
             self.soft[0].bind_scene(geom)
         s.bind("instances", geom.instance_buffer)
         for s in (self.resolve.set, self.masked.set):
-            bind_textures(s, geom.textures, self.white, self.sampler)
+            bind_textures(s, geom.textures.images, self.white, self.sampler)
 
     def record(self, rec, targets, geom: SceneGeometry, options: RasterOptions = RasterOptions()):
         """The instances' copy to the device, the culling pass (`options.culling`; levels of detail where

@@ -220,7 +220,7 @@ class GBufferPass:
         for s in (self.resolve.set, self.masked.set):
             bind_textures(s, geom.textures.images, self.white, self.sampler)
 
-    def record(self, rec, targets, geom: SceneGeometry, options: RasterOptions = RasterOptions()):
+    def record(self, rec, targets, geom: SceneGeometry, options: RasterOptions):
         """The instances' copy to the device, the culling pass (`options.culling`; levels of detail where
         `lod_pixels` > 0; instances of at most `sw_raster_pixels` across to the software raster where `software`),
         the raster, the software raster and its merge, and the resolve."""

@@ -17,11 +17,11 @@ from typing import Callable, Iterator
 
 import numpy as np
 
+from ..gpu import bvh_descriptor_set
+from ..gpu.materials import RayAlpha
 from ..vk import Buffer, ComputePipeline, DescriptorSet, Timestamps, reflect
 from ..vk.device import is_cpu, work_shares
 from ..vk.resources import STORAGE, TRANSFER_DST
-from ..gpu import bvh_descriptor_set
-from ..gpu.materials import RayAlpha
 from .stream import Slot, set_chunk, slot_pool
 
 #: Chunks in flight: slots of buffers per query (shared by the Tracers of a device: engine/rt/stream.py SlotPool).

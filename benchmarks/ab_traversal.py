@@ -98,7 +98,7 @@ def main():
         t0 = time.perf_counter()
         tr = {name: make_tracer(v, f, name) for name in a.variants}
         print(f"{key}: {len(f):,} triangles, {len(tr)} tracers in {time.perf_counter() - t0:.1f} s; "
-              f"spec {tr[a.variants[0]].specs['occluded']}", flush=True)
+              f"spec {tr[a.variants[0]].session.specs['occluded']}", flush=True)
         for rs in sets:
             ms = {k: [] for k in tr}
             ans = {}

@@ -159,12 +159,12 @@ def main() -> int:
                 for lab, s0, s1 in events:
                     tot[lab] = tot.get(lab, 0) + (s1 - s0) * 1e3
                 wall = float(np.median(walls)) * 1e3
-                print(f"chunk {chunk} staging {tr.staged} threads {sm.STREAM_THREADS}: wall {wall:.2f} ms "
+                print(f"chunk {chunk} staging {tr.session.staged} threads {sm.STREAM_THREADS}: wall {wall:.2f} ms "
                       f"({n / wall / 1e3:.1f} Mrays/s) gpu {tr.last_gpu_ms:.2f} times {tr.last_times} sums "
                       + " ".join(f"{k} {v_:.2f}" for k, v_ in tot.items()))
                 print("  last timeline (ms from start): " + " ".join(
                     f"{lab}[{(s0 - t0) * 1e3:.2f}-{(s1 - t0) * 1e3:.2f}]" for lab, s0, s1 in events))
-                out[f"chunk{chunk}_staging{tr.staged}_t{threads}"] = {"wall": wall, "sums": tot}
+                out[f"chunk{chunk}_staging{tr.session.staged}_t{threads}"] = {"wall": wall, "sums": tot}
                 assert np.array_equal(tr.occluded(o, d, t), ref)
             sm.STREAM_THREADS = default_stream_threads
         tm.STREAM_CHUNK, tm.STREAM_CHUNK_STAGED = default_chunk

@@ -5,12 +5,16 @@
 
 A frame's command buffer is recorded once per (scene, settings) and re-submitted; only the per-frame
 uniform block (camera, previous camera, frame index, history reset flag) is rewritten before each submit
-(engine/steady.py tells when the last frame's recording can be re-submitted). The passes declare what they read
-and write (engine/passes/base.py); the recorder derives the barriers between them.
+(engine/steady.py tells when the last frame's recording can be re-submitted; engine/passes/frame_block.py writes
+the block). The passes declare what they read and write (engine/passes/base.py); the recorder derives the barriers
+between them. The raster options (culling, levels of detail, the software raster) are one named type,
+engine/passes/raster_options.py; the scene on the GPU is engine/gpu's.
+
+Size: the Renderer's public API with its documentation (the constructor, render, render_many, submit, the raster
+options' attributes) and the frame's order of passes are one concern, kept together rather than cut to a line count.
 """
 from __future__ import annotations
 
-import math
 import os
 import threading
 from collections.abc import Iterable, Iterator, Sequence
@@ -21,19 +25,20 @@ import numpy as np
 from .lifetime import Closes
 from .errors import ConfigError, EngineError, VulkanError
 from .frame import Frame
-from .gpu import bvh_descriptor_set
-from .gpu import bvh_layout as resolve_layout
+from .gpu import bvh_descriptor_set, bvh_layout as resolve_layout
+from .gpu.scene import SceneChanges, SceneGeometry
 from .passes.accumulate import ALPHA_MIN, AccumulatePass
 from .passes.ao import AOPass
 from .passes.debug_view import DebugViewPass
 from .passes.denoise import DenoisePass
-from .passes.cull import SW_RASTER_PIXELS, raster_option, raster_options
-from .passes.gbuffer import GBufferPass, SceneChanges, SceneGeometry
-from .passes.interface import (FILTER_AO, FILTER_MASKS, FILTER_TEMPORAL, FRAME, FRAME_BYTES, MAX_LIGHTS,
-                               camera_fields, pack_frame, pack_light)
+from .passes.gbuffer import GBufferPass
+from .passes.frame_block import FrameBlock
+from .passes.interface import FILTER_AO, FILTER_MASKS, FILTER_TEMPORAL, MAX_LIGHTS, pack_light
 from .passes.lighting import LightingPass
+from .passes.raster_options import RasterOptions
 from .passes.raypass import follow_scene
 from .passes.shadows import ShadowPass
+from .passes.soft_raster import SW_RASTER_PIXELS
 from .parallel import serialized
 from .passes.targets import Targets
 from .scene import Scene
@@ -41,10 +46,9 @@ from .scene.camera import Camera
 from .settings import (ShadowMode, ViewMode, check_settings, check_size, default, given_settings, resolve_aovs)
 from .shaders import ShaderLibrary
 from .steady import Steady
-from .vk import Buffer, Context, Recorder, Timestamps, reflect
+from .vk import Context, Recorder, Timestamps, reflect
 from .vk.shared import Device, Scope
 from .vk.recorder import ONE_F32, TRANSFER
-from .vk.resources import UNIFORM
 from .vk.sync import create_fence, destroy_fence, reset_fences, wait_fences
 
 
@@ -62,10 +66,12 @@ class Renderer(Closes):
     RGB until the final image, which is tonemapped (ACES) and sRGB-encoded 8-bit RGBA.
     """
 
-    def __init__(self, width: int, height: int, *, device: Device | int | str | None = None, validation: bool = False,
+    def __init__(self, width: int, height: int, *,
+                 device: Device | int | str | None = None, validation: bool = False,
                  shader_dir: str | os.PathLike[str] | None = None, hot_reload: bool = False,
-                 context: Context | None = None, bvh_layout: str | None = None, culling: bool = True,
-                 lod_pixels: float = 0.0, sw_raster: bool | None = None, sw_raster_pixels: float = SW_RASTER_PIXELS):
+                 context: Context | None = None, bvh_layout: str | None = None,
+                 culling: bool = True, lod_pixels: float = 0.0,
+                 sw_raster: bool | None = None, sw_raster_pixels: float = SW_RASTER_PIXELS):
         """A renderer of `width` x `height` pixels (1..16384 each).
 
         Args:
@@ -84,19 +90,24 @@ class Renderer(Closes):
             bvh_layout: "binary" or "wide" scene BVH for the shadow and AO passes (default: $HYBRID_BVH_LAYOUT,
                 else "binary"); a scene of several (or moved) instances traces the two-level BVH, binary.
             culling: cull instances outside the view on the GPU, draw the rest indirectly (the same pixels; off
-                where the device lacks drawIndirectFirstInstance). Also an attribute, as is `lod_pixels`.
+                where the device lacks drawIndirectFirstInstance). Also an attribute.
             lod_pixels: with culling, draw each instance at its mesh's coarsest level of detail (engine/scene/lod.py)
                 whose error projects below this many pixels (1.0 is good); 0 (default): full meshes, exact AOVs.
-            sw_raster: with culling, draw instances of at most `sw_raster_pixels` (in (0, 128]) across with a compute
-                raster (engine/passes/soft_raster.py). None: on for GPUs, off on CPU devices; True / False: forced;
-                off where the device lacks shaderInt64 / shaderBufferInt64Atomics (no error). Both also attributes.
+                Also an attribute.
+            sw_raster: with culling, draw the instances that project to at most `sw_raster_pixels` pixels across
+                with a compute (software) raster into the same visibility buffer (engine/passes/soft_raster.py):
+                faster on GPUs with few raster units. None (default): on for GPUs, off on CPU devices (lavapipe);
+                True / False: forced. Where the device lacks 64-bit buffer atomics (shaderInt64 and
+                shaderBufferInt64Atomics) it stays off, without an error. Also an attribute.
+            sw_raster_pixels: the software raster's largest instance extent, in pixels (0 < it <= 128; 64 by
+                default). Also an attribute.
 
         Raises:
-            ConfigError: a bad size, device selector or layout.
+            ConfigError: a bad size, device selector, layout or raster option.
             VulkanError: no usable Vulkan device, or it lacks the `geometryShader` feature.
         """
         self.bvh_layout = resolve_layout(bvh_layout)  # a bad one fails here, before any Vulkan object exists
-        self._raster = raster_options(culling, lod_pixels, sw_raster, sw_raster_pixels)
+        self._raster = RasterOptions(culling, lod_pixels, sw_raster, sw_raster_pixels)   # checked here
         check_size(width, height)
         self.width, self.height = int(width), int(height)
         self.library = ShaderLibrary(shader_dir, hot_reload=hot_reload)
@@ -134,13 +145,12 @@ class Renderer(Closes):
             raise VulkanError(f"device {ctx.device_info['name']!r} lacks the geometryShader feature, which the "
                               "G-buffer's visibility pass needs (gl_PrimitiveID in a fragment shader); the Tracer "
                               "works without it")
-        self.frame_ubo = Buffer(ctx, FRAME_BYTES, UNIFORM, host=True, name="frame")
-        self._block = self.frame_ubo.view(FRAME.dtype).reshape(())   # the mapped frame block, written in place
+        self.frame_block = FrameBlock(ctx)   # the per-frame uniform block and its one writer
         self._timestamps = [Timestamps(ctx), Timestamps(ctx)]   # per readback slot (render_many has two in flight)
         self.timestamps = self._timestamps[0]
         self._fences = [create_fence(ctx), create_fence(ctx)]
         [ctx.defer_destroy(destroy_fence, ctx, fence) for fence in self._fences]
-        self.targets = Targets(ctx, self.width, self.height, light_capacity=1, frame_ubo=self.frame_ubo)
+        self.targets = Targets(ctx, self.width, self.height, light_capacity=1, frame_ubo=self.frame_block.buffer)
         res, lib = self.targets.resources, self.library
         self.bvh_set = bvh_descriptor_set(ctx, reflect(lib.get(ShadowPass.shader), ShadowPass.shader))
         self.gbuffer, self.accumulate = GBufferPass(ctx, lib, res), AccumulatePass(ctx, lib, res)
@@ -150,8 +160,8 @@ class Renderer(Closes):
         self.lighting, self.debug_view = LightingPass(ctx, lib, res), DebugViewPass(ctx, lib, res)
         self.passes = [self.gbuffer, self.shadows, self.ao, self.accumulate, self.denoise, self.lighting,
                        self.debug_view]
-        self._scene = self._geometry = self._scene_bvh = self._prev_view_proj = None
-        self.bvh_stats, self._commands, self._frame_index = {}, {}, 0
+        self._scene = self._geometry = self._scene_bvh = None
+        self.bvh_stats, self._commands = {}, {}
         self._changes = SceneChanges()   # the scene's state the last frame drew (instance motion)
         self._history_key = self._steady = None   # _history_key: what the temporal history was accumulated under
         self.uploads = 0  # scene uploads so far (a test reads it: the same scene is uploaded once)
@@ -168,15 +178,48 @@ class Renderer(Closes):
         """Hot reload's failures: GLSL path -> compiler or interface error (empty when all shaders are good)."""
         return dict(self.library.errors)
 
-    culling = raster_option(0, "GPU culling of the instances before the raster (the constructor's `culling`).")
-    lod_pixels = raster_option(1, "The largest projected error of a level of detail (the constructor's `lod_pixels`).")
-    sw_raster = raster_option(2, "The software raster of small instances (the constructor's `sw_raster`).")
-    sw_raster_pixels = raster_option(3, "Its largest instance, in pixels (the constructor's `sw_raster_pixels`).")
+    # ---- raster options: the constructor's, also attributes (engine/passes/raster_options.py) ----------------
+    @property
+    def culling(self) -> bool:
+        """GPU culling of the instances before the raster (the constructor's `culling`)."""
+        return self._raster.culling
 
-    def _set_raster(self, *options):
-        """The next frame takes (or records) their recording; levels wanted, the scene has none: uploaded again."""
-        self._raster, self._steady = raster_options(*options), None
-        if self._raster[1] > 0 and self._geometry is not None and not self._geometry.has_levels:
+    @culling.setter
+    def culling(self, value: bool) -> None:
+        self._set_raster(culling=value)
+
+    @property
+    def lod_pixels(self) -> float:
+        """The largest projected error of a level of detail, in pixels (the constructor's `lod_pixels`)."""
+        return self._raster.lod_pixels
+
+    @lod_pixels.setter
+    def lod_pixels(self, value: float) -> None:
+        self._set_raster(lod_pixels=value)
+
+    @property
+    def sw_raster(self) -> bool | None:
+        """The software raster of small instances: None (auto), True, False (the constructor's `sw_raster`)."""
+        return self._raster.sw_raster
+
+    @sw_raster.setter
+    def sw_raster(self, value: bool | None) -> None:
+        self._set_raster(sw_raster=value)
+
+    @property
+    def sw_raster_pixels(self) -> float:
+        """The software raster's largest instance extent, in pixels (the constructor's `sw_raster_pixels`)."""
+        return self._raster.sw_raster_pixels
+
+    @sw_raster_pixels.setter
+    def sw_raster_pixels(self, value: float) -> None:
+        self._set_raster(sw_raster_pixels=value)
+
+    def _set_raster(self, **changes):
+        """New raster options (checked): the next frame takes (or records) their recording; where levels of detail
+        are wanted and the scene was uploaded without them, it is uploaded again."""
+        self._raster, self._steady = self._raster.replace(**changes), None
+        if self._raster.lod_pixels > 0 and self._geometry is not None and not self._geometry.has_levels:
             self._scene = None
 
     @property
@@ -276,7 +319,7 @@ class Renderer(Closes):
         """Start the next frame as a fresh renderer would: no temporal history and frame index 0 (which seeds the
         soft-shadow and AO samples), so a view's frames do not depend on what was rendered before (batch jobs)."""
         self._history_key = None
-        self._frame_index = 0
+        self.frame_block.restart()
         self._steady = None
 
     def _wait_slot(self, slot):
@@ -287,7 +330,8 @@ class Renderer(Closes):
         buf, offsets = self.targets.readback(self.ctx, names, slot)
         aov = self.targets.read(buf, offsets, n_lights)
         return Frame(color=aov.pop("color", None), aov=aov, timings=self._timestamps[slot].read(marks), settings=cfg,
-                     object_names=scene.object_names, material_names=[m.name for m in scene.materials],
+                     object_names=scene.object_names,
+                     material_names=[m.name for m in scene.materials],
                      camera=camera if camera is not None else scene.camera, scene_name=scene.name)
 
     @serialized
@@ -373,8 +417,7 @@ class Renderer(Closes):
         if len(lights) > self.targets.light_capacity:
             self._resize_targets(light_capacity=len(lights))
 
-        aspect = self.width / self.height
-        view_proj = camera.projection_matrix(aspect) @ camera.view_matrix()
+        view_proj = camera.projection_matrix(self.width / self.height) @ camera.view_matrix()
         diag = float(np.linalg.norm(scene.bounds[1] - scene.bounds[0])) or 1.0
         # The temporal history holds the light masks and AO as traced under these: when any of them changes
         # (another scene, light, shadow mode or sample count, size), the next frame starts over.
@@ -386,18 +429,6 @@ class Renderer(Closes):
         reset = history_key != self._history_key
         if reset:   # no motion on a frame without history (as the camera's previous matrix is this one)
             self._changes.still(self._geometry)
-        shadow_samples = cfg["reference_samples"] if cfg["shadows"] == "reference" else cfg["shadow_samples"]
-        ao_samples = cfg["reference_samples"] if cfg["shadows"] == "reference" else cfg["ao_samples"]
-        pack_frame(
-            view_proj=view_proj,
-            prev_view_proj=self._prev_view_proj if self._prev_view_proj is not None and not reset else view_proj,
-            eye=camera.eye, forward=camera.forward, near=camera.near, width=self.width, height=self.height,
-            frame_index=self._frame_index, lights=lights,
-            ao_radius=cfg["ao_radius"] or 0.1 * diag, ao_samples=ao_samples, shadow_samples=shadow_samples,
-            exposure=cfg["exposure"], ambient=cfg["ambient"], scene_scale=diag, accum_alpha=ALPHA_MIN,
-            pixel_footprint=2.0 * math.tan(math.radians(camera.fov_y) / 2.0) / self.height,
-            history_reset=reset, bounds=scene.bounds, out=self._block, packed_lights=packed_lights,
-            objects_moved=not self._changes.settled)
         key = (cfg["shadows"], cfg["ao"], cfg["accumulate"], cfg["denoise"], cfg["view"], len(lights), readback,
                self._raster)
         if cfg["shadows"] == "reference":
@@ -406,24 +437,24 @@ class Renderer(Closes):
             cmd, ts = self._record(cfg, len(lights), readback)
             self._commands[key] = (cmd, list(ts.names))
         cmd, marks = self._commands[key]
-        self._frame_index += 1
-        self._prev_view_proj = view_proj
+        reference = cfg["shadows"] == "reference"
+        self.frame_block.write(
+            view_proj=view_proj, camera=camera, width=self.width, height=self.height, lights=lights,
+            packed_lights=packed_lights, history_reset=reset, objects_moved=not self._changes.settled,
+            ao_radius=cfg["ao_radius"] or 0.1 * diag,
+            ao_samples=cfg["reference_samples"] if reference else cfg["ao_samples"],
+            shadow_samples=cfg["reference_samples"] if reference else cfg["shadow_samples"],
+            exposure=cfg["exposure"], ambient=cfg["ambient"], scene_scale=diag, accum_alpha=ALPHA_MIN,
+            bounds=scene.bounds)
         self._history_key = history_key
-        self._steady = Steady.capture(scene, camera, settings, readback, lights, view_proj,
-                                       (cmd, marks, cfg, len(lights)))
+        self._steady = Steady.capture(scene, camera, settings, readback, lights, (cmd, marks, cfg, len(lights)))
         return cmd, marks, dict(cfg), len(lights)
 
     def _prepare_steady(self, steady):
         """The same scene, lights, camera and settings as the last frame: its command buffer, and a frame block
         that differs from the last one only in the frame index (plus, on the first such frame, the previous
         camera, now this one, and the history-reset flag, now off). What the full path would write, bit for bit."""
-        block = self._block
-        if not steady.settled:
-            block["prev_view_proj"] = steady.view_proj_cols   # prev_view_proj = this camera's
-            block["history_reset"] = 0.0                      # the history key is unchanged
-            steady.settled = True
-        block["frame_index"], block["objects_moved"] = self._frame_index, not self._changes.settled
-        self._frame_index += 1
+        self.frame_block.again(objects_moved=not self._changes.settled)
         cmd, marks, cfg, n_lights = steady.result
         return cmd, marks, dict(cfg), n_lights
 
@@ -432,15 +463,8 @@ class Renderer(Closes):
         are rewritten, the rest (lights, settings, scene) stays; the temporal history is kept, as the full path
         keeps it (the camera is not part of the history key)."""
         view_proj = camera.projection_matrix(self.width / self.height) @ camera.view_matrix()
-        block = self._block
-        camera_fields(block, view_proj, camera, self.height)
-        block["prev_view_proj"] = steady.view_proj_cols   # the last frame's camera
-        block["history_reset"] = 0.0                      # the history key is unchanged
-        block["frame_index"], block["objects_moved"] = self._frame_index, not self._changes.settled
-        self._frame_index += 1
-        self._prev_view_proj = view_proj
-        steady.camera, steady.settled = camera, False
-        steady.view_proj_cols = np.asarray(view_proj, np.float32).T
+        self.frame_block.move_camera(view_proj, camera, self.height, objects_moved=not self._changes.settled)
+        steady.camera = camera
         cmd, marks, cfg, n_lights = steady.result
         return cmd, marks, dict(cfg), n_lights
 
@@ -509,10 +533,11 @@ class Renderer(Closes):
             self.ctx.wait_idle()
             self._geometry.destroy()
             self._geometry = None
-        self._geometry = SceneGeometry(self.ctx, scene, self.gbuffer.white, self.gbuffer.sampler, self._raster[1] > 0)
+        self._geometry = SceneGeometry(self.ctx, scene, self.gbuffer.white, self.gbuffer.sampler,
+                                       levels=self._raster.lod_pixels > 0)
         self.gbuffer.bind_scene(self._geometry)
         for p in (self.shadows, self.ao):   # the alpha test's records and textures
-            p.bind_scene(self._geometry, self.gbuffer.white, self.gbuffer.sampler)
+            p.bind_scene(self._geometry)
 
     def _use_scene(self, scene):
         """Upload a scene that is not the last one; True when it did."""
@@ -528,7 +553,7 @@ class Renderer(Closes):
         self._upload_geometry(scene)
         self._changes = SceneChanges()   # the BVH is built by the first frame's _frame_start
         self._scene = scene
-        self._prev_view_proj = None
+        self.frame_block.forget_camera()
         self.uploads += 1
         return True
 
@@ -537,7 +562,7 @@ class Renderer(Closes):
         self._invalidate_commands()
         self.ctx.wait_idle()
         self.targets.destroy()
-        self.targets = Targets(self.ctx, self.width, self.height, light_capacity, frame_ubo=self.frame_ubo)
+        self.targets = Targets(self.ctx, self.width, self.height, light_capacity, frame_ubo=self.frame_block.buffer)
         for p in self.passes:
             p.bind(self.targets.resources, self.targets)
         self._history_key = None
@@ -549,7 +574,7 @@ class Renderer(Closes):
         t = self.targets
         ts = self._timestamps[readback[1] if readback else 0]
         rec = Recorder(self.ctx, ts)
-        self.gbuffer.record(rec, t, self._geometry, *self._raster)
+        self.gbuffer.record(rec, t, self._geometry, self._raster)
         rec.mark("gbuffer")
         mode = cfg["shadows"]
         reference = cfg["reference_samples"] if mode == "reference" else None

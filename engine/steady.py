@@ -50,11 +50,10 @@ class Steady:
     scene, camera and lights (by identity: cameras are immutable, and a light's attributes are compared by
     identity too, so an assigned attribute counts as a change) and equal settings (same values and types)."""
 
-    __slots__ = ("scene", "camera", "readback", "bounds", "lights", "settings", "scene_settings", "view_proj_cols",
-                 "settled", "result")
+    __slots__ = ("scene", "camera", "readback", "bounds", "lights", "settings", "scene_settings", "result")
 
     @classmethod
-    def capture(cls, scene, camera, settings, readback, lights, view_proj, result):
+    def capture(cls, scene, camera, settings, readback, lights, result):
         """The state after a full `_prepare`, or None when it cannot be compared cheaply (then every frame takes
         the full path)."""
         snap = _snapshot(settings)
@@ -70,8 +69,6 @@ class Steady:
         self = cls()
         self.scene, self.camera, self.readback, self.bounds = scene, camera, readback, scene.bounds
         self.lights, self.settings, self.scene_settings = held, snap, scene_snap
-        self.view_proj_cols = np.asarray(view_proj, np.float32).T   # as pack_frame writes it (column-major)
-        self.settled = False   # the block's prev_view_proj / history_reset still are the full path's
         self.result = result
         return self
 

@@ -34,7 +34,8 @@ ENGINE = ROOT / "engine"
 LAYERS = [
     ["engine.errors", "engine._version", "engine.lifetime"],
     ["engine.limits", "engine.parallel", "engine.files", "engine.data", "engine.native"],
-    ["engine.vk", "engine.bvh", "engine.scene", "engine.shaders"],
+    ["engine.vk", "engine.bvh", "engine.scene", "engine.shaders", "engine.passes.std140"],
+    ["engine.passes.interface"],   # what host and shaders share: below the scene on the GPU, which it lays out
     ["engine.gpu"],
     ["engine.passes"],
     ["engine.settings", "engine.outputs", "engine.frame", "engine.steady", "engine.renderer", "engine.rt"],
@@ -116,6 +117,17 @@ def test_imports_go_down_the_layers():
             if there < here or there_group == here_group or (here_group, there_group) in PEERS:
                 continue
             bad.append(f"{mod} imports {target} ({here_group} may not depend on {there_group})")
+    assert bad == []
+
+
+def test_the_tracer_does_not_import_the_passes():
+    """engine.rt reaches the scene on the GPU through engine.gpu, not through the renderer's passes (the host/shader
+    interface, engine.passes.interface, is an entry of its own below them)."""
+    bad = []
+    for mod, path in modules().items():
+        if layer_of(mod)[1] != "engine.rt":
+            continue
+        bad += [f"{mod} imports {t}" for t in sorted(imports(mod, path)[0]) if layer_of(t)[1] == "engine.passes"]
     assert bad == []
 
 

@@ -117,28 +117,29 @@ def run_checked_kernel(tracer, o, d, t, out_base):
     """The CUDA-array queries' occlusion kernel (CHECK_RAYS, RESULT_BYTES) on host buffers laid out as
     engine.rt.cuda_arrays lays out the shared ones: (its result bytes from out_base words on, its error words)."""
     ctx, n, c = tracer.ctx, len(o), 1024   # (c: the texel views' offsets aligned for any device)
+    session = tracer.session   # (the kernels and bindings the CUDA-array queries use)
     rays_buf = Buffer(ctx, 28 * c, STORAGE | UNIFORM_TEXEL, host=True)
     f32 = rays_buf.view(np.float32)
     f32[:3 * n], f32[3 * c:3 * c + 3 * n], f32[6 * c:6 * c + n] = o.reshape(-1), d.reshape(-1), t
     results = Buffer(ctx, 4 * out_base + 16 * c, STORAGE | STORAGE_TEXEL, host=True)   # (room for the views)
     results.view(np.uint8)[:] = 0xAB
     params = Buffer(ctx, 32, STORAGE | INDIRECT, host=True)
-    params.view(np.uint32)[:] = ((n + 63) // 64, 1, 1, n, c, tracer.shares, out_base, 0)
+    params.view(np.uint32)[:] = ((n + 63) // 64, 1, 1, n, c, session.shares, out_base, 0)
     errors = Buffer(ctx, 16, STORAGE, host=True)
     errors.view(np.uint32)[:] = 0xFFFFFFFF
-    io_set = DescriptorSet(ctx, tracer.interface.set(0).values())
-    for name, buf in (("ray_data", rays_buf), ("params", params), ("retry", tracer.retry), ("ray_errors", errors),
-                      (tracer.interface.bindings[1].name, results)):
+    io_set = DescriptorSet(ctx, session.interface.set(0).values())
+    for name, buf in (("ray_data", rays_buf), ("params", params), ("retry", session.retry), ("ray_errors", errors),
+                      (session.interface.bindings[1].name, results)):
         io_set.bind(name, buf)
-    vec3 = RGB32F if tracer.rays_texel_ok else R32F
+    vec3 = RGB32F if session.rays_texel_ok else R32F
     views = [BufferView(rays_buf, vec3, 0, 12 * c), BufferView(rays_buf, vec3, 12 * c, 12 * c),
              BufferView(rays_buf, R32F, 24 * c, 4 * c), BufferView(results, R32UI, 0, 4 * c),
              BufferView(results, RGBA32UI, 0, 16 * c)]
     for name, view in zip(("ray_origins", "ray_directions", "ray_tmax", "occluded_texels", "hit_texels"), views):
         io_set.bind(name, view)
-    tracer.bind_alpha(io_set)
+    session.alpha.bind(io_set)
     rec = Recorder(ctx)
-    kernel = tracer.kernel("occluded", CHECK_RAYS=True, RESULT_BYTES=True, BVH_STACK_RETRY=False)   # (one pass)
+    kernel = session.kernel("occluded", CHECK_RAYS=True, RESULT_BYTES=True, BVH_STACK_RETRY=False)   # (one pass)
     rec.dispatch_indirect(kernel, [io_set, tracer.bvh_set], params, reads=[rays_buf], writes=[results, errors])
     rec.to_host(results, errors)
     cmd = rec.finish()

@@ -67,7 +67,7 @@ def test_a_second_tracer_shares_the_first_ones_kernels():
     with Device() as dev:
         first = Tracer(va, fa, device=dev)
         second = Tracer(va * 2.0, fa, device=dev)
-        assert all(second.pipelines[k] is first.pipelines[k] for k in first.pipelines)
+        assert all(second.session.pipelines[k] is first.session.pipelines[k] for k in first.session.pipelines)
         first.close()   # the kernels belong to the device: the second tracer still runs them
         o, d = rays(300, 2)
         with Tracer(va * 2.0, fa) as alone:

@@ -22,7 +22,7 @@ def scene_with_lights():
 
 
 def ubo_bytes(r):
-    return bytes(r.frame_ubo.view(np.uint8))
+    return bytes(r.frame_block.buffer.view(np.uint8))
 
 
 def test_steady_frames_write_what_the_full_path_writes(make_renderer, monkeypatch):
@@ -62,7 +62,7 @@ def test_same_camera_same_pixels_other_camera_other_pixels(make_renderer):
     settings = dict(shadows="hard", ao=False)
     a = r.render(scene, CAM_A, **settings)
     b = r.render(scene, CAM_A, **settings)
-    assert r._steady is not None and r._steady.settled   # b took the steady path
+    assert r._steady is not None and r.frame_block.settled   # b took the steady path
     assert np.array_equal(a.color, b.color)
     c = r.render(scene, CAM_B, **settings)
     assert not np.array_equal(b.color, c.color)

@@ -283,7 +283,7 @@ def test_streamed_chunks_carry_instance_ids():
     scene, rng = instanced_scene(seed=5)
     o, d = random_rays(rng)
     with Tracer.from_scene(scene, batch_size=300, validation=True) as tracer:
-        assert tracer.chunk == 300
+        assert tracer.session.chunk == 300
         check_hits(tracer.intersect(o, d), scene, o, d)
         scene.set_transforms(np.stack([random_transform(rng) for _ in range(24)]))
         check_hits(tracer.intersect(o, d), scene, o, d)

@@ -8,7 +8,7 @@ import trimesh
 
 from engine import Camera, DirectionalLight, Instance, Material, Mesh, Scene
 from engine.errors import ConfigError
-from engine.passes.soft_raster import soft_facing
+from engine.gpu.draws import soft_facing
 from engine.vk.pipelines import CULL_BACK, CULL_FRONT, CULL_NONE
 from test_culling import big_mesh, grid_scene, small_mesh
 

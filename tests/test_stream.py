@@ -28,7 +28,7 @@ def pair(request):
     v, f, *_ = scene_and_rays(1)
     with Tracer(v, f, batch_size=CHUNK, staging=request.param, validation=True) as small, \
             Tracer(v, f, batch_size=8 * CHUNK, staging=request.param, validation=True) as whole:
-        assert small.chunk == CHUNK and whole.chunk == 8 * CHUNK
+        assert small.session.chunk == CHUNK and whole.session.chunk == 8 * CHUNK
         yield small, whole
         assert not small.validation_errors, small.validation_errors[:3]
         assert not whole.validation_errors, whole.validation_errors[:3]
@@ -60,7 +60,7 @@ def test_results_are_the_callers_arrays_not_views_of_the_mapped_buffers(pair):
     _, _, o, d, tmax = scene_and_rays(3 * CHUNK + 5)
     occ = small.occluded(o, d, tmax)
     hits = small.intersect(o, d, tmax)
-    mapped = [buf.view() for slot in small.slots for buf in (slot.results_host, slot.rays_host)]
+    mapped = [buf.view() for slot in small.session.slots for buf in (slot.results_host, slot.rays_host)]
     for arr in (occ, hits.t, hits.prim, hits.u, hits.v):
         assert arr.flags.owndata and arr.flags.c_contiguous
         assert not any(np.shares_memory(arr, m) for m in mapped)
@@ -97,7 +97,7 @@ def test_a_query_that_fails_half_way_leaves_nothing_in_flight(pair, monkeypatch)
     monkeypatch.setattr("engine.rt.tracer.occluded_sink", failing)
     with pytest.raises(RuntimeError, match="sink failed"):
         small.occluded(o, d, tmax)
-    assert not any(slot.pending for slot in small.slots)
+    assert not any(slot.pending for slot in small.session.slots)
     monkeypatch.setattr("engine.rt.tracer.occluded_sink", stream_mod.occluded_sink)
     assert np.array_equal(small.occluded(o, d, tmax), want)
 
@@ -107,10 +107,10 @@ def test_command_buffers_are_recorded_once_per_kind_and_size(pair):
     _, _, o, d, tmax = scene_and_rays(4 * CHUNK)
     for _ in range(3):
         small.occluded(o, d, tmax)
-    recorded = {slot: dict(slot.commands) for slot in small.slots}
+    recorded = {slot: dict(slot.commands) for slot in small.session.slots}
     for _ in range(3):
         small.occluded(o, d, tmax)
-    assert all(slot.commands == recorded[slot] for slot in small.slots)
+    assert all(slot.commands == recorded[slot] for slot in small.session.slots)
     assert sum(len(c) for c in recorded.values()) <= 3 * 2   # three slots, a full and a short chunk at most
 
 
@@ -130,7 +130,7 @@ def test_a_bad_ray_in_any_chunk_is_named_and_the_tracer_goes_on(pair, bad_at):
     bad_o[bad_at, 1] = np.nan
     with pytest.raises(ConfigError, match=f"origins: ray {bad_at} is not finite"):
         small.intersect(bad_o, d)
-    assert not any(slot.pending for slot in small.slots)
+    assert not any(slot.pending for slot in small.session.slots)
     assert np.array_equal(small.occluded(o, d, tmax), want)
 
 
@@ -241,11 +241,11 @@ def test_staged_rays_are_checked_by_the_kernels_and_occlusion_read_as_bytes(monk
     with Tracer(v, f, batch_size=CHUNK, staging=True, validation=True) as staged, \
             Tracer(v, f, batch_size=CHUNK, staging=False, validation=True) as mapped:
         want_occ, want_hits = mapped.occluded(o, d, tmax), mapped.intersect(o, d, tmax)
-        assert mapped.slots and not any(s.kernel_checks for s in mapped.slots)
+        assert mapped.session.slots and not any(s.kernel_checks for s in mapped.session.slots)
         calls = []
         monkeypatch.setattr(stream_mod, "block_fine", lambda *a: calls.append(1) or True)
         assert np.array_equal(staged.occluded(o, d, tmax), want_occ)
-        assert staged.slots and all(s.kernel_checks and s.hit_bytes["occluded"] == 1 for s in staged.slots)
+        assert staged.session.slots and all(s.kernel_checks and s.hit_bytes["occluded"] == 1 for s in staged.session.slots)
         assert np.array_equal(staged.intersect(o, d, tmax).prim, want_hits.prim)
         assert not calls   # the host did not check them
         bad = d.copy()

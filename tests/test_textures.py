@@ -7,7 +7,7 @@ import pytest
 
 from engine import Camera, Scene
 from engine.passes.interface import MAX_TEXTURE_ARRAYS, TEXTURE_NONE
-from engine.passes.textures import plan_arrays, size_class
+from engine.gpu.textures import plan_arrays, size_class
 from engine.scene.material import Material, srgb8_to_linear
 
 SIZES = [(4, 4), (5, 3), (16, 8), (1, 1), (7, 9), (32, 32), (2, 64), (12, 12)]   # (h, w): several size classes

@@ -125,7 +125,7 @@ def test_odd_batch_sizes_keep_the_texel_views_aligned(batch):
         want_occ, want = big.occluded(o, d, 5.0), big.intersect(o, d)
     for staged in (False, True):
         with Tracer(v, f, validation=True, batch_size=batch, staging=staged) as t:
-            assert t.batch == batch and t.capacity >= batch
+            assert t.batch == batch and t.session.capacity >= batch
             assert np.array_equal(t.occluded(o, d, 5.0), want_occ)
             hits = t.intersect(o, d)
             assert np.array_equal(hits.prim, want.prim) and np.array_equal(hits.t, want.t)
@@ -140,7 +140,7 @@ def test_staged_buffers_give_the_same_answers():
     o, d = random_rays(rng, 2600, (v.min(0), v.max(0)))
     with Tracer(v, f, batch_size=1024, staging=False, validation=True) as plain, \
             Tracer(v, f, batch_size=1024, staging=True, validation=True) as staged:
-        assert staged.staged and not plain.staged
+        assert staged.session.staged and not plain.session.staged
         for n in (2600, 700, 1):
             assert np.array_equal(staged.occluded(o[:n], d[:n], 3.0), plain.occluded(o[:n], d[:n], 3.0))
             a, b = staged.intersect(o[:n], d[:n]), plain.intersect(o[:n], d[:n])
@@ -194,10 +194,10 @@ def test_workgroup_shares_permute_the_ray_blocks():
     o, d = random_rays(rng, 64 * 37 + 5, (v.min(0), v.max(0)))   # 38 workgroups, the last one partial
     tmax = rng.uniform(0.1, 30.0, len(o)).astype(np.float32)
     with Tracer(v, f, validation=True) as t:
-        t.shares = 1
+        t.session.shares = 1
         want_occ, want_hit = t.occluded(o, d, tmax), t.intersect(o, d, tmax)
         for shares in (2, 3, 5, 38, 39, 1000):
-            t.shares = shares
+            t.session.shares = shares
             t.occluded(o[::-1], d[::-1], tmax[::-1])  # other answers in the result buffer
             assert np.array_equal(t.occluded(o, d, tmax), want_occ), shares
             t.intersect(-o, d)
@@ -220,7 +220,7 @@ def test_rays_through_texel_buffers_match_storage_buffers(monkeypatch):
         monkeypatch.setattr(tracer_mod, "RAYS_TEXEL_KINDS", kinds)
         with Tracer(v, f, validation=True, batch_size=2048) as t:
             cpu = tracer_mod.is_cpu(t.ctx)
-            assert t.specs["occluded"]["RAYS_TEXEL"] == (cpu and bool(kinds))
+            assert t.session.specs["occluded"]["RAYS_TEXEL"] == (cpu and bool(kinds))
             hits = t.intersect(o, d, tmax)
             answers.append((t.occluded(o, d, tmax), hits.prim, hits.t))
             assert not t.validation_errors
@@ -246,9 +246,9 @@ def test_every_traversal_variant_gives_the_same_answers(monkeypatch, spec):
     with Tracer(v, f, validation=True) as default:
         occ0, hit0 = default.occluded(o, d, tmax), default.intersect(o, d)
         need = max(1, default.stats["depth"] - 1)
-        dspec = default.specs["intersect"]
+        dspec = default.session.specs["intersect"]
         if tracer_mod.is_cpu(default.ctx):   # (a GPU's defaults are other constants)
-            assert default.specs["occluded"]["BVH_STACK_REGS"] == min(CPU_OCCLUSION_STACK_REGS, need)
+            assert default.session.specs["occluded"]["BVH_STACK_REGS"] == min(CPU_OCCLUSION_STACK_REGS, need)
             assert dspec["BVH_STACK_REGS"] == min(CPU_STACK_REGS, need)
             assert dspec["BVH_COMPRESSED"] and default.scene.compressed and dspec["BVH_IMAGE_FETCH"]
     with _variant_tracer(monkeypatch, spec, v, f) as variant:
@@ -274,7 +274,7 @@ def test_short_stack_retry_matches_the_full_stack(monkeypatch, tracers, name):
              "BVH_STACK_RETRY": True, "BVH_SELECT_MINMAX": True}
     with _variant_tracer(monkeypatch, retry, v, f) as variant:
         # the retry in a second dispatch over the rays the first left unresolved (trace_*_retry.comp)
-        assert variant.two_pass == {"occluded": True, "intersect": True}
+        assert variant.session.two_pass == {"occluded": True, "intersect": True}
         assert np.array_equal(variant.occluded(o, d, tmax), occ0)
         hit1 = variant.intersect(o, d, tmax)
         assert np.array_equal(hit1.prim, hit0.prim) and np.array_equal(hit1.t, hit0.t)
@@ -293,11 +293,11 @@ def test_image_loads_match_texel_fetches(monkeypatch, tracers, name):
     tmax = rng.uniform(0.1, 4.0, len(o)).astype(np.float32)
     tmax[::4] = np.inf
     base = tracers[name]
-    flipped = not base.specs["occluded"]["BVH_IMAGE_FETCH"]
+    flipped = not base.session.specs["occluded"]["BVH_IMAGE_FETCH"]
     real = gpu_bvh.bvh_spec
     monkeypatch.setattr(gpu_bvh, "bvh_spec", lambda *a, **kw: {**real(*a, **kw), "BVH_IMAGE_FETCH": flipped})
     with Tracer(v, f, validation=True, layout=base.layout) as other:
-        assert other.specs["occluded"]["BVH_IMAGE_FETCH"] == flipped and other.layout == base.layout
+        assert other.session.specs["occluded"]["BVH_IMAGE_FETCH"] == flipped and other.layout == base.layout
         assert np.array_equal(other.occluded(o, d, tmax), base.occluded(o, d, tmax))
         a, b = other.intersect(o, d, tmax), base.intersect(o, d, tmax)
         assert np.array_equal(a.prim, b.prim) and np.array_equal(a.t, b.t)
@@ -322,7 +322,7 @@ def test_wide_traversals_give_the_same_answers(monkeypatch, name, over):
     tmax[::4] = np.inf
     real = gpu_bvh.bvh_spec
     with Tracer(v, f, validation=True, layout="wide") as base:
-        spec = base.specs["occluded"]
+        spec = base.session.specs["occluded"]
         if tracer_mod.is_cpu(base.ctx):
             regs = min(gpu_bvh.CPU_WIDE_STACK_REGS, max(1, base.stats["wide_levels"] - 1))
             assert spec["BVH_WIDE_CPU"] and spec["BVH_STACK_REGS"] == regs
@@ -331,7 +331,7 @@ def test_wide_traversals_give_the_same_answers(monkeypatch, name, over):
         occ0, hit0 = base.occluded(o, d, tmax), base.intersect(o, d, tmax)
         monkeypatch.setattr(gpu_bvh, "bvh_spec", lambda *a, **kw: {**real(*a, **kw), **over})
         with Tracer(v, f, validation=True, layout="wide") as other:
-            assert all(other.specs["occluded"][k] == x for k, x in over.items())
+            assert all(other.session.specs["occluded"][k] == x for k, x in over.items())
             assert np.array_equal(other.occluded(o, d, tmax), occ0)
             hit1 = other.intersect(o, d, tmax)
             # closest hit: the same t; of two triangles hit at exactly that t either may be reported
@@ -359,7 +359,7 @@ def test_second_dispatch_over_several_batches(monkeypatch, tracers):
                                                          "BVH_STACK_RETRY": True, "BVH_WIDE_CPU": True})
     with Tracer(v, f, batch_size=700, validation=True, layout=base.layout) as small, \
             Tracer(v, f, validation=True, layout=base.layout) as one:
-        assert small.two_pass == {"occluded": True, "intersect": True}
+        assert small.session.two_pass == {"occluded": True, "intersect": True}
         assert np.array_equal(small.occluded(o, d, tmax), occ0)
         one.occluded(o, d, tmax)
         assert small.last_retried == one.last_retried > 0
@@ -379,7 +379,7 @@ def test_uncompressed_nodes_give_the_same_answers(monkeypatch, tracers):
     tmax = rng.uniform(0.1, 4.0, len(o)).astype(np.float32)
     monkeypatch.setattr(gpu_bvh, "compress_nodes", lambda nodes: None)
     with Tracer(v, f, validation=True) as plain:
-        assert not plain.scene.compressed and not plain.specs["occluded"]["BVH_COMPRESSED"]
+        assert not plain.scene.compressed and not plain.session.specs["occluded"]["BVH_COMPRESSED"]
         assert np.array_equal(plain.occluded(o, d, tmax), tracers["thin_box"].occluded(o, d, tmax))
         a, b = plain.intersect(o, d), tracers["thin_box"].intersect(o, d)
         assert np.array_equal(a.prim, b.prim) and np.array_equal(a.t, b.t)

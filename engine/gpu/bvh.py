@@ -31,7 +31,7 @@ REFIT_ON = ("gpu", "host")
 #: Register-stack entries of the traversal on CPU devices (BVH_STACK_REGS): fewer than a deep tree needs; the rare
 #: ray that overflows them walks again (BVH_STACK_RETRY). The best of the counts tried on lavapipe.
 CPU_STACK_REGS = 10
-#: The same for the batch occlusion kernel, whose unresolved rays get a second dispatch (Tracer.two_pass).
+#: The same for the batch occlusion kernel, whose unresolved rays get a second dispatch (TraceSession.two_pass).
 CPU_OCCLUSION_STACK_REGS = 6
 #: The same for the 8-wide layout (entries are node groups).
 CPU_WIDE_STACK_REGS = 6

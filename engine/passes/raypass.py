@@ -11,7 +11,6 @@ from ..gpu import bvh_spec, compresses
 from ..gpu.bvh import InstancedBVH, is_instanced, scene_bvh
 from ..vk import device
 from .base import ComputePass, read, update
-from .interface import MAX_TEXTURE_ARRAYS
 
 
 def ray_bindings(output: str, resource: str) -> dict:
@@ -34,13 +33,10 @@ class RayPass(ComputePass):
                            compressed=compresses(ctx, self.bvh_layout)),
                 "WORK_SHARES": device.work_shares(ctx)}
 
-    def bind_scene(self, geom, white, sampler):
-        """The scene's alpha records and texture arrays (alpha.glsl); the alpha test compiled in only where the
-        scene has alpha-tested materials."""
-        self.set.bind("alpha_tris", geom.views[4])
-        for slot in range(MAX_TEXTURE_ARRAYS):
-            tex = geom.textures.images[slot] if slot < len(geom.textures) else white
-            self.set.bind("textures", tex, sampler=sampler, element=slot)
+    def bind_scene(self, geom):
+        """The scene's alpha records and texture arrays (alpha.glsl, `SceneGeometry.alpha`); the alpha test compiled
+        in only where the scene has alpha-tested materials."""
+        geom.alpha.bind(self.set)
         self.specialize(ALPHA_TEST=bool(geom.alpha_tested), TEXTURE_ARRAYS=max(1, len(geom.textures)))
 
     def specialize_for(self, scene_bvh):
@@ -69,7 +65,7 @@ def follow_scene(ctx, bvh, scene, dset, layout, passes, drop_recordings, alpha_i
     the recorded command buffers stay valid; new buffers (a rebuild), another kind of BVH or another
     specialization of `passes` call `drop_recordings()` first. One instance placed by the identity: its mesh's
     BVH, made again when the mesh deformed. `alpha_index`: the alpha test's words per flattened triangle
-    (SceneGeometry.alpha_index; written into the triangle records, `flag_alpha_tested`)."""
+    (engine/gpu/scene.py SceneGeometry.alpha_index; written into the triangle records, `flag_alpha_tested`)."""
     # (the alpha words in place where the overrides changed them; where the two-level BVH cannot hold them, a flat one)
     if bvh is not None and is_instanced(scene) and isinstance(bvh, InstancedBVH) and \
             (alpha_index is None or bvh.set_alpha(scene, alpha_index)):

@@ -9,47 +9,21 @@ indirect dispatch) rasterizes its level's triangles as Vulkan does (8 subpixel b
 values, cleared each frame; soft_merge.comp then keeps, per pixel, the nearer of that and the hardware raster's
 depth attachment in the visibility image, before the resolve (which is unchanged).
 
-Only runs whose materials share one facing and are not alpha-tested go software (the rest keep the hardware path).
+Only runs whose materials share one facing and are not alpha-tested go software (the rest keep the hardware path;
+engine/gpu/draws.py `soft_facing`).
 The software raster needs the device's shaderInt64 and shaderBufferInt64Atomics features (lavapipe and NVIDIA have
 them) and a frame whose W x H x 8 bytes fit one storage buffer (maxStorageBufferRange); else every instance takes the
 hardware raster (`Targets.soft_visibility` is None).
 """
 from __future__ import annotations
 
-import math
-
-from ..errors import ConfigError
-from ..vk.pipelines import CULL_BACK, CULL_FRONT, CULL_NONE
 from .base import ComputePass, read, update
 
-#: soft_raster.comp's facing modes by the hardware pipeline's culling (0: the run stays on the hardware raster).
-FACING = {CULL_NONE: 1, CULL_BACK: 2, CULL_FRONT: 3}
 #: The default largest screen extent (pixels) of an instance the software raster draws.
 SW_RASTER_PIXELS = 64.0
-#: The largest allowed: soft_raster.comp's 32-bit edge functions are exact for triangles up to 181 pixels across.
+#: The largest allowed (engine/passes/raster_options.py): soft_raster.comp's 32-bit edge functions are exact for
+#: triangles up to 181 pixels across.
 MAX_SW_RASTER_PIXELS = 128.0
-
-
-def check_sw_raster(value) -> bool | None:
-    """`sw_raster` as None (auto: on for GPUs, off for CPU devices), True or False, or a ConfigError."""
-    if value is not None and not isinstance(value, bool):
-        raise ConfigError(f"Renderer: sw_raster must be None (auto), True or False, got {value!r}")
-    return value
-
-
-def check_sw_raster_pixels(value) -> float:
-    """`value` as the software raster's largest instance extent (pixels), or a ConfigError."""
-    if isinstance(value, bool) or not isinstance(value, (int, float)) or not math.isfinite(value) \
-            or not 0 < value <= MAX_SW_RASTER_PIXELS:
-        raise ConfigError(f"Renderer: sw_raster_pixels must be a number in (0, {MAX_SW_RASTER_PIXELS:g}] (pixels), "
-                          f"got {value!r}")
-    return float(value)
-
-
-def soft_facing(culls: set, masked: bool) -> int:
-    """The facing mode of a run whose materials' pipelines cull `culls`; 0 (hardware only) when they differ or some
-    material is alpha-tested (the software raster does no alpha test)."""
-    return FACING[next(iter(culls))] if len(culls) == 1 and not masked else 0
 
 
 class _SoftPass(ComputePass):

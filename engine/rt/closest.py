@@ -4,15 +4,14 @@
 
 A point-query walk of the Tracer's BVH (shaders/glsl/include/bvh_point.glsl, kernel trace_closest.comp) on the
 binary layout: a Tracer built with layout="wide" gets a binary copy of its tree for these queries. The walk runs
-through the Tracer's stream of buffer slots (engine/rt/stream.py: points where rays' origins go, results where
-its hits go), with command buffers of its own. Zero-area triangles, which the ray-tracing records collapse onto
-their first vertex, are points or segments here: where a mesh has any, a second triangle buffer holds their real
-vertices.
+through the stream of buffer slots of the Tracer's trace session (engine/rt/session.py, engine/rt/stream.py: points
+where rays' origins go, results where its hits go), with command buffers of its own. Zero-area triangles, which the
+ray-tracing records collapse onto their first vertex, are points or segments here: where a mesh has any, a second
+triangle buffer holds their real vertices.
 """
 from __future__ import annotations
 
 from dataclasses import dataclass
-from typing import Any
 
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
@@ -25,7 +24,7 @@ from ..shaders import ShaderLibrary
 from ..vk import BufferView, ComputePipeline, Recorder, reflect, upload_buffer
 from ..vk.resources import STORAGE_TEXEL, UNIFORM_TEXEL
 from .checks import check_vectors
-from .stream import hits_sink
+from .stream import hits_sink, stream
 
 SHADER = "trace_closest.comp"
 ZERO_AREA_FLAG = 1   # bvh_point.glsl BVH_ZERO_AREA_FLAG, in a triangle record's v1.w
@@ -88,33 +87,35 @@ def real_triangles(tris: np.ndarray, prim_ids: np.ndarray, vertices: np.ndarray,
 
 class ClosestQuery:
     """The closest-point kernel of one Tracer: its pipeline and BVH descriptor set (made on the Tracer's first
-    `closest()` call, on its device scope: freed with it), and the command buffers it records on the Tracer's
-    stream slots (engine/rt/stream.py) for the query kind "closest"."""
+    `closest()` call, on its device scope: freed with it), and the command buffers it records on the stream slots of
+    the Tracer's trace session (engine/rt/session.py) for the query kind "closest"."""
 
-    def __init__(self, tracer: Any):   # the Tracer (engine/rt/tracer.py, which imports this module)
-        ctx = tracer.ctx
-        self.tracer = tracer
+    def __init__(self, session, bvh, scene, layout: str, mesh: tuple):
+        """`session`: the Tracer's trace session; `bvh`: its host BVH; `scene`: that BVH on the GPU (`SceneBVH`),
+        in `layout`; `mesh`: (float32 vertices, int64 faces)."""
+        ctx = session.ctx
+        self.session, self.mesh = session, mesh
         spirv = ShaderLibrary().get(SHADER)
         interface = reflect(spirv, SHADER)
         self.set = bvh_descriptor_set(ctx, interface)
-        if tracer.layout == "binary":
-            scene = tracer.scene
+        if layout == "binary":
             for name in ("bvh_node_texels", "bvh_node_image"):
                 self.set.bind(name, scene.views[0])
             for name in ("bvh_tri_texels", "bvh_tri_image"):
                 self.set.bind(name, scene.views[1])
         else:   # the point walk reads the binary tree
-            scene = SceneBVH(ctx, tracer.bvh, self.set, layout="binary")
-        v, f = tracer.mesh
-        real = real_triangles(tracer.bvh.tris, tracer.bvh.prim_ids, v, f)
+            scene = SceneBVH(ctx, bvh, self.set, layout="binary")
+        v, f = mesh
+        real = real_triangles(bvh.tris, bvh.prim_ids, v, f)
         if real is not None:
             view = BufferView(upload_buffer(ctx, real, UNIFORM_TEXEL | STORAGE_TEXEL, "bvh triangles (closest)"))
             self.set.bind("bvh_tri_texels", view).bind("bvh_tri_image", view)
         spec = bvh_spec(ctx, scene.depth, layout="binary", compressed=scene.compressed)
         spec["RAYS_TEXEL"] = False
         # (every slot's io set has the trace kernels' set-0 layout)
-        self.pipeline = ComputePipeline(ctx, spirv, [tracer.io_layout, self.set],
+        self.pipeline = ComputePipeline(ctx, spirv, [session.io_layout, self.set],
                                         spec=interface.specialization(spec, SHADER), name="trace_closest")
+        session.add_kind("closest", self.record)
 
     def record(self, slot, span: int):
         """A slot's command buffer: (upload the points), the point walk, (download); as `Slot.record`."""
@@ -134,9 +135,8 @@ class ClosestQuery:
         return rec.finish(), list(slot.timestamps.names)
 
     def run(self, points: ArrayLike) -> Closest:
-        """`Tracer.closest` (the Tracer checked open and holds its lock): the points streamed through its slots
-        as rays' origins (a unit direction and tmax 0 beside them, which the kernel never reads)."""
-        t = self.tracer
+        """`Tracer.closest` (the Tracer checked open and holds its lock): the points streamed through the session's
+        slots as rays' origins (a unit direction and tmax 0 beside them, which the kernel never reads)."""
         p = check_points(points).astype(np.float32)
         n = len(p)
         out = Closest(np.zeros((n, 3), np.float32), np.empty(n, np.float32), np.empty(n, np.int32),
@@ -144,10 +144,10 @@ class ClosestQuery:
 
         def bad():   # (check_points passed every point; float32 rounding could only push one past the bound)
             raise ConfigError(f"points: a coordinate beyond +-{MAX_COORD:g} once rounded to float32")
-        t._stream("closest", p, np.broadcast_to(np.float32(1), (n, 3)), np.float32(0),
-                  hits_sink(out.distance, out.prim, out.u, out.v), bad)
+        stream(self.session, "closest", p, np.broadcast_to(np.float32(1), (n, 3)), np.float32(0),
+               hits_sink(out.distance, out.prim, out.u, out.v), bad)
         if n:
-            v, f = t.mesh
+            v, f = self.mesh
             tri = v[f[out.prim]].astype(np.float64)   # (N, 3 corners, 3)
             u, w = out.u[:, None].astype(np.float64), out.v[:, None].astype(np.float64)
             out.point[:] = tri[:, 0] + u * (tri[:, 1] - tri[:, 0]) + w * (tri[:, 2] - tri[:, 0])

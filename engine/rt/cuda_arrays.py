@@ -207,8 +207,8 @@ class _Shared:
     closest hits' result buffer, the pool of occlusion-result buffers, and the kernels' error words; each result
     buffer has its own descriptor set and recording (made once)."""
 
-    def __init__(self, tracer, rt, device: int, batch: int):
-        self.tracer, self.ctx, self.rt, self.device = tracer, tracer.ctx, rt, device
+    def __init__(self, session, rt, device: int, batch: int):
+        self.session, self.ctx, self.rt, self.device = session, session.ctx, rt, device
         self._imports: list[tuple] = []   # (external memory, mapped pointer) to free
         self._views: dict = {}
         self.ray_views: list = []
@@ -225,13 +225,13 @@ class _Shared:
             self.errors = Buffer(ctx, 16, STORAGE, host=True, name="ray errors (CUDA)")
             self.first_bad = self.errors.view(np.uint32)   # (mapped: set before, read after each dispatch)
             self.words = self.params.view(np.uint32)
-            vec3 = RGB32F if tracer.rays_texel_ok else R32F
+            vec3 = RGB32F if session.rays_texel_ok else R32F
             # (the texel views are read only on CPU devices, which CUDA arrays never use; bound as the layout asks)
             self.ray_views = [BufferView(self.rays, vec3, 0, 12 * c), BufferView(self.rays, vec3, 12 * c, 12 * c),
                               BufferView(self.rays, R32F, 24 * c, 4 * c), BufferView(self.results, R32UI, 0, 4 * b),
                               BufferView(self.results, RGBA32UI, 0, 16 * b)]
-            self.kernels = {"occluded": tracer.kernel("occluded", CHECK_RAYS=True, RESULT_BYTES=True),
-                            "intersect": tracer.kernel("intersect", CHECK_RAYS=True)}
+            self.kernels = {"occluded": session.kernel("occluded", CHECK_RAYS=True, RESULT_BYTES=True),
+                            "intersect": session.kernel("intersect", CHECK_RAYS=True)}
             self.rays_ptr = self._import(self.rays)
             self.results_ptr = self._import(self.results)
             self.io_set, self.intersect = self._recording("intersect", self.results)
@@ -248,22 +248,22 @@ class _Shared:
 
     def _recording(self, kind: str, results):
         """(a descriptor set of the rays and `results`, the recorded `kind` dispatch with its timestamp names)."""
-        tracer = self.tracer
-        io_set = DescriptorSet(self.ctx, tracer.interface.set(0).values())
-        for name, buf in (("ray_data", self.rays), ("params", self.params), ("retry", tracer.retry),
+        session = self.session
+        io_set = DescriptorSet(self.ctx, session.interface.set(0).values())
+        for name, buf in (("ray_data", self.rays), ("params", self.params), ("retry", session.retry),
                           ("ray_errors", self.errors)):
             io_set.bind(name, buf)
-        io_set.bind(tracer.interface.bindings[1].name, results)
+        io_set.bind(session.interface.bindings[1].name, results)
         for name, view in zip(("ray_origins", "ray_directions", "ray_tmax", "occluded_texels", "hit_texels"),
                               self.ray_views):
             io_set.bind(name, view)
-        tracer.bind_alpha(io_set)   # (a Tracer of arrays: the test compiled out, its dummy bindings)
-        rec = Recorder(self.ctx, tracer.timestamps)
-        rec.dispatch_indirect(self.kernels[kind], [io_set, tracer.bvh_set], self.params,
+        session.alpha.bind(io_set)   # (a Tracer of arrays: the test compiled out, its dummy bindings)
+        rec = Recorder(self.ctx, session.timestamps)
+        rec.dispatch_indirect(self.kernels[kind], [io_set, session.bvh_set], self.params,
                               reads=[self.rays], writes=[results, self.errors])
         rec.mark("trace")
         rec.to_host(results, self.errors)   # (complete at the fence, before CUDA and the host read them)
-        return io_set, (rec.finish(), list(tracer.timestamps.names))
+        return io_set, (rec.finish(), list(session.timestamps.names))
 
     def views(self, fw):
         """The shared buffers as `fw`'s arrays: origins, directions (c, 3), tmax (c,), closest hits as float32 and
@@ -298,17 +298,18 @@ class _Shared:
 
 
 class CudaRays:
-    """A Tracer's queries on CUDA arrays, with the Tracer's pipelines and BVH. A query of N rays runs in dispatches
-    of up to max(the Tracer's batch_size, min(N, CUDA_BATCH)) rays (one for a 1080p frame's rays), through shared
-    buffers made for the largest size asked so far. Made on the first such query."""
+    """A Tracer's queries on CUDA arrays, with the kernels and BVH of its trace session (engine/rt/session.py). A
+    query of N rays runs in dispatches of up to max(`batch`: the Tracer's batch_size, min(N, CUDA_BATCH)) rays (one
+    for a 1080p frame's rays), through shared buffers made for the largest size asked so far. Made on the first such
+    query."""
 
-    def __init__(self, tracer):
-        self.tracer, self.ctx = tracer, tracer.ctx
+    def __init__(self, session, batch: int):
+        self.session, self.ctx, self.batch = session, session.ctx, batch
         self.device, reason = cuda_device(self.ctx)
         if reason:
             raise ConfigError(f"Tracer: CUDA arrays cannot be used here: {reason}. Pass numpy arrays instead "
                               "(e.g. tensor.cpu().numpy())")
-        if any(tracer.two_pass.values()):
+        if any(session.two_pass.values()):
             raise ConfigError("Tracer: CUDA arrays need a GPU Vulkan device, not a CPU one")
         self.rt = cuda_runtime()
         self.shared: _Shared | None = None
@@ -316,12 +317,12 @@ class CudaRays:
     def _buffers(self, n: int) -> _Shared:
         """Shared buffers for dispatches of min(n, the largest batch) rays, (re)made when smaller."""
         limit = int(self.ctx.limits.maxTexelBufferElements)
-        want = min(max(self.tracer.batch, min(1 << max(n - 1, 0).bit_length(), CUDA_BATCH)), limit)
+        want = min(max(self.batch, min(1 << max(n - 1, 0).bit_length(), CUDA_BATCH)), limit)
         if self.shared is None or (self.shared.batch < want and self.shared.batch < n):
             if self.shared is not None:
                 self.shared.close()
                 self.shared = None
-            self.shared = _Shared(self.tracer, self.rt, self.device, want)
+            self.shared = _Shared(self.session, self.rt, self.device, want)
         return self.shared
 
     # ---- inputs ----------------------------------------------------------------------------------------------
@@ -394,7 +395,7 @@ class CudaRays:
     def _trace(self, command, fw, shared: _Shared, o, d, t, start: int, k: int, out_base: int = 0):
         """Rays [start, start + k) into the shared buffers and traced by `command` (checked there: a ConfigError
         naming the first bad one); the results stay in the command's result buffer."""
-        v, tracer = shared.views(fw), self.tracer
+        v, session = shared.views(fw), self.session
         whole = start == 0 and k == len(o)   # (slices of the arrays cost more than the copies' launches)
         for key, a in (("origins", o), ("directions", d), ("tmax", t)):
             if isinstance(a, float):
@@ -402,12 +403,11 @@ class CudaRays:
             elif not (whole and fw.ptr(a) == fw.ptr(v[key])):   # (rays written in place: `ray_arrays`)
                 v[key][:k] = a if whole else a[start:start + k]
         shared.first_bad[:] = NONE
-        shared.words[:] = ((k + GROUP - 1) // GROUP, 1, 1, k, shared.capacity, tracer.shares, out_base, 0)
+        shared.words[:] = ((k + GROUP - 1) // GROUP, 1, 1, k, shared.capacity, session.shares, out_base, 0)
         fw.sync(self.device)   # the stream rule: CUDA's writes are done before Vulkan reads
         cmd, marks = command
         self.ctx.submit(cmd, spin_s=SPIN_S)   # waits for the fence
-        tracer.last_times = tracer.timestamps.read(marks)
-        tracer.last_gpu_ms += tracer.last_times.get("trace", 0.0)
+        session.chunk_done(session.timestamps.read(marks))
         if (shared.first_bad[:3] != NONE).any():
             raise self._name_bad(fw, v, start)
 
@@ -427,7 +427,7 @@ class CudaRays:
 
     def occluded(self, origins, directions, tmax):
         fw, o, d, t, n = self.inputs(origins, directions, tmax)
-        self.tracer.last_gpu_ms, self.tracer.last_retried = 0.0, 0
+        self.session.start()
         if n == 0:
             return fw.empty(0, "bool", self.device)
         shared = self._buffers(n)
@@ -447,7 +447,7 @@ class CudaRays:
         dev = self.device
         out = (fw.empty(n, "float32", dev), fw.empty(n, "int32", dev), fw.empty(n, "float32", dev),
                fw.empty(n, "float32", dev))
-        self.tracer.last_gpu_ms, self.tracer.last_retried = 0.0, 0
+        self.session.start()
         shared = self._buffers(n)
         for s in range(0, n, shared.batch):
             k = min(shared.batch, n - s)

@@ -4,12 +4,12 @@ tracing and reading back the last ones' results overlap.
 A slot holds one chunk in flight. Its memory (`SlotBuffers`: rays and results in mapped memory, plus device-local
 copies on a discrete GPU, the dispatch parameters, the retry list, timestamps, a fence) belongs to the device and is
 shared by its Tracers: a `SlotPool` on the context hands a set of slots to one query for the length of its call
-(made on first use, sized to the batch); a Tracer's `Slot` over one of them adds its own descriptor set and command
-buffers (recorded once per query kind and copy size, then re-submitted). `stream()` packs chunk i into slot i mod S with
-numpy, straight into the mapped memory, and submits it without waiting. The packing runs as one row block per
-thread on the worker pool, each block checked where it was just copied (in cache), and in the same round the sink
-of the chunk that last used the slot (its fence waited for first) writes its results into the arrays the query
-returns: one hand-over to the pool per chunk.
+(made on first use, sized to the batch); a Tracer's `Slot` over one of them (its trace session's,
+engine/rt/session.py) adds its own descriptor set and command buffers (recorded once per query kind and copy size,
+then re-submitted). `stream()` packs chunk i into slot i mod S with numpy, straight into the mapped memory, and
+submits it without waiting. The packing runs as one row block per thread on the worker pool, each block checked
+where it was just copied (in cache), and in the same round the sink of the chunk that last used the slot (its fence
+waited for first) writes its results into the arrays the query returns: one hand-over to the pool per chunk.
 """
 from __future__ import annotations
 
@@ -101,8 +101,8 @@ class SlotBuffers:
 
 
 class SlotSet:
-    """Up to STREAM_SLOTS `SlotBuffers` of one size, made as a call first needs each (a batch of one chunk uses
-    one); taken from a `SlotPool` by one call at a time."""
+    """Up to STREAM_SLOTS (engine/rt/session.py) `SlotBuffers` of one size, made as a call first needs each (a batch
+    of one chunk uses one); taken from a `SlotPool` by one call at a time."""
 
     def __init__(self, ctx, key: tuple, chunk: int, capacity: int, lock):
         self.ctx, self.key, self.chunk, self.capacity = ctx, key, chunk, capacity
@@ -166,8 +166,8 @@ def set_chunk(n: int, chunk: int) -> int:
 
 
 class Slot:
-    """One Tracer's use of a `SlotBuffers`: its descriptor set over those buffers (with the Tracer's own bindings)
-    and its command buffers, made on the Tracer's scope; the buffers' attributes read through."""
+    """One Tracer's use of a `SlotBuffers` (its trace session's): its descriptor set over those buffers (with its own
+    bindings) and its command buffers, made on the Tracer's scope; the buffers' attributes read through."""
 
     def __init__(self, ctx, buffers: SlotBuffers, bindings, bind_own):
         self.ctx, self.buffers = ctx, buffers
@@ -281,21 +281,21 @@ def block_size(n: int, threads: int, what: str) -> int:
     return max(MIN_BLOCK[what], -(-n // max(threads, 1)))
 
 
-def stream(tracer, kind: str, o, d, t, sink, bad, order=None) -> None:
+def stream(session, kind: str, o, d, t, sink, bad, order=None) -> None:
     """Trace rays o, d, t (float32 (N, 3), (N, 3), and (N,) or one for all; checked but for `block_fine`) through
-    `tracer`'s slots in chunks of `tracer.chunk`, with up to len(slots) chunks in flight, in the order of the (N,)
-    indices `order` if given (engine/rt/order.py); `sink(slot, start, s, e)` takes traced rays [s, e) of the chunk
-    from `start` from the slot's results (made with the same `order`); `bad()` raises the error for a chunk with a
-    bad ray. One round of tasks on the worker pool per chunk: its packing, and the sink of the chunk whose slot it
-    reuses (that chunk's fence waited for first). The slots are taken from the device's `SlotPool` for the call and
-    given back at its end, nothing in flight. Updates the tracer's last_gpu_ms, last_retried and last_times."""
-    chunk = tracer.chunk
+    the slots of `session` (engine/rt/session.py) in chunks of `session.chunk`, with up to len(slots) chunks in
+    flight, in the order of the (N,) indices `order` if given (engine/rt/order.py); `sink(slot, start, s, e)` takes
+    traced rays [s, e) of the chunk from `start` from the slot's results (made with the same `order`); `bad()` raises
+    the error for a chunk with a bad ray. One round of tasks on the worker pool per chunk: its packing, and the sink
+    of the chunk whose slot it reuses (that chunk's fence waited for first). The slots are taken from the device's
+    `SlotPool` for the call and given back at its end, nothing in flight. The session's timings are the query's."""
+    session.start()
+    chunk = session.chunk
     if not len(o):
         return
     threads = min(default_threads(), STREAM_THREADS)
     inflight: deque = deque()
-    if tracer.scratch is None:
-        tracer.scratch = np.empty(3 * chunk, np.uint32)
+    scratch = session.scratch
 
     def collect():
         """The oldest chunk in flight, waited for: the tasks reading its results."""
@@ -303,14 +303,12 @@ def stream(tracer, kind: str, o, d, t, sink, bad, order=None) -> None:
         slot.wait()
         if slot.had_bad_ray():
             bad()
-        tracer.last_times = slot.timestamps.read(marks)
-        tracer.last_gpu_ms += tracer.last_times.get("trace", 0.0)
-        if tracer.two_pass[kind]:
-            tracer.last_retried += int(slot.retry.view(np.uint32)[0])
+        retried = int(slot.retry.view(np.uint32)[0]) if session.two_pass[kind] else 0
+        session.chunk_done(slot.timestamps.read(marks), retried)
         step = block_size(n, threads, kind)
         return [lambda s=s: sink(slot, start, s, min(s + step, n)) for s in range(0, n, step)]
 
-    with tracer.take_slots(len(o)) as slots:   # (given back to the device's pool at the end)
+    with session.take_slots(len(o)) as slots:   # (given back to the device's pool at the end)
         try:
             for i, start in enumerate(range(0, len(o), chunk)):
                 n = min(chunk, len(o) - start)
@@ -319,12 +317,12 @@ def stream(tracer, kind: str, o, d, t, sink, bad, order=None) -> None:
                 slot.wait()   # (a query that failed half-way left it pending)
                 if order is None:
                     packs = slot.pack_tasks(o[start:start + n], d[start:start + n],
-                                            t if t.ndim == 0 else t[start:start + n], n, threads, tracer.scratch)
+                                            t if t.ndim == 0 else t[start:start + n], n, threads, scratch)
                 else:
-                    packs = slot.pack_tasks(o, d, t, n, threads, tracer.scratch, order[start:start + n])
+                    packs = slot.pack_tasks(o, d, t, n, threads, scratch, order[start:start + n])
                 if not all(_parallel(packs + tasks, threads)[:len(packs)]):
                     bad()
-                inflight.append((slot, start, n, slot.submit(kind, n, tracer.shares, tracer._record)))
+                inflight.append((slot, start, n, slot.submit(kind, n, session.shares, session.record)))
             while inflight:
                 _parallel(collect(), threads)
         finally:

@@ -10,12 +10,9 @@ the same units. A batch is streamed through the device in chunks, several in fli
 """
 from __future__ import annotations
 
-import math
-import os
 import threading
-from contextlib import contextmanager
 from dataclasses import dataclass
-from typing import Any, Iterator
+from typing import Any
 
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
@@ -25,92 +22,38 @@ from ..bvh import build_bvh
 from ..errors import ConfigError, SceneError
 from ..gpu import SceneBVH, bvh_descriptor_set, bvh_layout
 from ..gpu.bvh import CPU_OCCLUSION_STACK_REGS, InstancedBVH, flag_alpha_tested, is_instanced
+from ..gpu.materials import scene_alpha, untested_alpha
 from ..parallel import default_threads, serialized
-from ..passes.gbuffer import alpha_records, scene_textures
-from ..passes.interface import MAX_TEXTURE_ARRAYS
-from ..passes.textures import TextureArrays
 from ..shaders import ShaderLibrary
-from ..vk import (Buffer, BufferView, ComputePipeline, Context, DescriptorSet, Sampler, Timestamps, reflect,
-                  upload_buffer, upload_texture_array)
-from ..vk.device import has_dedicated_vram, is_cpu, rgb32f_texel_buffers, work_shares
-from ..vk.formats import RGBA32F
-from ..vk.resources import STORAGE, TRANSFER_DST, UNIFORM_TEXEL
+from ..vk import Context
+from ..vk.device import has_dedicated_vram, is_cpu, rgb32f_texel_buffers
 from ..vk.shared import Device, Scope
 from .checks import check_batch_size, check_mesh, name_bad_ray, name_bad_tmax, ray_arrays
 from .closest import Closest, ClosestQuery
 from .cuda_arrays import CudaRays, on_cuda
 from .order import KeptWords, check_reorder, incoherent, ray_order, shared_direction
-from .stream import STREAM_THREADS, Slot, hits_sink, instance_sink, occluded_sink, set_chunk, slot_pool, stream
+from .session import TraceSession, kernel_interface
+from .stream import STREAM_THREADS, hits_sink, instance_sink, occluded_sink, stream
 
 #: Query kinds whose kernels read rays (and write results) through texel buffer views on CPU devices (RAYS_TEXEL):
 #: faster for occlusion on lavapipe, not for closest hits.
 RAYS_TEXEL_KINDS = ("occluded",)
-#: rays per chunk of a streamed batch (at most `batch_size`), and chunks in flight (slots of buffers, shared by the
-#: Tracers of a device: engine/rt/stream.py SlotPool): larger chunks
-#: where rays are staged through device-local memory (a discrete GPU: a round trip per chunk costs more than the
-#: trace), smaller ones where the device traces from the mapped memory (a CPU device: packing overlaps tracing)
+#: rays per chunk of a streamed batch (at most `batch_size`; chunks in flight: engine/rt/session.py STREAM_SLOTS):
+#: larger chunks where rays are staged through device-local memory (a discrete GPU: a round trip per chunk costs
+#: more than the trace), smaller ones where the device traces from the mapped memory (a CPU device: packing overlaps
+#: tracing)
 STREAM_CHUNK = 1 << 18
 STREAM_CHUNK_STAGED = 1 << 20
-STREAM_SLOTS = 3
-#: workgroups of the second dispatch (trace_*_retry.comp), striding over the rays left to it: at least one per core
-#: (a CPU device's threads), so that a deep tree with many unresolved rays still uses every core
-RETRY_GROUPS = max(4, os.cpu_count() or 1)
 
 
-def _interface(ctx, lib, name):
-    """The reflected interface of a tracer kernel, once per device (reflection parses the SPIR-V in Python)."""
-    root = ctx.root
-    with root.memo_lock:
-        key = ("tracer.interface", name)
-        if key not in root.memo:
-            root.memo[key] = reflect(lib.get(f"{name}.comp"), name)
-        return root.memo[key]
-
-
-def _pipelines(ctx, lib, specs, two_pass) -> dict:
-    """The trace kernels for `specs` (per query kind), made once per device and shared by its Tracers: made on the
-    context itself with set layouts of its own, which are compatible with every Tracer's identically laid out sets.
-    A constant that the variant never reads (the register stack's size without the register stack) is left out of
-    the key, so that Tracers of meshes of different depths share the GPU's kernels."""
-    root = ctx.root
-    out = {}
-    with root.memo_lock:
-        if "tracer.layouts" not in root.memo:
-            iface = root.memo[("tracer.interface", "trace_occluded")]
-            root.memo["tracer.layouts"] = [DescriptorSet(root, list(iface.set(0).values())),
-                                           bvh_descriptor_set(root, iface)]
-        layouts = root.memo["tracer.layouts"]
-        for kind, spec in specs.items():
-            used = {k: v for k, v in spec.items()
-                    if k != "BVH_STACK_REGS" or spec.get("BVH_REG_STACK") or spec.get("BVH_STACK_RETRY")}
-            for name in [f"trace_{kind}"] + ([f"trace_{kind}_retry"] if two_pass[kind] else []):
-                key = ("tracer.pipeline", name, tuple(sorted(used.items())))
-                if key not in root.memo:
-                    spirv = lib.get(f"{name}.comp")
-                    if ("tracer.interface", name) not in root.memo:
-                        root.memo[("tracer.interface", name)] = reflect(spirv, name)
-                    constants = root.memo[("tracer.interface", name)].specialization(spec, name)
-                    root.memo[key] = ComputePipeline(root, spirv, layouts, spec=constants, name=name)
-                out[name[6:]] = root.memo[key]
-    return out
-
-
-_WHITE = np.full((1, 1, 4), 255, np.uint8)
-
-
-def _untested_bindings(ctx):
-    """(texture arrays, alpha records view, white texture, sampler) of a Tracer without alpha-tested materials: no
-    texture arrays, a 1-texel record and a white texture, which the kernels never read (ALPHA_TEST off); made on
-    the context itself, once, and shared by its Tracers."""
-    root = ctx.root
-    with root.memo_lock:
-        if "tracer.untested" not in root.memo:
-            view = BufferView(upload_buffer(root, np.zeros((1, 8), np.float32), UNIFORM_TEXEL, "alpha records"),
-                              RGBA32F)
-            root.memo["tracer.untested"] = (TextureArrays(root, {}), view,
-                                            upload_texture_array(root, [_WHITE], 1, 1, name="white texture"),
-                                            Sampler(root))
-        return root.memo["tracer.untested"]
+def host_path_spec(kind: str, staged: bool) -> dict:
+    """Where rays are staged (discrete GPUs), the kernels check the rays (CHECK_RAYS: the host's packing is then a
+    plain copy, half the memory traffic of copying and checking) and occlusion comes back as one byte per ray
+    (RESULT_BYTES); on CPU devices the host checks the rays as it packs them, where they are in its cache."""
+    spec = {"CHECK_RAYS": staged}
+    if kind == "occluded":
+        spec["RESULT_BYTES"] = staged
+    return spec
 
 
 def _name_bad(o, d, t, origins, directions):
@@ -163,9 +106,10 @@ class Tracer(Closes):
 
     The BVH is built on the host (numpy, all cores) and traversed by GLSL compute shaders, the same traversal the
     renderer's shadow and AO passes use. Queries take numpy arrays of any length and block until their results are
-    back; a large batch is streamed in chunks, packing, tracing and reading back overlapped. Triangles are two-sided (no culling); a ray hits at
-    t in [0, tmax]. Coordinates of vertices and ray origins must lie within +-1e11 (`engine.limits.MAX_COORD`);
-    a NaN, infinite or zero direction is a `ConfigError` naming the ray, not a silent miss.
+    back; a large batch is streamed in chunks, packing, tracing and reading back overlapped (its trace session,
+    engine/rt/session.py). Triangles are two-sided (no culling); a ray hits at t in [0, tmax]. Coordinates of
+    vertices and ray origins must lie within +-1e11 (`engine.limits.MAX_COORD`); a NaN, infinite or zero direction
+    is a `ConfigError` naming the ray, not a silent miss.
 
     After a query: `last_gpu_ms` (GPU ms of its trace dispatches), `last_retried` (rays the second dispatch walked
     again, on CPU devices), `last_times` (GPU ms of the last chunk per step), `last_reordered` (whether its rays
@@ -175,9 +119,6 @@ class Tracer(Closes):
     (`device=dev`): each then costs only its BVH build and upload.
     """
 
-    last_gpu_ms: float
-    last_retried: int
-    last_times: dict[str, float]
     stats: dict[str, Any]
 
     def __init__(self, vertices: ArrayLike, faces: ArrayLike, *, device: Device | int | str | None = None,
@@ -292,8 +233,7 @@ class Tracer(Closes):
     def _init_gpu(self):
         ctx = self.ctx
         lib = ShaderLibrary()
-        interface = _interface(ctx, lib, "trace_occluded")
-        self.interface = interface   # (the ray / result bindings, also laid out by engine.rt.cuda_arrays)
+        interface = kernel_interface(ctx, lib, "trace_occluded")
         self.bvh_set = bvh_descriptor_set(ctx, interface)
         alpha_index = self._alpha_setup(ctx)
         if self.bvh is None:
@@ -306,104 +246,39 @@ class Tracer(Closes):
         self.stats = dict(self.scene.bvh.stats, layout=self.layout)
         # Rays and results: mapped host buffers; on a discrete GPU device-local ones filled / read by copies in the
         # same command buffer (the copy is sized to the batch, rounded up to a power of two: one recording each).
-        self.staged = has_dedicated_vram(ctx) if self._staging is None else bool(self._staging)
+        staged = has_dedicated_vram(ctx) if self._staging is None else bool(self._staging)
         # a batch is at most what a texel view of the rays may hold; it is streamed in chunks of at most
-        # STREAM_CHUNK rays, and the three ray arrays of a slot start at offsets the texel views allow
-        # (minTexelBufferOffsetAlignment): their stride `capacity` is rounded up for that
+        # STREAM_CHUNK rays
         self.batch = max(1, min(self.batch, int(ctx.limits.maxTexelBufferElements)))
-        self.chunk = min(self.batch, STREAM_CHUNK_STAGED if self.staged else STREAM_CHUNK)
-        align = max(1, int(ctx.limits.minTexelBufferOffsetAlignment))
-        step = align // math.gcd(12, align)
-        self.capacity = -(-self.chunk // step) * step
-        self.rays_texel_ok = rgb32f_texel_buffers(ctx)
+        chunk = min(self.batch, STREAM_CHUNK_STAGED if staged else STREAM_CHUNK)
+        rays_texel_ok = rgb32f_texel_buffers(ctx)
         # Where the register stack can overflow (CPU devices), the rare rays it leaves unresolved are walked again
         # in a second dispatch (trace_*_retry.comp) rather than inline: llvmpipe would run the inline walk's loop
         # body for every 8 rays whether or not one needs it.
         specs = {"occluded": self.scene.spec(ctx, stack_regs=CPU_OCCLUSION_STACK_REGS),
                  "intersect": self.scene.spec(ctx)}
         for kind, spec in specs.items():  # rays and results through texel buffer views
-            spec["RAYS_TEXEL"] = is_cpu(ctx) and kind in RAYS_TEXEL_KINDS and self.rays_texel_ok
-            spec.update(self.alpha_spec, **self._host_path_spec(kind))
-        self.specs = specs   # by name, per query kind
-        self.two_pass = {kind: bool(s.get("BVH_REG_STACK") and s.get("BVH_STACK_RETRY")) for kind, s in specs.items()}
-        self._io_bindings = list(interface.set(0).values())
-        # slots with room for the retry list on every CPU device (the ones whose traversal has that pass), whatever
-        # this tree's depth: all Tracers of the device share them; elsewhere where a spec asks for the pass
-        self._retry_list = is_cpu(ctx) or any(self.two_pass.values())
-        self._align = step
-        # the slots' buffers are the device's (SlotPool); this Tracer's sets and commands over them: `take_slots`
-        self._bindings: dict = {}    # SlotSet -> [Slot]
-        self.slots: list[Slot] = []  # the slots of the last query
-        self._lib = lib
-        self.pipelines = _pipelines(ctx, lib, specs, self.two_pass)
-        self.io_layout = ctx.root.memo["tracer.layouts"][0]   # set 0's layout (the trace kernels' io sets)
-        self._own_retry = self._own_timestamps = None   # the CUDA-array queries' (retry, timestamps)
-        self.shares = work_shares(ctx)  # rays.glsl ray_block
-        self.last_gpu_ms = 0.0
-        self.last_retried = 0        # rays of the last query that the second dispatch walked again (two_pass)
+            spec["RAYS_TEXEL"] = is_cpu(ctx) and kind in RAYS_TEXEL_KINDS and rays_texel_ok
+            spec.update(self.alpha_spec, **host_path_spec(kind, staged))
+        self.session = TraceSession(ctx, lib, interface, self.bvh_set, self.alpha, specs, chunk=chunk, staged=staged,
+                                    rays_texel_ok=rays_texel_ok)
         self.last_reordered = False  # whether the last occluded / intersect query was traced reordered
-        self.last_times: dict = {}   # GPU ms of the last chunk per step: upload (staged only), trace, download
-        self.scratch = None          # the ray checks' uint32 scratch (engine/rt/stream.py), made on first use
         self._order_words = KeptWords()   # the reordering's words, kept for the next batch
-
-    def _host_path_spec(self, kind: str) -> dict:
-        """Where rays are staged (discrete GPUs), the kernels check the rays (CHECK_RAYS: the host's packing is
-        then a plain copy, half the memory traffic of copying and checking) and occlusion comes back as one byte per
-        ray (RESULT_BYTES); on CPU devices the host checks the rays as it packs them, where they are in its cache."""
-        spec = {"CHECK_RAYS": self.staged}
-        if kind == "occluded":
-            spec["RESULT_BYTES"] = self.staged
-        return spec
 
     def _alpha_setup(self, ctx):
         """The alpha test of a Scene's MASK / BLEND materials (shaders/glsl/include/alpha.glsl), as the renderer's
-        ray passes run it: the same records and texture arrays (engine/passes/gbuffer.py `alpha_records`). Returns
-        the flattened scene's alpha words for the BVH's triangle records, or None (no alpha-tested material, or a
-        Tracer of plain arrays): the test is then compiled out and its bindings are a 1-texel record and a white
-        texture."""
+        ray passes run it: the same records and texture arrays (engine/gpu/materials.py). Returns the flattened
+        scene's alpha words for the BVH's triangle records, or None (no alpha-tested material, or a Tracer of plain
+        arrays): the test is then compiled out and its bindings are a 1-texel record and a white texture."""
         source = self._source
         tested = source is not None and any(m.alpha_mode != "OPAQUE" for m in source.materials)
         self.alpha_spec = {"ALPHA_TEST": tested, "TEXTURE_ARRAYS": 1}
         if not tested:   # the dummy bindings, the same for every Tracer: made once per device
-            self.textures, self.alpha_view, self.white, self.sampler = _untested_bindings(ctx)
+            self.alpha = untested_alpha(ctx)
             return None
-        self.textures = TextureArrays(ctx, scene_textures(source.materials))
-        index, records = alpha_records(source, self.textures)
-        self.alpha_view = BufferView(upload_buffer(ctx, records, UNIFORM_TEXEL, "alpha records"), RGBA32F)
-        self.white = upload_texture_array(ctx, [_WHITE], 1, 1, name="white texture")
-        self.sampler = Sampler(ctx)
-        self.alpha_spec["TEXTURE_ARRAYS"] = max(1, len(self.textures))
+        self.alpha, index = scene_alpha(ctx, source)
+        self.alpha_spec["TEXTURE_ARRAYS"] = max(1, len(self.alpha.textures))
         return index
-
-    def bind_alpha(self, dset: DescriptorSet) -> None:
-        """The alpha records and texture arrays into a set of the trace kernels' set-0 layout."""
-        dset.bind("alpha_tris", self.alpha_view)
-        for slot in range(MAX_TEXTURE_ARRAYS):
-            tex = self.textures.images[slot] if slot < len(self.textures) else self.white
-            dset.bind("textures", tex, sampler=self.sampler, element=slot)
-
-    @contextmanager
-    def take_slots(self, n: int) -> Iterator[list]:
-        """The slots a query of n rays streams through (one per chunk, at most STREAM_SLOTS): a set of the device's
-        shared buffers taken for the call (engine/rt/stream.py SlotPool) and given back at its end, with this
-        Tracer's descriptor sets and command buffers over them (made the first time it takes that set)."""
-        pool = slot_pool(self.ctx)
-        sset = pool.take((self.staged, self._retry_list, self.rays_texel_ok), set_chunk(n, self.chunk), self._align)
-        try:
-            mine = self._bindings.setdefault(sset, [])
-            count = min(STREAM_SLOTS, -(-n // self.chunk))
-            while len(mine) < count:
-                mine.append(Slot(self.ctx, sset.get(len(mine)), self._io_bindings, self.bind_alpha))
-            self.slots = mine
-            yield mine[:count]
-        finally:
-            pool.give(sset)
-
-    def _record(self, slot, kind, span):
-        """A slot's command buffer for a query kind (and copy span), recorded once: the ray count is in `params`."""
-        if kind == "closest":
-            return self._closest.record(slot, span)
-        return slot.record(kind, span, self.pipelines, self.bvh_set, self.two_pass[kind], RETRY_GROUPS)
 
     def _sync(self):
         """A two-level BVH brought up to its Scene's current state (between queries: no chunk is in flight);
@@ -414,21 +289,29 @@ class Tracer(Closes):
         structure = self.scene.structure
         self.scene.update(self._source)
         if self.scene.structure != structure:
-            self.ctx.wait_idle()
-            for slots in self._bindings.values():
-                for slot in slots:
-                    for cmd, _ in slot.commands.values():
-                        self.ctx.free_command_buffer(cmd)
-                    slot.commands.clear()
+            session = self.session
             specs = {"occluded": self.scene.spec(self.ctx, stack_regs=CPU_OCCLUSION_STACK_REGS),
                      "intersect": self.scene.spec(self.ctx)}
             for kind, spec in specs.items():   # rays read as before
-                spec["RAYS_TEXEL"] = self.specs[kind].get("RAYS_TEXEL", False)
-                spec.update(self.alpha_spec, **self._host_path_spec(kind))
-            self.specs = specs
-            self.two_pass = {kind: bool(s.get("BVH_REG_STACK") and s.get("BVH_STACK_RETRY"))
-                             for kind, s in specs.items()}
-            self.pipelines = _pipelines(self.ctx, self._lib, specs, self.two_pass)
+                spec["RAYS_TEXEL"] = session.specs[kind].get("RAYS_TEXEL", False)
+                spec.update(self.alpha_spec, **host_path_spec(kind, session.staged))
+            session.respecialize(specs)
+
+    # ---- what the last query took ------------------------------------------------------------------------------
+    @property
+    def last_gpu_ms(self) -> float:
+        """GPU ms of the last query's trace dispatches."""
+        return self.session.last_gpu_ms
+
+    @property
+    def last_retried(self) -> int:
+        """Rays of the last query that the second dispatch walked again (on CPU devices)."""
+        return self.session.last_retried
+
+    @property
+    def last_times(self) -> dict[str, float]:
+        """GPU ms of the last query's last chunk per step: upload (staged only), trace, download."""
+        return self.session.last_times
 
     @property
     def validation_errors(self) -> list[str]:
@@ -470,8 +353,8 @@ class Tracer(Closes):
         self._sync()
         out = np.empty(len(o), bool)
         order, dirs = self._order(o, d, t, reorder)
-        self._stream("occluded", o, dirs, t, occluded_sink(out, order),
-                     lambda: _name_bad(o, d, t, origins, directions), order)
+        stream(self.session, "occluded", o, dirs, t, occluded_sink(out, order),
+               lambda: _name_bad(o, d, t, origins, directions), order)
         return out
 
     @serialized
@@ -494,7 +377,7 @@ class Tracer(Closes):
             hits.instance, hits.mesh_prim = np.empty(n, np.int32), np.empty(n, np.int32)
             base = self.scene.flat_tri_base if isinstance(self.scene, InstancedBVH) else np.zeros(1, np.uint32)
             sink = instance_sink(sink, hits.prim, base, hits.instance, hits.mesh_prim, order)
-        self._stream("intersect", o, dirs, t, sink, lambda: _name_bad(o, d, t, origins, directions), order)
+        stream(self.session, "intersect", o, dirs, t, sink, lambda: _name_bad(o, d, t, origins, directions), order)
         return hits
 
     @serialized
@@ -515,38 +398,39 @@ class Tracer(Closes):
             raise ConfigError("Tracer.closest: not available on a Tracer of a scene of several instances "
                               "(Tracer.from_scene); make one from the flat arrays: Tracer(scene.positions, "
                               "scene.indices)")
-        if self._closest is None:
-            self._closest = ClosestQuery(self)
-            self.two_pass["closest"] = False   # one dispatch: the point walk keeps its stack in an array
+        if self._closest is None:   # (its own kernel: one dispatch, the point walk keeps its stack in an array)
+            self._closest = ClosestQuery(self.session, self.bvh, self.scene, self.layout, self.mesh)
         return self._closest.run(points)
 
     def _order(self, o, d, t, reorder):
         """The order to trace a batch in (engine/rt/order.py), or None for the given order, and its directions (for a
-        reordered batch `shared_direction`'s view: one direction for all is filled, not gathered); sets `last_reordered`."""
+        reordered batch `shared_direction`'s view: one direction for all is filled, not gathered); sets
+        `last_reordered`."""
         mode = self.reorder if reorder is None else check_reorder(reorder, "Tracer query")
         if mode == "auto":
             mode = is_cpu(self.ctx) and incoherent(o, d, t)
         order = None
         if mode and len(o) > 1:
             d = shared_direction(d)
-            order = ray_order(o, d, min(default_threads(), STREAM_THREADS), self.chunk, self._order_words.get(len(o)))
+            order = ray_order(o, d, min(default_threads(), STREAM_THREADS), self.session.chunk,
+                              self._order_words.get(len(o)))
         self.last_reordered = order is not None
         return order, d
 
-    def _stream(self, kind, o, d, t, sink, bad, order=None):
-        """Trace rays from `ray_arrays` (float32 (N, 3), (N, 3), and (N,) or one tmax) with the `kind` kernels, in
-        `order` if given; each chunk is checked as it is packed (`bad()` raises the error naming the first bad
-        ray); `sink(slot, start, s, e)` takes rays [s, e) of a chunk's results from `slot.results_host`
-        (engine/rt/stream.py)."""
-        self.last_gpu_ms, self.last_retried = 0.0, 0
-        stream(self, kind, o, d, t, sink, bad, order)
-
     @serialized
     def cuda_ray_arrays(self, n: int, framework: str = "torch") -> tuple:
-        """(origins (n, 3), directions (n, 3), tmax (n,)): float32 torch / CuPy arrays (`framework`) on the GPU that
-        view the buffers the kernels read. Rays written there and these very arrays passed to `occluded` /
-        `intersect` are traced without a copy. Valid until the Tracer closes or a query needs larger buffers; a query
-        on other arrays overwrites them. ConfigError: no CUDA here, another framework, n beyond the buffers' size."""
+        """Device arrays to write up to `n` rays into, for queries on CUDA arrays without the copy of the rays.
+
+        Returns (origins (n, 3), directions (n, 3), tmax (n,)), float32 torch tensors or CuPy arrays on the
+        Tracer's GPU that view the buffers the trace kernels read. Fill them (e.g. `origins.copy_(...)` or a
+        kernel of yours writing there), then pass these very arrays to `occluded` / `intersect`: the rays are not
+        copied. They stay valid until the Tracer is closed or a query needs larger buffers; a later query on other
+        arrays overwrites them. The stream rule of CUDA queries holds (engine/rt/cuda_arrays.py).
+
+        Raises:
+            ConfigError: no CUDA here (naming why), a framework other than "torch" / "cupy", or n beyond the
+            shared buffers' size (CUDA_BATCH rays or the Tracer's batch_size).
+        """
         self._check_open()
         return self._device_arrays().ray_arrays(n, framework)
 
@@ -556,30 +440,9 @@ class Tracer(Closes):
             raise ConfigError("Tracer.from_scene: queries on CUDA arrays are not supported for a Tracer of a Scene "
                               "(its instance ids and BVH updates are host-side); pass numpy arrays")
         if self._cuda is None:
-            self._cuda = CudaRays(self)
+            self._cuda = CudaRays(self.session, self.batch)
         self.last_reordered = False   # (CUDA arrays are traced as given)
         return self._cuda
-
-    def kernel(self, kind: str, **constants: bool) -> ComputePipeline:
-        """The `kind` trace kernel with `constants` added to its specialization, without its retry pass (the
-        CUDA-array queries' variant: GPU devices, whose register stack never leaves a ray unresolved)."""
-        return _pipelines(self.ctx, self._lib, {kind: dict(self.specs[kind], **constants)}, {kind: False})[kind]
-
-    @property
-    def retry(self) -> Buffer:
-        """The retry list bound by the CUDA-array queries, which run one at a time (made on first use)."""
-        if self._own_retry is None:
-            two = self._retry_list
-            self._own_retry = Buffer(self.ctx, 4 + 4 * self.chunk if two else 16, STORAGE | TRANSFER_DST, host=two,
-                                     name="retry list (CUDA arrays)")
-        return self._own_retry
-
-    @property
-    def timestamps(self) -> Timestamps:
-        """The timestamp queries of the CUDA-array queries (made on first use)."""
-        if self._own_timestamps is None:
-            self._own_timestamps = Timestamps(self.ctx, capacity=4)
-        return self._own_timestamps
 
     # ---- lifetime --------------------------------------------------------------------------
     @serialized

@@ -15,10 +15,9 @@ import logging
 import math
 from dataclasses import dataclass, field
 
-import numpy as np
-
+from ..passes.interface import MAX_TEXTURE_ARRAYS, TEXTURE_NONE
+from ..scene.material import texture_key
 from ..vk import upload_texture_array
-from .interface import MAX_TEXTURE_ARRAYS, TEXTURE_NONE
 
 log = logging.getLogger("engine.textures")
 
@@ -113,3 +112,27 @@ class TextureArrays:
             img.destroy()
         self.images = []
 
+
+#: Each texture field of a Material and whether it holds colour (an sRGB array) or data (a linear one).
+TEXTURE_KINDS = {"texture": True, "metallic_roughness_texture": False, "normal_texture": False,
+                 "emissive_texture": True, "occlusion_texture": False}
+
+
+def scene_textures(materials) -> dict:
+    """(texture content, srgb) -> (image, srgb) over every texture of every material: one image used by many
+    materials is one layer; one used as colour and as data is one of each kind."""
+    out = {}
+    for m in materials:
+        for name, srgb in TEXTURE_KINDS.items():
+            image = getattr(m, name)
+            if image is not None:
+                out.setdefault((texture_key(image), srgb), (image, srgb))
+    return out
+
+
+def bind_textures(dset, images: list, white, sampler) -> None:
+    """The `textures` binding of a set (textures.glsl, alpha.glsl): its MAX_TEXTURE_ARRAYS elements the array
+    `images` (a `TextureArrays`' images) and, past them, the 1x1 `white` texture (every element must hold one)."""
+    for slot in range(MAX_TEXTURE_ARRAYS):
+        tex = images[slot] if slot < len(images) else white
+        dset.bind("textures", tex, sampler=sampler, element=slot)

@@ -9,9 +9,6 @@ uniform block (camera, previous camera, frame index, history reset flag) is rewr
 the block). The passes declare what they read and write (engine/passes/base.py); the recorder derives the barriers
 between them. The raster options (culling, levels of detail, the software raster) are one named type,
 engine/passes/raster_options.py; the scene on the GPU is engine/gpu's.
-
-Size: the Renderer's public API with its documentation (the constructor, render, render_many, submit, the raster
-options' attributes) and the frame's order of passes are one concern, kept together rather than cut to a line count.
 """
 from __future__ import annotations
 

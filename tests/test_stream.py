@@ -245,7 +245,8 @@ def test_staged_rays_are_checked_by_the_kernels_and_occlusion_read_as_bytes(monk
         calls = []
         monkeypatch.setattr(stream_mod, "block_fine", lambda *a: calls.append(1) or True)
         assert np.array_equal(staged.occluded(o, d, tmax), want_occ)
-        assert staged.session.slots and all(s.kernel_checks and s.hit_bytes["occluded"] == 1 for s in staged.session.slots)
+        slots = staged.session.slots
+        assert slots and all(s.kernel_checks and s.hit_bytes["occluded"] == 1 for s in slots)
         assert np.array_equal(staged.intersect(o, d, tmax).prim, want_hits.prim)
         assert not calls   # the host did not check them
         bad = d.copy()

@@ -1,4 +1,5 @@
-"""The GPU refit of deformed meshes' bottom-level BVHs in an InstancedBVH's device buffers (shaders/glsl/bvh_refit.comp).
+"""The GPU refit of deformed meshes' bottom-level BVHs in an InstancedBVH's device buffers
+(shaders/glsl/bvh_refit.comp).
 
 Per mesh, made at its first refit and kept while its bottom level is the same tree: the plan (engine/bvh/refit.py:
 nodes by height, leaf-order corner indices) uploaded once, a device-local positions buffer filled from a mapped

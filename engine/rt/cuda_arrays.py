@@ -21,7 +21,7 @@ from numbers import Real
 
 import numpy as np
 
-from ..errors import ConfigError, VulkanError
+from ..errors import ConfigError
 from ..limits import MAX_COORD, MIN_DIRECTION
 from ..vk import Buffer, BufferView, DescriptorSet, Recorder
 from ..vk.external import ExternalBuffer, device_uuid, external_memory_unsupported

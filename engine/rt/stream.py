@@ -31,8 +31,9 @@ RAY_BYTES = 28  # 7 floats: origin, direction, tmax, as three packed arrays (sha
 HIT_BYTES = {"occluded": 4, "intersect": 16}
 NO_BAD_RAY = 0xFFFFFFFF   # a word of rays.glsl's ray_errors: no bad ray (CHECK_RAYS)
 #: the fewest rays per task when numpy packs and checks rays (28 bytes each) or unpacks closest hits (16) and
-#: occlusion words (4) on the worker pool (closest points: 16, as closest hits): a chunk is split into one task per thread, down to about half a megabyte
-#: each (below that, handing the work to the pool and the GIL's hand-overs cost more than it saves)
+#: occlusion words (4) on the worker pool (closest points: 16, as closest hits): a chunk is split into one task per
+#: thread, down to about half a megabyte each (below that, handing the work to the pool and the GIL's hand-overs
+#: cost more than it saves)
 MIN_BLOCK = {"pack": 1 << 15, "intersect": 1 << 17, "closest": 1 << 17, "occluded": 1 << 18}
 #: the most worker threads a stream uses: every numpy call of a task hands the GIL over, and beyond this many threads
 #: those hand-overs (and a thread holding the GIL while descheduled) cost more than the extra cores gain

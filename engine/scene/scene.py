@@ -2,10 +2,6 @@
 
 Scene sits above the loaders (loader.py for mesh files and trimesh objects, toml_format.py for TOML scenes): they
 hand it SceneParts (parts.py) and never make a Scene themselves.
-
-Size: the Scene's public API with its documentation (constructors, the flat world-space arrays made per version,
-instance motion and its queries) is one concern; loaders, instances, flattening and animation are modules of their
-own.
 """
 
 from __future__ import annotations

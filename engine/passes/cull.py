@@ -8,7 +8,8 @@ silhouettes move by less than a pixel; the default 0 draws the full meshes). It 
 to that level's list of its run (instances drawn together: one mesh, material override and mirroring) and counts
 it into the instanceCount of the run's indirect draw records of that level (one per material range). The raster
 then records one vkCmdDrawIndexedIndirect per record, once: the recorded command buffer stays valid while
-instances move, and the counts are zeroed each frame by a copy of a template. With culling off, the raster draws every instance's full mesh with direct draws instead.
+instances move, and the counts are zeroed each frame by a copy of a template. With culling off, the raster draws
+every instance's full mesh with direct draws instead.
 
 With the software raster on (engine/passes/soft_raster.py), an instance whose box projects to at most
 `sw_raster_pixels` pixels across, wholly in front of the near plane, of a run whose materials the software raster can

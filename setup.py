@@ -3,6 +3,7 @@ wheel carries a copy of them as package data in engine/_data/, which engine/data
 (engine/native.c) become the extension module engine._native through cffi (engine/_native_build.py), an optional
 one: where it cannot be compiled (no C compiler) the package installs without it and engine/native.py runs numpy's
 steps, saying so once. The rest of the metadata is in pyproject.toml."""
+
 import shutil
 import sys
 from pathlib import Path
@@ -18,10 +19,10 @@ HERE = Path(__file__).resolve().parent
 class BuildPyWithData(build_py):
     def run(self):
         super().run()
-        if getattr(self, "editable_mode", False):   # an editable install reads the checkout's own folders
+        if getattr(self, "editable_mode", False):  # an editable install reads the checkout's own folders
             return
         dst = Path(self.build_lib) / "engine" / "_data"
-        if dst.exists():   # a stale copy from an earlier build
+        if dst.exists():  # a stale copy from an earlier build
             shutil.rmtree(dst)
         skip = shutil.ignore_patterns("__pycache__", "*.pyc", ".*")
         for part in ("shaders/glsl", "shaders/spv", "scenes/assets"):
@@ -36,7 +37,7 @@ class OptionalBuildExt(build_ext):
     def run(self):
         try:
             super().run()
-        except (CCompilerError, ExecError, PlatformError, OSError) as e:   # (no compiler at all: found before any file)
+        except (CCompilerError, ExecError, PlatformError, OSError) as e:  # (no compiler at all: found before any file)
             self._skip("engine._native", e)
 
     def build_extension(self, ext):
@@ -47,12 +48,16 @@ class OptionalBuildExt(build_ext):
 
     @staticmethod
     def _skip(name, e):
-        print(f"warning: {name} not built ({e}); the package installs without it and runs numpy's steps instead "
-              "(slower BVH builds): install a C compiler and reinstall to have it", file=sys.stderr)
+        print(
+            f"warning: {name} not built ({e}); the package installs without it and runs numpy's steps instead "
+            "(slower BVH builds): install a C compiler and reinstall to have it",
+            file=sys.stderr,
+        )
 
 
 try:
     import cffi  # noqa: F401   (a build requirement; a build without isolation may lack it)
+
     native = {"cffi_modules": ["engine/_native_build.py:ffibuilder"]}
 except ImportError:
     print("warning: cffi is not installed: engine._native not built (numpy's steps instead)", file=sys.stderr)

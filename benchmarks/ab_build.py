@@ -6,6 +6,7 @@ The bench's meshes (`engine.bench.scenes.build_mesh`: spheres, scan, generated) 
 with the default threads in a child process per tree and size, the trees taking turns round by round (so clocks and
 load drift hit both alike); prints the median seconds per million triangles of every round, per tree, and the
 median ratio new / old over the rounds. (git worktree add /tmp/old REV gives a tree of an older commit.)"""
+
 from __future__ import annotations
 
 import argparse
@@ -48,24 +49,39 @@ def main() -> int:
     for r in range(a.rounds):
         for n in a.sizes:
             for tree in a.trees:
-                res = subprocess.run([sys.executable, "-c", CHILD, str(n), str(a.reps), ",".join(KINDS)], cwd=tree,
-                                     capture_output=True, text=True, env=dict(os.environ, PYTHONPATH=tree))
+                res = subprocess.run(
+                    [sys.executable, "-c", CHILD, str(n), str(a.reps), ",".join(KINDS)],
+                    cwd=tree,
+                    capture_output=True,
+                    text=True,
+                    env=dict(os.environ, PYTHONPATH=tree),
+                )
                 line = [x for x in res.stdout.splitlines() if x.startswith("AB")]
                 if res.returncode or not line:
                     print(res.stderr[-2000:], file=sys.stderr)
                     return 1
                 got[(tree, n)].append(json.loads(line[0][2:]))
-            print(f"round {r + 1}, {n:,} triangles: " + "  ".join(
-                f"{tree}: " + " ".join(f"{k} {got[(tree, n)][-1][k]:.3f}" for k in KINDS) for tree in a.trees))
+            print(
+                f"round {r + 1}, {n:,} triangles: "
+                + "  ".join(
+                    f"{tree}: " + " ".join(f"{k} {got[(tree, n)][-1][k]:.3f}" for k in KINDS) for tree in a.trees
+                )
+            )
     old, new = a.trees
     for n in a.sizes:
         ratios = {k: statistics.median(o[k] / w[k] for o, w in zip(got[(old, n)], got[(new, n)])) for k in KINDS}
-        print(f"{n:,} triangles, s/M per round, {old}: " + "; ".join(
-            f"{k} " + "/".join(f"{x[k]:.2f}" for x in got[(old, n)]) for k in KINDS))
-        print(f"{n:,} triangles, s/M per round, {new}: " + "; ".join(
-            f"{k} " + "/".join(f"{x[k]:.2f}" for x in got[(new, n)]) for k in KINDS))
-        print(f"{n:,} triangles, old / new (median of the rounds): "
-              + " ".join(f"{k} {r:.2f}x" for k, r in ratios.items()))
+        print(
+            f"{n:,} triangles, s/M per round, {old}: "
+            + "; ".join(f"{k} " + "/".join(f"{x[k]:.2f}" for x in got[(old, n)]) for k in KINDS)
+        )
+        print(
+            f"{n:,} triangles, s/M per round, {new}: "
+            + "; ".join(f"{k} " + "/".join(f"{x[k]:.2f}" for x in got[(new, n)]) for k in KINDS)
+        )
+        print(
+            f"{n:,} triangles, old / new (median of the rounds): "
+            + " ".join(f"{k} {r:.2f}x" for k, r in ratios.items())
+        )
     if a.json:
         with open(a.json, "w") as fh:
             json.dump({f"{t} {n}": v for (t, n), v in got.items()}, fh, indent=1)

@@ -5,6 +5,7 @@
 Each round renders `--frames` frames of the scene back to back (render(), default settings) in a child process per
 tree, the trees taking turns round by round (so clocks and load drift hit both alike); prints the median frame GPU
 ms and each pass's median, per tree, and the ratio new / old."""
+
 from __future__ import annotations
 
 import argparse
@@ -41,10 +42,16 @@ def main() -> int:
     runs: dict[str, list[dict]] = {t: [] for t in a.trees}
     for _ in range(a.rounds):
         for tree in a.trees:
-            env = dict(os.environ,
-                       PYTHONPATH=os.pathsep.join([os.path.abspath(tree), os.environ.get("PYTHONPATH", "")]))
-            res = subprocess.run([sys.executable, "-c", CHILD, a.scene, a.size, str(a.frames)], env=env,
-                                 capture_output=True, text=True, cwd=os.path.abspath(tree))
+            env = dict(
+                os.environ, PYTHONPATH=os.pathsep.join([os.path.abspath(tree), os.environ.get("PYTHONPATH", "")])
+            )
+            res = subprocess.run(
+                [sys.executable, "-c", CHILD, a.scene, a.size, str(a.frames)],
+                env=env,
+                capture_output=True,
+                text=True,
+                cwd=os.path.abspath(tree),
+            )
             line = [ln for ln in res.stdout.splitlines() if ln.startswith("AB")]
             if res.returncode or not line:
                 print(res.stdout[-2000:], res.stderr[-4000:], file=sys.stderr)
@@ -53,12 +60,16 @@ def main() -> int:
     summary = {}
     for tree, frames in runs.items():
         passes = sorted({k for f in frames for k in f})
-        summary[tree] = {"frame_ms": statistics.median(sum(f.values()) for f in frames),
-                         "passes_ms": {p: statistics.median(f.get(p, 0.0) for f in frames) for p in passes}}
+        summary[tree] = {
+            "frame_ms": statistics.median(sum(f.values()) for f in frames),
+            "passes_ms": {p: statistics.median(f.get(p, 0.0) for f in frames) for p in passes},
+        }
     base = summary[a.trees[0]]["frame_ms"]
     for tree, s in summary.items():
-        print(f"{tree}: frame {s['frame_ms']:.3f} ms GPU (x{s['frame_ms'] / base:.3f})  " +
-              "  ".join(f"{p} {v:.3f}" for p, v in s["passes_ms"].items()))
+        print(
+            f"{tree}: frame {s['frame_ms']:.3f} ms GPU (x{s['frame_ms'] / base:.3f})  "
+            + "  ".join(f"{p} {v:.3f}" for p, v in s["passes_ms"].items())
+        )
     if a.json:
         with open(a.json, "w") as f:
             json.dump({"scene": a.scene, "size": a.size, "summary": summary}, f, indent=1)

@@ -5,6 +5,7 @@ pixels with the light above their horizon, counted from a rendered G-buffer) / i
 
 Usage: python benchmarks/ab_passes.py [generated|default ...] [--variants NAME ...] [--reps N] [--size WxH]
                                 [--ao-samples N]"""
+
 from __future__ import annotations
 
 import argparse
@@ -80,14 +81,19 @@ def main():
                     r.submit(scene, wait=False, **settings)
                 r.ctx.wait_idle()
                 times[name].append(r.last_timings())
-        print(f"{key}: {scene.triangle_count:,} triangles, {w}x{h}, {n_shadow:,} shadow rays, AO {a.ao_samples} spp",
-              flush=True)
+        print(
+            f"{key}: {scene.triangle_count:,} triangles, {w}x{h}, {n_shadow:,} shadow rays, AO {a.ao_samples} spp",
+            flush=True,
+        )
         base = median([t["shadows"] for t in times[a.variants[0]]])
         for name, ts in times.items():
             sh, ao = median([t["shadows"] for t in ts]), median([t["ao"] for t in ts])
             total = median([sum(t.values()) for t in ts])
-            print(f"  {name:14s} shadows {sh:.3f} ms = {n_shadow / (sh * 1e-3) / 1e9:.2f} Grays/s "
-                  f"({base / sh:.2f}x)  ao {ao:.3f} ms  frame {total:.2f} ms", flush=True)
+            print(
+                f"  {name:14s} shadows {sh:.3f} ms = {n_shadow / (sh * 1e-3) / 1e9:.2f} Grays/s "
+                f"({base / sh:.2f}x)  ao {ao:.3f} ms  frame {total:.2f} ms",
+                flush=True,
+            )
     for r in rs.values():
         r.close()
 

@@ -10,6 +10,7 @@ Variants (constants: 0 branchless push, 1 postponed leaves, 2 register stack, 3 
   lvp2 (the older CPU set: 0-2 on, 11 image loads off, the rest this device's), wide-device (the wide layout with
   this device's constants: on CPU devices its lavapipe traversal, 12), plain-tree (this device's constants on the
   builder's tree without lifted large triangles, build_bvh(lift=False))"""
+
 from __future__ import annotations
 
 import argparse
@@ -38,30 +39,36 @@ VARIANTS = {  # name: (layout, {constant name: value} over "plain", None = this 
     "push": ("binary", {"BVH_BRANCHLESS_PUSH": True}),
     "wide": ("wide", {}),
     "wide+push": ("wide", {"BVH_BRANCHLESS_PUSH": True}),
-    "lvp2": ("binary", {"BVH_BRANCHLESS_PUSH": True, "BVH_POSTPONE_LEAVES": True, "BVH_REG_STACK": True,
-                        "BVH_IMAGE_FETCH": False}),                # the older CPU constants (texel fetches)
-    "wide-device": ("wide", None),                                # the wide layout with this device's constants
-    "plain-tree": ("binary", None, {"lift": False}),               # this device's constants, the tree without
-                                                                   # the lifted large triangles (builder.py)
+    "lvp2": (
+        "binary",
+        {"BVH_BRANCHLESS_PUSH": True, "BVH_POSTPONE_LEAVES": True, "BVH_REG_STACK": True, "BVH_IMAGE_FETCH": False},
+    ),  # the older CPU constants (texel fetches)
+    "wide-device": ("wide", None),  # the wide layout with this device's constants
+    "plain-tree": ("binary", None, {"lift": False}),  # this device's constants, the tree without
+    # the lifted large triangles (builder.py)
 }
 
 
 def load(key, tris):
     if key == "generated":
         from engine.bench.scenes import generated_scene
+
         return generated_scene(tris, seed=1)
     from engine.scene import Scene
+
     return Scene.load(DEFAULT_SCENE)
 
 
 def overriding(real, over):
     """A bvh_spec that gives `real`'s constants with a variant's overrides (None: `real`'s own)."""
+
     def spec(ctx, depth=None, layout=None, compressed=False, **kw):
         s = real(ctx, depth, layout=layout, compressed=compressed, **kw)
         if over is not None:
             s.update({"BVH_BRANCHLESS_PUSH": False, "BVH_POSTPONE_LEAVES": False, "BVH_REG_STACK": False})
             s.update(over)
         return s
+
     return spec
 
 
@@ -97,8 +104,11 @@ def main():
         v, f = np.asarray(scene.positions, np.float32), np.asarray(scene.indices, np.int64)
         t0 = time.perf_counter()
         tr = {name: make_tracer(v, f, name) for name in a.variants}
-        print(f"{key}: {len(f):,} triangles, {len(tr)} tracers in {time.perf_counter() - t0:.1f} s; "
-              f"spec {tr[a.variants[0]].session.specs['occluded']}", flush=True)
+        print(
+            f"{key}: {len(f):,} triangles, {len(tr)} tracers in {time.perf_counter() - t0:.1f} s; "
+            f"spec {tr[a.variants[0]].session.specs['occluded']}",
+            flush=True,
+        )
         for rs in sets:
             ms = {k: [] for k in tr}
             ans = {}
@@ -125,9 +135,15 @@ def main():
                     rel = np.abs(t1[both] - t0[both]) / np.maximum(np.abs(t0[both]), 1e-30)
                     row[name]["t_max_rel_diff"] = float(rel.max()) if both.any() else 0.0
             out.append(row)
-            print(f"{key} {rs.name:7s} {len(rs):>9,} rays: " + "  ".join(
-                f"{n} {x['grays'] * 1e3:,.1f} Mrays/s ({x['vs_first']:.2f}x, {x['disagree']} differ)"
-                for n, x in row.items() if isinstance(x, dict)), flush=True)
+            print(
+                f"{key} {rs.name:7s} {len(rs):>9,} rays: "
+                + "  ".join(
+                    f"{n} {x['grays'] * 1e3:,.1f} Mrays/s ({x['vs_first']:.2f}x, {x['disagree']} differ)"
+                    for n, x in row.items()
+                    if isinstance(x, dict)
+                ),
+                flush=True,
+            )
         for t in tr.values():
             t.close()
     r.close()

@@ -6,6 +6,7 @@ on its surfaces towards its sun, tmax inf: less coherent). Needs an NVIDIA GPU, 
 
     python benchmarks/bench_cuda_arrays.py [--sets gbuffer random] [--rays 2073600] [--repeat 20] [--json out.json]
 """
+
 import argparse
 import json
 import sys
@@ -36,13 +37,13 @@ def shadow_rays(scene, n, seed=0):
     sun = next(light for light in scene.lights if isinstance(light, DirectionalLight))
     to_sun = -np.asarray(sun.direction, np.float64)
     unit_n = normal[tri] / np.maximum(area[tri], 1e-30)[:, None]
-    unit_n *= np.sign(unit_n @ to_sun)[:, None]   # the side facing the sun
+    unit_n *= np.sign(unit_n @ to_sun)[:, None]  # the side facing the sun
     origins = pts + 1e-3 * scene.radius * unit_n
     return origins.astype(np.float32), np.tile(to_sun.astype(np.float32), (n, 1))
 
 
 def timed(fn, repeat):
-    fn()   # warm-up: the shared buffers, recordings, first-use kernels
+    fn()  # warm-up: the shared buffers, recordings, first-use kernels
     walls = []
     for _ in range(repeat):
         t0 = time.perf_counter()
@@ -59,14 +60,17 @@ def run_set(tracer, name, o, d, t, repeat):
     rows["numpy"] = (walls, tracer.last_gpu_ms)
     frameworks = []
     try:
-        import torch   # optional: the torch row
+        import torch  # optional: the torch row
+
         def dev(a):
             return torch.from_numpy(a).cuda()
+
         frameworks.append(("torch", dev, lambda a: a.cpu().numpy(), torch.cuda.synchronize))
     except ImportError:
         pass
     try:
-        import cupy   # optional: the CuPy row
+        import cupy  # optional: the CuPy row
+
         frameworks.append(("cupy", cupy.asarray, cupy.asnumpy, cupy.cuda.Device().synchronize))
     except ImportError:
         pass
@@ -76,16 +80,16 @@ def run_set(tracer, name, o, d, t, repeat):
         sync()
         out, walls = timed(lambda: tracer.occluded(od, dd, td), repeat)
         rows[fw] = (walls, tracer.last_gpu_ms)
-        if fw == "torch" and hasattr(cuda_arrays, "SPIN_S"):   # A/B: the driver's blocking fence wait alone
+        if fw == "torch" and hasattr(cuda_arrays, "SPIN_S"):  # A/B: the driver's blocking fence wait alone
             spin, cuda_arrays.SPIN_S = cuda_arrays.SPIN_S, 0.0
             try:
                 _, walls = timed(lambda: tracer.occluded(od, dd, td), repeat)
             finally:
                 cuda_arrays.SPIN_S = spin
             rows["torch, no fence polling"] = (walls, tracer.last_gpu_ms)
-        if hasattr(tracer, "cuda_ray_arrays"):   # the rays written into the Tracer's own arrays: no copy in
+        if hasattr(tracer, "cuda_ray_arrays"):  # the rays written into the Tracer's own arrays: no copy in
             ro, rd, rt = tracer.cuda_ray_arrays(n, framework=fw)
-            ro[:], rd[:], rt[:] = od, dd, td   # (a tmax for all rays written once too)
+            ro[:], rd[:], rt[:] = od, dd, td  # (a tmax for all rays written once too)
             sync()
             own, walls = timed(lambda: tracer.occluded(ro, rd, rt), repeat)
             rows[f"{fw}, rays in the Tracer's arrays"] = (walls, tracer.last_gpu_ms)
@@ -100,10 +104,15 @@ def run_set(tracer, name, o, d, t, repeat):
     print("|---|---:|---:|---:|---:|")
     for fw, (walls, gpu_ms) in rows.items():
         best, med = min(walls), float(np.median(walls))
-        print(f"| {fw} | {best * 1e3:.2f} / {med * 1e3:.2f} | {n / best / 1e9:.2f} / {n / med / 1e9:.2f} | "
-              f"{gpu_ms:.3f} | {n / gpu_ms / 1e6:.2f} |")
-    return {"rays": n, "occluded": float(ref.mean()),
-            "rows": {fw: {"walls_s": walls, "gpu_ms": gpu_ms} for fw, (walls, gpu_ms) in rows.items()}}
+        print(
+            f"| {fw} | {best * 1e3:.2f} / {med * 1e3:.2f} | {n / best / 1e9:.2f} / {n / med / 1e9:.2f} | "
+            f"{gpu_ms:.3f} | {n / gpu_ms / 1e6:.2f} |"
+        )
+    return {
+        "rays": n,
+        "occluded": float(ref.mean()),
+        "rows": {fw: {"walls_s": walls, "gpu_ms": gpu_ms} for fw, (walls, gpu_ms) in rows.items()},
+    }
 
 
 def steps(tracer, o, d, t, repeat):
@@ -111,6 +120,7 @@ def steps(tracer, o, d, t, repeat):
     stream wait (the ray copies run on the GPU meanwhile), submit to fence, the timestamps, the result tensor."""
     import torch
     from engine.rt.cuda_results import ResultPool
+
     od, dd = torch.from_numpy(o).cuda(), torch.from_numpy(d).cuda()
     td = t if np.ndim(t) == 0 else torch.from_numpy(t).cuda()
     spent = {}
@@ -124,15 +134,19 @@ def steps(tracer, o, d, t, repeat):
                 return fn(*a, **kw)
             finally:
                 spent[key] = spent.get(key, 0.0) + time.perf_counter() - t0
+
         setattr(owner, name, timed_fn)
         return fn
+
     tracer.occluded(od, dd, td)
     rays = tracer._cuda
-    saved = [(cuda_arrays.CudaRays, "inputs", wrap(cuda_arrays.CudaRays, "inputs", "argument checks")),
-             (cuda_arrays._Torch, "sync", wrap(cuda_arrays._Torch, "sync", "stream wait (ray copies)")),
-             (type(tracer.ctx.root), "submit", wrap(type(tracer.ctx.root), "submit", "submit to fence")),
-             (type(tracer.timestamps), "read", wrap(type(tracer.timestamps), "read", "timestamps")),
-             (ResultPool, "lend", wrap(ResultPool, "lend", "result tensor"))]
+    saved = [
+        (cuda_arrays.CudaRays, "inputs", wrap(cuda_arrays.CudaRays, "inputs", "argument checks")),
+        (cuda_arrays._Torch, "sync", wrap(cuda_arrays._Torch, "sync", "stream wait (ray copies)")),
+        (type(tracer.ctx.root), "submit", wrap(type(tracer.ctx.root), "submit", "submit to fence")),
+        (type(tracer.timestamps), "read", wrap(type(tracer.timestamps), "read", "timestamps")),
+        (ResultPool, "lend", wrap(ResultPool, "lend", "result tensor")),
+    ]
     rows = []
     try:
         for _ in range(repeat):

@@ -9,6 +9,7 @@ over the flattened triangles): camera rays (closest hit) over the grid of instan
 points towards a sun (occlusion). Prints the GPU ms of each (median of --repeat), the ratio flattened / instanced
 (>= 0.8 meets the target) and whether the answers agree (hit/miss, triangle ids).
 """
+
 from __future__ import annotations
 
 import argparse
@@ -27,7 +28,7 @@ from bench_instances import transforms, uv_sphere  # noqa: E402
 
 
 def gpu_ms(tracer, query, repeat):
-    query()   # warm-up
+    query()  # warm-up
     times = []
     for _ in range(repeat):
         query()
@@ -46,9 +47,10 @@ def main(argv=None) -> int:
     rng = np.random.default_rng(0)
     v, f = uv_sphere(a.tris)
     n = a.instances
-    scene = Scene.from_meshes([Mesh(v, f, name="sphere")], [Instance(0, m) for m in transforms(n, 0.0, rng)],
-                              name="<bench>")
-    scene.set_transforms(transforms(n, 0.1, rng))   # moved once: the two-level BVH, as a moving scene has
+    scene = Scene.from_meshes(
+        [Mesh(v, f, name="sphere")], [Instance(0, m) for m in transforms(n, 0.0, rng)], name="<bench>"
+    )
+    scene.set_transforms(transforms(n, 0.1, rng))  # moved once: the two-level BVH, as a moving scene has
     lo, hi = scene.bounds.astype(np.float64)
     cam = Camera.look_at(eye=(hi[0] * 1.1, (hi[0] - lo[0]) * 0.4, hi[2] * 1.1), target=0.5 * (lo + hi), fov_y=50)
     w = int(np.sqrt(a.rays * 16 / 9))
@@ -80,15 +82,21 @@ def main(argv=None) -> int:
                 ff = gpu_ms(flat, lambda: getattr(flat, kind)(*args), a.repeat)
                 out[f"{kind}_instanced_gpu_ms"], out[f"{kind}_flat_gpu_ms"] = fi, ff
                 out[f"{kind}_flat_over_instanced"] = ff / fi
-    print(f"{n} instances x {len(f)} triangles = {scene.triangle_count:,} triangles; {len(o):,} camera rays, "
-          f"{out['shadow_rays']:,} shadow rays")
+    print(
+        f"{n} instances x {len(f)} triangles = {scene.triangle_count:,} triangles; {len(o):,} camera rays, "
+        f"{out['shadow_rays']:,} shadow rays"
+    )
     print(f"set-up ms: instanced {out['instanced_setup_ms']:.0f}, flattened {out['flat_setup_ms']:.0f}")
-    print(f"agreement: hit/miss {out['hit_miss_agree']:.5f}, same triangle {out['same_prim']:.5f}, "
-          f"occlusion {out['shadow_agree']:.5f}")
+    print(
+        f"agreement: hit/miss {out['hit_miss_agree']:.5f}, same triangle {out['same_prim']:.5f}, "
+        f"occlusion {out['shadow_agree']:.5f}"
+    )
     for kind in ("intersect", "occluded"):
-        print(f"{kind}: GPU ms instanced {out[f'{kind}_instanced_gpu_ms']:.3f}, flattened "
-              f"{out[f'{kind}_flat_gpu_ms']:.3f}; flattened / instanced {out[f'{kind}_flat_over_instanced']:.3f} "
-              f"(target >= 0.8)")
+        print(
+            f"{kind}: GPU ms instanced {out[f'{kind}_instanced_gpu_ms']:.3f}, flattened "
+            f"{out[f'{kind}_flat_gpu_ms']:.3f}; flattened / instanced {out[f'{kind}_flat_over_instanced']:.3f} "
+            f"(target >= 0.8)"
+        )
     if a.json:
         with open(a.json, "w") as fh:
             json.dump(out, fh, indent=1)

@@ -20,6 +20,7 @@ Measures, with every instance moving every frame:
   staging write and the SAH read-back), against its rebuild.
 Prints one `name: value` line per figure.
 """
+
 from __future__ import annotations
 
 import argparse
@@ -136,9 +137,11 @@ def main(argv=None) -> None:
     for builder in ("host", "gpu"):
         os.environ["HYBRID_TLAS_BUILD"] = builder
         with Tracer.from_scene(scene, device=args.device) as tracer:
+
             def update():
                 set_all()
                 tracer._sync()
+
             print(f"top_level_update_{builder}_ms: {timed(update, args.repeat):.3f}")
             host, latency = update_split(tracer, set_all, args.frames)
             print(f"top_level_update_{builder}_host_ms: {host:.3f}")
@@ -163,15 +166,15 @@ def main(argv=None) -> None:
         def update():
             set_all()
             tracer._sync()
+
         print(f"top_level_update_with_upload_ms: {timed(update, args.repeat):.3f}")
         w = int(np.sqrt(args.rays * 16 / 9))
         h = max(1, args.rays // w)
         lo, hi = scene.bounds.astype(np.float64)
-        cam = Camera.look_at(eye=(hi[0] * 1.1, (hi[0] - lo[0]) * 0.4, hi[2] * 1.1), target=0.5 * (lo + hi),
-                             fov_y=50)
+        cam = Camera.look_at(eye=(hi[0] * 1.1, (hi[0] - lo[0]) * 0.4, hi[2] * 1.1), target=0.5 * (lo + hi), fov_y=50)
         o, d = cam.rays(w, h)
         o, d = o.reshape(-1, 3), d.reshape(-1, 3)
-        tracer.intersect(o, d)   # warm-up: the first dispatch of a pipeline may compile it
+        tracer.intersect(o, d)  # warm-up: the first dispatch of a pipeline may compile it
         hits = tracer.intersect(o, d)
         print(f"rays: {len(o)} ({w} x {h})")
         print(f"intersect_gpu_ms: {tracer.last_gpu_ms:.3f}")
@@ -189,7 +192,7 @@ def main(argv=None) -> None:
     big = build_bvh(rv.astype(np.float32), rf)
     lvl = TwoLevel([big], 1)
     wob = rv * (1.0 + 0.05 * np.sin(5 * rv[:, :1]))
-    lvl.refit(0, wob, rf)   # the first call caches the node levels
+    lvl.refit(0, wob, rf)  # the first call caches the node levels
     t0 = time.perf_counter()
     ratio = lvl.refit(0, wob * 1.01, rf)
     print(f"refit_triangles: {len(rf)}")
@@ -203,11 +206,11 @@ def main(argv=None) -> None:
     rscene = Scene.from_meshes([Mesh(rv, rf, name="big")], [Instance(0, place)], name="<refit>")
     with Tracer.from_scene(rscene, device=args.device) as tracer:
         bvh = tracer.scene
-        rp = rscene.meshes[0].positions.astype(np.float64)   # (the mesh as the scene keeps it)
+        rp = rscene.meshes[0].positions.astype(np.float64)  # (the mesh as the scene keeps it)
         shapes = [rp * (1.0 + 0.05 * np.sin(5 * rp[:, :1])) * (1.0 + 0.002 * k) for k in range(4)]
         t0 = time.perf_counter()
         rscene.update_positions(0, shapes[0])
-        tracer._sync()   # the first refit makes and uploads the plan, and records the command buffer
+        tracer._sync()  # the first refit makes and uploads the plan, and records the command buffer
         first_ms = (time.perf_counter() - t0) * 1e3
         gpu, walls = [], []
         for k in range(args.repeat):

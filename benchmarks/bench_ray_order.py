@@ -28,6 +28,7 @@ order (`engine.rt.order.ray_order`: box, keys, sort, into kept words as the Trac
 in that order (`engine.native.gather`: C where the package has its compiled C steps, else np.take), and whether
 the C steps ran.
 """
+
 from __future__ import annotations
 
 import argparse
@@ -90,8 +91,11 @@ def gbuffer_rays(scene, n, size):
         frame = r.render(scene, shadows="hard", ao=False)
     o, _, d, tmax, _, up = first_light_rays(scene, frame)
     o, d = o[up], np.broadcast_to(d, o.shape)[up]
-    return (np.ascontiguousarray(np.resize(o, (n, 3)), np.float32), np.ascontiguousarray(np.resize(d, (n, 3)),
-            np.float32), np.float32(tmax))
+    return (
+        np.ascontiguousarray(np.resize(o, (n, 3)), np.float32),
+        np.ascontiguousarray(np.resize(d, (n, 3)), np.float32),
+        np.float32(tmax),
+    )
 
 
 def bench_scene(name, scene, a, rng):
@@ -110,10 +114,13 @@ def bench_scene(name, scene, a, rng):
     go, gd, gt = gbuffer_rays(scene, a.rays, a.gbuffer)
     v, f = np.asarray(scene.positions, np.float32), np.asarray(scene.indices, np.int64)
     rnd = random_rayset(scene, a.rays, rng)
-    extra = {"gbuffer": (go, gd, gt, False, "occluded"), "gbuffer auto": (go, gd, gt, "auto", "occluded"),
-             "random": (rnd.origins, rnd.directions, np.float32(np.inf), False, "intersect"),
-             "random sorted": (rnd.origins, rnd.directions, np.float32(np.inf), True, "intersect"),
-             "random auto": (rnd.origins, rnd.directions, np.float32(np.inf), "auto", "intersect")}
+    extra = {
+        "gbuffer": (go, gd, gt, False, "occluded"),
+        "gbuffer auto": (go, gd, gt, "auto", "occluded"),
+        "random": (rnd.origins, rnd.directions, np.float32(np.inf), False, "intersect"),
+        "random sorted": (rnd.origins, rnd.directions, np.float32(np.inf), True, "intersect"),
+        "random auto": (rnd.origins, rnd.directions, np.float32(np.inf), "auto", "intersect"),
+    }
     walls = {k: [] for k in list(variants) + list(extra)}
     gpu = {k: [] for k in variants}
     reordered = {}
@@ -149,25 +156,32 @@ def bench_scene(name, scene, a, rng):
         native.gather(so, perm, gathered)
         steps["gather"].append(time.perf_counter() - t0)
     w = {k: np.asarray(x) for k, x in walls.items()}
-    ratio = lambda x, y: float(np.median(w[x] / w[y]))   # noqa: E731  (per run, interleaved)
-    return {"scene": name, "rays": len(o), "blocked": float(want.mean()), "tris": len(f),
-            "wall_ms": {k: float(np.median(x)) * 1e3 for k, x in w.items()},
-            "mrays_s": {k: len(o) / float(np.median(x)) / 1e6 for k, x in w.items()},
-            "reordered": reordered,
-            "gpu_ms": {k: float(np.median(x)) for k, x in gpu.items()},
-            "host_steps_ms": {k: float(np.median(x)) * 1e3 for k, x in steps.items()},
-            "native": native.library() is not None,
-            "load_average": os.getloadavg()[0],
-            "ratios": {"reordered / coherent": ratio("coherent", "reordered"),
-                       "reordered / image": ratio("image", "reordered"),
-                       "shuffled / coherent": ratio("coherent", "shuffled"),
-                       "reordered / shuffled": ratio("shuffled", "reordered"),
-                       "auto / reordered": ratio("reordered", "auto"),
-                       "coherent auto / coherent": ratio("coherent", "coherent auto"),
-                       "gbuffer auto / gbuffer": ratio("gbuffer", "gbuffer auto"),
-                       "random sorted / random": ratio("random", "random sorted"),
-                       "random auto / random": ratio("random", "random auto")},
-            "validation_errors": errors}
+    ratio = lambda x, y: float(np.median(w[x] / w[y]))  # noqa: E731  (per run, interleaved)
+    return {
+        "scene": name,
+        "rays": len(o),
+        "blocked": float(want.mean()),
+        "tris": len(f),
+        "wall_ms": {k: float(np.median(x)) * 1e3 for k, x in w.items()},
+        "mrays_s": {k: len(o) / float(np.median(x)) / 1e6 for k, x in w.items()},
+        "reordered": reordered,
+        "gpu_ms": {k: float(np.median(x)) for k, x in gpu.items()},
+        "host_steps_ms": {k: float(np.median(x)) * 1e3 for k, x in steps.items()},
+        "native": native.library() is not None,
+        "load_average": os.getloadavg()[0],
+        "ratios": {
+            "reordered / coherent": ratio("coherent", "reordered"),
+            "reordered / image": ratio("image", "reordered"),
+            "shuffled / coherent": ratio("coherent", "shuffled"),
+            "reordered / shuffled": ratio("shuffled", "reordered"),
+            "auto / reordered": ratio("reordered", "auto"),
+            "coherent auto / coherent": ratio("coherent", "coherent auto"),
+            "gbuffer auto / gbuffer": ratio("gbuffer", "gbuffer auto"),
+            "random sorted / random": ratio("random", "random sorted"),
+            "random auto / random": ratio("random", "random auto"),
+        },
+        "validation_errors": errors,
+    }
 
 
 def main() -> int:
@@ -187,13 +201,18 @@ def main() -> int:
         scene = generated_scene(a.generated_tris) if name == "generated" else engine.Scene.load(name)
         run = bench_scene(name, scene, a, rng)
         out["runs"].append(run)
-        print(f"{name} scene ({run['tris']:,} triangles), {run['rays']:,} shadow rays from random surface samples "
-              f"({run['blocked']:.1%} blocked), {a.reps} interleaved runs, medians:")
+        print(
+            f"{name} scene ({run['tris']:,} triangles), {run['rays']:,} shadow rays from random surface samples "
+            f"({run['blocked']:.1%} blocked), {a.reps} interleaved runs, medians:"
+        )
         for k, ms in run["wall_ms"].items():
             trace = f"  trace {run['gpu_ms'][k]:7.1f} ms" if k in run["gpu_ms"] else ""
             print(f"  {k:>13}  {ms:8.1f} ms  {run['mrays_s'][k]:6.2f} Mrays/s  reordered: {run['reordered'][k]}{trace}")
-        print("  host steps alone: " + ", ".join(f"{k} {ms:.1f} ms" for k, ms in run["host_steps_ms"].items())
-              + f" ({'C' if run['native'] else 'numpy'} steps; load average {run['load_average']:.1f})")
+        print(
+            "  host steps alone: "
+            + ", ".join(f"{k} {ms:.1f} ms" for k, ms in run["host_steps_ms"].items())
+            + f" ({'C' if run['native'] else 'numpy'} steps; load average {run['load_average']:.1f})"
+        )
         for k, r in run["ratios"].items():
             print(f"  {k:>24}  {r:.2f}x")
         if run["validation_errors"]:

@@ -12,6 +12,7 @@ checked against the first Tracer's. Only the public API, so any checkout with be
 tools/bench_stream.py, where older checkouts had it) runs it. Prints the median of each figure per run and over all
 runs per root.
 """
+
 from __future__ import annotations
 
 import argparse
@@ -32,6 +33,7 @@ def second_tracers(dev, v, f, o, d, t, runs: int) -> tuple:
     runs as dicts of ms, the first Tracer's set-up ms, its BVH build ms)."""
     import engine
     import numpy as np
+
     t0 = time.perf_counter()
     first = engine.Tracer(v, f, device=dev)
     first_ms = (time.perf_counter() - t0) * 1e3
@@ -48,9 +50,15 @@ def second_tracers(dev, v, f, o, d, t, runs: int) -> tuple:
         second.occluded(o, d, t)
         warm = (time.perf_counter() - t0) * 1e3
         assert np.array_equal(got, want), "a second Tracer answered differently"
-        out.append({"tracer_ms": ms, "build_ms": second.stats["build_ms"],
-                    "beyond_build_ms": ms - second.stats["build_ms"], "first_query_ms": first_query,
-                    "warm_query_ms": warm})
+        out.append(
+            {
+                "tracer_ms": ms,
+                "build_ms": second.stats["build_ms"],
+                "beyond_build_ms": ms - second.stats["build_ms"],
+                "first_query_ms": first_query,
+                "warm_query_ms": warm,
+            }
+        )
         second.close()
     first.close()
     return out, first_ms, first.stats["build_ms"]
@@ -61,6 +69,7 @@ def one_run(size: str, runs: int) -> dict:
     import numpy as np
     import engine
     from bench_stream import shadow_rays
+
     w, h = (int(x) for x in size.lower().split("x"))
     scene = engine.Scene.load("default")
     o, d, t = shadow_rays(scene, w, h, None)
@@ -82,7 +91,7 @@ def main() -> int:
     ap.add_argument("--json", default=None)
     ap.add_argument("--child", default=None, help=argparse.SUPPRESS)
     a = ap.parse_args()
-    if a.child:   # one run, in the root given: its engine and bench_stream.py first on the path
+    if a.child:  # one run, in the root given: its engine and bench_stream.py first on the path
         sys.path[:0] = [a.child, str(Path(a.child) / "benchmarks"), str(Path(a.child) / "tools")]
         print(json.dumps(one_run(a.size, a.runs)))
         return 0
@@ -90,22 +99,30 @@ def main() -> int:
     results: dict = {r: [] for r in roots}
     for i in range(a.rounds):
         for root in roots:
-            proc = subprocess.run([sys.executable, __file__, "--child", root, "--size", a.size, "--runs", str(a.runs)],
-                                  capture_output=True, text=True, cwd=root)
+            proc = subprocess.run(
+                [sys.executable, __file__, "--child", root, "--size", a.size, "--runs", str(a.runs)],
+                capture_output=True,
+                text=True,
+                cwd=root,
+            )
             if proc.returncode:
                 print(proc.stdout + proc.stderr)
                 return proc.returncode
             run = json.loads(proc.stdout.strip().splitlines()[-1])
             results[root].append(run)
-            print(f"round {i + 1} {root}: " + ", ".join(f"{k} {statistics.median(run[k]):.1f}" for k in FIGURES)
-                  + f"; beyond the build, each: {', '.join(f'{x:.1f}' for x in run['beyond_build_ms'])}"
-                  + (f"; validation errors {run['validation_errors']}" if run["validation_errors"] else ""))
-    print(f"{time.strftime('%Y-%m-%d %H:%M UTC', time.gmtime())}  {results[roots[0]][0]['device']}, {a.size} "
-          f"shadow rays, {a.rounds} rounds of {a.runs} second Tracers; medians over all runs:")
+            print(
+                f"round {i + 1} {root}: "
+                + ", ".join(f"{k} {statistics.median(run[k]):.1f}" for k in FIGURES)
+                + f"; beyond the build, each: {', '.join(f'{x:.1f}' for x in run['beyond_build_ms'])}"
+                + (f"; validation errors {run['validation_errors']}" if run["validation_errors"] else "")
+            )
+    print(
+        f"{time.strftime('%Y-%m-%d %H:%M UTC', time.gmtime())}  {results[roots[0]][0]['device']}, {a.size} "
+        f"shadow rays, {a.rounds} rounds of {a.runs} second Tracers; medians over all runs:"
+    )
     for root in roots:
         runs = results[root]
-        print(f"  {root}: " + ", ".join(f"{k} {statistics.median(x for r in runs for x in r[k]):.1f}"
-                                        for k in FIGURES))
+        print(f"  {root}: " + ", ".join(f"{k} {statistics.median(x for r in runs for x in r[k]):.1f}" for k in FIGURES))
     if a.json:
         Path(a.json).parent.mkdir(parents=True, exist_ok=True)
         Path(a.json).write_text(json.dumps({"size": a.size, "results": results}, indent=1) + "\n")

@@ -4,6 +4,7 @@ copy bandwidth into mapped memory on 1..all threads, the cost of the ray checks,
 
     .venv/bin/python benchmarks/profile_stream.py [--size 1920x1080] [--json out/profile.json]
 """
+
 from __future__ import annotations
 
 import argparse
@@ -41,7 +42,7 @@ def best(fn, reps=7):
 
 def par_copy(dst, src, threads, block):
     n = len(src)
-    prun([lambda s=s: np.copyto(dst[s:s + block], src[s:s + block]) for s in range(0, n, block)], threads)
+    prun([lambda s=s: np.copyto(dst[s : s + block], src[s : s + block]) for s in range(0, n, block)], threads)
 
 
 def main() -> int:
@@ -64,10 +65,12 @@ def main() -> int:
         for i in range(mp.memoryTypeCount):
             ty = mp.memoryTypes[i]
             names = [nm for b, nm in FLAGS.items() if ty.propertyFlags & b]
-            print(f"memory type {i}: heap {ty.heapIndex} ({mp.memoryHeaps[ty.heapIndex].size / 2**30:.1f} GiB) "
-                  f"{'|'.join(names)}")
+            print(
+                f"memory type {i}: heap {ty.heapIndex} ({mp.memoryHeaps[ty.heapIndex].size / 2**30:.1f} GiB) "
+                f"{'|'.join(names)}"
+            )
         buf = Buffer(ctx, n * 28, TRANSFER_SRC, host=True, name="probe")
-        mapped = buf.view(np.float32)[:6 * n]
+        mapped = buf.view(np.float32)[: 6 * n]
         src = np.concatenate([o.reshape(-1), d.reshape(-1)])
         plain = np.empty_like(src)
         plain[:] = 1
@@ -77,8 +80,11 @@ def main() -> int:
             if threads > default_threads():
                 continue
             for block in (1 << 16, 1 << 18, -(-len(src) // threads)):
-                for name, dst, s_ in (("to mapped", mapped, src), ("to plain", plain, src),
-                                      ("from mapped", plain, mapped)):
+                for name, dst, s_ in (
+                    ("to mapped", mapped, src),
+                    ("to plain", plain, src),
+                    ("from mapped", plain, mapped),
+                ):
                     ms, med = best(lambda: par_copy(dst, s_, threads, block))
                     rows[f"{name} t{threads} b{block}"] = ms
                     print(f"copy {name:12} threads {threads:2} block {block:>9}: {ms:7.2f} ms  {mb / ms:6.1f} GB/s")
@@ -89,8 +95,10 @@ def main() -> int:
         ms, _ = best(lambda: block_fine(o, d, t, scratch))
         print(f"block_fine all {n} rays, one thread: {ms:.2f} ms")
         for blk, k in ((1 << 17, 16), (1 << 18, 8), (1 << 19, 4)):
+
             def one(s, blk=blk):
-                return block_fine(o[s:s + blk], d[s:s + blk], t[s:s + blk], scratch[3 * s:3 * s + 3 * blk])
+                return block_fine(o[s : s + blk], d[s : s + blk], t[s : s + blk], scratch[3 * s : 3 * s + 3 * blk])
+
             ms, _ = best(lambda: prun([lambda s=s: one(s) for s in range(0, n, blk)], k))
             print(f"block_fine blocks {blk}, {k} threads: {ms:.2f} ms")
         ms, _ = best(lambda: t.min())
@@ -114,8 +122,10 @@ def main() -> int:
                 r = fn(*args, **kw)
                 events.append((label, t0, time.perf_counter()))
                 return r
+
             setattr(obj, name, inner)
             return fn
+
         orig = {(cls, k): getattr(cls, k) for cls, k in ((sm.Slot, "submit"), (sm.SlotBuffers, "wait"))}
         for cls, k in orig:
             wrap(cls, k, k)
@@ -129,12 +139,17 @@ def main() -> int:
                 t0 = time.perf_counter()
                 s(*args)
                 events.append(("sink", t0, time.perf_counter()))
+
             return inner
+
         tm.occluded_sink = sink_factory
         default_chunk = tm.STREAM_CHUNK, tm.STREAM_CHUNK_STAGED
         default_stream_threads = sm.STREAM_THREADS
-        configs = [(c, None, None) for c in a.chunks] + [(c, None, k) for c in (1 << 19, 1 << 20, 1 << 21)
-                                                           for k in (4, 6, 12)] + [(1 << 20, False, None)]
+        configs = (
+            [(c, None, None) for c in a.chunks]
+            + [(c, None, k) for c in (1 << 19, 1 << 20, 1 << 21) for k in (4, 6, 12)]
+            + [(1 << 20, False, None)]
+        )
         for chunk, staging, threads in configs:
             tm.STREAM_CHUNK = tm.STREAM_CHUNK_STAGED = chunk
             if threads:
@@ -147,6 +162,7 @@ def main() -> int:
                     r = sub(*args, **kw)
                     events.append(("submit", t0, time.perf_counter()))
                     return r
+
                 tr.ctx.submit = sub_t
                 ref = tr.occluded(o, d, t)
                 walls = []
@@ -159,11 +175,15 @@ def main() -> int:
                 for lab, s0, s1 in events:
                     tot[lab] = tot.get(lab, 0) + (s1 - s0) * 1e3
                 wall = float(np.median(walls)) * 1e3
-                print(f"chunk {chunk} staging {tr.session.staged} threads {sm.STREAM_THREADS}: wall {wall:.2f} ms "
-                      f"({n / wall / 1e3:.1f} Mrays/s) gpu {tr.last_gpu_ms:.2f} times {tr.last_times} sums "
-                      + " ".join(f"{k} {v_:.2f}" for k, v_ in tot.items()))
-                print("  last timeline (ms from start): " + " ".join(
-                    f"{lab}[{(s0 - t0) * 1e3:.2f}-{(s1 - t0) * 1e3:.2f}]" for lab, s0, s1 in events))
+                print(
+                    f"chunk {chunk} staging {tr.session.staged} threads {sm.STREAM_THREADS}: wall {wall:.2f} ms "
+                    f"({n / wall / 1e3:.1f} Mrays/s) gpu {tr.last_gpu_ms:.2f} times {tr.last_times} sums "
+                    + " ".join(f"{k} {v_:.2f}" for k, v_ in tot.items())
+                )
+                print(
+                    "  last timeline (ms from start): "
+                    + " ".join(f"{lab}[{(s0 - t0) * 1e3:.2f}-{(s1 - t0) * 1e3:.2f}]" for lab, s0, s1 in events)
+                )
                 out[f"chunk{chunk}_staging{tr.session.staged}_t{threads}"] = {"wall": wall, "sums": tot}
                 assert np.array_equal(tr.occluded(o, d, t), ref)
             sm.STREAM_THREADS = default_stream_threads

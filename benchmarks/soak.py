@@ -6,6 +6,7 @@ printing resident memory and live Vulkan allocations as they go and the slope of
 
 A leak shows as a positive slope after warm-up (MB per 1,000 frames); tests/test_soak.py runs a short version.
 """
+
 from __future__ import annotations
 
 import argparse
@@ -48,14 +49,18 @@ def soak_frames(frames: int, size, scene_path: str, every: int, validation: bool
             r.submit(scene, cam, shadows="soft", accumulate=True, denoise=True, ao=True, ao_samples=1)
             if i % every == 0 or i == frames - 1:
                 marks.append((i, rss_mb(), r.ctx.allocations))
-                print(f"frame {i:>7}: RSS {marks[-1][1]:8.1f} MB, Vulkan allocations {marks[-1][2]}, "
-                      f"{(i + 1) / (time.perf_counter() - t0):.0f} frames/s", flush=True)
+                print(
+                    f"frame {i:>7}: RSS {marks[-1][1]:8.1f} MB, Vulkan allocations {marks[-1][2]}, "
+                    f"{(i + 1) / (time.perf_counter() - t0):.0f} frames/s",
+                    flush=True,
+                )
         errors = list(r.validation_errors)
     return marks, errors
 
 
 def soak_queries(queries: int, every: int, validation: bool):
-    import trimesh   # deferred: only the query soak needs it
+    import trimesh  # deferred: only the query soak needs it
+
     mesh = trimesh.creation.icosphere(subdivisions=4)
     rng = np.random.default_rng(0)
     marks = []
@@ -73,12 +78,14 @@ def soak_queries(queries: int, every: int, validation: bool):
 
 def report(name, marks, per):
     """The slopes after the first fifth of the run (warm-up excluded)."""
-    tail = marks[len(marks) // 5:]
+    tail = marks[len(marks) // 5 :]
     xs = [m[0] for m in tail]
     mem = slope(xs, [m[1] for m in tail]) * per
     alloc = slope(xs, [m[2] for m in tail]) * per
-    print(f"{name}: RSS {marks[0][1]:.1f} -> {marks[-1][1]:.1f} MB, slope {mem:+.3f} MB per {per:,}; "
-          f"Vulkan allocations {marks[0][2]} -> {marks[-1][2]}, slope {alloc:+.3f} per {per:,}")
+    print(
+        f"{name}: RSS {marks[0][1]:.1f} -> {marks[-1][1]:.1f} MB, slope {mem:+.3f} MB per {per:,}; "
+        f"Vulkan allocations {marks[0][2]} -> {marks[-1][2]}, slope {alloc:+.3f} per {per:,}"
+    )
     return mem, alloc
 
 

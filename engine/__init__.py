@@ -35,6 +35,7 @@ Conventions, everywhere in the API:
 - Rays: `origin + t * direction` with directions used as given, so `t` and `tmax` are in units of the direction's
   length (world units for unit directions).
 """
+
 from ._version import __version__
 from .data import bundled_scenes, scene_path
 from .errors import ConfigError, EngineError, SceneError, ShaderError, VulkanError
@@ -43,13 +44,43 @@ from .vk.shared import Device
 from .rt import Closest, Hits, Tracer
 from .rt import RayMeshIntersector
 from .rt import RaycastingScene
-from .scene import (Camera, DirectionalLight, Instance, Light, Material, Mesh, PointLight, RectLight, Scene,
-                    SpotLight, SubMesh)
+from .scene import (
+    Camera,
+    DirectionalLight,
+    Instance,
+    Light,
+    Material,
+    Mesh,
+    PointLight,
+    RectLight,
+    Scene,
+    SpotLight,
+    SubMesh,
+)
 
 __all__ = [
-    "Scene", "Camera", "Material", "Light", "DirectionalLight", "PointLight", "SpotLight", "RectLight", "SubMesh",
-    "Renderer", "Frame", "Tracer", "Hits", "Closest", "EngineError", "SceneError", "ConfigError", "VulkanError",
-    "ShaderError", "scene_path", "bundled_scenes", "__version__",
+    "Scene",
+    "Camera",
+    "Material",
+    "Light",
+    "DirectionalLight",
+    "PointLight",
+    "SpotLight",
+    "RectLight",
+    "SubMesh",
+    "Renderer",
+    "Frame",
+    "Tracer",
+    "Hits",
+    "Closest",
+    "EngineError",
+    "SceneError",
+    "ConfigError",
+    "VulkanError",
+    "ShaderError",
+    "scene_path",
+    "bundled_scenes",
+    "__version__",
 ]
 __all__ += ["RayMeshIntersector"]
 __all__ += ["RaycastingScene"]

@@ -2,6 +2,7 @@
 with FLAGS. setup.py names it in `cffi_modules`, so it runs when the package is built (`pip install .`, `pip
 install -e .`, `python -m build`, `python setup.py build_ext --inplace`); engine/native.py loads what it built.
 Run by path, from the checkout's root (paths relative to it), never imported by the engine."""
+
 import hashlib
 from pathlib import Path
 
@@ -29,7 +30,10 @@ ffibuilder = FFI()
 ffibuilder.cdef(declarations() + "\nconst char *hybrid_source_tag(void);\n")
 ffibuilder.set_source(
     "engine._native",
-    '#include "native.h"\n'
-    f'static const char *hybrid_source_tag(void) {{ return "{source_tag()}"; }}\n',
-    sources=["engine/native.c"], include_dirs=["engine"], depends=["engine/native.h"],
-    extra_compile_args=FLAGS, extra_link_args=["-pthread"])
+    f'#include "native.h"\nstatic const char *hybrid_source_tag(void) {{ return "{source_tag()}"; }}\n',
+    sources=["engine/native.c"],
+    include_dirs=["engine"],
+    depends=["engine/native.h"],
+    extra_compile_args=FLAGS,
+    extra_link_args=["-pthread"],
+)

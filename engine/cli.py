@@ -2,6 +2,7 @@
 
 Every engine error is printed on one line as `error: <message>` and the exit status is 1.
 """
+
 from __future__ import annotations
 
 import argparse
@@ -46,14 +47,16 @@ def _outputs(args) -> tuple:
     names = list(dict.fromkeys(args.aov or []))
     if suffix == ".png":
         if len(names) > 1 or "all" in names:
-            raise ConfigError(f"{args.output}: a PNG holds one image; several AOVs (--aov {' --aov '.join(names)}) "
-                              f"go to one .exr or .npz file")
+            raise ConfigError(
+                f"{args.output}: a PNG holds one image; several AOVs (--aov {' --aov '.join(names)}) "
+                f"go to one .exr or .npz file"
+            )
         name = names[0] if names else "color"
         if args.depth_scale is not None:
             if name != "depth":
                 raise ConfigError("--depth-scale writes a 16-bit depth PNG: give --aov depth")
             return ("depth",), "color", dict(aov="depth", depth_scale=args.depth_scale), ["depth"]
-        return ("color",), name, {}, [name]   # the AOV drawn into the colour image on the GPU
+        return ("color",), name, {}, [name]  # the AOV drawn into the colour image on the GPU
     if args.depth_scale is not None:
         raise ConfigError(f"{args.output}: --depth-scale is for 16-bit depth PNGs (.exr and .npz hold metric depth)")
     aovs = resolve_aovs("all" if "all" in names else names or None)
@@ -80,9 +83,11 @@ def cmd_render(args) -> int:
     if args.resume and not sequence:
         raise ConfigError("--resume is for sequences (--orbit N or --camera-path FILE)")
     if args.fps is not None and not sequence:
-        raise ConfigError("--fps is for sequences (--orbit N or --camera-path FILE): frame i shows the scene's "
-                          "animation at i / FPS seconds")
-    check_output_path(args.output)     # before the work, which a path that cannot be written would lose
+        raise ConfigError(
+            "--fps is for sequences (--orbit N or --camera-path FILE): frame i shows the scene's "
+            "animation at i / FPS seconds"
+        )
+    check_output_path(args.output)  # before the work, which a path that cannot be written would lose
     aovs, view, save, names = _outputs(args)
     settings = dict(_settings(args), **({"view": view} if view != "color" else {}))
     if args.camera_path is not None and not Path(args.camera_path).is_file():
@@ -94,13 +99,25 @@ def cmd_render(args) -> int:
     width, height = render_size(cameras, size, where or scene.name)
     t1 = time.perf_counter()
     # SIGTERM unwinds like Ctrl-C: the file being written is dropped whole, the renderer closed
-    old_handler = signal.signal(signal.SIGTERM, _interrupt) if threading.current_thread() is threading.main_thread() \
-        else None
+    old_handler = (
+        signal.signal(signal.SIGTERM, _interrupt) if threading.current_thread() is threading.main_thread() else None
+    )
     try:
         with Renderer(width, height, device=args.device, validation=args.validation) as r:
-            result = render_sequence(r, scene, cameras, paths, aovs=aovs, settings=settings, save=save,
-                                     frames_per_view=args.frames, sidecars=sequence, resume=args.resume, fps=args.fps,
-                                     progress=sequence and not args.quiet and sys.stderr.isatty())
+            result = render_sequence(
+                r,
+                scene,
+                cameras,
+                paths,
+                aovs=aovs,
+                settings=settings,
+                save=save,
+                frames_per_view=args.frames,
+                sidecars=sequence,
+                resume=args.resume,
+                fps=args.fps,
+                progress=sequence and not args.quiet and sys.stderr.isatty(),
+            )
             errors = list(r.validation_errors)
             device = r.device_name
     finally:
@@ -111,13 +128,17 @@ def cmd_render(args) -> int:
         pass
     elif sequence:
         rate = result.rendered / result.seconds if result.seconds > 0 else 0.0
-        print(f"{args.output}: {result.frames} frames ({result.rendered} rendered, {result.skipped} already done) "
-              f"of {width}x{height} {what} of {scene.name} on {device}: {rate:.2f} frames/s, "
-              f"{_size(result.bytes_written)} written in {result.seconds:.1f} s")
+        print(
+            f"{args.output}: {result.frames} frames ({result.rendered} rendered, {result.skipped} already done) "
+            f"of {width}x{height} {what} of {scene.name} on {device}: {rate:.2f} frames/s, "
+            f"{_size(result.bytes_written)} written in {result.seconds:.1f} s"
+        )
     else:
         gpu = ", ".join(f"{k} {v:.2f}" for k, v in result.last.timings.items())
-        print(f"{args.output}: {width}x{height} {what} of {scene.name} ({scene.triangle_count} triangles) "
-              f"on {device}; load {t1 - t0:.2f} s, render {result.seconds:.2f} s; GPU ms: {gpu}")
+        print(
+            f"{args.output}: {width}x{height} {what} of {scene.name} ({scene.triangle_count} triangles) "
+            f"on {device}; load {t1 - t0:.2f} s, render {result.seconds:.2f} s; GPU ms: {gpu}"
+        )
     if errors:
         print(f"error: {len(errors)} validation errors; first: {errors[0]}", file=sys.stderr)
         return 1
@@ -158,62 +179,119 @@ def cmd_batch(args) -> int:
 
 
 def build_parser() -> argparse.ArgumentParser:
-    ap = argparse.ArgumentParser(prog="hybrid",
-                                 description="Hybrid Vulkan renderer (raster G-buffer + ray-traced shadows/AO)")
+    ap = argparse.ArgumentParser(
+        prog="hybrid", description="Hybrid Vulkan renderer (raster G-buffer + ray-traced shadows/AO)"
+    )
     ap.add_argument("-v", "--verbose", action="store_true", help="log debug messages")
     ap.add_argument("--version", action="version", version=f"hybrid {__version__}")
     sub = ap.add_subparsers(dest="command", required=True)
 
-    r = sub.add_parser("render", help="render a scene headless to a PNG, EXR or NPZ; sequences of cameras",
-                       description="Render a scene headless to a PNG, EXR or NPZ file (docs/datasets.md), or a "
-                                   "sequence of cameras (--orbit, --camera-path) to numbered files. Settings not "
-                                   "given here take the scene's [settings] (docs/scenes.md), then the renderer's "
-                                   "defaults.")
-    r.add_argument("scene", help="a .toml scene, a mesh/glTF file, or a bundled scene by name (default, sphere, "
-                                 "penumbra)")
-    r.add_argument("-o", "--output", default="out.png",
-                   help="file to write: .png (one image), .exr or .npz (several AOVs and the camera); a run of # in "
-                        "the file name is the frame number of a sequence, e.g. out/frame_####.exr; the folder must "
-                        "exist (default out.png)")
-    r.add_argument("--allow-path", action="append", default=None, metavar="DIR",
-                   help="a folder outside the scene's own that its files may be in (repeatable)")
-    r.add_argument("--up", default=None, metavar="AXIS",
-                   help="the files' up axis: y (default) or z (Z-up robotics/CAD assets; also -z, x, -x, -y); "
-                   "overrides a TOML scene's up key")
-    r.add_argument("--size", default=None,
-                   help="WIDTHxHEIGHT (default: a --camera-path camera's own size from its intrinsics, else 1280x720)")
-    r.add_argument("--aov", action="append", choices=AOVS + ("all",), metavar="AOV",
-                   help="what to write, may repeat: a PNG takes one (the colour, or an AOV drawn for viewing); "
-                        ".exr / .npz take several (default: color, depth, normal, position, albedo, shadow, ao; "
-                        f"'all': every one). AOVs: {', '.join(AOVS)}")
-    r.add_argument("--depth-scale", type=float, default=None, metavar="SCALE",
-                   help="with --aov depth and a .png: a 16-bit PNG of depth * SCALE (1000: millimetres), 0 on the "
-                        "background")
-    r.add_argument("--no-compress", dest="compress", action="store_false",
-                   help=".exr / .npz without compression (faster to write, about 9x larger)")
+    r = sub.add_parser(
+        "render",
+        help="render a scene headless to a PNG, EXR or NPZ; sequences of cameras",
+        description="Render a scene headless to a PNG, EXR or NPZ file (docs/datasets.md), or a "
+        "sequence of cameras (--orbit, --camera-path) to numbered files. Settings not "
+        "given here take the scene's [settings] (docs/scenes.md), then the renderer's "
+        "defaults.",
+    )
+    r.add_argument(
+        "scene", help="a .toml scene, a mesh/glTF file, or a bundled scene by name (default, sphere, penumbra)"
+    )
+    r.add_argument(
+        "-o",
+        "--output",
+        default="out.png",
+        help="file to write: .png (one image), .exr or .npz (several AOVs and the camera); a run of # in "
+        "the file name is the frame number of a sequence, e.g. out/frame_####.exr; the folder must "
+        "exist (default out.png)",
+    )
+    r.add_argument(
+        "--allow-path",
+        action="append",
+        default=None,
+        metavar="DIR",
+        help="a folder outside the scene's own that its files may be in (repeatable)",
+    )
+    r.add_argument(
+        "--up",
+        default=None,
+        metavar="AXIS",
+        help="the files' up axis: y (default) or z (Z-up robotics/CAD assets; also -z, x, -x, -y); "
+        "overrides a TOML scene's up key",
+    )
+    r.add_argument(
+        "--size",
+        default=None,
+        help="WIDTHxHEIGHT (default: a --camera-path camera's own size from its intrinsics, else 1280x720)",
+    )
+    r.add_argument(
+        "--aov",
+        action="append",
+        choices=AOVS + ("all",),
+        metavar="AOV",
+        help="what to write, may repeat: a PNG takes one (the colour, or an AOV drawn for viewing); "
+        ".exr / .npz take several (default: color, depth, normal, position, albedo, shadow, ao; "
+        f"'all': every one). AOVs: {', '.join(AOVS)}",
+    )
+    r.add_argument(
+        "--depth-scale",
+        type=float,
+        default=None,
+        metavar="SCALE",
+        help="with --aov depth and a .png: a 16-bit PNG of depth * SCALE (1000: millimetres), 0 on the background",
+    )
+    r.add_argument(
+        "--no-compress",
+        dest="compress",
+        action="store_false",
+        help=".exr / .npz without compression (faster to write, about 9x larger)",
+    )
     seq = r.add_mutually_exclusive_group()
-    seq.add_argument("--orbit", type=int, default=None, metavar="N",
-                     help="a sequence of N cameras on a circle around the scene, at its camera's distance and height")
-    seq.add_argument("--camera-path", default=None, metavar="FILE",
-                     help="a sequence of the cameras in a .json / .toml file: {eye, target} or {K, pose, width, "
-                          "height} each (docs/datasets.md)")
-    r.add_argument("--fps", type=float, default=None, metavar="FPS",
-                   help="sequences: play the scene's [[animation]] tables, frame i at i / FPS seconds")
-    r.add_argument("--resume", action="store_true",
-                   help="sequences: skip frames whose files (and camera sidecar) exist, render the rest")
+    seq.add_argument(
+        "--orbit",
+        type=int,
+        default=None,
+        metavar="N",
+        help="a sequence of N cameras on a circle around the scene, at its camera's distance and height",
+    )
+    seq.add_argument(
+        "--camera-path",
+        default=None,
+        metavar="FILE",
+        help="a sequence of the cameras in a .json / .toml file: {eye, target} or {K, pose, width, "
+        "height} each (docs/datasets.md)",
+    )
+    r.add_argument(
+        "--fps",
+        type=float,
+        default=None,
+        metavar="FPS",
+        help="sequences: play the scene's [[animation]] tables, frame i at i / FPS seconds",
+    )
+    r.add_argument(
+        "--resume",
+        action="store_true",
+        help="sequences: skip frames whose files (and camera sidecar) exist, render the rest",
+    )
     r.add_argument("-q", "--quiet", action="store_true", help="no progress bar and no summary line")
     r.add_argument("--device", default=None, help="Vulkan device index or name substring")
     r.add_argument("--validation", action="store_true", help="enable the Khronos validation layer; fail on errors")
-    r.add_argument("--shadows", default=None,
-                   help=f"shadow mode: {', '.join(SHADOW_CHOICES)} (default: the scene's, else hard)")
+    r.add_argument(
+        "--shadows", default=None, help=f"shadow mode: {', '.join(SHADOW_CHOICES)} (default: the scene's, else hard)"
+    )
     r.add_argument("--shadow-samples", type=int, default=None, help="soft: rays per pixel per light per frame")
-    r.add_argument("--reference-samples", type=int, default=None,
-                   help="reference: rays per pixel per light (default 256)")
-    r.add_argument("--frames", type=int, default=1,
-                   help="render this many frames (per camera of a sequence) and write the last (soft shadows and "
-                        "AO accumulate)")
-    r.add_argument("--no-accumulate", dest="accumulate", action="store_false", default=None,
-                   help="no temporal accumulation")
+    r.add_argument(
+        "--reference-samples", type=int, default=None, help="reference: rays per pixel per light (default 256)"
+    )
+    r.add_argument(
+        "--frames",
+        type=int,
+        default=1,
+        help="render this many frames (per camera of a sequence) and write the last (soft shadows and AO accumulate)",
+    )
+    r.add_argument(
+        "--no-accumulate", dest="accumulate", action="store_false", default=None, help="no temporal accumulation"
+    )
     r.add_argument("--no-denoise", dest="denoise", action="store_false", default=None, help="no a-trous denoiser")
     r.add_argument("--ao", dest="ao", action="store_true", default=None, help="ambient occlusion on")
     r.add_argument("--no-ao", dest="ao", action="store_false", help="ambient occlusion off")
@@ -228,11 +306,13 @@ def build_parser() -> argparse.ArgumentParser:
     add_bench_arguments(b)
     b.set_defaults(func=cmd_bench)
 
-    j = sub.add_parser("batch", help="render a job (scenes x cameras x AOVs) into a folder: resumable, on several "
-                                     "workers or a Ray cluster",
-                       description="Render a batch job (docs/batch.md) into its output folder. Finished items are "
-                                   "skipped, so an interrupted batch resumes; failed items are reported and the rest "
-                                   "go on (exit status 1 if any failed).")
+    j = sub.add_parser(
+        "batch",
+        help="render a job (scenes x cameras x AOVs) into a folder: resumable, on several workers or a Ray cluster",
+        description="Render a batch job (docs/batch.md) into its output folder. Finished items are "
+        "skipped, so an interrupted batch resumes; failed items are reported and the rest "
+        "go on (exit status 1 if any failed).",
+    )
     add_batch_arguments(j)
     j.set_defaults(func=cmd_batch)
 
@@ -245,13 +325,13 @@ def build_parser() -> argparse.ArgumentParser:
 def main(argv=None) -> int:
     args = build_parser().parse_args(argv)
     logging.basicConfig(level=logging.DEBUG if args.verbose else logging.WARNING, format="%(name)s: %(message)s")
-    if args.verbose:   # our debug messages; the image and mesh libraries' own (every PNG chunk) stay out
+    if args.verbose:  # our debug messages; the image and mesh libraries' own (every PNG chunk) stay out
         for name in ("PIL", "trimesh"):
             logging.getLogger(name).setLevel(logging.INFO)
     try:
         return args.func(args)
     except EngineError as exc:
-        print(f"error: {shown(exc, limit=None)}", file=sys.stderr)   # one line, whatever the message holds
+        print(f"error: {shown(exc, limit=None)}", file=sys.stderr)  # one line, whatever the message holds
         return 1
     except KeyboardInterrupt:
         print("interrupted", file=sys.stderr)

@@ -8,6 +8,7 @@ tools/compile_shaders.py writes.
 A bundled scene is named by its file's stem (`default`, `sphere`, `penumbra`): `scene_path("default")`, and
 `Scene.load("default")`, `hybrid render default` through it.
 """
+
 from __future__ import annotations
 
 import os
@@ -16,7 +17,7 @@ from pathlib import Path
 
 from .errors import SceneError
 
-CHECKOUT = Path(__file__).resolve().parent.parent   # the folder holding the package: a checkout's root
+CHECKOUT = Path(__file__).resolve().parent.parent  # the folder holding the package: a checkout's root
 
 
 def _package_data() -> Path | None:
@@ -27,8 +28,8 @@ def _package_data() -> Path | None:
 
 
 DATA_ROOT = _package_data() or CHECKOUT
-SHADERS_DIR = DATA_ROOT / "shaders"     # glsl/ (include/ inside), spv/ (+ manifest.json)
-SCENES_DIR = DATA_ROOT / "scenes"       # *.toml, assets/
+SHADERS_DIR = DATA_ROOT / "shaders"  # glsl/ (include/ inside), spv/ (+ manifest.json)
+SCENES_DIR = DATA_ROOT / "scenes"  # *.toml, assets/
 
 
 def bundled_scenes() -> list[str]:

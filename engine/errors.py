@@ -45,5 +45,5 @@ def shown(value, limit: int | None = MAX_SHOWN) -> str:
         text = "".join(ch if ch.isprintable() else repr(ch)[1:-1] for ch in text)
     if limit is not None and len(text) > limit:
         tail = (limit - 3) // 2
-        text = f"{text[:limit - 3 - tail]}...{text[-tail:] if tail else ''}"
+        text = f"{text[: limit - 3 - tail]}...{text[-tail:] if tail else ''}"
     return text

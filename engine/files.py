@@ -2,6 +2,7 @@
 folder and is renamed over the target only once it is complete, so a crash, a kill or a full disk leaves the old file
 or the new one, never a part. Errors name the path; temporaries of writers that died are removed by the next write.
 """
+
 from __future__ import annotations
 
 import errno
@@ -20,7 +21,7 @@ def _umask() -> int:
     return mask
 
 
-_MODE = 0o666 & ~_umask()   # what open() would have given a new file
+_MODE = 0o666 & ~_umask()  # what open() would have given a new file
 
 
 def _prefix(path: Path) -> str:
@@ -37,7 +38,7 @@ def _remove_stale(path: Path):
     for name in names:
         if not (name.startswith(prefix) and name.endswith(_TMP_SUFFIX)):
             continue
-        pid = name[len(prefix):].split("-", 1)[0]
+        pid = name[len(prefix) :].split("-", 1)[0]
         if pid.isdigit() and not running(int(pid)):
             try:
                 os.unlink(path.parent / name)
@@ -73,8 +74,11 @@ def atomic_write(path, write, what: str = "file") -> Path:
     path = Path(os.fspath(path))
     _remove_stale(path)
     try:
-        fd, tmp = tempfile.mkstemp(prefix=f"{_prefix(path)}{os.getpid()}-", suffix=_TMP_SUFFIX,
-                                   dir=str(path.parent) if str(path.parent) else ".")
+        fd, tmp = tempfile.mkstemp(
+            prefix=f"{_prefix(path)}{os.getpid()}-",
+            suffix=_TMP_SUFFIX,
+            dir=str(path.parent) if str(path.parent) else ".",
+        )
     except OSError as exc:
         raise EngineError(f"{path}: cannot write {what}: {_reason(exc)}") from None
     try:

@@ -1,5 +1,6 @@
 """A rendered frame as numpy arrays: the colour image, the AOVs, GPU timings, its camera; saving (PNG, EXR, NPZ,
 a JSON camera sidecar: engine/outputs.py) and viewing AOVs."""
+
 from __future__ import annotations
 
 import io
@@ -119,8 +120,14 @@ class Frame:
         fov_y (degrees)."""
         return outputs.camera_record(self._camera(), self.width, self.height, self.scene_name)
 
-    def save(self, path: str | os.PathLike[str], aov: str | Sequence[str] | None = None, *,
-             depth_scale: float | None = None, compress: bool = True) -> Path:
+    def save(
+        self,
+        path: str | os.PathLike[str],
+        aov: str | Sequence[str] | None = None,
+        *,
+        depth_scale: float | None = None,
+        compress: bool = True,
+    ) -> Path:
         """Write the frame to `path`, in the format its suffix names (docs/datasets.md has the details):
 
         - .png: the colour image (8-bit sRGB RGBA), or AOV `aov` normalized for viewing (`aov_to_rgba`); with
@@ -191,8 +198,9 @@ class Frame:
     def __repr__(self) -> str:
         view = self.settings.get("view", "color")
         shown = "" if view == "color" else f", view {view}"
-        return (f"<Frame {self.width}x{self.height}{shown}, aov: {', '.join(self.aov) or 'none'}, "
-                f"GPU {self.gpu_ms:.2f} ms>")
+        return (
+            f"<Frame {self.width}x{self.height}{shown}, aov: {', '.join(self.aov) or 'none'}, GPU {self.gpu_ms:.2f} ms>"
+        )
 
 
 def aov_to_rgba(frame: Frame, name: str) -> np.ndarray:

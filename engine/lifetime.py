@@ -1,4 +1,5 @@
 """What every object holding GPU state shares: `with` closes it, and so does dropping it (close() is safe twice)."""
+
 from __future__ import annotations
 
 from typing import TypeVar

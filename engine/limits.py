@@ -9,4 +9,4 @@ MAX_COORD = 1e11
 #: bvh_make_ray_) puts components below 1e-30 at +-1e-30 in 1 / d; a direction whose largest component is not far
 #: above that is bent enough to miss boxes its ray crosses (silent misses below about 1e-27). 2^-63 is an exponent
 #: test on the float32 bits (exponent field >= 64: its bit 6 or 7 set).
-MIN_DIRECTION = 2.0 ** -63
+MIN_DIRECTION = 2.0**-63

@@ -9,6 +9,7 @@
 
 Every file is written whole or not at all (engine.files.atomic_write). No Vulkan here.
 """
+
 from __future__ import annotations
 
 import json
@@ -45,10 +46,16 @@ def camera_record(camera, width: int, height: int, scene_name: str = "") -> dict
     """The camera of a `width` x `height` frame as plain JSON values: K (3x3, pixels, pixel centres at +0.5), pose
     (4x4 camera-to-world, OpenCV axes), near and fov_y (degrees), the image size and the scene's name. Floats are
     written with all their digits (JSON round-trips them exactly)."""
-    return {"scene": str(scene_name), "width": int(width), "height": int(height),
-            "K": np.asarray(camera.intrinsics(width, height), np.float64).tolist(),
-            "pose": np.asarray(camera.pose, np.float64).tolist(), "convention": POSE_CONVENTION,
-            "near": float(camera.near), "fov_y": float(camera.fov_y)}
+    return {
+        "scene": str(scene_name),
+        "width": int(width),
+        "height": int(height),
+        "K": np.asarray(camera.intrinsics(width, height), np.float64).tolist(),
+        "pose": np.asarray(camera.pose, np.float64).tolist(),
+        "convention": POSE_CONVENTION,
+        "near": float(camera.near),
+        "fov_y": float(camera.fov_y),
+    }
 
 
 def camera_json(record: dict[str, Any]) -> str:
@@ -92,8 +99,12 @@ def read_depth_png(path: str | os.PathLike[str], depth_scale: float) -> np.ndarr
 
 
 def _depth_scale(value) -> float:
-    if isinstance(value, bool) or not isinstance(value, (int, float, np.integer, np.floating)) \
-            or not math.isfinite(value) or value <= 0:
+    if (
+        isinstance(value, bool)
+        or not isinstance(value, (int, float, np.integer, np.floating))
+        or not math.isfinite(value)
+        or value <= 0
+    ):
         raise ConfigError(f"depth_scale={value!r}: expected a positive number (1000: millimetres from metres)")
     return float(value)
 
@@ -139,8 +150,14 @@ def exr_channels(name: str, channels: int) -> list[str]:
     return [f"{name}.{axis}" for axis in "XYZ"[:channels]]
 
 
-def write_exr(path: str | os.PathLike[str], arrays: dict[str, np.ndarray], record: dict[str, Any],
-              object_names=(), material_names=(), compress: bool = True) -> Path:
+def write_exr(
+    path: str | os.PathLike[str],
+    arrays: dict[str, np.ndarray],
+    record: dict[str, Any],
+    object_names=(),
+    material_names=(),
+    compress: bool = True,
+) -> Path:
     """`arrays` (AOV name -> array as in `Frame.aov`, "color" the uint8 image) as one single-part scanline EXR:
     floats as FLOAT channels, ids as UINT channels holding the int32 bits (4294967295 is -1, the background),
     the colour as linear floats; the header holds the camera (`camera` JSON, `K`, `pose`), the AOV names in order
@@ -156,12 +173,17 @@ def write_exr(path: str | os.PathLike[str], arrays: dict[str, np.ndarray], recor
         planes = a[..., None] if a.ndim == 2 else a
         for i, ch in enumerate(exr_channels(name, planes.shape[2])):
             channels[ch] = np.ascontiguousarray(planes[..., i])
-    header = {"compression": OpenEXR.ZIP_COMPRESSION if compress else OpenEXR.NO_COMPRESSION,
-              "type": OpenEXR.scanlineimage, "aovs": list(arrays), "camera": camera_json(record),
-              "K": np.asarray(record["K"], np.float64), "pose": np.asarray(record["pose"], np.float64),
-              "scene": record.get("scene", "")}
+    header = {
+        "compression": OpenEXR.ZIP_COMPRESSION if compress else OpenEXR.NO_COMPRESSION,
+        "type": OpenEXR.scanlineimage,
+        "aovs": list(arrays),
+        "camera": camera_json(record),
+        "K": np.asarray(record["K"], np.float64),
+        "pose": np.asarray(record["pose"], np.float64),
+        "scene": record.get("scene", ""),
+    }
     for key, names in (("object_names", object_names), ("material_names", material_names)):
-        if names:   # (an empty string list is not an attribute OpenEXR writes)
+        if names:  # (an empty string list is not an attribute OpenEXR writes)
             header[key] = [str(n) for n in names]
     if not channels:
         raise ConfigError(f"{path}: nothing to write (no AOVs)")
@@ -169,8 +191,9 @@ def write_exr(path: str | os.PathLike[str], arrays: dict[str, np.ndarray], recor
     def write(f):
         try:
             OpenEXR.File(header, channels).write(f)
-        except (RuntimeError, ValueError, TypeError) as exc:   # the binding's errors, as one line
+        except (RuntimeError, ValueError, TypeError) as exc:  # the binding's errors, as one line
             raise EngineError(f"{path}: cannot write OpenEXR: {exc}") from None
+
     return atomic_write(path, write, "image")
 
 
@@ -189,8 +212,9 @@ def read_exr(path: str | os.PathLike[str]) -> tuple[dict[str, np.ndarray], dict[
         f = OpenEXR.File(str(p), separate_channels=True)
         header, chans = f.header(), f.channels()
     except (RuntimeError, ValueError, OSError) as exc:
-        raise ConfigError(f"{p}: not a readable OpenEXR file ({str(exc).splitlines()[0] if str(exc) else exc})") \
-            from None
+        raise ConfigError(
+            f"{p}: not a readable OpenEXR file ({str(exc).splitlines()[0] if str(exc) else exc})"
+        ) from None
     if "aovs" not in header or "camera" not in header:
         raise ConfigError(f"{p}: not written by Frame.save (no 'aovs' / 'camera' header attributes)")
     record = json.loads(header["camera"])
@@ -199,7 +223,7 @@ def read_exr(path: str | os.PathLike[str]) -> tuple[dict[str, np.ndarray], dict[
         if name not in AOV_SPECS:
             raise ConfigError(f"{p}: unknown AOV {name!r} in the header")
         if AOV_SPECS[name].per_light:
-            n = sum(1 for ch in chans if ch.startswith(f"{name}.") and ch[len(name) + 1:].isdigit())
+            n = sum(1 for ch in chans if ch.startswith(f"{name}.") and ch[len(name) + 1 :].isdigit())
             names = exr_channels(name, n)
         else:
             names = exr_channels(name, AOV_SPECS[name].channels)
@@ -215,23 +239,33 @@ def read_exr(path: str | os.PathLike[str]) -> tuple[dict[str, np.ndarray], dict[
             out[name] = np.asarray(planes[0], np.float32)
         else:
             h, w = record["height"], record["width"]
-            out[name] = (np.stack(planes, axis=-1).astype(np.float32) if planes
-                         else np.zeros((h, w, 0), np.float32))
+            out[name] = np.stack(planes, axis=-1).astype(np.float32) if planes else np.zeros((h, w, 0), np.float32)
     return out, record
 
 
 # ----------------------------------------------------------------------------------------------- NPZ
-def write_npz(path: str | os.PathLike[str], arrays: dict[str, np.ndarray], record: dict[str, Any],
-              object_names=(), material_names=(), compress: bool = True) -> Path:
+def write_npz(
+    path: str | os.PathLike[str],
+    arrays: dict[str, np.ndarray],
+    record: dict[str, Any],
+    object_names=(),
+    material_names=(),
+    compress: bool = True,
+) -> Path:
     """`arrays` (as in `Frame.aov`, "color" uint8) and the camera as one .npz (`np.load` reads it without
     pickles): K (3, 3) and pose (4, 4) float64, near, fov_y (float64), width, height (int64), scene (str),
     object_names and material_names (str arrays). `compress`: zip-deflated (savez_compressed), else stored."""
     data: dict[str, Any] = {k: np.asarray(v) for k, v in arrays.items()}
-    data.update(K=np.asarray(record["K"], np.float64), pose=np.asarray(record["pose"], np.float64),
-                near=np.float64(record["near"]), fov_y=np.float64(record["fov_y"]),
-                width=np.int64(record["width"]), height=np.int64(record["height"]),
-                scene=np.str_(record.get("scene", "")),
-                object_names=np.array([str(n) for n in object_names], dtype=np.str_),
-                material_names=np.array([str(n) for n in material_names], dtype=np.str_))
+    data.update(
+        K=np.asarray(record["K"], np.float64),
+        pose=np.asarray(record["pose"], np.float64),
+        near=np.float64(record["near"]),
+        fov_y=np.float64(record["fov_y"]),
+        width=np.int64(record["width"]),
+        height=np.int64(record["height"]),
+        scene=np.str_(record.get("scene", "")),
+        object_names=np.array([str(n) for n in object_names], dtype=np.str_),
+        material_names=np.array([str(n) for n in material_names], dtype=np.str_),
+    )
     save = np.savez_compressed if compress else np.savez
     return atomic_write(path, lambda f: save(f, **data), "file")

@@ -4,6 +4,7 @@
 calls `run` runs its tasks inline, so work never waits on the pool from inside it. `serialized` makes an object's
 methods one call at a time (the Renderer's and the Tracer's thread-safety rule).
 """
+
 from __future__ import annotations
 
 import functools
@@ -86,7 +87,7 @@ def run(tasks, threads: int) -> list:
             _WORKER.busy = False
 
     futures = _submit(worker, min(threads, len(tasks)))
-    errors = [f.exception() for f in futures]   # all of them ended (none still writes), then the first error
+    errors = [f.exception() for f in futures]  # all of them ended (none still writes), then the first error
     for exc in errors:
         if exc is not None:
             raise exc
@@ -100,8 +101,10 @@ R = TypeVar("R")
 def serialized(method: Callable[P, R]) -> Callable[P, R]:
     """Run an object's method under its `_lock` (an RLock): one call at a time per object, from any thread; close()
     then waits for a call in progress instead of freeing what it uses."""
+
     @functools.wraps(method)
     def call(*args: P.args, **kwargs: P.kwargs) -> R:
-        with args[0]._lock:   # type: ignore[attr-defined]
+        with args[0]._lock:  # type: ignore[attr-defined]
             return method(*args, **kwargs)
+
     return call

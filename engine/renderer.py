@@ -10,6 +10,7 @@ the block). The passes declare what they read and write (engine/passes/base.py);
 between them. The raster options (culling, levels of detail, the software raster) are one named type,
 engine/passes/raster_options.py; the scene on the GPU is engine/gpu's.
 """
+
 from __future__ import annotations
 
 import os
@@ -40,7 +41,7 @@ from .parallel import serialized
 from .passes.targets import Targets
 from .scene import Scene
 from .scene.camera import Camera
-from .settings import (ShadowMode, ViewMode, check_settings, check_size, default, given_settings, resolve_aovs)
+from .settings import ShadowMode, ViewMode, check_settings, check_size, default, given_settings, resolve_aovs
 from .shaders import ShaderLibrary
 from .steady import Steady
 from .vk import Context, Recorder, Timestamps, reflect
@@ -63,12 +64,22 @@ class Renderer(Closes):
     RGB until the final image, which is tonemapped (ACES) and sRGB-encoded 8-bit RGBA.
     """
 
-    def __init__(self, width: int, height: int, *,
-                 device: Device | int | str | None = None, validation: bool = False,
-                 shader_dir: str | os.PathLike[str] | None = None, hot_reload: bool = False,
-                 context: Context | None = None, bvh_layout: str | None = None,
-                 culling: bool = True, lod_pixels: float = 0.0,
-                 sw_raster: bool | None = None, sw_raster_pixels: float = SW_RASTER_PIXELS):
+    def __init__(
+        self,
+        width: int,
+        height: int,
+        *,
+        device: Device | int | str | None = None,
+        validation: bool = False,
+        shader_dir: str | os.PathLike[str] | None = None,
+        hot_reload: bool = False,
+        context: Context | None = None,
+        bvh_layout: str | None = None,
+        culling: bool = True,
+        lod_pixels: float = 0.0,
+        sw_raster: bool | None = None,
+        sw_raster_pixels: float = SW_RASTER_PIXELS,
+    ):
         """A renderer of `width` x `height` pixels (1..16384 each).
 
         Args:
@@ -104,7 +115,7 @@ class Renderer(Closes):
             VulkanError: no usable Vulkan device, or it lacks the `geometryShader` feature.
         """
         self.bvh_layout = resolve_layout(bvh_layout)  # a bad one fails here, before any Vulkan object exists
-        self._raster = RasterOptions(culling, lod_pixels, sw_raster, sw_raster_pixels)   # checked here
+        self._raster = RasterOptions(culling, lod_pixels, sw_raster, sw_raster_pixels)  # checked here
         check_size(width, height)
         self.width, self.height = int(width), int(height)
         self.library = ShaderLibrary(shader_dir, hot_reload=hot_reload)
@@ -114,17 +125,17 @@ class Renderer(Closes):
             raise ConfigError("Renderer: its engine.Device is closed (make a new engine.Device)")
         self._owns_ctx = context is None and not isinstance(device, Device)
         self._device = device if isinstance(device, Device) else None
-        self._lock = threading.RLock()     # one call at a time (engine.parallel.serialized)
-        self._commands: dict = {}          # set before anything can fail, so close() always works
-        self._steady = None                # _Steady: the last frame's inputs, for re-submitting it cheaply
+        self._lock = threading.RLock()  # one call at a time (engine.parallel.serialized)
+        self._commands: dict = {}  # set before anything can fail, so close() always works
+        self._steady = None  # _Steady: the last frame's inputs, for re-submitting it cheaply
         self._geometry = self._scene_bvh = self.targets = None
         try:
             if context is not None:
                 if not isinstance(context, Context):
                     raise ConfigError(f"Renderer: context must be an engine.vk.Context, got {type(context).__name__}")
-                context.check_open("Renderer")   # a destroyed device would abort the process in the first call
-            with self._lock:   # (a Device closed meanwhile waits for the set-up, then closes this Renderer)
-                if self._device is not None:   # its own share of the device: command pool, objects to destroy
+                context.check_open("Renderer")  # a destroyed device would abort the process in the first call
+            with self._lock:  # (a Device closed meanwhile waits for the set-up, then closes this Renderer)
+                if self._device is not None:  # its own share of the device: command pool, objects to destroy
                     self.ctx = self._device._attach(self, "Renderer")
                 elif context is not None:
                     self.ctx = Scope(context, "Renderer")
@@ -139,11 +150,13 @@ class Renderer(Closes):
     def _init_gpu(self):
         ctx = self.ctx
         if not ctx.geometry_shader:
-            raise VulkanError(f"device {ctx.device_info['name']!r} lacks the geometryShader feature, which the "
-                              "G-buffer's visibility pass needs (gl_PrimitiveID in a fragment shader); the Tracer "
-                              "works without it")
-        self.frame_block = FrameBlock(ctx)   # the per-frame uniform block and its one writer
-        self._timestamps = [Timestamps(ctx), Timestamps(ctx)]   # per readback slot (render_many has two in flight)
+            raise VulkanError(
+                f"device {ctx.device_info['name']!r} lacks the geometryShader feature, which the "
+                "G-buffer's visibility pass needs (gl_PrimitiveID in a fragment shader); the Tracer "
+                "works without it"
+            )
+        self.frame_block = FrameBlock(ctx)  # the per-frame uniform block and its one writer
+        self._timestamps = [Timestamps(ctx), Timestamps(ctx)]  # per readback slot (render_many has two in flight)
         self.timestamps = self._timestamps[0]
         self._fences = [create_fence(ctx), create_fence(ctx)]
         [ctx.defer_destroy(destroy_fence, ctx, fence) for fence in self._fences]
@@ -155,14 +168,21 @@ class Renderer(Closes):
         self.ao = AOPass(ctx, lib, res, self.bvh_set, self.bvh_layout)
         self.denoise = DenoisePass(ctx, lib, res, self.targets)
         self.lighting, self.debug_view = LightingPass(ctx, lib, res), DebugViewPass(ctx, lib, res)
-        self.passes = [self.gbuffer, self.shadows, self.ao, self.accumulate, self.denoise, self.lighting,
-                       self.debug_view]
+        self.passes = [
+            self.gbuffer,
+            self.shadows,
+            self.ao,
+            self.accumulate,
+            self.denoise,
+            self.lighting,
+            self.debug_view,
+        ]
         self._scene = self._geometry = self._scene_bvh = None
         self.bvh_stats, self._commands = {}, {}
-        self._changes = SceneChanges()   # the scene's state the last frame drew (instance motion)
-        self._history_key = self._steady = None   # _history_key: what the temporal history was accumulated under
+        self._changes = SceneChanges()  # the scene's state the last frame drew (instance motion)
+        self._history_key = self._steady = None  # _history_key: what the temporal history was accumulated under
         self.uploads = 0  # scene uploads so far (a test reads it: the same scene is uploaded once)
-        self.bvh_builds = 0   # ray-pass BVHs made so far (a scene's first, and a new kind or rebuild after changes)
+        self.bvh_builds = 0  # ray-pass BVHs made so far (a scene's first, and a new kind or rebuild after changes)
 
     # ---- public ---------------------------------------------------------------------------
     @property
@@ -225,13 +245,25 @@ class Renderer(Closes):
         return self.ctx.device_info["name"]
 
     @serialized
-    def render(self, scene: Scene, camera: Camera | None = None, *, aovs: str | Sequence[str] | None = None,
-               shadows: ShadowMode = default("shadows"), shadow_samples: int = default("shadow_samples"),
-               reference_samples: int = default("reference_samples"), accumulate: bool = default("accumulate"),
-               denoise: bool = default("denoise"), ao: bool = default("ao"), ao_samples: int = default("ao_samples"),
-               ao_radius: float | None = default("ao_radius"), exposure: float = default("exposure"),
-               ambient: float | Sequence[float] = default("ambient"), view: ViewMode = default("view"),
-               **unknown: Any) -> Frame:
+    def render(
+        self,
+        scene: Scene,
+        camera: Camera | None = None,
+        *,
+        aovs: str | Sequence[str] | None = None,
+        shadows: ShadowMode = default("shadows"),
+        shadow_samples: int = default("shadow_samples"),
+        reference_samples: int = default("reference_samples"),
+        accumulate: bool = default("accumulate"),
+        denoise: bool = default("denoise"),
+        ao: bool = default("ao"),
+        ao_samples: int = default("ao_samples"),
+        ao_radius: float | None = default("ao_radius"),
+        exposure: float = default("exposure"),
+        ambient: float | Sequence[float] = default("ambient"),
+        view: ViewMode = default("view"),
+        **unknown: Any,
+    ) -> Frame:
         """Render one frame of `scene` seen from `camera` and read it back: colour, AOVs and GPU timings.
 
         The options are keywords. One left out takes the scene's `[settings]` value (docs/scenes.md), else its
@@ -280,19 +312,20 @@ class Renderer(Closes):
         self.ctx.submit(cmd)
         return self._frame(scene, names, 0, marks, cfg, n_lights, camera)
 
-    def render_many(self, scene: Scene, cameras: Iterable[Camera], *, aovs: str | Sequence[str] | None = None,
-                    **settings: Any) -> Iterator[Frame]:
+    def render_many(
+        self, scene: Scene, cameras: Iterable[Camera], *, aovs: str | Sequence[str] | None = None, **settings: Any
+    ) -> Iterator[Frame]:
         """Frames of `scene` from each camera in turn, as an iterator: frame N+1 renders on the GPU while frame N is
         read back and handed to the caller (two readback buffers in turn). One call at a time per renderer, like
         render(); the temporal history carries over from frame to frame as it does for render()."""
         names = resolve_aovs(aovs)
-        pending = None   # (slot, marks, cfg, n_lights, camera): the frame submitted and not yet waited for
+        pending = None  # (slot, marks, cfg, n_lights, camera): the frame submitted and not yet waited for
         try:
             for i, camera in enumerate(cameras):
                 with self._lock:
                     done, pending = pending, None
                     if done is not None:
-                        self._wait_slot(done[0])   # its frame block is rewritten below
+                        self._wait_slot(done[0])  # its frame block is rewritten below
                     slot = i % 2
                     cmd, marks, cfg, n_lights = self._prepare(scene, camera, settings, readback=(names, slot))
                     self.ctx.submit(cmd, wait=False, fence=self._fences[slot])
@@ -307,7 +340,7 @@ class Renderer(Closes):
                     frame = self._frame(scene, names, *done)
                 yield frame
         finally:
-            if pending is not None and self.ctx is not None:   # abandoned mid-way: let the last frame finish
+            if pending is not None and self.ctx is not None:  # abandoned mid-way: let the last frame finish
                 with self._lock:
                     self._wait_slot(pending[0])
 
@@ -326,20 +359,39 @@ class Renderer(Closes):
     def _frame(self, scene, names, slot, marks, cfg, n_lights, camera) -> Frame:
         buf, offsets = self.targets.readback(self.ctx, names, slot)
         aov = self.targets.read(buf, offsets, n_lights)
-        return Frame(color=aov.pop("color", None), aov=aov, timings=self._timestamps[slot].read(marks), settings=cfg,
-                     object_names=scene.object_names,
-                     material_names=[m.name for m in scene.materials],
-                     camera=camera if camera is not None else scene.camera, scene_name=scene.name)
+        return Frame(
+            color=aov.pop("color", None),
+            aov=aov,
+            timings=self._timestamps[slot].read(marks),
+            settings=cfg,
+            object_names=scene.object_names,
+            material_names=[m.name for m in scene.materials],
+            camera=camera if camera is not None else scene.camera,
+            scene_name=scene.name,
+        )
 
     @serialized
-    def submit(self, scene: Scene, camera: Camera | None = None, *, wait: bool = True,
-               signal_semaphores: Sequence[Any] = (), fence: Any = None,
-               shadows: ShadowMode = default("shadows"), shadow_samples: int = default("shadow_samples"),
-               reference_samples: int = default("reference_samples"), accumulate: bool = default("accumulate"),
-               denoise: bool = default("denoise"), ao: bool = default("ao"), ao_samples: int = default("ao_samples"),
-               ao_radius: float | None = default("ao_radius"), exposure: float = default("exposure"),
-               ambient: float | Sequence[float] = default("ambient"), view: ViewMode = default("view"),
-               **unknown: Any) -> dict[str, Any]:
+    def submit(
+        self,
+        scene: Scene,
+        camera: Camera | None = None,
+        *,
+        wait: bool = True,
+        signal_semaphores: Sequence[Any] = (),
+        fence: Any = None,
+        shadows: ShadowMode = default("shadows"),
+        shadow_samples: int = default("shadow_samples"),
+        reference_samples: int = default("reference_samples"),
+        accumulate: bool = default("accumulate"),
+        denoise: bool = default("denoise"),
+        ao: bool = default("ao"),
+        ao_samples: int = default("ao_samples"),
+        ao_radius: float | None = default("ao_radius"),
+        exposure: float = default("exposure"),
+        ambient: float | Sequence[float] = default("ambient"),
+        view: ViewMode = default("view"),
+        **unknown: Any,
+    ) -> dict[str, Any]:
         """Render one frame into `self.targets.color` without reading it back (the viewer's path).
 
         The settings are `render()`'s, with the same defaults and checks. With `wait=False` the caller
@@ -374,12 +426,12 @@ class Renderer(Closes):
             raise ConfigError("render() on a closed Renderer: its engine.Device was closed")
         if self.ctx is None:
             raise EngineError("render() on a closed Renderer")
-        self.ctx.check_open("Renderer.render()")   # a shared context its owner closed: no Vulkan call may follow
+        self.ctx.check_open("Renderer.render()")  # a shared context its owner closed: no Vulkan call may follow
         polled = False
         if scene is self._scene and self._geometry is not None:
-            self._frame_start(scene)   # moved instances: their transforms, the BVH (may drop the recordings)
+            self._frame_start(scene)  # moved instances: their transforms, the BVH (may drop the recordings)
         if self._steady is not None:
-            self._poll_shaders()   # a reload drops the recorded commands, and with them self._steady
+            self._poll_shaders()  # a reload drops the recorded commands, and with them self._steady
             polled = True
             steady = self._steady
             if steady is not None:
@@ -397,7 +449,7 @@ class Renderer(Closes):
         own = getattr(scene, "settings", None) or {}
         try:
             cfg = check_settings({**own, **settings})
-        except ConfigError as exc:   # where the bad setting came from: the scene's [settings] (not overridden)?
+        except ConfigError as exc:  # where the bad setting came from: the scene's [settings] (not overridden)?
             try:
                 check_settings({k: v for k, v in own.items() if k not in settings})
             except ConfigError as own_exc:
@@ -419,15 +471,26 @@ class Renderer(Closes):
         # The temporal history holds the light masks and AO as traced under these: when any of them changes
         # (another scene, light, shadow mode or sample count, size), the next frame starts over.
         packed_lights = [pack_light(light) for light in lights]
-        history_key = (scene.uid if hasattr(scene, "uid") else id(scene), self.width, self.height,
-                       b"".join(p.tobytes() for p in packed_lights),
-                       tuple(cfg[k] for k in ("shadows", "shadow_samples", "ao", "ao_samples", "ao_radius",
-                                              "accumulate")))
+        history_key = (
+            scene.uid if hasattr(scene, "uid") else id(scene),
+            self.width,
+            self.height,
+            b"".join(p.tobytes() for p in packed_lights),
+            tuple(cfg[k] for k in ("shadows", "shadow_samples", "ao", "ao_samples", "ao_radius", "accumulate")),
+        )
         reset = history_key != self._history_key
-        if reset:   # no motion on a frame without history (as the camera's previous matrix is this one)
+        if reset:  # no motion on a frame without history (as the camera's previous matrix is this one)
             self._changes.still(self._geometry)
-        key = (cfg["shadows"], cfg["ao"], cfg["accumulate"], cfg["denoise"], cfg["view"], len(lights), readback,
-               self._raster)
+        key = (
+            cfg["shadows"],
+            cfg["ao"],
+            cfg["accumulate"],
+            cfg["denoise"],
+            cfg["view"],
+            len(lights),
+            readback,
+            self._raster,
+        )
         if cfg["shadows"] == "reference":
             key += (cfg["reference_samples"],)
         if key not in self._commands:
@@ -436,13 +499,23 @@ class Renderer(Closes):
         cmd, marks = self._commands[key]
         reference = cfg["shadows"] == "reference"
         self.frame_block.write(
-            view_proj=view_proj, camera=camera, width=self.width, height=self.height, lights=lights,
-            packed_lights=packed_lights, history_reset=reset, objects_moved=not self._changes.settled,
+            view_proj=view_proj,
+            camera=camera,
+            width=self.width,
+            height=self.height,
+            lights=lights,
+            packed_lights=packed_lights,
+            history_reset=reset,
+            objects_moved=not self._changes.settled,
             ao_radius=cfg["ao_radius"] or 0.1 * diag,
             ao_samples=cfg["reference_samples"] if reference else cfg["ao_samples"],
             shadow_samples=cfg["reference_samples"] if reference else cfg["shadow_samples"],
-            exposure=cfg["exposure"], ambient=cfg["ambient"], scene_scale=diag, accum_alpha=ALPHA_MIN,
-            bounds=scene.bounds)
+            exposure=cfg["exposure"],
+            ambient=cfg["ambient"],
+            scene_scale=diag,
+            accum_alpha=ALPHA_MIN,
+            bounds=scene.bounds,
+        )
         self._history_key = history_key
         self._steady = Steady.capture(scene, camera, settings, readback, lights, (cmd, marks, cfg, len(lights)))
         return cmd, marks, dict(cfg), len(lights)
@@ -472,13 +545,12 @@ class Renderer(Closes):
         if self.ctx is not None:
             if not self._owns_ctx and not self.ctx.closed:
                 self._invalidate_commands()
-            self.ctx.close()   # its own context, or its Scope of a shared one: what this renderer made
+            self.ctx.close()  # its own context, or its Scope of a shared one: what this renderer made
             self.ctx = None
         if self._device is not None:
             self._device._detach(self)
         if getattr(self, "library", None) is not None:
             self.library.close()
-
 
     # ---- internals ------------------------------------------------------------------------
     def _poll_shaders(self):
@@ -489,7 +561,7 @@ class Renderer(Closes):
             if updated & set(p.shaders):
                 try:
                     p.reload(self.library)
-                except EngineError as exc:   # the last good pipeline stays; listed under the (first) edited shader
+                except EngineError as exc:  # the last good pipeline stays; listed under the (first) edited shader
                     name = next(n for n in p.shaders if n in updated)
                     self.library.errors[str(self.library.glsl_dir / name)] = str(exc)
         self._invalidate_commands()
@@ -505,7 +577,7 @@ class Renderer(Closes):
     def _frame_start(self, scene):
         """Before each frame: moved instances into the instance buffer (in place: the recordings stay valid), the
         geometry uploaded again after a mesh deformed or the material overrides changed, then the ray passes' BVH."""
-        todo = self._changes.begin(scene)   # None: nothing to do; else (a mesh deformed, something changed)
+        todo = self._changes.begin(scene)  # None: nothing to do; else (a mesh deformed, something changed)
         if todo is not None:
             if todo[0] or self._geometry.overrides_changed(scene) or self._geometry.mirrors_changed(scene):
                 self._upload_geometry(scene)
@@ -516,9 +588,16 @@ class Renderer(Closes):
         """The one hook per frame where the ray passes' BVH follows the scene (`changed`; `follow_scene`)."""
         if self._scene_bvh is None or changed:
             old = self._scene_bvh
-            self._scene_bvh = follow_scene(self.ctx, old, scene, self.bvh_set, self.bvh_layout,
-                                           (self.shadows, self.ao), self._invalidate_commands,
-                                           self._geometry.alpha_index)
+            self._scene_bvh = follow_scene(
+                self.ctx,
+                old,
+                scene,
+                self.bvh_set,
+                self.bvh_layout,
+                (self.shadows, self.ao),
+                self._invalidate_commands,
+                self._geometry.alpha_index,
+            )
             if self._scene_bvh is not old:
                 self.bvh_builds += 1
             self.bvh_stats = dict(self._scene_bvh.bvh.stats, layout=self._scene_bvh.layout)
@@ -530,10 +609,11 @@ class Renderer(Closes):
             self.ctx.wait_idle()
             self._geometry.destroy()
             self._geometry = None
-        self._geometry = SceneGeometry(self.ctx, scene, self.gbuffer.white, self.gbuffer.sampler,
-                                       levels=self._raster.lod_pixels > 0)
+        self._geometry = SceneGeometry(
+            self.ctx, scene, self.gbuffer.white, self.gbuffer.sampler, levels=self._raster.lod_pixels > 0
+        )
         self.gbuffer.bind_scene(self._geometry)
-        for p in (self.shadows, self.ao):   # the alpha test's records and textures
+        for p in (self.shadows, self.ao):  # the alpha test's records and textures
             p.bind_scene(self._geometry)
 
     def _use_scene(self, scene):
@@ -548,7 +628,7 @@ class Renderer(Closes):
                 old.destroy()
         self._geometry = self._scene_bvh = None
         self._upload_geometry(scene)
-        self._changes = SceneChanges()   # the BVH is built by the first frame's _frame_start
+        self._changes = SceneChanges()  # the BVH is built by the first frame's _frame_start
         self._scene = scene
         self.frame_block.forget_camera()
         self.uploads += 1
@@ -617,6 +697,6 @@ class Renderer(Closes):
         if readback:
             t.record_readback(rec, *t.readback(self.ctx, *readback))
             rec.mark("readback")
-        else:   # the colour image is copied out by the caller (the viewer's presenter)
+        else:  # the colour image is copied out by the caller (the viewer's presenter)
             rec.use(reads=[t.color], stage=TRANSFER)
         return rec.finish(), ts

@@ -3,6 +3,7 @@ camera path), the output paths (a frame pattern, out/frame_####.exr), and the lo
 `Renderer.render_many` with a progress bar and writes each frame and its camera sidecar, skipping finished frames
 when resuming. The formats are in docs/datasets.md.
 """
+
 from __future__ import annotations
 
 import json
@@ -27,9 +28,9 @@ from .scene.camera import DEFAULT_INTRINSICS_NEAR
 from .settings import MAX_FRAMES
 
 try:
-    import tomllib   # Python 3.11+
+    import tomllib  # Python 3.11+
 except ImportError:  # pragma: no cover
-    import tomli as tomllib   # Python 3.10: the same parser (a dependency there)
+    import tomli as tomllib  # Python 3.10: the same parser (a dependency there)
 
 _RUN = re.compile(r"#+")
 LOOK_AT_KEYS = ("eye", "target", "up", "fov_y", "fov", "near")
@@ -53,8 +54,10 @@ def output_paths(pattern: str, count: int) -> list[Path]:
         raise ConfigError(f"-o {pattern}: one run of '#' for the frame number, found {len(runs)}")
     if not runs:
         if count > 1:
-            raise ConfigError(f"-o {pattern}: {count} frames need a frame number in the file name, "
-                              f"e.g. {p.with_name(p.stem + '_####' + p.suffix)}")
+            raise ConfigError(
+                f"-o {pattern}: {count} frames need a frame number in the file name, "
+                f"e.g. {p.with_name(p.stem + '_####' + p.suffix)}"
+            )
         return [p]
     width = len(runs[0])
     return [p.with_name(_RUN.sub(f"{i:0{width}d}", p.name)) for i in range(count)]
@@ -80,8 +83,10 @@ def orbit_cameras(scene: Scene, count: int) -> list[Camera]:
     horizontal = offset - height * up
     radius = float(np.linalg.norm(horizontal))
     if radius <= 1e-9 * max(1.0, float(np.linalg.norm(offset))):
-        raise ConfigError(f"--orbit: {scene.name}: the camera is straight above or below the centre of the scene's "
-                          f"bounds, so there is no circle to orbit on")
+        raise ConfigError(
+            f"--orbit: {scene.name}: the camera is straight above or below the centre of the scene's "
+            f"bounds, so there is no circle to orbit on"
+        )
     u = horizontal / radius
     v = np.cross(up, u)
     out = []
@@ -119,7 +124,7 @@ def load_camera_path(path: str | Path, default_fov_y: float = 60.0) -> list[Came
     else:
         raise ConfigError(f"{p}: a camera path is a .json or .toml file")
     shared: dict = {}
-    if isinstance(data, dict):   # the list is "camera" ([[camera]] tables) or "views" (hybrid batch's name)
+    if isinstance(data, dict):  # the list is "camera" ([[camera]] tables) or "views" (hybrid batch's name)
         lists = [k for k in ("camera", "views") if k in data]
         if len(lists) > 1:
             raise ConfigError(f"{p}: give the cameras as 'camera' or as 'views', not both")
@@ -146,7 +151,7 @@ def load_camera_path(path: str | Path, default_fov_y: float = 60.0) -> list[Came
 
 
 def _camera(entry: dict, shared: dict, default_fov_y: float) -> Camera:
-    if "pose" in entry and "K" not in entry and "K" not in shared:   # a pose and a field of view: a look-at camera
+    if "pose" in entry and "K" not in entry and "K" not in shared:  # a pose and a field of view: a look-at camera
         return _posed(entry, shared, default_fov_y)
     intrinsics = any(k in entry for k in ("K", "pose"))
     if intrinsics and any(k in entry for k in ("eye", "target")):
@@ -154,24 +159,32 @@ def _camera(entry: dict, shared: dict, default_fov_y: float) -> Camera:
     allowed = (INTRINSICS_KEYS + INFO_KEYS) if intrinsics else (LOOK_AT_KEYS + ("scene",))
     bad = sorted(set(entry) - set(allowed))
     if bad:
-        raise ConfigError(f"unknown key {bad[0]!r} (a camera has eye, target[, up, fov_y, near] or K, pose, width, "
-                          f"height[, convention, near])")
+        raise ConfigError(
+            f"unknown key {bad[0]!r} (a camera has eye, target[, up, fov_y, near] or K, pose, width, "
+            f"height[, convention, near])"
+        )
     keys = {**shared, **entry}
     if intrinsics:
         for k in ("K", "pose", "width", "height"):
             if k not in keys:
                 raise ConfigError(f"missing key {k!r}")
-        return Camera.from_intrinsics(keys["K"], keys["width"], keys["height"], pose=keys["pose"],
-                                      convention=keys.get("convention", "opencv"),
-                                      near=keys.get("near", DEFAULT_INTRINSICS_NEAR))
+        return Camera.from_intrinsics(
+            keys["K"],
+            keys["width"],
+            keys["height"],
+            pose=keys["pose"],
+            convention=keys.get("convention", "opencv"),
+            near=keys.get("near", DEFAULT_INTRINSICS_NEAR),
+        )
     for k in ("eye", "target"):
         if k not in keys:
             raise ConfigError(f"missing key {k!r}")
     if "fov" in entry and "fov_y" in entry:
         raise ConfigError("give fov_y or fov (the same), not both")
     fov = entry.get("fov_y", entry.get("fov", shared.get("fov_y", shared.get("fov", default_fov_y))))
-    return Camera.look_at(keys["eye"], keys["target"], keys.get("up", (0.0, 1.0, 0.0)), fov_y=fov,
-                          near=keys.get("near"))
+    return Camera.look_at(
+        keys["eye"], keys["target"], keys.get("up", (0.0, 1.0, 0.0)), fov_y=fov, near=keys.get("near")
+    )
 
 
 def _posed(entry: dict, shared: dict, default_fov_y: float) -> Camera:
@@ -182,8 +195,9 @@ def _posed(entry: dict, shared: dict, default_fov_y: float) -> Camera:
     keys = {**shared, **entry}
     convention = keys.get("convention", "opencv")
     # the pose's rigidity and convention are checked by from_intrinsics; its axes give eye, forward and up
-    probe = Camera.from_intrinsics([[1, 0, 0.5], [0, 1, 0.5], [0, 0, 1]], 1, 1, pose=keys["pose"],
-                                   convention=convention)
+    probe = Camera.from_intrinsics(
+        [[1, 0, 0.5], [0, 1, 0.5], [0, 0, 1]], 1, 1, pose=keys["pose"], convention=convention
+    )
     fov = keys.get("fov_y", keys.get("fov", default_fov_y))
     return Camera.look_at(probe.eye, probe.eye + probe.forward, probe.up_vector, fov_y=fov, near=keys.get("near"))
 
@@ -215,9 +229,21 @@ class SequenceResult:
     last: Frame | None
 
 
-def render_sequence(renderer: Renderer, scene: Scene, cameras: Sequence[Camera], paths: Sequence[Path], *,
-                    aovs: Any, settings: dict, save: dict, frames_per_view: int = 1, sidecars: bool = True,
-                    resume: bool = False, progress: bool = False, fps: float | None = None) -> SequenceResult:
+def render_sequence(
+    renderer: Renderer,
+    scene: Scene,
+    cameras: Sequence[Camera],
+    paths: Sequence[Path],
+    *,
+    aovs: Any,
+    settings: dict,
+    save: dict,
+    frames_per_view: int = 1,
+    sidecars: bool = True,
+    resume: bool = False,
+    progress: bool = False,
+    fps: float | None = None,
+) -> SequenceResult:
     """Render camera i into paths[i] (`Frame.save(path, **save)`) and, with `sidecars`, its camera beside it
     (`sidecar_path`), through `Renderer.render_many` (the GPU renders the next frame while one is written).
     `frames_per_view` frames per camera, the last written (soft shadows and AO accumulate). With `resume`, a frame
@@ -226,7 +252,7 @@ def render_sequence(renderer: Renderer, scene: Scene, cameras: Sequence[Camera],
     t = i / fps (`Scene.animate`; its frames_per_view frames all at that t)."""
     if len(cameras) != len(paths):
         raise ConfigError(f"{len(cameras)} cameras for {len(paths)} output paths")
-    check_output_path(paths[0])   # every path is in that folder (output_paths): checked before the work
+    check_output_path(paths[0])  # every path is in that folder (output_paths): checked before the work
     width, height = renderer.width, renderer.height
     if fps is not None and not (isinstance(fps, (int, float)) and not isinstance(fps, bool) and 0 < fps <= 1e6):
         raise ConfigError(f"--fps {fps!r}: expected frames per second in (0, 1e6]")
@@ -258,8 +284,7 @@ def _at_time(scene: Scene, camera: Camera, index: int, fps: float | None) -> Cam
     return camera
 
 
-def _finished(path: Path, camera: Camera, index: int, width: int, height: int, scene_name: str,
-              sidecars: bool) -> bool:
+def _finished(path: Path, camera: Camera, index: int, width: int, height: int, scene_name: str, sidecars: bool) -> bool:
     """A frame is finished when its output exists and (with sidecars) its sidecar, written after it, does; a
     sidecar of another camera or size is an error (the outputs are of another sequence)."""
     side = sidecar_path(path)
@@ -269,13 +294,18 @@ def _finished(path: Path, camera: Camera, index: int, width: int, height: int, s
         return True
     try:
         rec = json.loads(side.read_text(encoding="utf-8"))
-        same = ((rec["width"], rec["height"]) == (width, height)
-                and np.allclose(rec["K"], camera.intrinsics(width, height), rtol=1e-9, atol=1e-9)
-                and np.allclose(rec["pose"], camera.pose, rtol=1e-9, atol=1e-9))
+        same = (
+            (rec["width"], rec["height"]) == (width, height)
+            and np.allclose(rec["K"], camera.intrinsics(width, height), rtol=1e-9, atol=1e-9)
+            and np.allclose(rec["pose"], camera.pose, rtol=1e-9, atol=1e-9)
+        )
     except (OSError, ValueError, KeyError, TypeError) as exc:
-        raise ConfigError(f"{side}: cannot read the camera of a finished frame ({exc}): delete it to render the "
-                          f"frame again") from None
+        raise ConfigError(
+            f"{side}: cannot read the camera of a finished frame ({exc}): delete it to render the frame again"
+        ) from None
     if not same:
-        raise ConfigError(f"{side}: frame {index} was rendered from another camera or size than this run's "
-                          f"({scene_name}): delete the old outputs, or run without --resume to overwrite them")
+        raise ConfigError(
+            f"{side}: frame {index} was rendered from another camera or size than this run's "
+            f"({scene_name}): delete the old outputs, or run without --resume to overwrite them"
+        )
     return True

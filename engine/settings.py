@@ -4,6 +4,7 @@
 whose defaults are `Default` wrappers of these values); `AOVS` are the views (setting `view`, `--aov`): the lit
 colour or one AOV drawn by the debug view on the GPU.
 """
+
 from __future__ import annotations
 
 import numbers
@@ -29,17 +30,17 @@ MAX_FRAMES = 1_000_000
 
 #: Each render option's default, used where neither the call nor the scene's `[settings]` sets it.
 DEFAULT_SETTINGS: dict[str, Any] = {
-    "shadows": "hard",       # SHADOW_MODES
-    "shadow_samples": 1,     # soft: rays per pixel per light per frame
+    "shadows": "hard",  # SHADOW_MODES
+    "shadow_samples": 1,  # soft: rays per pixel per light per frame
     "reference_samples": 256,  # reference: rays per pixel per light (shadows and AO)
-    "accumulate": True,      # temporal accumulation of the soft light masks and AO
-    "denoise": True,         # a-trous filter of the soft light masks and AO
+    "accumulate": True,  # temporal accumulation of the soft light masks and AO
+    "denoise": True,  # a-trous filter of the soft light masks and AO
     "ao": True,
     "ao_samples": 4,
-    "ao_radius": None,       # None: 10% of the scene's bounding-box diagonal
+    "ao_radius": None,  # None: 10% of the scene's bounding-box diagonal
     "exposure": 1.0,
     "ambient": (0.20, 0.22, 0.26),
-    "view": "color",         # VIEW_MODES: the lit image or one AOV, drawn on the GPU
+    "view": "color",  # VIEW_MODES: the lit image or one AOV, drawn on the GPU
 }
 # hard: one ray to each light's centre. soft: `shadow_samples` rays over each light's area / solid angle (R2 points,
 # moving every frame), accumulated and denoised. seed-delta: the paper's occlusion-delta approximation (one ray).
@@ -47,8 +48,20 @@ DEFAULT_SETTINGS: dict[str, Any] = {
 #: The values of the `shadows` setting (a Literal for type checkers; `SHADOW_MODES` is the same as a tuple).
 ShadowMode = Literal[TracedShadowMode, "off"]
 SHADOW_MODES: tuple[str, ...] = get_args(ShadowMode)
-__all__ = ["DEFAULT_SETTINGS", "SHADOW_MODES", "AOVS", "ShadowMode", "ViewMode", "Default", "MAX_FRAMES",
-           "check_settings", "choices", "parse_size", "check_size", "check_png_path"]
+__all__ = [
+    "DEFAULT_SETTINGS",
+    "SHADOW_MODES",
+    "AOVS",
+    "ShadowMode",
+    "ViewMode",
+    "Default",
+    "MAX_FRAMES",
+    "check_settings",
+    "choices",
+    "parse_size",
+    "check_size",
+    "check_png_path",
+]
 
 
 class Default:

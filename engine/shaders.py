@@ -10,6 +10,7 @@ only the shaders whose source or includes changed (into a temporary folder, neve
 `shaders/spv/`), and reports which shaders have new SPIR-V and which failed, with the compiler's
 message.
 """
+
 from __future__ import annotations
 
 import hashlib
@@ -25,7 +26,7 @@ from .data import SHADERS_DIR
 from .errors import ShaderError
 from .files import atomic_write_bytes, atomic_write_text
 
-ROOT = SHADERS_DIR   # the checkout's shaders/, or the installed package's copy (engine/data.py)
+ROOT = SHADERS_DIR  # the checkout's shaders/, or the installed package's copy (engine/data.py)
 GLSL_DIR = ROOT / "glsl"
 SPV_DIR = ROOT / "spv"
 MANIFEST = "manifest.json"
@@ -75,8 +76,16 @@ def glslang() -> str:
 
 def compile_shader(src: Path, out: Path, glsl_dir: Path = GLSL_DIR) -> None:
     """Compile one GLSL file to SPIR-V; raise ShaderError with the compiler's message on failure."""
-    cmd = [glslang(), "-V", "--target-env", TARGET_ENV, "-I" + str(Path(glsl_dir) / "include"),
-           "-o", str(out), str(src)]
+    cmd = [
+        glslang(),
+        "-V",
+        "--target-env",
+        TARGET_ENV,
+        "-I" + str(Path(glsl_dir) / "include"),
+        "-o",
+        str(out),
+        str(src),
+    ]
     try:
         res = subprocess.run(cmd, capture_output=True, text=True, timeout=120)
     except subprocess.TimeoutExpired:
@@ -101,7 +110,7 @@ def compiler_message(output: str, src, max_lines: int = 6) -> str:
         m = _LOCATED.match(line)
         if m:
             path, lineno, text = m.groups()
-            text = re.sub(r"^''\s*:\s*", "", text).strip()   # syntax errors carry an empty token
+            text = re.sub(r"^''\s*:\s*", "", text).strip()  # syntax errors carry an empty token
             text = re.sub(r"^('[^']*')\s*:\s+", r"\1: ", text)
             if text != "compilation terminated":
                 located.append(f"{path}:{lineno}: {text}")
@@ -123,13 +132,14 @@ def compile_all(glsl_dir: Path = GLSL_DIR, spv_dir: Path = SPV_DIR) -> dict:
     spv_dir.mkdir(parents=True, exist_ok=True)
     manifest = {}
     with tempfile.TemporaryDirectory(prefix="hybrid-compile-") as tmp:
-        for src in shader_sources(glsl_dir):   # compiled aside, then each .spv replaced whole (engine.files)
+        for src in shader_sources(glsl_dir):  # compiled aside, then each .spv replaced whole (engine.files)
             out = Path(tmp) / (src.name + ".spv")
             compile_shader(src, out, glsl_dir)
             atomic_write_bytes(spv_dir / (src.name + ".spv"), out.read_bytes(), "SPIR-V")
-            manifest[src.name] = {"source_sha256": source_hash(src, glsl_dir),
-                                  "includes": sorted(str(p.relative_to(Path(glsl_dir).resolve()))
-                                                     for p in includes_of(src, glsl_dir))}
+            manifest[src.name] = {
+                "source_sha256": source_hash(src, glsl_dir),
+                "includes": sorted(str(p.relative_to(Path(glsl_dir).resolve())) for p in includes_of(src, glsl_dir)),
+            }
     atomic_write_text(spv_dir / MANIFEST, json.dumps(manifest, indent=2, sort_keys=True) + "\n", "shader manifest")
     return manifest
 
@@ -144,8 +154,11 @@ def stale_shaders(glsl_dir: Path = GLSL_DIR, spv_dir: Path = SPV_DIR) -> list[st
     names = {s.name for s in shader_sources(glsl_dir)}
     for src in shader_sources(glsl_dir):
         entry = manifest.get(src.name)
-        if (entry is None or entry.get("source_sha256") != source_hash(src, glsl_dir)
-                or not (spv_dir / (src.name + ".spv")).exists()):
+        if (
+            entry is None
+            or entry.get("source_sha256") != source_hash(src, glsl_dir)
+            or not (spv_dir / (src.name + ".spv")).exists()
+        ):
             stale.append(src.name)
     stale += sorted(n + " (no source)" for n in manifest if n not in names)
     return stale
@@ -182,7 +195,7 @@ def _running(pid: int) -> bool:
         os.kill(pid, 0)
     except ProcessLookupError:
         return False
-    except (PermissionError, OverflowError, OSError):   # another user's process, or not a pid: leave it
+    except (PermissionError, OverflowError, OSError):  # another user's process, or not a pid: leave it
         return True
     return True
 
@@ -195,7 +208,7 @@ class ShaderLibrary:
         self.spv_dir = Path(spv_dir) if spv_dir is not None else SPV_DIR
         self.hot_reload = hot_reload
         self.errors: dict[str, str] = {}
-        self.versions: dict[str, int] = {}   # name -> how many times hot reload compiled it (new SPIR-V)
+        self.versions: dict[str, int] = {}  # name -> how many times hot reload compiled it (new SPIR-V)
         self._compiled: dict[str, bytes] = {}
         self._tmp = None
         self._stamps: dict[str, float] = {}
@@ -255,7 +268,7 @@ class ShaderLibrary:
         stamps = self._scan()
         try:
             sources = shader_sources(self.glsl_dir)
-        except OSError:   # removed or renamed: keep the old stamps to compare its return with
+        except OSError:  # removed or renamed: keep the old stamps to compare its return with
             self.errors[folder] = f"{folder}: the shader folder is gone; hot reload resumes when it is back"
             return set()
         self.errors.pop(folder, None)
@@ -268,7 +281,7 @@ class ShaderLibrary:
         for src in sources:
             try:
                 deps = {src.resolve(), *includes_of(src, self.glsl_dir)}
-            except OSError:   # gone since the listing (a save by rename, the folder going): the next poll retries
+            except OSError:  # gone since the listing (a save by rename, the folder going): the next poll retries
                 self._stamps.pop(str(src), None)
                 continue
             if deps & changed or str(src) in self.errors:

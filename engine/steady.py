@@ -1,6 +1,7 @@
 """The renderer's host fast path: telling cheaply whether a frame is the last one again (same scene, lights and
 settings; the same or another camera), so that its recorded command buffer is re-submitted with only the frame
 block's per-frame fields rewritten."""
+
 from __future__ import annotations
 
 import numpy as np
@@ -30,8 +31,7 @@ def _same_value(value, snap) -> bool:
     if type(value) is not kind:
         return False
     if kind is list or kind is tuple:
-        return len(value) == len(held) and all(
-            type(a) is type(b) and bool(a == b) for a, b in zip(value, held))
+        return len(value) == len(held) and all(type(a) is type(b) and bool(a == b) for a, b in zip(value, held))
     return value is held or bool(value == held)
 
 

@@ -10,6 +10,7 @@ two-level BVH's top level rewritten in place, the recorded frame re-submitted) a
 soft shadows by each pixel's motion. Writes frame_0000.png ... and prints, per frame, the largest motion vector
 (pixels) and how much of the image kept its temporal history.
 """
+
 import argparse
 import math
 import sys
@@ -33,6 +34,7 @@ def drum_mover(scene, name="drum", radius=0.8):
         a = 2.0 * math.pi * t / 4.0
         m[:3, 3] += (radius * (math.cos(a) - 1.0), 0.0, radius * math.sin(a))
         scene.instances[k].transform = m
+
     return on_frame
 
 

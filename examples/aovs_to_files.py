@@ -6,6 +6,7 @@ Soft shadows and AO accumulate over `--frames` frames first. AOVs (`Frame.aov`):
 depth, ao, ao_raw, history (H, W); shadow, shadow_raw (H, W, lights). The PNGs are `Frame.save(path, aov=name)`:
 normals mapped to [0, 1], depth and position normalized, light masks averaged over the lights.
 """
+
 import argparse
 import sys
 from pathlib import Path

@@ -15,6 +15,7 @@ Prints one line per query (how many answers agree, the largest difference) and w
 grey, near = light; mirrored left-right, as Open3D's field-of-view form of `create_rays_pinhole` makes it) and, with
 Open3D, depth_open3d.png.
 """
+
 import argparse
 import importlib
 import sys
@@ -41,8 +42,9 @@ def camera(mesh: trimesh.Trimesh, width: int, height: int) -> np.ndarray:
     """Open3D-style pinhole rays (height, width, 6) looking at the mesh's centre from +Z."""
     centre = mesh.bounds.mean(axis=0)
     eye = centre + [0.0, 0.0, 1.2 * float(np.linalg.norm(mesh.extents))]
-    return engine.RaycastingScene.create_rays_pinhole(fov_deg=50, center=centre, eye=eye, up=[0, 1, 0],
-                                                      width_px=width, height_px=height)
+    return engine.RaycastingScene.create_rays_pinhole(
+        fov_deg=50, center=centre, eye=eye, up=[0, 1, 0], width_px=width, height_px=height
+    )
 
 
 def agree(name: str, same: np.ndarray, detail: str = "") -> None:
@@ -64,14 +66,14 @@ def trimesh_side(mesh: trimesh.Trimesh, rays: np.ndarray, points: np.ndarray, sa
     ours = engine.RayMeshIntersector(mine)
     # the drop-in: mesh.ray now runs on the GPU (trimesh annotates .ray with its own classes: the ignore)
     mine.ray = ours  # type: ignore[assignment]
-    theirs = mesh.ray                                          # trimesh's own: Embree where installed, else numpy
+    theirs = mesh.ray  # trimesh's own: Embree where installed, else numpy
     pick = np.random.default_rng(0).choice(len(origins), min(sample, len(origins)), replace=False)
     o, d = origins[pick], directions[pick]
 
     first = mine.ray.intersects_first(o, d)
     try:
         ref = theirs.intersects_first(o, d)
-    except ImportError as e:   # (trimesh's numpy intersector needs rtree)
+    except ImportError as e:  # (trimesh's numpy intersector needs rtree)
         print(f"trimesh's own intersector is not usable here ({e}): ours alone")
         ours.close()
         return
@@ -85,13 +87,13 @@ def trimesh_side(mesh: trimesh.Trimesh, rays: np.ndarray, points: np.ndarray, sa
     agree("trimesh intersects_id (hits/ray)", count == ref_count, f" ({len(tri):,} hits, trimesh {len(ref_tri):,})")
 
     p = points[:sample]
-    inside = mine.contains(p)                                  # trimesh's parity test, through mesh.ray
+    inside = mine.contains(p)  # trimesh's parity test, through mesh.ray
     agree("trimesh contains", inside == theirs.contains_points(p))
     ours.close()
 
 
 def open3d_side(mesh: trimesh.Trimesh, rays: np.ndarray, points: np.ndarray, out: Path) -> None:
-    with engine.RaycastingScene() as scene:                     # in place of o3d.t.geometry.RaycastingScene()
+    with engine.RaycastingScene() as scene:  # in place of o3d.t.geometry.RaycastingScene()
         scene.add_triangles(np.asarray(mesh.vertices, np.float32), np.asarray(mesh.faces, np.uint32))
         ans = scene.cast_rays(rays)
         dist = scene.compute_distance(points)
@@ -99,25 +101,32 @@ def open3d_side(mesh: trimesh.Trimesh, rays: np.ndarray, points: np.ndarray, out
     depth_png(ans["t_hit"], out / "depth.png")
     print(f"{'ours cast_rays':<34} {ans['t_hit'].size:>9,} rays: {np.isfinite(ans['t_hit']).mean():.1%} hit")
     try:
-        o3d: Any = importlib.import_module("open3d")   # (optional: typed loosely, its stubs take no numpy arrays)
+        o3d: Any = importlib.import_module("open3d")  # (optional: typed loosely, its stubs take no numpy arrays)
     except ImportError:
         print("Open3D is not installed: ours alone (pip install open3d to compare)")
         return
     ref_scene = o3d.t.geometry.RaycastingScene()
-    ref_scene.add_triangles(o3d.core.Tensor(np.asarray(mesh.vertices, np.float32)),
-                            o3d.core.Tensor(np.asarray(mesh.faces, np.uint32)))
+    ref_scene.add_triangles(
+        o3d.core.Tensor(np.asarray(mesh.vertices, np.float32)), o3d.core.Tensor(np.asarray(mesh.faces, np.uint32))
+    )
     ref = ref_scene.cast_rays(o3d.core.Tensor(rays))
     t_ref = ref["t_hit"].numpy()
     depth_png(t_ref, out / "depth_open3d.png")
     both = np.isfinite(ans["t_hit"]) & np.isfinite(t_ref)
     rel = np.abs(ans["t_hit"][both] - t_ref[both]) / np.maximum(t_ref[both], 1e-12)
-    agree("Open3D cast_rays (hit or miss)", np.isfinite(ans["t_hit"]) == np.isfinite(t_ref),
-          f", t_hit within {rel.max() if rel.size else 0.0:.1e} relative")
+    agree(
+        "Open3D cast_rays (hit or miss)",
+        np.isfinite(ans["t_hit"]) == np.isfinite(t_ref),
+        f", t_hit within {rel.max() if rel.size else 0.0:.1e} relative",
+    )
     agree("Open3D cast_rays (primitive id)", ans["primitive_ids"][both] == ref["primitive_ids"].numpy()[both])
     ref_dist = ref_scene.compute_distance(o3d.core.Tensor(points)).numpy()
     err = np.abs(dist - ref_dist).max(initial=0.0)
-    agree("Open3D compute_distance", np.abs(dist - ref_dist) <= 1e-4 * np.maximum(ref_dist, 1e-3),
-          f", largest difference {err:.1e}")
+    agree(
+        "Open3D compute_distance",
+        np.abs(dist - ref_dist) <= 1e-4 * np.maximum(ref_dist, 1e-3),
+        f", largest difference {err:.1e}",
+    )
     agree("Open3D compute_occupancy", occ == ref_scene.compute_occupancy(o3d.core.Tensor(points)).numpy())
 
 

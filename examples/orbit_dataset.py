@@ -13,6 +13,7 @@ Arrays in the .npz (N views, H x W pixels, row 0 at the top):
   z = depth. (The engine's own `Camera.view_matrix()` looks down -Z with +Y up: diag(1, -1, -1, 1) @ it.)
 - eye (N, 3) float32 camera positions. `backproject()` below turns depth back into world points.
 """
+
 import argparse
 import math
 import sys
@@ -25,7 +26,7 @@ import engine
 from engine.settings import parse_size
 
 DEFAULT_SCENE = Path(__file__).resolve().parent.parent / "scenes" / "default.toml"
-GL_TO_CV = np.diag([1.0, -1.0, -1.0, 1.0])   # engine view space (-Z forward, +Y up) -> OpenCV camera space
+GL_TO_CV = np.diag([1.0, -1.0, -1.0, 1.0])  # engine view space (-Z forward, +Y up) -> OpenCV camera space
 
 
 def intrinsics(camera: engine.Camera, width: int, height: int) -> np.ndarray:
@@ -38,9 +39,10 @@ def backproject(depth: np.ndarray, K: np.ndarray, world_to_cam: np.ndarray) -> n
     """World points (H, W, 3) of a depth image (H, W) seen through K and world_to_cam (NaN/inf where depth is)."""
     h, w = depth.shape
     j, i = np.meshgrid(np.arange(w) + 0.5, np.arange(h) + 0.5)
-    cam = np.stack([(j - K[0, 2]) / K[0, 0] * depth, (i - K[1, 2]) / K[1, 1] * depth, depth, np.ones_like(depth)],
-                   axis=-1)
-    with np.errstate(invalid="ignore"):   # inf * 0 on the background gives NaN there
+    cam = np.stack(
+        [(j - K[0, 2]) / K[0, 0] * depth, (i - K[1, 2]) / K[1, 1] * depth, depth, np.ones_like(depth)], axis=-1
+    )
+    with np.errstate(invalid="ignore"):  # inf * 0 on the background gives NaN there
         return (cam @ np.linalg.inv(world_to_cam).T)[..., :3]
 
 
@@ -75,8 +77,9 @@ def main(argv=None) -> int:
         cams = orbit(scene, args.views, args.elevation)
         with engine.Renderer(width, height) as renderer:
             # hard shadows: every view is complete in one frame; render_many renders view N+1 while N is read back
-            frames = renderer.render_many(scene, cams, aovs=("color", "depth", "normal", "position"), shadows="hard",
-                                          ao=True)
+            frames = renderer.render_many(
+                scene, cams, aovs=("color", "depth", "normal", "position"), shadows="hard", ao=True
+            )
             for cam, frame in zip(cams, frames):
                 assert frame.color is not None
                 data["color"].append(frame.color[..., :3])
@@ -95,10 +98,17 @@ def main(argv=None) -> int:
     np.savez_compressed(args.out, **arrays)
     # Check the convention on the last view: the depth seen through K and world_to_cam gives back the positions.
     m = arrays["mask"][-1]
-    err = np.abs(backproject(arrays["depth"][-1], arrays["K"], arrays["world_to_cam"][-1])[m]
-                 - arrays["position"][-1][m]).max() if m.any() else 0.0
-    print(f"{args.out}: {args.views} views of {width}x{height}, {arrays['mask'].mean():.1%} of the pixels covered; "
-          f"back-projection error {err:.2e} (scene size {scene.radius * 2:.3g})")
+    err = (
+        np.abs(
+            backproject(arrays["depth"][-1], arrays["K"], arrays["world_to_cam"][-1])[m] - arrays["position"][-1][m]
+        ).max()
+        if m.any()
+        else 0.0
+    )
+    print(
+        f"{args.out}: {args.views} views of {width}x{height}, {arrays['mask'].mean():.1%} of the pixels covered; "
+        f"back-projection error {err:.2e} (scene size {scene.radius * 2:.3g})"
+    )
     return 0
 
 

@@ -10,6 +10,7 @@ MESH is any file trimesh reads (default: a torus lying flat, axis +Y, made here)
   long as 30% of the bounding-box diagonal; ambient occlusion = the fraction that escape (ao.npy, (V,) float32 in
   [0, 1], 1: open; ao.ply: the mesh with it as grey vertex colours).
 """
+
 import argparse
 import sys
 from pathlib import Path
@@ -26,10 +27,10 @@ def height_map(tracer: engine.Tracer, bounds: np.ndarray, grid: int) -> np.ndarr
     lo, hi = bounds
     xs = np.linspace(lo[0], hi[0], grid)
     zs = np.linspace(lo[2], hi[2], grid)
-    x, z = np.meshgrid(xs, zs)                                    # row: z, column: x
+    x, z = np.meshgrid(xs, zs)  # row: z, column: x
     top = hi[1] + 1.0
     origins = np.stack([x.ravel(), np.full(x.size, top), z.ravel()], axis=1)
-    directions = np.tile([0.0, -1.0, 0.0], (x.size, 1))           # unit length: t is a distance
+    directions = np.tile([0.0, -1.0, 0.0], (x.size, 1))  # unit length: t is a distance
     hits = tracer.intersect(origins, directions)
     height = np.where(hits.hit, top - hits.t, np.nan)
     return height.reshape(grid, grid).astype(np.float32)
@@ -38,15 +39,15 @@ def height_map(tracer: engine.Tracer, bounds: np.ndarray, grid: int) -> np.ndarr
 def vertex_ao(tracer: engine.Tracer, mesh: trimesh.Trimesh, rays: int, radius: float, seed: int = 0) -> np.ndarray:
     """Fraction of `rays` uniform hemisphere directions per vertex that travel `radius` without hitting anything."""
     rng = np.random.default_rng(seed)
-    normals = np.zeros((len(mesh.vertices), 3))   # area-weighted vertex normals (numpy alone: no scipy needed)
+    normals = np.zeros((len(mesh.vertices), 3))  # area-weighted vertex normals (numpy alone: no scipy needed)
     for k in range(3):
         np.add.at(normals, mesh.faces[:, k], mesh.face_normals * mesh.area_faces[:, None])
     normals /= np.maximum(np.linalg.norm(normals, axis=1, keepdims=True), 1e-30)
     d = rng.normal(size=(len(normals), rays, 3))
     d /= np.linalg.norm(d, axis=2, keepdims=True)
     flip = np.einsum("vrk,vk->vr", d, normals) < 0.0
-    d[flip] *= -1.0                                               # into the normal's hemisphere
-    eps = 1e-4 * radius                                           # leave the surface the ray starts on
+    d[flip] *= -1.0  # into the normal's hemisphere
+    eps = 1e-4 * radius  # leave the surface the ray starts on
     origins = np.repeat(np.asarray(mesh.vertices) + eps * normals, rays, axis=0)
     blocked = tracer.occluded(origins, d.reshape(-1, 3), radius)
     return 1.0 - blocked.reshape(len(normals), rays).mean(axis=1).astype(np.float32)
@@ -64,11 +65,11 @@ def main(argv=None) -> int:
         return 1
     if args.mesh is None:
         mesh = trimesh.creation.torus(major_radius=1.0, minor_radius=0.35, major_sections=64, minor_sections=32)
-        mesh.apply_transform(trimesh.transformations.rotation_matrix(np.pi / 2, [1, 0, 0]))   # its axis: +Y
+        mesh.apply_transform(trimesh.transformations.rotation_matrix(np.pi / 2, [1, 0, 0]))  # its axis: +Y
     else:
         try:
             mesh = trimesh.load(args.mesh, force="mesh")
-        except Exception as exc:   # trimesh raises many kinds; say which file
+        except Exception as exc:  # trimesh raises many kinds; say which file
             print(f"error: {args.mesh}: cannot read a mesh ({exc})", file=sys.stderr)
             return 1
     try:
@@ -87,12 +88,15 @@ def main(argv=None) -> int:
     Image.fromarray(np.round(grey * 255).astype(np.uint8), "L").save(args.out / "heightmap.png")
     np.save(args.out / "ao.npy", ao)
     shaded = mesh.copy()
-    shaded.visual = trimesh.visual.ColorVisuals(shaded, vertex_colors=np.repeat(
-        np.round(ao * 255).astype(np.uint8)[:, None], 3, axis=1))
+    shaded.visual = trimesh.visual.ColorVisuals(
+        shaded, vertex_colors=np.repeat(np.round(ao * 255).astype(np.uint8)[:, None], 3, axis=1)
+    )
     shaded.export(args.out / "ao.ply")
-    print(f"{len(mesh.faces)} triangles; height map {args.grid}x{args.grid}: {np.isfinite(height).mean():.1%} hit, "
-          f"height {lo:.3f}..{hi:.3f} ({ms_height:.2f} GPU ms); AO of {len(ao)} vertices x {args.ao_rays} rays: "
-          f"mean {ao.mean():.3f}, min {ao.min():.3f} ({ms_ao:.2f} GPU ms)")
+    print(
+        f"{len(mesh.faces)} triangles; height map {args.grid}x{args.grid}: {np.isfinite(height).mean():.1%} hit, "
+        f"height {lo:.3f}..{hi:.3f} ({ms_height:.2f} GPU ms); AO of {len(ao)} vertices x {args.ao_rays} rays: "
+        f"mean {ao.mean():.3f}, min {ao.min():.3f} ({ms_ao:.2f} GPU ms)"
+    )
     return 0
 
 

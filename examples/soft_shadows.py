@@ -10,6 +10,7 @@ per light, nothing accumulated or denoised), and prints each frame's mean error 
 AOV) against it. Writes frame1.png, frameN.png, reference.png (colour) and shadow_frame1.png, shadow_frameN.png,
 shadow_reference.png (the light masks). Default SCENE: scenes/penumbra.toml, a sphere light and a soft sun.
 """
+
 import argparse
 import sys
 from pathlib import Path
@@ -43,13 +44,18 @@ def main(argv=None) -> int:
         width, height = parse_size(args.size)
         scene = engine.Scene.load(args.scene)
         with engine.Renderer(width, height) as renderer:
-            reference = renderer.render(scene, shadows="reference", reference_samples=args.reference_samples,
-                                        ao=False)
+            reference = renderer.render(scene, shadows="reference", reference_samples=args.reference_samples, ao=False)
             # 1 ray per pixel per light per frame; the history starts over here (the settings changed)
             first = renderer.render(scene, shadows="soft", shadow_samples=1, accumulate=True, denoise=True)
             for _ in range(args.frames - 1):
-                last = renderer.render(scene, shadows="soft", shadow_samples=1, accumulate=True, denoise=True,
-                                       aovs=("color", "depth", "shadow", "history"))
+                last = renderer.render(
+                    scene,
+                    shadows="soft",
+                    shadow_samples=1,
+                    accumulate=True,
+                    denoise=True,
+                    aovs=("color", "depth", "shadow", "history"),
+                )
         args.out.mkdir(parents=True, exist_ok=True)
         for name, frame in (("frame1", first), ("frameN", last), ("reference", reference)):
             frame.save(args.out / f"{name}.png")
@@ -59,8 +65,10 @@ def main(argv=None) -> int:
         return 1
     e1, en = mask_error(first, reference), mask_error(last, reference)
     history = int(np.max(last.aov["history"]))
-    print(f"light mask error against the reference ({args.reference_samples} rays): frame 1 {e1:.4f}, "
-          f"frame {args.frames} {en:.4f} ({e1 / max(en, 1e-12):.1f}x lower; {history} frames accumulated)")
+    print(
+        f"light mask error against the reference ({args.reference_samples} rays): frame 1 {e1:.4f}, "
+        f"frame {args.frames} {en:.4f} ({e1 / max(en, 1e-12):.1f}x lower; {history} frames accumulated)"
+    )
     return 0
 
 

@@ -7,6 +7,7 @@ With --frames it presents N frames and exits (and --screenshot saves the last on
 text overlay). Without a display, run it under Xvfb: `xvfb-run -a python examples/view_mesh.py MESH --frames 30`.
 The viewer is `engine.viewer.Viewer`; `hybrid view MESH` is the same with more options.
 """
+
 import argparse
 import sys
 
@@ -25,8 +26,8 @@ def main(argv=None) -> int:
     try:
         width, height = parse_size(args.size)
         if args.screenshot is not None:
-            check_png_path(args.screenshot)           # before the window opens: a bad path fails at once
-        scene = engine.Scene.load(args.mesh)          # a sun and a framing camera are added when the file has none
+            check_png_path(args.screenshot)  # before the window opens: a bad path fails at once
+        scene = engine.Scene.load(args.mesh)  # a sun and a framing camera are added when the file has none
         print(scene.summary())
         with Viewer(scene, width, height, settings={"shadows": "soft"}, quiet=args.frames is not None) as viewer:
             presented = viewer.run(frames=args.frames)

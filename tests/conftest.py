@@ -1,5 +1,6 @@
 """Shared fixtures: renderers with the validation layer on (any validation error fails the test that
 caused it), image regression against committed references, and an Xvfb display for window tests."""
+
 from __future__ import annotations
 
 import os
@@ -25,18 +26,23 @@ def _validation_as_configured():
         yield
         return
     from engine.vk import context
+
     real = context.Context.__init__
 
     def init(self, device=None, validation=None, *args, **kw):
         real(self, device, False, *args, **kw)
+
     with pytest.MonkeyPatch.context() as mp:
         mp.setattr(context.Context, "__init__", init)
         yield
 
 
 def pytest_addoption(parser):
-    parser.addoption("--regen-refs", action="store_true",
-                     help="rewrite the reference images in tests/reference/ instead of comparing")
+    parser.addoption(
+        "--regen-refs",
+        action="store_true",
+        help="rewrite the reference images in tests/reference/ instead of comparing",
+    )
 
 
 @pytest.fixture(scope="session")
@@ -113,8 +119,10 @@ def image_regression(request):
             out = REPO / "out" / "test-failures"
             out.mkdir(parents=True, exist_ok=True)
             Image.fromarray(np.asarray(rgba, np.uint8), "RGBA").save(out / f"{name}.png")
-            pytest.fail(f"{name}: differs from {path}: mean |diff| {mean:.2f} (max {max_mean}), "
-                        f"{bad:.2%} pixels off by > 32 (max {max_bad_fraction:.2%}); render saved to {out}")
+            pytest.fail(
+                f"{name}: differs from {path}: mean |diff| {mean:.2f} (max {max_mean}), "
+                f"{bad:.2%} pixels off by > 32 (max {max_bad_fraction:.2%}); render saved to {out}"
+            )
 
     return check
 
@@ -123,7 +131,7 @@ def image_regression(request):
 def make_viewer(xvfb_display):
     """`make_viewer(scene, w, h, **kw)`: an in-process Viewer with validation on (no hot reload, quiet), closed after
     the test, which fails on any validation error (leaks included)."""
-    from engine.viewer import Viewer   # GLFW is loaded by window tests only
+    from engine.viewer import Viewer  # GLFW is loaded by window tests only
 
     made = []
 
@@ -138,7 +146,7 @@ def make_viewer(xvfb_display):
     yield make
     errors = []
     for v in made:
-        v.close()   # leaked Vulkan objects are reported here
+        v.close()  # leaked Vulkan objects are reported here
         errors += v.validation_errors
     assert not errors, "Vulkan validation errors:\n" + "\n".join(errors[:10])
 
@@ -159,8 +167,12 @@ def xvfb_display():
         pytest.skip("Xvfb is not installed (apt-get install xvfb): window tests need an X display")
     read_fd, write_fd = os.pipe()
     log = tempfile.TemporaryFile()
-    proc = subprocess.Popen([exe, "-displayfd", str(write_fd), "-screen", "0", "1280x800x24", "-nolisten", "tcp"],
-                            pass_fds=(write_fd,), stdout=subprocess.DEVNULL, stderr=log)
+    proc = subprocess.Popen(
+        [exe, "-displayfd", str(write_fd), "-screen", "0", "1280x800x24", "-nolisten", "tcp"],
+        pass_fds=(write_fd,),
+        stdout=subprocess.DEVNULL,
+        stderr=log,
+    )
     os.close(write_fd)
     number = b""
     try:

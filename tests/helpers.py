@@ -1,4 +1,5 @@
 """Small analytic helpers shared by the tests."""
+
 import math
 
 import numpy as np
@@ -12,8 +13,11 @@ def pixel_rays(camera, width, height):
     xs = ((np.arange(width) + 0.5) / width * 2 - 1) * t * aspect
     ys = ((np.arange(height) + 0.5) / height * 2 - 1) * t  # NDC y down: row 0 is the top
     X, Y = np.meshgrid(xs, ys)
-    d = (X[..., None] * np.asarray(camera.right) - Y[..., None] * np.asarray(camera.up_vector)
-         + np.asarray(camera.forward))
+    d = (
+        X[..., None] * np.asarray(camera.right)
+        - Y[..., None] * np.asarray(camera.up_vector)
+        + np.asarray(camera.forward)
+    )
     return d / np.linalg.norm(d, axis=-1, keepdims=True)
 
 
@@ -46,17 +50,24 @@ def tiered(values, default, ids=None):
     """pytest parameters: `values` at the indices in `default` run in every tier, the rest are marked slow (the
     complete set runs with the slow tier, which CI includes: CONTRIBUTING.md, "Tests")."""
     import pytest
+
     ids = ids or [None] * len(values)
-    return [pytest.param(v, id=i) if k in default else pytest.param(v, id=i, marks=pytest.mark.slow)
-            for k, (v, i) in enumerate(zip(values, ids))]
+    return [
+        pytest.param(v, id=i) if k in default else pytest.param(v, id=i, marks=pytest.mark.slow)
+        for k, (v, i) in enumerate(zip(values, ids))
+    ]
 
 
 def covering(a, b, ids_b=None):
     """(x, y) pytest parameters of the cross product of `a` and `b`: a diagonal that takes every value of each at
     least once runs in every tier, the rest of the product is marked slow."""
     import pytest
+
     n = max(len(a), len(b))
     diagonal = {(k % len(a), k % len(b)) for k in range(n)}
     ids_b = ids_b or [str(y) for y in b]
-    return [pytest.param(x, y, id=f"{x}-{ids_b[j]}", marks=() if (i, j) in diagonal else pytest.mark.slow)
-            for i, x in enumerate(a) for j, y in enumerate(b)]
+    return [
+        pytest.param(x, y, id=f"{x}-{ids_b[j]}", marks=() if (i, j) in diagonal else pytest.mark.slow)
+        for i, x in enumerate(a)
+        for j, y in enumerate(b)
+    ]

@@ -1,6 +1,7 @@
 """The API reference builds from the docstrings without a warning (tools/build_api_docs.py: pdoc's warnings, and
 backticked references and docs/ paths that do not resolve, are errors) into a folder a user opens at index.html, and
 says what a user looks up there: every public name with its docstring."""
+
 import html
 import importlib.util
 import inspect
@@ -39,10 +40,11 @@ def first_paragraph(obj) -> str:
 
 def test_api_reference_builds_without_warnings(tmp_path):
     env = dict(os.environ, PYTHONPATH=str(REPO))
-    res = subprocess.run([sys.executable, str(TOOL), "-o", "api"], cwd=tmp_path, env=env,
-                         capture_output=True, text=True, timeout=300)
+    res = subprocess.run(
+        [sys.executable, str(TOOL), "-o", "api"], cwd=tmp_path, env=env, capture_output=True, text=True, timeout=300
+    )
     assert res.returncode == 0 and res.stderr == "", res.stderr[-4000:]
-    assert "api/index.html" in res.stdout   # where to open it, relative to the caller's folder
+    assert "api/index.html" in res.stdout  # where to open it, relative to the caller's folder
     # index.html, the page a user opens: every module's page, and every public name on the package's page
     index = (tmp_path / "api" / "index.html").read_text()
     assert f"hybrid {engine.__version__}: API reference" in index
@@ -62,7 +64,7 @@ def test_api_reference_builds_without_warnings(tmp_path):
             if not attr.startswith("_") and inspect.isfunction(member) and member.__doc__:
                 assert first_paragraph(member).replace(" ", "") in squeezed, f"{name}.{attr}"
     # the render options with their defaults and units, the conventions, the AOVs' shapes
-    assert "shadow_samples:int=Default(1)" in page.replace(" ", "")     # (the signature is in spans per token)
+    assert "shadow_samples:int=Default(1)" in page.replace(" ", "")  # (the signature is in spans per token)
     assert "ao_radius: the AO rays' length in world units" in page
     assert "linear view depth" in page and "(H, W, 4) uint8 RGBA, sRGB-encoded" in page
     assert "reverse-Z" in page and "barycentric" in page
@@ -79,13 +81,17 @@ def test_the_check_reports_broken_references(tmp_path, monkeypatch):
         '`Frame.aov`, `Camera.forward` and docs/scenes.md exist."""\n'
         "from __future__ import annotations\n\n\n"
         "def f(x: NoSuchType) -> None:\n"
-        '    """`Renderer.render` is fine, `Scene.nope()` is not."""\n')
+        '    """`Renderer.render` is fine, `Scene.nope()` is not."""\n'
+    )
     monkeypatch.syspath_prepend(str(tmp_path))
     tool = load_tool()
     monkeypatch.setattr(tool, "MODULES", ["fake_api"])
     problems = tool.build(None)
     assert len(problems) == 5, problems
     assert "Error parsing type annotation NoSuchType" in problems[0]
-    assert problems[1:] == ["fake_api: `engine.settings.NO_SUCH` does not resolve",
-                            "fake_api: `Frame.colour` does not resolve", "fake_api: docs/nothing.md does not exist",
-                            "fake_api.f: `Scene.nope` does not resolve"]
+    assert problems[1:] == [
+        "fake_api: `engine.settings.NO_SUCH` does not resolve",
+        "fake_api: `Frame.colour` does not resolve",
+        "fake_api: docs/nothing.md does not exist",
+        "fake_api.f: `Scene.nope` does not resolve",
+    ]

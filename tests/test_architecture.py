@@ -1,6 +1,7 @@
 """The architecture as a contract: layers and their imports, Vulkan only in engine/vk, the limits on a function's
 size and where they may be waived, and the passes' declarations against their shaders' SPIR-V (docs/architecture.md
 describes the layers; tests/test_style.py runs ruff, which measures the functions)."""
+
 import ast
 import re
 import struct
@@ -10,7 +11,7 @@ import pytest
 
 try:
     import tomllib
-except ModuleNotFoundError:   # Python 3.10 (tomli is in the dev extra)
+except ModuleNotFoundError:  # Python 3.10 (tomli is in the dev extra)
     import tomli as tomllib
 
 from engine.errors import ShaderError
@@ -35,16 +36,21 @@ LAYERS = [
     ["engine.errors", "engine._version", "engine.lifetime"],
     ["engine.limits", "engine.parallel", "engine.files", "engine.data", "engine.native"],
     ["engine.vk", "engine.bvh", "engine.scene", "engine.shaders", "engine.passes.std140"],
-    ["engine.passes.interface"],   # what host and shaders share: below the scene on the GPU, which it lays out
+    ["engine.passes.interface"],  # what host and shaders share: below the scene on the GPU, which it lays out
     ["engine.gpu"],
     ["engine.passes"],
     ["engine.settings", "engine.outputs", "engine.frame", "engine.steady", "engine.renderer", "engine.rt"],
     ["engine.viewer", "engine.bench", "engine.sequence", "engine.batch"],
     ["engine.cli", "engine.__main__", "engine"],
 ]
-PEERS = {("engine.frame", "engine.settings"), ("engine.frame", "engine.outputs"),
-         ("engine.renderer", "engine.settings"), ("engine.renderer", "engine.frame"),
-         ("engine.renderer", "engine.steady"), ("engine.__main__", "engine.cli")}
+PEERS = {
+    ("engine.frame", "engine.settings"),
+    ("engine.frame", "engine.outputs"),
+    ("engine.renderer", "engine.settings"),
+    ("engine.renderer", "engine.frame"),
+    ("engine.renderer", "engine.steady"),
+    ("engine.__main__", "engine.cli"),
+}
 #: The ruff rules that measure a function (pyproject.toml): cyclomatic complexity, branches, statements.
 SIZE_RULES = {"C901", "PLR0912", "PLR0915"}
 PASSES = [LightingPass, DebugViewPass, AccumulatePass, DenoisePass, ShadowPass, AOPass, ResolvePass, CullPass]
@@ -63,7 +69,7 @@ def resolve(mod: str, path: Path, node: ast.ImportFrom) -> list[str]:
     """Absolute engine module names an ImportFrom refers to (module and, where they are modules, its names)."""
     if node.level:
         base = mod.split(".") if path.name == "__init__.py" else mod.split(".")[:-1]
-        base = base[:len(base) - node.level + 1]
+        base = base[: len(base) - node.level + 1]
         target = ".".join(base + ([node.module] if node.module else []))
     else:
         target = node.module or ""
@@ -71,7 +77,7 @@ def resolve(mod: str, path: Path, node: ast.ImportFrom) -> list[str]:
         return []
     known = modules()
     subs = [f"{target}.{a.name}" for a in node.names if f"{target}.{a.name}" in known]
-    return subs if len(subs) == len(node.names) else [target] + subs   # `from . import module` is no package use
+    return subs if len(subs) == len(node.names) else [target] + subs  # `from . import module` is no package use
 
 
 def imports(mod: str, path: Path):
@@ -132,17 +138,16 @@ def test_the_tracer_does_not_import_the_passes():
 
 
 def test_no_import_cycles():
-    graph = {mod: {t for t in imports(mod, path)[0] if t in modules() and t != mod}
-             for mod, path in modules().items()}
+    graph = {mod: {t for t in imports(mod, path)[0] if t in modules() and t != mod} for mod, path in modules().items()}
     state, cycles = {}, []
 
     def visit(node, stack):
         state[node] = "open"
         for nxt in sorted(graph[node]):
             if nxt.startswith(node + ".") and node in ("engine",):
-                continue   # the package's own public API re-exports
+                continue  # the package's own public API re-exports
             if state.get(nxt) == "open":
-                cycles.append(" -> ".join(stack[stack.index(nxt):] + [nxt]) if nxt in stack else nxt)
+                cycles.append(" -> ".join(stack[stack.index(nxt) :] + [nxt]) if nxt in stack else nxt)
             elif nxt not in state:
                 visit(nxt, stack + [nxt])
         state[node] = "done"
@@ -263,7 +268,7 @@ def test_frame_block_layout_matches_the_shaders_std140():
     offsets, i = [], 5
     while i < len(words):
         n, op = words[i] >> 16, words[i] & 0xFFFF
-        if op == 72 and words[i + 3] == 35:   # OpMemberDecorate ... Offset
+        if op == 72 and words[i + 3] == 35:  # OpMemberDecorate ... Offset
             offsets.append((words[i + 1], words[i + 2], words[i + 4]))
         i += n
     by_struct = {}

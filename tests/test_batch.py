@@ -1,6 +1,7 @@
 """`hybrid batch`: jobs of scenes x cameras x AOVs into a folder. A failing item is reported and the rest finish; a
 killed batch resumes without rendering finished items again and leaves no partial file; two workers write the same
 files as one; the Ray path runs end to end on a local cluster that the test starts (on loopback)."""
+
 import importlib.util
 import json
 import os
@@ -37,8 +38,14 @@ def write_job(folder: Path, text: str, name: str = "job.toml") -> Path:
 
 
 def hybrid_batch(*args, cwd: Path, timeout: float = 300) -> subprocess.CompletedProcess:
-    return subprocess.run([sys.executable, "-m", "engine", "batch", *map(str, args)], cwd=cwd, env=ENV,
-                          capture_output=True, text=True, timeout=timeout)
+    return subprocess.run(
+        [sys.executable, "-m", "engine", "batch", *map(str, args)],
+        cwd=cwd,
+        env=ENV,
+        capture_output=True,
+        text=True,
+        timeout=timeout,
+    )
 
 
 def manifest(out: Path) -> dict:
@@ -120,15 +127,23 @@ def test_a_job_with_failing_items_finishes_the_rest_and_reports_them(tmp_path):
     out = tmp_path / "out"
     m = manifest(out)
     status = {k: v["status"] for k, v in m["items"].items()}
-    assert status == {"sphere/0000": "done", "sphere/0001": "done", "missing/0000": "failed",
-                      "missing/0001": "failed", "views/0000": "done", "views/0001": "failed",
-                      "views/0002": "failed", "views/0003": "done"}
+    assert status == {
+        "sphere/0000": "done",
+        "sphere/0001": "done",
+        "missing/0000": "failed",
+        "missing/0001": "failed",
+        "views/0000": "done",
+        "views/0001": "failed",
+        "views/0002": "failed",
+        "views/0003": "done",
+    }
     assert m["counts"] == {"items": 8, "done": 4, "failed": 4, "todo": 0}
     errors = {k: v.get("error", "") for k, v in m["items"].items()}
-    assert errors["missing/0000"].startswith(f"{tmp_path / 'missing.toml'}: ")   # the loader's error, naming it
+    assert errors["missing/0000"].startswith(f"{tmp_path / 'missing.toml'}: ")  # the loader's error, naming it
     assert re.search(r"job\.toml: scenes\[2\]\.cameras\.views\[1\]: camera pose must be rigid", errors["views/0001"])
-    assert re.search(r"scenes\[2\]\.cameras\.views\[2\]: camera: its intrinsics are for a 64x32 image",
-                     errors["views/0002"])
+    assert re.search(
+        r"scenes\[2\]\.cameras\.views\[2\]: camera: its intrinsics are for a 64x32 image", errors["views/0002"]
+    )
     # one line per failure on stderr, and the summary on stdout
     failed_lines = [ln for ln in res.stderr.splitlines() if ln.startswith("failed: ")]
     assert len(failed_lines) == 4 and all("Traceback" not in ln for ln in res.stderr.splitlines())
@@ -153,18 +168,28 @@ BAD_JOBS = [
     ("size = '64x48'\n[cameras]\norbit = 2\n[[scenes]]\nscene = 'sphere'\n", r"output: give the output folder"),
     ("output = 'o'\nscenez = 1\n", r"unknown key 'scenez'"),
     ("output = 'o'\naovs = ['colour']\n[cameras]\norbit = 1\n[[scenes]]\nscene = 'sphere'\n", r"aov 'colour'"),
-    ("output = 'o'\naovs = ['depth']\npng = ['color']\n[cameras]\norbit = 1\n[[scenes]]\nscene = 'sphere'\n",
-     r"png: 'color' is not among the aovs"),
+    (
+        "output = 'o'\naovs = ['depth']\npng = ['color']\n[cameras]\norbit = 1\n[[scenes]]\nscene = 'sphere'\n",
+        r"png: 'color' is not among the aovs",
+    ),
     ("output = 'o'\nsize = '64x'\n[cameras]\norbit = 1\n[[scenes]]\nscene = 'sphere'\n", r"size '64x'"),
-    ("output = 'o'\n[settings]\nshadows = 'fuzzy'\n[cameras]\norbit = 1\n[[scenes]]\nscene = 'sphere'\n",
-     r"setting shadows='fuzzy'"),
+    (
+        "output = 'o'\n[settings]\nshadows = 'fuzzy'\n[cameras]\norbit = 1\n[[scenes]]\nscene = 'sphere'\n",
+        r"setting shadows='fuzzy'",
+    ),
     ("output = 'o'\n[cameras]\norbit = 0\n[[scenes]]\nscene = 'sphere'\n", r"cameras\.orbit: expected the number"),
-    ("output = 'o'\n[cameras]\norbit = 2\nviews = []\n[[scenes]]\nscene = 'sphere'\n",
-     r"cameras: give exactly one of .*found both orbit and views"),
-    ("output = 'o'\n[cameras]\npath = 'nope.json'\n[[scenes]]\nscene = 'sphere'\n",
-     r"nope\.json: no such camera-path file"),
-    ("output = 'o'\n[cameras]\norbit = 1\n[[scenes]]\nscene = 'sphere'\n[[scenes]]\nscene = 'sphere'\n",
-     r"scenes\[1\]: name 'sphere' is scenes\[0\]'s too"),
+    (
+        "output = 'o'\n[cameras]\norbit = 2\nviews = []\n[[scenes]]\nscene = 'sphere'\n",
+        r"cameras: give exactly one of .*found both orbit and views",
+    ),
+    (
+        "output = 'o'\n[cameras]\npath = 'nope.json'\n[[scenes]]\nscene = 'sphere'\n",
+        r"nope\.json: no such camera-path file",
+    ),
+    (
+        "output = 'o'\n[cameras]\norbit = 1\n[[scenes]]\nscene = 'sphere'\n[[scenes]]\nscene = 'sphere'\n",
+        r"scenes\[1\]: name 'sphere' is scenes\[0\]'s too",
+    ),
     ("output = 'o'\n[[scenes]]\nscene = 'sphere'\n", r"scenes\[0\]: no cameras"),
     ("output = 'o'\nframes = 0\n[cameras]\norbit = 1\n[[scenes]]\nscene = 'sphere'\n", r"frames: expected"),
     ("output = 'o'\n[cameras]\norbit = 1\n[[scenes]]\nscene = 'a b.obj'\n", r"name 'a b': the output folder"),
@@ -184,18 +209,26 @@ def test_a_bad_job_is_one_line_on_the_command_line(tmp_path):
     job = write_job(tmp_path, BAD_JOBS[1][0])
     res = hybrid_batch(job, cwd=tmp_path)
     assert res.returncode == 1 and res.stdout == ""
-    assert res.stderr == f"error: {job}: unknown key 'scenez' (known: output, size, aovs, png, frames, compress, " \
-                         "settings, cameras, scenes)\n"
+    assert (
+        res.stderr == f"error: {job}: unknown key 'scenez' (known: output, size, aovs, png, frames, compress, "
+        "settings, cameras, scenes)\n"
+    )
 
 
-@pytest.mark.parametrize("args,message", [
-    (["--workers", "0"], "--workers 0: expected 1..64"),
-    (["--devices", "7"], "--devices: device='7': no such device index"),
-    (["--devices", "0,,1"], "--devices '0,,1': expected device indices or names separated by commas"),
-    (["--ray", "local", "--workers", "2"], "--ray runs the items as Ray tasks: --workers and --devices do not apply"),
-    (["--shard-size", "0"], "--shard-size 0: expected a positive number of items"),
-    (["--ray", "127.0.0.1:1"], "--ray 127.0.0.1:1: no Ray cluster answers there"),   # not a minutes-long retry
-])
+@pytest.mark.parametrize(
+    "args,message",
+    [
+        (["--workers", "0"], "--workers 0: expected 1..64"),
+        (["--devices", "7"], "--devices: device='7': no such device index"),
+        (["--devices", "0,,1"], "--devices '0,,1': expected device indices or names separated by commas"),
+        (
+            ["--ray", "local", "--workers", "2"],
+            "--ray runs the items as Ray tasks: --workers and --devices do not apply",
+        ),
+        (["--shard-size", "0"], "--shard-size 0: expected a positive number of items"),
+        (["--ray", "127.0.0.1:1"], "--ray 127.0.0.1:1: no Ray cluster answers there"),  # not a minutes-long retry
+    ],
+)
 def test_bad_options_are_one_line_errors(tmp_path, args, message):
     job = write_job(tmp_path, "output = 'out'\nsize = '32x24'\n[cameras]\norbit = 1\n[[scenes]]\nscene = 'sphere'\n")
     res = hybrid_batch(job, *args, cwd=tmp_path)
@@ -204,20 +237,23 @@ def test_bad_options_are_one_line_errors(tmp_path, args, message):
 
 
 def test_a_second_batch_on_the_same_folder_is_refused(tmp_path):
-    job = load_job(write_job(tmp_path, "output = 'out'\nsize = '32x24'\n[cameras]\norbit = 1\n"
-                                       "[[scenes]]\nscene = 'sphere'\n"))
+    job = load_job(
+        write_job(tmp_path, "output = 'out'\nsize = '32x24'\n[cameras]\norbit = 1\n[[scenes]]\nscene = 'sphere'\n")
+    )
     job.output.mkdir()
     (job.output / LOCK_NAME).write_text(json.dumps({"host": os.uname().nodename, "pid": os.getpid()}))
     with pytest.raises(ConfigError, match=r"another batch is writing here \(pid \d+"):
         run_batch(job, progress=False)
-    (job.output / LOCK_NAME).write_text(json.dumps({"host": os.uname().nodename, "pid": 2 ** 22 + 7}))  # gone
+    (job.output / LOCK_NAME).write_text(json.dumps({"host": os.uname().nodename, "pid": 2**22 + 7}))  # gone
     result = run_batch(job, progress=False)
     assert result.ok and result.rendered == 1 and not (job.output / LOCK_NAME).exists()
 
 
 def test_items_are_rendered_again_when_what_they_depend_on_changes(tmp_path):
-    text = "output = 'out'\nsize = '32x24'\naovs = ['color', 'depth']\n[settings]\nao_samples = 1\n" \
-           "[cameras]\norbit = 3\n[[scenes]]\nscene = 'sphere'\n"
+    text = (
+        "output = 'out'\nsize = '32x24'\naovs = ['color', 'depth']\n[settings]\nao_samples = 1\n"
+        "[cameras]\norbit = 3\n[[scenes]]\nscene = 'sphere'\n"
+    )
     path = write_job(tmp_path, text)
     first = run_batch(load_job(path), progress=False)
     assert (first.rendered, first.skipped) == (3, 0)
@@ -234,11 +270,19 @@ def test_items_are_rendered_again_when_what_they_depend_on_changes(tmp_path):
 # ---- kill and resume -----------------------------------------------------------------------------------------------
 def test_a_killed_batch_resumes_without_redoing_finished_items(tmp_path):
     n = 24
-    job = write_job(tmp_path, f"output = 'out'\nsize = '96x72'\nframes = 2\naovs = ['color', 'depth', 'normal']\n"
-                              f"[cameras]\norbit = {n}\n[[scenes]]\nscene = 'default'\n")
+    job = write_job(
+        tmp_path,
+        f"output = 'out'\nsize = '96x72'\nframes = 2\naovs = ['color', 'depth', 'normal']\n"
+        f"[cameras]\norbit = {n}\n[[scenes]]\nscene = 'default'\n",
+    )
     out = tmp_path / "out" / "default"
-    proc = subprocess.Popen([sys.executable, "-m", "engine", "batch", str(job), "-q", "--shard-size", "4"],
-                            cwd=tmp_path, env=ENV, stdout=subprocess.PIPE, stderr=subprocess.PIPE)
+    proc = subprocess.Popen(
+        [sys.executable, "-m", "engine", "batch", str(job), "-q", "--shard-size", "4"],
+        cwd=tmp_path,
+        env=ENV,
+        stdout=subprocess.PIPE,
+        stderr=subprocess.PIPE,
+    )
     try:
         deadline = time.monotonic() + 240
         while len(list(out.glob("*.npz"))) < 3:
@@ -262,7 +306,7 @@ def test_a_killed_batch_resumes_without_redoing_finished_items(tmp_path):
     assert res.returncode == 0, res.stderr
     m = re.search(r"(\d+) rendered, (\d+) already done, 0 failed", res.stdout)
     assert m and int(m.group(1)) + int(m.group(2)) == n and int(m.group(2)) >= len(done), res.stdout
-    for p in done:   # not written again
+    for p in done:  # not written again
         assert (p.stat().st_ino, p.stat().st_mtime_ns) == before[p.name]
     assert len(list(out.glob("*.npz"))) == n and len(list(out.glob("*.png"))) == n
     assert manifest(tmp_path / "out")["counts"] == {"items": n, "done": n, "failed": 0, "todo": 0}
@@ -306,7 +350,7 @@ def test_two_workers_write_the_same_files_as_one(tmp_path):
     assert len(workers) == 2 and {w.split("@")[0] for w in workers} == {"worker 0", "worker 1"}
     assert_same_outputs(tmp_path / "one", tmp_path / "two")
     history = npz(tmp_path / "two" / "penumbra" / "0002.npz")["history"]
-    assert history.max() == 2   # the view's two frames accumulated, nothing from the view before
+    assert history.max() == 2  # the view's two frames accumulated, nothing from the view before
 
 
 def test_the_example_job_runs(tmp_path):
@@ -341,28 +385,45 @@ ray.shutdown()
 """
 
 
-@pytest.mark.skipif(importlib.util.find_spec("ray") is None,
-                    reason="Ray is not installed (pip install '.[distributed]' or pip install ray)")
+@pytest.mark.skipif(
+    importlib.util.find_spec("ray") is None,
+    reason="Ray is not installed (pip install '.[distributed]' or pip install ray)",
+)
 @pytest.mark.slow
 def test_ray_runs_a_job_end_to_end_on_a_local_cluster(tmp_path):
     """A 2-CPU Ray cluster on loopback, started here; `hybrid batch --ray ADDRESS` submits shards as tasks, which
     write the files; the driver merges the manifest. The files equal a local run's; a failing item is reported."""
-    job = write_job(tmp_path, "output = 'out'\nsize = '64x48'\naovs = ['color', 'depth', 'object_id']\n"
-                              "[cameras]\norbit = 3\n[[scenes]]\nscene = 'sphere'\n[[scenes]]\nscene = 'default'\n"
-                              "[[scenes]]\nscene = 'missing.obj'\n")
+    job = write_job(
+        tmp_path,
+        "output = 'out'\nsize = '64x48'\naovs = ['color', 'depth', 'object_id']\n"
+        "[cameras]\norbit = 3\n[[scenes]]\nscene = 'sphere'\n[[scenes]]\nscene = 'default'\n"
+        "[[scenes]]\nscene = 'missing.obj'\n",
+    )
     # A single-machine cluster (loopback only), with token authentication (the token in the environment, not in
     # ~/.ray): the head and the driver share it.
     env = dict(ENV, RAY_ENABLE_WINDOWS_OR_OSX_CLUSTER="0", RAY_AUTH_MODE="token", RAY_AUTH_TOKEN=secrets.token_hex(16))
-    head = subprocess.Popen([sys.executable, "-c", RAY_HEAD], cwd=tmp_path, env=env, stdin=subprocess.PIPE,
-                            stdout=subprocess.PIPE, stderr=subprocess.DEVNULL, text=True)
+    head = subprocess.Popen(
+        [sys.executable, "-c", RAY_HEAD],
+        cwd=tmp_path,
+        env=env,
+        stdin=subprocess.PIPE,
+        stdout=subprocess.PIPE,
+        stderr=subprocess.DEVNULL,
+        text=True,
+    )
     try:
         line = head.stdout.readline().split()
         assert len(line) == 2, "the Ray head did not start"
         address, node = line
         assert address.startswith("127.0.0.1:") and node == "127.0.0.1"
-        res = subprocess.run([sys.executable, "-m", "engine", "batch", str(job), "-q", "--ray", address,
-                              "--shard-size", "2"], cwd=tmp_path, env=env, capture_output=True, text=True,
-                             timeout=180)
+        res = subprocess.run(
+            [sys.executable, "-m", "engine", "batch", str(job), "-q", "--ray", address, "--shard-size", "2"],
+            cwd=tmp_path,
+            env=env,
+            capture_output=True,
+            text=True,
+            timeout=180,
+        )
     finally:
         head.stdin.close()
         try:

@@ -1,6 +1,7 @@
 """The benchmark machinery (engine/bench/) on a tiny generated scene: the JSON has every section and figure, the
 throughputs are positive, and the peers (embreex, Open3D, Mitsuba) answer the same rays as our Tracer does. Nothing
 here asserts a timing."""
+
 import io
 import json
 import sys
@@ -17,8 +18,11 @@ from engine.errors import ConfigError
 
 def _peer_available(name):
     try:
-        mod = __import__({"embreex": "embreex.rtcore_scene", "open3d": "open3d", "mitsuba": "mitsuba",
-                          "mitsuba_device": "mitsuba"}[name])
+        mod = __import__(
+            {"embreex": "embreex.rtcore_scene", "open3d": "open3d", "mitsuba": "mitsuba", "mitsuba_device": "mitsuba"}[
+                name
+            ]
+        )
     except ImportError:
         return False
     # Mitsuba: a build with a variant the peer uses (llvm_ad_rgb runs on any x86-64 CPU)
@@ -28,10 +32,22 @@ def _peer_available(name):
 @pytest.fixture(scope="module")
 def results(tmp_path_factory):
     out = tmp_path_factory.mktemp("bench")
-    cfg = BenchConfig(sections=("build", "trace", "frame"), size=(160, 96), validation=True,
-                      build_sizes=(5000,), build_reps=1, generated_tris=5000, real_scene=None,
-                      frame_scenes=("generated",), reps=1, warmup=0, frame_reps=1, frame_warmup=0, random_rays=4000,
-                      thread_probe=False)
+    cfg = BenchConfig(
+        sections=("build", "trace", "frame"),
+        size=(160, 96),
+        validation=True,
+        build_sizes=(5000,),
+        build_reps=1,
+        generated_tris=5000,
+        real_scene=None,
+        frame_scenes=("generated",),
+        reps=1,
+        warmup=0,
+        frame_reps=1,
+        frame_warmup=0,
+        random_rays=4000,
+        thread_probe=False,
+    )
     res = run_bench(cfg, json_path=out / "bench.json", plot_path=out / "bench.png", progress=False)
     return res, out
 
@@ -117,7 +133,7 @@ def test_mitsuba_gives_our_answers(results, peer):
     assert "skipped" not in eng, eng
     variant = "cuda_ad_rgb" if "cuda_ad_rgb" in eng["label"] else "llvm_ad_rgb"
     assert variant in eng["label"]
-    assert (eng["threads"] is None) == (variant == "cuda_ad_rgb")   # the LLVM backend reports its thread count
+    assert (eng["threads"] is None) == (variant == "cuda_ad_rgb")  # the LLVM backend reports its thread count
     if variant == "llvm_ad_rgb" and "cuda_ad_rgb" in __import__("mitsuba").variants():
         # the CUDA variant was tried first: why it did not load is in the JSON
         assert any(t.startswith("cuda_ad_rgb: ") for t in eng["tried"]), eng
@@ -132,8 +148,9 @@ def test_mitsuba_gives_our_answers(results, peer):
 
 def test_mitsuba_peer_skips_when_missing(monkeypatch):
     from engine.bench.peers import make_peer
+
     v, f = generated_mesh(2000, seed=2)
-    monkeypatch.setitem(sys.modules, "mitsuba", None)   # `import mitsuba` raises ImportError
+    monkeypatch.setitem(sys.modules, "mitsuba", None)  # `import mitsuba` raises ImportError
     for name in ("mitsuba", "mitsuba_device"):
         engine, why = make_peer(name, v, f)
         assert engine is None and why.startswith("not installed or not loadable"), why
@@ -143,6 +160,7 @@ def test_mitsuba_variant_that_does_not_load_is_named(monkeypatch):
     if not _peer_available("mitsuba"):
         pytest.skip("mitsuba is not installed")
     from engine.bench import peers
+
     v, f = generated_mesh(2000, seed=2)
     monkeypatch.setattr(peers, "MITSUBA_VARIANTS", (("no_such_variant", "?"),))
     engine, why = peers.make_peer("mitsuba", v, f)
@@ -154,6 +172,7 @@ def test_mitsuba_device_needs_prepared_rays():
         pytest.skip("mitsuba is not installed")
     from engine.bench.peers import make_peer
     from engine.bench.rays import RaySet
+
     v, f = generated_mesh(2000, seed=2)
     engine, why = make_peer("mitsuba_device", v, f)
     assert engine is not None, why

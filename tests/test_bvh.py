@@ -1,5 +1,6 @@
 """Host BVH: build invariants, the GPU byte layout, edge cases, and traversal (a numpy emulation of bvh.glsl that walks
 the same buffers) against the brute-force reference."""
+
 import shutil
 import subprocess
 from pathlib import Path
@@ -324,14 +325,14 @@ def test_nan_vertices_build_and_are_never_hit(n):
     them spoil the tree: every triangle in exactly one leaf, the rays' hits as the brute-force reference's."""
     v, f = soup(n, seed=9)
     v = np.array(v)
-    v[3 * 7] = np.nan          # triangle 7: a whole vertex
+    v[3 * 7] = np.nan  # triangle 7: a whole vertex
     v[3 * 11 + 2, 1] = np.nan  # triangle 11: one coordinate
     bvh = build_bvh(v, f)
     assert sorted(bvh.prim_ids.tolist()) == list(range(n))
     _, leaves = walk(bvh)
     covered = np.zeros(n, np.int64)
     for first, count, *_ in leaves:
-        covered[first:first + count] += 1
+        covered[first : first + count] += 1
     assert (covered == 1).all()
     rng = np.random.default_rng(4)
     o, d = random_rays(rng, 800, np.nan_to_num(v))
@@ -345,8 +346,8 @@ def test_nan_vertices_build_and_are_never_hit(n):
 def test_bad_input_raises_scene_errors():
     huge = np.array([[0, 0, 0], [1, 0, 0], [0, 1, 0], [2e38, 2e38, 0], [2.1e38, 2e38, 0], [2e38, 2.1e38, 0]])
     with pytest.raises(SceneError, match="beyond"):
-        build_bvh(huge, [[0, 1, 2], [3, 4, 5]])   # beyond MAX_COORD (the traversal's products would overflow)
-    build_bvh(huge / 4e28, [[0, 1, 2], [3, 4, 5]])    # 5e9 is fine
+        build_bvh(huge, [[0, 1, 2], [3, 4, 5]])  # beyond MAX_COORD (the traversal's products would overflow)
+    build_bvh(huge / 4e28, [[0, 1, 2], [3, 4, 5]])  # 5e9 is fine
     with pytest.raises(SceneError):
         build_bvh(np.zeros((3, 2)), [[0, 1, 2]])
     with pytest.raises(SceneError):
@@ -537,9 +538,18 @@ def test_bvh_glsl_compiles(tmp_path, defines):
         "}\n"
     )
     res = subprocess.run(
-        ["glslangValidator", "-V", "--target-env", "vulkan1.2", f"-I{ROOT / 'shaders/glsl/include'}", str(src),
-         "-o", str(tmp_path / "probe.spv")],
-        capture_output=True, text=True,
+        [
+            "glslangValidator",
+            "-V",
+            "--target-env",
+            "vulkan1.2",
+            f"-I{ROOT / 'shaders/glsl/include'}",
+            str(src),
+            "-o",
+            str(tmp_path / "probe.spv"),
+        ],
+        capture_output=True,
+        text=True,
     )
     assert res.returncode == 0, res.stdout + res.stderr
 
@@ -683,19 +693,19 @@ def test_octant_sah_in_blocks_and_in_c_matches_one_call(monkeypatch):
     k = 5000
     cnt = rng.integers(0, 7, (8, k))
     lo = rng.uniform(-10, 10, (3, 8, k)).astype(np.float32)
-    lo[:, :, ::2] = np.round(lo[:, :, ::2])            # lattice boxes: equal areas, ties between planes
+    lo[:, :, ::2] = np.round(lo[:, :, ::2])  # lattice boxes: equal areas, ties between planes
     cbox = np.concatenate([lo, -(lo + rng.uniform(0, 3, (3, 8, k)).astype(np.float32))])
     cbox[3:, :, ::2] = np.round(cbox[3:, :, ::2])
-    cbox[:, cnt == 0] = np.inf                       # empty cells
-    cbox[0, 3, 7] = -0.0                              # a signed zero among the minima
+    cbox[:, cnt == 0] = np.inf  # empty cells
+    cbox[0, 3, 7] = -0.0  # a signed zero among the minima
     cbox[:, :, 1::3][cbox[:, :, 1::3] == 0] = -0.0
     exact = rng.random(k) < 0.7
     cap = rng.integers(4, 40, k)
     cap2 = rng.integers(2, 20, k)
     wide = np.full((6, 8 * k + 64), np.nan, np.float32)  # the cells as a slice of a pass's cell boxes (strided rows)
-    wide[:, 32:32 + 8 * k] = cbox.reshape(6, 8 * k)
+    wide[:, 32 : 32 + 8 * k] = cbox.reshape(6, 8 * k)
     lib = native.library
-    in_c = binning.octant_sah(cnt, wide[:, 32:32 + 8 * k], exact, cap, cap2, 4)
+    in_c = binning.octant_sah(cnt, wide[:, 32 : 32 + 8 * k], exact, cap, cap2, 4)
     monkeypatch.setattr(native, "library", lambda: None)
     monkeypatch.setattr(binning, "OCTANT_BLOCK", 1 << 30)
     whole = binning.octant_sah(cnt, cbox, exact, cap, cap2, 4)
@@ -719,12 +729,15 @@ def test_octant_sah_in_blocks_and_in_c_matches_one_call(monkeypatch):
     assert np.array_equal(cnt[lo_cells] + cnt[hi_cells], ecnt)
     assert np.minimum(ebox[:, e0], ebox[:, e1]).tobytes() == fbox.tobytes()
     assert np.array_equal(ecnt[e0] + ecnt[e1], fcnt)
-    assert np.array_equal(fcnt[0, 0], cnt[:4].sum(axis=0))   # the x half 0: cells 0-3
+    assert np.array_equal(fcnt[0, 0], cnt[:4].sum(axis=0))  # the x half 0: cells 0-3
 
 
 def _same_tree(a, b):
-    return (a.nodes.tobytes() == b.nodes.tobytes() and a.tris.tobytes() == b.tris.tobytes()
-            and np.array_equal(a.prim_ids, b.prim_ids))
+    return (
+        a.nodes.tobytes() == b.nodes.tobytes()
+        and a.tris.tobytes() == b.tris.tobytes()
+        and np.array_equal(a.prim_ids, b.prim_ids)
+    )
 
 
 def coincident_centres():
@@ -737,8 +750,9 @@ def coincident_centres():
     return v, np.arange(len(v)).reshape(-1, 3)
 
 
-@pytest.mark.parametrize("mesh", ["sphere", "soup", "degenerates", "signed_zeros", "nan", "coincident", "spheres",
-                                  "scan"])
+@pytest.mark.parametrize(
+    "mesh", ["sphere", "soup", "degenerates", "signed_zeros", "nan", "coincident", "spheres", "scan"]
+)
 def test_the_c_steps_give_numpy_s_tree_byte_for_byte(mesh, monkeypatch):
     """The pass loop and the triangle records in C (engine/native.c) give the tree and records of numpy's steps,
     byte for byte: small meshes, zero-area and NaN triangles, signed zeros (ties of the minima), and meshes large
@@ -749,10 +763,16 @@ def test_the_c_steps_give_numpy_s_tree_byte_for_byte(mesh, monkeypatch):
 
     if native.library() is None:
         pytest.skip("engine._native is not built here: the build runs its numpy steps")
-    v, f = {"sphere": lambda: sphere(4), "soup": lambda: soup(20_000), "degenerates": with_degenerates,
-            "signed_zeros": lambda: soup(5000), "nan": lambda: soup(3000), "coincident": coincident_centres,
-            "spheres": lambda: build_mesh("spheres", 150_000, seed=3),
-            "scan": lambda: build_mesh("scan", 150_000, seed=3)}[mesh]()
+    v, f = {
+        "sphere": lambda: sphere(4),
+        "soup": lambda: soup(20_000),
+        "degenerates": with_degenerates,
+        "signed_zeros": lambda: soup(5000),
+        "nan": lambda: soup(3000),
+        "coincident": coincident_centres,
+        "spheres": lambda: build_mesh("spheres", 150_000, seed=3),
+        "scan": lambda: build_mesh("scan", 150_000, seed=3),
+    }[mesh]()
     v = np.array(v, np.float32)
     if mesh == "signed_zeros":  # on a coarse lattice, half of the zero coordinates negative: ties decide the sign
         v = np.round(v * 2) / 2
@@ -797,10 +817,10 @@ def test_c_triangle_records_match_numpy_s_on_slivers_and_huge_triangles(monkeypa
     v0 = rng.uniform(-4, 4, (n, 3)).astype(np.float32)
     v1 = v0 + rng.uniform(-1, 1, (n, 3)).astype(np.float32)
     v2 = v0 + rng.uniform(-1, 1, (n, 3)).astype(np.float32)
-    v2[::5] = v0[::5] + (v1[::5] - v0[::5]) * np.float32(0.5)                # collinear (within rounding)
-    v2[1::5] = v1[1::5]                                                       # repeated corner
-    v2[2::5] = np.nextafter(v1[2::5], np.float32(9))                          # one float32 step from v1
-    v0[3::50] *= np.float32(MAX_COORD / 8)                                    # huge
+    v2[::5] = v0[::5] + (v1[::5] - v0[::5]) * np.float32(0.5)  # collinear (within rounding)
+    v2[1::5] = v1[1::5]  # repeated corner
+    v2[2::5] = np.nextafter(v1[2::5], np.float32(9))  # one float32 step from v1
+    v0[3::50] *= np.float32(MAX_COORD / 8)  # huge
     v1[4::50] = np.nan
     vt = np.ascontiguousarray(np.concatenate([v0, v1, v2]).T)
     ft = np.arange(3 * n).reshape(3, n).T.copy()
@@ -822,21 +842,21 @@ def test_grid_sah_in_c_matches_numpy_s(g, monkeypatch):
     if native.library() is None:
         pytest.skip("engine._native is not built here: the build runs its numpy steps")
     rng = np.random.default_rng(g)
-    k, g3 = 700, g ** 3
+    k, g3 = 700, g**3
     cnt = rng.integers(0, 5, k * g3) * (rng.random(k * g3) < 0.6)
     lo = rng.uniform(-10, 10, (3, k * g3)).astype(np.float32)
-    lo[:, ::2] = np.round(lo[:, ::2])                       # lattice boxes: equal areas, ties between planes
+    lo[:, ::2] = np.round(lo[:, ::2])  # lattice boxes: equal areas, ties between planes
     cbox = np.concatenate([lo, -(lo + rng.uniform(0, 3, (3, k * g3)).astype(np.float32))])
     cbox[3:, ::2] = np.round(cbox[3:, ::2])
-    zeros = cbox[:, : k // 3 * g3]                           # a third of the nodes: minima of 0 and -0 (tie rules)
+    zeros = cbox[:, : k // 3 * g3]  # a third of the nodes: minima of 0 and -0 (tie rules)
     zeros[:] = np.round(rng.uniform(0, 0.7, zeros.shape))
     zeros[(zeros == 0) & (rng.random(zeros.shape) < 0.5)] = -0.0
     cbox[:, cnt == 0] = np.inf
     exact = rng.random(k) < 0.5
     cap = rng.integers(4, 200, k)
-    wide = np.full((6, k * g3 + 64), np.nan, np.float32)    # a slice of a pass's cell boxes (strided rows)
-    wide[:, 32:32 + k * g3] = cbox
-    in_c = binning.grid_sah(cnt, wide[:, 32:32 + k * g3], g, exact, cap)
+    wide = np.full((6, k * g3 + 64), np.nan, np.float32)  # a slice of a pass's cell boxes (strided rows)
+    wide[:, 32 : 32 + k * g3] = cbox
+    in_c = binning.grid_sah(cnt, wide[:, 32 : 32 + k * g3], g, exact, cap)
     monkeypatch.setattr(native, "library", lambda: None)
     want = binning.grid_sah(cnt, cbox, g, exact, cap)
     assert want[2].sum() > k // 3
@@ -858,7 +878,7 @@ def test_c_sah_matches_numpy_s_on_nan_inf_and_huge_counts(monkeypatch):
     for trial in range(60):
         rng = np.random.default_rng(trial)
         g, k = (2, 4, 8)[trial % 3], int(rng.integers(0, 12))
-        n = k * g ** 3
+        n = k * g**3
         cnt = rng.integers(0, 4, n) * (rng.random(n) < 0.5) * (1 << 48 if trial % 5 == 0 else 1)
         cbox = rng.uniform(-4, 4, (6, n)).astype(np.float32)
         pick = rng.random((6, n)) < 0.2
@@ -905,17 +925,18 @@ def test_c_steps_hand_bad_indices_back_to_numpy():
     dom = np.array([[0], [0], [0], [1], [1], [1]], np.float32)
 
     def loop(tid, slot, count, c=cen):
-        return native.grow(box, c, tid, slot, np.array(count), np.zeros(len(count), np.int64), dom, 4, 32, True,
-                           None, *OCTANT_TABLES)
+        return native.grow(
+            box, c, tid, slot, np.array(count), np.zeros(len(count), np.int64), dom, 4, 32, True, None, *OCTANT_TABLES
+        )
 
     every, root = np.arange(40), np.zeros(40, np.int64)
     records, (tids, sizes, depths, boxes), state = loop(every, root, [40])
     assert state is None and np.array_equal(np.sort(tids), every) and sizes.sum() == 40 and np.all(sizes <= 4)
-    assert loop(np.r_[every[:-1], 40], root, [40]) is None                    # a triangle beyond the arrays
-    assert loop(every, np.r_[root[:-1], 1], [40]) is None                     # a slot beyond the nodes
-    assert loop(every, root, [39]) is None                                    # a count the slots disagree with
+    assert loop(np.r_[every[:-1], 40], root, [40]) is None  # a triangle beyond the arrays
+    assert loop(every, np.r_[root[:-1], 1], [40]) is None  # a slot beyond the nodes
+    assert loop(every, root, [39]) is None  # a count the slots disagree with
     assert loop(every, root, [40], np.where(every % 7 == 3, np.nan, cen).astype(np.float32)) is None  # NaN
-    assert loop(every, root.astype(np.int32), [40]) is None                   # not its dtype
+    assert loop(every, root.astype(np.int32), [40]) is None  # not its dtype
     # the C packing refuses references out of range: a leaf, a record, a child not below its parent
     child, rec = np.array([[0, 0], [1, 2]]), np.array([[-1, 1], [-1, -1]])  # a root, its right child: 3 leaves
     leaves = (np.zeros((3, 6), np.float32), np.arange(3), np.ones(3, np.int64))

@@ -1,5 +1,6 @@
 """Cameras from intrinsics (K, pose, OpenCV / OpenGL axes): projection of known points, rendered markers, depth
 against the Tracer along `camera.rays`, pose conventions, round trips, value semantics and bad input."""
+
 import math
 
 import numpy as np
@@ -11,8 +12,8 @@ from engine.errors import ConfigError
 from engine.passes.interface import FRAME, camera_fields
 
 W, H = 160, 120
-K = np.array([[150.0, 0.0, 70.3], [0.0, 120.0, 66.8], [0.0, 0.0, 1.0]])   # off-centre, fx != fy
-FLIP = np.diag([1.0, -1.0, -1.0, 1.0])   # OpenCV <-> OpenGL camera axes
+K = np.array([[150.0, 0.0, 70.3], [0.0, 120.0, 66.8], [0.0, 0.0, 1.0]])  # off-centre, fx != fy
+FLIP = np.diag([1.0, -1.0, -1.0, 1.0])  # OpenCV <-> OpenGL camera axes
 
 
 def posed_camera(K=K, width=W, height=H, **kw):
@@ -39,14 +40,15 @@ def test_known_points_project_to_their_pixels():
     pts = np.array([[0.0, 0.0, 4.0], [-1.5, -1.0, 5.0], [1.2, 0.9, 3.5], [-0.8, 1.1, 6.0], [3.0, -2.0, 9.0]])
     world = to_world(cam, pts)
     ndc = cam.project(world, W / H)
-    got = np.c_[(ndc[:, 0] + 1) / 2 * W, (ndc[:, 1] + 1) / 2 * H]   # NDC -> pixels (y down)
+    got = np.c_[(ndc[:, 0] + 1) / 2 * W, (ndc[:, 1] + 1) / 2 * H]  # NDC -> pixels (y down)
     np.testing.assert_allclose(got, pixel_of(K, pts), atol=1e-3)
-    np.testing.assert_allclose(ndc[:, 2], cam.near / pts[:, 2], rtol=1e-5)   # reverse-Z: near / depth
+    np.testing.assert_allclose(ndc[:, 2], cam.near / pts[:, 2], rtol=1e-5)  # reverse-Z: near / depth
     np.testing.assert_allclose(cam.view_depth(world), pts[:, 2], rtol=1e-12)
     # the same view at twice the size: the pixels double, and intrinsics() says so
     ndc2 = cam.project(world, (2 * W) / (2 * H))
-    np.testing.assert_allclose((ndc2[:, 0] + 1) / 2 * 2 * W, pixel_of(cam.intrinsics(2 * W, 2 * H), pts)[:, 0],
-                               atol=2e-3)
+    np.testing.assert_allclose(
+        (ndc2[:, 0] + 1) / 2 * 2 * W, pixel_of(cam.intrinsics(2 * W, 2 * H), pts)[:, 0], atol=2e-3
+    )
     # rays through pixel centres pass through the points that project there
     o, d = cam.rays(W, H)
     assert o.shape == d.shape == (H, W, 3) and o.dtype == d.dtype == np.float32
@@ -68,8 +70,11 @@ def marker_scene(cam, pts_cam, radius_px=5.0, segments=40):
         ring = np.c_[p[0] + r * np.cos(a), p[1] + r * np.sin(a), np.full(segments, p[2])]
         base = len(verts) * (segments + 1)
         verts.append(np.vstack([p, ring]))
-        faces.append(np.c_[np.full(segments, base), base + 1 + np.arange(segments),
-                           base + 1 + (np.arange(segments) + 1) % segments])
+        faces.append(
+            np.c_[
+                np.full(segments, base), base + 1 + np.arange(segments), base + 1 + (np.arange(segments) + 1) % segments
+            ]
+        )
     world = np.vstack(verts) @ pose[:3, :3].T + pose[:3, 3]
     return Scene.from_arrays(world, np.vstack(faces), camera=cam, lights=[DirectionalLight((0, -1, 0))]), verts
 
@@ -103,7 +108,9 @@ def test_rendered_markers_land_on_the_projected_pixels(make_renderer, scale):
         mask = analytic_mask(Ks, ring[1:], w, h)
         total |= mask
         near = np.zeros_like(covered)
-        near[max(0, int(v0) - 12 * scale):int(v0) + 12 * scale, max(0, int(u0) - 12 * scale):int(u0) + 12 * scale] = 1
+        near[
+            max(0, int(v0) - 12 * scale) : int(v0) + 12 * scale, max(0, int(u0) - 12 * scale) : int(u0) + 12 * scale
+        ] = 1
         got = covered & near
         assert (got != mask).sum() <= 2 * scale, f"marker at {(u0, v0)}: pixels differ from its projection"
         jj, ii = np.nonzero(got)
@@ -155,7 +162,7 @@ def test_depth_is_the_ray_hit_distance_times_the_cosine(make_renderer, tracer, k
     t = tracer.intersect(o.reshape(-1, 3), d.reshape(-1, 3)).t.reshape(h, w)
     expect = t * (d.astype(np.float64) @ cam.forward)
     covered = np.isfinite(depth) | np.isfinite(t)
-    assert covered.mean() > 0.5   # the test means something: most of the image is geometry
+    assert covered.mean() > 0.5  # the test means something: most of the image is geometry
     agree = np.isfinite(depth) & np.isfinite(t)
     agree[agree] = np.abs(depth[agree] - expect[agree]) <= 1e-4 * expect[agree]
     assert agree.sum() >= 0.995 * covered.sum(), f"{covered.sum() - agree.sum()} of {covered.sum()} pixels differ"
@@ -174,14 +181,13 @@ def test_opencv_and_opengl_poses_are_the_same_camera(make_renderer):
     assert cam_gl == cam_cv and hash(cam_gl) == hash(cam_cv)
     look = Camera.look_at((0, 0, 5), (0, 0, 0), fov_y=math.degrees(2 * math.atan(24 / 60)))
     np.testing.assert_allclose(cam_gl.view_matrix(), look.view_matrix(), atol=1e-6)
-    np.testing.assert_allclose(cam_gl.projection_matrix(64 / 48)[:2], look.projection_matrix(64 / 48)[:2],
-                               atol=1e-6)
+    np.testing.assert_allclose(cam_gl.projection_matrix(64 / 48)[:2], look.projection_matrix(64 / 48)[:2], atol=1e-6)
     np.testing.assert_allclose(cam_cv.forward, (0, 0, -1))
     np.testing.assert_allclose(cam_cv.up_vector, (0, 1, 0))
-    np.testing.assert_allclose(cam_gl.pose, cv)   # .pose is the OpenCV one
+    np.testing.assert_allclose(cam_gl.pose, cv)  # .pose is the OpenCV one
 
     # Rendered, an off-centre camera through both conventions gives the same image
-    k64 = K * [[0.4], [0.4], [1.0]]   # K for 64x48
+    k64 = K * [[0.4], [0.4], [1.0]]  # K for 64x48
     pose = posed_camera().pose
     a = Camera.from_intrinsics(k64, 64, 48, pose=pose, convention="opencv")
     b = Camera.from_intrinsics(k64, 64, 48, pose=pose @ FLIP, convention="opengl")
@@ -284,27 +290,30 @@ def test_value_semantics_and_replace():
 
 
 # ------------------------------------------------------------------------------------------------ bad input
-@pytest.mark.parametrize("kw, match", [
-    (dict(K=np.eye(2)), r"camera K must be a 3x3 matrix, got shape \(2, 2\)"),
-    (dict(K="fx"), "camera K must be a 3x3 matrix"),
-    (dict(K=[[1, 2, 3], [4, 5]]), "camera K must be a 3x3 matrix"),
-    (dict(K=[[150, 0.5, 70], [0, 120, 60], [0, 0, 1]]), r"skew K\[0\]\[1\] must be 0"),
-    (dict(K=[[150, 0, 70], [0, 120, 60], [0, 0, 2]]), r"camera K must be \(\(fx, 0, cx\)"),
-    (dict(K=[[-150, 0, 70], [0, 120, 60], [0, 0, 1]]), r"fx \(K\[0\]\[0\]\) must be > 0"),
-    (dict(K=[[150, 0, 70], [0, 0, 60], [0, 0, 1]]), r"fy \(K\[1\]\[1\]\) must be > 0"),
-    (dict(K=[[150, 0, 70], [0, np.nan, 60], [0, 0, 1]]), "camera K must be finite"),
-    (dict(K=[[1e-9, 0, 70], [0, 120, 60], [0, 0, 1]]), "fx / width"),
-    (dict(width=0), "camera: width must be an integer"),
-    (dict(height=12.5), "camera: height must be an integer"),
-    (dict(pose=np.eye(3)), r"camera pose must be a 4x4 matrix \(camera-to-world\), got shape \(3, 3\)"),
-    (dict(pose=np.diag([2.0, 2.0, 2.0, 1.0])), "camera pose must be rigid.*not orthonormal"),
-    (dict(pose=np.diag([1.0, 1.0, -1.0, 1.0])), r"camera pose must be rigid.*reflection"),
-    (dict(pose=np.r_[np.eye(4)[:3], [[0, 0, 1, 1]]]), r"camera pose: the last row must be \(0, 0, 0, 1\)"),
-    (dict(pose=np.full((4, 4), np.inf)), "camera pose must be finite"),
-    (dict(pose="identity"), "camera pose must be a 4x4 matrix"),
-    (dict(convention="blender"), "camera convention must be 'opencv' or 'opengl', got 'blender'"),
-    (dict(near=0.0), "camera near must be > 0"),
-])
+@pytest.mark.parametrize(
+    "kw, match",
+    [
+        (dict(K=np.eye(2)), r"camera K must be a 3x3 matrix, got shape \(2, 2\)"),
+        (dict(K="fx"), "camera K must be a 3x3 matrix"),
+        (dict(K=[[1, 2, 3], [4, 5]]), "camera K must be a 3x3 matrix"),
+        (dict(K=[[150, 0.5, 70], [0, 120, 60], [0, 0, 1]]), r"skew K\[0\]\[1\] must be 0"),
+        (dict(K=[[150, 0, 70], [0, 120, 60], [0, 0, 2]]), r"camera K must be \(\(fx, 0, cx\)"),
+        (dict(K=[[-150, 0, 70], [0, 120, 60], [0, 0, 1]]), r"fx \(K\[0\]\[0\]\) must be > 0"),
+        (dict(K=[[150, 0, 70], [0, 0, 60], [0, 0, 1]]), r"fy \(K\[1\]\[1\]\) must be > 0"),
+        (dict(K=[[150, 0, 70], [0, np.nan, 60], [0, 0, 1]]), "camera K must be finite"),
+        (dict(K=[[1e-9, 0, 70], [0, 120, 60], [0, 0, 1]]), "fx / width"),
+        (dict(width=0), "camera: width must be an integer"),
+        (dict(height=12.5), "camera: height must be an integer"),
+        (dict(pose=np.eye(3)), r"camera pose must be a 4x4 matrix \(camera-to-world\), got shape \(3, 3\)"),
+        (dict(pose=np.diag([2.0, 2.0, 2.0, 1.0])), "camera pose must be rigid.*not orthonormal"),
+        (dict(pose=np.diag([1.0, 1.0, -1.0, 1.0])), r"camera pose must be rigid.*reflection"),
+        (dict(pose=np.r_[np.eye(4)[:3], [[0, 0, 1, 1]]]), r"camera pose: the last row must be \(0, 0, 0, 1\)"),
+        (dict(pose=np.full((4, 4), np.inf)), "camera pose must be finite"),
+        (dict(pose="identity"), "camera pose must be a 4x4 matrix"),
+        (dict(convention="blender"), "camera convention must be 'opencv' or 'opengl', got 'blender'"),
+        (dict(near=0.0), "camera near must be > 0"),
+    ],
+)
 def test_bad_input_names_the_field(kw, match):
     args = dict(K=K, width=W, height=H)
     args.update(kw)

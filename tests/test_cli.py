@@ -1,4 +1,5 @@
 """The `hybrid` command as a user runs it: output files, one-line errors, non-zero exit codes."""
+
 import os
 import subprocess
 import sys
@@ -10,8 +11,9 @@ REPO = Path(__file__).resolve().parent.parent
 
 
 def hybrid(*args, timeout=300):
-    return subprocess.run([sys.executable, "-m", "engine", *map(str, args)], capture_output=True, text=True,
-                          cwd=REPO, timeout=timeout)
+    return subprocess.run(
+        [sys.executable, "-m", "engine", *map(str, args)], capture_output=True, text=True, cwd=REPO, timeout=timeout
+    )
 
 
 def test_render_writes_png_with_validation(tmp_path):
@@ -67,8 +69,9 @@ def test_toml_syntax_error(tmp_path):
 
 
 def test_unwritable_output(tmp_path):
-    one_line_error(hybrid("render", "scenes/sphere.toml", "-o", tmp_path / "no" / "dir" / "x.png", "--size", "16x16"),
-                   "x.png")
+    one_line_error(
+        hybrid("render", "scenes/sphere.toml", "-o", tmp_path / "no" / "dir" / "x.png", "--size", "16x16"), "x.png"
+    )
 
 
 def test_wrapper_script_runs_the_cli_in_the_callers_folder(tmp_path):
@@ -76,12 +79,18 @@ def test_wrapper_script_runs_the_cli_in_the_callers_folder(tmp_path):
     output here) are the caller's, not the checkout's."""
     if not (REPO / ".venv" / ".installed").exists():
         import pytest
+
         pytest.skip("the checkout's .venv is not set up (./hybrid would create it)")
     (tmp_path / "bin").mkdir()
-    (tmp_path / "bin" / "hybrid").symlink_to(REPO / "hybrid")   # called through a link on the PATH, too
+    (tmp_path / "bin" / "hybrid").symlink_to(REPO / "hybrid")  # called through a link on the PATH, too
     for script in (REPO / "hybrid", tmp_path / "bin" / "hybrid"):
-        res = subprocess.run([str(script), "render", str(REPO / "scenes" / "sphere.toml"), "-o", "rel.png",
-                              "--size", "32x18"], capture_output=True, text=True, cwd=tmp_path, timeout=300)
+        res = subprocess.run(
+            [str(script), "render", str(REPO / "scenes" / "sphere.toml"), "-o", "rel.png", "--size", "32x18"],
+            capture_output=True,
+            text=True,
+            cwd=tmp_path,
+            timeout=300,
+        )
         assert res.returncode == 0, res.stderr
         assert Image.open(tmp_path / "rel.png").size == (32, 18)
         assert not (REPO / "rel.png").exists()
@@ -90,36 +99,50 @@ def test_wrapper_script_runs_the_cli_in_the_callers_folder(tmp_path):
 
 def test_render_checks_the_output_before_rendering(tmp_path):
     one_line_error(hybrid("render", "scenes/sphere.toml", "-o", tmp_path / "x.gif", "--size", "16x16"), "x.gif", ".png")
-    one_line_error(hybrid("render", "scenes/sphere.toml", "-o", tmp_path / "x.png", "--frames", "10000000000"),
-                   "--frames")
+    one_line_error(
+        hybrid("render", "scenes/sphere.toml", "-o", tmp_path / "x.png", "--frames", "10000000000"), "--frames"
+    )
 
 
 def test_bench_checks_its_outputs_and_device_before_running(tmp_path):
     """Bad --json / --plot / --device fail at once (not after minutes of benchmarks whose results they would lose)."""
     (tmp_path / "dir.json").mkdir()
-    for args, words in ((["--json", tmp_path / "dir.json"], ("--json", "folder")),
-                        (["--plot", tmp_path / "plot.txt"], ("--plot", ".png")),
-                        (["--json", "/proc/nope/b.json"], ("--json", "/proc/nope/b.json")),
-                        (["--device", "no-such-gpu"], ("no-such-gpu",))):
+    for args, words in (
+        (["--json", tmp_path / "dir.json"], ("--json", "folder")),
+        (["--plot", tmp_path / "plot.txt"], ("--plot", ".png")),
+        (["--json", "/proc/nope/b.json"], ("--json", "/proc/nope/b.json")),
+        (["--device", "no-such-gpu"], ("no-such-gpu",)),
+    ):
         res = hybrid("bench", "build", "--quick", *args, timeout=60)
         one_line_error(res, *words)
-        assert "BVH build" not in res.stdout   # nothing ran
+        assert "BVH build" not in res.stdout  # nothing ran
 
 
 def test_bundled_scene_by_name_from_any_folder(tmp_path):
     """A name with no folder and no suffix is a bundled scene; an unknown one lists them."""
     for name in ("sphere", "penumbra"):
-        res = subprocess.run([sys.executable, "-m", "engine", "render", name, "-o", "b.png", "--size", "32x24"],
-                             capture_output=True, text=True, cwd=tmp_path, timeout=300,
-                             env=dict(os.environ, PYTHONPATH=str(REPO)))
+        res = subprocess.run(
+            [sys.executable, "-m", "engine", "render", name, "-o", "b.png", "--size", "32x24"],
+            capture_output=True,
+            text=True,
+            cwd=tmp_path,
+            timeout=300,
+            env=dict(os.environ, PYTHONPATH=str(REPO)),
+        )
         assert res.returncode == 0, res.stderr
         assert f"scenes/{name}.toml" in res.stdout and Image.open(tmp_path / "b.png").size == (32, 24)
     one_line_error(hybrid("render", "nope", "-o", tmp_path / "x.png"), "nope", "bundled: default, penumbra, sphere")
 
 
 def test_no_vulkan_driver_is_one_clear_line():
-    res = subprocess.run([sys.executable, "-m", "engine", "info"], capture_output=True, text=True, cwd=REPO,
-                         timeout=120, env=dict(os.environ, VK_DRIVER_FILES="/nonexistent", HYBRID_VALIDATION="0"))
+    res = subprocess.run(
+        [sys.executable, "-m", "engine", "info"],
+        capture_output=True,
+        text=True,
+        cwd=REPO,
+        timeout=120,
+        env=dict(os.environ, VK_DRIVER_FILES="/nonexistent", HYBRID_VALIDATION="0"),
+    )
     one_line_error(res, "no Vulkan driver found", "mesa-vulkan-drivers")
 
 
@@ -141,4 +164,5 @@ def test_no_vulkan_loader_names_the_package():
     assert res.returncode == 1
     assert res.stderr.strip().splitlines()[-1] == (
         "engine.errors.VulkanError: the Vulkan loader (libvulkan.so.1) is not installed: install it and a driver, "
-        "e.g. apt-get install libvulkan1 mesa-vulkan-drivers")
+        "e.g. apt-get install libvulkan1 mesa-vulkan-drivers"
+    )

@@ -1,5 +1,6 @@
 """The 32-byte compressed nodes (engine/bvh/compress.py): every decoded box holds the builder's box, the words and
 counts survive, and trees that do not fit the format are refused (None)."""
+
 import numpy as np
 import pytest
 import trimesh
@@ -12,7 +13,7 @@ from engine.bvh.compress import compress_nodes, decode_nodes
 def cases():
     rng = np.random.default_rng(3)
     soup = rng.uniform(-1, 1, (900, 3))
-    far = soup * 1e-3 + np.array([1e4, -3e4, 7e3])        # small boxes far from the origin (coarse origins)
+    far = soup * 1e-3 + np.array([1e4, -3e4, 7e3])  # small boxes far from the origin (coarse origins)
     thin = trimesh.creation.box(extents=(2.0, 0.0, 1.0))  # zero extent on one axis
     mixed = rng.normal(0, 1, (900, 3)) * np.array([1e-6, 1.0, 1e5])
     return {
@@ -37,15 +38,17 @@ def test_decoded_boxes_contain_the_builders(name):
     n = bvh.nodes
     for side, lo, hi, w, k in (("l", lmin, lmax, "left", "lcount"), ("r", rmin, rmax, "right", "rcount")):
         i = 0 if side == "l" else 1
-        real = (n[k] > 0) | ((n[w] & LEAF_BIT) == 0)       # empty leaf slots keep no box
+        real = (n[k] > 0) | ((n[w] & LEAF_BIT) == 0)  # empty leaf slots keep no box
         assert np.all(lo[real] <= n[side + "min"][real]) and np.all(hi[real] >= n[side + "max"][real])
         assert np.all(np.isfinite(lo)) and np.all(np.isfinite(hi))
         assert np.array_equal(word[:, i], n[w])
         assert np.array_equal(count[:, i], np.where(n[w] & LEAF_BIT, n[k], 0))
-    if name in ("soup", "sphere"):   # tight: quantization adds little surface area
+    if name in ("soup", "sphere"):  # tight: quantization adds little surface area
+
         def sa(a, b):
             e = b - a
             return e[:, 0] * e[:, 1] + e[:, 1] * e[:, 2] + e[:, 2] * e[:, 0]
+
         assert np.mean(sa(lmin, lmax)) < 1.1 * np.mean(sa(n["lmin"], n["lmax"]))
 
 

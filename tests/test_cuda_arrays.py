@@ -1,6 +1,7 @@
 """CUDA arrays in and out of the Tracer and RaycastingScene (engine.rt.cuda_arrays): on an NVIDIA GPU with torch /
 CuPy and cuda-bindings, the same hits as the numpy path as the same framework's device arrays; elsewhere a clear
 error. The Vulkan half (exportable memory) is tested on any device that offers VK_KHR_external_memory_fd."""
+
 import gc
 import importlib.util
 import os
@@ -40,6 +41,7 @@ def rays(n, seed=3):
 
 class FakeCudaArray:
     """Claims to be in CUDA memory (as a torch tensor or CuPy array would), pointing nowhere."""
+
     __cuda_array_interface__ = {"shape": (4, 3), "typestr": "<f4", "data": (0xDEAD0000, False), "version": 3}
     shape = (4, 3)
 
@@ -55,7 +57,7 @@ class DLPackOn:
 @pytest.fixture(scope="module")
 def tracer():
     v, f = mesh()
-    t = Tracer(v, f)   # validated where HYBRID_VALIDATION=1 (the layer is not everywhere the CUDA tests run)
+    t = Tracer(v, f)  # validated where HYBRID_VALIDATION=1 (the layer is not everywhere the CUDA tests run)
     yield t
     errors = t.validation_errors
     t.close()
@@ -72,8 +74,8 @@ def cuda_reason(tracer):
 def test_what_counts_as_a_cuda_array():
     assert not on_cuda(np.zeros((2, 3)), [[0, 0, 1]], 1.5, np.float32(2), None)
     assert on_cuda(np.zeros((2, 3)), FakeCudaArray())
-    assert on_cuda(DLPackOn(2)) and on_cuda(DLPackOn(13))   # kDLCUDA, kDLCUDAManaged
-    assert not on_cuda(DLPackOn(1))                          # kDLCPU
+    assert on_cuda(DLPackOn(2)) and on_cuda(DLPackOn(13))  # kDLCUDA, kDLCUDAManaged
+    assert not on_cuda(DLPackOn(1))  # kDLCPU
 
 
 def test_exportable_buffer_hands_out_its_memory_as_a_file_descriptor():
@@ -84,7 +86,7 @@ def test_exportable_buffer_hands_out_its_memory_as_a_file_descriptor():
         fd = buf.export_fd()
         try:
             assert fd >= 0 and buf.allocation_size >= 1000
-            assert os.fstat(fd) is not None   # a live descriptor
+            assert os.fstat(fd) is not None  # a live descriptor
         finally:
             os.close(fd)
         buf.destroy()
@@ -96,8 +98,11 @@ def test_a_cuda_array_without_cuda_is_a_clear_error(tracer):
     reason = cuda_reason(tracer)
     if reason is None:
         pytest.skip("CUDA is usable here: the CUDA tests below cover it")
-    with pytest.raises(ConfigError, match=r"Tracer: CUDA arrays cannot be used here: .*(cuda-bindings|no CUDA "
-                                          r"device|lacks VK_KHR_external_memory_fd|none of the).*numpy"):
+    with pytest.raises(
+        ConfigError,
+        match=r"Tracer: CUDA arrays cannot be used here: .*(cuda-bindings|no CUDA "
+        r"device|lacks VK_KHR_external_memory_fd|none of the).*numpy",
+    ):
         tracer.occluded(FakeCudaArray(), FakeCudaArray())
     with pytest.raises(ConfigError, match="CUDA arrays cannot be used here"):
         tracer.intersect(np.zeros((4, 3)), FakeCudaArray())
@@ -116,30 +121,39 @@ def test_a_cuda_array_without_cuda_is_a_clear_error(tracer):
 def run_checked_kernel(tracer, o, d, t, out_base):
     """The CUDA-array queries' occlusion kernel (CHECK_RAYS, RESULT_BYTES) on host buffers laid out as
     engine.rt.cuda_arrays lays out the shared ones: (its result bytes from out_base words on, its error words)."""
-    ctx, n, c = tracer.ctx, len(o), 1024   # (c: the texel views' offsets aligned for any device)
-    session = tracer.session   # (the kernels and bindings the CUDA-array queries use)
+    ctx, n, c = tracer.ctx, len(o), 1024  # (c: the texel views' offsets aligned for any device)
+    session = tracer.session  # (the kernels and bindings the CUDA-array queries use)
     rays_buf = Buffer(ctx, 28 * c, STORAGE | UNIFORM_TEXEL, host=True)
     f32 = rays_buf.view(np.float32)
-    f32[:3 * n], f32[3 * c:3 * c + 3 * n], f32[6 * c:6 * c + n] = o.reshape(-1), d.reshape(-1), t
-    results = Buffer(ctx, 4 * out_base + 16 * c, STORAGE | STORAGE_TEXEL, host=True)   # (room for the views)
+    f32[: 3 * n], f32[3 * c : 3 * c + 3 * n], f32[6 * c : 6 * c + n] = o.reshape(-1), d.reshape(-1), t
+    results = Buffer(ctx, 4 * out_base + 16 * c, STORAGE | STORAGE_TEXEL, host=True)  # (room for the views)
     results.view(np.uint8)[:] = 0xAB
     params = Buffer(ctx, 32, STORAGE | INDIRECT, host=True)
     params.view(np.uint32)[:] = ((n + 63) // 64, 1, 1, n, c, session.shares, out_base, 0)
     errors = Buffer(ctx, 16, STORAGE, host=True)
     errors.view(np.uint32)[:] = 0xFFFFFFFF
     io_set = DescriptorSet(ctx, session.interface.set(0).values())
-    for name, buf in (("ray_data", rays_buf), ("params", params), ("retry", session.retry), ("ray_errors", errors),
-                      (session.interface.bindings[1].name, results)):
+    for name, buf in (
+        ("ray_data", rays_buf),
+        ("params", params),
+        ("retry", session.retry),
+        ("ray_errors", errors),
+        (session.interface.bindings[1].name, results),
+    ):
         io_set.bind(name, buf)
     vec3 = RGB32F if session.rays_texel_ok else R32F
-    views = [BufferView(rays_buf, vec3, 0, 12 * c), BufferView(rays_buf, vec3, 12 * c, 12 * c),
-             BufferView(rays_buf, R32F, 24 * c, 4 * c), BufferView(results, R32UI, 0, 4 * c),
-             BufferView(results, RGBA32UI, 0, 16 * c)]
+    views = [
+        BufferView(rays_buf, vec3, 0, 12 * c),
+        BufferView(rays_buf, vec3, 12 * c, 12 * c),
+        BufferView(rays_buf, R32F, 24 * c, 4 * c),
+        BufferView(results, R32UI, 0, 4 * c),
+        BufferView(results, RGBA32UI, 0, 16 * c),
+    ]
     for name, view in zip(("ray_origins", "ray_directions", "ray_tmax", "occluded_texels", "hit_texels"), views):
         io_set.bind(name, view)
     session.alpha.bind(io_set)
     rec = Recorder(ctx)
-    kernel = session.kernel("occluded", CHECK_RAYS=True, RESULT_BYTES=True, BVH_STACK_RETRY=False)   # (one pass)
+    kernel = session.kernel("occluded", CHECK_RAYS=True, RESULT_BYTES=True, BVH_STACK_RETRY=False)  # (one pass)
     rec.dispatch_indirect(kernel, [io_set, tracer.bvh_set], params, reads=[rays_buf], writes=[results, errors])
     rec.to_host(results, errors)
     cmd = rec.finish()
@@ -164,8 +178,8 @@ def test_the_cuda_array_kernels_check_rays_and_write_bytes(tracer):
     want = tracer.occluded(o, d, t)
     got, first_bad = run_checked_kernel(tracer, o, d, t, out_base=16)
     assert first_bad == [cuda_arrays.NONE] * 3
-    assert (got[:64] == 0xAB).all() and (got[64 + 1024:] == 0xAB).all()   # nothing written past the workgroups
-    np.testing.assert_array_equal(got[64:64 + 1000], want.astype(np.uint8))
+    assert (got[:64] == 0xAB).all() and (got[64 + 1024 :] == 0xAB).all()  # nothing written past the workgroups
+    np.testing.assert_array_equal(got[64 : 64 + 1000], want.astype(np.uint8))
     bad_o, bad_d, bad_t = o.copy(), d.copy(), t.copy()
     bad_o[[7, 900], 0] = np.nan, 2 * MAX_COORD
     bad_d[3] = 0
@@ -176,7 +190,7 @@ def test_the_cuda_array_kernels_check_rays_and_write_bytes(tracer):
     fine = np.ones(1000, bool)
     fine[[7, 900, 3, 5, 600]] = False
     np.testing.assert_array_equal(got[:1000][fine], want[fine].astype(np.uint8))
-    assert (got[:1000][~fine] == 0).all()   # bad rays are not traced
+    assert (got[:1000][~fine] == 0).all()  # bad rays are not traced
 
 
 # ---- on an NVIDIA GPU -----------------------------------------------------------------------------------------
@@ -193,10 +207,12 @@ def xp(request, tracer):
         pytest.skip(f"{request.param} is not installed")
     if request.param == "torch":
         import torch
+
         if not torch.cuda.is_available():
             pytest.skip("torch has no CUDA here")
         return torch, lambda a: torch.from_numpy(np.ascontiguousarray(a)).cuda(), lambda a: a.cpu().numpy()
     import cupy
+
     return cupy, cupy.asarray, cupy.asnumpy
 
 
@@ -217,7 +233,7 @@ def test_occluded_matches_the_numpy_path(tracer, xp, dtype):
     assert is_framework_device_array(xp, got)
     assert str(got.dtype).endswith("bool")
     np.testing.assert_array_equal(host(got), want)
-    assert 0 < want.sum() < len(want)   # hits and misses both
+    assert 0 < want.sum() < len(want)  # hits and misses both
     np.testing.assert_array_equal(host(tracer.occluded(dev(o), dev(d), 2.5)), tracer.occluded(o, d, 2.5))
 
 
@@ -251,9 +267,14 @@ def test_rays_written_into_the_tracers_arrays_are_traced_without_a_copy(tracer, 
 
     def counting(self, command, fw, shared, o_, d_, t_, *a, **kw):
         v = shared.views(fw)
-        copies.append(sum(not isinstance(x, float) and fw.ptr(x) != fw.ptr(v[k])
-                          for k, x in (("origins", o_), ("directions", d_), ("tmax", t_))))
+        copies.append(
+            sum(
+                not isinstance(x, float) and fw.ptr(x) != fw.ptr(v[k])
+                for k, x in (("origins", o_), ("directions", d_), ("tmax", t_))
+            )
+        )
         return real(self, command, fw, shared, o_, d_, t_, *a, **kw)
+
     monkeypatch.setattr(cuda_arrays.CudaRays, "_trace", counting)
     np.testing.assert_array_equal(host(tracer.occluded(ro, rd, rt)), want_occ)
     np.testing.assert_array_equal(host(tracer.intersect(ro, rd, rt).prim), want_hit.prim)
@@ -271,12 +292,11 @@ def test_batches_larger_than_a_dispatch_are_split(xp, monkeypatch):
     mod, dev, host = xp
     v, f = mesh()
     o, d, t = rays(2500, seed=5)
-    monkeypatch.setattr(cuda_arrays, "CUDA_BATCH", 1000)   # (else up to 4M rays go in one dispatch)
+    monkeypatch.setattr(cuda_arrays, "CUDA_BATCH", 1000)  # (else up to 4M rays go in one dispatch)
     with Tracer(v, f, batch_size=1000) as small:
         np.testing.assert_array_equal(host(small.occluded(dev(o), dev(d), dev(t))), small.occluded(o, d, t))
-        assert small._cuda.shared.batch == 1024   # (whole workgroups of 64)
-        np.testing.assert_array_equal(host(small.intersect(dev(o), dev(d), dev(t)).prim),
-                                      small.intersect(o, d, t).prim)
+        assert small._cuda.shared.batch == 1024  # (whole workgroups of 64)
+        np.testing.assert_array_equal(host(small.intersect(dev(o), dev(d), dev(t)).prim), small.intersect(o, d, t).prim)
 
 
 def test_shared_buffers_grow_for_larger_queries(xp):
@@ -286,7 +306,7 @@ def test_shared_buffers_grow_for_larger_queries(xp):
         small = tracer.occluded(dev(o[:100]), dev(d[:100]))
         np.testing.assert_array_equal(host(small), tracer.occluded(o[:100], d[:100]))
         first = tracer._cuda.shared.batch
-        big = np.concatenate([o] * 400), np.concatenate([d] * 400)   # 1.2M rays: more than the default batch_size
+        big = np.concatenate([o] * 400), np.concatenate([d] * 400)  # 1.2M rays: more than the default batch_size
         np.testing.assert_array_equal(host(tracer.occluded(dev(big[0]), dev(big[1]))), tracer.occluded(*big))
         assert tracer._cuda.shared.batch >= len(big[0]) > first
 
@@ -304,11 +324,11 @@ def test_bad_cuda_inputs_are_clear_errors(tracer, xp):
         tracer.occluded(dev(o), dev(d.astype(np.float16)))
     with pytest.raises(ConfigError, match="origins must be float32 or float64, got int32"):
         tracer.occluded(dev(o.astype(np.int32)), dev(d))
-    strided = dev(np.ascontiguousarray(o.T)).T   # (64, 3), not contiguous
+    strided = dev(np.ascontiguousarray(o.T)).T  # (64, 3), not contiguous
     with pytest.raises(ConfigError, match=r"origins is not contiguous .*\(64, 3\)"):
         tracer.occluded(strided, dev(d))
     with pytest.raises(ConfigError, match="directions must be a CUDA array like origins"):
-        tracer.occluded(dev(o), d)           # numpy directions with CUDA origins: not silently copied
+        tracer.occluded(dev(o), d)  # numpy directions with CUDA origins: not silently copied
     with pytest.raises(ConfigError, match="origins must be a CUDA array when directions or tmax is one"):
         tracer.occluded(o, dev(d))
     bad = o.copy()
@@ -338,10 +358,10 @@ def test_bad_values_name_the_first_bad_ray_of_each_kind(tracer, xp, monkeypatch)
     bad_d[4, 0] = np.inf
     bad_o = o.copy()
     bad_o[200, 1] = np.nan
-    cases.append(((bad_o, bad_d, t), "origins: ray 200 is not finite"))       # origins first
+    cases.append(((bad_o, bad_d, t), "origins: ray 200 is not finite"))  # origins first
     cases.append(((o, bad_d, t), "directions: ray 4 is not finite"))
     tiny = d.copy()
-    tiny[17] = 1e-39   # subnormal: zero length for the shader
+    tiny[17] = 1e-39  # subnormal: zero length for the shader
     cases.append(((o, tiny, t), "directions: ray 17 has zero length"))
     bad_t = t.copy()
     bad_t[[31, 250]] = np.nan
@@ -351,7 +371,7 @@ def test_bad_values_name_the_first_bad_ray_of_each_kind(tracer, xp, monkeypatch)
             with pytest.raises(ConfigError, match=message):
                 query(dev(a), dev(b), dev(c))
     v, f = mesh()
-    monkeypatch.setattr(cuda_arrays, "CUDA_BATCH", 128)   # several dispatches: the ray's index in the whole query
+    monkeypatch.setattr(cuda_arrays, "CUDA_BATCH", 128)  # several dispatches: the ray's index in the whole query
     bad_t[31] = 1.0
     with Tracer(v, f, batch_size=128) as small:
         with pytest.raises(ConfigError, match="tmax: ray 250 has tmax NaN"):
@@ -380,11 +400,11 @@ def test_results_view_pooled_buffers_and_stay_valid_across_calls(tracer, xp, mon
     np.testing.assert_array_equal(host(first), want)
     np.testing.assert_array_equal(host(second), want2)
     pool = tracer._cuda.shared.pool
-    gc.collect()   # (CuPy arrays dropped above may wait for a collection)
+    gc.collect()  # (CuPy arrays dropped above may wait for a collection)
     assert len(pool.lent) == 2
     del first
     gc.collect()
-    assert len(pool.lent) == 2   # the view keeps its buffer
+    assert len(pool.lent) == 2  # the view keeps its buffer
     np.testing.assert_array_equal(host(tail), want[1000:])
     ptr = data_ptr(tail) - 1000
     del tail
@@ -392,9 +412,9 @@ def test_results_view_pooled_buffers_and_stay_valid_across_calls(tracer, xp, mon
     assert len(pool.lent) == 1 and ptr in {e.ptr for e in pool.free}
     free = {e.ptr for e in pool.free}
     again = tracer.occluded(dev(o2), dev(d2), dev(t2))
-    assert data_ptr(again) in free and len(pool.free) == len(free) - 1   # a free buffer reused, none made
+    assert data_ptr(again) in free and len(pool.free) == len(free) - 1  # a free buffer reused, none made
     np.testing.assert_array_equal(host(again), want2)
-    monkeypatch.setattr(cuda_results, "POOL_MAX", len(pool.lent))   # all lent: the next results are copies
+    monkeypatch.setattr(cuda_results, "POOL_MAX", len(pool.lent))  # all lent: the next results are copies
     held = [tracer.occluded(dev(o), dev(d), dev(t)) for _ in range(3)]
     for a in held:
         np.testing.assert_array_equal(host(a), want)
@@ -426,7 +446,7 @@ def test_raycasting_scene_on_cuda_rays_matches_numpy(xp):
     o, d, _ = rays(3000, seed=6)
     grid = np.concatenate([o, d], axis=1).reshape(50, 60, 6)
     with RaycastingScene() as scene:
-        scene.add_triangles(v + 100.0, f)   # off the origin: traced in a centred frame
+        scene.add_triangles(v + 100.0, f)  # off the origin: traced in a centred frame
         scene.add_triangles(v[:, [2, 0, 1]] * 0.5 + 100.0, f)
         want = scene.cast_rays(grid + np.array([100, 100, 100, 0, 0, 0], np.float32))
         got = scene.cast_rays(dev(grid + np.array([100, 100, 100, 0, 0, 0], np.float32)))
@@ -449,7 +469,7 @@ def test_results_outlive_their_tracer(xp):
     with Tracer(v, f) as first:
         want = first.occluded(o, d, t)
         got = first.occluded(dev(o), dev(d), dev(t))
-    with Tracer(v * 2.0, f) as other:   # new Vulkan and CUDA memory in use meanwhile
+    with Tracer(v * 2.0, f) as other:  # new Vulkan and CUDA memory in use meanwhile
         junk = [dev(np.full((1 << 20, 3), 7.0, np.float32)) for _ in range(8)]
         other.occluded(dev(o), dev(d), dev(t))
         np.testing.assert_array_equal(host(got), want)

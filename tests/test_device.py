@@ -1,5 +1,6 @@
 """engine.Device: one Vulkan device shared by Tracers, Renderers and RaycastingScenes; what they answer on it, closing
 in any order, use after close, and calls from several threads at once (validation on)."""
+
 import threading
 
 import numpy as np
@@ -25,8 +26,9 @@ def rays(n, seed):
 
 
 def sphere_scene():
-    return Scene.from_trimesh(trimesh.creation.icosphere(subdivisions=2),
-                              camera=engine.Camera.look_at((0, 0.5, 3), (0, 0, 0)))
+    return Scene.from_trimesh(
+        trimesh.creation.icosphere(subdivisions=2), camera=engine.Camera.look_at((0, 0.5, 3), (0, 0, 0))
+    )
 
 
 def answers(tracer, o, d):
@@ -46,7 +48,7 @@ def test_two_tracers_and_a_renderer_on_one_device_answer_as_separate_ones():
         ta = Tracer(va, fa, device=dev)
         tb = Tracer(vb, fb, device=dev)
         rr = Renderer(64, 48, device=dev)
-        assert live_contexts() == before + 1   # one device for all three
+        assert live_contexts() == before + 1  # one device for all three
         assert dev.users == 3 and ta.ctx.root is tb.ctx.root is rr.ctx.root is dev.context
         for got, want in ((answers(ta, o, d), want_a), (answers(tb, o, d), want_b)):
             for g, w in zip(got, want):
@@ -68,7 +70,7 @@ def test_a_second_tracer_shares_the_first_ones_kernels():
         first = Tracer(va, fa, device=dev)
         second = Tracer(va * 2.0, fa, device=dev)
         assert all(second.session.pipelines[k] is first.session.pipelines[k] for k in first.session.pipelines)
-        first.close()   # the kernels belong to the device: the second tracer still runs them
+        first.close()  # the kernels belong to the device: the second tracer still runs them
         o, d = rays(300, 2)
         with Tracer(va * 2.0, fa) as alone:
             want = alone.intersect(o, d)
@@ -93,17 +95,17 @@ def test_tracers_on_one_device_share_its_stream_buffers():
             assert np.array_equal(g, w)
         before = ctx.allocations
         tb = Tracer(vb, fb, device=dev, batch_size=256)
-        for _ in range(2):   # interleaved, each query streaming through the same buffers
+        for _ in range(2):  # interleaved, each query streaming through the same buffers
             for t, want in ((tb, want_b), (ta, want_a)):
                 for g, w in zip(answers(t, o, d), want):
                     assert np.array_equal(g, w)
-        assert ctx.allocations == before + 2   # the second Tracer's own device memory: its BVH's two buffers
+        assert ctx.allocations == before + 2  # the second Tracer's own device memory: its BVH's two buffers
         ta.close()
         for g, w in zip(answers(tb, o, d), want_b):
             assert np.array_equal(g, w)
         tb.close()
-        assert dev.users == 0 and ctx.allocations > 0   # the buffers stay with the Device for its next Tracers
-        with Tracer(va, fa, device=dev) as tc:   # batches of growing and shrinking size on one Device
+        assert dev.users == 0 and ctx.allocations > 0  # the buffers stay with the Device for its next Tracers
+        with Tracer(va, fa, device=dev) as tc:  # batches of growing and shrinking size on one Device
             for n in (100, 20000, 100, 1):
                 oo, dd = rays(n, 6)
                 with Tracer(va, fa) as alone:
@@ -125,13 +127,13 @@ def test_closing_in_any_order_and_use_after_close():
     scene.add_triangles(va, fa)
     want = a.occluded(o, d)
     assert np.array_equal(scene.test_occlusions(np.hstack([o, d])), want)
-    a.close()                                   # one user closed first: the others go on
+    a.close()  # one user closed first: the others go on
     with pytest.raises(ConfigError, match="Tracer is closed \\(close\\(\\)"):
         a.occluded(o, d)
     assert b.intersect(o, d).hit.any()
     r.render(sphere_scene(), shadows="hard", ao=False)
-    dev.close()                                 # closes b, r and the scene's tracer, then the device
-    dev.close()                                 # twice is harmless
+    dev.close()  # closes b, r and the scene's tracer, then the device
+    dev.close()  # twice is harmless
     assert dev.closed and dev.users == 0
     with pytest.raises(ConfigError, match="Tracer is closed: its engine.Device was closed"):
         b.occluded(o, d)
@@ -139,19 +141,23 @@ def test_closing_in_any_order_and_use_after_close():
         r.render(sphere_scene())
     with pytest.raises(ConfigError, match="RaycastingScene is closed: its engine.Device was closed"):
         scene.cast_rays(np.hstack([o, d]))
-    for make in (lambda: Tracer(va, fa, device=dev), lambda: Renderer(32, 24, device=dev),
-                 lambda: RaycastingScene(device=dev)):
+    for make in (
+        lambda: Tracer(va, fa, device=dev),
+        lambda: Renderer(32, 24, device=dev),
+        lambda: RaycastingScene(device=dev),
+    ):
         with pytest.raises(ConfigError, match="its engine.Device is closed"):
             make()
-    for obj in (a, b, r, scene):   # closing a user after its device is harmless
+    for obj in (a, b, r, scene):  # closing a user after its device is harmless
         obj.close()
     assert dev.validation_errors == []
 
 
 def test_device_arguments_are_checked():
-    with pytest.raises(ConfigError, match="Device: index_or_name must be a device index or part of its name, "
-                                          "got float"):
-        Device(1.5)   # type: ignore[arg-type]
+    with pytest.raises(
+        ConfigError, match="Device: index_or_name must be a device index or part of its name, got float"
+    ):
+        Device(1.5)  # type: ignore[arg-type]
     with pytest.raises(ConfigError, match="no device name contains it"):
         Device("no such device at all")
     with Device(0) as dev:
@@ -166,7 +172,7 @@ def test_tracers_and_a_renderer_on_one_device_from_several_threads():
     scene = sphere_scene()
     errors = []
     with Device(validation=True) as dev:
-        ta = Tracer(va, fa, device=dev, batch_size=256)   # several chunks in flight per query
+        ta = Tracer(va, fa, device=dev, batch_size=256)  # several chunks in flight per query
         tb = Tracer(vb, fb, device=dev)
         rr = Renderer(40, 30, device=dev)
         want_a, want_b = answers(ta, o, d), answers(tb, o, d)
@@ -176,8 +182,9 @@ def test_tracers_and_a_renderer_on_one_device_from_several_threads():
             def run():
                 try:
                     fn()
-                except Exception as exc:   # noqa: BLE001
+                except Exception as exc:  # noqa: BLE001
                     errors.append(repr(exc))
+
             return run
 
         def trace(t, want):
@@ -194,8 +201,10 @@ def test_tracers_and_a_renderer_on_one_device_from_several_threads():
                 with Tracer(vb, fb, device=dev) as t:
                     assert np.array_equal(t.occluded(o, d, 2.0), want_b[0])
 
-        threads = [threading.Thread(target=guarded(fn)) for fn in
-                   (lambda: trace(ta, want_a), lambda: trace(tb, want_b), render, churn)]
+        threads = [
+            threading.Thread(target=guarded(fn))
+            for fn in (lambda: trace(ta, want_a), lambda: trace(tb, want_b), render, churn)
+        ]
         for th in threads:
             th.start()
         for th in threads:
@@ -216,9 +225,10 @@ def test_closing_the_device_waits_for_a_query_in_progress():
     got, started = [], threading.Event()
 
     def query():
-        with t._lock:   # hold the Tracer as a query does, then run one
+        with t._lock:  # hold the Tracer as a query does, then run one
             started.set()
             got.append(t.occluded(o, d))
+
     th = threading.Thread(target=query)
     th.start()
     started.wait()

@@ -1,4 +1,5 @@
 """The Python examples of README.md and docs/scenes.md run as written (the renderer's at a small size)."""
+
 import os
 import re
 import subprocess
@@ -16,10 +17,9 @@ def python_blocks(doc: str) -> list[str]:
 
 
 def run_block(code: str, cwd: Path):
-    (cwd / "scenes").symlink_to(REPO / "scenes")   # the examples load scenes/... from the checkout's root
+    (cwd / "scenes").symlink_to(REPO / "scenes")  # the examples load scenes/... from the checkout's root
     env = dict(os.environ, PYTHONPATH=str(REPO))
-    return subprocess.run([sys.executable, "-c", code], cwd=cwd, env=env, capture_output=True, text=True,
-                          timeout=300)
+    return subprocess.run([sys.executable, "-c", code], cwd=cwd, env=env, capture_output=True, text=True, timeout=300)
 
 
 def test_readme_has_the_three_examples():
@@ -43,21 +43,23 @@ def test_readme_tracer_example(tmp_path):
     m = re.search(r"([\d.]+)% occluded within t <= 2, ([\d.]+)% hit at all", res.stdout)
     assert m, res.stdout
     occluded, hit = float(m.group(1)), float(m.group(2))
-    assert 0 < occluded < hit < 100   # rays from inside and outside a unit sphere, in every direction
+    assert 0 < occluded < hit < 100  # rays from inside and outside a unit sphere, in every direction
 
 
 def small_dataset(code: str, size: str) -> str:
     """A dataset example at 48x36 with 3 views."""
     assert f"engine.Renderer({size})" in code and "orbit_cameras(scene, 24)" in code
     return code.replace(f"engine.Renderer({size})", "engine.Renderer(48, 36)").replace(
-        "orbit_cameras(scene, 24)", "orbit_cameras(scene, 3)")
+        "orbit_cameras(scene, 24)", "orbit_cameras(scene, 3)"
+    )
 
 
 def test_readme_dataset_example(tmp_path):
     res = run_block(small_dataset(python_blocks("README.md")[1], "640, 480"), tmp_path)
     assert res.returncode == 0, res.stderr[-3000:]
-    assert sorted(p.name for p in (tmp_path / "dataset").iterdir()) == [f"{i:04d}.{s}" for i in range(3)
-                                                                        for s in ("exr", "npz")]
+    assert sorted(p.name for p in (tmp_path / "dataset").iterdir()) == [
+        f"{i:04d}.{s}" for i in range(3) for s in ("exr", "npz")
+    ]
     with np.load(tmp_path / "dataset" / "0002.npz") as z:
         assert z["depth"].shape == (36, 48) and z["object_id"].dtype == np.int32 and z["K"].shape == (3, 3)
         assert np.isinf(z["depth"]).any() and (z["object_id"] == -1).any()
@@ -77,13 +79,13 @@ def test_readme_drop_in_example(tmp_path):
     m = re.search(r"(\d+) rays hit, (\d+) hits; inside: \[True, False\]", res.stdout)
     assert m, res.stdout
     rays, hits = int(m.group(1)), int(m.group(2))
-    assert 0 < rays < 1000 and hits == 2 * rays   # each ray that hits the sphere goes in and out
+    assert 0 < rays < 1000 and hits == 2 * rays  # each ray that hits the sphere goes in and out
     m = re.search(r"(\d+)% of the pixels see the sphere, (\d+)% within t <= 3.5", res.stdout)
     assert m, res.stdout
-    assert 15 <= int(m.group(1)) <= 27 and 0 < int(m.group(2)) < int(m.group(1))   # a unit sphere 4 away, 60 deg
+    assert 15 <= int(m.group(1)) <= 27 and 0 < int(m.group(2)) < int(m.group(1))  # a unit sphere 4 away, 60 deg
     m = re.search(r"(\d+)% of the grid inside, sdf < 0 there: True", res.stdout)
     assert m, res.stdout
-    assert 13 <= int(m.group(1)) <= 18   # a unit sphere in a cube of side 3: 4.19 / 27 of it
+    assert 13 <= int(m.group(1)) <= 18  # a unit sphere in a cube of side 3: 4.19 / 27 of it
 
 
 def test_scenes_doc_example(tmp_path):

@@ -1,5 +1,6 @@
 """Every script in examples/ runs as a user would run it (a subprocess, small sizes, validation on) and writes what
 its docstring promises: the files, their shapes and values checked against what they must hold."""
+
 import math
 import os
 import re
@@ -16,15 +17,29 @@ from engine.settings import AOVS
 
 REPO = Path(__file__).resolve().parent.parent
 EXAMPLES = REPO / "examples"
-TESTED = {"render_png.py", "aovs_to_files.py", "soft_shadows.py", "ray_queries.py", "orbit_dataset.py",
-          "view_mesh.py", "animate.py", "dropin_queries.py"}
+TESTED = {
+    "render_png.py",
+    "aovs_to_files.py",
+    "soft_shadows.py",
+    "ray_queries.py",
+    "orbit_dataset.py",
+    "view_mesh.py",
+    "animate.py",
+    "dropin_queries.py",
+}
 
 
 def run_example(name: str, *args, cwd: Path, timeout=300) -> subprocess.CompletedProcess:
     """Run examples/NAME from `cwd` with the validation layer on; it must exit 0 with no validation error."""
     env = dict(os.environ, PYTHONPATH=str(REPO), HYBRID_VALIDATION="1")
-    res = subprocess.run([sys.executable, str(EXAMPLES / name), *map(str, args)], cwd=cwd, env=env,
-                         capture_output=True, text=True, timeout=timeout)
+    res = subprocess.run(
+        [sys.executable, str(EXAMPLES / name), *map(str, args)],
+        cwd=cwd,
+        env=env,
+        capture_output=True,
+        text=True,
+        timeout=timeout,
+    )
     assert res.returncode == 0, f"{name}: exit {res.returncode}\n{res.stdout[-2000:]}\n{res.stderr[-3000:]}"
     assert "validation:" not in res.stderr, res.stderr[-3000:]
     return res
@@ -48,13 +63,19 @@ def test_render_png(tmp_path):
     depth = np.load(out / "depth.npy")
     assert depth.shape == (54, 96) and depth.dtype == np.float32
     covered = np.isfinite(depth)
-    assert 0.2 < covered.mean() < 1.0 and np.all(depth[covered] > 0)   # the default scene, with sky above it
+    assert 0.2 < covered.mean() < 1.0 and np.all(depth[covered] > 0)  # the default scene, with sky above it
 
 
 def test_an_example_reports_a_bad_scene_in_one_line(tmp_path):
     env = dict(os.environ, PYTHONPATH=str(REPO))
-    res = subprocess.run([sys.executable, str(EXAMPLES / "render_png.py"), "missing.toml", "--size", "32x24"],
-                         cwd=tmp_path, env=env, capture_output=True, text=True, timeout=300)
+    res = subprocess.run(
+        [sys.executable, str(EXAMPLES / "render_png.py"), "missing.toml", "--size", "32x24"],
+        cwd=tmp_path,
+        env=env,
+        capture_output=True,
+        text=True,
+        timeout=300,
+    )
     assert res.returncode == 1
     assert res.stderr.startswith("error: ") and "missing.toml" in res.stderr and len(res.stderr.splitlines()) == 1
 
@@ -63,11 +84,26 @@ def test_aovs_to_files(tmp_path):
     run_example("aovs_to_files.py", "--size", "64x48", "--frames", "2", "-o", "aovs", cwd=tmp_path)
     out = tmp_path / "aovs"
     lights = len(Scene.load(REPO / "scenes" / "default.toml").lights)
-    shapes = {"position": (48, 64, 3), "normal": (48, 64, 3), "albedo": (48, 64, 3), "depth": (48, 64),
-              "shadow": (48, 64, lights), "shadow_raw": (48, 64, lights), "ao": (48, 64), "ao_raw": (48, 64),
-              "history": (48, 64), "triangle_id": (48, 64), "object_id": (48, 64), "material_id": (48, 64),
-              "motion": (48, 64, 2), "roughness": (48, 64), "metallic": (48, 64), "emissive": (48, 64, 3),
-              "radiance": (48, 64, 3), "instance_id": (48, 64)}
+    shapes = {
+        "position": (48, 64, 3),
+        "normal": (48, 64, 3),
+        "albedo": (48, 64, 3),
+        "depth": (48, 64),
+        "shadow": (48, 64, lights),
+        "shadow_raw": (48, 64, lights),
+        "ao": (48, 64),
+        "ao_raw": (48, 64),
+        "history": (48, 64),
+        "triangle_id": (48, 64),
+        "object_id": (48, 64),
+        "material_id": (48, 64),
+        "motion": (48, 64, 2),
+        "roughness": (48, 64),
+        "metallic": (48, 64),
+        "emissive": (48, 64, 3),
+        "radiance": (48, 64, 3),
+        "instance_id": (48, 64),
+    }
     assert set(shapes) == set(AOVS) - {"color"}
     arrays = {}
     for name, shape in shapes.items():
@@ -79,19 +115,20 @@ def test_aovs_to_files(tmp_path):
     covered = np.isfinite(arrays["depth"])
     assert covered.any() and not covered.all()
     assert np.allclose(np.linalg.norm(arrays["normal"][covered], axis=1), 1.0, atol=1e-3)
-    assert np.all(png(out / "depth.png")[~covered][:, :3] == 0)   # the background is black in the depth view
+    assert np.all(png(out / "depth.png")[~covered][:, :3] == 0)  # the background is black in the depth view
     for name in ("shadow", "shadow_raw", "ao", "ao_raw"):
         assert arrays[name].min() >= 0.0 and arrays[name].max() <= 1.0, name
-    assert arrays["history"].max() == 2.0    # soft shadows accumulated over the two frames
+    assert arrays["history"].max() == 2.0  # soft shadows accumulated over the two frames
 
 
 def test_soft_shadows_converge(tmp_path):
-    res = run_example("soft_shadows.py", "--size", "96x54", "--frames", "8", "--reference-samples", "64",
-                      "-o", "soft", cwd=tmp_path)
+    res = run_example(
+        "soft_shadows.py", "--size", "96x54", "--frames", "8", "--reference-samples", "64", "-o", "soft", cwd=tmp_path
+    )
     m = re.search(r"frame 1 ([\d.]+), frame 8 ([\d.]+)", res.stdout)
     assert m, res.stdout
     first, last = float(m.group(1)), float(m.group(2))
-    assert 0 < last < 0.7 * first, res.stdout   # the noise against the reference drops as frames accumulate
+    assert 0 < last < 0.7 * first, res.stdout  # the noise against the reference drops as frames accumulate
     for name in ("frame1", "frameN", "reference", "shadow_frame1", "shadow_frameN", "shadow_reference"):
         assert png(tmp_path / "soft" / f"{name}.png").shape == (54, 96, 4), name
 
@@ -124,10 +161,10 @@ def test_ray_queries_over_a_trimesh_mesh(tmp_path):
     lo, hi = torus.bounds
     x, z = np.meshgrid(np.linspace(lo[0], hi[0], 48), np.linspace(lo[2], hi[2], 48))
     off_ring = np.hypot(x, z) - R
-    inside = np.abs(off_ring) < 0.8 * r           # away from the silhouette, where the surface is steep
-    expect = np.sqrt(np.maximum(r * r - off_ring ** 2, 0.0))
+    inside = np.abs(off_ring) < 0.8 * r  # away from the silhouette, where the surface is steep
+    expect = np.sqrt(np.maximum(r * r - off_ring**2, 0.0))
     assert np.abs(height[inside] - expect[inside]).max() < 0.01
-    assert np.all(np.isnan(height[np.abs(off_ring) > 1.05 * r]))   # the hole and the corners: misses
+    assert np.all(np.isnan(height[np.abs(off_ring) > 1.05 * r]))  # the hole and the corners: misses
     ao = np.load(tmp_path / "rq" / "ao.npy")
     shaded = trimesh.load(tmp_path / "rq" / "ao.ply", process=False)
     assert len(ao) == len(shaded.vertices) and ao.min() >= 0 and ao.max() <= 1
@@ -135,8 +172,8 @@ def test_ray_queries_over_a_trimesh_mesh(tmp_path):
     equator = np.abs(shaded.vertices[:, 1]) < 0.1 * r
     inner, outer = ao[equator & (rho < R - 0.9 * r)], ao[equator & (rho > R + 0.9 * r)]
     assert len(inner) and len(outer)
-    assert np.all(outer == 1.0)                   # facing away from the ring: nothing in the way
-    assert inner.mean() < 0.9                     # facing the hole: rays reach the ring's other side
+    assert np.all(outer == 1.0)  # facing away from the ring: nothing in the way
+    assert inner.mean() < 0.9  # facing the hole: rays reach the ring's other side
 
 
 def test_orbit_dataset(tmp_path):
@@ -160,8 +197,9 @@ def test_orbit_dataset(tmp_path):
     j, i = np.meshgrid(np.arange(w) + 0.5, np.arange(h) + 0.5)
     for v in range(n):
         z = d["depth"][v][mask[v]]
-        cam = np.stack([(j[mask[v]] - K[0, 2]) / K[0, 0] * z, (i[mask[v]] - K[1, 2]) / K[1, 1] * z, z,
-                        np.ones_like(z)], axis=1)
+        cam = np.stack(
+            [(j[mask[v]] - K[0, 2]) / K[0, 0] * z, (i[mask[v]] - K[1, 2]) / K[1, 1] * z, z, np.ones_like(z)], axis=1
+        )
         world = (cam @ np.linalg.inv(d["world_to_cam"][v].astype(np.float64)).T)[:, :3]
         assert np.abs(world - d["position"][v][mask[v]]).max() < 1e-3 * scene.radius, v
 
@@ -170,8 +208,9 @@ def test_view_mesh_under_xvfb(xvfb_display, tmp_path, make_renderer):
     """The viewer on a mesh file for 10 frames: its screenshot is what a headless render of that file gives."""
     sphere = trimesh.creation.icosphere(subdivisions=3)
     sphere.export(tmp_path / "sphere.ply")
-    res = run_example("view_mesh.py", "sphere.ply", "--size", "160x90", "--frames", "10", "--screenshot", "shot.png",
-                      cwd=tmp_path)
+    res = run_example(
+        "view_mesh.py", "sphere.ply", "--size", "160x90", "--frames", "10", "--screenshot", "shot.png", cwd=tmp_path
+    )
     assert "10 frames presented" in res.stdout
     got = png(tmp_path / "shot.png")
     r, scene = make_renderer(160, 90), Scene.load(tmp_path / "sphere.ply")
@@ -179,14 +218,15 @@ def test_view_mesh_under_xvfb(xvfb_display, tmp_path, make_renderer):
         ref = r.render(scene, shadows="soft").color
     diff = np.abs(got.astype(np.int16) - ref.astype(np.int16))
     assert diff.mean() < 1.0 and (diff.max(axis=2) > 32).mean() < 0.005
-    assert len(np.unique(got.reshape(-1, 4), axis=0)) > 50   # a shaded sphere, not a blank window
+    assert len(np.unique(got.reshape(-1, 4), axis=0)) > 50  # a shaded sphere, not a blank window
 
 
 def test_dropin_queries_agree_with_trimesh_and_open3d(tmp_path):
     """examples/dropin_queries.py: on its sphere and box (closed meshes), every answer of ours agrees with trimesh's
     own intersector and with Open3D's (where installed), and depth.png shows both shapes."""
-    res = run_example("dropin_queries.py", "--size", "80x60", "--points", "2000", "--sample", "1000", "-o", "out",
-                      cwd=tmp_path)
+    res = run_example(
+        "dropin_queries.py", "--size", "80x60", "--points", "2000", "--sample", "1000", "-o", "out", cwd=tmp_path
+    )
     lines = {line[:34].strip(): line for line in res.stdout.splitlines()}
     for name in ("trimesh intersects_first", "trimesh intersects_id (hits/ray)", "trimesh contains"):
         assert "100.0000% agree" in lines[name], res.stdout
@@ -195,12 +235,16 @@ def test_dropin_queries_agree_with_trimesh_and_open3d(tmp_path):
     except ImportError:
         assert "Open3D is not installed" in res.stdout
     else:
-        for name in ("Open3D cast_rays (hit or miss)", "Open3D cast_rays (primitive id)", "Open3D compute_distance",
-                     "Open3D compute_occupancy"):
+        for name in (
+            "Open3D cast_rays (hit or miss)",
+            "Open3D cast_rays (primitive id)",
+            "Open3D compute_distance",
+            "Open3D compute_occupancy",
+        ):
             assert "100.0000% agree" in lines[name], res.stdout
         assert np.array_equal(png(tmp_path / "out" / "depth.png") > 0, png(tmp_path / "out" / "depth_open3d.png") > 0)
     depth = png(tmp_path / "out" / "depth.png")[..., 0]
     assert depth.shape == (60, 80)
     covered = depth > 0
     assert 0.1 < covered.mean() < 0.6
-    assert covered[:, :40].any() and covered[:, 40:].any()   # the sphere and the box, side by side
+    assert covered[:, :40].any() and covered[:, 40:].any()  # the sphere and the box, side by side

@@ -28,8 +28,9 @@ HOSTILE = os.path.join(os.path.dirname(os.path.abspath(__file__)), "data", "host
 # hypothesis's own casts of out-of-range values while it builds arrays
 pytestmark = pytest.mark.filterwarnings("ignore:overflow encountered in cast:RuntimeWarning")
 
-_COMMON = dict(deadline=None, database=None, suppress_health_check=[HealthCheck.too_slow,
-                                                                     HealthCheck.function_scoped_fixture])
+_COMMON = dict(
+    deadline=None, database=None, suppress_health_check=[HealthCheck.too_slow, HealthCheck.function_scoped_fixture]
+)
 settings.register_profile("default", max_examples=120, derandomize=True, **_COMMON)
 settings.register_profile("deep", max_examples=2400, **_COMMON)
 settings.load_profile(os.environ.get("HYPOTHESIS_PROFILE", "default"))
@@ -39,39 +40,86 @@ def assert_clean_error(exc: BaseException) -> None:
     """An error a user is meant to see: ours, one line, nothing that moves the terminal's cursor."""
     assert isinstance(exc, (ConfigError, SceneError)), f"{type(exc).__name__}: {exc}"
     msg = str(exc)
-    assert msg and msg.isprintable(), repr(msg)   # no newline, escape sequence or other control character
+    assert msg and msg.isprintable(), repr(msg)  # no newline, escape sequence or other control character
     assert len(msg) <= 2000, len(msg)
 
 
 # ------------------------------------------------------------------------------------------------ TOML values
 HOSTILE_TEXT = st.one_of(
     st.text(max_size=12),
-    st.sampled_from(["", ".", "..", "/", "/etc/passwd", "../tri.obj", "a\nb", "\x1b[2J\x1b[31m", "\u202eabc",
-                     "x\x00y", "tri.obj", "red.png", "sub/../tri.obj", "./tri.obj", "missing.glb", "s.toml",
-                     "x" * 600, "#ffffff", "#12345", "#gggggg", "box", "sphere", "point", "spot"]))
+    st.sampled_from(
+        [
+            "",
+            ".",
+            "..",
+            "/",
+            "/etc/passwd",
+            "../tri.obj",
+            "a\nb",
+            "\x1b[2J\x1b[31m",
+            "\u202eabc",
+            "x\x00y",
+            "tri.obj",
+            "red.png",
+            "sub/../tri.obj",
+            "./tri.obj",
+            "missing.glb",
+            "s.toml",
+            "x" * 600,
+            "#ffffff",
+            "#12345",
+            "#gggggg",
+            "box",
+            "sphere",
+            "point",
+            "spot",
+        ]
+    ),
+)
 NUMBERS = st.one_of(
-    st.integers(-4, 12), st.floats(-10, 10), st.integers(), st.floats(),   # floats(): NaN, +-inf, huge, tiny
-    st.sampled_from([0, -0.0, 5e-324, 1e-300, 1e11, 1e18, 1e30, 1.1e30, 1e300, 2 ** 63, -(2 ** 63), 2 ** 64, 4097,
-                     10 ** 40]))
+    st.integers(-4, 12),
+    st.floats(-10, 10),
+    st.integers(),
+    st.floats(),  # floats(): NaN, +-inf, huge, tiny
+    st.sampled_from([0, -0.0, 5e-324, 1e-300, 1e11, 1e18, 1e30, 1.1e30, 1e300, 2**63, -(2**63), 2**64, 4097, 10**40]),
+)
 SCALARS = st.one_of(NUMBERS, st.booleans(), HOSTILE_TEXT, st.datetimes(), st.dates(), st.times())
-VALUES = st.recursive(SCALARS, lambda inner: st.lists(inner, max_size=4)
-                      | st.dictionaries(HOSTILE_TEXT, inner, max_size=3), max_leaves=6)
-VECTORS = st.one_of(st.lists(NUMBERS, min_size=3, max_size=3), st.lists(NUMBERS, min_size=0, max_size=5),
-                    st.lists(st.floats(-5, 5), min_size=3, max_size=3))
-COUNTS = st.one_of(st.integers(-2, 24), st.sampled_from([0, 2, 4097, 10 ** 20, -1, 2.5, True]))
+VALUES = st.recursive(
+    SCALARS, lambda inner: st.lists(inner, max_size=4) | st.dictionaries(HOSTILE_TEXT, inner, max_size=3), max_leaves=6
+)
+VECTORS = st.one_of(
+    st.lists(NUMBERS, min_size=3, max_size=3),
+    st.lists(NUMBERS, min_size=0, max_size=5),
+    st.lists(st.floats(-5, 5), min_size=3, max_size=3),
+)
+COUNTS = st.one_of(st.integers(-2, 24), st.sampled_from([0, 2, 4097, 10**20, -1, 2.5, True]))
 
 
 def _field(key):
     """Plausible values for a key (so that loads get far), mixed with anything at all."""
     plausible = {
         "primitive": st.sampled_from(list(PRIMITIVE_PARAMS)),
-        "file": st.sampled_from(["tri.obj", "quad.ply", "missing.obj", "../tri.obj", "red.png", "s.toml", ".",
-                                 "/etc/hostname", "sub/../tri.obj", "link_out.obj"]),
+        "file": st.sampled_from(
+            [
+                "tri.obj",
+                "quad.ply",
+                "missing.obj",
+                "../tri.obj",
+                "red.png",
+                "s.toml",
+                ".",
+                "/etc/hostname",
+                "sub/../tri.obj",
+                "link_out.obj",
+            ]
+        ),
         "texture": st.sampled_from(["red.png", "missing.png", "../red.png", "tri.obj", ".", "bomb_169mpx.png"]),
         "name": HOSTILE_TEXT,
         "color": st.one_of(VECTORS, st.sampled_from(["#ff8000", "#ff800080", "#FFF", "red"])),
         "rotate": st.one_of(VECTORS, st.fixed_dictionaries({"axis": VECTORS, "angle": NUMBERS})),
-        "segments": COUNTS, "rings": COUNTS, "sides": COUNTS,
+        "segments": COUNTS,
+        "rings": COUNTS,
+        "sides": COUNTS,
         "type": st.sampled_from(list(LIGHT_KEYS)),
     }.get(key)
     if plausible is None:
@@ -85,26 +133,33 @@ def _table(keys):
 
 MESH_KEYS = sorted(set(MESH_COMMON) | {k for params in PRIMITIVE_PARAMS.values() for k in params})
 LIGHT_ALL = sorted({k for keys in LIGHT_KEYS.values() for k in keys})
-MESH = st.one_of(st.fixed_dictionaries({"primitive": _field("primitive")}, optional={k: _field(k) for k in MESH_KEYS
-                                                                                    if k != "primitive"}),
-                 st.fixed_dictionaries({"file": _field("file")}, optional={k: _field(k) for k in MESH_COMMON
-                                                                           if k != "file"}),
-                 _table(MESH_KEYS), VALUES)
-LIGHT = st.one_of(st.fixed_dictionaries({"type": _field("type")},
-                                        optional={k: _field(k) for k in LIGHT_ALL if k != "type"}),
-                  VALUES)
+MESH = st.one_of(
+    st.fixed_dictionaries(
+        {"primitive": _field("primitive")}, optional={k: _field(k) for k in MESH_KEYS if k != "primitive"}
+    ),
+    st.fixed_dictionaries({"file": _field("file")}, optional={k: _field(k) for k in MESH_COMMON if k != "file"}),
+    _table(MESH_KEYS),
+    VALUES,
+)
+LIGHT = st.one_of(
+    st.fixed_dictionaries({"type": _field("type")}, optional={k: _field(k) for k in LIGHT_ALL if k != "type"}), VALUES
+)
 SCENE = st.fixed_dictionaries(
     {"mesh": st.one_of(st.lists(MESH, min_size=1, max_size=3), VALUES)},
-    optional={"light": st.one_of(st.lists(LIGHT, max_size=3), VALUES),
-              "camera": st.one_of(_table(CAMERA_KEYS), VALUES),
-              "settings": st.one_of(st.dictionaries(HOSTILE_TEXT, VALUES, max_size=3), VALUES),
-              "\x1b[2Jextra": VALUES})
+    optional={
+        "light": st.one_of(st.lists(LIGHT, max_size=3), VALUES),
+        "camera": st.one_of(_table(CAMERA_KEYS), VALUES),
+        "settings": st.one_of(st.dictionaries(HOSTILE_TEXT, VALUES, max_size=3), VALUES),
+        "\x1b[2Jextra": VALUES,
+    },
+)
 
 
 @pytest.fixture(scope="module")
 def scene_dir(tmp_path_factory):
     """A scene folder with a triangle OBJ, a quad PLY, a PNG, the 169 Mpixel PNG, a symlink leading outside."""
     import trimesh
+
     root = tmp_path_factory.mktemp("fuzz")
     folder = root / "scene"
     (folder / "sub").mkdir(parents=True)
@@ -112,7 +167,7 @@ def scene_dir(tmp_path_factory):
         fh.write("v 0 0 0\nv 1 0 0\nv 0 1 0\nf 1 2 3\n")
     trimesh.Trimesh([[0, 0, 0], [1, 0, 0], [1, 1, 0], [0, 1, 0]], [[0, 1, 2], [0, 2, 3]]).export(folder / "quad.ply")
     Image.new("RGB", (4, 4), (10, 200, 30)).save(folder / "red.png")
-    os.symlink(os.path.join(HOSTILE, "bomb_169mpx.png"), folder / "bomb_169mpx.png")   # (HOSTILE is outside)
+    os.symlink(os.path.join(HOSTILE, "bomb_169mpx.png"), folder / "bomb_169mpx.png")  # (HOSTILE is outside)
     with open(root / "outside.obj", "w") as fh:
         fh.write("v 0 0 0\nv 1 0 0\nv 0 1 0\nf 1 2 3\n")
     os.symlink(root / "outside.obj", folder / "link_out.obj")
@@ -126,30 +181,62 @@ def test_fuzzed_toml_tables_load_or_fail_cleanly(scene_dir, data):
     except EngineError as exc:
         assert_clean_error(exc)
         return
-    except Exception as exc:   # anything else is a bug
+    except Exception as exc:  # anything else is a bug
         raise AssertionError(f"{type(exc).__name__}: {exc}") from exc
     assert scene.triangle_count >= 1 and np.all(np.isfinite(scene.positions))
     assert np.abs(scene.positions).max() <= MAX_COORD
 
 
-VALID_TOML = (b'[camera]\neye = [0.0, 2.0, 5.0]\ntarget = [0, 0, 0]\nfov = 45\n\n[[mesh]]\nname = "ball"\n'
-              b'primitive = "sphere"\nsegments = 8\nrings = 4\ncolor = "#d8c8a8"\n\n[[mesh]]\nfile = "tri.obj"\n'
-              b'texture = "red.png"\nscale = [1, 2, 1]\nrotate = {axis = [0, 1, 0], angle = 30}\n\n[[light]]\n'
-              b'type = "spot"\nposition = [0, 4, 0]\ntarget = [0, 0, 0]\ncone_angle = 25\n\n[settings]\n'
-              b'shadows = "soft"\n')
-EDITS = st.lists(st.tuples(st.integers(0, len(VALID_TOML)), st.integers(0, 3),
-                           st.sampled_from([b"", b"\xef\xbb\xbf", b"\x00", b"\xff", b"[", b"]", b"{", b"=", b'"',
-                                            b"\n", b"\\", b"'''", b"[[mesh]]", b"nan", b"-inf", b"1e999",
-                                            b"../", b"/etc/passwd", b"\x1b[2J", b"\r", b"#", b"\xc3", b"0x7fff"])),
-                 min_size=1, max_size=4)
+VALID_TOML = (
+    b'[camera]\neye = [0.0, 2.0, 5.0]\ntarget = [0, 0, 0]\nfov = 45\n\n[[mesh]]\nname = "ball"\n'
+    b'primitive = "sphere"\nsegments = 8\nrings = 4\ncolor = "#d8c8a8"\n\n[[mesh]]\nfile = "tri.obj"\n'
+    b'texture = "red.png"\nscale = [1, 2, 1]\nrotate = {axis = [0, 1, 0], angle = 30}\n\n[[light]]\n'
+    b'type = "spot"\nposition = [0, 4, 0]\ntarget = [0, 0, 0]\ncone_angle = 25\n\n[settings]\n'
+    b'shadows = "soft"\n'
+)
+EDITS = st.lists(
+    st.tuples(
+        st.integers(0, len(VALID_TOML)),
+        st.integers(0, 3),
+        st.sampled_from(
+            [
+                b"",
+                b"\xef\xbb\xbf",
+                b"\x00",
+                b"\xff",
+                b"[",
+                b"]",
+                b"{",
+                b"=",
+                b'"',
+                b"\n",
+                b"\\",
+                b"'''",
+                b"[[mesh]]",
+                b"nan",
+                b"-inf",
+                b"1e999",
+                b"../",
+                b"/etc/passwd",
+                b"\x1b[2J",
+                b"\r",
+                b"#",
+                b"\xc3",
+                b"0x7fff",
+            ]
+        ),
+    ),
+    min_size=1,
+    max_size=4,
+)
 
 
 @given(edits=EDITS)
 def test_fuzzed_toml_text_loads_or_fails_cleanly(scene_dir, edits):
     text = VALID_TOML
-    for at, cut, insert in edits:   # delete `cut` bytes at `at`, insert `insert` there
+    for at, cut, insert in edits:  # delete `cut` bytes at `at`, insert `insert` there
         at = min(at, len(text))
-        text = text[:at] + insert + text[at + cut:]
+        text = text[:at] + insert + text[at + cut :]
     path = scene_dir / "fuzzed.toml"
     path.write_bytes(text)
     try:
@@ -168,11 +255,36 @@ def test_the_unedited_text_loads(scene_dir):
 
 
 # ------------------------------------------------------------------------------------------------ Tracer checks
-DTYPES = st.one_of(hnp.floating_dtypes(), hnp.integer_dtypes(), hnp.unsigned_integer_dtypes(),
-                   hnp.boolean_dtypes(), hnp.complex_number_dtypes(), hnp.datetime64_dtypes(),
-                   hnp.byte_string_dtypes(max_len=4), hnp.unicode_string_dtypes(max_len=4))
-HUGE = st.sampled_from([0.0, -0.0, 1e-45, 1e-38, 1e-30, 1.0, -1.0, 1e10, 1e11, 1.0000001e11, 3.4e38, 3.5e38, 1e300,
-                        np.inf, -np.inf, np.nan])
+DTYPES = st.one_of(
+    hnp.floating_dtypes(),
+    hnp.integer_dtypes(),
+    hnp.unsigned_integer_dtypes(),
+    hnp.boolean_dtypes(),
+    hnp.complex_number_dtypes(),
+    hnp.datetime64_dtypes(),
+    hnp.byte_string_dtypes(max_len=4),
+    hnp.unicode_string_dtypes(max_len=4),
+)
+HUGE = st.sampled_from(
+    [
+        0.0,
+        -0.0,
+        1e-45,
+        1e-38,
+        1e-30,
+        1.0,
+        -1.0,
+        1e10,
+        1e11,
+        1.0000001e11,
+        3.4e38,
+        3.5e38,
+        1e300,
+        np.inf,
+        -np.inf,
+        np.nan,
+    ]
+)
 
 
 @st.composite
@@ -188,20 +300,43 @@ def ray_arrays(draw, n):
     if kind == 7:
         return draw(hnp.arrays(DTYPES, hnp.array_shapes(min_dims=0, max_dims=3, max_side=4)))
     if kind == 8:
-        return draw(st.lists(st.lists(st.one_of(st.floats(), st.integers(), st.none(), st.text(max_size=2)),
-                                      min_size=2, max_size=4), min_size=0, max_size=4))   # ragged or mixed lists
-    return draw(st.one_of(st.none(), st.text(max_size=5), st.integers(), st.floats(),
-                          st.dictionaries(st.text(max_size=2), st.integers(), max_size=2),
-                          st.just(np.zeros((n, 3), dtype=object)), st.just([[1, 2, 3]] * n)))
+        return draw(
+            st.lists(
+                st.lists(st.one_of(st.floats(), st.integers(), st.none(), st.text(max_size=2)), min_size=2, max_size=4),
+                min_size=0,
+                max_size=4,
+            )
+        )  # ragged or mixed lists
+    return draw(
+        st.one_of(
+            st.none(),
+            st.text(max_size=5),
+            st.integers(),
+            st.floats(),
+            st.dictionaries(st.text(max_size=2), st.integers(), max_size=2),
+            st.just(np.zeros((n, 3), dtype=object)),
+            st.just([[1, 2, 3]] * n),
+        )
+    )
 
 
 @given(data=st.data())
 def test_fuzzed_rays_pass_or_fail_cleanly(data):
     n = data.draw(st.integers(0, 6))
     origins, directions = data.draw(ray_arrays(n)), data.draw(ray_arrays(n))
-    tmax = data.draw(st.one_of(HUGE, st.floats(), st.integers(), st.none(), st.text(max_size=3),
-                               hnp.arrays(st.sampled_from([np.float32, np.float64, np.int32, np.bool_, object]),
-                                          st.sampled_from([(n,), (n, 1), (n + 1,), ()]))))
+    tmax = data.draw(
+        st.one_of(
+            HUGE,
+            st.floats(),
+            st.integers(),
+            st.none(),
+            st.text(max_size=3),
+            hnp.arrays(
+                st.sampled_from([np.float32, np.float64, np.int32, np.bool_, object]),
+                st.sampled_from([(n,), (n, 1), (n + 1,), ()]),
+            ),
+        )
+    )
     try:
         o, d, t = check_rays(origins, directions, tmax)
     except EngineError as exc:
@@ -218,12 +353,19 @@ def test_fuzzed_rays_pass_or_fail_cleanly(data):
 @given(data=st.data())
 def test_fuzzed_meshes_pass_or_fail_cleanly(data):
     v = data.draw(ray_arrays(data.draw(st.integers(0, 5))))
-    faces = data.draw(st.one_of(
-        hnp.arrays(st.sampled_from([np.int32, np.int64, np.float64]), st.sampled_from([(1, 3), (2, 3), (0, 3), (3,),
-                                                                                     (2, 4)]),
-                   elements=st.one_of(st.integers(-3, 6), st.sampled_from([2 ** 31 - 1, 255]))),
-        hnp.arrays(st.sampled_from([np.uint64, np.uint8, np.bool_]), st.sampled_from([(1, 3), (2, 3)])),
-        st.lists(st.lists(st.integers(-2, 5), min_size=3, max_size=3), max_size=3), st.none(), st.text(max_size=3)))
+    faces = data.draw(
+        st.one_of(
+            hnp.arrays(
+                st.sampled_from([np.int32, np.int64, np.float64]),
+                st.sampled_from([(1, 3), (2, 3), (0, 3), (3,), (2, 4)]),
+                elements=st.one_of(st.integers(-3, 6), st.sampled_from([2**31 - 1, 255])),
+            ),
+            hnp.arrays(st.sampled_from([np.uint64, np.uint8, np.bool_]), st.sampled_from([(1, 3), (2, 3)])),
+            st.lists(st.lists(st.integers(-2, 5), min_size=3, max_size=3), max_size=3),
+            st.none(),
+            st.text(max_size=3),
+        )
+    )
     try:
         vertices, f = check_mesh(v, faces)
     except EngineError as exc:
@@ -236,9 +378,17 @@ def test_fuzzed_meshes_pass_or_fail_cleanly(data):
     assert f.dtype == np.int64 and len(f) >= 1 and f.min() >= 0 and f.max() < len(vertices)
 
 
-@given(value=st.one_of(st.integers(), st.floats(), st.booleans(), st.none(), st.text(max_size=3),
-                       st.sampled_from([np.int64(5), np.float32(2.0), np.float64(np.nan), 10 ** 400, 1e6, 2.5]),
-                       hnp.arrays(np.int64, (2,))))
+@given(
+    value=st.one_of(
+        st.integers(),
+        st.floats(),
+        st.booleans(),
+        st.none(),
+        st.text(max_size=3),
+        st.sampled_from([np.int64(5), np.float32(2.0), np.float64(np.nan), 10**400, 1e6, 2.5]),
+        hnp.arrays(np.int64, (2,)),
+    )
+)
 def test_fuzzed_batch_sizes_pass_or_fail_cleanly(value):
     try:
         n = check_batch_size(value)
@@ -262,7 +412,7 @@ CORPUS = {
     "bidi_name.toml": ["mesh 'abc\\u202edcba\\u2028x'"],
     "bom.toml": None,
     "bom_utf16.toml": ["not a UTF-8 text file"],
-    "bomb_texture.obj": None,   # the texture is left out, with a warning
+    "bomb_texture.obj": None,  # the texture is left out, with a warning
     "deep_array.toml": ["nested too deeply"],
     "deep_inline.toml": ["nested too deeply"],
     "dotdot_missing.toml": ["file = '../no-such-folder/model.obj' is outside the scene's folder"],
@@ -288,7 +438,7 @@ CORPUS = {
     "no_buffers.gltf": ["bufferViews[0] refers to buffer 0, but the file has no buffers"],
     "not_json.gltf": ["a .gltf is JSON text", "not valid JSON"],
     "nul_path.toml": ["a path may not contain a NUL character"],
-    "settings_odd.toml": None,   # [settings] are the renderer's to check
+    "settings_odd.toml": None,  # [settings] are the renderer's to check
     "texture_bomb.toml": ["texture image is too large: 169,000,000 pixels (13000 x 13000)"],
     "texture_bomb196.toml": ["texture image is too large: 196,000,000 pixels"],
     "texture_dir.toml": ["texture = '.': not a regular file"],

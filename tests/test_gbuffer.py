@@ -1,4 +1,5 @@
 """The G-buffer against analytic geometry: a unit sphere and a tilted plane, plus albedo and textures."""
+
 import math
 
 import numpy as np
@@ -23,8 +24,8 @@ def test_sphere_depth_normal_and_silhouette(make_renderer):
     assert depth.shape == (h, w) and normal.shape == (h, w, 3) and pos.shape == (h, w, 3)
     c = h // 2
     # The four pixels around the image centre all sit on the sphere's front pole.
-    assert np.allclose(depth[c - 1:c + 1, c - 1:c + 1], 4.0, atol=2e-3)
-    assert np.all(normal[c - 1:c + 1, c - 1:c + 1, 2] > 0.999)
+    assert np.allclose(depth[c - 1 : c + 1, c - 1 : c + 1], 4.0, atol=2e-3)
+    assert np.all(normal[c - 1 : c + 1, c - 1 : c + 1, 2] > 0.999)
     # Silhouette: the covered area matches the projected disc of angular radius asin(1/5).
     covered = np.isfinite(depth)
     r_ndc = math.tan(math.asin(1 / 5)) / math.tan(math.radians(45.0 / 2))
@@ -54,8 +55,12 @@ def test_tilted_plane(make_renderer):
     u = np.array([1.0, 0, 0])
     v = np.cross(n, u)
     corners = np.array([-8 * u - 8 * v, 8 * u - 8 * v, 8 * u + 8 * v, -8 * u + 8 * v])
-    scene = Scene.from_arrays(corners, [[0, 1, 2], [0, 2, 3]], color=(0.5, 0.25, 0.125),
-                              camera=Camera.look_at((0, 0, 5), (0, 0, 0), fov_y=40.0))
+    scene = Scene.from_arrays(
+        corners,
+        [[0, 1, 2], [0, 2, 3]],
+        color=(0.5, 0.25, 0.125),
+        camera=Camera.look_at((0, 0, 5), (0, 0, 0), fov_y=40.0),
+    )
     w, h = 80, 60
     f = make_renderer(w, h).render(scene, shadows="off", ao=False)
     covered = np.isfinite(f.aov["depth"])
@@ -78,7 +83,7 @@ def test_ground_plane_crossing_the_camera_plane(make_renderer):
     w, h = 64, 48
     f = make_renderer(w, h).render(scene, shadows="off", ao=False)
     d = pixel_rays(cam, w, h)
-    down = d[..., 1] < -0.02                      # rays that meet the plane well inside its 500 m
+    down = d[..., 1] < -0.02  # rays that meet the plane well inside its 500 m
     up = d[..., 1] > 0.0
     covered = np.isfinite(f.aov["depth"])
     assert covered[down].all() and not covered[up].any()
@@ -98,8 +103,14 @@ def test_texture_reaches_albedo(make_renderer):
     tex[8:, 8:, :3] = 128
     verts = np.array([[-1, -1, 0], [1, -1, 0], [1, 1, 0], [-1, 1, 0]], float)
     uvs = np.array([[0, 1], [1, 1], [1, 0], [0, 0]], float)  # UV (0, 0) = top-left of the image
-    scene = Scene.from_arrays(verts, [[0, 1, 2], [0, 2, 3]], uvs=uvs, color=(1, 1, 1), texture=tex,
-                              camera=Camera.look_at((0, 0, 4.0), (0, 0, 0), fov_y=40.0))
+    scene = Scene.from_arrays(
+        verts,
+        [[0, 1, 2], [0, 2, 3]],
+        uvs=uvs,
+        color=(1, 1, 1),
+        texture=tex,
+        camera=Camera.look_at((0, 0, 4.0), (0, 0, 0), fov_y=40.0),
+    )
     f = make_renderer(64, 64).render(scene, shadows="off", ao=False)
     a = f.aov["albedo"]
     # The quad spans pixels ~10..54; sample at its quadrants' centres.
@@ -118,6 +129,7 @@ def _quads_scene(n):
     """n unit quads in a row, each with a material of its own whose texture is one solid sRGB colour; the textures'
     sizes vary (some not powers of two), so that they fall in several size classes (arrays)."""
     from engine.scene.material import Material
+
     rng = np.random.default_rng(n)
     colours = rng.integers(40, 255, (n, 3))
     verts, faces, vm, uvs, mats = [], [], [], [], []
@@ -131,10 +143,16 @@ def _quads_scene(n):
         tex = np.empty(((4, 5, 16)[i % 3], (4, 3, 8, 1)[i % 4], 4), np.uint8)
         tex[..., :3], tex[..., 3] = colours[i], 255
         mats.append(Material(f"quad{i}", (1, 1, 1), tex))
-    dist = 0.6 * 1.25 * n / (math.tan(math.radians(22.5)) * ASPECT)   # the row fills the view's width
+    dist = 0.6 * 1.25 * n / (math.tan(math.radians(22.5)) * ASPECT)  # the row fills the view's width
     cam = Camera.look_at((0, 0, dist), (0, 0, 0), fov_y=45.0)
-    return Scene(np.array(verts, float), faces, uvs=np.array(uvs, float), vertex_material=np.array(vm),
-                 materials=mats, camera=cam), colours
+    return Scene(
+        np.array(verts, float),
+        faces,
+        uvs=np.array(uvs, float),
+        vertex_material=np.array(vm),
+        materials=mats,
+        camera=cam,
+    ), colours
 
 
 def test_every_texture_reaches_albedo_as_scenes_change(make_renderer, caplog):
@@ -145,9 +163,9 @@ def test_every_texture_reaches_albedo_as_scenes_change(make_renderer, caplog):
     for n in (2, 5, 18, 3):
         scene, colours = _quads_scene(n)
         a = r.render(scene, shadows="off", ao=False).aov["albedo"]
-        for i in range(n):   # quad i's centre, in a view 2 * 0.6 * 1.25 n wide
+        for i in range(n):  # quad i's centre, in a view 2 * 0.6 * 1.25 n wide
             col = int(round(((i - (n - 1) / 2) / (0.6 * n) + 1) / 2 * 36 * ASPECT - 0.5))
-            want = (colours[i] / 255.0) ** 2.2   # ~sRGB decode
+            want = (colours[i] / 255.0) ** 2.2  # ~sRGB decode
             got = a[18, col, :3]
             assert np.allclose(got, want, atol=0.03), (n, i, got, want)
         assert not [r.getMessage() for r in caplog.records if "textures" in r.getMessage()]

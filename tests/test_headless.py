@@ -1,5 +1,6 @@
 """Headless rendering for data: only the AOVs asked for are read back, ids and motion agree with ray casts and
 projections, and render_many gives the frames render() would."""
+
 from pathlib import Path
 
 import numpy as np
@@ -43,7 +44,7 @@ def test_ids_agree_with_a_ray_cast_of_the_primary_rays(make_renderer, scene):
     with Tracer(scene.positions, scene.indices, validation=True) as t:
         hits = t.intersect(o, d)
     prim = hits.prim.reshape(H, W)
-    agree = (prim == tri)
+    agree = prim == tri
     assert agree.mean() >= 0.995, agree.mean()
     # object and material ids: the scene's sub-mesh and material of that triangle
     hit = tri >= 0
@@ -60,9 +61,9 @@ def test_motion_is_where_each_pixel_was_in_the_previous_frame(make_renderer, sce
     b = Camera.look_at((4.3, 3.1, 5.8), (0.1, 1.0, 0.0), fov_y=50)
     r = make_renderer(W, H)
     still = r.render(scene, a, aovs=("motion", "depth"))
-    assert np.all(still.aov["motion"] == 0)                     # the first frame: no previous one
+    assert np.all(still.aov["motion"] == 0)  # the first frame: no previous one
     again = r.render(scene, a, aovs=("motion", "depth"))
-    assert np.all(again.aov["motion"] == 0)                     # the camera did not move
+    assert np.all(again.aov["motion"] == 0)  # the camera did not move
     moved = r.render(scene, b, aovs=("motion", "position", "depth"))
     covered = np.isfinite(moved.aov["depth"])
     p = moved.aov["position"][covered].astype(np.float64)
@@ -72,7 +73,7 @@ def test_motion_is_where_each_pixel_was_in_the_previous_frame(make_renderer, sce
     want = np.c_[xs + 0.5, ys + 0.5] - then
     got = moved.aov["motion"][covered]
     assert np.abs(got - want).max() < 0.02, np.abs(got - want).max()
-    assert np.abs(want).max() > 2.0                             # the camera moved by pixels
+    assert np.abs(want).max() > 2.0  # the camera moved by pixels
     assert np.all(moved.aov["motion"][~covered] == 0)
 
 
@@ -87,7 +88,7 @@ def test_only_the_requested_aovs_are_read_back(make_renderer, scene):
     every = r.render(scene, aovs="all")
     assert sorted(every.aov) == sorted(n for n in AOVS if n != "color")
     for name in ("shadow", "depth", "normal"):
-        assert np.array_equal(every.aov[name], g.aov[name])   # the same frame again (a static scene, hard shadows)
+        assert np.array_equal(every.aov[name], g.aov[name])  # the same frame again (a static scene, hard shadows)
     with pytest.raises(ConfigError, match="aov 'shadows': unknown .*'all'"):
         r.render(scene, aovs=("depth", "shadows"))
     with pytest.raises(ConfigError, match="not read back"):
@@ -136,7 +137,7 @@ def test_new_debug_views_draw_what_the_aovs_hold(make_renderer, scene):
     for name in ("triangle_id", "object_id", "material_id"):
         view = r.render(scene, view=name, aovs=("color",)).color
         host = aov_to_rgba(f, name)
-        assert np.abs(view.astype(int) - host).max() <= 1, name     # (the GPU's float -> unorm8 rounding)
+        assert np.abs(view.astype(int) - host).max() <= 1, name  # (the GPU's float -> unorm8 rounding)
         assert len(np.unique(view.reshape(-1, 4), axis=0)) > 3
     # the motion view: grey where nothing moved
     m = r.render(scene, view="motion", aovs=("color", "depth"))

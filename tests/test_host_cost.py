@@ -1,6 +1,7 @@
 """The cheap re-submit path (Renderer._prepare_steady, Context.submit's cached VkSubmitInfo) behaves exactly as the
 full path: the same frame block bit for bit, the same command buffers, changes to the camera, lights and settings
 picked up on the next frame, and invalid settings still rejected. No timings are asserted here."""
+
 import numpy as np
 import pytest
 import trimesh
@@ -31,13 +32,25 @@ def test_steady_frames_write_what_the_full_path_writes(make_renderer, monkeypatc
     fast, full = make_renderer(32, 24), make_renderer(32, 24)
     scene_fast, scene_full = scene_with_lights(), scene_with_lights()
     calls = [
-        (None, {}), (None, {}), (None, {}),                  # static: steady from the second frame on
-        (CAM_B, {}), (CAM_B, {}), (CAM_B, {}),               # the camera moved, then static again
-        (CAM_B, {"ao": False}), (CAM_B, {"ao": False}),     # another setting: another command buffer
-        (CAM_A, {"ao": False, "shadows": "soft"}), (CAM_A, {"ao": False, "shadows": "soft"}),
-        (None, {}), (None, {}),
-        (CAM_B, {}), (CAM_A, {}), (CAM_B, {}), (CAM_B, {}),  # moving every frame, then still
-        (CAM_A.replace(fov_y=40.0), {}), (CAM_A.replace(near=0.2), {}), (CAM_A.replace(near=0.2), {}),
+        (None, {}),
+        (None, {}),
+        (None, {}),  # static: steady from the second frame on
+        (CAM_B, {}),
+        (CAM_B, {}),
+        (CAM_B, {}),  # the camera moved, then static again
+        (CAM_B, {"ao": False}),
+        (CAM_B, {"ao": False}),  # another setting: another command buffer
+        (CAM_A, {"ao": False, "shadows": "soft"}),
+        (CAM_A, {"ao": False, "shadows": "soft"}),
+        (None, {}),
+        (None, {}),
+        (CAM_B, {}),
+        (CAM_A, {}),
+        (CAM_B, {}),
+        (CAM_B, {}),  # moving every frame, then still
+        (CAM_A.replace(fov_y=40.0), {}),
+        (CAM_A.replace(near=0.2), {}),
+        (CAM_A.replace(near=0.2), {}),
     ]
     taken = []
     for name in ("_prepare_steady", "_prepare_moved"):
@@ -46,7 +59,7 @@ def test_steady_frames_write_what_the_full_path_writes(make_renderer, monkeypatc
     for i, (cam, settings) in enumerate(calls):
         for r, scene in ((fast, scene_fast), (full, scene_full)):
             if r is full:
-                r._steady = None           # every call of `full` takes the full path
+                r._steady = None  # every call of `full` takes the full path
             cfg = r.submit(scene, cam, wait=True, **settings)
             assert cfg == check_settings(dict(settings)), i
         assert ubo_bytes(fast) == ubo_bytes(full), f"call {i}: frame blocks differ"
@@ -62,7 +75,7 @@ def test_same_camera_same_pixels_other_camera_other_pixels(make_renderer):
     settings = dict(shadows="hard", ao=False)
     a = r.render(scene, CAM_A, **settings)
     b = r.render(scene, CAM_A, **settings)
-    assert r._steady is not None and r.frame_block.settled   # b took the steady path
+    assert r._steady is not None and r.frame_block.settled  # b took the steady path
     assert np.array_equal(a.color, b.color)
     c = r.render(scene, CAM_B, **settings)
     assert not np.array_equal(b.color, c.color)
@@ -73,6 +86,7 @@ def test_same_camera_same_pixels_other_camera_other_pixels(make_renderer):
 def test_submit_without_wait_then_render_matches(make_renderer):
     """The viewer's path (wait=False with a fence) renders the same image as render() does."""
     import vulkan as vk
+
     r = make_renderer(48, 32)
     scene = scene_with_lights()
     ref = r.render(scene, CAM_A, ao=False)
@@ -94,20 +108,20 @@ def test_light_and_settings_changes_are_picked_up(make_renderer):
     scene = scene_with_lights()
     base = r.render(scene, ao=False)
     r.render(scene, ao=False)
-    scene.lights[1].intensity = 40.0                    # an attribute assigned in place
+    scene.lights[1].intensity = 40.0  # an attribute assigned in place
     brighter = r.render(scene, ao=False)
     assert brighter.color[..., :3].astype(int).sum() > base.color[..., :3].astype(int).sum()
-    scene.lights.pop()                                    # the list changed in place
+    scene.lights.pop()  # the list changed in place
     one = r.render(scene, ao=False)
     assert one.aov["shadow"].shape[2] == 1
-    scene.settings["exposure"] = 0.25                     # the scene's own settings dict, mutated
+    scene.settings["exposure"] = 0.25  # the scene's own settings dict, mutated
     darker = r.render(scene, ao=False)
     assert darker.color[..., :3].astype(int).sum() < one.color[..., :3].astype(int).sum()
     assert darker.settings["exposure"] == 0.25
     amb = [0.2, 0.2, 0.2]
     f1 = r.render(scene, ao=False, ambient=amb)
     r.render(scene, ao=False, ambient=amb)
-    amb[:] = [1.0, 1.0, 1.0]                              # the same list object, new values
+    amb[:] = [1.0, 1.0, 1.0]  # the same list object, new values
     f2 = r.render(scene, ao=False, ambient=amb)
     assert f2.settings["ambient"] == (1.0, 1.0, 1.0) and f1.settings["ambient"] == (0.2, 0.2, 0.2)
 
@@ -118,7 +132,7 @@ def test_invalid_settings_still_rejected_after_steady_frames(make_renderer):
     r.render(scene, ao=True)
     r.render(scene, ao=True)
     with pytest.raises(ConfigError):
-        r.render(scene, ao=1)                             # equal to True, but not a bool
+        r.render(scene, ao=1)  # equal to True, but not a bool
     with pytest.raises(ConfigError):
         r.render(scene, ao_samples=4.0)
     r.render(scene, ao=True)
@@ -136,6 +150,7 @@ def test_returned_settings_are_a_copy(make_renderer):
 def test_submit_info_cache(make_renderer):
     """One VkSubmitInfo per (command buffer, semaphores); freeing a command buffer drops its entries."""
     import vulkan as vk
+
     r = make_renderer(32, 24)
     ctx = r.ctx
     cmd = ctx.allocate_command_buffer()

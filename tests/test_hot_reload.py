@@ -1,6 +1,7 @@
 """Shader hot reload on a copy of shaders/glsl: a changed lighting shader changes the next frame, a syntax error keeps
 the last good pipeline and names the file with the compiler's message, fixing it clears the error; only affected
 shaders are recompiled, and nothing is written into shaders/spv/."""
+
 import hashlib
 import os
 import re
@@ -14,7 +15,7 @@ from engine import Camera, DirectionalLight, Scene
 from engine.errors import ShaderError
 from engine.shaders import GLSL_DIR, SPV_DIR, ShaderLibrary, compile_shader
 
-SETTINGS = dict(ao=False)   # deterministic frames: no per-frame sampling
+SETTINGS = dict(ao=False)  # deterministic frames: no per-frame sampling
 
 
 def spv_snapshot():
@@ -36,9 +37,11 @@ def black_lighting(src: str) -> str:
     assert m, "lighting.comp: no rgba8 output image found; update black_lighting() in this test"
     out = m.group(1)
     assert src.count("void main()") == 1
-    return (src.replace("void main()", "void original_main()") +
-            f"\nvoid main() {{\n    original_main();\n    ivec2 p = ivec2(gl_GlobalInvocationID.xy);\n"
-            f"    if (all(lessThan(p, imageSize({out})))) imageStore({out}, p, vec4(0.0, 0.0, 0.0, 1.0));\n}}\n")
+    return (
+        src.replace("void main()", "void original_main()")
+        + f"\nvoid main() {{\n    original_main();\n    ivec2 p = ivec2(gl_GlobalInvocationID.xy);\n"
+        f"    if (all(lessThan(p, imageSize({out})))) imageStore({out}, p, vec4(0.0, 0.0, 0.0, 1.0));\n}}\n"
+    )
 
 
 @pytest.fixture
@@ -51,9 +54,11 @@ def glsl_copy(tmp_path):
 @pytest.fixture
 def scene():
     import trimesh
+
     m = trimesh.creation.icosphere(subdivisions=3)
-    return Scene.from_trimesh(m, camera=Camera.look_at((0, 0, 4), (0, 0, 0), fov_y=45.0),
-                              lights=[DirectionalLight((-0.3, -0.5, -1.0))])
+    return Scene.from_trimesh(
+        m, camera=Camera.look_at((0, 0, 4), (0, 0, 0), fov_y=45.0), lights=[DirectionalLight((-0.3, -0.5, -1.0))]
+    )
 
 
 def test_lighting_edit_error_and_fix(make_renderer, glsl_copy, scene):
@@ -62,10 +67,10 @@ def test_lighting_edit_error_and_fix(make_renderer, glsl_copy, scene):
     key = str(lighting)
     original = lighting.read_text()
     r = make_renderer(64, 48, shader_dir=glsl_copy, hot_reload=True)
-    baseline = dict(r.shader_errors)   # errors of shaders other than lighting.comp are not this test's business
+    baseline = dict(r.shader_errors)  # errors of shaders other than lighting.comp are not this test's business
     assert key not in baseline, baseline[key] if key in baseline else ""
     lit = r.render(scene, **SETTINGS).color
-    assert lit[24, 32, :3].max() > 40   # the sphere is lit
+    assert lit[24, 32, :3].max() > 40  # the sphere is lit
 
     # A good edit: the next frame uses it.
     edit(lighting, black_lighting(original))
@@ -80,7 +85,7 @@ def test_lighting_edit_error_and_fix(make_renderer, glsl_copy, scene):
     assert np.array_equal(frame.color, black)
     assert key in r.shader_errors, r.shader_errors
     msg = r.shader_errors[key]
-    line = broken[:broken.index("oops")].count("\n") + 1
+    line = broken[: broken.index("oops")].count("\n") + 1
     assert f"lighting.comp:{line}:" in msg and "syntax error" in msg, msg
     assert "compilation errors" not in msg and "Missing entry point" not in msg, msg
     # ... and stays reported while nothing changes.
@@ -109,10 +114,10 @@ def test_include_edits_reach_their_users(make_renderer, glsl_copy, scene):
     versions = dict(r.library.versions)
     edit(probe, "// a new include, used by lighting.comp only\nfloat broken( {\n")
     frame = r.render(scene, **SETTINGS)
-    assert np.array_equal(frame.color, before)   # the last good pipeline
+    assert np.array_equal(frame.color, before)  # the last good pipeline
     msg = r.shader_errors.get(str(lighting), "")
     assert re.search(r"include/probe\.glsl:2:", msg), r.shader_errors
-    assert {n for n, v in r.library.versions.items() if versions.get(n) != v} == set()   # nothing else rebuilt
+    assert {n for n, v in r.library.versions.items() if versions.get(n) != v} == set()  # nothing else rebuilt
     edit(probe, "// fixed\n")
     r.render(scene, **SETTINGS)
     assert str(lighting) not in r.shader_errors
@@ -146,7 +151,6 @@ def test_compiler_message_is_the_located_error(tmp_path):
     assert not (tmp_path / "bad.spv").exists()
 
 
-
 def test_a_refused_shader_stays_out_of_later_pipelines(make_renderer, glsl_copy, scene):
     """SPIR-V refused for a changed layout is not used later either, when a pass re-specializes its pipeline (a
     textured scene changes the G-buffer resolve's TEXTURE_ARRAYS): that frame used to crash."""
@@ -166,13 +170,14 @@ def test_a_refused_shader_stays_out_of_later_pipelines(make_renderer, glsl_copy,
     for x, rgba, size in ((0.0, (255, 0, 0, 255), 4), (5.0, (0, 255, 0, 255), 8)):
         mesh = trimesh.creation.icosphere(subdivisions=3)
         mesh.apply_translation((x, 0, 0))
-        mesh.visual = trimesh.visual.TextureVisuals(uv=np.zeros((len(mesh.vertices), 2)),
-                                                    image=Image.new("RGBA", (size, size), rgba))
+        mesh.visual = trimesh.visual.TextureVisuals(
+            uv=np.zeros((len(mesh.vertices), 2)), image=Image.new("RGBA", (size, size), rgba)
+        )
         meshes.append(mesh)
     textured = Scene.from_trimesh(trimesh.Scene(meshes), camera=scene.camera, lights=scene.lights)
     assert sum(m.texture is not None for m in textured.materials) == 2
     red = r.render(textured, **SETTINGS).color
-    assert red[24, 32, 0] > 40 and red[24, 32, 1] < red[24, 32, 0] // 2, red[24, 32]   # the texture's red
+    assert red[24, 32, 0] > 40 and red[24, 32, 1] < red[24, 32, 0] // 2, red[24, 32]  # the texture's red
 
 
 def test_a_refused_raster_shader_stays_out_of_its_specialized_pipelines(make_renderer, glsl_copy, scene):
@@ -184,6 +189,6 @@ def test_a_refused_raster_shader_stays_out_of_its_specialized_pipelines(make_ren
     original = vert.read_text()
     assert original.count("binding = 2) readonly buffer Visible") == 1
     edit(vert, original.replace("binding = 2) readonly buffer Visible", "binding = 9) readonly buffer Visible"))
-    assert np.array_equal(r.render(scene, **SETTINGS).color, plain)   # the scene's first frame: specialized here
+    assert np.array_equal(r.render(scene, **SETTINGS).color, plain)  # the scene's first frame: specialized here
     assert "visible" in r.shader_errors.get(str(vert), ""), r.shader_errors
     assert r.gbuffer.raster.values["INSTANCES_TEXEL"] is r.gbuffer.instances_texel(r._geometry)

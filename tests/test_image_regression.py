@@ -2,6 +2,7 @@
 
 References are lavapipe renders; on another device the comparison is skipped (rasterization and float
 rounding differ between drivers)."""
+
 import pytest
 
 from engine import Scene

@@ -1,5 +1,6 @@
 """Scenes of instances: the scene model (meshes, instances, changes), loaders that keep instancing, the two-level BVH
 in the Tracer and the renderer's shadow pass, checked against brute-force references on the flattened triangles."""
+
 import os
 
 import numpy as np
@@ -42,7 +43,7 @@ def random_rays(rng, n=2000):
 def check_hits(hits, scene, o, d, tmax=np.inf):
     t, prim, _, _ = reference_intersect(scene.positions, scene.indices, o, d, tmax)
     hit = prim >= 0
-    assert hit.sum() > 100                     # the rays really hit instances
+    assert hit.sum() > 100  # the rays really hit instances
     agree = (hits.prim >= 0) == hit
     assert agree.mean() > 0.998, f"{(~agree).sum()} rays disagree on hit / miss"
     both = hit & (hits.prim >= 0)
@@ -66,16 +67,20 @@ def test_scene_model_changes_and_flat_views():
     assert scene.triangle_count == 12 * (320 + 12)
     v0 = scene.version
     p0 = scene.positions
-    assert scene.positions is p0                               # cached while nothing changes
+    assert scene.positions is p0  # cached while nothing changes
     m = random_transform(rng)
     scene.instances[3].transform = m
     assert scene.version > v0 and list(scene.moved_instances(v0)) == [3]
     assert len(scene.deformed_meshes(v0)) == 0
     np.testing.assert_allclose(scene.instances[3].transform, m)
-    first = 2 * scene.meshes[0].vertex_count + scene.meshes[1].vertex_count   # instances 0..2: sphere, box, sphere
+    first = 2 * scene.meshes[0].vertex_count + scene.meshes[1].vertex_count  # instances 0..2: sphere, box, sphere
     mesh = scene.meshes[1]
-    np.testing.assert_allclose(scene.positions[first:first + mesh.vertex_count],
-                               mesh.positions @ m[:3, :3].T + m[:3, 3], rtol=1e-5, atol=1e-5)
+    np.testing.assert_allclose(
+        scene.positions[first : first + mesh.vertex_count],
+        mesh.positions @ m[:3, :3].T + m[:3, 3],
+        rtol=1e-5,
+        atol=1e-5,
+    )
     v1 = scene.version
     scene.update_positions("box", mesh.positions * 2.0)
     assert list(scene.deformed_meshes(v1)) == [1] and len(scene.moved_instances(v1)) == 0
@@ -99,7 +104,7 @@ def test_bad_changes_are_clear_errors():
         scene.update_positions("nope", np.zeros((10, 3)))
     with pytest.raises(SceneError, match="beyond"):
         scene.set_transforms(np.diag([1e12, 1e12, 1e12, 1.0])[None], [0])
-    assert scene.version == 0                                  # nothing changed
+    assert scene.version == 0  # nothing changed
 
 
 def test_batch_checks_name_the_first_bad_instance():
@@ -109,12 +114,18 @@ def test_batch_checks_name_the_first_bad_instance():
     n = len(scene.instances)
     ok = np.tile(np.eye(4), (n, 1, 1))
     ok[:, :3, 3] = np.arange(3 * n).reshape(n, 3)
-    size = (2.0 + 1e-24) / 3.0   # diag(1, 1, e) with e ~ 1e-12: its mean squared row length
-    for scale, factor, bad in ((1.0, 1.01, False), (1.0, 0.99, True), (1e-60, 1.01, False), (1e-60, 0.99, True),
-                               (1e3, 1.01, False), (1e3, 0.99, True)):
+    size = (2.0 + 1e-24) / 3.0  # diag(1, 1, e) with e ~ 1e-12: its mean squared row length
+    for scale, factor, bad in (
+        (1.0, 1.01, False),
+        (1.0, 0.99, True),
+        (1e-60, 1.01, False),
+        (1e-60, 0.99, True),
+        (1e3, 1.01, False),
+        (1e3, 0.99, True),
+    ):
         m = ok.copy()
-        m[:, :3, :3] *= 1e-60 if scale == 1e-60 else 1.0   # every instance tiny: the thresholds' exact path
-        m[4, :3, :3] = np.diag([1.0, 1.0, factor * 1e-12 * size ** 1.5]) * scale
+        m[:, :3, :3] *= 1e-60 if scale == 1e-60 else 1.0  # every instance tiny: the thresholds' exact path
+        m[4, :3, :3] = np.diag([1.0, 1.0, factor * 1e-12 * size**1.5]) * scale
         m[4, :3, 3] = 0.0
         if bad:
             with pytest.raises(SceneError, match=r"instance 4 'i4'.*not invertible"):
@@ -126,11 +137,12 @@ def test_batch_checks_name_the_first_bad_instance():
     for k, (value, msg) in enumerate([(np.inf, "NaN or infinite"), (2.0, "affine"), (-0.0, None)]):
         m = ok.copy()
         m[3 + k, 3, 1 if k < 2 else 0] = value
-        m[6, 2, 2] = 0.0   # a later, singular instance: the first bad one is named
-        with pytest.raises(SceneError, match=rf"instance {3 + k} 'i{3 + k}'.*{msg}" if msg else
-                           r"instance 6 'i6'.*not invertible"):
+        m[6, 2, 2] = 0.0  # a later, singular instance: the first bad one is named
+        with pytest.raises(
+            SceneError, match=rf"instance {3 + k} 'i{3 + k}'.*{msg}" if msg else r"instance 6 'i6'.*not invertible"
+        ):
             scene.set_transforms(m)
-    assert scene.version == version                            # nothing changed
+    assert scene.version == version  # nothing changed
 
 
 def test_loaders_keep_instancing(tmp_path):
@@ -150,15 +162,17 @@ def test_loaders_keep_instancing(tmp_path):
     assert glb.triangle_count == 72
     np.testing.assert_allclose(glb.bounds, [[-0.5, -0.5, -0.5], [15.5, 0.5, 0.5]], atol=1e-6)
     toml = tmp_path / "s.toml"
-    toml.write_text('[[mesh]]\nfile = "six.glb"\n'
-                    'instances = [{translate = [0, 0, 0]}, {translate = [0, 4, 0], name = "up"}]\n'
-                    '[[mesh]]\nfile = "six.glb"\ntranslate = [0, 0, 9]\n'
-                    '[[mesh]]\nprimitive = "sphere"\nsegments = 8\nrings = 4\n'
-                    'instances = [{translate = [1, 2, 3]}, {scale = [1, 2, 3], rotate = [0, 90, 0]}]\n')
+    toml.write_text(
+        '[[mesh]]\nfile = "six.glb"\n'
+        'instances = [{translate = [0, 0, 0]}, {translate = [0, 4, 0], name = "up"}]\n'
+        '[[mesh]]\nfile = "six.glb"\ntranslate = [0, 0, 9]\n'
+        '[[mesh]]\nprimitive = "sphere"\nsegments = 8\nrings = 4\n'
+        "instances = [{translate = [1, 2, 3]}, {scale = [1, 2, 3], rotate = [0, 90, 0]}]\n"
+    )
     s = Scene.load(toml)
     assert len(s.meshes) == 2 and len(s.instances) == 6 * 3 + 2
     np.testing.assert_allclose(s.transforms[-2][:3, 3], [1, 2, 3])
-    assert sum(i.name.startswith("up/") for i in s.instances) == 6      # a placement's name labels its nodes
+    assert sum(i.name.startswith("up/") for i in s.instances) == 6  # a placement's name labels its nodes
     toml.write_text('[[mesh]]\nprimitive = "box"\ninstances = [{translate = [0, 0, 0], size = 2}]\n')
     with pytest.raises(SceneError, match=r"\[\[mesh\]\] #1: instances #1: unknown key 'size'"):
         Scene.load(toml)
@@ -186,13 +200,13 @@ def test_refit_gives_the_same_hits_as_a_rebuild():
     sphere = scene.meshes[0].positions.astype(np.float64)
     with Tracer.from_scene(scene, validation=True) as tracer:
         tracer.intersect(o[:10], d[:10])
-        wobble = sphere * (1.0 + 0.3 * np.sin(3.0 * sphere[:, :1]))   # a deformation, not a scale
+        wobble = sphere * (1.0 + 0.3 * np.sin(3.0 * sphere[:, :1]))  # a deformation, not a scale
         scene.update_positions("sphere", wobble)
         refit = tracer.intersect(o, d)
-        assert tracer.scene.last_refit_ratio[0] < 2.0                   # refitted, not rebuilt
+        assert tracer.scene.last_refit_ratio[0] < 2.0  # refitted, not rebuilt
         assert tracer.scene.rebuilds == 0
         check_hits(refit, scene, o, d)
-        with Tracer.from_scene(scene) as fresh:                         # built from the deformed mesh
+        with Tracer.from_scene(scene) as fresh:  # built from the deformed mesh
             rebuilt = fresh.intersect(o, d)
         assert np.array_equal(refit.prim, rebuilt.prim)
         np.testing.assert_allclose(refit.t[refit.prim >= 0], rebuilt.t[rebuilt.prim >= 0], rtol=1e-6)
@@ -205,7 +219,7 @@ def test_one_identity_instance_is_the_single_level_bvh():
     o = rng.uniform(-3, 3, (500, 3))
     d = -o
     with Tracer.from_scene(scene) as tracer:
-        assert "instances" not in tracer.stats            # the one-mesh BVH
+        assert "instances" not in tracer.stats  # the one-mesh BVH
         hits = tracer.intersect(o, d)
         assert hits.hit.all() and np.all(hits.instance == 0)
         assert np.array_equal(hits.mesh_prim, hits.prim)
@@ -223,11 +237,9 @@ def moving_scene():
         place.append(m)
     ground_m = np.eye(4)
     ground_m[1, 3] = -0.05
-    instances = [Instance(0, ground_m, name="ground")] + [Instance(1, m, name=f"cube{i}") for i, m in
-                                                          enumerate(place)]
+    instances = [Instance(0, ground_m, name="ground")] + [Instance(1, m, name=f"cube{i}") for i, m in enumerate(place)]
     cam = Camera.look_at((0, 8, 6), (0.5, 0, 0), fov_y=50)
-    return Scene.from_meshes(meshes, instances, camera=cam,
-                             lights=[DirectionalLight((0.3, -1.0, 0.2), intensity=2.5)])
+    return Scene.from_meshes(meshes, instances, camera=cam, lights=[DirectionalLight((0.3, -1.0, 0.2), intensity=2.5)])
 
 
 def test_shadow_mask_after_objects_moved_matches_cpu_reference(make_renderer):
@@ -240,7 +252,7 @@ def test_shadow_mask_after_objects_moved_matches_cpu_reference(make_renderer):
         moved = scene.transforms[1:].copy()
         moved[:, :3, 3] += rng.uniform(-0.8, 0.8, (3, 3)) * (1, 0, 1)
         a = random_transform(rng)[:3, :3]
-        moved[0, :3, :3] = a / np.abs(np.linalg.det(a)) ** (1 / 3)   # turned and sheared, volume kept
+        moved[0, :3, :3] = a / np.abs(np.linalg.det(a)) ** (1 / 3)  # turned and sheared, volume kept
         scene.set_transforms(moved, [1, 2, 3])
         f = r.render(scene, shadows="hard", ao=False)
         flat = trimesh.Trimesh(scene.positions, scene.indices, process=False)
@@ -248,7 +260,7 @@ def test_shadow_mask_after_objects_moved_matches_cpu_reference(make_renderer):
         got = f.aov["shadow"][..., 0]
         assert 0.01 < (ref == 0).mean() < 0.6
         assert (got != ref).mean() < 0.005, f"{(got != ref).sum()} pixels differ"
-    assert r.uploads == uploads                                    # moved, not uploaded again
+    assert r.uploads == uploads  # moved, not uploaded again
 
 
 @pytest.mark.skipif(not os.environ.get("HYBRID_VALIDATION"), reason="validation run only")
@@ -267,6 +279,7 @@ def test_moving_frames_are_validation_clean(make_renderer):
 def test_refit_to_the_same_positions_is_the_build_byte_for_byte():
     from engine.bvh import build_bvh
     from engine.bvh.instanced import TwoLevel
+
     sphere = trimesh.creation.icosphere(subdivisions=3)
     v = sphere.vertices.astype(np.float32)
     two = TwoLevel([build_bvh(v, sphere.faces), build_bvh(v * 2, sphere.faces)], 3)
@@ -274,7 +287,7 @@ def test_refit_to_the_same_positions_is_the_build_byte_for_byte():
     assert two.refit(1, v * 2, sphere.faces) == pytest.approx(1.0)
     assert np.array_equal(two.nodes.view(np.uint32), nodes.view(np.uint32))
     assert np.array_equal(two.tris.view(np.uint32), tris.view(np.uint32))
-    assert two.refit(0, v * (1.0 + 0.5 * np.abs(v[:, :1])), sphere.faces) > 1.0   # stretched: boxes grow
+    assert two.refit(0, v * (1.0 + 0.5 * np.abs(v[:, :1])), sphere.faces) > 1.0  # stretched: boxes grow
 
 
 def test_streamed_chunks_carry_instance_ids():
@@ -294,32 +307,37 @@ def masked_leaves_scene(overrides=(None, None)):
     """A ground plane and two instances of one alpha-masked leaf quad (a disc cut out of it), lit from above."""
     from engine import Material
     from tests.test_textures import masked_leaf
+
     lv, lf, luv, lmat = masked_leaf()
     gv = np.array([[-5, -1, -5], [5, -1, -5], [5, -1, 5], [-5, -1, 5]], float)
-    meshes = [Mesh(gv, [[0, 2, 1], [0, 3, 2]], uvs=np.zeros((4, 2)), vertex_material=np.zeros(4, np.uint32),
-                   name="ground"),
-              Mesh(lv, lf, uvs=luv, vertex_material=np.ones(4, np.uint32), name="leaf")]
+    meshes = [
+        Mesh(gv, [[0, 2, 1], [0, 3, 2]], uvs=np.zeros((4, 2)), vertex_material=np.zeros(4, np.uint32), name="ground"),
+        Mesh(lv, lf, uvs=luv, vertex_material=np.ones(4, np.uint32), name="leaf"),
+    ]
     place = [np.eye(4), np.eye(4)]
     place[0][:3, 3] = (-1.3, 0, 0)
     place[1][:3, 3] = (1.3, 0, 0.5)
-    instances = [Instance(0, np.eye(4), name="ground")] + [Instance(1, m, material=over, name=f"leaf{i}")
-                                                           for i, (m, over) in enumerate(zip(place, overrides))]
+    instances = [Instance(0, np.eye(4), name="ground")] + [
+        Instance(1, m, material=over, name=f"leaf{i}") for i, (m, over) in enumerate(zip(place, overrides))
+    ]
     materials = [Material("ground", (0.7, 0.7, 0.7)), lmat, Material("solid", (0.2, 0.2, 0.8))]
     cam = Camera.look_at((0.0, 7, 2.5), (0.0, -1, 0.3), fov_y=50.0)
-    return Scene.from_meshes(meshes, instances, materials=materials, camera=cam,
-                             lights=[DirectionalLight((0.3, -1.0, 0.2), intensity=2.0)])
+    return Scene.from_meshes(
+        meshes, instances, materials=materials, camera=cam, lights=[DirectionalLight((0.3, -1.0, 0.2), intensity=2.0)]
+    )
 
 
 def test_masked_instances_cast_the_same_shadows_through_the_two_level_bvh(make_renderer):
     """Alpha-tested instances: the shadow mask through the two-level BVH (after a change that leaves the geometry
     as it was) equals the flat BVH's, whose alpha records are per flattened triangle; a solid leaf's differs."""
     from engine.gpu import InstancedBVH
+
     r = make_renderer(96, 72)
     settings = dict(aovs=("shadow", "material_id"), shadows="hard", ao=False, accumulate=False, denoise=False)
     scene = masked_leaves_scene()
     flat = r.render(scene, **settings)
     assert not isinstance(r._scene_bvh, InstancedBVH)
-    scene.set_transforms(scene.transforms[1:], [1, 2])   # the same places: a new version, the two-level BVH
+    scene.set_transforms(scene.transforms[1:], [1, 2])  # the same places: a new version, the two-level BVH
     two = r.render(scene, **settings)
     assert isinstance(r._scene_bvh, InstancedBVH)
     ground = (flat.aov["material_id"] == 0) & (two.aov["material_id"] == 0)
@@ -341,6 +359,7 @@ def test_masked_mesh_with_differing_instance_overrides_is_traced_through_a_flat_
     cannot serve them, so after a change the ray passes trace a flat BVH of the flattened triangles (rebuilt per
     change), whose shadows equal those of the same scene unchanged; the two-level BVH refuses them itself."""
     from engine.gpu import InstancedBVH
+
     r = make_renderer(96, 72)
     settings = dict(aovs=("shadow",), shadows="hard", ao=False, accumulate=False, denoise=False)
     fresh = r.render(masked_leaves_scene(overrides=(None, 2)), **settings).aov["shadow"]
@@ -369,8 +388,8 @@ def test_masked_instances_are_drawn_instanced_with_their_cut_out(make_renderer):
     full = [int(((g.aov["instance_id"] == i) & (g.aov["material_id"] == 2)).sum()) for i in (1, 2)]
     for m, s in zip(masked, full):
         assert s > 300
-        assert abs(m / s - np.pi * 0.35 ** 2) < 0.06, (m, s)
-    scene.set_instance_material(2, 2)   # the second leaf solid from the next frame on
+        assert abs(m / s - np.pi * 0.35**2) < 0.06, (m, s)
+    scene.set_instance_material(2, 2)  # the second leaf solid from the next frame on
     h = r.render(scene, **settings)
     assert int(((h.aov["instance_id"] == 1) & (h.aov["material_id"] == 1)).sum()) == masked[0]
     assert abs(int(((h.aov["instance_id"] == 2) & (h.aov["material_id"] == 2)).sum()) - full[1]) <= 2
@@ -381,15 +400,20 @@ def test_object_names_match_the_flat_submeshes_without_flattening():
     """Scene.object_names (what frames name object ids by) equals the flat submeshes' names, for named and unnamed
     instances of one- and several-part meshes, and stays right after instances move."""
     from engine.scene.parts import SubMesh
+
     tri = np.array([[0, 0, 0], [1, 0, 0], [0, 1, 0]], float)
     one = Mesh(tri, [[0, 1, 2]], name="one")
-    two = Mesh(np.vstack([tri, tri + 2]), [[0, 1, 2], [3, 4, 5]], name="two",
-               submeshes=[SubMesh("a", 0, 3, 0, 1, 0), SubMesh("b", 3, 3, 1, 1, 0)])
+    two = Mesh(
+        np.vstack([tri, tri + 2]),
+        [[0, 1, 2], [3, 4, 5]],
+        name="two",
+        submeshes=[SubMesh("a", 0, 3, 0, 1, 0), SubMesh("b", 3, 3, 1, 1, 0)],
+    )
     scene = Scene.from_meshes([one, two], [Instance(0, name="left"), Instance(1, name="pair"), Instance(0)])
     assert scene.object_names == [s.name for s in scene.submeshes]
     scene.instances[0].transform = np.diag([2.0, 1.0, 1.0, 1.0])
     assert scene.object_names == [s.name for s in scene.submeshes]
-    scene.instances[2].name = "renamed"   # the names are cached: a rename shows in the next read
+    scene.instances[2].name = "renamed"  # the names are cached: a rename shows in the next read
     assert scene.object_names == ["left", "a", "b", "renamed"]
     scene.instances[0].name = ""
     assert scene.object_names == ["one", "a", "b", "renamed"]

@@ -1,5 +1,6 @@
 """Materials and textures are told apart by content: every mesh keeps its own file's material however often a scene
 is loaded, and one image used by many meshes is one texture (issue 18.1)."""
+
 import numpy as np
 from PIL import Image
 
@@ -34,7 +35,7 @@ def rgba(rgb, size=4, stripe=None):
     img = np.empty((size, size, 4), np.uint8)
     img[..., :3], img[..., 3] = rgb, 255
     if stripe is not None:
-        img[::2, :, :3] = stripe   # a pattern, so a texture is more than its mean colour
+        img[::2, :, :3] = stripe  # a pattern, so a texture is more than its mean colour
     return img
 
 
@@ -44,8 +45,10 @@ def test_every_mesh_keeps_its_own_files_material_across_loads(tmp_path):
     files = {"a": rgba((200, 30, 30), 8, stripe=(250, 250, 0)), "b": rgba((30, 200, 30), 6, stripe=(0, 0, 250))}
     for key, pixels in files.items():
         textured_quad(tmp_path, key, f"mat_{key}", f"{key}.png", pixels)
-    entries = [f'[[mesh]]\nname = "{"ab"[i % 2]}{i}"\nfile = "{"ab"[i % 2]}.obj"\ntranslate = [{i * 1.5}, 0, 0]\n'
-               for i in range(40)]
+    entries = [
+        f'[[mesh]]\nname = "{"ab"[i % 2]}{i}"\nfile = "{"ab"[i % 2]}.obj"\ntranslate = [{i * 1.5}, 0, 0]\n'
+        for i in range(40)
+    ]
     path = tmp_path / "scene.toml"
     path.write_text("\n".join(entries))
     for _ in range(10):
@@ -70,14 +73,14 @@ def test_thirty_meshes_of_six_images_have_six_textures_each_in_its_colour(tmp_pa
     for j in range(30):
         x, y = 1.25 * (j % cols - (cols - 1) / 2), 1.25 * (j // cols - (rows - 1) / 2)
         entries.append(f'[[mesh]]\nname = "quad{j}"\nfile = "q{j % 20}.obj"\ntranslate = [{x}, {y}, 0]\n')
-    camera = '[camera]\neye = [0, 0, 9]\ntarget = [0, 0, 0]\nfov = 50\n\n'
+    camera = "[camera]\neye = [0, 0, 9]\ntarget = [0, 0, 0]\nfov = 50\n\n"
     path = tmp_path / "scene.toml"
     path.write_text(camera + "\n".join(entries))
     scene = Scene.load(path)
 
     assert len(scene.materials) == 20
     assert len({texture_key(m.texture) for m in scene.materials}) == 6
-    assert len({id(m.texture) for m in scene.materials}) == 6   # the loader shares each image's array
+    assert len({id(m.texture) for m in scene.materials}) == 6  # the loader shares each image's array
 
     caplog.set_level("WARNING")
     f = make_renderer(160, 120).render(scene, aovs=("albedo", "object_id"), shadows="off", ao=False)
@@ -87,6 +90,6 @@ def test_thirty_meshes_of_six_images_have_six_textures_each_in_its_colour(tmp_pa
         j = int(sub.name[4:])
         mask = ids == k
         assert mask.sum() > 50, (sub.name, int(mask.sum()))
-        want = (colours[(j % 20) % 6] / 255.0) ** 2.2   # ~sRGB decode
+        want = (colours[(j % 20) % 6] / 255.0) ** 2.2  # ~sRGB decode
         got = albedo[mask].mean(axis=0)
         assert np.allclose(got, want, atol=0.03), (sub.name, got, want)

@@ -3,6 +3,7 @@ for alpha masks) renders the same small scenes (a point and a directional light;
 sphere, a rough dielectric plane, a normal-mapped plane, an alpha-masked quad casting its shadow on a floor);
 our linear radiance matches within tools/mitsuba_compare.py's RMSE bound, edges excluded (issue 18.6;
 docs/quality.md)."""
+
 import sys
 
 import numpy as np
@@ -18,6 +19,7 @@ import mitsuba_compare as mc  # noqa: E402
 @pytest.fixture(scope="module")
 def runs():
     from engine import Renderer
+
     r = Renderer(*mc.SIZE, validation=True)
     try:
         yield {choice: {x["name"]: x for x in mc.compare(r, choice)} for choice in ("gltf", "principled")}
@@ -29,7 +31,7 @@ def runs():
 @pytest.mark.parametrize("name", list(mc.SCENES))
 def test_radiance_matches_mitsuba(runs, name):
     res = runs["gltf"][name]
-    assert res["kept"] > 0.7   # the comparison covers most of what is seen
+    assert res["kept"] > 0.7  # the comparison covers most of what is seen
     assert res["mean"] > 0.05 and np.all(np.isfinite(res["ours"]))
     assert res["rmse"] <= mc.RMSE_BOUND, (name, res["rmse"], res["per_object"])
     # each material on its own: the rough metal's residue is Smith's separable (Mitsuba) vs height-correlated
@@ -59,7 +61,7 @@ def test_normal_map_convention_is_checked(runs):
     name = "normal-mapped plane, point light"
     res = runs["gltf"][name]
     spec = mc.SCENES[name]
-    (prim, translate, m), = spec["objects"]
+    ((prim, translate, m),) = spec["objects"]
     flipped = m.normal_texture.copy()
     flipped[..., 1] = 255 - flipped[..., 1]
     for texture in (flipped, None):
@@ -77,11 +79,11 @@ def test_alpha_masked_quad_shadow_has_its_holes(runs):
     assert floor <= mc.RMSE_BOUND
     on_floor = mask & (res["material_id"] == 1)
     dark, lit = (ref < 0.05) & on_floor, (ref > 0.3) & on_floor
-    assert dark.sum() > 200 and np.mean(dark == ((ours < 0.05) & on_floor)) >= 0.995   # the same shadowed pixels
+    assert dark.sum() > 200 and np.mean(dark == ((ours < 0.05) & on_floor)) >= 0.995  # the same shadowed pixels
     # a lit pixel surrounded on its row by shadow on both sides: light came through a hole
     rows = [y for y in range(ref.shape[0]) if np.any(dark[y])]
     through = 0
     for y in rows:
         xs = np.flatnonzero(dark[y])
-        through += int(np.sum(lit[y, xs.min():xs.max()]))
+        through += int(np.sum(lit[y, xs.min() : xs.max()]))
     assert through > 20, through

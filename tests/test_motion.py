@@ -2,6 +2,7 @@
 with the moved geometry draws; scaled and mirrored instances get correct normals), the motion AOV (a numpy
 projection of the moved points), temporal accumulation under motion (history kept where the surface stays, reset
 where it was disoccluded, no trails) and the recorded command buffers staying valid while instances move."""
+
 from __future__ import annotations
 
 import math
@@ -43,14 +44,20 @@ SUN = DirectionalLight((0.4, -1.0, 0.3), intensity=2.0, angle=4.0)
 def make_scene(transforms, overrides=(None, None, None, None)) -> Scene:
     """Ground, two boxes and a ball placed by `transforms` (4 of them)."""
     ms, mats = meshes()
-    insts = [Instance(k, t, material=o, name=name) for k, t, o, name in
-             zip((0, 1, 1, 2), transforms, overrides, ("ground", "box a", "box b", "ball"))]
+    insts = [
+        Instance(k, t, material=o, name=name)
+        for k, t, o, name in zip((0, 1, 1, 2), transforms, overrides, ("ground", "box a", "box b", "ball"))
+    ]
     return Scene.from_meshes(ms, insts, materials=mats, lights=[SUN], camera=CAMERA, name="motion test")
 
 
 START = [np.eye(4), trs((-1.2, 0.5, 0.0), degrees=20.0), trs((1.0, 0.5, -0.8)), trs((0.3, 0.5, 1.4))]
-MOVED = [np.eye(4), trs((-0.9, 0.6, 0.3), axis=(0.2, 1.0, 0.1), degrees=55.0), trs((1.0, 0.5, -0.8)),
-         trs((0.6, 0.5, 1.1), scale=(1.3, 0.7, 1.0))]
+MOVED = [
+    np.eye(4),
+    trs((-0.9, 0.6, 0.3), axis=(0.2, 1.0, 0.1), degrees=55.0),
+    trs((1.0, 0.5, -0.8)),
+    trs((0.6, 0.5, 1.1), scale=(1.3, 0.7, 1.0)),
+]
 STILL = dict(shadows="hard", ao=False, accumulate=False, denoise=False)
 
 
@@ -79,7 +86,7 @@ def test_moving_instances_resubmit_the_recorded_frame(make_renderer):
     scene = make_scene(START)
     soft = dict(shadows="soft", ao=True, accumulate=True, denoise=True)
     r.render(scene, aovs=["shadow", "instance_id"], **soft)
-    scene.set_transforms(np.stack(START))   # the first change: from the flat BVH of a still scene to two levels
+    scene.set_transforms(np.stack(START))  # the first change: from the flat BVH of a still scene to two levels
     r.render(scene, aovs=["shadow", "instance_id"], **soft)
     recorded = {k: v[0] for k, v in r._commands.items()}
     builds = r.bvh_builds
@@ -96,8 +103,10 @@ def test_moving_instances_resubmit_the_recorded_frame(make_renderer):
     moved = r.render(scene, aovs=["shadow"], **hard).aov["shadow"]
     fresh = r.render(make_scene(slide(3)), aovs=["shadow"], **hard).aov["shadow"]
     first = r.render(make_scene(slide(0)), aovs=["shadow"], **hard).aov["shadow"]
-    assert (moved != fresh).mean() < 0.002 and (moved != first).mean() > 0.004, ((moved != fresh).mean(),
-                                                                               (moved != first).mean())
+    assert (moved != fresh).mean() < 0.002 and (moved != first).mean() > 0.004, (
+        (moved != fresh).mean(),
+        (moved != first).mean(),
+    )
 
 
 def test_ids_match_the_flat_arrays(make_renderer):
@@ -126,16 +135,23 @@ def test_ids_match_the_flat_arrays(make_renderer):
     assert np.array_equal(inst[covered], np.searchsorted(starts, tri[covered], side="right") - 1)
 
 
-@pytest.mark.parametrize("scale", [(1.0, 1.0, 1.0), (2.0, 0.5, 1.0), (-1.0, 1.0, 1.0), (1.5, -0.6, -1.0)],
-                         ids=["rigid", "scaled", "mirrored", "mirrored-scaled"])
+@pytest.mark.parametrize(
+    "scale",
+    [(1.0, 1.0, 1.0), (2.0, 0.5, 1.0), (-1.0, 1.0, 1.0), (1.5, -0.6, -1.0)],
+    ids=["rigid", "scaled", "mirrored", "mirrored-scaled"],
+)
 def test_scaled_and_mirrored_instances_have_correct_normals(make_renderer, scale):
     """A sphere under a scale / mirror: the G-buffer normal is the inverse transpose of the object normal,
     renormalized, facing the camera (as the flattened world-space arrays have it), and positions lie on it."""
     r = make_renderer(W, H)
     p, f, n, uv = primitives.sphere(1.0, 48, 24)
     t = trs((0.0, 0.5, 0.0), axis=(1.0, 1.0, 0.0), degrees=35.0, scale=scale)
-    scene = Scene.from_meshes([Mesh(p, f, normals=n)], [Instance(0, t, name="s")], lights=[SUN],
-                              camera=Camera.look_at((0.0, 1.0, 4.5), (0.0, 0.5, 0.0), fov_y=45.0))
+    scene = Scene.from_meshes(
+        [Mesh(p, f, normals=n)],
+        [Instance(0, t, name="s")],
+        lights=[SUN],
+        camera=Camera.look_at((0.0, 1.0, 4.5), (0.0, 0.5, 0.0), fov_y=45.0),
+    )
     fr = r.render(scene, aovs=["position", "normal", "instance_id"], **STILL)
     cov = fr.aov["instance_id"] == 0
     assert cov.mean() > 0.1
@@ -175,7 +191,7 @@ def test_motion_aov_is_the_projection_of_the_moved_points(make_renderer):
     pos = f.aov["position"][cov].astype(np.float64)
     k = inst[cov]
     prev = np.empty_like(pos)
-    for i in range(4):   # the object-space point, placed by the previous transform
+    for i in range(4):  # the object-space point, placed by the previous transform
         sel = k == i
         obj = np.c_[pos[sel], np.ones(sel.sum())] @ np.linalg.inv(MOVED[i]).T
         prev[sel] = (obj @ START[i].T)[:, :3]
@@ -184,7 +200,7 @@ def test_motion_aov_is_the_projection_of_the_moved_points(make_renderer):
     err = np.abs(got - expect).max()
     assert err < 1e-3, err
     moving = (k == 1) | (k == 3)
-    assert np.abs(got[moving]).max() > 1.0   # the moved instances did move on screen
+    assert np.abs(got[moving]).max() > 1.0  # the moved instances did move on screen
     # the next frame with nothing moved: no motion at all
     f = r.render(scene, cam1, aovs=["motion"], **STILL)
     assert np.all(f.aov["motion"] == 0.0)
@@ -231,8 +247,10 @@ def test_moving_object_converges_without_trails(make_renderer):
     cov = ref.aov["instance_id"] >= 0
 
     def error(f):
-        return (float(np.abs(f.aov["shadow"][cov, 0] - ref.aov["shadow"][cov, 0]).mean()),
-                float(np.abs(f.aov["ao"][cov] - ref.aov["ao"][cov]).mean()))
+        return (
+            float(np.abs(f.aov["shadow"][cov, 0] - ref.aov["shadow"][cov, 0]).mean()),
+            float(np.abs(f.aov["ao"][cov] - ref.aov["ao"][cov]).mean()),
+        )
 
     (s_still, a_still), (s_moved, a_moved) = error(still), error(moved)
     assert s_moved < s_still + 0.01 and a_moved < a_still + 0.01, (s_still, s_moved, a_still, a_moved)
@@ -283,7 +301,7 @@ oscillate = { offset = [1.0, 0.0, 0.0], period = 4.0 }
     scene = Scene.load(path)
     k = [i.name for i in scene.instances].index("cube")
     start = scene.transforms[k].copy()
-    scene.animate(1.0)   # a quarter turn about the cube's own centre: it stays in place
+    scene.animate(1.0)  # a quarter turn about the cube's own centre: it stays in place
     m = scene.transforms[k]
     assert np.allclose(m[:3, 3], start[:3, 3]) and np.allclose(m[:3, :3], rotation((0, 1, 0), math.pi / 2))
     assert np.allclose(scene.lights[0].position, (1.0, 2.0, 0.0))
@@ -346,7 +364,7 @@ def test_viewer_plays_the_animation_and_p_pauses_it(make_viewer, tmp_path):
     assert v.time == pytest.approx(0.75) and seen == pytest.approx([0.25, 0.5, 0.75])
     turned = v.scene.transforms[k].copy()
     assert not np.allclose(turned, start)
-    assert np.allclose(turned[:3, :3], rotation((0.0, 1.0, 0.0), math.radians(45.0 * 0.75)))   # from unturned
+    assert np.allclose(turned[:3, :3], rotation((0.0, 1.0, 0.0), math.radians(45.0 * 0.75)))  # from unturned
     moving = v.read_color()
     assert not np.array_equal(moving, first)
     v._on_key(v.window, glfw.KEY_P, 0, glfw.PRESS, 0)
@@ -396,10 +414,13 @@ def test_deformed_mesh_and_new_material_override_are_drawn(make_renderer):
     scene.instances[3].material = 0
     got = r.render(scene, aovs=aovs, **hard)
     ms, mats = meshes()
-    ms[1] = Mesh(squashed, ms[1].indices, normals=ms[1].normals, uvs=ms[1].uvs,
-                 vertex_material=ms[1].vertex_material, name="box")
-    insts = [Instance(k, t, material=o, name=n) for k, t, o, n in
-             zip((0, 1, 1, 2), MOVED, (None, None, None, 0), ("ground", "box a", "box b", "ball"))]
+    ms[1] = Mesh(
+        squashed, ms[1].indices, normals=ms[1].normals, uvs=ms[1].uvs, vertex_material=ms[1].vertex_material, name="box"
+    )
+    insts = [
+        Instance(k, t, material=o, name=n)
+        for k, t, o, n in zip((0, 1, 1, 2), MOVED, (None, None, None, 0), ("ground", "box a", "box b", "ball"))
+    ]
     fresh = r.render(Scene.from_meshes(ms, insts, materials=mats, lights=[SUN], camera=CAMERA), aovs=aovs, **hard)
     for name in aovs:
         assert np.array_equal(got.aov[name], fresh.aov[name]), name
@@ -411,8 +432,9 @@ def test_raster_and_resolve_read_instances_through_texel_views_or_storage_alike(
     records and draw slots through texel views of their buffers; GPUs: the storage buffers): both give the same
     G-buffer of moved, scaled instances, bit for bit, ids and motion included."""
     from engine.passes import gbuffer
+
     ms, mats = meshes()
-    mats.append(Material("cut out", (0.9, 0.8, 0.2), alpha_mode="MASK"))   # the ball: gbuffer_mask.vert's draws
+    mats.append(Material("cut out", (0.9, 0.8, 0.2), alpha_mode="MASK"))  # the ball: gbuffer_mask.vert's draws
     insts = [Instance(k, t, material=o) for k, t, o in zip((0, 1, 1, 2), START, (None, None, None, 3))]
     scene = Scene.from_meshes(ms, insts, materials=mats, lights=[SUN], camera=CAMERA)
     aovs = ["position", "normal", "depth", "motion"] + IDS

@@ -3,6 +3,7 @@ the package is built (engine/_native_build.py through setup.py): loaded from the
 built; numpy's steps, the reference, with HYBRID_NATIVE=0 (the same trees and order) and where the module is missing
 or was built from other sources (one RuntimeWarning per process); and nothing compiled, written or loaded from the
 user's cache folder (issue #36: nothing there to plant or damage)."""
+
 import importlib.util
 import json
 import os
@@ -36,7 +37,7 @@ def fresh():
 
 @pytest.fixture(scope="module")
 def mesh():
-    v, f = build_mesh("scan", 150_000, seed=3)   # (more than a chunk group: the C loop hands its state back)
+    v, f = build_mesh("scan", 150_000, seed=3)  # (more than a chunk group: the C loop hands its state back)
     return np.asarray(v, np.float32), f
 
 
@@ -46,8 +47,12 @@ def rays(n=70_001, seed=5):
 
 
 def same_tree(a, b) -> bool:
-    return (a.nodes.tobytes() == b.nodes.tobytes() and a.tris.tobytes() == b.tris.tobytes()
-            and np.array_equal(a.prim_ids, b.prim_ids) and a.stats["sah_cost"] == b.stats["sah_cost"])
+    return (
+        a.nodes.tobytes() == b.nodes.tobytes()
+        and a.tris.tobytes() == b.tris.tobytes()
+        and np.array_equal(a.prim_ids, b.prim_ids)
+        and a.stats["sah_cost"] == b.stats["sah_cost"]
+    )
 
 
 def test_the_module_is_built_where_there_is_a_compiler():
@@ -56,8 +61,10 @@ def test_the_module_is_built_where_there_is_a_compiler():
     if BUILT:
         return
     if shutil.which("cc") or shutil.which("gcc"):
-        pytest.fail("engine._native is not built though a C compiler is here: `pip install -e .` (or `python "
-                    "setup.py build_ext --inplace`) builds it; `./hybrid test` does when native.c changes")
+        pytest.fail(
+            "engine._native is not built though a C compiler is here: `pip install -e .` (or `python "
+            "setup.py build_ext --inplace`) builds it; `./hybrid test` does when native.c changes"
+        )
     pytest.skip("no C compiler: the package runs numpy's steps")
 
 
@@ -82,14 +89,14 @@ def test_hybrid_native_0_runs_numpy_s_steps_with_the_same_tree_and_order(fresh, 
     real = native.grow
     monkeypatch.setattr(native, "grow", lambda *a, **k: calls.append(real(*a, **k)) or calls[-1])
     in_c = build_bvh(*mesh, threads=2)
-    assert calls and None not in calls   # the pass loop in C
+    assert calls and None not in calls  # the pass loop in C
     o, d = rays()
     order_c = ray_order(o, d, 2).copy()
     monkeypatch.setenv("HYBRID_NATIVE", "0")
     native.library.cache_clear()
     calls.clear()
     with warnings.catch_warnings():
-        warnings.simplefilter("error")   # (turned off on purpose: no warning)
+        warnings.simplefilter("error")  # (turned off on purpose: no warning)
         in_numpy = build_bvh(*mesh, threads=2)
         order_numpy = ray_order(o, d, 2)
     assert native.library() is None and calls == [None] * len(calls)
@@ -101,7 +108,7 @@ def test_a_missing_module_is_said_once_and_numpy_s_steps_run(fresh, mesh, monkey
     """As a source install without a C compiler: the module not importable; one RuntimeWarning naming the module
     and the remedy however often the steps are asked for, and numpy's trees (the C ones where it is built)."""
     want = build_bvh(*mesh, threads=2) if BUILT else None
-    monkeypatch.setitem(sys.modules, native.MODULE, None)   # (an import of it then fails)
+    monkeypatch.setitem(sys.modules, native.MODULE, None)  # (an import of it then fails)
     native.library.cache_clear()
     with warnings.catch_warnings(record=True) as caught:
         warnings.simplefilter("always")
@@ -111,8 +118,11 @@ def test_a_missing_module_is_said_once_and_numpy_s_steps_run(fresh, mesh, monkey
     said = [w for w in caught if issubclass(w.category, RuntimeWarning)]
     assert len(said) == 1, [str(w.message) for w in said]
     message = str(said[0].message)
-    assert "could not import the compiled module engine._native" in message and "C compiler" in message \
+    assert (
+        "could not import the compiled module engine._native" in message
+        and "C compiler" in message
         and "numpy" in message
+    )
     assert native.library() is None
     assert same_tree(got, again)
     if want is not None:
@@ -155,13 +165,17 @@ print(json.dumps({"native": native.library() is not None, "maps": sorted({m for 
         home.mkdir(exist_ok=True)
         cache.mkdir(exist_ok=True)
         env = {k: v for k, v in os.environ.items() if k != "HYBRID_NATIVE"}
-        env.update(HOME=str(home), XDG_CACHE_HOME=str(cache), PYTHONPATH=os.pathsep.join(
-            [str(ROOT), os.environ.get("PYTHONPATH", "")]))
-        res = subprocess.run([sys.executable, "-c", code, kind], env=env, cwd=tmp_path, capture_output=True,
-                             text=True, timeout=300)
+        env.update(
+            HOME=str(home),
+            XDG_CACHE_HOME=str(cache),
+            PYTHONPATH=os.pathsep.join([str(ROOT), os.environ.get("PYTHONPATH", "")]),
+        )
+        res = subprocess.run(
+            [sys.executable, "-c", code, kind], env=env, cwd=tmp_path, capture_output=True, text=True, timeout=300
+        )
         assert res.returncode == 0, res.stderr[-3000:]
         got = json.loads(res.stdout.strip().splitlines()[-1])
-        assert sorted(tmp_path.rglob("*")) == [cache, home]   # (nothing written in either)
+        assert sorted(tmp_path.rglob("*")) == [cache, home]  # (nothing written in either)
         if kind == "installed":
             assert got["native"] == BUILT
             assert all(Path(m).resolve().parent == ROOT / "engine" for m in got["maps"]), got["maps"]

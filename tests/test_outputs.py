@@ -1,6 +1,7 @@
 """Frame output files as a dataset user reads them back: EXR and NPZ hold the metric AOVs exactly (+inf depth, -1
 ids), 16-bit depth PNGs hold millimetres, the camera sidecar is the camera; `hybrid render` sequences (--orbit,
 --camera-path, frame patterns) and what a killed sequence leaves: whole files, and a resume that finishes the rest."""
+
 import fcntl
 import json
 import os
@@ -37,6 +38,7 @@ def scene():
 def frame(scene):
     """Every AOV of a default-scene frame (two lights, background in the corners), validation on."""
     from engine import Renderer
+
     with Renderer(W, H, validation=True) as r:
         f = r.render(scene, Camera.look_at((6.0, 4.0, 8.0), (0.0, 1.0, 0.0), fov_y=50), aovs="all")
         errors = list(r.validation_errors)
@@ -49,16 +51,47 @@ def test_exr_holds_every_aov_exactly_in_named_channels(frame, tmp_path):
     path = frame.save(tmp_path / "f.exr")
     exr = OpenEXR.File(str(path), separate_channels=True)
     ch = exr.channels()
-    assert set(ch) == {"R", "G", "B", "A", "depth.Z", "normal.X", "normal.Y", "normal.Z", "position.X",
-                       "position.Y", "position.Z", "albedo.R", "albedo.G", "albedo.B", "motion.X", "motion.Y",
-                       "ao.Y", "ao_raw.Y", "history.Y", "shadow.0", "shadow.1", "shadow_raw.0", "shadow_raw.1",
-                       "triangle_id.ID", "object_id.ID", "material_id.ID", "roughness.Y", "metallic.Y",
-                       "emissive.R", "emissive.G", "emissive.B", "radiance.R", "radiance.G", "radiance.B",
-                       "instance_id.ID"}
+    assert set(ch) == {
+        "R",
+        "G",
+        "B",
+        "A",
+        "depth.Z",
+        "normal.X",
+        "normal.Y",
+        "normal.Z",
+        "position.X",
+        "position.Y",
+        "position.Z",
+        "albedo.R",
+        "albedo.G",
+        "albedo.B",
+        "motion.X",
+        "motion.Y",
+        "ao.Y",
+        "ao_raw.Y",
+        "history.Y",
+        "shadow.0",
+        "shadow.1",
+        "shadow_raw.0",
+        "shadow_raw.1",
+        "triangle_id.ID",
+        "object_id.ID",
+        "material_id.ID",
+        "roughness.Y",
+        "metallic.Y",
+        "emissive.R",
+        "emissive.G",
+        "emissive.B",
+        "radiance.R",
+        "radiance.G",
+        "radiance.B",
+        "instance_id.ID",
+    }
     assert ch["depth.Z"].type() == OpenEXR.FLOAT and ch["object_id.ID"].type() == OpenEXR.UINT
     depth = ch["depth.Z"].pixels
-    assert depth.dtype == np.float32 and np.array_equal(depth, frame.aov["depth"])   # +inf on the background
-    assert np.array_equal(ch["object_id.ID"].pixels.view(np.int32), frame.aov["object_id"])   # -1 background
+    assert depth.dtype == np.float32 and np.array_equal(depth, frame.aov["depth"])  # +inf on the background
+    assert np.array_equal(ch["object_id.ID"].pixels.view(np.int32), frame.aov["object_id"])  # -1 background
     assert np.all(ch["triangle_id.ID"].pixels[np.isinf(depth)] == 4294967295)
     normal = np.stack([ch[f"normal.{a}"].pixels for a in "XYZ"], axis=-1)
     assert np.array_equal(normal, frame.aov["normal"])
@@ -77,7 +110,7 @@ def test_exr_holds_every_aov_exactly_in_named_channels(frame, tmp_path):
     arrays, _ = read_exr(small)
     assert list(arrays) == ["depth", "object_id"] and np.array_equal(arrays["depth"], frame.aov["depth"])
     zipped = frame.save(tmp_path / "z.exr", aov=["depth", "object_id"])
-    assert small.stat().st_size > 1.5 * zipped.stat().st_size   # stored, not deflated
+    assert small.stat().st_size > 1.5 * zipped.stat().st_size  # stored, not deflated
 
 
 def test_npz_holds_every_aov_and_the_camera_exactly(frame, tmp_path):
@@ -150,7 +183,7 @@ def test_camera_sidecar_is_the_camera_and_a_camera_path(frame, tmp_path, make_re
     assert rec["convention"] == "opencv" and (rec["width"], rec["height"]) == (W, H)
     assert np.array_equal(rec["K"], frame.K) and np.array_equal(rec["pose"], frame.pose)
     assert rec["near"] == frame.camera.near and rec["fov_y"] == 50.0
-    assert np.allclose(np.array(rec["pose"])[:3, 2], frame.camera.forward)   # z: the view direction
+    assert np.allclose(np.array(rec["pose"])[:3, 2], frame.camera.forward)  # z: the view direction
     # a list of sidecars is a camera path, which renders the same view again
     (tmp_path / "path.json").write_text(json.dumps([rec, rec]))
     cams = load_camera_path(tmp_path / "path.json")
@@ -186,8 +219,11 @@ def test_output_patterns_and_orbits(scene):
     assert [p.name for p in output_paths("out/f_####.exr", 3)] == ["f_0000.exr", "f_0001.exr", "f_0002.exr"]
     assert output_paths("out/f_#.exr", 12)[11].name == "f_11.exr"
     assert output_paths("one.npz", 1) == [Path("one.npz")]
-    for pattern, count, words in (("f.exr", 2, "2 frames need a frame number"), ("o_##/f_##.exr", 2, "folder"),
-                                  ("f_##_##.exr", 2, "one run")):
+    for pattern, count, words in (
+        ("f.exr", 2, "2 frames need a frame number"),
+        ("o_##/f_##.exr", 2, "folder"),
+        ("f_##_##.exr", 2, "one run"),
+    ):
         with pytest.raises(ConfigError, match=words):
             output_paths(pattern, count)
     cams = orbit_cameras(scene, 8)
@@ -199,24 +235,32 @@ def test_output_patterns_and_orbits(scene):
         assert np.isclose(np.linalg.norm(c.eye - centre), np.linalg.norm(eye0 - centre))
         assert np.isclose((c.eye - centre) @ up, (eye0 - centre) @ up)
         assert np.allclose(c.forward, (centre - c.eye) / np.linalg.norm(centre - c.eye))
-    assert np.allclose(cams[4].eye - centre, ((eye0 - centre) @ up) * 2 * up - (eye0 - centre))   # half-way round
+    assert np.allclose(cams[4].eye - centre, ((eye0 - centre) @ up) * 2 * up - (eye0 - centre))  # half-way round
 
 
 def test_camera_path_files_and_their_errors(tmp_path):
-    (tmp_path / "p.toml").write_text('fov_y = 40\n[[camera]]\neye = [0, 0, 5]\ntarget = [0, 0, 0]\n'
-                                     '[[camera]]\nK = [[100, 0, 40], [0, 100, 30], [0, 0, 1]]\nwidth = 80\n'
-                                     'height = 60\npose = [[1, 0, 0, 0], [0, -1, 0, 0], [0, 0, -1, 5], [0, 0, 0, 1]]\n')
+    (tmp_path / "p.toml").write_text(
+        "fov_y = 40\n[[camera]]\neye = [0, 0, 5]\ntarget = [0, 0, 0]\n"
+        "[[camera]]\nK = [[100, 0, 40], [0, 100, 30], [0, 0, 1]]\nwidth = 80\n"
+        "height = 60\npose = [[1, 0, 0, 0], [0, -1, 0, 0], [0, 0, -1, 5], [0, 0, 0, 1]]\n"
+    )
     a, b = load_camera_path(tmp_path / "p.toml")
     assert a.fov_y == 40 and np.allclose(a.forward, (0, 0, -1))
     assert b.image_size == (80, 60) and np.allclose(b.forward, (0, 0, -1)) and np.allclose(b.eye, (0, 0, 5))
     cases = {
         "missing.json": ([{"eye": [0, 0, 5]}], "camera[0]: missing key 'target'"),
-        "unknown.json": ([{"eye": [0, 0, 5], "target": [0, 0, 0]}, {"eye": [1, 0, 5], "taget": [0, 0, 0]}],
-                         "camera[1]: unknown key 'taget'"),
-        "both.json": ([{"eye": [0, 0, 5], "target": [0, 0, 0], "K": [[1, 0, 0], [0, 1, 0], [0, 0, 1]]}],
-                      "camera[0]: give eye and target, or K and pose"),
-        "badk.json": ([{"K": [[1, 0], [0, 1]], "pose": np.eye(4).tolist(), "width": 8, "height": 6}],
-                      "camera[0]: camera K must be a 3x3 matrix"),
+        "unknown.json": (
+            [{"eye": [0, 0, 5], "target": [0, 0, 0]}, {"eye": [1, 0, 5], "taget": [0, 0, 0]}],
+            "camera[1]: unknown key 'taget'",
+        ),
+        "both.json": (
+            [{"eye": [0, 0, 5], "target": [0, 0, 0], "K": [[1, 0, 0], [0, 1, 0], [0, 0, 1]]}],
+            "camera[0]: give eye and target, or K and pose",
+        ),
+        "badk.json": (
+            [{"K": [[1, 0], [0, 1]], "pose": np.eye(4).tolist(), "width": 8, "height": 6}],
+            "camera[0]: camera K must be a 3x3 matrix",
+        ),
         "same.json": ([{"eye": [0, 0, 5], "target": [0, 0, 5]}], "camera[0]: camera eye and target must differ"),
         "empty.json": ([], "no cameras"),
         "notlist.json": ({"cameras": []}, "unknown key 'cameras'"),
@@ -234,8 +278,14 @@ def test_camera_path_files_and_their_errors(tmp_path):
 
 # ----------------------------------------------------------------------------------------------- the CLI
 def hybrid(*args, cwd=ROOT, timeout=300):
-    return subprocess.run([sys.executable, "-m", "engine", *map(str, args)], capture_output=True, text=True,
-                          cwd=cwd, timeout=timeout, env=dict(os.environ, PYTHONPATH=str(ROOT)))
+    return subprocess.run(
+        [sys.executable, "-m", "engine", *map(str, args)],
+        capture_output=True,
+        text=True,
+        cwd=cwd,
+        timeout=timeout,
+        env=dict(os.environ, PYTHONPATH=str(ROOT)),
+    )
 
 
 def one_line_error(res, *words):
@@ -247,26 +297,57 @@ def one_line_error(res, *words):
 
 
 def test_cli_orbit_writes_numbered_exrs_and_cameras(tmp_path):
-    res = hybrid("render", "sphere", "-o", tmp_path / "o" / "f_##.exr", "--orbit", 4, "--size", "48x36",
-                 "--aov", "depth", "--aov", "normal", "--aov", "object_id", "--validation")
-    assert res.returncode == 1 and "no folder" in res.stderr and not (tmp_path / "o").exists()   # checked first
+    res = hybrid(
+        "render",
+        "sphere",
+        "-o",
+        tmp_path / "o" / "f_##.exr",
+        "--orbit",
+        4,
+        "--size",
+        "48x36",
+        "--aov",
+        "depth",
+        "--aov",
+        "normal",
+        "--aov",
+        "object_id",
+        "--validation",
+    )
+    assert res.returncode == 1 and "no folder" in res.stderr and not (tmp_path / "o").exists()  # checked first
     (tmp_path / "o").mkdir()
-    res = hybrid("render", "sphere", "-o", tmp_path / "o" / "f_##.exr", "--orbit", 4, "--size", "48x36",
-                 "--aov", "depth", "--aov", "normal", "--aov", "object_id", "--validation")
+    res = hybrid(
+        "render",
+        "sphere",
+        "-o",
+        tmp_path / "o" / "f_##.exr",
+        "--orbit",
+        4,
+        "--size",
+        "48x36",
+        "--aov",
+        "depth",
+        "--aov",
+        "normal",
+        "--aov",
+        "object_id",
+        "--validation",
+    )
     assert res.returncode == 0, res.stderr
-    assert res.stderr == ""   # no progress bar when stderr is not a terminal
+    assert res.stderr == ""  # no progress bar when stderr is not a terminal
     assert "4 frames (4 rendered, 0 already done) of 48x36 normal, depth, object_id" in res.stdout
     assert "frames/s" in res.stdout and "validation: no errors" in res.stdout
-    assert sorted(p.name for p in (tmp_path / "o").iterdir()) == [f"f_{i:02d}.{s}" for i in range(4)
-                                                                 for s in ("exr", "json")]
+    assert sorted(p.name for p in (tmp_path / "o").iterdir()) == [
+        f"f_{i:02d}.{s}" for i in range(4) for s in ("exr", "json")
+    ]
     for i in range(4):
         arrays, rec = read_exr(tmp_path / "o" / f"f_{i:02d}.exr")
         assert list(arrays) == ["normal", "depth", "object_id"]
         assert rec == json.loads((tmp_path / "o" / f"f_{i:02d}.json").read_text())
         eye = np.array(rec["pose"])[:3, 3]
-        assert np.isclose(np.linalg.norm(eye), 5.0) and abs(eye[1]) < 1e-9   # the scene camera's circle
+        assert np.isclose(np.linalg.norm(eye), 5.0) and abs(eye[1]) < 1e-9  # the scene camera's circle
         d = arrays["depth"]
-        assert abs(d[18, 24] - 4.0) < 0.01 and np.isinf(d[0, 0])           # the unit sphere from 5 away
+        assert abs(d[18, 24] - 4.0) < 0.01 and np.isinf(d[0, 0])  # the unit sphere from 5 away
         assert arrays["object_id"][18, 24] == 0 and arrays["object_id"][0, 0] == -1
     assert np.allclose(np.array(json.loads((tmp_path / "o" / "f_01.json").read_text())["pose"])[:3, 3], (5, 0, 0))
 
@@ -274,13 +355,25 @@ def test_cli_orbit_writes_numbered_exrs_and_cameras(tmp_path):
 def test_cli_camera_path_depth_png_and_option_errors(tmp_path):
     K = [[60.0, 0.0, 20.0], [0.0, 60.0, 15.0], [0.0, 0.0, 1.0]]
     poses = [[[1, 0, 0, 0], [0, -1, 0, 0], [0, 0, -1, z], [0, 0, 0, 1]] for z in (5.0, 3.0)]
-    (tmp_path / "cams.json").write_text(json.dumps({"K": K, "width": 40, "height": 30,
-                                                    "camera": [{"pose": p} for p in poses]}))
-    res = hybrid("render", "sphere", "-o", tmp_path / "d_#.png", "--camera-path", tmp_path / "cams.json",
-                 "--aov", "depth", "--depth-scale", 1000, "-q")
+    (tmp_path / "cams.json").write_text(
+        json.dumps({"K": K, "width": 40, "height": 30, "camera": [{"pose": p} for p in poses]})
+    )
+    res = hybrid(
+        "render",
+        "sphere",
+        "-o",
+        tmp_path / "d_#.png",
+        "--camera-path",
+        tmp_path / "cams.json",
+        "--aov",
+        "depth",
+        "--depth-scale",
+        1000,
+        "-q",
+    )
     assert res.returncode == 0, res.stderr
-    assert res.stdout == ""   # --quiet
-    for i, want in enumerate((4000, 2000)):   # the size is the cameras' own; the principal point (20, 15)
+    assert res.stdout == ""  # --quiet
+    for i, want in enumerate((4000, 2000)):  # the size is the cameras' own; the principal point (20, 15)
         raw = np.asarray(Image.open(tmp_path / f"d_{i}.png"))
         assert raw.shape == (30, 40) and raw.dtype == np.uint16 and raw[0, 0] == 0
         assert abs(int(raw[14:16, 19:21].mean()) - want) <= 2
@@ -304,22 +397,56 @@ def test_cli_camera_path_depth_png_and_option_errors(tmp_path):
 def test_cli_resume_refuses_the_outputs_of_another_sequence(tmp_path):
     res = hybrid("render", "sphere", "-o", tmp_path / "f_#.npz", "--orbit", 2, "--size", "16x12", "--aov", "depth")
     assert res.returncode == 0, res.stderr
-    one_line_error(hybrid("render", "sphere", "-o", tmp_path / "f_#.npz", "--orbit", 3, "--size", "16x12",
-                          "--aov", "depth", "--resume"), "f_1.json", "another camera", "--resume")
+    one_line_error(
+        hybrid(
+            "render",
+            "sphere",
+            "-o",
+            tmp_path / "f_#.npz",
+            "--orbit",
+            3,
+            "--size",
+            "16x12",
+            "--aov",
+            "depth",
+            "--resume",
+        ),
+        "f_1.json",
+        "another camera",
+        "--resume",
+    )
 
 
 def test_cli_progress_bar_goes_to_a_terminal(tmp_path):
     master, slave = pty.openpty()
-    fcntl.ioctl(slave, termios.TIOCSWINSZ, struct.pack("HHHH", 30, 100, 0, 0))   # a 100-column terminal
-    proc = subprocess.Popen([sys.executable, "-m", "engine", "render", "sphere", "-o", tmp_path / "f_#.npz",
-                             "--orbit", "3", "--size", "16x12", "--aov", "depth"], cwd=ROOT, stdout=subprocess.PIPE,
-                            stderr=slave, env=dict(os.environ, PYTHONPATH=str(ROOT)))
+    fcntl.ioctl(slave, termios.TIOCSWINSZ, struct.pack("HHHH", 30, 100, 0, 0))  # a 100-column terminal
+    proc = subprocess.Popen(
+        [
+            sys.executable,
+            "-m",
+            "engine",
+            "render",
+            "sphere",
+            "-o",
+            tmp_path / "f_#.npz",
+            "--orbit",
+            "3",
+            "--size",
+            "16x12",
+            "--aov",
+            "depth",
+        ],
+        cwd=ROOT,
+        stdout=subprocess.PIPE,
+        stderr=slave,
+        env=dict(os.environ, PYTHONPATH=str(ROOT)),
+    )
     os.close(slave)
     seen = b""
     while True:
         try:
             chunk = os.read(master, 4096)
-        except OSError:   # the child closed the terminal
+        except OSError:  # the child closed the terminal
             break
         if not chunk:
             break
@@ -327,7 +454,7 @@ def test_cli_progress_bar_goes_to_a_terminal(tmp_path):
     os.close(master)
     out = proc.stdout.read().decode()
     assert proc.wait(timeout=300) == 0, seen
-    assert b"3/3" in seen and b"frame" in seen   # tqdm's bar, on stderr
+    assert b"3/3" in seen and b"frame" in seen  # tqdm's bar, on stderr
     assert "3 frames (3 rendered" in out
 
 
@@ -343,10 +470,26 @@ def _complete(path: Path) -> bool:
 @pytest.mark.parametrize("sig", [signal.SIGKILL, signal.SIGTERM])
 def test_a_killed_sequence_leaves_whole_files_and_resumes(tmp_path, sig):
     n = 120
-    args = [sys.executable, "-m", "engine", "render", "sphere", "-o", str(tmp_path / "f_###.npz"), "--orbit", str(n),
-            "--size", "16x12", "--aov", "depth", "--aov", "normal"]
-    proc = subprocess.Popen(args, cwd=ROOT, stdout=subprocess.PIPE, stderr=subprocess.PIPE,
-                            env=dict(os.environ, PYTHONPATH=str(ROOT)))
+    args = [
+        sys.executable,
+        "-m",
+        "engine",
+        "render",
+        "sphere",
+        "-o",
+        str(tmp_path / "f_###.npz"),
+        "--orbit",
+        str(n),
+        "--size",
+        "16x12",
+        "--aov",
+        "depth",
+        "--aov",
+        "normal",
+    ]
+    proc = subprocess.Popen(
+        args, cwd=ROOT, stdout=subprocess.PIPE, stderr=subprocess.PIPE, env=dict(os.environ, PYTHONPATH=str(ROOT))
+    )
     deadline = time.monotonic() + 240
     while len(list(tmp_path.glob("f_*.json"))) < 3 and proc.poll() is None and time.monotonic() < deadline:
         time.sleep(0.005)
@@ -355,14 +498,19 @@ def test_a_killed_sequence_leaves_whole_files_and_resumes(tmp_path, sig):
     assert proc.returncode in ((-signal.SIGKILL,) if sig == signal.SIGKILL else (130,)), err
     outputs = sorted(p for p in tmp_path.iterdir() if not p.name.startswith("."))
     finished = {p.stem for p in tmp_path.glob("f_*.json")}
-    assert 3 <= len(finished) < n                        # killed mid-way
-    assert all(_complete(p) for p in outputs)            # whatever exists is whole
+    assert 3 <= len(finished) < n  # killed mid-way
+    assert all(_complete(p) for p in outputs)  # whatever exists is whole
     if sig == signal.SIGTERM:
-        assert b"interrupted" in err and not list(tmp_path.glob(".*"))   # and no temporary is left
-    before = {p.name: (p.stat().st_ino, p.stat().st_mtime_ns) for p in tmp_path.glob("f_*.*")
-              if p.stem in finished}
-    res = subprocess.run(args + ["--resume"], cwd=ROOT, capture_output=True, text=True, timeout=600,
-                         env=dict(os.environ, PYTHONPATH=str(ROOT)))
+        assert b"interrupted" in err and not list(tmp_path.glob(".*"))  # and no temporary is left
+    before = {p.name: (p.stat().st_ino, p.stat().st_mtime_ns) for p in tmp_path.glob("f_*.*") if p.stem in finished}
+    res = subprocess.run(
+        args + ["--resume"],
+        cwd=ROOT,
+        capture_output=True,
+        text=True,
+        timeout=600,
+        env=dict(os.environ, PYTHONPATH=str(ROOT)),
+    )
     assert res.returncode == 0, res.stderr
     assert f"{n} frames ({n - len(finished)} rendered, {len(finished)} already done)" in res.stdout
     assert sorted(p.name for p in tmp_path.iterdir()) == [f"f_{i:03d}.{s}" for i in range(n) for s in ("json", "npz")]
@@ -377,13 +525,17 @@ def test_one_camera_path_format_for_render_and_batch(tmp_path):
 
     from engine.batch.cameras import read_camera_path
     from engine.sequence import load_camera_path
+
     repo = Path(__file__).resolve().parents[1]
     batch_file = repo / "examples" / "batch_cameras.json"
     views = read_camera_path(batch_file)
     assert len(load_camera_path(batch_file)) == len(views) >= 2
     render_file = tmp_path / "path.json"
-    render_file.write_text(json.dumps({"fov_y": 50, "camera": [{"eye": [3, 2, 3], "target": [0, 0, 0]},
-                                                               {"eye": [-3, 2, 3], "target": [0, 0, 0]}]}))
+    render_file.write_text(
+        json.dumps(
+            {"fov_y": 50, "camera": [{"eye": [3, 2, 3], "target": [0, 0, 0]}, {"eye": [-3, 2, 3], "target": [0, 0, 0]}]}
+        )
+    )
     assert len(read_camera_path(render_file)) == 2 and len(load_camera_path(render_file)) == 2
     both = tmp_path / "both.json"
     both.write_text(json.dumps({"camera": [], "views": []}))

@@ -2,6 +2,7 @@
 compute_distance, compute_signed_distance and compute_occupancy against the brute-force numpy reference, a
 winding-number inside test, trimesh's contains and Open3D's RaycastingScene; degenerate meshes, ties, far points,
 shapes, dtypes and errors."""
+
 import numpy as np
 import pytest
 import trimesh
@@ -56,8 +57,9 @@ def make(shared_device):
 
 def torus(major=1.0, minor=0.35, n=48, m=24):
     """A closed torus around the z axis: (vertices, faces)."""
-    a, b = np.meshgrid(np.linspace(0, 2 * np.pi, n, endpoint=False), np.linspace(0, 2 * np.pi, m, endpoint=False),
-                       indexing="ij")
+    a, b = np.meshgrid(
+        np.linspace(0, 2 * np.pi, n, endpoint=False), np.linspace(0, 2 * np.pi, m, endpoint=False), indexing="ij"
+    )
     r = major + minor * np.cos(b)
     v = np.stack([r * np.cos(a), r * np.sin(a), minor * np.sin(b)], axis=-1).reshape(-1, 3)
     i, j = np.meshgrid(np.arange(n), np.arange(m), indexing="ij")
@@ -73,13 +75,17 @@ def winding(vertices, faces, points):
     v = np.asarray(vertices, float)[np.asarray(faces)]
     out = np.zeros(len(points))
     for s in range(0, len(points), 256):
-        d = v[None] - np.asarray(points, float)[s:s + 256, None, None, :]   # (P, T, 3, 3)
+        d = v[None] - np.asarray(points, float)[s : s + 256, None, None, :]  # (P, T, 3, 3)
         a, b, c = d[:, :, 0], d[:, :, 1], d[:, :, 2]
         la, lb, lc = (np.linalg.norm(x, axis=-1) for x in (a, b, c))
         det = np.einsum("ptk,ptk->pt", a, np.cross(b, c))
-        den = la * lb * lc + np.einsum("ptk,ptk->pt", a, b) * lc + np.einsum("ptk,ptk->pt", b, c) * la \
+        den = (
+            la * lb * lc
+            + np.einsum("ptk,ptk->pt", a, b) * lc
+            + np.einsum("ptk,ptk->pt", b, c) * la
             + np.einsum("ptk,ptk->pt", c, a) * lb
-        out[s:s + 256] = 2 * np.arctan2(det, den).sum(axis=1) / (4 * np.pi)
+        )
+        out[s : s + 256] = 2 * np.arctan2(det, den).sum(axis=1) / (4 * np.pi)
     return out
 
 
@@ -89,13 +95,17 @@ def meshes():
     soup_f = np.arange(600).reshape(200, 3)
     # zero-area triangles: collinear (a segment), a point, two equal corners; plus duplicates of soup triangles
     degen_v = np.vstack([soup_v, [[3, 0, 0], [4, 1, 1], [5, 2, 2], [3.5, 0.5, 0.5], [-3, -3, -3], [0, 4, 0]]])
-    degen_f = np.vstack([soup_f, [[600, 601, 602], [604, 604, 604], [600, 605, 605], [603, 600, 602]],
-                         soup_f[:20]])
+    degen_f = np.vstack([soup_f, [[600, 601, 602], [604, 604, 604], [600, 605, 605], [603, 600, 602]], soup_f[:20]])
     sphere = trimesh.creation.icosphere(3)
     far = trimesh.creation.icosphere(2).apply_scale(0.01).apply_translation((3e3, -2e3, 1e3))
-    return {"soup": (soup_v, soup_f), "degenerate": (degen_v, degen_f), "sphere": (sphere.vertices, sphere.faces),
-            "torus": torus(), "far": (far.vertices, far.faces),
-            "one_triangle": (np.array([[0, 0, 0], [1, 0, 0], [0, 1, 0]], float), np.array([[0, 1, 2]]))}
+    return {
+        "soup": (soup_v, soup_f),
+        "degenerate": (degen_v, degen_f),
+        "sphere": (sphere.vertices, sphere.faces),
+        "torus": torus(),
+        "far": (far.vertices, far.faces),
+        "one_triangle": (np.array([[0, 0, 0], [1, 0, 0], [0, 1, 0]], float), np.array([[0, 1, 2]])),
+    }
 
 
 def queries(v, f, n=1500, seed=3):
@@ -144,8 +154,9 @@ def test_tracer_closest_matches_brute_force(tracer, name):
     near = tracer(v, f).closest(points)
     assert near.point.dtype == np.float32 and near.point.shape == (len(points), 3)
     assert near.distance.dtype == np.float32 and near.prim.dtype == np.int32 and len(near) == len(points)
-    check_closest(v, f, points, near.distance, near.prim, size, near.point, np.stack([near.u, near.v], 1),
-                  frame=np.abs(v).max())
+    check_closest(
+        v, f, points, near.distance, near.prim, size, near.point, np.stack([near.u, near.v], 1), frame=np.abs(v).max()
+    )
 
 
 def test_zero_area_triangles_are_segments_and_points(tracer):
@@ -184,7 +195,7 @@ def test_closest_on_a_shared_device_answers_as_alone(tracer):
             got = t.closest(points)
             assert np.array_equal(got.distance, w.distance) and np.array_equal(got.prim, w.prim)
         ta.close()
-        assert np.array_equal(tb.closest(points).distance, want[1].distance)   # the other one's buffers are intact
+        assert np.array_equal(tb.closest(points).distance, want[1].distance)  # the other one's buffers are intact
         tb.close()
         assert dev.validation_errors == []
 
@@ -212,8 +223,13 @@ def test_closest_points_keys_shapes_dtypes_and_ids(make):
     scene = make(sphere, tor)
     points = np.random.default_rng(1).uniform(-2, 6, (4, 5, 6, 3)).astype(np.float32)
     out = scene.compute_closest_points(points)
-    dtypes = {"points": np.float32, "geometry_ids": np.uint32, "primitive_ids": np.uint32,
-              "primitive_uvs": np.float32, "primitive_normals": np.float32}
+    dtypes = {
+        "points": np.float32,
+        "geometry_ids": np.uint32,
+        "primitive_ids": np.uint32,
+        "primitive_uvs": np.float32,
+        "primitive_normals": np.float32,
+    }
     assert set(out) == set(dtypes)
     for key, dtype in dtypes.items():
         assert out[key].dtype == dtype, key
@@ -224,11 +240,18 @@ def test_closest_points_keys_shapes_dtypes_and_ids(make):
     f = np.vstack([sphere[1], tor[1] + len(sphere[0])])
     gid, pid = out["geometry_ids"].reshape(-1), out["primitive_ids"].reshape(-1).astype(np.int64)
     prim = pid + np.where(gid == 1, len(sphere[1]), 0)
-    check_closest(v, f, flat, scene.compute_distance(points).reshape(-1), prim, 8.0,
-                  out["points"].reshape(-1, 3), out["primitive_uvs"].reshape(-1, 2))
+    check_closest(
+        v,
+        f,
+        flat,
+        scene.compute_distance(points).reshape(-1),
+        prim,
+        8.0,
+        out["points"].reshape(-1, 3),
+        out["primitive_uvs"].reshape(-1, 2),
+    )
     e = np.cross(v[f[prim, 1]] - v[f[prim, 0]], v[f[prim, 2]] - v[f[prim, 0]])
-    assert np.allclose(out["primitive_normals"].reshape(-1, 3), e / np.linalg.norm(e, axis=1, keepdims=True),
-                       atol=1e-6)
+    assert np.allclose(out["primitive_normals"].reshape(-1, 3), e / np.linalg.norm(e, axis=1, keepdims=True), atol=1e-6)
     assert scene.compute_distance(points).dtype == np.float32
 
 
@@ -250,11 +273,11 @@ def test_signed_distance_and_occupancy_on_closed_meshes(make, name):
     rng = np.random.default_rng(5)
     points = rng.uniform(-1.6, 1.6, (1500, 3)) * (np.ptp(v, axis=0) / 2 + 0.1)
     ref_d = reference_closest(v, f, points)[1]
-    points, ref_d = points[ref_d > 1e-3], ref_d[ref_d > 1e-3]   # off the surface: inside is well defined
+    points, ref_d = points[ref_d > 1e-3], ref_d[ref_d > 1e-3]  # off the surface: inside is well defined
     inside = winding(v, f, points) > 0.5
     if name == "box":
         assert np.array_equal(inside, (np.abs(points) < [1.0, 0.5, 0.25]).all(axis=1))
-    if name == "sphere":   # the icosphere lies between its inscribed and circumscribed spheres
+    if name == "sphere":  # the icosphere lies between its inscribed and circumscribed spheres
         r = np.linalg.norm(points, axis=1)
         assert inside[r < 0.95].all() and not inside[r > 1.0].any()
     scene = make((v, f))
@@ -274,7 +297,7 @@ def test_occupancy_agrees_with_trimesh_contains(make):
     points = np.random.default_rng(9).uniform(-1.5, 1.5, (2000, 3)) * [1, 1, 0.4]
     try:
         expected = m.contains(points)
-    except ImportError as exc:   # trimesh's ray backends: embreex (the dev extra) or rtree
+    except ImportError as exc:  # trimesh's ray backends: embreex (the dev extra) or rtree
         pytest.skip(f"trimesh's contains needs a ray backend: {exc}")
     got = make((m.vertices, m.faces)).compute_occupancy(points) == 1
     assert (got == expected).mean() >= 0.999
@@ -307,14 +330,19 @@ def test_point_queries_match_open3d(make):
     assert np.allclose(d_mine, d_theirs, rtol=RTOL, atol=1e-6)
     assert np.array_equal(mine["geometry_ids"], theirs["geometry_ids"])
     same = mine["primitive_ids"] == theirs["primitive_ids"]
-    assert same.mean() > 0.5   # the rest are ties (a shared vertex or edge), at the same distance as checked above
+    assert same.mean() > 0.5  # the rest are ties (a shared vertex or edge), at the same distance as checked above
     assert np.allclose(mine["points"][same], theirs["points"][same], atol=1e-5)
     assert np.allclose(mine["primitive_uvs"][same], theirs["primitive_uvs"][same], atol=1e-4)
     for nsamples in (1, 3):
-        assert np.array_equal(ours.compute_occupancy(points, nsamples=nsamples),
-                              o.compute_occupancy(q, nsamples=nsamples).numpy())
-        assert np.allclose(ours.compute_signed_distance(points, nsamples=nsamples),
-                           o.compute_signed_distance(q, nsamples=nsamples).numpy(), rtol=RTOL, atol=1e-6)
+        assert np.array_equal(
+            ours.compute_occupancy(points, nsamples=nsamples), o.compute_occupancy(q, nsamples=nsamples).numpy()
+        )
+        assert np.allclose(
+            ours.compute_signed_distance(points, nsamples=nsamples),
+            o.compute_signed_distance(q, nsamples=nsamples).numpy(),
+            rtol=RTOL,
+            atol=1e-6,
+        )
 
 
 def test_occupancy_rays_go_where_open3ds_go(make):
@@ -353,8 +381,12 @@ def test_point_query_errors_and_edge_cases(make):
     out = scene.compute_closest_points(np.zeros((2, 0, 3)))
     assert out["points"].shape == (2, 0, 3) and out["primitive_uvs"].shape == (2, 0, 2)
     scene.close()
-    for call in (scene.compute_closest_points, scene.compute_distance, scene.compute_signed_distance,
-                 scene.compute_occupancy):
+    for call in (
+        scene.compute_closest_points,
+        scene.compute_distance,
+        scene.compute_signed_distance,
+        scene.compute_occupancy,
+    ):
         with pytest.raises(ConfigError, match="closed"):
             call(np.zeros((1, 3)))
     nothing = make()

@@ -15,7 +15,7 @@ from engine.rt.raymesh import RayMeshIntersector
 from engine.vk.device import is_cpu
 from tests.test_instances import instanced_scene, random_transform
 
-N = 40_000   # above order.MIN_RAYS: "auto" looks at the batch
+N = 40_000  # above order.MIN_RAYS: "auto" looks at the batch
 
 
 def surface_rays(v, f, n, rng, light=(0.3, 1.0, 0.2)):
@@ -70,8 +70,8 @@ def test_a_window_sorts_each_run_of_rows_on_its_own(numpy_steps):
     whole, windowed = ray_order(o, d), ray_order(o, d, window=4096)
     assert np.array_equal(whole, np.argsort(keys, kind="stable"))
     for s in range(0, len(o), 4096):
-        run = windowed[s:s + 4096]
-        assert np.array_equal(run, s + np.argsort(keys[s:s + 4096], kind="stable"))
+        run = windowed[s : s + 4096]
+        assert np.array_equal(run, s + np.argsort(keys[s : s + 4096], kind="stable"))
     assert np.array_equal(ray_order(o, d, window=len(o)), whole)
 
 
@@ -83,11 +83,20 @@ def test_keys_sort_nearby_origins_together():
     d = rng.normal(size=o.shape).astype(np.float32)
     order = ray_order(o, d)
     assert np.array_equal(np.sort(order), np.arange(len(o)))
-    gap = lambda a: np.median(np.linalg.norm(np.diff(a, axis=0), axis=1))   # noqa: E731
+    gap = lambda a: np.median(np.linalg.norm(np.diff(a, axis=0), axis=1))  # noqa: E731
     assert gap(o[order]) < gap(o) / 10
     box = (np.array([0, 0, 0], np.float32), np.array([32, 32, 32], np.float32))
-    pts = np.array([[0.001, 0.001, 0.001], [31.999, 0.001, 0.001], [0.001, 31.999, 0.001], [0.001, 0.001, 31.999],
-                    [1.5, 0.001, 0.001], [99, -99, 0.001]], np.float32)
+    pts = np.array(
+        [
+            [0.001, 0.001, 0.001],
+            [31.999, 0.001, 0.001],
+            [0.001, 31.999, 0.001],
+            [0.001, 0.001, 31.999],
+            [1.5, 0.001, 0.001],
+            [99, -99, 0.001],
+        ],
+        np.float32,
+    )
     up = np.array([[0, 1, 0], [0, -1, 0], [0, -1, 0], [0, -1, 0], [0, -1, 0], [0, 1, 0]], np.float32)
     keys = ray_keys(pts, up, box)
     # 31 bits of cell (x 11, y 10, z 10), then the direction bit: x's bits at 3k + 1, y's at 3k + 3, z's at 3k + 2;
@@ -115,10 +124,12 @@ def test_cells_follow_the_shape_of_the_box():
     box = (np.float32([0, 0, 0]), np.float32([40, 0, 40]))
 
     def interleave(x, z, x_at, z_at):
-        return sum(((x >> b) & 1) << (2 * b + x_at) for b in range(16)) | sum(((z >> b) & 1) << (2 * b + z_at)
-                                                                             for b in range(16))
+        return sum(((x >> b) & 1) << (2 * b + x_at) for b in range(16)) | sum(
+            ((z >> b) & 1) << (2 * b + z_at) for b in range(16)
+        )
+
     assert ray_keys(o, d, box).tolist() == interleave(cell[:, 0], cell[:, 1], 1, 0).tolist()
-    gathered = ray_keys(o, np.ascontiguousarray(d), box)   # not a shared view: x 16 bits, z 15, then up
+    gathered = ray_keys(o, np.ascontiguousarray(d), box)  # not a shared view: x 16 bits, z 15, then up
     assert gathered.tolist() == (interleave(cell[:, 0], cell[:, 1] >> 1, 1, 2) | 1).tolist()
 
 
@@ -126,7 +137,7 @@ def test_rays_with_equal_keys_keep_their_order(monkeypatch):
     """Rays in one cell are traced in the caller's order; the same order where the row numbers do not fit the sorted
     words (batches of 2^32 rays: the keys' stable argsort)."""
     rng = np.random.default_rng(4)
-    o = rng.integers(0, 4, (20_000, 3)).astype(np.float32)   # 64 distinct origins
+    o = rng.integers(0, 4, (20_000, 3)).astype(np.float32)  # 64 distinct origins
     d = rng.normal(size=o.shape).astype(np.float32)
     keys = ray_keys(o, d, ray_order_mod.origin_box(o))
     order = ray_order(o, d)
@@ -137,25 +148,25 @@ def test_rays_with_equal_keys_keep_their_order(monkeypatch):
 
 
 def test_auto_tells_which_batches_gain():
-    """"auto" reorders shadow rays (one direction) and short rays (AO) from shuffled surface points; not rays in
+    """ "auto" reorders shadow rays (one direction) and short rays (AO) from shuffled surface points; not rays in
     image or triangle order, rays crossing the scene in all directions, non-finite origins or small batches."""
     rng = np.random.default_rng(1)
     s = trimesh.creation.icosphere(4)
     o, d, tmax = surface_rays(s.vertices, s.faces, N, rng)
     perm = rng.permutation(N)
-    assert not incoherent(o, d, tmax)                          # triangle order: neighbours are close
-    assert incoherent(o[perm], d[perm], tmax[perm])            # shuffled shadow rays
+    assert not incoherent(o, d, tmax)  # triangle order: neighbours are close
+    assert incoherent(o[perm], d[perm], tmax[perm])  # shuffled shadow rays
     assert incoherent(o[perm], d[perm], np.float32(np.inf))
-    assert not incoherent(o[perm][:ray_order_mod.MIN_RAYS - 1], d[:ray_order_mod.MIN_RAYS - 1], np.inf)
+    assert not incoherent(o[perm][: ray_order_mod.MIN_RAYS - 1], d[: ray_order_mod.MIN_RAYS - 1], np.inf)
     hemi = rng.normal(size=(N, 3)).astype(np.float32)
-    assert incoherent(o[perm], hemi, np.float32(0.1))          # short rays in all directions (AO)
-    assert not incoherent(o[perm], hemi, np.float32(np.inf))   # long ones: the sort costs more than it gains
+    assert incoherent(o[perm], hemi, np.float32(0.1))  # short rays in all directions (AO)
+    assert not incoherent(o[perm], hemi, np.float32(np.inf))  # long ones: the sort costs more than it gains
     grid = np.stack(np.meshgrid(np.arange(300), np.arange(200), [0.0], indexing="ij"), -1).reshape(-1, 3)
-    assert not incoherent(grid.astype(np.float32), np.ones_like(grid, np.float32), np.inf)   # pixels in rows
+    assert not incoherent(grid.astype(np.float32), np.ones_like(grid, np.float32), np.inf)  # pixels in rows
     bad = o[perm]
     bad[::100] = np.nan
     assert not incoherent(bad, d, np.inf)
-    assert ray_order(bad, d) is None                           # no box: traced as given, the checks name it
+    assert ray_order(bad, d) is None  # no box: traced as given, the checks name it
 
 
 @pytest.mark.parametrize("layout,steps", [("binary", "native"), ("wide", "native"), ("binary", "numpy")])
@@ -166,15 +177,15 @@ def test_shuffled_rays_give_the_unshuffled_results_permuted(bumpy, layout, steps
     rng = np.random.default_rng(2)
     o, d, tmax = surface_rays(v, f, N, rng)
     perm = rng.permutation(N)
-    with Tracer(v, f, validation=True, layout=layout, batch_size=8192) as tr:   # 5 chunks, 3 in flight
+    with Tracer(v, f, validation=True, layout=layout, batch_size=8192) as tr:  # 5 chunks, 3 in flight
         want = tr.occluded(o, d, tmax)
-        assert not tr.last_reordered                       # coherent: auto leaves it alone
+        assert not tr.last_reordered  # coherent: auto leaves it alone
         assert 0.1 < want.mean() < 0.9
         for mode in (True, "auto"):
             got = tr.occluded(o[perm], d[perm], tmax[perm], reorder=mode)
             assert tr.last_reordered == (mode is True or is_cpu(tr.ctx))
             assert np.array_equal(got, want[perm])
-        got = tr.occluded(o[perm], d[perm], np.float32(0.05), reorder=True)   # one tmax for all
+        got = tr.occluded(o[perm], d[perm], np.float32(0.05), reorder=True)  # one tmax for all
         assert np.array_equal(got, tr.occluded(o, d, np.float32(0.05), reorder=False)[perm])
         # closest hits: rays through the mesh from random outside points, shuffled
         src = rng.uniform(-4, 4, (N, 3)).astype(np.float32)
@@ -225,7 +236,7 @@ def test_a_bad_ray_in_a_reordered_batch_is_named_as_without_reordering():
                 query(o, d, reorder=True)
             assert str(reordered.value) == str(plain.value)
             assert "ray 777 " in str(plain.value)
-        shared = np.broadcast_to(np.float32([0.3, 1.0, 0.2]), o.shape).copy()   # one direction (filled, not gathered)
+        shared = np.broadcast_to(np.float32([0.3, 1.0, 0.2]), o.shape).copy()  # one direction (filled, not gathered)
         for query in (tr.occluded, tr.intersect):
             with pytest.raises(ConfigError, match=r"origins: ray 777 "):
                 query(o, shared, reorder=True)
@@ -238,7 +249,7 @@ def test_instance_ids_of_shuffled_rays():
     d = rng.uniform(-8, 8, (N, 3)) - o
     perm = rng.permutation(N)
     with Tracer.from_scene(scene, batch_size=8192, validation=True) as tr:
-        for _ in range(2):   # and after a move (a rebuilt top level)
+        for _ in range(2):  # and after a move (a rebuilt top level)
             h0 = tr.intersect(o, d, reorder=False)
             h1 = tr.intersect(o[perm], d[perm], reorder=True)
             assert h0.hit.mean() > 0.2
@@ -285,7 +296,7 @@ def test_one_direction_for_all_is_filled_not_gathered():
     odd[N - 3] = (0.0, -1.0, 0.0)
     assert ray_order_mod.shared_direction(odd) is odd
     signed = np.tile(np.float32([0.0, 1.0, 0.0]), (N, 1))
-    signed[N - 2, 0] = -0.0   # equal as a number, not bit for bit: gathered, so that the kernel gets each as given
+    signed[N - 2, 0] = -0.0  # equal as a number, not bit for bit: gathered, so that the kernel gets each as given
     assert ray_order_mod.shared_direction(signed) is signed
     with Tracer(v, f, batch_size=8192) as tr:
         for dirs in (d, odd, signed):
@@ -307,8 +318,8 @@ def test_the_c_steps_give_numpy_s_order_gathers_and_scatters(native_lib, shared)
     rng = np.random.default_rng(11)
     for n, same in ((1, False), (5, False), (70_001, False), (70_001, True)):
         o = rng.uniform(-5, 5, (n, 3)).astype(np.float32)
-        o[: n // 3] = np.round(o[: n // 3])                      # equal keys: their rows stay in order
-        if same:                                                  # one key for all: ordered by row numbers alone
+        o[: n // 3] = np.round(o[: n // 3])  # equal keys: their rows stay in order
+        if same:  # one key for all: ordered by row numbers alone
             o[:] = o[0]
         d = rng.normal(size=(n, 3)).astype(np.float32)
         if shared:
@@ -331,7 +342,7 @@ def test_the_c_steps_give_numpy_s_order_gathers_and_scatters(native_lib, shared)
         ref = np.zeros(n, bool)
         ref[want] = words != 0
         assert np.array_equal(out, ref)
-    with pytest.raises(IndexError):   # a row out of range: numpy's error, never a read past the array
+    with pytest.raises(IndexError):  # a row out of range: numpy's error, never a read past the array
         native.gather(o, np.array([len(o)], np.int64), np.empty((1, 3), np.float32))
     with pytest.raises(IndexError):
         native.scatter_flags(np.ones(1, np.uint32), np.array([-len(o) - 1], np.int64), np.zeros(len(o), bool))

@@ -1,5 +1,6 @@
 """engine.RaycastingScene against Open3D's RaycastingScene (same rays, same meshes) and the brute-force reference:
 hits, ids, uvs, normals, occlusion intervals, hit counts and lists, pinhole rays, shapes, dtypes and errors."""
+
 import numpy as np
 import pytest
 import trimesh
@@ -76,7 +77,7 @@ def random_rays(rng, n, meshes, spread=1.5):
     c, ext = (lo + hi) / 2, (hi - lo).max()
     o = c + rng.uniform(-spread, spread, (n, 3)) * ext
     d = c + rng.uniform(-0.5, 0.5, (n, 3)) * ext - o
-    d *= rng.uniform(0.3, 3.0, (n, 1)) / np.linalg.norm(d, axis=1, keepdims=True)   # not unit on purpose
+    d *= rng.uniform(0.3, 3.0, (n, 1)) / np.linalg.norm(d, axis=1, keepdims=True)  # not unit on purpose
     return np.hstack([o, d]).astype(np.float32)
 
 
@@ -106,7 +107,7 @@ def check_first_hits(got, t_ref, geom_ref, prim_ref, ms, rays, what):
     for i in np.flatnonzero(both & ~same):
         v, f = ms[got["geometry_ids"][i]]
         tri = np.asarray(f)[[got["primitive_ids"][i]]]
-        t_ours = reference_intersect(v, tri, rays[i:i + 1, :3], rays[i:i + 1, 3:])[0][0]
+        t_ours = reference_intersect(v, tri, rays[i : i + 1, :3], rays[i : i + 1, 3:])[0][0]
         assert abs(t_ours - t_ref[i]) <= 1e-4 * abs(t_ref[i]), f"{what}: ray {i} hit another triangle, not a tie"
     assert np.isinf(got["t_hit"][~hit]).all() and (got["primitive_ids"][~hit] == INVALID).all()
     return both & same
@@ -118,8 +119,12 @@ def test_cast_rays_matches_open3d_and_the_reference(make, name):
     rays = random_rays(np.random.default_rng(7), 20000, ms)
     ours = make(*ms).cast_rays(rays)
     assert {k: (a.dtype.name, a.shape) for k, a in ours.items()} == {
-        "t_hit": ("float32", (20000,)), "geometry_ids": ("uint32", (20000,)), "primitive_ids": ("uint32", (20000,)),
-        "primitive_uvs": ("float32", (20000, 2)), "primitive_normals": ("float32", (20000, 3))}
+        "t_hit": ("float32", (20000,)),
+        "geometry_ids": ("uint32", (20000,)),
+        "primitive_ids": ("uint32", (20000,)),
+        "primitive_uvs": ("float32", (20000, 2)),
+        "primitive_normals": ("float32", (20000, 3)),
+    }
     # the brute-force reference over the concatenated meshes
     v, f, geom, prim = concatenated(ms)
     t, p, u, w = reference_intersect(v, f, rays[:, :3], rays[:, 3:])
@@ -128,12 +133,11 @@ def test_cast_rays_matches_open3d_and_the_reference(make, name):
     same = check_first_hits(ours, t, geom_ref, prim_ref, ms, rays, "reference")
     assert np.allclose(ours["primitive_uvs"][same], np.stack([u, w], -1)[same], atol=1e-3)
     assert (ours["primitive_normals"][ours["geometry_ids"] == INVALID] == 0).all()
-    if name == "far":   # Open3D takes float32 world coordinates: 3e3 away, its 0.02-wide mesh moves by up to 1e-4
+    if name == "far":  # Open3D takes float32 world coordinates: 3e3 away, its 0.02-wide mesh moves by up to 1e-4
         return
     # Open3D on the same rays
     theirs = numpy_dict(o3d_scene(*ms).cast_rays(rays))
-    same = check_first_hits(ours, theirs["t_hit"], theirs["geometry_ids"], theirs["primitive_ids"], ms, rays,
-                            "open3d")
+    same = check_first_hits(ours, theirs["t_hit"], theirs["geometry_ids"], theirs["primitive_ids"], ms, rays, "open3d")
     assert np.allclose(ours["primitive_uvs"][same], theirs["primitive_uvs"][same], atol=1e-3)
     # (Open3D's normals come from float32 vertices: 3e-5 off on the terrace's 0.1-sized triangles)
     assert np.allclose(ours["primitive_normals"][same], theirs["primitive_normals"][same], atol=1e-4)
@@ -150,7 +154,7 @@ def test_test_occlusions_with_tnear_and_tfar(make, name):
         assert got.dtype == bool and got.shape == (10000,)
         ref = reference_occluded(v, f, rays[:, :3], rays[:, 3:], tfar, tmin=tnear) if tfar >= tnear else 0 * got
         assert (got != ref).sum() <= 1, (tnear, tfar)
-        if tnear >= 0:   # (Embree, under Open3D, requires tnear >= 0: a negative one gives no set answer there)
+        if tnear >= 0:  # (Embree, under Open3D, requires tnear >= 0: a negative one gives no set answer there)
             assert (got != theirs.test_occlusions(rays, tnear=tnear, tfar=tfar).numpy()).sum() <= 1, (tnear, tfar)
         assert got.any() or tfar < tnear
 
@@ -177,13 +181,20 @@ def test_count_and_list_intersections(make, name):
     assert (o3d_count[coincident] >= count[coincident]).all()
     lx = ours.list_intersections(rays)
     assert {k: a.dtype.name for k, a in lx.items()} == {
-        "ray_splits": "uint32", "ray_ids": "uint32", "t_hit": "float32", "geometry_ids": "uint32",
-        "primitive_ids": "uint32", "primitive_uvs": "float32"}
+        "ray_splits": "uint32",
+        "ray_ids": "uint32",
+        "t_hit": "float32",
+        "geometry_ids": "uint32",
+        "primitive_ids": "uint32",
+        "primitive_uvs": "float32",
+    }
     assert lx["ray_splits"].shape == (5001,) and np.array_equal(np.diff(lx["ray_splits"]), count)
     assert np.array_equal(lx["ray_ids"], np.repeat(np.arange(5000), count))
     # the same hits as the reference (as sets), at the same t; in order of t along each ray
-    ours_set = {(int(r), int(g), int(p)): t for r, g, p, t in
-                zip(lx["ray_ids"], lx["geometry_ids"], lx["primitive_ids"], lx["t_hit"])}
+    ours_set = {
+        (int(r), int(g), int(p)): t
+        for r, g, p, t in zip(lx["ray_ids"], lx["geometry_ids"], lx["primitive_ids"], lx["t_hit"])
+    }
     ref_set = {(int(r), int(geom[p]), int(prim[p])): t for r, p, t in zip(r_ref, p_ref, t_ref)}
     common = ours_set.keys() & ref_set.keys()
     assert len(common) == len(ours_set) and len(common) == distinct.sum()
@@ -191,9 +202,11 @@ def test_count_and_list_intersections(make, name):
     same_ray = lx["ray_ids"][1:] == lx["ray_ids"][:-1]
     assert (np.diff(lx["t_hit"])[same_ray] >= 0).all()
     o3d_list = numpy_dict(theirs.list_intersections(rays))
-    o3d_set = {(int(r), int(g), int(p)) for r, g, p in
-               zip(o3d_list["ray_ids"], o3d_list["geometry_ids"], o3d_list["primitive_ids"])}
-    plain = {k for k in ours_set if not coincident[k[0]]}   # (of coincident triangles, either may be the one)
+    o3d_set = {
+        (int(r), int(g), int(p))
+        for r, g, p in zip(o3d_list["ray_ids"], o3d_list["geometry_ids"], o3d_list["primitive_ids"])
+    }
+    plain = {k for k in ours_set if not coincident[k[0]]}  # (of coincident triangles, either may be the one)
     assert len(o3d_set & plain) >= 0.9999 * len(plain)
 
 
@@ -217,7 +230,7 @@ def test_geometry_ids_and_adding_after_a_query(make):
     box, ball = trimesh.creation.box(), trimesh.creation.icosphere(1).apply_translation((3, 0, 0))
     scene = make(validation=True)
     assert scene.add_triangles(box) == 0
-    assert scene.add_triangles(np.zeros((0, 3)), np.zeros((0, 3), np.uint32)) == 1   # empty: an id, never hit
+    assert scene.add_triangles(np.zeros((0, 3)), np.zeros((0, 3), np.uint32)) == 1  # empty: an id, never hit
     rays = np.array([[0, 0, -5, 0, 0, 1], [3, 0.1, -5, 0, 0, 1]], np.float32)
     assert scene.cast_rays(rays)["geometry_ids"].tolist() == [0, INVALID]
     assert scene.add_triangles(ball.vertices, ball.faces.astype(np.uint32)) == 2
@@ -229,10 +242,12 @@ def test_geometry_ids_and_adding_after_a_query(make):
 def test_meshes_from_open3d(make):
     o3d = pytest.importorskip("open3d")
     box = trimesh.creation.box()
-    tmesh = o3d.t.geometry.TriangleMesh(o3d.core.Tensor(box.vertices.astype(np.float32)),
-                                        o3d.core.Tensor(box.faces.astype(np.int64)))
-    legacy = o3d.geometry.TriangleMesh(o3d.utility.Vector3dVector(box.vertices + 5),
-                                       o3d.utility.Vector3iVector(box.faces))
+    tmesh = o3d.t.geometry.TriangleMesh(
+        o3d.core.Tensor(box.vertices.astype(np.float32)), o3d.core.Tensor(box.faces.astype(np.int64))
+    )
+    legacy = o3d.geometry.TriangleMesh(
+        o3d.utility.Vector3dVector(box.vertices + 5), o3d.utility.Vector3iVector(box.faces)
+    )
     scene = make()
     assert scene.add_triangles(tmesh) == 0 and scene.add_triangles(legacy) == 1
     rays = o3d.core.Tensor(np.array([[0, 0, -5, 0, 0, 1], [5, 5, -5, 0, 0, 1]], np.float32))
@@ -252,16 +267,27 @@ def test_create_rays_pinhole_matches_open3d():
     rng = np.random.default_rng(5)
     ref = o3d.t.geometry.RaycastingScene.create_rays_pinhole
     for _ in range(5):
-        k = np.array([[rng.uniform(50, 500), rng.uniform(-5, 5), rng.uniform(0, 64)],
-                      [0, rng.uniform(50, 500), rng.uniform(0, 48)], [0, 0, 1]])
+        k = np.array(
+            [
+                [rng.uniform(50, 500), rng.uniform(-5, 5), rng.uniform(0, 64)],
+                [0, rng.uniform(50, 500), rng.uniform(0, 48)],
+                [0, 0, 1],
+            ]
+        )
         e = np.eye(4)
         e[:3, :3] = trimesh.transformations.random_rotation_matrix(rng.random(3))[:3, :3]
         e[:3, 3] = rng.normal(size=3) * 3
         ours = RaycastingScene.create_rays_pinhole(k, e, 64, 48)
         assert ours.dtype == np.float32 and ours.shape == (48, 64, 6)
         assert np.allclose(ours, ref(k, e, 64, 48).numpy(), atol=1e-5)
-        kw = dict(fov_deg=rng.uniform(10, 120), center=rng.normal(size=3), eye=rng.normal(size=3) * 4,
-                  up=rng.normal(size=3), width_px=33, height_px=21)
+        kw = dict(
+            fov_deg=rng.uniform(10, 120),
+            center=rng.normal(size=3),
+            eye=rng.normal(size=3) * 4,
+            up=rng.normal(size=3),
+            width_px=33,
+            height_px=21,
+        )
         ours = RaycastingScene.create_rays_pinhole(**kw)
         theirs = ref(**{k: (o3d.core.Tensor(v) if isinstance(v, np.ndarray) else v) for k, v in kw.items()})
         assert np.allclose(ours, theirs.numpy(), atol=1e-5)
@@ -295,9 +321,12 @@ def test_pinhole_rays_beyond_available_memory_are_refused_before_allocating(monk
 
     monkeypatch.setattr(pinhole, "_available_memory", lambda: 20 * 2**20)
     P = RaycastingScene.create_rays_pinhole
-    assert P(60.0, [0, 0, 0], [0, 0, 3], [0, 1, 0], 1000, 800).shape == (800, 1000, 6)   # 18.3 MiB
-    with pytest.raises(ConfigError, match=r"1000 x 900 rays do not fit in memory \(0.0201 GiB of float32 rays, "
-                                          r"0.0195 GiB available\)"):
+    assert P(60.0, [0, 0, 0], [0, 0, 3], [0, 1, 0], 1000, 800).shape == (800, 1000, 6)  # 18.3 MiB
+    with pytest.raises(
+        ConfigError,
+        match=r"1000 x 900 rays do not fit in memory \(0.0201 GiB of float32 rays, "
+        r"0.0195 GiB available\)",
+    ):
         P(60.0, [0, 0, 0], [0, 0, 3], [0, 1, 0], 1000, 900)
     monkeypatch.undo()
     assert pinhole._available_memory() > 2**20
@@ -336,9 +365,9 @@ def test_bad_input_is_a_clear_error(make):
         scene.cast_rays(np.vstack([good, [[np.nan, 0, 0, 1, 0, 0]]]))
     with pytest.raises(ConfigError, match=r"rays: ray 0 has a zero direction"):
         scene.test_occlusions(np.array([[0, 0, 0, 0, 0, 0]], np.float32))
-    with pytest.raises(ConfigError, match=r"rays: ray 1 has a zero direction or nearly"):   # (bent in traversal)
+    with pytest.raises(ConfigError, match=r"rays: ray 1 has a zero direction or nearly"):  # (bent in traversal)
         scene.cast_rays(np.vstack([good, [[0, 0, -5, 0, 1e-25, 1e-25]]]))
-    with pytest.raises(ConfigError, match=r"rays: ray 1 has an origin coordinate beyond \+-1e\+11"):   # (not "origins")
+    with pytest.raises(ConfigError, match=r"rays: ray 1 has an origin coordinate beyond \+-1e\+11"):  # (not "origins")
         scene.cast_rays(np.vstack([good, [[0, 1e38, -5, 0, 0, 1]]]))
     with pytest.raises(ConfigError, match=r"tnear: ray 0's start \(origin \+ tnear \* direction\) \[.*\] lies beyond"):
         scene.test_occlusions(good, tnear=1e30)

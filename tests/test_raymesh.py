@@ -1,5 +1,6 @@
 """engine.RayMeshIntersector against the brute-force reference and trimesh's Embree backend (where embreex is
 installed): first hits, all hits, locations, containment, and its errors."""
+
 import copy
 import pickle
 
@@ -33,7 +34,7 @@ def random_rays(rng, n, mesh, spread=1.5):
     c, ext = mesh.bounds.mean(axis=0), mesh.extents.max()
     o = c + rng.uniform(-spread, spread, (n, 3)) * ext
     d = c + rng.uniform(-0.5, 0.5, (n, 3)) * ext - o
-    return o, d * rng.uniform(0.2, 5.0, (n, 1))   # not unit on purpose: trimesh unitizes
+    return o, d * rng.uniform(0.2, 5.0, (n, 1))  # not unit on purpose: trimesh unitizes
 
 
 def soup(rng, n=200):
@@ -65,11 +66,11 @@ def test_first_hits_match_the_reference_and_trimesh(make, name):
     # ids exact except ties: where they differ, our triangle lies at the same t along the ray
     differ = both & (first != prim_ref)
     for i in np.flatnonzero(differ):
-        t_ours = reference_intersect(mesh.vertices, mesh.faces[[first[i]]], o[i:i + 1], unit[i:i + 1])[0][0]
+        t_ours = reference_intersect(mesh.vertices, mesh.faces[[first[i]]], o[i : i + 1], unit[i : i + 1])[0][0]
         assert t_ours == pytest.approx(t_ref[i], rel=1e-4)
     assert (first[both] == prim_ref[both]).mean() >= 0.999
     assert np.array_equal(ours.intersects_any(o, d), first >= 0)
-    if trimesh.ray.has_embree and name != "far":   # (embree's float32 frame loses the far mesh: trimesh issue 48)
+    if trimesh.ray.has_embree and name != "far":  # (embree's float32 frame loses the far mesh: trimesh issue 48)
         embree = trimesh.ray.ray_pyembree.RayMeshIntersector(mesh).intersects_first(o, d)
         assert ((embree >= 0) == (first >= 0)).mean() >= 0.999
 
@@ -174,7 +175,7 @@ def test_many_hits_and_max_hits(make):
     mesh = trimesh.util.concatenate(quads)
     ours = make(mesh)
     o, d = np.array([[0.1, 0.2, -3.0], [0.3, -0.1, 40.0]]), np.array([[0, 0, 1.0], [0, 0, -1.0]])
-    assert np.array_equal(np.bincount(ours.intersects_id(o, d)[1]), [60, 60])   # two faces per thin box
+    assert np.array_equal(np.bincount(ours.intersects_id(o, d)[1]), [60, 60])  # two faces per thin box
     assert np.array_equal(np.bincount(ours.intersects_id(o, d, max_hits=7)[1]), [7, 7])
     assert len(ours.intersects_id(o, d, max_hits=0)[0]) == 0
 
@@ -204,7 +205,7 @@ def test_bad_input_is_a_clear_error(make):
         ours.intersects_location([[0, 0, 0], [0, 0, 0]], [[1, 0, 0], [0, 0, 0]])
     with pytest.raises(ConfigError, match=r"ray_origins must be numbers"):
         ours.intersects_first("abc", [[1, 0, 0]])
-    far = [[0, 0, -5], [0, 0, -5], [0, 0, 1e37]]   # (beyond MAX_COORD where the box is traced: named as given)
+    far = [[0, 0, -5], [0, 0, -5], [0, 0, 1e37]]  # (beyond MAX_COORD where the box is traced: named as given)
     for query in (ours.intersects_id, ours.intersects_first, ours.intersects_any, ours.intersects_location):
         with pytest.raises(ConfigError, match=r"ray_origins: ray 2 lies too far from the mesh \(\[0.0, 0.0, 1e\+37\]"):
             query(far, [[0, 0, 1]] * 3)

@@ -1,6 +1,7 @@
 """The GPU refit of deformed meshes (engine/gpu/refit.py): the same node boxes and triangle records as the host refit
 (bit for bit), the same hits as the host refit and as a rebuild, the rebuild policy's SAH ratio, and frames of a
 deforming mesh equal to frames of a scene made from the deformed positions."""
+
 import numpy as np
 import pytest
 import trimesh
@@ -25,8 +26,8 @@ def host_refit_words(blas: list, n_instances: int, k: int, mesh) -> tuple:
     two = TwoLevel(blas, n_instances)
     ratio = two.refit(k, mesh.positions, mesh.indices)
     n0, t0 = int(two.node_base[k]), int(two.tri_base[k])
-    nodes = two.nodes[n0:n0 + len(blas[k].nodes)].view(np.uint32).reshape(-1, 16)
-    tris = two.tris[t0:t0 + len(blas[k].tris)].view(np.uint32).reshape(-1, 12)
+    nodes = two.nodes[n0 : n0 + len(blas[k].nodes)].view(np.uint32).reshape(-1, 16)
+    tris = two.tris[t0 : t0 + len(blas[k].tris)].view(np.uint32).reshape(-1, 12)
     return nodes, tris, ratio
 
 
@@ -40,7 +41,7 @@ def test_heights_put_every_node_after_its_children():
     for side in ("left", "right"):
         w = b.nodes[side]
         inner = (w & 0x80000000) == 0
-        assert np.all(h[inner] > h[w[inner].astype(np.int64)])   # a parent's dispatch comes after its child's
+        assert np.all(h[inner] > h[w[inner].astype(np.int64)])  # a parent's dispatch comes after its child's
     assert h[0] == h.max()
     assert np.array_equal(plan.faces, sphere.faces[b.prim_ids])
 
@@ -69,7 +70,7 @@ def test_gpu_refit_equals_the_host_refit_bit_for_bit():
                 assert bvh.last_refit_ratio[k] == pytest.approx(ratio, rel=1e-4)
             if recorded is None:
                 recorded = bvh.gpu_refit.meshes[0].cmd
-            assert bvh.gpu_refit.meshes[0].cmd is recorded            # re-submitted, not re-recorded
+            assert bvh.gpu_refit.meshes[0].cmd is recorded  # re-submitted, not re-recorded
         assert set(bvh.gpu_refit.last_ms) == {"upload", "boxes", "sah"}
         assert tracer.validation_errors == []
 
@@ -86,9 +87,9 @@ def test_gpu_refit_hits_equal_the_host_refit_and_a_rebuild():
         assert gpu.scene.gpu_refit is not None and host.scene.gpu_refit is None
         assert gpu.scene.last_refit_ratio[0] < 2.0 and gpu.scene.rebuilds == 0
         check_hits(a, scene, o, d)
-        assert np.array_equal(a.prim, b.prim) and np.array_equal(a.t, b.t)   # the same tree, the same boxes
+        assert np.array_equal(a.prim, b.prim) and np.array_equal(a.t, b.t)  # the same tree, the same boxes
         assert np.array_equal(a.instance, b.instance) and np.array_equal(a.mesh_prim, b.mesh_prim)
-        with Tracer.from_scene(scene) as fresh:                              # built from the deformed mesh
+        with Tracer.from_scene(scene) as fresh:  # built from the deformed mesh
             c = fresh.intersect(o, d)
         assert np.array_equal(a.prim >= 0, c.prim >= 0) and np.array_equal(a.prim, c.prim)
         np.testing.assert_allclose(a.t[a.prim >= 0], c.t[c.prim >= 0], rtol=1e-4)
@@ -135,7 +136,7 @@ def test_frames_of_a_deforming_mesh_equal_a_scene_made_deformed(make_renderer):
     aovs = ["shadow", "position", "instance_id", "triangle_id"]
     still = dict(shadows="hard", ao=False, accumulate=False, denoise=False)
     r.render(scene, aovs=aovs, **still)
-    scene.set_transforms(MOVED)   # a change: from here on the two-level BVH
+    scene.set_transforms(MOVED)  # a change: from here on the two-level BVH
     r.render(scene, aovs=aovs, **still)
     rest, normals = scene.meshes[2].positions.copy(), scene.meshes[2].normals.copy()
     for step in (1.0, -0.6):
@@ -143,11 +144,18 @@ def test_frames_of_a_deforming_mesh_equal_a_scene_made_deformed(make_renderer):
         scene.update_positions(2, bent, normals)
         got = r.render(scene, aovs=aovs, **still)
         ms, mats = meshes()
-        ms[2] = Mesh(bent, ms[2].indices, normals=ms[2].normals, uvs=ms[2].uvs,
-                     vertex_material=ms[2].vertex_material, name="ball")
+        ms[2] = Mesh(
+            bent,
+            ms[2].indices,
+            normals=ms[2].normals,
+            uvs=ms[2].uvs,
+            vertex_material=ms[2].vertex_material,
+            name="ball",
+        )
         insts = [Instance(k, t, name=n) for k, t, n in zip((0, 1, 1, 2), MOVED, ("ground", "box a", "box b", "ball"))]
-        fresh = make_renderer(96, 72).render(Scene.from_meshes(ms, insts, materials=mats, lights=[SUN],
-                                                               camera=CAMERA), aovs=aovs, **still)
+        fresh = make_renderer(96, 72).render(
+            Scene.from_meshes(ms, insts, materials=mats, lights=[SUN], camera=CAMERA), aovs=aovs, **still
+        )
         assert (got.aov["shadow"] == 0).mean() > 0.01
         for name in aovs:
             assert np.array_equal(got.aov[name], fresh.aov[name]), name
@@ -160,8 +168,9 @@ def test_gpu_refit_of_one_and_two_triangle_meshes():
     """A one-triangle mesh's root has an empty slot (inverted box, kept inverted); coordinates of exactly 0 step to
     the smallest denormals, and denormal coordinates stay as they are (no flushing), as on the host."""
     tri = Mesh(np.array([[0, 0, 0], [1, 0, 0], [0, 1, 0]], float), np.array([[0, 1, 2]]), name="tri")
-    quad = Mesh(np.array([[0, 0, 0], [1, 0, 0], [0, 1, 0], [1, 1, 0]], float), np.array([[0, 1, 2], [1, 3, 2]]),
-                name="quad")
+    quad = Mesh(
+        np.array([[0, 0, 0], [1, 0, 0], [0, 1, 0], [1, 1, 0]], float), np.array([[0, 1, 2], [1, 3, 2]]), name="quad"
+    )
     m = np.eye(4)
     m[:3, 3] = 2.0
     scene = Scene.from_meshes([tri, quad], [Instance(0, np.eye(4)), Instance(1, m)])
@@ -171,7 +180,7 @@ def test_gpu_refit_of_one_and_two_triangle_meshes():
         scene.update_positions(0, tri.positions * [1, 2, 1] + [[0, 0, 1e-42], [0, 0, 0], [-3e-41, 0, 0]])
         scene.update_positions(1, quad.positions * [-1, 1, 3])
         hits = tracer.intersect(o, d)
-        assert np.array_equal(hits.prim, [0, 2]) and np.allclose(hits.t, [1.0, 1.0])   # (quad: 1, 2)
+        assert np.array_equal(hits.prim, [0, 2]) and np.allclose(hits.t, [1.0, 1.0])  # (quad: 1, 2)
         for k in range(2):
             got_nodes, got_tris = tracer.scene.gpu_refit.read_back(k)
             nodes, tris, _ = host_refit_words(tracer.scene.blas, 2, k, scene.meshes[k])
@@ -184,11 +193,12 @@ def test_new_alpha_words_keep_a_refitted_mesh_deformed(make_renderer):
     the build's positions): the GPU-refitted leaves must stay deformed, their shadows those of a scene made with the
     deformed leaves and the overrides."""
     from tests.test_instances import masked_leaves_scene
+
     r = make_renderer(96, 72)
     settings = dict(aovs=("shadow",), shadows="hard", ao=False, accumulate=False, denoise=False)
     scene = masked_leaves_scene()
     r.render(scene, **settings)
-    scene.set_transforms(scene.transforms[1:], [1, 2])   # the two-level BVH from here on
+    scene.set_transforms(scene.transforms[1:], [1, 2])  # the two-level BVH from here on
     r.render(scene, **settings)
     bent = scene.meshes[1].positions * np.array([1.8, 1.0, 0.7], np.float32) + np.array([0.4, 0.0, 0.0], np.float32)
     scene.update_positions(1, bent)

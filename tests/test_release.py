@@ -1,5 +1,6 @@
 """Release hygiene: the metadata says what is true. One version, a licence, dependencies that are used, a changelog
 entry for the version, and Python 3.10 (no tomllib) loading TOML scenes through tomli."""
+
 import ast
 import os
 import re
@@ -11,12 +12,12 @@ import engine
 
 try:
     import tomllib
-except ModuleNotFoundError:   # Python 3.10 (tomli is in the dev extra)
+except ModuleNotFoundError:  # Python 3.10 (tomli is in the dev extra)
     import tomli as tomllib
 
 REPO = Path(__file__).resolve().parent.parent
 PYPROJECT = tomllib.loads((REPO / "pyproject.toml").read_text())
-IMPORT_NAME = {"pillow": "PIL", "openexr": "OpenEXR"}   # distribution name -> the module it is imported as
+IMPORT_NAME = {"pillow": "PIL", "openexr": "OpenEXR"}  # distribution name -> the module it is imported as
 
 
 def test_version_has_one_source():
@@ -24,14 +25,15 @@ def test_version_has_one_source():
     assert "version" not in project and "version" in project["dynamic"]
     assert PYPROJECT["tool"]["setuptools"]["dynamic"]["version"] == {"attr": "engine._version.__version__"}
     assert re.fullmatch(r"\d+\.\d+\.\d+", engine.__version__)
-    res = subprocess.run([sys.executable, "-m", "engine", "--version"], capture_output=True, text=True, cwd=REPO,
-                         timeout=120)
+    res = subprocess.run(
+        [sys.executable, "-m", "engine", "--version"], capture_output=True, text=True, cwd=REPO, timeout=120
+    )
     assert res.returncode == 0 and res.stdout.strip() == f"hybrid {engine.__version__}"
 
 
 def test_licence_in_the_repo_and_the_metadata():
     text = (REPO / "LICENSE").read_text()
-    assert text.startswith("MIT License") and "THE SOFTWARE IS PROVIDED \"AS IS\"" in text
+    assert text.startswith("MIT License") and 'THE SOFTWARE IS PROVIDED "AS IS"' in text
     assert PYPROJECT["project"]["license"] == "MIT" and PYPROJECT["project"]["license-files"] == ["LICENSE"]
 
 
@@ -55,8 +57,9 @@ def test_changelog_has_the_version():
     assert versions and versions[0] == engine.__version__, f"the newest entry is {versions[:1]}, not this version"
     assert versions == sorted(versions, key=lambda v: tuple(map(int, v.split("."))), reverse=True)
     for i, (entry, head) in enumerate(zip(entries, heads)):
-        assert re.fullmatch(r"\d{4}-\d\d-\d\d", head.group(2) or "") or (i == 0 and head.group(2) == "Unreleased"), \
+        assert re.fullmatch(r"\d{4}-\d\d-\d\d", head.group(2) or "") or (i == 0 and head.group(2) == "Unreleased"), (
             head.group(0)
+        )
         kinds = re.findall(r"^### (.+)$", entry, re.M)
         assert kinds and set(kinds) <= CHANGE_TYPES, (head.group(0), kinds)
         assert re.search(r"^- \S", entry, re.M), f"{head.group(0)}: no change listed"
@@ -83,11 +86,14 @@ def test_every_dependency_is_imported():
 
 def test_requires_python_matches_the_classifiers():
     low = re.fullmatch(r">=3\.(\d+)", PYPROJECT["project"]["requires-python"]).group(1)
-    minors = sorted(int(c.rsplit(".", 1)[1]) for c in PYPROJECT["project"]["classifiers"]
-                    if re.fullmatch(r"Programming Language :: Python :: 3\.\d+", c))
+    minors = sorted(
+        int(c.rsplit(".", 1)[1])
+        for c in PYPROJECT["project"]["classifiers"]
+        if re.fullmatch(r"Programming Language :: Python :: 3\.\d+", c)
+    )
     assert minors[0] == int(low)
     tomli = [d for d in PYPROJECT["project"]["dependencies"] if d.startswith("tomli")]
-    assert int(low) >= 11 or tomli == ["tomli>=1.1; python_version<'3.11'"]   # tomllib is 3.11+
+    assert int(low) >= 11 or tomli == ["tomli>=1.1; python_version<'3.11'"]  # tomllib is 3.11+
 
 
 TOMLI_SCENE = """
@@ -109,8 +115,14 @@ def test_toml_scenes_load_through_tomli_without_tomllib(tmp_path):
     bad = tmp_path / "bad.toml"
     bad.write_text("[camera\neye = [0, 0, 5]\n")
     env = dict(os.environ, PYTHONPATH=str(REPO))
-    res = subprocess.run([sys.executable, "-c", TOMLI_SCENE, str(bad)], capture_output=True, text=True, env=env,
-                         cwd=tmp_path, timeout=120)
+    res = subprocess.run(
+        [sys.executable, "-c", TOMLI_SCENE, str(bad)],
+        capture_output=True,
+        text=True,
+        env=env,
+        cwd=tmp_path,
+        timeout=120,
+    )
     assert res.returncode == 0, res.stderr[-3000:]
     counts, error = res.stdout.strip().splitlines()
     ref = engine.Scene.load(REPO / "scenes" / "sphere.toml")

@@ -1,4 +1,5 @@
 """Threads, lifetimes, output files and device faults: never a wrong answer, a crash, a hang or a truncated file."""
+
 import errno
 import gc
 import multiprocessing
@@ -24,8 +25,9 @@ from engine.vk.context import live_contexts
 
 
 def sphere_scene():
-    return Scene.from_trimesh(trimesh.creation.icosphere(subdivisions=2),
-                              camera=engine.Camera.look_at((0, 0.5, 3), (0, 0, 0)))
+    return Scene.from_trimesh(
+        trimesh.creation.icosphere(subdivisions=2), camera=engine.Camera.look_at((0, 0.5, 3), (0, 0, 0))
+    )
 
 
 def ray_batches(n_batches, n_rays, seed):
@@ -57,7 +59,7 @@ def test_a_tracer_shared_by_four_threads_answers_every_ray_right():
                             wrong.append((k, i))
                     elif not np.array_equal(t.intersect(o, d).t, want[j][1]):
                         wrong.append((k, i))
-            except Exception as exc:   # noqa: BLE001 - reported below
+            except Exception as exc:  # noqa: BLE001 - reported below
                 errors.append(repr(exc))
 
         threads = [threading.Thread(target=hammer, args=(k,)) for k in range(4)]
@@ -81,7 +83,7 @@ def test_two_renderers_on_two_threads_match_one_thread(make_renderer):
                 for _ in range(5):
                     got[k] = r.render(scene, shadows="hard", ao=True, ao_samples=2).color
                 assert not r.validation_errors, r.validation_errors[:2]
-        except Exception as exc:   # noqa: BLE001 - reported below
+        except Exception as exc:  # noqa: BLE001 - reported below
             errors.append(repr(exc))
 
     threads = [threading.Thread(target=run, args=(k,)) for k in range(2)]
@@ -110,14 +112,14 @@ def test_a_renderer_and_a_tracer_on_one_context_from_two_threads():
             try:
                 for _ in range(15):
                     r.render(scene, shadows="hard", ao=False)
-            except Exception as exc:   # noqa: BLE001
+            except Exception as exc:  # noqa: BLE001
                 errors.append(repr(exc))
 
         def trace():
             try:
                 for _ in range(60):
                     assert np.array_equal(t.occluded(o, d), want)
-            except Exception as exc:   # noqa: BLE001
+            except Exception as exc:  # noqa: BLE001
                 errors.append(repr(exc))
 
         threads = [threading.Thread(target=render), threading.Thread(target=trace)]
@@ -151,7 +153,7 @@ def test_close_while_another_thread_is_inside_a_call(kind):
                     started.set()
             except EngineError as exc:
                 outcome.append(str(exc))
-            except Exception as exc:   # noqa: BLE001
+            except Exception as exc:  # noqa: BLE001
                 outcome.append("unexpected: " + repr(exc))
             finally:
                 started.set()
@@ -174,7 +176,7 @@ def test_use_after_close_is_a_clear_error():
         t.occluded(np.zeros((1, 3)), np.ones((1, 3)))
     r = Renderer(16, 16)
     r.close()
-    r.close()   # twice is harmless
+    r.close()  # twice is harmless
     with pytest.raises(EngineError, match="closed Renderer"):
         r.render(sphere_scene())
 
@@ -225,7 +227,7 @@ def test_killed_writers_never_leave_a_partial_file(tmp_path):
         with Image.open(path) as im:
             got = np.asarray(im.convert("RGBA"))
         assert any(np.array_equal(got, img) for img in images)
-    Frame(color=images[1]).save(path)   # a later write removes the temporaries the killed ones left
+    Frame(color=images[1]).save(path)  # a later write removes the temporaries the killed ones left
     assert sorted(p.name for p in tmp_path.iterdir()) == ["out.png"]
 
 
@@ -248,6 +250,7 @@ def test_a_failed_write_keeps_the_old_file_and_leaves_no_temporary(tmp_path, mon
 
 def test_unwritable_folders_are_found_before_the_work(tmp_path):
     from engine.settings import check_png_path
+
     for bad in ("/proc/hybrid-test.png", "/sys/hybrid-test.png"):
         with pytest.raises(ConfigError, match=r"hybrid-test\.png: cannot write image"):
             check_png_path(bad)
@@ -299,8 +302,9 @@ def test_uploaded_buffers_hold_their_data_written_in_place_or_staged(monkeypatch
             buf = resources_mod.upload_buffer(ctx, data, usage, "data")
             assert np.array_equal(resources_mod.read_buffer(ctx, buf, np.uint32)[:1000], data)
             # several at once (one staging buffer and one submission where staged), an empty one among them
-            bufs = resources_mod.upload_buffers(ctx, [(more, usage, "a"), (np.zeros(0, np.uint8), usage, "b"),
-                                                      (data[::-1], usage, "c")])
+            bufs = resources_mod.upload_buffers(
+                ctx, [(more, usage, "a"), (np.zeros(0, np.uint8), usage, "b"), (data[::-1], usage, "c")]
+            )
             assert np.array_equal(resources_mod.read_buffer(ctx, bufs[0], np.float32)[:333], more)
             assert np.array_equal(resources_mod.read_buffer(ctx, bufs[2], np.uint32)[:1000], data[::-1])
             for b in [buf] + bufs:

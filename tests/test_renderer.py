@@ -1,4 +1,5 @@
 """Renderer behaviour a user relies on: uploads once, settings and size errors, devices, timings."""
+
 import os
 import subprocess
 import sys
@@ -12,8 +13,7 @@ from engine.vk import choose_device
 
 
 def small_scene():
-    return Scene.from_trimesh(trimesh.creation.box(extents=(1, 1, 1)),
-                              camera=Camera.look_at((2, 2, 3), (0, 0, 0)))
+    return Scene.from_trimesh(trimesh.creation.box(extents=(1, 1, 1)), camera=Camera.look_at((2, 2, 3), (0, 0, 0)))
 
 
 def test_same_scene_uploads_once_and_frames_repeat(make_renderer):
@@ -31,8 +31,13 @@ def test_same_scene_uploads_once_and_frames_repeat(make_renderer):
 def test_frame_fields_and_timings(make_renderer):
     f = make_renderer(40, 30).render(small_scene())
     assert f.color.shape == (30, 40, 4) and f.color.dtype == np.uint8
-    for name, shape in [("position", (30, 40, 3)), ("normal", (30, 40, 3)), ("albedo", (30, 40, 3)),
-                        ("depth", (30, 40)), ("ao", (30, 40))]:
+    for name, shape in [
+        ("position", (30, 40, 3)),
+        ("normal", (30, 40, 3)),
+        ("albedo", (30, 40, 3)),
+        ("depth", (30, 40)),
+        ("ao", (30, 40)),
+    ]:
         assert f.aov[name].shape == shape and f.aov[name].dtype == np.float32, name
     assert f.aov["shadow"].shape[:2] == (30, 40)
     assert {"gbuffer", "lighting"} <= set(f.timings)
@@ -41,6 +46,7 @@ def test_frame_fields_and_timings(make_renderer):
 
 def test_save_png(make_renderer, tmp_path):
     from PIL import Image
+
     f = make_renderer(40, 30).render(small_scene())
     f.save(tmp_path / "x.png")
     f.save(tmp_path / "d.png", aov="depth")
@@ -48,18 +54,21 @@ def test_save_png(make_renderer, tmp_path):
     assert Image.open(tmp_path / "d.png").size == (40, 30)
 
 
-@pytest.mark.parametrize("kw, word", [
-    (dict(shadows="sometimes"), "shadows"),
-    (dict(ao="yes"), "ao"),
-    (dict(ao_samples=0), "ao_samples"),
-    (dict(ao_radius=-1.0), "ao_radius"),
-    (dict(exposure=float("nan")), "exposure"),
-    (dict(shadow_sampels=4), "shadow_sampels"),
-    (dict(exposure=1e300), "exposure"),
-    (dict(ambient=[[1, 2], [3]]), "ambient"),
-    (dict(ambient={"r": 1}), "ambient"),
-    (dict(ambient=["a", "b", "c"]), "ambient"),
-])
+@pytest.mark.parametrize(
+    "kw, word",
+    [
+        (dict(shadows="sometimes"), "shadows"),
+        (dict(ao="yes"), "ao"),
+        (dict(ao_samples=0), "ao_samples"),
+        (dict(ao_radius=-1.0), "ao_radius"),
+        (dict(exposure=float("nan")), "exposure"),
+        (dict(shadow_sampels=4), "shadow_sampels"),
+        (dict(exposure=1e300), "exposure"),
+        (dict(ambient=[[1, 2], [3]]), "ambient"),
+        (dict(ambient={"r": 1}), "ambient"),
+        (dict(ambient=["a", "b", "c"]), "ambient"),
+    ],
+)
 def test_bad_settings_name_the_field(make_renderer, kw, word):
     r = make_renderer(16, 16)
     with pytest.raises(ConfigError, match=word):
@@ -74,7 +83,7 @@ def test_settings_accept_numpy_numbers_and_name_the_scene_for_its_own(make_rende
     with pytest.raises(ConfigError, match=r"\[settings\]: setting shadows='blurry'") as err:
         r.render(scene)
     assert str(err.value).startswith(scene.name)
-    assert r.render(scene, shadows="hard").settings["shadows"] == "hard"   # a keyword wins over the scene's
+    assert r.render(scene, shadows="hard").settings["shadows"] == "hard"  # a keyword wins over the scene's
 
 
 def test_render_arguments_are_checked(make_renderer, tmp_path):
@@ -85,8 +94,11 @@ def test_render_arguments_are_checked(make_renderer, tmp_path):
         r.render(small_scene(), "cam")
     f = r.render(small_scene())
     (tmp_path / "d.png").mkdir()
-    for path, word in ((tmp_path / "x.gif", "ending in .png"), (tmp_path / "no" / "x.png", "no folder"),
-                       (tmp_path / "d.png", "is a folder")):
+    for path, word in (
+        (tmp_path / "x.gif", "ending in .png"),
+        (tmp_path / "no" / "x.png", "no folder"),
+        (tmp_path / "d.png", "is a folder"),
+    ):
         with pytest.raises(ConfigError, match=word):
             f.save(path)
 
@@ -99,9 +111,9 @@ def test_bad_size(size):
 
 def test_device_selection():
     devs = [{"index": 0, "name": "llvmpipe", "rank": 3}, {"index": 1, "name": "NVIDIA H100", "rank": 0}]
-    assert choose_device(devs) == 1            # discrete before CPU
-    assert choose_device(devs, "llvm") == 0    # name substring
-    assert choose_device(devs, 0) == 0         # index
+    assert choose_device(devs) == 1  # discrete before CPU
+    assert choose_device(devs, "llvm") == 0  # name substring
+    assert choose_device(devs, 0) == 0  # index
     with pytest.raises(ConfigError, match="device='radeon'"):
         choose_device(devs, "radeon")
     with pytest.raises(ConfigError, match="no such device index"):
@@ -128,6 +140,7 @@ def test_ray_passes_are_specialized_to_the_scenes_bvh(make_renderer):
     changes, and a frame of a deeper scene afterwards matches another renderer's with the same history."""
     from engine.gpu.bvh import CPU_STACK_REGS
     from engine.vk.device import is_cpu, work_shares
+
     r = make_renderer(48, 32)
     r.render(small_scene())
     depth = r.bvh_stats["depth"]
@@ -135,24 +148,33 @@ def test_ray_passes_are_specialized_to_the_scenes_bvh(make_renderer):
         spec = p.values
         # a single-level BVH's spec plus its walk said to be single-level (BVH_INSTANCED false); no alpha-tested
         # materials, no textures
-        assert spec == {"BVH_INSTANCED": False, **r._scene_bvh.spec(r.ctx, postpone=p.postpone_leaves),
-                        "WORK_SHARES": work_shares(r.ctx), "ALPHA_TEST": False, "TEXTURE_ARRAYS": 1}
+        assert spec == {
+            "BVH_INSTANCED": False,
+            **r._scene_bvh.spec(r.ctx, postpone=p.postpone_leaves),
+            "WORK_SHARES": work_shares(r.ctx),
+            "ALPHA_TEST": False,
+            "TEXTURE_ARRAYS": 1,
+        }
         if is_cpu(r.ctx):
             regs = spec["BVH_STACK_REGS"]
             assert regs == min(CPU_STACK_REGS, max(1, depth - 1)) and spec["BVH_COMPRESSED"]
             assert spec["BVH_STACK_RETRY"] == (depth - 1 > regs)
-            assert spec["BVH_IMAGE_FETCH"]   # image loads (the BVH's storage texel buffer views) on CPU devices
+            assert spec["BVH_IMAGE_FETCH"]  # image loads (the BVH's storage texel buffer views) on CPU devices
         else:
             assert not spec["BVH_IMAGE_FETCH"]
     rng = np.random.default_rng(2)
     soup = trimesh.Trimesh(rng.uniform(-1, 1, (6000, 3)), np.arange(6000).reshape(2000, 3), process=False)
     deep = Scene.from_trimesh(soup, camera=Camera.look_at((2, 2, 3), (0, 0, 0)))
     a = r.render(deep)
-    assert r.shadows.values == {"BVH_INSTANCED": False,
-                                **r._scene_bvh.spec(r.ctx, postpone=r.shadows.postpone_leaves),
-                                "WORK_SHARES": work_shares(r.ctx), "ALPHA_TEST": False, "TEXTURE_ARRAYS": 1}
+    assert r.shadows.values == {
+        "BVH_INSTANCED": False,
+        **r._scene_bvh.spec(r.ctx, postpone=r.shadows.postpone_leaves),
+        "WORK_SHARES": work_shares(r.ctx),
+        "ALPHA_TEST": False,
+        "TEXTURE_ARRAYS": 1,
+    }
     fresh = make_renderer(48, 32)
-    fresh.render(small_scene())      # the same frame history (AO samples follow the frame count)
+    fresh.render(small_scene())  # the same frame history (AO samples follow the frame count)
     b = fresh.render(deep)
     assert np.array_equal(a.aov["shadow"], b.aov["shadow"]) and np.array_equal(a.aov["ao"], b.aov["ao"])
 
@@ -178,6 +200,7 @@ def test_work_shares_do_not_change_the_frame(make_renderer, monkeypatch):
     from pathlib import Path
 
     from engine.vk import device
+
     scene = Scene.load(Path(__file__).resolve().parents[1] / "scenes" / "default.toml")
     settings = dict(shadows="hard", ao=True, ao_samples=2)
     frames = []
@@ -197,6 +220,7 @@ def test_a_failed_specialization_keeps_the_old_pipeline_and_its_spec(make_render
     """If re-creating a ray pass's pipeline fails, the pass keeps the old pipeline and the spec that describes it,
     so the next scene upload tries again instead of tracing with constants that do not match the buffers."""
     from engine.errors import ShaderError
+
     r = make_renderer(32, 24)
     r.render(small_scene())
     before, handle, values = dict(r.shadows.pipeline.spec), r.shadows.pipeline.handle, dict(r.shadows.values)
@@ -213,6 +237,7 @@ def test_a_failed_specialization_keeps_the_old_pipeline_and_its_spec(make_render
 
 def test_closed_or_foreign_context_is_a_clear_error():
     from engine.vk import Context
+
     ctx = Context()
     ctx.close()
     with pytest.raises(ConfigError, match="Renderer: the Vulkan context is closed"):
@@ -225,6 +250,7 @@ def test_shared_context_closed_under_a_renderer_is_a_clear_error():
     """Its owner closes a shared context first: render() says so and close() is harmless (it used to abort the
     process inside the Vulkan loader)."""
     from engine.vk import Context
+
     ctx = Context()
     r = Renderer(16, 16, context=ctx)
     assert r.render(small_scene()).color.shape == (16, 16, 4)

@@ -49,8 +49,7 @@ def textured_box(image_size=(8, 4)):
     rng = np.random.default_rng(1)
     img = Image.fromarray(rng.integers(0, 255, (image_size[1], image_size[0], 3), dtype=np.uint8))
     uv = rng.random((len(box.vertices), 2))
-    mat = trimesh.visual.material.PBRMaterial(name="tex", baseColorFactor=[0.5, 0.25, 1.0, 1.0],
-                                              baseColorTexture=img)
+    mat = trimesh.visual.material.PBRMaterial(name="tex", baseColorFactor=[0.5, 0.25, 1.0, 1.0], baseColorTexture=img)
     box.visual = trimesh.visual.TextureVisuals(uv=uv, material=mat)
     return box, img, uv
 
@@ -104,8 +103,9 @@ def test_stl_box_gets_flat_normals(tmp_path):
 
 def test_glb_node_transform_and_texture(tmp_path):
     box, img, uv = textured_box()
-    m = trimesh.transformations.compose_matrix(scale=[2.0, 1.0, 1.0], angles=[0, math.radians(90), 0],
-                                               translate=[5.0, 1.0, -2.0])
+    m = trimesh.transformations.compose_matrix(
+        scale=[2.0, 1.0, 1.0], angles=[0, math.radians(90), 0], translate=[5.0, 1.0, -2.0]
+    )
     sc = trimesh.Scene()
     sc.add_geometry(box, node_name="moved", geom_name="box", transform=m)
     sc.add_geometry(box, node_name="still", geom_name="box")
@@ -113,7 +113,7 @@ def test_glb_node_transform_and_texture(tmp_path):
     scene = Scene.load(path)
     assert scene.triangle_count == 24
     assert len(scene.submeshes) == 2
-    assert len(scene.materials) == 1                       # one shared material, deduplicated
+    assert len(scene.materials) == 1  # one shared material, deduplicated
     mat = scene.materials[0]
     np.testing.assert_allclose(mat.base_color, [128 / 255, 64 / 255, 1.0, 1.0], atol=1e-6)
     assert mat.texture.shape == (4, 8, 4) and mat.texture.dtype == np.uint8
@@ -134,7 +134,7 @@ def test_glb_node_transform_and_texture(tmp_path):
     assert np.all(np.einsum("ij,ij->i", scene.positions[sl] - centre, n) > 0)
     # UVs: trimesh's v-up convention turned into ours (v = 0 at the image's top row)
     still = next(s for s in scene.submeshes if s.name == "still")
-    got = scene.uvs[still.first_vertex:still.first_vertex + still.vertex_count]
+    got = scene.uvs[still.first_vertex : still.first_vertex + still.vertex_count]
     # (the 8 box corners are split into 24 vertices at the creases; each keeps its corner's UV)
     np.testing.assert_allclose(np.unique(got[:, 0]), np.sort(uv[:, 0]), atol=1e-6)
     np.testing.assert_allclose(np.unique(got[:, 1]), np.sort(1.0 - uv[:, 1]), atol=1e-6)
@@ -168,7 +168,7 @@ def test_from_trimesh_and_defaults():
     scene = Scene.from_trimesh(trimesh.creation.box(extents=(2, 2, 2)))
     assert scene.name == "<trimesh>"
     assert isinstance(scene.lights[0], DirectionalLight)
-    assert scene.lights[0].direction[1] < -0.5           # from above, at an angle
+    assert scene.lights[0].direction[1] < -0.5  # from above, at an angle
     assert abs(scene.lights[0].direction[0]) > 0.1
     assert isinstance(scene.camera, Camera) and scene.camera.fov_y == 60.0
     assert scene.materials[0].texture is None
@@ -197,14 +197,17 @@ def test_from_arrays_and_identity():
 
 
 def test_non_uniform_scale_normals_use_inverse_transpose(tmp_path):
-    toml = write(tmp_path / "ellipsoid.toml", """
+    toml = write(
+        tmp_path / "ellipsoid.toml",
+        """
 [[mesh]]
 primitive = "sphere"
 radius = 1.0
 scale = [1.0, 3.0, 1.0]
 rotate = {axis = [0, 0, 1], angle = 90}
 translate = [1.0, 2.0, 3.0]
-""")
+""",
+    )
     scene = Scene.load(toml)
     # ellipsoid x^2 / 9 + y^2 + z^2 = 1 around (1, 2, 3) after the 90 degree turn: normal ~ (x / 9, y, z)
     p = scene.positions.astype(np.float64) - [1.0, 2.0, 3.0]
@@ -216,7 +219,9 @@ translate = [1.0, 2.0, 3.0]
 
 
 def test_mirror_transform_keeps_winding(tmp_path):
-    toml = write(tmp_path / "mirror.toml", """
+    toml = write(
+        tmp_path / "mirror.toml",
+        """
 [[mesh]]
 primitive = "box"
 size = [1, 2, 3]
@@ -225,7 +230,8 @@ scale = [1, 1, 1]
 primitive = "torus"
 rotate = [30, 40, 50]
 translate = [5, 0, 0]
-""")
+""",
+    )
     assert_consistent(Scene.load(toml))
 
 
@@ -253,10 +259,10 @@ def test_projection_reverse_z_vulkan():
     assert p.dtype == np.float32
     ndc = cam.project([[0, 0, 0], [0, 1, 0], [1, 0, 0], [0, 0, 4.9], [0, 0, -1e9]], aspect=2.0)
     np.testing.assert_allclose(ndc[0], [0, 0, 0.1 / 5], atol=1e-6)
-    np.testing.assert_allclose(ndc[1], [0, -1 / 5, 0.1 / 5], atol=1e-6)     # up is -y in Vulkan NDC
+    np.testing.assert_allclose(ndc[1], [0, -1 / 5, 0.1 / 5], atol=1e-6)  # up is -y in Vulkan NDC
     np.testing.assert_allclose(ndc[2], [1 / 5 / 2, 0, 0.1 / 5], atol=1e-6)  # aspect 2 halves x
-    np.testing.assert_allclose(ndc[3, 2], 1.0, atol=1e-5)                    # at the near plane: depth 1
-    assert 0 <= ndc[4, 2] < 1e-9                                            # towards infinity: depth 0
+    np.testing.assert_allclose(ndc[3, 2], 1.0, atol=1e-5)  # at the near plane: depth 1
+    assert 0 <= ndc[4, 2] < 1e-9  # towards infinity: depth 0
     # matrix form agrees: clip = P @ V @ p
     clip = p.astype(np.float64) @ cam.view_matrix().astype(np.float64) @ [0, 1, 0, 1]
     np.testing.assert_allclose(clip[:3] / clip[3], ndc[1], atol=1e-6)
@@ -285,21 +291,24 @@ def test_framing_camera_contains_bounds(aspect):
     corners = np.array([[x, y, z] for x in (lo[0], hi[0]) for y in (lo[1], hi[1]) for z in (lo[2], hi[2])])
     ndc = cam.project(corners, aspect)
     assert np.all(np.abs(ndc[:, :2]) <= 1.0)
-    assert np.all((ndc[:, 2] > 0) & (ndc[:, 2] <= 1.0))                    # in front of the near plane
-    assert cam.eye[1] > scene.center[1]                                      # looking down at it
+    assert np.all((ndc[:, 2] > 0) & (ndc[:, 2] <= 1.0))  # in front of the near plane
+    assert cam.eye[1] > scene.center[1]  # looking down at it
     assert cam.near < 0.1 * np.linalg.norm(cam.eye - scene.center)
 
 
-@pytest.mark.parametrize("args, field", [
-    (dict(eye=(1, 2, 3), target=(1, 2, 3)), "eye and target"),
-    (dict(eye=(0, 0, 1), target=(0, 0, 0), fov_y=0), "fov_y"),
-    (dict(eye=(0, 0, 1), target=(0, 0, 0), fov_y=180), "fov_y"),
-    (dict(eye=(0, 0, 1), target=(0, 0, 0), fov_y=float("nan")), "fov_y"),
-    (dict(eye=(0, 5, 0), target=(0, 0, 0)), "up"),
-    (dict(eye=(0, 0), target=(0, 0, 0)), "eye"),
-    (dict(eye=(0, 0, 1), target=(0, "x", 0)), "target"),
-    (dict(eye=(0, 0, 1), target=(0, 0, 0), near=0), "near"),
-])
+@pytest.mark.parametrize(
+    "args, field",
+    [
+        (dict(eye=(1, 2, 3), target=(1, 2, 3)), "eye and target"),
+        (dict(eye=(0, 0, 1), target=(0, 0, 0), fov_y=0), "fov_y"),
+        (dict(eye=(0, 0, 1), target=(0, 0, 0), fov_y=180), "fov_y"),
+        (dict(eye=(0, 0, 1), target=(0, 0, 0), fov_y=float("nan")), "fov_y"),
+        (dict(eye=(0, 5, 0), target=(0, 0, 0)), "up"),
+        (dict(eye=(0, 0), target=(0, 0, 0)), "eye"),
+        (dict(eye=(0, 0, 1), target=(0, "x", 0)), "target"),
+        (dict(eye=(0, 0, 1), target=(0, 0, 0), near=0), "near"),
+    ],
+)
 def test_camera_validation(args, field):
     with pytest.raises(ConfigError, match=field):
         Camera.look_at(**args)
@@ -315,23 +324,26 @@ def test_lights():
     np.testing.assert_allclose(np.linalg.norm(spot.direction), 1.0)
     rect = RectLight((0, 3, 0), u=(2, 0, 0), v=(0, 0, 1))
     assert rect.kind == "rect" and rect.area == pytest.approx(2.0)
-    np.testing.assert_allclose(rect.normal, [0, -1, 0])                    # cross(u, v)
+    np.testing.assert_allclose(rect.normal, [0, -1, 0])  # cross(u, v)
     point = PointLight((1, 2, 3), color=(1, 0.5, 0.25), intensity=3.0, radius=0.2)
     assert point.kind == "point" and point.to_dict()["radius"] == 0.2
 
 
-@pytest.mark.parametrize("make, field", [
-    (lambda: DirectionalLight((0, 0, 0)), "direction"),
-    (lambda: DirectionalLight((0, -1, 0), intensity=-1), "intensity"),
-    (lambda: DirectionalLight((0, -1, 0), angle=-1), "angle"),
-    (lambda: PointLight((0, float("inf"), 0)), "position"),
-    (lambda: PointLight((0, 1, 0), radius=-0.1), "radius"),
-    (lambda: PointLight((0, 1, 0), color=(1, -1, 0)), "color"),
-    (lambda: SpotLight((0, 1, 0), (0, -1, 0), cone_angle=0), "cone_angle"),
-    (lambda: SpotLight((0, 1, 0), (0, -1, 0), softness=2), "softness"),
-    (lambda: RectLight((0, 1, 0), (1, 0, 0), (2, 0, 0)), "parallel"),
-    (lambda: PointLight("abc"), "position must be 3 numbers"),
-])
+@pytest.mark.parametrize(
+    "make, field",
+    [
+        (lambda: DirectionalLight((0, 0, 0)), "direction"),
+        (lambda: DirectionalLight((0, -1, 0), intensity=-1), "intensity"),
+        (lambda: DirectionalLight((0, -1, 0), angle=-1), "angle"),
+        (lambda: PointLight((0, float("inf"), 0)), "position"),
+        (lambda: PointLight((0, 1, 0), radius=-0.1), "radius"),
+        (lambda: PointLight((0, 1, 0), color=(1, -1, 0)), "color"),
+        (lambda: SpotLight((0, 1, 0), (0, -1, 0), cone_angle=0), "cone_angle"),
+        (lambda: SpotLight((0, 1, 0), (0, -1, 0), softness=2), "softness"),
+        (lambda: RectLight((0, 1, 0), (1, 0, 0), (2, 0, 0)), "parallel"),
+        (lambda: PointLight("abc"), "position must be 3 numbers"),
+    ],
+)
 def test_light_validation(make, field):
     with pytest.raises(ConfigError, match=field):
         make()
@@ -341,7 +353,9 @@ def test_light_validation(make, field):
 def test_toml_full_format(tmp_path):
     Image.fromarray(np.zeros((4, 4, 3), dtype=np.uint8)).save(tmp_path / "tex.png")
     trimesh.creation.icosphere(subdivisions=1).export(tmp_path / "ball.ply")
-    path = write(tmp_path / "all.toml", """
+    path = write(
+        tmp_path / "all.toml",
+        """
 [camera]
 eye = [0, 2, 8]
 target = [0, 0, 0]
@@ -391,7 +405,8 @@ intensity = 2
 [settings]
 shadows = "soft"
 shadow_samples = 4
-""")
+""",
+    )
     scene = Scene.load(path)
     assert [light.kind for light in scene.lights] == ["directional", "point", "spot", "rect"]
     np.testing.assert_allclose(scene.lights[2].direction, [0, -1, 0])
@@ -399,10 +414,10 @@ shadow_samples = 4
     assert scene.camera.fov_y == 45.0
     assert len(scene.submeshes) == 3
     ball = scene.materials[int(scene.vertex_material[0])]
-    np.testing.assert_allclose(ball.base_color[:3], 0.2158605, atol=1e-5)   # sRGB 0x80 -> linear
+    np.testing.assert_allclose(ball.base_color[:3], 0.2158605, atol=1e-5)  # sRGB 0x80 -> linear
     floor = next(s for s in scene.submeshes if s.name == "floor")
     assert scene.materials[floor.material].texture.shape == (4, 4, 4)
-    uv = scene.uvs[floor.first_vertex:floor.first_vertex + floor.vertex_count]
+    uv = scene.uvs[floor.first_vertex : floor.first_vertex + floor.vertex_count]
     assert uv.max() == pytest.approx(4.0)
     np.testing.assert_allclose(scene.bounds[:, 1], [-1.0, 2.0], atol=1e-5)
     assert_consistent(scene)
@@ -469,17 +484,26 @@ TOML_CASES = [
     # (toml text, parts of the message)
     ('[[mesh]]\nprimitive = "box"\n[[mesh]]\nprimitive = "box"\nscael = 2\n', ["[[mesh]] #2", "unknown key 'scael'"]),
     ('[[mesh]]\nprimitive = "box"\n[cmaera]\neye = [0, 0, 1]\n', ["unknown key 'cmaera'"]),
-    ('[[mesh]]\nprimitive = "box"\n[camera]\neye = [0, 0, 1]\ntarget = [0, 0, 0]\nfov_y = 30\n',
-     ["[camera]", "unknown key 'fov_y'"]),
-    ('[[mesh]]\nprimitive = "box"\n[[light]]\ntype = "point"\nposition = [0, 1]\n',
-     ["[[light]] #1", "position must be 3 numbers"]),
+    (
+        '[[mesh]]\nprimitive = "box"\n[camera]\neye = [0, 0, 1]\ntarget = [0, 0, 0]\nfov_y = 30\n',
+        ["[camera]", "unknown key 'fov_y'"],
+    ),
+    (
+        '[[mesh]]\nprimitive = "box"\n[[light]]\ntype = "point"\nposition = [0, 1]\n',
+        ["[[light]] #1", "position must be 3 numbers"],
+    ),
     ('[[mesh]]\nprimitive = "box"\n[[light]]\ntype = "point"\nposition = "up"\n', ["position must be 3 numbers"]),
     ('[[mesh]]\nprimitive = "box"\n[[light]]\ntype = "laser"\n', ["[[light]] #1", "type must be one of"]),
-    ('[[mesh]]\nprimitive = "box"\n[[light]]\ntype = "spot"\nposition = [0, 1, 0]\ndirection = [0, -1, 0]\n'
-     'intensity = -2\n', ["[[light]] #1 (spot)", "intensity"]),
+    (
+        '[[mesh]]\nprimitive = "box"\n[[light]]\ntype = "spot"\nposition = [0, 1, 0]\ndirection = [0, -1, 0]\n'
+        "intensity = -2\n",
+        ["[[light]] #1 (spot)", "intensity"],
+    ),
     ('[[mesh]]\nprimitive = "box"\n[[light]]\ntype = "directional"\n', ["missing key 'direction'"]),
-    ('[[mesh]]\nprimitive = "box"\n[[light]]\ntype = "point"\nposition = [0, 1, 0]\nradius = 1\ncone_angle = 3\n',
-     ["(point)", "unknown key 'cone_angle'"]),
+    (
+        '[[mesh]]\nprimitive = "box"\n[[light]]\ntype = "point"\nposition = [0, 1, 0]\nradius = 1\ncone_angle = 3\n',
+        ["(point)", "unknown key 'cone_angle'"],
+    ),
     ('[[mesh]]\nprimitive = "box"\nsize = 0\n', ["[[mesh]] #1", "size must be > 0"]),
     ('[[mesh]]\nprimitive = "box"\nsize = [1, -1, 1]\n', ["size must be > 0"]),
     ('[[mesh]]\nprimitive = "sphere"\nradius = -1\n', ["radius must be > 0"]),
@@ -495,8 +519,8 @@ TOML_CASES = [
     ('[[mesh]]\nprimitive = "box"\ntexture = "nope.png"\n', ["[[mesh]] #1", "texture", "nope.png"]),
     ('[[mesh]]\nprimitive = "box"\n[camera]\neye = [0, 0, 0]\ntarget = [0, 0, 0]\n', ["[camera]", "eye and target"]),
     ('[[mesh]]\nprimitive = "box"\n[camera]\neye = [0, 0, 1]\ntarget = [0, 0, 0]\nfov = 0\n', ["[camera]", "fov"]),
-    ('[camera]\neye = [0, 0, 1]\ntarget = [0, 0, 0]\n', ["no [[mesh]]"]),
-    ('mesh = 3\n', ["'mesh' must be a table"]),
+    ("[camera]\neye = [0, 0, 1]\ntarget = [0, 0, 0]\n", ["no [[mesh]]"]),
+    ("mesh = 3\n", ["'mesh' must be a table"]),
     ('[[mesh]]\nprimitive = "sphere"\nsegments = 2.5\n', ["segments must be an integer"]),
 ]
 
@@ -554,6 +578,7 @@ def test_docs_example_loads():
     import tomllib
 
     from engine.scene.scene import scene_from_dict
+
     text = open(os.path.join(ROOT, "docs", "scenes.md")).read()
     block = text.split("```toml\n", 1)[1].split("```", 1)[0]
     scene = scene_from_dict(tomllib.loads(block), os.path.join(SCENES, "doc_example.toml"))
@@ -566,22 +591,24 @@ def test_docs_example_loads():
 BOX = '[[mesh]]\nprimitive = "box"\n'
 OVERFLOW_CASES = [
     # numbers finite in float64 that would overflow float32 (or the tracer's coordinate bound)
-    (BOX + '[camera]\neye = [0, 0, 1e39]\ntarget = [0, 0, 0]\n', ["[camera]", "eye must be within"]),
+    (BOX + "[camera]\neye = [0, 0, 1e39]\ntarget = [0, 0, 0]\n", ["[camera]", "eye must be within"]),
     (BOX + '[[light]]\ntype = "point"\nposition = [0, 1, 0]\nintensity = 1e300\n', ["(point)", "intensity"]),
     (BOX + '[[light]]\ntype = "point"\nposition = [0, 1, 0]\nradius = 1e300\n', ["(point)", "radius"]),
     (BOX + '[[light]]\ntype = "spot"\nposition = [0, 1e300, 0]\ndirection = [0, -1, 0]\n', ["(spot)", "position"]),
     (BOX + '[[light]]\ntype = "rect"\nposition = [0, 1, 0]\nu = [1e39, 0, 0]\nv = [0, 0, 1e39]\n', ["(rect)", "u"]),
     (BOX + '[[light]]\ntype = "directional"\ndirection = [0, -1e300, 0]\n', ["direction must be within"]),
-    (BOX + 'color = [1e300, 0, 0]\n', ["[[mesh]] #1", "color must be within"]),
-    (BOX + 'translate = [0, 1e39, 0]\n', ["[[mesh]] #1", "translate"]),
-    (BOX + 'scale = 1e300\n', ["[[mesh]] #1", "scale"]),
-    (BOX + 'size = 1e300\n', ["[[mesh]] #1", "size"]),
-    (BOX + 'size = 1e25\nscale = 1e25\n', ["[[mesh]] #1", "mesh 'box'", "world-space", "beyond"]),
-    (BOX + 'rotate = {axis = [0, 1, 0], angle = 1e300}\n', ["rotate.angle"]),
+    (BOX + "color = [1e300, 0, 0]\n", ["[[mesh]] #1", "color must be within"]),
+    (BOX + "translate = [0, 1e39, 0]\n", ["[[mesh]] #1", "translate"]),
+    (BOX + "scale = 1e300\n", ["[[mesh]] #1", "scale"]),
+    (BOX + "size = 1e300\n", ["[[mesh]] #1", "size"]),
+    (BOX + "size = 1e25\nscale = 1e25\n", ["[[mesh]] #1", "mesh 'box'", "world-space", "beyond"]),
+    (BOX + "rotate = {axis = [0, 1, 0], angle = 1e300}\n", ["rotate.angle"]),
     # a list as a light type; the triangle count of one primitive
     (BOX + '[[light]]\ntype = ["point"]\n', ["[[light]] #1", "type must be one of"]),
-    ('[[mesh]]\nprimitive = "sphere"\nsegments = 4096\nrings = 4096\n',
-     ["[[mesh]] #1", "segments x rings", "33,554,432", "4,000,000"]),
+    (
+        '[[mesh]]\nprimitive = "sphere"\nsegments = 4096\nrings = 4096\n',
+        ["[[mesh]] #1", "segments x rings", "33,554,432", "4,000,000"],
+    ),
     ('[[mesh]]\nprimitive = "torus"\nsegments = 4096\nsides = 1024\n', ["[[mesh]] #1", "segments x sides"]),
 ]
 
@@ -601,7 +628,7 @@ def test_overflow_in_the_python_api():
     with pytest.raises(SceneError, match=r"<arrays>: 1 vertex position\(s\) have coordinates beyond"):
         Scene.from_arrays([[0, 0, 0], [1, 0, 0], [0, 1e39, 0]], [[0, 1, 2]])
     # a long direction is normalised without overflow
-    np.testing.assert_allclose(DirectionalLight((1e29, 1e29, 0)).direction, [2 ** -0.5, 2 ** -0.5, 0])
+    np.testing.assert_allclose(DirectionalLight((1e29, 1e29, 0)).direction, [2**-0.5, 2**-0.5, 0])
 
 
 def test_framing_camera_error_names_the_scene():
@@ -630,8 +657,12 @@ def test_non_regular_files_are_refused(tmp_path):
 
 def test_toml_file_as_a_mesh(tmp_path):
     write(tmp_path / "other.toml", BOX)
-    msg = expect_error(write(tmp_path / "s.toml", '[[mesh]]\nfile = "other.toml"\n'), "[[mesh]] #1",
-                       "other.toml", "cannot be used as a mesh file")
+    msg = expect_error(
+        write(tmp_path / "s.toml", '[[mesh]]\nfile = "other.toml"\n'),
+        "[[mesh]] #1",
+        "other.toml",
+        "cannot be used as a mesh file",
+    )
     assert "supported: .toml" not in msg
     expect_error(write(tmp_path / "model.xyz3", "hello"), "unsupported file type", "supported: .toml")
 
@@ -644,13 +675,16 @@ def test_missing_and_corrupt_references_warn(tmp_path, caplog):
     write(tmp_path / "c.mtl", "newmtl m\nKd 1 1 1\nmap_Kd bad.png\n")
     write(tmp_path / "bad.png", b"not a png at all")
     write(tmp_path / "c.obj", "mtllib c.mtl\n" + tri)
-    for name, parts in (("a.obj", ["material file 'gone.mtl' not found"]), ("b.obj", ["texture 'gone.png' not found"]),
-                        ("c.obj", ["texture 'bad.png' is unreadable"])):
+    for name, parts in (
+        ("a.obj", ["material file 'gone.mtl' not found"]),
+        ("b.obj", ["texture 'gone.png' not found"]),
+        ("c.obj", ["texture 'bad.png' is unreadable"]),
+    ):
         caplog.clear()
         with caplog.at_level("WARNING", logger="engine.scene"):
             scene = Scene.load(tmp_path / name)
         assert scene.triangle_count == 1
-        if name != "a.obj":   # (without its MTL trimesh gives the mesh a plain default material)
+        if name != "a.obj":  # (without its MTL trimesh gives the mesh a plain default material)
             assert all(m.texture is None for m in scene.materials)
         text = " | ".join(r.getMessage() for r in caplog.records if r.levelname == "WARNING")
         for part in [str(tmp_path / name)] + parts:
@@ -673,14 +707,16 @@ def test_textures_referenced_by_mesh_files_load(tmp_path, caplog):
     a texture outside the mesh's folder is named as such (trimesh does not search there)."""
     import trimesh
     from PIL import Image
+
     (tmp_path / "tex").mkdir()
     Image.new("RGB", (4, 4), (200, 30, 30)).save(tmp_path / "tex" / "a.png")
     tri = "v 0 0 0\nv 1 0 0\nv 0 1 0\nvt 0 0\nvt 1 0\nvt 0 1\nusemtl m\nf 1/1 2/2 3/3\n"
     write(tmp_path / "m.mtl", "newmtl m\nKd 1 1 1\nmap_Kd tex/a.png\n")
     write(tmp_path / "a.obj", "mtllib m.mtl\n" + tri)
     mesh = trimesh.Trimesh([[0, 0, 0], [1, 0, 0], [0, 1, 0]], [[0, 1, 2]], process=False)
-    mesh.visual = trimesh.visual.TextureVisuals(uv=[[0, 0], [1, 0], [0, 1]],
-                                                image=Image.new("RGB", (4, 4), (30, 200, 30)))
+    mesh.visual = trimesh.visual.TextureVisuals(
+        uv=[[0, 0], [1, 0], [0, 1]], image=Image.new("RGB", (4, 4), (30, 200, 30))
+    )
     mesh.export(tmp_path / "b.glb")
     (tmp_path / "up").mkdir()
     write(tmp_path / "up" / "u.mtl", "newmtl m\nKd 1 1 1\nmap_Kd ../tex/a.png\n")

@@ -60,10 +60,17 @@ def test_paths_inside_the_scene_folder_load(layout):
     assert any(m.texture is not None and tuple(m.texture[0, 0]) == (200, 30, 30, 255) for m in scene.materials)
 
 
-@pytest.mark.parametrize("key, value", [
-    ("file", "../outside.obj"), ("file", "../outside/tri.obj"), ("texture", "../outside/red.png"),
-    ("file", "{root}/outside.obj"), ("texture", "{root}/outside/red.png"), ("file", "/etc/hostname"),
-])
+@pytest.mark.parametrize(
+    "key, value",
+    [
+        ("file", "../outside.obj"),
+        ("file", "../outside/tri.obj"),
+        ("texture", "../outside/red.png"),
+        ("file", "{root}/outside.obj"),
+        ("texture", "{root}/outside/red.png"),
+        ("file", "/etc/hostname"),
+    ],
+)
 def test_paths_outside_are_refused_the_same_whether_they_exist_or_not(layout, key, value):
     value = value.format(root=layout)
     table = '[[mesh]]\nfile = "tri.obj"\n' if key == "texture" else ""
@@ -74,16 +81,17 @@ def test_paths_outside_are_refused_the_same_whether_they_exist_or_not(layout, ke
     assert "--allow-path DIR" in exists and "allow_paths" in exists
     # the same message, bar the file name and the value: nothing tells whether the outside file exists
     assert exists.replace("a.toml", "").replace(value, "") == missing.replace("b.toml", "").replace(
-        value + ".missing", "")
+        value + ".missing", ""
+    )
     assert "not found" not in exists and "not found" not in missing
 
 
 def test_symlinks_leading_outside_are_refused(layout):
     scene = layout / "scene"
-    os.symlink(layout / "outside" / "tri.obj", scene / "link.obj")          # a file link to an existing file
-    os.symlink(layout / "outside" / "gone.obj", scene / "dangling.obj")     # ... and to a missing one
-    os.symlink(layout / "outside", scene / "linked_dir")                   # a folder link
-    os.symlink(scene / "tri.obj", scene / "inside_link.obj")               # a link that stays inside is fine
+    os.symlink(layout / "outside" / "tri.obj", scene / "link.obj")  # a file link to an existing file
+    os.symlink(layout / "outside" / "gone.obj", scene / "dangling.obj")  # ... and to a missing one
+    os.symlink(layout / "outside", scene / "linked_dir")  # a folder link
+    os.symlink(scene / "tri.obj", scene / "inside_link.obj")  # a link that stays inside is fine
     messages = []
     for value in ("link.obj", "dangling.obj", "linked_dir/tri.obj", "linked_dir/nothing.obj"):
         msg = error_of(write(scene / "s.toml", f'[[mesh]]\nfile = "{value}"\n'))
@@ -99,7 +107,7 @@ def test_allowed_folders(layout):
     path = write(scene / "s.toml", text)
     error_of(path)
     assert Scene.load(path, allow_paths=[layout / "outside"]).triangle_count == 13
-    assert Scene.load(path, allow_paths=str(layout / "outside")).triangle_count == 13   # one folder, as a str
+    assert Scene.load(path, allow_paths=str(layout / "outside")).triangle_count == 13  # one folder, as a str
     # an allowed folder does not open the rest of the disk
     msg = error_of(write(scene / "t.toml", '[[mesh]]\nfile = "../outside.obj"\n'), allow_paths=[layout / "outside"])
     assert "is outside the scene's folder" in msg
@@ -128,25 +136,29 @@ def test_cli_allow_path(layout, capsys):
 # ------------------------------------------------------------------------------------------------ textures
 def test_texture_pixel_limit_is_checked_before_decoding(monkeypatch):
     """A 20 kB PNG of 13000 x 13000 pixels (169 Mpixel) is refused from its header: decoding it is never tried."""
+
     def no_decoding(self):
         raise AssertionError("the image was decoded")
+
     monkeypatch.setattr(ImageFile.ImageFile, "load", no_decoding)
     assert os.path.getsize(os.path.join(HOSTILE, "bomb_169mpx.png")) < 64 * 1024
     msg = error_of(os.path.join(HOSTILE, "texture_bomb.toml"))
     assert "texture = 'bomb_169mpx.png'" in msg
-    assert f"texture image is too large: 169,000,000 pixels (13000 x 13000), more than the limit of " \
-           f"{MAX_TEXTURE_PIXELS:,} (64 Mpixel)" in msg
+    assert (
+        f"texture image is too large: 169,000,000 pixels (13000 x 13000), more than the limit of "
+        f"{MAX_TEXTURE_PIXELS:,} (64 Mpixel)" in msg
+    )
     # past pillow's own limit it raises DecompressionBombError: the same error
     msg = error_of(os.path.join(HOSTILE, "texture_bomb196.toml"))
     assert "texture image is too large: 196,000,000 pixels, more than the limit of 67,108,864 (64 Mpixel)" in msg
 
 
 def test_texture_at_the_limit_loads(tmp_path):
-    Image.new("L", (MAX_TEXTURE_PIXELS // 4096, 4096), 128).save(tmp_path / "big.png")   # exactly the limit
+    Image.new("L", (MAX_TEXTURE_PIXELS // 4096, 4096), 128).save(tmp_path / "big.png")  # exactly the limit
     Image.new("L", (MAX_TEXTURE_PIXELS // 4096 + 1, 4096), 128).save(tmp_path / "over.png")
     scene = Scene.load(write(tmp_path / "s.toml", BOX + 'texture = "big.png"\n'))
     tex = next(m.texture for m in scene.materials if m.texture is not None)
-    assert tex.shape == (512, 2048, 4) and tex[0, 0, 0] == 128   # downsized to 2048 on a side
+    assert tex.shape == (512, 2048, 4) and tex[0, 0, 0] == 128  # downsized to 2048 on a side
     assert "too large: 67,112,960 pixels" in error_of(write(tmp_path / "t.toml", BOX + 'texture = "over.png"\n'))
 
 
@@ -162,11 +174,13 @@ def test_too_large_textures_inside_mesh_files_are_left_out(caplog):
 def test_too_large_textures_embedded_in_a_glb_are_left_out(tmp_path, caplog):
     """Below pillow's own limit trimesh hands us the opened image; above it trimesh drops the image silently: both
     are warned about."""
-    for size, part in ((13000, "material 'material': baseColorTexture: texture image is too large: 169,000,000 pixels"),
-                       (14000, "images[0]: texture image is too large: 196,000,000 pixels")):
+    for size, part in (
+        (13000, "material 'material': baseColorTexture: texture image is too large: 169,000,000 pixels"),
+        (14000, "images[0]: texture image is too large: 196,000,000 pixels"),
+    ):
         png = os.path.join(HOSTILE, f"bomb_{size * size // 1_000_000}mpx.png")
         box = trimesh.creation.box()
-        old, Image.MAX_IMAGE_PIXELS = Image.MAX_IMAGE_PIXELS, None   # to write the test file
+        old, Image.MAX_IMAGE_PIXELS = Image.MAX_IMAGE_PIXELS, None  # to write the test file
         try:
             mat = trimesh.visual.material.PBRMaterial(baseColorTexture=Image.open(png))
             box.visual = trimesh.visual.TextureVisuals(uv=np.zeros((len(box.vertices), 2)), material=mat)
@@ -185,20 +199,23 @@ def test_shown():
     assert shown("scenes/a b.toml") == "scenes/a b.toml"
     assert shown("a\nb\x1b[2J\tc\u2028d\u202ee") == "a\\nb\\x1b[2J\\tc\\u2028d\\u202ee"
     assert shown(b"x\xffy") == "x\\xffy"
-    assert shown(os.fsdecode(b"bad\xff.obj")) == "bad\\udcff.obj"   # an undecodable file name
+    assert shown(os.fsdecode(b"bad\xff.obj")) == "bad\\udcff.obj"  # an undecodable file name
     long = shown("x" * 1000)
     assert len(long) == 400 and "..." in long
     assert shown("x" * 1000, limit=None) == "x" * 1000
 
 
-@pytest.mark.parametrize("name, part", [
-    ("ansi_name.toml", "mesh '\\x1b[2J\\x1b[31mred\\nline' has world-space"),
-    ("bidi_name.toml", "mesh 'abc\\u202edcba\\u2028x' has"),
-    ("ansi_file.toml", "file = '\\x1b]0;title\\x07.obj': file not found"),
-    ("newline_texture.toml", "texture = 'a\\nb.png': file not found"),
-    ("nul_path.toml", "file = 'a\\x00b.obj': a path may not contain a NUL character"),
-    ("escape_node.gltf", "mesh 'node\\x1b[2J\\nX' has 1 vertex position(s) that are NaN"),
-])
+@pytest.mark.parametrize(
+    "name, part",
+    [
+        ("ansi_name.toml", "mesh '\\x1b[2J\\x1b[31mred\\nline' has world-space"),
+        ("bidi_name.toml", "mesh 'abc\\u202edcba\\u2028x' has"),
+        ("ansi_file.toml", "file = '\\x1b]0;title\\x07.obj': file not found"),
+        ("newline_texture.toml", "texture = 'a\\nb.png': file not found"),
+        ("nul_path.toml", "file = 'a\\x00b.obj': a path may not contain a NUL character"),
+        ("escape_node.gltf", "mesh 'node\\x1b[2J\\nX' has 1 vertex position(s) that are NaN"),
+    ],
+)
 def test_names_and_paths_are_escaped(name, part):
     assert part in error_of(os.path.join(HOSTILE, name))
 
@@ -224,7 +241,8 @@ def test_scene_name_and_file_names_are_escaped_everywhere(tmp_path, capsys):
 # ------------------------------------------------------------------------------------------------ loader cases
 def test_obj_face_index_zero_names_the_line():
     assert "zero_index.obj: line 6: face index 0 (OBJ indices start at 1" in error_of(
-        os.path.join(HOSTILE, "zero_index.obj"))
+        os.path.join(HOSTILE, "zero_index.obj")
+    )
     assert "zero_uv_index.obj: line 7: face index 0" in error_of(os.path.join(HOSTILE, "zero_uv_index.obj"))
 
 
@@ -235,14 +253,20 @@ def test_obj_indices_that_are_fine(tmp_path):
     assert "line 5: face index 0" in error_of(tmp_path / "crlf.obj")
 
 
-@pytest.mark.parametrize("name, part", [
-    ("not_json.gltf", "not_json.gltf: not a glTF file: a .gltf is JSON text (binary glTF is .glb), and this is not "
-                      "valid JSON (Expecting value: line 1 column 1 (char 0))"),
-    ("json_array.gltf", "not a glTF file: its JSON is a list, not an object"),
-    ("no_buffers.gltf", "no_buffers.gltf: bufferViews[0] refers to buffer 0, but the file has no buffers"),
-    ("bad_accessor.gltf", "meshes[0].primitives[0] POSITION refers to accessor 7, but the file has 1 accessor"),
-    ("truncated.glb", "the JSON chunk of this .glb is not valid JSON"),
-])
+@pytest.mark.parametrize(
+    "name, part",
+    [
+        (
+            "not_json.gltf",
+            "not_json.gltf: not a glTF file: a .gltf is JSON text (binary glTF is .glb), and this is not "
+            "valid JSON (Expecting value: line 1 column 1 (char 0))",
+        ),
+        ("json_array.gltf", "not a glTF file: its JSON is a list, not an object"),
+        ("no_buffers.gltf", "no_buffers.gltf: bufferViews[0] refers to buffer 0, but the file has no buffers"),
+        ("bad_accessor.gltf", "meshes[0].primitives[0] POSITION refers to accessor 7, but the file has 1 accessor"),
+        ("truncated.glb", "the JSON chunk of this .glb is not valid JSON"),
+    ],
+)
 def test_gltf_files_trimesh_cannot_follow(name, part):
     msg = error_of(os.path.join(HOSTILE, name))
     assert part in msg
@@ -260,15 +284,16 @@ def test_toml_with_a_byte_order_mark(tmp_path):
 
 def test_hot_reload_folders_of_dead_processes_are_removed(tmp_path, monkeypatch):
     from engine.shaders import ShaderLibrary
+
     monkeypatch.setattr(tempfile, "tempdir", str(tmp_path))
     dead = subprocess.Popen([sys.executable, "-c", "pass"])
     dead.wait()
     stale = tmp_path / f"hybrid-spv-{dead.pid}-abc123"
     stale.mkdir()
     write(stale / "lighting.comp.spv", b"\x03\x02\x23\x07")
-    alive = tmp_path / f"hybrid-spv-{os.getppid()}-xyz"       # a running process's: kept
+    alive = tmp_path / f"hybrid-spv-{os.getppid()}-xyz"  # a running process's: kept
     alive.mkdir()
-    other = tmp_path / "hybrid-spv-k2j3h4g5"                   # not named with a pid: kept
+    other = tmp_path / "hybrid-spv-k2j3h4g5"  # not named with a pid: kept
     other.mkdir()
     lib = ShaderLibrary(hot_reload=True)
     try:
@@ -281,15 +306,17 @@ def test_hot_reload_folders_of_dead_processes_are_removed(tmp_path, monkeypatch)
 
 
 def test_a_killed_viewer_leaves_no_folder_behind(tmp_path):
-    code = ("import os, tempfile; tempfile.tempdir = {d!r}; from engine.shaders import ShaderLibrary; "
-            "lib = ShaderLibrary(hot_reload=True); os._exit(0)")   # dies without cleaning up
+    code = (
+        "import os, tempfile; tempfile.tempdir = {d!r}; from engine.shaders import ShaderLibrary; "
+        "lib = ShaderLibrary(hot_reload=True); os._exit(0)"
+    )  # dies without cleaning up
     env = dict(os.environ, PYTHONPATH=os.path.dirname(os.path.dirname(os.path.abspath(__file__))))
     subprocess.run([sys.executable, "-c", code.format(d=str(tmp_path))], check=True, env=env)
     left = [p.name for p in tmp_path.iterdir()]
     assert len(left) == 1 and left[0].startswith("hybrid-spv-")
     subprocess.run([sys.executable, "-c", code.format(d=str(tmp_path))], check=True, env=env)
     now = [p.name for p in tmp_path.iterdir()]
-    assert left[0] not in now and len(now) == 1   # the next one removed the first's
+    assert left[0] not in now and len(now) == 1  # the next one removed the first's
 
 
 # ------------------------------------------------------------------------------------------------ crease normals
@@ -339,20 +366,26 @@ def _meshes():
     unwelded = box.vertices[box.faces].reshape(-1, 3)
     bumpy = ico.vertices + 0.05 * rng.normal(size=ico.vertices.shape)
     grid = rng.integers(-2, 3, (30, 3)).astype(np.float64)
-    grid[grid == 0] = rng.choice([0.0, -0.0], size=int((grid == 0).sum()))   # -0.0 and 0.0 are one position
+    grid[grid == 0] = rng.choice([0.0, -0.0], size=int((grid == 0).sum()))  # -0.0 and 0.0 are one position
     degenerate = rng.integers(0, 30, (200, 3))
     degenerate[:20, 1] = degenerate[:20, 0]
-    cone = trimesh.creation.cone(radius=1, height=1, sections=400)           # 400 faces around the apex
+    cone = trimesh.creation.cone(radius=1, height=1, sections=400)  # 400 faces around the apex
     uv = rng.random((len(ico.vertices), 2))
     uv[:5], uv[5:10] = -0.0, 0.0
     return {
         "box": (box.vertices, box.faces, None),
-        "cylinder": (trimesh.creation.cylinder(radius=1, height=2, sections=64).vertices,
-                     trimesh.creation.cylinder(radius=1, height=2, sections=64).faces, None),
+        "cylinder": (
+            trimesh.creation.cylinder(radius=1, height=2, sections=64).vertices,
+            trimesh.creation.cylinder(radius=1, height=2, sections=64).faces,
+            None,
+        ),
         "cone": (cone.vertices, cone.faces, None),
         "unwelded box": (unwelded, np.arange(len(unwelded)).reshape(-1, 3), None),
-        "unwelded box + uv": (unwelded, np.arange(len(unwelded)).reshape(-1, 3),
-                              rng.integers(0, 3, (len(unwelded), 2)) * 0.5 - 0.5),
+        "unwelded box + uv": (
+            unwelded,
+            np.arange(len(unwelded)).reshape(-1, 3),
+            rng.integers(0, 3, (len(unwelded), 2)) * 0.5 - 0.5,
+        ),
         "sphere + uv seams": (ico.vertices, ico.faces, uv),
         "bumpy sphere": (bumpy, ico.faces, None),
         "degenerate": (grid, degenerate, None),
@@ -375,6 +408,7 @@ def test_crease_normals_as_before(name):
 def test_crease_normals_in_small_blocks_as_before(monkeypatch):
     """Positions with more corners than a block holds are compared a slice of rows at a time: the same normals."""
     import engine.scene.geometry as geometry
+
     monkeypatch.setattr(geometry, "_BLOCK_PAIRS", 50)
     for name in ("cone", "bumpy sphere", "degenerate"):
         positions, faces, uvs = _meshes()[name]
@@ -387,7 +421,7 @@ def test_crease_normals_in_small_blocks_as_before(monkeypatch):
 def test_crease_normals_split_creases_and_smooth_spheres():
     box = trimesh.creation.box()
     src, n, f = crease_normals(box.vertices, box.faces)
-    assert len(src) == 24   # 8 corners x 3 flat sides
+    assert len(src) == 24  # 8 corners x 3 flat sides
     np.testing.assert_allclose(np.abs(n).max(axis=1), 1.0)
     ico = trimesh.creation.icosphere(subdivisions=2)
     src, n, f = crease_normals(ico.vertices, ico.faces)

@@ -1,4 +1,5 @@
 """Committed SPIR-V must match its GLSL sources and includes (by the manifest of source hashes)."""
+
 import shutil
 
 from engine.shaders import GLSL_DIR, SPV_DIR, compile_all, shader_sources, stale_shaders

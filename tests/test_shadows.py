@@ -1,4 +1,5 @@
 """Ray-traced shadows and AO in the renderer, checked against a CPU reference from the same G-buffer."""
+
 import numpy as np
 import trimesh
 
@@ -25,8 +26,9 @@ def cpu_shadow_mask(mesh, frame, direction):
     to_light = -np.asarray(direction, float) / np.linalg.norm(direction)
     facing = n @ to_light > 0
     origins = p + n * 1e-3
-    occ = reference_occluded(mesh.vertices, mesh.faces, origins, np.broadcast_to(to_light, p.shape),
-                             np.full(len(p), 100.0))
+    occ = reference_occluded(
+        mesh.vertices, mesh.faces, origins, np.broadcast_to(to_light, p.shape), np.full(len(p), 100.0)
+    )
     mask = np.ones(covered.shape, np.float32)
     mask[covered] = np.where(facing & ~occ, 1.0, 0.0)
     return mask
@@ -39,7 +41,7 @@ def test_hard_shadow_mask_matches_cpu_reference(make_renderer):
     assert f.aov["shadow"].shape == (72, 96, 1)
     assert set(np.unique(got)) <= {0.0, 1.0}
     ref = cpu_shadow_mask(mesh, f, scene.lights[0].direction)
-    assert 0.01 < (ref == 0).mean() < 0.6               # the scene really has shadows
+    assert 0.01 < (ref == 0).mean() < 0.6  # the scene really has shadows
     assert (got != ref).mean() < 0.005, f"{(got != ref).sum()} pixels differ"
     assert np.all(got[~np.isfinite(f.aov["depth"])] == 1.0)  # background is lit
 
@@ -84,8 +86,9 @@ def test_point_light_shadow_and_several_lights(make_renderer):
     assert m.shape == (48, 64, 2)
     # The ground right under the floating box is shadowed from both lights (both come from above).
     pos = f.aov["position"]
-    under = (np.isfinite(f.aov["depth"]) & (np.abs(pos[..., 0]) < 0.3) & (np.abs(pos[..., 2]) < 0.3)
-             & (pos[..., 1] < 0.01))
+    under = (
+        np.isfinite(f.aov["depth"]) & (np.abs(pos[..., 0]) < 0.3) & (np.abs(pos[..., 2]) < 0.3) & (pos[..., 1] < 0.01)
+    )
     assert under.any()
     assert np.all(m[under] == 0.0)
 
@@ -103,7 +106,7 @@ def test_wide_bvh_layout_gives_the_same_shadows_and_ao(make_renderer):
     assert (wide.aov["shadow"][..., 0] != ref).mean() < 0.005
     assert np.array_equal(wide.aov["shadow"], binary.aov["shadow"])
     assert np.abs(wide.aov["ao"] - binary.aov["ao"]).max() < 1e-6
-    assert (wide.aov["ao"] < 0.99).mean() > 0.01          # the scene really has occlusion
+    assert (wide.aov["ao"] < 0.99).mean() > 0.01  # the scene really has occlusion
 
 
 def test_short_register_stack_retry_in_the_passes(make_renderer, monkeypatch):
@@ -112,8 +115,9 @@ def test_short_register_stack_retry_in_the_passes(make_renderer, monkeypatch):
     of the default traversal."""
     import engine.gpu.bvh as gpu_bvh
     from engine.vk.device import is_cpu
+
     mesh, scene = box_on_ground()
-    ball = trimesh.creation.icosphere(subdivisions=3, radius=0.7)   # a deeper tree than the boxes' alone
+    ball = trimesh.creation.icosphere(subdivisions=3, radius=0.7)  # a deeper tree than the boxes' alone
     ball.apply_translation((-2.0, 0.7, 0.5))
     mesh = trimesh.util.concatenate([mesh, ball])
     scene = Scene.from_trimesh(mesh, camera=scene.camera, lights=scene.lights)

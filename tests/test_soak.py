@@ -1,5 +1,6 @@
 """A short soak in the suite: 2,000 frames with a moving camera and soft shadows, 1,000 Tracer queries; memory and
 Vulkan allocations stay flat and the validation layer stays silent (benchmarks/soak.py runs the long version)."""
+
 import sys
 from pathlib import Path
 
@@ -10,7 +11,7 @@ sys.path.insert(0, str(ROOT / "benchmarks"))
 
 import soak  # noqa: E402
 
-pytestmark = pytest.mark.slow   # thousands of frames and queries: the slow tier (CONTRIBUTING.md, "Tests")
+pytestmark = pytest.mark.slow  # thousands of frames and queries: the slow tier (CONTRIBUTING.md, "Tests")
 
 
 def test_two_thousand_frames_stay_flat():

@@ -2,6 +2,7 @@
 the same visible triangles (but for a few edge pixels), depth and shading; the nearest surface where small instances
 meet a large hardware-drawn one; facing and mirroring; levels of detail; instances at the near plane stay on the
 hardware path; the options."""
+
 import numpy as np
 import pytest
 import trimesh
@@ -48,7 +49,7 @@ def check_same_surfaces(soft, hard, min_same=0.99):
     assert same.mean() >= min_same, same.mean()
     h, w = h_inst.shape
     for y, x in zip(*np.nonzero(~same)):
-        near = h_inst[max(y - 1, 0):y + 2, max(x - 1, 0):x + 2]
+        near = h_inst[max(y - 1, 0) : y + 2, max(x - 1, 0) : x + 2]
         assert s_inst[y, x] == h_inst[y, x] or s_inst[y, x] in near, (y, x, s_inst[y, x], near)
     both = same & (h_inst >= 0)
     assert np.allclose(soft.aov["depth"][both], hard.aov["depth"][both], rtol=1e-5)
@@ -59,7 +60,7 @@ def check_same_surfaces(soft, hard, min_same=0.99):
 def test_soft_raster_draws_the_hardware_rasters_pixels(make_renderer):
     scene = grid_scene(small_mesh())
     soft, hard, n_soft, n_hard = frames(make_renderer, scene)
-    assert n_soft > 10 and n_hard >= 1   # the small balls went software, the ground stayed on the hardware raster
+    assert n_soft > 10 and n_hard >= 1  # the small balls went software, the ground stayed on the hardware raster
     check_same_surfaces(soft, hard)
     assert len(np.unique(soft.aov["instance_id"])) > 10
 
@@ -69,12 +70,12 @@ def test_later_frames_start_from_a_clear_software_buffer(make_renderer):
     scene = grid_scene(small_mesh())
     r = soft_renderer(make_renderer, 160, 120)
     first = r.render(scene, shadows="hard", ao=False, aovs=AOVS)
-    listed = r._geometry.order[r._geometry.tables.soft_drawn()[:, 0]]   # draw slots -> instances
+    listed = r._geometry.order[r._geometry.tables.soft_drawn()[:, 0]]  # draw slots -> instances
     ids = first.aov["instance_id"]
-    k = max(listed, key=lambda i: (ids == i).sum())   # the largest instance the software raster drew
+    k = max(listed, key=lambda i: (ids == i).sum())  # the largest instance the software raster drew
     assert (ids == k).sum() > 20
     m = scene.instances[k].transform.copy()
-    m[1, 3] += 500.0   # far above the view: culled
+    m[1, 3] += 500.0  # far above the view: culled
     scene.instances[k].transform = m
     second = r.render(scene, shadows="hard", ao=False, aovs=AOVS)
     assert len(r._commands) == 1 and len(r._geometry.tables.soft_drawn()) == len(listed) - 1
@@ -97,11 +98,17 @@ def open_cups(n=24, mirror_every=3):
     s = trimesh.creation.icosphere(subdivisions=2)
     keep = s.triangles_center[:, 1] < 0.2
     cup = Mesh(s.vertices, s.faces[keep], vertex_material=np.zeros(len(s.vertices), np.uint32), name="cup")
-    wall = Mesh(np.array([[-30, -30, 0], [30, -30, 0], [30, 30, 0], [-30, 30, 0]], float),
-                np.array([[0, 1, 2], [0, 2, 3]]), vertex_material=np.full(4, 2, np.uint32), name="wall")
-    materials = [Material("one-sided", (0.8, 0.3, 0.2), double_sided=False),
-                 Material("two-sided", (0.2, 0.6, 0.8), double_sided=True),
-                 Material("wall", (0.7, 0.7, 0.7), double_sided=True)]
+    wall = Mesh(
+        np.array([[-30, -30, 0], [30, -30, 0], [30, 30, 0], [-30, 30, 0]], float),
+        np.array([[0, 1, 2], [0, 2, 3]]),
+        vertex_material=np.full(4, 2, np.uint32),
+        name="wall",
+    )
+    materials = [
+        Material("one-sided", (0.8, 0.3, 0.2), double_sided=False),
+        Material("two-sided", (0.2, 0.6, 0.8), double_sided=True),
+        Material("wall", (0.7, 0.7, 0.7), double_sided=True),
+    ]
     rng = np.random.default_rng(5)
     inst = [Instance(1, np.eye(4), name="wall")]
     for i in range(n):
@@ -113,8 +120,9 @@ def open_cups(n=24, mirror_every=3):
         m[:3, 3] = (i % 6) * 2.5 - 6.5, (i // 6) * 2.5 - 3.5, 2.0
         inst.append(Instance(0, m, material=1 if i % 4 == 1 else None, name=f"cup{i}"))
     cam = Camera.look_at((0.0, 0.0, 14.0), (0.0, 0.0, 0.0), fov_y=55)
-    return Scene.from_meshes([cup, wall], inst, materials=materials, camera=cam,
-                             lights=[DirectionalLight((0.3, -0.5, -1.0), intensity=2.0)])
+    return Scene.from_meshes(
+        [cup, wall], inst, materials=materials, camera=cam, lights=[DirectionalLight((0.3, -0.5, -1.0), intensity=2.0)]
+    )
 
 
 def test_facing_and_mirroring_follow_the_pipelines(make_renderer):
@@ -128,17 +136,24 @@ def test_facing_and_mirroring_follow_the_pipelines(make_renderer):
 def test_nearest_surface_between_a_hardware_wall_and_small_instances(make_renderer):
     """Small balls in front of, behind and through a large wall (hardware raster): each pixel shows the nearest."""
     ball = trimesh.creation.icosphere(subdivisions=2)
-    wall = Mesh(np.array([[-30, -30, 0], [30, -30, 0], [30, 30, 0], [-30, 30, 0]], float),
-                np.array([[0, 1, 2], [0, 2, 3]]), name="wall")
+    wall = Mesh(
+        np.array([[-30, -30, 0], [30, -30, 0], [30, 30, 0], [-30, 30, 0]], float),
+        np.array([[0, 1, 2], [0, 2, 3]]),
+        name="wall",
+    )
     inst = [Instance(1, np.eye(4), name="wall")]
-    zs = (1.5, -1.5, 0.0)   # in front, behind (hidden), through the wall
+    zs = (1.5, -1.5, 0.0)  # in front, behind (hidden), through the wall
     for i in range(18):
         m = np.eye(4)
         m[:3, 3] = (i % 6) * 2.5 - 6.5, (i // 6) * 2.5 - 2.5, zs[i % 3]
         inst.append(Instance(0, m, name=f"ball{i}"))
     cam = Camera.look_at((0.0, 0.0, 16.0), (0.0, 0.0, 0.0), fov_y=50)
-    scene = Scene.from_meshes([Mesh(ball.vertices, ball.faces, name="ball"), wall], inst, camera=cam,
-                              lights=[DirectionalLight((0.3, -0.5, -1.0), intensity=2.0)])
+    scene = Scene.from_meshes(
+        [Mesh(ball.vertices, ball.faces, name="ball"), wall],
+        inst,
+        camera=cam,
+        lights=[DirectionalLight((0.3, -0.5, -1.0), intensity=2.0)],
+    )
     soft, hard, n_soft, n_hard = frames(make_renderer, scene)
     assert n_soft == 18 and n_hard == 1
     check_same_surfaces(soft, hard)
@@ -156,13 +171,13 @@ def test_instances_at_the_near_plane_take_the_hardware_raster(make_renderer):
     ball = trimesh.creation.icosphere(subdivisions=2)
     cam = Camera.look_at((0.0, 0.0, 0.0), (0.0, 0.0, -1.0), fov_y=50, near=0.1)
     crossing, beyond, far = (np.diag([s, s, s, 1.0]) for s in (0.002, 0.0002, 0.02))
-    crossing[:3, 3] = 0.0, 0.0, -0.1          # through the near plane: about 3 pixels across, yet clipped
-    beyond[:3, 3] = 0.0005, 0.0, -0.1005      # wholly in front of it, but within the culling's 1% slack
-    far[:3, 3] = 0.05, 0.0, -1.0              # about 3 pixels across: software
-    inst = [Instance(0, crossing, name="crossing"), Instance(0, beyond, name="beyond"),
-            Instance(0, far, name="far")]
-    scene = Scene.from_meshes([Mesh(ball.vertices, ball.faces, name="ball")], inst, camera=cam,
-                              lights=[DirectionalLight((0.3, -0.5, -1.0))])
+    crossing[:3, 3] = 0.0, 0.0, -0.1  # through the near plane: about 3 pixels across, yet clipped
+    beyond[:3, 3] = 0.0005, 0.0, -0.1005  # wholly in front of it, but within the culling's 1% slack
+    far[:3, 3] = 0.05, 0.0, -1.0  # about 3 pixels across: software
+    inst = [Instance(0, crossing, name="crossing"), Instance(0, beyond, name="beyond"), Instance(0, far, name="far")]
+    scene = Scene.from_meshes(
+        [Mesh(ball.vertices, ball.faces, name="ball")], inst, camera=cam, lights=[DirectionalLight((0.3, -0.5, -1.0))]
+    )
     soft, hard, n_soft, n_hard = frames(make_renderer, scene, size=(96, 72), sw_raster_pixels=128)
     assert (n_soft, n_hard) == (1, 2)
     check_same_surfaces(soft, hard)
@@ -171,11 +186,11 @@ def test_instances_at_the_near_plane_take_the_hardware_raster(make_renderer):
 def test_options(make_renderer):
     r = make_renderer(32, 24)
     if r.ctx.device_info["type"] == "CPU":
-        assert r.sw_raster is None and not active(r)   # auto: off on CPU devices
+        assert r.sw_raster is None and not active(r)  # auto: off on CPU devices
     r.sw_raster, r.sw_raster_pixels = True, 16
     assert active(r) == (r.ctx.int64_atomics and r.ctx.draw_indirect_first_instance)
     r.culling = False
-    assert not active(r)   # the software list comes from the culling pass
+    assert not active(r)  # the software list comes from the culling pass
     for bad in (0, -1, 129, float("nan"), True, "64"):
         with pytest.raises(ConfigError, match="sw_raster_pixels must be a number in"):
             r.sw_raster_pixels = bad
@@ -186,8 +201,8 @@ def test_options(make_renderer):
 def test_runs_the_soft_raster_cannot_draw():
     assert soft_facing({CULL_NONE}, False) == 1
     assert soft_facing({CULL_BACK}, False) == 2 and soft_facing({CULL_FRONT}, False) == 3
-    assert soft_facing({CULL_NONE, CULL_BACK}, False) == 0   # mixed facing: hardware
-    assert soft_facing({CULL_NONE}, True) == 0               # alpha-tested: hardware
+    assert soft_facing({CULL_NONE, CULL_BACK}, False) == 0  # mixed facing: hardware
+    assert soft_facing({CULL_NONE}, True) == 0  # alpha-tested: hardware
 
 
 def test_edges_through_pixel_centres_follow_the_top_left_rule(make_renderer):
@@ -200,18 +215,19 @@ def test_edges_through_pixel_centres_follow_the_top_left_rule(make_renderer):
             a, b, c, d = 5 * j + i, 5 * j + i + 1, 5 * (j + 1) + i, 5 * (j + 1) + i + 1
             tris += [[a, c, d], [a, d, b]] if (i + j) % 2 else [[a, c, b], [b, c, d]]
     inst = []
-    for k in range(20):   # 8-pixel tiles edge to edge: the first vertex at pixel centre (4 + 8 tx, 4 + 8 ty)
+    for k in range(20):  # 8-pixel tiles edge to edge: the first vertex at pixel centre (4 + 8 tx, 4 + 8 ty)
         tx, ty = k % 5, k // 5
         m = np.eye(4)
         m[:3, 3] = (4.5 + 8 * tx) / 32 - 1, 1 - (4.5 + 8 * ty) / 32, -1.0
         inst.append(Instance(0, m, name=f"tile{k}"))
     cam = Camera.look_at((0.0, 0.0, 0.0), (0.0, 0.0, -1.0), fov_y=90, near=0.1)
-    scene = Scene.from_meshes([Mesh(verts, np.array(tris), name="tile")], inst, camera=cam,
-                              lights=[DirectionalLight((0.0, 0.0, -1.0))])
+    scene = Scene.from_meshes(
+        [Mesh(verts, np.array(tris), name="tile")], inst, camera=cam, lights=[DirectionalLight((0.0, 0.0, -1.0))]
+    )
     soft, hard, n_soft, n_hard = frames(make_renderer, scene, size=(64, 64), sw_raster_pixels=16)
     assert (n_soft, n_hard) == (20, 0)
     assert np.array_equal(soft.aov["triangle_id"], hard.aov["triangle_id"])
-    assert (hard.aov["instance_id"] >= 0).sum() == 40 * 32   # the tiles' pixels, every one drawn once
+    assert (hard.aov["instance_id"] >= 0).sum() == 40 * 32  # the tiles' pixels, every one drawn once
 
 
 def test_without_64_bit_atomics_every_instance_takes_the_hardware_raster():
@@ -220,7 +236,7 @@ def test_without_64_bit_atomics_every_instance_takes_the_hardware_raster():
 
     scene = grid_scene(small_mesh())
     with Context(validation=True) as ctx:
-        ctx.int64_atomics = False   # as on a device without shaderBufferInt64Atomics
+        ctx.int64_atomics = False  # as on a device without shaderBufferInt64Atomics
         with Renderer(160, 120, context=ctx, sw_raster=True) as r:
             assert r.sw_raster is True and not active(r) and r.targets.soft_visibility is None
             frame = r.render(scene, shadows="hard", ao=False, aovs=AOVS)

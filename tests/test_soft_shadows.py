@@ -1,5 +1,6 @@
 """Soft shadows: area-light sampling, temporal accumulation, the a-trous denoiser, the reference and seed-delta
 modes, debug views. Scenes are small and renders tiny (lavapipe in CI)."""
+
 import numpy as np
 import pytest
 import trimesh
@@ -17,6 +18,7 @@ def every_aov(monkeypatch):
     """These tests read the raw signals and the history lengths too: every AOV by default."""
     import engine.settings
     from engine.passes.interface import AOVS
+
     monkeypatch.setattr(engine.settings, "DEFAULT_AOVS", tuple(AOVS))
 
 
@@ -78,18 +80,21 @@ def test_penumbra_widens_with_the_light_radius(make_renderer):
     assert widths[0] * 1.5 < widths[1] and widths[1] * 1.5 < widths[2], widths
 
 
-@pytest.mark.parametrize("light", [
-    PointLight(LIGHT, intensity=16.0, radius=0.0),
-    SpotLight(LIGHT, (0, -1, 0), intensity=16.0, radius=0.0, cone_angle=70.0),
-    DirectionalLight((0.6, -1.0, 0.3), intensity=2.0, angle=0.0),
-])
+@pytest.mark.parametrize(
+    "light",
+    [
+        PointLight(LIGHT, intensity=16.0, radius=0.0),
+        SpotLight(LIGHT, (0, -1, 0), intensity=16.0, radius=0.0, cone_angle=70.0),
+        DirectionalLight((0.6, -1.0, 0.3), intensity=2.0, angle=0.0),
+    ],
+)
 def test_zero_size_light_gives_the_hard_mask(make_renderer, light):
     scene = penumbra_scene(lights=[light])
     r = make_renderer(W, H)
     hard = r.render(scene, shadows="hard", ao=False).aov["shadow"]
     assert 0.02 < (hard == 0).mean() < 0.8
     for mode in ("soft", "reference"):
-        for _ in range(3):   # accumulation and the denoiser leave a binary mask alone
+        for _ in range(3):  # accumulation and the denoiser leave a binary mask alone
             f = r.render(scene, shadows=mode, shadow_samples=2, reference_samples=16, ao=False)
         assert np.array_equal(f.aov["shadow"], hard), mode
 
@@ -110,8 +115,12 @@ def same_surface_taps(frame_b, frame_a, cam_a):
         inside = (clip[:, 3] > 0) & np.all((q >= 0) & (q < [W, H]), axis=1)
         r, c = np.clip(q[:, 1], 0, H - 1), np.clip(q[:, 0], 0, W - 1)
         pa, na = frame_a.aov["position"][r, c], frame_a.aov["normal"][r, c]
-        ok = (inside & covered(frame_a)[r, c] & (np.sum(na * nb, axis=1) > 0.9)
-              & (np.abs(np.sum((pa - pts) * nb, axis=1)) < 0.01 * clip[:, 3]))
+        ok = (
+            inside
+            & covered(frame_a)[r, c]
+            & (np.sum(na * nb, axis=1) > 0.9)
+            & (np.abs(np.sum((pa - pts) * nb, axis=1)) < 0.01 * clip[:, 3])
+        )
         count += ok
     centre = np.round(pp).astype(int)
     in_view = (clip[:, 3] > 0) & np.all((centre >= 0) & (centre < [W, H]), axis=1)
@@ -134,11 +143,11 @@ def test_moving_the_camera_does_not_smear_old_shadows(make_renderer):
 
     cov = covered(moved)
     taps, in_view, (rows, cols) = same_surface_taps(moved, fa, cam_a)
-    new, seen = taps == 0, taps == 4     # (pixels with 1..3 taps are on a silhouette in A: either is right)
+    new, seen = taps == 0, taps == 4  # (pixels with 1..3 taps are on a silhouette in A: either is right)
     hist = moved.aov["history"][cov]
     assert new.sum() > 300 and seen.sum() > 1000, (new.sum(), seen.sum())
-    assert np.all(hist[new] == 1)        # newly visible: a fresh history
-    assert np.all(hist[seen] == 17)      # seen from A: A's 16 frames carried over
+    assert np.all(hist[new] == 1)  # newly visible: a fresh history
+    assert np.all(hist[seen] == 17)  # seen from A: A's 16 frames carried over
 
     # The image pair: the moved frame agrees with a fresh render at B everywhere, newly visible ground included...
     m_moved, m_fresh = moved.aov["shadow"][..., 0][cov], fresh.aov["shadow"][..., 0][cov]
@@ -147,7 +156,7 @@ def test_moving_the_camera_does_not_smear_old_shadows(make_renderer):
     # ...where carrying A's values over by reprojection alone, without the disocclusion tests, would smear the
     # lit plate over its shadow.
     smeared = fa.aov["shadow"][..., 0][rows, cols]
-    hidden = new & in_view             # in A's view but behind another surface there
+    hidden = new & in_view  # in A's view but behind another surface there
     assert hidden.sum() > 100
     assert np.abs(smeared - m_fresh)[hidden].mean() > 0.5
     assert np.abs(m_moved - m_fresh)[hidden].mean() < 0.03
@@ -155,15 +164,17 @@ def test_moving_the_camera_does_not_smear_old_shadows(make_renderer):
 
 def test_eight_lights_in_one_frame(make_renderer):
     angles = np.linspace(0, 2 * np.pi, 8, endpoint=False)
-    lights = [PointLight((2.5 * np.cos(a), 3.5 + 0.2 * i, 2.5 * np.sin(a)), intensity=4.0, radius=0.3 * (i % 2))
-              for i, a in enumerate(angles)]
+    lights = [
+        PointLight((2.5 * np.cos(a), 3.5 + 0.2 * i, 2.5 * np.sin(a)), intensity=4.0, radius=0.3 * (i % 2))
+        for i, a in enumerate(angles)
+    ]
     lights[6] = RectLight((0.0, 3.8, 0.0), (0.8, 0, 0), (0, 0, 0.8), intensity=3.0)
     lights[7] = SpotLight((1.0, 4.0, 1.0), (0, -1, 0), intensity=8.0, radius=0.2, cone_angle=60.0)
     scene = penumbra_scene(lights=lights)
     r = make_renderer(W, H)
     hard = r.render(scene, shadows="hard", ao=False)
     assert hard.aov["shadow"].shape == (H, W, 8)
-    for i in (0, 3, 7):   # each channel is that light's own mask
+    for i in (0, 3, 7):  # each channel is that light's own mask
         alone = r.render(penumbra_scene(lights=[lights[i]]), shadows="hard", ao=False).aov["shadow"][..., 0]
         assert np.array_equal(hard.aov["shadow"][..., i], alone), i
     for _ in range(4):
@@ -173,7 +184,7 @@ def test_eight_lights_in_one_frame(make_renderer):
     cov = covered(soft)
     for i in range(8):
         partial = ((m[..., i] > 0.05) & (m[..., i] < 0.95))[cov].mean()
-        assert (partial > 0.005) == (i % 2 == 1 or i >= 6), (i, partial)   # only lights with a size have penumbrae
+        assert (partial > 0.005) == (i % 2 == 1 or i >= 6), (i, partial)  # only lights with a size have penumbrae
     lit = r.render(scene, shadows="off", ao=False).color[..., :3].astype(int).sum()
     assert soft.color[..., :3].astype(int).sum() < lit
 
@@ -184,7 +195,7 @@ def test_seed_delta_follows_the_occluder_distance(make_renderer):
     hard = r.render(scene, shadows="hard", ao=False)
     f = r.render(scene, shadows="seed-delta", ao=False)
     h, s = hard.aov["shadow"][..., 0], f.aov["shadow"][..., 0]
-    assert np.array_equal(s[h == 1], h[h == 1])                  # lit stays lit
+    assert np.array_equal(s[h == 1], h[h == 1])  # lit stays lit
     pos = f.aov["position"]
     # Ground points whose ray to the light's centre crosses the plate's underside (a 2 x 2 square at y = 1.4).
     cross = pos + (LIGHT - pos) * (PLATE_BOTTOM / LIGHT[1])
@@ -202,19 +213,20 @@ def test_history_grows_and_resets(make_renderer):
     for n in (1, 2, 3):
         f = r.render(scene, shadows="soft", ao=False)
         assert np.all(f.aov["history"][covered(f)] == n)
-    f = r.render(scene, shadows="soft", ao=False, exposure=2.0, view="normal")   # not a change of the signal
+    f = r.render(scene, shadows="soft", ao=False, exposure=2.0, view="normal")  # not a change of the signal
     assert np.all(f.aov["history"][covered(f)] == 4)
-    f = r.render(scene, shadows="soft", shadow_samples=2, ao=False)              # a change of the signal
+    f = r.render(scene, shadows="soft", shadow_samples=2, ao=False)  # a change of the signal
     assert np.all(f.aov["history"][covered(f)] == 1)
-    f = r.render(penumbra_scene(), shadows="soft", shadow_samples=2, ao=False)   # another scene
+    f = r.render(penumbra_scene(), shadows="soft", shadow_samples=2, ao=False)  # another scene
     assert np.all(f.aov["history"][covered(f)] == 1)
-    f = r.render(scene, shadows="hard", ao=False)                                # nothing accumulated
+    f = r.render(scene, shadows="hard", ao=False)  # nothing accumulated
     assert np.all(f.aov["history"] == 0)
     assert np.all(f.aov["history"][~covered(f)] == 0)
 
 
 def test_reference_mode_splits_its_work_into_several_dispatches(make_renderer):
     from engine.passes.shadows import reference_dispatches
+
     d = reference_dispatches(1920, 1080, 8, 256)
     assert len(d) > 100 and all(rows * 1920 * 8 * count <= (1 << 22) for _, rows, _, count in d)
     assert sum(rows * count for _, rows, _, count in d) == 1080 * 256
@@ -222,6 +234,7 @@ def test_reference_mode_splits_its_work_into_several_dispatches(make_renderer):
     scene = penumbra_scene()
     a = make_renderer(W, H).render(scene, shadows="reference", reference_samples=32, ao=True)
     from engine.passes import shadows
+
     old = shadows.RAYS_PER_DISPATCH
     shadows.RAYS_PER_DISPATCH = 2000
     try:
@@ -232,15 +245,18 @@ def test_reference_mode_splits_its_work_into_several_dispatches(make_renderer):
     assert np.allclose(a.aov["ao"], b.aov["ao"], atol=1e-5)
 
 
-@pytest.mark.parametrize("kw, word", [
-    (dict(shadows="blurry"), "shadows"),
-    (dict(shadow_samples=0), "shadow_samples"),
-    (dict(shadow_samples=2.5), "shadow_samples"),
-    (dict(reference_samples=0), "reference_samples"),
-    (dict(denoise="yes"), "denoise"),
-    (dict(accumulate=1), "accumulate"),
-    (dict(view="bogus"), "view"),
-])
+@pytest.mark.parametrize(
+    "kw, word",
+    [
+        (dict(shadows="blurry"), "shadows"),
+        (dict(shadow_samples=0), "shadow_samples"),
+        (dict(shadow_samples=2.5), "shadow_samples"),
+        (dict(reference_samples=0), "reference_samples"),
+        (dict(denoise="yes"), "denoise"),
+        (dict(accumulate=1), "accumulate"),
+        (dict(view="bogus"), "view"),
+    ],
+)
 def test_bad_settings_name_the_setting(make_renderer, kw, word):
     with pytest.raises(ConfigError, match=word):
         make_renderer(16, 16).render(penumbra_scene(), **kw)
@@ -273,7 +289,7 @@ def test_debug_views_show_each_aov(make_renderer):
             assert d[near].mean() > d[~near].mean() and np.all(rgb[~cov] == 0)
         elif view == "history":
             n = a["history"][cov]
-            assert np.all(n > 1)   # the views do not restart the history
+            assert np.all(n > 1)  # the views do not restart the history
             assert np.abs(rgb[cov] - np.minimum(n, 32)[:, None] / 32).max() < 1.5 / 255
             assert np.all(rgb[~cov] == 0)
         elif view == "position":
@@ -312,28 +328,67 @@ def test_cli_soft_shadows_and_aov(tmp_path):
     from pathlib import Path
 
     from PIL import Image
+
     repo = Path(__file__).resolve().parent.parent
     out = tmp_path / "hist.png"
-    res = subprocess.run([sys.executable, "-m", "engine", "render", "scenes/penumbra.toml", "-o", str(out),
-                          "--size", "48x32", "--shadows", "soft", "--frames", "3", "--aov", "history"],
-                         capture_output=True, text=True, cwd=repo, timeout=300)
+    res = subprocess.run(
+        [
+            sys.executable,
+            "-m",
+            "engine",
+            "render",
+            "scenes/penumbra.toml",
+            "-o",
+            str(out),
+            "--size",
+            "48x32",
+            "--shadows",
+            "soft",
+            "--frames",
+            "3",
+            "--aov",
+            "history",
+        ],
+        capture_output=True,
+        text=True,
+        cwd=repo,
+        timeout=300,
+    )
     assert res.returncode == 0, res.stderr
     assert "accumulate" in res.stdout and "denoise" in res.stdout
     img = np.asarray(Image.open(out).convert("RGB"))
-    assert np.any(np.all(img == round(3 / 32 * 255), axis=2))   # 3 frames of history: grey 3/32
-    res = subprocess.run([sys.executable, "-m", "engine", "render", "scenes/penumbra.toml", "-o", str(out),
-                          "--size", "16x16", "--shadows", "blurry"], capture_output=True, text=True, cwd=repo,
-                         timeout=300)
+    assert np.any(np.all(img == round(3 / 32 * 255), axis=2))  # 3 frames of history: grey 3/32
+    res = subprocess.run(
+        [
+            sys.executable,
+            "-m",
+            "engine",
+            "render",
+            "scenes/penumbra.toml",
+            "-o",
+            str(out),
+            "--size",
+            "16x16",
+            "--shadows",
+            "blurry",
+        ],
+        capture_output=True,
+        text=True,
+        cwd=repo,
+        timeout=300,
+    )
     assert res.returncode == 1 and res.stderr.strip().splitlines() == [
-        "error: setting shadows='blurry': expected one of hard, soft, seed-delta, reference, off"]
+        "error: setting shadows='blurry': expected one of hard, soft, seed-delta, reference, off"
+    ]
 
 
 def test_light_masks_must_fit_one_storage_buffer():
     from types import SimpleNamespace
 
     from engine.passes.targets import Targets
+
     lavapipe = SimpleNamespace(limits=SimpleNamespace(maxStorageBufferRange=128 << 20))
-    Targets.check_capacity(lavapipe, 1920, 1080, 16)     # 126.6 MiB: fits
+    Targets.check_capacity(lavapipe, 1920, 1080, 16)  # 126.6 MiB: fits
     Targets.check_capacity(lavapipe, 2560, 1600, 8)
     with pytest.raises(ConfigError, match=r"3840x2160 with 8 lights.*maxStorageBufferRange of 128 MiB"):
         Targets.check_capacity(lavapipe, 3840, 2160, 8)
@@ -343,8 +398,13 @@ def test_denoiser_reads_through_texel_views_or_storage_buffers_alike(make_render
     """denoise.comp's DENOISE_TEXEL (CPU devices: the inputs through their R32F storage texel views): both read paths
     filter the soft shadow masks and AO to the same values, bit for bit, over several frames and lights."""
     from engine.passes import denoise
-    scene = penumbra_scene(lights=[PointLight(LIGHT, intensity=16.0, radius=1.0),
-                                   RectLight((1.5, 3.5, 1.0), (1.0, 0, 0), (0, 0, 0.5), intensity=8.0)])
+
+    scene = penumbra_scene(
+        lights=[
+            PointLight(LIGHT, intensity=16.0, radius=1.0),
+            RectLight((1.5, 3.5, 1.0), (1.0, 0, 0), (0, 0, 0.5), intensity=8.0),
+        ]
+    )
     frames = {}
     for texel in (False, True):
         monkeypatch.setattr(denoise, "DENOISE_TEXEL", texel)
@@ -358,11 +418,13 @@ def test_denoiser_reads_through_texel_views_or_storage_buffers_alike(make_render
     assert not np.array_equal(a.aov["shadow"], a.aov["shadow_raw"]), "the denoiser ran"
     # a signal larger than a texel view may be (a device with a small maxTexelBufferElements): storage buffers
     from engine.passes.targets import Signal
+
     real = Signal.__init__
 
     def small_views(self, *args, **kw):
         real(self, *args, **kw)
         self.texel_ok = False
+
     monkeypatch.setattr(denoise, "DENOISE_TEXEL", True)
     monkeypatch.setattr(Signal, "__init__", small_views)
     r = make_renderer(W, H)

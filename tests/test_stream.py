@@ -1,5 +1,6 @@
 """The Tracer's streamed host path (engine/rt/stream.py): batches around the chunk boundaries give the answers of one
 unstreamed dispatch and of the brute-force reference, in arrays of their own (not views of the mapped buffers)."""
+
 import numpy as np
 import pytest
 import trimesh
@@ -10,7 +11,7 @@ from engine.rt.stream import fill_rows
 from engine.rt.reference import reference_intersect, reference_occluded
 
 CHUNK = 256
-SIZES = [0, 1, CHUNK - 1, CHUNK, CHUNK + 1, 7 * CHUNK // 2]   # 3.5 chunks: more chunks than slots (3)
+SIZES = [0, 1, CHUNK - 1, CHUNK, CHUNK + 1, 7 * CHUNK // 2]  # 3.5 chunks: more chunks than slots (3)
 
 
 def scene_and_rays(n, seed=7):
@@ -26,8 +27,10 @@ def scene_and_rays(n, seed=7):
 def pair(request):
     """A tracer streaming in chunks of CHUNK rays and one taking every test batch in one dispatch."""
     v, f, *_ = scene_and_rays(1)
-    with Tracer(v, f, batch_size=CHUNK, staging=request.param, validation=True) as small, \
-            Tracer(v, f, batch_size=8 * CHUNK, staging=request.param, validation=True) as whole:
+    with (
+        Tracer(v, f, batch_size=CHUNK, staging=request.param, validation=True) as small,
+        Tracer(v, f, batch_size=8 * CHUNK, staging=request.param, validation=True) as whole,
+    ):
         assert small.session.chunk == CHUNK and whole.session.chunk == 8 * CHUNK
         yield small, whole
         assert not small.validation_errors, small.validation_errors[:3]
@@ -49,7 +52,7 @@ def test_streamed_batches_answer_as_one_dispatch_and_the_reference(pair, n):
     if n:
         want_occ = reference_occluded(v, f, o, d, tmax)
         t_ref, prim_ref, _, _ = reference_intersect(v, f, o, d, tmax)
-        assert (occ != want_occ).sum() <= max(1, n // 500)   # rays grazing an edge may go either way
+        assert (occ != want_occ).sum() <= max(1, n // 500)  # rays grazing an edge may go either way
         agree = prim_ref == hits.prim
         assert agree.mean() >= 0.99
         assert np.allclose(hits.t[agree & (prim_ref >= 0)], t_ref[agree & (prim_ref >= 0)], rtol=1e-4, atol=1e-5)
@@ -65,9 +68,9 @@ def test_results_are_the_callers_arrays_not_views_of_the_mapped_buffers(pair):
         assert arr.flags.owndata and arr.flags.c_contiguous
         assert not any(np.shares_memory(arr, m) for m in mapped)
     kept_occ, kept_prim = occ.copy(), hits.prim.copy()
-    small.occluded(o[::-1].copy(), d[::-1].copy(), tmax[::-1].copy())   # the slots are overwritten...
+    small.occluded(o[::-1].copy(), d[::-1].copy(), tmax[::-1].copy())  # the slots are overwritten...
     small.intersect(o[:10], -d[:10])
-    assert np.array_equal(occ, kept_occ) and np.array_equal(hits.prim, kept_prim)   # ...the results are not
+    assert np.array_equal(occ, kept_occ) and np.array_equal(hits.prim, kept_prim)  # ...the results are not
 
 
 def test_any_input_layout_gives_the_same_answers(pair):
@@ -76,9 +79,11 @@ def test_any_input_layout_gives_the_same_answers(pair):
     _, _, o, d, tmax = scene_and_rays(2 * CHUNK + 3)
     want = small.intersect(o, d, tmax)
     wide_o = np.zeros((len(o), 6), np.float64)
-    wide_o[:, ::2] = o   # every other column: a strided view
-    for args in ((o.astype(np.float64), d.astype(np.float64), tmax.astype(np.float64)),
-                 (wide_o[:, ::2], np.asfortranarray(d), tmax)):
+    wide_o[:, ::2] = o  # every other column: a strided view
+    for args in (
+        (o.astype(np.float64), d.astype(np.float64), tmax.astype(np.float64)),
+        (wide_o[:, ::2], np.asfortranarray(d), tmax),
+    ):
         got = small.intersect(*args)
         assert np.array_equal(got.prim, want.prim) and np.array_equal(got.t, want.t)
 
@@ -93,7 +98,9 @@ def test_a_query_that_fails_half_way_leaves_nothing_in_flight(pair, monkeypatch)
     def failing(out, order=None):
         def sink(*args):
             raise RuntimeError("sink failed")
+
         return sink
+
     monkeypatch.setattr("engine.rt.tracer.occluded_sink", failing)
     with pytest.raises(RuntimeError, match="sink failed"):
         small.occluded(o, d, tmax)
@@ -111,7 +118,7 @@ def test_command_buffers_are_recorded_once_per_kind_and_size(pair):
     for _ in range(3):
         small.occluded(o, d, tmax)
     assert all(slot.commands == recorded[slot] for slot in small.session.slots)
-    assert sum(len(c) for c in recorded.values()) <= 3 * 2   # three slots, a full and a short chunk at most
+    assert sum(len(c) for c in recorded.values()) <= 3 * 2  # three slots, a full and a short chunk at most
 
 
 @pytest.mark.parametrize("bad_at", [0, CHUNK - 1, 3 * CHUNK + 5])
@@ -119,6 +126,7 @@ def test_a_bad_ray_in_any_chunk_is_named_and_the_tracer_goes_on(pair, bad_at):
     """Rays are checked chunk by chunk as they are packed: a bad one in a later chunk (earlier chunks already in
     flight) is the same ConfigError naming it, and the next query is answered right."""
     from engine import ConfigError
+
     small, _ = pair
     _, _, o, d, tmax = scene_and_rays(4 * CHUNK)
     want = small.occluded(o, d, tmax)
@@ -153,12 +161,32 @@ def test_the_packing_check_agrees_with_rays_fine():
     infinities, NaN."""
     from engine.limits import MAX_COORD, MIN_DIRECTION
     from engine.rt.checks import block_fine, rays_fine
+
     edge = np.float32(MAX_COORD)
-    shortest = np.float32(MIN_DIRECTION)   # (the shortest direction component that makes a direction fine)
-    specials = np.array([0.0, -0.0, 1e-40, -1e-40, np.finfo(np.float32).tiny, 1.0, -3.5, np.inf, -np.inf, np.nan,
-                         edge, -edge, np.nextafter(edge, np.float32(np.inf)), np.finfo(np.float32).max,
-                         shortest, -shortest, np.nextafter(shortest, np.float32(0)), 1e-25],
-                        np.float32)
+    shortest = np.float32(MIN_DIRECTION)  # (the shortest direction component that makes a direction fine)
+    specials = np.array(
+        [
+            0.0,
+            -0.0,
+            1e-40,
+            -1e-40,
+            np.finfo(np.float32).tiny,
+            1.0,
+            -3.5,
+            np.inf,
+            -np.inf,
+            np.nan,
+            edge,
+            -edge,
+            np.nextafter(edge, np.float32(np.inf)),
+            np.finfo(np.float32).max,
+            shortest,
+            -shortest,
+            np.nextafter(shortest, np.float32(0)),
+            1e-25,
+        ],
+        np.float32,
+    )
     rng = np.random.default_rng(3)
     scratch = np.empty(3 * 8, np.uint32)
     for _ in range(3000):
@@ -180,6 +208,7 @@ def test_a_nan_tmax_in_a_later_chunk_is_named_first(pair):
     """tmax is checked for NaN as each chunk is packed; the error is check_rays': a NaN tmax before a bad origin or
     direction, wherever the two lie."""
     from engine import ConfigError
+
     small, _ = pair
     _, _, o, d, tmax = scene_and_rays(4 * CHUNK)
     want = small.occluded(o, d, tmax)
@@ -204,7 +233,7 @@ def test_directions_with_zero_components_are_traced(pair):
     d[7] = (0.0, 0.0, -1.0)
     occ = small.occluded(o, d, tmax)
     assert np.array_equal(occ, whole.occluded(o, d, tmax))
-    assert (occ != reference_occluded(v, f, o, d, tmax)).sum() <= 2   # rays grazing an edge may go either way
+    assert (occ != reference_occluded(v, f, o, d, tmax)).sum() <= 2  # rays grazing an edge may go either way
     hits, one = small.intersect(o, d, tmax), whole.intersect(o, d, tmax)
     assert np.array_equal(hits.prim, one.prim) and np.array_equal(hits.t, one.t)
 
@@ -216,6 +245,7 @@ def test_a_failing_task_on_the_worker_pool_waits_for_the_others():
     import time as time_mod
 
     from engine.parallel import run
+
     done = []
     started = threading.Event()
 
@@ -227,6 +257,7 @@ def test_a_failing_task_on_the_worker_pool_waits_for_the_others():
         started.set()
         time_mod.sleep(0.05)
         done.append(1)
+
     with pytest.raises(ValueError, match="task failed"):
         run([fail, slow, slow, slow], 4)
     assert len(done) == 3
@@ -237,9 +268,12 @@ def test_staged_rays_are_checked_by_the_kernels_and_occlusion_read_as_bytes(monk
     (CHECK_RAYS) and the error is the host check's; occlusion comes back as one byte per ray. Same answers as the
     mapped path, which checks as it packs."""
     from engine import ConfigError
+
     v, f, o, d, tmax = scene_and_rays(3 * CHUNK + 7)
-    with Tracer(v, f, batch_size=CHUNK, staging=True, validation=True) as staged, \
-            Tracer(v, f, batch_size=CHUNK, staging=False, validation=True) as mapped:
+    with (
+        Tracer(v, f, batch_size=CHUNK, staging=True, validation=True) as staged,
+        Tracer(v, f, batch_size=CHUNK, staging=False, validation=True) as mapped,
+    ):
         want_occ, want_hits = mapped.occluded(o, d, tmax), mapped.intersect(o, d, tmax)
         assert mapped.session.slots and not any(s.kernel_checks for s in mapped.session.slots)
         calls = []
@@ -248,9 +282,9 @@ def test_staged_rays_are_checked_by_the_kernels_and_occlusion_read_as_bytes(monk
         slots = staged.session.slots
         assert slots and all(s.kernel_checks and s.hit_bytes["occluded"] == 1 for s in slots)
         assert np.array_equal(staged.intersect(o, d, tmax).prim, want_hits.prim)
-        assert not calls   # the host did not check them
+        assert not calls  # the host did not check them
         bad = d.copy()
-        bad[2 * CHUNK + 3] = (1e-40, 0.0, -1e-39)   # subnormal components only: 1 / d overflows
+        bad[2 * CHUNK + 3] = (1e-40, 0.0, -1e-39)  # subnormal components only: 1 / d overflows
         for query in (staged.occluded, staged.intersect):
             with pytest.raises(ConfigError, match=f"directions: ray {2 * CHUNK + 3} has zero length"):
                 query(o, bad, tmax)

@@ -24,7 +24,6 @@ def test_ruff_lint():
     assert res.returncode == 0, f'ruff check (fix, or see CONTRIBUTING.md, "Rules"):\n{res.stdout}{res.stderr}'
 
 
-@pytest.mark.xfail(strict=False, reason="enabled after the tree-wide reformat commit")
 def test_ruff_format():
     res = ruff("format", "--no-cache", "--check")
     assert res.returncode == 0, (

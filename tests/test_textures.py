@@ -1,5 +1,6 @@
 """Textures without a small cap (issue 18.2): many distinct textures, each on its own object in its own colour;
 mip-mapped, trilinear and anisotropic filtering against a supersampled reference; the size-class plan."""
+
 import math
 
 import numpy as np
@@ -10,7 +11,7 @@ from engine.passes.interface import MAX_TEXTURE_ARRAYS, TEXTURE_NONE
 from engine.gpu.textures import plan_arrays, size_class
 from engine.scene.material import Material, srgb8_to_linear
 
-SIZES = [(4, 4), (5, 3), (16, 8), (1, 1), (7, 9), (32, 32), (2, 64), (12, 12)]   # (h, w): several size classes
+SIZES = [(4, 4), (5, 3), (16, 8), (1, 1), (7, 9), (32, 32), (2, 64), (12, 12)]  # (h, w): several size classes
 
 
 def grid_scene(n, texture):
@@ -25,10 +26,16 @@ def grid_scene(n, texture):
         faces += [[base, base + 1, base + 2], [base, base + 2, base + 3]]
         vm += [i] * 4
         mats.append(Material(f"quad{i}", (1, 1, 1), texture(i)))
-    dist = 0.63 * 1.25 * side / math.tan(math.radians(22.5))   # the grid fills the view
+    dist = 0.63 * 1.25 * side / math.tan(math.radians(22.5))  # the grid fills the view
     cam = Camera.look_at((0, 0, dist), (0, 0, 0), fov_y=45.0)
-    return Scene(np.array(verts, float), faces, uvs=np.array(uvs, float), vertex_material=np.array(vm),
-                 materials=mats, camera=cam)
+    return Scene(
+        np.array(verts, float),
+        faces,
+        uvs=np.array(uvs, float),
+        vertex_material=np.array(vm),
+        materials=mats,
+        camera=cam,
+    )
 
 
 def distinct_colours(n):
@@ -68,10 +75,10 @@ def test_a_texture_keeps_its_orientation_when_resized(make_renderer):
     """A 3x5 texture of four coloured quadrants (resized to 4x8 in its array): each quadrant where it belongs."""
     tex = np.zeros((6, 10, 4), np.uint8)
     tex[..., 3] = 255
-    tex[:3, :5, 0] = 255      # top-left red
-    tex[:3, 5:, 1] = 255      # top-right green
-    tex[3:, :5, 2] = 255      # bottom-left blue
-    tex[3:, 5:] = 255         # bottom-right white
+    tex[:3, :5, 0] = 255  # top-left red
+    tex[:3, 5:, 1] = 255  # top-right green
+    tex[3:, :5, 2] = 255  # bottom-left blue
+    tex[3:, 5:] = 255  # bottom-right white
     scene = grid_scene(1, lambda i: tex)
     a = make_renderer(64, 64).render(scene, shadows="off", ao=False).aov["albedo"][..., :3]
     tl, tr, bl, br = a[18, 18], a[18, 45], a[45, 18], a[45, 45]
@@ -82,7 +89,7 @@ def test_a_texture_keeps_its_orientation_when_resized(make_renderer):
 
 
 # ---- filtering ---------------------------------------------------------------------------------------------------
-STRIPES = 256   # texels across the texture; one period is 2 texels
+STRIPES = 256  # texels across the texture; one period is 2 texels
 
 
 def striped_plane(vertical, width):
@@ -99,14 +106,13 @@ def striped_plane(vertical, width):
     verts = np.array([[-s, 0, -s], [s, 0, -s], [s, 0, s], [-s, 0, s]], float)
     uvs = np.array([[0, 0], [1, 0], [1, 1], [0, 1]], float)
     cam = Camera.look_at((0.013, 4.0, 20), (0.013, 0, 0), fov_y=50.0)
-    return Scene(verts, [[0, 2, 1], [0, 3, 2]], uvs=uvs, materials=[Material("stripes", (1, 1, 1), tex)],
-                 camera=cam)
+    return Scene(verts, [[0, 2, 1], [0, 3, 2]], uvs=uvs, materials=[Material("stripes", (1, 1, 1), tex)], camera=cam)
 
 
 def render_albedo(make_renderer, scene, w, h, factor=1):
     f = make_renderer(w * factor, h * factor).render(scene, aovs=("albedo",), shadows="off", ao=False)
     a = f.aov["albedo"][..., 0].astype(np.float64)
-    return a.reshape(h, factor, w, factor).mean(axis=(1, 3))   # box-downsampled
+    return a.reshape(h, factor, w, factor).mean(axis=(1, 3))  # box-downsampled
 
 
 def test_mipmaps_remove_aliasing_of_a_striped_plane_at_a_grazing_angle(make_renderer):
@@ -125,11 +131,11 @@ def test_mipmaps_remove_aliasing_of_a_striped_plane_at_a_grazing_angle(make_rend
     # point sampling: the texel under each pixel centre (v = (z + 20) / 40 of STRIPES texels)
     v = (pos[..., 2] + 20.0) / 40.0 * STRIPES
     point = ((np.floor(v).astype(np.int64) // 2) % 2 == 0).astype(np.float64)
-    assert point[far].var() > 0.1   # the aliasing there is to remove
+    assert point[far].var() > 0.1  # the aliasing there is to remove
     assert ours[far].var() < 0.01 and ref[far].var() < 0.01, (ours[far].var(), ref[far].var())
     assert abs(ours[far].mean() - 0.5) < 0.05 and abs(ref[far].mean() - 0.5) < 0.05
     assert np.abs(ours[far] - ref[far]).mean() < 0.05
-    near = np.isfinite(f.aov["depth"]) & (pos[..., 2] > 12)   # stripes a pixel or more wide: kept, not blurred
+    near = np.isfinite(f.aov["depth"]) & (pos[..., 2] > 12)  # stripes a pixel or more wide: kept, not blurred
     assert near.sum() > 400 and ref[near].var() > 0.05, (int(near.sum()), ref[near].var())
     assert ours[near].var() > 0.5 * ref[near].var(), (ours[near].var(), ref[near].var())
 
@@ -144,7 +150,7 @@ def test_anisotropic_filtering_keeps_stripes_that_run_away_from_the_camera(make_
         pytest.skip(f"textures are filtered with anisotropy {r.gbuffer.sampler.anisotropy:g} on this device")
     w, h = 96, 64
     scene = striped_plane(vertical=True, width=1)
-    scene.camera = Camera.look_at((0.013, 0.5, 20), (0.013, 0, 0), fov_y=8.0)   # zoomed: stripes ~2 pixels wide
+    scene.camera = Camera.look_at((0.013, 0.5, 20), (0.013, 0, 0), fov_y=8.0)  # zoomed: stripes ~2 pixels wide
     f = r.render(scene, aovs=("albedo", "position", "depth"), shadows="off", ao=False)
     ours = f.aov["albedo"][..., 0].astype(np.float64)
     ref = render_albedo(make_renderer, scene, w, h, 4)
@@ -202,17 +208,22 @@ def normal_map_quad(tn, mirrored=False, scale=1.0, eye=(0, 0, 4)):
     if mirrored:
         uvs[:, 0] = 1 - uvs[:, 0]
     mat = Material("bumpy", (1, 1, 1), normal_texture=tex, normal_scale=scale)
-    return Scene(verts, [[0, 1, 2], [0, 2, 3]], uvs=uvs, materials=[mat],
-                 camera=Camera.look_at(eye, (0, 0, 0), fov_y=30.0))
+    return Scene(
+        verts, [[0, 1, 2], [0, 2, 3]], uvs=uvs, materials=[mat], camera=Camera.look_at(eye, (0, 0, 0), fov_y=30.0)
+    )
 
 
-@pytest.mark.parametrize("tn, mirrored, scale, want", [
-    ((0.6, 0.0, 0.8), False, 1.0, (0.6, 0.0, 0.8)),     # +x of the map: +u = world +x
-    ((0.0, 0.6, 0.8), False, 1.0, (0.0, 0.6, 0.8)),     # +y of the map: up in the image = world +y
-    ((0.6, 0.0, 0.8), True, 1.0, (-0.6, 0.0, 0.8)),     # mirrored u: +u = world -x, +y still up
-    ((0.0, 0.6, 0.8), True, 1.0, (0.0, 0.6, 0.8)),
-    ((0.6, 0.0, 0.8), False, 0.5, (0.3, 0.0, 0.8)),     # normal_scale scales x and y
-], ids=["x", "y", "mirrored-x", "mirrored-y", "scaled"])
+@pytest.mark.parametrize(
+    "tn, mirrored, scale, want",
+    [
+        ((0.6, 0.0, 0.8), False, 1.0, (0.6, 0.0, 0.8)),  # +x of the map: +u = world +x
+        ((0.0, 0.6, 0.8), False, 1.0, (0.0, 0.6, 0.8)),  # +y of the map: up in the image = world +y
+        ((0.6, 0.0, 0.8), True, 1.0, (-0.6, 0.0, 0.8)),  # mirrored u: +u = world -x, +y still up
+        ((0.0, 0.6, 0.8), True, 1.0, (0.0, 0.6, 0.8)),
+        ((0.6, 0.0, 0.8), False, 0.5, (0.3, 0.0, 0.8)),  # normal_scale scales x and y
+    ],
+    ids=["x", "y", "mirrored-x", "mirrored-y", "scaled"],
+)
 def test_a_normal_map_turns_the_normal_in_the_tangent_frame(make_renderer, tn, mirrored, scale, want):
     scene = normal_map_quad(tn, mirrored, scale)
     f = make_renderer(32, 32).render(scene, aovs=("normal", "depth"), shadows="off", ao=False)
@@ -234,17 +245,25 @@ def test_material_textures_multiply_their_factors(make_renderer):
     """A quad whose metallic-roughness texture (G roughness, B metallic: linear) and emissive texture (sRGB) are
     each half one value, half another: the roughness, metallic and emissive AOVs are factor x texture per half."""
     mr = np.zeros((8, 8, 4), np.uint8)
-    mr[:, :4] = (0, 255, 51, 255)     # left: roughness x 1, metallic x 0.2
-    mr[:, 4:] = (0, 102, 255, 255)    # right: roughness x 0.4, metallic x 1
+    mr[:, :4] = (0, 255, 51, 255)  # left: roughness x 1, metallic x 0.2
+    mr[:, 4:] = (0, 102, 255, 255)  # right: roughness x 0.4, metallic x 1
     em = np.zeros((8, 8, 4), np.uint8)
     em[:, :4] = (255, 128, 0, 255)
     em[:, 4:] = (0, 0, 255, 255)
-    mat = Material("mr", (1, 1, 1), metallic=0.5, roughness=0.8, emissive=(2, 2, 2), metallic_roughness_texture=mr,
-                   emissive_texture=em)
+    mat = Material(
+        "mr",
+        (1, 1, 1),
+        metallic=0.5,
+        roughness=0.8,
+        emissive=(2, 2, 2),
+        metallic_roughness_texture=mr,
+        emissive_texture=em,
+    )
     verts = np.array([[-1, -1, 0], [1, -1, 0], [1, 1, 0], [-1, 1, 0]], float)
     uvs = np.array([[0, 1], [1, 1], [1, 0], [0, 0]], float)
-    scene = Scene(verts, [[0, 1, 2], [0, 2, 3]], uvs=uvs, materials=[mat],
-                  camera=Camera.look_at((0, 0, 4), (0, 0, 0), fov_y=30.0))
+    scene = Scene(
+        verts, [[0, 1, 2], [0, 2, 3]], uvs=uvs, materials=[mat], camera=Camera.look_at((0, 0, 4), (0, 0, 0), fov_y=30.0)
+    )
     f = make_renderer(32, 32).render(scene, aovs=("roughness", "metallic", "emissive"), shadows="off", ao=False)
     left, right = (slice(10, 22), slice(8, 14)), (slice(10, 22), slice(18, 24))
     assert np.allclose(f.aov["roughness"][left], 0.8, atol=0.01)
@@ -259,7 +278,7 @@ def test_material_textures_multiply_their_factors(make_renderer):
 def disc_mask(size=64):
     """An RGBA texture, opaque red inside a disc of radius 0.35 (in UV units) around (0.5, 0.5), alpha 0 outside."""
     y, x = (np.mgrid[0:size, 0:size] + 0.5) / size
-    inside = (x - 0.5) ** 2 + (y - 0.5) ** 2 < 0.35 ** 2
+    inside = (x - 0.5) ** 2 + (y - 0.5) ** 2 < 0.35**2
     tex = np.zeros((size, size, 4), np.uint8)
     tex[..., 0], tex[..., 3] = 255, np.where(inside, 255, 0)
     return tex
@@ -267,25 +286,35 @@ def disc_mask(size=64):
 
 def masked_quad_scene(alpha_mode="MASK", cutoff=0.5, base_alpha=1.0):
     """A grey opaque back wall, and in front of it a quad (x, y in [-1, 1], z = 1) with the disc mask texture."""
-    verts = np.array([[-3, -3, -1], [3, -3, -1], [3, 3, -1], [-3, 3, -1],
-                      [-1, -1, 1], [1, -1, 1], [1, 1, 1], [-1, 1, 1]], float)
+    verts = np.array(
+        [[-3, -3, -1], [3, -3, -1], [3, 3, -1], [-3, 3, -1], [-1, -1, 1], [1, -1, 1], [1, 1, 1], [-1, 1, 1]], float
+    )
     uvs = np.array([[0, 0]] * 4 + [[0, 1], [1, 1], [1, 0], [0, 0]], float)
     faces = [[0, 1, 2], [0, 2, 3], [4, 5, 6], [4, 6, 7]]
-    mats = [Material("wall", (0.5, 0.5, 0.5)),
-            Material("leaf", (1, 1, 1, base_alpha), disc_mask(), alpha_mode=alpha_mode, alpha_cutoff=cutoff)]
-    return Scene(verts, faces, uvs=uvs, vertex_material=np.array([0] * 4 + [1] * 4), materials=mats,
-                 camera=Camera.look_at((0, 0, 6), (0, 0, 0), fov_y=30.0))
+    mats = [
+        Material("wall", (0.5, 0.5, 0.5)),
+        Material("leaf", (1, 1, 1, base_alpha), disc_mask(), alpha_mode=alpha_mode, alpha_cutoff=cutoff),
+    ]
+    return Scene(
+        verts,
+        faces,
+        uvs=uvs,
+        vertex_material=np.array([0] * 4 + [1] * 4),
+        materials=mats,
+        camera=Camera.look_at((0, 0, 6), (0, 0, 0), fov_y=30.0),
+    )
 
 
 def quad_disc_pixels(f, w, h):
     """Where the disc of the masked quad lies on screen (the quad's plane z = 1 hit by each pixel's ray)."""
     from helpers import pixel_rays
+
     cam = f.camera
     d = pixel_rays(cam, w, h)
     e = np.asarray(cam.eye)
     t = (1.0 - e[2]) / d[..., 2]
     p = e + t[..., None] * d
-    r2 = (p[..., 0] / 2) ** 2 + (p[..., 1] / 2) ** 2   # UV offset from the centre: (x / 2, -y / 2)
+    r2 = (p[..., 0] / 2) ** 2 + (p[..., 1] / 2) ** 2  # UV offset from the centre: (x / 2, -y / 2)
     return r2, (np.abs(p[..., 0]) < 1) & (np.abs(p[..., 1]) < 1)
 
 
@@ -297,14 +326,14 @@ def test_an_alpha_masked_quad_covers_exactly_its_mask(make_renderer, mode):
     f = make_renderer(w, h).render(masked_quad_scene(mode), aovs=("material_id", "albedo"), shadows="off", ao=False)
     r2, on_quad = quad_disc_pixels(f, w, h)
     ids = f.aov["material_id"]
-    inside, outside = r2 < 0.33 ** 2, on_quad & (r2 > 0.37 ** 2)
+    inside, outside = r2 < 0.33**2, on_quad & (r2 > 0.37**2)
     assert inside.sum() > 500 and outside.sum() > 500
     assert np.all(ids[inside] == 1) and np.all(ids[outside] == 0)
     assert np.allclose(f.aov["albedo"][inside][:, :3], [1, 0, 0], atol=0.01)
     assert np.allclose(f.aov["albedo"][outside][:, :3], 0.5, atol=0.01)
     # coverage: the disc's area in pixels, within the edge's pixels
     covered = (ids == 1).sum()
-    assert abs(covered - (r2 < 0.35 ** 2).sum()) < 0.05 * covered
+    assert abs(covered - (r2 < 0.35**2).sum()) < 0.05 * covered
 
 
 def test_opaque_materials_ignore_alpha_and_cutoff_and_base_alpha_count(make_renderer):
@@ -319,7 +348,7 @@ def test_opaque_materials_ignore_alpha_and_cutoff_and_base_alpha_count(make_rend
     assert not np.any(gone.aov["material_id"] == 1)
     back = r.render(masked_quad_scene("MASK", 0.3, 0.4), aovs=("material_id",), shadows="off", ao=False)
     r2, _ = quad_disc_pixels(back, w, h)
-    assert np.all(back.aov["material_id"][r2 < 0.33 ** 2] == 1)
+    assert np.all(back.aov["material_id"][r2 < 0.33**2] == 1)
 
 
 # ---- alpha in ray passes -----------------------------------------------------------------------------------------
@@ -327,6 +356,7 @@ def leaf_over_ground(leaf, ground_y=-1.0, angle=0.0):
     """A 10 x 10 ground plane (material 0) and `leaf` = (vertices, faces, uvs, material) 1 above it, lit from
     above at a slant (a sun of angular radius `angle` degrees), seen from above."""
     from engine import DirectionalLight
+
     gv = np.array([[-5, ground_y, -5], [5, ground_y, -5], [5, ground_y, 5], [-5, ground_y, 5]], float)
     lv, lf, luv, lmat = leaf
     verts = np.concatenate([gv, lv])
@@ -334,9 +364,15 @@ def leaf_over_ground(leaf, ground_y=-1.0, angle=0.0):
     uvs = np.concatenate([np.zeros((4, 2)), luv])
     vm = np.array([0] * 4 + [1] * len(lv))
     cam = Camera.look_at((0.5, 6, 2.5), (0.5, -1, 0.3), fov_y=40.0)
-    return Scene(verts, faces, uvs=uvs, vertex_material=vm,
-                 materials=[Material("ground", (0.7, 0.7, 0.7)), lmat], camera=cam,
-                 lights=[DirectionalLight((0.3, -1.0, 0.2), intensity=2.0, angle=angle)])
+    return Scene(
+        verts,
+        faces,
+        uvs=uvs,
+        vertex_material=vm,
+        materials=[Material("ground", (0.7, 0.7, 0.7)), lmat],
+        camera=cam,
+        lights=[DirectionalLight((0.3, -1.0, 0.2), intensity=2.0, angle=angle)],
+    )
 
 
 def masked_leaf(size=256, alpha_mode="MASK", base_alpha=1.0):
@@ -371,12 +407,12 @@ def test_an_alpha_masked_quads_shadow_is_the_shadow_of_its_cut_out(make_renderer
     ground = (masked.aov["material_id"] == 0) & (geometry.aov["material_id"] == 0)
     assert ground.sum() > 0.5 * w * h
     s_masked, s_geom = masked.aov["shadow"][..., 0], geometry.aov["shadow"][..., 0]
-    assert (s_geom[ground] == 0).sum() > 200   # a shadow to compare
+    assert (s_geom[ground] == 0).sum() > 200  # a shadow to compare
     if shadows == "soft":
-        assert ((s_geom[ground] > 0) & (s_geom[ground] < 1)).sum() > 50   # and a penumbra
+        assert ((s_geom[ground] > 0) & (s_geom[ground] < 1)).sum() > 50  # and a penumbra
     agree = (s_masked[ground] == s_geom[ground]).mean()
     assert agree >= 0.995, agree
-    assert (solid.aov["shadow"][..., 0][ground] == s_geom[ground]).mean() < 0.97   # the test can tell
+    assert (solid.aov["shadow"][..., 0][ground] == s_geom[ground]).mean() < 0.97  # the test can tell
 
 
 def test_ambient_occlusion_sees_through_a_transparent_masked_quad(make_renderer):
@@ -388,8 +424,14 @@ def test_ambient_occlusion_sees_through_a_transparent_masked_quad(make_renderer)
     ground_only = leaf_over_ground(masked_leaf(base_alpha=0.0))
     invisible = r.render(ground_only, **settings).aov["ao_raw"]
     verts = ground_only.positions[:4]
-    bare = Scene(verts, [[0, 2, 1], [0, 3, 2]], uvs=np.zeros((4, 2)), materials=[ground_only.materials[0]],
-                 camera=ground_only.camera, lights=ground_only.lights)
+    bare = Scene(
+        verts,
+        [[0, 2, 1], [0, 3, 2]],
+        uvs=np.zeros((4, 2)),
+        materials=[ground_only.materials[0]],
+        camera=ground_only.camera,
+        lights=ground_only.lights,
+    )
     assert np.array_equal(invisible, r.render(bare, **settings).aov["ao_raw"])
     opaque = r.render(leaf_over_ground(masked_leaf(alpha_mode="OPAQUE")), **settings).aov["ao_raw"]
     assert opaque.mean() < invisible.mean() - 0.01

@@ -1,6 +1,7 @@
 """The two-level BVH's top level built on the GPU (engine/gpu/tlas.py, shaders/glsl/tlas_build.comp) against the host
 build (engine/bvh/instanced.py TwoLevel.top) and brute force: the same hits and ids, and a tree whose boxes hold
 what they should."""
+
 import numpy as np
 import pytest
 import trimesh
@@ -39,8 +40,8 @@ def top_level(tracer):
     """The top level's nodes and instance records as the device holds them."""
     two = tracer.scene.two
     raw = read_back(tracer.ctx, tracer.scene.nodes, two.tail_offset, two.nodes.nbytes - two.tail_offset)
-    top = raw[:(two.inst_base - two.tlas_root) * 64].view(NODE_DTYPE)
-    return two, top, raw[(two.inst_base - two.tlas_root) * 64:].view(INST_DTYPE)
+    top = raw[: (two.inst_base - two.tlas_root) * 64].view(NODE_DTYPE)
+    return two, top, raw[(two.inst_base - two.tlas_root) * 64 :].view(INST_DTYPE)
 
 
 def check_tree(tracer, scene):
@@ -54,17 +55,23 @@ def check_tree(tracer, scene):
     hi = np.stack([top["lmax"], top["rmax"]], 1).astype(np.float64)
     leaf = (words & LEAF_BIT) != 0
     inst = (words[leaf & (counts == 1)] & ~LEAF_BIT).astype(np.int64)
-    assert np.array_equal(np.sort(inst), np.arange(n))          # each instance in exactly one slot
+    assert np.array_equal(np.sort(inst), np.arange(n))  # each instance in exactly one slot
     assert (counts == 1).sum() == n and np.all(counts[~leaf] == 0) and np.all(counts <= 1)
     world = scene.instance_boxes()
     # a leaf's box holds its instance's triangles (the tighter of the turned box's and bounding sphere's bounds)
-    exact = np.stack([[p.min(0), p.max(0)] for p in
-                      (scene.meshes[k].positions @ m[:3, :3].T + m[:3, 3]
-                       for k, m in zip(scene.instance_mesh, scene.transforms))])
+    exact = np.stack(
+        [
+            [p.min(0), p.max(0)]
+            for p in (
+                scene.meshes[k].positions @ m[:3, :3].T + m[:3, 3]
+                for k, m in zip(scene.instance_mesh, scene.transforms)
+            )
+        ]
+    )
     full = leaf & (counts == 1)
     wb = exact[(words[full] & ~LEAF_BIT).astype(np.int64)]
     assert np.all(lo[full] <= wb[:, 0]) and np.all(hi[full] >= wb[:, 1])
-    assert np.all(lo[full] >= world[(words[full] & ~LEAF_BIT).astype(np.int64), 0] - 1e-3)   # never looser
+    assert np.all(lo[full] >= world[(words[full] & ~LEAF_BIT).astype(np.int64), 0] - 1e-3)  # never looser
     empty = leaf & (counts == 0)
     assert np.all(lo[empty] == np.inf) and np.all(hi[empty] == -np.inf)
     # a tree: every node but the root is the child of exactly one slot; a slot's box holds its node's two boxes
@@ -78,7 +85,7 @@ def check_tree(tracer, scene):
         k, c = stack.pop()
         if not leaf[k, c]:
             node = int(words[k, c]) - two.tlas_root
-            stack += [(node, 1), (node, 0)]   # the left slot comes out first
+            stack += [(node, 1), (node, 0)]  # the left slot comes out first
         elif counts[k, c]:
             order.append(int(words[k, c] & ~LEAF_BIT))
     c = world.mean(axis=1)
@@ -97,7 +104,7 @@ def same_hits(a, b):
     assert np.array_equal(a.prim, b.prim) and np.array_equal(a.instance, b.instance)
     assert np.array_equal(a.mesh_prim, b.mesh_prim)
     hit = a.prim >= 0
-    assert np.all(np.abs(a.t[hit] - b.t[hit]) <= 2e-5 * np.maximum(a.t[hit], 1.0))   # float32 inverses' rounding
+    assert np.all(np.abs(a.t[hit] - b.t[hit]) <= 2e-5 * np.maximum(a.t[hit], 1.0))  # float32 inverses' rounding
 
 
 @pytest.mark.parametrize("n", tiered([1, 2, 5, 1025, 3000], {0, 1, 2, 3}))
@@ -121,7 +128,7 @@ def test_gpu_built_top_level_gives_the_host_builds_hits(monkeypatch, n):
                 out.append(tracer.intersect(o, d))
                 if builder == "gpu":
                     check_tree(tracer, scene)
-            scene.set_transforms(frames[0][:1], which=[n // 2])   # one moved
+            scene.set_transforms(frames[0][:1], which=[n // 2])  # one moved
             out.append(tracer.intersect(o, d))
             if builder == "gpu":
                 check_tree(tracer, scene)
@@ -153,7 +160,7 @@ def test_top_level_follows_refitted_and_rebuilt_meshes(monkeypatch, builder):
         scene.set_transforms(moved(rng, 24, 1.0))
         hits = tracer.intersect(o, d)
         assert tracer.scene.rebuilds == 1
-        with Tracer.from_scene(scene) as fresh:   # (the refitted box kept; crossing triangles: ids as a fresh BVH's)
+        with Tracer.from_scene(scene) as fresh:  # (the refitted box kept; crossing triangles: ids as a fresh BVH's)
             same_hits(hits, fresh.intersect(o, d))
         t, prim, _, _ = reference_intersect(scene.positions, scene.indices, o, d, np.inf)
         assert np.mean((hits.prim >= 0) == (prim >= 0)) > 0.998
@@ -183,7 +190,7 @@ def test_renderer_traces_moving_instances_through_the_gpu_build(monkeypatch, mak
         moved = scene.transforms[1:].copy()
         moved[:, :3, 3] += rng.uniform(-0.8, 0.8, (3, 3)) * (1, 0, 1)
         a = random_transform(rng, mirror=k == 1)[:3, :3]
-        moved[0, :3, :3] = a / np.abs(np.linalg.det(a)) ** (1 / 3)   # turned and sheared (mirrored), volume kept
+        moved[0, :3, :3] = a / np.abs(np.linalg.det(a)) ** (1 / 3)  # turned and sheared (mirrored), volume kept
         scene.set_transforms(moved, [1, 2, 3])
         if k == 2:
             scene.update_positions("cube", scene.meshes[1].positions * 1.3)
@@ -194,7 +201,7 @@ def test_renderer_traces_moving_instances_through_the_gpu_build(monkeypatch, mak
         got = f.aov["shadow"][..., 0]
         assert 0.01 < (ref == 0).mean() < 0.6
         assert (got != ref).mean() < 0.005, f"{(got != ref).sum()} pixels differ"
-    assert r.uploads == uploads                                     # moved and deformed in place
+    assert r.uploads == uploads  # moved and deformed in place
     assert r.validation_errors == []
 
 
@@ -206,7 +213,7 @@ def node_extents(top, two):
     hi = np.maximum(top["lmax"], top["rmax"]).astype(np.float64)
     below = np.zeros(len(top), np.int64)
     done = np.zeros(len(top), bool)
-    while not done.all():   # bottom-up until every node's count is known
+    while not done.all():  # bottom-up until every node's count is known
         for k in np.flatnonzero(~done):
             total, ready = 0, True
             for c in range(2):
@@ -234,11 +241,12 @@ def test_top_level_nodes_stay_compact_on_a_floor_of_instances(monkeypatch, build
     m[:, 0, 3], m[:, 2, 3] = np.repeat(np.arange(side), side) * 3.0, np.tile(np.arange(side), side) * 3.0
     m[:, 1, 3] = rng.uniform(0.0, 0.3, side * side)
     scene = Scene.from_meshes([Mesh(box.vertices, box.faces)], [Instance(0, x) for x in m])
-    scene.set_transforms(m)   # moved: the two-level BVH
+    scene.set_transforms(m)  # moved: the two-level BVH
     with Tracer.from_scene(scene, validation=True) as tracer:
         o = np.c_[rng.uniform(0, 3 * side, 2000), np.full(2000, 5.0), rng.uniform(0, 3 * side, 2000)]
-        check_hits(tracer.intersect(o, np.tile([0.0, -1.0, 0.0], (2000, 1))), scene, o,
-                   np.tile([0.0, -1.0, 0.0], (2000, 1)))
+        check_hits(
+            tracer.intersect(o, np.tile([0.0, -1.0, 0.0], (2000, 1))), scene, o, np.tile([0.0, -1.0, 0.0], (2000, 1))
+        )
         two, top, _ = top_level(tracer)
         below, area = node_extents(top, two)
         assert below[0] == side * side

@@ -1,4 +1,5 @@
 """The batch Tracer against a brute-force numpy reference, on several meshes including thin and degenerate ones."""
+
 import re
 
 import numpy as np
@@ -90,16 +91,16 @@ def test_float64_inputs_and_scalar_tmax(tracers):
     o = np.array([[0.0, 0.0, 5.0], [0.0, 0.0, 5.0], [5.0, 5.0, 5.0]])
     d = np.array([[0.0, 0.0, -2.0], [0.0, 0.0, 2.0], [0.0, 0.0, -1.0]])
     hits = tracers["sphere"].intersect(o, d)
-    assert hits.prim[0] >= 0 and abs(hits.t[0] - 2.0) < 0.01      # t in units of the unnormalized direction
+    assert hits.prim[0] >= 0 and abs(hits.t[0] - 2.0) < 0.01  # t in units of the unnormalized direction
     assert hits.prim[1] == -1 and hits.prim[2] == -1
-    occ = tracers["sphere"].occluded(o, d, 1.5)                     # the sphere starts at t = 2
+    occ = tracers["sphere"].occluded(o, d, 1.5)  # the sphere starts at t = 2
     assert not occ.any()
 
 
 def test_closed_mesh_does_not_leak(tracers):
     """Rays from inside a closed sphere towards its vertices and edges must all hit it."""
     v, f = meshes()["sphere"]
-    dirs = np.vstack([v, (v[f[:, 0]] + v[f[:, 1]]) / 2])            # through vertices and edge midpoints
+    dirs = np.vstack([v, (v[f[:, 0]] + v[f[:, 1]]) / 2])  # through vertices and edge midpoints
     origins = np.zeros_like(dirs)
     hits = tracers["sphere"].intersect(origins, dirs)
     assert hits.hit.all(), f"{(~hits.hit).sum()} rays leaked through shared vertices/edges"
@@ -138,8 +139,10 @@ def test_staged_buffers_give_the_same_answers():
     v, f = meshes()["sphere"]
     rng = np.random.default_rng(5)
     o, d = random_rays(rng, 2600, (v.min(0), v.max(0)))
-    with Tracer(v, f, batch_size=1024, staging=False, validation=True) as plain, \
-            Tracer(v, f, batch_size=1024, staging=True, validation=True) as staged:
+    with (
+        Tracer(v, f, batch_size=1024, staging=False, validation=True) as plain,
+        Tracer(v, f, batch_size=1024, staging=True, validation=True) as staged,
+    ):
         assert staged.session.staged and not plain.session.staged
         for n in (2600, 700, 1):
             assert np.array_equal(staged.occluded(o[:n], d[:n], 3.0), plain.occluded(o[:n], d[:n], 3.0))
@@ -149,39 +152,91 @@ def test_staged_buffers_give_the_same_answers():
         assert not staged.validation_errors and not plain.validation_errors
 
 
-VARIANTS = [{"BVH_BRANCHLESS_PUSH": False, "BVH_POSTPONE_LEAVES": False, "BVH_REG_STACK": False},
-            {"BVH_BRANCHLESS_PUSH": True, "BVH_POSTPONE_LEAVES": False, "BVH_REG_STACK": False},
-            {"BVH_BRANCHLESS_PUSH": False, "BVH_POSTPONE_LEAVES": True, "BVH_REG_STACK": False},
-            {"BVH_BRANCHLESS_PUSH": True, "BVH_POSTPONE_LEAVES": True, "BVH_REG_STACK": False},
-            {"BVH_BRANCHLESS_PUSH": False, "BVH_POSTPONE_LEAVES": False, "BVH_REG_STACK": True, "BVH_STACK_REGS": 32},
-            {"BVH_BRANCHLESS_PUSH": True, "BVH_POSTPONE_LEAVES": True, "BVH_REG_STACK": True, "BVH_STACK_REGS": 32},
-            {"BVH_BRANCHLESS_PUSH": True, "BVH_POSTPONE_LEAVES": True, "BVH_REG_STACK": True, "BVH_STACK_REGS": 32,
-             "BVH_SELECT_MINMAX": True},
-            {"BVH_BRANCHLESS_PUSH": True, "BVH_POSTPONE_LEAVES": True, "BVH_REG_STACK": True, "BVH_STACK_REGS": 2,
-             "BVH_STACK_RETRY": True},
-            {"BVH_BRANCHLESS_PUSH": True, "BVH_POSTPONE_LEAVES": True, "BVH_REG_STACK": True, "BVH_STACK_REGS": 1,
-             "BVH_STACK_RETRY": True, "BVH_SELECT_MINMAX": True},
-            {"BVH_BRANCHLESS_PUSH": True, "BVH_POSTPONE_LEAVES": True, "BVH_REG_STACK": True, "BVH_STACK_REGS": 3,
-             "BVH_STACK_RETRY": True, "uncompressed": True},
-            {"BVH_BRANCHLESS_PUSH": False, "BVH_POSTPONE_LEAVES": False, "BVH_REG_STACK": False,
-             "BVH_SELECT_MINMAX": True, "uncompressed": True},
-            {"BVH_BRANCHLESS_PUSH": True, "BVH_POSTPONE_LEAVES": True, "BVH_REG_STACK": True, "BVH_STACK_REGS": 2,
-             "BVH_STACK_RETRY": True, "BVH_SELECT_MINMAX": True, "BVH_IMAGE_FETCH": True},
-            {"BVH_BRANCHLESS_PUSH": False, "BVH_POSTPONE_LEAVES": False, "BVH_REG_STACK": False,
-             "BVH_IMAGE_FETCH": True, "uncompressed": True},
-            {"BVH_BRANCHLESS_PUSH": True, "BVH_POSTPONE_LEAVES": True, "BVH_REG_STACK": True, "BVH_STACK_REGS": 3,
-             "BVH_STACK_RETRY": True, "BVH_IMAGE_FETCH": True, "uncompressed": True}]
+VARIANTS = [
+    {"BVH_BRANCHLESS_PUSH": False, "BVH_POSTPONE_LEAVES": False, "BVH_REG_STACK": False},
+    {"BVH_BRANCHLESS_PUSH": True, "BVH_POSTPONE_LEAVES": False, "BVH_REG_STACK": False},
+    {"BVH_BRANCHLESS_PUSH": False, "BVH_POSTPONE_LEAVES": True, "BVH_REG_STACK": False},
+    {"BVH_BRANCHLESS_PUSH": True, "BVH_POSTPONE_LEAVES": True, "BVH_REG_STACK": False},
+    {"BVH_BRANCHLESS_PUSH": False, "BVH_POSTPONE_LEAVES": False, "BVH_REG_STACK": True, "BVH_STACK_REGS": 32},
+    {"BVH_BRANCHLESS_PUSH": True, "BVH_POSTPONE_LEAVES": True, "BVH_REG_STACK": True, "BVH_STACK_REGS": 32},
+    {
+        "BVH_BRANCHLESS_PUSH": True,
+        "BVH_POSTPONE_LEAVES": True,
+        "BVH_REG_STACK": True,
+        "BVH_STACK_REGS": 32,
+        "BVH_SELECT_MINMAX": True,
+    },
+    {
+        "BVH_BRANCHLESS_PUSH": True,
+        "BVH_POSTPONE_LEAVES": True,
+        "BVH_REG_STACK": True,
+        "BVH_STACK_REGS": 2,
+        "BVH_STACK_RETRY": True,
+    },
+    {
+        "BVH_BRANCHLESS_PUSH": True,
+        "BVH_POSTPONE_LEAVES": True,
+        "BVH_REG_STACK": True,
+        "BVH_STACK_REGS": 1,
+        "BVH_STACK_RETRY": True,
+        "BVH_SELECT_MINMAX": True,
+    },
+    {
+        "BVH_BRANCHLESS_PUSH": True,
+        "BVH_POSTPONE_LEAVES": True,
+        "BVH_REG_STACK": True,
+        "BVH_STACK_REGS": 3,
+        "BVH_STACK_RETRY": True,
+        "uncompressed": True,
+    },
+    {
+        "BVH_BRANCHLESS_PUSH": False,
+        "BVH_POSTPONE_LEAVES": False,
+        "BVH_REG_STACK": False,
+        "BVH_SELECT_MINMAX": True,
+        "uncompressed": True,
+    },
+    {
+        "BVH_BRANCHLESS_PUSH": True,
+        "BVH_POSTPONE_LEAVES": True,
+        "BVH_REG_STACK": True,
+        "BVH_STACK_REGS": 2,
+        "BVH_STACK_RETRY": True,
+        "BVH_SELECT_MINMAX": True,
+        "BVH_IMAGE_FETCH": True,
+    },
+    {
+        "BVH_BRANCHLESS_PUSH": False,
+        "BVH_POSTPONE_LEAVES": False,
+        "BVH_REG_STACK": False,
+        "BVH_IMAGE_FETCH": True,
+        "uncompressed": True,
+    },
+    {
+        "BVH_BRANCHLESS_PUSH": True,
+        "BVH_POSTPONE_LEAVES": True,
+        "BVH_REG_STACK": True,
+        "BVH_STACK_REGS": 3,
+        "BVH_STACK_RETRY": True,
+        "BVH_IMAGE_FETCH": True,
+        "uncompressed": True,
+    },
+]
 
 
 def _variant_tracer(monkeypatch, spec, v, f):
     """A Tracer whose bvh_spec is `spec` (constant 8 follows the nodes uploaded: compressed unless the spec says
     "uncompressed")."""
     import engine.gpu.bvh as gpu_bvh
+
     spec = dict(spec)
     if spec.pop("uncompressed", False):
         monkeypatch.setattr(gpu_bvh, "compress_nodes", lambda nodes: None)
-    monkeypatch.setattr(gpu_bvh, "bvh_spec", lambda ctx, depth=None, layout=None, compressed=False, **kw:
-                        {**spec, "BVH_COMPRESSED": compressed})
+    monkeypatch.setattr(
+        gpu_bvh,
+        "bvh_spec",
+        lambda ctx, depth=None, layout=None, compressed=False, **kw: {**spec, "BVH_COMPRESSED": compressed},
+    )
     return Tracer(v, f, validation=True)
 
 
@@ -191,7 +246,7 @@ def test_workgroup_shares_permute_the_ray_blocks():
     another query, so a skipped block would show)."""
     v, f = terrace(1200)
     rng = np.random.default_rng(19)
-    o, d = random_rays(rng, 64 * 37 + 5, (v.min(0), v.max(0)))   # 38 workgroups, the last one partial
+    o, d = random_rays(rng, 64 * 37 + 5, (v.min(0), v.max(0)))  # 38 workgroups, the last one partial
     tmax = rng.uniform(0.1, 30.0, len(o)).astype(np.float32)
     with Tracer(v, f, validation=True) as t:
         t.session.shares = 1
@@ -211,6 +266,7 @@ def test_rays_through_texel_buffers_match_storage_buffers(monkeypatch):
     """rays.glsl's RAYS_TEXEL: rays read (and occlusion results written) through texel buffer views instead of the
     storage buffers; both paths, for both query kinds, give the same answers, over several batches."""
     import engine.rt.tracer as tracer_mod
+
     v, f = terrace(1200)
     rng = np.random.default_rng(17)
     o, d = random_rays(rng, 5000, (v.min(0), v.max(0)))
@@ -239,6 +295,7 @@ def test_every_traversal_variant_gives_the_same_answers(monkeypatch, spec):
     on lavapipe: compressed nodes, a register stack of min(CPU_STACK_REGS, the BVH's depth - 1) entries.)"""
     from engine.gpu.bvh import CPU_OCCLUSION_STACK_REGS, CPU_STACK_REGS, compresses
     import engine.rt.tracer as tracer_mod
+
     v, f = meshes()["soup"]
     rng = np.random.default_rng(13)
     o, d = random_rays(rng, 3000, (v.min(0), v.max(0)))
@@ -247,7 +304,7 @@ def test_every_traversal_variant_gives_the_same_answers(monkeypatch, spec):
         occ0, hit0 = default.occluded(o, d, tmax), default.intersect(o, d)
         need = max(1, default.stats["depth"] - 1)
         dspec = default.session.specs["intersect"]
-        if tracer_mod.is_cpu(default.ctx):   # (a GPU's defaults are other constants)
+        if tracer_mod.is_cpu(default.ctx):  # (a GPU's defaults are other constants)
             assert default.session.specs["occluded"]["BVH_STACK_REGS"] == min(CPU_OCCLUSION_STACK_REGS, need)
             assert dspec["BVH_STACK_REGS"] == min(CPU_STACK_REGS, need)
             assert dspec["BVH_COMPRESSED"] and default.scene.compressed and dspec["BVH_IMAGE_FETCH"]
@@ -270,8 +327,14 @@ def test_short_stack_retry_matches_the_full_stack(monkeypatch, tracers, name):
     tmax = rng.uniform(0.1, 4.0, len(o)).astype(np.float32)
     tmax[::4] = np.inf
     occ0, hit0 = tracers[name].occluded(o, d, tmax), tracers[name].intersect(o, d, tmax)
-    retry = {"BVH_BRANCHLESS_PUSH": True, "BVH_POSTPONE_LEAVES": True, "BVH_REG_STACK": True, "BVH_STACK_REGS": 1,
-             "BVH_STACK_RETRY": True, "BVH_SELECT_MINMAX": True}
+    retry = {
+        "BVH_BRANCHLESS_PUSH": True,
+        "BVH_POSTPONE_LEAVES": True,
+        "BVH_REG_STACK": True,
+        "BVH_STACK_REGS": 1,
+        "BVH_STACK_RETRY": True,
+        "BVH_SELECT_MINMAX": True,
+    }
     with _variant_tracer(monkeypatch, retry, v, f) as variant:
         # the retry in a second dispatch over the rays the first left unresolved (trace_*_retry.comp)
         assert variant.session.two_pass == {"occluded": True, "intersect": True}
@@ -305,16 +368,25 @@ def test_image_loads_match_texel_fetches(monkeypatch, tracers, name):
         assert not other.validation_errors
 
 
-@pytest.mark.parametrize("name, over", covering(
-    list(meshes()), [{"BVH_WIDE_CPU": True, "BVH_STACK_REGS": 1, "BVH_STACK_RETRY": True},
-                     {"BVH_WIDE_CPU": True, "BVH_STACK_REGS": 2, "BVH_STACK_RETRY": True, "BVH_IMAGE_FETCH": False},
-                     {"BVH_WIDE_CPU": False}], ids_b=["cpu-1-entry", "cpu-2-entries-texel", "gpu-walk"]))
+@pytest.mark.parametrize(
+    "name, over",
+    covering(
+        list(meshes()),
+        [
+            {"BVH_WIDE_CPU": True, "BVH_STACK_REGS": 1, "BVH_STACK_RETRY": True},
+            {"BVH_WIDE_CPU": True, "BVH_STACK_REGS": 2, "BVH_STACK_RETRY": True, "BVH_IMAGE_FETCH": False},
+            {"BVH_WIDE_CPU": False},
+        ],
+        ids_b=["cpu-1-entry", "cpu-2-entries-texel", "gpu-walk"],
+    ),
+)
 def test_wide_traversals_give_the_same_answers(monkeypatch, name, over):
     """The 8-wide layout's two traversals (BVH_WIDE_CPU: the lavapipe one, postponed leaves and a register stack of
     node groups with a retry walk; off: the GPU one) answer alike on every mesh, with a register stack of 1 or 2
     entries that overflows on most rays of the deeper trees (the retry walk then gives the answer), and as the
     reference does."""
     import engine.rt.tracer as tracer_mod
+
     v, f = meshes()[name]
     rng = np.random.default_rng(29)
     o, d = random_rays(rng, 3000, (v.min(0), v.max(0)))
@@ -354,11 +426,21 @@ def test_second_dispatch_over_several_batches(monkeypatch, tracers):
     occ0, hit0 = base.occluded(o, d, tmax), base.intersect(o, d, tmax)
     real = gpu_bvh.bvh_spec
     # (BVH_WIDE_CPU: the wide layout's register-stack walk, which is the CPU devices' and otherwise off)
-    monkeypatch.setattr(gpu_bvh, "bvh_spec",
-                        lambda *a, **kw: {**real(*a, **kw), "BVH_REG_STACK": True, "BVH_STACK_REGS": 1,
-                                                         "BVH_STACK_RETRY": True, "BVH_WIDE_CPU": True})
-    with Tracer(v, f, batch_size=700, validation=True, layout=base.layout) as small, \
-            Tracer(v, f, validation=True, layout=base.layout) as one:
+    monkeypatch.setattr(
+        gpu_bvh,
+        "bvh_spec",
+        lambda *a, **kw: {
+            **real(*a, **kw),
+            "BVH_REG_STACK": True,
+            "BVH_STACK_REGS": 1,
+            "BVH_STACK_RETRY": True,
+            "BVH_WIDE_CPU": True,
+        },
+    )
+    with (
+        Tracer(v, f, batch_size=700, validation=True, layout=base.layout) as small,
+        Tracer(v, f, validation=True, layout=base.layout) as one,
+    ):
         assert small.session.two_pass == {"occluded": True, "intersect": True}
         assert np.array_equal(small.occluded(o, d, tmax), occ0)
         one.occluded(o, d, tmax)
@@ -411,6 +493,7 @@ def test_mesh_over_the_device_buffer_limit_is_a_clear_error(monkeypatch):
     def small_limit(self, ctx, bvh, dset, **kw):
         class Limits:
             maxTexelBufferElements = 64
+
         monkeypatch.setattr(ctx, "limits", Limits)
         real(self, ctx, bvh, dset, **kw)
 
@@ -449,6 +532,7 @@ def tri_tracer():
 
 def test_closed_context_is_a_clear_error():
     from engine.vk import Context
+
     ctx = Context()
     ctx.close()
     assert ctx.closed
@@ -460,6 +544,7 @@ def test_closed_context_is_a_clear_error():
 
 def test_queries_after_close_are_a_clear_error():
     from engine.vk import Context
+
     with Tracer(TRI_V, TRI_F) as t:
         assert t.occluded(O1, D1)[0]
     for query in (t.occluded, t.intersect):
@@ -477,36 +562,52 @@ def test_queries_after_close_are_a_clear_error():
     assert shared.validation_errors == []
 
 
-@pytest.mark.parametrize("origins, directions, tmax, what", [
-    ([["a", "b", "c"]], D1, np.inf, "origins must be numbers"),
-    ([["0", "0", "1"]], D1, np.inf, "origins must be numbers"),
-    ([[0, 0], [1, 2, 3]], D1 * 2, np.inf, "origins must be numbers"),
-    ({"o": 1}, D1, np.inf, "origins must be numbers"),
-    (O1, [[True, False, False]], np.inf, "directions must be numbers"),
-    (O1, [[0, 0, None]], np.inf, "directions must be numbers"),
-    (O1, D1, "far", "tmax must be numbers"),
-    (O1, D1, None, "tmax must be numbers"),
-    (O1, D1, [[1.0], "x"], "tmax must be numbers"),
-], ids=["strings", "numeric-strings", "ragged", "dict", "bools", "none-inside", "tmax-str", "tmax-none",
-        "tmax-ragged"])
+@pytest.mark.parametrize(
+    "origins, directions, tmax, what",
+    [
+        ([["a", "b", "c"]], D1, np.inf, "origins must be numbers"),
+        ([["0", "0", "1"]], D1, np.inf, "origins must be numbers"),
+        ([[0, 0], [1, 2, 3]], D1 * 2, np.inf, "origins must be numbers"),
+        ({"o": 1}, D1, np.inf, "origins must be numbers"),
+        (O1, [[True, False, False]], np.inf, "directions must be numbers"),
+        (O1, [[0, 0, None]], np.inf, "directions must be numbers"),
+        (O1, D1, "far", "tmax must be numbers"),
+        (O1, D1, None, "tmax must be numbers"),
+        (O1, D1, [[1.0], "x"], "tmax must be numbers"),
+    ],
+    ids=[
+        "strings",
+        "numeric-strings",
+        "ragged",
+        "dict",
+        "bools",
+        "none-inside",
+        "tmax-str",
+        "tmax-none",
+        "tmax-ragged",
+    ],
+)
 def test_non_numeric_rays_are_config_errors(tri_tracer, origins, directions, tmax, what):
     for query in (tri_tracer.occluded, tri_tracer.intersect):
         with pytest.raises(ConfigError, match=what):
             query(origins, directions, tmax)
 
 
-@pytest.mark.parametrize("arg, value, what", [
-    ("origins", [np.nan, 0, 1], "origins: ray 2 is not finite"),
-    ("origins", [np.inf, 0, 1], "origins: ray 2 is not finite"),
-    ("origins", [1e300, 0, 1], "origins: ray 2 is not finite"),       # finite in float64, inf in float32
-    ("origins", [0, -2e11, 1], "origins: ray 2 has a coordinate beyond"),
-    ("directions", [np.nan, 0, -1], "directions: ray 2 is not finite"),
-    ("directions", [0, 0, -np.inf], "directions: ray 2 is not finite"),
-    ("directions", [0, 0, -1e300], "directions: ray 2 is not finite"),
-    ("directions", [0, 0, 0], "directions: ray 2 has zero length"),
-    ("directions", [0, 0, -1e-40], "directions: ray 2 has zero length"),  # subnormal in float32: 1/d overflows
-    ("directions", [0, 1e-25, -1e-25], "directions: ray 2 has zero length or nearly"),  # (traversal bends it)
-])
+@pytest.mark.parametrize(
+    "arg, value, what",
+    [
+        ("origins", [np.nan, 0, 1], "origins: ray 2 is not finite"),
+        ("origins", [np.inf, 0, 1], "origins: ray 2 is not finite"),
+        ("origins", [1e300, 0, 1], "origins: ray 2 is not finite"),  # finite in float64, inf in float32
+        ("origins", [0, -2e11, 1], "origins: ray 2 has a coordinate beyond"),
+        ("directions", [np.nan, 0, -1], "directions: ray 2 is not finite"),
+        ("directions", [0, 0, -np.inf], "directions: ray 2 is not finite"),
+        ("directions", [0, 0, -1e300], "directions: ray 2 is not finite"),
+        ("directions", [0, 0, 0], "directions: ray 2 has zero length"),
+        ("directions", [0, 0, -1e-40], "directions: ray 2 has zero length"),  # subnormal in float32: 1/d overflows
+        ("directions", [0, 1e-25, -1e-25], "directions: ray 2 has zero length or nearly"),  # (traversal bends it)
+    ],
+)
 def test_non_finite_and_zero_rays_name_the_first_bad_ray(tri_tracer, arg, value, what):
     o, d = np.array(O1 * 4), np.array(D1 * 4)
     (o if arg == "origins" else d)[2] = value
@@ -516,7 +617,7 @@ def test_non_finite_and_zero_rays_name_the_first_bad_ray(tri_tracer, arg, value,
             query(o, d, 5.0)
         with np.errstate(over="ignore"):
             o32, d32 = o.astype(np.float32), d.astype(np.float32)
-        with pytest.raises(ConfigError, match=what):   # float32 input too
+        with pytest.raises(ConfigError, match=what):  # float32 input too
             query(o32, d32, 5.0)
 
 
@@ -525,17 +626,18 @@ def test_directions_down_to_the_shortest_accepted_hit_what_unit_ones_hit():
     unscaled ones hit, at t scaled up by as much, in a batch large enough to be reordered (shorter ones are refused:
     the traversal missed hits below about 1e-27, silently)."""
     from engine.limits import MIN_DIRECTION
+
     s = trimesh.creation.icosphere(2)
     rng = np.random.default_rng(5)
     n = 40_000
     o = rng.uniform(-2, 2, (n, 3)).astype(np.float32)
     d = (rng.uniform(-0.5, 0.5, (n, 3)) - o).astype(np.float32)
-    d[::3, 0] = 0                              # (a zero component: 1 / d's stand-in)
-    d /= np.abs(d).max(axis=1, keepdims=True)   # largest component +-1
+    d[::3, 0] = 0  # (a zero component: 1 / d's stand-in)
+    d /= np.abs(d).max(axis=1, keepdims=True)  # largest component +-1
     with Tracer(s.vertices, s.faces) as tr:
         want = tr.intersect(o, d, reorder=False)
         assert (want.prim >= 0).mean() > 0.5
-        for scale in (np.float32(2.0 ** -40), np.float32(MIN_DIRECTION)):
+        for scale in (np.float32(2.0**-40), np.float32(MIN_DIRECTION)):
             for reorder in (False, True):
                 got = tr.intersect(o, d * scale, reorder=reorder)
                 assert np.array_equal(got.prim, want.prim)
@@ -565,10 +667,10 @@ def test_tmax_nan_or_none_is_refused_inf_and_negative_are_not(tri_tracer):
             query(O1, D1, None)
     assert tri_tracer.occluded(O1, D1, np.inf)[0] and tri_tracer.occluded(O1, D1, 1e300)[0]
     assert not tri_tracer.occluded(O1, D1, -1.0)[0] and not tri_tracer.intersect(O1, D1, -1.0).hit[0]
-    tiny = tri_tracer.intersect(O1, [[0, 0, -2e-19]])      # short directions down to MIN_DIRECTION trace: t = 5e18
+    tiny = tri_tracer.intersect(O1, [[0, 0, -2e-19]])  # short directions down to MIN_DIRECTION trace: t = 5e18
     assert tiny.hit[0] and np.isclose(tiny.t[0], 5e18, rtol=1e-5)
     assert len(tri_tracer.occluded(np.zeros((0, 3)), np.zeros((0, 3)))) == 0
-    assert len(tri_tracer.intersect([], [], reorder=True)) == 0   # (empty lists: no rays, as check_vectors takes them)
+    assert len(tri_tracer.intersect([], [], reorder=True)) == 0  # (empty lists: no rays, as check_vectors takes them)
 
 
 @pytest.mark.parametrize("layout", ["binary", "wide"])
@@ -577,7 +679,8 @@ def test_coordinates_just_under_the_bound_trace_exactly(layout):
     triangles seen from far away are exact (2^k scalings of a unit scene give exactly 2^k times its t); vertices
     or origins beyond it are refused."""
     from engine.limits import MAX_COORD
-    s = 2.0 ** np.floor(np.log2(MAX_COORD))          # the largest power of two under the bound
+
+    s = 2.0 ** np.floor(np.log2(MAX_COORD))  # the largest power of two under the bound
     assert MAX_COORD / 2 < s <= MAX_COORD
     v1 = np.array([[1, -1, -1], [-1, 1, -1], [-1, -1, 1], [1, 1, -1], [-1, 1, 1], [1, -1, 1]], float)
     f = np.array([[0, 1, 2], [3, 4, 5]])
@@ -605,6 +708,7 @@ def test_coordinates_just_under_the_bound_trace_exactly(layout):
 def test_builder_refuses_coordinates_beyond_the_bound():
     from engine.bvh import build_bvh
     from engine.limits import MAX_COORD
+
     v = np.array([[0, 0, 0], [1, 0, 0], [0, 1, 0], [3 * MAX_COORD, 0, 0]], np.float32)
     with pytest.raises(SceneError, match=re.escape(f"1 vertices have a coordinate beyond +-{MAX_COORD:g}")):
         build_bvh(v, [[0, 1, 2], [1, 2, 3]])

@@ -1,6 +1,7 @@
 """Tracer.from_scene runs the alpha test of MASK / BLEND materials as the renderer's ray passes do (issue 18.4): rays
 through a masked quad's transparent texels pass, those through its opaque disc stop; a plain Tracer of the same
 arrays, or the same quad OPAQUE, is solid."""
+
 import numpy as np
 import pytest
 
@@ -8,7 +9,7 @@ from engine import SceneError, Tracer
 from tests.test_instances import masked_leaves_scene
 from tests.test_textures import disc_leaf, leaf_over_ground, masked_leaf
 
-N = 160   # rays per side of the grid
+N = 160  # rays per side of the grid
 
 
 def down_rays(x0, x1, z0, z1, height=3.0):
@@ -43,7 +44,7 @@ def test_rays_pass_through_the_cut_out_of_a_masked_quad(mode):
     assert np.allclose(hits.t[inside], 3.0, atol=1e-4) and np.isin(hits.prim[inside], [2, 3]).all()
     assert np.allclose(hits.t[outside], 4.0, atol=1e-4) and np.isin(hits.prim[outside], [0, 1]).all()
     g_occ, g_hits = traced(leaf_over_ground(disc_leaf()), o, d)
-    assert g_occ[inside].all() and not g_occ[outside].any()   # (the reference says the same)
+    assert g_occ[inside].all() and not g_occ[outside].any()  # (the reference says the same)
     assert (occ == g_occ).mean() >= 0.995
     assert (np.abs(hits.t - g_hits.t) < 1e-4).mean() >= 0.995
 
@@ -91,8 +92,9 @@ def test_instances_of_a_masked_mesh_are_cut_out_through_the_two_level_bvh():
     solid = masked_leaves_scene(overrides=(2, 2))
     with Tracer.from_scene(solid, validation=True) as tracer:
         occ = tracer.occluded(o, d, 3.5)
-        quads = ((np.abs(o[:, 0] + 1.3) < 0.99) & (np.abs(o[:, 2]) < 0.99)) | \
-                ((np.abs(o[:, 0] - 1.3) < 0.99) & (np.abs(o[:, 2] - 0.5) < 0.99))
+        quads = ((np.abs(o[:, 0] + 1.3) < 0.99) & (np.abs(o[:, 2]) < 0.99)) | (
+            (np.abs(o[:, 0] - 1.3) < 0.99) & (np.abs(o[:, 2] - 0.5) < 0.99)
+        )
         assert occ[quads].all() and quads.sum() > (want & far).sum() * 1.2
         assert tracer.validation_errors == []
 

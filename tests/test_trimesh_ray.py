@@ -1,5 +1,6 @@
 """trimesh's own ray tests, from its source distribution at the installed version, run with engine.RayMeshIntersector
 substituted for trimesh's intersectors (tests/trimesh_ray_plugin.py does the substituting)."""
+
 from __future__ import annotations
 
 import os
@@ -22,15 +23,25 @@ FILES = ("test_ray.py", "test_ray_upstream.py")
 MUST_PASS = {
     "test_ray.py": ["test_contains_cavity", "test_on_vertex", "test_multiple_hits", "test_embree_duplicate_hits"],
     "test_ray_upstream.py": [
-        "test_issue_2504_duplicate_hits_small_scale", "test_issue_2324_apply_scale_breaks_embree",
-        "test_issue_1496_edge_vertex_hits_any_vs_id", "test_issue_2317_robust_edge_hits",
-        "test_issue_1898_locations_colinear_with_directions", "test_issue_306_single_vs_batched_rays",
-        "test_issue_93_triangle_index_correct_for_first_hit", "test_issue_181_contains_deterministic",
-        "test_issue_242_contains_matches_ground_truth", "test_issue_545_contains_simple_sphere",
-        "test_issue_48_large_coordinate_ray_offset", "test_issue_331_surface_origin_no_self_hit",
-        "test_issue_72_axis_aligned_voxel_hits", "test_issue_457_multihit_cylinder_count",
-        "test_issue_1919_engines_agree_simple_mesh", "test_issue_1180_first_hit_arrays_aligned",
-        "test_issue_1786_contains_stable_over_many_calls", "test_issue_2462_coplanar_ray_no_error"],
+        "test_issue_2504_duplicate_hits_small_scale",
+        "test_issue_2324_apply_scale_breaks_embree",
+        "test_issue_1496_edge_vertex_hits_any_vs_id",
+        "test_issue_2317_robust_edge_hits",
+        "test_issue_1898_locations_colinear_with_directions",
+        "test_issue_306_single_vs_batched_rays",
+        "test_issue_93_triangle_index_correct_for_first_hit",
+        "test_issue_181_contains_deterministic",
+        "test_issue_242_contains_matches_ground_truth",
+        "test_issue_545_contains_simple_sphere",
+        "test_issue_48_large_coordinate_ray_offset",
+        "test_issue_331_surface_origin_no_self_hit",
+        "test_issue_72_axis_aligned_voxel_hits",
+        "test_issue_457_multihit_cylinder_count",
+        "test_issue_1919_engines_agree_simple_mesh",
+        "test_issue_1180_first_hit_arrays_aligned",
+        "test_issue_1786_contains_stable_over_many_calls",
+        "test_issue_2462_coplanar_ray_no_error",
+    ],
 }
 
 
@@ -44,9 +55,25 @@ def trimesh_ray_tests() -> Path:
         return home
     work = Path(tempfile.mkdtemp(prefix="hybrid-trimesh-sdist-"))
     try:
-        proc = subprocess.run([sys.executable, "-m", "pip", "download", "--no-deps", "--no-binary", ":all:",
-                               "--disable-pip-version-check", "-q", "-d", str(work), f"trimesh=={version}"],
-                              capture_output=True, text=True, timeout=600)
+        proc = subprocess.run(
+            [
+                sys.executable,
+                "-m",
+                "pip",
+                "download",
+                "--no-deps",
+                "--no-binary",
+                ":all:",
+                "--disable-pip-version-check",
+                "-q",
+                "-d",
+                str(work),
+                f"trimesh=={version}",
+            ],
+            capture_output=True,
+            text=True,
+            timeout=600,
+        )
         sdists = sorted(work.glob("trimesh-*.tar.gz"))
         if proc.returncode or not sdists:
             last = (proc.stderr or proc.stdout).strip().splitlines()
@@ -55,12 +82,12 @@ def trimesh_ray_tests() -> Path:
         out.mkdir()
         with tarfile.open(sdists[0]) as tar:
             for name in FILES:
-                member = tar.getmember(f"trimesh-{version}/tests/{name}")   # KeyError: the sdist lacks it (a bug)
+                member = tar.getmember(f"trimesh-{version}/tests/{name}")  # KeyError: the sdist lacks it (a bug)
                 (out / name).write_bytes(tar.extractfile(member).read())
-        (out / "pytest.ini").write_text("[pytest]\n")   # the rootdir: none of trimesh's or our settings apply
+        (out / "pytest.ini").write_text("[pytest]\n")  # the rootdir: none of trimesh's or our settings apply
         try:
             out.rename(home)
-        except OSError:   # another run made it meanwhile
+        except OSError:  # another run made it meanwhile
             pass
         return home
     finally:
@@ -71,10 +98,29 @@ def trimesh_ray_tests() -> Path:
 def test_trimesh_ray_tests_pass_with_our_intersector(trimesh_ray_tests, tmp_path):
     report = tmp_path / "junit.xml"
     env = dict(os.environ, PYTHONPATH=os.pathsep.join([str(HERE.parent), str(HERE), os.environ.get("PYTHONPATH", "")]))
-    proc = subprocess.run([sys.executable, "-m", "pytest", "-q", "-p", "trimesh_ray_plugin", "-p", "no:cacheprovider",
-                           "-p", "no:dash", "-c", str(trimesh_ray_tests / "pytest.ini"), f"--junitxml={report}",
-                           *FILES],
-                          cwd=trimesh_ray_tests, env=env, capture_output=True, text=True, timeout=900)
+    proc = subprocess.run(
+        [
+            sys.executable,
+            "-m",
+            "pytest",
+            "-q",
+            "-p",
+            "trimesh_ray_plugin",
+            "-p",
+            "no:cacheprovider",
+            "-p",
+            "no:dash",
+            "-c",
+            str(trimesh_ray_tests / "pytest.ini"),
+            f"--junitxml={report}",
+            *FILES,
+        ],
+        cwd=trimesh_ray_tests,
+        env=env,
+        capture_output=True,
+        text=True,
+        timeout=900,
+    )
     assert report.exists(), f"pytest did not run: {proc.stdout[-2000:]}{proc.stderr[-2000:]}"
     outcome = {}
     for case in ET.parse(report).getroot().iter("testcase"):

@@ -1,5 +1,6 @@
 """The windowed viewer (`hybrid view`) under a private Xvfb: the frame in the window is the renderer's frame, resize and
 minimize work, keys toggle settings, no command buffer is recorded per frame and nothing leaks (validation on)."""
+
 import os
 import subprocess
 import sys
@@ -25,21 +26,27 @@ def assert_close(got, ref, max_mean=1.0, max_bad=0.005, name="viewer"):
     if mean <= max_mean and bad <= max_bad:
         return
     from PIL import Image
+
     out = REPO / "out" / "test-failures"
     out.mkdir(parents=True, exist_ok=True)
-    Image.fromarray(np.concatenate([got[..., :3], ref[..., :3], np.minimum(4 * diff[..., :3], 255)], axis=1)
-                    .astype(np.uint8)).save(out / f"{name}-got-ref-diff.png")
+    Image.fromarray(
+        np.concatenate([got[..., :3], ref[..., :3], np.minimum(4 * diff[..., :3], 255)], axis=1).astype(np.uint8)
+    ).save(out / f"{name}-got-ref-diff.png")
     ys, xs = np.nonzero(off) if off.any() else np.nonzero(diff.max(axis=2))
     where = f"rows {ys.min()}-{ys.max()}, columns {xs.min()}-{xs.max()}" if len(ys) else "nowhere"
-    pytest.fail(f"mean |diff| {mean:.3f}, {bad:.2%} pixels off by > 32 ({where}); got | reference | 4x difference "
-                f"saved to {out / (name + '-got-ref-diff.png')}")
+    pytest.fail(
+        f"mean |diff| {mean:.3f}, {bad:.2%} pixels off by > 32 ({where}); got | reference | 4x difference "
+        f"saved to {out / (name + '-got-ref-diff.png')}"
+    )
 
 
 @pytest.fixture
 def viewer(make_viewer):
     """`viewer(scene, w, h, **kw)`: an in-process Viewer with validation on, closed after the test."""
+
     def make(scene=SPHERE, width=160, height=90, **kw):
         return make_viewer(scene, width, height, **kw)
+
     return make
 
 
@@ -50,12 +57,30 @@ def test_view_cli_screenshot_matches_headless_render(xvfb_display, tmp_path, mak
 
     shot = tmp_path / "shot.png"
     env = dict(os.environ, HYBRID_VALIDATION="1")
-    res = subprocess.run([sys.executable, "-m", "engine", "view", str(SCENE), "--size", "160x90", "--frames", "20",
-                          "--screenshot", str(shot), "--paused"],
-                         cwd=REPO, env=env, capture_output=True, text=True, timeout=300)
+    res = subprocess.run(
+        [
+            sys.executable,
+            "-m",
+            "engine",
+            "view",
+            str(SCENE),
+            "--size",
+            "160x90",
+            "--frames",
+            "20",
+            "--screenshot",
+            str(shot),
+            "--paused",
+        ],
+        cwd=REPO,
+        env=env,
+        capture_output=True,
+        text=True,
+        timeout=300,
+    )
     assert res.returncode == 0, f"exit {res.returncode}\n{res.stdout[-2000:]}\n{res.stderr[-3000:]}"
     assert "validation: no errors" in res.stdout
-    assert "20 frames at 160x90" in res.stdout   # the summary line
+    assert "20 frames at 160x90" in res.stdout  # the summary line
     got = np.asarray(Image.open(shot).convert("RGBA"))
     # The same view headless, after the same number of frames (temporal accumulation sees the same history; the
     # scene's animation paused at its start, as a headless render draws it).
@@ -67,11 +92,19 @@ def test_view_cli_screenshot_matches_headless_render(xvfb_display, tmp_path, mak
 
 def test_view_cli_rejects_bad_arguments(tmp_path):
     env = dict(os.environ, HYBRID_VALIDATION="0")
-    for args, expect in ((["--screenshot", str(tmp_path / "x.png")], "--screenshot needs --frames"),
-                         (["--frames", "0"], "--frames 0"),
-                         (["--size", "12by3"], "expected WIDTHxHEIGHT")):
-        res = subprocess.run([sys.executable, "-m", "engine", "view", str(SPHERE), *args], cwd=REPO, env=env,
-                             capture_output=True, text=True, timeout=60)
+    for args, expect in (
+        (["--screenshot", str(tmp_path / "x.png")], "--screenshot needs --frames"),
+        (["--frames", "0"], "--frames 0"),
+        (["--size", "12by3"], "expected WIDTHxHEIGHT"),
+    ):
+        res = subprocess.run(
+            [sys.executable, "-m", "engine", "view", str(SPHERE), *args],
+            cwd=REPO,
+            env=env,
+            capture_output=True,
+            text=True,
+            timeout=60,
+        )
         assert res.returncode == 1 and expect in res.stderr, (args, res.stderr)
 
 
@@ -100,8 +133,14 @@ def test_overlay_text_fits_tiny_windows():
 def test_view_cli_tiny_windows(xvfb_display, size):
     """A window too narrow for one column of overlay text (or 1x1) renders, presents and exits."""
     env = dict(os.environ, HYBRID_VALIDATION="1")
-    res = subprocess.run([sys.executable, "-m", "engine", "view", str(SPHERE), "--size", size, "--frames", "3"],
-                         cwd=REPO, env=env, capture_output=True, text=True, timeout=120)
+    res = subprocess.run(
+        [sys.executable, "-m", "engine", "view", str(SPHERE), "--size", size, "--frames", "3"],
+        cwd=REPO,
+        env=env,
+        capture_output=True,
+        text=True,
+        timeout=120,
+    )
     assert res.returncode == 0, f"exit {res.returncode}\n{res.stdout[-2000:]}\n{res.stderr[-3000:]}"
     assert "validation: no errors" in res.stdout and f"3 frames at {size}" in res.stdout, res.stdout
 
@@ -116,7 +155,7 @@ def test_resize_between_frames(viewer, make_renderer):
     assert v.run(frames=3) == 3
     assert v.read_color().shape == (90, 160, 4)
     glfw.set_window_size(v.window, 128, 72)
-    for _ in range(50):   # the X server reports the new size a little later
+    for _ in range(50):  # the X server reports the new size a little later
         v.step()
         if (v.renderer.width, v.renderer.height) == (128, 72):
             break
@@ -180,18 +219,18 @@ def test_keys_toggle_settings_and_f12_saves_a_screenshot(viewer, tmp_path, monke
     assert v.settings["shadows"] != shadows and v.settings["ao"] == (not ao)
     press(glfw.KEY_3)
     press(glfw.KEY_V)
-    for name in ("denoise", "view"):   # only there once the renderer has those settings
+    for name in ("denoise", "view"):  # only there once the renderer has those settings
         assert (name in v.settings) == (setting_choices(name) is not None)
     press(glfw.KEY_H)
     assert v.help_on
-    v.run(frames=2)   # renders with the toggled settings
+    v.run(frames=2)  # renders with the toggled settings
     assert any("F12" in line for line in v.overlay_lines)
     press(glfw.KEY_F12)
     v.run(frames=1)
     shots = list(tmp_path.glob("screenshot-*.png"))
     assert len(shots) == 1
     press(glfw.KEY_ESCAPE)
-    assert v.run() == 0   # Esc closed the window
+    assert v.run() == 0  # Esc closed the window
 
 
 def test_camera_moves_with_keys(viewer):
@@ -199,7 +238,7 @@ def test_camera_moves_with_keys(viewer):
     v.run(frames=1)
     home = v.fly.camera
     before = v.read_color()
-    v.fly.move(0, 0, 1, dt=0.5)   # what holding W does for half a second
+    v.fly.move(0, 0, 1, dt=0.5)  # what holding W does for half a second
     v.fly.look(40, 0)
     assert v.fly.camera != home
     v.run(frames=2)

@@ -5,6 +5,7 @@ keeps running, shows what happened, and exits cleanly.
 
 Window changes are made with GLFW calls from this process (what a window manager's requests end in); minimizing
 is also driven through the framebuffer-size callback, since Xvfb has no window manager to iconify a window."""
+
 import ctypes
 import ctypes.util
 import logging
@@ -24,17 +25,19 @@ from test_viewer import REPO, SPHERE, assert_close
 
 from engine.shaders import GLSL_DIR
 
-pytestmark = pytest.mark.slow   # storms of window events and shader rewrites: the slow tier (CONTRIBUTING.md, "Tests")
+pytestmark = pytest.mark.slow  # storms of window events and shader rewrites: the slow tier (CONTRIBUTING.md, "Tests")
 
-SETTINGS = dict(ao=False)   # no per-frame sampling: every frame of a view is the same
+SETTINGS = dict(ao=False)  # no per-frame sampling: every frame of a view is the same
 
 
 @pytest.fixture
 def viewer(make_viewer):
     """`viewer(w, h, **kw)`: an in-process Viewer on the sphere scene with validation on, closed after the test."""
+
     def make(width=64, height=48, **kw):
         kw.setdefault("settings", dict(SETTINGS))
         return make_viewer(SPHERE, width, height, **kw)
+
     return make
 
 
@@ -51,11 +54,16 @@ def settle(v, size, steps=60):
 
     for _ in range(steps):
         v.step()
-        if glfw.get_framebuffer_size(v.window) == size and v.presenter.swapchain.extent == size \
-                and (v.renderer.width, v.renderer.height) == v.presenter.render_size():
+        if (
+            glfw.get_framebuffer_size(v.window) == size
+            and v.presenter.swapchain.extent == size
+            and (v.renderer.width, v.renderer.height) == v.presenter.render_size()
+        ):
             return
-    pytest.fail(f"the viewer did not follow the window to {size}: framebuffer {glfw.get_framebuffer_size(v.window)}, "
-                f"swapchain {v.presenter.swapchain.extent}, render {v.renderer.width}x{v.renderer.height}")
+    pytest.fail(
+        f"the viewer did not follow the window to {size}: framebuffer {glfw.get_framebuffer_size(v.window)}, "
+        f"swapchain {v.presenter.swapchain.extent}, render {v.renderer.width}x{v.renderer.height}"
+    )
 
 
 def screenshot(v, path):
@@ -80,7 +88,7 @@ def test_every_size_down_to_1x1_while_running(viewer, make_renderer):
     from engine import Scene
 
     v = viewer(64, 48, render_scale=0.5)
-    v.help_on = True   # the most overlay text there is
+    v.help_on = True  # the most overlay text there is
     v.run(frames=2)
     for size in ((1, 1), (1, 40), (40, 1), (2, 2), (3, 1), (35, 20), (1, 1), (64, 48)):
         glfw.set_window_size(v.window, *size)
@@ -105,24 +113,24 @@ def test_resize_minimize_and_hide_storm(viewer, make_renderer):
     rnd = random.Random(20)
     presented = waited = 0
     for _ in range(50):
-        for _ in range(rnd.randint(1, 4)):   # several requests before the viewer sees any of them
+        for _ in range(rnd.randint(1, 4)):  # several requests before the viewer sees any of them
             op = rnd.random()
             if op < 0.6:
                 w, h = rnd.choice((1, 2, rnd.randint(1, 120))), rnd.choice((1, 2, rnd.randint(1, 90)))
                 glfw.set_window_size(v.window, w, h)
-            elif op < 0.75:   # (no window manager under Xvfb to act on these: see the direct calls below)
+            elif op < 0.75:  # (no window manager under Xvfb to act on these: see the direct calls below)
                 glfw.iconify_window(v.window)
                 glfw.restore_window(v.window)
             elif op < 0.85:
                 glfw.hide_window(v.window)
                 v.step()
                 glfw.show_window(v.window)
-            elif op < 0.92:   # what a window manager's minimize ends in: a 0x0 framebuffer, then the size back
+            elif op < 0.92:  # what a window manager's minimize ends in: a 0x0 framebuffer, then the size back
                 glfw.poll_events()
                 v._on_framebuffer_size(v.window, 0, 0)
                 waited += v.step() is False
                 v._on_framebuffer_size(v.window, *glfw.get_framebuffer_size(v.window))
-            else:   # ... or, on X11, an iconify event with the size unchanged
+            else:  # ... or, on X11, an iconify event with the size unchanged
                 v._on_iconify(v.window, True)
                 waited += v.step() is False
                 v._on_iconify(v.window, False)
@@ -152,7 +160,7 @@ def test_a_stalled_presentation_engine_does_not_hang(viewer, monkeypatch):
 
     monkeypatch.setattr(sc, "_acquire_fn", stalled)
     assert v.step() is False and v.step() is False and v.frames == 2
-    assert timeouts and all(t <= 5_000_000_000 for t in timeouts), timeouts   # seconds, not forever
+    assert timeouts and all(t <= 5_000_000_000 for t in timeouts), timeouts  # seconds, not forever
     monkeypatch.setattr(sc, "_acquire_fn", real)
     assert v.run(frames=2) == 2
     monkeypatch.setattr(sc, "_acquire_fn", stalled)
@@ -181,10 +189,10 @@ def test_rewritten_many_times_a_second_then_broken_and_fixed(viewer, glsl_copy, 
     writes = [0]
 
     def writer():
-        versions = (original, black, broken, original[: len(original) // 2])   # ... and a half-written file
+        versions = (original, black, broken, original[: len(original) // 2])  # ... and a half-written file
         while not stop.is_set():
             text = versions[writes[0] % len(versions)]
-            if writes[0] % 3 == 0:   # an editor's save by rename
+            if writes[0] % 3 == 0:  # an editor's save by rename
                 tmp = glsl_copy / f".lighting.comp.{writes[0]}~"
                 tmp.write_text(text)
                 os.replace(tmp, lighting)
@@ -204,20 +212,23 @@ def test_rewritten_many_times_a_second_then_broken_and_fixed(viewer, glsl_copy, 
         thread.join()
     assert writes[0] >= 20
     edit(lighting, original)
-    step_until(v, lambda: np.array_equal(v.read_color(), lit) and not v.renderer.shader_errors,
-               what="the original shader never came back")
+    step_until(
+        v,
+        lambda: np.array_equal(v.read_color(), lit) and not v.renderer.shader_errors,
+        what="the original shader never came back",
+    )
 
     caplog.set_level(logging.ERROR, logger="engine.viewer")
     for i in range(3):
         good = black if i % 2 == 0 else original
         edit(lighting, broken)
         step_until(v, lambda: key in v.renderer.shader_errors, what="the syntax error was not reported")
-        v.step()   # the text refresh that follows
+        v.step()  # the text refresh that follows
         assert any("shader error in lighting.comp" in line for line in v.overlay_lines), v.overlay_lines
         assert any(re.search(r"lighting\.comp:\d+: .*syntax error", line) for line in v.overlay_lines), v.overlay_lines
         assert "syntax error" in caplog.text
         before = v.read_color()
-        assert v.run(frames=2) == 2 and np.array_equal(v.read_color(), before)   # the last good pipeline
+        assert v.run(frames=2) == 2 and np.array_equal(v.read_color(), before)  # the last good pipeline
         edit(lighting, good)
         step_until(v, lambda: key not in v.renderer.shader_errors, what="the fix was not picked up")
         v.run(frames=2)
@@ -243,19 +254,21 @@ def sub(text, old, new):
 
 
 OUT_HDR = "layout(set = 0, binding = 7, rgba16f) uniform writeonly image2D out_hdr;"
-INTERFACE_EDITS = [   # (file, edit, what the message says)
+INTERFACE_EDITS = [  # (file, edit, what the message says)
     ("lighting.comp", lambda s: sub(s, "FRAME_BLOCK", frame_block(kind="buffer")), "declared uniform"),
     ("lighting.comp", lambda s: sub(s, OUT_HDR, OUT_HDR.replace("set = 0", "set = 1")), "out_hdr"),
     ("lighting.comp", lambda s: sub(s, OUT_HDR, OUT_HDR.replace("binding = 7", "binding = 9")), "out_hdr"),
-    ("debug_view.comp", lambda s: sub(s, "uniform Push { uint view; }", "uniform Push { uint view; uint more; }"),
-     "push constants"),
+    (
+        "debug_view.comp",
+        lambda s: sub(s, "uniform Push { uint view; }", "uniform Push { uint view; uint more; }"),
+        "push constants",
+    ),
     ("overlay.comp", lambda s: sub(s, "set = 0, binding = 1", "set = 1, binding = 1"), "overlay pass needs"),
     ("overlay.comp", lambda s: sub(s, "vec4 scale;", "vec4 scale;\n    vec4 more;"), "48 bytes of push constants"),
     ("gbuffer.vert", lambda s: sub(s, "FRAME_BLOCK", frame_block(set_=1)), "set 1 binding 0"),
     ("gbuffer.vert", lambda s: sub(s, "FRAME_BLOCK", frame_block(binding=7)), "set 0 binding 7"),
     ("gbuffer.vert", lambda s: sub(s, "FRAME_BLOCK", frame_block(kind="buffer")), "frame buffer"),
-    ("gbuffer.frag", lambda s: sub(s, "uint first_triangle;", "uint first_triangle;\n    uint more;"),
-     "8 bytes"),
+    ("gbuffer.frag", lambda s: sub(s, "uint first_triangle;", "uint first_triangle;\n    uint more;"), "8 bytes"),
 ]
 
 
@@ -272,9 +285,12 @@ def test_interface_changes_are_refused_and_reported(viewer, glsl_copy, tmp_path,
         path = glsl_copy / name
         original = path.read_text()
         edit(path, change(original))
-        step_until(v, lambda: any(expect in m for m in v.renderer.shader_errors.values()),
-                   what=f"{name}: the edit ({expect}) was not refused")
-        v.run(frames=2)   # still running, on the last good pipelines, with the message on screen
+        step_until(
+            v,
+            lambda: any(expect in m for m in v.renderer.shader_errors.values()),
+            what=f"{name}: the edit ({expect}) was not refused",
+        )
+        v.run(frames=2)  # still running, on the last good pipelines, with the message on screen
         assert expect in caplog.text, caplog.text[-2000:]
         on_screen = " ".join(v.overlay_lines)
         assert f"shader error in {name}" in on_screen and expect in on_screen, v.overlay_lines
@@ -309,10 +325,13 @@ def test_shader_folder_removed_and_brought_back(viewer, glsl_copy, tmp_path):
     shutil.rmtree(glsl_copy)
     v.run(frames=2)
     assert str(glsl_copy) in v.renderer.shader_errors
-    assert v.read_color()[..., :3].max() == 0   # still the last good (black) lighting
-    shutil.copytree(GLSL_DIR, glsl_copy)   # the original lighting.comp
-    step_until(v, lambda: not v.renderer.shader_errors and np.array_equal(v.read_color(), lit),
-               what="the folder's return was not picked up")
+    assert v.read_color()[..., :3].max() == 0  # still the last good (black) lighting
+    shutil.copytree(GLSL_DIR, glsl_copy)  # the original lighting.comp
+    step_until(
+        v,
+        lambda: not v.renderer.shader_errors and np.array_equal(v.read_color(), lit),
+        what="the folder's return was not picked up",
+    )
     assert np.array_equal(screenshot(v, tmp_path / "back.png"), lit)
 
 
@@ -326,7 +345,7 @@ def test_close_requested_mid_frame(viewer, monkeypatch):
         v = viewer(48, 32)
         v.run(frames=2)
         shape = (32, 48, 4)
-        if where == "submit":   # between acquiring the image and presenting it
+        if where == "submit":  # between acquiring the image and presenting it
             submit = v.renderer.submit
 
             def closing_submit(*a, v=v, submit=submit, **kw):
@@ -334,7 +353,8 @@ def test_close_requested_mid_frame(viewer, monkeypatch):
                 return submit(*a, **kw)
 
             monkeypatch.setattr(v.renderer, "submit", closing_submit)
-        elif where == "resize":   # in the same events as a new size
+        elif where == "resize":  # in the same events as a new size
+
             def closing_resize(window, w, h, v=v):
                 v._on_framebuffer_size(window, w, h)
                 glfw.set_window_should_close(window, True)
@@ -348,9 +368,9 @@ def test_close_requested_mid_frame(viewer, monkeypatch):
             glfw.set_window_should_close(v.window, True)
         frames = v.run()
         assert glfw.window_should_close(v.window)
-        if where == "submit":   # the frame under way is finished, and no other
+        if where == "submit":  # the frame under way is finished, and no other
             assert frames == 1
-        elif where == "resize":   # (the size, and the close, come when the X server reports the size)
+        elif where == "resize":  # (the size, and the close, come when the X server reports the size)
             assert frames >= 1
         else:
             assert frames == 0
@@ -384,9 +404,14 @@ def _x11():
     x.XOpenDisplay.argtypes = [ctypes.c_char_p]
     x.XDefaultRootWindow.restype = ctypes.c_ulong
     x.XDefaultRootWindow.argtypes = [ctypes.c_void_p]
-    x.XQueryTree.argtypes = [ctypes.c_void_p, ctypes.c_ulong, ctypes.POINTER(ctypes.c_ulong),
-                             ctypes.POINTER(ctypes.c_ulong), ctypes.POINTER(ctypes.POINTER(ctypes.c_ulong)),
-                             ctypes.POINTER(ctypes.c_uint)]
+    x.XQueryTree.argtypes = [
+        ctypes.c_void_p,
+        ctypes.c_ulong,
+        ctypes.POINTER(ctypes.c_ulong),
+        ctypes.POINTER(ctypes.c_ulong),
+        ctypes.POINTER(ctypes.POINTER(ctypes.c_ulong)),
+        ctypes.POINTER(ctypes.c_uint),
+    ]
     x.XFetchName.argtypes = [ctypes.c_void_p, ctypes.c_ulong, ctypes.POINTER(ctypes.c_char_p)]
     x.XInternAtom.restype = ctypes.c_ulong
     x.XInternAtom.argtypes = [ctypes.c_void_p, ctypes.c_char_p, ctypes.c_int]
@@ -397,16 +422,30 @@ def _x11():
 
 
 class _ClientMessage(ctypes.Structure):
-    _fields_ = [("type", ctypes.c_int), ("serial", ctypes.c_ulong), ("send_event", ctypes.c_int),
-                ("display", ctypes.c_void_p), ("window", ctypes.c_ulong), ("message_type", ctypes.c_ulong),
-                ("format", ctypes.c_int), ("data", ctypes.c_long * 5), ("pad", ctypes.c_long * 12)]
+    _fields_ = [
+        ("type", ctypes.c_int),
+        ("serial", ctypes.c_ulong),
+        ("send_event", ctypes.c_int),
+        ("display", ctypes.c_void_p),
+        ("window", ctypes.c_ulong),
+        ("message_type", ctypes.c_ulong),
+        ("format", ctypes.c_int),
+        ("data", ctypes.c_long * 5),
+        ("pad", ctypes.c_long * 12),
+    ]
 
 
 def _find_window(x, dpy, prefix):
     root, parent = ctypes.c_ulong(), ctypes.c_ulong()
     children, n = ctypes.POINTER(ctypes.c_ulong)(), ctypes.c_uint()
-    if not x.XQueryTree(dpy, x.XDefaultRootWindow(dpy), ctypes.byref(root), ctypes.byref(parent),
-                        ctypes.byref(children), ctypes.byref(n)):
+    if not x.XQueryTree(
+        dpy,
+        x.XDefaultRootWindow(dpy),
+        ctypes.byref(root),
+        ctypes.byref(parent),
+        ctypes.byref(children),
+        ctypes.byref(n),
+    ):
         return None
     try:
         for i in range(n.value):
@@ -430,20 +469,32 @@ def test_window_closed_by_the_user_exits_cleanly(xvfb_display):
     dpy = x.XOpenDisplay(xvfb_display.encode())
     assert dpy, f"cannot open {xvfb_display}"
     env = dict(os.environ, HYBRID_VALIDATION="1")
-    proc = subprocess.Popen([sys.executable, "-m", "engine", "view", str(SPHERE), "--size", "64x48"], cwd=REPO,
-                            env=env, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    proc = subprocess.Popen(
+        [sys.executable, "-m", "engine", "view", str(SPHERE), "--size", "64x48"],
+        cwd=REPO,
+        env=env,
+        stdout=subprocess.PIPE,
+        stderr=subprocess.PIPE,
+        text=True,
+    )
     try:
         deadline, window = time.monotonic() + 60, None
         while window is None and time.monotonic() < deadline and proc.poll() is None:
             time.sleep(0.2)
-            window = _find_window(x, dpy, "hybrid view - ")   # the title gets fps once frames run
+            window = _find_window(x, dpy, "hybrid view - ")  # the title gets fps once frames run
         assert window, f"no viewer window appeared; exit {proc.poll()}"
         for w, h in ((20, 10), (1, 1), (50, 40)):
             x.XResizeWindow(dpy, window, w, h)
             x.XFlush(dpy)
             time.sleep(0.05)
-        msg = _ClientMessage(type=33, send_event=1, display=dpy, window=window, format=32,   # 33: ClientMessage
-                             message_type=x.XInternAtom(dpy, b"WM_PROTOCOLS", 0))
+        msg = _ClientMessage(
+            type=33,
+            send_event=1,
+            display=dpy,
+            window=window,
+            format=32,  # 33: ClientMessage
+            message_type=x.XInternAtom(dpy, b"WM_PROTOCOLS", 0),
+        )
         msg.data[0] = x.XInternAtom(dpy, b"WM_DELETE_WINDOW", 0)
         x.XSendEvent(dpy, window, 0, 0, ctypes.byref(msg))
         x.XFlush(dpy)

@@ -5,6 +5,7 @@ dependencies into a fresh venv (no system site-packages), and used from another 
 
 The venv is made once per run of this module (pip's cache makes the dependencies quick after the first time), with
 $HYBRID_WHEEL_PYTHON if set (to try another interpreter: requires-python says 3.10+), else this one."""
+
 import json
 import os
 import re
@@ -20,7 +21,7 @@ from PIL import Image
 
 from engine import Scene
 
-pytestmark = pytest.mark.slow   # the sdist, the wheel and a fresh venv: the slow tier (CONTRIBUTING.md, "Tests")
+pytestmark = pytest.mark.slow  # the sdist, the wheel and a fresh venv: the slow tier (CONTRIBUTING.md, "Tests")
 
 REPO = Path(__file__).resolve().parent.parent
 PYTHON = os.environ.get("HYBRID_WHEEL_PYTHON", sys.executable)
@@ -46,7 +47,7 @@ class Installed:
     def __init__(self, root: Path, wheel: Path):
         self.wheel = wheel
         self.bin = root / "venv" / "bin"
-        self.work = root / "work"          # a folder with nothing of the checkout in it
+        self.work = root / "work"  # a folder with nothing of the checkout in it
         self.work.mkdir()
 
     @staticmethod
@@ -84,8 +85,9 @@ def installed(tmp_path_factory):
 def test_wheel_carries_shaders_scenes_and_licence(installed):
     names = set(zipfile.ZipFile(installed.wheel).namelist())
     spv = sorted(p.name for p in (REPO / "shaders" / "spv").iterdir())
-    glsl = sorted(str(p.relative_to(REPO / "shaders" / "glsl")) for p in (REPO / "shaders" / "glsl").rglob("*")
-                  if p.is_file())
+    glsl = sorted(
+        str(p.relative_to(REPO / "shaders" / "glsl")) for p in (REPO / "shaders" / "glsl").rglob("*") if p.is_file()
+    )
     scenes = sorted(str(p.relative_to(REPO / "scenes")) for p in (REPO / "scenes").rglob("*") if p.is_file())
     assert {f"engine/_data/shaders/spv/{n}" for n in spv} <= names
     assert {f"engine/_data/shaders/glsl/{n}" for n in glsl} <= names
@@ -112,8 +114,10 @@ def test_the_installed_c_steps_build_numpy_s_tree(installed):
     warning, and a BVH built with it is numpy's byte for byte."""
     if not (shutil.which("cc") or shutil.which("gcc")):
         pytest.skip("no C compiler: the wheel is built without engine._native")
-    res = ok(run([installed.bin / "python", REPO / "tools" / "check_wheel.py"], installed.work, installed.env()),
-             "tools/check_wheel.py")
+    res = ok(
+        run([installed.bin / "python", REPO / "tools" / "check_wheel.py"], installed.work, installed.env()),
+        "tools/check_wheel.py",
+    )
     got = json.loads(res.stdout.strip().splitlines()[-1])
     assert Path(got["module"]).is_relative_to(installed.bin.parent)
     assert got["in_c"] and got["same_tree"]
@@ -122,11 +126,16 @@ def test_the_installed_c_steps_build_numpy_s_tree(installed):
 def test_version_from_one_source(installed):
     res = ok(installed.hybrid("--version"), "hybrid --version")
     assert res.stdout.strip() == f"hybrid {VERSION}"
-    res = ok(installed.python("import importlib.metadata as m, engine; "
-                              "print(engine.__version__, m.version('hybrid-renderer'), engine.__file__)"), "python")
+    res = ok(
+        installed.python(
+            "import importlib.metadata as m, engine; "
+            "print(engine.__version__, m.version('hybrid-renderer'), engine.__file__)"
+        ),
+        "python",
+    )
     version, dist_version, path = res.stdout.split()
     assert version == dist_version == VERSION
-    assert Path(path).is_relative_to(installed.bin.parent)   # the venv's copy, not the checkout
+    assert Path(path).is_relative_to(installed.bin.parent)  # the venv's copy, not the checkout
 
 
 @pytest.mark.parametrize("name", ["default", "sphere", "penumbra"])
@@ -134,11 +143,11 @@ def test_render_bundled_scene_by_name(installed, name, make_renderer):
     out = installed.work / f"{name}.png"
     res = ok(installed.hybrid("render", name, "-o", out.name, "--size", "64x48", "--validation"), "hybrid render")
     assert "validation: no errors" in res.stdout
-    assert f"engine/_data/scenes/{name}.toml" in res.stdout   # the scene the package carries
+    assert f"engine/_data/scenes/{name}.toml" in res.stdout  # the scene the package carries
     rgb = np.asarray(Image.open(out).convert("RGB"), np.float32)
     assert rgb.shape == (48, 64, 3)
     assert rgb.std() > 10 and len(np.unique(rgb.reshape(-1, 3), axis=0)) > 50, "a flat image"
-    if name == "default":   # the same pixels as the checkout renders (same shaders, same scene)
+    if name == "default":  # the same pixels as the checkout renders (same shaders, same scene)
         ref = make_renderer(64, 48).render(Scene.load(REPO / "scenes" / "default.toml")).color[..., :3]
         assert np.abs(rgb - ref).mean() < 2.0
 
@@ -146,8 +155,9 @@ def test_render_bundled_scene_by_name(installed, name, make_renderer):
 def test_unknown_scene_name_lists_the_bundled_ones(installed):
     res = installed.hybrid("render", "defualt", "-o", "x.png")
     assert res.returncode == 1
-    assert res.stderr.strip() == ("error: defualt: no such file, and no bundled scene of that name "
-                                  "(bundled: default, penumbra, sphere)")
+    assert res.stderr.strip() == (
+        "error: defualt: no such file, and no bundled scene of that name (bundled: default, penumbra, sphere)"
+    )
 
 
 TRACER_QUERY = """
@@ -188,14 +198,14 @@ def test_tracer_query(installed):
     res = ok(installed.python(TRACER_QUERY), "Tracer query")
     got = json.loads(res.stdout.strip().splitlines()[-1])
     assert Path(got["file"]).is_relative_to(installed.bin.parent)
-    assert got["t"][2:] == [None, None] and got["prim"][2:] == [-1, -1]        # outside the quad: misses
+    assert got["t"][2:] == [None, None] and got["prim"][2:] == [-1, -1]  # outside the quad: misses
     assert got["t"][:2] == pytest.approx([2.0, 2.0], abs=1e-5)
-    assert got["prim"][:2] == [0, 1]    # (0.5, -0.5) is below the diagonal: triangle 0; (-0.5, 0.5) triangle 1
+    assert got["prim"][:2] == [0, 1]  # (0.5, -0.5) is below the diagonal: triangle 0; (-0.5, 0.5) triangle 1
     assert got["near"] == [False] * 4 and got["far"] == [True, True, False, False]
     assert got["errors"] == [] and got["reordered"]
-    if shutil.which("cc") or shutil.which("gcc"):   # the reordering's C steps: the wheel's compiled module
+    if shutil.which("cc") or shutil.which("gcc"):  # the reordering's C steps: the wheel's compiled module
         assert Path(got["native"]).is_relative_to(installed.bin.parent)
-    assert not [p for p in got["cache"] if "native" in p or p.endswith(".so")]   # nothing compiled into a cache
+    assert not [p for p in got["cache"] if "native" in p or p.endswith(".so")]  # nothing compiled into a cache
 
 
 @pytest.mark.parametrize("shaders", ["packaged", "checkout"])
@@ -208,8 +218,10 @@ def test_view_under_xvfb(installed, xvfb_display, shaders):
             pytest.skip("glslangValidator is not installed (apt-get install glslang-tools)")
         extra = ["--shader-dir", REPO / "shaders" / "glsl"]
     shot = installed.work / f"view-{shaders}.png"
-    res = ok(installed.hybrid("view", "sphere", "--size", "64x48", "--frames", "3", "--screenshot", shot.name,
-                              *extra), "hybrid view")
+    res = ok(
+        installed.hybrid("view", "sphere", "--size", "64x48", "--frames", "3", "--screenshot", shot.name, *extra),
+        "hybrid view",
+    )
     assert "validation: no errors" in res.stdout
     rgb = np.asarray(Image.open(shot).convert("RGB"), np.float32)
     assert rgb.shape == (48, 64, 3) and rgb.std() > 10, "a flat screenshot"
@@ -218,12 +230,15 @@ def test_view_under_xvfb(installed, xvfb_display, shaders):
 def test_bench_quick(installed):
     """`hybrid bench --quick` at a small frame size (its builds and the 1M-triangle trace scene stay as they are);
     without the peers installed (a dev extra) they are reported as skipped."""
-    res = ok(installed.hybrid("bench", "--quick", "--size", "160x90", "--json", "b.json", "--plot", "b.png"),
-             "hybrid bench --quick")
+    res = ok(
+        installed.hybrid("bench", "--quick", "--size", "160x90", "--json", "b.json", "--plot", "b.png"),
+        "hybrid bench --quick",
+    )
     data = json.loads((installed.work / "b.json").read_text())
     assert data["meta"]["validation_errors"] == []
     assert [(b["requested"], b["kind"]) for b in data["build"]] == [
-        (n, kind) for n in (100_000, 1_000_000) for kind in ("generated", "spheres", "scan")]
+        (n, kind) for n in (100_000, 1_000_000) for kind in ("generated", "spheres", "scan")
+    ]
     assert all(b["ms"] > 0 and b["nodes"] > 0 for b in data["build"])
     scenes = data["trace"]["scenes"]
     assert [s["scene"] for s in scenes] == ["generated", "default"]

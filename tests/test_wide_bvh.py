@@ -1,4 +1,5 @@
 """The 8-wide quantized BVH (engine/bvh/wide.py): its invariants after dequantization as the GPU computes it."""
+
 import numpy as np
 import pytest
 import trimesh
@@ -12,8 +13,8 @@ def meshes():
     rng = np.random.default_rng(3)
     soup_v = rng.uniform(-1, 1, (900, 3))
     thin = trimesh.creation.box(extents=(2.0, 0.002, 1.0))
-    flat_v = np.c_[rng.uniform(-1, 1, (600, 2)), np.zeros(600)]          # every triangle in the plane z = 0
-    far_v = rng.uniform(-1, 1, (300, 3)) * 1e-3 + 1e4                   # tiny boxes far from the origin
+    flat_v = np.c_[rng.uniform(-1, 1, (600, 2)), np.zeros(600)]  # every triangle in the plane z = 0
+    far_v = rng.uniform(-1, 1, (300, 3)) * 1e-3 + 1e4  # tiny boxes far from the origin
     degen_v = np.vstack([soup_v[:30], [[0, 0, 0], [1, 1, 1], [2, 2, 2]]])
     degen_f = np.vstack([np.arange(30).reshape(10, 3), [[30, 31, 32], [30, 30, 31], [31, 31, 31]]])
     sphere = trimesh.creation.icosphere(4)
@@ -39,7 +40,7 @@ def check_wide(wide, n_tri):
     box_lo = np.full((w, 3), np.inf, np.float32)
     box_hi = np.full((w, 3), -np.inf, np.float32)
     parent = np.full(w, -1)
-    for node in range(w - 1, -1, -1):        # children come after their parent: bottom up
+    for node in range(w - 1, -1, -1):  # children come after their parent: bottom up
         for j in range(8):
             m = int(meta[node, j])
             if (imask[node] >> j) & 1:
@@ -54,10 +55,10 @@ def check_wide(wide, n_tri):
             elif m:
                 s, count = tri_base[node] + (m & 31), m >> 5
                 assert 1 <= count <= 4 and (m & 31) + count <= 32
-                seen[s:s + count] += 1
-                assert (tlo[s:s + count] >= lo[node, j]).all() and (thi[s:s + count] <= hi[node, j]).all()
-                box_lo[node] = np.minimum(box_lo[node], tlo[s:s + count].min(axis=0))
-                box_hi[node] = np.maximum(box_hi[node], thi[s:s + count].max(axis=0))
+                seen[s : s + count] += 1
+                assert (tlo[s : s + count] >= lo[node, j]).all() and (thi[s : s + count] <= hi[node, j]).all()
+                box_lo[node] = np.minimum(box_lo[node], tlo[s : s + count].min(axis=0))
+                box_hi[node] = np.maximum(box_hi[node], thi[s : s + count].max(axis=0))
     assert (parent[1:] >= 0).all(), "every node but the root is some node's child"
     assert (seen[:n_tri] == 1).all(), "every triangle in exactly one leaf"
     assert np.array_equal(np.sort(wide.prim_ids), np.arange(n_tri))

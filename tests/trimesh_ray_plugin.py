@@ -7,6 +7,7 @@ Every intersector those tests make, through `mesh.ray` (`Trimesh.__init__`) or b
 `generic` nor the `models/` folder: `generic` is provided here (what the ray tests use of it), and a test that loads a
 model file is skipped, naming the file.
 """
+
 from __future__ import annotations
 
 import logging

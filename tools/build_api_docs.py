@@ -13,6 +13,7 @@ docstring names that does not exist is printed, and the exit status is 1. tests/
 The folder is a site to open in a browser: index.html lists the modules and the public API (`engine.__all__`) with
 the first sentence of each docstring, linked to pdoc's pages (engine.html, engine/settings.html, ...).
 """
+
 from __future__ import annotations
 
 import argparse
@@ -54,7 +55,7 @@ def _resolve(dotted: str, public: dict) -> bool:
         obj, i = importlib.import_module("engine"), 1
         while i < len(parts):
             try:
-                obj = importlib.import_module(".".join(parts[:i + 1]))
+                obj = importlib.import_module(".".join(parts[: i + 1]))
             except ImportError:
                 break
             i += 1
@@ -70,6 +71,7 @@ def _resolve(dotted: str, public: dict) -> bool:
 def check_docstrings(docs) -> list[str]:
     """Problems with the references in the docstrings of the documented objects (pdoc.doc objects)."""
     import engine
+
     public = {name: getattr(engine, name) for name in engine.__all__}
     problems, seen = [], set()
 
@@ -99,8 +101,14 @@ class _Alias:
 
     @staticmethod
     def make(name: str) -> type:
-        return type(name, (), {"__module__": "numpy.typing",
-                               "__class_getitem__": classmethod(lambda cls, args: types.GenericAlias(cls, args))})
+        return type(
+            name,
+            (),
+            {
+                "__module__": "numpy.typing",
+                "__class_getitem__": classmethod(lambda cls, args: types.GenericAlias(cls, args)),
+            },
+        )
 
 
 def _short_numpy_aliases(pdoc_doc, pdoc_doc_types) -> None:
@@ -131,11 +139,18 @@ def write_index(out: Path, docs) -> None:
     (for `engine`, its `__all__`) with theirs, linked to their pages. pdoc's own index.html only redirects to
     engine.html, whose page does not link the other modules (they are not in `engine.__all__`)."""
     import engine
-    mods = "\n".join(f'<li><a href="{d.fullname.replace(".", "/")}.html"><code>{d.fullname}</code></a> - '
-                     f"{_summary(d.docstring)}</li>" for d in docs)
-    names = "\n".join(f'<li><a href="{docs[0].fullname.replace(".", "/")}.html#{m.name}"><code>{m.name}</code></a>'
-                      f" - {_summary(m.docstring)}</li>" for m in docs[0].members.values()
-                      if not m.name.startswith("_"))
+
+    mods = "\n".join(
+        f'<li><a href="{d.fullname.replace(".", "/")}.html"><code>{d.fullname}</code></a> - '
+        f"{_summary(d.docstring)}</li>"
+        for d in docs
+    )
+    names = "\n".join(
+        f'<li><a href="{docs[0].fullname.replace(".", "/")}.html#{m.name}"><code>{m.name}</code></a>'
+        f" - {_summary(m.docstring)}</li>"
+        for m in docs[0].members.values()
+        if not m.name.startswith("_")
+    )
     title = f"hybrid {engine.__version__}: API reference"
     (out / "index.html").write_text(f"""<!doctype html>
 <html lang="en">
@@ -190,8 +205,10 @@ def main(argv=None) -> int:
     if problems:
         return 1
     if not args.check:
-        print(f"{args.output / 'index.html'}: the API reference of {', '.join(MODULES)} "
-              f"({len(list(args.output.rglob('*.html')))} pages); open it in a browser")
+        print(
+            f"{args.output / 'index.html'}: the API reference of {', '.join(MODULES)} "
+            f"({len(list(args.output.rglob('*.html')))} pages); open it in a browser"
+        )
     return 0
 
 

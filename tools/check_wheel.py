@@ -8,6 +8,7 @@ It checks that the compiled module engine._native is the installed package's (no
 warning, that a BVH build of 150k triangles (past the chunk groups) runs its pass loop in C, and that the tree is
 numpy's byte for byte (HYBRID_NATIVE=0 in the same process); then prints a JSON summary. Exit status 1 on a failure.
 """
+
 import json
 import os
 import sys
@@ -27,7 +28,7 @@ def main() -> int:
         print(f"check_wheel: engine imported from the checkout ({package}), not an installed wheel", file=sys.stderr)
         return 1
     with warnings.catch_warnings():
-        warnings.simplefilter("error")   # (a missing or stale module warns: a failure here)
+        warnings.simplefilter("error")  # (a missing or stale module warns: a failure here)
         try:
             lib = native.library()
         except RuntimeWarning as e:
@@ -52,11 +53,24 @@ def main() -> int:
     start = time.perf_counter()
     in_numpy = build_bvh(v, f, threads=2)
     numpy_ms = (time.perf_counter() - start) * 1000
-    same = (in_c.nodes.tobytes() == in_numpy.nodes.tobytes() and in_c.tris.tobytes() == in_numpy.tris.tobytes()
-            and in_c.prim_ids.tobytes() == in_numpy.prim_ids.tobytes())
-    print(json.dumps({"module": module.__file__, "c_passes": len(grown), "in_c": bool(grown) and None not in grown,
-                      "same_tree": same, "triangles": len(f), "c_ms": round(c_ms, 1),
-                      "numpy_ms": round(numpy_ms, 1)}))
+    same = (
+        in_c.nodes.tobytes() == in_numpy.nodes.tobytes()
+        and in_c.tris.tobytes() == in_numpy.tris.tobytes()
+        and in_c.prim_ids.tobytes() == in_numpy.prim_ids.tobytes()
+    )
+    print(
+        json.dumps(
+            {
+                "module": module.__file__,
+                "c_passes": len(grown),
+                "in_c": bool(grown) and None not in grown,
+                "same_tree": same,
+                "triangles": len(f),
+                "c_ms": round(c_ms, 1),
+                "numpy_ms": round(numpy_ms, 1),
+            }
+        )
+    )
     return 0 if same and grown and None not in grown else 1
 
 

@@ -5,6 +5,7 @@ shaders/glsl/*.{vert,frag,comp} into shaders/spv/ and rewrite the manifest of so
     python tools/compile_shaders.py           # rebuild every shader + manifest
     python tools/compile_shaders.py --check   # exit 1 and list the shaders whose SPIR-V is stale
 """
+
 import argparse
 import sys
 from pathlib import Path

@@ -128,7 +128,7 @@ def crate_texture(rng, size=256):
     img = np.array([0.66, 0.47, 0.27])[None, None, :] * (tint[pid] * grain)[..., None]
     gap = (y % (h // planks)) < 2
     img[gap] *= 0.45
-    border = (np.minimum(np.minimum(x, w - 1 - x), np.minimum(y, h - 1 - y)) < size // 12)
+    border = np.minimum(np.minimum(x, w - 1 - x), np.minimum(y, h - 1 - y)) < size // 12
     img[border] = np.array([0.36, 0.24, 0.13]) * (0.9 + 0.1 * grain[border])[:, None]
     return (np.clip(img, 0, 1) * 255).astype(np.uint8)
 
@@ -139,8 +139,8 @@ def torus_knot(p=2, q=3, segments=640, sides=28, tube=0.32):
     t = np.linspace(0, 2 * np.pi, segments, endpoint=False)
     r = np.cos(q * t) + 2.0
     c = np.stack([r * np.cos(p * t), -np.sin(q * t), r * np.sin(p * t)], -1)
-    d1 = (np.roll(c, -1, 0) - np.roll(c, 1, 0))
-    d2 = (np.roll(c, -1, 0) - 2 * c + np.roll(c, 1, 0))
+    d1 = np.roll(c, -1, 0) - np.roll(c, 1, 0)
+    d2 = np.roll(c, -1, 0) - 2 * c + np.roll(c, 1, 0)
     T = d1 / np.linalg.norm(d1, axis=1, keepdims=True)
     B = np.cross(d1, d2)
     B /= np.linalg.norm(B, axis=1, keepdims=True)
@@ -215,8 +215,14 @@ def pergola_parts():
 def crate_stack(rng):
     parts = []
     s = 0.8
-    layout = [(-4.6, 0, 1.2, 6), (-3.75, 0, 1.35, -4), (-4.2, 0, 2.1, 12), (-4.15, 1, 1.3, 3), (-3.9, 1, 2.0, -9),
-              (-4.0, 2, 1.6, 21)]
+    layout = [
+        (-4.6, 0, 1.2, 6),
+        (-3.75, 0, 1.35, -4),
+        (-4.2, 0, 2.1, 12),
+        (-4.15, 1, 1.3, 3),
+        (-3.9, 1, 2.0, -9),
+        (-4.0, 2, 1.6, 21),
+    ]
     for x, level, z, yaw in layout:
         size = s * (0.92 + 0.1 * rng.random())
         parts.append(_box((size, size, size), (x, level * s + size / 2 - (level > 0) * 0.03 * level, z), yaw))
@@ -249,46 +255,78 @@ def main(argv=None):
 
     # knot.glb: one mesh under a node with a rotation + scale + translation
     kp, kf, kn, kuv = torus_knot()
-    knot = trimesh.Trimesh(kp, kf, vertex_normals=kn, process=False,
-                           visual=trimesh.visual.TextureVisuals(
-                               uv=to_trimesh_uv(kuv),
-                               material=trimesh.visual.material.PBRMaterial(
-                                   name="copper", baseColorFactor=[0.80, 0.36, 0.18, 1.0],
-                                   metallicFactor=0.0, roughnessFactor=0.5)))
+    knot = trimesh.Trimesh(
+        kp,
+        kf,
+        vertex_normals=kn,
+        process=False,
+        visual=trimesh.visual.TextureVisuals(
+            uv=to_trimesh_uv(kuv),
+            material=trimesh.visual.material.PBRMaterial(
+                name="copper", baseColorFactor=[0.80, 0.36, 0.18, 1.0], metallicFactor=0.0, roughnessFactor=0.5
+            ),
+        ),
+    )
     # stand the knot up on a plinth (rotation + scale in the node; the lowest point touches the plinth's top)
     plinth_h = 0.5
     node = trimesh.transformations.compose_matrix(scale=[0.7] * 3, angles=[np.radians(78), np.radians(-15), 0])
     low = (kp @ node[:3, :3].T)[:, 1].min()
     node[:3, 3] = [-1.6, plinth_h - 0.04 - low, -3.2]
     pp_, pf_, pn_, puv_ = _box((3.0, plinth_h, 1.6), (0.0, plinth_h / 2, 0.0))
-    plinth = trimesh.Trimesh(pp_, pf_, vertex_normals=pn_, process=False,
-                             visual=trimesh.visual.TextureVisuals(
-                                 uv=to_trimesh_uv(puv_),
-                                 material=trimesh.visual.material.PBRMaterial(
-                                     name="plinth", baseColorFactor=[0.55, 0.55, 0.58, 1.0],
-                                     metallicFactor=0.0, roughnessFactor=1.0)))
+    plinth = trimesh.Trimesh(
+        pp_,
+        pf_,
+        vertex_normals=pn_,
+        process=False,
+        visual=trimesh.visual.TextureVisuals(
+            uv=to_trimesh_uv(puv_),
+            material=trimesh.visual.material.PBRMaterial(
+                name="plinth", baseColorFactor=[0.55, 0.55, 0.58, 1.0], metallicFactor=0.0, roughnessFactor=1.0
+            ),
+        ),
+    )
     ks = trimesh.Scene()
     ks.add_geometry(knot, node_name="knot", geom_name="knot", transform=node)
-    ks.add_geometry(plinth, node_name="plinth", geom_name="plinth",
-                    transform=trimesh.transformations.translation_matrix([-1.6, 0.0, -3.2]))
+    ks.add_geometry(
+        plinth,
+        node_name="plinth",
+        geom_name="plinth",
+        transform=trimesh.transformations.translation_matrix([-1.6, 0.0, -3.2]),
+    )
     with open(os.path.join(assets, "knot.glb"), "wb") as fh:
         fh.write(ks.export(file_type="glb"))
 
     # colonnade.glb: the column mesh instanced by 4 nodes, plus a beam
     (cp, cf, cn, cuv), (bp, bf, bn, buv) = colonnade_parts()
     # glTF's default metallic factor is 1: a dielectric says 0
-    stone = trimesh.visual.material.PBRMaterial(name="stone", baseColorFactor=[0.72, 0.70, 0.66, 1.0],
-                                                metallicFactor=0.0, roughnessFactor=1.0)
-    column = trimesh.Trimesh(cp, cf, vertex_normals=cn, process=False,
-                             visual=trimesh.visual.TextureVisuals(uv=to_trimesh_uv(cuv), material=stone))
-    beam = trimesh.Trimesh(bp, bf, vertex_normals=bn, process=False,
-                           visual=trimesh.visual.TextureVisuals(uv=to_trimesh_uv(buv), material=stone))
+    stone = trimesh.visual.material.PBRMaterial(
+        name="stone", baseColorFactor=[0.72, 0.70, 0.66, 1.0], metallicFactor=0.0, roughnessFactor=1.0
+    )
+    column = trimesh.Trimesh(
+        cp,
+        cf,
+        vertex_normals=cn,
+        process=False,
+        visual=trimesh.visual.TextureVisuals(uv=to_trimesh_uv(cuv), material=stone),
+    )
+    beam = trimesh.Trimesh(
+        bp,
+        bf,
+        vertex_normals=bn,
+        process=False,
+        visual=trimesh.visual.TextureVisuals(uv=to_trimesh_uv(buv), material=stone),
+    )
     cs = trimesh.Scene()
     for i, z in enumerate((-3.6, -1.2, 1.2, 3.6)):
-        cs.add_geometry(column, node_name=f"column{i}", geom_name="column",
-                        transform=trimesh.transformations.translation_matrix([-7.0, 0.0, z]))
-    cs.add_geometry(beam, node_name="beam", geom_name="beam",
-                    transform=trimesh.transformations.translation_matrix([-7.0, 0.0, 0.0]))
+        cs.add_geometry(
+            column,
+            node_name=f"column{i}",
+            geom_name="column",
+            transform=trimesh.transformations.translation_matrix([-7.0, 0.0, z]),
+        )
+    cs.add_geometry(
+        beam, node_name="beam", geom_name="beam", transform=trimesh.transformations.translation_matrix([-7.0, 0.0, 0.0])
+    )
     with open(os.path.join(assets, "colonnade.glb"), "wb") as fh:
         fh.write(cs.export(file_type="glb"))
 
@@ -301,12 +339,19 @@ def main(argv=None):
 
     # crates.obj + crates.mtl + crate.png
     sp, sf, sn, suv = crate_stack(rng)
-    crate_mat = trimesh.visual.material.SimpleMaterial(name="crate", image=Image.fromarray(crate),
-                                                       diffuse=[255, 255, 255, 255])
-    crates = trimesh.Trimesh(sp, sf, vertex_normals=sn, process=False,
-                             visual=trimesh.visual.TextureVisuals(uv=to_trimesh_uv(suv), material=crate_mat))
-    text, files = trimesh.exchange.obj.export_obj(crates, include_normals=True, include_texture=True,
-                                                  return_texture=True, mtl_name="crates.mtl")
+    crate_mat = trimesh.visual.material.SimpleMaterial(
+        name="crate", image=Image.fromarray(crate), diffuse=[255, 255, 255, 255]
+    )
+    crates = trimesh.Trimesh(
+        sp,
+        sf,
+        vertex_normals=sn,
+        process=False,
+        visual=trimesh.visual.TextureVisuals(uv=to_trimesh_uv(suv), material=crate_mat),
+    )
+    text, files = trimesh.exchange.obj.export_obj(
+        crates, include_normals=True, include_texture=True, return_texture=True, mtl_name="crates.mtl"
+    )
     mtl = files["crates.mtl"].decode()
     for name, data in files.items():
         if name != "crates.mtl":
@@ -334,10 +379,11 @@ def main(argv=None):
         print(f"  {name:16s} {size / 1024:8.1f} KiB")
     print(f"  {'total':16s} {total / 1024:8.1f} KiB")
     from engine.scene import Scene
+
     print(Scene.load(os.path.join(out, "default.toml")).summary())
 
 
-DEFAULT_TOML = '''\
+DEFAULT_TOML = """\
 # The default scene, made by tools/make_default_scene.py (run it again to regenerate the assets).
 # A terrace: a brick wall, a colonnade, a pergola of thin slats and a railing (striped shadows), a big torus knot,
 # a lumpy blob and a stack of crates (crevices for ambient occlusion), and a few small things.
@@ -456,7 +502,7 @@ rotate = { axis = [0.0, 1.0, 0.0], degrees_per_second = 20.0 }
 [[animation]]
 instance = "ball"
 oscillate = { offset = [0.0, 0.0, 0.8], period = 4.0 }
-'''
+"""
 
 if __name__ == "__main__":
     main()

@@ -12,11 +12,24 @@ job format and the layout of the output folder.
     driver.py       run_batch: what to render, the workers, the progress bar, the summary
     cli.py          the command line (add_arguments, run_cli)
 """
+
 from .cameras import read_camera_path, view_camera
 from .cli import add_arguments, run_cli
 from .driver import BatchResult, run_batch
 from .job import Item, Job, SceneSpec, load_job
 from .manifest import MANIFEST_NAME, Manifest
 
-__all__ = ["load_job", "run_batch", "BatchResult", "Job", "Item", "SceneSpec", "Manifest", "MANIFEST_NAME",
-           "read_camera_path", "view_camera", "add_arguments", "run_cli"]
+__all__ = [
+    "load_job",
+    "run_batch",
+    "BatchResult",
+    "Job",
+    "Item",
+    "SceneSpec",
+    "Manifest",
+    "MANIFEST_NAME",
+    "read_camera_path",
+    "view_camera",
+    "add_arguments",
+    "run_cli",
+]

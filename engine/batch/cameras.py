@@ -12,6 +12,7 @@ A view is one of (the keys of a scene's `[camera]` where they overlap, docs/scen
 - a pose alone: `pose` with optional `fov` (default 60), `convention` and `near`: the pose's camera with the vertical
   field of view `fov` over the job's image.
 """
+
 from __future__ import annotations
 
 import json
@@ -21,9 +22,9 @@ from pathlib import Path
 from typing import Any
 
 try:
-    import tomllib   # Python 3.11+
+    import tomllib  # Python 3.11+
 except ModuleNotFoundError:
-    import tomli as tomllib   # Python 3.10: the same parser (a dependency there)
+    import tomli as tomllib  # Python 3.10: the same parser (a dependency there)
 
 import numpy as np
 
@@ -44,8 +45,9 @@ def read_cameras(table: Any, where: str, base: Path) -> dict:
     kinds = [k for k in KINDS if k in table]
     if len(kinds) != 1:
         found = f"both {kinds[0]} and {kinds[1]}" if len(kinds) > 1 else "none of them"
-        raise ConfigError(f"{where}: give exactly one of orbit (N views), views (a list) or path (a file); "
-                          f"found {found}")
+        raise ConfigError(
+            f"{where}: give exactly one of orbit (N views), views (a list) or path (a file); found {found}"
+        )
     kind = kinds[0]
     if kind == "orbit":
         unknown = sorted(set(table) - set(ORBIT_KEYS))
@@ -54,15 +56,19 @@ def read_cameras(table: Any, where: str, base: Path) -> dict:
         n = table["orbit"]
         if isinstance(n, bool) or not isinstance(n, int) or not 1 <= n <= MAX_VIEWS:
             raise ConfigError(f"{where}.orbit: expected the number of views, 1..{MAX_VIEWS}, got {n!r}")
-        spec = {"kind": "orbit", "count": n, "elevation": _number(table.get("elevation", 25.0),
-                                                                   f"{where}.elevation", -89.0, 89.0)}
+        spec = {
+            "kind": "orbit",
+            "count": n,
+            "elevation": _number(table.get("elevation", 25.0), f"{where}.elevation", -89.0, 89.0),
+        }
         if "distance" in table:
             spec["distance"] = _number(table["distance"], f"{where}.distance", 0.0, 1e11, low_open=True)
         if "fov" in table:
             spec["fov"] = _number(table["fov"], f"{where}.fov", 0.0, 180.0, low_open=True, high_open=True)
         if "center" in table:
-            spec["center"] = [_number(v, f"{where}.center", -1e11, 1e11) for v in _triple(table["center"],
-                                                                                          f"{where}.center")]
+            spec["center"] = [
+                _number(v, f"{where}.center", -1e11, 1e11) for v in _triple(table["center"], f"{where}.center")
+            ]
         return spec
     extra = sorted(set(table) - {kind})
     if extra:
@@ -99,21 +105,25 @@ def read_camera_path(path: str | os.PathLike[str]) -> list:
         raise ConfigError(f"{path}: no such camera-path file") from None
     except OSError as exc:
         raise ConfigError(f"{path}: cannot read: {exc.strerror or exc}") from None
-    except (ValueError, tomllib.TOMLDecodeError) as exc:   # json.JSONDecodeError and UnicodeDecodeError are both
+    except (ValueError, tomllib.TOMLDecodeError) as exc:  # json.JSONDecodeError and UnicodeDecodeError are both
         raise ConfigError(f"{path}: not valid {suffix[1:].upper()}: {exc}") from None
-    if isinstance(data, dict):   # keys beside the list ("up", "fov", ...) apply to every view that lacks them
+    if isinstance(data, dict):  # keys beside the list ("up", "fov", ...) apply to every view that lacks them
         lists = [k for k in ("views", "camera") if k in data]
         shared = {k: v for k, v in data.items() if k not in ("views", "camera")}
         unknown = sorted(set(shared) - set(VIEW_KEYS) - {"fov_y"})
         if unknown or len(lists) != 1:
-            raise ConfigError(f"{path}: expected a list of views, or a table of 'views' (or 'camera') and keys "
-                              "they share" + (f" (found {unknown[0]!r})" if unknown else ""))
+            raise ConfigError(
+                f"{path}: expected a list of views, or a table of 'views' (or 'camera') and keys "
+                "they share" + (f" (found {unknown[0]!r})" if unknown else "")
+            )
         data = data[lists[0]]
         if isinstance(data, list):
             data = [{**shared, **view} if isinstance(view, dict) else view for view in data]
-    if isinstance(data, list):   # "fov_y" (hybrid render's name) is "fov" here
-        data = [{("fov" if k == "fov_y" else k): v for k, v in view.items()} if isinstance(view, dict) else view
-                for view in data]
+    if isinstance(data, list):  # "fov_y" (hybrid render's name) is "fov" here
+        data = [
+            {("fov" if k == "fov_y" else k): v for k, v in view.items()} if isinstance(view, dict) else view
+            for view in data
+        ]
     if not isinstance(data, list):
         raise ConfigError(f"{path}: expected a list of views")
     return data
@@ -134,7 +144,7 @@ def make_camera(spec: dict, index: int, scene: Scene, width: int, height: int) -
     where = f"{spec['where']}[{index}]"
     try:
         cam = view_camera(spec["views"][index], width, height)
-        cam.projection_matrix(width / height)   # intrinsics for another aspect fail here, not mid-render
+        cam.projection_matrix(width / height)  # intrinsics for another aspect fail here, not mid-render
     except EngineError as exc:
         raise ConfigError(f"{where}: {exc}") from None
     return cam
@@ -170,8 +180,13 @@ def view_camera(entry: Any, width: int, height: int) -> Camera:
     extra = sorted(set(entry) & {"width", "height", "convention"})
     if extra:
         raise ConfigError(f"{extra[0]!r} does not go with eye and target")
-    return Camera.look_at(entry["eye"], entry["target"], up=entry.get("up", (0.0, 1.0, 0.0)),
-                          fov_y=entry.get("fov", 60.0), near=entry.get("near"))
+    return Camera.look_at(
+        entry["eye"],
+        entry["target"],
+        up=entry.get("up", (0.0, 1.0, 0.0)),
+        fov_y=entry.get("fov", 60.0),
+        near=entry.get("near"),
+    )
 
 
 def _orbit(spec: dict, index: int, scene: Scene) -> Camera:

@@ -8,6 +8,7 @@ the driver merges them into the manifest as tasks finish.
 `--ray local` starts a Ray instance in the driver's process for this run, on loopback only; an ADDRESS on loopback
 (127.x, localhost) is a cluster on this machine and is reached on loopback only too.
 """
+
 from __future__ import annotations
 
 import ipaddress
@@ -43,20 +44,21 @@ def import_ray(address: str):
     if local:
         os.environ.setdefault(_LOOPBACK_ENV, "0")
     try:
-        import ray   # an optional dependency: only --ray needs it
+        import ray  # an optional dependency: only --ray needs it
     except ImportError:
         raise ConfigError("--ray needs Ray: pip install 'hybrid-renderer[distributed]' (or pip install ray)") from None
     return ray
 
 
-def run_ray(job: Job, todo: list[Item], on_record: Callable[[dict], None], *, address: str,
-            shard_size: int | None = None) -> dict:
+def run_ray(
+    job: Job, todo: list[Item], on_record: Callable[[dict], None], *, address: str, shard_size: int | None = None
+) -> dict:
     """Render `todo` as Ray tasks on the cluster at `address` (or "local"); records go to `on_record` as tasks end.
     Returns {"devices": the devices' names, "errors": validation errors found when the tasks' Renderers closed,
     "cluster": a line about the cluster}."""
     local = address == "local"
     if not local and address != "auto":
-        _probe(address)   # Ray itself retries an address where nothing listens for minutes
+        _probe(address)  # Ray itself retries an address where nothing listens for minutes
     ray = import_ray(address)
     try:
         if local:
@@ -69,14 +71,15 @@ def run_ray(job: Job, todo: list[Item], on_record: Callable[[dict], None], *, ad
     try:
         node = ray.util.get_node_ip_address()
         if (local or is_loopback(address)) and not is_loopback(node):
-            raise EngineError(f"--ray {address}: Ray chose the address {node}, not loopback; set "
-                              f"{_LOOPBACK_ENV}=0 before Ray starts")
+            raise EngineError(
+                f"--ray {address}: Ray chose the address {node}, not loopback; set {_LOOPBACK_ENV}=0 before Ray starts"
+            )
         res = ray.cluster_resources()
         gpus, cpus = int(res.get("GPU", 0)), int(res.get("CPU", 1))
         options = {"num_gpus": 1} if gpus else {"num_cpus": 1}
         size = shard_size or auto_shard_size(len(todo), gpus or cpus)
         task = ray.remote(max_retries=1)(render_shard).options(**options)
-        job_ref = ray.put(job)   # once in the object store, not once per task
+        job_ref = ray.put(job)  # once in the object store, not once per task
         parts = {task.remote(job_ref, part): part for part in shards(todo, size)}
         devices, late = set(), []
         total = len(parts)
@@ -93,15 +96,18 @@ def run_ray(job: Job, todo: list[Item], on_record: Callable[[dict], None], *, ad
             devices.update(out["devices"])
             late.extend(out["errors"])
         kind = f"{gpus} GPUs" if gpus else f"{cpus} CPUs"
-        return {"devices": sorted(devices), "errors": late,
-                "cluster": f"Ray at {'local (' + node + ')' if local else address}: {kind}, {total} tasks"}
+        return {
+            "devices": sorted(devices),
+            "errors": late,
+            "cluster": f"Ray at {'local (' + node + ')' if local else address}: {kind}, {total} tasks",
+        }
     finally:
         ray.shutdown()
 
 
 def render_shard(job: Job, items: list[Item]) -> dict:
     """A Ray task: the items on this worker's GPU (or CPU device); {"records", "devices", "errors"}."""
-    import ray   # in a Ray worker: Ray is there
+    import ray  # in a Ray worker: Ray is there
 
     gpu_ids = ray.get_gpu_ids()
     name = worker_name(f"ray {ray.util.get_node_ip_address()}")
@@ -131,8 +137,9 @@ def _probe(address: str, timeout: float = 5.0) -> None:
     host, sep, port = address.rpartition(":")
     host = host.strip("[]")
     if not sep or not host or not port.isdigit():
-        raise ConfigError(f"--ray {address!r}: expected the cluster's address as host:port (e.g. head-node:6379), "
-                          "'auto' or 'local'")
+        raise ConfigError(
+            f"--ray {address!r}: expected the cluster's address as host:port (e.g. head-node:6379), 'auto' or 'local'"
+        )
     try:
         socket.create_connection((host, int(port)), timeout=timeout).close()
     except OSError as exc:

@@ -1,5 +1,6 @@
 """Running a job: what is finished already, the workers (this machine's or Ray's), the manifest, the progress bar and
 the summary. `run_batch(job, ...)` is the Python entry point of `hybrid batch`."""
+
 from __future__ import annotations
 
 import sys
@@ -37,9 +38,11 @@ class BatchResult:
     def summary(self, job: Job) -> str:
         total = self.rendered + self.skipped + len(self.failed)
         rate = f"{self.rendered / self.seconds:.2f} items/s" if self.seconds > 0 and self.rendered else "-"
-        return (f"batch: {total} items of {job.path.name}: {self.rendered} rendered, {self.skipped} already done, "
-                f"{len(self.failed)} failed; {self.seconds:.1f} s ({rate}) on {self.where}; "
-                f"manifest {self.manifest}")
+        return (
+            f"batch: {total} items of {job.path.name}: {self.rendered} rendered, {self.skipped} already done, "
+            f"{len(self.failed)} failed; {self.seconds:.1f} s ({rate}) on {self.where}; "
+            f"manifest {self.manifest}"
+        )
 
 
 class Progress:
@@ -67,8 +70,10 @@ class Progress:
         rate = self.done / elapsed if elapsed > 0 else 0.0
         left = f", {(self.total - self.done) / rate:.0f} s left" if rate > 0 and self.done < self.total else ""
         filled = self.width * self.done // max(self.total, 1)
-        line = (f"batch [{'#' * filled}{'.' * (self.width - filled)}] {self.done}/{self.total} items, "
-                f"{rate:.2f} items/s" + (f", {self.failed} failed" if self.failed else "") + left)
+        line = (
+            f"batch [{'#' * filled}{'.' * (self.width - filled)}] {self.done}/{self.total} items, "
+            f"{rate:.2f} items/s" + (f", {self.failed} failed" if self.failed else "") + left
+        )
         self.stream.write(("\r\x1b[2K" + line) if self.tty else line + "\n")
         if self.tty and self.done == self.total:
             self.stream.write("\n")
@@ -76,7 +81,7 @@ class Progress:
 
 
 def parse_devices(text: str | None) -> list[str] | None:
-    """"0,1" -> ["0", "1"] (indices or name parts, as `--device`), checked against this machine's devices."""
+    """ "0,1" -> ["0", "1"] (indices or name parts, as `--device`), checked against this machine's devices."""
     if text is None:
         return None
     parts = [p.strip() for p in str(text).split(",")]
@@ -91,9 +96,17 @@ def parse_devices(text: str | None) -> list[str] | None:
     return parts
 
 
-def run_batch(job: Job, *, workers: int | None = None, devices: list[str] | None = None, ray: str | None = None,
-              shard_size: int | None = None, redo: bool = False, progress: bool = True,
-              manifest_interval: float = 2.0) -> BatchResult:
+def run_batch(
+    job: Job,
+    *,
+    workers: int | None = None,
+    devices: list[str] | None = None,
+    ray: str | None = None,
+    shard_size: int | None = None,
+    redo: bool = False,
+    progress: bool = True,
+    manifest_interval: float = 2.0,
+) -> BatchResult:
     """Render the job's unfinished items into `job.output` (made if missing) and record them in its manifest.
 
     Args:

@@ -4,6 +4,7 @@
 plain data (it is pickled to worker processes and Ray tasks) and lists its items: one per scene and view, each with
 a key, a fingerprint of everything its output files depend on, by which a later run tells finished items.
 """
+
 from __future__ import annotations
 
 import hashlib
@@ -15,9 +16,9 @@ from pathlib import Path
 from typing import Any
 
 try:
-    import tomllib   # Python 3.11+
+    import tomllib  # Python 3.11+
 except ModuleNotFoundError:
-    import tomli as tomllib   # Python 3.10: the same parser (a dependency there)
+    import tomli as tomllib  # Python 3.10: the same parser (a dependency there)
 
 from ..errors import ConfigError
 from ..settings import MAX_FRAMES, check_settings, parse_size, resolve_aovs
@@ -128,11 +129,20 @@ def job_from_dict(data: dict, path: Path, output: str | os.PathLike[str] | None 
     compress = data.get("compress", False)
     if not isinstance(compress, bool):
         raise ConfigError(f"{where}: compress: expected true or false, got {compress!r}")
-    default_cameras = (read_cameras(data["cameras"], f"{where}: cameras", base)
-                       if "cameras" in data else None)
+    default_cameras = read_cameras(data["cameras"], f"{where}: cameras", base) if "cameras" in data else None
     scenes = _scenes(data.get("scenes"), where, base, default_cameras)
-    job = Job(path=path.resolve(), output=out, width=width, height=height, aovs=tuple(aovs),
-              png=tuple(dict.fromkeys(png)), frames=frames, compress=compress, settings=settings, scenes=scenes)
+    job = Job(
+        path=path.resolve(),
+        output=out,
+        width=width,
+        height=height,
+        aovs=tuple(aovs),
+        png=tuple(dict.fromkeys(png)),
+        frames=frames,
+        compress=compress,
+        settings=settings,
+        scenes=scenes,
+    )
     job.items = _items(job)
     return job
 
@@ -147,7 +157,7 @@ def _scenes(entries: Any, where: str, base: Path, default_cameras: dict | None) 
         if isinstance(entry, str):
             entry = {"scene": entry}
         if not isinstance(entry, dict):
-            raise ConfigError(f"{at}: expected a table with scene = \"path or name\", got {entry!r}")
+            raise ConfigError(f'{at}: expected a table with scene = "path or name", got {entry!r}')
         unknown = sorted(set(entry) - set(SCENE_KEYS))
         if unknown:
             raise ConfigError(f"{at}: unknown key {unknown[0]!r} (known: {', '.join(SCENE_KEYS)})")
@@ -159,8 +169,10 @@ def _scenes(entries: Any, where: str, base: Path, default_cameras: dict | None) 
         scene_path = source if is_name else str(candidate.resolve())
         name = entry.get("name", Path(source).stem)
         if not isinstance(name, str) or not _NAME.match(name):
-            raise ConfigError(f"{at}: name {name!r}: the output folder's name: letters, digits, '.', '_', '-'"
-                              + ("" if "name" in entry else " (give one with name = \"...\")"))
+            raise ConfigError(
+                f"{at}: name {name!r}: the output folder's name: letters, digits, '.', '_', '-'"
+                + ("" if "name" in entry else ' (give one with name = "...")')
+            )
         if name in names:
             raise ConfigError(f"{at}: name {name!r} is scenes[{names[name]}]'s too: give each scene its own name")
         names[name] = i
@@ -175,8 +187,13 @@ def _scenes(entries: Any, where: str, base: Path, default_cameras: dict | None) 
 
 
 def _items(job: Job) -> list[Item]:
-    common = {"size": [job.width, job.height], "aovs": list(job.aovs), "png": list(job.png), "frames": job.frames,
-              "settings": job.settings}
+    common = {
+        "size": [job.width, job.height],
+        "aovs": list(job.aovs),
+        "png": list(job.png),
+        "frames": job.frames,
+        "settings": job.settings,
+    }
     items = []
     for s, spec in enumerate(job.scenes):
         for index in range(spec.cameras["count"]):

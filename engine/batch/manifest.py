@@ -7,6 +7,7 @@ complete one. What counts as finished is decided from the files: an item is done
 holds the item's key (engine.batch.writer.finished), so items finished after the last manifest write are not
 rendered again either.
 """
+
 from __future__ import annotations
 
 import json
@@ -33,14 +34,17 @@ class Manifest:
         self.path = job.output / MANIFEST_NAME
         self.items: dict[str, dict] = {}
         self._written = 0.0
-        self._cost = 0.0   # seconds the last write took: writes are spaced to cost at most 5% of the time
+        self._cost = 0.0  # seconds the last write took: writes are spaced to cost at most 5% of the time
         self._dirty = False
         if self.path.exists():
             try:
                 data = json.loads(self.path.read_text())
-                if (not isinstance(data, dict) or data.get("format") != FORMAT
-                        or not isinstance(data.get("items"), dict)):
-                    raise ValueError(f"no \"format\": \"{FORMAT}\" with items")
+                if (
+                    not isinstance(data, dict)
+                    or data.get("format") != FORMAT
+                    or not isinstance(data.get("items"), dict)
+                ):
+                    raise ValueError(f'no "format": "{FORMAT}" with items')
             except (OSError, ValueError) as exc:
                 raise ConfigError(f"{self.path}: not a batch manifest ({exc}); move it away to start over") from None
             self.items = data["items"]
@@ -53,12 +57,22 @@ class Manifest:
         for item in self.job.items:
             rec = self.items.get(item.id)
             ok = not redo and (
-                (rec is not None and rec.get("status") == "done" and rec.get("key") == item.key
-                 and all((self.job.output / f).is_file() for f in self.job.files(item)))
-                or finished(self.job, item))
+                (
+                    rec is not None
+                    and rec.get("status") == "done"
+                    and rec.get("key") == item.key
+                    and all((self.job.output / f).is_file() for f in self.job.files(item))
+                )
+                or finished(self.job, item)
+            )
             if ok and (rec is None or rec.get("status") != "done" or rec.get("key") != item.key):
-                self.items[item.id] = {"id": item.id, "status": "done", "key": item.key, "files": self.job.files(item),
-                                       "worker": "found on disk"}
+                self.items[item.id] = {
+                    "id": item.id,
+                    "status": "done",
+                    "key": item.key,
+                    "files": self.job.files(item),
+                    "worker": "found on disk",
+                }
                 self._dirty = True
             (done if ok else todo).append(item)
         return todo, done
@@ -83,9 +97,14 @@ class Manifest:
         if not self._dirty and self.path.exists():
             return
         t0 = time.monotonic()
-        data = {"format": FORMAT, "job": str(self.job.path), "output": str(self.job.output),
-                "updated": datetime.now(timezone.utc).isoformat(timespec="seconds"), "counts": self.counts(),
-                "items": self.items}
+        data = {
+            "format": FORMAT,
+            "job": str(self.job.path),
+            "output": str(self.job.output),
+            "updated": datetime.now(timezone.utc).isoformat(timespec="seconds"),
+            "counts": self.counts(),
+            "items": self.items,
+        }
         atomic_write_text(self.path, json.dumps(data, indent=1, sort_keys=False) + "\n", "manifest")
         self._written, self._dirty = time.monotonic(), False
         self._cost = self._written - t0
@@ -107,10 +126,12 @@ class FolderLock:
             except FileExistsError:
                 owner = self._owner()
                 if owner is not None and (owner.get("host") != me["host"] or running(owner.get("pid"))):
-                    raise ConfigError(f"{self.path.parent}: another batch is writing here (pid {owner.get('pid')} "
-                                      f"on {owner.get('host')}); if it no longer runs, remove {self.path}") from None
+                    raise ConfigError(
+                        f"{self.path.parent}: another batch is writing here (pid {owner.get('pid')} "
+                        f"on {owner.get('host')}); if it no longer runs, remove {self.path}"
+                    ) from None
                 try:
-                    os.unlink(self.path)   # left by a batch that died
+                    os.unlink(self.path)  # left by a batch that died
                 except FileNotFoundError:
                     pass
                 continue
@@ -134,7 +155,7 @@ class FolderLock:
         try:
             data = json.loads(self.path.read_text())
             return data if isinstance(data, dict) else None
-        except (OSError, ValueError):   # vanished, or being written: held while young, else stale
+        except (OSError, ValueError):  # vanished, or being written: held while young, else stale
             try:
                 young = time.time() - self.path.stat().st_mtime < 10.0
             except OSError:

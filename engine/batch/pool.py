@@ -5,6 +5,7 @@ Processes are started with "spawn" (a forked child would share the parent's Vulk
 the driver's own process. A worker that dies (a crash in the driver, a kill) has the items of the shard it held
 reported as failed; the others go on with the rest. Workers stop when the driver is gone.
 """
+
 from __future__ import annotations
 
 import multiprocessing
@@ -36,8 +37,15 @@ def auto_shard_size(n_items: int, slots: int) -> int:
     return max(1, min(64, -(-n_items // (4 * max(slots, 1)))))
 
 
-def run_local(job: Job, todo: list[Item], on_record: Callable[[dict], None], *, workers: int = 1,
-              devices: list | None = None, shard_size: int | None = None) -> dict:
+def run_local(
+    job: Job,
+    todo: list[Item],
+    on_record: Callable[[dict], None],
+    *,
+    workers: int = 1,
+    devices: list | None = None,
+    shard_size: int | None = None,
+) -> dict:
     """Render `todo`, handing each record to `on_record` (in the driver's process) as it comes. Returns
     {"devices": the devices' names, "errors": validation errors that no item was charged with (leaks found when a
     Renderer closed)}. A worker whose Renderer cannot be made leaves its share to the others; the items fail only
@@ -60,24 +68,37 @@ class _Driver:
     """run_local's side of several worker processes: it deals the shards, hands on the records the workers send, and
     reports as failed the items of a shard whose worker died, then any item that no worker rendered."""
 
-    def __init__(self, job: Job, todo: list[Item], on_record: Callable[[dict], None], workers: int, devices: list,
-                 shard_size: int | None):
+    def __init__(
+        self,
+        job: Job,
+        todo: list[Item],
+        on_record: Callable[[dict], None],
+        workers: int,
+        devices: list,
+        shard_size: int | None,
+    ):
         ctx = multiprocessing.get_context("spawn")
         self.todo, self.on_record, self.workers = todo, on_record, workers
         self.tasks, self.results = ctx.Queue(), ctx.Queue()
         self.parts = shards(todo, shard_size or auto_shard_size(len(todo), workers))
-        self.procs = [ctx.Process(target=worker_main, name=f"hybrid-batch-{w}", daemon=True,
-                                  args=(job, devices[w % len(devices)], w, self.tasks, self.results))
-                      for w in range(workers)]
+        self.procs = [
+            ctx.Process(
+                target=worker_main,
+                name=f"hybrid-batch-{w}",
+                daemon=True,
+                args=(job, devices[w % len(devices)], w, self.tasks, self.results),
+            )
+            for w in range(workers)
+        ]
         for p in self.procs:
             p.start()
-        self.holding: dict[int, int] = {}          # worker -> the shard it renders
+        self.holding: dict[int, int] = {}  # worker -> the shard it renders
         self.reported: set[str] = set()
         self.fatal: list[str] = []
         self.names: list[str] = []
         self.late: list[str] = []
         self.exited: set[int] = set()
-        self.started: set[int] = set()              # workers whose Renderer is open (or that failed to open one)
+        self.started: set[int] = set()  # workers whose Renderer is open (or that failed to open one)
         self.dealt = False
         self.t_start = time.monotonic()
 
@@ -101,8 +122,10 @@ class _Driver:
     def deal(self) -> None:
         """The shards go into the queue once every worker is ready (or out), so that all share them from the start
         rather than the first one up taking the lot; or once one is, after STARTUP_WAIT_S (a worker stuck starting)."""
-        if self.dealt or not (len(self.started | self.exited) == self.workers
-                              or (self.started and time.monotonic() - self.t_start > STARTUP_WAIT_S)):
+        if self.dealt or not (
+            len(self.started | self.exited) == self.workers
+            or (self.started and time.monotonic() - self.t_start > STARTUP_WAIT_S)
+        ):
             return
         for i, part in enumerate(self.parts):
             self.tasks.put((i, part))
@@ -146,8 +169,14 @@ class _Driver:
         for item in self.parts[shard]:
             if item.id not in self.reported:
                 self.reported.add(item.id)
-                self.on_record(record(item, "failed", f"worker {w}",
-                                      error=f"worker {w} ended (exit code {p.exitcode}) while rendering it"))
+                self.on_record(
+                    record(
+                        item,
+                        "failed",
+                        f"worker {w}",
+                        error=f"worker {w} ended (exit code {p.exitcode}) while rendering it",
+                    )
+                )
 
     def close(self) -> None:
         """Stop the workers still running; close the queues."""
@@ -185,10 +214,10 @@ def worker_main(job: Job, device, w: int, tasks, results) -> None:
                     if not _alive(parent):
                         break
         if not _alive(parent):
-            results.cancel_join_thread()   # nobody reads: exit without waiting to hand over what is queued
+            results.cancel_join_thread()  # nobody reads: exit without waiting to hand over what is queued
             return
         results.put(("exit", w, ir.unreported_errors()))
-    except KeyboardInterrupt:   # Ctrl-C reaches the whole process group; the driver reports it
+    except KeyboardInterrupt:  # Ctrl-C reaches the whole process group; the driver reports it
         return
 
 

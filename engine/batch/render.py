@@ -7,6 +7,7 @@ views of a scene go through `Renderer.render_many` (the next frame renders while
 An item that fails (its scene does not load, its view is not a valid camera, a file cannot be written, a validation
 error) gives a failed record and the rest go on.
 """
+
 from __future__ import annotations
 
 import itertools
@@ -57,7 +58,7 @@ class ItemRenderer:
 
     def unreported_errors(self) -> list[str]:
         """Validation errors no item was failed for (those found when the Renderer closed: leaks)."""
-        return list(self.renderer.validation_errors[self._errors_seen:])
+        return list(self.renderer.validation_errors[self._errors_seen :])
 
     def render(self, items: Iterable[Item]) -> Iterator[dict]:
         for scene_index, run in itertools.groupby(items, key=lambda it: it.scene):
@@ -70,8 +71,9 @@ class ItemRenderer:
             views = []
             for item in group:
                 try:
-                    cam = make_camera(self.job.scenes[scene_index].cameras, item.index, scene, self.job.width,
-                                      self.job.height)
+                    cam = make_camera(
+                        self.job.scenes[scene_index].cameras, item.index, scene, self.job.width, self.job.height
+                    )
                 except EngineError as exc:
                     yield record(item, "failed", self.worker, error=str(exc))
                     continue
@@ -92,12 +94,12 @@ class ItemRenderer:
         the sequence starts again after it (the frames in flight behind it are rendered again)."""
         job, r = self.job, self.renderer
         while views:
-            handed = [-1]   # the view whose frames render_many is preparing
+            handed = [-1]  # the view whose frames render_many is preparing
 
             def cameras():
                 for k, (_, cam) in enumerate(views):
                     handed[0] = k
-                    r.reset_history()   # from a fresh history: the same images in any order, on any worker
+                    r.reset_history()  # from a fresh history: the same images in any order, on any worker
                     yield from itertools.repeat(cam, job.frames)
 
             kept = 0
@@ -113,12 +115,12 @@ class ItemRenderer:
                 views = []
             except EngineError as exc:
                 bad = handed[0]
-                if bad < 0:   # before any view (cannot happen with a checked job): nothing of this scene renders
+                if bad < 0:  # before any view (cannot happen with a checked job): nothing of this scene renders
                     for item, _ in views:
                         yield record(item, "failed", self.worker, error=str(exc))
                     return
                 yield record(views[bad][0], "failed", self.worker, error=str(exc))
-                views = views[kept:bad] + views[bad + 1:]
+                views = views[kept:bad] + views[bad + 1 :]
 
     def _finish(self, item: Item, cam, frame, seconds: float) -> dict:
         errors = self.renderer.validation_errors

@@ -2,6 +2,7 @@
 camera, written last, so that a finished .npz with the item's key means a finished item. Every file is written
 whole or not at all (engine.files.atomic_write): a killed batch leaves no partial output.
 """
+
 from __future__ import annotations
 
 import zipfile
@@ -26,7 +27,7 @@ def write_item(job: Job, item: Item, frame: Frame, camera: Camera) -> list[str]:
     except OSError as exc:
         raise EngineError(f"{folder}: cannot make the output folder: {exc.strerror or exc}") from None
     for aov, name in zip(job.png, names):
-        frame.save(job.output / name, aov=aov)   # the viewable PNGs; float files: see npz_arrays
+        frame.save(job.output / name, aov=aov)  # the viewable PNGs; float files: see npz_arrays
     arrays = npz_arrays(job, item, frame, camera)
     save: Any = np.savez_compressed if job.compress else np.savez
     atomic_write(job.output / names[-1], lambda f: save(f, **arrays), "arrays")

@@ -19,6 +19,7 @@ engine interface and ours), peers (embreex, Open3D, Mitsuba), machine (machine i
 runner (Bench: the sections), targets (issue goals), report (tables, JSON), plot (the PNG), cli (run_bench and
 `hybrid bench`), probe (the lavapipe thread probe's child process).
 """
+
 from __future__ import annotations
 
 from .cli import add_arguments, check_output_paths, run_bench, run_cli, write_outputs
@@ -32,7 +33,23 @@ from .runner import Bench
 from .targets import evaluate_targets
 
 __all__ = [
-    "add_arguments", "check_output_paths", "run_bench", "run_cli", "write_outputs", "DEFAULT_SCENE", "PEERS",
-    "RAYSETS", "SECTIONS", "BenchConfig", "agreement", "plot", "Progress", "RaySet", "gbuffer_raysets",
-    "random_rayset", "format_report", "Bench", "evaluate_targets",
+    "add_arguments",
+    "check_output_paths",
+    "run_bench",
+    "run_cli",
+    "write_outputs",
+    "DEFAULT_SCENE",
+    "PEERS",
+    "RAYSETS",
+    "SECTIONS",
+    "BenchConfig",
+    "agreement",
+    "plot",
+    "Progress",
+    "RaySet",
+    "gbuffer_raysets",
+    "random_rayset",
+    "format_report",
+    "Bench",
+    "evaluate_targets",
 ]

@@ -1,5 +1,6 @@
 """The entry points: `run_bench` (Python) and the `hybrid bench` command's arguments and run (engine/cli.py adds the
 subparser); both check their output paths before minutes of work and write the JSON and the plot after it."""
+
 from __future__ import annotations
 
 import os
@@ -58,25 +59,28 @@ def run_bench(cfg: BenchConfig, json_path=None, plot_path=None, progress: bool =
 
 def add_arguments(p):
     """The `hybrid bench` arguments (engine/cli.py adds the subparser)."""
-    p.add_argument("section", nargs="?", default="all", choices=SECTIONS + ("all",),
-                   help="what to run (default all)")
-    p.add_argument("--quick", action="store_true",
-                   help="smaller and fewer runs (no 4M build; ~1 minute on 2 cores, the full run ~2)")
+    p.add_argument("section", nargs="?", default="all", choices=SECTIONS + ("all",), help="what to run (default all)")
+    p.add_argument(
+        "--quick",
+        action="store_true",
+        help="smaller and fewer runs (no 4M build; ~1 minute on 2 cores, the full run ~2)",
+    )
     p.add_argument("--json", default="bench-out/bench.json", help="JSON results (default bench-out/bench.json)")
     p.add_argument("--plot", default="bench-out/bench.png", help="PNG plot (default bench-out/bench.png)")
     p.add_argument("--device", default=None, help="Vulkan device index or name substring")
-    p.add_argument("--size", default=None,
-                   help="frame and G-buffer size WxH (default 640x360 on a CPU device, 1920x1080 on a GPU)")
+    p.add_argument(
+        "--size", default=None, help="frame and G-buffer size WxH (default 640x360 on a CPU device, 1920x1080 on a GPU)"
+    )
 
 
 def run_cli(args) -> int:
     size = parse_size(args.size) if args.size else None
     cfg = BenchConfig.for_cli(args.section, quick=args.quick, size=size, device=args.device)
-    check_output_paths(args.json, args.plot)   # before minutes of work
-    if args.device is not None:                # a device that does not exist fails now, whatever the section
+    check_output_paths(args.json, args.plot)  # before minutes of work
+    if args.device is not None:  # a device that does not exist fails now, whatever the section
         choose_device(describe_devices(), args.device)
-    results = run_bench(cfg)                   # the files are written below, after the report
-    print(format_report(results))              # on the terminal first: a failed write below loses nothing
+    results = run_bench(cfg)  # the files are written below, after the report
+    print(format_report(results))  # on the terminal first: a failed write below loses nothing
     write_outputs(results, args.json, args.plot)
     print(f"\nJSON: {args.json}   plot: {args.plot}")
     errors = results["meta"].get("validation_errors") or []
@@ -84,4 +88,3 @@ def run_cli(args) -> int:
         print(f"error: {len(errors)} validation errors; first: {errors[0]}", file=sys.stderr)
         return 1
     return 0
-

@@ -1,4 +1,5 @@
 """What `hybrid bench` runs: the sections, engines and ray sets it knows, and BenchConfig (sizes, repetitions)."""
+
 from __future__ import annotations
 
 from dataclasses import dataclass
@@ -7,15 +8,18 @@ from pathlib import Path
 from ..data import SCENES_DIR
 from ..errors import ConfigError
 
-REPO = Path(__file__).resolve().parents[2]   # the folder holding the engine package (the probe's working folder)
+REPO = Path(__file__).resolve().parents[2]  # the folder holding the engine package (the probe's working folder)
 DEFAULT_SCENE = SCENES_DIR / "default.toml"
 SECTIONS = ("build", "trace", "frame")
 PEERS = ("embreex", "open3d", "mitsuba", "mitsuba_device")
 ENGINES = ("ours",) + PEERS
 RAYSETS = ("shadow", "ao", "random", "scattered")
-RAYSET_TITLES = {"shadow": "shadow rays (occluded, G-buffer)", "ao": "AO rays (occluded, G-buffer)",
-                 "random": "random rays (closest hit)",
-                 "scattered": "shadow rays (occluded, random surface points, random order)"}
+RAYSET_TITLES = {
+    "shadow": "shadow rays (occluded, G-buffer)",
+    "ao": "AO rays (occluded, G-buffer)",
+    "random": "random rays (closest hit)",
+    "scattered": "shadow rays (occluded, random surface points, random order)",
+}
 
 
 #: The mesh kinds of the build section (engine/bench/scenes.py build_mesh): the generated scene's mesh (terrain,
@@ -31,14 +35,14 @@ DATASET_AOVS = ("color", "depth", "normal", "object_id")
 class BenchConfig:
     sections: tuple = SECTIONS
     quick: bool = False
-    size: tuple | None = None                  # (w, h); None: 640x360 on a CPU device, 1920x1080 on a GPU
+    size: tuple | None = None  # (w, h); None: 640x360 on a CPU device, 1920x1080 on a GPU
     device: str | None = None
     validation: bool = False
     build_sizes: tuple = (100_000, 1_000_000, 4_000_000)
-    build_kinds: tuple = BUILD_KINDS           # every kind is built at every size
-    build_reps: int = 3                        # sizes above 2M triangles get one run less (at least one)
-    generated_tris: int = 1_200_000            # the trace benchmark's generated scene
-    mid_tris: int = 300_000                    # frame "generated-300k": the size the issue-6 shadow target names
+    build_kinds: tuple = BUILD_KINDS  # every kind is built at every size
+    build_reps: int = 3  # sizes above 2M triangles get one run less (at least one)
+    generated_tris: int = 1_200_000  # the trace benchmark's generated scene
+    mid_tris: int = 300_000  # frame "generated-300k": the size the issue-6 shadow target names
     real_scene: str | None = str(DEFAULT_SCENE)
     frame_scenes: tuple = ("real", "target", "mid", "generated")  # target: the issue-6 frame (1 light, 1 AO ray
     #                                                                   per pixel); mid: generated, mid_tris, 1 AO ray
@@ -46,10 +50,10 @@ class BenchConfig:
     reps: int = 7
     warmup: int = 1
     frame_reps: int = 5
-    dataset_frames: int = 200                  # render_many's frames in the frame section's dataset figures
+    dataset_frames: int = 200  # render_many's frames in the frame section's dataset figures
     frame_warmup: int = 2
-    random_rays: int | None = None             # None: as many as the G-buffer has pixels
-    thread_probe: bool = True                  # lavapipe only: re-run the default scene's rays with LP_NUM_THREADS
+    random_rays: int | None = None  # None: as many as the G-buffer has pixels
+    thread_probe: bool = True  # lavapipe only: re-run the default scene's rays with LP_NUM_THREADS
     seed: int = 1
 
     @classmethod
@@ -68,4 +72,3 @@ class BenchConfig:
             cfg.frame_warmup = 1
             cfg.thread_probe = False
         return cfg
-

@@ -1,5 +1,6 @@
 """The engines the trace benchmark compares, behind one interface: `Engine`, and ours (engine.Tracer) as
 `OursEngine`; the peers are in peers.py."""
+
 from __future__ import annotations
 
 import abc
@@ -15,7 +16,7 @@ class Engine(abc.ABC):
     name = ""
     label = ""
     threads = None
-    on_gpu = False   # timed runs on a GPU get a warm-up that raises its clocks first
+    on_gpu = False  # timed runs on a GPU get a warm-up that raises its clocks first
 
     @abc.abstractmethod
     def occluded(self, rs: RaySet) -> np.ndarray:
@@ -71,4 +72,3 @@ class OursEngine(Engine):
 
     def close(self):
         self.tracer.close()
-

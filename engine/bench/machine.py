@@ -1,4 +1,5 @@
 """The machine a bench ran on (CPU, memory, load, package versions) and how much other processes disturbed it."""
+
 from __future__ import annotations
 
 import os
@@ -55,13 +56,17 @@ class OtherLoad:
         if busy is None or self.busy0 is None:
             return {"wall_s": wall}
         others = max(0.0, (busy - self.busy0) - (self._own() - self.own0))
-        return {"wall_s": round(wall, 1), "own_cpu_s": round(self._own() - self.own0, 1),
-                "others_cpu_s": round(others, 1), "others_mean_cores": round(others / wall, 2) if wall else None}
+        return {
+            "wall_s": round(wall, 1),
+            "own_cpu_s": round(self._own() - self.own0, 1),
+            "others_cpu_s": round(others, 1),
+            "others_mean_cores": round(others / wall, 2) if wall else None,
+        }
 
 
 def machine_info() -> dict:
     try:
-        mem = os.sysconf("SC_PAGE_SIZE") * os.sysconf("SC_PHYS_PAGES") / 2 ** 30
+        mem = os.sysconf("SC_PAGE_SIZE") * os.sysconf("SC_PHYS_PAGES") / 2**30
     except (ValueError, OSError, AttributeError):
         mem = None
     try:
@@ -81,4 +86,3 @@ def machine_info() -> dict:
         "trimesh": _version("trimesh"),
         "env": {k: os.environ[k] for k in ("LP_NUM_THREADS", "HYBRID_DEVICE", "OMP_NUM_THREADS") if k in os.environ},
     }
-

@@ -1,6 +1,7 @@
 """The peers the trace benchmark runs on the same rays: embreex (Embree as trimesh drives it), Open3D's
 RaycastingScene and Mitsuba 3 (OptiX on an NVIDIA GPU, else Embree through Dr.Jit's LLVM backend), the last with rays
 from numpy and with rays already in Dr.Jit arrays; and how often a peer's answers agree with ours."""
+
 from __future__ import annotations
 
 import os
@@ -18,12 +19,14 @@ class EmbreexEngine(Engine):
     name, label, threads = "embreex", "embreex (Embree, 1 thread)", 1
 
     def __init__(self, vertices, faces):
-        from embreex import mesh_construction, rtcore_scene   # optional (a peer): a missing one skips the peer
+        from embreex import mesh_construction, rtcore_scene  # optional (a peer): a missing one skips the peer
+
         self.scene = rtcore_scene.EmbreeScene()
-        mesh_construction.TriangleMesh(self.scene, np.ascontiguousarray(vertices, np.float32),
-                                       np.ascontiguousarray(faces, np.int32))
+        mesh_construction.TriangleMesh(
+            self.scene, np.ascontiguousarray(vertices, np.float32), np.ascontiguousarray(faces, np.int32)
+        )
         one = np.zeros((1, 3), np.float32)
-        self.scene.run(one, one + np.float32(1.0))   # commits the scene: the BVH build
+        self.scene.run(one, one + np.float32(1.0))  # commits the scene: the BVH build
 
     def _dists(self, rs):
         return None if not np.isfinite(rs.tmax) else np.full(len(rs), rs.tmax, np.float32)
@@ -43,15 +46,18 @@ class Open3DEngine(Engine):
     name = "open3d"
 
     def __init__(self, vertices, faces):
-        import open3d as o3d   # optional and heavy (a peer): loaded only when it runs; a missing one skips it
+        import open3d as o3d  # optional and heavy (a peer): loaded only when it runs; a missing one skips it
+
         self.o3d = o3d
         # RaycastingScene's nthreads = 0 (the default) lets Embree's task scheduler use every hardware thread
         self.threads = os.cpu_count()
         self.label = f"Open3D (Embree, {self.threads} threads)"
         self.scene = o3d.t.geometry.RaycastingScene()
-        self.scene.add_triangles(o3d.core.Tensor(np.ascontiguousarray(vertices, np.float32)),
-                                 o3d.core.Tensor(np.ascontiguousarray(faces, np.uint32)))
-        self.scene.test_occlusions(o3d.core.Tensor(np.array([[0, 0, 0, 1, 0, 0]], np.float32)))   # commits
+        self.scene.add_triangles(
+            o3d.core.Tensor(np.ascontiguousarray(vertices, np.float32)),
+            o3d.core.Tensor(np.ascontiguousarray(faces, np.uint32)),
+        )
+        self.scene.test_occlusions(o3d.core.Tensor(np.array([[0, 0, 0, 1, 0, 0]], np.float32)))  # commits
 
     def _rays(self, rs):
         return self.o3d.core.Tensor(np.concatenate([rs.origins, rs.directions], axis=1))
@@ -82,8 +88,9 @@ class MitsubaEngine(Engine):
     name = "mitsuba"
 
     def __init__(self, vertices, faces):
-        import drjit as dr       # optional (a peer): a missing one skips the peer
-        import mitsuba as mi     # optional and heavy (a peer): loaded only when it runs
+        import drjit as dr  # optional (a peer): a missing one skips the peer
+        import mitsuba as mi  # optional and heavy (a peer): loaded only when it runs
+
         self.dr, self.variant, self.tried = dr, None, []
         v = np.ascontiguousarray(vertices, np.float32).reshape(-1)
         f = np.ascontiguousarray(faces, np.uint32).reshape(-1)
@@ -91,7 +98,7 @@ class MitsubaEngine(Engine):
             if variant not in mi.variants():
                 self.tried.append(f"{variant}: not in this build")
                 continue
-            try:   # a CUDA variant imports without a GPU and fails on first use; OptiX fails at the first trace
+            try:  # a CUDA variant imports without a GPU and fails on first use; OptiX fails at the first trace
                 mi.set_variant(variant)
                 self._load(mi, v, f)
             except (ImportError, RuntimeError, OSError) as exc:
@@ -117,13 +124,15 @@ class MitsubaEngine(Engine):
         params.update()
         self.scene = mi.load_dict({"type": "scene", "mesh": mesh})
         one = np.zeros((1, 3), np.float32)
-        self._occluded(self._rays(one, one + np.float32(1.0), float("inf"))).numpy()   # commits: the BVH build
+        self._occluded(self._rays(one, one + np.float32(1.0), float("inf"))).numpy()  # commits: the BVH build
 
     def _rays(self, origins, directions, tmax):
         dr = self.dr
-        ray = self.Ray3f(dr.unravel(self.Point3f, self.Float(origins.reshape(-1))),
-                         dr.unravel(self.Vector3f, self.Float(directions.reshape(-1))))
-        if np.isfinite(tmax):   # opaque: one kernel serves every tmax (a literal would compile one per value)
+        ray = self.Ray3f(
+            dr.unravel(self.Point3f, self.Float(origins.reshape(-1))),
+            dr.unravel(self.Vector3f, self.Float(directions.reshape(-1))),
+        )
+        if np.isfinite(tmax):  # opaque: one kernel serves every tmax (a literal would compile one per value)
             ray.maxt = dr.opaque(self.Float, tmax)
         return ray
 
@@ -145,7 +154,7 @@ class MitsubaEngine(Engine):
         t, prim = self._intersect(self._rays(rs.origins, rs.directions, rs.tmax))
         self.dr.eval(t, prim)
         t = t.numpy()
-        hit = np.isfinite(t)   # a miss leaves prim_index undefined
+        hit = np.isfinite(t)  # a miss leaves prim_index undefined
         return np.where(hit, t, np.inf).astype(np.float32), np.where(hit, prim.numpy().astype(np.int64), -1)
 
 
@@ -160,16 +169,17 @@ class MitsubaDeviceEngine(Engine):
         self.base = base if base is not None else MitsubaEngine(vertices, faces)
         self.dr, self.on_gpu, self.threads = self.base.dr, self.base.on_gpu, self.base.threads
         self.tried = self.base.tried
-        self.label = self.base.label.replace("rays from numpy", "rays on the device" if self.on_gpu
-                                             else "rays in Dr.Jit arrays")
+        self.label = self.base.label.replace(
+            "rays from numpy", "rays on the device" if self.on_gpu else "rays in Dr.Jit arrays"
+        )
         self.rays: dict = {}
 
     def prepare(self, rs):
         ray = self.base._rays(rs.origins, rs.directions, rs.tmax)
         self.dr.eval(ray)
         self.dr.sync_thread()
-        self.rays = {id(rs): ray}   # one ray set resident at a time
-        self.answer(self.query(rs))   # the untimed first launch: its kernel compiled and cached
+        self.rays = {id(rs): ray}  # one ray set resident at a time
+        self.answer(self.query(rs))  # the untimed first launch: its kernel compiled and cached
 
     def _resident(self, rs):
         if id(rs) not in self.rays:
@@ -192,7 +202,7 @@ class MitsubaDeviceEngine(Engine):
         if not isinstance(result, tuple):
             return result.numpy()
         t = result[0].numpy()
-        hit = np.isfinite(t)   # a miss leaves prim_index undefined
+        hit = np.isfinite(t)  # a miss leaves prim_index undefined
         return np.where(hit, t, np.inf).astype(np.float32), np.where(hit, result[1].numpy().astype(np.int64), -1)
 
     def close(self):
@@ -203,8 +213,12 @@ def make_peer(name, vertices, faces, built=None):
     """A peer engine, or (None, reason) when its package is missing or does not load. `built`: peers made before, so
     mitsuba_device shares mitsuba's scene."""
     try:
-        cls = {"embreex": EmbreexEngine, "open3d": Open3DEngine, "mitsuba": MitsubaEngine,
-               "mitsuba_device": MitsubaDeviceEngine}[name]
+        cls = {
+            "embreex": EmbreexEngine,
+            "open3d": Open3DEngine,
+            "mitsuba": MitsubaEngine,
+            "mitsuba_device": MitsubaDeviceEngine,
+        }[name]
     except KeyError:
         raise ConfigError(f"bench: unknown peer {name!r} (known: {', '.join(PEERS)})") from None
     try:
@@ -218,16 +232,21 @@ def make_peer(name, vertices, faces, built=None):
 def agreement(kind, ours, peer, diag) -> dict:
     """How often a peer's answer equals ours: hit/miss, and for closest hits the distance and the triangle."""
     if kind == "occluded":
-        return {"hit_miss": float(np.mean(np.asarray(ours) == np.asarray(peer))),
-                "ours_hit_fraction": float(np.mean(ours)), "peer_hit_fraction": float(np.mean(peer))}
+        return {
+            "hit_miss": float(np.mean(np.asarray(ours) == np.asarray(peer))),
+            "ours_hit_fraction": float(np.mean(ours)),
+            "peer_hit_fraction": float(np.mean(peer)),
+        }
     (t0, p0), (t1, p1) = ours, peer
     h0, h1 = p0 >= 0, p1 >= 0
     both = h0 & h1
-    out = {"hit_miss": float(np.mean(h0 == h1)), "ours_hit_fraction": float(h0.mean()),
-           "peer_hit_fraction": float(h1.mean())}
+    out = {
+        "hit_miss": float(np.mean(h0 == h1)),
+        "ours_hit_fraction": float(h0.mean()),
+        "peer_hit_fraction": float(h1.mean()),
+    }
     if both.any():
         close = np.abs(t0[both] - t1[both]) <= 1e-4 * np.maximum(np.abs(t1[both]), 1.0) + 1e-6 * diag
         out["t_close"] = float(close.mean())
         out["same_prim"] = float(np.mean(p0[both] == p1[both]))
     return out
-

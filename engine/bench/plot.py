@@ -1,5 +1,6 @@
 """A bench's results as one PNG (drawn with pillow): Mrays/s per ray set and engine for each trace scene, GPU ms per
 pass of each frame, and seconds per million triangles of the BVH builds against the issue goals."""
+
 from __future__ import annotations
 
 from pathlib import Path
@@ -11,15 +12,31 @@ from ..files import atomic_write
 from .config import PEERS
 
 
-ENGINE_COLORS = {"ours GPU": (46, 117, 182), "ours wall": (143, 187, 227), "embreex": (230, 126, 34),
-                 "open3d": (68, 160, 80), "mitsuba": (142, 68, 173), "mitsuba_device": (195, 155, 211)}
-PASS_COLORS = [(46, 117, 182), (230, 126, 34), (68, 160, 80), (192, 57, 43), (142, 68, 173), (127, 140, 141),
-               (241, 196, 15), (22, 160, 133)]
+ENGINE_COLORS = {
+    "ours GPU": (46, 117, 182),
+    "ours wall": (143, 187, 227),
+    "embreex": (230, 126, 34),
+    "open3d": (68, 160, 80),
+    "mitsuba": (142, 68, 173),
+    "mitsuba_device": (195, 155, 211),
+}
+PASS_COLORS = [
+    (46, 117, 182),
+    (230, 126, 34),
+    (68, 160, 80),
+    (192, 57, 43),
+    (142, 68, 173),
+    (127, 140, 141),
+    (241, 196, 15),
+    (22, 160, 133),
+]
 
 
 def _font(size, bold=False):
-    for name in (("DejaVuSans-Bold.ttf" if bold else "DejaVuSans.ttf"),
-                 "/usr/share/fonts/truetype/dejavu/" + ("DejaVuSans-Bold.ttf" if bold else "DejaVuSans.ttf")):
+    for name in (
+        ("DejaVuSans-Bold.ttf" if bold else "DejaVuSans.ttf"),
+        "/usr/share/fonts/truetype/dejavu/" + ("DejaVuSans-Bold.ttf" if bold else "DejaVuSans.ttf"),
+    ):
         try:
             return ImageFont.truetype(name, size)
         except OSError:
@@ -46,7 +63,7 @@ def _bar_panel(draw, box, title, groups, series, colors, unit, fonts, hlines=())
     f_title, f_label, f_small = fonts
     draw.text((x0, y0), title, fill=(0, 0, 0), font=f_title)
     lx, ly = x0, y0 + 34
-    for s in series:   # legend under the title, wrapped at the panel's width
+    for s in series:  # legend under the title, wrapped at the panel's width
         step = 34 + draw.textlength(s, font=f_small)
         if lx > x0 and lx + step - 20 > x1:
             lx, ly = x0, ly + 22
@@ -70,9 +87,10 @@ def _bar_panel(draw, box, title, groups, series, colors, unit, fonts, hlines=())
         for si, s in enumerate(series):
             v = vals.get(s)
             if not v:
-                if s in vals:   # measured as nothing: say so
-                    draw.text((gx + si * bw + bw / 2, bottom - 3), "n/a", fill=(120, 120, 120), font=f_small,
-                              anchor="md")
+                if s in vals:  # measured as nothing: say so
+                    draw.text(
+                        (gx + si * bw + bw / 2, bottom - 3), "n/a", fill=(120, 120, 120), font=f_small, anchor="md"
+                    )
                 continue
             bx = gx + si * bw
             by = bottom - (bottom - top) * v / vmax
@@ -122,8 +140,7 @@ def _stack_panel(draw, box, title, rows, fonts, totals=None):
             if w > 0:
                 draw.rectangle([x, y + 6, x + w, y + rh - 8], fill=colors[p])
                 if w > 44:
-                    draw.text((x + w / 2, y + rh / 2 - 1), f"{v:.1f}", fill=(255, 255, 255), font=f_small,
-                              anchor="mm")
+                    draw.text((x + w / 2, y + rh / 2 - 1), f"{v:.1f}", fill=(255, 255, 255), font=f_small, anchor="mm")
             x += w
         total = totals[ri] if totals else sum(d.values())
         draw.text((x + 6, y + rh / 2 - 1), f"{total:.1f} ms", fill=(0, 0, 0), font=f_small, anchor="lm")
@@ -143,56 +160,101 @@ def plot(results: dict, path):
     meta = results.get("meta", {})
     dev, m = meta.get("device", {}), meta.get("machine", {})
     d.text((30, 18), "hybrid bench", fill=(0, 0, 0), font=_font(28, True))
-    d.text((30, 56), f"{meta.get('date', '')[:10]}   {m.get('cpu', '')} ({m.get('cores')} cores)   device: "
-                     f"{dev.get('name', '-')} {dev.get('driver_info', '')}"
-                     + (f"   other processes: {meta['other_processes']['others_mean_cores']} cores on average"
-                        if meta.get("other_processes", {}).get("others_mean_cores") is not None else ""),
-           fill=(60, 60, 60), font=fonts[2])
+    d.text(
+        (30, 56),
+        f"{meta.get('date', '')[:10]}   {m.get('cpu', '')} ({m.get('cores')} cores)   device: "
+        f"{dev.get('name', '-')} {dev.get('driver_info', '')}"
+        + (
+            f"   other processes: {meta['other_processes']['others_mean_cores']} cores on average"
+            if meta.get("other_processes", {}).get("others_mean_cores") is not None
+            else ""
+        ),
+        fill=(60, 60, 60),
+        font=fonts[2],
+    )
     y = 90
     for sc, h in zip(scenes, heights):
         eng = sc["engines"]
-        names = {"ours GPU": "ours (GPU timestamps)", "ours wall": "ours (wall clock, upload + readback)",
-                 "embreex": f"embreex ({eng.get('embreex', {}).get('threads') or 1} thread, wall)",
-                 "open3d": f"Open3D ({eng.get('open3d', {}).get('threads') or '?'} threads, wall)",
-                 "mitsuba": "Mitsuba, numpy (wall)", "mitsuba_device": "Mitsuba, resident (wall)"}
+        names = {
+            "ours GPU": "ours (GPU timestamps)",
+            "ours wall": "ours (wall clock, upload + readback)",
+            "embreex": f"embreex ({eng.get('embreex', {}).get('threads') or 1} thread, wall)",
+            "open3d": f"Open3D ({eng.get('open3d', {}).get('threads') or '?'} threads, wall)",
+            "mitsuba": "Mitsuba, numpy (wall)",
+            "mitsuba_device": "Mitsuba, resident (wall)",
+        }
         for p in ("mitsuba", "mitsuba_device"):
-            if "label" in eng.get(p, {}):   # the label's third word: the variant
+            if "label" in eng.get(p, {}):  # the label's third word: the variant
                 names[p] = names[p].replace("Mitsuba", "Mitsuba " + eng[p]["label"].split()[2])
         groups = []
         for rs in sc["raysets"]:
             r = rs["results"]
-            vals = {names["ours GPU"]: r.get("ours", {}).get("mrays_gpu"),
-                    names["ours wall"]: r.get("ours", {}).get("mrays_wall")}
+            vals = {
+                names["ours GPU"]: r.get("ours", {}).get("mrays_gpu"),
+                names["ours wall"]: r.get("ours", {}).get("mrays_wall"),
+            }
             for p in PEERS:
                 if p in r:
                     vals[names[p]] = r[p]["mrays_wall"]
             groups.append((f"{rs['title']}\n{rs['rays']:,} rays", vals))
-        series = [names[k] for k in ("ours GPU", "ours wall") + PEERS
-                  if k in ("ours GPU", "ours wall") or "label" in eng.get(k, {})]
+        series = [
+            names[k]
+            for k in ("ours GPU", "ours wall") + PEERS
+            if k in ("ours GPU", "ours wall") or "label" in eng.get(k, {})
+        ]
         colors = {names[k]: ENGINE_COLORS[k] for k in names}
-        _bar_panel(d, (30, y, W - 30, y + h), f"Trace throughput, {sc['scene']} scene ({sc['triangles']:,} "
-                   f"triangles), same rays for every engine", groups, series, colors, "Mrays/s (higher is better)",
-                   fonts)
+        _bar_panel(
+            d,
+            (30, y, W - 30, y + h),
+            f"Trace throughput, {sc['scene']} scene ({sc['triangles']:,} triangles), same rays for every engine",
+            groups,
+            series,
+            colors,
+            "Mrays/s (higher is better)",
+            fonts,
+        )
         y += h + 30
     if frames:
         h = heights[len(scenes)]
-        rows = [(f"{fr['scene']} ({fr['triangles']:,} tris)\n{fr['size'][0]}x{fr['size'][1]}, {fr['lights']} light"
-                 f"{'s' if fr['lights'] != 1 else ''}, AO {fr['settings'].get('ao_samples')} spp", fr["passes_ms"])
-                for fr in frames]
-        _stack_panel(d, (30, y, W - 30, y + h), "Frame: GPU ms per pass (median of each pass; total: median of "
-                     "frame totals)", rows, fonts, totals=[fr["gpu_total_ms"] for fr in frames])
+        rows = [
+            (
+                f"{fr['scene']} ({fr['triangles']:,} tris)\n{fr['size'][0]}x{fr['size'][1]}, {fr['lights']} light"
+                f"{'s' if fr['lights'] != 1 else ''}, AO {fr['settings'].get('ao_samples')} spp",
+                fr["passes_ms"],
+            )
+            for fr in frames
+        ]
+        _stack_panel(
+            d,
+            (30, y, W - 30, y + h),
+            "Frame: GPU ms per pass (median of each pass; total: median of frame totals)",
+            rows,
+            fonts,
+            totals=[fr["gpu_total_ms"] for fr in frames],
+        )
         y += h + 30
     if builds:
         h = heights[-1]
-        groups = [(f"{b.get('kind', 'generated')} {b['triangles'] / 1e6:.2g}M\nSAH {b['sah_cost']:.0f}, "
-                   f"{b['bytes_per_triangle']:.0f} B/tri",
-                   {"s per M triangles": b["s_per_million"]}) for b in builds]
-        _bar_panel(d, (30, y, W - 30, y + h), "BVH build: seconds per million triangles (goal: <= 1.0 issues 3 and 19, "
-                   "<= 0.5 issue 6)", groups, ["s per M triangles"], {"s per M triangles": (46, 117, 182)},
-                   "s / M triangles (lower is better)", fonts,
-                   hlines=[(1.0, "issues 3, 19 goal 1.0"), (0.5, "issue 6 goal 0.5")])
+        groups = [
+            (
+                f"{b.get('kind', 'generated')} {b['triangles'] / 1e6:.2g}M\nSAH {b['sah_cost']:.0f}, "
+                f"{b['bytes_per_triangle']:.0f} B/tri",
+                {"s per M triangles": b["s_per_million"]},
+            )
+            for b in builds
+        ]
+        _bar_panel(
+            d,
+            (30, y, W - 30, y + h),
+            "BVH build: seconds per million triangles (goal: <= 1.0 issues 3 and 19, <= 0.5 issue 6)",
+            groups,
+            ["s per M triangles"],
+            {"s per M triangles": (46, 117, 182)},
+            "s / M triangles (lower is better)",
+            fonts,
+            hlines=[(1.0, "issues 3, 19 goal 1.0"), (0.5, "issue 6 goal 0.5")],
+        )
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
     atomic_write(path, lambda f: img.save(f, format="PNG"), "plot")
     return path
-

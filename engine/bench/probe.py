@@ -3,6 +3,7 @@ reads once, when the driver loads): our Mrays/s on the ray sets saved in an .npz
 
     python -m engine.bench.probe RAYS.npz REPS WARMUP [DEVICE]
 """
+
 from __future__ import annotations
 
 import json
@@ -33,10 +34,16 @@ def probe(path, reps, warmup, device=None) -> dict:
                 r = eng.query(rs)
                 gpu.append(eng.last_gpu_ms)
                 return r
+
             wall, _, _ = timed(once, reps, warmup)
             g = median(gpu[warmup:])
-            out[name] = {"rays": len(rs), "gpu_ms": g, "wall_ms": wall * 1e3, "mrays_gpu": len(rs) / g / 1e3,
-                         "mrays_wall": len(rs) / wall / 1e6}
+            out[name] = {
+                "rays": len(rs),
+                "gpu_ms": g,
+                "wall_ms": wall * 1e3,
+                "mrays_gpu": len(rs) / g / 1e3,
+                "mrays_wall": len(rs) / wall / 1e6,
+            }
         return out
     finally:
         eng.close()

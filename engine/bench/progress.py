@@ -1,4 +1,5 @@
 """The bench's progress bar on stderr."""
+
 from __future__ import annotations
 
 import sys
@@ -21,8 +22,10 @@ class Progress:
         if not self.enabled:
             return
         filled = int(round(self.width * self.done / self.total))
-        line = (f"[{'#' * filled}{'.' * (self.width - filled)}] {self.done + 1}/{self.total} {label} "
-                f"({time.perf_counter() - self.t0:.0f} s)")
+        line = (
+            f"[{'#' * filled}{'.' * (self.width - filled)}] {self.done + 1}/{self.total} {label} "
+            f"({time.perf_counter() - self.t0:.0f} s)"
+        )
         if self.tty:
             self.stream.write("\r\x1b[2K" + line)
         else:
@@ -38,4 +41,3 @@ class Progress:
         line = f"[{'#' * self.width}] {self.total}/{self.total} done in {time.perf_counter() - self.t0:.0f} s"
         self.stream.write(("\r\x1b[2K" if self.tty else "") + line + "\n")
         self.stream.flush()
-

@@ -1,5 +1,6 @@
 """The bench's ray sets: shadow and AO rays from a rendered G-buffer, and random closest-hit rays, as float32 arrays
 every engine takes."""
+
 from __future__ import annotations
 
 from dataclasses import dataclass
@@ -8,8 +9,8 @@ import numpy as np
 
 from ..scene import DirectionalLight
 
-ORIGIN_OFFSET = 1e-4     # G-buffer ray origins: p + n * ORIGIN_OFFSET * scene diagonal
-AO_RADIUS = 0.1          # AO ray length: fraction of the scene diagonal
+ORIGIN_OFFSET = 1e-4  # G-buffer ray origins: p + n * ORIGIN_OFFSET * scene diagonal
+AO_RADIUS = 0.1  # AO ray length: fraction of the scene diagonal
 
 
 def scene_diag(scene_or_bounds) -> float:
@@ -20,10 +21,10 @@ def scene_diag(scene_or_bounds) -> float:
 @dataclass
 class RaySet:
     name: str
-    kind: str                 # "occluded" or "intersect"
-    origins: np.ndarray       # (N, 3) float32, contiguous
-    directions: np.ndarray    # (N, 3) float32, contiguous
-    tmax: float               # one tmax for all rays (what Open3D's test_occlusions takes)
+    kind: str  # "occluded" or "intersect"
+    origins: np.ndarray  # (N, 3) float32, contiguous
+    directions: np.ndarray  # (N, 3) float32, contiguous
+    tmax: float  # one tmax for all rays (what Open3D's test_occlusions takes)
     note: str = ""
 
     def __len__(self):
@@ -53,10 +54,12 @@ def towards_first_light(scene, points):
     sun (tmax inf), else to the light's centre (tmax just short of it)."""
     light = scene.lights[0]
     if isinstance(light, DirectionalLight):
-        return (np.broadcast_to(-np.asarray(light.direction, np.float64), points.shape), float("inf"),
-                f"towards the sun {type(light).__name__}")
-    return (np.asarray(light.position, np.float64) - points, 0.999,
-            f"to the centre of a {type(light).__name__}")
+        return (
+            np.broadcast_to(-np.asarray(light.direction, np.float64), points.shape),
+            float("inf"),
+            f"towards the sun {type(light).__name__}",
+        )
+    return (np.asarray(light.position, np.float64) - points, 0.999, f"to the centre of a {type(light).__name__}")
 
 
 def first_light_rays(scene, frame):
@@ -82,10 +85,22 @@ def gbuffer_raysets(scene, frame, rng) -> list[RaySet]:
     o, n, d, tmax, what, up = first_light_rays(scene, frame)
     diag = scene_diag(scene)
     pixels = len(o)
-    shadow = RaySet("shadow", "occluded", _f32(o[up]), _f32(d[up]), tmax,
-                    f"{int(up.sum())} of {pixels} covered pixels (light above the horizon), {what}")
-    ao = RaySet("ao", "occluded", _f32(o), _f32(cosine_hemisphere(n, rng)), AO_RADIUS * diag,
-                f"1 cosine-hemisphere ray per covered pixel ({pixels}), tmax = {AO_RADIUS:g} x diagonal")
+    shadow = RaySet(
+        "shadow",
+        "occluded",
+        _f32(o[up]),
+        _f32(d[up]),
+        tmax,
+        f"{int(up.sum())} of {pixels} covered pixels (light above the horizon), {what}",
+    )
+    ao = RaySet(
+        "ao",
+        "occluded",
+        _f32(o),
+        _f32(cosine_hemisphere(n, rng)),
+        AO_RADIUS * diag,
+        f"1 cosine-hemisphere ray per covered pixel ({pixels}), tmax = {AO_RADIUS:g} x diagonal",
+    )
     return [shadow, ao]
 
 
@@ -103,7 +118,7 @@ def surface_shadow_rays(scene, count, rng):
     p = a[tri] * (1 - r1)[:, None] + b[tri] * (r1 * (1 - r2))[:, None] + c[tri] * (r1 * r2)[:, None]
     nrm = normal[tri] / np.maximum(area[tri], 1e-30)[:, None]
     d, tmax, what = towards_first_light(scene, p)
-    side = np.where(np.einsum("ij,ij->i", nrm, d) >= 0, 1.0, -1.0)[:, None]   # the face's side facing the light
+    side = np.where(np.einsum("ij,ij->i", nrm, d) >= 0, 1.0, -1.0)[:, None]  # the face's side facing the light
     o = p + nrm * side * (ORIGIN_OFFSET * scene_diag(scene))
     return _f32(o), _f32(d), tmax, what
 
@@ -112,8 +127,14 @@ def scattered_rayset(scene, count, rng) -> RaySet:
     """Shadow rays from random surface points in random order (`surface_shadow_rays`): what a path tracer's or a
     light-map baker's batch looks like, unlike the G-buffer's image-ordered rays."""
     o, d, tmax, what = surface_shadow_rays(scene, count, rng)
-    return RaySet("scattered", "occluded", o, d, tmax,
-                  f"{count} rays from random surface points (area-weighted, random order), {what}")
+    return RaySet(
+        "scattered",
+        "occluded",
+        o,
+        d,
+        tmax,
+        f"{count} rays from random surface points (area-weighted, random order), {what}",
+    )
 
 
 def random_rayset(scene, count, rng) -> RaySet:
@@ -124,6 +145,11 @@ def random_rayset(scene, count, rng) -> RaySet:
     b = lo + rng.random((count, 3)) * ext
     d = b - a
     d /= np.maximum(np.linalg.norm(d, axis=1, keepdims=True), 1e-30)
-    return RaySet("random", "intersect", _f32(a), _f32(d), float("inf"),
-                  f"{count} rays between random points of the bounding box, unit directions, tmax = inf")
-
+    return RaySet(
+        "random",
+        "intersect",
+        _f32(a),
+        _f32(d),
+        float("inf"),
+        f"{count} rays between random points of the bounding box, unit directions, tmax = inf",
+    )

@@ -1,5 +1,6 @@
 """Runs the sections of a BenchConfig: BVH builds, trace throughput of ours and the peers on the same rays, and frames
 per pass; `Bench.run()` returns the results dict that becomes the JSON."""
+
 from __future__ import annotations
 
 import copy
@@ -34,7 +35,7 @@ from .targets import evaluate_targets
 from .timing import median
 from .transfer import CopyPeer
 
-CLOCK_WARMUP_S = 0.4   # seconds of back-to-back queries before a GPU engine's timed runs (see raise_clocks)
+CLOCK_WARMUP_S = 0.4  # seconds of back-to-back queries before a GPU engine's timed runs (see raise_clocks)
 
 
 class Bench:
@@ -111,7 +112,8 @@ class Bench:
         cfg = self.cfg
         self.results["meta"] = {
             "date": _dt.datetime.now().astimezone().isoformat(timespec="seconds"),
-            "command": " ".join(["hybrid"] + sys.argv[1:]) if Path(sys.argv[0]).name in ("hybrid", "__main__.py")
+            "command": " ".join(["hybrid"] + sys.argv[1:])
+            if Path(sys.argv[0]).name in ("hybrid", "__main__.py")
             else " ".join(sys.argv),
             "config": {k: (list(v) if isinstance(v, tuple) else v) for k, v in asdict(cfg).items()},
             "machine": machine_info(),
@@ -141,8 +143,9 @@ class Bench:
         for n in self.cfg.build_sizes:
             reps = max(1, self.cfg.build_reps - (1 if n > 2_000_000 else 0))
             for kind in self.cfg.build_kinds:
-                out.append(self._step(f"build: BVH of {n / 1e6:g}M triangles, {kind} x{reps}", self._build_one, kind,
-                                      n, reps))
+                out.append(
+                    self._step(f"build: BVH of {n / 1e6:g}M triangles, {kind} x{reps}", self._build_one, kind, n, reps)
+                )
         return out
 
     def _build_one(self, kind, n, reps) -> dict:
@@ -164,27 +167,42 @@ class Bench:
                 del bvh
         ms = median(runs)
         tris = int(len(f))
-        return {"kind": kind, "triangles": tris, "requested": n, "ms": ms, "runs_ms": runs, "cold_ms": cold,
-                "cpu_ms": median(cpu), "runs_cpu_ms": cpu,
-                "threads": stats["threads"], "ms_1thread": median(runs1), "runs_ms_1thread": runs1,
-                "ms_per_million": ms / (tris / 1e6), "s_per_million": ms / 1e3 / (tris / 1e6),
-                "sah_cost": stats.get("sah_cost"), "bytes": stats.get("bytes"),
-                "bytes_per_triangle": stats["bytes"] / tris if stats.get("bytes") else None,
-                "nodes": stats.get("nodes"), "leaves": stats.get("leaves"), "depth": stats.get("depth"),
-                "stats": stats}
+        return {
+            "kind": kind,
+            "triangles": tris,
+            "requested": n,
+            "ms": ms,
+            "runs_ms": runs,
+            "cold_ms": cold,
+            "cpu_ms": median(cpu),
+            "runs_cpu_ms": cpu,
+            "threads": stats["threads"],
+            "ms_1thread": median(runs1),
+            "runs_ms_1thread": runs1,
+            "ms_per_million": ms / (tris / 1e6),
+            "s_per_million": ms / 1e3 / (tris / 1e6),
+            "sah_cost": stats.get("sah_cost"),
+            "bytes": stats.get("bytes"),
+            "bytes_per_triangle": stats["bytes"] / tris if stats.get("bytes") else None,
+            "nodes": stats.get("nodes"),
+            "leaves": stats.get("leaves"),
+            "depth": stats.get("depth"),
+            "stats": stats,
+        }
 
     def run_trace(self) -> dict:
         keys = ["generated"] + (["real"] if self.cfg.real_scene is not None else [])
         out = {"scenes": [self._trace_scene(k) for k in keys]}
         if self._probe_wanted():
-            out["lavapipe_threads"] = self._step("trace (default): lavapipe threads, LP_NUM_THREADS = "
-                                                 + ", ".join(map(str, self._probe_threads())), self._thread_probe)
+            out["lavapipe_threads"] = self._step(
+                "trace (default): lavapipe threads, LP_NUM_THREADS = " + ", ".join(map(str, self._probe_threads())),
+                self._thread_probe,
+            )
         return out
 
     def _probe_wanted(self) -> bool:
         cfg = self.cfg
-        return bool(cfg.thread_probe and "trace" in cfg.sections and
-                    "llvmpipe" in self.device_choice()["name"].lower())
+        return bool(cfg.thread_probe and "trace" in cfg.sections and "llvmpipe" in self.device_choice()["name"].lower())
 
     def _probe_threads(self):
         cores = os.cpu_count() or 1
@@ -204,14 +222,25 @@ class Bench:
             np.savez(path, **arrays)
             for threads in self._probe_threads():
                 env = dict(os.environ, LP_NUM_THREADS=str(threads))
-                cmd = [sys.executable, "-m", "engine.bench.probe", str(path), str(self.cfg.reps),
-                       str(self.cfg.warmup)] + ([str(self.cfg.device)] if self.cfg.device is not None else [])
+                cmd = [
+                    sys.executable,
+                    "-m",
+                    "engine.bench.probe",
+                    str(path),
+                    str(self.cfg.reps),
+                    str(self.cfg.warmup),
+                ] + ([str(self.cfg.device)] if self.cfg.device is not None else [])
                 proc = subprocess.run(cmd, env=env, capture_output=True, text=True, cwd=str(REPO), timeout=600)
                 if proc.returncode != 0:
                     out.append({"threads": threads, "error": (proc.stderr.strip().splitlines() or ["?"])[-1]})
                     continue
-                out.append({"threads": threads, "scene": "default" if scene is self._scenes.get("real")
-                            else "generated", **json.loads(proc.stdout.strip().splitlines()[-1])})
+                out.append(
+                    {
+                        "threads": threads,
+                        "scene": "default" if scene is self._scenes.get("real") else "generated",
+                        **json.loads(proc.stdout.strip().splitlines()[-1]),
+                    }
+                )
         return out
 
     def _trace_scene(self, key) -> dict:
@@ -225,39 +254,52 @@ class Bench:
             sets = gbuffer_raysets(scene, frame, rng)
             count = cfg.random_rays or self.renderer().width * self.renderer().height
             sets.append(random_rayset(scene, count, rng))
-            sets.append(scattered_rayset(scene, len(sets[0]), rng))   # as many as the G-buffer's shadow rays
+            sets.append(scattered_rayset(scene, len(sets[0]), rng))  # as many as the G-buffer's shadow rays
             return scene, frame, sets
+
         scene, frame, sets = self._step(f"trace ({tag}): scene, G-buffer, rays", prepare)
         diag = scene_diag(scene)
         v = np.asarray(scene.positions, np.float32)
         f = np.asarray(scene.indices, np.int64)
-        res = {"scene": tag, "name": scene.name, "triangles": scene.triangle_count, "diagonal": diag,
-               "gbuffer_size": [self.renderer().width, self.renderer().height],
-               "frame_timings_ms": dict(frame.timings), "setup_ms": {}, "engines": {}, "raysets": []}
+        res = {
+            "scene": tag,
+            "name": scene.name,
+            "triangles": scene.triangle_count,
+            "diagonal": diag,
+            "gbuffer_size": [self.renderer().width, self.renderer().height],
+            "frame_timings_ms": dict(frame.timings),
+            "setup_ms": {},
+            "engines": {},
+            "raysets": [],
+        }
         engines: dict = {}
         try:
+
             def build_ours():
                 t0 = time.perf_counter()
                 e = OursEngine(v, f, device=cfg.device, validation=cfg.validation)
                 res["setup_ms"]["ours"] = (time.perf_counter() - t0) * 1e3
                 res["bvh_stats"] = e.stats
                 return e
+
             engines["ours"] = self._step(f"trace ({tag}): our BVH build + upload", build_ours)
             res["engines"]["ours"] = {"label": engines["ours"].label, "threads": engines["ours"].threads}
             for name in cfg.peers:
+
                 def build_peer(name=name):
                     t0 = time.perf_counter()
                     e, why = make_peer(name, v, f, built=engines)
                     if e is not None:
                         res["setup_ms"][name] = (time.perf_counter() - t0) * 1e3
                     return e, why
+
                 e, why = self._step(f"trace ({tag}): {name} scene build", build_peer)
                 if e is None:
                     res["engines"][name] = {"skipped": why}
                 else:
                     engines[name] = e
                     res["engines"][name] = {"label": e.label, "threads": e.threads}
-                    if getattr(e, "tried", None):   # Mitsuba: the variants tried before the one it runs, and why
+                    if getattr(e, "tried", None):  # Mitsuba: the variants tried before the one it runs, and why
                         res["engines"][name]["tried"] = list(e.tried)
             # the plain copy of each ray set's bytes, on our Tracer's device: what the bus allows
             engines["copy"] = CopyPeer(engines["ours"].tracer.ctx, max(len(rs) for rs in sets))
@@ -267,7 +309,7 @@ class Bench:
         finally:
             for e in engines.values():
                 if isinstance(e, OursEngine):
-                    e.close()   # leaks show up at close, as validation errors
+                    e.close()  # leaks show up at close, as validation errors
                     self.tracer_validation_errors += e.validation_errors
                 else:
                     e.close()
@@ -275,9 +317,17 @@ class Bench:
 
     def _trace_rayset(self, tag, rs: RaySet, engines, diag) -> dict:
         cfg = self.cfg
-        out = {"name": rs.name, "kind": rs.kind, "title": RAYSET_TITLES[rs.name], "rays": len(rs),
-               "tmax": rs.tmax if np.isfinite(rs.tmax) else "inf", "note": rs.note, "results": {}, "agreement": {},
-               "ratio": {}}
+        out = {
+            "name": rs.name,
+            "kind": rs.kind,
+            "title": RAYSET_TITLES[rs.name],
+            "rays": len(rs),
+            "tmax": rs.tmax if np.isfinite(rs.tmax) else "inf",
+            "note": rs.note,
+            "results": {},
+            "agreement": {},
+            "ratio": {},
+        }
         answers, gpu, walls = {}, {}, {}
         names = [name for name in ("ours",) + tuple(cfg.peers) if name in engines]
 
@@ -289,13 +339,14 @@ class Bench:
                 gpu[name].append(engines[name].last_gpu_ms)
             return wall
 
-        for name in names:   # untimed preparation (a peer's kernel compile) and warm-up runs, one engine at a time
+        for name in names:  # untimed preparation (a peer's kernel compile) and warm-up runs, one engine at a time
             gpu[name], walls[name] = [], []
 
             def warm(name=name):
                 engines[name].prepare(rs)
                 for _ in range(cfg.warmup):
                     once(name)
+
             self._step(f"trace ({tag}): {RAYSET_TITLES[rs.name]} ({name}, warm-up)", warm)
             gpu[name].clear()
 
@@ -328,45 +379,61 @@ class Bench:
                     for _ in range(max(cfg.reps, 1)):
                         copy.run(rs.origins, rs.directions, np.full(len(rs), rs.tmax, np.float32), rs.kind)
                         copy_walls.append(copy.last_wall_ms / 1e3)
+
         self._step(f"trace ({tag}): {RAYSET_TITLES[rs.name]} (timed runs, ours back to back)", timed)
         n = len(rs)
         out["clock_warmup"] = clock_warmup
         for name in names:
             wall = median(walls[name])
-            r = {"wall_ms": wall * 1e3, "runs_wall_ms": [w * 1e3 for w in walls[name]],
-                 "mrays_wall": n / wall / 1e6 if wall > 0 else None}
+            r = {
+                "wall_ms": wall * 1e3,
+                "runs_wall_ms": [w * 1e3 for w in walls[name]],
+                "mrays_wall": n / wall / 1e6 if wall > 0 else None,
+            }
             if name == "ours":
                 g = median(gpu[name])
-                r.update(gpu_ms=g, runs_gpu_ms=gpu[name], mrays_gpu=n / (g * 1e-3) / 1e6 if g > 0 else None,
-                         host_ms=wall * 1e3 - g, gpu_fraction_of_wall=g / (wall * 1e3),
-                         # the chunks' trace timestamps add up to no more than the query's wall clock
-                         timestamps_plausible=bool(0 < g <= 1.05 * wall * 1e3 + 0.05))
+                r.update(
+                    gpu_ms=g,
+                    runs_gpu_ms=gpu[name],
+                    mrays_gpu=n / (g * 1e-3) / 1e6 if g > 0 else None,
+                    host_ms=wall * 1e3 - g,
+                    gpu_fraction_of_wall=g / (wall * 1e3),
+                    # the chunks' trace timestamps add up to no more than the query's wall clock
+                    timestamps_plausible=bool(0 < g <= 1.05 * wall * 1e3 + 0.05),
+                )
             out["results"][name] = r
         if copy_walls and out["results"].get("ours"):
             cw = median(copy_walls)
-            out["results"]["copy"] = {"wall_ms": cw * 1e3, "runs_wall_ms": [w * 1e3 for w in copy_walls],
-                                      "mrays_wall": n / cw / 1e6 if cw > 0 else None,
-                                      "bytes": n * (28 + (4 if rs.kind == "occluded" else 16))}
+            out["results"]["copy"] = {
+                "wall_ms": cw * 1e3,
+                "runs_wall_ms": [w * 1e3 for w in copy_walls],
+                "mrays_wall": n / cw / 1e6 if cw > 0 else None,
+                "bytes": n * (28 + (4 if rs.kind == "occluded" else 16)),
+            }
             out["ratio"]["copy"] = {"wall": cw / median(walls["ours"])}
         ours = out["results"].get("ours")
         for name in cfg.peers:
             if name in out["results"] and ours:
                 peer = out["results"][name]
-                out["ratio"][name] = {"gpu": ours["mrays_gpu"] / peer["mrays_wall"] if ours.get("mrays_gpu") else None,
-                                      "wall": ours["mrays_wall"] / peer["mrays_wall"]}
-                out["agreement"][name] = agreement(rs.kind, answers["ours"], engines[name].answer(answers[name]),
-                                                   diag)
+                out["ratio"][name] = {
+                    "gpu": ours["mrays_gpu"] / peer["mrays_wall"] if ours.get("mrays_gpu") else None,
+                    "wall": ours["mrays_wall"] / peer["mrays_wall"],
+                }
+                out["agreement"][name] = agreement(rs.kind, answers["ours"], engines[name].answer(answers[name]), diag)
         return out
 
     def run_frame(self) -> list[dict]:
         out = []
         for key in self._frame_scene_keys():
-            tag = {"generated": "generated", "real": "default", "target": "default-1light",
-                   "mid": f"generated-{self.cfg.mid_tris // 1000}k"}[key]
+            tag = {
+                "generated": "generated",
+                "real": "default",
+                "target": "default-1light",
+                "mid": f"generated-{self.cfg.mid_tris // 1000}k",
+            }[key]
             settings = {"ao_samples": 1} if key in ("target", "mid") else {}
             scene = self._step(f"frame ({tag}): load scene", self._frame_scene, key)
-            out.append(self._step(f"frame ({tag}): render x{self.cfg.frame_reps}", self._frame, tag, scene,
-                                  settings))
+            out.append(self._step(f"frame ({tag}): render x{self.cfg.frame_reps}", self._frame, tag, scene, settings))
         return out
 
     def _dataset(self, r, scene, settings) -> dict:
@@ -377,8 +444,14 @@ class Bench:
         center = scene.center
         eye = np.asarray(scene.camera.eye, float)
         radius = float(np.linalg.norm((eye - center)[[0, 2]])) or 1.0
-        cams = [Camera.look_at(center + [radius * math.sin(a), eye[1] - center[1], radius * math.cos(a)], center,
-                               fov_y=scene.camera.fov_y) for a in np.linspace(0, 2 * math.pi, n, endpoint=False)]
+        cams = [
+            Camera.look_at(
+                center + [radius * math.sin(a), eye[1] - center[1], radius * math.cos(a)],
+                center,
+                fov_y=scene.camera.fov_y,
+            )
+            for a in np.linspace(0, 2 * math.pi, n, endpoint=False)
+        ]
         for _ in range(2):
             r.render(scene, cams[0], aovs=DATASET_AOVS, **settings)
         walls = []
@@ -386,7 +459,7 @@ class Bench:
             t0 = time.perf_counter()
             r.render(scene, cams[0], aovs=DATASET_AOVS, **settings)
             walls.append((time.perf_counter() - t0) * 1e3)
-        list(r.render_many(scene, cams[:4], aovs=DATASET_AOVS, **settings))   # warm: both slots recorded
+        list(r.render_many(scene, cams[:4], aovs=DATASET_AOVS, **settings))  # warm: both slots recorded
         gpu = []
         t0 = time.perf_counter()
         for frame in r.render_many(scene, cams, aovs=DATASET_AOVS, **settings):
@@ -395,15 +468,23 @@ class Bench:
         buf, offsets = r.targets.readback(r.ctx, DATASET_AOVS, 0)
         pixels = r.width * r.height
         aov_bytes = sum(AOVS[name].bytes * pixels for name in DATASET_AOVS)
-        return {"aovs": list(DATASET_AOVS), "frames": n, "render_wall_ms": median(walls), "runs_render_wall_ms": walls,
-                "many_wall_ms_per_frame": wall, "many_fps": 1e3 / wall, "many_gpu_ms_per_frame": median(gpu),
-                "many_wall_over_gpu": wall / median(gpu) if median(gpu) else None,
-                "readback_bytes": int(buf.size), "aov_bytes": int(aov_bytes)}
+        return {
+            "aovs": list(DATASET_AOVS),
+            "frames": n,
+            "render_wall_ms": median(walls),
+            "runs_render_wall_ms": walls,
+            "many_wall_ms_per_frame": wall,
+            "many_fps": 1e3 / wall,
+            "many_gpu_ms_per_frame": median(gpu),
+            "many_wall_over_gpu": wall / median(gpu) if median(gpu) else None,
+            "readback_bytes": int(buf.size),
+            "aov_bytes": int(aov_bytes),
+        }
 
     def _frame_scene(self, key):
         if key != "target":
             return self.scene(key)
-        if "target" not in self._scenes:   # the default scene with its first light only (a shallow copy)
+        if "target" not in self._scenes:  # the default scene with its first light only (a shallow copy)
             s = copy.copy(self.scene("real"))
             s.lights = list(s.lights[:1])
             self._scenes["target"] = s
@@ -464,15 +545,26 @@ class Bench:
             return shadow_rays / (ms * 1e-3) / 1e9 if lights == 1 and ms and ms > 0 else None
 
         dataset = self._dataset(r, scene, settings) if tag == "default-1light" else None
-        return {"dataset": dataset,
-                "shadow_rays": shadow_rays, "shadow_pass_grays": grays(per_pass.get("shadows")),
-                "viewer_shadow_pass_grays": grays(steady_passes.get("shadows")),
-                "scene": tag, "name": scene.name, "triangles": scene.triangle_count, "size": [r.width, r.height],
-                "lights": lights, "settings": dict(fr.settings), "passes_ms": per_pass,
-                "gpu_total_ms": median(totals), "runs_gpu_total_ms": totals,
-                "viewer_passes_ms": steady_passes, "viewer_gpu_total_ms": median(steady_totals),
-                "runs_viewer_gpu_total_ms": steady_totals,
-                "render_wall_ms": median(walls), "runs_render_wall_ms": walls,
-                "submit_host_ms": median(host), "submit_host_cpu_ms": median(host_cpu),
-                "submit_gpu_total_ms": median(sub_gpu)}
-
+        return {
+            "dataset": dataset,
+            "shadow_rays": shadow_rays,
+            "shadow_pass_grays": grays(per_pass.get("shadows")),
+            "viewer_shadow_pass_grays": grays(steady_passes.get("shadows")),
+            "scene": tag,
+            "name": scene.name,
+            "triangles": scene.triangle_count,
+            "size": [r.width, r.height],
+            "lights": lights,
+            "settings": dict(fr.settings),
+            "passes_ms": per_pass,
+            "gpu_total_ms": median(totals),
+            "runs_gpu_total_ms": totals,
+            "viewer_passes_ms": steady_passes,
+            "viewer_gpu_total_ms": median(steady_totals),
+            "runs_viewer_gpu_total_ms": steady_totals,
+            "render_wall_ms": median(walls),
+            "runs_render_wall_ms": walls,
+            "submit_host_ms": median(host),
+            "submit_host_cpu_ms": median(host_cpu),
+            "submit_gpu_total_ms": median(sub_gpu),
+        }

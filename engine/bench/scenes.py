@@ -13,6 +13,7 @@ lumpy surface of nearly uniform triangles, the way a scanned object is tessellat
 `generated_scene(n)` wraps it as an `engine.Scene` with smooth normals, a few materials, a low sun and a camera
 looking across the terrain, ready for the Renderer (the G-buffer rays of the trace benchmark).
 """
+
 from __future__ import annotations
 
 import numpy as np
@@ -21,8 +22,8 @@ from ..errors import ConfigError
 from ..scene import Camera, DirectionalLight, Material, Scene, SubMesh
 from .config import BUILD_KINDS
 
-TERRAIN_SIZE = 200.0      # the terrain spans [-100, 100] in x and z
-TERRAIN_HEIGHT = 6.0      # amplitude of its noise (metres)
+TERRAIN_SIZE = 200.0  # the terrain spans [-100, 100] in x and z
+TERRAIN_HEIGHT = 6.0  # amplitude of its noise (metres)
 SUN_DIRECTION = (0.55, -0.55, 0.35)
 
 
@@ -51,12 +52,13 @@ def _terrain(grid, waves):
     i, j = np.meshgrid(np.arange(grid), np.arange(grid), indexing="xy")
     a = (j * (grid + 1) + i).reshape(-1)
     b, c, d = a + 1, a + grid + 2, a + grid + 1
-    f = np.concatenate([np.stack([a, d, c], 1), np.stack([a, c, b], 1)])   # counter-clockwise seen from +y
+    f = np.concatenate([np.stack([a, d, c], 1), np.stack([a, c, b], 1)])  # counter-clockwise seen from +y
     return v, f
 
 
 def _icosphere(subdiv):
-    import trimesh   # heavy to import: loaded only when a generated scene is made
+    import trimesh  # heavy to import: loaded only when a generated scene is made
+
     s = trimesh.creation.icosphere(subdivisions=subdiv)
     return np.asarray(s.vertices, np.float64), np.asarray(s.faces, np.int64)
 
@@ -80,7 +82,8 @@ def _lumpy_spheres(rng, count, subdiv, waves):
 
 
 def _boxes(rng, count, waves):
-    import trimesh   # heavy to import: loaded only when a generated scene is made
+    import trimesh  # heavy to import: loaded only when a generated scene is made
+
     b = trimesh.creation.box()
     bv, bf = np.asarray(b.vertices), np.asarray(b.faces)
     size = rng.uniform(0.3, 3.0, (count, 3)) * np.array([1.0, 2.0, 1.0])
@@ -103,8 +106,8 @@ def generated_parts(n_tris: int, seed: int = 0):
     rng = np.random.default_rng(seed)
     waves = _waves(rng, 9, 2 * np.pi / 120.0)
     n_boxes = min(400, n_tris // 200)
-    subdiv = 4 if n_tris >= 200_000 else 3                  # 5120 or 1280 triangles per sphere
-    per_sphere = 20 * 4 ** subdiv
+    subdiv = 4 if n_tris >= 200_000 else 3  # 5120 or 1280 triangles per sphere
+    per_sphere = 20 * 4**subdiv
     n_spheres = max(1, int(0.4 * n_tris) // per_sphere)
     rest = n_tris - n_spheres * per_sphere - 12 * n_boxes
     grid = max(4, int(round(np.sqrt(max(rest, 32) / 2))))
@@ -204,6 +207,14 @@ def generated_scene(n_tris: int = 1_200_000, seed: int = 0):
         first_tri += len(f)
     materials = [Material(name, colors[name]) for name in colors]
     camera = Camera.look_at((-20.0, 28.0, 95.0), (5.0, 0.0, 10.0), fov_y=55.0)
-    return Scene(np.concatenate(vs), np.concatenate(fs), normals=np.concatenate(ns), vertex_material=np.concatenate(vm),
-                 materials=materials, lights=[DirectionalLight(SUN_DIRECTION, intensity=3.0)], camera=camera,
-                 name=f"<generated {first_tri} triangles, seed {seed}>", submeshes=subs)
+    return Scene(
+        np.concatenate(vs),
+        np.concatenate(fs),
+        normals=np.concatenate(ns),
+        vertex_material=np.concatenate(vm),
+        materials=materials,
+        lights=[DirectionalLight(SUN_DIRECTION, intensity=3.0)],
+        camera=camera,
+        name=f"<generated {first_tri} triangles, seed {seed}>",
+        submeshes=subs,
+    )

@@ -1,4 +1,5 @@
 """The goals of issues 3, 6, 16 and 19 judged on a bench's results: pass / miss with the margin, or not measured."""
+
 from __future__ import annotations
 
 
@@ -9,9 +10,17 @@ def _target(issue, what, measured, target, unit, higher_is_better, note=""):
     # margin > 1: better than the goal by that factor; < 1: the goal needs 1 / margin times better
     margin = measured / target if higher_is_better else target / measured if measured else float("inf")
     by = f"{margin:.2f}x margin" if ok else f"needs {1 / margin:.2f}x"
-    return {"issue": issue, "target": what, "goal": target, "measured": measured, "unit": unit,
-            "status": "pass" if ok else "miss", "margin": margin, "summary": f"{'pass' if ok else 'miss'} ({by})",
-            "note": note}
+    return {
+        "issue": issue,
+        "target": what,
+        "goal": target,
+        "measured": measured,
+        "unit": unit,
+        "status": "pass" if ok else "miss",
+        "margin": margin,
+        "summary": f"{'pass' if ok else 'miss'} ({by})",
+        "note": note,
+    }
 
 
 def evaluate_targets(results: dict) -> list[dict]:
@@ -20,18 +29,28 @@ def evaluate_targets(results: dict) -> list[dict]:
         kind = b.get("kind", "generated")
         m = f"{kind}, {b['triangles'] / 1e6:.1f}M triangles"
         if kind == "generated" and b["triangles"] >= 900_000:
-            out.append(_target(3, f"BVH build <= 1.0 s per million triangles ({m})", b["s_per_million"], 1.0,
-                               "s/M", False))
-            out.append(_target(6, f"BVH build <= 0.5 s per million triangles ({m})", b["s_per_million"], 0.5,
-                               "s/M", False))
-        out.append(_target(19, f"BVH build <= 1.0 s per million triangles on every mesh kind ({m})",
-                           b["s_per_million"], 1.0, "s/M", False))
+            out.append(
+                _target(3, f"BVH build <= 1.0 s per million triangles ({m})", b["s_per_million"], 1.0, "s/M", False)
+            )
+            out.append(
+                _target(6, f"BVH build <= 0.5 s per million triangles ({m})", b["s_per_million"], 0.5, "s/M", False)
+            )
+        out.append(
+            _target(
+                19,
+                f"BVH build <= 1.0 s per million triangles on every mesh kind ({m})",
+                b["s_per_million"],
+                1.0,
+                "s/M",
+                False,
+            )
+        )
     device = results.get("meta", {}).get("device", {})
     cpu_device = device.get("type") == "CPU"
     for sc in results.get("trace", {}).get("scenes", []):
         for rs in sc["raysets"]:
             if rs["kind"] != "occluded" or "open3d" not in rs["ratio"] or rs["name"] == "scattered":
-                continue   # (issues 3 and 6 name the G-buffer's ray sets)
+                continue  # (issues 3 and 6 name the G-buffer's ray sets)
             ratio = rs["ratio"]["open3d"]
             for basis in ("wall", "gpu"):
                 where = f"{sc['scene']} scene, {rs['name']} rays, {'wall clock' if basis == 'wall' else 'GPU time'}"
@@ -41,52 +60,119 @@ def evaluate_targets(results: dict) -> list[dict]:
     gpu_device = device and not cpu_device
     size = results.get("meta", {}).get("size")
     big = [sc for sc in results.get("trace", {}).get("scenes", []) if sc["triangles"] >= 300_000]
-    note_gpu = "" if gpu_device else ("needs a GPU; this run's device is a CPU" if device else
-                                      "needs a GPU and the trace/frame sections")
+    note_gpu = (
+        ""
+        if gpu_device
+        else ("needs a GPU; this run's device is a CPU" if device else "needs a GPU and the trace/frame sections")
+    )
     shadow = ao = None
     if gpu_device and big and size == [1920, 1080]:
         rs = {r["name"]: r for r in big[0]["raysets"]}
         shadow = rs["shadow"]["results"]["ours"].get("mrays_gpu")
         ao = rs["ao"]["results"]["ours"].get("mrays_gpu")
-    out.append(_target(6, f"GPU: 1920x1080 shadow rays >= 4 Grays/s, batch Tracer ({big[0]['scene'] if big else '-'} "
-                          f"scene, {big[0]['triangles'] if big else 0:,} triangles)",
-                       shadow / 1e3 if shadow else None, 4.0, "Grays/s", True, note_gpu))
+    out.append(
+        _target(
+            6,
+            f"GPU: 1920x1080 shadow rays >= 4 Grays/s, batch Tracer ({big[0]['scene'] if big else '-'} "
+            f"scene, {big[0]['triangles'] if big else 0:,} triangles)",
+            shadow / 1e3 if shadow else None,
+            4.0,
+            "Grays/s",
+            True,
+            note_gpu,
+        )
+    )
     # the same target met by the renderer's own shadow pass (G-buffer in, light mask out; frames back to back) on the
     # smallest frame scene of >= 300k triangles
-    passes = sorted((fr for fr in results.get("frame", []) if fr["triangles"] >= 300_000
-                     and fr.get("viewer_shadow_pass_grays")), key=lambda fr: fr["triangles"])
+    passes = sorted(
+        (fr for fr in results.get("frame", []) if fr["triangles"] >= 300_000 and fr.get("viewer_shadow_pass_grays")),
+        key=lambda fr: fr["triangles"],
+    )
     pass_grays = passes[0]["viewer_shadow_pass_grays"] if gpu_device and passes and size == [1920, 1080] else None
     where = f"{passes[0]['scene']}, {passes[0]['triangles']:,} triangles" if passes else ">= 300k triangles"
-    out.append(_target(6, f"GPU: 1920x1080 shadow rays >= 4 Grays/s, the renderer's shadow pass ({where})",
-                       pass_grays, 4.0, "Grays/s", True,
-                       note_gpu or "rays traced / shadow pass GPU ms, frames back to back"))
-    out.append(_target(6, "GPU: 1920x1080 AO rays >= 1.5 Grays/s", ao / 1e3 if ao else None, 1.5, "Grays/s", True,
-                       note_gpu))
+    out.append(
+        _target(
+            6,
+            f"GPU: 1920x1080 shadow rays >= 4 Grays/s, the renderer's shadow pass ({where})",
+            pass_grays,
+            4.0,
+            "Grays/s",
+            True,
+            note_gpu or "rays traced / shadow pass GPU ms, frames back to back",
+        )
+    )
+    out.append(
+        _target(6, "GPU: 1920x1080 AO rays >= 1.5 Grays/s", ao / 1e3 if ao else None, 1.5, "Grays/s", True, note_gpu)
+    )
     frame_ms = None
     for fr in results.get("frame", []):
         if gpu_device and fr["size"] == [1920, 1080] and fr["scene"] == "default-1light":
             frame_ms = fr.get("viewer_gpu_total_ms", fr["gpu_total_ms"])
-    out.append(_target(6, "GPU: full 1920x1080 frame <= 2 ms GPU (1 light, hard shadows, 1 AO ray, denoise)",
-                       frame_ms, 2.0, "ms", False, note_gpu or "frames back to back, no readback (the viewer's)"))
+    out.append(
+        _target(
+            6,
+            "GPU: full 1920x1080 frame <= 2 ms GPU (1 light, hard shadows, 1 AO ray, denoise)",
+            frame_ms,
+            2.0,
+            "ms",
+            False,
+            note_gpu or "frames back to back, no readback (the viewer's)",
+        )
+    )
     for fr in results.get("frame", []):
         ds = fr.get("dataset")
         if not ds:
             continue
         what = f"{fr['size'][0]}x{fr['size'][1]}, {fr['scene']}, {' + '.join(ds['aovs'])}"
         if gpu_device and fr["size"] == [1920, 1080]:
-            out.append(_target(16, f"GPU: render_many >= 150 frames/s to numpy ({what})", ds["many_fps"], 150.0,
-                               "frames/s", True))
-            out.append(_target(16, f"GPU: one render() with those AOVs <= 12 ms wall ({what})", ds["render_wall_ms"],
-                               12.0, "ms", False))
+            out.append(
+                _target(
+                    16, f"GPU: render_many >= 150 frames/s to numpy ({what})", ds["many_fps"], 150.0, "frames/s", True
+                )
+            )
+            out.append(
+                _target(
+                    16,
+                    f"GPU: one render() with those AOVs <= 12 ms wall ({what})",
+                    ds["render_wall_ms"],
+                    12.0,
+                    "ms",
+                    False,
+                )
+            )
         if cpu_device:
-            out.append(_target(16, f"lavapipe: render_many wall <= 1.15x the frame's GPU time ({what})",
-                               ds["many_wall_over_gpu"], 1.15, "x", False))
-        out.append(_target(16, f"bytes read back per frame = the AOVs' bytes ({what})", ds["readback_bytes"],
-                           ds["aov_bytes"], "bytes", False, "each part aligned to 16 bytes"))
+            out.append(
+                _target(
+                    16,
+                    f"lavapipe: render_many wall <= 1.15x the frame's GPU time ({what})",
+                    ds["many_wall_over_gpu"],
+                    1.15,
+                    "x",
+                    False,
+                )
+            )
+        out.append(
+            _target(
+                16,
+                f"bytes read back per frame = the AOVs' bytes ({what})",
+                ds["readback_bytes"],
+                ds["aov_bytes"],
+                "bytes",
+                False,
+                "each part aligned to 16 bytes",
+            )
+        )
     for fr in results.get("frame", []):
         if fr["scene"] == "default":
-            out.append(_target(6, "host (Python) CPU time per frame <= 0.3 ms (Renderer.submit, static scene)",
-                               fr["submit_host_cpu_ms"], 0.3, "ms", False,
-                               "submit() without readback; a viewer adds swapchain acquire/present"))
+            out.append(
+                _target(
+                    6,
+                    "host (Python) CPU time per frame <= 0.3 ms (Renderer.submit, static scene)",
+                    fr["submit_host_cpu_ms"],
+                    0.3,
+                    "ms",
+                    False,
+                    "submit() without readback; a viewer adds swapchain acquire/present",
+                )
+            )
     return out
-

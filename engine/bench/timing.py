@@ -1,4 +1,5 @@
 """Medians and repeated timed runs: every bench figure is a median over repetitions after warm-up runs."""
+
 from __future__ import annotations
 
 import statistics

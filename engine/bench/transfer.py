@@ -7,6 +7,7 @@ numpy copies go), copies them to a device-local buffer and the query's result by
 mapped buffer in one command buffer (recorded once per size), and copies those into a new numpy array (every core
 again): no checks, no tracing and no overlap, the floor our streamed path is judged against (`ratio` = our rays/s
 over its rays/s on the same bytes)."""
+
 from __future__ import annotations
 
 import time
@@ -50,21 +51,22 @@ class CopyPeer:
         n = len(origins)
         t0 = time.perf_counter()
         f32 = self.up.view(np.float32)
-        o, d = f32[:3 * n].reshape(n, 3), f32[3 * n:6 * n].reshape(n, 3)
-        t = f32[6 * n:7 * n]
+        o, d = f32[: 3 * n].reshape(n, 3), f32[3 * n : 6 * n].reshape(n, 3)
+        t = f32[6 * n : 7 * n]
         threads = default_threads()
         step = max(1 << 15, -(-n // threads))
 
         def up(s):
-            np.copyto(o[s:s + step], origins[s:s + step])
-            np.copyto(d[s:s + step], directions[s:s + step])
-            np.copyto(t[s:s + step], tmax[s:s + step])
+            np.copyto(o[s : s + step], origins[s : s + step])
+            np.copyto(d[s : s + step], directions[s : s + step])
+            np.copyto(t[s : s + step], tmax[s : s + step])
+
         blocks(up, n, step, threads)
         down = n * HIT_BYTES[kind]
         self.scope.submit(self._command(n * RAY_BYTES, down))
         out = np.empty(down, np.uint8)
         back, size = self.down.view()[:down], max(1 << 17, -(-down // threads))
-        blocks(lambda s: np.copyto(out[s:s + size], back[s:s + size]), down, size, threads)
+        blocks(lambda s: np.copyto(out[s : s + size], back[s : s + size]), down, size, threads)
         self.last_wall_ms = (time.perf_counter() - t0) * 1e3
         return out
 
@@ -87,8 +89,16 @@ def time_back_to_back(fn, reps: int, warmup: int) -> list[float]:
 def stream_figures(n: int, ours_walls, ours_gpu_ms, copy_walls) -> dict:
     """Medians and ratios of a streamed query and the plain copy of the same rays' bytes."""
     wall, g, copy_wall = median(ours_walls), median(ours_gpu_ms), median(copy_walls)
-    return {"rays": n, "wall_ms": wall * 1e3, "runs_wall_ms": [w * 1e3 for w in ours_walls],
-            "mrays_wall": n / wall / 1e6, "gpu_ms": g, "mrays_gpu": n / (g * 1e-3) / 1e6 if g > 0 else None,
-            "wall_over_gpu": wall * 1e3 / g if g > 0 else None,
-            "copy_wall_ms": copy_wall * 1e3, "runs_copy_wall_ms": [w * 1e3 for w in copy_walls],
-            "copy_mrays": n / copy_wall / 1e6, "ratio_to_copy": copy_wall / wall}
+    return {
+        "rays": n,
+        "wall_ms": wall * 1e3,
+        "runs_wall_ms": [w * 1e3 for w in ours_walls],
+        "mrays_wall": n / wall / 1e6,
+        "gpu_ms": g,
+        "mrays_gpu": n / (g * 1e-3) / 1e6 if g > 0 else None,
+        "wall_over_gpu": wall * 1e3 / g if g > 0 else None,
+        "copy_wall_ms": copy_wall * 1e3,
+        "runs_copy_wall_ms": [w * 1e3 for w in copy_walls],
+        "copy_mrays": n / copy_wall / 1e6,
+        "ratio_to_copy": copy_wall / wall,
+    }

@@ -44,8 +44,9 @@ def cell_axis(c, inv, off, gmax_t, idx, out=None):
     return out
 
 
-def cell_stats(cen, box, tid, slot, mask, inv, off, gmax, grid, cell_base, cell_step, n_cells: int,
-               want_cells: bool = False):
+def cell_stats(
+    cen, box, tid, slot, mask, inv, off, gmax, grid, cell_base, cell_step, n_cells: int, want_cells: bool = False
+):
     """(cells, count, box) of every cell of a pass: counts (n_cells,) int64 and boxes (6, n_cells) float32 (+inf
     where empty) of the triangles `tid` (increasing; None: all) of the nodes `slot` that their node samples,
     (tid & mask[slot]) == 0 (mask None: every one; mask < 0: a node not binned). Cell (x, y, z) of node k has key
@@ -161,12 +162,32 @@ _EDGES = [(d, c) for d in range(3) for c in range(8) if not c & _BITS[d]]  # (di
 _EDGE_ID = {e: i for i, e in enumerate(_EDGES)}
 _OTHERS = ((1, 2), (0, 2), (0, 1))
 # _FACE_EDGES[a][s]: the two edges (along the first other axis) whose union is the half of side s along axis a
-_FACE_EDGES = [[[_EDGE_ID[(_OTHERS[a][0], c)] for c in range(8)
-                 if bool(c & _BITS[a]) == bool(s) and not c & _BITS[_OTHERS[a][0]]] for s in (0, 1)] for a in range(3)]
+_FACE_EDGES = [
+    [
+        [
+            _EDGE_ID[(_OTHERS[a][0], c)]
+            for c in range(8)
+            if bool(c & _BITS[a]) == bool(s) and not c & _BITS[_OTHERS[a][0]]
+        ]
+        for s in (0, 1)
+    ]
+    for a in range(3)
+]
 # _SPLIT_EDGES[a][s][j] = (left, right): halves of side s of axis a, split along axis _OTHERS[a][j]; each is an edge
 # along the remaining axis
-_SPLIT_EDGES = [[[tuple(_EDGE_ID[(3 - a - _OTHERS[a][j], (_BITS[a] if s else 0) | (_BITS[_OTHERS[a][j]] if t else 0))]
-                        for t in (0, 1)) for j in (0, 1)] for s in (0, 1)] for a in range(3)]
+_SPLIT_EDGES = [
+    [
+        [
+            tuple(
+                _EDGE_ID[(3 - a - _OTHERS[a][j], (_BITS[a] if s else 0) | (_BITS[_OTHERS[a][j]] if t else 0))]
+                for t in (0, 1)
+            )
+            for j in (0, 1)
+        ]
+        for s in (0, 1)
+    ]
+    for a in range(3)
+]
 
 
 # index tables of octant_sah, whole-array form
@@ -189,8 +210,8 @@ def _edges(cbox: np.ndarray, cnt: np.ndarray, k: int) -> tuple:
     for a in range(3):
         lo = (slice(None),) * (a + 1) + (0,)
         hi = (slice(None),) * (a + 1) + (1,)
-        np.minimum(g[lo], g[hi], out=ebox[:, 4 * a:4 * a + 4].reshape(6, 2, 2, k))
-        np.add(c[lo[1:]], c[hi[1:]], out=ecnt[4 * a:4 * a + 4].reshape(2, 2, k))
+        np.minimum(g[lo], g[hi], out=ebox[:, 4 * a : 4 * a + 4].reshape(6, 2, 2, k))
+        np.add(c[lo[1:]], c[hi[1:]], out=ecnt[4 * a : 4 * a + 4].reshape(2, 2, k))
     return ebox, ecnt
 
 
@@ -219,9 +240,17 @@ def octant_sah(cnt, cbox, exact: np.ndarray, cap: np.ndarray, cap2: np.ndarray, 
     if k <= OCTANT_BLOCK:
         return _octant_sah(cnt, cbox, exact, cap, cap2, max_leaf)
     cnt, cbox = cnt.reshape(8, k), cbox.reshape(6, 8, k)
-    parts = [_octant_sah(cnt[:, a:a + OCTANT_BLOCK], cbox[..., a:a + OCTANT_BLOCK], exact[a:a + OCTANT_BLOCK],
-                         cap[a:a + OCTANT_BLOCK], cap2[a:a + OCTANT_BLOCK], max_leaf)
-             for a in range(0, k, OCTANT_BLOCK)]
+    parts = [
+        _octant_sah(
+            cnt[:, a : a + OCTANT_BLOCK],
+            cbox[..., a : a + OCTANT_BLOCK],
+            exact[a : a + OCTANT_BLOCK],
+            cap[a : a + OCTANT_BLOCK],
+            cap2[a : a + OCTANT_BLOCK],
+            max_leaf,
+        )
+        for a in range(0, k, OCTANT_BLOCK)
+    ]
     return tuple(np.concatenate(xs, axis=-1) for xs in zip(*parts))
 
 

@@ -61,8 +61,15 @@ class BVH:
     stats: dict = field(default_factory=dict)
 
 
-def build_bvh(vertices, faces, *, max_leaf: int = 4, max_depth: int = DEFAULT_MAX_DEPTH,
-              threads: int | None = None, lift: bool = True) -> BVH:
+def build_bvh(
+    vertices,
+    faces,
+    *,
+    max_leaf: int = 4,
+    max_depth: int = DEFAULT_MAX_DEPTH,
+    threads: int | None = None,
+    lift: bool = True,
+) -> BVH:
     """Build a BVH over the triangles `faces` (T, 3) indexing `vertices` (V, 3).
 
     max_leaf: most triangles per leaf. max_depth: deepest leaf (the root is at depth 0); the GLSL traversal needs a
@@ -107,7 +114,8 @@ def build_bvh(vertices, faces, *, max_leaf: int = 4, max_depth: int = DEFAULT_MA
     del morton, slot_tid
     if big is None:  # 5 and 7 side by side: the node packing is serial, the triangle records need only perm
         tris, prim_ids, n_degenerate, (nodes, sah_cost) = triangle_records(
-            vt, ft, perm, threads, beside=lambda: _finished(records, leaf_boxes, leaf_first, leaf_size, n_tri))
+            vt, ft, perm, threads, beside=lambda: _finished(records, leaf_boxes, leaf_first, leaf_size, n_tri)
+        )
     else:
         nodes, sah_cost = finish(records, leaf_boxes, leaf_first, leaf_size, n_tri)
     depth = int(leaf_depth.max())
@@ -177,8 +185,10 @@ def _validated(vertices, faces):
     with np.errstate(invalid="ignore"):
         huge = np.abs(vt) > MAX_COORD  # NaN compares false: NaN vertices are allowed (their triangles are never hit)
     if huge.any():
-        raise SceneError(f"build_bvh: vertices: {int(huge.any(axis=0).sum())} vertices have a coordinate beyond "
-                         f"+-{MAX_COORD:g} (or infinite); the float32 triangle test is exact only within that bound")
+        raise SceneError(
+            f"build_bvh: vertices: {int(huge.any(axis=0).sum())} vertices have a coordinate beyond "
+            f"+-{MAX_COORD:g} (or infinite); the float32 triangle test is exact only within that bound"
+        )
     ft = np.ascontiguousarray(f, dtype=np.intp)  # (T, 3): no transposed copy of the caller's faces
     return vt, ft
 

@@ -7,6 +7,7 @@ Each node keeps a local frame (origin and a power-of-two scale per axis) and its
 in it, rounded outwards with the GPU's float32 decoding (origin + q * scale, one rounding: q * scale is exact)
 checked here, so a decoded box always contains the builder's box: no hit is lost.
 """
+
 from __future__ import annotations
 
 import numpy as np
@@ -58,7 +59,7 @@ def compress_nodes(nodes: np.ndarray) -> np.ndarray | None:
     # child boxes (M, 2 children, 3 axes); an empty leaf slot (inverted box, count 0) gets the frame's origin
     bmin = np.stack([nodes["lmin"], nodes["rmin"]], 1).astype(F32)
     bmax = np.stack([nodes["lmax"], nodes["rmax"]], 1).astype(F32)
-    inside = bmin <= bmax   # (reductions over the 2- and 3-long axes spelled out: numpy's are slow there)
+    inside = bmin <= bmax  # (reductions over the 2- and 3-long axes spelled out: numpy's are slow there)
     empty = ~(inside[..., 0] & inside[..., 1] & inside[..., 2])
     if np.any(empty & ~(leaf & (counts == 0))):
         raise ValueError("compress_nodes: an inverted box that is not an empty leaf")
@@ -74,7 +75,7 @@ def compress_nodes(nodes: np.ndarray) -> np.ndarray | None:
     hi = np.where(none, F32(0), hi)
     bmin = np.where(empty[..., None], lo[:, None, :], bmin)
     bmax = np.where(empty[..., None], lo[:, None, :], bmax)
-    origin = _origin(lo)                                           # (M, 3)
+    origin = _origin(lo)  # (M, 3)
 
     # smallest exponent with 255 * 2^(e-127) >= hi - origin; raised (for the few axes that need it) until the
     # rounded decode covers both boxes
@@ -84,7 +85,7 @@ def compress_nodes(nodes: np.ndarray) -> np.ndarray | None:
     e = np.clip(e, 1, 254)
     qlo, qhi, ok = _quantize(origin[:, None, :], e[:, None, :], bmin, bmax)
     for _ in range(64):
-        bad = ~(ok[:, 0] & ok[:, 1])                                # (M, 3): an axis whose exponent must grow
+        bad = ~(ok[:, 0] & ok[:, 1])  # (M, 3): an axis whose exponent must grow
         if not bad.any():
             break
         rows, ax = np.nonzero(bad)

@@ -33,36 +33,62 @@ import numpy as np
 
 from .. import native
 from ..parallel import run as _parallel
-from .binning import (GRID2_MAX, GRID4_MAX, OCTANT_TABLES, SAMPLE4, SAMPLE8, ceil_log2, cell_axis, cell_stats,
-                      grid_sah, octant_sah)
+from .binning import (
+    GRID2_MAX,
+    GRID4_MAX,
+    OCTANT_TABLES,
+    SAMPLE4,
+    SAMPLE8,
+    ceil_log2,
+    cell_axis,
+    cell_stats,
+    grid_sah,
+    octant_sah,
+)
 from .pack import Leaves, Record
 
 #: Once every node holds at most CHUNK triangles, groups of about CHUNK are finished separately (cache-sized data).
 CHUNK = 1 << 17
 
 
-def grow(box: np.ndarray, cen: np.ndarray, max_leaf: int, max_depth: int, stat_boxes: bool = True,
-         threads: int = 1):
+def grow(box: np.ndarray, cen: np.ndarray, max_leaf: int, max_depth: int, stat_boxes: bool = True, threads: int = 1):
     """Build the topology: records of interior nodes (node 0 = record 0, row 0 is the root), the leaf of every
     (sorted) triangle, and every leaf's size and depth."""
     n_tri = box.shape[1]
     dom = np.concatenate([box[:3].min(axis=1), -box[3:].min(axis=1)]).reshape(6, 1)  # binning domain lo, hi
-    return _grow_from(box, cen, np.arange(n_tri, dtype=np.intp), np.zeros(n_tri, dtype=np.intp),
-                      np.array([n_tri], dtype=np.int64), np.zeros(1, dtype=np.int64), dom, max_leaf, max_depth,
-                      CHUNK, stat_boxes=stat_boxes, threads=threads)
+    return _grow_from(
+        box,
+        cen,
+        np.arange(n_tri, dtype=np.intp),
+        np.zeros(n_tri, dtype=np.intp),
+        np.array([n_tri], dtype=np.int64),
+        np.zeros(1, dtype=np.int64),
+        dom,
+        max_leaf,
+        max_depth,
+        CHUNK,
+        stat_boxes=stat_boxes,
+        threads=threads,
+    )
 
 
 def trivial(box: np.ndarray, n_tri: int):
     """0 or 1 triangle: a root whose left child is a leaf with the mesh and whose right child is an empty leaf."""
     rec = Record(child=np.array([[0, 1]], dtype=np.int64), rec=np.full((1, 2), -1, dtype=np.int64))
     leaves = Leaves()
-    leaves.add(box, np.arange(n_tri, dtype=np.intp), np.zeros(n_tri, dtype=np.int64),
-               np.array([n_tri, 0], dtype=np.int64), np.ones(2, np.int64))
+    leaves.add(
+        box,
+        np.arange(n_tri, dtype=np.intp),
+        np.zeros(n_tri, dtype=np.int64),
+        np.array([n_tri, 0], dtype=np.int64),
+        np.ones(2, np.int64),
+    )
     return [rec], leaves
 
 
-def _grow_from(box, cen, tid, slot, count, depth, dom, max_leaf: int, max_depth: int, chunk, stat_boxes=True,
-               threads: int = 1):
+def _grow_from(
+    box, cen, tid, slot, count, depth, dom, max_leaf: int, max_depth: int, chunk, stat_boxes=True, threads: int = 1
+):
     """The pass loop, from a set of active nodes: tid (increasing indices into box / cen) and slot of every
     active triangle; count, depth (the root is at 0) and binning domain (6, K) of every active node.
 
@@ -81,8 +107,9 @@ def _grow_from(box, cen, tid, slot, count, depth, dom, max_leaf: int, max_depth:
     n_leaves = 0
     # pending: (record index the last pass's new nodes will live in, records that point at it)
     pending = None
-    done = native.grow(box, cen, tid, slot, count, depth, dom, max_leaf, max_depth, stat_boxes, chunk,
-                       *OCTANT_TABLES, threads=threads)
+    done = native.grow(
+        box, cen, tid, slot, count, depth, dom, max_leaf, max_depth, stat_boxes, chunk, *OCTANT_TABLES, threads=threads
+    )
     if done is not None:  # in C, up to the end or the chunk groups
         made, batch, state = done
         records.extend(Record(child=child, rec=rec) for child, rec in made)
@@ -94,8 +121,24 @@ def _grow_from(box, cen, tid, slot, count, depth, dom, max_leaf: int, max_depth:
     cen_rows = None
     while count.size:
         if chunk and pending and tid.size > chunk and count.max() <= chunk:
-            n_leaves = _grow_chunks(box, cen, tid, slot, count, depth, dom, max_leaf, max_depth, chunk, records,
-                                    pending, leaves, n_leaves, stat_boxes, threads)
+            n_leaves = _grow_chunks(
+                box,
+                cen,
+                tid,
+                slot,
+                count,
+                depth,
+                dom,
+                max_leaf,
+                max_depth,
+                chunk,
+                records,
+                pending,
+                leaves,
+                n_leaves,
+                stat_boxes,
+                threads,
+            )
             break
         if depth.max() >= max_depth:  # the caps make this unreachable
             raise AssertionError("BVH depth cap violated")
@@ -139,8 +182,21 @@ def _grow_from(box, cen, tid, slot, count, depth, dom, max_leaf: int, max_depth:
 
         # statistics: one cell per (sampled) triangle
         mask = None if exact.all() else (np.int64(1) << rate_log) - 1
-        cells, cell_count, cell_box = cell_stats(cen, box, tid, slot, mask, inv, off, gmax, grid.astype(np.int32),
-                                                 cell_base, cell_step, n_cells, want_cells=mask is None)
+        cells, cell_count, cell_box = cell_stats(
+            cen,
+            box,
+            tid,
+            slot,
+            mask,
+            inv,
+            off,
+            gmax,
+            grid.astype(np.int32),
+            cell_base,
+            cell_step,
+            n_cells,
+            want_cells=mask is None,
+        )
 
         # SAH per group. Nodes on 2^3 grids also choose their children's splits from the same statistics
         # (each half is four cells: one plane along each of the two other axes), so that their triangles move
@@ -216,12 +272,17 @@ def _grow_from(box, cen, tid, slot, count, depth, dom, max_leaf: int, max_depth:
         rec_next = rec_here + (2 if n_mid else 1)
         out_rec = np.where(inner, rec_next, -1)
         out_rec[: 2 * k_nodes][split2] = rec_mid
-        records.append(Record(child=out_index[: 2 * k_nodes].reshape(k_nodes, 2),
-                              rec=out_rec[: 2 * k_nodes].reshape(k_nodes, 2)))
+        records.append(
+            Record(child=out_index[: 2 * k_nodes].reshape(k_nodes, 2), rec=out_rec[: 2 * k_nodes].reshape(k_nodes, 2))
+        )
         if n_mid:
             grand = 2 * k_nodes + 2 * np.flatnonzero(split2)
-            records.append(Record(child=np.stack([out_index[grand], out_index[grand + 1]], axis=1),
-                                  rec=np.stack([out_rec[grand], out_rec[grand + 1]], axis=1)))
+            records.append(
+                Record(
+                    child=np.stack([out_index[grand], out_index[grand + 1]], axis=1),
+                    rec=np.stack([out_rec[grand], out_rec[grand + 1]], axis=1),
+                )
+            )
         pending = (rec_next, [rec_here, rec_mid] if n_mid else [rec_here])
         out_depth = np.concatenate([np.repeat(depth, 2), np.repeat(depth, 4)]) + 1 + is_grand
         n_leaves += n_leaf
@@ -241,8 +302,14 @@ def _grow_from(box, cen, tid, slot, count, depth, dom, max_leaf: int, max_depth:
                 lb = odom[:, leaf]
                 lb[3:] *= -1
                 known = (lb, np.concatenate([np.repeat(exact & ~median, 2), np.repeat(split2, 2)])[leaf])
-            leaves.add(box, tid.take(gone), out_index.take(dest.take(gone)) - (n_leaves - n_leaf), ocount[leaf],
-                       out_depth[leaf], known)
+            leaves.add(
+                box,
+                tid.take(gone),
+                out_index.take(dest.take(gone)) - (n_leaves - n_leaf),
+                ocount[leaf],
+                out_depth[leaf],
+                known,
+            )
         if not stay.all():
             tid, new_slot = tid[stay], new_slot[stay]
         slot = new_slot
@@ -252,8 +319,24 @@ def _grow_from(box, cen, tid, slot, count, depth, dom, max_leaf: int, max_depth:
     return records, leaves
 
 
-def _grow_chunks(box, cen, tid, slot, count, depth, dom, max_leaf, max_depth, chunk, records, pending, leaves,
-                 n_leaves, stat_boxes, threads=1):
+def _grow_chunks(
+    box,
+    cen,
+    tid,
+    slot,
+    count,
+    depth,
+    dom,
+    max_leaf,
+    max_depth,
+    chunk,
+    records,
+    pending,
+    leaves,
+    n_leaves,
+    stat_boxes,
+    threads=1,
+):
     """Finish the active nodes group by group (see _grow_from); appends to records and the leaf lists, points the
     last pass's references at each group's first record, and returns the new leaf count."""
     k_nodes = count.size
@@ -273,9 +356,19 @@ def _grow_chunks(box, cen, tid, slot, count, depth, dom, max_leaf, max_depth, ch
         spans.append((nodes, tid[lo:hi], slot[lo:hi]))
 
     def finish_group(nodes, t, s):
-        return _grow_from(box.take(t, axis=1), cen.take(t, axis=1), np.arange(t.size, dtype=np.intp),
-                          local.take(s), count[nodes], depth[nodes], dom[:, nodes], max_leaf, max_depth,
-                          None, stat_boxes=stat_boxes)
+        return _grow_from(
+            box.take(t, axis=1),
+            cen.take(t, axis=1),
+            np.arange(t.size, dtype=np.intp),
+            local.take(s),
+            count[nodes],
+            depth[nodes],
+            dom[:, nodes],
+            max_leaf,
+            max_depth,
+            None,
+            stat_boxes=stat_boxes,
+        )
 
     # the groups are independent: they run on the pool's threads (numpy releases the GIL in most of their work),
     # and are merged here in group order, so the tree does not depend on the number of threads
@@ -284,8 +377,12 @@ def _grow_chunks(box, cen, tid, slot, count, depth, dom, max_leaf, max_depth, ch
         node_rec[nodes] = len(records)
         for rc in sub_records:
             inner = rc.rec >= 0
-            records.append(Record(child=np.where(inner, rc.child, rc.child + n_leaves),
-                                  rec=np.where(inner, rc.rec + node_rec[nodes[0]], -1)))
+            records.append(
+                Record(
+                    child=np.where(inner, rc.child, rc.child + n_leaves),
+                    rec=np.where(inner, rc.rec + node_rec[nodes[0]], -1),
+                )
+            )
         n_leaves += leaves.extend(sub_leaves, t)
     # the last pass pointed its new nodes at (rec_next, slot): now (their group's first record, local row)
     rec_next, referrers = pending

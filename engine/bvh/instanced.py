@@ -25,8 +25,9 @@ import numpy as np
 
 from .layout import LEAF_BIT, NODE_DTYPE
 
-INST_DTYPE = np.dtype([("w2o", "<f4", (3, 4)), ("root", "<u4"), ("tri_base", "<u4"), ("instance", "<u4"),
-                       ("pad", "<u4")])
+INST_DTYPE = np.dtype(
+    [("w2o", "<f4", (3, 4)), ("root", "<u4"), ("tri_base", "<u4"), ("instance", "<u4"), ("pad", "<u4")]
+)
 assert INST_DTYPE.itemsize == NODE_DTYPE.itemsize == 64
 _LEAF = int(LEAF_BIT)
 _MASK = _LEAF - 1
@@ -50,14 +51,20 @@ class TwoLevel:
         self.nodes = np.zeros(self.inst_base + n, dtype=NODE_DTYPE)
         self.tris = np.concatenate([b.tris for b in self.blas])
         for k, b in enumerate(self.blas):
-            self.nodes[self.node_base[k]:self.node_base[k] + len(b.nodes)] = _rebased(b.nodes, self.node_base[k],
-                                                                                        self.tri_base[k])
+            self.nodes[self.node_base[k] : self.node_base[k] + len(b.nodes)] = _rebased(
+                b.nodes, self.node_base[k], self.tri_base[k]
+            )
         self.depth = max(int(b.stats.get("depth", 1)) for b in self.blas)
         self.sah_built = [_sah(b.nodes) for b in self.blas]
-        self.stats = {"depth": self.depth, "nodes": int(len(self.nodes)), "triangles": int(len(self.tris)),
-                      "meshes": len(self.blas), "instances": n,
-                      "bytes": int(self.nodes.nbytes + self.tris.nbytes),
-                      "build_ms": float(sum(b.stats.get("build_ms", 0.0) for b in self.blas))}
+        self.stats = {
+            "depth": self.depth,
+            "nodes": int(len(self.nodes)),
+            "triangles": int(len(self.tris)),
+            "meshes": len(self.blas),
+            "instances": n,
+            "bytes": int(self.nodes.nbytes + self.tris.nbytes),
+            "build_ms": float(sum(b.stats.get("build_ms", 0.0) for b in self.blas)),
+        }
         self._levels: dict = {}
 
     @property
@@ -65,9 +72,15 @@ class TwoLevel:
         """Byte offset of what `top()` rewrites (top-level nodes and instance records)."""
         return self.tlas_root * NODE_DTYPE.itemsize
 
-    def top(self, transforms: np.ndarray, inst_mesh: np.ndarray, mesh_boxes: np.ndarray,
-            flat_tri_base: np.ndarray, moved: np.ndarray | None = None,
-            mesh_radii: np.ndarray | None = None) -> np.ndarray:
+    def top(
+        self,
+        transforms: np.ndarray,
+        inst_mesh: np.ndarray,
+        mesh_boxes: np.ndarray,
+        flat_tri_base: np.ndarray,
+        moved: np.ndarray | None = None,
+        mesh_radii: np.ndarray | None = None,
+    ) -> np.ndarray:
         """Rebuild the top level for (N, 4, 4) `transforms` of instances of meshes `inst_mesh` (N,), whose object
         boxes are `mesh_boxes` (M, 2, 3) and whose first triangle in the flattened scene is `flat_tri_base` (N,),
         and rewrite the records of the instances `moved` (None: all). `mesh_radii` (M,): radii of spheres about the
@@ -76,15 +89,15 @@ class TwoLevel:
         n = self.n_instances
         m = np.asarray(transforms, dtype=np.float64)
         mesh_boxes = np.asarray(mesh_boxes, dtype=np.float64)
-        one = len(mesh_boxes) == 1   # (one mesh: its box's centre and half extent are scalars per axis)
+        one = len(mesh_boxes) == 1  # (one mesh: its box's centre and half extent are scalars per axis)
         oc = 0.5 * (mesh_boxes[:, 0] + mesh_boxes[:, 1])
         oh = 0.5 * (mesh_boxes[:, 1] - mesh_boxes[:, 0])
         radius = np.full(len(mesh_boxes), np.inf) if mesh_radii is None else np.asarray(mesh_radii, np.float64)
         if not one:
             oc, oh, radius = oc[inst_mesh], oh[inst_mesh], radius[inst_mesh]
-        e = m.reshape(n, 16)   # strided 1-D operations over the instances (fast at any N)
+        e = m.reshape(n, 16)  # strided 1-D operations over the instances (fast at any N)
         wc, wh = np.empty((n, 3)), np.empty((n, 3))
-        for i in range(3):   # centre and half extent through the transform: A c + t, |A| h
+        for i in range(3):  # centre and half extent through the transform: A c + t, |A| h
             a0, a1, a2 = e[:, 4 * i], e[:, 4 * i + 1], e[:, 4 * i + 2]
             wc[:, i] = a0 * oc[:, 0] + a1 * oc[:, 1] + a2 * oc[:, 2] + e[:, 4 * i + 3]
             wh[:, i] = np.abs(a0) * oh[:, 0] + np.abs(a1) * oh[:, 1] + np.abs(a2) * oh[:, 2]
@@ -102,8 +115,8 @@ class TwoLevel:
         leaf = np.empty((n, 6), np.float32)
         leaf[:, :3] = wc - wh
         leaf[:, 3:] = wc + wh
-        top = self.nodes[self.tlas_root:self.inst_base]
-        if n == 1:   # one node: the instance on the left, an empty right slot
+        top = self.nodes[self.tlas_root : self.inst_base]
+        if n == 1:  # one node: the instance on the left, an empty right slot
             top["lmin"], top["lmax"] = leaf[:, :3], leaf[:, 3:]
             top["rmin"], top["rmax"] = np.inf, -np.inf
             top["left"], top["right"] = _LEAF | int(order[0]), _LEAF
@@ -117,13 +130,14 @@ class TwoLevel:
             order32 = order.astype(np.uint32)
             lleaf, rleaf = first == split, last == split + 1
             top["left"] = np.where(lleaf, order32[split] | np.uint32(_LEAF), self.tlas_root + split)
-            top["right"] = np.where(rleaf, order32[np.minimum(split + 1, n - 1)] | np.uint32(_LEAF),
-                                    self.tlas_root + split + 1)
+            top["right"] = np.where(
+                rleaf, order32[np.minimum(split + 1, n - 1)] | np.uint32(_LEAF), self.tlas_root + split + 1
+            )
             top["lcount"], top["rcount"] = lleaf, rleaf
 
         idx = np.arange(n) if moved is None else np.asarray(moved, dtype=np.int64)
         if idx.size:
-            rec = self.nodes[self.inst_base:]
+            rec = self.nodes[self.inst_base :]
             if moved is None:
                 mo, idx = m, slice(None)
             else:
@@ -138,7 +152,7 @@ class TwoLevel:
             recw[idx, 12] = self.node_base[np.asarray(inst_mesh)[idx]]
             recw[idx, 13] = np.asarray(flat_tri_base)[idx]
             recw[idx, 14] = np.arange(n)[idx]
-        return self.nodes[self.tlas_root:]
+        return self.nodes[self.tlas_root :]
 
     def refit(self, k: int, positions: np.ndarray, indices: np.ndarray) -> float:
         """Mesh k's new `positions` (same topology `indices`): its triangle records and node boxes are recomputed
@@ -152,36 +166,36 @@ class TwoLevel:
         shape = self._refit_shape(k)
         f = shape["faces"] if shape.get("faces_src") is indices else None
         if f is None:
-            f = np.asarray(indices, dtype=np.int64)[b.prim_ids].T.copy()   # (3, T) corners in leaf order
+            f = np.asarray(indices, dtype=np.int64)[b.prim_ids].T.copy()  # (3, T) corners in leaf order
             shape["faces"], shape["faces_src"] = f, indices
         corners = [p[f[c]] for c in range(3)]
-        rows = self.tris[t0:t0 + nt].view(np.float32).reshape(nt, 12)
+        rows = self.tris[t0 : t0 + nt].view(np.float32).reshape(nt, 12)
         rows[:, 0:3], rows[:, 4:7], rows[:, 8:11] = corners
         tmin = np.minimum(np.minimum(corners[0], corners[1]), corners[2])
         tmax = np.maximum(np.maximum(corners[0], corners[1]), corners[2])
         # the leaves' triangle ranges partition [0, T) (leaf order): one reduceat over their sorted starts
-        box = np.empty((nn, 12), np.float32)   # per node: lmin, lmax, rmin, rmax
+        box = np.empty((nn, 12), np.float32)  # per node: lmin, lmax, rmin, rmax
         starts, slot_node, slot_col = shape["starts"], shape["slot_node"], shape["slot_col"]
         lo = np.minimum.reduceat(tmin, starts, axis=0)
         hi = np.maximum.reduceat(tmax, starts, axis=0)
         for col in (0, 6):
             sel = slot_col == col
-            box[slot_node[sel], col:col + 3] = lo[sel]
-            box[slot_node[sel], col + 3:col + 6] = hi[sel]
-        for idx, col, child in shape["levels"]:   # deepest first: a child's slots are final before its parent's
+            box[slot_node[sel], col : col + 3] = lo[sel]
+            box[slot_node[sel], col + 3 : col + 6] = hi[sel]
+        for idx, col, child in shape["levels"]:  # deepest first: a child's slots are final before its parent's
             c = box[child]
-            box[idx, col:col + 3] = np.minimum(c[:, 0:3], c[:, 6:9])
-            box[idx, col + 3:col + 6] = np.maximum(c[:, 3:6], c[:, 9:12])
-        for col in shape["empty"]:   # empty slots keep their inverted boxes
-            box[col[0], col[1]:col[1] + 6] = (np.inf, np.inf, np.inf, -np.inf, -np.inf, -np.inf)
+            box[idx, col : col + 3] = np.minimum(c[:, 0:3], c[:, 6:9])
+            box[idx, col + 3 : col + 6] = np.maximum(c[:, 3:6], c[:, 9:12])
+        for col in shape["empty"]:  # empty slots keep their inverted boxes
+            box[col[0], col[1] : col[1] + 6] = (np.inf, np.inf, np.inf, -np.inf, -np.inf, -np.inf)
         box[:, 0:3] = np.nextafter(box[:, 0:3], np.float32(-np.inf))
         box[:, 6:9] = np.nextafter(box[:, 6:9], np.float32(-np.inf))
         box[:, 3:6] = np.nextafter(box[:, 3:6], np.float32(np.inf))
         box[:, 9:12] = np.nextafter(box[:, 9:12], np.float32(np.inf))
-        out = self.nodes[n0:n0 + nn].view(np.float32).reshape(nn, 16)
+        out = self.nodes[n0 : n0 + nn].view(np.float32).reshape(nn, 16)
         out[:, 0:3], out[:, 4:7], out[:, 8:11], out[:, 12:15] = box[:, 0:3], box[:, 3:6], box[:, 6:9], box[:, 9:12]
         built = self.sah_built[k]
-        return _sah(self.nodes[n0:n0 + nn]) / built if built > 0 else 1.0
+        return _sah(self.nodes[n0 : n0 + nn]) / built if built > 0 else 1.0
 
     def _refit_shape(self, k: int) -> dict:
         """What refit reuses for mesh k: leaf slots by first triangle, interior slots by level, empty slots."""
@@ -207,8 +221,13 @@ class TwoLevel:
                 inner = idx[(words[col][idx] & _LEAF) == 0]
                 if inner.size:
                     levels.append((inner, col, words[col][inner].astype(np.int64)))
-        shape = {"starts": firsts[order], "slot_node": np.concatenate(slot_node)[order],
-                 "slot_col": np.concatenate(slot_col)[order], "levels": levels, "empty": empty}
+        shape = {
+            "starts": firsts[order],
+            "slot_node": np.concatenate(slot_node)[order],
+            "slot_col": np.concatenate(slot_col)[order],
+            "levels": levels,
+            "empty": empty,
+        }
         self._levels[k] = shape
         return shape
 
@@ -223,7 +242,7 @@ def radix_tree(codes: np.ndarray) -> tuple:
     n = len(codes)
     i = np.arange(n - 1, dtype=np.int64)
 
-    def delta(j):   # common prefix length of (code, index) of i and j; -1 where j is outside [0, n)
+    def delta(j):  # common prefix length of (code, index) of i and j; -1 where j is outside [0, n)
         inside = (j >= 0) & (j < n)
         jj = np.clip(j, 0, n - 1)
         x = codes[i] ^ codes[jj]
@@ -234,12 +253,12 @@ def radix_tree(codes: np.ndarray) -> tuple:
     dmin = delta(i - d)
     lmax = np.full(n - 1, 2, np.int64)
     grow = delta(i + lmax * d) > dmin
-    while grow.any():   # an upper bound of the range's length, doubling
+    while grow.any():  # an upper bound of the range's length, doubling
         lmax[grow] *= 2
         grow &= delta(i + lmax * d) > dmin
     span = np.zeros(n - 1, np.int64)
     t = lmax // 2
-    while (t >= 1).any():   # its exact length by binary search
+    while (t >= 1).any():  # its exact length by binary search
         step = (t >= 1) & (delta(i + (span + t) * d) > dmin)
         span += np.where(step, t, 0)
         t //= 2
@@ -248,7 +267,7 @@ def radix_tree(codes: np.ndarray) -> tuple:
     s = np.zeros(n - 1, np.int64)
     t = span.copy()
     active = np.ones(n - 1, bool)
-    while active.any():   # the split: the last leaf sharing more than the node's prefix with i
+    while active.any():  # the split: the last leaf sharing more than the node's prefix with i
         t = np.where(active, (t + 1) >> 1, t)
         step = active & (delta(i + (s + t) * d) > dnode)
         s += np.where(step, t, 0)
@@ -274,7 +293,7 @@ class RangeUnion:
 
     def __call__(self, a: np.ndarray, b: np.ndarray) -> np.ndarray:
         length = b - a + 1
-        level = (np.frexp(length.astype(np.float64))[1] - 1).astype(np.int64)   # floor(log2(length))
+        level = (np.frexp(length.astype(np.float64))[1] - 1).astype(np.int64)  # floor(log2(length))
         out = np.empty((len(a), 6), np.float32)
         for k in np.unique(level):
             at = level == k
@@ -317,10 +336,12 @@ def _rebased(nodes: np.ndarray, node_base: int, tri_base: int) -> np.ndarray:
 def _sah(nodes: np.ndarray) -> float:
     """Sum of the child boxes' surface areas over the root box's (the traversal cost the build minimizes, up to
     constants)."""
+
     def area(lo, hi):
         e = np.maximum(hi.astype(np.float64) - lo, 0.0)
         e[~np.isfinite(e)] = 0.0
         return (e[:, 0] * e[:, 1] + e[:, 1] * e[:, 2] + e[:, 2] * e[:, 0]).sum()
+
     lo = np.minimum(nodes["lmin"][:1], nodes["rmin"][:1])
     hi = np.maximum(nodes["lmax"][:1], nodes["rmax"][:1])
     root = area(lo, hi)

@@ -21,7 +21,7 @@ from .layout import LEAF_BIT, NODE_DTYPE
 #: A triangle is large when its box's surface area exceeds this fraction of the mesh box's and LARGE_RATIO times
 #: the median triangle's (a mesh of similar triangles, e.g. a coarse sphere, has none: lifted, they would sit next
 #: to the subtrees they are spread through).
-LARGE_AREA = 2.0 ** -10
+LARGE_AREA = 2.0**-10
 LARGE_RATIO = 64.0
 #: At most this many (the largest) are lifted, and none when more than a LARGE_SHARE of the mesh is large (then
 #: they are not outliers but a part of the mesh, e.g. the faces of a thin box next to its rim, where lifting them
@@ -77,8 +77,8 @@ def lifted_tree(nodes: np.ndarray, vt: np.ndarray, big_faces: np.ndarray, first:
                     continue  # an empty slot (a tree of 0 or 1 triangle)
                 if w & leaf or level + 1 == LIFT_CUT:
                     atoms.append((1 if w & leaf else 0, w, c))
-                    a_lo.append(rows[k, 8 * side:8 * side + 3])
-                    a_hi.append(rows[k, 8 * side + 4:8 * side + 7])
+                    a_lo.append(rows[k, 8 * side : 8 * side + 3])
+                    a_hi.append(rows[k, 8 * side + 4 : 8 * side + 7])
                 else:
                     nxt.append(w)
         frontier = nxt
@@ -126,7 +126,7 @@ def lifted_tree(nodes: np.ndarray, vt: np.ndarray, big_faces: np.ndarray, first:
         if kind != 0:
             return w, c, box[0], box[1]
         at = count[0]
-        seg = u[w:end[w]].copy()
+        seg = u[w : end[w]].copy()
         for col in (3, 7):
             inner = (seg[:, col] & leaf) == 0
             seg[inner, col] = (seg[inner, col].astype(np.int64) + (at - w)).astype(np.uint32)
@@ -171,9 +171,9 @@ def _sweep(lo: np.ndarray, hi: np.ndarray, w: np.ndarray):
             cost = a_l * cw[:-1] + a_r * (cw[-1] - cw[:-1])
             i = int(np.argmin(cost))
             if cost[i] < best:
-                best, sides = cost[i], (o[:i + 1], o[i + 1:])
+                best, sides = cost[i], (o[: i + 1], o[i + 1 :])
         if sides is None:  # no finite cost (boxes too large for float64 areas): halves in index order
-            sides = (ids[:m // 2], ids[m // 2:])
+            sides = (ids[: m // 2], ids[m // 2 :])
         return (split(sides[0]), split(sides[1]))
 
     return split(np.arange(lo.shape[0]))
@@ -183,7 +183,7 @@ def _slot_areas(rows: np.ndarray) -> np.ndarray:
     """(M, 2) float64 half areas of the two child slots of packed nodes rows (M, 16) float32."""
     out = np.empty((rows.shape[0], 2))
     for side in (0, 1):
-        e = rows[:, 8 * side + 4:8 * side + 7].astype(np.float64) - rows[:, 8 * side:8 * side + 3]
+        e = rows[:, 8 * side + 4 : 8 * side + 7].astype(np.float64) - rows[:, 8 * side : 8 * side + 3]
         np.maximum(e, 0.0, out=e)
         out[:, side] = e[:, 0] * e[:, 1] + e[:, 1] * e[:, 2] + e[:, 2] * e[:, 0]
     return out

@@ -26,9 +26,9 @@ def morton_order(c2, n: int, threads: int = 1) -> np.ndarray:
     bits = min(21, (64 - idx_bits) // 3)
     top = (1 << bits) - 1
     code = np.empty(n, dtype=np.uint64)
-    lo = [np.float32(np.fmin.reduce(c2[a])) for a in range(3)]   # NaN centres (NaN vertices) ignored here
+    lo = [np.float32(np.fmin.reduce(c2[a])) for a in range(3)]  # NaN centres (NaN vertices) ignored here
     hi = [float(np.fmax.reduce(c2[a])) for a in range(3)]
-    lo = [x if np.isfinite(x) else np.float32(0) for x in lo]   # (every centre NaN)
+    lo = [x if np.isfinite(x) else np.float32(0) for x in lo]  # (every centre NaN)
     scale = [np.float32(top / (hi[a] - float(lo[a])) if hi[a] > float(lo[a]) else 0.0) for a in range(3)]
 
     def codes(s):

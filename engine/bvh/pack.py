@@ -106,14 +106,20 @@ def finish(records, leaf_boxes, leaf_first, leaf_size, n_tri: int, widen: bool =
     """
     base = np.concatenate([[0], np.cumsum([rc.child.shape[0] for rc in records])]).astype(np.int64)
     n_nodes = int(base[-1])
-    in_c = native.finish(np.concatenate([rc.child for rc in records]), np.concatenate([rc.rec for rc in records]),
-                         np.diff(base), np.concatenate(leaf_boxes) if leaf_boxes else np.empty((0, 6), np.float32),
-                         leaf_first, leaf_size, widen)
+    in_c = native.finish(
+        np.concatenate([rc.child for rc in records]),
+        np.concatenate([rc.rec for rc in records]),
+        np.diff(base),
+        np.concatenate(leaf_boxes) if leaf_boxes else np.empty((0, 6), np.float32),
+        leaf_first,
+        leaf_size,
+        widen,
+    )
     if in_c is not None:
         out, root_box, terms = in_c
         sah = 0.0
         for r in range(len(records) - 1, -1, -1):  # (each record's terms summed as one array, as below)
-            sah += float(terms[base[r]:base[r + 1]].sum())
+            sah += float(terms[base[r] : base[r + 1]].sum())
         return _cost(out.view(NODE_DTYPE).reshape(n_nodes), root_box, sah, n_nodes, n_tri)
     # child node ids in build order; -1 (a leaf) reads the extra last entry of size / pos
     nids = [np.where(rc.rec >= 0, base.take(np.maximum(rc.rec, 0)) + rc.child, -1) for rc in records]
@@ -121,12 +127,12 @@ def finish(records, leaf_boxes, leaf_first, leaf_size, n_tri: int, widen: bool =
     size[n_nodes] = 0
     for r in range(len(records) - 1, -1, -1):
         sz = size.take(nids[r])
-        size[base[r]:base[r + 1]] = sz[:, 0] + sz[:, 1] + 1
+        size[base[r] : base[r + 1]] = sz[:, 0] + sz[:, 1] + 1
     pos = np.empty(n_nodes + 1, dtype=np.int64)
     pos[0] = 0
     for r in range(len(records)):
         nid = nids[r]
-        p = pos[base[r]:base[r + 1]] + 1
+        p = pos[base[r] : base[r + 1]] + 1
         pos[nid[:, 0]] = p  # leaves write the spare entry
         p += size.take(nid[:, 0])
         pos[nid[:, 1]] = p
@@ -138,16 +144,16 @@ def finish(records, leaf_boxes, leaf_first, leaf_size, n_tri: int, widen: bool =
     # boxes of the nodes (build ids) and then of the leaves (row n_nodes + 1 + leaf id), one table for one gather
     box_of = np.empty((n_nodes + 1 + int(leaf_size.size), 6), dtype=np.float32)
     if leaf_boxes:
-        np.concatenate(leaf_boxes, out=box_of[n_nodes + 1:])
+        np.concatenate(leaf_boxes, out=box_of[n_nodes + 1 :])
     box_rows = box_of.view(_V24).reshape(-1)
-    node_box = box_of[:n_nodes + 1]
+    node_box = box_of[: n_nodes + 1]
     sah = 0.0
     for r in range(len(records) - 1, -1, -1):
         rc, nid = records[r], nids[r]
         is_leaf = nid < 0
         lid = np.where(is_leaf, rc.child, 0)
         cb = box_rows.take(np.where(is_leaf, rc.child + (n_nodes + 1), nid)).view(np.float32).reshape(-1, 2, 6)
-        node_box[base[r]:base[r + 1]] = np.minimum(cb[:, 0], cb[:, 1])
+        node_box[base[r] : base[r + 1]] = np.minimum(cb[:, 0], cb[:, 1])
         blk = np.empty((nid.shape[0], 4, 4), dtype=np.float32)  # (lmin, left) (lmax, right) (rmin, lc) (rmax, rc)
         wb = _step_down(cb) if widen else cb
         blk[:, 0::2, :3] = wb[:, :, :3]
@@ -156,7 +162,7 @@ def finish(records, leaf_boxes, leaf_first, leaf_size, n_tri: int, widen: bool =
         u[:, 0:2, 3] = np.where(is_leaf, leaf_word.take(lid), pos.take(nid))
         wt = np.where(is_leaf, leaf_size.take(lid), 1)
         u[:, 2:4, 3] = np.where(is_leaf, wt, 0)
-        out_rows[pos[base[r]:base[r + 1]]] = blk.reshape(-1, 16).view(_V64).reshape(-1)
+        out_rows[pos[base[r] : base[r + 1]]] = blk.reshape(-1, 16).view(_V64).reshape(-1)
         # SAH: every child slot's box is its child's box; leaves weigh their triangle count (empty ones nothing)
         with np.errstate(invalid="ignore", over="ignore"):
             area = half_area(cb.transpose(2, 0, 1)).astype(np.float64)

@@ -6,6 +6,7 @@ the decode has one rounding, the sum, which the host computes exactly as the GPU
 from the exact box and steps them outwards wherever that rounding would move a decoded plane inside the box, so a
 decoded box always contains the exact one and no hit is lost.
 """
+
 from __future__ import annotations
 
 import numpy as np

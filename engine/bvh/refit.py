@@ -18,9 +18,9 @@ from .layout import LEAF_BIT
 
 @dataclass
 class RefitPlan:
-    order: np.ndarray      # (nodes,) uint32: local node indices, by height (lowest first)
-    levels: list           # [(first entry in order, count)] per height, lowest first
-    faces: np.ndarray      # (T, 3) uint32: the corners of leaf-order triangle i are positions[faces[i]]
+    order: np.ndarray  # (nodes,) uint32: local node indices, by height (lowest first)
+    levels: list  # [(first entry in order, count)] per height, lowest first
+    faces: np.ndarray  # (T, 3) uint32: the corners of leaf-order triangle i are positions[faces[i]]
 
 
 def node_heights(nodes: np.ndarray) -> np.ndarray:
@@ -54,6 +54,7 @@ def refit_plan(nodes: np.ndarray, prim_ids: np.ndarray, indices: np.ndarray) -> 
     counts = np.bincount(height, minlength=1)[1:] if len(height) else np.zeros(0, np.int64)
     starts = np.concatenate([[0], np.cumsum(counts)[:-1]]).astype(np.int64)
     levels = [(int(s), int(c)) for s, c in zip(starts, counts) if c > 0]
-    faces = np.ascontiguousarray(np.asarray(indices, dtype=np.int64)[np.asarray(prim_ids, dtype=np.int64)],
-                                 dtype=np.uint32)
+    faces = np.ascontiguousarray(
+        np.asarray(indices, dtype=np.int64)[np.asarray(prim_ids, dtype=np.int64)], dtype=np.uint32
+    )
     return RefitPlan(order=order, levels=levels, faces=faces.reshape(-1, 3))

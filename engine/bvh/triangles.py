@@ -27,7 +27,7 @@ def box_centres(vb, ft, lift: bool, threads: int):
     bounds = []
 
     def centres(s):
-        f = ft[s:s + PREP_BLOCK].T.copy()
+        f = ft[s : s + PREP_BLOCK].T.copy()
         ext = []
         for a in range(3):
             x0, x1, x2 = vb[a].take(f[0]), vb[a].take(f[1]), vb[a].take(f[2])
@@ -35,12 +35,12 @@ def box_centres(vb, ft, lift: bool, threads: int):
             np.minimum(lo, x2, out=lo)
             np.maximum(x0, x1, out=x0)
             np.maximum(x0, x2, out=x0)
-            np.add(lo, x0, out=c2[a, s:s + PREP_BLOCK])
+            np.add(lo, x0, out=c2[a, s : s + PREP_BLOCK])
             if lift:
                 bounds.append((a, np.fmin.reduce(lo), np.fmax.reduce(x0)))
                 ext.append(np.subtract(x0, lo, out=x0))
         if lift:
-            a_ = area[s:s + PREP_BLOCK]
+            a_ = area[s : s + PREP_BLOCK]
             with np.errstate(over="ignore", invalid="ignore"):  # huge triangles overflow to inf (then large)
                 np.add(ext[0], ext[2], out=a_)
                 a_ *= ext[1]

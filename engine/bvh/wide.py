@@ -54,7 +54,7 @@ from .quantize import planes, scale_of
 WIDTH = 8
 WIDE_NODE_WORDS = 20
 WIDE_NODE_BYTES = 4 * WIDE_NODE_WORDS
-MAX_LEAF = 4          # triangles per leaf slot the meta byte holds (8 x 4 = 32 bits of triangle mask)
+MAX_LEAF = 4  # triangles per leaf slot the meta byte holds (8 x 4 = 32 bits of triangle mask)
 EXP_MIN, EXP_MAX = 1, 254
 
 _EMPTY, _INNER, _LEAF = 0, 1, 2
@@ -64,9 +64,9 @@ _EMPTY, _INNER, _LEAF = 0, 1, 2
 class WideBVH:
     """An 8-wide BVH: `nodes` (W, 20) uint32 and `tris` are uploaded byte for byte (layout above)."""
 
-    nodes: np.ndarray      #: (W, 20) uint32
-    tris: np.ndarray       #: (max(T, 1),) TRI_DTYPE, in wide-leaf order
-    prim_ids: np.ndarray   #: (T,) int32: slot -> original triangle index
+    nodes: np.ndarray  #: (W, 20) uint32
+    tris: np.ndarray  #: (max(T, 1),) TRI_DTYPE, in wide-leaf order
+    prim_ids: np.ndarray  #: (T,) int32: slot -> original triangle index
     stats: dict = field(default_factory=dict)
     layout: str = "wide"
 
@@ -169,10 +169,10 @@ def _octant_order(kind, ref, cnt, lo, hi, valid):
     nhi = np.where(vmask, hi, -np.inf).max(axis=1)
     pc = np.where(np.isfinite(nlo), (nlo + nhi) * np.float32(0.5), np.float32(0.0))
     octs = np.arange(WIDTH)
-    dirs = np.where((octs[:, None] >> np.arange(3)) & 1, -1.0, 1.0).astype(np.float32)      # (8 slots, 3)
+    dirs = np.where((octs[:, None] >> np.arange(3)) & 1, -1.0, 1.0).astype(np.float32)  # (8 slots, 3)
     rel = (centre - pc[:, None, :]).reshape(n * WIDTH, 3)
-    cost = (rel @ dirs.T).reshape(n, WIDTH, WIDTH)                                       # (n, child, slot)
-    cost = np.where(valid[:, :, None], cost, np.float32(1e30))   # empty children go to the slots left over
+    cost = (rel @ dirs.T).reshape(n, WIDTH, WIDTH)  # (n, child, slot)
+    cost = np.where(valid[:, :, None], cost, np.float32(1e30))  # empty children go to the slots left over
     # slot by slot, each takes the best child still free
     perm = np.zeros((n, WIDTH), np.int64)
     for s in range(WIDTH):
@@ -196,7 +196,7 @@ def _quantize(lo, hi, valid):
         e = np.ceil(np.log2(ext / 255.0))
     e = np.where(ext > 0, e, -126.0)
     ebias = np.clip(e + 127, EXP_MIN, EXP_MAX).astype(np.int64)
-    for _ in range(4):   # 255 steps must reach the top in float32
+    for _ in range(4):  # 255 steps must reach the top in float32
         reach = p + np.float32(255.0) * scale_of(ebias)
         short = reach < top
         if not short.any():
@@ -217,15 +217,16 @@ def collapse_bvh8(bvh) -> WideBVH:
     """The 8-wide BVH of a binary `BVH` (engine.bvh.build_bvh's, leaves of at most 4 triangles)."""
     t0 = time.perf_counter()
     nodes = bvh.nodes
-    counts = np.concatenate([nodes["lcount"][(nodes["left"] & LEAF_BIT) != 0],
-                             nodes["rcount"][(nodes["right"] & LEAF_BIT) != 0]])
+    counts = np.concatenate(
+        [nodes["lcount"][(nodes["left"] & LEAF_BIT) != 0], nodes["rcount"][(nodes["right"] & LEAF_BIT) != 0]]
+    )
     if counts.size and counts.max() > MAX_LEAF:
         raise ConfigError(f"collapse_bvh8: leaves of up to {MAX_LEAF} triangles, the BVH has {counts.max()}")
     leaves = _subtree_leaves(nodes)
     fields = _node_fields(nodes)
     levels = []
     frontier = np.zeros(1, np.int64)
-    next_base = 1          # node index of the next level's first node
+    next_base = 1  # node index of the next level's first node
     tri_next = 0
     while len(frontier):
         kind, ref, cnt, lo, hi = _collapse_level(fields, frontier, leaves)
@@ -235,15 +236,26 @@ def collapse_bvh8(bvh) -> WideBVH:
         child_base = next_base + np.concatenate([[0], np.cumsum(n_inner)[:-1]])
         next_base += int(n_inner.sum())
         lcnt = np.where(leaf, cnt, 0)
-        offset = np.cumsum(lcnt, axis=1) - lcnt                     # exclusive, within the node
+        offset = np.cumsum(lcnt, axis=1) - lcnt  # exclusive, within the node
         per_node = lcnt.sum(axis=1)
         tri_base = tri_next + np.concatenate([[0], np.cumsum(per_node)[:-1]])
         tri_next += int(per_node.sum())
         imask = (inner.astype(np.int64) << np.arange(WIDTH)).sum(axis=1)
         meta = np.where(leaf, (lcnt << 5) | offset, 0)
-        levels.append(dict(lo=lo, hi=hi, valid=kind != _EMPTY, imask=imask, child_base=child_base,
-                           tri_base=tri_base, meta=meta, first=ref[leaf], count=cnt[leaf]))
-        frontier = ref[inner]                                       # row-major: node by node, slot by slot
+        levels.append(
+            dict(
+                lo=lo,
+                hi=hi,
+                valid=kind != _EMPTY,
+                imask=imask,
+                child_base=child_base,
+                tri_base=tri_base,
+                meta=meta,
+                first=ref[leaf],
+                count=cnt[leaf],
+            )
+        )
+        frontier = ref[inner]  # row-major: node by node, slot by slot
     cat = {k: np.concatenate([lv[k] for lv in levels]) for k in levels[0]}
     w = len(cat["imask"])
     p, ebias, ql, qh = _quantize(cat["lo"], cat["hi"], cat["valid"])
@@ -254,7 +266,7 @@ def collapse_bvh8(bvh) -> WideBVH:
     out[:, 4] = np.where(cat["imask"] != 0, cat["child_base"], 0)
     out[:, 5] = np.where(cat["meta"].any(axis=1), cat["tri_base"], 0)
     out[:, 6:8] = cat["meta"].astype(np.uint8).view(np.uint32)
-    planes = np.concatenate([ql.transpose(0, 2, 1), qh.transpose(0, 2, 1)], axis=1)   # (W, 6 planes, 8 slots)
+    planes = np.concatenate([ql.transpose(0, 2, 1), qh.transpose(0, 2, 1)], axis=1)  # (W, 6 planes, 8 slots)
     out[:, 8:20] = np.ascontiguousarray(planes).view(np.uint32).reshape(w, 12)
 
     first, count = cat["first"], cat["count"]
@@ -263,10 +275,15 @@ def collapse_bvh8(bvh) -> WideBVH:
     raw = bvh.tris.view(np.dtype((np.void, bvh.tris.itemsize)))
     tris = raw[perm].view(bvh.tris.dtype) if t else bvh.tris[:1].copy()
     prim_ids = bvh.prim_ids[perm] if t else bvh.prim_ids[:0].copy()
-    stats = {"layout": "wide", "width": WIDTH, "wide_nodes": w, "wide_levels": len(levels),
-             "wide_bytes": int(out.nbytes + tris.nbytes),
-             "wide_children_per_node": float(cat["valid"].sum() / max(w, 1)),
-             "collapse_ms": (time.perf_counter() - t0) * 1e3}
+    stats = {
+        "layout": "wide",
+        "width": WIDTH,
+        "wide_nodes": w,
+        "wide_levels": len(levels),
+        "wide_bytes": int(out.nbytes + tris.nbytes),
+        "wide_children_per_node": float(cat["valid"].sum() / max(w, 1)),
+        "collapse_ms": (time.perf_counter() - t0) * 1e3,
+    }
     stats = {**bvh.stats, **stats, "bytes": int(out.nbytes + tris.nbytes)}
     return WideBVH(nodes=out, tris=tris, prim_ids=prim_ids, stats=stats)
 

@@ -3,6 +3,7 @@ includes bvh.glsl), and the specialization constants that tune the traversal to 
 
 The renderer's shadow and AO passes and the batch Tracer share this module: the same upload, the same traversal.
 """
+
 from __future__ import annotations
 
 import os
@@ -21,7 +22,7 @@ from ..vk.resources import STORAGE, STORAGE_TEXEL, TRANSFER_SRC, UNIFORM_TEXEL
 from .refit import GpuRefit
 from .tlas import TopLevelBuilder, tlas_builder
 
-BVH_SET = 1   # the descriptor set index bvh.glsl declares
+BVH_SET = 1  # the descriptor set index bvh.glsl declares
 LAYOUTS = ("binary", "wide")
 #: A deforming mesh's bottom level is rebuilt instead of refitted once its refitted SAH cost exceeds the build's
 #: by this factor (InstancedBVH.update; docs/architecture.md, "Instances and the two-level BVH").
@@ -55,8 +56,14 @@ def compresses(ctx: Context, layout: str) -> bool:
     return is_cpu(ctx) and layout == "binary"
 
 
-def bvh_spec(ctx: Context, depth: int | None = None, layout: str | None = None, compressed: bool = False,
-             postpone: bool | None = None, stack_regs: int | None = None) -> dict:
+def bvh_spec(
+    ctx: Context,
+    depth: int | None = None,
+    layout: str | None = None,
+    compressed: bool = False,
+    postpone: bool | None = None,
+    stack_regs: int | None = None,
+) -> dict:
     """bvh.glsl's specialization constants (by name) for this device and tree. On CPU devices (lavapipe): the
     branchless push, postponed leaf tests, a register stack of min(CPU_STACK_REGS, depth - 1) entries with the retry
     walk where that is fewer than the tree needs (or its depth is unknown), compare-and-select min/max and image
@@ -68,10 +75,18 @@ def bvh_spec(ctx: Context, depth: int | None = None, layout: str | None = None, 
     need = 32 if depth is None else max(1, min(32, int(depth) - 1))
     cap = CPU_WIDE_STACK_REGS if wide else (CPU_STACK_REGS if stack_regs is None else int(stack_regs))
     regs = min(cap, need) if cpu else need
-    return {"BVH_BRANCHLESS_PUSH": cpu, "BVH_POSTPONE_LEAVES": cpu if postpone is None else bool(postpone),
-            "BVH_REG_STACK": cpu, "BVH_STACK_REGS": regs, "BVH_WIDE": wide, "BVH_COMPRESSED": bool(compressed),
-            "BVH_STACK_RETRY": cpu and (depth is None or regs < need), "BVH_SELECT_MINMAX": cpu,
-            "BVH_IMAGE_FETCH": cpu, "BVH_WIDE_CPU": cpu and wide}
+    return {
+        "BVH_BRANCHLESS_PUSH": cpu,
+        "BVH_POSTPONE_LEAVES": cpu if postpone is None else bool(postpone),
+        "BVH_REG_STACK": cpu,
+        "BVH_STACK_REGS": regs,
+        "BVH_WIDE": wide,
+        "BVH_COMPRESSED": bool(compressed),
+        "BVH_STACK_RETRY": cpu and (depth is None or regs < need),
+        "BVH_SELECT_MINMAX": cpu,
+        "BVH_IMAGE_FETCH": cpu,
+        "BVH_WIDE_CPU": cpu and wide,
+    }
 
 
 def bvh_descriptor_set(ctx: Context, interface: Interface) -> DescriptorSet:
@@ -109,13 +124,14 @@ class SceneBVH:
         texels = int(ctx.limits.maxTexelBufferElements)
         for what, arr in (("triangles", bvh.tris), ("nodes", nodes)):
             if arr.nbytes // 16 > texels:
-                raise SceneError(f"{bvh.stats['triangles']:,} triangles: the BVH {what} take "
-                                 f"{arr.nbytes / 2**20:.0f} MiB, "
-                                 f"more than this device's texel-buffer limit of {texels:,} texels "
-                                 f"({texels * 16 / 2**20:.0f} MiB, {ctx.device_info['name']})")
+                raise SceneError(
+                    f"{bvh.stats['triangles']:,} triangles: the BVH {what} take "
+                    f"{arr.nbytes / 2**20:.0f} MiB, "
+                    f"more than this device's texel-buffer limit of {texels:,} texels "
+                    f"({texels * 16 / 2**20:.0f} MiB, {ctx.device_info['name']})"
+                )
         usage = UNIFORM_TEXEL | STORAGE_TEXEL
-        self.nodes, self.tris = upload_buffers(ctx, [(nodes, usage, "bvh nodes"),
-                                                     (bvh.tris, usage, "bvh triangles")])
+        self.nodes, self.tris = upload_buffers(ctx, [(nodes, usage, "bvh nodes"), (bvh.tris, usage, "bvh triangles")])
         # the same buffers as uniform texel buffers and as storage texel buffers; BVH_IMAGE_FETCH says which the
         # shaders read (the storage views on CPU devices)
         self.views = [BufferView(self.nodes), BufferView(self.tris)]
@@ -124,8 +140,9 @@ class SceneBVH:
 
     def spec(self, ctx: Context, postpone: bool | None = None, stack_regs: int | None = None) -> dict:
         """bvh_spec for this BVH's depth and node layout."""
-        return bvh_spec(ctx, self.depth, layout=self.layout, compressed=self.compressed, postpone=postpone,
-                        stack_regs=stack_regs)
+        return bvh_spec(
+            ctx, self.depth, layout=self.layout, compressed=self.compressed, postpone=postpone, stack_regs=stack_regs
+        )
 
     def destroy(self):
         for view in self.views:
@@ -178,20 +195,28 @@ def mesh_alpha_index(scene, flat_tri_base: np.ndarray, alpha_index: np.ndarray) 
         if np.any(override[insts] != override[insts[0]]):
             return None
         first = int(base[insts[0]])
-        out.append(np.asarray(alpha_index[first:first + mesh.triangle_count], np.uint32))
+        out.append(np.asarray(alpha_index[first : first + mesh.triangle_count], np.uint32))
     return out
 
 
-def scene_bvh(ctx: Context, scene, dset: DescriptorSet, layout: str, flat_static: bool = False,
-              alpha_index: np.ndarray | None = None):
+def scene_bvh(
+    ctx: Context,
+    scene,
+    dset: DescriptorSet,
+    layout: str,
+    flat_static: bool = False,
+    alpha_index: np.ndarray | None = None,
+):
     """The BVH of a Scene on the GPU: a SceneBVH of its one mesh (one identity instance) or, with `flat_static`,
     of its flattened triangles while it is unchanged and small enough (FLAT_STATIC_TRIANGLES); else an
     InstancedBVH (binary layout only). `alpha_index`: the flattened scene's alpha words (flag_alpha_tested); a
     scene whose alpha words the two-level BVH cannot share (`mesh_alpha_index`) gets the flat BVH too."""
-    if not is_instanced(scene) or (flat_static and scene.version == 0 and
-                                   scene.triangle_count <= FLAT_STATIC_TRIANGLES) or \
-            (alpha_index is not None and mesh_alpha_index(scene, flat_triangle_bases(scene), alpha_index) is None):
-        source = scene.meshes[0] if not is_instanced(scene) else scene   # (one identity instance: the same ids)
+    if (
+        not is_instanced(scene)
+        or (flat_static and scene.version == 0 and scene.triangle_count <= FLAT_STATIC_TRIANGLES)
+        or (alpha_index is not None and mesh_alpha_index(scene, flat_triangle_bases(scene), alpha_index) is None)
+    ):
+        source = scene.meshes[0] if not is_instanced(scene) else scene  # (one identity instance: the same ids)
         bvh = build_bvh(source.positions, source.indices)
         if alpha_index is not None:
             flag_alpha_tested(bvh.tris, alpha_index)
@@ -219,9 +244,11 @@ class InstancedBVH:
     def __init__(self, ctx: Context, scene, dset: DescriptorSet, alpha_index: np.ndarray | None = None):
         self.ctx, self.dset = ctx, dset
         tri_counts = np.array([m.triangle_count for m in scene.meshes], dtype=np.int64)[scene.instance_mesh]
-        if tri_counts.sum() >= 2 ** 31:
-            raise SceneError(f"{scene.name}: {int(tri_counts.sum()):,} instanced triangles: more than the 2^31 "
-                             "triangle ids the traversal reports")
+        if tri_counts.sum() >= 2**31:
+            raise SceneError(
+                f"{scene.name}: {int(tri_counts.sum()):,} instanced triangles: more than the 2^31 "
+                "triangle ids the traversal reports"
+            )
         self.flat_tri_base = np.concatenate([[0], np.cumsum(tri_counts)[:-1]]).astype(np.uint32)
         self.blas = [build_bvh(m.positions, m.indices) for m in scene.meshes]
         self.rebuilds = 0
@@ -231,13 +258,15 @@ class InstancedBVH:
         self.last_refit_ratio: dict[int, float] = {}
         self.nodes = self.tris = None
         self.views = []
-        self.builder = tlas_builder(ctx)   # who builds the top level: "gpu" (engine/gpu/tlas.py) or "host"
+        self.builder = tlas_builder(ctx)  # who builds the top level: "gpu" (engine/gpu/tlas.py) or "host"
         self.gpu_top = TopLevelBuilder(ctx) if self.builder == "gpu" else None
         self.alpha = None if alpha_index is None else mesh_alpha_index(scene, self.flat_tri_base, alpha_index)
         if alpha_index is not None and self.alpha is None:
-            raise SceneError(f"{scene.name}: a mesh with alpha-tested (MASK / BLEND) triangles has instances that "
-                             "override its material differently; the two-level BVH keeps one alpha record per mesh "
-                             "triangle (scene_bvh traces such a scene through a flat BVH)")
+            raise SceneError(
+                f"{scene.name}: a mesh with alpha-tested (MASK / BLEND) triangles has instances that "
+                "override its material differently; the two-level BVH keeps one alpha record per mesh "
+                "triangle (scene_bvh traces such a scene through a flat BVH)"
+            )
         self._upload(scene)
 
     def _flag_alpha(self) -> None:
@@ -245,7 +274,7 @@ class InstancedBVH:
             return
         for k, b in enumerate(self.blas):
             t0 = int(self.two.tri_base[k])
-            flag_alpha_tested(self.two.tris[t0:t0 + len(b.tris)], self.alpha[k])
+            flag_alpha_tested(self.two.tris[t0 : t0 + len(b.tris)], self.alpha[k])
 
     def set_alpha(self, scene, alpha_index: np.ndarray) -> bool:
         """New alpha words (the flattened scene's, as `scene_bvh` takes them; after its materials changed). False
@@ -258,40 +287,55 @@ class InstancedBVH:
         self.alpha = alpha
         self._flag_alpha()
         update_buffer(self.ctx, self.tris, [(0, self.two.tris)])
-        if self.refit_on == "gpu":   # (the host copy holds their build's positions)
+        if self.refit_on == "gpu":  # (the host copy holds their build's positions)
             self._refit_again(scene)
         return True
 
     def _upload(self, scene) -> None:
         self._release()
         self.two = TwoLevel(self.blas, len(scene.instances))
-        self.two.top(scene.transforms, scene.instance_mesh, self._mesh_boxes(scene), self.flat_tri_base,
-                     mesh_radii=self._mesh_radii(scene))
+        self.two.top(
+            scene.transforms,
+            scene.instance_mesh,
+            self._mesh_boxes(scene),
+            self.flat_tri_base,
+            mesh_radii=self._mesh_radii(scene),
+        )
         if self.refit_on == "host":
             self._refit_again(scene)
         self._flag_alpha()
         self.depth = self.two.depth
-        self.bvh = self.two   # (stats, as SceneBVH.bvh)
+        self.bvh = self.two  # (stats, as SceneBVH.bvh)
         texels = int(self.ctx.limits.maxTexelBufferElements)
         for what, arr in (("triangles", self.two.tris), ("nodes", self.two.nodes)):
             if arr.nbytes // 16 > texels:
-                raise SceneError(f"{scene.name}: the two-level BVH {what} take {arr.nbytes / 2**20:.0f} MiB, more "
-                                 f"than this device's texel-buffer limit of {texels:,} texels")
+                raise SceneError(
+                    f"{scene.name}: the two-level BVH {what} take {arr.nbytes / 2**20:.0f} MiB, more "
+                    f"than this device's texel-buffer limit of {texels:,} texels"
+                )
         # (storage buffers of the GPU refit; the nodes a copy source: engine/gpu/tlas.py read_back)
         usage = UNIFORM_TEXEL | STORAGE_TEXEL | STORAGE | TRANSFER_SRC
-        self.nodes, self.tris = upload_buffers(self.ctx, [(self.two.nodes, usage, "bvh nodes (two-level)"),
-                                                          (self.two.tris, usage, "bvh triangles (two-level)")])
+        self.nodes, self.tris = upload_buffers(
+            self.ctx,
+            [(self.two.nodes, usage, "bvh nodes (two-level)"), (self.two.tris, usage, "bvh triangles (two-level)")],
+        )
         tail = self.two.nodes.nbytes - self.two.tail_offset
         self.staging = Buffer(self.ctx, tail, TRANSFER_SRC, host=True, name="top-level staging")
         self.views = [BufferView(self.nodes), BufferView(self.tris)]
         self.dset.bind("bvh_node_texels", self.views[0]).bind("bvh_tri_texels", self.views[1])
         self.dset.bind("bvh_node_image", self.views[0]).bind("bvh_tri_image", self.views[1])
-        if self.gpu_top is not None:   # the top level as the GPU builds it, from the start
-            self.gpu_top.prepare(self.two, self.nodes, scene.instance_mesh, self.flat_tri_base,
-                                 self._mesh_boxes(scene), self._mesh_radii(scene))
+        if self.gpu_top is not None:  # the top level as the GPU builds it, from the start
+            self.gpu_top.prepare(
+                self.two,
+                self.nodes,
+                scene.instance_mesh,
+                self.flat_tri_base,
+                self._mesh_boxes(scene),
+                self._mesh_radii(scene),
+            )
             self.gpu_top.build(scene.transforms)
         self.version = scene.version
-        self.structure = getattr(self, "structure", 0) + 1   # changes when the buffers (and spec) are new
+        self.structure = getattr(self, "structure", 0) + 1  # changes when the buffers (and spec) are new
         if self.gpu_refit is not None:
             self.gpu_refit.attach(self.two, self.nodes, self.tris)
         if self.refit_on == "gpu":
@@ -344,27 +388,33 @@ class InstancedBVH:
                 rebuilt.add(int(k))
                 continue
             self.refitted.add(k)
-            if self.refit_on == "gpu":   # the device buffers are refitted already
+            if self.refit_on == "gpu":  # the device buffers are refitted already
                 continue
             b = self.blas[k]
             n0, t0 = int(self.two.node_base[k]), int(self.two.tri_base[k])
-            parts.append((n0 * 64, self.two.nodes[n0:n0 + len(b.nodes)]))
-            parts.append(("tris", t0 * 48, self.two.tris[t0:t0 + len(b.tris)]))
+            parts.append((n0 * 64, self.two.nodes[n0 : n0 + len(b.nodes)]))
+            parts.append(("tris", t0 * 48, self.two.tris[t0 : t0 + len(b.tris)]))
         if rebuild:
             self.rebuilds += 1
             sah_built = list(self.two.sah_built)
             self._keep_refits(rebuilt)
             self._upload(scene)
-            for k in set(range(len(sah_built))) - rebuilt:   # (the rebuild policy keeps comparing with the build)
+            for k in set(range(len(sah_built))) - rebuilt:  # (the rebuild policy keeps comparing with the build)
                 self.two.sah_built[k] = sah_built[k]
             return True
         if self.gpu_top is not None:
             if len(deformed):
                 self.gpu_top.set_mesh_boxes(self._mesh_boxes(scene), self._mesh_radii(scene))
         elif len(moved) or len(deformed):
-            every = len(moved) == len(scene.instances)   # (all moved: the records rewritten by slices, no gathers)
-            tail = self.two.top(scene.transforms, scene.instance_mesh, self._mesh_boxes(scene), self.flat_tri_base,
-                                moved=None if every else moved, mesh_radii=self._mesh_radii(scene))
+            every = len(moved) == len(scene.instances)  # (all moved: the records rewritten by slices, no gathers)
+            tail = self.two.top(
+                scene.transforms,
+                scene.instance_mesh,
+                self._mesh_boxes(scene),
+                self.flat_tri_base,
+                moved=None if every else moved,
+                mesh_radii=self._mesh_radii(scene),
+            )
             parts.append((self.two.tail_offset, tail))
         node_parts = [p for p in parts if len(p) == 2]
         tri_parts = [p[1:] for p in parts if len(p) == 3]
@@ -384,15 +434,14 @@ class InstancedBVH:
             if k in rebuilt:
                 continue
             n0, t0 = int(self.two.node_base[k]), int(self.two.tri_base[k])
-            nodes, seg = b.nodes.copy(), self.two.nodes[n0:n0 + len(b.nodes)]
+            nodes, seg = b.nodes.copy(), self.two.nodes[n0 : n0 + len(b.nodes)]
             for field in ("lmin", "lmax", "rmin", "rmax"):
                 nodes[field] = seg[field]
-            b.nodes, b.tris = nodes, self.two.tris[t0:t0 + len(b.tris)].copy()
+            b.nodes, b.tris = nodes, self.two.tris[t0 : t0 + len(b.tris)].copy()
 
     def spec(self, ctx: Context, postpone: bool | None = None, stack_regs: int | None = None) -> dict:
         """bvh_spec for the bottom levels' depth, with the two-level constants."""
-        spec = bvh_spec(ctx, self.depth, layout="binary", compressed=False, postpone=postpone,
-                        stack_regs=stack_regs)
+        spec = bvh_spec(ctx, self.depth, layout="binary", compressed=False, postpone=postpone, stack_regs=stack_regs)
         spec.update(BVH_INSTANCED=True, BVH_TLAS_ROOT=self.two.tlas_root, BVH_INST_BASE=self.two.inst_base)
         return spec
 

@@ -7,6 +7,7 @@ A Group record (GROUP_WORDS words) holds the run's mesh box, the object-space er
 raster's facing mode for it (`soft_facing`: soft_raster.comp draws the run with one facing, or 0: the hardware
 raster draws it).
 """
+
 from __future__ import annotations
 
 import numpy as np
@@ -44,20 +45,24 @@ class DrawTables:
         self.ctx, self.instance_count, self.levels = ctx, instance_count, levels
         record_levels = [r[5] for r in records]
         records = [r[:5] for r in records]
-        rec = np.array(records, np.uint32).reshape(-1, RECORD_WORDS) if records else \
-            np.zeros((1, RECORD_WORDS), np.uint32)
+        rec = (
+            np.array(records, np.uint32).reshape(-1, RECORD_WORDS)
+            if records
+            else np.zeros((1, RECORD_WORDS), np.uint32)
+        )
         self.template = upload_buffer(ctx, rec, TRANSFER_SRC, "draw records template")
         self.commands = Buffer(ctx, rec.nbytes, INDIRECT | STORAGE | TRANSFER_DST | TRANSFER_SRC, name="draw records")
         self.record_level = np.array(record_levels, np.int64)
         # the first record of each run and level (the others of that run and level hold the same count)
-        self.counted = np.array([first + lv * per for _, _, first, per, _, n_levels, _ in groups if per
-                                 for lv in range(n_levels)], np.int64)
+        self.counted = np.array(
+            [first + lv * per for _, _, first, per, _, n_levels, _ in groups if per for lv in range(n_levels)], np.int64
+        )
         g = np.zeros((max(len(groups), 1), GROUP_WORDS), np.float32)
         bits = g.view(np.uint32)
         for i, (box, errors, first, per_level, slot, n_levels, soft) in enumerate(groups):
             g[i, 0:3], g[i, 4:7] = box[0], box[1]
-            err = list(errors[1:1 + MAX_COARSE_LEVELS])
-            g[i, 8:8 + len(err)] = err
+            err = list(errors[1 : 1 + MAX_COARSE_LEVELS])
+            g[i, 8 : 8 + len(err)] = err
             bits[i, 12:16] = first, per_level, slot, min(n_levels, 1 + MAX_COARSE_LEVELS)
             bits[i, 16] = soft
         self.groups = upload_buffer(ctx, g, STORAGE, "cull groups")
@@ -70,10 +75,12 @@ class DrawTables:
         self.texel_ok = len(visible) <= texels
         self.visible_view = BufferView(self.visible, R32UI, 0, 4 * min(len(visible), texels))
         self.soft_list = Buffer(ctx, n * 16, STORAGE | TRANSFER_SRC, name="software raster list")
-        self.soft_template = upload_buffer(ctx, np.array([0, 1, 1, 0], np.uint32), TRANSFER_SRC,
-                                           "software raster dispatch template")
-        self.soft_args = Buffer(ctx, 16, INDIRECT | STORAGE | TRANSFER_DST | TRANSFER_SRC,
-                                name="software raster dispatch")
+        self.soft_template = upload_buffer(
+            ctx, np.array([0, 1, 1, 0], np.uint32), TRANSFER_SRC, "software raster dispatch template"
+        )
+        self.soft_args = Buffer(
+            ctx, 16, INDIRECT | STORAGE | TRANSFER_DST | TRANSFER_SRC, name="software raster dispatch"
+        )
 
     def drawn(self) -> np.ndarray:
         """(levels,) instances the last culled frame drew at each level (read back from the device: tests)."""
@@ -88,6 +95,14 @@ class DrawTables:
         return read_buffer(self.ctx, self.soft_list, np.uint32).reshape(-1, 4)[:count]
 
     def destroy(self):
-        for buf in (self.visible_view, self.template, self.commands, self.groups, self.visible, self.soft_list,
-                    self.soft_template, self.soft_args):
+        for buf in (
+            self.visible_view,
+            self.template,
+            self.commands,
+            self.groups,
+            self.visible,
+            self.soft_list,
+            self.soft_template,
+            self.soft_args,
+        ):
             buf.destroy()

@@ -4,6 +4,7 @@ what the rays' alpha test reads (shaders/glsl/include/alpha.glsl): per flattened
 records and the texture arrays they sample (engine/gpu/textures.py). The renderer (engine/gpu/scene.py
 `SceneGeometry`) and the Tracer (`scene_alpha`, `untested_alpha`) make them alike.
 """
+
 from __future__ import annotations
 
 import numpy as np
@@ -34,14 +35,16 @@ def material_texels(materials, textures: TextureArrays) -> np.ndarray:
 
     for i, m in enumerate(materials):
         data[i, 0:4] = m.base_color
-        bits[i, 4:8] = [handle(m, f) for f in ("texture", "metallic_roughness_texture", "normal_texture",
-                                               "emissive_texture")]
+        bits[i, 4:8] = [
+            handle(m, f) for f in ("texture", "metallic_roughness_texture", "normal_texture", "emissive_texture")
+        ]
         data[i, 8:12] = m.metallic, m.roughness, m.occlusion_strength, m.normal_scale
         # BLEND is cut out at 0.5 (no transparency): the raster and the rays see the same surface
         data[i, 12:15], data[i, 15] = m.emissive, {"OPAQUE": 0.0, "MASK": m.alpha_cutoff, "BLEND": 0.5}[m.alpha_mode]
         bits[i, 16] = handle(m, "occlusion_texture")
-        bits[i, 17] = ((MATERIAL_FLAGS["alpha_tested"] if m.alpha_mode != "OPAQUE" else 0)
-                       | (MATERIAL_FLAGS["double_sided"] if m.double_sided else 0))
+        bits[i, 17] = (MATERIAL_FLAGS["alpha_tested"] if m.alpha_mode != "OPAQUE" else 0) | (
+            MATERIAL_FLAGS["double_sided"] if m.double_sided else 0
+        )
     return data
 
 
@@ -58,7 +61,7 @@ def alpha_records(scene, textures: TextureArrays) -> tuple[np.ndarray, np.ndarra
     prims = np.flatnonzero(tested)
     index[prims] = np.arange(1, len(prims) + 1, dtype=np.uint32)
     records = np.zeros((max(len(prims), 1), 8), np.float32)
-    records[:len(prims), 0:6] = scene.uvs[scene.indices[prims]].reshape(-1, 6)
+    records[: len(prims), 0:6] = scene.uvs[scene.indices[prims]].reshape(-1, 6)
     bits = records.view(np.uint32)
     for k, m in enumerate(scene.materials):
         if m.alpha_mode == "OPAQUE":
@@ -66,8 +69,8 @@ def alpha_records(scene, textures: TextureArrays) -> tuple[np.ndarray, np.ndarra
         rows = tri_mat[prims] == k
         cutoff = 0.5 if m.alpha_mode == "BLEND" else m.alpha_cutoff
         base = float(m.base_color[3])
-        bits[:len(prims)][rows, 6] = textures.handle(None if m.texture is None else (texture_key(m.texture), True))
-        records[:len(prims)][rows, 7] = 0.0 if cutoff == 0 else (cutoff / base if base > 0 else np.inf)
+        bits[: len(prims)][rows, 6] = textures.handle(None if m.texture is None else (texture_key(m.texture), True))
+        records[: len(prims)][rows, 7] = 0.0 if cutoff == 0 else (cutoff / base if base > 0 else np.inf)
     return index, records
 
 
@@ -101,7 +104,8 @@ def untested_alpha(ctx) -> RayAlpha:
     root = ctx.root
     with root.memo_lock:
         if "alpha.untested" not in root.memo:
-            view = BufferView(upload_buffer(root, np.zeros((1, 8), np.float32), UNIFORM_TEXEL, "alpha records"),
-                              RGBA32F)
+            view = BufferView(
+                upload_buffer(root, np.zeros((1, 8), np.float32), UNIFORM_TEXEL, "alpha records"), RGBA32F
+            )
             root.memo["alpha.untested"] = RayAlpha(view, TextureArrays(root, {}), white_texture(root), Sampler(root))
         return root.memo["alpha.untested"]

@@ -13,6 +13,7 @@ and step every box one float outwards. The host copy of the BVH (`TwoLevel.nodes
 device buffers are what is current for a mesh refitted here (InstancedBVH refits such meshes again after it uploads
 the host copy, see `InstancedBVH.refitted`).
 """
+
 from __future__ import annotations
 
 import numpy as np
@@ -26,8 +27,8 @@ from ..vk.reflect import reflect
 from ..vk.resources import STORAGE, TRANSFER_DST, TRANSFER_SRC
 
 SHADER = "bvh_refit.comp"
-GROUP = 128                 # bvh_refit.comp's local size
-SAH_CHUNK = GROUP * 32      # nodes per workgroup of its SAH sum (SAH_PER_THREAD)
+GROUP = 128  # bvh_refit.comp's local size
+SAH_CHUNK = GROUP * 32  # nodes per workgroup of its SAH sum (SAH_PER_THREAD)
 #: Names of the GPU timestamps of a refit (`GpuRefit.last_ms`).
 MARKS = ("upload", "boxes", "sah")
 
@@ -67,7 +68,7 @@ class GpuRefit:
         self.ctx = ctx
         spirv = (library or ShaderLibrary()).get(SHADER)
         self.interface = reflect(spirv, SHADER)
-        self.sets: dict[int, DescriptorSet] = {}   # per mesh, kept while this lives (rebound, not made again)
+        self.sets: dict[int, DescriptorSet] = {}  # per mesh, kept while this lives (rebound, not made again)
         self.meshes: dict[int, _Mesh] = {}
         first = self._set(0)
         self.pipeline = ComputePipeline(ctx, spirv, [first], push_size=self.interface.push_size, name="bvh_refit")
@@ -102,8 +103,9 @@ class GpuRefit:
             return 1.0
         p = np.asarray(positions, dtype=np.float32)
         m = self.meshes.get(k)
-        if m is not None and (m.n_vertices != len(p) or (m.indices is not indices and
-                                                          not np.array_equal(m.indices, indices))):
+        if m is not None and (
+            m.n_vertices != len(p) or (m.indices is not indices and not np.array_equal(m.indices, indices))
+        ):
             m.destroy(self.ctx)
             m = None
         if m is None:
@@ -116,7 +118,7 @@ class GpuRefit:
             m.cmd = self._record(k, m)
         self.ctx.submit(m.cmd)
         self.last_ms = self.timestamps.read(list(MARKS))
-        sums = m.sah.view(np.float32)[:1 + m.groups].astype(np.float64)
+        sums = m.sah.view(np.float32)[: 1 + m.groups].astype(np.float64)
         root = sums[0]
         sah = float(sums[1:].sum() / root) if root > 0 else 0.0
         built = self.two.sah_built[k]
@@ -130,11 +132,23 @@ class GpuRefit:
         inputs = [m.positions, m.faces, m.order]
         for first, count in m.levels:
             push = np.array([n0, t0, first, count, 0], np.uint32)
-            rec.dispatch(self.pipeline, [m.set], (-(-count // GROUP), 1, 1), push=push, reads=inputs + [m.raw],
-                         writes=[self.nodes, self.tris, m.raw])
+            rec.dispatch(
+                self.pipeline,
+                [m.set],
+                (-(-count // GROUP), 1, 1),
+                push=push,
+                reads=inputs + [m.raw],
+                writes=[self.nodes, self.tris, m.raw],
+            )
         rec.mark("boxes")
-        rec.dispatch(self.pipeline, [m.set], (m.groups, 1, 1), push=np.array([n0, t0, 0, m.n_nodes, 1], np.uint32),
-                     reads=[m.raw], writes=[m.sah])
+        rec.dispatch(
+            self.pipeline,
+            [m.set],
+            (m.groups, 1, 1),
+            push=np.array([n0, t0, 0, m.n_nodes, 1], np.uint32),
+            reads=[m.raw],
+            writes=[m.sah],
+        )
         rec.mark("sah")
         rec.to_host(m.sah)
         rec.to_later()
@@ -158,7 +172,7 @@ class GpuRefit:
             words = host.view(np.uint32).copy()
         finally:
             host.destroy()
-        return words[:nn * 16].reshape(nn, 16), words[nn * 16:].reshape(nt, 12)
+        return words[: nn * 16].reshape(nn, 16), words[nn * 16 :].reshape(nt, 12)
 
     def destroy(self):
         for m in self.meshes.values():

@@ -13,6 +13,7 @@ of the instances before it), so the visibility id is that + the draw's first tri
 resolve finds the instance by a binary search. Materials, textures and the rays' alpha records:
 engine/gpu/materials.py, engine/gpu/textures.py.
 """
+
 from __future__ import annotations
 
 import numpy as np
@@ -31,7 +32,7 @@ from .materials import RayAlpha, alpha_records, material_texels
 from .textures import TextureArrays, scene_textures
 
 
-INSTANCE_FLOATS = 4 * INSTANCE_TEXELS   # std430 `Instance` (shaders/glsl/include/instances.glsl): 256 bytes
+INSTANCE_FLOATS = 4 * INSTANCE_TEXELS  # std430 `Instance` (shaders/glsl/include/instances.glsl): 256 bytes
 NO_MATERIAL = 0xFFFFFFFF
 
 
@@ -57,8 +58,11 @@ class SceneGeometry:
     def __init__(self, ctx, scene, white_texture, sampler, levels: bool = True):
         """`levels`: make the meshes' levels of detail (else each mesh is its only level)."""
         self.ctx, self.has_levels = ctx, bool(levels)
-        meshes, mesh_of, overrides = list(scene.meshes), np.asarray(scene.instance_mesh, np.int64), \
-            instance_materials(scene)
+        meshes, mesh_of, overrides = (
+            list(scene.meshes),
+            np.asarray(scene.instance_mesh, np.int64),
+            instance_materials(scene),
+        )
         chains = [lod_chain(m) if levels else lod_chain(m, max_levels=1) for m in meshes]
         n_vert = sum(len(level.positions) for chain in chains for level in chain)
         verts = np.zeros((n_vert, 8), np.float32)
@@ -66,24 +70,24 @@ class SceneGeometry:
         # per mesh, per level of detail: (material, first triangle within the mesh's levels, triangle count), the
         # same materials at every level (a count may be 0)
         self.mesh_ranges = []
-        self.mesh_levels = []   # per mesh: (object-space box, the object-space error of each level)
+        self.mesh_levels = []  # per mesh: (object-space box, the object-space error of each level)
         v0 = t0 = 0
         for m, chain in zip(meshes, chains):
             tri_mat = np.asarray(m.vertex_material[m.indices[:, 0]], np.int64)
             objects = np.zeros(len(m.indices), np.uint32)
             for k, sub in enumerate(m.submeshes):
-                objects[sub.first_triangle:sub.first_triangle + sub.triangle_count] = k
+                objects[sub.first_triangle : sub.first_triangle + sub.triangle_count] = k
             materials = np.unique(tri_mat)
             levels, at = [], 0
-            for level in chain:   # each level's triangles grouped by material, the levels in a row
+            for level in chain:  # each level's triangles grouped by material, the levels in a row
                 nv, nt = len(level.positions), len(level.indices)
-                verts[v0:v0 + nv, 0:3] = level.positions
-                verts[v0:v0 + nv, 3:6] = level.normals
-                verts[v0:v0 + nv, 6:8] = level.uvs
+                verts[v0 : v0 + nv, 0:3] = level.positions
+                verts[v0 : v0 + nv, 3:6] = level.normals
+                verts[v0 : v0 + nv, 6:8] = level.uvs
                 mats = tri_mat[level.source]
                 order = np.argsort(mats, kind="stable")
                 indices.append(np.asarray(level.indices, np.int64)[order] + v0)
-                tri = np.zeros((nt, 4), np.uint32)   # material, triangle of the mesh, object, the level's error
+                tri = np.zeros((nt, 4), np.uint32)  # material, triangle of the mesh, object, the level's error
                 src = level.source[order]
                 tri[:, 0], tri[:, 1], tri[:, 2] = mats[order], src, objects[src]
                 tri[:, 3] = np.float32(level.error).view(np.uint32)
@@ -96,14 +100,15 @@ class SceneGeometry:
             first_tri.append(t0)
             t0 += at
         self.mesh_triangles = np.array([len(m.indices) for m in meshes], np.int64)
-        self.mesh_level_triangles = np.array([sum(len(level.indices) for level in chain) for chain in chains],
-                                             np.int64)
+        self.mesh_level_triangles = np.array([sum(len(level.indices) for level in chain) for chain in chains], np.int64)
         self.mesh_first_triangle = np.array(first_tri, np.int64)
         self.vertex_buffer = upload_buffer(ctx, verts, VERTEX | UNIFORM_TEXEL, "vertices")
-        self.index_buffer = upload_buffer(ctx, np.ascontiguousarray(np.concatenate(indices), np.uint32),
-                                          INDEX | UNIFORM_TEXEL, "indices")
-        self.tri_info_buffer = upload_buffer(ctx, np.concatenate(info + [np.zeros((1, 4), np.uint32)]),
-                                             UNIFORM_TEXEL, "triangle info")
+        self.index_buffer = upload_buffer(
+            ctx, np.ascontiguousarray(np.concatenate(indices), np.uint32), INDEX | UNIFORM_TEXEL, "indices"
+        )
+        self.tri_info_buffer = upload_buffer(
+            ctx, np.concatenate(info + [np.zeros((1, 4), np.uint32)]), UNIFORM_TEXEL, "triangle info"
+        )
         self.alpha_tested = {i for i, m in enumerate(scene.materials) if m.alpha_mode != "OPAQUE"}
         self.single_sided = {i for i, m in enumerate(scene.materials) if not m.double_sided}
         self._mirrored = mirrored(scene.transforms) if self.single_sided else None
@@ -114,12 +119,16 @@ class SceneGeometry:
         self.material_buffer = upload_buffer(ctx, mat_data, UNIFORM_TEXEL, "materials")
         self.alpha_index, records = alpha_records(scene, self.textures)
         self.alpha_buffer = upload_buffer(ctx, records, UNIFORM_TEXEL, "alpha records")
-        self.views = [BufferView(self.vertex_buffer, RGBA32F), BufferView(self.index_buffer, R32UI),
-                      BufferView(self.tri_info_buffer, RGBA32UI), BufferView(self.material_buffer, RGBA32F),
-                      BufferView(self.alpha_buffer, RGBA32F)]
+        self.views = [
+            BufferView(self.vertex_buffer, RGBA32F),
+            BufferView(self.index_buffer, R32UI),
+            BufferView(self.tri_info_buffer, RGBA32UI),
+            BufferView(self.material_buffer, RGBA32F),
+            BufferView(self.alpha_buffer, RGBA32F),
+        ]
         self.white = white_texture
         self.sampler = sampler
-        self.alpha = RayAlpha(self.views[4], self.textures, white_texture, sampler)   # the ray passes' alpha test
+        self.alpha = RayAlpha(self.views[4], self.textures, white_texture, sampler)  # the ray passes' alpha test
 
     def _instances(self, meshes, mesh_of, overrides):
         """The draw order (instances grouped by mesh, then material override), the draws and the instance buffer's
@@ -127,13 +136,15 @@ class SceneGeometry:
         n = len(mesh_of)
         self.instance_count = n
         flip = self._mirrored.astype(np.int64) if self._mirrored is not None else np.zeros(n, np.int64)
-        self.order = np.lexsort((flip, overrides, mesh_of))   # draw slot -> instance (stable)
-        self._in_order = bool(np.array_equal(self.order, np.arange(n)))   # (no gather of the transforms per frame)
+        self.order = np.lexsort((flip, overrides, mesh_of))  # draw slot -> instance (stable)
+        self._in_order = bool(np.array_equal(self.order, np.arange(n)))  # (no gather of the transforms per frame)
         tris = self.mesh_level_triangles[mesh_of[self.order]]
         total = int(tris.sum())
-        if total >= 2 ** 32 - 1:
-            raise SceneError(f"{total:,} instanced triangles (levels of detail included): the visibility buffer's "
-                             f"32-bit ids hold at most {2 ** 32 - 2:,}")
+        if total >= 2**32 - 1:
+            raise SceneError(
+                f"{total:,} instanced triangles (levels of detail included): the visibility buffer's "
+                f"32-bit ids hold at most {2**32 - 2:,}"
+            )
         prefix = np.concatenate([[0], np.cumsum(tris)[:-1]]).astype(np.int64)
         # the flat arrays' order (scene.indices, scene.submeshes): instances in scene order, their triangles in a row
         flat_tri = np.concatenate([[0], np.cumsum(self.mesh_triangles[mesh_of])[:-1]])
@@ -147,21 +158,37 @@ class SceneGeometry:
         self.draws = {(masked, cull): [] for masked in (False, True) for cull in (CULL_NONE, CULL_BACK, CULL_FRONT)}
         self.indirect = {key: [] for key in self.draws}
         records, groups = [], []
-        keys = np.stack([mesh_of[self.order], overrides[self.order], flip[self.order]], axis=1) if n else \
-            np.zeros((0, 3), np.int64)
+        keys = (
+            np.stack([mesh_of[self.order], overrides[self.order], flip[self.order]], axis=1)
+            if n
+            else np.zeros((0, 3), np.int64)
+        )
         runs = np.flatnonzero(np.r_[True, np.any(keys[1:] != keys[:-1], axis=1)]) if n else np.zeros(0, np.int64)
         run_of = np.zeros(n, np.int64)
         for r, (f, e) in enumerate(zip(runs, np.r_[runs[1:], n])):
             run_of[f:e] = r
             k, over, mirror = int(keys[f, 0]), int(keys[f, 1]), bool(keys[f, 2])
             base = int(self.mesh_first_triangle[k])
-            levels = self.mesh_ranges[k] if over < 0 else \
-                [[(over, ranges[0][1], sum(c for _, _, c in ranges))] for ranges in self.mesh_ranges[k]]
+            levels = (
+                self.mesh_ranges[k]
+                if over < 0
+                else [[(over, ranges[0][1], sum(c for _, _, c in ranges))] for ranges in self.mesh_ranges[k]]
+            )
             materials = {material for ranges in levels for material, _, _ in ranges}
-            culls = {CULL_NONE if m not in self.single_sided else CULL_FRONT if mirror else CULL_BACK
-                     for m in materials}
-            groups.append((self.mesh_levels[k][0], self.mesh_levels[k][1], len(records), len(levels[0]), int(f),
-                           len(levels), soft_facing(culls, bool(materials & self.alpha_tested))))
+            culls = {
+                CULL_NONE if m not in self.single_sided else CULL_FRONT if mirror else CULL_BACK for m in materials
+            }
+            groups.append(
+                (
+                    self.mesh_levels[k][0],
+                    self.mesh_levels[k][1],
+                    len(records),
+                    len(levels[0]),
+                    int(f),
+                    len(levels),
+                    soft_facing(culls, bool(materials & self.alpha_tested)),
+                )
+            )
             for level, ranges in enumerate(levels):
                 for material, start, count in ranges:
                     cull = CULL_NONE if material not in self.single_sided else CULL_FRONT if mirror else CULL_BACK
@@ -182,9 +209,11 @@ class SceneGeometry:
         texels = int(self.ctx.limits.maxTexelBufferElements)
         self.instance_texel_ok = size // 16 <= texels and self.tables.texel_ok
         view = min(size, 16 * texels)
-        self.instance_views = (BufferView(self.instance_buffer, RGBA32F, 0, view),
-                               BufferView(self.instance_buffer, RGBA32UI, 0, view))
-        block = self.instance_staging.view(np.float32)[:n * INSTANCE_FLOATS].reshape(n, INSTANCE_FLOATS)
+        self.instance_views = (
+            BufferView(self.instance_buffer, RGBA32F, 0, view),
+            BufferView(self.instance_buffer, RGBA32UI, 0, view),
+        )
+        block = self.instance_staging.view(np.float32)[: n * INSTANCE_FLOATS].reshape(n, INSTANCE_FLOATS)
         block[:] = 0
         ids = block.view(np.uint32)
         o = self.order
@@ -197,7 +226,7 @@ class SceneGeometry:
         ids[:, 62] = run_of
         self._block = block
         self._overrides = overrides.copy()
-        self._written = None   # (transforms, previous transforms) last written
+        self._written = None  # (transforms, previous transforms) last written
 
     def overrides_changed(self, scene) -> bool:
         """Do the instances' material overrides differ from those this geometry was made for? (The draws, their
@@ -220,24 +249,34 @@ class SceneGeometry:
         block, o = self._block, self.order
         n = len(block)
         todo = [(0, transforms), (16, previous)]
-        if w is not None and _same(w[0], previous):   # last frame's current: moved over, not recomputed
+        if w is not None and _same(w[0], previous):  # last frame's current: moved over, not recomputed
             block[:, 16:32], block[:, 44:56] = block[:, 0:16], block[:, 32:44]
             todo = todo[:1]
         for at, m in todo:
             m = m if self._in_order else m[o]
             # GLSL mat4: column-major (written through a strided view of the block: no transposed copy)
-            np.copyto(block[:, at:at + 16].reshape(n, 4, 4), m.transpose(0, 2, 1), casting="same_kind")
-            inv = inverse3(m[:, :3, :3])   # rows of inv(A): the columns of its inverse transpose
+            np.copyto(block[:, at : at + 16].reshape(n, 4, 4), m.transpose(0, 2, 1), casting="same_kind")
+            inv = inverse3(m[:, :3, :3])  # rows of inv(A): the columns of its inverse transpose
             base = 32 + at * 3 // 4
             for r in range(3):
-                block[:, base + 4 * r:base + 4 * r + 3] = inv[:, r]
+                block[:, base + 4 * r : base + 4 * r + 3] = inv[:, r]
         self._written = (transforms, previous) if owned else (transforms.copy(), previous.copy())
         return True
 
     def destroy(self):
-        for obj in [*self.views, *self.instance_views, self.vertex_buffer, self.index_buffer, self.tri_info_buffer,
-                    self.material_buffer, self.alpha_buffer, self.instance_buffer, self.instance_staging,
-                    self.tables, self.textures]:
+        for obj in [
+            *self.views,
+            *self.instance_views,
+            self.vertex_buffer,
+            self.index_buffer,
+            self.tri_info_buffer,
+            self.material_buffer,
+            self.alpha_buffer,
+            self.instance_buffer,
+            self.instance_staging,
+            self.tables,
+            self.textures,
+        ]:
             obj.destroy()
 
 
@@ -251,9 +290,9 @@ class SceneChanges:
     writes the instance buffer only when something moved, with the previous transforms its motion needs."""
 
     def __init__(self):
-        self.version = None      # the scene's `version` the last frame drew (None: none drawn yet)
-        self.last = None         # the transforms the last frame drew
-        self.settled = False     # the instance buffer's previous transforms equal its current ones
+        self.version = None  # the scene's `version` the last frame drew (None: none drawn yet)
+        self.last = None  # the transforms the last frame drew
+        self.settled = False  # the instance buffer's previous transforms equal its current ones
 
     def begin(self, scene):
         """None when nothing changed since the last frame (and it had no motion); else (whether a mesh deformed,
@@ -269,7 +308,7 @@ class SceneChanges:
     def write(self, scene, geom: SceneGeometry) -> None:
         """This frame's transforms and the last frame's into `geom` (made for the scene's current material
         overrides: `SceneGeometry.overrides_changed`)."""
-        transforms = scene.transforms.copy()   # (one copy: the instance buffer's record and the next `last`)
+        transforms = scene.transforms.copy()  # (one copy: the instance buffer's record and the next `last`)
         last = self.last if self.last is not None and self.last.shape == transforms.shape else transforms
         geom.write_transforms(transforms, last, owned=True)
         self.settled = _same(transforms, last)
@@ -280,5 +319,3 @@ class SceneChanges:
         if self.last is not None:
             geom.write_transforms(self.last, self.last, owned=True)
             self.settled = True
-
-

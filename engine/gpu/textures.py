@@ -9,6 +9,7 @@ device's `maxImageDimension2D`), sRGB or linear. One array image holds the textu
 bindings, the class with the fewest texels moves into the smallest class of its kind that contains it (or both grow
 to hold each other), until they fit. Mip chains are made with linear blits (in linear light for sRGB).
 """
+
 from __future__ import annotations
 
 import logging
@@ -24,8 +25,10 @@ log = logging.getLogger("engine.textures")
 
 def size_class(width: int, height: int, max_dim: int) -> tuple[int, int]:
     """The power-of-two size a width x height texture is stored at: each side rounded up, capped at `max_dim`."""
+
     def up(n):
         return min(1 << max(0, math.ceil(math.log2(max(n, 1)))), max_dim)
+
     return up(width), up(height)
 
 
@@ -52,7 +55,7 @@ def plan_arrays(textures: dict, max_dim: int, max_layers: int, max_arrays: int =
     while arrays_needed() > max_arrays:
         mergeable = [c for c in classes if any(d != c and d[0] == c[0] for d in classes)]
         if not mergeable:
-            break   # one class per kind: more textures than the arrays hold
+            break  # one class per kind: more textures than the arrays hold
         small = min(mergeable, key=lambda c: (c[1] * c[2] * len(classes[c]), c))
         same = [c for c in classes if c != small and c[0] == small[0]]
         holders = [c for c in same if c[1] >= small[1] and c[2] >= small[2]]
@@ -66,9 +69,9 @@ def plan_arrays(textures: dict, max_dim: int, max_layers: int, max_arrays: int =
 
     plans, handles, dropped = [], {}, 0
     for (srgb, w, h), keys in sorted(classes.items(), key=lambda kv: (not kv[0][0], kv[0][1], kv[0][2])):
-        keys = sorted(keys, key=lambda k: textures[k][0][:2])   # equal sizes adjacent: one resize blit each
+        keys = sorted(keys, key=lambda k: textures[k][0][:2])  # equal sizes adjacent: one resize blit each
         for start in range(0, len(keys), max_layers):
-            chunk = keys[start:start + max_layers]
+            chunk = keys[start : start + max_layers]
             if len(plans) == max_arrays:
                 dropped += len(chunk)
                 continue
@@ -76,8 +79,12 @@ def plan_arrays(textures: dict, max_dim: int, max_layers: int, max_arrays: int =
                 handles[key] = len(plans) << 16 | layer
             plans.append(ArrayPlan(w, h, srgb, chunk))
     if dropped:
-        log.warning("%d textures do not fit in %d arrays of %d layers: their materials show their factors alone",
-                    dropped, max_arrays, max_layers)
+        log.warning(
+            "%d textures do not fit in %d arrays of %d layers: their materials show their factors alone",
+            dropped,
+            max_arrays,
+            max_layers,
+        )
     return plans, handles
 
 
@@ -89,14 +96,23 @@ class TextureArrays:
         limits = ctx.limits
         self.max_layers = min(int(limits.maxImageArrayLayers), 1 << 16)
         self.plans, self.handles = plan_arrays(
-            {k: (img.shape, srgb) for k, (img, srgb) in textures.items()}, int(limits.maxImageDimension2D),
-            self.max_layers)
+            {k: (img.shape, srgb) for k, (img, srgb) in textures.items()},
+            int(limits.maxImageDimension2D),
+            self.max_layers,
+        )
         self.images = []
         try:
             for i, p in enumerate(self.plans):
-                self.images.append(upload_texture_array(
-                    ctx, [textures[k][0] for k in p.keys], p.width, p.height, p.srgb,
-                    name=f"textures {i} ({p.width}x{p.height}{' sRGB' if p.srgb else ''})"))
+                self.images.append(
+                    upload_texture_array(
+                        ctx,
+                        [textures[k][0] for k in p.keys],
+                        p.width,
+                        p.height,
+                        p.srgb,
+                        name=f"textures {i} ({p.width}x{p.height}{' sRGB' if p.srgb else ''})",
+                    )
+                )
         except BaseException:
             self.destroy()
             raise
@@ -114,8 +130,13 @@ class TextureArrays:
 
 
 #: Each texture field of a Material and whether it holds colour (an sRGB array) or data (a linear one).
-TEXTURE_KINDS = {"texture": True, "metallic_roughness_texture": False, "normal_texture": False,
-                 "emissive_texture": True, "occlusion_texture": False}
+TEXTURE_KINDS = {
+    "texture": True,
+    "metallic_roughness_texture": False,
+    "normal_texture": False,
+    "emissive_texture": True,
+    "occlusion_texture": False,
+}
 
 
 def scene_textures(materials) -> dict:

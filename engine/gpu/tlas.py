@@ -10,6 +10,7 @@ level); the radix tree's nodes, one invocation each, their child boxes range uni
 `tlas_builder(ctx)` says which builds the top level: $HYBRID_TLAS_BUILD ("gpu" / "host") if set, else the GPU on
 GPUs and the host on CPU devices, where the numpy build is the faster (docs/benchmarks.md, #17).
 """
+
 from __future__ import annotations
 
 import os
@@ -26,14 +27,14 @@ from ..vk.sync import create_fence, destroy_fence, reset_fences, wait_fences
 SHADER = "tlas_build.comp"
 BUILDERS = ("gpu", "host")
 WORLD, MORTON, SORT_BLOCK_FULL, SORT_BLOCK_MERGE, SORT_STEP, SEG_LEAVES, SEG_LEVEL, TREE = range(8)
-GROUP = 512          # the shader's local size
-SORT_BLOCK = 1024    # keys a workgroup sorts in shared memory
+GROUP = 512  # the shader's local size
+SORT_BLOCK = 1024  # keys a workgroup sorts in shared memory
 #: the GPU timestamps of a build, in order (`TopLevelBuilder.gpu_ms`)
 MARKS = ("tlas upload", "tlas world", "tlas sort", "tlas nodes")
 
 
 def tlas_builder(ctx, builder: str | None = None) -> str:
-    """"gpu" or "host": `builder` if given, else $HYBRID_TLAS_BUILD, else the GPU except on CPU devices."""
+    """ "gpu" or "host": `builder` if given, else $HYBRID_TLAS_BUILD, else the GPU except on CPU devices."""
     what = "top-level builder"
     if builder is None:
         builder = os.environ.get("HYBRID_TLAS_BUILD") or ("host" if is_cpu(ctx) else "gpu")
@@ -80,15 +81,22 @@ class TopLevelBuilder:
         self.buffers: list = []
         self.view = None
 
-    def prepare(self, two, nodes: Buffer, inst_mesh: np.ndarray, flat_tri_base: np.ndarray,
-                mesh_boxes: np.ndarray, mesh_radii: np.ndarray | None = None) -> None:
+    def prepare(
+        self,
+        two,
+        nodes: Buffer,
+        inst_mesh: np.ndarray,
+        flat_tri_base: np.ndarray,
+        mesh_boxes: np.ndarray,
+        mesh_radii: np.ndarray | None = None,
+    ) -> None:
         """Buffers and the recorded build for `two` (a TwoLevel) whose nodes live in `nodes` (`mesh_boxes`,
         `mesh_radii`: as TwoLevel.top's)."""
         self.wait()
         self._release()
         ctx = self.ctx
         n = two.n_instances
-        slots = 1 << max(1, int(n - 1).bit_length())   # the sort's power-of-two length
+        slots = 1 << max(1, int(n - 1).bit_length())  # the sort's power-of-two length
         keys = max(slots, SORT_BLOCK)
         self.n = n
         self.staging = Buffer(ctx, n * 48, TRANSFER_SRC, host=True, name="tlas transforms staging")
@@ -105,8 +113,7 @@ class TopLevelBuilder:
         self.bounds = Buffer(ctx, 32, STORAGE | TRANSFER_DST, name="tlas bounds")
         self.keys = Buffer(ctx, keys * 8, STORAGE, name="tlas sort keys")
         self.seg = Buffer(ctx, 2 * slots * 32, STORAGE, name="tlas segment tree")
-        self.buffers = [self.staging, self.xf, self.info, self.mesh_boxes, self.boxes, self.bounds, self.keys,
-                        self.seg]
+        self.buffers = [self.staging, self.xf, self.info, self.mesh_boxes, self.boxes, self.bounds, self.keys, self.seg]
         self.view = BufferView(nodes)
         self._xf_host = self.staging.view(np.float32).reshape(n, 3, 4)
         d = self.dset
@@ -126,7 +133,7 @@ class TopLevelBuilder:
         out[:, 1, :3] = np.where(hi < b[:, 1], np.nextafter(hi, np.float32(np.inf)), hi)
         r = np.full(len(b), np.inf) if mesh_radii is None else np.asarray(mesh_radii, np.float64)
         r32 = r.astype(np.float32)
-        out[:, 0, 3] = np.where(r32 < r, np.nextafter(r32, np.float32(np.inf)), r32)   # (w of the min row)
+        out[:, 0, 3] = np.where(r32 < r, np.nextafter(r32, np.float32(np.inf)), r32)  # (w of the min row)
         self.mesh_boxes.write(out)
 
     def _record(self, two, nodes: Buffer, slots: int, keys: int):

@@ -1,4 +1,5 @@
 """Ambient-occlusion pass: cosine-weighted hemisphere rays of length ao_radius, unoccluded fraction."""
+
 from .raypass import RayPass, ray_bindings
 from .shadows import record_split
 

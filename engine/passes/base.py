@@ -10,6 +10,7 @@ Binding numbers, descriptor types and set layouts come from the shader's SPIR-V 
 declaration is checked against it when the pipeline is made and on every hot reload, so a shader and its pass
 cannot drift apart silently. The reads and writes go to the Recorder, which derives the barriers between passes.
 """
+
 from __future__ import annotations
 
 from dataclasses import dataclass
@@ -77,12 +78,16 @@ class ComputePass:
         self.interface = reflect(spirv, self.shader)
         check_interface(self.shader, self.bindings, self.interface)
         self.set = DescriptorSet(ctx, self.interface.set(0).values())
-        self.spirv = spirv   # the current pipeline's SPIR-V (hot reload may hold newer SPIR-V that was refused)
+        self.spirv = spirv  # the current pipeline's SPIR-V (hot reload may hold newer SPIR-V that was refused)
         self.values = dict(self.constants(ctx))
-        self.pipeline = ComputePipeline(ctx, spirv, [self.set, *self.shared_sets],
-                                        push_size=self.interface.push_size,
-                                        spec=self.interface.specialization(self.values, self.shader) or None,
-                                        name=self.name)
+        self.pipeline = ComputePipeline(
+            ctx,
+            spirv,
+            [self.set, *self.shared_sets],
+            push_size=self.interface.push_size,
+            spec=self.interface.specialization(self.values, self.shader) or None,
+            name=self.name,
+        )
         self.bind(resources)
 
     def constants(self, ctx) -> dict:
@@ -116,15 +121,19 @@ class ComputePass:
         spirv = library.get(self.shader)
         interface = reflect(spirv, self.shader)
         check_interface(self.shader, self.bindings, interface)
-        for index in range(len(self.shared_sets) + 1):   # the set layouts the pipeline layout was made with
+        for index in range(len(self.shared_sets) + 1):  # the set layouts the pipeline layout was made with
             if interface.set(index) != self.interface.set(index):
                 changed = set(interface.set(index).items()) ^ set(self.interface.set(index).items())
                 names = ", ".join(sorted({name for name, _ in changed}))
-                raise ShaderError(f"{self.shader}: set {index}'s layout changed ({names}: binding numbers or array "
-                                  "sizes); restart to use it")
+                raise ShaderError(
+                    f"{self.shader}: set {index}'s layout changed ({names}: binding numbers or array "
+                    "sizes); restart to use it"
+                )
         if interface.sets() != self.interface.sets() or interface.push_size != self.interface.push_size:
-            raise ShaderError(f"{self.shader}: its sets or push constants changed (sets {interface.sets()}, "
-                              f"{interface.push_size} bytes of push constants); restart to use it")
+            raise ShaderError(
+                f"{self.shader}: its sets or push constants changed (sets {interface.sets()}, "
+                f"{interface.push_size} bytes of push constants); restart to use it"
+            )
         spec = interface.specialization(self.values, self.shader) or None
         old = self.pipeline.spec
         self.pipeline.spec = spec
@@ -146,8 +155,14 @@ class ComputePass:
 
     def dispatch(self, rec: Recorder, groups, push=None, sets=None, reads=None, writes=None):
         """Record one dispatch (the declared reads and writes unless given)."""
-        rec.dispatch(self.pipeline, [sets or self.set, *self.shared_sets], groups, push=push,
-                     reads=self.reads if reads is None else reads, writes=self.writes if writes is None else writes)
+        rec.dispatch(
+            self.pipeline,
+            [sets or self.set, *self.shared_sets],
+            groups,
+            push=push,
+            reads=self.reads if reads is None else reads,
+            writes=self.writes if writes is None else writes,
+        )
 
     @staticmethod
     def tiles(width: int, height: int, depth: int = 1) -> tuple:

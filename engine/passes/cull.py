@@ -20,6 +20,7 @@ Visibility ids: an instance owns as many ids as its mesh's levels have triangles
 each mesh's levels in a row), so `prefix + triangle within the levels + 1` names instance, level and triangle, and
 the resolve reads the level's triangle without knowing the level.
 """
+
 from __future__ import annotations
 
 import numpy as np
@@ -38,9 +39,15 @@ class CullPass(ComputePass):
 
     name = "cull"
     shader = "cull.comp"
-    bindings = {"frame": read("uniform", "frame"), "instances": read("buffer"), "groups": read("buffer"),
-                "commands": update("buffer"), "visible": write("buffer"), "soft_list": write("buffer"),
-                "soft_args": update("buffer")}
+    bindings = {
+        "frame": read("uniform", "frame"),
+        "instances": read("buffer"),
+        "groups": read("buffer"),
+        "commands": update("buffer"),
+        "visible": write("buffer"),
+        "soft_list": write("buffer"),
+        "soft_args": update("buffer"),
+    }
 
     def bind_scene(self, instances: Buffer, tables: DrawTables):
         self.set.bind("instances", instances)
@@ -59,6 +66,10 @@ class CullPass(ComputePass):
         push = np.zeros(3, np.uint32)
         push[0] = n
         push[1:3] = np.array([lod_pixels, soft_pixels], np.float32).view(np.uint32)
-        self.dispatch(rec, ((n + 63) // 64, 1, 1), push=push,
-                      reads=self.reads + [instances, tables.groups, tables.commands, tables.soft_args],
-                      writes=[tables.commands, tables.visible, tables.soft_list, tables.soft_args])
+        self.dispatch(
+            rec,
+            ((n + 63) // 64, 1, 1),
+            push=push,
+            reads=self.reads + [instances, tables.groups, tables.commands, tables.soft_args],
+            writes=[tables.commands, tables.visible, tables.soft_list, tables.soft_args],
+        )

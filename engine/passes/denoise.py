@@ -4,6 +4,7 @@
 between the signal's `cur`/`var_a` and `val_b`/`var_b` buffers; the last iteration writes `final`, which the
 lighting pass reads. One descriptor set per iteration, so the recorded command buffer is fixed.
 """
+
 from __future__ import annotations
 
 import numpy as np
@@ -24,8 +25,14 @@ def _routed(kind):
     """The per-iteration bindings of both signals (bound by `bind`, not from a fixed resource)."""
     out = {}
     for sig in SIGNALS:
-        out.update({f"{sig}_in": read(kind), f"{sig}_in_var": read(kind), f"{sig}_out": write(kind),
-                    f"{sig}_out_var": write(kind)})
+        out.update(
+            {
+                f"{sig}_in": read(kind),
+                f"{sig}_in_var": read(kind),
+                f"{sig}_out": write(kind),
+                f"{sig}_out_var": write(kind),
+            }
+        )
     return out
 
 
@@ -34,8 +41,10 @@ class DenoisePass(ComputePass):
     shader = "denoise.comp"
     bindings = {
         "frame": read("uniform", "frame"),
-        "g_position": read("image", "position"), "g_normal": read("image", "normal"),
-        "g_normal8": read("image", "normal8"), "hist_len": read("buffer", "len_cur"),
+        "g_position": read("image", "position"),
+        "g_normal": read("image", "normal"),
+        "g_normal8": read("image", "normal8"),
+        "hist_len": read("buffer", "len_cur"),
         **_routed("buffer"),
         **{f"{sig}_{part}_texels": read("storage_texel") for sig in SIGNALS for part in ("in", "in_var")},
     }
@@ -66,11 +75,11 @@ class DenoisePass(ComputePass):
         return src + dst
 
     def bind(self, resources, targets=None):
-        if targets is None or not hasattr(self, "sets"):   # (the base class's first bind, before the sets exist)
+        if targets is None or not hasattr(self, "sets"):  # (the base class's first bind, before the sets exist)
             self.resources = resources
             return
         self.targets = targets
-        self.specialize(DENOISE_TEXEL=self._texel(targets))   # new targets whose signals fit a view, or do not
+        self.specialize(DENOISE_TEXEL=self._texel(targets))  # new targets whose signals fit a view, or do not
         last = len(STEPS) - 1
         self.routes = []
         for i, s in enumerate(self.sets):

@@ -6,6 +6,7 @@ changes only the frame index (`again`), or also the camera's fields (`move_camer
 written, bit for bit (tests/test_host_cost.py). The block also keeps the frame index (which seeds the soft-shadow and
 AO samples) and the last frame's camera, the next frame's previous camera (temporal reprojection).
 """
+
 from __future__ import annotations
 
 import math
@@ -20,10 +21,10 @@ class FrameBlock:
 
     def __init__(self, ctx):
         self.buffer = Buffer(ctx, FRAME_BYTES, UNIFORM, host=True, name="frame")
-        self.record = self.buffer.view(FRAME.dtype).reshape(())   # the mapped block, written in place
-        self.frame_index = 0         # frames written since the renderer was made or its history reset
-        self.view_proj = None        # the last frame's view-projection matrix (None: no previous frame to reproject)
-        self.settled = False         # prev_view_proj is view_proj and history_reset is off (a still camera's block)
+        self.record = self.buffer.view(FRAME.dtype).reshape(())  # the mapped block, written in place
+        self.frame_index = 0  # frames written since the renderer was made or its history reset
+        self.view_proj = None  # the last frame's view-projection matrix (None: no previous frame to reproject)
+        self.settled = False  # prev_view_proj is view_proj and history_reset is off (a still camera's block)
 
     def restart(self) -> None:
         """The next frame as a fresh renderer's: frame index 0."""
@@ -33,20 +34,53 @@ class FrameBlock:
         """No previous camera (another scene): the next frame's previous camera is its own."""
         self.view_proj = None
 
-    def write(self, *, view_proj, camera, width: int, height: int, lights, packed_lights, history_reset: bool,
-              objects_moved: bool, ao_radius: float, ao_samples, shadow_samples, exposure: float, ambient,
-              scene_scale: float, accum_alpha: float, bounds) -> None:
+    def write(
+        self,
+        *,
+        view_proj,
+        camera,
+        width: int,
+        height: int,
+        lights,
+        packed_lights,
+        history_reset: bool,
+        objects_moved: bool,
+        ao_radius: float,
+        ao_samples,
+        shadow_samples,
+        exposure: float,
+        ambient,
+        scene_scale: float,
+        accum_alpha: float,
+        bounds,
+    ) -> None:
         """The whole block: camera (`view_proj` its matrix; the previous camera the last frame's, or this one on a
         `history_reset`), image size, lights (with `packed_lights`, their LIGHT records), sampling and the rest."""
         prev = self.view_proj if self.view_proj is not None and not history_reset else view_proj
         pack_frame(
-            view_proj=view_proj, prev_view_proj=prev, eye=camera.eye, forward=camera.forward, near=camera.near,
-            width=width, height=height, frame_index=self.frame_index, lights=lights,
-            ao_radius=ao_radius, ao_samples=ao_samples, shadow_samples=shadow_samples, exposure=exposure,
-            ambient=ambient, scene_scale=scene_scale, accum_alpha=accum_alpha,
+            view_proj=view_proj,
+            prev_view_proj=prev,
+            eye=camera.eye,
+            forward=camera.forward,
+            near=camera.near,
+            width=width,
+            height=height,
+            frame_index=self.frame_index,
+            lights=lights,
+            ao_radius=ao_radius,
+            ao_samples=ao_samples,
+            shadow_samples=shadow_samples,
+            exposure=exposure,
+            ambient=ambient,
+            scene_scale=scene_scale,
+            accum_alpha=accum_alpha,
             pixel_footprint=2.0 * math.tan(math.radians(camera.fov_y) / 2.0) / height,
-            history_reset=history_reset, bounds=bounds, out=self.record, packed_lights=packed_lights,
-            objects_moved=objects_moved)
+            history_reset=history_reset,
+            bounds=bounds,
+            out=self.record,
+            packed_lights=packed_lights,
+            objects_moved=objects_moved,
+        )
         self.settled = False
         self._next(view_proj)
 
@@ -66,7 +100,7 @@ class FrameBlock:
         """The last frame from another camera (the viewer while flying): the camera's fields rewritten, the last
         frame's camera the previous one; lights, settings and scene stay, and so does the temporal history."""
         block = self.record
-        block["prev_view_proj"] = block["view_proj"]   # the last frame's camera
+        block["prev_view_proj"] = block["view_proj"]  # the last frame's camera
         camera_fields(block, view_proj, camera, height)
         block["history_reset"] = 0.0
         block["frame_index"], block["objects_moved"] = self.frame_index, objects_moved

@@ -21,6 +21,7 @@ winding over; an instance that changes sign makes the geometry again, as a new m
 ones by variants that cull nothing (the resolve turns the normal to the viewer). The ray passes see every triangle
 from both sides (shadows and AO of single-sided geometry too).
 """
+
 from __future__ import annotations
 
 import numpy as np
@@ -52,17 +53,29 @@ class ResolvePass(ComputePass):
     name = "gbuffer_resolve"
     shader = "gbuffer_resolve.comp"
     bindings = {
-        "frame": read("uniform", "frame"), "visibility": update("image", "visibility"),
-        "g_position": write("image", "position"), "g_normal": write("image", "normal"),
-        "g_albedo": write("image", "albedo"), "g_normal8": write("image", "normal8"),
-        "vertices": read("uniform_texel"), "indices": read("uniform_texel"), "tri_info": read("uniform_texel"),
-        "materials": read("uniform_texel"), "textures": read("texture"),
-        "g_depth": write("image", "view_depth"), "g_triangle": write("image", "triangle_id"),
-        "g_object": write("image", "object_id"), "g_material": write("image", "material_id"),
-        "g_motion": write("image", "motion"), "g_pbr": write("image", "material"),
-        "g_emissive": write("image", "emissive"), "g_instance": write("image", "instance_id"),
-        "g_prev_position": write("image", "prev_position"), "g_prev_normal": write("image", "prev_normal"),
-        "instances": read("buffer"), "instance_texels": read("uniform_texel"),
+        "frame": read("uniform", "frame"),
+        "visibility": update("image", "visibility"),
+        "g_position": write("image", "position"),
+        "g_normal": write("image", "normal"),
+        "g_albedo": write("image", "albedo"),
+        "g_normal8": write("image", "normal8"),
+        "vertices": read("uniform_texel"),
+        "indices": read("uniform_texel"),
+        "tri_info": read("uniform_texel"),
+        "materials": read("uniform_texel"),
+        "textures": read("texture"),
+        "g_depth": write("image", "view_depth"),
+        "g_triangle": write("image", "triangle_id"),
+        "g_object": write("image", "object_id"),
+        "g_material": write("image", "material_id"),
+        "g_motion": write("image", "motion"),
+        "g_pbr": write("image", "material"),
+        "g_emissive": write("image", "emissive"),
+        "g_instance": write("image", "instance_id"),
+        "g_prev_position": write("image", "prev_position"),
+        "g_prev_normal": write("image", "prev_normal"),
+        "instances": read("buffer"),
+        "instance_texels": read("uniform_texel"),
         "instance_words": read("uniform_texel"),
     }
 
@@ -77,21 +90,33 @@ class _Raster:
 
     def __init__(self, ctx, library, stem: str, bindings: set, attributes: list):
         self.stem, self.bindings = stem, bindings | RASTER_TEXEL_BINDINGS
-        self.spirv = self._spirv(library)   # what the pipelines run (hot reload replaces it once they took the new)
+        self.spirv = self._spirv(library)  # what the pipelines run (hot reload replaces it once they took the new)
         vert, frag = self.spirv
         interface = reflect(vert, f"{stem}.vert").merged(reflect(frag, f"{stem}.frag"))
         self._check(interface)
-        self.interface = interface   # what the pipeline layout was made for; hot reload must keep it
+        self.interface = interface  # what the pipeline layout was made for; hot reload must keep it
         self.set = DescriptorSet(ctx, interface.set(0).values())
-        self.values = {"INSTANCES_TEXEL": False}   # set per scene (GBufferPass.bind_scene)
+        self.values = {"INSTANCES_TEXEL": False}  # set per scene (GBufferPass.bind_scene)
         spec = interface.specialization(self.values, stem)
         # by culling: both sides (double-sided materials), front faces only (single-sided ones), back faces only
         # (single-sided ones of mirrored instances)
-        self.pipelines = {cull: GraphicsPipeline(
-            ctx, vert, frag, [self.set], color_formats=[VISIBILITY_FORMAT], depth_format=DEPTH_FORMAT,
-            vertex_stride=32, attributes=attributes, push_size=interface.push_size, cull=cull, spec=spec,
-            name=f"{stem} {label}") for cull, label in ((CULL_NONE, "two-sided"), (CULL_BACK, "one-sided"),
-                                                        (CULL_FRONT, "one-sided mirrored"))}
+        self.pipelines = {
+            cull: GraphicsPipeline(
+                ctx,
+                vert,
+                frag,
+                [self.set],
+                color_formats=[VISIBILITY_FORMAT],
+                depth_format=DEPTH_FORMAT,
+                vertex_stride=32,
+                attributes=attributes,
+                push_size=interface.push_size,
+                cull=cull,
+                spec=spec,
+                name=f"{stem} {label}",
+            )
+            for cull, label in ((CULL_NONE, "two-sided"), (CULL_BACK, "one-sided"), (CULL_FRONT, "one-sided mirrored"))
+        }
         self.pipeline = self.pipelines[CULL_NONE]
 
     def _spirv(self, library):
@@ -127,8 +152,10 @@ class _Raster:
 
     def _check(self, interface):
         if {b.name for b in interface.bindings} != self.bindings:
-            raise ShaderError(f"{self.stem}.vert/.frag: the raster reads {', '.join(sorted(self.bindings))} and "
-                              f"nothing else; the shaders declare {', '.join(b.name for b in interface.bindings)}")
+            raise ShaderError(
+                f"{self.stem}.vert/.frag: the raster reads {', '.join(sorted(self.bindings))} and "
+                f"nothing else; the shaders declare {', '.join(b.name for b in interface.bindings)}"
+            )
 
     def reload(self, library):
         vert, frag = self._spirv(library)
@@ -138,9 +165,11 @@ class _Raster:
         if (interface.bindings, interface.push_size) != (old.bindings, old.push_size):
             was = ", ".join(f"{b.name} {b.kind} set {b.set} binding {b.binding}" for b in old.bindings)
             now = ", ".join(f"{b.name} {b.kind} set {b.set} binding {b.binding}" for b in interface.bindings)
-            raise ShaderError(f"{self.stem}.vert/.frag: their layout changed ({was}, {old.push_size} bytes of push "
-                              f"constants -> {now}, {interface.push_size} bytes); restart to use them")
-        self._build((vert, frag), interface, self.values)   # (the constants' ids as the new shaders have them)
+            raise ShaderError(
+                f"{self.stem}.vert/.frag: their layout changed ({was}, {old.push_size} bytes of push "
+                f"constants -> {now}, {interface.push_size} bytes); restart to use them"
+            )
+        self._build((vert, frag), interface, self.values)  # (the constants' ids as the new shaders have them)
         self.spirv, self.interface = (vert, frag), interface
 
 
@@ -149,25 +178,41 @@ class GBufferPass:
     software raster of small instances and its merge (engine/passes/soft_raster.py) and the resolve."""
 
     name = "gbuffer"
-    shaders = ("gbuffer.vert", "gbuffer.frag", "gbuffer_mask.vert", "gbuffer_mask.frag", "gbuffer_resolve.comp",
-               "cull.comp", "soft_raster.comp", "soft_merge.comp")
+    shaders = (
+        "gbuffer.vert",
+        "gbuffer.frag",
+        "gbuffer_mask.vert",
+        "gbuffer_mask.frag",
+        "gbuffer_resolve.comp",
+        "cull.comp",
+        "soft_raster.comp",
+        "soft_merge.comp",
+    )
 
     def __init__(self, ctx, library, resources):
         self.ctx, self.library = ctx, library
         self.raster = _Raster(ctx, library, "gbuffer", {"frame", "instances", "visible"}, [(0, RGB32F, 0)])
         self.raster.set.bind("frame", resources["frame"])
         # alpha-tested materials: UVs too, and the materials and textures for the alpha test
-        self.masked = _Raster(ctx, library, "gbuffer_mask", {"frame", "materials", "textures", "instances", "visible"},
-                              [(0, RGB32F, 0), (1, RG32F, 24)])
+        self.masked = _Raster(
+            ctx,
+            library,
+            "gbuffer_mask",
+            {"frame", "materials", "textures", "instances", "visible"},
+            [(0, RGB32F, 0), (1, RG32F, 24)],
+        )
         self.masked.set.bind("frame", resources["frame"])
         self.resolve = ResolvePass(ctx, library, resources)
         self.cull = CullPass(ctx, library, resources)
         # the software raster and its merge, where the device has 64-bit buffer atomics (else none: hardware only)
-        self.soft = (SoftRasterPass(ctx, library, resources), SoftMergePass(ctx, library, resources)) \
-            if ctx.int64_atomics else ()
+        self.soft = (
+            (SoftRasterPass(ctx, library, resources), SoftMergePass(ctx, library, resources))
+            if ctx.int64_atomics
+            else ()
+        )
         self.sampler = Sampler(ctx, anisotropy=device.texture_anisotropy(ctx))
         self.white = white_texture(ctx)
-        for s in (self.resolve.set, self.masked.set):   # (until a scene's arrays are bound)
+        for s in (self.resolve.set, self.masked.set):  # (until a scene's arrays are bound)
             bind_textures(s, [], self.white, self.sampler)
         self.resources = resources
 
@@ -189,8 +234,12 @@ class GBufferPass:
         """Does the software raster draw the small instances? Only with culling, on devices with 64-bit buffer
         atomics, at sizes whose buffer fits (`Targets.soft_visibility`); `sw_raster` None: on GPUs, not on CPU
         devices."""
-        if not (self.soft and culling and self.ctx.draw_indirect_first_instance
-                and self.resources.get("soft_visibility") is not None):
+        if not (
+            self.soft
+            and culling
+            and self.ctx.draw_indirect_first_instance
+            and self.resources.get("soft_visibility") is not None
+        ):
             return False
         return not device.is_cpu(self.ctx) if sw_raster is None else sw_raster
 
@@ -228,8 +277,9 @@ class GBufferPass:
         soft = self.software(options.culling, options.sw_raster)
         culling = options.culling and self.ctx.draw_indirect_first_instance
         if culling:
-            self.cull.record(rec, geom.instance_buffer, geom.tables, options.lod_pixels,
-                             options.sw_raster_pixels if soft else 0.0)
+            self.cull.record(
+                rec, geom.instance_buffer, geom.tables, options.lod_pixels, options.sw_raster_pixels if soft else 0.0
+            )
         # The visibility image is all zeros here (cleared when made, then by each frame's resolve after reading it),
         # so the raster loads it instead of clearing it (a clear costs GPUs with few raster units).
         # Opaque materials first, keeping early depth tests; then the alpha-tested ones, whose shader discards.
@@ -238,13 +288,25 @@ class GBufferPass:
         draws = geom.indirect if culling else geom.draws
         passes = [(r, cull) for r in (self.raster, self.masked) for cull in (CULL_NONE, CULL_BACK, CULL_FRONT)]
         lists = [(r.pipelines[cull], [r.set], draws[r is self.masked, cull]) for r, cull in passes]
-        rec.raster(lists[0][0], lists[0][1], targets.visibility, targets.depth, geom.vertex_buffer,
-                   geom.index_buffer, lists[0][2], more=lists[1:],
-                   reads=[self.resources["frame"], geom.instance_buffer, geom.tables.visible],
-                   indirect=geom.tables.commands if culling else None, keep_depth=soft)
-        if soft:   # (after the raster in the recording: the GPU may run it while the raster runs)
+        rec.raster(
+            lists[0][0],
+            lists[0][1],
+            targets.visibility,
+            targets.depth,
+            geom.vertex_buffer,
+            geom.index_buffer,
+            lists[0][2],
+            more=lists[1:],
+            reads=[self.resources["frame"], geom.instance_buffer, geom.tables.visible],
+            indirect=geom.tables.commands if culling else None,
+            keep_depth=soft,
+        )
+        if soft:  # (after the raster in the recording: the GPU may run it while the raster runs)
             self.soft[0].record(rec, geom)
             self.soft[1].record(rec, targets.width, targets.height)
-        self.resolve.dispatch(rec, self.resolve.tiles(targets.width, targets.height),
-                              push=np.array([geom.instance_count], np.uint32),
-                              reads=self.resolve.reads + [geom.instance_buffer])
+        self.resolve.dispatch(
+            rec,
+            self.resolve.tiles(targets.width, targets.height),
+            push=np.array([geom.instance_count], np.uint32),
+            reads=self.resolve.reads + [geom.instance_buffer],
+        )

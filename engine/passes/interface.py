@@ -3,6 +3,7 @@ per-frame uniform block, the AOVs a frame can read back. `glsl_text()` generates
 shaders/glsl/include/interface.glsl from these (committed; a test fails when it is stale; tools/compile_shaders.py
 rewrites it); the renderer packs the block through `FRAME.dtype`. No Vulkan here.
 """
+
 from __future__ import annotations
 
 import math
@@ -18,9 +19,27 @@ from .std140 import Struct
 
 #: The views a frame can show (setting `view`): "color" is the lit image (no dispatch); the others are AOVs drawn
 #: by debug_view.comp (VIEW_<NAME> = the index here). A Literal, so that type checkers and IDEs know the names.
-ViewMode = Literal["color", "position", "normal", "albedo", "depth", "shadow_raw", "shadow", "ao_raw", "ao", "history",
-                   "triangle_id", "object_id", "material_id", "motion", "roughness", "metallic", "emissive",
-                   "radiance", "instance_id"]
+ViewMode = Literal[
+    "color",
+    "position",
+    "normal",
+    "albedo",
+    "depth",
+    "shadow_raw",
+    "shadow",
+    "ao_raw",
+    "ao",
+    "history",
+    "triangle_id",
+    "object_id",
+    "material_id",
+    "motion",
+    "roughness",
+    "metallic",
+    "emissive",
+    "radiance",
+    "instance_id",
+]
 VIEW_MODES: tuple[str, ...] = get_args(ViewMode)
 #: shadow.comp's modes (SHADOW_<NAME>); "off" records no shadow pass.
 TracedShadowMode = Literal["hard", "soft", "seed-delta", "reference"]
@@ -43,6 +62,8 @@ MATERIAL_FLAGS = {"alpha_tested": 1, "double_sided": 2}
 INSTANCE_TEXELS = 16
 #: History lengths are clamped here (accumulate.comp).
 MAX_HISTORY = 255
+
+
 @dataclass(frozen=True)
 class AOV:
     """One array a frame can read back: the target it comes from, its bytes per pixel in that target (per light for
@@ -51,9 +72,9 @@ class AOV:
     target: str
     bytes: int
     dtype: str
-    channels: int = 1        # of the target's: the AOV keeps the first `channels` (1: a (H, W) array)
+    channels: int = 1  # of the target's: the AOV keeps the first `channels` (1: a (H, W) array)
     per_light: bool = False  # a light-major buffer: (lights, H, W) -> (H, W, lights)
-    first: int = 0           # dtype "unorm8": the one channel kept (an RGBA8 target read as float32 / 255)
+    first: int = 0  # dtype "unorm8": the one channel kept (an RGBA8 target read as float32 / 255)
 
 
 #: Every AOV a frame can read back, by the name `Frame.aov` uses ("color" is `Frame.color`); the target is a frame
@@ -83,38 +104,64 @@ AOVS = {
 
 LIGHT_TYPES = {"directional": 0, "point": 1, "spot": 2, "rect": 3}
 
-LIGHT = Struct("Light", [
-    ("pos_type", "vec4"), ("dir_radius", "vec4"), ("color", "vec4"), ("u", "vec4"), ("v", "vec4"),
-], doc={
-    "pos_type": "xyz: position (unused for directional); w: type (LIGHT_*)",
-    "dir_radius": "xyz: direction the light travels / spot axis / rect normal; w: radius",
-    "color": "rgb: colour * intensity; w: spot cos(outer cone)",
-    "u": "rect: edge u; directional: w = tan(angular radius); spot: w = cos(inner)",
-    "v": "rect: edge v",
-})
+LIGHT = Struct(
+    "Light",
+    [
+        ("pos_type", "vec4"),
+        ("dir_radius", "vec4"),
+        ("color", "vec4"),
+        ("u", "vec4"),
+        ("v", "vec4"),
+    ],
+    doc={
+        "pos_type": "xyz: position (unused for directional); w: type (LIGHT_*)",
+        "dir_radius": "xyz: direction the light travels / spot axis / rect normal; w: radius",
+        "color": "rgb: colour * intensity; w: spot cos(outer cone)",
+        "u": "rect: edge u; directional: w = tan(angular radius); spot: w = cos(inner)",
+        "v": "rect: edge v",
+    },
+)
 
-FRAME = Struct("FrameData", [
-    ("view_proj", "mat4"), ("prev_view_proj", "mat4"),
-    ("eye", "vec3"), ("near", "float"), ("forward", "vec3"),
-    ("width", "uint"), ("height", "uint"), ("frame_index", "uint"), ("light_count", "uint"),
-    ("ao_radius", "float"), ("ao_samples", "float"), ("shadow_samples", "float"), ("exposure", "float"),
-    ("ambient", "vec3"), ("scene_scale", "float"),
-    ("accum_alpha", "float"), ("pixel_footprint", "float"), ("history_reset", "float"), ("objects_moved", "float"),
-    ("bounds_min", "vec3"), ("bounds_max", "vec3"),
-    ("lights", LIGHT, MAX_LIGHTS),
-], doc={
-    "prev_view_proj": "the previous frame's (temporal reprojection)",
-    "near": "near plane distance",
-    "frame_index": "frames rendered so far (sample sequences)",
-    "ao_samples": "AO rays per pixel this frame",
-    "shadow_samples": "soft shadows: rays per pixel per light",
-    "scene_scale": "the scene's bounding-box diagonal",
-    "accum_alpha": "the temporal blend's smallest weight",
-    "pixel_footprint": "a pixel's size per unit of view depth",
-    "history_reset": "1: the temporal history is invalid",
-    "objects_moved": "1: an instance moved since the last frame (accumulate.comp clamps the history)",
-    "bounds_min": "scene bounds (debug views)",
-})
+FRAME = Struct(
+    "FrameData",
+    [
+        ("view_proj", "mat4"),
+        ("prev_view_proj", "mat4"),
+        ("eye", "vec3"),
+        ("near", "float"),
+        ("forward", "vec3"),
+        ("width", "uint"),
+        ("height", "uint"),
+        ("frame_index", "uint"),
+        ("light_count", "uint"),
+        ("ao_radius", "float"),
+        ("ao_samples", "float"),
+        ("shadow_samples", "float"),
+        ("exposure", "float"),
+        ("ambient", "vec3"),
+        ("scene_scale", "float"),
+        ("accum_alpha", "float"),
+        ("pixel_footprint", "float"),
+        ("history_reset", "float"),
+        ("objects_moved", "float"),
+        ("bounds_min", "vec3"),
+        ("bounds_max", "vec3"),
+        ("lights", LIGHT, MAX_LIGHTS),
+    ],
+    doc={
+        "prev_view_proj": "the previous frame's (temporal reprojection)",
+        "near": "near plane distance",
+        "frame_index": "frames rendered so far (sample sequences)",
+        "ao_samples": "AO rays per pixel this frame",
+        "shadow_samples": "soft shadows: rays per pixel per light",
+        "scene_scale": "the scene's bounding-box diagonal",
+        "accum_alpha": "the temporal blend's smallest weight",
+        "pixel_footprint": "a pixel's size per unit of view depth",
+        "history_reset": "1: the temporal history is invalid",
+        "objects_moved": "1: an instance moved since the last frame (accumulate.comp clamps the history)",
+        "bounds_min": "scene bounds (debug views)",
+    },
+)
 FRAME_BYTES = FRAME.size
 
 
@@ -126,20 +173,30 @@ def glsl_text() -> str:
     """shaders/glsl/include/interface.glsl."""
     lines = [
         "// Generated from engine/passes/interface.py by tools/compile_shaders.py: do not edit.",
-        "#ifndef INTERFACE_GLSL", "#define INTERFACE_GLSL", "",
-        f"#define MAX_LIGHTS {MAX_LIGHTS}", f"#define MAX_TEXTURE_ARRAYS {MAX_TEXTURE_ARRAYS}",
-        f"#define TEXTURE_NONE {TEXTURE_NONE:#x}u", f"#define MATERIAL_TEXELS {MATERIAL_TEXELS}",
+        "#ifndef INTERFACE_GLSL",
+        "#define INTERFACE_GLSL",
+        "",
+        f"#define MAX_LIGHTS {MAX_LIGHTS}",
+        f"#define MAX_TEXTURE_ARRAYS {MAX_TEXTURE_ARRAYS}",
+        f"#define TEXTURE_NONE {TEXTURE_NONE:#x}u",
+        f"#define MATERIAL_TEXELS {MATERIAL_TEXELS}",
         f"#define INSTANCE_TEXELS {INSTANCE_TEXELS}",
         *[f"#define MATERIAL_{k.upper()} {v}u" for k, v in MATERIAL_FLAGS.items()],
         f"#define MAX_HISTORY {MAX_HISTORY}.0",
         *[f"#define LIGHT_{k.upper()} {v}" for k, v in LIGHT_TYPES.items()],
         *_defines("VIEW", VIEW_MODES[1:], 1),
         *_defines("SHADOW", SHADOW_MODES),
-        *[f"#define FILTER_{k.upper()} {v}u" for k, v in FILTER_FLAGS.items()], "",
-        LIGHT.glsl(), "", FRAME.glsl(), "",
+        *[f"#define FILTER_{k.upper()} {v}u" for k, v in FILTER_FLAGS.items()],
+        "",
+        LIGHT.glsl(),
+        "",
+        FRAME.glsl(),
+        "",
         "// The per-frame constants: set 0, binding 0 of every pass that reads them.",
         "#define FRAME_BLOCK layout(std140, set = 0, binding = 0) uniform Frame { FrameData frame; };",
-        "", "#endif", "",
+        "",
+        "#endif",
+        "",
     ]
     return "\n".join(lines)
 
@@ -188,23 +245,44 @@ def pack_light(light) -> np.ndarray:
 
 def camera_fields(block, view_proj, camera, height: int):
     """Write the camera's fields of a FRAME record (the renderer's fast path rewrites only these)."""
-    block["view_proj"] = np.asarray(view_proj, np.float32).T   # GLSL mat4 is column-major
+    block["view_proj"] = np.asarray(view_proj, np.float32).T  # GLSL mat4 is column-major
     block["eye"], block["near"] = _v3(camera.eye), camera.near
     block["forward"] = _v3(camera.forward)
     block["pixel_footprint"] = 2.0 * math.tan(math.radians(camera.fov_y) / 2.0) / height
 
 
-def pack_frame(*, view_proj, prev_view_proj, eye, forward, near, width, height, frame_index, lights,
-               ao_radius, ao_samples, shadow_samples, exposure, ambient, scene_scale, accum_alpha,
-               pixel_footprint=0.0, history_reset=False, bounds=None, out=None, packed_lights=None,
-               objects_moved=False):
+def pack_frame(
+    *,
+    view_proj,
+    prev_view_proj,
+    eye,
+    forward,
+    near,
+    width,
+    height,
+    frame_index,
+    lights,
+    ao_radius,
+    ao_samples,
+    shadow_samples,
+    exposure,
+    ambient,
+    scene_scale,
+    accum_alpha,
+    pixel_footprint=0.0,
+    history_reset=False,
+    bounds=None,
+    out=None,
+    packed_lights=None,
+    objects_moved=False,
+):
     """The FRAME block. `out`: a FRAME record (e.g. a view of the mapped uniform buffer) to write into, returned;
     without it, the block's bytes. `packed_lights`: `pack_light` of each light, when already made."""
     if len(lights) > MAX_LIGHTS:
         raise ConfigError(f"lights: {len(lights)} lights, at most {MAX_LIGHTS} are supported")
     block = np.zeros((), FRAME.dtype) if out is None else out
     if out is not None:
-        out.reshape(-1).view(np.uint8)[:] = 0   # padding too (a field-wise assignment would leave it)
+        out.reshape(-1).view(np.uint8)[:] = 0  # padding too (a field-wise assignment would leave it)
     block["view_proj"] = np.asarray(view_proj, np.float32).T
     block["prev_view_proj"] = np.asarray(prev_view_proj, np.float32).T
     block["eye"], block["near"], block["forward"] = _v3(eye), near, _v3(forward)

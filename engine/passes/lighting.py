@@ -1,5 +1,6 @@
 """Deferred lighting pass: albedo, normal, material, light masks and AO -> HDR and tonemapped sRGB colour
 (glTF metallic-roughness BRDF: shaders/glsl/include/brdf.glsl)."""
+
 from __future__ import annotations
 
 from .base import ComputePass, read, write
@@ -10,11 +11,15 @@ class LightingPass(ComputePass):
     shader = "lighting.comp"
     bindings = {
         "frame": read("uniform", "frame"),
-        "g_position": read("image", "position"), "g_normal": read("image", "normal"),
+        "g_position": read("image", "position"),
+        "g_normal": read("image", "normal"),
         "g_albedo": read("image", "albedo"),
-        "masks": read("buffer", "masks.final"), "ao": read("buffer", "ao.final"),
-        "out_color": write("image", "color"), "out_hdr": write("image", "hdr"),
-        "g_pbr": read("image", "material"), "g_emissive": read("image", "emissive"),
+        "masks": read("buffer", "masks.final"),
+        "ao": read("buffer", "ao.final"),
+        "out_color": write("image", "color"),
+        "out_hdr": write("image", "hdr"),
+        "g_pbr": read("image", "material"),
+        "g_emissive": read("image", "emissive"),
     }
 
     def record(self, rec, targets):

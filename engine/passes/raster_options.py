@@ -3,6 +3,7 @@ instances (`Renderer(culling=, lod_pixels=, sw_raster=, sw_raster_pixels=)` and 
 checked when made. The G-buffer pass records a frame's raster from them (engine/passes/gbuffer.py), and they are
 part of the key of the renderer's recorded command buffers.
 """
+
 from __future__ import annotations
 
 import dataclasses
@@ -29,10 +30,15 @@ def check_sw_raster(value) -> bool | None:
 
 def check_sw_raster_pixels(value) -> float:
     """`value` as the software raster's largest instance extent (pixels), or a ConfigError."""
-    if isinstance(value, bool) or not isinstance(value, (int, float)) or not math.isfinite(value) \
-            or not 0 < value <= MAX_SW_RASTER_PIXELS:
-        raise ConfigError(f"Renderer: sw_raster_pixels must be a number in (0, {MAX_SW_RASTER_PIXELS:g}] (pixels), "
-                          f"got {value!r}")
+    if (
+        isinstance(value, bool)
+        or not isinstance(value, (int, float))
+        or not math.isfinite(value)
+        or not 0 < value <= MAX_SW_RASTER_PIXELS
+    ):
+        raise ConfigError(
+            f"Renderer: sw_raster_pixels must be a number in (0, {MAX_SW_RASTER_PIXELS:g}] (pixels), got {value!r}"
+        )
     return float(value)
 
 

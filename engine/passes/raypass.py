@@ -3,6 +3,7 @@
 Set 0: frame constants, G-buffer position and normal, the pass's output buffer. Set 1: the scene's BVH
 (engine/gpu/bvh.py), whose traversal constants follow the scene (`specialize_for`).
 """
+
 from __future__ import annotations
 
 import numpy as np
@@ -14,9 +15,14 @@ from .base import ComputePass, read, update
 
 
 def ray_bindings(output: str, resource: str) -> dict:
-    return {"frame": read("uniform", "frame"), "g_position": read("image", "position"),
-            "g_normal": read("image", "normal"), output: update("buffer", resource),
-            "alpha_tris": read("uniform_texel"), "textures": read("texture")}   # alpha.glsl: bound by bind_scene
+    return {
+        "frame": read("uniform", "frame"),
+        "g_position": read("image", "position"),
+        "g_normal": read("image", "normal"),
+        output: update("buffer", resource),
+        "alpha_tris": read("uniform_texel"),
+        "textures": read("texture"),
+    }  # alpha.glsl: bound by bind_scene
 
 
 class RayPass(ComputePass):
@@ -29,9 +35,16 @@ class RayPass(ComputePass):
     def constants(self, ctx) -> dict:
         # until a scene's BVH says otherwise: any depth (a short register stack with the retry walk on CPU devices)
         # and the node layout this device gets
-        return {**bvh_spec(ctx, None, layout=self.bvh_layout, postpone=self.postpone_leaves,
-                           compressed=compresses(ctx, self.bvh_layout)),
-                "WORK_SHARES": device.work_shares(ctx)}
+        return {
+            **bvh_spec(
+                ctx,
+                None,
+                layout=self.bvh_layout,
+                postpone=self.postpone_leaves,
+                compressed=compresses(ctx, self.bvh_layout),
+            ),
+            "WORK_SHARES": device.work_shares(ctx),
+        }
 
     def bind_scene(self, geom):
         """The scene's alpha records and texture arrays (alpha.glsl, `SceneGeometry.alpha`); the alpha test compiled
@@ -67,8 +80,12 @@ def follow_scene(ctx, bvh, scene, dset, layout, passes, drop_recordings, alpha_i
     BVH, made again when the mesh deformed. `alpha_index`: the alpha test's words per flattened triangle
     (engine/gpu/scene.py SceneGeometry.alpha_index; written into the triangle records, `flag_alpha_tested`)."""
     # (the alpha words in place where the overrides changed them; where the two-level BVH cannot hold them, a flat one)
-    if bvh is not None and is_instanced(scene) and isinstance(bvh, InstancedBVH) and \
-            (alpha_index is None or bvh.set_alpha(scene, alpha_index)):
+    if (
+        bvh is not None
+        and is_instanced(scene)
+        and isinstance(bvh, InstancedBVH)
+        and (alpha_index is None or bvh.set_alpha(scene, alpha_index))
+    ):
         structure = bvh.structure
         bvh.update(scene)
         if bvh.structure == structure and all(p.spec_matches(bvh) for p in passes):
@@ -79,9 +96,15 @@ def follow_scene(ctx, bvh, scene, dset, layout, passes, drop_recordings, alpha_i
         bvh.destroy()
         bvh = None
     if bvh is None:
-        bvh = scene_bvh(ctx, scene, dset, layout, flat_static=True,   # flat while unchanged (faster on CPUs)
-                        alpha_index=alpha_index)
+        bvh = scene_bvh(
+            ctx,
+            scene,
+            dset,
+            layout,
+            flat_static=True,  # flat while unchanged (faster on CPUs)
+            alpha_index=alpha_index,
+        )
     drop_recordings()
-    for p in passes:   # the traversal specialized to this BVH (its depth, its node layout)
+    for p in passes:  # the traversal specialized to this BVH (its depth, its node layout)
         p.specialize_for(bvh)
     return bvh

@@ -4,12 +4,13 @@ Modes (shaders/glsl/shadow.comp): hard, soft, seed-delta, and reference, whose h
 light are split over several dispatches (`reference_dispatches`) so that none runs long enough to trip a
 driver's timeout (llvmpipe runs a dispatch to its end, a watchdog may not wait).
 """
+
 from __future__ import annotations
 
 from .interface import SHADOW_MODES
 from .raypass import RayPass, ray_bindings
 
-RAYS_PER_DISPATCH = 1 << 22   # reference mode: at most this many rays in one dispatch
+RAYS_PER_DISPATCH = 1 << 22  # reference mode: at most this many rays in one dispatch
 
 
 def reference_dispatches(width, height, rays_per_pixel_sample, total):
@@ -17,9 +18,9 @@ def reference_dispatches(width, height, rays_per_pixel_sample, total):
     most RAYS_PER_DISPATCH rays: [(row0, rows, first, count)], row bands of multiples of 8 rows."""
     per_row = width * max(rays_per_pixel_sample, 1)
     budget = max(RAYS_PER_DISPATCH, per_row * 8)
-    if per_row * height <= budget:     # whole image per dispatch, as many samples as fit
+    if per_row * height <= budget:  # whole image per dispatch, as many samples as fit
         rows, count = height, max(1, min(total, budget // (per_row * height)))
-    else:                              # one sample per dispatch over bands of rows
+    else:  # one sample per dispatch over bands of rows
         rows, count = max(8, (budget // per_row) // 8 * 8), 1
     out = []
     for row0 in range(0, height, rows):

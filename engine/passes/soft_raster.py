@@ -15,6 +15,7 @@ The software raster needs the device's shaderInt64 and shaderBufferInt64Atomics 
 them) and a frame whose W x H x 8 bytes fit one storage buffer (maxStorageBufferRange); else every instance takes the
 hardware raster (`Targets.soft_visibility` is None).
 """
+
 from __future__ import annotations
 
 from .base import ComputePass, read, update
@@ -41,9 +42,14 @@ class SoftRasterPass(_SoftPass):
 
     name = "soft_raster"
     shader = "soft_raster.comp"
-    bindings = {"frame": read("uniform", "frame"), "instances": read("buffer"), "soft_list": read("buffer"),
-                "vertices": read("uniform_texel"), "indices": read("uniform_texel"),
-                "soft_visibility": update("buffer", "soft_visibility")}
+    bindings = {
+        "frame": read("uniform", "frame"),
+        "instances": read("buffer"),
+        "soft_list": read("buffer"),
+        "vertices": read("uniform_texel"),
+        "indices": read("uniform_texel"),
+        "soft_visibility": update("buffer", "soft_visibility"),
+    }
 
     def bind_scene(self, geom):
         self.set.bind("instances", geom.instance_buffer)
@@ -54,8 +60,13 @@ class SoftRasterPass(_SoftPass):
     def record(self, rec, geom):
         """Clear the buffer (0: nothing drawn) and rasterize the listed instances (the count the culling wrote)."""
         rec.fill(self.resources["soft_visibility"], 0)
-        rec.dispatch_indirect(self.pipeline, [self.set], geom.tables.soft_args,
-                              reads=self.reads + [geom.instance_buffer, geom.tables.soft_list], writes=self.writes)
+        rec.dispatch_indirect(
+            self.pipeline,
+            [self.set],
+            geom.tables.soft_args,
+            reads=self.reads + [geom.instance_buffer, geom.tables.soft_list],
+            writes=self.writes,
+        )
 
 
 class SoftMergePass(_SoftPass):
@@ -63,8 +74,12 @@ class SoftMergePass(_SoftPass):
 
     name = "soft_merge"
     shader = "soft_merge.comp"
-    bindings = {"frame": read("uniform", "frame"), "visibility": update("image", "visibility"),
-                "depth": read("sampled_image", "depth"), "soft_visibility": read("buffer", "soft_visibility")}
+    bindings = {
+        "frame": read("uniform", "frame"),
+        "visibility": update("image", "visibility"),
+        "depth": read("sampled_image", "depth"),
+        "soft_visibility": read("buffer", "soft_visibility"),
+    }
 
     def record(self, rec, width: int, height: int):
         self.dispatch(rec, self.tiles(width, height))

@@ -1,20 +1,26 @@
 """GLSL std140 structs from one list of fields: the numpy dtype that packs them and the GLSL text that reads them.
 
-    LIGHT = Struct("Light", [("pos_type", "vec4"), ...])
-    FRAME = Struct("FrameData", [("view_proj", "mat4"), ("eye", "vec3"), ("near", "float"), ...,
-                                 ("lights", LIGHT, 16)])
-    FRAME.dtype   # numpy structured dtype with the std140 offsets: np.zeros((), FRAME.dtype)["near"] = 0.1
-    FRAME.glsl()  # "struct FrameData { mat4 view_proj; vec3 eye; float near; ... };"
+LIGHT = Struct("Light", [("pos_type", "vec4"), ...])
+FRAME = Struct("FrameData", [("view_proj", "mat4"), ("eye", "vec3"), ("near", "float"), ...,
+                             ("lights", LIGHT, 16)])
+FRAME.dtype   # numpy structured dtype with the std140 offsets: np.zeros((), FRAME.dtype)["near"] = 0.1
+FRAME.glsl()  # "struct FrameData { mat4 view_proj; vec3 eye; float near; ... };"
 """
+
 from __future__ import annotations
 
 import numpy as np
 
 # GLSL type -> (numpy base type, shape, std140 alignment, size)
 SCALARS = {
-    "float": (np.float32, (), 4, 4), "uint": (np.uint32, (), 4, 4), "int": (np.int32, (), 4, 4),
-    "vec2": (np.float32, (2,), 8, 8), "vec3": (np.float32, (3,), 16, 12), "vec4": (np.float32, (4,), 16, 16),
-    "uvec4": (np.uint32, (4,), 16, 16), "ivec4": (np.int32, (4,), 16, 16),
+    "float": (np.float32, (), 4, 4),
+    "uint": (np.uint32, (), 4, 4),
+    "int": (np.int32, (), 4, 4),
+    "vec2": (np.float32, (2,), 8, 8),
+    "vec3": (np.float32, (3,), 16, 12),
+    "vec4": (np.float32, (4,), 16, 16),
+    "uvec4": (np.uint32, (4,), 16, 16),
+    "ivec4": (np.int32, (4,), 16, 16),
     # matrices as GLSL stores them: column-major, so a numpy (4, 4) field holds the transpose (M.T)
     "mat4": (np.float32, (4, 4), 16, 64),
 }
@@ -38,7 +44,7 @@ class Struct:
             else:
                 base, shape, align, size = SCALARS[ftype]
                 fmt = np.dtype((base, shape)) if shape else np.dtype(base)
-            if count is not None:   # std140 arrays: every element aligned and padded to 16 bytes
+            if count is not None:  # std140 arrays: every element aligned and padded to 16 bytes
                 align, size = 16, _round(size, 16)
                 if fmt.itemsize != size:
                     raise ValueError(f"{name}.{fname}: std140 arrays of {ftype} need padding this class lacks")
@@ -49,8 +55,7 @@ class Struct:
             formats.append(fmt)
             offsets.append(off)
             off += size
-        self.dtype = np.dtype({"names": names, "formats": formats, "offsets": offsets,
-                               "itemsize": _round(off, 16)})
+        self.dtype = np.dtype({"names": names, "formats": formats, "offsets": offsets, "itemsize": _round(off, 16)})
 
     @property
     def size(self) -> int:

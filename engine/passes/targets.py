@@ -6,6 +6,7 @@ the reprojected `hist` into `cur` (then copied to `hist` for the next frame); th
 and writes `final`, which the lighting pass reads. A signal that is not filtered this frame has `raw` copied to
 `final`. Passes name these as "masks.raw", "ao.final", ...; images by their attribute names ("position", ...).
 """
+
 from __future__ import annotations
 
 import numpy as np
@@ -13,16 +14,30 @@ import numpy as np
 from ..errors import ConfigError
 from ..parallel import default_threads, run
 from ..vk import Buffer, BufferView, Image
-from ..vk.formats import (COLOR_ATTACHMENT, COPY_DST, COPY_SRC, D32F, DEPTH_ATTACHMENT, R32F, R32UI, RG32F, RGBA8,
-                          RGBA8_SNORM, RGBA16F, RGBA32F, SAMPLED, STORAGE_IMAGE)
+from ..vk.formats import (
+    COLOR_ATTACHMENT,
+    COPY_DST,
+    COPY_SRC,
+    D32F,
+    DEPTH_ATTACHMENT,
+    R32F,
+    R32UI,
+    RG32F,
+    RGBA8,
+    RGBA8_SNORM,
+    RGBA16F,
+    RGBA32F,
+    SAMPLED,
+    STORAGE_IMAGE,
+)
 from ..vk.recorder import TRANSFER, Recorder, fill, to_general
 from ..vk.resources import STORAGE, STORAGE_TEXEL, TRANSFER_DST, TRANSFER_SRC
 from .interface import AOVS
 
-POSITION_FORMAT = RGBA32F   # xyz world position, w linear view depth
-NORMAL_FORMAT = RGBA32F     # xyz unit normal, w 1 where covered
+POSITION_FORMAT = RGBA32F  # xyz world position, w linear view depth
+NORMAL_FORMAT = RGBA32F  # xyz unit normal, w 1 where covered
 ALBEDO_FORMAT = RGBA16F
-VISIBILITY_FORMAT = R32UI   # triangle id + 1 (0: background)
+VISIBILITY_FORMAT = R32UI  # triangle id + 1 (0: background)
 DEPTH_FORMAT = D32F
 
 
@@ -56,9 +71,10 @@ class Targets:
         self.width, self.height, self.light_capacity = width, height, light_capacity
         n = width * height
         self.check_capacity(ctx, width, height, light_capacity)
-        resolved = STORAGE_IMAGE | COPY_SRC   # written by the G-buffer resolve
-        self.visibility = Image(ctx, width, height, VISIBILITY_FORMAT, COLOR_ATTACHMENT | STORAGE_IMAGE | COPY_DST,
-                                name="visibility")
+        resolved = STORAGE_IMAGE | COPY_SRC  # written by the G-buffer resolve
+        self.visibility = Image(
+            ctx, width, height, VISIBILITY_FORMAT, COLOR_ATTACHMENT | STORAGE_IMAGE | COPY_DST, name="visibility"
+        )
         self.position = Image(ctx, width, height, POSITION_FORMAT, resolved, name="position")
         self.normal = Image(ctx, width, height, NORMAL_FORMAT, resolved, name="normal")
         self.albedo = Image(ctx, width, height, ALBEDO_FORMAT, resolved, name="albedo")
@@ -83,19 +99,39 @@ class Targets:
         self.color = Image(ctx, width, height, RGBA8, STORAGE_IMAGE | COPY_SRC, name="color")
         self.hdr = Image(ctx, width, height, RGBA16F, STORAGE_IMAGE | COPY_SRC, name="hdr")
         # The previous frame's G-buffer position and normal (temporal reprojection / disocclusion tests).
-        self.hist_position = Image(ctx, width, height, POSITION_FORMAT, STORAGE_IMAGE | COPY_DST,
-                                   name="history position")
+        self.hist_position = Image(
+            ctx, width, height, POSITION_FORMAT, STORAGE_IMAGE | COPY_DST, name="history position"
+        )
         self.hist_normal = Image(ctx, width, height, NORMAL_FORMAT, STORAGE_IMAGE | COPY_DST, name="history normal")
         self.hist_instance = Image(ctx, width, height, R32UI, STORAGE_IMAGE | COPY_DST, name="history instance")
         self.signals = {"masks": Signal(ctx, "masks", n, light_capacity), "ao": Signal(ctx, "ao", n, 1)}
         buf_usage = STORAGE | TRANSFER_SRC | TRANSFER_DST
         self.len_cur = Buffer(ctx, n * 4, buf_usage, name="history length")
         self.len_hist = Buffer(ctx, n * 4, buf_usage, name="previous history length")
-        self.readbacks: dict = {}   # (AOV names, slot) -> (host buffer, {name: offset})
-        images = [self.visibility, self.normal8, self.position, self.normal, self.albedo, self.depth, self.color,
-                  self.hdr, self.hist_position, self.hist_normal, self.view_depth, self.triangle_id, self.object_id,
-                  self.material_id, self.motion, self.material, self.emissive, self.instance_id, self.prev_position,
-                  self.prev_normal, self.hist_instance]
+        self.readbacks: dict = {}  # (AOV names, slot) -> (host buffer, {name: offset})
+        images = [
+            self.visibility,
+            self.normal8,
+            self.position,
+            self.normal,
+            self.albedo,
+            self.depth,
+            self.color,
+            self.hdr,
+            self.hist_position,
+            self.hist_normal,
+            self.view_depth,
+            self.triangle_id,
+            self.object_id,
+            self.material_id,
+            self.motion,
+            self.material,
+            self.emissive,
+            self.instance_id,
+            self.prev_position,
+            self.prev_normal,
+            self.hist_instance,
+        ]
         self._objects = images + [self.len_cur, self.len_hist]
         # the software raster's 64-bit depth + visibility id per pixel (engine/passes/soft_raster.py), on devices
         # with 64-bit buffer atomics, where one storage buffer can hold it
@@ -105,11 +141,38 @@ class Targets:
             self._objects.append(self.soft_visibility)
         for sig in self.signals.values():
             self._objects += sig.buffers()
-        self.resources = {"frame": frame_ubo, **{name: getattr(self, name) for name in (
-            "visibility", "position", "normal", "albedo", "normal8", "depth", "color", "hdr", "hist_position",
-            "hist_normal", "len_cur", "len_hist", "view_depth", "triangle_id", "object_id", "material_id",
-            "motion", "material", "emissive", "instance_id", "prev_position", "prev_normal", "hist_instance",
-            "soft_visibility")}}
+        self.resources = {
+            "frame": frame_ubo,
+            **{
+                name: getattr(self, name)
+                for name in (
+                    "visibility",
+                    "position",
+                    "normal",
+                    "albedo",
+                    "normal8",
+                    "depth",
+                    "color",
+                    "hdr",
+                    "hist_position",
+                    "hist_normal",
+                    "len_cur",
+                    "len_hist",
+                    "view_depth",
+                    "triangle_id",
+                    "object_id",
+                    "material_id",
+                    "motion",
+                    "material",
+                    "emissive",
+                    "instance_id",
+                    "prev_position",
+                    "prev_normal",
+                    "hist_instance",
+                    "soft_visibility",
+                )
+            },
+        }
         for sname, sig in self.signals.items():
             self.resources.update({f"{sname}.{part}": getattr(sig, part) for part in Signal.NAMES})
         # Every colour image in GENERAL layout; the visibility image starts as background (each frame's resolve leaves
@@ -117,8 +180,11 @@ class Targets:
         with ctx.one_shot() as cmd:
             for img in images:
                 if img is not self.depth:
-                    to_general(cmd, img, clear=img in (self.visibility, self.hist_position, self.hist_normal,
-                                                             self.hist_instance))
+                    to_general(
+                        cmd,
+                        img,
+                        clear=img in (self.visibility, self.hist_position, self.hist_normal, self.hist_instance),
+                    )
             for buf in (self.len_cur, self.len_hist):
                 fill(cmd, buf, 0)
 
@@ -134,7 +200,8 @@ class Targets:
             raise ConfigError(
                 f"size {width}x{height} with {lights} lights: the light masks need {need / 2**20:.1f} MiB per "
                 f"buffer, over this device's maxStorageBufferRange of {limit / 2**20:.0f} MiB; use fewer lights "
-                f"or a smaller size")
+                f"or a smaller size"
+            )
 
     def readback(self, ctx, aovs: tuple, slot: int = 0):
         """The host buffer (host-cached memory where the device has it) that `aovs` are read back into, and each
@@ -144,7 +211,7 @@ class Targets:
             n, offsets, off = self.width * self.height, {}, 0
             for name in aovs:
                 spec = AOVS[name]
-                off = -(-off // 16) * 16   # a copy's buffer offset is a multiple of its texel size (16 B at most)
+                off = -(-off // 16) * 16  # a copy's buffer offset is a multiple of its texel size (16 B at most)
                 offsets[name] = off
                 off += n * spec.bytes * (self.light_capacity if spec.per_light else 1)
             buf = Buffer(ctx, max(off, 16), TRANSFER_DST, host=True, name=f"readback {slot}")
@@ -170,7 +237,7 @@ class Targets:
         h, w = self.height, self.width
         raw = buf.view(np.uint8)
         out, tasks = {}, []
-        rows = max(1, (1 << 18) // max(w, 1))   # about 256k pixels' worth of rows per task
+        rows = max(1, (1 << 18) // max(w, 1))  # about 256k pixels' worth of rows per task
         for name, off in offsets.items():
             spec = AOVS[name]
             if spec.per_light:
@@ -178,12 +245,14 @@ class Targets:
                 src = np.frombuffer(raw, np.float32, h * w * lights, off).reshape(lights, h, w)[:n_lights]
                 dst = out[name] = np.empty((h, w, n_lights), np.float32)
                 view = np.moveaxis(src, 0, -1)
-            elif spec.dtype == "unorm8":   # one 8-bit unorm channel of an RGBA8 target, as float32 in [0, 1]
+            elif spec.dtype == "unorm8":  # one 8-bit unorm channel of an RGBA8 target, as float32 in [0, 1]
                 src = np.frombuffer(raw, np.uint8, h * w * spec.bytes, off).reshape(h, w, spec.bytes)
                 dst = out[name] = np.empty((h, w), np.float32)
                 view = src[..., spec.first]
-                tasks += [lambda d=dst, v=view, a=a: np.divide(v[a:a + rows], np.float32(255.0), out=d[a:a + rows])
-                          for a in range(0, h, rows)]
+                tasks += [
+                    lambda d=dst, v=view, a=a: np.divide(v[a : a + rows], np.float32(255.0), out=d[a : a + rows])
+                    for a in range(0, h, rows)
+                ]
                 continue
             else:
                 item = np.dtype(spec.dtype).itemsize
@@ -192,12 +261,12 @@ class Targets:
                 dtype = np.float32 if spec.dtype == "float16" else spec.dtype
                 shape = (h, w, spec.channels) if spec.channels > 1 else (h, w)
                 dst = out[name] = np.empty(shape, dtype)
-                if spec.channels < per_pixel and spec.dtype != "float16":   # the first channels of each pixel: as
-                    view = raw[off:off + h * w * spec.bytes].reshape(h, w, spec.bytes)[..., :spec.channels * item]
-                    dst = dst.view(np.uint8).reshape(h, w, spec.channels * item)   # bytes (a faster strided copy)
+                if spec.channels < per_pixel and spec.dtype != "float16":  # the first channels of each pixel: as
+                    view = raw[off : off + h * w * spec.bytes].reshape(h, w, spec.bytes)[..., : spec.channels * item]
+                    dst = dst.view(np.uint8).reshape(h, w, spec.channels * item)  # bytes (a faster strided copy)
                 else:
-                    view = src[..., :spec.channels] if spec.channels > 1 else src[..., 0]
-            tasks += [lambda d=dst, v=view, a=a: np.copyto(d[a:a + rows], v[a:a + rows]) for a in range(0, h, rows)]
+                    view = src[..., : spec.channels] if spec.channels > 1 else src[..., 0]
+            tasks += [lambda d=dst, v=view, a=a: np.copyto(d[a : a + rows], v[a : a + rows]) for a in range(0, h, rows)]
         run(tasks, default_threads())
         return out
 

@@ -1,5 +1,6 @@
 """Ray queries: the batch Tracer (GPU), trimesh's RayMeshIntersector and Open3D's RaycastingScene on it, and a
 brute-force numpy reference for tests."""
+
 from .closest import Closest
 from .raycasting import RaycastingScene
 from .raymesh import RayMeshIntersector

@@ -1,5 +1,6 @@
 """The Tracer's input checks: meshes, rays and batch sizes, each a clear ConfigError / SceneError naming the first
 bad element (no Vulkan here)."""
+
 from __future__ import annotations
 
 import math
@@ -20,7 +21,7 @@ def check_mesh(vertices, faces, who: str = "Tracer", allow_empty: bool = False):
         f = np.asarray(faces)
     except (TypeError, ValueError) as exc:
         raise SceneError(f"{who}: vertices/faces are not numeric arrays ({exc})") from None
-    if v.dtype.kind not in "iuf":   # (complex would lose its imaginary part, strings would be parsed)
+    if v.dtype.kind not in "iuf":  # (complex would lose its imaginary part, strings would be parsed)
         raise SceneError(f"{who}: vertices must be real numbers, got {v.dtype} {v.shape}")
     v = v.astype(np.float64)
     if v.ndim != 2 or v.shape[1] != 3:
@@ -34,8 +35,10 @@ def check_mesh(vertices, faces, who: str = "Tracer", allow_empty: bool = False):
     if not np.all(np.isfinite(v)):
         raise SceneError(f"{who}: vertices contain NaN or infinite values")
     if v.size and np.abs(v).max() > MAX_COORD:
-        raise SceneError(f"{who}: vertices: coordinates beyond +-{MAX_COORD:g} (found {np.abs(v).max():g}); "
-                         "the float32 triangle test is exact only within that bound")
+        raise SceneError(
+            f"{who}: vertices: coordinates beyond +-{MAX_COORD:g} (found {np.abs(v).max():g}); "
+            "the float32 triangle test is exact only within that bound"
+        )
     if f.min() < 0 or f.max() >= len(v):
         raise SceneError(f"{who}: face indices must be in 0..{len(v) - 1}, found {f.min()}..{f.max()}")
     return v.astype(np.float32), f.astype(np.int64)
@@ -52,13 +55,13 @@ def check_vectors(value, what: str, width: int = 3) -> np.ndarray:
         got = repr(value) if a.ndim == 0 else f"an array of {a.dtype} {a.shape}"
         raise ConfigError(f"{what} must be numbers, got {got if len(got) <= 60 else type(value).__name__}")
     if a.size == 0 and a.ndim < 2:
-        a = a.reshape(0, width)   # an empty list: no rows
+        a = a.reshape(0, width)  # an empty list: no rows
     if a.ndim == 1 and a.shape[0] == width:
         a = a.reshape(1, width)
     if a.ndim != 2 or a.shape[1] != width:
         raise ConfigError(f"{what} must have shape (N, {width}), got {a.shape}")
     a = a.astype(np.float64)
-    if a.size and not (np.isfinite(a.min()) and np.isfinite(a.max())):   # (min and max propagate NaN)
+    if a.size and not (np.isfinite(a.min()) and np.isfinite(a.max())):  # (min and max propagate NaN)
         i = _first(~np.isfinite(a).all(axis=1))
         raise ConfigError(f"{what}: row {i} is not finite ({np.asarray(value)[i]})")
     return a
@@ -93,7 +96,7 @@ def ray_arrays(origins, directions, tmax, tmax_nan: bool = True):
     not checked for NaN here (the caller does so per block: `block_fine`, then `name_bad_tmax`)."""
     o = _ray_array(origins, "origins")
     d = _ray_array(directions, "directions")
-    o, d = (a.reshape(0, 3) if a.size == 0 and a.ndim < 2 else a for a in (o, d))   # an empty list: no rays
+    o, d = (a.reshape(0, 3) if a.size == 0 and a.ndim < 2 else a for a in (o, d))  # an empty list: no rays
     if o.ndim != 2 or o.shape[1] != 3:
         raise ConfigError(f"origins must have shape (N, 3), got {o.shape}")
     if d.shape != o.shape:
@@ -132,9 +135,9 @@ def check_rays(origins, directions, tmax):
     if t.ndim == 0:
         t = np.full(len(o), t, np.float32)
     if o.size:
-        block = 1 << 18   # rays per task on the worker pool (numpy releases the GIL)
+        block = 1 << 18  # rays per task on the worker pool (numpy releases the GIL)
         starts = range(0, len(o), block)
-        fine = _parallel([lambda s=s: rays_fine(o[s:s + block], d[s:s + block]) for s in starts], default_threads())
+        fine = _parallel([lambda s=s: rays_fine(o[s : s + block], d[s : s + block]) for s in starts], default_threads())
         if not all(fine):
             name_bad_ray(o, d, origins, directions)
     return o, d, t
@@ -166,14 +169,14 @@ def block_fine(o: np.ndarray, d: np.ndarray, t: np.ndarray | None, scratch: np.n
     few flat integer passes over `scratch` (uint32, at least o.size): the magnitude bits of every origin component
     within +-MAX_COORD, of every direction component finite and >= MIN_DIRECTION. A block with a smaller component
     (zero: which a fine direction may have) is then decided by rays_fine."""
-    s = scratch[:o.size]
+    s = scratch[: o.size]
     u = o.reshape(-1).view(np.uint32)
-    np.add(u, u, out=s)   # (the sign bit drops out)
+    np.add(u, u, out=s)  # (the sign bit drops out)
     if s.max() > _COORD_BITS2:
-        return False   # (NaN and infinity have larger bits)
+        return False  # (NaN and infinity have larger bits)
     u = d.reshape(-1).view(np.uint32)
     np.add(u, u, out=s)
-    np.subtract(s, np.uint32(_SHORT_BITS2), out=s)   # zero and those below MIN_DIRECTION wrap round to the top
+    np.subtract(s, np.uint32(_SHORT_BITS2), out=s)  # zero and those below MIN_DIRECTION wrap round to the top
     if s.max() >= _INF_BITS2 - _SHORT_BITS2 and not rays_fine(o, d):
         return False
     return t is None or not np.isnan(t.min())
@@ -186,23 +189,33 @@ def name_bad_ray(o, d, origins, directions):
         i = _first(bad_o)
         given = np.asarray(origins)[i]
         if np.isfinite(o[i]).all():
-            raise ConfigError(f"origins: ray {i} has a coordinate beyond +-{MAX_COORD:g} ({given}); "
-                              "the triangle test is exact only within that bound")
+            raise ConfigError(
+                f"origins: ray {i} has a coordinate beyond +-{MAX_COORD:g} ({given}); "
+                "the triangle test is exact only within that bound"
+            )
         raise ConfigError(f"origins: ray {i} is not finite as float32 ({given}: NaN, infinite or beyond +-3.4e38)")
     bad_d = ~np.isfinite(d).all(axis=1)
     if bad_d.any():
         i = _first(bad_d)
-        raise ConfigError(f"directions: ray {i} is not finite as float32 ({np.asarray(directions)[i]}: "
-                          "NaN, infinite or beyond +-3.4e38)")
+        raise ConfigError(
+            f"directions: ray {i} is not finite as float32 ({np.asarray(directions)[i]}: "
+            "NaN, infinite or beyond +-3.4e38)"
+        )
     i = _first(((d.view(np.uint32) & np.uint32(_SHORT_BITS)) == 0).all(axis=1))
-    raise ConfigError(f"directions: ray {i} has zero length or nearly ({np.asarray(directions)[i]}; "
-                      f"a direction needs a component of magnitude >= {MIN_DIRECTION:.3g})")
+    raise ConfigError(
+        f"directions: ray {i} has zero length or nearly ({np.asarray(directions)[i]}; "
+        f"a direction needs a component of magnitude >= {MIN_DIRECTION:.3g})"
+    )
 
 
 def check_batch_size(batch_size) -> int:
     """A whole number of rays >= 1 (an integral float such as 1e6 too)."""
-    if isinstance(batch_size, (bool, np.bool_)) or not isinstance(batch_size, Real) \
-            or not (isinstance(batch_size, Integral) or math.isfinite(batch_size)) \
-            or batch_size != int(batch_size) or batch_size < 1:
+    if (
+        isinstance(batch_size, (bool, np.bool_))
+        or not isinstance(batch_size, Real)
+        or not (isinstance(batch_size, Integral) or math.isfinite(batch_size))
+        or batch_size != int(batch_size)
+        or batch_size < 1
+    ):
         raise ConfigError(f"Tracer: batch_size must be a whole number of rays >= 1, got {batch_size!r}")
     return int(batch_size)

@@ -9,6 +9,7 @@ where rays' origins go, results where its hits go), with command buffers of its 
 ray-tracing records collapse onto their first vertex, are points or segments here: where a mesh has any, a second
 triangle buffer holds their real vertices.
 """
+
 from __future__ import annotations
 
 from dataclasses import dataclass
@@ -27,7 +28,7 @@ from .checks import check_vectors
 from .stream import hits_sink, stream
 
 SHADER = "trace_closest.comp"
-ZERO_AREA_FLAG = 1   # bvh_point.glsl BVH_ZERO_AREA_FLAG, in a triangle record's v1.w
+ZERO_AREA_FLAG = 1  # bvh_point.glsl BVH_ZERO_AREA_FLAG, in a triangle record's v1.w
 
 
 @dataclass(repr=False)
@@ -103,7 +104,7 @@ class ClosestQuery:
                 self.set.bind(name, scene.views[0])
             for name in ("bvh_tri_texels", "bvh_tri_image"):
                 self.set.bind(name, scene.views[1])
-        else:   # the point walk reads the binary tree
+        else:  # the point walk reads the binary tree
             scene = SceneBVH(ctx, bvh, self.set, layout="binary")
         v, f = mesh
         real = real_triangles(bvh.tris, bvh.prim_ids, v, f)
@@ -113,18 +114,20 @@ class ClosestQuery:
         spec = bvh_spec(ctx, scene.depth, layout="binary", compressed=scene.compressed)
         spec["RAYS_TEXEL"] = False
         # (every slot's io set has the trace kernels' set-0 layout)
-        self.pipeline = ComputePipeline(ctx, spirv, [session.io_layout, self.set],
-                                        spec=interface.specialization(spec, SHADER), name="trace_closest")
+        self.pipeline = ComputePipeline(
+            ctx, spirv, [session.io_layout, self.set], spec=interface.specialization(spec, SHADER), name="trace_closest"
+        )
         session.add_kind("closest", self.record)
 
     def record(self, slot, span: int):
         """A slot's command buffer: (upload the points), the point walk, (download); as `Slot.record`."""
         rec = Recorder(slot.ctx, slot.timestamps, after_earlier=False)
         if slot.staged:
-            rec.copy(slot.rays_host, slot.rays, [(0, 0, span * 12)])   # the points: where origins go
+            rec.copy(slot.rays_host, slot.rays, [(0, 0, span * 12)])  # the points: where origins go
             rec.mark("upload")
-        rec.dispatch_indirect(self.pipeline, [slot.io_set, self.set], slot.params, reads=[slot.rays],
-                              writes=[slot.results])
+        rec.dispatch_indirect(
+            self.pipeline, [slot.io_set, self.set], slot.params, reads=[slot.rays], writes=[slot.results]
+        )
         rec.mark("trace")
         if slot.staged:
             rec.copy(slot.results, slot.results_host, [(0, 0, span * 16)])
@@ -139,16 +142,29 @@ class ClosestQuery:
         slots as rays' origins (a unit direction and tmax 0 beside them, which the kernel never reads)."""
         p = check_points(points).astype(np.float32)
         n = len(p)
-        out = Closest(np.zeros((n, 3), np.float32), np.empty(n, np.float32), np.empty(n, np.int32),
-                      np.empty(n, np.float32), np.empty(n, np.float32))
+        out = Closest(
+            np.zeros((n, 3), np.float32),
+            np.empty(n, np.float32),
+            np.empty(n, np.int32),
+            np.empty(n, np.float32),
+            np.empty(n, np.float32),
+        )
 
-        def bad():   # (check_points passed every point; float32 rounding could only push one past the bound)
+        def bad():  # (check_points passed every point; float32 rounding could only push one past the bound)
             raise ConfigError(f"points: a coordinate beyond +-{MAX_COORD:g} once rounded to float32")
-        stream(self.session, "closest", p, np.broadcast_to(np.float32(1), (n, 3)), np.float32(0),
-               hits_sink(out.distance, out.prim, out.u, out.v), bad)
+
+        stream(
+            self.session,
+            "closest",
+            p,
+            np.broadcast_to(np.float32(1), (n, 3)),
+            np.float32(0),
+            hits_sink(out.distance, out.prim, out.u, out.v),
+            bad,
+        )
         if n:
             v, f = self.mesh
-            tri = v[f[out.prim]].astype(np.float64)   # (N, 3 corners, 3)
+            tri = v[f[out.prim]].astype(np.float64)  # (N, 3 corners, 3)
             u, w = out.u[:, None].astype(np.float64), out.v[:, None].astype(np.float64)
             out.point[:] = tri[:, 0] + u * (tri[:, 1] - tri[:, 0]) + w * (tri[:, 2] - tri[:, 0])
         return out

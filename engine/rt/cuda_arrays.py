@@ -13,6 +13,7 @@ The kernels check the rays as the numpy path does (CHECK_RAYS in rays.glsl: the 
 host-visible buffer, the ConfigError naming it raised after the dispatch), and `occluded` writes one byte per ray into
 a buffer of engine.rt.cuda_results' pool that the returned bool array views (no copy; see there for its lifetime).
 """
+
 from __future__ import annotations
 
 import math
@@ -29,15 +30,15 @@ from ..vk.formats import INDIRECT, R32F, R32UI, RGB32F, RGBA32UI
 from ..vk.resources import STORAGE, STORAGE_TEXEL, UNIFORM_TEXEL
 from .cuda_results import Region, ResultPool, map_memory, ok, unmap_memory
 
-RAY_BYTES = 28      # as the Tracer's: origins, directions, tmax as three packed arrays (rays.glsl)
+RAY_BYTES = 28  # as the Tracer's: origins, directions, tmax as three packed arrays (rays.glsl)
 GROUP = 64
 #: rays per dispatch of queries on CUDA arrays, at least (where the Tracer's batch_size is smaller and the query
 #: larger): a 1920x1080 frame's rays in one dispatch, 4M rays taking 176 MB of device memory
 CUDA_BATCH = 1 << 22
-DLPACK_CUDA = (2, 13)   # DLPack device types: kDLCUDA, kDLCUDAManaged
+DLPACK_CUDA = (2, 13)  # DLPack device types: kDLCUDA, kDLCUDAManaged
 #: seconds the host polls a dispatch's fence before the driver's blocking wait (which wakes later)
 SPIN_S = 0.005
-NONE = 0xFFFFFFFF   # an error word of the kernels (rays.glsl ray_errors): no bad ray
+NONE = 0xFFFFFFFF  # an error word of the kernels (rays.glsl ray_errors): no bad ray
 INSTALL = "pip install cuda-bindings (NVIDIA's CUDA Python bindings, matching the driver's CUDA major version)"
 
 _runtime = None
@@ -53,13 +54,13 @@ def _is_cuda(value) -> bool:
         return False
     top = type(value).__module__.split(".", 1)[0]
     if top == "torch" and isinstance(getattr(value, "is_cuda", None), bool):
-        return value.is_cuda   # (without building its __cuda_array_interface__)
+        return value.is_cuda  # (without building its __cuda_array_interface__)
     if top == "cupy" and hasattr(value, "device"):
         return True
     try:
         if getattr(value, "__cuda_array_interface__", None) is not None:
             return True
-    except Exception:   # (torch raises for a CPU tensor)
+    except Exception:  # (torch raises for a CPU tensor)
         pass
     dev = getattr(value, "__dlpack_device__", None)
     if dev is None:
@@ -75,10 +76,10 @@ def cuda_runtime():
     global _runtime
     if _runtime is None:
         try:
-            from cuda.bindings import runtime   # deferred: optional, and only CUDA arrays need it
+            from cuda.bindings import runtime  # deferred: optional, and only CUDA arrays need it
         except ImportError:
             try:
-                from cuda import cudart as runtime   # deferred: its name before cuda-bindings 12.6
+                from cuda import cudart as runtime  # deferred: its name before cuda-bindings 12.6
             except ImportError:
                 return None
         _runtime = runtime
@@ -101,8 +102,10 @@ def cuda_device(ctx) -> tuple[int | None, str | None]:
         uuid = ok(rt.cudaGetDeviceProperties(i), "cudaGetDeviceProperties").uuid.bytes
         if (uuid if isinstance(uuid, bytes) else bytes(uuid, "latin-1"))[:16] == want:
             return i, None
-    return None, (f"the Vulkan device {ctx.device_info['name']!r} is none of the {count} CUDA devices (no UUID "
-                  "matches; pick the NVIDIA GPU with device=)")
+    return None, (
+        f"the Vulkan device {ctx.device_info['name']!r} is none of the {count} CUDA devices (no UUID "
+        "matches; pick the NVIDIA GPU with device=)"
+    )
 
 
 class _Torch:
@@ -191,10 +194,12 @@ def framework(value, what: str):
     if top == "cupy":
         return _CuPy(sys.modules["cupy"]), value
     try:
-        import cupy   # deferred: optional; only CUDA arrays of frameworks other than torch and CuPy need it
+        import cupy  # deferred: optional; only CUDA arrays of frameworks other than torch and CuPy need it
     except ImportError:
-        raise ConfigError(f"{what} is a CUDA array of type {type(value).__name__}: pass a torch tensor or a CuPy "
-                          "array, or install cupy to pass others") from None
+        raise ConfigError(
+            f"{what} is a CUDA array of type {type(value).__name__}: pass a torch tensor or a CuPy "
+            "array, or install cupy to pass others"
+        ) from None
     try:
         arr = cupy.asarray(value) if hasattr(value, "__cuda_array_interface__") else cupy.from_dlpack(value)
     except Exception as exc:
@@ -209,11 +214,11 @@ class _Shared:
 
     def __init__(self, session, rt, device: int, batch: int):
         self.session, self.ctx, self.rt, self.device = session, session.ctx, rt, device
-        self._imports: list[tuple] = []   # (external memory, mapped pointer) to free
+        self._imports: list[tuple] = []  # (external memory, mapped pointer) to free
         self._views: dict = {}
         self.ray_views: list = []
-        self.batch = batch = -(-batch // GROUP) * GROUP   # (each dispatch's results start at a whole workgroup)
-        align = max(1, int(self.ctx.limits.minTexelBufferOffsetAlignment))   # as the Tracer's ray arrays
+        self.batch = batch = -(-batch // GROUP) * GROUP  # (each dispatch's results start at a whole workgroup)
+        align = max(1, int(self.ctx.limits.minTexelBufferOffsetAlignment))  # as the Tracer's ray arrays
         step = align // math.gcd(12, align)
         c = self.capacity = -(-batch // step) * step
         ctx, b = self.ctx, batch
@@ -223,15 +228,21 @@ class _Shared:
             self.results = ExternalBuffer(ctx, b * 16, STORAGE | STORAGE_TEXEL, name="hits (CUDA)")
             self.params = Buffer(ctx, 32, STORAGE | INDIRECT, host=True, name="params (CUDA)")
             self.errors = Buffer(ctx, 16, STORAGE, host=True, name="ray errors (CUDA)")
-            self.first_bad = self.errors.view(np.uint32)   # (mapped: set before, read after each dispatch)
+            self.first_bad = self.errors.view(np.uint32)  # (mapped: set before, read after each dispatch)
             self.words = self.params.view(np.uint32)
             vec3 = RGB32F if session.rays_texel_ok else R32F
             # (the texel views are read only on CPU devices, which CUDA arrays never use; bound as the layout asks)
-            self.ray_views = [BufferView(self.rays, vec3, 0, 12 * c), BufferView(self.rays, vec3, 12 * c, 12 * c),
-                              BufferView(self.rays, R32F, 24 * c, 4 * c), BufferView(self.results, R32UI, 0, 4 * b),
-                              BufferView(self.results, RGBA32UI, 0, 16 * b)]
-            self.kernels = {"occluded": session.kernel("occluded", CHECK_RAYS=True, RESULT_BYTES=True),
-                            "intersect": session.kernel("intersect", CHECK_RAYS=True)}
+            self.ray_views = [
+                BufferView(self.rays, vec3, 0, 12 * c),
+                BufferView(self.rays, vec3, 12 * c, 12 * c),
+                BufferView(self.rays, R32F, 24 * c, 4 * c),
+                BufferView(self.results, R32UI, 0, 4 * b),
+                BufferView(self.results, RGBA32UI, 0, 16 * b),
+            ]
+            self.kernels = {
+                "occluded": session.kernel("occluded", CHECK_RAYS=True, RESULT_BYTES=True),
+                "intersect": session.kernel("intersect", CHECK_RAYS=True),
+            }
             self.rays_ptr = self._import(self.rays)
             self.results_ptr = self._import(self.results)
             self.io_set, self.intersect = self._recording("intersect", self.results)
@@ -250,19 +261,25 @@ class _Shared:
         """(a descriptor set of the rays and `results`, the recorded `kind` dispatch with its timestamp names)."""
         session = self.session
         io_set = DescriptorSet(self.ctx, session.interface.set(0).values())
-        for name, buf in (("ray_data", self.rays), ("params", self.params), ("retry", session.retry),
-                          ("ray_errors", self.errors)):
+        for name, buf in (
+            ("ray_data", self.rays),
+            ("params", self.params),
+            ("retry", session.retry),
+            ("ray_errors", self.errors),
+        ):
             io_set.bind(name, buf)
         io_set.bind(session.interface.bindings[1].name, results)
-        for name, view in zip(("ray_origins", "ray_directions", "ray_tmax", "occluded_texels", "hit_texels"),
-                              self.ray_views):
+        for name, view in zip(
+            ("ray_origins", "ray_directions", "ray_tmax", "occluded_texels", "hit_texels"), self.ray_views
+        ):
             io_set.bind(name, view)
-        session.alpha.bind(io_set)   # (a Tracer of arrays: the test compiled out, its dummy bindings)
+        session.alpha.bind(io_set)  # (a Tracer of arrays: the test compiled out, its dummy bindings)
         rec = Recorder(self.ctx, session.timestamps)
-        rec.dispatch_indirect(self.kernels[kind], [io_set, session.bvh_set], self.params,
-                              reads=[self.rays], writes=[results, self.errors])
+        rec.dispatch_indirect(
+            self.kernels[kind], [io_set, session.bvh_set], self.params, reads=[self.rays], writes=[results, self.errors]
+        )
         rec.mark("trace")
-        rec.to_host(results, self.errors)   # (complete at the fence, before CUDA and the host read them)
+        rec.to_host(results, self.errors)  # (complete at the fence, before CUDA and the host read them)
         return io_set, (rec.finish(), list(session.timestamps.names))
 
     def views(self, fw):
@@ -275,7 +292,8 @@ class _Shared:
                 "directions": fw.wrap(Region(p + 12 * c, (c, 3), "<f4", dev)),
                 "tmax": fw.wrap(Region(p + 24 * c, (c,), "<f4", dev)),
                 "hits": fw.wrap(Region(r, (b, 4), "<f4", dev)),
-                "prims": fw.wrap(Region(r, (b, 4), "<i4", dev))}
+                "prims": fw.wrap(Region(r, (b, 4), "<i4", dev)),
+            }
         return self._views[fw.name]
 
     def close(self):
@@ -307,8 +325,10 @@ class CudaRays:
         self.session, self.ctx, self.batch = session, session.ctx, batch
         self.device, reason = cuda_device(self.ctx)
         if reason:
-            raise ConfigError(f"Tracer: CUDA arrays cannot be used here: {reason}. Pass numpy arrays instead "
-                              "(e.g. tensor.cpu().numpy())")
+            raise ConfigError(
+                f"Tracer: CUDA arrays cannot be used here: {reason}. Pass numpy arrays instead "
+                "(e.g. tensor.cpu().numpy())"
+            )
         if any(session.two_pass.values()):
             raise ConfigError("Tracer: CUDA arrays need a GPU Vulkan device, not a CPU one")
         self.rt = cuda_runtime()
@@ -328,29 +348,37 @@ class CudaRays:
     # ---- inputs ----------------------------------------------------------------------------------------------
     def _array(self, fw, value, what: str, shape_text: str):
         if not _is_cuda(value):
-            raise ConfigError(f"{what} must be a CUDA array like origins ({fw.name}, {shape_text}), got "
-                              f"{type(value).__name__}: all ray arrays on the same device")
+            raise ConfigError(
+                f"{what} must be a CUDA array like origins ({fw.name}, {shape_text}), got "
+                f"{type(value).__name__}: all ray arrays on the same device"
+            )
         f, a = framework(value, what)
         if f.name != fw.name:
             raise ConfigError(f"{what} is a {f.name} array, origins a {fw.name} one: give all rays in one framework")
         dev = fw.device(a)
         if dev != self.device:
-            raise ConfigError(f"{what} is on CUDA device {dev}, the Tracer's Vulkan device "
-                              f"({self.ctx.device_info['name']}) is CUDA device {self.device}")
+            raise ConfigError(
+                f"{what} is on CUDA device {dev}, the Tracer's Vulkan device "
+                f"({self.ctx.device_info['name']}) is CUDA device {self.device}"
+            )
         dtype = fw.dtype(a)
         if dtype not in ("float32", "float64"):
             raise ConfigError(f"{what} must be float32 or float64, got {dtype} {tuple(a.shape)}")
         if not fw.contiguous(a):
-            raise ConfigError(f"{what} is not contiguous (a strided view, shape {tuple(a.shape)}): pass a "
-                              "contiguous copy (torch: .contiguous(), CuPy: cupy.ascontiguousarray)")
+            raise ConfigError(
+                f"{what} is not contiguous (a strided view, shape {tuple(a.shape)}): pass a "
+                "contiguous copy (torch: .contiguous(), CuPy: cupy.ascontiguousarray)"
+            )
         return a
 
     def inputs(self, origins, directions, tmax):
         """(framework, origins, directions, tmax as a float or a CUDA array, N), or a ConfigError naming the
         argument at fault."""
         if not _is_cuda(origins):
-            raise ConfigError(f"origins must be a CUDA array when directions or tmax is one, got "
-                              f"{type(origins).__name__}: all ray arrays on the same device")
+            raise ConfigError(
+                f"origins must be a CUDA array when directions or tmax is one, got "
+                f"{type(origins).__name__}: all ray arrays on the same device"
+            )
         fw, _ = framework(origins, "origins")
         o = self._array(fw, origins, "origins", "(N, 3)")
         if o.ndim != 2 or o.shape[1] != 3:
@@ -380,12 +408,18 @@ class CudaRays:
                 continue
             row = v[what][i].tolist()
             if what == "origins":
-                why = (f"has a coordinate beyond +-{MAX_COORD:g} (the triangle test is exact only within it)"
-                       if np.isfinite(row).all() else "is not finite as float32 (NaN, infinite or beyond +-3.4e38)")
+                why = (
+                    f"has a coordinate beyond +-{MAX_COORD:g} (the triangle test is exact only within it)"
+                    if np.isfinite(row).all()
+                    else "is not finite as float32 (NaN, infinite or beyond +-3.4e38)"
+                )
             elif what == "directions":
-                why = ("is not finite as float32 (NaN, infinite or beyond +-3.4e38)" if not np.isfinite(row).all()
-                       else "has zero length or nearly (a direction needs a component of magnitude >= "
-                            f"{MIN_DIRECTION:.3g})")
+                why = (
+                    "is not finite as float32 (NaN, infinite or beyond +-3.4e38)"
+                    if not np.isfinite(row).all()
+                    else "has zero length or nearly (a direction needs a component of magnitude >= "
+                    f"{MIN_DIRECTION:.3g})"
+                )
             else:
                 why = "has tmax NaN"
             return ConfigError(f"{what}: ray {start + i} {why} ({row})")
@@ -396,17 +430,17 @@ class CudaRays:
         """Rays [start, start + k) into the shared buffers and traced by `command` (checked there: a ConfigError
         naming the first bad one); the results stay in the command's result buffer."""
         v, session = shared.views(fw), self.session
-        whole = start == 0 and k == len(o)   # (slices of the arrays cost more than the copies' launches)
+        whole = start == 0 and k == len(o)  # (slices of the arrays cost more than the copies' launches)
         for key, a in (("origins", o), ("directions", d), ("tmax", t)):
             if isinstance(a, float):
                 v[key][:k] = a
-            elif not (whole and fw.ptr(a) == fw.ptr(v[key])):   # (rays written in place: `ray_arrays`)
-                v[key][:k] = a if whole else a[start:start + k]
+            elif not (whole and fw.ptr(a) == fw.ptr(v[key])):  # (rays written in place: `ray_arrays`)
+                v[key][:k] = a if whole else a[start : start + k]
         shared.first_bad[:] = NONE
         shared.words[:] = ((k + GROUP - 1) // GROUP, 1, 1, k, shared.capacity, session.shares, out_base, 0)
-        fw.sync(self.device)   # the stream rule: CUDA's writes are done before Vulkan reads
+        fw.sync(self.device)  # the stream rule: CUDA's writes are done before Vulkan reads
         cmd, marks = command
-        self.ctx.submit(cmd, spin_s=SPIN_S)   # waits for the fence
+        self.ctx.submit(cmd, spin_s=SPIN_S)  # waits for the fence
         session.chunk_done(session.timestamps.read(marks))
         if (shared.first_bad[:3] != NONE).any():
             raise self._name_bad(fw, v, start)
@@ -420,8 +454,10 @@ class CudaRays:
             raise ConfigError(f"ray_arrays: n must be at least 1, got {n}")
         shared = self._buffers(n)
         if n > shared.batch:
-            raise ConfigError(f"ray_arrays: at most {shared.batch:,} rays in the shared buffers, got {n:,}; trace "
-                              "larger batches from your own arrays")
+            raise ConfigError(
+                f"ray_arrays: at most {shared.batch:,} rays in the shared buffers, got {n:,}; trace "
+                "larger batches from your own arrays"
+            )
         v = shared.views(fw)
         return v["origins"][:n], v["directions"][:n], v["tmax"][:n]
 
@@ -445,19 +481,23 @@ class CudaRays:
         """(t, prim, u, v) as `fw`'s (N,) arrays."""
         fw, o, d, t, n = self.inputs(origins, directions, tmax)
         dev = self.device
-        out = (fw.empty(n, "float32", dev), fw.empty(n, "int32", dev), fw.empty(n, "float32", dev),
-               fw.empty(n, "float32", dev))
+        out = (
+            fw.empty(n, "float32", dev),
+            fw.empty(n, "int32", dev),
+            fw.empty(n, "float32", dev),
+            fw.empty(n, "float32", dev),
+        )
         self.session.start()
         shared = self._buffers(n)
         for s in range(0, n, shared.batch):
             k = min(shared.batch, n - s)
             self._trace(shared.intersect, fw, shared, o, d, t, s, k)
             hits, prims = shared.views(fw)["hits"][:k], shared.views(fw)["prims"][:k]
-            out[0][s:s + k] = hits[:, 0]
-            out[1][s:s + k] = prims[:, 1]
-            out[2][s:s + k] = hits[:, 2]
-            out[3][s:s + k] = hits[:, 3]
-        fw.sync(dev)   # the results are complete, and the shared buffers free for the next call
+            out[0][s : s + k] = hits[:, 0]
+            out[1][s : s + k] = prims[:, 1]
+            out[2][s : s + k] = hits[:, 2]
+            out[3][s : s + k] = hits[:, 3]
+        fw.sync(dev)  # the results are complete, and the shared buffers free for the next call
         return out
 
     def close(self):
@@ -473,11 +513,12 @@ def scene_rays(rays, center):
     fw, a = framework(rays, "rays")
     shape = tuple(a.shape)
     if len(shape) < 2 or shape[-1] != 6:
-        raise ConfigError(f"rays must have shape (..., 6) with at least 2 dimensions (ox, oy, oz, dx, dy, dz per "
-                          f"ray), got {shape}")
+        raise ConfigError(
+            f"rays must have shape (..., 6) with at least 2 dimensions (ox, oy, oz, dx, dy, dz per ray), got {shape}"
+        )
     flat = a.reshape(-1, 6)
     o, d = flat[:, :3], flat[:, 3:]
-    if np.any(center):   # (in float64, as the numpy path)
+    if np.any(center):  # (in float64, as the numpy path)
         o = o - fw.from_numpy(np.asarray(center, np.float64), fw.device(a))
     return fw, _contiguous(fw, o), _contiguous(fw, d), shape[:-1]
 

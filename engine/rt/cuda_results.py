@@ -11,6 +11,7 @@ framework holds as the memory's owner), so a result stays valid however many que
 Work that reads a result on a stream other than the query's must be done before the array is dropped (the next
 query makes only its own stream wait before Vulkan writes a returned buffer again).
 """
+
 from __future__ import annotations
 
 import os
@@ -22,7 +23,7 @@ from ..vk.resources import STORAGE, STORAGE_TEXEL
 
 #: result buffers lent at once, at most; past that a query copies its results into a new array of its framework
 POOL_MAX = 16
-MIN_BYTES = 1 << 16   # the smallest result buffer (sizes are powers of two, so that buffers serve many sizes)
+MIN_BYTES = 1 << 16  # the smallest result buffer (sizes are powers of two, so that buffers serve many sizes)
 
 
 def ok(result, what: str):
@@ -48,7 +49,7 @@ def map_memory(rt, device: int, buf: ExternalBuffer) -> tuple:
         try:
             ext = ok(rt.cudaImportExternalMemory(desc), "cudaImportExternalMemory")
         except VulkanError:
-            os.close(fd)   # (CUDA owns the descriptor only once imported)
+            os.close(fd)  # (CUDA owns the descriptor only once imported)
             raise
         mapping = rt.cudaExternalMemoryBufferDesc()
         mapping.offset, mapping.size, mapping.flags = 0, buf.size, 0
@@ -73,8 +74,14 @@ class Region:
 
     def __init__(self, ptr: int, shape: tuple, typestr: str, device: int):
         self.device = device
-        self.__cuda_array_interface__ = {"shape": shape, "typestr": typestr, "data": (ptr, False), "version": 3,
-                                         "strides": None, "stream": None}
+        self.__cuda_array_interface__ = {
+            "shape": shape,
+            "typestr": typestr,
+            "data": (ptr, False),
+            "version": 3,
+            "strides": None,
+            "stream": None,
+        }
 
 
 class Lent:
@@ -141,7 +148,7 @@ class ResultPool:
     def _back(self, entry: Lent):
         self.lent.discard(entry)
         if self.closed:
-            entry.unmap(self.rt)   # (its Vulkan side is gone with the pool)
+            entry.unmap(self.rt)  # (its Vulkan side is gone with the pool)
         else:
             self.free.append(entry)
 

@@ -13,6 +13,7 @@ and the scatters run in C (engine/native.py: same keys, same order, cheaper gath
 batch is sorted at once. `incoherent` decides whether a batch gains from it, from a sample: image-ordered batches
 (G-buffer rays) and rays crossing the scene in all directions are left alone.
 """
+
 from __future__ import annotations
 
 import functools
@@ -74,14 +75,14 @@ def _axis_tables(axes: tuple, shift: int) -> tuple:
         coord = np.arange(1 << bits[a], dtype=np.uint32)
         part = np.zeros_like(coord)
         seen = 0
-        for k, axis in enumerate(axes):   # split k: the next bit of this axis, from its highest
+        for k, axis in enumerate(axes):  # split k: the next bit of this axis, from its highest
             if axis == a:
                 seen += 1
                 part |= ((coord >> (bits[a] - seen)) & 1) << np.uint32(len(axes) - 1 - k + shift)
         parts.append(part)
     table = np.concatenate(parts)
     offsets = np.array([0, len(parts[0]), len(parts[0]) + len(parts[1])], np.uint32)
-    table.setflags(write=False)   # (shared by the cache)
+    table.setflags(write=False)  # (shared by the cache)
     offsets.setflags(write=False)
     return table, offsets
 
@@ -151,8 +152,9 @@ def incoherent(o: np.ndarray, d: np.ndarray, tmax) -> bool:
         if np.median(np.where(np.isnan(reach), np.inf, reach)) < SHORT * diag:
             return True
         unit = dirs / length[:, None]
-        near = unit[np.argsort(ray_keys(o[rows], d[rows], (lo.astype(np.float32), hi.astype(np.float32))),
-                               kind="stable")]
+        near = unit[
+            np.argsort(ray_keys(o[rows], d[rows], (lo.astype(np.float32), hi.astype(np.float32))), kind="stable")
+        ]
         cos = np.einsum("ij,ij->i", near[1:], near[:-1])
     return bool(np.median(np.nan_to_num(cos, nan=-1.0)) > ALIKE)
 
@@ -170,8 +172,8 @@ def shared_direction(d: np.ndarray) -> np.ndarray:
     # (flat, as long as a block: an (N, 3) == (3,) comparison loops 3 elements at a time)
     flat = np.tile(first, min(SHARED_BLOCK, len(d)))
     for s in range(0, len(d), SHARED_BLOCK):
-        rows = d[s:s + SHARED_BLOCK].view(np.uint32).reshape(-1)
-        if not np.array_equal(rows, flat[:len(rows)]):
+        rows = d[s : s + SHARED_BLOCK].view(np.uint32).reshape(-1)
+        if not np.array_equal(rows, flat[: len(rows)]):
             return d
     return np.broadcast_to(d[0], d.shape)
 
@@ -189,8 +191,9 @@ def _key_terms(d: np.ndarray, box) -> tuple:
     return shared, lo, scale, top, table, offsets
 
 
-def ray_keys(o: np.ndarray, d: np.ndarray, box, threads: int = 1, out: np.ndarray | None = None,
-             index: np.ndarray | None = None) -> np.ndarray:
+def ray_keys(
+    o: np.ndarray, d: np.ndarray, box, threads: int = 1, out: np.ndarray | None = None, index: np.ndarray | None = None
+) -> np.ndarray:
     """(N,) uint32 keys: the code of each origin's cell in `box` (clamped), whose KEY_BITS - 1 bits halve the box
     along its longest side in turn (`split_axes`: a Morton code for a cube), then whether the direction points up
     (+y) or down, which splits a cell's rays leaving opposite sides of a surface; where every ray has the same
@@ -210,9 +213,9 @@ def ray_keys(o: np.ndarray, d: np.ndarray, box, threads: int = 1, out: np.ndarra
         q = np.subtract(o[s:e].reshape(-1), lo3[:m])
         with np.errstate(invalid="ignore"):
             np.multiply(q, scale3[:m], out=q)
-            np.maximum(q, np.float32(0), out=q)   # (two ufuncs: np.clip with array bounds is slower)
+            np.maximum(q, np.float32(0), out=q)  # (two ufuncs: np.clip with array bounds is slower)
             np.minimum(q, top3[:m], out=q)
-            cell = q.astype(np.uint32)   # (whole cells, >= 0: truncation is the floor; a NaN casts to any integer)
+            cell = q.astype(np.uint32)  # (whole cells, >= 0: truncation is the floor; a NaN casts to any integer)
         cell += offsets3[:m]
         part = np.take(table, cell, mode="clip").reshape(-1, 3)
         k = np.bitwise_or(part[:, 0], part[:, 1])
@@ -222,12 +225,14 @@ def ray_keys(o: np.ndarray, d: np.ndarray, box, threads: int = 1, out: np.ndarra
         key[s:e] = k
         if index is not None:
             index[s:e] = np.arange(s, e, dtype=np.uint32)
+
     blocks(block, len(o), KEY_BLOCK, threads)
     return key
 
 
-def ray_order(o: np.ndarray, d: np.ndarray, threads: int = 1, window: int | None = None,
-              scratch: np.ndarray | None = None) -> np.ndarray | None:
+def ray_order(
+    o: np.ndarray, d: np.ndarray, threads: int = 1, window: int | None = None, scratch: np.ndarray | None = None
+) -> np.ndarray | None:
     """The order to trace rays in (an (N,) index array: trace row order[i] i-th), or None where the origins' box is
     not finite (bad rays: traced as given, so that the checks name the first one). The rays sorted by their keys,
     stably: the key and the row number as one uint64 word each (key high), sorted, then the key bits cleared; `d`
@@ -251,7 +256,7 @@ def ray_order(o: np.ndarray, d: np.ndarray, threads: int = 1, window: int | None
     if window is None or window >= n:
         words.sort()
     else:
-        blocks(lambda s: words[s:s + window].sort(), n, window, threads)
+        blocks(lambda s: words[s : s + window].sort(), n, window, threads)
     halves[:, high] = 0
     return words.view(np.int64)
 
@@ -264,7 +269,7 @@ def _native_order(o: np.ndarray, d: np.ndarray, box, threads: int, words: np.nda
     the C gather does not need)."""
     n = len(o)
     shared, lo, scale, top, table, offsets = _key_terms(d, box)
-    o = np.require(o, np.float32, ["C", "A"]).reshape(-1)   # (contiguous and aligned, as C reads it)
+    o = np.require(o, np.float32, ["C", "A"]).reshape(-1)  # (contiguous and aligned, as C reads it)
     up, stride = None, 0
     if not shared:
         d = np.require(d, np.float32, ["C", "A"])
@@ -274,8 +279,10 @@ def _native_order(o: np.ndarray, d: np.ndarray, box, threads: int, words: np.nda
 
     def keys(s):
         e = min(s + step, n)
-        native.ray_keys(o[3 * s:3 * e], lo, scale, top, table, offsets, None if up is None else up + 12 * s, stride,
-                        s, words[s:e])
+        native.ray_keys(
+            o[3 * s : 3 * e], lo, scale, top, table, offsets, None if up is None else up + 12 * s, stride, s, words[s:e]
+        )
+
     blocks(keys, n, step, threads)
     if threads > 1 and n >= 2 * KEY_BLOCK:
         half = n // 2
@@ -283,5 +290,5 @@ def _native_order(o: np.ndarray, d: np.ndarray, box, threads: int, words: np.nda
         run([words[:half].sort, words[half:].sort], 2)
     else:
         words.sort()
-    blocks(lambda s: native.rows_of(words[s:s + step]), n, step, threads)
+    blocks(lambda s: native.rows_of(words[s : s + step]), n, step, threads)
     return words.view(np.int64)

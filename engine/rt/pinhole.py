@@ -1,6 +1,7 @@
 """Pinhole camera rays in Open3D's layout (`RaycastingScene.create_rays_pinhole`): (H, W, 6) float32 rows of
 origin and direction, one per pixel centre, in either of Open3D's two forms, with its conventions (measured against
 Open3D 0.19-0.20: tests/test_raycasting.py compares them)."""
+
 from __future__ import annotations
 
 import os
@@ -15,7 +16,7 @@ from ..limits import MIN_DIRECTION
 INTRINSIC_FORM = ("intrinsic_matrix", "extrinsic_matrix", "width_px", "height_px")
 FOV_FORM = ("fov_deg", "center", "eye", "up", "width_px", "height_px")
 WHO = "create_rays_pinhole"
-_F32_MAX = float(np.finfo(np.float32).max)   # (the rays are float32)
+_F32_MAX = float(np.finfo(np.float32).max)  # (the rays are float32)
 #: Rays per block of rows whose directions are made at once (float64 temporaries of a few tens of MB).
 ROWS_RAYS = 1 << 20
 
@@ -73,11 +74,14 @@ def pinhole_rays(*args, **kwargs) -> NDArray[np.float32]:
         if abs(np.linalg.det(k)) < 1e-300:
             raise ConfigError(f"{WHO}: intrinsic_matrix is singular ({k.tolist()})")
         r, t = e[:3, :3], e[:3, 3]
-        origin = -r.T @ t   # Open3D transposes the rotation (it takes the extrinsic to be a rigid motion)
+        origin = -r.T @ t  # Open3D transposes the rotation (it takes the extrinsic to be a rigid motion)
     else:
         fov = a["fov_deg"]
-        if isinstance(fov, (bool, np.bool_)) or not isinstance(_numpy(fov), (Real, np.ndarray)) \
-                or not 0 < float(_numpy(fov)) < 180:
+        if (
+            isinstance(fov, (bool, np.bool_))
+            or not isinstance(_numpy(fov), (Real, np.ndarray))
+            or not 0 < float(_numpy(fov)) < 180
+        ):
             raise ConfigError(f"{WHO}: fov_deg must be a number of degrees in (0, 180), got {fov!r}")
         center, eye, up = (_matrix(a[n], n, (3,)) for n in ("center", "eye", "up"))
         ahead = center - eye
@@ -88,8 +92,8 @@ def pinhole_rays(*args, **kwargs) -> NDArray[np.float32]:
         if not np.linalg.norm(x) > 1e-12 * max(np.linalg.norm(up), 1e-300):
             raise ConfigError(f"{WHO}: up {up.tolist()} is zero or parallel to the view direction {z.tolist()}")
         x /= np.linalg.norm(x)
-        r = np.stack([x, np.cross(z, x), z])   # Open3D's look-at: rows x = up x z, y = z x x, z = ahead
-        focal = 0.5 * width / np.tan(np.radians(float(_numpy(fov))) / 2)   # fov_deg is horizontal
+        r = np.stack([x, np.cross(z, x), z])  # Open3D's look-at: rows x = up x z, y = z x x, z = ahead
+        focal = 0.5 * width / np.tan(np.radians(float(_numpy(fov))) / 2)  # fov_deg is horizontal
         k = np.array([[focal, 0, width / 2], [0, focal, height / 2], [0, 0, 1]])
         origin = eye
     where = "extrinsic_matrix" if names is INTRINSIC_FORM else "eye"
@@ -100,13 +104,17 @@ def pinhole_rays(*args, **kwargs) -> NDArray[np.float32]:
     with np.errstate(over="ignore", under="ignore"):
         short = ~(np.abs(corners.astype(np.float32)) >= MIN_DIRECTION).any(axis=1)
     if not np.isfinite(corners.astype(np.float32)).all() or short.any():
-        raise ConfigError(f"{WHO}: {'intrinsic_matrix' if names is INTRINSIC_FORM else 'fov_deg'} gives ray "
-                          f"directions beyond float32's range or too short ({corners.tolist()})")
+        raise ConfigError(
+            f"{WHO}: {'intrinsic_matrix' if names is INTRINSIC_FORM else 'fov_deg'} gives ray "
+            f"directions beyond float32's range or too short ({corners.tolist()})"
+        )
     need, free = width * height * 24, _available_memory()
-    too_big = ConfigError(f"{WHO}: width_px x height_px = {width} x {height} rays do not fit in memory "
-                          f"({need / 2**30:.3g} GiB of float32 rays"
-                          + (f", {free / 2**30:.3g} GiB available)" if free is not None else ")"))
-    if free is not None and need > free:   # (where memory is overcommitted, np.empty would not say so)
+    too_big = ConfigError(
+        f"{WHO}: width_px x height_px = {width} x {height} rays do not fit in memory "
+        f"({need / 2**30:.3g} GiB of float32 rays"
+        + (f", {free / 2**30:.3g} GiB available)" if free is not None else ")")
+    )
+    if free is not None and need > free:  # (where memory is overcommitted, np.empty would not say so)
         raise too_big
     try:
         out = np.empty((height, width, 6), np.float32)
@@ -115,9 +123,9 @@ def pinhole_rays(*args, **kwargs) -> NDArray[np.float32]:
     out[..., :3] = origin
     u = np.arange(width) + 0.5
     rows = max(1, ROWS_RAYS // max(width, 1))
-    for r0 in range(0, height, rows):   # directions a block of rows at a time: small float64 temporaries
-        u2, v2 = np.meshgrid(u, np.arange(r0, min(r0 + rows, height)) + 0.5)   # pixel centres, row 0 first
-        out[r0:r0 + rows, :, 3:] = np.stack([u2, v2, np.ones_like(u2)], axis=-1) @ to_world.T
+    for r0 in range(0, height, rows):  # directions a block of rows at a time: small float64 temporaries
+        u2, v2 = np.meshgrid(u, np.arange(r0, min(r0 + rows, height)) + 0.5)  # pixel centres, row 0 first
+        out[r0 : r0 + rows, :, 3:] = np.stack([u2, v2, np.ones_like(u2)], axis=-1) @ to_world.T
     return out
 
 

@@ -13,6 +13,7 @@ results are numpy arrays where Open3D returns `open3d.core.Tensor`s (`.numpy()` 
 geometries are traced as one Tracer over their concatenated triangles, with a triangle -> (geometry id, primitive
 id) map; it is (re)built on the first query after `add_triangles`, as Open3D commits its scene then.
 """
+
 from __future__ import annotations
 
 import threading
@@ -45,45 +46,51 @@ STEP_FLOOR = 1e-8
 @dataclass
 class _Built:
     """The scene as last built: its Tracer (None without triangles) and the per-triangle maps."""
-    count: int                       # geometries it was built from
+
+    count: int  # geometries it was built from
     tracer: Tracer | None
-    center: NDArray[np.float64]      # traced in a frame centred on the scene's bounding box where the box lies
-                                     # farther from the world origin than its size (float32 keeps its precision)
-    step: float                      # world units past a hit before casting again
-    geometry: NDArray[np.uint32]     # (T,) geometry id of each concatenated triangle
-    primitive: NDArray[np.uint32]    # (T,) its index within its geometry
-    normal: NDArray[np.float32]      # (T, 3) unit normals, (v1 - v0) x (v2 - v0) (zero for zero-area triangles)
-    tables: dict = field(default_factory=dict)   # the maps above as CUDA arrays, per framework (cuda_arrays)
+    center: NDArray[np.float64]  # traced in a frame centred on the scene's bounding box where the box lies
+    # farther from the world origin than its size (float32 keeps its precision)
+    step: float  # world units past a hit before casting again
+    geometry: NDArray[np.uint32]  # (T,) geometry id of each concatenated triangle
+    primitive: NDArray[np.uint32]  # (T,) its index within its geometry
+    normal: NDArray[np.float32]  # (T, 3) unit normals, (v1 - v0) x (v2 - v0) (zero for zero-area triangles)
+    tables: dict = field(default_factory=dict)  # the maps above as CUDA arrays, per framework (cuda_arrays)
 
 
 def _mesh_arrays(mesh: Any) -> tuple[Any, Any]:
     """Vertices and triangles of a trimesh mesh, an Open3D tensor mesh or an Open3D legacy mesh."""
-    if hasattr(mesh, "vertices") and hasattr(mesh, "faces"):              # trimesh.Trimesh
+    if hasattr(mesh, "vertices") and hasattr(mesh, "faces"):  # trimesh.Trimesh
         return mesh.vertices, mesh.faces
-    if hasattr(mesh, "vertex") and hasattr(mesh, "triangle"):             # open3d.t.geometry.TriangleMesh
+    if hasattr(mesh, "vertex") and hasattr(mesh, "triangle"):  # open3d.t.geometry.TriangleMesh
         try:
             return _numpy(mesh.vertex["positions"]), _numpy(mesh.triangle["indices"])
         except KeyError as exc:
             raise SceneError(f"RaycastingScene.add_triangles: the mesh has no {exc}") from None
-    if hasattr(mesh, "vertices") and hasattr(mesh, "triangles"):          # open3d.geometry.TriangleMesh
+    if hasattr(mesh, "vertices") and hasattr(mesh, "triangles"):  # open3d.geometry.TriangleMesh
         return np.asarray(mesh.vertices), np.asarray(mesh.triangles)
-    raise SceneError("RaycastingScene.add_triangles: give (vertex_positions, triangle_indices) arrays or a mesh "
-                     f"(trimesh.Trimesh, open3d TriangleMesh), got {type(mesh).__name__}")
+    raise SceneError(
+        "RaycastingScene.add_triangles: give (vertex_positions, triangle_indices) arrays or a mesh "
+        f"(trimesh.Trimesh, open3d TriangleMesh), got {type(mesh).__name__}"
+    )
 
 
 def _flat_rays(rays) -> tuple[NDArray[np.float64], tuple]:
     """(N, 6) float64 rays and the leading shape of `rays` (Open3D's {.., 6}, at least 2 dimensions)."""
     a = np.asarray(_numpy(rays)) if not isinstance(rays, np.ndarray) else rays
     if a.ndim < 2 or a.shape[-1] != 6:
-        raise ConfigError(f"rays must have shape (..., 6) with at least 2 dimensions (ox, oy, oz, dx, dy, dz per "
-                          f"ray), got {a.shape}")
+        raise ConfigError(
+            f"rays must have shape (..., 6) with at least 2 dimensions (ox, oy, oz, dx, dy, dz per ray), got {a.shape}"
+        )
     flat = check_vectors(a.reshape(-1, 6), "rays", width=6)
     _check_origins(flat[:, :3], "rays: ray {i} has an origin coordinate")
     zero = ~(np.abs(flat[:, 3:]) >= MIN_DIRECTION).any(axis=1)
     if zero.any():
         i = int(np.flatnonzero(zero)[0])
-        raise ConfigError(f"rays: ray {i} has a zero direction or nearly ({flat[i].tolist()}; a direction needs a "
-                          f"component of magnitude >= {MIN_DIRECTION:.3g})")
+        raise ConfigError(
+            f"rays: ray {i} has a zero direction or nearly ({flat[i].tolist()}; a direction needs a "
+            f"component of magnitude >= {MIN_DIRECTION:.3g})"
+        )
     return flat, a.shape[:-1]
 
 
@@ -91,8 +98,10 @@ def _check_origins(origins, what: str) -> None:
     """A ConfigError `what` (formatted with the ray's index i) where an origin lies beyond +-MAX_COORD."""
     i = first_beyond(origins, MAX_COORD)
     if i is not None:
-        raise ConfigError(f"{what.format(i=i)} beyond +-{MAX_COORD:g} ({origins[i].tolist()}); the triangle test is "
-                          "exact only within that bound")
+        raise ConfigError(
+            f"{what.format(i=i)} beyond +-{MAX_COORD:g} ({origins[i].tolist()}); the triangle test is "
+            "exact only within that bound"
+        )
 
 
 def _traced(s: _Built, origins, what: str):
@@ -102,9 +111,11 @@ def _traced(s: _Built, origins, what: str):
     local = origins - s.center
     i = first_beyond(local, MAX_COORD)
     if i is not None:
-        raise ConfigError(f"{what.format(i=i)} {origins[i].tolist()} lies beyond +-{MAX_COORD:g} of the centre of the "
-                          f"scene's box {s.center.tolist()}, where it is traced; the triangle test is exact only "
-                          "within that bound")
+        raise ConfigError(
+            f"{what.format(i=i)} {origins[i].tolist()} lies beyond +-{MAX_COORD:g} of the centre of the "
+            f"scene's box {s.center.tolist()}, where it is traced; the triangle test is exact only "
+            "within that bound"
+        )
     return local
 
 
@@ -112,16 +123,22 @@ def _flat_points(points) -> tuple[NDArray[np.float64], tuple]:
     """(N, 3) float64 finite points and the leading shape of `points` (Open3D's {.., 3}, at least 2 dimensions)."""
     a = np.asarray(_numpy(points)) if not isinstance(points, np.ndarray) else points
     if a.ndim < 2 or a.shape[-1] != 3:
-        raise ConfigError(f"query_points must have shape (..., 3) with at least 2 dimensions (x, y, z per point), "
-                          f"got {a.shape}")
+        raise ConfigError(
+            f"query_points must have shape (..., 3) with at least 2 dimensions (x, y, z per point), got {a.shape}"
+        )
     return check_points(a.reshape(-1, 3), "query_points"), a.shape[:-1]
 
 
 def _nsamples(nsamples) -> int:
-    if isinstance(nsamples, (bool, np.bool_)) or not isinstance(nsamples, Integral) or nsamples < 1 \
-            or nsamples % 2 != 1:
-        raise ConfigError(f"nsamples must be an odd whole number >= 1 (rays per point, a majority vote), "
-                          f"got {nsamples!r}")
+    if (
+        isinstance(nsamples, (bool, np.bool_))
+        or not isinstance(nsamples, Integral)
+        or nsamples < 1
+        or nsamples % 2 != 1
+    ):
+        raise ConfigError(
+            f"nsamples must be an odd whole number >= 1 (rays per point, a majority vote), got {nsamples!r}"
+        )
     return int(nsamples)
 
 
@@ -130,7 +147,7 @@ def vote_directions(nsamples: int) -> NDArray[np.float32]:
     [-0.001, 0.001) from a Mersenne Twister (MT19937) seeded with 42, drawn x, y, z per direction as Open3D draws
     them (std::mt19937 and std::uniform_real_distribution<float>, libstdc++), so the same points fall inside."""
     raw = np.random.RandomState(42).randint(0, 2**32, size=3 * nsamples, dtype=np.uint32)
-    canonical = raw.astype(np.float32) / np.float32(2.0**32)   # generate_canonical<float, 24>: one draw
+    canonical = raw.astype(np.float32) / np.float32(2.0**32)  # generate_canonical<float, 24>: one draw
     canonical = np.minimum(canonical, np.nextafter(np.float32(1), np.float32(0)))
     low = np.float32(-0.001)
     sample = (np.float32(0.001) - low) * canonical + low
@@ -138,8 +155,12 @@ def vote_directions(nsamples: int) -> NDArray[np.float32]:
 
 
 def _limit(value, name: str, allow_inf: bool) -> float:
-    if isinstance(value, (bool, np.bool_)) or not isinstance(value, Real) or np.isnan(value) \
-            or (np.isinf(value) and not (allow_inf and value > 0)):
+    if (
+        isinstance(value, (bool, np.bool_))
+        or not isinstance(value, Real)
+        or np.isnan(value)
+        or (np.isinf(value) and not (allow_inf and value > 0))
+    ):
         raise ConfigError(f"{name} must be a {'number or +inf' if allow_inf else 'finite number'}, got {value!r}")
     return float(value)
 
@@ -177,8 +198,10 @@ class RaycastingScene(Closes):
             if device.closed:
                 raise ConfigError("RaycastingScene: its engine.Device is closed (make a new engine.Device)")
         elif device is not None and (isinstance(device, bool) or not isinstance(device, (int, str))):
-            raise ConfigError(f"RaycastingScene: device must be a Vulkan device index or name (as Tracer's) or an "
-                              f"engine.Device, got {type(device).__name__}")
+            raise ConfigError(
+                f"RaycastingScene: device must be a Vulkan device index or name (as Tracer's) or an "
+                f"engine.Device, got {type(device).__name__}"
+            )
         self._device, self._validation = device, validation
         self._meshes: list[tuple[NDArray[np.float64], NDArray[np.int64]]] = []
         self._built: _Built | None = None
@@ -226,15 +249,17 @@ class RaycastingScene(Closes):
         offsets = np.cumsum([0] + [len(v) for v, _ in self._meshes])
         v = np.concatenate([m[0] for m in self._meshes] or [np.zeros((0, 3))])
         f = np.concatenate([m[1] + o for m, o in zip(self._meshes, offsets)] or [np.zeros((0, 3), np.int64)])
-        geometry = np.concatenate([np.full(len(m[1]), g, np.uint32) for g, m in enumerate(self._meshes)]
-                                  or [np.zeros(0, np.uint32)])
-        primitive = np.concatenate([np.arange(len(m[1]), dtype=np.uint32) for m in self._meshes]
-                                   or [np.zeros(0, np.uint32)])
+        geometry = np.concatenate(
+            [np.full(len(m[1]), g, np.uint32) for g, m in enumerate(self._meshes)] or [np.zeros(0, np.uint32)]
+        )
+        primitive = np.concatenate(
+            [np.arange(len(m[1]), dtype=np.uint32) for m in self._meshes] or [np.zeros(0, np.uint32)]
+        )
         used = v[f.reshape(-1)] if len(f) else np.zeros((1, 3))
         lo, hi = used.min(axis=0), used.max(axis=0)
         size = float(np.linalg.norm(hi - lo))
         center = (lo + hi) / 2
-        if np.linalg.norm(center) <= size:   # near the world origin: world coordinates are as precise (Open3D's)
+        if np.linalg.norm(center) <= size:  # near the world origin: world coordinates are as precise (Open3D's)
             center = np.zeros(3)
         step = max(STEP_FLOOR, STEP_FACTOR * size)
         tracer = None
@@ -280,9 +305,13 @@ class RaycastingScene(Closes):
             flat, shape = _flat_rays(rays)
             s = self._scene()
             n = len(flat)
-            out = {"t_hit": np.full(n, np.inf, np.float32), "geometry_ids": np.full(n, INVALID_ID, np.uint32),
-                   "primitive_ids": np.full(n, INVALID_ID, np.uint32), "primitive_uvs": np.zeros((n, 2), np.float32),
-                   "primitive_normals": np.zeros((n, 3), np.float32)}
+            out = {
+                "t_hit": np.full(n, np.inf, np.float32),
+                "geometry_ids": np.full(n, INVALID_ID, np.uint32),
+                "primitive_ids": np.full(n, INVALID_ID, np.uint32),
+                "primitive_uvs": np.zeros((n, 2), np.float32),
+                "primitive_normals": np.zeros((n, 3), np.float32),
+            }
             if s.tracer is not None and n:
                 hits = s.tracer.intersect(_traced(s, flat[:, :3], "rays: ray {i}'s origin"), flat[:, 3:])
                 hit = np.flatnonzero(hits.prim >= 0)
@@ -295,8 +324,9 @@ class RaycastingScene(Closes):
                 out["primitive_normals"][hit] = s.normal[prim]
             return {k: a.reshape(shape + a.shape[1:]) for k, a in out.items()}
 
-    def test_occlusions(self, rays: ArrayLike, tnear: float = 0.0, tfar: float = float("inf"),
-                        nthreads: int = 0) -> NDArray[np.bool_]:
+    def test_occlusions(
+        self, rays: ArrayLike, tnear: float = 0.0, tfar: float = float("inf"), nthreads: int = 0
+    ) -> NDArray[np.bool_]:
         """Whether anything lies along each ray with t in [tnear, tfar] (in units of the direction's length).
 
         Args:
@@ -328,11 +358,15 @@ class RaycastingScene(Closes):
         """cast_rays on CUDA rays: traced and mapped to ids on their device (engine.rt.cuda_arrays)."""
         s = self._scene()
         if s.tracer is not None:
-            s.tracer._device_arrays()   # (a clear error first where CUDA cannot be used)
+            s.tracer._device_arrays()  # (a clear error first where CUDA cannot be used)
         fw, o, d, shape = scene_rays(rays, s.center)
         if s.tracer is None or not len(o):
-            hits = (fw.empty(len(o), "float32", fw.device(o)), fw.empty(len(o), "int32", fw.device(o)),
-                    fw.empty(len(o), "float32", fw.device(o)), fw.empty(len(o), "float32", fw.device(o)))
+            hits = (
+                fw.empty(len(o), "float32", fw.device(o)),
+                fw.empty(len(o), "int32", fw.device(o)),
+                fw.empty(len(o), "float32", fw.device(o)),
+                fw.empty(len(o), "float32", fw.device(o)),
+            )
             hits[1][:] = -1
         else:
             h = s.tracer.intersect(o, d)
@@ -342,7 +376,7 @@ class RaycastingScene(Closes):
     @staticmethod
     def _occlusions_cuda(s, rays, near, far):
         if s.tracer is not None:
-            s.tracer._device_arrays()   # (a clear error first where CUDA cannot be used)
+            s.tracer._device_arrays()  # (a clear error first where CUDA cannot be used)
         fw, o, d, shape = scene_rays(rays, s.center)
         if s.tracer is None or not len(o) or far < near:
             out = fw.empty(len(o), "bool", fw.device(o))
@@ -358,17 +392,24 @@ class RaycastingScene(Closes):
         just left again (float noise) doubles its step instead."""
         s = self._scene()
         n = len(flat)
-        found = [(np.zeros(0, np.int64), np.zeros(0, np.int64), np.zeros(0), np.zeros(0, np.float32),
-                  np.zeros(0, np.float32))]
+        found = [
+            (
+                np.zeros(0, np.int64),
+                np.zeros(0, np.int64),
+                np.zeros(0),
+                np.zeros(0, np.float32),
+                np.zeros(0, np.float32),
+            )
+        ]
         if s.tracer is None or not n:
             return [np.concatenate(c) for c in zip(*found)]
         o, d = _traced(s, flat[:, :3], "rays: ray {i}'s origin"), flat[:, 3:]
-        base = s.step / np.linalg.norm(d, axis=1)   # the step in each ray's t units
+        base = s.step / np.linalg.norm(d, axis=1)  # the step in each ray's t units
         step = base.copy()
-        start = np.zeros(n)                          # t where each ray is cast from next
+        start = np.zeros(n)  # t where each ray is cast from next
         last = np.full(n, -1, np.int64)
         live = np.arange(n)
-        for _ in range(len(s.geometry) + 64):   # each round takes a new hit or doubles the step of every live ray
+        for _ in range(len(s.geometry) + 64):  # each round takes a new hit or doubles the step of every live ray
             hits = s.tracer.intersect(o[live] + d[live] * start[live, None], d[live])
             hit = hits.prim >= 0
             rays, prim = live[hit], hits.prim[hit].astype(np.int64)
@@ -415,9 +456,14 @@ class RaycastingScene(Closes):
             splits[1:] = np.cumsum(np.bincount(ray, minlength=len(flat)))
             geometry = s.geometry[prim] if s is not None and len(prim) else np.zeros(0, np.uint32)
             primitive = s.primitive[prim] if s is not None and len(prim) else np.zeros(0, np.uint32)
-            return {"ray_splits": splits, "ray_ids": ray.astype(np.uint32), "t_hit": t.astype(np.float32),
-                    "geometry_ids": geometry, "primitive_ids": primitive,
-                    "primitive_uvs": np.stack([u, v], axis=-1).astype(np.float32)}
+            return {
+                "ray_splits": splits,
+                "ray_ids": ray.astype(np.uint32),
+                "t_hit": t.astype(np.float32),
+                "geometry_ids": geometry,
+                "primitive_ids": primitive,
+                "primitive_uvs": np.stack([u, v], axis=-1).astype(np.float32),
+            }
 
     # ---- point queries ------------------------------------------------------------------------------------
     def _closest(self, flat):
@@ -449,9 +495,13 @@ class RaycastingScene(Closes):
             flat, shape = _flat_points(query_points)
             s, near = self._closest(flat)
             n = len(flat)
-            out = {"points": np.zeros((n, 3), np.float32), "geometry_ids": np.full(n, INVALID_ID, np.uint32),
-                   "primitive_ids": np.full(n, INVALID_ID, np.uint32), "primitive_uvs": np.zeros((n, 2), np.float32),
-                   "primitive_normals": np.zeros((n, 3), np.float32)}
+            out = {
+                "points": np.zeros((n, 3), np.float32),
+                "geometry_ids": np.full(n, INVALID_ID, np.uint32),
+                "primitive_ids": np.full(n, INVALID_ID, np.uint32),
+                "primitive_uvs": np.zeros((n, 2), np.float32),
+                "primitive_normals": np.zeros((n, 3), np.float32),
+            }
             if near is not None:
                 out["points"][:] = near.point + s.center
                 out["geometry_ids"][:] = s.geometry[near.prim]
@@ -476,14 +526,15 @@ class RaycastingScene(Closes):
         where most of its rays cross the triangles an odd number of times (`count_intersections`' counting)."""
         if not len(flat):
             return np.zeros(0, bool)
-        _traced(self._scene(), flat, "query_points: row {i}")   # (named by row, not by one of its rays)
+        _traced(self._scene(), flat, "query_points: row {i}")  # (named by row, not by one of its rays)
         dirs = vote_directions(nsamples)
         rays = np.concatenate([np.repeat(flat, nsamples, axis=0), np.tile(dirs, (len(flat), 1))], axis=1)
         counts = np.bincount(self._all_hits(rays)[0], minlength=len(rays)).reshape(len(flat), nsamples)
         return (counts % 2).sum(axis=1) > nsamples // 2
 
-    def compute_signed_distance(self, query_points: ArrayLike, nthreads: int = 0,
-                                nsamples: int = 1) -> NDArray[np.float32]:
+    def compute_signed_distance(
+        self, query_points: ArrayLike, nthreads: int = 0, nsamples: int = 1
+    ) -> NDArray[np.float32]:
         """(...) float32: `compute_distance`, negative for points inside (`compute_occupancy`'s test).
 
         Meant for closed (watertight), non-intersecting meshes, where inside is well defined.
@@ -553,11 +604,10 @@ class RaycastingScene(Closes):
                 self._built.tracer.close()
             self._built = None
             if self._ctx is not None:
-                self._ctx.close()   # (reports leaked objects as validation errors)
+                self._ctx.close()  # (reports leaked objects as validation errors)
                 self._errors = list(self._ctx.validation_errors)
                 self._ctx = None
             self._closed = True
-
 
     def __repr__(self) -> str:
         triangles = sum(len(f) for _, f in self._meshes)

@@ -11,6 +11,7 @@ hit, located on the hit triangle's plane in float64 and stepped on by max(1e-8, 
 rays still going. Queries run in the mesh's own frame (centred on its bounding box, scaled to a 100-unit box unless
 `scale_to_box=False`), so the GPU's float32 holds the mesh at full precision wherever it lies.
 """
+
 from __future__ import annotations
 
 import threading
@@ -43,13 +44,14 @@ MAX_HITS = 100
 @dataclass
 class _Geometry:
     """The mesh as last built: its Tracer (None without triangles), the frame it is traced in and its planes."""
+
     key: int
     tracer: Tracer | None
-    center: NDArray[np.float64]   # local = (world - center) * factor
+    center: NDArray[np.float64]  # local = (world - center) * factor
     factor: float
-    scale: float                  # trimesh's mesh.scale: the bounding box's diagonal
-    p0: NDArray[np.float64]       # (T, 3) each triangle's first vertex
-    normal: NDArray[np.float64]   # (T, 3) unit normals (zero for zero-area triangles)
+    scale: float  # trimesh's mesh.scale: the bounding box's diagonal
+    p0: NDArray[np.float64]  # (T, 3) each triangle's first vertex
+    normal: NDArray[np.float64]  # (T, 3) unit normals (zero for zero-area triangles)
 
 
 def _planes_lines(p0, normal, origins, directions):
@@ -66,10 +68,12 @@ def _check_frame(g: _Geometry, o: NDArray[np.float64]) -> None:
     origins of a subset of the rays."""
     i = first_beyond((o - g.center) * g.factor, MAX_COORD)
     if i is not None:
-        raise ConfigError(f"ray_origins: ray {i} lies too far from the mesh ({o[i].tolist()}: beyond +-{MAX_COORD:g} "
-                          f"in the frame it is traced in, centred on the mesh"
-                          f"{' and scaled to 100 units across' if g.factor != 1 else ''}); the triangle test is exact "
-                          "only within that bound")
+        raise ConfigError(
+            f"ray_origins: ray {i} lies too far from the mesh ({o[i].tolist()}: beyond +-{MAX_COORD:g} "
+            f"in the frame it is traced in, centred on the mesh"
+            f"{' and scaled to 100 units across' if g.factor != 1 else ''}); the triangle test is exact "
+            "only within that bound"
+        )
 
 
 class RayMeshIntersector(Closes):
@@ -82,8 +86,14 @@ class RayMeshIntersector(Closes):
     direction is an error naming the ray, not a silent miss.
     """
 
-    def __init__(self, mesh: Any, scale_to_box: bool = True, *, device: Device | int | str | None = None,
-                 validation: bool = False):
+    def __init__(
+        self,
+        mesh: Any,
+        scale_to_box: bool = True,
+        *,
+        device: Device | int | str | None = None,
+        validation: bool = False,
+    ):
         """Args:
             mesh: the `trimesh.Trimesh` to query (kept by reference, as trimesh does: edits to it are seen).
             scale_to_box: trace in a frame where the mesh spans about 100 units, as trimesh's Embree backend does
@@ -96,7 +106,8 @@ class RayMeshIntersector(Closes):
             SceneError: `mesh` is not a `trimesh.Trimesh`.
             ConfigError: a closed `engine.Device`.
         """
-        import trimesh   # deferred: heavy, and only needed to check what `mesh` is (trimesh is already loaded then)
+        import trimesh  # deferred: heavy, and only needed to check what `mesh` is (trimesh is already loaded then)
+
         if not isinstance(mesh, trimesh.Trimesh):
             raise SceneError(f"RayMeshIntersector: mesh must be a trimesh.Trimesh, got {type(mesh).__name__}")
         if isinstance(device, Device) and device.closed:
@@ -162,8 +173,14 @@ class RayMeshIntersector(Closes):
         return g.tracer.intersect((o - g.center) * g.factor, d).prim.astype(np.int64)
 
     # ---- trimesh's queries ---------------------------------------------------------------------------------------
-    def intersects_id(self, ray_origins: ArrayLike, ray_directions: ArrayLike, multiple_hits: bool = True,
-                      max_hits: int = MAX_HITS, return_locations: bool = False) -> tuple[NDArray, ...]:
+    def intersects_id(
+        self,
+        ray_origins: ArrayLike,
+        ray_directions: ArrayLike,
+        multiple_hits: bool = True,
+        max_hits: int = MAX_HITS,
+        return_locations: bool = False,
+    ) -> tuple[NDArray, ...]:
         """The triangles hit by each ray: all along it (`multiple_hits`) or only the first.
 
         Args:
@@ -192,8 +209,17 @@ class RayMeshIntersector(Closes):
             tris, rays, locs = [np.zeros(0, np.int64)], [np.zeros(0, np.int64)], [np.zeros((0, 3))]
             if g.tracer is not None and len(o):
                 _check_frame(g, o)
-                self._walk(g, o, d, bool(multiple_hits), int(max_hits), bool(multiple_hits or return_locations),
-                           tris, rays, locs)
+                self._walk(
+                    g,
+                    o,
+                    d,
+                    bool(multiple_hits),
+                    int(max_hits),
+                    bool(multiple_hits or return_locations),
+                    tris,
+                    rays,
+                    locs,
+                )
             out = (np.concatenate(tris), np.concatenate(rays))
             return out + (np.concatenate(locs),) if return_locations else out
 
@@ -201,7 +227,7 @@ class RayMeshIntersector(Closes):
         """trimesh's Embree loop: cast the live rays, locate their hits, step past them, cast again."""
         base = max(STEP_FLOOR, g.scale * STEP_FACTOR)
         step = np.full(len(o), base)
-        last = np.full(len(o), -1, np.int64)   # the triangle each ray hit last: the same one again means stuck
+        last = np.full(len(o), -1, np.int64)  # the triangle each ray hit last: the same one again means stuck
         live = np.arange(len(o))
         for _ in range(max_hits):
             prim = self._first(g, o[live], d[live])
@@ -231,12 +257,14 @@ class RayMeshIntersector(Closes):
             o[stuck_rays] += d[stuck_rays] * step[stuck_rays, None]
             live = np.concatenate([ok_rays, stuck_rays])
 
-    def intersects_location(self, ray_origins: ArrayLike, ray_directions: ArrayLike, multiple_hits: bool = True,
-                            max_hits: int = MAX_HITS) -> tuple[NDArray, NDArray, NDArray]:
+    def intersects_location(
+        self, ray_origins: ArrayLike, ray_directions: ArrayLike, multiple_hits: bool = True, max_hits: int = MAX_HITS
+    ) -> tuple[NDArray, NDArray, NDArray]:
         """Where the rays hit: `(locations, index_ray, index_tri)`, (M, 3) float64 points, (M,) int64 ray and
         triangle indices; the arguments are `intersects_id`'s."""
-        tri, ray, loc = self.intersects_id(ray_origins, ray_directions, multiple_hits=multiple_hits,
-                                           max_hits=max_hits, return_locations=True)
+        tri, ray, loc = self.intersects_id(
+            ray_origins, ray_directions, multiple_hits=multiple_hits, max_hits=max_hits, return_locations=True
+        )
         return loc, ray, tri
 
     def intersects_first(self, ray_origins: ArrayLike, ray_directions: ArrayLike) -> NDArray[np.int64]:
@@ -263,10 +291,11 @@ class RayMeshIntersector(Closes):
         """(N,) bool: is each point inside the mesh? trimesh's own parity test (`trimesh.ray.ray_util`): rays both
         ways along one direction count their hits with `intersects_location`; where the two disagree, another
         direction decides. A point on the surface may go either way; the mesh should be watertight."""
-        from trimesh.ray.ray_util import contains_points   # deferred: trimesh is loaded (self.mesh is a Trimesh)
+        from trimesh.ray.ray_util import contains_points  # deferred: trimesh is loaded (self.mesh is a Trimesh)
+
         p = check_vectors(points, "points")
         with self._lock:
-            if self._geometry().tracer is None:   # no triangles: nothing is inside (trimesh fails on no bounds)
+            if self._geometry().tracer is None:  # no triangles: nothing is inside (trimesh fails on no bounds)
                 return np.zeros(len(p), bool)
         return contains_points(self, p)
 
@@ -287,18 +316,16 @@ class RayMeshIntersector(Closes):
                 self._geom.tracer.close()
             self._geom = None
             if self._ctx is not None:
-                self._ctx.close()   # (reports leaked objects as validation errors)
+                self._ctx.close()  # (reports leaked objects as validation errors)
                 self._errors = list(self._ctx.validation_errors)
                 self._ctx = None
             self._closed = True
-
 
     def __getstate__(self) -> dict:
         """Pickled without its GPU state (rebuilt on the first query after unpickling), as trimesh drops its cache;
         a shared `engine.Device` is not pickled (the copy opens a device of its own)."""
         device = None if isinstance(self._device, Device) else self._device
-        return {"mesh": self.mesh, "scale_to_box": self._scale_to_box, "device": device,
-                "validation": self._validation}
+        return {"mesh": self.mesh, "scale_to_box": self._scale_to_box, "device": device, "validation": self._validation}
 
     def __setstate__(self, state: dict) -> None:
         self.__init__(state["mesh"], state["scale_to_box"], device=state["device"], validation=state["validation"])

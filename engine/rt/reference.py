@@ -162,7 +162,7 @@ def reference_closest(vertices, faces, points):
     out_u, out_v = np.zeros(len(pts)), np.zeros(len(pts))
     step = max(1, (PAIRS_PER_CHUNK // 4) // max(len(f), 1))
     for s in range(0, len(pts), step):
-        p = pts[s:s + step, None, :]
+        p = pts[s : s + step, None, :]
         rel = p - a
         fu, fv = np.einsum("pij,ij->pi", rel, a_u), np.einsum("pij,ij->pi", rel, a_v)
         inside = (nn > 0) & (fu >= 0) & (fv >= 0) & (fu + fv <= 1)
@@ -170,8 +170,11 @@ def reference_closest(vertices, faces, points):
         d2 = np.where(inside, plane * plane / np.where(nn > 0, nn, 1.0), np.inf)
         u, w = np.where(inside, fu, 0.0), np.where(inside, fv, 0.0)
         # each edge's (u at its start, u at its end), (v at its start, v at its end)
-        for (t, e2), (bu, bv) in ((_segments(p, a, b), ((0, 1), (0, 0))), (_segments(p, a, c), ((0, 0), (0, 1))),
-                                  (_segments(p, b, c), ((1, 0), (0, 1)))):
+        for (t, e2), (bu, bv) in (
+            (_segments(p, a, b), ((0, 1), (0, 0))),
+            (_segments(p, a, c), ((0, 0), (0, 1))),
+            (_segments(p, b, c), ((1, 0), (0, 1))),
+        ):
             better = e2 < d2
             d2 = np.where(better, e2, d2)
             # the segment's point (1 - t) * start + t * end, in the triangle's barycentrics
@@ -179,9 +182,12 @@ def reference_closest(vertices, faces, points):
             w = np.where(better, (1 - t) * bv[0] + t * bv[1], w)
         best = np.argmin(d2, axis=1)
         rows = np.arange(len(best))
-        out_d2[s:s + step] = d2[rows, best]
-        prim[s:s + step] = best
-        out_u[s:s + step], out_v[s:s + step] = u[rows, best], w[rows, best]
-    point = (a[prim] + out_u[:, None] * (b[prim] - a[prim]) + out_v[:, None] * (c[prim] - a[prim])
-             if len(f) else np.zeros((len(pts), 3)))
+        out_d2[s : s + step] = d2[rows, best]
+        prim[s : s + step] = best
+        out_u[s : s + step], out_v[s : s + step] = u[rows, best], w[rows, best]
+    point = (
+        a[prim] + out_u[:, None] * (b[prim] - a[prim]) + out_v[:, None] * (c[prim] - a[prim])
+        if len(f)
+        else np.zeros((len(pts), 3))
+    )
     return point, np.sqrt(out_d2), prim, out_u, out_v

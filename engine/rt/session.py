@@ -8,6 +8,7 @@ of a slot's command buffer per query kind, and the timings of the last query (`l
 `last_times`, which the Tracer shows). The Tracer keeps the mesh, its BVH on the GPU, the argument checks, the ray
 order and the public API.
 """
+
 from __future__ import annotations
 
 import math
@@ -51,12 +52,17 @@ def trace_kernels(ctx, lib, specs, two_pass) -> dict:
     with root.memo_lock:
         if "tracer.layouts" not in root.memo:
             iface = root.memo[("tracer.interface", "trace_occluded")]
-            root.memo["tracer.layouts"] = [DescriptorSet(root, list(iface.set(0).values())),
-                                           bvh_descriptor_set(root, iface)]
+            root.memo["tracer.layouts"] = [
+                DescriptorSet(root, list(iface.set(0).values())),
+                bvh_descriptor_set(root, iface),
+            ]
         layouts = root.memo["tracer.layouts"]
         for kind, spec in specs.items():
-            used = {k: v for k, v in spec.items()
-                    if k != "BVH_STACK_REGS" or spec.get("BVH_REG_STACK") or spec.get("BVH_STACK_RETRY")}
+            used = {
+                k: v
+                for k, v in spec.items()
+                if k != "BVH_STACK_REGS" or spec.get("BVH_REG_STACK") or spec.get("BVH_STACK_RETRY")
+            }
             for name in [f"trace_{kind}"] + ([f"trace_{kind}_retry"] if two_pass[kind] else []):
                 key = ("tracer.pipeline", name, tuple(sorted(used.items())))
                 if key not in root.memo:
@@ -78,8 +84,19 @@ class TraceSession:
     rays and results go through device-local copies, `rays_texel_ok` whether RGB32F texel views of the rays exist.
     """
 
-    def __init__(self, ctx, lib, interface, bvh_set: DescriptorSet, alpha: RayAlpha, specs: dict, *, chunk: int,
-                 staged: bool, rays_texel_ok: bool):
+    def __init__(
+        self,
+        ctx,
+        lib,
+        interface,
+        bvh_set: DescriptorSet,
+        alpha: RayAlpha,
+        specs: dict,
+        *,
+        chunk: int,
+        staged: bool,
+        rays_texel_ok: bool,
+    ):
         self.ctx, self.lib, self.interface, self.bvh_set, self.alpha = ctx, lib, interface, bvh_set, alpha
         self.chunk, self.staged, self.rays_texel_ok = chunk, staged, rays_texel_ok
         # the three ray arrays of a slot start at offsets the texel views allow (minTexelBufferOffsetAlignment):
@@ -89,28 +106,28 @@ class TraceSession:
         self.capacity = -(-chunk // self.align) * self.align
         self.io_bindings = list(interface.set(0).values())
         self.use(specs)
-        self.io_layout = ctx.root.memo["tracer.layouts"][0]   # set 0's layout (the trace kernels' io sets)
+        self.io_layout = ctx.root.memo["tracer.layouts"][0]  # set 0's layout (the trace kernels' io sets)
         # slots with room for the second dispatch's retry list on every CPU device (the ones whose traversal has that
         # pass), whatever this tree's depth: then all Tracers of the device share them (and a two-level BVH whose
         # bottom level is rebuilt deeper needs no others); elsewhere where a spec asks for the pass
         self.retry_list = is_cpu(ctx) or any(self.two_pass.values())
-        self.shares = work_shares(ctx)   # rays.glsl ray_block
-        self.recorders: dict[str, Callable] = {}   # kinds with a kernel of their own: kind -> record(slot, span)
+        self.shares = work_shares(ctx)  # rays.glsl ray_block
+        self.recorders: dict[str, Callable] = {}  # kinds with a kernel of their own: kind -> record(slot, span)
         # the stream slots' buffers are the device's (SlotPool, made on the first query); this session's descriptor
         # sets and command buffers over each set of them are made as a query first takes that set (`take_slots`)
-        self._bindings: dict = {}    # SlotSet -> [Slot]
+        self._bindings: dict = {}  # SlotSet -> [Slot]
         self.slots: list[Slot] = []  # the slots of the last query
         self._scratch = None
-        self._own_retry = self._own_timestamps = None   # the CUDA-array queries' (retry, timestamps)
+        self._own_retry = self._own_timestamps = None  # the CUDA-array queries' (retry, timestamps)
         self.last_gpu_ms = 0.0
-        self.last_retried = 0        # rays of the last query that the second dispatch walked again (two_pass)
-        self.last_times: dict = {}   # GPU ms of the last chunk per step: upload (staged only), trace, download
+        self.last_retried = 0  # rays of the last query that the second dispatch walked again (two_pass)
+        self.last_times: dict = {}  # GPU ms of the last chunk per step: upload (staged only), trace, download
 
     # ---- kernels ----------------------------------------------------------------------------------------------
     def use(self, specs: dict) -> None:
         """The kernels for `specs` (per query kind), with a second dispatch where the register stack may leave rays
         unresolved (`two_pass`)."""
-        self.specs = specs   # by name, per query kind
+        self.specs = specs  # by name, per query kind
         self.two_pass = {kind: bool(s.get("BVH_REG_STACK") and s.get("BVH_STACK_RETRY")) for kind, s in specs.items()}
         self.pipelines = trace_kernels(self.ctx, self.lib, specs, self.two_pass)
 
@@ -172,8 +189,13 @@ class TraceSession:
         """The retry list bound by the CUDA-array queries, which run one at a time (made on first use)."""
         if self._own_retry is None:
             two = self.retry_list
-            self._own_retry = Buffer(self.ctx, 4 + 4 * self.chunk if two else 16, STORAGE | TRANSFER_DST, host=two,
-                                     name="retry list (CUDA arrays)")
+            self._own_retry = Buffer(
+                self.ctx,
+                4 + 4 * self.chunk if two else 16,
+                STORAGE | TRANSFER_DST,
+                host=two,
+                name="retry list (CUDA arrays)",
+            )
         return self._own_retry
 
     @property

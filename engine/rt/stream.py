@@ -11,6 +11,7 @@ submits it without waiting. The packing runs as one row block per thread on the 
 where it was just copied (in cache), and in the same round the sink of the chunk that last used the slot (its fence
 waited for first) writes its results into the arrays the query returns: one hand-over to the pool per chunk.
 """
+
 from __future__ import annotations
 
 import threading
@@ -29,7 +30,7 @@ from .checks import block_fine
 GROUP = 64
 RAY_BYTES = 28  # 7 floats: origin, direction, tmax, as three packed arrays (shaders/glsl/include/rays.glsl)
 HIT_BYTES = {"occluded": 4, "intersect": 16}
-NO_BAD_RAY = 0xFFFFFFFF   # a word of rays.glsl's ray_errors: no bad ray (CHECK_RAYS)
+NO_BAD_RAY = 0xFFFFFFFF  # a word of rays.glsl's ray_errors: no bad ray (CHECK_RAYS)
 #: the fewest rays per task when numpy packs and checks rays (28 bytes each) or unpacks closest hits (16) and
 #: occlusion words (4) on the worker pool (closest points: 16, as closest hits): a chunk is split into one task per
 #: thread, down to about half a megabyte each (below that, handing the work to the pool and the GIL's hand-overs
@@ -54,40 +55,47 @@ class SlotBuffers:
         self.kernel_checks = staged
         self.hit_bytes = dict(HIT_BYTES, occluded=1 if staged else 4)
         c = capacity
-        self.rays_host = Buffer(ctx, c * RAY_BYTES, STORAGE | UNIFORM_TEXEL | TRANSFER_SRC, host=True,
-                                name=f"rays {index}")
-        self.results_host = Buffer(ctx, chunk * 16, STORAGE | STORAGE_TEXEL | TRANSFER_DST, host=True,
-                                   name=f"hits {index}")
+        self.rays_host = Buffer(
+            ctx, c * RAY_BYTES, STORAGE | UNIFORM_TEXEL | TRANSFER_SRC, host=True, name=f"rays {index}"
+        )
+        self.results_host = Buffer(
+            ctx, chunk * 16, STORAGE | STORAGE_TEXEL | TRANSFER_DST, host=True, name=f"hits {index}"
+        )
         if staged:
-            self.rays = Buffer(ctx, c * RAY_BYTES, STORAGE | UNIFORM_TEXEL | TRANSFER_DST,
-                               name=f"rays {index} (device)")
-            self.results = Buffer(ctx, chunk * 16, STORAGE | STORAGE_TEXEL | TRANSFER_SRC,
-                                  name=f"hits {index} (device)")
+            self.rays = Buffer(
+                ctx, c * RAY_BYTES, STORAGE | UNIFORM_TEXEL | TRANSFER_DST, name=f"rays {index} (device)"
+            )
+            self.results = Buffer(
+                ctx, chunk * 16, STORAGE | STORAGE_TEXEL | TRANSFER_SRC, name=f"hits {index} (device)"
+            )
         else:
             self.rays, self.results = self.rays_host, self.results_host
         self.params = Buffer(ctx, 32, STORAGE | INDIRECT, host=True, name=f"params {index}")
         # (CPU devices only have a second pass: host-visible is their device memory)
-        self.retry = Buffer(ctx, 4 + 4 * chunk if two_pass else 16, STORAGE | TRANSFER_DST, host=two_pass,
-                            name=f"retry list {index}")
+        self.retry = Buffer(
+            ctx, 4 + 4 * chunk if two_pass else 16, STORAGE | TRANSFER_DST, host=two_pass, name=f"retry list {index}"
+        )
         # the kernels' first bad rays (CHECK_RAYS; otherwise a binding they never write)
         self.errors = Buffer(ctx, 16, STORAGE, host=True, name=f"ray errors {index}") if staged else None
         # the texel buffer views of rays.glsl (read where RAYS_TEXEL says). RGB32F uniform texel buffers are optional
         # in Vulkan: without them the origin and direction views are R32F ones, which the shaders then never read
         vec3 = RGB32F if texel_ok else R32F
-        self.views = {"ray_origins": BufferView(self.rays, vec3, 0, 12 * c),
-                      "ray_directions": BufferView(self.rays, vec3, 12 * c, 12 * c),
-                      "ray_tmax": BufferView(self.rays, R32F, 24 * c, 4 * c),
-                      "occluded_texels": BufferView(self.results, R32UI, 0, 4 * chunk),
-                      "hit_texels": BufferView(self.results, RGBA32UI, 0, 16 * chunk)}
+        self.views = {
+            "ray_origins": BufferView(self.rays, vec3, 0, 12 * c),
+            "ray_directions": BufferView(self.rays, vec3, 12 * c, 12 * c),
+            "ray_tmax": BufferView(self.rays, R32F, 24 * c, 4 * c),
+            "occluded_texels": BufferView(self.results, R32UI, 0, 4 * chunk),
+            "hit_texels": BufferView(self.results, RGBA32UI, 0, 16 * chunk),
+        }
         self.timestamps = Timestamps(ctx, capacity=4)
         self.fence = create_fence(ctx)
         ctx.defer_destroy(destroy_fence, ctx, self.fence)
-        self.pending = False          # submitted, fence not yet waited for
+        self.pending = False  # submitted, fence not yet waited for
         # the mapped arrays, as rays.glsl reads them: origins, directions, tmax, each an array of `capacity` rays
         f32 = self.rays_host.view(np.float32)
-        self.origins = f32[:3 * c].reshape(c, 3)
-        self.directions = f32[3 * c:6 * c].reshape(c, 3)
-        self.tmax = f32[6 * c:7 * c]
+        self.origins = f32[: 3 * c].reshape(c, 3)
+        self.directions = f32[3 * c : 6 * c].reshape(c, 3)
+        self.tmax = f32[6 * c : 7 * c]
 
     def had_bad_ray(self) -> bool:
         """Did the kernels find a bad ray in this slot's last chunk (CHECK_RAYS; its fence waited for)?"""
@@ -107,15 +115,16 @@ class SlotSet:
 
     def __init__(self, ctx, key: tuple, chunk: int, capacity: int, lock):
         self.ctx, self.key, self.chunk, self.capacity = ctx, key, chunk, capacity
-        self.lock = lock   # the pool's: objects are made on the shared context one at a time
+        self.lock = lock  # the pool's: objects are made on the shared context one at a time
         self.buffers: list[SlotBuffers] = []
 
     def get(self, i: int) -> SlotBuffers:
         while len(self.buffers) <= i:
             staged, two_pass, texel_ok = self.key
             with self.lock:
-                self.buffers.append(SlotBuffers(self.ctx, self.chunk, self.capacity, staged, two_pass, texel_ok,
-                                                len(self.buffers)))
+                self.buffers.append(
+                    SlotBuffers(self.ctx, self.chunk, self.capacity, staged, two_pass, texel_ok, len(self.buffers))
+                )
         return self.buffers[i]
 
 
@@ -131,7 +140,7 @@ class SlotPool:
         self.ctx = ctx
         self.lock = threading.Lock()
         self.free: list[SlotSet] = []
-        self.sets = 0   # made so far
+        self.sets = 0  # made so far
 
     def take(self, key: tuple, chunk: int, align: int) -> SlotSet:
         """A free set of `key` (staged, two_pass, texel_ok) for chunks of up to `chunk` rays, or a new one (its ray
@@ -181,7 +190,7 @@ class Slot:
         for name, view in buffers.views.items():
             self.io_set.bind(name, view)
         bind_own(self.io_set)
-        self.commands: dict = {}      # (kind, span) -> (command buffer, timestamp names)
+        self.commands: dict = {}  # (kind, span) -> (command buffer, timestamp names)
 
     def __getattr__(self, name: str):
         return getattr(self.__dict__["buffers"], name)
@@ -202,17 +211,28 @@ class Slot:
         sets = [self.io_set, bvh_set]
         if self.staged:
             c = self.capacity  # the three arrays of rays.glsl: origins, directions, tmax; the first `span` of each
-            rec.copy(self.rays_host, self.rays, [(0, 0, span * 12), (c * 12, c * 12, span * 12),
-                                                 (c * 24, c * 24, span * 4)])
+            rec.copy(
+                self.rays_host, self.rays, [(0, 0, span * 12), (c * 12, c * 12, span * 12), (c * 24, c * 24, span * 4)]
+            )
             rec.mark("upload")
         if two_pass:
             rec.fill(self.retry, 0, size=4)
         errors = [self.errors] if self.errors is not None else []
-        rec.dispatch_indirect(pipelines[kind], sets, self.params, reads=[self.rays, self.retry],
-                              writes=[self.results, self.retry] + errors)
+        rec.dispatch_indirect(
+            pipelines[kind],
+            sets,
+            self.params,
+            reads=[self.rays, self.retry],
+            writes=[self.results, self.retry] + errors,
+        )
         if two_pass:
-            rec.dispatch(pipelines[kind + "_retry"], sets, (retry_groups, 1, 1),
-                         reads=[self.rays, self.retry, self.results], writes=[self.results, self.retry] + errors)
+            rec.dispatch(
+                pipelines[kind + "_retry"],
+                sets,
+                (retry_groups, 1, 1),
+                reads=[self.rays, self.retry, self.results],
+                writes=[self.results, self.retry] + errors,
+            )
         rec.mark("trace")
         if self.staged:
             rec.copy(self.results, self.results_host, [(0, 0, -(-span * self.hit_bytes[kind] // 4) * 4)])
@@ -238,7 +258,7 @@ class Slot:
                 np.copyto(oo, o[s:e])
             else:
                 native.gather(o, rows[s:e], oo)
-            if d.strides[0] == 0 and len(d):   # one direction for all (order.shared_direction, a broadcast view)
+            if d.strides[0] == 0 and len(d):  # one direction for all (order.shared_direction, a broadcast view)
                 fill_rows(dd, d[0])
             elif rows is None:
                 np.copyto(dd, d[s:e])
@@ -250,7 +270,8 @@ class Slot:
                 np.copyto(tt, t[s:e])
             else:
                 native.gather(t, rows[s:e], tt)
-            return self.kernel_checks or block_fine(oo, dd, None if t.ndim == 0 else tt, scratch[3 * s:3 * e])
+            return self.kernel_checks or block_fine(oo, dd, None if t.ndim == 0 else tt, scratch[3 * s : 3 * e])
+
         return [lambda s=s: block(s) for s in range(0, n, step)]
 
     def submit(self, kind: str, n: int, shares: int, record):
@@ -273,7 +294,7 @@ def fill_rows(out: np.ndarray, row: np.ndarray) -> None:
     done = 1
     while done < len(out):
         m = min(done, len(out) - done)
-        out[done:done + m] = out[:m]
+        out[done : done + m] = out[:m]
         done += m
 
 
@@ -309,25 +330,31 @@ def stream(session, kind: str, o, d, t, sink, bad, order=None) -> None:
         step = block_size(n, threads, kind)
         return [lambda s=s: sink(slot, start, s, min(s + step, n)) for s in range(0, n, step)]
 
-    with session.take_slots(len(o)) as slots:   # (given back to the device's pool at the end)
+    with session.take_slots(len(o)) as slots:  # (given back to the device's pool at the end)
         try:
             for i, start in enumerate(range(0, len(o), chunk)):
                 n = min(chunk, len(o) - start)
                 slot = slots[i % len(slots)]
                 tasks = collect() if len(inflight) == len(slots) else []
-                slot.wait()   # (a query that failed half-way left it pending)
+                slot.wait()  # (a query that failed half-way left it pending)
                 if order is None:
-                    packs = slot.pack_tasks(o[start:start + n], d[start:start + n],
-                                            t if t.ndim == 0 else t[start:start + n], n, threads, scratch)
+                    packs = slot.pack_tasks(
+                        o[start : start + n],
+                        d[start : start + n],
+                        t if t.ndim == 0 else t[start : start + n],
+                        n,
+                        threads,
+                        scratch,
+                    )
                 else:
-                    packs = slot.pack_tasks(o, d, t, n, threads, scratch, order[start:start + n])
-                if not all(_parallel(packs + tasks, threads)[:len(packs)]):
+                    packs = slot.pack_tasks(o, d, t, n, threads, scratch, order[start : start + n])
+                if not all(_parallel(packs + tasks, threads)[: len(packs)]):
                     bad()
                 inflight.append((slot, start, n, slot.submit(kind, n, session.shares, session.record)))
             while inflight:
                 _parallel(collect(), threads)
         finally:
-            for slot in slots:   # an error half-way: nothing of this query stays in flight
+            for slot in slots:  # an error half-way: nothing of this query stays in flight
                 slot.wait()
 
 
@@ -339,31 +366,35 @@ def _rows(order, a: int, b: int):
 def occluded_sink(out: np.ndarray, order=None):
     """A sink writing (N,) bool `out` from the occlusion words (or bytes) of each chunk (scattered by `order`, as
     traced)."""
+
     def sink(slot, start, s, e):
-        if slot.hit_bytes["occluded"] == 1:   # 0 / 1 bytes: a bool array's layout
+        if slot.hit_bytes["occluded"] == 1:  # 0 / 1 bytes: a bool array's layout
             flags = slot.results_host.view(np.bool_)[s:e]
             if order is None:
-                np.copyto(out[start + s:start + e], flags)
+                np.copyto(out[start + s : start + e], flags)
             else:
-                out[order[start + s:start + e]] = flags
+                out[order[start + s : start + e]] = flags
             return
         words = slot.results_host.view(np.uint32)[s:e]
         if order is None:
-            np.not_equal(words, 0, out=out[start + s:start + e])
+            np.not_equal(words, 0, out=out[start + s : start + e])
         else:
-            native.scatter_flags(words, order[start + s:start + e], out)
+            native.scatter_flags(words, order[start + s : start + e], out)
+
     return sink
 
 
 def hits_sink(t_out, prim_out, u_out, v_out, order=None):
     """A sink writing the (N,) arrays of Hits from each chunk's (t, prim, u, v) records (scattered by `order`)."""
+
     def sink(slot, start, s, e):
-        r = slot.results_host.view(np.float32)[4 * s:4 * e].reshape(e - s, 4)
+        r = slot.results_host.view(np.float32)[4 * s : 4 * e].reshape(e - s, 4)
         rows = _rows(order, start + s, start + e)
         t_out[rows] = r[:, 0]
         prim_out[rows] = r[:, 1].view(np.int32)
         u_out[rows] = r[:, 2]
         v_out[rows] = r[:, 3]
+
     return sink
 
 
@@ -380,4 +411,5 @@ def instance_sink(inner, prim, flat_tri_base, inst_out, mesh_prim_out, order=Non
         inst = np.searchsorted(base, p, side="right") - 1
         inst_out[a] = np.where(hit, inst, -1)
         mesh_prim_out[a] = np.where(hit, p - base[np.maximum(inst, 0)], -1)
+
     return sink

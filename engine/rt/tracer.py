@@ -8,6 +8,7 @@
 Directions are used as given, as Embree does: the hit point is origin + t * direction and tmax is in
 the same units. A batch is streamed through the device in chunks, several in flight (engine/rt/stream.py).
 """
+
 from __future__ import annotations
 
 import threading
@@ -96,7 +97,7 @@ class Hits:
 
     def __repr__(self) -> str:
         n = len(self.t)
-        return f"<Hits {n} rays, {int((self.prim >= 0).sum())} hit>"   # (numpy or CUDA arrays)
+        return f"<Hits {n} rays, {int((self.prim >= 0).sum())} hit>"  # (numpy or CUDA arrays)
 
 
 class Tracer(Closes):
@@ -121,9 +122,19 @@ class Tracer(Closes):
 
     stats: dict[str, Any]
 
-    def __init__(self, vertices: ArrayLike, faces: ArrayLike, *, device: Device | int | str | None = None,
-                 validation: bool = False, batch_size: int = 1 << 20, context: Context | None = None,
-                 staging: bool | None = None, layout: str | None = None, reorder: bool | str = "auto"):
+    def __init__(
+        self,
+        vertices: ArrayLike,
+        faces: ArrayLike,
+        *,
+        device: Device | int | str | None = None,
+        validation: bool = False,
+        batch_size: int = 1 << 20,
+        context: Context | None = None,
+        staging: bool | None = None,
+        layout: str | None = None,
+        reorder: bool | str = "auto",
+    ):
         """Build the BVH of a mesh and upload it.
 
         Args:
@@ -150,12 +161,12 @@ class Tracer(Closes):
             ConfigError: a bad device selector, batch size or layout; a closed `engine.Device` or context.
             VulkanError: no usable Vulkan device.
         """
-        self._lock = threading.RLock()   # one call at a time, from any thread (engine.parallel.serialized)
+        self._lock = threading.RLock()  # one call at a time, from any thread (engine.parallel.serialized)
         self.ctx = None
-        self._root = None       # the Context this Tracer opened itself (closed with it)
-        self._shared = None     # the engine.Device or engine.vk.Context it was given (left open)
+        self._root = None  # the Context this Tracer opened itself (closed with it)
+        self._shared = None  # the engine.Device or engine.vk.Context it was given (left open)
         self._errors: list[str] = []
-        self._cuda: CudaRays | None = None   # queries on CUDA arrays (engine.rt.cuda_arrays), made on first use
+        self._cuda: CudaRays | None = None  # queries on CUDA arrays (engine.rt.cuda_arrays), made on first use
         if context is not None:
             if not isinstance(context, Context):
                 raise ConfigError(f"Tracer: context must be an engine.vk.Context, got {type(context).__name__}")
@@ -165,20 +176,20 @@ class Tracer(Closes):
         self.batch = check_batch_size(batch_size)
         self.reorder = check_reorder(reorder)
         self.layout = bvh_layout(layout)  # a bad layout (argument or HYBRID_BVH_LAYOUT) fails before the build
-        self._source = getattr(self, "_source", None)   # the Scene of from_scene
+        self._source = getattr(self, "_source", None)  # the Scene of from_scene
         self._closest: ClosestQuery | None = None
         if self._source is not None and is_instanced(self._source):
-            self.bvh = None   # a two-level BVH, built with the GPU objects
+            self.bvh = None  # a two-level BVH, built with the GPU objects
             self.mesh = None  # (closest points need one level: refused for instanced scenes)
             self.stats = {}
         else:
             v, f = check_mesh(vertices, faces)
             self.bvh = build_bvh(v, f)
-            self.mesh = (v, f)   # float32 vertices, int64 faces: closest() reads them
+            self.mesh = (v, f)  # float32 vertices, int64 faces: closest() reads them
             self.stats = dict(self.bvh.stats)
         self._staging = staging
         try:
-            with self._lock:   # (a Device closed meanwhile waits for the set-up, then closes this Tracer)
+            with self._lock:  # (a Device closed meanwhile waits for the set-up, then closes this Tracer)
                 if isinstance(device, Device):
                     self._shared = device
                     self.ctx = device._attach(self, "Tracer")
@@ -188,7 +199,7 @@ class Tracer(Closes):
                 else:
                     self._root = Context(device=device, validation=validation or None)
                     self.ctx = Scope(self._root, "Tracer")
-                self._errors = self.ctx.validation_errors   # the context's list: still readable after close()
+                self._errors = self.ctx.validation_errors  # the context's list: still readable after close()
                 self._init_gpu()
         except BaseException:
             self.close()
@@ -197,7 +208,8 @@ class Tracer(Closes):
     @classmethod
     def from_trimesh(cls, mesh: Any, **kw: Any) -> Tracer:
         """From a `trimesh.Trimesh` or a `trimesh.Scene` (its geometry in world space); `kw` as in `Tracer()`."""
-        import trimesh   # deferred: a heavy import that only this constructor needs
+        import trimesh  # deferred: a heavy import that only this constructor needs
+
         what = type(mesh).__name__
         if isinstance(mesh, trimesh.Scene):
             try:
@@ -205,8 +217,10 @@ class Tracer(Closes):
             except (ValueError, TypeError, AttributeError, IndexError) as exc:
                 raise SceneError(f"Tracer.from_trimesh: the trimesh.Scene has no triangle mesh ({exc})") from None
             if not isinstance(mesh, trimesh.Trimesh):
-                raise SceneError(f"Tracer.from_trimesh: the trimesh.Scene has no triangle mesh "
-                                 f"(its geometry is a {type(mesh).__name__})")
+                raise SceneError(
+                    f"Tracer.from_trimesh: the trimesh.Scene has no triangle mesh "
+                    f"(its geometry is a {type(mesh).__name__})"
+                )
         elif not isinstance(mesh, trimesh.Trimesh):
             raise SceneError(f"Tracer.from_trimesh: mesh must be a trimesh.Trimesh or trimesh.Scene, got {what}")
         return cls(mesh.vertices, mesh.faces, **kw)
@@ -255,15 +269,26 @@ class Tracer(Closes):
         # Where the register stack can overflow (CPU devices), the rare rays it leaves unresolved are walked again
         # in a second dispatch (trace_*_retry.comp) rather than inline: llvmpipe would run the inline walk's loop
         # body for every 8 rays whether or not one needs it.
-        specs = {"occluded": self.scene.spec(ctx, stack_regs=CPU_OCCLUSION_STACK_REGS),
-                 "intersect": self.scene.spec(ctx)}
+        specs = {
+            "occluded": self.scene.spec(ctx, stack_regs=CPU_OCCLUSION_STACK_REGS),
+            "intersect": self.scene.spec(ctx),
+        }
         for kind, spec in specs.items():  # rays and results through texel buffer views
             spec["RAYS_TEXEL"] = is_cpu(ctx) and kind in RAYS_TEXEL_KINDS and rays_texel_ok
             spec.update(self.alpha_spec, **host_path_spec(kind, staged))
-        self.session = TraceSession(ctx, lib, interface, self.bvh_set, self.alpha, specs, chunk=chunk, staged=staged,
-                                    rays_texel_ok=rays_texel_ok)
+        self.session = TraceSession(
+            ctx,
+            lib,
+            interface,
+            self.bvh_set,
+            self.alpha,
+            specs,
+            chunk=chunk,
+            staged=staged,
+            rays_texel_ok=rays_texel_ok,
+        )
         self.last_reordered = False  # whether the last occluded / intersect query was traced reordered
-        self._order_words = KeptWords()   # the reordering's words, kept for the next batch
+        self._order_words = KeptWords()  # the reordering's words, kept for the next batch
 
     def _alpha_setup(self, ctx):
         """The alpha test of a Scene's MASK / BLEND materials (shaders/glsl/include/alpha.glsl), as the renderer's
@@ -273,7 +298,7 @@ class Tracer(Closes):
         source = self._source
         tested = source is not None and any(m.alpha_mode != "OPAQUE" for m in source.materials)
         self.alpha_spec = {"ALPHA_TEST": tested, "TEXTURE_ARRAYS": 1}
-        if not tested:   # the dummy bindings, the same for every Tracer: made once per device
+        if not tested:  # the dummy bindings, the same for every Tracer: made once per device
             self.alpha = untested_alpha(ctx)
             return None
         self.alpha, index = scene_alpha(ctx, source)
@@ -290,9 +315,11 @@ class Tracer(Closes):
         self.scene.update(self._source)
         if self.scene.structure != structure:
             session = self.session
-            specs = {"occluded": self.scene.spec(self.ctx, stack_regs=CPU_OCCLUSION_STACK_REGS),
-                     "intersect": self.scene.spec(self.ctx)}
-            for kind, spec in specs.items():   # rays read as before
+            specs = {
+                "occluded": self.scene.spec(self.ctx, stack_regs=CPU_OCCLUSION_STACK_REGS),
+                "intersect": self.scene.spec(self.ctx),
+            }
+            for kind, spec in specs.items():  # rays read as before
                 spec["RAYS_TEXEL"] = session.specs[kind].get("RAYS_TEXEL", False)
                 spec.update(self.alpha_spec, **host_path_spec(kind, session.staged))
             session.respecialize(specs)
@@ -330,8 +357,9 @@ class Tracer(Closes):
             raise ConfigError("Tracer is closed: the Vulkan context it was given was closed")
 
     @serialized
-    def occluded(self, origins: ArrayLike, directions: ArrayLike, tmax: ArrayLike = np.inf, *,
-                 reorder: bool | str | None = None) -> NDArray[np.bool_]:
+    def occluded(
+        self, origins: ArrayLike, directions: ArrayLike, tmax: ArrayLike = np.inf, *, reorder: bool | str | None = None
+    ) -> NDArray[np.bool_]:
         """Shadow-ray queries: does any triangle lie along `origin + t * direction` for some t in [0, tmax]?
 
         Args:
@@ -353,13 +381,22 @@ class Tracer(Closes):
         self._sync()
         out = np.empty(len(o), bool)
         order, dirs = self._order(o, d, t, reorder)
-        stream(self.session, "occluded", o, dirs, t, occluded_sink(out, order),
-               lambda: _name_bad(o, d, t, origins, directions), order)
+        stream(
+            self.session,
+            "occluded",
+            o,
+            dirs,
+            t,
+            occluded_sink(out, order),
+            lambda: _name_bad(o, d, t, origins, directions),
+            order,
+        )
         return out
 
     @serialized
-    def intersect(self, origins: ArrayLike, directions: ArrayLike, tmax: ArrayLike = np.inf, *,
-                  reorder: bool | str | None = None) -> Hits:
+    def intersect(
+        self, origins: ArrayLike, directions: ArrayLike, tmax: ArrayLike = np.inf, *, reorder: bool | str | None = None
+    ) -> Hits:
         """Closest-hit queries: the nearest triangle along each ray within t in [0, tmax].
 
         The arguments are `occluded()`'s. Returns `Hits` (t, prim, u, v per ray: t = +inf and prim = -1 on a miss).
@@ -373,7 +410,7 @@ class Tracer(Closes):
         order, dirs = self._order(o, d, t, reorder)
         hits = Hits(np.empty(n, np.float32), np.empty(n, np.int32), np.empty(n, np.float32), np.empty(n, np.float32))
         sink = hits_sink(hits.t, hits.prim, hits.u, hits.v, order)
-        if self._source is not None:   # from_scene: each chunk's instance and mesh triangle, from its flat ids
+        if self._source is not None:  # from_scene: each chunk's instance and mesh triangle, from its flat ids
             hits.instance, hits.mesh_prim = np.empty(n, np.int32), np.empty(n, np.int32)
             base = self.scene.flat_tri_base if isinstance(self.scene, InstancedBVH) else np.zeros(1, np.uint32)
             sink = instance_sink(sink, hits.prim, base, hits.instance, hits.mesh_prim, order)
@@ -395,10 +432,12 @@ class Tracer(Closes):
         """
         self._check_open()
         if self.mesh is None:
-            raise ConfigError("Tracer.closest: not available on a Tracer of a scene of several instances "
-                              "(Tracer.from_scene); make one from the flat arrays: Tracer(scene.positions, "
-                              "scene.indices)")
-        if self._closest is None:   # (its own kernel: one dispatch, the point walk keeps its stack in an array)
+            raise ConfigError(
+                "Tracer.closest: not available on a Tracer of a scene of several instances "
+                "(Tracer.from_scene); make one from the flat arrays: Tracer(scene.positions, "
+                "scene.indices)"
+            )
+        if self._closest is None:  # (its own kernel: one dispatch, the point walk keeps its stack in an array)
             self._closest = ClosestQuery(self.session, self.bvh, self.scene, self.layout, self.mesh)
         return self._closest.run(points)
 
@@ -412,8 +451,9 @@ class Tracer(Closes):
         order = None
         if mode and len(o) > 1:
             d = shared_direction(d)
-            order = ray_order(o, d, min(default_threads(), STREAM_THREADS), self.session.chunk,
-                              self._order_words.get(len(o)))
+            order = ray_order(
+                o, d, min(default_threads(), STREAM_THREADS), self.session.chunk, self._order_words.get(len(o))
+            )
         self.last_reordered = order is not None
         return order, d
 
@@ -437,11 +477,13 @@ class Tracer(Closes):
     def _device_arrays(self) -> CudaRays:
         """The queries on CUDA arrays (a ConfigError saying why where CUDA cannot share this device's memory)."""
         if self._source is not None:
-            raise ConfigError("Tracer.from_scene: queries on CUDA arrays are not supported for a Tracer of a Scene "
-                              "(its instance ids and BVH updates are host-side); pass numpy arrays")
+            raise ConfigError(
+                "Tracer.from_scene: queries on CUDA arrays are not supported for a Tracer of a Scene "
+                "(its instance ids and BVH updates are host-side); pass numpy arrays"
+            )
         if self._cuda is None:
             self._cuda = CudaRays(self.session, self.batch)
-        self.last_reordered = False   # (CUDA arrays are traced as given)
+        self.last_reordered = False  # (CUDA arrays are traced as given)
         return self._cuda
 
     # ---- lifetime --------------------------------------------------------------------------
@@ -449,15 +491,14 @@ class Tracer(Closes):
     def close(self) -> None:
         """Free the GPU buffers (and the device, unless it was given: an `engine.Device` or a context, which keeps
         the stream buffers its Tracers share until it is closed); safe to call twice."""
-        if self._cuda is not None:   # (CUDA lets go of the shared memory before Vulkan frees it)
+        if self._cuda is not None:  # (CUDA lets go of the shared memory before Vulkan frees it)
             self._cuda.close()
             self._cuda = None
         if self.ctx is not None:
-            self.ctx.close()   # (its Scope: what this Tracer made)
+            self.ctx.close()  # (its Scope: what this Tracer made)
             self.ctx = None
         if self._root is not None:
             self._root.close()
             self._root = None
         if isinstance(self._shared, Device):
             self._shared._detach(self)
-

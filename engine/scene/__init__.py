@@ -10,5 +10,17 @@ from .instances import Instance, Mesh
 from .parts import SubMesh
 from .scene import Scene
 
-__all__ = ["Scene", "Mesh", "Instance", "SubMesh", "Camera", "Material", "Light", "DirectionalLight", "PointLight",
-           "SpotLight", "RectLight", "default_sun"]
+__all__ = [
+    "Scene",
+    "Mesh",
+    "Instance",
+    "SubMesh",
+    "Camera",
+    "Material",
+    "Light",
+    "DirectionalLight",
+    "PointLight",
+    "SpotLight",
+    "RectLight",
+    "default_sun",
+]

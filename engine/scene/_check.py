@@ -24,9 +24,17 @@ def _is_number(x) -> bool:
     return isinstance(x, (Real, np.number)) and not isinstance(x, (bool, np.bool_))
 
 
-def number(value, field: str, *, min_value: float | None = None, max_value: float | None = None,
-           min_exclusive: bool = False, max_exclusive: bool = False, max_abs: float = MAX_VALUE,
-           error=ConfigError) -> float:
+def number(
+    value,
+    field: str,
+    *,
+    min_value: float | None = None,
+    max_value: float | None = None,
+    min_exclusive: bool = False,
+    max_exclusive: bool = False,
+    max_abs: float = MAX_VALUE,
+    error=ConfigError,
+) -> float:
     """A finite real number within the given range (and within +-max_abs)."""
     if not _is_number(value):
         raise error(f"{field} must be a number, got {value!r}")

@@ -35,10 +35,10 @@ class Animation:
 
     instance: str | None = None
     light: int | None = None
-    axis: np.ndarray | None = None          # unit rotation axis (None: no rotation)
+    axis: np.ndarray | None = None  # unit rotation axis (None: no rotation)
     degrees_per_second: float = 0.0
-    pivot: np.ndarray | None = None         # None: the instance's centre (a light: the origin)
-    offset: np.ndarray | None = None        # oscillation amplitude (None: no oscillation)
+    pivot: np.ndarray | None = None  # None: the instance's centre (a light: the origin)
+    offset: np.ndarray | None = None  # oscillation amplitude (None: no oscillation)
     period: float = 1.0
 
     def matrix(self, t: float, centre) -> np.ndarray:
@@ -96,8 +96,9 @@ def parse_animations(tables, where: str, n_lights: int) -> list[Animation]:
                 if norm == 0.0:
                     raise ConfigError("rotate.axis must not be zero")
                 kw["axis"] = axis / norm
-                kw["degrees_per_second"] = _check.number(rot["degrees_per_second"], "rotate.degrees_per_second",
-                                                         max_abs=1e6)
+                kw["degrees_per_second"] = _check.number(
+                    rot["degrees_per_second"], "rotate.degrees_per_second", max_abs=1e6
+                )
                 if "pivot" in rot:
                     kw["pivot"] = _check.vector(rot["pivot"], 3, "rotate.pivot", max_abs=_check.MAX_POSITION)
             if "oscillate" in table:
@@ -136,8 +137,9 @@ def check_targets(animations, instance_names, where: str) -> None:
     for i, a in enumerate(animations, 1):
         if a.instance is not None and not matching(a.instance, names):
             shown_names = ", ".join(sorted(set(names))[:40]) or "none"
-            raise SceneError(f"{where}: [[animation]] #{i}: no instance named {shown(a.instance)!r} (the instances: "
-                             f"{shown_names})")
+            raise SceneError(
+                f"{where}: [[animation]] #{i}: no instance named {shown(a.instance)!r} (the instances: {shown_names})"
+            )
 
 
 class Player:
@@ -157,8 +159,11 @@ class Player:
                 self.targets.append(("instance", ks, base, centre))
             else:
                 light = scene.lights[a.light]
-                pose = {f: np.array(getattr(light, f), np.float64) for f in ("position", "direction", "u", "v")
-                        if getattr(light, f, None) is not None}
+                pose = {
+                    f: np.array(getattr(light, f), np.float64)
+                    for f in ("position", "direction", "u", "v")
+                    if getattr(light, f, None) is not None
+                }
                 self.targets.append(("light", a.light, pose, np.zeros(3)))
         self.last_t = None
 
@@ -166,13 +171,13 @@ class Player:
         t = float(t)
         if not math.isfinite(t):
             raise ConfigError(f"animation time must be finite, got {t!r}")
-        if t == self.last_t:   # posed at t already: nothing changes (the scene's version stays)
+        if t == self.last_t:  # posed at t already: nothing changes (the scene's version stays)
             return
         self.last_t = t
         moved: dict = {}
         for a, (kind, k, base, centre) in zip(self.animations, self.targets):
             m = a.matrix(t, centre)
-            if kind == "instance":   # several animations of one instance compose, in file order
+            if kind == "instance":  # several animations of one instance compose, in file order
                 for j, i in enumerate(k):
                     moved[i] = m @ moved.get(i, base[j])
             else:

@@ -58,8 +58,14 @@ class Camera:
     right: NDArray[np.float64]
     up_vector: NDArray[np.float64]
 
-    def __init__(self, eye: ArrayLike, target: ArrayLike, up: ArrayLike = (0.0, 1.0, 0.0), fov_y: float = 60.0,
-                 near: float | None = None):
+    def __init__(
+        self,
+        eye: ArrayLike,
+        target: ArrayLike,
+        up: ArrayLike = (0.0, 1.0, 0.0),
+        fov_y: float = 60.0,
+        near: float | None = None,
+    ):
         """The same as `Camera.look_at`. `near` defaults to 1% of the eye-target distance (at least 1e-4).
 
         Raises:
@@ -69,8 +75,9 @@ class Camera:
         eye = _check.vector(eye, 3, "camera eye")
         target = _check.vector(target, 3, "camera target")
         up = _check.vector(up, 3, "camera up")
-        fov_y = _check.number(fov_y, "camera fov_y", min_value=0.0, max_value=180.0,
-                              min_exclusive=True, max_exclusive=True)
+        fov_y = _check.number(
+            fov_y, "camera fov_y", min_value=0.0, max_value=180.0, min_exclusive=True, max_exclusive=True
+        )
         offset = target - eye
         distance = float(np.linalg.norm(offset))
         if not distance > 1e-9 * max(1.0, float(np.abs(eye).max())):
@@ -82,8 +89,10 @@ class Camera:
         right = np.cross(forward, up / up_len)
         right_len = float(np.linalg.norm(right))
         if right_len < 1e-6:
-            raise ConfigError(f"camera up {tuple(up.tolist())} is parallel to the view direction "
-                              f"{tuple(np.round(forward, 6).tolist())}")
+            raise ConfigError(
+                f"camera up {tuple(up.tolist())} is parallel to the view direction "
+                f"{tuple(np.round(forward, 6).tolist())}"
+            )
         right = right / right_len
         up_vector = np.cross(right, forward)
         if near is None:
@@ -105,8 +114,14 @@ class Camera:
 
     # ----------------------------------------------------------------- construction
     @classmethod
-    def look_at(cls, eye: ArrayLike, target: ArrayLike, up: ArrayLike = (0.0, 1.0, 0.0), fov_y: float = 60.0,
-                near: float | None = None) -> Camera:
+    def look_at(
+        cls,
+        eye: ArrayLike,
+        target: ArrayLike,
+        up: ArrayLike = (0.0, 1.0, 0.0),
+        fov_y: float = 60.0,
+        near: float | None = None,
+    ) -> Camera:
         """A camera at `eye` ((3,) world position) looking at `target`, with `up` the world direction that appears
         upwards in the image; `fov_y` the vertical field of view in degrees; `near` the near plane's distance
         (default: 1% of |target - eye|)."""
@@ -122,12 +137,19 @@ class Camera:
         return Camera(**args)
 
     @classmethod
-    def frame_bounds(cls, bounds: ArrayLike, fov_y: float = 60.0, direction: ArrayLike = FRAMING_DIRECTION,
-                     aspect: float = 1.0, up: ArrayLike = (0.0, 1.0, 0.0)) -> Camera:
+    def frame_bounds(
+        cls,
+        bounds: ArrayLike,
+        fov_y: float = 60.0,
+        direction: ArrayLike = FRAMING_DIRECTION,
+        aspect: float = 1.0,
+        up: ArrayLike = (0.0, 1.0, 0.0),
+    ) -> Camera:
         """A camera looking at the centre of `bounds` ((2, 3) min/max) from `direction` (target to eye), far enough
         back that the whole bounding sphere is inside the view for any aspect ratio >= `aspect`."""
-        fov_y = _check.number(fov_y, "camera fov_y", min_value=0.0, max_value=180.0,
-                              min_exclusive=True, max_exclusive=True)
+        fov_y = _check.number(
+            fov_y, "camera fov_y", min_value=0.0, max_value=180.0, min_exclusive=True, max_exclusive=True
+        )
         aspect = _check.number(aspect, "aspect", min_value=0.0, min_exclusive=True)
         b = np.asarray(bounds, dtype=np.float64).reshape(2, 3)
         if not np.all(np.isfinite(b)):
@@ -147,13 +169,21 @@ class Camera:
         return cls(eye, centre, up, fov_y, near)
 
     @classmethod
-    def frame_points(cls, points: ArrayLike, fov_y: float = 60.0, direction: ArrayLike = FRAMING_DIRECTION,
-                     aspect: float = 1.0, up: ArrayLike = (0.0, 1.0, 0.0), fill: float = FRAMING_FILL) -> Camera:
+    def frame_points(
+        cls,
+        points: ArrayLike,
+        fov_y: float = 60.0,
+        direction: ArrayLike = FRAMING_DIRECTION,
+        aspect: float = 1.0,
+        up: ArrayLike = (0.0, 1.0, 0.0),
+        fill: float = FRAMING_FILL,
+    ) -> Camera:
         """A camera looking at the centre of the box around `points` ((N, 3)) from `direction` (target to eye), as
         close as it can be with every point inside the middle `fill` of the view (of its height, and of its width
         for any aspect ratio >= `aspect`): the object fills most of the image, whatever its shape."""
-        fov_y = _check.number(fov_y, "camera fov_y", min_value=0.0, max_value=180.0,
-                              min_exclusive=True, max_exclusive=True)
+        fov_y = _check.number(
+            fov_y, "camera fov_y", min_value=0.0, max_value=180.0, min_exclusive=True, max_exclusive=True
+        )
         aspect = _check.number(aspect, "aspect", min_value=0.0, min_exclusive=True)
         fill = _check.number(fill, "fill", min_value=0.0, max_value=1.0, min_exclusive=True)
         p = np.asarray(points, dtype=np.float64).reshape(-1, 3)
@@ -170,12 +200,12 @@ class Camera:
         right, up_v = basis.right, basis.up_vector
         tan_y = math.tan(math.radians(fov_y) / 2.0) * fill
         tan_x = tan_y * min(1.0, aspect)
-        for step in range(4):   # fit, then slide sideways to centre the projected extent, and fit again
+        for step in range(4):  # fit, then slide sideways to centre the projected extent, and fit again
             rel = p - centre
-            x, y, z = rel @ right, rel @ up_v, rel @ d   # z: towards the eye
+            x, y, z = rel @ right, rel @ up_v, rel @ d  # z: towards the eye
             # a point at depth (distance - z) is inside when |x| <= tan_x * depth and |y| <= tan_y * depth
             distance = float(np.max(np.maximum(np.abs(x) / tan_x, np.abs(y) / tan_y) + z))
-            distance = max(distance, float(z.max()) + 1e-3 * size)   # every point in front of the eye
+            distance = max(distance, float(z.max()) + 1e-3 * size)  # every point in front of the eye
             if step == 3:
                 break
             depth = distance - z
@@ -201,15 +231,16 @@ class Camera:
         f = 1.0 / math.tan(math.radians(self.fov_y) / 2.0)
         m = np.zeros((4, 4), dtype=np.float64)
         m[0, 0] = f / aspect
-        m[1, 1] = -f          # Vulkan: NDC y points down
-        m[2, 3] = self.near   # z_clip = near, w_clip = -z_view -> depth = near / view_depth
+        m[1, 1] = -f  # Vulkan: NDC y points down
+        m[2, 3] = self.near  # z_clip = near, w_clip = -z_view -> depth = near / view_depth
         m[3, 2] = -1.0
         return m.astype(np.float32)
 
     def view_projection(self, aspect: float) -> NDArray[np.float32]:
         """`projection_matrix(aspect) @ view_matrix()`, multiplied in float64."""
         return (self.projection_matrix(aspect).astype(np.float64) @ self.view_matrix().astype(np.float64)).astype(
-            np.float32)
+            np.float32
+        )
 
     def project(self, points: ArrayLike, aspect: float) -> NDArray[np.float64]:
         """World points (N, 3) to NDC (N, 3) float64: x right and y down in [-1, 1] across the image (pixel column
@@ -240,8 +271,11 @@ class Camera:
     def __repr__(self) -> str:
         def fmt(v):
             return "(" + ", ".join(f"{x:.4g}" for x in v) + ")"
-        return (f"Camera(eye={fmt(self.eye)}, target={fmt(self.target)}, up={fmt(self.up)}, "
-                f"fov_y={self.fov_y:g}, near={self.near:.4g})")
+
+        return (
+            f"Camera(eye={fmt(self.eye)}, target={fmt(self.target)}, up={fmt(self.up)}, "
+            f"fov_y={self.fov_y:g}, near={self.near:.4g})"
+        )
 
     # ----------------------------------------------------------------- intrinsics, pose and rays
     # Pixel coordinates (docs/architecture.md, "Camera and lights"): continuous, (0, 0) the top-left corner of the
@@ -249,8 +283,15 @@ class Camera:
     # where the renderer samples it. A point at OpenCV camera coordinates (X, Y, Z) lands at
     # (fx X / Z + cx, fy Y / Z + cy).
     @classmethod
-    def from_intrinsics(cls, K: ArrayLike, width: int, height: int, pose: ArrayLike | None = None,
-                        convention: str = "opencv", near: float = DEFAULT_INTRINSICS_NEAR) -> "Camera":
+    def from_intrinsics(
+        cls,
+        K: ArrayLike,
+        width: int,
+        height: int,
+        pose: ArrayLike | None = None,
+        convention: str = "opencv",
+        near: float = DEFAULT_INTRINSICS_NEAR,
+    ) -> "Camera":
         """A pinhole camera from a 3x3 intrinsic matrix `K` ((fx, 0, cx), (0, fy, cy), (0, 0, 1); pixels, no skew)
         for a `width` x `height` image, placed by `pose` (camera-to-world 4x4, rigid; default the identity) whose
         axes follow `convention`: "opencv" (x right, y down, z forward) or "opengl" (x right, y up, -z forward).
@@ -352,11 +393,11 @@ def _rigid_pose(pose, convention) -> np.ndarray:
         why = "a reflection (det < 0)" if off <= POSE_TOLERANCE else f"not orthonormal (|R^T R - I| = {off:.3g})"
         raise ConfigError(f"camera pose must be rigid (a rotation and a translation): its 3x3 part is {why}")
     _check.vector(m[:3, 3], 3, "camera pose position")
-    if off > 1e-12:   # the nearest rotation; a pose that already is one is kept bit for bit (round trips)
+    if off > 1e-12:  # the nearest rotation; a pose that already is one is kept bit for bit (round trips)
         u, _, vt = np.linalg.svd(rot)
         m[:3, :3] = u @ vt
     if convention == "opengl":
-        m[:3, 1:3] *= -1.0   # OpenGL y up, -z forward -> OpenCV y down, z forward
+        m[:3, 1:3] *= -1.0  # OpenGL y up, -z forward -> OpenCV y down, z forward
     m[3] = (0.0, 0.0, 0.0, 1.0)
     return m
 
@@ -368,8 +409,9 @@ class IntrinsicsCamera(Camera):
 
     __slots__ = ("_k", "_size")
 
-    def __init__(self, K, width: int, height: int, pose=None, convention: str = "opencv",
-                 near: float = DEFAULT_INTRINSICS_NEAR):
+    def __init__(
+        self, K, width: int, height: int, pose=None, convention: str = "opencv", near: float = DEFAULT_INTRINSICS_NEAR
+    ):
         fx, fy, cx, cy = _intrinsic_matrix(K)
         width, height = _image_size(width, height, "camera")
         for name, v in (("fx / width", fx / width), ("fy / height", fy / height)):
@@ -385,9 +427,18 @@ class IntrinsicsCamera(Camera):
         target = eye + forward
         for arr in (eye, right, forward, up_vector, target):
             arr.setflags(write=False)
-        fields = dict(eye=eye, target=target, up=up_vector, fov_y=math.degrees(2.0 * math.atan(height / (2.0 * fy))),
-                      near=near, forward=forward, right=right, up_vector=up_vector, _k=(fx, fy, cx, cy),
-                      _size=(width, height))
+        fields = dict(
+            eye=eye,
+            target=target,
+            up=up_vector,
+            fov_y=math.degrees(2.0 * math.atan(height / (2.0 * fy))),
+            near=near,
+            forward=forward,
+            right=right,
+            up_vector=up_vector,
+            _k=(fx, fy, cx, cy),
+            _size=(width, height),
+        )
         for name, value in fields.items():
             object.__setattr__(self, name, value)
 
@@ -398,9 +449,11 @@ class IntrinsicsCamera(Camera):
     def _check_aspect(self, aspect: float):
         w, h = self._size
         if abs(aspect / (w / h) - 1.0) > ASPECT_TOLERANCE:
-            raise ConfigError(f"camera: its intrinsics are for a {w}x{h} image (aspect {w / h:.4g}), which cannot "
-                              f"render an image of aspect {aspect:.4g}: render at {w}x{h} or another size of that "
-                              f"aspect (K then scales), or make a camera with a K for this size")
+            raise ConfigError(
+                f"camera: its intrinsics are for a {w}x{h} image (aspect {w / h:.4g}), which cannot "
+                f"render an image of aspect {aspect:.4g}: render at {w}x{h} or another size of that "
+                f"aspect (K then scales), or make a camera with a K for this size"
+            )
 
     def intrinsics(self, width: int | None = None, height: int | None = None) -> np.ndarray:
         """K for a `width` x `height` render (default: the camera's own size): the camera's K, scaled per axis
@@ -428,8 +481,8 @@ class IntrinsicsCamera(Camera):
         fx, fy, cx, cy = self._k
         w, h = self._size
         m = np.zeros((4, 4), dtype=np.float64)
-        m[0, 0], m[0, 2] = 2.0 * fx / w, 1.0 - 2.0 * cx / w    # view z is -Z (OpenCV depth)
-        m[1, 1], m[1, 2] = -2.0 * fy / h, 1.0 - 2.0 * cy / h   # view y is -Y; NDC y points down
+        m[0, 0], m[0, 2] = 2.0 * fx / w, 1.0 - 2.0 * cx / w  # view z is -Z (OpenCV depth)
+        m[1, 1], m[1, 2] = -2.0 * fy / h, 1.0 - 2.0 * cy / h  # view y is -Y; NDC y points down
         m[2, 3] = self.near
         m[3, 2] = -1.0
         return m.astype(np.float32)
@@ -440,15 +493,22 @@ class IntrinsicsCamera(Camera):
         allowed = ("K", "width", "height", "pose", "convention", "eye", "near")
         unknown = sorted(set(changes) - set(allowed))
         if unknown:
-            raise ConfigError(f"camera from intrinsics has no field {unknown[0]!r} to replace "
-                              f"(it has {', '.join(allowed)})")
+            raise ConfigError(
+                f"camera from intrinsics has no field {unknown[0]!r} to replace (it has {', '.join(allowed)})"
+            )
         if "convention" in changes and "pose" not in changes:
             raise ConfigError("camera replace: convention says how to read pose; give pose too")
         if "eye" in changes and "pose" in changes:
             raise ConfigError("camera replace: give pose or eye, not both (the pose holds the position)")
         fx, fy, cx, cy = self._k
-        args = dict(K=((fx, 0.0, cx), (0.0, fy, cy), (0.0, 0.0, 1.0)), width=self._size[0], height=self._size[1],
-                    pose=self.pose, convention="opencv", near=self.near)
+        args = dict(
+            K=((fx, 0.0, cx), (0.0, fy, cy), (0.0, 0.0, 1.0)),
+            width=self._size[0],
+            height=self._size[1],
+            pose=self.pose,
+            convention="opencv",
+            near=self.near,
+        )
         if "eye" in changes:
             args["pose"][:3, 3] = _check.vector(changes.pop("eye"), 3, "camera eye")
         args.update(changes)
@@ -460,5 +520,7 @@ class IntrinsicsCamera(Camera):
     def __repr__(self):
         fx, fy, cx, cy = self._k
         eye, fwd = ", ".join(f"{x:.4g}" for x in self.eye), ", ".join(f"{x:.4g}" for x in self.forward)
-        return (f"Camera.from_intrinsics(fx={fx:.6g}, fy={fy:.6g}, cx={cx:.6g}, cy={cy:.6g}, "
-                f"size={self._size[0]}x{self._size[1]}, eye=({eye}), forward=({fwd}), near={self.near:.4g})")
+        return (
+            f"Camera.from_intrinsics(fx={fx:.6g}, fy={fy:.6g}, cx={cx:.6g}, cy={cy:.6g}, "
+            f"size={self._size[0]}x{self._size[1]}, eye=({eye}), forward=({fwd}), near={self.near:.4g})"
+        )

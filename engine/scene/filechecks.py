@@ -29,13 +29,13 @@ def check_mesh_file(path: str, ext: str) -> str | None:
     with open(path, "rb") as fh:
         data = fh.read()
     first = data.find(b"\n")
-    if _OBJ_ZERO_INDEX.search(b"\n" + data[:first if first >= 0 else len(data)]):
+    if _OBJ_ZERO_INDEX.search(b"\n" + data[: first if first >= 0 else len(data)]):
         line = 1
     else:
         m = _OBJ_ZERO_INDEX.search(data)
         if m is None:
             return None
-        line = data.count(b"\n", 0, m.start()) + 2   # the match starts at the newline before the line
+        line = data.count(b"\n", 0, m.start()) + 2  # the match starts at the newline before the line
     return f"line {line}: face index 0 (OBJ indices start at 1; negative ones count back from the last vertex)"
 
 
@@ -48,8 +48,8 @@ def _read_gltf(path: str):
     # binary: a 12-byte header, then chunks of (length, type, data): JSON first, BIN next
     length = int.from_bytes(data[12:16], "little") if len(data) >= 20 else 0
     end = 20 + length
-    bin_length = int.from_bytes(data[end:end + 4], "little") if len(data) >= end + 8 else 0
-    return data, data[20:end], data[end + 8:end + 8 + bin_length]
+    bin_length = int.from_bytes(data[end : end + 4], "little") if len(data) >= end + 8 else 0
+    return data, data[20:end], data[end + 8 : end + 8 + bin_length]
 
 
 def bomb_pixels(exc: Exception) -> int | None:
@@ -74,11 +74,16 @@ def bomb_images(path: str) -> list[tuple[int, int | None]]:
         if not isinstance(img, dict):
             continue
         v = img.get("bufferView")
-        if binary and isinstance(v, int) and isinstance(views, list) and 0 <= v < len(views) \
-                and isinstance(views[v], dict):
+        if (
+            binary
+            and isinstance(v, int)
+            and isinstance(views, list)
+            and 0 <= v < len(views)
+            and isinstance(views[v], dict)
+        ):
             offset, length = views[v].get("byteOffset", 0), views[v].get("byteLength", 0)
             if isinstance(offset, int) and isinstance(length, int):
-                blob = binary[offset:offset + length]
+                blob = binary[offset : offset + length]
         uri = img.get("uri")
         if isinstance(uri, str) and uri.startswith("data:") and "," in uri:
             try:
@@ -121,6 +126,7 @@ def diagnose_gltf(path: str) -> str | None:
 def _references(doc: dict, glb: bool) -> str | None:
     """The first reference in `doc` to an item that does not exist (accessor -> bufferView -> buffer,
     primitive -> accessor), or a buffer with nowhere to read it from."""
+
     def items(key):
         value = doc.get(key, [])
         return value if isinstance(value, list) else []
@@ -148,8 +154,10 @@ def _references(doc: dict, glb: bool) -> str | None:
                 refs.append(("indices", prim["indices"]))
             for name, a in refs:
                 if not isinstance(a, int) or not 0 <= a < len(accessors):
-                    return (f"meshes[{m}].primitives[{p}] {shown(name, limit=40)} refers to accessor {a!r}, "
-                            f"but the file has {_count(accessors, 'accessor')}")
+                    return (
+                        f"meshes[{m}].primitives[{p}] {shown(name, limit=40)} refers to accessor {a!r}, "
+                        f"but the file has {_count(accessors, 'accessor')}"
+                    )
     return None
 
 

@@ -13,7 +13,7 @@ from engine.errors import ConfigError, shown
 # _BLOCK_PAIRS, so memory stays bounded either way.
 _MAX_PAIRS = 40_000_000
 _BLOCK_PAIRS = 2_000_000
-_INT64_MAX = 2 ** 63 - 1
+_INT64_MAX = 2**63 - 1
 
 
 def face_normals(positions: np.ndarray, faces: np.ndarray) -> np.ndarray:
@@ -97,7 +97,7 @@ def crease_normals(positions: np.ndarray, faces: np.ndarray, crease_deg: float =
     np.not_equal(s[1:], s[:-1], out=new[1:])
     inverse = np.empty(3 * t, dtype=np.int64)
     inverse[perm] = np.cumsum(new) - 1
-    first = np.minimum.reduceat(perm, np.flatnonzero(new)) if len(perm) else perm   # each weld's first corner
+    first = np.minimum.reduceat(perm, np.flatnonzero(new)) if len(perm) else perm  # each weld's first corner
     normals = position_normals[corner_position[first]]
     at = np.searchsorted(special, first)
     is_special = at < len(special)
@@ -122,30 +122,31 @@ def _crease_sums(acc, hard, corner_position, fn, fnu, cos_crease):
     starts = np.flatnonzero(np.r_[True, sv[1:] != sv[:-1]])
     degrees = np.diff(np.r_[starts, len(sv)])
     if int((degrees * degrees).sum()) > _MAX_PAIRS:
-        return   # keep the smooth sums
+        return  # keep the smooth sums
     for d in np.unique(degrees).tolist():
         group = starts[degrees == d]
         if d * d <= _BLOCK_PAIRS:
             step = _BLOCK_PAIRS // (d * d)
             for g0 in range(0, len(group), step):
-                local = order[group[g0:g0 + step, None] + np.arange(d)]   # (G, d): the corners at one position
+                local = order[group[g0 : g0 + step, None] + np.arange(d)]  # (G, d): the corners at one position
                 acc[local] = _pair_sums(local, local, hard, fn, fnu, cos_crease)
         else:
             rows = max(1, _BLOCK_PAIRS // d)
             for g in group.tolist():
                 local = order[g + np.arange(d)][None]
                 for r0 in range(0, d, rows):
-                    part = local[:, r0:r0 + rows]
+                    part = local[:, r0 : r0 + rows]
                     acc[part] = _pair_sums(part, local, hard, fn, fnu, cos_crease)
 
 
 def _pair_sums(rows, cols, hard, fn, fnu, cos_crease):
     """(G, r, 3): for each of the corners `rows` (G, r), the sum of fn over the corners `cols` (G, d) at its
     position that are within the crease (as local indices into `hard`)."""
-    fr, fc = hard[rows] // 3, hard[cols] // 3   # their faces
+    fr, fc = hard[rows] // 3, hard[cols] // 3  # their faces
     u, v = fnu[fr], fnu[fc]
-    dots = (u[:, :, None, 0] * v[:, None, :, 0] + u[:, :, None, 1] * v[:, None, :, 1]
-            + u[:, :, None, 2] * v[:, None, :, 2])
+    dots = (
+        u[:, :, None, 0] * v[:, None, :, 0] + u[:, :, None, 1] * v[:, None, :, 1] + u[:, :, None, 2] * v[:, None, :, 2]
+    )
     keep = dots >= cos_crease
     keep |= fr[:, :, None] == fc[:, None, :]
     return (keep[..., None] * fn[fc][:, None, :, :]).sum(axis=2)
@@ -181,7 +182,7 @@ def _append_column(key, n, column, m):
         return key * m + column, n * m
     key, n = _ranks(key)
     column, m = _ranks(column)
-    return key * m + column, n * m   # n, m <= len(key): fits for any mesh that fits in memory
+    return key * m + column, n * m  # n, m <= len(key): fits for any mesh that fits in memory
 
 
 def _row_ranks(columns):

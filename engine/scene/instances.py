@@ -32,9 +32,18 @@ class Mesh:
     indices: NDArray[np.uint32]
     submeshes: list[SubMesh]
 
-    def __init__(self, positions: ArrayLike, indices: ArrayLike, *, normals: ArrayLike | None = None,
-                 uvs: ArrayLike | None = None, vertex_material: ArrayLike | None = None, name: str = "mesh",
-                 submeshes: list[SubMesh] | None = None, where: str | None = None):
+    def __init__(
+        self,
+        positions: ArrayLike,
+        indices: ArrayLike,
+        *,
+        normals: ArrayLike | None = None,
+        uvs: ArrayLike | None = None,
+        vertex_material: ArrayLike | None = None,
+        name: str = "mesh",
+        submeshes: list[SubMesh] | None = None,
+        where: str | None = None,
+    ):
         """Checks and freezes the arrays (as `Scene()` documents them); `normals` None: computed with a 40 degree
         crease angle (vertices split at creases). `where` names the mesh in messages (default: its name).
 
@@ -57,7 +66,7 @@ class Mesh:
                 raise SceneError(f"{where}: indices must be integers, got {f.dtype}")
         if f.min() < 0 or f.max() >= len(p):
             raise SceneError(f"{where}: indices out of range [0, {len(p)}): min {int(f.min())}, max {int(f.max())}")
-        if len(p) >= 2 ** 32:
+        if len(p) >= 2**32:
             raise SceneError(f"{where}: too many vertices ({len(p)}) for 32-bit indices")
         if vertex_material is not None:
             vertex_material = np.asarray(vertex_material).reshape(-1)
@@ -155,8 +164,7 @@ class Instance:
 
     __slots__ = ("mesh", "_name", "_transform", "_material", "_scene", "_index")
 
-    def __init__(self, mesh: int, transform: ArrayLike | None = None, material: int | None = None,
-                 name: str = ""):
+    def __init__(self, mesh: int, transform: ArrayLike | None = None, material: int | None = None, name: str = ""):
         if isinstance(mesh, bool) or not isinstance(mesh, (int, np.integer)) or mesh < 0:
             raise SceneError(f"instance {shown(name)!r}: mesh must be a mesh index (int >= 0), got {mesh!r}")
         self.mesh = int(mesh)
@@ -175,7 +183,7 @@ class Instance:
     def name(self, value: str) -> None:
         self._name = value
         scene = getattr(self, "_scene", None)
-        if scene is not None:   # (its object names are made again when next read)
+        if scene is not None:  # (its object names are made again when next read)
             scene._names_version += 1
 
     def _label(self) -> str:
@@ -252,22 +260,23 @@ def checked_transforms(value: ArrayLike, labels, copy: bool = True) -> tuple[NDA
     if m.ndim == 2:
         m = m[None]
     if m.ndim != 3 or m.shape[1:] != (4, 4):
-        raise SceneError(f"{label(0)}: transform must be a (4, 4) array of numbers, got shape "
-                         f"{np.shape(value)}")
+        raise SceneError(f"{label(0)}: transform must be a (4, 4) array of numbers, got shape {np.shape(value)}")
     n = len(m)
     if n == 0:
         return m, 0.0
-    if not m.flags.c_contiguous:   # (a strided view given: the checks below view its rows)
+    if not m.flags.c_contiguous:  # (a strided view given: the checks below view its rows)
         m = np.ascontiguousarray(m)
-    hi, lo = float(m.max()), float(m.min())   # (NaN propagates through both: also the finite check)
+    hi, lo = float(m.max()), float(m.min())  # (NaN propagates through both: also the finite check)
     if not (np.isfinite(hi) and np.isfinite(lo)):
         bad = ~np.isfinite(m.reshape(n, 16)).all(axis=1)
         raise SceneError(f"{label(int(np.argmax(bad)))}: transform has NaN or infinite values")
-    last = m.view(np.complex128)[:, 3]   # the last rows as (0 + 0j, 0 + 1j): two strided compares, not four
+    last = m.view(np.complex128)[:, 3]  # the last rows as (0 + 0j, 0 + 1j): two strided compares, not four
     if (last[:, 0] != 0.0).any() or (last[:, 1] != 1j).any():
         bad = (m[:, 3, :] != (0.0, 0.0, 0.0, 1.0)).any(axis=1)
-        raise SceneError(f"{label(int(np.argmax(bad)))}: transform must be affine (last row 0 0 0 1), got "
-                         f"{m[int(np.argmax(bad)), 3].tolist()}")
+        raise SceneError(
+            f"{label(int(np.argmax(bad)))}: transform must be affine (last row 0 0 0 1), got "
+            f"{m[int(np.argmax(bad)), 3].tolist()}"
+        )
     bad = _singular(m)
     if bad is not None:
         raise SceneError(f"{label(int(bad))}: transform is not invertible (its 3x3 part is singular)")
@@ -286,7 +295,7 @@ def _singular(m: np.ndarray) -> int | None:
     cols = _entries(m, 3, 3)
     adet = np.abs(_det3(cols))
     sq = cols.reshape(9, n)
-    size = np.einsum("ij,ij->j", sq, sq) / 3.0   # the mean squared row length: det against its 3/2 power is scale-free
+    size = np.einsum("ij,ij->j", sq, sq) / 3.0  # the mean squared row length: det against its 3/2 power is scale-free
     # this size and size * sqrt(size) are within a few ulp of the exact test's terms: with a margin of 1e-9, the
     # bound passes only what the exact test passes
     fast = (adet >= (1e-12 * (1.0 + 1e-9)) * (size * np.sqrt(size))) & (size > 1e-100)
@@ -295,10 +304,10 @@ def _singular(m: np.ndarray) -> int | None:
     rest = np.flatnonzero(~fast)
     a = sq[:, rest]
     size = a[0] * a[0]
-    for row in a[1:]:   # (left to right, as the sum is written)
+    for row in a[1:]:  # (left to right, as the sum is written)
         size += row * row
     size /= 3.0
-    bad = ~(adet[rest] >= 1e-12 * size ** 1.5) | (size <= 0)
+    bad = ~(adet[rest] >= 1e-12 * size**1.5) | (size <= 0)
     return int(rest[np.argmax(bad)]) if bad.any() else None
 
 
@@ -352,7 +361,7 @@ def _entries(transforms: np.ndarray, rows: int = 3, cols: int = 4) -> np.ndarray
     n = len(transforms)
     out = np.empty((rows, cols, n), np.result_type(transforms.dtype, np.float64))
     for s in range(0, n, _BLOCK):
-        out[:, :, s:s + _BLOCK] = transforms[s:s + _BLOCK, :rows, :cols].transpose(1, 2, 0)
+        out[:, :, s : s + _BLOCK] = transforms[s : s + _BLOCK, :rows, :cols].transpose(1, 2, 0)
     return out
 
 
@@ -377,14 +386,26 @@ def flatten(meshes, mesh_of: np.ndarray, transforms: np.ndarray, overrides: np.n
         idx.append(f + v0)
         several = len(mesh.submeshes) > 1
         for s in mesh.submeshes:
-            subs.append(SubMesh(s.name if several or not names[i] else names[i], s.first_vertex + v0, s.vertex_count,
-                                s.first_triangle + t0, s.triangle_count, s.material if over < 0 else over))
+            subs.append(
+                SubMesh(
+                    s.name if several or not names[i] else names[i],
+                    s.first_vertex + v0,
+                    s.vertex_count,
+                    s.first_triangle + t0,
+                    s.triangle_count,
+                    s.material if over < 0 else over,
+                )
+            )
         v0 += mesh.vertex_count
         t0 += mesh.triangle_count
-    return {"positions": frozen(np.concatenate(pos), np.float32), "normals": frozen(np.concatenate(nrm), np.float32),
-            "uvs": frozen(np.concatenate(uvs), np.float32),
-            "vertex_material": frozen(np.concatenate(vm), np.uint32),
-            "indices": frozen(np.concatenate(idx), np.uint32), "submeshes": subs}
+    return {
+        "positions": frozen(np.concatenate(pos), np.float32),
+        "normals": frozen(np.concatenate(nrm), np.float32),
+        "uvs": frozen(np.concatenate(uvs), np.float32),
+        "vertex_material": frozen(np.concatenate(vm), np.uint32),
+        "indices": frozen(np.concatenate(idx), np.uint32),
+        "submeshes": subs,
+    }
 
 
 def check_positions(p: np.ndarray, where: str) -> None:

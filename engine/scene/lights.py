@@ -83,13 +83,13 @@ class DirectionalLight(Light):
     intensity: float
     angle: float
 
-    def __init__(self, direction: ArrayLike, color: ArrayLike = (1.0, 1.0, 1.0), intensity: float = 1.0,
-                 angle: float = 0.0):
+    def __init__(
+        self, direction: ArrayLike, color: ArrayLike = (1.0, 1.0, 1.0), intensity: float = 1.0, angle: float = 0.0
+    ):
         self.direction = _check.direction(direction, "directional light direction")
         self.color = _check.color(color, "directional light color")
         self.intensity = _intensity(intensity, "directional light")
-        self.angle = _check.number(angle, "directional light angle", min_value=0.0, max_value=90.0,
-                                   max_exclusive=True)
+        self.angle = _check.number(angle, "directional light angle", min_value=0.0, max_value=90.0, max_exclusive=True)
 
 
 class PointLight(Light):
@@ -109,8 +109,9 @@ class PointLight(Light):
     intensity: float
     radius: float
 
-    def __init__(self, position: ArrayLike, color: ArrayLike = (1.0, 1.0, 1.0), intensity: float = 1.0,
-                 radius: float = 0.0):
+    def __init__(
+        self, position: ArrayLike, color: ArrayLike = (1.0, 1.0, 1.0), intensity: float = 1.0, radius: float = 0.0
+    ):
         self.position = _check.light_position(position, "point light position")
         self.color = _check.color(color, "point light color")
         self.intensity = _intensity(intensity, "point light")
@@ -141,15 +142,24 @@ class SpotLight(Light):
     cone_angle: float
     softness: float
 
-    def __init__(self, position: ArrayLike, direction: ArrayLike, color: ArrayLike = (1.0, 1.0, 1.0),
-                 intensity: float = 1.0, radius: float = 0.0, cone_angle: float = 30.0, softness: float = 0.1):
+    def __init__(
+        self,
+        position: ArrayLike,
+        direction: ArrayLike,
+        color: ArrayLike = (1.0, 1.0, 1.0),
+        intensity: float = 1.0,
+        radius: float = 0.0,
+        cone_angle: float = 30.0,
+        softness: float = 0.1,
+    ):
         self.position = _check.light_position(position, "spot light position")
         self.direction = _check.direction(direction, "spot light direction")
         self.color = _check.color(color, "spot light color")
         self.intensity = _intensity(intensity, "spot light")
         self.radius = _check.number(radius, "spot light radius", min_value=0.0, max_abs=_check.MAX_LIGHT_POSITION)
-        self.cone_angle = _check.number(cone_angle, "spot light cone_angle", min_value=0.0, max_value=90.0,
-                                        min_exclusive=True)
+        self.cone_angle = _check.number(
+            cone_angle, "spot light cone_angle", min_value=0.0, max_value=90.0, min_exclusive=True
+        )
         self.softness = _check.number(softness, "spot light softness", min_value=0.0, max_value=1.0)
 
     @property
@@ -186,8 +196,14 @@ class RectLight(Light):
     area: float
     normal: NDArray[np.float64]
 
-    def __init__(self, position: ArrayLike, u: ArrayLike, v: ArrayLike, color: ArrayLike = (1.0, 1.0, 1.0),
-                 intensity: float = 1.0):
+    def __init__(
+        self,
+        position: ArrayLike,
+        u: ArrayLike,
+        v: ArrayLike,
+        color: ArrayLike = (1.0, 1.0, 1.0),
+        intensity: float = 1.0,
+    ):
         self.position = _check.light_position(position, "rect light position")
         self.u = _check.light_position(u, "rect light u")
         self.v = _check.light_position(v, "rect light v")

@@ -55,7 +55,7 @@ def _short(exc: BaseException) -> str:
 
 def _too_large(pixels: int | None, size=None) -> str:
     """The message for an image over MAX_TEXTURE_PIXELS; `pixels` None: pillow refused it before we could count."""
-    limit = f"the limit of {MAX_TEXTURE_PIXELS:,} ({MAX_TEXTURE_PIXELS // 2 ** 20} Mpixel)"
+    limit = f"the limit of {MAX_TEXTURE_PIXELS:,} ({MAX_TEXTURE_PIXELS // 2**20} Mpixel)"
     if pixels is None:
         return f"texture image is too large (pillow refuses it as a decompression bomb; {limit})"
     dims = f" ({size[0]} x {size[1]})" if size else ""
@@ -103,9 +103,9 @@ def load_texture_file(path: str, where: str) -> np.ndarray:
     if not os.path.isfile(path):
         raise SceneError(f"{where}: texture file not found: {shown(path)}")
     try:
-        with warnings.catch_warnings():   # PIL warns of a large image; image_to_texture says more
+        with warnings.catch_warnings():  # PIL warns of a large image; image_to_texture says more
             warnings.simplefilter("ignore", Image.DecompressionBombWarning)
-            img = Image.open(path)   # reads the header only: its size is checked before decoding
+            img = Image.open(path)  # reads the header only: its size is checked before decoding
         with img:
             return image_to_texture(img, f"{where} ({shown(path)})")
     except SceneError:
@@ -176,6 +176,7 @@ def load_trimesh_scene(path: str, *, scene_file: bool = False):
     Referenced files (textures, MTL) that are missing or unreadable are logged as warnings; the mesh is kept.
     """
     import trimesh  # deferred: heavy, and needed only to read meshes
+
     where = shown(path)
     if not os.path.exists(path):
         raise SceneError(f"{where}: file not found")
@@ -185,15 +186,16 @@ def load_trimesh_scene(path: str, *, scene_file: bool = False):
         raise SceneError(f"{where}: not a regular file")
     ext = os.path.splitext(path)[1].lower()
     if ext == ".toml" and not scene_file:
-        raise SceneError(f"{where}: a .toml scene cannot be used as a mesh file "
-                         f"(mesh files: {', '.join(MESH_EXTENSIONS)})")
+        raise SceneError(
+            f"{where}: a .toml scene cannot be used as a mesh file (mesh files: {', '.join(MESH_EXTENSIONS)})"
+        )
     if ext not in MESH_EXTENSIONS:
         supported = (".toml, " if scene_file else "") + ", ".join(MESH_EXTENSIONS)
         raise SceneError(f"{where}: unsupported file type '{shown(ext) or '(none)'}' (supported: {supported})")
     try:
         if os.path.getsize(path) == 0:
             raise SceneError(f"{where}: file is empty")
-        problem = check_mesh_file(path, ext)   # what trimesh would accept silently (OBJ index 0)
+        problem = check_mesh_file(path, ext)  # what trimesh would accept silently (OBJ index 0)
         if problem:
             raise SceneError(f"{where}: {problem}")
         resolver = _resolver(path)
@@ -204,7 +206,7 @@ def load_trimesh_scene(path: str, *, scene_file: bool = False):
             if ext == ".obj":
                 mtl.load_images(obj, resolver, where)
         problems = list(resolver.problems)
-        if ext in (".gltf", ".glb"):   # images pillow refused inside the file, which trimesh drops quietly
+        if ext in (".gltf", ".glb"):  # images pillow refused inside the file, which trimesh drops quietly
             problems += [f"images[{i}]: {_too_large(pixels)}" for i, pixels in bomb_images(path)]
         for problem in dict.fromkeys(problems):
             log.warning(f"{where}: {problem}; rendering without it")
@@ -215,15 +217,16 @@ def load_trimesh_scene(path: str, *, scene_file: bool = False):
         raise SceneError(f"{where}: corrupt {ext} file (asks for more memory than there is)") from None
     except RecursionError:
         raise SceneError(f"{where}: corrupt {ext} file (nested too deeply)") from None
-    except Image.DecompressionBombError as exc:   # an image inside the file (GLB)
+    except Image.DecompressionBombError as exc:  # an image inside the file (GLB)
         raise SceneError(f"{where}: {_too_large(bomb_pixels(exc))}") from None
     except Exception as exc:
         # trimesh's own exception says little about a glTF it cannot follow: say what is wrong with it
         why = diagnose_gltf(path) if ext in (".gltf", ".glb") else None
         if why:
             raise SceneError(f"{where}: {why}") from None
-        raise SceneError(f"{where}: cannot read {ext} file, it is corrupt or not a valid {ext[1:].upper()} file "
-                         f"({_short(exc)})") from None
+        raise SceneError(
+            f"{where}: cannot read {ext} file, it is corrupt or not a valid {ext[1:].upper()} file ({_short(exc)})"
+        ) from None
 
 
 class SceneBuilder:
@@ -238,7 +241,7 @@ class SceneBuilder:
         self._material_keys: dict = {}
         self._textures: dict = {}
         self._mesh_keys: dict = {}
-        self._keep: list = []   # the objects whose ids are in _mesh_keys, kept alive so the ids stay unique
+        self._keep: list = []  # the objects whose ids are in _mesh_keys, kept alive so the ids stay unique
 
     # -------------------------------------------------------------- materials
     def material_index(self, mat: Material, key_name=None) -> int:
@@ -261,8 +264,19 @@ class SceneBuilder:
         return self._material_keys[key]
 
     # -------------------------------------------------------------- geometry
-    def add(self, name: str, positions, faces, normals, uvs, material: int, where: str, transform=None,
-            key=None, instance_name: str | None = None):
+    def add(
+        self,
+        name: str,
+        positions,
+        faces,
+        normals,
+        uvs,
+        material: int,
+        where: str,
+        transform=None,
+        key=None,
+        instance_name: str | None = None,
+    ):
         """Add a part in object space placed by `transform` ((4, 4); None: identity). Parts added with the same
         hashable `key` (not None) share the first one's Mesh. `normals` None: computed with a crease angle."""
         m = np.eye(4) if transform is None else np.asarray(transform, dtype=np.float64)
@@ -280,28 +294,32 @@ class SceneBuilder:
                 self._mesh_keys[key] = k
         a = m[:3, :3]
         if not np.isfinite(np.linalg.cond(a)) or abs(np.linalg.det(a / max(np.abs(a).max(), 1e-300))) < 1e-12:
-            return   # a zero scale hides the part (glTF does this): nothing to trace or draw
+            return  # a zero scale hides the part (glTF does this): nothing to trace or draw
         box = world_boxes(self.meshes[k].box[None], m[None])[0]
         if np.abs(box).max() > MAX_COORD:
-            raise SceneError(f"{where}: mesh '{shown(inst_name)}' has world-space vertex coordinates beyond "
-                             f"+-{MAX_COORD:g} (largest {np.abs(box).max():g}): check its size, scale and translate")
+            raise SceneError(
+                f"{where}: mesh '{shown(inst_name)}' has world-space vertex coordinates beyond "
+                f"+-{MAX_COORD:g} (largest {np.abs(box).max():g}): check its size, scale and translate"
+            )
         self.instances.append(Instance(k, m, name=inst_name))
 
     def _mesh(self, name, positions, faces, normals, uvs, material, where) -> Mesh | None:
         p = np.asarray(positions, dtype=np.float64)
         f = np.asarray(faces, dtype=np.int64)
         if p.ndim != 2 or p.shape[1] != 3 or f.ndim != 2 or f.shape[1] != 3:
-            raise SceneError(f"{where}: mesh '{shown(name)}' has malformed arrays "
-                             f"(vertices {p.shape}, faces {f.shape})")
+            raise SceneError(
+                f"{where}: mesh '{shown(name)}' has malformed arrays (vertices {p.shape}, faces {f.shape})"
+            )
         if len(f) == 0:
             return None
         if not np.all(np.isfinite(p)):
             bad = int(np.count_nonzero(~np.all(np.isfinite(p), axis=1)))
-            raise SceneError(f"{where}: mesh '{shown(name)}' has {bad} vertex position(s) that are NaN or "
-                             "infinite")
+            raise SceneError(f"{where}: mesh '{shown(name)}' has {bad} vertex position(s) that are NaN or infinite")
         if np.abs(p).max() > MAX_COORD:
-            raise SceneError(f"{where}: mesh '{shown(name)}' has world-space vertex coordinates beyond +-{MAX_COORD:g} "
-                             f"(already in its own space; largest {np.abs(p).max():g}): check its size")
+            raise SceneError(
+                f"{where}: mesh '{shown(name)}' has world-space vertex coordinates beyond +-{MAX_COORD:g} "
+                f"(already in its own space; largest {np.abs(p).max():g}): check its size"
+            )
         if f.min() < 0 or f.max() >= len(p):
             raise SceneError(f"{where}: mesh '{shown(name)}' has face indices out of range")
         if uvs is not None:
@@ -310,14 +328,35 @@ class SceneBuilder:
                 uvs = None
         if normals is not None:
             normals = np.asarray(normals, dtype=np.float64)
-            if normals.shape != (len(p), 3) or not np.all(np.isfinite(normals)) or \
-                    np.any(np.linalg.norm(normals, axis=1) < 1e-12):
+            if (
+                normals.shape != (len(p), 3)
+                or not np.all(np.isfinite(normals))
+                or np.any(np.linalg.norm(normals, axis=1) < 1e-12)
+            ):
                 normals = None
-        return Mesh(p, f, normals=normals, uvs=uvs, vertex_material=np.full(len(p), material, dtype=np.uint32),
-                    name=name, where=f"{where}: mesh '{shown(name)}'")
+        return Mesh(
+            p,
+            f,
+            normals=normals,
+            uvs=uvs,
+            vertex_material=np.full(len(p), material, dtype=np.uint32),
+            name=name,
+            where=f"{where}: mesh '{shown(name)}'",
+        )
 
-    def add_trimesh(self, obj, where: str, transform=None, color=None, texture=None, label: str | None = None,
-                    uv_scale=None, overrides: dict | None = None, transforms=None, labels=None):
+    def add_trimesh(
+        self,
+        obj,
+        where: str,
+        transform=None,
+        color=None,
+        texture=None,
+        label: str | None = None,
+        uv_scale=None,
+        overrides: dict | None = None,
+        transforms=None,
+        labels=None,
+    ):
         """Add a trimesh.Trimesh or trimesh.Scene (node transforms applied, then `transform`); with `transforms`
         (a list of (4, 4)), once per transform (each applied after `transform`), `labels` (None or a name per
         transform) replacing `label` for that placement. A geometry used by several nodes
@@ -327,9 +366,9 @@ class SceneBuilder:
         every material of `obj` (material overrides of the TOML format).
         """
         import trimesh  # deferred: heavy, and needed only to read meshes
+
         if isinstance(obj, trimesh.Trimesh):
-            items = [(np.eye(4), obj, label or getattr(obj.metadata, "get", lambda *_: None)("name") or "mesh",
-                      "mesh")]
+            items = [(np.eye(4), obj, label or getattr(obj.metadata, "get", lambda *_: None)("name") or "mesh", "mesh")]
         elif isinstance(obj, trimesh.Scene):
             items = []
             with _quiet():
@@ -341,11 +380,16 @@ class SceneBuilder:
         else:
             raise SceneError(f"{where}: expected a trimesh.Trimesh or trimesh.Scene, got {type(obj).__name__}")
         outer = np.eye(4) if transform is None else np.asarray(transform, dtype=np.float64)
-        placements = [(outer, label)] if transforms is None else [
-            (np.asarray(t, dtype=np.float64) @ outer, (labels[i] if labels and labels[i] else label))
-            for i, t in enumerate(transforms)]
+        placements = (
+            [(outer, label)]
+            if transforms is None
+            else [
+                (np.asarray(t, dtype=np.float64) @ outer, (labels[i] if labels and labels[i] else label))
+                for i, t in enumerate(transforms)
+            ]
+        )
         before = len(self.instances)
-        made = {}   # this call's materials by trimesh material; `obj` keeps those alive, so their ids stay unique
+        made = {}  # this call's materials by trimesh material; `obj` keeps those alive, so their ids stay unique
         self._keep.append(obj)
         for place, name in placements:
             for m, geom, node_name, geom_name in items:
@@ -353,8 +397,9 @@ class SceneBuilder:
                     node_name = name if len(items) == 1 else f"{name}/{node_name}"
                 elif name:
                     node_name = name
-                self._add_geometry(geom, place @ m, node_name, geom_name, where, color, texture, uv_scale, made,
-                                   overrides or {})
+                self._add_geometry(
+                    geom, place @ m, node_name, geom_name, where, color, texture, uv_scale, made, overrides or {}
+                )
         if len(self.instances) == before:
             raise SceneError(f"{where}: contains no triangles")
 
@@ -373,8 +418,9 @@ class SceneBuilder:
             return
         if not np.all(np.isfinite(vertices)):
             bad = int(np.count_nonzero(~np.all(np.isfinite(vertices), axis=1)))
-            raise SceneError(f"{where}: mesh '{shown(node_name)}' has {bad} vertex position(s) that are NaN or "
-                             "infinite")
+            raise SceneError(
+                f"{where}: mesh '{shown(node_name)}' has {bad} vertex position(s) that are NaN or infinite"
+            )
         if not np.all(np.isfinite(m)):
             raise SceneError(f"{where}: node '{shown(node_name)}' has a transform with NaN or infinite values")
         uvs = None
@@ -388,21 +434,29 @@ class SceneBuilder:
                     uvs = uvs * np.asarray(uv_scale, dtype=np.float64)
         key_name = None
         if color is not None or texture is not None or overrides:
-            key_name = mat.name   # overridden the same way, one material of the file stays one
+            key_name = mat.name  # overridden the same way, one material of the file stays one
             mat = mat.with_overrides(color, texture, name=node_name if color is not None else mat.name, **overrides)
         material = self.material_index(mat, key_name)
         key = (id(geom), material, None if uv_scale is None else tuple(np.asarray(uv_scale, np.float64).tolist()))
         self._keep.append(geom)
-        self.add(geom_name, vertices, faces, normals, uvs, material, where, transform=m, key=key,
-                 instance_name=node_name)
+        self.add(
+            geom_name, vertices, faces, normals, uvs, material, where, transform=m, key=key, instance_name=node_name
+        )
 
     # -------------------------------------------------------------- result
     def build(self, lights=None, camera=None, settings=None) -> SceneParts:
         """The meshes and instances collected, with the scene's lights, camera and settings."""
         if not self.instances:
             raise SceneError(f"{shown(self.name)}: the scene has no triangles")
-        return SceneParts(name=self.name, meshes=self.meshes, instances=self.instances, materials=self.materials,
-                          lights=lights, camera=camera, settings=settings)
+        return SceneParts(
+            name=self.name,
+            meshes=self.meshes,
+            instances=self.instances,
+            materials=self.materials,
+            lights=lights,
+            camera=camera,
+            settings=settings,
+        )
 
 
 def _material_of(visual, where: str, made: dict) -> Material:
@@ -412,7 +466,7 @@ def _material_of(visual, where: str, made: dict) -> Material:
         mat = visual.material
         key = (id(mat), getattr(visual, "uv", None) is None)
         if key not in made:
-            made[key] = (mat, _convert_material(mat, visual, where))   # holding `mat` keeps its id from being reused
+            made[key] = (mat, _convert_material(mat, visual, where))  # holding `mat` keeps its id from being reused
         return made[key][1]
     if kind in ("face", "vertex"):
         try:
@@ -430,6 +484,7 @@ def _convert_material(mat, visual, where: str) -> Material:
     """A trimesh PBRMaterial (glTF) or SimpleMaterial (OBJ/MTL) to a Material; textures of a mesh without UVs and
     images that are too large are left out with a warning."""
     from trimesh.visual.material import PBRMaterial, SimpleMaterial  # deferred: heavy (trimesh)
+
     name = getattr(mat, "name", None) or "material"
     what = f"{where}: material '{shown(name)}'"
     no_uv = getattr(visual, "uv", None) is None
@@ -444,7 +499,7 @@ def _convert_material(mat, visual, where: str) -> Material:
                 warned.append(field)
             return None
         try:
-            check_image_size(image, f"{what}: {field}")   # as a referenced file that is too large: without it
+            check_image_size(image, f"{what}: {field}")  # as a referenced file that is too large: without it
         except SceneError as exc:
             log.warning(f"{exc}; rendering without it")
             return None
@@ -474,7 +529,9 @@ def _gltf_material(mat, name: str, texture, what: str) -> Material:
     mode = (mat.alphaMode or "OPAQUE").upper() if isinstance(mat.alphaMode, (str, type(None))) else "OPAQUE"
     try:
         return Material(
-            name, base, texture(mat.baseColorTexture, "baseColorTexture"),
+            name,
+            base,
+            texture(mat.baseColorTexture, "baseColorTexture"),
             metallic=float(np.clip(_factor(mat.metallicFactor, 1.0), 0.0, 1.0)),
             roughness=float(np.clip(_factor(mat.roughnessFactor, 1.0), 0.0, 1.0)),
             emissive=np.clip(_factor(mat.emissiveFactor, np.zeros(3), 3), 0.0, None),
@@ -484,7 +541,8 @@ def _gltf_material(mat, name: str, texture, what: str) -> Material:
             occlusion_texture=texture(mat.occlusionTexture, "occlusionTexture"),
             alpha_mode=mode if mode in ("OPAQUE", "MASK", "BLEND") else "OPAQUE",
             alpha_cutoff=float(np.clip(_factor(mat.alphaCutoff, 0.5), 0.0, 1.0)),
-            double_sided=bool(mat.doubleSided))
+            double_sided=bool(mat.doubleSided),
+        )
     except SceneError as exc:
         raise SceneError(f"{what}: {exc}") from None
 
@@ -497,7 +555,7 @@ def _mtl_material(mat, name: str, texture) -> Material:
     kwargs = getattr(mat, "kwargs", None) or {}
     images = kwargs.get(mtl.IMAGES_KEY, {})
     roughness = 1.0
-    specular = kwargs.get("ks")   # as the MTL gave it (trimesh's `specular` has a default colour)
+    specular = kwargs.get("ks")  # as the MTL gave it (trimesh's `specular` has a default colour)
     specular = [specular] if isinstance(specular, (int, float)) else specular
     ns = mtl.number(kwargs.get("ns"), getattr(mat, "glossiness", None))
     if specular is not None and max(mtl.number(x, 0.0) or 0.0 for x in specular) > 0 and ns is not None:
@@ -516,8 +574,16 @@ def _mtl_material(mat, name: str, texture) -> Material:
         tex = mtl.with_alpha(tex, mask)
         mode = "MASK"
     normal, scale = images.get("normal", (None, 1.0))
-    return Material(name, base, tex, metallic=0.0, roughness=roughness,
-                    normal_texture=texture(normal, "map_Bump"), normal_scale=scale, alpha_mode=mode)
+    return Material(
+        name,
+        base,
+        tex,
+        metallic=0.0,
+        roughness=roughness,
+        normal_texture=texture(normal, "map_Bump"),
+        normal_scale=scale,
+        alpha_mode=mode,
+    )
 
 
 def load_mesh_file(path: str, transform=None) -> SceneParts:

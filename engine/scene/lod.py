@@ -13,6 +13,7 @@ the raster's culling pass picks, per instance, the coarsest level whose error pr
 Every triangle of a level remembers the mesh triangle it came from (`source`): material, object and the
 triangle-id AOV stay those of the full mesh. Only the raster draws levels; rays trace the full mesh.
 """
+
 from __future__ import annotations
 
 import weakref
@@ -36,14 +37,14 @@ class Level:
     triangle the mesh triangle it came from, the object-space error (0 for the mesh itself), and the clustering that
     made it (each mesh vertex's cell, which cells the triangles use), to remake it for deformed positions."""
 
-    positions: np.ndarray   # (V, 3) float32
-    normals: np.ndarray     # (V, 3) float32
-    uvs: np.ndarray         # (V, 2) float32
-    indices: np.ndarray     # (T, 3) int64
-    source: np.ndarray      # (T,) int64: the mesh triangle
+    positions: np.ndarray  # (V, 3) float32
+    normals: np.ndarray  # (V, 3) float32
+    uvs: np.ndarray  # (V, 2) float32
+    indices: np.ndarray  # (T, 3) int64
+    source: np.ndarray  # (T,) int64: the mesh triangle
     error: float
-    cells: np.ndarray | None = None   # (mesh V,) int64: each mesh vertex's cell
-    used: np.ndarray | None = None    # (cells,) bool: the cells that are this level's vertices, in order
+    cells: np.ndarray | None = None  # (mesh V,) int64: each mesh vertex's cell
+    used: np.ndarray | None = None  # (cells,) bool: the cells that are this level's vertices, in order
 
 
 _cache: "weakref.WeakKeyDictionary" = weakref.WeakKeyDictionary()
@@ -64,19 +65,26 @@ def lod_chain(mesh, max_levels: int = LOD_MAX_LEVELS) -> list[Level]:
         chain = build_chain(mesh.positions, mesh.normals, mesh.uvs, mesh.indices)
     try:
         _cache[mesh] = (mesh.positions, chain, mesh.indices)
-    except TypeError:   # not weakly referenceable: not cached
+    except TypeError:  # not weakly referenceable: not cached
         pass
     return chain
 
 
 def _base(positions, normals, uvs, indices) -> Level:
     f = np.asarray(indices, np.int64)
-    return Level(np.asarray(positions, np.float32), np.asarray(normals, np.float32), np.asarray(uvs, np.float32),
-                 f, np.arange(len(f), dtype=np.int64), 0.0)
+    return Level(
+        np.asarray(positions, np.float32),
+        np.asarray(normals, np.float32),
+        np.asarray(uvs, np.float32),
+        f,
+        np.arange(len(f), dtype=np.int64),
+        0.0,
+    )
 
 
-def build_chain(positions, normals, uvs, indices, min_triangles: int = LOD_MIN_TRIANGLES,
-                max_levels: int = LOD_MAX_LEVELS) -> list[Level]:
+def build_chain(
+    positions, normals, uvs, indices, min_triangles: int = LOD_MIN_TRIANGLES, max_levels: int = LOD_MAX_LEVELS
+) -> list[Level]:
     """The levels of one mesh's arrays (see the module's docstring)."""
     p = np.asarray(positions, np.float64)
     base = _base(positions, normals, uvs, indices)
@@ -92,11 +100,11 @@ def build_chain(positions, normals, uvs, indices, min_triangles: int = LOD_MIN_T
     cell = diag / max(np.sqrt(len(f)), 1.0)
     error = 0.0
     for level in range(1, max_levels):
-        target = len(f) / LOD_RATIO ** level
+        target = len(f) / LOD_RATIO**level
         if target < LOD_MIN_LEVEL_TRIANGLES:
             break
         best = None
-        lo_c, hi_c = None, None   # bracketing cells: lo_c keeps too many triangles, hi_c too few
+        lo_c, hi_c = None, None  # bracketing cells: lo_c keeps too many triangles, hi_c too few
         for _ in range(12):
             made = cluster(p, f, cell, lo)
             kept = len(made[2])
@@ -113,7 +121,7 @@ def build_chain(positions, normals, uvs, indices, min_triangles: int = LOD_MIN_T
         if len(best[2]) < LOD_MIN_LEVEL_TRIANGLES or len(best[2]) > 0.6 * len(chain[-1].indices):
             break
         made = level_of(p, base.normals, base.uvs, *best)
-        error = max(error, made.error)   # errors grow down the chain (the culling pass relies on it)
+        error = max(error, made.error)  # errors grow down the chain (the culling pass relies on it)
         chain.append(replace(made, error=error))
     return chain
 
@@ -142,7 +150,7 @@ def cluster(p: np.ndarray, f: np.ndarray, cell: float, origin: np.ndarray):
     keep = (t[:, 0] != t[:, 1]) & (t[:, 1] != t[:, 2]) & (t[:, 0] != t[:, 2])
     src = np.flatnonzero(keep)
     t = t[keep]
-    if len(t):   # one triangle per set of three cells (either winding)
+    if len(t):  # one triangle per set of three cells (either winding)
         _, first = np.unique(np.sort(t, axis=1), axis=0, return_index=True)
         first = np.sort(first)
         t, src = t[first], src[first]
@@ -162,10 +170,18 @@ def level_of(p: np.ndarray, normals, uvs, inv: np.ndarray, t: np.ndarray, src: n
     uv = np.stack([np.bincount(inv, np.asarray(uvs, np.float64)[:, i], m) for i in range(2)], axis=1) / count[:, None]
     used = np.zeros(m, bool)
     used[t.reshape(-1)] = True
-    remap = np.cumsum(used) - 1   # compacted to the cells the kept triangles use
+    remap = np.cumsum(used) - 1  # compacted to the cells the kept triangles use
     err = _surface_error(p, inv, count, pos, t)
-    return Level(pos[used].astype(np.float32), nrm[used].astype(np.float32), uv[used].astype(np.float32),
-                 remap[t].astype(np.int64), np.asarray(src, np.int64), err, inv, used)
+    return Level(
+        pos[used].astype(np.float32),
+        nrm[used].astype(np.float32),
+        uv[used].astype(np.float32),
+        remap[t].astype(np.int64),
+        np.asarray(src, np.int64),
+        err,
+        inv,
+        used,
+    )
 
 
 def _surface_error(p, inv, count, pos, t) -> float:
@@ -178,7 +194,7 @@ def _surface_error(p, inv, count, pos, t) -> float:
     counts = count.astype(np.int64)
     starts = np.concatenate([[0], np.cumsum(counts)[:-1]])
     best = np.full(len(p), np.inf)
-    for j in range(3):   # each vertex against the triangles at its cell
+    for j in range(3):  # each vertex against the triangles at its cell
         cells = t[:, j]
         reps = counts[cells]
         tri = np.repeat(np.arange(len(t)), reps)
@@ -203,9 +219,15 @@ def point_triangle_distance(p, a, b, c) -> np.ndarray:
         on_bc = b + ((d4 - d3) / ((d4 - d3) + (d5 - d6)))[:, None] * (c - b)
         denom = va + vb + vc
         inside = a + (vb / denom)[:, None] * ab + (vc / denom)[:, None] * ac
-    conds = [(d1 <= 0) & (d2 <= 0), (d3 >= 0) & (d4 <= d3), (vc <= 0) & (d1 >= 0) & (d3 <= 0),
-             (d6 >= 0) & (d5 <= d6), (vb <= 0) & (d2 >= 0) & (d6 <= 0), (va <= 0) & (d4 >= d3) & (d5 >= d6)]
+    conds = [
+        (d1 <= 0) & (d2 <= 0),
+        (d3 >= 0) & (d4 <= d3),
+        (vc <= 0) & (d1 >= 0) & (d3 <= 0),
+        (d6 >= 0) & (d5 <= d6),
+        (vb <= 0) & (d2 >= 0) & (d6 <= 0),
+        (va <= 0) & (d4 >= d3) & (d5 >= d6),
+    ]
     q = inside.copy()
-    for cond, point in reversed(list(zip(conds, [a, b, on_ab, c, on_ac, on_bc]))):   # the first region wins
+    for cond, point in reversed(list(zip(conds, [a, b, on_ab, c, on_ac, on_bc]))):  # the first region wins
         q[cond] = point[cond]
     return np.linalg.norm(p - q, axis=1)

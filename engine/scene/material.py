@@ -16,8 +16,18 @@ from . import _check
 ALPHA_MODES = ("OPAQUE", "MASK", "BLEND")
 #: The texture fields of a Material, in the order material_key lists them.
 TEXTURE_FIELDS = ("texture", "metallic_roughness_texture", "normal_texture", "emissive_texture", "occlusion_texture")
-_FIELDS = ("name", "base_color", "metallic", "roughness", "emissive", "normal_scale", "occlusion_strength",
-           "alpha_mode", "alpha_cutoff", "double_sided") + TEXTURE_FIELDS
+_FIELDS = (
+    "name",
+    "base_color",
+    "metallic",
+    "roughness",
+    "emissive",
+    "normal_scale",
+    "occlusion_strength",
+    "alpha_mode",
+    "alpha_cutoff",
+    "double_sided",
+) + TEXTURE_FIELDS
 
 
 class Material:
@@ -56,12 +66,25 @@ class Material:
     alpha_cutoff: float
     double_sided: bool
 
-    def __init__(self, name: str, base_color: ArrayLike = (0.8, 0.8, 0.8, 1.0), texture: ArrayLike | None = None, *,
-                 metallic: float = 0.0, roughness: float = 1.0, emissive: ArrayLike = (0.0, 0.0, 0.0),
-                 metallic_roughness_texture: ArrayLike | None = None, normal_texture: ArrayLike | None = None,
-                 normal_scale: float = 1.0, emissive_texture: ArrayLike | None = None,
-                 occlusion_texture: ArrayLike | None = None, occlusion_strength: float = 1.0,
-                 alpha_mode: str = "OPAQUE", alpha_cutoff: float = 0.5, double_sided: bool = True):
+    def __init__(
+        self,
+        name: str,
+        base_color: ArrayLike = (0.8, 0.8, 0.8, 1.0),
+        texture: ArrayLike | None = None,
+        *,
+        metallic: float = 0.0,
+        roughness: float = 1.0,
+        emissive: ArrayLike = (0.0, 0.0, 0.0),
+        metallic_roughness_texture: ArrayLike | None = None,
+        normal_texture: ArrayLike | None = None,
+        normal_scale: float = 1.0,
+        emissive_texture: ArrayLike | None = None,
+        occlusion_texture: ArrayLike | None = None,
+        occlusion_strength: float = 1.0,
+        alpha_mode: str = "OPAQUE",
+        alpha_cutoff: float = 0.5,
+        double_sided: bool = True,
+    ):
         """Raises `SceneError` (naming the material and the field) for a bad value or texture."""
         self.name = str(name)
         c = np.asarray(base_color, dtype=np.float64).reshape(-1)
@@ -70,8 +93,10 @@ class Material:
         if c.shape == (3,):
             c = np.append(c, 1.0)
         if not np.all(np.isfinite(c)) or np.any(c < 0) or np.any(c > _check.MAX_VALUE):
-            raise SceneError(f"material {self.name!r}: base_color must be finite, non-negative and at most "
-                             f"{_check.MAX_VALUE:g}, got {c.tolist()}")
+            raise SceneError(
+                f"material {self.name!r}: base_color must be finite, non-negative and at most "
+                f"{_check.MAX_VALUE:g}, got {c.tolist()}"
+            )
         self.base_color = c.astype(np.float32)
         self.base_color.setflags(write=False)
         self.metallic = self._number(metallic, "metallic", 0.0, 1.0)
@@ -87,8 +112,9 @@ class Material:
         self.emissive.setflags(write=False)
         mode = alpha_mode.upper() if isinstance(alpha_mode, str) else alpha_mode
         if mode not in ALPHA_MODES:
-            raise SceneError(f"material {self.name!r}: alpha_mode must be one of {', '.join(ALPHA_MODES)}, "
-                             f"got {alpha_mode!r}")
+            raise SceneError(
+                f"material {self.name!r}: alpha_mode must be one of {', '.join(ALPHA_MODES)}, got {alpha_mode!r}"
+            )
         self.alpha_mode = mode
         if not isinstance(double_sided, (bool, np.bool_)):
             raise SceneError(f"material {self.name!r}: double_sided must be true or false, got {double_sided!r}")
@@ -110,8 +136,9 @@ class Material:
             return None
         t = np.asarray(texture)
         if t.dtype != np.uint8 or t.ndim != 3 or t.shape[2] != 4 or t.shape[0] < 1 or t.shape[1] < 1:
-            raise SceneError(f"material {self.name!r}: {field} must be an (H, W, 4) uint8 array, "
-                             f"got {t.dtype} {t.shape}")
+            raise SceneError(
+                f"material {self.name!r}: {field} must be an (H, W, 4) uint8 array, got {t.dtype} {t.shape}"
+            )
         t = np.ascontiguousarray(t)
         t.setflags(write=False)
         return t
@@ -120,14 +147,21 @@ class Material:
         """Every field as a keyword argument of the constructor (the name too)."""
         return {f: getattr(self, f) for f in _FIELDS}
 
-    def with_overrides(self, base_color: ArrayLike | None = None, texture: ArrayLike | None = None,
-                       name: str | None = None, **fields: Any) -> Material:
+    def with_overrides(
+        self,
+        base_color: ArrayLike | None = None,
+        texture: ArrayLike | None = None,
+        name: str | None = None,
+        **fields: Any,
+    ) -> Material:
         """A copy with the given fields replaced (None: keep this material's), e.g.
         `m.with_overrides(roughness=0.3, metallic=1.0)`."""
         unknown = set(fields) - set(_FIELDS)
         if unknown:
-            raise SceneError(f"material {self.name!r}: unknown field(s) {', '.join(sorted(unknown))} "
-                             f"(fields: {', '.join(_FIELDS[1:])})")
+            raise SceneError(
+                f"material {self.name!r}: unknown field(s) {', '.join(sorted(unknown))} "
+                f"(fields: {', '.join(_FIELDS[1:])})"
+            )
         args = self.fields()
         args.update({k: v for k, v in fields.items() if v is not None})
         if base_color is not None:
@@ -140,9 +174,12 @@ class Material:
     def __repr__(self) -> str:
         def size(t):
             return "None" if t is None else f"{t.shape[1]}x{t.shape[0]}"
+
         col = ", ".join(f"{x:.3g}" for x in self.base_color.tolist())
-        text = (f"Material({self.name!r}, base_color=({col}), texture={size(self.texture)}, "
-                f"metallic={self.metallic:.3g}, roughness={self.roughness:.3g}")
+        text = (
+            f"Material({self.name!r}, base_color=({col}), texture={size(self.texture)}, "
+            f"metallic={self.metallic:.3g}, roughness={self.roughness:.3g}"
+        )
         if np.any(self.emissive > 0):
             text += ", emissive=(" + ", ".join(f"{x:.3g}" for x in self.emissive.tolist()) + ")"
         for field in TEXTURE_FIELDS[1:]:
@@ -175,10 +212,18 @@ def material_key(material: Material, name=None) -> tuple:
     """What identifies a material by content: its name (or `name` in its place), its factors and flags, and the
     pixels of each of its textures (`texture_key`)."""
     m = material
-    factors = np.array([m.metallic, m.roughness, m.normal_scale, m.occlusion_strength, m.alpha_cutoff],
-                       np.float64).tobytes()
-    return ((m.name if name is None else name), m.base_color.tobytes(), m.emissive.tobytes(), factors, m.alpha_mode,
-            m.double_sided, *(texture_key(getattr(m, f)) for f in TEXTURE_FIELDS))
+    factors = np.array(
+        [m.metallic, m.roughness, m.normal_scale, m.occlusion_strength, m.alpha_cutoff], np.float64
+    ).tobytes()
+    return (
+        (m.name if name is None else name),
+        m.base_color.tobytes(),
+        m.emissive.tobytes(),
+        factors,
+        m.alpha_mode,
+        m.double_sided,
+        *(texture_key(getattr(m, f)) for f in TEXTURE_FIELDS),
+    )
 
 
 def srgb8_to_linear(rgba8: ArrayLike) -> NDArray[np.float64]:

@@ -48,8 +48,21 @@ def with_alpha(tex, mask) -> np.ndarray:
 #: Where load_trimesh_scene puts the images of an MTL's map_d / norm / map_Bump (trimesh only keeps their names).
 IMAGES_KEY = "_hybrid_images"
 #: MTL texture options and how many values each takes (the file name follows them).
-OPTIONS = {"-bm": 1, "-blendu": 1, "-blendv": 1, "-boost": 1, "-cc": 1, "-clamp": 1, "-imfchan": 1,
-                "-mm": 2, "-o": 3, "-s": 3, "-t": 3, "-texres": 1, "-type": 1}
+OPTIONS = {
+    "-bm": 1,
+    "-blendu": 1,
+    "-blendv": 1,
+    "-boost": 1,
+    "-cc": 1,
+    "-clamp": 1,
+    "-imfchan": 1,
+    "-mm": 2,
+    "-o": 3,
+    "-s": 3,
+    "-t": 3,
+    "-texres": 1,
+    "-type": 1,
+}
 
 
 def map_file(tokens) -> tuple[str | None, float]:
@@ -94,10 +107,12 @@ def load_images(obj, resolver, where: str) -> None:
                 img = Image.open(io.BytesIO(resolver.get(file_name)))
                 img.load()
             except Exception:
-                continue   # the resolver noted why
+                continue  # the resolver noted why
             if key in ("map_bump", "bump") and not is_normal_map(img):
-                log.info(f"{where}: material '{shown(getattr(mat, 'name', '') or '')}': {key} "
-                         f"'{shown(file_name)}' is a height map, not a normal map; rendering without it")
+                log.info(
+                    f"{where}: material '{shown(getattr(mat, 'name', '') or '')}': {key} "
+                    f"'{shown(file_name)}' is a height map, not a normal map; rendering without it"
+                )
                 continue
             images[slot] = img if slot == "map_d" else (img, scale)
         kwargs[IMAGES_KEY] = images

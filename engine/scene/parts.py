@@ -5,10 +5,10 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 
-
 @dataclass(frozen=True)
 class SubMesh:
     """One source mesh's range in the flattened arrays (informational; draw everything in one call if you like)."""
+
     name: str
     first_vertex: int
     vertex_count: int
@@ -22,6 +22,7 @@ class SceneParts:
     """The arguments of a Scene as a loader collected them (Scene checks them): the meshes (object space,
     `instances.Mesh`) and the instances placing them (`instances.Instance`), the materials they refer to, and the
     scene's name, lights, camera and settings (None: the Scene's defaults)."""
+
     name: str
     meshes: list
     instances: list
@@ -29,4 +30,4 @@ class SceneParts:
     lights: list | None = None
     camera: object | None = None
     settings: dict | None = None
-    animations: list | None = None   # animation.Animation (a TOML scene's [[animation]] tables)
+    animations: list | None = None  # animation.Animation (a TOML scene's [[animation]] tables)

@@ -34,8 +34,10 @@ class Folders:
 
     def refusal(self, key: str, value: str) -> str:
         """The message for a path that resolve() refused (the same for every such path)."""
-        return (f"{key} = '{shown(value)}' is outside the scene's folder: a scene may name only files inside its "
-                f"folder, unless a folder is allowed (--allow-path DIR, Scene.load(path, allow_paths=[DIR]))")
+        return (
+            f"{key} = '{shown(value)}' is outside the scene's folder: a scene may name only files inside its "
+            f"folder, unless a folder is allowed (--allow-path DIR, Scene.load(path, allow_paths=[DIR]))"
+        )
 
 
 def allowed_folders(allow_paths) -> list[str]:
@@ -47,8 +49,9 @@ def allowed_folders(allow_paths) -> list[str]:
     try:
         items = list(allow_paths)
     except TypeError:
-        raise ConfigError(f"allow_paths must be a folder or a list of folders, got {type(allow_paths).__name__}") \
-            from None
+        raise ConfigError(
+            f"allow_paths must be a folder or a list of folders, got {type(allow_paths).__name__}"
+        ) from None
     out = []
     for item in items:
         path = os.fspath(item) if isinstance(item, os.PathLike) else item

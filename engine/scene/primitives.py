@@ -92,8 +92,9 @@ def cylinder(radius=0.5, height=1.0, segments=48):
     ring = np.stack([np.sin(t), np.zeros_like(t), np.cos(t)], -1)
     side_p = np.concatenate([ring * radius + [0, h, 0], ring * radius - [0, h, 0]])
     side_n = np.concatenate([ring, ring])
-    side_uv = np.concatenate([np.stack([t / (2 * np.pi), np.zeros_like(t)], -1),
-                              np.stack([t / (2 * np.pi), np.ones_like(t)], -1)])
+    side_uv = np.concatenate(
+        [np.stack([t / (2 * np.pi), np.zeros_like(t)], -1), np.stack([t / (2 * np.pi), np.ones_like(t)], -1)]
+    )
     side_f = _grid(segments, 1)
     parts = [(side_p, side_f, side_n, side_uv)]
     for sign in (1.0, -1.0):

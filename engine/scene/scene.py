@@ -25,8 +25,16 @@ from .geometry import up_transform
 from .lights import Light, default_sun
 from .material import Material, material_key
 from .animation import Player, check_targets
-from .instances import (Instance, Mesh, check_material_override, checked_transforms, flatten, frozen, world_box_union,
-                        world_boxes)
+from .instances import (
+    Instance,
+    Mesh,
+    check_material_override,
+    checked_transforms,
+    flatten,
+    frozen,
+    world_box_union,
+    world_boxes,
+)
 from .parts import SceneParts, SubMesh
 from .paths import allowed_folders
 
@@ -73,11 +81,21 @@ class Scene:
     submeshes: list[SubMesh]
     uid: int
 
-    def __init__(self, positions: ArrayLike, indices: ArrayLike, *, normals: ArrayLike | None = None,
-                 uvs: ArrayLike | None = None, vertex_material: ArrayLike | None = None,
-                 materials: Iterable[Material] | None = None, lights: Light | Iterable[Light] | None = None,
-                 camera: Camera | None = None, name: str = "<arrays>", settings: dict[str, Any] | None = None,
-                 submeshes: Iterable[SubMesh] | None = None):
+    def __init__(
+        self,
+        positions: ArrayLike,
+        indices: ArrayLike,
+        *,
+        normals: ArrayLike | None = None,
+        uvs: ArrayLike | None = None,
+        vertex_material: ArrayLike | None = None,
+        materials: Iterable[Material] | None = None,
+        lights: Light | Iterable[Light] | None = None,
+        camera: Camera | None = None,
+        name: str = "<arrays>",
+        settings: dict[str, Any] | None = None,
+        submeshes: Iterable[SubMesh] | None = None,
+    ):
         """A scene from flattened arrays (the loaders' common constructor; `Scene.from_arrays` is simpler).
 
         Args:
@@ -100,8 +118,16 @@ class Scene:
             ConfigError: bad lights or camera.
         """
         self.name = str(name)
-        mesh = Mesh(positions, indices, normals=normals, uvs=uvs, vertex_material=vertex_material, name=self.name,
-                    submeshes=None if submeshes is None else list(submeshes), where=shown(self.name))
+        mesh = Mesh(
+            positions,
+            indices,
+            normals=normals,
+            uvs=uvs,
+            vertex_material=vertex_material,
+            name=self.name,
+            submeshes=None if submeshes is None else list(submeshes),
+            where=shown(self.name),
+        )
         self._setup([mesh], [Instance(0)], materials, settings)
         self._init_rest(lights, camera)
 
@@ -120,17 +146,21 @@ class Scene:
             raise SceneError(f"{where}: instances must be a non-empty list of Instance")
         for k, mesh in enumerate(meshes):
             if mesh.vertex_count and int(mesh.vertex_material.max()) >= len(materials):
-                raise SceneError(f"{where}: mesh {k} '{shown(mesh.name)}': vertex_material out of range "
-                                 f"[0, {len(materials)})")
+                raise SceneError(
+                    f"{where}: mesh {k} '{shown(mesh.name)}': vertex_material out of range [0, {len(materials)})"
+                )
         for i, inst in enumerate(instances):
             if inst._scene is not None:
                 raise SceneError(f"{where}: instances[{i}] already belongs to a scene")
             if inst.mesh >= len(meshes):
-                raise SceneError(f"{where}: instances[{i}] '{shown(inst.name)}': mesh {inst.mesh} out of range "
-                                 f"[0, {len(meshes)})")
+                raise SceneError(
+                    f"{where}: instances[{i}] '{shown(inst.name)}': mesh {inst.mesh} out of range [0, {len(meshes)})"
+                )
             if inst._material is not None and inst._material >= len(materials):
-                raise SceneError(f"{where}: instances[{i}] '{shown(inst.name)}': material {inst._material} out of "
-                                 f"range [0, {len(materials)})")
+                raise SceneError(
+                    f"{where}: instances[{i}] '{shown(inst.name)}': material {inst._material} out of "
+                    f"range [0, {len(materials)})"
+                )
         self.materials = materials
         self.meshes = tuple(meshes)
         self._inst_mesh = np.array([i.mesh for i in instances], dtype=np.int64)
@@ -142,7 +172,7 @@ class Scene:
         self._inst_changed = np.zeros(len(instances), dtype=np.int64)
         self._mesh_changed = np.zeros(len(meshes), dtype=np.int64)
         self._cache: dict = {}
-        self._names_version = 0   # increases when an instance is renamed (the object names' cache)
+        self._names_version = 0  # increases when an instance is renamed (the object names' cache)
         for i, inst in enumerate(instances):
             inst._scene, inst._index = self, i
         self.instances = tuple(instances)
@@ -162,7 +192,7 @@ class Scene:
             if not isinstance(light, Light):
                 raise SceneError(f"{where}: lights[{i}] is a {type(light).__name__}, not a light")
         self.lights = lights
-        self.animations: list = []   # animation.Animation: what `animate(t)` plays
+        self.animations: list = []  # animation.Animation: what `animate(t)` plays
         self._player = None
         self._camera = None
         self.camera = camera
@@ -201,23 +231,27 @@ class Scene:
             SceneError: a bad transform or index, naming the instance.
         """
         n = len(self.instances)
-        if which is None:   # all: a slice, no gathers
+        if which is None:  # all: a slice, no gathers
             idx, count = slice(None), n
             m, peak = checked_transforms(transforms, lambda k: self._label(k if k < n else 0), copy=False)
         else:
             idx = np.asarray(which)
-            if idx.ndim != 1 or not np.issubdtype(idx.dtype, np.integer) or (len(idx) and (idx.min() < -n or
-                                                                                             idx.max() >= n)):
+            if (
+                idx.ndim != 1
+                or not np.issubdtype(idx.dtype, np.integer)
+                or (len(idx) and (idx.min() < -n or idx.max() >= n))
+            ):
                 raise SceneError(f"{shown(self.name)}: instance indices must be integers in [0, {n})")
             which = idx % n if len(idx) else idx.astype(np.int64)
             count = len(which)
-            m, peak = checked_transforms(transforms, lambda k: self._label(int(which[k]) if k < count else 0),
-                                         copy=False)
+            m, peak = checked_transforms(
+                transforms, lambda k: self._label(int(which[k]) if k < count else 0), copy=False
+            )
             in_order = count == n and which[0] == 0 and np.array_equal(which, np.arange(n))
-            idx = slice(None) if in_order else which   # (all, in order: written as a slice, not scattered)
+            idx = slice(None) if in_order else which  # (all, in order: written as a slice, not scattered)
         if len(m) != count:
             raise SceneError(f"{shown(self.name)}: {len(m)} transforms for {count} instances")
-        self._check_world(idx, m, peak)   # before anything changes
+        self._check_world(idx, m, peak)  # before anything changes
         self._transforms[idx] = m
         self._version += 1
         self._inst_changed[idx] = self._version
@@ -256,10 +290,14 @@ class Scene:
                     return k
             names = ", ".join(repr(m.name) for m in self.meshes[:8])
             raise SceneError(f"{shown(self.name)}: no mesh named {shown(mesh)!r} (meshes: {names})")
-        if isinstance(mesh, bool) or not isinstance(mesh, (int, np.integer)) or not -len(self.meshes) <= mesh < \
-                len(self.meshes):
-            raise SceneError(f"{shown(self.name)}: mesh must be an index in [0, {len(self.meshes)}) or a name, "
-                             f"got {mesh!r}")
+        if (
+            isinstance(mesh, bool)
+            or not isinstance(mesh, (int, np.integer))
+            or not -len(self.meshes) <= mesh < len(self.meshes)
+        ):
+            raise SceneError(
+                f"{shown(self.name)}: mesh must be an index in [0, {len(self.meshes)}) or a name, got {mesh!r}"
+            )
         return int(mesh) % len(self.meshes)
 
     def moved_instances(self, since: int) -> NDArray[np.int64]:
@@ -297,7 +335,7 @@ class Scene:
         # a bound first: |A c + t| + |A| h <= (3 (|c| + h) + 1) max|m|, for every instance at once
         reach = np.abs(boxes[mesh if len(mesh) < len(boxes) else slice(None)]).max()
         if peak is None:
-            peak = max(transforms.max(), -transforms.min())   # (no temporaries)
+            peak = max(transforms.max(), -transforms.min())  # (no temporaries)
         if (3.0 * reach + 1.0) * peak <= MAX_COORD:
             return
         one = len(boxes) == 1 or not np.any(mesh != mesh[0])
@@ -305,8 +343,10 @@ class Scene:
         if np.abs(world).max() > MAX_COORD:
             top = np.abs(world).reshape(len(world), 6).max(axis=1)
             i = int(np.arange(len(self._inst_mesh))[idx][int(np.argmax(top > MAX_COORD))])
-            raise SceneError(f"{self._label(i)}: world-space coordinates beyond +-{MAX_COORD:g} (largest "
-                             f"{top.max():g}): check its transform")
+            raise SceneError(
+                f"{self._label(i)}: world-space coordinates beyond +-{MAX_COORD:g} (largest "
+                f"{top.max():g}): check its transform"
+            )
 
     def _cached(self, key: str, make):
         hit = self._cache.get(key)
@@ -327,17 +367,33 @@ class Scene:
     # ------------------------------------------------------------------ flat (world-space) views
     def _flat(self) -> dict:
         def make():
-            if len(self.instances) == 1 and np.array_equal(self._transforms[0], np.eye(4)) and \
-                    self._inst_material[0] < 0:
+            if (
+                len(self.instances) == 1
+                and np.array_equal(self._transforms[0], np.eye(4))
+                and self._inst_material[0] < 0
+            ):
                 mesh = self.meshes[self._inst_mesh[0]]
                 name = self.instances[0].name
-                subs = mesh.submeshes if len(mesh.submeshes) > 1 or not name else [
-                    SubMesh(name, *(s.first_vertex, s.vertex_count, s.first_triangle, s.triangle_count, s.material))
-                    for s in mesh.submeshes]
-                return {"positions": mesh.positions, "normals": mesh.normals, "uvs": mesh.uvs,
-                        "vertex_material": mesh.vertex_material, "indices": mesh.indices, "submeshes": list(subs)}
-            return flatten(self.meshes, self._inst_mesh, self._transforms, self._inst_material,
-                           [i.name for i in self.instances])
+                subs = (
+                    mesh.submeshes
+                    if len(mesh.submeshes) > 1 or not name
+                    else [
+                        SubMesh(name, *(s.first_vertex, s.vertex_count, s.first_triangle, s.triangle_count, s.material))
+                        for s in mesh.submeshes
+                    ]
+                )
+                return {
+                    "positions": mesh.positions,
+                    "normals": mesh.normals,
+                    "uvs": mesh.uvs,
+                    "vertex_material": mesh.vertex_material,
+                    "indices": mesh.indices,
+                    "submeshes": list(subs),
+                }
+            return flatten(
+                self.meshes, self._inst_mesh, self._transforms, self._inst_material, [i.name for i in self.instances]
+            )
+
         return self._cached("flat", make)
 
     @property
@@ -390,6 +446,7 @@ class Scene:
     def bounds(self) -> NDArray[np.float32]:
         """(2, 3) float32 world min / max: exact up to FLAT_BOUNDS_VERTICES instanced vertices, else the union of
         the instances' boxes (which can be slightly larger under rotation)."""
+
         def make():
             counts = np.array([m.vertex_count for m in self.meshes])[self._inst_mesh]
             if counts.sum() <= FLAT_BOUNDS_VERTICES:
@@ -397,6 +454,7 @@ class Scene:
             else:
                 box = world_box_union(self._instance_object_boxes(), self._transforms)
             return _frozen(box, np.float32)
+
         return self._cached("bounds", make)
 
     def _vertex_bounds(self) -> np.ndarray:
@@ -406,7 +464,7 @@ class Scene:
         boxes = self.instance_boxes()
         seeds = np.unique(np.concatenate([boxes[:, 0].argmin(axis=0), boxes[:, 1].argmax(axis=0)]))
         lo, hi = self._vertex_extremes(seeds)
-        slack = 1e-9 * (np.abs(boxes).max() + 1.0)   # (the boxes' rounding)
+        slack = 1e-9 * (np.abs(boxes).max() + 1.0)  # (the boxes' rounding)
         rest = (boxes[:, 0] < lo + slack).any(axis=1) | (boxes[:, 1] > hi - slack).any(axis=1)
         rest[seeds] = False
         if rest.any():
@@ -424,12 +482,12 @@ class Scene:
             if not mesh.vertex_count:
                 continue
             insts = which[mesh_of == k]
-            v = mesh.positions.astype(np.float64).T   # (3, V)
+            v = mesh.positions.astype(np.float64).T  # (3, V)
             step = max(1, (1 << 20) // (3 * v.shape[1]))
             for c in range(0, len(insts), step):
-                m = self._transforms[insts[c:c + step]]
+                m = self._transforms[insts[c : c + step]]
                 a = m[:, :3, :3, None]
-                proj = a[:, :, 0] * v[0] + a[:, :, 1] * v[1] + a[:, :, 2] * v[2]   # (n, 3, V): A v per component
+                proj = a[:, :, 0] * v[0] + a[:, :, 1] * v[1] + a[:, :, 2] * v[2]  # (n, 3, V): A v per component
                 t = m[:, :3, 3]
                 lo = np.minimum(lo, (proj.min(axis=2) + t).min(axis=0))
                 hi = np.maximum(hi, (proj.max(axis=2) + t).max(axis=0))
@@ -483,6 +541,7 @@ class Scene:
     def content_hash(self) -> str:
         """A stable digest of the current geometry (meshes and instances: transforms, material overrides),
         materials and textures (not lights/camera/settings); it changes when an instance moves or a mesh deforms."""
+
         def make():
             h = hashlib.blake2b(digest_size=16)
             for mesh in self.meshes:
@@ -493,8 +552,9 @@ class Scene:
                 h.update(str(a.shape).encode())
                 h.update(np.ascontiguousarray(a).tobytes())
             for m in self.materials:
-                h.update(repr(material_key(m, name="")).encode())   # factors, flags and texture digests
+                h.update(repr(material_key(m, name="")).encode())  # factors, flags and texture digests
             return h.hexdigest()
+
         return self._cached("hash", make)
 
     def summary(self) -> str:
@@ -507,18 +567,24 @@ class Scene:
         lights = ", ".join(f"{v} {k}" for k, v in kinds.items())
         textures = sum(m.texture is not None for m in self.materials)
         inst = "" if len(self.instances) == 1 else f" ({len(self.instances):,} instances of {len(self.meshes)})"
-        return (f"{shown(os.path.basename(self.name) or self.name)}: {self.triangle_count:,} triangles, "
-                f"{self.vertex_count:,} vertices, {len(self.meshes) if inst else len(self.submeshes)} meshes{inst}, "
-                f"{len(self.materials)} materials "
-                f"({textures} textured), lights: {lights}, size {size[0]:.3g} x {size[1]:.3g} x {size[2]:.3g}")
+        return (
+            f"{shown(os.path.basename(self.name) or self.name)}: {self.triangle_count:,} triangles, "
+            f"{self.vertex_count:,} vertices, {len(self.meshes) if inst else len(self.submeshes)} meshes{inst}, "
+            f"{len(self.materials)} materials "
+            f"({textures} textured), lights: {lights}, size {size[0]:.3g} x {size[1]:.3g} x {size[2]:.3g}"
+        )
 
     def __repr__(self) -> str:
         return f"<Scene {self.summary()}>"
 
     # ------------------------------------------------------------------ constructors
     @classmethod
-    def load(cls, path: str | os.PathLike[str], allow_paths: str | os.PathLike[str] | list | None = None,
-             up: str | None = None) -> Scene:
+    def load(
+        cls,
+        path: str | os.PathLike[str],
+        allow_paths: str | os.PathLike[str] | list | None = None,
+        up: str | None = None,
+    ) -> Scene:
         """A `.toml` scene (docs/scenes.md) or any mesh / glTF file trimesh reads (OBJ, PLY, STL, glTF, GLB, ...), or a
         bundled scene by name (`"default"`, `"sphere"`, `"penumbra"`: `engine.scene_path` says the rule).
 
@@ -539,35 +605,66 @@ class Scene:
         if not isinstance(path, str):
             raise ConfigError(f"Scene.load: path must be a str path, got {shown(repr(path))}")
         path = os.fspath(scene_path(path))
-        allowed = allowed_folders(allow_paths)   # checked whatever the file type
+        allowed = allowed_folders(allow_paths)  # checked whatever the file type
         up_m = None if up is None else up_transform(up, "Scene.load: up")
         if path.lower().endswith(".toml"):
             return cls._from_parts(toml_format.load_toml(path, allow_paths=allowed, up=up))
         return cls._from_parts(loader.load_mesh_file(path, transform=up_m))
 
     @classmethod
-    def from_trimesh(cls, obj: Any, lights: Light | Iterable[Light] | None = None, camera: Camera | None = None,
-                     name: str = "<trimesh>") -> Scene:
+    def from_trimesh(
+        cls,
+        obj: Any,
+        lights: Light | Iterable[Light] | None = None,
+        camera: Camera | None = None,
+        name: str = "<trimesh>",
+    ) -> Scene:
         """A scene from a `trimesh.Trimesh` or `trimesh.Scene` (node transforms applied; its materials' colours
         and base-colour textures kept)."""
         return cls._from_parts(loader.trimesh_parts(obj, name, lights=lights, camera=camera))
 
     @classmethod
-    def from_arrays(cls, vertices: ArrayLike, faces: ArrayLike, *, normals: ArrayLike | None = None,
-                    uvs: ArrayLike | None = None, color: ArrayLike = (0.8, 0.8, 0.8), texture: ArrayLike | None = None,
-                    lights: Light | Iterable[Light] | None = None, camera: Camera | None = None,
-                    name: str = "<arrays>", settings: dict[str, Any] | None = None) -> Scene:
+    def from_arrays(
+        cls,
+        vertices: ArrayLike,
+        faces: ArrayLike,
+        *,
+        normals: ArrayLike | None = None,
+        uvs: ArrayLike | None = None,
+        color: ArrayLike = (0.8, 0.8, 0.8),
+        texture: ArrayLike | None = None,
+        lights: Light | Iterable[Light] | None = None,
+        camera: Camera | None = None,
+        name: str = "<arrays>",
+        settings: dict[str, Any] | None = None,
+    ) -> Scene:
         """One mesh with one material: `vertices` (V, 3), `faces` (T, 3), `color` linear RGB(A), `texture`
         (H, W, 4) uint8 sRGB; normals computed (40 degree crease) when None. The rest as in `Scene()`."""
         mat = Material("material", color, texture)
-        return cls(vertices, faces, normals=normals, uvs=uvs, materials=[mat], lights=lights, camera=camera,
-                   name=name, settings=settings)
+        return cls(
+            vertices,
+            faces,
+            normals=normals,
+            uvs=uvs,
+            materials=[mat],
+            lights=lights,
+            camera=camera,
+            name=name,
+            settings=settings,
+        )
 
     @classmethod
-    def from_meshes(cls, meshes: Iterable[Mesh], instances: Iterable[Instance], *,
-                    materials: Iterable[Material] | None = None, lights: Light | Iterable[Light] | None = None,
-                    camera: Camera | None = None, name: str = "<instances>",
-                    settings: dict[str, Any] | None = None) -> Scene:
+    def from_meshes(
+        cls,
+        meshes: Iterable[Mesh],
+        instances: Iterable[Instance],
+        *,
+        materials: Iterable[Material] | None = None,
+        lights: Light | Iterable[Light] | None = None,
+        camera: Camera | None = None,
+        name: str = "<instances>",
+        settings: dict[str, Any] | None = None,
+    ) -> Scene:
         """A scene of meshes (object space, `Mesh`) placed by instances (`Instance(mesh_index, transform,
         material, name)`); each Instance object belongs to one scene. The rest as in `Scene()`."""
         scene = cls.__new__(cls)
@@ -579,8 +676,15 @@ class Scene:
     @classmethod
     def _from_parts(cls, parts: SceneParts) -> Scene:
         """A scene from what a loader collected (checked like any other)."""
-        scene = cls.from_meshes(parts.meshes, parts.instances, materials=parts.materials, lights=parts.lights,
-                                camera=parts.camera, name=parts.name, settings=parts.settings)
+        scene = cls.from_meshes(
+            parts.meshes,
+            parts.instances,
+            materials=parts.materials,
+            lights=parts.lights,
+            camera=parts.camera,
+            name=parts.name,
+            settings=parts.settings,
+        )
         if parts.animations:
             check_targets(parts.animations, [i.name for i in scene.instances], shown(scene.name))
             scene.animations = list(parts.animations)

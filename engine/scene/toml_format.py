@@ -6,9 +6,9 @@ import math
 import os
 
 try:
-    import tomllib   # Python 3.11+
+    import tomllib  # Python 3.11+
 except ModuleNotFoundError:
-    import tomli as tomllib   # Python 3.10: the same parser (a dependency there)
+    import tomli as tomllib  # Python 3.10: the same parser (a dependency there)
 
 import numpy as np
 
@@ -26,8 +26,21 @@ from .paths import Folders
 
 TOP_LEVEL = ("up", "camera", "mesh", "light", "settings", "animation")
 CAMERA_KEYS = ("eye", "target", "up", "fov", "near")
-MESH_COMMON = ("name", "file", "primitive", "translate", "rotate", "scale", "color", "texture", "uv_scale", "metallic",
-               "roughness", "emissive", "instances")
+MESH_COMMON = (
+    "name",
+    "file",
+    "primitive",
+    "translate",
+    "rotate",
+    "scale",
+    "color",
+    "texture",
+    "uv_scale",
+    "metallic",
+    "roughness",
+    "emissive",
+    "instances",
+)
 INSTANCE_KEYS = ("name", "translate", "rotate", "scale")
 PRIMITIVE_PARAMS = {
     "box": ("size",),
@@ -96,7 +109,7 @@ def load_toml(path, allow_paths=None, up=None) -> SceneParts:
         with open(path, "rb") as fh:
             raw = fh.read()
         text = raw.decode("utf-8")
-        data = tomllib.loads(text[1:] if text.startswith(BOM) else text)   # editors on Windows write a BOM
+        data = tomllib.loads(text[1:] if text.startswith(BOM) else text)  # editors on Windows write a BOM
     except tomllib.TOMLDecodeError as exc:
         msg = str(exc)
         if "line" not in msg:  # "(at end of document)": name the last line
@@ -130,13 +143,13 @@ def parts_from_dict(data: dict, path: str = "<toml>", allow_paths=None, up=None)
         up = data.get("up", "y")
         up_m = ctx.check(up_transform, up, "up")
     else:
-        up_m = up_transform(up, "up")   # the caller's argument: its own ConfigError, no file to name
+        up_m = up_transform(up, "up")  # the caller's argument: its own ConfigError, no file to name
     meshes = data.get("mesh", [])
     if not meshes:
         raise ctx.error("no [[mesh]] tables: the scene has no geometry")
     builder = SceneBuilder(path)
     textures: dict[str, np.ndarray] = {}
-    files: dict = {}   # mesh files by real path: a file placed several times is read (and stored) once
+    files: dict = {}  # mesh files by real path: a file placed several times is read (and stored) once
     for i, table in enumerate(meshes, 1):
         mctx = ctx.at(f"[[mesh]] #{i}")
         if not isinstance(table, dict):
@@ -165,8 +178,15 @@ def _camera(table: dict, ctx: _Ctx) -> Camera:
     eye = ctx.check(_check.vector, table["eye"], 3, "eye")
     target = ctx.check(_check.vector, table["target"], 3, "target")
     up = ctx.check(_check.vector, table.get("up", (0.0, 1.0, 0.0)), 3, "up")
-    fov = ctx.check(_check.number, table.get("fov", 60.0), "fov", min_value=0.0, max_value=180.0,
-                    min_exclusive=True, max_exclusive=True)
+    fov = ctx.check(
+        _check.number,
+        table.get("fov", 60.0),
+        "fov",
+        min_value=0.0,
+        max_value=180.0,
+        min_exclusive=True,
+        max_exclusive=True,
+    )
     near = table.get("near")
     if near is not None:
         near = ctx.check(_check.number, near, "near", min_value=0.0, min_exclusive=True)
@@ -180,8 +200,8 @@ def _color(value, field: str, ctx: _Ctx, alpha: bool = False) -> np.ndarray:
         s = value.strip()
         hexdigits = s[1:] if s.startswith("#") else ""
         if len(hexdigits) not in (6, 8) or any(ch not in "0123456789abcdefABCDEF" for ch in hexdigits):
-            raise ctx.error(f"{field} must be 3 numbers (linear RGB) or a \"#rrggbb\" sRGB string, got {value!r}")
-        rgba = [int(hexdigits[k:k + 2], 16) / 255.0 for k in range(0, len(hexdigits), 2)]
+            raise ctx.error(f'{field} must be 3 numbers (linear RGB) or a "#rrggbb" sRGB string, got {value!r}')
+        rgba = [int(hexdigits[k : k + 2], 16) / 255.0 for k in range(0, len(hexdigits), 2)]
         rgb = _check.srgb_to_linear(rgba[:3])
         out = np.append(rgb, rgba[3] if len(rgba) == 4 else 1.0)
         return out if alpha else out[:3]
@@ -193,8 +213,7 @@ def _color(value, field: str, ctx: _Ctx, alpha: bool = False) -> np.ndarray:
         return c
     c = ctx.check(_check.vector, value, 3, field) if n == 3 or not alpha else None
     if c is None:
-        raise ctx.error(f"{field} must be 3 or 4 numbers (linear RGB(A)) or a \"#rrggbb\" sRGB string, "
-                        f"got {value!r}")
+        raise ctx.error(f'{field} must be 3 or 4 numbers (linear RGB(A)) or a "#rrggbb" sRGB string, got {value!r}')
     if np.any(c < 0):
         raise ctx.error(f"{field} must be non-negative, got {value!r}")
     return np.append(c, 1.0) if alpha else c
@@ -221,8 +240,12 @@ def _light(table: dict, ctx: _Ctx):
         t = ctx.check(_check.vector, table["target"], 3, "target")
         args["direction"] = t - p
     cls = LIGHT_TYPES[kind]
-    required = {"directional": ("direction",), "point": ("position",), "spot": ("position", "direction"),
-                "rect": ("position", "u", "v")}[kind]
+    required = {
+        "directional": ("direction",),
+        "point": ("position",),
+        "spot": ("position", "direction"),
+        "rect": ("position", "u", "v"),
+    }[kind]
     for key in required:
         if key not in args:
             raise ctx.error(f"missing key {key!r}")
@@ -244,8 +267,9 @@ def _rotation(value, ctx: _Ctx) -> np.ndarray:
         k = np.array([[0, -axis[2], axis[1]], [axis[2], 0, -axis[0]], [-axis[1], axis[0], 0]])
         return np.eye(3) + math.sin(angle) * k + (1 - math.cos(angle)) * (k @ k)
     if not isinstance(value, list):
-        raise ctx.error(f"rotate must be 3 numbers (degrees about x, y, z) or {{axis = [..], angle = ..}}, "
-                        f"got {value!r}")
+        raise ctx.error(
+            f"rotate must be 3 numbers (degrees about x, y, z) or {{axis = [..], angle = ..}}, got {value!r}"
+        )
     ax, ay, az = np.radians(ctx.check(_check.vector, value, 3, "rotate"))
     rx = np.array([[1, 0, 0], [0, math.cos(ax), -math.sin(ax)], [0, math.sin(ax), math.cos(ax)]])
     ry = np.array([[math.cos(ay), 0, math.sin(ay)], [0, 1, 0], [-math.sin(ay), 0, math.cos(ay)]])
@@ -279,8 +303,10 @@ def _grid_counts(table, keys, defaults, lows, ctx):
     """The two counts of a grid primitive (2 triangles per cell), their product capped at MAX_PRIMITIVE_TRIANGLES."""
     a, b = (_count(table, k, d, lo, ctx) for k, d, lo in zip(keys, defaults, lows))
     if 2 * a * b > MAX_PRIMITIVE_TRIANGLES:
-        raise ctx.error(f"{keys[0]} x {keys[1]} = {a} x {b} makes {2 * a * b:,} triangles, more than the "
-                        f"{MAX_PRIMITIVE_TRIANGLES:,} one primitive may have")
+        raise ctx.error(
+            f"{keys[0]} x {keys[1]} = {a} x {b} makes {2 * a * b:,} triangles, more than the "
+            f"{MAX_PRIMITIVE_TRIANGLES:,} one primitive may have"
+        )
     return a, b
 
 
@@ -290,14 +316,21 @@ def _primitive(kind: str, table: dict, ctx: _Ctx):
     if kind == "plane":
         return primitives.plane(_size(table.get("size", 1.0), 2, "size", ctx))
     if kind == "sphere":
-        return primitives.sphere(_positive(table, "radius", 1.0, ctx),
-                                 *_grid_counts(table, ("segments", "rings"), (64, 32), (3, 2), ctx))
+        return primitives.sphere(
+            _positive(table, "radius", 1.0, ctx), *_grid_counts(table, ("segments", "rings"), (64, 32), (3, 2), ctx)
+        )
     if kind == "cylinder":
-        return primitives.cylinder(_positive(table, "radius", 0.5, ctx), _positive(table, "height", 1.0, ctx),
-                                   _count(table, "segments", 48, 3, ctx))
+        return primitives.cylinder(
+            _positive(table, "radius", 0.5, ctx),
+            _positive(table, "height", 1.0, ctx),
+            _count(table, "segments", 48, 3, ctx),
+        )
     if kind == "torus":
-        return primitives.torus(_positive(table, "radius", 1.0, ctx), _positive(table, "tube", 0.25, ctx),
-                                *_grid_counts(table, ("segments", "sides"), (96, 32), (3, 3), ctx))
+        return primitives.torus(
+            _positive(table, "radius", 1.0, ctx),
+            _positive(table, "tube", 0.25, ctx),
+            *_grid_counts(table, ("segments", "sides"), (96, 32), (3, 3), ctx),
+        )
     raise ctx.error(f"primitive must be one of {', '.join(PRIMITIVE_PARAMS)}, got {kind!r}")
 
 
@@ -351,12 +384,12 @@ def _instances(table: dict, ctx: _Ctx) -> list | None:
     return out
 
 
-def _add_mesh(builder: SceneBuilder, table: dict, ctx: _Ctx, folders: Folders, textures: dict,
-              up_m: np.ndarray, files: dict) -> None:
+def _add_mesh(
+    builder: SceneBuilder, table: dict, ctx: _Ctx, folders: Folders, textures: dict, up_m: np.ndarray, files: dict
+) -> None:
     has_file, has_prim = "file" in table, "primitive" in table
     if has_file == has_prim:
-        raise ctx.error("needs exactly one of 'file' (a mesh file) or 'primitive' "
-                        f"({', '.join(PRIMITIVE_PARAMS)})")
+        raise ctx.error(f"needs exactly one of 'file' (a mesh file) or 'primitive' ({', '.join(PRIMITIVE_PARAMS)})")
     if has_prim:
         kind = table["primitive"]
         if not isinstance(kind, str) or kind not in PRIMITIVE_PARAMS:
@@ -370,7 +403,7 @@ def _add_mesh(builder: SceneBuilder, table: dict, ctx: _Ctx, folders: Folders, t
     if not isinstance(name, str):
         raise ctx.error(f"name must be a string, got {name!r}")
 
-    m = _trs(table, ctx)   # scale, then rotate, then translate
+    m = _trs(table, ctx)  # scale, then rotate, then translate
     placements = _instances(table, ctx)
 
     color = _color(table["color"], "color", ctx, alpha=True) if "color" in table else None
@@ -380,7 +413,7 @@ def _add_mesh(builder: SceneBuilder, table: dict, ctx: _Ctx, folders: Folders, t
         if full not in textures:
             textures[full] = load_texture_file(full, f"{ctx.prefix()}: texture = '{shown(table['texture'])}'")
         texture = textures[full]
-    overrides = {}   # glTF metallic-roughness factors, replacing those of every material of the mesh
+    overrides = {}  # glTF metallic-roughness factors, replacing those of every material of the mesh
     for key in ("metallic", "roughness"):
         if key in table:
             overrides[key] = ctx.check(_check.number, table[key], key, min_value=0.0, max_value=1.0)
@@ -396,22 +429,32 @@ def _add_mesh(builder: SceneBuilder, table: dict, ctx: _Ctx, folders: Folders, t
             uv = uv * uv_scale
         if color is None:
             color = np.array([1.0, 1.0, 1.0, 1.0]) if texture is not None else np.array([0.8, 0.8, 0.8, 1.0])
-        mat = builder.material_index(Material(name, color, texture, **overrides),
-                                     key_name=("primitive",))  # first one's name
-        key = object()   # this table's placements share its mesh
+        mat = builder.material_index(
+            Material(name, color, texture, **overrides), key_name=("primitive",)
+        )  # first one's name
+        key = object()  # this table's placements share its mesh
         for place, inst_name in placements or [(np.eye(4), None)]:
-            builder.add(name, p, f, n, uv, mat, ctx.prefix(), transform=place @ m, key=key,
-                        instance_name=inst_name or name)
+            builder.add(
+                name, p, f, n, uv, mat, ctx.prefix(), transform=place @ m, key=key, instance_name=inst_name or name
+            )
         return
 
     try:
-        if "up" in table:   # this file's up axis, turned upright before its scale / rotate / translate
+        if "up" in table:  # this file's up axis, turned upright before its scale / rotate / translate
             up_m = ctx.check(up_transform, table["up"], "up")
         if mesh_path not in files:
             files[mesh_path] = load_trimesh_scene(mesh_path)
-        builder.add_trimesh(files[mesh_path], shown(mesh_path), transform=m @ up_m, color=color, texture=texture,
-                            uv_scale=uv_scale, label=name, overrides=overrides,
-                            transforms=None if placements is None else [t for t, _ in placements],
-                            labels=None if placements is None else [n for _, n in placements])
+        builder.add_trimesh(
+            files[mesh_path],
+            shown(mesh_path),
+            transform=m @ up_m,
+            color=color,
+            texture=texture,
+            uv_scale=uv_scale,
+            label=name,
+            overrides=overrides,
+            transforms=None if placements is None else [t for t, _ in placements],
+            labels=None if placements is None else [n for _, n in placements],
+        )
     except SceneError as exc:
         raise ctx.error(f"file = '{shown(table['file'])}': {exc}") from None

@@ -9,11 +9,22 @@
 The renderer's colour target is never written by the viewer, so screenshots (F12, --screenshot) read back exactly
 what a headless render of the same view gives, without the overlay.
 """
+
 from .app import Viewer
 from .command import add_arguments, run_from_args
 from .controls import KEYS, FlyCamera, key_map_text, setting_choices
 from .overlay import TextImage, wrap
 from .presenter import Presenter
 
-__all__ = ["Viewer", "add_arguments", "run_from_args", "KEYS", "FlyCamera", "key_map_text", "setting_choices",
-           "TextImage", "wrap", "Presenter"]
+__all__ = [
+    "Viewer",
+    "add_arguments",
+    "run_from_args",
+    "KEYS",
+    "FlyCamera",
+    "key_map_text",
+    "setting_choices",
+    "TextImage",
+    "wrap",
+    "Presenter",
+]

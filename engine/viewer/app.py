@@ -13,6 +13,7 @@ Hot reload (on by default): the renderer's ShaderLibrary recompiles changed GLSL
 each submit and rebuilds only the affected pipelines; failures keep the last good pipeline and are listed in
 `renderer.shader_errors`, which the viewer logs and shows in red in the overlay until the next good save.
 """
+
 from __future__ import annotations
 
 import logging
@@ -31,15 +32,14 @@ from ..settings import check_png_path, check_size
 from ..vk import Context
 from ..vk.present import SWAPCHAIN_EXTENSION, surface_factory
 from ..vk.swapchain import PRESENT_MODES
-from .controls import (TOGGLED, FlyCamera, current, initial_settings, key_map_text, label, next_value,
-                       setting_choices)
+from .controls import TOGGLED, FlyCamera, current, initial_settings, key_map_text, label, next_value, setting_choices
 from .overlay import TextImage
 from .presenter import Presenter
 
 log = logging.getLogger("engine.viewer")
 
-TEXT_PERIOD_S = 0.25          # overlay text and window title refresh at most this often
-HISTORY_MAX = 100_000         # frames kept for the exit statistics
+TEXT_PERIOD_S = 0.25  # overlay text and window title refresh at most this often
+HISTORY_MAX = 100_000  # frames kept for the exit statistics
 
 
 def _new_period(now):
@@ -58,10 +58,27 @@ class Viewer:
     `time_step` (seconds) advances the clock by that much per frame instead of by the wall clock (recordings).
     """
 
-    def __init__(self, scene, width=1280, height=720, *, hot_reload=True, shader_dir=None, validation=None,
-                 device=None, present_mode="fifo", render_scale=1.0, settings=None, title="hybrid view",
-                 overlay=True, quiet=False, on_frame=None, time_step=None, paused=False):
-        import glfw   # deferred: loads the GLFW shared library, which only the viewer needs
+    def __init__(
+        self,
+        scene,
+        width=1280,
+        height=720,
+        *,
+        hot_reload=True,
+        shader_dir=None,
+        validation=None,
+        device=None,
+        present_mode="fifo",
+        render_scale=1.0,
+        settings=None,
+        title="hybrid view",
+        overlay=True,
+        quiet=False,
+        on_frame=None,
+        time_step=None,
+        paused=False,
+    ):
+        import glfw  # deferred: loads the GLFW shared library, which only the viewer needs
 
         check_size(width, height)
         if present_mode not in PRESENT_MODES:
@@ -69,8 +86,9 @@ class Viewer:
         if not (isinstance(render_scale, (int, float)) and 0.05 <= render_scale <= 4.0):
             raise ConfigError(f"render scale {render_scale!r}: expected a number in 0.05..4")
         _check_on_frame(on_frame)
-        if time_step is not None and not (isinstance(time_step, (int, float)) and not isinstance(time_step, bool)
-                                          and 0.0 <= time_step <= 3600.0):
+        if time_step is not None and not (
+            isinstance(time_step, (int, float)) and not isinstance(time_step, bool) and 0.0 <= time_step <= 3600.0
+        ):
             raise ConfigError(f"time step {time_step!r}: expected seconds in 0..3600, or None (the wall clock)")
         self.glfw = glfw
         self.quiet = quiet
@@ -95,7 +113,7 @@ class Viewer:
         self.fly = FlyCamera(cam, speed=max(0.5 * dist, 0.02 * diag))
         self.text = TextImage()
         self.overlay_on = overlay
-        self.overlay_lines: list[str] = []   # the text on screen (tests read it)
+        self.overlay_lines: list[str] = []  # the text on screen (tests read it)
         self._text_key = None
         self.help_on = False
         self.frames = 0
@@ -109,7 +127,7 @@ class Viewer:
         self._text_dirty = True
         self._stats = _new_period(time.perf_counter())
         self.fps, self.frame_ms, self.cpu_ms, self.gpu_ms = 0.0, 0.0, 0.0, {}
-        self.history = {"cpu_ms": [], "thread_ms": [], "end": [], "gpu": []}   # per presented frame
+        self.history = {"cpu_ms": [], "thread_ms": [], "end": [], "gpu": []}  # per presented frame
         self._errors_seen: dict[str, str] = {}
         self._versions_seen = dict(getattr(self.renderer.library, "versions", {}))
         self._screenshot_request = None
@@ -120,8 +138,11 @@ class Viewer:
     # ---- set-up -------------------------------------------------------------------------------------------------
     def _open(self, width, height, validation, device, present_mode, render_scale, hot_reload, shader_dir):
         glfw = self.glfw
-        glfw.set_error_callback(lambda code, msg: self._glfw_errors.append(
-            msg.decode(errors="replace") if isinstance(msg, bytes) else str(msg)))
+        glfw.set_error_callback(
+            lambda code, msg: self._glfw_errors.append(
+                msg.decode(errors="replace") if isinstance(msg, bytes) else str(msg)
+            )
+        )
         if not glfw.init():
             detail = self._glfw_errors[-1] if self._glfw_errors else "no display?"
             raise VulkanError(f"could not initialize GLFW: {detail}")
@@ -135,11 +156,15 @@ class Viewer:
             detail = self._glfw_errors[-1] if self._glfw_errors else ""
             raise VulkanError(f"could not open a {width}x{height} window: {detail}")
         window = self.window
-        self.ctx = Context(device=device, validation=validation,
-                           instance_extensions=list(glfw.get_required_instance_extensions() or []),
-                           device_extensions=[SWAPCHAIN_EXTENSION],
-                           surface_factory=surface_factory(
-                               lambda instance, out: glfw.create_window_surface(instance, window, None, out)))
+        self.ctx = Context(
+            device=device,
+            validation=validation,
+            instance_extensions=list(glfw.get_required_instance_extensions() or []),
+            device_extensions=[SWAPCHAIN_EXTENSION],
+            surface_factory=surface_factory(
+                lambda instance, out: glfw.create_window_surface(instance, window, None, out)
+            ),
+        )
         self._validation_errors = self.ctx.validation_errors
         fw, fh = glfw.get_framebuffer_size(window)
         fw, fh = max(fw, 1), max(fh, 1)
@@ -166,7 +191,7 @@ class Viewer:
     def _on_iconify(self, window, iconified):
         # X11 keeps a minimized window's framebuffer size: without this the frames would go on, unseen
         self._iconified = bool(iconified)
-        self._resize_pending = True   # the size may have changed meanwhile
+        self._resize_pending = True  # the size may have changed meanwhile
 
     def _on_mouse_button(self, window, button, action, mods):
         g = self.glfw
@@ -251,13 +276,15 @@ class Viewer:
             self.on_frame = on_frame
         start = self.frames
         if not self.quiet:
-            self._print(f"{self.scene.name}: {self.scene.triangle_count} triangles on {self.renderer.device_name}\n"
-                        f"keys:\n{key_map_text()}")
+            self._print(
+                f"{self.scene.name}: {self.scene.triangle_count} triangles on {self.renderer.device_name}\n"
+                f"keys:\n{key_map_text()}"
+            )
         while not self.glfw.window_should_close(self.window):
             if frames is not None and self.frames - start >= frames:
                 break
             self.step()
-        if self.presenter.wait_render():   # the last frame's GPU times (step() collects each one a frame later)
+        if self.presenter.wait_render():  # the last frame's GPU times (step() collects each one a frame later)
             self._collect_timings()
         if screenshot is not None:
             self.save_screenshot(screenshot)
@@ -268,7 +295,7 @@ class Viewer:
         g, p = self.glfw, self.presenter
         t0, c0, wait0 = time.perf_counter(), time.thread_time(), p.wait_s
         g.poll_events()
-        if self._iconified or self._fb_size[0] == 0 or self._fb_size[1] == 0:   # minimized: wait, change nothing
+        if self._iconified or self._fb_size[0] == 0 or self._fb_size[1] == 0:  # minimized: wait, change nothing
             g.wait_events_timeout(0.1)
             self._last_t = None
             return False
@@ -283,11 +310,11 @@ class Viewer:
         self.animate(self.time_step if self.time_step is not None else dt)
 
         got = p.begin()
-        if got is None:   # out of date: recreate now, render next time
+        if got is None:  # out of date: recreate now, render next time
             p.recreate(*g.get_framebuffer_size(self.window))
             return False
         index, suboptimal = got
-        if index is None:   # no image in time (presentation stalled): back to the events, try again next step
+        if index is None:  # no image in time (presentation stalled): back to the events, try again next step
             return False
         if p.wait_render():
             self._collect_timings()
@@ -352,11 +379,14 @@ class Viewer:
         self._text_dirty = False
         gpu_total = sum(self.gpu_ms.values())
         rw, rh = self.renderer.width, self.renderer.height
-        head = (f"{self.fps:5.1f} fps  {self.frame_ms:6.1f} ms/frame  cpu {self.cpu_ms:4.1f} ms  "
-                f"{rw}x{rh}  speed {self.fly.speed:.3g}/s")
+        head = (
+            f"{self.fps:5.1f} fps  {self.frame_ms:6.1f} ms/frame  cpu {self.cpu_ms:4.1f} ms  "
+            f"{rw}x{rh}  speed {self.fly.speed:.3g}/s"
+        )
         gpu = "gpu ms: " + "  ".join(f"{k} {v:.1f}" for k, v in self.gpu_ms.items()) + f"  = {gpu_total:.1f}"
-        toggles = [f"{name} {label(current(self.settings, name))}" for name in TOGGLED
-                   if setting_choices(name) is not None]
+        toggles = [
+            f"{name} {label(current(self.settings, name))}" for name in TOGGLED if setting_choices(name) is not None
+        ]
         if self.scene.animations or self.on_frame is not None:
             toggles.append(f"t {self.time:.1f} s" + (" paused" if self.paused else ""))
         lines = [(head, TextImage.WHITE), (gpu, TextImage.WHITE), ("  ".join(toggles) + "   H: help", TextImage.GREY)]
@@ -369,9 +399,9 @@ class Viewer:
         if self.help_on:
             lines += [(line, TextImage.YELLOW) for line in key_map_text().splitlines()]
         overlay = self.presenter.overlay
-        shown = lines if self.overlay_on else lines[3:]   # errors show even with the overlay hidden
+        shown = lines if self.overlay_on else lines[3:]  # errors show even with the overlay hidden
         key = (tuple(shown), overlay.max_rect)
-        if key != self._text_key:   # re-rendered and re-uploaded only when it changed
+        if key != self._text_key:  # re-rendered and re-uploaded only when it changed
             self._text_key = key
             self.overlay_lines = [text for text, _ in shown]
             overlay.set_text(self.text.render(shown, *overlay.max_rect) if shown else np.zeros((0, 0, 4), np.uint8))
@@ -433,9 +463,11 @@ class Viewer:
         gpu = ", ".join(f"{k} {v:.2f}" for k, v in st["gpu_ms"].items())
         rw, rh = (self.renderer.width, self.renderer.height) if self.renderer is not None else (0, 0)
         first = f" (the first {st['skipped']} left out)" if st["skipped"] else ""
-        return (f"{st['frames']} frames at {rw}x{rh}{first}: {st['fps']:.2f} fps; python cpu per frame (median) "
-                f"{st['cpu_ms']:.2f} ms (thread cpu {st['thread_ms']:.2f} ms); median GPU ms: {gpu} "
-                f"(= {sum(st['gpu_ms'].values()):.2f})")
+        return (
+            f"{st['frames']} frames at {rw}x{rh}{first}: {st['fps']:.2f} fps; python cpu per frame (median) "
+            f"{st['cpu_ms']:.2f} ms (thread cpu {st['thread_ms']:.2f} ms); median GPU ms: {gpu} "
+            f"(= {sum(st['gpu_ms'].values()):.2f})"
+        )
 
     # ---- lifetime -----------------------------------------------------------------------------------------------
     @property
@@ -450,7 +482,7 @@ class Viewer:
             self.renderer.close()
             self.renderer = None
         if self.ctx is not None:
-            self.ctx.close()   # leaks are reported here as validation errors
+            self.ctx.close()  # leaks are reported here as validation errors
             self.ctx = None
         g = getattr(self, "glfw", None)
         if g is not None:

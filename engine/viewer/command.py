@@ -1,4 +1,5 @@
 """`hybrid view`'s arguments and what the command does with them."""
+
 from __future__ import annotations
 
 import sys
@@ -11,22 +12,40 @@ from .app import Viewer
 
 
 def add_arguments(p):
-    p.add_argument("scene", help="a .toml scene, a mesh/glTF file, or a bundled scene by name (default, sphere, "
-                                 "penumbra)")
+    p.add_argument(
+        "scene", help="a .toml scene, a mesh/glTF file, or a bundled scene by name (default, sphere, penumbra)"
+    )
     p.add_argument("--size", default="1280x720", help="window size WIDTHxHEIGHT (default 1280x720)")
-    p.add_argument("--allow-path", action="append", default=None, metavar="DIR",
-                   help="a folder outside the scene's own that its files may be in (repeatable)")
-    p.add_argument("--up", default=None, metavar="AXIS",
-                   help="the files' up axis: y (default) or z (Z-up robotics/CAD assets; also -z, x, -x, -y); "
-                   "overrides a TOML scene's up key")
+    p.add_argument(
+        "--allow-path",
+        action="append",
+        default=None,
+        metavar="DIR",
+        help="a folder outside the scene's own that its files may be in (repeatable)",
+    )
+    p.add_argument(
+        "--up",
+        default=None,
+        metavar="AXIS",
+        help="the files' up axis: y (default) or z (Z-up robotics/CAD assets; also -z, x, -x, -y); "
+        "overrides a TOML scene's up key",
+    )
     p.add_argument("--frames", type=int, default=None, help="present N frames, then exit")
     p.add_argument("--screenshot", default=None, help="with --frames: save the last frame as this PNG")
-    p.add_argument("--no-hot-reload", dest="hot_reload", action="store_false",
-                   help="do not watch shaders/glsl for changes")
-    p.add_argument("--shader-dir", default=None,
-                   help="GLSL folder to compile and watch, e.g. a checkout's shaders/glsl (default: the package's own)")
-    p.add_argument("--present-mode", default="fifo", choices=sorted(PRESENT_MODES),
-                   help="fifo (vsync, default), mailbox or immediate (falls back to fifo)")
+    p.add_argument(
+        "--no-hot-reload", dest="hot_reload", action="store_false", help="do not watch shaders/glsl for changes"
+    )
+    p.add_argument(
+        "--shader-dir",
+        default=None,
+        help="GLSL folder to compile and watch, e.g. a checkout's shaders/glsl (default: the package's own)",
+    )
+    p.add_argument(
+        "--present-mode",
+        default="fifo",
+        choices=sorted(PRESENT_MODES),
+        help="fifo (vsync, default), mailbox or immediate (falls back to fifo)",
+    )
     p.add_argument("--scale", type=float, default=1.0, help="render at this fraction of the window size")
     p.add_argument("--no-overlay", dest="overlay", action="store_false", help="start with the text overlay hidden")
     p.add_argument("--device", default=None, help="Vulkan device index or name substring")
@@ -36,8 +55,13 @@ def add_arguments(p):
     p.add_argument("--no-ao", dest="ao", action="store_false", help="ambient occlusion off")
     p.add_argument("--ao-samples", type=int, default=None, help="AO rays per pixel")
     p.add_argument("--paused", action="store_true", help="start with the scene's animation paused (P plays it)")
-    p.add_argument("--time-step", type=float, default=None, metavar="SECONDS",
-                   help="advance the animation by this much per frame instead of by the clock (recordings)")
+    p.add_argument(
+        "--time-step",
+        type=float,
+        default=None,
+        metavar="SECONDS",
+        help="advance the animation by this much per frame instead of by the clock (recordings)",
+    )
 
 
 def run_from_args(args) -> int:
@@ -49,13 +73,25 @@ def run_from_args(args) -> int:
         raise ConfigError("--screenshot needs --frames N (or press F12 in the window)")
     if args.screenshot is not None:
         check_png_path(args.screenshot)
-    settings = {k: v for k, v in (("shadows", args.shadows), ("ao", args.ao), ("ao_samples", args.ao_samples))
-                if v is not None}
+    settings = {
+        k: v for k, v in (("shadows", args.shadows), ("ao", args.ao), ("ao_samples", args.ao_samples)) if v is not None
+    }
     scene = Scene.load(args.scene, allow_paths=args.allow_path, up=args.up)
-    viewer = Viewer(scene, width, height, hot_reload=args.hot_reload, shader_dir=args.shader_dir,
-                    validation=True if args.validation else None, device=args.device,
-                    present_mode=args.present_mode, render_scale=args.scale, settings=settings,
-                    overlay=args.overlay, time_step=args.time_step, paused=args.paused)
+    viewer = Viewer(
+        scene,
+        width,
+        height,
+        hot_reload=args.hot_reload,
+        shader_dir=args.shader_dir,
+        validation=True if args.validation else None,
+        device=args.device,
+        present_mode=args.present_mode,
+        render_scale=args.scale,
+        settings=settings,
+        overlay=args.overlay,
+        time_step=args.time_step,
+        paused=args.paused,
+    )
     try:
         viewer.run(frames=args.frames, screenshot=args.screenshot)
         summary = viewer.summary()

@@ -1,4 +1,5 @@
 """What the user drives: the fly camera, the key map, and the render settings the keys cycle through."""
+
 from __future__ import annotations
 
 import math
@@ -8,7 +9,7 @@ import numpy as np
 from ..scene import Camera
 from ..settings import DEFAULT_SETTINGS, choices
 
-MOUSE_SENSITIVITY = 0.0035    # radians per pixel of drag
+MOUSE_SENSITIVITY = 0.0035  # radians per pixel of drag
 
 KEYS = [
     ("W A S D", "move forward / left / back / right"),
@@ -114,8 +115,9 @@ class FlyCamera:
 
     def forward(self):
         cp = math.cos(self.pitch)
-        return ((cp * math.cos(self.yaw)) * self.e1 + (cp * math.sin(self.yaw)) * self.e2
-                + math.sin(self.pitch) * self.up)
+        return (
+            (cp * math.cos(self.yaw)) * self.e1 + (cp * math.sin(self.yaw)) * self.e2 + math.sin(self.pitch) * self.up
+        )
 
     def look(self, dx_px, dy_px):
         if dx_px or dy_px:
@@ -134,9 +136,10 @@ class FlyCamera:
             self._rebuild()
 
     def scale_speed(self, clicks):
-        self.speed = float(np.clip(self.speed * 1.25 ** clicks, 1e-4, 1e6))
+        self.speed = float(np.clip(self.speed * 1.25**clicks, 1e-4, 1e6))
 
     def _rebuild(self):
         home = self.home
-        self.camera = Camera.look_at(self.eye, self.eye + self.distance * self.forward(), up=self.up,
-                                     fov_y=home.fov_y, near=home.near)
+        self.camera = Camera.look_at(
+            self.eye, self.eye + self.distance * self.forward(), up=self.up, fov_y=home.fov_y, near=home.near
+        )

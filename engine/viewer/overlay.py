@@ -2,6 +2,7 @@
 pass (overlay.comp) that composites it over the renderer's colour into a small image per swapchain image, which the
 presenter blits over the frame's top-left corner. The renderer's colour target itself is never written.
 """
+
 from __future__ import annotations
 
 import math
@@ -15,8 +16,8 @@ from ..vk.present import COMPUTE_STAGES, composite_image
 from ..vk.reflect import reflect
 from ..vk.resources import STORAGE
 
-OVERLAY_MAX = (1024, 512)     # largest overlay rectangle (pixels, top-left corner of the window)
-OVERLAY_STEP = (64, 32)       # the rectangle grows/shrinks in these steps (each change re-records)
+OVERLAY_MAX = (1024, 512)  # largest overlay rectangle (pixels, top-left corner of the window)
+OVERLAY_STEP = (64, 32)  # the rectangle grows/shrinks in these steps (each change re-records)
 FONT_SIZE = 13
 LINE_H = 16
 PAD = 6
@@ -72,7 +73,7 @@ class TextImage:
             if len(wrapped) > max_lines:
                 break
         if len(wrapped) > max_lines:
-            wrapped = wrapped[:max_lines - 1] + [("...", self.GREY)]
+            wrapped = wrapped[: max_lines - 1] + [("...", self.GREY)]
         w = min(max_w, 2 * PAD + self.char_w * max(len(t) for t, _ in wrapped))
         h = min(max_h, 2 * PAD + LINE_H * len(wrapped))
         img = PILImage.new("RGBA", (w, h), (0, 0, 0, 150))
@@ -94,8 +95,10 @@ def check_layout(spirv: bytes):
     interface = reflect(spirv, SHADER)
     got = tuple((b.set, b.binding, b.kind) for b in interface.bindings)
     if got != LAYOUT or interface.push_size != PUSH_SIZE:
-        raise ShaderError(f"{SHADER}: the overlay pass needs {_layout_text(LAYOUT, PUSH_SIZE)}; the shader has "
-                          f"{_layout_text(got, interface.push_size)}")
+        raise ShaderError(
+            f"{SHADER}: the overlay pass needs {_layout_text(LAYOUT, PUSH_SIZE)}; the shader has "
+            f"{_layout_text(got, interface.push_size)}"
+        )
 
 
 def _layout_text(layout, push_size) -> str:
@@ -196,7 +199,7 @@ class OverlayPass:
         w, h = min(w, mw), min(h, mh)
         view[0], view[1] = w, h
         if w and h:
-            view[4:4 + w * h] = np.ascontiguousarray(img[:h, :w]).view(np.uint32).reshape(-1)
+            view[4 : 4 + w * h] = np.ascontiguousarray(img[:h, :w]).view(np.uint32).reshape(-1)
         t.text_version = self.text_version
 
     # ---- hot reload ---------------------------------------------------------------------------------------------

@@ -5,6 +5,7 @@ Present command buffers are re-recorded only when what they reference changes: t
 renderer's targets (resize, more lights), the overlay pipeline (hot reload of overlay.comp) or the size class of
 the overlay rectangle.
 """
+
 from __future__ import annotations
 
 import functools
@@ -16,8 +17,7 @@ import numpy as np
 from ..vk import Context
 from ..vk.present import read_rgba8, record_present, submit_present
 from ..vk.swapchain import Swapchain
-from ..vk.sync import (create_fence, create_semaphore, destroy_fence, destroy_semaphore, reset_fences,
-                       wait_fences)
+from ..vk.sync import create_fence, create_semaphore, destroy_fence, destroy_semaphore, reset_fences, wait_fences
 from .overlay import OverlayPass
 
 log = logging.getLogger("engine.viewer")
@@ -145,8 +145,15 @@ class Presenter:
         self.wait_all()
         color, extent = targets.color, self.swapchain.extent
         for i, p in enumerate(self.images):
-            record_present(p.cmd, p.handle, extent, color, ov.targets[i].composite, ov.rect,
-                           functools.partial(ov.draw, index=i, color=color, extent=extent))
+            record_present(
+                p.cmd,
+                p.handle,
+                extent,
+                color,
+                ov.targets[i].composite,
+                ov.rect,
+                functools.partial(ov.draw, index=i, color=color, extent=extent),
+            )
         self._recorded, self._recorded_targets = key, targets
         self.recordings += 1
 
@@ -180,8 +187,9 @@ class Presenter:
 
     def submit_render(self, scene, camera, settings):
         s = self.slot
-        self.renderer.submit(scene, camera, wait=False, signal_semaphores=[self.render_done[s]],
-                             fence=self.render_fence, **settings)
+        self.renderer.submit(
+            scene, camera, wait=False, signal_semaphores=[self.render_done[s]], fence=self.render_fence, **settings
+        )
         self.render_pending = True
 
     def finish(self, index) -> bool:
@@ -196,8 +204,9 @@ class Presenter:
         self.overlay.upload(index)
         t0 = time.perf_counter()
         # (lavapipe blocks in this submit until render_done is signalled: counted as waiting, not CPU work)
-        submit_present(self.ctx, p.cmd, self.image_available[s], self.render_done[s], p.present_ready,
-                       self.in_flight[s])
+        submit_present(
+            self.ctx, p.cmd, self.image_available[s], self.render_done[s], p.present_ready, self.in_flight[s]
+        )
         self.pending[s] = True
         p.slot = s
         ok = self.swapchain.present(index, [p.present_ready])

@@ -7,6 +7,7 @@ list of objects to destroy on `close()` in reverse order of creation.
 Threads: the queue, the command pool and the one-shot command buffer are used under `lock`, so objects on one
 context (a Renderer and Tracers) may run from different threads; each of those objects serializes its own calls.
 """
+
 from __future__ import annotations
 
 import logging
@@ -23,7 +24,7 @@ from .pipeline_cache import PipelineCache
 log = logging.getLogger("engine.vk")
 
 _CData = vk.ffi.CData
-_vkQueueSubmit = vk.lib.vkQueueSubmit   # the loader's entry point, called without the wrapper's conversions
+_vkQueueSubmit = vk.lib.vkQueueSubmit  # the loader's entry point, called without the wrapper's conversions
 
 _vkGetFenceStatus = vk.lib.vkGetFenceStatus
 
@@ -65,12 +66,19 @@ def _env_flag(name: str) -> bool:
 
 def _create_instance(extensions: list[str], layers: list[str]):
     app = vk.VkApplicationInfo(
-        pApplicationName="hybrid", applicationVersion=1, pEngineName="hybrid",
-        engineVersion=1, apiVersion=vk.VK_MAKE_VERSION(1, 3, 0))
+        pApplicationName="hybrid",
+        applicationVersion=1,
+        pEngineName="hybrid",
+        engineVersion=1,
+        apiVersion=vk.VK_MAKE_VERSION(1, 3, 0),
+    )
     info = vk.VkInstanceCreateInfo(
         pApplicationInfo=app,
-        enabledLayerCount=len(layers), ppEnabledLayerNames=layers or None,
-        enabledExtensionCount=len(extensions), ppEnabledExtensionNames=extensions or None)
+        enabledLayerCount=len(layers),
+        ppEnabledLayerNames=layers or None,
+        enabledExtensionCount=len(extensions),
+        ppEnabledExtensionNames=extensions or None,
+    )
     try:
         return vk.vkCreateInstance(info, None)
     except vk.VkErrorIncompatibleDriver:
@@ -138,25 +146,31 @@ def live_contexts() -> int:
 class Context:
     """Instance + device + queue. Use as a context manager or call close()."""
 
-    def __init__(self, device=None, validation: bool | None = None, instance_extensions=(),
-                 device_extensions=(), surface_factory=None):
-        self.lock = threading.RLock()   # the queue, the command pool, the one-shot command buffer, teardown
-        self.lost = False               # VK_ERROR_DEVICE_LOST was seen: nothing more is submitted
-        self.allocations = 0            # live device-memory allocations (Buffer, Image)
+    def __init__(
+        self,
+        device=None,
+        validation: bool | None = None,
+        instance_extensions=(),
+        device_extensions=(),
+        surface_factory=None,
+    ):
+        self.lock = threading.RLock()  # the queue, the command pool, the one-shot command buffer, teardown
+        self.lost = False  # VK_ERROR_DEVICE_LOST was seen: nothing more is submitted
+        self.allocations = 0  # live device-memory allocations (Buffer, Image)
         self.validation = _env_flag(VALIDATION_ENV) if validation is None else bool(validation)
         self.validation_errors: list[str] = []
         self.validation_messages: list[str] = []
         self._destroy_stack = []
-        self._scopes = []         # engine.vk.shared.Scope: users' shares, closed before this context's own objects
-        self.memo: dict = {}      # objects its users share (pipelines by shader and constants), under memo_lock
+        self._scopes = []  # engine.vk.shared.Scope: users' shares, closed before this context's own objects
+        self.memo: dict = {}  # objects its users share (pipelines by shader and constants), under memo_lock
         self.memo_lock = threading.Lock()
-        self._submit_infos = {}   # (cmd, wait semaphores, wait stages, signal semaphores) -> VkSubmitInfo*
+        self._submit_infos = {}  # (cmd, wait semaphores, wait stages, signal semaphores) -> VkSubmitInfo*
         self.instance = None
         self.device = None
         self._messenger = None
         self.surface = None
-        self.pipeline_cache = None      # PipelineCache: every pipeline made on this device goes through it
-        self.external_memory_fd = False   # VK_KHR_external_memory_fd enabled (set in _init)
+        self.pipeline_cache = None  # PipelineCache: every pipeline made on this device goes through it
+        self.external_memory_fd = False  # VK_KHR_external_memory_fd enabled (set in _init)
         try:
             self._init(device, list(instance_extensions), list(device_extensions), surface_factory)
         except BaseException:
@@ -173,8 +187,10 @@ class Context:
             raise VulkanError(f"the Vulkan loader is not usable: {exc}") from None
         if self.validation:
             if VALIDATION_LAYER not in available_layers:
-                raise VulkanError(f"validation requested but {VALIDATION_LAYER} is not installed "
-                                  "(apt-get install vulkan-validationlayers)")
+                raise VulkanError(
+                    f"validation requested but {VALIDATION_LAYER} is not installed "
+                    "(apt-get install vulkan-validationlayers)"
+                )
             layers.append(VALIDATION_LAYER)
             inst_exts.append(vk.VK_EXT_DEBUG_UTILS_EXTENSION_NAME)
         self.instance = _create_instance(inst_exts, layers)
@@ -207,8 +223,10 @@ class Context:
             self.timestamp_bits = fam.timestampValidBits
             break
         if self.queue_family is None:
-            raise VulkanError(f"device {self.device_info['name']!r} has no graphics+compute queue"
-                              + (" that can present" if self.surface is not None else ""))
+            raise VulkanError(
+                f"device {self.device_info['name']!r} has no graphics+compute queue"
+                + (" that can present" if self.surface is not None else "")
+            )
 
         # memory that CUDA can map (engine.vk.external): enabled wherever the device offers it
         offered = {e.extensionName for e in vk.vkEnumerateDeviceExtensionProperties(self.physical, None)}
@@ -224,33 +242,49 @@ class Context:
         self.max_anisotropy = float(self.limits.maxSamplerAnisotropy) if aniso else 1.0
         # drawIndirectFirstInstance: the G-buffer's culled indirect draws start at their instance list's slot
         self.draw_indirect_first_instance = bool(
-            vk.vkGetPhysicalDeviceFeatures(self.physical).drawIndirectFirstInstance)
+            vk.vkGetPhysicalDeviceFeatures(self.physical).drawIndirectFirstInstance
+        )
         # shaderInt64 + shaderBufferInt64Atomics: the G-buffer's software raster of small instances (64-bit
         # depth + id atomics, engine/passes/soft_raster.py); without them every instance takes the hardware raster
         have12 = vk.VkPhysicalDeviceVulkan12Features()
         vk.vkGetPhysicalDeviceFeatures2(self.physical, vk.VkPhysicalDeviceFeatures2(pNext=have12))
-        self.int64_atomics = bool(vk.vkGetPhysicalDeviceFeatures(self.physical).shaderInt64
-                                  and have12.shaderBufferInt64Atomics)
+        self.int64_atomics = bool(
+            vk.vkGetPhysicalDeviceFeatures(self.physical).shaderInt64 and have12.shaderBufferInt64Atomics
+        )
         if self.int64_atomics:
             f12.shaderBufferInt64Atomics = vk.VK_TRUE
-        feats = vk.VkPhysicalDeviceFeatures2(pNext=f12, features=vk.VkPhysicalDeviceFeatures(
-            geometryShader=vk.VK_TRUE if self.geometry_shader else vk.VK_FALSE,
-            drawIndirectFirstInstance=vk.VK_TRUE if self.draw_indirect_first_instance else vk.VK_FALSE,
-            samplerAnisotropy=vk.VK_TRUE if aniso else vk.VK_FALSE,
-            shaderInt64=vk.VK_TRUE if self.int64_atomics else vk.VK_FALSE))
+        feats = vk.VkPhysicalDeviceFeatures2(
+            pNext=f12,
+            features=vk.VkPhysicalDeviceFeatures(
+                geometryShader=vk.VK_TRUE if self.geometry_shader else vk.VK_FALSE,
+                drawIndirectFirstInstance=vk.VK_TRUE if self.draw_indirect_first_instance else vk.VK_FALSE,
+                samplerAnisotropy=vk.VK_TRUE if aniso else vk.VK_FALSE,
+                shaderInt64=vk.VK_TRUE if self.int64_atomics else vk.VK_FALSE,
+            ),
+        )
         prio = vk.ffi.new("float[]", [1.0])
         qinfo = vk.VkDeviceQueueCreateInfo(queueFamilyIndex=self.queue_family, queueCount=1, pQueuePriorities=prio)
         dinfo = vk.VkDeviceCreateInfo(
-            pNext=feats, queueCreateInfoCount=1, pQueueCreateInfos=[qinfo],
-            enabledExtensionCount=len(dev_exts), ppEnabledExtensionNames=dev_exts or None)
+            pNext=feats,
+            queueCreateInfoCount=1,
+            pQueueCreateInfos=[qinfo],
+            enabledExtensionCount=len(dev_exts),
+            ppEnabledExtensionNames=dev_exts or None,
+        )
         try:
             self.device = vk.vkCreateDevice(self.physical, dinfo, None)
         except vk.VkError as exc:
-            raise VulkanError(f"could not create a device on {self.device_info['name']!r}: "
-                              f"{type(exc).__name__}") from None
+            raise VulkanError(
+                f"could not create a device on {self.device_info['name']!r}: {type(exc).__name__}"
+            ) from None
         self.queue = vk.vkGetDeviceQueue(self.device, self.queue_family, 0)
-        self.command_pool = vk.vkCreateCommandPool(self.device, vk.VkCommandPoolCreateInfo(
-            flags=vk.VK_COMMAND_POOL_CREATE_RESET_COMMAND_BUFFER_BIT, queueFamilyIndex=self.queue_family), None)
+        self.command_pool = vk.vkCreateCommandPool(
+            self.device,
+            vk.VkCommandPoolCreateInfo(
+                flags=vk.VK_COMMAND_POOL_CREATE_RESET_COMMAND_BUFFER_BIT, queueFamilyIndex=self.queue_family
+            ),
+            None,
+        )
         self.fence = vk.vkCreateFence(self.device, vk.VkFenceCreateInfo(), None)
         self._one_shot = self.allocate_command_buffer()
         self.pipeline_cache = PipelineCache(self.device, self.properties)
@@ -271,10 +305,13 @@ class Context:
         self._callback = callback  # keep alive
         info = vk.VkDebugUtilsMessengerCreateInfoEXT(
             messageSeverity=(vk.VK_DEBUG_UTILS_MESSAGE_SEVERITY_WARNING_BIT_EXT | sev),
-            messageType=(vk.VK_DEBUG_UTILS_MESSAGE_TYPE_GENERAL_BIT_EXT
-                         | vk.VK_DEBUG_UTILS_MESSAGE_TYPE_VALIDATION_BIT_EXT
-                         | vk.VK_DEBUG_UTILS_MESSAGE_TYPE_PERFORMANCE_BIT_EXT),
-            pfnUserCallback=callback)
+            messageType=(
+                vk.VK_DEBUG_UTILS_MESSAGE_TYPE_GENERAL_BIT_EXT
+                | vk.VK_DEBUG_UTILS_MESSAGE_TYPE_VALIDATION_BIT_EXT
+                | vk.VK_DEBUG_UTILS_MESSAGE_TYPE_PERFORMANCE_BIT_EXT
+            ),
+            pfnUserCallback=callback,
+        )
         create = vk.vkGetInstanceProcAddr(self.instance, "vkCreateDebugUtilsMessengerEXT")
         self._messenger = create(self.instance, info, None)
 
@@ -327,9 +364,9 @@ class Context:
         if self.device is not None:
             try:
                 vk.vkDeviceWaitIdle(self.device)
-            except vk.VkErrorDeviceLost:   # destroying objects of a lost device is allowed
+            except vk.VkErrorDeviceLost:  # destroying objects of a lost device is allowed
                 self.lost = True
-            while self._scopes:   # users still open: their objects go first (they were made on ours)
+            while self._scopes:  # users still open: their objects go first (they were made on ours)
                 self._scopes.pop().destroy_objects()
             while self._destroy_stack:
                 fn, args = self._destroy_stack.pop()
@@ -365,8 +402,12 @@ class Context:
     # ---- commands -----------------------------------------------------------------------
     def allocate_command_buffer(self):
         with self.lock:
-            return vk.vkAllocateCommandBuffers(self.device, vk.VkCommandBufferAllocateInfo(
-                commandPool=self.command_pool, level=vk.VK_COMMAND_BUFFER_LEVEL_PRIMARY, commandBufferCount=1))[0]
+            return vk.vkAllocateCommandBuffers(
+                self.device,
+                vk.VkCommandBufferAllocateInfo(
+                    commandPool=self.command_pool, level=vk.VK_COMMAND_BUFFER_LEVEL_PRIMARY, commandBufferCount=1
+                ),
+            )[0]
 
     def forget_command_buffer(self, cmd):
         """Drop the cached submit infos of a command buffer about to be freed."""
@@ -379,8 +420,9 @@ class Context:
             self.forget_command_buffer(cmd)
             vk.vkFreeCommandBuffers(self.device, self.command_pool, 1, [cmd])
 
-    def submit(self, cmd, wait=True, wait_semaphores=(), wait_stages=(), signal_semaphores=(), fence=None,
-               spin_s: float = 0.0):
+    def submit(
+        self, cmd, wait=True, wait_semaphores=(), wait_stages=(), signal_semaphores=(), fence=None, spin_s: float = 0.0
+    ):
         """Submit one recorded command buffer; by default block until it finished (`spin_s`: polling the fence for up
         to that many seconds first, which wakes sooner than the driver's blocking wait, for sub-millisecond work).
 
@@ -428,7 +470,7 @@ class Context:
         if signals:
             keep.append(ffi.new("VkSemaphore[]", list(signals)))
             info.signalSemaphoreCount, info.pSignalSemaphores = len(signals), keep[-1]
-        if len(self._submit_infos) >= 256:   # handles of freed objects; a bound, not a policy
+        if len(self._submit_infos) >= 256:  # handles of freed objects; a bound, not a policy
             self._submit_infos.clear()
         self._submit_infos[key] = keep
         return keep
@@ -453,7 +495,7 @@ class _OneShot:
         self.ctx = ctx
 
     def __enter__(self):
-        self.ctx.lock.acquire()   # the one-shot command buffer is shared: held until it has run
+        self.ctx.lock.acquire()  # the one-shot command buffer is shared: held until it has run
         cmd = self.ctx._one_shot
         vk.vkResetCommandBuffer(cmd, 0)
         vk.vkBeginCommandBuffer(cmd, vk.VkCommandBufferBeginInfo(flags=vk.VK_COMMAND_BUFFER_USAGE_ONE_TIME_SUBMIT_BIT))

@@ -1,5 +1,6 @@
 """What a device is and offers, as the engine's tuning needs it: CPU (lavapipe) or GPU, how many shares of a dispatch
 run in parallel, whether it has memory the host cannot map, which texel-buffer formats it supports."""
+
 from __future__ import annotations
 
 import os
@@ -35,8 +36,11 @@ def has_dedicated_vram(ctx: Context) -> bool:
     staging copies, so that kernels read VRAM instead of reading across the bus."""
     mp = ctx.memory_properties
     host = vk.VK_MEMORY_PROPERTY_HOST_VISIBLE_BIT
-    return any(mp.memoryTypes[i].propertyFlags & vk.VK_MEMORY_PROPERTY_DEVICE_LOCAL_BIT
-               and not mp.memoryTypes[i].propertyFlags & host for i in range(mp.memoryTypeCount))
+    return any(
+        mp.memoryTypes[i].propertyFlags & vk.VK_MEMORY_PROPERTY_DEVICE_LOCAL_BIT
+        and not mp.memoryTypes[i].propertyFlags & host
+        for i in range(mp.memoryTypeCount)
+    )
 
 
 def rgb32f_texel_buffers(ctx: Context) -> bool:

@@ -1,4 +1,5 @@
 """What a Context's physical device is: name, type, API, vendor and device ids, driver (for reports such as bench's)."""
+
 from __future__ import annotations
 
 import vulkan as vk
@@ -9,8 +10,12 @@ def device_details(ctx) -> dict:
     info = dict(ctx.device_info)
     info.pop("rank", None)
     props = ctx.properties
-    info.update(vendor_id=hex(props.vendorID), device_id=hex(props.deviceID), driver_version=int(props.driverVersion),
-                timestamp_period_ns=ctx.timestamp_period_ns)
+    info.update(
+        vendor_id=hex(props.vendorID),
+        device_id=hex(props.deviceID),
+        driver_version=int(props.driverVersion),
+        timestamp_period_ns=ctx.timestamp_period_ns,
+    )
     try:
         drv = vk.VkPhysicalDeviceDriverProperties()
         vk.vkGetPhysicalDeviceProperties2(ctx.physical, vk.VkPhysicalDeviceProperties2(pNext=drv))

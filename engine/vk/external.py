@@ -6,6 +6,7 @@ descriptor (VK_KHR_external_memory_fd) and handed out with vkGetMemoryFdKHR.
     fd = buf.export_fd()                          # a new descriptor; the importer (cudaImportExternalMemory) owns it
     uuid = device_uuid(ctx)                       # 16 bytes: which CUDA device is this Vulkan device
 """
+
 from __future__ import annotations
 
 import vulkan as vk
@@ -34,9 +35,10 @@ def device_uuid(ctx: Context) -> bytes:
 
 def _dedicated_only(ctx: Context, usage: int) -> bool:
     """Whether the driver exports such buffers' memory only from dedicated allocations."""
-    props = vk.VkExternalBufferProperties()   # (given, so that its sType is set)
+    props = vk.VkExternalBufferProperties()  # (given, so that its sType is set)
     vk.vkGetPhysicalDeviceExternalBufferProperties(
-        ctx.physical, vk.VkPhysicalDeviceExternalBufferInfo(usage=usage, handleType=OPAQUE_FD), props)
+        ctx.physical, vk.VkPhysicalDeviceExternalBufferInfo(usage=usage, handleType=OPAQUE_FD), props
+    )
     feats = props.externalMemoryProperties.externalMemoryFeatures
     if not feats & vk.VK_EXTERNAL_MEMORY_FEATURE_EXPORTABLE_BIT:
         raise VulkanError(f"{ctx.device_info['name']!r} cannot export buffer memory as an opaque fd")
@@ -56,9 +58,16 @@ class ExternalBuffer(Buffer):
         self._mapped = None
         dev = ctx.device
         self.dedicated = _dedicated_only(ctx, usage)
-        self.handle = vk.vkCreateBuffer(dev, vk.VkBufferCreateInfo(
-            pNext=vk.VkExternalMemoryBufferCreateInfo(handleTypes=OPAQUE_FD),
-            size=self.size, usage=usage, sharingMode=vk.VK_SHARING_MODE_EXCLUSIVE), None)
+        self.handle = vk.vkCreateBuffer(
+            dev,
+            vk.VkBufferCreateInfo(
+                pNext=vk.VkExternalMemoryBufferCreateInfo(handleTypes=OPAQUE_FD),
+                size=self.size,
+                usage=usage,
+                sharingMode=vk.VK_SHARING_MODE_EXCLUSIVE,
+            ),
+            None,
+        )
         req = vk.vkGetBufferMemoryRequirements(dev, self.handle)
         mtype = ctx.memory_type(req.memoryTypeBits, DEVICE)
         chain = vk.VkMemoryDedicatedAllocateInfo(buffer=self.handle) if self.dedicated else None

@@ -1,5 +1,6 @@
 """Vulkan formats and usage flags by the short names the engine uses, so that code outside engine/vk never
 imports `vulkan` for a constant."""
+
 import vulkan as vk
 
 # image and texel formats

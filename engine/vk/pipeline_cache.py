@@ -11,6 +11,7 @@ driver has entries to keep (lavapipe in Mesa 22.3 keeps none: its data is the 32
 
 $HYBRID_PIPELINE_CACHE=0 turns it off; without a home directory there is no cache.
 """
+
 from __future__ import annotations
 
 import hashlib
@@ -22,9 +23,9 @@ from pathlib import Path
 import vulkan as vk
 
 ENV = "HYBRID_PIPELINE_CACHE"
-MAGIC = b"HYBRIDPC1\n"       # this file's format: MAGIC, the payload's SHA-256 (32 bytes), the payload
-HEADER_BYTES = 32            # VkPipelineCacheHeaderVersionOne: a payload of no more holds no pipelines
-MAX_BYTES = 256 << 20        # a larger file is not ours to trust (nor to read into memory)
+MAGIC = b"HYBRIDPC1\n"  # this file's format: MAGIC, the payload's SHA-256 (32 bytes), the payload
+HEADER_BYTES = 32  # VkPipelineCacheHeaderVersionOne: a payload of no more holds no pipelines
+MAX_BYTES = 256 << 20  # a larger file is not ours to trust (nor to read into memory)
 
 
 def cache_dir() -> Path | None:
@@ -60,20 +61,19 @@ def read_trusted(path: Path) -> bytes:
         return b""
     with os.fdopen(fd, "rb") as f:
         st = os.fstat(f.fileno())
-        if not stat.S_ISREG(st.st_mode) or st.st_uid != os.getuid() or st.st_mode & 0o022 \
-                or st.st_size > MAX_BYTES:
+        if not stat.S_ISREG(st.st_mode) or st.st_uid != os.getuid() or st.st_mode & 0o022 or st.st_size > MAX_BYTES:
             return b""
         raw = f.read(MAX_BYTES + 1)
     if not raw.startswith(MAGIC) or len(raw) < len(MAGIC) + 32:
         return b""
-    digest, payload = raw[len(MAGIC):len(MAGIC) + 32], raw[len(MAGIC) + 32:]
+    digest, payload = raw[len(MAGIC) : len(MAGIC) + 32], raw[len(MAGIC) + 32 :]
     return payload if hashlib.sha256(payload).digest() == digest else b""
 
 
 def write_private(path: Path, payload: bytes) -> None:
     """Write MAGIC + SHA-256 + payload to `path` atomically, the folder 0700 and the file 0600."""
     path.parent.mkdir(mode=0o700, parents=True, exist_ok=True)
-    fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=".pc-", suffix=".tmp")   # mkstemp: mode 0600
+    fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=".pc-", suffix=".tmp")  # mkstemp: mode 0600
     try:
         with os.fdopen(fd, "wb") as f:
             f.write(MAGIC + hashlib.sha256(payload).digest() + payload)
@@ -95,12 +95,13 @@ class PipelineCache:
     def _create(self, data: bytes):
         keep = vk.ffi.from_buffer(data) if data else vk.ffi.NULL
         try:
-            return vk.vkCreatePipelineCache(self.device, vk.VkPipelineCacheCreateInfo(
-                initialDataSize=len(data), pInitialData=keep), None)
+            return vk.vkCreatePipelineCache(
+                self.device, vk.VkPipelineCacheCreateInfo(initialDataSize=len(data), pInitialData=keep), None
+            )
         except vk.VkError:
             if not data:
                 raise
-            self.loaded = b""   # the driver refused the data: start empty
+            self.loaded = b""  # the driver refused the data: start empty
             return self._create(b"")
 
     def data(self) -> bytes:

@@ -3,6 +3,7 @@
 Pipelines can be rebuilt in place from new SPIR-V (hot reload): the new pipeline is made first and
 only swapped in when that succeeded, so a bad shader leaves the last good pipeline running.
 """
+
 from __future__ import annotations
 
 import hashlib
@@ -37,7 +38,7 @@ class DescriptorSet:
     def __init__(self, ctx: Context, bindings, stages=ALL):
         self.ctx = ctx
         self.types = {}
-        self.numbers: dict[str, int] = {}   # name -> binding number (reflected bindings)
+        self.numbers: dict[str, int] = {}  # name -> binding number (reflected bindings)
         self.kinds: dict[str, str] = {}
         entries, signature = [], []
         sizes: dict[int, int] = {}
@@ -49,18 +50,25 @@ class DescriptorSet:
                 binding, dtype, count = (b + (1,))[:3]
             self.types[binding] = dtype
             signature.append((binding, dtype, count, stages))
-            entries.append(vk.VkDescriptorSetLayoutBinding(
-                binding=binding, descriptorType=dtype, descriptorCount=count, stageFlags=stages))
+            entries.append(
+                vk.VkDescriptorSetLayoutBinding(
+                    binding=binding, descriptorType=dtype, descriptorCount=count, stageFlags=stages
+                )
+            )
             sizes[dtype] = sizes.get(dtype, 0) + count
-        self.signature = tuple(sorted(signature))   # what makes two set layouts "identically defined"
+        self.signature = tuple(sorted(signature))  # what makes two set layouts "identically defined"
         dev = ctx.device
-        self.layout = vk.vkCreateDescriptorSetLayout(dev, vk.VkDescriptorSetLayoutCreateInfo(
-            bindingCount=len(entries), pBindings=entries), None)
+        self.layout = vk.vkCreateDescriptorSetLayout(
+            dev, vk.VkDescriptorSetLayoutCreateInfo(bindingCount=len(entries), pBindings=entries), None
+        )
         pool_sizes = [vk.VkDescriptorPoolSize(type=t, descriptorCount=n) for t, n in sizes.items()]
-        self.pool = vk.vkCreateDescriptorPool(dev, vk.VkDescriptorPoolCreateInfo(
-            maxSets=1, poolSizeCount=len(pool_sizes), pPoolSizes=pool_sizes), None)
-        self.handle = vk.vkAllocateDescriptorSets(dev, vk.VkDescriptorSetAllocateInfo(
-            descriptorPool=self.pool, descriptorSetCount=1, pSetLayouts=[self.layout]))[0]
+        self.pool = vk.vkCreateDescriptorPool(
+            dev, vk.VkDescriptorPoolCreateInfo(maxSets=1, poolSizeCount=len(pool_sizes), pPoolSizes=pool_sizes), None
+        )
+        self.handle = vk.vkAllocateDescriptorSets(
+            dev,
+            vk.VkDescriptorSetAllocateInfo(descriptorPool=self.pool, descriptorSetCount=1, pSetLayouts=[self.layout]),
+        )[0]
         ctx.defer_destroy(vk.vkDestroyDescriptorSetLayout, dev, self.layout, None)
         ctx.defer_destroy(vk.vkDestroyDescriptorPool, dev, self.pool, None)
 
@@ -78,27 +86,64 @@ class DescriptorSet:
         return self.image(binding, obj, layout=layout, sampler=sampler, element=element)
 
     def buffer(self, binding, buf, offset=0, size=None):
-        info = vk.VkDescriptorBufferInfo(buffer=buf.handle, offset=offset,
-                                         range=WHOLE_SIZE if size is None else size)
-        vk.vkUpdateDescriptorSets(self.ctx.device, 1, [vk.VkWriteDescriptorSet(
-            dstSet=self.handle, dstBinding=binding, descriptorCount=1, descriptorType=self.types[binding],
-            pBufferInfo=[info])], 0, None)
+        info = vk.VkDescriptorBufferInfo(buffer=buf.handle, offset=offset, range=WHOLE_SIZE if size is None else size)
+        vk.vkUpdateDescriptorSets(
+            self.ctx.device,
+            1,
+            [
+                vk.VkWriteDescriptorSet(
+                    dstSet=self.handle,
+                    dstBinding=binding,
+                    descriptorCount=1,
+                    descriptorType=self.types[binding],
+                    pBufferInfo=[info],
+                )
+            ],
+            0,
+            None,
+        )
         return self
 
     def texel_buffer(self, binding, view):
         """Bind a BufferView as the binding's type: a uniform texel buffer (`usamplerBuffer` / `samplerBuffer` in GLSL)
         or a storage texel buffer (`uimageBuffer` / `imageBuffer`)."""
-        vk.vkUpdateDescriptorSets(self.ctx.device, 1, [vk.VkWriteDescriptorSet(
-            dstSet=self.handle, dstBinding=binding, descriptorCount=1, descriptorType=self.types[binding],
-            pTexelBufferView=[view.handle])], 0, None)
+        vk.vkUpdateDescriptorSets(
+            self.ctx.device,
+            1,
+            [
+                vk.VkWriteDescriptorSet(
+                    dstSet=self.handle,
+                    dstBinding=binding,
+                    descriptorCount=1,
+                    descriptorType=self.types[binding],
+                    pTexelBufferView=[view.handle],
+                )
+            ],
+            0,
+            None,
+        )
         return self
 
     def image(self, binding, image, layout=vk.VK_IMAGE_LAYOUT_GENERAL, sampler=None, element=0):
-        info = vk.VkDescriptorImageInfo(sampler=sampler.handle if sampler else vk.VK_NULL_HANDLE,
-                                        imageView=image.view, imageLayout=layout)
-        vk.vkUpdateDescriptorSets(self.ctx.device, 1, [vk.VkWriteDescriptorSet(
-            dstSet=self.handle, dstBinding=binding, dstArrayElement=element, descriptorCount=1,
-            descriptorType=self.types[binding], pImageInfo=[info])], 0, None)
+        info = vk.VkDescriptorImageInfo(
+            sampler=sampler.handle if sampler else vk.VK_NULL_HANDLE, imageView=image.view, imageLayout=layout
+        )
+        vk.vkUpdateDescriptorSets(
+            self.ctx.device,
+            1,
+            [
+                vk.VkWriteDescriptorSet(
+                    dstSet=self.handle,
+                    dstBinding=binding,
+                    dstArrayElement=element,
+                    descriptorCount=1,
+                    descriptorType=self.types[binding],
+                    pImageInfo=[info],
+                )
+            ],
+            0,
+            None,
+        )
         return self
 
 
@@ -106,16 +151,17 @@ def _shader_module(ctx, spirv: bytes, name: str):
     if len(spirv) % 4 or spirv[:4] != b"\x03\x02\x23\x07":
         raise ShaderError(f"{name}: not a SPIR-V binary")
     try:
-        return vk.vkCreateShaderModule(ctx.device, vk.VkShaderModuleCreateInfo(
-            codeSize=len(spirv), pCode=spirv), None)
+        return vk.vkCreateShaderModule(ctx.device, vk.VkShaderModuleCreateInfo(codeSize=len(spirv), pCode=spirv), None)
     except vk.VkError as exc:
         raise ShaderError(f"{name}: vkCreateShaderModule failed ({type(exc).__name__})") from None
 
 
 def _spec_words(spec: dict | None) -> list:
     """[(constant_id, its 4 bytes)] from {constant_id: int|float|bool}, as the shader receives them."""
-    return [(cid, struct.pack("<f", value) if isinstance(value, float) else struct.pack("<I", int(value) & 0xFFFFFFFF))
-            for cid, value in sorted((spec or {}).items())]
+    return [
+        (cid, struct.pack("<f", value) if isinstance(value, float) else struct.pack("<I", int(value) & 0xFFFFFFFF))
+        for cid, value in sorted((spec or {}).items())
+    ]
 
 
 def _specialization(spec: dict | None):
@@ -157,7 +203,7 @@ def _memoized(ctx, key, make):
         if hit is None:
             root.memo[key] = new
             root.defer_destroy(vk.vkDestroyPipeline, root.device, new, None)
-    if hit is not None:   # another thread made it meanwhile
+    if hit is not None:  # another thread made it meanwhile
         vk.vkDestroyPipeline(root.device, new, None)
         return hit, True
     return new, True
@@ -177,16 +223,23 @@ class _Pipeline:
         self.ctx = ctx
         self.push_size = push_size
         ranges = [vk.VkPushConstantRange(stageFlags=ALL, offset=0, size=push_size)] if push_size else []
-        self.layout = vk.vkCreatePipelineLayout(ctx.device, vk.VkPipelineLayoutCreateInfo(
-            setLayoutCount=len(set_layouts), pSetLayouts=[s.layout if hasattr(s, "layout") else s for s in set_layouts],
-            pushConstantRangeCount=len(ranges), pPushConstantRanges=ranges or None), None)
+        self.layout = vk.vkCreatePipelineLayout(
+            ctx.device,
+            vk.VkPipelineLayoutCreateInfo(
+                setLayoutCount=len(set_layouts),
+                pSetLayouts=[s.layout if hasattr(s, "layout") else s for s in set_layouts],
+                pushConstantRangeCount=len(ranges),
+                pPushConstantRanges=ranges or None,
+            ),
+            None,
+        )
         # the layout's definition, where every set is a DescriptorSet (a raw handle: no shared pipelines)
         signatures = [getattr(s, "signature", None) for s in set_layouts]
         self._layout_key = None if None in signatures else (tuple(signatures), push_size)
         self._handle = None
         self._shared = False
-        self._source: tuple | None = None   # the shader(s) of the pipeline to make on first use
-        self._make_lock = threading.Lock()   # one first use makes it (Tracers share pipelines across threads)
+        self._source: tuple | None = None  # the shader(s) of the pipeline to make on first use
+        self._make_lock = threading.Lock()  # one first use makes it (Tracers share pipelines across threads)
         ctx.defer_destroy(self.destroy)
 
     def _key(self, *source):
@@ -200,8 +253,7 @@ class _Pipeline:
             with self._make_lock:
                 if self._handle is None:
                     source = self._source
-                    self._handle, self._shared = _memoized(self.ctx, self._key(*source),
-                                                           lambda: self._create(*source))
+                    self._handle, self._shared = _memoized(self.ctx, self._key(*source), lambda: self._create(*source))
         return self._handle
 
     def defer(self, *source):
@@ -217,7 +269,7 @@ class _Pipeline:
 
     def _drop(self):
         if self._handle is not None:
-            if not self._shared:   # (a shared one stays the device's)
+            if not self._shared:  # (a shared one stays the device's)
                 self.ctx.wait_idle()
                 vk.vkDestroyPipeline(self.ctx.device, self._handle, None)
             self._handle = None
@@ -225,8 +277,9 @@ class _Pipeline:
     def bind(self, cmd, sets=(), push: bytes | np.ndarray | None = None):
         vk.vkCmdBindPipeline(cmd, self.bind_point, self.handle)
         if sets:
-            vk.vkCmdBindDescriptorSets(cmd, self.bind_point, self.layout, 0, len(sets),
-                                       [s.handle for s in sets], 0, None)
+            vk.vkCmdBindDescriptorSets(
+                cmd, self.bind_point, self.layout, 0, len(sets), [s.handle for s in sets], 0, None
+            )
         if push is not None:
             raw = push.tobytes() if isinstance(push, np.ndarray) else bytes(push)
             vk.vkCmdPushConstants(cmd, self.layout, ALL, 0, len(raw), vk.ffi.new("char[]", raw))
@@ -257,8 +310,8 @@ class ComputePipeline(_Pipeline):
         try:
             spec_info, keep = _specialization(self.spec)
             stage = vk.VkPipelineShaderStageCreateInfo(
-                stage=vk.VK_SHADER_STAGE_COMPUTE_BIT, module=module, pName="main",
-                pSpecializationInfo=spec_info)
+                stage=vk.VK_SHADER_STAGE_COMPUTE_BIT, module=module, pName="main", pSpecializationInfo=spec_info
+            )
             info = vk.VkComputePipelineCreateInfo(stage=stage, layout=self.layout)
             try:
                 return vk.vkCreateComputePipelines(self.ctx.device, _cache(self.ctx), 1, [info], None)[0]
@@ -293,22 +346,48 @@ class GraphicsPipeline(_Pipeline):
 
     bind_point = vk.VK_PIPELINE_BIND_POINT_GRAPHICS
 
-    def __init__(self, ctx, vert: bytes, frag: bytes, set_layouts, *, color_formats, depth_format=None,
-                 vertex_stride=0, attributes=(), push_size=0, cull=vk.VK_CULL_MODE_NONE,
-                 depth_compare=vk.VK_COMPARE_OP_GREATER, spec=None, name="graphics"):
+    def __init__(
+        self,
+        ctx,
+        vert: bytes,
+        frag: bytes,
+        set_layouts,
+        *,
+        color_formats,
+        depth_format=None,
+        vertex_stride=0,
+        attributes=(),
+        push_size=0,
+        cull=vk.VK_CULL_MODE_NONE,
+        depth_compare=vk.VK_COMPARE_OP_GREATER,
+        spec=None,
+        name="graphics",
+    ):
         """`spec`: {constant id: value}, the specialization constants of both stages."""
         super().__init__(ctx, set_layouts, push_size)
         self.name, self.spec = name, spec
-        self.cfg = dict(color_formats=list(color_formats), depth_format=depth_format, vertex_stride=vertex_stride,
-                        attributes=list(attributes), cull=cull, depth_compare=depth_compare)
+        self.cfg = dict(
+            color_formats=list(color_formats),
+            depth_format=depth_format,
+            vertex_stride=vertex_stride,
+            attributes=list(attributes),
+            cull=cull,
+            depth_compare=depth_compare,
+        )
         self.defer(vert, frag)
 
     def _key(self, vert: bytes, frag: bytes):
         if self._layout_key is None:
             return None
         c = self.cfg
-        cfg = (tuple(c["color_formats"]), c["depth_format"], c["vertex_stride"], tuple(map(tuple, c["attributes"])),
-               c["cull"], c["depth_compare"])
+        cfg = (
+            tuple(c["color_formats"]),
+            c["depth_format"],
+            c["vertex_stride"],
+            tuple(map(tuple, c["attributes"])),
+            c["cull"],
+            c["depth_compare"],
+        )
         return ("graphics", self._layout_key, _digest(vert, frag), tuple(_spec_words(self.spec)), cfg)
 
     def _create(self, vert: bytes, frag: bytes):
@@ -323,41 +402,74 @@ class GraphicsPipeline(_Pipeline):
         try:
             spec_info, keep = _specialization(self.spec)
             stages = [
-                vk.VkPipelineShaderStageCreateInfo(stage=vk.VK_SHADER_STAGE_VERTEX_BIT, module=vmod, pName="main",
-                                                   pSpecializationInfo=spec_info),
-                vk.VkPipelineShaderStageCreateInfo(stage=vk.VK_SHADER_STAGE_FRAGMENT_BIT, module=fmod, pName="main",
-                                                   pSpecializationInfo=spec_info),
+                vk.VkPipelineShaderStageCreateInfo(
+                    stage=vk.VK_SHADER_STAGE_VERTEX_BIT, module=vmod, pName="main", pSpecializationInfo=spec_info
+                ),
+                vk.VkPipelineShaderStageCreateInfo(
+                    stage=vk.VK_SHADER_STAGE_FRAGMENT_BIT, module=fmod, pName="main", pSpecializationInfo=spec_info
+                ),
             ]
-            vbind = [vk.VkVertexInputBindingDescription(binding=0, stride=c["vertex_stride"],
-                                                        inputRate=vk.VK_VERTEX_INPUT_RATE_VERTEX)]
-            vattr = [vk.VkVertexInputAttributeDescription(location=loc, binding=0, format=fmt, offset=off)
-                     for loc, fmt, off in c["attributes"]]
+            vbind = [
+                vk.VkVertexInputBindingDescription(
+                    binding=0, stride=c["vertex_stride"], inputRate=vk.VK_VERTEX_INPUT_RATE_VERTEX
+                )
+            ]
+            vattr = [
+                vk.VkVertexInputAttributeDescription(location=loc, binding=0, format=fmt, offset=off)
+                for loc, fmt, off in c["attributes"]
+            ]
             vin = vk.VkPipelineVertexInputStateCreateInfo(
-                vertexBindingDescriptionCount=1 if vattr else 0, pVertexBindingDescriptions=vbind if vattr else None,
-                vertexAttributeDescriptionCount=len(vattr), pVertexAttributeDescriptions=vattr or None)
+                vertexBindingDescriptionCount=1 if vattr else 0,
+                pVertexBindingDescriptions=vbind if vattr else None,
+                vertexAttributeDescriptionCount=len(vattr),
+                pVertexAttributeDescriptions=vattr or None,
+            )
             ia = vk.VkPipelineInputAssemblyStateCreateInfo(topology=vk.VK_PRIMITIVE_TOPOLOGY_TRIANGLE_LIST)
             vp = vk.VkPipelineViewportStateCreateInfo(viewportCount=1, scissorCount=1)
             rs = vk.VkPipelineRasterizationStateCreateInfo(
-                polygonMode=vk.VK_POLYGON_MODE_FILL, cullMode=c["cull"],
-                frontFace=vk.VK_FRONT_FACE_COUNTER_CLOCKWISE, lineWidth=1.0)
+                polygonMode=vk.VK_POLYGON_MODE_FILL,
+                cullMode=c["cull"],
+                frontFace=vk.VK_FRONT_FACE_COUNTER_CLOCKWISE,
+                lineWidth=1.0,
+            )
             ms = vk.VkPipelineMultisampleStateCreateInfo(rasterizationSamples=vk.VK_SAMPLE_COUNT_1_BIT)
             ds = vk.VkPipelineDepthStencilStateCreateInfo(
-                depthTestEnable=c["depth_format"] is not None, depthWriteEnable=c["depth_format"] is not None,
-                depthCompareOp=c["depth_compare"])
-            mask = (vk.VK_COLOR_COMPONENT_R_BIT | vk.VK_COLOR_COMPONENT_G_BIT | vk.VK_COLOR_COMPONENT_B_BIT
-                    | vk.VK_COLOR_COMPONENT_A_BIT)
-            blends = [vk.VkPipelineColorBlendAttachmentState(blendEnable=vk.VK_FALSE, colorWriteMask=mask)
-                      for _ in c["color_formats"]]
+                depthTestEnable=c["depth_format"] is not None,
+                depthWriteEnable=c["depth_format"] is not None,
+                depthCompareOp=c["depth_compare"],
+            )
+            mask = (
+                vk.VK_COLOR_COMPONENT_R_BIT
+                | vk.VK_COLOR_COMPONENT_G_BIT
+                | vk.VK_COLOR_COMPONENT_B_BIT
+                | vk.VK_COLOR_COMPONENT_A_BIT
+            )
+            blends = [
+                vk.VkPipelineColorBlendAttachmentState(blendEnable=vk.VK_FALSE, colorWriteMask=mask)
+                for _ in c["color_formats"]
+            ]
             cb = vk.VkPipelineColorBlendStateCreateInfo(attachmentCount=len(blends), pAttachments=blends)
             dyn_states = [vk.VK_DYNAMIC_STATE_VIEWPORT, vk.VK_DYNAMIC_STATE_SCISSOR]
             dyn = vk.VkPipelineDynamicStateCreateInfo(dynamicStateCount=2, pDynamicStates=dyn_states)
             rendering = vk.VkPipelineRenderingCreateInfo(
-                colorAttachmentCount=len(c["color_formats"]), pColorAttachmentFormats=c["color_formats"],
-                depthAttachmentFormat=c["depth_format"] or vk.VK_FORMAT_UNDEFINED)
+                colorAttachmentCount=len(c["color_formats"]),
+                pColorAttachmentFormats=c["color_formats"],
+                depthAttachmentFormat=c["depth_format"] or vk.VK_FORMAT_UNDEFINED,
+            )
             info = vk.VkGraphicsPipelineCreateInfo(
-                pNext=rendering, stageCount=2, pStages=stages, pVertexInputState=vin, pInputAssemblyState=ia,
-                pViewportState=vp, pRasterizationState=rs, pMultisampleState=ms, pDepthStencilState=ds,
-                pColorBlendState=cb, pDynamicState=dyn, layout=self.layout)
+                pNext=rendering,
+                stageCount=2,
+                pStages=stages,
+                pVertexInputState=vin,
+                pInputAssemblyState=ia,
+                pViewportState=vp,
+                pRasterizationState=rs,
+                pMultisampleState=ms,
+                pDepthStencilState=ds,
+                pColorBlendState=cb,
+                pDynamicState=dyn,
+                layout=self.layout,
+            )
             try:
                 return vk.vkCreateGraphicsPipelines(dev, _cache(self.ctx), 1, [info], None)[0]
             except vk.VkError as exc:
@@ -382,8 +494,9 @@ class Timestamps:
         self.names: list[str] = []
         self._ticks = None
         self.enabled = ctx.timestamp_bits > 0 and ctx.timestamp_period_ns > 0
-        self.pool = vk.vkCreateQueryPool(ctx.device, vk.VkQueryPoolCreateInfo(
-            queryType=vk.VK_QUERY_TYPE_TIMESTAMP, queryCount=2 * capacity), None)
+        self.pool = vk.vkCreateQueryPool(
+            ctx.device, vk.VkQueryPoolCreateInfo(queryType=vk.VK_QUERY_TYPE_TIMESTAMP, queryCount=2 * capacity), None
+        )
         ctx.defer_destroy(vk.vkDestroyQueryPool, ctx.device, self.pool, None)
 
     def _write(self, cmd, stage, slot):
@@ -407,9 +520,10 @@ class Timestamps:
             return {}
         if self._ticks is None:
             self._ticks = vk.ffi.new("uint64_t[]", self.capacity)
-        ticks = self._ticks   # (the loader's entry point, without the wrapper's conversions: a per-query cost)
-        result = _vkGetQueryPoolResults(self.ctx.device, self.pool, 0, n, n * 8, ticks, 8,
-                                        vk.VK_QUERY_RESULT_64_BIT | vk.VK_QUERY_RESULT_WAIT_BIT)
+        ticks = self._ticks  # (the loader's entry point, without the wrapper's conversions: a per-query cost)
+        result = _vkGetQueryPoolResults(
+            self.ctx.device, self.pool, 0, n, n * 8, ticks, 8, vk.VK_QUERY_RESULT_64_BIT | vk.VK_QUERY_RESULT_WAIT_BIT
+        )
         if result != vk.VK_SUCCESS:
             raise VulkanError(f"vkGetQueryPoolResults failed ({result})")
         scale = self.ctx.timestamp_period_ns * 1e-6

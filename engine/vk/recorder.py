@@ -12,6 +12,7 @@ write-after-write and write-after-read hazard the step has with earlier steps. I
 transfer stay in the GENERAL layout, so memory barriers suffice; passes that change an image's layout (the
 raster) do that themselves with `image_barrier` and declare the accesses around it.
 """
+
 from __future__ import annotations
 
 import vulkan as vk
@@ -21,28 +22,39 @@ from .resources import Buffer, Image, image_barrier, memory_barrier
 COMPUTE = vk.VK_PIPELINE_STAGE_COMPUTE_SHADER_BIT
 TRANSFER = vk.VK_PIPELINE_STAGE_TRANSFER_BIT
 HOST = vk.VK_PIPELINE_STAGE_HOST_BIT
-GRAPHICS = vk.VK_PIPELINE_STAGE_VERTEX_SHADER_BIT | vk.VK_PIPELINE_STAGE_FRAGMENT_SHADER_BIT   # the raster's shaders
-INDIRECT = vk.VK_PIPELINE_STAGE_DRAW_INDIRECT_BIT   # indirect draw commands
-READ = {COMPUTE: vk.VK_ACCESS_SHADER_READ_BIT, TRANSFER: vk.VK_ACCESS_TRANSFER_READ_BIT,
-        HOST: vk.VK_ACCESS_HOST_READ_BIT, GRAPHICS: vk.VK_ACCESS_SHADER_READ_BIT,
-        INDIRECT: vk.VK_ACCESS_INDIRECT_COMMAND_READ_BIT}
-WRITE = {COMPUTE: vk.VK_ACCESS_SHADER_WRITE_BIT, TRANSFER: vk.VK_ACCESS_TRANSFER_WRITE_BIT,
-         HOST: vk.VK_ACCESS_HOST_WRITE_BIT}
+GRAPHICS = vk.VK_PIPELINE_STAGE_VERTEX_SHADER_BIT | vk.VK_PIPELINE_STAGE_FRAGMENT_SHADER_BIT  # the raster's shaders
+INDIRECT = vk.VK_PIPELINE_STAGE_DRAW_INDIRECT_BIT  # indirect draw commands
+READ = {
+    COMPUTE: vk.VK_ACCESS_SHADER_READ_BIT,
+    TRANSFER: vk.VK_ACCESS_TRANSFER_READ_BIT,
+    HOST: vk.VK_ACCESS_HOST_READ_BIT,
+    GRAPHICS: vk.VK_ACCESS_SHADER_READ_BIT,
+    INDIRECT: vk.VK_ACCESS_INDIRECT_COMMAND_READ_BIT,
+}
+WRITE = {
+    COMPUTE: vk.VK_ACCESS_SHADER_WRITE_BIT,
+    TRANSFER: vk.VK_ACCESS_TRANSFER_WRITE_BIT,
+    HOST: vk.VK_ACCESS_HOST_WRITE_BIT,
+}
 WHOLE_SIZE = 0xFFFFFFFFFFFFFFFF
 ONE_F32 = 0x3F800000  # the bit pattern of 1.0f, for fill()
-DRAW_RECORD = 20   # bytes of a VkDrawIndexedIndirectCommand
+DRAW_RECORD = 20  # bytes of a VkDrawIndexedIndirectCommand
 _EVERYTHING = COMPUTE | TRANSFER
-_ANY_ACCESS = (vk.VK_ACCESS_SHADER_READ_BIT | vk.VK_ACCESS_SHADER_WRITE_BIT | vk.VK_ACCESS_TRANSFER_READ_BIT
-               | vk.VK_ACCESS_TRANSFER_WRITE_BIT)
+_ANY_ACCESS = (
+    vk.VK_ACCESS_SHADER_READ_BIT
+    | vk.VK_ACCESS_SHADER_WRITE_BIT
+    | vk.VK_ACCESS_TRANSFER_READ_BIT
+    | vk.VK_ACCESS_TRANSFER_WRITE_BIT
+)
 
 
 class _State:
     __slots__ = ("write_stage", "visible", "readers")
 
     def __init__(self):
-        self.write_stage = 0   # stage of the last write (0: none since the recording began)
-        self.visible = 0       # stages the last write has been made visible to
-        self.readers = 0       # stages that read it since the last write
+        self.write_stage = 0  # stage of the last write (0: none since the recording began)
+        self.visible = 0  # stages the last write has been made visible to
+        self.readers = 0  # stages that read it since the last write
 
 
 class Hazards:
@@ -50,7 +62,7 @@ class Hazards:
 
     def __init__(self):
         self.state: dict[int, _State] = {}
-        self.barriers = 0   # how many were emitted (tests read it)
+        self.barriers = 0  # how many were emitted (tests read it)
 
     def use(self, cmd, reads=(), writes=(), stage=COMPUTE):
         src_stage = src_access = dst_access = 0
@@ -68,7 +80,7 @@ class Hazards:
                 src_stage |= st.write_stage
                 src_access |= WRITE[st.write_stage]
                 dst_access |= WRITE[stage]
-            src_stage |= st.readers   # write after read: an execution dependency
+            src_stage |= st.readers  # write after read: an execution dependency
         if src_stage:
             memory_barrier(cmd, src_stage, stage, src_access, dst_access)
             self.barriers += 1
@@ -98,8 +110,13 @@ class Recorder:
             timestamps.begin(self.cmd)
         # What earlier submissions on the queue did to the same resources comes before anything recorded here.
         if after_earlier:
-            memory_barrier(self.cmd, _EVERYTHING | vk.VK_PIPELINE_STAGE_COLOR_ATTACHMENT_OUTPUT_BIT, _EVERYTHING,
-                           _ANY_ACCESS | vk.VK_ACCESS_COLOR_ATTACHMENT_WRITE_BIT, _ANY_ACCESS)
+            memory_barrier(
+                self.cmd,
+                _EVERYTHING | vk.VK_PIPELINE_STAGE_COLOR_ATTACHMENT_OUTPUT_BIT,
+                _EVERYTHING,
+                _ANY_ACCESS | vk.VK_ACCESS_COLOR_ATTACHMENT_WRITE_BIT,
+                _ANY_ACCESS,
+            )
 
     def use(self, reads=(), writes=(), stage=COMPUTE):
         """Declare a step's accesses (emitting the barrier it needs) without recording the step itself."""
@@ -110,7 +127,7 @@ class Recorder:
         pipeline.dispatch(self.cmd, sets, *groups, push=push)
 
     def dispatch_indirect(self, pipeline, sets, args: Buffer, reads=(), writes=()):
-        self.use(reads=[args], stage=INDIRECT)   # (args a shader wrote: visible to the indirect command read)
+        self.use(reads=[args], stage=INDIRECT)  # (args a shader wrote: visible to the indirect command read)
         self.use(list(reads) + [args], writes)
         pipeline.bind(self.cmd, sets)
         vk.vkCmdDispatchIndirect(self.cmd, args.handle, 0)
@@ -127,15 +144,21 @@ class Recorder:
         if not declared:
             self.use(reads=[src], writes=[dst], stage=TRANSFER)
         regions = regions or [(0, 0, min(src.size, dst.size))]
-        vk.vkCmdCopyBuffer(self.cmd, src.handle, dst.handle, len(regions),
-                           [vk.VkBufferCopy(s, d, n) for s, d, n in regions])
+        vk.vkCmdCopyBuffer(
+            self.cmd, src.handle, dst.handle, len(regions), [vk.VkBufferCopy(s, d, n) for s, d, n in regions]
+        )
 
     def copy_image(self, src: Image, dst: Image):
         """A whole GENERAL-layout image into another of the same size and format."""
         self.use(reads=[src], writes=[dst], stage=TRANSFER)
         sub = vk.VkImageSubresourceLayers(vk.VK_IMAGE_ASPECT_COLOR_BIT, 0, 0, 1)
-        region = vk.VkImageCopy(srcSubresource=sub, srcOffset=vk.VkOffset3D(0, 0, 0), dstSubresource=sub,
-                                dstOffset=vk.VkOffset3D(0, 0, 0), extent=vk.VkExtent3D(src.width, src.height, 1))
+        region = vk.VkImageCopy(
+            srcSubresource=sub,
+            srcOffset=vk.VkOffset3D(0, 0, 0),
+            dstSubresource=sub,
+            dstOffset=vk.VkOffset3D(0, 0, 0),
+            extent=vk.VkExtent3D(src.width, src.height, 1),
+        )
         G = vk.VK_IMAGE_LAYOUT_GENERAL
         vk.vkCmdCopyImage(self.cmd, src.handle, G, dst.handle, G, 1, [region])
 
@@ -144,13 +167,30 @@ class Recorder:
         if not declared:
             self.use(reads=[src], writes=[dst], stage=TRANSFER)
         sub = vk.VkImageSubresourceLayers(vk.VK_IMAGE_ASPECT_COLOR_BIT, 0, 0, 1)
-        region = vk.VkBufferImageCopy(bufferOffset=offset, bufferRowLength=0, bufferImageHeight=0,
-                                      imageSubresource=sub, imageOffset=vk.VkOffset3D(0, 0, 0),
-                                      imageExtent=vk.VkExtent3D(src.width, src.height, 1))
+        region = vk.VkBufferImageCopy(
+            bufferOffset=offset,
+            bufferRowLength=0,
+            bufferImageHeight=0,
+            imageSubresource=sub,
+            imageOffset=vk.VkOffset3D(0, 0, 0),
+            imageExtent=vk.VkExtent3D(src.width, src.height, 1),
+        )
         vk.vkCmdCopyImageToBuffer(self.cmd, src.handle, vk.VK_IMAGE_LAYOUT_GENERAL, dst.handle, 1, [region])
 
-    def raster(self, pipeline, sets, color: Image, depth: Image, vertices: Buffer, indices: Buffer, draws,
-               reads=(), more=(), indirect: Buffer | None = None, keep_depth: bool = False):
+    def raster(
+        self,
+        pipeline,
+        sets,
+        color: Image,
+        depth: Image,
+        vertices: Buffer,
+        indices: Buffer,
+        draws,
+        reads=(),
+        more=(),
+        indirect: Buffer | None = None,
+        keep_depth: bool = False,
+    ):
         """Indexed draws into `color` (kept: loaded and stored; GENERAL before and after) with a cleared reversed-Z
         `depth`. `draws`: (first index, index count, instance count, first instance, push-constant bytes), instanced
         indexed draws (gl_InstanceIndex counts from the first instance; no push constants where the bytes are
@@ -170,19 +210,40 @@ class Recorder:
         DEPTH = vk.VK_IMAGE_LAYOUT_DEPTH_ATTACHMENT_OPTIMAL
         LATE = vk.VK_PIPELINE_STAGE_LATE_FRAGMENT_TESTS_BIT
         # (after compute shaders of earlier frames that read a kept depth)
-        image_barrier(cmd, depth, vk.VK_IMAGE_LAYOUT_UNDEFINED, DEPTH, LATE | COMPUTE,
-                      vk.VK_PIPELINE_STAGE_EARLY_FRAGMENT_TESTS_BIT, vk.VK_ACCESS_DEPTH_STENCIL_ATTACHMENT_WRITE_BIT,
-                      vk.VK_ACCESS_DEPTH_STENCIL_ATTACHMENT_READ_BIT | vk.VK_ACCESS_DEPTH_STENCIL_ATTACHMENT_WRITE_BIT)
-        color_info = vk.VkRenderingAttachmentInfo(imageView=color.view, imageLayout=CA,
-                                                  loadOp=vk.VK_ATTACHMENT_LOAD_OP_LOAD,
-                                                  storeOp=vk.VK_ATTACHMENT_STORE_OP_STORE)
+        image_barrier(
+            cmd,
+            depth,
+            vk.VK_IMAGE_LAYOUT_UNDEFINED,
+            DEPTH,
+            LATE | COMPUTE,
+            vk.VK_PIPELINE_STAGE_EARLY_FRAGMENT_TESTS_BIT,
+            vk.VK_ACCESS_DEPTH_STENCIL_ATTACHMENT_WRITE_BIT,
+            vk.VK_ACCESS_DEPTH_STENCIL_ATTACHMENT_READ_BIT | vk.VK_ACCESS_DEPTH_STENCIL_ATTACHMENT_WRITE_BIT,
+        )
+        color_info = vk.VkRenderingAttachmentInfo(
+            imageView=color.view,
+            imageLayout=CA,
+            loadOp=vk.VK_ATTACHMENT_LOAD_OP_LOAD,
+            storeOp=vk.VK_ATTACHMENT_STORE_OP_STORE,
+        )
         depth_info = vk.VkRenderingAttachmentInfo(
-            imageView=depth.view, imageLayout=DEPTH, loadOp=vk.VK_ATTACHMENT_LOAD_OP_CLEAR,
+            imageView=depth.view,
+            imageLayout=DEPTH,
+            loadOp=vk.VK_ATTACHMENT_LOAD_OP_CLEAR,
             storeOp=vk.VK_ATTACHMENT_STORE_OP_STORE if keep_depth else vk.VK_ATTACHMENT_STORE_OP_DONT_CARE,
-            clearValue=vk.VkClearValue(depthStencil=vk.VkClearDepthStencilValue(depth=0.0, stencil=0)))
+            clearValue=vk.VkClearValue(depthStencil=vk.VkClearDepthStencilValue(depth=0.0, stencil=0)),
+        )
         area = vk.VkRect2D(offset=vk.VkOffset2D(0, 0), extent=vk.VkExtent2D(w, h))
-        vk.vkCmdBeginRendering(cmd, vk.VkRenderingInfo(renderArea=area, layerCount=1, colorAttachmentCount=1,
-                                                       pColorAttachments=[color_info], pDepthAttachment=depth_info))
+        vk.vkCmdBeginRendering(
+            cmd,
+            vk.VkRenderingInfo(
+                renderArea=area,
+                layerCount=1,
+                colorAttachmentCount=1,
+                pColorAttachments=[color_info],
+                pDepthAttachment=depth_info,
+            ),
+        )
         vk.vkCmdSetViewport(cmd, 0, 1, [vk.VkViewport(0, 0, w, h, 0.0, 1.0)])
         vk.vkCmdSetScissor(cmd, 0, 1, [area])
         vk.vkCmdBindVertexBuffers(cmd, 0, 1, [vertices.handle], [0])
@@ -193,8 +254,9 @@ class Recorder:
             pipe.bind(cmd, pipe_sets)
             for *draw, push in pipe_draws:
                 if push:
-                    vk.vkCmdPushConstants(cmd, pipe.layout, vk.VK_SHADER_STAGE_ALL, 0, len(push),
-                                          vk.ffi.new("char[]", bytes(push)))
+                    vk.vkCmdPushConstants(
+                        cmd, pipe.layout, vk.VK_SHADER_STAGE_ALL, 0, len(push), vk.ffi.new("char[]", bytes(push))
+                    )
                 if indirect is not None:
                     vk.vkCmdDrawIndexedIndirect(cmd, indirect.handle, DRAW_RECORD * draw[0], 1, DRAW_RECORD)
                 else:
@@ -205,8 +267,16 @@ class Recorder:
         st = self.hazards.state.setdefault(id(color), _State())
         st.write_stage, st.visible, st.readers = COMPUTE, COMPUTE | TRANSFER, 0
         if keep_depth:
-            image_barrier(cmd, depth, DEPTH, vk.VK_IMAGE_LAYOUT_SHADER_READ_ONLY_OPTIMAL, LATE, COMPUTE,
-                          vk.VK_ACCESS_DEPTH_STENCIL_ATTACHMENT_WRITE_BIT, vk.VK_ACCESS_SHADER_READ_BIT)
+            image_barrier(
+                cmd,
+                depth,
+                DEPTH,
+                vk.VK_IMAGE_LAYOUT_SHADER_READ_ONLY_OPTIMAL,
+                LATE,
+                COMPUTE,
+                vk.VK_ACCESS_DEPTH_STENCIL_ATTACHMENT_WRITE_BIT,
+                vk.VK_ACCESS_SHADER_READ_BIT,
+            )
             st = self.hazards.state.setdefault(id(depth), _State())
             st.write_stage, st.visible, st.readers = COMPUTE, COMPUTE, 0
 
@@ -219,9 +289,13 @@ class Recorder:
         (a recording other command buffers depend on without barriers of their own): every write recorded so far,
         or only those into `resources` when some are named (no barrier when none of them was written)."""
         if not resources or any(self.hazards.state.get(id(r)) is not None for r in resources):
-            memory_barrier(self.cmd, _EVERYTHING, vk.VK_PIPELINE_STAGE_ALL_COMMANDS_BIT,
-                           vk.VK_ACCESS_SHADER_WRITE_BIT | vk.VK_ACCESS_TRANSFER_WRITE_BIT,
-                           vk.VK_ACCESS_MEMORY_READ_BIT | vk.VK_ACCESS_SHADER_READ_BIT)
+            memory_barrier(
+                self.cmd,
+                _EVERYTHING,
+                vk.VK_PIPELINE_STAGE_ALL_COMMANDS_BIT,
+                vk.VK_ACCESS_SHADER_WRITE_BIT | vk.VK_ACCESS_TRANSFER_WRITE_BIT,
+                vk.VK_ACCESS_MEMORY_READ_BIT | vk.VK_ACCESS_SHADER_READ_BIT,
+            )
 
     def mark(self, name: str):
         if self.timestamps is not None:
@@ -235,11 +309,20 @@ class Recorder:
 def to_general(cmd, image: Image, clear: bool = False):
     """Set-up (a one-shot command buffer): a new colour image into the GENERAL layout, cleared to zero if `clear`
     (which needs the image's COPY_DST usage)."""
-    image_barrier(cmd, image, vk.VK_IMAGE_LAYOUT_UNDEFINED, vk.VK_IMAGE_LAYOUT_GENERAL,
-                  vk.VK_PIPELINE_STAGE_TOP_OF_PIPE_BIT, TRANSFER, 0, vk.VK_ACCESS_TRANSFER_WRITE_BIT)
+    image_barrier(
+        cmd,
+        image,
+        vk.VK_IMAGE_LAYOUT_UNDEFINED,
+        vk.VK_IMAGE_LAYOUT_GENERAL,
+        vk.VK_PIPELINE_STAGE_TOP_OF_PIPE_BIT,
+        TRANSFER,
+        0,
+        vk.VK_ACCESS_TRANSFER_WRITE_BIT,
+    )
     if clear:
-        vk.vkCmdClearColorImage(cmd, image.handle, vk.VK_IMAGE_LAYOUT_GENERAL,
-                                vk.VkClearColorValue(uint32=[0, 0, 0, 0]), 1, [image.range()])
+        vk.vkCmdClearColorImage(
+            cmd, image.handle, vk.VK_IMAGE_LAYOUT_GENERAL, vk.VkClearColorValue(uint32=[0, 0, 0, 0]), 1, [image.range()]
+        )
 
 
 def fill(cmd, buf: Buffer, word: int):

@@ -5,6 +5,7 @@ Pipelines build their descriptor-set layouts and specialization data from this, 
 are written once, in the GLSL. A binding is named by its GLSL variable; an anonymous block by its only member
 (`buffer MasksRaw { float masks_raw[]; };` is "masks_raw"), else by its block name.
 """
+
 from __future__ import annotations
 
 import struct
@@ -31,8 +32,20 @@ DEC_NON_WRITABLE, DEC_NON_READABLE, DEC_BINDING, DEC_SET, DEC_OFFSET = 24, 25, 3
 # storage classes
 SC_UNIFORM_CONSTANT, SC_UNIFORM, SC_PUSH_CONSTANT, SC_STORAGE_BUFFER = 0, 2, 9, 12
 DIM_BUFFER = 5
-_TYPE_OPS = (OP_TYPE_BOOL, OP_TYPE_INT, OP_TYPE_FLOAT, OP_TYPE_VECTOR, OP_TYPE_MATRIX, OP_TYPE_IMAGE, OP_TYPE_SAMPLER,
-             OP_TYPE_SAMPLED_IMAGE, OP_TYPE_ARRAY, OP_TYPE_RUNTIME_ARRAY, OP_TYPE_STRUCT, OP_TYPE_POINTER)
+_TYPE_OPS = (
+    OP_TYPE_BOOL,
+    OP_TYPE_INT,
+    OP_TYPE_FLOAT,
+    OP_TYPE_VECTOR,
+    OP_TYPE_MATRIX,
+    OP_TYPE_IMAGE,
+    OP_TYPE_SAMPLER,
+    OP_TYPE_SAMPLED_IMAGE,
+    OP_TYPE_ARRAY,
+    OP_TYPE_RUNTIME_ARRAY,
+    OP_TYPE_STRUCT,
+    OP_TYPE_POINTER,
+)
 
 #: Descriptor types by their short names (the names pass declarations use).
 DESCRIPTOR_TYPES = {
@@ -52,9 +65,9 @@ class Binding:
     name: str
     set: int
     binding: int
-    kind: str        # a DESCRIPTOR_TYPES key
-    count: int       # array length (1 for a single descriptor)
-    access: str      # "read", "write" or "read_write" (what the shader may do to it)
+    kind: str  # a DESCRIPTOR_TYPES key
+    count: int  # array length (1 for a single descriptor)
+    access: str  # "read", "write" or "read_write" (what the shader may do to it)
 
     @property
     def descriptor_type(self) -> int:
@@ -65,7 +78,7 @@ class Binding:
 class Constant:
     name: str
     id: int
-    type: str        # "bool", "int", "uint" or "float"
+    type: str  # "bool", "int", "uint" or "float"
     default: object
 
 
@@ -73,9 +86,9 @@ class Constant:
 class Interface:
     """A shader module's resource interface."""
 
-    bindings: tuple          # Binding, sorted by (set, binding)
-    constants: dict          # name -> Constant
-    push_size: int           # bytes of the push-constant block (0: none)
+    bindings: tuple  # Binding, sorted by (set, binding)
+    constants: dict  # name -> Constant
+    push_size: int  # bytes of the push-constant block (0: none)
 
     def set(self, index: int) -> dict:
         """name -> Binding of one descriptor set."""
@@ -90,19 +103,24 @@ class Interface:
         for b in other.bindings:
             old = by_key.get((b.set, b.binding))
             if old is not None and (old.kind, old.count) != (b.kind, b.count):
-                raise ShaderError(f"binding {b.set}.{b.binding}: {old.name} is a {old.kind} in one stage and "
-                                  f"{b.name} a {b.kind} in another")
+                raise ShaderError(
+                    f"binding {b.set}.{b.binding}: {old.name} is a {old.kind} in one stage and "
+                    f"{b.name} a {b.kind} in another"
+                )
             if old is None or old.access != b.access:
-                by_key[(b.set, b.binding)] = b if old is None else Binding(
-                    old.name, old.set, old.binding, old.kind, old.count, "read_write")
+                by_key[(b.set, b.binding)] = (
+                    b if old is None else Binding(old.name, old.set, old.binding, old.kind, old.count, "read_write")
+                )
         # (a graphics pipeline gives both stages one specialization map: an id must mean one constant in both)
         for name, c in other.constants.items():
             clash = [n for n, mine in self.constants.items() if mine.id == c.id and n != name]
             if clash:
-                raise ShaderError(f"specialization constant id {c.id} is {clash[0]} in one stage and {name} in "
-                                  f"another")
-        return Interface(tuple(sorted(by_key.values(), key=lambda b: (b.set, b.binding))),
-                         {**self.constants, **other.constants}, max(self.push_size, other.push_size))
+                raise ShaderError(f"specialization constant id {c.id} is {clash[0]} in one stage and {name} in another")
+        return Interface(
+            tuple(sorted(by_key.values(), key=lambda b: (b.set, b.binding))),
+            {**self.constants, **other.constants},
+            max(self.push_size, other.push_size),
+        )
 
     def specialization(self, values: dict, shader: str = "shader") -> dict:
         """{constant id: value} from {constant name: value}; an unknown name is a ShaderError."""
@@ -152,12 +170,12 @@ class _Module:
             count, op = words[i] >> 16, words[i] & 0xFFFF
             if count == 0:
                 raise ShaderError(f"{name}: malformed SPIR-V (zero-length instruction at word {i})")
-            self._read(op, words[i:i + count])
+            self._read(op, words[i : i + count])
             i += count
 
     def _read(self, op: int, ins) -> None:
         """Record one instruction (`ins`: its words, the opcode word first) if reflection needs it."""
-        if op == OP_NAME:   # the first name wins: a local `const int x = SPEC;` names the same id again
+        if op == OP_NAME:  # the first name wins: a local `const int x = SPEC;` names the same id again
             self.names.setdefault(ins[1], _string(ins, 2))
         elif op == OP_MEMBER_NAME:
             self.member_names.setdefault(ins[1], {})[ins[2]] = _string(ins, 3)
@@ -214,8 +232,9 @@ class _Module:
         else:
             kind, access = self._opaque(base, dec)
             label = self.names.get(var, "")
-        return Binding(label or f"binding{dec[DEC_BINDING]}", dec.get(DEC_SET, 0), dec[DEC_BINDING], kind, count,
-                       access)
+        return Binding(
+            label or f"binding{dec[DEC_BINDING]}", dec.get(DEC_SET, 0), dec[DEC_BINDING], kind, count, access
+        )
 
     def _block(self, var, base, storage) -> tuple[str, str, str]:
         """(kind, access, name) of a uniform or storage block: named by its variable, else by its only member, else
@@ -232,15 +251,18 @@ class _Module:
                 access = "read"
             elif flags and all(DEC_NON_READABLE in f for f in flags):
                 access = "write"
-        label = (self.names.get(var) or (self.member_names.get(base, {}).get(0) if len(args) == 1 else None)
-                 or self.names.get(base, ""))
+        label = (
+            self.names.get(var)
+            or (self.member_names.get(base, {}).get(0) if len(args) == 1 else None)
+            or self.names.get(base, "")
+        )
         return kind, access, label
 
     def _opaque(self, base, dec) -> tuple[str, str]:
         """(kind, access) of an image, sampler or texel buffer binding (`dec`: the variable's decorations)."""
         op, args = self.types[base]
         access = "read_write"
-        if op == OP_TYPE_SAMPLED_IMAGE:   # a sampled image, or a texel fetch from a uniform texel buffer
+        if op == OP_TYPE_SAMPLED_IMAGE:  # a sampled image, or a texel fetch from a uniform texel buffer
             dim = self.types[args[0]][1][1]
             kind, access = ("uniform_texel" if dim == DIM_BUFFER else "texture"), "read"
         elif op == OP_TYPE_SAMPLER:
@@ -271,8 +293,11 @@ class _Module:
                 continue
             ctype = self.scalar_name(type_id)
             if op == OP_SPEC:
-                value = struct.unpack("<f", struct.pack("<I", value))[0] if ctype == "float" else (
-                    struct.unpack("<i", struct.pack("<I", value))[0] if ctype == "int" else value)
+                value = (
+                    struct.unpack("<f", struct.pack("<I", value))[0]
+                    if ctype == "float"
+                    else (struct.unpack("<i", struct.pack("<I", value))[0] if ctype == "int" else value)
+                )
             cname = self.names.get(cid) or f"constant{dec[DEC_SPEC_ID]}"
             consts[cname] = Constant(cname, dec[DEC_SPEC_ID], ctype, value)
         return consts

@@ -3,6 +3,7 @@
 One allocation per resource: scenes have a handful of buffers, so a sub-allocator would buy nothing.
 Each resource registers its own destruction with the Context and can also be freed early.
 """
+
 from __future__ import annotations
 
 import numpy as np
@@ -33,11 +34,14 @@ def allocate(ctx: Context, req, mtype: int, what: str, pnext=None):
     heap = mp.memoryHeaps[mp.memoryTypes[mtype].heapIndex].size
     size = f"{req.size / 2**20:.1f} MiB"
     if req.size > heap:
-        raise VulkanError(f"{what}: {size} is more than this device's memory heap of {heap / 2**20:.0f} MiB "
-                          f"({ctx.device_info['name']}); use a smaller size or scene")
+        raise VulkanError(
+            f"{what}: {size} is more than this device's memory heap of {heap / 2**20:.0f} MiB "
+            f"({ctx.device_info['name']}); use a smaller size or scene"
+        )
     try:
-        memory = vk.vkAllocateMemory(ctx.device, vk.VkMemoryAllocateInfo(pNext=pnext, allocationSize=req.size,
-                                                                         memoryTypeIndex=mtype), None)
+        memory = vk.vkAllocateMemory(
+            ctx.device, vk.VkMemoryAllocateInfo(pNext=pnext, allocationSize=req.size, memoryTypeIndex=mtype), None
+        )
     except _OUT_OF_MEMORY as exc:
         kind = "device" if isinstance(exc, vk.VkErrorOutOfDeviceMemory) else "host"
         raise VulkanError(f"{what}: out of {kind} memory allocating {size} on {ctx.device_info['name']}") from None
@@ -48,8 +52,11 @@ def allocate(ctx: Context, req, mtype: int, what: str, pnext=None):
 def _all_device_memory_mappable(ctx: Context) -> bool:
     """Is every device-local memory type host-visible and coherent (no VRAM that only the device reaches)?"""
     mp = ctx.memory_properties
-    return all(mp.memoryTypes[i].propertyFlags & HOST == HOST for i in range(mp.memoryTypeCount)
-               if mp.memoryTypes[i].propertyFlags & DEVICE)
+    return all(
+        mp.memoryTypes[i].propertyFlags & HOST == HOST
+        for i in range(mp.memoryTypeCount)
+        if mp.memoryTypes[i].propertyFlags & DEVICE
+    )
 
 
 def free(ctx: Context, memory):
@@ -63,8 +70,9 @@ class Buffer:
     def __init__(self, ctx: Context, size: int, usage: int, host: bool = False, name: str = ""):
         self.ctx, self.size, self.host, self.name = ctx, max(int(size), 4), host, name
         dev = ctx.device
-        self.handle = vk.vkCreateBuffer(dev, vk.VkBufferCreateInfo(
-            size=self.size, usage=usage, sharingMode=vk.VK_SHARING_MODE_EXCLUSIVE), None)
+        self.handle = vk.vkCreateBuffer(
+            dev, vk.VkBufferCreateInfo(size=self.size, usage=usage, sharingMode=vk.VK_SHARING_MODE_EXCLUSIVE), None
+        )
         req = vk.vkGetBufferMemoryRequirements(dev, self.handle)
         if host:
             mtype = ctx.memory_type(req.memoryTypeBits, HOST | vk.VK_MEMORY_PROPERTY_HOST_CACHED_BIT)
@@ -72,8 +80,9 @@ class Buffer:
             mtype = ctx.memory_type(req.memoryTypeBits, DEVICE)
         # device-local memory that the host may write without a copy: where every device-local type is host-visible
         # and coherent (a CPU device, an integrated GPU; not a discrete GPU's small mappable window)
-        self.host_writable = (ctx.memory_properties.memoryTypes[mtype].propertyFlags & HOST) == HOST \
-            and _all_device_memory_mappable(ctx)
+        self.host_writable = (
+            ctx.memory_properties.memoryTypes[mtype].propertyFlags & HOST
+        ) == HOST and _all_device_memory_mappable(ctx)
         try:
             self.memory = allocate(ctx, req, mtype, f"buffer {name!r}" if name else "a buffer")
         except VulkanError:
@@ -92,7 +101,7 @@ class Buffer:
     def write(self, data, offset: int = 0):
         """Copy bytes into a host buffer."""
         raw = np.ascontiguousarray(data).view(np.uint8).reshape(-1)
-        self.view()[offset:offset + raw.nbytes] = raw
+        self.view()[offset : offset + raw.nbytes] = raw
 
     def destroy(self):
         if self._alive:
@@ -108,13 +117,21 @@ class BufferView:
     """A typed view of a buffer, for binding it as a texel buffer (the buffer needs UNIFORM_TEXEL usage, or
     STORAGE_TEXEL for a storage texel buffer)."""
 
-    def __init__(self, buf: Buffer, fmt: int = vk.VK_FORMAT_R32G32B32A32_UINT, offset: int = 0,
-                 size: int | None = None):
+    def __init__(
+        self, buf: Buffer, fmt: int = vk.VK_FORMAT_R32G32B32A32_UINT, offset: int = 0, size: int | None = None
+    ):
         """The bytes [offset, offset + size) of `buf` (default: from offset to its end)."""
         self.ctx, self.buffer = buf.ctx, buf
-        self.handle = vk.vkCreateBufferView(buf.ctx.device, vk.VkBufferViewCreateInfo(
-            buffer=buf.handle, format=fmt, offset=int(offset),
-            range=0xFFFFFFFFFFFFFFFF if size is None else int(size)), None)
+        self.handle = vk.vkCreateBufferView(
+            buf.ctx.device,
+            vk.VkBufferViewCreateInfo(
+                buffer=buf.handle,
+                format=fmt,
+                offset=int(offset),
+                range=0xFFFFFFFFFFFFFFFF if size is None else int(size),
+            ),
+            None,
+        )
         self._alive = True
         buf.ctx.defer_destroy(self.destroy)
 
@@ -137,7 +154,7 @@ def upload_buffers(ctx: Context, items) -> list[Buffer]:
     bufs = [Buffer(ctx, raw.nbytes, usage | TRANSFER_DST, name=name) for raw, (_, usage, name) in zip(raws, items)]
     staged = []
     for raw, buf in zip(raws, bufs):
-        if raw.nbytes and buf.host_writable:   # written in place: no staging buffer, no submission to wait for
+        if raw.nbytes and buf.host_writable:  # written in place: no staging buffer, no submission to wait for
             ptr = vk.vkMapMemory(ctx.device, buf.memory, 0, raw.nbytes, 0)
             try:
                 np.frombuffer(ptr, np.uint8, raw.nbytes)[:] = raw
@@ -178,11 +195,21 @@ def update_buffer(ctx: Context, buf: Buffer, parts, staging: Buffer | None = Non
             at += raw.nbytes
         with ctx.one_shot() as cmd:
             all_ = vk.VK_PIPELINE_STAGE_ALL_COMMANDS_BIT
-            memory_barrier(cmd, all_, vk.VK_PIPELINE_STAGE_TRANSFER_BIT, vk.VK_ACCESS_MEMORY_READ_BIT,
-                           vk.VK_ACCESS_TRANSFER_WRITE_BIT)
+            memory_barrier(
+                cmd,
+                all_,
+                vk.VK_PIPELINE_STAGE_TRANSFER_BIT,
+                vk.VK_ACCESS_MEMORY_READ_BIT,
+                vk.VK_ACCESS_TRANSFER_WRITE_BIT,
+            )
             vk.vkCmdCopyBuffer(cmd, staging.handle, buf.handle, len(regions), regions)
-            memory_barrier(cmd, vk.VK_PIPELINE_STAGE_TRANSFER_BIT, all_, vk.VK_ACCESS_TRANSFER_WRITE_BIT,
-                           vk.VK_ACCESS_MEMORY_READ_BIT | vk.VK_ACCESS_SHADER_READ_BIT)
+            memory_barrier(
+                cmd,
+                vk.VK_PIPELINE_STAGE_TRANSFER_BIT,
+                all_,
+                vk.VK_ACCESS_TRANSFER_WRITE_BIT,
+                vk.VK_ACCESS_MEMORY_READ_BIT | vk.VK_ACCESS_SHADER_READ_BIT,
+            )
     finally:
         if own:
             staging.destroy()
@@ -195,11 +222,21 @@ def read_buffer(ctx: Context, buf: Buffer, dtype=np.uint8) -> np.ndarray:
     try:
         with ctx.one_shot() as cmd:
             all_ = vk.VK_PIPELINE_STAGE_ALL_COMMANDS_BIT
-            memory_barrier(cmd, all_, vk.VK_PIPELINE_STAGE_TRANSFER_BIT, vk.VK_ACCESS_MEMORY_WRITE_BIT,
-                           vk.VK_ACCESS_TRANSFER_READ_BIT)
+            memory_barrier(
+                cmd,
+                all_,
+                vk.VK_PIPELINE_STAGE_TRANSFER_BIT,
+                vk.VK_ACCESS_MEMORY_WRITE_BIT,
+                vk.VK_ACCESS_TRANSFER_READ_BIT,
+            )
             vk.vkCmdCopyBuffer(cmd, buf.handle, staging.handle, 1, [vk.VkBufferCopy(0, 0, buf.size)])
-            memory_barrier(cmd, vk.VK_PIPELINE_STAGE_TRANSFER_BIT, vk.VK_PIPELINE_STAGE_HOST_BIT,
-                           vk.VK_ACCESS_TRANSFER_WRITE_BIT, vk.VK_ACCESS_HOST_READ_BIT)
+            memory_barrier(
+                cmd,
+                vk.VK_PIPELINE_STAGE_TRANSFER_BIT,
+                vk.VK_PIPELINE_STAGE_HOST_BIT,
+                vk.VK_ACCESS_TRANSFER_WRITE_BIT,
+                vk.VK_ACCESS_HOST_READ_BIT,
+            )
         return staging.view(dtype).copy()
     finally:
         staging.destroy()
@@ -215,37 +252,71 @@ class Image:
     """A 2D image (optionally mipmapped, optionally an array of `layers`) with one view over all its levels and
     layers (a 2D view, or a 2D array view when `array`)."""
 
-    def __init__(self, ctx: Context, width: int, height: int, fmt: int, usage: int, mip_levels: int = 1, name="",
-                 layers: int = 1, array: bool = False):
+    def __init__(
+        self,
+        ctx: Context,
+        width: int,
+        height: int,
+        fmt: int,
+        usage: int,
+        mip_levels: int = 1,
+        name="",
+        layers: int = 1,
+        array: bool = False,
+    ):
         self.ctx, self.width, self.height, self.format, self.name = ctx, width, height, fmt, name
         self.mip_levels, self.layers = mip_levels, layers
         self.aspect = _aspect(fmt)
         dev = ctx.device
-        self.handle = vk.vkCreateImage(dev, vk.VkImageCreateInfo(
-            imageType=vk.VK_IMAGE_TYPE_2D, format=fmt, extent=vk.VkExtent3D(width, height, 1),
-            mipLevels=mip_levels, arrayLayers=layers, samples=vk.VK_SAMPLE_COUNT_1_BIT,
-            tiling=vk.VK_IMAGE_TILING_OPTIMAL, usage=usage, sharingMode=vk.VK_SHARING_MODE_EXCLUSIVE,
-            initialLayout=vk.VK_IMAGE_LAYOUT_UNDEFINED), None)
+        self.handle = vk.vkCreateImage(
+            dev,
+            vk.VkImageCreateInfo(
+                imageType=vk.VK_IMAGE_TYPE_2D,
+                format=fmt,
+                extent=vk.VkExtent3D(width, height, 1),
+                mipLevels=mip_levels,
+                arrayLayers=layers,
+                samples=vk.VK_SAMPLE_COUNT_1_BIT,
+                tiling=vk.VK_IMAGE_TILING_OPTIMAL,
+                usage=usage,
+                sharingMode=vk.VK_SHARING_MODE_EXCLUSIVE,
+                initialLayout=vk.VK_IMAGE_LAYOUT_UNDEFINED,
+            ),
+            None,
+        )
         req = vk.vkGetImageMemoryRequirements(dev, self.handle)
         try:
-            self.memory = allocate(ctx, req, ctx.memory_type(req.memoryTypeBits, DEVICE),
-                                   f"image {name!r} ({width}x{height}x{layers})" if name
-                                   else f"a {width}x{height} image")
+            self.memory = allocate(
+                ctx,
+                req,
+                ctx.memory_type(req.memoryTypeBits, DEVICE),
+                f"image {name!r} ({width}x{height}x{layers})" if name else f"a {width}x{height} image",
+            )
         except VulkanError:
             vk.vkDestroyImage(dev, self.handle, None)
             raise
         vk.vkBindImageMemory(dev, self.handle, self.memory, 0)
-        self.view = vk.vkCreateImageView(dev, vk.VkImageViewCreateInfo(
-            image=self.handle, format=fmt,
-            viewType=vk.VK_IMAGE_VIEW_TYPE_2D_ARRAY if array else vk.VK_IMAGE_VIEW_TYPE_2D,
-            subresourceRange=self.range()), None)
+        self.view = vk.vkCreateImageView(
+            dev,
+            vk.VkImageViewCreateInfo(
+                image=self.handle,
+                format=fmt,
+                viewType=vk.VK_IMAGE_VIEW_TYPE_2D_ARRAY if array else vk.VK_IMAGE_VIEW_TYPE_2D,
+                subresourceRange=self.range(),
+            ),
+            None,
+        )
         self._alive = True
         ctx.defer_destroy(self.destroy)
 
     def range(self, base_mip=0, levels=None):
-        return vk.VkImageSubresourceRange(aspectMask=self.aspect, baseMipLevel=base_mip,
-                                          levelCount=self.mip_levels if levels is None else levels,
-                                          baseArrayLayer=0, layerCount=self.layers)
+        return vk.VkImageSubresourceRange(
+            aspectMask=self.aspect,
+            baseMipLevel=base_mip,
+            levelCount=self.mip_levels if levels is None else levels,
+            baseArrayLayer=0,
+            layerCount=self.layers,
+        )
 
     def destroy(self):
         if self._alive:
@@ -257,9 +328,15 @@ class Image:
 
 def image_barrier(cmd, image: Image, old, new, src_stage, dst_stage, src_access, dst_access, base_mip=0, levels=None):
     barrier = vk.VkImageMemoryBarrier(
-        srcAccessMask=src_access, dstAccessMask=dst_access, oldLayout=old, newLayout=new,
-        srcQueueFamilyIndex=vk.VK_QUEUE_FAMILY_IGNORED, dstQueueFamilyIndex=vk.VK_QUEUE_FAMILY_IGNORED,
-        image=image.handle, subresourceRange=image.range(base_mip, levels))
+        srcAccessMask=src_access,
+        dstAccessMask=dst_access,
+        oldLayout=old,
+        newLayout=new,
+        srcQueueFamilyIndex=vk.VK_QUEUE_FAMILY_IGNORED,
+        dstQueueFamilyIndex=vk.VK_QUEUE_FAMILY_IGNORED,
+        image=image.handle,
+        subresourceRange=image.range(base_mip, levels),
+    )
     vk.vkCmdPipelineBarrier(cmd, src_stage, dst_stage, 0, 0, None, 0, None, 1, [barrier])
 
 
@@ -272,14 +349,34 @@ def _layers(layer: int, count: int, level: int = 0):
     return vk.VkImageSubresourceLayers(vk.VK_IMAGE_ASPECT_COLOR_BIT, level, layer, count)
 
 
-def _layout(cmd, img: Image, old, new, src_access, dst_access, base_mip=0, levels=None,
-            dst_stage=vk.VK_PIPELINE_STAGE_TRANSFER_BIT):
-    image_barrier(cmd, img, old, new, vk.VK_PIPELINE_STAGE_TRANSFER_BIT if src_access else
-                  vk.VK_PIPELINE_STAGE_TOP_OF_PIPE_BIT, dst_stage, src_access, dst_access, base_mip, levels)
+def _layout(
+    cmd,
+    img: Image,
+    old,
+    new,
+    src_access,
+    dst_access,
+    base_mip=0,
+    levels=None,
+    dst_stage=vk.VK_PIPELINE_STAGE_TRANSFER_BIT,
+):
+    image_barrier(
+        cmd,
+        img,
+        old,
+        new,
+        vk.VK_PIPELINE_STAGE_TRANSFER_BIT if src_access else vk.VK_PIPELINE_STAGE_TOP_OF_PIPE_BIT,
+        dst_stage,
+        src_access,
+        dst_access,
+        base_mip,
+        levels,
+    )
 
 
-def upload_texture_array(ctx: Context, images: list, width: int, height: int, srgb: bool = True,
-                         name: str = "textures") -> Image:
+def upload_texture_array(
+    ctx: Context, images: list, width: int, height: int, srgb: bool = True, name: str = "textures"
+) -> Image:
     """A 2D array texture, one layer per (h, w, 4) uint8 image in `images` (in that order), each resized to
     width x height by a linear blit where its size differs (in linear light for sRGB), with a full mip chain made by
     blits (all layers at once), left SHADER_READ_ONLY. Consecutive images of one size share one temporary image and
@@ -293,8 +390,8 @@ def upload_texture_array(ctx: Context, images: list, width: int, height: int, sr
     staging = Buffer(ctx, int(offsets[-1]), TRANSFER_SRC, host=True)
     view = staging.view()
     for im, off in zip(images, offsets[:-1]):
-        view[off:off + im.nbytes] = np.ascontiguousarray(im, dtype=np.uint8).reshape(-1)
-    runs, start = [], 0   # (first layer, count, h, w): consecutive images of one size
+        view[off : off + im.nbytes] = np.ascontiguousarray(im, dtype=np.uint8).reshape(-1)
+    runs, start = [], 0  # (first layer, count, h, w): consecutive images of one size
     for i in range(1, n + 1):
         if i == n or images[i].shape[:2] != images[start].shape[:2]:
             runs.append((start, i - start, *images[start].shape[:2]))
@@ -308,10 +405,17 @@ def upload_texture_array(ctx: Context, images: list, width: int, height: int, sr
             _layout(cmd, img, vk.VK_IMAGE_LAYOUT_UNDEFINED, DST, 0, TW)
 
             def copy(target, first, count, h, w, layer0):
-                regions = [vk.VkBufferImageCopy(
-                    bufferOffset=int(offsets[first + k]), bufferRowLength=0, bufferImageHeight=0,
-                    imageSubresource=_layers(layer0 + k, 1), imageOffset=vk.VkOffset3D(0, 0, 0),
-                    imageExtent=vk.VkExtent3D(w, h, 1)) for k in range(count)]
+                regions = [
+                    vk.VkBufferImageCopy(
+                        bufferOffset=int(offsets[first + k]),
+                        bufferRowLength=0,
+                        bufferImageHeight=0,
+                        imageSubresource=_layers(layer0 + k, 1),
+                        imageOffset=vk.VkOffset3D(0, 0, 0),
+                        imageExtent=vk.VkExtent3D(w, h, 1),
+                    )
+                    for k in range(count)
+                ]
                 vk.vkCmdCopyBufferToImage(cmd, staging.handle, target.handle, DST, len(regions), regions)
 
             for first, count, h, w in runs:
@@ -324,25 +428,46 @@ def upload_texture_array(ctx: Context, images: list, width: int, height: int, sr
                 copy(tmp, first, count, h, w, 0)
                 _layout(cmd, tmp, DST, SRC, TW, TR)
                 blit = vk.VkImageBlit(
-                    srcSubresource=_layers(0, count), srcOffsets=[vk.VkOffset3D(0, 0, 0), vk.VkOffset3D(w, h, 1)],
+                    srcSubresource=_layers(0, count),
+                    srcOffsets=[vk.VkOffset3D(0, 0, 0), vk.VkOffset3D(w, h, 1)],
                     dstSubresource=_layers(first, count),
-                    dstOffsets=[vk.VkOffset3D(0, 0, 0), vk.VkOffset3D(width, height, 1)])
+                    dstOffsets=[vk.VkOffset3D(0, 0, 0), vk.VkOffset3D(width, height, 1)],
+                )
                 vk.vkCmdBlitImage(cmd, tmp.handle, SRC, img.handle, DST, 1, [blit], vk.VK_FILTER_LINEAR)
             mw, mh = width, height
-            for level in range(1, levels):   # each level from the one above, all layers in one blit
+            for level in range(1, levels):  # each level from the one above, all layers in one blit
                 _layout(cmd, img, DST, SRC, TW, TR, base_mip=level - 1, levels=1)
                 nw, nh = max(mw // 2, 1), max(mh // 2, 1)
                 blit = vk.VkImageBlit(
                     srcSubresource=_layers(0, n, level - 1),
                     srcOffsets=[vk.VkOffset3D(0, 0, 0), vk.VkOffset3D(mw, mh, 1)],
                     dstSubresource=_layers(0, n, level),
-                    dstOffsets=[vk.VkOffset3D(0, 0, 0), vk.VkOffset3D(nw, nh, 1)])
+                    dstOffsets=[vk.VkOffset3D(0, 0, 0), vk.VkOffset3D(nw, nh, 1)],
+                )
                 vk.vkCmdBlitImage(cmd, img.handle, SRC, img.handle, DST, 1, [blit], vk.VK_FILTER_LINEAR)
-                _layout(cmd, img, SRC, READ_ONLY, TR, vk.VK_ACCESS_SHADER_READ_BIT, level - 1, 1,
-                        vk.VK_PIPELINE_STAGE_ALL_COMMANDS_BIT)
+                _layout(
+                    cmd,
+                    img,
+                    SRC,
+                    READ_ONLY,
+                    TR,
+                    vk.VK_ACCESS_SHADER_READ_BIT,
+                    level - 1,
+                    1,
+                    vk.VK_PIPELINE_STAGE_ALL_COMMANDS_BIT,
+                )
                 mw, mh = nw, nh
-            _layout(cmd, img, DST, READ_ONLY, TW, vk.VK_ACCESS_SHADER_READ_BIT, levels - 1, 1,
-                    vk.VK_PIPELINE_STAGE_ALL_COMMANDS_BIT)
+            _layout(
+                cmd,
+                img,
+                DST,
+                READ_ONLY,
+                TW,
+                vk.VK_ACCESS_SHADER_READ_BIT,
+                levels - 1,
+                1,
+                vk.VK_PIPELINE_STAGE_ALL_COMMANDS_BIT,
+            )
     except BaseException:
         img.destroy()
         raise
@@ -362,9 +487,21 @@ class Sampler:
         filt = vk.VK_FILTER_LINEAR if linear else vk.VK_FILTER_NEAREST
         mode = vk.VK_SAMPLER_ADDRESS_MODE_REPEAT if repeat else vk.VK_SAMPLER_ADDRESS_MODE_CLAMP_TO_EDGE
         aniso = self.anisotropy = float(max(1.0, min(anisotropy, ctx.max_anisotropy)))
-        self.handle = vk.vkCreateSampler(ctx.device, vk.VkSamplerCreateInfo(
-            magFilter=filt, minFilter=filt, mipmapMode=vk.VK_SAMPLER_MIPMAP_MODE_LINEAR,
-            addressModeU=mode, addressModeV=mode, addressModeW=mode, maxLod=max_lod, minLod=0.0,
-            anisotropyEnable=vk.VK_TRUE if aniso > 1.0 else vk.VK_FALSE, maxAnisotropy=aniso,
-            borderColor=vk.VK_BORDER_COLOR_FLOAT_OPAQUE_WHITE), None)
+        self.handle = vk.vkCreateSampler(
+            ctx.device,
+            vk.VkSamplerCreateInfo(
+                magFilter=filt,
+                minFilter=filt,
+                mipmapMode=vk.VK_SAMPLER_MIPMAP_MODE_LINEAR,
+                addressModeU=mode,
+                addressModeV=mode,
+                addressModeW=mode,
+                maxLod=max_lod,
+                minLod=0.0,
+                anisotropyEnable=vk.VK_TRUE if aniso > 1.0 else vk.VK_FALSE,
+                maxAnisotropy=aniso,
+                borderColor=vk.VK_BORDER_COLOR_FLOAT_OPAQUE_WHITE,
+            ),
+            None,
+        )
         ctx.defer_destroy(vk.vkDestroySampler, ctx.device, self.handle, None)

@@ -5,6 +5,7 @@ the `Context` (device, queue, limits, submit, the lock) but has its own command 
 destroy, so that closing the user frees what it made, recording its command buffers needs no lock shared with the
 other users (Vulkan: a pool's buffers are recorded from one thread at a time), and the context stays for the others.
 """
+
 from __future__ import annotations
 
 import threading
@@ -23,11 +24,16 @@ class Scope:
 
     def __init__(self, ctx: Context, owner: str = ""):
         ctx.check_open(owner or "Scope")
-        self.__dict__["parent"] = ctx     # (attribute reads fall through to the context: __getattr__)
+        self.__dict__["parent"] = ctx  # (attribute reads fall through to the context: __getattr__)
         self.owner = owner
         self._destroy_stack: list = []
-        self.pool = vk.vkCreateCommandPool(ctx.device, vk.VkCommandPoolCreateInfo(
-            flags=vk.VK_COMMAND_POOL_CREATE_RESET_COMMAND_BUFFER_BIT, queueFamilyIndex=ctx.queue_family), None)
+        self.pool = vk.vkCreateCommandPool(
+            ctx.device,
+            vk.VkCommandPoolCreateInfo(
+                flags=vk.VK_COMMAND_POOL_CREATE_RESET_COMMAND_BUFFER_BIT, queueFamilyIndex=ctx.queue_family
+            ),
+            None,
+        )
         self._open = True
         ctx.add_scope(self)
 
@@ -63,8 +69,12 @@ class Scope:
         self._destroy_stack.append((fn, args))
 
     def allocate_command_buffer(self):
-        return vk.vkAllocateCommandBuffers(self.parent.device, vk.VkCommandBufferAllocateInfo(
-            commandPool=self.pool, level=vk.VK_COMMAND_BUFFER_LEVEL_PRIMARY, commandBufferCount=1))[0]
+        return vk.vkAllocateCommandBuffers(
+            self.parent.device,
+            vk.VkCommandBufferAllocateInfo(
+                commandPool=self.pool, level=vk.VK_COMMAND_BUFFER_LEVEL_PRIMARY, commandBufferCount=1
+            ),
+        )[0]
 
     def free_command_buffer(self, cmd):
         self.parent.forget_command_buffer(cmd)
@@ -79,7 +89,7 @@ class Scope:
             if not ctx.closed:
                 try:
                     ctx.wait_idle()
-                except Exception:   # a lost device: destroying its objects is still allowed
+                except Exception:  # a lost device: destroying its objects is still allowed
                     pass
             self.destroy_objects()
             ctx.remove_scope(self)
@@ -93,7 +103,7 @@ class Scope:
         while self._destroy_stack:
             fn, args = self._destroy_stack.pop()
             fn(*args)
-        vk.vkDestroyCommandPool(self.parent.device, self.pool, None)   # (frees its command buffers)
+        vk.vkDestroyCommandPool(self.parent.device, self.pool, None)  # (frees its command buffers)
         self.pool = None
 
 
@@ -132,11 +142,11 @@ class Device(Closes):
             ConfigError: no device matches `index_or_name`.
             VulkanError: no usable Vulkan device.
         """
-        if index_or_name is not None and (isinstance(index_or_name, bool)
-                                          or not isinstance(index_or_name, (int, str))):
-            raise ConfigError(f"Device: index_or_name must be a device index or part of its name, got "
-                              f"{type(index_or_name).__name__}")
-        self._lock = threading.Lock()    # the list of users only; never held while a user closes
+        if index_or_name is not None and (isinstance(index_or_name, bool) or not isinstance(index_or_name, (int, str))):
+            raise ConfigError(
+                f"Device: index_or_name must be a device index or part of its name, got {type(index_or_name).__name__}"
+            )
+        self._lock = threading.Lock()  # the list of users only; never held while a user closes
         self._users: weakref.WeakSet[Any] = weakref.WeakSet()
         self._closed = False
         self.context = Context(device=index_or_name, validation=validation or None)
@@ -183,10 +193,9 @@ class Device(Closes):
             self._closed = True
             users = list(self._users)
             self._users.clear()
-        for user in users:      # outside the lock: a user's close() may be waiting for it (detach)
+        for user in users:  # outside the lock: a user's close() may be waiting for it (detach)
             user.close()
         self.context.close()
-
 
     def __repr__(self) -> str:
         state = "closed" if self._closed else f"{self.users} users"

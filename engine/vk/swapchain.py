@@ -7,6 +7,7 @@ on offer the blit would encode a second time; `Swapchain.srgb` says so, and the 
 Swapchain images are only ever written by transfers (blits), so the usage is TRANSFER_DST (+ COLOR_ATTACHMENT,
 which every surface supports and some drivers expect).
 """
+
 from __future__ import annotations
 
 import logging
@@ -23,8 +24,12 @@ PRESENT_MODES = {
     "mailbox": vk.VK_PRESENT_MODE_MAILBOX_KHR,
     "immediate": vk.VK_PRESENT_MODE_IMMEDIATE_KHR,
 }
-PREFERRED_FORMATS = (vk.VK_FORMAT_B8G8R8A8_UNORM, vk.VK_FORMAT_R8G8B8A8_UNORM,
-                     vk.VK_FORMAT_B8G8R8A8_SRGB, vk.VK_FORMAT_R8G8B8A8_SRGB)
+PREFERRED_FORMATS = (
+    vk.VK_FORMAT_B8G8R8A8_UNORM,
+    vk.VK_FORMAT_R8G8B8A8_UNORM,
+    vk.VK_FORMAT_B8G8R8A8_SRGB,
+    vk.VK_FORMAT_R8G8B8A8_SRGB,
+)
 _SRGB_FORMATS = {vk.VK_FORMAT_B8G8R8A8_SRGB, vk.VK_FORMAT_R8G8B8A8_SRGB}
 # How long acquire waits for an image: a presentation engine that stalls (a hidden window on some systems) must not
 # hang the caller, which can then handle its window's events (a close) and try again
@@ -112,21 +117,36 @@ class Swapchain:
             count = min(count, caps.maxImageCount)
         usage = vk.VK_IMAGE_USAGE_TRANSFER_DST_BIT | vk.VK_IMAGE_USAGE_COLOR_ATTACHMENT_BIT
         if caps.supportedUsageFlags & usage != usage:
-            raise VulkanError(f"the surface does not allow TRANSFER_DST swapchain images "
-                              f"(usage {caps.supportedUsageFlags:#x})")
+            raise VulkanError(
+                f"the surface does not allow TRANSFER_DST swapchain images (usage {caps.supportedUsageFlags:#x})"
+            )
         alpha = vk.VK_COMPOSITE_ALPHA_OPAQUE_BIT_KHR
         if not caps.supportedCompositeAlpha & alpha:
-            alpha = next(b for b in (vk.VK_COMPOSITE_ALPHA_INHERIT_BIT_KHR,
-                                     vk.VK_COMPOSITE_ALPHA_PRE_MULTIPLIED_BIT_KHR,
-                                     vk.VK_COMPOSITE_ALPHA_POST_MULTIPLIED_BIT_KHR)
-                         if caps.supportedCompositeAlpha & b)
+            alpha = next(
+                b
+                for b in (
+                    vk.VK_COMPOSITE_ALPHA_INHERIT_BIT_KHR,
+                    vk.VK_COMPOSITE_ALPHA_PRE_MULTIPLIED_BIT_KHR,
+                    vk.VK_COMPOSITE_ALPHA_POST_MULTIPLIED_BIT_KHR,
+                )
+                if caps.supportedCompositeAlpha & b
+            )
         old = self.handle
         info = vk.VkSwapchainCreateInfoKHR(
-            surface=ctx.surface, minImageCount=count, imageFormat=self.format, imageColorSpace=self.color_space,
-            imageExtent=vk.VkExtent2D(w, h), imageArrayLayers=1, imageUsage=usage,
-            imageSharingMode=vk.VK_SHARING_MODE_EXCLUSIVE, preTransform=caps.currentTransform,
-            compositeAlpha=alpha, presentMode=self.present_mode, clipped=vk.VK_TRUE,
-            oldSwapchain=old if old is not None else vk.VK_NULL_HANDLE)
+            surface=ctx.surface,
+            minImageCount=count,
+            imageFormat=self.format,
+            imageColorSpace=self.color_space,
+            imageExtent=vk.VkExtent2D(w, h),
+            imageArrayLayers=1,
+            imageUsage=usage,
+            imageSharingMode=vk.VK_SHARING_MODE_EXCLUSIVE,
+            preTransform=caps.currentTransform,
+            compositeAlpha=alpha,
+            presentMode=self.present_mode,
+            clipped=vk.VK_TRUE,
+            oldSwapchain=old if old is not None else vk.VK_NULL_HANDLE,
+        )
         try:
             self.handle = self._create_fn(ctx.device, info, None)
         except vk.VkError as exc:
@@ -138,8 +158,14 @@ class Swapchain:
         self.images = list(self._images_fn(ctx.device, self.handle))
         self.extent = (w, h)
         self.generation += 1
-        log.debug("swapchain %dx%d, %d images, format %d, present mode %d", w, h, len(self.images),
-                  self.format, self.present_mode)
+        log.debug(
+            "swapchain %dx%d, %d images, format %d, present mode %d",
+            w,
+            h,
+            len(self.images),
+            self.format,
+            self.present_mode,
+        )
         return True
 
     def destroy(self):
@@ -165,8 +191,12 @@ class Swapchain:
     def present(self, index: int, wait_semaphores=()) -> bool:
         """Queue image `index` for presentation; False when the swapchain should be recreated."""
         info = vk.VkPresentInfoKHR(
-            waitSemaphoreCount=len(wait_semaphores), pWaitSemaphores=list(wait_semaphores) or None,
-            swapchainCount=1, pSwapchains=[self.handle], pImageIndices=[index])
+            waitSemaphoreCount=len(wait_semaphores),
+            pWaitSemaphores=list(wait_semaphores) or None,
+            swapchainCount=1,
+            pSwapchains=[self.handle],
+            pImageIndices=[index],
+        )
         try:
             self._present_fn(self.ctx.queue, info)
         except (vk.VkSuboptimalKhr, vk.VkErrorOutOfDateKhr):

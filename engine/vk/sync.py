@@ -1,4 +1,5 @@
 """Semaphores and fences, for work submitted without waiting (the viewer's frame slots)."""
+
 from __future__ import annotations
 
 import vulkan as vk

@@ -11,11 +11,15 @@ with engine.Tracer(m.vertices, m.faces) as t:
     d = (-o + rng.normal(0, 0.3, o.shape)).astype(np.float32)
     h = t.intersect(o, d)
     tr, pr, _, _ = reference_intersect(m.vertices, m.faces, o[:2000], d[:2000])
-    print("device", t.ctx.device_info, "hit agree", ((h.prim[:2000]>=0)==(pr>=0)).mean())
+    print("device", t.ctx.device_info, "hit agree", ((h.prim[:2000] >= 0) == (pr >= 0)).mean())
 s = engine.Scene.load("scenes/default.toml")
-with engine.Renderer(1920,1080) as r:
+with engine.Renderer(1920, 1080) as r:
     for _ in range(4):
         f = r.render(s)
-    print("1080p default timings", {k: round(v, 3) for k, v in f.timings.items()},
-          "total", round(sum(f.timings.values()), 3))
+    print(
+        "1080p default timings",
+        {k: round(v, 3) for k, v in f.timings.items()},
+        "total",
+        round(sum(f.timings.values()), 3),
+    )
     print("bvh", r.bvh_stats)

@@ -12,6 +12,7 @@ ModuleNotFoundError. The output has the input's file name, in OUT_DIR.
 
 Check (the wheel's Python): pip install --no-deps --target DIR OUT_DIR/mitsuba-*.whl drjit-*.whl, then
 PYTHONPATH=DIR python -c "import mitsuba; mitsuba.set_variant('scalar_rgb')"."""
+
 from __future__ import annotations
 
 import argparse
@@ -54,8 +55,10 @@ def slim(wheel: Path, out_dir: Path, variants: list[str]) -> Path:
         present = {m.group("variant") for m in map(VARIANT_MODULE.match, names) if m}
         missing = [v for v in variants if v not in present]
         if missing:
-            raise SystemExit(f"slim_mitsuba_wheel: {wheel.name} has no variant {', '.join(missing)} "
-                             f"(it has: {', '.join(sorted(present))})")
+            raise SystemExit(
+                f"slim_mitsuba_wheel: {wheel.name} has no variant {', '.join(missing)} "
+                f"(it has: {', '.join(sorted(present))})"
+            )
         record = next(n for n in names if n.endswith(".dist-info/RECORD"))
         lines = []
         with zipfile.ZipFile(out, "w", zipfile.ZIP_DEFLATED, compresslevel=9) as dst:
@@ -65,8 +68,7 @@ def slim(wheel: Path, out_dir: Path, variants: list[str]) -> Path:
                     continue
                 data = src.read(info)
                 if name == config:
-                    text, n = re.subn(r"^MI_VARIANTS = .*$", f"MI_VARIANTS = {variants!r}", data.decode(),
-                                      flags=re.M)
+                    text, n = re.subn(r"^MI_VARIANTS = .*$", f"MI_VARIANTS = {variants!r}", data.decode(), flags=re.M)
                     if n != 1:
                         raise SystemExit(f"slim_mitsuba_wheel: no MI_VARIANTS line in {config}")
                     data = text.encode()
@@ -86,15 +88,20 @@ def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("wheel", type=Path)
     ap.add_argument("out_dir", type=Path)
-    ap.add_argument("--variants", default="scalar_rgb,cuda_ad_rgb",
-                    help="comma-separated variants to keep (default: scalar_rgb,cuda_ad_rgb)")
+    ap.add_argument(
+        "--variants",
+        default="scalar_rgb,cuda_ad_rgb",
+        help="comma-separated variants to keep (default: scalar_rgb,cuda_ad_rgb)",
+    )
     args = ap.parse_args(argv)
     variants = [v.strip() for v in args.variants.split(",") if v.strip()]
     if not variants:
         raise SystemExit("slim_mitsuba_wheel: --variants names no variant")
     out = slim(args.wheel, args.out_dir, variants)
-    print(f"{out}: {out.stat().st_size / 1e6:.1f} MB (was {args.wheel.stat().st_size / 1e6:.1f} MB), "
-          f"variants {', '.join(variants)}")
+    print(
+        f"{out}: {out.stat().st_size / 1e6:.1f} MB (was {args.wheel.stat().st_size / 1e6:.1f} MB), "
+        f"variants {', '.join(variants)}"
+    )
     return 0
 
 

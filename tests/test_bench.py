@@ -229,3 +229,17 @@ def test_build_mesh_kinds(kind):
         assert mesh.is_watertight and mesh.is_winding_consistent and mesh.volume > 0
     with pytest.raises(ConfigError, match="unknown mesh kind 'cube'"):
         build_mesh("cube", 1000)
+
+
+@pytest.mark.slow
+def test_start_section_times_fresh_processes_and_judges_issue_31(tmp_path):
+    """`hybrid bench start`: `import engine` and a whole `hybrid render default` in fresh processes; the report shows
+    both and the targets judge them (pass or miss: a loaded machine may miss, nothing here asserts a timing)."""
+    cfg = BenchConfig(sections=("start",), start_reps=1)
+    res = run_bench(cfg, json_path=tmp_path / "b.json", plot_path=tmp_path / "b.png", progress=False)
+    st = json.loads((tmp_path / "b.json").read_text())["start"]
+    assert 0 < st["import_s"] < st["render_s"] and len(st["render_runs_s"]) == 1
+    targets = [t for t in res["targets"] if t["issue"] == 31]
+    assert len(targets) == 2 and all(t["status"] in ("pass", "miss") for t in targets)
+    text = format_report(res)
+    assert "Start-up" in text and "import engine" in text and "hybrid render default" in text

@@ -10,7 +10,7 @@ from ..errors import ConfigError
 
 REPO = Path(__file__).resolve().parents[2]  # the folder holding the engine package (the probe's working folder)
 DEFAULT_SCENE = SCENES_DIR / "default.toml"
-SECTIONS = ("build", "trace", "frame")
+SECTIONS = ("build", "trace", "frame", "start")
 PEERS = ("embreex", "open3d", "mitsuba", "mitsuba_device")
 ENGINES = ("ours",) + PEERS
 RAYSETS = ("shadow", "ao", "random", "scattered")
@@ -52,6 +52,7 @@ class BenchConfig:
     frame_reps: int = 5
     dataset_frames: int = 200  # render_many's frames in the frame section's dataset figures
     frame_warmup: int = 2
+    start_reps: int = 5  # fresh processes per start-up figure (after one warm-up each)
     random_rays: int | None = None  # None: as many as the G-buffer has pixels
     thread_probe: bool = True  # lavapipe only: re-run the default scene's rays with LP_NUM_THREADS
     seed: int = 1
@@ -70,5 +71,6 @@ class BenchConfig:
             cfg.frame_reps = 3
             cfg.dataset_frames = 40
             cfg.frame_warmup = 1
+            cfg.start_reps = 3
             cfg.thread_probe = False
         return cfg

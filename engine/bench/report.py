@@ -187,6 +187,13 @@ def format_report(results: dict) -> str:
             f"(median of runs)",
             _table(rows, ["pass", "render() ms", "back to back ms"]),
         ]
+    st = results.get("start")
+    if st:
+        rows = [
+            ["import engine", _fmt(st["import_s"], ".2f"), " ".join(_fmt(v, ".2f") for v in st["import_runs_s"])],
+            [st["render_command"], _fmt(st["render_s"], ".2f"), " ".join(_fmt(v, ".2f") for v in st["render_runs_s"])],
+        ]
+        parts += ["", "Start-up (fresh processes after one warm-up each; wall s)", _table(rows, ["", "median", "runs"])]
     if results.get("targets"):
         rows = [
             [

@@ -31,6 +31,7 @@ from .peers import agreement, make_peer
 from .progress import Progress
 from .rays import RaySet, first_light_rays, gbuffer_raysets, random_rayset, scattered_rayset, scene_diag
 from .scenes import build_mesh, generated_scene
+from .start import run_start
 from .targets import evaluate_targets
 from .timing import median
 from .transfer import CopyPeer
@@ -70,6 +71,8 @@ class Bench:
             n += per_scene * (1 + (cfg.real_scene is not None)) + self._probe_wanted()
         if "frame" in cfg.sections:
             n += 2 * len(self._frame_scene_keys())
+        if "start" in cfg.sections:
+            n += 1
         return n
 
     def _frame_scene_keys(self):
@@ -129,6 +132,8 @@ class Bench:
                 self.results["trace"] = self.run_trace()
             if "frame" in cfg.sections:
                 self.results["frame"] = self.run_frame()
+            if "start" in cfg.sections:
+                self.results["start"] = self._step("start-up (fresh processes)", run_start, cfg.start_reps, cfg.device)
         finally:
             self.close()
         self.results["meta"]["validation_errors"] = (self.validation_errors + self.tracer_validation_errors)[:20]

@@ -1,4 +1,4 @@
-"""The goals of issues 3, 6, 16 and 19 judged on a bench's results: pass / miss with the margin, or not measured."""
+"""The goals of issues 3, 6, 16, 19 and 31 judged on a bench's results: pass / miss with the margin, or not measured."""
 
 from __future__ import annotations
 
@@ -175,4 +175,10 @@ def evaluate_targets(results: dict) -> list[dict]:
                     "submit() without readback; a viewer adds swapchain acquire/present",
                 )
             )
+    st = results.get("start")
+    if st:
+        out.append(_target(31, "import engine <= 0.3 s", st["import_s"], 0.3, "s", False))
+        out.append(
+            _target(31, "second `hybrid render default --size 64x64` <= 1.5 s wall", st["render_s"], 1.5, "s", False)
+        )
     return out

@@ -267,6 +267,23 @@ def test_items_are_rendered_again_when_what_they_depend_on_changes(tmp_path):
     assert run_batch(load_job(path), progress=False, redo=True).rendered == 3
 
 
+def test_a_scene_files_own_settings_are_part_of_its_items_keys(tmp_path):
+    """The settings in effect are the job's over the scene file's [settings]: a rerun after the scene's settings
+    changed renders its items again (issue #36: they were skipped, the files holding the old settings)."""
+    scene = tmp_path / "s.toml"
+    scene.write_text((REPO / "scenes" / "sphere.toml").read_text())
+    text = "output = 'out'\nsize = '16x12'\naovs = ['depth']\n[cameras]\norbit = 1\n[[scenes]]\nscene = 's.toml'\n"
+    path = write_job(tmp_path, text)
+    plain = load_job(path).items[0].key
+    assert run_batch(load_job(path), progress=False).rendered == 1
+    scene.write_text(scene.read_text() + "\n[settings]\nshadows = 'off'\n")
+    assert load_job(path).items[0].key != plain
+    assert run_batch(load_job(path), progress=False).rendered == 1
+    assert run_batch(load_job(path), progress=False).skipped == 1
+    scene.write_text((REPO / "scenes" / "sphere.toml").read_text())
+    assert load_job(path).items[0].key == plain  # no [settings]: the key is what it was before scene settings counted
+
+
 # ---- kill and resume -----------------------------------------------------------------------------------------------
 def test_a_killed_batch_resumes_without_redoing_finished_items(tmp_path):
     n = 24

@@ -271,7 +271,8 @@ def build_parser() -> argparse.ArgumentParser:
     r.add_argument(
         "--resume",
         action="store_true",
-        help="sequences: skip frames whose files (and camera sidecar) exist, render the rest",
+        help="sequences: skip frames whose files (and camera sidecar) exist, render the rest; a finished frame "
+        "of another camera, size, AOVs or settings is an error",
     )
     r.add_argument("-q", "--quiet", action="store_true", help="no progress bar and no summary line")
     r.add_argument("--device", default=None, help="Vulkan device index or name substring")

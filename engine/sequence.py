@@ -20,6 +20,7 @@ import numpy as np
 from tqdm import tqdm
 
 from .errors import ConfigError, SceneError
+from .files import remove_stale_temporaries
 from .frame import Frame
 from .outputs import check_output_path, write_camera_json
 from .renderer import Renderer
@@ -250,9 +251,10 @@ def render_sequence(
     `frames_per_view` frames per camera, the last written (soft shadows and AO accumulate). The sidecar holds the
     camera record and, under "output", what the file holds (`output_record`). With `resume`, a frame whose files
     exist is skipped; its sidecar must hold this run's camera, size, scene and output record (else a ConfigError
-    says what differs). Writes are atomic: a killed run leaves
-    finished frames whole and nothing of the others. With `fps`, frame i shows the scene's animation at
-    t = i / fps (`Scene.animate`; its frames_per_view frames all at that t)."""
+    says what differs). Writes are atomic: a killed run leaves finished frames whole and nothing of the others but
+    hidden temporaries, which the next run removes (`remove_stale_temporaries`). With `fps`, frame i shows the
+    scene's animation at t = i / fps (`Scene.animate`; its frames_per_view frames all at that t)."""
+    started = time.time()
     if len(cameras) != len(paths):
         raise ConfigError(f"{len(cameras)} cameras for {len(paths)} output paths")
     check_output_path(paths[0])  # every path is in that folder (output_paths): checked before the work
@@ -264,6 +266,8 @@ def render_sequence(
     for i, (cam, path) in enumerate(zip(cameras, paths)):
         if not (resume and _finished(path, cam, i, width, height, scene.name, sidecars, record)):
             todo.append((cam, path, i))
+    # a killed run's temporaries of these files (the frames it was writing may be finished by now, or not wanted)
+    remove_stale_temporaries([*paths, *(sidecar_path(p) for p in paths if sidecars)], started)
     t0 = time.perf_counter()
     written, last = 0, None
     views = (_at_time(scene, cam, i, fps) for cam, _, i in todo for _ in range(frames_per_view))

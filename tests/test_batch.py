@@ -258,6 +258,12 @@ def test_items_are_rendered_again_when_what_they_depend_on_changes(tmp_path):
     first = run_batch(load_job(path), progress=False)
     assert (first.rendered, first.skipped) == (3, 0)
     assert (run_batch(load_job(path), progress=False).rendered, first.ok) == (0, True)
+    # a killed batch's temporaries go with the next run, though it writes none of those files (issue #36)
+    for name in ("sphere/.0000.npz.part-999999-abc.tmp", ".manifest.json.part-999999-abc.tmp"):
+        (tmp_path / "out" / name).write_bytes(b"partial")
+        os.utime(tmp_path / "out" / name, (time.time() - 60,) * 2)
+    assert run_batch(load_job(path), progress=False).skipped == 3
+    assert no_temporaries(tmp_path / "out") == []
     # another setting: every key changes; the manifest is not needed to tell (the .npz holds its item's key)
     (tmp_path / "out" / MANIFEST_NAME).unlink()
     assert run_batch(load_job(path), progress=False).skipped == 3

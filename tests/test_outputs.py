@@ -476,6 +476,23 @@ def test_resume_compares_what_each_file_holds(make_renderer, tmp_path):
         render_sequence(r, scene, cams, paths, **base, resume=True)
 
 
+def test_a_completed_resume_removes_a_killed_runs_temporaries(make_renderer, tmp_path):
+    """A killed run's hidden temporaries of this sequence's files go with the next run, even when it writes none of
+    those files (issue #36); anything else in the folder stays."""
+    scene = Scene.load("sphere")
+    r = make_renderer(16, 12)
+    cams, paths = orbit_cameras(scene, 2), output_paths(str(tmp_path / "f_#.npz"), 2)
+    kw = dict(aovs=("depth",), settings={"ao": False}, save={})
+    render_sequence(r, scene, cams, paths, **kw)
+    killed = [f".f_0.npz.part-{os.getpid()}-k1ll3d.tmp", ".f_1.json.part-999999-abc.tmp"]
+    kept = [".notes.txt.part-1-abc.tmp", "mine.tmp"]
+    for name in killed + kept:
+        (tmp_path / name).write_bytes(b"partial")
+        os.utime(tmp_path / name, (time.time() - 60,) * 2)
+    assert render_sequence(r, scene, cams, paths, **kw, resume=True).skipped == 2
+    assert sorted(p.name for p in tmp_path.iterdir()) == sorted(["f_0.npz", "f_0.json", "f_1.npz", "f_1.json"] + kept)
+
+
 def test_cli_progress_bar_goes_to_a_terminal(tmp_path):
     master, slave = pty.openpty()
     fcntl.ioctl(slave, termios.TIOCSWINSZ, struct.pack("HHHH", 30, 100, 0, 0))  # a 100-column terminal

@@ -8,6 +8,7 @@ import time
 from dataclasses import dataclass, field
 
 from ..errors import ConfigError
+from ..files import remove_stale_temporaries
 from ..vk import choose_device, describe_devices
 from .distributed import run_ray
 from .job import Job
@@ -129,9 +130,14 @@ def run_batch(
     except OSError as exc:
         raise ConfigError(f"{job.output}: cannot make the output folder: {exc.strerror or exc}") from None
     result = BatchResult()
+    started = time.time()
     with FolderLock(job.output):
         manifest = Manifest(job, interval=manifest_interval)
         todo, done = manifest.split(redo)
+        # a killed batch's temporaries of the job's files (its items may be finished by now); the lock keeps other
+        # batches out, and a live writer's temporary is locked
+        targets = [job.output / name for item in job.items for name in job.files(item)]
+        remove_stale_temporaries([*targets, manifest.path], started)
         result.skipped = len(done)
         result.manifest = str(manifest.path)
         bar = Progress(len(todo), enabled=progress)

@@ -20,7 +20,7 @@ try:
 except ImportError:  # pragma: no cover - not POSIX: no locks; only temporaries of dead writers are removed
     fcntl = None  # type: ignore[assignment]
 
-from .errors import ConfigError, EngineError
+from .errors import ConfigError, EngineError, shown
 
 _TMP_SUFFIX = ".tmp"
 #: Our temporaries' names: `.<target name>.part-<pid>-<mkstemp's random part>.tmp`.
@@ -184,6 +184,12 @@ def check_writable(path, what: str = "file") -> Path:
     (probed, so that read-only file systems are found even when running as root)."""
     path = Path(os.fspath(path))
     folder = path.parent if str(path.parent) else Path(".")
+    try:
+        if "\0" in str(path):
+            raise ValueError
+        os.fsencode(path)
+    except (UnicodeError, ValueError):  # a NUL, or text no file name can hold (a lone surrogate from Python)
+        raise ConfigError(f"{shown(path)}: not a valid file name") from None
     if path.is_dir():
         raise ConfigError(f"{path}: is a folder, not a {what}")
     if not folder.is_dir():

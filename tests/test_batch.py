@@ -467,3 +467,12 @@ def test_ray_runs_a_job_end_to_end_on_a_local_cluster(tmp_path):
     (tmp_path / "out" / MANIFEST_NAME).unlink()
     (tmp_path / "local" / MANIFEST_NAME).unlink()
     assert_same_outputs(tmp_path / "out", tmp_path / "local")
+
+
+def test_the_summary_line_escapes_names_and_paths(tmp_path):
+    from engine.batch.driver import BatchResult
+
+    text = "output = 'o'\nsize = '16x12'\n[cameras]\norbit = 1\n[[scenes]]\nscene = 'sphere'\n"
+    job = load_job(write_job(tmp_path, text, name="j\n\x1b[2J.toml"))
+    line = BatchResult(manifest=str(tmp_path / "o\n" / MANIFEST_NAME), where="nothing to render").summary(job)
+    assert "\n" not in line and "\x1b" not in line and "j\\n\\x1b[2J.toml" in line and "o\\n/manifest.json" in line

@@ -7,7 +7,7 @@ import sys
 import time
 from dataclasses import dataclass, field
 
-from ..errors import ConfigError
+from ..errors import ConfigError, shown
 from ..files import remove_stale_temporaries
 from ..vk import choose_device, describe_devices
 from .distributed import run_ray
@@ -40,9 +40,9 @@ class BatchResult:
         total = self.rendered + self.skipped + len(self.failed)
         rate = f"{self.rendered / self.seconds:.2f} items/s" if self.seconds > 0 and self.rendered else "-"
         return (
-            f"batch: {total} items of {job.path.name}: {self.rendered} rendered, {self.skipped} already done, "
-            f"{len(self.failed)} failed; {self.seconds:.1f} s ({rate}) on {self.where}; "
-            f"manifest {self.manifest}"
+            f"batch: {total} items of {shown(job.path.name)}: {self.rendered} rendered, {self.skipped} already "
+            f"done, {len(self.failed)} failed; {self.seconds:.1f} s ({rate}) on {shown(self.where)}; "
+            f"manifest {shown(self.manifest)}"
         )
 
 

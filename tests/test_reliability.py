@@ -376,3 +376,35 @@ def test_device_lost_ends_the_renderer_cleanly(monkeypatch):
         r.render(scene)
     r.close()
     assert not r.validation_errors
+
+
+def _host_without_room(limit: int):
+    """np.empty, except that arrays of `limit` rows or more fail as on a full host."""
+    empty = np.empty
+
+    def without_room(shape, dtype=float, *args, **kw):
+        if (shape[0] if isinstance(shape, tuple) and shape else shape) >= limit:
+            raise MemoryError(f"Unable to allocate array with shape {shape}")
+        return empty(shape, dtype, *args, **kw)
+
+    return without_room
+
+
+def test_host_out_of_memory_in_a_tracer_query_is_a_clear_error(shared_device, monkeypatch):
+    """Issue #36: a query whose result arrays the host cannot hold raised numpy's MemoryError; now an EngineError
+    names the query, the rays and the bytes. The Tracer answers the next query."""
+    m = trimesh.creation.icosphere(subdivisions=1)
+    n = 5000
+    o = np.tile(np.float32([0.0, 0.0, 5.0]), (n, 1))
+    d = np.tile(np.float32([0.0, 0.0, -1.0]), (n, 1))
+    with Tracer(m.vertices, m.faces, device=shared_device) as t:
+        monkeypatch.setattr(np, "empty", _host_without_room(n))
+        for query, mib in (("occluded", n / 2**20), ("intersect", 16 * n / 2**20), ("closest", 28 * n / 2**20)):
+            with pytest.raises(EngineError) as exc:
+                getattr(t, query)(o) if query == "closest" else getattr(t, query)(o, d)
+            assert str(exc.value) == (
+                f"Tracer.{query}: out of host memory for the results of 5,000 rays ({mib:,.1f} MiB): "
+                f"query fewer rays at a time"
+            )
+        monkeypatch.undo()
+        assert t.occluded(o, d).all() and np.allclose(t.intersect(o, d).t, 4.0, atol=0.02)

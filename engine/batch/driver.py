@@ -3,6 +3,7 @@ the summary. `run_batch(job, ...)` is the Python entry point of `hybrid batch`."
 
 from __future__ import annotations
 
+import itertools
 import sys
 import time
 from dataclasses import dataclass, field
@@ -136,8 +137,8 @@ def run_batch(
         todo, done = manifest.split(redo)
         # a killed batch's temporaries of the job's files (its items may be finished by now); the lock keeps other
         # batches out, and a live writer's temporary is locked
-        targets = [job.output / name for item in job.items for name in job.files(item)]
-        remove_stale_temporaries([*targets, manifest.path], started)
+        targets = (job.output / name for item in job.items for name in job.files(item))
+        remove_stale_temporaries(itertools.chain(targets, [manifest.path]), started)
         result.skipped = len(done)
         result.manifest = str(manifest.path)
         bar = Progress(len(todo), enabled=progress)

@@ -124,23 +124,24 @@ def cmd_render(args) -> int:
         if old_handler is not None:
             signal.signal(signal.SIGTERM, old_handler)
     what = ", ".join(names)
+    out, name, device = shown(args.output), shown(scene.name), shown(device)  # one line each, escaped as errors are
     if args.quiet:
         pass
     elif sequence:
         rate = result.rendered / result.seconds if result.seconds > 0 else 0.0
         print(
-            f"{args.output}: {result.frames} frames ({result.rendered} rendered, {result.skipped} already done) "
-            f"of {width}x{height} {what} of {scene.name} on {device}: {rate:.2f} frames/s, "
+            f"{out}: {result.frames} frames ({result.rendered} rendered, {result.skipped} already done) "
+            f"of {width}x{height} {what} of {name} on {device}: {rate:.2f} frames/s, "
             f"{_size(result.bytes_written)} written in {result.seconds:.1f} s"
         )
     else:
         gpu = ", ".join(f"{k} {v:.2f}" for k, v in result.last.timings.items())
         print(
-            f"{args.output}: {width}x{height} {what} of {scene.name} ({scene.triangle_count} triangles) "
+            f"{out}: {width}x{height} {what} of {name} ({scene.triangle_count} triangles) "
             f"on {device}; load {t1 - t0:.2f} s, render {result.seconds:.2f} s; GPU ms: {gpu}"
         )
     if errors:
-        print(f"error: {len(errors)} validation errors; first: {errors[0]}", file=sys.stderr)
+        print(f"error: {len(errors)} validation errors; first: {shown(errors[0], limit=None)}", file=sys.stderr)
         return 1
     if args.validation and not args.quiet:
         print("validation: no errors")
@@ -161,8 +162,8 @@ def cmd_info(args) -> int:
     chosen = choose_device(devices, args.device)
     for d in devices:
         mark = "*" if d["index"] == chosen else " "
-        print(f"{mark} [{d['index']}] {d['name']} ({d['type']}, Vulkan {d['api']})")
-    print(f"would use: [{chosen}] {devices[chosen]['name']}  (choose with --device N|NAME or $HYBRID_DEVICE)")
+        print(f"{mark} [{d['index']}] {shown(d['name'])} ({d['type']}, Vulkan {d['api']})")
+    print(f"would use: [{chosen}] {shown(devices[chosen]['name'])}  (choose with --device N|NAME or $HYBRID_DEVICE)")
     return 0
 
 
@@ -271,7 +272,8 @@ def build_parser() -> argparse.ArgumentParser:
     r.add_argument(
         "--resume",
         action="store_true",
-        help="sequences: skip frames whose files (and camera sidecar) exist, render the rest",
+        help="sequences: skip frames whose files (and camera sidecar) exist, render the rest; a finished frame "
+        "of another camera, size, AOVs or settings is an error",
     )
     r.add_argument("-q", "--quiet", action="store_true", help="no progress bar and no summary line")
     r.add_argument("--device", default=None, help="Vulkan device index or name substring")

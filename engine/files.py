@@ -1,18 +1,30 @@
 """Writing output files so that nothing is lost: every file the engine writes goes to a temporary file in the same
 folder and is renamed over the target only once it is complete, so a crash, a kill or a full disk leaves the old file
-or the new one, never a part. Errors name the path; temporaries of writers that died are removed by the next write.
+or the new one, never a part. Errors name the path; temporaries of writers that died are removed by the next write,
+and a run removes those of its own targets left by a killed run (`remove_stale_temporaries`). A writer holds an
+advisory lock (flock) on its temporary until the rename, which tells a live writer's temporary from a dead one's.
 """
 
 from __future__ import annotations
 
 import errno
 import os
+import re
+import stat
 import tempfile
+from collections.abc import Iterable
 from pathlib import Path
 
-from .errors import ConfigError, EngineError
+try:
+    import fcntl  # POSIX only: the writers' locks (elsewhere none, see remove_stale_temporaries)
+except ImportError:  # pragma: no cover - not POSIX: no locks; only temporaries of dead writers are removed
+    fcntl = None  # type: ignore[assignment]
+
+from .errors import ConfigError, EngineError, shown
 
 _TMP_SUFFIX = ".tmp"
+#: Our temporaries' names: `.<target name>.part-<pid>-<mkstemp's random part>.tmp`.
+_TEMPORARY = re.compile(r"\.(?P<target>.+)\.part-(?P<pid>\d{1,10})-[A-Za-z0-9_]{1,32}\.tmp", re.S)
 
 
 def _umask() -> int:
@@ -44,6 +56,65 @@ def _remove_stale(path: Path):
                 os.unlink(path.parent / name)
             except OSError:
                 pass
+
+
+def remove_stale_temporaries(targets: Iterable[os.PathLike[str] | str], before: float) -> list[Path]:
+    """Remove the temporaries that writes of `targets` left when their writer was killed; returns those removed.
+
+    Conservative: only files named as our temporaries of one of the targets (`.NAME.part-PID-XXXX.tmp`), in the
+    targets' own folders (not below), regular files of this user, last modified before `before` (the calling run's
+    start, `time.time()`), and not locked by a live writer (`atomic_write` holds a lock until its rename). Without
+    locks (not POSIX), also only those whose writer's pid no longer runs."""
+    wanted: dict[Path, set[str]] = {}
+    for t in targets:
+        path = Path(os.fspath(t))
+        wanted.setdefault(path.parent, set()).add(path.name)
+    removed = []
+    for folder, names in wanted.items():
+        try:
+            entries = os.listdir(folder)
+        except OSError:
+            continue
+        for name in entries:
+            m = _TEMPORARY.fullmatch(name)
+            if m is None or m.group("target") not in names:
+                continue
+            if fcntl is None and running(int(m.group("pid"))):
+                continue
+            if _remove_if_stale(folder / name, before):
+                removed.append(folder / name)
+    return removed
+
+
+def _remove_if_stale(path: Path, before: float) -> bool:
+    try:
+        st = os.lstat(path)
+        if not stat.S_ISREG(st.st_mode) or st.st_uid != os.getuid() or st.st_mtime >= before:
+            return False
+        fd = os.open(path, os.O_RDONLY | os.O_NONBLOCK | getattr(os, "O_NOFOLLOW", 0) | getattr(os, "O_CLOEXEC", 0))
+    except OSError:
+        return False
+    try:
+        now = os.fstat(fd)
+        if (now.st_dev, now.st_ino) != (st.st_dev, st.st_ino):
+            return False  # replaced since it was looked at
+        if fcntl is not None:
+            fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)  # a live writer holds it: BlockingIOError
+        os.unlink(path)
+        return True
+    except OSError:
+        return False
+    finally:
+        os.close(fd)
+
+
+def _lock(fd: int) -> None:
+    """The writer's lock on its temporary (see remove_stale_temporaries); best effort."""
+    if fcntl is not None:
+        try:
+            fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
+        except OSError:
+            pass
 
 
 def running(pid) -> bool:
@@ -82,12 +153,13 @@ def atomic_write(path, write, what: str = "file") -> Path:
     except OSError as exc:
         raise EngineError(f"{path}: cannot write {what}: {_reason(exc)}") from None
     try:
-        with os.fdopen(fd, "wb") as f:
+        _lock(fd)
+        with os.fdopen(fd, "wb") as f:  # closed (and the lock let go) only once renamed
             write(f)
             f.flush()
             os.fsync(f.fileno())
-        os.chmod(tmp, _MODE)
-        os.replace(tmp, path)
+            os.fchmod(f.fileno(), _MODE)
+            os.replace(tmp, path)
     except BaseException as exc:
         try:
             os.unlink(tmp)
@@ -112,6 +184,12 @@ def check_writable(path, what: str = "file") -> Path:
     (probed, so that read-only file systems are found even when running as root)."""
     path = Path(os.fspath(path))
     folder = path.parent if str(path.parent) else Path(".")
+    try:
+        if "\0" in str(path):
+            raise ValueError
+        os.fsencode(path)
+    except (UnicodeError, ValueError):  # a NUL, or text no file name can hold (a lone surrogate from Python)
+        raise ConfigError(f"{shown(path)}: not a valid file name") from None
     if path.is_dir():
         raise ConfigError(f"{path}: is a folder, not a {what}")
     if not folder.is_dir():

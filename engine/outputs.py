@@ -150,6 +150,18 @@ def exr_channels(name: str, channels: int) -> list[str]:
     return [f"{name}.{axis}" for axis in "XYZ"[:channels]]
 
 
+def exr_text(value) -> str:
+    """A name as an EXR string attribute holds it: UTF-8, so a name that is not (a file name's undecodable bytes,
+    which Python holds as lone surrogates) has those escaped ('\\udcff') instead of failing the write after the
+    rendering. The `camera` JSON attribute and the sidecar keep the name exactly."""
+    text = str(value)
+    try:
+        text.encode("utf-8")
+    except UnicodeEncodeError:
+        text = text.encode("utf-8", "backslashreplace").decode("utf-8")
+    return text
+
+
 def write_exr(
     path: str | os.PathLike[str],
     arrays: dict[str, np.ndarray],
@@ -180,11 +192,11 @@ def write_exr(
         "camera": camera_json(record),
         "K": np.asarray(record["K"], np.float64),
         "pose": np.asarray(record["pose"], np.float64),
-        "scene": record.get("scene", ""),
+        "scene": exr_text(record.get("scene", "")),
     }
     for key, names in (("object_names", object_names), ("material_names", material_names)):
         if names:  # (an empty string list is not an attribute OpenEXR writes)
-            header[key] = [str(n) for n in names]
+            header[key] = [exr_text(n) for n in names]
     if not channels:
         raise ConfigError(f"{path}: nothing to write (no AOVs)")
 
@@ -208,9 +220,10 @@ def read_exr(path: str | os.PathLike[str]) -> tuple[dict[str, np.ndarray], dict[
     p = Path(os.fspath(path))
     if not p.is_file():
         raise ConfigError(f"{p}: no such file")
-    try:
-        f = OpenEXR.File(str(p), separate_channels=True)
-        header, chans = f.header(), f.channels()
+    try:  # from a stream: OpenEXR takes only paths that are UTF-8
+        with open(p, "rb") as stream:
+            f = OpenEXR.File(stream, separate_channels=True)
+            header, chans = f.header(), f.channels()
     except (RuntimeError, ValueError, OSError) as exc:
         raise ConfigError(
             f"{p}: not a readable OpenEXR file ({str(exc).splitlines()[0] if str(exc) else exc})"

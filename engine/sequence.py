@@ -20,12 +20,13 @@ import numpy as np
 from tqdm import tqdm
 
 from .errors import ConfigError, SceneError
+from .files import remove_stale_temporaries
 from .frame import Frame
-from .outputs import check_output_path
+from .outputs import check_output_path, write_camera_json
 from .renderer import Renderer
 from .scene import Camera, Scene
 from .scene.camera import DEFAULT_INTRINSICS_NEAR
-from .settings import MAX_FRAMES
+from .settings import MAX_FRAMES, check_settings
 
 try:
     import tomllib  # Python 3.11+
@@ -35,8 +36,9 @@ except ImportError:  # pragma: no cover
 _RUN = re.compile(r"#+")
 LOOK_AT_KEYS = ("eye", "target", "up", "fov_y", "fov", "near")
 INTRINSICS_KEYS = ("K", "pose", "width", "height", "convention", "near")
-#: Keys of a camera sidecar (`Frame.save_camera`) that a camera path ignores: a list of sidecars is a camera path.
-INFO_KEYS = ("scene", "fov_y")
+#: Keys of a camera sidecar (`Frame.save_camera`, a sequence's `output` record) that a camera path ignores: a list
+#: of sidecars is a camera path.
+INFO_KEYS = ("scene", "fov_y", "output")
 #: Keys a camera path may set once for every camera (at its top level).
 SHARED_KEYS = ("up", "fov_y", "fov", "near", "K", "width", "height", "convention")
 
@@ -246,20 +248,26 @@ def render_sequence(
 ) -> SequenceResult:
     """Render camera i into paths[i] (`Frame.save(path, **save)`) and, with `sidecars`, its camera beside it
     (`sidecar_path`), through `Renderer.render_many` (the GPU renders the next frame while one is written).
-    `frames_per_view` frames per camera, the last written (soft shadows and AO accumulate). With `resume`, a frame
-    whose files exist is skipped; its sidecar must hold this run's camera. Writes are atomic: a killed run leaves
-    finished frames whole and nothing of the others. With `fps`, frame i shows the scene's animation at
-    t = i / fps (`Scene.animate`; its frames_per_view frames all at that t)."""
+    `frames_per_view` frames per camera, the last written (soft shadows and AO accumulate). The sidecar holds the
+    camera record and, under "output", what the file holds (`output_record`). With `resume`, a frame whose files
+    exist is skipped; its sidecar must hold this run's camera, size, scene and output record (else a ConfigError
+    says what differs). Writes are atomic: a killed run leaves finished frames whole and nothing of the others but
+    hidden temporaries, which the next run removes (`remove_stale_temporaries`). With `fps`, frame i shows the
+    scene's animation at t = i / fps (`Scene.animate`; its frames_per_view frames all at that t)."""
+    started = time.time()
     if len(cameras) != len(paths):
         raise ConfigError(f"{len(cameras)} cameras for {len(paths)} output paths")
     check_output_path(paths[0])  # every path is in that folder (output_paths): checked before the work
     width, height = renderer.width, renderer.height
     if fps is not None and not (isinstance(fps, (int, float)) and not isinstance(fps, bool) and 0 < fps <= 1e6):
         raise ConfigError(f"--fps {fps!r}: expected frames per second in (0, 1e6]")
+    record = output_record(scene, aovs, settings, save, frames_per_view, fps)
     todo = []
     for i, (cam, path) in enumerate(zip(cameras, paths)):
-        if not (resume and _finished(path, cam, i, width, height, scene.name, sidecars)):
+        if not (resume and _finished(path, cam, i, width, height, scene.name, sidecars, record)):
             todo.append((cam, path, i))
+    # a killed run's temporaries of these files (the frames it was writing may be finished by now, or not wanted)
+    remove_stale_temporaries([*paths, *(sidecar_path(p) for p in paths if sidecars)], started)
     t0 = time.perf_counter()
     written, last = 0, None
     views = (_at_time(scene, cam, i, fps) for cam, _, i in todo for _ in range(frames_per_view))
@@ -269,8 +277,9 @@ def render_sequence(
                 continue
             _, path, _ = todo[j // frames_per_view]
             written += frame.save(path, **save).stat().st_size
-            if sidecars:
-                written += frame.save_camera(sidecar_path(path)).stat().st_size
+            if sidecars:  # the camera, and what the file holds (what --resume compares)
+                side = dict(frame.camera_record(), output=record)
+                written += write_camera_json(sidecar_path(path), side).stat().st_size
             last = frame
             bar.update(1)
     return SequenceResult(len(paths), len(todo), len(paths) - len(todo), written, time.perf_counter() - t0, last)
@@ -284,9 +293,54 @@ def _at_time(scene: Scene, camera: Camera, index: int, fps: float | None) -> Cam
     return camera
 
 
-def _finished(path: Path, camera: Camera, index: int, width: int, height: int, scene_name: str, sidecars: bool) -> bool:
+def output_record(scene: Scene, aovs: Any, settings: dict, save: dict, frames_per_view: int, fps) -> dict:
+    """What a sequence's files hold besides the camera, as plain JSON values, for the sidecar's "output" key: the
+    AOVs read back, the render settings in effect (the call's over the scene's `[settings]` over the defaults,
+    `view` included), how the file is written (`Frame.save`'s `aov`, `depth_scale`, `compress`), the frames
+    rendered per camera and the animation's frames per second. `--resume` skips a frame only where they match."""
+    names = [aovs] if isinstance(aovs, str) else list(aovs) if aovs is not None else None
+    asked = {**(getattr(scene, "settings", None) or {}), **settings}
+    try:
+        asked = check_settings(asked)
+    except ConfigError:  # render() refuses it, naming where it came from
+        pass
+    rec = {
+        "aovs": names,
+        "settings": asked,
+        "save": dict(sorted(save.items())),
+        "frames": int(frames_per_view),
+        "fps": None if fps is None else float(fps),
+    }
+    return json.loads(json.dumps(rec, default=str))  # as a sidecar reads back: tuples as lists
+
+
+def _differences(old: Any, new: dict) -> list[str]:
+    """What an output record read from a sidecar has other than `new`, as `key old (this run: new)` phrases."""
+    if not isinstance(old, dict):
+        return ["no record of its AOVs and settings (an older sidecar)"]
+    out = []
+    for key, value in new.items():
+        was = old.get(key)
+        if key == "settings" and isinstance(was, dict):
+            out += [f"{k}={was.get(k)!r} (this run: {v!r})" for k, v in value.items() if was.get(k) != v]
+        elif was != value:
+            out.append(f"{key} {was!r} (this run: {value!r})")
+    return out
+
+
+def _finished(
+    path: Path,
+    camera: Camera,
+    index: int,
+    width: int,
+    height: int,
+    scene_name: str,
+    sidecars: bool,
+    record: dict | None = None,
+) -> bool:
     """A frame is finished when its output exists and (with sidecars) its sidecar, written after it, does; a
-    sidecar of another camera or size is an error (the outputs are of another sequence)."""
+    sidecar of another camera, size or scene is an error (the outputs are of another sequence), and so is one whose
+    output record (AOVs, settings, ...) is not `record`."""
     side = sidecar_path(path)
     if not path.is_file() or (sidecars and not side.is_file()):
         return False
@@ -307,5 +361,16 @@ def _finished(path: Path, camera: Camera, index: int, width: int, height: int, s
         raise ConfigError(
             f"{side}: frame {index} was rendered from another camera or size than this run's "
             f"({scene_name}): delete the old outputs, or run without --resume to overwrite them"
+        )
+    if rec.get("scene") != scene_name:
+        raise ConfigError(
+            f"{side}: frame {index} is of scene {rec.get('scene')!r}, this run renders {scene_name!r}: "
+            f"delete the old outputs, or run without --resume to overwrite them"
+        )
+    differ = _differences(rec.get("output"), record) if record is not None else []
+    if differ:
+        raise ConfigError(
+            f"{side}: frame {index} holds other outputs than this run asks for: {'; '.join(differ)}: "
+            f"delete the old outputs, or run without --resume to overwrite them"
         )
     return True

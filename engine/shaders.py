@@ -18,12 +18,13 @@ import json
 import os
 import re
 import shutil
+import stat
 import subprocess
 import tempfile
 from pathlib import Path
 
 from .data import SHADERS_DIR
-from .errors import ShaderError
+from .errors import ShaderError, shown
 from .files import atomic_write_bytes, atomic_write_text
 
 ROOT = SHADERS_DIR  # the checkout's shaders/, or the installed package's copy (engine/data.py)
@@ -36,15 +37,45 @@ _INCLUDE = re.compile(r'^\s*#\s*include\s+"([^"]+)"', re.M)
 
 
 def shader_sources(glsl_dir: Path = GLSL_DIR) -> list[Path]:
-    """Every compilable shader (by stage extension) in the folder, includes excluded."""
-    return sorted(p for p in Path(glsl_dir).iterdir() if p.suffix in STAGES)
+    """Every compilable shader (by stage extension) in the folder, includes excluded; regular files only (or links
+    to them): a FIFO or device named `*.comp` would block whoever opens it."""
+    return sorted(p for p in Path(glsl_dir).iterdir() if p.suffix in STAGES and _regular(p))
+
+
+def _regular(path) -> bool:
+    try:
+        return stat.S_ISREG(os.stat(path).st_mode)
+    except (OSError, ValueError):
+        return False
+
+
+def read_source(path) -> str:
+    """A GLSL file's text. Read as bytes and decoded as UTF-8 (ASCII is what glslang takes); a file that is not
+    UTF-8 is a ShaderError naming the file, line and byte. Opened without blocking and read only if it is a
+    regular file, so a FIFO put where a source was expected is refused instead of hanging its reader."""
+    try:
+        fd = os.open(path, os.O_RDONLY | os.O_NONBLOCK | getattr(os, "O_CLOEXEC", 0))
+    except OSError as exc:
+        raise ShaderError(f"{shown(path)}: cannot read: {exc.strerror or exc}") from None
+    with os.fdopen(fd, "rb") as f:
+        if not stat.S_ISREG(os.fstat(fd).st_mode):
+            raise ShaderError(f"{shown(path)}: not a regular file")
+        data = f.read()
+    try:
+        return data.decode("utf-8")
+    except UnicodeDecodeError as exc:
+        line = data.count(b"\n", 0, exc.start) + 1
+        raise ShaderError(
+            f"{shown(path)}:{line}: not UTF-8 text (byte 0x{data[exc.start]:02x} at offset {exc.start})"
+        ) from None
 
 
 def includes_of(path: Path, glsl_dir: Path, _seen=None) -> list[Path]:
-    """Every file `path` includes, transitively (looked up next to the file, then in include/)."""
+    """Every file `path` includes, transitively (looked up next to the file, then in include/). A source that
+    cannot be read as UTF-8 text is a ShaderError (read_source)."""
     seen = _seen if _seen is not None else set()
     out = []
-    for name in _INCLUDE.findall(Path(path).read_text()):
+    for name in _INCLUDE.findall(read_source(path)):
         for base in (Path(path).parent, Path(glsl_dir) / "include"):
             cand = (base / name).resolve()
             if cand.exists():
@@ -87,7 +118,8 @@ def compile_shader(src: Path, out: Path, glsl_dir: Path = GLSL_DIR) -> None:
         str(src),
     ]
     try:
-        res = subprocess.run(cmd, capture_output=True, text=True, timeout=120)
+        # Its output quotes the source, which need not be UTF-8: decoded with replacement, never raising.
+        res = subprocess.run(cmd, capture_output=True, text=True, errors="replace", timeout=120)
     except subprocess.TimeoutExpired:
         raise ShaderError(f"{src}: glslangValidator timed out") from None
     if res.returncode != 0:
@@ -242,12 +274,14 @@ class ShaderLibrary:
                     st = os.stat(p)
                 except OSError:
                     continue
-                stamps[p] = (st.st_mtime_ns, st.st_size, st.st_ino)
+                if stat.S_ISREG(st.st_mode):  # only regular files are watched (a FIFO is never opened)
+                    stamps[p] = (st.st_mtime_ns, st.st_size, st.st_ino)
         return stamps
 
     def _try_compile(self, src: Path) -> bool:
         out = Path(self._tmp.name) / (src.name + ".spv")
         try:
+            includes_of(src, self.glsl_dir)  # the source and its includes are regular UTF-8 files (read_source)
             compile_shader(src, out, self.glsl_dir)
         except ShaderError as exc:
             self.errors[str(src)] = str(exc)
@@ -281,8 +315,12 @@ class ShaderLibrary:
         for src in sources:
             try:
                 deps = {src.resolve(), *includes_of(src, self.glsl_dir)}
-            except OSError:  # gone since the listing (a save by rename, the folder going): the next poll retries
-                self._stamps.pop(str(src), None)
+            except ShaderError as exc:  # not UTF-8, not a regular file, or gone since the listing (a save by
+                # rename, the folder going): the last good SPIR-V stays, the error shows; the next change retries
+                if not src.exists():
+                    self._stamps.pop(str(src), None)
+                    continue
+                self.errors[str(src)] = str(exc)
                 continue
             if deps & changed or str(src) in self.errors:
                 if self._try_compile(src):

@@ -258,6 +258,12 @@ def test_items_are_rendered_again_when_what_they_depend_on_changes(tmp_path):
     first = run_batch(load_job(path), progress=False)
     assert (first.rendered, first.skipped) == (3, 0)
     assert (run_batch(load_job(path), progress=False).rendered, first.ok) == (0, True)
+    # a killed batch's temporaries go with the next run, though it writes none of those files (issue #36)
+    for name in ("sphere/.0000.npz.part-999999-abc.tmp", ".manifest.json.part-999999-abc.tmp"):
+        (tmp_path / "out" / name).write_bytes(b"partial")
+        os.utime(tmp_path / "out" / name, (time.time() - 60,) * 2)
+    assert run_batch(load_job(path), progress=False).skipped == 3
+    assert no_temporaries(tmp_path / "out") == []
     # another setting: every key changes; the manifest is not needed to tell (the .npz holds its item's key)
     (tmp_path / "out" / MANIFEST_NAME).unlink()
     assert run_batch(load_job(path), progress=False).skipped == 3
@@ -265,6 +271,23 @@ def test_items_are_rendered_again_when_what_they_depend_on_changes(tmp_path):
     changed = run_batch(load_job(path), progress=False)
     assert (changed.rendered, changed.skipped) == (3, 0)
     assert run_batch(load_job(path), progress=False, redo=True).rendered == 3
+
+
+def test_a_scene_files_own_settings_are_part_of_its_items_keys(tmp_path):
+    """The settings in effect are the job's over the scene file's [settings]: a rerun after the scene's settings
+    changed renders its items again (issue #36: they were skipped, the files holding the old settings)."""
+    scene = tmp_path / "s.toml"
+    scene.write_text((REPO / "scenes" / "sphere.toml").read_text())
+    text = "output = 'out'\nsize = '16x12'\naovs = ['depth']\n[cameras]\norbit = 1\n[[scenes]]\nscene = 's.toml'\n"
+    path = write_job(tmp_path, text)
+    plain = load_job(path).items[0].key
+    assert run_batch(load_job(path), progress=False).rendered == 1
+    scene.write_text(scene.read_text() + "\n[settings]\nshadows = 'off'\n")
+    assert load_job(path).items[0].key != plain
+    assert run_batch(load_job(path), progress=False).rendered == 1
+    assert run_batch(load_job(path), progress=False).skipped == 1
+    scene.write_text((REPO / "scenes" / "sphere.toml").read_text())
+    assert load_job(path).items[0].key == plain  # no [settings]: the key is what it was before scene settings counted
 
 
 # ---- kill and resume -----------------------------------------------------------------------------------------------
@@ -444,3 +467,12 @@ def test_ray_runs_a_job_end_to_end_on_a_local_cluster(tmp_path):
     (tmp_path / "out" / MANIFEST_NAME).unlink()
     (tmp_path / "local" / MANIFEST_NAME).unlink()
     assert_same_outputs(tmp_path / "out", tmp_path / "local")
+
+
+def test_the_summary_line_escapes_names_and_paths(tmp_path):
+    from engine.batch.driver import BatchResult
+
+    text = "output = 'o'\nsize = '16x12'\n[cameras]\norbit = 1\n[[scenes]]\nscene = 'sphere'\n"
+    job = load_job(write_job(tmp_path, text, name="j\n\x1b[2J.toml"))
+    line = BatchResult(manifest=str(tmp_path / "o\n" / MANIFEST_NAME), where="nothing to render").summary(job)
+    assert "\n" not in line and "\x1b" not in line and "j\\n\\x1b[2J.toml" in line and "o\\n/manifest.json" in line

@@ -5,7 +5,11 @@ import subprocess
 import sys
 from pathlib import Path
 
+import pytest
 from PIL import Image
+
+from engine.errors import ConfigError
+from engine.outputs import check_output_path, read_exr
 
 REPO = Path(__file__).resolve().parent.parent
 
@@ -166,3 +170,21 @@ def test_no_vulkan_loader_names_the_package():
         "engine.errors.VulkanError: the Vulkan loader (libvulkan.so.1) is not installed: install it and a driver, "
         "e.g. apt-get install libvulkan1 mesa-vulkan-drivers"
     )
+
+
+def test_printed_paths_are_escaped_and_names_that_are_not_utf8_are_written(tmp_path):
+    """Issue #36: the success line printed a path's newline and escape sequence raw (errors escape them); a scene
+    file name that is not UTF-8 failed the .exr write after the rendering (OpenEXR's text attributes are UTF-8); a
+    name no file can have is refused before the work."""
+    scene = Path(os.fsdecode(bytes(tmp_path) + b"/sc\xff.toml"))
+    scene.write_text((REPO / "scenes" / "sphere.toml").read_text())
+    out = Path(os.fsdecode(bytes(tmp_path) + b"/o\n\x1b[31m\xff.exr"))
+    res = hybrid("render", scene, "-o", out, "--size", "16x12", "--aov", "depth")
+    assert res.returncode == 0, res.stderr
+    (line,) = res.stdout.splitlines()
+    assert line.startswith(f"{tmp_path}/o\\n\\x1b[31m\\udcff.exr: 16x12 depth of {tmp_path}/sc\\udcff.toml ("), line
+    arrays, rec = read_exr(out)
+    assert rec["scene"] == str(scene) and arrays["depth"].shape == (12, 16)
+    for bad in ("x\ud800.exr", "x\0.exr"):
+        with pytest.raises(ConfigError, match="not a valid file name"):
+            check_output_path(tmp_path / bad)

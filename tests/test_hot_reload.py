@@ -92,6 +92,13 @@ def test_lighting_edit_error_and_fix(make_renderer, glsl_copy, scene):
     r.render(scene, **SETTINGS)
     assert key in r.shader_errors
 
+    # A byte that is not UTF-8: a shader error naming file and line, not a UnicodeDecodeError out of render().
+    lighting.write_bytes(b"// caf\xe9\n" + original.encode())
+    os.utime(lighting, ns=(1_000_000_000, 1_000_000_000))
+    frame = r.render(scene, **SETTINGS)
+    assert np.array_equal(frame.color, black)
+    assert r.shader_errors.get(key, "").endswith("lighting.comp:1: not UTF-8 text (byte 0xe9 at offset 6)")
+
     # The fix: the error is gone and the original shading is back.
     edit(lighting, original)
     again = r.render(scene, **SETTINGS).color
@@ -192,3 +199,73 @@ def test_a_refused_raster_shader_stays_out_of_its_specialized_pipelines(make_ren
     assert np.array_equal(r.render(scene, **SETTINGS).color, plain)  # the scene's first frame: specialized here
     assert "visible" in r.shader_errors.get(str(vert), ""), r.shader_errors
     assert r.gbuffer.raster.values["INSTANCES_TEXEL"] is r.gbuffer.instances_texel(r._geometry)
+
+
+TINY = (
+    "#version 450\n#extension GL_GOOGLE_include_directive : require\n"
+    'layout(local_size_x = 1) in;\n#include "tiny.glsl"\nvoid main() {}\n'
+)
+
+
+@pytest.fixture
+def tiny_glsl(tmp_path):
+    """A folder of one small shader and its include: quick to compile."""
+    (tmp_path / "include").mkdir()
+    (tmp_path / "include" / "tiny.glsl").write_text("// nothing\n")
+    (tmp_path / "tiny.comp").write_text(TINY)
+    return tmp_path
+
+
+def poll_within(lib, seconds=10.0):
+    """lib.poll() on a thread: a poll that blocks (opening a FIFO) fails the test instead of hanging it."""
+    import threading
+
+    out = {}
+
+    def run():
+        try:
+            out["result"] = lib.poll()
+        except BaseException as exc:  # raised again on the test's thread
+            out["error"] = exc
+
+    t = threading.Thread(target=run, daemon=True)
+    t.start()
+    t.join(seconds)
+    assert not t.is_alive(), "poll() blocked"
+    if "error" in out:
+        raise out["error"]
+    return out["result"]
+
+
+@pytest.mark.parametrize("bad", ["tiny.comp", "include/tiny.glsl"])
+def test_a_source_that_is_not_utf8_is_a_shader_error(tiny_glsl, bad):
+    lib = ShaderLibrary(tiny_glsl, hot_reload=True)
+    try:
+        assert lib.errors == {} and lib.versions == {"tiny.comp": 1}
+        good = (tiny_glsl / bad).read_bytes()
+        edit_bytes = good.replace(b"\n", b" // \xff\xfe\n", 2)  # on lines 1 and 2
+        (tiny_glsl / bad).write_bytes(edit_bytes)
+        os.utime(tiny_glsl / bad, ns=(1_000_000_000, 1_000_000_000))
+        assert poll_within(lib) == set()  # the last good SPIR-V stays
+        expect = f"{tiny_glsl / bad}:1: not UTF-8 text (byte 0xff at offset {edit_bytes.index(bytes([255]))})"
+        assert lib.errors == {str(tiny_glsl / "tiny.comp"): expect}
+        (tiny_glsl / bad).write_bytes(good)
+        assert poll_within(lib) == {"tiny.comp"} and lib.errors == {}
+    finally:
+        lib.close()
+
+
+def test_only_regular_files_are_watched(tiny_glsl):
+    """A FIFO named like a shader is neither compiled nor opened; one where an include is looked up is an error."""
+    lib = ShaderLibrary(tiny_glsl, hot_reload=True)
+    try:
+        os.mkfifo(tiny_glsl / "fifo.comp")
+        assert poll_within(lib) == set() and lib.errors == {}
+        (tiny_glsl / "include" / "tiny.glsl").unlink()
+        os.mkfifo(tiny_glsl / "include" / "tiny.glsl")
+        assert poll_within(lib) == set()
+        assert lib.errors == {
+            str(tiny_glsl / "tiny.comp"): f"{tiny_glsl / 'include' / 'tiny.glsl'}: not a regular file"
+        }
+    finally:
+        lib.close()

@@ -23,7 +23,7 @@ from PIL import Image
 from engine import Camera, ConfigError, Scene
 from engine.frame import Frame
 from engine.outputs import linear_to_srgb, read_depth_png, read_exr, srgb_to_linear
-from engine.sequence import load_camera_path, orbit_cameras, output_paths
+from engine.sequence import load_camera_path, orbit_cameras, output_paths, render_sequence
 
 ROOT = Path(__file__).resolve().parents[1]
 W, H = 64, 48
@@ -343,7 +343,9 @@ def test_cli_orbit_writes_numbered_exrs_and_cameras(tmp_path):
     for i in range(4):
         arrays, rec = read_exr(tmp_path / "o" / f"f_{i:02d}.exr")
         assert list(arrays) == ["normal", "depth", "object_id"]
-        assert rec == json.loads((tmp_path / "o" / f"f_{i:02d}.json").read_text())
+        side = json.loads((tmp_path / "o" / f"f_{i:02d}.json").read_text())
+        assert rec == {k: v for k, v in side.items() if k != "output"}  # the camera, then what the file holds
+        assert side["output"]["aovs"] == ["normal", "depth", "object_id"] and side["output"]["frames"] == 1
         eye = np.array(rec["pose"])[:3, 3]
         assert np.isclose(np.linalg.norm(eye), 5.0) and abs(eye[1]) < 1e-9  # the scene camera's circle
         d = arrays["depth"]
@@ -415,6 +417,80 @@ def test_cli_resume_refuses_the_outputs_of_another_sequence(tmp_path):
         "another camera",
         "--resume",
     )
+    # Other AOVs than the files hold (issue #36: this exited 0, "2 already done", the files holding depth only).
+    one_line_error(
+        hybrid(
+            "render",
+            "sphere",
+            "-o",
+            tmp_path / "f_#.npz",
+            "--orbit",
+            2,
+            "--size",
+            "16x12",
+            "--aov",
+            "normal",
+            "--resume",
+        ),
+        "f_0.json: frame 0 holds other outputs than this run asks for: aovs ['depth'] (this run: ['normal'])",
+        "without --resume",
+    )
+
+
+def test_resume_compares_what_each_file_holds(make_renderer, tmp_path):
+    """`render_sequence(resume=True)` skips a frame only where its sidecar's output record matches the run's: the
+    AOVs, the settings in effect (the scene's [settings] included), how the file is saved and the frames per view;
+    anything else is one error naming the frame and what differs, and nothing is written."""
+    scene = Scene.load("sphere")
+    r = make_renderer(16, 12)
+    cams = orbit_cameras(scene, 2)
+    paths = output_paths(str(tmp_path / "f_#.npz"), 2)
+    base = dict(aovs=("depth",), settings={"ao": False}, save={"compress": True})
+    first = render_sequence(r, scene, cams, paths, **base)
+    assert (first.rendered, first.skipped) == (2, 0)
+    again = render_sequence(r, scene, cams, paths, **base, resume=True)
+    assert (again.rendered, again.skipped) == (2 - 2, 2)
+    stamps = {p: p.stat().st_mtime_ns for p in tmp_path.iterdir()}
+    changes = {
+        "aovs ['depth'] (this run: ['normal'])": dict(base, aovs=("normal",)),
+        "ao=False (this run: True)": dict(base, settings={}),
+        "shadows='hard' (this run: 'off')": dict(base, settings={"ao": False, "shadows": "off"}),
+        "save {'compress': True} (this run: {'compress': False})": dict(base, save={"compress": False}),
+    }
+    for words, kw in changes.items():
+        with pytest.raises(ConfigError) as exc:
+            render_sequence(r, scene, cams, paths, **kw, resume=True)
+        assert "f_0.json: frame 0 holds other outputs than this run asks for" in str(exc.value)
+        assert words in str(exc.value) and "without --resume" in str(exc.value)
+    with pytest.raises(ConfigError, match="frames 1 \\(this run: 2\\)"):
+        render_sequence(r, scene, cams, paths, **base, frames_per_view=2, resume=True)
+    # the same settings from the scene's [settings] instead of the call: what is in effect is compared
+    scene.settings = {"ao": False}
+    assert render_sequence(r, scene, cams, paths, **dict(base, settings={}), resume=True).skipped == 2
+    assert {p: p.stat().st_mtime_ns for p in tmp_path.iterdir()} == stamps
+    # a sidecar of an older hybrid, without the record: refused too (it cannot say what its file holds)
+    side = json.loads(paths[1].with_suffix(".json").read_text())
+    del side["output"]
+    paths[1].with_suffix(".json").write_text(json.dumps(side))
+    with pytest.raises(ConfigError, match="f_1.json: frame 1 .*no record of its AOVs and settings"):
+        render_sequence(r, scene, cams, paths, **base, resume=True)
+
+
+def test_a_completed_resume_removes_a_killed_runs_temporaries(make_renderer, tmp_path):
+    """A killed run's hidden temporaries of this sequence's files go with the next run, even when it writes none of
+    those files (issue #36); anything else in the folder stays."""
+    scene = Scene.load("sphere")
+    r = make_renderer(16, 12)
+    cams, paths = orbit_cameras(scene, 2), output_paths(str(tmp_path / "f_#.npz"), 2)
+    kw = dict(aovs=("depth",), settings={"ao": False}, save={})
+    render_sequence(r, scene, cams, paths, **kw)
+    killed = [f".f_0.npz.part-{os.getpid()}-k1ll3d.tmp", ".f_1.json.part-999999-abc.tmp"]
+    kept = [".notes.txt.part-1-abc.tmp", "mine.tmp"]
+    for name in killed + kept:
+        (tmp_path / name).write_bytes(b"partial")
+        os.utime(tmp_path / name, (time.time() - 60,) * 2)
+    assert render_sequence(r, scene, cams, paths, **kw, resume=True).skipped == 2
+    assert sorted(p.name for p in tmp_path.iterdir()) == sorted(["f_0.npz", "f_0.json", "f_1.npz", "f_1.json"] + kept)
 
 
 def test_cli_progress_bar_goes_to_a_terminal(tmp_path):

@@ -17,7 +17,7 @@ from PIL import Image
 
 import engine
 from engine import ConfigError, EngineError, Frame, Renderer, Scene, Tracer, VulkanError
-from engine.files import atomic_write_bytes
+from engine.files import atomic_write, atomic_write_bytes, remove_stale_temporaries
 from engine.vk import Context
 from engine.vk import context as context_mod
 from engine.vk import resources as resources_mod
@@ -231,6 +231,58 @@ def test_killed_writers_never_leave_a_partial_file(tmp_path):
     assert sorted(p.name for p in tmp_path.iterdir()) == ["out.png"]
 
 
+def dead_pid() -> int:
+    """The pid of a process that has ended (a killed writer's)."""
+    child = multiprocessing.get_context("fork").Process(target=int)
+    child.start()
+    child.join()
+    return child.pid
+
+
+def test_stale_temporaries_of_a_runs_targets_are_removed_and_nothing_else(tmp_path):
+    """`remove_stale_temporaries`: only our temporaries' names, of the given targets, in their folder, regular
+    files older than the run's start and not locked by a writer, whatever their pid (a killed writer's pid may be
+    reused by then)."""
+    import fcntl
+
+    old = time.time() - 60
+    (tmp_path / "sub").mkdir()
+    names = {
+        "dead": f".f_0.exr.part-{dead_pid()}-abc_123.tmp",
+        "reused": f".f_0.json.part-{os.getpid()}-x1y2z3.tmp",  # pid alive, nobody writing it
+        "locked": f".f_1.exr.part-{os.getpid()}-locked.tmp",
+        "young": f".f_1.json.part-{dead_pid()}-young.tmp",
+        "other target": f".notours.exr.part-{dead_pid()}-abc.tmp",
+        "other name": f"f_0.exr.part-{dead_pid()}-abc.tmp",
+        "below": f"sub/.f_0.exr.part-{dead_pid()}-abc.tmp",
+    }
+    for key, name in names.items():
+        (tmp_path / name).write_bytes(b"partial")
+        if key != "young":
+            os.utime(tmp_path / name, (old, old))
+    fifo = tmp_path / f".f_1.exr.part-{dead_pid()}-fifo.tmp"
+    os.mkfifo(fifo)
+    os.utime(fifo, (old, old))
+    targets = [tmp_path / f"f_{i}.{s}" for i in range(2) for s in ("exr", "json")]
+    with open(tmp_path / names["locked"], "rb") as held:
+        fcntl.flock(held.fileno(), fcntl.LOCK_EX)  # a live writer's
+        removed = remove_stale_temporaries(targets, before=time.time() - 1)
+    assert sorted(p.name for p in removed) == sorted([names["dead"], names["reused"]])
+    left = {str(p.relative_to(tmp_path)) for p in tmp_path.rglob("*") if p.is_file() or p.is_fifo()}
+    assert left == {n for k, n in names.items() if k not in ("dead", "reused")} | {fifo.name}
+
+
+def test_a_writer_holds_its_temporary_locked_until_it_is_renamed(tmp_path):
+    seen = []
+
+    def write(f):
+        f.write(b"data")
+        seen.extend(remove_stale_temporaries([tmp_path / "x.bin"], before=time.time() + 3600))
+
+    atomic_write(tmp_path / "x.bin", write)
+    assert seen == [] and sorted(p.name for p in tmp_path.iterdir()) == ["x.bin"]
+
+
 def test_a_failed_write_keeps_the_old_file_and_leaves_no_temporary(tmp_path, monkeypatch):
     path = tmp_path / "keep.png"
     old = np.full((8, 8, 4), 200, np.uint8)
@@ -324,3 +376,35 @@ def test_device_lost_ends_the_renderer_cleanly(monkeypatch):
         r.render(scene)
     r.close()
     assert not r.validation_errors
+
+
+def _host_without_room(limit: int):
+    """np.empty, except that arrays of `limit` rows or more fail as on a full host."""
+    empty = np.empty
+
+    def without_room(shape, dtype=float, *args, **kw):
+        if (shape[0] if isinstance(shape, tuple) and shape else shape) >= limit:
+            raise MemoryError(f"Unable to allocate array with shape {shape}")
+        return empty(shape, dtype, *args, **kw)
+
+    return without_room
+
+
+def test_host_out_of_memory_in_a_tracer_query_is_a_clear_error(shared_device, monkeypatch):
+    """Issue #36: a query whose result arrays the host cannot hold raised numpy's MemoryError; now an EngineError
+    names the query, the rays and the bytes. The Tracer answers the next query."""
+    m = trimesh.creation.icosphere(subdivisions=1)
+    n = 5000
+    o = np.tile(np.float32([0.0, 0.0, 5.0]), (n, 1))
+    d = np.tile(np.float32([0.0, 0.0, -1.0]), (n, 1))
+    with Tracer(m.vertices, m.faces, device=shared_device) as t:
+        monkeypatch.setattr(np, "empty", _host_without_room(n))
+        for query, mib in (("occluded", n / 2**20), ("intersect", 16 * n / 2**20), ("closest", 28 * n / 2**20)):
+            with pytest.raises(EngineError) as exc:
+                getattr(t, query)(o) if query == "closest" else getattr(t, query)(o, d)
+            assert str(exc.value) == (
+                f"Tracer.{query}: out of host memory for the results of 5,000 rays ({mib:,.1f} MiB): "
+                f"query fewer rays at a time"
+            )
+        monkeypatch.undo()
+        assert t.occluded(o, d).all() and np.allclose(t.intersect(o, d).t, 4.0, atol=0.02)

@@ -5,6 +5,7 @@ from __future__ import annotations
 import argparse
 import sys
 
+from ..errors import shown
 from .driver import parse_devices, run_batch
 from .job import load_job
 
@@ -57,10 +58,12 @@ def run_cli(args) -> int:
         progress=not args.quiet,
     )
     for rec in result.failed[:MAX_LISTED]:
-        print(f"failed: {rec['id']}: {rec.get('error')}", file=sys.stderr)
+        print(f"failed: {shown(rec['id'])}: {shown(rec.get('error'), limit=None)}", file=sys.stderr)
     if len(result.failed) > MAX_LISTED:
-        print(f"failed: ... and {len(result.failed) - MAX_LISTED} more (see {result.manifest})", file=sys.stderr)
+        more = len(result.failed) - MAX_LISTED
+        print(f"failed: ... and {more} more (see {shown(result.manifest)})", file=sys.stderr)
     if result.errors:
-        print(f"error: {len(result.errors)} validation errors; first: {result.errors[0]}", file=sys.stderr)
+        first = shown(result.errors[0], limit=None)
+        print(f"error: {len(result.errors)} validation errors; first: {first}", file=sys.stderr)
     print(result.summary(job))
     return 0 if result.ok else 1

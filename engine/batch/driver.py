@@ -3,11 +3,13 @@ the summary. `run_batch(job, ...)` is the Python entry point of `hybrid batch`."
 
 from __future__ import annotations
 
+import itertools
 import sys
 import time
 from dataclasses import dataclass, field
 
-from ..errors import ConfigError
+from ..errors import ConfigError, shown
+from ..files import remove_stale_temporaries
 from ..vk import choose_device, describe_devices
 from .distributed import run_ray
 from .job import Job
@@ -39,9 +41,9 @@ class BatchResult:
         total = self.rendered + self.skipped + len(self.failed)
         rate = f"{self.rendered / self.seconds:.2f} items/s" if self.seconds > 0 and self.rendered else "-"
         return (
-            f"batch: {total} items of {job.path.name}: {self.rendered} rendered, {self.skipped} already done, "
-            f"{len(self.failed)} failed; {self.seconds:.1f} s ({rate}) on {self.where}; "
-            f"manifest {self.manifest}"
+            f"batch: {total} items of {shown(job.path.name)}: {self.rendered} rendered, {self.skipped} already "
+            f"done, {len(self.failed)} failed; {self.seconds:.1f} s ({rate}) on {shown(self.where)}; "
+            f"manifest {shown(self.manifest)}"
         )
 
 
@@ -129,9 +131,14 @@ def run_batch(
     except OSError as exc:
         raise ConfigError(f"{job.output}: cannot make the output folder: {exc.strerror or exc}") from None
     result = BatchResult()
+    started = time.time()
     with FolderLock(job.output):
         manifest = Manifest(job, interval=manifest_interval)
         todo, done = manifest.split(redo)
+        # a killed batch's temporaries of the job's files (its items may be finished by now); the lock keeps other
+        # batches out, and a live writer's temporary is locked
+        targets = (job.output / name for item in job.items for name in job.files(item))
+        remove_stale_temporaries(itertools.chain(targets, [manifest.path]), started)
         result.skipped = len(done)
         result.manifest = str(manifest.path)
         bar = Progress(len(todo), enabled=progress)

@@ -20,7 +20,8 @@ try:
 except ModuleNotFoundError:
     import tomli as tomllib  # Python 3.10: the same parser (a dependency there)
 
-from ..errors import ConfigError
+from ..data import scene_path as bundled_path
+from ..errors import ConfigError, EngineError
 from ..settings import MAX_FRAMES, check_settings, parse_size, resolve_aovs
 from .cameras import read_cameras, view_fingerprint
 
@@ -196,11 +197,29 @@ def _items(job: Job) -> list[Item]:
     }
     items = []
     for s, spec in enumerate(job.scenes):
+        own = scene_settings(spec.path)
         for index in range(spec.cameras["count"]):
             what = dict(common, scene=spec.source, view=view_fingerprint(spec.cameras, index))
+            if own:  # the scene file's [settings] are in effect too (left out where none: keys stay as they were)
+                what["scene_settings"] = own
             key = hashlib.sha256(json.dumps(what, sort_keys=True, default=str).encode()).hexdigest()[:24]
             items.append(Item(scene=s, index=index, id=f"{spec.name}/{index:04d}", key=key))
     return items
+
+
+def scene_settings(path: str) -> dict:
+    """A TOML scene's own `[settings]` table (what it sets under the job's settings), for its items' keys: a rerun
+    after the scene file's settings changed renders its items again. Empty for a mesh or glTF file and for a file
+    that cannot be read (its items then fail when rendered, with the loader's message)."""
+    try:
+        file = bundled_path(path)
+        if file.suffix.lower() != ".toml" or not file.is_file():
+            return {}
+        with open(file, "rb") as f:
+            table = tomllib.load(f).get("settings")
+    except (OSError, ValueError, EngineError):  # TOMLDecodeError is a ValueError
+        return {}
+    return table if isinstance(table, dict) else {}
 
 
 def _table(value: Any, where: str) -> dict:

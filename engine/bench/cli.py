@@ -7,7 +7,7 @@ import os
 import sys
 from pathlib import Path
 
-from ..errors import ConfigError, EngineError
+from ..errors import ConfigError, EngineError, shown
 from ..settings import parse_size
 from ..vk import choose_device, describe_devices
 from .config import SECTIONS, BenchConfig
@@ -82,9 +82,9 @@ def run_cli(args) -> int:
     results = run_bench(cfg)  # the files are written below, after the report
     print(format_report(results))  # on the terminal first: a failed write below loses nothing
     write_outputs(results, args.json, args.plot)
-    print(f"\nJSON: {args.json}   plot: {args.plot}")
+    print(f"\nJSON: {shown(args.json)}   plot: {shown(args.plot)}")
     errors = results["meta"].get("validation_errors") or []
     if errors:
-        print(f"error: {len(errors)} validation errors; first: {errors[0]}", file=sys.stderr)
+        print(f"error: {len(errors)} validation errors; first: {shown(errors[0], limit=None)}", file=sys.stderr)
         return 1
     return 0

@@ -8,9 +8,24 @@ from numbers import Integral, Real
 
 import numpy as np
 
-from ..errors import ConfigError, SceneError
+from ..errors import ConfigError, EngineError, SceneError
 from ..limits import MAX_COORD, MIN_DIRECTION
 from ..parallel import default_threads, run as _parallel
+
+
+def result_arrays(query: str, n: int, *fields) -> list[np.ndarray]:
+    """The host arrays (uninitialized) a query of `n` rays or points returns: one per field, a dtype (shape (n,))
+    or (dtype, per-ray shape). A host that cannot hold them is an EngineError naming the query, the number of rays
+    and the bytes, instead of numpy's MemoryError out of the query."""
+    specs = [f if isinstance(f, tuple) else (f, ()) for f in fields]
+    nbytes = sum(n * math.prod(shape) * np.dtype(dt).itemsize for dt, shape in specs)
+    try:
+        return [np.empty((n, *shape), dt) for dt, shape in specs]
+    except MemoryError:
+        raise EngineError(
+            f"{query}: out of host memory for the results of {n:,} rays ({nbytes / 2**20:,.1f} MiB): "
+            f"query fewer rays at a time"
+        ) from None
 
 
 def check_mesh(vertices, faces, who: str = "Tracer", allow_empty: bool = False):

@@ -24,7 +24,7 @@ from ..limits import MAX_COORD
 from ..shaders import ShaderLibrary
 from ..vk import BufferView, ComputePipeline, Recorder, reflect, upload_buffer
 from ..vk.resources import STORAGE_TEXEL, UNIFORM_TEXEL
-from .checks import check_vectors
+from .checks import check_vectors, result_arrays
 from .stream import hits_sink, stream
 
 SHADER = "trace_closest.comp"
@@ -143,12 +143,9 @@ class ClosestQuery:
         p = check_points(points).astype(np.float32)
         n = len(p)
         out = Closest(
-            np.zeros((n, 3), np.float32),
-            np.empty(n, np.float32),
-            np.empty(n, np.int32),
-            np.empty(n, np.float32),
-            np.empty(n, np.float32),
+            *result_arrays("Tracer.closest", n, (np.float32, (3,)), np.float32, np.int32, np.float32, np.float32)
         )
+        out.point.fill(0.0)
 
         def bad():  # (check_points passed every point; float32 rounding could only push one past the bound)
             raise ConfigError(f"points: a coordinate beyond +-{MAX_COORD:g} once rounded to float32")

@@ -29,7 +29,7 @@ from ..shaders import ShaderLibrary
 from ..vk import Context
 from ..vk.device import has_dedicated_vram, is_cpu, rgb32f_texel_buffers
 from ..vk.shared import Device, Scope
-from .checks import check_batch_size, check_mesh, name_bad_ray, name_bad_tmax, ray_arrays
+from .checks import check_batch_size, check_mesh, name_bad_ray, name_bad_tmax, ray_arrays, result_arrays
 from .closest import Closest, ClosestQuery
 from .cuda_arrays import CudaRays, on_cuda
 from .order import KeptWords, check_reorder, incoherent, ray_order, shared_direction
@@ -373,13 +373,14 @@ class Tracer(Closes):
 
         Raises:
             ConfigError: bad shapes, NaN or infinite values, a zero direction (naming the ray), a closed Tracer.
+            EngineError: the host cannot hold the result arrays (naming the query, the rays and the bytes).
         """
         self._check_open()
         if on_cuda(origins, directions, tmax):
             return self._device_arrays().occluded(origins, directions, tmax)
         o, d, t = ray_arrays(origins, directions, tmax, tmax_nan=False)
         self._sync()
-        out = np.empty(len(o), bool)
+        (out,) = result_arrays("Tracer.occluded", len(o), bool)
         order, dirs = self._order(o, d, t, reorder)
         stream(
             self.session,
@@ -399,7 +400,8 @@ class Tracer(Closes):
     ) -> Hits:
         """Closest-hit queries: the nearest triangle along each ray within t in [0, tmax].
 
-        The arguments are `occluded()`'s. Returns `Hits` (t, prim, u, v per ray: t = +inf and prim = -1 on a miss).
+        The arguments and errors are `occluded()`'s. Returns `Hits` (t, prim, u, v per ray: t = +inf and prim = -1 on
+        a miss).
         """
         self._check_open()
         if on_cuda(origins, directions, tmax):
@@ -408,10 +410,13 @@ class Tracer(Closes):
         self._sync()
         n = len(o)
         order, dirs = self._order(o, d, t, reorder)
-        hits = Hits(np.empty(n, np.float32), np.empty(n, np.int32), np.empty(n, np.float32), np.empty(n, np.float32))
+        instanced = self._source is not None  # from_scene: each ray's instance and mesh triangle besides
+        fields = [np.float32, np.int32, np.float32, np.float32] + [np.int32] * (2 * instanced)
+        arrays = result_arrays("Tracer.intersect", n, *fields)
+        hits = Hits(*arrays[:4])
         sink = hits_sink(hits.t, hits.prim, hits.u, hits.v, order)
-        if self._source is not None:  # from_scene: each chunk's instance and mesh triangle, from its flat ids
-            hits.instance, hits.mesh_prim = np.empty(n, np.int32), np.empty(n, np.int32)
+        if instanced:  # each chunk's instance and mesh triangle, from its flat ids
+            hits.instance, hits.mesh_prim = arrays[4:]
             base = self.scene.flat_tri_base if isinstance(self.scene, InstancedBVH) else np.zeros(1, np.uint32)
             sink = instance_sink(sink, hits.prim, base, hits.instance, hits.mesh_prim, order)
         stream(self.session, "intersect", o, dirs, t, sink, lambda: _name_bad(o, d, t, origins, directions), order)
@@ -429,6 +434,7 @@ class Tracer(Closes):
 
         Raises:
             ConfigError: a bad shape, NaN or infinite values (naming the point), a closed Tracer.
+            EngineError: the host cannot hold the result arrays.
         """
         self._check_open()
         if self.mesh is None:

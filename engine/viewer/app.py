@@ -24,7 +24,7 @@ from pathlib import Path
 import numpy as np
 from PIL import Image as PILImage
 
-from ..errors import ConfigError, EngineError, VulkanError
+from ..errors import ConfigError, EngineError, VulkanError, shown
 from ..files import atomic_write
 from ..renderer import Renderer
 from ..scene import Scene
@@ -277,7 +277,8 @@ class Viewer:
         start = self.frames
         if not self.quiet:
             self._print(
-                f"{self.scene.name}: {self.scene.triangle_count} triangles on {self.renderer.device_name}\n"
+                f"{shown(self.scene.name)}: {self.scene.triangle_count} triangles on "
+                f"{shown(self.renderer.device_name)}\n"
                 f"keys:\n{key_map_text()}"
             )
         while not self.glfw.window_should_close(self.window):
@@ -354,7 +355,7 @@ class Viewer:
                     log.error("shader error in %s (the last good pipeline is kept):\n%s", path, msg)
             for path in self._errors_seen:
                 if path not in errors:
-                    self._print(f"shader fixed: {path}")
+                    self._print(f"shader fixed: {shown(path)}")
             self._errors_seen = dict(errors)
             self._text_dirty = True
         versions = getattr(lib, "versions", None)
@@ -428,7 +429,7 @@ class Viewer:
             atomic_write(path, lambda f: img.save(f, format="PNG"), "image")
         except ValueError as exc:
             raise EngineError(f"{path}: cannot write image: {exc}") from None
-        self._print(f"screenshot: {path} ({rgba.shape[1]}x{rgba.shape[0]})")
+        self._print(f"screenshot: {shown(path)} ({rgba.shape[1]}x{rgba.shape[0]})")
         return path
 
     # ---- statistics ---------------------------------------------------------------------------------------------

@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import sys
 
-from ..errors import ConfigError
+from ..errors import ConfigError, shown
 from ..scene import Scene
 from ..settings import MAX_FRAMES, check_png_path, parse_size
 from ..vk.swapchain import PRESENT_MODES
@@ -101,7 +101,7 @@ def run_from_args(args) -> int:
     print(summary)
     errors = viewer.validation_errors
     if errors:
-        print(f"error: {len(errors)} validation errors; first: {errors[0]}", file=sys.stderr)
+        print(f"error: {len(errors)} validation errors; first: {shown(errors[0], limit=None)}", file=sys.stderr)
         return 1
     if validation:
         print("validation: no errors")

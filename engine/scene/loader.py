@@ -69,21 +69,34 @@ def check_image_size(img, where: str) -> None:
         raise SceneError(f"{where}: {_too_large(w * h, (w, h))}")
 
 
-def image_to_texture(img, where: str) -> np.ndarray:
+#: Modes resampled as they are (the same values as resampling their RGBA conversion), then converted to RGBA
+_RESAMPLED_AS_IS = ("L", "LA", "RGB", "RGBA")
+#: Modes of more than 8 bits a channel: scaled to 8-bit grey (their maximum, or 255, is white)
+_WIDE_MODES = ("I;16", "I;16B", "I;16L", "I", "F")
+_BLOCK_PIXELS = 1 << 18  # the 16- and 32-bit conversion's float temporaries: this many pixels at a time (2 MB)
+
+
+def image_to_texture(img, where: str, owned: bool = False) -> np.ndarray:
     """A PIL image to (H, W, 4) uint8 RGBA, at most MAX_TEXTURE_SIZE on a side; at most MAX_TEXTURE_PIXELS before
-    it is downsized. `where` names what refers to it in messages."""
+    it is downsized. `where` names what refers to it in messages; `owned`: the caller's image may be downsized in
+    place (no copy).
+
+    Memory is bounded by the decoded image's (1 to 4 bytes a pixel, 16 for 32-bit RGBA float): a grey, RGB or RGBA
+    image is downsized in its own mode and only then made RGBA; 16- and 32-bit images are scaled to 8 bits in
+    blocks, without a float copy of the whole image (issue #36: a 60 Mpixel 16-bit PNG took 1.9 GB)."""
     try:
         check_image_size(img, where)
         img.load()
-        if img.mode != "RGBA":
-            if img.mode in ("I;16", "I;16B", "I;16L", "I", "F"):
-                a = np.asarray(img, dtype=np.float64)
-                top = a.max() if a.size and a.max() > 255 else 255.0
-                img = Image.fromarray(np.clip(a / top * 255.0, 0, 255).astype(np.uint8), "L")
-            img = img.convert("RGBA")
+        if img.mode in _WIDE_MODES:
+            img, owned = _wide_to_grey(img), True
+        elif img.mode not in _RESAMPLED_AS_IS:  # palette, 1-bit, CMYK ...: RGBA first (a palette resamples nearest)
+            img, owned = img.convert("RGBA"), True
         if max(img.size) > MAX_TEXTURE_SIZE:
-            img = img.copy()
+            if not owned:
+                img = img.copy()
             img.thumbnail((MAX_TEXTURE_SIZE, MAX_TEXTURE_SIZE), Image.Resampling.LANCZOS)
+        if img.mode != "RGBA":
+            img = img.convert("RGBA")
         tex = np.array(img, dtype=np.uint8)
     except SceneError:
         raise
@@ -94,6 +107,22 @@ def image_to_texture(img, where: str) -> np.ndarray:
     if tex.ndim != 3 or tex.shape[2] != 4 or tex.shape[0] == 0 or tex.shape[1] == 0:
         raise SceneError(f"{where}: texture image has an unusable shape {tex.shape}")
     return tex
+
+
+def _wide_to_grey(img):
+    """A 16- or 32-bit single-channel image as 8-bit grey: value / max(its maximum, 255) * 255, truncated (float64
+    arithmetic on a tile of about _BLOCK_PIXELS pixels at a time: no copy of the whole image besides the result)."""
+    w, h = img.size
+    top = float(img.getextrema()[1]) if w * h else 0.0
+    top = top if top > 255 else 255.0
+    out = np.empty((h, w), np.uint8)
+    cols = min(w, _BLOCK_PIXELS)
+    rows = max(1, _BLOCK_PIXELS // cols)
+    for y in range(0, h, rows):
+        for x in range(0, w, cols):
+            tile = np.asarray(img.crop((x, y, min(x + cols, w), min(y + rows, h))), dtype=np.float64)
+            out[y : y + rows, x : x + cols] = np.clip(tile / top * 255.0, 0, 255)
+    return Image.fromarray(out, "L")
 
 
 def load_texture_file(path: str, where: str) -> np.ndarray:
@@ -107,7 +136,7 @@ def load_texture_file(path: str, where: str) -> np.ndarray:
             warnings.simplefilter("ignore", Image.DecompressionBombWarning)
             img = Image.open(path)  # reads the header only: its size is checked before decoding
         with img:
-            return image_to_texture(img, f"{where} ({shown(path)})")
+            return image_to_texture(img, f"{where} ({shown(path)})", owned=True)
     except SceneError:
         raise
     except Image.DecompressionBombError as exc:

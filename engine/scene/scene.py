@@ -211,9 +211,8 @@ class Scene:
         self._inst_mesh = mesh
         self._inst_mesh.setflags(write=False)
         self._inst_material = material
+        # (every caller hands over an array of its own: stacked, or checked with a copy)
         self._transforms = np.ascontiguousarray(transforms, dtype=np.float64)
-        if self._transforms is transforms:  # (the scene's own: a caller's array is not changed by set_transforms)
-            self._transforms = self._transforms.copy()
         self._check_world(slice(None))
         self._version = 0
         self._inst_changed = np.zeros(len(mesh), dtype=np.int64)

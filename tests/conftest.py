@@ -139,6 +139,7 @@ def make_viewer(xvfb_display):
         kw.setdefault("validation", VALIDATE)
         kw.setdefault("hot_reload", False)
         kw.setdefault("quiet", True)
+        kw.setdefault("render_scale", 1.0)  # a fixed size: dynamic resolution has its own tests
         v = Viewer(scene, width, height, **kw)
         made.append(v)
         return v

@@ -417,3 +417,114 @@ def test_object_names_match_the_flat_submeshes_without_flattening():
     assert scene.object_names == ["left", "a", "b", "renamed"]
     scene.instances[0].name = ""
     assert scene.object_names == ["one", "a", "b", "renamed"]
+
+
+# ---- many instances: arrays, not per-instance objects (issue #36) ---------------------------------------------------
+def instance_toml(tmp_path, entries, head=""):
+    text = f'{head}[[mesh]]\nprimitive = "box"\nsize = 0.1\nrotate = [0, 30, 0]\ninstances = [\n'
+    text += "".join(f"  {{ {e} }},\n" for e in entries) + "]\n"
+    path = tmp_path / "many.toml"
+    path.write_text(text)
+    return path
+
+
+def test_toml_instances_are_read_as_arrays(tmp_path, monkeypatch):
+    """Entries of the usual form become matrices in whole-array operations: the per-entry path (`_trs`, checked
+    `Instance` objects) runs for the mesh table and the odd entries only, and gives the same transforms as before."""
+    from engine.scene import instances as instances_mod
+    from engine.scene import toml_format
+
+    rng = np.random.default_rng(3)
+    entries = []
+    for j in range(300):
+        t, r = rng.uniform(-20, 20, 3).round(3).tolist(), rng.uniform(-180, 180, 3).round(2).tolist()
+        s = [float(rng.uniform(0.5, 2.0)), rng.uniform(0.5, 2.0, 3).round(3).tolist(), 2][j % 3]
+        e = f"translate = {t}, rotate = {r}, scale = {s}"
+        entries.append(e + (f', name = "n{j}"' if j % 7 == 0 else ""))
+    entries[5] = 'translate = [1, 2, 3], rotate = {axis = [0, 1, 0], angle = 45}, name = "table"'  # per entry
+    entries[6] = "translate = [1, 2, 3]"  # integers, defaults
+    calls = {"trs": 0, "check": 0}
+    trs, check = toml_format._trs, instances_mod.check_transform
+    monkeypatch.setattr(toml_format, "_trs", lambda *a: calls.__setitem__("trs", calls["trs"] + 1) or trs(*a))
+    monkeypatch.setattr(
+        instances_mod, "check_transform", lambda *a: calls.__setitem__("check", calls["check"] + 1) or check(*a)
+    )
+    scene = Scene.load(instance_toml(tmp_path, entries))
+    assert calls == {"trs": 2, "check": 0}, calls  # the mesh table's and entry 5's; before: 301 and 300
+    assert len(scene.instances) == 300 and scene.instances[5].name == "table" and scene.instances[7].name == "n7"
+    assert scene.instances[1].name == "box"
+    # the same matrices as the per-entry path gives
+    monkeypatch.setattr(toml_format, "_trs", trs)
+    ctx = toml_format._Ctx("many.toml")
+    own = trs({"rotate": [0, 30, 0]}, ctx)
+    data = toml_format.tomllib.loads(instance_toml(tmp_path, entries).read_text())
+    want = np.stack([trs(e, ctx) @ own for e in data["mesh"][0]["instances"]])
+    np.testing.assert_allclose(scene.transforms, want, rtol=0, atol=1e-12)
+
+
+@pytest.mark.parametrize(
+    "bad, msg",
+    [
+        ("scale = 0", "instances #58: scale must be > 0, got 0"),
+        ('translate = [1, "2", 3]', "instances #58: translate must be 3 numbers"),
+        ("translate = [1, 2, 1e12]", "instances #58: translate must be within"),
+        ("rotate = [nan, 0, 0]", "instances #58: rotate must be finite"),
+        ("scale = [1, true, 1]", "instances #58: scale must be 3 numbers"),
+        ("colour = 1", "instances #58: unknown key 'colour'"),
+        ("name = 3", "instances #58: name must be a string"),
+    ],
+)
+def test_toml_instance_errors_name_the_first_bad_entry(tmp_path, bad, msg):
+    entries = [f"translate = [{j}, 0, 0]" for j in range(100)]
+    entries[57], entries[80] = bad, "scale = -1"
+    with pytest.raises(SceneError, match=r"many.toml: \[\[mesh\]\] #1: instances #\d+") as exc:
+        Scene.load(instance_toml(tmp_path, entries))
+    assert msg in str(exc.value)
+
+
+def test_scene_from_transforms(tmp_path):
+    rng = np.random.default_rng(5)
+    meshes, _ = instanced_scene(n=2)
+    n = 500
+    T = np.stack([random_transform(rng, mirror=j % 5 == 0) for j in range(n)])
+    which = np.arange(n) % 2
+    material = np.where(np.arange(n) % 3 == 0, 0, -1)
+    names = [f"x{j}" for j in range(n)]
+    scene = Scene.from_transforms(
+        meshes.meshes, T, instance_mesh=which, instance_material=material, instance_names=names
+    )
+    ref = Scene.from_meshes(
+        meshes.meshes,
+        [Instance(int(k), t, None if m < 0 else int(m), nm) for k, t, m, nm in zip(which, T, material, names)],
+    )
+    np.testing.assert_array_equal(scene.transforms, ref.transforms)
+    np.testing.assert_array_equal(scene.instance_material, ref.instance_material)
+    np.testing.assert_array_equal(scene.positions, ref.positions)
+    assert [i.name for i in scene.instances] == names and scene.instances[3].mesh == 1
+    assert scene.instances[3].material == 0 and scene.instances[4].material is None
+    # the handles move the instances as any others; the caller's array is not the scene's
+    M = scene.instances[7].transform.copy()
+    M[:3, 3] += 1.0
+    scene.instances[7].transform = M
+    assert scene.moved_instances(0).tolist() == [7] and not np.array_equal(T[7], M)
+    assert len(Scene.from_transforms(meshes.meshes, T[0]).instances) == 1  # one (4, 4)
+    bad = T.copy()
+    bad[9, 3, 0] = 1.0
+    with pytest.raises(SceneError, match=r"instances\[9\] 'x9': transform must be affine"):
+        Scene.from_transforms(meshes.meshes, bad, instance_names=names)
+    with pytest.raises(SceneError, match=r"instances\[2\]: mesh 2 out of range \[0, 2\)"):
+        Scene.from_transforms(meshes.meshes, T[:4], instance_mesh=[0, 1, 2, 0])
+    with pytest.raises(SceneError, match=r"instances\[1\]: material 5 out of range"):
+        Scene.from_transforms(meshes.meshes, T[:2], instance_material=[-1, 5])
+    with pytest.raises(SceneError, match=r"instance_mesh must be \(3,\) integers"):
+        Scene.from_transforms(meshes.meshes, T[:3], instance_mesh=[0.0, 1.0, 0.0])
+
+
+def test_a_toml_file_over_the_size_limit_is_refused_before_it_is_read(tmp_path, monkeypatch):
+    from engine.scene import toml_format
+
+    path = instance_toml(tmp_path, [f"translate = [{j}, 0, 0]" for j in range(20)])
+    monkeypatch.setattr(toml_format, "MAX_TOML_BYTES", 200)
+    monkeypatch.setattr(toml_format.tomllib, "loads", lambda *a: pytest.fail("parsed"))
+    with pytest.raises(SceneError, match=r"many.toml: \d+ bytes, more than a TOML scene may have.*from_transforms"):
+        Scene.load(path)

@@ -2,6 +2,7 @@
 mip-mapped, trilinear and anisotropic filtering against a supersampled reference; the size-class plan."""
 
 import math
+import os
 
 import numpy as np
 import pytest
@@ -435,3 +436,67 @@ def test_ambient_occlusion_sees_through_a_transparent_masked_quad(make_renderer)
     assert np.array_equal(invisible, r.render(bare, **settings).aov["ao_raw"])
     opaque = r.render(leaf_over_ground(masked_leaf(alpha_mode="OPAQUE")), **settings).aov["ao_raw"]
     assert opaque.mean() < invisible.mean() - 0.01
+
+
+MEMORY_PROBE = """
+import sys
+from engine.scene.loader import load_texture_file
+from PIL import Image
+
+def high_water():  # the peak resident size of this process (ru_maxrss would be the parent's: kept across exec)
+    with open("/proc/self/status") as f:
+        return next(int(line.split()[1]) * 1024 for line in f if line.startswith("VmHWM:"))
+
+with Image.open(sys.argv[1]) as im:
+    pixels = im.size[0] * im.size[1]
+base = high_water()
+tex = load_texture_file(sys.argv[1], "probe")
+print((high_water() - base) / pixels, tex.shape)
+"""
+
+
+@pytest.mark.parametrize("mode", ["I;16", "L", "RGB"])
+def test_texture_decoding_memory_is_bounded_by_the_pixels(tmp_path, mode):
+    """A long thin image under the pixel cap (issue #36: 1 x 60M pixels, 116 KB, took 1.9 GB): the decode's peak
+    memory, measured in a fresh process, stays within a few bytes a pixel (the decoded image and the PNG decoder's
+    row buffers). Before: 26 bytes a pixel for 16-bit grey (float64 copies), 9 to 12 for 8-bit (RGBA copies)."""
+    import subprocess
+    import sys
+
+    from PIL import Image
+
+    if not os.path.exists("/proc/self/status"):
+        pytest.skip("measures the peak resident size in /proc (Linux)")
+    n = 6_000_000
+    shape = {"I;16": (1, n), "L": (1, n), "RGB": (1, n, 3)}[mode]
+    ramp = (np.arange(n) % 251).astype(np.uint16 if mode == "I;16" else np.uint8)
+    data = np.broadcast_to(ramp.reshape(1, n, *([1] * (len(shape) - 2))), shape).copy()
+    path = tmp_path / "thin.png"
+    Image.fromarray(data, None if mode == "I;16" else mode).save(path)
+    res = subprocess.run([sys.executable, "-c", MEMORY_PROBE, str(path)], capture_output=True, text=True, timeout=120)
+    assert res.returncode == 0, res.stderr[-2000:]
+    per_pixel, shape_out = res.stdout.split(" ", 1)
+    assert shape_out.strip() == "(1, 2048, 4)"
+    limit = {"I;16": 8.0, "L": 5.0, "RGB": 11.0}[mode]  # decoded image + PNG row buffers (+ the 16-bit values)
+    assert float(per_pixel) <= limit, f"{mode}: {float(per_pixel):.1f} bytes a pixel at peak"
+
+
+def test_wide_images_scale_to_grey_as_before():
+    """16- and 32-bit images: value / max(maximum, 255) * 255, truncated; downsizing before the RGBA conversion
+    gives the same pixels as converting first."""
+    from PIL import Image
+
+    from engine.scene.loader import MAX_TEXTURE_SIZE, image_to_texture
+
+    rng = np.random.default_rng(2)
+    for a in (rng.integers(0, 65535, (37, 53)).astype(np.uint16), rng.integers(0, 200, (9, 7)).astype(np.int32)):
+        tex = image_to_texture(Image.fromarray(a), "t")
+        top = max(float(a.max()), 255.0)
+        want = np.clip(a.astype(np.float64) / top * 255.0, 0, 255).astype(np.uint8)
+        assert np.array_equal(tex[..., 0], want) and np.array_equal(tex[..., 2], want) and (tex[..., 3] == 255).all()
+    for mode in ("L", "LA", "RGB", "RGBA"):
+        img = Image.fromarray(rng.integers(0, 256, (40, MAX_TEXTURE_SIZE + 300, len(mode)), np.uint8).squeeze(), mode)
+        first = img.convert("RGBA")
+        first.thumbnail((MAX_TEXTURE_SIZE, MAX_TEXTURE_SIZE), Image.Resampling.LANCZOS)
+        assert np.array_equal(image_to_texture(img, "t"), np.asarray(first)), mode
+        assert img.size == (MAX_TEXTURE_SIZE + 300, 40)  # not the caller's image downsized

@@ -71,6 +71,8 @@ def test_view_cli_screenshot_matches_headless_render(xvfb_display, tmp_path, mak
             "--screenshot",
             str(shot),
             "--paused",
+            "--scale",
+            "1",
         ],
         cwd=REPO,
         env=env,
@@ -245,3 +247,71 @@ def test_camera_moves_with_keys(viewer):
     assert np.abs(v.read_color().astype(int) - before).max() > 0
     v.fly.reset()
     assert v.fly.camera == home
+
+
+# ---- dynamic resolution ---------------------------------------------------------------------------------------------
+def run_scaler(c, frame_ms, frames):
+    """Feed `frames` synthetic frame times `frame_ms(scale)` to a ScaleController; the scales it rendered at."""
+    seen = []
+    for _ in range(frames):
+        seen.append(c.scale)
+        c.update(frame_ms(c.scale))
+    return seen
+
+
+def test_scale_controller_reaches_the_goal_and_stays():
+    from engine.viewer.scale import ScaleController
+
+    # lavapipe-like: 3 s a full-size frame, time in proportion to the pixels; goal 200 ms
+    c = ScaleController(200.0)
+    seen = run_scaler(c, lambda s: 10 + 3000 * s * s, 200)
+    assert seen[:4] == [1.0] * 4  # two warm-up frames, then two measured ones
+    assert c.scale == 0.25 and seen[4] == 0.25 and c.changes == 1  # one jump, straight to the step that fits
+    # a GPU-like device with room to spare stays at full size; one slow frame (a shader compile) moves nothing
+    c = ScaleController(33.0)
+    times = iter([5.0] * 20 + [500.0] + [5.0] * 20)
+    assert run_scaler(c, lambda s: next(times), 41) == [1.0] * 41 and c.changes == 0
+
+
+def test_scale_controller_climbs_back_one_step_at_a_time():
+    from engine.viewer.scale import ScaleController
+
+    c = ScaleController(33.0)
+    cost = [400.0]
+    run_scaler(c, lambda s: cost[0] * s * s, 20)
+    low = c.scale
+    assert low <= 0.3
+    cost[0] = 20.0  # the view got cheap: up again, step by step, to full size and no further
+    seen = run_scaler(c, lambda s: cost[0] * s * s, 300)
+    assert c.scale == 1.0 and seen[-1] == 1.0
+    ups = [b for a, b in zip(seen, seen[1:]) if b != a]
+    assert ups == sorted(ups) and len(ups) == c.levels.index(low)  # each step once, upwards only
+
+
+def test_scale_controller_does_not_oscillate():
+    """A frame time the pixel model predicts badly (a cliff above 0.6): the controller tries the step above now and
+    then, each time waiting twice as long, instead of flipping between the two every few frames."""
+    from engine.viewer.scale import ScaleController
+
+    c = ScaleController(33.0)
+    seen = run_scaler(c, lambda s: 45.0 if s > 0.6 else 10.0, 2000)
+    flips = sum(a != b for a, b in zip(seen, seen[1:]))
+    assert flips <= 16, flips
+    assert seen[-500:].count(0.6) >= 490
+    with pytest.raises(ValueError, match="goal"):
+        ScaleController(0)
+
+
+def test_view_scale_auto_drops_on_a_slow_device(viewer):
+    """--scale auto: with a frame-time goal this device cannot meet at the window's size, the render size drops in
+    steps (the window keeps its size), the overlay says so, and the frame is still presented at the window size."""
+    v = viewer(SPHERE, 160, 90, render_scale="auto", frame_goal_ms=1.0, settings=dict(ao=False))
+    assert v.scaler is not None and v.scaler.goal_ms == 1.0
+    v.run(frames=8)
+    assert v.scaler.scale < 1.0 and v.scaler.changes >= 1
+    assert (v.renderer.width, v.renderer.height) == v.presenter.render_size()
+    assert v.renderer.width < 160 and v.presenter.swapchain.extent == (160, 90)
+    v._update_text(v._text_due)
+    assert any(f"scale auto {v.scaler.scale:.2f} (goal 1 ms)" in line for line in v.overlay_lines), v.overlay_lines
+    assert v.read_color().shape == (v.renderer.height, v.renderer.width, 4)
+    assert "render scale auto" in v.summary()

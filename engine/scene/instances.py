@@ -189,8 +189,19 @@ class Instance:
     def _label(self) -> str:
         if getattr(self, "_scene", None) is not None:
             return self._scene._label(self._index)
-        tag = f"#{self._index}" if getattr(self, "_index", -1) >= 0 else ""
-        return f"instance {tag} '{shown(self.name)}'".replace("  ", " ") if self.name else f"instance {tag}".strip()
+        return instance_label(self.name, getattr(self, "_index", -1))
+
+    @classmethod
+    def _handles(cls, scene, mesh: np.ndarray, names: list[str]) -> list[Instance]:
+        """Instances attached to `scene` as its instances 0..N-1 (its arrays hold their state): no checks, so a
+        million take about a second, not a minute."""
+        new, out = object.__new__, []
+        append = out.append
+        for i, (k, name) in enumerate(zip(mesh.tolist(), names)):
+            h = new(cls)
+            h.mesh, h._name, h._transform, h._material, h._scene, h._index = k, name, None, None, scene, i
+            append(h)
+        return out
 
     @property
     def transform(self) -> NDArray[np.float64]:
@@ -225,6 +236,12 @@ class Instance:
 
     def __repr__(self) -> str:
         return f"<Instance {shown(self.name)!r} of mesh {self.mesh}>"
+
+
+def instance_label(name: str, index: int = -1) -> str:
+    """How messages name an instance outside a scene: "instance #3 'name'", "instance 'name'", "instance"."""
+    tag = f"#{index}" if index >= 0 else ""
+    return f"instance {tag} '{shown(name)}'".replace("  ", " ") if name else f"instance {tag}".strip()
 
 
 def check_material_override(material, label: str) -> int | None:

@@ -17,9 +17,9 @@ from engine.errors import SceneError, shown
 
 from . import mtl
 from .filechecks import bomb_images, bomb_pixels, check_mesh_file, diagnose_gltf
-from .instances import Instance, Mesh, world_boxes
+from .instances import Mesh, check_transforms, determinants, instance_label, world_boxes
 from .material import TEXTURE_FIELDS, Material, material_key, srgb8_to_linear, texture_key
-from .parts import SceneParts
+from .parts import Placements, SceneParts
 
 MAX_TEXTURE_SIZE = 2048
 #: Most pixels a texture image may have (64 Mpixel, e.g. 8192 x 8192): checked from the image's header, before it is
@@ -69,21 +69,34 @@ def check_image_size(img, where: str) -> None:
         raise SceneError(f"{where}: {_too_large(w * h, (w, h))}")
 
 
-def image_to_texture(img, where: str) -> np.ndarray:
+#: Modes resampled as they are (the same values as resampling their RGBA conversion), then converted to RGBA
+_RESAMPLED_AS_IS = ("L", "LA", "RGB", "RGBA")
+#: Modes of more than 8 bits a channel: scaled to 8-bit grey (their maximum, or 255, is white)
+_WIDE_MODES = ("I;16", "I;16B", "I;16L", "I", "F")
+_BLOCK_PIXELS = 1 << 18  # the 16- and 32-bit conversion's float temporaries: this many pixels at a time (2 MB)
+
+
+def image_to_texture(img, where: str, owned: bool = False) -> np.ndarray:
     """A PIL image to (H, W, 4) uint8 RGBA, at most MAX_TEXTURE_SIZE on a side; at most MAX_TEXTURE_PIXELS before
-    it is downsized. `where` names what refers to it in messages."""
+    it is downsized. `where` names what refers to it in messages; `owned`: the caller's image may be downsized in
+    place (no copy).
+
+    Memory is bounded by the decoded image's (1 to 4 bytes a pixel, 16 for 32-bit RGBA float): a grey, RGB or RGBA
+    image is downsized in its own mode and only then made RGBA; 16- and 32-bit images are scaled to 8 bits in
+    blocks, without a float copy of the whole image (issue #36: a 60 Mpixel 16-bit PNG took 1.9 GB)."""
     try:
         check_image_size(img, where)
         img.load()
-        if img.mode != "RGBA":
-            if img.mode in ("I;16", "I;16B", "I;16L", "I", "F"):
-                a = np.asarray(img, dtype=np.float64)
-                top = a.max() if a.size and a.max() > 255 else 255.0
-                img = Image.fromarray(np.clip(a / top * 255.0, 0, 255).astype(np.uint8), "L")
-            img = img.convert("RGBA")
+        if img.mode in _WIDE_MODES:
+            img, owned = _wide_to_grey(img), True
+        elif img.mode not in _RESAMPLED_AS_IS:  # palette, 1-bit, CMYK ...: RGBA first (a palette resamples nearest)
+            img, owned = img.convert("RGBA"), True
         if max(img.size) > MAX_TEXTURE_SIZE:
-            img = img.copy()
+            if not owned:
+                img = img.copy()
             img.thumbnail((MAX_TEXTURE_SIZE, MAX_TEXTURE_SIZE), Image.Resampling.LANCZOS)
+        if img.mode != "RGBA":
+            img = img.convert("RGBA")
         tex = np.array(img, dtype=np.uint8)
     except SceneError:
         raise
@@ -94,6 +107,22 @@ def image_to_texture(img, where: str) -> np.ndarray:
     if tex.ndim != 3 or tex.shape[2] != 4 or tex.shape[0] == 0 or tex.shape[1] == 0:
         raise SceneError(f"{where}: texture image has an unusable shape {tex.shape}")
     return tex
+
+
+def _wide_to_grey(img):
+    """A 16- or 32-bit single-channel image as 8-bit grey: value / max(its maximum, 255) * 255, truncated (float64
+    arithmetic on a tile of about _BLOCK_PIXELS pixels at a time: no copy of the whole image besides the result)."""
+    w, h = img.size
+    top = float(img.getextrema()[1]) if w * h else 0.0
+    top = top if top > 255 else 255.0
+    out = np.empty((h, w), np.uint8)
+    cols = min(w, _BLOCK_PIXELS)
+    rows = max(1, _BLOCK_PIXELS // cols)
+    for y in range(0, h, rows):
+        for x in range(0, w, cols):
+            tile = np.asarray(img.crop((x, y, min(x + cols, w), min(y + rows, h))), dtype=np.float64)
+            out[y : y + rows, x : x + cols] = np.clip(tile / top * 255.0, 0, 255)
+    return Image.fromarray(out, "L")
 
 
 def load_texture_file(path: str, where: str) -> np.ndarray:
@@ -107,7 +136,7 @@ def load_texture_file(path: str, where: str) -> np.ndarray:
             warnings.simplefilter("ignore", Image.DecompressionBombWarning)
             img = Image.open(path)  # reads the header only: its size is checked before decoding
         with img:
-            return image_to_texture(img, f"{where} ({shown(path)})")
+            return image_to_texture(img, f"{where} ({shown(path)})", owned=True)
     except SceneError:
         raise
     except Image.DecompressionBombError as exc:
@@ -236,7 +265,10 @@ class SceneBuilder:
     def __init__(self, name: str):
         self.name = name
         self.meshes: list[Mesh] = []
-        self.instances: list[Instance] = []
+        # the instances, in blocks: mesh indices (K,), transforms (K, 4, 4), and names (one list)
+        self._inst_mesh: list[np.ndarray] = []
+        self._inst_transforms: list[np.ndarray] = []
+        self._inst_names: list[str] = []
         self.materials: list[Material] = []
         self._material_keys: dict = {}
         self._textures: dict = {}
@@ -281,8 +313,17 @@ class SceneBuilder:
         hashable `key` (not None) share the first one's Mesh. `normals` None: computed with a crease angle."""
         m = np.eye(4) if transform is None else np.asarray(transform, dtype=np.float64)
         inst_name = name if instance_name is None else instance_name
-        if not np.all(np.isfinite(m)):
-            raise SceneError(f"{where}: node '{shown(inst_name)}' has a transform with NaN or infinite values")
+        self.add_placed(name, positions, faces, normals, uvs, material, where, m[None], [inst_name], key=key)
+
+    def add_placed(self, name, positions, faces, normals, uvs, material, where, transforms, names, key=None):
+        """`add` for K placements at once: `transforms` (K, 4, 4), `names` K instance names; checked with whole-array
+        operations (the first bad placement is named, with the message `add` gives). Placements whose 3x3 part is
+        singular (a zero scale: glTF hides parts so) are left out."""
+        m = np.asarray(transforms, dtype=np.float64)
+        finite = np.isfinite(m.reshape(len(m), 16)).all(axis=1)
+        if not finite.all():
+            j = int(np.argmin(finite))
+            raise SceneError(f"{where}: node '{shown(names[j])}' has a transform with NaN or infinite values")
         k = self._mesh_keys.get(key) if key is not None else None
         if k is None:
             mesh = self._mesh(name, positions, faces, normals, uvs, material, where)
@@ -292,16 +333,25 @@ class SceneBuilder:
             self.meshes.append(mesh)
             if key is not None:
                 self._mesh_keys[key] = k
-        a = m[:3, :3]
-        if not np.isfinite(np.linalg.cond(a)) or abs(np.linalg.det(a / max(np.abs(a).max(), 1e-300))) < 1e-12:
-            return  # a zero scale hides the part (glTF does this): nothing to trace or draw
-        box = world_boxes(self.meshes[k].box[None], m[None])[0]
-        if np.abs(box).max() > MAX_COORD:
+        a = m[:, :3, :3]
+        top = np.maximum(np.abs(a).reshape(len(m), 9).max(axis=1), 1e-300)
+        shown_ = np.abs(determinants(m / top[:, None, None])) >= 1e-12  # (a finite det >= 1e-12: a finite cond)
+        if not shown_.all():  # a zero scale hides the part: nothing to trace or draw
+            m = m[shown_]
+            names = [n for n, keep in zip(names, shown_) if keep]
+            if not len(m):
+                return
+        box = np.abs(world_boxes(self.meshes[k].box[None], m)).reshape(len(m), 6).max(axis=1)
+        if box.max() > MAX_COORD:
+            j = int(np.argmax(box > MAX_COORD))
             raise SceneError(
-                f"{where}: mesh '{shown(inst_name)}' has world-space vertex coordinates beyond "
-                f"+-{MAX_COORD:g} (largest {np.abs(box).max():g}): check its size, scale and translate"
+                f"{where}: mesh '{shown(names[j])}' has world-space vertex coordinates beyond "
+                f"+-{MAX_COORD:g} (largest {box[j]:g}): check its size, scale and translate"
             )
-        self.instances.append(Instance(k, m, name=inst_name))
+        m = check_transforms(m, lambda j: instance_label(names[j]), copy=False)  # affine, invertible
+        self._inst_mesh.append(np.full(len(m), k, np.int64))
+        self._inst_transforms.append(m)
+        self._inst_names.extend(names)
 
     def _mesh(self, name, positions, faces, normals, uvs, material, where) -> Mesh | None:
         p = np.asarray(positions, dtype=np.float64)
@@ -380,30 +430,33 @@ class SceneBuilder:
         else:
             raise SceneError(f"{where}: expected a trimesh.Trimesh or trimesh.Scene, got {type(obj).__name__}")
         outer = np.eye(4) if transform is None else np.asarray(transform, dtype=np.float64)
-        placements = (
-            [(outer, label)]
-            if transforms is None
-            else [
-                (np.asarray(t, dtype=np.float64) @ outer, (labels[i] if labels and labels[i] else label))
-                for i, t in enumerate(transforms)
-            ]
-        )
-        before = len(self.instances)
+        if transforms is None:
+            places, names = outer[None], [label]
+        else:
+            places = np.asarray(transforms, dtype=np.float64).reshape(-1, 4, 4) @ outer
+            names = [(labels[i] if labels and labels[i] else label) for i in range(len(places))]
+        before = len(self._inst_names)
         made = {}  # this call's materials by trimesh material; `obj` keeps those alive, so their ids stay unique
         self._keep.append(obj)
-        for place, name in placements:
-            for m, geom, node_name, geom_name in items:
-                if name and isinstance(obj, trimesh.Scene):
-                    node_name = name if len(items) == 1 else f"{name}/{node_name}"
-                elif name:
-                    node_name = name
-                self._add_geometry(
-                    geom, place @ m, node_name, geom_name, where, color, texture, uv_scale, made, overrides or {}
-                )
-        if len(self.instances) == before:
+        in_scene, extra = isinstance(obj, trimesh.Scene), overrides or {}
+        if len(items) == 1:  # one geometry, placed once or many times: one block
+            m, geom, node_name, geom_name = items[0]
+            names = [_node_name(name, node_name, in_scene, 1) for name in names]
+            self._add_geometry(geom, places @ m, names, geom_name, where, color, texture, uv_scale, made, extra)
+        else:
+            for place, name in zip(places, names):
+                for m, geom, node_name, geom_name in items:
+                    node_name = _node_name(name, node_name, in_scene, len(items))
+                    place_m = (place @ m)[None]
+                    self._add_geometry(
+                        geom, place_m, [node_name], geom_name, where, color, texture, uv_scale, made, extra
+                    )
+        if len(self._inst_names) == before:
             raise SceneError(f"{where}: contains no triangles")
 
-    def _add_geometry(self, geom, m, node_name, geom_name, where, color, texture, uv_scale, made, overrides):
+    def _add_geometry(self, geom, m, names, geom_name, where, color, texture, uv_scale, made, overrides):
+        """One trimesh geometry placed by the transforms `m` (K, 4, 4), its instances named `names`."""
+        node_name = names[0]
         with _quiet():
             vertices = np.asarray(geom.vertices, dtype=np.float64)
             faces = np.asarray(geom.faces, dtype=np.int64)
@@ -422,7 +475,8 @@ class SceneBuilder:
                 f"{where}: mesh '{shown(node_name)}' has {bad} vertex position(s) that are NaN or infinite"
             )
         if not np.all(np.isfinite(m)):
-            raise SceneError(f"{where}: node '{shown(node_name)}' has a transform with NaN or infinite values")
+            j = int(np.argmin(np.isfinite(m.reshape(len(m), 16)).all(axis=1)))
+            raise SceneError(f"{where}: node '{shown(names[j])}' has a transform with NaN or infinite values")
         uvs = None
         mat = _material_of(visual, where, made)
         uv = getattr(visual, "uv", None) if getattr(visual, "material", None) is not None else None
@@ -439,24 +493,32 @@ class SceneBuilder:
         material = self.material_index(mat, key_name)
         key = (id(geom), material, None if uv_scale is None else tuple(np.asarray(uv_scale, np.float64).tolist()))
         self._keep.append(geom)
-        self.add(
-            geom_name, vertices, faces, normals, uvs, material, where, transform=m, key=key, instance_name=node_name
-        )
+        self.add_placed(geom_name, vertices, faces, normals, uvs, material, where, m, names, key=key)
 
     # -------------------------------------------------------------- result
     def build(self, lights=None, camera=None, settings=None) -> SceneParts:
         """The meshes and instances collected, with the scene's lights, camera and settings."""
-        if not self.instances:
+        if not self._inst_names:
             raise SceneError(f"{shown(self.name)}: the scene has no triangles")
+        placements = Placements(
+            np.concatenate(self._inst_mesh), np.concatenate(self._inst_transforms), self._inst_names
+        )
         return SceneParts(
             name=self.name,
             meshes=self.meshes,
-            instances=self.instances,
+            instances=placements,
             materials=self.materials,
             lights=lights,
             camera=camera,
             settings=settings,
         )
+
+
+def _node_name(name, node_name: str, in_scene: bool, items: int) -> str:
+    """The instance name of a file's node placed under `name` (a placement's or the mesh table's, or None)."""
+    if name and in_scene:
+        return name if items == 1 else f"{name}/{node_name}"
+    return name or node_name
 
 
 def _material_of(visual, where: str, made: dict) -> Material:

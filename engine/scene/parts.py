@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 from dataclasses import dataclass
+from typing import Any
 
 
 @dataclass(frozen=True)
@@ -18,14 +19,25 @@ class SubMesh:
 
 
 @dataclass
+class Placements:
+    """The instances of a scene as arrays (what a loader collected; Scene checks the indices): `mesh` (N,) mesh
+    indices, `transforms` (N, 4, 4) float64 object-to-world (already checked: finite, affine, invertible), `names`
+    (N strings)."""
+
+    mesh: Any
+    transforms: Any
+    names: list
+
+
+@dataclass
 class SceneParts:
     """The arguments of a Scene as a loader collected them (Scene checks them): the meshes (object space,
-    `instances.Mesh`) and the instances placing them (`instances.Instance`), the materials they refer to, and the
+    `instances.Mesh`) and the instances placing them (`Placements`), the materials they refer to, and the
     scene's name, lights, camera and settings (None: the Scene's defaults)."""
 
     name: str
     meshes: list
-    instances: list
+    instances: Placements
     materials: list
     lights: list | None = None
     camera: object | None = None

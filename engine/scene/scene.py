@@ -29,6 +29,7 @@ from .instances import (
     Instance,
     Mesh,
     check_material_override,
+    check_transforms,
     checked_transforms,
     flatten,
     frozen,
@@ -131,24 +132,30 @@ class Scene:
         self._setup([mesh], [Instance(0)], materials, settings)
         self._init_rest(lights, camera)
 
-    def _setup(self, meshes, instances, materials, settings) -> None:
-        """Meshes, instances (attached to this scene) and materials, checked; the change tracking starts at 0."""
+    def _meshes_and_materials(self, meshes, materials) -> tuple[list, list]:
         where = shown(self.name)
         if materials is None:
             materials = [Material("default")]
         materials = list(materials)
         if not materials or not all(isinstance(m, Material) for m in materials):
             raise SceneError(f"{where}: materials must be a non-empty list of Material")
-        meshes, instances = list(meshes), list(instances)
+        meshes = list(meshes)
         if not meshes or not all(isinstance(m, Mesh) for m in meshes):
             raise SceneError(f"{where}: meshes must be a non-empty list of Mesh")
-        if not instances or not all(isinstance(i, Instance) for i in instances):
-            raise SceneError(f"{where}: instances must be a non-empty list of Instance")
         for k, mesh in enumerate(meshes):
             if mesh.vertex_count and int(mesh.vertex_material.max()) >= len(materials):
                 raise SceneError(
                     f"{where}: mesh {k} '{shown(mesh.name)}': vertex_material out of range [0, {len(materials)})"
                 )
+        return meshes, materials
+
+    def _setup(self, meshes, instances, materials, settings) -> None:
+        """Meshes, instances (attached to this scene) and materials, checked; the change tracking starts at 0."""
+        where = shown(self.name)
+        meshes, materials = self._meshes_and_materials(meshes, materials)
+        instances = list(instances)
+        if not instances or not all(isinstance(i, Instance) for i in instances):
+            raise SceneError(f"{where}: instances must be a non-empty list of Instance")
         for i, inst in enumerate(instances):
             if inst._scene is not None:
                 raise SceneError(f"{where}: instances[{i}] already belongs to a scene")
@@ -161,21 +168,57 @@ class Scene:
                     f"{where}: instances[{i}] '{shown(inst.name)}': material {inst._material} out of "
                     f"range [0, {len(materials)})"
                 )
-        self.materials = materials
-        self.meshes = tuple(meshes)
-        self._inst_mesh = np.array([i.mesh for i in instances], dtype=np.int64)
-        self._inst_mesh.setflags(write=False)
-        self._inst_material = np.array([-1 if i._material is None else i._material for i in instances], np.int64)
-        self._transforms = np.stack([i._transform for i in instances]).astype(np.float64)
-        self._check_world(np.arange(len(instances)))
-        self._version = 0
-        self._inst_changed = np.zeros(len(instances), dtype=np.int64)
-        self._mesh_changed = np.zeros(len(meshes), dtype=np.int64)
-        self._cache: dict = {}
-        self._names_version = 0  # increases when an instance is renamed (the object names' cache)
+        mesh = np.array([i.mesh for i in instances], dtype=np.int64)
+        material = np.array([-1 if i._material is None else i._material for i in instances], np.int64)
+        self._store(meshes, materials, mesh, material, np.stack([i._transform for i in instances]), settings)
         for i, inst in enumerate(instances):
             inst._scene, inst._index = self, i
         self.instances = tuple(instances)
+
+    def _setup_arrays(self, meshes, transforms, mesh, material, names, materials, settings, checked=False) -> None:
+        """`_setup` from arrays (`from_transforms`): (N, 4, 4) transforms, (N,) mesh indices or None (all mesh 0),
+        (N,) material overrides (-1 or None: the mesh's own), N names or None; checked with whole-array operations,
+        the instances' handles made without per-instance checks. `checked`: the transforms were checked already."""
+        where = shown(self.name)
+        meshes, materials = self._meshes_and_materials(meshes, materials)
+        names = None if names is None else [str(n) for n in names]
+
+        def label(i):
+            name = names[i] if names is not None and i < len(names) else ""
+            return f"{where}: instances[{i}]" + (f" '{shown(name)}'" if name else "")
+
+        if not checked:
+            transforms = check_transforms(transforms, label)
+        n = len(transforms)
+        if n == 0:
+            raise SceneError(f"{where}: no instances (transforms must be (N, 4, 4) with N >= 1)")
+        names = [""] * n if names is None else names
+        mesh = _indices(np.zeros(n, np.int64) if mesh is None else mesh, n, "instance_mesh", where)
+        material = _indices(np.full(n, -1, np.int64) if material is None else material, n, "instance_material", where)
+        if len(names) != n:
+            raise SceneError(f"{where}: {len(names)} instance names for {n} instances")
+        for values, count, what in ((mesh, len(meshes), "mesh"), (material, len(materials), "material")):
+            bad = (values >= count) | (values < (0 if what == "mesh" else -1))
+            if bad.any():
+                i = int(np.argmax(bad))
+                raise SceneError(f"{label(i)}: {what} {int(values[i])} out of range [0, {count})")
+        self._store(meshes, materials, mesh, material, transforms, settings)
+        self.instances = tuple(Instance._handles(self, self._inst_mesh, names))
+
+    def _store(self, meshes, materials, mesh, material, transforms, settings) -> None:
+        self.materials = materials
+        self.meshes = tuple(meshes)
+        self._inst_mesh = mesh
+        self._inst_mesh.setflags(write=False)
+        self._inst_material = material
+        # (every caller hands over an array of its own: stacked, or checked with a copy)
+        self._transforms = np.ascontiguousarray(transforms, dtype=np.float64)
+        self._check_world(slice(None))
+        self._version = 0
+        self._inst_changed = np.zeros(len(mesh), dtype=np.int64)
+        self._mesh_changed = np.zeros(len(meshes), dtype=np.int64)
+        self._cache: dict = {}
+        self._names_version = 0  # increases when an instance is renamed (the object names' cache)
         self.settings = dict(settings or {})
         self.uid = next(_ids)
 
@@ -674,17 +717,44 @@ class Scene:
         return scene
 
     @classmethod
+    def from_transforms(
+        cls,
+        meshes: Iterable[Mesh],
+        transforms: ArrayLike,
+        *,
+        instance_mesh: ArrayLike | None = None,
+        instance_material: ArrayLike | None = None,
+        instance_names: Iterable[str] | None = None,
+        materials: Iterable[Material] | None = None,
+        lights: Light | Iterable[Light] | None = None,
+        camera: Camera | None = None,
+        name: str = "<instances>",
+        settings: dict[str, Any] | None = None,
+    ) -> Scene:
+        """`from_meshes` for many instances: `transforms` (N, 4, 4) object-to-world, `instance_mesh` (N,) mesh
+        indices (None: all mesh 0), `instance_material` (N,) material overrides (-1: the mesh's own; None: none),
+        `instance_names` (N strings or None). Checked as a whole (a million instances load in about a second;
+        `Instance` objects, checked one by one, take about 50 us each); `scene.instances` are handles as usual.
+
+        Raises:
+            SceneError: a bad transform or index, naming the first bad instance (`instances[i] 'name'`).
+        """
+        scene = cls.__new__(cls)
+        scene.name = str(name)
+        scene._setup_arrays(meshes, transforms, instance_mesh, instance_material, instance_names, materials, settings)
+        scene._init_rest(lights, camera)
+        return scene
+
+    @classmethod
     def _from_parts(cls, parts: SceneParts) -> Scene:
-        """A scene from what a loader collected (checked like any other)."""
-        scene = cls.from_meshes(
-            parts.meshes,
-            parts.instances,
-            materials=parts.materials,
-            lights=parts.lights,
-            camera=parts.camera,
-            name=parts.name,
-            settings=parts.settings,
+        """A scene from what a loader collected (checked like any other; its transforms were checked)."""
+        scene = cls.__new__(cls)
+        scene.name = str(parts.name)
+        p = parts.instances
+        scene._setup_arrays(
+            parts.meshes, p.transforms, p.mesh, None, p.names, parts.materials, parts.settings, checked=True
         )
+        scene._init_rest(parts.lights, parts.camera)
         if parts.animations:
             check_targets(parts.animations, [i.name for i in scene.instances], shown(scene.name))
             scene.animations = list(parts.animations)
@@ -700,6 +770,14 @@ class Scene:
             if self._player is None:
                 self._player = Player(self, self.animations)
             self._player.apply(t)
+
+
+def _indices(values, n: int, what: str, where: str) -> np.ndarray:
+    """(n,) int64 indices (range checks: the caller's)."""
+    a = np.asarray(values)
+    if a.shape != (n,) or not (np.issubdtype(a.dtype, np.integer) or (a.dtype == object and n == 0)):
+        raise SceneError(f"{where}: {what} must be ({n},) integers, got {a.dtype} {a.shape}")
+    return a.astype(np.int64)
 
 
 def scene_from_dict(data: dict, path: str = "<toml>", allow_paths=None) -> Scene:

@@ -58,6 +58,9 @@ LIGHT_KEYS = {
 #: Longest message a scene error has (a value of megabytes is cut in the middle).
 MAX_MESSAGE = 1200
 BOM = "\ufeff"
+#: Largest TOML scene file read (16 MiB): Python's TOML parser takes about 0.5 s a MiB, so a file at the limit (about
+#: 250,000 `instances` entries) loads in about 10 s. More instances: `Scene.from_transforms` (a million in seconds).
+MAX_TOML_BYTES = 16 * 2**20
 #: Most triangles one primitive may have (sphere: 2 x segments x rings, torus: 2 x segments x sides).
 MAX_PRIMITIVE_TRIANGLES = 4_000_000
 
@@ -105,6 +108,13 @@ def load_toml(path, allow_paths=None, up=None) -> SceneParts:
         raise SceneError(f"{where}: is a directory, not a scene file")
     if not os.path.isfile(path):  # a FIFO or a device would block the read or never end
         raise SceneError(f"{where}: not a regular file")
+    size = os.path.getsize(path)
+    if size > MAX_TOML_BYTES:
+        raise SceneError(
+            f"{where}: {size:,} bytes, more than a TOML scene may have ({MAX_TOML_BYTES:,}: about 250,000 instances, "
+            f"10 s to parse); place more instances from Python: Scene.from_transforms(meshes, transforms) "
+            f'(docs/scenes.md, "Many instances")'
+        )
     try:
         with open(path, "rb") as fh:
             raw = fh.read()
@@ -363,25 +373,102 @@ def _trs(table: dict, ctx: _Ctx) -> np.ndarray:
     return m
 
 
-def _instances(table: dict, ctx: _Ctx) -> list | None:
-    """The placements of a table's `instances` list ((4, 4) each, applied after the table's own transform, and
-    their names), or None without one."""
+def _instance(item, j: int, ctx: _Ctx) -> tuple[np.ndarray, str | None]:
+    """One entry of an `instances` list, checked: its (4, 4) transform and name."""
+    ictx = ctx.at(f"{ctx.table}: instances #{j}")
+    if not isinstance(item, dict):
+        raise ictx.error(f"must be a table {{translate = .., rotate = .., scale = ..}}, got {item!r}")
+    _unknown(ictx, item, INSTANCE_KEYS)
+    name = item.get("name")
+    if name is not None and not isinstance(name, str):
+        raise ictx.error(f"name must be a string, got {name!r}")
+    return _trs(item, ictx), name
+
+
+_NUMBER = (int, float)
+_ZERO3 = [0.0, 0.0, 0.0]
+_ONE3 = [1.0, 1.0, 1.0]
+
+
+def _triple(v) -> bool:
+    return type(v) is list and len(v) == 3 and type(v[0]) in _NUMBER and type(v[1]) in _NUMBER and type(v[2]) in _NUMBER
+
+
+def _instances(table: dict, ctx: _Ctx) -> tuple[np.ndarray, list] | None:
+    """The placements of a table's `instances` list ((N, 4, 4), each applied after the table's own transform, and
+    their names), or None without one.
+
+    Entries of the usual form (translate / rotate as 3 numbers, scale as a number or 3) are gathered in one pass and
+    turned into matrices with whole-array operations (a million in seconds); any other entry, or one whose numbers
+    are out of range, goes through `_instance` (the per-entry checks and their messages, the first bad entry's)."""
     if "instances" not in table:
         return None
     value = table["instances"]
     if not isinstance(value, list) or not value:
         raise ctx.error("instances must be a non-empty list of tables {translate = .., rotate = .., scale = ..}")
-    out = []
-    for j, item in enumerate(value, 1):
-        ictx = ctx.at(f"{ctx.table}: instances #{j}")
-        if not isinstance(item, dict):
-            raise ictx.error(f"must be a table {{translate = .., rotate = .., scale = ..}}, got {item!r}")
-        _unknown(ictx, item, INSTANCE_KEYS)
-        name = item.get("name")
-        if name is not None and not isinstance(name, str):
-            raise ictx.error(f"name must be a string, got {name!r}")
-        out.append((_trs(item, ictx), name))
-    return out
+    n = len(value)
+    trs = np.empty((n, 3, 3))  # per entry: scale, rotate (degrees), translate
+    names: list = [None] * n
+    other = []  # entries not of the usual form
+    allowed = set(INSTANCE_KEYS)
+    for j, item in enumerate(value):
+        if type(item) is not dict or not allowed.issuperset(item):
+            other.append(j)
+            continue
+        s, r, t, name = (
+            item.get("scale", 1.0),
+            item.get("rotate", _ZERO3),
+            item.get("translate", _ZERO3),
+            item.get("name"),
+        )
+        if type(s) in _NUMBER:
+            s = [s, s, s]
+        if not (_triple(s) and _triple(r) and _triple(t)) or not (name is None or type(name) is str):
+            other.append(j)
+            continue
+        try:
+            trs[j] = (s, r, t)
+        except OverflowError:  # an int too large for a float
+            other.append(j)
+            continue
+        names[j] = name
+    trs[other] = ((1.0, 1.0, 1.0), (0.0, 0.0, 0.0), (0.0, 0.0, 0.0))
+    scale, angle, translate = trs[:, 0], trs[:, 1], trs[:, 2]
+    with np.errstate(invalid="ignore"):
+        bad = ~(
+            np.isfinite(trs.reshape(n, 9)).all(axis=1)
+            & (scale > 0).all(axis=1)
+            & (np.abs(scale) <= _check.MAX_VALUE).all(axis=1)
+            & (np.abs(angle) <= _check.MAX_VALUE).all(axis=1)
+            & (np.abs(translate) <= _check.MAX_POSITION).all(axis=1)
+        )
+    out = _trs_matrices(scale, np.radians(angle), translate)
+    for j in sorted(set(other) | set(np.flatnonzero(bad).tolist())):  # raises for the first bad entry
+        out[j], names[j] = _instance(value[j], j + 1, ctx)
+    return out, names
+
+
+def _trs_matrices(scale: np.ndarray, angle: np.ndarray, translate: np.ndarray) -> np.ndarray:
+    """(N, 4, 4) `_trs` matrices from (N, 3) scales, Euler angles (radians: X first, then Y, then Z about the world
+    axes) and translations."""
+    n = len(scale)
+    cx, cy, cz = np.cos(angle).T
+    sx, sy, sz = np.sin(angle).T
+    rot = np.empty((n, 3, 3))  # rz @ ry @ rx, written out
+    rot[:, 0, 0] = cz * cy
+    rot[:, 0, 1] = cz * sy * sx - sz * cx
+    rot[:, 0, 2] = cz * sy * cx + sz * sx
+    rot[:, 1, 0] = sz * cy
+    rot[:, 1, 1] = sz * sy * sx + cz * cx
+    rot[:, 1, 2] = sz * sy * cx - cz * sx
+    rot[:, 2, 0] = -sy
+    rot[:, 2, 1] = cy * sx
+    rot[:, 2, 2] = cy * cx
+    m = np.zeros((n, 4, 4))
+    m[:, :3, :3] = rot * scale[:, None, :]
+    m[:, :3, 3] = translate
+    m[:, 3, 3] = 1.0
+    return m
 
 
 def _add_mesh(
@@ -432,11 +519,8 @@ def _add_mesh(
         mat = builder.material_index(
             Material(name, color, texture, **overrides), key_name=("primitive",)
         )  # first one's name
-        key = object()  # this table's placements share its mesh
-        for place, inst_name in placements or [(np.eye(4), None)]:
-            builder.add(
-                name, p, f, n, uv, mat, ctx.prefix(), transform=place @ m, key=key, instance_name=inst_name or name
-            )
+        places, names = placements if placements is not None else (np.eye(4)[None], [None])
+        builder.add_placed(name, p, f, n, uv, mat, ctx.prefix(), places @ m, [nm or name for nm in names])
         return
 
     try:
@@ -453,8 +537,8 @@ def _add_mesh(
             uv_scale=uv_scale,
             label=name,
             overrides=overrides,
-            transforms=None if placements is None else [t for t, _ in placements],
-            labels=None if placements is None else [n for _, n in placements],
+            transforms=None if placements is None else placements[0],
+            labels=None if placements is None else placements[1],
         )
     except SceneError as exc:
         raise ctx.error(f"file = '{shown(table['file'])}': {exc}") from None

@@ -3,6 +3,7 @@
     controls.py   the fly camera, the key map, the settings the keys cycle through
     overlay.py    the text overlay: text -> RGBA image (pillow), and its compute pass (overlay.comp)
     presenter.py  the renderer's colour image onto the swapchain: present command buffers, frame slots
+    scale.py      dynamic resolution: the render scale that keeps frames near a frame-time goal
     app.py        the Viewer: window, input, the frame loop, hot-reload reporting, screenshots, statistics
     command.py    the command line (add_arguments, run_from_args)
 

@@ -30,11 +30,13 @@ from ..renderer import Renderer
 from ..scene import Scene
 from ..settings import check_png_path, check_size
 from ..vk import Context
+from ..vk.device import is_cpu
 from ..vk.present import SWAPCHAIN_EXTENSION, surface_factory
 from ..vk.swapchain import PRESENT_MODES
 from .controls import TOGGLED, FlyCamera, current, initial_settings, key_map_text, label, next_value, setting_choices
 from .overlay import TextImage
 from .presenter import Presenter
+from .scale import CPU_START_PIXELS, ScaleController, goal_ms
 
 log = logging.getLogger("engine.viewer")
 
@@ -56,6 +58,9 @@ class Viewer:
     while `v.paused`: the P key, or `paused=True` to start so), then `on_frame(scene, t)`, when given, is called
     before every frame with it: move instances (`scene.instances[i].transform = M`), lights or the camera there.
     `time_step` (seconds) advances the clock by that much per frame instead of by the wall clock (recordings).
+
+    `render_scale`: "auto" (dynamic resolution: `v.scaler`, a ScaleController aiming at `frame_goal_ms`, by default
+    33 ms on a GPU and 200 ms on a CPU device) or a fixed fraction of the window size (0.05..4).
     """
 
     def __init__(
@@ -69,7 +74,8 @@ class Viewer:
         validation=None,
         device=None,
         present_mode="fifo",
-        render_scale=1.0,
+        render_scale="auto",
+        frame_goal_ms=None,
         settings=None,
         title="hybrid view",
         overlay=True,
@@ -83,8 +89,17 @@ class Viewer:
         check_size(width, height)
         if present_mode not in PRESENT_MODES:
             raise ConfigError(f"present mode {present_mode!r}: expected one of {', '.join(PRESENT_MODES)}")
-        if not (isinstance(render_scale, (int, float)) and 0.05 <= render_scale <= 4.0):
-            raise ConfigError(f"render scale {render_scale!r}: expected a number in 0.05..4")
+        auto = render_scale == "auto"
+        if not auto and not (
+            isinstance(render_scale, (int, float)) and not isinstance(render_scale, bool) and 0.05 <= render_scale <= 4
+        ):
+            raise ConfigError(f"render scale {render_scale!r}: expected 'auto' or a number in 0.05..4")
+        if frame_goal_ms is not None and not (
+            isinstance(frame_goal_ms, (int, float))
+            and not isinstance(frame_goal_ms, bool)
+            and 1 <= frame_goal_ms <= 1e5
+        ):
+            raise ConfigError(f"frame goal {frame_goal_ms!r}: expected milliseconds in 1..100000, or None (by device)")
         _check_on_frame(on_frame)
         if time_step is not None and not (
             isinstance(time_step, (int, float)) and not isinstance(time_step, bool) and 0.0 <= time_step <= 3600.0
@@ -98,8 +113,10 @@ class Viewer:
         self.ctx = None
         self.renderer = None
         self.presenter = None
+        self.scaler: ScaleController | None = None  # dynamic resolution (render_scale="auto")
         self._validation_errors: list[str] = []
         self._glfw_errors: list[str] = []
+        self._frame_goal_ms = frame_goal_ms
         try:
             self._open(width, height, validation, device, present_mode, render_scale, hot_reload, shader_dir)
         except BaseException:
@@ -123,6 +140,7 @@ class Viewer:
         self._dragging = False
         self._cursor = None
         self._last_t = None
+        self._last_present = None  # perf_counter at the end of the last presented frame (frame times)
         self._text_due = 0.0
         self._text_dirty = True
         self._stats = _new_period(time.perf_counter())
@@ -168,9 +186,15 @@ class Viewer:
         self._validation_errors = self.ctx.validation_errors
         fw, fh = glfw.get_framebuffer_size(window)
         fw, fh = max(fw, 1), max(fh, 1)
-        rw, rh = max(1, int(round(fw * render_scale))), max(1, int(round(fh * render_scale)))
+        scale = render_scale
+        if render_scale == "auto":
+            cpu = is_cpu(self.ctx)  # a CPU device takes seconds for a large frame: start at 640x360's pixels at most
+            start = min(1.0, (CPU_START_PIXELS / (fw * fh)) ** 0.5) if cpu else 1.0
+            self.scaler = ScaleController(self._frame_goal_ms or goal_ms(cpu), start=start)
+            scale = self.scaler.scale
+        rw, rh = max(1, int(round(fw * scale))), max(1, int(round(fh * scale)))
         self.renderer = Renderer(rw, rh, context=self.ctx, shader_dir=shader_dir, hot_reload=hot_reload)
-        self.presenter = Presenter(self.ctx, self.renderer, fw, fh, present_mode, render_scale)
+        self.presenter = Presenter(self.ctx, self.renderer, fw, fh, present_mode, scale)
         if self.presenter.render_size() != (self.renderer.width, self.renderer.height):
             self.renderer.resize(*self.presenter.render_size())
 
@@ -298,10 +322,13 @@ class Viewer:
         g.poll_events()
         if self._iconified or self._fb_size[0] == 0 or self._fb_size[1] == 0:  # minimized: wait, change nothing
             g.wait_events_timeout(0.1)
-            self._last_t = None
+            self._last_t = self._last_present = None
             return False
         if self._resize_pending:
             self._resize_pending = False
+            self._last_present = None
+            if self.scaler is not None:
+                self.scaler.hold()  # another window size: the frames before are no measure
             if not p.recreate(*self._fb_size):
                 return False
             self._text_dirty = True
@@ -313,9 +340,11 @@ class Viewer:
         got = p.begin()
         if got is None:  # out of date: recreate now, render next time
             p.recreate(*g.get_framebuffer_size(self.window))
+            self._last_present = None
             return False
         index, suboptimal = got
         if index is None:  # no image in time (presentation stalled): back to the events, try again next step
+            self._last_present = None
             return False
         if p.wait_render():
             self._collect_timings()
@@ -342,7 +371,31 @@ class Viewer:
             h["cpu_ms"].append(1000.0 * cpu)
             h["thread_ms"].append(1000.0 * (time.thread_time() - c0))
             h["end"].append(now)
+        self._adapt_scale(now)
         return True
+
+    def _adapt_scale(self, now):
+        """Dynamic resolution: give the time since the last presented frame to the scale controller and resize the
+        renderer (not the window) when it picks another step."""
+        last, self._last_present = self._last_present, now
+        if self.scaler is None or last is None:
+            return
+        old = self.scaler.scale
+        if self.scaler.update(1000.0 * (now - last)):
+            self.presenter.set_scale(self.scaler.scale)
+            self._last_present = None  # the resize's wait is not a frame
+            self._text_dirty = True
+            rw, rh = self.renderer.width, self.renderer.height
+            self._print(
+                f"render scale {old:.2f} -> {self.scaler.scale:.2f}, {rw}x{rh} "
+                f"(frames took {self.scaler.last_ms:.0f} ms, goal {self.scaler.goal_ms:.0f} ms)"
+            )
+
+    def scale_text(self) -> str:
+        """The render scale as the overlay shows it: 'scale auto 0.50 (goal 33 ms)', or 'scale 0.50' when fixed."""
+        if self.scaler is not None:
+            return f"scale auto {self.scaler.scale:.2f} (goal {self.scaler.goal_ms:.0f} ms)"
+        return f"scale {self.presenter.render_scale:.2f}"
 
     # ---- hot reload, overlay text -------------------------------------------------------------------------------
     def _check_shaders(self):
@@ -382,7 +435,7 @@ class Viewer:
         rw, rh = self.renderer.width, self.renderer.height
         head = (
             f"{self.fps:5.1f} fps  {self.frame_ms:6.1f} ms/frame  cpu {self.cpu_ms:4.1f} ms  "
-            f"{rw}x{rh}  speed {self.fly.speed:.3g}/s"
+            f"{rw}x{rh} {self.scale_text()}  speed {self.fly.speed:.3g}/s"
         )
         gpu = "gpu ms: " + "  ".join(f"{k} {v:.1f}" for k, v in self.gpu_ms.items()) + f"  = {gpu_total:.1f}"
         toggles = [
@@ -467,7 +520,7 @@ class Viewer:
         return (
             f"{st['frames']} frames at {rw}x{rh}{first}: {st['fps']:.2f} fps; python cpu per frame (median) "
             f"{st['cpu_ms']:.2f} ms (thread cpu {st['thread_ms']:.2f} ms); median GPU ms: {gpu} "
-            f"(= {sum(st['gpu_ms'].values()):.2f})"
+            f"(= {sum(st['gpu_ms'].values()):.2f})" + (f"; render {self.scale_text()}" if self.presenter else "")
         )
 
     # ---- lifetime -----------------------------------------------------------------------------------------------

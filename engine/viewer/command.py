@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import argparse
 import sys
 
 from ..errors import ConfigError, shown
@@ -46,7 +47,20 @@ def add_arguments(p):
         choices=sorted(PRESENT_MODES),
         help="fifo (vsync, default), mailbox or immediate (falls back to fifo)",
     )
-    p.add_argument("--scale", type=float, default=1.0, help="render at this fraction of the window size")
+    p.add_argument(
+        "--scale",
+        type=_scale,
+        default="auto",
+        help="render at this fraction of the window size, or auto (default): the step that keeps frames near "
+        "--frame-goal, changing as they speed up or slow down",
+    )
+    p.add_argument(
+        "--frame-goal",
+        type=float,
+        default=None,
+        metavar="MS",
+        help="with --scale auto: the frame time to aim at (default 33 ms on a GPU, 200 ms on a CPU device)",
+    )
     p.add_argument("--no-overlay", dest="overlay", action="store_false", help="start with the text overlay hidden")
     p.add_argument("--device", default=None, help="Vulkan device index or name substring")
     p.add_argument("--validation", action="store_true", help="enable the Khronos validation layer; fail on errors")
@@ -62,6 +76,16 @@ def add_arguments(p):
         metavar="SECONDS",
         help="advance the animation by this much per frame instead of by the clock (recordings)",
     )
+
+
+def _scale(text):
+    """--scale: 'auto' or a number (the Viewer checks its range)."""
+    if text == "auto":
+        return text
+    try:
+        return float(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"{text!r}: expected auto or a number such as 0.5") from None
 
 
 def run_from_args(args) -> int:
@@ -87,6 +111,7 @@ def run_from_args(args) -> int:
         device=args.device,
         present_mode=args.present_mode,
         render_scale=args.scale,
+        frame_goal_ms=args.frame_goal,
         settings=settings,
         overlay=args.overlay,
         time_step=args.time_step,

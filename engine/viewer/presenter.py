@@ -104,6 +104,15 @@ class Presenter:
         self.renderer.resize(*self.render_size())
         return True
 
+    def set_scale(self, scale) -> None:
+        """Render at `scale` times the swapchain size from the next frame on (dynamic resolution): waits for the
+        frames in flight, then resizes the renderer (its targets, so the present command buffers re-record)."""
+        if float(scale) == self.render_scale:
+            return
+        self.wait_all()
+        self.render_scale = float(scale)
+        self.renderer.resize(*self.render_size())
+
     def wait_all(self):
         fences = [f for f, p in zip(self.in_flight, self.pending) if p]
         if self.render_pending:

@@ -128,6 +128,7 @@ class Renderer(Closes):
         self._lock = threading.RLock()  # one call at a time (engine.parallel.serialized)
         self._commands: dict = {}  # set before anything can fail, so close() always works
         self._steady = None  # _Steady: the last frame's inputs, for re-submitting it cheaply
+        self._device_name = None
         self._geometry = self._scene_bvh = self.targets = None
         try:
             if context is not None:
@@ -142,6 +143,7 @@ class Renderer(Closes):
                 else:
                     self.ctx = Context(device=device, validation=validation or None)
                 self._validation_errors = self.ctx.validation_errors  # the same list: still readable after close()
+                self._device_name = self.ctx.device_info["name"]  # (also after close())
                 self._init_gpu()
         except BaseException:
             self.close()
@@ -241,8 +243,8 @@ class Renderer(Closes):
 
     @property
     def device_name(self) -> str:
-        """The Vulkan device's name, e.g. "llvmpipe (LLVM 15.0.7, 256 bits)"."""
-        return self.ctx.device_info["name"]
+        """The Vulkan device's name, e.g. "llvmpipe (LLVM 15.0.7, 256 bits)" (still readable after close())."""
+        return self._device_name
 
     @serialized
     def render(
@@ -308,6 +310,7 @@ class Renderer(Closes):
         """
         settings = given_settings(locals(), unknown)
         names = resolve_aovs(aovs)
+        self._check_open("render()")
         cmd, marks, cfg, n_lights = self._prepare(scene, camera, settings, readback=(names, 0))
         self.ctx.submit(cmd)
         return self._frame(scene, names, 0, marks, cfg, n_lights, camera)
@@ -323,6 +326,7 @@ class Renderer(Closes):
         try:
             for i, camera in enumerate(cameras):
                 with self._lock:
+                    self._check_open("render_many()")  # (also when resumed after close())
                     done, pending = pending, None
                     if done is not None:
                         self._wait_slot(done[0])  # its frame block is rewritten below
@@ -335,6 +339,7 @@ class Renderer(Closes):
                     yield frame
             if pending is not None:
                 with self._lock:
+                    self._check_open("render_many()")
                     done, pending = pending, None
                     self._wait_slot(done[0])
                     frame = self._frame(scene, names, *done)
@@ -348,6 +353,7 @@ class Renderer(Closes):
     def reset_history(self) -> None:
         """Start the next frame as a fresh renderer would: no temporal history and frame index 0 (which seeds the
         soft-shadow and AO samples), so a view's frames do not depend on what was rendered before (batch jobs)."""
+        self._check_open("reset_history()")
         self._history_key = None
         self.frame_block.restart()
         self._steady = None
@@ -402,6 +408,7 @@ class Renderer(Closes):
             The settings the frame was rendered with (a copy: `DEFAULT_SETTINGS` keys, checked values).
         """
         settings = given_settings(locals(), unknown)
+        self._check_open("submit()")
         cmd, marks, cfg, _ = self._prepare(scene, camera, settings, readback=None)
         self._last_marks = marks
         self.ctx.submit(cmd, wait=wait, signal_semaphores=signal_semaphores, fence=fence)
@@ -410,23 +417,30 @@ class Renderer(Closes):
     @serialized
     def last_timings(self) -> dict[str, float]:
         """GPU ms per pass of the last submitted frame (blocks until its queries are available)."""
+        self._check_open("last_timings()")
         return self.timestamps.read(self._last_marks) if getattr(self, "_last_marks", None) else {}
 
     @serialized
     def resize(self, width: int, height: int) -> None:
         """New render size: targets are recreated and recorded command buffers dropped."""
+        self._check_open("resize()")
         check_size(width, height)
         if (width, height) != (self.width, self.height):
             Targets.check_capacity(self.ctx, width, height, self.targets.light_capacity)
             self.width, self.height = int(width), int(height)
             self._resize_targets(self.targets.light_capacity)
 
-    def _prepare(self, scene, camera, settings, readback):
+    def _check_open(self, call: str) -> None:
+        """A clear error, not a crash in freed objects, for `call` ("render()") on a closed renderer."""
         if self._device is not None and self._device.closed:
-            raise ConfigError("render() on a closed Renderer: its engine.Device was closed")
+            raise ConfigError(f"{call} on a closed Renderer: its engine.Device was closed")
         if self.ctx is None:
-            raise EngineError("render() on a closed Renderer")
-        self.ctx.check_open("Renderer.render()")  # a shared context its owner closed: no Vulkan call may follow
+            raise EngineError(f"{call} on a closed Renderer")
+        self.ctx.check_open(f"Renderer.{call}")  # a shared context its owner closed: no Vulkan call may follow
+
+    def _prepare(self, scene, camera, settings, readback):
+        """The frame's command buffer, its timestamp marks, settings and light count, with the frame block written
+        (the caller has checked that the renderer is open)."""
         polled = False
         if scene is self._scene and self._geometry is not None:
             self._frame_start(scene)  # moved instances: their transforms, the BVH (may drop the recordings)

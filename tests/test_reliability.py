@@ -40,6 +40,13 @@ def ray_batches(n_batches, n_rays, seed):
     return out
 
 
+MANY = dict(shadows="hard", ao=False)  # render_many's tests: an image that depends on neither frame index nor history
+
+
+def many_cameras(n, x0=-1.5):
+    return [engine.Camera.look_at((x0 + 3.0 * i / max(n - 1, 1), 0.8, 3.0), (0, 0, 0)) for i in range(n)]
+
+
 # ---- threads --------------------------------------------------------------------------------------------------------
 def test_a_tracer_shared_by_four_threads_answers_every_ray_right():
     """10,000 calls from 4 threads on one Tracer: each answer is the one the same rays get from one thread."""
@@ -179,6 +186,33 @@ def test_use_after_close_is_a_clear_error():
     r.close()  # twice is harmless
     with pytest.raises(EngineError, match="closed Renderer"):
         r.render(sphere_scene())
+
+
+def test_every_renderer_call_after_close_is_a_clear_error():
+    """Each public call that needs the device, and an iterator of render_many resumed after close(), says that the
+    renderer is closed (not an AttributeError from inside)."""
+    scene = sphere_scene()
+    r = Renderer(16, 16)
+    r.submit(scene)
+    name = r.device_name
+    started = r.render_many(scene, many_cameras(4), **MANY)
+    next(started)
+    fresh = r.render_many(scene, many_cameras(4))
+    r.close()
+    calls = {
+        "render()": lambda: r.render(scene),
+        "submit()": lambda: r.submit(scene),
+        "render_many()": lambda: next(fresh),
+        "render_many() resumed": lambda: next(started),
+        "resize()": lambda: r.resize(8, 8),
+        "last_timings()": r.last_timings,
+        "reset_history()": r.reset_history,
+    }
+    for what, call in calls.items():
+        with pytest.raises(EngineError, match="on a closed Renderer") as info:
+            call()
+        assert what.split()[0] in str(info.value), (what, str(info.value))
+    assert r.device_name == name  # (what it was: kept for messages and logs)
 
 
 def test_dropped_renderers_and_tracers_free_their_devices():

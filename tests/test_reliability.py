@@ -2,6 +2,7 @@
 
 import errno
 import gc
+import itertools
 import multiprocessing
 import os
 import random
@@ -283,14 +284,15 @@ def test_two_render_many_iterators_interleaved_in_one_thread():
         assert np.array_equal(a, want[0][i]) and np.array_equal(b, want[1][i]), i
 
 
-@pytest.mark.parametrize("kind", ["renderer", "tracer"])
+@pytest.mark.parametrize("kind", ["renderer", "render_many", "tracer"])
 def test_close_while_another_thread_is_inside_a_call(kind):
-    """close() waits for the call in progress, then frees; the other thread's next call is a clear error."""
+    """close() waits for the call in progress, then frees; the other thread's next call is a clear error (for a
+    render_many iterator: its next step)."""
     mesh = trimesh.creation.icosphere(subdivisions=3)
     scene = sphere_scene()
     o, d = ray_batches(1, 20000, 5)[0]
     for attempt in range(4):
-        obj = Renderer(64, 48) if kind == "renderer" else Tracer(mesh.vertices, mesh.faces)
+        obj = Tracer(mesh.vertices, mesh.faces) if kind == "tracer" else Renderer(64, 48)
         started, outcome = threading.Event(), []
 
         def loop():
@@ -298,6 +300,9 @@ def test_close_while_another_thread_is_inside_a_call(kind):
                 while True:
                     if kind == "renderer":
                         obj.render(scene, shadows="soft")
+                    elif kind == "render_many":
+                        for _ in obj.render_many(scene, itertools.repeat(scene.camera), shadows="soft"):
+                            started.set()
                     else:
                         obj.occluded(o, d)
                     started.set()

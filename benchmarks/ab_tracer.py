@@ -56,7 +56,9 @@ def main() -> int:
     runs: dict[str, dict[str, list]] = {t: {"occluded": [], "intersect": [], "sha": []} for t in a.trees}
     for _ in range(a.rounds):
         for tree in a.trees:
-            env = dict(os.environ, PYTHONPATH=os.pathsep.join([os.path.abspath(tree), os.environ.get("PYTHONPATH", "")]))
+            env = dict(
+                os.environ, PYTHONPATH=os.pathsep.join([os.path.abspath(tree), os.environ.get("PYTHONPATH", "")])
+            )
             res = subprocess.run(
                 [sys.executable, "-c", CHILD, str(a.rays), str(a.reps)],
                 env=env,
@@ -71,17 +73,16 @@ def main() -> int:
             got = json.loads(line[0][2:])
             for q in ("occluded", "intersect"):
                 runs[tree][q] += got[q]["s"]
-            runs[tree]["sha"].append(hashlib.sha256(json.dumps([got[q]["sha"] for q in sorted(got)]).encode()).hexdigest())
+            runs[tree]["sha"].append(
+                hashlib.sha256(json.dumps([got[q]["sha"] for q in sorted(got)]).encode()).hexdigest()
+            )
     summary = {
         tree: {q: a.rays / statistics.median(r[q]) / 1e6 for q in ("occluded", "intersect")} for tree, r in runs.items()
     }
     same = len({s for r in runs.values() for s in r["sha"]}) == 1
     base = summary[a.trees[0]]
     for tree, s in summary.items():
-        print(
-            f"{tree}: "
-            + "  ".join(f"{q} {v:.1f} Mrays/s (x{v / base[q]:.3f})" for q, v in s.items())
-        )
+        print(f"{tree}: " + "  ".join(f"{q} {v:.1f} Mrays/s (x{v / base[q]:.3f})" for q, v in s.items()))
     print(f"answers identical across trees and rounds: {same}")
     if a.json:
         with open(a.json, "w") as f:

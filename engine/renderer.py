@@ -128,6 +128,8 @@ class Renderer(Closes):
         self._lock = threading.RLock()  # one call at a time (engine.parallel.serialized)
         self._commands: dict = {}  # set before anything can fail, so close() always works
         self._steady = None  # _Steady: the last frame's inputs, for re-submitting it cheaply
+        self._flight = None  # _Flight: a render_many frame in flight, read back by any other call first (_drain)
+        self._device_name = None
         self._geometry = self._scene_bvh = self.targets = None
         try:
             if context is not None:
@@ -142,6 +144,7 @@ class Renderer(Closes):
                 else:
                     self.ctx = Context(device=device, validation=validation or None)
                 self._validation_errors = self.ctx.validation_errors  # the same list: still readable after close()
+                self._device_name = self.ctx.device_info["name"]  # (also after close())
                 self._init_gpu()
         except BaseException:
             self.close()
@@ -241,8 +244,8 @@ class Renderer(Closes):
 
     @property
     def device_name(self) -> str:
-        """The Vulkan device's name, e.g. "llvmpipe (LLVM 15.0.7, 256 bits)"."""
-        return self.ctx.device_info["name"]
+        """The Vulkan device's name, e.g. "llvmpipe (LLVM 15.0.7, 256 bits)" (still readable after close())."""
+        return self._device_name
 
     @serialized
     def render(
@@ -308,6 +311,8 @@ class Renderer(Closes):
         """
         settings = given_settings(locals(), unknown)
         names = resolve_aovs(aovs)
+        self._check_open("render()")
+        self._drain()
         cmd, marks, cfg, n_lights = self._prepare(scene, camera, settings, readback=(names, 0))
         self.ctx.submit(cmd)
         return self._frame(scene, names, 0, marks, cfg, n_lights, camera)
@@ -316,45 +321,80 @@ class Renderer(Closes):
         self, scene: Scene, cameras: Iterable[Camera], *, aovs: str | Sequence[str] | None = None, **settings: Any
     ) -> Iterator[Frame]:
         """Frames of `scene` from each camera in turn, as an iterator: frame N+1 renders on the GPU while frame N is
-        read back and handed to the caller (two readback buffers in turn). One call at a time per renderer, like
-        render(); the temporal history carries over from frame to frame as it does for render()."""
+        read back and handed to the caller (two readback buffers in turn). The temporal history carries over from
+        frame to frame as it does for render().
+
+        Threads: each step (submitting a frame, reading the last one back) holds the renderer's lock, which is let go
+        between frames with one frame in flight. Any other call on the renderer (render(), submit(), resize(), another
+        render_many) first waits for that frame and reads it back for this iterator, so each frame is the one a lone
+        render() of its camera gives, and several iterators, in one thread or in several, may be used at once
+        (docs/architecture.md, "Threads"). A renderer closed meanwhile makes the next step raise."""
         names = resolve_aovs(aovs)
-        pending = None  # (slot, marks, cfg, n_lights, camera): the frame submitted and not yet waited for
+        mine = _Owner()  # this iterator: its frame in flight is `self._flight` while that names it
         try:
-            for i, camera in enumerate(cameras):
+            for camera in cameras:
                 with self._lock:
-                    done, pending = pending, None
-                    if done is not None:
-                        self._wait_slot(done[0])  # its frame block is rewritten below
-                    slot = i % 2
-                    cmd, marks, cfg, n_lights = self._prepare(scene, camera, settings, readback=(names, slot))
-                    self.ctx.submit(cmd, wait=False, fence=self._fences[slot])
-                    pending = (slot, marks, cfg, n_lights, camera)
-                    frame = None if done is None else self._frame(scene, names, *done)
+                    frame = self._many_step(scene, camera, names, settings, mine)
                 if frame is not None:
                     yield frame
-            if pending is not None:
-                with self._lock:
-                    done, pending = pending, None
-                    self._wait_slot(done[0])
-                    frame = self._frame(scene, names, *done)
+            with self._lock:
+                self._check_open("render_many()")
+                flight = self._own_flight(mine)
+                if flight is not None:
+                    self._flight = None
+                    flight.wait(self.ctx)
+                    mine.frame = self._frame(*flight.frame_args)
+                frame, mine.frame = mine.frame, None
+            if frame is not None:
                 yield frame
-        finally:
-            if pending is not None and self.ctx is not None:  # abandoned mid-way: let the last frame finish
-                with self._lock:
-                    self._wait_slot(pending[0])
+        finally:  # ended or abandoned: its frame in flight, if any, finishes before its slot is used again
+            with self._lock:
+                flight = self._own_flight(mine)
+                if flight is not None:
+                    self._flight = None
+                    if self.ctx is not None:
+                        flight.wait(self.ctx)
+
+    def _many_step(self, scene, camera, names, settings, mine) -> Frame | None:
+        """One step of render_many (under the lock): submit the frame of `camera` and return the iterator's last
+        one (None after the first), read back while the new one renders. Its own frame in flight is waited for (the
+        frame block is rewritten); anyone else's is read back for them first (`_drain`)."""
+        self._check_open("render_many()")
+        last = self._own_flight(mine)
+        if last is not None:
+            last.wait(self.ctx)
+        else:
+            self._drain()
+        slot = 1 - last.slot if last is not None else 0  # (not the slot whose readback is still to be read)
+        cmd, marks, cfg, n_lights = self._prepare(scene, camera, settings, readback=(names, slot))
+        self.ctx.submit(cmd, wait=False, fence=self._fences[slot])
+        last = self._own_flight(mine)  # (None if _prepare read it back: new targets)
+        self._flight = _Flight(mine, slot, self._fences[slot], (scene, names, slot, marks, cfg, n_lights, camera))
+        if last is not None:
+            return self._frame(*last.frame_args)
+        frame, mine.frame = mine.frame, None
+        return frame
+
+    def _own_flight(self, owner) -> _Flight | None:
+        flight = self._flight
+        return flight if flight is not None and flight.owner is owner else None
+
+    def _drain(self) -> None:
+        """Before any other call uses the frame block, the slots or the targets: a render_many frame in flight is
+        waited for and read back for its iterator, which yields it when resumed."""
+        flight, self._flight = self._flight, None
+        if flight is not None:
+            flight.wait(self.ctx)
+            flight.owner.frame = self._frame(*flight.frame_args)
 
     @serialized
     def reset_history(self) -> None:
         """Start the next frame as a fresh renderer would: no temporal history and frame index 0 (which seeds the
         soft-shadow and AO samples), so a view's frames do not depend on what was rendered before (batch jobs)."""
+        self._check_open("reset_history()")
         self._history_key = None
         self.frame_block.restart()
         self._steady = None
-
-    def _wait_slot(self, slot):
-        wait_fences(self.ctx, [self._fences[slot]])
-        reset_fences(self.ctx, [self._fences[slot]])
 
     def _frame(self, scene, names, slot, marks, cfg, n_lights, camera) -> Frame:
         buf, offsets = self.targets.readback(self.ctx, names, slot)
@@ -402,6 +442,8 @@ class Renderer(Closes):
             The settings the frame was rendered with (a copy: `DEFAULT_SETTINGS` keys, checked values).
         """
         settings = given_settings(locals(), unknown)
+        self._check_open("submit()")
+        self._drain()
         cmd, marks, cfg, _ = self._prepare(scene, camera, settings, readback=None)
         self._last_marks = marks
         self.ctx.submit(cmd, wait=wait, signal_semaphores=signal_semaphores, fence=fence)
@@ -410,23 +452,32 @@ class Renderer(Closes):
     @serialized
     def last_timings(self) -> dict[str, float]:
         """GPU ms per pass of the last submitted frame (blocks until its queries are available)."""
+        self._check_open("last_timings()")
+        self._drain()  # (a render_many frame in flight may write the same queries)
         return self.timestamps.read(self._last_marks) if getattr(self, "_last_marks", None) else {}
 
     @serialized
     def resize(self, width: int, height: int) -> None:
-        """New render size: targets are recreated and recorded command buffers dropped."""
+        """New render size: targets are recreated and recorded command buffers dropped. A render_many frame in
+        flight is finished and read back first, at the size it was rendered at."""
+        self._check_open("resize()")
         check_size(width, height)
         if (width, height) != (self.width, self.height):
             Targets.check_capacity(self.ctx, width, height, self.targets.light_capacity)
             self.width, self.height = int(width), int(height)
             self._resize_targets(self.targets.light_capacity)
 
-    def _prepare(self, scene, camera, settings, readback):
+    def _check_open(self, call: str) -> None:
+        """A clear error, not a crash in freed objects, for `call` ("render()") on a closed renderer."""
         if self._device is not None and self._device.closed:
-            raise ConfigError("render() on a closed Renderer: its engine.Device was closed")
+            raise ConfigError(f"{call} on a closed Renderer: its engine.Device was closed")
         if self.ctx is None:
-            raise EngineError("render() on a closed Renderer")
-        self.ctx.check_open("Renderer.render()")  # a shared context its owner closed: no Vulkan call may follow
+            raise EngineError(f"{call} on a closed Renderer")
+        self.ctx.check_open(f"Renderer.{call}")  # a shared context its owner closed: no Vulkan call may follow
+
+    def _prepare(self, scene, camera, settings, readback):
+        """The frame's command buffer, its timestamp marks, settings and light count, with the frame block written
+        (the caller has checked that the renderer is open and that no other frame in flight reads the block)."""
         polled = False
         if scene is self._scene and self._geometry is not None:
             self._frame_start(scene)  # moved instances: their transforms, the BVH (may drop the recordings)
@@ -542,6 +593,7 @@ class Renderer(Closes):
     def close(self) -> None:
         """Free every Vulkan object (and the device, unless it was given: an `engine.Device` or a `context`); safe
         to call twice."""
+        self._flight = None  # (its iterator's next step raises: closed)
         if self.ctx is not None:
             if not self._owns_ctx and not self.ctx.closed:
                 self._invalidate_commands()
@@ -636,6 +688,7 @@ class Renderer(Closes):
 
     def _resize_targets(self, light_capacity):
         Targets.check_capacity(self.ctx, self.width, self.height, light_capacity)
+        self._drain()  # a render_many frame in flight is read back from the targets it was rendered into
         self._invalidate_commands()
         self.ctx.wait_idle()
         self.targets.destroy()
@@ -700,3 +753,30 @@ class Renderer(Closes):
         else:  # the colour image is copied out by the caller (the viewer's presenter)
             rec.use(reads=[t.color], stage=TRANSFER)
         return rec.finish(), ts
+
+
+class _Owner:
+    """A render_many iterator, as `_Flight.owner`: the frame another call read back for it (`Renderer._drain`) until
+    the iterator yields it."""
+
+    __slots__ = ("frame",)
+
+    def __init__(self):
+        self.frame = None
+
+
+class _Flight:
+    """A render_many frame submitted and not yet read back: its iterator, readback slot and fence, and what
+    `Renderer._frame` needs to read it. At most one per renderer, outside the lock."""
+
+    __slots__ = ("owner", "slot", "fence", "frame_args", "waited")
+
+    def __init__(self, owner, slot, fence, frame_args):
+        self.owner, self.slot, self.fence, self.frame_args, self.waited = owner, slot, fence, frame_args, False
+
+    def wait(self, ctx) -> None:
+        """Until the frame is done (its fence then reset for the next frame of the slot); once."""
+        if not self.waited:
+            wait_fences(ctx, [self.fence])
+            reset_fences(ctx, [self.fence])
+            self.waited = True

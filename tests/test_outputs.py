@@ -297,42 +297,12 @@ def one_line_error(res, *words):
 
 
 def test_cli_orbit_writes_numbered_exrs_and_cameras(tmp_path):
-    res = hybrid(
-        "render",
-        "sphere",
-        "-o",
-        tmp_path / "o" / "f_##.exr",
-        "--orbit",
-        4,
-        "--size",
-        "48x36",
-        "--aov",
-        "depth",
-        "--aov",
-        "normal",
-        "--aov",
-        "object_id",
-        "--validation",
-    )
+    args = ["render", "sphere", "-o", tmp_path / "o" / "f_##.exr", "--orbit", 4, "--size", "48x36", "--validation"]
+    args += ["--aov", "depth", "--aov", "normal", "--aov", "object_id"]
+    res = hybrid(*args)
     assert res.returncode == 1 and "no folder" in res.stderr and not (tmp_path / "o").exists()  # checked first
     (tmp_path / "o").mkdir()
-    res = hybrid(
-        "render",
-        "sphere",
-        "-o",
-        tmp_path / "o" / "f_##.exr",
-        "--orbit",
-        4,
-        "--size",
-        "48x36",
-        "--aov",
-        "depth",
-        "--aov",
-        "normal",
-        "--aov",
-        "object_id",
-        "--validation",
-    )
+    res = hybrid(*args)
     assert res.returncode == 0, res.stderr
     assert res.stderr == ""  # no progress bar when stderr is not a terminal
     assert "4 frames (4 rendered, 0 already done) of 48x36 normal, depth, object_id" in res.stdout

@@ -291,6 +291,7 @@ def test_a_scene_files_own_settings_are_part_of_its_items_keys(tmp_path):
 
 
 # ---- kill and resume -----------------------------------------------------------------------------------------------
+@pytest.mark.slow
 def test_a_killed_batch_resumes_without_redoing_finished_items(tmp_path):
     n = 24
     job = write_job(
@@ -360,6 +361,7 @@ scene = "penumbra"
 """
 
 
+@pytest.mark.slow
 def test_two_workers_write_the_same_files_as_one(tmp_path):
     """Soft shadows and AO accumulated over 2 frames per view: each view starts afresh, so the items' split over
     the workers (shards of one item, taken in turn) changes no pixel."""

@@ -9,6 +9,7 @@ import sys
 from pathlib import Path
 
 import numpy as np
+import pytest
 import trimesh
 from PIL import Image
 
@@ -204,6 +205,7 @@ def test_orbit_dataset(tmp_path):
         assert np.abs(world - d["position"][v][mask[v]]).max() < 1e-3 * scene.radius, v
 
 
+@pytest.mark.slow
 def test_view_mesh_under_xvfb(xvfb_display, tmp_path, make_renderer):
     """The viewer on a mesh file for 10 frames: its screenshot is what a headless render of that file gives."""
     sphere = trimesh.creation.icosphere(subdivisions=3)

@@ -49,6 +49,7 @@ def many_cameras(n, x0=-1.5):
 
 
 # ---- threads --------------------------------------------------------------------------------------------------------
+@pytest.mark.slow
 def test_a_tracer_shared_by_four_threads_answers_every_ray_right():
     """10,000 calls from 4 threads on one Tracer: each answer is the one the same rays get from one thread."""
     mesh = trimesh.creation.icosphere(subdivisions=2)
@@ -363,6 +364,7 @@ def test_every_renderer_call_after_close_is_a_clear_error():
     assert r.device_name == name  # (what it was: kept for messages and logs)
 
 
+@pytest.mark.slow
 def test_dropped_renderers_and_tracers_free_their_devices():
     """Objects that are never closed free their Vulkan device when collected (a notebook re-running a cell)."""
     gc.collect()

@@ -107,7 +107,7 @@ def same_hits(a, b):
     assert np.all(np.abs(a.t[hit] - b.t[hit]) <= 2e-5 * np.maximum(a.t[hit], 1.0))  # float32 inverses' rounding
 
 
-@pytest.mark.parametrize("n", tiered([1, 2, 5, 1025, 3000], {0, 1, 2, 3}))
+@pytest.mark.parametrize("n", tiered([1, 2, 5, 1025, 3000], {0, 1, 2}))
 def test_gpu_built_top_level_gives_the_host_builds_hits(monkeypatch, n):
     # 3000 instances: 4096 leaf slots, sorted in shared-memory blocks and by whole-buffer bitonic steps
     scene, rng, spread = scene_of(n, seed=n)

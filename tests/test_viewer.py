@@ -50,6 +50,7 @@ def viewer(make_viewer):
     return make
 
 
+@pytest.mark.slow
 def test_view_cli_screenshot_matches_headless_render(xvfb_display, tmp_path, make_renderer):
     from PIL import Image
 

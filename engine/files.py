@@ -61,7 +61,7 @@ def _remove_stale(path: Path):
 def remove_stale_temporaries(targets: Iterable[os.PathLike[str] | str], before: float) -> list[Path]:
     """Remove the temporaries that writes of `targets` left when their writer was killed; returns those removed.
 
-    Conservative: only files named as our temporaries of one of the targets (`.NAME.part-PID-XXXX.tmp`), in the
+    Conservative: only files named as our temporaries of one of the targets (`.NAME.part-PID-RANDOM.tmp`), in the
     targets' own folders (not below), regular files of this user, last modified before `before` (the calling run's
     start, `time.time()`), and not locked by a live writer (`atomic_write` holds a lock until its rename). Without
     locks (not POSIX), also only those whose writer's pid no longer runs."""

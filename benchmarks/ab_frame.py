@@ -30,6 +30,20 @@ print("AB" + json.dumps(out))
 """
 
 
+def run_in_tree(tree: str, child: str, args: list[str]):
+    """Run `child` (Python source printing one "AB" + JSON line) in a fresh process on `tree`'s engine; its JSON, or
+    None after printing the child's output tail."""
+    env = dict(os.environ, PYTHONPATH=os.pathsep.join([os.path.abspath(tree), os.environ.get("PYTHONPATH", "")]))
+    res = subprocess.run(
+        [sys.executable, "-c", child, *args], env=env, capture_output=True, text=True, cwd=os.path.abspath(tree)
+    )
+    line = [ln for ln in res.stdout.splitlines() if ln.startswith("AB")]
+    if res.returncode or not line:
+        print(res.stdout[-2000:], res.stderr[-4000:], file=sys.stderr)
+        return None
+    return json.loads(line[0][2:])
+
+
 def main() -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("trees", nargs="+")
@@ -42,21 +56,10 @@ def main() -> int:
     runs: dict[str, list[dict]] = {t: [] for t in a.trees}
     for _ in range(a.rounds):
         for tree in a.trees:
-            env = dict(
-                os.environ, PYTHONPATH=os.pathsep.join([os.path.abspath(tree), os.environ.get("PYTHONPATH", "")])
-            )
-            res = subprocess.run(
-                [sys.executable, "-c", CHILD, a.scene, a.size, str(a.frames)],
-                env=env,
-                capture_output=True,
-                text=True,
-                cwd=os.path.abspath(tree),
-            )
-            line = [ln for ln in res.stdout.splitlines() if ln.startswith("AB")]
-            if res.returncode or not line:
-                print(res.stdout[-2000:], res.stderr[-4000:], file=sys.stderr)
+            got = run_in_tree(tree, CHILD, [a.scene, a.size, str(a.frames)])
+            if got is None:
                 return 1
-            runs[tree] += json.loads(line[0][2:])
+            runs[tree] += got
     summary = {}
     for tree, frames in runs.items():
         passes = sorted({k for f in frames for k in f})

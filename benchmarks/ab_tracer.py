@@ -12,10 +12,10 @@ from __future__ import annotations
 import argparse
 import hashlib
 import json
-import os
 import statistics
-import subprocess
 import sys
+
+from ab_frame import run_in_tree  # (benchmarks/ is this script's folder)
 
 CHILD = r"""
 import hashlib, json, sys, time
@@ -56,21 +56,9 @@ def main() -> int:
     runs: dict[str, dict[str, list]] = {t: {"occluded": [], "intersect": [], "sha": []} for t in a.trees}
     for _ in range(a.rounds):
         for tree in a.trees:
-            env = dict(
-                os.environ, PYTHONPATH=os.pathsep.join([os.path.abspath(tree), os.environ.get("PYTHONPATH", "")])
-            )
-            res = subprocess.run(
-                [sys.executable, "-c", CHILD, str(a.rays), str(a.reps)],
-                env=env,
-                capture_output=True,
-                text=True,
-                cwd=os.path.abspath(tree),
-            )
-            line = [ln for ln in res.stdout.splitlines() if ln.startswith("AB")]
-            if res.returncode or not line:
-                print(res.stdout[-2000:], res.stderr[-4000:], file=sys.stderr)
+            got = run_in_tree(tree, CHILD, [str(a.rays), str(a.reps)])
+            if got is None:
                 return 1
-            got = json.loads(line[0][2:])
             for q in ("occluded", "intersect"):
                 runs[tree][q] += got[q]["s"]
             runs[tree]["sha"].append(

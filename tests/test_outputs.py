@@ -367,41 +367,16 @@ def test_cli_camera_path_depth_png_and_option_errors(tmp_path):
 
 
 def test_cli_resume_refuses_the_outputs_of_another_sequence(tmp_path):
-    res = hybrid("render", "sphere", "-o", tmp_path / "f_#.npz", "--orbit", 2, "--size", "16x12", "--aov", "depth")
+    def run(orbit, aov, *extra):
+        out = tmp_path / "f_#.npz"
+        return hybrid("render", "sphere", "-o", out, "--orbit", orbit, "--size", "16x12", "--aov", aov, *extra)
+
+    res = run(2, "depth")
     assert res.returncode == 0, res.stderr
-    one_line_error(
-        hybrid(
-            "render",
-            "sphere",
-            "-o",
-            tmp_path / "f_#.npz",
-            "--orbit",
-            3,
-            "--size",
-            "16x12",
-            "--aov",
-            "depth",
-            "--resume",
-        ),
-        "f_1.json",
-        "another camera",
-        "--resume",
-    )
+    one_line_error(run(3, "depth", "--resume"), "f_1.json", "another camera", "--resume")
     # Other AOVs than the files hold (issue #36: this exited 0, "2 already done", the files holding depth only).
     one_line_error(
-        hybrid(
-            "render",
-            "sphere",
-            "-o",
-            tmp_path / "f_#.npz",
-            "--orbit",
-            2,
-            "--size",
-            "16x12",
-            "--aov",
-            "normal",
-            "--resume",
-        ),
+        run(2, "normal", "--resume"),
         "f_0.json: frame 0 holds other outputs than this run asks for: aovs ['depth'] (this run: ['normal'])",
         "without --resume",
     )

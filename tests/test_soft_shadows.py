@@ -331,52 +331,17 @@ def test_cli_soft_shadows_and_aov(tmp_path):
 
     repo = Path(__file__).resolve().parent.parent
     out = tmp_path / "hist.png"
-    res = subprocess.run(
-        [
-            sys.executable,
-            "-m",
-            "engine",
-            "render",
-            "scenes/penumbra.toml",
-            "-o",
-            str(out),
-            "--size",
-            "48x32",
-            "--shadows",
-            "soft",
-            "--frames",
-            "3",
-            "--aov",
-            "history",
-        ],
-        capture_output=True,
-        text=True,
-        cwd=repo,
-        timeout=300,
-    )
+
+    def render(size, *options):
+        cmd = [sys.executable, "-m", "engine", "render", "scenes/penumbra.toml", "-o", str(out), "--size", size]
+        return subprocess.run(cmd + list(options), capture_output=True, text=True, cwd=repo, timeout=300)
+
+    res = render("48x32", "--shadows", "soft", "--frames", "3", "--aov", "history")
     assert res.returncode == 0, res.stderr
     assert "accumulate" in res.stdout and "denoise" in res.stdout
     img = np.asarray(Image.open(out).convert("RGB"))
     assert np.any(np.all(img == round(3 / 32 * 255), axis=2))  # 3 frames of history: grey 3/32
-    res = subprocess.run(
-        [
-            sys.executable,
-            "-m",
-            "engine",
-            "render",
-            "scenes/penumbra.toml",
-            "-o",
-            str(out),
-            "--size",
-            "16x16",
-            "--shadows",
-            "blurry",
-        ],
-        capture_output=True,
-        text=True,
-        cwd=repo,
-        timeout=300,
-    )
+    res = render("16x16", "--shadows", "blurry")
     assert res.returncode == 1 and res.stderr.strip().splitlines() == [
         "error: setting shadows='blurry': expected one of hard, soft, seed-delta, reference, off"
     ]

@@ -24,6 +24,7 @@ from .lifetime import Closes
 from .errors import ConfigError, EngineError, VulkanError
 from .frame import Frame
 from .gpu import bvh_descriptor_set, bvh_layout as resolve_layout
+from .gpu.environment import GpuEnvironment
 from .gpu.scene import SceneChanges, SceneGeometry
 from .passes.accumulate import ALPHA_MIN, AccumulatePass
 from .passes.ao import AOPass
@@ -31,7 +32,8 @@ from .passes.debug_view import DebugViewPass
 from .passes.denoise import DenoisePass
 from .passes.gbuffer import GBufferPass
 from .passes.frame_block import FrameBlock
-from .passes.interface import FILTER_AO, FILTER_MASKS, FILTER_TEMPORAL, MAX_LIGHTS, pack_light
+from .passes.interface import FILTER_AO, FILTER_MASKS, FILTER_TEMPORAL, MAX_LIGHTS, Tonemap, pack_light
+from .passes.exposure import ExposurePass
 from .passes.lighting import LightingPass
 from .passes.raster_options import RasterOptions
 from .passes.raypass import follow_scene
@@ -39,7 +41,7 @@ from .passes.shadows import ShadowPass
 from .passes.soft_raster import SW_RASTER_PIXELS
 from .parallel import serialized
 from .passes.targets import Targets
-from .scene import Scene
+from .scene import Scene, environment
 from .scene.camera import Camera
 from .settings import ShadowMode, ViewMode, check_settings, check_size, default, given_settings, resolve_aovs
 from .shaders import ShaderLibrary
@@ -171,6 +173,7 @@ class Renderer(Closes):
         self.ao = AOPass(ctx, lib, res, self.bvh_set, self.bvh_layout)
         self.denoise = DenoisePass(ctx, lib, res, self.targets)
         self.lighting, self.debug_view = LightingPass(ctx, lib, res), DebugViewPass(ctx, lib, res)
+        self.exposure = ExposurePass(ctx, lib, res)
         self.passes = [
             self.gbuffer,
             self.shadows,
@@ -178,9 +181,11 @@ class Renderer(Closes):
             self.accumulate,
             self.denoise,
             self.lighting,
+            self.exposure,
             self.debug_view,
         ]
         self._scene = self._geometry = self._scene_bvh = None
+        self._environment = None  # GpuEnvironment: the last scene's (gpu/environment.py)
         self.bvh_stats, self._commands = {}, {}
         self._changes = SceneChanges()  # the scene's state the last frame drew (instance motion)
         self._history_key = self._steady = None  # _history_key: what the temporal history was accumulated under
@@ -263,7 +268,9 @@ class Renderer(Closes):
         ao_samples: int = default("ao_samples"),
         ao_radius: float | None = default("ao_radius"),
         exposure: float = default("exposure"),
-        ambient: float | Sequence[float] = default("ambient"),
+        auto_exposure: bool = default("auto_exposure"),
+        tonemap: Tonemap = default("tonemap"),
+        ambient: float | Sequence[float] | None = default("ambient"),
         view: ViewMode = default("view"),
         **unknown: Any,
     ) -> Frame:
@@ -294,9 +301,14 @@ class Renderer(Closes):
             ao: trace ambient occlusion (off: AO is 1 everywhere).
             ao_samples: AO rays per pixel per frame, 1..256.
             ao_radius: the AO rays' length in world units (None: 10% of the scene's bounding-box diagonal).
-            exposure: a factor on the linear HDR colour before tonemapping (ACES) and sRGB encoding; > 0.
-            ambient: linear RGB ambient light (one number: grey), each in [0, 1e6]: added to the lights' irradiance,
-                times AO, and the background's colour.
+            exposure: in EV: the linear HDR colour is scaled by 2^exposure before the tone curve and sRGB
+                encoding; in [-60, 60].
+            auto_exposure: also scale by 0.18 / the frame's log-average luminance (computed on the GPU).
+            tonemap: the tone curve: "neutral" (Khronos PBR Neutral), "agx" (AgX, base look) or "aces"
+                (Narkowicz's ACES fit).
+            ambient: None: the scene's environment lights the scene (its `environment`; default: a daylight
+                sky); a linear RGB colour (one number: grey), each in [0, 1e6]: a constant environment of that
+                radiance instead (0: no environment light), times AO, and the background's colour.
             view: "color" (the lit image) or an AOV drawn into the colour image instead, on the GPU (the names
                 are `engine.settings.AOVS`; `Frame.aov` holds every AOV whatever the view).
             **unknown: none are accepted: a `ConfigError` names the first.
@@ -428,7 +440,9 @@ class Renderer(Closes):
         ao_samples: int = default("ao_samples"),
         ao_radius: float | None = default("ao_radius"),
         exposure: float = default("exposure"),
-        ambient: float | Sequence[float] = default("ambient"),
+        auto_exposure: bool = default("auto_exposure"),
+        tonemap: Tonemap = default("tonemap"),
+        ambient: float | Sequence[float] | None = default("ambient"),
         view: ViewMode = default("view"),
         **unknown: Any,
     ) -> dict[str, Any]:
@@ -512,6 +526,7 @@ class Renderer(Closes):
         if self._use_scene(scene):
             self._frame_start(scene)
         lights = list(scene.lights)
+        self._use_environment(environment.resolve(scene.environment, lights))
         if len(lights) > MAX_LIGHTS:
             raise ConfigError(f"{scene.name}: {len(lights)} lights, at most {MAX_LIGHTS} are supported")
         if len(lights) > self.targets.light_capacity:
@@ -538,6 +553,7 @@ class Renderer(Closes):
             cfg["accumulate"],
             cfg["denoise"],
             cfg["view"],
+            cfg["auto_exposure"],
             len(lights),
             readback,
             self._raster,
@@ -561,8 +577,10 @@ class Renderer(Closes):
             ao_radius=cfg["ao_radius"] or 0.1 * diag,
             ao_samples=cfg["reference_samples"] if reference else cfg["ao_samples"],
             shadow_samples=cfg["reference_samples"] if reference else cfg["shadow_samples"],
-            exposure=cfg["exposure"],
+            exposure=2.0 ** cfg["exposure"],
             ambient=cfg["ambient"],
+            tonemap=cfg["tonemap"],
+            auto_exposure=cfg["auto_exposure"],
             scene_scale=diag,
             accum_alpha=ALPHA_MIN,
             bounds=scene.bounds,
@@ -686,6 +704,20 @@ class Renderer(Closes):
         self.uploads += 1
         return True
 
+    def _use_environment(self, env):
+        """The environment's tables on the GPU, bound to the lighting pass (again only when it changed)."""
+        key = env.key()
+        if self._environment is not None and self._environment.key == key:
+            return
+        self._steady = None
+        self._invalidate_commands()
+        if self._environment is not None:
+            self.ctx.wait_idle()
+            self._environment.destroy()
+        self._environment = None
+        self._environment = GpuEnvironment(self.ctx, env)
+        self.lighting.bind_environment(self._environment)
+
     def _resize_targets(self, light_capacity):
         Targets.check_capacity(self.ctx, self.width, self.height, light_capacity)
         self._drain()  # a render_many frame in flight is read back from the targets it was rendered into
@@ -744,6 +776,9 @@ class Renderer(Closes):
                 rec.copy(t.signals[name].raw, t.signals[name].final)
         self.lighting.record(rec, t)
         rec.mark("lighting")
+        if cfg["auto_exposure"]:
+            self.exposure.record(rec, t)
+            rec.mark("exposure")
         if cfg["view"] != "color":
             self.debug_view.record(rec, t, cfg["view"])
             rec.mark("view")

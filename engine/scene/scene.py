@@ -22,6 +22,7 @@ from engine.errors import ConfigError, SceneError, shown
 from . import loader, toml_format
 from .camera import Camera
 from .geometry import up_transform
+from .environment import Environment, Sky
 from .lights import Light, default_sun
 from .material import Material, material_key
 from .animation import Player, check_targets
@@ -236,6 +237,10 @@ class Scene:
                 raise SceneError(f"{where}: lights[{i}] is a {type(light).__name__}, not a light")
         self.lights = lights
         self.animations: list = []  # animation.Animation: what `animate(t)` plays
+        #: The light from far away: an `Environment` (an HDR map) or a `Sky`; None: the default daylight sky
+        #: towards the first directional light (engine/scene/environment.py). A render's `ambient` setting, when
+        #: given, replaces it with a constant colour.
+        self.environment: Environment | Sky | None = None
         self._player = None
         self._camera = None
         self.camera = camera
@@ -755,6 +760,7 @@ class Scene:
             parts.meshes, p.transforms, p.mesh, None, p.names, parts.materials, parts.settings, checked=True
         )
         scene._init_rest(parts.lights, parts.camera)
+        scene.environment = parts.environment
         if parts.animations:
             check_targets(parts.animations, [i.name for i in scene.instances], shown(scene.name))
             scene.animations = list(parts.animations)

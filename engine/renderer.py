@@ -262,6 +262,7 @@ class Renderer(Closes):
         shadows: ShadowMode = default("shadows"),
         shadow_samples: int = default("shadow_samples"),
         reference_samples: int = default("reference_samples"),
+        shadow_terminator: bool = default("shadow_terminator"),
         accumulate: bool = default("accumulate"),
         denoise: bool = default("denoise"),
         ao: bool = default("ao"),
@@ -294,6 +295,9 @@ class Renderer(Closes):
                 nothing accumulated: ground truth, slow) or "off".
             shadow_samples: soft shadows: rays per pixel per light per frame, 1..256.
             reference_samples: the reference mode: rays per pixel per light, and AO rays per pixel, 1..65536.
+            shadow_terminator: start shadow rays from a point moved off the flat triangle towards the smooth
+                surface its vertex normals describe (Hanika 2021), so that low-poly smooth meshes do not drop
+                whole triangles into shadow near the terminator.
             accumulate: blend the soft light masks and AO with the previous frames' (reprojected when the camera
                 moves). The history starts over when the scene, a light, the size, `shadows`, `shadow_samples`,
                 `ao`, `ao_samples`, `ao_radius` or `accumulate` changes.
@@ -434,6 +438,7 @@ class Renderer(Closes):
         shadows: ShadowMode = default("shadows"),
         shadow_samples: int = default("shadow_samples"),
         reference_samples: int = default("reference_samples"),
+        shadow_terminator: bool = default("shadow_terminator"),
         accumulate: bool = default("accumulate"),
         denoise: bool = default("denoise"),
         ao: bool = default("ao"),
@@ -542,7 +547,18 @@ class Renderer(Closes):
             self.width,
             self.height,
             b"".join(p.tobytes() for p in packed_lights),
-            tuple(cfg[k] for k in ("shadows", "shadow_samples", "ao", "ao_samples", "ao_radius", "accumulate")),
+            tuple(
+                cfg[k]
+                for k in (
+                    "shadows",
+                    "shadow_samples",
+                    "ao",
+                    "ao_samples",
+                    "ao_radius",
+                    "accumulate",
+                    "shadow_terminator",
+                )
+            ),
         )
         reset = history_key != self._history_key
         if reset:  # no motion on a frame without history (as the camera's previous matrix is this one)
@@ -581,6 +597,7 @@ class Renderer(Closes):
             ambient=cfg["ambient"],
             tonemap=cfg["tonemap"],
             auto_exposure=cfg["auto_exposure"],
+            shadow_terminator=cfg["shadow_terminator"],
             scene_scale=diag,
             accum_alpha=ALPHA_MIN,
             bounds=scene.bounds,

@@ -35,6 +35,7 @@ DEFAULT_SETTINGS: dict[str, Any] = {
     "shadows": "hard",  # SHADOW_MODES
     "shadow_samples": 1,  # soft: rays per pixel per light per frame
     "reference_samples": 256,  # reference: rays per pixel per light (shadows and AO)
+    "shadow_terminator": True,  # shadow rays start off flat triangles towards the smooth surface (Hanika 2021)
     "accumulate": True,  # temporal accumulation of the soft light masks and AO
     "denoise": True,  # a-trous filter of the soft light masks and AO
     "ao": True,
@@ -143,7 +144,7 @@ def check_settings(settings: dict[str, Any]) -> dict[str, Any]:
         raise ConfigError(f"setting view={out['view']!r}: expected one of {', '.join(VIEW_MODES)}")
     if out["tonemap"] not in TONEMAPS:
         raise ConfigError(f"setting tonemap={out['tonemap']!r}: expected one of {', '.join(TONEMAPS)}")
-    for key in ("ao", "accumulate", "denoise", "auto_exposure"):
+    for key in ("ao", "accumulate", "denoise", "auto_exposure", "shadow_terminator"):
         if not isinstance(out[key], (bool, np.bool_)):
             raise ConfigError(f"setting {key}={out[key]!r}: expected true or false")
         out[key] = bool(out[key])

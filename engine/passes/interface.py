@@ -153,6 +153,7 @@ FRAME = Struct(
         ("inv_view_proj", "mat4"),
         ("tonemap", "uint"),
         ("auto_exposure", "uint"),
+        ("shadow_terminator", "float"),
         ("lights", LIGHT, MAX_LIGHTS),
     ],
     doc={
@@ -173,6 +174,7 @@ FRAME = Struct(
         "inv_view_proj": "inverse of view_proj (the background's view directions)",
         "tonemap": "the tone curve (TONEMAP_*)",
         "auto_exposure": "1: exposure.comp scales by the key over the log-average luminance",
+        "shadow_terminator": "1: shadow rays start from the terminator shift (terminator.glsl)",
     },
 )
 FRAME_BYTES = FRAME.size
@@ -292,6 +294,7 @@ def pack_frame(
     objects_moved=False,
     tonemap="neutral",
     auto_exposure=False,
+    shadow_terminator=True,
 ):
     """The FRAME block. `out`: a FRAME record (e.g. a view of the mapped uniform buffer) to write into, returned;
     without it, the block's bytes. `packed_lights`: `pack_light` of each light, when already made."""
@@ -311,6 +314,7 @@ def pack_frame(
     if ambient is not None:  # None: the scene's environment
         block["ambient"], block["environment_constant"] = np.broadcast_to(np.asarray(ambient, np.float32), (3,)), 1.0
     block["tonemap"], block["auto_exposure"] = TONEMAPS.index(tonemap), 1 if auto_exposure else 0
+    block["shadow_terminator"] = 1.0 if shadow_terminator else 0.0
     block["scene_scale"], block["accum_alpha"], block["pixel_footprint"] = scene_scale, accum_alpha, pixel_footprint
     block["history_reset"] = 1.0 if history_reset else 0.0
     block["objects_moved"] = 1.0 if objects_moved else 0.0

@@ -78,6 +78,7 @@ struct FrameData {
     mat4 inv_view_proj;             // inverse of view_proj (the background's view directions)
     uint tonemap;                   // the tone curve (TONEMAP_*)
     uint auto_exposure;             // 1: exposure.comp scales by the key over the log-average luminance
+    float shadow_terminator;        // 1: shadow rays start from the terminator shift (terminator.glsl)
     Light lights[16];
 };
 

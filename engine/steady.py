@@ -59,6 +59,7 @@ class Steady:
         "settings",
         "scene_settings",
         "environment",
+        "environment_key",
         "result",
     )
 
@@ -79,7 +80,8 @@ class Steady:
         self = cls()
         self.scene, self.camera, self.readback, self.bounds = scene, camera, readback, scene.bounds
         self.lights, self.settings, self.scene_settings = held, snap, scene_snap
-        self.environment = getattr(scene, "environment", None)  # by identity, as the lights
+        self.environment = env = getattr(scene, "environment", None)  # by identity and its fields' key
+        self.environment_key = None if env is None else env.key()
         self.result = result
         return self
 
@@ -90,7 +92,8 @@ class Steady:
         if scene.bounds is not self.bounds or not _same_settings(settings, self.settings):
             return False
         scene_settings = getattr(scene, "settings", None) or {}
-        if getattr(scene, "environment", None) is not self.environment:
+        env = getattr(scene, "environment", None)
+        if env is not self.environment or (env is not None and env.key() != self.environment_key):
             return False
         if not _same_settings(scene_settings, self.scene_settings):
             return False

@@ -72,6 +72,19 @@ def test_bad_maps_are_one_line_errors(tmp_path):
             assert "\n" not in str(e)
 
 
+def test_exr_map_reads_its_rgb_channels(tmp_path):
+    import OpenEXR
+
+    img = np.random.default_rng(4).random((8, 16, 3)).astype(np.float32) * 30
+    channels = {c: np.ascontiguousarray(img[..., i]) for i, c in enumerate("RGB")}
+    header = {"compression": OpenEXR.ZIP_COMPRESSION, "type": OpenEXR.scanlineimage}
+    OpenEXR.File(header, channels).write(str(tmp_path / "m.exr"))
+    np.testing.assert_array_equal(Environment(tmp_path / "m.exr").image(), img)
+    (tmp_path / "bad.exr").write_bytes(b"not an exr at all")
+    with pytest.raises(SceneError, match=r"bad\.exr: not a readable OpenEXR image"):
+        Environment(tmp_path / "bad.exr")
+
+
 def test_toml_environment_table(tmp_path):
     write_hdr(tmp_path / "sky.hdr", np.full((8, 16, 3), 0.5, np.float32))
     (tmp_path / "s.toml").write_text(
@@ -175,8 +188,9 @@ def test_bright_patch_lights_the_side_facing_it(make_renderer):
     facing, away = (n @ toward) > 0.5, (n @ toward) < -0.5
     assert facing.sum() > 50 and away.sum() > 50
     assert np.median(rad[facing]) > 10 * np.median(rad[away])
-    # rotated by 180 degrees, the patch is at -x: the sides swap
-    scene.environment = Environment(img, rotation=180.0)
+    # rotated by 180 degrees (assigned in place, after a repeated frame), the patch is at -x: the sides swap
+    r.render(scene, aovs=("radiance",), ao=False, shadows="off")
+    scene.environment.rotation = 180.0
     rad = r.render(scene, aovs=("radiance",), ao=False, shadows="off").aov["radiance"].astype(np.float64).mean(-1)
     assert np.median(rad[away]) > 10 * np.median(rad[facing])
 
@@ -275,3 +289,57 @@ def test_auto_exposure_brings_dark_and_bright_scenes_to_the_same_key(make_render
     assert means[False, 30.0] - means[False, 0.3] > 100
     assert abs(means[True, 30.0] - means[True, 0.3]) < 3
     assert 60 < means[True, 30.0] < 200
+
+
+# ---- the shader's functions against the host tables --------------------------------------------------------------
+def test_glsl_sampling_matches_the_host_tables(make_renderer, tmp_path):
+    """environment.glsl's environment_sample / _pdf / _irradiance / _radiance, run in a small compute shader, give
+    what envtables.py's numpy versions give for the same uniform points."""
+    from pathlib import Path
+
+    from engine.passes.interface import FRAME
+    from engine.shaders import compile_shader
+    from engine.vk import Buffer, ComputePipeline, DescriptorSet, reflect, upload_buffer
+    from engine.vk.resources import STORAGE, TRANSFER_SRC, UNIFORM, read_buffer
+
+    spv = tmp_path / "env_probe.spv"
+    compile_shader(Path(__file__).parent / "data" / "glsl" / "env_probe.comp", spv)
+    spirv = spv.read_bytes()
+    ctx = make_renderer(8, 8).ctx
+    words = envtables.build(analytic_map(32), intensity=1.5, rotation=40.0)
+    n = 4096
+    u = np.random.default_rng(5).random((n, 2)).astype(np.float32)
+    interface = reflect(spirv, "env_probe.comp")
+    dset = DescriptorSet(ctx, interface.set(0).values())
+    frame = upload_buffer(ctx, np.zeros((), FRAME.dtype), UNIFORM)  # environment_constant 0: the map
+    env = upload_buffer(ctx, words, STORAGE)
+    ubuf = upload_buffer(ctx, u, STORAGE)
+    out = Buffer(ctx, n * 48, STORAGE | TRANSFER_SRC, name="out")
+    for name, buf in (("frame", frame), ("env", env), ("u", ubuf), ("result", out)):
+        dset.bind(name, buf)
+    pipe = ComputePipeline(ctx, spirv, [dset], push_size=interface.push_size)
+    with ctx.one_shot() as cmd:
+        pipe.dispatch(cmd, [dset], (n + 63) // 64, push=np.array([n], np.uint32))
+    res = read_buffer(ctx, out, np.float32).reshape(n, 3, 4)
+    for b in (frame, env, ubuf, out):
+        b.destroy()
+    dirs, pdfs = envtables.sample(words, u.astype(np.float64))
+    np.testing.assert_allclose(res[:, 0, :3], dirs, atol=2e-4)
+    np.testing.assert_allclose(res[:, 0, 3], pdfs, rtol=2e-3)
+    # environment_pdf of the sampled direction: the same but where float32 puts it in the neighbouring texel
+    # (2 of 4096 here)
+    same = np.isclose(res[:, 1, 3], envtables.pdf(words, dirs), rtol=2e-3)
+    assert same.mean() > 0.998, same.mean()
+    coeffs = words[envtables.SH_AT : envtables.SH_AT + 27].reshape(9, 3).astype(np.float64)
+    irr = envtables.eval_sh(coeffs, envtables.to_local(words, dirs))
+    np.testing.assert_allclose(res[:, 1, :3], irr, rtol=1e-3, atol=1e-4)
+    # radiance: the map (times its intensity) at the sampled direction's texel, within the bilinear filter's
+    # reach: between the smallest and largest of the 3x3 texels around it
+    img = analytic_map(32) * 1.5
+    h, w = img.shape[:2]
+    local = envtables.to_local(words, dirs)
+    uu = np.mod(np.arctan2(local[:, 0], -local[:, 2]) / (2 * np.pi), 1.0)
+    vv = np.arccos(np.clip(local[:, 1], -1, 1)) / np.pi
+    i, j = (uu * w).astype(int) % w, np.minimum((vv * h).astype(int), h - 1)
+    near = np.stack([img[np.clip(j + dj, 0, h - 1), (i + di) % w] for dj in (-1, 0, 1) for di in (-1, 0, 1)], axis=0)
+    assert np.all(res[:, 2, :3] >= near.min(axis=0) - 1e-4) and np.all(res[:, 2, :3] <= near.max(axis=0) + 1e-4)

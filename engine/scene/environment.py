@@ -15,6 +15,7 @@ twice). Its scale: the sky's irradiance on the ground is `SKY_FRACTION` of the s
 
 from __future__ import annotations
 
+import itertools
 import math
 import os
 from functools import lru_cache
@@ -31,6 +32,7 @@ SKY_FRACTION = 0.2
 GROUND_ALBEDO = 0.2
 SKY_SIZE = (128, 256)  # rows, columns of the baked sky
 DEFAULT_TURBIDITY = 2.5
+_uids = itertools.count()
 
 
 def _rotation_intensity(rotation, intensity, who: str) -> tuple[float, float]:
@@ -47,6 +49,8 @@ class Environment:
         rotation: degrees about +Y (counter-clockwise seen from above).
         intensity: a factor on the map's radiance (>= 0).
 
+    `rotation` and `intensity` may be assigned later (the next frame uses them; checked only here).
+
     Raises:
         SceneError: a file that cannot be read or is not an HDR image, or a map that is not 2:1.
         ConfigError: a bad rotation or intensity.
@@ -62,6 +66,7 @@ class Environment:
             self.path = os.fspath(map)
             self._image = load_map(self.path)
         self._image.setflags(write=False)
+        self._uid = next(_uids)  # (not id(): a collected map's id may come back for another)
 
     def image(self) -> np.ndarray:
         """(H, W, 3) float32 radiance before `intensity` (read-only)."""
@@ -69,7 +74,7 @@ class Environment:
 
     def key(self) -> tuple:
         """What the GPU tables are made from (equal keys: the same tables)."""
-        return ("map", id(self._image), self.rotation, self.intensity)
+        return ("map", self._uid, self.rotation, self.intensity)
 
     def __repr__(self) -> str:
         h, w = self._image.shape[:2]

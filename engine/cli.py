@@ -23,9 +23,8 @@ from .outputs import check_output_path
 from .renderer import Renderer
 from .scene import Scene
 from .sequence import load_camera_path, orbit_cameras, output_paths, render_size, render_sequence
-from .settings import AOVS, MAX_FRAMES, SHADOW_MODES as SHADOW_CHOICES
+from .settings import AOVS, MAX_FRAMES, TONEMAPS, SHADOW_MODES as SHADOW_CHOICES
 from .settings import parse_size, resolve_aovs
-from .passes.interface import TONEMAPS
 from .viewer import add_arguments as add_view_arguments
 from .viewer import run_from_args
 from .vk import choose_device, describe_devices

@@ -56,6 +56,7 @@ SHADOW_MODES: tuple[str, ...] = get_args(ShadowMode)
 __all__ = [
     "DEFAULT_SETTINGS",
     "SHADOW_MODES",
+    "TONEMAPS",
     "AOVS",
     "ShadowMode",
     "ViewMode",

@@ -84,7 +84,11 @@ void main() {
         vec2 ab = environment_brdf(n_v, r);
         vec3 spec = mix(vec3(0.04), albedo, metallic) * ab.x + ab.y;
         vec3 diffuse = (1.0 - spec) * (1.0 - metallic) * albedo * environment_irradiance(n);
-        vec3 specular = spec * environment_specular(reflect(-v, n), r);
+        // the GGX lobe's dominant direction leans from the mirror direction towards the normal as it widens
+        // (Lagarde and de Rousiers 2014, "Moving Frostbite to PBR", section 4.9.3)
+        float a = r * r, smooth_ = 1.0 - a;
+        vec3 dominant = normalize(mix(n, reflect(-v, n), smooth_ * (sqrt(smooth_) + a)));
+        vec3 specular = spec * environment_specular(dominant, r);
         vec3 ambient = (diffuse + specular) * (ao[pixel] * occlusion);
         color = direct + ambient + imageLoad(g_emissive, px).rgb;
     }

@@ -722,7 +722,8 @@ class Renderer(Closes):
         return True
 
     def _use_environment(self, env):
-        """The environment's tables on the GPU, bound to the lighting pass (again only when it changed)."""
+        """The environment's tables on the GPU, bound to every pass with a `bind_environment(env)` (again only when
+        it changed)."""
         key = env.key()
         if self._environment is not None and self._environment.key == key:
             return
@@ -733,7 +734,9 @@ class Renderer(Closes):
             self._environment.destroy()
         self._environment = None
         self._environment = GpuEnvironment(self.ctx, env)
-        self.lighting.bind_environment(self._environment)
+        for p in self.passes:  # the passes that read it (environment.glsl): lighting, and any with the hook
+            if hasattr(p, "bind_environment"):
+                p.bind_environment(self._environment)
 
     def _resize_targets(self, light_capacity):
         Targets.check_capacity(self.ctx, self.width, self.height, light_capacity)

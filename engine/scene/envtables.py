@@ -99,13 +99,12 @@ def eval_sh(coeffs: np.ndarray, n: np.ndarray) -> np.ndarray:
     return np.maximum(sh_basis(n) @ coeffs, 0.0)
 
 
-def prefilter(img: np.ndarray, roughness: float, size=PREFILTER) -> np.ndarray:
-    """The map filtered by the GGX lobe of `roughness` around each output direction (n = v = r): weights
-    D(h) (n.l) over the source's solid angle."""
-    source = SOURCE if roughness < 0.5 else ROUGH_SOURCE
-    src = resample(img, *source)
-    sd = equirect_directions(*source).reshape(-1, 3).astype(np.float32)
-    sw = np.repeat(band_solid_angles(*source), source[1]).astype(np.float32)
+def prefilter(src: np.ndarray, roughness: float, size=PREFILTER) -> np.ndarray:
+    """An equirect map `src` filtered by the GGX lobe of `roughness` around each output direction (n = v = r):
+    weights D(h) (n.l) over the source's solid angle."""
+    h, w = src.shape[:2]
+    sd = equirect_directions(h, w).reshape(-1, 3).astype(np.float32)
+    sw = np.repeat(band_solid_angles(h, w), w).astype(np.float32)
     radiance = src.reshape(-1, 3).astype(np.float32)
     out_d = equirect_directions(*size).reshape(-1, 3).astype(np.float32)
     a2 = np.float32(float(roughness) ** 4)
@@ -173,7 +172,9 @@ def build(img: np.ndarray, intensity: float = 1.0, rotation: float = 0.0) -> np.
     img = img * np.float32(intensity)
     h, w = img.shape[:2]
     marg, cond = sampling_cdfs(img)
-    levels = [prefilter(img, (k + 1) / LEVELS) for k in range(LEVELS)]
+    sharp = resample(img, *SOURCE)  # the sharpest level's source (and the SH's)
+    rough = resample(sharp, *ROUGH_SOURCE)
+    levels = [prefilter(sharp if (k + 1) / LEVELS < 0.5 else rough, (k + 1) / LEVELS) for k in range(LEVELS)]
     lut = brdf_table()
     parts = [img.reshape(-1), marg, cond.reshape(-1), np.concatenate([lv.reshape(-1) for lv in levels]), lut]
     offsets = np.cumsum([HEADER] + [p.size for p in parts])
@@ -183,7 +184,7 @@ def build(img: np.ndarray, intensity: float = 1.0, rotation: float = 0.0) -> np.
     rad = math.radians(rotation)
     out[COS_], out[SIN_] = math.cos(rad), math.sin(rad)
     words[MAP_ : MAP_ + 5] = offsets[:5]
-    out[SH_AT : SH_AT + 27] = sh_irradiance(resample(img, *SOURCE) if w > SOURCE[1] else img).reshape(-1)
+    out[SH_AT : SH_AT + 27] = sh_irradiance(sharp if w > SOURCE[1] else img).reshape(-1)
     for p, off in zip(parts, offsets[:-1]):
         out[off : off + p.size] = p.reshape(-1)
     return out

@@ -19,9 +19,11 @@ import itertools
 import math
 import os
 from functools import lru_cache
+from collections.abc import Iterable
 from typing import Any
 
 import numpy as np
+from numpy.typing import ArrayLike
 
 from engine.errors import ConfigError, SceneError
 
@@ -97,7 +99,7 @@ class Sky:
 
     def __init__(
         self,
-        sun_direction=(-0.45, -0.8, -0.4),
+        sun_direction: ArrayLike = (-0.45, -0.8, -0.4),
         sun_intensity: float = 3.0,
         *,
         turbidity: float = DEFAULT_TURBIDITY,
@@ -110,7 +112,7 @@ class Sky:
         self.rotation, self.intensity = _rotation_intensity(rotation, intensity, "sky")
 
     @classmethod
-    def for_lights(cls, lights) -> Sky:
+    def for_lights(cls, lights: Iterable[Any]) -> Sky:
         """The default sky of a scene with these lights: towards its first directional light (else the default
         sun's direction)."""
         for light in lights:

@@ -41,7 +41,8 @@ from .parallel import serialized
 from .passes.targets import Targets
 from .scene import Scene
 from .scene.camera import Camera
-from .settings import ShadowMode, ViewMode, check_settings, check_size, default, given_settings, resolve_aovs
+from .settings import ShadowMode, ViewMode, check_settings, check_size, default, given_settings, readback_aovs
+from .settings import resolve_aovs
 from .shaders import ShaderLibrary
 from .steady import Steady
 from .vk import Context, Recorder, Timestamps, reflect
@@ -313,7 +314,7 @@ class Renderer(Closes):
         names = resolve_aovs(aovs)
         self._check_open("render()")
         self._drain()
-        cmd, marks, cfg, n_lights = self._prepare(scene, camera, settings, readback=(names, 0))
+        cmd, marks, cfg, n_lights = self._prepare(scene, camera, settings, readback=(readback_aovs(names), 0))
         self.ctx.submit(cmd)
         return self._frame(scene, names, 0, marks, cfg, n_lights, camera)
 
@@ -366,7 +367,7 @@ class Renderer(Closes):
         else:
             self._drain()
         slot = 1 - last.slot if last is not None else 0  # (not the slot whose readback is still to be read)
-        cmd, marks, cfg, n_lights = self._prepare(scene, camera, settings, readback=(names, slot))
+        cmd, marks, cfg, n_lights = self._prepare(scene, camera, settings, readback=(readback_aovs(names), slot))
         self.ctx.submit(cmd, wait=False, fence=self._fences[slot])
         last = self._own_flight(mine)  # (None if _prepare read it back: new targets)
         self._flight = _Flight(mine, slot, self._fences[slot], (scene, names, slot, marks, cfg, n_lights, camera))
@@ -397,8 +398,13 @@ class Renderer(Closes):
         self._steady = None
 
     def _frame(self, scene, names, slot, marks, cfg, n_lights, camera) -> Frame:
-        buf, offsets = self.targets.readback(self.ctx, names, slot)
+        buf, offsets = self.targets.readback(self.ctx, readback_aovs(names), slot)
         aov = self.targets.read(buf, offsets, n_lights)
+        classes: list[str] = []
+        if "semantic_id" in names:  # the objects' classes through a table: exact, on the host
+            ids = aov["object_id"] if "object_id" in names else aov.pop("object_id")
+            aov["semantic_id"] = scene.semantic_lookup().take(ids + 1)
+            classes = scene.class_names
         return Frame(
             color=aov.pop("color", None),
             aov=aov,
@@ -406,6 +412,7 @@ class Renderer(Closes):
             settings=cfg,
             object_names=scene.object_names,
             material_names=[m.name for m in scene.materials],
+            class_names=classes,
             camera=camera if camera is not None else scene.camera,
             scene_name=scene.name,
         )

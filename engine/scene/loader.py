@@ -16,6 +16,7 @@ from engine.limits import MAX_COORD
 from engine.errors import SceneError, shown
 
 from . import mtl
+from .classes import extras_class
 from .filechecks import bomb_images, bomb_pixels, check_mesh_file, diagnose_gltf
 from .instances import Mesh, check_transforms, determinants, instance_label, world_boxes
 from .material import TEXTURE_FIELDS, Material, material_key, srgb8_to_linear, texture_key
@@ -269,6 +270,7 @@ class SceneBuilder:
         self._inst_mesh: list[np.ndarray] = []
         self._inst_transforms: list[np.ndarray] = []
         self._inst_names: list[str] = []
+        self._inst_classes: list[str | None] = []
         self.materials: list[Material] = []
         self._material_keys: dict = {}
         self._textures: dict = {}
@@ -308,15 +310,21 @@ class SceneBuilder:
         transform=None,
         key=None,
         instance_name: str | None = None,
+        cls: str | None = None,
     ):
         """Add a part in object space placed by `transform` ((4, 4); None: identity). Parts added with the same
         hashable `key` (not None) share the first one's Mesh. `normals` None: computed with a crease angle."""
         m = np.eye(4) if transform is None else np.asarray(transform, dtype=np.float64)
         inst_name = name if instance_name is None else instance_name
-        self.add_placed(name, positions, faces, normals, uvs, material, where, m[None], [inst_name], key=key)
+        self.add_placed(
+            name, positions, faces, normals, uvs, material, where, m[None], [inst_name], key=key, classes=[cls]
+        )
 
-    def add_placed(self, name, positions, faces, normals, uvs, material, where, transforms, names, key=None):
-        """`add` for K placements at once: `transforms` (K, 4, 4), `names` K instance names; checked with whole-array
+    def add_placed(
+        self, name, positions, faces, normals, uvs, material, where, transforms, names, key=None, classes=None
+    ):
+        """`add` for K placements at once: `transforms` (K, 4, 4), `names` K instance names, `classes` K semantic
+        classes (or None: none); checked with whole-array
         operations (the first bad placement is named, with the message `add` gives). Placements whose 3x3 part is
         singular (a zero scale: glTF hides parts so) are left out."""
         m = np.asarray(transforms, dtype=np.float64)
@@ -336,9 +344,11 @@ class SceneBuilder:
         a = m[:, :3, :3]
         top = np.maximum(np.abs(a).reshape(len(m), 9).max(axis=1), 1e-300)
         shown_ = np.abs(determinants(m / top[:, None, None])) >= 1e-12  # (a finite det >= 1e-12: a finite cond)
+        classes = [None] * len(m) if classes is None else list(classes)
         if not shown_.all():  # a zero scale hides the part: nothing to trace or draw
             m = m[shown_]
             names = [n for n, keep in zip(names, shown_) if keep]
+            classes = [c for c, keep in zip(classes, shown_) if keep]
             if not len(m):
                 return
         box = np.abs(world_boxes(self.meshes[k].box[None], m)).reshape(len(m), 6).max(axis=1)
@@ -352,6 +362,7 @@ class SceneBuilder:
         self._inst_mesh.append(np.full(len(m), k, np.int64))
         self._inst_transforms.append(m)
         self._inst_names.extend(names)
+        self._inst_classes.extend(classes)
 
     def _mesh(self, name, positions, faces, normals, uvs, material, where) -> Mesh | None:
         p = np.asarray(positions, dtype=np.float64)
@@ -406,6 +417,8 @@ class SceneBuilder:
         overrides: dict | None = None,
         transforms=None,
         labels=None,
+        cls: str | None = None,
+        classes=None,
     ):
         """Add a trimesh.Trimesh or trimesh.Scene (node transforms applied, then `transform`); with `transforms`
         (a list of (4, 4)), once per transform (each applied after `transform`), `labels` (None or a name per
@@ -413,12 +426,15 @@ class SceneBuilder:
         (or added again from the same `obj`) stays one mesh with several instances.
 
         `color` (linear RGBA), `texture` and `overrides` (other Material fields: metallic, roughness, emissive) override
-        every material of `obj` (material overrides of the TOML format).
+        every material of `obj` (material overrides of the TOML format). The semantic class of a placement: its entry
+        of `classes`, else `cls`, else the file's (`extras` `class` / `category` of the node or a node above it,
+        else of its mesh).
         """
         import trimesh  # deferred: heavy, and needed only to read meshes
 
         if isinstance(obj, trimesh.Trimesh):
             items = [(np.eye(4), obj, label or getattr(obj.metadata, "get", lambda *_: None)("name") or "mesh", "mesh")]
+            file_classes = [extras_class(obj.metadata)]
         elif isinstance(obj, trimesh.Scene):
             items = []
             with _quiet():
@@ -427,6 +443,9 @@ class SceneBuilder:
                     geom = obj.geometry.get(geom_name)
                     if isinstance(geom, trimesh.Trimesh):
                         items.append((np.asarray(m, dtype=np.float64), geom, str(node), str(geom_name)))
+            file_classes = [
+                _node_class(obj.graph, str(node)) or extras_class(geom.metadata) for _, geom, node, _ in items
+            ]
         else:
             raise SceneError(f"{where}: expected a trimesh.Trimesh or trimesh.Scene, got {type(obj).__name__}")
         outer = np.eye(4) if transform is None else np.asarray(transform, dtype=np.float64)
@@ -435,6 +454,7 @@ class SceneBuilder:
         else:
             places = np.asarray(transforms, dtype=np.float64).reshape(-1, 4, 4) @ outer
             names = [(labels[i] if labels and labels[i] else label) for i in range(len(places))]
+        given = [(classes[i] if classes and classes[i] else cls) for i in range(len(places))]
         before = len(self._inst_names)
         made = {}  # this call's materials by trimesh material; `obj` keeps those alive, so their ids stay unique
         self._keep.append(obj)
@@ -442,19 +462,20 @@ class SceneBuilder:
         if len(items) == 1:  # one geometry, placed once or many times: one block
             m, geom, node_name, geom_name = items[0]
             names = [_node_name(name, node_name, in_scene, 1) for name in names]
-            self._add_geometry(geom, places @ m, names, geom_name, where, color, texture, uv_scale, made, extra)
+            kinds = [c or file_classes[0] for c in given]
+            self._add_geometry(geom, places @ m, names, geom_name, where, color, texture, uv_scale, made, extra, kinds)
         else:
-            for place, name in zip(places, names):
-                for m, geom, node_name, geom_name in items:
+            for place, name, c in zip(places, names, given):
+                for (m, geom, node_name, geom_name), own in zip(items, file_classes):
                     node_name = _node_name(name, node_name, in_scene, len(items))
                     place_m = (place @ m)[None]
                     self._add_geometry(
-                        geom, place_m, [node_name], geom_name, where, color, texture, uv_scale, made, extra
+                        geom, place_m, [node_name], geom_name, where, color, texture, uv_scale, made, extra, [c or own]
                     )
         if len(self._inst_names) == before:
             raise SceneError(f"{where}: contains no triangles")
 
-    def _add_geometry(self, geom, m, names, geom_name, where, color, texture, uv_scale, made, overrides):
+    def _add_geometry(self, geom, m, names, geom_name, where, color, texture, uv_scale, made, overrides, classes):
         """One trimesh geometry placed by the transforms `m` (K, 4, 4), its instances named `names`."""
         node_name = names[0]
         with _quiet():
@@ -493,7 +514,7 @@ class SceneBuilder:
         material = self.material_index(mat, key_name)
         key = (id(geom), material, None if uv_scale is None else tuple(np.asarray(uv_scale, np.float64).tolist()))
         self._keep.append(geom)
-        self.add_placed(geom_name, vertices, faces, normals, uvs, material, where, m, names, key=key)
+        self.add_placed(geom_name, vertices, faces, normals, uvs, material, where, m, names, key=key, classes=classes)
 
     # -------------------------------------------------------------- result
     def build(self, lights=None, camera=None, settings=None) -> SceneParts:
@@ -501,7 +522,10 @@ class SceneBuilder:
         if not self._inst_names:
             raise SceneError(f"{shown(self.name)}: the scene has no triangles")
         placements = Placements(
-            np.concatenate(self._inst_mesh), np.concatenate(self._inst_transforms), self._inst_names
+            np.concatenate(self._inst_mesh),
+            np.concatenate(self._inst_transforms),
+            self._inst_names,
+            self._inst_classes if any(c is not None for c in self._inst_classes) else None,
         )
         return SceneParts(
             name=self.name,
@@ -512,6 +536,22 @@ class SceneBuilder:
             camera=camera,
             settings=settings,
         )
+
+
+def _node_class(graph, node: str) -> str | None:
+    """The class a glTF node's `extras` name, or the nearest node above it that names one (trimesh keeps a node's
+    extras as the metadata of the edge from its parent)."""
+    parents = graph.transforms.parents
+    edges = graph.transforms.edge_data
+    seen = set()
+    while node in parents and node not in seen:
+        seen.add(node)
+        parent = parents[node]
+        found = extras_class(edges.get((parent, node), {}).get("metadata"))
+        if found:
+            return found
+        node = parent
+    return None
 
 
 def _node_name(name, node_name: str, in_scene: bool, items: int) -> str:

@@ -1,0 +1,118 @@
+"""Semantic classes (TOML `class`, glTF `extras`, `Scene.set_classes`), the semantic_id AOV and its colour map,
+against the object ids a frame reads back and the files' own values."""
+
+import base64
+import json
+
+import numpy as np
+import pytest
+from PIL import Image
+
+from engine import Camera, Scene
+from engine.errors import ConfigError, SceneError
+from engine.outputs import read_exr
+from engine.scene.classes import PALETTE
+from engine.scene.scene import scene_from_dict
+
+
+def write_gltf(path, nodes, mesh_extras=None):
+    """A glTF of one triangle mesh placed by `nodes` (dicts with name, translation, extras, children)."""
+    v = np.array([[0, 0, 0], [1, 0, 0], [0, 1, 0]], np.float32)
+    f = np.array([0, 1, 2], np.uint16)
+    blob = v.tobytes() + f.tobytes() + b"\0\0"
+    mesh = {"primitives": [{"attributes": {"POSITION": 0}, "indices": 1}]}
+    if mesh_extras:
+        mesh["extras"] = mesh_extras
+    gltf = {
+        "asset": {"version": "2.0"},
+        "scene": 0,
+        "scenes": [{"nodes": [i for i, n in enumerate(nodes) if not n.get("child")]}],
+        "nodes": [{k: v for k, v in n.items() if k != "child"} for n in nodes],
+        "meshes": [mesh],
+        "buffers": [
+            {"byteLength": len(blob), "uri": "data:application/octet-stream;base64," + base64.b64encode(blob).decode()}
+        ],
+        "bufferViews": [
+            {"buffer": 0, "byteOffset": 0, "byteLength": 36},
+            {"buffer": 0, "byteOffset": 36, "byteLength": 6},
+        ],
+        "accessors": [
+            {"bufferView": 0, "componentType": 5126, "count": 3, "type": "VEC3", "min": [0, 0, 0], "max": [1, 1, 0]},
+            {"bufferView": 1, "componentType": 5123, "count": 3, "type": "SCALAR"},
+        ],
+    }
+    path.write_text(json.dumps(gltf))
+    return path
+
+
+def test_gltf_extras_name_classes(tmp_path):
+    nodes = [
+        {"mesh": 0, "name": "a", "extras": {"class": "chair"}},
+        {"mesh": 0, "name": "b", "translation": [2, 0, 0]},  # the mesh's extras
+        {"name": "group", "extras": {"category": "lamp"}, "children": [3]},
+        {"mesh": 0, "name": "c", "translation": [4, 0, 0], "child": True},  # its parent's
+    ]
+    scene = Scene.load(write_gltf(tmp_path / "t.gltf", nodes, {"category": "furniture"}))
+    classes = dict(zip(scene.object_names, scene.object_classes))
+    assert classes == {"a": "chair", "b": "furniture", "c": "lamp"}
+    assert scene.class_names == ["background", "chair", "furniture", "lamp"]
+    lut = scene.semantic_lookup()
+    assert lut[0] == 0 and [scene.class_names[k] for k in lut[1:]] == scene.object_classes
+
+
+def test_toml_class_keys_and_set_classes(tmp_path):
+    write_gltf(tmp_path / "t.gltf", [{"mesh": 0, "name": "a", "extras": {"class": "chair"}}])
+    data = {
+        "mesh": [
+            {"primitive": "box", "name": "box", "class": "crate", "instances": [{}, {"translate": [2, 0, 0]}]},
+            {"primitive": "sphere", "name": "ball", "instances": [{"name": "b1", "class": "toy"}, {"name": "b2"}]},
+            {"file": "t.gltf", "name": "file"},
+            {"file": "t.gltf", "name": "other", "class": "stool", "translate": [0, 3, 0]},
+        ]
+    }
+    scene = scene_from_dict(data, str(tmp_path / "s.toml"))
+    assert scene.object_classes == ["crate", "crate", "toy", None, "chair", "stool"]
+    scene.set_classes({"b*": "ball", "b2": None, "file*": "seat"})  # later entries win; None takes it away
+    assert scene.object_classes == ["ball", "ball", "ball", None, "seat", "stool"]
+    scene.set_class_names(["seat", "stool", "ball"])
+    assert list(scene.semantic_lookup()) == [0, 3, 3, 3, 0, 1, 2]
+    scene.set_class_names(["seat"])
+    with pytest.raises(ConfigError, match="class 'ball' is not in the class table"):
+        scene.semantic_lookup()
+    with pytest.raises(ConfigError, match="'background' is semantic id 0"):
+        scene.set_classes({"box": "background"})
+    with pytest.raises(SceneError, match=r"\[\[mesh\]\] #1: instances #1: class: a class must be a non-empty name"):
+        scene_from_dict({"mesh": [{"primitive": "box", "instances": [{"class": 3}]}]}, str(tmp_path / "s.toml"))
+
+
+def test_semantic_id_aov_is_the_object_class(make_renderer, tmp_path):
+    scene = Scene.load("default")
+    scene.set_classes({"crates": "crate", "ball": "ball", "knot/*": "knot", "pedestal": "crate"})
+    r = make_renderer(96, 64)
+    both = r.render(scene, aovs=("object_id", "semantic_id"))
+    ids, sem = both.aov["object_id"], both.aov["semantic_id"]
+    assert sem.dtype == np.uint32 and both.class_names == ["background", "ball", "crate", "knot"]
+    names = np.array([both.class_names[0]] + [c or "background" for c in scene.object_classes])
+    assert np.array_equal(np.array(both.class_names)[sem], names[ids + 1])  # exact, pixel for pixel
+    assert set(np.unique(sem)) == {0, 1, 2, 3}
+    alone = r.render(scene, aovs=("semantic_id",))  # the object ids read back for it, and not handed out
+    assert list(alone.aov) == ["semantic_id"] and np.array_equal(alone.aov["semantic_id"], sem)
+    # the colour map: PNG colours are the palette's, one per class; .exr and .npz keep the ids exactly
+    png = np.asarray(Image.open(alone.save(tmp_path / "sem.png", aov="semantic_id")))
+    assert np.array_equal(png[..., :3], PALETTE[sem])
+    arrays, _ = read_exr(alone.save(tmp_path / "sem.exr"))
+    assert arrays["semantic_id"].dtype == np.uint32 and np.array_equal(arrays["semantic_id"], sem)
+    with np.load(alone.save(tmp_path / "sem.npz")) as npz:
+        assert np.array_equal(npz["semantic_id"], sem) and list(npz["class_names"]) == both.class_names
+
+
+def test_frame_without_colour_shows_in_notebooks(make_renderer):
+    scene = Scene.from_arrays([[-1, -1, 0], [1, -1, 0], [0, 1, 0]], [[0, 1, 2]])
+    scene.camera = Camera.look_at((0, 0, 3), (0, 0, 0), fov_y=60)
+    r = make_renderer(32, 24)
+    frame = r.render(scene, aovs=("depth",))
+    png = np.asarray(Image.open(__import__("io").BytesIO(frame._repr_png_())))
+    depth = frame.aov["depth"]
+    assert png.shape == (24, 32, 4) and np.array_equal(png[..., 0] > 0, np.isfinite(depth))  # depth drawn, not None
+    assert "color" in repr(r.render(scene, aovs=("color",))) and "color" not in repr(frame)
+    assert r.render(scene, aovs=("shadow",))._repr_png_() is not None

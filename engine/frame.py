@@ -17,6 +17,7 @@ from . import outputs
 from .errors import ConfigError
 from .files import check_writable
 from .passes.interface import AOVS as AOV_SPECS
+from .pointcloud import PointCloud, frame_points
 from .passes.interface import DERIVED_AOVS
 from .scene.camera import Camera
 from .scene.classes import palette
@@ -178,6 +179,20 @@ class Frame:
             compress=compress,
             class_names=self.class_names if "semantic_id" in names else (),
         )
+
+    def point_cloud(self) -> PointCloud:
+        """The surface the frame sees as world-space points, one per pixel that sees a surface (background pixels
+        left out), in row-major pixel order: at the position AOV where the frame has it, else where the depth AOV
+        puts it through the camera (`K`, `pose`); with the colour (`Frame.color`'s sRGB RGB), the normal and the
+        object, instance and semantic ids of that pixel where the frame has them. `PointCloud.save("x.ply")`
+        writes it.
+
+        Raises:
+            ConfigError: the frame has neither the depth nor the position AOV."""
+        K = pose = None
+        if self.camera is not None:
+            K, pose = self.K, self.pose
+        return frame_points(self.color, self.aov, K, pose, self.width, self.height)
 
     def save_camera(self, path: str | os.PathLike[str]) -> Path:
         """Write the camera sidecar: `camera_record()` as JSON (one key per line). A list of these is a camera path

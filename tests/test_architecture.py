@@ -39,13 +39,22 @@ LAYERS = [
     ["engine.passes.interface"],  # what host and shaders share: below the scene on the GPU, which it lays out
     ["engine.gpu"],
     ["engine.passes"],
-    ["engine.settings", "engine.outputs", "engine.frame", "engine.steady", "engine.renderer", "engine.rt"],
+    [
+        "engine.settings",
+        "engine.outputs",
+        "engine.pointcloud",
+        "engine.frame",
+        "engine.steady",
+        "engine.renderer",
+        "engine.rt",
+    ],
     ["engine.viewer", "engine.bench", "engine.sequence", "engine.batch"],
     ["engine.cli", "engine.__main__", "engine"],
 ]
 PEERS = {
     ("engine.frame", "engine.settings"),
     ("engine.frame", "engine.outputs"),
+    ("engine.frame", "engine.pointcloud"),
     ("engine.renderer", "engine.settings"),
     ("engine.renderer", "engine.frame"),
     ("engine.renderer", "engine.steady"),

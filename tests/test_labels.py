@@ -116,3 +116,54 @@ def test_frame_without_colour_shows_in_notebooks(make_renderer):
     assert png.shape == (24, 32, 4) and np.array_equal(png[..., 0] > 0, np.isfinite(depth))  # depth drawn, not None
     assert "color" in repr(r.render(scene, aovs=("color",))) and "color" not in repr(frame)
     assert r.render(scene, aovs=("shadow",))._repr_png_() is not None
+
+
+def small_scene(tmp_path):
+    data = {
+        "camera": {"eye": [3.0, 2.5, 4.0], "target": [0.0, 0.3, 0.0], "fov": 45},
+        "mesh": [
+            {"primitive": "plane", "name": "floor", "size": [6.0, 6.0]},
+            {"primitive": "box", "name": "crate", "class": "crate", "size": [1, 1, 1], "translate": [0.6, 0.5, 0]},
+            {"primitive": "sphere", "name": "ball", "class": "ball", "radius": 0.5, "translate": [-0.8, 0.5, 0.4]},
+        ],
+    }
+    return scene_from_dict(data, str(tmp_path / "small.toml"))
+
+
+def test_point_cloud_lies_on_the_surface_and_reads_back(make_renderer, tmp_path):
+    o3d = pytest.importorskip("open3d")
+    import trimesh
+
+    scene = small_scene(tmp_path)
+    r = make_renderer(64, 48)
+    aovs = ("color", "depth", "position", "normal", "object_id", "instance_id", "semantic_id")
+    frame = r.render(scene, aovs=aovs)
+    cloud = frame.point_cloud()
+    covered = np.isfinite(frame.aov["depth"])
+    assert len(cloud) == covered.sum() > 1000
+    col, row = cloud.pixels.T
+    assert np.array_equal(cloud.colors, frame.color[row, col, :3])  # the colour AOV's, pixel for pixel
+    assert np.array_equal(cloud.object_id, frame.aov["object_id"][row, col])
+    assert np.array_equal(cloud.semantic_id, frame.aov["semantic_id"][row, col])
+    from_depth = r.render(scene, aovs=("color", "depth")).point_cloud()  # no position AOV: depth through K, pose
+    # on the surface: Open3D's distance to the scene's triangles, relative to the scene's size
+    o3d_scene = o3d.t.geometry.RaycastingScene()
+    o3d_scene.add_triangles(scene.positions.astype(np.float32), scene.indices.astype(np.uint32))
+    for c in (cloud, from_depth):
+        dist = o3d_scene.compute_distance(o3d.core.Tensor(c.points.astype(np.float32))).numpy()
+        assert dist.max() < 1e-4 * 2 * scene.radius
+    # the PLY file: binary little-endian, read back by trimesh and Open3D
+    path = cloud.save(tmp_path / "cloud.ply")
+    assert path.read_bytes().startswith(b"ply\nformat binary_little_endian 1.0\n")
+    back = o3d.io.read_point_cloud(str(path))
+    assert np.array_equal(np.asarray(back.points), cloud.points.astype(np.float32))
+    assert np.array_equal(np.round(np.asarray(back.colors) * 255).astype(np.uint8), cloud.colors)
+    assert np.allclose(np.asarray(back.normals), cloud.normals)
+    raw = trimesh.load(path).metadata["_ply_raw"]["vertex"]["data"]
+    assert np.array_equal(raw["instance_id"], cloud.instance_id) and np.array_equal(
+        raw["semantic_id"], cloud.semantic_id
+    )
+    with pytest.raises(ConfigError, match="needs the 'depth' or 'position' AOV"):
+        r.render(scene, aovs=("color",)).point_cloud()
+    with pytest.raises(ConfigError, match=r"cloud.txt: a point cloud is written as PLY"):
+        cloud.save(tmp_path / "cloud.txt")

@@ -41,6 +41,7 @@ from .parallel import serialized
 from .passes.targets import Targets
 from .scene import Scene
 from .scene.camera import Camera
+from .progress import bar as progress_bar
 from .settings import ShadowMode, ViewMode, check_settings, check_size, default, given_settings, readback_aovs
 from .settings import resolve_aovs
 from .shaders import ShaderLibrary
@@ -319,7 +320,13 @@ class Renderer(Closes):
         return self._frame(scene, names, 0, marks, cfg, n_lights, camera)
 
     def render_many(
-        self, scene: Scene, cameras: Iterable[Camera], *, aovs: str | Sequence[str] | None = None, **settings: Any
+        self,
+        scene: Scene,
+        cameras: Iterable[Camera],
+        *,
+        aovs: str | Sequence[str] | None = None,
+        progress: bool = False,
+        **settings: Any,
     ) -> Iterator[Frame]:
         """Frames of `scene` from each camera in turn, as an iterator: frame N+1 renders on the GPU while frame N is
         read back and handed to the caller (two readback buffers in turn). The temporal history carries over from
@@ -329,8 +336,14 @@ class Renderer(Closes):
         between frames with one frame in flight. Any other call on the renderer (render(), submit(), resize(), another
         render_many) first waits for that frame and reads it back for this iterator, so each frame is the one a lone
         render() of its camera gives, and several iterators, in one thread or in several, may be used at once
-        (docs/architecture.md, "Threads"). A renderer closed meanwhile makes the next step raise."""
+        (docs/architecture.md, "Threads"). A renderer closed meanwhile makes the next step raise.
+
+        `progress=True` draws a progress bar of the frames handed out (tqdm: a widget in Jupyter, text on a terminal
+        on stderr; none where stderr is neither); its length is `len(cameras)` where `cameras` has one."""
         names = resolve_aovs(aovs)
+        if progress:
+            yield from _with_bar(self.render_many(scene, cameras, aovs=names, **settings), cameras)
+            return
         mine = _Owner()  # this iterator: its frame in flight is `self._flight` while that names it
         try:
             for camera in cameras:
@@ -770,6 +783,15 @@ class _Owner:
 
     def __init__(self):
         self.frame = None
+
+
+def _with_bar(frames: Iterator[Frame], cameras) -> Iterator[Frame]:
+    """`frames` as they come, counted on a progress bar (closed when the iterator ends or is abandoned)."""
+    total = len(cameras) if hasattr(cameras, "__len__") else None
+    with progress_bar(total, "frame") as shown_bar:
+        for frame in frames:
+            shown_bar.update(1)
+            yield frame
 
 
 class _Flight:

@@ -34,7 +34,7 @@ ENGINE = ROOT / "engine"
 #: Bottom to top. A module imports only from its own package or from lower layers (plus the PEERS edges).
 LAYERS = [
     ["engine.errors", "engine._version", "engine.lifetime"],
-    ["engine.limits", "engine.parallel", "engine.files", "engine.data", "engine.native"],
+    ["engine.limits", "engine.parallel", "engine.files", "engine.data", "engine.native", "engine.progress"],
     ["engine.vk", "engine.bvh", "engine.scene", "engine.shaders", "engine.passes.std140"],
     ["engine.passes.interface"],  # what host and shaders share: below the scene on the GPU, which it lays out
     ["engine.gpu"],

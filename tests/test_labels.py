@@ -167,3 +167,23 @@ def test_point_cloud_lies_on_the_surface_and_reads_back(make_renderer, tmp_path)
         r.render(scene, aovs=("color",)).point_cloud()
     with pytest.raises(ConfigError, match=r"cloud.txt: a point cloud is written as PLY"):
         cloud.save(tmp_path / "cloud.txt")
+
+
+class _Terminal(__import__("io").StringIO):
+    def isatty(self):
+        return True
+
+
+def test_render_many_progress_bar(make_renderer, tmp_path, monkeypatch):
+    scene = small_scene(tmp_path)
+    cams = [Camera.look_at((3.0, 2.0, z), (0, 0.3, 0), fov_y=45) for z in (3.0, 4.0, 5.0)]
+    r = make_renderer(32, 24)
+    for stream, progress, shown in (
+        (_Terminal(), True, True),
+        (_Terminal(), False, False),
+        (__import__("io").StringIO(), True, False),
+    ):
+        monkeypatch.setattr("sys.stderr", stream)
+        frames = list(r.render_many(scene, cams, aovs=("depth",), progress=progress))
+        assert len(frames) == 3 and all(np.isfinite(f.aov["depth"]).any() for f in frames)
+        assert ("3/3" in stream.getvalue()) == shown, stream.getvalue()

@@ -10,6 +10,8 @@ from dataclasses import dataclass, field
 
 from ..errors import ConfigError, shown
 from ..files import remove_stale_temporaries
+from ..progress import bar as progress_bar
+from ..progress import in_notebook
 from ..vk import choose_device, describe_devices
 from .distributed import run_ray
 from .job import Job
@@ -49,12 +51,13 @@ class BatchResult:
 
 class Progress:
     """`batch [#######.........] 12/30 items, 3.1 items/s, 1 failed, 6 s left` on stderr: redrawn in place on a
-    terminal, otherwise a line per tenth of the items."""
+    terminal, otherwise a line per tenth of the items; in Jupyter, tqdm's widget."""
 
     def __init__(self, total: int, stream=None, enabled: bool = True, width: int = 24):
         self.total, self.done, self.failed, self.width = total, 0, 0, width
         self.stream = sys.stderr if stream is None else stream
-        self.enabled = enabled and total > 0
+        self.widget = progress_bar(total, "item", desc="batch") if enabled and total and in_notebook() else None
+        self.enabled = enabled and total > 0 and self.widget is None
         self.tty = bool(getattr(self.stream, "isatty", lambda: False)())
         self.t0 = time.perf_counter()
         self._shown_tenth = 0
@@ -62,6 +65,12 @@ class Progress:
     def add(self, failed: bool) -> None:
         self.done += 1
         self.failed += failed
+        if self.widget is not None:
+            self.widget.update(1)
+            if self.failed:
+                self.widget.set_postfix(failed=self.failed)
+            if self.done == self.total:
+                self.widget.close()
         tenth = self.done * 10 // max(self.total, 1)
         if self.enabled and (self.tty or tenth > self._shown_tenth or self.done == self.total):
             self._shown_tenth = tenth

@@ -187,3 +187,120 @@ def test_render_many_progress_bar(make_renderer, tmp_path, monkeypatch):
         frames = list(r.render_many(scene, cams, aovs=("depth",), progress=progress))
         assert len(frames) == 3 and all(np.isfinite(f.aov["depth"]).any() for f in frames)
         assert ("3/3" in stream.getvalue()) == shown, stream.getvalue()
+
+
+LABEL_SCENE = """
+[[mesh]]
+primitive = "plane"
+name = "floor"
+size = [8.0, 8.0]
+
+[[mesh]]
+primitive = "box"
+name = "crate"
+class = "crate"
+size = [1.0, 1.0, 1.0]
+translate = [0.0, 0.5, 0.0]
+rotate = [0.0, 20.0, 0.0]
+
+[[mesh]]
+primitive = "sphere"
+name = "ball"
+radius = 0.5
+translate = [0.45, 0.5, -1.2]
+"""
+
+LABEL_JOB = """
+output = "out"
+size = "64x48"
+aovs = ["color", "object_id", "semantic_id"]
+png = ["color", "semantic_id"]
+
+[labels]
+classes = { "ball" = "ball" }
+class_names = ["ball", "crate"]
+coco = true
+bop = true
+depth_scale = 0.5
+
+[cameras]
+views = [{ eye = [0.0, 1.2, 4.0], target = [0.0, 0.5, 0.0], fov = 50 },
+         { eye = [4.0, 1.5, -0.5], target = [0.0, 0.5, -0.5], fov = 50 }]
+
+[[scenes]]
+scene = "labels.toml"
+"""
+
+
+def test_batch_coco_and_bop_load_back(tmp_path):
+    """COCO through pycocotools (masks and boxes equal the rendered object ids'), BOP by its conventions: the pose
+    puts the object's model where the BOP depth image (times depth_scale) sees it, and its model points project
+    within the unoccluded box."""
+    coco_api = pytest.importorskip("pycocotools.coco")
+    o3d = pytest.importorskip("open3d")
+    from engine.batch import load_job, run_batch
+
+    (tmp_path / "labels.toml").write_text(LABEL_SCENE)
+    (tmp_path / "job.toml").write_text(LABEL_JOB)
+    job = load_job(tmp_path / "job.toml")
+    result = run_batch(job, progress=False)
+    assert result.ok and result.rendered == 2
+    assert result.datasets == [
+        "coco.json",
+        "labels/scene_gt.json",
+        "labels/scene_camera.json",
+        "labels/scene_gt_info.json",
+    ]
+    out = tmp_path / "out"
+    coco = coco_api.COCO(str(out / "coco.json"))
+    assert [c["name"] for c in coco.loadCats(coco.getCatIds())] == ["ball", "crate"]
+    seen = 0
+    for img in coco.loadImgs(coco.getImgIds()):
+        assert (out / img["file_name"]).is_file() and Image.open(out / img["file_name"]).size == (64, 48)
+        with np.load(out / img["file_name"].replace(".png", ".npz")) as z:
+            ids, sem = z["object_id"], z["semantic_id"]
+        for ann in coco.loadAnns(coco.getAnnIds(imgIds=img["id"])):
+            mask = coco.annToMask(ann).astype(bool)
+            assert np.array_equal(mask, ids == ann["object_id"]) and ann["area"] == mask.sum() and ann["iscrowd"] == 0
+            rows, cols = np.nonzero(mask)
+            assert ann["bbox"] == [cols.min(), rows.min(), cols.max() - cols.min() + 1, rows.max() - rows.min() + 1]
+            assert np.all(sem[mask] == ann["category_id"])
+            seen += 1
+    assert seen == 4  # both objects in both views
+    # BOP
+    folder = out / "labels"
+    gt, cams, info = (
+        json.loads((folder / n).read_text()) for n in ("scene_gt.json", "scene_camera.json", "scene_gt_info.json")
+    )
+    scene = Scene.load(tmp_path / "labels.toml")
+    fractions = []
+    for view in ("0", "1"):
+        K = np.array(cams[view]["cam_K"]).reshape(3, 3)
+        assert cams[view]["depth_scale"] == 0.5
+        depth_mm = np.asarray(Image.open(folder / "depth" / f"{int(view):06d}.png"), np.float64) * 0.5
+        assert (folder / "rgb" / f"{int(view):06d}.png").samefile(out / "labels" / f"{int(view):04d}.png")
+        with np.load(out / "labels" / f"{int(view):04d}.npz") as z:
+            ids = z["object_id"]
+        for obj, inf in zip(gt[view], info[view]):
+            k = {1: 2, 2: 1}[obj["obj_id"]]  # ball: object 2, crate: object 1 (floor 0 has no class)
+            mesh = scene.meshes[scene.instance_mesh[k]]
+            model_mm = mesh.positions.astype(np.float64) * 1000.0
+            R, t = np.array(obj["cam_R_m2c"]).reshape(3, 3), np.array(obj["cam_t_m2c"])
+            # the depth image seen through the pose lies on the model (BOP's own check of a pose)
+            rows, cols = np.nonzero(ids == k)
+            d = depth_mm[rows, cols]
+            cam = np.linalg.inv(K) @ np.stack([cols, rows, np.ones_like(cols)]) * d
+            in_model = (R.T @ (cam - t[:, None])).T
+            o3d_scene = o3d.t.geometry.RaycastingScene()
+            o3d_scene.add_triangles(model_mm.astype(np.float32), mesh.indices.astype(np.uint32))
+            dist = o3d_scene.compute_distance(o3d.core.Tensor(in_model.astype(np.float32))).numpy()
+            assert np.percentile(dist, 95) < 2.0 and dist.max() < 20.0  # mm: depth quantized to 0.5 mm
+            # the model's points project within its unoccluded box (and span it)
+            uv = K @ (R @ model_mm.T + t[:, None])
+            uv = uv[:2] / uv[2]
+            x, y, w, h = inf["bbox_obj"]
+            assert uv[0].min() >= x - 1.5 and uv[0].max() <= x + w + 0.5 and uv[1].min() >= y - 1.5
+            assert uv[1].max() <= y + h + 0.5
+            assert inf["px_count_visib"] == len(rows) <= inf["px_count_valid"] == inf["px_count_all"]
+            fractions.append(inf["visib_fract"])
+    assert min(fractions) < 0.9 and max(fractions) == 1.0  # the ball behind the crate in view 0

@@ -13,6 +13,7 @@ from ..files import remove_stale_temporaries
 from ..progress import bar as progress_bar
 from ..progress import in_notebook
 from ..vk import choose_device, describe_devices
+from .datasets import write_datasets
 from .distributed import run_ray
 from .job import Job
 from .manifest import FolderLock, Manifest
@@ -24,7 +25,8 @@ MAX_WORKERS = 64
 @dataclass
 class BatchResult:
     """What a run did: items rendered now, found finished before, failed (records with their errors), the seconds
-    it took, the devices used, validation errors not charged to an item, and the manifest's path."""
+    it took, the devices used, validation errors not charged to an item, the manifest's path, and the dataset files
+    written from the items' annotations (COCO, BOP; relative to the output folder)."""
 
     rendered: int = 0
     skipped: int = 0
@@ -34,6 +36,7 @@ class BatchResult:
     errors: list = field(default_factory=list)
     manifest: str = ""
     where: str = ""
+    datasets: list = field(default_factory=list)
 
     @property
     def ok(self) -> bool:
@@ -171,6 +174,7 @@ def run_batch(
         finally:
             manifest.save()
         result.seconds = time.perf_counter() - t0
+        result.datasets = write_datasets(job)  # from every finished item's sidecar, this run's and earlier ones
         result.devices, result.errors = info["devices"], info["errors"]
         devs = ", ".join(result.devices) or "no device"
         result.where = info.get("cluster") or f"{n_workers} worker{'s' if n_workers > 1 else ''} ({devs})"

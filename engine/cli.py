@@ -25,7 +25,7 @@ from .renderer import Renderer
 from .scene import Scene
 from .sequence import load_camera_path, orbit_cameras, output_paths, render_size, render_sequence
 from .settings import AOVS, MAX_FRAMES, SHADOW_MODES as SHADOW_CHOICES
-from .settings import parse_size, resolve_aovs
+from .settings import DERIVED_AOVS, parse_size, resolve_aovs
 from .viewer import add_arguments as add_view_arguments
 from .viewer import run_from_args
 from .vk import choose_device, describe_devices
@@ -57,6 +57,8 @@ def _outputs(args) -> tuple:
             if name != "depth":
                 raise ConfigError("--depth-scale writes a 16-bit depth PNG: give --aov depth")
             return ("depth",), "color", dict(aov="depth", depth_scale=args.depth_scale), ["depth"]
+        if name in DERIVED_AOVS:  # made on the host: drawn by Frame.save (semantic ids through the palette)
+            return (name,), "color", dict(aov=name), [name]
         return ("color",), name, {}, [name]  # the AOV drawn into the colour image on the GPU
     if args.depth_scale is not None:
         raise ConfigError(f"{args.output}: --depth-scale is for 16-bit depth PNGs (.exr and .npz hold metric depth)")
@@ -261,11 +263,11 @@ def build_parser() -> argparse.ArgumentParser:
     r.add_argument(
         "--aov",
         action="append",
-        choices=AOVS + ("all",),
+        choices=AOVS + tuple(DERIVED_AOVS) + ("all",),
         metavar="AOV",
         help="what to write, may repeat: a PNG takes one (the colour, or an AOV drawn for viewing); "
         ".exr / .npz take several (default: color, depth, normal, position, albedo, shadow, ao; "
-        f"'all': every one). AOVs: {', '.join(AOVS)}",
+        f"'all': every one). AOVs: {', '.join(AOVS + tuple(DERIVED_AOVS))}",
     )
     r.add_argument(
         "--depth-scale",

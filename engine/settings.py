@@ -53,6 +53,7 @@ __all__ = [
     "DEFAULT_SETTINGS",
     "SHADOW_MODES",
     "AOVS",
+    "DERIVED_AOVS",
     "ShadowMode",
     "ViewMode",
     "Default",

@@ -304,3 +304,52 @@ def test_batch_coco_and_bop_load_back(tmp_path):
             assert inf["px_count_visib"] == len(rows) <= inf["px_count_valid"] == inf["px_count_all"]
             fractions.append(inf["visib_fract"])
     assert min(fractions) < 0.9 and max(fractions) == 1.0  # the ball behind the crate in view 0
+
+
+def test_the_dataset_docs_commands_run(tmp_path):
+    """docs/datasets.md's COCO and BOP jobs and commands, and its point-cloud command, at a small size."""
+    import os
+    import re
+    import subprocess
+    import sys
+    from pathlib import Path
+
+    repo = Path(__file__).resolve().parent.parent
+    doc = (repo / "docs" / "datasets.md").read_text()
+    env = dict(os.environ, PYTHONPATH=str(repo), HYBRID_VALIDATION="1")
+    jobs = [b for b in re.findall(r"```toml\n(.*?)```", doc, flags=re.S) if "[labels]" in b]
+    readers = [
+        b for b in re.findall(r"```python\n(.*?)```", doc, flags=re.S) if "coco_dataset" in b or "bop_dataset" in b
+    ]
+    commands = [
+        c for c in re.findall(r"^hybrid (batch \S+_job\.toml|render .*--point-cloud cloud\.ply)$", doc, flags=re.M)
+    ]
+    assert len(jobs) == 2 and len(readers) == 2 and len(commands) == 3, (len(jobs), len(readers), commands)
+    for text in jobs:
+        name = re.match(r"# (\S+\.toml)", text).group(1)
+        assert 'size = "640x480"' in text and "orbit = 24" in text
+        (tmp_path / name).write_text(text.replace("640x480", "64x48").replace("orbit = 24", "orbit = 2"))
+    for cmd in commands:
+        args = cmd.split() + (["-q"] if cmd.startswith("batch") else [])
+        args = [a.replace("640x480", "64x48") for a in args]
+        res = subprocess.run(
+            [sys.executable, "-m", "engine", *args], cwd=tmp_path, env=env, capture_output=True, text=True, timeout=300
+        )
+        assert res.returncode == 0, res.stderr[-3000:]
+    printed = []
+    for code in readers:
+        res = subprocess.run(
+            [sys.executable, "-c", code], cwd=tmp_path, env=env, capture_output=True, text=True, timeout=120
+        )
+        assert res.returncode == 0, res.stderr[-3000:]
+        printed.append(res.stdout)
+    assert "True" in printed[0] and "False" not in printed[0]  # each mask's pixels are its area
+    assert len(printed[1].splitlines()) == 4  # the four classed objects of view 0, with their poses
+    coco = json.loads((tmp_path / "coco_dataset" / "coco.json").read_text())
+    names = [c["name"] for c in coco["categories"]]
+    assert len(coco["images"]) == 2 and coco["annotations"] and names == ["ball", "crate", "drum", "knot", "ring"]
+    assert sorted(p.name for p in (tmp_path / "bop_dataset" / "default" / "depth").iterdir()) == [
+        "000000.png",
+        "000001.png",
+    ]
+    assert (tmp_path / "cloud.ply").read_bytes().startswith(b"ply\nformat binary_little_endian 1.0\n")

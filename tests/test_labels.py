@@ -353,3 +353,35 @@ def test_the_dataset_docs_commands_run(tmp_path):
         "000001.png",
     ]
     assert (tmp_path / "cloud.ply").read_bytes().startswith(b"ply\nformat binary_little_endian 1.0\n")
+
+
+@pytest.mark.parametrize(
+    "labels,aovs,message",
+    [
+        ({"coco": True, "classez": {}}, None, r"labels: unknown key 'classez' \(known: classes, class_names"),
+        ({"coco": True}, None, r"labels: no classes: give classes = \{pattern = class\} or class_names"),
+        ({"coco": True, "classes": {"a": 3}}, None, r"labels.classes: 'a': a class must be a non-empty name"),
+        ({"bop": "yes", "classes": {"a": "b"}}, None, r"labels.bop: expected true or false, got 'yes'"),
+        ({"bop": True, "classes": {"a": "b"}}, ["depth"], r"labels: COCO and BOP annotations refer to the colour"),
+        ({"class_names": ["a", "a"]}, None, r"labels.class_names: class 'a' is listed twice"),
+        ({"classes": {"a": "b"}, "depth_scale": 0}, None, r"labels.depth_scale: expected a positive number, got 0"),
+    ],
+)
+def test_a_bad_labels_table_is_a_clear_error(tmp_path, labels, aovs, message):
+    from engine.batch.job import job_from_dict
+
+    data = {"output": "out", "labels": labels, "cameras": {"orbit": 2}, "scenes": ["default"]}
+    if aovs is not None:
+        data["aovs"] = aovs
+    with pytest.raises(ConfigError, match=message):
+        job_from_dict(data, tmp_path / "job.toml")
+
+
+def test_a_class_outside_the_jobs_table_fails_its_items(tmp_path):
+    from engine.batch import load_job, run_batch
+
+    (tmp_path / "labels.toml").write_text(LABEL_SCENE)
+    (tmp_path / "job.toml").write_text(LABEL_JOB.replace('class_names = ["ball", "crate"]', 'class_names = ["ball"]'))
+    result = run_batch(load_job(tmp_path / "job.toml"), progress=False)
+    assert result.rendered == 0 and len(result.failed) == 2
+    assert "labels.toml: class 'crate' is not in the job's class table (ball)" in result.failed[0]["error"]

@@ -15,7 +15,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from ..errors import ConfigError
+from ..errors import ConfigError, shown
 from ..scene import Scene
 
 #: Candidate (triangle, pixel) pairs tested at once by `coverage` (memory: about 100 bytes each).
@@ -45,7 +45,8 @@ class SceneObjects:
         missing = sorted({c for c in classes if c is not None and c not in index})
         if missing:
             raise ConfigError(
-                f"{scene.name}: class {missing[0]!r} is not in the job's class table ({', '.join(class_names[1:])})"
+                f"{shown(scene.name)}: class {shown(missing[0])!r} is not in the job's class table "
+                f"({', '.join(map(shown, class_names[1:]))})"
             )
         out: dict = {k: [] for k in cls.__dataclass_fields__}
         names, transforms = scene.object_names, scene.transforms
@@ -77,14 +78,29 @@ def coverage(cam_points: np.ndarray, faces: np.ndarray, K: np.ndarray, width: in
     mask = np.zeros((height, width), bool)
     if not len(faces):
         return mask
-    hom = cam_points @ K.T
-    tri = hom[faces]  # (T, vertex, XYW)
-    tri = tri[(tri[:, :, 2] > near).any(axis=1)]
-    x0, x1, y0, y1 = _boxes(tri, width, height)
+    hom = cam_points @ K.T  # per vertex first: the triangles then gather 1-D arrays
+    w_ = hom[:, 2]
+    safe = np.where(w_ > 0, w_, 1.0)
+    u, v = hom[:, 0] / safe, hom[:, 1] / safe
+    f0, f1, f2 = faces[:, 0], faces[:, 1], faces[:, 2]
+    w0, w1, w2 = w_[f0], w_[f1], w_[f2]
+    ahead = (w0 > 0) & (w1 > 0) & (w2 > 0)
+    front = (w0 > near) | (w1 > near) | (w2 > near)
+    u0 = np.minimum(np.minimum(u[f0], u[f1]), u[f2])
+    u1 = np.maximum(np.maximum(u[f0], u[f1]), u[f2])
+    v0 = np.minimum(np.minimum(v[f0], v[f1]), v[f2])
+    v1 = np.maximum(np.maximum(v[f0], v[f1]), v[f2])
+    # each triangle's pixel range (inclusive) whose centres can be inside it: its projected box where all its
+    # vertices are in front of the eye, else the whole image
+    x0 = np.where(ahead, np.clip(np.ceil(u0 - 0.5), 0, width), 0).astype(np.int64)
+    x1 = np.where(ahead, np.clip(np.floor(u1 - 0.5), -1, width - 1), width - 1).astype(np.int64)
+    y0 = np.where(ahead, np.clip(np.ceil(v0 - 0.5), 0, height), 0).astype(np.int64)
+    y1 = np.where(ahead, np.clip(np.floor(v1 - 0.5), -1, height - 1), height - 1).astype(np.int64)
     w, h = np.maximum(x1 - x0 + 1, 0), np.maximum(y1 - y0 + 1, 0)
     counts = w * h
-    keep = counts > 0  # (most small triangles hold no pixel centre)
-    tri, x0, y0, w, counts = tri[keep], x0[keep], y0[keep], w[keep], counts[keep]
+    keep = np.flatnonzero(front & (counts > 0))  # (most small triangles hold no pixel centre)
+    tri = hom[faces[keep]]  # (K, vertex, XYW)
+    x0, y0, w, counts = x0[keep], y0[keep], w[keep], counts[keep]
     a, b, c = tri[:, 0], tri[:, 1], tri[:, 2]
     rows = np.stack([np.cross(b, c), np.cross(c, a), np.cross(a, b)], axis=1)  # the inverse's rows, times det
     det = np.einsum("ij,ij->i", a, rows[:, 0])
@@ -108,25 +124,6 @@ def coverage(cam_points: np.ndarray, faces: np.ndarray, K: np.ndarray, width: in
         mask[py[hit], px[hit]] = True
         start = stop
     return mask
-
-
-def _boxes(tri: np.ndarray, width: int, height: int):
-    """Each triangle's pixel range (inclusive) whose centres can be inside it: its projected box where all its
-    vertices are in front of the eye, else the whole image."""
-    w_ = tri[:, :, 2]
-    ahead = (w_[:, 0] > 0) & (w_[:, 1] > 0) & (w_[:, 2] > 0)
-    safe = np.where(ahead[:, None], w_, 1.0)
-    u, v = tri[:, :, 0] / safe, tri[:, :, 1] / safe
-    u0, u1 = np.minimum(np.minimum(u[:, 0], u[:, 1]), u[:, 2]), np.maximum(np.maximum(u[:, 0], u[:, 1]), u[:, 2])
-    v0, v1 = np.minimum(np.minimum(v[:, 0], v[:, 1]), v[:, 2]), np.maximum(np.maximum(v[:, 0], v[:, 1]), v[:, 2])
-    with np.errstate(invalid="ignore"):
-        x0 = np.where(ahead, np.ceil(u0 - 0.5), 0)
-        x1 = np.where(ahead, np.floor(u1 - 0.5), width - 1)
-        y0 = np.where(ahead, np.ceil(v0 - 0.5), 0)
-        y1 = np.where(ahead, np.floor(v1 - 0.5), height - 1)
-    x0, y0 = np.clip(x0, 0, width).astype(np.int64), np.clip(y0, 0, height).astype(np.int64)
-    x1, y1 = np.clip(x1, -1, width - 1).astype(np.int64), np.clip(y1, -1, height - 1).astype(np.int64)
-    return x0, x1, y0, y1
 
 
 def mask_box(mask: np.ndarray) -> list[int]:

@@ -24,6 +24,14 @@ COCO_NAME = "coco.json"
 BOP_NAMES = ("scene_gt.json", "scene_camera.json", "scene_gt_info.json")
 
 
+def dataset_files(job: Job) -> list[str]:
+    """The files `write_datasets` may write, relative to the output folder."""
+    lab = job.labels
+    if lab is None:
+        return []
+    return ([COCO_NAME] if lab.coco else []) + [f"{s.name}/{n}" for s in job.scenes for n in BOP_NAMES if lab.bop]
+
+
 def write_datasets(job: Job) -> list[str]:
     """Write the job's COCO and BOP files from its finished items' sidecars; returns their paths relative to the
     output folder (none for a job without `[labels]` or with neither format)."""

@@ -13,7 +13,7 @@ from ..files import remove_stale_temporaries
 from ..progress import bar as progress_bar
 from ..progress import in_notebook
 from ..vk import choose_device, describe_devices
-from .datasets import write_datasets
+from .datasets import dataset_files, write_datasets
 from .distributed import run_ray
 from .job import Job
 from .manifest import FolderLock, Manifest
@@ -150,7 +150,8 @@ def run_batch(
         # a killed batch's temporaries of the job's files (its items may be finished by now); the lock keeps other
         # batches out, and a live writer's temporary is locked
         targets = (job.output / name for item in job.items for name in job.files(item))
-        remove_stale_temporaries(itertools.chain(targets, [manifest.path]), started)
+        gathered = (job.output / name for name in dataset_files(job))
+        remove_stale_temporaries(itertools.chain(targets, gathered, [manifest.path]), started)
         result.skipped = len(done)
         result.manifest = str(manifest.path)
         bar = Progress(len(todo), enabled=progress)

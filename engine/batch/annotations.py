@@ -36,6 +36,7 @@ class SceneObjects:
     vertices: list
     faces: list
     transforms: list
+    corners: list
 
     @classmethod
     def of(cls, scene: Scene, class_names: list[str]) -> SceneObjects:
@@ -66,6 +67,10 @@ class SceneObjects:
                     out["vertices"].append(mesh.positions[used].astype(np.float64))
                     out["faces"].append(np.searchsorted(used, tris).astype(np.int64))
                     out["transforms"].append(np.array(transforms[i], np.float64))
+                    lo, hi = out["vertices"][-1].min(axis=0), out["vertices"][-1].max(axis=0)
+                    out["corners"].append(
+                        np.array([[(hi if b >> a & 1 else lo)[a] for a in range(3)] for b in range(8)])
+                    )
                 k += 1
         return cls(**out)
 
@@ -102,7 +107,7 @@ def coverage(cam_points: np.ndarray, faces: np.ndarray, K: np.ndarray, width: in
     tri = hom[faces[keep]]  # (K, vertex, XYW)
     x0, y0, w, counts = x0[keep], y0[keep], w[keep], counts[keep]
     a, b, c = tri[:, 0], tri[:, 1], tri[:, 2]
-    rows = np.stack([np.cross(b, c), np.cross(c, a), np.cross(a, b)], axis=1)  # the inverse's rows, times det
+    rows = np.stack([_cross(b, c), _cross(c, a), _cross(a, b)], axis=1)  # the inverse's rows, times det
     det = np.einsum("ij,ij->i", a, rows[:, 0])
     scale = np.abs(a).max(axis=1) * np.abs(b).max(axis=1) * np.abs(c).max(axis=1)
     ok = np.abs(det) > 1e-12 * np.maximum(scale, 1e-300)  # (edge-on through the eye: no centre ray in it)
@@ -124,6 +129,18 @@ def coverage(cam_points: np.ndarray, faces: np.ndarray, K: np.ndarray, width: in
         mask[py[hit], px[hit]] = True
         start = stop
     return mask
+
+
+def _cross(p: np.ndarray, q: np.ndarray) -> np.ndarray:
+    """Row-wise cross products of (N, 3) arrays (np.cross's axis handling costs more than the products here)."""
+    return np.stack(
+        [
+            p[:, 1] * q[:, 2] - p[:, 2] * q[:, 1],
+            p[:, 2] * q[:, 0] - p[:, 0] * q[:, 2],
+            p[:, 0] * q[:, 1] - p[:, 1] * q[:, 0],
+        ],
+        axis=1,
+    )
 
 
 def mask_box(mask: np.ndarray) -> list[int]:
@@ -172,8 +189,8 @@ def frame_annotations(
         n_all, n_visib = int(unoccluded.sum()), int(visible.sum())
         n_valid = int((unoccluded & (depth_u16 > 0)).sum()) if depth_u16 is not None else n_all
         code = rle.encode(np.asfortranarray(visible.astype(np.uint8)))
-        lo, hi = objects.vertices[j].min(axis=0), objects.vertices[j].max(axis=0)
-        corners = np.array([[(hi if b >> a & 1 else lo)[a] for a in range(3)] for b in range(8)])
+        corners = objects.corners[j]
+        lo, hi = corners[0], corners[7]
         out.append(
             {
                 "object_id": k,

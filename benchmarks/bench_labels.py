@@ -2,8 +2,10 @@
 `[labels]` table, runs taking turns in one process, each into a fresh folder; frames/s over the whole `run_batch`
 call (renderer start-up, rendering, writing, and the COCO / BOP files gathered at the end).
 
-Prints one line per run and the ratio of the medians (labels / plain: the target is >= 0.8). Lavapipe scale: the
-defaults (160x120, 24 views, 3 runs each) take about a minute on 2 cores.
+Prints one line per run (frames/s, and the process's CPU seconds: lavapipe's threads and the writers' included, the
+measure least moved by other processes on a shared machine), then the median ratios labels / plain of frames/s over
+the pairs of runs and of CPU seconds (the target: frames/s >= 0.8x). Lavapipe scale: the defaults (160x120, 24 views,
+3 runs each) take about a minute on 2 cores.
 
     .venv/bin/python benchmarks/bench_labels.py [--size 160x120] [--views 24] [--repeat 3] [--json out.json]
 """
@@ -60,11 +62,17 @@ def run(size: str, views: int, labels: bool) -> dict:
         path = Path(tmp) / "job.toml"
         path.write_text(JOB.format(size=size, views=views) + (LABELS if labels else ""))
         job = load_job(path)
-        t0 = time.perf_counter()
+        t0, c0 = time.perf_counter(), time.process_time()
         result = run_batch(job, progress=False)
-        seconds = time.perf_counter() - t0
+        seconds, cpu = time.perf_counter() - t0, time.process_time() - c0
         assert result.ok and result.rendered == views, result.failed
-        return {"labels": labels, "seconds": seconds, "fps": views / seconds, "device": result.devices}
+        return {
+            "labels": labels,
+            "seconds": seconds,
+            "cpu_seconds": cpu,
+            "fps": views / seconds,
+            "device": result.devices,
+        }
 
 
 def main() -> None:
@@ -80,10 +88,12 @@ def main() -> None:
         for labels in (False, True):
             r = run(args.size, args.views, labels)
             runs.append(r)
-            print(f"{'labels' if labels else 'plain '}: {r['fps']:.2f} frames/s ({r['seconds']:.2f} s)", flush=True)
-    plain = statistics.median(r["fps"] for r in runs if not r["labels"])
-    labelled = statistics.median(r["fps"] for r in runs if r["labels"])
-    print(f"median: plain {plain:.2f} frames/s, COCO + BOP {labelled:.2f} frames/s: ratio {labelled / plain:.3f}")
+            name = "labels" if labels else "plain "
+            print(f"{name}: {r['fps']:.2f} frames/s ({r['seconds']:.2f} s, {r['cpu_seconds']:.2f} s CPU)", flush=True)
+    pairs = list(zip(runs[0::2], runs[1::2]))
+    fps_ratio = statistics.median(b["fps"] / a["fps"] for a, b in pairs)
+    cpu_ratio = statistics.median(a["cpu_seconds"] / b["cpu_seconds"] for a, b in pairs)
+    print(f"median over {len(pairs)} pairs, COCO + BOP / plain: frames/s {fps_ratio:.3f}, 1 / CPU s {cpu_ratio:.3f}")
     if args.json:
         out = {
             "command": " ".join(sys.argv),
@@ -91,7 +101,8 @@ def main() -> None:
             "size": args.size,
             "views": args.views,
             "runs": runs,
-            "ratio": labelled / plain,
+            "fps_ratio": fps_ratio,
+            "cpu_ratio": cpu_ratio,
         }
         Path(args.json).write_text(json.dumps(out, indent=1))
 

@@ -17,8 +17,8 @@ from . import outputs
 from .errors import ConfigError
 from .files import check_writable
 from .passes.interface import AOVS as AOV_SPECS
-from .pointcloud import PointCloud, frame_points
 from .passes.interface import DERIVED_AOVS
+from .pointcloud import PointCloud, frame_points
 from .scene.camera import Camera
 from .scene.classes import palette
 

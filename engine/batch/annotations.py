@@ -18,9 +18,6 @@ import numpy as np
 from ..errors import ConfigError, shown
 from ..scene import Scene
 
-#: Candidate (triangle, pixel) pairs tested at once by `coverage` (memory: about 100 bytes each).
-PAIRS_PER_CHUNK = 1 << 20
-
 
 @dataclass(frozen=True)
 class SceneObjects:
@@ -37,6 +34,8 @@ class SceneObjects:
     faces: list
     transforms: list
     corners: list
+    all_faces: np.ndarray  # every object's faces into the objects' vertices concatenated, and each one's object
+    owner: np.ndarray
 
     @classmethod
     def of(cls, scene: Scene, class_names: list[str]) -> SceneObjects:
@@ -72,17 +71,39 @@ class SceneObjects:
                         np.array([[(hi if b >> a & 1 else lo)[a] for a in range(3)] for b in range(8)])
                     )
                 k += 1
+        starts = np.cumsum([0] + [len(v) for v in out["vertices"]])[:-1]
+        out["all_faces"] = np.concatenate([f + s for f, s in zip(out["faces"], starts)] or [np.zeros((0, 3), np.int64)])
+        out["owner"] = np.repeat(np.arange(len(out["faces"])), [len(f) for f in out["faces"]]).astype(np.int64)
         return cls(**out)
 
 
 def coverage(cam_points: np.ndarray, faces: np.ndarray, K: np.ndarray, width: int, height: int, near: float):
     """(H, W) bool: the pixels whose centre ray hits a triangle `faces` of `cam_points` (camera coordinates, OpenCV
-    axes) at a depth >= `near`. In homogeneous pixel coordinates (X, Y, W) = K p, the ray through pixel centre
-    q = (u, v, 1) hits the triangle of columns V where V lam = q has lam >= 0, at depth 1 / sum(lam): no clipping
-    needed for triangles reaching behind the camera."""
-    mask = np.zeros((height, width), bool)
+    axes) at a depth >= `near` (`coverages` of one object)."""
+    return coverages(cam_points, faces, np.zeros(len(faces), np.int64), 1, K, width, height, near)[0]
+
+
+def coverages(
+    cam_points: np.ndarray,
+    faces: np.ndarray,
+    owner: np.ndarray,
+    count: int,
+    K: np.ndarray,
+    width: int,
+    height: int,
+    near: float,
+) -> np.ndarray:
+    """(count, H, W) bool: for each object, the pixels whose centre ray hits one of its triangles (`faces` of
+    `cam_points`, camera coordinates with OpenCV axes; `owner` the object of each triangle) at a depth >= `near`;
+    all objects in one pass.
+
+    In homogeneous pixel coordinates (X, Y, W) = K p, the ray through pixel centre q = (u, v, 1) hits the triangle
+    of columns V where V lam = q has lam >= 0, at depth 1 / sum(lam): no clipping for triangles reaching behind the
+    camera. Along a row of centres these conditions are linear in u, so each (triangle, row) covers one span; the
+    spans are summed as a difference image: the work is a triangle's rows, not its pixels."""
+    masks = np.zeros((count, height, width), bool)
     if not len(faces):
-        return mask
+        return masks
     hom = cam_points @ K.T  # per vertex first: the triangles then gather 1-D arrays
     w_ = hom[:, 2]
     safe = np.where(w_ > 0, w_, 1.0)
@@ -97,38 +118,44 @@ def coverage(cam_points: np.ndarray, faces: np.ndarray, K: np.ndarray, width: in
     v1 = np.maximum(np.maximum(v[f0], v[f1]), v[f2])
     # each triangle's pixel range (inclusive) whose centres can be inside it: its projected box where all its
     # vertices are in front of the eye, else the whole image
-    x0 = np.where(ahead, np.clip(np.ceil(u0 - 0.5), 0, width), 0).astype(np.int64)
-    x1 = np.where(ahead, np.clip(np.floor(u1 - 0.5), -1, width - 1), width - 1).astype(np.int64)
+    x0 = np.where(ahead, np.clip(np.ceil(u0 - 0.5), 0, width), 0)
+    x1 = np.where(ahead, np.clip(np.floor(u1 - 0.5), -1, width - 1), width - 1)
     y0 = np.where(ahead, np.clip(np.ceil(v0 - 0.5), 0, height), 0).astype(np.int64)
     y1 = np.where(ahead, np.clip(np.floor(v1 - 0.5), -1, height - 1), height - 1).astype(np.int64)
-    w, h = np.maximum(x1 - x0 + 1, 0), np.maximum(y1 - y0 + 1, 0)
-    counts = w * h
-    keep = np.flatnonzero(front & (counts > 0))  # (most small triangles hold no pixel centre)
+    keep = np.flatnonzero(front & (x1 >= x0) & (y1 >= y0))  # (most small triangles hold no pixel centre)
     tri = hom[faces[keep]]  # (K, vertex, XYW)
-    x0, y0, w, counts = x0[keep], y0[keep], w[keep], counts[keep]
     a, b, c = tri[:, 0], tri[:, 1], tri[:, 2]
     rows = np.stack([_cross(b, c), _cross(c, a), _cross(a, b)], axis=1)  # the inverse's rows, times det
     det = np.einsum("ij,ij->i", a, rows[:, 0])
     scale = np.abs(a).max(axis=1) * np.abs(b).max(axis=1) * np.abs(c).max(axis=1)
     ok = np.abs(det) > 1e-12 * np.maximum(scale, 1e-300)  # (edge-on through the eye: no centre ray in it)
+    keep = keep[ok]
     inv = rows[ok] / det[ok, None, None]
-    x0, y0, w, counts = x0[ok], y0[ok], w[ok], counts[ok]
-    ends = np.cumsum(counts)
-    start = 0
-    while start < len(counts):
-        base = ends[start - 1] if start else 0
-        stop = max(start + 1, int(np.searchsorted(ends, base + PAIRS_PER_CHUNK, side="right")))
-        n = counts[start:stop]
-        t = np.repeat(np.arange(start, stop), n)
-        k = np.arange(int(n.sum())) - np.repeat(np.cumsum(n) - n, n)
-        px, py = x0[t] + k % w[t], y0[t] + k // w[t]
-        u, v = px + 0.5, py + 0.5
-        lam = [inv[t, i, 0] * u + inv[t, i, 1] * v + inv[t, i, 2] for i in range(3)]
-        total = lam[0] + lam[1] + lam[2]
-        hit = (lam[0] >= 0) & (lam[1] >= 0) & (lam[2] >= 0) & (total > 0) & (total * near <= 1.0)
-        mask[py[hit], px[hit]] = True
-        start = stop
-    return mask
+    x0, x1, y0, y1, owner = x0[keep], x1[keep], y0[keep], y1[keep], owner[keep]
+    # per (triangle, row): lam_i = A_i u + B_i >= 0 and 1 / near - sum(lam) >= 0, each a half-line of u
+    n = y1 - y0 + 1
+    t = np.repeat(np.arange(len(n)), n)
+    py = y0[t] + np.arange(int(n.sum())) - np.repeat(np.cumsum(n) - n, n)
+    v = py + 0.5
+    lo, hi = x0[t] + 0.5, x1[t] + 0.5  # the centres of the triangle's box
+    slopes = [inv[t, i, 0] for i in range(3)]
+    offsets = [inv[t, i, 1] * v + inv[t, i, 2] for i in range(3)]
+    slopes.append(-(slopes[0] + slopes[1] + slopes[2]))
+    offsets.append(1.0 / near - (offsets[0] + offsets[1] + offsets[2]))
+    with np.errstate(divide="ignore", invalid="ignore"):
+        for s, o in zip(slopes, offsets):  # s u + o >= 0
+            root = -o / s
+            lo = np.where(s > 0, np.maximum(lo, root), lo)
+            hi = np.where(s < 0, np.minimum(hi, root), hi)
+            hi = np.where((s == 0) & (o < 0), -np.inf, hi)
+    first, last = np.ceil(lo - 0.5), np.floor(hi - 0.5)
+    some = first <= last
+    row = (owner[t[some]] * height + py[some]) * (width + 1)
+    size = count * height * (width + 1)
+    starts = np.bincount(row + first[some].astype(np.int64), minlength=size)
+    diff = starts - np.bincount(row + last[some].astype(np.int64) + 1, minlength=size)
+    masks |= np.cumsum(diff.reshape(count, height, width + 1), axis=2)[:, :, :width] > 0
+    return masks
 
 
 def _cross(p: np.ndarray, q: np.ndarray) -> np.ndarray:
@@ -179,13 +206,14 @@ def frame_annotations(
 
     h, w = object_id.shape
     w2c = np.linalg.inv(pose)
+    m2cs = [w2c @ m for m in objects.transforms]
+    cam = np.concatenate([v @ m[:3, :3].T + m[:3, 3] for v, m in zip(objects.vertices, m2cs)] or [np.zeros((0, 3))])
+    all_masks = coverages(cam, objects.all_faces, objects.owner, len(objects.ids), K, w, h, near)
     out = []
     for j, k in enumerate(objects.ids):
-        m = objects.transforms[j]
-        m2c = w2c @ m
+        m, m2c = objects.transforms[j], m2cs[j]
         visible = object_id == k
-        unoccluded = coverage(objects.vertices[j] @ m2c[:3, :3].T + m2c[:3, 3], objects.faces[j], K, w, h, near)
-        unoccluded |= visible
+        unoccluded = all_masks[j] | visible
         n_all, n_visib = int(unoccluded.sum()), int(visible.sum())
         n_valid = int((unoccluded & (depth_u16 > 0)).sum()) if depth_u16 is not None else n_all
         code = rle.encode(np.asfortranarray(visible.astype(np.uint8)))

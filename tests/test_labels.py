@@ -348,6 +348,8 @@ def test_the_dataset_docs_commands_run(tmp_path):
     coco = json.loads((tmp_path / "coco_dataset" / "coco.json").read_text())
     names = [c["name"] for c in coco["categories"]]
     assert len(coco["images"]) == 2 and coco["annotations"] and names == ["ball", "crate", "drum", "knot", "ring"]
+    info = json.loads((tmp_path / "bop_dataset" / "default" / "scene_gt_info.json").read_text())
+    assert all(o["px_count_valid"] == o["px_count_all"] > 0 for view in info.values() for o in view)  # depth fits
     assert sorted(p.name for p in (tmp_path / "bop_dataset" / "default" / "depth").iterdir()) == [
         "000000.png",
         "000001.png",

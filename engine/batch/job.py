@@ -28,8 +28,8 @@ from .cameras import read_cameras, view_fingerprint
 
 TOP_KEYS = ("output", "size", "aovs", "png", "frames", "compress", "settings", "cameras", "scenes", "labels")
 LABEL_KEYS = ("classes", "class_names", "coco", "bop", "depth_scale", "unit_mm")
-#: What the annotations read back besides the job's AOVs.
-LABEL_AOVS = ("object_id", "depth")
+#: What the annotations read back besides the job's AOVs (BOP's depth images need the depth).
+LABEL_AOVS = ("object_id",)
 SCENE_KEYS = ("scene", "name", "cameras")
 _NAME = re.compile(r"^[A-Za-z0-9][A-Za-z0-9._-]*$")
 
@@ -112,7 +112,7 @@ class Job:
     @property
     def render_aovs(self) -> tuple:
         """What the items read back: the job's AOVs and what the annotations need."""
-        extra = LABEL_AOVS if self.labels is not None else ()
+        extra = () if self.labels is None else LABEL_AOVS + (("depth",) if self.labels.bop else ())
         return resolve_aovs(tuple(self.aovs) + extra)
 
 

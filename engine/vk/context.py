@@ -19,6 +19,7 @@ import weakref
 import vulkan as vk
 
 from ..errors import ConfigError, VulkanError
+from . import faults
 from .pipeline_cache import PipelineCache
 
 log = logging.getLogger("engine.vk")
@@ -171,6 +172,7 @@ class Context:
         self.surface = None
         self.pipeline_cache = None  # PipelineCache: every pipeline made on this device goes through it
         self.external_memory_fd = False  # VK_KHR_external_memory_fd enabled (set in _init)
+        self._fault = None  # engine.vk.faults.FaultInjector, with $HYBRID_FAULT_INJECTION only
         try:
             self._init(device, list(instance_extensions), list(device_extensions), surface_factory)
         except BaseException:
@@ -253,6 +255,10 @@ class Context:
         )
         if self.int64_atomics:
             f12.shaderBufferInt64Atomics = vk.VK_TRUE
+        fault_at = faults.requested()  # a test's deliberate device loss (engine/vk/faults.py)
+        if fault_at is not None:
+            faults.check_device(self.device_info, bool(have12.bufferDeviceAddress))
+            f12.bufferDeviceAddress = vk.VK_TRUE
         feats = vk.VkPhysicalDeviceFeatures2(
             pNext=f12,
             features=vk.VkPhysicalDeviceFeatures(
@@ -288,6 +294,8 @@ class Context:
         self.fence = vk.vkCreateFence(self.device, vk.VkFenceCreateInfo(), None)
         self._one_shot = self.allocate_command_buffer()
         self.pipeline_cache = PipelineCache(self.device, self.properties)
+        if fault_at is not None:
+            self._fault = faults.FaultInjector(self, fault_at)
 
     def _install_messenger(self):
         sev = vk.VK_DEBUG_UTILS_MESSAGE_SEVERITY_ERROR_BIT_EXT
@@ -434,6 +442,9 @@ class Context:
                 raise ConfigError("submit: the Vulkan context is closed")
             if self.lost:
                 raise VulkanError("the Vulkan device was lost; nothing more can run on it")
+            if self._fault is not None and self._fault.due():  # a test's deliberate device loss, ahead of cmd
+                fault, self._fault = self._fault, None
+                self.submit(fault.cmd, wait=False)
             key = (cmd, tuple(wait_semaphores), tuple(wait_stages), tuple(signal_semaphores))
             entry = self._submit_infos.get(key)
             if entry is None:

@@ -595,7 +595,7 @@ class Renderer(Closes):
         to call twice."""
         self._flight = None  # (its iterator's next step raises: closed)
         if self.ctx is not None:
-            if not self._owns_ctx and not self.ctx.closed:
+            if not self._owns_ctx and not self.ctx.closed and not self.ctx.hung:
                 self._invalidate_commands()
             self.ctx.close()  # its own context, or its Scope of a shared one: what this renderer made
             self.ctx = None

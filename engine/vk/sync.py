@@ -4,10 +4,7 @@ from __future__ import annotations
 
 import vulkan as vk
 
-from ..errors import VulkanError
 from .context import Context
-
-NO_TIMEOUT = 0xFFFFFFFFFFFFFFFF
 
 
 def create_semaphore(ctx: Context):
@@ -28,13 +25,8 @@ def destroy_fence(ctx: Context, fence) -> None:
 
 
 def wait_fences(ctx: Context, fences) -> None:
-    """Block until every fence in `fences` is signalled; a lost device is a VulkanError (and marks the context)."""
-    fences = list(fences)
-    try:
-        vk.vkWaitForFences(ctx.device, len(fences), fences, vk.VK_TRUE, NO_TIMEOUT)
-    except vk.VkErrorDeviceLost:
-        ctx.root.lost = True
-        raise VulkanError("the Vulkan device was lost while running a command buffer") from None
+    """Block until every fence in `fences` is signalled (a lost or hung device: a VulkanError, Context.wait_fences)."""
+    ctx.root.wait_fences(fences)
 
 
 def reset_fences(ctx: Context, fences) -> None:

@@ -26,6 +26,7 @@ MAX_TEXTURE_SIZE = 2048
 #: decoded (RGBA at this size is 256 MB; it is downsized to MAX_TEXTURE_SIZE on a side after decoding).
 MAX_TEXTURE_PIXELS = 64 * 1024 * 1024
 MESH_EXTENSIONS = (".obj", ".ply", ".stl", ".gltf", ".glb", ".off")
+USD_EXTENSIONS = (".usd", ".usda", ".usdc", ".usdz")  # stages: usd.py reads them (Scene.load picks it by suffix)
 DEFAULT_COLOR = (0.8, 0.8, 0.8, 1.0)
 IMAGE_EXTENSIONS = (".png", ".jpg", ".jpeg", ".bmp", ".tga", ".tif", ".tiff", ".gif", ".webp")
 
@@ -219,7 +220,9 @@ def load_trimesh_scene(path: str, *, scene_file: bool = False):
             f"{where}: a .toml scene cannot be used as a mesh file (mesh files: {', '.join(MESH_EXTENSIONS)})"
         )
     if ext not in MESH_EXTENSIONS:
-        supported = (".toml, " if scene_file else "") + ", ".join(MESH_EXTENSIONS)
+        supported = ", ".join(
+            ((".toml",) if scene_file else ()) + MESH_EXTENSIONS + (USD_EXTENSIONS if scene_file else ())
+        )
         raise SceneError(f"{where}: unsupported file type '{shown(ext) or '(none)'}' (supported: {supported})")
     try:
         if os.path.getsize(path) == 0:

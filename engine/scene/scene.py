@@ -19,7 +19,7 @@ from engine.data import scene_path
 from engine.limits import MAX_COORD
 from engine.errors import ConfigError, SceneError, shown
 
-from . import loader, toml_format
+from . import loader, toml_format, usd
 from .camera import Camera
 from .geometry import up_transform
 from .lights import Light, default_sun
@@ -628,8 +628,9 @@ class Scene:
         allow_paths: str | os.PathLike[str] | list | None = None,
         up: str | None = None,
     ) -> Scene:
-        """A `.toml` scene (docs/scenes.md) or any mesh / glTF file trimesh reads (OBJ, PLY, STL, glTF, GLB, ...), or a
-        bundled scene by name (`"default"`, `"sphere"`, `"penumbra"`: `engine.scene_path` says the rule).
+        """A `.toml` scene (docs/scenes.md), any mesh / glTF file trimesh reads (OBJ, PLY, STL, glTF, GLB, ...), a USD
+        stage (.usd, .usda, .usdc, .usdz: needs `usd-core`, docs/scenes.md "USD stages"), or a bundled scene by
+        name (`"default"`, `"sphere"`, `"penumbra"`: `engine.scene_path` says the rule).
 
         The files a TOML scene names must lie inside its folder (symlinks followed); `allow_paths`, a folder or a
         list of folders, allows those too (docs/scenes.md, "Paths"). A mesh file's own references (MTL, textures,
@@ -652,6 +653,8 @@ class Scene:
         up_m = None if up is None else up_transform(up, "Scene.load: up")
         if path.lower().endswith(".toml"):
             return cls._from_parts(toml_format.load_toml(path, allow_paths=allowed, up=up))
+        if path.lower().endswith(loader.USD_EXTENSIONS):
+            return cls._from_parts(usd.load_usd(path, transform=up_m))
         return cls._from_parts(loader.load_mesh_file(path, transform=up_m))
 
     @classmethod

@@ -418,3 +418,23 @@ def test_datasets_doc_usd_command(tmp_path):
     assert arrays["depth"].shape == (32, 48) and camera["fov_y"] == pytest.approx(math.degrees(2 * math.atan(7.5 / 20)))
     ids = np.unique(arrays["object_id"])
     assert set(ids.tolist()) == {-1, 0, 1, 2, 3}  # the background, the floor and the three boxes
+
+
+def test_points_prim_as_splats(tmp_path):
+    """A UsdGeom.Points: a disc per point of its width, facing its normal, in its displayColor (linear -> sRGB)."""
+    stage = Usd.Stage.CreateNew(str(tmp_path / "points.usda"))
+    pts = UsdGeom.Points.Define(stage, "/Cloud")
+    pts.CreatePointsAttr([(0, 0, 0), (1, 0, 0), (0, 1, 0)])
+    pts.CreateWidthsAttr([0.2, 0.4, 0.2])
+    pts.CreateNormalsAttr([(0, 0, 1), (0, 1, 0), (1, 0, 0)])
+    color = UsdGeom.PrimvarsAPI(pts).CreatePrimvar("displayColor", Sdf.ValueTypeNames.Color3fArray, "vertex")
+    color.Set([(1, 0, 0), (0, 0.2158605, 0), (0, 0, 1)])  # linear 0.2159 is sRGB 128
+    UsdGeom.XformCommonAPI(pts).SetTranslate(Gf.Vec3d(0, 0, 5))
+    stage.GetRootLayer().Save()
+    scene = Scene.load(tmp_path / "points.usda")
+    assert scene.triangle_count == 3 * 4 and [i.name for i in scene.instances] == ["/Cloud"]
+    rims = scene.positions.reshape(3, 6, 3) - np.array([(0, 0, 5), (1, 0, 5), (0, 1, 5)])[:, None, :]
+    np.testing.assert_allclose(np.linalg.norm(rims, axis=2).max(axis=1) / [0.1, 0.2, 0.1], 1.0996, rtol=1e-3)
+    np.testing.assert_allclose(np.einsum("pvk,pk->pv", rims, [(0, 0, 1), (0, 1, 0), (1, 0, 0)]), 0, atol=1e-6)
+    tex = scene.materials[0].texture
+    np.testing.assert_array_equal(tex.reshape(-1, 4)[:3, :3], [[255, 0, 0], [0, 128, 0], [0, 0, 255]])

@@ -15,7 +15,7 @@ from PIL import Image
 from engine.limits import MAX_COORD
 from engine.errors import SceneError, shown
 
-from . import mtl
+from . import mtl, points
 from .filechecks import bomb_images, bomb_pixels, check_mesh_file, diagnose_gltf
 from .instances import Mesh, check_transforms, determinants, instance_label, world_boxes
 from .material import TEXTURE_FIELDS, Material, material_key, srgb8_to_linear, texture_key
@@ -277,6 +277,7 @@ class SceneBuilder:
         self._textures: dict = {}
         self._mesh_keys: dict = {}
         self._keep: list = []  # the objects whose ids are in _mesh_keys, kept alive so the ids stay unique
+        self._point_radius = None  # add_trimesh's, for its point clouds
 
     # -------------------------------------------------------------- materials
     def material_index(self, mat: Material, key_name=None) -> int:
@@ -409,18 +410,22 @@ class SceneBuilder:
         overrides: dict | None = None,
         transforms=None,
         labels=None,
+        point_radius=None,
     ):
-        """Add a trimesh.Trimesh or trimesh.Scene (node transforms applied, then `transform`); with `transforms`
+        """Add a trimesh.Trimesh, PointCloud or Scene (node transforms applied, then `transform`); with `transforms`
         (a list of (4, 4)), once per transform (each applied after `transform`), `labels` (None or a name per
         transform) replacing `label` for that placement. A geometry used by several nodes
         (or added again from the same `obj`) stays one mesh with several instances.
 
         `color` (linear RGBA), `texture` and `overrides` (other Material fields: metallic, roughness, emissive) override
-        every material of `obj` (material overrides of the TOML format).
+        every material of `obj` (material overrides of the TOML format). Point clouds become splats (points.py) of
+        `point_radius` (object-space units; None: their spacing).
         """
         import trimesh  # deferred: heavy, and needed only to read meshes
 
-        if isinstance(obj, trimesh.Trimesh):
+        if isinstance(obj, trimesh.PointCloud):
+            items = [(np.eye(4), obj, label or "points", "points")]
+        elif isinstance(obj, trimesh.Trimesh):
             items = [(np.eye(4), obj, label or getattr(obj.metadata, "get", lambda *_: None)("name") or "mesh", "mesh")]
         elif isinstance(obj, trimesh.Scene):
             items = []
@@ -428,7 +433,7 @@ class SceneBuilder:
                 for node in obj.graph.nodes_geometry:
                     m, geom_name = obj.graph[node]
                     geom = obj.geometry.get(geom_name)
-                    if isinstance(geom, trimesh.Trimesh):
+                    if isinstance(geom, (trimesh.Trimesh, trimesh.PointCloud)):
                         items.append((np.asarray(m, dtype=np.float64), geom, str(node), str(geom_name)))
         else:
             raise SceneError(f"{where}: expected a trimesh.Trimesh or trimesh.Scene, got {type(obj).__name__}")
@@ -439,6 +444,7 @@ class SceneBuilder:
             places = np.asarray(transforms, dtype=np.float64).reshape(-1, 4, 4) @ outer
             names = [(labels[i] if labels and labels[i] else label) for i in range(len(places))]
         before = len(self._inst_names)
+        self._point_radius = point_radius
         made = {}  # this call's materials by trimesh material; `obj` keeps those alive, so their ids stay unique
         self._keep.append(obj)
         in_scene, extra = isinstance(obj, trimesh.Scene), overrides or {}
@@ -459,6 +465,11 @@ class SceneBuilder:
 
     def _add_geometry(self, geom, m, names, geom_name, where, color, texture, uv_scale, made, overrides):
         """One trimesh geometry placed by the transforms `m` (K, 4, 4), its instances named `names`."""
+        import trimesh  # deferred: heavy, and needed only to read meshes
+
+        if isinstance(geom, trimesh.PointCloud):
+            self._add_points(geom, m, names, geom_name, where, color, overrides)
+            return
         node_name = names[0]
         with _quiet():
             vertices = np.asarray(geom.vertices, dtype=np.float64)
@@ -497,6 +508,36 @@ class SceneBuilder:
         key = (id(geom), material, None if uv_scale is None else tuple(np.asarray(uv_scale, np.float64).tolist()))
         self._keep.append(geom)
         self.add_placed(geom_name, vertices, faces, normals, uvs, material, where, m, names, key=key)
+
+    def add_points(
+        self, name, positions, normals, colors, radius, where, transforms, names, key=None, color=None, overrides=None
+    ):
+        """A point cloud as splats (points.py) placed by `transforms` (K, 4, 4): `colors` (N, 3|4) uint8 sRGB or
+        None, `normals` (N, 3) or None, `radius` a number, (N,) or None (their spacing); `color` (linear RGBA)
+        replaces the points' colours, `overrides` other Material fields."""
+        what = f"{where}: point cloud '{shown(name)}'"
+        colors = None if color is not None else colors
+        pos, faces, nrm, uvs, tex = points.splats(positions, normals, colors, radius, where=what)
+        base = color if color is not None else (1.0, 1.0, 1.0, 1.0) if tex is not None else DEFAULT_COLOR
+        mat = Material(name, base, tex)
+        if overrides:
+            mat = mat.with_overrides(**overrides)
+        material = self.material_index(mat)
+        self.add_placed(name, pos, faces, nrm, uvs, material, where, transforms, names, key=key)
+
+    def _add_points(self, geom, m, names, geom_name, where, color, overrides):
+        """A trimesh.PointCloud (a PLY without faces): its colours and, from a PLY, its normals (nx, ny, nz)."""
+        with _quiet():
+            vertices = np.asarray(geom.vertices, dtype=np.float64)
+            colors = np.asarray(geom.colors) if len(geom.colors) == len(vertices) else None
+            raw = (geom.metadata.get("_ply_raw") or {}).get("vertex", {}).get("data", {})
+        normals = None
+        if isinstance(raw, dict) and all(k in raw for k in ("nx", "ny", "nz")):
+            normals = np.column_stack([np.asarray(raw[k], dtype=np.float64).reshape(-1) for k in ("nx", "ny", "nz")])
+        key = (id(geom), "points", self._point_radius, None if color is None else tuple(np.asarray(color).tolist()))
+        self._keep.append(geom)
+        radius = self._point_radius
+        self.add_points(geom_name, vertices, normals, colors, radius, where, m, names, key, color, overrides)
 
     # -------------------------------------------------------------- result
     def build(self, lights=None, camera=None, settings=None) -> SceneParts:
@@ -651,14 +692,16 @@ def _mtl_material(mat, name: str, texture) -> Material:
     )
 
 
-def load_mesh_file(path: str, transform=None) -> SceneParts:
-    """The parts of a scene made of one mesh / glTF file (then `transform`, (4, 4), applied)."""
-    return trimesh_parts(load_trimesh_scene(path, scene_file=True), path, transform=transform)
+def load_mesh_file(path: str, transform=None, point_radius=None) -> SceneParts:
+    """The parts of a scene made of one mesh / glTF file (then `transform`, (4, 4), applied); a point cloud's splats
+    of `point_radius` (None: their spacing)."""
+    parts = load_trimesh_scene(path, scene_file=True)
+    return trimesh_parts(parts, path, transform=transform, point_radius=point_radius)
 
 
-def trimesh_parts(obj, name: str, lights=None, camera=None, transform=None) -> SceneParts:
-    """The parts of a scene made of a trimesh.Trimesh or trimesh.Scene (node transforms applied, then
+def trimesh_parts(obj, name: str, lights=None, camera=None, transform=None, point_radius=None) -> SceneParts:
+    """The parts of a scene made of a trimesh.Trimesh, PointCloud or Scene (node transforms applied, then
     `transform`)."""
     builder = SceneBuilder(name)
-    builder.add_trimesh(obj, shown(name), transform=transform)
+    builder.add_trimesh(obj, shown(name), transform=transform, point_radius=point_radius)
     return builder.build(lights=lights, camera=camera)

@@ -19,7 +19,7 @@ from engine.data import scene_path
 from engine.limits import MAX_COORD
 from engine.errors import ConfigError, SceneError, shown
 
-from . import loader, toml_format, usd
+from . import _check, loader, toml_format, usd
 from .camera import Camera
 from .geometry import up_transform
 from .lights import Light, default_sun
@@ -627,6 +627,7 @@ class Scene:
         path: str | os.PathLike[str],
         allow_paths: str | os.PathLike[str] | list | None = None,
         up: str | None = None,
+        point_radius: float | None = None,
     ) -> Scene:
         """A `.toml` scene (docs/scenes.md), any mesh / glTF file trimesh reads (OBJ, PLY, STL, glTF, GLB, ...), a USD
         stage (.usd, .usda, .usdc, .usdz: needs `usd-core`, docs/scenes.md "USD stages"), or a bundled scene by
@@ -639,6 +640,10 @@ class Scene:
         `up` is the files' up axis, "y" (the renderer's) or "z" (robotics and CAD assets; also "-z", "x", "-x",
         "-y"): their geometry is rotated upright as it loads ("z": -90 degrees about X). For a TOML scene it
         replaces the file's top-level `up` key (a `[[mesh]]`'s own `up` still wins); None: the file's, else "y".
+
+        A point cloud (a PLY without faces) loads as splats, small discs facing its normals or, without normals,
+        small low-poly spheres, of `point_radius` (the file's units; None: the points' median spacing);
+        docs/scenes.md, "Point clouds".
 
         Raises:
             SceneError: the file is missing, unreadable or invalid; the message names the file (and the field).
@@ -655,7 +660,9 @@ class Scene:
             return cls._from_parts(toml_format.load_toml(path, allow_paths=allowed, up=up))
         if path.lower().endswith(loader.USD_EXTENSIONS):
             return cls._from_parts(usd.load_usd(path, transform=up_m))
-        return cls._from_parts(loader.load_mesh_file(path, transform=up_m))
+        if point_radius is not None:
+            point_radius = _check.number(point_radius, "Scene.load: point_radius", min_value=0.0, min_exclusive=True)
+        return cls._from_parts(loader.load_mesh_file(path, transform=up_m, point_radius=point_radius))
 
     @classmethod
     def from_trimesh(

@@ -1,7 +1,8 @@
 """USD stages (.usd, .usda, .usdc, .usdz) through `pxr` (the `usd-core` package: `pip install hybrid-renderer[usd]`):
-UsdGeom meshes (and cubes, spheres, cylinders) with their world transforms, scene-graph instancing and point
-instancers as instances of one mesh, UsdPreviewSurface materials with UsdUVTexture textures, the first UsdGeomCamera
-and UsdLux distant, sphere (spot with a cone), rect and dome lights (docs/scenes.md, "USD stages").
+UsdGeom meshes (and cubes, spheres, cylinders, capsules, cones; points as splats) with their world transforms,
+scene-graph instancing and point instancers as instances of one mesh, UsdPreviewSurface materials with UsdUVTexture
+textures, the first UsdGeomCamera and UsdLux distant, sphere (spot with a cone), rect and dome lights
+(docs/scenes.md, "USD stages").
 
 Units and conventions: the stage's units are kept (metersPerUnit is not applied); its up axis is turned to +Y
 unless the caller gives one. Light intensities follow the UsdLux spec (intensity * 2^exposure is radiance; with
@@ -23,6 +24,7 @@ from PIL import Image
 from engine.errors import SceneError, shown
 
 from . import _check, primitives
+from . import points as points_mod
 from .camera import Camera
 from .geometry import up_transform
 from .lights import DirectionalLight, PointLight, RectLight, SpotLight
@@ -122,6 +124,8 @@ class _StageReader:
                     continue
             if kind in _SHAPES:
                 self.shape(prim, kind, self.world(prim)[None], [str(prim.GetPath())])
+            elif kind == "Points":
+                self.points(prim)
             elif kind == "PointInstancer":
                 self.instancer(prim)
                 walk.PruneChildren()  # its prototypes are drawn through it
@@ -288,6 +292,36 @@ class _StageReader:
             f"'{interp}' interpolation; rendering without it"
         )
         return None
+
+    def points(self, prim):
+        """A UsdGeom.Points as splats (points.py): discs of its `widths` (diameters; none: the points' spacing)
+        facing its normals, coloured by `displayColor` (per point or constant)."""
+        _, _, _, _, UsdGeom, _, _ = _pxr()
+        pts, t = UsdGeom.Points(prim), self.time
+        p = np.asarray(pts.GetPointsAttr().Get(t) or [], dtype=np.float64).reshape(-1, 3)
+        if not len(p):
+            return
+        widths = np.asarray(pts.GetWidthsAttr().Get(t) or [], dtype=np.float64).reshape(-1)
+        radius = None
+        if len(widths) == len(p) or len(widths) == 1:
+            radius = widths / 2.0 if len(widths) == len(p) else float(widths[0]) / 2.0
+        normals = np.asarray(pts.GetNormalsAttr().Get(t) or [], dtype=np.float64).reshape(-1, 3)
+        normals = normals if len(normals) == len(p) else None
+        colors, color = None, None
+        pv = UsdGeom.PrimvarsAPI(prim).GetPrimvar("displayColor")
+        value = pv.ComputeFlattened(t) if pv and pv.HasAuthoredValue() else None
+        if value is not None and len(value):
+            c = np.asarray(value, dtype=np.float64).reshape(-1, 3)
+            if len(c) == len(p):
+                colors = points_mod.srgb8_from_linear(c)
+            else:
+                color = np.append(np.clip(c[0], 0.0, None), 1.0)
+        path = str(prim.GetPath())
+        what = f"{self.where}: {shown(path)}"
+        key = (path, "points")
+        self.builder.add_points(
+            prim.GetName(), p, normals, colors, radius, what, self.world(prim)[None], [path], key, color
+        )
 
     def instancer(self, prim):
         """A PointInstancer: each prototype's shapes (relative to the prototype root) once per instance."""

@@ -7,7 +7,7 @@ import numpy as np
 import pytest
 
 from engine.errors import ConfigError, SceneError
-from engine.scene import Scene
+from engine.scene import Camera, Scene
 from engine.scene.points import auto_radius, splats
 
 SETTINGS = dict(
@@ -129,7 +129,8 @@ def test_point_colours_and_radius(tmp_path, make_renderer):
 def test_splat_geometry():
     p = np.array([[0.0, 0, 0], [1.0, 0, 0]])
     n = np.array([[0.0, 0, 1], [0.0, 0, 0]])  # the second has no normal: an icosahedron
-    pos, faces, nrm, uvs, tex = splats(p, n, np.array([[255, 0, 0], [0, 255, 0]], np.uint8), radius=0.1)
+    sp = splats(p, n, np.array([[255, 0, 0], [0, 255, 0]], np.uint8), radius=0.1)
+    pos, faces, uvs, tex = sp.positions, sp.faces, sp.uvs, sp.texture
     assert faces.shape == (4 + 20, 3) and pos.shape == (6 + 12, 3)
     tri = pos[faces]
     fn = np.cross(tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0])
@@ -146,3 +147,35 @@ def test_splat_geometry():
     np.testing.assert_array_equal(tex[texel[6:, 1], texel[6:, 0], :3], [[0, 255, 0]] * 12)
     with pytest.raises(SceneError, match="NaN"):
         splats(np.array([[np.nan, 0, 0]]))
+
+
+def test_splats_sized_in_pixels(tmp_path, make_renderer):
+    """`point_pixels`: each splat keeps its width in pixels whatever its distance (world-sized ones shrink), in
+    the raster and for the rays (the depth matches the camera's distance to the points)."""
+    grid = np.stack(np.meshgrid(np.arange(5) - 2.0, np.arange(5) - 2.0), -1).reshape(-1, 2) * 0.5 + 0.013
+    points = np.column_stack([grid, np.zeros(len(grid))])  # (off the pixel corners)
+    write_ply(tmp_path / "grid.ply", points, np.tile([0.0, 0.0, 1.0], (len(points), 1)))
+    r = make_renderer(96, 64)
+    settings = dict(aovs=("depth",), shadows="off", ao=False, accumulate=False, denoise=False)
+    covered = {}
+    for mode in ("point_pixels = 4", "point_radius = 0.06"):
+        scene = scene_toml(tmp_path / "grid.toml", f'file = "grid.ply"\n{mode}')
+        for distance in (4.0, 8.0):
+            cam = Camera((0.0, 0.0, distance), (0.0, 0.0, 0.0), fov_y=40.0)
+            depth = r.render(scene, cam, **settings).aov["depth"]
+            near = np.isfinite(depth) & (depth < distance + 0.5)  # the splats (the floor lies below)
+            covered[mode, distance] = int(near.sum())
+            assert np.allclose(depth[near], distance, atol=0.05)
+    # 25 discs of 4 px: about pi * 2^2 = 12.6 px each (rasterized: 10..16)
+    assert 25 * 10 <= covered["point_pixels = 4", 4.0] <= 25 * 16
+    assert covered["point_pixels = 4", 8.0] == pytest.approx(covered["point_pixels = 4", 4.0], rel=0.2)
+    assert covered["point_radius = 0.06", 8.0] < 0.5 * covered["point_radius = 0.06", 4.0]
+    # the same camera again: nothing changes (no refit, the same version)
+    scene = scene_toml(tmp_path / "grid.toml", 'file = "grid.ply"\npoint_pixels = 4')
+    cam = Camera((0.0, 0.0, 4.0), (0.0, 0.0, 0.0), fov_y=40.0)
+    scene.size_points(cam, 64)
+    version = scene.version
+    scene.size_points(cam, 64)
+    assert scene.version == version
+    scene.size_points(cam.replace(eye=(0.0, 0.0, 6.0)), 64)
+    assert scene.version > version

@@ -278,6 +278,7 @@ class SceneBuilder:
         self._mesh_keys: dict = {}
         self._keep: list = []  # the objects whose ids are in _mesh_keys, kept alive so the ids stay unique
         self._point_radius = None  # add_trimesh's, for its point clouds
+        self.point_pixels = None  # point clouds' splats this many pixels wide (None: world-sized)
 
     # -------------------------------------------------------------- materials
     def material_index(self, mat: Material, key_name=None) -> int:
@@ -514,16 +515,22 @@ class SceneBuilder:
     ):
         """A point cloud as splats (points.py) placed by `transforms` (K, 4, 4): `colors` (N, 3|4) uint8 sRGB or
         None, `normals` (N, 3) or None, `radius` a number, (N,) or None (their spacing); `color` (linear RGBA)
-        replaces the points' colours, `overrides` other Material fields."""
+        replaces the points' colours, `overrides` other Material fields. With the builder's `point_pixels`, the
+        splats are that many pixels wide (Scene.size_points)."""
         what = f"{where}: point cloud '{shown(name)}'"
         colors = None if color is not None else colors
-        pos, faces, nrm, uvs, tex = points.splats(positions, normals, colors, radius, where=what)
-        base = color if color is not None else (1.0, 1.0, 1.0, 1.0) if tex is not None else DEFAULT_COLOR
-        mat = Material(name, base, tex)
+        sp = points.splats(positions, normals, colors, radius, where=what, pixels=self.point_pixels)
+        base = color if color is not None else (1.0, 1.0, 1.0, 1.0) if sp.texture is not None else DEFAULT_COLOR
+        mat = Material(name, base, sp.texture)
         if overrides:
             mat = mat.with_overrides(**overrides)
         material = self.material_index(mat)
-        self.add_placed(name, pos, faces, nrm, uvs, material, where, transforms, names, key=key)
+        key = ("points", id(sp)) if key is None else key
+        self._keep.append(sp)
+        before = len(self.meshes)
+        self.add_placed(name, sp.positions, sp.faces, sp.normals, sp.uvs, material, where, transforms, names, key=key)
+        if len(self.meshes) > before:
+            self.meshes[-1].splats = sp
 
     def _add_points(self, geom, m, names, geom_name, where, color, overrides):
         """A trimesh.PointCloud (a PLY without faces): its colours and, from a PLY, its normals (nx, ny, nz)."""
@@ -534,7 +541,8 @@ class SceneBuilder:
         normals = None
         if isinstance(raw, dict) and all(k in raw for k in ("nx", "ny", "nz")):
             normals = np.column_stack([np.asarray(raw[k], dtype=np.float64).reshape(-1) for k in ("nx", "ny", "nz")])
-        key = (id(geom), "points", self._point_radius, None if color is None else tuple(np.asarray(color).tolist()))
+        colour_key = None if color is None else tuple(np.asarray(color).tolist())
+        key = (id(geom), "points", self._point_radius, self.point_pixels, colour_key)
         self._keep.append(geom)
         radius = self._point_radius
         self.add_points(geom_name, vertices, normals, colors, radius, where, m, names, key, color, overrides)
@@ -692,16 +700,19 @@ def _mtl_material(mat, name: str, texture) -> Material:
     )
 
 
-def load_mesh_file(path: str, transform=None, point_radius=None) -> SceneParts:
+def load_mesh_file(path: str, transform=None, point_radius=None, point_pixels=None) -> SceneParts:
     """The parts of a scene made of one mesh / glTF file (then `transform`, (4, 4), applied); a point cloud's splats
-    of `point_radius` (None: their spacing)."""
+    of `point_radius` (None: their spacing) or `point_pixels` wide."""
     parts = load_trimesh_scene(path, scene_file=True)
-    return trimesh_parts(parts, path, transform=transform, point_radius=point_radius)
+    return trimesh_parts(parts, path, transform=transform, point_radius=point_radius, point_pixels=point_pixels)
 
 
-def trimesh_parts(obj, name: str, lights=None, camera=None, transform=None, point_radius=None) -> SceneParts:
+def trimesh_parts(
+    obj, name: str, lights=None, camera=None, transform=None, point_radius=None, point_pixels=None
+) -> SceneParts:
     """The parts of a scene made of a trimesh.Trimesh, PointCloud or Scene (node transforms applied, then
     `transform`)."""
     builder = SceneBuilder(name)
+    builder.point_pixels = point_pixels
     builder.add_trimesh(obj, shown(name), transform=transform, point_radius=point_radius)
     return builder.build(lights=lights, camera=camera)

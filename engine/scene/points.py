@@ -52,13 +52,42 @@ def auto_radius(points: np.ndarray) -> float:
     return spacing
 
 
-def splats(points, normals=None, colors=None, radius=None, where: str = "point cloud"):
-    """Triangles for a point cloud: (positions (V, 3), faces (T, 3), normals (V, 3), uvs (V, 2) or None, colour
-    texture (H, W, 4) uint8 or None).
+class Splats:
+    """A point cloud's splats: `positions` (V, 3), `faces` (T, 3), `normals` (V, 3), `uvs` (V, 2) or None, `texture`
+    (H, W, 4) uint8 or None (the colours), and what resizes them: `centres` (N, 3), `radius` (N,), `pixels` (the
+    diameter in pixels they are drawn at, or None: world-sized); `resized(radius)` gives the positions for other
+    radii (the same vertices and triangles)."""
+
+    def __init__(self, centres, owner, unit, faces, normals, uvs, texture, radius, pixels=None):
+        self.centres, self._owner, self._unit = centres, owner, unit
+        self.faces, self.normals, self.uvs, self.texture = faces, normals, uvs, texture
+        self.radius = radius
+        self.pixels = pixels
+        self.positions = self.resized(radius)
+        self.sized_for = None  # (camera, height, transform bytes) the pixel size was last computed for
+
+    def resized(self, radius) -> np.ndarray:
+        """(V, 3) positions of splats of `radius` (a number or (N,))."""
+        r = np.broadcast_to(np.asarray(radius, dtype=np.float64), (len(self.centres),))
+        return self.centres[self._owner] + r[self._owner, None] * self._unit
+
+    def pixel_radius(self, transform: np.ndarray, camera, height: int) -> np.ndarray:
+        """(N,) radii (in the points' own space, placed by `transform`) that make each splat `pixels` wide in an
+        image `height` pixels tall seen from `camera` (a pinhole: its vertical field of view)."""
+        world = self.centres @ transform[:3, :3].T + transform[:3, 3]
+        depth = np.maximum((world - camera.eye) @ camera.forward, camera.near)
+        per_pixel = 2.0 * math.tan(math.radians(camera.fov_y) / 2.0) / height  # world size of a pixel at depth 1
+        scale = float(np.cbrt(abs(np.linalg.det(transform[:3, :3])))) or 1.0
+        return 0.5 * self.pixels * per_pixel * depth / scale
+
+
+def splats(points, normals=None, colors=None, radius=None, where: str = "point cloud", pixels=None) -> Splats:
+    """The splats of a point cloud (`Splats`).
 
     `points` (N, 3); `normals` (N, 3) or None (icosahedra instead of discs; a zero normal counts as none: that
     point is an icosahedron); `colors` (N, 3 or 4) uint8 sRGB or None; `radius` a number or (N,) per point (world
-    units of the points' space), None: `auto_radius`.
+    units of the points' space), None: `auto_radius`; `pixels`: their diameter in pixels, set by
+    `Scene.size_points` for each camera (until then, `radius`).
     """
     p = np.asarray(points, dtype=np.float64).reshape(-1, 3)
     n_pts = len(p)
@@ -74,37 +103,38 @@ def splats(points, normals=None, colors=None, radius=None, where: str = "point c
         nrm = None
     length = np.linalg.norm(nrm, axis=1) if nrm is not None else np.zeros(n_pts)
     disc = np.isfinite(length) & (length > 1e-12)
+    if pixels is not None and not (np.isfinite(pixels) and pixels > 0):
+        raise SceneError(f"{where}: the point size in pixels must be positive, got {pixels}")
     parts = []
     if disc.any():
-        parts.append((np.flatnonzero(disc), *_discs(p[disc], nrm[disc] / length[disc, None], r[disc])))
+        parts.append((np.flatnonzero(disc), *_discs(nrm[disc] / length[disc, None])))
     if (~disc).any():
-        parts.append((np.flatnonzero(~disc), *_spheres(p[~disc], r[~disc])))
-    positions, faces, vnormals, owner, offset = [], [], [], [], 0
-    for idx, pos, fac, nor, per in parts:
-        positions.append(pos)
+        parts.append((np.flatnonzero(~disc), *_spheres(int((~disc).sum()))))
+    units, faces, vnormals, owner, offset = [], [], [], [], 0
+    for idx, unit, fac, nor, per in parts:
+        units.append(unit)
         faces.append(fac + offset)
         vnormals.append(nor)
         owner.append(np.repeat(idx, per))
-        offset += len(pos)
+        offset += len(unit)
     owner = np.concatenate(owner)
     uvs, texture = _color_texture(colors, n_pts, owner)
-    return np.concatenate(positions), np.concatenate(faces), np.concatenate(vnormals), uvs, texture
+    unit = np.concatenate(units)
+    return Splats(p, owner, unit, np.concatenate(faces), np.concatenate(vnormals), uvs, texture, r.copy(), pixels)
 
 
-def _discs(p, n, r):
-    """A hexagon (6 rim vertices, 4 triangles, counter-clockwise seen from its normal) per point."""
+def _discs(n):
+    """A hexagon (6 rim vertices, 4 triangles, counter-clockwise seen from its normal) per normal: the vertices'
+    offsets from the point for radius 1, the faces, the normals, vertices a point."""
     helper = np.where(np.abs(n[:, :1]) < 0.9, [[1.0, 0.0, 0.0]], [[0.0, 1.0, 0.0]])
     t = np.cross(n, helper)
     t /= np.linalg.norm(t, axis=1, keepdims=True)
     b = np.cross(n, t)  # (t, b, n) right-handed: t -> b turns counter-clockwise about n
     angles = np.arange(6) * (math.pi / 3.0)
-    rim = (r * _HEX_RADIUS)[:, None, None] * (
-        np.cos(angles)[None, :, None] * t[:, None, :] + np.sin(angles)[None, :, None] * b[:, None, :]
-    )
-    pos = (p[:, None, :] + rim).reshape(-1, 3)
+    rim = _HEX_RADIUS * (np.cos(angles)[None, :, None] * t[:, None, :] + np.sin(angles)[None, :, None] * b[:, None, :])
     fan = np.array([[0, 1, 2], [0, 2, 3], [0, 3, 4], [0, 4, 5]])
-    faces = (fan[None] + 6 * np.arange(len(p))[:, None, None]).reshape(-1, 3)
-    return pos, faces, np.repeat(n, 6, axis=0), 6
+    faces = (fan[None] + 6 * np.arange(len(n))[:, None, None]).reshape(-1, 3)
+    return rim.reshape(-1, 3), faces, np.repeat(n, 6, axis=0), 6
 
 
 def _icosahedron():
@@ -136,12 +166,11 @@ _ICO_RADIUS = math.sqrt(
 )
 
 
-def _spheres(p, r):
-    """A low-poly sphere per point: an icosahedron (12 vertices, 20 triangles) whose mean outline is a disc of
-    radius r, with normals pointing out of its centre."""
-    pos = (p[:, None, :] + (r * _ICO_RADIUS)[:, None, None] * _ICO_DIRS[None]).reshape(-1, 3)
-    faces = (_ICO_FACES[None] + 12 * np.arange(len(p))[:, None, None]).reshape(-1, 3)
-    return pos, faces, np.tile(_ICO_DIRS, (len(p), 1)), 12
+def _spheres(n: int):
+    """`n` low-poly spheres: icosahedra (12 vertices, 20 triangles) whose mean outline is a disc of radius 1, with
+    normals pointing out of their centre (offsets, faces, normals, vertices a point, as `_discs`)."""
+    faces = (_ICO_FACES[None] + 12 * np.arange(n)[:, None, None]).reshape(-1, 3)
+    return np.tile(_ICO_DIRS * _ICO_RADIUS, (n, 1)), faces, np.tile(_ICO_DIRS, (n, 1)), 12
 
 
 def _color_texture(colors, n_pts: int, owner: np.ndarray):

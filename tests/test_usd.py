@@ -438,3 +438,58 @@ def test_points_prim_as_splats(tmp_path):
     np.testing.assert_allclose(np.einsum("pvk,pk->pv", rims, [(0, 0, 1), (0, 1, 0), (1, 0, 0)]), 0, atol=1e-6)
     tex = scene.materials[0].texture
     np.testing.assert_array_equal(tex.reshape(-1, 4)[:3, :3], [[255, 0, 0], [0, 128, 0], [0, 0, 255]])
+
+
+def test_scene_graph_instances_share_one_mesh(tmp_path):
+    """Instanceable prims referencing one prototype: one Mesh, an instance per prim, each with its transform."""
+    stage = Usd.Stage.CreateNew(str(tmp_path / "inst.usda"))
+    proto = UsdGeom.Xform.Define(stage, "/Protos/Chair")
+    seat = UsdGeom.Mesh.Define(stage, "/Protos/Chair/Seat")
+    seat.CreatePointsAttr([(0, 0, 0), (1, 0, 0), (1, 0, -1), (0, 0, -1)])
+    seat.CreateFaceVertexCountsAttr([4])
+    seat.CreateFaceVertexIndicesAttr([0, 1, 2, 3])
+    stage.GetPrimAtPath("/Protos").SetSpecifier(Sdf.SpecifierClass)  # not drawn itself
+    for i, x in enumerate((0.0, 3.0, 6.0)):
+        prim = UsdGeom.Xform.Define(stage, f"/World/Chair{i}")
+        prim.GetPrim().GetReferences().AddInternalReference(proto.GetPath())
+        prim.GetPrim().SetInstanceable(True)
+        UsdGeom.XformCommonAPI(prim).SetTranslate(Gf.Vec3d(x, 0, 0))
+    stage.GetRootLayer().Save()
+    scene = Scene.load(tmp_path / "inst.usda")
+    assert len(scene.meshes) == 1 and len(scene.instances) == 3
+    assert [i.name for i in scene.instances] == [f"/World/Chair{i}/Seat" for i in range(3)]
+    np.testing.assert_allclose(scene.transforms[:, 0, 3], (0.0, 3.0, 6.0))
+    np.testing.assert_allclose(scene.bounds, [(0, 0, -1), (7, 0, 0)], atol=1e-6)
+
+
+def test_without_pxr_the_error_says_what_to_install(tmp_path, monkeypatch):
+    path = tmp_path / "a.usda"
+    path.write_text('#usda 1.0\ndef Xform "A" {}\n')
+    monkeypatch.setitem(sys.modules, "pxr", None)  # as if usd-core were not installed
+    with pytest.raises(SceneError, match=r"needs the usd-core package: pip install hybrid-renderer\[usd\]"):
+        Scene.load(path)
+
+
+def test_implicit_shapes_along_their_axis(tmp_path):
+    """Cone / Cylinder / Capsule along X, Y or Z (a cone's apex at +height/2), Cube and Sphere of their size."""
+    stage = Usd.Stage.CreateNew(str(tmp_path / "shapes.usda"))
+    for axis in "XYZ":
+        cone = UsdGeom.Cone.Define(stage, f"/Cone{axis}")
+        cone.CreateAxisAttr(axis)
+        cone.CreateHeightAttr(2.0)
+        cone.CreateRadiusAttr(0.5)
+    capsule = UsdGeom.Capsule.Define(stage, "/Capsule")  # axis Z by default: height 1 + two caps of 0.5
+    UsdGeom.Cube.Define(stage, "/Cube").CreateSizeAttr(3.0)
+    UsdGeom.Sphere.Define(stage, "/Sphere").CreateRadiusAttr(0.25)
+    stage.GetRootLayer().Save()
+    scene = Scene.load(tmp_path / "shapes.usda")
+    meshes = {i.name: scene.meshes[int(k)].positions for i, k in zip(scene.instances, scene.instance_mesh)}
+    for a, axis in enumerate("XYZ"):
+        p = meshes[f"/Cone{axis}"]
+        np.testing.assert_allclose(p.max(axis=0), np.where(np.arange(3) == a, 1.0, 0.5), atol=1e-6)
+        apex = p[p[:, a] > 0.999]
+        assert len(apex) and np.abs(np.delete(apex, a, axis=1)).max() < 1e-6
+    np.testing.assert_allclose(meshes["/Capsule"].max(axis=0), (0.5, 0.5, 1.0), atol=1e-6)
+    assert capsule.GetAxisAttr().Get() == "Z"
+    np.testing.assert_allclose(meshes["/Cube"].max(axis=0), (1.5, 1.5, 1.5))
+    np.testing.assert_allclose(np.linalg.norm(meshes["/Sphere"], axis=1), 0.25, rtol=1e-6)

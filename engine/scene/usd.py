@@ -183,7 +183,7 @@ class _StageReader:
             ](r, h)
             axis = str(shape.GetAxisAttr().Get(self.time))
             if axis != "Y":  # the primitive stands along +Y
-                rot = up_transform({"X": "x", "Z": "-z"}[axis])[:3, :3].T
+                rot = up_transform(axis.lower())[:3, :3].T  # (the inverse of turning that axis to +Y)
                 p, n = p @ rot.T, n @ rot.T
         return p, f, n, uv, prim
 
@@ -246,8 +246,11 @@ class _StageReader:
         out = []
         for mask, binding in groups:
             sel = (mask & keep_face)[tri_face]
-            if sel.any():
-                out.append((positions, faces[sel], vn, vuv, binding))
+            if sel.any():  # each piece with only the vertices its triangles use
+                used, local = np.unique(faces[sel], return_inverse=True)
+                normals_used = None if vn is None else vn[used]
+                uvs_used = None if vuv is None else vuv[used]
+                out.append((positions[used], local.reshape(-1, 3), normals_used, uvs_used, binding))
         return out
 
     def _st_name(self, prim) -> str:

@@ -340,7 +340,7 @@ class _StageReader:
             raise SceneError(
                 f"{what}: its positions, orientations and scales do not match its {len(index)} protoIndices"
             )
-        per_instance = np.stack([_matrix(m) for m in xforms])
+        per_instance = np.array(xforms, dtype=np.float64).reshape(-1, 4, 4).transpose(0, 2, 1)  # (as _matrix)
         places = self.world(prim) @ per_instance
         for j, target in enumerate(protos):
             chosen = np.flatnonzero(index == j)

@@ -337,14 +337,48 @@ def pxr_reference(path):
     return np.stack([turned.min(axis=0), turned.max(axis=0)]), triangles
 
 
+def embree_depth(path, camera, width, height):
+    """The view depth at each pixel centre against the stage's meshes as pxr gives them (points through pxr's world
+    transforms, each n-gon a fan, turned to +Y up), traced by Embree (trimesh's embreex ray caster); inf: a miss."""
+    trimesh = pytest.importorskip("trimesh")
+    if not trimesh.ray.has_embree:
+        pytest.skip("embreex is not installed (in the dev extra)")
+    stage = Usd.Stage.Open(str(path))
+    up = np.array(UP_AXES[str(UsdGeom.GetStageUpAxis(stage)).lower()], float)
+    vertices, faces, offset = [], [], 0
+    for prim in stage.Traverse():
+        if prim.IsA(UsdGeom.Mesh):
+            mesh = UsdGeom.Mesh(prim)
+            world = np.array(UsdGeom.Xformable(prim).ComputeLocalToWorldTransform(Usd.TimeCode.Default()))
+            p = np.asarray(mesh.GetPointsAttr().Get(), float) @ world[:3, :3] + world[3, :3]
+            index, start = np.asarray(mesh.GetFaceVertexIndicesAttr().Get()), 0
+            for n in mesh.GetFaceVertexCountsAttr().Get():
+                faces += [offset + index[[start, start + k, start + k + 1]] for k in range(1, n - 1)]
+                start += n
+            vertices.append(p @ up.T)
+            offset += len(p)
+    reference = trimesh.Trimesh(np.concatenate(vertices), np.array(faces), process=False)
+    origins, directions = camera.rays(width, height)
+    o, d = origins.reshape(-1, 3).astype(float), directions.reshape(-1, 3).astype(float)
+    locations, ray, _ = reference.ray.intersects_location(o, d, multiple_hits=False)
+    depth = np.full(len(o), np.inf)
+    depth[ray] = (locations - o[ray]) @ camera.forward
+    return depth.reshape(height, width)
+
+
 @pytest.mark.parametrize("name", ASSETS)
 def test_real_assets_agree_with_pxr(newton_assets, name, make_renderer):
     scene = Scene.load(newton_assets / name)
     box, triangles = pxr_reference(newton_assets / name)
     size = float(np.linalg.norm(box[1] - box[0]))
-    if name in ("bunny.usd", "crazyflie.usd"):  # meshes only
+    if name in ("bunny.usd", "crazyflie.usd"):  # meshes only: the same box, triangles, and depth as Embree's
         np.testing.assert_allclose(scene.bounds, box, atol=1e-6 * size)
         assert scene.triangle_count == triangles
+        depth = make_renderer(48, 32).render(scene, aovs=("depth",), ao=False, accumulate=False).aov["depth"]
+        ref = embree_depth(newton_assets / name, scene.camera, 48, 32)
+        both = np.isfinite(depth) & np.isfinite(ref)
+        assert both.sum() > 100 and (np.isfinite(depth) != np.isfinite(ref)).sum() <= 0.02 * both.sum()
+        np.testing.assert_allclose(depth[both], ref[both], rtol=1e-4, atol=1e-5 * size)
     else:  # capsules and cubes, some rotated: inside pxr's box, and touching it (at least top and bottom)
         assert np.all(scene.bounds[0] >= box[0] - 1e-6 * size) and np.all(scene.bounds[1] <= box[1] + 1e-6 * size)
         assert np.count_nonzero(np.abs(scene.bounds - box) < 1e-6 * size) >= 2

@@ -479,6 +479,10 @@ class Renderer(Closes):
         """The frame's command buffer, its timestamp marks, settings and light count, with the frame block written
         (the caller has checked that the renderer is open and that no other frame in flight reads the block)."""
         polled = False
+        if isinstance(scene, Scene) and scene.pixel_points:  # point clouds sized in pixels: for this camera, height
+            cam = camera if camera is not None else scene.camera
+            if isinstance(cam, Camera):
+                scene.size_points(cam, self.height)
         if scene is self._scene and self._geometry is not None:
             self._frame_start(scene)  # moved instances: their transforms, the BVH (may drop the recordings)
         if self._steady is not None:

@@ -304,6 +304,23 @@ def test_batch_coco_and_bop_load_back(tmp_path):
             assert inf["px_count_visib"] == len(rows) <= inf["px_count_valid"] == inf["px_count_all"]
             fractions.append(inf["visib_fract"])
     assert min(fractions) < 0.9 and max(fractions) == 1.0  # the ball behind the crate in view 0
+    # the poses are rotations; the sidecar's 3D boxes hold the object's world-space vertices, its corners placed
+    side = json.loads((out / "labels" / "0000.labels.json").read_text())
+    for obj in side["objects"]:
+        R = np.array(obj["cam_R_m2c"]).reshape(3, 3)
+        assert np.allclose(R @ R.T, np.eye(3), atol=1e-12) and np.isclose(np.linalg.det(R), 1.0)
+        box = obj["box3d"]
+        m = np.array(box["object_to_world"])
+        sub = scene.submeshes[obj["object_id"]]
+        world = scene.positions[sub.first_vertex : sub.first_vertex + sub.vertex_count].astype(np.float64)
+        local = (world - m[:3, 3]) @ np.linalg.inv(m[:3, :3]).T
+        assert np.allclose(local.min(axis=0), box["min"], atol=1e-5) and np.allclose(
+            local.max(axis=0), box["max"], atol=1e-5
+        )
+        corners = np.array(box["corners_world"])
+        assert np.allclose(corners[0], m[:3, :3] @ box["min"] + m[:3, 3]) and np.allclose(
+            corners[7], m[:3, :3] @ box["max"] + m[:3, 3]
+        )
 
 
 def test_the_dataset_docs_commands_run(tmp_path):

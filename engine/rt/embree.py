@@ -1,0 +1,183 @@
+"""The Embree backend of the ray queries: the Tracer's interface on Embree (through `embreex`, the binding trimesh
+uses), on the host's cores (which engine a `backend` argument means: engine/rt/backend.py).
+
+    tracer = engine.Tracer(vertices, faces, backend="embree")   # an EmbreeTracer: occluded / intersect / closest
+    scene = engine.RaycastingScene(backend="auto")              # Embree where the only Vulkan device is a CPU
+
+`EmbreeTracer` takes the Tracer's arguments and gives its answers (`Hits`, bool arrays, the same errors from the same
+checks, engine/rt/checks.py); rays are traced in blocks on the shared worker pool (embreex's queries release the
+GIL). Embree through embreex has no point query, so `closest` runs on the Vulkan kernels (a Tracer made on first
+use). The front ends (RaycastingScene, RayMeshIntersector) trace through an EmbreeTracer where their backend is Embree;
+`cast_rays_block` is RaycastingScene.cast_rays' per-ray work fused per block for it.
+"""
+
+from __future__ import annotations
+
+import threading
+import time
+from typing import Any
+
+import numpy as np
+from numpy.typing import ArrayLike, NDArray
+
+from ..errors import ConfigError
+from ..lifetime import Closes
+from ..parallel import default_threads, run
+from .backend import TRACERS, check_backend
+from .checks import check_mesh, check_rays, result_arrays
+from .closest import Closest
+from .cuda_arrays import on_cuda
+from .tracer import Hits, Tracer
+
+#: rays per task on the worker pool (embreex's run() per block; blocks interleave over the threads)
+BLOCK = 1 << 15
+
+
+class EmbreeTracer(Closes):
+    """`Tracer`'s queries on Embree (embreex), on the host's cores: what `Tracer(..., backend="embree")` returns.
+
+    The same arguments, results and errors as `Tracer`'s `occluded`, `intersect` and `closest`: triangles two-sided,
+    hits at t in [0, tmax] in units of the direction's length, the same input checks. Embree's robust (watertight)
+    triangle test. `closest` runs on the Vulkan kernels (embreex has no point query): a Tracer of the same mesh, made
+    on its first call with this one's `device`, `validation` and `context`. Queries on CUDA arrays and
+    `cuda_ray_arrays` need the Vulkan backend. `last_gpu_ms` is 0 and `last_reordered` False (Embree orders nothing);
+    `stats` has build_ms, triangles and threads.
+    """
+
+    backend = "embree"
+
+    def __init__(
+        self,
+        vertices: ArrayLike,
+        faces: ArrayLike,
+        *,
+        device: Any = None,
+        validation: bool = False,
+        context: Any = None,
+        threads: int | None = None,
+        **vulkan: Any,
+    ):
+        """Build Embree's BVH of the mesh. `vertices`, `faces`: as `Tracer`'s (the same SceneError for bad ones);
+        `threads`: worker threads for a batch (default: every core); `device`, `validation`, `context` and any other
+        `Tracer` argument are kept for the Vulkan Tracer of `closest`.
+
+        Raises:
+            SceneError: bad vertices or faces. ConfigError: embreex does not import."""
+        check_backend("embree", "Tracer")  # (embreex imports)
+        from embreex import mesh_construction, rtcore_scene  # deferred: optional (the [embree] extra)
+
+        v, f = check_mesh(vertices, faces)
+        self._lock = threading.RLock()
+        self.mesh = (v, f)
+        self.threads = max(1, int(threads)) if threads is not None else default_threads()
+        self._vulkan = dict(vulkan, device=device, validation=validation, context=context)
+        self._points = None  # the Vulkan Tracer of closest(), made on first use
+        t0 = time.perf_counter()
+        self._scene = rtcore_scene.EmbreeScene(robust=True)
+        mesh_construction.TriangleMesh(self._scene, v, f.astype(np.int32))
+        one = np.zeros((1, 3), np.float32)
+        self._scene.run(one, one + np.float32(1), query="OCCLUDED")  # commits the scene: Embree's BVH build
+        self.stats = {"backend": "embree", "build_ms": (time.perf_counter() - t0) * 1e3, "triangles": len(f)}
+        self.stats["threads"] = self.threads
+        self.last_gpu_ms, self.last_retried, self.last_times, self.last_reordered = 0.0, 0, {}, False
+        self._closed = False
+
+    @classmethod
+    def from_trimesh(cls, mesh: Any, **kw: Any) -> EmbreeTracer:
+        """As `Tracer.from_trimesh`."""
+        return Tracer.from_trimesh(mesh, backend="embree", **kw)
+
+    # ---- queries -----------------------------------------------------------------------------------------------
+    def _check_open(self, rays: tuple = ()):
+        if self._closed:
+            raise ConfigError("Tracer is closed (close() or its `with` block ended): create a new Tracer")
+        if rays and on_cuda(*rays):
+            self._device_arrays()
+
+    def _device_arrays(self):
+        """The Tracer's queries on CUDA arrays: not on Embree (a ConfigError)."""
+        raise ConfigError(
+            "CUDA arrays cannot be used here: the Embree backend takes numpy arrays (CUDA arrays need "
+            "backend='vulkan', on a GPU)"
+        )
+
+    def occluded(
+        self, origins: ArrayLike, directions: ArrayLike, tmax: ArrayLike = np.inf, *, reorder: Any = None
+    ) -> NDArray[np.bool_]:
+        """As `Tracer.occluded` (`reorder` is accepted and ignored)."""
+        with self._lock:
+            self._check_open((origins, directions, tmax))
+            o, d, t = check_rays(origins, directions, tmax)
+            (out,) = result_arrays("Tracer.occluded", len(o), bool)
+            self.occluded_into(o, d, t, out)
+            return out
+
+    def occluded_into(self, o, d, t, out, start: int = 0) -> None:
+        """Checked float32 rays (o, d (N, 3), t (N,)) traced into out[start:start + N] on the worker pool."""
+
+        def block(s):
+            e = min(s + BLOCK, len(o))
+            hit = self._scene.run(o[s:e], d[s:e], dists=t[s:e], query="OCCLUDED") != -1
+            out[start + s : start + e] = hit & (t[s:e] >= 0)  # (embreex reports a negative tmax as occluded)
+
+        run([lambda s=s: block(s) for s in range(0, len(o), BLOCK)], self.threads)
+
+    def intersect(self, origins: ArrayLike, directions: ArrayLike, tmax: ArrayLike = np.inf, *, reorder: Any = None):
+        """As `Tracer.intersect` (`Hits`: t = +inf and prim = -1 on a miss; `reorder` is accepted and ignored)."""
+        with self._lock:
+            self._check_open((origins, directions, tmax))
+            o, d, t = check_rays(origins, directions, tmax)
+            hits = Hits(*result_arrays("Tracer.intersect", len(o), np.float32, np.int32, np.float32, np.float32))
+            self.intersect_blocks(o, d, t, lambda s, e, r: _store_hits(hits, s, e, r))
+            return hits
+
+    def intersect_blocks(self, o, d, t, sink) -> None:
+        """Checked float32 rays traced in blocks on the worker pool; `sink(start, end, r)` takes each block's answer
+        (embreex's dict: tfar, primID (-1 on a miss), u, v) on the thread that traced it."""
+
+        def block(s):
+            e = min(s + BLOCK, len(o))
+            sink(s, e, self._scene.run(o[s:e], d[s:e], dists=t[s:e], output=1))
+
+        run([lambda s=s: block(s) for s in range(0, len(o), BLOCK)], self.threads)
+
+    def closest(self, points: ArrayLike) -> Closest:
+        """As `Tracer.closest`, on the Vulkan kernels (a Tracer of the same mesh, made on the first call)."""
+        with self._lock:
+            self._check_open()
+            if self._points is None:
+                self._points = Tracer(*self.mesh, backend="vulkan", **self._vulkan)
+            return self._points.closest(points)
+
+    def cuda_ray_arrays(self, n: int, framework: str = "torch") -> tuple:
+        """Not on the Embree backend: a ConfigError (`Tracer.cuda_ray_arrays` needs backend='vulkan')."""
+        self._device_arrays()
+
+    # ---- lifetime ----------------------------------------------------------------------------------------------
+    @property
+    def validation_errors(self) -> list[str]:
+        """The Vulkan validation errors of `closest`'s Tracer (none before its first call)."""
+        return list(self._points.validation_errors) if self._points is not None else []
+
+    def close(self) -> None:
+        """Free Embree's scene and closest()'s Tracer; safe to call twice."""
+        with self._lock:
+            if self._points is not None:
+                self._points.close()
+            self._closed = True
+            self._scene = None
+
+    def __repr__(self) -> str:
+        return f"<EmbreeTracer {len(self.mesh[1])} triangles{', closed' if self._closed else ''}>"
+
+
+def _store_hits(hits, s: int, e: int, r: dict) -> None:
+    prim = r["primID"]
+    miss = prim < 0
+    hits.prim[s:e] = prim
+    hits.t[s:e] = np.where(miss, np.float32(np.inf), r["tfar"])
+    hits.u[s:e] = r["u"]
+    hits.v[s:e] = r["v"]
+
+
+TRACERS["embree"] = EmbreeTracer

@@ -24,7 +24,7 @@ from ..errors import ConfigError
 from ..lifetime import Closes
 from ..parallel import default_threads, run
 from .backend import TRACERS, check_backend
-from .checks import check_mesh, check_rays, result_arrays
+from .checks import check_mesh, check_rays, rays_fine, result_arrays
 from .closest import Closest
 from .cuda_arrays import on_cuda
 from .tracer import Hits, Tracer
@@ -181,3 +181,81 @@ def _store_hits(hits, s: int, e: int, r: dict) -> None:
 
 
 TRACERS["embree"] = EmbreeTracer
+
+
+# ---- RaycastingScene's per-ray work on Embree, fused per block ----------------------------------------------------
+def _block(rays: np.ndarray, s: int, e: int, center: np.ndarray, near: float = 0.0):
+    """float32 origins (moved by `near` along the direction, less `center`, in float64 as RaycastingScene does) and
+    directions of rays[s:e] ((N, 6), any float dtype), or None where one fails the Tracer's checks (`rays_fine`)."""
+    r = rays[s:e]
+    if near or center.any():
+        o = r[:, :3].astype(np.float64)
+        if near:
+            o += near * r[:, 3:].astype(np.float64)
+        o = (o - center).astype(np.float32)
+    else:
+        o = np.ascontiguousarray(r[:, :3], dtype=np.float32)
+    d = np.ascontiguousarray(r[:, 3:], dtype=np.float32)
+    return (o, d) if len(o) and rays_fine(o, d) else None
+
+
+def scene_cast_rays(tracer: EmbreeTracer, rays: np.ndarray, center, geometry, primitive, normal, invalid: int):
+    """RaycastingScene.cast_rays' answer for (N, 6) float rays on Embree: each block of rays converted, checked,
+    traced and mapped to geometry / primitive ids, uvs and normals on the worker pool, in one pass; None where a ray
+    fails the checks (RaycastingScene's own checks then name it)."""
+    n = len(rays)
+    out = {
+        "t_hit": np.empty(n, np.float32),
+        "geometry_ids": np.empty(n, np.uint32),
+        "primitive_ids": np.empty(n, np.uint32),
+        "primitive_uvs": np.empty((n, 2), np.float32),
+        "primitive_normals": np.empty((n, 3), np.float32),
+    }
+    one = int(geometry[0]) if (geometry == geometry[0]).all() and primitive[-1] == len(primitive) - 1 else None
+    fine = []
+
+    def block(s):
+        e = min(s + BLOCK, n)
+        b = _block(rays, s, e, center)
+        if b is None:
+            fine.append(False)
+            return
+        r = tracer._scene.run(b[0], b[1], output=1)
+        prim = r["primID"]
+        hit = prim >= 0
+        out["t_hit"][s:e] = np.where(hit, r["tfar"], np.float32(np.inf))
+        if one is not None:  # one geometry: the primitive id is the triangle's (-1 is INVALID_ID as uint32)
+            out["primitive_ids"][s:e] = prim.view(np.uint32)
+            out["geometry_ids"][s:e] = np.where(hit, np.uint32(one), np.uint32(invalid))
+            safe = np.maximum(prim, 0)
+        else:
+            safe = np.maximum(prim, 0)
+            out["primitive_ids"][s:e] = np.where(hit, primitive[safe], np.uint32(invalid))
+            out["geometry_ids"][s:e] = np.where(hit, geometry[safe], np.uint32(invalid))
+        out["primitive_uvs"][s:e, 0] = np.where(hit, r["u"], np.float32(0))
+        out["primitive_uvs"][s:e, 1] = np.where(hit, r["v"], np.float32(0))
+        out["primitive_normals"][s:e] = np.where(hit[:, None], normal[safe], np.float32(0))
+
+    run([lambda s=s: block(s) for s in range(0, n, BLOCK)], tracer.threads)
+    return None if fine else out
+
+
+def scene_occlusions(tracer: EmbreeTracer, rays: np.ndarray, center, near: float, far: float):
+    """RaycastingScene.test_occlusions' answer for (N, 6) float rays and a checked [near, far] on Embree, per block
+    as `scene_cast_rays`; None where a ray fails the checks."""
+    n = len(rays)
+    out = np.zeros(n, bool)
+    if far < near:
+        return out
+    fine = []
+
+    def block(s):
+        e = min(s + BLOCK, n)
+        b = _block(rays, s, e, center, near)
+        if b is None:
+            fine.append(False)
+            return
+        out[s:e] = tracer._scene.run(b[0], b[1], dists=np.float32(far - near), query="OCCLUDED") != -1
+
+    run([lambda s=s: block(s) for s in range(0, n, BLOCK)], tracer.threads)
+    return None if fine else out

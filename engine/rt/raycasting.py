@@ -36,7 +36,7 @@ from .checks import check_mesh, check_vectors, first_beyond
 from .closest import check_points
 from .cuda_arrays import on_cuda, scene_hits, scene_rays
 from .backend import check_backend, resolve_backend
-from .embree import EmbreeTracer
+from .embree import EmbreeTracer, scene_cast_rays, scene_occlusions
 from .pinhole import _numpy, pinhole_rays
 from .tensor import open3d_results
 from .tracer import Tracer
@@ -329,6 +329,11 @@ class RaycastingScene(Closes):
         with self._lock:
             if on_cuda(rays):
                 return self._cast_cuda(rays)
+            fast = self._on_embree(
+                rays, lambda s, a: scene_cast_rays(s.tracer, a, s.center, s.geometry, s.primitive, s.normal, INVALID_ID)
+            )
+            if fast is not None:
+                return fast
             flat, shape = _flat_rays(rays)
             s = self._scene()
             n = len(flat)
@@ -370,6 +375,11 @@ class RaycastingScene(Closes):
             ConfigError: as `cast_rays`, or a NaN / infinite tnear or a NaN tfar.
         """
         with self._lock:
+            if not on_cuda(rays):
+                near, far = _limit(tnear, "tnear", False), _limit(tfar, "tfar", True)
+                fast = self._on_embree(rays, lambda s, a: scene_occlusions(s.tracer, a, s.center, near, far))
+                if fast is not None:
+                    return fast
             flat, shape = (None, None) if on_cuda(rays) else _flat_rays(rays)
             near, far = _limit(tnear, "tnear", False), _limit(tfar, "tfar", True)
             s = self._scene()
@@ -381,6 +391,26 @@ class RaycastingScene(Closes):
                 what = "tnear: ray {i}'s start (origin + tnear * direction)" if near else "rays: ray {i}'s origin"
                 out = s.tracer.occluded(_traced(s, origins, what), flat[:, 3:], far - near)
             return out.reshape(shape)
+
+    def _on_embree(self, rays, answer):
+        """On the Embree backend, `answer(built scene, (N, 6) rays)` (engine/rt/embree.py: the per-ray work fused per
+        block) for float rays of shape (..., 6), shaped by their leading shape; None for the general path (another
+        backend, bad or empty rays: its checks name the ray)."""
+        a = _numpy(rays)
+        if self.backend != "embree" or self._closed or not isinstance(a, np.ndarray):
+            return None
+        if a.ndim < 2 or a.shape[-1] != 6 or a.dtype.kind != "f":
+            return None
+        s = self._scene()
+        if s.tracer is None or not a.size:
+            return None
+        out = answer(s, a.reshape(-1, 6))
+        if out is None:
+            return None
+        lead = a.shape[:-1]
+        return (
+            {k: v.reshape(lead + v.shape[1:]) for k, v in out.items()} if isinstance(out, dict) else out.reshape(lead)
+        )
 
     def _cast_cuda(self, rays):
         """cast_rays on CUDA rays: traced and mapped to ids on their device (engine.rt.cuda_arrays)."""

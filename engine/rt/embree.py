@@ -259,3 +259,31 @@ def scene_occlusions(tracer: EmbreeTracer, rays: np.ndarray, center, near: float
 
     run([lambda s=s: block(s) for s in range(0, n, BLOCK)], tracer.threads)
     return None if fine else out
+
+
+# ---- RayMeshIntersector's per-ray work on Embree, fused per block -------------------------------------------------
+def mesh_first_hits(tracer: EmbreeTracer, origins: np.ndarray, directions: np.ndarray, center, factor, any_hit: bool):
+    """RayMeshIntersector.intersects_first (the triangle, int64, -1 for none) or, with `any_hit`, intersects_any
+    (bool) for (N, 3) real origins and directions on Embree: per block the directions unitized and the origins moved
+    into the mesh's frame ((o - center) * factor) in float64 as RayMeshIntersector does, checked, traced; None where
+    a ray fails the checks (RayMeshIntersector's own checks then name it)."""
+    n = len(origins)
+    out = np.empty(n, bool if any_hit else np.int64)
+    fine = []
+
+    def block(s):
+        e = min(s + BLOCK, n)
+        d = directions[s:e].astype(np.float64)
+        with np.errstate(invalid="ignore", divide="ignore", over="ignore"):  # (a bad ray fails rays_fine below)
+            d = (d / np.linalg.norm(d, axis=1)[:, None]).astype(np.float32)
+            o = ((origins[s:e].astype(np.float64) - center) * factor).astype(np.float32)
+        if not rays_fine(o, d):
+            fine.append(False)
+            return
+        if any_hit:
+            out[s:e] = tracer._scene.run(o, d, query="OCCLUDED") != -1
+        else:
+            out[s:e] = tracer._scene.run(o, d, output=1)["primID"]
+
+    run([lambda s=s: block(s) for s in range(0, n, BLOCK)], tracer.threads)
+    return None if fine else out

@@ -31,6 +31,7 @@ from ..vk import Context
 from ..vk.shared import Device
 from .checks import check_mesh, check_vectors, first_beyond
 from .backend import check_backend, resolve_backend
+from .embree import mesh_first_hits
 from .tracer import Tracer
 
 #: the step past a hit before a ray is cast again: max(STEP_FLOOR, STEP_FACTOR * mesh.scale) world units
@@ -281,6 +282,9 @@ class RayMeshIntersector(Closes):
     def intersects_first(self, ray_origins: ArrayLike, ray_directions: ArrayLike) -> NDArray[np.int64]:
         """(N,) int64: the first triangle each ray hits (a row of `mesh.faces`), -1 where it hits none."""
         with self._lock:
+            fast = self._on_embree(ray_origins, ray_directions, any_hit=False)
+            if fast is not None:
+                return fast
             o, d = self._rays(ray_origins, ray_directions)
             g = self._geometry()
             if g.tracer is None or not len(o):
@@ -291,12 +295,30 @@ class RayMeshIntersector(Closes):
     def intersects_any(self, ray_origins: ArrayLike, ray_directions: ArrayLike) -> NDArray[np.bool_]:
         """(N,) bool: does each ray hit the mesh at all (an any-hit query, no closest hit needed)?"""
         with self._lock:
+            fast = self._on_embree(ray_origins, ray_directions, any_hit=True)
+            if fast is not None:
+                return fast
             o, d = self._rays(ray_origins, ray_directions)
             g = self._geometry()
             if g.tracer is None or not len(o):
                 return np.zeros(len(o), bool)
             _check_frame(g, o)
             return g.tracer.occluded((o - g.center) * g.factor, d)
+
+    def _on_embree(self, ray_origins, ray_directions, any_hit: bool):
+        """On the Embree backend, intersects_first / intersects_any with the per-ray work fused per block
+        (engine/rt/embree.py) for (N, 3) real arrays; None for the general path (another backend, bad or no rays:
+        its checks name the ray)."""
+        o, d = ray_origins, ray_directions
+        if self.backend != "embree" or self._closed or not isinstance(o, np.ndarray) or not isinstance(d, np.ndarray):
+            return None
+        real = o.dtype.kind in "fiu" and d.dtype.kind in "fiu"
+        if not real or o.ndim != 2 or o.shape[1:] != (3,) or o.shape != d.shape or not len(o):
+            return None
+        g = self._geometry()
+        if g.tracer is None:
+            return None
+        return mesh_first_hits(g.tracer, o, d, g.center, g.factor, any_hit)
 
     def contains_points(self, points: ArrayLike) -> NDArray[np.bool_]:
         """(N,) bool: is each point inside the mesh? trimesh's own parity test (`trimesh.ray.ray_util`): rays both

@@ -63,6 +63,19 @@ def assert_same(a, b, what, t_scale=4.0):
         assert (a == b).all(), f"{what}: {(a != b).sum()} of {a.size} differ"
 
 
+def assert_same_nearest(query, ids, other_ids, near, other_near, fields, what, scale=4.0):
+    """Closest points of both backends (their distances compared by the caller): each at its distance from the query
+    point; the same point, triangle, uvs and normal, except at ties (a point on an edge or vertex several triangles
+    share, or two places equally near within float32's rounding)."""
+    reach, other_reach = (np.linalg.norm(np.asarray(x, np.float64) - query, axis=1) for x in (near, other_near))
+    np.testing.assert_allclose(reach, other_reach, rtol=1e-5, atol=1e-6 * scale, err_msg=f"{what} distances")
+    same = np.asarray(ids) == np.asarray(other_ids)
+    assert same.mean() > 0.5, f"{what}: the triangles differ at {(~same).sum()} points"
+    fields = dict(fields, points=(near, other_near))
+    for name, (a, b) in fields.items():
+        assert_same(np.asarray(a)[same], np.asarray(b)[same], f"{what} {name}", scale)
+
+
 def test_auto_picks_embree_on_a_cpu_only_machine(made, shared_device):
     sphere = trimesh.creation.icosphere(1)
     scene, mesh_ray = RaycastingScene(), RayMeshIntersector(sphere)
@@ -98,8 +111,9 @@ def test_tracer_queries_agree_on_both_backends(made, shared_device):
     assert_same(occ0, occ1, "occluded with per-ray tmax")
     assert not occ1[tmax < 0].any()
     assert_same(ht0.prim, ht1.prim, "prim within tmax")
-    for field in ("distance", "prim", "point"):
-        assert_same(getattr(c0, field), getattr(c1, field), f"closest {field}")
+    assert_same(c0.distance, c1.distance, "closest distance")
+    fields = {"u": (c0.u, c1.u), "v": (c0.v, c1.v)}
+    assert_same_nearest(o.astype(np.float64), c0.prim, c1.prim, c0.point, c1.point, fields, "closest")
 
 
 @pytest.mark.parametrize("offset", [0.0, 5e3], ids=["at-origin", "far"])
@@ -130,6 +144,11 @@ def test_raycasting_scene_methods_agree_on_both_backends(made, shared_device, of
     cast = a["cast"]
     assert set(np.unique(cast["geometry_ids"])) == {0, 2, INVALID}  # both meshes hit, the empty one never
     assert a["count"].max() >= 4 and 0.1 < a["occupancy"].mean() < 0.9 and not b["occlusions none"].any()
+    near, other = a.pop("closest"), b.pop("closest")
+    fields = {k: (near[k], other[k]) for k in ("geometry_ids", "primitive_uvs", "primitive_normals")}
+    q = p.astype(np.float64)
+    ids, other_ids = near["primitive_ids"], other["primitive_ids"]
+    assert_same_nearest(q, ids, other_ids, near["points"], other["points"], fields, "nearest", 4 + offset)
     for key in a:
         got = a[key] if isinstance(a[key], dict) else {"": a[key]}
         other = b[key] if isinstance(b[key], dict) else {"": b[key]}
@@ -274,3 +293,20 @@ def test_scene_copies_are_independent_with_the_same_answers(made, how):
     assert (twin.compute_distance(p) <= RaycastingScene(backend=twin.backend).compute_distance(p)).all()
     with pytest.raises(ConfigError, match="closed"):
         how(scene)
+
+
+def test_embree_closest_points_without_the_compiled_module_run_on_the_vulkan_kernel(made, shared_device, monkeypatch):
+    from engine import native
+
+    sphere = trimesh.creation.icosphere(2)
+    p = points(300)
+    vulkan = Tracer(sphere.vertices, sphere.faces, device=shared_device)
+    host = Tracer(sphere.vertices, sphere.faces, backend="embree", device=shared_device)
+    made += [vulkan, host]
+    on_host = host.closest(p)
+    monkeypatch.setattr(native, "library", lambda: None)  # (a source install without a C compiler)
+    fallback = Tracer(sphere.vertices, sphere.faces, backend="embree", device=shared_device)
+    made.append(fallback)
+    want, got = vulkan.closest(p), fallback.closest(p)
+    assert np.array_equal(got.distance, want.distance) and np.array_equal(got.prim, want.prim)
+    assert_same(on_host.distance, want.distance, "the host walk's distances")

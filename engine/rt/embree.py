@@ -20,17 +20,21 @@ from typing import Any
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
+from .. import native
+from ..bvh import build_bvh
 from ..errors import ConfigError
 from ..lifetime import Closes
 from ..parallel import default_threads, run
 from .backend import TRACERS, check_backend
 from .checks import check_mesh, check_rays, rays_fine, result_arrays
-from .closest import Closest
+from .closest import Closest, check_points, real_triangles
 from .cuda_arrays import on_cuda
 from .tracer import Hits, Tracer
 
 #: rays per task on the worker pool (embreex's run() per block; blocks interleave over the threads)
 BLOCK = 1 << 15
+#: points per task of `closest` on the worker pool (a point's walk costs far more than a ray's)
+POINT_BLOCK = 1 << 11
 
 
 class EmbreeTracer(Closes):
@@ -71,7 +75,8 @@ class EmbreeTracer(Closes):
         self.mesh = (v, f)
         self.threads = max(1, int(threads)) if threads is not None else default_threads()
         self._vulkan = dict(vulkan, device=device, validation=validation, context=context)
-        self._points = None  # the Vulkan Tracer of closest(), made on first use
+        self._points = None  # the Vulkan Tracer of closest() without the compiled module, made on first use
+        self._bvh = None  # closest()'s BVH records (nodes, triangles), built on first use
         t0 = time.perf_counter()
         self._scene = rtcore_scene.EmbreeScene(robust=True)
         mesh_construction.TriangleMesh(self._scene, v, f.astype(np.int32))
@@ -142,12 +147,37 @@ class EmbreeTracer(Closes):
         run([lambda s=s: block(s) for s in range(0, len(o), BLOCK)], self.threads)
 
     def closest(self, points: ArrayLike) -> Closest:
-        """As `Tracer.closest`, on the Vulkan kernels (a Tracer of the same mesh, made on the first call)."""
+        """As `Tracer.closest`: the BVH walk of the Vulkan kernel (bvh_point.glsl) in C on the host's cores, over a
+        BVH of the mesh built on the first call (engine/native.c hybrid_closest_points); without the compiled
+        module, on the Vulkan kernels (a Tracer of the same mesh, made on the first call)."""
         with self._lock:
             self._check_open()
-            if self._points is None:
-                self._points = Tracer(*self.mesh, backend="vulkan", **self._vulkan)
-            return self._points.closest(points)
+            if native.library() is None:
+                if self._points is None:
+                    self._points = Tracer(*self.mesh, backend="vulkan", **self._vulkan)
+                return self._points.closest(points)
+            p = check_points(points).astype(np.float32).astype(np.float64)  # (as the kernel reads them)
+            if self._bvh is None:
+                v, f = self.mesh
+                bvh = build_bvh(v, f)
+                real = real_triangles(bvh.tris, bvh.prim_ids, v, f)
+                self._bvh = (bvh.nodes, bvh.tris if real is None else real)
+            n = len(p)
+            out = Closest(
+                *result_arrays("Tracer.closest", n, (np.float32, (3,)), np.float32, np.int32, np.float32, np.float32)
+            )
+
+            def block(s):
+                e = min(s + POINT_BLOCK, n)
+                native.closest_points(*self._bvh, p[s:e], out.distance[s:e], out.prim[s:e], out.u[s:e], out.v[s:e])
+
+            run([lambda s=s: block(s) for s in range(0, n, POINT_BLOCK)], self.threads)
+            if n:
+                v, f = self.mesh
+                tri = v[f[out.prim]].astype(np.float64)
+                u, w = out.u[:, None].astype(np.float64), out.v[:, None].astype(np.float64)
+                out.point[:] = tri[:, 0] + u * (tri[:, 1] - tri[:, 0]) + w * (tri[:, 2] - tri[:, 0])
+            return out
 
     def cuda_ray_arrays(self, n: int, framework: str = "torch") -> tuple:
         """Not on the Embree backend: a ConfigError (`Tracer.cuda_ray_arrays` needs backend='vulkan')."""

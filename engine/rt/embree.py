@@ -6,9 +6,10 @@ uses), on the host's cores (which engine a `backend` argument means: engine/rt/b
 
 `EmbreeTracer` takes the Tracer's arguments and gives its answers (`Hits`, bool arrays, the same errors from the same
 checks, engine/rt/checks.py); rays are traced in blocks on the shared worker pool (embreex's queries release the
-GIL). Embree through embreex has no point query, so `closest` runs on the Vulkan kernels (a Tracer made on first
-use). The front ends (RaycastingScene, RayMeshIntersector) trace through an EmbreeTracer where their backend is Embree;
-`cast_rays_block` is RaycastingScene.cast_rays' per-ray work fused per block for it.
+GIL). Embree through embreex has no point query, so `closest` walks a BVH of our own in C on the same pool
+(engine/native.c; the Vulkan kernels where the compiled module is missing). The front ends (RaycastingScene,
+RayMeshIntersector) trace through an EmbreeTracer where their backend is Embree; `scene_cast_rays`,
+`scene_occlusions` and `mesh_first_hits` are their per-ray work fused per block for their busiest queries.
 """
 
 from __future__ import annotations
@@ -42,8 +43,9 @@ class EmbreeTracer(Closes):
 
     The same arguments, results and errors as `Tracer`'s `occluded`, `intersect` and `closest`: triangles two-sided,
     hits at t in [0, tmax] in units of the direction's length, the same input checks. Embree's robust (watertight)
-    triangle test. `closest` runs on the Vulkan kernels (embreex has no point query): a Tracer of the same mesh, made
-    on its first call with this one's `device`, `validation` and `context`. Queries on CUDA arrays and
+    triangle test. `closest` walks a BVH of the mesh on the host, in C (embreex has no point query); without the
+    compiled module, a Vulkan Tracer of the mesh made on its first call with this one's `device`, `validation` and
+    `context`. Queries on CUDA arrays and
     `cuda_ray_arrays` need the Vulkan backend. `last_gpu_ms` is 0 and `last_reordered` False (Embree orders nothing);
     `stats` has build_ms, triangles and threads.
     """

@@ -206,9 +206,9 @@ class RaycastingScene(Closes):
                 `engine.Device` has its own setting).
             backend: "auto" (the default: Embree where embreex imports and the only Vulkan device is a CPU, e.g.
                 lavapipe, and no `device` is given; the Vulkan kernels otherwise), "vulkan" or "embree" (the same
-                answers; engine/rt/embree.py). On Embree the point queries' nearest triangle is still found by the
-                Vulkan kernel (embreex has no point query); their inside vote is Embree's. `backend` (the attribute)
-                says which one this scene runs on.
+                answers; engine/rt/embree.py). On Embree the point queries' nearest triangle is found by a C walk
+                on the host (embreex has no point query; the Vulkan kernel without the compiled module).
+                `backend` (the attribute) says which one this scene runs on.
 
         Raises:
             ConfigError: `device` is not an `engine.Device`, an index, a name or None; a closed `engine.Device`; a

@@ -162,8 +162,8 @@ class Tracer(Closes):
             backend: "vulkan" (the default: these GLSL kernels), "embree" (Embree on the host's cores, through
                 embreex: the [embree] extra) or "auto" (Embree where embreex imports and the only Vulkan device is a
                 CPU, e.g. lavapipe, and no device or context is given; Vulkan otherwise). Embree gives an
-                `EmbreeTracer` (engine/rt/embree.py): the same queries, answers and errors; its `closest` runs
-                here.
+                `EmbreeTracer` (engine/rt/embree.py): the same queries, answers and errors (its `closest`: a
+                C walk on the host).
             layout: "binary" or "wide" BVH (default: $HYBRID_BVH_LAYOUT, else "binary").
             reorder: trace the rays of `occluded` / `intersect` in the order of a coarse Morton code of their origins
                 (results still in the caller's order; engine/rt/order.py): True, False, or "auto" (the default:

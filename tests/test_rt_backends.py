@@ -3,6 +3,7 @@ give the same answers on both engines, method by method, and the same one-line e
 lavapipe machine; RaycastingScene's results behave as Open3D's tensors and scenes copy."""
 
 import copy
+import pickle
 
 import numpy as np
 import pytest
@@ -275,7 +276,7 @@ def test_results_behave_as_open3d_tensors(made):
     assert float(scene.count_intersections(np.array([[0.2, 0.1, 1, 0, 0, -1]])).sum()) == 1
 
 
-@pytest.mark.parametrize("how", [copy.copy, copy.deepcopy])
+@pytest.mark.parametrize("how", [copy.copy, copy.deepcopy, lambda s: pickle.loads(pickle.dumps(s))])
 def test_scene_copies_are_independent_with_the_same_answers(made, how):
     r, p = rays(500), points(200)
     scene = RaycastingScene()

@@ -689,6 +689,18 @@ class RaycastingScene(Closes):
         twin._meshes = copy.deepcopy(self._meshes, memo)
         return twin
 
+    def __getstate__(self) -> dict:
+        """Pickled as its geometries and settings (built again on the first query after unpickling); a shared
+        `engine.Device` is not pickled (the copy opens a device of its own)."""
+        with self._lock:
+            self._check_open()
+            device = None if isinstance(self._device, Device) else self._device
+            return {"meshes": self._meshes, "device": device, "validation": self._validation, "backend": self._backend}
+
+    def __setstate__(self, state: dict) -> None:
+        self.__init__(device=state["device"], validation=state["validation"], backend=state["backend"])
+        self._meshes = list(state["meshes"])
+
     def __repr__(self) -> str:
         triangles = sum(len(f) for _, f in self._meshes)
         closed = ", closed" if self._closed else ""

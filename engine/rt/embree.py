@@ -315,7 +315,7 @@ def mesh_first_hits(tracer: EmbreeTracer, origins: np.ndarray, directions: np.nd
         if any_hit:
             out[s:e] = tracer._scene.run(o, d, query="OCCLUDED") != -1
         else:
-            out[s:e] = tracer._scene.run(o, d, output=1)["primID"]
+            out[s:e] = tracer._scene.run(o, d)  # (the triangle alone: -1 for none)
 
     run([lambda s=s: block(s) for s in range(0, n, BLOCK)], tracer.threads)
     return None if fine else out

@@ -4,6 +4,7 @@ files of each tool's conventions, the poses re-projecting rendered depth onto th
 
 import json
 import math
+import os
 import subprocess
 import sys
 from pathlib import Path
@@ -21,6 +22,7 @@ REPO = Path(__file__).resolve().parent.parent
 W, H = 96, 64
 K = np.array([[70.0, 0.0, 47.3], [0.0, 68.0, 31.1], [0.0, 0.0, 1.0]])
 FLIP = np.diag([1.0, -1.0, -1.0, 1.0])
+ENV = dict(os.environ, PYTHONPATH=str(REPO), HYBRID_VALIDATION="1")
 
 
 def cameras():
@@ -184,3 +186,23 @@ def test_bad_input_names_the_file_and_key(tmp_path, name, text, match):
     with pytest.raises(ConfigError, match=match) as info:
         load_camera_path(tmp_path / name)
     assert "\n" not in str(info.value)
+
+
+def test_batch_writes_the_formats_beside_each_scenes_images(tmp_path):
+    """`hybrid batch`: each scene folder gets transforms.json and the COLMAP model of its rendered views, naming
+    the colour PNGs, with the cameras its .npz files hold."""
+    job = tmp_path / "job.toml"
+    job.write_text('output = "out"\nsize = "32x24"\naovs = ["color"]\n\n[cameras]\norbit = 3\n\n'
+                   '[[scenes]]\nscene = "sphere"\n')  # fmt: skip
+    res = subprocess.run(
+        [sys.executable, "-m", "engine", "batch", job, "-q"], capture_output=True, text=True, cwd=tmp_path, env=ENV,
+        timeout=300,
+    )  # fmt: skip
+    assert res.returncode == 0, res.stderr
+    folder = tmp_path / "out" / "sphere"
+    for got, names in (read_transforms(folder / "transforms.json"), read_colmap(folder / "colmap" / "sparse" / "0")):
+        assert names == ["0000.png", "0001.png", "0002.png"] and all((folder / n).is_file() for n in names)
+        for cam, name in zip(got, names):
+            with np.load(folder / name.replace(".png", ".npz")) as data:
+                np.testing.assert_allclose(cam.pose, data["pose"], atol=1e-12)
+                np.testing.assert_allclose(cam.intrinsics(), data["K"], atol=1e-12)

@@ -15,6 +15,7 @@ from .distributed import run_ray
 from .job import Job
 from .manifest import FolderLock, Manifest
 from .pool import run_local
+from .writer import write_cameras
 
 MAX_WORKERS = 64
 
@@ -161,6 +162,7 @@ def run_batch(
                 info = run_local(job, todo, on_record, workers=n_workers, devices=devices, shard_size=shard_size)
         finally:
             manifest.save()
+        write_cameras(job)  # transforms.json and the COLMAP model beside each scene's images
         result.seconds = time.perf_counter() - t0
         result.devices, result.errors = info["devices"], info["errors"]
         devs = ", ".join(result.devices) or "no device"

@@ -15,6 +15,7 @@ from ..errors import EngineError
 from ..files import atomic_write
 from ..frame import Frame
 from ..scene import Camera
+from ..scene.camera_formats import write_dataset
 from .job import Item, Job
 
 
@@ -68,3 +69,23 @@ def npz_key(path: Path) -> str | None:
             return str(data["key"]) if "key" in data.files else None
     except (OSError, ValueError, KeyError, EOFError, zipfile.BadZipFile):
         return None
+
+
+def write_cameras(job: Job) -> None:
+    """Each scene folder's finished items as NeRF and COLMAP tools read them (transforms.json, colmap/sparse/0),
+    the colour PNGs as their images; nothing where the job writes no colour PNG."""
+    if "color" not in job.png:
+        return
+    for index, spec in enumerate(job.scenes):
+        cams, files = [], []
+        for item in (i for i in job.items if i.scene == index):
+            names = job.files(item)
+            try:
+                with np.load(job.output / names[-1]) as data:
+                    K, pose = data["K"], data["pose"]
+            except (OSError, ValueError, KeyError, EOFError, zipfile.BadZipFile):
+                continue  # not rendered (or failed): not in the dataset
+            cams.append(Camera.from_intrinsics(K, job.width, job.height, pose=pose))
+            files.append(Path(names[job.png.index("color")]).name)
+        if cams:
+            write_dataset(job.output / spec.name, cams, files, job.width, job.height)

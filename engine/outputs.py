@@ -45,8 +45,9 @@ def check_output_path(path: str | os.PathLike[str]) -> Path:
 def camera_record(camera, width: int, height: int, scene_name: str = "") -> dict[str, Any]:
     """The camera of a `width` x `height` frame as plain JSON values: K (3x3, pixels, pixel centres at +0.5), pose
     (4x4 camera-to-world, OpenCV axes), near and fov_y (degrees), the image size and the scene's name. Floats are
-    written with all their digits (JSON round-trips them exactly)."""
-    return {
+    written with all their digits (JSON round-trips them exactly). A camera model other than the pinhole adds
+    "model" and "distortion" (its coefficients)."""
+    record = {
         "scene": str(scene_name),
         "width": int(width),
         "height": int(height),
@@ -56,6 +57,9 @@ def camera_record(camera, width: int, height: int, scene_name: str = "") -> dict
         "near": float(camera.near),
         "fov_y": float(camera.fov_y),
     }
+    if camera.model != "pinhole":
+        record.update(model=camera.model, distortion=[float(d) for d in camera.distortion])
+    return record
 
 
 def camera_json(record: dict[str, Any]) -> str:

@@ -36,12 +36,12 @@ except ImportError:  # pragma: no cover
 
 _RUN = re.compile(r"#+")
 LOOK_AT_KEYS = ("eye", "target", "up", "fov_y", "fov", "near")
-INTRINSICS_KEYS = ("K", "pose", "width", "height", "convention", "near")
+INTRINSICS_KEYS = ("K", "pose", "width", "height", "convention", "near", "model", "distortion")
 #: Keys of a camera sidecar (`Frame.save_camera`, a sequence's `output` record) that a camera path ignores: a list
 #: of sidecars is a camera path.
 INFO_KEYS = ("scene", "fov_y", "output")
 #: Keys a camera path may set once for every camera (at its top level).
-SHARED_KEYS = ("up", "fov_y", "fov", "near", "K", "width", "height", "convention")
+SHARED_KEYS = ("up", "fov_y", "fov", "near", "K", "width", "height", "convention", "model", "distortion")
 
 
 # ----------------------------------------------------------------------------------------------- paths
@@ -176,6 +176,8 @@ def _camera(entry: dict, shared: dict, default_fov_y: float) -> Camera:
         for k in ("K", "pose", "width", "height"):
             if k not in keys:
                 raise ConfigError(f"missing key {k!r}")
+        if keys.get("model", "pinhole") != "pinhole":
+            return _model(keys)
         return Camera.from_intrinsics(
             keys["K"],
             keys["width"],
@@ -193,6 +195,28 @@ def _camera(entry: dict, shared: dict, default_fov_y: float) -> Camera:
     return Camera.look_at(
         keys["eye"], keys["target"], keys.get("up", (0.0, 1.0, 0.0)), fov_y=fov, near=keys.get("near")
     )
+
+
+def _model(keys: dict) -> Camera:
+    """A camera sidecar's model camera: "model" (opencv, fisheye, orthographic, equirect), "distortion" and K."""
+    model, w, h = keys["model"], keys["width"], keys["height"]
+    kw = dict(
+        pose=keys["pose"], convention=keys.get("convention", "opencv"), near=keys.get("near", DEFAULT_INTRINSICS_NEAR)
+    )
+    dist = keys.get("distortion", [])
+    if model == "opencv":
+        return Camera.from_opencv(keys["K"], dist, w, h, **kw)
+    if model == "fisheye":
+        return Camera.fisheye(keys["K"], dist, w, h, **kw)
+    if model == "equirect":
+        return Camera.equirect(w, h, **kw)
+    if model == "orthographic":
+        try:
+            view_height = float(h) / float(keys["K"][1][1])
+        except (TypeError, ValueError, IndexError, ZeroDivisionError):
+            raise ConfigError(f"K must be a 3x3 matrix with fy > 0, got {keys['K']!r}") from None
+        return Camera.orthographic(view_height, w, h, **kw)
+    raise ConfigError(f"'model' must be pinhole, opencv, fisheye, orthographic or equirect, got {model!r}")
 
 
 def _posed(entry: dict, shared: dict, default_fov_y: float) -> Camera:

@@ -5,6 +5,7 @@ files of each tool's conventions, the poses re-projecting rendered depth onto th
 import json
 import math
 import os
+import re
 import subprocess
 import sys
 from pathlib import Path
@@ -151,11 +152,25 @@ def test_render_reads_and_writes_the_formats(tmp_path):
         capture_output=True, text=True, cwd=REPO, timeout=300,
     )  # fmt: skip
     assert res.returncode == 0, res.stderr
-    assert Image.open(out / "frame_02.png").size == (W, H)
-    for got, names in (read_transforms(out / "transforms.json"), read_colmap(out / "colmap" / "sparse" / "0")):
+    with Image.open(out / "frame_02.png") as im:
+        assert im.size == (W, H)
+    sidecars = [json.loads((out / f"frame_0{i}.json").read_text()) for i in range(3)]
+    (tmp_path / "sidecars.json").write_text(json.dumps(sidecars))  # a list of sidecars is a camera path
+    assert sidecars[1]["model"] == "fisheye"
+    for got, names in (
+        read_transforms(out / "transforms.json"),
+        read_colmap(out / "colmap" / "sparse" / "0"),
+        (load_camera_path(tmp_path / "sidecars.json"), ["frame_00.png", "frame_01.png", "frame_02.png"]),
+    ):
         assert names == ["frame_00.png", "frame_01.png", "frame_02.png"]
         for a, b in zip(cams, got):
             same(a, b)
+    again = subprocess.run(
+        [sys.executable, "-m", "engine", "render", "scenes/sphere.toml", "--camera-path", tmp_path / "transforms.json",
+         "-o", out / "frame_##.png", "--resume"],
+        capture_output=True, text=True, cwd=REPO, timeout=300,
+    )  # fmt: skip
+    assert again.returncode == 0 and "(0 rendered, 3 already done)" in again.stdout, again.stdout + again.stderr
 
 
 @pytest.mark.parametrize(
@@ -206,3 +221,40 @@ def test_batch_writes_the_formats_beside_each_scenes_images(tmp_path):
             with np.load(folder / name.replace(".png", ".npz")) as data:
                 np.testing.assert_allclose(cam.pose, data["pose"], atol=1e-12)
                 np.testing.assert_allclose(cam.intrinsics(), data["K"], atol=1e-12)
+
+
+def test_the_datasets_doc_commands_run(tmp_path):
+    """docs/datasets.md's NeRF and fisheye commands, at 48x48 / 64x48 with 3 views: the frames, the cameras beside
+    them, and the cameras read back from both formats and from the robot's camera path."""
+    doc = (REPO / "docs" / "datasets.md").read_text()
+    section = doc[doc.index("## Camera models, NeRF and COLMAP cameras") :]
+    commands = re.search(r"```sh\n(.*?)```", section, flags=re.S).group(1)
+    (tmp_path / "robot.json").write_text(re.search(r"```json\n(.*?)```", section, flags=re.S).group(1))
+    lines = [line.split("  #")[0].strip() for line in commands.splitlines() if line.strip()]
+    assert lines[0] == "mkdir -p nerf again robot" and len(lines) == 5
+    for name in ("nerf", "again", "robot"):
+        (tmp_path / name).mkdir()
+    for line in lines[1:]:
+        args = line.replace("--orbit 100 --size 400x400", "--orbit 3 --size 48x48").split()
+        assert args[0] == "hybrid"
+        if "robot.json" in line:
+            args += ["--size", "64x48"]
+        res = subprocess.run([sys.executable, "-m", "engine", *args[1:]], capture_output=True, text=True,
+                             cwd=tmp_path, env=ENV, timeout=300)  # fmt: skip
+        assert res.returncode == 0, line + "\n" + res.stderr
+    nerf = read_transforms(tmp_path / "nerf" / "transforms.json")[0]
+    for got in (read_transforms(tmp_path / "again" / "transforms.json")[0], read_colmap(tmp_path / "again" / "colmap"
+                / "sparse" / "0")[0]):  # fmt: skip
+        assert len(got) == 3
+        for a, b in zip(nerf, got):
+            np.testing.assert_allclose(a.pose, b.pose, atol=1e-12)
+    assert sorted(p.name for p in (tmp_path / "again").glob("*.png")) == [
+        f"{s}_00{i}.png" for s in "cr" for i in range(3)
+    ]
+    robot = read_transforms(tmp_path / "robot" / "transforms.json")[0]
+    assert [c.model for c in robot] == ["fisheye"] * 3 and robot[1].image_size == (64, 48)
+    with Image.open(tmp_path / "robot" / "f_01.png") as im:
+        depth = np.asarray(im)
+    assert depth.dtype == np.uint16 and int(depth[24, 32]) == pytest.approx(
+        2000, rel=0.03
+    )  # the (faceted) sphere, 2 m ahead

@@ -160,8 +160,9 @@ def _transforms_intrinsics(cam, width, height) -> dict:
     K = cam.intrinsics(width, height)
     out = {"camera_model": "OPENCV_FISHEYE" if cam.model == "fisheye" else "OPENCV"}
     out.update(fl_x=K[0, 0], fl_y=K[1, 1], cx=K[0, 2], cy=K[1, 2], w=width, h=height)
-    out["camera_angle_x"] = 2.0 * math.atan(0.5 * width / K[0, 0])
-    out["camera_angle_y"] = 2.0 * math.atan(0.5 * height / K[1, 1])
+    if cam.model != "fisheye":  # (instant-ngp's field of view, of a pinhole of that focal length)
+        out["camera_angle_x"] = 2.0 * math.atan(0.5 * width / K[0, 0])
+        out["camera_angle_y"] = 2.0 * math.atan(0.5 * height / K[1, 1])
     d = cam.distortion
     names = ("k1", "k2", "k3", "k4") if cam.model == "fisheye" else ("k1", "k2", "p1", "p2", "k3")
     out.update({n: float(v) for n, v in zip(names, d)} if d else {n: 0.0 for n in ("k1", "k2", "p1", "p2")})

@@ -170,14 +170,11 @@ class Renderer(Closes):
         self.gbuffer, self.accumulate = GBufferPass(ctx, lib, res), AccumulatePass(ctx, lib, res)
         self.shadows = ShadowPass(ctx, lib, res, self.bvh_set, self.bvh_layout)
         self.ao = AOPass(ctx, lib, res, self.bvh_set, self.bvh_layout)
-        self.camera_rays = CameraRaysPass(  # the G-buffer of camera models other than the pinhole
-            ctx, lib, res, self.bvh_set, self.bvh_layout, pixels=self.width * self.height
-        )
+        self.camera_rays = None  # the G-buffer of camera models other than the pinhole: made when first used
         self.denoise = DenoisePass(ctx, lib, res, self.targets)
         self.lighting, self.debug_view = LightingPass(ctx, lib, res), DebugViewPass(ctx, lib, res)
         self.passes = [
             self.gbuffer,
-            self.camera_rays,
             self.shadows,
             self.ao,
             self.accumulate,
@@ -537,6 +534,8 @@ class Renderer(Closes):
         reset = history_key != self._history_key
         if reset:  # no motion on a frame without history (as the camera's previous matrix is this one)
             self._changes.still(self._geometry)
+        if traced(camera) and self.camera_rays is None:
+            self._make_camera_rays(scene)
         key = (
             cfg["shadows"],
             cfg["ao"],
@@ -614,6 +613,17 @@ class Renderer(Closes):
             self.library.close()
 
     # ---- internals ------------------------------------------------------------------------
+    def _make_camera_rays(self, scene):
+        """The traced cameras' pass, for this scene's geometry and BVH (made once a camera needs it: a renderer
+        of pinhole cameras never compiles it)."""
+        p = CameraRaysPass(
+            self.ctx, self.library, self.targets.resources, self.bvh_set, self.bvh_layout, self.width * self.height
+        )
+        p.bind_scene(self._geometry, scene)
+        p.specialize_for(self._scene_bvh)
+        self.camera_rays = p
+        self.passes.append(p)
+
     def _ray_camera(self, camera, reset: bool):
         """A traced camera's block (and the previous frame's camera, for motion: none after a history reset)."""
         if traced(camera):
@@ -662,7 +672,7 @@ class Renderer(Closes):
                 scene,
                 self.bvh_set,
                 self.bvh_layout,
-                (self.shadows, self.ao, self.camera_rays),
+                tuple(p for p in (self.shadows, self.ao, self.camera_rays) if p is not None),
                 self._invalidate_commands,
                 self._geometry.alpha_index,
             )
@@ -683,7 +693,8 @@ class Renderer(Closes):
         self.gbuffer.bind_scene(self._geometry)
         for p in (self.shadows, self.ao):  # the alpha test's records and textures
             p.bind_scene(self._geometry)
-        self.camera_rays.bind_scene(self._geometry, scene)
+        if self.camera_rays is not None:
+            self.camera_rays.bind_scene(self._geometry, scene)
 
     def _use_scene(self, scene):
         """Upload a scene that is not the last one; True when it did."""

@@ -239,3 +239,22 @@ def test_toml_camera_table_names_the_model(tmp_path):
     path.write_text(body + 'model = "fisheye"\nfx = 70.0\np1 = 0.1\n')
     with pytest.raises(Exception, match=r"cam.toml.*\[camera\].*unknown key 'p1'"):
         Scene.load(path)
+
+
+def test_one_renderer_switches_between_raster_and_traced_cameras_and_resizes(make_renderer):
+    """Pinhole, fisheye, pinhole again (the same image as the first), then a resize and the fisheye at the new
+    size (the same view resampled: its surface points still project onto their pixel centres)."""
+    r = make_renderer(W, H)
+    scene = scene_of()
+    p = pose()
+    pin, fish = Camera.from_intrinsics(K, W, H, pose=p), models()["fisheye"]
+    first = r.render(scene, pin, shadows="hard", ao=False).color
+    r.render(scene, fish, shadows="hard", ao=False)
+    assert np.array_equal(r.render(scene, pin, shadows="hard", ao=False).color, first)
+    r.resize(2 * W, 2 * H)
+    f = r.render(scene, fish, aovs=("position", "depth"), shadows="off", ao=False)
+    covered = np.isfinite(f.aov["depth"])
+    uv = fish.project(f.aov["position"][covered].astype(np.float64), width=2 * W, height=2 * H)
+    assert covered.mean() > 0.3 and np.abs(uv - centres(2 * W, 2 * H)[covered]).max() < 0.01
+    frames = list(r.render_many(scene, [fish, fish.replace(eye=fish.eye + (0.1, 0, 0))], aovs=("depth",), ao=False))
+    assert len(frames) == 2 and not np.array_equal(frames[0].aov["depth"], frames[1].aov["depth"])

@@ -30,7 +30,7 @@ def cameras():
     a = Camera.look_at((2.0, 1.6, 4.0), (0.0, 0.4, 0.0)).pose
     b = Camera.look_at((-2.5, 1.2, 3.5), (0.2, 0.5, 0.0)).pose
     return [
-        Camera.from_opencv(K, [-0.2, 0.05, 0.001, -0.002], width=W, height=H, pose=a),
+        Camera.from_opencv(K, [-0.2, 0.05, 0.001, -0.002, 0.01], width=W, height=H, pose=a),
         Camera.fisheye(K, [0.05, -0.01, 0.003, -0.0005], W, H, pose=b),
         Camera.from_intrinsics(K, W, H, pose=b),
     ]
@@ -187,8 +187,10 @@ def test_render_reads_and_writes_the_formats(tmp_path):
         ("transforms.json", '{"frames": [{"transform_matrix": [[1,0,0,0],[0,1,0,0],[0,0,1,0],[0,0,0,1]]}], '
          '"w": 8, "h": 8, "fl_x": 9, "camera_model": "KB"}', r"transforms.json: frames\[0\]: 'camera_model': 'KB'"),
         ("transforms.json", '{"frames": [', r"transforms.json: invalid JSON"),
-        ("cameras.txt", "1 FULL_OPENCV 8 8 1 1 4 4 0 0 0 0 0 0 0 0",
-         r"cameras.txt:1: unknown COLMAP camera model 'FULL_OPENCV' \(read: SIMPLE_PINHOLE, PINHOLE"),
+        ("cameras.txt", "1 THIN_PRISM_FISHEYE 8 8 1 1 4 4 0 0 0 0 0 0 0 0",
+         r"cameras.txt:1: unknown COLMAP camera model 'THIN_PRISM_FISHEYE' \(read: SIMPLE_PINHOLE, PINHOLE"),
+        ("cameras.txt", "1 FULL_OPENCV 8 8 1 1 4 4 0 0 0 0 0 0.1 0 0",
+         r"cameras.txt:1: FULL_OPENCV with k4, k5 or k6 \(OpenCV's rational model\) is not supported"),
         ("cameras.txt", "1 PINHOLE 8 8 1 1 4", r"cameras.txt:1: PINHOLE takes 4 parameters \(fx fy cx cy\), got 3"),
         ("images.txt", "1 1 0 0 0 0 0 x 1 a.png\n\n", r"images.txt:1: QW QX QY QZ TX TY TZ must be numbers"),
         ("images.txt", "1 1 0 0 0 0 0 1 7 a.png\n\n", r"images.txt:1: CAMERA_ID 7 is not in cameras.txt"),

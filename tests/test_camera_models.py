@@ -258,3 +258,35 @@ def test_one_renderer_switches_between_raster_and_traced_cameras_and_resizes(mak
     assert covered.mean() > 0.3 and np.abs(uv - centres(2 * W, 2 * H)[covered]).max() < 0.01
     frames = list(r.render_many(scene, [fish, fish.replace(eye=fish.eye + (0.1, 0, 0))], aovs=("depth",), ao=False))
     assert len(frames) == 2 and not np.array_equal(frames[0].aov["depth"], frames[1].aov["depth"])
+
+
+@pytest.mark.parametrize("model", ["opencv", "fisheye"])
+def test_a_vertex_on_opencvs_ray_through_a_pixel_centre_is_hit_at_its_depth(make_renderer, model):
+    """Pyramids whose apexes OpenCV's own undistortion places on the rays through chosen pixel centres, pointing
+    at the camera: each of those pixels sees its apex exactly (depth to 1e-5), which a ray 0.01 px off would miss
+    by 10x that (the faces slope away at 45 degrees)."""
+    cam = models()[model]
+    pixels = np.array([[10.5, 8.5], [47.5, 30.5], [80.5, 55.5], [70.5, 12.5]])
+    crit = (cv2.TERM_CRITERIA_COUNT | cv2.TERM_CRITERIA_EPS, 200, 1e-15)
+    if model == "fisheye":
+        xy = cv2.fisheye.undistortPoints(pixels.reshape(-1, 1, 2), K, np.array(FISHEYE_D), criteria=crit)
+    else:
+        xy = cv2.undistortPoints(pixels.reshape(-1, 1, 2), K, np.array(DIST), None, None, criteria=crit)
+    depth = np.array([3.0, 4.0, 3.5, 5.0])
+    apex_cam = np.c_[xy.reshape(-1, 2), np.ones(4)] * depth[:, None]
+    verts, faces = [], []
+    for apex in apex_cam:  # a square pyramid, its apex towards the camera, its base 0.3 further along the ray
+        axis = apex / np.linalg.norm(apex)
+        u = np.cross(axis, (0.0, 1.0, 0.0))
+        u /= np.linalg.norm(u)
+        v = np.cross(axis, u)
+        base = [apex + 0.3 * axis + 0.3 * (np.cos(a) * u + np.sin(a) * v) for a in np.arange(4) * np.pi / 2]
+        k = len(verts)
+        verts += [apex, *base]
+        faces += [[k, k + 1 + i, k + 1 + (i + 1) % 4] for i in range(4)]
+    world = np.asarray(verts) @ cam.pose[:3, :3].T + cam.pose[:3, 3]
+    scene = Scene.from_arrays(world, np.array(faces), lights=[DirectionalLight((0, -1, 0))])
+    f = make_renderer(W, H).render(scene, cam, aovs=("depth",), shadows="off", ao=False)
+    got = f.aov["depth"][pixels[:, 1].astype(int), pixels[:, 0].astype(int)]
+    np.testing.assert_allclose(got, depth, rtol=1e-5)
+    np.testing.assert_allclose(cam.project(world[::5]), pixels, atol=1e-6)  # and project() puts them there

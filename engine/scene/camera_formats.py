@@ -6,7 +6,8 @@ transforms.json: the intrinsics at the top (`camera_angle_x`, or `fl_x`, `fl_y`,
 and per frame `file_path` and `transform_matrix` (camera-to-world, OpenGL axes: x right, y up, looking down -z).
 COLMAP: `cameras.txt` lines `CAMERA_ID MODEL WIDTH HEIGHT PARAMS...` (PINHOLE, SIMPLE_PINHOLE, SIMPLE_RADIAL,
 RADIAL, OPENCV, OPENCV_FISHEYE), `images.txt` two lines per image, `IMAGE_ID QW QX QY QZ TX TY TZ CAMERA_ID NAME`
-(world-to-camera, OpenCV axes) and its 2D points (written empty). Both put pixel centres at +0.5, as here.
+(world-to-camera, OpenCV axes) and its 2D points (written empty); FULL_OPENCV is read and written for OpenCV's k3,
+without its rational terms (k4..k6 = 0). Both put pixel centres at +0.5, as here.
 Errors are one line naming the file and the key or line.
 """
 
@@ -34,6 +35,7 @@ COLMAP_MODELS = {
     "RADIAL": ("f", "cx", "cy", "k1", "k2"),
     "OPENCV": ("fx", "fy", "cx", "cy", "k1", "k2", "p1", "p2"),
     "OPENCV_FISHEYE": ("fx", "fy", "cx", "cy", "k1", "k2", "k3", "k4"),
+    "FULL_OPENCV": ("fx", "fy", "cx", "cy", "k1", "k2", "p1", "p2", "k3", "k4", "k5", "k6"),  # k4..k6 must be 0
 }
 
 
@@ -198,6 +200,8 @@ def read_colmap(path) -> tuple[list[Camera], list[str]]:
             values = dict(zip(names, (float(x) for x in fields[4:])))
         except ValueError:
             raise ConfigError(f"{where}: WIDTH, HEIGHT and the parameters must be numbers, got {line!r}") from None
+        if any(values.get(k, 0.0) != 0.0 for k in ("k4", "k5", "k6")) and model == "FULL_OPENCV":
+            raise ConfigError(f"{where}: FULL_OPENCV with k4, k5 or k6 (OpenCV's rational model) is not supported")
         intrinsics[cam_id] = (model, w, h, values)
     lines = _lines(images_txt, keep_blank=True)
     cameras, names = [], []
@@ -229,7 +233,7 @@ def read_colmap(path) -> tuple[list[Camera], list[str]]:
             if model == "OPENCV_FISHEYE":
                 cam = Camera.fisheye(K, [v["k1"], v["k2"], v["k3"], v["k4"]], w, h, pose=pose)
             else:
-                dist = [v.get("k1", 0.0), v.get("k2", 0.0), v.get("p1", 0.0), v.get("p2", 0.0)]
+                dist = [v.get(k, 0.0) for k in ("k1", "k2", "p1", "p2", "k3")]
                 cam = Camera.from_opencv(K, dist, w, h, pose=pose)
         except ConfigError as exc:
             raise ConfigError(f"{where}: {exc}") from None
@@ -293,8 +297,8 @@ def colmap_text(cameras, files, width: int, height: int) -> tuple[str, str]:
         K = cam.intrinsics(width, height)
         model = "OPENCV_FISHEYE" if cam.model == "fisheye" else "OPENCV" if cam.model == "opencv" else "PINHOLE"
         d = cam.distortion[:4] if cam.model == "opencv" else cam.distortion
-        if cam.model == "opencv" and cam.distortion[4] != 0.0:
-            raise ConfigError("COLMAP's OPENCV model has no k3; this camera's k3 is not 0")
+        if cam.model == "opencv" and cam.distortion[4] != 0.0:  # OPENCV has no k3: FULL_OPENCV's rational terms 0
+            model, d = "FULL_OPENCV", (*cam.distortion, 0.0, 0.0, 0.0)
         params = [K[0, 0], K[1, 1], K[0, 2], K[1, 2], *d]
         line = f"{model} {width} {height} " + " ".join(repr(float(x)) for x in params)
         if line not in ids:

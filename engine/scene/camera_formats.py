@@ -16,6 +16,7 @@ from __future__ import annotations
 import json
 import math
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 
@@ -160,7 +161,7 @@ def _transforms_intrinsics(cam, width, height) -> dict:
     if cam.model == "equirect":
         return {"camera_model": "EQUIRECTANGULAR", "w": width, "h": height}
     K = cam.intrinsics(width, height)
-    out = {"camera_model": "OPENCV_FISHEYE" if cam.model == "fisheye" else "OPENCV"}
+    out: dict[str, Any] = {"camera_model": "OPENCV_FISHEYE" if cam.model == "fisheye" else "OPENCV"}
     out.update(fl_x=K[0, 0], fl_y=K[1, 1], cx=K[0, 2], cy=K[1, 2], w=width, h=height)
     if cam.model != "fisheye":  # (instant-ngp's field of view, of a pinhole of that focal length)
         out["camera_angle_x"] = 2.0 * math.atan(0.5 * width / K[0, 0])
@@ -190,21 +191,22 @@ def read_colmap(path) -> tuple[list[Camera], list[str]]:
         cam_id, model = fields[0], fields[1]
         if model not in COLMAP_MODELS:
             raise ConfigError(f"{where}: unknown COLMAP camera model {model!r} (read: {', '.join(COLMAP_MODELS)})")
-        names = COLMAP_MODELS[model]
-        if len(fields) != 4 + len(names):
+        params = COLMAP_MODELS[model]
+        if len(fields) != 4 + len(params):
             raise ConfigError(
-                f"{where}: {model} takes {len(names)} parameters ({' '.join(names)}), got {len(fields) - 4}"
+                f"{where}: {model} takes {len(params)} parameters ({' '.join(params)}), got {len(fields) - 4}"
             )
         try:
             w, h = int(fields[2]), int(fields[3])
-            values = dict(zip(names, (float(x) for x in fields[4:])))
+            values = dict(zip(params, (float(x) for x in fields[4:])))
         except ValueError:
             raise ConfigError(f"{where}: WIDTH, HEIGHT and the parameters must be numbers, got {line!r}") from None
         if any(values.get(k, 0.0) != 0.0 for k in ("k4", "k5", "k6")) and model == "FULL_OPENCV":
             raise ConfigError(f"{where}: FULL_OPENCV with k4, k5 or k6 (OpenCV's rational model) is not supported")
         intrinsics[cam_id] = (model, w, h, values)
     lines = _lines(images_txt, keep_blank=True)
-    cameras, names = [], []
+    cameras: list[Camera] = []
+    names: list[str] = []
     for k in range(0, len(lines), 2):
         lineno, line = lines[k]
         where = f"{images_txt}:{lineno}"
@@ -283,14 +285,16 @@ def matrix_quaternion(r) -> np.ndarray:
         q = [0.0, 0.0, 0.0, 0.0]
         q[0] = (m[k, j] - m[j, k]) / s
         q[1 + i], q[1 + j], q[1 + k] = 0.25 * s, (m[j, i] + m[i, j]) / s, (m[k, i] + m[i, k]) / s
-    q = np.array(q)
-    return q if q[0] >= 0 else -q
+    quat = np.array(q)
+    return quat if quat[0] >= 0 else -quat
 
 
 def colmap_text(cameras, files, width: int, height: int) -> tuple[str, str]:
     """cameras.txt and images.txt of `cameras` rendered at `width` x `height` into `files` (one camera entry per
     distinct intrinsics)."""
-    cam_lines, img_lines, ids = [], [], {}
+    cam_lines: list[str] = []
+    img_lines: list[str] = []
+    ids: dict[str, int] = {}
     for i, (cam, name) in enumerate(zip(cameras, files), 1):
         if cam.model in ("orthographic", "equirect"):
             raise ConfigError(f"COLMAP has no {cam.model} camera model")

@@ -678,7 +678,7 @@ class ModelCamera(IntrinsicsCamera):
         X, Y, Z = c[:, 0], c[:, 1], c[:, 2]
         with np.errstate(divide="ignore", invalid="ignore"):
             if self.model == "orthographic":
-                x, y = X, np.where(Z > 0.0, Y, np.nan)
+                x, y = np.where(Z >= 0.0, X, np.nan), np.where(Z >= 0.0, Y, np.nan)  # (rays start on the plane)
             elif self.model == "equirect":
                 w, h = int(width), int(height)
                 lon, lat = np.arctan2(X, Z), np.arctan2(Y, np.hypot(X, Z))
@@ -699,8 +699,8 @@ class ModelCamera(IntrinsicsCamera):
 
     # ------------------------------------------------------------------ value semantics
     def replace(self, **changes) -> "ModelCamera":
-        """A copy with some of pose (read in `convention`), eye, near, width, height changed."""
-        allowed = ("pose", "convention", "eye", "near", "width", "height")
+        """A copy with some of pose (read in `convention`), eye, near changed (another size: render at it)."""
+        allowed = ("pose", "convention", "eye", "near")
         unknown = sorted(set(changes) - set(allowed))
         if unknown:
             raise ConfigError(

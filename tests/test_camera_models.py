@@ -175,8 +175,10 @@ def test_motion_vectors_follow_the_moving_camera(make_renderer):
     scene = scene_of()
     a = models()["fisheye"]
     b = a.replace(eye=a.eye + (0.15, 0.05, -0.1))
-    r.render(scene, a, shadows="off", ao=False)
+    r.render(scene, a, aovs=("position", "depth", "motion"), shadows="off", ao=False)
+    recorded = {k: v[0] for k, v in r._commands.items()}
     f = r.render(scene, b, aovs=("position", "depth", "motion"), shadows="off", ao=False)
+    assert {k: v[0] for k, v in r._commands.items()} == recorded  # the same command buffer, re-submitted
     covered = np.isfinite(f.aov["depth"])
     pos = f.aov["position"][covered].astype(np.float64)
     expect = opencv_pixels(b, pos) - opencv_pixels(a, pos)

@@ -26,7 +26,7 @@ from .outputs import check_output_path, write_camera_json
 from .renderer import Renderer
 from .scene import Camera, Scene
 from .scene.camera import DEFAULT_INTRINSICS_NEAR
-from .scene.camera_formats import is_transforms, read_colmap, read_transforms, write_dataset
+from .scene.camera_formats import is_transforms, model_camera, read_colmap, read_transforms, write_dataset
 from .settings import MAX_FRAMES, check_settings
 
 try:
@@ -177,7 +177,7 @@ def _camera(entry: dict, shared: dict, default_fov_y: float) -> Camera:
             if k not in keys:
                 raise ConfigError(f"missing key {k!r}")
         if keys.get("model", "pinhole") != "pinhole":
-            return _model(keys)
+            return model_camera(keys)
         return Camera.from_intrinsics(
             keys["K"],
             keys["width"],
@@ -195,28 +195,6 @@ def _camera(entry: dict, shared: dict, default_fov_y: float) -> Camera:
     return Camera.look_at(
         keys["eye"], keys["target"], keys.get("up", (0.0, 1.0, 0.0)), fov_y=fov, near=keys.get("near")
     )
-
-
-def _model(keys: dict) -> Camera:
-    """A camera sidecar's model camera: "model" (opencv, fisheye, orthographic, equirect), "distortion" and K."""
-    model, w, h = keys["model"], keys["width"], keys["height"]
-    kw = dict(
-        pose=keys["pose"], convention=keys.get("convention", "opencv"), near=keys.get("near", DEFAULT_INTRINSICS_NEAR)
-    )
-    dist = keys.get("distortion", [])
-    if model == "opencv":
-        return Camera.from_opencv(keys["K"], dist, w, h, **kw)
-    if model == "fisheye":
-        return Camera.fisheye(keys["K"], dist, w, h, **kw)
-    if model == "equirect":
-        return Camera.equirect(w, h, **kw)
-    if model == "orthographic":
-        try:
-            view_height = float(h) / float(keys["K"][1][1])
-        except (TypeError, ValueError, IndexError, ZeroDivisionError):
-            raise ConfigError(f"K must be a 3x3 matrix with fy > 0, got {keys['K']!r}") from None
-        return Camera.orthographic(view_height, w, h, **kw)
-    raise ConfigError(f"'model' must be pinhole, opencv, fisheye, orthographic or equirect, got {model!r}")
 
 
 def _posed(entry: dict, shared: dict, default_fov_y: float) -> Camera:

@@ -260,3 +260,25 @@ def test_the_datasets_doc_commands_run(tmp_path):
     assert depth.dtype == np.uint16 and int(depth[24, 32]) == pytest.approx(
         2000, rel=0.03
     )  # the (faceted) sphere, 2 m ahead
+
+
+def test_batch_reads_the_formats_and_keeps_camera_models(tmp_path):
+    """A batch whose camera path is a transforms.json of OpenCV and fisheye cameras renders them as those models and
+    writes them back beside its images (the .npz holds model and distortion)."""
+    cams = cameras()[:2]
+    write_dataset(tmp_path, cams, ["a.png", "b.png"], W, H)
+    job = tmp_path / "job.toml"
+    job.write_text('output = "out"\nsize = "48x32"\naovs = ["color", "depth"]\n\n'
+                   '[cameras]\npath = "transforms.json"\n\n[[scenes]]\nscene = "sphere"\n')  # fmt: skip
+    res = subprocess.run([sys.executable, "-m", "engine", "batch", job, "-q"], capture_output=True, text=True,
+                         cwd=tmp_path, env=ENV, timeout=300)  # fmt: skip
+    assert res.returncode == 0, res.stderr
+    folder = tmp_path / "out" / "sphere"
+    with np.load(folder / "0001.npz") as data:
+        assert str(data["model"]) == "fisheye" and tuple(data["distortion"]) == cams[1].distortion
+    got, names = read_transforms(folder / "transforms.json")
+    assert names == ["0000.png", "0001.png"] and [c.model for c in got] == ["opencv", "fisheye"]
+    for a, b in zip(cams, got):
+        np.testing.assert_allclose(a.pose, b.pose, atol=1e-12)
+        np.testing.assert_allclose(a.intrinsics(48, 32), b.intrinsics(), atol=1e-12)
+        assert a.distortion == pytest.approx(b.distortion, abs=1e-15)

@@ -15,7 +15,7 @@ from ..errors import EngineError
 from ..files import atomic_write
 from ..frame import Frame
 from ..scene import Camera
-from ..scene.camera_formats import write_dataset
+from ..scene.camera_formats import model_camera, write_dataset
 from .job import Item, Job
 
 
@@ -45,6 +45,8 @@ def npz_arrays(job: Job, item: Item, frame: Frame, camera: Camera) -> dict[str, 
     out["K"] = camera.intrinsics(job.width, job.height)
     out["pose"] = camera.pose
     out["near"] = np.array(camera.near, np.float64)
+    if camera.model != "pinhole":  # (its lens: the model and its coefficients)
+        out["model"], out["distortion"] = np.array(camera.model), np.array(camera.distortion, np.float64)
     if "object_id" in frame.aov:
         out["object_names"] = np.array(frame.object_names, dtype=str)
     if "material_id" in frame.aov:
@@ -82,10 +84,15 @@ def write_cameras(job: Job) -> None:
             names = job.files(item)
             try:
                 with np.load(job.output / names[-1]) as data:
-                    K, pose = data["K"], data["pose"]
+                    rec = {"K": data["K"], "pose": data["pose"], "width": job.width, "height": job.height}
+                    if "model" in data.files:
+                        rec.update(model=str(data["model"]), distortion=data["distortion"])
             except (OSError, ValueError, KeyError, EOFError, zipfile.BadZipFile):
                 continue  # not rendered (or failed): not in the dataset
-            cams.append(Camera.from_intrinsics(K, job.width, job.height, pose=pose))
+            if "model" in rec:
+                cams.append(model_camera(rec))
+            else:
+                cams.append(Camera.from_intrinsics(rec["K"], job.width, job.height, pose=rec["pose"]))
             files.append(Path(names[job.png.index("color")]).name)
         if cams:
             write_dataset(job.output / spec.name, cams, files, job.width, job.height)

@@ -40,6 +40,50 @@ COLMAP_MODELS = {
 }
 
 
+# ---------------------------------------------------------------------------------------------- camera records
+def model_camera(keys: dict) -> Camera:
+    """The camera of a record with a "model" other than the pinhole (a sidecar's keys: model, distortion, K, width,
+    height, pose[, convention, near]; engine/outputs.py camera_record)."""
+    model, w, h = keys["model"], keys["width"], keys["height"]
+    kw = dict(pose=keys["pose"], convention=keys.get("convention", "opencv"))
+    if "near" in keys:
+        kw["near"] = keys["near"]
+    dist = keys.get("distortion", [])
+    if model == "opencv":
+        return Camera.from_opencv(keys["K"], dist, w, h, **kw)
+    if model == "fisheye":
+        return Camera.fisheye(keys["K"], dist, w, h, **kw)
+    if model == "equirect":
+        return Camera.equirect(w, h, **kw)
+    if model == "orthographic":
+        try:
+            view_height = float(h) / float(keys["K"][1][1])
+        except (TypeError, ValueError, IndexError, KeyError, ZeroDivisionError):
+            raise ConfigError(f"K must be a 3x3 matrix with fy > 0, got {keys.get('K')!r}") from None
+        return Camera.orthographic(view_height, w, h, **kw)
+    raise ConfigError(f"'model' must be pinhole, opencv, fisheye, orthographic or equirect, got {model!r}")
+
+
+def camera_records(path, data=None) -> list[dict] | None:
+    """The cameras of a transforms.json (`data`: its parsed JSON) or a COLMAP text model (a folder, cameras.txt or
+    images.txt) at `path` as camera records (K, pose, width, height[, model, distortion]); None for other files."""
+    p = Path(path)
+    if p.is_dir() or p.name in ("cameras.txt", "images.txt"):
+        cams = read_colmap(p)[0]
+    elif data is not None and is_transforms(data):
+        cams = read_transforms(p, data)[0]
+    else:
+        return None
+    out = []
+    for cam in cams:
+        w, h = cam.image_size
+        rec = {"K": cam.intrinsics().tolist(), "pose": cam.pose.tolist(), "width": w, "height": h}
+        if cam.model != "pinhole":
+            rec.update(model=cam.model, distortion=list(cam.distortion))
+        out.append(rec)
+    return out
+
+
 # ---------------------------------------------------------------------------------------------- transforms.json
 def is_transforms(data) -> bool:
     """Is this parsed JSON a transforms.json (an object with a "frames" list)?"""

@@ -481,6 +481,10 @@ class Renderer(Closes):
         """The frame's command buffer, its timestamp marks, settings and light count, with the frame block written
         (the caller has checked that the renderer is open and that no other frame in flight reads the block)."""
         polled = False
+        if isinstance(scene, Scene) and scene.pixel_points:  # point clouds sized in pixels: for this camera, height
+            cam = camera if camera is not None else scene.camera
+            if isinstance(cam, Camera):
+                scene.size_points(cam, self.height)
         if scene is self._scene and self._geometry is not None:
             self._frame_start(scene)  # moved instances: their transforms, the BVH (may drop the recordings)
         if self._steady is not None:
@@ -603,7 +607,7 @@ class Renderer(Closes):
         to call twice."""
         self._flight = None  # (its iterator's next step raises: closed)
         if self.ctx is not None:
-            if not self._owns_ctx and not self.ctx.closed:
+            if not self._owns_ctx and not self.ctx.closed and not self.ctx.hung:
                 self._invalidate_commands()
             self.ctx.close()  # its own context, or its Scope of a shared one: what this renderer made
             self.ctx = None

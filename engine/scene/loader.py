@@ -15,7 +15,7 @@ from PIL import Image
 from engine.limits import MAX_COORD
 from engine.errors import SceneError, shown
 
-from . import mtl
+from . import mtl, points
 from .filechecks import bomb_images, bomb_pixels, check_mesh_file, diagnose_gltf
 from .instances import Mesh, check_transforms, determinants, instance_label, world_boxes
 from .material import TEXTURE_FIELDS, Material, material_key, srgb8_to_linear, texture_key
@@ -26,6 +26,7 @@ MAX_TEXTURE_SIZE = 2048
 #: decoded (RGBA at this size is 256 MB; it is downsized to MAX_TEXTURE_SIZE on a side after decoding).
 MAX_TEXTURE_PIXELS = 64 * 1024 * 1024
 MESH_EXTENSIONS = (".obj", ".ply", ".stl", ".gltf", ".glb", ".off")
+USD_EXTENSIONS = (".usd", ".usda", ".usdc", ".usdz")  # stages: usd.py reads them (Scene.load picks it by suffix)
 DEFAULT_COLOR = (0.8, 0.8, 0.8, 1.0)
 IMAGE_EXTENSIONS = (".png", ".jpg", ".jpeg", ".bmp", ".tga", ".tif", ".tiff", ".gif", ".webp")
 
@@ -219,7 +220,9 @@ def load_trimesh_scene(path: str, *, scene_file: bool = False):
             f"{where}: a .toml scene cannot be used as a mesh file (mesh files: {', '.join(MESH_EXTENSIONS)})"
         )
     if ext not in MESH_EXTENSIONS:
-        supported = (".toml, " if scene_file else "") + ", ".join(MESH_EXTENSIONS)
+        supported = ", ".join(
+            ((".toml",) if scene_file else ()) + MESH_EXTENSIONS + (USD_EXTENSIONS if scene_file else ())
+        )
         raise SceneError(f"{where}: unsupported file type '{shown(ext) or '(none)'}' (supported: {supported})")
     try:
         if os.path.getsize(path) == 0:
@@ -274,6 +277,8 @@ class SceneBuilder:
         self._textures: dict = {}
         self._mesh_keys: dict = {}
         self._keep: list = []  # the objects whose ids are in _mesh_keys, kept alive so the ids stay unique
+        self._point_radius = None  # add_trimesh's, for its point clouds
+        self.point_pixels = None  # point clouds' splats this many pixels wide (None: world-sized)
 
     # -------------------------------------------------------------- materials
     def material_index(self, mat: Material, key_name=None) -> int:
@@ -406,18 +411,22 @@ class SceneBuilder:
         overrides: dict | None = None,
         transforms=None,
         labels=None,
+        point_radius=None,
     ):
-        """Add a trimesh.Trimesh or trimesh.Scene (node transforms applied, then `transform`); with `transforms`
+        """Add a trimesh.Trimesh, PointCloud or Scene (node transforms applied, then `transform`); with `transforms`
         (a list of (4, 4)), once per transform (each applied after `transform`), `labels` (None or a name per
         transform) replacing `label` for that placement. A geometry used by several nodes
         (or added again from the same `obj`) stays one mesh with several instances.
 
         `color` (linear RGBA), `texture` and `overrides` (other Material fields: metallic, roughness, emissive) override
-        every material of `obj` (material overrides of the TOML format).
+        every material of `obj` (material overrides of the TOML format). Point clouds become splats (points.py) of
+        `point_radius` (object-space units; None: their spacing).
         """
         import trimesh  # deferred: heavy, and needed only to read meshes
 
-        if isinstance(obj, trimesh.Trimesh):
+        if isinstance(obj, trimesh.PointCloud):
+            items = [(np.eye(4), obj, label or "points", "points")]
+        elif isinstance(obj, trimesh.Trimesh):
             items = [(np.eye(4), obj, label or getattr(obj.metadata, "get", lambda *_: None)("name") or "mesh", "mesh")]
         elif isinstance(obj, trimesh.Scene):
             items = []
@@ -425,7 +434,7 @@ class SceneBuilder:
                 for node in obj.graph.nodes_geometry:
                     m, geom_name = obj.graph[node]
                     geom = obj.geometry.get(geom_name)
-                    if isinstance(geom, trimesh.Trimesh):
+                    if isinstance(geom, (trimesh.Trimesh, trimesh.PointCloud)):
                         items.append((np.asarray(m, dtype=np.float64), geom, str(node), str(geom_name)))
         else:
             raise SceneError(f"{where}: expected a trimesh.Trimesh or trimesh.Scene, got {type(obj).__name__}")
@@ -436,6 +445,7 @@ class SceneBuilder:
             places = np.asarray(transforms, dtype=np.float64).reshape(-1, 4, 4) @ outer
             names = [(labels[i] if labels and labels[i] else label) for i in range(len(places))]
         before = len(self._inst_names)
+        self._point_radius = point_radius
         made = {}  # this call's materials by trimesh material; `obj` keeps those alive, so their ids stay unique
         self._keep.append(obj)
         in_scene, extra = isinstance(obj, trimesh.Scene), overrides or {}
@@ -456,6 +466,11 @@ class SceneBuilder:
 
     def _add_geometry(self, geom, m, names, geom_name, where, color, texture, uv_scale, made, overrides):
         """One trimesh geometry placed by the transforms `m` (K, 4, 4), its instances named `names`."""
+        import trimesh  # deferred: heavy, and needed only to read meshes
+
+        if isinstance(geom, trimesh.PointCloud):
+            self._add_points(geom, m, names, geom_name, where, color, overrides)
+            return
         node_name = names[0]
         with _quiet():
             vertices = np.asarray(geom.vertices, dtype=np.float64)
@@ -494,6 +509,43 @@ class SceneBuilder:
         key = (id(geom), material, None if uv_scale is None else tuple(np.asarray(uv_scale, np.float64).tolist()))
         self._keep.append(geom)
         self.add_placed(geom_name, vertices, faces, normals, uvs, material, where, m, names, key=key)
+
+    def add_points(
+        self, name, positions, normals, colors, radius, where, transforms, names, key=None, color=None, overrides=None
+    ):
+        """A point cloud as splats (points.py) placed by `transforms` (K, 4, 4): `colors` (N, 3|4) uint8 sRGB or
+        None, `normals` (N, 3) or None, `radius` a number, (N,) or None (their spacing); `color` (linear RGBA)
+        replaces the points' colours, `overrides` other Material fields. With the builder's `point_pixels`, the
+        splats are that many pixels wide (Scene.size_points)."""
+        what = f"{where}: point cloud '{shown(name)}'"
+        colors = None if color is not None else colors
+        sp = points.splats(positions, normals, colors, radius, where=what, pixels=self.point_pixels)
+        base = color if color is not None else (1.0, 1.0, 1.0, 1.0) if sp.texture is not None else DEFAULT_COLOR
+        mat = Material(name, base, sp.texture)
+        if overrides:
+            mat = mat.with_overrides(**overrides)
+        material = self.material_index(mat)
+        key = ("points", id(sp)) if key is None else key
+        self._keep.append(sp)
+        before = len(self.meshes)
+        self.add_placed(name, sp.positions, sp.faces, sp.normals, sp.uvs, material, where, transforms, names, key=key)
+        if len(self.meshes) > before:
+            self.meshes[-1].splats = sp
+
+    def _add_points(self, geom, m, names, geom_name, where, color, overrides):
+        """A trimesh.PointCloud (a PLY without faces): its colours and, from a PLY, its normals (nx, ny, nz)."""
+        with _quiet():
+            vertices = np.asarray(geom.vertices, dtype=np.float64)
+            colors = np.asarray(geom.colors) if len(geom.colors) == len(vertices) else None
+            raw = (geom.metadata.get("_ply_raw") or {}).get("vertex", {}).get("data", {})
+        normals = None
+        if isinstance(raw, dict) and all(k in raw for k in ("nx", "ny", "nz")):
+            normals = np.column_stack([np.asarray(raw[k], dtype=np.float64).reshape(-1) for k in ("nx", "ny", "nz")])
+        colour_key = None if color is None else tuple(np.asarray(color).tolist())
+        key = (id(geom), "points", self._point_radius, self.point_pixels, colour_key)
+        self._keep.append(geom)
+        radius = self._point_radius
+        self.add_points(geom_name, vertices, normals, colors, radius, where, m, names, key, color, overrides)
 
     # -------------------------------------------------------------- result
     def build(self, lights=None, camera=None, settings=None) -> SceneParts:
@@ -648,14 +700,19 @@ def _mtl_material(mat, name: str, texture) -> Material:
     )
 
 
-def load_mesh_file(path: str, transform=None) -> SceneParts:
-    """The parts of a scene made of one mesh / glTF file (then `transform`, (4, 4), applied)."""
-    return trimesh_parts(load_trimesh_scene(path, scene_file=True), path, transform=transform)
+def load_mesh_file(path: str, transform=None, point_radius=None, point_pixels=None) -> SceneParts:
+    """The parts of a scene made of one mesh / glTF file (then `transform`, (4, 4), applied); a point cloud's splats
+    of `point_radius` (None: their spacing) or `point_pixels` wide."""
+    parts = load_trimesh_scene(path, scene_file=True)
+    return trimesh_parts(parts, path, transform=transform, point_radius=point_radius, point_pixels=point_pixels)
 
 
-def trimesh_parts(obj, name: str, lights=None, camera=None, transform=None) -> SceneParts:
-    """The parts of a scene made of a trimesh.Trimesh or trimesh.Scene (node transforms applied, then
+def trimesh_parts(
+    obj, name: str, lights=None, camera=None, transform=None, point_radius=None, point_pixels=None
+) -> SceneParts:
+    """The parts of a scene made of a trimesh.Trimesh, PointCloud or Scene (node transforms applied, then
     `transform`)."""
     builder = SceneBuilder(name)
-    builder.add_trimesh(obj, shown(name), transform=transform)
+    builder.point_pixels = point_pixels
+    builder.add_trimesh(obj, shown(name), transform=transform, point_radius=point_radius)
     return builder.build(lights=lights, camera=camera)

@@ -19,7 +19,7 @@ from engine.data import scene_path
 from engine.limits import MAX_COORD
 from engine.errors import ConfigError, SceneError, shown
 
-from . import loader, toml_format
+from . import _check, loader, toml_format, usd
 from .camera import Camera
 from .geometry import up_transform
 from .lights import Light, default_sun
@@ -221,6 +221,7 @@ class Scene:
         self._names_version = 0  # increases when an instance is renamed (the object names' cache)
         self.settings = dict(settings or {})
         self.uid = next(_ids)
+        self.pixel_points = any(m.splats is not None and m.splats.pixels is not None for m in self.meshes)
 
     def _init_rest(self, lights, camera) -> None:
         where = shown(self.name)
@@ -324,6 +325,28 @@ class Scene:
         finally:
             self._version += 1
             self._mesh_changed[k] = self._version
+
+    def size_points(self, camera: Camera, height: int) -> None:
+        """Size the splats of point clouds loaded with `point_pixels` for `camera` and an image `height` pixels tall:
+        each splat that many pixels wide at its depth (the first instance of its mesh decides). Renderers call it
+        before each frame; nothing changes when the camera, height and placement are those of the last call."""
+        for k, mesh in enumerate(self.meshes):
+            sp = mesh.splats
+            if sp is None or sp.pixels is None:
+                continue
+            inst = np.flatnonzero(self._inst_mesh == k)
+            if not len(inst):
+                continue
+            m = self._transforms[inst[0]]
+            key = (camera, int(height), m.tobytes())
+            if sp.sized_for == key:
+                continue
+            radius = sp.pixel_radius(m, camera, height)
+            sp.sized_for = key
+            if np.allclose(radius, sp.radius, rtol=1e-5, atol=0.0):
+                continue
+            sp.radius = radius
+            self.update_positions(k, sp.resized(radius), normals=mesh.normals)
 
     def mesh_index(self, mesh: int | str) -> int:
         """The index of a mesh given by index or name."""
@@ -627,9 +650,12 @@ class Scene:
         path: str | os.PathLike[str],
         allow_paths: str | os.PathLike[str] | list | None = None,
         up: str | None = None,
+        point_radius: float | None = None,
+        point_pixels: float | None = None,
     ) -> Scene:
-        """A `.toml` scene (docs/scenes.md) or any mesh / glTF file trimesh reads (OBJ, PLY, STL, glTF, GLB, ...), or a
-        bundled scene by name (`"default"`, `"sphere"`, `"penumbra"`: `engine.scene_path` says the rule).
+        """A `.toml` scene (docs/scenes.md), any mesh / glTF file trimesh reads (OBJ, PLY, STL, glTF, GLB, ...), a USD
+        stage (.usd, .usda, .usdc, .usdz: needs `usd-core`, docs/scenes.md "USD stages"), or a bundled scene by
+        name (`"default"`, `"sphere"`, `"penumbra"`: `engine.scene_path` says the rule).
 
         The files a TOML scene names must lie inside its folder (symlinks followed); `allow_paths`, a folder or a
         list of folders, allows those too (docs/scenes.md, "Paths"). A mesh file's own references (MTL, textures,
@@ -638,6 +664,10 @@ class Scene:
         `up` is the files' up axis, "y" (the renderer's) or "z" (robotics and CAD assets; also "-z", "x", "-x",
         "-y"): their geometry is rotated upright as it loads ("z": -90 degrees about X). For a TOML scene it
         replaces the file's top-level `up` key (a `[[mesh]]`'s own `up` still wins); None: the file's, else "y".
+
+        A point cloud (a PLY without faces) loads as splats, small discs facing its normals or, without normals,
+        small low-poly spheres, of `point_radius` (the file's units; None: the points' median spacing), or
+        `point_pixels` wide in every image (`size_points`); docs/scenes.md, "Point clouds".
 
         Raises:
             SceneError: the file is missing, unreadable or invalid; the message names the file (and the field).
@@ -652,7 +682,13 @@ class Scene:
         up_m = None if up is None else up_transform(up, "Scene.load: up")
         if path.lower().endswith(".toml"):
             return cls._from_parts(toml_format.load_toml(path, allow_paths=allowed, up=up))
-        return cls._from_parts(loader.load_mesh_file(path, transform=up_m))
+        if path.lower().endswith(loader.USD_EXTENSIONS):
+            return cls._from_parts(usd.load_usd(path, transform=up_m))
+        sizes = {}
+        for key, value in (("point_radius", point_radius), ("point_pixels", point_pixels)):
+            if value is not None:
+                sizes[key] = _check.number(value, f"Scene.load: {key}", min_value=0.0, min_exclusive=True)
+        return cls._from_parts(loader.load_mesh_file(path, transform=up_m, **sizes))
 
     @classmethod
     def from_trimesh(

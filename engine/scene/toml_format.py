@@ -528,7 +528,7 @@ def _add_mesh(
             raise ctx.error(f"primitive must be one of {', '.join(PRIMITIVE_PARAMS)}, got {kind!r}")
         _unknown(ctx, table, MESH_COMMON + PRIMITIVE_PARAMS[kind])
     else:
-        _unknown(ctx, table, MESH_COMMON + ("up",))
+        _unknown(ctx, table, MESH_COMMON + ("up", "point_radius", "point_pixels"))
         mesh_path = _referenced_file(table, "file", ctx, folders)
 
     name = table.get("name", table.get("primitive") or table.get("file"))
@@ -554,6 +554,10 @@ def _add_mesh(
     uv_scale = None
     if "uv_scale" in table:
         uv_scale = _size(table["uv_scale"], 2, "uv_scale", ctx)
+    sizes = {}  # a point cloud's splats: radius (default: their spacing) or width in pixels
+    for key in ("point_radius", "point_pixels"):
+        if key in table:
+            sizes[key] = ctx.check(_check.number, table[key], key, min_value=0.0, min_exclusive=True)
 
     if has_prim:
         p, f, n, uv = _primitive(table["primitive"], table, ctx)
@@ -573,6 +577,7 @@ def _add_mesh(
             up_m = ctx.check(up_transform, table["up"], "up")
         if mesh_path not in files:
             files[mesh_path] = load_trimesh_scene(mesh_path)
+        builder.point_pixels = sizes.get("point_pixels")
         builder.add_trimesh(
             files[mesh_path],
             shown(mesh_path),
@@ -584,6 +589,7 @@ def _add_mesh(
             overrides=overrides,
             transforms=None if placements is None else placements[0],
             labels=None if placements is None else placements[1],
+            point_radius=sizes.get("point_radius"),
         )
     except SceneError as exc:
         raise ctx.error(f"file = '{shown(table['file'])}': {exc}") from None

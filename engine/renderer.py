@@ -538,8 +538,7 @@ class Renderer(Closes):
         reset = history_key != self._history_key
         if reset:  # no motion on a frame without history (as the camera's previous matrix is this one)
             self._changes.still(self._geometry)
-        if traced(camera) and self.camera_rays is None:
-            self._make_camera_rays(scene)
+        rays = self._uses_rays(camera, scene)
         key = (
             cfg["shadows"],
             cfg["ao"],
@@ -549,12 +548,12 @@ class Renderer(Closes):
             len(lights),
             readback,
             self._raster,
-            traced(camera),
+            rays,
         )
         if cfg["shadows"] == "reference":
             key += (cfg["reference_samples"],)
         if key not in self._commands:
-            cmd, ts = self._record(cfg, len(lights), readback, traced(camera))
+            cmd, ts = self._record(cfg, len(lights), readback, rays)
             self._commands[key] = (cmd, list(ts.names))
         cmd, marks = self._commands[key]
         reference = cfg["shadows"] == "reference"
@@ -617,9 +616,16 @@ class Renderer(Closes):
             self.library.close()
 
     # ---- internals ------------------------------------------------------------------------
+    def _uses_rays(self, camera, scene) -> bool:
+        """Is `camera` traced (a model other than the pinhole)? Then the traced cameras' pass, for this scene's
+        geometry and BVH, is made if it was not yet (a renderer of pinhole cameras never compiles it)."""
+        if not traced(camera):
+            return False
+        if self.camera_rays is None:
+            self._make_camera_rays(scene)
+        return True
+
     def _make_camera_rays(self, scene):
-        """The traced cameras' pass, for this scene's geometry and BVH (made once a camera needs it: a renderer
-        of pinhole cameras never compiles it)."""
         p = CameraRaysPass(
             self.ctx, self.library, self.targets.resources, self.bvh_set, self.bvh_layout, self.width * self.height
         )

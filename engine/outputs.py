@@ -4,7 +4,8 @@
   units (depth_scale=1000: millimetres; 0 where there is no surface);
 - .exr: every AOV asked for as 32-bit float channel groups (depth.Z, normal.X/Y/Z, ...), ids as UINT channels,
   the camera in the header; read back with `read_exr`;
-- .npz: every AOV as the numpy array `Frame.aov` holds, plus "color", the camera (K, pose, near, fov_y) and names;
+- .npz: every AOV as the numpy array `Frame.aov` holds, plus "color", the camera (K, pose, near, fov_y; model and
+  distortion for a camera model other than the pinhole) and names;
 - .json: the camera sidecar (`camera_record`).
 
 Every file is written whole or not at all (engine.files.atomic_write). No Vulkan here.
@@ -271,7 +272,8 @@ def write_npz(
 ) -> Path:
     """`arrays` (as in `Frame.aov`, "color" uint8) and the camera as one .npz (`np.load` reads it without
     pickles): K (3, 3) and pose (4, 4) float64, near, fov_y (float64), width, height (int64), scene (str),
-    object_names and material_names (str arrays). `compress`: zip-deflated (savez_compressed), else stored."""
+    object_names and material_names (str arrays); model (str) and distortion for a camera model other than the
+    pinhole. `compress`: zip-deflated (savez_compressed), else stored."""
     data: dict[str, Any] = {k: np.asarray(v) for k, v in arrays.items()}
     data.update(
         K=np.asarray(record["K"], np.float64),
@@ -284,5 +286,7 @@ def write_npz(
         object_names=np.array([str(n) for n in object_names], dtype=np.str_),
         material_names=np.array([str(n) for n in material_names], dtype=np.str_),
     )
+    if "model" in record:  # a camera model other than the pinhole: its name and coefficients
+        data.update(model=np.str_(record["model"]), distortion=np.asarray(record["distortion"], np.float64))
     save = np.savez_compressed if compress else np.savez
     return atomic_write(path, lambda f: save(f, **data), "file")

@@ -168,7 +168,7 @@ def test_undistorted_model_renders_as_the_pinhole_raster(make_renderer):
     assert np.abs(rays.color.astype(int) - raster.color.astype(int))[same].mean() < 2.0
 
 
-def test_motion_vectors_follow_the_moving_camera(make_renderer):
+def test_motion_vectors_follow_the_moving_camera(make_renderer, tmp_path):
     """Two frames of a fisheye camera that moves: motion = where the surface point is now minus where the last
     frame's camera saw it, both by OpenCV."""
     r = make_renderer(W, H)
@@ -184,6 +184,10 @@ def test_motion_vectors_follow_the_moving_camera(make_renderer):
     expect = opencv_pixels(b, pos) - opencv_pixels(a, pos)
     assert np.abs(expect).max() > 1.0  # the camera moved several pixels' worth
     assert np.abs(f.aov["motion"][covered] - expect).max() < 0.01
+    # the frame's files keep the model: .npz arrays and the sidecar (which a camera path reads back)
+    with np.load(f.save(tmp_path / "f.npz")) as data:
+        assert str(data["model"]) == "fisheye" and tuple(data["distortion"]) == b.distortion
+    assert f.camera_record()["model"] == "fisheye" and f.camera_record()["distortion"] == list(b.distortion)
 
 
 # ------------------------------------------------------------------------------------------------ API

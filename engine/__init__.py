@@ -40,6 +40,7 @@ from ._version import __version__
 from .data import bundled_scenes, scene_path
 from .errors import ConfigError, EngineError, SceneError, ShaderError, VulkanError
 from .renderer import Frame, Renderer
+from .pointcloud import PointCloud
 from .vk.shared import Device
 from .rt import Closest, Hits, Tracer
 from .rt import RayMeshIntersector
@@ -86,3 +87,4 @@ __all__ += ["RayMeshIntersector"]
 __all__ += ["RaycastingScene"]
 __all__ += ["Device"]
 __all__ += ["Mesh", "Instance"]
+__all__ += ["PointCloud"]

@@ -42,7 +42,9 @@ from .parallel import serialized
 from .passes.targets import Targets
 from .scene import Scene
 from .scene.camera import Camera
-from .settings import ShadowMode, ViewMode, check_settings, check_size, default, given_settings, resolve_aovs
+from .progress import bar as progress_bar
+from .settings import ShadowMode, ViewMode, check_settings, check_size, default, given_settings, readback_aovs
+from .settings import resolve_aovs
 from .shaders import ShaderLibrary
 from .steady import Steady
 from .vk import Context, Recorder, Timestamps, reflect
@@ -315,12 +317,18 @@ class Renderer(Closes):
         names = resolve_aovs(aovs)
         self._check_open("render()")
         self._drain()
-        cmd, marks, cfg, n_lights = self._prepare(scene, camera, settings, readback=(names, 0))
+        cmd, marks, cfg, n_lights = self._prepare(scene, camera, settings, readback=(readback_aovs(names), 0))
         self.ctx.submit(cmd)
         return self._frame(scene, names, 0, marks, cfg, n_lights, camera)
 
     def render_many(
-        self, scene: Scene, cameras: Iterable[Camera], *, aovs: str | Sequence[str] | None = None, **settings: Any
+        self,
+        scene: Scene,
+        cameras: Iterable[Camera],
+        *,
+        aovs: str | Sequence[str] | None = None,
+        progress: bool = False,
+        **settings: Any,
     ) -> Iterator[Frame]:
         """Frames of `scene` from each camera in turn, as an iterator: frame N+1 renders on the GPU while frame N is
         read back and handed to the caller (two readback buffers in turn). The temporal history carries over from
@@ -330,8 +338,14 @@ class Renderer(Closes):
         between frames with one frame in flight. Any other call on the renderer (render(), submit(), resize(), another
         render_many) first waits for that frame and reads it back for this iterator, so each frame is the one a lone
         render() of its camera gives, and several iterators, in one thread or in several, may be used at once
-        (docs/architecture.md, "Threads"). A renderer closed meanwhile makes the next step raise."""
+        (docs/architecture.md, "Threads"). A renderer closed meanwhile makes the next step raise.
+
+        `progress=True` draws a progress bar of the frames handed out (tqdm: a widget in Jupyter, text on a terminal
+        on stderr; none where stderr is neither); its length is `len(cameras)` where `cameras` has one."""
         names = resolve_aovs(aovs)
+        if progress:
+            yield from _with_bar(self.render_many(scene, cameras, aovs=names, **settings), cameras)
+            return
         mine = _Owner()  # this iterator: its frame in flight is `self._flight` while that names it
         try:
             for camera in cameras:
@@ -368,7 +382,7 @@ class Renderer(Closes):
         else:
             self._drain()
         slot = 1 - last.slot if last is not None else 0  # (not the slot whose readback is still to be read)
-        cmd, marks, cfg, n_lights = self._prepare(scene, camera, settings, readback=(names, slot))
+        cmd, marks, cfg, n_lights = self._prepare(scene, camera, settings, readback=(readback_aovs(names), slot))
         self.ctx.submit(cmd, wait=False, fence=self._fences[slot])
         last = self._own_flight(mine)  # (None if _prepare read it back: new targets)
         self._flight = _Flight(mine, slot, self._fences[slot], (scene, names, slot, marks, cfg, n_lights, camera))
@@ -399,8 +413,13 @@ class Renderer(Closes):
         self._steady = None
 
     def _frame(self, scene, names, slot, marks, cfg, n_lights, camera) -> Frame:
-        buf, offsets = self.targets.readback(self.ctx, names, slot)
+        buf, offsets = self.targets.readback(self.ctx, readback_aovs(names), slot)
         aov = self.targets.read(buf, offsets, n_lights)
+        classes: list[str] = []
+        if "semantic_id" in names:  # the objects' classes through a table: exact, on the host
+            ids = aov["object_id"] if "object_id" in names else aov.pop("object_id")
+            aov["semantic_id"] = scene.semantic_lookup().take(ids + 1)
+            classes = scene.class_names
         return Frame(
             color=aov.pop("color", None),
             aov=aov,
@@ -408,6 +427,7 @@ class Renderer(Closes):
             settings=cfg,
             object_names=scene.object_names,
             material_names=[m.name for m in scene.materials],
+            class_names=classes,
             camera=camera if camera is not None else scene.camera,
             scene_name=scene.name,
         )
@@ -805,6 +825,15 @@ class _Owner:
 
     def __init__(self):
         self.frame = None
+
+
+def _with_bar(frames: Iterator[Frame], cameras) -> Iterator[Frame]:
+    """`frames` as they come, counted on a progress bar (closed when the iterator ends or is abandoned)."""
+    total = len(cameras) if hasattr(cameras, "__len__") else None
+    with progress_bar(total, "frame") as shown_bar:
+        for frame in frames:
+            shown_bar.update(1)
+            yield frame
 
 
 class _Flight:

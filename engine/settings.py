@@ -18,6 +18,7 @@ from .errors import ConfigError
 from .files import check_writable
 from .limits import MAX_COORD
 from .passes.interface import AOVS as AOV_SPECS
+from .passes.interface import DERIVED_AOVS
 from .passes.interface import VIEW_MODES, TracedShadowMode, ViewMode
 
 #: What `view=` / `--aov` can show: the lit colour or one AOV.
@@ -52,6 +53,7 @@ __all__ = [
     "DEFAULT_SETTINGS",
     "SHADOW_MODES",
     "AOVS",
+    "DERIVED_AOVS",
     "ShadowMode",
     "ViewMode",
     "Default",
@@ -112,15 +114,21 @@ def resolve_aovs(aovs) -> tuple:
     if aovs is None:
         aovs = DEFAULT_AOVS
     if isinstance(aovs, str):
-        aovs = tuple(AOV_SPECS) if aovs == "all" else (aovs,)
+        aovs = (*AOV_SPECS, *DERIVED_AOVS) if aovs == "all" else (aovs,)
     try:
         names = tuple(aovs)
     except TypeError:
         raise ConfigError(f"aovs={aovs!r}: expected AOV names, e.g. ('color', 'depth')") from None
     for name in names:
-        if name not in AOV_SPECS:
-            raise ConfigError(f"aov {name!r}: unknown (known: {', '.join(AOV_SPECS)}, or 'all')")
-    return tuple(n for n in AOV_SPECS if n in names)
+        if name not in AOV_SPECS and name not in DERIVED_AOVS:
+            raise ConfigError(f"aov {name!r}: unknown (known: {', '.join([*AOV_SPECS, *DERIVED_AOVS])}, or 'all')")
+    return tuple(n for n in (*AOV_SPECS, *DERIVED_AOVS) if n in names)
+
+
+def readback_aovs(names: tuple) -> tuple:
+    """What the GPU reads back for the AOVs `names` (`resolve_aovs`'s): the derived ones' sources instead of them."""
+    wanted = {DERIVED_AOVS.get(n, n) for n in names}
+    return tuple(n for n in AOV_SPECS if n in wanted)
 
 
 def check_settings(settings: dict[str, Any]) -> dict[str, Any]:

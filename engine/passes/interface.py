@@ -101,6 +101,10 @@ AOVS = {
     "instance_id": AOV("instance_id", 4, "int32"),
 }
 
+#: AOVs made on the host from one the GPU reads back: "semantic_id" is the object's class through a per-object table
+#: (`Scene.semantic_lookup`) indexed by the object_id AOV: exact, and no more bytes read back than the object ids.
+DERIVED_AOVS = {"semantic_id": "object_id"}
+
 
 LIGHT_TYPES = {"directional": 0, "point": 1, "spot": 2, "rect": 3}
 

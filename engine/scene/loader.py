@@ -16,6 +16,7 @@ from engine.limits import MAX_COORD
 from engine.errors import SceneError, shown
 
 from . import mtl, points
+from .classes import extras_class
 from .filechecks import bomb_images, bomb_pixels, check_mesh_file, diagnose_gltf
 from .instances import Mesh, check_transforms, determinants, instance_label, world_boxes
 from .material import TEXTURE_FIELDS, Material, material_key, srgb8_to_linear, texture_key
@@ -272,6 +273,7 @@ class SceneBuilder:
         self._inst_mesh: list[np.ndarray] = []
         self._inst_transforms: list[np.ndarray] = []
         self._inst_names: list[str] = []
+        self._inst_classes: list[str | None] = []
         self.materials: list[Material] = []
         self._material_keys: dict = {}
         self._textures: dict = {}
@@ -313,15 +315,21 @@ class SceneBuilder:
         transform=None,
         key=None,
         instance_name: str | None = None,
+        cls: str | None = None,
     ):
         """Add a part in object space placed by `transform` ((4, 4); None: identity). Parts added with the same
         hashable `key` (not None) share the first one's Mesh. `normals` None: computed with a crease angle."""
         m = np.eye(4) if transform is None else np.asarray(transform, dtype=np.float64)
         inst_name = name if instance_name is None else instance_name
-        self.add_placed(name, positions, faces, normals, uvs, material, where, m[None], [inst_name], key=key)
+        self.add_placed(
+            name, positions, faces, normals, uvs, material, where, m[None], [inst_name], key=key, classes=[cls]
+        )
 
-    def add_placed(self, name, positions, faces, normals, uvs, material, where, transforms, names, key=None):
-        """`add` for K placements at once: `transforms` (K, 4, 4), `names` K instance names; checked with whole-array
+    def add_placed(
+        self, name, positions, faces, normals, uvs, material, where, transforms, names, key=None, classes=None
+    ):
+        """`add` for K placements at once: `transforms` (K, 4, 4), `names` K instance names, `classes` K semantic
+        classes (or None: none); checked with whole-array
         operations (the first bad placement is named, with the message `add` gives). Placements whose 3x3 part is
         singular (a zero scale: glTF hides parts so) are left out."""
         m = np.asarray(transforms, dtype=np.float64)
@@ -341,9 +349,11 @@ class SceneBuilder:
         a = m[:, :3, :3]
         top = np.maximum(np.abs(a).reshape(len(m), 9).max(axis=1), 1e-300)
         shown_ = np.abs(determinants(m / top[:, None, None])) >= 1e-12  # (a finite det >= 1e-12: a finite cond)
+        classes = [None] * len(m) if classes is None else list(classes)
         if not shown_.all():  # a zero scale hides the part: nothing to trace or draw
             m = m[shown_]
             names = [n for n, keep in zip(names, shown_) if keep]
+            classes = [c for c, keep in zip(classes, shown_) if keep]
             if not len(m):
                 return
         box = np.abs(world_boxes(self.meshes[k].box[None], m)).reshape(len(m), 6).max(axis=1)
@@ -357,6 +367,7 @@ class SceneBuilder:
         self._inst_mesh.append(np.full(len(m), k, np.int64))
         self._inst_transforms.append(m)
         self._inst_names.extend(names)
+        self._inst_classes.extend(classes)
 
     def _mesh(self, name, positions, faces, normals, uvs, material, where) -> Mesh | None:
         p = np.asarray(positions, dtype=np.float64)
@@ -411,6 +422,8 @@ class SceneBuilder:
         overrides: dict | None = None,
         transforms=None,
         labels=None,
+        cls: str | None = None,
+        classes=None,
         point_radius=None,
     ):
         """Add a trimesh.Trimesh, PointCloud or Scene (node transforms applied, then `transform`); with `transforms`
@@ -420,14 +433,18 @@ class SceneBuilder:
 
         `color` (linear RGBA), `texture` and `overrides` (other Material fields: metallic, roughness, emissive) override
         every material of `obj` (material overrides of the TOML format). Point clouds become splats (points.py) of
-        `point_radius` (object-space units; None: their spacing).
+        `point_radius` (object-space units; None: their spacing). The semantic class of a placement: its entry of
+        `classes`, else `cls`, else the file's (`extras` `class` / `category` of the node or a node above it, else of
+        its mesh).
         """
         import trimesh  # deferred: heavy, and needed only to read meshes
 
         if isinstance(obj, trimesh.PointCloud):
             items = [(np.eye(4), obj, label or "points", "points")]
+            file_classes = [extras_class(obj.metadata)]
         elif isinstance(obj, trimesh.Trimesh):
             items = [(np.eye(4), obj, label or getattr(obj.metadata, "get", lambda *_: None)("name") or "mesh", "mesh")]
+            file_classes = [extras_class(obj.metadata)]
         elif isinstance(obj, trimesh.Scene):
             items = []
             with _quiet():
@@ -436,6 +453,9 @@ class SceneBuilder:
                     geom = obj.geometry.get(geom_name)
                     if isinstance(geom, (trimesh.Trimesh, trimesh.PointCloud)):
                         items.append((np.asarray(m, dtype=np.float64), geom, str(node), str(geom_name)))
+            file_classes = [
+                _node_class(obj.graph, str(node)) or extras_class(geom.metadata) for _, geom, node, _ in items
+            ]
         else:
             raise SceneError(f"{where}: expected a trimesh.Trimesh or trimesh.Scene, got {type(obj).__name__}")
         outer = np.eye(4) if transform is None else np.asarray(transform, dtype=np.float64)
@@ -444,6 +464,7 @@ class SceneBuilder:
         else:
             places = np.asarray(transforms, dtype=np.float64).reshape(-1, 4, 4) @ outer
             names = [(labels[i] if labels and labels[i] else label) for i in range(len(places))]
+        given = [(classes[i] if classes and classes[i] else cls) for i in range(len(places))]
         before = len(self._inst_names)
         self._point_radius = point_radius
         made = {}  # this call's materials by trimesh material; `obj` keeps those alive, so their ids stay unique
@@ -452,24 +473,25 @@ class SceneBuilder:
         if len(items) == 1:  # one geometry, placed once or many times: one block
             m, geom, node_name, geom_name = items[0]
             names = [_node_name(name, node_name, in_scene, 1) for name in names]
-            self._add_geometry(geom, places @ m, names, geom_name, where, color, texture, uv_scale, made, extra)
+            kinds = [c or file_classes[0] for c in given]
+            self._add_geometry(geom, places @ m, names, geom_name, where, color, texture, uv_scale, made, extra, kinds)
         else:
-            for place, name in zip(places, names):
-                for m, geom, node_name, geom_name in items:
+            for place, name, c in zip(places, names, given):
+                for (m, geom, node_name, geom_name), own in zip(items, file_classes):
                     node_name = _node_name(name, node_name, in_scene, len(items))
                     place_m = (place @ m)[None]
                     self._add_geometry(
-                        geom, place_m, [node_name], geom_name, where, color, texture, uv_scale, made, extra
+                        geom, place_m, [node_name], geom_name, where, color, texture, uv_scale, made, extra, [c or own]
                     )
         if len(self._inst_names) == before:
             raise SceneError(f"{where}: contains no triangles")
 
-    def _add_geometry(self, geom, m, names, geom_name, where, color, texture, uv_scale, made, overrides):
+    def _add_geometry(self, geom, m, names, geom_name, where, color, texture, uv_scale, made, overrides, classes):
         """One trimesh geometry placed by the transforms `m` (K, 4, 4), its instances named `names`."""
         import trimesh  # deferred: heavy, and needed only to read meshes
 
         if isinstance(geom, trimesh.PointCloud):
-            self._add_points(geom, m, names, geom_name, where, color, overrides)
+            self._add_points(geom, m, names, geom_name, where, color, overrides, classes)
             return
         node_name = names[0]
         with _quiet():
@@ -508,10 +530,22 @@ class SceneBuilder:
         material = self.material_index(mat, key_name)
         key = (id(geom), material, None if uv_scale is None else tuple(np.asarray(uv_scale, np.float64).tolist()))
         self._keep.append(geom)
-        self.add_placed(geom_name, vertices, faces, normals, uvs, material, where, m, names, key=key)
+        self.add_placed(geom_name, vertices, faces, normals, uvs, material, where, m, names, key=key, classes=classes)
 
     def add_points(
-        self, name, positions, normals, colors, radius, where, transforms, names, key=None, color=None, overrides=None
+        self,
+        name,
+        positions,
+        normals,
+        colors,
+        radius,
+        where,
+        transforms,
+        names,
+        key=None,
+        color=None,
+        overrides=None,
+        classes=None,
     ):
         """A point cloud as splats (points.py) placed by `transforms` (K, 4, 4): `colors` (N, 3|4) uint8 sRGB or
         None, `normals` (N, 3) or None, `radius` a number, (N,) or None (their spacing); `color` (linear RGBA)
@@ -528,11 +562,23 @@ class SceneBuilder:
         key = ("points", id(sp)) if key is None else key
         self._keep.append(sp)
         before = len(self.meshes)
-        self.add_placed(name, sp.positions, sp.faces, sp.normals, sp.uvs, material, where, transforms, names, key=key)
+        self.add_placed(
+            name,
+            sp.positions,
+            sp.faces,
+            sp.normals,
+            sp.uvs,
+            material,
+            where,
+            transforms,
+            names,
+            key=key,
+            classes=classes,
+        )
         if len(self.meshes) > before:
             self.meshes[-1].splats = sp
 
-    def _add_points(self, geom, m, names, geom_name, where, color, overrides):
+    def _add_points(self, geom, m, names, geom_name, where, color, overrides, classes=None):
         """A trimesh.PointCloud (a PLY without faces): its colours and, from a PLY, its normals (nx, ny, nz)."""
         with _quiet():
             vertices = np.asarray(geom.vertices, dtype=np.float64)
@@ -545,7 +591,7 @@ class SceneBuilder:
         key = (id(geom), "points", self._point_radius, self.point_pixels, colour_key)
         self._keep.append(geom)
         radius = self._point_radius
-        self.add_points(geom_name, vertices, normals, colors, radius, where, m, names, key, color, overrides)
+        self.add_points(geom_name, vertices, normals, colors, radius, where, m, names, key, color, overrides, classes)
 
     # -------------------------------------------------------------- result
     def build(self, lights=None, camera=None, settings=None) -> SceneParts:
@@ -553,7 +599,10 @@ class SceneBuilder:
         if not self._inst_names:
             raise SceneError(f"{shown(self.name)}: the scene has no triangles")
         placements = Placements(
-            np.concatenate(self._inst_mesh), np.concatenate(self._inst_transforms), self._inst_names
+            np.concatenate(self._inst_mesh),
+            np.concatenate(self._inst_transforms),
+            self._inst_names,
+            self._inst_classes if any(c is not None for c in self._inst_classes) else None,
         )
         return SceneParts(
             name=self.name,
@@ -564,6 +613,22 @@ class SceneBuilder:
             camera=camera,
             settings=settings,
         )
+
+
+def _node_class(graph, node: str) -> str | None:
+    """The class a glTF node's `extras` name, or the nearest node above it that names one (trimesh keeps a node's
+    extras as the metadata of the edge from its parent)."""
+    parents = graph.transforms.parents
+    edges = graph.transforms.edge_data
+    seen = set()
+    while node in parents and node not in seen:
+        seen.add(node)
+        parent = parents[node]
+        found = extras_class(edges.get((parent, node), {}).get("metadata"))
+        if found:
+            return found
+        node = parent
+    return None
 
 
 def _node_name(name, node_name: str, in_scene: bool, items: int) -> str:

@@ -22,11 +22,12 @@ class SubMesh:
 class Placements:
     """The instances of a scene as arrays (what a loader collected; Scene checks the indices): `mesh` (N,) mesh
     indices, `transforms` (N, 4, 4) float64 object-to-world (already checked: finite, affine, invertible), `names`
-    (N strings)."""
+    (N strings), `classes` (N semantic class names or None each; None: no classes)."""
 
     mesh: Any
     transforms: Any
     names: list
+    classes: list | None = None
 
 
 @dataclass

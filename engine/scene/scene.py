@@ -9,7 +9,7 @@ from __future__ import annotations
 import hashlib
 import itertools
 import os
-from collections.abc import Iterable
+from collections.abc import Iterable, Mapping, Sequence
 from typing import Any
 
 import numpy as np
@@ -20,6 +20,7 @@ from engine.limits import MAX_COORD
 from engine.errors import ConfigError, SceneError, shown
 
 from . import _check, loader, toml_format, usd
+from . import classes as _classes
 from .camera import Camera
 from .geometry import up_transform
 from .lights import Light, default_sun
@@ -219,6 +220,10 @@ class Scene:
         self._mesh_changed = np.zeros(len(meshes), dtype=np.int64)
         self._cache: dict = {}
         self._names_version = 0  # increases when an instance is renamed (the object names' cache)
+        self._inst_class: list = [None] * len(mesh)  # each instance's class from its file (glTF extras, TOML)
+        self._class_rules: list = []  # set_classes: (pattern, class) in order, the last match wins
+        self._class_fixed: list | None = None  # set_class_names: the class table, else the classes in use, sorted
+        self._classes_version = 0
         self.settings = dict(settings or {})
         self.uid = next(_ids)
         self.pixel_points = any(m.splats is not None and m.splats.pixels is not None for m in self.meshes)
@@ -559,6 +564,58 @@ class Scene:
                 hi = np.maximum(hi, (proj.max(axis=2) + t).max(axis=0))
         return lo, hi
 
+    # ------------------------------------------------------------------ semantic classes
+    def set_classes(self, classes: Mapping[str, str | None]) -> None:
+        """Give objects a semantic class by name: `{pattern: class}`, each pattern a glob (`fnmatch`, case-sensitive:
+        `*`, `?`, `[abc]`) matched against an object's name (`object_names`) and its instance's name; None takes
+        the class away. Later calls and later entries win over earlier ones, and all over the classes a file gave
+        (a glTF node's or mesh's `extras` `class` / `category`, a TOML `class` key). Objects without a class are
+        semantic id 0, as the background.
+
+        Raises:
+            ConfigError: not a mapping of strings, or the class "background" (id 0)."""
+        rules = _classes.check_rules(classes, f"{shown(self.name)}: set_classes")
+        self._class_rules.extend(rules)
+        self._classes_version += 1
+
+    def set_class_names(self, names: Sequence[str] | None) -> None:
+        """Fix the semantic ids: `names[k]` is id k + 1 (id 0: the background), e.g. one table for every scene of a
+        dataset; None: the classes in use, sorted by name (the default). Checked when the ids are made: a class in
+        use that the table lacks is a `ConfigError`."""
+        self._class_fixed = None if names is None else _classes.check_table(names, f"{shown(self.name)}: class names")
+        self._classes_version += 1
+
+    @property
+    def object_classes(self) -> list[str | None]:
+        """The class of each object (what `object_names` and the object_id AOV index), None where it has none."""
+        key = (self._names_version, self._classes_version)
+        hit = self._cache.get("object_classes")
+        if hit is None or hit[0] != key:
+            counts = np.array([len(m.submeshes) for m in self.meshes])[self._inst_mesh]
+            owner = np.repeat(np.arange(len(self._inst_mesh)), counts)
+            names = [i.name for i in self.instances]
+            hit = (key, _classes.object_classes(self.object_names, owner, names, self._inst_class, self._class_rules))
+            self._cache["object_classes"] = hit
+        return list(hit[1])
+
+    @property
+    def class_names(self) -> list[str]:
+        """The class names by semantic id: `class_names[0]` is "background", then the table `set_class_names`
+        fixed, else the classes of the objects sorted by name."""
+        return _classes.class_table(self.object_classes, self._class_fixed, shown(self.name))
+
+    def semantic_lookup(self) -> NDArray[np.uint32]:
+        """(objects + 1,) uint32: the semantic id of object id k at index k + 1, 0 at index 0 (object id -1, the
+        background): `semantic_lookup()[object_id + 1]` is the semantic_id AOV."""
+        key = (self._names_version, self._classes_version)
+        hit = self._cache.get("semantic_lookup")
+        if hit is None or hit[0] != key:
+            classes = self.object_classes
+            table = _classes.class_table(classes, self._class_fixed, shown(self.name))
+            hit = (key, _frozen(_classes.semantic_lookup(classes, table), np.uint32))
+            self._cache["semantic_lookup"] = hit
+        return hit[1]
+
     # ------------------------------------------------------------------ camera
     @property
     def camera(self) -> Camera:
@@ -791,6 +848,8 @@ class Scene:
             parts.meshes, p.transforms, p.mesh, None, p.names, parts.materials, parts.settings, checked=True
         )
         scene._init_rest(parts.lights, parts.camera)
+        if p.classes is not None:
+            scene._inst_class = list(p.classes)
         if parts.animations:
             check_targets(parts.animations, [i.name for i in scene.instances], shown(scene.name))
             scene.animations = list(parts.animations)

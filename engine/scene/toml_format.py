@@ -15,6 +15,7 @@ import numpy as np
 from engine.errors import ConfigError, SceneError, shown
 
 from . import _check, primitives
+from .classes import check_class
 from .animation import parse_animations
 from .camera import Camera
 from .geometry import up_transform
@@ -48,8 +49,9 @@ MESH_COMMON = (
     "roughness",
     "emissive",
     "instances",
+    "class",
 )
-INSTANCE_KEYS = ("name", "translate", "rotate", "scale")
+INSTANCE_KEYS = ("name", "translate", "rotate", "scale", "class")
 PRIMITIVE_PARAMS = {
     "box": ("size",),
     "sphere": ("radius", "segments", "rings"),
@@ -418,8 +420,8 @@ def _trs(table: dict, ctx: _Ctx) -> np.ndarray:
     return m
 
 
-def _instance(item, j: int, ctx: _Ctx) -> tuple[np.ndarray, str | None]:
-    """One entry of an `instances` list, checked: its (4, 4) transform and name."""
+def _instance(item, j: int, ctx: _Ctx) -> tuple[np.ndarray, str | None, str | None]:
+    """One entry of an `instances` list, checked: its (4, 4) transform, name and class."""
     ictx = ctx.at(f"{ctx.table}: instances #{j}")
     if not isinstance(item, dict):
         raise ictx.error(f"must be a table {{translate = .., rotate = .., scale = ..}}, got {item!r}")
@@ -427,7 +429,7 @@ def _instance(item, j: int, ctx: _Ctx) -> tuple[np.ndarray, str | None]:
     name = item.get("name")
     if name is not None and not isinstance(name, str):
         raise ictx.error(f"name must be a string, got {name!r}")
-    return _trs(item, ictx), name
+    return _trs(item, ictx), name, ictx.check(check_class, item.get("class"), "class")
 
 
 _NUMBER = (int, float)
@@ -439,9 +441,9 @@ def _triple(v) -> bool:
     return type(v) is list and len(v) == 3 and type(v[0]) in _NUMBER and type(v[1]) in _NUMBER and type(v[2]) in _NUMBER
 
 
-def _instances(table: dict, ctx: _Ctx) -> tuple[np.ndarray, list] | None:
-    """The placements of a table's `instances` list ((N, 4, 4), each applied after the table's own transform, and
-    their names), or None without one.
+def _instances(table: dict, ctx: _Ctx) -> tuple[np.ndarray, list, list] | None:
+    """The placements of a table's `instances` list ((N, 4, 4), each applied after the table's own transform, their
+    names and classes), or None without one.
 
     Entries of the usual form (translate / rotate as 3 numbers, scale as a number or 3) are gathered in one pass and
     turned into matrices with whole-array operations (a million in seconds); any other entry, or one whose numbers
@@ -454,6 +456,7 @@ def _instances(table: dict, ctx: _Ctx) -> tuple[np.ndarray, list] | None:
     n = len(value)
     trs = np.empty((n, 3, 3))  # per entry: scale, rotate (degrees), translate
     names: list = [None] * n
+    classes: list = [None] * n
     other = []  # entries not of the usual form
     allowed = set(INSTANCE_KEYS)
     for j, item in enumerate(value):
@@ -477,6 +480,11 @@ def _instances(table: dict, ctx: _Ctx) -> tuple[np.ndarray, list] | None:
             other.append(j)
             continue
         names[j] = name
+        if "class" in item:
+            if type(item["class"]) is not str or not item["class"].strip() or item["class"] == "background":
+                other.append(j)
+                continue
+            classes[j] = item["class"]
     trs[other] = ((1.0, 1.0, 1.0), (0.0, 0.0, 0.0), (0.0, 0.0, 0.0))
     scale, angle, translate = trs[:, 0], trs[:, 1], trs[:, 2]
     with np.errstate(invalid="ignore"):
@@ -489,8 +497,8 @@ def _instances(table: dict, ctx: _Ctx) -> tuple[np.ndarray, list] | None:
         )
     out = _trs_matrices(scale, np.radians(angle), translate)
     for j in sorted(set(other) | set(np.flatnonzero(bad).tolist())):  # raises for the first bad entry
-        out[j], names[j] = _instance(value[j], j + 1, ctx)
-    return out, names
+        out[j], names[j], classes[j] = _instance(value[j], j + 1, ctx)
+    return out, names, classes
 
 
 def _trs_matrices(scale: np.ndarray, angle: np.ndarray, translate: np.ndarray) -> np.ndarray:
@@ -537,6 +545,7 @@ def _add_mesh(
 
     m = _trs(table, ctx)  # scale, then rotate, then translate
     placements = _instances(table, ctx)
+    cls = ctx.check(check_class, table.get("class"), "class")
 
     color = _color(table["color"], "color", ctx, alpha=True) if "color" in table else None
     texture = None
@@ -568,8 +577,19 @@ def _add_mesh(
         mat = builder.material_index(
             Material(name, color, texture, **overrides), key_name=("primitive",)
         )  # first one's name
-        places, names = placements if placements is not None else (np.eye(4)[None], [None])
-        builder.add_placed(name, p, f, n, uv, mat, ctx.prefix(), places @ m, [nm or name for nm in names])
+        places, names, classes = placements if placements is not None else (np.eye(4)[None], [None], [None])
+        builder.add_placed(
+            name,
+            p,
+            f,
+            n,
+            uv,
+            mat,
+            ctx.prefix(),
+            places @ m,
+            [nm or name for nm in names],
+            classes=[c or cls for c in classes],
+        )
         return
 
     try:
@@ -589,6 +609,8 @@ def _add_mesh(
             overrides=overrides,
             transforms=None if placements is None else placements[0],
             labels=None if placements is None else placements[1],
+            cls=cls,
+            classes=None if placements is None else placements[2],
             point_radius=sizes.get("point_radius"),
         )
     except SceneError as exc:

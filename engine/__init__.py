@@ -15,7 +15,8 @@ ray-query library on the same BVH and traversal.
         near = tracer.closest(points)                          # Closest: point, distance, prim, u, v
 
 What is where: `Scene` (geometry, materials, lights, camera; loading), `Camera`, the lights (`DirectionalLight`,
-`PointLight`, `SpotLight`, `RectLight`), `Material`; `Renderer` renders a `Frame`; `Tracer` answers ray queries
+`PointLight`, `SpotLight`, `RectLight`), `Material`, the light from far away (`Environment`: an HDR map; `Sky`:
+the default daylight sky); `Renderer` renders a `Frame`; `Tracer` answers ray queries
 with `Hits` and closest-point queries with `Closest`; `RayMeshIntersector` is trimesh's ray-query
 interface (`mesh.ray`) on it, `RaycastingScene` Open3D's; `Device` is one Vulkan device that Renderers,
 Tracers and RaycastingScenes share.
@@ -48,6 +49,7 @@ from .rt import RaycastingScene
 from .scene import (
     Camera,
     DirectionalLight,
+    Environment,
     Instance,
     Light,
     Material,
@@ -55,6 +57,7 @@ from .scene import (
     PointLight,
     RectLight,
     Scene,
+    Sky,
     SpotLight,
     SubMesh,
 )
@@ -87,4 +90,5 @@ __all__ += ["RayMeshIntersector"]
 __all__ += ["RaycastingScene"]
 __all__ += ["Device"]
 __all__ += ["Mesh", "Instance"]
+__all__ += ["Environment", "Sky"]
 __all__ += ["PointCloud"]

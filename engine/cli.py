@@ -24,7 +24,7 @@ from .outputs import check_output_path
 from .renderer import Renderer
 from .scene import Scene
 from .sequence import load_camera_path, orbit_cameras, output_paths, render_size, render_sequence
-from .settings import AOVS, MAX_FRAMES, SHADOW_MODES as SHADOW_CHOICES
+from .settings import AOVS, MAX_FRAMES, TONEMAPS, SHADOW_MODES as SHADOW_CHOICES
 from .settings import DERIVED_AOVS, parse_size, resolve_aovs
 from .viewer import add_arguments as add_view_arguments
 from .viewer import run_from_args
@@ -33,7 +33,8 @@ from .vk import choose_device, describe_devices
 
 def _settings(args) -> dict:
     out = {}
-    for key in ("shadows", "shadow_samples", "reference_samples", "accumulate", "denoise", "ao", "ao_samples"):
+    keys = ("shadows", "shadow_samples", "reference_samples", "accumulate", "denoise", "ao", "ao_samples")
+    for key in keys + ("exposure", "auto_exposure", "tonemap"):
         value = getattr(args, key, None)
         if value is not None:
             out[key] = value
@@ -340,6 +341,15 @@ def build_parser() -> argparse.ArgumentParser:
     r.add_argument("--ao", dest="ao", action="store_true", default=None, help="ambient occlusion on")
     r.add_argument("--no-ao", dest="ao", action="store_false", help="ambient occlusion off")
     r.add_argument("--ao-samples", type=int, default=None, help="AO rays per pixel")
+    r.add_argument("--exposure", type=float, default=None, help="exposure in EV (default -1: 2^-1 on the radiance)")
+    r.add_argument(
+        "--auto-exposure",
+        dest="auto_exposure",
+        action="store_true",
+        default=None,
+        help="also scale by 0.18 / the frame's log-average luminance",
+    )
+    r.add_argument("--tonemap", default=None, choices=TONEMAPS, help="tone curve (default agx)")
     r.set_defaults(func=cmd_render)
 
     v = sub.add_parser("view", help="open a scene in a window (keys: H), shaders hot-reloaded")

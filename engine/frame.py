@@ -32,7 +32,7 @@ class Frame:
     """
 
     color: np.ndarray | None
-    """(H, W, 4) uint8 RGBA, sRGB-encoded (tonemapped with ACES after `exposure`), alpha 255: the lit image, or the
+    """(H, W, 4) uint8 RGBA, sRGB-encoded (the `tonemap` curve after `exposure`), alpha 255: the lit image, or the
     AOV that the `view` setting chose, as the GPU drew it; None when "color" was not among the AOVs read back."""
     aov: dict[str, np.ndarray] = field(default_factory=dict)
     """The arbitrary output variables, float32, by name; background pixels are those where `depth` is +inf.
@@ -58,7 +58,7 @@ class Frame:
     - "roughness", "metallic": (H, W) the material's glTF perceptual roughness and metallic in [0, 1] (8-bit);
       0 on the background.
     - "emissive": (H, W, 3) linear RGB radiance the surface emits; 0 on the background.
-    - "radiance": (H, W, 3) the lit linear RGB colour before tonemapping (times `exposure`; half floats): what
+    - "radiance": (H, W, 3) the lit linear RGB radiance before exposure and tonemapping (half floats): what
       `color` is the ACES-tonemapped, sRGB-encoded image of.
     - "semantic_id": (H, W) uint32 the semantic class of the object seen (`class_names[id]`), 0 on the background
       and on objects without a class (`Scene.set_classes`); made on the host from the object ids, exactly.

@@ -24,6 +24,7 @@ from .lifetime import Closes
 from .errors import ConfigError, EngineError, VulkanError
 from .frame import Frame
 from .gpu import bvh_descriptor_set, bvh_layout as resolve_layout
+from .gpu.environment import GpuEnvironment
 from .gpu.scene import SceneChanges, SceneGeometry
 from .passes.accumulate import ALPHA_MIN, AccumulatePass
 from .passes.ao import AOPass
@@ -32,7 +33,8 @@ from .passes.denoise import DenoisePass
 from .passes.camera_rays import CameraRaysPass, traced
 from .passes.gbuffer import GBufferPass
 from .passes.frame_block import FrameBlock
-from .passes.interface import FILTER_AO, FILTER_MASKS, FILTER_TEMPORAL, MAX_LIGHTS, pack_light
+from .passes.interface import FILTER_AO, FILTER_MASKS, FILTER_TEMPORAL, MAX_LIGHTS, Tonemap, pack_light
+from .passes.exposure import ExposurePass
 from .passes.lighting import LightingPass
 from .passes.raster_options import RasterOptions
 from .passes.raypass import follow_scene
@@ -40,7 +42,7 @@ from .passes.shadows import ShadowPass
 from .passes.soft_raster import SW_RASTER_PIXELS
 from .parallel import serialized
 from .passes.targets import Targets
-from .scene import Scene
+from .scene import Scene, environment
 from .scene.camera import Camera
 from .progress import bar as progress_bar
 from .settings import ShadowMode, ViewMode, check_settings, check_size, default, given_settings, readback_aovs
@@ -175,6 +177,7 @@ class Renderer(Closes):
         self.camera_rays = None  # the G-buffer of camera models other than the pinhole: made when first used
         self.denoise = DenoisePass(ctx, lib, res, self.targets)
         self.lighting, self.debug_view = LightingPass(ctx, lib, res), DebugViewPass(ctx, lib, res)
+        self.exposure = ExposurePass(ctx, lib, res)
         self.passes = [
             self.gbuffer,
             self.shadows,
@@ -182,9 +185,11 @@ class Renderer(Closes):
             self.accumulate,
             self.denoise,
             self.lighting,
+            self.exposure,
             self.debug_view,
         ]
         self._scene = self._geometry = self._scene_bvh = None
+        self._environment = None  # GpuEnvironment: the last scene's (gpu/environment.py)
         self.bvh_stats, self._commands = {}, {}
         self._changes = SceneChanges()  # the scene's state the last frame drew (instance motion)
         self._history_key = self._steady = None  # _history_key: what the temporal history was accumulated under
@@ -261,13 +266,16 @@ class Renderer(Closes):
         shadows: ShadowMode = default("shadows"),
         shadow_samples: int = default("shadow_samples"),
         reference_samples: int = default("reference_samples"),
+        shadow_terminator: bool = default("shadow_terminator"),
         accumulate: bool = default("accumulate"),
         denoise: bool = default("denoise"),
         ao: bool = default("ao"),
         ao_samples: int = default("ao_samples"),
         ao_radius: float | None = default("ao_radius"),
         exposure: float = default("exposure"),
-        ambient: float | Sequence[float] = default("ambient"),
+        auto_exposure: bool = default("auto_exposure"),
+        tonemap: Tonemap = default("tonemap"),
+        ambient: float | Sequence[float] | None = default("ambient"),
         view: ViewMode = default("view"),
         **unknown: Any,
     ) -> Frame:
@@ -291,6 +299,9 @@ class Renderer(Closes):
                 nothing accumulated: ground truth, slow) or "off".
             shadow_samples: soft shadows: rays per pixel per light per frame, 1..256.
             reference_samples: the reference mode: rays per pixel per light, and AO rays per pixel, 1..65536.
+            shadow_terminator: start shadow rays from a point moved off the flat triangle towards the smooth
+                surface its vertex normals describe (Hanika 2021), so that low-poly smooth meshes do not drop
+                whole triangles into shadow near the terminator.
             accumulate: blend the soft light masks and AO with the previous frames' (reprojected when the camera
                 moves). The history starts over when the scene, a light, the size, `shadows`, `shadow_samples`,
                 `ao`, `ao_samples`, `ao_radius` or `accumulate` changes.
@@ -298,9 +309,14 @@ class Renderer(Closes):
             ao: trace ambient occlusion (off: AO is 1 everywhere).
             ao_samples: AO rays per pixel per frame, 1..256.
             ao_radius: the AO rays' length in world units (None: 10% of the scene's bounding-box diagonal).
-            exposure: a factor on the linear HDR colour before tonemapping (ACES) and sRGB encoding; > 0.
-            ambient: linear RGB ambient light (one number: grey), each in [0, 1e6]: added to the lights' irradiance,
-                times AO, and the background's colour.
+            exposure: in EV: the linear HDR colour is scaled by 2^exposure before the tone curve and sRGB
+                encoding; in [-60, 60].
+            auto_exposure: also scale by 0.18 / the frame's log-average luminance (computed on the GPU).
+            tonemap: the tone curve: "neutral" (Khronos PBR Neutral), "agx" (AgX, base look) or "aces"
+                (Narkowicz's ACES fit).
+            ambient: None: the scene's environment lights the scene (its `environment`; default: a daylight
+                sky); a linear RGB colour (one number: grey), each in [0, 1e6]: a constant environment of that
+                radiance instead (0: no environment light), times AO, and the background's colour.
             view: "color" (the lit image) or an AOV drawn into the colour image instead, on the GPU (the names
                 are `engine.settings.AOVS`; `Frame.aov` holds every AOV whatever the view).
             **unknown: none are accepted: a `ConfigError` names the first.
@@ -444,13 +460,16 @@ class Renderer(Closes):
         shadows: ShadowMode = default("shadows"),
         shadow_samples: int = default("shadow_samples"),
         reference_samples: int = default("reference_samples"),
+        shadow_terminator: bool = default("shadow_terminator"),
         accumulate: bool = default("accumulate"),
         denoise: bool = default("denoise"),
         ao: bool = default("ao"),
         ao_samples: int = default("ao_samples"),
         ao_radius: float | None = default("ao_radius"),
         exposure: float = default("exposure"),
-        ambient: float | Sequence[float] = default("ambient"),
+        auto_exposure: bool = default("auto_exposure"),
+        tonemap: Tonemap = default("tonemap"),
+        ambient: float | Sequence[float] | None = default("ambient"),
         view: ViewMode = default("view"),
         **unknown: Any,
     ) -> dict[str, Any]:
@@ -538,6 +557,7 @@ class Renderer(Closes):
         if self._use_scene(scene):
             self._frame_start(scene)
         lights = list(scene.lights)
+        self._use_environment(environment.resolve(scene.environment, lights))
         if len(lights) > MAX_LIGHTS:
             raise ConfigError(f"{scene.name}: {len(lights)} lights, at most {MAX_LIGHTS} are supported")
         if len(lights) > self.targets.light_capacity:
@@ -553,7 +573,18 @@ class Renderer(Closes):
             self.width,
             self.height,
             b"".join(p.tobytes() for p in packed_lights),
-            tuple(cfg[k] for k in ("shadows", "shadow_samples", "ao", "ao_samples", "ao_radius", "accumulate")),
+            tuple(
+                cfg[k]
+                for k in (
+                    "shadows",
+                    "shadow_samples",
+                    "ao",
+                    "ao_samples",
+                    "ao_radius",
+                    "accumulate",
+                    "shadow_terminator",
+                )
+            ),
         )
         reset = history_key != self._history_key
         if reset:  # no motion on a frame without history (as the camera's previous matrix is this one)
@@ -565,6 +596,7 @@ class Renderer(Closes):
             cfg["accumulate"],
             cfg["denoise"],
             cfg["view"],
+            cfg["auto_exposure"],
             len(lights),
             readback,
             self._raster,
@@ -589,8 +621,11 @@ class Renderer(Closes):
             ao_radius=cfg["ao_radius"] or 0.1 * diag,
             ao_samples=cfg["reference_samples"] if reference else cfg["ao_samples"],
             shadow_samples=cfg["reference_samples"] if reference else cfg["shadow_samples"],
-            exposure=cfg["exposure"],
+            exposure=2.0 ** cfg["exposure"],
             ambient=cfg["ambient"],
+            tonemap=cfg["tonemap"],
+            auto_exposure=cfg["auto_exposure"],
+            shadow_terminator=cfg["shadow_terminator"],
             scene_scale=diag,
             accum_alpha=ALPHA_MIN,
             bounds=scene.bounds,
@@ -744,6 +779,23 @@ class Renderer(Closes):
         self.uploads += 1
         return True
 
+    def _use_environment(self, env):
+        """The environment's tables on the GPU, bound to every pass with a `bind_environment(env)` (again only when
+        it changed)."""
+        key = env.key()
+        if self._environment is not None and self._environment.key == key:
+            return
+        self._steady = None
+        self._invalidate_commands()
+        if self._environment is not None:
+            self.ctx.wait_idle()
+            self._environment.destroy()
+        self._environment = None
+        self._environment = GpuEnvironment(self.ctx, env)
+        for p in self.passes:  # the passes that read it (environment.glsl): lighting, and any with the hook
+            if hasattr(p, "bind_environment"):
+                p.bind_environment(self._environment)
+
     def _resize_targets(self, light_capacity):
         Targets.check_capacity(self.ctx, self.width, self.height, light_capacity)
         self._drain()  # a render_many frame in flight is read back from the targets it was rendered into
@@ -806,6 +858,9 @@ class Renderer(Closes):
                 rec.copy(t.signals[name].raw, t.signals[name].final)
         self.lighting.record(rec, t)
         rec.mark("lighting")
+        if cfg["auto_exposure"]:
+            self.exposure.record(rec, t)
+            rec.mark("exposure")
         if cfg["view"] != "color":
             self.debug_view.record(rec, t, cfg["view"])
             rec.mark("view")

@@ -166,6 +166,13 @@ def test_undistorted_model_renders_as_the_pinhole_raster(make_renderer):
     np.testing.assert_allclose(rays.aov["depth"][same], raster.aov["depth"][same], rtol=1e-4)
     assert np.abs(rays.aov["normal"][same] - raster.aov["normal"][same]).max() < 1e-3
     assert np.abs(rays.color.astype(int) - raster.color.astype(int))[same].mean() < 2.0
+    # the background: the environment along each traced ray (handed to the lighting as a 24-bit direction)
+    background = ~np.isfinite(raster.aov["depth"]) & ~np.isfinite(rays.aov["depth"])
+    assert background.sum() > 100
+    assert np.abs(rays.color.astype(int) - raster.color.astype(int))[background].max() <= 2
+    # and no colour where a camera has no ray (past a folding distortion's edge)
+    folded = r.render(scene, Camera.from_opencv(K, [-0.6, 0, 0, 0, 0], width=W, height=H, pose=p), aovs=("color",))
+    assert tuple(folded.color[0, 0, :3]) == (0, 0, 0) and folded.color[H // 2, W // 2, :3].any()
 
 
 def test_motion_vectors_follow_the_moving_camera(make_renderer, tmp_path):

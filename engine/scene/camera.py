@@ -632,6 +632,7 @@ class ModelCamera(IntrinsicsCamera):
         m = np.zeros((4, 4), dtype=np.float64)
         m[0, 0], m[0, 3] = 2.0 * fx / w, 2.0 * cx / w - 1.0
         m[1, 1], m[1, 3] = -2.0 * fy / h, 2.0 * cy / h - 1.0
+        m[2, 2], m[2, 3] = 1.0 / (1e4 * self._ortho), 1.0  # reverse-Z: 1 on the plane, 0 at 1e4 view heights
         m[3, 3] = 1.0
         return m.astype(np.float32)
 

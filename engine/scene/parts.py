@@ -44,3 +44,4 @@ class SceneParts:
     camera: object | None = None
     settings: dict | None = None
     animations: list | None = None  # animation.Animation (a TOML scene's [[animation]] tables)
+    environment: object | None = None  # environment.Environment / Sky (a TOML scene's [environment] table)

@@ -23,6 +23,7 @@ from . import _check, loader, toml_format, usd
 from . import classes as _classes
 from .camera import Camera
 from .geometry import up_transform
+from .environment import Environment, Sky
 from .lights import Light, default_sun
 from .material import Material, material_key
 from .animation import Player, check_targets
@@ -242,6 +243,10 @@ class Scene:
                 raise SceneError(f"{where}: lights[{i}] is a {type(light).__name__}, not a light")
         self.lights = lights
         self.animations: list = []  # animation.Animation: what `animate(t)` plays
+        #: The light from far away: an `Environment` (an HDR map) or a `Sky`; None: the default daylight sky
+        #: towards the first directional light (engine/scene/environment.py). A render's `ambient` setting, when
+        #: given, replaces it with a constant colour.
+        self.environment: Environment | Sky | None = None
         self._player = None
         self._camera = None
         self.camera = camera
@@ -848,6 +853,7 @@ class Scene:
             parts.meshes, p.transforms, p.mesh, None, p.names, parts.materials, parts.settings, checked=True
         )
         scene._init_rest(parts.lights, parts.camera)
+        scene.environment = parts.environment
         if p.classes is not None:
             scene._inst_class = list(p.classes)
         if parts.animations:

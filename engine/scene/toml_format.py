@@ -18,6 +18,7 @@ from . import _check, primitives
 from .classes import check_class
 from .animation import parse_animations
 from .camera import Camera
+from .environment import Environment, Sky
 from .geometry import up_transform
 from .lights import LIGHT_TYPES
 from .loader import SceneBuilder, load_texture_file, load_trimesh_scene
@@ -25,7 +26,8 @@ from .material import Material
 from .parts import SceneParts
 from .paths import Folders
 
-TOP_LEVEL = ("up", "camera", "mesh", "light", "settings", "animation")
+TOP_LEVEL = ("up", "camera", "mesh", "light", "settings", "animation", "environment")
+ENVIRONMENT_KEYS = ("map", "rotation", "intensity", "turbidity")
 CAMERA_KEYS = ("eye", "target", "up", "fov", "near")
 # the camera models' keys (engine/scene/camera.py ModelCamera): image size, intrinsics (pixels), coefficients
 MODEL_KEYS = {
@@ -154,7 +156,7 @@ def parts_from_dict(data: dict, path: str = "<toml>", allow_paths=None, up=None)
     for key in data:
         if key not in TOP_LEVEL:
             raise ctx.error(f"unknown key {key!r} at the top level (allowed: {', '.join(TOP_LEVEL)})")
-    for key, kind in (("camera", dict), ("settings", dict), ("mesh", list), ("light", list)):
+    for key, kind in (("camera", dict), ("settings", dict), ("mesh", list), ("light", list), ("environment", dict)):
         if key in data and not isinstance(data[key], kind):
             form = f"[{key}]" if kind is dict else f"[[{key}]]"
             raise ctx.error(f"{key!r} must be a table written {form}")
@@ -185,6 +187,8 @@ def parts_from_dict(data: dict, path: str = "<toml>", allow_paths=None, up=None)
 
     camera = _camera(data["camera"], ctx.at("[camera]")) if "camera" in data else None
     parts = builder.build(lights=lights or None, camera=camera, settings=data.get("settings", {}))
+    if "environment" in data:
+        parts.environment = _environment(data["environment"], ctx.at("[environment]"), folders, lights)
     parts.animations = parse_animations(data.get("animation", []), ctx.prefix().rstrip(": "), max(len(lights), 1))
     return parts
 
@@ -274,6 +278,26 @@ def _color(value, field: str, ctx: _Ctx, alpha: bool = False) -> np.ndarray:
     if np.any(c < 0):
         raise ctx.error(f"{field} must be non-negative, got {value!r}")
     return np.append(c, 1.0) if alpha else c
+
+
+def _environment(table: dict, ctx: _Ctx, folders: Folders, lights: list):
+    """[environment]: an HDR map (`map`) or the default sky's settings (`turbidity`), rotated and scaled."""
+    _unknown(ctx, table, ENVIRONMENT_KEYS)
+    rotation = ctx.check(_check.number, table.get("rotation", 0.0), "rotation", min_value=-36000.0, max_value=36000.0)
+    intensity = ctx.check(_check.number, table.get("intensity", 1.0), "intensity", min_value=0.0)
+    if "map" in table:
+        if "turbidity" in table:
+            raise ctx.error("'turbidity' is the sky's: give either 'map' or 'turbidity', not both")
+        path = _referenced_file(table, "map", ctx, folders)
+        try:
+            return Environment(path, rotation=rotation, intensity=intensity)
+        except SceneError as exc:
+            raise ctx.error(str(exc)) from None
+    sky = Sky.for_lights(lights)
+    turbidity = ctx.check(
+        _check.number, table.get("turbidity", sky.turbidity), "turbidity", min_value=1.7, max_value=10.0
+    )
+    return Sky(sky.sun_direction, sky.sun_intensity, turbidity=turbidity, intensity=intensity, rotation=rotation)
 
 
 def _light(table: dict, ctx: _Ctx):

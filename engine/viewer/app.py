@@ -245,6 +245,10 @@ class Viewer:
             self.cycle("ao")
         elif key == g.KEY_3:
             self.cycle("denoise")
+        elif key == g.KEY_4:
+            self.cycle("tonemap")
+        elif key == g.KEY_5:
+            self.cycle("auto_exposure")
         elif key == g.KEY_V:
             self.cycle("view", -1 if shift else 1)
         elif key == g.KEY_R:

@@ -3,16 +3,17 @@
 // computes in float64 from the model's inverse; the orthographic camera's parallel rays from K), its closest hit in
 // the scene's BVH (alpha-tested where the material says so) turned into the instance and triangle the resolve
 // reads, the barycentrics of a ray on a triangle's plane, and the models' forward projection (motion vectors).
-// Camera space is OpenCV's: x right, y down, z forward.
+// Camera space is OpenCV's: x right, y down, z forward. Bindings 40-43 (the resolve's own run below them).
 #ifndef CAMERA_RAYS_GLSL
 #define CAMERA_RAYS_GLSL
 
 #define TEXTURES_BINDING 9
-#define ALPHA_BINDING 27
+#define ALPHA_BINDING 43
 #include "alpha.glsl"
 #define BVH_SET 1
 #define BVH_BINDING 0
 #include "bvh.glsl"
+#include "background_ray.glsl"
 
 const uint CAMERA_PINHOLE = 0u;
 const uint CAMERA_OPENCV = 1u;
@@ -28,12 +29,12 @@ struct CameraModel {
     uvec4 kind;      // x: CAMERA_*
 };
 // This frame's camera and the previous frame's (motion), written per frame by the host.
-layout(std140, set = 0, binding = 24) uniform CameraRays { CameraModel now; CameraModel prev; } camera;
-layout(set = 0, binding = 25) uniform samplerBuffer camera_dirs;   // per pixel, row-major: direction, w: 1 if any
+layout(std140, set = 0, binding = 40) uniform CameraRays { CameraModel now; CameraModel prev; } camera;
+layout(set = 0, binding = 41) uniform samplerBuffer camera_dirs;   // per pixel, row-major: direction, w: 1 if any
 // The BVH's triangle (the scene's flat order) to the resolve's: for n scene instances, [0, n) each one's first
 // flat triangle, [n, 2n) its draw slot, [2n, 3n) where its mesh's ranks start, then per mesh triangle its place
 // in the mesh's first level (sorted by material).
-layout(set = 0, binding = 26) uniform usamplerBuffer ray_ids;
+layout(set = 0, binding = 42) uniform usamplerBuffer ray_ids;
 
 struct CameraHit {
     bool hit;

@@ -30,6 +30,7 @@ from .passes.accumulate import ALPHA_MIN, AccumulatePass
 from .passes.ao import AOPass
 from .passes.debug_view import DebugViewPass
 from .passes.denoise import DenoisePass
+from .passes.camera_rays import CameraRaysPass, traced
 from .passes.gbuffer import GBufferPass
 from .passes.frame_block import FrameBlock
 from .passes.interface import FILTER_AO, FILTER_MASKS, FILTER_TEMPORAL, MAX_LIGHTS, Tonemap, pack_light
@@ -173,6 +174,7 @@ class Renderer(Closes):
         self.gbuffer, self.accumulate = GBufferPass(ctx, lib, res), AccumulatePass(ctx, lib, res)
         self.shadows = ShadowPass(ctx, lib, res, self.bvh_set, self.bvh_layout)
         self.ao = AOPass(ctx, lib, res, self.bvh_set, self.bvh_layout)
+        self.camera_rays = None  # the G-buffer of camera models other than the pinhole: made when first used
         self.denoise = DenoisePass(ctx, lib, res, self.targets)
         self.lighting, self.debug_view = LightingPass(ctx, lib, res), DebugViewPass(ctx, lib, res)
         self.exposure = ExposurePass(ctx, lib, res)
@@ -533,7 +535,7 @@ class Renderer(Closes):
                 if steady.same(scene, settings, readback):
                     if cam is steady.camera:
                         return self._prepare_steady(steady)
-                    if isinstance(cam, Camera):
+                    if isinstance(cam, Camera) and traced(cam) == traced(steady.camera):
                         return self._prepare_moved(steady, cam)
         self._steady = None
         if not isinstance(scene, Scene):
@@ -587,6 +589,7 @@ class Renderer(Closes):
         reset = history_key != self._history_key
         if reset:  # no motion on a frame without history (as the camera's previous matrix is this one)
             self._changes.still(self._geometry)
+        rays = self._uses_rays(camera, scene)
         key = (
             cfg["shadows"],
             cfg["ao"],
@@ -597,11 +600,12 @@ class Renderer(Closes):
             len(lights),
             readback,
             self._raster,
+            rays,
         )
         if cfg["shadows"] == "reference":
             key += (cfg["reference_samples"],)
         if key not in self._commands:
-            cmd, ts = self._record(cfg, len(lights), readback)
+            cmd, ts = self._record(cfg, len(lights), readback, rays)
             self._commands[key] = (cmd, list(ts.names))
         cmd, marks = self._commands[key]
         reference = cfg["shadows"] == "reference"
@@ -626,6 +630,7 @@ class Renderer(Closes):
             accum_alpha=ALPHA_MIN,
             bounds=scene.bounds,
         )
+        self._ray_camera(camera, reset)
         self._history_key = history_key
         self._steady = Steady.capture(scene, camera, settings, readback, lights, (cmd, marks, cfg, len(lights)))
         return cmd, marks, dict(cfg), len(lights)
@@ -635,6 +640,7 @@ class Renderer(Closes):
         that differs from the last one only in the frame index (plus, on the first such frame, the previous
         camera, now this one, and the history-reset flag, now off). What the full path would write, bit for bit."""
         self.frame_block.again(objects_moved=not self._changes.settled)
+        self._ray_camera(steady.camera, False)
         cmd, marks, cfg, n_lights = steady.result
         return cmd, marks, dict(cfg), n_lights
 
@@ -644,6 +650,7 @@ class Renderer(Closes):
         keeps it (the camera is not part of the history key)."""
         view_proj = camera.projection_matrix(self.width / self.height) @ camera.view_matrix()
         self.frame_block.move_camera(view_proj, camera, self.height, objects_moved=not self._changes.settled)
+        self._ray_camera(camera, False)
         steady.camera = camera
         cmd, marks, cfg, n_lights = steady.result
         return cmd, marks, dict(cfg), n_lights
@@ -664,6 +671,31 @@ class Renderer(Closes):
             self.library.close()
 
     # ---- internals ------------------------------------------------------------------------
+    def _uses_rays(self, camera, scene) -> bool:
+        """Is `camera` traced (a model other than the pinhole)? Then the traced cameras' pass, for this scene's
+        geometry and BVH, is made if it was not yet (a renderer of pinhole cameras never compiles it)."""
+        if not traced(camera):
+            return False
+        if self.camera_rays is None:
+            self._make_camera_rays(scene)
+        return True
+
+    def _make_camera_rays(self, scene):
+        p = CameraRaysPass(
+            self.ctx, self.library, self.targets.resources, self.bvh_set, self.bvh_layout, self.width * self.height
+        )
+        p.bind_scene(self._geometry, scene)
+        p.specialize_for(self._scene_bvh)
+        self.camera_rays = p
+        self.passes.append(p)
+
+    def _ray_camera(self, camera, reset: bool):
+        """A traced camera's block (and the previous frame's camera, for motion: none after a history reset)."""
+        if traced(camera):
+            last = getattr(self, "_last_ray_camera", None)
+            self.camera_rays.set_camera(camera, self.width, self.height, None if reset or last is None else last)
+        self._last_ray_camera = camera
+
     def _poll_shaders(self):
         updated = self.library.poll()
         if not updated:
@@ -705,7 +737,7 @@ class Renderer(Closes):
                 scene,
                 self.bvh_set,
                 self.bvh_layout,
-                (self.shadows, self.ao),
+                tuple(p for p in (self.shadows, self.ao, self.camera_rays) if p is not None),
                 self._invalidate_commands,
                 self._geometry.alpha_index,
             )
@@ -726,6 +758,8 @@ class Renderer(Closes):
         self.gbuffer.bind_scene(self._geometry)
         for p in (self.shadows, self.ao):  # the alpha test's records and textures
             p.bind_scene(self._geometry)
+        if self.camera_rays is not None:
+            self.camera_rays.bind_scene(self._geometry, scene)
 
     def _use_scene(self, scene):
         """Upload a scene that is not the last one; True when it did."""
@@ -774,13 +808,17 @@ class Renderer(Closes):
         self._history_key = None
         self._steady = None
 
-    def _record(self, cfg, n_lights, readback=None):
+    def _record(self, cfg, n_lights, readback=None, rays=False):
         """The frame's command buffer (and the timestamps it writes): the passes in order; the recorder derives the
-        barriers between them. `readback`: (AOV names, slot) to copy out, or None (the viewer's path)."""
+        barriers between them. `readback`: (AOV names, slot) to copy out, or None (the viewer's path); `rays`: the
+        G-buffer from traced primary rays (a camera model other than the pinhole) instead of the raster."""
         t = self.targets
         ts = self._timestamps[readback[1] if readback else 0]
         rec = Recorder(self.ctx, ts)
-        self.gbuffer.record(rec, t, self._geometry, self._raster)
+        if rays:
+            self.camera_rays.record(rec, t, self._geometry)
+        else:
+            self.gbuffer.record(rec, t, self._geometry, self._raster)
         rec.mark("gbuffer")
         mode = cfg["shadows"]
         reference = cfg["reference_samples"] if mode == "reference" else None

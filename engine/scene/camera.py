@@ -541,14 +541,18 @@ class IntrinsicsCamera(Camera):
         return m.astype(np.float32)
 
     def replace(self, **changes) -> "Camera":
-        """A copy with some of K, width, height, pose (read in `convention`, default "opencv"), eye, near changed.
+        """A copy with some of K, width, height, pose (read in `convention`), eye, near changed.
+
         A new width / height keeps K as it is (to keep the view, render at the new size instead)."""
-        allowed = ("K", "width", "height", "pose", "convention", "eye", "near")
+        return IntrinsicsCamera(**self._replaced(changes, ("K", "width", "height"), "camera from intrinsics"))
+
+    def _replaced(self, changes: dict, own: tuple, what: str) -> dict:
+        """The constructor's arguments of this camera with `changes` (checked: `own` fields, pose, convention, eye,
+        near) applied; `what` names the camera in errors."""
+        allowed = own + ("pose", "convention", "eye", "near")
         unknown = sorted(set(changes) - set(allowed))
         if unknown:
-            raise ConfigError(
-                f"camera from intrinsics has no field {unknown[0]!r} to replace (it has {', '.join(allowed)})"
-            )
+            raise ConfigError(f"{what} has no field {unknown[0]!r} to replace (it has {', '.join(allowed)})")
         if "convention" in changes and "pose" not in changes:
             raise ConfigError("camera replace: convention says how to read pose; give pose too")
         if "eye" in changes and "pose" in changes:
@@ -565,7 +569,7 @@ class IntrinsicsCamera(Camera):
         if "eye" in changes:
             args["pose"][:3, 3] = _check.vector(changes.pop("eye"), 3, "camera eye")
         args.update(changes)
-        return IntrinsicsCamera(**args)
+        return args
 
     def _key(self):
         return ("intrinsics", tuple(self.pose.ravel().tolist()), self.near, self._k, self._size)
@@ -701,29 +705,8 @@ class ModelCamera(IntrinsicsCamera):
     # ------------------------------------------------------------------ value semantics
     def replace(self, **changes) -> "ModelCamera":
         """A copy with some of pose (read in `convention`), eye, near changed (another size: render at it)."""
-        allowed = ("pose", "convention", "eye", "near")
-        unknown = sorted(set(changes) - set(allowed))
-        if unknown:
-            raise ConfigError(
-                f"{self.model} camera has no field {unknown[0]!r} to replace (it has {', '.join(allowed)})"
-            )
-        if "eye" in changes and "pose" in changes:
-            raise ConfigError("camera replace: give pose or eye, not both (the pose holds the position)")
-        fx, fy, cx, cy = self._k
-        args = dict(
-            K=((fx, 0.0, cx), (0.0, fy, cy), (0.0, 0.0, 1.0)),
-            width=self._size[0],
-            height=self._size[1],
-            pose=self.pose,
-            convention="opencv",
-            near=self.near,
-            distortion=self.distortion,
-            ortho_height=self._ortho,
-        )
-        if "eye" in changes:
-            args["pose"][:3, 3] = _check.vector(changes.pop("eye"), 3, "camera eye")
-        args.update(changes)
-        return ModelCamera(self.model, **args)
+        args = self._replaced(changes, (), f"{self.model} camera")
+        return ModelCamera(self.model, distortion=self.distortion, ortho_height=self._ortho, **args)
 
     def _key(self):
         return (self.model, self.distortion, self._ortho) + super()._key()

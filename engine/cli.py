@@ -7,6 +7,7 @@ from __future__ import annotations
 
 import argparse
 import logging
+import os
 import signal
 import sys
 import threading
@@ -24,6 +25,7 @@ from .outputs import check_output_path
 from .renderer import Renderer
 from .scene import Scene
 from .sequence import load_camera_path, orbit_cameras, output_paths, render_size, render_sequence
+from .vk.context import any_hung
 from .settings import AOVS, MAX_FRAMES, TONEMAPS, SHADOW_MODES as SHADOW_CHOICES
 from .settings import DERIVED_AOVS, parse_size, resolve_aovs
 from .viewer import add_arguments as add_view_arguments
@@ -386,6 +388,10 @@ def main(argv=None) -> int:
         return args.func(args)
     except EngineError as exc:
         print(f"error: {shown(exc, limit=None)}", file=sys.stderr)  # one line, whatever the message holds
+        if any_hung():  # the driver's teardown at exit may crash or wait on the hung work: leave now
+            sys.stdout.flush()
+            sys.stderr.flush()
+            os._exit(1)
         return 1
     except KeyboardInterrupt:
         print("interrupted", file=sys.stderr)

@@ -294,8 +294,9 @@ def render_sequence(
                 written += write_camera_json(sidecar_path(path), side).stat().st_size
             last = frame
             bar.update(1)
-    folder = paths[0].parent  # the cameras as NeRF and COLMAP tools read them, beside the frames
-    write_dataset(folder, cameras, [p.relative_to(folder).as_posix() for p in paths], width, height)
+    if sidecars:  # a sequence: its cameras as NeRF and COLMAP tools read them, beside the frames
+        folder = paths[0].parent
+        write_dataset(folder, cameras, [p.relative_to(folder).as_posix() for p in paths], width, height)
     return SequenceResult(len(paths), len(todo), len(paths) - len(todo), written, time.perf_counter() - t0, last)
 
 

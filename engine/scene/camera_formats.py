@@ -14,16 +14,19 @@ Errors are one line naming the file and the key or line.
 from __future__ import annotations
 
 import json
+import logging
 import math
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 
-from engine.errors import ConfigError
+from engine.errors import ConfigError, shown
 from engine.files import atomic_write_text
 
 from .camera import Camera
+
+log = logging.getLogger("engine.scene")
 
 FLIP = np.diag([1.0, -1.0, -1.0, 1.0])  # OpenCV <-> OpenGL camera axes
 TRANSFORMS_INTRINSICS = ("fl_x", "fl_y", "cx", "cy", "w", "h", "camera_angle_x", "camera_angle_y", "camera_model")
@@ -379,6 +382,12 @@ def write_dataset(folder, cameras, files, width: int, height: int) -> list[Path]
     to it); a model the format lacks (orthographic; COLMAP: equirect) leaves that format out. The written paths."""
     folder = Path(folder)
     written = []
+    try:
+        for name in files:
+            name.encode("utf-8")
+    except UnicodeEncodeError:  # (a name is text in both formats: one that is not UTF-8 cannot be written there)
+        log.warning("%s: no transforms.json or COLMAP files: a frame's name is not UTF-8", shown(folder))
+        return written
     try:
         record = transforms_record(cameras, files, width, height)
         written.append(_write(folder / "transforms.json", json.dumps(record, indent=2) + "\n", "transforms"))

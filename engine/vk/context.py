@@ -140,6 +140,13 @@ def choose_device(descs: list[dict], selector=None) -> int:
 
 
 _LIVE: "weakref.WeakSet[Context]" = weakref.WeakSet()
+_HUNG = threading.Event()  # a device of this process did not finish its work in time (Context.wait_fences)
+
+
+def any_hung() -> bool:
+    """Has a device of this process hung? Then its work may still run, and the driver's own teardown when the
+    process exits may crash or wait for it (seen on lavapipe and on an H100): a program should leave with os._exit."""
+    return _HUNG.is_set()
 
 
 def gpu_timeout_ns() -> int:
@@ -272,9 +279,9 @@ class Context:
         )
         if self.int64_atomics:
             f12.shaderBufferInt64Atomics = vk.VK_TRUE
-        fault_at = faults.requested()  # a test's deliberate device loss (engine/vk/faults.py)
+        fault_at = faults.requested()  # a test's deliberate device loss or hang (engine/vk/faults.py)
         if fault_at is not None:
-            faults.check_device(self.device_info, bool(have12.bufferDeviceAddress))
+            faults.check_device(fault_at[0], self.device_info, bool(have12.bufferDeviceAddress))
             f12.bufferDeviceAddress = vk.VK_TRUE
         feats = vk.VkPhysicalDeviceFeatures2(
             pNext=f12,
@@ -312,7 +319,7 @@ class Context:
         self._one_shot = self.allocate_command_buffer()
         self.pipeline_cache = PipelineCache(self.device, self.properties)
         if fault_at is not None:
-            self._fault = faults.FaultInjector(self, fault_at)
+            self._fault = faults.FaultInjector(self, *fault_at)
 
     def _install_messenger(self):
         sev = vk.VK_DEBUG_UTILS_MESSAGE_SEVERITY_ERROR_BIT_EXT
@@ -395,6 +402,7 @@ class Context:
             vk.vkWaitForFences(self.device, len(fences), fences, vk.VK_TRUE, self.gpu_timeout_ns)
         except vk.VkTimeout:
             self.lost = self.hung = True
+            _HUNG.set()
             raise VulkanError(
                 f"the GPU did not finish its work within {self.gpu_timeout_ns / 1e9:g} s ({GPU_TIMEOUT_ENV}): the "
                 "device is treated as lost; close this object and create a new one"

@@ -1,9 +1,12 @@
-"""Deliberate device loss, to test that a lost GPU gives clear errors and that a new device recovers.
+"""Deliberate device loss and hangs, to test that a lost GPU gives clear errors and that a new device recovers.
 
-`HYBRID_FAULT_INJECTION=device-lost` (or `device-lost:N`) makes the first (N-th) command buffer submitted on each
-new Context run after `fault.comp`, which writes through a pointer to unmapped GPU memory: the driver answers with
-VK_ERROR_DEVICE_LOST, as for any real fault (or a hang it resets). The device then enables bufferDeviceAddress.
-A CPU device (lavapipe) is refused: there the shader runs in this process and the write would crash it.
+`HYBRID_FAULT_INJECTION=KIND[:N]` makes the first (N-th) command buffer submitted on each new Context run after
+`fault.comp` (the device then enables bufferDeviceAddress, which the shader declares):
+- `device-lost`: a write through a pointer to unmapped GPU memory. A driver answers VK_ERROR_DEVICE_LOST, or its
+  queue stalls (the H100 here), which the GPU timeout turns into a loss. Refused on a CPU device (lavapipe): there
+  the shader runs in this process and the write would crash it.
+- `hang`: an endless loop, on any device: the GPU timeout's case (on lavapipe, a thread spins until the process
+  exits).
 """
 
 from __future__ import annotations
@@ -16,26 +19,29 @@ from ..data import SHADERS_DIR
 from ..errors import ConfigError
 
 ENV = "HYBRID_FAULT_INJECTION"
-KIND = "device-lost"
+KINDS = {"device-lost": 0, "hang": 1}  # the shader's mode
 SHADER = "fault.comp"
 UNMAPPED = 0xDEAD_0000_0000  # far above what a driver maps for a process
-GROUPS = 1024  # 64 invocations each, every one faulting
+GROUPS = 1024  # 64 invocations each, every one faulting (or looping)
+NEVER = 0  # with mode 1 the loop's store is guarded by mode == 2 too, so any value will do
 
 
-def requested() -> int | None:
-    """The ordinal (1-based) of the submission to fault, from $HYBRID_FAULT_INJECTION; None when unset."""
+def requested() -> tuple[str, int] | None:
+    """(kind, the 1-based ordinal of the submission to fault) from $HYBRID_FAULT_INJECTION; None when unset."""
     text = os.environ.get(ENV, "").strip()
     if not text:
         return None
     kind, _, count = text.partition(":")
-    if kind != KIND or (count and not (count.isdigit() and int(count) >= 1)):
-        raise ConfigError(f"{ENV}={text!r}: expected {KIND!r} or '{KIND}:N' with N >= 1 (the N-th submission)")
-    return int(count) if count else 1
+    if kind not in KINDS or (count and not (count.isdigit() and int(count) >= 1)):
+        raise ConfigError(
+            f"{ENV}={text!r}: expected one of {', '.join(KINDS)}, optionally ':N' with N >= 1 (the N-th submission)"
+        )
+    return kind, int(count) if count else 1
 
 
-def check_device(device_info: dict, buffer_device_address: bool) -> None:
+def check_device(kind: str, device_info: dict, buffer_device_address: bool) -> None:
     """Refuse a device on which the fault would not be a clean device loss."""
-    if device_info["type"] == "CPU":
+    if kind == "device-lost" and device_info["type"] == "CPU":
         raise ConfigError(
             f"{ENV}: {device_info['name']!r} is a CPU device, where the faulting shader would crash this process "
             "instead of losing the device; fault injection needs a GPU"
@@ -57,12 +63,12 @@ class FaultInjector:
     """The faulting dispatch, recorded once (its own pipeline: faults.py sits below engine.vk.pipelines), and the
     count of submissions until it goes ahead of one."""
 
-    def __init__(self, ctx, ordinal: int):
+    def __init__(self, ctx, kind: str, ordinal: int):
         self.remaining = ordinal
         dev = ctx.device
         code = (SHADERS_DIR / "spv" / f"{SHADER}.spv").read_bytes()
         module = vk.vkCreateShaderModule(dev, vk.VkShaderModuleCreateInfo(codeSize=len(code), pCode=code), None)
-        push = vk.VkPushConstantRange(stageFlags=vk.VK_SHADER_STAGE_COMPUTE_BIT, offset=0, size=8)
+        push = vk.VkPushConstantRange(stageFlags=vk.VK_SHADER_STAGE_COMPUTE_BIT, offset=0, size=16)
         layout = vk.vkCreatePipelineLayout(
             dev, vk.VkPipelineLayoutCreateInfo(pushConstantRangeCount=1, pPushConstantRanges=[push]), None
         )
@@ -76,8 +82,8 @@ class FaultInjector:
         self.cmd = ctx.allocate_command_buffer()
         vk.vkBeginCommandBuffer(self.cmd, vk.VkCommandBufferBeginInfo())
         vk.vkCmdBindPipeline(self.cmd, vk.VK_PIPELINE_BIND_POINT_COMPUTE, pipeline)
-        address = vk.ffi.new("char[]", UNMAPPED.to_bytes(8, "little"))  # uvec2: the low word first
-        vk.vkCmdPushConstants(self.cmd, layout, vk.VK_SHADER_STAGE_COMPUTE_BIT, 0, 8, address)
+        words = UNMAPPED.to_bytes(8, "little") + KINDS[kind].to_bytes(4, "little") + NEVER.to_bytes(4, "little")
+        vk.vkCmdPushConstants(self.cmd, layout, vk.VK_SHADER_STAGE_COMPUTE_BIT, 0, 16, vk.ffi.new("char[]", words))
         vk.vkCmdDispatch(self.cmd, GROUPS, 1, 1)
         vk.vkEndCommandBuffer(self.cmd)
 

@@ -106,6 +106,8 @@ class Buffer:
     def destroy(self):
         if self._alive:
             self._alive = False
+            if self.ctx.hung:  # the GPU may still use it: left to the driver (Context._abandon)
+                return
             if self._mapped is not None:
                 vk.vkUnmapMemory(self.ctx.device, self.memory)
                 self._mapped = None
@@ -138,6 +140,8 @@ class BufferView:
     def destroy(self):
         if self._alive:
             self._alive = False
+            if self.ctx.hung:  # (as Buffer.destroy)
+                return
             vk.vkDestroyBufferView(self.ctx.device, self.handle, None)
 
 
@@ -321,6 +325,8 @@ class Image:
     def destroy(self):
         if self._alive:
             self._alive = False
+            if self.ctx.hung:  # (as Buffer.destroy)
+                return
             vk.vkDestroyImageView(self.ctx.device, self.view, None)
             vk.vkDestroyImage(self.ctx.device, self.handle, None)
             free(self.ctx, self.memory)

@@ -4,8 +4,8 @@ mean tonemapped into the colour targets.
 A megakernel rather than a wavefront: one invocation follows a pixel's path to its end (no queues between kernels,
 no per-bounce dispatches or ray buffers, one recorded dispatch per batch of samples). On lavapipe, where the
 "threads" of a SIMD group are lanes of one CPU core, a wavefront's regrouping would cost more memory traffic than
-the divergence it saves. The trace dispatch is recorded once and re-submitted per batch; the batch's first sample
-index and count come from a host-written uniform block (`write_params`).
+the divergence it saves. A batch's dispatches (one per sample) are recorded once and re-submitted; the batch's first
+sample index and count come from a host-written uniform block (`write_params`).
 """
 
 from __future__ import annotations
@@ -18,9 +18,10 @@ from .base import read, update, write
 from .raypass import RayPass
 
 FILTERS = ("box", "gaussian")
-#: Paths per trace dispatch at most (pixels x samples): a batch that no driver's watchdog would cut short, and the
-#: progress bar's step.
+#: Paths per submitted batch at most (pixels x samples; one dispatch per sample): a batch that no driver's watchdog
+#: would cut short, and the progress bar's step; at most MAX_BATCH samples.
 PATHS_PER_BATCH = 1 << 20
+MAX_BATCH = 64
 PARAMS = np.dtype(
     [("inv_view_proj", "<f4", (4, 4)), ("eye", "<f4", 4), ("batch", "<u4", 4), ("info", "<u4", 4)]
 )  # path.comp's PathBlock (std140)
@@ -70,7 +71,7 @@ class PathPass(RayPass):
     @staticmethod
     def batch_size(width: int, height: int) -> int:
         """Samples per pixel in one trace dispatch."""
-        return max(1, PATHS_PER_BATCH // (width * height))
+        return max(1, min(MAX_BATCH, PATHS_PER_BATCH // (width * height)))
 
     def write_params(self, inv_view_proj, eye, first, count, max_depth, pixel_filter, seed, lights) -> None:
         p = self.params
@@ -80,15 +81,21 @@ class PathPass(RayPass):
         p["info"] = seed, self.scene_data.emitter_count, lights, 0
 
     def record_trace(self, rec, targets) -> None:
-        self.dispatch(
-            rec, self.tiles(targets.width, targets.height), push=np.array([0], np.uint32), reads=[], writes=[self.accum]
-        )
+        """A batch: `batch_size` dispatches, sample k of the batch in each."""
+        for k in range(self.batch_size(targets.width, targets.height)):
+            self.dispatch(
+                rec,
+                self.tiles(targets.width, targets.height),
+                push=np.array([0, k], np.uint32),
+                reads=[self.accum],
+                writes=[self.accum],
+            )
 
     def record_resolve(self, rec, targets) -> None:
         self.dispatch(
             rec,
             self.tiles(targets.width, targets.height),
-            push=np.array([1], np.uint32),
+            push=np.array([1, 0], np.uint32),
             reads=[self.accum],
             writes=[targets.color, targets.hdr],
         )

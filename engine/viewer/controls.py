@@ -20,6 +20,7 @@ KEYS = [
     ("1", "shadows: cycle modes"),
     ("2", "ambient occlusion on / off"),
     ("3", "denoise on / off (if the renderer has it)"),
+    ("4", "integrator: raster / path (path: samples accumulate while the view is still)"),
     ("V / Shift+V", "next / previous debug view (if the renderer has it)"),
     ("R", "reset the camera to the scene's"),
     ("P", "pause / play the scene's animation"),
@@ -34,7 +35,7 @@ KEYS = [
 KEY_SKIPS = {"shadows": ("reference",)}
 
 # The settings with a key, in the order the overlay lists them.
-TOGGLED = ("shadows", "ao", "denoise", "view")
+TOGGLED = ("shadows", "ao", "denoise", "view", "integrator")
 
 
 def key_map_text() -> str:

@@ -2,8 +2,10 @@
 #extension GL_GOOGLE_include_directive : require
 // Progressive unidirectional path tracer (a megakernel: one invocation follows one pixel's paths to their end).
 //
-// pc.mode 0 (trace): `path.batch.y` samples per pixel, numbered from `path.batch.x`, added to the pixel's float32
-// sum in `accum` (xyz: radiance, w: samples; the first batch, numbered from 0, starts the sum over). Each sample: a
+// pc.mode 0 (trace): sample `path.batch.x + pc.index` of each pixel (none where pc.index >= `path.batch.y`, the
+// batch's count), added to the pixel's float32 sum in `accum` (xyz: radiance, w: samples; sample 0 starts the sum
+// over). One sample per dispatch: llvmpipe caps a loop at 65535 iterations per invocation, counted over all entries
+// of a nested loop (the traversal's), so many samples in one invocation would lose rays. Each sample: a
 // camera ray through a point of the pixel drawn from the pixel filter, then per surface vertex next-event
 // estimation to every analytic light and to one emissive triangle (picked by power), and a BSDF sample (glTF
 // metallic-roughness: GGX drawn from its distribution of visible normals, or Lambert, by a lobe probability),
@@ -47,7 +49,7 @@ layout(set = 0, binding = 9) uniform samplerBuffer emitters;      // per emissiv
 layout(set = 0, binding = 10, rgba8) uniform writeonly image2D out_color;
 layout(set = 0, binding = 11, rgba16f) uniform writeonly image2D out_hdr;
 
-layout(push_constant) uniform Push { uint mode; } pc;
+layout(push_constant) uniform Push { uint mode; uint index; } pc;
 
 // ---- random numbers ------------------------------------------------------------------------------------------
 uint rng;
@@ -450,16 +452,14 @@ void main() {
         imageStore(out_color, px, vec4(srgb_encode(tonemap_aces(color)), 1.0));
         return;
     }
-    vec3 sum = vec3(0.0);
-    for (uint k = 0u; k < path.batch.y; ++k) {
-        uint sample_index = path.batch.x + k;
-        rng = pcg_hash(pixel + pcg_hash(sample_index + pcg_hash(path.info.x)));
-        vec2 at = (vec2(px) + filter_sample()) / vec2(w, h) * 2.0 - 1.0;
-        vec4 far = path.inv_view_proj * vec4(at, 0.5, 1.0);
-        vec3 d = normalize(far.xyz / far.w - path.eye.xyz);
-        vec3 c = trace_path(path.eye.xyz, d);
-        if (!any(isnan(c)) && !any(isinf(c))) sum += c;   // (a lost sample counts as black)
-    }
-    vec4 prev = path.batch.x == 0u ? vec4(0.0) : accum[pixel];
-    accum[pixel] = prev + vec4(sum, float(path.batch.y));
+    if (pc.index >= path.batch.y) return;
+    uint sample_index = path.batch.x + pc.index;
+    rng = pcg_hash(pixel + pcg_hash(sample_index + pcg_hash(path.info.x)));
+    vec2 at = (vec2(px) + filter_sample()) / vec2(w, h) * 2.0 - 1.0;
+    vec4 far = path.inv_view_proj * vec4(at, 0.5, 1.0);
+    vec3 d = normalize(far.xyz / far.w - path.eye.xyz);
+    vec3 c = trace_path(path.eye.xyz, d);
+    if (any(isnan(c)) || any(isinf(c))) c = vec3(0.0);   // (a lost sample counts as black)
+    vec4 prev = sample_index == 0u ? vec4(0.0) : accum[pixel];
+    accum[pixel] = prev + vec4(c, 1.0);
 }

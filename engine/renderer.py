@@ -696,8 +696,8 @@ class Renderer(Closes):
 
     def _path_samples(self, scene, camera, cfg, n_lights, progressive=False):
         """Trace `cfg["spp"]` samples per pixel into the path tracer's sum (the frame's recording then resolves
-        it), one batch per submit of one recorded dispatch; `progressive` (the viewer): one batch added to the
-        samples so far when the scene, camera and settings are those they were traced under, else a first batch."""
+        it), one batch per submit of one recorded batch of dispatches; `progressive` (the viewer): one sample added to
+        the samples so far when the scene, camera and settings are those they were traced under, else a first one."""
         camera = camera if camera is not None else scene.camera
         view_proj = camera.projection_matrix(self.width / self.height) @ camera.view_matrix()
         data = self.path.scene_data
@@ -717,7 +717,7 @@ class Renderer(Closes):
         if first >= total:
             return
         batch = self.path.batch_size(self.width, self.height)
-        end = min(total, first + batch) if progressive else total
+        end = first + 1 if progressive else total  # (the viewer: a sample per frame, to stay interactive)
         cmd_key = ("path-trace",)
         if cmd_key not in self._commands:
             rec = Recorder(self.ctx)

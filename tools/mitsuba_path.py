@@ -111,7 +111,7 @@ def _emissive():
         ),
         (moved(primitives.box((0.4, 0.6, 0.4)), (-0.3, 0.3, -0.1)), Material("block", (0.3, 0.5, 0.8))),
     ]
-    lights = [RectLight((-0.6, 1.6, 0.4), (0.6, 0.0, 0.0), (0.0, 0.0, -0.6), intensity=1.2)]
+    lights = [RectLight((-0.6, 1.6, 0.4), (0.6, 0.0, 0.0), (0.0, 0.0, 0.6), intensity=1.2)]
     return objects, lights, ((0.0, 1.5, 2.4), (0.0, 0.25, 0.0), 45.0)
 
 
@@ -280,15 +280,46 @@ def converged_error(a, b, m, n, mask) -> tuple[float, float]:
     return float(np.sqrt(max(mse - noise, 0.0)) / mean), float(np.sqrt(noise) / mean)
 
 
-def compare(renderer: Renderer, spp: int, mitsuba_spp: int | None = None, names=None, size=SIZE) -> list[dict]:
+#: Mitsuba's images of every scene, two seeds at REFERENCE_SPP samples per pixel (`--write-reference`), so that the
+#: suite renders only ours: tests/reference/mitsuba_path.npz.
+REFERENCE = ROOT / "tests" / "reference" / "mitsuba_path.npz"
+REFERENCE_SPP = 4096
+
+
+def _key(name: str) -> str:
+    return mc._slug(name)
+
+
+def write_reference(path: Path = REFERENCE, spp: int = REFERENCE_SPP, size=SIZE) -> None:
+    images = {}
+    for name, spec in scenes().items():
+        for seed in (1, 2):
+            images[f"{_key(name)}_{seed}"] = render_mitsuba(spec, size, spp, seed).astype(np.float32)
+            print(f"{name}, seed {seed}: done", flush=True)
+    np.savez_compressed(path, spp=np.int64(spp), size=np.asarray(size), **images)
+
+
+def reference_images(name: str, path: Path = REFERENCE) -> tuple[np.ndarray, np.ndarray]:
+    with np.load(path) as z:
+        return z[f"{_key(name)}_1"], z[f"{_key(name)}_2"]
+
+
+def compare(
+    renderer: Renderer, spp: int, mitsuba_spp: int | None = None, names=None, size=SIZE, stored: bool = False
+) -> list[dict]:
+    """Each scene (or those in `names`): ours at `spp` and Mitsuba's at `mitsuba_spp` (default `spp`), two seeds
+    each; `stored`: Mitsuba's images from REFERENCE instead of rendered now."""
     out = []
     for name, spec in scenes().items():
         if names is not None and name not in names:
             continue
         a = render_ours(spec, renderer, spp, seed=1)
         b = render_ours(spec, renderer, spp, seed=2)["radiance"]
-        m = render_mitsuba(spec, size, mitsuba_spp or spp, seed=1)
-        n = render_mitsuba(spec, size, mitsuba_spp or spp, seed=2)
+        if stored:
+            m, n = reference_images(name)
+        else:
+            m = render_mitsuba(spec, size, mitsuba_spp or spp, seed=1)
+            n = render_mitsuba(spec, size, mitsuba_spp or spp, seed=2)
         mask = edge_mask(a)
         rmse, noise = converged_error(a["radiance"], b, m, n, mask)
         out.append(
@@ -371,10 +402,20 @@ def main(argv=None) -> int:
     ap.add_argument("--spp", type=int, default=256, help="our samples per pixel per seed")
     ap.add_argument("--mitsuba-spp", type=int, default=None, help="Mitsuba's (default: --spp)")
     ap.add_argument("--images", type=Path, help="write the images into this folder")
+    ap.add_argument("--stored", action="store_true", help=f"Mitsuba's images from {REFERENCE.relative_to(ROOT)}")
+    ap.add_argument(
+        "--write-reference",
+        action="store_true",
+        help=f"render Mitsuba's images of every scene (--mitsuba-spp, default {REFERENCE_SPP}) into "
+        f"{REFERENCE.relative_to(ROOT)} and stop",
+    )
     ap.add_argument("--md", type=Path, help="write the section into this markdown file (with --images)")
     args = ap.parse_args(argv)
+    if args.write_reference:
+        write_reference(spp=args.mitsuba_spp or REFERENCE_SPP)
+        return 0
     with Renderer(*SIZE) as r:
-        runs = compare(r, args.spp, args.mitsuba_spp)
+        runs = compare(r, args.spp, args.mitsuba_spp, stored=args.stored)
     for res in runs:
         print(
             f"{res['name']:45s} converged RMSE/mean {res['rmse']:.4f}  noise {res['noise']:.4f}  "

@@ -1,0 +1,67 @@
+"""The path tracer against Mitsuba 3's `path` integrator (tools/mitsuba_path.py): a Cornell box lit by an emissive
+quad (diffuse, rough-metal and smooth-metal spheres), a rect light with an emissive sphere, an instanced scene
+(two-level BVH, a mirror) under a sun, a point light and the environment, alpha-masked quads. The converged
+RMSE / mean, estimated from two seeds per side (the noise both images carry taken out), must stay within the
+bound, and each image's mean within a fraction of a percent of Mitsuba's.
+
+Default tier: Mitsuba's images stored in tests/reference/mitsuba_path.npz (`tools/mitsuba_path.py
+--write-reference`, 4096 samples per pixel and seed), ours at DEFAULT_SPP. Slow tier: Mitsuba rendered now."""
+
+import sys
+
+import numpy as np
+import pytest
+
+from conftest import REPO
+
+sys.path.insert(0, str(REPO / "tools"))
+import mitsuba_path as mp  # noqa: E402
+
+#: Our samples per pixel and seed in the default tier, and the bounds there: at this noise the two-seed estimate of
+#: the converged error is itself uncertain by about DEFAULT_BOUND, so the default tier bounds it coarser than the
+#: issue's 0.01 (the slow tier: mp.RMSE_BOUND at SLOW_SPP).
+DEFAULT_SPP = 1024
+DEFAULT_BOUND = 0.02
+SLOW_SPP = 4096
+MEAN_BOUND = 0.01
+
+
+@pytest.fixture(scope="module")
+def runs(shared_device):
+    from engine import Renderer
+
+    r = Renderer(*mp.SIZE, device=shared_device)
+    try:
+        yield {x["name"]: x for x in mp.compare(r, DEFAULT_SPP, stored=True)}
+    finally:
+        r.close()
+
+
+@pytest.mark.parametrize("name", list(mp.scenes()))
+def test_path_tracer_matches_mitsuba(runs, name):
+    res = runs[name]
+    assert res["kept"] > 0.6 and np.all(np.isfinite(res["ours"]))
+    assert abs(res["bias"]) <= MEAN_BOUND, (name, res["bias"])
+    assert res["rmse"] <= DEFAULT_BOUND, (name, res["rmse"], res["noise"])
+
+
+def test_a_wrong_light_unit_would_fail(runs):
+    """The image mean is checked to a fraction of a percent: a 3% error (e.g. a missing cosine or a light's pi)
+    breaks it, and the converged RMSE sees a wrong image."""
+    res = runs["instances, sun, point light, environment"]
+    m, n = mp.reference_images(res["name"])
+    assert abs(float(np.mean(1.03 * res["ours"][res["mask"]]) / np.mean(0.5 * (m + n)[res["mask"]])) - 1) > MEAN_BOUND
+    wrong, _ = mp.converged_error(1.05 * res["ours"], 1.05 * res["ours"], m, n, res["mask"])
+    assert wrong > 2 * DEFAULT_BOUND
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("name", list(mp.scenes()))
+def test_path_tracer_matches_mitsuba_rendered_now(shared_device, name):
+    """The issue's bound, 0.01, with Mitsuba rendered now (scalar_rgb) at the stored reference's sample count."""
+    from engine import Renderer
+
+    with Renderer(*mp.SIZE, device=shared_device) as r:
+        (res,) = mp.compare(r, SLOW_SPP, mp.REFERENCE_SPP, names=[name])
+    assert abs(res["bias"]) <= MEAN_BOUND, (name, res["bias"])
+    assert res["rmse"] <= mp.RMSE_BOUND, (name, res["rmse"], res["noise"])

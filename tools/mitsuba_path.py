@@ -227,7 +227,10 @@ def mitsuba_scene(spec, size, tmp: Path) -> dict:
             bsdf = {"type": "twosided", "bsdf": bsdf}
         shape = {"type": "ply", "filename": str(path), "face_normals": False, "bsdf": bsdf}
         if np.any(np.asarray(material.emissive) > 0):
+            # an emitter's cosine and side are its triangles' (ours: the winding's normal); with vertex normals
+            # Mitsuba would take the interpolated normal's cosine into its sampling pdf
             shape["emitter"] = {"type": "area", "radiance": _rgb(material.emissive)}
+            shape["face_normals"] = True
         scene[f"object{k}"] = shape
     return scene
 

@@ -225,6 +225,13 @@ vec3 sample_bsdf(Surface s, Lobes lb, vec3 v) {
 }
 
 // ---- lights ---------------------------------------------------------------------------------------------------
+// A spot light's falloff at cosine `c` to its axis: 1 inside the inner cone, 0 outside the outer one, smoothstep
+// between (a hard edge where the cones are one: smoothstep's edges may not be equal).
+float spot_falloff(Light l, float c) {
+    float outer = l.color.w, inner = l.u.w;
+    return inner > outer ? smoothstep(outer, inner, c) : (c >= outer ? 1.0 : 0.0);
+}
+
 // A sample of light `l` from p: direction wi, distance to the emitting point (or -1: at infinity), the radiance (for
 // delta lights: the irradiance-like quantity that times f cos gives the reflected radiance), its solid-angle pdf
 // (0: a delta light, no MIS). False where the light sends nothing towards p.
@@ -279,7 +286,7 @@ bool sample_light(Light l, vec3 p, vec2 xi, out vec3 wi, out float dist, out vec
         pdf = 0.0;
         li = power / d2;
     }
-    if (type == LIGHT_SPOT) li *= smoothstep(l.color.w, l.u.w, dot(-axis, l.dir_radius.xyz));
+    if (type == LIGHT_SPOT) li *= spot_falloff(l, dot(-axis, l.dir_radius.xyz));
     return true;
 }
 
@@ -324,7 +331,7 @@ vec3 lights_hit(vec3 o, vec3 d, float t_max, float bsdf_pdf_) {
             float cos_max = sqrt(max(0.0, 1.0 - r * r / d2));
             pdf = 1.0 / (2.0 * PI * (1.0 - cos_max));
             li = power / (PI * r * r);
-            if (type == LIGHT_SPOT) li *= smoothstep(l.color.w, l.u.w, dot(-to * inversesqrt(d2), l.dir_radius.xyz));
+            if (type == LIGHT_SPOT) li *= spot_falloff(l, dot(-to * inversesqrt(d2), l.dir_radius.xyz));
         }
         sum += li * (bsdf_pdf_ > 0.0 ? power_heuristic(bsdf_pdf_, pdf) : 1.0);
     }

@@ -106,7 +106,7 @@ def _emissive():
     objects = [
         (_floor(), Material("floor", (0.7, 0.7, 0.7))),
         (
-            moved(primitives.sphere(0.2, 48, 24), (0.5, 0.2, 0.0)),
+            moved(primitives.sphere(0.2, 48, 24), (0.5, 0.45, 0.0)),
             Material("lamp", (0.0, 0.0, 0.0), emissive=(4.0, 2.5, 1.0)),
         ),
         (moved(primitives.box((0.4, 0.6, 0.4)), (-0.3, 0.3, -0.1)), Material("block", (0.3, 0.5, 0.8))),

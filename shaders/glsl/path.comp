@@ -339,8 +339,9 @@ vec3 lights_hit(vec3 o, vec3 d, float t_max, float bsdf_pdf_) {
 }
 
 // One emissive triangle picked by power (the host's CDF), a uniform point on it: its radiance towards p, the
-// direction and distance, and the solid-angle pdf.
-bool sample_emitter(vec3 p, out vec3 wi, out float dist, out vec3 li, out float pdf) {
+// direction, the point moved off its triangle towards p (the shadow ray's end: a ray that ended on the triangle
+// would hit it short of its end where it is seen edge-on), and the solid-angle pdf.
+bool sample_emitter(vec3 p, out vec3 wi, out vec3 target, out vec3 li, out float pdf) {
     uint n = path.info.y;
     float x = rnd();
     uint lo = 0u, hi = n - 1u;   // the first record whose cdf > x
@@ -358,10 +359,10 @@ bool sample_emitter(vec3 p, out vec3 wi, out float dist, out vec3 li, out float 
     float area = 0.5 * length(c);
     vec3 to = q - p;
     float d2 = dot(to, to);
-    dist = sqrt(d2);
-    wi = to / dist;
+    wi = to * inversesqrt(d2);
     float cos_l = -dot(wi, c) / (2.0 * area);
     if (cos_l <= 0.0 || area <= 0.0) return false;   // its back face (no emission) or degenerate
+    target = offset_ray(q, c / (2.0 * area));
     li = tri_emission(t, u, v);
     pdf = rec.z * d2 / (area * cos_l);
     return true;
@@ -411,11 +412,12 @@ vec3 trace_path(vec3 o, vec3 d) {
             radiance += throughput * f * li * (pdf > 0.0 ? w / pdf : 1.0);
         }
         if (path.info.y > 0u) {
-            vec3 wi, li;
-            float dist, pdf;
-            if (sample_emitter(s.p, wi, dist, li, pdf)) {
+            vec3 wi, target, li;
+            float pdf;
+            if (sample_emitter(s.p, wi, target, li, pdf)) {
                 vec3 f = bsdf_eval(s, v, wi);
-                if (any(greaterThan(f * li, vec3(0.0))) && visible(s.p, s.ng, wi, dist, frame.scene_scale))
+                vec3 o = offset_ray(s.p, s.ng);
+                if (any(greaterThan(f * li, vec3(0.0))) && !bvh_occluded(o, target - o, 0.0, 1.0))
                     radiance += throughput * f * li * (power_heuristic(pdf, bsdf_pdf(s, lb, v, wi)) / pdf);
             }
         }

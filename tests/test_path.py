@@ -227,3 +227,25 @@ def test_viewer_key_4_path_traces_and_shows_spp(make_viewer):
     v.fly.move(0, 0, 1, dt=0.2)
     v.run(frames=1)
     assert v.renderer.path_samples == 1
+
+
+def test_batch_job_path_traces(tmp_path, make_renderer):
+    """`hybrid batch` with `integrator = "path"` in the job's [settings]: its colour is the path tracer's, the same
+    image a renderer gives for the same seed and spp."""
+    from engine.batch import load_job, run_batch
+
+    (tmp_path / "job.toml").write_text(
+        'output = "out"\nsize = "32x24"\naovs = ["color", "depth"]\n\n[settings]\nintegrator = "path"\nspp = 3\n'
+        'max_depth = 3\nseed = 7\n\n[[scenes]]\nscene = "sphere"\n[[scenes.cameras.views]]\neye = [0, 1, 4]\n'
+        "target = [0, 0, 0]\nfov = 50\n"
+    )
+    result = run_batch(load_job(tmp_path / "job.toml"), workers=1, progress=False)
+    assert not result.failed
+    (frame_file,) = (tmp_path / "out").rglob("*.npz")
+    with np.load(frame_file) as data:
+        color = data["color"]
+    scene = Scene.load("sphere")
+    cam = Camera.look_at((0.0, 1.0, 4.0), (0.0, 0.0, 0.0), (0.0, 1.0, 0.0), 50.0)
+    r = make_renderer(32, 24)
+    ref = r.render(scene, cam, integrator="path", spp=3, max_depth=3, seed=7, aovs=("color",))
+    np.testing.assert_array_equal(color, ref.color)

@@ -82,6 +82,10 @@ def test_direct_light_matches_the_raster(make_renderer):
     assert keep.sum() > 400
     assert abs(path[keep].mean() / ref[keep].mean() - 1) < 0.015
     assert np.median(np.abs(path[keep] - ref[keep]) / ref[keep].mean()) < 0.05
+    gauss = r.render(scene, spp=64, max_depth=2, pixel_filter="gaussian", **PATH)
+    assert abs(gauss.aov["radiance"][keep].mean() / ref[keep].mean() - 1) < 0.015
+    # the data AOVs are the raster's, whatever the integrator
+    np.testing.assert_array_equal(gauss.aov["depth"], raster.aov["depth"])
 
 
 def test_light_types_agree_in_their_limits(make_renderer):

@@ -15,7 +15,8 @@ ray-query library on the same BVH and traversal.
         near = tracer.closest(points)                          # Closest: point, distance, prim, u, v
 
 What is where: `Scene` (geometry, materials, lights, camera; loading), `Camera`, the lights (`DirectionalLight`,
-`PointLight`, `SpotLight`, `RectLight`), `Material`; `Renderer` renders a `Frame`; `Tracer` answers ray queries
+`PointLight`, `SpotLight`, `RectLight`), `Material`, the light from far away (`Environment`: an HDR map; `Sky`:
+the default daylight sky); `Renderer` renders a `Frame`; `Tracer` answers ray queries
 with `Hits` and closest-point queries with `Closest`; `RayMeshIntersector` is trimesh's ray-query
 interface (`mesh.ray`) on it, `RaycastingScene` Open3D's; `Device` is one Vulkan device that Renderers,
 Tracers and RaycastingScenes share.
@@ -40,6 +41,7 @@ from ._version import __version__
 from .data import bundled_scenes, scene_path
 from .errors import ConfigError, EngineError, SceneError, ShaderError, VulkanError
 from .renderer import Frame, Renderer
+from .pointcloud import PointCloud
 from .vk.shared import Device
 from .rt import Closest, Hits, Tracer
 from .rt import RayMeshIntersector
@@ -47,6 +49,7 @@ from .rt import RaycastingScene
 from .scene import (
     Camera,
     DirectionalLight,
+    Environment,
     Instance,
     Light,
     Material,
@@ -54,6 +57,7 @@ from .scene import (
     PointLight,
     RectLight,
     Scene,
+    Sky,
     SpotLight,
     SubMesh,
 )
@@ -86,3 +90,5 @@ __all__ += ["RayMeshIntersector"]
 __all__ += ["RaycastingScene"]
 __all__ += ["Device"]
 __all__ += ["Mesh", "Instance"]
+__all__ += ["Environment", "Sky"]
+__all__ += ["PointCloud"]

@@ -22,12 +22,13 @@ from .batch import run_cli as run_batch_cli
 from .bench import add_arguments as add_bench_arguments
 from .bench import run_cli
 from .errors import ConfigError, EngineError, shown
+from .files import check_writable
 from .outputs import check_output_path
 from .renderer import Renderer
 from .scene import Scene
 from .sequence import load_camera_path, orbit_cameras, output_paths, render_size, render_sequence
-from .settings import AOVS, INTEGRATORS, MAX_FRAMES, PIXEL_FILTERS, SHADOW_MODES as SHADOW_CHOICES
-from .settings import parse_size, resolve_aovs
+from .settings import AOVS, INTEGRATORS, MAX_FRAMES, PIXEL_FILTERS, TONEMAPS, SHADOW_MODES as SHADOW_CHOICES
+from .settings import DERIVED_AOVS, parse_size, resolve_aovs
 from .viewer import add_arguments as add_view_arguments
 from .viewer import run_from_args
 from .vk import choose_device, describe_devices
@@ -35,14 +36,11 @@ from .vk import choose_device, describe_devices
 
 def _settings(args) -> dict:
     out = {}
-    for key in (
-        "shadows",
-        "shadow_samples",
-        "reference_samples",
-        "accumulate",
-        "denoise",
-        "ao",
-        "ao_samples",
+    keys = ("shadows", "shadow_samples", "reference_samples", "accumulate", "denoise", "ao", "ao_samples")
+    for key in keys + (
+        "exposure",
+        "auto_exposure",
+        "tonemap",
         "integrator",
         "spp",
         "max_depth",
@@ -72,11 +70,40 @@ def _outputs(args) -> tuple:
             if name != "depth":
                 raise ConfigError("--depth-scale writes a 16-bit depth PNG: give --aov depth")
             return ("depth",), "color", dict(aov="depth", depth_scale=args.depth_scale), ["depth"]
+        if name in DERIVED_AOVS:  # made on the host: drawn by Frame.save (semantic ids through the palette)
+            return (name,), "color", dict(aov=name), [name]
         return ("color",), name, {}, [name]  # the AOV drawn into the colour image on the GPU
     if args.depth_scale is not None:
         raise ConfigError(f"{args.output}: --depth-scale is for 16-bit depth PNGs (.exr and .npz hold metric depth)")
     aovs = resolve_aovs("all" if "all" in names else names or None)
     return aovs, "color", dict(compress=args.compress), list(aovs)
+
+
+#: What `--point-cloud` reads back besides the output's AOVs: the points, their colours, normals and ids.
+POINT_CLOUD_AOVS = ("color", "depth", "normal", "object_id", "instance_id")
+
+
+def _point_cloud_paths(args, sequence: bool) -> str | None:
+    """--point-cloud's path pattern, checked before anything renders (None without the option)."""
+    if args.point_cloud is None:
+        return None
+    if Path(args.point_cloud).suffix.lower() != ".ply":
+        raise ConfigError(f"--point-cloud {args.point_cloud}: a point cloud is written as PLY: give a .ply path")
+    if args.resume:
+        raise ConfigError("--point-cloud with --resume: resume checks the frames' files only; run without --resume")
+    if sequence and "#" not in Path(args.point_cloud).name:
+        raise ConfigError(f"--point-cloud {args.point_cloud}: a sequence needs a run of # for the frame number")
+    check_writable(Path(args.point_cloud), "point cloud")
+    return args.point_cloud
+
+
+def _with_point_cloud_aovs(scene, aovs: tuple, save: dict, suffix: str) -> tuple:
+    """The AOVs to read back for the output and the point cloud (semantic ids where the scene has classes), and
+    `save` naming the output's own AOVs, so that its file holds what it would without the cloud."""
+    extra = POINT_CLOUD_AOVS + (("semantic_id",) if any(scene.object_classes) else ())
+    if suffix != ".png":
+        save = dict(save, aov=list(aovs))
+    return resolve_aovs(tuple(aovs) + extra), save
 
 
 def _cameras(args, scene) -> tuple:
@@ -105,6 +132,7 @@ def cmd_render(args) -> int:
         )
     check_output_path(args.output)  # before the work, which a path that cannot be written would lose
     aovs, view, save, names = _outputs(args)
+    clouds = _point_cloud_paths(args, sequence)
     settings = dict(_settings(args), **({"view": view} if view != "color" else {}))
     if args.camera_path is not None and not Path(args.camera_path).is_file():
         raise ConfigError(f"{args.camera_path}: no such camera path file")
@@ -112,6 +140,9 @@ def cmd_render(args) -> int:
     scene = Scene.load(args.scene, allow_paths=args.allow_path, up=args.up)
     cameras, where = _cameras(args, scene)
     paths = output_paths(args.output, len(cameras))
+    if clouds is not None:
+        clouds = output_paths(args.point_cloud, len(cameras))
+        aovs, save = _with_point_cloud_aovs(scene, aovs, save, Path(args.output).suffix.lower())
     width, height = render_size(cameras, size, where or scene.name)
     t1 = time.perf_counter()
     # SIGTERM unwinds like Ctrl-C: the file being written is dropped whole, the renderer closed
@@ -136,6 +167,7 @@ def cmd_render(args) -> int:
                 resume=args.resume,
                 fps=args.fps,
                 progress=sequence and not args.quiet and sys.stderr.isatty(),
+                point_clouds=clouds,
             )
             errors = list(r.validation_errors)
             device = r.device_name
@@ -266,11 +298,11 @@ def build_parser() -> argparse.ArgumentParser:
     r.add_argument(
         "--aov",
         action="append",
-        choices=AOVS + ("all",),
+        choices=AOVS + tuple(DERIVED_AOVS) + ("all",),
         metavar="AOV",
         help="what to write, may repeat: a PNG takes one (the colour, or an AOV drawn for viewing); "
         ".exr / .npz take several (default: color, depth, normal, position, albedo, shadow, ao; "
-        f"'all': every one). AOVs: {', '.join(AOVS)}",
+        f"'all': every one). AOVs: {', '.join(AOVS + tuple(DERIVED_AOVS))}",
     )
     r.add_argument(
         "--depth-scale",
@@ -313,6 +345,13 @@ def build_parser() -> argparse.ArgumentParser:
         help="sequences: skip frames whose files (and camera sidecar) exist, render the rest; a finished frame "
         "of another camera, size, AOVs or settings is an error",
     )
+    r.add_argument(
+        "--point-cloud",
+        default=None,
+        metavar="FILE.ply",
+        help="also write the frame's surface as a world-space point cloud (binary PLY: points, colours, normals, "
+        "object / instance ids; a run of # for the frame number of a sequence)",
+    )
     r.add_argument("-q", "--quiet", action="store_true", help="no progress bar and no summary line")
     r.add_argument("--device", default=None, help="Vulkan device index or name substring")
     r.add_argument("--validation", action="store_true", help="enable the Khronos validation layer; fail on errors")
@@ -336,6 +375,15 @@ def build_parser() -> argparse.ArgumentParser:
     r.add_argument("--ao", dest="ao", action="store_true", default=None, help="ambient occlusion on")
     r.add_argument("--no-ao", dest="ao", action="store_false", help="ambient occlusion off")
     r.add_argument("--ao-samples", type=int, default=None, help="AO rays per pixel")
+    r.add_argument("--exposure", type=float, default=None, help="exposure in EV (default -1: 2^-1 on the radiance)")
+    r.add_argument(
+        "--auto-exposure",
+        dest="auto_exposure",
+        action="store_true",
+        default=None,
+        help="also scale by 0.18 / the frame's log-average luminance",
+    )
+    r.add_argument("--tonemap", default=None, choices=TONEMAPS, help="tone curve (default agx)")
     r.add_argument(
         "--integrator",
         default=None,

@@ -16,7 +16,11 @@ from PIL import Image as PILImage
 from . import outputs
 from .errors import ConfigError
 from .files import check_writable
+from .passes.interface import AOVS as AOV_SPECS
+from .passes.interface import DERIVED_AOVS
+from .pointcloud import PointCloud, frame_points
 from .scene.camera import Camera
+from .scene.classes import palette
 
 
 @dataclass(repr=False)
@@ -28,7 +32,7 @@ class Frame:
     """
 
     color: np.ndarray | None
-    """(H, W, 4) uint8 RGBA, sRGB-encoded (tonemapped with ACES after `exposure`), alpha 255: the lit image, or the
+    """(H, W, 4) uint8 RGBA, sRGB-encoded (the `tonemap` curve after `exposure`), alpha 255: the lit image, or the
     AOV that the `view` setting chose, as the GPU drew it; None when "color" was not among the AOVs read back."""
     aov: dict[str, np.ndarray] = field(default_factory=dict)
     """The arbitrary output variables, float32, by name; background pixels are those where `depth` is +inf.
@@ -54,8 +58,10 @@ class Frame:
     - "roughness", "metallic": (H, W) the material's glTF perceptual roughness and metallic in [0, 1] (8-bit);
       0 on the background.
     - "emissive": (H, W, 3) linear RGB radiance the surface emits; 0 on the background.
-    - "radiance": (H, W, 3) the lit linear RGB colour before tonemapping (times `exposure`; half floats): what
+    - "radiance": (H, W, 3) the lit linear RGB radiance before exposure and tonemapping (half floats): what
       `color` is the ACES-tonemapped, sRGB-encoded image of.
+    - "semantic_id": (H, W) uint32 the semantic class of the object seen (`class_names[id]`), 0 on the background
+      and on objects without a class (`Scene.set_classes`); made on the host from the object ids, exactly.
 
     Which are present is the `aovs` argument of `Renderer.render` (default `engine.settings.DEFAULT_AOVS`).
     """
@@ -68,6 +74,8 @@ class Frame:
     """The names behind `object_id`: the scene's sub-meshes, in order."""
     material_names: list[str] = field(default_factory=list)
     """The names behind `material_id`: the scene's materials, in order."""
+    class_names: list[str] = field(default_factory=list)
+    """The names behind `semantic_id` (`Scene.class_names`: "background" first); empty without that AOV."""
 
     camera: Camera | None = None
     """The camera the frame was rendered from (the scene's when `render()` was given none)."""
@@ -162,7 +170,29 @@ class Frame:
         names = self._names(aov)
         arrays = {n: self._aov(n) for n in names}
         write = outputs.write_exr if suffix == ".exr" else outputs.write_npz
-        return write(p, arrays, self.camera_record(), self.object_names, self.material_names, compress=compress)
+        return write(
+            p,
+            arrays,
+            self.camera_record(),
+            self.object_names,
+            self.material_names,
+            compress=compress,
+            class_names=self.class_names if "semantic_id" in names else (),
+        )
+
+    def point_cloud(self) -> PointCloud:
+        """The surface the frame sees as world-space points, one per pixel that sees a surface (background pixels
+        left out), in row-major pixel order: at the position AOV where the frame has it, else where the depth AOV
+        puts it through the camera (`K`, `pose`); with the colour (`Frame.color`'s sRGB RGB), the normal and the
+        object, instance and semantic ids of that pixel where the frame has them. `PointCloud.save("x.ply")`
+        writes it.
+
+        Raises:
+            ConfigError: the frame has neither the depth nor the position AOV."""
+        K = pose = None
+        if self.camera is not None:
+            K, pose = self.K, self.pose
+        return frame_points(self.color, self.aov, K, pose, self.width, self.height)
 
     def save_camera(self, path: str | os.PathLike[str]) -> Path:
         """Write the camera sidecar: `camera_record()` as JSON (one key per line). A list of these is a camera path
@@ -189,31 +219,46 @@ class Frame:
             raise ConfigError(f"aov {name!r}: not in this frame (have: {', '.join(sorted(self.aov)) or 'none'})")
         return self.aov[name]
 
-    def _repr_png_(self) -> bytes:
-        """The colour image as PNG bytes: how Jupyter and IPython show a frame."""
+    def _repr_png_(self) -> bytes | None:
+        """PNG bytes of what Jupyter and IPython show for a frame: the colour image, else the first AOV that has a
+        picture (`aov_to_rgba`: depth normalized, ids a colour each, ...); None when there is neither (the
+        notebook then shows `repr`)."""
+        name = "color" if self.color is not None else next((n for n in self.aov if n in PICTURED), None)
+        if name is None or (name != "color" and self.aov[name].ndim == 3 and self.aov[name].shape[2] == 0):
+            return None
         buf = io.BytesIO()
-        PILImage.fromarray(np.ascontiguousarray(self.color), "RGBA").save(buf, format="PNG")
+        PILImage.fromarray(np.ascontiguousarray(aov_to_rgba(self, name)), "RGBA").save(buf, format="PNG")
         return buf.getvalue()
 
     def __repr__(self) -> str:
         view = self.settings.get("view", "color")
         shown = "" if view == "color" else f", view {view}"
-        return (
-            f"<Frame {self.width}x{self.height}{shown}, aov: {', '.join(self.aov) or 'none'}, GPU {self.gpu_ms:.2f} ms>"
-        )
+        names = (["color"] if self.color is not None else []) + list(self.aov)
+        try:
+            size = f"{self.width}x{self.height}"
+        except ConfigError:
+            size = "empty"
+        return f"<Frame {size}{shown}, aov: {', '.join(names) or 'none'}, GPU {self.gpu_ms:.2f} ms>"
+
+
+#: The AOVs `aov_to_rgba` draws (every one; "color" is `Frame.color`).
+PICTURED = (*AOV_SPECS, *DERIVED_AOVS)
 
 
 def aov_to_rgba(frame: Frame, name: str) -> np.ndarray:
     """A viewable (H, W, 4) uint8 image of an AOV: normals mapped from [-1, 1] to [0, 1], depth (near: white) and
     position normalized over the covered pixels, albedo gamma-encoded, light masks averaged over the lights,
-    history white from 32 frames on, ids a colour per id, motion red / green around grey (8 pixels: full); the
-    background black."""
+    history white from 32 frames on, ids a colour per id, semantic ids through the fixed colour map
+    (`engine.scene.classes.PALETTE`: the same colour for a class id in every frame), motion red / green around grey
+    (8 pixels: full); the background black."""
     if name == "color":
         if frame.color is None:
             raise ConfigError("aov 'color': not read back in this frame (render with aovs including 'color')")
         return frame.color
     if name not in frame.aov:
         raise ConfigError(f"aov {name!r}: not in this frame (have: {', '.join(sorted(frame.aov))})")
+    if name == "semantic_id":
+        return palette(frame.aov[name])
     if name.endswith("_id"):
         return _id_colors(frame.aov[name])
     a = np.asarray(frame.aov[name], np.float32)

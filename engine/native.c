@@ -947,3 +947,116 @@ void hybrid_scatter_flags(const uint32_t *words, const int64_t *rows, int64_t n,
     for (int64_t i = 0; i < n; ++i)
         out[rows[i]] = words[i] != 0;
 }
+
+/* ---- closest points: the point walk of shaders/glsl/include/bvh_point.glsl on the host ----------------------------- */
+
+#define CLOSEST_STACK 256 /* entries: a tree of depth D pushes at most D + 1 (build_bvh caps D at 32) */
+#define LEAF_FLAG 0x80000000u
+
+static double box_d2(const float *lo, const float *hi, const double *p)
+{
+    double d2 = 0.0;
+    for (int k = 0; k < 3; k++) {
+        double below = (double)lo[k] - p[k], above = p[k] - (double)hi[k];
+        double e = below > 0.0 ? below : (above > 0.0 ? above : 0.0);
+        d2 += e * e; /* an empty slot's inverted box: +inf, never visited */
+    }
+    return d2;
+}
+
+static double dot3(const double *a, const double *b) { return a[0] * b[0] + a[1] * b[1] + a[2] * b[2]; }
+
+/* The nearest point of segment a + t (b - a), t in [0, 1], to p: its squared distance and t. */
+static double segment_d2(const double *p, const double *a, const double *b, double *t)
+{
+    double ab[3] = {b[0] - a[0], b[1] - a[1], b[2] - a[2]}, ap[3] = {p[0] - a[0], p[1] - a[1], p[2] - a[2]};
+    double len2 = dot3(ab, ab), s = len2 > 0.0 ? dot3(ap, ab) / len2 : 0.0;
+    s = s < 0.0 ? 0.0 : (s > 1.0 ? 1.0 : s);
+    double q[3] = {ap[0] - s * ab[0], ap[1] - s * ab[1], ap[2] - s * ab[2]};
+    *t = s;
+    return dot3(q, q);
+}
+
+/* The nearest point of triangle (a, b, c) to p as barycentric weights (wb, wc) of b and c, and its squared distance
+   (Ericson, Real-Time Collision Detection 5.1.5); a zero-area triangle is measured as its three edges. */
+static double triangle_d2(const double *p, const double *a, const double *b, const double *c, double *wb, double *wc)
+{
+    double ab[3], ac[3], ap[3], bp[3], cp[3];
+    for (int k = 0; k < 3; k++) {
+        ab[k] = b[k] - a[k], ac[k] = c[k] - a[k], ap[k] = p[k] - a[k], bp[k] = p[k] - b[k], cp[k] = p[k] - c[k];
+    }
+    double d1 = dot3(ab, ap), d2 = dot3(ac, ap), d3 = dot3(ab, bp), d4 = dot3(ac, bp), d5 = dot3(ab, cp);
+    double d6 = dot3(ac, cp), vc = d1 * d4 - d3 * d2, vb = d5 * d2 - d1 * d6, va = d3 * d6 - d5 * d4;
+    double v, w;
+    if (d1 <= 0.0 && d2 <= 0.0) {
+        v = 0.0, w = 0.0;
+    } else if (d3 >= 0.0 && d4 <= d3) {
+        v = 1.0, w = 0.0;
+    } else if (vc <= 0.0 && d1 >= 0.0 && d3 <= 0.0) {
+        v = d1 / (d1 - d3), w = 0.0;
+    } else if (d6 >= 0.0 && d5 <= d6) {
+        v = 0.0, w = 1.0;
+    } else if (vb <= 0.0 && d2 >= 0.0 && d6 <= 0.0) {
+        v = 0.0, w = d2 / (d2 - d6);
+    } else if (va <= 0.0 && d4 - d3 >= 0.0 && d5 - d6 >= 0.0) {
+        w = (d4 - d3) / ((d4 - d3) + (d5 - d6)), v = 1.0 - w;
+    } else if (va + vb + vc > 0.0) {
+        double inv = 1.0 / (va + vb + vc);
+        v = vb * inv, w = vc * inv;
+    } else { /* zero area: the nearest of its edges */
+        double t, best = segment_d2(p, a, b, &t);
+        v = t, w = 0.0;
+        double d = segment_d2(p, a, c, &t);
+        if (d < best) best = d, v = 0.0, w = t;
+        d = segment_d2(p, b, c, &t);
+        if (d < best) best = d, v = 1.0 - t, w = t;
+        *wb = v, *wc = w;
+        return best;
+    }
+    double q[3];
+    for (int k = 0; k < 3; k++) q[k] = ap[k] - v * ab[k] - w * ac[k];
+    *wb = v, *wc = w;
+    return dot3(q, q);
+}
+
+void hybrid_closest_points(const float *nodes, const float *tris, const double *points, int64_t n, float *dist,
+                           int32_t *prim, float *u, float *v)
+{
+    const uint32_t *words = (const uint32_t *)nodes;
+    const int32_t *tri_words = (const int32_t *)tris;
+    uint32_t stack_word[CLOSEST_STACK], stack_count[CLOSEST_STACK];
+    double stack_d2[CLOSEST_STACK];
+    for (int64_t i = 0; i < n; i++) {
+        const double *p = points + 3 * i;
+        double best = INFINITY, bu = 0.0, bv = 0.0;
+        int32_t slot = -1;
+        int sp = 0;
+        stack_word[sp] = 0, stack_count[sp] = 0, stack_d2[sp++] = 0.0; /* the root: interior node 0 */
+        while (sp) {
+            sp--;
+            uint32_t word = stack_word[sp], count = stack_count[sp];
+            if (stack_d2[sp] >= best) continue;
+            if (word & LEAF_FLAG) {
+                for (uint32_t t = word & ~LEAF_FLAG, end = t + count; t < end; t++) {
+                    const float *r = tris + 12 * (int64_t)t;
+                    double a[3] = {r[0], r[1], r[2]}, b[3] = {r[4], r[5], r[6]}, c[3] = {r[8], r[9], r[10]};
+                    double wb, wc, d2 = triangle_d2(p, a, b, c, &wb, &wc);
+                    if (d2 < best) best = d2, bu = wb, bv = wc, slot = tri_words[12 * (int64_t)t + 3];
+                }
+                continue;
+            }
+            const float *nd = nodes + 16 * (int64_t)word;
+            const uint32_t *nw = words + 16 * (int64_t)word;
+            double dl = box_d2(nd, nd + 4, p), dr = box_d2(nd + 8, nd + 12, p);
+            /* the nearer child on top, walked first; a child no nearer than the best so far is not pushed */
+            int left_first = dl <= dr;
+            for (int side = 0; side < 2; side++) {
+                int left = side == 0 ? !left_first : left_first;
+                double d2 = left ? dl : dr;
+                if (d2 >= best || sp >= CLOSEST_STACK) continue;
+                stack_word[sp] = left ? nw[3] : nw[7], stack_count[sp] = left ? nw[11] : nw[15], stack_d2[sp++] = d2;
+            }
+        }
+        dist[i] = (float)sqrt(best), prim[i] = slot, u[i] = (float)bu, v[i] = (float)bv;
+    }
+}

@@ -88,4 +88,9 @@ void hybrid_gather_rows(const uint8_t *src, const int64_t *rows, int64_t n, int6
 /* out[rows[i]] = words[i] != 0. */
 void hybrid_scatter_flags(const uint32_t *words, const int64_t *rows, int64_t n, uint8_t *out);
 
+/* The nearest point of a BVH's triangles (bvh/layout.py's records) to each of n points (xyz, float64): its distance,
+   the triangle's original index, and the barycentric weights of the triangle's vertices 1 and 2 there. */
+void hybrid_closest_points(const float *nodes, const float *tris, const double *points, int64_t n, float *dist,
+                           int32_t *prim, float *u, float *v);
+
 #endif

@@ -441,3 +441,24 @@ def rows_of(words: np.ndarray) -> None:
     """The row numbers of sorted key words (uint64, C-contiguous), in place (see hybrid_rows_of in native.c). Only
     where `library()` is at hand."""
     library().hybrid_rows_of(_at(words), len(words))
+
+
+def closest_points(nodes: np.ndarray, tris: np.ndarray, points: np.ndarray, dist, prim, u, v) -> None:
+    """The nearest point of a BVH's triangles to each of the (N, 3) float64 `points` (see hybrid_closest_points in
+    native.c): float32 distance, int32 original triangle, float32 weights u, v of its vertices 1 and 2, into the (N,)
+    arrays given; `nodes`, `tris` the BVH's records (engine/bvh/layout.py). Only where `library()` is at hand."""
+    if points.dtype != np.float64 or points.ndim != 2 or points.shape[1] != 3 or not points.flags.c_contiguous:
+        raise TypeError("closest_points: points must be C-contiguous float64 (N, 3)")
+    n = len(points)
+    if not all(a.shape == (n,) and a.flags.c_contiguous for a in (dist, prim, u, v)):
+        raise TypeError("closest_points: the outputs must be C-contiguous (N,) arrays")
+    library().hybrid_closest_points(
+        _at(nodes, "float[]"),
+        _at(tris, "float[]"),
+        _at(points),
+        n,
+        _at(dist),
+        _at(prim, "int32_t[]"),
+        _at(u),
+        _at(v),
+    )

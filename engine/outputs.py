@@ -25,6 +25,7 @@ from PIL import Image as PILImage
 from .errors import ConfigError, EngineError
 from .files import atomic_write, atomic_write_text, check_writable
 from .passes.interface import AOVS as AOV_SPECS
+from .passes.interface import DERIVED_AOVS
 
 #: The suffixes `Frame.save` writes.
 SUFFIXES = (".png", ".exr", ".npz")
@@ -137,7 +138,7 @@ def exr_channels(name: str, channels: int) -> list[str]:
     """The EXR channel names of an AOV with `channels` channels (the lights, for "shadow" and "shadow_raw")."""
     if name == "color":
         return ["R", "G", "B", "A"]
-    if AOV_SPECS[name].per_light:
+    if name in AOV_SPECS and AOV_SPECS[name].per_light:
         return [f"{name}.{i}" for i in range(channels)]
     if name == "depth":
         return ["depth.Z"]
@@ -169,6 +170,7 @@ def write_exr(
     object_names=(),
     material_names=(),
     compress: bool = True,
+    class_names=(),
 ) -> Path:
     """`arrays` (AOV name -> array as in `Frame.aov`, "color" the uint8 image) as one single-part scanline EXR:
     floats as FLOAT channels, ids as UINT channels holding the int32 bits (4294967295 is -1, the background),
@@ -179,7 +181,7 @@ def write_exr(
         if name == "color":
             a = srgb_to_linear(a)
         elif name.endswith("_id"):
-            a = np.asarray(a, np.int32).view(np.uint32)
+            a = np.asarray(a).astype(np.int32, copy=False).view(np.uint32)
         else:
             a = np.asarray(a, np.float32)
         planes = a[..., None] if a.ndim == 2 else a
@@ -194,7 +196,11 @@ def write_exr(
         "pose": np.asarray(record["pose"], np.float64),
         "scene": exr_text(record.get("scene", "")),
     }
-    for key, names in (("object_names", object_names), ("material_names", material_names)):
+    for key, names in (
+        ("object_names", object_names),
+        ("material_names", material_names),
+        ("class_names", class_names),
+    ):
         if names:  # (an empty string list is not an attribute OpenEXR writes)
             header[key] = [exr_text(n) for n in names]
     if not channels:
@@ -233,9 +239,11 @@ def read_exr(path: str | os.PathLike[str]) -> tuple[dict[str, np.ndarray], dict[
     record = json.loads(header["camera"])
     out: dict[str, np.ndarray] = {}
     for name in header["aovs"]:
-        if name not in AOV_SPECS:
+        if name not in AOV_SPECS and name not in DERIVED_AOVS:
             raise ConfigError(f"{p}: unknown AOV {name!r} in the header")
-        if AOV_SPECS[name].per_light:
+        if name in DERIVED_AOVS:
+            names = exr_channels(name, 1)
+        elif AOV_SPECS[name].per_light:
             n = sum(1 for ch in chans if ch.startswith(f"{name}.") and ch[len(name) + 1 :].isdigit())
             names = exr_channels(name, n)
         else:
@@ -246,6 +254,8 @@ def read_exr(path: str | os.PathLike[str]) -> tuple[dict[str, np.ndarray], dict[
         planes = [chans[ch].pixels for ch in names]
         if name == "color":
             out[name] = linear_to_srgb(np.stack(planes, axis=-1))
+        elif name == "semantic_id":
+            out[name] = np.ascontiguousarray(planes[0], np.uint32)
         elif name.endswith("_id"):
             out[name] = np.ascontiguousarray(planes[0], np.uint32).view(np.int32)
         elif len(names) == 1 and not AOV_SPECS[name].per_light:
@@ -264,6 +274,7 @@ def write_npz(
     object_names=(),
     material_names=(),
     compress: bool = True,
+    class_names=(),
 ) -> Path:
     """`arrays` (as in `Frame.aov`, "color" uint8) and the camera as one .npz (`np.load` reads it without
     pickles): K (3, 3) and pose (4, 4) float64, near, fov_y (float64), width, height (int64), scene (str),
@@ -280,5 +291,7 @@ def write_npz(
         object_names=np.array([str(n) for n in object_names], dtype=np.str_),
         material_names=np.array([str(n) for n in material_names], dtype=np.str_),
     )
+    if len(class_names):
+        data["class_names"] = np.array([str(n) for n in class_names], dtype=np.str_)
     save = np.savez_compressed if compress else np.savez
     return atomic_write(path, lambda f: save(f, **data), "file")

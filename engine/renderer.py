@@ -25,6 +25,7 @@ from .errors import ConfigError, EngineError, VulkanError
 from .frame import Frame
 from .gpu import bvh_descriptor_set, bvh_layout as resolve_layout
 from .gpu.pathscene import PathScene
+from .gpu.environment import GpuEnvironment
 from .gpu.scene import SceneChanges, SceneGeometry
 from .passes.accumulate import ALPHA_MIN, AccumulatePass
 from .passes.ao import AOPass
@@ -32,7 +33,8 @@ from .passes.debug_view import DebugViewPass
 from .passes.denoise import DenoisePass
 from .passes.gbuffer import GBufferPass
 from .passes.frame_block import FrameBlock
-from .passes.interface import FILTER_AO, FILTER_MASKS, FILTER_TEMPORAL, MAX_LIGHTS, pack_light
+from .passes.interface import FILTER_AO, FILTER_MASKS, FILTER_TEMPORAL, MAX_LIGHTS, Tonemap, pack_light
+from .passes.exposure import ExposurePass
 from .passes.lighting import LightingPass
 from .passes.path import PathPass
 from .passes.raster_options import RasterOptions
@@ -41,9 +43,11 @@ from .passes.shadows import ShadowPass
 from .passes.soft_raster import SW_RASTER_PIXELS
 from .parallel import serialized
 from .passes.targets import Targets
-from .scene import Scene
+from .scene import Scene, environment
 from .scene.camera import Camera
-from .settings import ShadowMode, ViewMode, check_settings, check_size, default, given_settings, resolve_aovs
+from .progress import bar as progress_bar
+from .settings import ShadowMode, ViewMode, check_settings, check_size, default, given_settings, readback_aovs
+from .settings import resolve_aovs
 from .shaders import ShaderLibrary
 from .steady import Steady
 from .vk import Context, Recorder, Timestamps, reflect
@@ -173,6 +177,7 @@ class Renderer(Closes):
         self.ao = AOPass(ctx, lib, res, self.bvh_set, self.bvh_layout)
         self.denoise = DenoisePass(ctx, lib, res, self.targets)
         self.lighting, self.debug_view = LightingPass(ctx, lib, res), DebugViewPass(ctx, lib, res)
+        self.exposure = ExposurePass(ctx, lib, res)
         self.passes = [
             self.gbuffer,
             self.shadows,
@@ -180,9 +185,11 @@ class Renderer(Closes):
             self.accumulate,
             self.denoise,
             self.lighting,
+            self.exposure,
             self.debug_view,
         ]
         self._scene = self._geometry = self._scene_bvh = None
+        self._environment = None  # GpuEnvironment: the last scene's (gpu/environment.py)
         self.bvh_stats, self._commands = {}, {}
         self._changes = SceneChanges()  # the scene's state the last frame drew (instance motion)
         self._history_key = self._steady = None  # _history_key: what the temporal history was accumulated under
@@ -263,13 +270,16 @@ class Renderer(Closes):
         shadows: ShadowMode = default("shadows"),
         shadow_samples: int = default("shadow_samples"),
         reference_samples: int = default("reference_samples"),
+        shadow_terminator: bool = default("shadow_terminator"),
         accumulate: bool = default("accumulate"),
         denoise: bool = default("denoise"),
         ao: bool = default("ao"),
         ao_samples: int = default("ao_samples"),
         ao_radius: float | None = default("ao_radius"),
         exposure: float = default("exposure"),
-        ambient: float | Sequence[float] = default("ambient"),
+        auto_exposure: bool = default("auto_exposure"),
+        tonemap: Tonemap = default("tonemap"),
+        ambient: float | Sequence[float] | None = default("ambient"),
         view: ViewMode = default("view"),
         integrator: str = default("integrator"),
         spp: int = default("spp"),
@@ -298,6 +308,9 @@ class Renderer(Closes):
                 nothing accumulated: ground truth, slow) or "off".
             shadow_samples: soft shadows: rays per pixel per light per frame, 1..256.
             reference_samples: the reference mode: rays per pixel per light, and AO rays per pixel, 1..65536.
+            shadow_terminator: start shadow rays from a point moved off the flat triangle towards the smooth
+                surface its vertex normals describe (Hanika 2021), so that low-poly smooth meshes do not drop
+                whole triangles into shadow near the terminator.
             accumulate: blend the soft light masks and AO with the previous frames' (reprojected when the camera
                 moves). The history starts over when the scene, a light, the size, `shadows`, `shadow_samples`,
                 `ao`, `ao_samples`, `ao_radius` or `accumulate` changes.
@@ -305,9 +318,14 @@ class Renderer(Closes):
             ao: trace ambient occlusion (off: AO is 1 everywhere).
             ao_samples: AO rays per pixel per frame, 1..256.
             ao_radius: the AO rays' length in world units (None: 10% of the scene's bounding-box diagonal).
-            exposure: a factor on the linear HDR colour before tonemapping (ACES) and sRGB encoding; > 0.
-            ambient: linear RGB ambient light (one number: grey), each in [0, 1e6]: added to the lights' irradiance,
-                times AO, and the background's colour.
+            exposure: in EV: the linear HDR colour is scaled by 2^exposure before the tone curve and sRGB
+                encoding; in [-60, 60].
+            auto_exposure: also scale by 0.18 / the frame's log-average luminance (computed on the GPU).
+            tonemap: the tone curve: "neutral" (Khronos PBR Neutral), "agx" (AgX, base look) or "aces"
+                (Narkowicz's ACES fit).
+            ambient: None: the scene's environment lights the scene (its `environment`; default: a daylight
+                sky); a linear RGB colour (one number: grey), each in [0, 1e6]: a constant environment of that
+                radiance instead (0: no environment light), times AO, and the background's colour.
             view: "color" (the lit image) or an AOV drawn into the colour image instead, on the GPU (the names
                 are `engine.settings.AOVS`; `Frame.aov` holds every AOV whatever the view).
             integrator: "raster" (the hybrid frame: raster G-buffer, traced shadows and AO, deferred lighting) or
@@ -333,14 +351,20 @@ class Renderer(Closes):
         names = resolve_aovs(aovs)
         self._check_open("render()")
         self._drain()
-        cmd, marks, cfg, n_lights = self._prepare(scene, camera, settings, readback=(names, 0))
+        cmd, marks, cfg, n_lights = self._prepare(scene, camera, settings, readback=(readback_aovs(names), 0))
         if cfg["integrator"] == "path":
             self._path_samples(scene, camera, cfg, n_lights)
         self.ctx.submit(cmd)
         return self._frame(scene, names, 0, marks, cfg, n_lights, camera)
 
     def render_many(
-        self, scene: Scene, cameras: Iterable[Camera], *, aovs: str | Sequence[str] | None = None, **settings: Any
+        self,
+        scene: Scene,
+        cameras: Iterable[Camera],
+        *,
+        aovs: str | Sequence[str] | None = None,
+        progress: bool = False,
+        **settings: Any,
     ) -> Iterator[Frame]:
         """Frames of `scene` from each camera in turn, as an iterator: frame N+1 renders on the GPU while frame N is
         read back and handed to the caller (two readback buffers in turn). The temporal history carries over from
@@ -350,8 +374,14 @@ class Renderer(Closes):
         between frames with one frame in flight. Any other call on the renderer (render(), submit(), resize(), another
         render_many) first waits for that frame and reads it back for this iterator, so each frame is the one a lone
         render() of its camera gives, and several iterators, in one thread or in several, may be used at once
-        (docs/architecture.md, "Threads"). A renderer closed meanwhile makes the next step raise."""
+        (docs/architecture.md, "Threads"). A renderer closed meanwhile makes the next step raise.
+
+        `progress=True` draws a progress bar of the frames handed out (tqdm: a widget in Jupyter, text on a terminal
+        on stderr; none where stderr is neither); its length is `len(cameras)` where `cameras` has one."""
         names = resolve_aovs(aovs)
+        if progress:
+            yield from _with_bar(self.render_many(scene, cameras, aovs=names, **settings), cameras)
+            return
         mine = _Owner()  # this iterator: its frame in flight is `self._flight` while that names it
         try:
             for camera in cameras:
@@ -388,7 +418,7 @@ class Renderer(Closes):
         else:
             self._drain()
         slot = 1 - last.slot if last is not None else 0  # (not the slot whose readback is still to be read)
-        cmd, marks, cfg, n_lights = self._prepare(scene, camera, settings, readback=(names, slot))
+        cmd, marks, cfg, n_lights = self._prepare(scene, camera, settings, readback=(readback_aovs(names), slot))
         if cfg["integrator"] == "path":
             self._path_samples(scene, camera, cfg, n_lights)
         self.ctx.submit(cmd, wait=False, fence=self._fences[slot])
@@ -421,8 +451,13 @@ class Renderer(Closes):
         self._steady = None
 
     def _frame(self, scene, names, slot, marks, cfg, n_lights, camera) -> Frame:
-        buf, offsets = self.targets.readback(self.ctx, names, slot)
+        buf, offsets = self.targets.readback(self.ctx, readback_aovs(names), slot)
         aov = self.targets.read(buf, offsets, n_lights)
+        classes: list[str] = []
+        if "semantic_id" in names:  # the objects' classes through a table: exact, on the host
+            ids = aov["object_id"] if "object_id" in names else aov.pop("object_id")
+            aov["semantic_id"] = scene.semantic_lookup().take(ids + 1)
+            classes = scene.class_names
         return Frame(
             color=aov.pop("color", None),
             aov=aov,
@@ -430,6 +465,7 @@ class Renderer(Closes):
             settings=cfg,
             object_names=scene.object_names,
             material_names=[m.name for m in scene.materials],
+            class_names=classes,
             camera=camera if camera is not None else scene.camera,
             scene_name=scene.name,
         )
@@ -446,13 +482,16 @@ class Renderer(Closes):
         shadows: ShadowMode = default("shadows"),
         shadow_samples: int = default("shadow_samples"),
         reference_samples: int = default("reference_samples"),
+        shadow_terminator: bool = default("shadow_terminator"),
         accumulate: bool = default("accumulate"),
         denoise: bool = default("denoise"),
         ao: bool = default("ao"),
         ao_samples: int = default("ao_samples"),
         ao_radius: float | None = default("ao_radius"),
         exposure: float = default("exposure"),
-        ambient: float | Sequence[float] = default("ambient"),
+        auto_exposure: bool = default("auto_exposure"),
+        tonemap: Tonemap = default("tonemap"),
+        ambient: float | Sequence[float] | None = default("ambient"),
         view: ViewMode = default("view"),
         integrator: str = default("integrator"),
         spp: int = default("spp"),
@@ -510,6 +549,10 @@ class Renderer(Closes):
         """The frame's command buffer, its timestamp marks, settings and light count, with the frame block written
         (the caller has checked that the renderer is open and that no other frame in flight reads the block)."""
         polled = False
+        if isinstance(scene, Scene) and scene.pixel_points:  # point clouds sized in pixels: for this camera, height
+            cam = camera if camera is not None else scene.camera
+            if isinstance(cam, Camera):
+                scene.size_points(cam, self.height)
         if scene is self._scene and self._geometry is not None:
             self._frame_start(scene)  # moved instances: their transforms, the BVH (may drop the recordings)
         if self._steady is not None:
@@ -543,6 +586,7 @@ class Renderer(Closes):
         if self._use_scene(scene):
             self._frame_start(scene)
         lights = list(scene.lights)
+        self._use_environment(environment.resolve(scene.environment, lights))
         if len(lights) > MAX_LIGHTS:
             raise ConfigError(f"{scene.name}: {len(lights)} lights, at most {MAX_LIGHTS} are supported")
         if len(lights) > self.targets.light_capacity:
@@ -558,7 +602,18 @@ class Renderer(Closes):
             self.width,
             self.height,
             b"".join(p.tobytes() for p in packed_lights),
-            tuple(cfg[k] for k in ("shadows", "shadow_samples", "ao", "ao_samples", "ao_radius", "accumulate")),
+            tuple(
+                cfg[k]
+                for k in (
+                    "shadows",
+                    "shadow_samples",
+                    "ao",
+                    "ao_samples",
+                    "ao_radius",
+                    "accumulate",
+                    "shadow_terminator",
+                )
+            ),
         )
         reset = history_key != self._history_key
         if reset:  # no motion on a frame without history (as the camera's previous matrix is this one)
@@ -569,15 +624,15 @@ class Renderer(Closes):
             cfg["accumulate"],
             cfg["denoise"],
             cfg["view"],
+            cfg["auto_exposure"],
+            cfg["integrator"],
             len(lights),
             readback,
             self._raster,
         )
         if cfg["shadows"] == "reference":
             key += (cfg["reference_samples"],)
-        if cfg["integrator"] == "path":
-            key += ("path",)
-            self._path_ready(scene)
+        self._path_ready(scene, cfg)
         if key not in self._commands:
             cmd, ts = self._record(cfg, len(lights), readback)
             self._commands[key] = (cmd, list(ts.names))
@@ -595,8 +650,11 @@ class Renderer(Closes):
             ao_radius=cfg["ao_radius"] or 0.1 * diag,
             ao_samples=cfg["reference_samples"] if reference else cfg["ao_samples"],
             shadow_samples=cfg["reference_samples"] if reference else cfg["shadow_samples"],
-            exposure=cfg["exposure"],
+            exposure=2.0 ** cfg["exposure"],
             ambient=cfg["ambient"],
+            tonemap=cfg["tonemap"],
+            auto_exposure=cfg["auto_exposure"],
+            shadow_terminator=cfg["shadow_terminator"],
             scene_scale=diag,
             accum_alpha=ALPHA_MIN,
             bounds=scene.bounds,
@@ -629,7 +687,7 @@ class Renderer(Closes):
         to call twice."""
         self._flight = None  # (its iterator's next step raises: closed)
         if self.ctx is not None:
-            if not self._owns_ctx and not self.ctx.closed:
+            if not self._owns_ctx and not self.ctx.closed and not self.ctx.hung:
                 self._invalidate_commands()
             self.ctx.close()  # its own context, or its Scope of a shared one: what this renderer made
             self.ctx = None
@@ -673,12 +731,17 @@ class Renderer(Closes):
     def _ray_passes(self):
         return (self.shadows, self.ao) if self.path is None else (self.shadows, self.ao, self.path)
 
-    def _path_ready(self, scene):
-        """The path tracer's pass (made on first use) and its scene buffers (made again after a new upload)."""
+    def _path_ready(self, scene, cfg):
+        """For a path-traced frame: the path tracer's pass (made on first use) and its scene buffers (made again
+        after a new upload)."""
+        if cfg["integrator"] != "path":
+            return
         if self.path is None:
             self.path = PathPass(self.ctx, self.library, self.targets.resources, self.bvh_set, self.bvh_layout)
             self.passes.append(self.path)
             self.path.bind_scene(self._geometry)
+            if self._environment is not None:
+                self.path.bind_environment(self._environment)
             if self._scene_bvh is not None:
                 self.path.specialize_for(self._scene_bvh)
             self._invalidate_commands()
@@ -788,6 +851,23 @@ class Renderer(Closes):
         self.uploads += 1
         return True
 
+    def _use_environment(self, env):
+        """The environment's tables on the GPU, bound to every pass with a `bind_environment(env)` (again only when
+        it changed)."""
+        key = env.key()
+        if self._environment is not None and self._environment.key == key:
+            return
+        self._steady = None
+        self._invalidate_commands()
+        if self._environment is not None:
+            self.ctx.wait_idle()
+            self._environment.destroy()
+        self._environment = None
+        self._environment = GpuEnvironment(self.ctx, env)
+        for p in self.passes:  # the passes that read it (environment.glsl): lighting, and any with the hook
+            if hasattr(p, "bind_environment"):
+                p.bind_environment(self._environment)
+
     def _resize_targets(self, light_capacity):
         Targets.check_capacity(self.ctx, self.width, self.height, light_capacity)
         self._drain()  # a render_many frame in flight is read back from the targets it was rendered into
@@ -850,6 +930,9 @@ class Renderer(Closes):
         else:
             self.lighting.record(rec, t)
         rec.mark("lighting")
+        if cfg["auto_exposure"]:
+            self.exposure.record(rec, t)
+            rec.mark("exposure")
         if cfg["view"] != "color":
             self.debug_view.record(rec, t, cfg["view"])
             rec.mark("view")
@@ -869,6 +952,15 @@ class _Owner:
 
     def __init__(self):
         self.frame = None
+
+
+def _with_bar(frames: Iterator[Frame], cameras) -> Iterator[Frame]:
+    """`frames` as they come, counted on a progress bar (closed when the iterator ends or is abandoned)."""
+    total = len(cameras) if hasattr(cameras, "__len__") else None
+    with progress_bar(total, "frame") as shown_bar:
+        for frame in frames:
+            shown_bar.update(1)
+            yield frame
 
 
 class _Flight:

@@ -245,6 +245,7 @@ def render_sequence(
     resume: bool = False,
     progress: bool = False,
     fps: float | None = None,
+    point_clouds: Sequence[Path] | None = None,
 ) -> SequenceResult:
     """Render camera i into paths[i] (`Frame.save(path, **save)`) and, with `sidecars`, its camera beside it
     (`sidecar_path`), through `Renderer.render_many` (the GPU renders the next frame while one is written).
@@ -253,7 +254,8 @@ def render_sequence(
     exist is skipped; its sidecar must hold this run's camera, size, scene and output record (else a ConfigError
     says what differs). Writes are atomic: a killed run leaves finished frames whole and nothing of the others but
     hidden temporaries, which the next run removes (`remove_stale_temporaries`). With `fps`, frame i shows the
-    scene's animation at t = i / fps (`Scene.animate`; its frames_per_view frames all at that t)."""
+    scene's animation at t = i / fps (`Scene.animate`; its frames_per_view frames all at that t). `point_clouds`:
+    a PLY path per camera, where each frame's `Frame.point_cloud()` goes too."""
     started = time.time()
     if len(cameras) != len(paths):
         raise ConfigError(f"{len(cameras)} cameras for {len(paths)} output paths")
@@ -277,6 +279,8 @@ def render_sequence(
                 continue
             _, path, _ = todo[j // frames_per_view]
             written += frame.save(path, **save).stat().st_size
+            if point_clouds is not None:
+                written += frame.point_cloud().save(point_clouds[todo[j // frames_per_view][2]]).stat().st_size
             if sidecars:  # the camera, and what the file holds (what --resume compares)
                 side = dict(frame.camera_record(), output=record)
                 written += write_camera_json(sidecar_path(path), side).stat().st_size

@@ -18,13 +18,16 @@ from .errors import ConfigError
 from .files import check_writable
 from .limits import MAX_COORD
 from .passes.interface import AOVS as AOV_SPECS
-from .passes.interface import VIEW_MODES, TracedShadowMode, ViewMode
+from .passes.interface import DERIVED_AOVS
+from .passes.interface import TONEMAPS, VIEW_MODES, TracedShadowMode, ViewMode
 
 #: What `view=` / `--aov` can show: the lit colour or one AOV.
 AOVS = VIEW_MODES
 #: What `render()` reads back when not told (`aovs=`): the lit colour, the G-buffer and what lit it. The raw
 #: signals, history lengths, ids and motion come when asked for; `aovs="all"` reads every one.
 DEFAULT_AOVS = ("color", "depth", "normal", "position", "albedo", "shadow", "ao")
+#: Exposure (EV) is within +-this: 2^EV stays a normal float.
+MAX_EV = 60
 #: The most frames one `hybrid render` / `hybrid view --frames` may ask for.
 MAX_FRAMES = 1_000_000
 
@@ -33,13 +36,16 @@ DEFAULT_SETTINGS: dict[str, Any] = {
     "shadows": "hard",  # SHADOW_MODES
     "shadow_samples": 1,  # soft: rays per pixel per light per frame
     "reference_samples": 256,  # reference: rays per pixel per light (shadows and AO)
+    "shadow_terminator": True,  # shadow rays start off flat triangles towards the smooth surface (Hanika 2021)
     "accumulate": True,  # temporal accumulation of the soft light masks and AO
     "denoise": True,  # a-trous filter of the soft light masks and AO
     "ao": True,
     "ao_samples": 4,
     "ao_radius": None,  # None: 10% of the scene's bounding-box diagonal
-    "exposure": 1.0,
-    "ambient": (0.20, 0.22, 0.26),
+    "exposure": -1.0,  # EV: the radiance is scaled by 2^exposure before the tone curve (-1: a sunlit grey < 220)
+    "auto_exposure": False,  # scale by 0.18 / the frame's log-average luminance as well (exposure.comp)
+    "tonemap": "agx",  # TONEMAPS: Khronos PBR Neutral, AgX, or Narkowicz's ACES fit
+    "ambient": None,  # None: the scene's environment (default: a daylight sky); a colour: a constant environment
     "view": "color",  # VIEW_MODES: the lit image or one AOV, drawn on the GPU
     "integrator": "raster",  # INTEGRATORS: the hybrid raster frame, or the progressive path tracer
     "spp": 64,  # path: samples per pixel
@@ -65,7 +71,9 @@ __all__ = [
     "SHADOW_MODES",
     "INTEGRATORS",
     "PIXEL_FILTERS",
+    "TONEMAPS",
     "AOVS",
+    "DERIVED_AOVS",
     "ShadowMode",
     "ViewMode",
     "Default",
@@ -119,6 +127,8 @@ def choices(name: str) -> tuple[Any, ...] | None:
         return INTEGRATORS
     if name == "pixel_filter":
         return PIXEL_FILTERS
+    if name == "tonemap":
+        return TONEMAPS
     if isinstance(DEFAULT_SETTINGS.get(name), bool):
         return (True, False)
     return None
@@ -130,15 +140,21 @@ def resolve_aovs(aovs) -> tuple:
     if aovs is None:
         aovs = DEFAULT_AOVS
     if isinstance(aovs, str):
-        aovs = tuple(AOV_SPECS) if aovs == "all" else (aovs,)
+        aovs = (*AOV_SPECS, *DERIVED_AOVS) if aovs == "all" else (aovs,)
     try:
         names = tuple(aovs)
     except TypeError:
         raise ConfigError(f"aovs={aovs!r}: expected AOV names, e.g. ('color', 'depth')") from None
     for name in names:
-        if name not in AOV_SPECS:
-            raise ConfigError(f"aov {name!r}: unknown (known: {', '.join(AOV_SPECS)}, or 'all')")
-    return tuple(n for n in AOV_SPECS if n in names)
+        if name not in AOV_SPECS and name not in DERIVED_AOVS:
+            raise ConfigError(f"aov {name!r}: unknown (known: {', '.join([*AOV_SPECS, *DERIVED_AOVS])}, or 'all')")
+    return tuple(n for n in (*AOV_SPECS, *DERIVED_AOVS) if n in names)
+
+
+def readback_aovs(names: tuple) -> tuple:
+    """What the GPU reads back for the AOVs `names` (`resolve_aovs`'s): the derived ones' sources instead of them."""
+    wanted = {DERIVED_AOVS.get(n, n) for n in names}
+    return tuple(n for n in AOV_SPECS if n in wanted)
 
 
 def check_settings(settings: dict[str, Any]) -> dict[str, Any]:
@@ -156,7 +172,9 @@ def check_settings(settings: dict[str, Any]) -> dict[str, Any]:
     for key, known in (("integrator", INTEGRATORS), ("pixel_filter", PIXEL_FILTERS)):
         if out[key] not in known:
             raise ConfigError(f"setting {key}={out[key]!r}: expected one of {', '.join(known)}")
-    for key in ("ao", "accumulate", "denoise"):
+    if out["tonemap"] not in TONEMAPS:
+        raise ConfigError(f"setting tonemap={out['tonemap']!r}: expected one of {', '.join(TONEMAPS)}")
+    for key in ("ao", "accumulate", "denoise", "auto_exposure", "shadow_terminator"):
         if not isinstance(out[key], (bool, np.bool_)):
             raise ConfigError(f"setting {key}={out[key]!r}: expected true or false")
         out[key] = bool(out[key])
@@ -172,14 +190,18 @@ def check_settings(settings: dict[str, Any]) -> dict[str, Any]:
         if isinstance(v, (bool, np.bool_)) or not isinstance(v, (int, np.integer)) or not lo <= v <= hi:
             raise ConfigError(f"setting {key}={v!r}: expected an integer in {lo}..{hi}")
         out[key] = int(v)
-    for key, hi in (("ao_radius", MAX_COORD), ("exposure", 1e6)):
-        v = out[key]
-        if v is None and key == "ao_radius":
-            continue
-        if isinstance(v, (bool, np.bool_)) or not isinstance(v, numbers.Real) or not 0 < v <= hi:
-            raise ConfigError(f"setting {key}={v!r}: expected a positive number, at most {hi:g}")
-        out[key] = float(v)
+    v = out["ao_radius"]
+    if v is not None:
+        if isinstance(v, (bool, np.bool_)) or not isinstance(v, numbers.Real) or not 0 < v <= MAX_COORD:
+            raise ConfigError(f"setting ao_radius={v!r}: expected a positive number, at most {MAX_COORD:g}")
+        out["ao_radius"] = float(v)
+    v = out["exposure"]
+    if isinstance(v, (bool, np.bool_)) or not isinstance(v, numbers.Real) or not -MAX_EV <= v <= MAX_EV:
+        raise ConfigError(f"setting exposure={v!r}: expected exposure in EV, a number in [-{MAX_EV}, {MAX_EV}]")
+    out["exposure"] = float(v)
     amb = out["ambient"]
+    if amb is None:
+        return out
     try:
         amb = None if isinstance(amb, (str, bytes)) else np.asarray(amb, dtype=np.float64).reshape(-1)
     except (TypeError, ValueError):

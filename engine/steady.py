@@ -50,7 +50,18 @@ class Steady:
     scene, camera and lights (by identity: cameras are immutable, and a light's attributes are compared by
     identity too, so an assigned attribute counts as a change) and equal settings (same values and types)."""
 
-    __slots__ = ("scene", "camera", "readback", "bounds", "lights", "settings", "scene_settings", "result")
+    __slots__ = (
+        "scene",
+        "camera",
+        "readback",
+        "bounds",
+        "lights",
+        "settings",
+        "scene_settings",
+        "environment",
+        "environment_key",
+        "result",
+    )
 
     @classmethod
     def capture(cls, scene, camera, settings, readback, lights, result):
@@ -69,6 +80,8 @@ class Steady:
         self = cls()
         self.scene, self.camera, self.readback, self.bounds = scene, camera, readback, scene.bounds
         self.lights, self.settings, self.scene_settings = held, snap, scene_snap
+        self.environment = env = getattr(scene, "environment", None)  # by identity and its fields' key
+        self.environment_key = None if env is None else env.key()
         self.result = result
         return self
 
@@ -79,6 +92,9 @@ class Steady:
         if scene.bounds is not self.bounds or not _same_settings(settings, self.settings):
             return False
         scene_settings = getattr(scene, "settings", None) or {}
+        env = getattr(scene, "environment", None)
+        if env is not self.environment or (env is not None and env.key() != self.environment_key):
+            return False
         if not _same_settings(scene_settings, self.scene_settings):
             return False
         lights = scene.lights

@@ -11,6 +11,8 @@ import pytest
 
 REPO = Path(__file__).resolve().parent.parent
 REFERENCE_DIR = Path(__file__).resolve().parent / "reference"
+#: not our tests: peers' test files kept as data (tests/data/open3d/), run by the tests that substitute our classes
+collect_ignore = ["data"]
 
 
 # HYBRID_VALIDATION=0 runs the tests without the validation layer (a GPU machine that lacks it); `hybrid test`

@@ -151,7 +151,7 @@ def test_mypy_checks_calls_against_the_api(tmp_path):
 def test_frame_repr_and_jupyter_png(make_renderer):
     frame = make_renderer(40, 30).render(small_scene(), ao=False)
     text = repr(frame)
-    assert text.startswith("<Frame 40x30, aov: position, normal, albedo, depth, shadow")
+    assert text.startswith("<Frame 40x30, aov: color, position, normal, albedo, depth, shadow")
     assert f"GPU {sum(frame.timings.values()):.2f} ms>" in text and len(text) < 200  # no arrays dumped
     shown = np.asarray(Image.open(io.BytesIO(frame._repr_png_())))
     assert np.array_equal(shown, frame.color)

@@ -34,18 +34,27 @@ ENGINE = ROOT / "engine"
 #: Bottom to top. A module imports only from its own package or from lower layers (plus the PEERS edges).
 LAYERS = [
     ["engine.errors", "engine._version", "engine.lifetime"],
-    ["engine.limits", "engine.parallel", "engine.files", "engine.data", "engine.native"],
+    ["engine.limits", "engine.parallel", "engine.files", "engine.data", "engine.native", "engine.progress"],
     ["engine.vk", "engine.bvh", "engine.scene", "engine.shaders", "engine.passes.std140"],
     ["engine.passes.interface"],  # what host and shaders share: below the scene on the GPU, which it lays out
     ["engine.gpu"],
     ["engine.passes"],
-    ["engine.settings", "engine.outputs", "engine.frame", "engine.steady", "engine.renderer", "engine.rt"],
+    [
+        "engine.settings",
+        "engine.outputs",
+        "engine.pointcloud",
+        "engine.frame",
+        "engine.steady",
+        "engine.renderer",
+        "engine.rt",
+    ],
     ["engine.viewer", "engine.bench", "engine.sequence", "engine.batch"],
     ["engine.cli", "engine.__main__", "engine"],
 ]
 PEERS = {
     ("engine.frame", "engine.settings"),
     ("engine.frame", "engine.outputs"),
+    ("engine.frame", "engine.pointcloud"),
     ("engine.renderer", "engine.settings"),
     ("engine.renderer", "engine.frame"),
     ("engine.renderer", "engine.steady"),

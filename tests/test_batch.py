@@ -211,7 +211,7 @@ def test_a_bad_job_is_one_line_on_the_command_line(tmp_path):
     assert res.returncode == 1 and res.stdout == ""
     assert (
         res.stderr == f"error: {job}: unknown key 'scenez' (known: output, size, aovs, png, frames, compress, "
-        "settings, cameras, scenes)\n"
+        "settings, cameras, scenes, labels)\n"
     )
 
 

@@ -47,6 +47,8 @@ def results(tmp_path_factory):
         frame_warmup=0,
         random_rays=4000,
         thread_probe=False,
+        frontend_subdivisions=2,
+        frontend_points=500,
     )
     res = run_bench(cfg, json_path=out / "bench.json", plot_path=out / "bench.png", progress=False)
     return res, out
@@ -243,3 +245,31 @@ def test_start_section_times_fresh_processes_and_judges_issue_31(tmp_path):
     assert len(targets) == 2 and all(t["status"] in ("pass", "miss") for t in targets)
     text = format_report(res)
     assert "Start-up" in text and "import engine" in text and "hybrid render default" in text
+
+
+def test_front_ends_beside_the_tracer_and_open3d(results):
+    """The trace section's front ends (issue 35): RaycastingScene and RayMeshIntersector, auto and vulkan, beside the
+    Tracer and the peers on the same rays and points, agreeing with Open3D; their targets judged."""
+    res, out = results
+    fe = json.loads((out / "bench.json").read_text())["trace"]["frontends"]
+    assert fe["triangles"] == 320 and fe["rays"] == 4000 and fe["points"] == 500
+    assert fe["engines"]["scene_auto"]["backend"] == "embree" and fe["engines"]["scene_vulkan"]["backend"] == "vulkan"
+    for query, engines in {
+        "closest hit": ("scene_auto", "scene_vulkan", "trimesh_auto", "tracer"),
+        "occlusion": ("scene_auto", "scene_vulkan", "trimesh_auto", "tracer"),
+        "distance": ("scene_auto", "scene_vulkan", "tracer"),
+        "signed distance": ("scene_auto", "scene_vulkan"),
+    }.items():
+        r = fe["queries"][query]
+        for name in engines:
+            assert r[name]["wall_ms"] > 0 and len(r[name]["runs_wall_ms"]) == 1, (query, name)
+        if _peer_available("open3d"):
+            assert r["open3d"]["x_open3d"] == 1.0 and r["scene_auto"]["x_open3d"] > 0
+            assert min(r["agreement"].values()) >= 0.999, (query, r["agreement"])
+    assert fe["validation_errors"] == []
+    report = format_report(res)
+    assert "Front ends: icosphere, 2 subdivisions (320 triangles), 4,000 random rays, 500 points" in report
+    assert "RaycastingScene, backend auto (embree)" in report
+    targets = [t for t in res["targets"] if t["issue"] == 35]
+    assert len(targets) == 9  # vs Open3D: RaycastingScene's 4 queries, trimesh's 2; vs the Tracer: 3
+    assert all(t["status"] in ("pass", "miss") for t in targets if _peer_available("open3d") or "Tracer" in t["target"])

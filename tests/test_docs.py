@@ -66,7 +66,7 @@ def test_readme_dataset_example(tmp_path):
 
 
 def test_datasets_doc_example(tmp_path):
-    (block,) = python_blocks("docs/datasets.md")
+    block = python_blocks("docs/datasets.md")[0]
     res = run_block(small_dataset(block, "640, 480") + "\nprint(sorted(arrays), camera['width'])\n", tmp_path)
     assert res.returncode == 0, res.stderr[-3000:]
     assert "['color', 'depth', 'normal', 'object_id'] 48" in res.stdout

@@ -8,7 +8,7 @@ import pytest
 
 from engine import Camera, ConfigError, Scene, Tracer
 from engine.frame import aov_to_rgba
-from engine.passes.interface import AOVS
+from engine.passes.interface import AOVS, DERIVED_AOVS
 from engine.settings import DEFAULT_AOVS
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -86,7 +86,7 @@ def test_only_the_requested_aovs_are_read_back(make_renderer, scene):
     g = r.render(scene)
     assert sorted(["color"] + list(g.aov)) == sorted(DEFAULT_AOVS)
     every = r.render(scene, aovs="all")
-    assert sorted(every.aov) == sorted(n for n in AOVS if n != "color")
+    assert sorted(every.aov) == sorted(n for n in (*AOVS, *DERIVED_AOVS) if n != "color")  # semantic_id: host-made
     for name in ("shadow", "depth", "normal"):
         assert np.array_equal(every.aov[name], g.aov[name])  # the same frame again (a static scene, hard shadows)
     with pytest.raises(ConfigError, match="aov 'shadows': unknown .*'all'"):

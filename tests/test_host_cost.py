@@ -114,10 +114,10 @@ def test_light_and_settings_changes_are_picked_up(make_renderer):
     scene.lights.pop()  # the list changed in place
     one = r.render(scene, ao=False)
     assert one.aov["shadow"].shape[2] == 1
-    scene.settings["exposure"] = 0.25  # the scene's own settings dict, mutated
+    scene.settings["exposure"] = -2.0  # (EV) the scene's own settings dict, mutated
     darker = r.render(scene, ao=False)
     assert darker.color[..., :3].astype(int).sum() < one.color[..., :3].astype(int).sum()
-    assert darker.settings["exposure"] == 0.25
+    assert darker.settings["exposure"] == -2.0
     amb = [0.2, 0.2, 0.2]
     f1 = r.render(scene, ao=False, ambient=amb)
     r.render(scene, ao=False, ambient=amb)
@@ -144,7 +144,7 @@ def test_returned_settings_are_a_copy(make_renderer):
     r.render(scene, ao=False)
     cfg = r.submit(scene, ao=False)
     cfg["exposure"] = 99.0
-    assert r.submit(scene, ao=False)["exposure"] == 1.0
+    assert r.submit(scene, ao=False)["exposure"] == -1.0
 
 
 def test_submit_info_cache(make_renderer):

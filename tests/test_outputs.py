@@ -77,6 +77,7 @@ def test_exr_holds_every_aov_exactly_in_named_channels(frame, tmp_path):
         "shadow_raw.1",
         "triangle_id.ID",
         "object_id.ID",
+        "semantic_id.ID",
         "material_id.ID",
         "roughness.Y",
         "metallic.Y",

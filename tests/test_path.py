@@ -215,14 +215,14 @@ def test_cli_path_render(tmp_path):
     assert bad.stderr.strip().splitlines()[-1].endswith("setting spp=0: expected an integer in 1..1048576")
 
 
-def test_viewer_key_4_path_traces_and_shows_spp(make_viewer):
-    """In the viewer, key 4 switches to the path tracer: the overlay shows the samples so far, which grow while the
+def test_viewer_key_6_path_traces_and_shows_spp(make_viewer):
+    """In the viewer, key 6 switches to the path tracer: the overlay shows the samples so far, which grow while the
     camera stays and start over when it moves."""
     import glfw
 
     v = make_viewer(_lit_scene(), 48, 32)
     v.run(frames=1)
-    v._on_key(v.window, glfw.KEY_4, 0, glfw.PRESS, 0)
+    v._on_key(v.window, glfw.KEY_6, 0, glfw.PRESS, 0)
     assert v.settings["integrator"] == "path"
     v.run(frames=3)
     assert v.renderer.path_samples == 3

@@ -15,15 +15,18 @@ INVALID = 2**32 - 1
 RTOL = 1e-4
 
 
-@pytest.fixture
-def tracer(shared_device):
-    """`tracer(vertices, faces, **kw)`: a Tracer on the session's validated device, closed after the test, which
-    fails on the device's new validation errors."""
+@pytest.fixture(params=["vulkan", "embree"])
+def tracer(shared_device, request):
+    """`tracer(vertices, faces, **kw)`: a Tracer on the session's validated device, on each backend (Embree's closest
+    points: the host walk, engine/native.c), closed after the test, which fails on the device's new validation
+    errors."""
+    if request.param == "embree":
+        pytest.importorskip("embreex", reason="the embree backend needs embreex (the [embree] extra)")
     made = []
     seen = len(shared_device.validation_errors)
 
     def new(v, f, **kw):
-        t = Tracer(v, f, device=shared_device, **kw)
+        t = Tracer(v, f, device=shared_device, backend=request.param, **kw)
         made.append(t)
         return t
 
@@ -185,6 +188,7 @@ def test_wide_layout_batches_and_staging_give_the_same_answers(tracer, name):
     assert len(tracer(v, f).closest(np.zeros((0, 3)))) == 0
 
 
+@pytest.mark.parametrize("tracer", ["vulkan"], indirect=True)  # (bit for bit against Vulkan Tracers)
 def test_closest_on_a_shared_device_answers_as_alone(tracer):
     (va, fa), (vb, fb) = meshes()["torus"], meshes()["degenerate"]
     points, _ = queries(va, fa, n=500)

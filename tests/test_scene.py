@@ -456,7 +456,8 @@ def test_truncated_files(tmp_path):
 
 def test_empty_and_unsupported_files(tmp_path):
     expect_error(write(tmp_path / "zero.obj", b""), "empty")
-    expect_error(write(tmp_path / "points.obj", "v 0 0 0\nv 1 0 0\nv 0 1 0\n"), "no triangles")
+    points = Scene.load(write(tmp_path / "points.obj", "v 0 0 0\nv 1 0 0\nv 0 1 0\n"))  # a point cloud: splats
+    assert points.triangle_count == 3 * 20  # (no normals: an icosahedron a point; tests/test_point_clouds.py)
     expect_error(write(tmp_path / "model.xyz3", "hello"), "unsupported file type")
     with pytest.raises(SceneError, match="no triangles"):
         Scene.from_arrays(np.zeros((0, 3)), np.zeros((0, 3), dtype=int))

@@ -1,5 +1,6 @@
 """trimesh's own ray tests, from its source distribution at the installed version, run with engine.RayMeshIntersector
-substituted for trimesh's intersectors (tests/trimesh_ray_plugin.py does the substituting)."""
+substituted for trimesh's intersectors (tests/trimesh_ray_plugin.py does the substituting), on both backends; the
+model files they load (not in the sdist) are in tests/data/trimesh/."""
 
 from __future__ import annotations
 
@@ -18,11 +19,24 @@ import trimesh
 HERE = Path(__file__).resolve().parent
 #: trimesh's ray test files (both are in its sdist's tests/)
 FILES = ("test_ray.py", "test_ray_upstream.py")
-#: trimesh's tests that need none of its model files, so must run and pass here (the rest are skipped, naming the
-#: model file its sdist lacks); the upstream ones need embreex installed (pytest.importorskip in that file)
+#: trimesh's tests that must run and pass here: all of them (the model files they load are in tests/data/trimesh/);
+#: the upstream ones need embreex installed (pytest.importorskip in that file)
 MUST_PASS = {
-    "test_ray.py": ["test_contains_cavity", "test_on_vertex", "test_multiple_hits", "test_embree_duplicate_hits"],
+    "test_ray.py": [
+        "test_rays",
+        "test_rps",
+        "test_empty",
+        "test_contains",
+        "test_contains_cavity",
+        "test_on_vertex",
+        "test_on_edge",
+        "test_multiple_hits",
+        "test_contain_single",
+        "test_box",
+        "test_embree_duplicate_hits",
+    ],
     "test_ray_upstream.py": [
+        "test_issue_1362_many_rays_consistency",
         "test_issue_2504_duplicate_hits_small_scale",
         "test_issue_2324_apply_scale_breaks_embree",
         "test_issue_1496_edge_vertex_hits_any_vs_id",
@@ -95,9 +109,13 @@ def trimesh_ray_tests() -> Path:
 
 
 @pytest.mark.slow
-def test_trimesh_ray_tests_pass_with_our_intersector(trimesh_ray_tests, tmp_path):
+@pytest.mark.parametrize("backend", ["vulkan", "embree"])
+def test_trimesh_ray_tests_pass_with_our_intersector(trimesh_ray_tests, tmp_path, backend):
+    if backend == "embree":
+        pytest.importorskip("embreex", reason="the embree backend needs embreex (the [embree] extra)")
     report = tmp_path / "junit.xml"
     env = dict(os.environ, PYTHONPATH=os.pathsep.join([str(HERE.parent), str(HERE), os.environ.get("PYTHONPATH", "")]))
+    env["HYBRID_TEST_RT_BACKEND"] = backend
     proc = subprocess.run(
         [
             sys.executable,
@@ -128,13 +146,13 @@ def test_trimesh_ray_tests_pass_with_our_intersector(trimesh_ray_tests, tmp_path
         kind = next((c.tag for c in case if c.tag in ("failure", "error", "skipped")), "passed")
         outcome[name] = (kind, next((c.get("message") or "" for c in case if c.tag != "properties"), ""))
     summary = "\n".join(f"  {kind:8} {name} {msg[:150]}" for name, (kind, msg) in sorted(outcome.items()))
-    print(f"trimesh {trimesh.__version__}'s ray tests with engine.RayMeshIntersector:\n{summary}")
+    print(f"trimesh {trimesh.__version__}'s ray tests with engine.RayMeshIntersector ({backend}):\n{summary}")
     failed = {n: o for n, o in outcome.items() if o[0] in ("failure", "error")}
     assert not failed and proc.returncode in (0, 5), f"{proc.stdout[-4000:]}\n{summary}"
-    # a skip only for a model file the sdist lacks (or, in the upstream file, embreex not installed)
+    # a skip only where embreex is not installed (the upstream file)
     for name, (kind, msg) in outcome.items():
         if kind == "skipped":
-            assert "sdist does not ship models/" in msg or "embreex" in msg or "ray_pyembree" in msg, (name, msg)
+            assert "embreex" in msg or "ray_pyembree" in msg, (name, msg)
     has_embree = trimesh.ray.has_embree
     for file, tests in MUST_PASS.items():
         if file == "test_ray_upstream.py" and not has_embree:

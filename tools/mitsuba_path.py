@@ -158,7 +158,6 @@ def render_ours(spec, renderer: Renderer, spp: int, seed: int) -> dict:
         max_depth=MAX_DEPTH,
         pixel_filter="box",
         ambient=spec["ambient"],
-        exposure=1.0,
         aovs=("radiance", "depth", "normal", "shadow", "material_id"),
     )
     return f.aov

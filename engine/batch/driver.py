@@ -10,7 +10,10 @@ from dataclasses import dataclass, field
 
 from ..errors import ConfigError, shown
 from ..files import remove_stale_temporaries
+from ..progress import bar as progress_bar
+from ..progress import in_notebook
 from ..vk import choose_device, describe_devices
+from .datasets import dataset_files, write_datasets
 from .distributed import run_ray
 from .job import Job
 from .manifest import FolderLock, Manifest
@@ -22,7 +25,8 @@ MAX_WORKERS = 64
 @dataclass
 class BatchResult:
     """What a run did: items rendered now, found finished before, failed (records with their errors), the seconds
-    it took, the devices used, validation errors not charged to an item, and the manifest's path."""
+    it took, the devices used, validation errors not charged to an item, the manifest's path, and the dataset files
+    written from the items' annotations (COCO, BOP; relative to the output folder)."""
 
     rendered: int = 0
     skipped: int = 0
@@ -32,6 +36,7 @@ class BatchResult:
     errors: list = field(default_factory=list)
     manifest: str = ""
     where: str = ""
+    datasets: list = field(default_factory=list)
 
     @property
     def ok(self) -> bool:
@@ -49,12 +54,13 @@ class BatchResult:
 
 class Progress:
     """`batch [#######.........] 12/30 items, 3.1 items/s, 1 failed, 6 s left` on stderr: redrawn in place on a
-    terminal, otherwise a line per tenth of the items."""
+    terminal, otherwise a line per tenth of the items; in Jupyter, tqdm's widget."""
 
     def __init__(self, total: int, stream=None, enabled: bool = True, width: int = 24):
         self.total, self.done, self.failed, self.width = total, 0, 0, width
         self.stream = sys.stderr if stream is None else stream
-        self.enabled = enabled and total > 0
+        self.widget = progress_bar(total, "item", desc="batch") if enabled and total and in_notebook() else None
+        self.enabled = enabled and total > 0 and self.widget is None
         self.tty = bool(getattr(self.stream, "isatty", lambda: False)())
         self.t0 = time.perf_counter()
         self._shown_tenth = 0
@@ -62,6 +68,12 @@ class Progress:
     def add(self, failed: bool) -> None:
         self.done += 1
         self.failed += failed
+        if self.widget is not None:
+            self.widget.update(1)
+            if self.failed:
+                self.widget.set_postfix(failed=self.failed)
+            if self.done == self.total:
+                self.widget.close()
         tenth = self.done * 10 // max(self.total, 1)
         if self.enabled and (self.tty or tenth > self._shown_tenth or self.done == self.total):
             self._shown_tenth = tenth
@@ -138,7 +150,8 @@ def run_batch(
         # a killed batch's temporaries of the job's files (its items may be finished by now); the lock keeps other
         # batches out, and a live writer's temporary is locked
         targets = (job.output / name for item in job.items for name in job.files(item))
-        remove_stale_temporaries(itertools.chain(targets, [manifest.path]), started)
+        gathered = (job.output / name for name in dataset_files(job))
+        remove_stale_temporaries(itertools.chain(targets, gathered, [manifest.path]), started)
         result.skipped = len(done)
         result.manifest = str(manifest.path)
         bar = Progress(len(todo), enabled=progress)
@@ -162,6 +175,7 @@ def run_batch(
         finally:
             manifest.save()
         result.seconds = time.perf_counter() - t0
+        result.datasets = write_datasets(job)  # from every finished item's sidecar, this run's and earlier ones
         result.devices, result.errors = info["devices"], info["errors"]
         devs = ", ".join(result.devices) or "no device"
         result.where = info.get("cluster") or f"{n_workers} worker{'s' if n_workers > 1 else ''} ({devs})"

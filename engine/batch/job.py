@@ -23,9 +23,13 @@ except ModuleNotFoundError:
 from ..data import scene_path as bundled_path
 from ..errors import ConfigError, EngineError
 from ..settings import MAX_FRAMES, check_settings, parse_size, resolve_aovs
+from ..scene.classes import BACKGROUND, check_rules, check_table
 from .cameras import read_cameras, view_fingerprint
 
-TOP_KEYS = ("output", "size", "aovs", "png", "frames", "compress", "settings", "cameras", "scenes")
+TOP_KEYS = ("output", "size", "aovs", "png", "frames", "compress", "settings", "cameras", "scenes", "labels")
+LABEL_KEYS = ("classes", "class_names", "coco", "bop", "depth_scale", "unit_mm")
+#: What the annotations read back besides the job's AOVs (BOP's depth images need the depth).
+LABEL_AOVS = ("object_id",)
 SCENE_KEYS = ("scene", "name", "cameras")
 _NAME = re.compile(r"^[A-Za-z0-9][A-Za-z0-9._-]*$")
 
@@ -51,6 +55,24 @@ class Item:
     key: str
 
 
+@dataclass(frozen=True)
+class Labels:
+    """A job's `[labels]` table (docs/batch.md): `classes` ({glob: class} for `Scene.set_classes` on every scene),
+    `class_names` (the class table: "background" first, then ids 1..), and which annotations to write: `coco`,
+    `bop` (with the depth PNGs' `depth_scale`, millimetres per unit, and `unit_mm`, millimetres per world unit)."""
+
+    classes: dict
+    class_names: tuple
+    coco: bool
+    bop: bool
+    depth_scale: float
+    unit_mm: float
+
+    def record(self) -> dict:
+        """What the items' files depend on (their keys)."""
+        return {k: getattr(self, k) for k in ("classes", "class_names", "coco", "bop", "depth_scale", "unit_mm")}
+
+
 @dataclass
 class Job:
     """A checked job. `settings` holds only the render settings the job gives (the scene's own `[settings]` fill
@@ -67,12 +89,31 @@ class Job:
     settings: dict
     scenes: list
     items: list = field(default_factory=list)
+    labels: Labels | None = None
 
     def files(self, item: Item) -> list[str]:
-        """The item's output files, relative to the output folder: the PNGs, then the .npz (written last)."""
+        """The item's output files, relative to the output folder: the PNGs, the annotations (`label_files`), then
+        the .npz (written last)."""
         base = f"{self.scenes[item.scene].name}/{item.index:04d}"
         pngs = [f"{base}.png" if aov == "color" else f"{base}.{aov}.png" for aov in self.png]
-        return pngs + [f"{base}.npz"]
+        return pngs + self.label_files(item) + [f"{base}.npz"]
+
+    def label_files(self, item: Item) -> list[str]:
+        """The item's annotation files: its sidecar of object annotations (`<view>.labels.json`), and with BOP its
+        colour and depth images as BOP names them (`rgb/<view>.png`, `depth/<view>.png`, 6 digits)."""
+        if self.labels is None:
+            return []
+        folder = self.scenes[item.scene].name
+        out = [f"{folder}/{item.index:04d}.labels.json"]
+        if self.labels.bop:
+            out += [f"{folder}/rgb/{item.index:06d}.png", f"{folder}/depth/{item.index:06d}.png"]
+        return out
+
+    @property
+    def render_aovs(self) -> tuple:
+        """What the items read back: the job's AOVs and what the annotations need."""
+        extra = () if self.labels is None else LABEL_AOVS + (("depth",) if self.labels.bop else ())
+        return resolve_aovs(tuple(self.aovs) + extra)
 
 
 def load_job(path: str | os.PathLike[str], output: str | os.PathLike[str] | None = None) -> Job:
@@ -130,6 +171,7 @@ def job_from_dict(data: dict, path: Path, output: str | os.PathLike[str] | None 
     compress = data.get("compress", False)
     if not isinstance(compress, bool):
         raise ConfigError(f"{where}: compress: expected true or false, got {compress!r}")
+    labels = _labels(data.get("labels"), where, aovs, png) if "labels" in data else None
     default_cameras = read_cameras(data["cameras"], f"{where}: cameras", base) if "cameras" in data else None
     scenes = _scenes(data.get("scenes"), where, base, default_cameras)
     job = Job(
@@ -143,6 +185,7 @@ def job_from_dict(data: dict, path: Path, output: str | os.PathLike[str] | None 
         compress=compress,
         settings=settings,
         scenes=scenes,
+        labels=labels,
     )
     job.items = _items(job)
     return job
@@ -202,6 +245,8 @@ def _items(job: Job) -> list[Item]:
             what = dict(common, scene=spec.source, view=view_fingerprint(spec.cameras, index))
             if own:  # the scene file's [settings] are in effect too (left out where none: keys stay as they were)
                 what["scene_settings"] = own
+            if job.labels is not None:
+                what["labels"] = job.labels.record()
             key = hashlib.sha256(json.dumps(what, sort_keys=True, default=str).encode()).hexdigest()[:24]
             items.append(Item(scene=s, index=index, id=f"{spec.name}/{index:04d}", key=key))
     return items
@@ -220,6 +265,36 @@ def scene_settings(path: str) -> dict:
     except (OSError, ValueError, EngineError):  # TOMLDecodeError is a ValueError
         return {}
     return table if isinstance(table, dict) else {}
+
+
+def _labels(table: Any, where: str, aovs, png) -> Labels:
+    """The `[labels]` table, checked."""
+    at = f"{where}: labels"
+    table = _table(table, at)
+    unknown = sorted(set(table) - set(LABEL_KEYS))
+    if unknown:
+        raise ConfigError(f"{at}: unknown key {unknown[0]!r} (known: {', '.join(LABEL_KEYS)})")
+    rules = check_rules(table.get("classes", {}), f"{at}.classes")
+    if "class_names" in table:
+        names = check_table(table["class_names"], f"{at}.class_names")
+    else:
+        names = sorted({c for _, c in rules if c is not None})
+    for key in ("coco", "bop"):
+        if not isinstance(table.get(key, False), bool):
+            raise ConfigError(f"{at}.{key}: expected true or false, got {table[key]!r}")
+    coco, bop = table.get("coco", False), table.get("bop", False)
+    if not names:
+        raise ConfigError(f"{at}: no classes: give classes = {{pattern = class}} or class_names = [...]")
+    if (coco or bop) and ("color" not in aovs or "color" not in png):
+        raise ConfigError(f"{at}: COCO and BOP annotations refer to the colour images: add 'color' to aovs and png")
+    numbers = {}
+    for key, default in (("depth_scale", 1.0), ("unit_mm", 1000.0)):
+        value = table.get(key, default)
+        if isinstance(value, bool) or not isinstance(value, (int, float)) or not 0 < value < float("inf"):
+            raise ConfigError(f"{at}.{key}: expected a positive number, got {value!r}")
+        numbers[key] = float(value)
+    classes = {p: c for p, c in rules}
+    return Labels(classes, (BACKGROUND, *names), coco, bop, **numbers)
 
 
 def _table(value: Any, where: str) -> dict:

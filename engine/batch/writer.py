@@ -1,10 +1,14 @@
-"""An item's output files: the PNGs the job asks for (`Frame.save`), then one .npz with every AOV read back and the
-camera, written last, so that a finished .npz with the item's key means a finished item. Every file is written
-whole or not at all (engine.files.atomic_write): a killed batch leaves no partial output.
+"""An item's output files: the PNGs the job asks for (`Frame.save`), its annotations (`[labels]`: a JSON sidecar
+of its objects, BOP's colour and depth images), then one .npz with the job's AOVs and the camera, written last, so
+that a finished .npz with the item's key means a finished item. Every file is written whole or not at all
+(engine.files.atomic_write): a killed batch leaves no partial output. These run in the batch writer's threads
+(engine/batch/render.py), not on the render path.
 """
 
 from __future__ import annotations
 
+import json
+import os
 import zipfile
 from pathlib import Path
 from typing import Any
@@ -12,14 +16,17 @@ from typing import Any
 import numpy as np
 
 from ..errors import EngineError
-from ..files import atomic_write
+from ..files import atomic_write, atomic_write_text
 from ..frame import Frame
+from ..outputs import depth_to_u16, write_depth_png
 from ..scene import Camera
+from .annotations import SceneObjects, frame_annotations
 from .job import Item, Job
 
 
-def write_item(job: Job, item: Item, frame: Frame, camera: Camera) -> list[str]:
-    """Write the item's files under `job.output`; returns their paths relative to it (`job.files(item)`)."""
+def write_item(job: Job, item: Item, frame: Frame, camera: Camera, objects: SceneObjects | None = None) -> list[str]:
+    """Write the item's files under `job.output`; returns their paths relative to it (`job.files(item)`).
+    `objects`: the scene's objects with a class, for a job with `[labels]`."""
     names = job.files(item)
     folder = job.output / job.scenes[item.scene].name
     try:
@@ -28,6 +35,8 @@ def write_item(job: Job, item: Item, frame: Frame, camera: Camera) -> list[str]:
         raise EngineError(f"{folder}: cannot make the output folder: {exc.strerror or exc}") from None
     for aov, name in zip(job.png, names):
         frame.save(job.output / name, aov=aov)  # the viewable PNGs; float files: see npz_arrays
+    if job.labels is not None and objects is not None:
+        write_labels(job, item, frame, camera, objects)
     arrays = npz_arrays(job, item, frame, camera)
     save: Any = np.savez_compressed if job.compress else np.savez
     atomic_write(job.output / names[-1], lambda f: save(f, **arrays), "arrays")
@@ -40,18 +49,74 @@ def npz_arrays(job: Job, item: Item, frame: Frame, camera: Camera) -> dict[str, 
     out: dict[str, np.ndarray] = {}
     if frame.color is not None:
         out["color"] = frame.color
-    out.update(frame.aov)
+    out.update({k: v for k, v in frame.aov.items() if k in job.aovs})  # (not what only the annotations read back)
     out["K"] = camera.intrinsics(job.width, job.height)
     out["pose"] = camera.pose
     out["near"] = np.array(camera.near, np.float64)
-    if "object_id" in frame.aov:
+    if "object_id" in job.aovs:
         out["object_names"] = np.array(frame.object_names, dtype=str)
-    if "material_id" in frame.aov:
+    if "semantic_id" in job.aovs:
+        out["class_names"] = np.array(frame.class_names, dtype=str)
+    if "material_id" in job.aovs:
         out["material_names"] = np.array(frame.material_names, dtype=str)
     out["scene"] = np.array(job.scenes[item.scene].source)
     out["item"] = np.array(item.id)
     out["key"] = np.array(item.key)
     return out
+
+
+def write_labels(job: Job, item: Item, frame: Frame, camera: Camera, objects: SceneObjects) -> None:
+    """The item's annotation files (`Job.label_files`): BOP's rgb/ (a hard link to the colour PNG) and depth/ (16-bit,
+    `depth_scale` millimetres a unit) images, then the sidecar of its objects (engine.batch.annotations)."""
+    lab, files = job.labels, job.label_files(item)
+    assert lab is not None
+    folder = job.scenes[item.scene].name
+    image = f"{folder}/{item.index:04d}.png"
+    scale = lab.unit_mm / lab.depth_scale  # depth PNG units per world unit
+    depth_u16 = depth_to_u16(frame.aov["depth"], scale) if lab.bop else None
+    if lab.bop:
+        for sub in ("rgb", "depth"):
+            _mkdir(job.output / folder / sub)
+        _link(job.output / image, job.output / files[1])
+        write_depth_png(job.output / files[2], frame.aov["depth"], scale)
+    K, pose = camera.intrinsics(job.width, job.height), camera.pose
+    objs = frame_annotations(objects, frame.aov["object_id"], depth_u16, K, pose, camera.near, lab.unit_mm)
+    sidecar = {
+        "item": item.id,
+        "key": item.key,
+        "image": image,
+        "width": job.width,
+        "height": job.height,
+        "K": K.tolist(),
+        "pose": pose.tolist(),
+        "convention": "opencv",
+        "near": float(camera.near),
+        "unit_mm": lab.unit_mm,
+        "depth_scale": lab.depth_scale,
+        "class_names": list(lab.class_names),
+        "objects": objs,
+    }
+    atomic_write_text(job.output / files[0], json.dumps(sidecar, separators=(",", ":")) + "\n", "annotations")
+
+
+def _mkdir(folder: Path) -> None:
+    try:
+        folder.mkdir(parents=True, exist_ok=True)
+    except OSError as exc:
+        raise EngineError(f"{folder}: cannot make the output folder: {exc.strerror or exc}") from None
+
+
+def _link(source: Path, target: Path) -> None:
+    """`target` the same file as `source` (a hard link made beside it and renamed over it), or a copy where the file
+    system has no hard links."""
+    tmp = target.with_name(f".{target.name}.part-{os.getpid()}-link{id(target)}.tmp")  # (a stale one is removed)
+    try:
+        os.link(source, tmp)
+        os.replace(tmp, target)
+    except OSError:
+        tmp.unlink(missing_ok=True)
+        data = source.read_bytes()
+        atomic_write(target, lambda f: f.write(data), "image")
 
 
 def finished(job: Job, item: Item) -> bool:

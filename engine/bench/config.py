@@ -55,6 +55,9 @@ class BenchConfig:
     start_reps: int = 5  # fresh processes per start-up figure (after one warm-up each)
     random_rays: int | None = None  # None: as many as the G-buffer has pixels
     thread_probe: bool = True  # lavapipe only: re-run the default scene's rays with LP_NUM_THREADS
+    frontends: bool = True  # the trace section's front ends (engine/bench/frontends.py) on an icosphere
+    frontend_subdivisions: int = 6  # 81,920 triangles (issue 35's sphere)
+    frontend_points: int = 50_000  # points of the distance queries (the rays: random_rays, else 230,400)
     seed: int = 1
 
     @classmethod
@@ -73,4 +76,5 @@ class BenchConfig:
             cfg.frame_warmup = 1
             cfg.start_reps = 3
             cfg.thread_probe = False
+            cfg.frontend_points = 20_000
         return cfg

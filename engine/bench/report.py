@@ -27,6 +27,36 @@ def _table(rows, header, align=None) -> str:
     return "\n".join([line(header), "  ".join("-" * w for w in width)] + [line(r) for r in rows])
 
 
+def _frontends_report(fe) -> list[str]:
+    """The front ends' table: wall ms per query and engine, and its speed as a multiple of Open3D's."""
+    if not fe:
+        return []
+    queries = list(fe["queries"])
+    rows = []
+    for name, info in fe["engines"].items():
+        if "skipped" in info:
+            rows.append([info["label"], f"skipped: {info['skipped']}"] + [""] * (len(queries) - 1))
+            continue
+        label = info["label"] + (f" ({info['backend']})" if info.get("backend") and "auto" in info["label"] else "")
+        row = [label]
+        for q in queries:
+            r = fe["queries"][q].get(name)
+            row.append(f"{_fmt(r['wall_ms'], '.1f')} ({_fmt(r['x_open3d'])}x)" if r else "-")
+        rows.append(row)
+    agree = "; ".join(
+        f"{q}: " + ", ".join(f"{k} {v:.2%}" for k, v in fe["queries"][q]["agreement"].items())
+        for q in queries
+        if "agreement" in fe["queries"][q]
+    )
+    return [
+        "",
+        f"Front ends: {fe['mesh']} ({fe['triangles']:,} triangles), {fe['rays']:,} random rays, {fe['points']:,} "
+        "points; wall ms, numpy in and out (x Open3D's speed)",
+        _table(rows, ["engine"] + queries),
+        f"RaycastingScene (auto) answers as Open3D: {agree or '-'}",
+    ]
+
+
 def format_report(results: dict) -> str:
     meta = results.get("meta", {})
     m, dev = meta.get("machine", {}), meta.get("device", {})
@@ -128,6 +158,7 @@ def format_report(results: dict) -> str:
         bad = [rs["name"] for rs in sc["raysets"] if rs["results"].get("ours", {}).get("timestamps_plausible") is False]
         if bad:
             parts.append(f"warning: GPU timestamps add up to more than the wall clock for {', '.join(bad)}")
+    parts += _frontends_report(results.get("trace", {}).get("frontends"))
     probe = results.get("trace", {}).get("lavapipe_threads")
     if probe:
         rows = []

@@ -26,6 +26,9 @@ from ..vk import choose_device, describe_devices
 from ..vk.device_info import device_details
 from .config import DATASET_AOVS, RAYSET_TITLES, RAYSETS, REPO, BenchConfig
 from .engines import OursEngine
+from .frontends import ENGINES as FRONTEND_ENGINES
+from .frontends import QUERIES as FRONTEND_QUERIES
+from .frontends import run_frontends
 from .machine import OtherLoad, machine_info
 from .peers import agreement, make_peer
 from .progress import Progress
@@ -69,6 +72,7 @@ class Bench:
         if "trace" in cfg.sections:
             per_scene = 2 + len(cfg.peers) + len(RAYSETS) * (2 + len(cfg.peers))
             n += per_scene * (1 + (cfg.real_scene is not None)) + self._probe_wanted()
+            n += (len(FRONTEND_ENGINES) + len(FRONTEND_QUERIES)) * cfg.frontends
         if "frame" in cfg.sections:
             n += 2 * len(self._frame_scene_keys())
         if "start" in cfg.sections:
@@ -198,6 +202,9 @@ class Bench:
     def run_trace(self) -> dict:
         keys = ["generated"] + (["real"] if self.cfg.real_scene is not None else [])
         out = {"scenes": [self._trace_scene(k) for k in keys]}
+        if self.cfg.frontends:
+            out["frontends"] = run_frontends(self.cfg, self._step)
+            self.tracer_validation_errors += out["frontends"]["validation_errors"]
         if self._probe_wanted():
             out["lavapipe_threads"] = self._step(
                 "trace (default): lavapipe threads, LP_NUM_THREADS = " + ", ".join(map(str, self._probe_threads())),

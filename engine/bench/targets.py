@@ -1,4 +1,5 @@
-"""The goals of issues 3, 6, 16, 19 and 31 judged on a bench's results: pass / miss with the margin, or not measured."""
+"""The goals of issues 3, 6, 16, 19, 31 and 35 judged on a bench's results: pass / miss with the margin, or not
+measured."""
 
 from __future__ import annotations
 
@@ -175,10 +176,28 @@ def evaluate_targets(results: dict) -> list[dict]:
                     "submit() without readback; a viewer adds swapchain acquire/present",
                 )
             )
+    out += _frontend_targets(results.get("trace", {}).get("frontends"), cpu_device)
     st = results.get("start")
     if st:
         out.append(_target(31, "import engine <= 0.3 s", st["import_s"], 0.3, "s", False))
         out.append(
             _target(31, "second `hybrid render default --size 64x64` <= 1.5 s wall", st["render_s"], 1.5, "s", False)
         )
+    return out
+
+
+def _frontend_targets(fe, cpu_device: bool) -> list[dict]:
+    """Issue 35: on a CPU-only machine the default ("auto") front ends >= 1.0x Open3D's wall clock; everywhere
+    RaycastingScene on the Vulkan kernels >= 0.8x the wall clock of the Tracer's matching call."""
+    if not fe:
+        return []
+    out = []
+    for q, res in fe["queries"].items():
+        for name, who in (("scene_auto", "RaycastingScene"), ("trimesh_auto", "RayMeshIntersector")):
+            if cpu_device and name in res:
+                what = f"CPU-only machine: {who} (auto: {fe['engines'][name].get('backend')}) {q} >= 1.0x Open3D"
+                out.append(_target(35, f"{what}, wall clock", res[name].get("x_open3d"), 1.0, "x", True))
+        if "x_tracer" in res.get("scene_vulkan", {}):
+            what = f"RaycastingScene (vulkan) {q} >= 0.8x the Tracer's wall clock"
+            out.append(_target(35, what, res["scene_vulkan"]["x_tracer"], 0.8, "x", True))
     return out

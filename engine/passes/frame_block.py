@@ -53,6 +53,9 @@ class FrameBlock:
         scene_scale: float,
         accum_alpha: float,
         bounds,
+        tonemap: str = "neutral",
+        auto_exposure: bool = False,
+        shadow_terminator: bool = True,
     ) -> None:
         """The whole block: camera (`view_proj` its matrix; the previous camera the last frame's, or this one on a
         `history_reset`), image size, lights (with `packed_lights`, their LIGHT records), sampling and the rest."""
@@ -80,6 +83,9 @@ class FrameBlock:
             out=self.record,
             packed_lights=packed_lights,
             objects_moved=objects_moved,
+            tonemap=tonemap,
+            auto_exposure=auto_exposure,
+            shadow_terminator=shadow_terminator,
         )
         self.settled = False
         self._next(view_proj)

@@ -74,6 +74,7 @@ class ResolvePass(ComputePass):
         "g_instance": write("image", "instance_id"),
         "g_prev_position": write("image", "prev_position"),
         "g_prev_normal": write("image", "prev_normal"),
+        "g_terminator": write("image", "terminator"),
         "instances": read("buffer"),
         "instance_texels": read("uniform_texel"),
         "instance_words": read("uniform_texel"),

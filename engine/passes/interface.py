@@ -48,6 +48,9 @@ SHADOW_MODES: tuple[str, ...] = get_args(TracedShadowMode)
 FILTER_FLAGS = {"masks": 1, "ao": 2, "temporal": 4, "first": 8}
 FILTER_MASKS, FILTER_AO, FILTER_TEMPORAL, FILTER_FIRST = (FILTER_FLAGS[k] for k in ("masks", "ao", "temporal", "first"))
 MAX_LIGHTS = 16
+#: The tone curves (setting `tonemap`; TONEMAP_<NAME> = the index here).
+Tonemap = Literal["neutral", "agx", "aces"]
+TONEMAPS: tuple[str, ...] = get_args(Tonemap)
 #: Texture array bindings (engine/passes/textures.py): every texture is a layer of one of these 2D arrays.
 MAX_TEXTURE_ARRAYS = 16
 #: A texture handle is `array << 16 | layer`; this one is "no texture" (samples as white).
@@ -101,6 +104,10 @@ AOVS = {
     "instance_id": AOV("instance_id", 4, "int32"),
 }
 
+#: AOVs made on the host from one the GPU reads back: "semantic_id" is the object's class through a per-object table
+#: (`Scene.semantic_lookup`) indexed by the object_id AOV: exact, and no more bytes read back than the object ids.
+DERIVED_AOVS = {"semantic_id": "object_id"}
+
 
 LIGHT_TYPES = {"directional": 0, "point": 1, "spot": 2, "rect": 3}
 
@@ -146,6 +153,11 @@ FRAME = Struct(
         ("objects_moved", "float"),
         ("bounds_min", "vec3"),
         ("bounds_max", "vec3"),
+        ("environment_constant", "float"),
+        ("inv_view_proj", "mat4"),
+        ("tonemap", "uint"),
+        ("auto_exposure", "uint"),
+        ("shadow_terminator", "float"),
         ("lights", LIGHT, MAX_LIGHTS),
     ],
     doc={
@@ -160,6 +172,13 @@ FRAME = Struct(
         "history_reset": "1: the temporal history is invalid",
         "objects_moved": "1: an instance moved since the last frame (accumulate.comp clamps the history)",
         "bounds_min": "scene bounds (debug views)",
+        "exposure": "the factor 2^EV on the radiance before the tone curve",
+        "ambient": "the constant environment's radiance where environment_constant is 1",
+        "environment_constant": "1: the environment is the constant `ambient` (the `ambient` setting), not the map",
+        "inv_view_proj": "inverse of view_proj (the background's view directions)",
+        "tonemap": "the tone curve (TONEMAP_*)",
+        "auto_exposure": "1: exposure.comp scales by the key over the log-average luminance",
+        "shadow_terminator": "1: shadow rays start from the terminator shift (terminator.glsl)",
     },
 )
 FRAME_BYTES = FRAME.size
@@ -186,6 +205,7 @@ def glsl_text() -> str:
         *[f"#define LIGHT_{k.upper()} {v}" for k, v in LIGHT_TYPES.items()],
         *_defines("VIEW", VIEW_MODES[1:], 1),
         *_defines("SHADOW", SHADOW_MODES),
+        *_defines("TONEMAP", TONEMAPS),
         *[f"#define FILTER_{k.upper()} {v}u" for k, v in FILTER_FLAGS.items()],
         "",
         LIGHT.glsl(),
@@ -246,6 +266,7 @@ def pack_light(light) -> np.ndarray:
 def camera_fields(block, view_proj, camera, height: int):
     """Write the camera's fields of a FRAME record (the renderer's fast path rewrites only these)."""
     block["view_proj"] = np.asarray(view_proj, np.float32).T  # GLSL mat4 is column-major
+    block["inv_view_proj"] = np.linalg.inv(np.asarray(view_proj, np.float64)).astype(np.float32).T
     block["eye"], block["near"] = _v3(camera.eye), camera.near
     block["forward"] = _v3(camera.forward)
     block["pixel_footprint"] = 2.0 * math.tan(math.radians(camera.fov_y) / 2.0) / height
@@ -275,6 +296,9 @@ def pack_frame(
     out=None,
     packed_lights=None,
     objects_moved=False,
+    tonemap="neutral",
+    auto_exposure=False,
+    shadow_terminator=True,
 ):
     """The FRAME block. `out`: a FRAME record (e.g. a view of the mapped uniform buffer) to write into, returned;
     without it, the block's bytes. `packed_lights`: `pack_light` of each light, when already made."""
@@ -289,7 +313,12 @@ def pack_frame(
     block["width"], block["height"] = width, height
     block["frame_index"], block["light_count"] = frame_index, len(lights)
     block["ao_radius"], block["ao_samples"], block["shadow_samples"] = ao_radius, ao_samples, shadow_samples
-    block["exposure"], block["ambient"] = exposure, np.broadcast_to(np.asarray(ambient, np.float32), (3,))
+    block["inv_view_proj"] = np.linalg.inv(np.asarray(view_proj, np.float64)).astype(np.float32).T
+    block["exposure"] = exposure
+    if ambient is not None:  # None: the scene's environment
+        block["ambient"], block["environment_constant"] = np.broadcast_to(np.asarray(ambient, np.float32), (3,)), 1.0
+    block["tonemap"], block["auto_exposure"] = TONEMAPS.index(tonemap), 1 if auto_exposure else 0
+    block["shadow_terminator"] = 1.0 if shadow_terminator else 0.0
     block["scene_scale"], block["accum_alpha"], block["pixel_footprint"] = scene_scale, accum_alpha, pixel_footprint
     block["history_reset"] = 1.0 if history_reset else 0.0
     block["objects_moved"] = 1.0 if objects_moved else 0.0

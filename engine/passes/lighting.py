@@ -1,5 +1,6 @@
-"""Deferred lighting pass: albedo, normal, material, light masks and AO -> HDR and tonemapped sRGB colour
-(glTF metallic-roughness BRDF: shaders/glsl/include/brdf.glsl)."""
+"""Deferred lighting pass: albedo, normal, material, light masks, AO and the environment -> HDR and tonemapped sRGB
+colour (glTF metallic-roughness BRDF: shaders/glsl/include/brdf.glsl; image-based light:
+shaders/glsl/include/environment.glsl)."""
 
 from __future__ import annotations
 
@@ -20,7 +21,12 @@ class LightingPass(ComputePass):
         "out_hdr": write("image", "hdr"),
         "g_pbr": read("image", "material"),
         "g_emissive": read("image", "emissive"),
+        "env": read("buffer"),  # environment.glsl: bound by bind_environment
     }
+
+    def bind_environment(self, env):
+        """The scene's environment buffer (engine/gpu/environment.py)."""
+        self.set.bind("env", env.buffer)
 
     def record(self, rec, targets):
         self.dispatch(rec, self.tiles(targets.width, targets.height))

@@ -43,6 +43,7 @@ class PathPass(RayPass):
         "emitters": read("uniform_texel"),
         "out_color": write("image", "color"),
         "out_hdr": write("image", "hdr"),
+        "env": read("buffer"),  # environment.glsl: bound by bind_environment
     }
 
     def __init__(self, ctx, library, resources, bvh_set, bvh_layout="binary"):
@@ -61,6 +62,10 @@ class PathPass(RayPass):
                 self.accum.destroy()
             self.accum = Buffer(self.ctx, size, STORAGE, name="path radiance")
             self.set.bind("accum", self.accum)
+
+    def bind_environment(self, env) -> None:
+        """The scene's environment buffer (engine/gpu/environment.py)."""
+        self.set.bind("env", env.buffer)
 
     def bind_data(self, data, geometry) -> None:
         """The scene's path-tracing buffers (a PathScene) and its materials (SceneGeometry's texel view)."""

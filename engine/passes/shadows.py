@@ -8,6 +8,7 @@ driver's timeout (llvmpipe runs a dispatch to its end, a watchdog may not wait).
 from __future__ import annotations
 
 from .interface import SHADOW_MODES
+from .base import read
 from .raypass import RayPass, ray_bindings
 
 RAYS_PER_DISPATCH = 1 << 22  # reference mode: at most this many rays in one dispatch
@@ -40,7 +41,7 @@ def record_split(rec, pass_, targets, mode, rays_per_sample, total):
 class ShadowPass(RayPass):
     name = "shadows"
     shader = "shadow.comp"
-    bindings = ray_bindings("masks", "masks.raw")
+    bindings = {**ray_bindings("masks", "masks.raw"), "g_terminator": read("image", "terminator")}
 
     def record(self, rec, targets, mode: str, n_lights: int = 1, reference_samples=None):
         if mode == "reference":

@@ -94,6 +94,8 @@ class Targets:
         # temporal reprojection's same-surface tests
         self.prev_position = Image(ctx, width, height, POSITION_FORMAT, STORAGE_IMAGE, name="previous position")
         self.prev_normal = Image(ctx, width, height, RGBA16F, STORAGE_IMAGE, name="previous normal")
+        # where the shadow rays start relative to `position` (the terminator shift: terminator.glsl)
+        self.terminator = Image(ctx, width, height, RGBA16F, STORAGE_IMAGE, name="terminator shift")
         # (sampled: the software raster's merge compares its depth with the hardware raster's)
         self.depth = Image(ctx, width, height, DEPTH_FORMAT, DEPTH_ATTACHMENT | SAMPLED, name="raster depth")
         self.color = Image(ctx, width, height, RGBA8, STORAGE_IMAGE | COPY_SRC, name="color")
@@ -130,6 +132,7 @@ class Targets:
             self.instance_id,
             self.prev_position,
             self.prev_normal,
+            self.terminator,
             self.hist_instance,
         ]
         self._objects = images + [self.len_cur, self.len_hist]
@@ -168,6 +171,7 @@ class Targets:
                     "instance_id",
                     "prev_position",
                     "prev_normal",
+                    "terminator",
                     "hist_instance",
                     "soft_visibility",
                 )

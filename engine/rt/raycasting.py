@@ -9,13 +9,16 @@
     sdf = scene.compute_signed_distance(points)               # negative inside (ray parity)
 
 Method names, arguments, result keys, shapes, dtypes and the invalid id (`INVALID_ID` = 2^32 - 1) are Open3D's;
-results are numpy arrays where Open3D returns `open3d.core.Tensor`s (`.numpy()` of those is what these are). All
-geometries are traced as one Tracer over their concatenated triangles, with a triangle -> (geometry id, primitive
-id) map; it is (re)built on the first query after `add_triangles`, as Open3D commits its scene then.
+results are `engine.rt.tensor.Tensor`s, numpy arrays that also have Open3D tensors' `.numpy()`, `.cpu()` and `.item()`
+(so `ans['t_hit'].numpy()` runs as with Open3D); scenes can be copied (`copy.copy`, `copy.deepcopy`). The rays are
+traced on the Vulkan kernels or on Embree (`backend`, engine/rt/embree.py). All geometries are traced as one Tracer
+over their concatenated triangles, with a triangle -> (geometry id, primitive id) map; it is (re)built on the first
+query after `add_triangles`, as Open3D commits its scene then.
 """
 
 from __future__ import annotations
 
+import copy
 import threading
 from dataclasses import dataclass, field
 from numbers import Integral, Real
@@ -32,7 +35,10 @@ from ..vk.shared import Device
 from .checks import check_mesh, check_vectors, first_beyond
 from .closest import check_points
 from .cuda_arrays import on_cuda, scene_hits, scene_rays
+from .backend import check_backend, resolve_backend
+from .embree import EmbreeTracer, scene_cast_rays, scene_occlusions
 from .pinhole import _numpy, pinhole_rays
+from .tensor import open3d_results
 from .tracer import Tracer
 
 #: Open3D's id for "no geometry / no primitive" (RaycastingScene.INVALID_ID): the largest uint32
@@ -168,8 +174,9 @@ def _limit(value, name: str, allow_inf: bool) -> float:
 class RaycastingScene(Closes):
     """Open3D's `RaycastingScene` on the GPU: several triangle meshes with ids, ray queries in batches.
 
-    The same method names, arguments, result keys, shapes and dtypes as Open3D's (0.17-0.20), with numpy arrays in
-    and out (Open3D returns tensors; `.numpy()` of them is what this returns). Differences: rays may be float32 or
+    The same method names, arguments, result keys, shapes and dtypes as Open3D's (0.17-0.20), with numpy arrays
+    (or Open3D tensors) in and numpy arrays out that also answer `.numpy()`, `.cpu()` and `.item()` as Open3D's
+    tensors do (`Tensor`). Differences: rays may be float32 or
     float64 (Open3D: float32 only) and a NaN or infinite ray, a zero direction or out-of-range triangle indices are
     errors naming the ray or mesh (Open3D: silent misses, or undefined); `nthreads` is accepted and ignored (the GPU
     runs every ray); `count_intersections` / `list_intersections` find each ray's hits by casting it again from
@@ -183,16 +190,29 @@ class RaycastingScene(Closes):
     INVALID_ID: int = INVALID_ID
     """Open3D's id for no hit in `geometry_ids` and `primitive_ids`: 2^32 - 1."""
 
-    def __init__(self, nthreads: int = 0, device: Device | int | str | None = None, *, validation: bool = False):
+    def __init__(
+        self,
+        nthreads: int = 0,
+        device: Device | int | str | None = None,
+        *,
+        validation: bool = False,
+        backend: str = "auto",
+    ):
         """Args:
             nthreads: Open3D's build threads: accepted and ignored (the build uses every core).
             device: an open `engine.Device` to share, or the Vulkan device, as `Tracer`'s (an index or part of its
                 name), not an `open3d.core.Device`.
             validation: turn the Khronos validation layer on (default: $HYBRID_VALIDATION; a shared
                 `engine.Device` has its own setting).
+            backend: "auto" (the default: Embree where embreex imports and the only Vulkan device is a CPU, e.g.
+                lavapipe, and no `device` is given; the Vulkan kernels otherwise), "vulkan" or "embree" (the same
+                answers; engine/rt/embree.py). On Embree the point queries' nearest triangle is found by a C walk
+                on the host (embreex has no point query; the Vulkan kernel without the compiled module).
+                `backend` (the attribute) says which one this scene runs on.
 
         Raises:
-            ConfigError: `device` is not an `engine.Device`, an index, a name or None; a closed `engine.Device`.
+            ConfigError: `device` is not an `engine.Device`, an index, a name or None; a closed `engine.Device`; a
+                bad `backend`, or "embree" without embreex.
         """
         if isinstance(device, Device):
             if device.closed:
@@ -203,6 +223,8 @@ class RaycastingScene(Closes):
                 f"engine.Device, got {type(device).__name__}"
             )
         self._device, self._validation = device, validation
+        self._backend = check_backend(backend, "RaycastingScene")
+        self.backend = resolve_backend(self._backend, device)
         self._meshes: list[tuple[NDArray[np.float64], NDArray[np.int64]]] = []
         self._built: _Built | None = None
         self._ctx: Context | None = None
@@ -262,14 +284,7 @@ class RaycastingScene(Closes):
         if np.linalg.norm(center) <= size:  # near the world origin: world coordinates are as precise (Open3D's)
             center = np.zeros(3)
         step = max(STEP_FLOOR, STEP_FACTOR * size)
-        tracer = None
-        if len(f):
-            if isinstance(self._device, Device):
-                tracer = Tracer(v - center, f, device=self._device)
-            else:
-                if self._ctx is None:
-                    self._ctx = Context(device=self._device, validation=self._validation or None)
-                tracer = Tracer(v - center, f, context=self._ctx)
+        tracer = self._tracer(v - center, f) if len(f) else None
         p0 = v[f[:, 0]]
         n = np.cross(v[f[:, 1]] - p0, v[f[:, 2]] - p0)
         length = np.linalg.norm(n, axis=1, keepdims=True)
@@ -277,7 +292,19 @@ class RaycastingScene(Closes):
         self._built = _Built(len(self._meshes), tracer, center, step, geometry, primitive, normal)
         return self._built
 
+    def _tracer(self, v, f) -> Tracer | EmbreeTracer:
+        """The Tracer of the scene's triangles on its backend (on Embree with a Vulkan Tracer of its own for the point
+        queries, made on their first call)."""
+        if self.backend == "embree":
+            return Tracer(v, f, backend="embree", device=self._device, validation=self._validation)
+        if isinstance(self._device, Device):
+            return Tracer(v, f, device=self._device)
+        if self._ctx is None:
+            self._ctx = Context(device=self._device, validation=self._validation or None)
+        return Tracer(v, f, context=self._ctx)
+
     # ---- queries ------------------------------------------------------------------------------------------
+    @open3d_results
     def cast_rays(self, rays: ArrayLike, nthreads: int = 0) -> dict[str, NDArray]:
         """The first hit of each ray.
 
@@ -302,6 +329,11 @@ class RaycastingScene(Closes):
         with self._lock:
             if on_cuda(rays):
                 return self._cast_cuda(rays)
+            fast = self._on_embree(
+                rays, lambda s, a: scene_cast_rays(s.tracer, a, s.center, s.geometry, s.primitive, s.normal, INVALID_ID)
+            )
+            if fast is not None:
+                return fast
             flat, shape = _flat_rays(rays)
             s = self._scene()
             n = len(flat)
@@ -324,6 +356,7 @@ class RaycastingScene(Closes):
                 out["primitive_normals"][hit] = s.normal[prim]
             return {k: a.reshape(shape + a.shape[1:]) for k, a in out.items()}
 
+    @open3d_results
     def test_occlusions(
         self, rays: ArrayLike, tnear: float = 0.0, tfar: float = float("inf"), nthreads: int = 0
     ) -> NDArray[np.bool_]:
@@ -342,6 +375,11 @@ class RaycastingScene(Closes):
             ConfigError: as `cast_rays`, or a NaN / infinite tnear or a NaN tfar.
         """
         with self._lock:
+            if not on_cuda(rays):
+                near, far = _limit(tnear, "tnear", False), _limit(tfar, "tfar", True)
+                fast = self._on_embree(rays, lambda s, a: scene_occlusions(s.tracer, a, s.center, near, far))
+                if fast is not None:
+                    return fast
             flat, shape = (None, None) if on_cuda(rays) else _flat_rays(rays)
             near, far = _limit(tnear, "tnear", False), _limit(tfar, "tfar", True)
             s = self._scene()
@@ -353,6 +391,26 @@ class RaycastingScene(Closes):
                 what = "tnear: ray {i}'s start (origin + tnear * direction)" if near else "rays: ray {i}'s origin"
                 out = s.tracer.occluded(_traced(s, origins, what), flat[:, 3:], far - near)
             return out.reshape(shape)
+
+    def _on_embree(self, rays, answer):
+        """On the Embree backend, `answer(built scene, (N, 6) rays)` (engine/rt/embree.py: the per-ray work fused per
+        block) for float rays of shape (..., 6), shaped by their leading shape; None for the general path (another
+        backend, bad or empty rays: its checks name the ray)."""
+        a = _numpy(rays)
+        if self.backend != "embree" or self._closed or not isinstance(a, np.ndarray):
+            return None
+        if a.ndim < 2 or a.shape[-1] != 6 or a.dtype.kind != "f":
+            return None
+        s = self._scene()
+        if s.tracer is None or not a.size:
+            return None
+        out = answer(s, a.reshape(-1, 6))
+        if out is None:
+            return None
+        lead = a.shape[:-1]
+        return (
+            {k: v.reshape(lead + v.shape[1:]) for k, v in out.items()} if isinstance(out, dict) else out.reshape(lead)
+        )
 
     def _cast_cuda(self, rays):
         """cast_rays on CUDA rays: traced and mapped to ids on their device (engine.rt.cuda_arrays)."""
@@ -429,6 +487,7 @@ class RaycastingScene(Closes):
         order = np.lexsort((t, ray))
         return ray[order], prim[order], t[order], u[order], v[order]
 
+    @open3d_results
     def count_intersections(self, rays: ArrayLike, nthreads: int = 0) -> NDArray[np.int32]:
         """(...) int32: how many times each ray (t >= 0) crosses the scene's triangles (see the class notes on hits
         closer together than the step). The arguments are `cast_rays`'."""
@@ -437,6 +496,7 @@ class RaycastingScene(Closes):
             ray = self._all_hits(flat)[0]
             return np.bincount(ray, minlength=len(flat)).astype(np.int32).reshape(shape)
 
+    @open3d_results
     def list_intersections(self, rays: ArrayLike, nthreads: int = 0) -> dict[str, NDArray]:
         """Every hit of every ray (t >= 0), ray by ray in order of t (Open3D: in no set order within a ray).
 
@@ -473,6 +533,7 @@ class RaycastingScene(Closes):
             return s, None
         return s, s.tracer.closest(_traced(s, flat, "query_points: row {i}"))
 
+    @open3d_results
     def compute_closest_points(self, query_points: ArrayLike, nthreads: int = 0) -> dict[str, NDArray]:
         """The nearest point of the scene's triangles to each query point (a GPU BVH walk, engine/rt/closest.py).
 
@@ -514,6 +575,7 @@ class RaycastingScene(Closes):
         near = self._closest(flat)[1]
         return near.distance if near is not None else np.full(len(flat), np.inf, np.float32)
 
+    @open3d_results
     def compute_distance(self, query_points: ArrayLike, nthreads: int = 0) -> NDArray[np.float32]:
         """(...) float32: the distance from each query point to the nearest triangle (+inf in a scene without
         triangles; Open3D: the distance to the origin). The arguments are `compute_closest_points`'."""
@@ -532,6 +594,7 @@ class RaycastingScene(Closes):
         counts = np.bincount(self._all_hits(rays)[0], minlength=len(rays)).reshape(len(flat), nsamples)
         return (counts % 2).sum(axis=1) > nsamples // 2
 
+    @open3d_results
     def compute_signed_distance(
         self, query_points: ArrayLike, nthreads: int = 0, nsamples: int = 1
     ) -> NDArray[np.float32]:
@@ -554,6 +617,7 @@ class RaycastingScene(Closes):
             distance = self._distance(flat)
             return np.where(self._inside(flat, votes), -distance, distance).astype(np.float32).reshape(shape)
 
+    @open3d_results
     def compute_occupancy(self, query_points: ArrayLike, nthreads: int = 0, nsamples: int = 1) -> NDArray[np.float32]:
         """(...) float32: 1 for points inside the scene's closed meshes, 0 outside, by Open3D's ray-parity vote.
 
@@ -602,12 +666,40 @@ class RaycastingScene(Closes):
         with self._lock:
             if self._built is not None and self._built.tracer is not None:
                 self._built.tracer.close()
+                if isinstance(self._built.tracer, EmbreeTracer):  # (its point queries' Vulkan Tracer)
+                    self._errors += self._built.tracer.validation_errors
             self._built = None
             if self._ctx is not None:
                 self._ctx.close()  # (reports leaked objects as validation errors)
                 self._errors = list(self._ctx.validation_errors)
                 self._ctx = None
             self._closed = True
+
+    def __copy__(self) -> RaycastingScene:
+        """A scene of its own (closing one leaves the other open) with the same geometries, ids, device, validation
+        and backend: the same answers (Open3D's request #7014). Built again on its first query."""
+        with self._lock:
+            self._check_open()
+            twin = RaycastingScene(device=self._device, validation=self._validation, backend=self._backend)
+            twin._meshes = list(self._meshes)  # (the arrays are never changed in place)
+            return twin
+
+    def __deepcopy__(self, memo: dict) -> RaycastingScene:
+        twin = self.__copy__()
+        twin._meshes = copy.deepcopy(self._meshes, memo)
+        return twin
+
+    def __getstate__(self) -> dict:
+        """Pickled as its geometries and settings (built again on the first query after unpickling); a shared
+        `engine.Device` is not pickled (the copy opens a device of its own)."""
+        with self._lock:
+            self._check_open()
+            device = None if isinstance(self._device, Device) else self._device
+            return {"meshes": self._meshes, "device": device, "validation": self._validation, "backend": self._backend}
+
+    def __setstate__(self, state: dict) -> None:
+        self.__init__(device=state["device"], validation=state["validation"], backend=state["backend"])
+        self._meshes = list(state["meshes"])
 
     def __repr__(self) -> str:
         triangles = sum(len(f) for _, f in self._meshes)

@@ -9,7 +9,9 @@ unitized; each query is a closest-hit cast; for multiple hits, the rays that hit
 hit, located on the hit triangle's plane in float64 and stepped on by max(1e-8, 1e-6 * mesh.scale) along the ray
 (a ray that reports the same triangle again doubles its step), up to `max_hits` casts, each cast one GPU batch of the
 rays still going. Queries run in the mesh's own frame (centred on its bounding box, scaled to a 100-unit box unless
-`scale_to_box=False`), so the GPU's float32 holds the mesh at full precision wherever it lies.
+`scale_to_box=False`), so the GPU's float32 holds the mesh at full precision wherever it lies. Where the only Vulkan
+device is a CPU (lavapipe) each cast runs on Embree instead (`backend`, engine/rt/embree.py): the same loop, the same
+answers.
 """
 
 from __future__ import annotations
@@ -28,6 +30,8 @@ from ..limits import MAX_COORD
 from ..vk import Context
 from ..vk.shared import Device
 from .checks import check_mesh, check_vectors, first_beyond
+from .backend import check_backend, resolve_backend
+from .embree import mesh_first_hits
 from .tracer import Tracer
 
 #: the step past a hit before a ray is cast again: max(STEP_FLOOR, STEP_FACTOR * mesh.scale) world units
@@ -93,6 +97,7 @@ class RayMeshIntersector(Closes):
         *,
         device: Device | int | str | None = None,
         validation: bool = False,
+        backend: str = "auto",
     ):
         """Args:
             mesh: the `trimesh.Trimesh` to query (kept by reference, as trimesh does: edits to it are seen).
@@ -101,10 +106,13 @@ class RayMeshIntersector(Closes):
             device: an open `engine.Device` to share, or the Vulkan device, as `Tracer`'s.
             validation: turn the Khronos validation layer on (default: $HYBRID_VALIDATION; a shared
                 `engine.Device` has its own setting).
+            backend: "auto" (the default: Embree where embreex imports and the only Vulkan device is a CPU, e.g.
+                lavapipe, and no `device` is given; the Vulkan kernels otherwise), "vulkan" or "embree" (the same
+                answers, every query; engine/rt/embree.py). `backend` (the attribute) says which one it runs on.
 
         Raises:
             SceneError: `mesh` is not a `trimesh.Trimesh`.
-            ConfigError: a closed `engine.Device`.
+            ConfigError: a closed `engine.Device`; a bad `backend`, or "embree" without embreex.
         """
         import trimesh  # deferred: heavy, and only needed to check what `mesh` is (trimesh is already loaded then)
 
@@ -115,6 +123,8 @@ class RayMeshIntersector(Closes):
         self.mesh = mesh
         self._scale_to_box = bool(scale_to_box)
         self._device, self._validation = device, validation
+        self._backend = check_backend(backend, "RayMeshIntersector")
+        self.backend = resolve_backend(self._backend, device)
         self._ctx: Context | None = None
         self._errors: list[str] = []
         self._geom: _Geometry | None = None
@@ -141,7 +151,9 @@ class RayMeshIntersector(Closes):
             self._geom.tracer.close()
             self._geom = None
         tracer = None
-        if len(f):
+        if len(f) and self.backend == "embree":
+            tracer = Tracer((v - center) * factor, f, backend="embree", device=self._device)
+        elif len(f):
             if isinstance(self._device, Device):
                 tracer = Tracer((v - center) * factor, f, device=self._device)
             else:
@@ -270,6 +282,9 @@ class RayMeshIntersector(Closes):
     def intersects_first(self, ray_origins: ArrayLike, ray_directions: ArrayLike) -> NDArray[np.int64]:
         """(N,) int64: the first triangle each ray hits (a row of `mesh.faces`), -1 where it hits none."""
         with self._lock:
+            fast = self._on_embree(ray_origins, ray_directions, any_hit=False)
+            if fast is not None:
+                return fast
             o, d = self._rays(ray_origins, ray_directions)
             g = self._geometry()
             if g.tracer is None or not len(o):
@@ -280,12 +295,30 @@ class RayMeshIntersector(Closes):
     def intersects_any(self, ray_origins: ArrayLike, ray_directions: ArrayLike) -> NDArray[np.bool_]:
         """(N,) bool: does each ray hit the mesh at all (an any-hit query, no closest hit needed)?"""
         with self._lock:
+            fast = self._on_embree(ray_origins, ray_directions, any_hit=True)
+            if fast is not None:
+                return fast
             o, d = self._rays(ray_origins, ray_directions)
             g = self._geometry()
             if g.tracer is None or not len(o):
                 return np.zeros(len(o), bool)
             _check_frame(g, o)
             return g.tracer.occluded((o - g.center) * g.factor, d)
+
+    def _on_embree(self, ray_origins, ray_directions, any_hit: bool):
+        """On the Embree backend, intersects_first / intersects_any with the per-ray work fused per block
+        (engine/rt/embree.py) for (N, 3) real arrays; None for the general path (another backend, bad or no rays:
+        its checks name the ray)."""
+        o, d = ray_origins, ray_directions
+        if self.backend != "embree" or self._closed or not isinstance(o, np.ndarray) or not isinstance(d, np.ndarray):
+            return None
+        real = o.dtype.kind in "fiu" and d.dtype.kind in "fiu"
+        if not real or o.ndim != 2 or o.shape[1:] != (3,) or o.shape != d.shape or not len(o):
+            return None
+        g = self._geometry()
+        if g.tracer is None:
+            return None
+        return mesh_first_hits(g.tracer, o, d, g.center, g.factor, any_hit)
 
     def contains_points(self, points: ArrayLike) -> NDArray[np.bool_]:
         """(N,) bool: is each point inside the mesh? trimesh's own parity test (`trimesh.ray.ray_util`): rays both
@@ -325,13 +358,27 @@ class RayMeshIntersector(Closes):
         """Pickled without its GPU state (rebuilt on the first query after unpickling), as trimesh drops its cache;
         a shared `engine.Device` is not pickled (the copy opens a device of its own)."""
         device = None if isinstance(self._device, Device) else self._device
-        return {"mesh": self.mesh, "scale_to_box": self._scale_to_box, "device": device, "validation": self._validation}
+        return {
+            "mesh": self.mesh,
+            "scale_to_box": self._scale_to_box,
+            "device": device,
+            "validation": self._validation,
+            "backend": self._backend,
+        }
 
     def __setstate__(self, state: dict) -> None:
-        self.__init__(state["mesh"], state["scale_to_box"], device=state["device"], validation=state["validation"])
+        self.__init__(
+            state["mesh"],
+            state["scale_to_box"],
+            device=state["device"],
+            validation=state["validation"],
+            backend=state.get("backend", "auto"),
+        )
 
     def __copy__(self) -> RayMeshIntersector:
-        return RayMeshIntersector(self.mesh, self._scale_to_box, device=self._device, validation=self._validation)
+        return RayMeshIntersector(
+            self.mesh, self._scale_to_box, device=self._device, validation=self._validation, backend=self._backend
+        )
 
     def __deepcopy__(self, memo: dict) -> RayMeshIntersector:
         return self.__copy__()

@@ -31,6 +31,7 @@ from ..vk.device import has_dedicated_vram, is_cpu, rgb32f_texel_buffers
 from ..vk.shared import Device, Scope
 from .checks import check_batch_size, check_mesh, name_bad_ray, name_bad_tmax, ray_arrays, result_arrays
 from .closest import Closest, ClosestQuery
+from .backend import TRACERS, check_backend, resolve_backend
 from .cuda_arrays import CudaRays, on_cuda
 from .order import KeptWords, check_reorder, incoherent, ray_order, shared_direction
 from .session import TraceSession, kernel_interface
@@ -121,12 +122,21 @@ class Tracer(Closes):
     """
 
     stats: dict[str, Any]
+    backend = "vulkan"
+
+    def __new__(cls, *args: Any, backend: str = "vulkan", **kw: Any):
+        """`backend="embree"` (or "auto" choosing it) makes an `EmbreeTracer` instead (engine/rt/embree.py)."""
+        which = resolve_backend(check_backend(backend, "Tracer"), kw.get("device"), kw.get("context"))
+        if which != "vulkan" and cls is Tracer:
+            return TRACERS[which](*args, **kw)
+        return super().__new__(cls)
 
     def __init__(
         self,
         vertices: ArrayLike,
         faces: ArrayLike,
         *,
+        backend: str = "vulkan",
         device: Device | int | str | None = None,
         validation: bool = False,
         batch_size: int = 1 << 20,
@@ -149,6 +159,11 @@ class Tracer(Closes):
             context: use an existing `engine.vk.Context` (not closed here).
             staging: copy rays to and results from device-local buffers (default: when the device has memory the
                 host cannot map, i.e. a discrete GPU).
+            backend: "vulkan" (the default: these GLSL kernels), "embree" (Embree on the host's cores, through
+                embreex: the [embree] extra) or "auto" (Embree where embreex imports and the only Vulkan device is a
+                CPU, e.g. lavapipe, and no device or context is given; Vulkan otherwise). Embree gives an
+                `EmbreeTracer` (engine/rt/embree.py): the same queries, answers and errors (its `closest`: a
+                C walk on the host).
             layout: "binary" or "wide" BVH (default: $HYBRID_BVH_LAYOUT, else "binary").
             reorder: trace the rays of `occluded` / `intersect` in the order of a coarse Morton code of their origins
                 (results still in the caller's order; engine/rt/order.py): True, False, or "auto" (the default:
@@ -158,7 +173,7 @@ class Tracer(Closes):
 
         Raises:
             SceneError: bad vertices or faces (shape, NaN, out-of-range indices, beyond MAX_COORD).
-            ConfigError: a bad device selector, batch size or layout; a closed `engine.Device` or context.
+            ConfigError: a bad device selector, batch size, layout or backend; a closed `engine.Device` or context.
             VulkanError: no usable Vulkan device.
         """
         self._lock = threading.RLock()  # one call at a time, from any thread (engine.parallel.serialized)
@@ -233,9 +248,16 @@ class Tracer(Closes):
         levels refitted). `Hits.prim` is the flattened scene's triangle (`scene.indices`), `Hits.instance` and
         `Hits.mesh_prim` the instance and its mesh's triangle; `kw` as in `Tracer()`. MASK / BLEND materials are
         cut out by their base texture's alpha as in the renderer's shadow and AO rays (the materials as they are
-        now; a masked mesh whose instances override its material differently is a SceneError)."""
+        now; a masked mesh whose instances override its material differently is a SceneError). It runs on the
+        Vulkan backend ("auto" too): instances, BVH updates and the alpha test are the GPU kernels'."""
         if not hasattr(scene, "instances") or not hasattr(scene, "meshes"):
             raise ConfigError(f"Tracer.from_scene: expected an engine.Scene, got {type(scene).__name__}")
+        if check_backend(kw.pop("backend", "vulkan"), "Tracer.from_scene") == "embree":
+            raise ConfigError(
+                "Tracer.from_scene: runs on backend='vulkan' only (instances, BVH updates and the alpha test are "
+                "the GPU kernels'); for Embree, make one from the flat arrays: Tracer(scene.positions, "
+                "scene.indices, backend='embree')"
+            )
         self = cls.__new__(cls)
         self._source = scene
         if is_instanced(scene):

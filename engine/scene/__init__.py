@@ -4,6 +4,7 @@ Pure numpy / trimesh / pillow, no Vulkan. See docs/architecture.md (Scene contra
 """
 
 from .camera import Camera
+from .environment import Environment, Sky
 from .lights import DirectionalLight, Light, PointLight, RectLight, SpotLight, default_sun
 from .material import Material
 from .instances import Instance, Mesh
@@ -23,4 +24,6 @@ __all__ = [
     "SpotLight",
     "RectLight",
     "default_sun",
+    "Environment",
+    "Sky",
 ]

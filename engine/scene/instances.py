@@ -21,7 +21,8 @@ class Mesh:
     Arrays (read-only numpy): `positions` (V, 3) float32, `normals` (V, 3) float32 unit, `uvs` (V, 2) float32,
     `vertex_material` (V,) uint32 (an index into the scene's materials), `indices` (T, 3) uint32 counter-clockwise
     front faces; `submeshes` are the source parts' ranges inside this mesh; `name` a label. Change the positions of
-    a mesh in a scene with `Scene.update_positions` (the topology stays).
+    a mesh in a scene with `Scene.update_positions` (the topology stays). `splats`: for a point cloud's splats, the
+    `points.Splats` they were made from (what resizes them), else None.
     """
 
     name: str
@@ -101,6 +102,7 @@ class Mesh:
         if submeshes is None:
             submeshes = [SubMesh(self.name, 0, len(p), 0, len(f), int(vm[0]) if len(vm) else 0)]
         self.submeshes = list(submeshes)
+        self.splats = None
         self._box = self._radius = None
 
     @property

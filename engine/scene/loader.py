@@ -15,7 +15,8 @@ from PIL import Image
 from engine.limits import MAX_COORD
 from engine.errors import SceneError, shown
 
-from . import mtl
+from . import mtl, points
+from .classes import extras_class
 from .filechecks import bomb_images, bomb_pixels, check_mesh_file, diagnose_gltf
 from .instances import Mesh, check_transforms, determinants, instance_label, world_boxes
 from .material import TEXTURE_FIELDS, Material, material_key, srgb8_to_linear, texture_key
@@ -26,6 +27,7 @@ MAX_TEXTURE_SIZE = 2048
 #: decoded (RGBA at this size is 256 MB; it is downsized to MAX_TEXTURE_SIZE on a side after decoding).
 MAX_TEXTURE_PIXELS = 64 * 1024 * 1024
 MESH_EXTENSIONS = (".obj", ".ply", ".stl", ".gltf", ".glb", ".off")
+USD_EXTENSIONS = (".usd", ".usda", ".usdc", ".usdz")  # stages: usd.py reads them (Scene.load picks it by suffix)
 DEFAULT_COLOR = (0.8, 0.8, 0.8, 1.0)
 IMAGE_EXTENSIONS = (".png", ".jpg", ".jpeg", ".bmp", ".tga", ".tif", ".tiff", ".gif", ".webp")
 
@@ -219,7 +221,9 @@ def load_trimesh_scene(path: str, *, scene_file: bool = False):
             f"{where}: a .toml scene cannot be used as a mesh file (mesh files: {', '.join(MESH_EXTENSIONS)})"
         )
     if ext not in MESH_EXTENSIONS:
-        supported = (".toml, " if scene_file else "") + ", ".join(MESH_EXTENSIONS)
+        supported = ", ".join(
+            ((".toml",) if scene_file else ()) + MESH_EXTENSIONS + (USD_EXTENSIONS if scene_file else ())
+        )
         raise SceneError(f"{where}: unsupported file type '{shown(ext) or '(none)'}' (supported: {supported})")
     try:
         if os.path.getsize(path) == 0:
@@ -269,11 +273,14 @@ class SceneBuilder:
         self._inst_mesh: list[np.ndarray] = []
         self._inst_transforms: list[np.ndarray] = []
         self._inst_names: list[str] = []
+        self._inst_classes: list[str | None] = []
         self.materials: list[Material] = []
         self._material_keys: dict = {}
         self._textures: dict = {}
         self._mesh_keys: dict = {}
         self._keep: list = []  # the objects whose ids are in _mesh_keys, kept alive so the ids stay unique
+        self._point_radius = None  # add_trimesh's, for its point clouds
+        self.point_pixels = None  # point clouds' splats this many pixels wide (None: world-sized)
 
     # -------------------------------------------------------------- materials
     def material_index(self, mat: Material, key_name=None) -> int:
@@ -308,15 +315,21 @@ class SceneBuilder:
         transform=None,
         key=None,
         instance_name: str | None = None,
+        cls: str | None = None,
     ):
         """Add a part in object space placed by `transform` ((4, 4); None: identity). Parts added with the same
         hashable `key` (not None) share the first one's Mesh. `normals` None: computed with a crease angle."""
         m = np.eye(4) if transform is None else np.asarray(transform, dtype=np.float64)
         inst_name = name if instance_name is None else instance_name
-        self.add_placed(name, positions, faces, normals, uvs, material, where, m[None], [inst_name], key=key)
+        self.add_placed(
+            name, positions, faces, normals, uvs, material, where, m[None], [inst_name], key=key, classes=[cls]
+        )
 
-    def add_placed(self, name, positions, faces, normals, uvs, material, where, transforms, names, key=None):
-        """`add` for K placements at once: `transforms` (K, 4, 4), `names` K instance names; checked with whole-array
+    def add_placed(
+        self, name, positions, faces, normals, uvs, material, where, transforms, names, key=None, classes=None
+    ):
+        """`add` for K placements at once: `transforms` (K, 4, 4), `names` K instance names, `classes` K semantic
+        classes (or None: none); checked with whole-array
         operations (the first bad placement is named, with the message `add` gives). Placements whose 3x3 part is
         singular (a zero scale: glTF hides parts so) are left out."""
         m = np.asarray(transforms, dtype=np.float64)
@@ -336,9 +349,11 @@ class SceneBuilder:
         a = m[:, :3, :3]
         top = np.maximum(np.abs(a).reshape(len(m), 9).max(axis=1), 1e-300)
         shown_ = np.abs(determinants(m / top[:, None, None])) >= 1e-12  # (a finite det >= 1e-12: a finite cond)
+        classes = [None] * len(m) if classes is None else list(classes)
         if not shown_.all():  # a zero scale hides the part: nothing to trace or draw
             m = m[shown_]
             names = [n for n, keep in zip(names, shown_) if keep]
+            classes = [c for c, keep in zip(classes, shown_) if keep]
             if not len(m):
                 return
         box = np.abs(world_boxes(self.meshes[k].box[None], m)).reshape(len(m), 6).max(axis=1)
@@ -352,6 +367,7 @@ class SceneBuilder:
         self._inst_mesh.append(np.full(len(m), k, np.int64))
         self._inst_transforms.append(m)
         self._inst_names.extend(names)
+        self._inst_classes.extend(classes)
 
     def _mesh(self, name, positions, faces, normals, uvs, material, where) -> Mesh | None:
         p = np.asarray(positions, dtype=np.float64)
@@ -406,27 +422,40 @@ class SceneBuilder:
         overrides: dict | None = None,
         transforms=None,
         labels=None,
+        cls: str | None = None,
+        classes=None,
+        point_radius=None,
     ):
-        """Add a trimesh.Trimesh or trimesh.Scene (node transforms applied, then `transform`); with `transforms`
+        """Add a trimesh.Trimesh, PointCloud or Scene (node transforms applied, then `transform`); with `transforms`
         (a list of (4, 4)), once per transform (each applied after `transform`), `labels` (None or a name per
         transform) replacing `label` for that placement. A geometry used by several nodes
         (or added again from the same `obj`) stays one mesh with several instances.
 
         `color` (linear RGBA), `texture` and `overrides` (other Material fields: metallic, roughness, emissive) override
-        every material of `obj` (material overrides of the TOML format).
+        every material of `obj` (material overrides of the TOML format). Point clouds become splats (points.py) of
+        `point_radius` (object-space units; None: their spacing). The semantic class of a placement: its entry of
+        `classes`, else `cls`, else the file's (`extras` `class` / `category` of the node or a node above it, else of
+        its mesh).
         """
         import trimesh  # deferred: heavy, and needed only to read meshes
 
-        if isinstance(obj, trimesh.Trimesh):
+        if isinstance(obj, trimesh.PointCloud):
+            items = [(np.eye(4), obj, label or "points", "points")]
+            file_classes = [extras_class(obj.metadata)]
+        elif isinstance(obj, trimesh.Trimesh):
             items = [(np.eye(4), obj, label or getattr(obj.metadata, "get", lambda *_: None)("name") or "mesh", "mesh")]
+            file_classes = [extras_class(obj.metadata)]
         elif isinstance(obj, trimesh.Scene):
             items = []
             with _quiet():
                 for node in obj.graph.nodes_geometry:
                     m, geom_name = obj.graph[node]
                     geom = obj.geometry.get(geom_name)
-                    if isinstance(geom, trimesh.Trimesh):
+                    if isinstance(geom, (trimesh.Trimesh, trimesh.PointCloud)):
                         items.append((np.asarray(m, dtype=np.float64), geom, str(node), str(geom_name)))
+            file_classes = [
+                _node_class(obj.graph, str(node)) or extras_class(geom.metadata) for _, geom, node, _ in items
+            ]
         else:
             raise SceneError(f"{where}: expected a trimesh.Trimesh or trimesh.Scene, got {type(obj).__name__}")
         outer = np.eye(4) if transform is None else np.asarray(transform, dtype=np.float64)
@@ -435,27 +464,35 @@ class SceneBuilder:
         else:
             places = np.asarray(transforms, dtype=np.float64).reshape(-1, 4, 4) @ outer
             names = [(labels[i] if labels and labels[i] else label) for i in range(len(places))]
+        given = [(classes[i] if classes and classes[i] else cls) for i in range(len(places))]
         before = len(self._inst_names)
+        self._point_radius = point_radius
         made = {}  # this call's materials by trimesh material; `obj` keeps those alive, so their ids stay unique
         self._keep.append(obj)
         in_scene, extra = isinstance(obj, trimesh.Scene), overrides or {}
         if len(items) == 1:  # one geometry, placed once or many times: one block
             m, geom, node_name, geom_name = items[0]
             names = [_node_name(name, node_name, in_scene, 1) for name in names]
-            self._add_geometry(geom, places @ m, names, geom_name, where, color, texture, uv_scale, made, extra)
+            kinds = [c or file_classes[0] for c in given]
+            self._add_geometry(geom, places @ m, names, geom_name, where, color, texture, uv_scale, made, extra, kinds)
         else:
-            for place, name in zip(places, names):
-                for m, geom, node_name, geom_name in items:
+            for place, name, c in zip(places, names, given):
+                for (m, geom, node_name, geom_name), own in zip(items, file_classes):
                     node_name = _node_name(name, node_name, in_scene, len(items))
                     place_m = (place @ m)[None]
                     self._add_geometry(
-                        geom, place_m, [node_name], geom_name, where, color, texture, uv_scale, made, extra
+                        geom, place_m, [node_name], geom_name, where, color, texture, uv_scale, made, extra, [c or own]
                     )
         if len(self._inst_names) == before:
             raise SceneError(f"{where}: contains no triangles")
 
-    def _add_geometry(self, geom, m, names, geom_name, where, color, texture, uv_scale, made, overrides):
+    def _add_geometry(self, geom, m, names, geom_name, where, color, texture, uv_scale, made, overrides, classes):
         """One trimesh geometry placed by the transforms `m` (K, 4, 4), its instances named `names`."""
+        import trimesh  # deferred: heavy, and needed only to read meshes
+
+        if isinstance(geom, trimesh.PointCloud):
+            self._add_points(geom, m, names, geom_name, where, color, overrides, classes)
+            return
         node_name = names[0]
         with _quiet():
             vertices = np.asarray(geom.vertices, dtype=np.float64)
@@ -493,7 +530,68 @@ class SceneBuilder:
         material = self.material_index(mat, key_name)
         key = (id(geom), material, None if uv_scale is None else tuple(np.asarray(uv_scale, np.float64).tolist()))
         self._keep.append(geom)
-        self.add_placed(geom_name, vertices, faces, normals, uvs, material, where, m, names, key=key)
+        self.add_placed(geom_name, vertices, faces, normals, uvs, material, where, m, names, key=key, classes=classes)
+
+    def add_points(
+        self,
+        name,
+        positions,
+        normals,
+        colors,
+        radius,
+        where,
+        transforms,
+        names,
+        key=None,
+        color=None,
+        overrides=None,
+        classes=None,
+    ):
+        """A point cloud as splats (points.py) placed by `transforms` (K, 4, 4): `colors` (N, 3|4) uint8 sRGB or
+        None, `normals` (N, 3) or None, `radius` a number, (N,) or None (their spacing); `color` (linear RGBA)
+        replaces the points' colours, `overrides` other Material fields. With the builder's `point_pixels`, the
+        splats are that many pixels wide (Scene.size_points)."""
+        what = f"{where}: point cloud '{shown(name)}'"
+        colors = None if color is not None else colors
+        sp = points.splats(positions, normals, colors, radius, where=what, pixels=self.point_pixels)
+        base = color if color is not None else (1.0, 1.0, 1.0, 1.0) if sp.texture is not None else DEFAULT_COLOR
+        mat = Material(name, base, sp.texture)
+        if overrides:
+            mat = mat.with_overrides(**overrides)
+        material = self.material_index(mat)
+        key = ("points", id(sp)) if key is None else key
+        self._keep.append(sp)
+        before = len(self.meshes)
+        self.add_placed(
+            name,
+            sp.positions,
+            sp.faces,
+            sp.normals,
+            sp.uvs,
+            material,
+            where,
+            transforms,
+            names,
+            key=key,
+            classes=classes,
+        )
+        if len(self.meshes) > before:
+            self.meshes[-1].splats = sp
+
+    def _add_points(self, geom, m, names, geom_name, where, color, overrides, classes=None):
+        """A trimesh.PointCloud (a PLY without faces): its colours and, from a PLY, its normals (nx, ny, nz)."""
+        with _quiet():
+            vertices = np.asarray(geom.vertices, dtype=np.float64)
+            colors = np.asarray(geom.colors) if len(geom.colors) == len(vertices) else None
+            raw = (geom.metadata.get("_ply_raw") or {}).get("vertex", {}).get("data", {})
+        normals = None
+        if isinstance(raw, dict) and all(k in raw for k in ("nx", "ny", "nz")):
+            normals = np.column_stack([np.asarray(raw[k], dtype=np.float64).reshape(-1) for k in ("nx", "ny", "nz")])
+        colour_key = None if color is None else tuple(np.asarray(color).tolist())
+        key = (id(geom), "points", self._point_radius, self.point_pixels, colour_key)
+        self._keep.append(geom)
+        radius = self._point_radius
+        self.add_points(geom_name, vertices, normals, colors, radius, where, m, names, key, color, overrides, classes)
 
     # -------------------------------------------------------------- result
     def build(self, lights=None, camera=None, settings=None) -> SceneParts:
@@ -501,7 +599,10 @@ class SceneBuilder:
         if not self._inst_names:
             raise SceneError(f"{shown(self.name)}: the scene has no triangles")
         placements = Placements(
-            np.concatenate(self._inst_mesh), np.concatenate(self._inst_transforms), self._inst_names
+            np.concatenate(self._inst_mesh),
+            np.concatenate(self._inst_transforms),
+            self._inst_names,
+            self._inst_classes if any(c is not None for c in self._inst_classes) else None,
         )
         return SceneParts(
             name=self.name,
@@ -512,6 +613,22 @@ class SceneBuilder:
             camera=camera,
             settings=settings,
         )
+
+
+def _node_class(graph, node: str) -> str | None:
+    """The class a glTF node's `extras` name, or the nearest node above it that names one (trimesh keeps a node's
+    extras as the metadata of the edge from its parent)."""
+    parents = graph.transforms.parents
+    edges = graph.transforms.edge_data
+    seen = set()
+    while node in parents and node not in seen:
+        seen.add(node)
+        parent = parents[node]
+        found = extras_class(edges.get((parent, node), {}).get("metadata"))
+        if found:
+            return found
+        node = parent
+    return None
 
 
 def _node_name(name, node_name: str, in_scene: bool, items: int) -> str:
@@ -648,14 +765,19 @@ def _mtl_material(mat, name: str, texture) -> Material:
     )
 
 
-def load_mesh_file(path: str, transform=None) -> SceneParts:
-    """The parts of a scene made of one mesh / glTF file (then `transform`, (4, 4), applied)."""
-    return trimesh_parts(load_trimesh_scene(path, scene_file=True), path, transform=transform)
+def load_mesh_file(path: str, transform=None, point_radius=None, point_pixels=None) -> SceneParts:
+    """The parts of a scene made of one mesh / glTF file (then `transform`, (4, 4), applied); a point cloud's splats
+    of `point_radius` (None: their spacing) or `point_pixels` wide."""
+    parts = load_trimesh_scene(path, scene_file=True)
+    return trimesh_parts(parts, path, transform=transform, point_radius=point_radius, point_pixels=point_pixels)
 
 
-def trimesh_parts(obj, name: str, lights=None, camera=None, transform=None) -> SceneParts:
-    """The parts of a scene made of a trimesh.Trimesh or trimesh.Scene (node transforms applied, then
+def trimesh_parts(
+    obj, name: str, lights=None, camera=None, transform=None, point_radius=None, point_pixels=None
+) -> SceneParts:
+    """The parts of a scene made of a trimesh.Trimesh, PointCloud or Scene (node transforms applied, then
     `transform`)."""
     builder = SceneBuilder(name)
-    builder.add_trimesh(obj, shown(name), transform=transform)
+    builder.point_pixels = point_pixels
+    builder.add_trimesh(obj, shown(name), transform=transform, point_radius=point_radius)
     return builder.build(lights=lights, camera=camera)

@@ -22,11 +22,12 @@ class SubMesh:
 class Placements:
     """The instances of a scene as arrays (what a loader collected; Scene checks the indices): `mesh` (N,) mesh
     indices, `transforms` (N, 4, 4) float64 object-to-world (already checked: finite, affine, invertible), `names`
-    (N strings)."""
+    (N strings), `classes` (N semantic class names or None each; None: no classes)."""
 
     mesh: Any
     transforms: Any
     names: list
+    classes: list | None = None
 
 
 @dataclass
@@ -43,3 +44,4 @@ class SceneParts:
     camera: object | None = None
     settings: dict | None = None
     animations: list | None = None  # animation.Animation (a TOML scene's [[animation]] tables)
+    environment: object | None = None  # environment.Environment / Sky (a TOML scene's [environment] table)

@@ -107,6 +107,40 @@ def cylinder(radius=0.5, height=1.0, segments=48):
     return _merge(parts)
 
 
+def capsule(radius=0.5, height=1.0, segments=48, rings=24):
+    """Axis Y: a cylinder of `height` (from -height/2 to height/2) with hemispheres of `radius` on its ends."""
+    u = np.linspace(0.0, 1.0, segments + 1)
+    half = np.linspace(0.0, 0.5, rings // 2 + 1)
+    v = np.concatenate([half, half + 0.5])  # the equator twice: the cylinder's band between the two rows
+    uu, vv = np.meshgrid(u, v, indexing="xy")
+    theta, phi = uu * 2 * np.pi, vv * np.pi
+    n = np.stack([np.sin(phi) * np.sin(theta), np.cos(phi), np.sin(phi) * np.cos(theta)], -1)
+    shift = np.where(np.arange(len(v)) < len(half), height / 2.0, -height / 2.0)[:, None, None] * np.array([0, 1, 0])
+    p = (n * radius + shift).reshape(-1, 3)
+    n = n.reshape(-1, 3)
+    uv = np.stack([uu, vv], -1).reshape(-1, 2)
+    return p, _orient(p, _grid(segments, len(v) - 1), n), n, uv
+
+
+def cone(radius=0.5, height=1.0, segments=48):
+    """Axis Y: a base disc of `radius` at -height/2, the apex at height/2."""
+    h = height / 2.0
+    t = np.linspace(0.0, 2 * np.pi, segments + 1)
+    ring = np.stack([np.sin(t), np.zeros_like(t), np.cos(t)], -1)
+    slope = radius / height if height > 0 else 0.0
+    side_n = (ring + [0.0, slope, 0.0]) / np.sqrt(1.0 + slope * slope)
+    side_p = np.concatenate([np.tile([0.0, h, 0.0], (len(t), 1)), ring * radius - [0, h, 0]])
+    side_uv = np.concatenate(
+        [np.stack([t / (2 * np.pi), np.zeros_like(t)], -1), np.stack([t / (2 * np.pi), np.ones_like(t)], -1)]
+    )
+    cp = np.concatenate([[[0.0, -h, 0.0]], ring[:-1] * radius - [0, h, 0]])
+    k = np.arange(segments)
+    cf = np.stack([np.zeros(segments, dtype=np.int64), 1 + k, 1 + (k + 1) % segments], -1)
+    cuv = 0.5 + 0.5 * np.concatenate([[[0.0, 0.0]], ring[:-1][:, [0, 2]]])
+    cap = (cp, cf, np.tile([0.0, -1.0, 0.0], (len(cp), 1)), cuv)
+    return _merge([(side_p, _grid(segments, 1), np.concatenate([side_n, side_n]), side_uv), cap])
+
+
 def torus(radius=1.0, tube=0.25, segments=96, sides=32):
     """Around the Y axis: `radius` of the centre circle, `tube` the radius of the tube."""
     u = np.linspace(0.0, 1.0, segments + 1)

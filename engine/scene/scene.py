@@ -9,7 +9,7 @@ from __future__ import annotations
 import hashlib
 import itertools
 import os
-from collections.abc import Iterable
+from collections.abc import Iterable, Mapping, Sequence
 from typing import Any
 
 import numpy as np
@@ -19,9 +19,11 @@ from engine.data import scene_path
 from engine.limits import MAX_COORD
 from engine.errors import ConfigError, SceneError, shown
 
-from . import loader, toml_format
+from . import _check, loader, toml_format, usd
+from . import classes as _classes
 from .camera import Camera
 from .geometry import up_transform
+from .environment import Environment, Sky
 from .lights import Light, default_sun
 from .material import Material, material_key
 from .animation import Player, check_targets
@@ -219,8 +221,13 @@ class Scene:
         self._mesh_changed = np.zeros(len(meshes), dtype=np.int64)
         self._cache: dict = {}
         self._names_version = 0  # increases when an instance is renamed (the object names' cache)
+        self._inst_class: list = [None] * len(mesh)  # each instance's class from its file (glTF extras, TOML)
+        self._class_rules: list = []  # set_classes: (pattern, class) in order, the last match wins
+        self._class_fixed: list | None = None  # set_class_names: the class table, else the classes in use, sorted
+        self._classes_version = 0
         self.settings = dict(settings or {})
         self.uid = next(_ids)
+        self.pixel_points = any(m.splats is not None and m.splats.pixels is not None for m in self.meshes)
 
     def _init_rest(self, lights, camera) -> None:
         where = shown(self.name)
@@ -236,6 +243,10 @@ class Scene:
                 raise SceneError(f"{where}: lights[{i}] is a {type(light).__name__}, not a light")
         self.lights = lights
         self.animations: list = []  # animation.Animation: what `animate(t)` plays
+        #: The light from far away: an `Environment` (an HDR map) or a `Sky`; None: the default daylight sky
+        #: towards the first directional light (engine/scene/environment.py). A render's `ambient` setting, when
+        #: given, replaces it with a constant colour.
+        self.environment: Environment | Sky | None = None
         self._player = None
         self._camera = None
         self.camera = camera
@@ -324,6 +335,28 @@ class Scene:
         finally:
             self._version += 1
             self._mesh_changed[k] = self._version
+
+    def size_points(self, camera: Camera, height: int) -> None:
+        """Size the splats of point clouds loaded with `point_pixels` for `camera` and an image `height` pixels tall:
+        each splat that many pixels wide at its depth (the first instance of its mesh decides). Renderers call it
+        before each frame; nothing changes when the camera, height and placement are those of the last call."""
+        for k, mesh in enumerate(self.meshes):
+            sp = mesh.splats
+            if sp is None or sp.pixels is None:
+                continue
+            inst = np.flatnonzero(self._inst_mesh == k)
+            if not len(inst):
+                continue
+            m = self._transforms[inst[0]]
+            key = (camera, int(height), m.tobytes())
+            if sp.sized_for == key:
+                continue
+            radius = sp.pixel_radius(m, camera, height)
+            sp.sized_for = key
+            if np.allclose(radius, sp.radius, rtol=1e-5, atol=0.0):
+                continue
+            sp.radius = radius
+            self.update_positions(k, sp.resized(radius), normals=mesh.normals)
 
     def mesh_index(self, mesh: int | str) -> int:
         """The index of a mesh given by index or name."""
@@ -536,6 +569,58 @@ class Scene:
                 hi = np.maximum(hi, (proj.max(axis=2) + t).max(axis=0))
         return lo, hi
 
+    # ------------------------------------------------------------------ semantic classes
+    def set_classes(self, classes: Mapping[str, str | None]) -> None:
+        """Give objects a semantic class by name: `{pattern: class}`, each pattern a glob (`fnmatch`, case-sensitive:
+        `*`, `?`, `[abc]`) matched against an object's name (`object_names`) and its instance's name; None takes
+        the class away. Later calls and later entries win over earlier ones, and all over the classes a file gave
+        (a glTF node's or mesh's `extras` `class` / `category`, a TOML `class` key). Objects without a class are
+        semantic id 0, as the background.
+
+        Raises:
+            ConfigError: not a mapping of strings, or the class "background" (id 0)."""
+        rules = _classes.check_rules(classes, f"{shown(self.name)}: set_classes")
+        self._class_rules.extend(rules)
+        self._classes_version += 1
+
+    def set_class_names(self, names: Sequence[str] | None) -> None:
+        """Fix the semantic ids: `names[k]` is id k + 1 (id 0: the background), e.g. one table for every scene of a
+        dataset; None: the classes in use, sorted by name (the default). Checked when the ids are made: a class in
+        use that the table lacks is a `ConfigError`."""
+        self._class_fixed = None if names is None else _classes.check_table(names, f"{shown(self.name)}: class names")
+        self._classes_version += 1
+
+    @property
+    def object_classes(self) -> list[str | None]:
+        """The class of each object (what `object_names` and the object_id AOV index), None where it has none."""
+        key = (self._names_version, self._classes_version)
+        hit = self._cache.get("object_classes")
+        if hit is None or hit[0] != key:
+            counts = np.array([len(m.submeshes) for m in self.meshes])[self._inst_mesh]
+            owner = np.repeat(np.arange(len(self._inst_mesh)), counts)
+            names = [i.name for i in self.instances]
+            hit = (key, _classes.object_classes(self.object_names, owner, names, self._inst_class, self._class_rules))
+            self._cache["object_classes"] = hit
+        return list(hit[1])
+
+    @property
+    def class_names(self) -> list[str]:
+        """The class names by semantic id: `class_names[0]` is "background", then the table `set_class_names`
+        fixed, else the classes of the objects sorted by name."""
+        return _classes.class_table(self.object_classes, self._class_fixed, shown(self.name))
+
+    def semantic_lookup(self) -> NDArray[np.uint32]:
+        """(objects + 1,) uint32: the semantic id of object id k at index k + 1, 0 at index 0 (object id -1, the
+        background): `semantic_lookup()[object_id + 1]` is the semantic_id AOV."""
+        key = (self._names_version, self._classes_version)
+        hit = self._cache.get("semantic_lookup")
+        if hit is None or hit[0] != key:
+            classes = self.object_classes
+            table = _classes.class_table(classes, self._class_fixed, shown(self.name))
+            hit = (key, _frozen(_classes.semantic_lookup(classes, table), np.uint32))
+            self._cache["semantic_lookup"] = hit
+        return hit[1]
+
     # ------------------------------------------------------------------ camera
     @property
     def camera(self) -> Camera:
@@ -627,9 +712,12 @@ class Scene:
         path: str | os.PathLike[str],
         allow_paths: str | os.PathLike[str] | list | None = None,
         up: str | None = None,
+        point_radius: float | None = None,
+        point_pixels: float | None = None,
     ) -> Scene:
-        """A `.toml` scene (docs/scenes.md) or any mesh / glTF file trimesh reads (OBJ, PLY, STL, glTF, GLB, ...), or a
-        bundled scene by name (`"default"`, `"sphere"`, `"penumbra"`: `engine.scene_path` says the rule).
+        """A `.toml` scene (docs/scenes.md), any mesh / glTF file trimesh reads (OBJ, PLY, STL, glTF, GLB, ...), a USD
+        stage (.usd, .usda, .usdc, .usdz: needs `usd-core`, docs/scenes.md "USD stages"), or a bundled scene by
+        name (`"default"`, `"sphere"`, `"penumbra"`: `engine.scene_path` says the rule).
 
         The files a TOML scene names must lie inside its folder (symlinks followed); `allow_paths`, a folder or a
         list of folders, allows those too (docs/scenes.md, "Paths"). A mesh file's own references (MTL, textures,
@@ -638,6 +726,10 @@ class Scene:
         `up` is the files' up axis, "y" (the renderer's) or "z" (robotics and CAD assets; also "-z", "x", "-x",
         "-y"): their geometry is rotated upright as it loads ("z": -90 degrees about X). For a TOML scene it
         replaces the file's top-level `up` key (a `[[mesh]]`'s own `up` still wins); None: the file's, else "y".
+
+        A point cloud (a PLY without faces) loads as splats, small discs facing its normals or, without normals,
+        small low-poly spheres, of `point_radius` (the file's units; None: the points' median spacing), or
+        `point_pixels` wide in every image (`size_points`); docs/scenes.md, "Point clouds".
 
         Raises:
             SceneError: the file is missing, unreadable or invalid; the message names the file (and the field).
@@ -652,7 +744,13 @@ class Scene:
         up_m = None if up is None else up_transform(up, "Scene.load: up")
         if path.lower().endswith(".toml"):
             return cls._from_parts(toml_format.load_toml(path, allow_paths=allowed, up=up))
-        return cls._from_parts(loader.load_mesh_file(path, transform=up_m))
+        if path.lower().endswith(loader.USD_EXTENSIONS):
+            return cls._from_parts(usd.load_usd(path, transform=up_m))
+        sizes = {}
+        for key, value in (("point_radius", point_radius), ("point_pixels", point_pixels)):
+            if value is not None:
+                sizes[key] = _check.number(value, f"Scene.load: {key}", min_value=0.0, min_exclusive=True)
+        return cls._from_parts(loader.load_mesh_file(path, transform=up_m, **sizes))
 
     @classmethod
     def from_trimesh(
@@ -755,6 +853,9 @@ class Scene:
             parts.meshes, p.transforms, p.mesh, None, p.names, parts.materials, parts.settings, checked=True
         )
         scene._init_rest(parts.lights, parts.camera)
+        scene.environment = parts.environment
+        if p.classes is not None:
+            scene._inst_class = list(p.classes)
         if parts.animations:
             check_targets(parts.animations, [i.name for i in scene.instances], shown(scene.name))
             scene.animations = list(parts.animations)

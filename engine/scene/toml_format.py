@@ -15,8 +15,10 @@ import numpy as np
 from engine.errors import ConfigError, SceneError, shown
 
 from . import _check, primitives
+from .classes import check_class
 from .animation import parse_animations
 from .camera import Camera
+from .environment import Environment, Sky
 from .geometry import up_transform
 from .lights import LIGHT_TYPES
 from .loader import SceneBuilder, load_texture_file, load_trimesh_scene
@@ -24,7 +26,8 @@ from .material import Material
 from .parts import SceneParts
 from .paths import Folders
 
-TOP_LEVEL = ("up", "camera", "mesh", "light", "settings", "animation")
+TOP_LEVEL = ("up", "camera", "mesh", "light", "settings", "animation", "environment")
+ENVIRONMENT_KEYS = ("map", "rotation", "intensity", "turbidity")
 CAMERA_KEYS = ("eye", "target", "up", "fov", "near")
 MESH_COMMON = (
     "name",
@@ -40,8 +43,9 @@ MESH_COMMON = (
     "roughness",
     "emissive",
     "instances",
+    "class",
 )
-INSTANCE_KEYS = ("name", "translate", "rotate", "scale")
+INSTANCE_KEYS = ("name", "translate", "rotate", "scale", "class")
 PRIMITIVE_PARAMS = {
     "box": ("size",),
     "sphere": ("radius", "segments", "rings"),
@@ -144,7 +148,7 @@ def parts_from_dict(data: dict, path: str = "<toml>", allow_paths=None, up=None)
     for key in data:
         if key not in TOP_LEVEL:
             raise ctx.error(f"unknown key {key!r} at the top level (allowed: {', '.join(TOP_LEVEL)})")
-    for key, kind in (("camera", dict), ("settings", dict), ("mesh", list), ("light", list)):
+    for key, kind in (("camera", dict), ("settings", dict), ("mesh", list), ("light", list), ("environment", dict)):
         if key in data and not isinstance(data[key], kind):
             form = f"[{key}]" if kind is dict else f"[[{key}]]"
             raise ctx.error(f"{key!r} must be a table written {form}")
@@ -175,6 +179,8 @@ def parts_from_dict(data: dict, path: str = "<toml>", allow_paths=None, up=None)
 
     camera = _camera(data["camera"], ctx.at("[camera]")) if "camera" in data else None
     parts = builder.build(lights=lights or None, camera=camera, settings=data.get("settings", {}))
+    if "environment" in data:
+        parts.environment = _environment(data["environment"], ctx.at("[environment]"), folders, lights)
     parts.animations = parse_animations(data.get("animation", []), ctx.prefix().rstrip(": "), max(len(lights), 1))
     return parts
 
@@ -227,6 +233,26 @@ def _color(value, field: str, ctx: _Ctx, alpha: bool = False) -> np.ndarray:
     if np.any(c < 0):
         raise ctx.error(f"{field} must be non-negative, got {value!r}")
     return np.append(c, 1.0) if alpha else c
+
+
+def _environment(table: dict, ctx: _Ctx, folders: Folders, lights: list):
+    """[environment]: an HDR map (`map`) or the default sky's settings (`turbidity`), rotated and scaled."""
+    _unknown(ctx, table, ENVIRONMENT_KEYS)
+    rotation = ctx.check(_check.number, table.get("rotation", 0.0), "rotation", min_value=-36000.0, max_value=36000.0)
+    intensity = ctx.check(_check.number, table.get("intensity", 1.0), "intensity", min_value=0.0)
+    if "map" in table:
+        if "turbidity" in table:
+            raise ctx.error("'turbidity' is the sky's: give either 'map' or 'turbidity', not both")
+        path = _referenced_file(table, "map", ctx, folders)
+        try:
+            return Environment(path, rotation=rotation, intensity=intensity)
+        except SceneError as exc:
+            raise ctx.error(str(exc)) from None
+    sky = Sky.for_lights(lights)
+    turbidity = ctx.check(
+        _check.number, table.get("turbidity", sky.turbidity), "turbidity", min_value=1.7, max_value=10.0
+    )
+    return Sky(sky.sun_direction, sky.sun_intensity, turbidity=turbidity, intensity=intensity, rotation=rotation)
 
 
 def _light(table: dict, ctx: _Ctx):
@@ -373,8 +399,8 @@ def _trs(table: dict, ctx: _Ctx) -> np.ndarray:
     return m
 
 
-def _instance(item, j: int, ctx: _Ctx) -> tuple[np.ndarray, str | None]:
-    """One entry of an `instances` list, checked: its (4, 4) transform and name."""
+def _instance(item, j: int, ctx: _Ctx) -> tuple[np.ndarray, str | None, str | None]:
+    """One entry of an `instances` list, checked: its (4, 4) transform, name and class."""
     ictx = ctx.at(f"{ctx.table}: instances #{j}")
     if not isinstance(item, dict):
         raise ictx.error(f"must be a table {{translate = .., rotate = .., scale = ..}}, got {item!r}")
@@ -382,7 +408,7 @@ def _instance(item, j: int, ctx: _Ctx) -> tuple[np.ndarray, str | None]:
     name = item.get("name")
     if name is not None and not isinstance(name, str):
         raise ictx.error(f"name must be a string, got {name!r}")
-    return _trs(item, ictx), name
+    return _trs(item, ictx), name, ictx.check(check_class, item.get("class"), "class")
 
 
 _NUMBER = (int, float)
@@ -394,9 +420,9 @@ def _triple(v) -> bool:
     return type(v) is list and len(v) == 3 and type(v[0]) in _NUMBER and type(v[1]) in _NUMBER and type(v[2]) in _NUMBER
 
 
-def _instances(table: dict, ctx: _Ctx) -> tuple[np.ndarray, list] | None:
-    """The placements of a table's `instances` list ((N, 4, 4), each applied after the table's own transform, and
-    their names), or None without one.
+def _instances(table: dict, ctx: _Ctx) -> tuple[np.ndarray, list, list] | None:
+    """The placements of a table's `instances` list ((N, 4, 4), each applied after the table's own transform, their
+    names and classes), or None without one.
 
     Entries of the usual form (translate / rotate as 3 numbers, scale as a number or 3) are gathered in one pass and
     turned into matrices with whole-array operations (a million in seconds); any other entry, or one whose numbers
@@ -409,6 +435,7 @@ def _instances(table: dict, ctx: _Ctx) -> tuple[np.ndarray, list] | None:
     n = len(value)
     trs = np.empty((n, 3, 3))  # per entry: scale, rotate (degrees), translate
     names: list = [None] * n
+    classes: list = [None] * n
     other = []  # entries not of the usual form
     allowed = set(INSTANCE_KEYS)
     for j, item in enumerate(value):
@@ -432,6 +459,11 @@ def _instances(table: dict, ctx: _Ctx) -> tuple[np.ndarray, list] | None:
             other.append(j)
             continue
         names[j] = name
+        if "class" in item:
+            if type(item["class"]) is not str or not item["class"].strip() or item["class"] == "background":
+                other.append(j)
+                continue
+            classes[j] = item["class"]
     trs[other] = ((1.0, 1.0, 1.0), (0.0, 0.0, 0.0), (0.0, 0.0, 0.0))
     scale, angle, translate = trs[:, 0], trs[:, 1], trs[:, 2]
     with np.errstate(invalid="ignore"):
@@ -444,8 +476,8 @@ def _instances(table: dict, ctx: _Ctx) -> tuple[np.ndarray, list] | None:
         )
     out = _trs_matrices(scale, np.radians(angle), translate)
     for j in sorted(set(other) | set(np.flatnonzero(bad).tolist())):  # raises for the first bad entry
-        out[j], names[j] = _instance(value[j], j + 1, ctx)
-    return out, names
+        out[j], names[j], classes[j] = _instance(value[j], j + 1, ctx)
+    return out, names, classes
 
 
 def _trs_matrices(scale: np.ndarray, angle: np.ndarray, translate: np.ndarray) -> np.ndarray:
@@ -483,7 +515,7 @@ def _add_mesh(
             raise ctx.error(f"primitive must be one of {', '.join(PRIMITIVE_PARAMS)}, got {kind!r}")
         _unknown(ctx, table, MESH_COMMON + PRIMITIVE_PARAMS[kind])
     else:
-        _unknown(ctx, table, MESH_COMMON + ("up",))
+        _unknown(ctx, table, MESH_COMMON + ("up", "point_radius", "point_pixels"))
         mesh_path = _referenced_file(table, "file", ctx, folders)
 
     name = table.get("name", table.get("primitive") or table.get("file"))
@@ -492,6 +524,7 @@ def _add_mesh(
 
     m = _trs(table, ctx)  # scale, then rotate, then translate
     placements = _instances(table, ctx)
+    cls = ctx.check(check_class, table.get("class"), "class")
 
     color = _color(table["color"], "color", ctx, alpha=True) if "color" in table else None
     texture = None
@@ -509,6 +542,10 @@ def _add_mesh(
     uv_scale = None
     if "uv_scale" in table:
         uv_scale = _size(table["uv_scale"], 2, "uv_scale", ctx)
+    sizes = {}  # a point cloud's splats: radius (default: their spacing) or width in pixels
+    for key in ("point_radius", "point_pixels"):
+        if key in table:
+            sizes[key] = ctx.check(_check.number, table[key], key, min_value=0.0, min_exclusive=True)
 
     if has_prim:
         p, f, n, uv = _primitive(table["primitive"], table, ctx)
@@ -519,8 +556,19 @@ def _add_mesh(
         mat = builder.material_index(
             Material(name, color, texture, **overrides), key_name=("primitive",)
         )  # first one's name
-        places, names = placements if placements is not None else (np.eye(4)[None], [None])
-        builder.add_placed(name, p, f, n, uv, mat, ctx.prefix(), places @ m, [nm or name for nm in names])
+        places, names, classes = placements if placements is not None else (np.eye(4)[None], [None], [None])
+        builder.add_placed(
+            name,
+            p,
+            f,
+            n,
+            uv,
+            mat,
+            ctx.prefix(),
+            places @ m,
+            [nm or name for nm in names],
+            classes=[c or cls for c in classes],
+        )
         return
 
     try:
@@ -528,6 +576,7 @@ def _add_mesh(
             up_m = ctx.check(up_transform, table["up"], "up")
         if mesh_path not in files:
             files[mesh_path] = load_trimesh_scene(mesh_path)
+        builder.point_pixels = sizes.get("point_pixels")
         builder.add_trimesh(
             files[mesh_path],
             shown(mesh_path),
@@ -539,6 +588,9 @@ def _add_mesh(
             overrides=overrides,
             transforms=None if placements is None else placements[0],
             labels=None if placements is None else placements[1],
+            cls=cls,
+            classes=None if placements is None else placements[2],
+            point_radius=sizes.get("point_radius"),
         )
     except SceneError as exc:
         raise ctx.error(f"file = '{shown(table['file'])}': {exc}") from None

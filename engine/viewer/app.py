@@ -246,6 +246,10 @@ class Viewer:
         elif key == g.KEY_3:
             self.cycle("denoise")
         elif key == g.KEY_4:
+            self.cycle("tonemap")
+        elif key == g.KEY_5:
+            self.cycle("auto_exposure")
+        elif key == g.KEY_6:
             self.cycle("integrator")
         elif key == g.KEY_V:
             self.cycle("view", -1 if shift else 1)

@@ -7,7 +7,7 @@ import sys
 
 from ..errors import ConfigError, shown
 from ..scene import Scene
-from ..settings import MAX_FRAMES, check_png_path, parse_size
+from ..settings import MAX_FRAMES, TONEMAPS, check_png_path, parse_size
 from ..vk.swapchain import PRESENT_MODES
 from .app import Viewer
 
@@ -68,6 +68,8 @@ def add_arguments(p):
     p.add_argument("--ao", dest="ao", action="store_true", default=None, help="ambient occlusion on")
     p.add_argument("--no-ao", dest="ao", action="store_false", help="ambient occlusion off")
     p.add_argument("--ao-samples", type=int, default=None, help="AO rays per pixel")
+    p.add_argument("--exposure", type=float, default=None, help="exposure in EV (default -1)")
+    p.add_argument("--tonemap", default=None, choices=TONEMAPS, help="initial tone curve (key 4 cycles them)")
     p.add_argument("--paused", action="store_true", help="start with the scene's animation paused (P plays it)")
     p.add_argument(
         "--time-step",
@@ -97,9 +99,14 @@ def run_from_args(args) -> int:
         raise ConfigError("--screenshot needs --frames N (or press F12 in the window)")
     if args.screenshot is not None:
         check_png_path(args.screenshot)
-    settings = {
-        k: v for k, v in (("shadows", args.shadows), ("ao", args.ao), ("ao_samples", args.ao_samples)) if v is not None
-    }
+    given = (
+        ("shadows", args.shadows),
+        ("ao", args.ao),
+        ("ao_samples", args.ao_samples),
+        ("exposure", args.exposure),
+        ("tonemap", args.tonemap),
+    )
+    settings = {k: v for k, v in given if v is not None}
     scene = Scene.load(args.scene, allow_paths=args.allow_path, up=args.up)
     viewer = Viewer(
         scene,

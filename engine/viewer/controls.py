@@ -20,7 +20,9 @@ KEYS = [
     ("1", "shadows: cycle modes"),
     ("2", "ambient occlusion on / off"),
     ("3", "denoise on / off (if the renderer has it)"),
-    ("4", "integrator: raster / path (path: samples accumulate while the view is still)"),
+    ("4", "tone curve: cycle neutral, agx, aces"),
+    ("5", "automatic exposure on / off"),
+    ("6", "integrator: raster / path (path: samples accumulate while the view is still)"),
     ("V / Shift+V", "next / previous debug view (if the renderer has it)"),
     ("R", "reset the camera to the scene's"),
     ("P", "pause / play the scene's animation"),
@@ -35,7 +37,7 @@ KEYS = [
 KEY_SKIPS = {"shadows": ("reference",)}
 
 # The settings with a key, in the order the overlay lists them.
-TOGGLED = ("shadows", "ao", "denoise", "view", "integrator")
+TOGGLED = ("shadows", "ao", "denoise", "tonemap", "auto_exposure", "view", "integrator")
 
 
 def key_map_text() -> str:

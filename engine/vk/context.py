@@ -19,6 +19,7 @@ import weakref
 import vulkan as vk
 
 from ..errors import ConfigError, VulkanError
+from . import faults
 from .pipeline_cache import PipelineCache
 
 log = logging.getLogger("engine.vk")
@@ -52,6 +53,9 @@ _TYPE_NAME = {
 }
 VALIDATION_LAYER = "VK_LAYER_KHRONOS_validation"
 DEVICE_ENV = "HYBRID_DEVICE"
+GPU_TIMEOUT_ENV = "HYBRID_GPU_TIMEOUT"
+DEFAULT_GPU_TIMEOUT_S = 300.0  # no one command buffer of the engine's runs that long (a frame, a chunk of rays)
+NO_TIMEOUT = 0xFFFFFFFFFFFFFFFF
 VALIDATION_ENV = "HYBRID_VALIDATION"
 
 
@@ -138,6 +142,18 @@ def choose_device(descs: list[dict], selector=None) -> int:
 _LIVE: "weakref.WeakSet[Context]" = weakref.WeakSet()
 
 
+def gpu_timeout_ns() -> int:
+    """$HYBRID_GPU_TIMEOUT (seconds; 0: none) in ns, DEFAULT_GPU_TIMEOUT_S when unset."""
+    text = os.environ.get(GPU_TIMEOUT_ENV, "").strip()
+    try:
+        seconds = float(text) if text else DEFAULT_GPU_TIMEOUT_S
+    except ValueError:
+        seconds = -1.0
+    if not seconds >= 0 or seconds == float("inf"):
+        raise ConfigError(f"{GPU_TIMEOUT_ENV}={text!r}: expected seconds >= 0 (0: no limit)")
+    return NO_TIMEOUT if seconds == 0 else min(int(seconds * 1e9), NO_TIMEOUT - 1)
+
+
 def live_contexts() -> int:
     """How many Contexts are open in this process (each holds a Vulkan device)."""
     return sum(1 for c in list(_LIVE) if not c.closed)
@@ -156,6 +172,7 @@ class Context:
     ):
         self.lock = threading.RLock()  # the queue, the command pool, the one-shot command buffer, teardown
         self.lost = False  # VK_ERROR_DEVICE_LOST was seen: nothing more is submitted
+        self.hung = False  # lost by the GPU timeout: its work may still run, so nothing of it is destroyed
         self.allocations = 0  # live device-memory allocations (Buffer, Image)
         self.validation = _env_flag(VALIDATION_ENV) if validation is None else bool(validation)
         self.validation_errors: list[str] = []
@@ -171,6 +188,8 @@ class Context:
         self.surface = None
         self.pipeline_cache = None  # PipelineCache: every pipeline made on this device goes through it
         self.external_memory_fd = False  # VK_KHR_external_memory_fd enabled (set in _init)
+        self._fault = None  # engine.vk.faults.FaultInjector, with $HYBRID_FAULT_INJECTION only
+        self.gpu_timeout_ns = gpu_timeout_ns()  # a wait longer than this: the device hangs, and is treated as lost
         try:
             self._init(device, list(instance_extensions), list(device_extensions), surface_factory)
         except BaseException:
@@ -253,6 +272,10 @@ class Context:
         )
         if self.int64_atomics:
             f12.shaderBufferInt64Atomics = vk.VK_TRUE
+        fault_at = faults.requested()  # a test's deliberate device loss (engine/vk/faults.py)
+        if fault_at is not None:
+            faults.check_device(self.device_info, bool(have12.bufferDeviceAddress))
+            f12.bufferDeviceAddress = vk.VK_TRUE
         feats = vk.VkPhysicalDeviceFeatures2(
             pNext=f12,
             features=vk.VkPhysicalDeviceFeatures(
@@ -288,6 +311,8 @@ class Context:
         self.fence = vk.vkCreateFence(self.device, vk.VkFenceCreateInfo(), None)
         self._one_shot = self.allocate_command_buffer()
         self.pipeline_cache = PipelineCache(self.device, self.properties)
+        if fault_at is not None:
+            self._fault = faults.FaultInjector(self, fault_at)
 
     def _install_messenger(self):
         sev = vk.VK_DEBUG_UTILS_MESSAGE_SEVERITY_ERROR_BIT_EXT
@@ -348,24 +373,48 @@ class Context:
             raise VulkanError(f"{what}: the Vulkan device was lost; close this object and create a new one")
 
     def wait_idle(self):
+        """Block until the queue has run everything submitted (a lost device: return at once, nothing will run).
+        Through a fence, so that a device that hangs is found by the GPU timeout like any other wait."""
         with self.lock:
             if self.device is not None and not self.lost:
                 try:
-                    vk.vkDeviceWaitIdle(self.device)
+                    result = _vkQueueSubmit(self.queue, 0, vk.ffi.NULL, self.fence)
+                    if result != vk.VK_SUCCESS:
+                        raise vk.exception_codes[result]
                 except vk.VkErrorDeviceLost:
                     self.lost = True
                     raise VulkanError("the Vulkan device was lost") from None
+                self.wait_fences([self.fence])
+                vk.vkResetFences(self.device, 1, [self.fence])
+
+    def wait_fences(self, fences) -> None:
+        """Block until every fence in `fences` is signalled. A device lost, or one that has not finished within the
+        GPU timeout (a hang, which a driver may never report), marks this context lost: a VulkanError."""
+        fences = list(fences)
+        try:
+            vk.vkWaitForFences(self.device, len(fences), fences, vk.VK_TRUE, self.gpu_timeout_ns)
+        except vk.VkTimeout:
+            self.lost = self.hung = True
+            raise VulkanError(
+                f"the GPU did not finish its work within {self.gpu_timeout_ns / 1e9:g} s ({GPU_TIMEOUT_ENV}): the "
+                "device is treated as lost; close this object and create a new one"
+            ) from None
+        except vk.VkErrorDeviceLost:
+            self.lost = True
+            raise VulkanError("the Vulkan device was lost while running a command buffer") from None
 
     def close(self):
         with self.lock:
             self._close()
 
     def _close(self):
+        if self.hung:
+            self._abandon()
         if self.device is not None:
             try:
-                vk.vkDeviceWaitIdle(self.device)
-            except vk.VkErrorDeviceLost:  # destroying objects of a lost device is allowed
-                self.lost = True
+                self.wait_idle()
+            except VulkanError:  # lost, or hung: destroying the objects of a lost device is allowed
+                pass
             while self._scopes:  # users still open: their objects go first (they were made on ours)
                 self._scopes.pop().destroy_objects()
             while self._destroy_stack:
@@ -392,6 +441,20 @@ class Context:
                 self._messenger = None
             vk.vkDestroyInstance(self.instance, None)
             self.instance = None
+
+    def _abandon(self):
+        """Close a hung device without a Vulkan call: destroying what its work may still use could crash the
+        driver, so the objects are left to it (freed when the process exits)."""
+        if self.device is not None:
+            log.info(
+                "%s did not finish its work in time: its Vulkan objects are left to the driver until this process "
+                "exits",
+                self.device_info["name"],
+            )
+        self._scopes.clear()
+        self._destroy_stack.clear()
+        self.pipeline_cache = None
+        self.device = self.instance = self._messenger = self.surface = None
 
     def __enter__(self):
         return self
@@ -434,6 +497,9 @@ class Context:
                 raise ConfigError("submit: the Vulkan context is closed")
             if self.lost:
                 raise VulkanError("the Vulkan device was lost; nothing more can run on it")
+            if self._fault is not None and self._fault.due():  # a test's deliberate device loss, ahead of cmd
+                fault, self._fault = self._fault, None
+                self.submit(fault.cmd, wait=False)
             key = (cmd, tuple(wait_semaphores), tuple(wait_stages), tuple(signal_semaphores))
             entry = self._submit_infos.get(key)
             if entry is None:
@@ -448,7 +514,7 @@ class Context:
                 if wait and fence is None:
                     if spin_s > 0:
                         _spin(self.device, self.fence, spin_s)
-                    vk.vkWaitForFences(self.device, 1, [self.fence], vk.VK_TRUE, 0xFFFFFFFFFFFFFFFF)
+                    self.wait_fences([self.fence])
                     vk.vkResetFences(self.device, 1, [self.fence])
             except vk.VkErrorDeviceLost:
                 self.lost = True

@@ -100,6 +100,9 @@ class Scope:
         if not self._open:
             return
         self._open = False
+        if self.parent.hung:  # the GPU may still run what uses them: left to the driver (freed at process exit)
+            self._destroy_stack.clear()
+            return
         while self._destroy_stack:
             fn, args = self._destroy_stack.pop()
             fn(*args)

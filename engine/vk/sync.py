@@ -6,8 +6,6 @@ import vulkan as vk
 
 from .context import Context
 
-NO_TIMEOUT = 0xFFFFFFFFFFFFFFFF
-
 
 def create_semaphore(ctx: Context):
     return vk.vkCreateSemaphore(ctx.device, vk.VkSemaphoreCreateInfo(), None)
@@ -27,9 +25,8 @@ def destroy_fence(ctx: Context, fence) -> None:
 
 
 def wait_fences(ctx: Context, fences) -> None:
-    """Block until every fence in `fences` is signalled."""
-    fences = list(fences)
-    vk.vkWaitForFences(ctx.device, len(fences), fences, vk.VK_TRUE, NO_TIMEOUT)
+    """Block until every fence in `fences` is signalled (a lost or hung device: a VulkanError, Context.wait_fences)."""
+    ctx.root.wait_fences(fences)
 
 
 def reset_fences(ctx: Context, fences) -> None:

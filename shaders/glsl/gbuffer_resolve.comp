@@ -14,6 +14,7 @@
 // derivatives, the pixel's footprint in the texture (what a fragment quad would have had).
 #include "common.glsl"
 #include "instances.glsl"
+#include "terminator.glsl"
 FRAME_BLOCK
 
 #define TEXTURES_SET 0
@@ -55,6 +56,8 @@ layout(std430, set = 0, binding = 21) readonly buffer Instances { Instance insta
 // INSTANCES_TEXEL (CPU devices) reads them there, as llvmpipe loads a storage buffer's struct lane by lane.
 layout(set = 0, binding = 22) uniform samplerBuffer instance_texels;
 layout(set = 0, binding = 23) uniform usamplerBuffer instance_words;
+// Where the shadow rays start relative to g_position (terminator.glsl; 0 for flat-shaded triangles).
+layout(set = 0, binding = 24, rgba16f) uniform writeonly image2D g_terminator;
 layout(constant_id = 1) const bool INSTANCES_TEXEL = false;
 layout(push_constant) uniform Push { uint instance_count; } pc;
 
@@ -95,7 +98,7 @@ void main() {
     uint id = inside ? imageLoad(visibility, px).x : 0u;
     if (id != 0u) imageStore(visibility, px, uvec4(0u));
 
-    vec3 pos = vec3(0.0), nrm = vec3(0.0), prev_pos = vec3(0.0), prev_nrm = vec3(0.0);
+    vec3 pos = vec3(0.0), nrm = vec3(0.0), prev_pos = vec3(0.0), prev_nrm = vec3(0.0), shift = vec3(0.0);
     bool still = false;   // the pixel's instance has the same transform as in the previous frame
     vec2 uv = vec2(0.0), duv_dx = vec2(0.0), duv_dy = vec2(0.0);
     vec4 albedo = vec4(0.0);
@@ -139,6 +142,12 @@ void main() {
         float side = dot(n, frame.eye - pos) < 0.0 ? -1.0 : 1.0;
         n *= side;   // two-sided surfaces: the side we see
         nrm = n;
+        // the shadow rays' origin off the flat triangle towards the smooth surface (Hanika 2021)
+        vec3 m0 = xnormal(inst.nrm, vec3(a0.w, b0.xy)), m1 = xnormal(inst.nrm, vec3(a1.w, b1.xy));
+        vec3 m2 = xnormal(inst.nrm, vec3(a2.w, b2.xy));
+        if (min(dot(m0, m0), min(dot(m1, m1), dot(m2, m2))) > 1e-12)
+            shift = terminator_offset(pos, b, p0, p1, p2, side * normalize(m0), side * normalize(m1),
+                                      side * normalize(m2)) - pos;
 
         // The same object-space point and normal under the previous frame's transform: the point itself where the
         // instance did not move (so that a still surface has no motion at all, whatever the compiler fuses).
@@ -239,6 +248,7 @@ void main() {
     float depth = id != 0u ? dot(pos - frame.eye, frame.forward) : 0.0;
     imageStore(g_position, px, vec4(pos, depth));
     imageStore(g_normal, px, vec4(nrm, id != 0u ? 1.0 : 0.0));
+    imageStore(g_terminator, px, vec4(shift, 0.0));
     imageStore(g_albedo, px, albedo);
     imageStore(g_normal8, px, vec4(nrm, id != 0u ? 1.0 : 0.0));
     imageStore(g_depth, px, vec4(id != 0u ? depth : uintBitsToFloat(0x7F800000u)));

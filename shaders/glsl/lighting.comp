@@ -1,11 +1,17 @@
 #version 450
 #extension GL_GOOGLE_include_directive : require
-// Deferred lighting: albedo, normal, material, per-light visibility masks and AO -> tonemapped sRGB colour, with
-// glTF's metallic-roughness BRDF (brdf.glsl) for every light, the ambient term times AO and the material's
-// occlusion, plus the emitted radiance.
+// Deferred lighting: albedo, normal, material, per-light visibility masks and AO -> HDR radiance and tonemapped sRGB
+// colour, with glTF's metallic-roughness BRDF (brdf.glsl) for every light, the environment (environment.glsl) by
+// split-sum image-based lighting (SH irradiance for the diffuse lobe, GGX-prefiltered radiance times the BRDF table
+// for the specular one) times AO and the material's occlusion, plus the emitted radiance. The background is the
+// environment seen along the pixel's ray, with each directional light's disc drawn where its angle is > 0.
+// `out_hdr` holds the radiance (before exposure); `out_color` its tone-mapped image at frame.exposure (auto
+// exposure rewrites it: exposure.comp).
 #include "common.glsl"
 #include "brdf.glsl"
 FRAME_BLOCK
+#define ENV_BINDING 10
+#include "environment.glsl"
 
 layout(local_size_x = 8, local_size_y = 8) in;
 layout(set = 0, binding = 1, rgba32f) uniform readonly image2D g_position;
@@ -46,10 +52,17 @@ void main() {
     vec4 nrm = imageLoad(g_normal, px);
     vec3 color;
     if (nrm.w <= 0.0) {
-        // Background: a simple sky gradient by the view direction's elevation is not known here
-        // (no ray), so use the ambient colour with a vertical gradient over the image.
-        float t = float(px.y) / float(max(h, 1u));
-        color = frame.ambient * mix(1.2, 0.6, t);
+        vec2 ndc = (vec2(px) + 0.5) / vec2(w, h) * 2.0 - 1.0;
+        vec4 far = frame.inv_view_proj * vec4(ndc, 1.0, 1.0);
+        vec3 dir = normalize(far.xyz / far.w - frame.eye);
+        color = environment_radiance(dir);
+        for (uint i = 0u; i < frame.light_count; ++i) {   // sun discs: irradiance over the disc's solid angle
+            Light l = frame.lights[i];
+            float tan_r = l.u.w;
+            if (int(l.pos_type.w) != LIGHT_DIRECTIONAL || tan_r <= 0.0) continue;
+            float cos_r = inversesqrt(1.0 + tan_r * tan_r);
+            if (dot(dir, -l.dir_radius.xyz) >= cos_r) color += l.color.rgb * PI / (2.0 * PI * (1.0 - cos_r));
+        }
     } else {
         vec3 p = imageLoad(g_position, px).xyz;
         vec3 n = nrm.xyz;
@@ -66,10 +79,19 @@ void main() {
             // Intensities are pi-normalized: a white Lambert surface facing a light of irradiance 1 reflects 1.
             direct += li * cos_theta * masks[i * w * h + pixel] * brdf_pi(n, v, wi, albedo, metallic, roughness);
         }
-        vec3 ambient = frame.ambient * (ao[pixel] * occlusion) * ambient_reflectance(n, v, albedo, metallic, roughness);
+        // split sum: the specular lobe's directional albedo F0 A + B from the table, the diffuse lobe in the rest
+        float r = max(roughness, MIN_ROUGHNESS), n_v = max(dot(n, v), 1e-4);
+        vec2 ab = environment_brdf(n_v, r);
+        vec3 spec = mix(vec3(0.04), albedo, metallic) * ab.x + ab.y;
+        vec3 diffuse = (1.0 - spec) * (1.0 - metallic) * albedo * environment_irradiance(n);
+        // the GGX lobe's dominant direction leans from the mirror direction towards the normal as it widens
+        // (Lagarde and de Rousiers 2014, "Moving Frostbite to PBR", section 4.9.3)
+        float a = r * r, smooth_ = 1.0 - a;
+        vec3 dominant = normalize(mix(n, reflect(-v, n), smooth_ * (sqrt(smooth_) + a)));
+        vec3 specular = spec * environment_specular(dominant, r);
+        vec3 ambient = (diffuse + specular) * (ao[pixel] * occlusion);
         color = direct + ambient + imageLoad(g_emissive, px).rgb;
     }
-    color *= frame.exposure;   // exposure
     imageStore(out_hdr, px, vec4(color, 1.0));
-    imageStore(out_color, px, vec4(srgb_encode(tonemap_aces(color)), 1.0));
+    imageStore(out_color, px, vec4(srgb_encode(tonemap(color * frame.exposure, frame.tonemap)), 1.0));
 }

@@ -11,16 +11,20 @@
 // metallic-roughness: GGX drawn from its distribution of visible normals, or Lambert, by a lobe probability),
 // combined with the power heuristic; Russian roulette from the fourth vertex; paths of at most `max depth` segments
 // (Mitsuba's max_depth). Random numbers: PCG, seeded per (seed, sample, pixel), so an image depends only on them.
-// pc.mode 1 (resolve): the mean radiance times exposure into the HDR target, tonemapped (ACES) into the colour one.
+// pc.mode 1 (resolve): the mean radiance into the HDR target, times exposure and through the tone curve into the
+// colour one (as lighting.comp writes them).
 //
 // Units: radiance as the raster's lighting sees it. The analytic lights' intensities are pi-normalized
 // (engine/scene/lights.py), so a light's physical quantity is pi times its value: directional irradiance, point and
-// spot intensity, rect radiance. Emissive materials and the environment are radiance as given.
+// spot intensity, rect radiance. Emissive materials and the environment (environment.glsl: the scene's map or sky,
+// or the `ambient` constant) are radiance as given; the environment is sampled by its own importance sampling and
+// by BSDF rays that leave the scene, weighted by MIS.
 #include "common.glsl"
 FRAME_BLOCK
 #include "brdf.glsl"
 #include "sampling.glsl"
 #include "rayutil.glsl"
+#define ENV_BINDING 12
 #include "environment.glsl"
 #define ALPHA_BINDING 6
 #define TEXTURES_BINDING 7
@@ -389,7 +393,8 @@ vec3 trace_path(vec3 o, vec3 d) {
         BvhHit hit = bvh_intersect(o, d, 0.0, BVH_INF);
         radiance += throughput * lights_hit(o, d, hit.t, last_pdf);
         if (hit.prim < 0) {
-            radiance += throughput * environment_radiance(d);
+            float w = last_pdf > 0.0 ? power_heuristic(last_pdf, environment_pdf(d)) : 1.0;
+            radiance += throughput * environment_radiance(d) * w;
             break;
         }
         Surface s = surface_at(hit, d);
@@ -410,6 +415,16 @@ vec3 trace_path(vec3 o, vec3 d) {
             if (all(equal(f, vec3(0.0))) || !visible(s.p, s.ng, wi, dist, frame.scene_scale)) continue;
             float w = pdf > 0.0 ? power_heuristic(pdf, bsdf_pdf(s, lb, v, wi)) : 1.0;
             radiance += throughput * f * li * (pdf > 0.0 ? w / pdf : 1.0);
+        }
+        {   // the environment
+            float pdf;
+            vec3 wi = environment_sample(rnd2(), pdf);
+            vec3 f = bsdf_eval(s, v, wi);
+            if (pdf > 0.0 && any(greaterThan(f, vec3(0.0)))) {
+                vec3 li = environment_radiance(wi);
+                if (any(greaterThan(li, vec3(0.0))) && visible(s.p, s.ng, wi, -1.0, frame.scene_scale))
+                    radiance += throughput * f * li * (power_heuristic(pdf, bsdf_pdf(s, lb, v, wi)) / pdf);
+            }
         }
         if (path.info.y > 0u) {
             vec3 wi, target, li;
@@ -456,9 +471,9 @@ void main() {
     uint pixel = uint(px.y) * w + uint(px.x);
     if (pc.mode == 1u) {
         vec4 a = accum[pixel];
-        vec3 color = a.rgb / max(a.w, 1.0) * frame.exposure;
+        vec3 color = a.rgb / max(a.w, 1.0);
         imageStore(out_hdr, px, vec4(color, 1.0));
-        imageStore(out_color, px, vec4(srgb_encode(tonemap_aces(color)), 1.0));
+        imageStore(out_color, px, vec4(srgb_encode(tonemap(color * frame.exposure, frame.tonemap)), 1.0));
         return;
     }
     if (pc.index >= path.batch.y) return;

@@ -28,6 +28,7 @@ layout(constant_id = 15) const uint WORK_SHARES = 1u;
 layout(set = 0, binding = 1, rgba32f) uniform readonly image2D g_position;
 layout(set = 0, binding = 2, rgba32f) uniform readonly image2D g_normal;
 layout(std430, set = 0, binding = 3) buffer Masks { float masks[]; };   // [light][y][x]
+layout(set = 0, binding = 8, rgba16f) uniform readonly image2D g_terminator;   // terminator.glsl's shift
 
 layout(push_constant) uniform Push {
     uint mode;
@@ -54,7 +55,9 @@ void main() {
     }
     vec3 p = imageLoad(g_position, px).xyz;
     vec3 n = nrm.xyz;
-    vec3 o = offset_ray(p, n);
+    // (the terminator shift moves the start off flat triangles of smooth meshes: gbuffer_resolve.comp)
+    vec3 shift = frame.shadow_terminator > 0.5 ? imageLoad(g_terminator, px).xyz : vec3(0.0);
+    vec3 o = offset_ray(p + shift, n);
     bool sampled = pc.mode == SHADOW_SOFT || reference;
     uint k = reference ? pc.count : (pc.mode == SHADOW_SOFT ? max(uint(frame.shadow_samples), 1u) : 1u);
     uint first = reference ? pc.first : frame.frame_index * k;

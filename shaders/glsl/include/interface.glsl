@@ -36,6 +36,9 @@
 #define SHADOW_SOFT 1u
 #define SHADOW_SEED_DELTA 2u
 #define SHADOW_REFERENCE 3u
+#define TONEMAP_NEUTRAL 0u
+#define TONEMAP_AGX 1u
+#define TONEMAP_ACES 2u
 #define FILTER_MASKS 1u
 #define FILTER_AO 2u
 #define FILTER_TEMPORAL 4u
@@ -62,8 +65,8 @@ struct FrameData {
     float ao_radius;
     float ao_samples;               // AO rays per pixel this frame
     float shadow_samples;           // soft shadows: rays per pixel per light
-    float exposure;
-    vec3 ambient;
+    float exposure;                 // the factor 2^EV on the radiance before the tone curve
+    vec3 ambient;                   // the constant environment's radiance where environment_constant is 1
     float scene_scale;              // the scene's bounding-box diagonal
     float accum_alpha;              // the temporal blend's smallest weight
     float pixel_footprint;          // a pixel's size per unit of view depth
@@ -71,6 +74,11 @@ struct FrameData {
     float objects_moved;            // 1: an instance moved since the last frame (accumulate.comp clamps the history)
     vec3 bounds_min;                // scene bounds (debug views)
     vec3 bounds_max;
+    float environment_constant;     // 1: the environment is the constant `ambient` (the `ambient` setting), not the map
+    mat4 inv_view_proj;             // inverse of view_proj (the background's view directions)
+    uint tonemap;                   // the tone curve (TONEMAP_*)
+    uint auto_exposure;             // 1: exposure.comp scales by the key over the log-average luminance
+    float shadow_terminator;        // 1: shadow rays start from the terminator shift (terminator.glsl)
     Light lights[16];
 };
 

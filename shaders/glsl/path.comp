@@ -389,6 +389,8 @@ vec3 trace_path(vec3 o, vec3 d) {
     vec3 radiance = vec3(0.0), throughput = vec3(1.0);
     float last_pdf = 0.0;   // the BSDF pdf of the last bounce (0: the camera ray)
     uint max_depth = path.batch.z;
+    // a constant black environment (`ambient` 0) is not sampled: the same for every invocation, so no lane pays
+    bool env_black = env_constant() && all(equal(frame.ambient, vec3(0.0)));
     for (uint depth = 1u;; ++depth) {
         BvhHit hit = bvh_intersect(o, d, 0.0, BVH_INF);
         radiance += throughput * lights_hit(o, d, hit.t, last_pdf);
@@ -416,7 +418,7 @@ vec3 trace_path(vec3 o, vec3 d) {
             float w = pdf > 0.0 ? power_heuristic(pdf, bsdf_pdf(s, lb, v, wi)) : 1.0;
             radiance += throughput * f * li * (pdf > 0.0 ? w / pdf : 1.0);
         }
-        {   // the environment
+        if (!env_black) {   // the environment
             float pdf;
             vec3 wi = environment_sample(rnd2(), pdf);
             vec3 f = bsdf_eval(s, v, wi);

@@ -134,7 +134,7 @@ def cmd_render(args) -> int:
     aovs, view, save, names = _outputs(args)
     clouds = _point_cloud_paths(args, sequence)
     settings = dict(_settings(args), **({"view": view} if view != "color" else {}))
-    if args.camera_path is not None and not Path(args.camera_path).is_file():
+    if args.camera_path is not None and not Path(args.camera_path).exists():  # (a COLMAP model may be a folder)
         raise ConfigError(f"{args.camera_path}: no such camera path file")
     t0 = time.perf_counter()
     scene = Scene.load(args.scene, allow_paths=args.allow_path, up=args.up)
@@ -330,7 +330,7 @@ def build_parser() -> argparse.ArgumentParser:
         default=None,
         metavar="FILE",
         help="a sequence of the cameras in a .json / .toml file: {eye, target} or {K, pose, width, "
-        "height} each (docs/datasets.md)",
+        "height} each, a NeRF / nerfstudio transforms.json or a COLMAP text model (docs/datasets.md)",
     )
     r.add_argument(
         "--fps",

@@ -4,7 +4,8 @@
   units (depth_scale=1000: millimetres; 0 where there is no surface);
 - .exr: every AOV asked for as 32-bit float channel groups (depth.Z, normal.X/Y/Z, ...), ids as UINT channels,
   the camera in the header; read back with `read_exr`;
-- .npz: every AOV as the numpy array `Frame.aov` holds, plus "color", the camera (K, pose, near, fov_y) and names;
+- .npz: every AOV as the numpy array `Frame.aov` holds, plus "color", the camera (K, pose, near, fov_y; model and
+  distortion for a camera model other than the pinhole) and names;
 - .json: the camera sidecar (`camera_record`).
 
 Every file is written whole or not at all (engine.files.atomic_write). No Vulkan here.
@@ -46,8 +47,9 @@ def check_output_path(path: str | os.PathLike[str]) -> Path:
 def camera_record(camera, width: int, height: int, scene_name: str = "") -> dict[str, Any]:
     """The camera of a `width` x `height` frame as plain JSON values: K (3x3, pixels, pixel centres at +0.5), pose
     (4x4 camera-to-world, OpenCV axes), near and fov_y (degrees), the image size and the scene's name. Floats are
-    written with all their digits (JSON round-trips them exactly)."""
-    return {
+    written with all their digits (JSON round-trips them exactly). A camera model other than the pinhole adds
+    "model" and "distortion" (its coefficients)."""
+    record = {
         "scene": str(scene_name),
         "width": int(width),
         "height": int(height),
@@ -57,6 +59,9 @@ def camera_record(camera, width: int, height: int, scene_name: str = "") -> dict
         "near": float(camera.near),
         "fov_y": float(camera.fov_y),
     }
+    if camera.model != "pinhole":
+        record.update(model=camera.model, distortion=[float(d) for d in camera.distortion])
+    return record
 
 
 def camera_json(record: dict[str, Any]) -> str:
@@ -278,7 +283,8 @@ def write_npz(
 ) -> Path:
     """`arrays` (as in `Frame.aov`, "color" uint8) and the camera as one .npz (`np.load` reads it without
     pickles): K (3, 3) and pose (4, 4) float64, near, fov_y (float64), width, height (int64), scene (str),
-    object_names and material_names (str arrays). `compress`: zip-deflated (savez_compressed), else stored."""
+    object_names and material_names (str arrays); model (str) and distortion for a camera model other than the
+    pinhole. `compress`: zip-deflated (savez_compressed), else stored."""
     data: dict[str, Any] = {k: np.asarray(v) for k, v in arrays.items()}
     data.update(
         K=np.asarray(record["K"], np.float64),
@@ -291,6 +297,8 @@ def write_npz(
         object_names=np.array([str(n) for n in object_names], dtype=np.str_),
         material_names=np.array([str(n) for n in material_names], dtype=np.str_),
     )
+    if "model" in record:  # a camera model other than the pinhole: its name and coefficients
+        data.update(model=np.str_(record["model"]), distortion=np.asarray(record["distortion"], np.float64))
     if len(class_names):
         data["class_names"] = np.array([str(n) for n in class_names], dtype=np.str_)
     save = np.savez_compressed if compress else np.savez

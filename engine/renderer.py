@@ -31,6 +31,7 @@ from .passes.accumulate import ALPHA_MIN, AccumulatePass
 from .passes.ao import AOPass
 from .passes.debug_view import DebugViewPass
 from .passes.denoise import DenoisePass
+from .passes.camera_rays import CameraRaysPass, traced
 from .passes.gbuffer import GBufferPass
 from .passes.frame_block import FrameBlock
 from .passes.interface import FILTER_AO, FILTER_MASKS, FILTER_TEMPORAL, MAX_LIGHTS, Tonemap, pack_light
@@ -175,6 +176,7 @@ class Renderer(Closes):
         self.gbuffer, self.accumulate = GBufferPass(ctx, lib, res), AccumulatePass(ctx, lib, res)
         self.shadows = ShadowPass(ctx, lib, res, self.bvh_set, self.bvh_layout)
         self.ao = AOPass(ctx, lib, res, self.bvh_set, self.bvh_layout)
+        self.camera_rays = None  # the G-buffer of camera models other than the pinhole: made when first used
         self.denoise = DenoisePass(ctx, lib, res, self.targets)
         self.lighting, self.debug_view = LightingPass(ctx, lib, res), DebugViewPass(ctx, lib, res)
         self.exposure = ExposurePass(ctx, lib, res)
@@ -564,7 +566,7 @@ class Renderer(Closes):
                 if steady.same(scene, settings, readback):
                     if cam is steady.camera:
                         return self._prepare_steady(steady)
-                    if isinstance(cam, Camera):
+                    if isinstance(cam, Camera) and traced(cam) == traced(steady.camera):
                         return self._prepare_moved(steady, cam)
         self._steady = None
         if not isinstance(scene, Scene):
@@ -618,6 +620,7 @@ class Renderer(Closes):
         reset = history_key != self._history_key
         if reset:  # no motion on a frame without history (as the camera's previous matrix is this one)
             self._changes.still(self._geometry)
+        rays = self._uses_rays(camera, scene)
         key = (
             cfg["shadows"],
             cfg["ao"],
@@ -629,12 +632,13 @@ class Renderer(Closes):
             len(lights),
             readback,
             self._raster,
+            rays,
         )
         if cfg["shadows"] == "reference":
             key += (cfg["reference_samples"],)
         self._path_ready(scene, cfg)
         if key not in self._commands:
-            cmd, ts = self._record(cfg, len(lights), readback)
+            cmd, ts = self._record(cfg, len(lights), readback, rays)
             self._commands[key] = (cmd, list(ts.names))
         cmd, marks = self._commands[key]
         reference = cfg["shadows"] == "reference"
@@ -659,6 +663,7 @@ class Renderer(Closes):
             accum_alpha=ALPHA_MIN,
             bounds=scene.bounds,
         )
+        self._ray_camera(camera, reset)
         self._history_key = history_key
         self._steady = Steady.capture(scene, camera, settings, readback, lights, (cmd, marks, cfg, len(lights)))
         return cmd, marks, dict(cfg), len(lights)
@@ -668,6 +673,7 @@ class Renderer(Closes):
         that differs from the last one only in the frame index (plus, on the first such frame, the previous
         camera, now this one, and the history-reset flag, now off). What the full path would write, bit for bit."""
         self.frame_block.again(objects_moved=not self._changes.settled)
+        self._ray_camera(steady.camera, False)
         cmd, marks, cfg, n_lights = steady.result
         return cmd, marks, dict(cfg), n_lights
 
@@ -677,6 +683,7 @@ class Renderer(Closes):
         keeps it (the camera is not part of the history key)."""
         view_proj = camera.projection_matrix(self.width / self.height) @ camera.view_matrix()
         self.frame_block.move_camera(view_proj, camera, self.height, objects_moved=not self._changes.settled)
+        self._ray_camera(camera, False)
         steady.camera = camera
         cmd, marks, cfg, n_lights = steady.result
         return cmd, marks, dict(cfg), n_lights
@@ -697,6 +704,31 @@ class Renderer(Closes):
             self.library.close()
 
     # ---- internals ------------------------------------------------------------------------
+    def _uses_rays(self, camera, scene) -> bool:
+        """Is `camera` traced (a model other than the pinhole)? Then the traced cameras' pass, for this scene's
+        geometry and BVH, is made if it was not yet (a renderer of pinhole cameras never compiles it)."""
+        if not traced(camera):
+            return False
+        if self.camera_rays is None:
+            self._make_camera_rays(scene)
+        return True
+
+    def _make_camera_rays(self, scene):
+        p = CameraRaysPass(
+            self.ctx, self.library, self.targets.resources, self.bvh_set, self.bvh_layout, self.width * self.height
+        )
+        p.bind_scene(self._geometry, scene)
+        p.specialize_for(self._scene_bvh)
+        self.camera_rays = p
+        self.passes.append(p)
+
+    def _ray_camera(self, camera, reset: bool):
+        """A traced camera's block (and the previous frame's camera, for motion: none after a history reset)."""
+        if traced(camera):
+            last = getattr(self, "_last_ray_camera", None)
+            self.camera_rays.set_camera(camera, self.width, self.height, None if reset or last is None else last)
+        self._last_ray_camera = camera
+
     def _poll_shaders(self):
         updated = self.library.poll()
         if not updated:
@@ -762,6 +794,11 @@ class Renderer(Closes):
         it), one batch per submit of one recorded batch of dispatches; `progressive` (the viewer): one sample added to
         the samples so far when the scene, camera and settings are those they were traced under, else a first one."""
         camera = camera if camera is not None else scene.camera
+        if traced(camera):
+            raise ConfigError(
+                f"integrator='path' takes pinhole cameras; a {camera.model!r} camera is rendered by the raster "
+                "integrator only"
+            )
         view_proj = camera.projection_matrix(self.width / self.height) @ camera.view_matrix()
         data = self.path.scene_data
         data.update(scene)
@@ -810,7 +847,7 @@ class Renderer(Closes):
                 scene,
                 self.bvh_set,
                 self.bvh_layout,
-                self._ray_passes(),
+                tuple(p for p in (self.shadows, self.ao, self.camera_rays, self.path) if p is not None),
                 self._invalidate_commands,
                 self._geometry.alpha_index,
             )
@@ -831,6 +868,8 @@ class Renderer(Closes):
         self.gbuffer.bind_scene(self._geometry)
         for p in self._ray_passes():  # the alpha test's records and textures
             p.bind_scene(self._geometry)
+        if self.camera_rays is not None:
+            self.camera_rays.bind_scene(self._geometry, scene)
         self._drop_path_data()
 
     def _use_scene(self, scene):
@@ -880,13 +919,17 @@ class Renderer(Closes):
         self._history_key = None
         self._steady = None
 
-    def _record(self, cfg, n_lights, readback=None):
+    def _record(self, cfg, n_lights, readback=None, rays=False):
         """The frame's command buffer (and the timestamps it writes): the passes in order; the recorder derives the
-        barriers between them. `readback`: (AOV names, slot) to copy out, or None (the viewer's path)."""
+        barriers between them. `readback`: (AOV names, slot) to copy out, or None (the viewer's path); `rays`: the
+        G-buffer from traced primary rays (a camera model other than the pinhole) instead of the raster."""
         t = self.targets
         ts = self._timestamps[readback[1] if readback else 0]
         rec = Recorder(self.ctx, ts)
-        self.gbuffer.record(rec, t, self._geometry, self._raster)
+        if rays:
+            self.camera_rays.record(rec, t, self._geometry)
+        else:
+            self.gbuffer.record(rec, t, self._geometry, self._raster)
         rec.mark("gbuffer")
         path = cfg["integrator"] == "path"  # (the path tracer's own light transport: no masks, AO or filters)
         mode = cfg["shadows"] if not path else "off"
@@ -902,6 +945,26 @@ class Renderer(Closes):
             rec.fill(t["ao.raw"], ONE_F32)
         rec.mark("ao")
 
+        self._record_filters(rec, cfg, n_lights, mode, path)
+        (self.path.record_resolve if path else self.lighting.record)(rec, t)
+        rec.mark("lighting")
+        if cfg["auto_exposure"]:
+            self.exposure.record(rec, t)
+            rec.mark("exposure")
+        if cfg["view"] != "color":
+            self.debug_view.record(rec, t, cfg["view"])
+            rec.mark("view")
+        if readback:
+            t.record_readback(rec, *t.readback(self.ctx, *readback))
+            rec.mark("readback")
+        else:  # the colour image is copied out by the caller (the viewer's presenter)
+            rec.use(reads=[t.color], stage=TRANSFER)
+        return rec.finish(), ts
+
+    def _record_filters(self, rec, cfg, n_lights, mode, path):
+        """The temporal accumulation and denoiser of the soft light masks and AO, where the settings ask for them
+        (else their raw signals are the final ones)."""
+        t = self.targets
         # Which signals are filtered: soft light masks and (outside the reference mode) AO.
         filtered = []
         if mode == "soft" and n_lights and (cfg["accumulate"] or cfg["denoise"]):
@@ -925,23 +988,6 @@ class Renderer(Closes):
         for name in ("masks", "ao"):
             if name not in filtered:
                 rec.copy(t.signals[name].raw, t.signals[name].final)
-        if path:
-            self.path.record_resolve(rec, t)
-        else:
-            self.lighting.record(rec, t)
-        rec.mark("lighting")
-        if cfg["auto_exposure"]:
-            self.exposure.record(rec, t)
-            rec.mark("exposure")
-        if cfg["view"] != "color":
-            self.debug_view.record(rec, t, cfg["view"])
-            rec.mark("view")
-        if readback:
-            t.record_readback(rec, *t.readback(self.ctx, *readback))
-            rec.mark("readback")
-        else:  # the colour image is copied out by the caller (the viewer's presenter)
-            rec.use(reads=[t.color], stage=TRANSFER)
-        return rec.finish(), ts
 
 
 class _Owner:

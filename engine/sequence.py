@@ -26,6 +26,7 @@ from .outputs import check_output_path, write_camera_json
 from .renderer import Renderer
 from .scene import Camera, Scene
 from .scene.camera import DEFAULT_INTRINSICS_NEAR
+from .scene.camera_formats import is_transforms, model_camera, read_colmap, read_transforms, write_dataset
 from .settings import MAX_FRAMES, check_settings
 
 try:
@@ -35,12 +36,12 @@ except ImportError:  # pragma: no cover
 
 _RUN = re.compile(r"#+")
 LOOK_AT_KEYS = ("eye", "target", "up", "fov_y", "fov", "near")
-INTRINSICS_KEYS = ("K", "pose", "width", "height", "convention", "near")
+INTRINSICS_KEYS = ("K", "pose", "width", "height", "convention", "near", "model", "distortion")
 #: Keys of a camera sidecar (`Frame.save_camera`, a sequence's `output` record) that a camera path ignores: a list
 #: of sidecars is a camera path.
 INFO_KEYS = ("scene", "fov_y", "output")
 #: Keys a camera path may set once for every camera (at its top level).
-SHARED_KEYS = ("up", "fov_y", "fov", "near", "K", "width", "height", "convention")
+SHARED_KEYS = ("up", "fov_y", "fov", "near", "K", "width", "height", "convention", "model", "distortion")
 
 
 # ----------------------------------------------------------------------------------------------- paths
@@ -104,8 +105,11 @@ def load_camera_path(path: str | Path, default_fov_y: float = 60.0) -> list[Came
     list) or TOML (shared keys at the top, then [[camera]] tables). A camera is {eye, target[, up, fov_y, near]}
     (look_at; fov_y defaults to `default_fov_y`) or {K, pose, width, height[, convention, near]} (intrinsics; the
     pose camera-to-world, OpenCV axes unless convention = "opengl"); a camera sidecar (`Frame.save_camera`) is one.
-    Errors name the file and the entry: "path: camera[3]: missing key 'target'"."""
+    Also a NeRF / nerfstudio transforms.json (an object with "frames") and a COLMAP text model (its folder, or
+    its cameras.txt or images.txt). Errors name the file and the entry: "path: camera[3]: missing key 'target'"."""
     p = Path(path)
+    if p.is_dir() or p.name in ("cameras.txt", "images.txt"):
+        return read_colmap(p)[0]
     if not p.is_file():
         raise ConfigError(f"{p}: no such camera path file")
     try:
@@ -118,6 +122,8 @@ def load_camera_path(path: str | Path, default_fov_y: float = 60.0) -> list[Came
             data: Any = json.loads(text)
         except json.JSONDecodeError as exc:
             raise ConfigError(f"{p}: invalid JSON: {exc}") from None
+        if is_transforms(data):
+            return read_transforms(p, data)[0]
     elif suffix == ".toml":
         try:
             data = tomllib.loads(text)
@@ -170,6 +176,8 @@ def _camera(entry: dict, shared: dict, default_fov_y: float) -> Camera:
         for k in ("K", "pose", "width", "height"):
             if k not in keys:
                 raise ConfigError(f"missing key {k!r}")
+        if keys.get("model", "pinhole") != "pinhole":
+            return model_camera(keys)
         return Camera.from_intrinsics(
             keys["K"],
             keys["width"],
@@ -286,6 +294,8 @@ def render_sequence(
                 written += write_camera_json(sidecar_path(path), side).stat().st_size
             last = frame
             bar.update(1)
+    folder = paths[0].parent  # the cameras as NeRF and COLMAP tools read them, beside the frames
+    write_dataset(folder, cameras, [p.relative_to(folder).as_posix() for p in paths], width, height)
     return SequenceResult(len(paths), len(todo), len(paths) - len(todo), written, time.perf_counter() - t0, last)
 
 

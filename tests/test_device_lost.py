@@ -56,6 +56,11 @@ def test_a_cpu_device_is_refused_not_crashed(monkeypatch):
         Device()
 
 
+def test_arming_a_device_made_without_fault_injection_is_refused(shared_device):
+    with pytest.raises(ConfigError, match="fault injection is not enabled on this device"):
+        faults.arm(shared_device.context)
+
+
 @pytest.fixture
 def on_gpu():
     if not gpu_present():
@@ -68,18 +73,18 @@ def test_every_call_after_a_device_loss_is_a_clear_error_and_a_new_device_recove
     with Device(validation=VALIDATE) as dev, Renderer(64, 48, device=dev) as r:
         before = r.render(scene).color.copy()
 
-    # the fault goes ahead of the 3rd submission: after the set-up uploads, during a frame
     # a driver reports the fault as VK_ERROR_DEVICE_LOST, or (the H100 here) the queue stalls: the GPU timeout
-    monkeypatch.setenv(faults.ENV, "device-lost:3")
+    monkeypatch.setenv(faults.ENV, "device-lost:1000000")  # enabled; armed below, after the set-up's uploads
     monkeypatch.setenv("HYBRID_GPU_TIMEOUT", "10")
     dev = Device(validation=VALIDATE)
     monkeypatch.delenv(faults.ENV)
     monkeypatch.delenv("HYBRID_GPU_TIMEOUT")
     r = Renderer(64, 48, device=dev)
     t = Tracer(mesh.vertices, mesh.faces, device=dev)
+    r.render(scene)
+    faults.arm(dev.context)
     with pytest.raises(VulkanError, match="device was lost|did not finish its work within 10 s") as lost:
-        for _ in range(4):
-            r.render(scene)
+        r.render(scene)
     assert "\n" not in str(lost.value)
     calls = {
         "render": lambda: r.render(scene),

@@ -165,11 +165,12 @@ def test_a_refused_shader_stays_out_of_later_pipelines(make_renderer, glsl_copy,
     from PIL import Image
 
     resolve = glsl_copy / "gbuffer_resolve.comp"
+    body = glsl_copy / "include" / "gbuffer_fill.glsl"  # the resolve's body (shared with gbuffer_rays.comp)
     r = make_renderer(64, 48, shader_dir=glsl_copy, hot_reload=True)
     plain = r.render(scene, **SETTINGS).color
-    original = resolve.read_text()
+    original = body.read_text()
     assert original.count("binding = 10, rgba8_snorm") == 1
-    edit(resolve, original.replace("binding = 10, rgba8_snorm", "binding = 11, rgba8_snorm"))
+    edit(body, original.replace("binding = 10, rgba8_snorm", "binding = 11, rgba8_snorm"))
     assert np.array_equal(r.render(scene, **SETTINGS).color, plain)
     assert "g_normal8" in r.shader_errors.get(str(resolve), ""), r.shader_errors
     meshes = []

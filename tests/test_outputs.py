@@ -308,9 +308,9 @@ def test_cli_orbit_writes_numbered_exrs_and_cameras(tmp_path):
     assert res.stderr == ""  # no progress bar when stderr is not a terminal
     assert "4 frames (4 rendered, 0 already done) of 48x36 normal, depth, object_id" in res.stdout
     assert "frames/s" in res.stdout and "validation: no errors" in res.stdout
-    assert sorted(p.name for p in (tmp_path / "o").iterdir()) == [
+    assert sorted(p.name for p in (tmp_path / "o").iterdir()) == ["colmap"] + [
         f"f_{i:02d}.{s}" for i in range(4) for s in ("exr", "json")
-    ]
+    ] + ["transforms.json"]  # (the cameras for NeRF and COLMAP tools: tests/test_camera_formats.py)
     for i in range(4):
         arrays, rec = read_exr(tmp_path / "o" / f"f_{i:02d}.exr")
         assert list(arrays) == ["normal", "depth", "object_id"]
@@ -436,7 +436,8 @@ def test_a_completed_resume_removes_a_killed_runs_temporaries(make_renderer, tmp
         (tmp_path / name).write_bytes(b"partial")
         os.utime(tmp_path / name, (time.time() - 60,) * 2)
     assert render_sequence(r, scene, cams, paths, **kw, resume=True).skipped == 2
-    assert sorted(p.name for p in tmp_path.iterdir()) == sorted(["f_0.npz", "f_0.json", "f_1.npz", "f_1.json"] + kept)
+    left = ["f_0.npz", "f_0.json", "f_1.npz", "f_1.json", "transforms.json", "colmap"]
+    assert sorted(p.name for p in tmp_path.iterdir()) == sorted(left + kept)
 
 
 def test_cli_progress_bar_goes_to_a_terminal(tmp_path):
@@ -535,8 +536,10 @@ def test_a_killed_sequence_leaves_whole_files_and_resumes(tmp_path, sig):
     )
     assert res.returncode == 0, res.stderr
     assert f"{n} frames ({n - len(finished)} rendered, {len(finished)} already done)" in res.stdout
-    assert sorted(p.name for p in tmp_path.iterdir()) == [f"f_{i:03d}.{s}" for i in range(n) for s in ("json", "npz")]
-    assert all(_complete(p) for p in tmp_path.iterdir())
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["colmap"] + [
+        f"f_{i:03d}.{s}" for i in range(n) for s in ("json", "npz")
+    ] + ["transforms.json"]
+    assert all(_complete(p) for p in tmp_path.glob("f_*"))
     assert {name: (tmp_path / name).stat().st_ino for name in before} == {k: v[0] for k, v in before.items()}
     assert {name: (tmp_path / name).stat().st_mtime_ns for name in before} == {k: v[1] for k, v in before.items()}
 

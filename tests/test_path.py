@@ -195,6 +195,13 @@ def test_bad_settings(renderer, setting, message):
     assert str(err.value) == message
 
 
+def test_a_camera_model_is_a_clear_error(renderer):
+    """The path tracer's rays are pinhole ones: another camera model is a one-line error, not a wrong image."""
+    fisheye = Camera.fisheye([[30.0, 0, 32], [0, 30.0, 24], [0, 0, 1]], [0, 0, 0, 0], 64, 48)
+    with pytest.raises(ConfigError, match="integrator='path' takes pinhole cameras; a 'fisheye' camera"):
+        renderer.render(_lit_scene(), fisheye, integrator="path", spp=1)
+
+
 def test_cli_path_render(tmp_path):
     """`hybrid render --integrator path`: a PNG of the lit scene; a bad --spp is one line, exit status 2 or 1."""
     scene = REPO / "scenes" / "default.toml"

@@ -30,10 +30,11 @@ import numpy as np
 
 from ..errors import ConfigError, EngineError
 from ..scene import Camera, Scene
+from ..scene.camera_formats import camera_records, model_camera
 
 KINDS = ("orbit", "views", "path")
 ORBIT_KEYS = ("orbit", "elevation", "distance", "fov", "center")
-VIEW_KEYS = ("eye", "target", "up", "fov", "near", "K", "width", "height", "pose", "convention")
+VIEW_KEYS = ("eye", "target", "up", "fov", "near", "K", "width", "height", "pose", "convention", "model", "distortion")
 MAX_VIEWS = 1_000_000
 
 
@@ -96,6 +97,9 @@ def read_camera_path(path: str | os.PathLike[str]) -> list:
     "camera" / `[[camera]]` (hybrid render --camera-path's name) is read the same."""
     path = Path(path)
     suffix = path.suffix.lower()
+    records = camera_records(path) if path.is_dir() or path.name in ("cameras.txt", "images.txt") else None
+    if records is not None:  # a COLMAP text model
+        return records
     if suffix not in (".json", ".toml"):
         raise ConfigError(f"{path}: a camera path is a .json or .toml file")
     try:
@@ -107,6 +111,9 @@ def read_camera_path(path: str | os.PathLike[str]) -> list:
         raise ConfigError(f"{path}: cannot read: {exc.strerror or exc}") from None
     except (ValueError, tomllib.TOMLDecodeError) as exc:  # json.JSONDecodeError and UnicodeDecodeError are both
         raise ConfigError(f"{path}: not valid {suffix[1:].upper()}: {exc}") from None
+    records = camera_records(path, data) if suffix == ".json" else None
+    if records is not None:  # a NeRF / nerfstudio transforms.json
+        return records
     if isinstance(data, dict):  # keys beside the list ("up", "fov", ...) apply to every view that lacks them
         lists = [k for k in ("views", "camera") if k in data]
         shared = {k: v for k, v in data.items() if k not in ("views", "camera")}
@@ -164,6 +171,8 @@ def view_camera(entry: Any, width: int, height: int) -> Camera:
         missing = [k for k in ("width", "height") if k not in entry]
         if missing:
             raise ConfigError(f"K needs the {missing[0]} of the image it is for")
+        if entry.get("model", "pinhole") != "pinhole":
+            return model_camera(entry)
         kw = {k: entry[k] for k in ("pose", "convention", "near") if k in entry}
         return Camera.from_intrinsics(entry["K"], entry["width"], entry["height"], **kw)
     if "pose" in entry:

@@ -18,6 +18,7 @@ from .distributed import run_ray
 from .job import Job
 from .manifest import FolderLock, Manifest
 from .pool import run_local
+from .writer import write_cameras
 
 MAX_WORKERS = 64
 
@@ -174,6 +175,7 @@ def run_batch(
                 info = run_local(job, todo, on_record, workers=n_workers, devices=devices, shard_size=shard_size)
         finally:
             manifest.save()
+        write_cameras(job)  # transforms.json and the COLMAP model beside each scene's images
         result.seconds = time.perf_counter() - t0
         result.datasets = write_datasets(job)  # from every finished item's sidecar, this run's and earlier ones
         result.devices, result.errors = info["devices"], info["errors"]

@@ -20,6 +20,7 @@ from ..files import atomic_write, atomic_write_text
 from ..frame import Frame
 from ..outputs import depth_to_u16, write_depth_png
 from ..scene import Camera
+from ..scene.camera_formats import model_camera, write_dataset
 from .annotations import SceneObjects, frame_annotations
 from .job import Item, Job
 
@@ -53,6 +54,8 @@ def npz_arrays(job: Job, item: Item, frame: Frame, camera: Camera) -> dict[str, 
     out["K"] = camera.intrinsics(job.width, job.height)
     out["pose"] = camera.pose
     out["near"] = np.array(camera.near, np.float64)
+    if camera.model != "pinhole":  # (its lens: the model and its coefficients)
+        out["model"], out["distortion"] = np.array(camera.model), np.array(camera.distortion, np.float64)
     if "object_id" in job.aovs:
         out["object_names"] = np.array(frame.object_names, dtype=str)
     if "semantic_id" in job.aovs:
@@ -133,3 +136,28 @@ def npz_key(path: Path) -> str | None:
             return str(data["key"]) if "key" in data.files else None
     except (OSError, ValueError, KeyError, EOFError, zipfile.BadZipFile):
         return None
+
+
+def write_cameras(job: Job) -> None:
+    """Each scene folder's finished items as NeRF and COLMAP tools read them (transforms.json, colmap/sparse/0),
+    the colour PNGs as their images; nothing where the job writes no colour PNG."""
+    if "color" not in job.png:
+        return
+    for index, spec in enumerate(job.scenes):
+        cams, files = [], []
+        for item in (i for i in job.items if i.scene == index):
+            names = job.files(item)
+            try:
+                with np.load(job.output / names[-1]) as data:
+                    rec = {"K": data["K"], "pose": data["pose"], "width": job.width, "height": job.height}
+                    if "model" in data.files:
+                        rec.update(model=str(data["model"]), distortion=data["distortion"])
+            except (OSError, ValueError, KeyError, EOFError, zipfile.BadZipFile):
+                continue  # not rendered (or failed): not in the dataset
+            if "model" in rec:
+                cams.append(model_camera(rec))
+            else:
+                cams.append(Camera.from_intrinsics(rec["K"], job.width, job.height, pose=rec["pose"]))
+            files.append(Path(names[job.png.index("color")]).name)
+        if cams:
+            write_dataset(job.output / spec.name, cams, files, job.width, job.height)

@@ -70,6 +70,7 @@ class SceneGeometry:
         # per mesh, per level of detail: (material, first triangle within the mesh's levels, triangle count), the
         # same materials at every level (a count may be 0)
         self.mesh_ranges = []
+        self.mesh_first_level = []  # per mesh: its first level's mesh triangle at each place (traced cameras' ids)
         self.mesh_levels = []  # per mesh: (object-space box, the object-space error of each level)
         v0 = t0 = 0
         for m, chain in zip(meshes, chains):
@@ -89,6 +90,8 @@ class SceneGeometry:
                 indices.append(np.asarray(level.indices, np.int64)[order] + v0)
                 tri = np.zeros((nt, 4), np.uint32)  # material, triangle of the mesh, object, the level's error
                 src = level.source[order]
+                if not levels:
+                    self.mesh_first_level.append(src)
                 tri[:, 0], tri[:, 1], tri[:, 2] = mats[order], src, objects[src]
                 tri[:, 3] = np.float32(level.error).view(np.uint32)
                 info.append(tri)

@@ -63,7 +63,7 @@ class FrameBlock:
         pack_frame(
             view_proj=view_proj,
             prev_view_proj=prev,
-            eye=camera.eye,
+            eye=getattr(camera, "shading_eye", camera.eye),
             forward=camera.forward,
             near=camera.near,
             width=width,

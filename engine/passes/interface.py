@@ -267,7 +267,7 @@ def camera_fields(block, view_proj, camera, height: int):
     """Write the camera's fields of a FRAME record (the renderer's fast path rewrites only these)."""
     block["view_proj"] = np.asarray(view_proj, np.float32).T  # GLSL mat4 is column-major
     block["inv_view_proj"] = np.linalg.inv(np.asarray(view_proj, np.float64)).astype(np.float32).T
-    block["eye"], block["near"] = _v3(camera.eye), camera.near
+    block["eye"], block["near"] = _v3(getattr(camera, "shading_eye", camera.eye)), camera.near
     block["forward"] = _v3(camera.forward)
     block["pixel_footprint"] = 2.0 * math.tan(math.radians(camera.fov_y) / 2.0) / height
 

@@ -1,4 +1,5 @@
-"""A pinhole camera: right-handed, looking down -Z in view space, reverse-Z infinite projection for Vulkan."""
+"""Cameras: the pinhole (right-handed, looking down -Z in view space, reverse-Z infinite projection for Vulkan), from
+intrinsics, and the models whose primary rays are traced (OpenCV distortion, fisheye, orthographic, equirect)."""
 
 from __future__ import annotations
 
@@ -10,7 +11,7 @@ from numpy.typing import ArrayLike, NDArray
 
 from engine.errors import ConfigError
 
-from . import _check
+from . import _check, lens
 
 # Direction (from the target towards the eye) of the automatic framing camera: a 3/4 view from above.
 FRAMING_DIRECTION = (0.55, 0.45, 0.70)
@@ -242,9 +243,21 @@ class Camera:
             np.float32
         )
 
-    def project(self, points: ArrayLike, aspect: float) -> NDArray[np.float64]:
-        """World points (N, 3) to NDC (N, 3) float64: x right and y down in [-1, 1] across the image (pixel column
-        = (x + 1) / 2 * width), z = reverse-Z depth (near / view depth)."""
+    def project(
+        self, points: ArrayLike, aspect: float | None = None, *, width: int | None = None, height: int | None = None
+    ) -> NDArray[np.float64]:
+        """World points (N, 3) to NDC (N, 3) float64 with `aspect`: x right and y down in [-1, 1] across the image
+        (pixel column = (x + 1) / 2 * width), z = reverse-Z depth (near / view depth). Without `aspect`: pixel
+        coordinates (N, 2) of a `width` x `height` render (default: the camera's own size), NaN behind the camera,
+        as for every camera model (ModelCamera below)."""
+        if aspect is None:
+            K = self.intrinsics(
+                *((width, height) if width is not None or height is not None else self.image_size or (None, None))
+            )
+            c = (np.atleast_2d(np.asarray(points, dtype=np.float64)) - self.eye) @ self.pose[:3, :3]
+            with np.errstate(divide="ignore", invalid="ignore"):
+                z = np.where(c[:, 2] > 0.0, c[:, 2], np.nan)
+                return np.stack([K[0, 0] * c[:, 0] / z + K[0, 2], K[1, 1] * c[:, 1] / z + K[1, 2]], axis=1)
         p = np.atleast_2d(np.asarray(points, dtype=np.float64))
         h = np.concatenate([p, np.ones((len(p), 1))], axis=1)
         clip = h @ (self.projection_matrix(aspect).astype(np.float64) @ self.view_matrix().astype(np.float64)).T
@@ -302,6 +315,46 @@ class Camera:
         ConfigError. `fov_y` is 2 atan(height / (2 fy)), the view of a centred camera with that fy (it sets the
         pixel footprint); `eye`, `forward`, `right`, `up_vector` come from the pose, `target` = eye + forward."""
         return IntrinsicsCamera(K, width, height, pose=pose, convention=convention, near=near)
+
+    @classmethod
+    def from_opencv(cls, K: ArrayLike, dist: ArrayLike, width: int, height: int, pose: ArrayLike | None = None,
+                    convention: str = "opencv", near: float = DEFAULT_INTRINSICS_NEAR) -> "Camera":  # fmt: skip
+        """A camera with OpenCV's lens distortion: `K` as for `from_intrinsics`, `dist` = (k1, k2, p1, p2) or
+        (k1, k2, p1, p2, k3) as `cv2.calibrateCamera` gives them; its primary rays are traced (all-zero `dist`:
+        the rasterized pinhole). `pose`, `convention`, `near` as for `from_intrinsics`."""
+        return from_opencv(K, dist, width, height, pose, convention, near)
+
+    @classmethod
+    def fisheye(cls, K: ArrayLike, D: ArrayLike, width: int, height: int, pose: ArrayLike | None = None,
+                convention: str = "opencv", near: float = DEFAULT_INTRINSICS_NEAR) -> "Camera":  # fmt: skip
+        """A fisheye camera, OpenCV's `cv2.fisheye` model (Kannala-Brandt): `K` as for `from_intrinsics`, `D` =
+        (k1, k2, k3, k4); fields of view past 180 degrees where the polynomial keeps growing. Traced rays."""
+        return _fisheye(K, D, width, height, pose, convention, near)
+
+    @classmethod
+    def orthographic(cls, view_height: float, width: int, height: int, pose: ArrayLike | None = None,
+                     convention: str = "opencv", near: float = DEFAULT_INTRINSICS_NEAR) -> "Camera":  # fmt: skip
+        """An orthographic camera: parallel rays along the pose's forward axis from the plane through its position;
+        the image spans `view_height` world units vertically (square pixels). Traced rays."""
+        return _orthographic(view_height, width, height, pose, convention, near)
+
+    @classmethod
+    def equirect(cls, width: int, height: int, pose: ArrayLike | None = None, convention: str = "opencv",
+                 near: float = DEFAULT_INTRINSICS_NEAR) -> "Camera":  # fmt: skip
+        """A 360 x 180 degree equirectangular camera at the pose: longitude across the width (the forward axis at
+        the centre, right to the right), latitude down the height (the pose's up at the top). Traced rays; its
+        `depth` AOV is the distance to the eye."""
+        return _equirect(width, height, pose, convention, near)
+
+    @property
+    def model(self) -> str:
+        """The camera model: "pinhole" (rasterized), or one of "opencv", "fisheye", "orthographic", "equirect"."""
+        return "pinhole"
+
+    @property
+    def distortion(self) -> tuple:
+        """The model's lens coefficients ((k1, k2, p1, p2, k3) OpenCV, (k1, k2, k3, k4) fisheye; () for others)."""
+        return ()
 
     @property
     def image_size(self) -> tuple[int, int] | None:
@@ -488,14 +541,18 @@ class IntrinsicsCamera(Camera):
         return m.astype(np.float32)
 
     def replace(self, **changes) -> "Camera":
-        """A copy with some of K, width, height, pose (read in `convention`, default "opencv"), eye, near changed.
+        """A copy with some of K, width, height, pose (read in `convention`), eye, near changed.
+
         A new width / height keeps K as it is (to keep the view, render at the new size instead)."""
-        allowed = ("K", "width", "height", "pose", "convention", "eye", "near")
+        return IntrinsicsCamera(**self._replaced(changes, ("K", "width", "height"), "camera from intrinsics"))
+
+    def _replaced(self, changes: dict, own: tuple, what: str) -> dict:
+        """The constructor's arguments of this camera with `changes` (checked: `own` fields, pose, convention, eye,
+        near) applied; `what` names the camera in errors."""
+        allowed = own + ("pose", "convention", "eye", "near")
         unknown = sorted(set(changes) - set(allowed))
         if unknown:
-            raise ConfigError(
-                f"camera from intrinsics has no field {unknown[0]!r} to replace (it has {', '.join(allowed)})"
-            )
+            raise ConfigError(f"{what} has no field {unknown[0]!r} to replace (it has {', '.join(allowed)})")
         if "convention" in changes and "pose" not in changes:
             raise ConfigError("camera replace: convention says how to read pose; give pose too")
         if "eye" in changes and "pose" in changes:
@@ -512,7 +569,7 @@ class IntrinsicsCamera(Camera):
         if "eye" in changes:
             args["pose"][:3, 3] = _check.vector(changes.pop("eye"), 3, "camera eye")
         args.update(changes)
-        return IntrinsicsCamera(**args)
+        return args
 
     def _key(self):
         return ("intrinsics", tuple(self.pose.ravel().tolist()), self.near, self._k, self._size)
@@ -524,3 +581,183 @@ class IntrinsicsCamera(Camera):
             f"Camera.from_intrinsics(fx={fx:.6g}, fy={fy:.6g}, cx={cx:.6g}, cy={cy:.6g}, "
             f"size={self._size[0]}x{self._size[1]}, eye=({eye}), forward=({fwd}), near={self.near:.4g})"
         )
+
+
+# ---------------------------------------------------------------------------------------------- camera models
+class ModelCamera(IntrinsicsCamera):
+    """A camera of one of MODELS for a `width` x `height` image, placed by a camera-to-world `pose` (OpenCV axes).
+    Made by `Camera.from_opencv`, `Camera.fisheye`, `Camera.orthographic`, `Camera.equirect`.
+
+    `model` names it, `distortion` holds its coefficients ((k1, k2, p1, p2, k3) or (k1, k2, k3, k4); () for the
+    others). Rendered at another size of the same aspect, the image is the same view resampled. `fov_y` is the
+    vertical angle a pixel at the image centre spans times the image height (what the renderer's pixel footprint
+    needs), not the view's extent."""
+
+    __slots__ = ("model", "distortion", "_ortho")
+
+    def __init__(self, model, K, width, height, pose=None, convention="opencv", near=DEFAULT_INTRINSICS_NEAR,
+                 distortion=(), ortho_height=None):  # fmt: skip
+        super().__init__(K, width, height, pose=pose, convention=convention, near=near)
+        object.__setattr__(self, "model", model)
+        object.__setattr__(self, "distortion", tuple(float(d) for d in distortion))
+        object.__setattr__(self, "_ortho", ortho_height)
+        if model == "equirect":
+            object.__setattr__(self, "fov_y", math.degrees(2.0 * math.atan(math.pi / 2.0)))
+        elif model == "orthographic":
+            object.__setattr__(self, "fov_y", math.degrees(2.0 * math.atan(ortho_height / 2.0)))
+
+    # ------------------------------------------------------------------ what the renderer asks
+    @property
+    def central(self) -> bool:
+        """Do all rays start at the eye (every model but the orthographic)?"""
+        return self.model != "orthographic"
+
+    @property
+    def shading_eye(self) -> np.ndarray:
+        """Where the lighting takes the viewer to be: the eye, or for the orthographic camera a point far back along
+        its axis (every view direction then the axis)."""
+        if self.model != "orthographic":
+            return self.eye
+        return self.eye - self.forward * (1e4 * self._ortho)
+
+    @property
+    def view_height(self) -> float | None:
+        """The orthographic view's height in world units (None for other models)."""
+        return self._ortho
+
+    def projection_matrix(self, aspect: float) -> np.ndarray:
+        """A stand-in for the raster-side passes (temporal reprojection's tests): the pinhole of K, or for the
+        orthographic camera its orthographic projection (w = 1); the image itself comes from the traced rays."""
+        if self.model != "orthographic":
+            return super().projection_matrix(aspect)
+        self._check_aspect(aspect)
+        fx, fy, cx, cy = self._k
+        w, h = self._size
+        m = np.zeros((4, 4), dtype=np.float64)
+        m[0, 0], m[0, 3] = 2.0 * fx / w, 2.0 * cx / w - 1.0
+        m[1, 1], m[1, 3] = -2.0 * fy / h, 2.0 * cy / h - 1.0
+        m[2, 2], m[2, 3] = 1.0 / (1e4 * self._ortho), 1.0  # reverse-Z: 1 on the plane, 0 at 1e4 view heights
+        m[3, 3] = 1.0
+        return m.astype(np.float32)
+
+    def rays(self, width: int | None = None, height: int | None = None):
+        """Primary rays through the pixel centres of a `width` x `height` render (default the camera's size):
+        origins and unit directions, (H, W, 3) float32 each. Pixels the model does not reach (past a fisheye's
+        or distortion's valid range) have direction (0, 0, 0) and render as background."""
+        origins, dirs = self.camera_rays(width, height)
+        rot, eye = self.pose[:3, :3], self.pose[:3, 3]
+        return (origins @ rot.T + eye).astype(np.float32), (dirs @ rot.T).astype(np.float32)
+
+    def camera_rays(self, width: int | None = None, height: int | None = None):
+        """As `rays`, in camera space (float64)."""
+        if width is None and height is None:
+            width, height = self._size
+        K = self.intrinsics(width, height)
+        w, h = int(width), int(height)
+        u, v = np.meshgrid(np.arange(w) + 0.5, np.arange(h) + 0.5)
+        origins = np.zeros((h, w, 3))
+        x, y = (u - K[0, 2]) / K[0, 0], (v - K[1, 2]) / K[1, 1]
+        if self.model == "orthographic":
+            origins[..., 0], origins[..., 1] = x, y
+            dirs = np.broadcast_to(np.array([0.0, 0.0, 1.0]), (h, w, 3)).copy()
+        elif self.model == "equirect":
+            lon, lat = (u / w - 0.5) * 2.0 * np.pi, (v / h - 0.5) * np.pi
+            dirs = np.stack([np.cos(lat) * np.sin(lon), np.sin(lat), np.cos(lat) * np.cos(lon)], axis=-1)
+        elif self.model == "fisheye":
+            dirs = lens.fisheye_unproject(x, y, self.distortion)
+        else:
+            dirs = lens.opencv_unproject(x, y, self.distortion)
+        return origins, dirs
+
+    def project(self, points: ArrayLike, aspect: float | None = None, *, width=None, height=None):
+        """World points (N, 3) to pixel coordinates (N, 2) float64 of a `width` x `height` render (default the
+        camera's size), NaN where the model does not see the point. (`aspect` is the pinhole's NDC form, which
+        these models lack.)"""
+        if aspect is not None:
+            raise ConfigError(f"camera model {self.model!r}: project(points) gives pixel coordinates, not NDC")
+        if width is None and height is None:
+            width, height = self._size
+        K = self.intrinsics(width, height)
+        p = np.atleast_2d(np.asarray(points, dtype=np.float64))
+        c = (p - self.pose[:3, 3]) @ self.pose[:3, :3]  # world -> camera (OpenCV axes)
+        X, Y, Z = c[:, 0], c[:, 1], c[:, 2]
+        with np.errstate(divide="ignore", invalid="ignore"):
+            if self.model == "orthographic":
+                x, y = np.where(Z >= 0.0, X, np.nan), np.where(Z >= 0.0, Y, np.nan)  # (rays start on the plane)
+            elif self.model == "equirect":
+                w, h = int(width), int(height)
+                lon, lat = np.arctan2(X, Z), np.arctan2(Y, np.hypot(X, Z))
+                return np.stack([(lon / (2.0 * np.pi) + 0.5) * w, (lat / np.pi + 0.5) * h], axis=1)
+            elif self.model == "fisheye":
+                x, y = lens.fisheye_distort(X, Y, Z, self.distortion)
+            else:
+                x, y = lens.opencv_distort(np.where(Z > 0.0, X / Z, np.nan), Y / Z, self.distortion)
+        return np.stack([K[0, 0] * x + K[0, 2], K[1, 1] * y + K[1, 2]], axis=1)
+
+    def view_depth(self, points: ArrayLike) -> np.ndarray:
+        """What the `depth` AOV holds for world points (N, 3): the distance along `forward` (OpenCV's Z), or for
+        the equirectangular camera the distance to the eye (its rays span every direction)."""
+        p = np.atleast_2d(np.asarray(points, dtype=np.float64))
+        if self.model == "equirect":
+            return np.linalg.norm(p - self.eye, axis=1)
+        return (p - self.eye) @ self.forward
+
+    # ------------------------------------------------------------------ value semantics
+    def replace(self, **changes) -> "ModelCamera":
+        """A copy with some of pose (read in `convention`), eye, near changed (another size: render at it)."""
+        args = self._replaced(changes, (), f"{self.model} camera")
+        return ModelCamera(self.model, distortion=self.distortion, ortho_height=self._ortho, **args)
+
+    def _key(self):
+        return (self.model, self.distortion, self._ortho) + super()._key()
+
+    def __repr__(self):
+        fx, fy, cx, cy = self._k
+        eye, fwd = ", ".join(f"{x:.4g}" for x in self.eye), ", ".join(f"{x:.4g}" for x in self.forward)
+        if self.model == "orthographic":
+            what = f"view_height={self._ortho:.6g}"
+        elif self.model == "equirect":
+            what = "360x180 degrees"
+        else:
+            what = f"fx={fx:.6g}, fy={fy:.6g}, cx={cx:.6g}, cy={cy:.6g}, dist={self.distortion}"
+        return (
+            f"Camera.{self.model}({what}, size={self._size[0]}x{self._size[1]}, eye=({eye}), forward=({fwd}), "
+            f"near={self.near:.4g})"
+        )
+
+
+# ---------------------------------------------------------------------------------------------- construction
+def from_opencv(K, dist, width, height, pose=None, convention="opencv", near=DEFAULT_INTRINSICS_NEAR):
+    """Camera.from_opencv: OpenCV's distortion model; `dist` is (k1, k2, p1, p2) or (k1, k2, p1, p2, k3).
+    All-zero coefficients give the pinhole camera (rasterized)."""
+    d = lens.coefficients(dist, (4, 5), "camera dist (k1, k2, p1, p2[, k3])")
+    if not np.any(d):
+        return IntrinsicsCamera(K, width, height, pose=pose, convention=convention, near=near)
+    d = np.concatenate([d, np.zeros(5 - len(d))])
+    return ModelCamera("opencv", K, width, height, pose, convention, near, distortion=d)
+
+
+def _fisheye(K, D, width, height, pose=None, convention="opencv", near=DEFAULT_INTRINSICS_NEAR):
+    """Camera.fisheye: OpenCV's fisheye model (Kannala-Brandt, equidistant with k1..k4): a ray at angle theta from
+    the optical axis lands at radius theta (1 + k1 theta^2 + k2 theta^4 + k3 theta^6 + k4 theta^8) (normalized);
+    rays beyond 90 degrees are kept while that radius keeps growing (fields of view over 180 degrees)."""
+    d = lens.coefficients(D, (4,), "camera fisheye D (k1, k2, k3, k4)")
+    return ModelCamera("fisheye", K, width, height, pose, convention, near, distortion=d)
+
+
+def _orthographic(view_height, width, height, pose=None, convention="opencv", near=DEFAULT_INTRINSICS_NEAR):
+    """Camera.orthographic: parallel rays along the pose's forward axis; the image spans `view_height` world units
+    vertically (square pixels), centred on the pose's position, rays start on that plane (`near` unused)."""
+    view_height = _check.number(view_height, "camera view_height", min_value=0.0, min_exclusive=True)
+    width, height = _image_size(width, height, "camera")
+    s = height / view_height
+    K = ((s, 0.0, width / 2.0), (0.0, s, height / 2.0), (0.0, 0.0, 1.0))
+    return ModelCamera("orthographic", K, width, height, pose, convention, near, ortho_height=view_height)
+
+
+def _equirect(width, height, pose=None, convention="opencv", near=DEFAULT_INTRINSICS_NEAR):
+    """Camera.equirect: the full sphere, longitude across the width (-180 degrees at the left edge, the forward
+    axis at the centre, +x to the right) and latitude down the height (up, -y, at the top)."""
+    width, height = _image_size(width, height, "camera")
+    K = ((width / (2.0 * np.pi), 0.0, width / 2.0), (0.0, height / np.pi, height / 2.0), (0.0, 0.0, 1.0))
+    return ModelCamera("equirect", K, width, height, pose, convention, near)

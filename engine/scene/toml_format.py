@@ -29,6 +29,14 @@ from .paths import Folders
 TOP_LEVEL = ("up", "camera", "mesh", "light", "settings", "animation", "environment")
 ENVIRONMENT_KEYS = ("map", "rotation", "intensity", "turbidity")
 CAMERA_KEYS = ("eye", "target", "up", "fov", "near")
+# the camera models' keys (engine/scene/camera.py ModelCamera): image size, intrinsics (pixels), coefficients
+MODEL_KEYS = {
+    "pinhole": ("width", "height", "fx", "fy", "cx", "cy"),
+    "opencv": ("width", "height", "fx", "fy", "cx", "cy", "k1", "k2", "p1", "p2", "k3"),
+    "fisheye": ("width", "height", "fx", "fy", "cx", "cy", "k1", "k2", "k3", "k4"),
+    "orthographic": ("width", "height", "view_height"),
+    "equirect": ("width", "height"),
+}
 MESH_COMMON = (
     "name",
     "file",
@@ -187,6 +195,8 @@ def parts_from_dict(data: dict, path: str = "<toml>", allow_paths=None, up=None)
 
 # ---------------------------------------------------------------------------------------------- camera
 def _camera(table: dict, ctx: _Ctx) -> Camera:
+    if "model" in table:
+        return _model_camera(table, ctx)
     _unknown(ctx, table, CAMERA_KEYS)
     for key in ("eye", "target"):
         if key not in table:
@@ -207,6 +217,41 @@ def _camera(table: dict, ctx: _Ctx) -> Camera:
     if near is not None:
         near = ctx.check(_check.number, near, "near", min_value=0.0, min_exclusive=True)
     return ctx.check(Camera.look_at, eye, target, up, fov, near)
+
+
+def _model_camera(table: dict, ctx: _Ctx) -> Camera:
+    """A camera with `model` = one of MODEL_KEYS, placed by eye / target / up, its image size and intrinsics in
+    pixels (fx, fy, cx, cy; cx, cy default to the image centre) and its coefficients (default 0)."""
+    model = table["model"]
+    if model not in MODEL_KEYS:
+        raise ctx.error(f"model must be one of {', '.join(MODEL_KEYS)}, got {model!r}")
+    _unknown(ctx, table, ("model", "eye", "target", "up", "near", *MODEL_KEYS[model]))
+    for key in ("eye", "target", "width", "height") + (("fx",) if "fx" in MODEL_KEYS[model] else ()):
+        if key not in table:
+            raise ctx.error(f"missing key {key!r} (model {model!r})")
+    look = ctx.check(Camera.look_at, table["eye"], table["target"], table.get("up", (0.0, 1.0, 0.0)))
+    width, height = table["width"], table["height"]
+    num = {}
+    for key in MODEL_KEYS[model][2:]:
+        default = {"fy": table.get("fx"), "cx": None, "cy": None}.get(key, 0.0)
+        v = table.get(key, default)
+        num[key] = None if v is None else ctx.check(_check.number, v, key)
+    near = table.get("near")
+    extra = {} if near is None else {"near": ctx.check(_check.number, near, "near", min_value=0.0, min_exclusive=True)}
+    if model == "orthographic":
+        return ctx.check(Camera.orthographic, num["view_height"] or 0.0, width, height, look.pose, **extra)
+    if model == "equirect":
+        return ctx.check(Camera.equirect, width, height, look.pose, **extra)
+    cx = num["cx"] if num["cx"] is not None else (width / 2.0 if isinstance(width, (int, float)) else 0.0)
+    cy = num["cy"] if num["cy"] is not None else (height / 2.0 if isinstance(height, (int, float)) else 0.0)
+    K = ((num["fx"], 0.0, cx), (0.0, num["fy"], cy), (0.0, 0.0, 1.0))
+    if model == "pinhole":
+        return ctx.check(Camera.from_intrinsics, K, width, height, look.pose, **extra)
+    if model == "fisheye":
+        D = [num[k] for k in ("k1", "k2", "k3", "k4")]
+        return ctx.check(Camera.fisheye, K, D, width, height, look.pose, **extra)
+    dist = [num[k] for k in ("k1", "k2", "p1", "p2", "k3")]
+    return ctx.check(Camera.from_opencv, K, dist, width, height, look.pose, **extra)
 
 
 # ---------------------------------------------------------------------------------------------- lights

@@ -44,6 +44,15 @@ def check_device(device_info: dict, buffer_device_address: bool) -> None:
         raise ConfigError(f"{ENV}: {device_info['name']!r} lacks bufferDeviceAddress, which the faulting shader needs")
 
 
+def arm(ctx, after: int = 1) -> None:
+    """Fault ahead of the `after`-th submission from now on `ctx` (a context made with $HYBRID_FAULT_INJECTION set:
+    a test arms it once its set-up has run, as set-up submits a varying number of uploads)."""
+    root = ctx.root
+    if root._fault is None:
+        raise ConfigError(f"fault injection is not enabled on this device (create it with {ENV} set)")
+    root._fault.remaining = after
+
+
 class FaultInjector:
     """The faulting dispatch, recorded once (its own pipeline: faults.py sits below engine.vk.pipelines), and the
     count of submissions until it goes ahead of one."""

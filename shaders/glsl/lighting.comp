@@ -8,6 +8,7 @@
 // `out_hdr` holds the radiance (before exposure); `out_color` its tone-mapped image at frame.exposure (auto
 // exposure rewrites it: exposure.comp).
 #include "common.glsl"
+#include "background_ray.glsl"
 #include "brdf.glsl"
 FRAME_BLOCK
 #define ENV_BINDING 10
@@ -51,10 +52,13 @@ void main() {
     if (px.x >= int(w) || px.y >= int(h)) return;
     vec4 nrm = imageLoad(g_normal, px);
     vec3 color;
-    if (nrm.w <= 0.0) {
+    float ray = nrm.w <= 0.0 ? imageLoad(g_position, px).w : 0.0;   // a traced camera's ray (background_ray.glsl)
+    if (ray == BACKGROUND_NO_RAY) {
+        color = vec3(0.0);   // no ray: outside a fisheye's circle, past a folding distortion
+    } else if (nrm.w <= 0.0) {
         vec2 ndc = (vec2(px) + 0.5) / vec2(w, h) * 2.0 - 1.0;
         vec4 far = frame.inv_view_proj * vec4(ndc, 1.0, 1.0);
-        vec3 dir = normalize(far.xyz / far.w - frame.eye);
+        vec3 dir = ray < 0.0 ? decode_background_ray(ray) : normalize(far.xyz / far.w - frame.eye);
         color = environment_radiance(dir);
         for (uint i = 0u; i < frame.light_count; ++i) {   // sun discs: irradiance over the disc's solid angle
             Light l = frame.lights[i];

@@ -6,6 +6,7 @@ Every engine error is printed on one line as `error: <message>` and the exit sta
 from __future__ import annotations
 
 import argparse
+import contextlib
 import logging
 import os
 import signal
@@ -13,6 +14,8 @@ import sys
 import threading
 import time
 from pathlib import Path
+
+from tqdm import tqdm
 
 from ._version import __version__
 from .batch import add_arguments as add_batch_arguments
@@ -26,7 +29,7 @@ from .renderer import Renderer
 from .scene import Scene
 from .sequence import load_camera_path, orbit_cameras, output_paths, render_size, render_sequence
 from .vk.context import any_hung
-from .settings import AOVS, MAX_FRAMES, TONEMAPS, SHADOW_MODES as SHADOW_CHOICES
+from .settings import AOVS, INTEGRATORS, MAX_FRAMES, PIXEL_FILTERS, TONEMAPS, SHADOW_MODES as SHADOW_CHOICES
 from .settings import DERIVED_AOVS, parse_size, resolve_aovs
 from .viewer import add_arguments as add_view_arguments
 from .viewer import run_from_args
@@ -36,7 +39,16 @@ from .vk import choose_device, describe_devices
 def _settings(args) -> dict:
     out = {}
     keys = ("shadows", "shadow_samples", "reference_samples", "accumulate", "denoise", "ao", "ao_samples")
-    for key in keys + ("exposure", "auto_exposure", "tonemap"):
+    for key in keys + (
+        "exposure",
+        "auto_exposure",
+        "tonemap",
+        "integrator",
+        "spp",
+        "max_depth",
+        "pixel_filter",
+        "seed",
+    ):
         value = getattr(args, key, None)
         if value is not None:
             out[key] = value
@@ -140,7 +152,10 @@ def cmd_render(args) -> int:
         signal.signal(signal.SIGTERM, _interrupt) if threading.current_thread() is threading.main_thread() else None
     )
     try:
-        with Renderer(width, height, device=args.device, validation=args.validation) as r:
+        with (
+            Renderer(width, height, device=args.device, validation=args.validation) as r,
+            _path_bar(r, settings, args.quiet or sequence or not sys.stderr.isatty()),
+        ):
             result = render_sequence(
                 r,
                 scene,
@@ -184,6 +199,25 @@ def cmd_render(args) -> int:
     if args.validation and not args.quiet:
         print("validation: no errors")
     return 0
+
+
+@contextlib.contextmanager
+def _path_bar(renderer, settings: dict, quiet: bool):
+    """A progress bar of the path tracer's samples per pixel for a one-frame path-traced render (tqdm, on stderr)."""
+    if quiet or settings.get("integrator") != "path":
+        yield
+        return
+    with tqdm(total=settings.get("spp"), unit="spp", file=sys.stderr, dynamic_ncols=True, leave=False) as bar:
+
+        def step(done, total):
+            bar.total = total
+            bar.update(done - bar.n)
+
+        renderer.path_progress = step
+        try:
+            yield
+        finally:
+            renderer.path_progress = None
 
 
 def _interrupt(signum, frame):
@@ -352,6 +386,17 @@ def build_parser() -> argparse.ArgumentParser:
         help="also scale by 0.18 / the frame's log-average luminance",
     )
     r.add_argument("--tonemap", default=None, choices=TONEMAPS, help="tone curve (default agx)")
+    r.add_argument(
+        "--integrator",
+        default=None,
+        help=f"{', '.join(INTEGRATORS)}: the hybrid raster frame, or the progressive path tracer (default raster)",
+    )
+    r.add_argument("--spp", type=int, default=None, help="path: samples per pixel (default 64)")
+    r.add_argument("--max-depth", type=int, default=None, help="path: the most segments of a path (default 8)")
+    r.add_argument(
+        "--pixel-filter", default=None, help=f"path: {', '.join(PIXEL_FILTERS)} (default box): anti-aliasing"
+    )
+    r.add_argument("--seed", type=int, default=None, help="path: the random seed (the same image for the same seed)")
     r.set_defaults(func=cmd_render)
 
     v = sub.add_parser("view", help="open a scene in a window (keys: H), shaders hot-reloaded")

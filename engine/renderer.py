@@ -24,6 +24,7 @@ from .lifetime import Closes
 from .errors import ConfigError, EngineError, VulkanError
 from .frame import Frame
 from .gpu import bvh_descriptor_set, bvh_layout as resolve_layout
+from .gpu.pathscene import PathScene
 from .gpu.environment import GpuEnvironment
 from .gpu.scene import SceneChanges, SceneGeometry
 from .passes.accumulate import ALPHA_MIN, AccumulatePass
@@ -36,6 +37,7 @@ from .passes.frame_block import FrameBlock
 from .passes.interface import FILTER_AO, FILTER_MASKS, FILTER_TEMPORAL, MAX_LIGHTS, Tonemap, pack_light
 from .passes.exposure import ExposurePass
 from .passes.lighting import LightingPass
+from .passes.path import PathPass
 from .passes.raster_options import RasterOptions
 from .passes.raypass import follow_scene
 from .passes.shadows import ShadowPass
@@ -193,6 +195,10 @@ class Renderer(Closes):
         self.bvh_stats, self._commands = {}, {}
         self._changes = SceneChanges()  # the scene's state the last frame drew (instance motion)
         self._history_key = self._steady = None  # _history_key: what the temporal history was accumulated under
+        self.path = None  # PathPass, made by the first path-traced frame (its pipeline takes a while to build)
+        self.path_samples = 0  # samples per pixel in the path tracer's image so far
+        self.path_progress = None  # called as f(samples done, samples in all) after each path-tracing batch
+        self._path_key = None  # what the path tracer's samples so far were traced under
         self.uploads = 0  # scene uploads so far (a test reads it: the same scene is uploaded once)
         self.bvh_builds = 0  # ray-pass BVHs made so far (a scene's first, and a new kind or rebuild after changes)
 
@@ -277,6 +283,11 @@ class Renderer(Closes):
         tonemap: Tonemap = default("tonemap"),
         ambient: float | Sequence[float] | None = default("ambient"),
         view: ViewMode = default("view"),
+        integrator: str = default("integrator"),
+        spp: int = default("spp"),
+        max_depth: int = default("max_depth"),
+        pixel_filter: str = default("pixel_filter"),
+        seed: int = default("seed"),
         **unknown: Any,
     ) -> Frame:
         """Render one frame of `scene` seen from `camera` and read it back: colour, AOVs and GPU timings.
@@ -319,6 +330,15 @@ class Renderer(Closes):
                 radiance instead (0: no environment light), times AO, and the background's colour.
             view: "color" (the lit image) or an AOV drawn into the colour image instead, on the GPU (the names
                 are `engine.settings.AOVS`; `Frame.aov` holds every AOV whatever the view).
+            integrator: "raster" (the hybrid frame: raster G-buffer, traced shadows and AO, deferred lighting) or
+                "path" (shaders/glsl/path.comp: a progressive path tracer on the same BVH and materials, `spp`
+                samples per pixel, its linear radiance tonemapped into "color" and as "radiance"; the data AOVs,
+                depth, ids, normals, motion, stay the raster's; shadows, AO and their filters are not run).
+            spp: path: samples per pixel, 1..2^20 (`path_progress`, if set, is called after each batch).
+            max_depth: path: the most segments of a path, 1..64 (1: emitters seen directly; 2: direct light).
+            pixel_filter: path: "box" (samples uniform over the pixel) or "gaussian" (standard deviation 0.5
+                pixel).
+            seed: path: the seed of the random sequence, 0..2^32-1: the same seed and spp give the same image.
             **unknown: none are accepted: a `ConfigError` names the first.
 
         Returns:
@@ -334,6 +354,8 @@ class Renderer(Closes):
         self._check_open("render()")
         self._drain()
         cmd, marks, cfg, n_lights = self._prepare(scene, camera, settings, readback=(readback_aovs(names), 0))
+        if cfg["integrator"] == "path":
+            self._path_samples(scene, camera, cfg, n_lights)
         self.ctx.submit(cmd)
         return self._frame(scene, names, 0, marks, cfg, n_lights, camera)
 
@@ -399,6 +421,8 @@ class Renderer(Closes):
             self._drain()
         slot = 1 - last.slot if last is not None else 0  # (not the slot whose readback is still to be read)
         cmd, marks, cfg, n_lights = self._prepare(scene, camera, settings, readback=(readback_aovs(names), slot))
+        if cfg["integrator"] == "path":
+            self._path_samples(scene, camera, cfg, n_lights)
         self.ctx.submit(cmd, wait=False, fence=self._fences[slot])
         last = self._own_flight(mine)  # (None if _prepare read it back: new targets)
         self._flight = _Flight(mine, slot, self._fences[slot], (scene, names, slot, marks, cfg, n_lights, camera))
@@ -471,6 +495,11 @@ class Renderer(Closes):
         tonemap: Tonemap = default("tonemap"),
         ambient: float | Sequence[float] | None = default("ambient"),
         view: ViewMode = default("view"),
+        integrator: str = default("integrator"),
+        spp: int = default("spp"),
+        max_depth: int = default("max_depth"),
+        pixel_filter: str = default("pixel_filter"),
+        seed: int = default("seed"),
         **unknown: Any,
     ) -> dict[str, Any]:
         """Render one frame into `self.targets.color` without reading it back (the viewer's path).
@@ -485,7 +514,9 @@ class Renderer(Closes):
         settings = given_settings(locals(), unknown)
         self._check_open("submit()")
         self._drain()
-        cmd, marks, cfg, _ = self._prepare(scene, camera, settings, readback=None)
+        cmd, marks, cfg, n_lights = self._prepare(scene, camera, settings, readback=None)
+        if cfg["integrator"] == "path":  # the viewer: a batch more while nothing changes, else start over
+            self._path_samples(scene, camera, cfg, n_lights, progressive=True)
         self._last_marks = marks
         self.ctx.submit(cmd, wait=wait, signal_semaphores=signal_semaphores, fence=fence)
         return cfg
@@ -597,6 +628,7 @@ class Renderer(Closes):
             cfg["denoise"],
             cfg["view"],
             cfg["auto_exposure"],
+            cfg["integrator"],
             len(lights),
             readback,
             self._raster,
@@ -604,6 +636,7 @@ class Renderer(Closes):
         )
         if cfg["shadows"] == "reference":
             key += (cfg["reference_samples"],)
+        self._path_ready(scene, cfg)
         if key not in self._commands:
             cmd, ts = self._record(cfg, len(lights), readback, rays)
             self._commands[key] = (cmd, list(ts.names))
@@ -727,6 +760,83 @@ class Renderer(Closes):
             self._changes.write(scene, self._geometry)
             self._update_bvh(scene, todo[1])
 
+    def _ray_passes(self):
+        return (self.shadows, self.ao) if self.path is None else (self.shadows, self.ao, self.path)
+
+    def _path_ready(self, scene, cfg):
+        """For a path-traced frame: the path tracer's pass (made on first use) and its scene buffers (made again
+        after a new upload)."""
+        if cfg["integrator"] != "path":
+            return
+        if self.path is None:
+            self.path = PathPass(self.ctx, self.library, self.targets.resources, self.bvh_set, self.bvh_layout)
+            self.passes.append(self.path)
+            self.path.bind_scene(self._geometry)
+            if self._environment is not None:
+                self.path.bind_environment(self._environment)
+            if self._scene_bvh is not None:
+                self.path.specialize_for(self._scene_bvh)
+            self._invalidate_commands()
+        if self.path.scene_data is None:
+            self._invalidate_commands()  # (the recordings bound the last scene's buffers)
+            self.path.bind_data(PathScene(self.ctx, scene), self._geometry)
+            self._path_key = None
+
+    def _drop_path_data(self):
+        if self.path is not None and self.path.scene_data is not None:
+            self.ctx.wait_idle()
+            self.path.scene_data.destroy()
+            self.path.scene_data = None
+            self._path_key = None
+
+    def _path_samples(self, scene, camera, cfg, n_lights, progressive=False):
+        """Trace `cfg["spp"]` samples per pixel into the path tracer's sum (the frame's recording then resolves
+        it), one batch per submit of one recorded batch of dispatches; `progressive` (the viewer): one sample added to
+        the samples so far when the scene, camera and settings are those they were traced under, else a first one."""
+        camera = camera if camera is not None else scene.camera
+        if traced(camera):
+            raise ConfigError(
+                f"integrator='path' takes pinhole cameras; a {camera.model!r} camera is rendered by the raster "
+                "integrator only"
+            )
+        view_proj = camera.projection_matrix(self.width / self.height) @ camera.view_matrix()
+        data = self.path.scene_data
+        data.update(scene)
+        key = (
+            id(scene),
+            scene.version,
+            np.asarray(view_proj, np.float64).tobytes(),
+            tuple(np.asarray(camera.eye, np.float64)),
+            tuple(sorted((k, str(v)) for k, v in cfg.items())),
+            b"".join(pack_light(light).tobytes() for light in scene.lights),
+            self.width,
+            self.height,
+        )
+        first = self.path_samples if progressive and key == self._path_key else 0
+        total = cfg["spp"]
+        if first >= total:
+            return
+        batch = self.path.batch_size(self.width, self.height)
+        end = first + 1 if progressive else total  # (the viewer: a sample per frame, to stay interactive)
+        cmd_key = ("path-trace",)
+        if cmd_key not in self._commands:
+            rec = Recorder(self.ctx)
+            self.path.record_trace(rec, self.targets)
+            self._commands[cmd_key] = (rec.finish(), [])
+        cmd = self._commands[cmd_key][0]
+        inv = np.linalg.inv(np.asarray(view_proj, np.float64))
+        done = first
+        while done < end:
+            count = min(batch, end - done)
+            self.path.write_params(
+                inv, camera.eye, done, count, cfg["max_depth"], cfg["pixel_filter"], cfg["seed"], n_lights
+            )
+            self.ctx.submit(cmd)
+            done += count
+            self.path_samples, self._path_key = done, key
+            if self.path_progress is not None:
+                self.path_progress(done, total)
+
     def _update_bvh(self, scene, changed: bool):
         """The one hook per frame where the ray passes' BVH follows the scene (`changed`; `follow_scene`)."""
         if self._scene_bvh is None or changed:
@@ -737,7 +847,7 @@ class Renderer(Closes):
                 scene,
                 self.bvh_set,
                 self.bvh_layout,
-                tuple(p for p in (self.shadows, self.ao, self.camera_rays) if p is not None),
+                tuple(p for p in (self.shadows, self.ao, self.camera_rays, self.path) if p is not None),
                 self._invalidate_commands,
                 self._geometry.alpha_index,
             )
@@ -756,10 +866,11 @@ class Renderer(Closes):
             self.ctx, scene, self.gbuffer.white, self.gbuffer.sampler, levels=self._raster.lod_pixels > 0
         )
         self.gbuffer.bind_scene(self._geometry)
-        for p in (self.shadows, self.ao):  # the alpha test's records and textures
+        for p in self._ray_passes():  # the alpha test's records and textures
             p.bind_scene(self._geometry)
         if self.camera_rays is not None:
             self.camera_rays.bind_scene(self._geometry, scene)
+        self._drop_path_data()
 
     def _use_scene(self, scene):
         """Upload a scene that is not the last one; True when it did."""
@@ -820,24 +931,45 @@ class Renderer(Closes):
         else:
             self.gbuffer.record(rec, t, self._geometry, self._raster)
         rec.mark("gbuffer")
-        mode = cfg["shadows"]
+        path = cfg["integrator"] == "path"  # (the path tracer's own light transport: no masks, AO or filters)
+        mode = cfg["shadows"] if not path else "off"
         reference = cfg["reference_samples"] if mode == "reference" else None
         if mode == "off" or n_lights == 0:
             rec.fill(t["masks.raw"], ONE_F32)
         else:
             self.shadows.record(rec, t, mode, n_lights=n_lights, reference_samples=reference)
         rec.mark("shadows")
-        if cfg["ao"]:
+        if cfg["ao"] and not path:
             self.ao.record(rec, t, reference_samples=reference)
         else:
             rec.fill(t["ao.raw"], ONE_F32)
         rec.mark("ao")
 
+        self._record_filters(rec, cfg, n_lights, mode, path)
+        (self.path.record_resolve if path else self.lighting.record)(rec, t)
+        rec.mark("lighting")
+        if cfg["auto_exposure"]:
+            self.exposure.record(rec, t)
+            rec.mark("exposure")
+        if cfg["view"] != "color":
+            self.debug_view.record(rec, t, cfg["view"])
+            rec.mark("view")
+        if readback:
+            t.record_readback(rec, *t.readback(self.ctx, *readback))
+            rec.mark("readback")
+        else:  # the colour image is copied out by the caller (the viewer's presenter)
+            rec.use(reads=[t.color], stage=TRANSFER)
+        return rec.finish(), ts
+
+    def _record_filters(self, rec, cfg, n_lights, mode, path):
+        """The temporal accumulation and denoiser of the soft light masks and AO, where the settings ask for them
+        (else their raw signals are the final ones)."""
+        t = self.targets
         # Which signals are filtered: soft light masks and (outside the reference mode) AO.
         filtered = []
         if mode == "soft" and n_lights and (cfg["accumulate"] or cfg["denoise"]):
             filtered.append("masks")
-        if cfg["ao"] and mode != "reference" and (cfg["accumulate"] or cfg["denoise"]):
+        if cfg["ao"] and not path and mode != "reference" and (cfg["accumulate"] or cfg["denoise"]):
             filtered.append("ao")
         flags = (FILTER_MASKS if "masks" in filtered else 0) | (FILTER_AO if "ao" in filtered else 0)
         if filtered:
@@ -856,20 +988,6 @@ class Renderer(Closes):
         for name in ("masks", "ao"):
             if name not in filtered:
                 rec.copy(t.signals[name].raw, t.signals[name].final)
-        self.lighting.record(rec, t)
-        rec.mark("lighting")
-        if cfg["auto_exposure"]:
-            self.exposure.record(rec, t)
-            rec.mark("exposure")
-        if cfg["view"] != "color":
-            self.debug_view.record(rec, t, cfg["view"])
-            rec.mark("view")
-        if readback:
-            t.record_readback(rec, *t.readback(self.ctx, *readback))
-            rec.mark("readback")
-        else:  # the colour image is copied out by the caller (the viewer's presenter)
-            rec.use(reads=[t.color], stage=TRANSFER)
-        return rec.finish(), ts
 
 
 class _Owner:

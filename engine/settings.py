@@ -47,7 +47,19 @@ DEFAULT_SETTINGS: dict[str, Any] = {
     "tonemap": "agx",  # TONEMAPS: Khronos PBR Neutral, AgX, or Narkowicz's ACES fit
     "ambient": None,  # None: the scene's environment (default: a daylight sky); a colour: a constant environment
     "view": "color",  # VIEW_MODES: the lit image or one AOV, drawn on the GPU
+    "integrator": "raster",  # INTEGRATORS: the hybrid raster frame, or the progressive path tracer
+    "spp": 64,  # path: samples per pixel
+    "max_depth": 8,  # path: the most segments of a path (1: emitters seen directly, 2: direct light, ...)
+    "pixel_filter": "box",  # PIXEL_FILTERS: path: where in the pixel its samples land
+    "seed": 0,  # path: the random sequence's seed (the same image for the same seed and spp)
 }
+#: The values of the `integrator` setting.
+INTEGRATORS = ("raster", "path")
+#: The values of the `pixel_filter` setting: box (uniform over the pixel), gaussian (standard deviation 0.5 pixel).
+PIXEL_FILTERS = ("box", "gaussian")
+#: The most samples per pixel and the longest path (`spp`, `max_depth`).
+MAX_SPP = 1 << 20
+MAX_DEPTH = 64
 # hard: one ray to each light's centre. soft: `shadow_samples` rays over each light's area / solid angle (R2 points,
 # moving every frame), accumulated and denoised. seed-delta: the paper's occlusion-delta approximation (one ray).
 # reference: `reference_samples` rays per pixel per light, nothing accumulated or denoised (ground truth).
@@ -57,6 +69,8 @@ SHADOW_MODES: tuple[str, ...] = get_args(ShadowMode)
 __all__ = [
     "DEFAULT_SETTINGS",
     "SHADOW_MODES",
+    "INTEGRATORS",
+    "PIXEL_FILTERS",
     "TONEMAPS",
     "AOVS",
     "DERIVED_AOVS",
@@ -109,6 +123,10 @@ def choices(name: str) -> tuple[Any, ...] | None:
         return SHADOW_MODES
     if name == "view":
         return AOVS
+    if name == "integrator":
+        return INTEGRATORS
+    if name == "pixel_filter":
+        return PIXEL_FILTERS
     if name == "tonemap":
         return TONEMAPS
     if isinstance(DEFAULT_SETTINGS.get(name), bool):
@@ -151,16 +169,26 @@ def check_settings(settings: dict[str, Any]) -> dict[str, Any]:
         raise ConfigError(f"setting shadows={out['shadows']!r}: expected one of {', '.join(SHADOW_MODES)}")
     if out["view"] not in VIEW_MODES:
         raise ConfigError(f"setting view={out['view']!r}: expected one of {', '.join(VIEW_MODES)}")
+    for key, known in (("integrator", INTEGRATORS), ("pixel_filter", PIXEL_FILTERS)):
+        if out[key] not in known:
+            raise ConfigError(f"setting {key}={out[key]!r}: expected one of {', '.join(known)}")
     if out["tonemap"] not in TONEMAPS:
         raise ConfigError(f"setting tonemap={out['tonemap']!r}: expected one of {', '.join(TONEMAPS)}")
     for key in ("ao", "accumulate", "denoise", "auto_exposure", "shadow_terminator"):
         if not isinstance(out[key], (bool, np.bool_)):
             raise ConfigError(f"setting {key}={out[key]!r}: expected true or false")
         out[key] = bool(out[key])
-    for key, hi in (("ao_samples", 256), ("shadow_samples", 256), ("reference_samples", 65536)):
+    for key, lo, hi in (
+        ("ao_samples", 1, 256),
+        ("shadow_samples", 1, 256),
+        ("reference_samples", 1, 65536),
+        ("spp", 1, MAX_SPP),
+        ("max_depth", 1, MAX_DEPTH),
+        ("seed", 0, 2**32 - 1),
+    ):
         v = out[key]
-        if isinstance(v, (bool, np.bool_)) or not isinstance(v, (int, np.integer)) or not 1 <= v <= hi:
-            raise ConfigError(f"setting {key}={v!r}: expected an integer in 1..{hi}")
+        if isinstance(v, (bool, np.bool_)) or not isinstance(v, (int, np.integer)) or not lo <= v <= hi:
+            raise ConfigError(f"setting {key}={v!r}: expected an integer in {lo}..{hi}")
         out[key] = int(v)
     v = out["ao_radius"]
     if v is not None:

@@ -12,6 +12,7 @@ from ..settings import parse_size
 from ..vk import choose_device, describe_devices
 from .config import SECTIONS, BenchConfig
 from .plot import plot
+from .path import run_path_cli
 from .progress import Progress
 from .report import format_report, write_json
 from .runner import Bench
@@ -59,7 +60,13 @@ def run_bench(cfg: BenchConfig, json_path=None, plot_path=None, progress: bool =
 
 def add_arguments(p):
     """The `hybrid bench` arguments (engine/cli.py adds the subparser)."""
-    p.add_argument("section", nargs="?", default="all", choices=SECTIONS + ("all",), help="what to run (default all)")
+    p.add_argument(
+        "section",
+        nargs="?",
+        default="all",
+        choices=SECTIONS + ("path", "all"),
+        help="what to run (default all; path: the path tracer on the Cornell box, engine/bench/path.py, not in all)",
+    )
     p.add_argument(
         "--quick",
         action="store_true",
@@ -75,6 +82,9 @@ def add_arguments(p):
 
 def run_cli(args) -> int:
     size = parse_size(args.size) if args.size else None
+    if args.section == "path":
+        check_output_paths(args.json)
+        return run_path_cli(args, size)
     cfg = BenchConfig.for_cli(args.section, quick=args.quick, size=size, device=args.device)
     check_output_paths(args.json, args.plot)  # before minutes of work
     if args.device is not None:  # a device that does not exist fails now, whatever the section

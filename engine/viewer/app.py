@@ -249,6 +249,8 @@ class Viewer:
             self.cycle("tonemap")
         elif key == g.KEY_5:
             self.cycle("auto_exposure")
+        elif key == g.KEY_6:
+            self.cycle("integrator")
         elif key == g.KEY_V:
             self.cycle("view", -1 if shift else 1)
         elif key == g.KEY_R:
@@ -445,6 +447,8 @@ class Viewer:
         toggles = [
             f"{name} {label(current(self.settings, name))}" for name in TOGGLED if setting_choices(name) is not None
         ]
+        if current(self.settings, "integrator") == "path":  # the samples per pixel accumulated so far
+            toggles.append(f"spp {getattr(self.renderer, 'path_samples', 0)}/{current(self.settings, 'spp')}")
         if self.scene.animations or self.on_frame is not None:
             toggles.append(f"t {self.time:.1f} s" + (" paused" if self.paused else ""))
         lines = [(head, TextImage.WHITE), (gpu, TextImage.WHITE), ("  ".join(toggles) + "   H: help", TextImage.GREY)]

@@ -45,23 +45,4 @@ vec3 brdf_pi(vec3 n, vec3 v, vec3 l, vec3 base, float metallic, float roughness)
     return diffuse + specular;
 }
 
-// Directional-albedo approximation of the specular lobe under uniform light (Karis 2014, "Physically based shading
-// on mobile"): the scale and bias on F0 of the hemisphere-integrated GGX reflectance.
-vec2 env_brdf(float roughness, float n_v) {
-    const vec4 c0 = vec4(-1.0, -0.0275, -0.572, 0.022);
-    const vec4 c1 = vec4(1.0, 0.0425, 1.04, -0.04);
-    vec4 r = roughness * c0 + c1;
-    float a004 = min(r.x * r.x, exp2(-9.28 * n_v)) * r.x + r.y;
-    return vec2(-1.04, 1.04) * a004 + r.zw;
-}
-
-// Reflectance under uniform ambient light: the specular lobe's directional albedo plus the diffuse in what it leaves
-// (for a rough dielectric within a few percent of the Lambert albedo).
-vec3 ambient_reflectance(vec3 n, vec3 v, vec3 base, float metallic, float roughness) {
-    vec2 ab = env_brdf(max(roughness, MIN_ROUGHNESS), max(dot(n, v), 1e-4));
-    vec3 f0 = mix(vec3(0.04), base, metallic);
-    vec3 spec = f0 * ab.x + ab.y;
-    return spec + (1.0 - spec) * (1.0 - metallic) * base;
-}
-
 #endif

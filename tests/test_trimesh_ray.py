@@ -5,16 +5,14 @@ model files they load (not in the sdist) are in tests/data/trimesh/."""
 from __future__ import annotations
 
 import os
-import shutil
 import subprocess
 import sys
-import tarfile
-import tempfile
 import xml.etree.ElementTree as ET
 from pathlib import Path
 
 import pytest
 import trimesh
+from helpers import pip_files
 
 HERE = Path(__file__).resolve().parent
 #: trimesh's ray test files (both are in its sdist's tests/)
@@ -64,48 +62,10 @@ def trimesh_ray_tests() -> Path:
     """A folder with trimesh's ray test files from its sdist at the installed version, downloaded once (pip) and
     kept under the temp dir; skipped, with pip's last line, when the download fails."""
     version = trimesh.__version__
-    home = Path(tempfile.gettempdir()) / f"hybrid-trimesh-{version}-tests"
-    if all((home / name).is_file() for name in FILES):
-        return home
-    work = Path(tempfile.mkdtemp(prefix="hybrid-trimesh-sdist-"))
-    try:
-        proc = subprocess.run(
-            [
-                sys.executable,
-                "-m",
-                "pip",
-                "download",
-                "--no-deps",
-                "--no-binary",
-                ":all:",
-                "--disable-pip-version-check",
-                "-q",
-                "-d",
-                str(work),
-                f"trimesh=={version}",
-            ],
-            capture_output=True,
-            text=True,
-            timeout=600,
-        )
-        sdists = sorted(work.glob("trimesh-*.tar.gz"))
-        if proc.returncode or not sdists:
-            last = (proc.stderr or proc.stdout).strip().splitlines()
-            pytest.skip(f"could not download trimesh {version}'s sdist with pip: {last[-1] if last else 'no file'}")
-        out = work / "tests"
-        out.mkdir()
-        with tarfile.open(sdists[0]) as tar:
-            for name in FILES:
-                member = tar.getmember(f"trimesh-{version}/tests/{name}")  # KeyError: the sdist lacks it (a bug)
-                (out / name).write_bytes(tar.extractfile(member).read())
-        (out / "pytest.ini").write_text("[pytest]\n")  # the rootdir: none of trimesh's or our settings apply
-        try:
-            out.rename(home)
-        except OSError:  # another run made it meanwhile
-            pass
-        return home
-    finally:
-        shutil.rmtree(work, ignore_errors=True)
+    members = {name: f"trimesh-{version}/tests/{name}" for name in FILES}
+    home = pip_files(f"trimesh=={version}", members, f"hybrid-trimesh-{version}-tests", sdist=True)
+    (home / "pytest.ini").write_text("[pytest]\n")  # the rootdir: none of trimesh's or our settings apply
+    return home
 
 
 @pytest.mark.slow

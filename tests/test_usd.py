@@ -4,11 +4,8 @@ compared), with their up axis, instancers, UsdPreviewSurface textures, camera an
 import logging
 import math
 import os
-import shutil
 import subprocess
 import sys
-import tempfile
-import zipfile
 from pathlib import Path
 
 import numpy as np
@@ -20,6 +17,7 @@ from engine.scene import Camera, Material, Scene, primitives
 from engine.scene.geometry import UP_AXES
 from engine.scene.instances import Mesh
 from engine.scene.lights import DirectionalLight, PointLight, RectLight, SpotLight
+from helpers import pip_files
 
 pxr = pytest.importorskip("pxr")
 from pxr import Gf, Sdf, Usd, UsdGeom, UsdLux, UsdShade, Vt  # noqa: E402
@@ -284,34 +282,8 @@ ASSETS = ("ant.usda", "cartpole.usda", "bunny.usd", "crazyflie.usd")
 @pytest.fixture(scope="session")
 def newton_assets() -> Path:
     """USD assets from the `newton` wheel (pip, once; kept under the temp dir); skipped when pip cannot get it."""
-    home = Path(tempfile.gettempdir()) / f"hybrid-newton-{NEWTON}-assets"
-    if all((home / name).is_file() for name in ASSETS):
-        return home
-    work = Path(tempfile.mkdtemp(prefix="hybrid-newton-"))
-    try:
-        proc = subprocess.run(
-            [sys.executable, "-m", "pip", "download", "--no-deps", "--disable-pip-version-check", "-q"]
-            + ["-d", str(work), f"newton=={NEWTON}"],
-            capture_output=True,
-            text=True,
-            timeout=600,
-        )
-        wheels = sorted(work.glob("newton-*.whl"))
-        if proc.returncode or not wheels:
-            last = (proc.stderr or proc.stdout).strip().splitlines()
-            pytest.skip(f"could not download newton {NEWTON} with pip: {last[-1] if last else 'no file'}")
-        out = work / "assets"
-        out.mkdir()
-        with zipfile.ZipFile(wheels[0]) as z:
-            for name in ASSETS:
-                (out / name).write_bytes(z.read(f"newton/examples/assets/{name}"))
-        try:
-            out.rename(home)
-        except OSError:  # another run made it meanwhile
-            pass
-        return home
-    finally:
-        shutil.rmtree(work, ignore_errors=True)
+    members = {name: f"newton/examples/assets/{name}" for name in ASSETS}
+    return pip_files(f"newton=={NEWTON}", members, f"hybrid-newton-{NEWTON}-assets")
 
 
 def pxr_reference(path):

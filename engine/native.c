@@ -9,6 +9,7 @@
 
 #include <pthread.h>
 #include <stdint.h>
+#include <float.h>
 #include <math.h>
 #include <stdlib.h>
 #include <string.h>
@@ -892,18 +893,19 @@ int64_t hybrid_triangle_records(const float *vt, int64_t nv, const int64_t *face
 
 /* Keys as order.ray_keys computes them, into the high halves of `words` (row numbers first + i in the low
  * halves): per coordinate a = (o - lo) * scale, clamped to [0, top], truncated, its bits looked up in `table` at
- * offsets[axis]; then, unless `up` is null, bit 0 set where up[i * up_stride] > 0 (the direction's y). */
+ * offsets[axis] (origin i at o[i * o_stride]); then, unless `up` is null, bit 0 set where up[i * up_stride] > 0
+ * (the direction's y). */
 #if defined(__GNUC__) && defined(__x86_64__) && defined(__GLIBC__) && !defined(__clang__)
 __attribute__((target_clones("avx2", "default")))   /* (AVX2's gathers vectorize the table lookups) */
 #endif
-void hybrid_ray_keys(const float *o, int64_t n, const float *lo, const float *scale, const float *top,
-                     const uint32_t *table, const uint32_t *offsets, const float *up, int64_t up_stride,
+void hybrid_ray_keys(const float *o, int64_t o_stride, int64_t n, const float *lo, const float *scale,
+                     const float *top, const uint32_t *table, const uint32_t *offsets, const float *up, int64_t up_stride,
                      int64_t first, uint64_t *words)
 {
     for (int64_t i = 0; i < n; ++i) {
         uint32_t key = 0;
         for (int a = 0; a < 3; ++a) {
-            float q = o[3 * i + a] - lo[a];
+            float q = o[o_stride * i + a] - lo[a];
             q = q * scale[a];
             q = q > 0.0f ? q : 0.0f;   /* (NaN -> 0, as numpy's maximum then minimum would not promise) */
             q = q < top[a] ? q : top[a];
@@ -941,9 +943,121 @@ void hybrid_gather_rows(const uint8_t *src, const int64_t *rows, int64_t n, int6
     }
 }
 
+/* hybrid_gather_rows from source rows `stride` bytes apart (a view of some columns of wider rows: the origins or
+ * directions of Open3D's (N, 6) rays). */
+void hybrid_gather_strided(const uint8_t *src, int64_t stride, const int64_t *rows, int64_t n, int64_t size,
+                           uint8_t *dst)
+{
+    const int64_t ahead = 64;
+    if (size == 12) {
+        for (int64_t i = 0; i < n; ++i) {
+            if (i + ahead < n)
+                __builtin_prefetch(src + rows[i + ahead] * stride);
+            memcpy(dst + i * 12, src + rows[i] * stride, 12);
+        }
+        return;
+    }
+    for (int64_t i = 0; i < n; ++i) {
+        if (i + ahead < n)
+            __builtin_prefetch(src + rows[i + ahead] * stride);
+        memcpy(dst + i * size, src + rows[i] * stride, (size_t)size);
+    }
+}
+
 /* out[rows[i]] = words[i] != 0 (occlusion results back into the caller's order). */
 void hybrid_scatter_flags(const uint32_t *words, const int64_t *rows, int64_t n, uint8_t *out)
 {
     for (int64_t i = 0; i < n; ++i)
         out[rows[i]] = words[i] != 0;
+}
+
+/* The front ends' answers (engine/rt/raycasting.py, raymesh.py, closest.py) from n hit records (t, prim as int
+ * bits, u, v), hit i written to row r = rows[i] (rows NULL: r = i) of each output that is not NULL. A hit (0 <= prim
+ * < n_tri): t_out[r] = t; gid_out[r] = geometry[prim] (geometry NULL: 0); pid_out[r] = primitive[prim] (primitive
+ * NULL: prim); prim_out[r] = prim; uv_out[2r..] = (u, v); normal_out[3r..] = normal[3 prim..]; point_out[3r..] =
+ * float32 of a + u (b - a) + v (c - a) in double (a, b, c: the corners verts[faces[prim]]; numpy's order of
+ * operations), plus center where given (the sum rounded to float32 again, as numpy's float32 + float64 assigned to
+ * float32). A miss: t = +inf, ids 0xFFFFFFFF, prim -1, uv, normal and point 0. */
+void hybrid_scene_hits(const float *rec, int64_t n, const int64_t *rows, const uint32_t *geometry,
+                       const uint32_t *primitive, const float *normal, int64_t n_tri, const float *verts,
+                       const int64_t *faces, const double *center, float *t_out, uint32_t *gid_out,
+                       uint32_t *pid_out, int64_t *prim_out, float *uv_out, float *normal_out, float *point_out)
+{
+    for (int64_t i = 0; i < n; ++i) {
+        const float *h = rec + 4 * i;
+        int32_t prim;
+        memcpy(&prim, h + 1, 4);
+        const int64_t r = rows ? rows[i] : i;
+        const int hit = prim >= 0 && prim < n_tri;
+        if (t_out)
+            t_out[r] = hit ? h[0] : INFINITY;
+        if (gid_out)
+            gid_out[r] = hit ? (geometry ? geometry[prim] : 0u) : 0xFFFFFFFFu;
+        if (pid_out)
+            pid_out[r] = hit ? (primitive ? primitive[prim] : (uint32_t)prim) : 0xFFFFFFFFu;
+        if (prim_out)
+            prim_out[r] = hit ? prim : -1;
+        if (uv_out) {
+            uv_out[2 * r] = hit ? h[2] : 0.0f;
+            uv_out[2 * r + 1] = hit ? h[3] : 0.0f;
+        }
+        if (normal_out) {
+            for (int k = 0; k < 3; ++k)
+                normal_out[3 * r + k] = hit ? normal[3 * prim + k] : 0.0f;
+        }
+        if (point_out) {
+            for (int k = 0; k < 3; ++k) {
+                float p = 0.0f;
+                if (hit) {
+                    const double a = verts[3 * faces[3 * prim] + k], b = verts[3 * faces[3 * prim + 1] + k];
+                    const double c = verts[3 * faces[3 * prim + 2] + k];
+                    p = (float)((a + (double)h[2] * (b - a)) + (double)h[3] * (c - a));
+                }
+                point_out[3 * r + k] = center ? (float)((double)p + center[k]) : p;
+            }
+        }
+    }
+}
+
+/* hybrid_frame_rays for one element type. */
+#define FRAME_RAYS(T)                                                                                              \
+    for (int64_t i = 0; i < n; ++i) {                                                                              \
+        const T *oi = (const T *)o + i * stride, *di = (const T *)d + i * stride;                                 \
+        const double dx = di[0], dy = di[1], dz = di[2];                                                           \
+        const double len = sqrt(dx * dx + dy * dy + dz * dz);                                                      \
+        if (!(len > 0.0) || !(len <= DBL_MAX))                                                                     \
+            return i;                                                                                              \
+        for (int k = 0; k < 3; ++k) {                                                                              \
+            const double x = ((double)oi[k] - center[k]) * factor;                                                 \
+            if (!(fabs(x) <= bound) || !isfinite((double)oi[k]) || !isfinite((double)di[k]))                      \
+                return i;                                                                                          \
+            o_out[3 * i + k] = (float)x;                                                                           \
+            d_out[3 * i + k] = (float)((double)di[k] / len);                                                       \
+        }                                                                                                          \
+    }                                                                                                              \
+    return -1;
+
+/* RayMeshIntersector's rays in the frame it traces: float32 of (o - center) * factor and of d / |d| (|d| =
+ * sqrt((x^2 + y^2) + z^2)), computed in double as its numpy steps do, for n rays of float32 (f32 != 0) or double
+ * values, rows `stride` elements apart. Returns the first ray with a value not finite, a zero length, or an origin
+ * beyond +-bound in the frame (the caller's checks then name it), or -1 (outputs written up to that ray only). */
+int64_t hybrid_frame_rays(const void *o, const void *d, int64_t n, int64_t stride, int64_t f32, const double *center,
+                          double factor, double bound, float *o_out, float *d_out)
+{
+    if (f32) {
+        FRAME_RAYS(float)
+    }
+    FRAME_RAYS(double)
+}
+
+/* The first of n float32 points (rows `stride` floats apart) with a coordinate not finite or beyond +-bound, or
+ * -1. */
+int64_t hybrid_first_bad_point(const float *p, int64_t n, int64_t stride, double bound)
+{
+    for (int64_t i = 0; i < n; ++i) {
+        const float *q = p + i * stride;
+        if (!(fabs((double)q[0]) <= bound) || !(fabs((double)q[1]) <= bound) || !(fabs((double)q[2]) <= bound))
+            return i;
+    }
+    return -1;
 }

@@ -80,7 +80,7 @@ def test_the_module_comes_from_the_package_with_native_h_s_functions(fresh):
     assert Path(module.__file__).resolve().parent == ROOT / "engine"
     assert module.ffi.string(lib.hybrid_source_tag()).decode() == native.source_tag()
     declared = re.findall(r"\b(hybrid_\w+)\(", (ROOT / "engine" / "native.h").read_text())
-    assert len(declared) == 9 and all(hasattr(lib, name) for name in declared)
+    assert len(declared) == 13 and all(hasattr(lib, name) for name in declared)
 
 
 @needs_module

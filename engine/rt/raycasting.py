@@ -24,7 +24,9 @@ from typing import Any
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
+from .. import native
 from ..lifetime import Closes
+from ..parallel import blocks, default_threads
 from ..errors import ConfigError, SceneError
 from ..limits import MAX_COORD, MIN_DIRECTION
 from ..vk import Context
@@ -55,6 +57,7 @@ class _Built:
     geometry: NDArray[np.uint32]  # (T,) geometry id of each concatenated triangle
     primitive: NDArray[np.uint32]  # (T,) its index within its geometry
     normal: NDArray[np.float32]  # (T, 3) unit normals, (v1 - v0) x (v2 - v0) (zero for zero-area triangles)
+    local: bool = False  # traced in world coordinates (center 0): float32 rays and points go to the GPU as given
     tables: dict = field(default_factory=dict)  # the maps above as CUDA arrays, per framework (cuda_arrays)
 
 
@@ -275,6 +278,7 @@ class RaycastingScene(Closes):
         length = np.linalg.norm(n, axis=1, keepdims=True)
         normal = np.divide(n, length, out=np.zeros_like(n), where=length > 0).astype(np.float32)
         self._built = _Built(len(self._meshes), tracer, center, step, geometry, primitive, normal)
+        self._built.local = not center.any()
         return self._built
 
     # ---- queries ------------------------------------------------------------------------------------------
@@ -302,6 +306,9 @@ class RaycastingScene(Closes):
         with self._lock:
             if on_cuda(rays):
                 return self._cast_cuda(rays)
+            fast = self._fast(rays, 6)
+            if fast is not None:
+                return self._cast_fast(*fast)
             flat, shape = _flat_rays(rays)
             s = self._scene()
             n = len(flat)
@@ -342,6 +349,17 @@ class RaycastingScene(Closes):
             ConfigError: as `cast_rays`, or a NaN / infinite tnear or a NaN tfar.
         """
         with self._lock:
+            fast = self._fast(rays, 6, lambda: (_limit(tnear, "tnear", False), _limit(tfar, "tfar", True)))
+            if fast is not None and tnear == 0:
+                far = _limit(tfar, "tfar", True)
+                s, flat, shape = fast
+                if far < 0:
+                    return np.zeros(shape, bool)
+                try:
+                    return s.tracer.occluded(flat[:, :3], flat[:, 3:], far).reshape(shape)
+                except ConfigError:
+                    _flat_rays(rays)  # (the front end's message for the bad ray)
+                    raise
             flat, shape = (None, None) if on_cuda(rays) else _flat_rays(rays)
             near, far = _limit(tnear, "tnear", False), _limit(tfar, "tfar", True)
             s = self._scene()
@@ -353,6 +371,78 @@ class RaycastingScene(Closes):
                 what = "tnear: ray {i}'s start (origin + tnear * direction)" if near else "rays: ray {i}'s origin"
                 out = s.tracer.occluded(_traced(s, origins, what), flat[:, 3:], far - near)
             return out.reshape(shape)
+
+    def _fast(self, values, width: int, before=None):
+        """(scene, flat (N, width) float32 view, leading shape) where a query may hand `values` to the Tracer as they
+        are: a float32 numpy array of (..., width) (at least 2 dimensions, rows of contiguous elements), the C steps
+        at hand, a scene with triangles traced in world coordinates; else None (the query's numpy steps run). The
+        Tracer's checks of such values are the front end's (float32 values are exact in float64): where it finds a
+        bad one the front end's own checks run for their message. Scene errors come after the checks of `values`,
+        as on the numpy path, and so do those of `before()` (the query's other arguments)."""
+        if not (
+            isinstance(values, np.ndarray)
+            and values.dtype == np.float32
+            and values.ndim >= 2
+            and values.shape[-1] == width
+            and values.size
+            and native.library() is not None
+        ):
+            return None
+        try:
+            if before is not None:
+                before()
+            s = self._scene()
+        except ConfigError:
+            (_flat_rays if width == 6 else _flat_points)(values)
+            raise
+        if s.tracer is None or not s.local:
+            return None
+        flat = values.reshape(-1, width)
+        if flat.strides[1] != 4:
+            return None
+        return s, flat, values.shape[:-1]
+
+    def _cast_fast(self, s: _Built, flat, shape) -> dict[str, NDArray]:
+        """cast_rays of float32 rays (`_fast`): traced as given, each chunk's hits mapped to Open3D's answers in the
+        stream's sink tasks (engine/native.c hybrid_scene_hits: ids, uvs and normals of the hit triangle)."""
+        n = len(flat)
+        out = {
+            "t_hit": np.empty(n, np.float32),
+            "geometry_ids": np.empty(n, np.uint32),
+            "primitive_ids": np.empty(n, np.uint32),
+            "primitive_uvs": np.empty((n, 2), np.float32),
+            "primitive_normals": np.empty((n, 3), np.float32),
+        }
+        one = s.count == 1  # (one geometry: its ids are 0 and the triangle itself)
+        tables = dict(
+            geometry=None if one else s.geometry,
+            primitive=None if one else s.primitive,
+            normal=s.normal,
+            n_tri=len(s.geometry),
+        )
+
+        def write(records, rows, a, b):
+            if rows is None:
+                outs = {k: v[a:b] for k, v in out.items()}
+            else:
+                outs = out
+            native.scene_hits(
+                records,
+                rows,
+                t=outs["t_hit"],
+                gid=outs["geometry_ids"],
+                pid=outs["primitive_ids"],
+                uv=outs["primitive_uvs"],
+                normals=outs["primitive_normals"],
+                **tables,
+            )
+
+        try:
+            s.tracer.intersect_records(flat[:, :3], flat[:, 3:], np.inf, write)
+        except ConfigError:
+            _flat_rays(flat)  # (the front end's message for the bad ray)
+            raise
+        return {k: a.reshape(shape + a.shape[1:]) for k, a in out.items()}
 
     def _cast_cuda(self, rays):
         """cast_rays on CUDA rays: traced and mapped to ids on their device (engine.rt.cuda_arrays)."""
@@ -473,6 +563,32 @@ class RaycastingScene(Closes):
             return s, None
         return s, s.tracer.closest(_traced(s, flat, "query_points: row {i}"))
 
+    def _closest_fast(self, query_points, **outs) -> tuple | None:
+        """The closest-point walk of float32 points as given (`_fast`), checked on the worker pool and each chunk's
+        records mapped to `outs` (flat (N, ...) arrays made here for the keys given: native.scene_hits' outputs) in
+        the stream's sink tasks; returns (outs, leading shape), or None where the numpy steps run."""
+        fast = self._fast(query_points, 3)
+        if fast is None:
+            return None
+        s, flat, shape = fast
+        n = len(flat)
+        step = max(1 << 16, -(-n // default_threads()))
+        bad = blocks(lambda a: native.first_bad_point(flat[a : a + step], MAX_COORD), n, step, default_threads())
+        if any(i >= 0 for i in bad):
+            _flat_points(query_points)  # (its message for the first bad point)
+        arrays = {k: np.empty((n,) + tail, dt) for k, (dt, tail) in outs.items()}
+        tables = dict(normal=s.normal, n_tri=len(s.geometry))
+        if s.count > 1:
+            tables.update(geometry=s.geometry, primitive=s.primitive)
+        if "points" in arrays:
+            tables.update(mesh=s.tracer.mesh, center=np.ascontiguousarray(s.center, np.float64))
+
+        def write(records, rows, a, b):
+            native.scene_hits(records, **tables, **{k: v[a:b] for k, v in arrays.items()})
+
+        s.tracer.closest_records(flat, write)
+        return arrays, shape
+
     def compute_closest_points(self, query_points: ArrayLike, nthreads: int = 0) -> dict[str, NDArray]:
         """The nearest point of the scene's triangles to each query point (a GPU BVH walk, engine/rt/closest.py).
 
@@ -492,6 +608,20 @@ class RaycastingScene(Closes):
             ConfigError: a bad shape, NaN or infinite values (naming the point), a closed scene.
         """
         with self._lock:
+            fast = self._closest_fast(
+                query_points,
+                points=(np.float32, (3,)),
+                gid=(np.uint32, ()),
+                pid=(np.uint32, ()),
+                uv=(np.float32, (2,)),
+                normals=(np.float32, (3,)),
+            )
+            if fast is not None:
+                a, shape = fast
+                keys = zip(
+                    ("points", "geometry_ids", "primitive_ids", "primitive_uvs", "primitive_normals"), a.values()
+                )
+                return {k: v.reshape(shape + v.shape[1:]) for k, v in keys}
             flat, shape = _flat_points(query_points)
             s, near = self._closest(flat)
             n = len(flat)
@@ -518,6 +648,9 @@ class RaycastingScene(Closes):
         """(...) float32: the distance from each query point to the nearest triangle (+inf in a scene without
         triangles; Open3D: the distance to the origin). The arguments are `compute_closest_points`'."""
         with self._lock:
+            fast = self._closest_fast(query_points, t=(np.float32, ()))
+            if fast is not None:
+                return fast[0]["t"].reshape(fast[1])
             flat, shape = _flat_points(query_points)
             return self._distance(flat).reshape(shape)
 

@@ -22,7 +22,9 @@ from typing import Any
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
+from .. import native
 from ..lifetime import Closes
+from ..parallel import blocks, default_threads
 from ..errors import ConfigError, SceneError
 from ..limits import MAX_COORD
 from ..vk import Context
@@ -167,6 +169,45 @@ class RayMeshIntersector(Closes):
             raise ConfigError(f"ray_directions: ray {i} has zero length ({d[i]})")
         return o, d / length[:, None]
 
+    def _framed(self, ray_origins, ray_directions):
+        """(geometry, float32 origins, float32 unit directions) in the frame the mesh is traced in, made in C on the
+        worker pool from float32 or float64 (N, 3) arrays (the same float64 steps as `_rays` and the frame's, each
+        value rounded to float32 once, as the Tracer rounds them); None where the numpy steps must run: other
+        inputs, no C steps, no triangles, or a bad ray (whose error they then raise)."""
+        o, d = ray_origins, ray_directions
+        if not (
+            isinstance(o, np.ndarray)
+            and isinstance(d, np.ndarray)
+            and o.dtype == d.dtype
+            and o.dtype in (np.float32, np.float64)
+            and o.ndim == 2
+            and o.shape == d.shape
+            and o.shape[1] == 3
+            and len(o)
+            and o.strides[1] == d.strides[1] == o.itemsize
+            and o.strides[0] == d.strides[0]
+            and native.library() is not None
+        ):
+            return None
+        try:
+            g = self._geometry()
+        except ConfigError:
+            self._rays(o, d)  # (bad rays are named first, as on the numpy path)
+            raise
+        if g.tracer is None:
+            return None
+        n = len(o)
+        oo, dd = np.empty((n, 3), np.float32), np.empty((n, 3), np.float32)
+        step = max(1 << 16, -(-n // default_threads()))
+
+        def block(a):
+            b = min(a + step, n)
+            return native.frame_rays(o[a:b], d[a:b], g.center, g.factor, MAX_COORD, oo[a:b], dd[a:b])
+
+        if any(i >= 0 for i in blocks(block, n, step, default_threads())):
+            return None
+        return g, oo, dd
+
     @staticmethod
     def _first(g: _Geometry, o, d) -> NDArray[np.int64]:
         """The closest triangle along each ray (-1 for none): one GPU cast."""
@@ -270,6 +311,17 @@ class RayMeshIntersector(Closes):
     def intersects_first(self, ray_origins: ArrayLike, ray_directions: ArrayLike) -> NDArray[np.int64]:
         """(N,) int64: the first triangle each ray hits (a row of `mesh.faces`), -1 where it hits none."""
         with self._lock:
+            fast = self._framed(ray_origins, ray_directions)
+            if fast is not None:  # (the hit triangles written as int64 in the stream's sink tasks)
+                g, o, d = fast
+                out = np.empty(len(o), np.int64)
+                n_tri = len(g.p0)
+
+                def write(records, rows, a, b):
+                    native.scene_hits(records, rows, n_tri=n_tri, prim=out if rows is not None else out[a:b])
+
+                g.tracer.intersect_records(o, d, np.inf, write)
+                return out
             o, d = self._rays(ray_origins, ray_directions)
             g = self._geometry()
             if g.tracer is None or not len(o):
@@ -280,6 +332,10 @@ class RayMeshIntersector(Closes):
     def intersects_any(self, ray_origins: ArrayLike, ray_directions: ArrayLike) -> NDArray[np.bool_]:
         """(N,) bool: does each ray hit the mesh at all (an any-hit query, no closest hit needed)?"""
         with self._lock:
+            fast = self._framed(ray_origins, ray_directions)
+            if fast is not None:
+                g, o, d = fast
+                return g.tracer.occluded(o, d)
             o, d = self._rays(ray_origins, ray_directions)
             g = self._geometry()
             if g.tracer is None or not len(o):

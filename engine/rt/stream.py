@@ -398,6 +398,19 @@ def hits_sink(t_out, prim_out, u_out, v_out, order=None):
     return sink
 
 
+def records_sink(write, order=None):
+    """A sink handing each block's (n, 4) float32 hit records (t, prim bits, u, v; the closest points' distance,
+    prim, u, v) to `write(records, rows, a, b)`: the traced rays [a, b) of the batch, `rows` their rows in the
+    caller's arrays (a reordered batch's (n,) int64 indices) or None for rows a..b (the front ends map them to their
+    answers there, on the worker pool: engine/rt/hitmap.py)."""
+
+    def sink(slot, start, s, e):
+        r = slot.results_host.view(np.float32)[4 * s : 4 * e].reshape(e - s, 4)
+        write(r, None if order is None else order[start + s : start + e], start + s, start + e)
+
+    return sink
+
+
 def instance_sink(inner, prim, flat_tri_base, inst_out, mesh_prim_out, order=None):
     """A sink running `inner` (hits_sink), then writing each chunk's instance and mesh triangle (-1 on a miss) from
     its flattened-scene triangle ids `prim` and the instances' first flat triangles `flat_tri_base` (ascending)."""

@@ -34,7 +34,7 @@ from .closest import Closest, ClosestQuery
 from .cuda_arrays import CudaRays, on_cuda
 from .order import KeptWords, check_reorder, incoherent, ray_order, shared_direction
 from .session import TraceSession, kernel_interface
-from .stream import STREAM_THREADS, hits_sink, instance_sink, occluded_sink, stream
+from .stream import STREAM_THREADS, hits_sink, instance_sink, occluded_sink, records_sink, stream
 
 #: Query kinds whose kernels read rays (and write results) through texel buffer views on CPU devices (RAYS_TEXEL):
 #: faster for occlusion on lavapipe, not for closest hits.
@@ -423,6 +423,37 @@ class Tracer(Closes):
         return hits
 
     @serialized
+    def intersect_records(self, origins: ArrayLike, directions: ArrayLike, tmax: ArrayLike, write) -> None:
+        """`intersect` for the front ends (engine/rt/raycasting.py, raymesh.py): each traced block's hit records go
+        to `write(records, rows, a, b)` (engine/rt/stream.py records_sink) on the worker pool, which maps them to the
+        caller's answers there, instead of into `Hits`. Checks and errors as `intersect`'s (numpy rays only)."""
+        self._check_open()
+        o, d, t = ray_arrays(origins, directions, tmax, tmax_nan=False)
+        self._sync()
+        order, dirs = self._order(o, d, t, None)
+        bad = lambda: _name_bad(o, d, t, origins, directions)  # noqa: E731
+        stream(self.session, "intersect", o, dirs, t, records_sink(write, order), bad, order)
+
+    @serialized
+    def closest_records(self, points: NDArray[np.float32], write) -> None:
+        """`closest` for the front ends: float32 (N, 3) points (rows may be strided), checked by the caller (finite,
+        within +-MAX_COORD), streamed as they are; each block's records (distance, prim, u, v) go to `write` as in
+        `intersect_records`."""
+        self._check_open()
+        self._closest_query().stream(points, records_sink(write))
+
+    def _closest_query(self) -> ClosestQuery:
+        if self.mesh is None:
+            raise ConfigError(
+                "Tracer.closest: not available on a Tracer of a scene of several instances "
+                "(Tracer.from_scene); make one from the flat arrays: Tracer(scene.positions, "
+                "scene.indices)"
+            )
+        if self._closest is None:  # (its own kernel: one dispatch, the point walk keeps its stack in an array)
+            self._closest = ClosestQuery(self.session, self.bvh, self.scene, self.layout, self.mesh)
+        return self._closest
+
+    @serialized
     def closest(self, points: ArrayLike) -> Closest:
         """Closest-point queries: the nearest point of the mesh to each point (engine/rt/closest.py).
 
@@ -437,15 +468,7 @@ class Tracer(Closes):
             EngineError: the host cannot hold the result arrays.
         """
         self._check_open()
-        if self.mesh is None:
-            raise ConfigError(
-                "Tracer.closest: not available on a Tracer of a scene of several instances "
-                "(Tracer.from_scene); make one from the flat arrays: Tracer(scene.positions, "
-                "scene.indices)"
-            )
-        if self._closest is None:  # (its own kernel: one dispatch, the point walk keeps its stack in an array)
-            self._closest = ClosestQuery(self.session, self.bvh, self.scene, self.layout, self.mesh)
-        return self._closest.run(points)
+        return self._closest_query().run(points)
 
     def _order(self, o, d, t, reorder):
         """The order to trace a batch in (engine/rt/order.py), or None for the given order, and its directions (for a

@@ -1061,3 +1061,56 @@ int64_t hybrid_first_bad_point(const float *p, int64_t n, int64_t stride, double
     }
     return -1;
 }
+
+/* One round of RaycastingScene._all_hits: for the m live rays r = live[j] of float64 rays (origin at o + stride r,
+ * direction at d + stride r), o_out[j] = float32 of o + d * start[r] (in double, numpy's order of operations) and
+ * d_out[j] = float32 of d: what numpy's o[live] + d[live] * start[live, None] gives the Tracer. */
+void hybrid_walk_rays(const double *o, const double *d, int64_t stride, const int64_t *live, int64_t m,
+                      const double *start, float *o_out, float *d_out)
+{
+    for (int64_t j = 0; j < m; ++j) {
+        const int64_t r = live[j];
+        const double *oi = o + stride * r, *di = d + stride * r;
+        for (int k = 0; k < 3; ++k) {
+            o_out[3 * j + k] = (float)(oi[k] + di[k] * start[r]);
+            d_out[3 * j + k] = (float)di[k];
+        }
+    }
+}
+
+/* The hits of one round of RaycastingScene._all_hits, in live order (rec[j]: t, prim bits, u, v of ray live[j]): a
+ * ray that hit a triangle other than its last one records the hit (ray, prim, t = start + t_hit, u, v), takes it as
+ * its last and starts again base past it; a ray that hit its last triangle again doubles its step and moves on by
+ * it; both stay live (live_out), the others drop out. counts[0]: hits recorded, counts[1]: rays still live. */
+void hybrid_walk_hits(const float *rec, const int64_t *live, int64_t m, double *start, double *step,
+                      const double *base, int64_t *last, int64_t *ray_out, int64_t *prim_out, double *t_out,
+                      float *u_out, float *v_out, int64_t *live_out, int64_t *counts)
+{
+    int64_t found = 0, going = 0;
+    for (int64_t j = 0; j < m; ++j) {
+        const float *h = rec + 4 * j;
+        int32_t prim;
+        memcpy(&prim, h + 1, 4);
+        if (prim < 0)
+            continue;
+        const int64_t r = live[j];
+        const double t = start[r] + (double)h[0];
+        if (last[r] != prim) {
+            ray_out[found] = r;
+            prim_out[found] = prim;
+            t_out[found] = t;
+            u_out[found] = h[2];
+            v_out[found] = h[3];
+            ++found;
+            last[r] = prim;
+            step[r] = base[r];
+            start[r] = t + step[r];
+        } else {
+            step[r] *= 2.0;
+            start[r] += step[r];
+        }
+        live_out[going++] = r;
+    }
+    counts[0] = found;
+    counts[1] = going;
+}

@@ -109,4 +109,15 @@ int64_t hybrid_frame_rays(const void *o, const void *d, int64_t n, int64_t strid
 /* The first of n float32 points (rows `stride` floats apart) not finite or beyond +-bound, or -1. */
 int64_t hybrid_first_bad_point(const float *p, int64_t n, int64_t stride, double bound);
 
+/* One round of RaycastingScene's walk along its rays (raycasting.py _all_hits): the live rays' float32 origins
+ * o + d * start and directions, from float64 rays `stride` doubles apart; see hybrid_walk_rays in native.c. */
+void hybrid_walk_rays(const double *o, const double *d, int64_t stride, const int64_t *live, int64_t m,
+                      const double *start, float *o_out, float *d_out);
+
+/* The round's hits taken and the rays stepped past them; the hits found and the rays still going, counted in
+ * counts[0], counts[1]. */
+void hybrid_walk_hits(const float *rec, const int64_t *live, int64_t m, double *start, double *step,
+                      const double *base, int64_t *last, int64_t *ray_out, int64_t *prim_out, double *t_out,
+                      float *u_out, float *v_out, int64_t *live_out, int64_t *counts);
+
 #endif

@@ -546,3 +546,47 @@ def first_bad_point(p: np.ndarray, bound: float) -> int:
     """The first row of float32 (n, k >= 3) points (rows strided, elements contiguous) with a coordinate not finite
     or beyond +-bound, or -1. Only where `library()` is at hand."""
     return int(library().hybrid_first_bad_point(_rows_at(p), len(p), p.strides[0] // 4, float(bound)))
+
+
+def walk_rays(flat: np.ndarray, live: np.ndarray, start: np.ndarray, o_out: np.ndarray, d_out: np.ndarray) -> None:
+    """One round of RaycastingScene's walk: float32 origins o + d * start and directions of the rays `live` (int64)
+    of float64 (N, 6) rays `flat` (C-contiguous) into (m, 3) float32 o_out, d_out (see hybrid_walk_rays in
+    native.c). Only where `library()` is at hand."""
+    library().hybrid_walk_rays(
+        _at(flat),
+        _ffi.cast("double *", flat.ctypes.data) + 3,
+        6,
+        _at(live),
+        len(live),
+        _at(start),
+        _at(o_out),
+        _at(d_out),
+    )
+
+
+def walk_hits(records, live, start, step, base, last) -> tuple:
+    """The hits of one round of RaycastingScene's walk from the (m, 4) float32 records of the rays `live` (int64),
+    start, step and last updated in place (see hybrid_walk_hits in native.c): (ray, prim, t, u, v) of the hits
+    found and the rays still live. Only where `library()` is at hand."""
+    m = len(live)
+    ray, prim, live_out = (np.empty(m, np.int64) for _ in range(3))
+    counts = np.zeros(2, np.int64)
+    t, u, v = np.empty(m), np.empty(m, np.float32), np.empty(m, np.float32)
+    library().hybrid_walk_hits(
+        _at(records),
+        _at(live),
+        m,
+        _at(start),
+        _at(step),
+        _at(base),
+        _at(last),
+        _at(ray),
+        _at(prim),
+        _at(t),
+        _at(u),
+        _at(v),
+        _at(live_out),
+        _at(counts),
+    )
+    k, g = int(counts[0]), int(counts[1])
+    return (ray[:k], prim[:k], t[:k], u[:k], v[:k]), live_out[:g]

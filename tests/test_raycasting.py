@@ -446,3 +446,26 @@ def test_float32_queries_answer_as_the_numpy_steps(make):
     for query in (scene.compute_distance, scene.compute_closest_points):
         with pytest.raises(ConfigError, match=r"query_points: row 5 is not finite"):
             query(far)
+
+
+def test_the_c_steps_answer_as_numpy_s(make, monkeypatch):
+    """Hit lists, counts and the inside vote walked with the C steps (engine/native.c) equal numpy's, bit for bit."""
+    from engine import native
+
+    ms = meshes()["three"]
+    scene = make(*ms)
+    rays = random_rays(np.random.default_rng(12), 3000, ms)
+    points = rays[:500, :3] * np.float32(0.3)
+    queries = {
+        "list": lambda: scene.list_intersections(rays),
+        "count": lambda: {"count": scene.count_intersections(rays)},
+        "cast": lambda: scene.cast_rays(rays),
+        "occupancy": lambda: {"inside": scene.compute_occupancy(points, nsamples=3)},
+        "sdf": lambda: {"sdf": scene.compute_signed_distance(points)},
+    }
+    got = {k: q() for k, q in queries.items()}
+    assert got["list"]["ray_ids"].size > len(rays) // 2 and 0 < got["occupancy"]["inside"].sum() < len(points)
+    monkeypatch.setattr(native, "library", lambda: None)
+    for k, q in queries.items():
+        want = q()
+        assert all(np.array_equal(got[k][x], want[x]) for x in want), k

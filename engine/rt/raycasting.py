@@ -132,6 +132,30 @@ def _flat_points(points) -> tuple[NDArray[np.float64], tuple]:
     return check_points(a.reshape(-1, 3), "query_points"), a.shape[:-1]
 
 
+def _walk_round(tracer: Tracer, flat, live, start, step, base, last) -> tuple[list, NDArray[np.int64]]:
+    """One round of `RaycastingScene._walk`: the rays `live` cast from `start` (their float32 rays made on the
+    worker pool), their hits taken in the sink tasks (start, step and last updated there). Returns the hits found
+    (a list of (ray, prim, t, u, v)) and the rays still live, in the order of `live`."""
+    m, threads = len(live), default_threads()
+    o32, d32 = np.empty((m, 3), np.float32), np.empty((m, 3), np.float32)
+    block = max(1 << 16, -(-m // threads))
+    blocks(
+        lambda a: native.walk_rays(flat, live[a : a + block], start, o32[a : a + block], d32[a : a + block]),
+        m,
+        block,
+        threads,
+    )
+    parts: list = []
+
+    def write(records, rows, a, b):
+        rays = live[a:b] if rows is None else live[rows]
+        parts.append((a, native.walk_hits(np.ascontiguousarray(records), rays, start, step, base, last)))
+
+    tracer.intersect_records(o32, d32, np.inf, write)
+    parts.sort(key=lambda p: p[0])
+    return [p[1][0] for p in parts], np.concatenate([np.zeros(0, np.int64)] + [p[1][1] for p in parts])
+
+
 def _nsamples(nsamples) -> int:
     if (
         isinstance(nsamples, (bool, np.bool_))
@@ -476,10 +500,10 @@ class RaycastingScene(Closes):
             o = o + near * d
         return s.tracer.occluded(o, d, far - near).reshape(shape)
 
-    def _all_hits(self, flat):
-        """Every hit of every ray, t >= 0, sorted by ray then t: (ray, concatenated triangle, t, u, v). Each round
-        casts the rays still going from just past their last hit (one GPU batch); a ray that reports the triangle it
-        just left again (float noise) doubles its step instead."""
+    def _all_hits(self, flat, ordered: bool = True):
+        """Every hit of every ray, t >= 0, sorted by ray then t (unless not `ordered`: then in no set order): (ray,
+        concatenated triangle, t, u, v). Each round casts the rays still going from just past their last hit (one
+        GPU batch); a ray that reports the triangle it just left again (float noise) doubles its step instead."""
         s = self._scene()
         n = len(flat)
         found = [
@@ -494,6 +518,13 @@ class RaycastingScene(Closes):
         if s.tracer is None or not n:
             return [np.concatenate(c) for c in zip(*found)]
         o, d = _traced(s, flat[:, :3], "rays: ray {i}'s origin"), flat[:, 3:]
+        if native.library() is not None and s.local:
+            found = self._walk(s, np.ascontiguousarray(flat, np.float64))
+            ray, prim, t, u, v = (np.concatenate(c) for c in zip(*found))
+            if not ordered:
+                return ray, prim, t, u, v
+            order = np.lexsort((t, ray))
+            return ray[order], prim[order], t[order], u[order], v[order]
         base = s.step / np.linalg.norm(d, axis=1)  # the step in each ray's t units
         step = base.copy()
         start = np.zeros(n)  # t where each ray is cast from next
@@ -519,12 +550,38 @@ class RaycastingScene(Closes):
         order = np.lexsort((t, ray))
         return ray[order], prim[order], t[order], u[order], v[order]
 
+    @staticmethod
+    def _walk(s: _Built, flat: NDArray[np.float64]) -> list:
+        """`_all_hits`' rounds with the C steps (engine/native.c hybrid_walk_rays, hybrid_walk_hits: the same float64
+        steps, so the same hits): each round's rays made on the worker pool and its hits taken in the stream's sink
+        tasks, as the GPU traces the next chunks. Returns the hits found, as a list of (ray, prim, t, u, v)."""
+        n = len(flat)
+        d = flat[:, 3:]
+        base = s.step / np.linalg.norm(d, axis=1)
+        step, start, last = base.copy(), np.zeros(n), np.full(n, -1, np.int64)
+        live = np.arange(n, dtype=np.int64)
+        found: list = []
+        for _ in range(len(s.geometry) + 64):
+            hits, live = _walk_round(s.tracer, flat, live, start, step, base, last)
+            found += hits
+            if not len(live):
+                break
+        return found or [
+            (
+                np.zeros(0, np.int64),
+                np.zeros(0, np.int64),
+                np.zeros(0),
+                np.zeros(0, np.float32),
+                np.zeros(0, np.float32),
+            )
+        ]
+
     def count_intersections(self, rays: ArrayLike, nthreads: int = 0) -> NDArray[np.int32]:
         """(...) int32: how many times each ray (t >= 0) crosses the scene's triangles (see the class notes on hits
         closer together than the step). The arguments are `cast_rays`'."""
         with self._lock:
             flat, shape = _flat_rays(rays)
-            ray = self._all_hits(flat)[0]
+            ray = self._all_hits(flat, ordered=False)[0]
             return np.bincount(ray, minlength=len(flat)).astype(np.int32).reshape(shape)
 
     def list_intersections(self, rays: ArrayLike, nthreads: int = 0) -> dict[str, NDArray]:
@@ -662,7 +719,7 @@ class RaycastingScene(Closes):
         _traced(self._scene(), flat, "query_points: row {i}")  # (named by row, not by one of its rays)
         dirs = vote_directions(nsamples)
         rays = np.concatenate([np.repeat(flat, nsamples, axis=0), np.tile(dirs, (len(flat), 1))], axis=1)
-        counts = np.bincount(self._all_hits(rays)[0], minlength=len(rays)).reshape(len(flat), nsamples)
+        counts = np.bincount(self._all_hits(rays, ordered=False)[0], minlength=len(rays)).reshape(len(flat), nsamples)
         return (counts % 2).sum(axis=1) > nsamples // 2
 
     def compute_signed_distance(

@@ -8,7 +8,8 @@
 Each root runs in a process of its own (its engine first on the path), on two meshes: an 80k-triangle icosphere and
 a field of spheres of about 1M triangles (engine/bench/scenes.py sphere_field_mesh). Rays: random float32 rays in
 Open3D's (N, 6) layout, origins in the mesh's box grown 3x, directions towards points of the box (not unit), the
-Tracer given the same origins and directions as contiguous (N, 3) arrays. Points: float32, uniform in the mesh's box.
+Tracer given the same origins and directions as contiguous (N, 3) arrays. Points: float32, uniform in the mesh's box
+(and, for the `_near` figures, vertices moved by a normal deviate of 1% of the box's largest side).
 Per figure the median wall clock of `--reps` calls after one warm-up, numpy in and numpy out: the Tracer's
 `intersect` / `occluded` / `closest`, `RaycastingScene.cast_rays`, `test_occlusions`, `count_intersections`,
 `compute_distance`, `compute_closest_points`, `compute_signed_distance`, `compute_occupancy` and
@@ -41,6 +42,8 @@ FIGURES = {
     "compute_closest_points": ("tracer_closest", "points"),
     "compute_signed_distance": ("tracer_closest", "points"),
     "compute_occupancy": ("tracer_closest", "points"),
+    "tracer_closest_near": (None, "points"),
+    "compute_distance_near": ("tracer_closest_near", "points"),
 }
 
 
@@ -80,6 +83,7 @@ def child(args) -> dict:
         rays = np.hstack([o, d])
         oc, dc = np.ascontiguousarray(rays[:, :3]), np.ascontiguousarray(rays[:, 3:])
         points = (c + rng.uniform(-0.5, 0.5, (m, 3)) * ext).astype(np.float32)
+        near = (v[rng.integers(0, len(v), m)] + rng.normal(0, 0.01, (m, 3)) * ext.max()).astype(np.float32)
         scene = engine.RaycastingScene()
         scene.add_triangles(v, f)
         scene.cast_rays(rays[:16])
@@ -101,6 +105,8 @@ def child(args) -> dict:
             "compute_closest_points": lambda: scene.compute_closest_points(points),
             "compute_signed_distance": lambda: scene.compute_signed_distance(points),
             "compute_occupancy": lambda: scene.compute_occupancy(points),
+            "tracer_closest_near": lambda: tracer.closest(near),
+            "compute_distance_near": lambda: scene.compute_distance(near),
         }
         figures = {}
         for key, fn in calls.items():
@@ -109,7 +115,7 @@ def child(args) -> dict:
             ms = timed(fn, args.reps)
             count = (few if key == "count_intersections" else n) if FIGURES[key][1] == "rays" else m
             figures[key] = {"ms": ms, "count": count, "m_per_s": count / ms / 1e3}
-            if key in ("tracer_closest", "tracer_intersect", "tracer_occluded"):
+            if key.startswith("tracer_"):
                 figures[key]["gpu_ms"] = tracer.last_gpu_ms
             print(f"  {name} {key}: {ms:.1f} ms, {count / ms / 1e3:.2f} M/s", file=sys.stderr, flush=True)
         out["meshes"][name] = {"triangles": len(f), "rays": n, "points": m, "figures": figures}

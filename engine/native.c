@@ -983,6 +983,25 @@ void hybrid_scene_hits(const float *rec, int64_t n, const int64_t *rows, const u
                        const int64_t *faces, const double *center, float *t_out, uint32_t *gid_out,
                        uint32_t *pid_out, int64_t *prim_out, float *uv_out, float *normal_out, float *point_out)
 {
+    if (!rows && !geometry && !primitive && t_out && gid_out && pid_out && !prim_out && uv_out && normal_out &&
+        !point_out) {   /* (cast_rays of one geometry: the same answers in a loop without the tests) */
+        for (int64_t i = 0; i < n; ++i) {
+            const float *h = rec + 4 * i;
+            int32_t prim;
+            memcpy(&prim, h + 1, 4);
+            const int hit = prim >= 0 && prim < n_tri;
+            const int64_t p = hit ? prim : 0;
+            t_out[i] = hit ? h[0] : INFINITY;
+            gid_out[i] = hit ? 0u : 0xFFFFFFFFu;
+            pid_out[i] = hit ? (uint32_t)prim : 0xFFFFFFFFu;
+            uv_out[2 * i] = hit ? h[2] : 0.0f;
+            uv_out[2 * i + 1] = hit ? h[3] : 0.0f;
+            normal_out[3 * i] = hit ? normal[3 * p] : 0.0f;
+            normal_out[3 * i + 1] = hit ? normal[3 * p + 1] : 0.0f;
+            normal_out[3 * i + 2] = hit ? normal[3 * p + 2] : 0.0f;
+        }
+        return;
+    }
     for (int64_t i = 0; i < n; ++i) {
         const float *h = rec + 4 * i;
         int32_t prim;

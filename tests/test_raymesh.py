@@ -236,9 +236,12 @@ def test_copy_and_pickle_rebuild_on_their_first_query(make):
             assert not other.validation_errors
 
 
-def test_float_arrays_answer_as_lists(make):
-    """float32 and float64 arrays are put in the mesh's frame in C on the worker pool; lists take the numpy steps:
-    the same first hits and occlusion, bit for bit, and the same errors."""
+@pytest.mark.parametrize("in_order", [False, True])
+def test_float_arrays_answer_as_lists(make, monkeypatch, in_order):
+    """float32 and float64 arrays are put in the mesh's frame in C (on the worker pool, or where the Tracer traces
+    rays in the given order, as on a GPU, as the stream packs them); lists take the numpy steps: the same first hits
+    and occlusion, bit for bit, and the same errors."""
+    monkeypatch.setattr(Tracer, "traces_in_order", property(lambda self: in_order))
     mesh = trimesh.creation.icosphere(3).apply_translation((3.0, -2.0, 1.0))
     ours = make(mesh)
     o, d = random_rays(np.random.default_rng(9), 5000, mesh)

@@ -78,6 +78,10 @@ def _check_frame(g: _Geometry, o: NDArray[np.float64]) -> None:
         )
 
 
+class _BadRay(Exception):
+    """A ray the C steps refused: the numpy steps then run, for their error naming it."""
+
+
 class RayMeshIntersector(Closes):
     """trimesh's `RayMeshIntersector` on the GPU: `mesh.ray = engine.RayMeshIntersector(mesh)`.
 
@@ -169,11 +173,11 @@ class RayMeshIntersector(Closes):
             raise ConfigError(f"ray_directions: ray {i} has zero length ({d[i]})")
         return o, d / length[:, None]
 
-    def _framed(self, ray_origins, ray_directions):
-        """(geometry, float32 origins, float32 unit directions) in the frame the mesh is traced in, made in C on the
-        worker pool from float32 or float64 (N, 3) arrays (the same float64 steps as `_rays` and the frame's, each
-        value rounded to float32 once, as the Tracer rounds them); None where the numpy steps must run: other
-        inputs, no C steps, no triangles, or a bad ray (whose error they then raise)."""
+    def _fast(self, ray_origins, ray_directions) -> _Geometry | None:
+        """The geometry where float32 or float64 (N, 3) arrays of rays may be put in the frame the mesh is traced
+        in by the C steps (native.frame_rays: the same float64 steps as `_rays` and the frame's, each value rounded
+        to float32 once, as the Tracer rounds them); None where the numpy steps must run: other inputs, no C steps,
+        no triangles. A bad ray is found by those steps, whereupon the numpy steps run for their error."""
         o, d = ray_origins, ray_directions
         if not (
             isinstance(o, np.ndarray)
@@ -194,19 +198,34 @@ class RayMeshIntersector(Closes):
         except ConfigError:
             self._rays(o, d)  # (bad rays are named first, as on the numpy path)
             raise
-        if g.tracer is None:
-            return None
+        return g if g.tracer is not None else None
+
+    @staticmethod
+    def _query_framed(g: _Geometry, kind: str, o, d, write=None):
+        """`kind` ("occluded": returned, or "intersect": records to `write`) of rays o, d (`_fast`'s) put in the
+        mesh's frame in C: on a Tracer that traces rays in the given order (a GPU) as the stream packs them, straight
+        into its mapped memory; else on the worker pool first (the Tracer may then reorder them). Raises _BadRay for
+        a bad ray."""
+
+        def frame(a, b, oo, dd):
+            return native.frame_rays(o[a:b], d[a:b], g.center, g.factor, MAX_COORD, oo, dd) < 0
+
+        def bad():
+            raise _BadRay
+
         n = len(o)
+        if g.tracer.traces_in_order:
+            return g.tracer.filled_query(kind, n, frame, bad, write)
         oo, dd = np.empty((n, 3), np.float32), np.empty((n, 3), np.float32)
         step = max(1 << 16, -(-n // default_threads()))
-
-        def block(a):
-            b = min(a + step, n)
-            return native.frame_rays(o[a:b], d[a:b], g.center, g.factor, MAX_COORD, oo[a:b], dd[a:b])
-
-        if any(i >= 0 for i in blocks(block, n, step, default_threads())):
-            return None
-        return g, oo, dd
+        fine = blocks(
+            lambda a: frame(a, min(a + step, n), oo[a : a + step], dd[a : a + step]), n, step, default_threads()
+        )
+        if not all(fine):
+            bad()
+        if kind == "occluded":
+            return g.tracer.occluded(oo, dd)
+        g.tracer.intersect_records(oo, dd, np.inf, write)
 
     @staticmethod
     def _first(g: _Geometry, o, d) -> NDArray[np.int64]:
@@ -311,17 +330,19 @@ class RayMeshIntersector(Closes):
     def intersects_first(self, ray_origins: ArrayLike, ray_directions: ArrayLike) -> NDArray[np.int64]:
         """(N,) int64: the first triangle each ray hits (a row of `mesh.faces`), -1 where it hits none."""
         with self._lock:
-            fast = self._framed(ray_origins, ray_directions)
-            if fast is not None:  # (the hit triangles written as int64 in the stream's sink tasks)
-                g, o, d = fast
-                out = np.empty(len(o), np.int64)
+            g = self._fast(ray_origins, ray_directions)
+            if g is not None:  # (the hit triangles written as int64 in the stream's sink tasks)
+                out = np.empty(len(ray_origins), np.int64)
                 n_tri = len(g.p0)
 
                 def write(records, rows, a, b):
                     native.scene_hits(records, rows, n_tri=n_tri, prim=out if rows is not None else out[a:b])
 
-                g.tracer.intersect_records(o, d, np.inf, write)
-                return out
+                try:
+                    self._query_framed(g, "intersect", ray_origins, ray_directions, write)
+                    return out
+                except _BadRay:
+                    pass  # (the numpy steps name it)
             o, d = self._rays(ray_origins, ray_directions)
             g = self._geometry()
             if g.tracer is None or not len(o):
@@ -332,10 +353,12 @@ class RayMeshIntersector(Closes):
     def intersects_any(self, ray_origins: ArrayLike, ray_directions: ArrayLike) -> NDArray[np.bool_]:
         """(N,) bool: does each ray hit the mesh at all (an any-hit query, no closest hit needed)?"""
         with self._lock:
-            fast = self._framed(ray_origins, ray_directions)
-            if fast is not None:
-                g, o, d = fast
-                return g.tracer.occluded(o, d)
+            g = self._fast(ray_origins, ray_directions)
+            if g is not None:
+                try:
+                    return self._query_framed(g, "occluded", ray_origins, ray_directions)
+                except _BadRay:
+                    pass  # (the numpy steps name it)
             o, d = self._rays(ray_origins, ray_directions)
             g = self._geometry()
             if g.tracer is None or not len(o):

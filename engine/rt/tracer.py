@@ -434,6 +434,30 @@ class Tracer(Closes):
         bad = lambda: _name_bad(o, d, t, origins, directions)  # noqa: E731
         stream(self.session, "intersect", o, dirs, t, records_sink(write, order), bad, order)
 
+    @property
+    def traces_in_order(self) -> bool:
+        """Whether `occluded` / `intersect` trace numpy rays in the given order (reorder off, or "auto" on a GPU)."""
+        return self.reorder is False or (self.reorder == "auto" and not is_cpu(self.ctx))
+
+    @serialized
+    def filled_query(self, kind: str, n: int, fill, bad, write=None) -> NDArray[np.bool_] | None:
+        """`occluded` (returned) or `intersect_records` (to `write`) of n rays, tmax +inf, in the given order, that
+        the caller writes into the stream's mapped arrays as they are packed: `fill(a, b, origins, directions)`
+        writes rays [a, b) as float32 (e.g. RayMeshIntersector's rays put in its frame, no pass of their own) and
+        returns False for a bad one, whereupon `bad()` raises."""
+        self._check_open()
+        self._sync()
+        self.last_reordered = False
+        out = None
+        if kind == "occluded":
+            (out,) = result_arrays("Tracer.occluded", n, bool)
+            sink = occluded_sink(out)
+        else:
+            sink = records_sink(write)
+        shape = np.broadcast_to(np.float32(0), (n, 3))  # (the batch's length: the rays come from `fill`)
+        stream(self.session, kind, shape, shape, np.float32(np.inf), sink, bad, fill=fill)
+        return out
+
     @serialized
     def closest_records(self, points: NDArray[np.float32], write) -> None:
         """`closest` for the front ends: float32 (N, 3) points (rows may be strided), checked by the caller (finite,

@@ -111,7 +111,7 @@ def _traced(s: _Built, origins, what: str):
     """`origins` in the frame the scene is traced in (less its centre), or a ConfigError `what` (formatted with the
     index i) for the first that lies beyond +-MAX_COORD there (a scene far from the world origin is traced about
     the centre of its box)."""
-    local = origins - s.center
+    local = origins - s.center if s.center.any() else origins
     i = first_beyond(local, MAX_COORD)
     if i is not None:
         raise ConfigError(
@@ -517,14 +517,14 @@ class RaycastingScene(Closes):
         ]
         if s.tracer is None or not n:
             return [np.concatenate(c) for c in zip(*found)]
-        o, d = _traced(s, flat[:, :3], "rays: ray {i}'s origin"), flat[:, 3:]
-        if native.library() is not None and s.local:
+        if native.library() is not None and s.local:  # (the origins were checked: _traced's check is theirs)
             found = self._walk(s, np.ascontiguousarray(flat, np.float64))
             ray, prim, t, u, v = (np.concatenate(c) for c in zip(*found))
             if not ordered:
                 return ray, prim, t, u, v
             order = np.lexsort((t, ray))
             return ray[order], prim[order], t[order], u[order], v[order]
+        o, d = _traced(s, flat[:, :3], "rays: ray {i}'s origin"), flat[:, 3:]
         base = s.step / np.linalg.norm(d, axis=1)  # the step in each ray's t units
         step = base.copy()
         start = np.zeros(n)  # t where each ray is cast from next
@@ -718,7 +718,9 @@ class RaycastingScene(Closes):
             return np.zeros(0, bool)
         _traced(self._scene(), flat, "query_points: row {i}")  # (named by row, not by one of its rays)
         dirs = vote_directions(nsamples)
-        rays = np.concatenate([np.repeat(flat, nsamples, axis=0), np.tile(dirs, (len(flat), 1))], axis=1)
+        rays = np.empty((len(flat) * nsamples, 6))
+        rays[:, :3] = np.repeat(flat, nsamples, axis=0) if nsamples > 1 else flat
+        rays[:, 3:] = np.tile(dirs, (len(flat), 1)) if nsamples > 1 else dirs
         counts = np.bincount(self._all_hits(rays, ordered=False)[0], minlength=len(rays)).reshape(len(flat), nsamples)
         return (counts % 2).sum(axis=1) > nsamples // 2
 
@@ -741,7 +743,8 @@ class RaycastingScene(Closes):
         with self._lock:
             flat, shape = _flat_points(query_points)
             votes = _nsamples(nsamples)
-            distance = self._distance(flat)
+            fast = self._closest_fast(query_points, t=(np.float32, ()))
+            distance = fast[0]["t"] if fast is not None else self._distance(flat)
             return np.where(self._inside(flat, votes), -distance, distance).astype(np.float32).reshape(shape)
 
     def compute_occupancy(self, query_points: ArrayLike, nthreads: int = 0, nsamples: int = 1) -> NDArray[np.float32]:

@@ -34,7 +34,7 @@ from .closest import Closest, ClosestQuery
 from .cuda_arrays import CudaRays, on_cuda
 from .order import KeptWords, check_reorder, incoherent, ray_order, shared_direction
 from .session import TraceSession, kernel_interface
-from .stream import STREAM_THREADS, hits_sink, instance_sink, occluded_sink, records_sink, stream
+from .stream import C_SINK_THREADS, STREAM_THREADS, hits_sink, instance_sink, occluded_sink, records_sink, stream
 
 #: Query kinds whose kernels read rays (and write results) through texel buffer views on CPU devices (RAYS_TEXEL):
 #: faster for occlusion on lavapipe, not for closest hits.
@@ -432,7 +432,7 @@ class Tracer(Closes):
         self._sync()
         order, dirs = self._order(o, d, t, None)
         bad = lambda: _name_bad(o, d, t, origins, directions)  # noqa: E731
-        stream(self.session, "intersect", o, dirs, t, records_sink(write, order), bad, order)
+        stream(self.session, "intersect", o, dirs, t, records_sink(write, order), bad, order, threads=C_SINK_THREADS)
 
     @property
     def traces_in_order(self) -> bool:
@@ -449,13 +449,14 @@ class Tracer(Closes):
         self._sync()
         self.last_reordered = False
         out = None
+        threads = C_SINK_THREADS  # (the rays are made in C too)
         if kind == "occluded":
             (out,) = result_arrays("Tracer.occluded", n, bool)
             sink = occluded_sink(out)
         else:
             sink = records_sink(write)
         shape = np.broadcast_to(np.float32(0), (n, 3))  # (the batch's length: the rays come from `fill`)
-        stream(self.session, kind, shape, shape, np.float32(np.inf), sink, bad, fill=fill)
+        stream(self.session, kind, shape, shape, np.float32(np.inf), sink, bad, fill=fill, threads=threads)
         return out
 
     @serialized
@@ -464,7 +465,7 @@ class Tracer(Closes):
         within +-MAX_COORD), streamed as they are; each block's records (distance, prim, u, v) go to `write` as in
         `intersect_records`."""
         self._check_open()
-        self._closest_query().stream(points, records_sink(write))
+        self._closest_query().stream(points, records_sink(write), C_SINK_THREADS)
 
     def _closest_query(self) -> ClosestQuery:
         if self.mesh is None:

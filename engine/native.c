@@ -9,6 +9,7 @@
 
 #include <pthread.h>
 #include <stdint.h>
+#include <float.h>
 #include <math.h>
 #include <stdlib.h>
 #include <string.h>
@@ -892,18 +893,19 @@ int64_t hybrid_triangle_records(const float *vt, int64_t nv, const int64_t *face
 
 /* Keys as order.ray_keys computes them, into the high halves of `words` (row numbers first + i in the low
  * halves): per coordinate a = (o - lo) * scale, clamped to [0, top], truncated, its bits looked up in `table` at
- * offsets[axis]; then, unless `up` is null, bit 0 set where up[i * up_stride] > 0 (the direction's y). */
+ * offsets[axis] (origin i at o[i * o_stride]); then, unless `up` is null, bit 0 set where up[i * up_stride] > 0
+ * (the direction's y). */
 #if defined(__GNUC__) && defined(__x86_64__) && defined(__GLIBC__) && !defined(__clang__)
 __attribute__((target_clones("avx2", "default")))   /* (AVX2's gathers vectorize the table lookups) */
 #endif
-void hybrid_ray_keys(const float *o, int64_t n, const float *lo, const float *scale, const float *top,
-                     const uint32_t *table, const uint32_t *offsets, const float *up, int64_t up_stride,
+void hybrid_ray_keys(const float *o, int64_t o_stride, int64_t n, const float *lo, const float *scale,
+                     const float *top, const uint32_t *table, const uint32_t *offsets, const float *up, int64_t up_stride,
                      int64_t first, uint64_t *words)
 {
     for (int64_t i = 0; i < n; ++i) {
         uint32_t key = 0;
         for (int a = 0; a < 3; ++a) {
-            float q = o[3 * i + a] - lo[a];
+            float q = o[o_stride * i + a] - lo[a];
             q = q * scale[a];
             q = q > 0.0f ? q : 0.0f;   /* (NaN -> 0, as numpy's maximum then minimum would not promise) */
             q = q < top[a] ? q : top[a];
@@ -938,6 +940,27 @@ void hybrid_gather_rows(const uint8_t *src, const int64_t *rows, int64_t n, int6
         if (i + ahead < n)
             __builtin_prefetch(src + rows[i + ahead] * size);
         memcpy(dst + i * size, src + rows[i] * size, (size_t)size);
+    }
+}
+
+/* hybrid_gather_rows from source rows `stride` bytes apart (a view of some columns of wider rows: the origins or
+ * directions of Open3D's (N, 6) rays). */
+void hybrid_gather_strided(const uint8_t *src, int64_t stride, const int64_t *rows, int64_t n, int64_t size,
+                           uint8_t *dst)
+{
+    const int64_t ahead = 64;
+    if (size == 12) {
+        for (int64_t i = 0; i < n; ++i) {
+            if (i + ahead < n)
+                __builtin_prefetch(src + rows[i + ahead] * stride);
+            memcpy(dst + i * 12, src + rows[i] * stride, 12);
+        }
+        return;
+    }
+    for (int64_t i = 0; i < n; ++i) {
+        if (i + ahead < n)
+            __builtin_prefetch(src + rows[i + ahead] * stride);
+        memcpy(dst + i * size, src + rows[i] * stride, (size_t)size);
     }
 }
 
@@ -1059,4 +1082,167 @@ void hybrid_closest_points(const float *nodes, const float *tris, const double *
         }
         dist[i] = (float)sqrt(best), prim[i] = slot, u[i] = (float)bu, v[i] = (float)bv;
     }
+}
+
+/* The front ends' answers (engine/rt/raycasting.py, raymesh.py, closest.py) from n hit records (t, prim as int
+ * bits, u, v), hit i written to row r = rows[i] (rows NULL: r = i) of each output that is not NULL. A hit (0 <= prim
+ * < n_tri): t_out[r] = t; gid_out[r] = geometry[prim] (geometry NULL: 0); pid_out[r] = primitive[prim] (primitive
+ * NULL: prim); prim_out[r] = prim; uv_out[2r..] = (u, v); normal_out[3r..] = normal[3 prim..]; point_out[3r..] =
+ * float32 of a + u (b - a) + v (c - a) in double (a, b, c: the corners verts[faces[prim]]; numpy's order of
+ * operations), plus center where given (the sum rounded to float32 again, as numpy's float32 + float64 assigned to
+ * float32). A miss: t = +inf, ids 0xFFFFFFFF, prim -1, uv, normal and point 0. */
+void hybrid_scene_hits(const float *rec, int64_t n, const int64_t *rows, const uint32_t *geometry,
+                       const uint32_t *primitive, const float *normal, int64_t n_tri, const float *verts,
+                       const int64_t *faces, const double *center, float *t_out, uint32_t *gid_out,
+                       uint32_t *pid_out, int64_t *prim_out, float *uv_out, float *normal_out, float *point_out)
+{
+    if (!rows && !geometry && !primitive && t_out && gid_out && pid_out && !prim_out && uv_out && normal_out &&
+        !point_out) {   /* (cast_rays of one geometry: the same answers in a loop without the tests) */
+        for (int64_t i = 0; i < n; ++i) {
+            const float *h = rec + 4 * i;
+            int32_t prim;
+            memcpy(&prim, h + 1, 4);
+            const int hit = prim >= 0 && prim < n_tri;
+            const int64_t p = hit ? prim : 0;
+            t_out[i] = hit ? h[0] : INFINITY;
+            gid_out[i] = hit ? 0u : 0xFFFFFFFFu;
+            pid_out[i] = hit ? (uint32_t)prim : 0xFFFFFFFFu;
+            uv_out[2 * i] = hit ? h[2] : 0.0f;
+            uv_out[2 * i + 1] = hit ? h[3] : 0.0f;
+            normal_out[3 * i] = hit ? normal[3 * p] : 0.0f;
+            normal_out[3 * i + 1] = hit ? normal[3 * p + 1] : 0.0f;
+            normal_out[3 * i + 2] = hit ? normal[3 * p + 2] : 0.0f;
+        }
+        return;
+    }
+    for (int64_t i = 0; i < n; ++i) {
+        const float *h = rec + 4 * i;
+        int32_t prim;
+        memcpy(&prim, h + 1, 4);
+        const int64_t r = rows ? rows[i] : i;
+        const int hit = prim >= 0 && prim < n_tri;
+        if (t_out)
+            t_out[r] = hit ? h[0] : INFINITY;
+        if (gid_out)
+            gid_out[r] = hit ? (geometry ? geometry[prim] : 0u) : 0xFFFFFFFFu;
+        if (pid_out)
+            pid_out[r] = hit ? (primitive ? primitive[prim] : (uint32_t)prim) : 0xFFFFFFFFu;
+        if (prim_out)
+            prim_out[r] = hit ? prim : -1;
+        if (uv_out) {
+            uv_out[2 * r] = hit ? h[2] : 0.0f;
+            uv_out[2 * r + 1] = hit ? h[3] : 0.0f;
+        }
+        if (normal_out) {
+            for (int k = 0; k < 3; ++k)
+                normal_out[3 * r + k] = hit ? normal[3 * prim + k] : 0.0f;
+        }
+        if (point_out) {
+            for (int k = 0; k < 3; ++k) {
+                float p = 0.0f;
+                if (hit) {
+                    const double a = verts[3 * faces[3 * prim] + k], b = verts[3 * faces[3 * prim + 1] + k];
+                    const double c = verts[3 * faces[3 * prim + 2] + k];
+                    p = (float)((a + (double)h[2] * (b - a)) + (double)h[3] * (c - a));
+                }
+                point_out[3 * r + k] = center ? (float)((double)p + center[k]) : p;
+            }
+        }
+    }
+}
+
+/* hybrid_frame_rays for one element type. */
+#define FRAME_RAYS(T)                                                                                              \
+    for (int64_t i = 0; i < n; ++i) {                                                                              \
+        const T *oi = (const T *)o + i * stride, *di = (const T *)d + i * stride;                                 \
+        const double dx = di[0], dy = di[1], dz = di[2];                                                           \
+        const double len = sqrt(dx * dx + dy * dy + dz * dz);                                                      \
+        if (!(len > 0.0) || !(len <= DBL_MAX))                                                                     \
+            return i;                                                                                              \
+        for (int k = 0; k < 3; ++k) {                                                                              \
+            const double x = ((double)oi[k] - center[k]) * factor;                                                 \
+            if (!(fabs(x) <= bound) || !isfinite((double)oi[k]) || !isfinite((double)di[k]))                      \
+                return i;                                                                                          \
+            o_out[3 * i + k] = (float)x;                                                                           \
+            d_out[3 * i + k] = (float)((double)di[k] / len);                                                       \
+        }                                                                                                          \
+    }                                                                                                              \
+    return -1;
+
+/* RayMeshIntersector's rays in the frame it traces: float32 of (o - center) * factor and of d / |d| (|d| =
+ * sqrt((x^2 + y^2) + z^2)), computed in double as its numpy steps do, for n rays of float32 (f32 != 0) or double
+ * values, rows `stride` elements apart. Returns the first ray with a value not finite, a zero length, or an origin
+ * beyond +-bound in the frame (the caller's checks then name it), or -1 (outputs written up to that ray only). */
+int64_t hybrid_frame_rays(const void *o, const void *d, int64_t n, int64_t stride, int64_t f32, const double *center,
+                          double factor, double bound, float *o_out, float *d_out)
+{
+    if (f32) {
+        FRAME_RAYS(float)
+    }
+    FRAME_RAYS(double)
+}
+
+/* The first of n float32 points (rows `stride` floats apart) with a coordinate not finite or beyond +-bound, or
+ * -1. */
+int64_t hybrid_first_bad_point(const float *p, int64_t n, int64_t stride, double bound)
+{
+    for (int64_t i = 0; i < n; ++i) {
+        const float *q = p + i * stride;
+        if (!(fabs((double)q[0]) <= bound) || !(fabs((double)q[1]) <= bound) || !(fabs((double)q[2]) <= bound))
+            return i;
+    }
+    return -1;
+}
+
+/* One round of RaycastingScene._all_hits: for the m live rays r = live[j] of float64 rays (origin at o + stride r,
+ * direction at d + stride r), o_out[j] = float32 of o + d * start[r] (in double, numpy's order of operations) and
+ * d_out[j] = float32 of d: what numpy's o[live] + d[live] * start[live, None] gives the Tracer. */
+void hybrid_walk_rays(const double *o, const double *d, int64_t stride, const int64_t *live, int64_t m,
+                      const double *start, float *o_out, float *d_out)
+{
+    for (int64_t j = 0; j < m; ++j) {
+        const int64_t r = live[j];
+        const double *oi = o + stride * r, *di = d + stride * r;
+        for (int k = 0; k < 3; ++k) {
+            o_out[3 * j + k] = (float)(oi[k] + di[k] * start[r]);
+            d_out[3 * j + k] = (float)di[k];
+        }
+    }
+}
+
+/* The hits of one round of RaycastingScene._all_hits, in live order (rec[j]: t, prim bits, u, v of ray live[j]): a
+ * ray that hit a triangle other than its last one records the hit (ray, prim, t = start + t_hit, u, v), takes it as
+ * its last and starts again base past it; a ray that hit its last triangle again doubles its step and moves on by
+ * it; both stay live (live_out), the others drop out. counts[0]: hits recorded, counts[1]: rays still live. */
+void hybrid_walk_hits(const float *rec, const int64_t *live, int64_t m, double *start, double *step,
+                      const double *base, int64_t *last, int64_t *ray_out, int64_t *prim_out, double *t_out,
+                      float *u_out, float *v_out, int64_t *live_out, int64_t *counts)
+{
+    int64_t found = 0, going = 0;
+    for (int64_t j = 0; j < m; ++j) {
+        const float *h = rec + 4 * j;
+        int32_t prim;
+        memcpy(&prim, h + 1, 4);
+        if (prim < 0)
+            continue;
+        const int64_t r = live[j];
+        const double t = start[r] + (double)h[0];
+        if (last[r] != prim) {
+            ray_out[found] = r;
+            prim_out[found] = prim;
+            t_out[found] = t;
+            u_out[found] = h[2];
+            v_out[found] = h[3];
+            ++found;
+            last[r] = prim;
+            step[r] = base[r];
+            start[r] = t + step[r];
+        } else {
+            step[r] *= 2.0;
+            start[r] += step[r];
+        }
+        live_out[going++] = r;
+    }
+    counts[0] = found;
+    counts[1] = going;
 }

@@ -74,8 +74,9 @@ int64_t hybrid_finish(const int64_t *child, const int64_t *rec, const int64_t *r
 int64_t hybrid_triangle_records(const float *vt, int64_t nv, const int64_t *faces, const int64_t *perm, int64_t n,
                                 float *out);
 
-/* order.ray_keys's keys in the high halves of `words`, the row numbers first + i in the low halves. */
-void hybrid_ray_keys(const float *o, int64_t n, const float *lo, const float *scale, const float *top,
+/* order.ray_keys's keys in the high halves of `words`, the row numbers first + i in the low halves (origins
+ * o_stride floats apart). */
+void hybrid_ray_keys(const float *o, int64_t o_stride, int64_t n, const float *lo, const float *scale, const float *top,
                      const uint32_t *table, const uint32_t *offsets, const float *up, int64_t up_stride,
                      int64_t first, uint64_t *words);
 
@@ -85,6 +86,10 @@ void hybrid_rows_of(uint64_t *words, int64_t n);
 /* dst[i] = src[rows[i]] for rows of `size` bytes. */
 void hybrid_gather_rows(const uint8_t *src, const int64_t *rows, int64_t n, int64_t size, uint8_t *dst);
 
+/* The same for source rows `stride` bytes apart. */
+void hybrid_gather_strided(const uint8_t *src, int64_t stride, const int64_t *rows, int64_t n, int64_t size,
+                           uint8_t *dst);
+
 /* out[rows[i]] = words[i] != 0. */
 void hybrid_scatter_flags(const uint32_t *words, const int64_t *rows, int64_t n, uint8_t *out);
 
@@ -92,5 +97,32 @@ void hybrid_scatter_flags(const uint32_t *words, const int64_t *rows, int64_t n,
    the triangle's original index, and the barycentric weights of the triangle's vertices 1 and 2 there. */
 void hybrid_closest_points(const float *nodes, const float *tris, const double *points, int64_t n, float *dist,
                            int32_t *prim, float *u, float *v);
+
+/* The front ends' answers from the trace kernels' hit records (t, prim, u, v; n of them), written to row rows[i]
+ * (rows NULL: row i) of each output given (NULL: not written); see hybrid_scene_hits in native.c. */
+void hybrid_scene_hits(const float *rec, int64_t n, const int64_t *rows, const uint32_t *geometry,
+                       const uint32_t *primitive, const float *normal, int64_t n_tri, const float *verts,
+                       const int64_t *faces, const double *center, float *t_out, uint32_t *gid_out,
+                       uint32_t *pid_out, int64_t *prim_out, float *uv_out, float *normal_out, float *point_out);
+
+/* RayMeshIntersector's rays in its frame: float32 (o - center) * factor and d / |d| (computed in double) of n rays
+ * of float32 (f32 != 0) or double rows `stride` elements apart; the first bad ray (not finite, zero length, beyond
+ * bound in the frame), or -1. */
+int64_t hybrid_frame_rays(const void *o, const void *d, int64_t n, int64_t stride, int64_t f32, const double *center,
+                          double factor, double bound, float *o_out, float *d_out);
+
+/* The first of n float32 points (rows `stride` floats apart) not finite or beyond +-bound, or -1. */
+int64_t hybrid_first_bad_point(const float *p, int64_t n, int64_t stride, double bound);
+
+/* One round of RaycastingScene's walk along its rays (raycasting.py _all_hits): the live rays' float32 origins
+ * o + d * start and directions, from float64 rays `stride` doubles apart; see hybrid_walk_rays in native.c. */
+void hybrid_walk_rays(const double *o, const double *d, int64_t stride, const int64_t *live, int64_t m,
+                      const double *start, float *o_out, float *d_out);
+
+/* The round's hits taken and the rays stepped past them; the hits found and the rays still going, counted in
+ * counts[0], counts[1]. */
+void hybrid_walk_hits(const float *rec, const int64_t *live, int64_t m, double *start, double *step,
+                      const double *base, int64_t *last, int64_t *ray_out, int64_t *prim_out, double *t_out,
+                      float *u_out, float *v_out, int64_t *live_out, int64_t *counts);
 
 #endif

@@ -376,18 +376,36 @@ def triangle_records(vt, faces, perm, out) -> int | None:
 
 
 def gather(src: np.ndarray, rows: np.ndarray, out: np.ndarray) -> None:
-    """out[i] = src[rows[i]] (rows of a C-contiguous, aligned float32 array: xyz or single floats; `rows` in range),
-    in C where the library is at hand and the arrays are as it expects, else np.take."""
+    """out[i] = src[rows[i]] (rows of an aligned float32 array, C-contiguous or (N, k) with strided rows: xyz or
+    single floats; `rows` in range), in C where the library is at hand and the arrays are as it expects, else
+    np.take."""
     lib = library()
     fits = (
         src.dtype == out.dtype == np.float32
         and rows.dtype == np.int64
         and src.ndim in (1, 2)
         and out.shape == (len(rows),) + src.shape[1:]
-        and all(a.flags.c_contiguous and a.flags.aligned for a in (src, rows, out))
+        and all(a.flags.c_contiguous and a.flags.aligned for a in (rows, out))
+        and src.flags.aligned
     )
-    if lib is None or not fits or (len(rows) and not (0 <= rows.min() and rows.max() < len(src))):
+    strided = src.ndim == 2 and not src.flags.c_contiguous and src.strides[1] == 4 and src.strides[0] > 0
+    if (
+        lib is None
+        or not fits
+        or not (src.flags.c_contiguous or strided)
+        or (len(rows) and not (0 <= rows.min() and rows.max() < len(src)))
+    ):
         np.take(src, rows, axis=0, out=out)  # (also the error for a row out of range)
+        return
+    if strided:  # (rows of a wider array: e.g. the origins of (N, 6) rays)
+        lib.hybrid_gather_strided(
+            _ffi.cast("uint8_t *", src.ctypes.data),
+            src.strides[0],
+            _at(rows),
+            len(rows),
+            4 * src.shape[1],
+            _at(out, "uint8_t[]"),
+        )
         return
     lib.hybrid_gather_rows(
         _at(src, "uint8_t[]"), _at(rows), len(rows), src.itemsize * int(np.prod(src.shape[1:])), _at(out, "uint8_t[]")
@@ -414,16 +432,25 @@ def scatter_flags(words: np.ndarray, rows: np.ndarray, out: np.ndarray) -> None:
 def ray_keys(
     o: np.ndarray, lo, scale, top, table, offsets, up: int | None, up_stride: int, first: int, words: np.ndarray
 ) -> None:
-    """order.ray_keys's keys of the len(words) origins `o` (float32, C-contiguous, flat xyz) into the high halves of
-    `words` (uint64) and the row numbers first + i into their low halves (see hybrid_ray_keys in native.c): lo,
-    scale, top float32 (3,), the bit table and its axes' offsets uint32; `up`, the address of the first direction's
-    y (rows up_stride floats apart, the caller keeping it alive) or None. Only where `library()` is at hand."""
-    if o.dtype != np.float32 or o.shape != (3 * len(words),) or not o.flags.c_contiguous or words.dtype != np.uint64:
-        raise TypeError("ray_keys: o must be C-contiguous float32 (3 N,) and words uint64 (N,)")
+    """order.ray_keys's keys of the len(words) origins `o` (float32 (N, 3), rows possibly strided, aligned) into the
+    high halves of `words` (uint64) and the row numbers first + i into their low halves (see hybrid_ray_keys in
+    native.c): lo, scale, top float32 (3,), the bit table and its axes' offsets uint32; `up`, the address of the
+    first direction's y (rows up_stride floats apart, the caller keeping it alive) or None. Only where `library()`
+    is at hand."""
+    if (
+        o.dtype != np.float32
+        or o.shape != (len(words), 3)
+        or o.strides[1] != 4
+        or (len(o) and o.strides[0] % 4)
+        or not o.flags.aligned
+        or words.dtype != np.uint64
+    ):
+        raise TypeError("ray_keys: o must be aligned float32 (N, 3) rows and words uint64 (N,)")
     lo, scale, top = (np.ascontiguousarray(a, np.float32) for a in (lo, scale, top))
     table, offsets = (np.ascontiguousarray(a, np.uint32) for a in (table, offsets))
     library().hybrid_ray_keys(
-        _at(o),
+        _rows_at(o),
+        o.strides[0] // 4 if len(o) > 1 else 3,
         len(words),
         _at(lo),
         _at(scale),
@@ -462,3 +489,125 @@ def closest_points(nodes: np.ndarray, tris: np.ndarray, points: np.ndarray, dist
         _at(u),
         _at(v),
     )
+
+
+def scene_hits(
+    records: np.ndarray,
+    rows: np.ndarray | None = None,
+    *,
+    geometry: np.ndarray | None = None,
+    primitive: np.ndarray | None = None,
+    normal: np.ndarray | None = None,
+    mesh: tuple | None = None,
+    center: np.ndarray | None = None,
+    n_tri: int,
+    t: np.ndarray | None = None,
+    gid: np.ndarray | None = None,
+    pid: np.ndarray | None = None,
+    prim: np.ndarray | None = None,
+    uv: np.ndarray | None = None,
+    normals: np.ndarray | None = None,
+    points: np.ndarray | None = None,
+) -> None:
+    """The front ends' answers from (n, 4) float32 hit records (t, prim bits, u, v) into the outputs given, row
+    rows[i] (or i) for record i (see hybrid_scene_hits in native.c): tables `geometry`, `primitive` (uint32 (T,);
+    None: 0 and the triangle itself), `normal` (float32 (T, 3)), `mesh` (float32 vertices, int64 faces) for the
+    points, `center` (float64 (3,)) added to them. Only where `library()` is at hand; every array C-contiguous."""
+    lib = library()
+
+    def ptr(a, ctype=None):
+        return _ffi.NULL if a is None else _at(a, ctype)
+
+    v, f = mesh if mesh is not None else (None, None)
+    lib.hybrid_scene_hits(
+        _at(records),
+        len(records),
+        ptr(rows),
+        ptr(geometry),
+        ptr(primitive),
+        ptr(normal),
+        n_tri,
+        ptr(v),
+        ptr(f),
+        ptr(center),
+        ptr(t),
+        ptr(gid),
+        ptr(pid),
+        ptr(prim),
+        ptr(uv),
+        ptr(normals),
+        ptr(points),
+    )
+
+
+def frame_rays(o: np.ndarray, d: np.ndarray, center, factor: float, bound: float, o_out, d_out) -> int:
+    """hybrid_frame_rays over rays o, d (float32 or float64 (n, k >= 3) rows sharing a row stride, their first three
+    columns read): float32 (o - center) * factor and d / |d| into o_out, d_out ((n, 3) float32); the first bad ray or
+    -1. Only where `library()` is at hand."""
+    f32 = o.dtype == np.float32
+    stride = o.strides[0] // o.itemsize
+    center = np.ascontiguousarray(center, np.float64)
+    return int(
+        library().hybrid_frame_rays(
+            _ffi.cast("void *", o.ctypes.data),
+            _ffi.cast("void *", d.ctypes.data),
+            len(o),
+            stride,
+            int(f32),
+            _at(center),
+            float(factor),
+            float(bound),
+            _at(o_out),
+            _at(d_out),
+        )
+    )
+
+
+def first_bad_point(p: np.ndarray, bound: float) -> int:
+    """The first row of float32 (n, k >= 3) points (rows strided, elements contiguous) with a coordinate not finite
+    or beyond +-bound, or -1. Only where `library()` is at hand."""
+    return int(library().hybrid_first_bad_point(_rows_at(p), len(p), p.strides[0] // 4, float(bound)))
+
+
+def walk_rays(flat: np.ndarray, live: np.ndarray, start: np.ndarray, o_out: np.ndarray, d_out: np.ndarray) -> None:
+    """One round of RaycastingScene's walk: float32 origins o + d * start and directions of the rays `live` (int64)
+    of float64 (N, 6) rays `flat` (C-contiguous) into (m, 3) float32 o_out, d_out (see hybrid_walk_rays in
+    native.c). Only where `library()` is at hand."""
+    library().hybrid_walk_rays(
+        _at(flat),
+        _ffi.cast("double *", flat.ctypes.data) + 3,
+        6,
+        _at(live),
+        len(live),
+        _at(start),
+        _at(o_out),
+        _at(d_out),
+    )
+
+
+def walk_hits(records, live, start, step, base, last) -> tuple:
+    """The hits of one round of RaycastingScene's walk from the (m, 4) float32 records of the rays `live` (int64),
+    start, step and last updated in place (see hybrid_walk_hits in native.c): (ray, prim, t, u, v) of the hits
+    found and the rays still live. Only where `library()` is at hand."""
+    m = len(live)
+    ray, prim, live_out = (np.empty(m, np.int64) for _ in range(3))
+    counts = np.zeros(2, np.int64)
+    t, u, v = np.empty(m), np.empty(m, np.float32), np.empty(m, np.float32)
+    library().hybrid_walk_hits(
+        _at(records),
+        _at(live),
+        m,
+        _at(start),
+        _at(step),
+        _at(base),
+        _at(last),
+        _at(ray),
+        _at(prim),
+        _at(t),
+        _at(u),
+        _at(v),
+        _at(live_out),
+        _at(counts),
+    )
+    k, g = int(counts[0]), int(counts[1])
+    return (ray[:k], prim[:k], t[:k], u[:k], v[:k]), live_out[:g]

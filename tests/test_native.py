@@ -80,7 +80,7 @@ def test_the_module_comes_from_the_package_with_native_h_s_functions(fresh):
     assert Path(module.__file__).resolve().parent == ROOT / "engine"
     assert module.ffi.string(lib.hybrid_source_tag()).decode() == native.source_tag()
     declared = re.findall(r"\b(hybrid_\w+)\(", (ROOT / "engine" / "native.h").read_text())
-    assert len(declared) == 10 and all(hasattr(lib, name) for name in declared)
+    assert len(declared) == 16 and all(hasattr(lib, name) for name in declared)
 
 
 @needs_module
@@ -92,6 +92,11 @@ def test_hybrid_native_0_runs_numpy_s_steps_with_the_same_tree_and_order(fresh, 
     assert calls and None not in calls  # the pass loop in C
     o, d = rays()
     order_c = ray_order(o, d, 2).copy()
+    wide = np.hstack([o, d])  # (the origins and directions of (N, 6) rays: strided rows, read as they are)
+    assert np.array_equal(ray_order(wide[:, :3], wide[:, 3:], 2), order_c)
+    gathered = np.empty_like(o)
+    native.gather(wide[:, 3:], order_c, gathered)
+    assert np.array_equal(gathered, d[order_c])
     monkeypatch.setenv("HYBRID_NATIVE", "0")
     native.library.cache_clear()
     calls.clear()

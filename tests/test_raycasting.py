@@ -401,3 +401,71 @@ def test_bad_input_is_a_clear_error(make):
         scene.cast_rays(good)
     with pytest.raises(ConfigError, match=r"RaycastingScene is closed"):
         scene.add_triangles(box)
+
+
+def test_float32_queries_answer_as_the_numpy_steps(make):
+    """float32 rays and points go to the GPU as given and their answers are mapped in C in the stream's sink tasks;
+    float64 ones take the numpy steps: the same answers, bit for bit, and the same errors naming the same row."""
+    ms = meshes()["three"]
+    scene = make(*ms)
+    rays = random_rays(np.random.default_rng(11), 6000, ms).reshape(60, 100, 6)
+    for got, want in ((scene.cast_rays(rays), scene.cast_rays(rays.astype(np.float64))),):
+        assert got.keys() == want.keys()
+        for k in got:
+            assert got[k].dtype == want[k].dtype and got[k].shape == want[k].shape == (60, 100) + got[k].shape[2:]
+            assert np.array_equal(got[k], want[k]), k
+        assert ((got["geometry_ids"] != INVALID) == np.isfinite(got["t_hit"])).all()
+        assert set(np.unique(got["geometry_ids"])) == {0, 1, 2, INVALID}
+    assert np.array_equal(scene.test_occlusions(rays, tfar=2.0), scene.test_occlusions(rays.astype(float), tfar=2.0))
+    assert not scene.test_occlusions(rays, tfar=-1.0).any()
+    points = rays[..., :3] * np.float32(0.5)
+    got, want = scene.compute_closest_points(points), scene.compute_closest_points(points.astype(np.float64))
+    for k in got:
+        assert got[k].dtype == want[k].dtype and np.array_equal(got[k], want[k]), k
+    assert np.array_equal(scene.compute_distance(points), scene.compute_distance(points.astype(np.float64)))
+    one = make(ms[0])  # (one geometry: ids are 0 and the triangle itself)
+    got, want = one.cast_rays(rays[0]), one.cast_rays(rays[0].astype(np.float64))
+    assert all(np.array_equal(got[k], want[k]) for k in got)
+    got, want = one.compute_closest_points(points[0]), one.compute_closest_points(points[0].astype(np.float64))
+    assert all(np.array_equal(got[k], want[k]) for k in got)
+    bad = rays[0].copy()
+    bad[37, 4] = np.nan
+    with pytest.raises(ConfigError, match=r"rays: row 37 is not finite"):
+        scene.cast_rays(bad)
+    bad[37] = [0, 0, 0, 0, 0, 0]
+    for query in (scene.cast_rays, scene.test_occlusions):
+        with pytest.raises(ConfigError, match=r"rays: ray 37 has a zero direction"):
+            query(bad)
+    bad[37] = [0, 3e11, 0, 1, 0, 0]
+    with pytest.raises(ConfigError, match=r"rays: ray 37 has an origin coordinate beyond \+-1e\+11"):
+        scene.cast_rays(bad)
+    with pytest.raises(ConfigError, match=r"tnear must be a finite number"):
+        scene.test_occlusions(rays, tnear=float("inf"))
+    far = points[0].copy()
+    far[5, 2] = np.inf
+    for query in (scene.compute_distance, scene.compute_closest_points):
+        with pytest.raises(ConfigError, match=r"query_points: row 5 is not finite"):
+            query(far)
+
+
+def test_the_c_steps_answer_as_numpy_s(make, monkeypatch):
+    """Hit lists, counts and the inside vote walked with the C steps (engine/native.c) equal numpy's, bit for bit."""
+    from engine import native
+
+    ms = meshes()["three"]
+    scene = make(*ms)
+    rays = random_rays(np.random.default_rng(12), 3000, ms)
+    points = rays[:500, :3] * np.float32(0.3)
+    queries = {
+        "list": lambda: scene.list_intersections(rays),
+        "count": lambda: {"count": scene.count_intersections(rays)},
+        "cast": lambda: scene.cast_rays(rays),
+        "occupancy": lambda: {"inside": scene.compute_occupancy(points, nsamples=3)},
+        "sdf": lambda: {"sdf": scene.compute_signed_distance(points)},
+    }
+    got = {k: q() for k, q in queries.items()}
+    assert got["list"]["ray_ids"].size > len(rays) // 2 and 0 < got["occupancy"]["inside"].sum() < len(points)
+    monkeypatch.setattr(native, "library", lambda: None)
+    for k, q in queries.items():
+        want = q()
+        assert all(np.array_equal(got[k][x], want[x]) for x in want), k

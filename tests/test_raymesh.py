@@ -234,3 +234,32 @@ def test_copy_and_pickle_rebuild_on_their_first_query(make):
             assert other.mesh is mesh or np.array_equal(other.mesh.faces, mesh.faces)
             assert np.array_equal(other.intersects_first(o, d), want)
             assert not other.validation_errors
+
+
+@pytest.mark.parametrize("in_order", [False, True])
+def test_float_arrays_answer_as_lists(make, monkeypatch, in_order):
+    """float32 and float64 arrays are put in the mesh's frame in C (on the worker pool, or where the Tracer traces
+    rays in the given order, as on a GPU, as the stream packs them); lists take the numpy steps: the same first hits
+    and occlusion, bit for bit, and the same errors."""
+    monkeypatch.setattr(Tracer, "traces_in_order", property(lambda self: in_order))
+    mesh = trimesh.creation.icosphere(3).apply_translation((3.0, -2.0, 1.0))
+    ours = make(mesh, backend="vulkan")  # (the C frame path is the Vulkan branch's)
+    o, d = random_rays(np.random.default_rng(9), 5000, mesh)
+    want_first, want_any = ours.intersects_first(o.tolist(), d.tolist()), ours.intersects_any(o.tolist(), d.tolist())
+    assert 0 < (want_first >= 0).sum() < len(o)
+    for dt in (np.float32, np.float64):
+        oo, dd = o.astype(dt), d.astype(dt)
+        if dt == np.float32:
+            want_first = ours.intersects_first(oo.tolist(), dd.tolist())
+            want_any = ours.intersects_any(oo.tolist(), dd.tolist())
+        first = ours.intersects_first(oo, dd)
+        assert first.dtype == np.int64 and np.array_equal(first, want_first)
+        assert np.array_equal(ours.intersects_any(oo, dd), want_any)
+    bad = o.copy()
+    bad[17] = np.nan
+    with pytest.raises(ConfigError, match=r"ray_origins: row 17 is not finite"):
+        ours.intersects_first(bad, d)
+    bad = d.astype(np.float32)
+    bad[23] = 0
+    with pytest.raises(ConfigError, match=r"ray_directions: ray 23 has zero length"):
+        ours.intersects_any(o.astype(np.float32), bad)

@@ -17,6 +17,7 @@ from dataclasses import dataclass
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
+from .. import native
 from ..errors import ConfigError
 from ..gpu import SceneBVH, bvh_descriptor_set
 from ..gpu.bvh import bvh_spec
@@ -25,7 +26,7 @@ from ..shaders import ShaderLibrary
 from ..vk import BufferView, ComputePipeline, Recorder, reflect, upload_buffer
 from ..vk.resources import STORAGE_TEXEL, UNIFORM_TEXEL
 from .checks import check_vectors, result_arrays
-from .stream import hits_sink, stream
+from .stream import C_SINK_THREADS, STREAM_THREADS, hits_sink, records_sink, stream
 
 SHADER = "trace_closest.comp"
 ZERO_AREA_FLAG = 1  # bvh_point.glsl BVH_ZERO_AREA_FLAG, in a triangle record's v1.w
@@ -145,23 +146,33 @@ class ClosestQuery:
         out = Closest(
             *result_arrays("Tracer.closest", n, (np.float32, (3,)), np.float32, np.int32, np.float32, np.float32)
         )
+        if native.library() is not None:  # the points made in the sink tasks, in C
+
+            def write(r, rows, a, b):
+                native.scene_hits(
+                    r, n_tri=len(self.mesh[1]), mesh=self.mesh, t=out.distance[a:b], points=out.point[a:b]
+                )
+                out.prim[a:b] = r[:, 1].view(np.int32)
+                out.u[a:b], out.v[a:b] = r[:, 2], r[:, 3]
+
+            self.stream(p, records_sink(write), C_SINK_THREADS)
+            return out
         out.point.fill(0.0)
-
-        def bad():  # (check_points passed every point; float32 rounding could only push one past the bound)
-            raise ConfigError(f"points: a coordinate beyond +-{MAX_COORD:g} once rounded to float32")
-
-        stream(
-            self.session,
-            "closest",
-            p,
-            np.broadcast_to(np.float32(1), (n, 3)),
-            np.float32(0),
-            hits_sink(out.distance, out.prim, out.u, out.v),
-            bad,
-        )
+        self.stream(p, hits_sink(out.distance, out.prim, out.u, out.v))
         if n:
             v, f = self.mesh
             tri = v[f[out.prim]].astype(np.float64)  # (N, 3 corners, 3)
             u, w = out.u[:, None].astype(np.float64), out.v[:, None].astype(np.float64)
             out.point[:] = tri[:, 0] + u * (tri[:, 1] - tri[:, 0]) + w * (tri[:, 2] - tri[:, 0])
         return out
+
+    def stream(self, p: NDArray[np.float32], sink, threads: int = STREAM_THREADS) -> None:
+        """Float32 (N, 3) points (checked) streamed through the session's slots as rays' origins (a unit direction
+        and tmax 0 beside them, which the kernel never reads); `sink` takes each block's records, on up to `threads`
+        worker threads."""
+
+        def bad():  # (the points were checked; float32 rounding could only push one past the bound)
+            raise ConfigError(f"points: a coordinate beyond +-{MAX_COORD:g} once rounded to float32")
+
+        ones = np.broadcast_to(np.float32(1), (len(p), 3))
+        stream(self.session, "closest", p, ones, np.float32(0), sink, bad, threads=threads)

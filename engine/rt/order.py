@@ -261,6 +261,12 @@ def ray_order(
     return words.view(np.int64)
 
 
+def _rows_ok(a: np.ndarray) -> bool:
+    """float32 (N, 3) rows C reads as they are: aligned, elements contiguous, rows whole floats apart (e.g. the
+    origins of (N, 6) rays)."""
+    return a.dtype == np.float32 and a.ndim == 2 and a.strides[1] == 4 and a.strides[0] % 4 == 0 and a.flags.aligned
+
+
 def _native_order(o: np.ndarray, d: np.ndarray, box, threads: int, words: np.ndarray) -> np.ndarray:
     """`ray_order`'s order of the whole batch with the keys made in C (engine/native.c): the same keys and the
     same order (the keys' stable one). The keys in row blocks on `threads` threads; the words split at their median
@@ -269,18 +275,17 @@ def _native_order(o: np.ndarray, d: np.ndarray, box, threads: int, words: np.nda
     the C gather does not need)."""
     n = len(o)
     shared, lo, scale, top, table, offsets = _key_terms(d, box)
-    o = np.require(o, np.float32, ["C", "A"]).reshape(-1)  # (contiguous and aligned, as C reads it)
+    o, d = (a if _rows_ok(a) else np.require(a, np.float32, ["C", "A"]) for a in (o, d))  # (as C reads them)
     up, stride = None, 0
     if not shared:
-        d = np.require(d, np.float32, ["C", "A"])
-        up, stride = d[:, 1:].ctypes.data, 3
+        up, stride = d[:, 1:].ctypes.data, d.strides[0] // 4 if len(d) > 1 else 3
     table = np.ascontiguousarray(table)
     step = max(KEY_BLOCK, -(-n // max(threads, 1)))
 
     def keys(s):
         e = min(s + step, n)
         native.ray_keys(
-            o[3 * s : 3 * e], lo, scale, top, table, offsets, None if up is None else up + 12 * s, stride, s, words[s:e]
+            o[s:e], lo, scale, top, table, offsets, None if up is None else up + 4 * stride * s, stride, s, words[s:e]
         )
 
     blocks(keys, n, step, threads)

@@ -27,7 +27,9 @@ from typing import Any
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
+from .. import native
 from ..lifetime import Closes
+from ..parallel import blocks, default_threads
 from ..errors import ConfigError, SceneError
 from ..limits import MAX_COORD, MIN_DIRECTION
 from ..vk import Context
@@ -61,6 +63,7 @@ class _Built:
     geometry: NDArray[np.uint32]  # (T,) geometry id of each concatenated triangle
     primitive: NDArray[np.uint32]  # (T,) its index within its geometry
     normal: NDArray[np.float32]  # (T, 3) unit normals, (v1 - v0) x (v2 - v0) (zero for zero-area triangles)
+    local: bool = False  # traced in world coordinates (center 0): float32 rays and points go to the GPU as given
     tables: dict = field(default_factory=dict)  # the maps above as CUDA arrays, per framework (cuda_arrays)
 
 
@@ -114,7 +117,7 @@ def _traced(s: _Built, origins, what: str):
     """`origins` in the frame the scene is traced in (less its centre), or a ConfigError `what` (formatted with the
     index i) for the first that lies beyond +-MAX_COORD there (a scene far from the world origin is traced about
     the centre of its box)."""
-    local = origins - s.center
+    local = origins - s.center if s.center.any() else origins
     i = first_beyond(local, MAX_COORD)
     if i is not None:
         raise ConfigError(
@@ -133,6 +136,30 @@ def _flat_points(points) -> tuple[NDArray[np.float64], tuple]:
             f"query_points must have shape (..., 3) with at least 2 dimensions (x, y, z per point), got {a.shape}"
         )
     return check_points(a.reshape(-1, 3), "query_points"), a.shape[:-1]
+
+
+def _walk_round(tracer: Tracer, flat, live, start, step, base, last) -> tuple[list, NDArray[np.int64]]:
+    """One round of `RaycastingScene._walk`: the rays `live` cast from `start` (their float32 rays made on the
+    worker pool), their hits taken in the sink tasks (start, step and last updated there). Returns the hits found
+    (a list of (ray, prim, t, u, v)) and the rays still live, in the order of `live`."""
+    m, threads = len(live), default_threads()
+    o32, d32 = np.empty((m, 3), np.float32), np.empty((m, 3), np.float32)
+    block = max(1 << 16, -(-m // threads))
+    blocks(
+        lambda a: native.walk_rays(flat, live[a : a + block], start, o32[a : a + block], d32[a : a + block]),
+        m,
+        block,
+        threads,
+    )
+    parts: list = []
+
+    def write(records, rows, a, b):
+        rays = live[a:b] if rows is None else live[rows]
+        parts.append((a, native.walk_hits(np.ascontiguousarray(records), rays, start, step, base, last)))
+
+    tracer.intersect_records(o32, d32, np.inf, write)
+    parts.sort(key=lambda p: p[0])
+    return [p[1][0] for p in parts], np.concatenate([np.zeros(0, np.int64)] + [p[1][1] for p in parts])
 
 
 def _nsamples(nsamples) -> int:
@@ -290,6 +317,7 @@ class RaycastingScene(Closes):
         length = np.linalg.norm(n, axis=1, keepdims=True)
         normal = np.divide(n, length, out=np.zeros_like(n), where=length > 0).astype(np.float32)
         self._built = _Built(len(self._meshes), tracer, center, step, geometry, primitive, normal)
+        self._built.local = not center.any()
         return self._built
 
     def _tracer(self, v, f) -> Tracer | EmbreeTracer:
@@ -334,6 +362,9 @@ class RaycastingScene(Closes):
             )
             if fast is not None:
                 return fast
+            fast = self._fast(rays, 6)
+            if fast is not None:
+                return self._cast_fast(*fast)
             flat, shape = _flat_rays(rays)
             s = self._scene()
             n = len(flat)
@@ -380,6 +411,17 @@ class RaycastingScene(Closes):
                 fast = self._on_embree(rays, lambda s, a: scene_occlusions(s.tracer, a, s.center, near, far))
                 if fast is not None:
                     return fast
+            fast = self._fast(rays, 6, lambda: (_limit(tnear, "tnear", False), _limit(tfar, "tfar", True)))
+            if fast is not None and tnear == 0:
+                far = _limit(tfar, "tfar", True)
+                s, flat, shape = fast
+                if far < 0:
+                    return np.zeros(shape, bool)
+                try:
+                    return s.tracer.occluded(flat[:, :3], flat[:, 3:], far).reshape(shape)
+                except ConfigError:
+                    _flat_rays(rays)  # (the front end's message for the bad ray)
+                    raise
             flat, shape = (None, None) if on_cuda(rays) else _flat_rays(rays)
             near, far = _limit(tnear, "tnear", False), _limit(tfar, "tfar", True)
             s = self._scene()
@@ -411,6 +453,79 @@ class RaycastingScene(Closes):
         return (
             {k: v.reshape(lead + v.shape[1:]) for k, v in out.items()} if isinstance(out, dict) else out.reshape(lead)
         )
+
+    def _fast(self, values, width: int, before=None):
+        """(scene, flat (N, width) float32 view, leading shape) where a query may hand `values` to the Tracer as they
+        are: the Vulkan backend, a float32 numpy array of (..., width) (at least 2 dimensions, rows of contiguous
+        elements), the C steps at hand, a scene with triangles traced in world coordinates; else None (the query's numpy
+        steps run). The Tracer's checks of such values are the front end's (float32 values are exact in float64): where
+        it finds a bad one the front end's own checks run for their message. Scene errors come after the checks of
+        `values`, as on the numpy path, and so do those of `before()` (the query's other arguments)."""
+        if not (
+            self.backend == "vulkan"
+            and isinstance(values, np.ndarray)
+            and values.dtype == np.float32
+            and values.ndim >= 2
+            and values.shape[-1] == width
+            and values.size
+            and native.library() is not None
+        ):
+            return None
+        try:
+            if before is not None:
+                before()
+            s = self._scene()
+        except ConfigError:
+            (_flat_rays if width == 6 else _flat_points)(values)
+            raise
+        if s.tracer is None or not s.local:
+            return None
+        flat = values.reshape(-1, width)
+        if flat.strides[1] != 4:
+            return None
+        return s, flat, values.shape[:-1]
+
+    def _cast_fast(self, s: _Built, flat, shape) -> dict[str, NDArray]:
+        """cast_rays of float32 rays (`_fast`): traced as given, each chunk's hits mapped to Open3D's answers in the
+        stream's sink tasks (engine/native.c hybrid_scene_hits: ids, uvs and normals of the hit triangle)."""
+        n = len(flat)
+        out = {
+            "t_hit": np.empty(n, np.float32),
+            "geometry_ids": np.empty(n, np.uint32),
+            "primitive_ids": np.empty(n, np.uint32),
+            "primitive_uvs": np.empty((n, 2), np.float32),
+            "primitive_normals": np.empty((n, 3), np.float32),
+        }
+        one = s.count == 1  # (one geometry: its ids are 0 and the triangle itself)
+        tables = dict(
+            geometry=None if one else s.geometry,
+            primitive=None if one else s.primitive,
+            normal=s.normal,
+            n_tri=len(s.geometry),
+        )
+
+        def write(records, rows, a, b):
+            if rows is None:
+                outs = {k: v[a:b] for k, v in out.items()}
+            else:
+                outs = out
+            native.scene_hits(
+                records,
+                rows,
+                t=outs["t_hit"],
+                gid=outs["geometry_ids"],
+                pid=outs["primitive_ids"],
+                uv=outs["primitive_uvs"],
+                normals=outs["primitive_normals"],
+                **tables,
+            )
+
+        try:
+            s.tracer.intersect_records(flat[:, :3], flat[:, 3:], np.inf, write)
+        except ConfigError:
+            _flat_rays(flat)  # (the front end's message for the bad ray)
+            raise
+        return {k: a.reshape(shape + a.shape[1:]) for k, a in out.items()}
 
     def _cast_cuda(self, rays):
         """cast_rays on CUDA rays: traced and mapped to ids on their device (engine.rt.cuda_arrays)."""
@@ -444,10 +559,10 @@ class RaycastingScene(Closes):
             o = o + near * d
         return s.tracer.occluded(o, d, far - near).reshape(shape)
 
-    def _all_hits(self, flat):
-        """Every hit of every ray, t >= 0, sorted by ray then t: (ray, concatenated triangle, t, u, v). Each round
-        casts the rays still going from just past their last hit (one GPU batch); a ray that reports the triangle it
-        just left again (float noise) doubles its step instead."""
+    def _all_hits(self, flat, ordered: bool = True):
+        """Every hit of every ray, t >= 0, sorted by ray then t (unless not `ordered`: then in no set order): (ray,
+        concatenated triangle, t, u, v). Each round casts the rays still going from just past their last hit (one
+        GPU batch); a ray that reports the triangle it just left again (float noise) doubles its step instead."""
         s = self._scene()
         n = len(flat)
         found = [
@@ -461,6 +576,14 @@ class RaycastingScene(Closes):
         ]
         if s.tracer is None or not n:
             return [np.concatenate(c) for c in zip(*found)]
+        # (the origins were checked: _traced's check is theirs)
+        if self.backend == "vulkan" and native.library() is not None and s.local:
+            found = self._walk(s, np.ascontiguousarray(flat, np.float64))
+            ray, prim, t, u, v = (np.concatenate(c) for c in zip(*found))
+            if not ordered:
+                return ray, prim, t, u, v
+            order = np.lexsort((t, ray))
+            return ray[order], prim[order], t[order], u[order], v[order]
         o, d = _traced(s, flat[:, :3], "rays: ray {i}'s origin"), flat[:, 3:]
         base = s.step / np.linalg.norm(d, axis=1)  # the step in each ray's t units
         step = base.copy()
@@ -487,13 +610,39 @@ class RaycastingScene(Closes):
         order = np.lexsort((t, ray))
         return ray[order], prim[order], t[order], u[order], v[order]
 
+    @staticmethod
+    def _walk(s: _Built, flat: NDArray[np.float64]) -> list:
+        """`_all_hits`' rounds with the C steps (engine/native.c hybrid_walk_rays, hybrid_walk_hits: the same float64
+        steps, so the same hits): each round's rays made on the worker pool and its hits taken in the stream's sink
+        tasks, as the GPU traces the next chunks. Returns the hits found, as a list of (ray, prim, t, u, v)."""
+        n = len(flat)
+        d = flat[:, 3:]
+        base = s.step / np.linalg.norm(d, axis=1)
+        step, start, last = base.copy(), np.zeros(n), np.full(n, -1, np.int64)
+        live = np.arange(n, dtype=np.int64)
+        found: list = []
+        for _ in range(len(s.geometry) + 64):
+            hits, live = _walk_round(s.tracer, flat, live, start, step, base, last)
+            found += hits
+            if not len(live):
+                break
+        return found or [
+            (
+                np.zeros(0, np.int64),
+                np.zeros(0, np.int64),
+                np.zeros(0),
+                np.zeros(0, np.float32),
+                np.zeros(0, np.float32),
+            )
+        ]
+
     @open3d_results
     def count_intersections(self, rays: ArrayLike, nthreads: int = 0) -> NDArray[np.int32]:
         """(...) int32: how many times each ray (t >= 0) crosses the scene's triangles (see the class notes on hits
         closer together than the step). The arguments are `cast_rays`'."""
         with self._lock:
             flat, shape = _flat_rays(rays)
-            ray = self._all_hits(flat)[0]
+            ray = self._all_hits(flat, ordered=False)[0]
             return np.bincount(ray, minlength=len(flat)).astype(np.int32).reshape(shape)
 
     @open3d_results
@@ -533,6 +682,32 @@ class RaycastingScene(Closes):
             return s, None
         return s, s.tracer.closest(_traced(s, flat, "query_points: row {i}"))
 
+    def _closest_fast(self, query_points, **outs) -> tuple | None:
+        """The closest-point walk of float32 points as given (`_fast`), checked on the worker pool and each chunk's
+        records mapped to `outs` (flat (N, ...) arrays made here for the keys given: native.scene_hits' outputs) in
+        the stream's sink tasks; returns (outs, leading shape), or None where the numpy steps run."""
+        fast = self._fast(query_points, 3)
+        if fast is None:
+            return None
+        s, flat, shape = fast
+        n = len(flat)
+        step = max(1 << 16, -(-n // default_threads()))
+        bad = blocks(lambda a: native.first_bad_point(flat[a : a + step], MAX_COORD), n, step, default_threads())
+        if any(i >= 0 for i in bad):
+            _flat_points(query_points)  # (its message for the first bad point)
+        arrays = {k: np.empty((n,) + tail, dt) for k, (dt, tail) in outs.items()}
+        tables = dict(normal=s.normal, n_tri=len(s.geometry))
+        if s.count > 1:
+            tables.update(geometry=s.geometry, primitive=s.primitive)
+        if "points" in arrays:
+            tables.update(mesh=s.tracer.mesh, center=np.ascontiguousarray(s.center, np.float64))
+
+        def write(records, rows, a, b):
+            native.scene_hits(records, **tables, **{k: v[a:b] for k, v in arrays.items()})
+
+        s.tracer.closest_records(flat, write)
+        return arrays, shape
+
     @open3d_results
     def compute_closest_points(self, query_points: ArrayLike, nthreads: int = 0) -> dict[str, NDArray]:
         """The nearest point of the scene's triangles to each query point (a GPU BVH walk, engine/rt/closest.py).
@@ -553,6 +728,20 @@ class RaycastingScene(Closes):
             ConfigError: a bad shape, NaN or infinite values (naming the point), a closed scene.
         """
         with self._lock:
+            fast = self._closest_fast(
+                query_points,
+                points=(np.float32, (3,)),
+                gid=(np.uint32, ()),
+                pid=(np.uint32, ()),
+                uv=(np.float32, (2,)),
+                normals=(np.float32, (3,)),
+            )
+            if fast is not None:
+                a, shape = fast
+                keys = zip(
+                    ("points", "geometry_ids", "primitive_ids", "primitive_uvs", "primitive_normals"), a.values()
+                )
+                return {k: v.reshape(shape + v.shape[1:]) for k, v in keys}
             flat, shape = _flat_points(query_points)
             s, near = self._closest(flat)
             n = len(flat)
@@ -580,6 +769,9 @@ class RaycastingScene(Closes):
         """(...) float32: the distance from each query point to the nearest triangle (+inf in a scene without
         triangles; Open3D: the distance to the origin). The arguments are `compute_closest_points`'."""
         with self._lock:
+            fast = self._closest_fast(query_points, t=(np.float32, ()))
+            if fast is not None:
+                return fast[0]["t"].reshape(fast[1])
             flat, shape = _flat_points(query_points)
             return self._distance(flat).reshape(shape)
 
@@ -590,8 +782,10 @@ class RaycastingScene(Closes):
             return np.zeros(0, bool)
         _traced(self._scene(), flat, "query_points: row {i}")  # (named by row, not by one of its rays)
         dirs = vote_directions(nsamples)
-        rays = np.concatenate([np.repeat(flat, nsamples, axis=0), np.tile(dirs, (len(flat), 1))], axis=1)
-        counts = np.bincount(self._all_hits(rays)[0], minlength=len(rays)).reshape(len(flat), nsamples)
+        rays = np.empty((len(flat) * nsamples, 6))
+        rays[:, :3] = np.repeat(flat, nsamples, axis=0) if nsamples > 1 else flat
+        rays[:, 3:] = np.tile(dirs, (len(flat), 1)) if nsamples > 1 else dirs
+        counts = np.bincount(self._all_hits(rays, ordered=False)[0], minlength=len(rays)).reshape(len(flat), nsamples)
         return (counts % 2).sum(axis=1) > nsamples // 2
 
     @open3d_results
@@ -614,7 +808,8 @@ class RaycastingScene(Closes):
         with self._lock:
             flat, shape = _flat_points(query_points)
             votes = _nsamples(nsamples)
-            distance = self._distance(flat)
+            fast = self._closest_fast(query_points, t=(np.float32, ()))
+            distance = fast[0]["t"] if fast is not None else self._distance(flat)
             return np.where(self._inside(flat, votes), -distance, distance).astype(np.float32).reshape(shape)
 
     @open3d_results

@@ -24,7 +24,9 @@ from typing import Any
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
+from .. import native
 from ..lifetime import Closes
+from ..parallel import blocks, default_threads
 from ..errors import ConfigError, SceneError
 from ..limits import MAX_COORD
 from ..vk import Context
@@ -78,6 +80,10 @@ def _check_frame(g: _Geometry, o: NDArray[np.float64]) -> None:
             f"{' and scaled to 100 units across' if g.factor != 1 else ''}); the triangle test is exact "
             "only within that bound"
         )
+
+
+class _BadRay(Exception):
+    """A ray the C steps refused: the numpy steps then run, for their error naming it."""
 
 
 class RayMeshIntersector(Closes):
@@ -178,6 +184,62 @@ class RayMeshIntersector(Closes):
             i = int(np.flatnonzero(~(length > 0))[0])
             raise ConfigError(f"ray_directions: ray {i} has zero length ({d[i]})")
         return o, d / length[:, None]
+
+    def _fast(self, ray_origins, ray_directions) -> _Geometry | None:
+        """The geometry where float32 or float64 (N, 3) arrays of rays may be put in the frame the mesh is traced in by
+        the C steps (native.frame_rays: the same float64 steps as `_rays` and the frame's, each value rounded to float32
+        once, as the Tracer rounds them); None where the numpy steps must run: another backend than Vulkan, other
+        inputs, no C steps, no triangles. A bad ray is found by those steps, whereupon the numpy steps run for their
+        error."""
+        o, d = ray_origins, ray_directions
+        if not (
+            self.backend == "vulkan"
+            and isinstance(o, np.ndarray)
+            and isinstance(d, np.ndarray)
+            and o.dtype == d.dtype
+            and o.dtype in (np.float32, np.float64)
+            and o.ndim == 2
+            and o.shape == d.shape
+            and o.shape[1] == 3
+            and len(o)
+            and o.strides[1] == d.strides[1] == o.itemsize
+            and o.strides[0] == d.strides[0]
+            and native.library() is not None
+        ):
+            return None
+        try:
+            g = self._geometry()
+        except ConfigError:
+            self._rays(o, d)  # (bad rays are named first, as on the numpy path)
+            raise
+        return g if g.tracer is not None else None
+
+    @staticmethod
+    def _query_framed(g: _Geometry, kind: str, o, d, write=None):
+        """`kind` ("occluded": returned, or "intersect": records to `write`) of rays o, d (`_fast`'s) put in the
+        mesh's frame in C: on a Tracer that traces rays in the given order (a GPU) as the stream packs them, straight
+        into its mapped memory; else on the worker pool first (the Tracer may then reorder them). Raises _BadRay for
+        a bad ray."""
+
+        def frame(a, b, oo, dd):
+            return native.frame_rays(o[a:b], d[a:b], g.center, g.factor, MAX_COORD, oo, dd) < 0
+
+        def bad():
+            raise _BadRay
+
+        n = len(o)
+        if g.tracer.traces_in_order:
+            return g.tracer.filled_query(kind, n, frame, bad, write)
+        oo, dd = np.empty((n, 3), np.float32), np.empty((n, 3), np.float32)
+        step = max(1 << 16, -(-n // default_threads()))
+        fine = blocks(
+            lambda a: frame(a, min(a + step, n), oo[a : a + step], dd[a : a + step]), n, step, default_threads()
+        )
+        if not all(fine):
+            bad()
+        if kind == "occluded":
+            return g.tracer.occluded(oo, dd)
+        g.tracer.intersect_records(oo, dd, np.inf, write)
 
     @staticmethod
     def _first(g: _Geometry, o, d) -> NDArray[np.int64]:
@@ -285,6 +347,19 @@ class RayMeshIntersector(Closes):
             fast = self._on_embree(ray_origins, ray_directions, any_hit=False)
             if fast is not None:
                 return fast
+            g = self._fast(ray_origins, ray_directions)
+            if g is not None:  # (the hit triangles written as int64 in the stream's sink tasks)
+                out = np.empty(len(ray_origins), np.int64)
+                n_tri = len(g.p0)
+
+                def write(records, rows, a, b):
+                    native.scene_hits(records, rows, n_tri=n_tri, prim=out if rows is not None else out[a:b])
+
+                try:
+                    self._query_framed(g, "intersect", ray_origins, ray_directions, write)
+                    return out
+                except _BadRay:
+                    pass  # (the numpy steps name it)
             o, d = self._rays(ray_origins, ray_directions)
             g = self._geometry()
             if g.tracer is None or not len(o):
@@ -298,6 +373,12 @@ class RayMeshIntersector(Closes):
             fast = self._on_embree(ray_origins, ray_directions, any_hit=True)
             if fast is not None:
                 return fast
+            g = self._fast(ray_origins, ray_directions)
+            if g is not None:
+                try:
+                    return self._query_framed(g, "occluded", ray_origins, ray_directions)
+                except _BadRay:
+                    pass  # (the numpy steps name it)
             o, d = self._rays(ray_origins, ray_directions)
             g = self._geometry()
             if g.tracer is None or not len(o):

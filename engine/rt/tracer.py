@@ -35,7 +35,7 @@ from .backend import TRACERS, check_backend, resolve_backend
 from .cuda_arrays import CudaRays, on_cuda
 from .order import KeptWords, check_reorder, incoherent, ray_order, shared_direction
 from .session import TraceSession, kernel_interface
-from .stream import STREAM_THREADS, hits_sink, instance_sink, occluded_sink, stream
+from .stream import C_SINK_THREADS, STREAM_THREADS, hits_sink, instance_sink, occluded_sink, records_sink, stream
 
 #: Query kinds whose kernels read rays (and write results) through texel buffer views on CPU devices (RAYS_TEXEL):
 #: faster for occlusion on lavapipe, not for closest hits.
@@ -445,6 +445,62 @@ class Tracer(Closes):
         return hits
 
     @serialized
+    def intersect_records(self, origins: ArrayLike, directions: ArrayLike, tmax: ArrayLike, write) -> None:
+        """`intersect` for the front ends (engine/rt/raycasting.py, raymesh.py): each traced block's hit records go
+        to `write(records, rows, a, b)` (engine/rt/stream.py records_sink) on the worker pool, which maps them to the
+        caller's answers there, instead of into `Hits`. Checks and errors as `intersect`'s (numpy rays only)."""
+        self._check_open()
+        o, d, t = ray_arrays(origins, directions, tmax, tmax_nan=False)
+        self._sync()
+        order, dirs = self._order(o, d, t, None)
+        bad = lambda: _name_bad(o, d, t, origins, directions)  # noqa: E731
+        stream(self.session, "intersect", o, dirs, t, records_sink(write, order), bad, order, threads=C_SINK_THREADS)
+
+    @property
+    def traces_in_order(self) -> bool:
+        """Whether `occluded` / `intersect` trace numpy rays in the given order (reorder off, or "auto" on a GPU)."""
+        return self.reorder is False or (self.reorder == "auto" and not is_cpu(self.ctx))
+
+    @serialized
+    def filled_query(self, kind: str, n: int, fill, bad, write=None) -> NDArray[np.bool_] | None:
+        """`occluded` (returned) or `intersect_records` (to `write`) of n rays, tmax +inf, in the given order, that
+        the caller writes into the stream's mapped arrays as they are packed: `fill(a, b, origins, directions)`
+        writes rays [a, b) as float32 (e.g. RayMeshIntersector's rays put in its frame, no pass of their own) and
+        returns False for a bad one, whereupon `bad()` raises."""
+        self._check_open()
+        self._sync()
+        self.last_reordered = False
+        out = None
+        threads = C_SINK_THREADS  # (the rays are made in C too)
+        if kind == "occluded":
+            (out,) = result_arrays("Tracer.occluded", n, bool)
+            sink = occluded_sink(out)
+        else:
+            sink = records_sink(write)
+        shape = np.broadcast_to(np.float32(0), (n, 3))  # (the batch's length: the rays come from `fill`)
+        stream(self.session, kind, shape, shape, np.float32(np.inf), sink, bad, fill=fill, threads=threads)
+        return out
+
+    @serialized
+    def closest_records(self, points: NDArray[np.float32], write) -> None:
+        """`closest` for the front ends: float32 (N, 3) points (rows may be strided), checked by the caller (finite,
+        within +-MAX_COORD), streamed as they are; each block's records (distance, prim, u, v) go to `write` as in
+        `intersect_records`."""
+        self._check_open()
+        self._closest_query().stream(points, records_sink(write), C_SINK_THREADS)
+
+    def _closest_query(self) -> ClosestQuery:
+        if self.mesh is None:
+            raise ConfigError(
+                "Tracer.closest: not available on a Tracer of a scene of several instances "
+                "(Tracer.from_scene); make one from the flat arrays: Tracer(scene.positions, "
+                "scene.indices)"
+            )
+        if self._closest is None:  # (its own kernel: one dispatch, the point walk keeps its stack in an array)
+            self._closest = ClosestQuery(self.session, self.bvh, self.scene, self.layout, self.mesh)
+        return self._closest
+
+    @serialized
     def closest(self, points: ArrayLike) -> Closest:
         """Closest-point queries: the nearest point of the mesh to each point (engine/rt/closest.py).
 
@@ -459,15 +515,7 @@ class Tracer(Closes):
             EngineError: the host cannot hold the result arrays.
         """
         self._check_open()
-        if self.mesh is None:
-            raise ConfigError(
-                "Tracer.closest: not available on a Tracer of a scene of several instances "
-                "(Tracer.from_scene); make one from the flat arrays: Tracer(scene.positions, "
-                "scene.indices)"
-            )
-        if self._closest is None:  # (its own kernel: one dispatch, the point walk keeps its stack in an array)
-            self._closest = ClosestQuery(self.session, self.bvh, self.scene, self.layout, self.mesh)
-        return self._closest.run(points)
+        return self._closest_query().run(points)
 
     def _order(self, o, d, t, reorder):
         """The order to trace a batch in (engine/rt/order.py), or None for the given order, and its directions (for a

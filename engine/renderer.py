@@ -40,6 +40,7 @@ from .passes.lighting import LightingPass
 from .passes.path import PathPass
 from .passes.raster_options import RasterOptions
 from .passes.raypass import follow_scene
+from .passes.reflections import ReflectionFilterPass, ReflectionTemporalPass, ReflectionTracePass
 from .passes.shadows import ShadowPass
 from .passes.soft_raster import SW_RASTER_PIXELS
 from .parallel import serialized
@@ -196,6 +197,7 @@ class Renderer(Closes):
         self._changes = SceneChanges()  # the scene's state the last frame drew (instance motion)
         self._history_key = self._steady = None  # _history_key: what the temporal history was accumulated under
         self.path = None  # PathPass, made by the first path-traced frame (its pipeline takes a while to build)
+        self.reflections = None  # (trace, temporal, filter) passes, made by the first frame with reflections on
         self.path_samples = 0  # samples per pixel in the path tracer's image so far
         self.path_progress = None  # called as f(samples done, samples in all) after each path-tracing batch
         self._path_key = None  # what the path tracer's samples so far were traced under
@@ -278,6 +280,7 @@ class Renderer(Closes):
         ao: bool = default("ao"),
         ao_samples: int = default("ao_samples"),
         ao_radius: float | None = default("ao_radius"),
+        reflections: bool = default("reflections"),
         exposure: float = default("exposure"),
         auto_exposure: bool = default("auto_exposure"),
         tonemap: Tonemap = default("tonemap"),
@@ -320,6 +323,9 @@ class Renderer(Closes):
             ao: trace ambient occlusion (off: AO is 1 everywhere).
             ao_samples: AO rays per pixel per frame, 1..256.
             ao_radius: the AO rays' length in world units (None: 10% of the scene's bounding-box diagonal).
+            reflections: trace one GGX reflection ray per pixel from the G-buffer (surfaces up to roughness 0.6),
+                shaded at its hit with the scene's lights (a shadow ray each) and environment, accumulated over
+                frames by roughness and filtered; it replaces the split-sum environment in the specular lobe there.
             exposure: in EV: the linear HDR colour is scaled by 2^exposure before the tone curve and sRGB
                 encoding; in [-60, 60].
             auto_exposure: also scale by 0.18 / the frame's log-average luminance (computed on the GPU).
@@ -490,6 +496,7 @@ class Renderer(Closes):
         ao: bool = default("ao"),
         ao_samples: int = default("ao_samples"),
         ao_radius: float | None = default("ao_radius"),
+        reflections: bool = default("reflections"),
         exposure: float = default("exposure"),
         auto_exposure: bool = default("auto_exposure"),
         tonemap: Tonemap = default("tonemap"),
@@ -614,6 +621,7 @@ class Renderer(Closes):
                     "ao_radius",
                     "accumulate",
                     "shadow_terminator",
+                    "reflections",
                 )
             ),
         )
@@ -629,6 +637,7 @@ class Renderer(Closes):
             cfg["view"],
             cfg["auto_exposure"],
             cfg["integrator"],
+            cfg["reflections"],
             len(lights),
             readback,
             self._raster,
@@ -637,6 +646,7 @@ class Renderer(Closes):
         if cfg["shadows"] == "reference":
             key += (cfg["reference_samples"],)
         self._path_ready(scene, cfg)
+        self._reflections_ready(scene, cfg)
         if key not in self._commands:
             cmd, ts = self._record(cfg, len(lights), readback, rays)
             self._commands[key] = (cmd, list(ts.names))
@@ -759,9 +769,12 @@ class Renderer(Closes):
                 self._upload_geometry(scene)
             self._changes.write(scene, self._geometry)
             self._update_bvh(scene, todo[1])
+            if self.reflections is not None and self.reflections[0].scene_data is not None:
+                self.reflections[0].scene_data.update(scene)  # the hits' instance transforms (in place)
 
     def _ray_passes(self):
-        return (self.shadows, self.ao) if self.path is None else (self.shadows, self.ao, self.path)
+        extra = (self.path, self.reflections[0] if self.reflections else None)
+        return (self.shadows, self.ao, *(p for p in extra if p is not None))
 
     def _path_ready(self, scene, cfg):
         """For a path-traced frame: the path tracer's pass (made on first use) and its scene buffers (made again
@@ -782,12 +795,41 @@ class Renderer(Closes):
             self.path.bind_data(PathScene(self.ctx, scene), self._geometry)
             self._path_key = None
 
+    def _reflections_ready(self, scene, cfg):
+        """For a frame with reflections: their passes (made on first use) and the scene buffers their hits read (made
+        again after a new upload)."""
+        if not cfg["reflections"] or cfg["integrator"] == "path":
+            return
+        if self.reflections is None:
+            lib, res = self.library, self.targets.resources
+            trace = ReflectionTracePass(self.ctx, lib, res, self.bvh_set, self.bvh_layout)
+            self.reflections = (
+                trace,
+                ReflectionTemporalPass(self.ctx, lib, res),
+                ReflectionFilterPass(self.ctx, lib, res),
+            )
+            self.passes += self.reflections
+            trace.bind_scene(self._geometry)
+            if self._environment is not None:
+                trace.bind_environment(self._environment)
+            if self._scene_bvh is not None:
+                trace.specialize_for(self._scene_bvh)
+            self._invalidate_commands()
+        trace = self.reflections[0]
+        if trace.scene_data is None:
+            self._invalidate_commands()  # (the recordings bound the last scene's buffers)
+            trace.bind_data(PathScene(self.ctx, scene), self._geometry)
+
     def _drop_path_data(self):
         if self.path is not None and self.path.scene_data is not None:
             self.ctx.wait_idle()
             self.path.scene_data.destroy()
             self.path.scene_data = None
             self._path_key = None
+        if self.reflections is not None and self.reflections[0].scene_data is not None:
+            self.ctx.wait_idle()
+            self.reflections[0].scene_data.destroy()
+            self.reflections[0].scene_data = None
 
     def _path_samples(self, scene, camera, cfg, n_lights, progressive=False):
         """Trace `cfg["spp"]` samples per pixel into the path tracer's sum (the frame's recording then resolves
@@ -847,7 +889,7 @@ class Renderer(Closes):
                 scene,
                 self.bvh_set,
                 self.bvh_layout,
-                tuple(p for p in (self.shadows, self.ao, self.camera_rays, self.path) if p is not None),
+                tuple(p for p in (*self._ray_passes(), self.camera_rays) if p is not None),
                 self._invalidate_commands,
                 self._geometry.alpha_index,
             )
@@ -945,7 +987,10 @@ class Renderer(Closes):
             rec.fill(t["ao.raw"], ONE_F32)
         rec.mark("ao")
 
-        self._record_filters(rec, cfg, n_lights, mode, path)
+        self._record_reflections(rec, cfg, path)
+        copied = self._record_filters(rec, cfg, n_lights, mode, path)
+        if not copied and cfg["reflections"] and not path:
+            AccumulatePass.record_history_copy(rec, t, ())  # the reflections' reprojection reads the G-buffer's
         (self.path.record_resolve if path else self.lighting.record)(rec, t)
         rec.mark("lighting")
         if cfg["auto_exposure"]:
@@ -961,9 +1006,29 @@ class Renderer(Closes):
             rec.use(reads=[t.color], stage=TRANSFER)
         return rec.finish(), ts
 
-    def _record_filters(self, rec, cfg, n_lights, mode, path):
+    def _record_reflections(self, rec, cfg, path):
+        """The traced reflections, accumulated and filtered where the settings ask for it, into `refl.final` (all zero,
+        nothing traced, when they are off)."""
+        t = self.targets
+        if not cfg["reflections"] or path:
+            rec.fill(t["refl.final"], 0)
+            return
+        trace, temporal, spatial = self.reflections
+        trace.record(rec, t)
+        rec.mark("reflections")
+        if cfg["accumulate"]:
+            temporal.record(rec, t)
+        else:
+            rec.copy(t["refl.raw"], t["refl.cur"])
+        if cfg["denoise"]:
+            spatial.record(rec, t)
+        else:
+            rec.copy(t["refl.cur"], t["refl.final"])
+        rec.mark("reflections.filter")
+
+    def _record_filters(self, rec, cfg, n_lights, mode, path) -> bool:
         """The temporal accumulation and denoiser of the soft light masks and AO, where the settings ask for them
-        (else their raw signals are the final ones)."""
+        (else their raw signals are the final ones). True where it copied this frame's G-buffer into the history."""
         t = self.targets
         # Which signals are filtered: soft light masks and (outside the reference mode) AO.
         filtered = []
@@ -977,6 +1042,7 @@ class Renderer(Closes):
             if cfg["accumulate"]:
                 self.accumulate.record_history_copy(rec, t, filtered)
             rec.mark("accumulate")
+            copied = bool(cfg["accumulate"])
             if cfg["denoise"]:
                 self.denoise.record(rec, t, flags, n_lights)
                 rec.mark("denoise")
@@ -985,9 +1051,11 @@ class Renderer(Closes):
                     rec.copy(t.signals[name].cur, t.signals[name].final)
         else:
             rec.fill(t.len_cur, 0)
+            copied = False
         for name in ("masks", "ao"):
             if name not in filtered:
                 rec.copy(t.signals[name].raw, t.signals[name].final)
+        return copied
 
 
 class _Owner:

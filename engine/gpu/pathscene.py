@@ -112,9 +112,11 @@ class PathScene:
         rec.view(np.uint32)[:, 0] = e
         rec[:, 1], rec[:, 2], rec[:, 3] = cdf, prob, 0.0
 
-    def bind(self, dset) -> None:
+    def bind(self, dset, names=None) -> None:
+        """Its texel views into `dset` by binding name (`names`: only these; default: all)."""
         for name, view in self.views.items():
-            dset.bind(name, view)
+            if names is None or name in names:
+                dset.bind(name, view)
 
     def destroy(self) -> None:
         for view in self.views.values():

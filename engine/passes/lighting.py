@@ -22,6 +22,7 @@ class LightingPass(ComputePass):
         "g_pbr": read("image", "material"),
         "g_emissive": read("image", "emissive"),
         "env": read("buffer"),  # environment.glsl: bound by bind_environment
+        "reflections": read("buffer", "refl.final"),  # traced reflections (passes/reflections.py), w > 0 where traced
     }
 
     def bind_environment(self, env):

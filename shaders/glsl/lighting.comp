@@ -2,8 +2,9 @@
 #extension GL_GOOGLE_include_directive : require
 // Deferred lighting: albedo, normal, material, per-light visibility masks and AO -> HDR radiance and tonemapped sRGB
 // colour, with glTF's metallic-roughness BRDF (brdf.glsl) for every light, the environment (environment.glsl) by
-// split-sum image-based lighting (SH irradiance for the diffuse lobe, GGX-prefiltered radiance times the BRDF table
-// for the specular one) times AO and the material's occlusion, plus the emitted radiance. The background is the
+// split-sum image-based lighting (ibl.glsl: SH irradiance for the diffuse lobe, GGX-prefiltered radiance times the BRDF
+// table for the specular one) times AO and the material's occlusion, plus the emitted radiance. Where a reflection
+// ray was traced (reflect.comp), its filtered radiance is the specular lobe's instead. The background is the
 // environment seen along the pixel's ray, with each directional light's disc drawn where its angle is > 0.
 // `out_hdr` holds the radiance (before exposure); `out_color` its tone-mapped image at frame.exposure (auto
 // exposure rewrites it: exposure.comp).
@@ -13,6 +14,7 @@
 FRAME_BLOCK
 #define ENV_BINDING 10
 #include "environment.glsl"
+#include "ibl.glsl"
 
 layout(local_size_x = 8, local_size_y = 8) in;
 layout(set = 0, binding = 1, rgba32f) uniform readonly image2D g_position;
@@ -24,6 +26,8 @@ layout(set = 0, binding = 6, rgba8) uniform writeonly image2D out_color;
 layout(set = 0, binding = 7, rgba16f) uniform writeonly image2D out_hdr;
 layout(set = 0, binding = 8, rgba8) uniform readonly image2D g_pbr;        // roughness, metallic, occlusion
 layout(set = 0, binding = 9, rgba16f) uniform readonly image2D g_emissive;
+// the filtered reflection radiance per pixel (reflect_filter.comp): rgb, w > 0 where a ray was traced
+layout(std430, set = 0, binding = 11) readonly buffer Reflections { vec4 reflections[]; };
 
 // Radiance arriving from light `l` at `p` (before visibility and the cosine term), and the unit direction to it.
 vec3 incident(Light l, vec3 p, out vec3 wi) {
@@ -83,17 +87,14 @@ void main() {
             // Intensities are pi-normalized: a white Lambert surface facing a light of irradiance 1 reflects 1.
             direct += li * cos_theta * masks[i * w * h + pixel] * brdf_pi(n, v, wi, albedo, metallic, roughness);
         }
-        // split sum: the specular lobe's directional albedo F0 A + B from the table, the diffuse lobe in the rest
-        float r = max(roughness, MIN_ROUGHNESS), n_v = max(dot(n, v), 1e-4);
-        vec2 ab = environment_brdf(n_v, r);
-        vec3 spec = mix(vec3(0.04), albedo, metallic) * ab.x + ab.y;
-        vec3 diffuse = (1.0 - spec) * (1.0 - metallic) * albedo * environment_irradiance(n);
-        // the GGX lobe's dominant direction leans from the mirror direction towards the normal as it widens
-        // (Lagarde and de Rousiers 2014, "Moving Frostbite to PBR", section 4.9.3)
-        float a = r * r, smooth_ = 1.0 - a;
-        vec3 dominant = normalize(mix(n, reflect(-v, n), smooth_ * (sqrt(smooth_) + a)));
-        vec3 specular = spec * environment_specular(dominant, r);
-        vec3 ambient = (diffuse + specular) * (ao[pixel] * occlusion);
+        // split sum (ibl.glsl); where a reflection ray was traced (reflect.comp, filtered), its radiance replaces
+        // the prefiltered environment in the specular lobe: it already holds the occlusion that AO stands in for
+        vec3 spec = ibl_specular_albedo(n, v, albedo, metallic, roughness);
+        vec3 diffuse = ibl_diffuse(n, spec, albedo, metallic);
+        vec4 traced = reflections[pixel];
+        vec3 ambient = diffuse * (ao[pixel] * occlusion);
+        if (traced.w > 0.0) ambient += spec * traced.rgb;
+        else ambient += spec * ibl_specular_radiance(n, v, roughness) * (ao[pixel] * occlusion);
         color = direct + ambient + imageLoad(g_emissive, px).rgb;
     }
     imageStore(out_hdr, px, vec4(color, 1.0));

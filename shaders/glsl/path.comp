@@ -55,6 +55,9 @@ layout(set = 0, binding = 11, rgba16f) uniform writeonly image2D out_hdr;
 
 layout(push_constant) uniform Push { uint mode; uint index; } pc;
 
+#include "scene_surface.glsl"
+#include "light_sample.glsl"
+
 // ---- random numbers ------------------------------------------------------------------------------------------
 uint rng;
 float rnd() {
@@ -69,151 +72,7 @@ float power_heuristic(float a, float b) {
     return a2 + b2 > 0.0 ? a2 / (a2 + b2) : 0.0;
 }
 
-// ---- the scene's triangles ------------------------------------------------------------------------------------
-struct Tri { vec3 p0, p1, p2; vec4 a0, a1, a2, b0, b1, b2; uint inst, material, emitter; };
-
-Tri load_tri(uint prim) {
-    uvec4 t0 = texelFetch(triangles, 2 * int(prim)), t1 = texelFetch(triangles, 2 * int(prim) + 1);
-    Tri t;
-    t.inst = t0.w;
-    t.material = t1.x;
-    t.emitter = t1.y;
-    t.a0 = texelFetch(vertices, 2 * int(t0.x));
-    t.a1 = texelFetch(vertices, 2 * int(t0.y));
-    t.a2 = texelFetch(vertices, 2 * int(t0.z));
-    t.b0 = texelFetch(vertices, 2 * int(t0.x) + 1);
-    t.b1 = texelFetch(vertices, 2 * int(t0.y) + 1);
-    t.b2 = texelFetch(vertices, 2 * int(t0.z) + 1);
-    int k = 6 * int(t.inst);
-    vec4 r0 = texelFetch(instances, k), r1 = texelFetch(instances, k + 1), r2 = texelFetch(instances, k + 2);
-    t.p0 = vec3(dot(r0.xyz, t.a0.xyz) + r0.w, dot(r1.xyz, t.a0.xyz) + r1.w, dot(r2.xyz, t.a0.xyz) + r2.w);
-    t.p1 = vec3(dot(r0.xyz, t.a1.xyz) + r0.w, dot(r1.xyz, t.a1.xyz) + r1.w, dot(r2.xyz, t.a1.xyz) + r2.w);
-    t.p2 = vec3(dot(r0.xyz, t.a2.xyz) + r0.w, dot(r1.xyz, t.a2.xyz) + r1.w, dot(r2.xyz, t.a2.xyz) + r2.w);
-    return t;
-}
-
-vec4 texture_at(uint handle, vec2 uv) {
-    return handle == TEXTURE_NONE ? vec4(1.0) : sample_texture_lod(handle, uv, 0.0, texture_bit(handle));
-}
-
-// Emitted radiance of a triangle's material at barycentrics (u, v) (its front face: the winding's side).
-vec3 tri_emission(Tri t, float u, float v) {
-    int m = MATERIAL_TEXELS * int(t.material);
-    vec3 e = texelFetch(materials, m + 3).rgb;
-    uint handle = floatBitsToUint(texelFetch(materials, m + 1).w);
-    if (handle != TEXTURE_NONE) {
-        vec2 uv = (1.0 - u - v) * t.b0.zw + u * t.b1.zw + v * t.b2.zw;
-        e *= texture_at(handle, uv).rgb;
-    }
-    return e;
-}
-
-struct Surface {
-    vec3 p, ng, ns;       // point, geometric and shading normals (both on the side the ray came from)
-    vec3 base, emission;  // base colour; emitted radiance towards the ray (0 from the back face)
-    float metallic, roughness;
-    float area;           // the triangle's world area (emitters' pdf)
-    uint emitter;         // 1 + its emitter record, or 0
-};
-
-Surface surface_at(BvhHit hit, vec3 d) {
-    Tri t = load_tri(uint(hit.prim));
-    float u = hit.u, v = hit.v, w = 1.0 - u - v;
-    Surface s;
-    s.p = w * t.p0 + u * t.p1 + v * t.p2;
-    vec3 c = cross(t.p1 - t.p0, t.p2 - t.p0);
-    s.area = 0.5 * length(c);
-    vec3 ng = normalize(c);
-    int k = 6 * int(t.inst);
-    vec3 n_obj = w * vec3(t.a0.w, t.b0.xy) + u * vec3(t.a1.w, t.b1.xy) + v * vec3(t.a2.w, t.b2.xy);
-    vec3 ns = vec3(dot(texelFetch(instances, k + 3).xyz, n_obj), dot(texelFetch(instances, k + 4).xyz, n_obj),
-                   dot(texelFetch(instances, k + 5).xyz, n_obj));
-    float len = length(ns);
-    ns = len > 1e-6 ? ns / len : ng;
-    bool front = dot(ng, d) < 0.0;
-    float side = front ? 1.0 : -1.0;   // two-sided surfaces: the side the ray sees
-    ng *= side;
-    if (dot(ns, ng) < 0.0) ns = -ns;
-    s.ng = ng;
-    s.ns = ns;
-    vec2 uv = w * t.b0.zw + u * t.b1.zw + v * t.b2.zw;
-
-    int m = MATERIAL_TEXELS * int(t.material);
-    uvec4 handles = floatBitsToUint(texelFetch(materials, m + 1));
-    vec4 factors = texelFetch(materials, m + 2);   // metallic, roughness, occlusion strength, normal scale
-    s.base = texelFetch(materials, m).rgb * texture_at(handles.x, uv).rgb;
-    vec4 mr = texture_at(handles.y, uv);
-    s.metallic = factors.x * mr.b;
-    s.roughness = factors.y * mr.g;
-    s.emission = front ? texelFetch(materials, m + 3).rgb * texture_at(handles.w, uv).rgb : vec3(0.0);
-    s.emitter = front ? t.emitter : 0u;
-    // the normal map, in the tangent frame the G-buffer resolve uses (T = dP/du orthonormalized, B = +-N x T)
-    vec2 d1 = t.b1.zw - t.b0.zw, d2 = t.b2.zw - t.b0.zw;
-    float det = d1.x * d2.y - d2.x * d1.y;
-    if (handles.z != TEXTURE_NONE && abs(det) > 1e-20) {
-        vec3 e1 = t.p1 - t.p0, e2 = t.p2 - t.p0;
-        vec3 dp_du = (e1 * d2.y - e2 * d1.y) / det, dp_dv = (e2 * d1.x - e1 * d2.x) / det;
-        vec3 n0 = ns * side;   // the front's shading normal: the map's frame is the front's
-        vec3 tan_ = dp_du - n0 * dot(n0, dp_du);
-        if (dot(tan_, tan_) > 1e-30) {
-            tan_ = normalize(tan_);
-            vec3 bit = cross(n0, tan_);
-            if (dot(bit, dp_dv) > 0.0) bit = -bit;
-            vec3 tn = texture_at(handles.z, uv).xyz * 2.0 - 1.0;
-            vec3 mapped = tan_ * (tn.x * factors.w) + bit * (tn.y * factors.w) + n0 * tn.z;
-            float ml = length(mapped);
-            if (ml > 1e-6) ns = side * mapped / ml;
-        }
-    }
-    return s;
-}
-
-// ---- the BSDF: glTF metallic-roughness (brdf.glsl), sampled ------------------------------------------------------
-struct Lobes { float p_spec; float alpha; };
-
-Lobes lobes(Surface s, vec3 v) {
-    float n_v = max(dot(s.ns, v), 1e-4);
-    vec3 f0 = mix(vec3(0.04), s.base, s.metallic);
-    vec3 f = fresnel_schlick(f0, n_v);
-    float spec = luminance(f), diff = luminance((1.0 - f) * (1.0 - s.metallic) * s.base);
-    Lobes l;
-    l.p_spec = diff <= 0.0 ? 1.0 : clamp(spec / (spec + diff), 0.1, 0.9);
-    float r = max(s.roughness, MIN_ROUGHNESS);
-    l.alpha = r * r;
-    return l;
-}
-
-// Solid-angle pdf of sampling direction l: the lobe mixture (GGX visible normals reflected, cosine hemisphere).
-float bsdf_pdf(Surface s, Lobes lb, vec3 v, vec3 l) {
-    float n_l = dot(s.ns, l);
-    if (n_l <= 0.0) return 0.0;
-    float n_v = max(dot(s.ns, v), 1e-4);
-    vec3 h = normalize(v + l);
-    float a2 = lb.alpha * lb.alpha;
-    float g1 = 2.0 * n_v / (n_v + sqrt(a2 + (1.0 - a2) * n_v * n_v));
-    float spec = ggx_d(max(dot(s.ns, h), 0.0), a2) * g1 / (4.0 * n_v);
-    return lb.p_spec * spec + (1.0 - lb.p_spec) * n_l / PI;
-}
-
-vec3 bsdf_eval(Surface s, vec3 v, vec3 l) {   // f(v, l) cos(l) (the BRDF times the cosine at l)
-    if (dot(s.ng, l) <= 0.0) return vec3(0.0);
-    return brdf_pi(s.ns, v, l, s.base, s.metallic, s.roughness) * (max(dot(s.ns, l), 0.0) / PI);
-}
-
-// Heitz 2018, "Sampling the GGX distribution of visible normals": a half vector in the frame (t, b, n).
-vec3 sample_vndf(vec3 ve, float alpha, vec2 u) {
-    vec3 vh = normalize(vec3(alpha * ve.x, alpha * ve.y, ve.z));
-    float lensq = vh.x * vh.x + vh.y * vh.y;
-    vec3 t1 = lensq > 0.0 ? vec3(-vh.y, vh.x, 0.0) * inversesqrt(lensq) : vec3(1.0, 0.0, 0.0);
-    vec3 t2 = cross(vh, t1);
-    float r = sqrt(u.x), phi = 2.0 * PI * u.y;
-    float a = r * cos(phi), b = r * sin(phi);
-    float sv = 0.5 * (1.0 + vh.z);
-    b = (1.0 - sv) * sqrt(max(0.0, 1.0 - a * a)) + sv * b;
-    vec3 nh = a * t1 + b * t2 + sqrt(max(0.0, 1.0 - a * a - b * b)) * vh;
-    return normalize(vec3(alpha * nh.x, alpha * nh.y, max(0.0, nh.z)));
-}
-
+// ---- the BSDF sampled ----------------------------------------------------------------------------------------
 vec3 sample_bsdf(Surface s, Lobes lb, vec3 v) {
     vec3 t, b;
     basis(s.ns, t, b);
@@ -228,72 +87,7 @@ vec3 sample_bsdf(Surface s, Lobes lb, vec3 v) {
     return cosine_hemisphere(s.ns, xi);
 }
 
-// ---- lights ---------------------------------------------------------------------------------------------------
-// A spot light's falloff at cosine `c` to its axis: 1 inside the inner cone, 0 outside the outer one, smoothstep
-// between (a hard edge where the cones are one: smoothstep's edges may not be equal).
-float spot_falloff(Light l, float c) {
-    float outer = l.color.w, inner = l.u.w;
-    return inner > outer ? smoothstep(outer, inner, c) : (c >= outer ? 1.0 : 0.0);
-}
-
-// A sample of light `l` from p: direction wi, distance to the emitting point (or -1: at infinity), the radiance (for
-// delta lights: the irradiance-like quantity that times f cos gives the reflected radiance), its solid-angle pdf
-// (0: a delta light, no MIS). False where the light sends nothing towards p.
-bool sample_light(Light l, vec3 p, vec2 xi, out vec3 wi, out float dist, out vec3 li, out float pdf) {
-    int type = int(l.pos_type.w);
-    vec3 power = PI * l.color.rgb;
-    if (type == LIGHT_DIRECTIONAL) {
-        vec3 axis = -l.dir_radius.xyz;
-        float tan_a = l.u.w;
-        dist = -1.0;
-        if (tan_a > 0.0) {
-            float cos_max = inversesqrt(1.0 + tan_a * tan_a);
-            wi = sample_cone(axis, cos_max, xi);
-            pdf = 1.0 / (2.0 * PI * (1.0 - cos_max));
-            li = power / (PI * (1.0 - cos_max * cos_max));   // a disc of uniform radiance: irradiance E at normal
-        } else {
-            wi = axis;
-            pdf = 0.0;
-            li = power;
-        }
-        return true;
-    }
-    if (type == LIGHT_RECT) {
-        vec3 q = l.pos_type.xyz + (xi.x - 0.5) * l.u.xyz + (xi.y - 0.5) * l.v.xyz;
-        vec3 to = q - p;
-        float d2 = dot(to, to);
-        dist = sqrt(d2);
-        wi = to / dist;
-        float cos_l = dot(-wi, l.dir_radius.xyz);
-        if (cos_l <= 0.0) return false;
-        pdf = d2 / (length(cross(l.u.xyz, l.v.xyz)) * cos_l);
-        li = power;
-        return true;
-    }
-    vec3 c = l.pos_type.xyz;
-    vec3 to = c - p;
-    float d2 = dot(to, to);
-    float r = l.dir_radius.w;
-    vec3 axis = to * inversesqrt(d2);
-    if (r > 0.0) {
-        if (d2 <= r * r) return false;
-        float cos_max = sqrt(max(0.0, 1.0 - r * r / d2));
-        wi = sample_cone(axis, cos_max, xi);
-        pdf = 1.0 / (2.0 * PI * (1.0 - cos_max));
-        // the distance to the sphere's near side along wi
-        float b = dot(to, wi);
-        dist = b - sqrt(max(0.0, b * b - (d2 - r * r)));
-        li = power / (PI * r * r);   // a sphere of intensity I has radiance I / (pi r^2)
-    } else {
-        wi = axis;
-        dist = sqrt(d2);
-        pdf = 0.0;
-        li = power / d2;
-    }
-    if (type == LIGHT_SPOT) li *= spot_falloff(l, dot(-axis, l.dir_radius.xyz));
-    return true;
-}
-
+// ---- lights hit by BSDF rays -------------------------------------------------------------------------------
 // Light reaching the ray (o, d) from the analytic lights with area before distance t_max (inf: the sky, where a
 // sun with a disc is), weighted against the BSDF sample's pdf `bsdf_pdf_` (0: a camera ray, weight 1).
 vec3 lights_hit(vec3 o, vec3 d, float t_max, float bsdf_pdf_) {
@@ -376,12 +170,6 @@ bool sample_emitter(vec3 p, out vec3 wi, out vec3 target, out vec3 li, out float
 float emitter_pdf(Surface s, vec3 d, float t) {
     float prob = texelFetch(emitters, int(s.emitter) - 1).z;
     return prob * t * t / (s.area * max(dot(s.ng, -d), 1e-8));
-}
-
-bool visible(vec3 p, vec3 ng, vec3 wi, float dist, float scene_scale) {
-    vec3 o = offset_ray(p, ng);
-    float tmax = dist < 0.0 ? 4.0 * scene_scale : dist * (1.0 - 1e-4);
-    return !bvh_occluded(o, wi, 0.0, tmax);
 }
 
 // ---- one path ------------------------------------------------------------------------------------------------

@@ -38,7 +38,16 @@ from .vk import choose_device, describe_devices
 
 def _settings(args) -> dict:
     out = {}
-    keys = ("shadows", "shadow_samples", "reference_samples", "accumulate", "denoise", "ao", "ao_samples")
+    keys = (
+        "shadows",
+        "shadow_samples",
+        "reference_samples",
+        "accumulate",
+        "denoise",
+        "ao",
+        "ao_samples",
+        "reflections",
+    )
     for key in keys + (
         "exposure",
         "auto_exposure",
@@ -376,6 +385,10 @@ def build_parser() -> argparse.ArgumentParser:
     r.add_argument("--no-denoise", dest="denoise", action="store_false", default=None, help="no a-trous denoiser")
     r.add_argument("--ao", dest="ao", action="store_true", default=None, help="ambient occlusion on")
     r.add_argument("--no-ao", dest="ao", action="store_false", help="ambient occlusion off")
+    r.add_argument(
+        "--reflections", dest="reflections", action="store_true", default=None, help="ray-traced reflections on"
+    )
+    r.add_argument("--no-reflections", dest="reflections", action="store_false", help="ray-traced reflections off")
     r.add_argument("--ao-samples", type=int, default=None, help="AO rays per pixel")
     r.add_argument("--exposure", type=float, default=None, help="exposure in EV (default -1: 2^-1 on the radiance)")
     r.add_argument(

@@ -60,6 +60,9 @@ class Frame:
     - "emissive": (H, W, 3) linear RGB radiance the surface emits; 0 on the background.
     - "radiance": (H, W, 3) the lit linear RGB radiance before exposure and tonemapping (half floats): what
       `color` is the ACES-tonemapped, sRGB-encoded image of.
+    - "reflection", "reflection_raw": (H, W, 3) the linear RGB radiance the traced reflection ray brought (setting
+      `reflections`): filtered (what the lighting's specular lobe used), and this frame's ray alone; 0 where no ray
+      was traced (rougher than the cutoff, the background, reflections off).
     - "semantic_id": (H, W) uint32 the semantic class of the object seen (`class_names[id]`), 0 on the background
       and on objects without a class (`Scene.set_classes`); made on the host from the object ids, exactly.
 

@@ -147,3 +147,40 @@ def test_a_moving_object_leaves_no_trail_in_the_reflection(make_renderer):
     converging = np.abs(fresh6 - fresh)[old].mean()
     assert trail < 0.2 * jump, (trail, jump)
     assert trail < 3.0 * converging + 1e-3, (trail, converging)
+
+
+def test_debug_views_show_raw_and_denoised_reflections(make_renderer):
+    """The views reflection_raw and reflection draw the AOVs of the same names (the ray's radiance and the filtered
+    one, sRGB-ish): on a rough floor the raw view is noisier than the filtered one; untraced pixels are dark blue."""
+    scene = mirror_scene(0.3)
+    r = make_renderer(W, H)
+    f = frames(r, scene, 4, reflections=True, aovs=("reflection_raw", "reflection", "material_id", "color"))
+    floor = f.aov["material_id"] == 0
+    raw, den = f.aov["reflection_raw"], f.aov["reflection"]
+    assert np.all(raw[floor].max(-1) > 0) and np.all(den[floor].max(-1) > 0)
+    assert np.all(raw[~floor] == 0)  # the background: no ray (the rough-0.8 sphere is above the cutoff)
+
+    def roughness_of_image(a):  # mean absolute horizontal difference: the noise the filter removes
+        return np.abs(np.diff(a, axis=1))[floor[:, 1:] & floor[:, :-1]].mean()
+
+    assert roughness_of_image(den) < 0.5 * roughness_of_image(raw)
+    for view, aov in (("reflection_raw", raw), ("reflection", den)):
+        shown = frames(r, scene, 1, reflections=True, view=view, aovs=("color",)).color[..., :3] / 255.0
+        want = np.clip(aov, 0, 1) ** (1 / 2.2)
+        assert np.abs(shown[floor] - want[floor]).mean() < 0.08, view
+    sphere = f.aov["material_id"] == 1
+    assert np.all(shown[sphere] == np.array([0, 0, 38]) / 255.0)
+
+
+def test_viewer_key_7_toggles_reflections(make_viewer):
+    import glfw
+
+    v = make_viewer(mirror_scene(0.0), 48, 32)
+    v.run(frames=1)
+    assert not v.settings["reflections"]
+    v._on_key(v.window, glfw.KEY_7, 0, glfw.PRESS, 0)
+    assert v.settings["reflections"]
+    v.run(frames=1)
+    assert "reflections" in v.renderer.last_timings()
+    v._update_text(float("inf"))
+    assert any("reflections on" in line for line in v.overlay_lines), v.overlay_lines

@@ -440,10 +440,13 @@ class Bench:
             tag = {
                 "generated": "generated",
                 "real": "default",
+                "reflect": "default-reflections",
                 "target": "default-1light",
                 "mid": f"generated-{self.cfg.mid_tris // 1000}k",
             }[key]
             settings = {"ao_samples": 1} if key in ("target", "mid") else {}
+            if key == "reflect":  # the default frame plus ray-traced reflections (engine/passes/reflections.py)
+                settings = {"reflections": True}
             scene = self._step(f"frame ({tag}): load scene", self._frame_scene, key)
             out.append(self._step(f"frame ({tag}): render x{self.cfg.frame_reps}", self._frame, tag, scene, settings))
         return out
@@ -494,6 +497,8 @@ class Bench:
         }
 
     def _frame_scene(self, key):
+        if key == "reflect":
+            return self.scene("real")
         if key != "target":
             return self.scene(key)
         if "target" not in self._scenes:  # the default scene with its first light only (a shallow copy)

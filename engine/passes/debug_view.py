@@ -29,6 +29,8 @@ class DebugViewPass(ComputePass):
         "g_emissive": read("image", "emissive"),
         "g_hdr": read("image", "hdr"),
         "g_instance": read("image", "instance_id"),
+        "refl_raw": read("buffer", "refl.raw"),
+        "refl": read("buffer", "refl.final"),
         "out_color": write("image", "color"),
     }
 

@@ -39,6 +39,8 @@ ViewMode = Literal[
     "emissive",
     "radiance",
     "instance_id",
+    "reflection_raw",
+    "reflection",
 ]
 VIEW_MODES: tuple[str, ...] = get_args(ViewMode)
 #: shadow.comp's modes (SHADOW_<NAME>); "off" records no shadow pass.
@@ -102,6 +104,8 @@ AOVS = {
     "emissive": AOV("emissive", 8, "float16", 3),
     "radiance": AOV("hdr", 8, "float16", 3),
     "instance_id": AOV("instance_id", 4, "int32"),
+    "reflection_raw": AOV("refl.raw", 16, "float32", 3),
+    "reflection": AOV("refl.final", 16, "float32", 3),
 }
 
 #: AOVs made on the host from one the GPU reads back: "semantic_id" is the object's class through a per-object table

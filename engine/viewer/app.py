@@ -251,6 +251,8 @@ class Viewer:
             self.cycle("auto_exposure")
         elif key == g.KEY_6:
             self.cycle("integrator")
+        elif key == g.KEY_7:
+            self.cycle("reflections")
         elif key == g.KEY_V:
             self.cycle("view", -1 if shift else 1)
         elif key == g.KEY_R:

@@ -67,6 +67,10 @@ def add_arguments(p):
     p.add_argument("--shadows", default=None, help="initial shadow mode")
     p.add_argument("--ao", dest="ao", action="store_true", default=None, help="ambient occlusion on")
     p.add_argument("--no-ao", dest="ao", action="store_false", help="ambient occlusion off")
+    p.add_argument(
+        "--reflections", dest="reflections", action="store_true", default=None, help="ray-traced reflections on"
+    )
+    p.add_argument("--no-reflections", dest="reflections", action="store_false", help="ray-traced reflections off")
     p.add_argument("--ao-samples", type=int, default=None, help="AO rays per pixel")
     p.add_argument("--exposure", type=float, default=None, help="exposure in EV (default -1)")
     p.add_argument("--tonemap", default=None, choices=TONEMAPS, help="initial tone curve (key 4 cycles them)")
@@ -102,6 +106,7 @@ def run_from_args(args) -> int:
     given = (
         ("shadows", args.shadows),
         ("ao", args.ao),
+        ("reflections", args.reflections),
         ("ao_samples", args.ao_samples),
         ("exposure", args.exposure),
         ("tonemap", args.tonemap),

@@ -184,3 +184,15 @@ def test_viewer_key_7_toggles_reflections(make_viewer):
     assert "reflections" in v.renderer.last_timings()
     v._update_text(float("inf"))
     assert any("reflections on" in line for line in v.overlay_lines), v.overlay_lines
+
+
+def test_accumulate_and_denoise_settings_apply_to_reflections(make_renderer):
+    """With accumulate and denoise off the lit reflection is this frame's ray alone; with both on, over a rough floor,
+    it differs from it (blended and filtered)."""
+    scene = mirror_scene(0.3)
+    r = make_renderer(48, 32)
+    aovs = ("reflection_raw", "reflection")
+    plain = frames(r, scene, 2, reflections=True, accumulate=False, denoise=False, aovs=aovs)
+    np.testing.assert_array_equal(plain.aov["reflection"], plain.aov["reflection_raw"])
+    filtered = frames(r, scene, 2, reflections=True, aovs=aovs)
+    assert np.abs(filtered.aov["reflection"] - filtered.aov["reflection_raw"]).mean() > 1e-3

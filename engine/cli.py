@@ -423,6 +423,18 @@ def build_parser() -> argparse.ArgumentParser:
     return ap
 
 
+def entry() -> None:
+    """The `hybrid` command (and `python -m engine`): main(), then exit. After a device hung, its work may still
+    run and the driver's own teardown at exit may crash or wait for it (seen on lavapipe and an H100), so the
+    process leaves at once."""
+    code = main()
+    if any_hung():
+        sys.stdout.flush()
+        sys.stderr.flush()
+        os._exit(code)
+    sys.exit(code)
+
+
 def main(argv=None) -> int:
     args = build_parser().parse_args(argv)
     logging.basicConfig(level=logging.DEBUG if args.verbose else logging.WARNING, format="%(name)s: %(message)s")
@@ -433,10 +445,6 @@ def main(argv=None) -> int:
         return args.func(args)
     except EngineError as exc:
         print(f"error: {shown(exc, limit=None)}", file=sys.stderr)  # one line, whatever the message holds
-        if any_hung():  # the driver's teardown at exit may crash or wait on the hung work: leave now
-            sys.stdout.flush()
-            sys.stderr.flush()
-            os._exit(1)
         return 1
     except KeyboardInterrupt:
         print("interrupted", file=sys.stderr)

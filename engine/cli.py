@@ -34,7 +34,7 @@ from .vk import choose_device, describe_devices
 def _settings(args) -> dict:
     out = {}
     keys = ("shadows", "shadow_samples", "reference_samples", "accumulate", "denoise", "ao", "ao_samples")
-    for key in keys + ("exposure", "auto_exposure", "tonemap"):
+    for key in keys + ("exposure", "auto_exposure", "tonemap", "taa", "spp"):
         value = getattr(args, key, None)
         if value is not None:
             out[key] = value
@@ -350,6 +350,18 @@ def build_parser() -> argparse.ArgumentParser:
         help="also scale by 0.18 / the frame's log-average luminance",
     )
     r.add_argument("--tonemap", default=None, choices=TONEMAPS, help="tone curve (default agx)")
+    r.add_argument(
+        "--taa",
+        action="store_true",
+        default=None,
+        help="temporal anti-aliasing of the colour (sequences: frame to frame)",
+    )
+    r.add_argument(
+        "--spp",
+        type=int,
+        default=None,
+        help="samples per pixel (raster: N jittered frames' colour averaged; the other AOVs exact, unjittered)",
+    )
     r.set_defaults(func=cmd_render)
 
     v = sub.add_parser("view", help="open a scene in a window (keys: H), shaders hot-reloaded")

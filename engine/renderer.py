@@ -1,7 +1,7 @@
 """The Renderer: owns the Vulkan context, the frame's resources and its passes, and orders them into a frame.
 
     G-buffer raster -> shadow rays -> AO rays -> temporal accumulation -> a-trous denoise
-        -> lighting + tonemap -> debug view -> readback
+        -> lighting + tonemap -> temporal anti-aliasing -> exposure -> debug view -> readback
 
 A frame's command buffer is recorded once per (scene, settings) and re-submitted; only the per-frame
 uniform block (camera, previous camera, frame index, history reset flag) is rewritten before each submit
@@ -38,13 +38,15 @@ from .passes.lighting import LightingPass
 from .passes.raster_options import RasterOptions
 from .passes.raypass import follow_scene
 from .passes.shadows import ShadowPass
+from .passes.taa import TAAPass
 from .passes.soft_raster import SW_RASTER_PIXELS
 from .parallel import serialized
 from .passes.targets import Targets
 from .scene import Scene, environment
 from .scene.camera import Camera
 from .progress import bar as progress_bar
-from .settings import ShadowMode, ViewMode, check_settings, check_size, default, given_settings, readback_aovs
+from .settings import ShadowMode, ViewMode, check_settings, check_size, default, given_settings
+from .settings import readback_aovs
 from .settings import resolve_aovs
 from .shaders import ShaderLibrary
 from .steady import Steady
@@ -175,7 +177,7 @@ class Renderer(Closes):
         self.ao = AOPass(ctx, lib, res, self.bvh_set, self.bvh_layout)
         self.denoise = DenoisePass(ctx, lib, res, self.targets)
         self.lighting, self.debug_view = LightingPass(ctx, lib, res), DebugViewPass(ctx, lib, res)
-        self.exposure = ExposurePass(ctx, lib, res)
+        self.exposure, self.taa = ExposurePass(ctx, lib, res), TAAPass(ctx, lib, res)
         self.passes = [
             self.gbuffer,
             self.shadows,
@@ -183,6 +185,7 @@ class Renderer(Closes):
             self.accumulate,
             self.denoise,
             self.lighting,
+            self.taa,
             self.exposure,
             self.debug_view,
         ]
@@ -191,6 +194,7 @@ class Renderer(Closes):
         self.bvh_stats, self._commands = {}, {}
         self._changes = SceneChanges()  # the scene's state the last frame drew (instance motion)
         self._history_key = self._steady = None  # _history_key: what the temporal history was accumulated under
+        self._spp_index = None  # render(spp=)'s frame being rendered: its jitter sample
         self.uploads = 0  # scene uploads so far (a test reads it: the same scene is uploaded once)
         self.bvh_builds = 0  # ray-pass BVHs made so far (a scene's first, and a new kind or rebuild after changes)
 
@@ -275,6 +279,8 @@ class Renderer(Closes):
         tonemap: Tonemap = default("tonemap"),
         ambient: float | Sequence[float] | None = default("ambient"),
         view: ViewMode = default("view"),
+        taa: bool = default("taa"),
+        spp: int | None = default("spp"),
         **unknown: Any,
     ) -> Frame:
         """Render one frame of `scene` seen from `camera` and read it back: colour, AOVs and GPU timings.
@@ -317,6 +323,13 @@ class Renderer(Closes):
                 radiance instead (0: no environment light), times AO, and the background's colour.
             view: "color" (the lit image) or an AOV drawn into the colour image instead, on the GPU (the names
                 are `engine.settings.AOVS`; `Frame.aov` holds every AOV whatever the view).
+            taa: temporal anti-aliasing: the raster's sample point moves within the pixel every frame (Halton 2, 3)
+                and the lit radiance is blended with its history, reprojected by the motion vectors and clamped to
+                the neighbourhood's colours. A frame that reads back a data AOV (anything but "color" and
+                "radiance") or shows another `view` is not jittered, so depth, ids, normals and motion stay exact.
+            spp: samples per pixel of the colour (None: 1): `spp - 1` more frames with the raster's sample point
+                moved within the pixel (Halton 2, 3; TAA off in them) and "color" / "radiance" averaged over all
+                `spp`; the other AOVs are the first frame's, unjittered and exact. 1..4096. `submit()` draws one.
             **unknown: none are accepted: a `ConfigError` names the first.
 
         Returns:
@@ -331,9 +344,38 @@ class Renderer(Closes):
         names = resolve_aovs(aovs)
         self._check_open("render()")
         self._drain()
+        spp = _spp(scene, settings)
+        if spp > 1:
+            return self._render_spp(scene, camera, settings, names, spp)
         cmd, marks, cfg, n_lights = self._prepare(scene, camera, settings, readback=(readback_aovs(names), 0))
         self.ctx.submit(cmd)
         return self._frame(scene, names, 0, marks, cfg, n_lights, camera)
+
+    def _render_spp(self, scene, camera, settings, names, spp) -> Frame:
+        """render() with `spp` samples per pixel: the frame of `names` at the pixel centres (jitter sample 0), then
+        spp - 1 frames of the colour alone at jitter samples 1.. (TAA off), "color" and "radiance" averaged."""
+        colour = tuple(n for n in ("color", "radiance") if n in names) or ("color",)
+        sums = {}
+        try:
+            for i in range(spp):
+                self._spp_index, self._steady = i, None  # (each frame's block written whole: its jitter sample)
+                wanted = names if i == 0 else colour
+                given = settings if i == 0 else {**settings, "taa": False}
+                cmd, marks, cfg, n_lights = self._prepare(scene, camera, given, readback=(readback_aovs(wanted), 0))
+                self.ctx.submit(cmd)
+                frame = self._frame(scene, wanted, 0, marks, cfg, n_lights, camera)
+                if i == 0:
+                    first = frame
+                for n in colour:
+                    value = frame.color if n == "color" else frame.aov[n]
+                    sums[n] = sums.get(n, 0.0) + value.astype(np.float64)
+        finally:
+            self._spp_index, self._steady = None, None
+        if "color" in names:
+            first.color = np.clip(np.rint(sums["color"] / spp), 0, 255).astype(np.uint8)
+        if "radiance" in names:
+            first.aov["radiance"] = (sums["radiance"] / spp).astype(first.aov["radiance"].dtype)
+        return first
 
     def render_many(
         self,
@@ -359,6 +401,10 @@ class Renderer(Closes):
         names = resolve_aovs(aovs)
         if progress:
             yield from _with_bar(self.render_many(scene, cameras, aovs=names, **settings), cameras)
+            return
+        if _spp(scene, settings) > 1:  # each frame is several (render()'s), read back before the next
+            for camera in cameras:
+                yield self.render(scene, camera, aovs=names, **settings)
             return
         mine = _Owner()  # this iterator: its frame in flight is `self._flight` while that names it
         try:
@@ -469,6 +515,8 @@ class Renderer(Closes):
         tonemap: Tonemap = default("tonemap"),
         ambient: float | Sequence[float] | None = default("ambient"),
         view: ViewMode = default("view"),
+        taa: bool = default("taa"),
+        spp: int | None = default("spp"),
         **unknown: Any,
     ) -> dict[str, Any]:
         """Render one frame into `self.targets.color` without reading it back (the viewer's path).
@@ -581,6 +629,7 @@ class Renderer(Closes):
                     "ao_radius",
                     "accumulate",
                     "shadow_terminator",
+                    "taa",
                 )
             ),
         )
@@ -594,6 +643,7 @@ class Renderer(Closes):
             cfg["denoise"],
             cfg["view"],
             cfg["auto_exposure"],
+            cfg["taa"],
             len(lights),
             readback,
             self._raster,
@@ -605,6 +655,12 @@ class Renderer(Closes):
             self._commands[key] = (cmd, list(ts.names))
         cmd, marks = self._commands[key]
         reference = cfg["shadows"] == "reference"
+        # The raster is jittered for TAA where the frame reads back the colour alone (data AOVs stay exact), and
+        # for spp's frames at their own samples (the first, which reads the data AOVs, at sample 0: the centre).
+        colour_only = readback is None or set(readback[0]) <= {"color", "radiance"}
+        colour_view = cfg["view"] in ("color", "radiance", "taa_history")
+        self.frame_block.jitter = (cfg["taa"] and colour_only and colour_view) or self._spp_index is not None
+        self.frame_block.jitter_index = self._spp_index
         self.frame_block.write(
             view_proj=view_proj,
             camera=camera,
@@ -820,6 +876,9 @@ class Renderer(Closes):
                 rec.copy(t.signals[name].raw, t.signals[name].final)
         self.lighting.record(rec, t)
         rec.mark("lighting")
+        if cfg["taa"]:
+            self.taa.record(rec, t)
+            rec.mark("taa")
         if cfg["auto_exposure"]:
             self.exposure.record(rec, t)
             rec.mark("exposure")
@@ -832,6 +891,13 @@ class Renderer(Closes):
         else:  # the colour image is copied out by the caller (the viewer's presenter)
             rec.use(reads=[t.color], stage=TRANSFER)
         return rec.finish(), ts
+
+
+def _spp(scene, settings) -> int:
+    """The raster's samples per pixel for `settings` over the scene's own (checked; 1 where neither sets it)."""
+    own = getattr(scene, "settings", None) or {}
+    spp = settings.get("spp", own.get("spp") if isinstance(own, dict) else None)
+    return check_settings({"spp": spp})["spp"] or 1
 
 
 class _Owner:

@@ -28,6 +28,8 @@ AOVS = VIEW_MODES
 DEFAULT_AOVS = ("color", "depth", "normal", "position", "albedo", "shadow", "ao")
 #: Exposure (EV) is within +-this: 2^EV stays a normal float.
 MAX_EV = 60
+#: The most samples per pixel of one render (`spp`): jittered frames averaged.
+MAX_SPP = 4096
 #: The most frames one `hybrid render` / `hybrid view --frames` may ask for.
 MAX_FRAMES = 1_000_000
 
@@ -47,6 +49,8 @@ DEFAULT_SETTINGS: dict[str, Any] = {
     "tonemap": "agx",  # TONEMAPS: Khronos PBR Neutral, AgX, or Narkowicz's ACES fit
     "ambient": None,  # None: the scene's environment (default: a daylight sky); a colour: a constant environment
     "view": "color",  # VIEW_MODES: the lit image or one AOV, drawn on the GPU
+    "taa": False,  # temporal anti-aliasing of the colour (jittered raster; frames reading data AOVs unjittered)
+    "spp": None,  # samples per pixel; None: the integrator's default (raster: 1; more: jittered frames averaged)
 }
 # hard: one ray to each light's centre. soft: `shadow_samples` rays over each light's area / solid angle (R2 points,
 # moving every frame), accumulated and denoised. seed-delta: the paper's occlusion-delta approximation (one ray).
@@ -153,7 +157,7 @@ def check_settings(settings: dict[str, Any]) -> dict[str, Any]:
         raise ConfigError(f"setting view={out['view']!r}: expected one of {', '.join(VIEW_MODES)}")
     if out["tonemap"] not in TONEMAPS:
         raise ConfigError(f"setting tonemap={out['tonemap']!r}: expected one of {', '.join(TONEMAPS)}")
-    for key in ("ao", "accumulate", "denoise", "auto_exposure", "shadow_terminator"):
+    for key in ("ao", "accumulate", "denoise", "auto_exposure", "shadow_terminator", "taa"):
         if not isinstance(out[key], (bool, np.bool_)):
             raise ConfigError(f"setting {key}={out[key]!r}: expected true or false")
         out[key] = bool(out[key])
@@ -162,6 +166,11 @@ def check_settings(settings: dict[str, Any]) -> dict[str, Any]:
         if isinstance(v, (bool, np.bool_)) or not isinstance(v, (int, np.integer)) or not 1 <= v <= hi:
             raise ConfigError(f"setting {key}={v!r}: expected an integer in 1..{hi}")
         out[key] = int(v)
+    v = out["spp"]
+    if v is not None:
+        if isinstance(v, (bool, np.bool_)) or not isinstance(v, (int, np.integer)) or not 1 <= v <= MAX_SPP:
+            raise ConfigError(f"setting spp={v!r}: expected an integer in 1..{MAX_SPP} (samples per pixel)")
+        out["spp"] = int(v)
     v = out["ao_radius"]
     if v is not None:
         if isinstance(v, (bool, np.bool_)) or not isinstance(v, numbers.Real) or not 0 < v <= MAX_COORD:

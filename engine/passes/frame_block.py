@@ -4,7 +4,9 @@ host-visible buffer, the frame resource "frame", and the one place that writes i
 A frame is written whole (`write`) when its scene, lights or settings changed; a frame that repeats the last one
 changes only the frame index (`again`), or also the camera's fields (`move_camera`): what `write` would have
 written, bit for bit (tests/test_host_cost.py). The block also keeps the frame index (which seeds the soft-shadow and
-AO samples) and the last frame's camera, the next frame's previous camera (temporal reprojection).
+AO samples) and the last frame's camera, the next frame's previous camera (temporal reprojection). Where `jitter`
+is on (TAA, or `spp`'s sub-frames: frames that read back no data AOV), the raster's sample point moves within the
+pixel with the frame index (engine/passes/taa.py `jitter_offset`), or with `jitter_index` where that is set.
 """
 
 from __future__ import annotations
@@ -14,6 +16,7 @@ import math
 from ..vk import Buffer
 from ..vk.resources import UNIFORM
 from .interface import FRAME, FRAME_BYTES, camera_fields, pack_frame
+from .taa import TAA_ALPHA, jitter_offset
 
 
 class FrameBlock:
@@ -25,6 +28,14 @@ class FrameBlock:
         self.frame_index = 0  # frames written since the renderer was made or its history reset
         self.view_proj = None  # the last frame's view-projection matrix (None: no previous frame to reproject)
         self.settled = False  # prev_view_proj is view_proj and history_reset is off (a still camera's block)
+        self.jitter = False  # the raster's sample point moves within the pixel, frame by frame
+        self.jitter_index = None  # the jitter sample to use instead of the frame index's (spp's sub-frames)
+
+    def _jitter(self) -> tuple:
+        """This frame's sample point, in pixels from the pixel centre (0, 0 without jitter)."""
+        if not self.jitter:
+            return (0.0, 0.0)
+        return jitter_offset(self.frame_index if self.jitter_index is None else self.jitter_index)
 
     def restart(self) -> None:
         """The next frame as a fresh renderer's: frame index 0."""
@@ -86,6 +97,8 @@ class FrameBlock:
             tonemap=tonemap,
             auto_exposure=auto_exposure,
             shadow_terminator=shadow_terminator,
+            jitter=self._jitter(),
+            taa_alpha=TAA_ALPHA,
         )
         self.settled = False
         self._next(view_proj)
@@ -100,6 +113,7 @@ class FrameBlock:
             block["history_reset"] = 0.0
             self.settled = True
         block["frame_index"], block["objects_moved"] = self.frame_index, objects_moved
+        block["jitter"] = self._jitter()
         self.frame_index += 1
 
     def move_camera(self, view_proj, camera, height: int, objects_moved: bool) -> None:
@@ -110,6 +124,7 @@ class FrameBlock:
         camera_fields(block, view_proj, camera, height)
         block["history_reset"] = 0.0
         block["frame_index"], block["objects_moved"] = self.frame_index, objects_moved
+        block["jitter"] = self._jitter()
         self.settled = False
         self._next(view_proj)
 

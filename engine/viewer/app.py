@@ -249,6 +249,8 @@ class Viewer:
             self.cycle("tonemap")
         elif key == g.KEY_5:
             self.cycle("auto_exposure")
+        elif key == g.KEY_T:
+            self.cycle("taa")
         elif key == g.KEY_V:
             self.cycle("view", -1 if shift else 1)
         elif key == g.KEY_R:

@@ -22,6 +22,7 @@ KEYS = [
     ("3", "denoise on / off (if the renderer has it)"),
     ("4", "tone curve: cycle neutral, agx, aces"),
     ("5", "automatic exposure on / off"),
+    ("T", "temporal anti-aliasing on / off (debug view: taa_history)"),
     ("V / Shift+V", "next / previous debug view (if the renderer has it)"),
     ("R", "reset the camera to the scene's"),
     ("P", "pause / play the scene's animation"),
@@ -36,7 +37,7 @@ KEYS = [
 KEY_SKIPS = {"shadows": ("reference",)}
 
 # The settings with a key, in the order the overlay lists them.
-TOGGLED = ("shadows", "ao", "denoise", "tonemap", "auto_exposure", "view")
+TOGGLED = ("shadows", "ao", "denoise", "tonemap", "auto_exposure", "taa", "view")
 
 
 def key_map_text() -> str:

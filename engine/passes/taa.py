@@ -1,0 +1,54 @@
+"""Temporal anti-aliasing (shaders/glsl/taa.comp): the lit radiance of a jittered raster blended with its history,
+reprojected by the motion vectors and clamped to the current 3x3 neighbourhood's YCoCg box, after lighting and
+before the exposure pass; it writes the tonemapped colour too.
+
+The jitter is the frame block's (`jitter_offset`: Halton(2, 3), 16 points, shifted so that sample 0 is the pixel's
+centre), so the recorded command buffer never changes between frames. Its history (resolved radiance, and the
+number of frames it holds in alpha) is refreshed by copies after the dispatch, as the accumulation pass's is.
+"""
+
+from __future__ import annotations
+
+from .base import ComputePass, read, write
+
+#: Jittered samples before the sequence repeats.
+JITTER_PERIOD = 16
+#: The new frame's smallest weight in the blend (about 10 frames of memory).
+TAA_ALPHA = 0.1
+
+
+def halton(index: int, base: int) -> float:
+    """The radical inverse of `index` in `base` (the Halton sequence's coordinate), in [0, 1)."""
+    f, out = 1.0, 0.0
+    while index > 0:
+        f /= base
+        out += f * (index % base)
+        index //= base
+    return out
+
+
+def jitter_offset(index: int) -> tuple[float, float]:
+    """Sample `index`'s point within the pixel, in pixels from its centre, each in [-0.5, 0.5): Halton(2, 3) moved by
+    half a pixel on the torus, so sample 0 is the centre (an unjittered frame) and any 16 in a row cover the pixel."""
+    i = index % JITTER_PERIOD
+    return tuple((halton(i, b) + 0.5) % 1.0 - 0.5 for b in (2, 3))
+
+
+class TAAPass(ComputePass):
+    name = "taa"
+    shader = "taa.comp"
+    bindings = {
+        "frame": read("uniform", "frame"),
+        "g_hdr": read("image", "hdr"),
+        "g_motion": read("image", "motion"),
+        "h_color": read("image", "taa_history"),
+        "out_hdr": write("image", "taa_out"),
+        "out_color": write("image", "color"),
+    }
+
+    def record(self, rec, targets):
+        """The resolve, then its output as the next frame's history and as this frame's radiance (the exposure
+        pass and the radiance AOV read it)."""
+        self.dispatch(rec, self.tiles(targets.width, targets.height))
+        rec.copy_image(targets.taa_out, targets.taa_history)
+        rec.copy_image(targets.taa_out, targets.hdr)

@@ -1,0 +1,181 @@
+"""Temporal anti-aliasing and supersampling of the raster's colour (engine/passes/taa.py, render(spp=)): a thin
+slanted bar converges to the supersampled image, data AOVs stay exact, a moving object leaves no trail, and the
+`--spp` render is anti-aliased with the unjittered depth."""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pytest
+
+from engine import Camera, Instance, Material, Mesh, Scene
+from engine.errors import ConfigError
+from engine.passes.taa import JITTER_PERIOD, halton, jitter_offset
+from engine.scene import primitives
+from engine.scene.animation import rotation
+
+W, H = 96, 64
+# No lights, a white constant environment: the background's radiance is 1, the black bar's about 0.03.
+FLAT = dict(shadows="off", ao=False, ambient=1.0)
+DATA = ["depth", "normal", "position", "triangle_id", "object_id", "material_id", "instance_id", "motion"]
+
+
+def placed(x=0.0, degrees=20.0) -> np.ndarray:
+    m = np.eye(4)
+    m[:3, :3] = rotation(np.array([0.0, 0.0, 1.0]), math.radians(degrees))
+    m[0, 3] = x
+    return m
+
+
+def box_at(x: float) -> np.ndarray:
+    m = placed(x, 0.0)
+    m[1, 3] = -0.7
+    return m
+
+
+def bar_scene(transforms=None) -> Scene:
+    """A thin (about a pixel wide) black bar, slanted 20 degrees, and a black box, on a white background."""
+    p, f, n, uv = primitives.box((3.0, 0.05, 0.05))
+    bar = Mesh(p, f, normals=n, uvs=uv, name="bar")
+    p, f, n, uv = primitives.box((0.5, 0.5, 0.5))
+    box = Mesh(p, f, normals=n, uvs=uv, name="box")
+    if transforms is None:
+        transforms = [placed(), box_at(-1.6)]
+    return Scene.from_meshes(
+        [bar, box],
+        [Instance(0, transforms[0], name="bar"), Instance(1, transforms[1], name="box")],
+        materials=[Material("black", (0.0, 0.0, 0.0), roughness=1.0)],
+        lights=[],
+        camera=Camera.look_at((0.0, 0.0, 4.0), (0.0, 0.0, 0.0), fov_y=40.0),
+        name="thin bar",
+    )
+
+
+def between(grey: np.ndarray) -> np.ndarray:
+    """The 8-bit pixels clearly between the bar's value (the image's darkest) and the background's (its median)."""
+    g = grey.astype(int)
+    lo, hi = g.min(), int(np.median(g))
+    return (g > lo + 0.1 * (hi - lo)) & (g < hi - 0.1 * (hi - lo))
+
+
+def luma(frame) -> np.ndarray:
+    return frame.aov["radiance"][..., 0].astype(np.float64)
+
+
+def test_jitter_sequence_is_halton_centred_on_sample_0():
+    assert jitter_offset(0) == (0.0, 0.0)
+    assert halton(1, 2) == 0.5 and halton(2, 3) == pytest.approx(2 / 3) and halton(5, 2) == 0.625
+    pts = np.array([jitter_offset(i) for i in range(JITTER_PERIOD)])
+    assert np.all((pts >= -0.5) & (pts < 0.5)) and len({tuple(p) for p in pts}) == JITTER_PERIOD
+    # stratified: each 1/16 of the pixel's width holds one of 16 points, each 1/9 of its height one of 9
+    assert np.bincount(np.floor((pts[:, 0] + 0.5) * 16).astype(int), minlength=16).tolist() == [1] * 16
+    assert np.bincount(np.floor((pts[:9, 1] + 0.5) * 9 + 1e-9).astype(int), minlength=9).tolist() == [1] * 9
+    assert jitter_offset(JITTER_PERIOD + 3) == jitter_offset(3)
+
+
+def test_taa_antialiases_a_thin_edge_close_to_supersampling(make_renderer):
+    """16 still frames of TAA: the bar's edge pixels take intermediate values, and the image is within a small
+    error of the 16-sample supersampled one (spp=16), far closer than the aliased frame."""
+    r = make_renderer(W, H)
+    scene = bar_scene()
+    aliased = r.render(scene, aovs=["color", "radiance"], **FLAT)
+    ref = r.render(scene, aovs=["radiance"], spp=16, **FLAT)
+    r.reset_history()
+    for _ in range(16):
+        taa = r.render(scene, aovs=["color", "radiance"], taa=True, **FLAT)
+    a, s, t = luma(aliased), luma(ref), luma(taa)
+    edge = (s > 0.1) & (s < 0.9)  # pixels the bar covers in part
+    assert edge.sum() > 60
+    mid = lambda v: np.count_nonzero((v > 0.1) & (v < 0.9))  # noqa: E731
+    assert mid(a) < 0.3 * edge.sum()  # the aliased frame: bar or background (the bar's sides aside)
+    assert mid(t[edge]) > 0.8 * edge.sum()
+    err_taa, err_aliased = np.abs(t - s).mean(), np.abs(a - s).mean()
+    assert err_taa < 0.15 * err_aliased, (err_taa, err_aliased)
+    assert np.abs(t - s)[edge].mean() < 0.05
+    # the colour is the tone-mapped resolve: intermediate there too
+    mid_taa, mid_aliased = between(taa.color[..., 1]).sum(), between(aliased.color[..., 1]).sum()
+    assert mid_taa > 0.5 * edge.sum() and mid_taa > 2 * mid_aliased, (mid_taa, mid_aliased)
+
+
+def test_data_aovs_are_exact_with_taa_on(make_renderer):
+    """Frames reading data AOVs are not jittered: depth, normals, positions, ids and motion equal TAA off's, bit
+    for bit, also after jittered frames; the first TAA frame's colour is the plain frame's."""
+    scene = bar_scene()
+    plain = make_renderer(W, H).render(scene, aovs=["color", *DATA], **FLAT)
+    r = make_renderer(W, H)
+    first = r.render(scene, aovs=["color", "radiance"], taa=True, **FLAT)
+    assert np.array_equal(first.color, plain.color)
+    for _ in range(3):
+        r.render(scene, aovs=["color"], taa=True, **FLAT)
+    on = r.render(scene, aovs=["color", *DATA], taa=True, **FLAT)
+    for name in DATA:
+        assert np.array_equal(on.aov[name], plain.aov[name], equal_nan=True), name
+    assert on.settings["taa"] is True
+
+
+def test_moving_object_leaves_no_trail(make_renderer):
+    """The box slides 4 pixels a frame for 8 frames under TAA: where it was shows the background again (within a
+    small tolerance of the un-anti-aliased frame), away from its present edges."""
+    r = make_renderer(W, H)
+    scene = bar_scene()
+    xs = [-1.6 + 0.18 * k for k in range(8)]
+    covered = np.zeros((H, W), bool)
+    for x in xs:
+        scene.set_transforms(np.stack([placed(), box_at(x)]))
+        f = r.render(scene, aovs=["color", "radiance"], taa=True, **FLAT)
+        seen = r.render(scene, aovs=["instance_id"], taa=True, **FLAT)  # (unjittered, exact)
+        covered |= seen.aov["instance_id"] == 1
+    now = seen.aov["instance_id"]
+    plain = make_renderer(W, H).render(scene, aovs=["radiance"], **FLAT)
+    near = np.zeros((H, W), bool)  # within 2 pixels of anything drawn now (edges are anti-aliased)
+    for dy in range(-2, 3):
+        for dx in range(-2, 3):
+            near |= np.roll(now >= 0, (dy, dx), (0, 1))
+    left = covered & ~near
+    assert left.sum() > 100
+    t, p = luma(f), luma(plain)
+    assert np.abs(t[left] - p[left]).max() < 0.05, np.abs(t[left] - p[left]).max()
+    assert np.all(p[left] > 0.9)  # (the background)
+
+
+def test_spp_render_is_antialiased_with_exact_depth(make_renderer):
+    r = make_renderer(W, H)
+    scene = bar_scene()
+    one = r.render(scene, aovs=["color", "depth", "instance_id"], **FLAT)
+    four = r.render(scene, aovs=["color", "depth", "instance_id"], spp=4, **FLAT)
+    assert np.array_equal(four.aov["depth"], one.aov["depth"])
+    assert np.array_equal(four.aov["instance_id"], one.aov["instance_id"])
+    mid1, mid4 = between(one.color[..., 1]).sum(), between(four.color[..., 1]).sum()
+    assert mid4 > 100 and mid4 > 1.8 * mid1, (mid1, mid4)
+    # nearer the 16-sample image than one sample is
+    ref = r.render(scene, aovs=["color"], spp=16, **FLAT).color.astype(float)
+    e1, e4 = np.abs(one.color - ref).mean(), np.abs(four.color - ref).mean()
+    assert e4 < 0.65 * e1, (e1, e4)
+    for bad in (0, 1.5, True, 5000):
+        with pytest.raises(ConfigError, match="spp"):
+            r.render(scene, spp=bad, **FLAT)
+
+
+def test_cli_spp_writes_an_antialiased_png(tmp_path):
+    import subprocess
+    import sys
+
+    from PIL import Image
+
+    scene = tmp_path / "bar.toml"
+    scene.write_text(
+        '[camera]\neye = [0, 0, 4]\ntarget = [0, 0, 0]\nfov = 40\n[settings]\nshadows = "off"\nao = false\n'
+        'ambient = 1.0\n[[mesh]]\nprimitive = "box"\nsize = [3.0, 0.05, 0.05]\nrotate = [0, 0, 20]\n'
+        "color = [0, 0, 0]\n"
+    )
+    outs = {}
+    for spp in (1, 4):
+        out = tmp_path / f"bar{spp}.png"
+        cmd = [sys.executable, "-m", "engine", "render", str(scene), "-o", str(out), "--size", f"{W}x{H}", "-q"]
+        run = subprocess.run([*cmd, "--spp", str(spp)], capture_output=True, text=True, timeout=300)
+        assert run.returncode == 0, run.stderr
+        outs[spp] = between(np.asarray(Image.open(out))[..., 1]).sum()
+    assert outs[4] > 30 and outs[4] > 3 * outs[1], outs
+    bad = subprocess.run([*cmd, "--spp", "0"], capture_output=True, text=True, timeout=120)
+    assert bad.returncode != 0 and "spp" in bad.stderr and "Traceback" not in bad.stderr

@@ -179,3 +179,19 @@ def test_cli_spp_writes_an_antialiased_png(tmp_path):
     assert outs[4] > 30 and outs[4] > 3 * outs[1], outs
     bad = subprocess.run([*cmd, "--spp", "0"], capture_output=True, text=True, timeout=120)
     assert bad.returncode != 0 and "spp" in bad.stderr and "Traceback" not in bad.stderr
+
+
+def test_viewer_path_resubmits_one_recording_with_the_same_jitter(make_renderer):
+    """submit() frames (the viewer's: one recorded command buffer re-submitted, the frame block rewritten in place)
+    jitter and resolve as render() frames do: the same 8th frame, bit for bit."""
+    scene = bar_scene()
+    a = make_renderer(W, H)
+    for _ in range(8):
+        by_render = a.render(scene, aovs=["color"], taa=True, **FLAT)
+    b = make_renderer(W, H)
+    for _ in range(7):
+        b.submit(scene, taa=True, **FLAT)
+    assert len(b._commands) == 1
+    assert b.frame_block.record["jitter"].tolist() == list(np.float32(jitter_offset(6)))
+    by_submit = b.render(scene, aovs=["color"], taa=True, **FLAT)
+    assert np.array_equal(by_submit.color, by_render.color)

@@ -1,6 +1,6 @@
 """Temporal anti-aliasing (shaders/glsl/taa.comp): the lit radiance of a jittered raster blended with its history,
-reprojected by the motion vectors and clamped to the current 3x3 neighbourhood's YCoCg box, after lighting and
-before the exposure pass; it writes the tonemapped colour too.
+reprojected by the motion vectors (Catmull-Rom) and clamped to the current 3x3 neighbourhood's YCoCg box (min/max
+and variance), after lighting and before the exposure pass; it writes the tonemapped colour too.
 
 The jitter is the frame block's (`jitter_offset`: Halton(2, 3), 16 points, shifted so that sample 0 is the pixel's
 centre), so the recorded command buffer never changes between frames. Its history (resolved radiance, and the
@@ -44,6 +44,7 @@ class TAAPass(ComputePass):
         "h_color": read("image", "taa_history"),
         "out_hdr": write("image", "taa_out"),
         "out_color": write("image", "color"),
+        "g_normal": read("image", "normal"),
     }
 
     def record(self, rec, targets):

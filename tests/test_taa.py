@@ -271,3 +271,22 @@ def test_moving_camera_and_object_do_not_ghost(make_renderer):
     aliased = np.abs(p - ref).max(2) > 0.02
     e_taa, e_plain = np.abs(t - ref)[aliased].mean(), np.abs(p - ref)[aliased].mean()
     assert aliased.sum() > 100 and e_taa < 0.9 * e_plain, (e_taa, e_plain)
+
+
+def test_camera_cut_restarts_the_history(make_renderer):
+    """A jump of the camera (a cut) starts TAA over: the first frame after it is the plain frame of the new view, bit
+    for bit (it reads depth, so it is not jittered); a small turn keeps the history (that frame is a blend)."""
+    scene = lit_scene()
+    settings = dict(shadows="hard", ao=False)
+    far = Camera.look_at((-4.0, 2.0, -3.0), (0.0, 0.4, 0.0), fov_y=50.0)
+    turned = Camera.look_at((4.2, 3.5, 4.8), (0.0, 0.4, 0.0), fov_y=50.0)
+    plain = make_renderer(W, H)
+    r = make_renderer(W, H)
+    for cam, cut in ((far, True), (turned, False)):
+        r.reset_history()
+        for _ in range(8):
+            r.render(scene, aovs=["color"], taa=True, **settings)
+        after = r.render(scene, cam, aovs=["color", "depth"], taa=True, **settings)
+        expect = plain.render(scene, cam, aovs=["color", "depth"], **settings)
+        assert np.array_equal(after.aov["depth"], expect.aov["depth"])
+        assert np.array_equal(after.color, expect.color) == cut, cut

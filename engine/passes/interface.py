@@ -161,6 +161,7 @@ FRAME = Struct(
         ("shadow_terminator", "float"),
         ("jitter", "vec2"),
         ("taa_alpha", "float"),
+        ("camera_cut", "float"),
         ("lights", LIGHT, MAX_LIGHTS),
     ],
     doc={
@@ -184,6 +185,7 @@ FRAME = Struct(
         "shadow_terminator": "1: shadow rays start from the terminator shift (terminator.glsl)",
         "jitter": "the raster's sample point within each pixel, in pixels from its centre (TAA, spp)",
         "taa_alpha": "taa.comp's smallest weight of the new frame",
+        "camera_cut": "1: the camera jumped since the last frame (taa.comp starts over)",
     },
 )
 FRAME_BYTES = FRAME.size
@@ -306,6 +308,7 @@ def pack_frame(
     shadow_terminator=True,
     jitter=(0.0, 0.0),
     taa_alpha=0.1,
+    camera_cut=False,
 ):
     """The FRAME block. `out`: a FRAME record (e.g. a view of the mapped uniform buffer) to write into, returned;
     without it, the block's bytes. `packed_lights`: `pack_light` of each light, when already made."""
@@ -329,6 +332,7 @@ def pack_frame(
     block["scene_scale"], block["accum_alpha"], block["pixel_footprint"] = scene_scale, accum_alpha, pixel_footprint
     block["history_reset"] = 1.0 if history_reset else 0.0
     block["jitter"], block["taa_alpha"] = jitter, taa_alpha
+    block["camera_cut"] = 1.0 if camera_cut else 0.0
     block["objects_moved"] = 1.0 if objects_moved else 0.0
     if bounds is not None:
         b = np.asarray(bounds, np.float32).reshape(2, 3)

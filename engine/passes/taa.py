@@ -9,12 +9,30 @@ number of frames it holds in alpha) is refreshed by copies after the dispatch, a
 
 from __future__ import annotations
 
+import math
+
+import numpy as np
+
 from .base import ComputePass, read, write
 
 #: Jittered samples before the sequence repeats.
 JITTER_PERIOD = 16
 #: The new frame's smallest weight in the blend (about 10 frames of memory).
 TAA_ALPHA = 0.1
+#: A camera cut (the history starts over): the view turned by more than this many degrees, or the eye moved by more
+#: than this fraction of the scene's bounding-box diagonal, since the last frame.
+CUT_DEGREES = 15.0
+CUT_DISTANCE = 0.2
+
+
+def camera_cut(last, camera, scene_scale: float) -> bool:
+    """Whether `camera` is a cut from `last` (a camera or None: no last frame, no cut)."""
+    if last is None:
+        return False
+    eye0, fwd0 = last
+    cos = float(np.dot(fwd0, camera.forward) / (np.linalg.norm(fwd0) * np.linalg.norm(camera.forward)))
+    moved = float(np.linalg.norm(np.asarray(camera.eye, np.float64) - eye0))
+    return cos < math.cos(math.radians(CUT_DEGREES)) or moved > CUT_DISTANCE * scene_scale
 
 
 def halton(index: int, base: int) -> float:

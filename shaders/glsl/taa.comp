@@ -7,9 +7,9 @@
 // surface that moved away or a disocclusion cannot leave a trail. The blend is
 //     value = mix(history, current, alpha),   alpha = max(1 / (n + 1), frame.taa_alpha)
 // with n the frames the history holds (its alpha channel): the first frames are a plain average of the jittered
-// samples (a box filter over the pixel), later ones an exponential one. On frame.history_reset, or where the history
-// lies outside the image, the history starts over with this frame (which on a reset is not written to out_color: the
-// lighting pass's colour stays, bit for bit).
+// samples (a box filter over the pixel), later ones an exponential one. On frame.history_reset or a camera cut
+// (frame.camera_cut), or where the history lies outside the image, the history starts over with this frame (which on
+// a reset or cut is not written to out_color: the lighting pass's colour stays, bit for bit).
 #include "common.glsl"
 FRAME_BLOCK
 
@@ -37,6 +37,7 @@ void main() {
     ivec2 size = ivec2(frame.width, frame.height);
     if (px.x >= size.x || px.y >= size.y) return;
     vec3 current = imageLoad(g_hdr, px).rgb;
+    bool restart = frame.history_reset > 0.5 || frame.camera_cut > 0.5;
 
     // The history where this pixel's surface was (in pixel index coordinates).
     // The background (motion 0: it is at infinity) is where its view direction was under the previous camera.
@@ -58,7 +59,7 @@ void main() {
     float wsum = 0.0;
     ivec2 nearest = ivec2(floor(then + 0.5));
     bool inside = all(greaterThanEqual(nearest, ivec2(0))) && all(lessThan(nearest, size));
-    if (frame.history_reset < 0.5 && inside) {
+    if (!restart && inside) {
         for (int j = 0; j < 4; ++j)
             for (int i = 0; i < 4; ++i) {
                 ivec2 q = base + ivec2(i - 1, j - 1);
@@ -71,7 +72,7 @@ void main() {
     }
     if (!(wsum > 0.5)) {   // no history: this frame alone
         imageStore(out_hdr, px, vec4(current, 1.0));
-        if (frame.history_reset < 0.5)
+        if (!restart)
             imageStore(out_color, px, vec4(srgb_encode(tonemap(current * frame.exposure, frame.tonemap)), 1.0));
         return;
     }

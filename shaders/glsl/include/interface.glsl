@@ -82,6 +82,7 @@ struct FrameData {
     float shadow_terminator;        // 1: shadow rays start from the terminator shift (terminator.glsl)
     vec2 jitter;                    // the raster's sample point within each pixel, in pixels from its centre (TAA, spp)
     float taa_alpha;                // taa.comp's smallest weight of the new frame
+    float camera_cut;               // 1: the camera jumped since the last frame (taa.comp starts over)
     Light lights[16];
 };
 

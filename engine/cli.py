@@ -48,6 +48,7 @@ def _settings(args) -> dict:
         "max_depth",
         "pixel_filter",
         "seed",
+        "taa",
     ):
         value = getattr(args, key, None)
         if value is not None:
@@ -391,12 +392,24 @@ def build_parser() -> argparse.ArgumentParser:
         default=None,
         help=f"{', '.join(INTEGRATORS)}: the hybrid raster frame, or the progressive path tracer (default raster)",
     )
-    r.add_argument("--spp", type=int, default=None, help="path: samples per pixel (default 64)")
+    r.add_argument(
+        "--spp",
+        type=int,
+        default=None,
+        help="samples per pixel of the integrator (default: raster 1, path 64); raster: N jittered frames' colour "
+        "averaged, the other AOVs exact (unjittered); path: paths per pixel",
+    )
     r.add_argument("--max-depth", type=int, default=None, help="path: the most segments of a path (default 8)")
     r.add_argument(
         "--pixel-filter", default=None, help=f"path: {', '.join(PIXEL_FILTERS)} (default box): anti-aliasing"
     )
     r.add_argument("--seed", type=int, default=None, help="path: the random seed (the same image for the same seed)")
+    r.add_argument(
+        "--taa",
+        action="store_true",
+        default=None,
+        help="temporal anti-aliasing of the colour (sequences: frame to frame)",
+    )
     r.set_defaults(func=cmd_render)
 
     v = sub.add_parser("view", help="open a scene in a window (keys: H), shaders hot-reloaded")

@@ -57,6 +57,7 @@ def _settings(args) -> dict:
         "max_depth",
         "pixel_filter",
         "seed",
+        "taa",
     ):
         value = getattr(args, key, None)
         if value is not None:
@@ -404,12 +405,24 @@ def build_parser() -> argparse.ArgumentParser:
         default=None,
         help=f"{', '.join(INTEGRATORS)}: the hybrid raster frame, or the progressive path tracer (default raster)",
     )
-    r.add_argument("--spp", type=int, default=None, help="path: samples per pixel (default 64)")
+    r.add_argument(
+        "--spp",
+        type=int,
+        default=None,
+        help="samples per pixel of the integrator (default: raster 1, path 64); raster: N jittered frames' colour "
+        "averaged, the other AOVs exact (unjittered); path: paths per pixel",
+    )
     r.add_argument("--max-depth", type=int, default=None, help="path: the most segments of a path (default 8)")
     r.add_argument(
         "--pixel-filter", default=None, help=f"path: {', '.join(PIXEL_FILTERS)} (default box): anti-aliasing"
     )
     r.add_argument("--seed", type=int, default=None, help="path: the random seed (the same image for the same seed)")
+    r.add_argument(
+        "--taa",
+        action="store_true",
+        default=None,
+        help="temporal anti-aliasing of the colour (sequences: frame to frame)",
+    )
     r.set_defaults(func=cmd_render)
 
     v = sub.add_parser("view", help="open a scene in a window (keys: H), shaders hot-reloaded")
@@ -436,6 +449,18 @@ def build_parser() -> argparse.ArgumentParser:
     return ap
 
 
+def entry() -> None:
+    """The `hybrid` command (and `python -m engine`): main(), then exit. After a device hung, its work may still
+    run and the driver's own teardown at exit may crash or wait for it (seen on lavapipe and an H100), so the
+    process leaves at once."""
+    code = main()
+    if any_hung():
+        sys.stdout.flush()
+        sys.stderr.flush()
+        os._exit(code)
+    sys.exit(code)
+
+
 def main(argv=None) -> int:
     args = build_parser().parse_args(argv)
     logging.basicConfig(level=logging.DEBUG if args.verbose else logging.WARNING, format="%(name)s: %(message)s")
@@ -446,10 +471,6 @@ def main(argv=None) -> int:
         return args.func(args)
     except EngineError as exc:
         print(f"error: {shown(exc, limit=None)}", file=sys.stderr)  # one line, whatever the message holds
-        if any_hung():  # the driver's teardown at exit may crash or wait on the hung work: leave now
-            sys.stdout.flush()
-            sys.stderr.flush()
-            os._exit(1)
         return 1
     except KeyboardInterrupt:
         print("interrupted", file=sys.stderr)

@@ -1,7 +1,7 @@
 """The Renderer: owns the Vulkan context, the frame's resources and its passes, and orders them into a frame.
 
     G-buffer raster -> shadow rays -> AO rays -> temporal accumulation -> a-trous denoise
-        -> lighting + tonemap -> debug view -> readback
+        -> lighting + tonemap -> temporal anti-aliasing -> exposure -> debug view -> readback
 
 A frame's command buffer is recorded once per (scene, settings) and re-submitted; only the per-frame
 uniform block (camera, previous camera, frame index, history reset flag) is rewritten before each submit
@@ -42,14 +42,15 @@ from .passes.raster_options import RasterOptions
 from .passes.raypass import follow_scene
 from .passes.reflections import ReflectionFilterPass, ReflectionTemporalPass, ReflectionTracePass
 from .passes.shadows import ShadowPass
+from .passes.taa import TAAPass
 from .passes.soft_raster import SW_RASTER_PIXELS
 from .parallel import serialized
 from .passes.targets import Targets
 from .scene import Scene, environment
 from .scene.camera import Camera
 from .progress import bar as progress_bar
-from .settings import ShadowMode, ViewMode, check_settings, check_size, default, given_settings, readback_aovs
-from .settings import resolve_aovs
+from .settings import DEFAULT_SETTINGS, DEFAULT_SPP, ShadowMode, ViewMode, check_settings, check_size, default
+from .settings import given_settings, readback_aovs, resolve_aovs
 from .shaders import ShaderLibrary
 from .steady import Steady
 from .vk import Context, Recorder, Timestamps, reflect
@@ -180,7 +181,7 @@ class Renderer(Closes):
         self.camera_rays = None  # the G-buffer of camera models other than the pinhole: made when first used
         self.denoise = DenoisePass(ctx, lib, res, self.targets)
         self.lighting, self.debug_view = LightingPass(ctx, lib, res), DebugViewPass(ctx, lib, res)
-        self.exposure = ExposurePass(ctx, lib, res)
+        self.exposure, self.taa = ExposurePass(ctx, lib, res), TAAPass(ctx, lib, res)
         self.passes = [
             self.gbuffer,
             self.shadows,
@@ -188,6 +189,7 @@ class Renderer(Closes):
             self.accumulate,
             self.denoise,
             self.lighting,
+            self.taa,
             self.exposure,
             self.debug_view,
         ]
@@ -201,6 +203,7 @@ class Renderer(Closes):
         self.path_samples = 0  # samples per pixel in the path tracer's image so far
         self.path_progress = None  # called as f(samples done, samples in all) after each path-tracing batch
         self._path_key = None  # what the path tracer's samples so far were traced under
+        self._spp_index = None  # render(spp=)'s frame being rendered: its jitter sample
         self.uploads = 0  # scene uploads so far (a test reads it: the same scene is uploaded once)
         self.bvh_builds = 0  # ray-pass BVHs made so far (a scene's first, and a new kind or rebuild after changes)
 
@@ -287,10 +290,11 @@ class Renderer(Closes):
         ambient: float | Sequence[float] | None = default("ambient"),
         view: ViewMode = default("view"),
         integrator: str = default("integrator"),
-        spp: int = default("spp"),
+        spp: int | None = default("spp"),
         max_depth: int = default("max_depth"),
         pixel_filter: str = default("pixel_filter"),
         seed: int = default("seed"),
+        taa: bool = default("taa"),
         **unknown: Any,
     ) -> Frame:
         """Render one frame of `scene` seen from `camera` and read it back: colour, AOVs and GPU timings.
@@ -340,11 +344,19 @@ class Renderer(Closes):
                 "path" (shaders/glsl/path.comp: a progressive path tracer on the same BVH and materials, `spp`
                 samples per pixel, its linear radiance tonemapped into "color" and as "radiance"; the data AOVs,
                 depth, ids, normals, motion, stay the raster's; shadows, AO and their filters are not run).
-            spp: path: samples per pixel, 1..2^20 (`path_progress`, if set, is called after each batch).
+            spp: samples per pixel, 1..2^20; None: the integrator's default (`DEFAULT_SPP`: raster 1, path 64).
+                path: paths per pixel (`path_progress`, if set, is called after each batch). raster: `spp - 1`
+                more frames with the sample point moved within the pixel (Halton 2, 3; TAA off in them), "color" and
+                "radiance" averaged over all `spp`; the other AOVs are the first frame's, unjittered and exact (each
+                sample is a whole frame: its time grows linearly). `submit()` draws one.
             max_depth: path: the most segments of a path, 1..64 (1: emitters seen directly; 2: direct light).
             pixel_filter: path: "box" (samples uniform over the pixel) or "gaussian" (standard deviation 0.5
                 pixel).
             seed: path: the seed of the random sequence, 0..2^32-1: the same seed and spp give the same image.
+            taa: temporal anti-aliasing: the raster's sample point moves within the pixel every frame (Halton 2, 3)
+                and the lit radiance is blended with its history, reprojected by the motion vectors and clamped to
+                the neighbourhood's colours. A frame that reads back a data AOV (anything but "color" and
+                "radiance") or shows another `view` is not jittered, so depth, ids, normals and motion stay exact.
             **unknown: none are accepted: a `ConfigError` names the first.
 
         Returns:
@@ -359,11 +371,40 @@ class Renderer(Closes):
         names = resolve_aovs(aovs)
         self._check_open("render()")
         self._drain()
+        spp = _spp(scene, settings)
+        if spp > 1:
+            return self._render_spp(scene, camera, settings, names, spp)
         cmd, marks, cfg, n_lights = self._prepare(scene, camera, settings, readback=(readback_aovs(names), 0))
         if cfg["integrator"] == "path":
             self._path_samples(scene, camera, cfg, n_lights)
         self.ctx.submit(cmd)
         return self._frame(scene, names, 0, marks, cfg, n_lights, camera)
+
+    def _render_spp(self, scene, camera, settings, names, spp) -> Frame:
+        """render() with `spp` samples per pixel: the frame of `names` at the pixel centres (jitter sample 0), then
+        spp - 1 frames of the colour alone at jitter samples 1.. (TAA off), "color" and "radiance" averaged."""
+        colour = tuple(n for n in ("color", "radiance") if n in names) or ("color",)
+        sums = {}
+        try:
+            for i in range(spp):
+                self._spp_index, self._steady = i, None  # (each frame's block written whole: its jitter sample)
+                wanted = names if i == 0 else colour
+                given = settings if i == 0 else {**settings, "taa": False}
+                cmd, marks, cfg, n_lights = self._prepare(scene, camera, given, readback=(readback_aovs(wanted), 0))
+                self.ctx.submit(cmd)
+                frame = self._frame(scene, wanted, 0, marks, cfg, n_lights, camera)
+                if i == 0:
+                    first = frame
+                for n in colour:
+                    value = frame.color if n == "color" else frame.aov[n]
+                    sums[n] = sums.get(n, 0.0) + value.astype(np.float64)
+        finally:
+            self._spp_index, self._steady = None, None
+        if "color" in names:
+            first.color = np.clip(np.rint(sums["color"] / spp), 0, 255).astype(np.uint8)
+        if "radiance" in names:
+            first.aov["radiance"] = (sums["radiance"] / spp).astype(first.aov["radiance"].dtype)
+        return first
 
     def render_many(
         self,
@@ -389,6 +430,10 @@ class Renderer(Closes):
         names = resolve_aovs(aovs)
         if progress:
             yield from _with_bar(self.render_many(scene, cameras, aovs=names, **settings), cameras)
+            return
+        if _spp(scene, settings) > 1:  # (the raster's) each frame is several (render()'s), read back before the next
+            for camera in cameras:
+                yield self.render(scene, camera, aovs=names, **settings)
             return
         mine = _Owner()  # this iterator: its frame in flight is `self._flight` while that names it
         try:
@@ -503,10 +548,11 @@ class Renderer(Closes):
         ambient: float | Sequence[float] | None = default("ambient"),
         view: ViewMode = default("view"),
         integrator: str = default("integrator"),
-        spp: int = default("spp"),
+        spp: int | None = default("spp"),
         max_depth: int = default("max_depth"),
         pixel_filter: str = default("pixel_filter"),
         seed: int = default("seed"),
+        taa: bool = default("taa"),
         **unknown: Any,
     ) -> dict[str, Any]:
         """Render one frame into `self.targets.color` without reading it back (the viewer's path).
@@ -621,6 +667,7 @@ class Renderer(Closes):
                     "ao_radius",
                     "accumulate",
                     "shadow_terminator",
+                    "taa",
                     "reflections",
                 )
             ),
@@ -637,6 +684,7 @@ class Renderer(Closes):
             cfg["view"],
             cfg["auto_exposure"],
             cfg["integrator"],
+            cfg["taa"],
             cfg["reflections"],
             len(lights),
             readback,
@@ -652,6 +700,14 @@ class Renderer(Closes):
             self._commands[key] = (cmd, list(ts.names))
         cmd, marks = self._commands[key]
         reference = cfg["shadows"] == "reference"
+        # The raster is jittered for TAA (the raster integrator's) where the frame reads back the colour alone (data
+        # AOVs stay exact), and for spp's frames at their own samples (the first, which reads the data AOVs, at sample
+        # 0: the centre).
+        colour_only = readback is None or set(readback[0]) <= {"color", "radiance"}
+        colour_view = cfg["view"] in ("color", "radiance", "taa_history")
+        taa = cfg["taa"] and cfg["integrator"] == "raster"
+        self.frame_block.jitter = (taa and colour_only and colour_view) or self._spp_index is not None
+        self.frame_block.jitter_index = self._spp_index
         self.frame_block.write(
             view_proj=view_proj,
             camera=camera,
@@ -832,9 +888,10 @@ class Renderer(Closes):
             self.reflections[0].scene_data = None
 
     def _path_samples(self, scene, camera, cfg, n_lights, progressive=False):
-        """Trace `cfg["spp"]` samples per pixel into the path tracer's sum (the frame's recording then resolves
-        it), one batch per submit of one recorded batch of dispatches; `progressive` (the viewer): one sample added to
-        the samples so far when the scene, camera and settings are those they were traced under, else a first one."""
+        """Trace `cfg["spp"]` (None: 64) samples per pixel into the path tracer's sum (the frame's recording then
+        resolves it), one batch per submit of one recorded batch of dispatches; `progressive` (the viewer): one sample
+        added to the samples so far when the scene, camera and settings are those they were traced under, else a first
+        one."""
         camera = camera if camera is not None else scene.camera
         if traced(camera):
             raise ConfigError(
@@ -855,7 +912,7 @@ class Renderer(Closes):
             self.height,
         )
         first = self.path_samples if progressive and key == self._path_key else 0
-        total = cfg["spp"]
+        total = cfg["spp"] or DEFAULT_SPP["path"]
         if first >= total:
             return
         batch = self.path.batch_size(self.width, self.height)
@@ -993,6 +1050,9 @@ class Renderer(Closes):
             AccumulatePass.record_history_copy(rec, t, ())  # the reflections' reprojection reads the G-buffer's
         (self.path.record_resolve if path else self.lighting.record)(rec, t)
         rec.mark("lighting")
+        if cfg["taa"] and not path:
+            self.taa.record(rec, t)
+            rec.mark("taa")
         if cfg["auto_exposure"]:
             self.exposure.record(rec, t)
             rec.mark("exposure")
@@ -1056,6 +1116,15 @@ class Renderer(Closes):
             if name not in filtered:
                 rec.copy(t.signals[name].raw, t.signals[name].final)
         return copied
+
+
+def _spp(scene, settings) -> int:
+    """The raster's samples per pixel for `settings` over the scene's own (checked; 1 where neither sets it, or where
+    the integrator is the path tracer, which takes its samples within one frame)."""
+    own = getattr(scene, "settings", None) or {}
+    own = own if isinstance(own, dict) else {}
+    cfg = check_settings({k: settings.get(k, own.get(k, DEFAULT_SETTINGS[k])) for k in ("spp", "integrator")})
+    return (cfg["spp"] or DEFAULT_SPP["raster"]) if cfg["integrator"] == "raster" else 1
 
 
 class _Owner:

@@ -49,16 +49,20 @@ DEFAULT_SETTINGS: dict[str, Any] = {
     "ambient": None,  # None: the scene's environment (default: a daylight sky); a colour: a constant environment
     "view": "color",  # VIEW_MODES: the lit image or one AOV, drawn on the GPU
     "integrator": "raster",  # INTEGRATORS: the hybrid raster frame, or the progressive path tracer
-    "spp": 64,  # path: samples per pixel
+    "spp": None,  # samples per pixel of the integrator; None: its default (DEFAULT_SPP)
     "max_depth": 8,  # path: the most segments of a path (1: emitters seen directly, 2: direct light, ...)
     "pixel_filter": "box",  # PIXEL_FILTERS: path: where in the pixel its samples land
     "seed": 0,  # path: the random sequence's seed (the same image for the same seed and spp)
+    "taa": False,  # raster: temporal anti-aliasing of the colour (jittered; frames reading data AOVs unjittered)
 }
 #: The values of the `integrator` setting.
 INTEGRATORS = ("raster", "path")
 #: The values of the `pixel_filter` setting: box (uniform over the pixel), gaussian (standard deviation 0.5 pixel).
 PIXEL_FILTERS = ("box", "gaussian")
-#: The most samples per pixel and the longest path (`spp`, `max_depth`).
+#: Each integrator's samples per pixel where `spp` is None: the raster's one frame, the path tracer's 64 paths.
+DEFAULT_SPP = {"raster": 1, "path": 64}
+#: The most samples per pixel and the longest path (`spp`, `max_depth`). The raster's `spp` renders that many whole
+#: jittered frames (its time grows linearly: thousands take minutes even at small sizes).
 MAX_SPP = 1 << 20
 MAX_DEPTH = 64
 # hard: one ray to each light's centre. soft: `shadow_samples` rays over each light's area / solid angle (R2 points,
@@ -175,7 +179,7 @@ def check_settings(settings: dict[str, Any]) -> dict[str, Any]:
             raise ConfigError(f"setting {key}={out[key]!r}: expected one of {', '.join(known)}")
     if out["tonemap"] not in TONEMAPS:
         raise ConfigError(f"setting tonemap={out['tonemap']!r}: expected one of {', '.join(TONEMAPS)}")
-    for key in ("ao", "accumulate", "denoise", "auto_exposure", "shadow_terminator", "reflections"):
+    for key in ("ao", "accumulate", "denoise", "auto_exposure", "shadow_terminator", "taa", "reflections"):
         if not isinstance(out[key], (bool, np.bool_)):
             raise ConfigError(f"setting {key}={out[key]!r}: expected true or false")
         out[key] = bool(out[key])
@@ -183,7 +187,6 @@ def check_settings(settings: dict[str, Any]) -> dict[str, Any]:
         ("ao_samples", 1, 256),
         ("shadow_samples", 1, 256),
         ("reference_samples", 1, 65536),
-        ("spp", 1, MAX_SPP),
         ("max_depth", 1, MAX_DEPTH),
         ("seed", 0, 2**32 - 1),
     ):
@@ -191,6 +194,11 @@ def check_settings(settings: dict[str, Any]) -> dict[str, Any]:
         if isinstance(v, (bool, np.bool_)) or not isinstance(v, (int, np.integer)) or not lo <= v <= hi:
             raise ConfigError(f"setting {key}={v!r}: expected an integer in {lo}..{hi}")
         out[key] = int(v)
+    v = out["spp"]
+    if v is not None:
+        if isinstance(v, (bool, np.bool_)) or not isinstance(v, (int, np.integer)) or not 1 <= v <= MAX_SPP:
+            raise ConfigError(f"setting spp={v!r}: expected an integer in 1..{MAX_SPP}")
+        out["spp"] = int(v)
     v = out["ao_radius"]
     if v is not None:
         if isinstance(v, (bool, np.bool_)) or not isinstance(v, numbers.Real) or not 0 < v <= MAX_COORD:

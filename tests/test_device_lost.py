@@ -18,7 +18,7 @@ import trimesh
 
 import engine
 from engine import ConfigError, Device, Renderer, Scene, Tracer, VulkanError
-from engine.vk import faults
+from engine.vk import context, faults
 from tests.conftest import REPO
 
 
@@ -154,6 +154,7 @@ def test_the_cli_reports_a_lost_device_in_one_line_and_writes_nothing(on_gpu, tm
 def test_a_device_that_does_not_finish_in_time_is_treated_as_lost(monkeypatch):
     """The GPU timeout, on any device: with a limit no frame can meet, the wait gives up with a one-line error, the
     device counts as lost, and close() returns (without waiting for the work, as for a hung GPU)."""
+    monkeypatch.setattr(context, "_HUNG", threading.Event())  # (this process's own flag stays clear: any_hung)
     monkeypatch.setenv("HYBRID_GPU_TIMEOUT", "1e-9")
     dev = Device()  # (without validation: closing while the device may still run the frame is what is tested)
     monkeypatch.delenv("HYBRID_GPU_TIMEOUT")

@@ -170,6 +170,20 @@ def test_viewer_accumulates_while_still(make_renderer):
     assert r.path_samples == 1
 
 
+def test_spp_is_the_integrators(make_renderer):
+    """One `spp` setting: unset, the path tracer takes its default 64 paths per pixel in one frame; set, that many
+    (still one frame: the raster's supersampling, one jittered frame per sample, is not run for it)."""
+    scene = _lit_scene()
+    r = make_renderer(16, 12)
+    start = r.frame_block.frame_index
+    r.render(scene, max_depth=1, **PATH)
+    assert r.path_samples == 64 and r.frame_block.frame_index == start + 1
+    r.render(scene, spp=5, max_depth=1, **PATH)
+    assert r.path_samples == 5 and r.frame_block.frame_index == start + 2
+    r.render(scene, spp=3, aovs=("color",))  # the raster: 3 frames, one per jitter sample
+    assert r.frame_block.frame_index == start + 5
+
+
 def test_render_many_matches_render(make_renderer):
     scene = _lit_scene()
     r = make_renderer(32, 24)

@@ -221,6 +221,9 @@ def test_keys_toggle_settings_and_f12_saves_a_screenshot(viewer, tmp_path, monke
     press(glfw.KEY_2)
     assert v.settings["shadows"] != shadows and v.settings["ao"] == (not ao)
     press(glfw.KEY_3)
+    taa = v.settings["taa"]
+    press(glfw.KEY_T)
+    assert v.settings["taa"] == (not taa)
     press(glfw.KEY_V)
     for name in ("denoise", "view"):  # only there once the renderer has those settings
         assert (name in v.settings) == (setting_choices(name) is not None)

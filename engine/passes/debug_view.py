@@ -1,4 +1,5 @@
-"""Debug views: overwrite the final colour image with one AOV (setting `view`), on the GPU."""
+"""Debug views: overwrite the final colour image with one AOV (setting `view`), or the frames TAA's history holds
+("taa_history"), on the GPU."""
 
 from __future__ import annotations
 
@@ -29,6 +30,7 @@ class DebugViewPass(ComputePass):
         "g_emissive": read("image", "emissive"),
         "g_hdr": read("image", "hdr"),
         "g_instance": read("image", "instance_id"),
+        "taa_hist": read("image", "taa_out"),
         "refl_raw": read("buffer", "refl.raw"),
         "refl": read("buffer", "refl.final"),
         "out_color": write("image", "color"),

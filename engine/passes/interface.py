@@ -39,6 +39,7 @@ ViewMode = Literal[
     "emissive",
     "radiance",
     "instance_id",
+    "taa_history",
     "reflection_raw",
     "reflection",
 ]
@@ -162,6 +163,9 @@ FRAME = Struct(
         ("tonemap", "uint"),
         ("auto_exposure", "uint"),
         ("shadow_terminator", "float"),
+        ("jitter", "vec2"),
+        ("taa_alpha", "float"),
+        ("camera_cut", "float"),
         ("lights", LIGHT, MAX_LIGHTS),
     ],
     doc={
@@ -183,6 +187,9 @@ FRAME = Struct(
         "tonemap": "the tone curve (TONEMAP_*)",
         "auto_exposure": "1: exposure.comp scales by the key over the log-average luminance",
         "shadow_terminator": "1: shadow rays start from the terminator shift (terminator.glsl)",
+        "jitter": "the raster's sample point within each pixel, in pixels from its centre (TAA, spp)",
+        "taa_alpha": "taa.comp's smallest weight of the new frame",
+        "camera_cut": "1: the camera jumped since the last frame (taa.comp starts over)",
     },
 )
 FRAME_BYTES = FRAME.size
@@ -303,6 +310,9 @@ def pack_frame(
     tonemap="neutral",
     auto_exposure=False,
     shadow_terminator=True,
+    jitter=(0.0, 0.0),
+    taa_alpha=0.1,
+    camera_cut=False,
 ):
     """The FRAME block. `out`: a FRAME record (e.g. a view of the mapped uniform buffer) to write into, returned;
     without it, the block's bytes. `packed_lights`: `pack_light` of each light, when already made."""
@@ -325,6 +335,8 @@ def pack_frame(
     block["shadow_terminator"] = 1.0 if shadow_terminator else 0.0
     block["scene_scale"], block["accum_alpha"], block["pixel_footprint"] = scene_scale, accum_alpha, pixel_footprint
     block["history_reset"] = 1.0 if history_reset else 0.0
+    block["jitter"], block["taa_alpha"] = jitter, taa_alpha
+    block["camera_cut"] = 1.0 if camera_cut else 0.0
     block["objects_moved"] = 1.0 if objects_moved else 0.0
     if bounds is not None:
         b = np.asarray(bounds, np.float32).reshape(2, 3)

@@ -100,7 +100,11 @@ class Targets:
         # (sampled: the software raster's merge compares its depth with the hardware raster's)
         self.depth = Image(ctx, width, height, DEPTH_FORMAT, DEPTH_ATTACHMENT | SAMPLED, name="raster depth")
         self.color = Image(ctx, width, height, RGBA8, STORAGE_IMAGE | COPY_SRC, name="color")
-        self.hdr = Image(ctx, width, height, RGBA16F, STORAGE_IMAGE | COPY_SRC, name="hdr")
+        self.hdr = Image(ctx, width, height, RGBA16F, STORAGE_IMAGE | COPY_SRC | COPY_DST, name="hdr")
+        # temporal anti-aliasing (engine/passes/taa.py): this frame's resolved radiance and the history it becomes
+        # (alpha: the frames it holds)
+        self.taa_out = Image(ctx, width, height, RGBA16F, STORAGE_IMAGE | COPY_SRC | COPY_DST, name="taa output")
+        self.taa_history = Image(ctx, width, height, RGBA16F, STORAGE_IMAGE | COPY_DST, name="taa history")
         # The previous frame's G-buffer position and normal (temporal reprojection / disocclusion tests).
         self.hist_position = Image(
             ctx, width, height, POSITION_FORMAT, STORAGE_IMAGE | COPY_DST, name="history position"
@@ -138,6 +142,8 @@ class Targets:
             self.prev_normal,
             self.terminator,
             self.hist_instance,
+            self.taa_out,
+            self.taa_history,
         ]
         self._objects = images + [self.len_cur, self.len_hist, *self.reflection.values()]
         # the software raster's 64-bit depth + visibility id per pixel (engine/passes/soft_raster.py), on devices
@@ -178,6 +184,8 @@ class Targets:
                     "terminator",
                     "hist_instance",
                     "soft_visibility",
+                    "taa_out",
+                    "taa_history",
                 )
             },
         }
@@ -192,7 +200,15 @@ class Targets:
                     to_general(
                         cmd,
                         img,
-                        clear=img in (self.visibility, self.hist_position, self.hist_normal, self.hist_instance),
+                        clear=img
+                        in (
+                            self.visibility,
+                            self.hist_position,
+                            self.hist_normal,
+                            self.hist_instance,
+                            self.taa_history,
+                            self.taa_out,
+                        ),
                     )
             for buf in (self.len_cur, self.len_hist, *self.reflection.values()):
                 fill(cmd, buf, 0)

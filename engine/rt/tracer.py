@@ -12,6 +12,7 @@ the same units. A batch is streamed through the device in chunks, several in fli
 from __future__ import annotations
 
 import threading
+from collections.abc import Callable
 from dataclasses import dataclass
 from typing import Any
 
@@ -445,7 +446,9 @@ class Tracer(Closes):
         return hits
 
     @serialized
-    def intersect_records(self, origins: ArrayLike, directions: ArrayLike, tmax: ArrayLike, write) -> None:
+    def intersect_records(
+        self, origins: ArrayLike, directions: ArrayLike, tmax: ArrayLike, write: Callable[..., None]
+    ) -> None:
         """`intersect` for the front ends (engine/rt/raycasting.py, raymesh.py): each traced block's hit records go
         to `write(records, rows, a, b)` (engine/rt/stream.py records_sink) on the worker pool, which maps them to the
         caller's answers there, instead of into `Hits`. Checks and errors as `intersect`'s (numpy rays only)."""
@@ -462,7 +465,14 @@ class Tracer(Closes):
         return self.reorder is False or (self.reorder == "auto" and not is_cpu(self.ctx))
 
     @serialized
-    def filled_query(self, kind: str, n: int, fill, bad, write=None) -> NDArray[np.bool_] | None:
+    def filled_query(
+        self,
+        kind: str,
+        n: int,
+        fill: Callable[..., bool],
+        bad: Callable[[], None],
+        write: Callable[..., None] | None = None,
+    ) -> NDArray[np.bool_] | None:
         """`occluded` (returned) or `intersect_records` (to `write`) of n rays, tmax +inf, in the given order, that
         the caller writes into the stream's mapped arrays as they are packed: `fill(a, b, origins, directions)`
         writes rays [a, b) as float32 (e.g. RayMeshIntersector's rays put in its frame, no pass of their own) and
@@ -482,7 +492,7 @@ class Tracer(Closes):
         return out
 
     @serialized
-    def closest_records(self, points: NDArray[np.float32], write) -> None:
+    def closest_records(self, points: NDArray[np.float32], write: Callable[..., None]) -> None:
         """`closest` for the front ends: float32 (N, 3) points (rows may be strided), checked by the caller (finite,
         within +-MAX_COORD), streamed as they are; each block's records (distance, prim, u, v) go to `write` as in
         `intersect_records`."""

@@ -28,7 +28,7 @@ from ..errors import ConfigError, EngineError, VulkanError, shown
 from ..files import atomic_write
 from ..renderer import Renderer
 from ..scene import Scene
-from ..settings import check_png_path, check_size
+from ..settings import DEFAULT_SPP, check_png_path, check_size
 from ..vk import Context
 from ..vk.device import is_cpu
 from ..vk.present import SWAPCHAIN_EXTENSION, surface_factory
@@ -253,6 +253,8 @@ class Viewer:
             self.cycle("integrator")
         elif key == g.KEY_7:
             self.cycle("reflections")
+        elif key == g.KEY_T:
+            self.cycle("taa")
         elif key == g.KEY_V:
             self.cycle("view", -1 if shift else 1)
         elif key == g.KEY_R:
@@ -450,7 +452,8 @@ class Viewer:
             f"{name} {label(current(self.settings, name))}" for name in TOGGLED if setting_choices(name) is not None
         ]
         if current(self.settings, "integrator") == "path":  # the samples per pixel accumulated so far
-            toggles.append(f"spp {getattr(self.renderer, 'path_samples', 0)}/{current(self.settings, 'spp')}")
+            total = current(self.settings, "spp") or DEFAULT_SPP["path"]
+            toggles.append(f"spp {getattr(self.renderer, 'path_samples', 0)}/{total}")
         if self.scene.animations or self.on_frame is not None:
             toggles.append(f"t {self.time:.1f} s" + (" paused" if self.paused else ""))
         lines = [(head, TextImage.WHITE), (gpu, TextImage.WHITE), ("  ".join(toggles) + "   H: help", TextImage.GREY)]

@@ -27,8 +27,9 @@ layout(set = 0, binding = 14, rgba8) uniform readonly image2D g_pbr;        // r
 layout(set = 0, binding = 15, rgba16f) uniform readonly image2D g_emissive;
 layout(set = 0, binding = 16, rgba16f) uniform readonly image2D g_hdr;        // the lit linear colour
 layout(set = 0, binding = 17, r32ui) uniform readonly uimage2D g_instance;
-layout(std430, set = 0, binding = 18) readonly buffer ReflRaw { vec4 refl_raw[]; };   // reflect.comp's rays
-layout(std430, set = 0, binding = 19) readonly buffer Refl { vec4 refl[]; };          // filtered (reflect_filter)
+layout(set = 0, binding = 18, rgba16f) uniform readonly image2D taa_hist;    // TAA's resolve; a: frames it holds
+layout(std430, set = 0, binding = 19) readonly buffer ReflRaw { vec4 refl_raw[]; };   // reflect.comp's rays
+layout(std430, set = 0, binding = 20) readonly buffer Refl { vec4 refl[]; };          // filtered (reflect_filter)
 layout(push_constant) uniform Push { uint view; } pc;
 
 // A colour per id (black for none), different for neighbouring ids.
@@ -94,6 +95,9 @@ void main() {
         c = pow(clamp(imageLoad(g_emissive, px).rgb, 0.0, 1.0), vec3(1.0 / 2.2));
     } else if (v == VIEW_RADIANCE) {
         c = pow(clamp(imageLoad(g_hdr, px).rgb, 0.0, 1.0), vec3(1.0 / 2.2));
+    } else if (v == VIEW_TAA_HISTORY) {   // red: TAA started over here this frame; grey: 16 frames = white
+        float n = imageLoad(taa_hist, px).a;
+        c = n <= 1.0 ? vec3(1.0, 0.0, 0.0) : vec3(clamp(n / 16.0, 0.0, 1.0));
     } else if (v == VIEW_REFLECTION_RAW || v == VIEW_REFLECTION) {   // untraced pixels: dark blue
         vec4 r = v == VIEW_REFLECTION ? refl[pixel] : refl_raw[pixel];
         c = r.w > 0.0 ? pow(clamp(r.rgb, 0.0, 1.0), vec3(1.0 / 2.2)) : (covered ? vec3(0.0, 0.0, 0.15) : vec3(0.0));

@@ -28,4 +28,6 @@ void main() {
     }
     out_prefix = inst.ids.x;
     gl_Position = frame.view_proj * (inst.model * vec4(in_position, 1.0));
+    // the sample point at frame.jitter pixels from the pixel centre: the image moves the other way
+    gl_Position.xy -= 2.0 * frame.jitter / vec2(frame.width, frame.height) * gl_Position.w;
 }

@@ -49,6 +49,7 @@ void main() {
             int v = int(texelFetch(indices, int(3u * t) + c).x);
             vec4 q = frame.view_proj * (inst.model * vec4(texelFetch(vertices, 2 * v).xyz, 1.0));
             vec3 ndc = q.xyz / q.w;
+            ndc.xy -= frame.jitter / half_size;   // the sample point at frame.jitter pixels (as gbuffer.vert)
             p[c] = ivec2(round((ndc.xy * half_size + half_size) * float(SUBPIXELS)));
             z[c] = ndc.z;
         }

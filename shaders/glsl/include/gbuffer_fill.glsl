@@ -150,7 +150,7 @@ void main() {
         vec3 C0 = c0.xyw, C1 = c1.xyw, C2 = c2.xyw;
         vec3 e0 = cross(C1, C2), e1 = cross(C2, C0), e2 = cross(C0, C1);
         vec2 step_ndc = 2.0 / vec2(size);
-        vec3 P = vec3((vec2(px) + 0.5) * step_ndc - 1.0, 1.0);
+        vec3 P = vec3((vec2(px) + 0.5 + frame.jitter) * step_ndc - 1.0, 1.0);   // the raster's sample point
         vec3 b = weights(e0, e1, e2, P);
         vec3 bx = weights(e0, e1, e2, P + vec3(step_ndc.x, 0.0, 0.0));
         vec3 by = weights(e0, e1, e2, P + vec3(0.0, step_ndc.y, 0.0));

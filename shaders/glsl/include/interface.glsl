@@ -32,8 +32,9 @@
 #define VIEW_EMISSIVE 16u
 #define VIEW_RADIANCE 17u
 #define VIEW_INSTANCE_ID 18u
-#define VIEW_REFLECTION_RAW 19u
-#define VIEW_REFLECTION 20u
+#define VIEW_TAA_HISTORY 19u
+#define VIEW_REFLECTION_RAW 20u
+#define VIEW_REFLECTION 21u
 #define SHADOW_HARD 0u
 #define SHADOW_SOFT 1u
 #define SHADOW_SEED_DELTA 2u
@@ -81,6 +82,9 @@ struct FrameData {
     uint tonemap;                   // the tone curve (TONEMAP_*)
     uint auto_exposure;             // 1: exposure.comp scales by the key over the log-average luminance
     float shadow_terminator;        // 1: shadow rays start from the terminator shift (terminator.glsl)
+    vec2 jitter;                    // the raster's sample point within each pixel, in pixels from its centre (TAA, spp)
+    float taa_alpha;                // taa.comp's smallest weight of the new frame
+    float camera_cut;               // 1: the camera jumped since the last frame (taa.comp starts over)
     Light lights[16];
 };
 

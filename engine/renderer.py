@@ -1,7 +1,7 @@
 """The Renderer: owns the Vulkan context, the frame's resources and its passes, and orders them into a frame.
 
-    G-buffer raster -> shadow rays -> AO rays -> temporal accumulation -> a-trous denoise
-        -> lighting + tonemap -> temporal anti-aliasing -> exposure -> debug view -> readback
+    G-buffer raster -> shadow rays -> AO rays -> reflection rays + their filters -> temporal accumulation
+        -> a-trous denoise -> lighting + tonemap -> temporal anti-aliasing -> exposure -> debug view -> readback
 
 A frame's command buffer is recorded once per (scene, settings) and re-submitted; only the per-frame
 uniform block (camera, previous camera, frame index, history reset flag) is rewritten before each submit

@@ -7,7 +7,8 @@
 // over). One sample per dispatch: llvmpipe caps a loop at 65535 iterations per invocation, counted over all entries
 // of a nested loop (the traversal's), so many samples in one invocation would lose rays. Each sample: a
 // camera ray through a point of the pixel drawn from the pixel filter, then per surface vertex next-event
-// estimation to every analytic light and to one emissive triangle (picked by power), and a BSDF sample (glTF
+// estimation to every analytic light and to one emissive triangle (picked by power), its shadow rays from the
+// terminator shift's point where frame.shadow_terminator is on (terminator.glsl), and a BSDF sample (glTF
 // metallic-roughness: GGX drawn from its distribution of visible normals, or Lambert, by a lobe probability),
 // combined with the power heuristic; Russian roulette from the fourth vertex; paths of at most `max depth` segments
 // (Mitsuba's max_depth). Random numbers: PCG, seeded per (seed, sample, pixel), so an image depends only on them.
@@ -24,6 +25,7 @@ FRAME_BLOCK
 #include "brdf.glsl"
 #include "sampling.glsl"
 #include "rayutil.glsl"
+#include "terminator.glsl"
 #define ENV_BINDING 12
 #include "environment.glsl"
 #define ALPHA_BINDING 6
@@ -110,6 +112,7 @@ vec3 tri_emission(Tri t, float u, float v) {
 
 struct Surface {
     vec3 p, ng, ns;       // point, geometric and shading normals (both on the side the ray came from)
+    vec3 po;              // where its shadow rays start (before offset_ray): p, or the terminator shift's point
     vec3 base, emission;  // base colour; emitted radiance towards the ray (0 from the back face)
     float metallic, roughness;
     float area;           // the triangle's world area (emitters' pdf)
@@ -133,9 +136,20 @@ Surface surface_at(BvhHit hit, vec3 d) {
     bool front = dot(ng, d) < 0.0;
     float side = front ? 1.0 : -1.0;   // two-sided surfaces: the side the ray sees
     ng *= side;
-    if (dot(ns, ng) < 0.0) ns = -ns;
+    float nside = dot(ns, ng) < 0.0 ? -1.0 : 1.0;
+    ns *= nside;
     s.ng = ng;
     s.ns = ns;
+    // the shadow rays' origin off the flat triangle towards the smooth surface (Hanika 2021), as the raster's
+    s.po = s.p;
+    if (frame.shadow_terminator > 0.5) {
+        mat3 nrm = transpose(mat3(texelFetch(instances, k + 3).xyz, texelFetch(instances, k + 4).xyz,
+                                  texelFetch(instances, k + 5).xyz));
+        vec3 m0 = nrm * vec3(t.a0.w, t.b0.xy), m1 = nrm * vec3(t.a1.w, t.b1.xy), m2 = nrm * vec3(t.a2.w, t.b2.xy);
+        if (min(dot(m0, m0), min(dot(m1, m1), dot(m2, m2))) > 1e-12)
+            s.po = terminator_offset(s.p, vec3(w, u, v), t.p0, t.p1, t.p2, nside * normalize(m0),
+                                     nside * normalize(m1), nside * normalize(m2));
+    }
     vec2 uv = w * t.b0.zw + u * t.b1.zw + v * t.b2.zw;
 
     int m = MATERIAL_TEXELS * int(t.material);
@@ -197,6 +211,14 @@ float bsdf_pdf(Surface s, Lobes lb, vec3 v, vec3 l) {
 
 vec3 bsdf_eval(Surface s, vec3 v, vec3 l) {   // f(v, l) cos(l) (the BRDF times the cosine at l)
     if (dot(s.ng, l) <= 0.0) return vec3(0.0);
+    return brdf_pi(s.ns, v, l, s.base, s.metallic, s.roughness) * (max(dot(s.ns, l), 0.0) / PI);
+}
+
+// f cos for a light sample at l: where the shadow ray starts from the terminator shift's point, past the flat
+// triangle's horizon too (the smooth surface the shading normals describe is lit there; the ray from the shifted
+// point decides), else as bsdf_eval.
+vec3 light_eval(Surface s, vec3 v, vec3 l) {
+    if (s.po == s.p) return bsdf_eval(s, v, l);
     return brdf_pi(s.ns, v, l, s.base, s.metallic, s.roughness) * (max(dot(s.ns, l), 0.0) / PI);
 }
 
@@ -412,28 +434,28 @@ vec3 trace_path(vec3 o, vec3 d) {
         for (uint i = 0u; i < frame.light_count; ++i) {
             vec3 wi, li;
             float dist, pdf;
-            if (!sample_light(frame.lights[i], s.p, rnd2(), wi, dist, li, pdf)) continue;
-            vec3 f = bsdf_eval(s, v, wi);
-            if (all(equal(f, vec3(0.0))) || !visible(s.p, s.ng, wi, dist, frame.scene_scale)) continue;
+            if (!sample_light(frame.lights[i], s.po, rnd2(), wi, dist, li, pdf)) continue;
+            vec3 f = light_eval(s, v, wi);
+            if (all(equal(f, vec3(0.0))) || !visible(s.po, s.ng, wi, dist, frame.scene_scale)) continue;
             float w = pdf > 0.0 ? power_heuristic(pdf, bsdf_pdf(s, lb, v, wi)) : 1.0;
             radiance += throughput * f * li * (pdf > 0.0 ? w / pdf : 1.0);
         }
         if (!env_black) {   // the environment
             float pdf;
             vec3 wi = environment_sample(rnd2(), pdf);
-            vec3 f = bsdf_eval(s, v, wi);
+            vec3 f = light_eval(s, v, wi);
             if (pdf > 0.0 && any(greaterThan(f, vec3(0.0)))) {
                 vec3 li = environment_radiance(wi);
-                if (any(greaterThan(li, vec3(0.0))) && visible(s.p, s.ng, wi, -1.0, frame.scene_scale))
+                if (any(greaterThan(li, vec3(0.0))) && visible(s.po, s.ng, wi, -1.0, frame.scene_scale))
                     radiance += throughput * f * li * (power_heuristic(pdf, bsdf_pdf(s, lb, v, wi)) / pdf);
             }
         }
         if (path.info.y > 0u) {
             vec3 wi, target, li;
             float pdf;
-            if (sample_emitter(s.p, wi, target, li, pdf)) {
-                vec3 f = bsdf_eval(s, v, wi);
-                vec3 o = offset_ray(s.p, s.ng);
+            if (sample_emitter(s.po, wi, target, li, pdf)) {
+                vec3 f = light_eval(s, v, wi);
+                vec3 o = offset_ray(s.po, s.ng);
                 if (any(greaterThan(f * li, vec3(0.0))) && !bvh_occluded(o, target - o, 0.0, 1.0))
                     radiance += throughput * f * li * (power_heuristic(pdf, bsdf_pdf(s, lb, v, wi)) / pdf);
             }

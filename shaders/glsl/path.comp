@@ -146,9 +146,13 @@ Surface surface_at(BvhHit hit, vec3 d) {
         mat3 nrm = transpose(mat3(texelFetch(instances, k + 3).xyz, texelFetch(instances, k + 4).xyz,
                                   texelFetch(instances, k + 5).xyz));
         vec3 m0 = nrm * vec3(t.a0.w, t.b0.xy), m1 = nrm * vec3(t.a1.w, t.b1.xy), m2 = nrm * vec3(t.a2.w, t.b2.xy);
-        if (min(dot(m0, m0), min(dot(m1, m1), dot(m2, m2))) > 1e-12)
-            s.po = terminator_offset(s.p, vec3(w, u, v), t.p0, t.p1, t.p2, nside * normalize(m0),
-                                     nside * normalize(m1), nside * normalize(m2));
+        if (min(dot(m0, m0), min(dot(m1, m1), dot(m2, m2))) > 1e-12) {
+            vec3 po = terminator_offset(s.p, vec3(w, u, v), t.p0, t.p1, t.p2, nside * normalize(m0),
+                                        nside * normalize(m1), nside * normalize(m2));
+            // (a flat-shaded triangle's shift is rounding only: it keeps its point, and light_eval its facet test)
+            vec3 shift = po - s.p;
+            if (dot(shift, shift) > 1e-10 * s.area) s.po = po;
+        }
     }
     vec2 uv = w * t.b0.zw + u * t.b1.zw + v * t.b2.zw;
 

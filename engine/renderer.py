@@ -319,7 +319,8 @@ class Renderer(Closes):
             reference_samples: the reference mode: rays per pixel per light, and AO rays per pixel, 1..65536.
             shadow_terminator: start shadow rays from a point moved off the flat triangle towards the smooth
                 surface its vertex normals describe (Hanika 2021), so that low-poly smooth meshes do not drop
-                whole triangles into shadow near the terminator.
+                whole triangles into shadow near the terminator (both integrators: the raster's shadow pass and the
+                path tracer's next-event shadow rays).
             accumulate: blend the soft light masks and AO with the previous frames' (reprojected when the camera
                 moves). The history starts over when the scene, a light, the size, `shadows`, `shadow_samples`,
                 `ao`, `ao_samples`, `ao_radius` or `accumulate` changes.

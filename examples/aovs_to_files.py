@@ -2,9 +2,10 @@
 
     python examples/aovs_to_files.py [SCENE] [--size 640x360] [--frames 8] [-o out/examples/aovs]
 
-Soft shadows and AO accumulate over `--frames` frames first. AOVs (`Frame.aov`): position, normal, albedo (H, W, 3);
-depth, ao, ao_raw, history (H, W); shadow, shadow_raw (H, W, lights). The PNGs are `Frame.save(path, aov=name)`:
-normals mapped to [0, 1], depth and position normalized, light masks averaged over the lights.
+Soft shadows and AO accumulate over `--frames` frames first. Every AOV of `aovs="all"` (`Frame.aov`, shapes in its
+docstring), e.g. position, normal, albedo (H, W, 3); depth, ao, ao_raw, history (H, W); shadow, shadow_raw
+(H, W, lights); the ids (H, W) int32. The PNGs are `Frame.save(path, aov=name)`: normals mapped to [0, 1], depth and
+position normalized, light masks averaged over the lights.
 """
 
 import argparse

@@ -1,7 +1,7 @@
 """Environment light: the HDR reader (against Mitsuba 3's writer), the host tables (SH irradiance against numeric
 integration, importance sampling's pdf against its histogram), the lit image (a constant map gives albedo x colour,
-a bright patch lights the side facing it), exposure and tone curves (a sunlit default-grey sphere stays out of
-saturation), and the errors of bad maps."""
+a bright patch lights the side facing it), exposure and tone curves (a sunlit default-grey sphere and the Stanford
+bunny stay out of saturation), and the errors of bad maps."""
 
 from __future__ import annotations
 
@@ -13,6 +13,7 @@ from engine.scene import Camera, DirectionalLight, Environment, Material, Scene,
 from engine.scene import envtables
 from engine.scene.environment import equirect_directions
 from engine.scene.hdr import read_hdr, write_hdr
+from helpers import pip_files
 
 W, H = 64, 48
 
@@ -231,7 +232,7 @@ def lit_pixels(f, scene):
 
 
 def test_default_exposure_keeps_the_default_grey_out_of_saturation(make_renderer):
-    """The engine's default material on a sphere under the default sun (no Stanford bunny in the test data):
+    """The engine's default material on a sphere under the default sun:
     lit pixels' median <= 220/255 with the default exposure and curve (it was 247 with ACES at 1.0)."""
     r = make_renderer(96, 64)
     scene = sphere_scene()
@@ -243,6 +244,32 @@ def test_default_exposure_keeps_the_default_grey_out_of_saturation(make_renderer
     assert (grey >= 250).mean() < 0.01
     aces = r.render(scene, aovs=("color", "normal", "shadow"), tonemap="aces", exposure=0.0)
     assert np.median(aces.color[..., :3].mean(-1)[lit]) > 240  # the old default saturates
+
+
+#: The robotics simulator `newton` ships the Stanford bunny (12,200 triangles) with its wheel (tests/test_usd.py).
+NEWTON = "1.8.0"
+
+
+def test_stanford_bunny_under_the_default_light_stays_out_of_saturation(make_renderer):
+    """The issue's target: the Stanford bunny, untextured with the default material, under the default sun and sky:
+    lit pixels' median <= 220/255 with the default exposure (it was 245 with ACES at 0 EV, 91% at 235 or more)."""
+    path = pip_files(
+        f"newton=={NEWTON}", {"bunny.usd": "newton/examples/assets/bunny.usd"}, f"hybrid-newton-{NEWTON}-bunny"
+    )
+    loaded = Scene.load(path / "bunny.usd")
+    bunny = Scene(loaded.positions, loaded.indices, normals=loaded.normals)  # default material, sun, sky, camera
+    assert [m.name for m in bunny.materials] == ["default"] and bunny.environment is None
+    r = make_renderer(96, 96)
+    f = r.render(bunny, aovs=("color", "normal", "shadow"))
+    covered = np.abs(f.aov["normal"]).sum(-1) > 0
+    lit = covered & (f.aov["shadow"][..., 0] > 0)
+    grey = f.color[..., :3].mean(-1)[lit]
+    # Measured on lavapipe: 3504 of 3555 covered pixels lit, median 206, none at 235 or more (ACES at 0 EV: 246, 96%)
+    assert lit.sum() > 0.5 * covered.sum() > 1000
+    assert np.median(grey) <= 220, np.median(grey)
+    assert (grey >= 235).mean() < 0.05
+    aces = r.render(bunny, aovs=("color",), tonemap="aces", exposure=0.0).color[..., :3].mean(-1)[lit]
+    assert np.median(aces) > 235  # the old defaults: close to white
 
 
 def test_exposure_ev_and_curves(make_renderer):

@@ -14,7 +14,7 @@ import trimesh
 from PIL import Image
 
 from engine import Scene
-from engine.settings import AOVS
+from engine.settings import resolve_aovs
 
 REPO = Path(__file__).resolve().parent.parent
 EXAMPLES = REPO / "examples"
@@ -104,12 +104,17 @@ def test_aovs_to_files(tmp_path):
         "emissive": (48, 64, 3),
         "radiance": (48, 64, 3),
         "instance_id": (48, 64),
+        "reflection_raw": (48, 64, 3),
+        "reflection": (48, 64, 3),
+        "semantic_id": (48, 64),
     }
-    assert set(shapes) == set(AOVS) - {"color"}
+    # every AOV `aovs="all"` reads back (taa_history is a view of the colour image, not an array)
+    assert set(shapes) == set(resolve_aovs("all")) - {"color"}
+    assert {p.stem for p in out.glob("*.npy")} == set(shapes)
     arrays = {}
     for name, shape in shapes.items():
         arrays[name] = np.load(out / f"{name}.npy")
-        dtype = np.int32 if name.endswith("_id") else np.float32
+        dtype = np.uint32 if name == "semantic_id" else np.int32 if name.endswith("_id") else np.float32
         assert arrays[name].shape == shape and arrays[name].dtype == dtype, name
         assert png(out / f"{name}.png").shape == (48, 64, 4), name
     assert png(out / "color.png").shape == (48, 64, 4)

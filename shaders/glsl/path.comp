@@ -7,7 +7,8 @@
 // over). One sample per dispatch: llvmpipe caps a loop at 65535 iterations per invocation, counted over all entries
 // of a nested loop (the traversal's), so many samples in one invocation would lose rays. Each sample: a
 // camera ray through a point of the pixel drawn from the pixel filter, then per surface vertex next-event
-// estimation to every analytic light and to one emissive triangle (picked by power), and a BSDF sample (glTF
+// estimation to every analytic light and to one emissive triangle (picked by power), its shadow rays from the
+// terminator shift's point where frame.shadow_terminator is on (terminator.glsl), and a BSDF sample (glTF
 // metallic-roughness: GGX drawn from its distribution of visible normals, or Lambert, by a lobe probability),
 // combined with the power heuristic; Russian roulette from the fourth vertex; paths of at most `max depth` segments
 // (Mitsuba's max_depth). Random numbers: PCG, seeded per (seed, sample, pixel), so an image depends only on them.
@@ -24,6 +25,7 @@ FRAME_BLOCK
 #include "brdf.glsl"
 #include "sampling.glsl"
 #include "rayutil.glsl"
+#include "terminator.glsl"
 #define ENV_BINDING 12
 #include "environment.glsl"
 #define ALPHA_BINDING 6
@@ -200,28 +202,28 @@ vec3 trace_path(vec3 o, vec3 d) {
         for (uint i = 0u; i < frame.light_count; ++i) {
             vec3 wi, li;
             float dist, pdf;
-            if (!sample_light(frame.lights[i], s.p, rnd2(), wi, dist, li, pdf)) continue;
-            vec3 f = bsdf_eval(s, v, wi);
-            if (all(equal(f, vec3(0.0))) || !visible(s.p, s.ng, wi, dist, frame.scene_scale)) continue;
+            if (!sample_light(frame.lights[i], s.po, rnd2(), wi, dist, li, pdf)) continue;
+            vec3 f = light_eval(s, v, wi);
+            if (all(equal(f, vec3(0.0))) || !visible(s.po, s.ng, wi, dist, frame.scene_scale)) continue;
             float w = pdf > 0.0 ? power_heuristic(pdf, bsdf_pdf(s, lb, v, wi)) : 1.0;
             radiance += throughput * f * li * (pdf > 0.0 ? w / pdf : 1.0);
         }
         if (!env_black) {   // the environment
             float pdf;
             vec3 wi = environment_sample(rnd2(), pdf);
-            vec3 f = bsdf_eval(s, v, wi);
+            vec3 f = light_eval(s, v, wi);
             if (pdf > 0.0 && any(greaterThan(f, vec3(0.0)))) {
                 vec3 li = environment_radiance(wi);
-                if (any(greaterThan(li, vec3(0.0))) && visible(s.p, s.ng, wi, -1.0, frame.scene_scale))
+                if (any(greaterThan(li, vec3(0.0))) && visible(s.po, s.ng, wi, -1.0, frame.scene_scale))
                     radiance += throughput * f * li * (power_heuristic(pdf, bsdf_pdf(s, lb, v, wi)) / pdf);
             }
         }
         if (path.info.y > 0u) {
             vec3 wi, target, li;
             float pdf;
-            if (sample_emitter(s.p, wi, target, li, pdf)) {
-                vec3 f = bsdf_eval(s, v, wi);
-                vec3 o = offset_ray(s.p, s.ng);
+            if (sample_emitter(s.po, wi, target, li, pdf)) {
+                vec3 f = light_eval(s, v, wi);
+                vec3 o = offset_ray(s.po, s.ng);
                 if (any(greaterThan(f * li, vec3(0.0))) && !bvh_occluded(o, target - o, 0.0, 1.0))
                     radiance += throughput * f * li * (power_heuristic(pdf, bsdf_pdf(s, lb, v, wi)) / pdf);
             }

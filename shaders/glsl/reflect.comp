@@ -3,7 +3,8 @@
 // Ray-traced reflections from the G-buffer: per pixel one reflection ray, its direction the mirror image of the view
 // about a half vector drawn from GGX's distribution of visible normals (Heitz 2018; a mirror-smooth surface's is its
 // normal), traced on the scene's BVH. At the hit the surface (scene_surface.glsl) is shaded as the path tracer's first
-// vertex is: its emission, each analytic light sampled once with a shadow ray (light_sample.glsl), and the
+// vertex is: its emission, each analytic light sampled once with a shadow ray (light_sample.glsl; from the terminator
+// shift's point where frame.shadow_terminator is on, as the path tracer's and the raster's shadow pass), and the
 // environment by split sum (ibl.glsl); a ray that leaves the scene sees the environment. Analytic lights seen along
 // the ray are left out: the lighting pass's direct term holds their highlights. Pixels rougher than
 // MAX_ROUGHNESS, and the background, are not traced (w = 0: the lighting keeps the prefiltered environment).
@@ -13,6 +14,7 @@ FRAME_BLOCK
 #include "brdf.glsl"
 #include "sampling.glsl"
 #include "rayutil.glsl"
+#include "terminator.glsl"
 #define ENV_BINDING 11
 #include "environment.glsl"
 #include "ibl.glsl"
@@ -50,9 +52,9 @@ vec3 shade_hit(Surface s, vec3 d, vec2 rot) {
         vec3 wi, li;
         float dist, pdf;
         vec2 xi = r2(frame.frame_index * MAX_LIGHTS + i, rot);
-        if (!sample_light(frame.lights[i], s.p, xi, wi, dist, li, pdf)) continue;
-        vec3 f = bsdf_eval(s, v, wi);
-        if (all(equal(f, vec3(0.0))) || !visible(s.p, s.ng, wi, dist, frame.scene_scale)) continue;
+        if (!sample_light(frame.lights[i], s.po, xi, wi, dist, li, pdf)) continue;
+        vec3 f = light_eval(s, v, wi);
+        if (all(equal(f, vec3(0.0))) || !visible(s.po, s.ng, wi, dist, frame.scene_scale)) continue;
         // area lights: one uniform sample of the light's solid angle (pdf); delta lights: their radiance as is
         color += f * li * (pdf > 0.0 ? 1.0 / pdf : 1.0);
     }

@@ -1,8 +1,8 @@
 // The scene's triangles as the path tracer and the reflection rays see them at a hit: vertices, normals, uvs and
 // materials (the PathScene's texel buffers, engine/gpu/pathscene.py), the surface at a BVH hit, and glTF's
 // metallic-roughness BSDF (brdf.glsl) evaluated and its GGX lobe sampled by visible normals. The including shader
-// declares the samplers `vertices`, `triangles`, `materials` and `instances` first; needs common.glsl, brdf.glsl,
-// sampling.glsl, alpha.glsl (textures) and bvh.glsl (BvhHit).
+// declares the samplers `vertices`, `triangles`, `materials` and `instances` first; needs common.glsl (the frame
+// block: shadow_terminator), brdf.glsl, sampling.glsl, terminator.glsl, alpha.glsl (textures) and bvh.glsl (BvhHit).
 #ifndef SCENE_SURFACE_GLSL
 #define SCENE_SURFACE_GLSL
 
@@ -47,6 +47,7 @@ vec3 tri_emission(Tri t, float u, float v) {
 
 struct Surface {
     vec3 p, ng, ns;       // point, geometric and shading normals (both on the side the ray came from)
+    vec3 po;              // where its shadow rays start (before offset_ray): p, or the terminator shift's point
     vec3 base, emission;  // base colour; emitted radiance towards the ray (0 from the back face)
     float metallic, roughness;
     float area;           // the triangle's world area (emitters' pdf)
@@ -70,9 +71,24 @@ Surface surface_at(BvhHit hit, vec3 d) {
     bool front = dot(ng, d) < 0.0;
     float side = front ? 1.0 : -1.0;   // two-sided surfaces: the side the ray sees
     ng *= side;
-    if (dot(ns, ng) < 0.0) ns = -ns;
+    float nside = dot(ns, ng) < 0.0 ? -1.0 : 1.0;
+    ns *= nside;
     s.ng = ng;
     s.ns = ns;
+    // the shadow rays' origin off the flat triangle towards the smooth surface (Hanika 2021), as the raster's
+    s.po = s.p;
+    if (frame.shadow_terminator > 0.5) {
+        mat3 nrm = transpose(mat3(texelFetch(instances, k + 3).xyz, texelFetch(instances, k + 4).xyz,
+                                  texelFetch(instances, k + 5).xyz));
+        vec3 m0 = nrm * vec3(t.a0.w, t.b0.xy), m1 = nrm * vec3(t.a1.w, t.b1.xy), m2 = nrm * vec3(t.a2.w, t.b2.xy);
+        if (min(dot(m0, m0), min(dot(m1, m1), dot(m2, m2))) > 1e-12) {
+            vec3 po = terminator_offset(s.p, vec3(w, u, v), t.p0, t.p1, t.p2, nside * normalize(m0),
+                                        nside * normalize(m1), nside * normalize(m2));
+            // (a flat-shaded triangle's shift is rounding only: it keeps its point, and light_eval its facet test)
+            vec3 shift = po - s.p;
+            if (dot(shift, shift) > 1e-10 * s.area) s.po = po;
+        }
+    }
     vec2 uv = w * t.b0.zw + u * t.b1.zw + v * t.b2.zw;
 
     int m = MATERIAL_TEXELS * int(t.material);
@@ -134,6 +150,14 @@ float bsdf_pdf(Surface s, Lobes lb, vec3 v, vec3 l) {
 
 vec3 bsdf_eval(Surface s, vec3 v, vec3 l) {   // f(v, l) cos(l) (the BRDF times the cosine at l)
     if (dot(s.ng, l) <= 0.0) return vec3(0.0);
+    return brdf_pi(s.ns, v, l, s.base, s.metallic, s.roughness) * (max(dot(s.ns, l), 0.0) / PI);
+}
+
+// f cos for a light sample at l: where the shadow ray starts from the terminator shift's point, past the flat
+// triangle's horizon too (the smooth surface the shading normals describe is lit there; the ray from the shifted
+// point decides), else as bsdf_eval.
+vec3 light_eval(Surface s, vec3 v, vec3 l) {
+    if (s.po == s.p) return bsdf_eval(s, v, l);
     return brdf_pi(s.ns, v, l, s.base, s.metallic, s.roughness) * (max(dot(s.ns, l), 0.0) / PI);
 }
 

@@ -22,7 +22,13 @@ class LightingPass(ComputePass):
         "g_pbr": read("image", "material"),
         "g_emissive": read("image", "emissive"),
         "env": read("buffer"),  # environment.glsl: bound by bind_environment
+        "g_material": read("image", "material_id"),
+        "materials": read("uniform_texel"),  # KHR_materials_specular's factors: bound by bind_scene
     }
+
+    def bind_scene(self, geom):
+        """The scene's materials texel view (engine/gpu/scene.py SceneGeometry)."""
+        self.set.bind("materials", geom.views[3])
 
     def bind_environment(self, env):
         """The scene's environment buffer (engine/gpu/environment.py)."""

@@ -24,6 +24,8 @@ layout(set = 0, binding = 6, rgba8) uniform writeonly image2D out_color;
 layout(set = 0, binding = 7, rgba16f) uniform writeonly image2D out_hdr;
 layout(set = 0, binding = 8, rgba8) uniform readonly image2D g_pbr;        // roughness, metallic, occlusion
 layout(set = 0, binding = 9, rgba16f) uniform readonly image2D g_emissive;
+layout(set = 0, binding = 11, r32ui) uniform readonly uimage2D g_material;   // the material's index
+layout(set = 0, binding = 12) uniform samplerBuffer materials;               // MATERIAL_TEXELS per material
 
 // Radiance arriving from light `l` at `p` (before visibility and the cosine term), and the unit direction to it.
 vec3 incident(Light l, vec3 p, out vec3 wi) {
@@ -73,6 +75,10 @@ void main() {
         vec3 albedo = imageLoad(g_albedo, px).rgb;
         vec4 pbr = imageLoad(g_pbr, px);
         float roughness = pbr.x, metallic = pbr.y, occlusion = pbr.z;
+        // KHR_materials_specular's factors (brdf.glsl fresnel_gltf): the material's texel 5 (the core's without one)
+        uint mat = imageLoad(g_material, px).x;
+        bool known = mat < uint(textureSize(materials)) / uint(MATERIAL_TEXELS);
+        vec4 spec_f = known ? texelFetch(materials, MATERIAL_TEXELS * int(mat) + 5) : vec4(1.0);
         vec3 v = normalize(frame.eye - p);
         uint pixel = uint(px.y) * w + uint(px.x);
         vec3 direct = vec3(0.0);
@@ -81,12 +87,12 @@ void main() {
             vec3 li = incident(frame.lights[i], p, wi);
             float cos_theta = max(dot(n, wi), 0.0);
             // Intensities are pi-normalized: a white Lambert surface facing a light of irradiance 1 reflects 1.
-            direct += li * cos_theta * masks[i * w * h + pixel] * brdf_pi(n, v, wi, albedo, metallic, roughness);
+            direct += li * cos_theta * masks[i * w * h + pixel] * brdf_pi_spec(n, v, wi, albedo, metallic, roughness, spec_f);
         }
-        // split sum: the specular lobe's directional albedo F0 A + B from the table, the diffuse lobe in the rest
+        // split sum: the specular lobe's directional albedo F0 A + F90 B from the table, the diffuse lobe in the rest
         float r = max(roughness, MIN_ROUGHNESS), n_v = max(dot(n, v), 1e-4);
         vec2 ab = environment_brdf(n_v, r);
-        vec3 spec = mix(vec3(0.04), albedo, metallic) * ab.x + ab.y;
+        vec3 spec = gltf_f0(albedo, metallic, spec_f) * ab.x + gltf_f90(metallic, spec_f) * ab.y;
         vec3 diffuse = (1.0 - spec) * (1.0 - metallic) * albedo * environment_irradiance(n);
         // the GGX lobe's dominant direction leans from the mirror direction towards the normal as it widens
         // (Lagarde and de Rousiers 2014, "Moving Frostbite to PBR", section 4.9.3)

@@ -14,9 +14,10 @@ are unbiased), is an unbiased estimate of the squared error at infinite samples;
 `rmse` (edges excluded as tools/mitsuba_compare.py does), `noise` the remaining Monte Carlo error of the seed means.
 
 Conversion: the materials as tools/mitsuba_compare.py's "gltf" choice (metals: `principled`; dielectrics: 0.96
-Lambert + 0.04 GGX), each wrapped in `twosided` (our surfaces are two-sided); emissive materials: an `area` emitter
-of the same radiance on the same triangles (one-sided, the winding's front, as ours); analytic lights pi times ours
-(pi-normalized intensities): point `intensity`, directional `irradiance`, rect -> a `rectangle` with an `area`
+Lambert + 0.04 GGX; of specular 0, as the Cornell box's walls: `diffuse`), each wrapped in `twosided` (our surfaces
+are two-sided); emissive materials: an `area` emitter of the same radiance on the same triangles (one-sided, the
+winding's front, as ours); analytic lights pi times ours (pi-normalized intensities): point `intensity`, directional
+`irradiance`, rect -> a `rectangle` with an `area`
 emitter and a black BSDF; the ambient constant -> a `constant` emitter.
 """
 
@@ -556,15 +557,18 @@ def markdown(runs, images, md_path: Path, spp: int, mitsuba_spp: int, stored: bo
         'Materials: Mitsuba\'s as in the section above ("gltf"), each `twosided`; emitters with their '
         "triangles' normals (`face_normals`), as ours; the environment map (tests/test_environment.py's lobes "
         "with a bright patch, rotated 30 degrees) as Mitsuba's `envmap` of the same pixels and rotation, "
-        "importance-sampled by both. What is left: the Cornell box's coloured walls (+2.7%, "
-        "+3.2%) are the models' difference, not noise: at the grazing light from the ceiling glTF's Fresnel "
-        "term raises the white specular above the 0.04 of Mitsuba's stand-in (with the light only, max depth "
-        "2, the walls carry the same white offset, +0.0007 in every channel, while the floor and back wall "
-        "agree to 0.05%); its ceiling, lit through a caustic of the smooth-metal sphere, keeps fireflies in "
-        "both renderers that leave its two-seed estimate uncertain by about 0.02 at this sample count. So the "
-        "suite bounds the Cornell box at 0.025 in the slow tier (4096 samples per pixel and seed; the others "
-        "at 0.01) and every scene at 0.05 in the default tier (512 samples, 17-45 s), with the image means "
-        "within 1% and each material's within 1.5% (or 3 standard errors) there. This comparison found one "
+        "importance-sampled by both. The Cornell box's walls are glTF dielectrics with KHR_materials_specular's "
+        "factor 0 (`specular = 0`: pure Lambert on our side, Mitsuba's `diffuse` on its: the same model exactly, "
+        "where glTF's default layering has no Mitsuba equivalent, see below; with the default layering its "
+        "coloured walls were +2.5% and +3.2% and its converged error 0.018). Its ceiling, lit through a caustic "
+        "of the smooth-metal sphere, keeps fireflies in Mitsuba's images (0.023 of noise / mean at 4096 samples "
+        "per pixel and seed), so its reference takes 4x the samples (REFERENCE_SPP_TIMES); those fireflies, "
+        "ours and Mitsuba's, are all that is left: without the ceiling the box's converged error is 0.0008, "
+        "with it the two-seed estimate is uncertain by about 0.01 (0.012 against a 4096-sample reference). So "
+        "the suite bounds the Cornell box at 0.025 in the slow tier (4096 samples per pixel and seed of ours; "
+        "the others at 0.01) and every scene at 0.05 in the default tier (512 samples, 17-45 s), with the "
+        "image means within 1% and each material's within 1.5% (or 3 standard errors) there. This comparison "
+        "found one "
         "bug, fixed: shadow rays to points sampled on emissive triangles hit the emitter itself where it is "
         "seen edge-on (the floor under an emissive sphere was 3% too dim). The engine has no transmission, so "
         "there is no dielectric sphere; spot lights and sphere lights (radius > 0) are not in these scenes "
@@ -586,9 +590,9 @@ def markdown(runs, images, md_path: Path, spp: int, mitsuba_spp: int, stored: bo
         "The stand-in is glTF's BRDF where the Fresnel term stays near F0 (R within 0.2% up to 60 degrees, G "
         "within 0.6% up to 30) and departs towards grazing angles, where glTF's Fresnel term turns the red "
         "wall's reflection white (its G, small in the base colour, most): the coloured walls' +2.7% and +3.2% "
-        "are that (at roughness 0.5 the stand-in's gap at 80 degrees grows to -12.8% R, -51.7% G). A box whose "
-        "walls are pure Lambert in both renderers would need a specular weight of 0 on our side "
-        "(KHR_materials_specular's `specularFactor`), which the engine's materials do not have.",
+        "are that (at roughness 0.5 the stand-in's gap at 80 degrees grows to -12.8% R, -51.7% G). Hence the "
+        "validation box's walls take KHR_materials_specular's factor 0 (`Material.specular`), Lambert in both "
+        "renderers.",
         "",
     ]
     return "\n".join(lines)

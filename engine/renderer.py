@@ -966,6 +966,7 @@ class Renderer(Closes):
             self.ctx, scene, self.gbuffer.white, self.gbuffer.sampler, levels=self._raster.lod_pixels > 0
         )
         self.gbuffer.bind_scene(self._geometry)
+        self.lighting.bind_scene(self._geometry)
         for p in self._ray_passes():  # the alpha test's records and textures
             p.bind_scene(self._geometry)
         if self.camera_rays is not None:

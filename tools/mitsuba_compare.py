@@ -196,8 +196,11 @@ def mitsuba_bsdf(m: Material, choice: str = "gltf") -> dict:
     """Mitsuba's BSDF for a glTF material. `principled` (base_color, metallic, roughness; specular 0.5 gives
     F0 = 0.04, Schlick Fresnel for metals) for metals and rough dielectrics; at roughness 1 a dielectric is closest to
     Lambert `diffuse` (principled's Disney diffuse adds retro-reflection). The alternatives: roughconductor (GGX,
-    alpha = roughness^2, a constant F = base colour) and roughplastic (GGX over a Lambert base, IOR 1.5)."""
+    alpha = roughness^2, a constant F = base colour) and roughplastic (GGX over a Lambert base, IOR 1.5). A dielectric
+    of KHR_materials_specular factor 0 is Lambert: `diffuse`, whatever the choice."""
     rgb = {"type": "rgb", "value": [float(x) for x in m.base_color[:3]]}
+    if m.metallic <= 0.0 and m.specular <= 0.0:  # KHR_materials_specular 0: no specular lobe, Lambert exactly
+        return {"type": "diffuse", "reflectance": rgb}
     metal, matte, dielectric = BSDF_CHOICES[choice]
     kind = metal if m.metallic >= 1.0 else matte if m.roughness >= 1.0 and m.metallic <= 0.0 else dielectric
     if kind == "principled":

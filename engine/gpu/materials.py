@@ -45,6 +45,7 @@ def material_texels(materials, textures: TextureArrays) -> np.ndarray:
         bits[i, 17] = (MATERIAL_FLAGS["alpha_tested"] if m.alpha_mode != "OPAQUE" else 0) | (
             MATERIAL_FLAGS["double_sided"] if m.double_sided else 0
         )
+        data[i, 20:23], data[i, 23] = m.specular_color, m.specular
     return data
 
 

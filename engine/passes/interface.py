@@ -61,8 +61,9 @@ TEXTURE_NONE = 0xFFFFFFFF
 #: RGBA32F texels per material in the materials texel buffer (engine/passes/gbuffer.py `material_texels`):
 #: 0 base colour; 1 texture handles (base colour, metallic-roughness, normal, emissive; uint bits);
 #: 2 metallic, roughness, occlusion strength, normal scale; 3 emissive rgb, alpha cutoff (0: not alpha-tested);
-#: 4 occlusion texture handle, flags (uint bits: MATERIAL_*), 0, 0.
-MATERIAL_TEXELS = 5
+#: 4 occlusion texture handle, flags (uint bits: MATERIAL_*), 0, 0; 5 KHR_materials_specular: specular colour rgb,
+#: specular.
+MATERIAL_TEXELS = 6
 MATERIAL_FLAGS = {"alpha_tested": 1, "double_sided": 2}
 #: 16-byte texels per instance record (shaders/glsl/include/instances.glsl `Instance`, engine/passes/gbuffer.py)
 INSTANCE_TEXELS = 16

@@ -23,7 +23,13 @@ class LightingPass(ComputePass):
         "g_emissive": read("image", "emissive"),
         "env": read("buffer"),  # environment.glsl: bound by bind_environment
         "reflections": read("buffer", "refl.final"),  # traced reflections (passes/reflections.py), w > 0 where traced
+        "g_material": read("image", "material_id"),
+        "materials": read("uniform_texel"),  # KHR_materials_specular's factors: bound by bind_scene
     }
+
+    def bind_scene(self, geom):
+        """The scene's materials texel view (engine/gpu/scene.py SceneGeometry)."""
+        self.set.bind("materials", geom.views[3])
 
     def bind_environment(self, env):
         """The scene's environment buffer (engine/gpu/environment.py)."""

@@ -17,6 +17,8 @@ from engine.errors import SceneError, shown
 
 from . import mtl, points
 from .classes import extras_class
+from .gltf_specular import ATTRIBUTE as SPECULAR_ATTRIBUTE
+from .gltf_specular import attach_specular
 from .filechecks import bomb_images, bomb_pixels, check_mesh_file, diagnose_gltf
 from .instances import Mesh, check_transforms, determinants, instance_label, world_boxes
 from .material import TEXTURE_FIELDS, Material, material_key, srgb8_to_linear, texture_key
@@ -241,6 +243,7 @@ def load_trimesh_scene(path: str, *, scene_file: bool = False):
         problems = list(resolver.problems)
         if ext in (".gltf", ".glb"):  # images pillow refused inside the file, which trimesh drops quietly
             problems += [f"images[{i}]: {_too_large(pixels)}" for i, pixels in bomb_images(path)]
+            attach_specular(obj, path, where)
         for problem in dict.fromkeys(problems):
             log.warning(f"{where}: {problem}; rendering without it")
         return obj
@@ -701,11 +704,12 @@ def _factor(value, default, n=None):
 
 
 def _gltf_material(mat, name: str, texture, what: str) -> Material:
-    """glTF pbrMetallicRoughness and the core material keys; absent factors take glTF's defaults (metallic 1,
-    roughness 1, emissive 0)."""
+    """glTF pbrMetallicRoughness, the core material keys and KHR_materials_specular's factors; absent factors take
+    glTF's defaults (metallic 1, roughness 1, emissive 0, specular 1)."""
     factor = mat.baseColorFactor
     base = (1.0, 1.0, 1.0, 1.0) if factor is None else np.asarray(factor, dtype=np.float64) / 255.0
     mode = (mat.alphaMode or "OPAQUE").upper() if isinstance(mat.alphaMode, (str, type(None))) else "OPAQUE"
+    specular, specular_color = getattr(mat, SPECULAR_ATTRIBUTE, (1.0, (1.0, 1.0, 1.0)))  # KHR_materials_specular
     try:
         return Material(
             name,
@@ -721,6 +725,8 @@ def _gltf_material(mat, name: str, texture, what: str) -> Material:
             alpha_mode=mode if mode in ("OPAQUE", "MASK", "BLEND") else "OPAQUE",
             alpha_cutoff=float(np.clip(_factor(mat.alphaCutoff, 0.5), 0.0, 1.0)),
             double_sided=bool(mat.doubleSided),
+            specular=specular,
+            specular_color=specular_color,
         )
     except SceneError as exc:
         raise SceneError(f"{what}: {exc}") from None

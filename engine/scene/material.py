@@ -27,6 +27,8 @@ _FIELDS = (
     "alpha_mode",
     "alpha_cutoff",
     "double_sided",
+    "specular",
+    "specular_color",
 ) + TEXTURE_FIELDS
 
 
@@ -35,13 +37,17 @@ class Material:
 
     `Material(name, base_color=(0.8, 0.8, 0.8, 1), texture=None, *, metallic=0, roughness=1, emissive=(0, 0, 0),
     metallic_roughness_texture=None, normal_texture=None, normal_scale=1, emissive_texture=None,
-    occlusion_texture=None, occlusion_strength=1, alpha_mode="OPAQUE", alpha_cutoff=0.5, double_sided=True)`.
+    occlusion_texture=None, occlusion_strength=1, alpha_mode="OPAQUE", alpha_cutoff=0.5, double_sided=True, specular=1,
+    specular_color=(1, 1, 1))`.
 
     `base_color`: 3 or 4 numbers, linear RGB(A) (alpha 1 when left out), stored as (4,) float32 and multiplied with
     `texture`, as in glTF; each in [0, 1e30]. `metallic`, `roughness` in [0, 1]: `roughness` is glTF's perceptual
     roughness (the GGX alpha is roughness squared). `emissive`: linear RGB radiance, multiplied with
     `emissive_texture`. `normal_scale` scales the tangent-space normal map's x and y; `occlusion_strength` in [0, 1]
     blends the occlusion map in. `alpha_mode`: "OPAQUE", "MASK" (cut out where alpha < `alpha_cutoff`) or "BLEND".
+    `specular` in [0, 1] and `specular_color` (linear RGB, each >= 0) are glTF's KHR_materials_specular factors: the
+    dielectric lobe's F0 is min(0.04 `specular_color`, 1) `specular` and its F90 `specular` (0: a pure Lambert
+    dielectric; the defaults are glTF's core material).
 
     Textures are (H, W, 4) uint8 arrays, row 0 at the top of the image, UV (0, 0) its top-left corner (glTF /
     Vulkan convention): `texture` (base colour, sRGB RGBA) and `emissive_texture` (sRGB) are colour textures;
@@ -65,6 +71,8 @@ class Material:
     alpha_mode: str
     alpha_cutoff: float
     double_sided: bool
+    specular: float
+    specular_color: NDArray[np.float32]
 
     def __init__(
         self,
@@ -84,6 +92,8 @@ class Material:
         alpha_mode: str = "OPAQUE",
         alpha_cutoff: float = 0.5,
         double_sided: bool = True,
+        specular: float = 1.0,
+        specular_color: ArrayLike = (1.0, 1.0, 1.0),
     ):
         """Raises `SceneError` (naming the material and the field) for a bad value or texture."""
         self.name = str(name)
@@ -110,6 +120,13 @@ class Material:
             raise SceneError(f"material {self.name!r}: {exc}") from None
         self.emissive = e.astype(np.float32)
         self.emissive.setflags(write=False)
+        self.specular = self._number(specular, "specular", 0.0, 1.0)
+        try:
+            sc = _check.color(specular_color, "specular_color", error=SceneError)
+        except SceneError as exc:
+            raise SceneError(f"material {self.name!r}: {exc}") from None
+        self.specular_color = sc.astype(np.float32)
+        self.specular_color.setflags(write=False)
         mode = alpha_mode.upper() if isinstance(alpha_mode, str) else alpha_mode
         if mode not in ALPHA_MODES:
             raise SceneError(
@@ -196,6 +213,9 @@ class Material:
                 text += f", alpha_cutoff={self.alpha_cutoff:.3g}"
         if not self.double_sided:
             text += ", double_sided=False"
+        if self.specular != 1.0 or np.any(self.specular_color != 1.0):
+            col = ", ".join(f"{x:.3g}" for x in self.specular_color.tolist())
+            text += f", specular={self.specular:.3g}, specular_color=({col})"
         return text + ")"
 
 
@@ -213,7 +233,8 @@ def material_key(material: Material, name=None) -> tuple:
     pixels of each of its textures (`texture_key`)."""
     m = material
     factors = np.array(
-        [m.metallic, m.roughness, m.normal_scale, m.occlusion_strength, m.alpha_cutoff], np.float64
+        [m.metallic, m.roughness, m.normal_scale, m.occlusion_strength, m.alpha_cutoff, m.specular, *m.specular_color],
+        np.float64,
     ).tobytes()
     return (
         (m.name if name is None else name),

@@ -50,6 +50,8 @@ MESH_COMMON = (
     "metallic",
     "roughness",
     "emissive",
+    "specular",
+    "specular_color",
     "instances",
     "class",
 )
@@ -579,11 +581,12 @@ def _add_mesh(
             textures[full] = load_texture_file(full, f"{ctx.prefix()}: texture = '{shown(table['texture'])}'")
         texture = textures[full]
     overrides = {}  # glTF metallic-roughness factors, replacing those of every material of the mesh
-    for key in ("metallic", "roughness"):
+    for key in ("metallic", "roughness", "specular"):  # (specular: KHR_materials_specular's factor)
         if key in table:
             overrides[key] = ctx.check(_check.number, table[key], key, min_value=0.0, max_value=1.0)
-    if "emissive" in table:
-        overrides["emissive"] = _color(table["emissive"], "emissive", ctx)
+    for key in ("emissive", "specular_color"):
+        if key in table:
+            overrides[key] = _color(table[key], key, ctx)
     uv_scale = None
     if "uv_scale" in table:
         uv_scale = _size(table["uv_scale"], 2, "uv_scale", ctx)

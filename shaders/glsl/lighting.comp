@@ -28,6 +28,8 @@ layout(set = 0, binding = 8, rgba8) uniform readonly image2D g_pbr;        // ro
 layout(set = 0, binding = 9, rgba16f) uniform readonly image2D g_emissive;
 // the filtered reflection radiance per pixel (reflect_filter.comp): rgb, w > 0 where a ray was traced
 layout(std430, set = 0, binding = 11) readonly buffer Reflections { vec4 reflections[]; };
+layout(set = 0, binding = 12, r32ui) uniform readonly uimage2D g_material;   // the material's index
+layout(set = 0, binding = 13) uniform samplerBuffer materials;               // MATERIAL_TEXELS per material
 
 // Radiance arriving from light `l` at `p` (before visibility and the cosine term), and the unit direction to it.
 vec3 incident(Light l, vec3 p, out vec3 wi) {
@@ -77,6 +79,10 @@ void main() {
         vec3 albedo = imageLoad(g_albedo, px).rgb;
         vec4 pbr = imageLoad(g_pbr, px);
         float roughness = pbr.x, metallic = pbr.y, occlusion = pbr.z;
+        // KHR_materials_specular's factors (brdf.glsl fresnel_gltf): the material's texel 5 (the core's without one)
+        uint mat = imageLoad(g_material, px).x;
+        bool known = mat < uint(textureSize(materials)) / uint(MATERIAL_TEXELS);
+        vec4 spec_f = known ? texelFetch(materials, MATERIAL_TEXELS * int(mat) + 5) : vec4(1.0);
         vec3 v = normalize(frame.eye - p);
         uint pixel = uint(px.y) * w + uint(px.x);
         vec3 direct = vec3(0.0);
@@ -85,11 +91,12 @@ void main() {
             vec3 li = incident(frame.lights[i], p, wi);
             float cos_theta = max(dot(n, wi), 0.0);
             // Intensities are pi-normalized: a white Lambert surface facing a light of irradiance 1 reflects 1.
-            direct += li * cos_theta * masks[i * w * h + pixel] * brdf_pi(n, v, wi, albedo, metallic, roughness);
+            vec3 f = brdf_pi_spec(n, v, wi, albedo, metallic, roughness, spec_f);
+            direct += li * cos_theta * masks[i * w * h + pixel] * f;
         }
         // split sum (ibl.glsl); where a reflection ray was traced (reflect.comp, filtered), its radiance replaces
         // the prefiltered environment in the specular lobe: it already holds the occlusion that AO stands in for
-        vec3 spec = ibl_specular_albedo(n, v, albedo, metallic, roughness);
+        vec3 spec = ibl_specular_albedo(n, v, albedo, metallic, roughness, spec_f);
         vec3 diffuse = ibl_diffuse(n, spec, albedo, metallic);
         vec4 traced = reflections[pixel];
         vec3 ambient = diffuse * (ao[pixel] * occlusion);

@@ -58,7 +58,7 @@ vec3 shade_hit(Surface s, vec3 d, vec2 rot) {
         // area lights: one uniform sample of the light's solid angle (pdf); delta lights: their radiance as is
         color += f * li * (pdf > 0.0 ? 1.0 / pdf : 1.0);
     }
-    vec3 spec = ibl_specular_albedo(s.ns, v, s.base, s.metallic, s.roughness);
+    vec3 spec = ibl_specular_albedo(s.ns, v, s.base, s.metallic, s.roughness, s.spec);
     color += ibl_diffuse(s.ns, spec, s.base, s.metallic) + spec * ibl_specular_radiance(s.ns, v, s.roughness);
     return color;
 }

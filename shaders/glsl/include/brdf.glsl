@@ -1,6 +1,7 @@
 // glTF's metallic-roughness BRDF (glTF 2.0 spec, Appendix B): GGX / Trowbridge-Reitz distribution, height-correlated
 // Smith visibility, Schlick Fresnel with F0 = mix(0.04, base, metallic), and a Lambert diffuse weighted by
-// (1 - F) (1 - metallic). Needs common.glsl.
+// (1 - F) (1 - metallic); KHR_materials_specular's factors scale the dielectric F0 and F90 (brdf_pi_spec). Needs
+// common.glsl.
 #ifndef BRDF_GLSL
 #define BRDF_GLSL
 
@@ -27,10 +28,26 @@ vec3 fresnel_schlick(vec3 f0, float v_h) {
     return f0 + (1.0 - f0) * (m2 * m2 * m);
 }
 
+// KHR_materials_specular's Fresnel (its implementation section), spec = (specular colour, specular factor): the
+// dielectric F0 = min(0.04 colour, 1) factor and F90 = factor, mixed towards the metal's (base, 1) by metallic.
+// spec = vec4(1) is the core material's fresnel_schlick(mix(0.04, base, metallic), v_h), to the bit.
+vec3 gltf_f0(vec3 base, float metallic, vec4 spec) {
+    return mix(min(0.04 * spec.rgb, vec3(1.0)) * spec.a, base, metallic);
+}
+float gltf_f90(float metallic, vec4 spec) { return spec.a + (1.0 - spec.a) * metallic; }
+vec3 fresnel_gltf(vec3 base, float metallic, vec4 spec, float v_h) {
+    vec3 f0 = gltf_f0(base, metallic, spec);
+    float f90 = gltf_f90(metallic, spec);
+    float m = 1.0 - clamp(v_h, 0.0, 1.0);
+    float m2 = m * m;
+    return f0 + (f90 - f0) * (m2 * m2 * m);
+}
+
 // The BRDF times pi for unit normal n, directions to the viewer v and to the light l (both unit), base colour,
 // metallic and perceptual roughness: times the light's pi-normalized radiance and n.l it is the reflected radiance
 // (a white Lambert surface facing a light of irradiance 1 reflects 1).
-vec3 brdf_pi(vec3 n, vec3 v, vec3 l, vec3 base, float metallic, float roughness) {
+// (brdf_pi_spec: with KHR_materials_specular's spec, as fresnel_gltf takes it)
+vec3 brdf_pi_spec(vec3 n, vec3 v, vec3 l, vec3 base, float metallic, float roughness, vec4 spec) {
     float n_l = dot(n, l);
     if (n_l <= 0.0) return vec3(0.0);
     float n_v = max(dot(n, v), 1e-4);
@@ -38,11 +55,14 @@ vec3 brdf_pi(vec3 n, vec3 v, vec3 l, vec3 base, float metallic, float roughness)
     float n_h = max(dot(n, h), 0.0), v_h = max(dot(v, h), 0.0);
     float r = max(roughness, MIN_ROUGHNESS);
     float a2 = r * r * r * r;
-    vec3 f0 = mix(vec3(0.04), base, metallic);
-    vec3 f = fresnel_schlick(f0, v_h);
+    vec3 f = fresnel_gltf(base, metallic, spec, v_h);
     vec3 diffuse = (1.0 - f) * (1.0 - metallic) * base;            // Lambert base / pi, times pi
     vec3 specular = f * (PI * ggx_d(n_h, a2) * smith_vis(n_l, n_v, a2));
     return diffuse + specular;
+}
+
+vec3 brdf_pi(vec3 n, vec3 v, vec3 l, vec3 base, float metallic, float roughness) {
+    return brdf_pi_spec(n, v, l, base, metallic, roughness, vec4(1.0));
 }
 
 #endif

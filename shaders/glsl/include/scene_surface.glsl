@@ -50,6 +50,7 @@ struct Surface {
     vec3 po;              // where its shadow rays start (before offset_ray): p, or the terminator shift's point
     vec3 base, emission;  // base colour; emitted radiance towards the ray (0 from the back face)
     float metallic, roughness;
+    vec4 spec;            // KHR_materials_specular: colour, factor (brdf.glsl fresnel_gltf)
     float area;           // the triangle's world area (emitters' pdf)
     uint emitter;         // 1 + its emitter record, or 0
 };
@@ -98,6 +99,7 @@ Surface surface_at(BvhHit hit, vec3 d) {
     vec4 mr = texture_at(handles.y, uv);
     s.metallic = factors.x * mr.b;
     s.roughness = factors.y * mr.g;
+    s.spec = texelFetch(materials, m + 5);
     s.emission = front ? texelFetch(materials, m + 3).rgb * texture_at(handles.w, uv).rgb : vec3(0.0);
     s.emitter = front ? t.emitter : 0u;
     // the normal map, in the tangent frame the G-buffer resolve uses (T = dP/du orthonormalized, B = +-N x T)
@@ -126,11 +128,10 @@ struct Lobes { float p_spec; float alpha; };
 
 Lobes lobes(Surface s, vec3 v) {
     float n_v = max(dot(s.ns, v), 1e-4);
-    vec3 f0 = mix(vec3(0.04), s.base, s.metallic);
-    vec3 f = fresnel_schlick(f0, n_v);
+    vec3 f = fresnel_gltf(s.base, s.metallic, s.spec, n_v);
     float spec = luminance(f), diff = luminance((1.0 - f) * (1.0 - s.metallic) * s.base);
-    Lobes l;
-    l.p_spec = diff <= 0.0 ? 1.0 : clamp(spec / (spec + diff), 0.1, 0.9);
+    Lobes l;   // (no specular lobe: KHR_materials_specular's factor 0 on a dielectric, pure Lambert)
+    l.p_spec = diff <= 0.0 ? 1.0 : (spec <= 0.0 ? 0.0 : clamp(spec / (spec + diff), 0.1, 0.9));
     float r = max(s.roughness, MIN_ROUGHNESS);
     l.alpha = r * r;
     return l;
@@ -150,7 +151,7 @@ float bsdf_pdf(Surface s, Lobes lb, vec3 v, vec3 l) {
 
 vec3 bsdf_eval(Surface s, vec3 v, vec3 l) {   // f(v, l) cos(l) (the BRDF times the cosine at l)
     if (dot(s.ng, l) <= 0.0) return vec3(0.0);
-    return brdf_pi(s.ns, v, l, s.base, s.metallic, s.roughness) * (max(dot(s.ns, l), 0.0) / PI);
+    return brdf_pi_spec(s.ns, v, l, s.base, s.metallic, s.roughness, s.spec) * (max(dot(s.ns, l), 0.0) / PI);
 }
 
 // f cos for a light sample at l: where the shadow ray starts from the terminator shift's point, past the flat
@@ -158,7 +159,7 @@ vec3 bsdf_eval(Surface s, vec3 v, vec3 l) {   // f(v, l) cos(l) (the BRDF times 
 // point decides), else as bsdf_eval.
 vec3 light_eval(Surface s, vec3 v, vec3 l) {
     if (s.po == s.p) return bsdf_eval(s, v, l);
-    return brdf_pi(s.ns, v, l, s.base, s.metallic, s.roughness) * (max(dot(s.ns, l), 0.0) / PI);
+    return brdf_pi_spec(s.ns, v, l, s.base, s.metallic, s.roughness, s.spec) * (max(dot(s.ns, l), 0.0) / PI);
 }
 
 // Heitz 2018, "Sampling the GGX distribution of visible normals": a half vector in the frame (t, b, n).

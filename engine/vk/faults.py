@@ -22,7 +22,7 @@ ENV = "HYBRID_FAULT_INJECTION"
 KINDS = {"device-lost": 0, "hang": 1}  # the shader's mode
 SHADER = "fault.comp"
 UNMAPPED = 0xDEAD_0000_0000  # far above what a driver maps for a process
-GROUPS = 1024  # 64 invocations each, every one faulting (or looping)
+GROUPS = 65535  # 64 invocations each, every one faulting (or looping), the most one dispatch of x groups has
 NEVER = 0  # with mode 1 the loop's store is guarded by mode == 2 too, so any value will do
 
 

@@ -21,8 +21,17 @@ void main() {
         Unmapped(push.address).words[gl_GlobalInvocationID.x * 4096u] = 0xDEADBEEFu;
         return;
     }
+    // (lavapipe ends any loop after 65,535 iterations: the straight-line steps and the many groups keep it busy for
+    // minutes there, far past any GPU timeout a test sets)
     uint x = gl_GlobalInvocationID.x;
     for (;;) {
+        x = x * 1664525u + 1013904223u;
+        x = x * 1664525u + 1013904223u;
+        x = x * 1664525u + 1013904223u;
+        x = x * 1664525u + 1013904223u;
+        x = x * 1664525u + 1013904223u;
+        x = x * 1664525u + 1013904223u;
+        x = x * 1664525u + 1013904223u;
         x = x * 1664525u + 1013904223u;
         if (x == push.never && push.mode == 2u) {
             Unmapped(push.address).words[0] = x;

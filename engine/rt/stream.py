@@ -40,8 +40,7 @@ MIN_BLOCK = {"pack": 1 << 15, "intersect": 1 << 17, "closest": 1 << 17, "occlude
 #: those hand-overs (and a thread holding the GIL while descheduled) cost more than the extra cores gain
 STREAM_THREADS = 8
 #: the most a stream uses whose sink is one C call per block (the front ends' records_sink, engine/native.c): those
-#: hold the GIL only to start, and scale on to more cores (H100 host, 4M rays: cast_rays 24.7 ms on 8 threads, 14.7
-#: on 16, against 13.4 / 13.0 for Tracer.intersect)
+#: hold the GIL only to start, and scale on to more cores (measured: docs/benchmarks.md, "Front ends")
 C_SINK_THREADS = 16
 #: the smallest set of stream slots (rays per chunk) a batch takes (SlotPool): small batches share one size
 MIN_SET_CHUNK = 1 << 14

@@ -31,6 +31,10 @@ BUILD_KINDS = ("generated", "spheres", "scan")
 DATASET_AOVS = ("color", "depth", "normal", "object_id")
 
 
+#: The frame scenes that are the default one with one traced effect on: key -> its setting.
+EFFECT_FRAMES = {"reflect": "reflections", "gi": "gi"}
+
+
 @dataclass
 class BenchConfig:
     sections: tuple = SECTIONS
@@ -44,8 +48,9 @@ class BenchConfig:
     generated_tris: int = 1_200_000  # the trace benchmark's generated scene
     mid_tris: int = 300_000  # frame "generated-300k": the size the issue-6 shadow target names
     real_scene: str | None = str(DEFAULT_SCENE)
-    frame_scenes: tuple = ("real", "reflect", "target", "mid", "generated")  # target: the issue-6 frame (1 light, 1
-    #           AO ray per pixel); reflect: the real one with reflections on; mid: generated, mid_tris, 1 AO ray
+    frame_scenes: tuple = ("real", "reflect", "gi", "target", "mid", "generated")  # target: the issue-6 frame (1
+    #           light, 1 AO ray per pixel); reflect, gi: the real one with that effect on (EFFECT_FRAMES); mid:
+    #           generated, mid_tris, 1 AO ray
     peers: tuple = PEERS
     reps: int = 7
     warmup: int = 1

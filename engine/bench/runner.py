@@ -24,7 +24,7 @@ from ..renderer import Renderer
 from ..scene import Camera, Scene
 from ..vk import choose_device, describe_devices
 from ..vk.device_info import device_details
-from .config import DATASET_AOVS, RAYSET_TITLES, RAYSETS, REPO, BenchConfig
+from .config import DATASET_AOVS, EFFECT_FRAMES, RAYSET_TITLES, RAYSETS, REPO, BenchConfig
 from .engines import OursEngine
 from .frontends import ENGINES as FRONTEND_ENGINES
 from .frontends import QUERIES as FRONTEND_QUERIES
@@ -441,12 +441,13 @@ class Bench:
                 "generated": "generated",
                 "real": "default",
                 "reflect": "default-reflections",
+                "gi": "default-gi",
                 "target": "default-1light",
                 "mid": f"generated-{self.cfg.mid_tris // 1000}k",
             }[key]
             settings = {"ao_samples": 1} if key in ("target", "mid") else {}
-            if key == "reflect":  # the default frame plus ray-traced reflections (engine/passes/reflections.py)
-                settings = {"reflections": True}
+            if key in EFFECT_FRAMES:  # the default frame plus one traced effect
+                settings = {EFFECT_FRAMES[key]: True}
             scene = self._step(f"frame ({tag}): load scene", self._frame_scene, key)
             out.append(self._step(f"frame ({tag}): render x{self.cfg.frame_reps}", self._frame, tag, scene, settings))
         return out
@@ -497,7 +498,7 @@ class Bench:
         }
 
     def _frame_scene(self, key):
-        if key == "reflect":
+        if key in EFFECT_FRAMES:
             return self.scene("real")
         if key != "target":
             return self.scene(key)

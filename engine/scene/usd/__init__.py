@@ -4,7 +4,7 @@ docs/scenes.md, "USD stages"), read by concern:
   as splats) with their world transforms, scene-graph instancing and point instancers as instances of one mesh;
 - materials.py: UsdPreviewSurface materials with UsdUVTexture textures (displayColor where none is bound);
 - camera.py: the first UsdGeomCamera;
-- lights.py: UsdLux distant, sphere (spot with a cone) and rect lights, and a dome light as the ambient.
+- lights.py: UsdLux distant, sphere (spot with a cone) and rect lights, and a dome light as the scene's environment.
 
 Units and conventions: the stage's units are kept (metersPerUnit is not applied); its up axis is turned to +Y
 unless the caller gives one. Light intensities follow the UsdLux spec (intensity * 2^exposure is radiance; with

@@ -1,9 +1,16 @@
 """UsdLux lights as this engine's: distant, sphere (a spot with a shaping cone) and rect lights as `Light`s, and a
-dome light as the uniform ambient.
+dome light as the scene's `Environment`.
 
 Units: intensity * 2^exposure * color is the radiance UsdLux emits (with `normalize`, divided by the emitting area;
 a distant light's radiance times its disc's solid angle is irradiance); lights.py's pi-normalized units divide
-irradiance by pi."""
+irradiance by pi, and an environment's radiance is the dome's own (a white Lambert surface under a uniform dome of
+radiance L reflects L in both).
+
+The dome's latlong map follows the OpenEXR convention (the UsdLux spec): row 0 is the pole (+Y), the image's centre
+looks along +Z and its left quarter along +X, which is environment.py's mapping, so the map is used as it is. Its
+pole is +Y of the dome's frame (DomeLight_1: the axis its `poleAxis` names, "scene" being the stage's up axis; Z
+turns +Y to +Z and +Z to -Y); an environment turns only about the up axis, so a dome tilted from it keeps just that
+turn (with a warning)."""
 
 from __future__ import annotations
 
@@ -12,17 +19,18 @@ import math
 
 import numpy as np
 
-from engine.errors import SceneError, shown
+from engine.errors import ConfigError, SceneError, shown
 
-from .. import _check
+from ..environment import Environment, load_map
 from ..lights import DirectionalLight, Light, PointLight, RectLight, SpotLight
-from ._common import pxr, value_of
-from .materials import read_image
+from ._common import asset_file, pxr
 
 log = logging.getLogger(__name__)
 
 KINDS = ("DistantLight", "SphereLight", "RectLight")
-DOMES = ("DomeLight",)
+DOMES = ("DomeLight", "DomeLight_1")
+#: DomeLight_1's poleAxis "Z": the dome's +Y (its pole) to +Z, its +Z (longitude 0) to -Y.
+_POLE_Z = np.array([[1.0, 0.0, 0.0], [0.0, 0.0, -1.0], [0.0, 1.0, 0.0]])
 
 
 def read_light(prim, kind: str, world: np.ndarray, time, where: str) -> Light:
@@ -68,26 +76,64 @@ def read_light(prim, kind: str, world: np.ndarray, time, where: str) -> Light:
         raise SceneError(f"{what}: {exc}") from None
 
 
-def read_dome(prim, time, where: str) -> tuple:
-    """A dome light as the uniform ambient light (the `ambient` setting): the dome's radiance, times its texture's
-    mean colour when it is an image pillow reads."""
+def read_dome(prim, world: np.ndarray, time, where: str, up_axis: str) -> Environment:
+    """The environment of a DomeLight / DomeLight_1 prim placed by `world` (4, 4) on a stage whose up axis is
+    `up_axis` ("Y" or "Z"): its latlong texture (.hdr or .exr) times its colour, or its colour alone where it has no
+    texture or the texture cannot be used (one warning naming the file), at intensity * 2^exposure."""
+    lux = pxr().UsdLux
     what = f"{where}: light {shown(str(prim.GetPath()))}"
     get = _getter(prim, time)
-    api = pxr().UsdLux.LightAPI(prim)
-    radiance = _radiance(api, get) * np.asarray(get(api.GetColorAttr(), (1.0, 1.0, 1.0)), dtype=np.float64)
-    attr = pxr().UsdLux.DomeLight(prim).GetTextureFileAttr()
-    asset = value_of(attr) if attr else None
-    if asset is not None and asset.path:
-        image = read_image(asset.resolvedPath or "", f"{what}: texture {shown(asset.path)}")
-        mean = "its colour and intensity"
-        if image is not None:
-            radiance = radiance * _check.srgb_to_linear(image[..., :3].reshape(-1, 3).mean(axis=0) / 255.0)
-            mean = "its texture's mean colour"
-        log.warning(
-            f"{what}: environment maps are not supported; lighting with {mean} as the ambient "
-            f"(texture {shown(asset.path)}, radiance {radiance.max():.4g})"
-        )
-    return tuple(float(x) for x in np.clip(radiance, 0.0, 1e6))
+    api = lux.LightAPI(prim)
+    radiance = _radiance(api, get)
+    color = np.asarray(get(api.GetColorAttr(), (1.0, 1.0, 1.0)), dtype=np.float64)
+    dome = lux.DomeLight_1(prim) if str(prim.GetTypeName()) == "DomeLight_1" else lux.DomeLight(prim)
+    image = _dome_map(dome, get, what)
+    try:
+        if image is None:
+            return Environment.constant(color, intensity=radiance)
+        pole = "Y"
+        if isinstance(dome, lux.DomeLight_1):
+            pole = str(get(dome.GetPoleAxisAttr(), "scene"))
+            pole = up_axis if pole == "scene" else pole
+        frame = world[:3, :3] @ _POLE_Z if pole == "Z" else world[:3, :3]
+        return Environment(image * color.astype(np.float32), rotation=_turn(frame, what), intensity=radiance)
+    except (SceneError, ConfigError) as exc:
+        raise SceneError(f"{what}: {exc}") from None
+
+
+def _dome_map(dome, get, what: str) -> np.ndarray | None:
+    """The dome's (H, 2H, 3) latlong map; None where it has no texture, or (with a warning naming the file) where
+    its file is missing or unreadable or its format not latlong."""
+    asset = get(dome.GetTextureFileAttr(), None)
+    if asset is None or not asset.path:
+        return None
+    where = f"{what}: texture {shown(asset.path)}"
+    fmt = str(get(dome.GetTextureFormatAttr(), "automatic"))
+    if fmt not in ("automatic", "latlong"):
+        log.warning(f"{where}: the {fmt} format is not supported (latlong only); lighting with its colour only")
+        return None
+    try:
+        with asset_file(asset.resolvedPath or "") as path:
+            try:
+                return load_map(path)
+            except SceneError as exc:  # its message starts with the file's resolved path, shown here as authored
+                reason = str(exc).removeprefix(f"{path}: ")
+    except FileNotFoundError:
+        reason = "not found"
+    except Exception as exc:
+        reason = f"cannot read it ({type(exc).__name__})"
+    log.warning(f"{where}: {reason}; lighting with its colour only")
+    return None
+
+
+def _turn(frame: np.ndarray, what: str) -> float:
+    """Degrees about +Y that turn the environment as `frame` (3, 3; columns: the dome's x, y = pole, z in the
+    world) turns the dome; a warning where its pole is tilted from +Y (that part is left out)."""
+    axes = frame / np.linalg.norm(frame, axis=0)
+    tilt = math.degrees(math.acos(float(np.clip(axes[1, 1], -1.0, 1.0))))
+    if tilt > 0.01:
+        log.warning(f"{what}: its pole is tilted {tilt:.3g} degrees from the up axis; only its turn about it is used")
+    return math.degrees(math.atan2(axes[0, 2], axes[2, 2]))
 
 
 def _radiance(api, get) -> float:

@@ -15,6 +15,7 @@ from engine.errors import SceneError, shown
 from .. import points as points_mod
 from .. import primitives
 from ..geometry import up_transform
+from ..lights import DirectionalLight
 from ..loader import SceneBuilder
 from ..parts import SceneParts
 from . import lights as usd_lights
@@ -47,20 +48,21 @@ def load_usd(path: str, transform=None) -> SceneParts:
         raise SceneError(f"{where}: cannot read USD stage ({_first_error(str(exc))})") from None
     if stage is None:
         raise SceneError(f"{where}: cannot read USD stage")
+    up = str(UsdGeom.GetStageUpAxis(stage))
     if transform is None:
-        transform = up_transform(str(UsdGeom.GetStageUpAxis(stage)).lower())
-    return _StageReader(stage, path, np.asarray(transform, dtype=np.float64)).parts()
+        transform = up_transform(up.lower())
+    return _StageReader(stage, path, np.asarray(transform, dtype=np.float64), up).parts()
 
 
 class _StageReader:
     """One pass over a stage's prims, collecting meshes, instances, materials, lights, a camera and the dome; `outer`
-    turns the stage's world into the engine's."""
+    turns the stage's world into the engine's, `up` is the stage's up axis ("Y" or "Z")."""
 
-    def __init__(self, stage, path: str, outer: np.ndarray):
+    def __init__(self, stage, path: str, outer: np.ndarray, up: str):
         lib = pxr()
         Usd, UsdGeom = lib.Usd, lib.UsdGeom
         self.stage, self.path, self.where = stage, path, shown(path)
-        self.outer = outer
+        self.outer, self.up = outer, up
         self.time = (
             Usd.TimeCode(stage.GetStartTimeCode()) if stage.HasAuthoredTimeCodeRange() else Usd.TimeCode.Default()
         )
@@ -69,7 +71,7 @@ class _StageReader:
         self.materials = Materials(self.builder, self.time, self.where)
         self.lights: list = []
         self.camera = None
-        self.settings: dict = {}  # the first dome light's `ambient`
+        self.environment = None  # the first dome light's
         self.skipped: dict[str, int] = {}
 
     def world(self, prim) -> np.ndarray:
@@ -99,7 +101,13 @@ class _StageReader:
             log.warning(f"{self.where}: skipped prim types this renderer does not read: {kinds}")
         if not self.builder._inst_names:
             raise SceneError(f"{self.where}: the stage has no meshes with triangles")
-        return self.builder.build(lights=self.lights or None, camera=self.camera, settings=self.settings or None)
+        lights = self.lights
+        if not lights and self.environment is not None:
+            # a scene always has a light (none: the default sun); one that emits nothing leaves the dome alone
+            lights = [DirectionalLight((0.0, -1.0, 0.0), intensity=0.0)]
+        parts = self.builder.build(lights=lights or None, camera=self.camera)
+        parts.environment = self.environment
+        return parts
 
     def read(self, prim, kind: str) -> bool:
         """Read one prim by its type; True where its children are not to be visited (read through it, or a
@@ -117,8 +125,8 @@ class _StageReader:
         elif kind in usd_lights.KINDS:
             self.lights.append(usd_lights.read_light(prim, kind, self.world(prim), self.time, self.where))
         elif kind in usd_lights.DOMES:
-            if "ambient" not in self.settings:
-                self.settings["ambient"] = usd_lights.read_dome(prim, self.time, self.where)
+            if self.environment is None:
+                self.environment = usd_lights.read_dome(prim, self.world(prim), self.time, self.where, self.up)
             else:
                 log.warning(f"{self.where}: light {shown(str(prim.GetPath()))}: a second dome light; using the first")
         elif kind in ("Material", "Shader", "NodeGraph"):

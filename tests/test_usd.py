@@ -211,6 +211,7 @@ def test_lights_and_dome(tmp_path, caplog):
     dome = UsdLux.DomeLight.Define(stage, "/Sky")
     dome.CreateIntensityAttr(0.5)
     dome.CreateColorAttr(Gf.Vec3f(0.2, 0.4, 0.8))
+    UsdLux.DomeLight.Define(stage, "/Sky2")
     UsdGeom.BasisCurves.Define(stage, "/Hair1")
     UsdGeom.BasisCurves.Define(stage, "/Hair2")
     UsdLux.DiskLight.Define(stage, "/Disk")
@@ -233,8 +234,9 @@ def test_lights_and_dome(tmp_path, caplog):
         scene.environment.image() * scene.environment.intensity, np.full((32, 64, 3), (0.1, 0.2, 0.4)), atol=1e-6
     )
     warnings = [r.getMessage() for r in caplog.records if r.levelno == logging.WARNING]
-    assert len(warnings) == 1, warnings  # one warning for every prim type skipped
-    assert "BasisCurves (2 prims)" in warnings[0] and "DiskLight (1 prim)" in warnings[0]
+    assert len(warnings) == 2, warnings  # one for the second dome, one for every prim type skipped
+    assert warnings[0].endswith("light /Sky2: a second dome light; using the first")
+    assert "BasisCurves (2 prims)" in warnings[1] and "DiskLight (1 prim)" in warnings[1]
 
 
 def test_subsets_left_handed_face_varying_and_holes(tmp_path):

@@ -25,6 +25,7 @@ from ..limits import MAX_COORD
 from ..parallel import default_threads
 from ..shaders import ShaderLibrary
 from ..vk import BufferView, ComputePipeline, Recorder, reflect, upload_buffer
+from ..vk.device import is_cpu
 from ..vk.resources import STORAGE_TEXEL, UNIFORM_TEXEL
 from .checks import check_vectors, result_arrays
 from .order import incoherent, ray_order
@@ -178,14 +179,15 @@ class ClosestQuery:
         """Float32 (N, 3) points (checked) streamed through the session's slots as rays' origins (a unit direction
         and tmax 0 beside them, which the kernel never reads); `make_sink(order)` gives the sink that takes each
         block's records, on up to `threads` worker threads, where `order` (None: the given order) is the order the
-        points are walked in: points that come in no spatial order (`incoherent`) are walked in the order of a
-        Morton code of their cells (engine/rt/order.py), so that the lanes of a SIMD group walk the same nodes."""
+        points are walked in: on a CPU device, points that come in no spatial order (`incoherent`) are walked in
+        the order of a Morton code of their cells (engine/rt/order.py), so that the lanes of a SIMD group walk the
+        same nodes (on a GPU the sort costs more than it saves: docs/benchmarks.md)."""
 
         def bad():  # (the points were checked; float32 rounding could only push one past the bound)
             raise ConfigError(f"points: a coordinate beyond +-{MAX_COORD:g} once rounded to float32")
 
         ones = np.broadcast_to(np.float32(1), (len(p), 3))
         order = None
-        if incoherent(p, ones, np.float32(np.inf)):
+        if is_cpu(self.session.ctx) and incoherent(p, ones, np.float32(np.inf)):
             order = ray_order(p, ones, min(default_threads(), STREAM_THREADS), self.session.chunk)
         stream(self.session, "closest", p, ones, np.float32(0), make_sink(order), bad, order, threads=threads)

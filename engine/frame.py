@@ -65,7 +65,7 @@ class Frame:
       was traced (rougher than the cutoff, the background, reflections off).
     - "gi", "gi_raw": (H, W, 3) the diffuse global illumination's irradiance over pi (setting `gi`; the radiance a
       white Lambert surface would reflect of it): filtered (what the lighting's diffuse lobe used), and this frame's
-      ray alone; 0 where no ray was traced (metals, the background, gi off).
+      rays alone (one per 2x2 pixels: both upsampled alike); 0 where none was traced (metals, the background, gi off).
     - "semantic_id": (H, W) uint32 the semantic class of the object seen (`class_names[id]`), 0 on the background
       and on objects without a class (`Scene.set_classes`); made on the host from the object ids, exactly.
 

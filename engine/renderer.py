@@ -41,7 +41,7 @@ from .passes.lighting import LightingPass
 from .passes.path import PathPass
 from .passes.raster_options import RasterOptions
 from .passes.raypass import follow_scene
-from .passes.gi import GIFilterPass, GITemporalPass, GITracePass
+from .passes.gi import GIFilterPass, GITemporalPass, GITracePass, GIUpsamplePass
 from .passes.reflections import ReflectionFilterPass, ReflectionTemporalPass, ReflectionTracePass
 from .passes.shadows import ShadowPass
 from .passes.taa import TAAPass
@@ -52,7 +52,7 @@ from .scene import Scene, environment
 from .scene.camera import Camera
 from .progress import bar as progress_bar
 from .settings import DEFAULT_SETTINGS, DEFAULT_SPP, ShadowMode, ViewMode, check_settings, check_size, default
-from .settings import given_settings, readback_aovs, resolve_aovs
+from .settings import ao_samples, given_settings, readback_aovs, resolve_aovs
 from .shaders import ShaderLibrary
 from .steady import Steady
 from .vk import Context, Recorder, Timestamps, reflect
@@ -60,10 +60,10 @@ from .vk.shared import Device, Scope
 from .vk.recorder import ONE_F32, TRANSFER
 from .vk.sync import create_fence, destroy_fence, reset_fences, wait_fences
 
-#: The effects whose rays are shaded at their hits, by setting: their (trace, temporal, filter) pass classes.
+#: The effects whose rays are shaded at their hits, by setting: their (trace, temporal, filter, then any) pass classes.
 SECONDARY_EFFECTS = {
     "reflections": (ReflectionTracePass, ReflectionTemporalPass, ReflectionFilterPass),
-    "gi": (GITracePass, GITemporalPass, GIFilterPass),
+    "gi": (GITracePass, GITemporalPass, GIFilterPass, GIUpsamplePass),
 }
 
 
@@ -208,7 +208,9 @@ class Renderer(Closes):
         self._history_key = self._steady = None  # _history_key: what the temporal history was accumulated under
         self.path = None  # PathPass, made by the first path-traced frame (its pipeline takes a while to build)
         self.reflections = None  # (trace, temporal, filter) passes, made by the first frame with reflections on
-        self.gi = None  # the diffuse GI's (trace, temporal, filter) passes, made by the first frame with gi on
+        self.gi = (
+            None  # the diffuse GI's (trace, temporal, filter, upsample) passes, made by the first frame with gi on
+        )
         self.path_samples = 0  # samples per pixel in the path tracer's image so far
         self.path_progress = None  # called as f(samples done, samples in all) after each path-tracing batch
         self._path_key = None  # what the path tracer's samples so far were traced under
@@ -290,7 +292,7 @@ class Renderer(Closes):
         accumulate: bool = default("accumulate"),
         denoise: bool = default("denoise"),
         ao: bool = default("ao"),
-        ao_samples: int = default("ao_samples"),
+        ao_samples: int | None = default("ao_samples"),
         ao_radius: float | None = default("ao_radius"),
         reflections: bool = default("reflections"),
         gi: bool = default("gi"),
@@ -336,7 +338,7 @@ class Renderer(Closes):
                 `ao`, `ao_samples`, `ao_radius` or `accumulate` changes.
             denoise: filter the soft light masks and AO (edge-aware a-trous, 4 iterations).
             ao: trace ambient occlusion (off: AO is 1 everywhere).
-            ao_samples: AO rays per pixel per frame, 1..256.
+            ao_samples: AO rays per pixel per frame, 1..256 (None: 4, or 1 with `gi` on).
             ao_radius: the AO rays' length in world units (None: 10% of the scene's bounding-box diagonal).
             reflections: trace one GGX reflection ray per pixel from the G-buffer (surfaces up to roughness 0.6),
                 shaded at its hit with the scene's lights (a shadow ray each) and environment, accumulated over
@@ -554,7 +556,7 @@ class Renderer(Closes):
         accumulate: bool = default("accumulate"),
         denoise: bool = default("denoise"),
         ao: bool = default("ao"),
-        ao_samples: int = default("ao_samples"),
+        ao_samples: int | None = default("ao_samples"),
         ao_radius: float | None = default("ao_radius"),
         reflections: bool = default("reflections"),
         gi: bool = default("gi"),
@@ -736,7 +738,7 @@ class Renderer(Closes):
             history_reset=reset,
             objects_moved=not self._changes.settled,
             ao_radius=cfg["ao_radius"] or 0.1 * diag,
-            ao_samples=cfg["reference_samples"] if reference else cfg["ao_samples"],
+            ao_samples=cfg["reference_samples"] if reference else ao_samples(cfg),
             shadow_samples=cfg["reference_samples"] if reference else cfg["shadow_samples"],
             exposure=2.0 ** cfg["exposure"],
             ambient=cfg["ambient"],
@@ -885,7 +887,7 @@ class Renderer(Closes):
         if getattr(self, setting) is None:
             lib, res = self.library, self.targets.resources
             trace = kinds[0](self.ctx, lib, res, self.bvh_set, self.bvh_layout)
-            setattr(self, setting, (trace, kinds[1](self.ctx, lib, res), kinds[2](self.ctx, lib, res)))
+            setattr(self, setting, (trace, *(kind(self.ctx, lib, res) for kind in kinds[1:])))
             self.passes += getattr(self, setting)
             trace.bind_scene(self._geometry)
             if self._environment is not None:
@@ -1098,7 +1100,7 @@ class Renderer(Closes):
         if not cfg[setting] or path:
             rec.fill(t[f"{prefix}.final"], 0)
             return
-        trace, temporal, spatial = getattr(self, setting)
+        trace, temporal, spatial, *after = getattr(self, setting)
         trace.record(rec, t)
         rec.mark(setting)
         if cfg["accumulate"]:
@@ -1108,7 +1110,9 @@ class Renderer(Closes):
         if cfg["denoise"]:
             spatial.record(rec, t)
         else:
-            rec.copy(t[f"{prefix}.cur"], t[f"{prefix}.final"])
+            rec.copy(t[f"{prefix}.cur"], t[f"{prefix}.{spatial.output}"])
+        for p in after:  # (the GI's upsampling)
+            p.record(rec, t)
         rec.mark(f"{setting}.filter")
 
     def _record_filters(self, rec, cfg, n_lights, mode, path) -> bool:

@@ -40,7 +40,7 @@ DEFAULT_SETTINGS: dict[str, Any] = {
     "accumulate": True,  # temporal accumulation of the soft light masks and AO
     "denoise": True,  # a-trous filter of the soft light masks and AO
     "ao": True,
-    "ao_samples": 4,
+    "ao_samples": None,  # None: 4, or 1 with gi on (then AO only occludes the specular lobe's environment)
     "ao_radius": None,  # None: 10% of the scene's bounding-box diagonal
     "reflections": False,  # ray-traced GGX reflections, temporally and spatially filtered (passes/reflections.py)
     "gi": False,  # diffuse global illumination: a cosine ray per pixel, bounces over frames, filtered (passes/gi.py)
@@ -163,6 +163,21 @@ def readback_aovs(names: tuple) -> tuple:
     return tuple(n for n in AOV_SPECS if n in wanted)
 
 
+def ao_samples(cfg: dict[str, Any]) -> int:
+    """The AO rays per pixel of checked settings: `ao_samples`, else 4, or 1 with `gi` on (the GI lights the diffuse
+    lobe: AO then only darkens the specular lobe's environment where no reflection ray is traced, and one ray
+    accumulated over frames does that as well: docs/architecture.md, GI)."""
+    if cfg["ao_samples"] is not None:
+        return cfg["ao_samples"]
+    return 1 if cfg["gi"] else 4
+
+
+def _integer(key: str, v: Any, lo: int, hi: int) -> int:
+    if isinstance(v, (bool, np.bool_)) or not isinstance(v, (int, np.integer)) or not lo <= v <= hi:
+        raise ConfigError(f"setting {key}={v!r}: expected an integer in {lo}..{hi}")
+    return int(v)
+
+
 def check_settings(settings: dict[str, Any]) -> dict[str, Any]:
     """`DEFAULT_SETTINGS` updated with `settings`, each value checked and normalized (bools, ints, floats, a
     3-tuple `ambient`); a `ConfigError` names an unknown key or the setting and value at fault."""
@@ -191,10 +206,8 @@ def check_settings(settings: dict[str, Any]) -> dict[str, Any]:
         ("max_depth", 1, MAX_DEPTH),
         ("seed", 0, 2**32 - 1),
     ):
-        v = out[key]
-        if isinstance(v, (bool, np.bool_)) or not isinstance(v, (int, np.integer)) or not lo <= v <= hi:
-            raise ConfigError(f"setting {key}={v!r}: expected an integer in {lo}..{hi}")
-        out[key] = int(v)
+        if out[key] is not None or key != "ao_samples":  # (ao_samples None: its default, ao_samples())
+            out[key] = _integer(key, out[key], lo, hi)
     v = out["spp"]
     if v is not None:
         if isinstance(v, (bool, np.bool_)) or not isinstance(v, (int, np.integer)) or not 1 <= v <= MAX_SPP:

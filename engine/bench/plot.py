@@ -9,6 +9,7 @@ import numpy as np
 from PIL import Image, ImageDraw, ImageFont
 
 from ..files import atomic_write
+from ..settings import DEFAULT_SETTINGS, ao_samples
 from .config import PEERS
 
 
@@ -219,7 +220,7 @@ def plot(results: dict, path):
         rows = [
             (
                 f"{fr['scene']} ({fr['triangles']:,} tris)\n{fr['size'][0]}x{fr['size'][1]}, {fr['lights']} light"
-                f"{'s' if fr['lights'] != 1 else ''}, AO {fr['settings'].get('ao_samples')} spp",
+                f"{'s' if fr['lights'] != 1 else ''}, AO {ao_samples({**DEFAULT_SETTINGS, **fr['settings']})} spp",
                 fr["passes_ms"],
             )
             for fr in frames

@@ -7,6 +7,7 @@ import json
 import numpy as np
 
 from ..files import atomic_write_text
+from ..settings import DEFAULT_SETTINGS, ao_samples
 from .config import PEERS, RAYSETS
 
 #: The peers' column names in the trace table.
@@ -214,7 +215,7 @@ def format_report(results: dict) -> str:
         parts += [
             "",
             f"Frame: {fr['scene']} scene ({fr['triangles']:,} triangles) {fr['size'][0]}x{fr['size'][1]}, "
-            f"{fr['lights']} light(s), shadows {s.get('shadows')}, AO {s.get('ao_samples')} spp "
+            f"{fr['lights']} light(s), shadows {s.get('shadows')}, AO {ao_samples({**DEFAULT_SETTINGS, **s})} spp "
             f"(median of runs)",
             _table(rows, ["pass", "render() ms", "back to back ms"]),
         ]

@@ -1,19 +1,31 @@
-"""Diffuse global illumination: one cosine-weighted ray per G-buffer pixel, shaded at its hit with the scene's lights
-(one shadow ray each) and the irradiance found there the previous frame (shaders/glsl/gi.comp: a bounce more each
-frame between the surfaces the camera sees), the environment on a miss; then the reflections' temporal blend and
-a-trous filter specialized for a diffuse lobe (DIFFUSE = 1: roughness 1, no history clipping). The lighting pass
-takes the filtered irradiance as the diffuse lobe's ambient light where a ray was traced (every covered non-metal
-pixel), the environment's SH irradiance times AO elsewhere.
+"""Diffuse global illumination at half resolution: one cosine-weighted ray per 2x2 cell of the G-buffer and frame,
+from the cell's pixel whose turn it is (the 4 pixels in turn over 4 frames; shaders/glsl/include/gi_cells.glsl),
+shaded at its hit with the scene's lights (one shadow ray each) and the irradiance found there the previous frame
+(shaders/glsl/gi.comp: a bounce more each frame between the surfaces the camera sees), the environment on a miss;
+then a temporal blend (gi_temporal.comp) and an edge-aware a-trous filter (gi_filter.comp) on the cells, and a
+joint bilateral upsampling to full resolution (gi_upsample.comp). Irradiance varies slowly over a surface, so a
+quarter of the rays, blended over frames and filtered, loses little: measured in docs/architecture.md (GI). The
+lighting pass takes the upsampled irradiance as the diffuse lobe's ambient light where a cell was traced (every
+covered non-metal pixel), the environment's SH irradiance times AO elsewhere.
 
-Buffers (engine/passes/targets.py, `gi.*`): as the reflections' `refl.*`: raw -> cur (copied into hist) -> the
-filter's ping-pong through tmp -> final, which the next frame's rays read back at their hits.
+Buffers (engine/passes/targets.py, `gi.*`, the cells' in the first quarter of theirs): raw -> cur (copied into
+hist) -> the filter's ping-pong through tmp -> half; `cells` the cells' G-buffer (the traced pixels' position,
+normal and turn); the upsampling's `final` (which the next frame's rays read back at their hits) and `raw_full`
+(this frame's rays brought up alike: the gi_raw AOV).
 """
 
 from __future__ import annotations
 
-from .base import read, write
+import numpy as np
+
+from .base import ComputePass, read, write
 from .raypass import RayPass
-from .reflections import ReflectionFilterPass, ReflectionTemporalPass, ReflectionTracePass
+from .reflections import STEPS, ReflectionFilterPass, ReflectionTemporalPass, ReflectionTracePass
+
+
+def cells(width: int, height: int) -> tuple:
+    """The half-resolution grid of cells over a width x height frame (gi_cells.glsl's gi_cells)."""
+    return (width + 1) // 2, (height + 1) // 2
 
 
 class GITracePass(ReflectionTracePass):
@@ -22,31 +34,73 @@ class GITracePass(ReflectionTracePass):
     bindings = {
         **{k: v for k, v in ReflectionTracePass.bindings.items() if k != "raw"},
         "raw": write("buffer", "gi.raw"),
+        "cells": write("buffer", "gi.cells"),
         "h_position": read("image", "hist_position"),  # the previous frame's G-buffer, where the hits look up
         "h_normal": read("image", "hist_normal"),
-        "prev": read("buffer", "gi.final"),  # the previous frame's filtered irradiance
+        "prev": read("buffer", "gi.final"),  # the previous frame's irradiance, upsampled
     }
 
     def constants(self, ctx) -> dict:
         return RayPass.constants(self, ctx)
 
+    def record(self, rec, targets) -> None:
+        self.dispatch(rec, self.tiles(*cells(targets.width, targets.height)))
 
-class GITemporalPass(ReflectionTemporalPass):
+
+class GITemporalPass(ComputePass):
     name = "gi.temporal"
+    shader = "gi_temporal.comp"
     bindings = {
-        **ReflectionTemporalPass.bindings,
+        **{k: v for k, v in ReflectionTemporalPass.bindings.items() if k not in ("g_position", "g_normal", "g_pbr")},
         "raw": read("buffer", "gi.raw"),
         "hist": read("buffer", "gi.hist"),
         "cur": write("buffer", "gi.cur"),
+        "cells": read("buffer", "gi.cells"),
     }
 
-    def constants(self, ctx) -> dict:
-        return {"DIFFUSE": 1}
+    def record(self, rec, targets) -> None:
+        self.dispatch(rec, self.tiles(*cells(targets.width, targets.height)))
+        rec.copy(targets["gi.cur"], targets["gi.hist"])
 
 
 class GIFilterPass(ReflectionFilterPass):
     name = "gi.filter"
+    shader = "gi_filter.comp"
     prefix = "gi"
+    output = "half"
+    bindings = {
+        "frame": read("uniform", "frame"),
+        "cells": read("buffer", "gi.cells"),
+        "src": read("buffer"),
+        "dst": write("buffer"),
+    }
 
-    def constants(self, ctx) -> dict:
-        return {"DIFFUSE": 1}
+    def record(self, rec, targets) -> None:
+        for step, s, (src, dst) in zip(STEPS, self.sets, self.routes()):
+            self.dispatch(
+                rec,
+                self.tiles(*cells(targets.width, targets.height)),
+                push=np.array([step], np.uint32),
+                sets=s,
+                reads=self.reads + [targets[src]],
+                writes=[targets[dst]],
+            )
+
+
+class GIUpsamplePass(ComputePass):
+    name = "gi.upsample"
+    shader = "gi_upsample.comp"
+    bindings = {
+        "frame": read("uniform", "frame"),
+        "g_position": read("image", "position"),
+        "g_normal": read("image", "normal"),
+        "g_pbr": read("image", "material"),
+        "cells": read("buffer", "gi.cells"),
+        "half_res": read("buffer", "gi.half"),
+        "raw": read("buffer", "gi.raw"),
+        "final_gi": write("buffer", "gi.final"),
+        "raw_full": write("buffer", "gi.raw_full"),
+    }
+
+    def record(self, rec, targets) -> None:
+        self.dispatch(rec, self.tiles(targets.width, targets.height))

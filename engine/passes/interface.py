@@ -110,7 +110,7 @@ AOVS = {
     "instance_id": AOV("instance_id", 4, "int32"),
     "reflection_raw": AOV("refl.raw", 16, "float32", 3),
     "reflection": AOV("refl.final", 16, "float32", 3),
-    "gi_raw": AOV("gi.raw", 16, "float32", 3),
+    "gi_raw": AOV("gi.raw_full", 16, "float32", 3),
     "gi": AOV("gi.final", 16, "float32", 3),
 }
 

@@ -88,7 +88,8 @@ class ReflectionTemporalPass(ComputePass):
 class ReflectionFilterPass(ComputePass):
     name = "reflections.filter"
     shader = "reflect_filter.comp"
-    prefix = "refl"  # its buffers: <prefix>.cur -> .final, through .tmp
+    prefix = "refl"  # its buffers: <prefix>.cur -> .<output>, through .tmp
+    output = "final"
     bindings = {
         "frame": read("uniform", "frame"),
         "g_position": read("image", "position"),
@@ -105,10 +106,10 @@ class ReflectionFilterPass(ComputePass):
 
     @classmethod
     def routes(cls):
-        """(source, destination) of each iteration: cur -> final -> tmp -> final (an odd count ends in final)."""
-        p = cls.prefix
+        """(source, destination) of each iteration: cur -> output -> tmp -> output (an odd count ends in output)."""
+        p, out = cls.prefix, cls.output
         names = [f"{p}.cur"] + [
-            f"{p}.final" if (len(STEPS) - 1 - i) % 2 == 0 else f"{p}.tmp" for i in range(len(STEPS))
+            f"{p}.{out}" if (len(STEPS) - 1 - i) % 2 == 0 else f"{p}.tmp" for i in range(len(STEPS))
         ]
         return list(zip(names[:-1], names[1:]))
 

@@ -73,7 +73,7 @@ def add_arguments(p):
     p.add_argument("--no-reflections", dest="reflections", action="store_false", help="ray-traced reflections off")
     p.add_argument("--gi", dest="gi", action="store_true", default=None, help="diffuse global illumination on")
     p.add_argument("--no-gi", dest="gi", action="store_false", help="diffuse global illumination off")
-    p.add_argument("--ao-samples", type=int, default=None, help="AO rays per pixel")
+    p.add_argument("--ao-samples", type=int, default=None, help="AO rays per pixel (default 4, 1 with GI on)")
     p.add_argument("--exposure", type=float, default=None, help="exposure in EV (default -1)")
     p.add_argument("--tonemap", default=None, choices=TONEMAPS, help="initial tone curve (key 4 cycles them)")
     p.add_argument("--paused", action="store_true", help="start with the scene's animation paused (P plays it)")

@@ -1,7 +1,7 @@
 #version 450
 #extension GL_GOOGLE_include_directive : require
-// Diffuse global illumination from the G-buffer: per pixel one cosine-weighted ray about the surface's normal, traced
-// on the scene's BVH. A ray that leaves the scene sees the environment; at a hit the surface is shaded as the path
+// Diffuse global illumination from the G-buffer at half resolution: per 2x2 cell one cosine-weighted ray about the
+// normal of the cell's pixel whose turn it is this frame (gi_cells.glsl), traced on the scene's BVH. A ray that leaves the scene sees the environment; at a hit the surface is shaded as the path
 // tracer's vertex (hit_shading.glsl: its emission, each analytic light sampled once with a shadow ray) plus its
 // diffuse lobe lit by the irradiance this pass found there in the previous frame, read back where the previous
 // frame's G-buffer saw the same surface (the previous frame's filtered `prev` at the hit's reprojected pixel): each
@@ -11,7 +11,8 @@
 // lights are never hit: the lighting pass's direct term holds them.
 // With cosine-weighted directions the ray's radiance is an estimate of the irradiance over pi, the quantity the
 // lighting's diffuse lobe multiplies (as ibl.glsl's environment_irradiance). Metals (no diffuse lobe) and the
-// background are not traced (w = 0). Writes rgb, w = 1 where traced.
+// background are not traced (w = 0). Writes rgb, w = 1 where traced, per cell; and the cell's G-buffer (the traced
+// pixel's position, view depth and normal; w = 0 where none) for the temporal, filter and upsampling passes.
 #include "common.glsl"
 FRAME_BLOCK
 #include "brdf.glsl"
@@ -29,6 +30,7 @@ FRAME_BLOCK
 #define BVH_BINDING 0
 #include "bvh.glsl"
 #include "shares.glsl"
+#include "gi_cells.glsl"
 
 layout(local_size_x = 8, local_size_y = 8) in;
 layout(constant_id = 15) const uint WORK_SHARES = 1u;
@@ -43,7 +45,8 @@ layout(set = 0, binding = 9) uniform samplerBuffer vertices;      // 2 texels pe
 layout(set = 0, binding = 10) uniform usamplerBuffer triangles;   // 2 per flat triangle (engine/gpu/pathscene.py)
 layout(set = 0, binding = 12, rgba32f) uniform readonly image2D h_position;   // the previous frame's G-buffer
 layout(set = 0, binding = 13, rgba32f) uniform readonly image2D h_normal;
-layout(std430, set = 0, binding = 14) readonly buffer Prev { vec4 prev[]; };  // the previous frame's filtered GI
+layout(std430, set = 0, binding = 14) readonly buffer Prev { vec4 prev[]; };  // the previous frame's GI, upsampled
+layout(std430, set = 0, binding = 16) writeonly buffer Cells { vec4 cells[]; };  // 2 per cell: (p, depth), (n, 1 + turn)
 
 #include "scene_surface.glsl"
 #include "light_sample.glsl"
@@ -80,16 +83,34 @@ vec3 bounced(Surface s, vec3 v, uint pixel) {
 }
 
 void main() {
-    ivec2 px = ivec2(share_invocation(WORK_SHARES, gl_WorkGroupSize).xy);
+    ivec2 cell = ivec2(share_invocation(WORK_SHARES, gl_WorkGroupSize).xy);
     uint w = frame.width, h = frame.height;
-    if (px.x >= int(w) || px.y >= int(h)) return;
-    uint pixel = uint(px.y) * w + uint(px.x);
-    vec4 nrm = imageLoad(g_normal, px);
-    if (nrm.w <= 0.0 || imageLoad(g_pbr, px).y >= 1.0) {
-        raw[pixel] = vec4(0.0);
+    uvec2 nc = gi_cells(w, h);
+    if (cell.x >= int(nc.x) || cell.y >= int(nc.y)) return;
+    uint ci = uint(cell.y) * nc.x + uint(cell.x);
+    ivec2 px = ivec2(-1);
+    vec4 nrm = vec4(0.0);
+    uint turn = 0u;
+    for (uint k = 0u; k < 4u && px.x < 0; ++k) {
+        ivec2 q = gi_turn(cell, frame.frame_index, k, w, h);
+        vec4 qn = imageLoad(g_normal, q);
+        if (qn.w > 0.0 && imageLoad(g_pbr, q).y < 1.0) {
+            px = q;
+            nrm = qn;
+            turn = k;
+        }
+    }
+    if (px.x < 0) {
+        raw[ci] = vec4(0.0);
+        cells[2u * ci] = vec4(0.0);
+        cells[2u * ci + 1u] = vec4(0.0);
         return;
     }
-    vec3 n = nrm.xyz, p = imageLoad(g_position, px).xyz;
+    uint pixel = uint(px.y) * w + uint(px.x);
+    vec4 pos = imageLoad(g_position, px);
+    cells[2u * ci] = pos;
+    cells[2u * ci + 1u] = vec4(nrm.xyz, float(turn + 1u));
+    vec3 n = nrm.xyz, p = pos.xyz;
     vec3 v = normalize(frame.eye - p);
     if (dot(n, v) <= 0.0) n = normalize(n - v * (dot(n, v) - 1e-3));   // seen from behind: bent towards the eye
     vec3 d = cosine_hemisphere(n, r2(frame.frame_index, pixel_rotation(uvec2(px), 0x68e31da4u)));
@@ -103,5 +124,5 @@ void main() {
         radiance += bounced(s, -d, pixel);
     }
     if (any(isnan(radiance)) || any(isinf(radiance))) radiance = vec3(0.0);
-    raw[pixel] = vec4(radiance, 1.0);
+    raw[ci] = vec4(radiance, 1.0);
 }

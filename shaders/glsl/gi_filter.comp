@@ -18,7 +18,6 @@ layout(push_constant) uniform Push { uint step; } pc;
 
 const float KERNEL[3] = float[](0.375, 0.25, 0.0625);
 const float RADIUS = 12.0;   // the Gaussian's sigma in cells on a first frame (24 pixels)
-const float NORMAL_POWER = 32.0;
 const float PLANE_PIXELS = 3.0;   // 1.5 cells
 
 void main() {
@@ -35,6 +34,7 @@ void main() {
     vec3 n = cells[2u * ci + 1u].xyz;
     float sigma = RADIUS * inversesqrt(c.w);
     float tol = PLANE_PIXELS * float(pc.step) * pixel_footprint(pos.w);
+    float inv_s2 = 1.0 / (sigma * sigma), inv_tol = 1.0 / max(tol, 1e-6);
     vec3 sum = vec3(0.0);
     float wsum = 0.0;
     int step = int(pc.step);
@@ -46,9 +46,14 @@ void main() {
             vec4 s = src[qi];
             if (s.w <= 0.0) continue;
             float dist2 = float(dx * dx + dy * dy) * float(step * step);
-            float wk = KERNEL[abs(dx)] * KERNEL[abs(dy)] * exp(-0.5 * dist2 / (sigma * sigma));
-            wk *= pow(max(dot(n, cells[2u * qi + 1u].xyz), 0.0), NORMAL_POWER);
-            wk *= exp(-abs(dot(cells[2u * qi].xyz - pos.xyz, n)) / max(tol, 1e-6));
+            float plane = abs(dot(cells[2u * qi].xyz - pos.xyz, n));
+            float c2 = max(dot(n, cells[2u * qi + 1u].xyz), 0.0);
+            c2 *= c2;
+            c2 *= c2;
+            c2 *= c2;
+            c2 *= c2;   // the normals' cosine to the 16th power: squared below
+            float wk = KERNEL[abs(dx)] * KERNEL[abs(dy)] * c2 * c2;
+            wk *= exp(-0.5 * dist2 * inv_s2 - plane * inv_tol);   // the distance's Gaussian times the plane's
             sum += wk * s.rgb;
             wsum += wk;
         }

@@ -52,14 +52,14 @@ void main() {
         if (qn.w <= 0.0 || s.w <= 0.0) continue;
         vec2 d = vec2(gi_turn(q, frame.frame_index, uint(qn.w) - 1u, w, h) - px);
         float dist2 = dot(d, d);
-        float wk = exp(-0.5 * dist2 / (SIGMA_PIXELS * SIGMA_PIXELS));
+        float plane = abs(dot(cells[2u * qi].xyz - pos.xyz, nrm.xyz));
+        float wk = exp(-0.5 * dist2 / (SIGMA_PIXELS * SIGMA_PIXELS) - plane / tol);   // distance and plane
         float c = max(dot(nrm.xyz, qn.xyz), 0.0);
         c *= c;
         c *= c;
         c *= c;
         c *= c;
-        wk *= c * c;   // the cosine to the 32nd power
-        wk *= exp(-abs(dot(cells[2u * qi].xyz - pos.xyz, nrm.xyz)) / tol);
+        wk *= c * c;   // the normals' cosine to the 32nd power
         vec3 r = raw[qi].rgb;
         sum += wk * s.rgb;
         rsum += wk * r;

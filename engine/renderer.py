@@ -42,6 +42,7 @@ from .passes.path import PathPass
 from .passes.raster_options import RasterOptions
 from .passes.raypass import follow_scene
 from .passes.gi import GIFilterPass, GITemporalPass, GITracePass, GIUpsamplePass
+from .passes.gi import set_resolution as set_gi_resolution
 from .passes.reflections import ReflectionFilterPass, ReflectionTemporalPass, ReflectionTracePass
 from .passes.shadows import ShadowPass
 from .passes.taa import TAAPass
@@ -296,6 +297,7 @@ class Renderer(Closes):
         ao_radius: float | None = default("ao_radius"),
         reflections: bool = default("reflections"),
         gi: bool = default("gi"),
+        gi_resolution: str = default("gi_resolution"),
         exposure: float = default("exposure"),
         auto_exposure: bool = default("auto_exposure"),
         tonemap: Tonemap = default("tonemap"),
@@ -343,10 +345,13 @@ class Renderer(Closes):
             reflections: trace one GGX reflection ray per pixel from the G-buffer (surfaces up to roughness 0.6),
                 shaded at its hit with the scene's lights (a shadow ray each) and environment, accumulated over
                 frames by roughness and filtered; it replaces the split-sum environment in the specular lobe there.
-            gi: diffuse global illumination: one cosine-weighted ray per pixel from the G-buffer, shaded at its hit
-                with the scene's lights (a shadow ray each) and the irradiance found there the frame before (a
-                bounce more each frame), the environment on a miss; accumulated over frames and filtered. Its
-                irradiance replaces the environment's times AO in the diffuse lobe (non-metal pixels).
+            gi: diffuse global illumination: one cosine-weighted ray per 2x2 pixels (see `gi_resolution`) from the
+                G-buffer, shaded at its hit with the scene's lights (a shadow ray each) and the irradiance found
+                there the frame before (a bounce more each frame), the environment on a miss; accumulated over
+                frames, filtered and upsampled edge-aware. Its irradiance replaces the environment's times AO in
+                the diffuse lobe (non-metal pixels).
+            gi_resolution: "half" (a GI ray per 2x2 pixels, the block's pixels in turn over 4 frames) or "full"
+                (a ray per pixel: slower, a little closer to the path tracer).
             exposure: in EV: the linear HDR colour is scaled by 2^exposure before the tone curve and sRGB
                 encoding; in [-60, 60].
             auto_exposure: also scale by 0.18 / the frame's log-average luminance (computed on the GPU).
@@ -560,6 +565,7 @@ class Renderer(Closes):
         ao_radius: float | None = default("ao_radius"),
         reflections: bool = default("reflections"),
         gi: bool = default("gi"),
+        gi_resolution: str = default("gi_resolution"),
         exposure: float = default("exposure"),
         auto_exposure: bool = default("auto_exposure"),
         tonemap: Tonemap = default("tonemap"),
@@ -688,6 +694,7 @@ class Renderer(Closes):
                     "taa",
                     "reflections",
                     "gi",
+                    "gi_resolution",
                 )
             ),
         )
@@ -706,6 +713,7 @@ class Renderer(Closes):
             cfg["taa"],
             cfg["reflections"],
             cfg["gi"],
+            cfg["gi_resolution"],
             len(lights),
             readback,
             self._raster,
@@ -882,6 +890,8 @@ class Renderer(Closes):
         for setting, kinds in SECONDARY_EFFECTS.items():
             if cfg[setting] and cfg["integrator"] != "path":
                 self._effect_ready(scene, setting, kinds)
+        if cfg["gi"] and cfg["integrator"] != "path" and set_gi_resolution(self.gi, cfg["gi_resolution"]):
+            self._invalidate_commands()
 
     def _effect_ready(self, scene, setting, kinds):
         if getattr(self, setting) is None:

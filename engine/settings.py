@@ -43,7 +43,8 @@ DEFAULT_SETTINGS: dict[str, Any] = {
     "ao_samples": None,  # None: 4, or 1 with gi on (then AO only occludes the specular lobe's environment)
     "ao_radius": None,  # None: 10% of the scene's bounding-box diagonal
     "reflections": False,  # ray-traced GGX reflections, temporally and spatially filtered (passes/reflections.py)
-    "gi": False,  # diffuse global illumination: a cosine ray per pixel, bounces over frames, filtered (passes/gi.py)
+    "gi": False,  # diffuse global illumination: a cosine ray per cell, bounces over frames, filtered (passes/gi.py)
+    "gi_resolution": "half",  # GI_RESOLUTIONS: the GI's cells: 2x2 pixels, or a pixel
     "exposure": -1.0,  # EV: the radiance is scaled by 2^exposure before the tone curve (-1: a sunlit grey < 220)
     "auto_exposure": False,  # scale by 0.18 / the frame's log-average luminance as well (exposure.comp)
     "tonemap": "agx",  # TONEMAPS: Khronos PBR Neutral, AgX, or Narkowicz's ACES fit
@@ -56,6 +57,8 @@ DEFAULT_SETTINGS: dict[str, Any] = {
     "seed": 0,  # path: the random sequence's seed (the same image for the same seed and spp)
     "taa": False,  # raster: temporal anti-aliasing of the colour (jittered; frames reading data AOVs unjittered)
 }
+#: The values of the `gi_resolution` setting.
+GI_RESOLUTIONS = ("half", "full")
 #: The values of the `integrator` setting.
 INTEGRATORS = ("raster", "path")
 #: The values of the `pixel_filter` setting: box (uniform over the pixel), gaussian (standard deviation 0.5 pixel).
@@ -76,6 +79,7 @@ __all__ = [
     "DEFAULT_SETTINGS",
     "SHADOW_MODES",
     "INTEGRATORS",
+    "GI_RESOLUTIONS",
     "PIXEL_FILTERS",
     "TONEMAPS",
     "AOVS",
@@ -190,7 +194,7 @@ def check_settings(settings: dict[str, Any]) -> dict[str, Any]:
         raise ConfigError(f"setting shadows={out['shadows']!r}: expected one of {', '.join(SHADOW_MODES)}")
     if out["view"] not in VIEW_MODES:
         raise ConfigError(f"setting view={out['view']!r}: expected one of {', '.join(VIEW_MODES)}")
-    for key, known in (("integrator", INTEGRATORS), ("pixel_filter", PIXEL_FILTERS)):
+    for key, known in (("integrator", INTEGRATORS), ("pixel_filter", PIXEL_FILTERS), ("gi_resolution", GI_RESOLUTIONS)):
         if out[key] not in known:
             raise ConfigError(f"setting {key}={out[key]!r}: expected one of {', '.join(known)}")
     if out["tonemap"] not in TONEMAPS:

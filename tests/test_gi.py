@@ -79,6 +79,31 @@ def test_the_bounced_light_of_a_room_converges_towards_the_path_tracer(make_rend
     assert abs(on.aov["radiance"][..., :3].mean() - level) < 0.25 * level, (on.aov["radiance"].mean(), level)
 
 
+def test_full_resolution_gi_converges_too_and_switches_back(make_renderer):
+    """gi_resolution "full" (a ray per pixel) converges as "half" does; switched back to "half", a renderer is as
+    close to the path tracer after 8 frames as one that only ever had "half" (within 10%: other random numbers)."""
+    r = make_renderer(W, H)
+    scene = room()
+    off = frames(r, scene, 1, gi=False, aovs=("radiance",))
+    full = frames(r, scene, 16, gi=True, gi_resolution="full", aovs=("radiance",))
+    half = frames(r, scene, 8, gi=True, aovs=("radiance",))
+    lone = frames(make_renderer(W, H), scene, 8, gi=True, aovs=("radiance",))
+    ref = r.render(scene, **LIT, integrator="path", spp=256, seed=1, aovs=("radiance",))
+    want = blocks(ref.aov["radiance"][..., :3])
+
+    def err(f):
+        return float(np.abs(blocks(f.aov["radiance"][..., :3]) - want).mean())
+
+    assert err(full) < 0.4 * err(off), (err(full), err(off))
+    assert err(half) < 1.1 * err(lone), (err(half), err(lone))
+
+
+@pytest.mark.parametrize("value", ["quarter", 2, None])
+def test_gi_resolution_takes_half_or_full(make_renderer, value):
+    with pytest.raises(ConfigError, match=r"setting gi_resolution=.*expected one of half, full"):
+        make_renderer(16, 16).render(room(), gi=True, gi_resolution=value)
+
+
 @pytest.mark.slow
 def test_the_room_in_flip_against_a_converged_path_tracer(make_renderer):
     """NVIDIA FLIP (flip-evaluator) of the tone-mapped images against a 1024-path reference: the GI frame after 16

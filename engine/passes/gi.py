@@ -1,4 +1,5 @@
-"""Diffuse global illumination at half resolution: one cosine-weighted ray per 2x2 cell of the G-buffer and frame,
+"""Diffuse global illumination at half resolution (setting `gi_resolution`, "full": a cell per pixel): one
+cosine-weighted ray per 2x2 cell of the G-buffer and frame,
 from the cell's pixel whose turn it is (the 4 pixels in turn over 4 frames; shaders/glsl/include/gi_cells.glsl),
 shaded at its hit with the scene's lights (one shadow ray each) and the irradiance found there the previous frame
 (shaders/glsl/gi.comp: a bounce more each frame between the surfaces the camera sees), the environment on a miss;
@@ -8,10 +9,10 @@ quarter of the rays, blended over frames and filtered, loses little: measured in
 lighting pass takes the upsampled irradiance as the diffuse lobe's ambient light where a cell was traced (every
 covered non-metal pixel), the environment's SH irradiance times AO elsewhere.
 
-Buffers (engine/passes/targets.py, `gi.*`, the cells' in the first quarter of theirs): raw -> cur (copied into
-hist) -> the filter's ping-pong through tmp -> half; `cells` the cells' G-buffer (the traced pixels' position,
-normal and turn); the upsampling's `final` (which the next frame's rays read back at their hits) and `raw_full`
-(this frame's rays brought up alike: the gi_raw AOV).
+Buffers (engine/passes/targets.py, `gi.*`, the half-resolution cells' in the first quarter of theirs): raw -> cur
+(copied into hist) -> the filter's ping-pong through tmp -> half; `cells` the cells' G-buffer (the traced pixels'
+position, normal and turn); the upsampling's `final` (which the next frame's rays read back at their hits) and
+`raw_full` (this frame's rays brought up alike: the gi_raw AOV).
 """
 
 from __future__ import annotations
@@ -23,9 +24,24 @@ from .raypass import RayPass
 from .reflections import STEPS, ReflectionFilterPass, ReflectionTemporalPass, ReflectionTracePass
 
 
-def cells(width: int, height: int) -> tuple:
-    """The half-resolution grid of cells over a width x height frame (gi_cells.glsl's gi_cells)."""
-    return (width + 1) // 2, (height + 1) // 2
+#: The pixels per cell side (gi_cells.glsl's GI_CELL) by the setting `gi_resolution`.
+GI_CELLS = {"half": 2, "full": 1}
+
+
+def cells(gi_pass, targets) -> tuple:
+    """The grid of cells over the frame as `gi_pass` is specialized (gi_cells.glsl's gi_cells)."""
+    c = gi_pass.values.get("GI_CELL", GI_CELLS["half"])
+    return (targets.width + c - 1) // c, (targets.height + c - 1) // c
+
+
+def set_resolution(passes, resolution: str) -> bool:
+    """The GI's passes specialized for `resolution` ("half", "full"); True where that changed their pipelines."""
+    cell = GI_CELLS[resolution]
+    if all(p.values.get("GI_CELL", GI_CELLS["half"]) == cell for p in passes):
+        return False
+    for p in passes:
+        p.specialize(GI_CELL=cell)
+    return True
 
 
 class GITracePass(ReflectionTracePass):
@@ -44,7 +60,7 @@ class GITracePass(ReflectionTracePass):
         return RayPass.constants(self, ctx)
 
     def record(self, rec, targets) -> None:
-        self.dispatch(rec, self.tiles(*cells(targets.width, targets.height)))
+        self.dispatch(rec, self.tiles(*cells(self, targets)))
 
 
 class GITemporalPass(ComputePass):
@@ -59,7 +75,7 @@ class GITemporalPass(ComputePass):
     }
 
     def record(self, rec, targets) -> None:
-        self.dispatch(rec, self.tiles(*cells(targets.width, targets.height)))
+        self.dispatch(rec, self.tiles(*cells(self, targets)))
         rec.copy(targets["gi.cur"], targets["gi.hist"])
 
 
@@ -79,7 +95,7 @@ class GIFilterPass(ReflectionFilterPass):
         for step, s, (src, dst) in zip(STEPS, self.sets, self.routes()):
             self.dispatch(
                 rec,
-                self.tiles(*cells(targets.width, targets.height)),
+                self.tiles(*cells(self, targets)),
                 push=np.array([step], np.uint32),
                 sets=s,
                 reads=self.reads + [targets[src]],

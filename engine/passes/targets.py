@@ -40,7 +40,7 @@ ALBEDO_FORMAT = RGBA16F
 VISIBILITY_FORMAT = R32UI  # triangle id + 1 (0: background)
 DEPTH_FORMAT = D32F
 REFLECTION = ("raw", "cur", "hist", "tmp", "final")  # the reflections' buffers (vec4 per pixel)
-#: the diffuse GI's (engine/passes/gi.py; its half-resolution cells use a quarter of each)
+#: the diffuse GI's (engine/passes/gi.py; vec4 per cell, 2 in `cells`; half-resolution cells use a quarter of each)
 GI_BUFFERS = ("raw", "cur", "hist", "tmp", "half", "final", "cells", "raw_full")
 
 
@@ -121,7 +121,9 @@ class Targets:
         # temporal blend (cur) and its copy for the next frame (hist), the spatial filter's ping-pong and result
         self.reflection = {part: Buffer(ctx, n * 16, buf_usage, name=f"reflection {part}") for part in REFLECTION}
         # the diffuse GI's irradiance (engine/passes/gi.py): a like chain on half-resolution cells, upsampled
-        self.gi = {part: Buffer(ctx, n * 16, buf_usage, name=f"gi {part}") for part in GI_BUFFERS}
+        self.gi = {
+            part: Buffer(ctx, n * (32 if part == "cells" else 16), buf_usage, name=f"gi {part}") for part in GI_BUFFERS
+        }
         self.readbacks: dict = {}  # (AOV names, slot) -> (host buffer, {name: offset})
         images = [
             self.visibility,

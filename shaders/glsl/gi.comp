@@ -91,7 +91,7 @@ void main() {
     ivec2 px = ivec2(-1);
     vec4 nrm = vec4(0.0);
     uint turn = 0u;
-    for (uint k = 0u; k < 4u && px.x < 0; ++k) {
+    for (uint k = 0u; k < GI_TURNS && px.x < 0; ++k) {
         ivec2 q = gi_turn(cell, frame.frame_index, k, w, h);
         vec4 qn = imageLoad(g_normal, q);
         if (qn.w > 0.0 && imageLoad(g_pbr, q).y < 1.0) {

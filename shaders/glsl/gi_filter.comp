@@ -17,8 +17,8 @@ layout(std430, set = 0, binding = 5) writeonly buffer Dst { vec4 dst[]; };
 layout(push_constant) uniform Push { uint step; } pc;
 
 const float KERNEL[3] = float[](0.375, 0.25, 0.0625);
-const float RADIUS = 12.0;   // the Gaussian's sigma in cells on a first frame (24 pixels)
-const float PLANE_PIXELS = 3.0;   // 1.5 cells
+const float RADIUS_PIXELS = 24.0;   // the Gaussian's sigma on a first frame
+const float PLANE_CELLS = 1.5;
 
 void main() {
     ivec2 cell = ivec2(gl_GlobalInvocationID.xy);
@@ -32,8 +32,8 @@ void main() {
     }
     vec4 pos = cells[2u * ci];
     vec3 n = cells[2u * ci + 1u].xyz;
-    float sigma = RADIUS * inversesqrt(c.w);
-    float tol = PLANE_PIXELS * float(pc.step) * pixel_footprint(pos.w);
+    float sigma = RADIUS_PIXELS / float(GI_CELL) * inversesqrt(c.w);   // in cells
+    float tol = PLANE_CELLS * float(GI_CELL * pc.step) * pixel_footprint(pos.w);
     float inv_s2 = 1.0 / (sigma * sigma), inv_tol = 1.0 / max(tol, 1e-6);
     vec3 sum = vec3(0.0);
     float wsum = 0.0;

@@ -29,13 +29,13 @@ layout(std430, set = 0, binding = 14) readonly buffer Cells { vec4 cells[]; };  
 
 const float NORMAL_COS = 0.9;
 const float PLANE_REL = 0.01;
-const float PLANE_PIXELS = 4.0;   // a cell's neighbouring pixels
+const float PLANE_CELLS = 2.0;
 const float ALPHA_MIN_GI = 0.05;
 const float MAX_GI_HISTORY = 64.0;
 
 // The pixel that the previous frame's cell `q` traced (its first covered pixel from that frame's turn on).
 ivec2 traced_then(ivec2 q, uint w, uint h) {
-    for (uint k = 0u; k < 4u; ++k) {
+    for (uint k = 0u; k < GI_TURNS; ++k) {
         ivec2 p = gi_turn(q, frame.frame_index + 3u, k, w, h);
         if (imageLoad(h_normal, p).w > 0.0) return p;
     }
@@ -62,10 +62,11 @@ void main() {
         uint inst = imageLoad(g_instance, px).x;
         vec4 clip = frame.prev_view_proj * vec4(then, 1.0);
         if (clip.w > 0.0) {
-            vec2 pp = (vec2(px) - imageLoad(g_motion, px).xy - 0.5) * 0.5;   // in cells (a cell's centre: its block's)
+            // in cells (a cell's centre: its block's)
+            vec2 pp = (vec2(px) - imageLoad(g_motion, px).xy - 0.5 * float(GI_CELL - 1u)) / float(GI_CELL);
             ivec2 base = ivec2(floor(pp));
             vec2 f = pp - vec2(base);
-            float tol = PLANE_REL * clip.w + PLANE_PIXELS * pixel_footprint(clip.w);
+            float tol = PLANE_REL * clip.w + PLANE_CELLS * float(GI_CELL) * pixel_footprint(clip.w);
             for (int t = 0; t < 4; ++t) {
                 ivec2 q = base + ivec2(t & 1, t >> 1);
                 if (q.x < 0 || q.y < 0 || q.x >= int(nc.x) || q.y >= int(nc.y)) continue;

@@ -37,13 +37,14 @@ void main() {
     }
     vec4 pos = imageLoad(g_position, px);
     uvec2 nc = gi_cells(w, h);
-    ivec2 own = px / 2;
+    ivec2 own = px / int(GI_CELL);
     float tol = PLANE_PIXELS * pixel_footprint(pos.w);
     vec3 sum = vec3(0.0), rsum = vec3(0.0);
     float wsum = 0.0, nearest = 1e30;
     vec3 near_val = vec3(0.0), near_raw = vec3(0.0);
     bool found = false;
     for (int t = 0; t < 9; ++t) {
+        if (GI_CELL == 1u && t != 4) continue;   // (full resolution: the pixel's own cell)
         ivec2 q = own + ivec2(t % 3 - 1, t / 3 - 1);
         if (q.x < 0 || q.y < 0 || q.x >= int(nc.x) || q.y >= int(nc.y)) continue;
         uint qi = uint(q.y) * nc.x + uint(q.x);

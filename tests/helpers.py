@@ -107,6 +107,28 @@ def run_plugin_suite(cwd, files, *, plugin, ini, backend, report, name=lambda ca
     return proc, outcome
 
 
+def run_cli(*args, cwd=None) -> subprocess.CompletedProcess:
+    """`hybrid ARGS` in this process (engine.cli.main, from `cwd`, default the repository): its exit status and what
+    it printed, as subprocess.run returns them. For the CLI's refusals of bad options and files, where a process each
+    would cost its start-up and imports; tests/test_cli.py checks the real process's one-line errors."""
+    import contextlib
+    import io
+
+    from engine import cli
+
+    out, err = io.StringIO(), io.StringIO()
+    with (
+        contextlib.chdir(cwd or Path(__file__).resolve().parent.parent),
+        contextlib.redirect_stdout(out),
+        contextlib.redirect_stderr(err),
+    ):
+        try:
+            code = cli.main([str(a) for a in args])
+        except SystemExit as exc:  # argparse's own refusals
+            code = exc.code
+    return subprocess.CompletedProcess(args, code, out.getvalue(), err.getvalue())
+
+
 def interior(mask, margin=1):
     """Pixels of `mask` whose whole (2*margin+1)^2 neighbourhood is in the mask (away from edges)."""
     m = mask.copy()

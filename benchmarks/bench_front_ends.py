@@ -84,13 +84,13 @@ def child(args) -> dict:
         oc, dc = np.ascontiguousarray(rays[:, :3]), np.ascontiguousarray(rays[:, 3:])
         points = (c + rng.uniform(-0.5, 0.5, (m, 3)) * ext).astype(np.float32)
         near = (v[rng.integers(0, len(v), m)] + rng.normal(0, 0.01, (m, 3)) * ext.max()).astype(np.float32)
-        scene = engine.RaycastingScene()
+        scene = engine.RaycastingScene(backend="vulkan")  # (the Vulkan front ends, also on a CPU device)
         scene.add_triangles(v, f)
         scene.cast_rays(rays[:16])
         tracer = scene._built.tracer  # (the scene's own Tracer: the same BVH and device)
         out["device"] = tracer.ctx.device_info["name"]
         mesh = trimesh.Trimesh(v.astype(np.float64), f, process=False)
-        rmi = engine.RayMeshIntersector(mesh, device=None)
+        rmi = engine.RayMeshIntersector(mesh, device=None, backend="vulkan")
         few = max(1, n // args.count_div)
         calls = {
             "tracer_intersect": lambda: tracer.intersect(oc, dc),

@@ -47,6 +47,7 @@ def _settings(args) -> dict:
         "ao",
         "ao_samples",
         "reflections",
+        "gi",
     )
     for key in keys + (
         "exposure",
@@ -390,6 +391,8 @@ def build_parser() -> argparse.ArgumentParser:
         "--reflections", dest="reflections", action="store_true", default=None, help="ray-traced reflections on"
     )
     r.add_argument("--no-reflections", dest="reflections", action="store_false", help="ray-traced reflections off")
+    r.add_argument("--gi", dest="gi", action="store_true", default=None, help="diffuse global illumination on")
+    r.add_argument("--no-gi", dest="gi", action="store_false", help="diffuse global illumination off")
     r.add_argument("--ao-samples", type=int, default=None, help="AO rays per pixel")
     r.add_argument("--exposure", type=float, default=None, help="exposure in EV (default -1: 2^-1 on the radiance)")
     r.add_argument(

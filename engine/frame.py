@@ -63,6 +63,9 @@ class Frame:
     - "reflection", "reflection_raw": (H, W, 3) the linear RGB radiance the traced reflection ray brought (setting
       `reflections`): filtered (what the lighting's specular lobe used), and this frame's ray alone; 0 where no ray
       was traced (rougher than the cutoff, the background, reflections off).
+    - "gi", "gi_raw": (H, W, 3) the diffuse global illumination's irradiance over pi (setting `gi`; the radiance a
+      white Lambert surface would reflect of it): filtered (what the lighting's diffuse lobe used), and this frame's
+      ray alone; 0 where no ray was traced (metals, the background, gi off).
     - "semantic_id": (H, W) uint32 the semantic class of the object seen (`class_names[id]`), 0 on the background
       and on objects without a class (`Scene.set_classes`); made on the host from the object ids, exactly.
 

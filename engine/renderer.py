@@ -1,7 +1,8 @@
 """The Renderer: owns the Vulkan context, the frame's resources and its passes, and orders them into a frame.
 
-    G-buffer raster -> shadow rays -> AO rays -> reflection rays + their filters -> temporal accumulation
-        -> a-trous denoise -> lighting + tonemap -> temporal anti-aliasing -> exposure -> debug view -> readback
+    G-buffer raster -> shadow rays -> AO rays -> reflection rays, diffuse GI rays + their filters
+        -> temporal accumulation -> a-trous denoise -> lighting + tonemap -> temporal anti-aliasing -> exposure
+        -> debug view -> readback
 
 A frame's command buffer is recorded once per (scene, settings) and re-submitted; only the per-frame
 uniform block (camera, previous camera, frame index, history reset flag) is rewritten before each submit
@@ -40,6 +41,7 @@ from .passes.lighting import LightingPass
 from .passes.path import PathPass
 from .passes.raster_options import RasterOptions
 from .passes.raypass import follow_scene
+from .passes.gi import GIFilterPass, GITemporalPass, GITracePass
 from .passes.reflections import ReflectionFilterPass, ReflectionTemporalPass, ReflectionTracePass
 from .passes.shadows import ShadowPass
 from .passes.taa import TAAPass
@@ -57,6 +59,12 @@ from .vk import Context, Recorder, Timestamps, reflect
 from .vk.shared import Device, Scope
 from .vk.recorder import ONE_F32, TRANSFER
 from .vk.sync import create_fence, destroy_fence, reset_fences, wait_fences
+
+#: The effects whose rays are shaded at their hits, by setting: their (trace, temporal, filter) pass classes.
+SECONDARY_EFFECTS = {
+    "reflections": (ReflectionTracePass, ReflectionTemporalPass, ReflectionFilterPass),
+    "gi": (GITracePass, GITemporalPass, GIFilterPass),
+}
 
 
 class Renderer(Closes):
@@ -200,6 +208,7 @@ class Renderer(Closes):
         self._history_key = self._steady = None  # _history_key: what the temporal history was accumulated under
         self.path = None  # PathPass, made by the first path-traced frame (its pipeline takes a while to build)
         self.reflections = None  # (trace, temporal, filter) passes, made by the first frame with reflections on
+        self.gi = None  # the diffuse GI's (trace, temporal, filter) passes, made by the first frame with gi on
         self.path_samples = 0  # samples per pixel in the path tracer's image so far
         self.path_progress = None  # called as f(samples done, samples in all) after each path-tracing batch
         self._path_key = None  # what the path tracer's samples so far were traced under
@@ -284,6 +293,7 @@ class Renderer(Closes):
         ao_samples: int = default("ao_samples"),
         ao_radius: float | None = default("ao_radius"),
         reflections: bool = default("reflections"),
+        gi: bool = default("gi"),
         exposure: float = default("exposure"),
         auto_exposure: bool = default("auto_exposure"),
         tonemap: Tonemap = default("tonemap"),
@@ -331,6 +341,10 @@ class Renderer(Closes):
             reflections: trace one GGX reflection ray per pixel from the G-buffer (surfaces up to roughness 0.6),
                 shaded at its hit with the scene's lights (a shadow ray each) and environment, accumulated over
                 frames by roughness and filtered; it replaces the split-sum environment in the specular lobe there.
+            gi: diffuse global illumination: one cosine-weighted ray per pixel from the G-buffer, shaded at its hit
+                with the scene's lights (a shadow ray each) and the irradiance found there the frame before (a
+                bounce more each frame), the environment on a miss; accumulated over frames and filtered. Its
+                irradiance replaces the environment's times AO in the diffuse lobe (non-metal pixels).
             exposure: in EV: the linear HDR colour is scaled by 2^exposure before the tone curve and sRGB
                 encoding; in [-60, 60].
             auto_exposure: also scale by 0.18 / the frame's log-average luminance (computed on the GPU).
@@ -543,6 +557,7 @@ class Renderer(Closes):
         ao_samples: int = default("ao_samples"),
         ao_radius: float | None = default("ao_radius"),
         reflections: bool = default("reflections"),
+        gi: bool = default("gi"),
         exposure: float = default("exposure"),
         auto_exposure: bool = default("auto_exposure"),
         tonemap: Tonemap = default("tonemap"),
@@ -670,6 +685,7 @@ class Renderer(Closes):
                     "shadow_terminator",
                     "taa",
                     "reflections",
+                    "gi",
                 )
             ),
         )
@@ -687,6 +703,7 @@ class Renderer(Closes):
             cfg["integrator"],
             cfg["taa"],
             cfg["reflections"],
+            cfg["gi"],
             len(lights),
             readback,
             self._raster,
@@ -695,7 +712,7 @@ class Renderer(Closes):
         if cfg["shadows"] == "reference":
             key += (cfg["reference_samples"],)
         self._path_ready(scene, cfg)
-        self._reflections_ready(scene, cfg)
+        self._traced_ready(scene, cfg)
         if key not in self._commands:
             cmd, ts = self._record(cfg, len(lights), readback, rays)
             self._commands[key] = (cmd, list(ts.names))
@@ -826,12 +843,17 @@ class Renderer(Closes):
                 self._upload_geometry(scene)
             self._changes.write(scene, self._geometry)
             self._update_bvh(scene, todo[1])
-            if self.reflections is not None and self.reflections[0].scene_data is not None:
-                self.reflections[0].scene_data.update(scene)  # the hits' instance transforms (in place)
+            for trace in self._secondary_traces():
+                if trace.scene_data is not None:
+                    trace.scene_data.update(scene)  # the hits' instance transforms (in place)
 
     def _ray_passes(self):
-        extra = (self.path, self.reflections[0] if self.reflections else None)
-        return (self.shadows, self.ao, *(p for p in extra if p is not None))
+        extra = (self.path,) if self.path is not None else ()
+        return (self.shadows, self.ao, *extra, *self._secondary_traces())
+
+    def _secondary_traces(self):
+        """The trace passes made so far of the effects whose hits are shaded (reflections, diffuse GI)."""
+        return [passes[0] for passes in (self.reflections, self.gi) if passes is not None]
 
     def _path_ready(self, scene, cfg):
         """For a path-traced frame: the path tracer's pass (made on first use) and its scene buffers (made again
@@ -852,27 +874,26 @@ class Renderer(Closes):
             self.path.bind_data(PathScene(self.ctx, scene), self._geometry)
             self._path_key = None
 
-    def _reflections_ready(self, scene, cfg):
-        """For a frame with reflections: their passes (made on first use) and the scene buffers their hits read (made
-        again after a new upload)."""
-        if not cfg["reflections"] or cfg["integrator"] == "path":
-            return
-        if self.reflections is None:
+    def _traced_ready(self, scene, cfg):
+        """For a frame with reflections or diffuse GI: their passes (made on first use) and the scene buffers their
+        hits read (made again after a new upload)."""
+        for setting, kinds in SECONDARY_EFFECTS.items():
+            if cfg[setting] and cfg["integrator"] != "path":
+                self._effect_ready(scene, setting, kinds)
+
+    def _effect_ready(self, scene, setting, kinds):
+        if getattr(self, setting) is None:
             lib, res = self.library, self.targets.resources
-            trace = ReflectionTracePass(self.ctx, lib, res, self.bvh_set, self.bvh_layout)
-            self.reflections = (
-                trace,
-                ReflectionTemporalPass(self.ctx, lib, res),
-                ReflectionFilterPass(self.ctx, lib, res),
-            )
-            self.passes += self.reflections
+            trace = kinds[0](self.ctx, lib, res, self.bvh_set, self.bvh_layout)
+            setattr(self, setting, (trace, kinds[1](self.ctx, lib, res), kinds[2](self.ctx, lib, res)))
+            self.passes += getattr(self, setting)
             trace.bind_scene(self._geometry)
             if self._environment is not None:
                 trace.bind_environment(self._environment)
             if self._scene_bvh is not None:
                 trace.specialize_for(self._scene_bvh)
             self._invalidate_commands()
-        trace = self.reflections[0]
+        trace = getattr(self, setting)[0]
         if trace.scene_data is None:
             self._invalidate_commands()  # (the recordings bound the last scene's buffers)
             trace.bind_data(PathScene(self.ctx, scene), self._geometry)
@@ -883,10 +904,11 @@ class Renderer(Closes):
             self.path.scene_data.destroy()
             self.path.scene_data = None
             self._path_key = None
-        if self.reflections is not None and self.reflections[0].scene_data is not None:
-            self.ctx.wait_idle()
-            self.reflections[0].scene_data.destroy()
-            self.reflections[0].scene_data = None
+        for trace in self._secondary_traces():
+            if trace.scene_data is not None:
+                self.ctx.wait_idle()
+                trace.scene_data.destroy()
+                trace.scene_data = None
 
     def _path_samples(self, scene, camera, cfg, n_lights, progressive=False):
         """Trace `cfg["spp"]` (None: 64) samples per pixel into the path tracer's sum (the frame's recording then
@@ -1046,10 +1068,11 @@ class Renderer(Closes):
             rec.fill(t["ao.raw"], ONE_F32)
         rec.mark("ao")
 
-        self._record_reflections(rec, cfg, path)
+        self._record_traced(rec, cfg, path, "reflections", "refl")
+        self._record_traced(rec, cfg, path, "gi", "gi")
         copied = self._record_filters(rec, cfg, n_lights, mode, path)
-        if not copied and cfg["reflections"] and not path:
-            AccumulatePass.record_history_copy(rec, t, ())  # the reflections' reprojection reads the G-buffer's
+        if not copied and (cfg["reflections"] or cfg["gi"]) and not path:
+            AccumulatePass.record_history_copy(rec, t, ())  # their reprojection reads the G-buffer's history
         (self.path.record_resolve if path else self.lighting.record)(rec, t)
         rec.mark("lighting")
         if cfg["taa"] and not path:
@@ -1068,25 +1091,25 @@ class Renderer(Closes):
             rec.use(reads=[t.color], stage=TRANSFER)
         return rec.finish(), ts
 
-    def _record_reflections(self, rec, cfg, path):
-        """The traced reflections, accumulated and filtered where the settings ask for it, into `refl.final` (all zero,
-        nothing traced, when they are off)."""
+    def _record_traced(self, rec, cfg, path, setting, prefix):
+        """The traced reflections (`setting` "reflections") or diffuse GI ("gi"), accumulated and filtered where the
+        settings ask for it, into `<prefix>.final` (all zero, nothing traced, when they are off)."""
         t = self.targets
-        if not cfg["reflections"] or path:
-            rec.fill(t["refl.final"], 0)
+        if not cfg[setting] or path:
+            rec.fill(t[f"{prefix}.final"], 0)
             return
-        trace, temporal, spatial = self.reflections
+        trace, temporal, spatial = getattr(self, setting)
         trace.record(rec, t)
-        rec.mark("reflections")
+        rec.mark(setting)
         if cfg["accumulate"]:
             temporal.record(rec, t)
         else:
-            rec.copy(t["refl.raw"], t["refl.cur"])
+            rec.copy(t[f"{prefix}.raw"], t[f"{prefix}.cur"])
         if cfg["denoise"]:
             spatial.record(rec, t)
         else:
-            rec.copy(t["refl.cur"], t["refl.final"])
-        rec.mark("reflections.filter")
+            rec.copy(t[f"{prefix}.cur"], t[f"{prefix}.final"])
+        rec.mark(f"{setting}.filter")
 
     def _record_filters(self, rec, cfg, n_lights, mode, path) -> bool:
         """The temporal accumulation and denoiser of the soft light masks and AO, where the settings ask for them

@@ -129,6 +129,53 @@ def run_cli(*args, cwd=None) -> subprocess.CompletedProcess:
     return subprocess.CompletedProcess(args, code, out.getvalue(), err.getvalue())
 
 
+def ball_over_ground(x, height, camera, sun, materials, name):
+    """A 6 x 6 ground (instance 0, material 0) and a ball of radius 0.4 (instance 1, material 1) at (x, height, 0), the
+    instance the motion tests move (`place`)."""
+    from engine import Instance, Mesh, Scene
+    from engine.scene import primitives
+
+    ground = Mesh(*primitives.plane((6.0, 6.0))[:2], normals=primitives.plane((6.0, 6.0))[2], name="ground")
+    p, f, n, uv = primitives.sphere(0.4, 24, 12)
+    ball = Mesh(p, f, normals=n, uvs=uv, vertex_material=np.full(len(p), 1), name="ball")
+    insts = [Instance(0, np.eye(4), name="ground"), Instance(1, place(x, height), name="ball")]
+    return Scene.from_meshes([ground, ball], insts, materials=materials, lights=[sun], camera=camera, name=name)
+
+
+def place(x, height):
+    """The transform to (x, height, 0)."""
+    m = np.eye(4)
+    m[:3, 3] = (x, height, 0.0)
+    return m
+
+
+def toggles_with_key(viewer, key, setting):
+    """Assert that pressing `key` (a GLFW key) in `viewer` turns `setting` on, that the next frame runs its pass (a
+    timing of the same name) and that the overlay says so."""
+    import glfw
+
+    viewer.run(frames=1)
+    assert not viewer.settings[setting]
+    viewer._on_key(viewer.window, key, 0, glfw.PRESS, 0)
+    assert viewer.settings[setting]
+    viewer.run(frames=1)
+    assert setting in viewer.renderer.last_timings()
+    viewer._update_text(float("inf"))
+    assert any(f"{setting} on" in line for line in viewer.overlay_lines), viewer.overlay_lines
+
+
+def filters_follow_settings(renderer, scene, setting, raw, final, **kw):
+    """Assert that with accumulate and denoise off the effect `setting`'s AOV `final` is its `raw` one (this frame's
+    rays alone), and that with both on it differs (blended and filtered)."""
+    aovs = (raw, final)
+    for _ in range(2):
+        plain = renderer.render(scene, **{setting: True}, accumulate=False, denoise=False, aovs=aovs, **kw)
+    np.testing.assert_array_equal(plain.aov[final], plain.aov[raw])
+    for _ in range(2):
+        filtered = renderer.render(scene, **{setting: True}, aovs=aovs, **kw)
+    assert np.abs(filtered.aov[final] - filtered.aov[raw]).mean() > 1e-3
+
+
 def interior(mask, margin=1):
     """Pixels of `mask` whose whole (2*margin+1)^2 neighbourhood is in the mask (away from edges)."""
     m = mask.copy()

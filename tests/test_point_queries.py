@@ -9,6 +9,7 @@ import trimesh
 
 from engine import ConfigError, Device, RaycastingScene, Tracer
 from engine.rt.raycasting import vote_directions
+from engine.rt.order import incoherent
 from engine.rt.reference import reference_closest
 
 INVALID = 2**32 - 1
@@ -160,6 +161,19 @@ def test_tracer_closest_matches_brute_force(tracer, name):
     check_closest(
         v, f, points, near.distance, near.prim, size, near.point, np.stack([near.u, near.v], 1), frame=np.abs(v).max()
     )
+
+
+@pytest.mark.parametrize("tracer", ["vulkan"], indirect=True)
+def test_points_in_no_spatial_order_are_answered_in_the_callers_order(tracer, make):
+    # (a batch this large in random order is walked in Morton order, its answers scattered back)
+    v, f = torus(n=12, m=6)
+    rng = np.random.default_rng(5)
+    points = rng.uniform(-1.6, 1.6, (34_000, 3)) * [1, 1, 0.5]
+    assert incoherent(points.astype(np.float32), np.ones((len(points), 3), np.float32), np.float32(np.inf))
+    near = tracer(v, f).closest(points)
+    check_closest(v, f, points, near.distance, near.prim, 3.0, near.point, np.stack([near.u, near.v], 1))
+    out = make((v, f)).compute_closest_points(points.astype(np.float32))
+    check_closest(v, f, points, near.distance, out["primitive_ids"].astype(np.int64), 3.0, out["points"])
 
 
 def test_zero_area_triangles_are_segments_and_points(tracer):

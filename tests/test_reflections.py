@@ -6,9 +6,11 @@ from __future__ import annotations
 
 import numpy as np
 
-from engine import Camera, DirectionalLight, Instance, Material, Mesh, Scene
+from engine import Camera, DirectionalLight, Material
 from engine.bench.pathscenes import moved, quad, scene_of
 from engine.scene import primitives
+from helpers import ball_over_ground, filters_follow_settings, toggles_with_key
+from helpers import place as place_at
 
 W, H = 64, 48
 SUN = DirectionalLight((-0.3, -1.0, -0.4))
@@ -108,19 +110,13 @@ def test_data_aovs_do_not_change(make_renderer):
 
 def slider_scene(x):
     """A glossy (roughness 0.3) metal ground and a red ball at (x, 0.6, 0), an instance that moves."""
-    ground = Mesh(*primitives.plane((6.0, 6.0))[:2], normals=primitives.plane((6.0, 6.0))[2], name="ground")
-    p, f, n, uv = primitives.sphere(0.4, 24, 12)
-    ball = Mesh(p, f, normals=n, uvs=uv, vertex_material=np.full(len(p), 1), name="ball")
     mats = [Material("metal", (0.9, 0.9, 0.9), metallic=1.0, roughness=0.3), Material("red", (0.8, 0.1, 0.1))]
-    insts = [Instance(0, np.eye(4), name="ground"), Instance(1, place(x), name="ball")]
     cam = Camera.look_at((0.0, 1.2, 3.0), (0.0, 0.3, 0.0), fov_y=50.0)
-    return Scene.from_meshes([ground, ball], insts, materials=mats, lights=[SUN], camera=cam, name="slider")
+    return ball_over_ground(x, 0.6, cam, SUN, mats, "slider")
 
 
 def place(x):
-    m = np.eye(4)
-    m[:3, 3] = (x, 0.6, 0.0)
-    return m
+    return place_at(x, 0.6)
 
 
 def test_a_moving_object_leaves_no_trail_in_the_reflection(make_renderer):
@@ -175,24 +171,12 @@ def test_debug_views_show_raw_and_denoised_reflections(make_renderer):
 def test_viewer_key_7_toggles_reflections(make_viewer):
     import glfw
 
-    v = make_viewer(mirror_scene(0.0), 48, 32)
-    v.run(frames=1)
-    assert not v.settings["reflections"]
-    v._on_key(v.window, glfw.KEY_7, 0, glfw.PRESS, 0)
-    assert v.settings["reflections"]
-    v.run(frames=1)
-    assert "reflections" in v.renderer.last_timings()
-    v._update_text(float("inf"))
-    assert any("reflections on" in line for line in v.overlay_lines), v.overlay_lines
+    toggles_with_key(make_viewer(mirror_scene(0.0), 48, 32), glfw.KEY_7, "reflections")
 
 
 def test_accumulate_and_denoise_settings_apply_to_reflections(make_renderer):
     """With accumulate and denoise off the lit reflection is this frame's ray alone; with both on, over a rough floor,
     it differs from it (blended and filtered)."""
-    scene = mirror_scene(0.3)
-    r = make_renderer(48, 32)
-    aovs = ("reflection_raw", "reflection")
-    plain = frames(r, scene, 2, reflections=True, accumulate=False, denoise=False, aovs=aovs)
-    np.testing.assert_array_equal(plain.aov["reflection"], plain.aov["reflection_raw"])
-    filtered = frames(r, scene, 2, reflections=True, aovs=aovs)
-    assert np.abs(filtered.aov["reflection"] - filtered.aov["reflection_raw"]).mean() > 1e-3
+    filters_follow_settings(
+        make_renderer(48, 32), mirror_scene(0.3), "reflections", "reflection_raw", "reflection", **LIT
+    )

@@ -13,7 +13,7 @@ import pytest
 from PIL import Image
 
 from engine.errors import SceneError
-from engine.scene import Camera, Material, Scene, primitives
+from engine.scene import Camera, Environment, Material, Scene, primitives
 from engine.scene.geometry import UP_AXES
 from engine.scene.instances import Mesh
 from engine.scene.lights import DirectionalLight, PointLight, RectLight, SpotLight
@@ -211,6 +211,7 @@ def test_lights_and_dome(tmp_path, caplog):
     dome = UsdLux.DomeLight.Define(stage, "/Sky")
     dome.CreateIntensityAttr(0.5)
     dome.CreateColorAttr(Gf.Vec3f(0.2, 0.4, 0.8))
+    UsdLux.DomeLight.Define(stage, "/Sky2")
     UsdGeom.BasisCurves.Define(stage, "/Hair1")
     UsdGeom.BasisCurves.Define(stage, "/Hair2")
     UsdLux.DiskLight.Define(stage, "/Disk")
@@ -228,10 +229,14 @@ def test_lights_and_dome(tmp_path, caplog):
     assert isinstance(panel, RectLight) and panel.area == pytest.approx(1.0)
     np.testing.assert_allclose(panel.normal, (0, -1, 0), atol=1e-6)  # USD's -Z, turned down
     assert panel.intensity == pytest.approx(10.0)  # normalized: divided by its area (1)
-    np.testing.assert_allclose(scene.settings["ambient"], (0.1, 0.2, 0.4), atol=1e-6)
+    assert isinstance(scene.environment, Environment) and "ambient" not in scene.settings  # the dome: its colour
+    np.testing.assert_allclose(
+        scene.environment.image() * scene.environment.intensity, np.full((32, 64, 3), (0.1, 0.2, 0.4)), atol=1e-6
+    )
     warnings = [r.getMessage() for r in caplog.records if r.levelno == logging.WARNING]
-    assert len(warnings) == 1, warnings  # one warning for every prim type skipped
-    assert "BasisCurves (2 prims)" in warnings[0] and "DiskLight (1 prim)" in warnings[0]
+    assert len(warnings) == 2, warnings  # one for the second dome, one for every prim type skipped
+    assert warnings[0].endswith("light /Sky2: a second dome light; using the first")
+    assert "BasisCurves (2 prims)" in warnings[1] and "DiskLight (1 prim)" in warnings[1]
 
 
 def test_subsets_left_handed_face_varying_and_holes(tmp_path):
@@ -499,3 +504,146 @@ def test_implicit_shapes_along_their_axis(tmp_path):
     assert capsule.GetAxisAttr().Get() == "Z"
     np.testing.assert_allclose(meshes["/Cube"].max(axis=0), (1.5, 1.5, 1.5))
     np.testing.assert_allclose(np.linalg.norm(meshes["/Sphere"], axis=1), 0.25, rtol=1e-6)
+
+
+# ---- the dome light as the environment -----------------------------------------------------------------------------
+DOME_VIEW = dict(aovs=("radiance", "normal"), ao=False, shadows="off", accumulate=False, denoise=False)
+
+
+def latlong_patch(toward, h=16, w=32, dark=0.02, bright=10.0):
+    """An (h, w, 3) latlong map, dark but for a bright patch within 25 degrees of `toward`, laid out as the UsdLux
+    spec (OpenEXR's) says, written here from its words and not from the engine's mapping: pixel x is longitude, +pi
+    at the left edge to -pi at the right; y is latitude, +pi/2 (+Y) at the top; longitude 0 looks along +Z and pi/2
+    along +X."""
+    lon = np.pi - 2 * np.pi * (np.arange(w) + 0.5) / w
+    lat = np.pi / 2 - np.pi * (np.arange(h) + 0.5) / h
+    lat, lon = np.meshgrid(lat, lon, indexing="ij")
+    d = np.stack([np.cos(lat) * np.sin(lon), np.sin(lat), np.cos(lat) * np.cos(lon)], axis=-1)
+    img = np.full((h, w, 3), dark, np.float32)
+    img[d @ np.asarray(toward, float) > math.cos(math.radians(25))] = bright
+    return img
+
+
+def dome_stage(path, up="Y", kind="DomeLight", rotate=None, **inputs):
+    """A white sphere of radius 1 at the origin, a camera 4 away on +Z looking at it (engine axes), and a dome light
+    `/Dome` of type `kind` with `inputs` (color, intensity, exposure, texture:file) turned by `rotate` (XYZ degrees).
+    Z up: the sphere and camera under /World, turned so that the engine sees the same; the dome at the root."""
+    stage = Usd.Stage.CreateNew(str(path))
+    UsdGeom.SetStageUpAxis(stage, up)
+    world = UsdGeom.Xform.Define(stage, "/World")
+    if up == "Z":
+        UsdGeom.XformCommonAPI(world).SetRotate(Gf.Vec3f(90, 0, 0))
+    ball = UsdGeom.Sphere.Define(stage, "/World/Ball")
+    ball.CreateRadiusAttr(1.0)
+    UsdShade.MaterialBindingAPI.Apply(ball.GetPrim()).Bind(_plain_material(stage, "/World/White", (1, 1, 1)))
+    cam = UsdGeom.Camera.Define(stage, "/World/Camera")
+    cam.CreateFocalLengthAttr(20.0)
+    cam.CreateVerticalApertureAttr(15.0)
+    UsdGeom.XformCommonAPI(cam).SetTranslate(Gf.Vec3d(0, 0, 4))
+    dome = stage.DefinePrim("/Dome", kind)
+    types = {"color": Sdf.ValueTypeNames.Color3f, "texture:file": Sdf.ValueTypeNames.Asset}
+    for key, value in inputs.items():
+        dome.CreateAttribute(f"inputs:{key}", types.get(key, Sdf.ValueTypeNames.Float)).Set(value)
+    if rotate is not None:
+        UsdGeom.XformCommonAPI(dome).SetRotate(Gf.Vec3f(*rotate))
+    stage.GetRootLayer().Save()
+    return path
+
+
+def sides(frame, axis=(1.0, 0.0, 0.0)):
+    """The median radiance (grey) of the sphere's pixels facing +axis and -axis."""
+    n, rad = frame.aov["normal"], frame.aov["radiance"].astype(np.float64).mean(-1)
+    facing, away = (n @ axis) > 0.5, (n @ axis) < -0.5
+    assert facing.sum() > 20 and away.sum() > 20
+    return np.median(rad[facing]), np.median(rad[away])
+
+
+def test_dome_colour_lights_a_white_sphere_with_it(tmp_path, make_renderer):
+    """A dome of one colour is a constant environment of radiance color * intensity * 2^exposure: a white Lambert
+    sphere under it shows that radiance, in the raster and in the path tracer, and the background is it."""
+    color = np.array([0.6, 0.4, 0.25])
+    scene = Scene.load(dome_stage(tmp_path / "dome.usda", color=Gf.Vec3f(*color), intensity=0.25, exposure=2.0))
+    assert isinstance(scene.environment, Environment) and scene.environment.intensity == pytest.approx(1.0)
+    assert [light.intensity for light in scene.lights] == [0.0]  # the dome alone: no default sun
+    r = make_renderer(32, 24)
+    for settings in (DOME_VIEW, dict(DOME_VIEW, integrator="path", spp=8, max_depth=2)):
+        f = r.render(scene, **settings)
+        rad = f.aov["radiance"].astype(np.float64)
+        ball = np.abs(f.aov["normal"]).sum(-1) > 0
+        assert ball.sum() > 100
+        np.testing.assert_allclose(np.median(rad[ball], axis=0), color, rtol=0.03)
+        np.testing.assert_allclose(rad[0, 0], color, rtol=3e-3)  # the background: the dome itself
+
+
+@pytest.mark.parametrize(
+    "up, kind, toward, rotate",
+    [
+        ("Y", "DomeLight", (1, 0, 0), None),  # the patch at longitude pi/2 (+X), the dome unturned
+        ("Y", "DomeLight", (0, 0, 1), (0, 90, 0)),  # at the image's centre (+Z), the dome turned +Z to +X
+        (
+            "Z",
+            "DomeLight_1",
+            (0, 0, 1),
+            (0, 0, 90),
+        ),  # poleAxis "scene" on Z up: the centre looks along -Y, turned to +X
+    ],
+)
+def test_dome_texture_lights_the_side_facing_its_bright_patch(
+    tmp_path, make_renderer, caplog, up, kind, toward, rotate
+):
+    """A dome's latlong .hdr in the spec's orientation: its one bright region lights the sphere's +X side (and not
+    -X), through the dome's turn and DomeLight_1's pole axis; intensity * 2^exposure scales it."""
+    from engine.scene.hdr import write_hdr
+
+    write_hdr(tmp_path / "sky.hdr", latlong_patch(toward))
+    path = dome_stage(tmp_path / "dome.usda", up, kind, rotate, **{"texture:file": Sdf.AssetPath("sky.hdr")})
+    with caplog.at_level(logging.WARNING):
+        scene = Scene.load(path)
+    assert not [r.getMessage() for r in caplog.records if r.levelno == logging.WARNING]  # (no tilt: its pole is up)
+    r = make_renderer(32, 24)
+    lit, dark = sides(r.render(scene, **DOME_VIEW))
+    assert lit > 10 * dark, (lit, dark)
+    if up == "Y" and rotate is None:
+        stage = Usd.Stage.Open(str(path))
+        dome = UsdLux.DomeLight(stage.GetPrimAtPath("/Dome"))
+        dome.CreateIntensityAttr(3.0)
+        dome.CreateExposureAttr(-1.0)
+        stage.GetRootLayer().Save()
+        brighter, _ = sides(r.render(Scene.load(path), **DOME_VIEW))
+        assert brighter / lit == pytest.approx(1.5, rel=2e-3)
+        lit_path, dark_path = sides(r.render(scene, **DOME_VIEW, integrator="path", spp=8, max_depth=2))
+        assert lit_path > 10 * dark_path and lit_path == pytest.approx(lit, rel=0.15)
+
+
+def test_dome_texture_missing_or_unreadable_is_one_warning_then_colour(tmp_path, caplog):
+    """A texture that is not there, is not an HDR image, or is not 2:1: one warning naming the file and the prim,
+    and the dome's colour alone; the texture read from inside a .usdz as from the file."""
+    from pxr import UsdUtils
+
+    from engine.scene.hdr import decode_rgbe, encode_rgbe, write_hdr
+
+    (tmp_path / "broken.hdr").write_bytes(b"#?RADIANCE\nFORMAT=32-bit_rle_rgbe\n\n-Y 8 +X 16\n\x02\x02")
+    write_hdr(tmp_path / "square.hdr", np.ones((8, 8, 3), np.float32))
+    for name, reason in (
+        ("missing.hdr", "not found"),
+        ("broken.hdr", "truncated or corrupt"),
+        ("square.hdr", "twice as wide as it is high"),
+    ):
+        path = dome_stage(tmp_path / f"{name}.usda", color=Gf.Vec3f(0.5, 0.25, 1.0), **{"texture:file": name})
+        caplog.clear()
+        with caplog.at_level(logging.WARNING):
+            env = Scene.load(path).environment
+        (warning,) = [r.getMessage() for r in caplog.records if r.levelno == logging.WARNING]
+        assert f"light /Dome: texture {name}: " in warning and reason in warning, warning
+        assert warning.endswith("lighting with its colour only")
+        np.testing.assert_allclose(env.image() * env.intensity, np.full((32, 64, 3), (0.5, 0.25, 1.0)))
+    sky = latlong_patch((1, 0, 0))
+    write_hdr(tmp_path / "sky.hdr", sky)
+    dome_stage(tmp_path / "sky.usda", color=Gf.Vec3f(1.0, 0.5, 2.0), **{"texture:file": Sdf.AssetPath("sky.hdr")})
+    assert UsdUtils.CreateNewUsdzPackage(Sdf.AssetPath(str(tmp_path / "sky.usda")), str(tmp_path / "sky.usdz"))
+    (tmp_path / "sky.hdr").unlink()
+    caplog.clear()
+    with caplog.at_level(logging.WARNING):
+        env = Scene.load(tmp_path / "sky.usdz").environment
+    assert not [r for r in caplog.records if r.levelno == logging.WARNING]
+    np.testing.assert_allclose(env.image(), decode_rgbe(encode_rgbe(sky)) * np.float32([1.0, 0.5, 2.0]), rtol=1e-6)

@@ -30,6 +30,9 @@ BUILD_KINDS = ("generated", "spheres", "scan")
 #: The AOVs of the dataset figures (the headless-data target of issue 16).
 DATASET_AOVS = ("color", "depth", "normal", "object_id")
 
+#: The settings of the frame with every real-time effect on (issue 33's 1080p frame).
+HYBRID_EFFECTS = {"reflections": True, "gi": True, "taa": True}
+
 
 @dataclass
 class BenchConfig:
@@ -44,8 +47,10 @@ class BenchConfig:
     generated_tris: int = 1_200_000  # the trace benchmark's generated scene
     mid_tris: int = 300_000  # frame "generated-300k": the size the issue-6 shadow target names
     real_scene: str | None = str(DEFAULT_SCENE)
-    frame_scenes: tuple = ("real", "reflect", "target", "mid", "generated")  # target: the issue-6 frame (1 light, 1
-    #           AO ray per pixel); reflect: the real one with reflections on; mid: generated, mid_tris, 1 AO ray
+    # the frame section's scenes; target: the issue-6 frame (1 light, 1 AO ray per pixel); reflect, gi: the real one
+    # with reflections, with diffuse GI on; hybrid: with HYBRID_EFFECTS; distorted, fisheye: the real one through
+    # traced lens cameras; mid: generated, mid_tris, 1 AO ray
+    frame_scenes: tuple = ("real", "reflect", "gi", "hybrid", "distorted", "fisheye", "target", "mid", "generated")
     peers: tuple = PEERS
     reps: int = 7
     warmup: int = 1

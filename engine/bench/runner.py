@@ -24,7 +24,8 @@ from ..renderer import Renderer
 from ..scene import Camera, Scene
 from ..vk import choose_device, describe_devices
 from ..vk.device_info import device_details
-from .config import DATASET_AOVS, RAYSET_TITLES, RAYSETS, REPO, BenchConfig
+from ..vk.sync import create_fence, destroy_fence, reset_fences, wait_fences
+from .config import DATASET_AOVS, HYBRID_EFFECTS, RAYSET_TITLES, RAYSETS, REPO, BenchConfig
 from .engines import OursEngine
 from .frontends import ENGINES as FRONTEND_ENGINES
 from .frontends import QUERIES as FRONTEND_QUERIES
@@ -441,12 +442,20 @@ class Bench:
                 "generated": "generated",
                 "real": "default",
                 "reflect": "default-reflections",
+                "gi": "default-gi",
+                "hybrid": "default-hybrid",
+                "distorted": "default-opencv-distorted",
+                "fisheye": "default-fisheye",
                 "target": "default-1light",
                 "mid": f"generated-{self.cfg.mid_tris // 1000}k",
             }[key]
             settings = {"ao_samples": 1} if key in ("target", "mid") else {}
             if key == "reflect":  # the default frame plus ray-traced reflections (engine/passes/reflections.py)
                 settings = {"reflections": True}
+            if key == "gi":  # the default frame plus diffuse global illumination (engine/passes/gi.py)
+                settings = {"gi": True}
+            if key == "hybrid":  # every real-time effect on (issue 33's frame)
+                settings = dict(HYBRID_EFFECTS)
             scene = self._step(f"frame ({tag}): load scene", self._frame_scene, key)
             out.append(self._step(f"frame ({tag}): render x{self.cfg.frame_reps}", self._frame, tag, scene, settings))
         return out
@@ -497,8 +506,12 @@ class Bench:
         }
 
     def _frame_scene(self, key):
-        if key == "reflect":
+        if key in ("reflect", "gi", "hybrid"):
             return self.scene("real")
+        if key in ("distorted", "fisheye") and key not in self._scenes:
+            self._scenes[key] = lens_scene(self.scene("real"), key, self.size())
+        if key in ("distorted", "fisheye"):
+            return self._scenes[key]
         if key != "target":
             return self.scene(key)
         if "target" not in self._scenes:  # the default scene with its first light only (a shallow copy)
@@ -522,23 +535,24 @@ class Bench:
         per_pass = {p: median([t.get(p, 0.0) for t in timings]) for p in passes}
 
         totals = [sum(t.values()) for t in timings]
-        # The viewer's steady state: frames submitted back to back without readback, so the GPU never idles between
-        # them (after an idle gap a GPU drops its clocks, so render() frames, each followed by a readback to numpy,
-        # run every pass slower). GPU ms per pass of the last of each run of 4 frames.
+        # The viewer's steady state: frames submitted as the viewer does, without readback, each as soon as the one
+        # before it finished (one recorded command buffer, so one frame in flight), so the GPU idles only for the
+        # host's submit (after a longer gap a GPU drops its clocks, so render() frames, each followed by a readback
+        # to numpy, run every pass slower). GPU ms per pass of the last of each run of 4 frames.
         # warm-up: runs of 4 until half a second has passed (a GPU that idled while the host loaded the scene ramps
         # its clocks back up only under sustained load, which a few frames of a large scene do not give)
-        warm_until, warmed = time.perf_counter() + 0.5, 0
-        while warmed < 4 or time.perf_counter() < warm_until:
-            for _ in range(4):
-                r.submit(scene, wait=False, **settings)
-            r.ctx.wait_idle()
-            warmed += 4
-        steady = []
-        for _ in range(max(cfg.frame_reps, 1)):
-            for _ in range(4):
-                r.submit(scene, wait=False, **settings)
-            r.ctx.wait_idle()
-            steady.append(r.last_timings())
+        fence = create_fence(r.ctx)
+        try:
+            warm_until, warmed = time.perf_counter() + 0.5, 0
+            while warmed < 4 or time.perf_counter() < warm_until:
+                viewer_frames(r, scene, settings, fence, 4)
+                warmed += 4
+            steady = []
+            for _ in range(max(cfg.frame_reps, 1)):
+                viewer_frames(r, scene, settings, fence, 4)
+                steady.append(r.last_timings())
+        finally:
+            destroy_fence(r.ctx, fence)
         steady_passes = {p: median([t.get(p, 0.0) for t in steady]) for p in steady[-1]}
         steady_totals = [sum(t.values()) for t in steady]
         # The viewer's path: submit() without readback or waiting; the host (Python + vkQueueSubmit) time per frame.
@@ -585,3 +599,26 @@ class Bench:
             "submit_host_cpu_ms": median(host_cpu),
             "submit_gpu_total_ms": median(sub_gpu),
         }
+
+
+def viewer_frames(r: Renderer, scene: Scene, settings: dict, fence, n: int) -> None:
+    """`n` frames through submit() the way the viewer submits them: each after the one before it finished."""
+    for _ in range(n):
+        r.submit(scene, wait=False, fence=fence, **settings)
+        wait_fences(r.ctx, [fence])
+        reset_fences(r.ctx, [fence])
+
+
+def lens_scene(scene: Scene, model: str, size) -> Scene:
+    """A shallow copy of `scene` seen through a lens camera of the same pose and focal length (its primary rays
+    traced, engine/passes/camera_rays.py): OpenCV's distortion with a wide-angle lens's coefficients, or OpenCV's
+    fisheye model; the frame section sets it beside the rasterized pinhole to give the lens's cost."""
+    w, h = size
+    cam = scene.camera
+    K, pose = cam.intrinsics(w, h), cam.pose
+    s = copy.copy(scene)
+    if model == "distorted":
+        s.camera = Camera.from_opencv(K, (-0.28, 0.08, 1e-3, -1e-3, -0.01), w, h, pose=pose)
+    else:
+        s.camera = Camera.fisheye(K, (0.08, -0.02, 0.004, -0.0005), w, h, pose=pose)
+    return s

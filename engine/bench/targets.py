@@ -1,4 +1,4 @@
-"""The goals of issues 3, 6, 16, 19, 31 and 35 judged on a bench's results: pass / miss with the margin, or not
+"""The goals of issues 3, 6, 16, 19, 31, 34 and 35 judged on a bench's results: pass / miss with the margin, or not
 measured."""
 
 from __future__ import annotations
@@ -120,6 +120,26 @@ def evaluate_targets(results: dict) -> list[dict]:
             note_gpu or "frames back to back, no readback (the viewer's)",
         )
     )
+    frames = {fr["scene"]: fr for fr in results.get("frame", [])}
+    pinhole = frames.get("default")
+    for tag, lens in (("default-opencv-distorted", "OpenCV-distorted"), ("default-fisheye", "fisheye")):
+        fr = frames.get(tag)
+        ratio = None
+        if gpu_device and fr and pinhole and fr["size"] == [1920, 1080]:
+            ratio = fr.get("viewer_gpu_total_ms", fr["gpu_total_ms"]) / pinhole.get(
+                "viewer_gpu_total_ms", pinhole["gpu_total_ms"]
+            )
+        out.append(
+            _target(
+                34,
+                f"GPU: 1920x1080 {lens} camera frame <= 1.5x the pinhole's (default scene, traced primary rays)",
+                ratio,
+                1.5,
+                "x",
+                False,
+                note_gpu or "frames back to back, no readback (the viewer's)",
+            )
+        )
     for fr in results.get("frame", []):
         ds = fr.get("dataset")
         if not ds:

@@ -33,6 +33,8 @@ class DebugViewPass(ComputePass):
         "taa_hist": read("image", "taa_out"),
         "refl_raw": read("buffer", "refl.raw"),
         "refl": read("buffer", "refl.final"),
+        "gi_raw": read("buffer", "gi.raw"),
+        "gi": read("buffer", "gi.final"),
         "out_color": write("image", "color"),
     }
 

@@ -23,6 +23,7 @@ class LightingPass(ComputePass):
         "g_emissive": read("image", "emissive"),
         "env": read("buffer"),  # environment.glsl: bound by bind_environment
         "reflections": read("buffer", "refl.final"),  # traced reflections (passes/reflections.py), w > 0 where traced
+        "gi": read("buffer", "gi.final"),  # the diffuse GI's irradiance / pi (passes/gi.py), w > 0 where traced
         "g_material": read("image", "material_id"),
         "materials": read("uniform_texel"),  # KHR_materials_specular's factors: bound by bind_scene
     }

@@ -82,12 +82,13 @@ class ReflectionTemporalPass(ComputePass):
 
     def record(self, rec, targets) -> None:
         self.dispatch(rec, self.tiles(targets.width, targets.height))
-        rec.copy(targets["refl.cur"], targets["refl.hist"])
+        rec.copy(targets[self.bindings["cur"].resource], targets[self.bindings["hist"].resource])
 
 
 class ReflectionFilterPass(ComputePass):
     name = "reflections.filter"
     shader = "reflect_filter.comp"
+    prefix = "refl"  # its buffers: <prefix>.cur -> .final, through .tmp
     bindings = {
         "frame": read("uniform", "frame"),
         "g_position": read("image", "position"),
@@ -102,11 +103,12 @@ class ReflectionFilterPass(ComputePass):
         self.sets = [self.set] + [DescriptorSet(ctx, self.interface.set(0).values()) for _ in STEPS[1:]]
         self.bind(resources)
 
-    @staticmethod
-    def routes():
+    @classmethod
+    def routes(cls):
         """(source, destination) of each iteration: cur -> final -> tmp -> final (an odd count ends in final)."""
-        names = ["refl.cur"] + [
-            "refl.final" if (len(STEPS) - 1 - i) % 2 == 0 else "refl.tmp" for i in range(len(STEPS))
+        p = cls.prefix
+        names = [f"{p}.cur"] + [
+            f"{p}.final" if (len(STEPS) - 1 - i) % 2 == 0 else f"{p}.tmp" for i in range(len(STEPS))
         ]
         return list(zip(names[:-1], names[1:]))
 

@@ -22,10 +22,12 @@ from ..errors import ConfigError
 from ..gpu import SceneBVH, bvh_descriptor_set
 from ..gpu.bvh import bvh_spec
 from ..limits import MAX_COORD
+from ..parallel import default_threads
 from ..shaders import ShaderLibrary
 from ..vk import BufferView, ComputePipeline, Recorder, reflect, upload_buffer
 from ..vk.resources import STORAGE_TEXEL, UNIFORM_TEXEL
 from .checks import check_vectors, result_arrays
+from .order import incoherent, ray_order
 from .stream import C_SINK_THREADS, STREAM_THREADS, hits_sink, records_sink, stream
 
 SHADER = "trace_closest.comp"
@@ -149,16 +151,22 @@ class ClosestQuery:
         if native.library() is not None:  # the points made in the sink tasks, in C
 
             def write(r, rows, a, b):
-                native.scene_hits(
-                    r, n_tri=len(self.mesh[1]), mesh=self.mesh, t=out.distance[a:b], points=out.point[a:b]
-                )
-                out.prim[a:b] = r[:, 1].view(np.int32)
-                out.u[a:b], out.v[a:b] = r[:, 2], r[:, 3]
+                at = slice(a, b) if rows is None else rows
+                if rows is None:
+                    native.scene_hits(
+                        r, n_tri=len(self.mesh[1]), mesh=self.mesh, t=out.distance[a:b], points=out.point[a:b]
+                    )
+                else:
+                    native.scene_hits(
+                        r, rows, n_tri=len(self.mesh[1]), mesh=self.mesh, t=out.distance, points=out.point
+                    )
+                out.prim[at] = r[:, 1].view(np.int32)
+                out.u[at], out.v[at] = r[:, 2], r[:, 3]
 
-            self.stream(p, records_sink(write), C_SINK_THREADS)
+            self.stream(p, lambda order: records_sink(write, order), C_SINK_THREADS)
             return out
         out.point.fill(0.0)
-        self.stream(p, hits_sink(out.distance, out.prim, out.u, out.v))
+        self.stream(p, lambda order: hits_sink(out.distance, out.prim, out.u, out.v, order))
         if n:
             v, f = self.mesh
             tri = v[f[out.prim]].astype(np.float64)  # (N, 3 corners, 3)
@@ -166,13 +174,18 @@ class ClosestQuery:
             out.point[:] = tri[:, 0] + u * (tri[:, 1] - tri[:, 0]) + w * (tri[:, 2] - tri[:, 0])
         return out
 
-    def stream(self, p: NDArray[np.float32], sink, threads: int = STREAM_THREADS) -> None:
+    def stream(self, p: NDArray[np.float32], make_sink, threads: int = STREAM_THREADS) -> None:
         """Float32 (N, 3) points (checked) streamed through the session's slots as rays' origins (a unit direction
-        and tmax 0 beside them, which the kernel never reads); `sink` takes each block's records, on up to `threads`
-        worker threads."""
+        and tmax 0 beside them, which the kernel never reads); `make_sink(order)` gives the sink that takes each
+        block's records, on up to `threads` worker threads, where `order` (None: the given order) is the order the
+        points are walked in: points that come in no spatial order (`incoherent`) are walked in the order of a
+        Morton code of their cells (engine/rt/order.py), so that the lanes of a SIMD group walk the same nodes."""
 
         def bad():  # (the points were checked; float32 rounding could only push one past the bound)
             raise ConfigError(f"points: a coordinate beyond +-{MAX_COORD:g} once rounded to float32")
 
         ones = np.broadcast_to(np.float32(1), (len(p), 3))
-        stream(self.session, "closest", p, ones, np.float32(0), sink, bad, threads=threads)
+        order = None
+        if incoherent(p, ones, np.float32(np.inf)):
+            order = ray_order(p, ones, min(default_threads(), STREAM_THREADS), self.session.chunk)
+        stream(self.session, "closest", p, ones, np.float32(0), make_sink(order), bad, order, threads=threads)

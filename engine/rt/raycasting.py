@@ -703,7 +703,10 @@ class RaycastingScene(Closes):
             tables.update(mesh=s.tracer.mesh, center=np.ascontiguousarray(s.center, np.float64))
 
         def write(records, rows, a, b):
-            native.scene_hits(records, **tables, **{k: v[a:b] for k, v in arrays.items()})
+            if rows is None:
+                native.scene_hits(records, **tables, **{k: v[a:b] for k, v in arrays.items()})
+            else:
+                native.scene_hits(records, rows, **tables, **arrays)
 
         s.tracer.closest_records(flat, write)
         return arrays, shape

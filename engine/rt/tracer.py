@@ -494,10 +494,10 @@ class Tracer(Closes):
     @serialized
     def closest_records(self, points: NDArray[np.float32], write: Callable[..., None]) -> None:
         """`closest` for the front ends: float32 (N, 3) points (rows may be strided), checked by the caller (finite,
-        within +-MAX_COORD), streamed as they are; each block's records (distance, prim, u, v) go to `write` as in
-        `intersect_records`."""
+        within +-MAX_COORD), streamed (in their order, or reordered: `ClosestQuery.stream`); each block's records
+        (distance, prim, u, v) go to `write` as in `intersect_records`, with their rows where reordered."""
         self._check_open()
-        self._closest_query().stream(points, records_sink(write), C_SINK_THREADS)
+        self._closest_query().stream(points, lambda order: records_sink(write, order), C_SINK_THREADS)
 
     def _closest_query(self) -> ClosestQuery:
         if self.mesh is None:

@@ -33,6 +33,7 @@ from .hdr import read_hdr
 SKY_FRACTION = 0.2
 GROUND_ALBEDO = 0.2
 SKY_SIZE = (128, 256)  # rows, columns of the baked sky
+CONSTANT_SIZE = (32, 64)  # rows, columns of a constant environment's map (its SH irradiance within 0.1%)
 DEFAULT_TURBIDITY = 2.5
 _uids = itertools.count()
 
@@ -69,6 +70,13 @@ class Environment:
             self._image = load_map(self.path)
         self._image.setflags(write=False)
         self._uid = next(_uids)  # (not id(): a collected map's id may come back for another)
+
+    @classmethod
+    def constant(cls, color: ArrayLike, *, intensity: float = 1.0) -> Environment:
+        """The same radiance `color` (linear RGB) from every direction, times `intensity`: the render setting
+        `ambient` as the scene's own environment (a USD dome light without a texture)."""
+        rgb = _check.color(color, "environment color", error=SceneError).astype(np.float32)
+        return cls(np.broadcast_to(rgb, (*CONSTANT_SIZE, 3)), intensity=intensity)
 
     def image(self) -> np.ndarray:
         """(H, W, 3) float32 radiance before `intensity` (read-only)."""

@@ -29,7 +29,7 @@ MAX_TEXTURE_SIZE = 2048
 #: decoded (RGBA at this size is 256 MB; it is downsized to MAX_TEXTURE_SIZE on a side after decoding).
 MAX_TEXTURE_PIXELS = 64 * 1024 * 1024
 MESH_EXTENSIONS = (".obj", ".ply", ".stl", ".gltf", ".glb", ".off")
-USD_EXTENSIONS = (".usd", ".usda", ".usdc", ".usdz")  # stages: usd.py reads them (Scene.load picks it by suffix)
+USD_EXTENSIONS = (".usd", ".usda", ".usdc", ".usdz")  # stages: usd/ reads them (Scene.load picks it by suffix)
 DEFAULT_COLOR = (0.8, 0.8, 0.8, 1.0)
 IMAGE_EXTENSIONS = (".png", ".jpg", ".jpeg", ".bmp", ".tga", ".tif", ".tiff", ".gif", ".webp")
 

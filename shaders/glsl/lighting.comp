@@ -4,8 +4,9 @@
 // colour, with glTF's metallic-roughness BRDF (brdf.glsl) for every light, the environment (environment.glsl) by
 // split-sum image-based lighting (ibl.glsl: SH irradiance for the diffuse lobe, GGX-prefiltered radiance times the BRDF
 // table for the specular one) times AO and the material's occlusion, plus the emitted radiance. Where a reflection
-// ray was traced (reflect.comp), its filtered radiance is the specular lobe's instead. The background is the
-// environment seen along the pixel's ray, with each directional light's disc drawn where its angle is > 0.
+// ray was traced (reflect.comp), its filtered radiance is the specular lobe's instead; where a diffuse GI ray was
+// (gi.comp), its filtered irradiance lights the diffuse lobe instead of the environment's times AO. The background
+// is the environment seen along the pixel's ray, with each directional light's disc drawn where its angle is > 0.
 // `out_hdr` holds the radiance (before exposure); `out_color` its tone-mapped image at frame.exposure (auto
 // exposure rewrites it: exposure.comp).
 #include "common.glsl"
@@ -30,6 +31,8 @@ layout(set = 0, binding = 9, rgba16f) uniform readonly image2D g_emissive;
 layout(std430, set = 0, binding = 11) readonly buffer Reflections { vec4 reflections[]; };
 layout(set = 0, binding = 12, r32ui) uniform readonly uimage2D g_material;   // the material's index
 layout(set = 0, binding = 13) uniform samplerBuffer materials;               // MATERIAL_TEXELS per material
+// the filtered diffuse GI per pixel (gi.comp, reflect_filter.comp): irradiance / pi, w > 0 where a ray was traced
+layout(std430, set = 0, binding = 14) readonly buffer GI { vec4 gi[]; };
 
 // Radiance arriving from light `l` at `p` (before visibility and the cosine term), and the unit direction to it.
 vec3 incident(Light l, vec3 p, out vec3 wi) {
@@ -97,9 +100,11 @@ void main() {
         // split sum (ibl.glsl); where a reflection ray was traced (reflect.comp, filtered), its radiance replaces
         // the prefiltered environment in the specular lobe: it already holds the occlusion that AO stands in for
         vec3 spec = ibl_specular_albedo(n, v, albedo, metallic, roughness, spec_f);
-        vec3 diffuse = ibl_diffuse(n, spec, albedo, metallic);
+        // the diffuse GI, where traced, holds the occlusion AO stands in for (the material's occlusion map stays)
+        vec4 bounce = gi[pixel];
+        vec3 ambient = bounce.w > 0.0 ? (1.0 - spec) * (1.0 - metallic) * albedo * bounce.rgb * occlusion
+                                      : ibl_diffuse(n, spec, albedo, metallic) * (ao[pixel] * occlusion);
         vec4 traced = reflections[pixel];
-        vec3 ambient = diffuse * (ao[pixel] * occlusion);
         if (traced.w > 0.0) ambient += spec * traced.rgb;
         else ambient += spec * ibl_specular_radiance(n, v, roughness) * (ao[pixel] * occlusion);
         color = direct + ambient + imageLoad(g_emissive, px).rgb;

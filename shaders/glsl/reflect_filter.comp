@@ -5,11 +5,13 @@
 // tangent plane, the roughness difference, and a Gaussian of the tap's distance whose width grows with the centre's
 // roughness (a mirror keeps its own pixel: a sharp reflection stays sharp) and shrinks as the history grows
 // (accumulated frames need less spatial help). Untraced pixels (w = 0) pass through and are never taps.
+// DIFFUSE (the diffuse GI's irradiance, gi.comp): every pixel a lobe of roughness 1.
 #include "common.glsl"
 FRAME_BLOCK
 #include "filter.glsl"
 
 layout(local_size_x = 8, local_size_y = 8) in;
+layout(constant_id = 0) const uint DIFFUSE = 0u;   // 1: the diffuse GI (gi.comp)
 layout(set = 0, binding = 1, rgba32f) uniform readonly image2D g_position;
 layout(set = 0, binding = 2, rgba32f) uniform readonly image2D g_normal;
 layout(set = 0, binding = 3, rgba8) uniform readonly image2D g_pbr;
@@ -35,7 +37,7 @@ void main() {
     }
     vec3 n = imageLoad(g_normal, px).xyz;
     vec4 pos = imageLoad(g_position, px);
-    float rough = imageLoad(g_pbr, px).x;
+    float rough = DIFFUSE != 0u ? 1.0 : imageLoad(g_pbr, px).x;
     float sigma = RADIUS_PER_ROUGHNESS * rough * inversesqrt(c.w);
     if (sigma < 0.25) {   // a mirror-like lobe: nothing to blur
         dst[pixel] = c;
@@ -59,7 +61,7 @@ void main() {
             wk *= pow(max(dot(n, qn.xyz), 0.0), NORMAL_POWER);
             float plane = abs(dot(imageLoad(g_position, q).xyz - pos.xyz, n));
             wk *= exp(-plane / max(tol, 1e-6));
-            wk *= exp(-abs(imageLoad(g_pbr, q).x - rough) / ROUGHNESS_SIGMA);
+            if (DIFFUSE == 0u) wk *= exp(-abs(imageLoad(g_pbr, q).x - rough) / ROUGHNESS_SIGMA);
             sum += wk * s.rgb;
             wsum += wk;
         }

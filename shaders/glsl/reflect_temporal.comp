@@ -10,11 +10,15 @@
 //     value = mix(history, raw, alpha),   alpha = max(1 / (n + 1), alpha_min(roughness))
 // alpha_min is 1 for a mirror (its one ray is exact: no history, no lag) and falls to ALPHA_MIN_ROUGH for rough
 // lobes, whose single rays are noisy. Writes rgb and w = the history length n + 1 (0: not traced).
+// DIFFUSE (the diffuse GI's irradiance, gi.comp): a lobe of roughness 1, and no clipping: one cosine ray's 3x3
+// neighbourhood says little about a mean that a few of its directions bring (a history clipped to it goes dark:
+// measured on tests/test_gi.py's room, clipping to a 5x5 mean +- 2 sigma doubled the error to the path tracer).
 #include "common.glsl"
 FRAME_BLOCK
 #include "filter.glsl"
 
 layout(local_size_x = 8, local_size_y = 8) in;
+layout(constant_id = 0) const uint DIFFUSE = 0u;   // 1: the diffuse GI (gi.comp)
 layout(set = 0, binding = 1, rgba32f) uniform readonly image2D g_position;
 layout(set = 0, binding = 2, rgba32f) uniform readonly image2D g_normal;
 layout(set = 0, binding = 3, rgba8) uniform readonly image2D g_pbr;
@@ -79,6 +83,8 @@ void main() {
     if (wsum > 1e-3) {
         n_prev = floor(hlen / wsum + 0.5);
         hval /= wsum;
+    }
+    if (wsum > 1e-3 && DIFFUSE == 0u) {
         vec3 m1 = vec3(0.0), m2 = vec3(0.0);
         float k = 0.0;
         for (int dy = -1; dy <= 1; ++dy)
@@ -98,7 +104,7 @@ void main() {
         if (any(greaterThan(abs(clipped - hval), 0.25 * sigma + 1e-4))) n_prev = min(n_prev, CLIPPED_HISTORY);
         hval = clipped;
     }
-    float roughness = imageLoad(g_pbr, px).x;
+    float roughness = DIFFUSE != 0u ? 1.0 : imageLoad(g_pbr, px).x;
     float alpha_min = mix(1.0, ALPHA_MIN_ROUGH, smoothstep(0.02, 0.3, roughness));
     float alpha = n_prev > 0.0 ? max(1.0 / (n_prev + 1.0), alpha_min) : 1.0;
     cur[pixel] = vec4(mix(hval, now.rgb, alpha), min(n_prev + 1.0, MAX_REFLECTION_HISTORY));

@@ -35,6 +35,8 @@
 #define VIEW_TAA_HISTORY 19u
 #define VIEW_REFLECTION_RAW 20u
 #define VIEW_REFLECTION 21u
+#define VIEW_GI_RAW 22u
+#define VIEW_GI 23u
 #define SHADOW_HARD 0u
 #define SHADOW_SOFT 1u
 #define SHADOW_SEED_DELTA 2u

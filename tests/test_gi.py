@@ -1,0 +1,218 @@
+"""Diffuse global illumination (`gi=True`, engine/passes/gi.py) against the path tracer's reference: a closed room
+lit by the sun through a hole in its ceiling (its walls lit only by bounced light) converges towards the path-traced
+image, far closer than the direct-only frame; the data AOVs do not change; a moving ball leaves no trail in the
+light it bounces onto the floor; the settings, debug views and the viewer's key."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from engine import Camera, DirectionalLight, Material
+from engine.bench.pathscenes import quad, scene_of
+from engine.errors import ConfigError
+from helpers import ball_over_ground, filters_follow_settings, toggles_with_key
+from helpers import place as place_at
+
+W, H = 64, 48
+# the room is closed but for the hole: no environment light, the sun's patch on the floor lights the rest
+LIT = dict(shadows="hard", ambient=0.0)
+
+
+def room():
+    """A 2 x 2 x 2 room (white, a red and a green wall) with a 0.6 x 0.6 hole in its ceiling that the sun shines
+    through onto the floor; the camera inside, against the front wall."""
+    white, red, green = (0.75, 0.75, 0.75), (0.7, 0.12, 0.1), (0.15, 0.6, 0.15)
+
+    def ceiling(x0, x1, z0, z1):
+        return quad([(x0, 2, z0), (x1, 2, z0), (x1, 2, z1), (x0, 2, z1)])
+
+    objs = [
+        (quad([(-1, 0, 1), (1, 0, 1), (1, 0, -1), (-1, 0, -1)]), Material("floor", white)),
+        (quad([(-1, 0, -1), (1, 0, -1), (1, 2, -1), (-1, 2, -1)]), Material("back", white)),
+        (quad([(-1, 0, 1), (-1, 0, -1), (-1, 2, -1), (-1, 2, 1)]), Material("left", red)),
+        (quad([(1, 0, -1), (1, 0, 1), (1, 2, 1), (1, 2, -1)]), Material("right", green)),
+        (quad([(1, 0, 1), (-1, 0, 1), (-1, 2, 1), (1, 2, 1)]), Material("front", white)),
+        (ceiling(-1, 1, -1, -0.3), Material("ceiling", white)),
+        (ceiling(-1, 1, 0.3, 1), Material("ceiling", white)),
+        (ceiling(-1, -0.3, -0.3, 0.3), Material("ceiling", white)),
+        (ceiling(0.3, 1, -0.3, 0.3), Material("ceiling", white)),
+    ]
+    sun = DirectionalLight((0.15, -1.0, -0.3), intensity=3.0)
+    return scene_of(objs, ((0.0, 1.0, 0.95), (0.0, 0.8, -1.0), 75.0), [sun], name="interior")
+
+
+def frames(r, scene, n, **kw):
+    for _ in range(n):
+        f = r.render(scene, **LIT, **kw)
+    return f
+
+
+def blocks(img, k=4):
+    """k x k block means: the path tracer's noise averaged down, the bounced light's shape kept."""
+    h, w = img.shape[0] // k * k, img.shape[1] // k * k
+    return img[:h, :w].reshape(h // k, k, w // k, k, -1).mean((1, 3))
+
+
+def room_frames(r, spp):
+    scene = room()
+    aovs = ("radiance", "color")
+    off = frames(r, scene, 1, gi=False, aovs=aovs)
+    one = frames(r, scene, 1, gi=True, aovs=aovs)
+    on = frames(r, scene, 15, gi=True, aovs=aovs)
+    ref = r.render(scene, **LIT, integrator="path", spp=spp, seed=1, aovs=aovs)
+    return off, one, on, ref
+
+
+def test_the_bounced_light_of_a_room_converges_towards_the_path_tracer(make_renderer):
+    """After 16 still frames the room's walls, lit only by the sun's patch on the floor, are within 25% of the
+    path-traced reference's mean and the image's error (4x4 block means) is under 40% of the direct-only frame's."""
+    off, one, on, ref = room_frames(make_renderer(W, H), spp=256)
+    want = blocks(ref.aov["radiance"][..., :3])
+
+    def err(f):
+        return float(np.abs(blocks(f.aov["radiance"][..., :3]) - want).mean())
+
+    assert err(on) < 0.4 * err(off), (err(on), err(off))
+    assert err(on) < err(one), (err(on), err(one))  # the history and the bounces it adds help
+    level = ref.aov["radiance"][..., :3].mean()
+    assert abs(on.aov["radiance"][..., :3].mean() - level) < 0.25 * level, (on.aov["radiance"].mean(), level)
+
+
+@pytest.mark.slow
+def test_the_room_in_flip_against_a_converged_path_tracer(make_renderer):
+    """NVIDIA FLIP (flip-evaluator) of the tone-mapped images against a 1024-path reference: the GI frame after 16
+    still frames at least 2x better than the direct-only one (the issue's target on an interior scene)."""
+    flip = pytest.importorskip("flip_evaluator")
+    off, one, on, ref = room_frames(make_renderer(W, H), spp=1024)
+
+    def score(f):
+        return float(flip.evaluate(ref.color[..., :3] / 255.0, f.color[..., :3] / 255.0, "LDR")[1])
+
+    assert score(on) < 0.5 * score(off), (score(on), score(off))
+    assert score(on) < 0.2, score(on)
+
+
+@pytest.mark.slow
+def test_the_default_scene_in_flip_against_the_path_tracer(make_renderer):
+    """The bundled default scene (sky, sun, a brick wall, props; 96x54): after 16 still frames with GI, FLIP to a
+    512-path reference is under issue 33's 0.08-ish target and well under the frame without GI (measured: 0.071
+    against 0.143)."""
+    flip = pytest.importorskip("flip_evaluator")
+    from engine import Scene
+
+    scene = Scene.load("default")
+    r = make_renderer(96, 54)
+    ref = r.render(scene, integrator="path", spp=512, seed=1, aovs=("color",)).color[..., :3] / 255.0
+
+    def score(gi):
+        for _ in range(16):
+            f = r.render(scene, gi=gi, aovs=("color",))
+        return float(flip.evaluate(ref, f.color[..., :3] / 255.0, "LDR")[1])
+
+    on, off = score(True), score(False)
+    assert on < 0.09 and on < 0.6 * off, (on, off)
+
+
+def test_data_aovs_do_not_change(make_renderer):
+    scene = room()
+    r = make_renderer(48, 32)
+    names = ("depth", "normal", "position", "albedo", "object_id", "material_id", "motion", "roughness", "shadow")
+    off = frames(r, scene, 1, gi=False, aovs=names)
+    on = frames(r, scene, 2, gi=True, aovs=names)
+    for name in names:
+        np.testing.assert_array_equal(on.aov[name], off.aov[name], err_msg=name)
+
+
+def ball_scene(x):
+    """A white ground lit by a low sun and a bright red ball at (x, 0.45, 0) that moves (an instance)."""
+    mats = [Material("white", (0.8, 0.8, 0.8)), Material("red", (0.9, 0.05, 0.05))]
+    cam = Camera.look_at((0.0, 1.6, 2.6), (0.0, 0.2, 0.0), fov_y=50.0)
+    sun = DirectionalLight((0.5, -0.6, -0.3), intensity=3.0)
+    return ball_over_ground(x, 0.45, cam, sun, mats, "ball")
+
+
+def place(x):
+    return place_at(x, 0.45)
+
+
+def test_a_moving_ball_leaves_no_trail_in_the_bounced_light(make_renderer):
+    """The ball rests at x = -0.7 for 12 frames, then jumps to x = +0.7. 8 frames later the ground where the old and
+    the new images differ (the red light and the dark contact the ball brought) has lost >= 90% of its difference
+    to the converged new image (16 frames of a renderer that only saw the ball at +0.7)."""
+    r = make_renderer(W, H)
+    scene = ball_scene(-0.7)
+    aovs = ("radiance", "instance_id")
+    before = frames(r, scene, 12, gi=True, ao=False, aovs=aovs)
+    scene.set_transforms(np.stack([np.eye(4), place(0.7)]))
+    after = frames(r, scene, 8, gi=True, ao=False, aovs=aovs)
+    fresh_r = make_renderer(W, H)
+    moved = ball_scene(0.7)
+    fresh = frames(fresh_r, moved, 16, gi=True, ao=False, aovs=("radiance",)).aov["radiance"][..., :3]
+    rad_before, rad_after = before.aov["radiance"][..., :3], after.aov["radiance"][..., :3]
+    ground = (before.aov["instance_id"] == 0) & (after.aov["instance_id"] == 0)
+    old = ground & (np.abs(rad_before - fresh).sum(-1) > 0.05)
+    assert old.sum() > 20
+    jump = np.abs(rad_before - fresh)[old].mean()
+    trail = np.abs(rad_after - fresh)[old].mean()
+    assert trail < 0.1 * jump, (trail, jump)  # measured: 0.017 of 0.29 (lavapipe)
+
+
+@pytest.mark.slow
+def test_a_sliding_ball_costs_little_flip_against_the_still_frame(make_renderer):
+    """Issue 33's moving-scene target: the ball slides from x = -0.7 to +0.7 over 16 frames; the last frame's FLIP
+    to a path-traced reference of the end pose is within 0.02 of that of 16 still frames at the end pose (measured:
+    0.061 against 0.055; no environment, as the other frames here)."""
+    flip = pytest.importorskip("flip_evaluator")
+    r = make_renderer(W, H)
+    end = ball_scene(0.7)
+    ref = r.render(end, **LIT, integrator="path", spp=512, seed=1, aovs=("color",)).color[..., :3] / 255.0
+    still = frames(r, end, 16, gi=True, ao=False, aovs=("color",))
+    scene = ball_scene(-0.7)
+    for k in range(16):
+        scene.set_transforms(np.stack([np.eye(4), place(-0.7 + 1.4 * k / 15)]))
+        moving = r.render(scene, **LIT, gi=True, ao=False, aovs=("color",))
+
+    def score(f):
+        return float(flip.evaluate(ref, f.color[..., :3] / 255.0, "LDR")[1])
+
+    assert score(moving) < score(still) + 0.02, (score(moving), score(still))
+
+
+def test_debug_views_show_raw_and_denoised_gi(make_renderer):
+    """The views gi_raw and gi draw the AOVs of the same names (one ray's radiance and the filtered irradiance,
+    gamma 2.2): the raw one is noisier."""
+    scene = room()
+    r = make_renderer(W, H)
+    f = frames(r, scene, 4, gi=True, aovs=("gi_raw", "gi", "normal"))
+    covered = np.linalg.norm(f.aov["normal"], axis=-1) > 0.5
+    raw, den = f.aov["gi_raw"], f.aov["gi"]
+    assert covered.all()  # (a closed room)
+    assert np.all(den.max(-1) > 0)
+
+    def grain(a):  # mean absolute horizontal difference: the noise the filter removes
+        return np.abs(np.diff(a, axis=1)).mean()
+
+    assert grain(den) < 0.5 * grain(raw), (grain(den), grain(raw))
+    for view in ("gi_raw", "gi"):
+        seen = frames(r, scene, 1, gi=True, view=view, aovs=("color", view))
+        want = np.clip(seen.aov[view], 0, 1) ** (1 / 2.2)
+        assert np.abs(seen.color[..., :3] / 255.0 - want).max() < 0.01, view
+
+
+def test_accumulate_and_denoise_settings_apply_to_gi(make_renderer):
+    """With accumulate and denoise off the GI is this frame's ray alone; with both on it differs (blended, filtered)."""
+    filters_follow_settings(make_renderer(48, 32), room(), "gi", "gi_raw", "gi", **LIT)
+
+
+@pytest.mark.parametrize("value", ["yes", 1, None])
+def test_gi_setting_takes_true_or_false(make_renderer, value):
+    r = make_renderer(16, 16)
+    with pytest.raises(ConfigError, match=r"setting gi=.*expected true or false"):
+        r.render(room(), gi=value)
+
+
+def test_viewer_key_8_toggles_gi(make_viewer):
+    import glfw
+
+    toggles_with_key(make_viewer(room(), 48, 32), glfw.KEY_8, "gi")

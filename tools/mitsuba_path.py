@@ -210,27 +210,11 @@ def mitsuba_scene(spec, size, tmp: Path) -> dict:
     import mitsuba as mi
 
     T = mi.ScalarTransform4f
-    eye, target, fov = spec["camera"]
     masked = any(m.alpha_mode != "OPAQUE" for _, m in spec["objects"])
     scene = {
         "type": "scene",
         "integrator": {"type": "volpath" if masked else "path", "max_depth": MAX_DEPTH},
-        "sensor": {
-            "type": "perspective",
-            "fov": fov,
-            "fov_axis": "y",
-            "near_clip": 0.01,
-            "far_clip": 1000.0,
-            "to_world": T().look_at(origin=list(eye), target=list(target), up=[0.0, 1.0, 0.0]),
-            "film": {
-                "type": "hdrfilm",
-                "width": size[0],
-                "height": size[1],
-                "pixel_format": "rgb",
-                "rfilter": {"type": "box"},
-            },
-            "sampler": {"type": "independent"},
-        },
+        "sensor": mc.mitsuba_sensor(spec["camera"], size, {"type": "independent"}),
     }
     if spec.get("env") is not None:  # (the same rotation sense and u, v as ours: tests/test_environment.py)
         scene["environment"] = {
@@ -241,26 +225,20 @@ def mitsuba_scene(spec, size, tmp: Path) -> dict:
     elif spec["ambient"] > 0:
         scene["environment"] = {"type": "constant", "radiance": _rgb([spec["ambient"]] * 3)}
     for i, light in enumerate(spec["lights"]):
-        value = _rgb(np.asarray(light.color) * float(light.intensity) * math.pi)
-        if light.kind == "point":
-            scene[f"light{i}"] = {"type": "point", "position": [float(x) for x in light.position], "intensity": value}
-        elif light.kind == "directional":
-            scene[f"light{i}"] = {
-                "type": "directional",
-                "direction": [float(x) for x in light.direction],
-                "irradiance": value,
-            }
-        elif light.kind == "rect":
+        if light.kind == "rect":
             m = np.eye(4)
             m[:3, 0], m[:3, 1], m[:3, 2], m[:3, 3] = light.u / 2, light.v / 2, light.normal, light.position
             scene[f"light{i}"] = {
                 "type": "rectangle",
                 "to_world": T(m.tolist()),
                 "bsdf": {"type": "diffuse", "reflectance": _rgb([0.0, 0.0, 0.0])},
-                "emitter": {"type": "area", "radiance": value},
+                "emitter": {
+                    "type": "area",
+                    "radiance": _rgb(np.asarray(light.color) * float(light.intensity) * math.pi),
+                },
             }
         else:
-            raise ValueError(f"no Mitsuba conversion for a {light.kind} light here")
+            scene[f"light{i}"] = mc.mitsuba_delta_light(light)
     for k, ((p, f, n, uv), material) in enumerate(spec["objects"]):
         path = tmp / f"object{k}.ply"
         mc._write_ply(path, np.asarray(p, np.float64), np.asarray(f), np.asarray(n, np.float64), np.asarray(uv))

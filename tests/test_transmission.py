@@ -1,5 +1,7 @@
 """Transparency and dielectrics: glTF's KHR_materials_transmission / KHR_materials_ior and alphaMode BLEND as
-Material fields (errors, glTF and TOML reading, the GPU material table)."""
+Material fields (errors, glTF and TOML reading, the GPU material table), and the path tracer's dielectric
+interface and blended surfaces against what they must give exactly (a lossless glass sphere in a uniform
+environment, a blended emitter). Against Mitsuba 3: tests/test_mitsuba_path.py's glass and blended scenes."""
 
 import json
 
@@ -134,3 +136,58 @@ def test_ior_sets_the_opaque_dielectrics_f0(make_renderer):
     b = radiance(base.with_overrides(specular_color=(25 / 9,) * 3))
     np.testing.assert_allclose(a, b, rtol=2e-3, atol=1e-4)
     assert np.abs(a - radiance(base)).max() > 0.02
+
+
+# ---- the path tracer ------------------------------------------------------------------------------------------
+def _sphere_alone(material, cam=((0.0, 0.0, 3.0), (0.0, 0.0, 0.0), 30.0)):
+    p, f, n, uv = primitives.sphere(0.8, 64, 32)
+    eye, target, fov = cam
+    return Scene(
+        p,
+        f,
+        normals=n,
+        uvs=uv,
+        materials=[material],
+        lights=[DirectionalLight((0.0, -1.0, 0.0), intensity=0.0)],
+        camera=Camera.look_at(eye, target, (0, 1, 0), fov),
+    )
+
+
+def test_lossless_glass_in_a_uniform_environment_is_invisible(make_renderer):
+    """A white furnace: a smooth, clear glass sphere (reflection and refraction weighted by exact Fresnel, the
+    radiance scaled by 1 / eta^2 in and eta^2 out) in a uniform environment of radiance 1 returns 1 on every path
+    that leaves it; the image's mean over the sphere is 1 to the Russian roulette's noise. A tinted one is darker,
+    by the tint per crossing."""
+    r = make_renderer(32, 32)
+    kw = dict(integrator="path", spp=8, seed=3, max_depth=48, pixel_filter="box", ambient=1.0, aovs=("radiance",))
+    sphere = np.zeros((32, 32), bool)
+    yy, xx = np.mgrid[0:32, 0:32]
+    sphere[(xx - 15.5) ** 2 + (yy - 15.5) ** 2 < 8.5**2] = True  # (the disc's radius is ~9.8 pixels)
+    clear = r.render(_sphere_alone(Material("glass", (1, 1, 1), roughness=0.0, transmission=1.0)), **kw)
+    got = clear.aov["radiance"].astype(np.float64)
+    assert abs(got[sphere].mean() - 1.0) < 0.01, got[sphere].mean()
+    assert np.abs(got[~sphere].mean() - 1.0) < 0.01
+    tinted = r.render(_sphere_alone(Material("glass", (1, 0.5, 0.25), roughness=0.0, transmission=1.0)), **kw)
+    t = tinted.aov["radiance"].astype(np.float64)[sphere].mean(0)
+    # centre pixels cross twice with little reflection (F ~ 0.04 each way): ~ tint^2 there, more at the rim
+    assert t[0] == pytest.approx(1.0, abs=0.01) and 0.25 < t[1] < 0.5 and 0.06 < t[2] < 0.25
+
+
+def test_blended_surface_is_seen_with_probability_alpha(make_renderer):
+    """A BLEND quad that only emits (black, no specular lobe), alpha 0.25, filling the view of a uniform
+    environment c: every pixel is 0.25 E + 0.75 c in expectation (ours: hit with probability alpha)."""
+    r = make_renderer(32, 24)
+    p = np.array([[-2, -2, 0], [2, -2, 0], [2, 2, 0], [-2, 2, 0]], float)
+    m = Material("veil", (0, 0, 0, 0.25), emissive=(4.0, 2.0, 1.0), alpha_mode="BLEND", specular=0.0)
+    scene = Scene(
+        p,
+        np.array([[0, 1, 2], [0, 2, 3]]),
+        materials=[m],
+        lights=[DirectionalLight((0.0, -1.0, 0.0), intensity=0.0)],
+        camera=Camera.look_at((0, 0, 2), (0, 0, 0), (0, 1, 0), 40.0),
+    )
+    f = r.render(scene, integrator="path", spp=32, seed=1, max_depth=4, ambient=0.5, aovs=("radiance",))
+    mean = f.aov["radiance"].astype(np.float64).reshape(-1, 3).mean(0)
+    expect = 0.25 * np.array([4.0, 2.0, 1.0]) + 0.75 * 0.5
+    # (per sample a Bernoulli choice: the standard error of the mean of 32 x 24 x 32 samples is ~0.3% of it)
+    np.testing.assert_allclose(mean, expect, rtol=0.01)

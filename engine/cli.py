@@ -47,6 +47,7 @@ def _settings(args) -> dict:
         "ao",
         "ao_samples",
         "reflections",
+        "transparency",
     )
     for key in keys + (
         "exposure",
@@ -390,6 +391,10 @@ def build_parser() -> argparse.ArgumentParser:
         "--reflections", dest="reflections", action="store_true", default=None, help="ray-traced reflections on"
     )
     r.add_argument("--no-reflections", dest="reflections", action="store_false", help="ray-traced reflections off")
+    r.add_argument(
+        "--transparency", dest="transparency", action="store_true", default=None, help="glass and BLEND by rays on"
+    )
+    r.add_argument("--no-transparency", dest="transparency", action="store_false", help="transparency by rays off")
     r.add_argument("--ao-samples", type=int, default=None, help="AO rays per pixel")
     r.add_argument("--exposure", type=float, default=None, help="exposure in EV (default -1: 2^-1 on the radiance)")
     r.add_argument(

@@ -41,6 +41,7 @@ from .passes.path import PathPass
 from .passes.raster_options import RasterOptions
 from .passes.raypass import follow_scene
 from .passes.reflections import ReflectionFilterPass, ReflectionTemporalPass, ReflectionTracePass
+from .passes.transparency import TransparencyPass
 from .passes.shadows import ShadowPass
 from .passes.taa import TAAPass
 from .passes.soft_raster import SW_RASTER_PIXELS
@@ -200,6 +201,7 @@ class Renderer(Closes):
         self._history_key = self._steady = None  # _history_key: what the temporal history was accumulated under
         self.path = None  # PathPass, made by the first path-traced frame (its pipeline takes a while to build)
         self.reflections = None  # (trace, temporal, filter) passes, made by the first frame with reflections on
+        self.transparency = None  # TransparencyPass, made by the first frame with transparency on
         self.path_samples = 0  # samples per pixel in the path tracer's image so far
         self.path_progress = None  # called as f(samples done, samples in all) after each path-tracing batch
         self._path_key = None  # what the path tracer's samples so far were traced under
@@ -284,6 +286,7 @@ class Renderer(Closes):
         ao_samples: int = default("ao_samples"),
         ao_radius: float | None = default("ao_radius"),
         reflections: bool = default("reflections"),
+        transparency: bool = default("transparency"),
         exposure: float = default("exposure"),
         auto_exposure: bool = default("auto_exposure"),
         tonemap: Tonemap = default("tonemap"),
@@ -331,6 +334,9 @@ class Renderer(Closes):
             reflections: trace one GGX reflection ray per pixel from the G-buffer (surfaces up to roughness 0.6),
                 shaded at its hit with the scene's lights (a shadow ray each) and environment, accumulated over
                 frames by roughness and filtered; it replaces the split-sum environment in the specular lobe there.
+            transparency: draw transmissive (glass) surfaces by rays: the Fresnel-weighted mirror ray and the
+                refracted ray followed through the solid (up to 4 interfaces), and BLEND surfaces mixed by alpha
+                with what lies behind them (a ray continued through them); off: both are shaded as opaque.
             exposure: in EV: the linear HDR colour is scaled by 2^exposure before the tone curve and sRGB
                 encoding; in [-60, 60].
             auto_exposure: also scale by 0.18 / the frame's log-average luminance (computed on the GPU).
@@ -543,6 +549,7 @@ class Renderer(Closes):
         ao_samples: int = default("ao_samples"),
         ao_radius: float | None = default("ao_radius"),
         reflections: bool = default("reflections"),
+        transparency: bool = default("transparency"),
         exposure: float = default("exposure"),
         auto_exposure: bool = default("auto_exposure"),
         tonemap: Tonemap = default("tonemap"),
@@ -670,6 +677,7 @@ class Renderer(Closes):
                     "shadow_terminator",
                     "taa",
                     "reflections",
+                    "transparency",
                 )
             ),
         )
@@ -687,6 +695,7 @@ class Renderer(Closes):
             cfg["integrator"],
             cfg["taa"],
             cfg["reflections"],
+            cfg["transparency"],
             len(lights),
             readback,
             self._raster,
@@ -696,6 +705,7 @@ class Renderer(Closes):
             key += (cfg["reference_samples"],)
         self._path_ready(scene, cfg)
         self._reflections_ready(scene, cfg)
+        self._transparency_ready(scene, cfg)
         if key not in self._commands:
             cmd, ts = self._record(cfg, len(lights), readback, rays)
             self._commands[key] = (cmd, list(ts.names))
@@ -828,9 +838,11 @@ class Renderer(Closes):
             self._update_bvh(scene, todo[1])
             if self.reflections is not None and self.reflections[0].scene_data is not None:
                 self.reflections[0].scene_data.update(scene)  # the hits' instance transforms (in place)
+            if self.transparency is not None and self.transparency.scene_data is not None:
+                self.transparency.scene_data.update(scene)
 
     def _ray_passes(self):
-        extra = (self.path, self.reflections[0] if self.reflections else None)
+        extra = (self.path, self.reflections[0] if self.reflections else None, self.transparency)
         return (self.shadows, self.ao, *(p for p in extra if p is not None))
 
     def _path_ready(self, scene, cfg):
@@ -877,6 +889,25 @@ class Renderer(Closes):
             self._invalidate_commands()  # (the recordings bound the last scene's buffers)
             trace.bind_data(PathScene(self.ctx, scene), self._geometry)
 
+    def _transparency_ready(self, scene, cfg):
+        """For a frame with transparency: its pass (made on first use) and the scene buffers its rays read (made
+        again after a new upload)."""
+        if not cfg["transparency"] or cfg["integrator"] == "path":
+            return
+        if self.transparency is None:
+            trace = TransparencyPass(self.ctx, self.library, self.targets.resources, self.bvh_set, self.bvh_layout)
+            self.transparency = trace
+            self.passes.append(trace)
+            trace.bind_scene(self._geometry)
+            if self._environment is not None:
+                trace.bind_environment(self._environment)
+            if self._scene_bvh is not None:
+                trace.specialize_for(self._scene_bvh)
+            self._invalidate_commands()
+        if self.transparency.scene_data is None:
+            self._invalidate_commands()  # (the recordings bound the last scene's buffers)
+            self.transparency.bind_data(PathScene(self.ctx, scene), self._geometry)
+
     def _drop_path_data(self):
         if self.path is not None and self.path.scene_data is not None:
             self.ctx.wait_idle()
@@ -887,6 +918,10 @@ class Renderer(Closes):
             self.ctx.wait_idle()
             self.reflections[0].scene_data.destroy()
             self.reflections[0].scene_data = None
+        if self.transparency is not None and self.transparency.scene_data is not None:
+            self.ctx.wait_idle()
+            self.transparency.scene_data.destroy()
+            self.transparency.scene_data = None
 
     def _path_samples(self, scene, camera, cfg, n_lights, progressive=False):
         """Trace `cfg["spp"]` (None: 64) samples per pixel into the path tracer's sum (the frame's recording then
@@ -1047,6 +1082,11 @@ class Renderer(Closes):
         rec.mark("ao")
 
         self._record_reflections(rec, cfg, path)
+        if cfg["transparency"] and not path:
+            self.transparency.record(rec, t)
+            rec.mark("transparency")
+        elif self.transparency is not None:  # (zero until the pass first ran; its making re-records every frame)
+            rec.fill(t["transp"], 0)
         copied = self._record_filters(rec, cfg, n_lights, mode, path)
         if not copied and cfg["reflections"] and not path:
             AccumulatePass.record_history_copy(rec, t, ())  # the reflections' reprojection reads the G-buffer's

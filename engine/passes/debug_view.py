@@ -33,6 +33,7 @@ class DebugViewPass(ComputePass):
         "taa_hist": read("image", "taa_out"),
         "refl_raw": read("buffer", "refl.raw"),
         "refl": read("buffer", "refl.final"),
+        "transp": read("buffer", "transp"),
         "out_color": write("image", "color"),
     }
 

@@ -42,6 +42,7 @@ ViewMode = Literal[
     "taa_history",
     "reflection_raw",
     "reflection",
+    "transparency",
 ]
 VIEW_MODES: tuple[str, ...] = get_args(ViewMode)
 #: shadow.comp's modes (SHADOW_<NAME>); "off" records no shadow pass.
@@ -111,6 +112,7 @@ AOVS = {
     "instance_id": AOV("instance_id", 4, "int32"),
     "reflection_raw": AOV("refl.raw", 16, "float32", 3),
     "reflection": AOV("refl.final", 16, "float32", 3),
+    "transparency": AOV("transp", 16, "float32", 3),
 }
 
 #: AOVs made on the host from one the GPU reads back: "semantic_id" is the object's class through a per-object table

@@ -253,6 +253,8 @@ class Viewer:
             self.cycle("integrator")
         elif key == g.KEY_7:
             self.cycle("reflections")
+        elif key == g.KEY_9:
+            self.cycle("transparency")
         elif key == g.KEY_T:
             self.cycle("taa")
         elif key == g.KEY_V:

@@ -24,6 +24,7 @@ KEYS = [
     ("5", "automatic exposure on / off"),
     ("6", "integrator: raster / path (path: samples accumulate while the view is still)"),
     ("7", "ray-traced reflections on / off (views reflection_raw, reflection: V)"),
+    ("9", "transparency (glass, BLEND) by rays on / off (view transparency: V)"),
     ("T", "temporal anti-aliasing on / off (debug view: taa_history)"),
     ("V / Shift+V", "next / previous debug view (if the renderer has it)"),
     ("R", "reset the camera to the scene's"),
@@ -39,7 +40,18 @@ KEYS = [
 KEY_SKIPS = {"shadows": ("reference",)}
 
 # The settings with a key, in the order the overlay lists them.
-TOGGLED = ("shadows", "ao", "reflections", "denoise", "tonemap", "auto_exposure", "integrator", "taa", "view")
+TOGGLED = (
+    "shadows",
+    "ao",
+    "reflections",
+    "transparency",
+    "denoise",
+    "tonemap",
+    "auto_exposure",
+    "integrator",
+    "taa",
+    "view",
+)
 
 
 def key_map_text() -> str:

@@ -30,6 +30,7 @@ layout(set = 0, binding = 17, r32ui) uniform readonly uimage2D g_instance;
 layout(set = 0, binding = 18, rgba16f) uniform readonly image2D taa_hist;    // TAA's resolve; a: frames it holds
 layout(std430, set = 0, binding = 19) readonly buffer ReflRaw { vec4 refl_raw[]; };   // reflect.comp's rays
 layout(std430, set = 0, binding = 20) readonly buffer Refl { vec4 refl[]; };          // filtered (reflect_filter)
+layout(std430, set = 0, binding = 21) readonly buffer Transp { vec4 transp[]; };      // transparency.comp's rays
 layout(push_constant) uniform Push { uint view; } pc;
 
 // A colour per id (black for none), different for neighbouring ids.
@@ -100,6 +101,9 @@ void main() {
         c = n <= 1.0 ? vec3(1.0, 0.0, 0.0) : vec3(clamp(n / 16.0, 0.0, 1.0));
     } else if (v == VIEW_REFLECTION_RAW || v == VIEW_REFLECTION) {   // untraced pixels: dark blue
         vec4 r = v == VIEW_REFLECTION ? refl[pixel] : refl_raw[pixel];
+        c = r.w > 0.0 ? pow(clamp(r.rgb, 0.0, 1.0), vec3(1.0 / 2.2)) : (covered ? vec3(0.0, 0.0, 0.15) : vec3(0.0));
+    } else if (v == VIEW_TRANSPARENCY) {   // the radiance through / behind transparent surfaces; others dark blue
+        vec4 r = transp[pixel];
         c = r.w > 0.0 ? pow(clamp(r.rgb, 0.0, 1.0), vec3(1.0 / 2.2)) : (covered ? vec3(0.0, 0.0, 0.15) : vec3(0.0));
     } else if (v == VIEW_HISTORY) {
         float n = hist_len[pixel];

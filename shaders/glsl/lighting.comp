@@ -30,6 +30,8 @@ layout(set = 0, binding = 9, rgba16f) uniform readonly image2D g_emissive;
 layout(std430, set = 0, binding = 11) readonly buffer Reflections { vec4 reflections[]; };
 layout(set = 0, binding = 12, r32ui) uniform readonly uimage2D g_material;   // the material's index
 layout(set = 0, binding = 13) uniform samplerBuffer materials;               // MATERIAL_TEXELS per material
+// transparent surfaces (transparency.comp): the radiance through / behind them, rgb, and its weight w (0: opaque)
+layout(std430, set = 0, binding = 15) readonly buffer Transparency { vec4 transp[]; };
 
 // Radiance arriving from light `l` at `p` (before visibility and the cosine term), and the unit direction to it.
 vec3 incident(Light l, vec3 p, out vec3 wi) {
@@ -103,6 +105,8 @@ void main() {
         if (traced.w > 0.0) ambient += spec * traced.rgb;
         else ambient += spec * ibl_specular_radiance(n, v, roughness) * (ao[pixel] * occlusion);
         color = direct + ambient + imageLoad(g_emissive, px).rgb;
+        vec4 through = transp[pixel];
+        color = mix(color, through.rgb, through.w);
     }
     imageStore(out_hdr, px, vec4(color, 1.0));
     imageStore(out_color, px, vec4(srgb_encode(tonemap(color * frame.exposure, frame.tonemap)), 1.0));

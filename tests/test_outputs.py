@@ -89,7 +89,7 @@ def test_exr_holds_every_aov_exactly_in_named_channels(frame, tmp_path):
         "radiance.G",
         "radiance.B",
         "instance_id.ID",
-        *(f"{name}.{c}" for name in ("reflection", "reflection_raw", "gi", "gi_raw") for c in "RGB"),
+        *(f"{name}.{c}" for name in ("reflection", "reflection_raw", "gi", "gi_raw", "transparency") for c in "RGB"),
     }
     assert ch["depth.Z"].type() == OpenEXR.FLOAT and ch["object_id.ID"].type() == OpenEXR.UINT
     depth = ch["depth.Z"].pixels

@@ -48,6 +48,7 @@ def _settings(args) -> dict:
         "ao_samples",
         "reflections",
         "gi",
+        "transparency",
     )
     for key in keys + (
         "exposure",
@@ -393,6 +394,10 @@ def build_parser() -> argparse.ArgumentParser:
     r.add_argument("--no-reflections", dest="reflections", action="store_false", help="ray-traced reflections off")
     r.add_argument("--gi", dest="gi", action="store_true", default=None, help="diffuse global illumination on")
     r.add_argument("--no-gi", dest="gi", action="store_false", help="diffuse global illumination off")
+    r.add_argument(
+        "--transparency", dest="transparency", action="store_true", default=None, help="glass and BLEND by rays on"
+    )
+    r.add_argument("--no-transparency", dest="transparency", action="store_false", help="transparency by rays off")
     r.add_argument("--ao-samples", type=int, default=None, help="AO rays per pixel (default 4, 1 with GI on)")
     r.add_argument("--exposure", type=float, default=None, help="exposure in EV (default -1: 2^-1 on the radiance)")
     r.add_argument(

@@ -66,6 +66,8 @@ class Frame:
     - "gi", "gi_raw": (H, W, 3) the diffuse global illumination's irradiance over pi (setting `gi`; the radiance a
       white Lambert surface would reflect of it): filtered (what the lighting's diffuse lobe used), and this frame's
       rays alone (one per 2x2 pixels: both upsampled alike); 0 where none was traced (metals, the background, gi off).
+    - "transparency": (H, W, 3) the linear RGB radiance the transparency rays brought (setting `transparency`):
+      through a glass surface (Fresnel-weighted reflection and refraction) or behind a BLEND one; 0 elsewhere.
     - "semantic_id": (H, W) uint32 the semantic class of the object seen (`class_names[id]`), 0 on the background
       and on objects without a class (`Scene.set_classes`); made on the host from the object ids, exactly.
 

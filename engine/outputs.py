@@ -149,7 +149,7 @@ def exr_channels(name: str, channels: int) -> list[str]:
         return ["depth.Z"]
     if name.endswith("_id"):
         return [f"{name}.ID"]
-    if name in ("albedo", "emissive", "radiance", "reflection", "reflection_raw", "gi", "gi_raw"):
+    if name in ("albedo", "emissive", "radiance", "reflection", "reflection_raw", "gi", "gi_raw", "transparency"):
         return [f"{name}.R", f"{name}.G", f"{name}.B"]
     if channels == 1:
         return [f"{name}.Y"]

@@ -44,6 +44,7 @@ from .passes.raypass import follow_scene
 from .passes.gi import GIFilterPass, GITemporalPass, GITracePass, GIUpsamplePass
 from .passes.gi import set_resolution as set_gi_resolution
 from .passes.reflections import ReflectionFilterPass, ReflectionTemporalPass, ReflectionTracePass
+from .passes.transparency import TransparencyPass
 from .passes.shadows import ShadowPass
 from .passes.taa import TAAPass
 from .passes.soft_raster import SW_RASTER_PIXELS
@@ -212,6 +213,7 @@ class Renderer(Closes):
         self.gi = (
             None  # the diffuse GI's (trace, temporal, filter, upsample) passes, made by the first frame with gi on
         )
+        self.transparency = None  # TransparencyPass, made by the first frame with transparency on
         self.path_samples = 0  # samples per pixel in the path tracer's image so far
         self.path_progress = None  # called as f(samples done, samples in all) after each path-tracing batch
         self._path_key = None  # what the path tracer's samples so far were traced under
@@ -298,6 +300,7 @@ class Renderer(Closes):
         reflections: bool = default("reflections"),
         gi: bool = default("gi"),
         gi_resolution: str = default("gi_resolution"),
+        transparency: bool = default("transparency"),
         exposure: float = default("exposure"),
         auto_exposure: bool = default("auto_exposure"),
         tonemap: Tonemap = default("tonemap"),
@@ -352,6 +355,9 @@ class Renderer(Closes):
                 the diffuse lobe (non-metal pixels).
             gi_resolution: "half" (a GI ray per 2x2 pixels, the block's pixels in turn over 4 frames) or "full"
                 (a ray per pixel: slower, a little closer to the path tracer).
+            transparency: draw transmissive (glass) surfaces by rays: the Fresnel-weighted mirror ray and the
+                refracted ray followed through the solid (up to 4 interfaces), and BLEND surfaces mixed by alpha
+                with what lies behind them (a ray continued through them); off: both are shaded as opaque.
             exposure: in EV: the linear HDR colour is scaled by 2^exposure before the tone curve and sRGB
                 encoding; in [-60, 60].
             auto_exposure: also scale by 0.18 / the frame's log-average luminance (computed on the GPU).
@@ -566,6 +572,7 @@ class Renderer(Closes):
         reflections: bool = default("reflections"),
         gi: bool = default("gi"),
         gi_resolution: str = default("gi_resolution"),
+        transparency: bool = default("transparency"),
         exposure: float = default("exposure"),
         auto_exposure: bool = default("auto_exposure"),
         tonemap: Tonemap = default("tonemap"),
@@ -695,6 +702,7 @@ class Renderer(Closes):
                     "reflections",
                     "gi",
                     "gi_resolution",
+                    "transparency",
                 )
             ),
         )
@@ -714,6 +722,7 @@ class Renderer(Closes):
             cfg["reflections"],
             cfg["gi"],
             cfg["gi_resolution"],
+            cfg["transparency"],
             len(lights),
             readback,
             self._raster,
@@ -723,6 +732,7 @@ class Renderer(Closes):
             key += (cfg["reference_samples"],)
         self._path_ready(scene, cfg)
         self._traced_ready(scene, cfg)
+        self._transparency_ready(scene, cfg)
         if key not in self._commands:
             cmd, ts = self._record(cfg, len(lights), readback, rays)
             self._commands[key] = (cmd, list(ts.names))
@@ -862,8 +872,10 @@ class Renderer(Closes):
         return (self.shadows, self.ao, *extra, *self._secondary_traces())
 
     def _secondary_traces(self):
-        """The trace passes made so far of the effects whose hits are shaded (reflections, diffuse GI)."""
-        return [passes[0] for passes in (self.reflections, self.gi) if passes is not None]
+        """The trace passes made so far of the effects whose hits are shaded (reflections, diffuse GI,
+        transparency)."""
+        traces = [passes[0] for passes in (self.reflections, self.gi) if passes is not None]
+        return traces + ([self.transparency] if self.transparency is not None else [])
 
     def _path_ready(self, scene, cfg):
         """For a path-traced frame: the path tracer's pass (made on first use) and its scene buffers (made again
@@ -896,16 +908,35 @@ class Renderer(Closes):
     def _effect_ready(self, scene, setting, kinds):
         if getattr(self, setting) is None:
             lib, res = self.library, self.targets.resources
-            trace = kinds[0](self.ctx, lib, res, self.bvh_set, self.bvh_layout)
+            trace = self._new_trace(kinds[0])
             setattr(self, setting, (trace, *(kind(self.ctx, lib, res) for kind in kinds[1:])))
             self.passes += getattr(self, setting)
-            trace.bind_scene(self._geometry)
-            if self._environment is not None:
-                trace.bind_environment(self._environment)
-            if self._scene_bvh is not None:
-                trace.specialize_for(self._scene_bvh)
-            self._invalidate_commands()
-        trace = getattr(self, setting)[0]
+        self._trace_data_ready(getattr(self, setting)[0], scene)
+
+    def _transparency_ready(self, scene, cfg):
+        """For a frame with transparency: its pass (made on first use) and the scene buffers its rays read (made
+        again after a new upload)."""
+        if not cfg["transparency"] or cfg["integrator"] == "path":
+            return
+        if self.transparency is None:
+            self.transparency = self._new_trace(TransparencyPass)
+            self.passes.append(self.transparency)
+        self._trace_data_ready(self.transparency, scene)
+
+    def _new_trace(self, kind):
+        """A pass of class `kind` whose rays are shaded at their hits, bound to the scene's geometry, environment
+        and BVH."""
+        trace = kind(self.ctx, self.library, self.targets.resources, self.bvh_set, self.bvh_layout)
+        trace.bind_scene(self._geometry)
+        if self._environment is not None:
+            trace.bind_environment(self._environment)
+        if self._scene_bvh is not None:
+            trace.specialize_for(self._scene_bvh)
+        self._invalidate_commands()
+        return trace
+
+    def _trace_data_ready(self, trace, scene):
+        """The scene buffers a trace pass's hits read (made again after a new upload)."""
         if trace.scene_data is None:
             self._invalidate_commands()  # (the recordings bound the last scene's buffers)
             trace.bind_data(PathScene(self.ctx, scene), self._geometry)
@@ -1082,6 +1113,11 @@ class Renderer(Closes):
 
         self._record_traced(rec, cfg, path, "reflections", "refl")
         self._record_traced(rec, cfg, path, "gi", "gi")
+        if cfg["transparency"] and not path:
+            self.transparency.record(rec, t)
+            rec.mark("transparency")
+        elif self.transparency is not None:  # (zero until the pass first ran; its making re-records every frame)
+            rec.fill(t["transp"], 0)
         copied = self._record_filters(rec, cfg, n_lights, mode, path)
         if not copied and (cfg["reflections"] or cfg["gi"]) and not path:
             AccumulatePass.record_history_copy(rec, t, ())  # their reprojection reads the G-buffer's history

@@ -45,6 +45,7 @@ DEFAULT_SETTINGS: dict[str, Any] = {
     "reflections": False,  # ray-traced GGX reflections, temporally and spatially filtered (passes/reflections.py)
     "gi": False,  # diffuse global illumination: a cosine ray per cell, bounces over frames, filtered (passes/gi.py)
     "gi_resolution": "half",  # GI_RESOLUTIONS: the GI's cells: 2x2 pixels, or a pixel
+    "transparency": False,  # glass and BLEND surfaces drawn by rays from the G-buffer (passes/transparency.py)
     "exposure": -1.0,  # EV: the radiance is scaled by 2^exposure before the tone curve (-1: a sunlit grey < 220)
     "auto_exposure": False,  # scale by 0.18 / the frame's log-average luminance as well (exposure.comp)
     "tonemap": "agx",  # TONEMAPS: Khronos PBR Neutral, AgX, or Narkowicz's ACES fit
@@ -199,7 +200,17 @@ def check_settings(settings: dict[str, Any]) -> dict[str, Any]:
             raise ConfigError(f"setting {key}={out[key]!r}: expected one of {', '.join(known)}")
     if out["tonemap"] not in TONEMAPS:
         raise ConfigError(f"setting tonemap={out['tonemap']!r}: expected one of {', '.join(TONEMAPS)}")
-    for key in ("ao", "accumulate", "denoise", "auto_exposure", "shadow_terminator", "taa", "reflections", "gi"):
+    for key in (
+        "ao",
+        "accumulate",
+        "denoise",
+        "auto_exposure",
+        "shadow_terminator",
+        "taa",
+        "reflections",
+        "gi",
+        "transparency",
+    ):
         if not isinstance(out[key], (bool, np.bool_)):
             raise ConfigError(f"setting {key}={out[key]!r}: expected true or false")
         out[key] = bool(out[key])

@@ -1,11 +1,14 @@
 """Small analytic helpers shared by the tests."""
 
+import base64
 import math
+import os
 import shutil
 import subprocess
 import sys
 import tarfile
 import tempfile
+import xml.etree.ElementTree as ET
 import zipfile
 from pathlib import Path
 
@@ -27,6 +30,103 @@ def pixel_rays(camera, width, height):
         + np.asarray(camera.forward)
     )
     return d / np.linalg.norm(d, axis=-1, keepdims=True)
+
+
+def triangle_gltf(nodes, meshes, roots=None, **top) -> dict:
+    """A glTF document (a dict) whose `meshes` draw the triangle (0,0,0) (1,0,0) (0,1,0) from a data-URI buffer:
+    their primitives name accessor 0 (POSITION) and 1 (indices). The scene holds `roots` (default: every node);
+    `top` adds top-level keys (materials, extensionsUsed, ...)."""
+    p = np.array([[0, 0, 0], [1, 0, 0], [0, 1, 0]], np.float32)
+    blob = p.tobytes() + np.array([0, 1, 2], np.uint16).tobytes() + b"\0\0"
+    return {
+        "asset": {"version": "2.0"},
+        "scene": 0,
+        "scenes": [{"nodes": list(range(len(nodes))) if roots is None else roots}],
+        "nodes": nodes,
+        "meshes": meshes,
+        **top,
+        "buffers": [
+            {"byteLength": len(blob), "uri": "data:application/octet-stream;base64," + base64.b64encode(blob).decode()}
+        ],
+        "bufferViews": [
+            {"buffer": 0, "byteOffset": 0, "byteLength": 36},
+            {"buffer": 0, "byteOffset": 36, "byteLength": 6},
+        ],
+        "accessors": [
+            {"bufferView": 0, "componentType": 5126, "count": 3, "type": "VEC3", "min": [0, 0, 0], "max": [1, 1, 0]},
+            {"bufferView": 1, "componentType": 5123, "count": 3, "type": "SCALAR"},
+        ],
+    }
+
+
+def textured_quads(centres, textures, dist):
+    """Unit quads facing +z at the (x, y) `centres`, quad i with a material of its own whose texture is textures[i]
+    (u, v with v = 0 at the top), seen from (0, 0, dist) with a 45-degree vertical fov."""
+    from engine.scene import Camera, Scene
+    from engine.scene.material import Material
+
+    verts, faces, vm, uvs, mats = [], [], [], [], []
+    for i, ((x, y), tex) in enumerate(zip(centres, textures)):
+        base = len(verts)
+        verts += [[x - 0.5, y - 0.5, 0], [x + 0.5, y - 0.5, 0], [x + 0.5, y + 0.5, 0], [x - 0.5, y + 0.5, 0]]
+        uvs += [[0, 1], [1, 1], [1, 0], [0, 0]]
+        faces += [[base, base + 1, base + 2], [base, base + 2, base + 3]]
+        vm += [i] * 4
+        mats.append(Material(f"quad{i}", (1, 1, 1), tex))
+    return Scene(
+        np.array(verts, float),
+        faces,
+        uvs=np.array(uvs, float),
+        vertex_material=np.array(vm),
+        materials=mats,
+        camera=Camera.look_at((0, 0, dist), (0, 0, 0), fov_y=45.0),
+    )
+
+
+def run_plugin_suite(cwd, files, *, plugin, ini, backend, report, name=lambda case: case.get("name")):
+    """Another project's own tests (`files` in `cwd`) in a fresh pytest (settings: `ini`) with our `plugin`
+    substituting our classes for theirs, on the ray backend `backend`: (the process, {name(testcase): (outcome,
+    message)} from the JUnit `report`)."""
+    here = Path(__file__).resolve().parent
+    env = dict(os.environ, PYTHONPATH=os.pathsep.join([str(here.parent), str(here), os.environ.get("PYTHONPATH", "")]))
+    env["HYBRID_TEST_RT_BACKEND"] = backend
+    args = ["-p", plugin, "-p", "no:cacheprovider", "-p", "no:dash", "-c", str(ini), f"--junitxml={report}"]
+    proc = subprocess.run(
+        [sys.executable, "-m", "pytest", "-q", *args, *files],
+        cwd=cwd,
+        env=env,
+        capture_output=True,
+        text=True,
+        timeout=900,
+    )
+    assert report.exists(), f"pytest did not run: {proc.stdout[-2000:]}{proc.stderr[-2000:]}"
+    outcome = {}
+    for case in ET.parse(report).getroot().iter("testcase"):
+        kind = next((c.tag for c in case if c.tag in ("failure", "error", "skipped")), "passed")
+        outcome[name(case)] = (kind, next((c.get("message") or "" for c in case if c.tag != "properties"), ""))
+    return proc, outcome
+
+
+def run_cli(*args, cwd=None) -> subprocess.CompletedProcess:
+    """`hybrid ARGS` in this process (engine.cli.main, from `cwd`, default the repository): its exit status and what
+    it printed, as subprocess.run returns them. For the CLI's refusals of bad options and files, where a process each
+    would cost its start-up and imports; tests/test_cli.py checks the real process's one-line errors."""
+    import contextlib
+    import io
+
+    from engine import cli
+
+    out, err = io.StringIO(), io.StringIO()
+    with (
+        contextlib.chdir(cwd or Path(__file__).resolve().parent.parent),
+        contextlib.redirect_stdout(out),
+        contextlib.redirect_stderr(err),
+    ):
+        try:
+            code = cli.main([str(a) for a in args])
+        except SystemExit as exc:  # argparse's own refusals
+            code = exc.code
+    return subprocess.CompletedProcess(args, code, out.getvalue(), err.getvalue())
 
 
 def ball_over_ground(x, height, camera, sun, materials, name):

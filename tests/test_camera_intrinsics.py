@@ -141,9 +141,9 @@ def depth_scene():
 
 
 @pytest.fixture(scope="module")
-def tracer():
+def tracer(shared_device):
     scene = depth_scene()
-    with Tracer(scene.positions, scene.indices, validation=True) as t:
+    with Tracer(scene.positions, scene.indices, device=shared_device) as t:
         yield t
         assert not t.validation_errors, t.validation_errors[:3]
 

@@ -130,9 +130,9 @@ def test_rendered_surface_lands_where_opencv_projects_it(make_renderer, model):
 
 
 @pytest.fixture(scope="module")
-def tracer():
+def tracer(shared_device):
     scene = scene_of()
-    with Tracer(scene.positions, scene.indices, validation=True) as t:
+    with Tracer(scene.positions, scene.indices, device=shared_device) as t:
         yield t
         assert not t.validation_errors, t.validation_errors[:3]
 

@@ -157,7 +157,7 @@ def test_lod_pixels_is_checked():
         Renderer(8, 8, lod_pixels=-1)
 
 
-def test_level_chain():
+def test_level_chain(shared_device):
     mesh = big_mesh()
     chain = lod_chain(mesh)
     assert lod_chain(mesh) is chain  # cached per mesh
@@ -167,10 +167,11 @@ def test_level_chain():
     assert np.all((ratios > 2.5) & (ratios < 6.5)), counts
     errors = [level.error for level in chain]
     assert errors[0] == 0 and np.all(np.diff(errors) > 0)
-    with Tracer(mesh.positions, mesh.indices) as full:
+    with Tracer(mesh.positions, mesh.indices, device=shared_device) as full:
         for level in chain[1:]:
             assert level.source.min() >= 0 and level.source.max() < mesh.triangle_count
-            with Tracer(level.positions, level.indices) as coarse:  # the error bounds the distance both ways
+            # the error bounds the distance both ways
+            with Tracer(level.positions, level.indices, device=shared_device) as coarse:
                 assert coarse.closest(mesh.positions).distance.max() <= level.error * 1.001
             assert full.closest(level.positions).distance.max() <= level.error * 1.001
     small = small_mesh()

@@ -106,6 +106,7 @@ def test_aovs_to_files(tmp_path):
         "instance_id": (48, 64),
         "reflection_raw": (48, 64, 3),
         "reflection": (48, 64, 3),
+        "transparency": (48, 64, 3),
         "semantic_id": (48, 64),
     }
     # every AOV `aovs="all"` reads back (taa_history is a view of the colour image, not an array)

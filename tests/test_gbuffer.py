@@ -6,7 +6,7 @@ import numpy as np
 import trimesh
 
 from engine import Camera, DirectionalLight, Scene
-from helpers import interior, pixel_rays
+from helpers import interior, pixel_rays, textured_quads
 
 
 def sphere_scene():
@@ -128,31 +128,15 @@ ASPECT = 8
 def _quads_scene(n):
     """n unit quads in a row, each with a material of its own whose texture is one solid sRGB colour; the textures'
     sizes vary (some not powers of two), so that they fall in several size classes (arrays)."""
-    from engine.scene.material import Material
-
     rng = np.random.default_rng(n)
     colours = rng.integers(40, 255, (n, 3))
-    verts, faces, vm, uvs, mats = [], [], [], [], []
+    textures = []
     for i in range(n):
-        x = 1.25 * (i - (n - 1) / 2)
-        base = len(verts)
-        verts += [[x - 0.5, -0.5, 0], [x + 0.5, -0.5, 0], [x + 0.5, 0.5, 0], [x - 0.5, 0.5, 0]]
-        uvs += [[0, 1], [1, 1], [1, 0], [0, 0]]
-        faces += [[base, base + 1, base + 2], [base, base + 2, base + 3]]
-        vm += [i] * 4
         tex = np.empty(((4, 5, 16)[i % 3], (4, 3, 8, 1)[i % 4], 4), np.uint8)
         tex[..., :3], tex[..., 3] = colours[i], 255
-        mats.append(Material(f"quad{i}", (1, 1, 1), tex))
+        textures.append(tex)
     dist = 0.6 * 1.25 * n / (math.tan(math.radians(22.5)) * ASPECT)  # the row fills the view's width
-    cam = Camera.look_at((0, 0, dist), (0, 0, 0), fov_y=45.0)
-    return Scene(
-        np.array(verts, float),
-        faces,
-        uvs=np.array(uvs, float),
-        vertex_material=np.array(vm),
-        materials=mats,
-        camera=cam,
-    ), colours
+    return textured_quads([(1.25 * (i - (n - 1) / 2), 0.0) for i in range(n)], textures, dist), colours
 
 
 def test_every_texture_reaches_albedo_as_scenes_change(make_renderer, caplog):

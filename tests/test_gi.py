@@ -9,7 +9,7 @@ import numpy as np
 import pytest
 
 from engine import Camera, DirectionalLight, Material
-from engine.bench.pathscenes import quad, scene_of
+from engine.bench.pathscenes import interior_room
 from engine.errors import ConfigError
 from helpers import ball_over_ground, filters_follow_settings, toggles_with_key
 from helpers import place as place_at
@@ -20,26 +20,7 @@ LIT = dict(shadows="hard", ambient=0.0)
 
 
 def room():
-    """A 2 x 2 x 2 room (white, a red and a green wall) with a 0.6 x 0.6 hole in its ceiling that the sun shines
-    through onto the floor; the camera inside, against the front wall."""
-    white, red, green = (0.75, 0.75, 0.75), (0.7, 0.12, 0.1), (0.15, 0.6, 0.15)
-
-    def ceiling(x0, x1, z0, z1):
-        return quad([(x0, 2, z0), (x1, 2, z0), (x1, 2, z1), (x0, 2, z1)])
-
-    objs = [
-        (quad([(-1, 0, 1), (1, 0, 1), (1, 0, -1), (-1, 0, -1)]), Material("floor", white)),
-        (quad([(-1, 0, -1), (1, 0, -1), (1, 2, -1), (-1, 2, -1)]), Material("back", white)),
-        (quad([(-1, 0, 1), (-1, 0, -1), (-1, 2, -1), (-1, 2, 1)]), Material("left", red)),
-        (quad([(1, 0, -1), (1, 0, 1), (1, 2, 1), (1, 2, -1)]), Material("right", green)),
-        (quad([(1, 0, 1), (-1, 0, 1), (-1, 2, 1), (1, 2, 1)]), Material("front", white)),
-        (ceiling(-1, 1, -1, -0.3), Material("ceiling", white)),
-        (ceiling(-1, 1, 0.3, 1), Material("ceiling", white)),
-        (ceiling(-1, -0.3, -0.3, 0.3), Material("ceiling", white)),
-        (ceiling(0.3, 1, -0.3, 0.3), Material("ceiling", white)),
-    ]
-    sun = DirectionalLight((0.15, -1.0, -0.3), intensity=3.0)
-    return scene_of(objs, ((0.0, 1.0, 0.95), (0.0, 0.8, -1.0), 75.0), [sun], name="interior")
+    return interior_room()
 
 
 def frames(r, scene, n, **kw):

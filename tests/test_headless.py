@@ -33,7 +33,7 @@ def primary_rays(cam, w, h):
     return np.broadcast_to(np.asarray(cam.eye, np.float64), d.shape).reshape(-1, 3), d.reshape(-1, 3)
 
 
-def test_ids_agree_with_a_ray_cast_of_the_primary_rays(make_renderer, scene):
+def test_ids_agree_with_a_ray_cast_of_the_primary_rays(make_renderer, scene, shared_device):
     cam = Camera.look_at((4.0, 3.0, 6.0), (0.0, 1.0, 0.0), fov_y=50)
     f = make_renderer(W, H).render(scene, cam, aovs=("triangle_id", "object_id", "material_id", "depth"))
     tri, obj, mat = f.aov["triangle_id"], f.aov["object_id"], f.aov["material_id"]
@@ -41,7 +41,7 @@ def test_ids_agree_with_a_ray_cast_of_the_primary_rays(make_renderer, scene):
     covered = np.isfinite(f.aov["depth"])
     assert np.array_equal(tri >= 0, covered) and np.all(obj[~covered] == -1) and np.all(mat[~covered] == -1)
     o, d = primary_rays(cam, W, H)
-    with Tracer(scene.positions, scene.indices, validation=True) as t:
+    with Tracer(scene.positions, scene.indices, device=shared_device) as t:
         hits = t.intersect(o, d)
     prim = hits.prim.reshape(H, W)
     agree = prim == tri

@@ -179,10 +179,10 @@ def test_loaders_keep_instancing(tmp_path):
 
 
 # ---------------------------------------------------------------------------------------------- the Tracer
-def test_tracer_on_instances_matches_flattened_reference():
+def test_tracer_on_instances_matches_flattened_reference(shared_device):
     scene, rng = instanced_scene(seed=1)
     o, d = random_rays(rng)
-    with Tracer.from_scene(scene, validation=True) as tracer:
+    with Tracer.from_scene(scene, device=shared_device) as tracer:
         check_hits(tracer.intersect(o, d), scene, o, d)
         tmax = rng.uniform(0.2, 1.0, len(o))
         ref = reference_occluded(scene.positions, scene.indices, o, d, tmax)
@@ -194,11 +194,11 @@ def test_tracer_on_instances_matches_flattened_reference():
         assert tracer.validation_errors == []
 
 
-def test_refit_gives_the_same_hits_as_a_rebuild():
+def test_refit_gives_the_same_hits_as_a_rebuild(shared_device):
     scene, rng = instanced_scene(seed=2)
     o, d = random_rays(rng)
     sphere = scene.meshes[0].positions.astype(np.float64)
-    with Tracer.from_scene(scene, validation=True) as tracer:
+    with Tracer.from_scene(scene, device=shared_device) as tracer:
         tracer.intersect(o[:10], d[:10])
         wobble = sphere * (1.0 + 0.3 * np.sin(3.0 * sphere[:, :1]))  # a deformation, not a scale
         scene.update_positions("sphere", wobble)
@@ -206,19 +206,19 @@ def test_refit_gives_the_same_hits_as_a_rebuild():
         assert tracer.scene.last_refit_ratio[0] < 2.0  # refitted, not rebuilt
         assert tracer.scene.rebuilds == 0
         check_hits(refit, scene, o, d)
-        with Tracer.from_scene(scene) as fresh:  # built from the deformed mesh
+        with Tracer.from_scene(scene, device=shared_device) as fresh:  # built from the deformed mesh
             rebuilt = fresh.intersect(o, d)
         assert np.array_equal(refit.prim, rebuilt.prim)
         np.testing.assert_allclose(refit.t[refit.prim >= 0], rebuilt.t[rebuilt.prim >= 0], rtol=1e-6)
 
 
-def test_one_identity_instance_is_the_single_level_bvh():
+def test_one_identity_instance_is_the_single_level_bvh(shared_device):
     mesh = trimesh.creation.icosphere(subdivisions=2)
     scene = Scene.from_trimesh(mesh)
     rng = np.random.default_rng(3)
     o = rng.uniform(-3, 3, (500, 3))
     d = -o
-    with Tracer.from_scene(scene) as tracer:
+    with Tracer.from_scene(scene, device=shared_device) as tracer:
         assert "instances" not in tracer.stats  # the one-mesh BVH
         hits = tracer.intersect(o, d)
         assert hits.hit.all() and np.all(hits.instance == 0)
@@ -290,12 +290,12 @@ def test_refit_to_the_same_positions_is_the_build_byte_for_byte():
     assert two.refit(0, v * (1.0 + 0.5 * np.abs(v[:, :1])), sphere.faces) > 1.0  # stretched: boxes grow
 
 
-def test_streamed_chunks_carry_instance_ids():
+def test_streamed_chunks_carry_instance_ids(shared_device):
     """A batch streamed in many chunks (batch_size 300: 7 chunks, 3 in flight): every chunk's instance and mesh
     triangle ids agree with the flattened reference, after a move too."""
     scene, rng = instanced_scene(seed=5)
     o, d = random_rays(rng)
-    with Tracer.from_scene(scene, batch_size=300, validation=True) as tracer:
+    with Tracer.from_scene(scene, batch_size=300, device=shared_device) as tracer:
         assert tracer.session.chunk == 300
         check_hits(tracer.intersect(o, d), scene, o, d)
         scene.set_transforms(np.stack([random_transform(rng) for _ in range(24)]))

@@ -1,7 +1,6 @@
 """Semantic classes (TOML `class`, glTF `extras`, `Scene.set_classes`), the semantic_id AOV and its colour map,
 against the object ids a frame reads back and the files' own values."""
 
-import base64
 import json
 
 import numpy as np
@@ -13,35 +12,17 @@ from engine.errors import ConfigError, SceneError
 from engine.outputs import read_exr
 from engine.scene.classes import PALETTE
 from engine.scene.scene import scene_from_dict
+from helpers import triangle_gltf
 
 
 def write_gltf(path, nodes, mesh_extras=None):
     """A glTF of one triangle mesh placed by `nodes` (dicts with name, translation, extras, children)."""
-    v = np.array([[0, 0, 0], [1, 0, 0], [0, 1, 0]], np.float32)
-    f = np.array([0, 1, 2], np.uint16)
-    blob = v.tobytes() + f.tobytes() + b"\0\0"
     mesh = {"primitives": [{"attributes": {"POSITION": 0}, "indices": 1}]}
     if mesh_extras:
         mesh["extras"] = mesh_extras
-    gltf = {
-        "asset": {"version": "2.0"},
-        "scene": 0,
-        "scenes": [{"nodes": [i for i, n in enumerate(nodes) if not n.get("child")]}],
-        "nodes": [{k: v for k, v in n.items() if k != "child"} for n in nodes],
-        "meshes": [mesh],
-        "buffers": [
-            {"byteLength": len(blob), "uri": "data:application/octet-stream;base64," + base64.b64encode(blob).decode()}
-        ],
-        "bufferViews": [
-            {"buffer": 0, "byteOffset": 0, "byteLength": 36},
-            {"buffer": 0, "byteOffset": 36, "byteLength": 6},
-        ],
-        "accessors": [
-            {"bufferView": 0, "componentType": 5126, "count": 3, "type": "VEC3", "min": [0, 0, 0], "max": [1, 1, 0]},
-            {"bufferView": 1, "componentType": 5123, "count": 3, "type": "SCALAR"},
-        ],
-    }
-    path.write_text(json.dumps(gltf))
+    roots = [i for i, n in enumerate(nodes) if not n.get("child")]
+    nodes = [{k: v for k, v in n.items() if k != "child"} for n in nodes]
+    path.write_text(json.dumps(triangle_gltf(nodes, [mesh], roots)))
     return path
 
 

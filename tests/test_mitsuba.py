@@ -17,10 +17,10 @@ import mitsuba_compare as mc  # noqa: E402
 
 
 @pytest.fixture(scope="module")
-def runs():
+def runs(shared_device):
     from engine import Renderer
 
-    r = Renderer(*mc.SIZE, validation=True)
+    r = Renderer(*mc.SIZE, device=shared_device)
     try:
         yield {choice: {x["name"]: x for x in mc.compare(r, choice)} for choice in ("gltf", "principled")}
     finally:

@@ -24,6 +24,7 @@ from engine import Camera, ConfigError, Scene
 from engine.frame import Frame
 from engine.outputs import linear_to_srgb, read_depth_png, read_exr, srgb_to_linear
 from engine.sequence import load_camera_path, orbit_cameras, output_paths, render_sequence
+from helpers import run_cli
 
 ROOT = Path(__file__).resolve().parents[1]
 W, H = 64, 48
@@ -35,11 +36,11 @@ def scene():
 
 
 @pytest.fixture(scope="module")
-def frame(scene):
+def frame(scene, shared_device):
     """Every AOV of a default-scene frame (two lights, background in the corners), validation on."""
     from engine import Renderer
 
-    with Renderer(W, H, validation=True) as r:
+    with Renderer(W, H, device=shared_device) as r:
         f = r.render(scene, Camera.look_at((6.0, 4.0, 8.0), (0.0, 1.0, 0.0), fov_y=50), aovs="all")
         errors = list(r.validation_errors)
     assert not errors
@@ -88,7 +89,7 @@ def test_exr_holds_every_aov_exactly_in_named_channels(frame, tmp_path):
         "radiance.G",
         "radiance.B",
         "instance_id.ID",
-        *(f"{name}.{c}" for name in ("reflection", "reflection_raw", "gi", "gi_raw") for c in "RGB"),
+        *(f"{name}.{c}" for name in ("reflection", "reflection_raw", "gi", "gi_raw", "transparency") for c in "RGB"),
     }
     assert ch["depth.Z"].type() == OpenEXR.FLOAT and ch["object_id.ID"].type() == OpenEXR.UINT
     depth = ch["depth.Z"].pixels
@@ -301,7 +302,7 @@ def one_line_error(res, *words):
 def test_cli_orbit_writes_numbered_exrs_and_cameras(tmp_path):
     args = ["render", "sphere", "-o", tmp_path / "o" / "f_##.exr", "--orbit", 4, "--size", "48x36", "--validation"]
     args += ["--aov", "depth", "--aov", "normal", "--aov", "object_id"]
-    res = hybrid(*args)
+    res = run_cli(*args)
     assert res.returncode == 1 and "no folder" in res.stderr and not (tmp_path / "o").exists()  # checked first
     (tmp_path / "o").mkdir()
     res = hybrid(*args)
@@ -365,15 +366,15 @@ def test_cli_camera_path_depth_png_and_option_errors(tmp_path):
     for args, words in errors:
         if "-o" not in args:
             args = ["-o", tmp_path / "x_#.png", *args]
-        one_line_error(hybrid("render", "sphere", *args), *words)
+        one_line_error(run_cli("render", "sphere", *args), *words)
 
 
 def test_cli_resume_refuses_the_outputs_of_another_sequence(tmp_path):
-    def run(orbit, aov, *extra):
+    def run(orbit, aov, *extra, cli=run_cli):
         out = tmp_path / "f_#.npz"
-        return hybrid("render", "sphere", "-o", out, "--orbit", orbit, "--size", "16x12", "--aov", aov, *extra)
+        return cli("render", "sphere", "-o", out, "--orbit", orbit, "--size", "16x12", "--aov", aov, *extra)
 
-    res = run(2, "depth")
+    res = run(2, "depth", cli=hybrid)
     assert res.returncode == 0, res.stderr
     one_line_error(run(3, "depth", "--resume"), "f_1.json", "another camera", "--resume")
     # Other AOVs than the files hold (issue #36: this exited 0, "2 already done", the files holding depth only).

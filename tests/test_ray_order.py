@@ -170,14 +170,14 @@ def test_auto_tells_which_batches_gain():
 
 
 @pytest.mark.parametrize("layout,steps", [("binary", "native"), ("wide", "native"), ("binary", "numpy")])
-def test_shuffled_rays_give_the_unshuffled_results_permuted(bumpy, layout, steps, monkeypatch):
+def test_shuffled_rays_give_the_unshuffled_results_permuted(bumpy, layout, steps, monkeypatch, shared_device):
     if steps == "numpy":
         monkeypatch.setattr(native, "library", lambda: None)
     v, f = bumpy
     rng = np.random.default_rng(2)
     o, d, tmax = surface_rays(v, f, N, rng)
     perm = rng.permutation(N)
-    with Tracer(v, f, validation=True, layout=layout, batch_size=8192) as tr:  # 5 chunks, 3 in flight
+    with Tracer(v, f, device=shared_device, layout=layout, batch_size=8192) as tr:  # 5 chunks, 3 in flight
         want = tr.occluded(o, d, tmax)
         assert not tr.last_reordered  # coherent: auto leaves it alone
         assert 0.1 < want.mean() < 0.9
@@ -200,14 +200,14 @@ def test_shuffled_rays_give_the_unshuffled_results_permuted(bumpy, layout, steps
         assert tr.validation_errors == []
 
 
-def test_reorder_off_and_bad_values():
+def test_reorder_off_and_bad_values(shared_device):
     v, f = trimesh.creation.icosphere(3).vertices, trimesh.creation.icosphere(3).faces
     rng = np.random.default_rng(3)
     o, d, tmax = surface_rays(v, f, N, rng)
     perm = rng.permutation(N)
     with pytest.raises(ConfigError, match="reorder must be 'auto', True or False, got 'yes'"):
         Tracer(v, f, reorder="yes")
-    with Tracer(v, f, reorder=False) as tr:
+    with Tracer(v, f, reorder=False, device=shared_device) as tr:
         want = tr.occluded(o, d, tmax)
         assert np.array_equal(tr.occluded(o[perm], d[perm], tmax[perm]), want[perm])
         assert not tr.last_reordered
@@ -217,14 +217,14 @@ def test_reorder_off_and_bad_values():
             tr.occluded(o, d, tmax, reorder=1)
 
 
-def test_a_bad_ray_in_a_reordered_batch_is_named_as_without_reordering():
+def test_a_bad_ray_in_a_reordered_batch_is_named_as_without_reordering(shared_device):
     v, f = trimesh.creation.icosphere(3).vertices, trimesh.creation.icosphere(3).faces
     rng = np.random.default_rng(4)
     o, d, tmax = surface_rays(v, f, N, rng)
     perm = rng.permutation(N)
     o, d = o[perm], d[perm].copy()
     d[12_345] = 0
-    with Tracer(v, f, batch_size=8192) as tr:
+    with Tracer(v, f, batch_size=8192, device=shared_device) as tr:
         with pytest.raises(ConfigError, match=r"directions: ray 12345 has zero length"):
             tr.occluded(o, d, tmax, reorder=True)
         d[30_000] = np.nan
@@ -243,12 +243,12 @@ def test_a_bad_ray_in_a_reordered_batch_is_named_as_without_reordering():
             assert tr.last_reordered
 
 
-def test_instance_ids_of_shuffled_rays():
+def test_instance_ids_of_shuffled_rays(shared_device):
     scene, rng = instanced_scene(seed=6)
     o = rng.uniform(-12, 12, (N, 3))
     d = rng.uniform(-8, 8, (N, 3)) - o
     perm = rng.permutation(N)
-    with Tracer.from_scene(scene, batch_size=8192, validation=True) as tr:
+    with Tracer.from_scene(scene, batch_size=8192, device=shared_device) as tr:
         for _ in range(2):  # and after a move (a rebuilt top level)
             h0 = tr.intersect(o, d, reorder=False)
             h1 = tr.intersect(o[perm], d[perm], reorder=True)
@@ -284,7 +284,7 @@ def test_open3d_and_trimesh_interfaces_on_shuffled_rays(bumpy):
     rmi.close()
 
 
-def test_one_direction_for_all_is_filled_not_gathered():
+def test_one_direction_for_all_is_filled_not_gathered(shared_device):
     """Shadow rays towards a distant light share one direction: the reordered stream fills it (a stride-0 view);
     rays whose directions differ in one row are gathered as they are. Both give the unshuffled results permuted."""
     v, f = trimesh.creation.icosphere(3).vertices, trimesh.creation.icosphere(3).faces
@@ -298,7 +298,7 @@ def test_one_direction_for_all_is_filled_not_gathered():
     signed = np.tile(np.float32([0.0, 1.0, 0.0]), (N, 1))
     signed[N - 2, 0] = -0.0  # equal as a number, not bit for bit: gathered, so that the kernel gets each as given
     assert ray_order_mod.shared_direction(signed) is signed
-    with Tracer(v, f, batch_size=8192) as tr:
+    with Tracer(v, f, batch_size=8192, device=shared_device) as tr:
         for dirs in (d, odd, signed):
             want = tr.occluded(o, dirs, tmax, reorder=False)
             assert np.array_equal(tr.occluded(o[perm], dirs[perm], tmax[perm], reorder=True), want[perm])

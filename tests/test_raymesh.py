@@ -157,14 +157,14 @@ def test_edits_to_the_mesh_are_seen(make):
     assert not ours.intersects_any(o, d)[0]
 
 
-def test_rays_in_a_face_plane_hit_its_edges(make):
+def test_rays_in_a_face_plane_hit_its_edges(make, shared_device):
     """Axis-aligned rays along a box's faces and edges (trimesh issue 2317): every one hits (the BVH's boxes are one
     float32 step wider than their triangles, so such a ray is inside their slab)."""
     box = trimesh.creation.box(extents=(2, 2, 2))
     o = np.array([[1, 0, 5], [-1, 0, 5], [0, 1, 5], [0, -1, 5], [1, 1, 5], [-1, -1, 5], [1, -1, 5], [-1, 1, 5]], float)
     d = np.tile([0.0, 0.0, -1.0], (8, 1))
     assert make(box, scale_to_box=False).intersects_any(o, d).all()
-    with Tracer(box.vertices, box.faces, validation=True) as tracer:
+    with Tracer(box.vertices, box.faces, device=shared_device) as tracer:
         hits = tracer.intersect(o, d)
         assert hits.hit.all() and np.allclose(hits.t, 4.0)
 

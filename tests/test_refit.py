@@ -46,13 +46,13 @@ def test_heights_put_every_node_after_its_children():
     assert np.array_equal(plan.faces, sphere.faces[b.prim_ids])
 
 
-def test_gpu_refit_equals_the_host_refit_bit_for_bit():
+def test_gpu_refit_equals_the_host_refit_bit_for_bit(shared_device):
     """Node boxes and triangle records on the device after a GPU refit equal the host refit's words exactly (both are
     the min / max of the same float32 corners, stepped one float outwards); the SAH ratio agrees; the refit is one
     recorded command buffer, re-submitted."""
     scene, rng = instanced_scene(seed=7)
     o, d = random_rays(rng)
-    with Tracer.from_scene(scene, validation=True) as tracer:
+    with Tracer.from_scene(scene, device=shared_device) as tracer:
         tracer.intersect(o[:10], d[:10])
         bvh = tracer.scene
         assert bvh.refit_on == "gpu"
@@ -75,10 +75,13 @@ def test_gpu_refit_equals_the_host_refit_bit_for_bit():
         assert tracer.validation_errors == []
 
 
-def test_gpu_refit_hits_equal_the_host_refit_and_a_rebuild():
+def test_gpu_refit_hits_equal_the_host_refit_and_a_rebuild(shared_device):
     scene, rng = instanced_scene(seed=8)
     o, d = random_rays(rng, 4000)
-    with Tracer.from_scene(scene, validation=True) as gpu, Tracer.from_scene(scene, validation=True) as host:
+    with (
+        Tracer.from_scene(scene, device=shared_device) as gpu,
+        Tracer.from_scene(scene, device=shared_device) as host,
+    ):
         host.scene.refit_on = "host"
         gpu.intersect(o[:10], d[:10])
         host.intersect(o[:10], d[:10])
@@ -89,7 +92,7 @@ def test_gpu_refit_hits_equal_the_host_refit_and_a_rebuild():
         check_hits(a, scene, o, d)
         assert np.array_equal(a.prim, b.prim) and np.array_equal(a.t, b.t)  # the same tree, the same boxes
         assert np.array_equal(a.instance, b.instance) and np.array_equal(a.mesh_prim, b.mesh_prim)
-        with Tracer.from_scene(scene) as fresh:  # built from the deformed mesh
+        with Tracer.from_scene(scene, device=shared_device) as fresh:  # built from the deformed mesh
             c = fresh.intersect(o, d)
         assert np.array_equal(a.prim >= 0, c.prim >= 0) and np.array_equal(a.prim, c.prim)
         np.testing.assert_allclose(a.t[a.prim >= 0], c.t[c.prim >= 0], rtol=1e-4)
@@ -99,12 +102,12 @@ def test_gpu_refit_hits_equal_the_host_refit_and_a_rebuild():
 
 
 @pytest.mark.parametrize("refit_on", ["gpu", "host"])
-def test_a_rebuild_keeps_the_other_meshes_refits(refit_on):
+def test_a_rebuild_keeps_the_other_meshes_refits(refit_on, shared_device):
     """Mesh 1 refitted, then mesh 0 deformed past the rebuild ratio (its vertices shuffled): the rebuild uploads the
     host copy of every bottom level, and the refitted mesh must stay deformed."""
     scene, rng = instanced_scene(seed=9)
     o, d = random_rays(rng)
-    with Tracer.from_scene(scene, validation=True) as tracer:
+    with Tracer.from_scene(scene, device=shared_device) as tracer:
         tracer.scene.refit_on = refit_on
         tracer.intersect(o[:10], d[:10])
         scene.update_positions("box", wobble(scene.meshes[1].positions, 2.0))
@@ -118,9 +121,9 @@ def test_a_rebuild_keeps_the_other_meshes_refits(refit_on):
         assert tracer.validation_errors == []
 
 
-def test_unknown_refit_place_is_a_config_error():
+def test_unknown_refit_place_is_a_config_error(shared_device):
     scene, rng = instanced_scene(seed=10)
-    with Tracer.from_scene(scene) as tracer:
+    with Tracer.from_scene(scene, device=shared_device) as tracer:
         tracer.intersect(*random_rays(rng, 10))
         tracer.scene.refit_on = "cpu"
         scene.update_positions("box", scene.meshes[1].positions * 1.1)
@@ -164,7 +167,7 @@ def test_frames_of_a_deforming_mesh_equal_a_scene_made_deformed(make_renderer):
     assert bvh.refit_on == "gpu" and bvh.refitted == {2} and bvh.rebuilds == 0
 
 
-def test_gpu_refit_of_one_and_two_triangle_meshes():
+def test_gpu_refit_of_one_and_two_triangle_meshes(shared_device):
     """A one-triangle mesh's root has an empty slot (inverted box, kept inverted); coordinates of exactly 0 step to
     the smallest denormals, and denormal coordinates stay as they are (no flushing), as on the host."""
     tri = Mesh(np.array([[0, 0, 0], [1, 0, 0], [0, 1, 0]], float), np.array([[0, 1, 2]]), name="tri")
@@ -175,7 +178,7 @@ def test_gpu_refit_of_one_and_two_triangle_meshes():
     m[:3, 3] = 2.0
     scene = Scene.from_meshes([tri, quad], [Instance(0, np.eye(4)), Instance(1, m)])
     o, d = np.array([[0.2, 1.5, 1.0], [1.3, 2.5, 3.0]]), np.array([[0.0, 0.0, -1.0], [0.0, 0.0, -1.0]])
-    with Tracer.from_scene(scene, validation=True) as tracer:
+    with Tracer.from_scene(scene, device=shared_device) as tracer:
         assert np.array_equal(tracer.intersect(o, d).prim, [-1, -1])
         scene.update_positions(0, tri.positions * [1, 2, 1] + [[0, 0, 1e-42], [0, 0, 0], [-3e-41, 0, 0]])
         scene.update_positions(1, quad.positions * [-1, 1, 3])

@@ -7,6 +7,7 @@ import trimesh
 
 from engine import Camera, ConfigError, DirectionalLight, PointLight, RectLight, Scene, SpotLight
 from engine.settings import AOVS as VIEW_MODES
+from helpers import run_cli
 
 W, H = 96, 72
 PLATE_BOTTOM = 1.4
@@ -341,7 +342,7 @@ def test_cli_soft_shadows_and_aov(tmp_path):
     assert "accumulate" in res.stdout and "denoise" in res.stdout
     img = np.asarray(Image.open(out).convert("RGB"))
     assert np.any(np.all(img == round(3 / 32 * 255), axis=2))  # 3 frames of history: grey 3/32
-    res = render("16x16", "--shadows", "blurry")
+    res = run_cli("render", "scenes/penumbra.toml", "-o", out, "--size", "16x16", "--shadows", "blurry")
     assert res.returncode == 1 and res.stderr.strip().splitlines() == [
         "error: setting shadows='blurry': expected one of hard, soft, seed-delta, reference, off"
     ]

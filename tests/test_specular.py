@@ -11,6 +11,7 @@ from engine import Scene
 from engine.errors import SceneError
 from engine.scene import Camera, DirectionalLight, primitives
 from engine.scene.material import Material, material_key
+from helpers import triangle_gltf
 
 EYE = np.array([0.0, 0.0, 3.0])
 LIGHT = np.array([0.6, -0.3, -0.75]) / np.linalg.norm([0.6, -0.3, -0.75])  # the direction light travels
@@ -98,34 +99,12 @@ def test_default_factors_are_the_core_material():
 
 
 def tiny_gltf(materials) -> dict:
-    """One triangle per material (the data URI buffer shared)."""
-    import base64
-
-    p = np.array([[0, 0, 0], [1, 0, 0], [0, 1, 0]], np.float32)
-    blob = p.tobytes() + np.array([0, 1, 2], np.uint16).tobytes() + b"\0\0"
-    return {
-        "asset": {"version": "2.0"},
-        "scene": 0,
-        "scenes": [{"nodes": list(range(len(materials)))}],
-        "nodes": [{"mesh": i} for i in range(len(materials))],
-        "meshes": [
-            {"primitives": [{"attributes": {"POSITION": 0}, "indices": 1, "material": i}]}
-            for i in range(len(materials))
-        ],
-        "materials": materials,
-        "extensionsUsed": ["KHR_materials_specular"],
-        "buffers": [
-            {"byteLength": len(blob), "uri": "data:application/octet-stream;base64," + base64.b64encode(blob).decode()}
-        ],
-        "bufferViews": [
-            {"buffer": 0, "byteOffset": 0, "byteLength": 36},
-            {"buffer": 0, "byteOffset": 36, "byteLength": 6},
-        ],
-        "accessors": [
-            {"bufferView": 0, "componentType": 5126, "count": 3, "type": "VEC3", "min": [0, 0, 0], "max": [1, 1, 0]},
-            {"bufferView": 1, "componentType": 5123, "count": 3, "type": "SCALAR"},
-        ],
-    }
+    """One triangle per material."""
+    k = range(len(materials))
+    meshes = [{"primitives": [{"attributes": {"POSITION": 0}, "indices": 1, "material": i}]} for i in k]
+    return triangle_gltf(
+        [{"mesh": i} for i in k], meshes, materials=materials, extensionsUsed=["KHR_materials_specular"]
+    )
 
 
 def test_gltf_extension_is_read(tmp_path, caplog):

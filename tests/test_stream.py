@@ -24,12 +24,12 @@ def scene_and_rays(n, seed=7):
 
 
 @pytest.fixture(scope="module", params=[False, True], ids=["mapped", "staged"])
-def pair(request):
+def pair(request, shared_device):
     """A tracer streaming in chunks of CHUNK rays and one taking every test batch in one dispatch."""
     v, f, *_ = scene_and_rays(1)
     with (
-        Tracer(v, f, batch_size=CHUNK, staging=request.param, validation=True) as small,
-        Tracer(v, f, batch_size=8 * CHUNK, staging=request.param, validation=True) as whole,
+        Tracer(v, f, batch_size=CHUNK, staging=request.param, device=shared_device) as small,
+        Tracer(v, f, batch_size=8 * CHUNK, staging=request.param, device=shared_device) as whole,
     ):
         assert small.session.chunk == CHUNK and whole.session.chunk == 8 * CHUNK
         yield small, whole
@@ -263,7 +263,7 @@ def test_a_failing_task_on_the_worker_pool_waits_for_the_others():
     assert len(done) == 3
 
 
-def test_staged_rays_are_checked_by_the_kernels_and_occlusion_read_as_bytes(monkeypatch):
+def test_staged_rays_are_checked_by_the_kernels_and_occlusion_read_as_bytes(monkeypatch, shared_device):
     """Where rays are staged (discrete GPUs; forced here), packing only copies them: the kernels check them
     (CHECK_RAYS) and the error is the host check's; occlusion comes back as one byte per ray. Same answers as the
     mapped path, which checks as it packs."""
@@ -271,8 +271,8 @@ def test_staged_rays_are_checked_by_the_kernels_and_occlusion_read_as_bytes(monk
 
     v, f, o, d, tmax = scene_and_rays(3 * CHUNK + 7)
     with (
-        Tracer(v, f, batch_size=CHUNK, staging=True, validation=True) as staged,
-        Tracer(v, f, batch_size=CHUNK, staging=False, validation=True) as mapped,
+        Tracer(v, f, batch_size=CHUNK, staging=True, device=shared_device) as staged,
+        Tracer(v, f, batch_size=CHUNK, staging=False, device=shared_device) as mapped,
     ):
         want_occ, want_hits = mapped.occluded(o, d, tmax), mapped.intersect(o, d, tmax)
         assert mapped.session.slots and not any(s.kernel_checks for s in mapped.session.slots)

@@ -11,6 +11,7 @@ from engine import Camera, Scene
 from engine.passes.interface import MAX_TEXTURE_ARRAYS, TEXTURE_NONE
 from engine.gpu.textures import plan_arrays, size_class
 from engine.scene.material import Material, srgb8_to_linear
+from helpers import textured_quads
 
 SIZES = [(4, 4), (5, 3), (16, 8), (1, 1), (7, 9), (32, 32), (2, 64), (12, 12)]  # (h, w): several size classes
 
@@ -18,25 +19,9 @@ SIZES = [(4, 4), (5, 3), (16, 8), (1, 1), (7, 9), (32, 32), (2, 64), (12, 12)]  
 def grid_scene(n, texture):
     """n unit quads facing +z in a square grid, quad i with a material of its own whose texture is texture(i)."""
     side = math.ceil(math.sqrt(n))
-    verts, faces, vm, uvs, mats = [], [], [], [], []
-    for i in range(n):
-        x, y = 1.25 * (i % side - (side - 1) / 2), -1.25 * (i // side - (side - 1) / 2)
-        base = len(verts)
-        verts += [[x - 0.5, y - 0.5, 0], [x + 0.5, y - 0.5, 0], [x + 0.5, y + 0.5, 0], [x - 0.5, y + 0.5, 0]]
-        uvs += [[0, 1], [1, 1], [1, 0], [0, 0]]
-        faces += [[base, base + 1, base + 2], [base, base + 2, base + 3]]
-        vm += [i] * 4
-        mats.append(Material(f"quad{i}", (1, 1, 1), texture(i)))
+    centres = [(1.25 * (i % side - (side - 1) / 2), -1.25 * (i // side - (side - 1) / 2)) for i in range(n)]
     dist = 0.63 * 1.25 * side / math.tan(math.radians(22.5))  # the grid fills the view
-    cam = Camera.look_at((0, 0, dist), (0, 0, 0), fov_y=45.0)
-    return Scene(
-        np.array(verts, float),
-        faces,
-        uvs=np.array(uvs, float),
-        vertex_material=np.array(vm),
-        materials=mats,
-        camera=cam,
-    )
+    return textured_quads(centres, [texture(i) for i in range(n)], dist)
 
 
 def distinct_colours(n):

@@ -108,7 +108,7 @@ def same_hits(a, b):
 
 
 @pytest.mark.parametrize("n", tiered([1, 2, 5, 1025, 3000], {0, 1, 2}))
-def test_gpu_built_top_level_gives_the_host_builds_hits(monkeypatch, n):
+def test_gpu_built_top_level_gives_the_host_builds_hits(monkeypatch, n, shared_device):
     # 3000 instances: 4096 leaf slots, sorted in shared-memory blocks and by whole-buffer bitonic steps
     scene, rng, spread = scene_of(n, seed=n)
     o, d = random_rays(rng, 3000)
@@ -118,7 +118,7 @@ def test_gpu_built_top_level_gives_the_host_builds_hits(monkeypatch, n):
     for builder in ("host", "gpu"):
         monkeypatch.setenv("HYBRID_TLAS_BUILD", builder)
         scene.set_transforms(initial)
-        with Tracer.from_scene(scene, validation=True) as tracer:
+        with Tracer.from_scene(scene, device=shared_device) as tracer:
             assert tracer.scene.builder == builder
             out = [tracer.intersect(o, d)]
             if builder == "gpu":
@@ -141,11 +141,11 @@ def test_gpu_built_top_level_gives_the_host_builds_hits(monkeypatch, n):
 
 
 @pytest.mark.parametrize("builder", ["host", "gpu"])
-def test_top_level_follows_refitted_and_rebuilt_meshes(monkeypatch, builder):
+def test_top_level_follows_refitted_and_rebuilt_meshes(monkeypatch, builder, shared_device):
     monkeypatch.setenv("HYBRID_TLAS_BUILD", builder)
     scene, rng, _ = scene_of(24, seed=7)
     o, d = random_rays(rng, 4000)
-    with Tracer.from_scene(scene, validation=True) as tracer:
+    with Tracer.from_scene(scene, device=shared_device) as tracer:
         tracer.intersect(o, d)
         # the box grows to three times its size: the top level's boxes must follow it (a refit)
         scene.update_positions("box", scene.meshes[1].positions * 3.0)
@@ -160,7 +160,8 @@ def test_top_level_follows_refitted_and_rebuilt_meshes(monkeypatch, builder):
         scene.set_transforms(moved(rng, 24, 1.0))
         hits = tracer.intersect(o, d)
         assert tracer.scene.rebuilds == 1
-        with Tracer.from_scene(scene) as fresh:  # (the refitted box kept; crossing triangles: ids as a fresh BVH's)
+        # (the refitted box kept; crossing triangles: ids as a fresh BVH's)
+        with Tracer.from_scene(scene, device=shared_device) as fresh:
             same_hits(hits, fresh.intersect(o, d))
         t, prim, _, _ = reference_intersect(scene.positions, scene.indices, o, d, np.inf)
         assert np.mean((hits.prim >= 0) == (prim >= 0)) > 0.998
@@ -169,8 +170,8 @@ def test_top_level_follows_refitted_and_rebuilt_meshes(monkeypatch, builder):
         assert tracer.validation_errors == []
 
 
-def test_top_level_builder_choice(monkeypatch):
-    with Tracer(np.eye(3), [[0, 1, 2]]) as tracer:
+def test_top_level_builder_choice(monkeypatch, shared_device):
+    with Tracer(np.eye(3), [[0, 1, 2]], device=shared_device) as tracer:
         assert tlas_builder(tracer.ctx, "gpu") == "gpu"
         monkeypatch.setenv("HYBRID_TLAS_BUILD", "host")
         assert tlas_builder(tracer.ctx) == "host"
@@ -230,7 +231,7 @@ def node_extents(top, two):
 
 
 @pytest.mark.parametrize("builder", ["host", "gpu"])
-def test_top_level_nodes_stay_compact_on_a_floor_of_instances(monkeypatch, builder):
+def test_top_level_nodes_stay_compact_on_a_floor_of_instances(monkeypatch, builder, shared_device):
     # 40 x 40 instances on a floor, each bobbing a little: the Morton order's cells must keep every node's box
     # near the area of the instances under it (an equal-count split of the order makes boxes that span the scene)
     monkeypatch.setenv("HYBRID_TLAS_BUILD", builder)
@@ -242,7 +243,7 @@ def test_top_level_nodes_stay_compact_on_a_floor_of_instances(monkeypatch, build
     m[:, 1, 3] = rng.uniform(0.0, 0.3, side * side)
     scene = Scene.from_meshes([Mesh(box.vertices, box.faces)], [Instance(0, x) for x in m])
     scene.set_transforms(m)  # moved: the two-level BVH
-    with Tracer.from_scene(scene, validation=True) as tracer:
+    with Tracer.from_scene(scene, device=shared_device) as tracer:
         o = np.c_[rng.uniform(0, 3 * side, 2000), np.full(2000, 5.0), rng.uniform(0, 3 * side, 2000)]
         check_hits(
             tracer.intersect(o, np.tile([0.0, -1.0, 0.0], (2000, 1))), scene, o, np.tile([0.0, -1.0, 0.0], (2000, 1))

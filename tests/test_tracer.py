@@ -106,9 +106,9 @@ def test_closed_mesh_does_not_leak(tracers):
     assert hits.hit.all(), f"{(~hits.hit).sum()} rays leaked through shared vertices/edges"
 
 
-def test_batches_larger_than_the_buffer():
+def test_batches_larger_than_the_buffer(shared_device):
     v, f = meshes()["sphere"]
-    with Tracer(v, f, batch_size=1000) as small:
+    with Tracer(v, f, batch_size=1000, device=shared_device) as small:
         rng = np.random.default_rng(3)
         o, d = random_rays(rng, 2500, (v.min(0), v.max(0)))
         got = small.occluded(o, d, 5.0)
@@ -116,16 +116,16 @@ def test_batches_larger_than_the_buffer():
 
 
 @pytest.mark.parametrize("batch", [1, 3, 5])
-def test_odd_batch_sizes_keep_the_texel_views_aligned(batch):
+def test_odd_batch_sizes_keep_the_texel_views_aligned(batch, shared_device):
     """The three ray arrays start at offsets the device's texel views allow (minTexelBufferOffsetAlignment) for
     any batch size: no validation error, and the answers of a batch-1000 tracer, staged or not."""
     v, f = meshes()["sphere"]
     rng = np.random.default_rng(5)
     o, d = random_rays(rng, 60, (v.min(0), v.max(0)))
-    with Tracer(v, f, batch_size=1000) as big:
+    with Tracer(v, f, batch_size=1000, device=shared_device) as big:
         want_occ, want = big.occluded(o, d, 5.0), big.intersect(o, d)
     for staged in (False, True):
-        with Tracer(v, f, validation=True, batch_size=batch, staging=staged) as t:
+        with Tracer(v, f, device=shared_device, batch_size=batch, staging=staged) as t:
             assert t.batch == batch and t.session.capacity >= batch
             assert np.array_equal(t.occluded(o, d, 5.0), want_occ)
             hits = t.intersect(o, d)
@@ -133,15 +133,15 @@ def test_odd_batch_sizes_keep_the_texel_views_aligned(batch):
             assert not t.validation_errors, t.validation_errors[:3]
 
 
-def test_staged_buffers_give_the_same_answers():
+def test_staged_buffers_give_the_same_answers(shared_device):
     """The discrete-GPU path (rays and results through device-local buffers and copies, each copy sized to the
     batch) answers exactly as the mapped path, also over several batches of different sizes."""
     v, f = meshes()["sphere"]
     rng = np.random.default_rng(5)
     o, d = random_rays(rng, 2600, (v.min(0), v.max(0)))
     with (
-        Tracer(v, f, batch_size=1024, staging=False, validation=True) as plain,
-        Tracer(v, f, batch_size=1024, staging=True, validation=True) as staged,
+        Tracer(v, f, batch_size=1024, staging=False, device=shared_device) as plain,
+        Tracer(v, f, batch_size=1024, staging=True, device=shared_device) as staged,
     ):
         assert staged.session.staged and not plain.session.staged
         for n in (2600, 700, 1):
@@ -224,7 +224,7 @@ VARIANTS = [
 ]
 
 
-def _variant_tracer(monkeypatch, spec, v, f):
+def _variant_tracer(monkeypatch, spec, v, f, device):
     """A Tracer whose bvh_spec is `spec` (constant 8 follows the nodes uploaded: compressed unless the spec says
     "uncompressed")."""
     import engine.gpu.bvh as gpu_bvh
@@ -237,10 +237,10 @@ def _variant_tracer(monkeypatch, spec, v, f):
         "bvh_spec",
         lambda ctx, depth=None, layout=None, compressed=False, **kw: {**spec, "BVH_COMPRESSED": compressed},
     )
-    return Tracer(v, f, validation=True)
+    return Tracer(v, f, device=device)
 
 
-def test_workgroup_shares_permute_the_ray_blocks():
+def test_workgroup_shares_permute_the_ray_blocks(shared_device):
     """rays.glsl ray_block: with `shares` (llvmpipe's worker threads) workgroups trace the ray blocks in a rotated,
     interleaved order; for any share count every ray is traced exactly once (results buffer first filled by
     another query, so a skipped block would show)."""
@@ -248,7 +248,7 @@ def test_workgroup_shares_permute_the_ray_blocks():
     rng = np.random.default_rng(19)
     o, d = random_rays(rng, 64 * 37 + 5, (v.min(0), v.max(0)))  # 38 workgroups, the last one partial
     tmax = rng.uniform(0.1, 30.0, len(o)).astype(np.float32)
-    with Tracer(v, f, validation=True) as t:
+    with Tracer(v, f, device=shared_device) as t:
         t.session.shares = 1
         want_occ, want_hit = t.occluded(o, d, tmax), t.intersect(o, d, tmax)
         for shares in (2, 3, 5, 38, 39, 1000):
@@ -262,7 +262,7 @@ def test_workgroup_shares_permute_the_ray_blocks():
     assert want_occ.sum() > 300 and (want_occ != reference_occluded(v, f, o, d, tmax)).mean() < 0.002
 
 
-def test_rays_through_texel_buffers_match_storage_buffers(monkeypatch):
+def test_rays_through_texel_buffers_match_storage_buffers(monkeypatch, shared_device):
     """rays.glsl's RAYS_TEXEL: rays read (and occlusion results written) through texel buffer views instead of the
     storage buffers; both paths, for both query kinds, give the same answers, over several batches."""
     import engine.rt.tracer as tracer_mod
@@ -274,7 +274,7 @@ def test_rays_through_texel_buffers_match_storage_buffers(monkeypatch):
     answers = []
     for kinds in ((), ("occluded", "intersect")):
         monkeypatch.setattr(tracer_mod, "RAYS_TEXEL_KINDS", kinds)
-        with Tracer(v, f, validation=True, batch_size=2048) as t:
+        with Tracer(v, f, device=shared_device, batch_size=2048) as t:
             cpu = tracer_mod.is_cpu(t.ctx)
             assert t.session.specs["occluded"]["RAYS_TEXEL"] == (cpu and bool(kinds))
             hits = t.intersect(o, d, tmax)
@@ -288,7 +288,7 @@ def test_rays_through_texel_buffers_match_storage_buffers(monkeypatch):
 
 # every flag on and off at least once in every tier; the whole list with the slow tier
 @pytest.mark.parametrize("spec", tiered(VARIANTS, {0, 3, 8, 11, 13}))
-def test_every_traversal_variant_gives_the_same_answers(monkeypatch, spec):
+def test_every_traversal_variant_gives_the_same_answers(monkeypatch, spec, shared_device):
     """bvh.glsl's specialization constants (branchless push, postponed leaf tests, register stack and its size,
     the retry walk of a short register stack, compressed nodes, select min/max) select code paths per device;
     each combination answers exactly as the default one of this device, and as the reference. (The default here,
@@ -300,7 +300,7 @@ def test_every_traversal_variant_gives_the_same_answers(monkeypatch, spec):
     rng = np.random.default_rng(13)
     o, d = random_rays(rng, 3000, (v.min(0), v.max(0)))
     tmax = rng.uniform(0.1, 4.0, len(o)).astype(np.float32)
-    with Tracer(v, f, validation=True) as default:
+    with Tracer(v, f, device=shared_device) as default:
         occ0, hit0 = default.occluded(o, d, tmax), default.intersect(o, d)
         need = max(1, default.stats["depth"] - 1)
         dspec = default.session.specs["intersect"]
@@ -308,7 +308,7 @@ def test_every_traversal_variant_gives_the_same_answers(monkeypatch, spec):
             assert default.session.specs["occluded"]["BVH_STACK_REGS"] == min(CPU_OCCLUSION_STACK_REGS, need)
             assert dspec["BVH_STACK_REGS"] == min(CPU_STACK_REGS, need)
             assert dspec["BVH_COMPRESSED"] and default.scene.compressed and dspec["BVH_IMAGE_FETCH"]
-    with _variant_tracer(monkeypatch, spec, v, f) as variant:
+    with _variant_tracer(monkeypatch, spec, v, f, shared_device) as variant:
         assert variant.scene.compressed == (compresses(variant.ctx, "binary") and "uncompressed" not in spec)
         assert np.array_equal(variant.occluded(o, d, tmax), occ0)
         hit1 = variant.intersect(o, d)
@@ -318,7 +318,7 @@ def test_every_traversal_variant_gives_the_same_answers(monkeypatch, spec):
 
 
 @pytest.mark.parametrize("name", list(meshes()))
-def test_short_stack_retry_matches_the_full_stack(monkeypatch, tracers, name):
+def test_short_stack_retry_matches_the_full_stack(monkeypatch, tracers, name, shared_device):
     """A register stack of 1 entry overflows on almost every ray of a deeper BVH: the retry walk must give exactly
     the answers of the default traversal, on every mesh (thin, degenerate, a single triangle)."""
     v, f = meshes()[name]
@@ -335,7 +335,7 @@ def test_short_stack_retry_matches_the_full_stack(monkeypatch, tracers, name):
         "BVH_STACK_RETRY": True,
         "BVH_SELECT_MINMAX": True,
     }
-    with _variant_tracer(monkeypatch, retry, v, f) as variant:
+    with _variant_tracer(monkeypatch, retry, v, f, shared_device) as variant:
         # the retry in a second dispatch over the rays the first left unresolved (trace_*_retry.comp)
         assert variant.session.two_pass == {"occluded": True, "intersect": True}
         assert np.array_equal(variant.occluded(o, d, tmax), occ0)
@@ -347,7 +347,7 @@ def test_short_stack_retry_matches_the_full_stack(monkeypatch, tracers, name):
 
 
 @pytest.mark.parametrize("name", list(meshes()))
-def test_image_loads_match_texel_fetches(monkeypatch, tracers, name):
+def test_image_loads_match_texel_fetches(monkeypatch, tracers, name, shared_device):
     """BVH_IMAGE_FETCH reads the BVH through its storage texel buffer views (imageLoad; on by default on
     CPU devices) instead of the uniform texel buffers: exactly the same answers, both layouts, every mesh."""
     v, f = meshes()[name]
@@ -359,7 +359,7 @@ def test_image_loads_match_texel_fetches(monkeypatch, tracers, name):
     flipped = not base.session.specs["occluded"]["BVH_IMAGE_FETCH"]
     real = gpu_bvh.bvh_spec
     monkeypatch.setattr(gpu_bvh, "bvh_spec", lambda *a, **kw: {**real(*a, **kw), "BVH_IMAGE_FETCH": flipped})
-    with Tracer(v, f, validation=True, layout=base.layout) as other:
+    with Tracer(v, f, device=shared_device, layout=base.layout) as other:
         assert other.session.specs["occluded"]["BVH_IMAGE_FETCH"] == flipped and other.layout == base.layout
         assert np.array_equal(other.occluded(o, d, tmax), base.occluded(o, d, tmax))
         a, b = other.intersect(o, d, tmax), base.intersect(o, d, tmax)
@@ -380,7 +380,7 @@ def test_image_loads_match_texel_fetches(monkeypatch, tracers, name):
         ids_b=["cpu-1-entry", "cpu-2-entries-texel", "gpu-walk"],
     ),
 )
-def test_wide_traversals_give_the_same_answers(monkeypatch, name, over):
+def test_wide_traversals_give_the_same_answers(monkeypatch, name, over, shared_device):
     """The 8-wide layout's two traversals (BVH_WIDE_CPU: the lavapipe one, postponed leaves and a register stack of
     node groups with a retry walk; off: the GPU one) answer alike on every mesh, with a register stack of 1 or 2
     entries that overflows on most rays of the deeper trees (the retry walk then gives the answer), and as the
@@ -393,7 +393,7 @@ def test_wide_traversals_give_the_same_answers(monkeypatch, name, over):
     tmax = rng.uniform(0.1, 4.0, len(o)).astype(np.float32)
     tmax[::4] = np.inf
     real = gpu_bvh.bvh_spec
-    with Tracer(v, f, validation=True, layout="wide") as base:
+    with Tracer(v, f, device=shared_device, layout="wide") as base:
         spec = base.session.specs["occluded"]
         if tracer_mod.is_cpu(base.ctx):
             regs = min(gpu_bvh.CPU_WIDE_STACK_REGS, max(1, base.stats["wide_levels"] - 1))
@@ -402,7 +402,7 @@ def test_wide_traversals_give_the_same_answers(monkeypatch, name, over):
             assert not spec["BVH_WIDE_CPU"]
         occ0, hit0 = base.occluded(o, d, tmax), base.intersect(o, d, tmax)
         monkeypatch.setattr(gpu_bvh, "bvh_spec", lambda *a, **kw: {**real(*a, **kw), **over})
-        with Tracer(v, f, validation=True, layout="wide") as other:
+        with Tracer(v, f, device=shared_device, layout="wide") as other:
             assert all(other.session.specs["occluded"][k] == x for k, x in over.items())
             assert np.array_equal(other.occluded(o, d, tmax), occ0)
             hit1 = other.intersect(o, d, tmax)
@@ -413,7 +413,7 @@ def test_wide_traversals_give_the_same_answers(monkeypatch, name, over):
     assert (occ0 != reference_occluded(v, f, o, d, tmax)).mean() < 0.002
 
 
-def test_second_dispatch_over_several_batches(monkeypatch, tracers):
+def test_second_dispatch_over_several_batches(monkeypatch, tracers, shared_device):
     """The retry list of the two-pass kernels (trace_*_retry.comp) is emptied for every batch: with a 1-entry
     register stack (many rays unresolved after the first pass) and batches of 700 rays, 2500 rays of both kinds give
     exactly the default traversal's answers, and the second dispatch walks exactly the rays it walks when all 2500
@@ -438,8 +438,8 @@ def test_second_dispatch_over_several_batches(monkeypatch, tracers):
         },
     )
     with (
-        Tracer(v, f, batch_size=700, validation=True, layout=base.layout) as small,
-        Tracer(v, f, validation=True, layout=base.layout) as one,
+        Tracer(v, f, batch_size=700, device=shared_device, layout=base.layout) as small,
+        Tracer(v, f, device=shared_device, layout=base.layout) as one,
     ):
         assert small.session.two_pass == {"occluded": True, "intersect": True}
         assert np.array_equal(small.occluded(o, d, tmax), occ0)
@@ -452,7 +452,7 @@ def test_second_dispatch_over_several_batches(monkeypatch, tracers):
         assert not small.validation_errors and not one.validation_errors
 
 
-def test_uncompressed_nodes_give_the_same_answers(monkeypatch, tracers):
+def test_uncompressed_nodes_give_the_same_answers(monkeypatch, tracers, shared_device):
     """The 64-byte nodes (a BVH whose leaves do not fit the compressed word) answer exactly as the compressed ones:
     quantization only widens boxes, it never changes which triangles are tested against what."""
     v, f = meshes()["thin_box"]
@@ -460,16 +460,16 @@ def test_uncompressed_nodes_give_the_same_answers(monkeypatch, tracers):
     o, d = random_rays(rng, 3000, (v.min(0), v.max(0)))
     tmax = rng.uniform(0.1, 4.0, len(o)).astype(np.float32)
     monkeypatch.setattr(gpu_bvh, "compress_nodes", lambda nodes: None)
-    with Tracer(v, f, validation=True) as plain:
+    with Tracer(v, f, device=shared_device) as plain:
         assert not plain.scene.compressed and not plain.session.specs["occluded"]["BVH_COMPRESSED"]
         assert np.array_equal(plain.occluded(o, d, tmax), tracers["thin_box"].occluded(o, d, tmax))
         a, b = plain.intersect(o, d), tracers["thin_box"].intersect(o, d)
         assert np.array_equal(a.prim, b.prim) and np.array_equal(a.t, b.t)
 
 
-def test_stats_and_bad_input():
+def test_stats_and_bad_input(shared_device):
     v, f = meshes()["sphere"]
-    with Tracer(v, f) as t:
+    with Tracer(v, f, device=shared_device) as t:
         for key in ("build_ms", "nodes", "depth", "sah_cost"):
             assert key in t.stats
         with pytest.raises(ConfigError, match="directions"):
@@ -525,8 +525,8 @@ O1, D1 = [[0.0, 0.0, 1.0]], [[0.0, 0.0, -1.0]]
 
 
 @pytest.fixture(scope="module")
-def tri_tracer():
-    with Tracer(TRI_V, TRI_F) as t:
+def tri_tracer(shared_device):
+    with Tracer(TRI_V, TRI_F, device=shared_device) as t:
         yield t
 
 
@@ -621,7 +621,7 @@ def test_non_finite_and_zero_rays_name_the_first_bad_ray(tri_tracer, arg, value,
             query(o32, d32, 5.0)
 
 
-def test_directions_down_to_the_shortest_accepted_hit_what_unit_ones_hit():
+def test_directions_down_to_the_shortest_accepted_hit_what_unit_ones_hit(shared_device):
     """Directions scaled down to engine.limits.MIN_DIRECTION (their largest component) hit the triangles that the
     unscaled ones hit, at t scaled up by as much, in a batch large enough to be reordered (shorter ones are refused:
     the traversal missed hits below about 1e-27, silently)."""
@@ -634,7 +634,7 @@ def test_directions_down_to_the_shortest_accepted_hit_what_unit_ones_hit():
     d = (rng.uniform(-0.5, 0.5, (n, 3)) - o).astype(np.float32)
     d[::3, 0] = 0  # (a zero component: 1 / d's stand-in)
     d /= np.abs(d).max(axis=1, keepdims=True)  # largest component +-1
-    with Tracer(s.vertices, s.faces) as tr:
+    with Tracer(s.vertices, s.faces, device=shared_device) as tr:
         want = tr.intersect(o, d, reorder=False)
         assert (want.prim >= 0).mean() > 0.5
         for scale in (np.float32(2.0**-40), np.float32(MIN_DIRECTION)):
@@ -674,7 +674,7 @@ def test_tmax_nan_or_none_is_refused_inf_and_negative_are_not(tri_tracer):
 
 
 @pytest.mark.parametrize("layout", ["binary", "wide"])
-def test_coordinates_just_under_the_bound_trace_exactly(layout):
+def test_coordinates_just_under_the_bound_trace_exactly(layout, shared_device):
     """The watertight test's products grow as the cube of the coordinates: within MAX_COORD, hits of big
     triangles seen from far away are exact (2^k scalings of a unit scene give exactly 2^k times its t); vertices
     or origins beyond it are refused."""
@@ -690,14 +690,17 @@ def test_coordinates_just_under_the_bound_trace_exactly(layout):
     target = np.einsum("ni,nij->nj", rng.dirichlet([1, 1, 1], n), v1[f[rng.integers(0, 2, n)]])
     d = target - o1
     d = (d * rng.uniform(0.5, 1.0, (n, 1)) / np.linalg.norm(d, axis=1, keepdims=True)).astype(np.float32)
-    with Tracer(v1, f, layout=layout) as unit, Tracer(v1 * s, f, layout=layout) as big:
+    with (
+        Tracer(v1, f, layout=layout, device=shared_device) as unit,
+        Tracer(v1 * s, f, layout=layout, device=shared_device) as big,
+    ):
         want, want_occ = unit.intersect(o1, d), unit.occluded(o1, d, 10.0)
         got, got_occ = big.intersect(o1 * np.float32(s), d), big.occluded(o1 * np.float32(s), d, 10.0 * s)
         assert want.hit.all() and want_occ.all()
         assert np.array_equal(got.prim, want.prim) and np.array_equal(got.t, want.t * np.float32(s))
         assert np.array_equal(got_occ, want_occ)
         # the reported repro: a triangle of half-width s under a ray from (0, 1, 1)
-        with Tracer([[s, 0, 0], [-s, 0, 0], [0, s, 0]], [[0, 1, 2]], layout=layout) as flat:
+        with Tracer([[s, 0, 0], [-s, 0, 0], [0, s, 0]], [[0, 1, 2]], layout=layout, device=shared_device) as flat:
             assert flat.occluded([[0, 1, 1]], D1)[0] and flat.intersect([[0, 1, 1]], D1).t[0] == 1.0
         with pytest.raises(ConfigError, match=re.escape(f"origins: ray 0 has a coordinate beyond +-{MAX_COORD:g}")):
             big.occluded([[0, 0, 2 * MAX_COORD]], D1)
@@ -721,8 +724,11 @@ def test_bad_batch_size_is_a_config_error(batch):
         Tracer(TRI_V, TRI_F, batch_size=batch)
 
 
-def test_integral_batch_sizes_are_accepted():
-    with Tracer(TRI_V, TRI_F, batch_size=np.int64(64)) as a, Tracer(TRI_V, TRI_F, batch_size=64.0) as b:
+def test_integral_batch_sizes_are_accepted(shared_device):
+    with (
+        Tracer(TRI_V, TRI_F, batch_size=np.int64(64), device=shared_device) as a,
+        Tracer(TRI_V, TRI_F, batch_size=64.0, device=shared_device) as b,
+    ):
         assert a.batch == b.batch == 64
 
 

@@ -4,15 +4,11 @@ model files they load (not in the sdist) are in tests/data/trimesh/."""
 
 from __future__ import annotations
 
-import os
-import subprocess
-import sys
-import xml.etree.ElementTree as ET
 from pathlib import Path
 
 import pytest
 import trimesh
-from helpers import pip_files
+from helpers import pip_files, run_plugin_suite
 
 HERE = Path(__file__).resolve().parent
 #: trimesh's ray test files (both are in its sdist's tests/)
@@ -73,38 +69,15 @@ def trimesh_ray_tests() -> Path:
 def test_trimesh_ray_tests_pass_with_our_intersector(trimesh_ray_tests, tmp_path, backend):
     if backend == "embree":
         pytest.importorskip("embreex", reason="the embree backend needs embreex (the [embree] extra)")
-    report = tmp_path / "junit.xml"
-    env = dict(os.environ, PYTHONPATH=os.pathsep.join([str(HERE.parent), str(HERE), os.environ.get("PYTHONPATH", "")]))
-    env["HYBRID_TEST_RT_BACKEND"] = backend
-    proc = subprocess.run(
-        [
-            sys.executable,
-            "-m",
-            "pytest",
-            "-q",
-            "-p",
-            "trimesh_ray_plugin",
-            "-p",
-            "no:cacheprovider",
-            "-p",
-            "no:dash",
-            "-c",
-            str(trimesh_ray_tests / "pytest.ini"),
-            f"--junitxml={report}",
-            *FILES,
-        ],
-        cwd=trimesh_ray_tests,
-        env=env,
-        capture_output=True,
-        text=True,
-        timeout=900,
+    proc, outcome = run_plugin_suite(
+        trimesh_ray_tests,
+        FILES,
+        plugin="trimesh_ray_plugin",
+        ini=trimesh_ray_tests / "pytest.ini",
+        backend=backend,
+        report=tmp_path / "junit.xml",
+        name=lambda case: f"{case.get('classname').split('.')[-1]}.py::{case.get('name')}",
     )
-    assert report.exists(), f"pytest did not run: {proc.stdout[-2000:]}{proc.stderr[-2000:]}"
-    outcome = {}
-    for case in ET.parse(report).getroot().iter("testcase"):
-        name = f"{case.get('classname').split('.')[-1]}.py::{case.get('name')}"
-        kind = next((c.tag for c in case if c.tag in ("failure", "error", "skipped")), "passed")
-        outcome[name] = (kind, next((c.get("message") or "" for c in case if c.tag != "properties"), ""))
     summary = "\n".join(f"  {kind:8} {name} {msg[:150]}" for name, (kind, msg) in sorted(outcome.items()))
     print(f"trimesh {trimesh.__version__}'s ray tests with engine.RayMeshIntersector ({backend}):\n{summary}")
     failed = {n: o for n, o in outcome.items() if o[0] in ("failure", "error")}

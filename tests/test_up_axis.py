@@ -12,6 +12,7 @@ import trimesh
 from engine.errors import ConfigError, SceneError
 from engine.scene import Camera, Scene
 from engine.scene.geometry import UP_AXES
+from helpers import run_cli
 
 REPO = Path(__file__).resolve().parent.parent
 
@@ -119,9 +120,7 @@ def test_bad_up_argument(tmp_path):
 def test_cli_up(tmp_path):
     cone = z_up_cone(tmp_path)
     run = [sys.executable, "-m", "engine", "render", str(cone), "--size", "16x16", "--up"]
-    bad = subprocess.run(
-        run + ["sideways", "-o", str(tmp_path / "x.png")], capture_output=True, text=True, cwd=REPO, timeout=300
-    )
+    bad = run_cli(*run[3:], "sideways", "-o", tmp_path / "x.png")
     lines = bad.stderr.strip().splitlines()
     assert bad.returncode != 0 and len(lines) == 1 and "up must be one of" in lines[0], bad.stderr
     ok = subprocess.run(

@@ -32,7 +32,8 @@ ROOT = Path(__file__).resolve().parent.parent
 sys.path.insert(0, str(ROOT))
 
 from engine import Renderer, Scene  # noqa: E402
-from engine.scene import Camera, DirectionalLight, Material, PointLight  # noqa: E402
+from engine.bench.pathscenes import scene_of  # noqa: E402
+from engine.scene import DirectionalLight, Material, PointLight  # noqa: E402
 from engine.scene import primitives  # noqa: E402
 
 #: The RMSE (relative to the mean radiance, edges excluded) each scene must stay within.
@@ -128,28 +129,8 @@ SCENES = {
 
 
 def our_scene(spec) -> Scene:
-    positions, faces, normals, uvs, mats, offset = [], [], [], [], [], 0
-    materials = []
-    for k, ((p, f, n, uv), translate, material) in enumerate(spec["objects"]):
-        positions.append(p + np.asarray(translate))
-        normals.append(n)
-        uvs.append(uv)
-        faces.append(f + offset)
-        mats.append(np.full(len(p), k, np.uint32))
-        materials.append(material)
-        offset += len(p)
-    eye, target, fov = spec["camera"]
-    return Scene(
-        np.concatenate(positions),
-        np.concatenate(faces),
-        normals=np.concatenate(normals),
-        uvs=np.concatenate(uvs),
-        vertex_material=np.concatenate(mats),
-        materials=materials,
-        lights=spec["lights"],
-        camera=Camera.look_at(eye, target, (0.0, 1.0, 0.0), fov),
-        name="mitsuba comparison",
-    )
+    objects = [((p + np.asarray(translate), f, n, uv), m) for (p, f, n, uv), translate, m in spec["objects"]]
+    return scene_of(objects, spec["camera"], spec["lights"], "mitsuba comparison")
 
 
 def render_ours(spec, renderer: Renderer) -> dict:
@@ -296,44 +277,52 @@ INTEGRATOR = {"type": "direct", "emitter_samples": 1, "bsdf_samples": 0}
 MASK_INTEGRATOR = {"type": "volpath", "max_depth": 2}
 
 
+def mitsuba_sensor(camera, size, sampler: dict) -> dict:
+    """Mitsuba's `perspective` sensor for our (eye, target, vertical fov) camera: a box-filtered RGB film of `size`."""
+    import mitsuba as mi  # optional (pyproject's dev extra)
+
+    eye, target, fov = camera
+    return {
+        "type": "perspective",
+        "fov": fov,
+        "fov_axis": "y",
+        "near_clip": 0.01,
+        "far_clip": 1000.0,
+        "to_world": mi.ScalarTransform4f().look_at(origin=list(eye), target=list(target), up=[0.0, 1.0, 0.0]),
+        "film": {
+            "type": "hdrfilm",
+            "width": size[0],
+            "height": size[1],
+            "pixel_format": "rgb",
+            "rfilter": {"type": "box"},
+        },
+        "sampler": sampler,
+    }
+
+
+def mitsuba_delta_light(light) -> dict:
+    """A point or directional light as Mitsuba's emitter, pi times ours (our intensities are pi-normalized)."""
+    value = {"type": "rgb", "value": [float(c) * float(light.intensity) * math.pi for c in light.color]}
+    if light.kind == "point":
+        return {"type": "point", "position": [float(x) for x in light.position], "intensity": value}
+    if light.kind == "directional":
+        return {"type": "directional", "direction": [float(x) for x in light.direction], "irradiance": value}
+    raise ValueError(f"no Mitsuba conversion for a {light.kind} light here")
+
+
 def render_mitsuba(spec, size=SIZE, bsdf: str = "gltf") -> np.ndarray:
     import mitsuba as mi  # optional (pyproject's dev extra)
 
     mi.set_variant("scalar_rgb")
-    T = mi.ScalarTransform4f
-    eye, target, fov = spec["camera"]
     masked = any(m.alpha_mode != "OPAQUE" for _, _, m in spec["objects"])
     scene = {
         "type": "scene",
         "integrator": INTEGRATOR if not masked else MASK_INTEGRATOR,
-        "sensor": {
-            "type": "perspective",
-            "fov": fov,
-            "fov_axis": "y",
-            "near_clip": 0.01,
-            "far_clip": 1000.0,
-            "to_world": T().look_at(origin=list(eye), target=list(target), up=[0.0, 1.0, 0.0]),
-            "film": {
-                "type": "hdrfilm",
-                "width": size[0],
-                "height": size[1],
-                "pixel_format": "rgb",
-                "rfilter": {"type": "box"},
-            },
-            # one sample at each pixel's centre, as the rasterizer samples
-            "sampler": {"type": "stratified", "sample_count": 1, "jitter": False},
-        },
+        # one sample at each pixel's centre, as the rasterizer samples
+        "sensor": mitsuba_sensor(spec["camera"], size, {"type": "stratified", "sample_count": 1, "jitter": False}),
     }
     for i, light in enumerate(spec["lights"]):
-        value = {"type": "rgb", "value": [float(c) * float(light.intensity) * math.pi for c in light.color]}
-        if light.kind == "point":
-            scene[f"light{i}"] = {"type": "point", "position": [float(x) for x in light.position], "intensity": value}
-        else:
-            scene[f"light{i}"] = {
-                "type": "directional",
-                "direction": [float(x) for x in light.direction],
-                "irradiance": value,
-            }
+        scene[f"light{i}"] = mitsuba_delta_light(light)
     with tempfile.TemporaryDirectory() as tmp:
         for k, ((p, f, n, _uv), translate, material) in enumerate(spec["objects"]):
             path = Path(tmp) / f"object{k}.ply"

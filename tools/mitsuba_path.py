@@ -3,7 +3,9 @@
 alpha-masked, so that a ray through a cut-out texel is not a bounce) on small scenes converted here: a Cornell box
 lit by an emissive quad with a diffuse, a rough-metal and a smooth-metal sphere; a rect light and an emissive
 sphere; an instanced scene (two-level BVH, non-uniform scales, a mirror) under a sun, a point light and the constant
-environment; alpha-masked quads. Both sides at the same max depth, box pixel filter, two seeds each.
+environment; a smooth and a rough glass sphere (KHR_materials_transmission) under an area light and an environment
+map; blended quads (BLEND, constant alpha); alpha-masked quads. Both sides at the same max depth, box pixel filter,
+two seeds each.
 
     python tools/mitsuba_path.py                       # the converged error of every scene
     python tools/mitsuba_path.py --spp 1024 --images docs/img --md docs/quality.md
@@ -15,10 +17,11 @@ are unbiased), is an unbiased estimate of the squared error at infinite samples;
 
 Conversion: the materials as tools/mitsuba_compare.py's "gltf" choice (metals: `principled`; dielectrics: 0.96
 Lambert + 0.04 GGX; of specular 0, as the Cornell box's walls: `diffuse`), each wrapped in `twosided` (our surfaces
-are two-sided); emissive materials: an `area` emitter of the same radiance on the same triangles (one-sided, the
-winding's front, as ours); analytic lights pi times ours (pi-normalized intensities): point `intensity`, directional
-`irradiance`, rect -> a `rectangle` with an `area`
-emitter and a black BSDF; the ambient constant -> a `constant` emitter.
+are two-sided); transmissive ones as `dielectric` / `roughdielectric` (`mitsuba_material`); BLEND as a `mask` of
+opacity alpha (with `volpath`, whose shadow rays pass a mask's null part with weight 1 - alpha); emissive
+materials: an `area` emitter of the same radiance on the same triangles (one-sided, the winding's front, as ours);
+analytic lights pi times ours (pi-normalized intensities): point `intensity`, directional `irradiance`, rect -> a
+`rectangle` with an `area` emitter and a black BSDF; the ambient constant -> a `constant` emitter.
 """
 
 from __future__ import annotations
@@ -46,6 +49,8 @@ from engine.scene import primitives  # noqa: E402
 
 SIZE = (48, 48)
 MAX_DEPTH = 6
+#: brdf.glsl's MIN_ROUGHNESS: below it a transmissive material is a smooth interface in path.comp.
+MIN_ROUGHNESS = 0.045
 #: The converged RMSE / mean each scene must stay within (the issue's bound).
 RMSE_BOUND = 0.01
 MARKER = "<!-- mitsuba path comparison: made by tools/mitsuba_path.py -->"
@@ -155,6 +160,52 @@ def _environment_lit():
     return objects, ((0.0, 1.4, 2.6), (0.0, 0.3, 0.0), 40.0)
 
 
+def lobes_sky() -> np.ndarray:
+    """lobes_map without its bright patch: a smooth sky whose refracted image shows a wrong direction everywhere,
+    without the patch's caustics (noise at the samples the suite can afford)."""
+    d = equirect_directions(64, 128)
+    return np.stack([1 + 0.7 * d[..., 0], 1 + 0.7 * d[..., 2], 1 + 0.5 * d[..., 1]], axis=-1).astype(np.float32)
+
+
+def _glass():
+    """A smooth and a rough glass sphere (KHR_materials_transmission 1, ior 1.5; the rough one tinted) on a Lambert
+    floor, lit by an emissive quad and a smooth environment map."""
+    objects = [
+        (_floor(), Material("floor", (0.6, 0.6, 0.6), specular=0.0)),
+        (
+            moved(primitives.sphere(0.35, 64, 32), (-0.4, 0.35, 0.0)),
+            Material("glass", (1.0, 1.0, 1.0), roughness=0.0, transmission=1.0, ior=1.5),
+        ),
+        (
+            moved(primitives.sphere(0.35, 64, 32), (0.45, 0.35, -0.1)),
+            Material("rough glass", (1.0, 0.85, 0.7), roughness=0.4, transmission=1.0, ior=1.5),
+        ),
+    ]
+    # (an emissive quad, not a RectLight: Mitsuba's rect emitter is a shape that shadows the sky, ours is not)
+    lamp = quad([(-0.1, 2.0, 0.2), (0.7, 2.0, 0.2), (0.7, 2.0, 1.0), (-0.1, 2.0, 1.0)])
+    objects.append((lamp, Material("lamp", (0.0, 0.0, 0.0), emissive=(3.0, 3.0, 3.0))))
+    # (a directional light of intensity 0: a scene without lights would get the default one)
+    return objects, [DirectionalLight((0.0, -1.0, 0.0), intensity=0.0)], ((0.0, 1.4, 2.6), (0.0, 0.3, 0.0), 40.0)
+
+
+def _blended():
+    """Two BLEND quads of constant alpha (0.5 level, 0.3 upright) over a floor under a sun and the environment: seen
+    through and casting their partial shadows."""
+    objects = [
+        (_floor(), Material("floor", (0.6, 0.6, 0.6), specular=0.0)),
+        (
+            quad([(-0.6, 0.6, 0.4), (0.2, 0.6, 0.4), (0.2, 0.6, -0.4), (-0.6, 0.6, -0.4)]),
+            Material("tint", (0.9, 0.4, 0.1, 0.5), alpha_mode="BLEND"),
+        ),
+        (
+            quad([(0.0, 0.1, 0.3), (0.7, 0.1, 0.3), (0.7, 0.8, 0.3), (0.0, 0.8, 0.3)]),
+            Material("veil", (0.2, 0.5, 0.9, 0.3), alpha_mode="BLEND"),
+        ),
+    ]
+    lights = [DirectionalLight((0.3, -1.0, -0.2), intensity=1.0)]
+    return objects, lights, ((0.0, 1.8, 2.2), (0.0, 0.3, 0.0), 45.0)
+
+
 CORNELL_WALLS = ("floor", "ceiling", "back", "left", "right")
 
 
@@ -180,6 +231,16 @@ def scenes() -> dict:
     lit.environment = Environment(lobes_map(), rotation=ENV_ROTATION)
     out["environment map, two spheres"] = dict(
         ours=lit, objects=objs, lights=[], camera=cam, ambient=None, env=lobes_map()
+    )
+    objs, lights, cam = _glass()
+    glass = scene_of(objs, cam, lights, "glass")
+    glass.environment = Environment(lobes_sky(), rotation=ENV_ROTATION)
+    out["glass spheres, area light, environment"] = dict(
+        ours=glass, objects=objs, lights=lights, camera=cam, ambient=None, env=lobes_sky()
+    )
+    objs, lights, cam = _blended()
+    out["blended quads, sun, environment"] = dict(
+        ours=scene_of(objs, cam, lights, "blended"), objects=objs, lights=lights, camera=cam, ambient=0.4
     )
     objs, lights, cam = _masked()
     out["alpha-masked quads, sun, environment"] = dict(
@@ -210,27 +271,11 @@ def mitsuba_scene(spec, size, tmp: Path) -> dict:
     import mitsuba as mi
 
     T = mi.ScalarTransform4f
-    eye, target, fov = spec["camera"]
-    masked = any(m.alpha_mode != "OPAQUE" for _, m in spec["objects"])
+    masked = any(m.alpha_mode != "OPAQUE" for _, m in spec["objects"])  # (MASK or BLEND)
     scene = {
         "type": "scene",
         "integrator": {"type": "volpath" if masked else "path", "max_depth": MAX_DEPTH},
-        "sensor": {
-            "type": "perspective",
-            "fov": fov,
-            "fov_axis": "y",
-            "near_clip": 0.01,
-            "far_clip": 1000.0,
-            "to_world": T().look_at(origin=list(eye), target=list(target), up=[0.0, 1.0, 0.0]),
-            "film": {
-                "type": "hdrfilm",
-                "width": size[0],
-                "height": size[1],
-                "pixel_format": "rgb",
-                "rfilter": {"type": "box"},
-            },
-            "sampler": {"type": "independent"},
-        },
+        "sensor": mc.mitsuba_sensor(spec["camera"], size, {"type": "independent"}),
     }
     if spec.get("env") is not None:  # (the same rotation sense and u, v as ours: tests/test_environment.py)
         scene["environment"] = {
@@ -241,34 +286,24 @@ def mitsuba_scene(spec, size, tmp: Path) -> dict:
     elif spec["ambient"] > 0:
         scene["environment"] = {"type": "constant", "radiance": _rgb([spec["ambient"]] * 3)}
     for i, light in enumerate(spec["lights"]):
-        value = _rgb(np.asarray(light.color) * float(light.intensity) * math.pi)
-        if light.kind == "point":
-            scene[f"light{i}"] = {"type": "point", "position": [float(x) for x in light.position], "intensity": value}
-        elif light.kind == "directional":
-            scene[f"light{i}"] = {
-                "type": "directional",
-                "direction": [float(x) for x in light.direction],
-                "irradiance": value,
-            }
-        elif light.kind == "rect":
+        if light.kind == "rect":
             m = np.eye(4)
             m[:3, 0], m[:3, 1], m[:3, 2], m[:3, 3] = light.u / 2, light.v / 2, light.normal, light.position
             scene[f"light{i}"] = {
                 "type": "rectangle",
                 "to_world": T(m.tolist()),
                 "bsdf": {"type": "diffuse", "reflectance": _rgb([0.0, 0.0, 0.0])},
-                "emitter": {"type": "area", "radiance": value},
+                "emitter": {
+                    "type": "area",
+                    "radiance": _rgb(np.asarray(light.color) * float(light.intensity) * math.pi),
+                },
             }
         else:
-            raise ValueError(f"no Mitsuba conversion for a {light.kind} light here")
+            scene[f"light{i}"] = mc.mitsuba_delta_light(light)
     for k, ((p, f, n, uv), material) in enumerate(spec["objects"]):
         path = tmp / f"object{k}.ply"
         mc._write_ply(path, np.asarray(p, np.float64), np.asarray(f), np.asarray(n, np.float64), np.asarray(uv))
-        bsdf = mc.mitsuba_material(material, "gltf")
-        if bsdf["type"] == "mask":  # (twosided inside the mask)
-            bsdf["bsdf"] = {"type": "twosided", "bsdf": bsdf["bsdf"]}
-        else:
-            bsdf = {"type": "twosided", "bsdf": bsdf}
+        bsdf = mitsuba_material(material)
         shape = {"type": "ply", "filename": str(path), "face_normals": False, "bsdf": bsdf}
         if np.any(np.asarray(material.emissive) > 0):
             # an emitter's cosine and side are its triangles' (ours: the winding's normal); with vertex normals
@@ -277,6 +312,47 @@ def mitsuba_scene(spec, size, tmp: Path) -> dict:
             shape["face_normals"] = True
         scene[f"object{k}"] = shape
     return scene
+
+
+def mitsuba_material(m: Material) -> dict:
+    """Mitsuba's BSDF for one of our materials: tools/mitsuba_compare.py's "gltf" choice in `twosided` (ours are
+    two-sided), a `mask` around it as the cut-out asks; a transmissive material (transmission 1, metallic 0) is
+    Mitsuba's `dielectric` (roughness below brdf.glsl's MIN_ROUGHNESS) or `roughdielectric` (GGX, alpha =
+    roughness^2) of the same ior in vacuum (ext_ior 1), its specular transmittance the base colour, two-sided by
+    itself; a BLEND material a `mask` of opacity alpha = base alpha x texture alpha (ours: hit with probability
+    alpha)."""
+    import mitsuba as mi
+
+    if m.transmission > 0:
+        if m.transmission != 1.0 or m.metallic != 0.0 or m.texture is not None:
+            raise ValueError(f"material {m.name!r}: the comparison takes transmission 1, metallic 0, no texture")
+        bsdf = {
+            "type": "dielectric" if m.roughness < MIN_ROUGHNESS else "roughdielectric",
+            "int_ior": float(m.ior),
+            "ext_ior": 1.0,
+            "specular_transmittance": _rgb(m.base_color[:3]),
+        }
+        if m.roughness >= MIN_ROUGHNESS:
+            bsdf.update(distribution="ggx", alpha=float(m.roughness) ** 2)
+        return bsdf
+    if m.alpha_mode == "BLEND":
+        alpha = (m.texture[..., 3] / 255.0 if m.texture is not None else np.ones((1, 1))) * float(m.base_color[3])
+        inner = mc.mitsuba_bsdf(m, "gltf")
+        return {
+            "type": "mask",
+            "bsdf": {"type": "twosided", "bsdf": inner},
+            "opacity": {
+                "type": "bitmap",
+                "raw": True,
+                "filter_type": "nearest",
+                "bitmap": mi.Bitmap(alpha.astype(np.float32)[..., None]),
+            },
+        }
+    bsdf = mc.mitsuba_material(m, "gltf")
+    if bsdf["type"] == "mask":  # (twosided inside the mask)
+        bsdf["bsdf"] = {"type": "twosided", "bsdf": bsdf["bsdf"]}
+        return bsdf
+    return {"type": "twosided", "bsdf": bsdf}
 
 
 def render_mitsuba(spec, size, spp: int, seed: int, variant: str = "scalar_rgb") -> np.ndarray:
@@ -532,9 +608,9 @@ def markdown(runs, images, md_path: Path, spp: int, mitsuba_spp: int, stored: bo
         + " --images docs/img --md docs/quality.md`"
         + (" (Mitsuba's images: tests/reference/mitsuba_path.npz, made by `--write-reference`)" if stored else "")
         + ': ours (`integrator="path"`) and Mitsuba 3 (`scalar_rgb`, `path`; `volpath` for the '
-        f"alpha-masked scene) at {SIZE[0]}x{SIZE[1]}, max depth {MAX_DEPTH}, box pixel filter, {spp} samples per "
-        f"pixel of ours and {mitsuba_spp} of Mitsuba's, two seeds each; `tests/test_mitsuba_path.py` asserts the "
-        "bound (its default tier at fewer samples with a coarser bound, the slow tier as here).",
+        f"alpha-masked and blended scenes) at {SIZE[0]}x{SIZE[1]}, max depth {MAX_DEPTH}, box pixel filter, {spp} "
+        f"samples per pixel of ours and {mitsuba_spp} of Mitsuba's, two seeds each; `tests/test_mitsuba_path.py` "
+        "asserts the bound (its default tier at fewer samples with a coarser bound, the slow tier as here).",
         "",
         "Converged RMSE / mean: the squared difference of the seed means less the noise both carry (each side's "
         "variance from its two seeds), an unbiased estimate of the error at infinite samples; noise: the Monte "
@@ -566,12 +642,21 @@ def markdown(runs, images, md_path: Path, spp: int, mitsuba_spp: int, stored: bo
         "ours and Mitsuba's, are all that is left: without the ceiling the box's converged error is 0.0008, "
         "with it the two-seed estimate is uncertain by about 0.01 (0.012 against a 4096-sample reference). So "
         "the suite bounds the Cornell box at 0.025 in the slow tier (4096 samples per pixel and seed of ours; "
-        "the others at 0.01) and every scene at 0.05 in the default tier (512 samples, 17-45 s), with the "
-        "image means within 1% and each material's within 1.5% (or 3 standard errors) there. This comparison "
+        "the others at 0.01) and every scene at 0.05 in the default tier (512 samples, 17-45 s; the glass and "
+        "blended scenes 256, ~10 s each), with the image means within 1% and each material's within 1.5% (or 3 "
+        "standard errors) there. This comparison "
         "found one "
         "bug, fixed: shadow rays to points sampled on emissive triangles hit the emitter itself where it is "
-        "seen edge-on (the floor under an emissive sphere was 3% too dim). The engine has no transmission, so "
-        "there is no dielectric sphere; spot lights and sphere lights (radius > 0) are not in these scenes "
+        "seen edge-on (the floor under an emissive sphere was 3% too dim). The glass spheres "
+        "(KHR_materials_transmission 1, ior 1.5; the smooth one Mitsuba's `dielectric`, the rough one, roughness "
+        "0.4 and tinted, `roughdielectric` with GGX alpha = roughness^2 and the base colour as its specular "
+        "transmittance, both in vacuum: ext_ior 1) are lit by an emissive quad, not a rect light: Mitsuba's "
+        "rect emitter is a shape that shadows the sky, ours is not (with one, the floor differed by 3%); the "
+        "sky is the environment map without its bright patch, whose caustics through the glass would need far "
+        "more samples. Both renderers' shadow rays stop at glass (light through it comes by BSDF sampling). "
+        "The blended quads (BLEND, alpha 0.5 and 0.3) are Mitsuba `mask`s of that opacity under `volpath`, "
+        "ours hit with probability alpha by every ray; the material-id AOV (the raster's) cuts the 0.3 quad "
+        "out, so it has no per-material figure. Spot lights and sphere lights (radius > 0) are not in these scenes "
         "(Mitsuba's spot falloff is another curve); tests/test_path.py checks them against point lights in "
         "their limits.",
         "",

@@ -31,7 +31,7 @@ BUILD_KINDS = ("generated", "spheres", "scan")
 DATASET_AOVS = ("color", "depth", "normal", "object_id")
 
 #: The settings of the frame with every real-time effect on (issue 33's 1080p frame).
-HYBRID_EFFECTS = {"reflections": True, "gi": True, "taa": True}
+HYBRID_EFFECTS = {"reflections": True, "gi": True, "transparency": True, "taa": True}
 
 
 @dataclass

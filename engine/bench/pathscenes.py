@@ -1,12 +1,13 @@
 """Scenes for the path tracer's benchmark and its validation against Mitsuba 3 (tools/mitsuba_path.py): a Cornell
-box lit by an emissive quad under its ceiling, with a diffuse, a rough-metal and a smooth-metal sphere. Each object
+box lit by an emissive quad under its ceiling, with a diffuse, a rough-metal and a smooth-metal sphere; and an
+interior lit by bounced light for the real-time GI (tests/test_gi.py, tools/make_hybrid_quality.py). Each object
 is a (positions, faces, normals, uvs) primitive placed in world space with its glTF material."""
 
 from __future__ import annotations
 
 import numpy as np
 
-from ..scene import Camera, Material, Scene
+from ..scene import Camera, DirectionalLight, Material, Scene
 from ..scene import primitives
 
 
@@ -83,3 +84,27 @@ def scene_of(objects, camera=CORNELL_CAMERA, lights=(), name="path scene") -> Sc
 
 def cornell_box() -> Scene:
     return scene_of(cornell_objects(), name="cornell box")
+
+
+def interior_room() -> Scene:
+    """A closed 2 x 2 x 2 room (white, a red and a green wall) with a 0.6 x 0.6 hole in its ceiling that the sun
+    shines through onto the floor; the camera inside, against the front wall. All but the sun's patch is lit by
+    bounced light (render it with ambient 0: no environment reaches inside)."""
+    white, red, green = (0.75, 0.75, 0.75), (0.7, 0.12, 0.1), (0.15, 0.6, 0.15)
+
+    def ceiling(x0, x1, z0, z1):
+        return quad([(x0, 2, z0), (x1, 2, z0), (x1, 2, z1), (x0, 2, z1)])
+
+    objs = [
+        (quad([(-1, 0, 1), (1, 0, 1), (1, 0, -1), (-1, 0, -1)]), Material("floor", white)),
+        (quad([(-1, 0, -1), (1, 0, -1), (1, 2, -1), (-1, 2, -1)]), Material("back", white)),
+        (quad([(-1, 0, 1), (-1, 0, -1), (-1, 2, -1), (-1, 2, 1)]), Material("left", red)),
+        (quad([(1, 0, -1), (1, 0, 1), (1, 2, 1), (1, 2, -1)]), Material("right", green)),
+        (quad([(1, 0, 1), (-1, 0, 1), (-1, 2, 1), (1, 2, 1)]), Material("front", white)),
+        (ceiling(-1, 1, -1, -0.3), Material("ceiling", white)),
+        (ceiling(-1, 1, 0.3, 1), Material("ceiling", white)),
+        (ceiling(-1, -0.3, -0.3, 0.3), Material("ceiling", white)),
+        (ceiling(0.3, 1, -0.3, 0.3), Material("ceiling", white)),
+    ]
+    sun = DirectionalLight((0.15, -1.0, -0.3), intensity=3.0)
+    return scene_of(objs, ((0.0, 1.0, 0.95), (0.0, 0.8, -1.0), 75.0), [sun], name="interior")

@@ -10,7 +10,7 @@ from __future__ import annotations
 import numpy as np
 
 from ..passes.interface import MATERIAL_FLAGS, MATERIAL_TEXELS
-from ..scene.material import texture_key
+from ..scene.material import dielectric_f0, texture_key
 from ..vk import BufferView, Sampler, upload_buffer, upload_texture_array
 from ..vk.formats import RGBA32F
 from ..vk.resources import UNIFORM_TEXEL
@@ -39,20 +39,27 @@ def material_texels(materials, textures: TextureArrays) -> np.ndarray:
             handle(m, f) for f in ("texture", "metallic_roughness_texture", "normal_texture", "emissive_texture")
         ]
         data[i, 8:12] = m.metallic, m.roughness, m.occlusion_strength, m.normal_scale
-        # BLEND is cut out at 0.5 (no transparency): the raster and the rays see the same surface
+        # the raster cuts BLEND out at 0.5, as the hybrid frame's rays do (the path tracer blends it: alpha.glsl)
         data[i, 12:15], data[i, 15] = m.emissive, {"OPAQUE": 0.0, "MASK": m.alpha_cutoff, "BLEND": 0.5}[m.alpha_mode]
         bits[i, 16] = handle(m, "occlusion_texture")
-        bits[i, 17] = (MATERIAL_FLAGS["alpha_tested"] if m.alpha_mode != "OPAQUE" else 0) | (
-            MATERIAL_FLAGS["double_sided"] if m.double_sided else 0
+        bits[i, 17] = (
+            (MATERIAL_FLAGS["alpha_tested"] if m.alpha_mode != "OPAQUE" else 0)
+            | (MATERIAL_FLAGS["double_sided"] if m.double_sided else 0)
+            | (MATERIAL_FLAGS["blend"] if m.alpha_mode == "BLEND" else 0)
+            | (MATERIAL_FLAGS["transmissive"] if m.transmission > 0 and m.metallic < 1 else 0)
         )
-        data[i, 20:23], data[i, 23] = m.specular_color, m.specular
+        # (the ior's F0 folded into the specular colour: brdf.glsl's 0.04 colour is then the extensions' F0)
+        data[i, 20:23], data[i, 23] = m.specular_color * (dielectric_f0(m.ior) / 0.04), m.specular
+        data[i, 24:26] = m.transmission, m.ior
     return data
 
 
 def alpha_records(scene, textures: TextureArrays) -> tuple[np.ndarray, np.ndarray]:
     """The rays' alpha test (shaders/glsl/include/alpha.glsl): per scene triangle, 0 (opaque) or 1 + its record;
     the records, 2 RGBA32F texels per alpha-tested triangle: (uv0, uv1), (uv2, base texture handle bits,
-    threshold): a hit counts where texture alpha >= threshold = cutoff / base alpha (BLEND: cutoff 0.5). Without
+    threshold): a hit counts where texture alpha >= threshold = cutoff / base alpha; BLEND's threshold is
+    -(1 + base alpha), which the kernels with a stochastic alpha test (the path tracer) read as the alpha, and the
+    others as the cutoff 0.5 / base alpha (a cut-out). Without
     alpha-tested materials: an empty index (every triangle opaque), and the flat arrays are never made."""
     if all(m.alpha_mode == "OPAQUE" for m in scene.materials):
         return np.zeros(0, np.uint32), np.zeros((1, 8), np.float32)
@@ -68,10 +75,13 @@ def alpha_records(scene, textures: TextureArrays) -> tuple[np.ndarray, np.ndarra
         if m.alpha_mode == "OPAQUE":
             continue
         rows = tri_mat[prims] == k
-        cutoff = 0.5 if m.alpha_mode == "BLEND" else m.alpha_cutoff
         base = float(m.base_color[3])
         bits[: len(prims)][rows, 6] = textures.handle(None if m.texture is None else (texture_key(m.texture), True))
-        records[: len(prims)][rows, 7] = 0.0 if cutoff == 0 else (cutoff / base if base > 0 else np.inf)
+        if m.alpha_mode == "BLEND":
+            records[: len(prims)][rows, 7] = -(1.0 + base)
+        else:
+            cutoff = m.alpha_cutoff
+            records[: len(prims)][rows, 7] = 0.0 if cutoff == 0 else (cutoff / base if base > 0 else np.inf)
     return index, records
 
 

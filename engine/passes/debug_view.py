@@ -35,6 +35,7 @@ class DebugViewPass(ComputePass):
         "refl": read("buffer", "refl.final"),
         "gi_raw": read("buffer", "gi.raw_full"),
         "gi": read("buffer", "gi.final"),
+        "transp": read("buffer", "transp"),
         "out_color": write("image", "color"),
     }
 

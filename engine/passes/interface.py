@@ -44,6 +44,7 @@ ViewMode = Literal[
     "reflection",
     "gi_raw",
     "gi",
+    "transparency",
 ]
 VIEW_MODES: tuple[str, ...] = get_args(ViewMode)
 #: shadow.comp's modes (SHADOW_<NAME>); "off" records no shadow pass.
@@ -63,10 +64,13 @@ TEXTURE_NONE = 0xFFFFFFFF
 #: RGBA32F texels per material in the materials texel buffer (engine/passes/gbuffer.py `material_texels`):
 #: 0 base colour; 1 texture handles (base colour, metallic-roughness, normal, emissive; uint bits);
 #: 2 metallic, roughness, occlusion strength, normal scale; 3 emissive rgb, alpha cutoff (0: not alpha-tested);
-#: 4 occlusion texture handle, flags (uint bits: MATERIAL_*), 0, 0; 5 KHR_materials_specular: specular colour rgb,
-#: specular.
-MATERIAL_TEXELS = 6
-MATERIAL_FLAGS = {"alpha_tested": 1, "double_sided": 2}
+#: 4 occlusion texture handle, flags (uint bits: MATERIAL_*), 0, 0; 5 KHR_materials_specular: specular colour rgb
+#: times KHR_materials_ior's F0 / 0.04 (so that brdf.glsl's min(0.04 colour, 1) is the dielectric F0 of the ior),
+#: specular; 6 KHR_materials_transmission / _ior: transmission, ior, 0, 0.
+MATERIAL_TEXELS = 7
+#: blend: alpha_mode BLEND (its alpha test is stochastic in the path tracer, alpha.glsl); transmissive:
+#: transmission > 0 and metallic < 1.
+MATERIAL_FLAGS = {"alpha_tested": 1, "double_sided": 2, "blend": 4, "transmissive": 8}
 #: 16-byte texels per instance record (shaders/glsl/include/instances.glsl `Instance`, engine/passes/gbuffer.py)
 INSTANCE_TEXELS = 16
 #: History lengths are clamped here (accumulate.comp).
@@ -112,6 +116,7 @@ AOVS = {
     "reflection": AOV("refl.final", 16, "float32", 3),
     "gi_raw": AOV("gi.raw_full", 16, "float32", 3),
     "gi": AOV("gi.final", 16, "float32", 3),
+    "transparency": AOV("transp", 16, "float32", 3),
 }
 
 #: AOVs made on the host from one the GPU reads back: "semantic_id" is the object's class through a per-object table

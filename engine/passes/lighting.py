@@ -26,6 +26,7 @@ class LightingPass(ComputePass):
         "gi": read("buffer", "gi.final"),  # the diffuse GI's irradiance / pi (passes/gi.py), w > 0 where traced
         "g_material": read("image", "material_id"),
         "materials": read("uniform_texel"),  # KHR_materials_specular's factors: bound by bind_scene
+        "transp": read("buffer", "transp"),  # transparent surfaces (passes/transparency.py), w > 0 where traced
     }
 
     def bind_scene(self, geom):

@@ -124,6 +124,8 @@ class Targets:
         self.gi = {
             part: Buffer(ctx, n * (32 if part == "cells" else 16), buf_usage, name=f"gi {part}") for part in GI_BUFFERS
         }
+        # transparent surfaces drawn by rays (engine/passes/transparency.py): radiance and its weight per pixel
+        self.transparency = Buffer(ctx, n * 16, buf_usage, name="transparency")
         self.readbacks: dict = {}  # (AOV names, slot) -> (host buffer, {name: offset})
         images = [
             self.visibility,
@@ -151,7 +153,13 @@ class Targets:
             self.taa_out,
             self.taa_history,
         ]
-        self._objects = images + [self.len_cur, self.len_hist, *self.reflection.values(), *self.gi.values()]
+        self._objects = images + [
+            self.len_cur,
+            self.len_hist,
+            *self.reflection.values(),
+            *self.gi.values(),
+            self.transparency,
+        ]
         # the software raster's 64-bit depth + visibility id per pixel (engine/passes/soft_raster.py), on devices
         # with 64-bit buffer atomics, where one storage buffer can hold it
         soft = ctx.int64_atomics and n * 8 <= int(ctx.limits.maxStorageBufferRange)
@@ -199,6 +207,7 @@ class Targets:
             self.resources.update({f"{sname}.{part}": getattr(sig, part) for part in Signal.NAMES})
         self.resources.update({f"refl.{part}": buf for part, buf in self.reflection.items()})
         self.resources.update({f"gi.{part}": buf for part, buf in self.gi.items()})
+        self.resources["transp"] = self.transparency
         # Every colour image in GENERAL layout; the visibility image starts as background (each frame's resolve leaves
         # it so again); the histories zero.
         with ctx.one_shot() as cmd:
@@ -217,7 +226,7 @@ class Targets:
                             self.taa_out,
                         ),
                     )
-            for buf in (self.len_cur, self.len_hist, *self.reflection.values(), *self.gi.values()):
+            for buf in (self.len_cur, self.len_hist, *self.reflection.values(), *self.gi.values(), self.transparency):
                 fill(cmd, buf, 0)
 
     def __getitem__(self, name: str):

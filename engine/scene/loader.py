@@ -19,6 +19,7 @@ from . import mtl, points
 from .classes import extras_class
 from .gltf_specular import ATTRIBUTE as SPECULAR_ATTRIBUTE
 from .gltf_specular import attach_specular
+from .gltf_transmission import IOR_ATTRIBUTE, TRANSMISSION_ATTRIBUTE, attach_transmission
 from .filechecks import bomb_images, bomb_pixels, check_mesh_file, diagnose_gltf
 from .instances import Mesh, check_transforms, determinants, instance_label, world_boxes
 from .material import TEXTURE_FIELDS, Material, material_key, srgb8_to_linear, texture_key
@@ -244,6 +245,7 @@ def load_trimesh_scene(path: str, *, scene_file: bool = False):
         if ext in (".gltf", ".glb"):  # images pillow refused inside the file, which trimesh drops quietly
             problems += [f"images[{i}]: {_too_large(pixels)}" for i, pixels in bomb_images(path)]
             attach_specular(obj, path, where)
+            attach_transmission(obj, path, where)
         for problem in dict.fromkeys(problems):
             log.warning(f"{where}: {problem}; rendering without it")
         return obj
@@ -704,8 +706,9 @@ def _factor(value, default, n=None):
 
 
 def _gltf_material(mat, name: str, texture, what: str) -> Material:
-    """glTF pbrMetallicRoughness, the core material keys and KHR_materials_specular's factors; absent factors take
-    glTF's defaults (metallic 1, roughness 1, emissive 0, specular 1)."""
+    """glTF pbrMetallicRoughness, the core material keys and the factors of KHR_materials_specular,
+    KHR_materials_transmission and KHR_materials_ior; absent factors take glTF's defaults (metallic 1, roughness 1,
+    emissive 0, specular 1, transmission 0, ior 1.5)."""
     factor = mat.baseColorFactor
     base = (1.0, 1.0, 1.0, 1.0) if factor is None else np.asarray(factor, dtype=np.float64) / 255.0
     mode = (mat.alphaMode or "OPAQUE").upper() if isinstance(mat.alphaMode, (str, type(None))) else "OPAQUE"
@@ -727,6 +730,8 @@ def _gltf_material(mat, name: str, texture, what: str) -> Material:
             double_sided=bool(mat.doubleSided),
             specular=specular,
             specular_color=specular_color,
+            transmission=getattr(mat, TRANSMISSION_ATTRIBUTE, 0.0),
+            ior=getattr(mat, IOR_ATTRIBUTE, 1.5),
         )
     except SceneError as exc:
         raise SceneError(f"{what}: {exc}") from None

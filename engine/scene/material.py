@@ -29,7 +29,11 @@ _FIELDS = (
     "double_sided",
     "specular",
     "specular_color",
+    "transmission",
+    "ior",
 ) + TEXTURE_FIELDS
+#: The range of `ior` (glTF's KHR_materials_ior: at least 1; diamond is 2.42).
+IOR_RANGE = (1.0, 5.0)
 
 
 class Material:
@@ -38,16 +42,21 @@ class Material:
     `Material(name, base_color=(0.8, 0.8, 0.8, 1), texture=None, *, metallic=0, roughness=1, emissive=(0, 0, 0),
     metallic_roughness_texture=None, normal_texture=None, normal_scale=1, emissive_texture=None,
     occlusion_texture=None, occlusion_strength=1, alpha_mode="OPAQUE", alpha_cutoff=0.5, double_sided=True, specular=1,
-    specular_color=(1, 1, 1))`.
+    specular_color=(1, 1, 1), transmission=0, ior=1.5)`.
 
     `base_color`: 3 or 4 numbers, linear RGB(A) (alpha 1 when left out), stored as (4,) float32 and multiplied with
     `texture`, as in glTF; each in [0, 1e30]. `metallic`, `roughness` in [0, 1]: `roughness` is glTF's perceptual
     roughness (the GGX alpha is roughness squared). `emissive`: linear RGB radiance, multiplied with
     `emissive_texture`. `normal_scale` scales the tangent-space normal map's x and y; `occlusion_strength` in [0, 1]
-    blends the occlusion map in. `alpha_mode`: "OPAQUE", "MASK" (cut out where alpha < `alpha_cutoff`) or "BLEND".
+    blends the occlusion map in. `alpha_mode`: "OPAQUE", "MASK" (cut out where alpha < `alpha_cutoff`) or "BLEND"
+    (seen with probability alpha by the path tracer's rays: a blended surface).
     `specular` in [0, 1] and `specular_color` (linear RGB, each >= 0) are glTF's KHR_materials_specular factors: the
     dielectric lobe's F0 is min(0.04 `specular_color`, 1) `specular` and its F90 `specular` (0: a pure Lambert
-    dielectric; the defaults are glTF's core material).
+    dielectric; the defaults are glTF's core material). `transmission` in [0, 1] (KHR_materials_transmission's
+    factor) is the part of the dielectric (1 - metallic) that refracts instead of diffusing: a smooth or GGX-rough
+    dielectric interface (by `roughness`) with exact Fresnel at `ior` (KHR_materials_ior, in [1, 5]), transmitted
+    light tinted by the base colour; a closed mesh of it is a solid of that index (not thin-walled). `ior` also sets
+    the opaque dielectric's F0 = ((ior - 1) / (ior + 1))^2 (0.04 at the default 1.5).
 
     Textures are (H, W, 4) uint8 arrays, row 0 at the top of the image, UV (0, 0) its top-left corner (glTF /
     Vulkan convention): `texture` (base colour, sRGB RGBA) and `emissive_texture` (sRGB) are colour textures;
@@ -73,6 +82,8 @@ class Material:
     double_sided: bool
     specular: float
     specular_color: NDArray[np.float32]
+    transmission: float
+    ior: float
 
     def __init__(
         self,
@@ -94,6 +105,8 @@ class Material:
         double_sided: bool = True,
         specular: float = 1.0,
         specular_color: ArrayLike = (1.0, 1.0, 1.0),
+        transmission: float = 0.0,
+        ior: float = 1.5,
     ):
         """Raises `SceneError` (naming the material and the field) for a bad value or texture."""
         self.name = str(name)
@@ -127,6 +140,8 @@ class Material:
             raise SceneError(f"material {self.name!r}: {exc}") from None
         self.specular_color = sc.astype(np.float32)
         self.specular_color.setflags(write=False)
+        self.transmission = self._number(transmission, "transmission", 0.0, 1.0)
+        self.ior = self._number(ior, "ior", *IOR_RANGE)
         mode = alpha_mode.upper() if isinstance(alpha_mode, str) else alpha_mode
         if mode not in ALPHA_MODES:
             raise SceneError(
@@ -216,7 +231,17 @@ class Material:
         if self.specular != 1.0 or np.any(self.specular_color != 1.0):
             col = ", ".join(f"{x:.3g}" for x in self.specular_color.tolist())
             text += f", specular={self.specular:.3g}, specular_color=({col})"
+        if self.transmission > 0:
+            text += f", transmission={self.transmission:.3g}"
+        if self.ior != 1.5:
+            text += f", ior={self.ior:.3g}"
         return text + ")"
+
+
+def dielectric_f0(ior: float) -> float:
+    """The reflectance at normal incidence of a dielectric of index `ior` in air, ((ior - 1) / (ior + 1))^2
+    (KHR_materials_ior; 0.04 at 1.5)."""
+    return ((ior - 1.0) / (ior + 1.0)) ** 2
 
 
 def texture_key(texture: NDArray[np.uint8] | None) -> tuple | None:
@@ -233,7 +258,17 @@ def material_key(material: Material, name=None) -> tuple:
     pixels of each of its textures (`texture_key`)."""
     m = material
     factors = np.array(
-        [m.metallic, m.roughness, m.normal_scale, m.occlusion_strength, m.alpha_cutoff, m.specular, *m.specular_color],
+        [
+            m.metallic,
+            m.roughness,
+            m.normal_scale,
+            m.occlusion_strength,
+            m.alpha_cutoff,
+            m.specular,
+            *m.specular_color,
+            m.transmission,
+            m.ior,
+        ],
         np.float64,
     ).tobytes()
     return (

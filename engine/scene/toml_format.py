@@ -22,7 +22,7 @@ from .environment import Environment, Sky
 from .geometry import up_transform
 from .lights import LIGHT_TYPES
 from .loader import SceneBuilder, load_texture_file, load_trimesh_scene
-from .material import Material
+from .material import ALPHA_MODES, IOR_RANGE, Material
 from .parts import SceneParts
 from .paths import Folders
 
@@ -52,6 +52,9 @@ MESH_COMMON = (
     "emissive",
     "specular",
     "specular_color",
+    "transmission",
+    "ior",
+    "alpha_mode",
     "instances",
     "class",
 )
@@ -550,6 +553,27 @@ def _trs_matrices(scale: np.ndarray, angle: np.ndarray, translate: np.ndarray) -
     return m
 
 
+def _material_overrides(table: dict, ctx: _Ctx) -> dict:
+    """A mesh's material keys (glTF metallic-roughness factors and the extensions'), replacing those of every
+    material of the mesh."""
+    overrides = {}
+    # (specular: KHR_materials_specular's factor; transmission: KHR_materials_transmission's)
+    for key in ("metallic", "roughness", "specular", "transmission"):
+        if key in table:
+            overrides[key] = ctx.check(_check.number, table[key], key, min_value=0.0, max_value=1.0)
+    if "ior" in table:  # KHR_materials_ior
+        overrides["ior"] = ctx.check(_check.number, table["ior"], "ior", min_value=IOR_RANGE[0], max_value=IOR_RANGE[1])
+    if "alpha_mode" in table:
+        mode = table["alpha_mode"]
+        if not isinstance(mode, str) or mode.upper() not in ALPHA_MODES:
+            raise ctx.error(f"alpha_mode must be one of {', '.join(ALPHA_MODES)}, got {mode!r}")
+        overrides["alpha_mode"] = mode.upper()
+    for key in ("emissive", "specular_color"):
+        if key in table:
+            overrides[key] = _color(table[key], key, ctx)
+    return overrides
+
+
 def _add_mesh(
     builder: SceneBuilder, table: dict, ctx: _Ctx, folders: Folders, textures: dict, up_m: np.ndarray, files: dict
 ) -> None:
@@ -580,13 +604,7 @@ def _add_mesh(
         if full not in textures:
             textures[full] = load_texture_file(full, f"{ctx.prefix()}: texture = '{shown(table['texture'])}'")
         texture = textures[full]
-    overrides = {}  # glTF metallic-roughness factors, replacing those of every material of the mesh
-    for key in ("metallic", "roughness", "specular"):  # (specular: KHR_materials_specular's factor)
-        if key in table:
-            overrides[key] = ctx.check(_check.number, table[key], key, min_value=0.0, max_value=1.0)
-    for key in ("emissive", "specular_color"):
-        if key in table:
-            overrides[key] = _color(table[key], key, ctx)
+    overrides = _material_overrides(table, ctx)
     uv_scale = None
     if "uv_scale" in table:
         uv_scale = _size(table["uv_scale"], 2, "uv_scale", ctx)

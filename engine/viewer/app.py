@@ -255,6 +255,8 @@ class Viewer:
             self.cycle("reflections")
         elif key == g.KEY_8:
             self.cycle("gi")
+        elif key == g.KEY_9:
+            self.cycle("transparency")
         elif key == g.KEY_T:
             self.cycle("taa")
         elif key == g.KEY_V:

@@ -73,6 +73,10 @@ def add_arguments(p):
     p.add_argument("--no-reflections", dest="reflections", action="store_false", help="ray-traced reflections off")
     p.add_argument("--gi", dest="gi", action="store_true", default=None, help="diffuse global illumination on")
     p.add_argument("--no-gi", dest="gi", action="store_false", help="diffuse global illumination off")
+    p.add_argument(
+        "--transparency", dest="transparency", action="store_true", default=None, help="glass and BLEND by rays on"
+    )
+    p.add_argument("--no-transparency", dest="transparency", action="store_false", help="transparency by rays off")
     p.add_argument("--ao-samples", type=int, default=None, help="AO rays per pixel (default 4, 1 with GI on)")
     p.add_argument("--exposure", type=float, default=None, help="exposure in EV (default -1)")
     p.add_argument("--tonemap", default=None, choices=TONEMAPS, help="initial tone curve (key 4 cycles them)")
@@ -110,6 +114,7 @@ def run_from_args(args) -> int:
         ("ao", args.ao),
         ("reflections", args.reflections),
         ("gi", args.gi),
+        ("transparency", args.transparency),
         ("ao_samples", args.ao_samples),
         ("exposure", args.exposure),
         ("tonemap", args.tonemap),

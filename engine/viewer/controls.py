@@ -25,6 +25,7 @@ KEYS = [
     ("6", "integrator: raster / path (path: samples accumulate while the view is still)"),
     ("7", "ray-traced reflections on / off (views reflection_raw, reflection: V)"),
     ("8", "diffuse global illumination on / off (views gi_raw, gi: V)"),
+    ("9", "transparency (glass, BLEND) by rays on / off (view transparency: V)"),
     ("T", "temporal anti-aliasing on / off (debug view: taa_history)"),
     ("V / Shift+V", "next / previous debug view (if the renderer has it)"),
     ("R", "reset the camera to the scene's"),
@@ -40,7 +41,19 @@ KEYS = [
 KEY_SKIPS = {"shadows": ("reference",)}
 
 # The settings with a key, in the order the overlay lists them.
-TOGGLED = ("shadows", "ao", "reflections", "gi", "denoise", "tonemap", "auto_exposure", "integrator", "taa", "view")
+TOGGLED = (
+    "shadows",
+    "ao",
+    "reflections",
+    "gi",
+    "transparency",
+    "denoise",
+    "tonemap",
+    "auto_exposure",
+    "integrator",
+    "taa",
+    "view",
+)
 
 
 def key_map_text() -> str:

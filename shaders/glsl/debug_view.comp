@@ -32,6 +32,7 @@ layout(std430, set = 0, binding = 19) readonly buffer ReflRaw { vec4 refl_raw[];
 layout(std430, set = 0, binding = 20) readonly buffer Refl { vec4 refl[]; };          // filtered (reflect_filter)
 layout(std430, set = 0, binding = 21) readonly buffer GIRaw { vec4 gi_raw[]; };       // gi.comp's rays
 layout(std430, set = 0, binding = 22) readonly buffer GI { vec4 gi[]; };              // filtered irradiance / pi
+layout(std430, set = 0, binding = 23) readonly buffer Transp { vec4 transp[]; };      // transparency.comp's rays
 layout(push_constant) uniform Push { uint view; } pc;
 
 // A colour per id (black for none), different for neighbouring ids.
@@ -105,6 +106,9 @@ void main() {
         vec4 r = v == VIEW_REFLECTION ? refl[pixel]
                : v == VIEW_REFLECTION_RAW ? refl_raw[pixel]
                : v == VIEW_GI ? gi[pixel] : gi_raw[pixel];
+        c = r.w > 0.0 ? pow(clamp(r.rgb, 0.0, 1.0), vec3(1.0 / 2.2)) : (covered ? vec3(0.0, 0.0, 0.15) : vec3(0.0));
+    } else if (v == VIEW_TRANSPARENCY) {   // the radiance through / behind transparent surfaces; others dark blue
+        vec4 r = transp[pixel];
         c = r.w > 0.0 ? pow(clamp(r.rgb, 0.0, 1.0), vec3(1.0 / 2.2)) : (covered ? vec3(0.0, 0.0, 0.15) : vec3(0.0));
     } else if (v == VIEW_HISTORY) {
         float n = hist_len[pixel];

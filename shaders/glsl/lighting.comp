@@ -5,7 +5,8 @@
 // split-sum image-based lighting (ibl.glsl: SH irradiance for the diffuse lobe, GGX-prefiltered radiance times the BRDF
 // table for the specular one) times AO and the material's occlusion, plus the emitted radiance. Where a reflection
 // ray was traced (reflect.comp), its filtered radiance is the specular lobe's instead; where a diffuse GI ray was
-// (gi.comp), its filtered irradiance lights the diffuse lobe instead of the environment's times AO. The background
+// (gi.comp), its filtered irradiance lights the diffuse lobe instead of the environment's times AO; where a transparent
+// surface was traced (transparency.comp), the radiance through / behind it is mixed in by its weight. The background
 // is the environment seen along the pixel's ray, with each directional light's disc drawn where its angle is > 0.
 // `out_hdr` holds the radiance (before exposure); `out_color` its tone-mapped image at frame.exposure (auto
 // exposure rewrites it: exposure.comp).
@@ -33,6 +34,8 @@ layout(set = 0, binding = 12, r32ui) uniform readonly uimage2D g_material;   // 
 layout(set = 0, binding = 13) uniform samplerBuffer materials;               // MATERIAL_TEXELS per material
 // the filtered diffuse GI per pixel (gi.comp, reflect_filter.comp): irradiance / pi, w > 0 where a ray was traced
 layout(std430, set = 0, binding = 14) readonly buffer GI { vec4 gi[]; };
+// transparent surfaces (transparency.comp): the radiance through / behind them, rgb, and its weight w (0: opaque)
+layout(std430, set = 0, binding = 15) readonly buffer Transparency { vec4 transp[]; };
 
 // Radiance arriving from light `l` at `p` (before visibility and the cosine term), and the unit direction to it.
 vec3 incident(Light l, vec3 p, out vec3 wi) {
@@ -108,6 +111,8 @@ void main() {
         if (traced.w > 0.0) ambient += spec * traced.rgb;
         else ambient += spec * ibl_specular_radiance(n, v, roughness) * (ao[pixel] * occlusion);
         color = direct + ambient + imageLoad(g_emissive, px).rgb;
+        vec4 through = transp[pixel];
+        color = mix(color, through.rgb, through.w);
     }
     imageStore(out_hdr, px, vec4(color, 1.0));
     imageStore(out_color, px, vec4(srgb_encode(tonemap(color * frame.exposure, frame.tonemap)), 1.0));

@@ -11,7 +11,11 @@
 // terminator shift's point where frame.shadow_terminator is on (terminator.glsl), and a BSDF sample (glTF
 // metallic-roughness: GGX drawn from its distribution of visible normals, or Lambert, by a lobe probability),
 // combined with the power heuristic; Russian roulette from the fourth vertex; paths of at most `max depth` segments
-// (Mitsuba's max_depth). Random numbers: PCG, seeded per (seed, sample, pixel), so an image depends only on them.
+// (Mitsuba's max_depth). A transmissive material (KHR_materials_transmission) is at each vertex its dielectric
+// interface with probability transmission x (1 - metallic), else the opaque BRDF: smooth (roughness below
+// MIN_ROUGHNESS: a delta lobe, no light sampling) or rough GGX (dielectric.glsl); its surfaces occlude shadow rays
+// (light through them comes by BSDF sampling, as in Mitsuba's path tracer). BLEND surfaces are hit with probability
+// alpha by every ray, shadow rays too (alpha.glsl with ALPHA_RANDOM). Random numbers: PCG, seeded per (seed, sample, pixel), so an image depends only on them.
 // pc.mode 1 (resolve): the mean radiance into the HDR target, times exposure and through the tone curve into the
 // colour one (as lighting.comp writes them).
 //
@@ -28,8 +32,19 @@ FRAME_BLOCK
 #include "terminator.glsl"
 #define ENV_BINDING 12
 #include "environment.glsl"
+
+// ---- random numbers ------------------------------------------------------------------------------------------
+uint rng;
+float rnd() {
+    rng = rng * 747796405u + 2891336453u;
+    uint w = ((rng >> ((rng >> 28u) + 4u)) ^ rng) * 277803737u;
+    return float(((w >> 22u) ^ w) >> 8) * (1.0 / 16777216.0);
+}
+vec2 rnd2() { return vec2(rnd(), rnd()); }
+
 #define ALPHA_BINDING 6
 #define TEXTURES_BINDING 7
+#define ALPHA_RANDOM rnd   // BLEND surfaces: hit with probability alpha, by every ray (alpha.glsl)
 #include "alpha.glsl"
 #define BVH_SET 1
 #define BVH_BINDING 0
@@ -58,16 +73,8 @@ layout(set = 0, binding = 11, rgba16f) uniform writeonly image2D out_hdr;
 layout(push_constant) uniform Push { uint mode; uint index; } pc;
 
 #include "scene_surface.glsl"
+#include "dielectric.glsl"
 #include "light_sample.glsl"
-
-// ---- random numbers ------------------------------------------------------------------------------------------
-uint rng;
-float rnd() {
-    rng = rng * 747796405u + 2891336453u;
-    uint w = ((rng >> ((rng >> 28u) + 4u)) ^ rng) * 277803737u;
-    return float(((w >> 22u) ^ w) >> 8) * (1.0 / 16777216.0);
-}
-vec2 rnd2() { return vec2(rnd(), rnd()); }
 
 float power_heuristic(float a, float b) {
     float a2 = a * a, b2 = b * b;
@@ -174,6 +181,35 @@ float emitter_pdf(Surface s, vec3 d, float t) {
     return prob * t * t / (s.area * max(dot(s.ng, -d), 1e-8));
 }
 
+// ---- a vertex's BSDF: the opaque glTF BRDF or the dielectric interface -----------------------------------------
+struct Vertex {
+    bool glass;   // the surface acts as its dielectric interface here (dielectric.glsl)
+    float eta;    // the index of its far side over its near side's
+};
+
+// Draws whether a transmissive surface acts as its dielectric (probability transmission x (1 - metallic)): the
+// material is the mix of the two BSDFs by that weight, estimated one at a time.
+Vertex vertex_of(inout Surface s) {
+    Vertex vx;
+    vx.glass = s.transmission > 0.0 && rnd() < s.transmission * (1.0 - s.metallic);
+    vx.eta = s.front ? s.ior : 1.0 / s.ior;
+    if (vx.glass) s.po = s.p;   // (no terminator shift: light may come from either side)
+    return vx;
+}
+
+// The normal to move a ray leaving towards l off the surface: the geometric one on l's side.
+vec3 side_normal(Surface s, Vertex vx, vec3 l) {
+    return vx.glass && dot(l, s.ng) < 0.0 ? -s.ng : s.ng;
+}
+
+vec3 vertex_light_eval(Surface s, Vertex vx, Lobes lb, vec3 v, vec3 l) {
+    return vx.glass ? rough_dielectric_eval(s.ns, v, l, vx.eta, lb.alpha, s.base) : light_eval(s, v, l);
+}
+
+float vertex_pdf(Surface s, Vertex vx, Lobes lb, vec3 v, vec3 l) {
+    return vx.glass ? rough_dielectric_pdf(s.ns, v, l, vx.eta, lb.alpha) : bsdf_pdf(s, lb, v, l);
+}
+
 // ---- one path ------------------------------------------------------------------------------------------------
 vec3 trace_path(vec3 o, vec3 d) {
     vec3 radiance = vec3(0.0), throughput = vec3(1.0);
@@ -198,49 +234,61 @@ vec3 trace_path(vec3 o, vec3 d) {
         vec3 v = -d;
         if (dot(s.ns, v) <= 0.0) s.ns = s.ng;   // a shading normal facing away from the viewer: the geometric one
         Lobes lb = lobes(s, v);
-        // next-event estimation: every analytic light, one emissive triangle
-        for (uint i = 0u; i < frame.light_count; ++i) {
+        Vertex vx = vertex_of(s);
+        bool smooth_glass = vx.glass && s.roughness < MIN_ROUGHNESS;
+        // next-event estimation: every analytic light, one emissive triangle (none through a delta lobe)
+        for (uint i = 0u; i < frame.light_count && !smooth_glass; ++i) {
             vec3 wi, li;
             float dist, pdf;
             if (!sample_light(frame.lights[i], s.po, rnd2(), wi, dist, li, pdf)) continue;
-            vec3 f = light_eval(s, v, wi);
-            if (all(equal(f, vec3(0.0))) || !visible(s.po, s.ng, wi, dist, frame.scene_scale)) continue;
-            float w = pdf > 0.0 ? power_heuristic(pdf, bsdf_pdf(s, lb, v, wi)) : 1.0;
+            vec3 f = vertex_light_eval(s, vx, lb, v, wi);
+            if (all(equal(f, vec3(0.0))) || !visible(s.po, side_normal(s, vx, wi), wi, dist, frame.scene_scale))
+                continue;
+            float w = pdf > 0.0 ? power_heuristic(pdf, vertex_pdf(s, vx, lb, v, wi)) : 1.0;
             radiance += throughput * f * li * (pdf > 0.0 ? w / pdf : 1.0);
         }
-        if (!env_black) {   // the environment
+        if (!env_black && !smooth_glass) {   // the environment
             float pdf;
             vec3 wi = environment_sample(rnd2(), pdf);
-            vec3 f = light_eval(s, v, wi);
+            vec3 f = vertex_light_eval(s, vx, lb, v, wi);
             if (pdf > 0.0 && any(greaterThan(f, vec3(0.0)))) {
                 vec3 li = environment_radiance(wi);
-                if (any(greaterThan(li, vec3(0.0))) && visible(s.po, s.ng, wi, -1.0, frame.scene_scale))
-                    radiance += throughput * f * li * (power_heuristic(pdf, bsdf_pdf(s, lb, v, wi)) / pdf);
+                if (any(greaterThan(li, vec3(0.0))) &&
+                    visible(s.po, side_normal(s, vx, wi), wi, -1.0, frame.scene_scale))
+                    radiance += throughput * f * li * (power_heuristic(pdf, vertex_pdf(s, vx, lb, v, wi)) / pdf);
             }
         }
-        if (path.info.y > 0u) {
+        if (path.info.y > 0u && !smooth_glass) {
             vec3 wi, target, li;
             float pdf;
             if (sample_emitter(s.po, wi, target, li, pdf)) {
-                vec3 f = light_eval(s, v, wi);
-                vec3 o = offset_ray(s.po, s.ng);
+                vec3 f = vertex_light_eval(s, vx, lb, v, wi);
+                vec3 o = offset_ray(s.po, side_normal(s, vx, wi));
                 if (any(greaterThan(f * li, vec3(0.0))) && !bvh_occluded(o, target - o, 0.0, 1.0))
-                    radiance += throughput * f * li * (power_heuristic(pdf, bsdf_pdf(s, lb, v, wi)) / pdf);
+                    radiance += throughput * f * li * (power_heuristic(pdf, vertex_pdf(s, vx, lb, v, wi)) / pdf);
             }
         }
         // the BSDF sample: the next segment
-        vec3 l = sample_bsdf(s, lb, v);
-        float pdf = bsdf_pdf(s, lb, v, l);
-        vec3 f = bsdf_eval(s, v, l);
-        if (pdf <= 0.0 || all(equal(f, vec3(0.0)))) break;
-        throughput *= f / pdf;
+        vec3 l;
+        float pdf = 0.0;   // (0 after a delta lobe: what it hits next counts without MIS)
+        if (smooth_glass) {
+            vec3 weight;
+            l = smooth_dielectric_sample(s.ns, v, vx.eta, s.base, rnd(), weight);
+            throughput *= weight;
+        } else {
+            l = vx.glass ? rough_dielectric_sample(s.ns, v, vx.eta, lb.alpha, rnd2(), rnd()) : sample_bsdf(s, lb, v);
+            pdf = vertex_pdf(s, vx, lb, v, l);
+            vec3 f = vx.glass ? rough_dielectric_eval(s.ns, v, l, vx.eta, lb.alpha, s.base) : bsdf_eval(s, v, l);
+            if (pdf <= 0.0 || all(equal(f, vec3(0.0)))) break;
+            throughput *= f / pdf;
+        }
         last_pdf = pdf;
         if (depth >= 3u) {   // Russian roulette
             float q = min(max(throughput.r, max(throughput.g, throughput.b)), 0.95);
             if (rnd() >= q) break;
             throughput /= q;
         }
-        o = offset_ray(s.p, s.ng);
+        o = offset_ray(s.p, side_normal(s, vx, l));
         d = l;
     }
     return radiance;

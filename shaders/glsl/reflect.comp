@@ -44,16 +44,6 @@ layout(set = 0, binding = 10) uniform usamplerBuffer triangles;   // 2 per flat 
 #include "light_sample.glsl"
 #include "hit_shading.glsl"
 
-// The radiance leaving the hit `s` towards -d (the ray's origin): its emission and lights (hit_shading.glsl) and the
-// split-sum environment.
-vec3 shade_hit(Surface s, vec3 d, vec2 rot) {
-    vec3 v = -d;
-    vec3 color = hit_direct(s, v, rot);
-    vec3 spec = ibl_specular_albedo(s.ns, v, s.base, s.metallic, s.roughness, s.spec);
-    color += ibl_diffuse(s.ns, spec, s.base, s.metallic) + spec * ibl_specular_radiance(s.ns, v, s.roughness);
-    return color;
-}
-
 void main() {
     ivec2 px = ivec2(share_invocation(WORK_SHARES, gl_WorkGroupSize).xy);
     uint w = frame.width, h = frame.height;

@@ -53,6 +53,9 @@ struct Surface {
     vec4 spec;            // KHR_materials_specular: colour, factor (brdf.glsl fresnel_gltf)
     float area;           // the triangle's world area (emitters' pdf)
     uint emitter;         // 1 + its emitter record, or 0
+    bool front;           // the ray came from the winding's front side (outside a closed mesh)
+    float transmission;   // KHR_materials_transmission's part of the dielectric (0 where not transmissive)
+    float ior;            // KHR_materials_ior
 };
 
 Surface surface_at(BvhHit hit, vec3 d) {
@@ -102,6 +105,10 @@ Surface surface_at(BvhHit hit, vec3 d) {
     s.spec = texelFetch(materials, m + 5);
     s.emission = front ? texelFetch(materials, m + 3).rgb * texture_at(handles.w, uv).rgb : vec3(0.0);
     s.emitter = front ? t.emitter : 0u;
+    s.front = front;
+    vec4 tr = texelFetch(materials, m + 6);   // transmission, ior
+    s.transmission = tr.x;
+    s.ior = tr.y;
     // the normal map, in the tangent frame the G-buffer resolve uses (T = dP/du orthonormalized, B = +-N x T)
     vec2 d1 = t.b1.zw - t.b0.zw, d2 = t.b2.zw - t.b0.zw;
     float det = d1.x * d2.y - d2.x * d1.y;

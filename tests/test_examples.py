@@ -106,6 +106,8 @@ def test_aovs_to_files(tmp_path):
         "instance_id": (48, 64),
         "reflection_raw": (48, 64, 3),
         "reflection": (48, 64, 3),
+        "gi_raw": (48, 64, 3),
+        "gi": (48, 64, 3),
         "transparency": (48, 64, 3),
         "semantic_id": (48, 64),
     }

@@ -1,7 +1,8 @@
 """The path tracer against Mitsuba 3's `path` integrator (tools/mitsuba_path.py): a Cornell box lit by an emissive
 quad (diffuse, rough-metal and smooth-metal spheres), a rect light with an emissive sphere, an instanced scene
 (two-level BVH, a mirror) under a sun, a point light and the constant environment, two spheres lit by an
-environment map, a smooth and a rough glass sphere, blended quads, alpha-masked quads. The converged
+environment map, a smooth and a rough glass sphere, blended quads, alpha-masked quads, a textured normal-mapped
+glTF dome (a .glb loaded by the engine's glTF loader). The converged
 RMSE / mean, estimated from two seeds per side (the noise both images carry taken out), must stay within the
 bound, and each image's mean within a fraction of a percent of Mitsuba's.
 

@@ -114,6 +114,28 @@ def test_light_types_agree_in_their_limits(make_renderer):
     assert abs(mean(DirectionalLight((0.2, -1.0, 0.1), intensity=1.0, angle=1.0)) / sun - 1) < 0.01
 
 
+def test_normal_map_shades_like_its_normal(make_renderer):
+    """A Lambert floor (KHR_materials_specular 0) whose normal map tilts every normal 0.4 along +u (the floor's +x),
+    under a sun of no extent, direct light only: the radiance is base x cos(mapped normal, light) for suns from
+    either side along x and overhead, and equals the raster's (the shading normal of the map, not the
+    interpolated one)."""
+    n = np.array([0.4, 0.0, 1.0]) / np.hypot(0.4, 1.0)
+    texture = np.full((4, 4, 4), 255, np.uint8)
+    texture[..., :3] = np.round((n * 0.5 + 0.5) * 255)
+    decoded = texture[0, 0, :3] / 255 * 2 - 1  # (tangent, bitangent, normal) -> world (x, -z, y) on this floor
+    mapped = np.array([decoded[0], decoded[2], -decoded[1]]) / np.linalg.norm(decoded)
+    floor = quad([(-2, 0, 2), (2, 0, 2), (2, 0, -2), (-2, 0, -2)])  # u along +x, v along +z
+    material = Material("bumps", (0.5, 0.5, 0.5), specular=0.0, normal_texture=texture)
+    r = make_renderer(16, 16)
+    for d in ((0.0, -1.0, 0.0), (0.6, -1.0, 0.0), (-0.6, -1.0, 0.0)):
+        scene = scene_of([(floor, material)], ((0.0, 3.0, 0.01), (0.0, 0.0, 0.0), 30.0), [DirectionalLight(d)])
+        path = r.render(scene, spp=4, max_depth=2, **PATH).aov["radiance"][4:12, 4:12]
+        raster = r.render(scene, shadows="hard", ao=False, ambient=0.0, aovs=("radiance",)).aov["radiance"][4:12, 4:12]
+        expected = 0.5 * max(float(mapped @ -np.asarray(d)) / np.linalg.norm(d), 0.0)
+        np.testing.assert_allclose(path, expected, rtol=0.01)
+        np.testing.assert_allclose(path, raster, rtol=0.01)
+
+
 def test_more_bounces_add_light(make_renderer):
     """Indirect light: depth 4 is brighter than depth 2 on the floor by the sphere, and depth 1 sees only emitters
     (none here: black)."""

@@ -35,6 +35,7 @@ from engine import Renderer, Scene  # noqa: E402
 from engine.bench.pathscenes import scene_of  # noqa: E402
 from engine.scene import DirectionalLight, Material, PointLight  # noqa: E402
 from engine.scene import primitives  # noqa: E402
+from engine.scene._check import srgb_to_linear  # noqa: E402
 
 #: The RMSE (relative to the mean radiance, edges excluded) each scene must stay within.
 RMSE_BOUND = 0.02
@@ -173,13 +174,32 @@ BSDF_CHOICES = {
 }
 
 
+def base_colour(m: Material) -> dict:
+    """The material's base colour as a Mitsuba texture: its factor, or with a base colour texture a bilinear
+    `bitmap` (`raw`: no conversion by Mitsuba) of the texels decoded as ours (the GPU's sRGB format: the exact sRGB
+    curve per texel, before filtering) times the factor, u and v as ours."""
+    import mitsuba as mi
+
+    factor = np.asarray(m.base_color[:3], np.float64)
+    if m.texture is None or np.all(m.texture[..., :3] == 255):
+        return {"type": "rgb", "value": [float(x) for x in factor]}
+    linear = srgb_to_linear(m.texture[..., :3] / 255.0) * factor
+    return {
+        "type": "bitmap",
+        "raw": True,
+        "filter_type": "bilinear",
+        "bitmap": mi.Bitmap(linear.astype(np.float32)),
+    }
+
+
 def mitsuba_bsdf(m: Material, choice: str = "gltf") -> dict:
     """Mitsuba's BSDF for a glTF material. `principled` (base_color, metallic, roughness; specular 0.5 gives
     F0 = 0.04, Schlick Fresnel for metals) for metals and rough dielectrics; at roughness 1 a dielectric is closest to
     Lambert `diffuse` (principled's Disney diffuse adds retro-reflection). The alternatives: roughconductor (GGX,
     alpha = roughness^2, a constant F = base colour) and roughplastic (GGX over a Lambert base, IOR 1.5). A dielectric
-    of KHR_materials_specular factor 0 is Lambert: `diffuse`, whatever the choice."""
-    rgb = {"type": "rgb", "value": [float(x) for x in m.base_color[:3]]}
+    of KHR_materials_specular factor 0 is Lambert: `diffuse`, whatever the choice. A base colour texture becomes a
+    `bitmap` (`base_colour`)."""
+    rgb = base_colour(m)
     if m.metallic <= 0.0 and m.specular <= 0.0:  # KHR_materials_specular 0: no specular lobe, Lambert exactly
         return {"type": "diffuse", "reflectance": rgb}
     metal, matte, dielectric = BSDF_CHOICES[choice]
@@ -252,8 +272,6 @@ def mitsuba_material(m: Material, choice: str = "gltf") -> dict:
                 "bitmap": mi.Bitmap(m.normal_texture[..., :3].astype(np.float32) / 255.0),
             },
         }
-    if m.texture is not None and np.any(m.texture[..., :3] != 255):
-        raise ValueError(f"material {m.name!r}: the comparison takes a white base colour texture (alpha only)")
     if m.alpha_mode != "OPAQUE":
         cutoff = 0.5 if m.alpha_mode == "BLEND" else m.alpha_cutoff
         alpha = (m.texture[..., 3] / 255.0 if m.texture is not None else np.ones((1, 1))) * float(m.base_color[3])

@@ -124,7 +124,7 @@ Surface surface_at(BvhHit hit, vec3 d) {
             vec3 tn = texture_at(handles.z, uv).xyz * 2.0 - 1.0;
             vec3 mapped = tan_ * (tn.x * factors.w) + bit * (tn.y * factors.w) + n0 * tn.z;
             float ml = length(mapped);
-            if (ml > 1e-6) ns = side * mapped / ml;
+            if (ml > 1e-6) s.ns = side * mapped / ml;
         }
     }
     return s;

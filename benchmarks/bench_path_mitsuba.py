@@ -15,7 +15,6 @@ ours is also given against a long render of ours (`noise`: its Monte Carlo error
 from __future__ import annotations
 
 import argparse
-import json
 import math
 import platform
 import sys
@@ -32,6 +31,7 @@ sys.path.insert(0, str(ROOT / "tools"))
 import mitsuba_path as mp  # noqa: E402
 
 from engine import Renderer  # noqa: E402
+from engine.bench.report import write_json  # noqa: E402
 
 
 def render_ours(r: Renderer, spec, spp: int, seed: int) -> np.ndarray:
@@ -165,10 +165,9 @@ def main(argv=None) -> int:
         "scenes": rows,
     }
     if a.json:
-        p = Path(a.json)
-        p.parent.mkdir(parents=True, exist_ok=True)
-        p.write_text(json.dumps(res, indent=2) + "\n")
-        print(f"JSON: {p}")
+        Path(a.json).parent.mkdir(parents=True, exist_ok=True)
+        write_json(res, a.json)
+        print(f"JSON: {a.json}")
     return 0
 
 

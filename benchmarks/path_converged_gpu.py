@@ -12,7 +12,6 @@ with its own seed; ours in one render per seed (it accumulates batches itself)."
 from __future__ import annotations
 
 import argparse
-import json
 import sys
 import tempfile
 import time
@@ -27,6 +26,7 @@ sys.path.insert(0, str(ROOT / "tools"))
 import mitsuba_path as mp  # noqa: E402
 
 from engine import Renderer  # noqa: E402
+from engine.bench.report import write_json  # noqa: E402
 
 
 def mitsuba_image(spec, variant: str, spp: int, pass_spp: int, seed: int) -> np.ndarray:
@@ -83,9 +83,8 @@ def main(argv=None) -> int:
             "bound": mp.RMSE_BOUND,
             "scenes": rows,
         }
-        p = Path(a.json)
-        p.parent.mkdir(parents=True, exist_ok=True)
-        p.write_text(json.dumps(res, indent=2) + "\n")
+        Path(a.json).parent.mkdir(parents=True, exist_ok=True)
+        write_json(res, a.json)
     return 0 if all(row["rmse"] <= mp.RMSE_BOUND for row in rows) else 1
 
 

@@ -4,13 +4,12 @@ upload included) and the best of the repeats after it, samples per second, and t
 
 from __future__ import annotations
 
-import json
 import platform
 import time
-from pathlib import Path
 
 from ..renderer import Renderer
 from .pathscenes import cornell_box
+from .report import write_json
 
 DEFAULT_SIZE = (320, 180)
 DEFAULT_SPP = 64
@@ -60,8 +59,6 @@ def run_path_cli(args, size) -> int:
     res = run_path_bench(size, device=args.device)
     print(format_path_report(res))
     if args.json:
-        p = Path(args.json)
-        p.parent.mkdir(parents=True, exist_ok=True)
-        p.write_text(json.dumps(res, indent=2) + "\n")
-        print(f"\nJSON: {p}")
+        write_json(res, args.json)
+        print(f"\nJSON: {args.json}")
     return 0

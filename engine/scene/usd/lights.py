@@ -36,11 +36,7 @@ _POLE_Z = np.array([[1.0, 0.0, 0.0], [0.0, 0.0, -1.0], [0.0, 1.0, 0.0]])
 def read_light(prim, kind: str, world: np.ndarray, time, where: str) -> Light:
     """The light of a DistantLight, SphereLight or RectLight prim placed by `world` (4, 4)."""
     lux = pxr().UsdLux
-    what = f"{where}: light {shown(str(prim.GetPath()))}"
-    get = _getter(prim, time)
-    api = lux.LightAPI(prim)
-    radiance = _radiance(api, get)
-    color = np.asarray(get(api.GetColorAttr(), (1.0, 1.0, 1.0)), dtype=np.float64)
+    what, get, api, radiance, color = _light_inputs(prim, time, where)
     normalize = bool(get(api.GetNormalizeAttr(), False))
     a = world[:3, :3]
     try:
@@ -81,11 +77,7 @@ def read_dome(prim, world: np.ndarray, time, where: str, up_axis: str) -> Enviro
     `up_axis` ("Y" or "Z"): its latlong texture (.hdr or .exr) times its colour, or its colour alone where it has no
     texture or the texture cannot be used (one warning naming the file), at intensity * 2^exposure."""
     lux = pxr().UsdLux
-    what = f"{where}: light {shown(str(prim.GetPath()))}"
-    get = _getter(prim, time)
-    api = lux.LightAPI(prim)
-    radiance = _radiance(api, get)
-    color = np.asarray(get(api.GetColorAttr(), (1.0, 1.0, 1.0)), dtype=np.float64)
+    what, get, _, radiance, color = _light_inputs(prim, time, where)
     dome = lux.DomeLight_1(prim) if str(prim.GetTypeName()) == "DomeLight_1" else lux.DomeLight(prim)
     image = _dome_map(dome, get, what)
     try:
@@ -134,6 +126,15 @@ def _turn(frame: np.ndarray, what: str) -> float:
     if tilt > 0.01:
         log.warning(f"{what}: its pole is tilted {tilt:.3g} degrees from the up axis; only its turn about it is used")
     return math.degrees(math.atan2(axes[0, 2], axes[2, 2]))
+
+
+def _light_inputs(prim, time, where: str) -> tuple:
+    """What every UsdLux light reads: (its name for messages, `_getter`'s get, its LightAPI, intensity *
+    2^exposure, its colour as float64 (3,))."""
+    get = _getter(prim, time)
+    api = pxr().UsdLux.LightAPI(prim)
+    color = np.asarray(get(api.GetColorAttr(), (1.0, 1.0, 1.0)), dtype=np.float64)
+    return f"{where}: light {shown(str(prim.GetPath()))}", get, api, _radiance(api, get), color
 
 
 def _radiance(api, get) -> float:

@@ -657,15 +657,7 @@ class Renderer(Closes):
             raise ConfigError(f"render(): scene must be an engine.Scene (Scene.load(path)), got {type(scene).__name__}")
         if camera is not None and not isinstance(camera, Camera):
             raise ConfigError(f"render(): camera must be an engine.Camera or None, got {type(camera).__name__}")
-        own = getattr(scene, "settings", None) or {}
-        try:
-            cfg = check_settings({**own, **settings})
-        except ConfigError as exc:  # where the bad setting came from: the scene's [settings] (not overridden)?
-            try:
-                check_settings({k: v for k, v in own.items() if k not in settings})
-            except ConfigError as own_exc:
-                raise ConfigError(f"{scene.name}: [settings]: {own_exc}") from None
-            raise exc from None
+        asked, cfg = frame_settings(scene, settings)
         camera = camera if camera is not None else scene.camera
         if not polled:
             self._poll_shaders()
@@ -769,8 +761,8 @@ class Renderer(Closes):
         )
         self._ray_camera(camera, reset)
         self._history_key = history_key
-        self._steady = Steady.capture(scene, camera, settings, readback, lights, (cmd, marks, cfg, len(lights)))
-        return cmd, marks, dict(cfg), len(lights)
+        self._steady = Steady.capture(scene, camera, settings, readback, lights, (cmd, marks, asked, len(lights)))
+        return cmd, marks, dict(asked), len(lights)
 
     def _prepare_steady(self, steady):
         """The same scene, lights, camera and settings as the last frame: its command buffer, and a frame block
@@ -1236,3 +1228,26 @@ class _Flight:
             wait_fences(ctx, [self.fence])
             reset_fences(ctx, [self.fence])
             self.waited = True
+
+
+def frame_settings(scene: Scene, settings: dict) -> tuple[dict, dict]:
+    """(the settings asked for, the settings drawn with): `settings` over the scene's [settings], checked (an error
+    names the scene's [settings] where the bad value came from there); drawn, transparency is off where no material
+    needs it (nothing to draw: no pass recorded)."""
+    own = getattr(scene, "settings", None) or {}
+    try:
+        cfg = check_settings({**own, **settings})
+    except ConfigError as exc:  # where the bad setting came from: the scene's [settings] (not overridden)?
+        try:
+            check_settings({k: v for k, v in own.items() if k not in settings})
+        except ConfigError as own_exc:
+            raise ConfigError(f"{scene.name}: [settings]: {own_exc}") from None
+        raise exc from None
+    if cfg["transparency"] and not draws_transparency(scene):
+        return cfg, dict(cfg, transparency=False)
+    return cfg, cfg
+
+
+def draws_transparency(scene: Scene) -> bool:
+    """Whether a material of `scene` is transmissive or blended: the transparency pass has something to draw."""
+    return any(m.transmission > 0.0 or m.alpha_mode == "BLEND" for m in scene.materials)

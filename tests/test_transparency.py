@@ -97,6 +97,20 @@ def test_debug_view_shows_the_rays_radiance(renders):
     assert np.all(view.color[floor][:, :3] == np.array([0, 0, 38]))
 
 
+def test_a_scene_without_glass_or_blend_records_no_transparency_pass(shared_device):
+    """Transparency on, nothing transmissive or blended: the frame is the one without it (no pass recorded, the
+    same pixels), and its settings still say what was asked."""
+    from engine import Renderer
+
+    objs = [(quad([(-2, 0, 2), (2, 0, 2), (2, 0, -2), (-2, 0, -2)]), Material("floor", (0.8, 0.8, 0.8)))]
+    scene = scene_of(objs, ((0, 1.3, 2.4), (0, 0.35, 0), 40.0), [DirectionalLight((0.3, -1.0, 0.4))], "opaque")
+    with Renderer(W, H, device=shared_device) as r:
+        on = r.render(scene, transparency=True, aovs=("radiance",))
+        off = r.render(scene, transparency=False, aovs=("radiance",))
+    assert "transparency" not in on.timings and on.settings["transparency"] is True
+    np.testing.assert_array_equal(on.aov["radiance"], off.aov["radiance"])
+
+
 def test_viewer_key_9_toggles_transparency(make_viewer):
     import glfw
 

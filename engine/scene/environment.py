@@ -33,7 +33,7 @@ from .hdr import read_hdr
 SKY_FRACTION = 0.2
 GROUND_ALBEDO = 0.2
 SKY_SIZE = (128, 256)  # rows, columns of the baked sky
-CONSTANT_SIZE = (32, 64)  # rows, columns of a constant environment's map (its SH irradiance within 0.1%)
+CONSTANT_SIZE = (32, 64)  # rows, columns of a constant environment's map (fine enough for its SH irradiance)
 DEFAULT_TURBIDITY = 2.5
 _uids = itertools.count()
 

@@ -127,19 +127,9 @@ class Material:
         self.normal_scale = self._number(normal_scale, "normal_scale", -_check.MAX_VALUE, _check.MAX_VALUE)
         self.occlusion_strength = self._number(occlusion_strength, "occlusion_strength", 0.0, 1.0)
         self.alpha_cutoff = self._number(alpha_cutoff, "alpha_cutoff", 0.0, 1.0)
-        try:
-            e = _check.color(emissive, "emissive", error=SceneError)
-        except SceneError as exc:
-            raise SceneError(f"material {self.name!r}: {exc}") from None
-        self.emissive = e.astype(np.float32)
-        self.emissive.setflags(write=False)
+        self.emissive = self._color(emissive, "emissive")
         self.specular = self._number(specular, "specular", 0.0, 1.0)
-        try:
-            sc = _check.color(specular_color, "specular_color", error=SceneError)
-        except SceneError as exc:
-            raise SceneError(f"material {self.name!r}: {exc}") from None
-        self.specular_color = sc.astype(np.float32)
-        self.specular_color.setflags(write=False)
+        self.specular_color = self._color(specular_color, "specular_color")
         self.transmission = self._number(transmission, "transmission", 0.0, 1.0)
         self.ior = self._number(ior, "ior", *IOR_RANGE)
         mode = alpha_mode.upper() if isinstance(alpha_mode, str) else alpha_mode
@@ -162,6 +152,15 @@ class Material:
             return _check.number(value, field, min_value=lo, max_value=hi, error=SceneError)
         except SceneError as exc:
             raise SceneError(f"material {self.name!r}: {exc}") from None
+
+    def _color(self, value, field: str) -> NDArray[np.float32]:
+        """A read-only float32 (3,) colour, checked (an error names the material and the field)."""
+        try:
+            c = _check.color(value, field, error=SceneError).astype(np.float32)
+        except SceneError as exc:
+            raise SceneError(f"material {self.name!r}: {exc}") from None
+        c.setflags(write=False)
+        return c
 
     def _texture(self, texture, field: str) -> NDArray[np.uint8] | None:
         if texture is None:

@@ -2,7 +2,7 @@
 
 #: Largest vertex (and ray origin) coordinate magnitude accepted. The watertight triangle test (bvh.glsl
 #: bvh_triangle_) forms t * det in float32, which grows as the cube of the coordinates: within this bound it stays
-#: finite for directions of length >= ~1e-3 (docs/benchmarks.md "Limits" has the measurements).
+#: finite for directions of length >= ~1e-3 (docs/limits.md "Coordinate limits" has the measurements).
 MAX_COORD = 1e11
 
 #: Smallest largest-component magnitude of a ray direction (2^-63, about 1.1e-19). The traversal (bvh.glsl

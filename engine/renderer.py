@@ -725,6 +725,7 @@ class Renderer(Closes):
         self._path_ready(scene, cfg)
         self._traced_ready(scene, cfg)
         self._transparency_ready(scene, cfg)
+        self._gi_bounce_ready(cfg)
         if key not in self._commands:
             cmd, ts = self._record(cfg, len(lights), readback, rays)
             self._commands[key] = (cmd, list(ts.names))
@@ -914,6 +915,15 @@ class Renderer(Closes):
             self.transparency = self._new_trace(TransparencyPass)
             self.passes.append(self.transparency)
         self._trace_data_ready(self.transparency, scene)
+
+    def _gi_bounce_ready(self, cfg):
+        """The reflection and transmission rays' hits lit by the diffuse GI's irradiance where it is traced
+        (gi_lookup.glsl), by the environment's where not."""
+        bounce = bool(cfg["gi"]) and cfg["integrator"] != "path"
+        for p in (self.reflections[0] if self.reflections else None, self.transparency):
+            if p is not None and p.values.get("GI_BOUNCE", False) != bounce:
+                p.specialize(GI_BOUNCE=bounce)
+                self._invalidate_commands()
 
     def _new_trace(self, kind):
         """A pass of class `kind` whose rays are shaded at their hits, bound to the scene's geometry, environment

@@ -9,7 +9,7 @@ import numpy as np
 import pytest
 
 from engine import Camera, DirectionalLight, Material
-from engine.bench.pathscenes import interior_room
+from engine.bench.pathscenes import cornell_box, interior_room
 from engine.errors import ConfigError
 from helpers import ball_over_ground, filters_follow_settings, toggles_with_key
 from helpers import place as place_at
@@ -60,9 +60,46 @@ def test_the_bounced_light_of_a_room_converges_towards_the_path_tracer(make_rend
     assert abs(on.aov["radiance"][..., :3].mean() - level) < 0.25 * level, (on.aov["radiance"].mean(), level)
 
 
+def test_the_first_frame_follows_the_bounces_it_cannot_read_back(make_renderer):
+    """A first frame has no irradiance to read back at its rays' hits: its rays (4 per cell) follow the bounces
+    beyond, so the room's mean is within 15% of the path tracer's at once (one bounce alone: 29% short) and its
+    block error under half the direct-only frame's."""
+    off, one, _on, ref = room_frames(make_renderer(W, H), spp=256)
+    want = blocks(ref.aov["radiance"][..., :3])
+
+    def err(f):
+        return float(np.abs(blocks(f.aov["radiance"][..., :3]) - want).mean())
+
+    level = ref.aov["radiance"][..., :3].mean()
+    assert abs(one.aov["radiance"][..., :3].mean() - level) < 0.15 * level, (one.aov["radiance"].mean(), level)
+    assert err(one) < 0.5 * err(off), (err(one), err(off))
+
+
+def test_an_emissive_quad_lights_the_box_through_its_samples(make_renderer):
+    """The Cornell box lit by its emissive quad alone (the raster's lights do not see it): the GI samples the quad
+    with a shadow ray per cell beside its cosine ray (weighted by multiple importance), so the first frame's block
+    error is under half the direct-only frame's (the cosine rays alone, which seldom hit the quad: 0.62x) and 16
+    frames' under 0.4x."""
+    scene = cornell_box()
+    scene.lights.clear()
+    r = make_renderer(W, H)
+    ref = r.render(scene, **LIT, integrator="path", spp=256, seed=1, aovs=("radiance",))
+    want = blocks(ref.aov["radiance"][..., :3])
+
+    def err(f):
+        return float(np.abs(blocks(f.aov["radiance"][..., :3]) - want).mean())
+
+    off = frames(r, scene, 1, gi=False, aovs=("radiance",))
+    one = frames(r, scene, 1, gi=True, aovs=("radiance",))
+    on = frames(r, scene, 15, gi=True, aovs=("radiance",))
+    assert err(one) < 0.5 * err(off), (err(one), err(off))
+    assert err(on) < 0.4 * err(off), (err(on), err(off))
+
+
 def test_full_resolution_gi_converges_too_and_switches_back(make_renderer):
     """gi_resolution "full" (a ray per pixel) converges as "half" does; switched back to "half", a renderer is as
-    close to the path tracer after 8 frames as one that only ever had "half" (within 10%: other random numbers)."""
+    close to the path tracer after 8 frames as one that only ever had "half" (within 25%: other random numbers, and
+    the fresh renderer's first frame, which follows more rays)."""
     r = make_renderer(W, H)
     scene = room()
     off = frames(r, scene, 1, gi=False, aovs=("radiance",))
@@ -76,7 +113,7 @@ def test_full_resolution_gi_converges_too_and_switches_back(make_renderer):
         return float(np.abs(blocks(f.aov["radiance"][..., :3]) - want).mean())
 
     assert err(full) < 0.4 * err(off), (err(full), err(off))
-    assert err(half) < 1.1 * err(lone), (err(half), err(lone))
+    assert err(half) < 1.25 * err(lone), (err(half), err(lone))
 
 
 @pytest.mark.parametrize("value", ["quarter", 2, None])

@@ -73,6 +73,7 @@ class PathScene:
             "instances": BufferView(self.instance_buffer, RGBA32F),
             "emitters": BufferView(self.emitter_buffer, RGBA32F),
         }
+        self.emitter_buffer.view(np.uint32)[:4] = 0  # no emitters: a count of 0 (emitters.glsl emitter_count)
         self._written = None  # the transforms last written
         self.update(scene)
 
@@ -96,8 +97,9 @@ class PathScene:
         self._written = transforms.copy()
 
     def _write_emitters(self, transforms) -> None:
-        """Per emissive triangle (flat id bits, CDF up to and with it, its probability): power = luminance of the
-        emitted radiance times the world area (the constant pi of Lambertian emission cancels)."""
+        """Per emissive triangle (flat id bits, CDF up to and with it, its probability; the first record's w the
+        count's bits): power = luminance of the emitted radiance times the world area (the constant pi of Lambertian
+        emission cancels)."""
         e = self.emitters
         xf = transforms[self.tri_instance[e]]
         p = self.positions[self.tri_vertices[e]]  # (E, 3, 3) object space
@@ -111,6 +113,7 @@ class PathScene:
         rec = self.emitter_buffer.view(np.float32)[: 4 * len(e)].reshape(len(e), 4)
         rec.view(np.uint32)[:, 0] = e
         rec[:, 1], rec[:, 2], rec[:, 3] = cdf, prob, 0.0
+        rec.view(np.uint32)[0, 3] = len(e)  # the count (emitters.glsl emitter_count)
 
     def bind(self, dset, names=None) -> None:
         """Its texel views into `dset` by binding name (`names`: only these; default: all)."""

@@ -51,9 +51,6 @@ class GITracePass(ReflectionTracePass):
         **{k: v for k, v in ReflectionTracePass.bindings.items() if k != "raw"},
         "raw": write("buffer", "gi.raw"),
         "cells": write("buffer", "gi.cells"),
-        "h_position": read("image", "hist_position"),  # the previous frame's G-buffer, where the hits look up
-        "h_normal": read("image", "hist_normal"),
-        "prev": read("buffer", "gi.final"),  # the previous frame's irradiance, upsampled
     }
 
     def constants(self, ctx) -> dict:

@@ -36,7 +36,12 @@ class ReflectionTracePass(RayPass):
         "instances": read("uniform_texel"),
         "vertices": read("uniform_texel"),
         "triangles": read("uniform_texel"),
+        "emitters": read("uniform_texel"),  # emitters.glsl: the emissive triangles' CDF
         "env": read("buffer"),  # environment.glsl: bound by bind_environment
+        # gi_lookup.glsl: the previous frame's G-buffer and diffuse GI, which light the hits (GI_BOUNCE)
+        "h_position": read("image", "hist_position"),
+        "h_normal": read("image", "hist_normal"),
+        "gi_prev": read("buffer", "gi.final"),
     }
 
     def __init__(self, ctx, library, resources, bvh_set, bvh_layout="binary"):
@@ -51,8 +56,8 @@ class ReflectionTracePass(RayPass):
         self.set.bind("env", env.buffer)
 
     def bind_data(self, data, geometry) -> None:
-        """The scene's triangle and instance buffers (a PathScene, as the path tracer's) and its materials."""
-        data.bind(self.set, ("vertices", "triangles", "instances"))
+        """The scene's triangle, instance and emitter buffers (a PathScene, as the path tracer's) and its materials."""
+        data.bind(self.set, ("vertices", "triangles", "instances", "emitters"))
         self.set.bind("materials", geometry.views[3])
         self.scene_data = data
 

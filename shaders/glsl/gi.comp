@@ -1,14 +1,16 @@
 #version 450
 #extension GL_GOOGLE_include_directive : require
 // Diffuse global illumination from the G-buffer at half resolution: per 2x2 cell one cosine-weighted ray about the
-// normal of the cell's pixel whose turn it is this frame (gi_cells.glsl), traced on the scene's BVH. A ray that leaves the scene sees the environment; at a hit the surface is shaded as the path
+// normal of the cell's pixel whose turn it is this frame (gi_cells.glsl), traced on the scene's BVH, and one
+// emissive triangle sampled with a shadow ray (emitters.glsl; the two weighted by the power heuristic where the ray
+// hits an emitter). A ray that leaves the scene sees the environment; at a hit the surface is shaded as the path
 // tracer's vertex (hit_shading.glsl: its emission, each analytic light sampled once with a shadow ray) plus its
 // diffuse lobe lit by the irradiance this pass found there in the previous frame, read back where the previous
-// frame's G-buffer saw the same surface (the previous frame's filtered `prev` at the hit's reprojected pixel): each
-// frame adds a bounce, so the light converges over frames to all bounces between the surfaces the camera sees. A hit
-// the previous frame did not see (off screen, hidden) takes the ray's own pixel's irradiance instead (the classic
-// ambient estimate of the bounces beyond: close in a room, where what a point sees is lit as it is). Analytic
-// lights are never hit: the lighting pass's direct term holds them.
+// frame's G-buffer saw the same surface (gi_lookup.glsl): each frame adds a bounce, so the light converges over
+// frames to all bounces between the surfaces the camera sees. A hit the previous frame did not see (off screen,
+// hidden) takes the ray's own pixel's irradiance instead (the classic ambient estimate of the bounces beyond: close
+// in a room, where what a point sees is lit as it is); on a first frame, one emissive triangle's light instead.
+// Analytic lights are never hit: the lighting pass's direct term holds them.
 // With cosine-weighted directions the ray's radiance is an estimate of the irradiance over pi, the quantity the
 // lighting's diffuse lobe multiplies (as ibl.glsl's environment_irradiance). Metals (no diffuse lobe) and the
 // background are not traced (w = 0). Writes rgb, w = 1 where traced, per cell; and the cell's G-buffer (the traced
@@ -43,43 +45,32 @@ layout(set = 0, binding = 5) uniform samplerBuffer materials;     // MATERIAL_TE
 layout(set = 0, binding = 8) uniform samplerBuffer instances;     // 6 per instance: model rows 0-2, normal rows 3-5
 layout(set = 0, binding = 9) uniform samplerBuffer vertices;      // 2 texels per vertex: (p, n.x), (n.yz, uv)
 layout(set = 0, binding = 10) uniform usamplerBuffer triangles;   // 2 per flat triangle (engine/gpu/pathscene.py)
-layout(set = 0, binding = 12, rgba32f) uniform readonly image2D h_position;   // the previous frame's G-buffer
-layout(set = 0, binding = 13, rgba32f) uniform readonly image2D h_normal;
-layout(std430, set = 0, binding = 14) readonly buffer Prev { vec4 prev[]; };  // the previous frame's GI, upsampled
 layout(std430, set = 0, binding = 16) writeonly buffer Cells { vec4 cells[]; };  // 2 per cell: (p, depth), (n, 1 + turn)
 
 #include "scene_surface.glsl"
 #include "light_sample.glsl"
+#define EMITTERS_BINDING 17
+#include "emitters.glsl"
+#define GI_LOOKUP_BINDING 12
+#include "gi_lookup.glsl"
 #include "hit_shading.glsl"
 
-const float NORMAL_COS = 0.8;     // the previous frame's pixel saw the hit's surface: normals within ~37 degrees
-const float PLANE_REL = 0.01;     // and its point within 1% of the depth plus PLANE_PIXELS pixels of the hit's plane
-const float PLANE_PIXELS = 2.0;
+const uint FIRST_RAYS = 4u;   // rays per cell on a frame without history (a first frame, a reset)
+const uint BOUNCES = 2u;      // the diffuse bounces a ray follows past its hit until it finds light read back
 
-// The irradiance (over pi) at the hit last frame: where the previous frame's G-buffer saw its surface, the GI found
-// there; else `own` (the ray's pixel's: w = 0 where there is none).
-vec4 irradiance_at(Surface s, vec4 own) {
-    vec4 clip = frame.prev_view_proj * vec4(s.p, 1.0);
-    if (clip.w <= 0.0) return own;
-    vec2 ndc = clip.xy / clip.w;
-    if (any(greaterThanEqual(abs(ndc), vec2(1.0)))) return own;
-    ivec2 q = ivec2((ndc * 0.5 + 0.5) * vec2(frame.width, frame.height));
-    q = clamp(q, ivec2(0), ivec2(int(frame.width) - 1, int(frame.height) - 1));
-    vec4 qn = imageLoad(h_normal, q);
-    if (qn.w <= 0.0 || dot(qn.xyz, s.ns) < NORMAL_COS) return own;
-    float tol = PLANE_REL * clip.w + PLANE_PIXELS * pixel_footprint(clip.w);
-    if (abs(dot(imageLoad(h_position, q).xyz - s.p, qn.xyz)) > tol) return own;
-    vec4 e = prev[uint(q.y) * frame.width + uint(q.x)];
-    return e.w > 0.0 ? e : own;
-}
-
-// The hit's diffuse lobe lit by the irradiance at it last frame (none on a first frame).
-vec3 bounced(Surface s, vec3 v, uint pixel) {
-    if (frame.history_reset > 0.5 || s.metallic >= 1.0) return vec3(0.0);
-    vec4 e = irradiance_at(s, prev[pixel]);
-    if (e.w <= 0.0) return vec3(0.0);
-    vec3 spec = ibl_specular_albedo(s.ns, v, s.base, s.metallic, s.roughness, s.spec);
-    return (1.0 - spec) * (1.0 - s.metallic) * s.base * e.rgb;
+// The emissive triangles' light at the traced pixel (p, normal n) over pi, as the cosine-weighted ray's radiance
+// estimates it: one emitter sampled with a shadow ray, weighted against the cosine ray's chance of hitting the same
+// point (the power heuristic; the cosine ray's emission hit takes the other weight).
+vec3 pixel_emitters(vec3 p, vec3 n, vec2 rot) {
+    if (emitter_count() == 0u) return vec3(0.0);
+    vec3 wi, target, li;
+    float pdf;
+    if (!sample_emitter(p, emitter_xi(frame.frame_index, rot), wi, target, li, pdf) || pdf <= 0.0) return vec3(0.0);
+    float c = dot(n, wi);
+    if (c <= 0.0 || all(equal(li, vec3(0.0)))) return vec3(0.0);
+    vec3 o = offset_ray(p, n);
+    if (bvh_occluded(o, target - o, 0.0, 1.0)) return vec3(0.0);
+    return li * (c / (PI * pdf)) * power_heuristic(pdf, c / PI);
 }
 
 void main() {
@@ -113,16 +104,29 @@ void main() {
     vec3 n = nrm.xyz, p = pos.xyz;
     vec3 v = normalize(frame.eye - p);
     if (dot(n, v) <= 0.0) n = normalize(n - v * (dot(n, v) - 1e-3));   // seen from behind: bent towards the eye
-    vec3 d = cosine_hemisphere(n, r2(frame.frame_index, pixel_rotation(uvec2(px), 0x68e31da4u)));
-    BvhHit hit = bvh_intersect(offset_ray(p, n), d, 0.0, BVH_INF);
-    vec3 radiance;
-    if (hit.prim < 0) {
-        radiance = environment_radiance(d);
-    } else {
-        Surface s = surface_at(hit, d);
-        radiance = hit_direct(s, -d, pixel_rotation(uvec2(px), 0x1b873593u));
-        radiance += bounced(s, -d, pixel);
+    // one ray, FIRST_RAYS on a frame without history
+    uint rays = frame.history_reset > 0.5 ? FIRST_RAYS : 1u;
+    vec3 radiance = vec3(0.0);
+    for (uint k = 0u; k < rays; ++k) {
+        uint stream = 0x68e31da4u + 0x9e3779b9u * k;
+        // the 16 cells of a 4x4 tile take consecutive points of one sequence: stratified over the tile
+        uvec2 tc = uvec2(cell) & 3u;
+        uint slot = (tc.y << 2u) | tc.x;
+        vec3 d = cosine_hemisphere(n, r2(frame.frame_index * 16u + slot, pixel_rotation(uvec2(cell) >> 2u, stream)));
+        BvhHit hit = bvh_intersect(offset_ray(p, n), d, 0.0, BVH_INF);
+        vec2 rot = pixel_rotation(uvec2(px), stream ^ 0x1b873593u);
+        if (hit.prim < 0) {
+            radiance += environment_radiance(d);
+        } else {
+            Surface s = surface_at(hit, d);
+            float w = s.emitter != 0u ? power_heuristic(dot(n, d) / PI, emitter_pdf(s, d, hit.t)) : 1.0;
+            radiance += hit_direct(s, -d, rot, w);
+            vec4 own = frame.history_reset > 0.5 ? vec4(0.0) : gi_prev[pixel];
+            radiance += bounced_light(s, -d, own, rot, pcg_hash(pixel ^ stream) + frame.frame_index, BOUNCES);
+        }
+        radiance += pixel_emitters(p, n, pixel_rotation(uvec2(px), stream ^ 0x85ebca6bu));
     }
+    radiance /= float(rays);
     if (any(isnan(radiance)) || any(isinf(radiance))) radiance = vec3(0.0);
     raw[ci] = vec4(radiance, 1.0);
 }

@@ -32,7 +32,7 @@ void main() {
     }
     vec4 pos = cells[2u * ci];
     vec3 n = cells[2u * ci + 1u].xyz;
-    float sigma = RADIUS_PIXELS / float(GI_CELL) * inversesqrt(c.w);   // in cells
+    float sigma = RADIUS_PIXELS / float(GI_CELL) * pow(c.w, -0.75);   // in cells
     float tol = PLANE_CELLS * float(GI_CELL * pc.step) * pixel_footprint(pos.w);
     float inv_s2 = 1.0 / (sigma * sigma), inv_tol = 1.0 / max(tol, 1e-6);
     vec3 sum = vec3(0.0);

@@ -66,7 +66,6 @@ layout(set = 0, binding = 4) uniform usamplerBuffer triangles;    // 2 per flat 
                                                                   // (material, emitter + 1 or 0, 0, 0)
 layout(set = 0, binding = 5) uniform samplerBuffer materials;     // MATERIAL_TEXELS per material
 layout(set = 0, binding = 8) uniform samplerBuffer instances;     // 6 per instance: model rows 0-2, normal rows 3-5
-layout(set = 0, binding = 9) uniform samplerBuffer emitters;      // per emissive triangle: (triangle bits, cdf, prob)
 layout(set = 0, binding = 10, rgba8) uniform writeonly image2D out_color;
 layout(set = 0, binding = 11, rgba16f) uniform writeonly image2D out_hdr;
 
@@ -75,11 +74,8 @@ layout(push_constant) uniform Push { uint mode; uint index; } pc;
 #include "scene_surface.glsl"
 #include "dielectric.glsl"
 #include "light_sample.glsl"
-
-float power_heuristic(float a, float b) {
-    float a2 = a * a, b2 = b * b;
-    return a2 + b2 > 0.0 ? a2 / (a2 + b2) : 0.0;
-}
+#define EMITTERS_BINDING 9   // per emissive triangle: (triangle bits, cdf, prob)
+#include "emitters.glsl"
 
 // ---- the BSDF sampled ----------------------------------------------------------------------------------------
 vec3 sample_bsdf(Surface s, Lobes lb, vec3 v) {
@@ -143,42 +139,6 @@ vec3 lights_hit(vec3 o, vec3 d, float t_max, float bsdf_pdf_) {
         sum += li * (bsdf_pdf_ > 0.0 ? power_heuristic(bsdf_pdf_, pdf) : 1.0);
     }
     return sum;
-}
-
-// One emissive triangle picked by power (the host's CDF), a uniform point on it: its radiance towards p, the
-// direction, the point moved off its triangle towards p (the shadow ray's end: a ray that ended on the triangle
-// would hit it short of its end where it is seen edge-on), and the solid-angle pdf.
-bool sample_emitter(vec3 p, out vec3 wi, out vec3 target, out vec3 li, out float pdf) {
-    uint n = path.info.y;
-    float x = rnd();
-    uint lo = 0u, hi = n - 1u;   // the first record whose cdf > x
-    while (lo < hi) {
-        uint mid = (lo + hi) >> 1;
-        if (texelFetch(emitters, int(mid)).y > x) hi = mid; else lo = mid + 1u;
-    }
-    vec4 rec = texelFetch(emitters, int(lo));
-    Tri t = load_tri(floatBitsToUint(rec.x));
-    vec2 xi = rnd2();
-    float su = sqrt(xi.x);
-    float u = su * (1.0 - xi.y), v = su * xi.y;   // barycentrics of p1, p2
-    vec3 q = (1.0 - u - v) * t.p0 + u * t.p1 + v * t.p2;
-    vec3 c = cross(t.p1 - t.p0, t.p2 - t.p0);
-    float area = 0.5 * length(c);
-    vec3 to = q - p;
-    float d2 = dot(to, to);
-    wi = to * inversesqrt(d2);
-    float cos_l = -dot(wi, c) / (2.0 * area);
-    if (cos_l <= 0.0 || area <= 0.0) return false;   // its back face (no emission) or degenerate
-    target = offset_ray(q, c / (2.0 * area));
-    li = tri_emission(t, u, v);
-    pdf = rec.z * d2 / (area * cos_l);
-    return true;
-}
-
-// The solid-angle pdf with which sample_emitter picks the point a BSDF ray hit at distance t.
-float emitter_pdf(Surface s, vec3 d, float t) {
-    float prob = texelFetch(emitters, int(s.emitter) - 1).z;
-    return prob * t * t / (s.area * max(dot(s.ng, -d), 1e-8));
 }
 
 // ---- a vertex's BSDF: the opaque glTF BRDF or the dielectric interface -----------------------------------------
@@ -261,7 +221,9 @@ vec3 trace_path(vec3 o, vec3 d) {
         if (path.info.y > 0u && !smooth_glass) {
             vec3 wi, target, li;
             float pdf;
-            if (sample_emitter(s.po, wi, target, li, pdf)) {
+            float pick = rnd();
+            vec2 xi = rnd2();
+            if (sample_emitter(s.po, vec3(pick, xi), wi, target, li, pdf)) {
                 vec3 f = vertex_light_eval(s, vx, lb, v, wi);
                 vec3 o = offset_ray(s.po, side_normal(s, vx, wi));
                 if (any(greaterThan(f * li, vec3(0.0))) && !bvh_occluded(o, target - o, 0.0, 1.0))

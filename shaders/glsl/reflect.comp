@@ -42,6 +42,11 @@ layout(set = 0, binding = 10) uniform usamplerBuffer triangles;   // 2 per flat 
 
 #include "scene_surface.glsl"
 #include "light_sample.glsl"
+#define EMITTERS_BINDING 17
+#include "emitters.glsl"
+#include "filter.glsl"
+#define GI_LOOKUP_BINDING 12
+#include "gi_lookup.glsl"
 #include "hit_shading.glsl"
 
 void main() {

@@ -46,6 +46,11 @@ layout(set = 0, binding = 13, rgba8) uniform readonly image2D g_pbr;   // roughn
 #include "scene_surface.glsl"
 #include "dielectric.glsl"
 #include "light_sample.glsl"
+#define EMITTERS_BINDING 17
+#include "emitters.glsl"
+#include "filter.glsl"
+#define GI_LOOKUP_BINDING 18
+#include "gi_lookup.glsl"
 #include "hit_shading.glsl"
 
 // The radiance along the ray (o, d): its first hit shaded, or the environment.

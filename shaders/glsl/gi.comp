@@ -7,9 +7,11 @@
 // tracer's vertex (hit_shading.glsl: its emission, each analytic light sampled once with a shadow ray) plus its
 // diffuse lobe lit by the irradiance this pass found there in the previous frame, read back where the previous
 // frame's G-buffer saw the same surface (gi_lookup.glsl): each frame adds a bounce, so the light converges over
-// frames to all bounces between the surfaces the camera sees. A hit the previous frame did not see (off screen,
-// hidden) takes the ray's own pixel's irradiance instead (the classic ambient estimate of the bounces beyond: close
-// in a room, where what a point sees is lit as it is); on a first frame, one emissive triangle's light instead.
+// frames to all bounces between the surfaces the camera sees. Past a hit the previous frame did not see (off screen,
+// hidden) the path goes on for BOUNCES diffuse bounces until one can be read back (hit_shading.glsl bounced_light),
+// and past those the ray's own pixel's irradiance stands in (the classic ambient estimate of the bounces beyond:
+// close in a room, where what a point sees is lit as it is). A frame without history traces FIRST_RAYS rays of
+// FIRST_BOUNCES bounces per cell.
 // Analytic lights are never hit: the lighting pass's direct term holds them.
 // With cosine-weighted directions the ray's radiance is an estimate of the irradiance over pi, the quantity the
 // lighting's diffuse lobe multiplies (as ibl.glsl's environment_irradiance). Metals (no diffuse lobe) and the
@@ -55,8 +57,9 @@ layout(std430, set = 0, binding = 16) writeonly buffer Cells { vec4 cells[]; }; 
 #include "gi_lookup.glsl"
 #include "hit_shading.glsl"
 
-const uint FIRST_RAYS = 4u;   // rays per cell on a frame without history (a first frame, a reset)
-const uint BOUNCES = 2u;      // the diffuse bounces a ray follows past its hit until it finds light read back
+const uint BOUNCES = 2u;         // the diffuse bounces a ray follows past its hit until it finds light read back
+const uint FIRST_RAYS = 8u;      // rays per cell on a frame without history (a first frame, a reset)
+const uint FIRST_BOUNCES = 3u;   // and their bounces (no light to read back anywhere)
 
 // The emissive triangles' light at the traced pixel (p, normal n) over pi, as the cosine-weighted ray's radiance
 // estimates it: one emitter sampled with a shadow ray, weighted against the cosine ray's chance of hitting the same
@@ -122,7 +125,8 @@ void main() {
             float w = s.emitter != 0u ? power_heuristic(dot(n, d) / PI, emitter_pdf(s, d, hit.t)) : 1.0;
             radiance += hit_direct(s, -d, rot, w);
             vec4 own = frame.history_reset > 0.5 ? vec4(0.0) : gi_prev[pixel];
-            radiance += bounced_light(s, -d, own, rot, pcg_hash(pixel ^ stream) + frame.frame_index, BOUNCES);
+            uint seed = pcg_hash(pixel ^ stream) + frame.frame_index;
+            radiance += bounced_light(s, -d, own, rot, seed, frame.history_reset > 0.5 ? FIRST_BOUNCES : BOUNCES);
         }
         radiance += pixel_emitters(p, n, pixel_rotation(uvec2(px), stream ^ 0x85ebca6bu));
     }

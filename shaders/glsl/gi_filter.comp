@@ -2,9 +2,10 @@
 #extension GL_GOOGLE_include_directive : require
 // Spatial filter of the diffuse GI's accumulated cells (gi_temporal.comp), at their half resolution: iterations of
 // an edge-aware a-trous 5x5 kernel with holes of pc.step cells, its taps weighted by the normals' agreement, the
-// distance to the centre's tangent plane and a Gaussian of the tap's distance that shrinks as the history grows
-// (accumulated frames need less spatial help). The cells' G-buffer is the one their rays left from (gi.comp).
-// Untraced cells (w = 0) pass through and are never taps.
+// distance to the centre's tangent plane, a Gaussian of the tap's distance that shrinks as the history grows
+// (accumulated frames need less spatial help) and, once LUM_FRAMES are accumulated, the luminances' agreement
+// (relative, its tolerance shrinking with the noise: the emitters' contact shadows keep their edges). The cells'
+// G-buffer is the one their rays left from (gi.comp). Untraced cells (w = 0) pass through and are never taps.
 #include "common.glsl"
 FRAME_BLOCK
 #include "filter.glsl"
@@ -19,6 +20,8 @@ layout(push_constant) uniform Push { uint step; } pc;
 const float KERNEL[3] = float[](0.375, 0.25, 0.0625);
 const float RADIUS_PIXELS = 24.0;   // the Gaussian's sigma on a first frame
 const float PLANE_CELLS = 1.5;
+const float LUM_K = 1.0;        // the luminance tolerance, relative, times 1 / sqrt(history)
+const float LUM_FRAMES = 4.0;   // the history from which it applies (before, a single ray's noise is all there is)
 
 void main() {
     ivec2 cell = ivec2(gl_GlobalInvocationID.xy);
@@ -32,7 +35,7 @@ void main() {
     }
     vec4 pos = cells[2u * ci];
     vec3 n = cells[2u * ci + 1u].xyz;
-    float sigma = RADIUS_PIXELS / float(GI_CELL) * pow(c.w, -0.75);   // in cells
+    float sigma = RADIUS_PIXELS / float(GI_CELL) * inversesqrt(c.w);   // in cells
     float tol = PLANE_CELLS * float(GI_CELL * pc.step) * pixel_footprint(pos.w);
     float inv_s2 = 1.0 / (sigma * sigma), inv_tol = 1.0 / max(tol, 1e-6);
     vec3 sum = vec3(0.0);
@@ -54,6 +57,10 @@ void main() {
             c2 *= c2;   // the normals' cosine to the 16th power: squared below
             float wk = KERNEL[abs(dx)] * KERNEL[abs(dy)] * c2 * c2;
             wk *= exp(-0.5 * dist2 * inv_s2 - plane * inv_tol);   // the distance's Gaussian times the plane's
+            if (c.w >= LUM_FRAMES) {
+                float lc = luminance(c.rgb), lq = luminance(s.rgb);
+                wk *= exp(-abs(lc - lq) / (LUM_K * max(lc, lq) * inversesqrt(c.w) + 1e-4));
+            }
             sum += wk * s.rgb;
             wsum += wk;
         }

@@ -164,8 +164,21 @@ def rays_fine(o: np.ndarray, d: np.ndarray) -> bool:
     of, df = o.reshape(-1), d.reshape(-1)  # flat views: numpy reduces them faster than the (N, 3) arrays
     if not (of.min() >= -MAX_COORD and of.max() <= MAX_COORD and df.min() >= -_F32_MAX and df.max() <= _F32_MAX):
         return False  # (NaN fails every comparison)
-    # too short: every component below MIN_DIRECTION (zero included), i.e. the OR of the three components' float32
-    # bits has bits 6 and 7 of its exponent field clear
+    return _long_enough(d)
+
+
+def rays6_fine(r: np.ndarray) -> bool:
+    """rays_fine of float32 (N, 6) rays (origin, direction; rows contiguous) without copying the halves out: where
+    every value is within +-MAX_COORD (finite directions among them) only the directions' length is left to test."""
+    flat = r.reshape(-1)
+    if flat.min() >= -MAX_COORD and flat.max() <= MAX_COORD:
+        return _long_enough(r[:, 3:])
+    return rays_fine(r[:, :3], r[:, 3:])  # (a direction beyond MAX_COORD may still be fine)
+
+
+def _long_enough(d: np.ndarray) -> bool:
+    """No float32 direction (N, 3) (elements contiguous) with every component below MIN_DIRECTION (zero included),
+    i.e. the OR of the three components' float32 bits has bits 6 and 7 of its exponent field set somewhere."""
     u = d.view(np.uint32)
     e = np.bitwise_or(u[:, 0], u[:, 1])
     np.bitwise_or(e, u[:, 2], out=e)

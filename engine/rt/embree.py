@@ -25,9 +25,10 @@ from .. import native
 from ..bvh import build_bvh
 from ..errors import ConfigError
 from ..lifetime import Closes
+from ..limits import MAX_COORD
 from ..parallel import default_threads, run
 from .backend import TRACERS, check_backend
-from .checks import check_mesh, check_rays, rays_fine, result_arrays
+from .checks import check_mesh, check_rays, rays6_fine, rays_fine, result_arrays
 from .closest import Closest, check_points, real_triangles
 from .cuda_arrays import on_cuda
 from .tracer import Hits, Tracer
@@ -216,10 +217,31 @@ TRACERS["embree"] = EmbreeTracer
 
 
 # ---- RaycastingScene's per-ray work on Embree, fused per block ----------------------------------------------------
+def _parts(n: int, threads: int) -> list[tuple[int, int]]:
+    """(start, end) of equal blocks of range(n), about BLOCK rays each, as many as a multiple of `threads`: the pool's
+    threads get the same number of rays and end together (no short last block left to one of them)."""
+    if not n:
+        return []
+    per_thread = -(-n // (BLOCK * threads))  # (ceiling divisions)
+    count = min(n, per_thread * threads)
+    bounds = [n * i // count for i in range(count + 1)]
+    return list(zip(bounds[:-1], bounds[1:]))
+
+
+def _on_parts(block, n: int, threads: int) -> None:
+    """block(start, end) for each of `_parts(n, threads)`, on the worker pool."""
+    run([lambda s=s, e=e: block(s, e) for s, e in _parts(n, threads)], threads)
+
+
 def _block(rays: np.ndarray, s: int, e: int, center: np.ndarray, near: float = 0.0):
     """float32 origins (moved by `near` along the direction, less `center`, in float64 as RaycastingScene does) and
-    directions of rays[s:e] ((N, 6), any float dtype), or None where one fails the Tracer's checks (`rays_fine`)."""
+    directions of rays[s:e] ((N, 6), any float dtype), or None where one fails the Tracer's checks (`rays_fine`).
+    float32 rays traced as given are views of the rows (embreex reads strided rows): no copy."""
     r = rays[s:e]
+    if not len(r):
+        return None
+    if not near and not center.any() and r.dtype == np.float32 and r.strides[1] == 4:
+        return (r[:, :3], r[:, 3:]) if rays6_fine(r) else None
     if near or center.any():
         o = r[:, :3].astype(np.float64)
         if near:
@@ -228,13 +250,13 @@ def _block(rays: np.ndarray, s: int, e: int, center: np.ndarray, near: float = 0
     else:
         o = np.ascontiguousarray(r[:, :3], dtype=np.float32)
     d = np.ascontiguousarray(r[:, 3:], dtype=np.float32)
-    return (o, d) if len(o) and rays_fine(o, d) else None
+    return (o, d) if rays_fine(o, d) else None
 
 
 def scene_cast_rays(tracer: EmbreeTracer, rays: np.ndarray, center, geometry, primitive, normal, invalid: int):
-    """RaycastingScene.cast_rays' answer for (N, 6) float rays on Embree: each block of rays converted, checked,
-    traced and mapped to geometry / primitive ids, uvs and normals on the worker pool, in one pass; None where a ray
-    fails the checks (RaycastingScene's own checks then name it)."""
+    """RaycastingScene.cast_rays' answer for (N, 6) float rays on Embree: each block of rays checked, traced and
+    mapped to geometry / primitive ids, uvs and normals on the worker pool (`_cast_block`), one task per block; None
+    where a ray fails the checks (RaycastingScene's own checks then name it)."""
     n = len(rays)
     out = {
         "t_hit": np.empty(n, np.float32),
@@ -244,32 +266,47 @@ def scene_cast_rays(tracer: EmbreeTracer, rays: np.ndarray, center, geometry, pr
         "primitive_normals": np.empty((n, 3), np.float32),
     }
     one = int(geometry[0]) if (geometry == geometry[0]).all() and primitive[-1] == len(primitive) - 1 else None
+    # each triangle's answers, and a last row for a miss (Embree's primID -1 picks it: np.take's mode="wrap")
+    tables = {
+        "geometry_ids": np.append(geometry, np.uint32(invalid)),
+        "primitive_ids": np.append(primitive, np.uint32(invalid)),
+        "primitive_normals": np.vstack([normal, np.zeros((1, 3), normal.dtype)]),
+    }
     fine = []
 
-    def block(s):
-        e = min(s + BLOCK, n)
+    def block(s, e):
         b = _block(rays, s, e, center)
         if b is None:
             fine.append(False)
             return
-        r = tracer._scene.run(b[0], b[1], output=1)
-        prim = r["primID"]
-        hit = prim >= 0
-        out["t_hit"][s:e] = np.where(hit, r["tfar"], np.float32(np.inf))
-        if one is not None:  # one geometry: the primitive id is the triangle's (-1 is INVALID_ID as uint32)
-            out["primitive_ids"][s:e] = prim.view(np.uint32)
-            out["geometry_ids"][s:e] = np.where(hit, np.uint32(one), np.uint32(invalid))
-            safe = np.maximum(prim, 0)
-        else:
-            safe = np.maximum(prim, 0)
-            out["primitive_ids"][s:e] = np.where(hit, primitive[safe], np.uint32(invalid))
-            out["geometry_ids"][s:e] = np.where(hit, geometry[safe], np.uint32(invalid))
-        out["primitive_uvs"][s:e, 0] = np.where(hit, r["u"], np.float32(0))
-        out["primitive_uvs"][s:e, 1] = np.where(hit, r["v"], np.float32(0))
-        out["primitive_normals"][s:e] = np.where(hit[:, None], normal[safe], np.float32(0))
+        _cast_block(tracer, b, {k: a[s:e] for k, a in out.items()}, tables, one)
 
-    run([lambda s=s: block(s) for s in range(0, n, BLOCK)], tracer.threads)
+    _on_parts(block, n, tracer.threads)
     return None if fine else out
+
+
+def _cast_block(tracer: EmbreeTracer, rays: tuple, out: dict, tables: dict, one: int | None) -> None:
+    """One block of cast_rays: rays (origins, directions) traced into the block's slices `out` of the answer. Embree
+    writes t_hit itself (its tfar, left at +inf on a miss); ids and normals are gathers from `tables` (a miss picks
+    their last row); with `one` geometry, the ids are Embree's own (-1 is INVALID_ID as uint32)."""
+    t_hit = out["t_hit"]
+    t_hit.fill(np.inf)
+    r = tracer._scene.run(rays[0], rays[1], dists=t_hit, output=1)
+    prim = r["primID"]  # int32, -1 on a miss
+    missed = prim < 0
+    if one is not None:
+        out["primitive_ids"][:] = prim.view(np.uint32)
+        out["geometry_ids"][:] = np.where(missed, tables["geometry_ids"][-1], np.uint32(one))
+    else:
+        np.take(tables["primitive_ids"], prim, out=out["primitive_ids"], mode="wrap")
+        np.take(tables["geometry_ids"], prim, out=out["geometry_ids"], mode="wrap")
+    np.take(tables["primitive_normals"], prim, axis=0, out=out["primitive_normals"], mode="wrap")
+    miss = np.flatnonzero(missed)
+    u, v = r["u"], r["v"]  # (undefined on a miss: Open3D's 0 there)
+    u[miss] = 0
+    v[miss] = 0
+    out["primitive_uvs"][:, 0] = u
+    out["primitive_uvs"][:, 1] = v
 
 
 def scene_occlusions(tracer: EmbreeTracer, rays: np.ndarray, center, near: float, far: float):
@@ -281,35 +318,29 @@ def scene_occlusions(tracer: EmbreeTracer, rays: np.ndarray, center, near: float
         return out
     fine = []
 
-    def block(s):
-        e = min(s + BLOCK, n)
+    def block(s, e):
         b = _block(rays, s, e, center, near)
         if b is None:
             fine.append(False)
             return
         out[s:e] = tracer._scene.run(b[0], b[1], dists=np.float32(far - near), query="OCCLUDED") != -1
 
-    run([lambda s=s: block(s) for s in range(0, n, BLOCK)], tracer.threads)
+    _on_parts(block, n, tracer.threads)
     return None if fine else out
 
 
 # ---- RayMeshIntersector's per-ray work on Embree, fused per block -------------------------------------------------
 def mesh_first_hits(tracer: EmbreeTracer, origins: np.ndarray, directions: np.ndarray, center, factor, any_hit: bool):
     """RayMeshIntersector.intersects_first (the triangle, int64, -1 for none) or, with `any_hit`, intersects_any
-    (bool) for (N, 3) real origins and directions on Embree: per block the directions unitized and the origins moved
-    into the mesh's frame ((o - center) * factor) in float64 as RayMeshIntersector does, checked, traced; None where
-    a ray fails the checks (RayMeshIntersector's own checks then name it)."""
+    (bool) for (N, 3) real origins and directions on Embree: per block the rays put in the mesh's frame
+    (`_framed`), checked, traced; None where a ray fails the checks (RayMeshIntersector's own checks then name it)."""
     n = len(origins)
     out = np.empty(n, bool if any_hit else np.int64)
     fine = []
 
-    def block(s):
-        e = min(s + BLOCK, n)
-        d = directions[s:e].astype(np.float64)
-        with np.errstate(invalid="ignore", divide="ignore", over="ignore"):  # (a bad ray fails rays_fine below)
-            d = (d / np.linalg.norm(d, axis=1)[:, None]).astype(np.float32)
-            o = ((origins[s:e].astype(np.float64) - center) * factor).astype(np.float32)
-        if not rays_fine(o, d):
+    def block(s, e):
+        o, d = _framed(origins[s:e], directions[s:e], center, factor)
+        if o is None or not rays_fine(o, d):
             fine.append(False)
             return
         if any_hit:
@@ -317,5 +348,30 @@ def mesh_first_hits(tracer: EmbreeTracer, origins: np.ndarray, directions: np.nd
         else:
             out[s:e] = tracer._scene.run(o, d)  # (the triangle alone: -1 for none)
 
-    run([lambda s=s: block(s) for s in range(0, n, BLOCK)], tracer.threads)
+    _on_parts(block, n, tracer.threads)
     return None if fine else out
+
+
+def _framed(o: np.ndarray, d: np.ndarray, center, factor):
+    """float32 origins (o - center) * factor and unit directions d / |d|, computed in float64 as RayMeshIntersector
+    does: in one C pass (native.frame_rays, the same operations) for float rows with contiguous elements, else in
+    numpy; (None, None) where the C pass finds a ray not finite, of zero length or beyond the frame's bound."""
+    if (
+        native.library() is not None
+        and o.dtype == d.dtype
+        and o.dtype in (np.float32, np.float64)
+        and o.strides == d.strides
+        and o.strides[1] == o.itemsize
+        and o.strides[0] % o.itemsize == 0
+        and o.flags.aligned
+        and d.flags.aligned
+    ):
+        oo, dd = np.empty((len(o), 3), np.float32), np.empty((len(o), 3), np.float32)
+        if native.frame_rays(o, d, center, factor, MAX_COORD, oo, dd) >= 0:
+            return None, None
+        return oo, dd
+    d = d.astype(np.float64)
+    with np.errstate(invalid="ignore", divide="ignore", over="ignore"):  # (a bad ray fails rays_fine after)
+        d = (d / np.linalg.norm(d, axis=1)[:, None]).astype(np.float32)
+        o = ((o.astype(np.float64) - center) * factor).astype(np.float32)
+    return o, d

@@ -8,7 +8,7 @@
 // diffuse lobe lit by the irradiance this pass found there in the previous frame, read back where the previous
 // frame's G-buffer saw the same surface (gi_lookup.glsl): each frame adds a bounce, so the light converges over
 // frames to all bounces between the surfaces the camera sees. Past a hit the previous frame did not see (off screen,
-// hidden) the path goes on for BOUNCES diffuse bounces until one can be read back (hit_shading.glsl bounced_light),
+// hidden) the path goes on for BOUNCES diffuse bounces until one can be read back (hit_shading.glsl diffuse_path),
 // and past those the ray's own pixel's irradiance stands in (the classic ambient estimate of the bounces beyond:
 // close in a room, where what a point sees is lit as it is). A frame without history traces FIRST_RAYS rays of
 // FIRST_BOUNCES bounces per cell.
@@ -116,18 +116,11 @@ void main() {
         uvec2 tc = uvec2(cell) & 3u;
         uint slot = (tc.y << 2u) | tc.x;
         vec3 d = cosine_hemisphere(n, r2(frame.frame_index * 16u + slot, pixel_rotation(uvec2(cell) >> 2u, stream)));
-        BvhHit hit = bvh_intersect(offset_ray(p, n), d, 0.0, BVH_INF);
         vec2 rot = pixel_rotation(uvec2(px), stream ^ 0x1b873593u);
-        if (hit.prim < 0) {
-            radiance += environment_radiance(d);
-        } else {
-            Surface s = surface_at(hit, d);
-            float w = s.emitter != 0u ? power_heuristic(dot(n, d) / PI, emitter_pdf(s, d, hit.t)) : 1.0;
-            radiance += hit_direct(s, -d, rot, w);
-            vec4 own = frame.history_reset > 0.5 ? vec4(0.0) : gi_prev[pixel];
-            uint seed = pcg_hash(pixel ^ stream) + frame.frame_index;
-            radiance += bounced_light(s, -d, own, rot, seed, frame.history_reset > 0.5 ? FIRST_BOUNCES : BOUNCES);
-        }
+        vec4 own = frame.history_reset > 0.5 ? vec4(0.0) : gi_prev[pixel];
+        uint seed = pcg_hash(pixel ^ stream) + frame.frame_index;
+        uint bounces = frame.history_reset > 0.5 ? FIRST_BOUNCES : BOUNCES;
+        radiance += diffuse_path(offset_ray(p, n), d, n, own, rot, seed, bounces);
         radiance += pixel_emitters(p, n, pixel_rotation(uvec2(px), stream ^ 0x85ebca6bu));
     }
     radiance /= float(rays);

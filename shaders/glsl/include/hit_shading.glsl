@@ -49,33 +49,49 @@ vec3 emitter_direct(Surface s, vec3 v, vec2 rot) {
 // the frame traces diffuse GI: a hit's diffuse lobe takes its irradiance where the last frame's GI saw its surface
 layout(constant_id = 18) const bool GI_BOUNCE = false;
 
-// The light the hit s sends towards v beyond its emission and the analytic lights' (hit_direct): its diffuse lobe
-// lit by the previous frame's GI irradiance where that frame saw its surface (gi_lookup.glsl; that holds the
-// emitters' light too). Where it did not (off screen, hidden, no history), the path goes on: one emitter sampled,
-// and up to `bounces` cosine-weighted diffuse bounces, each vertex lit by its lights and one emitter (emission hit
-// along the path counts through those samples alone), ending where a vertex's irradiance can be read back; past
-// the last, `own` stands in for the irradiance there (w = 0: none).
-vec3 bounced_light(Surface s, vec3 v, vec4 own, vec2 rot, uint seed, uint bounces) {
-    vec4 e = gi_irradiance_at(s, vec4(0.0));
-    if (e.w > 0.0) return gi_diffuse(s, v, e.rgb);
-    vec3 radiance = emitter_direct(s, v, rot), throughput = vec3(1.0);
-    for (uint k = 0u; k < bounces; ++k) {
+// The light that arrives along the diffuse ray (o, d), followed as a path of up to `bounces` + 1 hits: each hit
+// lit by its emission (times the power heuristic against the emitter sampled at the ray's origin, whose normal is n0;
+// past the first hit, or where n0 is 0, the hit's emission counts through the emitter samples alone), its analytic
+// lights and one emitter, ending at the first hit whose irradiance the previous frame's GI read back (gi_lookup.glsl;
+// that holds the emitters' light too) and, past the last, taking `own` as the irradiance there (w = 0: none). The
+// first hit's light samples use `rot` (the pixel's low-discrepancy rotation), the later ones random numbers from seed.
+// One loop over one traversal: the hits share their code (llvmpipe runs untaken branches too).
+vec3 diffuse_path(vec3 o, vec3 d, vec3 n0, vec4 own, vec2 rot, uint seed, uint bounces) {
+    vec3 radiance = vec3(0.0), throughput = vec3(1.0);
+    vec2 r = rot;
+    for (uint k = 0u;; ++k) {
+        BvhHit hit = bvh_intersect(o, d, 0.0, BVH_INF);
+        if (hit.prim < 0) return radiance + throughput * environment_radiance(d);
+        Surface s = surface_at(hit, d);
+        vec3 v = -d;
+        float w = k > 0u || all(equal(n0, vec3(0.0))) ? 0.0
+                : s.emitter != 0u ? power_heuristic(dot(n0, d) / PI, emitter_pdf(s, d, hit.t)) : 1.0;
+        radiance += throughput * hit_direct(s, v, r, w);
+        vec4 e = gi_irradiance_at(s, vec4(0.0));
+        if (e.w > 0.0) return radiance + throughput * gi_diffuse(s, v, e.rgb);
+        radiance += throughput * emitter_direct(s, v, r);
+        if (k >= bounces) return radiance + (own.w > 0.0 ? throughput * gi_diffuse(s, v, own.rgb) : vec3(0.0));
         throughput *= gi_diffuse(s, v, vec3(1.0));   // the diffuse lobe's albedo: its cosine-sampled weight
         if (all(equal(throughput, vec3(0.0)))) return radiance;
         seed = pcg_hash(seed + k);
-        vec3 d = cosine_hemisphere(s.ns, vec2(u01(seed), u01(pcg_hash(seed))));
-        BvhHit hit = bvh_intersect(offset_ray(s.p, s.ng), d, 0.0, BVH_INF);
-        if (hit.prim < 0) return radiance + throughput * environment_radiance(d);
-        s = surface_at(hit, d);
-        v = -d;
-        vec2 r = vec2(u01(pcg_hash(seed + 1u)), u01(pcg_hash(seed + 2u)));
-        radiance += throughput * hit_direct(s, v, r, 0.0);
-        e = gi_irradiance_at(s, vec4(0.0));
-        if (e.w > 0.0) return radiance + throughput * gi_diffuse(s, v, e.rgb);
-        radiance += throughput * emitter_direct(s, v, r);
+        d = cosine_hemisphere(s.ns, vec2(u01(seed), u01(pcg_hash(seed))));
+        o = offset_ray(s.p, s.ng);
+        r = vec2(u01(pcg_hash(seed + 1u)), u01(pcg_hash(seed + 2u)));
     }
-    if (own.w > 0.0) radiance += throughput * gi_diffuse(s, v, own.rgb);
-    return radiance;
+}
+
+// The light the hit s sends towards v beyond its emission and the analytic lights' (hit_direct): its diffuse lobe
+// lit by the previous frame's GI irradiance where that frame saw its surface; where it did not (off screen, hidden,
+// no history), one emitter sampled and one diffuse bounce (diffuse_path).
+vec3 bounced_light(Surface s, vec3 v, vec2 rot, uint seed) {
+    vec4 e = gi_irradiance_at(s, vec4(0.0));
+    if (e.w > 0.0) return gi_diffuse(s, v, e.rgb);
+    vec3 radiance = emitter_direct(s, v, rot), throughput = gi_diffuse(s, v, vec3(1.0));
+    if (all(equal(throughput, vec3(0.0)))) return radiance;
+    seed = pcg_hash(seed);
+    vec3 d = cosine_hemisphere(s.ns, vec2(u01(seed), u01(pcg_hash(seed))));
+    vec2 r = vec2(u01(pcg_hash(seed + 1u)), u01(pcg_hash(seed + 2u)));
+    return radiance + throughput * diffuse_path(offset_ray(s.p, s.ng), d, vec3(0.0), vec4(0.0), r, seed, 0u);
 }
 #endif
 
@@ -90,7 +106,7 @@ vec3 shade_hit(Surface s, vec3 d, vec2 rot) {
 #ifdef GI_LOOKUP_BINDING
     if (GI_BOUNCE) {
         uint seed = pcg_hash(floatBitsToUint(rot.x)) + frame.frame_index;
-        return color + bounced_light(s, v, vec4(0.0), rot, seed, 1u);
+        return color + bounced_light(s, v, rot, seed);
     }
 #endif
     return color + emitter_direct(s, v, rot) + ibl_diffuse(s.ns, spec, s.base, s.metallic);

@@ -202,7 +202,7 @@ vec3 trace_path(vec3 o, vec3 d) {
             float dist, pdf;
             if (!sample_light(frame.lights[i], s.po, rnd2(), wi, dist, li, pdf)) continue;
             vec3 f = vertex_light_eval(s, vx, lb, v, wi);
-            if (all(equal(f, vec3(0.0))) || !visible(s.po, side_normal(s, vx, wi), wi, dist, frame.scene_scale))
+            if (all(equal(f * li, vec3(0.0))) || !visible(s.po, side_normal(s, vx, wi), wi, dist, frame.scene_scale))
                 continue;
             float w = pdf > 0.0 ? power_heuristic(pdf, vertex_pdf(s, vx, lb, v, wi)) : 1.0;
             radiance += throughput * f * li * (pdf > 0.0 ? w / pdf : 1.0);

@@ -19,7 +19,7 @@ vec3 hit_direct(inout Surface s, vec3 v, vec2 rot, float emission_weight) {
         vec2 xi = r2(frame.frame_index * MAX_LIGHTS + i, rot);
         if (!sample_light(frame.lights[i], s.po, xi, wi, dist, li, pdf)) continue;
         vec3 f = light_eval(s, v, wi);
-        if (all(equal(f, vec3(0.0))) || !visible(s.po, s.ng, wi, dist, frame.scene_scale)) continue;
+        if (all(equal(f * li, vec3(0.0))) || !visible(s.po, s.ng, wi, dist, frame.scene_scale)) continue;
         // area lights: one uniform sample of the light's solid angle (pdf); delta lights: their radiance as is
         color += f * li * (pdf > 0.0 ? 1.0 / pdf : 1.0);
     }

@@ -73,7 +73,8 @@ void main() {
     if (dot(d, n) <= 0.0) d = reflect(-v, n);   // below the surface (a grazing view of a rough lobe): the mirror ray
     vec3 o = offset_ray(p, n);
     BvhHit hit = bvh_intersect(o, d, 0.0, BVH_INF);
-    vec3 radiance = hit.prim < 0 ? environment_radiance(d) : shade_hit(surface_at(hit, d), d, rot);
+    vec4 own = GI_BOUNCE && frame.history_reset < 0.5 ? gi_prev[pixel] : vec4(0.0);
+    vec3 radiance = hit.prim < 0 ? environment_radiance(d) : shade_hit(surface_at(hit, d), d, rot, own);
     if (any(isnan(radiance)) || any(isinf(radiance))) radiance = vec3(0.0);
     raw[pixel] = vec4(radiance, 1.0);
 }

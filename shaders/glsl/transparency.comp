@@ -54,19 +54,19 @@ layout(set = 0, binding = 13, rgba8) uniform readonly image2D g_pbr;   // roughn
 #include "hit_shading.glsl"
 
 // The radiance along the ray (o, d): its first hit shaded, or the environment.
-vec3 trace_shaded(vec3 o, vec3 d, vec2 rot) {
+vec3 trace_shaded(vec3 o, vec3 d, vec2 rot, vec4 own) {
     BvhHit hit = bvh_intersect(o, d, 0.0, BVH_INF);
-    return hit.prim < 0 ? environment_radiance(d) : shade_hit(surface_at(hit, d), d, rot);
+    return hit.prim < 0 ? environment_radiance(d) : shade_hit(surface_at(hit, d), d, rot, own);
 }
 
 // The radiance refracted along (o, d) inside a solid, followed through up to MAX_INTERFACES interfaces.
-vec3 trace_refracted(vec3 o, vec3 d, vec2 rot) {
+vec3 trace_refracted(vec3 o, vec3 d, vec2 rot, vec4 own) {
     vec3 throughput = vec3(1.0);
     for (uint k = 0u; k < MAX_INTERFACES; ++k) {
         BvhHit hit = bvh_intersect(o, d, 0.0, BVH_INF);
         if (hit.prim < 0) return throughput * environment_radiance(d);
         Surface s = surface_at(hit, d);
-        if (s.transmission <= 0.0) return throughput * shade_hit(s, d, rot);
+        if (s.transmission <= 0.0) return throughput * shade_hit(s, d, rot, own);
         vec3 v = -d;
         vec3 n = dot(s.ns, v) > 0.0 ? s.ns : s.ng;
         float cos_t, eta = s.front ? s.ior : 1.0 / s.ior;
@@ -108,18 +108,19 @@ void main() {
     vec3 v = normalize(frame.eye - p);
     if (dot(n, v) <= 0.0) n = normalize(n - v * (dot(n, v) - 1e-3));   // seen from behind: bent towards the eye
     vec2 rot = pixel_rotation(uvec2(px), 0x68e31da4u);
+    vec4 own = GI_BOUNCE && frame.history_reset < 0.5 ? gi_prev[pixel] : vec4(0.0);
     vec3 radiance;
     if (blend) {   // what lies behind, seen with weight 1 - alpha
-        radiance = trace_shaded(offset_ray(p, -n), -v, rot);
+        radiance = trace_shaded(offset_ray(p, -n), -v, rot, own);
         weight = 1.0 - texelFetch(materials, m).a;
     } else {
         float cos_t, cos_i = dot(n, v);
         float f = fresnel_dielectric(cos_i, tr.y, cos_t);
-        radiance = f * trace_shaded(offset_ray(p, n), reflect(-v, n), rot);
+        radiance = f * trace_shaded(offset_ray(p, n), reflect(-v, n), rot, own);
         if (f < 1.0) {
             vec3 tint = imageLoad(g_albedo, px).rgb;
             vec3 d = refract_dir(v, n, cos_i, cos_t, tr.y);
-            radiance += (1.0 - f) * tint * trace_refracted(offset_ray(p, -n), d, rot);
+            radiance += (1.0 - f) * tint * trace_refracted(offset_ray(p, -n), d, rot, own);
         }
     }
     if (any(isnan(radiance)) || any(isinf(radiance))) radiance = vec3(0.0);

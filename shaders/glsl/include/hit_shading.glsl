@@ -81,33 +81,26 @@ vec3 diffuse_path(vec3 o, vec3 d, vec3 n0, vec4 own, vec2 rot, uint seed, uint b
 }
 
 // The light the hit s sends towards v beyond its emission and the analytic lights' (hit_direct): its diffuse lobe
-// lit by the previous frame's GI irradiance where that frame saw its surface; where it did not (off screen, hidden,
-// no history), one emitter sampled and one diffuse bounce (diffuse_path).
-vec3 bounced_light(Surface s, vec3 v, vec2 rot, uint seed) {
-    vec4 e = gi_irradiance_at(s, vec4(0.0));
+// lit by the previous frame's GI irradiance where that frame saw its surface, else by `own`, the ray's pixel's
+// (the classic ambient stand-in, as gi.comp's paths end); with neither (no history), one emitter sampled and the
+// environment's diffuse light.
+vec3 bounced_light(Surface s, vec3 v, vec3 spec, vec2 rot, vec4 own) {
+    vec4 e = gi_irradiance_at(s, own);
     if (e.w > 0.0) return gi_diffuse(s, v, e.rgb);
-    vec3 radiance = emitter_direct(s, v, rot), throughput = gi_diffuse(s, v, vec3(1.0));
-    if (all(equal(throughput, vec3(0.0)))) return radiance;
-    seed = pcg_hash(seed);
-    vec3 d = cosine_hemisphere(s.ns, vec2(u01(seed), u01(pcg_hash(seed))));
-    vec2 r = vec2(u01(pcg_hash(seed + 1u)), u01(pcg_hash(seed + 2u)));
-    return radiance + throughput * diffuse_path(offset_ray(s.p, s.ng), d, vec3(0.0), vec4(0.0), r, seed, 0u);
+    return emitter_direct(s, v, rot) + ibl_diffuse(s.ns, spec, s.base, s.metallic);
 }
 #endif
 
 // The radiance leaving the hit `s` towards -d (the ray's origin): hit_direct, emitter_direct and the split-sum
-// environment; where GI_BOUNCE is on, bounced_light (one bounce) in place of the emitter and the environment's
-// diffuse part (where the GI is read back, the emitters' specular highlight at the hit is left out).
-vec3 shade_hit(Surface s, vec3 d, vec2 rot) {
+// environment; where GI_BOUNCE is on, bounced_light (`own`: the ray's pixel's GI irradiance last frame) in place of
+// the emitter and the environment's diffuse part (where the GI is read back, an emitter's highlight there is lost).
+vec3 shade_hit(Surface s, vec3 d, vec2 rot, vec4 own) {
     vec3 v = -d;
     vec3 color = hit_direct(s, v, rot, 1.0);
     vec3 spec = ibl_specular_albedo(s.ns, v, s.base, s.metallic, s.roughness, s.spec);
     color += spec * ibl_specular_radiance(s.ns, v, s.roughness);
 #ifdef GI_LOOKUP_BINDING
-    if (GI_BOUNCE) {
-        uint seed = pcg_hash(floatBitsToUint(rot.x)) + frame.frame_index;
-        return color + bounced_light(s, v, rot, seed);
-    }
+    if (GI_BOUNCE) return color + bounced_light(s, v, spec, rot, own);
 #endif
     return color + emitter_direct(s, v, rot) + ibl_diffuse(s.ns, spec, s.base, s.metallic);
 }

@@ -92,3 +92,20 @@ def test_scenes_doc_example(tmp_path):
     (block,) = python_blocks("docs/scenes.md")
     res = run_block(block, tmp_path)
     assert res.returncode == 0, res.stderr[-3000:]
+
+
+def test_the_quality_tool_rewrites_its_section_and_keeps_the_words_below_it(tmp_path):
+    """tools/make_hybrid_quality.py replaces docs/quality.md's section between its two markers: the words after the
+    end marker (the hand-written reading of the table) and the other tools' sections stay."""
+    sys.path.insert(0, str(REPO / "tools"))
+    import make_hybrid_quality as m
+
+    text = (REPO / "docs" / "quality.md").read_text()
+    assert text.count(m.MARKER) == 1 and text.count(m.END) == 1
+    below = text.split(m.END, 1)[1].strip()
+    md = tmp_path / "quality.md"
+    md.write_text(text)
+    m.write_md(md, f"{m.MARKER}\nthe new table\n\n{m.END}\n")
+    out = md.read_text()
+    assert "the new table" in out and out.count(m.MARKER) == 1
+    assert out.startswith(text.split(m.MARKER, 1)[0]) and out.rstrip().endswith(below)

@@ -36,6 +36,7 @@ HYBRID = {"reflections": True, "gi": True, "transparency": True, "taa": True}
 #: issue 33's targets: mean FLIP after 1 frame and after 16 still frames
 TARGET_1, TARGET_16 = 0.15, 0.08
 MARKER = "<!-- hybrid vs path tracer: made by tools/make_hybrid_quality.py -->"
+END = "<!-- end of the section made by tools/make_hybrid_quality.py: words below it stay -->"
 
 
 def scenes() -> dict:
@@ -146,17 +147,21 @@ def markdown(rows, paths, md: Path, size, spp: int) -> str:
             f"| {row['name']} | {row['flip direct']:.3f} | {row['flip hybrid 1']:.3f} | {row['flip hybrid 16']:.3f} "
             f"| {gain:.1f}x better |"
         )
-    lines.append("")
+    lines += ["", END, ""]
     return "\n".join(lines)
 
 
 def write_md(md: Path, section: str) -> None:
-    """Replace this tool's section of `md` (from its marker to the next marker or the end), or append it."""
+    """Replace this tool's section of `md` (from its marker to its end marker, else to the next marker or the end
+    of the file), or append it."""
     text = md.read_text() if md.exists() else ""
     if MARKER in text:
         head, rest = text.split(MARKER, 1)
-        nxt = rest.find("<!-- ", 1)
-        tail = rest[nxt:] if nxt >= 0 else ""
+        if END in rest:
+            tail = rest.split(END, 1)[1].lstrip("\n")
+        else:
+            nxt = rest.find("<!-- ", 1)
+            tail = rest[nxt:] if nxt >= 0 else ""
         text = head + section + ("\n" + tail if tail else "")
     else:
         text = text.rstrip() + "\n\n" + section

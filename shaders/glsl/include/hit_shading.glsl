@@ -51,7 +51,7 @@ layout(constant_id = 18) const bool GI_BOUNCE = false;
 
 // The light that arrives along the diffuse ray (o, d), followed as a path of up to `bounces` + 1 hits: each hit
 // lit by its emission (times the power heuristic against the emitter sampled at the ray's origin, whose normal is n0;
-// past the first hit, or where n0 is 0, the hit's emission counts through the emitter samples alone), its analytic
+// past the first hit, the hit's emission counts through the emitter samples alone), its analytic
 // lights and one emitter, ending at the first hit whose irradiance the previous frame's GI read back (gi_lookup.glsl;
 // that holds the emitters' light too) and, past the last, taking `own` as the irradiance there (w = 0: none). The
 // first hit's light samples use `rot` (the pixel's low-discrepancy rotation), the later ones random numbers from seed.
@@ -64,8 +64,7 @@ vec3 diffuse_path(vec3 o, vec3 d, vec3 n0, vec4 own, vec2 rot, uint seed, uint b
         if (hit.prim < 0) return radiance + throughput * environment_radiance(d);
         Surface s = surface_at(hit, d);
         vec3 v = -d;
-        float w = k > 0u || all(equal(n0, vec3(0.0))) ? 0.0
-                : s.emitter != 0u ? power_heuristic(dot(n0, d) / PI, emitter_pdf(s, d, hit.t)) : 1.0;
+        float w = k > 0u ? 0.0 : s.emitter != 0u ? power_heuristic(dot(n0, d) / PI, emitter_pdf(s, d, hit.t)) : 1.0;
         radiance += throughput * hit_direct(s, v, r, w);
         vec4 e = gi_irradiance_at(s, vec4(0.0));
         if (e.w > 0.0) return radiance + throughput * gi_diffuse(s, v, e.rgb);

@@ -133,14 +133,16 @@ Surface surface_at(BvhHit hit, vec3 d) {
 // ---- the BSDF: glTF metallic-roughness (brdf.glsl): its lobes, pdf, value and GGX visible-normal sampling -----
 struct Lobes { float p_spec; float alpha; };
 
+// The lobe to sample: GGX with probability p_spec, by the lobes' Fresnel weights, times (1 - alpha) on a dielectric:
+// the cosine lobe covers a broad GGX one, which drawn instead only adds noise. Metals (no diffuse lobe) draw GGX.
 Lobes lobes(Surface s, vec3 v) {
     float n_v = max(dot(s.ns, v), 1e-4);
     vec3 f = fresnel_gltf(s.base, s.metallic, s.spec, n_v);
     float spec = luminance(f), diff = luminance((1.0 - f) * (1.0 - s.metallic) * s.base);
     Lobes l;   // (no specular lobe: KHR_materials_specular's factor 0 on a dielectric, pure Lambert)
-    l.p_spec = diff <= 0.0 ? 1.0 : (spec <= 0.0 ? 0.0 : clamp(spec / (spec + diff), 0.1, 0.9));
     float r = max(s.roughness, MIN_ROUGHNESS);
     l.alpha = r * r;
+    l.p_spec = diff <= 0.0 ? 1.0 : (spec <= 0.0 ? 0.0 : clamp(spec / (spec + diff), 0.1, 0.9) * (1.0 - l.alpha));
     return l;
 }
 

@@ -51,8 +51,8 @@ layout(constant_id = 18) const bool GI_BOUNCE = false;
 
 // The light that arrives along the diffuse ray (o, d), followed as a path of up to `bounces` + 1 hits: each hit
 // lit by its emission (times the power heuristic against the emitter sampled at the ray's origin, whose normal is n0;
-// past the first hit, the hit's emission counts through the emitter samples alone), its analytic
-// lights and one emitter, ending at the first hit whose irradiance the previous frame's GI read back (gi_lookup.glsl;
+// past the first hit, the hit's emission counts through the emitter samples alone), its analytic lights and one
+// emitter, ending at the first hit whose irradiance the previous frame's GI read back (gi_lookup.glsl;
 // that holds the emitters' light too) and, past the last, taking `own` as the irradiance there (w = 0: none). The
 // first hit's light samples use `rot` (the pixel's low-discrepancy rotation), the later ones random numbers from seed.
 // One loop over one traversal: the hits share their code (llvmpipe runs untaken branches too).

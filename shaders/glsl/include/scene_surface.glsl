@@ -133,8 +133,8 @@ Surface surface_at(BvhHit hit, vec3 d) {
 // ---- the BSDF: glTF metallic-roughness (brdf.glsl): its lobes, pdf, value and GGX visible-normal sampling -----
 struct Lobes { float p_spec; float alpha; };
 
-// The lobe to sample: GGX with probability p_spec, by the lobes' Fresnel weights, times (1 - alpha) on a dielectric:
-// the cosine lobe covers a broad GGX one, which drawn instead only adds noise. Metals (no diffuse lobe) draw GGX.
+// The lobe to sample: GGX with probability p_spec, by the lobes' Fresnel weights, times (1 - alpha) where there is a
+// diffuse lobe: the cosine lobe covers a broad GGX one, which drawn instead only adds noise. Pure metals draw GGX.
 Lobes lobes(Surface s, vec3 v) {
     float n_v = max(dot(s.ns, v), 1e-4);
     vec3 f = fresnel_gltf(s.base, s.metallic, s.spec, n_v);

@@ -8,7 +8,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from engine.errors import SceneError
+from engine.errors import ConfigError, SceneError
 from engine.scene import Camera, DirectionalLight, Environment, Material, Scene, Sky, primitives
 from engine.scene import envtables
 from engine.scene.environment import equirect_directions
@@ -71,6 +71,29 @@ def test_bad_maps_are_one_line_errors(tmp_path):
             Environment(square)
         except exc as e:
             assert "\n" not in str(e)
+
+
+def test_map_arrays_of_no_size_complex_or_overflowing_values_are_errors(tmp_path):
+    with pytest.raises(SceneError, match=r"environment map: an equirectangular map .* got 0x0"):
+        Environment(np.ones((0, 0, 3), np.float32))
+    with pytest.raises(SceneError, match=r"environment map: expected an \(H, W, 3\) array of real numbers"):
+        Environment(np.ones((8, 16, 3), complex))
+    with pytest.raises(SceneError, match=r"environment map: the map has values above 1e\+30"):
+        Environment(np.full((8, 16, 3), 1e38, np.float32))
+    with pytest.raises(SceneError, match=r"environment map: the map has values above 1e\+30 \(max 1e\+300\)"):
+        Environment(np.full((8, 16, 3), 1e300))  # beyond float32: reported as is, not cast to inf
+    with pytest.raises(ConfigError, match=r"environment map must be a file path or an \(H, 2H, 3\) array, got int"):
+        Environment(5)
+    # an RGBE file's largest exponent (1.7e38 per texel) would overflow the SH sums
+    big = tmp_path / "big.hdr"
+    big.write_bytes(b"#?RADIANCE\nFORMAT=32-bit_rle_rgbe\n\n-Y 8 +X 16\n" + b"\xff" * (4 * 16 * 8))
+    with pytest.raises(SceneError, match=r"big\.hdr: the map has values above 1e\+30"):
+        Environment(big)
+    # an intensity assigned after the check: the tables refuse a product past float32's range
+    env = Environment(np.full((8, 16, 3), 1e20, np.float32))
+    env.intensity = 1e20
+    with pytest.raises(SceneError, match=r"environment: intensity 1e\+20 times the map's peak 1e\+20"):
+        envtables.build(env.image(), env.intensity, env.rotation)
 
 
 def test_exr_map_reads_its_rgb_channels(tmp_path):

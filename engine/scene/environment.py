@@ -65,9 +65,11 @@ class Environment:
         self.rotation, self.intensity = _rotation_intensity(rotation, intensity, "environment")
         if isinstance(map, np.ndarray):
             self.path, self._image = None, check_map(map, "environment map")
-        else:
+        elif isinstance(map, (str, os.PathLike)):
             self.path = os.fspath(map)
             self._image = load_map(self.path)
+        else:
+            raise ConfigError(f"environment map must be a file path or an (H, 2H, 3) array, got {type(map).__name__}")
         self._image.setflags(write=False)
         self._uid = next(_uids)  # (not id(): a collected map's id may come back for another)
 
@@ -142,19 +144,23 @@ class Sky:
 
 
 def check_map(image: Any, where: str) -> np.ndarray:
-    """An (H, 2H, 3) finite non-negative float32 map, or a SceneError naming `where`."""
+    """An (H, 2H, 3) finite non-negative float32 map, values at most MAX_VALUE, or a SceneError naming `where`."""
     a = np.asarray(image)
     if a.ndim == 3 and a.shape[2] == 4:
         a = a[..., :3]
-    if a.ndim != 3 or a.shape[2] != 3 or not np.issubdtype(a.dtype, np.number):
-        raise SceneError(f"{where}: expected an (H, W, 3) RGB image, got shape {a.shape}")
+    real = np.issubdtype(a.dtype, np.integer) or np.issubdtype(a.dtype, np.floating)
+    if a.ndim != 3 or a.shape[2] != 3 or not real:
+        raise SceneError(f"{where}: expected an (H, W, 3) array of real numbers, got shape {a.shape} {a.dtype}")
     h, w = a.shape[:2]
-    if w != 2 * h:
+    if h < 1 or w != 2 * h:
         raise SceneError(f"{where}: an equirectangular map must be twice as wide as it is high (2:1), got {w}x{h}")
-    a = np.ascontiguousarray(a, dtype=np.float32)
+    a = np.asarray(a, dtype=np.float64 if a.dtype.itemsize > 4 else np.float32)
+    # (checked before the float32 copy: a float64 1e300 is reported as is, not cast to inf with a warning)
     if not np.all(np.isfinite(a)) or (a < 0).any():
         raise SceneError(f"{where}: the map has negative, NaN or infinite values")
-    return a
+    if a.max() > _check.MAX_VALUE:
+        raise SceneError(f"{where}: the map has values above {_check.MAX_VALUE:g} (max {a.max():g})")
+    return np.ascontiguousarray(a, dtype=np.float32)
 
 
 def load_map(path: str) -> np.ndarray:

@@ -23,6 +23,9 @@ from functools import lru_cache
 
 import numpy as np
 
+from engine.errors import SceneError
+
+from . import _check
 from .environment import equirect_directions
 
 HEADER = 48
@@ -169,6 +172,12 @@ def build(img: np.ndarray, intensity: float = 1.0, rotation: float = 0.0) -> np.
     img = np.asarray(img, np.float32)
     while img.shape[1] > MAX_WIDTH:
         img = resample(img, img.shape[0] // 2, img.shape[1] // 2).astype(np.float32)
+    peak = float(img.max()) * float(intensity)
+    if peak > _check.MAX_VALUE:  # (intensity may be assigned after the map's own check)
+        raise SceneError(
+            f"environment: intensity {intensity:g} times the map's peak {img.max():g} is {peak:g}, "
+            f"above {_check.MAX_VALUE:g}"
+        )
     img = img * np.float32(intensity)
     h, w = img.shape[:2]
     marg, cond = sampling_cdfs(img)

@@ -159,7 +159,8 @@ class EmbreeTracer(Closes):
                 if self._points is None:
                     self._points = Tracer(*self.mesh, backend="vulkan", **self._vulkan)
                 return self._points.closest(points)
-            p = check_points(points).astype(np.float32).astype(np.float64)  # (as the kernel reads them)
+            # (rounded as the kernel reads them; C order, as the C walk indexes them: a Fortran array keeps its order)
+            p = np.ascontiguousarray(check_points(points).astype(np.float32), np.float64)
             if self._bvh is None:
                 v, f = self.mesh
                 bvh = build_bvh(v, f)

@@ -35,6 +35,10 @@ def test_material_defaults_fields_and_errors():
         Material("x", normal_texture=np.zeros((2, 2, 3), np.uint8))
     with pytest.raises(SceneError, match=r"material 'x': emissive must be non-negative"):
         Material("x", emissive=(-1, 0, 0))
+    with pytest.raises(
+        SceneError, match=r"material 'x': base_color's alpha \(its 4th number\) must be in \[0, 1\], got 2"
+    ):
+        Material("x", base_color=(1, 0, 0, 2), alpha_mode="BLEND")
     with pytest.raises(SceneError, match="unknown field"):
         m.with_overrides(shininess=3)
 

@@ -45,8 +45,8 @@ class Material:
     specular_color=(1, 1, 1), transmission=0, ior=1.5)`.
 
     `base_color`: 3 or 4 numbers, linear RGB(A) (alpha 1 when left out), stored as (4,) float32 and multiplied with
-    `texture`, as in glTF; each in [0, 1e30]. `metallic`, `roughness` in [0, 1]: `roughness` is glTF's perceptual
-    roughness (the GGX alpha is roughness squared). `emissive`: linear RGB radiance, multiplied with
+    `texture`, as in glTF; RGB each in [0, 1e30], alpha in [0, 1]. `metallic`, `roughness` in [0, 1]: `roughness` is
+    glTF's perceptual roughness (the GGX alpha is roughness squared). `emissive`: linear RGB radiance, multiplied with
     `emissive_texture`. `normal_scale` scales the tangent-space normal map's x and y; `occlusion_strength` in [0, 1]
     blends the occlusion map in. `alpha_mode`: "OPAQUE", "MASK" (cut out where alpha < `alpha_cutoff`) or "BLEND"
     (seen with probability alpha by the path tracer's rays: a blended surface).
@@ -119,6 +119,10 @@ class Material:
             raise SceneError(
                 f"material {self.name!r}: base_color must be finite, non-negative and at most "
                 f"{_check.MAX_VALUE:g}, got {c.tolist()}"
+            )
+        if c[3] > 1.0:  # (an alpha past 1 would extrapolate the blend and the mask's coverage)
+            raise SceneError(
+                f"material {self.name!r}: base_color's alpha (its 4th number) must be in [0, 1], got {c[3]:g}"
             )
         self.base_color = c.astype(np.float32)
         self.base_color.setflags(write=False)

@@ -135,6 +135,11 @@ def test_toml_material_factors(tmp_path):
     (tmp_path / "bad.toml").write_text('[[mesh]]\nprimitive = "sphere"\nroughness = 2\n')
     with pytest.raises(SceneError, match=r"bad.toml: \[\[mesh\]\] #1: roughness must be <= 1"):
         Scene.load(tmp_path / "bad.toml")
+    (tmp_path / "bad.toml").write_text('[[mesh]]\nprimitive = "sphere"\ncolor = [1, 0, 0, 2]\nalpha_mode = "BLEND"\n')
+    with pytest.raises(
+        SceneError, match=r"bad.toml: \[\[mesh\]\] #1: color's alpha \(its 4th number\) must be in \[0, 1\]"
+    ):
+        Scene.load(tmp_path / "bad.toml")
 
 
 # ------------------------------------------------------------------------------------------------ shading

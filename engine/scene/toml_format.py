@@ -276,6 +276,8 @@ def _color(value, field: str, ctx: _Ctx, alpha: bool = False) -> np.ndarray:
         c = ctx.check(_check.vector, value, 4, field)
         if np.any(c < 0):
             raise ctx.error(f"{field} must be non-negative, got {value!r}")
+        if c[3] > 1:
+            raise ctx.error(f"{field}'s alpha (its 4th number) must be in [0, 1], got {c[3]:g}")
         return c
     c = ctx.check(_check.vector, value, 3, field) if n == 3 or not alpha else None
     if c is None:

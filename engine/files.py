@@ -191,7 +191,7 @@ def check_writable(path, what: str = "file") -> Path:
     except (UnicodeError, ValueError):  # a NUL, or text no file name can hold (a lone surrogate from Python)
         raise ConfigError(f"{shown(path)}: not a valid file name") from None
     if path.is_dir():
-        raise ConfigError(f"{path}: is a folder, not a {what}")
+        raise ConfigError(f"{path}: is a folder, not {'an' if what[:1] in 'aeiou' else 'a'} {what}")
     if not folder.is_dir():
         raise ConfigError(f"{path}: cannot write {what}: no folder {str(folder)!r}")
     try:

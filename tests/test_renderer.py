@@ -97,7 +97,7 @@ def test_render_arguments_are_checked(make_renderer, tmp_path):
     for path, word in (
         (tmp_path / "x.gif", "ending in .png"),
         (tmp_path / "no" / "x.png", "no folder"),
-        (tmp_path / "d.png", "is a folder"),
+        (tmp_path / "d.png", "is a folder, not an image"),
     ):
         with pytest.raises(ConfigError, match=word):
             f.save(path)

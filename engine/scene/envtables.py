@@ -172,10 +172,10 @@ def build(img: np.ndarray, intensity: float = 1.0, rotation: float = 0.0) -> np.
     img = np.asarray(img, np.float32)
     while img.shape[1] > MAX_WIDTH:
         img = resample(img, img.shape[0] // 2, img.shape[1] // 2).astype(np.float32)
-    peak = float(img.max()) * float(intensity)
-    if peak > _check.MAX_VALUE:  # (intensity may be assigned after the map's own check)
+    top = float(img.max())
+    if top * float(intensity) > _check.MAX_VALUE:  # (intensity may be assigned after the map's own check)
         raise SceneError(
-            f"environment: intensity {intensity:g} times the map's peak {img.max():g} is {peak:g}, "
+            f"environment: intensity {intensity:g} times the map's peak {top:g} is {top * float(intensity):g}, "
             f"above {_check.MAX_VALUE:g}"
         )
     img = img * np.float32(intensity)
